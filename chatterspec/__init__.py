@@ -1,0 +1,59 @@
+"""chatterspec: fault detection from the spectral content of SVSF chattering.
+
+The numeric core (models, scenarios, simulation, filters, spectra,
+thresholds, detection) imports only numpy and scipy. Plotting
+(:mod:`chatterspec.plotting`) and the Rerun viewer (:mod:`chatterspec.live`)
+are imported on demand.
+"""
+
+from .errors import (
+    CalibrationMismatchError,
+    ChatterspecError,
+    DataFileError,
+    ModelFileError,
+    NonFiniteError,
+    ParameterError,
+    ShapeError,
+    SingularMatrixError,
+    UnknownScenarioError,
+)
+from .filters.svsf import SVSF, auxiliary_svsf, boundary_layer_chattering, chattering
+from .models import LinearModel, discretize, eha_linear, second_order
+from .scenarios import Scenario, Segment, catalogue, scenario, scenario_names
+from .signals import Chirp, Constant, SquareWave, Step
+from .simulate import Simulation, iter_simulations, simulate
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "SVSF",
+    "CalibrationMismatchError",
+    "ChatterspecError",
+    "Chirp",
+    "Constant",
+    "DataFileError",
+    "LinearModel",
+    "ModelFileError",
+    "NonFiniteError",
+    "ParameterError",
+    "Scenario",
+    "Segment",
+    "ShapeError",
+    "Simulation",
+    "SingularMatrixError",
+    "SquareWave",
+    "Step",
+    "UnknownScenarioError",
+    "__version__",
+    "auxiliary_svsf",
+    "boundary_layer_chattering",
+    "catalogue",
+    "chattering",
+    "discretize",
+    "eha_linear",
+    "iter_simulations",
+    "scenario",
+    "scenario_names",
+    "second_order",
+    "simulate",
+]

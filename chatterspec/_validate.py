@@ -1,0 +1,89 @@
+"""Small input-validation helpers shared by the public API (private module)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from .errors import NonFiniteError, ParameterError, ShapeError
+
+
+def finite_array(
+    name: str,
+    value: object,
+    *,
+    ndim: int | Sequence[int] | None = None,
+    shape: tuple[int | None, ...] | None = None,
+    dtype: type = np.float64,
+) -> np.ndarray:
+    """Convert ``value`` to a float array and check its dimensions and finiteness.
+
+    ``shape`` entries that are ``None`` match any size.
+    """
+    try:
+        arr = np.asarray(value, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise ShapeError(f"{name} must be numeric array-like; got {type(value).__name__}") from exc
+    if ndim is not None:
+        allowed = (ndim,) if isinstance(ndim, int) else tuple(ndim)
+        if arr.ndim not in allowed:
+            raise ShapeError(
+                f"{name} must have {' or '.join(map(str, allowed))} dimension(s); got shape {arr.shape}"
+            )
+    if shape is not None:
+        if arr.ndim != len(shape) or any(
+            s is not None and s != a for s, a in zip(shape, arr.shape, strict=True)
+        ):
+            want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
+            raise ShapeError(f"{name} must have shape {want}; got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
+        raise NonFiniteError(f"{name} contains {bad} NaN/inf value(s); all entries must be finite")
+    return arr
+
+
+def positive(name: str, value: float, *, unit: str = "") -> float:
+    """Return ``float(value)`` after checking it is finite and > 0."""
+    v = _finite_scalar(name, value)
+    if not v > 0:
+        raise ParameterError(f"{name} must be > 0{(' ' + unit) if unit else ''}; got {v!r}")
+    return v
+
+
+def nonnegative(name: str, value: float) -> float:
+    v = _finite_scalar(name, value)
+    if v < 0:
+        raise ParameterError(f"{name} must be >= 0; got {v!r}")
+    return v
+
+
+def open_unit(name: str, value: float) -> float:
+    """Check ``0 < value < 1`` (used for gamma and alpha)."""
+    v = _finite_scalar(name, value)
+    if not 0.0 < v < 1.0:
+        raise ParameterError(f"{name} must lie in the open interval (0, 1); got {v!r}")
+    return v
+
+
+def positive_int(name: str, value: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise ParameterError(f"{name} must be an integer >= 1; got {value!r}")
+    if value < 1:
+        raise ParameterError(f"{name} must be an integer >= 1; got {value!r}")
+    return int(value)
+
+
+def _finite_scalar(name: str, value: float) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"{name} must be a real number; got {value!r}") from exc
+    if not np.isfinite(v):
+        raise ParameterError(f"{name} must be finite; got {v!r}")
+    return v
+
+
+def check_no_unknown_kwargs(func_name: str, kwargs: dict) -> None:
+    if kwargs:
+        raise TypeError(f"{func_name}() got unexpected keyword argument(s): {', '.join(kwargs)}")

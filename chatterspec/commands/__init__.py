@@ -1,0 +1,1 @@
+"""Subcommands of the ``chatterspec`` CLI (one module each, see :mod:`chatterspec.cli`)."""

@@ -1,0 +1,65 @@
+"""Exception types raised by chatterspec.
+
+Every error is a subclass of :class:`ChatterspecError` (itself a
+:class:`ValueError`), so ``except ValueError`` keeps working for callers that
+do not care about the detail, while tests and applications can catch the
+specific problem.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "CalibrationMismatchError",
+    "ChatterspecError",
+    "DataFileError",
+    "ModelFileError",
+    "NonFiniteError",
+    "ParameterError",
+    "ShapeError",
+    "SingularMatrixError",
+    "UnknownScenarioError",
+    "UnstableModelWarning",
+]
+
+
+class ChatterspecError(ValueError):
+    """Base class of every chatterspec error."""
+
+
+class ShapeError(ChatterspecError):
+    """An array has the wrong number of dimensions or the wrong size."""
+
+
+class NonFiniteError(ChatterspecError):
+    """An array holds NaN or infinite values where finite numbers are required."""
+
+
+class SingularMatrixError(ChatterspecError):
+    """A matrix that must be inverted (e.g. C for the full-measurement SVSF) is singular."""
+
+
+class ParameterError(ChatterspecError):
+    """A scalar parameter is out of its admissible range (psi <= 0, gamma outside (0, 1), ...)."""
+
+
+class UnknownScenarioError(ChatterspecError, KeyError):
+    """A scenario name is not in the catalogue; the message lists the valid names."""
+
+    def __str__(self) -> str:  # KeyError would repr() the message
+        return str(self.args[0]) if self.args else ""
+
+
+class ModelFileError(ChatterspecError):
+    """A model file (TOML) cannot be read or describes an invalid model."""
+
+
+class DataFileError(ChatterspecError):
+    """A measurement data file (CSV/NPZ) cannot be read or is inconsistent."""
+
+
+class CalibrationMismatchError(ChatterspecError):
+    """A saved calibration does not belong to the model/settings it is applied to."""
+
+
+class UnstableModelWarning(UserWarning):
+    """The nominal model has eigenvalues outside the unit circle."""

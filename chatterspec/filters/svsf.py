@@ -1,0 +1,505 @@
+"""Smooth Variable Structure Filter (SVSF) and its auxiliary ``sgn`` variant.
+
+Implements eq (4)-(12) of Saeedzadeh et al. (2023):
+
+* prediction (4)-(5): ``x(k+1|k) = A x(k|k) + B u(k)``, ``z(k+1|k) = C x(k+1|k)``;
+* output errors (6)-(7): ``e(k+1|k) = z(k+1) - z(k+1|k)``, ``e(k|k) = z(k) - C x(k|k)``;
+* correction (8) for full measurement (C square and invertible)::
+
+      K = C^-1 (|e(k+1|k)| + gamma |e(k|k)|) o sat(e(k+1|k) / psi)
+
+* correction (9)-(11) for fewer measurements than states, through
+  Luenberger's reduced-order form with ``Phi = T^-1 A T``::
+
+      K_u = C1^-1 (|e(k+1|k)| + gamma |e(k|k)|) o sat(e(k+1|k) / psi_u)
+      K_l = (|Phi22 Phi12^-1 e(k+1|k)| + gamma |Phi12^-1 e(k|k)|) o sat(Phi22 Phi12^-1 e(k+1|k) / psi_l)
+
+* update (12): ``x(k+1|k+1) = x(k+1|k) + K``.
+
+The auxiliary filter of section III replaces ``sat`` by ``sgn``; its a-priori
+output error ``e(k|k-1)`` is the chattering signal (eq 17).
+
+Implementation
+--------------
+The filter runs in measurement-aligned coordinates ``y = S x`` with
+``S = [[C], [E_l]]`` (``E_l`` selects the states not used by ``C1``), so that
+the first ``m`` coordinates *are* the measured outputs (``C S^-1 = [I 0]``).
+For full measurement ``S = C`` and ``Phi = C A C^-1``; this is algebraically
+identical to eq (4)-(12) and makes ``C1^-1`` the identity. There is one
+kernel, :meth:`SVSF.update`, which advances any number of realizations
+(leading axis) by a chunk of any length (1 sample for online use, the whole
+record for batch use); :meth:`SVSF.run` is a thin loop-free wrapper around it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import scipy.linalg
+
+from .._validate import finite_array, open_unit
+from ..errors import ParameterError, ShapeError, SingularMatrixError
+from ..models import LinearModel
+
+__all__ = [
+    "SVSF",
+    "SVSFOutput",
+    "SVSFState",
+    "auxiliary_svsf",
+    "boundary_layer_chattering",
+    "chattering",
+]
+
+Switching = Literal["sat", "sgn"]
+
+
+@dataclass(frozen=True, eq=False)
+class SVSFState:
+    """Filter state between chunks.
+
+    Attributes
+    ----------
+    y : (runs, n) array
+        A-posteriori estimate in measurement-aligned coordinates (``x = S^-1 y``).
+    e_post : (runs, m) array
+        A-posteriori output error ``e(k|k)``.
+    k : int
+        Index of the last processed sample.
+    """
+
+    y: np.ndarray
+    e_post: np.ndarray
+    k: int
+
+    @property
+    def runs(self) -> int:
+        return self.y.shape[0]
+
+
+@dataclass(frozen=True, eq=False)
+class SVSFOutput:
+    """Per-sample outputs of one :meth:`SVSF.update` call, shapes ``(runs, K, .)``.
+
+    ``e_prior`` is ``e(k|k-1)`` (the auxiliary filter's chattering, eq 17);
+    ``x_post``, ``e_post`` and (reduced-order only) ``e_lower`` =
+    ``Phi22 Phi12^-1 e(k|k-1)``, the argument of the unmeasured states' switching
+    term (eq 10, 28), are filled only when requested.
+    """
+
+    e_prior: np.ndarray
+    x_post: np.ndarray | None = None
+    e_post: np.ndarray | None = None
+    e_lower: np.ndarray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class SVSF:
+    """SVSF with a smoothing boundary layer (``switching="sat"``) or the auxiliary ``sgn`` filter.
+
+    Parameters
+    ----------
+    model : LinearModel
+        Nominal model (A-hat, B-hat, C-hat).
+    psi : float or array, optional
+        Smoothing boundary layer (> 0), in output units. Length ``m`` for full
+        measurement; for the reduced-order filter either ``m`` (measured part
+        only; the unmeasured part then uses ``psi_lower``) or ``n`` values.
+        Required for ``switching="sat"``, ignored for ``"sgn"``.
+    gamma : float
+        Convergence rate, ``0 < gamma < 1`` (eq 8).
+    switching : {"sat", "sgn"}
+        ``"sgn"`` gives the auxiliary filter of section III.
+    psi_lower : float or array, optional
+        Boundary layer of the unmeasured coordinates (reduced-order only).
+
+    Raises
+    ------
+    ParameterError
+        If ``psi <= 0`` or ``gamma`` is outside (0, 1).
+    SingularMatrixError
+        If the reduced-order transformation does not exist (``Phi12`` lacks
+        full column rank, e.g. more unmeasured than measured states).
+    """
+
+    model: LinearModel
+    psi: float | np.ndarray | None = None
+    gamma: float = 0.1
+    switching: Switching = "sat"
+    psi_lower: float | np.ndarray | None = None
+    _S: np.ndarray = field(init=False, repr=False)
+    _S_inv: np.ndarray = field(init=False, repr=False)
+    _PhiT: np.ndarray = field(init=False, repr=False)
+    _GT: np.ndarray = field(init=False, repr=False)
+    _L: np.ndarray | None = field(init=False, repr=False)  # Phi22 Phi12^-1, (n-m, m)
+    _P: np.ndarray | None = field(init=False, repr=False)  # Phi12^-1, (n-m, m)
+    _inv_psi: np.ndarray | None = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.model, LinearModel):
+            raise TypeError(f"model must be a LinearModel; got {type(self.model).__name__}")
+        object.__setattr__(self, "gamma", open_unit("gamma", self.gamma))
+        if self.switching not in ("sat", "sgn"):
+            raise ParameterError(f"switching must be 'sat' or 'sgn'; got {self.switching!r}")
+        model = self.model
+        n, m = model.n_states, model.n_outputs
+        if model.full_measurement:
+            S = model.C.copy()
+            S_inv = model.C_inv
+        elif m == n:
+            raise SingularMatrixError("C is square but singular: the SVSF needs C^-1 (eq 8)")
+        else:
+            S, S_inv = _reduced_order_transform(model.C)
+        Phi = S @ model.A @ S_inv
+        G = S @ model.B
+        L = P = None
+        if m < n:
+            Phi12, Phi22 = Phi[:m, m:], Phi[m:, m:]
+            if np.linalg.matrix_rank(Phi12) < n - m:
+                raise SingularMatrixError(
+                    f"reduced-order SVSF needs Phi12 ({m}x{n - m}) of full column rank "
+                    f"{n - m} (eq 10): the unmeasured states must drive the measured ones "
+                    "(and n - m <= m)"
+                )
+            P = np.linalg.pinv(Phi12)
+            L = Phi22 @ P
+        object.__setattr__(self, "_S", S)
+        object.__setattr__(self, "_S_inv", S_inv)
+        object.__setattr__(self, "_PhiT", np.ascontiguousarray(Phi.T))
+        object.__setattr__(self, "_GT", np.ascontiguousarray(G.T))
+        object.__setattr__(self, "_L", L)
+        object.__setattr__(self, "_P", P)
+        object.__setattr__(self, "_inv_psi", self._boundary_layer_inverse())
+
+    def _boundary_layer_inverse(self) -> np.ndarray | None:
+        if self.switching == "sgn":
+            return None
+        n, m = self.model.n_states, self.model.n_outputs
+        if self.psi is None:
+            raise ParameterError("psi (smoothing boundary layer) is required for switching='sat'")
+        psi = np.atleast_1d(finite_array("psi", self.psi, ndim=(0, 1)))
+        if psi.size == 1:
+            psi = np.full(m, psi[0])
+        if m < n:
+            if psi.size == m:
+                lower = self.psi_lower
+                if lower is None:
+                    raise ParameterError(
+                        "the reduced-order SVSF needs psi for all n states, or psi_lower for "
+                        "the unmeasured ones"
+                    )
+                lower = np.atleast_1d(finite_array("psi_lower", lower, ndim=(0, 1)))
+                psi = np.concatenate([psi, np.broadcast_to(lower, (n - m,))])
+            if psi.size != n:
+                raise ShapeError(f"psi must have 1, {m} or {n} entries; got {psi.size}")
+        elif psi.size != m:
+            raise ShapeError(f"psi must have 1 or {m} entries; got {psi.size}")
+        if np.any(psi <= 0):
+            raise ParameterError(f"psi must be > 0 (smoothing boundary layer); got {psi.tolist()}")
+        return 1.0 / psi
+
+    # ------------------------------------------------------------------ API
+    @property
+    def boundary_layer(self) -> np.ndarray | None:
+        """The boundary layer psi per sat channel (measured first), or None for sgn."""
+        return None if self._inv_psi is None else 1.0 / self._inv_psi
+
+    def initialize(self, z0: np.ndarray, x0: np.ndarray | None = None) -> SVSFState:
+        """Initial state from the first measurement ``z0`` of shape (runs, m) or (m,).
+
+        With ``x0=None`` the measured coordinates start at ``z(0)`` (for full
+        measurement ``x(0|0) = C^-1 z(0)``, zero initial output error, so the
+        chattering equals eq 23 exactly) and the unmeasured ones at zero.
+        ``x0`` of shape (n,) or (runs, n) overrides this.
+        """
+        m, n = self.model.n_outputs, self.model.n_states
+        z0 = finite_array("z0", z0, ndim=(1, 2))
+        if z0.ndim == 1:
+            z0 = z0[None, :]
+        if z0.shape[1] != m:
+            raise ShapeError(f"z0 must have {m} channel(s); got shape {z0.shape}")
+        runs = z0.shape[0]
+        if x0 is None:
+            y = np.zeros((runs, n))
+            y[:, :m] = z0
+        else:
+            x0 = finite_array("x0", x0, ndim=(1, 2))
+            if x0.shape[-1] != n or (x0.ndim == 2 and x0.shape[0] not in (1, runs)):
+                raise ShapeError(f"x0 must have shape ({n},) or ({runs}, {n}); got {x0.shape}")
+            y = np.broadcast_to(x0 @ self._S.T, (runs, n)).copy()
+        return SVSFState(y=y, e_post=z0 - y[:, :m], k=0)
+
+    def update(
+        self,
+        state: SVSFState,
+        z: np.ndarray,
+        u: np.ndarray,
+        *,
+        store_states: bool = False,
+        store_post_error: bool = False,
+        store_lower: bool = False,
+        check: bool = True,
+    ) -> tuple[SVSFState, SVSFOutput]:
+        """Advance the filter over a chunk of K samples (the single SVSF kernel).
+
+        Parameters
+        ----------
+        state : SVSFState
+            State after sample ``k``.
+        z : (runs, K, m) array
+            Measurements ``z(k+1) .. z(k+K)``; ``(K, m)`` is accepted for one run.
+        u : (K, p) or (runs, K, p) array
+            Inputs ``u(k) .. u(k+K-1)`` (the input that drives x(k) -> x(k+1)).
+        store_states, store_post_error, store_lower : bool
+            Also return ``x(k|k)``, ``e(k|k)`` and (reduced-order) ``e_lower`` per sample.
+        check : bool
+            Validate shapes and finiteness (turn off only in trusted hot loops).
+
+        Returns
+        -------
+        (SVSFState, SVSFOutput)
+        """
+        m, n = self.model.n_outputs, self.model.n_states
+        runs = state.runs
+        if check:
+            z = finite_array("z", z, ndim=(2, 3))
+            u = finite_array("u", u, ndim=(1, 2, 3))
+        if z.ndim == 2:
+            z = z[None]
+        if z.shape[0] != runs or z.shape[2] != m:
+            raise ShapeError(f"z must have shape ({runs}, K, {m}); got {z.shape}")
+        K = z.shape[1]
+        if u.ndim == 1:
+            u = u[:, None]
+        if (
+            u.shape[-2] != K
+            or u.shape[-1] != self.model.n_inputs
+            or (u.ndim == 3 and u.shape[0] not in (1, runs))
+        ):
+            raise ShapeError(
+                f"u must have shape ({K}, {self.model.n_inputs}) or ({runs}, {K}, "
+                f"{self.model.n_inputs}); got {u.shape}"
+            )
+        # time-major working copies
+        zt = np.ascontiguousarray(np.swapaxes(z, 0, 1))  # (K, runs, m)
+        Gu = u @ self._GT  # (K, n) or (runs, K, n)
+        if Gu.ndim == 3:
+            Gu = np.ascontiguousarray(np.swapaxes(np.broadcast_to(Gu, (runs, K, n)), 0, 1))
+        e_out = np.empty((K, runs, m))
+        x_out = np.empty((K, runs, n)) if store_states else None
+        ep_out = np.empty((K, runs, m)) if store_post_error else None
+        lower_out = np.empty((K, runs, n - m)) if (store_lower and n > m) else None
+
+        PhiT, gamma = self._PhiT, self.gamma
+        inv_psi = self._inv_psi
+        inv_psi_u = None if inv_psi is None else inv_psi[:m]
+        inv_psi_l = None if inv_psi is None else inv_psi[m:]
+        reduced = self._L is not None
+        LT = None if self._L is None else np.ascontiguousarray(self._L.T)
+        PT = None if self._P is None else np.ascontiguousarray(self._P.T)
+        S_invT = np.ascontiguousarray(self._S_inv.T)
+        shared_input = Gu.ndim == 2
+        # y_aug = [y, 1] and W = [[Phi^T], [G u(k)]] fold the input into one matmul
+        # (a broadcast add over a 3-wide inner axis costs ~3x a small matmul).
+        y_aug = np.empty((runs, n + 1))
+        y_aug[:, n] = 1.0
+        y_aug[:, :n] = state.y
+        y = y_aug[:, :n]
+        W = np.empty((n + 1, n))
+        W[:n] = PhiT
+        W[n] = 0.0
+        ep = state.e_post.copy()  # e(k|k), signed
+        yp = np.empty((runs, n))
+        mag = np.empty((runs, m))
+        tmp = np.empty((runs, m))
+        Ku = np.empty((runs, m))
+        for k in range(K):
+            if shared_input:
+                W[n] = Gu[k]
+                np.matmul(y_aug, W, out=yp)  # eq (4), y coordinates
+            else:
+                np.matmul(y, PhiT, out=yp)
+                yp += Gu[k]
+            e = e_out[k]
+            np.subtract(zt[k], yp[:, :m], out=e)  # eq (6)
+            # eq (8)/(9): K_u = (|e(k+1|k)| + gamma |e(k|k)|) o sat(e(k+1|k), psi)
+            np.abs(e, out=mag)
+            np.abs(ep, out=tmp)
+            tmp *= gamma
+            mag += tmp
+            _switch(e, inv_psi_u, out=Ku)
+            Ku *= mag
+            if reduced:
+                # eq (10): K_l = (|Phi22 Phi12^-1 e(k+1|k)| + gamma |Phi12^-1 e(k|k)|)
+                #                o sat(Phi22 Phi12^-1 e(k+1|k), psi_l)
+                Le = e @ LT
+                mag_l = np.abs(Le)
+                mag_l += gamma * np.abs(ep @ PT)
+                if lower_out is not None:
+                    lower_out[k] = Le
+                Kl = _switch(Le, inv_psi_l)
+                Kl *= mag_l
+                np.add(yp[:, m:], Kl, out=y[:, m:])  # eq (12), unmeasured part
+                np.add(yp[:, :m], Ku, out=y[:, :m])  # eq (12), measured part
+            else:
+                np.add(yp, Ku, out=y)  # eq (12)
+            np.subtract(e, Ku, out=ep)  # e(k+1|k+1) = z(k+1) - C x(k+1|k+1) = e - K_u
+            if ep_out is not None:
+                ep_out[k] = ep
+            if x_out is not None:
+                np.matmul(y, S_invT, out=x_out[k])
+        new_state = SVSFState(y=y.copy(), e_post=ep, k=state.k + K)
+        return new_state, SVSFOutput(
+            e_prior=np.swapaxes(e_out, 0, 1),
+            x_post=None if x_out is None else np.swapaxes(x_out, 0, 1),
+            e_post=None if ep_out is None else np.swapaxes(ep_out, 0, 1),
+            e_lower=None if lower_out is None else np.swapaxes(lower_out, 0, 1),
+        )
+
+    def run(
+        self,
+        z: np.ndarray,
+        u: np.ndarray,
+        *,
+        x0: np.ndarray | None = None,
+        store_states: bool = False,
+        store_post_error: bool = False,
+        store_lower: bool = False,
+    ) -> SVSFOutput:
+        """Filter whole records (batch mode) with the same kernel as :meth:`update`.
+
+        Parameters
+        ----------
+        z : (runs, T, m) or (T, m) array
+            Measurements z(0) .. z(T-1).
+        u : (T, p), (runs, T, p) or (T,) array
+            Inputs u(0) .. u(T-1) (the last one is not used).
+        x0 : array, optional
+            Initial estimate x(0|0); default ``C^-1 z(0)`` (see :meth:`initialize`).
+
+        Returns
+        -------
+        SVSFOutput
+            Arrays with T samples along axis 1. ``e_prior[:, 0]`` is 0 by
+            convention (there is no prediction of z(0)); ``x_post[:, 0]`` is
+            x(0|0) and ``e_post[:, 0]`` is e(0|0). A 2-D ``z`` gives 2-D outputs.
+        """
+        z = finite_array("z", z, ndim=(2, 3))
+        single = z.ndim == 2
+        if single:
+            z = z[None]
+        u = finite_array("u", u, ndim=(1, 2, 3))
+        if u.ndim == 1:
+            u = u[:, None]
+        T = z.shape[1]
+        if u.shape[-2] != T:
+            raise ShapeError(f"u must have {T} samples (like z) along its time axis; got {u.shape}")
+        if T < 2:
+            raise ShapeError(f"z needs at least 2 samples; got {T}")
+        state = self.initialize(z[:, 0], x0)
+        _, out = self.update(
+            state,
+            z[:, 1:],
+            u[..., :-1, :],
+            store_states=store_states,
+            store_post_error=store_post_error,
+            store_lower=store_lower,
+            check=False,
+        )
+        runs, m, n = z.shape[0], self.model.n_outputs, self.model.n_states
+
+        def with_first(arr: np.ndarray | None, first: np.ndarray) -> np.ndarray | None:
+            if arr is None:
+                return None
+            full = np.empty((runs, T, arr.shape[2]))
+            full[:, 0] = first
+            full[:, 1:] = arr
+            return full[0] if single else full
+
+        zeros_m = np.zeros((runs, m))
+        return SVSFOutput(
+            e_prior=with_first(out.e_prior, zeros_m),
+            x_post=with_first(out.x_post, state.y @ self._S_inv.T),
+            e_post=with_first(out.e_post, state.e_post),
+            e_lower=with_first(out.e_lower, np.zeros((runs, n - m))),
+        )
+
+
+def _switch(e: np.ndarray, inv_psi: np.ndarray | None, out: np.ndarray | None = None) -> np.ndarray:
+    """``sgn(e)`` when ``inv_psi`` is None, else ``sat(e / psi) = clip(e / psi, -1, 1)``."""
+    if inv_psi is None:
+        return np.sign(e, out=out)
+    out = np.multiply(e, inv_psi, out=out)
+    return np.clip(out, -1.0, 1.0, out=out)
+
+
+def auxiliary_svsf(model: LinearModel, gamma: float = 0.1) -> SVSF:
+    """The auxiliary filter of section III: the SVSF with ``sgn`` instead of ``sat``."""
+    return SVSF(model, gamma=gamma, switching="sgn")
+
+
+def boundary_layer_chattering(e: np.ndarray, psi: float | np.ndarray) -> np.ndarray:
+    """Chattering of the smoothing-boundary-layer SVSF, eq (13).
+
+    ``(|e| - psi) sgn(e)`` where ``|e| > psi`` and 0 elsewhere, per channel
+    (``psi`` broadcasts along the last axis).
+    """
+    e = np.asarray(e, dtype=float)
+    psi = np.asarray(psi, dtype=float)
+    if np.any(psi <= 0):
+        raise ParameterError(f"psi must be > 0; got {psi.tolist()}")
+    excess = np.abs(e) - psi
+    return np.where(excess > 0, excess * np.sign(e), 0.0)
+
+
+def chattering(
+    model: LinearModel,
+    z: np.ndarray,
+    u: np.ndarray,
+    *,
+    gamma: float = 0.1,
+    x0: np.ndarray | None = None,
+) -> np.ndarray:
+    """Chattering of the auxiliary (sgn) SVSF, eq (17): ``e(k|k-1)``.
+
+    Parameters
+    ----------
+    model : LinearModel
+        Nominal model used by the filter.
+    z : (runs, T, m) or (T, m) array
+        Measurements.
+    u : (T, p), (runs, T, p) or (T,) array
+        Inputs.
+    gamma : float
+        Convergence rate in (0, 1); with the default initialization it has no
+        effect after the first step (e(k|k) = 0).
+    x0 : array, optional
+        Initial estimate; default ``C^-1 z(0)``.
+
+    Returns
+    -------
+    ndarray, same leading shape as ``z``
+        ``out[..., k, :] = e(k|k-1)`` for k >= 1; ``out[..., 0, :] = 0``.
+        Spectral analysis uses samples 1..T-1 (N = T - 1 samples).
+    """
+    return auxiliary_svsf(model, gamma).run(z, u, x0=x0).e_prior
+
+
+def _reduced_order_transform(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Luenberger transformation ``S = [[C], [E_l]]`` for eq (9)-(11).
+
+    ``E_l`` selects the states left out of ``C1`` (the m columns of C chosen
+    by pivoted QR, i.e. the best-conditioned square sub-block). Measured
+    coordinates come first. Returns ``(S, S^-1)``.
+    """
+    m, n = C.shape
+    _, _, piv = scipy.linalg.qr(C, pivoting=True, mode="economic")
+    measured = sorted(piv[:m].tolist())
+    lower = [j for j in range(n) if j not in measured]
+    E = np.zeros((n - m, n))
+    E[np.arange(n - m), lower] = 1.0
+    S = np.vstack([C, E])
+    if np.linalg.cond(S) > 1e12:
+        raise SingularMatrixError("no square invertible C1 block exists in C (eq 9)")
+    return S, np.linalg.inv(S)

@@ -1,0 +1,228 @@
+"""Periodogram, expected healthy spectrum and STFT (chatterspec.spectral)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from chatterspec.errors import NonFiniteError, ParameterError, ShapeError, SingularMatrixError
+from chatterspec.models import LinearModel, second_order
+from chatterspec.pipeline import scenario_chattering
+from chatterspec.scenarios import scenario
+from chatterspec.spectral import (
+    STFTConfig,
+    chattering_autocovariance,
+    expected_frame_spectrum,
+    expected_spectrum,
+    frame_columns,
+    mean_periodogram,
+    periodogram,
+    spectrogram,
+    window_overlap_ratio,
+)
+
+DT = 1e-3
+RUNS_MC = 1000
+
+
+@pytest.fixture(scope="module")
+def healthy_records():
+    """1000 healthy 4 s records (N = 4000) of each scenario with full measurement (~3.5 s in total)."""
+    return {
+        name: scenario_chattering(scenario(name), RUNS_MC, seed=20230 + i)
+        for i, name in enumerate(("so-healthy-low", "so-healthy-high", "eha-healthy"))
+    }
+
+
+# -- periodogram --------------------------------------------------------------
+def test_periodogram_definition_and_shapes():
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((3, 10, 2))
+    p = periodogram(x, DT)
+    assert p.power.shape == (3, 6, 2)
+    np.testing.assert_allclose(p.freqs_hz, np.arange(6) / (10 * DT))
+    # eq 49 written out with k = 0..N-1 (the k = 1..N of the paper only changes the phase)
+    k = np.arange(10)
+    n = 3
+    direct = np.abs((x[1, :, 0] * np.exp(-2j * np.pi * n * k / 10)).sum()) ** 2 / 10
+    assert p.power[1, n, 0] == pytest.approx(direct, rel=1e-12)
+    # a single record may drop the realization axis
+    np.testing.assert_allclose(periodogram(x[0], DT).power, p.power[0])
+    np.testing.assert_allclose(mean_periodogram(x, DT).power, p.power.mean(axis=0))
+
+
+def test_periodogram_rejects_bad_input():
+    with pytest.raises(ShapeError, match="axis -2"):
+        periodogram(np.zeros(10), DT)
+    with pytest.raises(NonFiniteError):
+        periodogram(np.array([[0.0], [np.nan]]), DT)
+    with pytest.raises(ParameterError):
+        periodogram(np.zeros((4, 1)), -1.0)
+
+
+# -- expected spectrum -----------------------------------------------------------
+def test_asymptotic_form_is_eq56_read_index_wise():
+    model = scenario("eha-healthy").nominal
+    f = np.linspace(0.0, 500.0, 37)
+    w = 2 * np.pi * f * DT
+    C, Q, R = model.C, np.diag(model.Q), np.diag(model.R)
+    M = -C @ model.A @ model.C_inv
+    eq56 = np.zeros((f.size, 3))
+    for i in range(3):
+        eq56[:, i] = (C[i] ** 2 * Q).sum() + sum(
+            np.abs(np.exp(1j * w) * (i == j) + M[i, j]) ** 2 * R[j] for j in range(3)
+        )
+    np.testing.assert_allclose(expected_spectrum(model, f, form="asymptotic"), eq56, rtol=1e-10)
+
+
+def test_exact_form_equals_quadratic_form_of_ma1_covariance():
+    """E[S(f_n)] = f^H Sigma f / N with the Toeplitz covariance of the MA(1) chattering."""
+    model = second_order(10.0, 0.1, 100.0, DT, Q=np.diag([1e-8, 1e-6]), R=np.diag([1e-6, 1e-4]))
+    N = 16
+    g0, g1 = chattering_autocovariance(model)
+    f = np.arange(N // 2 + 1) / (N * DT)
+    k = np.arange(N)
+    E = expected_spectrum(model, f, N)
+    for i in range(2):
+        Sigma = np.diag(np.full(N, g0[i])) + g1[i] * (np.eye(N, k=1) + np.eye(N, k=-1))
+        for n in range(N // 2 + 1):
+            v = np.exp(-2j * np.pi * n * k / N)
+            assert E[n, i] == pytest.approx((v.conj() @ Sigma @ v).real / N, rel=1e-10)
+
+
+def test_expected_spectrum_needs_full_measurement_and_valid_form():
+    partial = second_order(2.0, 0.0, 100.0, DT, measure="position")
+    with pytest.raises(SingularMatrixError, match="full-measurement"):
+        expected_spectrum(partial, [0.0, 1.0], 10)
+    full = scenario("so-healthy-low").nominal
+    with pytest.raises(ParameterError, match="n_samples"):
+        expected_spectrum(full, [0.0, 1.0])
+    with pytest.raises(ParameterError, match="form"):
+        expected_spectrum(full, [0.0], 10, form="paper")
+
+
+@pytest.mark.parametrize("name", ["so-healthy-low", "so-healthy-high", "eha-healthy"])
+def test_mean_healthy_periodogram_matches_exact_expectation(healthy_records, name):
+    """Monte Carlo mean of 1000 healthy periodograms vs the exact finite-N expectation, at every bin.
+
+    Tolerance: a bin with nu degrees of freedom has S = E chi2(nu)/nu, so Var(S) = 2 E^2 / nu and the
+    mean of R runs has relative standard error sqrt(2 / nu) / sqrt(R) (1/sqrt(1000) = 3.2 % at the
+    chi2(2) bins, sqrt(2) times that at DC/Nyquist). The bins are nearly independent, so we allow the
+    two-sided normal quantile of a Bonferroni family of all bins x channels at family level 1e-3
+    (z ~ 5.1): a correct implementation fails with probability < 0.1 %, while a wrong expectation
+    (e.g. eq 56 with the opposite sign of M, or the asymptotic form on the EHA position channel
+    at low frequency) misses by far more than 5 SE at many bins. (The mean of 1000 exponentials
+    is only slightly skewed, 2/sqrt(1000) = 0.06, so the normal quantile is adequate.)
+    """
+    rec = healthy_records[name]
+    pg = periodogram(rec.values, rec.dt)
+    E = expected_spectrum(rec.model, pg.freqs_hz, pg.n_samples)
+    mean = pg.power.mean(axis=0)
+    dof = np.full(pg.n_bins, 2.0)
+    dof[0] = 1.0
+    if pg.n_samples % 2 == 0:
+        dof[-1] = 1.0
+    se = np.sqrt(2.0 / dof)[:, None] / np.sqrt(rec.runs)
+    z = (mean / E - 1.0) / se
+    n_tests = z.size
+    z_crit = scipy.stats.norm.isf(1e-3 / (2 * n_tests))
+    assert np.abs(z).max() < z_crit, f"worst bin z = {np.abs(z).max():.2f} > {z_crit:.2f}"
+    # the fit is not vacuous: the z-scores look standard normal overall
+    assert abs(z.mean()) < 0.1 and 0.9 < z.std() < 1.1
+
+
+# -- STFT ----------------------------------------------------------------------------
+def test_stft_config_validation():
+    cfg = STFTConfig()
+    assert (cfg.n_window(DT), cfg.n_hop(DT)) == (1000, 200)
+    with pytest.raises(ParameterError, match="hop_s"):
+        STFTConfig(window_s=0.5, hop_s=0.6)
+    with pytest.raises(ParameterError, match="window"):
+        STFTConfig(window="no-such-window")
+    with pytest.raises(ParameterError):
+        STFTConfig(window_s=-1.0)
+    with pytest.raises(ParameterError):
+        STFTConfig(hop_s=0.0)
+
+
+def test_spectrogram_frames_times_and_scaling():
+    rng = np.random.default_rng(1)
+    x = rng.standard_normal((2, 4321, 3))
+    cfg = STFTConfig(window_s=0.5, hop_s=0.1)
+    W, H = 500, 100
+    sg = spectrogram(x, DT, cfg, t0=0.25)
+    n_frames = (4321 - W) // H + 1  # complete frames only
+    assert sg.power.shape == (2, n_frames, W // 2 + 1, 3)
+    np.testing.assert_allclose(sg.times_s, 0.25 + (np.arange(n_frames) * H + (W - 1) / 2) * DT)
+    np.testing.assert_array_equal(sg.frame_starts, np.arange(n_frames) * H)
+    # frame j covers samples [jH, jH + W): |sum w x e^{-iwk}|^2 / sum w^2
+    w = cfg.taper(DT)
+    j = 7
+    direct = np.abs(np.fft.rfft(w * x[1, j * H : j * H + W, 2])) ** 2 / np.dot(w, w)
+    np.testing.assert_allclose(sg.power[1, j, :, 2], direct, rtol=1e-10, atol=1e-12)
+
+
+def test_frame_columns_identical_on_any_buffer_containing_the_frame():
+    """The online monitor computes columns from a ring buffer: they must equal the batch columns exactly."""
+    rng = np.random.default_rng(2)
+    x = rng.standard_normal((3, 6000, 2))
+    cfg = STFTConfig()
+    batch = spectrogram(x, DT, cfg)
+    for start, stop in [(0, 6000), (1234, 5678), (200, 1200), (199, 1400), (4999, 6000), (3333, 4444)]:
+        j, cols = frame_columns(x[:, start:stop], DT, cfg, first_sample=start)
+        if j.size:
+            assert j[0] * 200 >= start and j[-1] * 200 + 1000 <= stop
+        np.testing.assert_array_equal(cols, batch.power[:, j])
+        # one realization alone (the online monitor's usual case) gives the same bits
+        j1, cols1 = frame_columns(x[1, start:stop], DT, cfg, first_sample=start)
+        np.testing.assert_array_equal(cols1, batch.power[1, j1])
+    j, cols = frame_columns(x[:, 10:900], DT, cfg, first_sample=10)
+    assert j.size == 0 and cols.shape == (3, 0, 501, 2)
+
+
+def test_spectrogram_rejects_record_shorter_than_one_window():
+    with pytest.raises(ShapeError, match="shorter than one STFT window"):
+        spectrogram(np.zeros((999, 2)), DT, STFTConfig())
+
+
+def test_window_overlap_ratio_hamming():
+    w = STFTConfig().taper(DT)
+    assert window_overlap_ratio(STFTConfig(), DT) == pytest.approx(np.dot(w[:-1], w[1:]) / np.dot(w, w))
+    assert 0.99 < window_overlap_ratio(STFTConfig(), DT) < 1.0
+
+
+@pytest.mark.parametrize("name", ["so-healthy-high", "eha-healthy"])
+def test_mean_healthy_frame_spectrum_matches_expected_frame_spectrum(healthy_records, name):
+    """Mean of non-overlapping healthy frames vs gamma0 + 2 gamma1 rho_w cos(w).
+
+    We use frames 0, 5, 10, 15 (starts 1 s apart, so they share no sample and are independent for the
+    MA(1) chattering up to one boundary sample): 4 x 1000 = 4000 frames per bin. A windowed bin is
+    E chi2(2)/2 to a good approximation, so the relative SE of the mean is 1/sqrt(4000) (sqrt(2) times
+    that at DC/Nyquist); tolerance as in the periodogram test (Bonferroni over bins x channels, 1e-3).
+    """
+    rec = healthy_records[name]
+    cfg = STFTConfig()
+    sg = spectrogram(rec.values, rec.dt, cfg)
+    E = expected_frame_spectrum(rec.model, sg.freqs_hz, cfg, rec.dt)
+    frames = sg.power[:, ::5]
+    n = frames.shape[0] * frames.shape[1]
+    mean = frames.mean(axis=(0, 1))
+    dof = np.full(sg.freqs_hz.size, 2.0)
+    dof[[0, -1]] = 1.0
+    z = (mean / E - 1.0) / (np.sqrt(2.0 / dof)[:, None] / np.sqrt(n))
+    z_crit = scipy.stats.norm.isf(1e-3 / (2 * z.size))
+    assert np.abs(z).max() < z_crit
+
+
+def test_expected_spectrum_of_custom_model_with_correlated_noise():
+    """Non-diagonal Q and R: gamma0 = diag(CQC' + R + MRM'), gamma1 = diag(MR) (vector MA(1))."""
+    A = np.array([[0.9, 0.1], [-0.2, 0.8]])
+    C = np.array([[1.0, 0.5], [0.0, 2.0]])
+    Q = np.array([[1.0, 0.3], [0.3, 2.0]])
+    R = np.array([[0.5, 0.1], [0.1, 0.4]])
+    model = LinearModel(A, np.zeros((2, 1)), C, Q, R, DT)
+    g0, g1 = chattering_autocovariance(model)
+    M = -C @ A @ np.linalg.inv(C)
+    np.testing.assert_allclose(g0, np.diag(C @ Q @ C.T + R + M @ R @ M.T))
+    np.testing.assert_allclose(g1, np.diag(M @ R))
