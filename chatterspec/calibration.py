@@ -115,15 +115,16 @@ def quantile_ci_ranks(n: int, q: float, confidence: float = 0.99) -> tuple[int, 
     """1-based ascending ranks ``(point, low, high)`` of the order statistics for the ``q``-quantile.
 
     ``point = ceil(n q)`` (inverse empirical CDF); ``[X_(low), X_(high)]``
-    covers the true quantile with probability >= ``confidence`` (clipped to
-    ``[1, n]``, where coverage may fall short for tiny ``n``).
+    covers the true quantile with probability >= ``confidence``. ``low = 0``
+    or ``high = n + 1`` mean the interval is unbounded on that side (too few
+    samples in the tail: the bound is -inf or +inf).
     """
     n = positive_int("n", n)
     a = 1.0 - open_unit("confidence", confidence)
     point = min(max(math.ceil(n * q), 1), n)
     lo = int(scipy.stats.binom.ppf(a / 2, n, q))
     hi = int(scipy.stats.binom.ppf(1 - a / 2, n, q)) + 1
-    return point, min(max(lo, 1), n), min(max(hi, 1), n)
+    return point, min(max(lo, 0), n), min(max(hi, 1), n + 1)
 
 
 def _pooled_ranks(n: int, n_eff: int, q: float, confidence: float) -> tuple[int, int, int]:
@@ -135,20 +136,36 @@ def _pooled_ranks(n: int, n_eff: int, q: float, confidence: float) -> tuple[int,
     """
     point = min(max(math.ceil(n * q), 1), n)
     _, lo, hi = quantile_ci_ranks(n_eff, q, confidence)
-    lo_n = math.floor(n * (lo - 1) / n_eff) + 1 if n_eff != n else lo
-    hi_n = math.ceil(n * hi / n_eff) if n_eff != n else hi
-    return point, min(max(lo_n, 1), n), min(max(hi_n, 1), n)
+    if n_eff == n:
+        return point, lo, hi
+    lo_n = 0 if lo == 0 else math.floor(n * (lo - 1) / n_eff) + 1
+    hi_n = n + 1 if hi > n_eff else math.ceil(n * hi / n_eff)
+    return point, min(max(lo_n, 0), n), min(max(hi_n, 1), n + 1)
 
 
 def _top_needed(n: int, q: float, confidence: float, n_eff: int | None = None) -> int:
     """How many of the largest values must be kept to read the ``q``-quantile interval."""
     _, lo, _ = _pooled_ranks(n, n if n_eff is None else n_eff, q, confidence)
-    return n - lo + 1
+    return n - max(lo, 1) + 1
 
 
 @dataclass(frozen=True)
 class RateEstimate:
-    """``count`` events in ``trials`` with a Clopper-Pearson interval."""
+    """``count`` events in ``trials`` with a Clopper-Pearson interval.
+
+    Attributes
+    ----------
+    count : int
+        Number of events (e.g. false alarms), ``0 <= count <= trials``.
+    trials : int
+        Number of trials (>= 1): bins x channels x records, records, or frames.
+    confidence : float
+        Two-sided level in (0, 1) of the interval (see :func:`clopper_pearson`).
+    rate : float
+        ``count / trials`` (computed).
+    ci_low, ci_high : float
+        Clopper-Pearson interval of the rate (computed).
+    """
 
     count: int
     trials: int
@@ -178,7 +195,26 @@ class RateEstimate:
 
 @dataclass(frozen=True)
 class QuantileEstimate:
-    """Empirical ``q``-quantile with a distribution-free order-statistic interval."""
+    """Empirical ``q``-quantile with a distribution-free order-statistic interval.
+
+    Used for the empirical thresholds of :func:`calibrate`: quantiles of the
+    normalized power ``S / E[S]`` (dimensionless) of healthy runs.
+
+    Attributes
+    ----------
+    q : float
+        Quantile level in (0, 1), e.g. ``1 - alpha``.
+    value : float
+        Point estimate, the order statistic of rank ``ceil(n q)``.
+    ci_low, ci_high : float
+        Order-statistic interval (ranks from :func:`quantile_ci_ranks`, or
+        pooled ranks for dependent STFT frames); ``-inf`` / ``+inf`` when the
+        tail holds too few samples to bound that side.
+    n : int
+        Number of samples the quantile was read from (records, or records x frames).
+    confidence : float
+        Coverage level in (0, 1) of the interval.
+    """
 
     q: float
     value: float
@@ -190,8 +226,23 @@ class QuantileEstimate:
     def contains(self, x: float) -> bool:
         return self.ci_low <= x <= self.ci_high
 
-    def to_dict(self) -> dict[str, float | int]:
-        return {"q": self.q, "value": self.value, "ci_low": self.ci_low, "ci_high": self.ci_high, "n": self.n}
+    def to_dict(self) -> dict[str, float | int | None]:
+        """JSON-ready; an unbounded interval end (too few tail samples) is ``None``."""
+        return {
+            "q": self.q,
+            "value": self.value,
+            "ci_low": _finite_or_none(self.ci_low),
+            "ci_high": _finite_or_none(self.ci_high),
+            "n": self.n,
+        }
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def _none_to_inf(x: float | None, sign: float) -> float:
+    return sign * np.inf if x is None else float(x)
 
 
 def _quantile_from_top(
@@ -199,10 +250,13 @@ def _quantile_from_top(
 ) -> tuple[np.ndarray, ...]:
     """Point and CI from the largest values sorted in descending order along axis 0."""
     point, lo, hi = _pooled_ranks(n, n if n_eff is None else n_eff, q, confidence)
-    need = n - lo + 1
+    need = n - max(lo, 1) + 1
     if top_desc.shape[0] < need:
         raise ParameterError(f"kept {top_desc.shape[0]} tail values; the interval needs {need}")
-    return top_desc[n - point], top_desc[n - lo], top_desc[n - hi]
+    shape = top_desc.shape[1:]
+    low = np.full(shape, -np.inf) if lo < 1 else top_desc[n - lo]
+    high = np.full(shape, np.inf) if hi > n else top_desc[n - hi]
+    return top_desc[n - point], low, high
 
 
 # --------------------------------------------------------------------------- scenarios
@@ -220,7 +274,25 @@ class _ZeroInput:
 
 
 def model_scenario(model: LinearModel, duration: float = 4.0, name: str | None = None) -> Scenario:
-    """A healthy scenario for a user model: zero input, the model as nominal and true plant."""
+    """A healthy scenario for a user model: zero input, the model as nominal and true plant.
+
+    The input is zero on every channel: the healthy chattering of a matched
+    linear model does not depend on u.
+
+    Parameters
+    ----------
+    model : LinearModel
+        Nominal model, also used as the true plant (no fault windows).
+    duration : float
+        Record length in seconds (default 4 s, the paper's record).
+    name : str, optional
+        Scenario name; default ``model.name``, or ``"user-model"`` if that is empty.
+
+    Returns
+    -------
+    Scenario
+        Family ``"user"``, healthy.
+    """
     return Scenario(
         name=name or model.name or "user-model",
         nominal=model,
@@ -232,7 +304,28 @@ def model_scenario(model: LinearModel, duration: float = 4.0, name: str | None =
 
 
 def resolve_scenario(source: str | Scenario | LinearModel | Path, duration: float = 4.0) -> Scenario:
-    """A catalogue name, a TOML model file (``.toml``), a Scenario or a LinearModel -> Scenario."""
+    """A catalogue name, a TOML model file (``.toml``), a Scenario or a LinearModel -> Scenario.
+
+    Parameters
+    ----------
+    source : str, Scenario, LinearModel or Path
+        A :class:`Scenario` is returned unchanged; a :class:`LinearModel` or a
+        path ending in ``.toml`` (read with :func:`~chatterspec.modelfile.load_model`)
+        becomes a healthy zero-input scenario (:func:`model_scenario`, named
+        after the file stem); any other string is looked up in the scenario catalogue.
+    duration : float
+        Record length in seconds for model and model-file sources; ignored for
+        catalogue names and Scenario objects, which carry their own duration.
+
+    Returns
+    -------
+    Scenario
+
+    Raises
+    ------
+    UnknownScenarioError
+        A string that is neither a ``.toml`` path nor a catalogue name.
+    """
     if isinstance(source, Scenario):
         return source
     if isinstance(source, LinearModel):
@@ -282,6 +375,39 @@ class HealthyStudy:
     """Chunk function of calibration and false-alarm studies (picklable; see :mod:`chatterspec.montecarlo`).
 
     Thresholds are passed as stacked arrays so that workers do not rebuild them.
+    Each chunk simulates healthy chattering, takes its periodogram (and STFT
+    frames if ``config`` and ``fthr_values`` are set) and counts exceedances.
+    Exported as ``FalseAlarmStudy``.
+
+    Attributes
+    ----------
+    scenario : Scenario
+        Healthy scenario to simulate.
+    thr_values : (K, bins, m) array
+        Power thresholds of the K record-level kinds, in the squared output
+        units of the periodogram (e.g. Pa^2 for pressure).
+    thr_tested : (K, bins) bool array
+        Bins each kind tests (DC and Nyquist excluded).
+    expected : (bins, m) array
+        Expected healthy periodogram E[S] (eq 56), used to normalize ``S / E[S]``.
+    tested : (bins,) bool array
+        Bins over which the normalized per-record maximum is taken.
+    config : STFTConfig, optional
+        STFT settings of the per-frame kinds; None skips the frame statistics.
+    fthr_values : (Kf, fbins, m) array, optional
+        Per-frame thresholds of the Kf frame kinds.
+    fthr_tested : (Kf, fbins) bool array, optional
+        Frame bins each frame kind tests.
+    fexpected : (fbins, m) array, optional
+        Expected healthy frame spectrum; needed only when ``kf_top > 0``.
+    k_top : int
+        Largest normalized bin powers to keep (for the empirical per-bin
+        quantile interval); 0 keeps none.
+    kf_top : int
+        Largest normalized frame powers to keep (empirical per-frame quantile).
+    keep_max : bool
+        Keep each record's normalized maximum over ``tested`` bins (for the
+        empirical family-wise threshold).
     """
 
     scenario: Scenario
@@ -577,7 +703,7 @@ class Calibration:
             "agreement": ag,
         }
         if arrays:
-            d["arrays"] = {k: v.tolist() for k, v in self._arrays().items()}
+            d["arrays"] = {k: np.where(np.isfinite(v), v, None).tolist() for k, v in self._arrays().items()}
         return d
 
     def _arrays(self) -> dict[str, np.ndarray]:
@@ -609,7 +735,9 @@ class Calibration:
         if path.suffix == ".npz":
             np.savez(path, _meta=np.array(json.dumps(meta)), **self._arrays())
         else:
-            meta["arrays"] = {k: v.tolist() for k, v in self._arrays().items()}
+            meta["arrays"] = {
+                k: np.where(np.isfinite(v), v, None).tolist() for k, v in self._arrays().items()
+            }
             path.write_text(json.dumps(meta))
         return path
 
@@ -624,6 +752,12 @@ def _stft_dict(config: STFTConfig) -> dict[str, Any]:
     return {"window_s": float(config.window_s), "hop_s": float(config.hop_s), "window": str(config.window)}
 
 
+def _json_array(key: str, value: object) -> np.ndarray:
+    a = np.asarray(value, dtype=object)
+    sign = -1.0 if key.endswith("_low") else 1.0
+    return np.where(a == None, sign * np.inf, a).astype(float)  # noqa: E711
+
+
 def load_calibration(
     path: str | Path,
     model: LinearModel | None = None,
@@ -634,6 +768,21 @@ def load_calibration(
 
     With ``model`` (and optionally ``n_samples``, ``config``) the calibration
     is checked against them (:meth:`Calibration.check`).
+
+    Parameters
+    ----------
+    path : str or Path
+        Calibration file: ``.npz`` (arrays plus JSON metadata), otherwise JSON.
+    model : LinearModel, optional
+        Model the calibration will be used with; its fingerprint must match.
+    n_samples : int, optional
+        Periodogram record length N (samples) it will be used with.
+    config : STFTConfig, optional
+        STFT settings (window and hop in seconds, taper) of the per-frame detector.
+
+    Returns
+    -------
+    Calibration
 
     Raises
     ------
@@ -650,7 +799,7 @@ def load_calibration(
                 arrays = {k: np.array(z[k]) for k in z.files if k != "_meta"}
         else:
             meta = json.loads(path.read_text())
-            arrays = {k: np.asarray(v) for k, v in meta.pop("arrays").items()}
+            arrays = {k: _json_array(k, v) for k, v in meta.pop("arrays").items()}
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise DataFileError(f"{path}: cannot read calibration file ({type(exc).__name__}: {exc})") from None
     if meta.get("format") != CALIBRATION_FORMAT:
@@ -659,7 +808,9 @@ def load_calibration(
         raise DataFileError(f"{path}: calibration file version {meta.get('version')} is not supported")
     conf = float(meta["confidence"])
     fw = tuple(
-        QuantileEstimate(q["q"], q["value"], q["ci_low"], q["ci_high"], q["n"], conf)
+        QuantileEstimate(
+            q["q"], q["value"], _none_to_inf(q["ci_low"], -1), _none_to_inf(q["ci_high"], 1), q["n"], conf
+        )
         for q in meta["family_wise"]
     )
     cal = Calibration(
@@ -911,7 +1062,25 @@ class KindRates:
 
 @dataclass(frozen=True)
 class FalseAlarmResult:
-    """Result of :func:`false_alarm_study`: one :class:`KindRates` per (alpha, kind)."""
+    """Result of :func:`false_alarm_study`: one :class:`KindRates` per (alpha, kind).
+
+    Attributes
+    ----------
+    scenario : str
+        Name of the healthy scenario simulated.
+    runs : int
+        Healthy realizations (records).
+    seed : int or None
+        Root seed if it was an integer, else None.
+    confidence : float
+        Level of every Clopper-Pearson interval.
+    channels : tuple of str
+        Output channel names (order of the per-channel rates).
+    n_frames : int
+        STFT frames per record (0 when frames were not tested).
+    rates : tuple of KindRates
+        One entry per (alpha, threshold kind), alphas in the order given.
+    """
 
     scenario: str
     runs: int
@@ -1238,8 +1407,16 @@ class PowerResult:
         ``paper`` (per-bin alpha, the paper's rule), ``exact`` (per-bin), ``exact-bonferroni`` (default).
     alphas : (A,) array
         Alpha grid of the ROC; ``alpha`` is the reporting level.
+    runs : int
+        Realizations per (noise, size) grid point (common random numbers).
+    seed : int or None
+        Root seed if it was an integer, else None.
+    confidence : float
+        Level of the Clopper-Pearson intervals.
     channel : str
         Fault channel used for the verdict.
+    channels : tuple of str
+        All output channel names (last axis of ``counts``).
     counts : (noise, sizes, kinds, A, m) int array
         Records detected (any tested bin above the threshold) per channel.
     counts_any : (noise, sizes, kinds, A) int array

@@ -17,7 +17,18 @@ from collections.abc import Sequence
 from .errors import ChatterspecError
 
 #: Subcommand modules, in help order.
-COMMANDS: tuple[str, ...] = ("demo", "scenarios", "detect")
+COMMANDS: tuple[str, ...] = (
+    "demo",
+    "scenarios",
+    "detect",
+    "spectrum",
+    "figures",
+    "monitor",
+    "replay",
+    "calibrate",
+    "far",
+    "power",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

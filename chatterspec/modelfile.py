@@ -128,6 +128,20 @@ _DETECTOR_KEYS = {"alpha", "correction", "window_s", "hop_s", "window", "thresho
 def load_model(path: str | Path) -> ModelSpec:
     """Read a TOML model file (format in the module docstring).
 
+    Parameters
+    ----------
+    path : str or Path
+        The TOML file: top-level ``dt`` (sampling time, s), ``[channels]``,
+        ``[matrices]`` (``A``, ``B``, ``C``, ``Q``, ``R``; discrete, or continuous
+        and discretized with ``dt``), ``[svsf]`` (``psi`` > 0 per output in output
+        units, ``gamma`` in (0, 1), default 0.1) and an optional ``[detector]`` table.
+
+    Returns
+    -------
+    ModelSpec
+        The validated nominal model, ``psi``, ``gamma``, the raw ``[detector]``
+        table and ``path``.
+
     Raises
     ------
     ModelFileError

@@ -57,6 +57,13 @@ class OscillatoryMode:
 
     For a block with characteristic polynomial ``s^2 + 2 zeta wn s + wn^2``:
     ``wn = sqrt(det)``, ``zeta = -trace / (2 wn)``; ``natural_frequency_hz = wn / (2 pi)``.
+
+    Attributes
+    ----------
+    natural_frequency_hz : float
+        Undamped natural frequency ``wn / (2 pi)`` in Hz (``wn`` in rad/s).
+    damping_ratio : float
+        Damping ratio ``zeta`` (dimensionless); negative for an unstable block.
     """
 
     natural_frequency_hz: float
@@ -64,7 +71,21 @@ class OscillatoryMode:
 
 
 def oscillatory_mode(block: np.ndarray) -> OscillatoryMode:
-    """Natural frequency (Hz) and damping ratio of a continuous-time 2x2 matrix."""
+    """Natural frequency (Hz) and damping ratio of a continuous-time 2x2 matrix.
+
+    Parameters
+    ----------
+    block : (2, 2) array_like
+        Continuous-time system matrix (1/s), e.g. the EHA velocity-pressure block
+        of :func:`eha_velocity_pressure_block`. Must be finite with a positive
+        determinant (otherwise :class:`ParameterError`: no oscillatory mode).
+
+    Returns
+    -------
+    OscillatoryMode
+        ``wn = sqrt(det(block))`` (rad/s) reported in Hz, and
+        ``zeta = -trace(block) / (2 wn)``.
+    """
     block = finite_array("block", block, shape=(2, 2))
     det = float(np.linalg.det(block))
     if det <= 0:
@@ -318,6 +339,25 @@ def discretize(
 
     ``"euler"`` is the paper's explicit Euler (A = I + dt Ac, B = dt Bc, as in
     eq 30 and eq 67); ``"zoh"`` is the exact zero-order hold (matrix exponential).
+
+    Parameters
+    ----------
+    Ac : (n, n) array_like
+        Continuous-time state matrix (1/s).
+    Bc : (n,) or (n, p) array_like
+        Continuous-time input matrix; a 1-D array is taken as a single input.
+    dt : float
+        Sampling time in seconds (> 0).
+    method : {"euler", "zoh"}
+        ``"euler"`` (default, the paper's choice) or exact zero-order hold;
+        anything else raises :class:`ParameterError`.
+
+    Returns
+    -------
+    A : (n, n) ndarray
+        Discrete state transition matrix.
+    B : (n, p) ndarray
+        Discrete input matrix.
     """
     dt = positive("dt", dt, unit="s")
     Ac = finite_array("Ac", Ac, ndim=2)
@@ -427,6 +467,31 @@ def eha_velocity_pressure_block(
     natural frequencies and damping ratios are reproduced digit for digit only
     with ``leakage_sign = -1`` (DESIGN.md 8.4); that option exists to document
     the discrepancy, not for use.
+
+    Parameters
+    ----------
+    leakage : float
+        Leakage coefficient L in m^3/(s Pa) (Table 1: 4.8e-12; Table 2 faults:
+        3e-11, 6e-11, 9e-11).
+    friction : float
+        Viscous friction coefficient a in N s/m (Table 1: 2144).
+    bulk_modulus : float
+        Effective bulk modulus be in Pa (Table 1: 2.07e8).
+    piston_area : float
+        Piston area Ac in m^2 (Table 1: 1.52e-3).
+    mass : float
+        Moving mass M in kg (Table 1: 7.38).
+    volume : float
+        System volume V0 in m^3 (Table 1: 1.08e-3).
+    leakage_sign : float
+        Sign applied to the leakage term; ``+1`` is physical, ``-1``
+        reproduces the paper's Table 2 (see above).
+
+    Returns
+    -------
+    (2, 2) ndarray
+        Continuous-time block (1/s) acting on (velocity, pressure). No input
+        validation is done here; :func:`eha_linear` validates its arguments.
     """
     a, M, Ac, V0, be, L = friction, mass, piston_area, volume, bulk_modulus, leakage
     return np.array([[-a / M, Ac / M], [-be * Ac / V0, -leakage_sign * be * L / V0]])
@@ -455,11 +520,42 @@ def eha_linear(
         x2' = -a/M x2 + Ac/M x3
         x3' = -be Ac/V0 x2 - be L/V0 x3 + be Dp/V0 u
 
-    Parameters are Table 1 values by default (SI units): ``leakage`` L in
-    m^3/(s Pa), ``friction`` a in N s/m, ``bulk_modulus`` be in Pa. Q and R
-    default to eq (66): Q = diag(1e-12, 1e-6, 1), R = diag(1e-6, 1e-6, 1e6).
     The model reports the natural frequency (Hz) and damping of the
     velocity-pressure block (healthy: 39.07 Hz, 0.5936).
+
+    Parameters
+    ----------
+    leakage : float
+        Leakage coefficient L in m^3/(s Pa), >= 0 (Table 1: 4.8e-12; the
+        Table 2 leakage faults use 3e-11, 6e-11 and 9e-11).
+    friction : float
+        Viscous friction coefficient a in N s/m, >= 0 (Table 1: 2144; Table 2
+        friction faults: 4000 and 7000).
+    bulk_modulus : float
+        Effective bulk modulus be in Pa, > 0 (Table 1: 2.07e8; Table 2 scales
+        it by 0.5, 0.75, 1.25 and 1.5).
+    piston_area : float
+        Piston area Ac in m^2, > 0 (Table 1: 1.52e-3).
+    pump_displacement : float
+        Pump displacement Dp in m^3/rad, > 0 (Table 1: 5.57e-7).
+    mass : float
+        Moving mass M in kg, > 0 (Table 1: 7.38).
+    volume : float
+        System volume V0 in m^3, > 0 (Table 1: 1.08e-3).
+    dt : float
+        Sampling time Ts in seconds (paper: 1 ms).
+    Q, R : (3, 3) arrays, optional
+        Discrete process- and measurement-noise covariances; default eq (66):
+        Q = diag(1e-12, 1e-6, 1), R = diag(1e-6, 1e-6, 1e6).
+    discretization : {"euler", "zoh"}
+        How the continuous dynamics are discretized (see :func:`discretize`);
+        ``"euler"`` gives the paper's eq (67).
+
+    Returns
+    -------
+    LinearModel
+        Outputs position (m), velocity (m/s) and pressure (Pa); input
+        ``pump_speed`` (rad/s).
     """
     params = {
         "leakage": nonnegative("leakage", leakage),

@@ -473,12 +473,9 @@ class ChatteringMonitor:
     def _event(
         self, kind: EventKind, c: int, fr: FrameBlock, f: int, peak_hz: float, peak_ratio: float
     ) -> DetectionEvent:
+        t = float(fr.times_s[f])
+        j = int(fr.index[f])
+        back = (self.n_window - 1) / 2.0 if j == 0 else self.n_hop / 2.0
         return DetectionEvent(
-            kind,
-            self.channels[c],
-            c,
-            float(fr.times_s[f]),
-            int(fr.index[f]),
-            float(peak_hz),
-            float(peak_ratio),
+            kind, self.channels[c], c, t, j, float(peak_hz), float(peak_ratio), t - back * self.dt
         )

@@ -103,7 +103,26 @@ def plan_chunks(runs: int, chunk_runs: int | None = None) -> tuple[Chunk, ...]:
 
 
 def run_chunk(study: Study, chunk: Chunk, seed: np.random.SeedSequence) -> tuple[int, int, Any]:
-    """Worker entry point: ``(chunk.index, chunk.runs, study.run_chunk(...))`` (module level, picklable)."""
+    """Worker entry point: ``(chunk.index, chunk.runs, study.run_chunk(...))`` (module level, picklable).
+
+    :func:`run_study` submits this function to the serial loop, the process pool
+    or the Dask client alike, and reorders the returned tuples by ``chunk.index``.
+
+    Parameters
+    ----------
+    study : Study
+        Object whose ``run_chunk(first_run, runs, seed)`` computes the chunk's summary.
+    chunk : Chunk
+        The realizations ``[chunk.first_run, chunk.first_run + chunk.runs)`` to run.
+    seed : numpy.random.SeedSequence
+        The study's root seed sequence (the same for every chunk); realization r
+        draws from block ``r // BLOCK`` under it, so results do not depend on chunking.
+
+    Returns
+    -------
+    tuple of (int, int, Any)
+        ``(chunk.index, chunk.runs, summary)``.
+    """
     return chunk.index, chunk.runs, study.run_chunk(chunk.first_run, chunk.runs, seed)
 
 

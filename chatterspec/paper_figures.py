@@ -28,6 +28,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from . import plotting as pl
 from .errors import ParameterError
@@ -61,12 +62,17 @@ __all__ = [
 PAPER_ALPHAS: tuple[float, ...] = (1e-2, 1e-3)
 #: Alpha of the fault figures (the paper detects at 0.1 %).
 FAULT_ALPHA: float = 1e-3
+#: Fig 2 boundary layers psi1: too small, the paper's 5e-4, chatterspec's proposal (None), too large.
+FIG2_PSIS: tuple[float | None, ...] = (1e-4, 5e-4, None, 2e-3)
+#: Healthy per-sample chattering probability behind the proposed psi1 of Fig 2.
+FIG2_PROBABILITY: float = 1e-3
 #: Zoom of the inset on the second-order fault figures (Hz): the peaks sit at 9-15 Hz.
 SO_INSET_HZ: tuple[float, float] = (0.0, 40.0)
 
 _THRESHOLD_NOTE = (
-    "dashed: paper flat bound (eq 62), α per bin; solid: exact χ² on E[S] (eq 56), α family-wise "
-    "(Bonferroni over the tested bins, DC and Nyquist excluded)"
+    "dashed = paper's flat bound (eq 58-62), α = false-alarm probability PER BIN;  "
+    "solid = exact χ² bound on E[S] (eq 56),\nα = FAMILY-WISE false-alarm probability of the whole "
+    "spectrum (Bonferroni over the tested bins; DC and Nyquist not tested)"
 )
 
 
@@ -84,7 +90,7 @@ class PaperFigure:
     """
 
     name: str
-    figure: object
+    figure: Figure
     notes: tuple[str, ...]
 
 
@@ -168,6 +174,26 @@ def peak_summary(power: np.ndarray, threshold: Threshold, channel: int) -> tuple
 
     ``peak_ratio = max_f S(f) / threshold(f)`` (DESIGN.md section 5; > 1 means
     detected), ``peak_hz`` its frequency and ``n_over`` the number of tested bins above.
+
+    Parameters
+    ----------
+    power : (bins, m) array_like
+        Periodogram of the chattering (eq 51), in squared output units per bin
+        (e.g. Pa^2 for pressure), on the threshold's frequency grid.
+    threshold : Threshold
+        Threshold on the same bins; only its ``tested`` bins (DC and Nyquist
+        excluded) are considered.
+    channel : int
+        Index of the output channel (column of ``power``).
+
+    Returns
+    -------
+    peak_hz : float
+        Frequency in Hz of the largest ratio.
+    peak_ratio : float
+        Largest ``S / threshold`` over the tested bins.
+    n_over : int
+        Number of tested bins with ``S > threshold``.
     """
     p = np.asarray(power, dtype=float)[:, channel]
     v = np.asarray(threshold.values, dtype=float)[:, channel]
@@ -185,12 +211,28 @@ def _short(th: Threshold) -> str:
 
 
 def _note(power: np.ndarray, ths: Sequence[Threshold], channel: int) -> tuple[str, str]:
-    """(multi-line panel text, one-line summary) of the peak ratios for each threshold."""
-    lines = []
+    """(multi-line panel text, one-line summary) of the peak ratios ``S / threshold``.
+
+    The reference peak is the bin with the largest ratio to the last exact
+    threshold (the default detector), or to the last threshold if none is exact;
+    each threshold then reports its own maximum ratio, the number of tested bins
+    above it and its ratio at the reference peak.
+    """
+    if not ths:
+        return "", ""
+    ref = next((t for t in reversed(ths) if t.kind == "exact"), ths[-1])
+    f_ref, _, _ = peak_summary(power, ref, channel)
+    i_ref = int(np.argmin(np.abs(np.asarray(ref.freqs_hz) - f_ref)))
+    p = np.asarray(power, dtype=float)[:, channel]
+    width = max(len(_short(t)) for t in ths)
+    lines = [f"S/threshold at {f_ref:.2f} Hz"]
+    summary = [f"peak {f_ref:.2f} Hz (max S/thr of {_short(ref)}, DC and Nyquist excluded)"]
     for th in ths:
         f, r, n_over = peak_summary(power, th, channel)
-        lines.append(f"{_short(th)}: max S/thr {r:.2g} at {f:.2f} Hz ({n_over} bins over)")
-    return "\n".join(lines), "; ".join(lines)
+        at = p[i_ref] / float(np.asarray(th.values)[i_ref, channel])
+        lines.append(f"{_short(th):<{width}} {at:6.3g}  ({n_over} bins over)")
+        summary.append(f"{_short(th)}: {at:.3g} at peak, max {r:.3g} at {f:.2f} Hz, {n_over} bins over")
+    return "\n".join(lines), "; ".join(summary)
 
 
 def _channel_index(sc: Scenario, channel: str | int | None) -> int:
@@ -225,7 +267,9 @@ def _panel(
             pl.SpectrumCurve(sp.single[:, channel], "one realization", color="0.65", linewidth=0.6, alpha=0.8)
         )
     label = curve_label or (
-        f"mean of {sp.averaged} realizations" if sp.averaged > 1 else f"S(f), {sp.scenario.name}"
+        f"S(f) averaged over K = {sp.averaged} realizations"
+        if sp.averaged > 1
+        else "S(f), one realization (eq 49)"
     )
     curves.append(pl.SpectrumCurve(sp.power[:, channel], label, color="tab:blue"))
     text, line = _note(sp.power, ths, channel)
@@ -247,17 +291,34 @@ def _panel(
 def fig2(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     """Fig 2: boundary-layer study on ``so-boundary-layer`` (reduced-order SVSF, x1 measured).
 
-    Normalized estimation errors ``(x - x_hat) / rms_t(x)`` of the measured (a) and
-    unmeasured (b) states and the eq-13 chattering of x1 (c) for three boundary
-    layers psi1: 1e-4 (too small, below sigma of the healthy chattering), the
-    proposed ``sigma Phi^-1(1 - p/2)`` at p = 0.1 % (:func:`estimate_boundary_layer`)
-    and 2e-3 (too large), as in the paper.
+    Normalized estimation errors ``(x - x_hat) / rms_t(x)`` (mean over ``runs``
+    realizations) of the measured (a) and unmeasured (b) states and the eq-13
+    chattering of x1 for realization 0 (c), for the paper's three boundary layers
+    psi1 = 1e-4 (too small), 5e-4 (the paper's choice) and 2e-3 (too large), plus
+    chatterspec's proposal ``sigma Phi^-1(1 - p/2)`` at p = 0.1 % from the measured
+    healthy chattering (:func:`chatterspec.boundary_layer.estimate_boundary_layer`;
+    sigma = 2.45e-4, not the 1.42e-4 of eq 34, DESIGN.md 8.7).
+
+    Parameters
+    ----------
+    runs : int, optional
+        Monte Carlo realizations averaged in the error panels (a, b); default 20.
+    seed : int, SeedSequence, Generator or None
+        Root seed of the simulation (and of the healthy runs behind the
+        proposed boundary layer).
+
+    Returns
+    -------
+    PaperFigure
+        The figure and, per boundary layer, a note with the chattering rate
+        inside/outside the mismatch windows (Fisher exact test p-value) and the
+        rms normalized error of x2.
     """
     from .boundary_layer import boundary_layer_study
 
     runs = 20 if runs is None else runs
-    st = boundary_layer_study((1e-4, None, 2e-3), runs=runs, seed=seed)
-    kinds = ("too small", "proposed, p = 0.1 %", "too large")
+    st = boundary_layer_study(FIG2_PSIS, runs=runs, seed=seed, probability=FIG2_PROBABILITY)
+    kinds = ("too small", "paper's choice", f"proposed, p = {pl.format_alpha(FIG2_PROBABILITY)}", "too large")
     labels = tuple(f"ψ₁ = {p:.2g} ({k})" for p, k in zip(st.psis, kinds, strict=True))
     sc = scenario("so-boundary-layer")
     win_labels = tuple(s.label for s in sc.segments if (s.start, s.stop) in st.windows)
@@ -280,7 +341,7 @@ def fig2(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
         ),
     )
     notes = tuple(
-        f"Fig 2 ψ1={p:.3g}: chattering rate inside mismatch {ri:.3f}, outside {ro:.4f} "
+        f"Fig 2 ψ1={p:.3g}: chattering rate inside mismatch {ri:.3g}, outside {ro:.3g} "
         f"(Fisher p {pv:.2g}); rms norm. error x2 inside {e_in:.3g} / outside {e_out:.3g}"
         for p, ri, ro, pv, e_in, e_out in zip(
             st.psis,
@@ -296,7 +357,23 @@ def fig2(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
 
 
 def fig4(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
-    """Fig 4: healthy spectra of both channels at (a) low and (b) high measurement noise, alpha 1 % and 0.1 %."""
+    """Fig 4: healthy spectra of both channels at (a) low and (b) high measurement noise.
+
+    Thresholds at alpha = 1 % and 0.1 % (paper per-bin, exact family-wise).
+
+    Parameters
+    ----------
+    runs : int, optional
+        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
+        :data:`FIGURES`; the figure shows a single realization, as in the paper.
+    seed : int, SeedSequence, Generator or None
+        Root seed of the simulation; realization 0 of this seed is shown in every panel.
+
+    Returns
+    -------
+    PaperFigure
+        The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
+    """
     panels, notes = [], []
     for tag, name in (("a", "so-healthy-low"), ("b", "so-healthy-high")):
         sp = _spectrum(name, 1, seed)
@@ -309,6 +386,7 @@ def fig4(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
         panels,
         ncols=2,
         suptitle="Fig 4 — healthy chattering spectra, one 4 s realization\n" + _THRESHOLD_NOTE,
+        panel_size=(5.0, 3.6),
     )
     return PaperFigure("fig4", fig, tuple(notes))
 
@@ -318,6 +396,19 @@ def fig5(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
 
     At high noise the 11 Hz peak stays below the paper's flat threshold while the
     exact family-wise threshold, much lower at low frequency, can still find it.
+
+    Parameters
+    ----------
+    runs : int, optional
+        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
+        :data:`FIGURES`; the figure shows a single realization, as in the paper.
+    seed : int, SeedSequence, Generator or None
+        Root seed of the simulation; realization 0 of this seed is shown in every panel.
+
+    Returns
+    -------
+    PaperFigure
+        The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
     """
     panels, notes = [], []
     for tag, name in (("a", "so-f11-low"), ("b", "so-f11-high")):
@@ -339,6 +430,19 @@ def fig6(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
 
     The averaged threshold is ``E[S] chi2_{1-a}(2K) / (2K)`` (K independent
     periodograms); the paper's single-record flat bound is drawn for reference.
+
+    Parameters
+    ----------
+    runs : int, optional
+        Number K of realizations averaged (default 100); the exact threshold
+        uses 2K degrees of freedom per bin.
+    seed : int, SeedSequence, Generator or None
+        Root seed of the K realizations.
+
+    Returns
+    -------
+    PaperFigure
+        The figure and a note with the peak ratios ``S / threshold``.
     """
     K = 100 if runs is None else runs
     sp = _spectrum("so-f11-high", K, seed, average=True)
@@ -388,7 +492,22 @@ def _family(
 
 
 def fig7(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
-    """Fig 7: velocity spectra for true f0 = 9, 12 and 15 Hz (nominal 10 Hz), low noise, alpha 0.1 %."""
+    """Fig 7: velocity spectra for true f0 = 9, 12 and 15 Hz (nominal 10 Hz), low noise, alpha 0.1 %.
+
+    Parameters
+    ----------
+    runs : int, optional
+        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
+        :data:`FIGURES`; the figure shows a single realization, as in the paper.
+    seed : int, SeedSequence, Generator or None
+        Root seed of the simulation; realization 0 of this seed is shown in every panel (common random
+        numbers across the three mismatch levels).
+
+    Returns
+    -------
+    PaperFigure
+        The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
+    """
     return _family(
         "fig7",
         "Fig 7 — mismatch levels f0 = 9 / 12 / 15 Hz (nominal 10 Hz), low noise, velocity chattering",
@@ -407,6 +526,20 @@ def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     5 s). True fault windows (f0 8 Hz on [0, 2) s, zeta 0.1 on [4, 6) s) and the
     intervals detected by the per-frame exact threshold (alpha 0.1 % per frame,
     Bonferroni over the frame's bins) are marked above each spectrogram.
+
+    Parameters
+    ----------
+    runs : int, optional
+        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
+        :data:`FIGURES`; the figure shows a single realization, as in the paper.
+    seed : int, SeedSequence, Generator or None
+        Root seed of the simulation; realization 0 of this seed is shown for both inputs.
+
+    Returns
+    -------
+    PaperFigure
+        The matplotlib figure and one note per panel with the detected and true fault intervals (s) and the
+        number of flagged frames.
     """
     from .detect import detect_frames, frame_intervals
 
@@ -450,7 +583,21 @@ def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
 
 
 def fig9(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
-    """Fig 9: healthy EHA spectra of position, velocity and pressure, alpha 1 % and 0.1 %."""
+    """Fig 9: healthy EHA spectra of position, velocity and pressure, alpha 1 % and 0.1 %.
+
+    Parameters
+    ----------
+    runs : int, optional
+        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
+        :data:`FIGURES`; the figure shows a single realization, as in the paper.
+    seed : int, SeedSequence, Generator or None
+        Root seed of the simulation; realization 0 of this seed is shown in every panel.
+
+    Returns
+    -------
+    PaperFigure
+        The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
+    """
     sp = _spectrum("eha-healthy", 1, seed)
     ths = _thresholds(sp, PAPER_ALPHAS)
     panels, notes = [], []
@@ -467,7 +614,22 @@ def fig9(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
 
 
 def fig10(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
-    """Fig 10: EHA pressure spectra for minor, medium and major leakage, alpha 0.1 %."""
+    """Fig 10: EHA pressure spectra for minor, medium and major leakage, alpha 0.1 %.
+
+    Parameters
+    ----------
+    runs : int, optional
+        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
+        :data:`FIGURES`; the figure shows a single realization, as in the paper.
+    seed : int, SeedSequence, Generator or None
+        Root seed of the simulation; realization 0 of this seed is shown in every panel (each fault level is a
+        separate scenario with the same seed).
+
+    Returns
+    -------
+    PaperFigure
+        The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
+    """
     return _family(
         "fig10",
         "Fig 10 — EHA leakage (L = 3e-11 / 6e-11 / 9e-11 m³/(s·Pa)), pressure chattering",
@@ -479,7 +641,22 @@ def fig10(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
 
 
 def fig11(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
-    """Fig 11: EHA velocity spectra for minor and major friction, alpha 0.1 %."""
+    """Fig 11: EHA velocity spectra for minor and major friction, alpha 0.1 %.
+
+    Parameters
+    ----------
+    runs : int, optional
+        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
+        :data:`FIGURES`; the figure shows a single realization, as in the paper.
+    seed : int, SeedSequence, Generator or None
+        Root seed of the simulation; realization 0 of this seed is shown in every panel (each fault level is a
+        separate scenario with the same seed).
+
+    Returns
+    -------
+    PaperFigure
+        The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
+    """
     return _family(
         "fig11",
         "Fig 11 — EHA friction (a = 4000 / 7000 N·s/m), velocity chattering",
@@ -491,7 +668,22 @@ def fig11(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
 
 
 def fig12(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
-    """Fig 12: EHA pressure spectra for bulk modulus x0.5, x0.75, x1.25 and x1.5, alpha 0.1 %."""
+    """Fig 12: EHA pressure spectra for bulk modulus x0.5, x0.75, x1.25 and x1.5, alpha 0.1 %.
+
+    Parameters
+    ----------
+    runs : int, optional
+        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
+        :data:`FIGURES`; the figure shows a single realization, as in the paper.
+    seed : int, SeedSequence, Generator or None
+        Root seed of the simulation; realization 0 of this seed is shown in every panel (each fault level is a
+        separate scenario with the same seed).
+
+    Returns
+    -------
+    PaperFigure
+        The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
+    """
     return _family(
         "fig12",
         "Fig 12 — EHA bulk-modulus mismatch (βe × 0.5 / 0.75 / 1.25 / 1.5), pressure chattering",
@@ -623,6 +815,7 @@ def scenario_spectrum(
     fig = pl.spectrum_figure(
         panels,
         ncols=min(len(panels), 3),
-        suptitle=f"{name}: {sc.description} ({what}, seed {seed})",
+        suptitle=f"{name}: {sc.description} ({what}, seed {seed})\n{_THRESHOLD_NOTE}",
+        panel_size=(8.0, 4.8) if len(panels) == 1 else (5.2, 3.9),
     )
     return PaperFigure(f"spectrum-{name}", fig, tuple(notes))

@@ -85,6 +85,7 @@ def far_figure(res: FalseAlarmResult, kinds: tuple[str, ...] = ("paper", "exact"
                 )
             ax.axhline(a, color="k", lw=0.8, ls="-" if i == 0 else "--")
         ax.set_yscale("symlog", linthresh=min(alphas) / 10)
+        ax.set_ylim(bottom=0)
         ax.set_ylabel(f"{res.channels[c]}\nper-bin rate")
     axes[0, 0].set_title(f"{res.scenario}: per-bin false-alarm rate ({res.runs} runs; black = nominal alpha)")
     axes[0, 0].legend(fontsize=7, ncol=2)

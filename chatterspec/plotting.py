@@ -23,6 +23,7 @@ Conventions (DESIGN.md section 2 and 5):
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,13 +33,13 @@ import matplotlib
 
 matplotlib.use("Agg")
 
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.axes import Axes  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-from matplotlib.lines import Line2D  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 
-from .errors import ParameterError, ShapeError  # noqa: E402
+from .errors import ParameterError, ShapeError
 
 __all__ = [
     "DEFAULT_DPI",
@@ -70,9 +71,9 @@ _KIND_STYLE: dict[str, dict[str, Any]] = {
     "empirical": {"linestyle": ":", "linewidth": 1.8},
 }
 _KIND_COLORS: dict[str, tuple[str, ...]] = {
-    "paper": ("tab:red", "tab:orange", "darkred"),
-    "exact": ("tab:green", "yellowgreen", "darkgreen"),
-    "empirical": ("tab:purple", "orchid", "indigo"),
+    "paper": ("tab:red", "tab:orange", "gold"),
+    "exact": ("tab:green", "yellowgreen", "turquoise"),
+    "empirical": ("tab:purple", "orchid", "pink"),
 }
 _CURVE_COLORS = ("tab:blue", "tab:orange", "tab:purple", "tab:brown", "tab:cyan", "tab:pink")
 
@@ -199,7 +200,8 @@ class SpectrumPanel:
     fmax_hz : float, optional
         Upper limit of the frequency axis (default: Nyquist).
     note : str
-        Text drawn under the legend (e.g. peak frequency and ratios).
+        Text drawn in the upper-left corner (e.g. peak frequency and ratios); the
+        y axis gets headroom so it does not hide the data.
     inset_hz : (f_lo, f_hi), optional
         Draw an inset zooming on this frequency band (Hz), e.g. the 9-15 Hz peaks
         of the second-order mismatch figures.
@@ -289,7 +291,7 @@ class BoundaryLayerPanel:
     fault_intervals: tuple[tuple[float, float], ...] = ()
     fault_labels: tuple[str, ...] = ()
     error_label: str = "normalized error"
-    colors: tuple[str, ...] = field(default=("black", "tab:blue", "tab:red"))
+    colors: tuple[str, ...] = field(default=("black", "tab:blue", "tab:green", "tab:red"))
 
 
 # --------------------------------------------------------------------------- thresholds
@@ -337,8 +339,8 @@ def draw_spectrum(ax: Axes, panel: SpectrumPanel, *, legend: bool = True) -> lis
     """Draw one :class:`SpectrumPanel` into ``ax`` (log y, Hz on x); return the lines drawn.
 
     Draw order: spectra, expected spectrum ``E[S]`` (eq 56, black dashed), then
-    thresholds (paper's flat bound dashed in red shades, exact bound solid in green
-    shades; the lighter shade is the larger alpha).
+    thresholds (paper's flat bound dashed in red/orange, exact bound solid in
+    green shades; the darkest shade is the smallest alpha, i.e. the highest line).
     """
     f = np.asarray(panel.freqs_hz, dtype=float)
     if f.ndim != 1:
@@ -357,7 +359,11 @@ def draw_spectrum(ax: Axes, panel: SpectrumPanel, *, legend: bool = True) -> lis
             raise ShapeError(f"expected has shape {e.shape}, freqs_hz {f.shape}")
         (ln,) = ax.plot(f, _positive(e), color="black", ls="--", lw=1.3, label="expected E[S] (eq 56)")
         lines.append(ln)
-    used: dict[str, list[float]] = {}
+    # shade rank per kind: the smallest alpha (highest threshold) gets the darkest colour
+    ranks: dict[str, list[float]] = {}
+    for th in panel.thresholds:
+        ranks.setdefault(th.kind if th.kind in _KIND_STYLE else "exact", []).append(th.alpha)
+    ranks = {k: sorted(set(v)) for k, v in ranks.items()}
     for th in panel.thresholds:
         v = np.asarray(th.values, dtype=float)
         if v.ndim == 0:
@@ -365,36 +371,61 @@ def draw_spectrum(ax: Axes, panel: SpectrumPanel, *, legend: bool = True) -> lis
         if v.shape != f.shape:
             raise ShapeError(f"threshold {th.label!r} has shape {v.shape}, freqs_hz {f.shape}")
         kind = th.kind if th.kind in _KIND_STYLE else "exact"
-        shade = sorted({*used.get(kind, []), th.alpha}, reverse=True)
-        used[kind] = shade
         palette = _KIND_COLORS[kind]
-        color = palette[min(shade.index(th.alpha), len(palette) - 1)]
+        color = palette[min(ranks[kind].index(th.alpha), len(palette) - 1)]
         (ln,) = ax.plot(f, _positive(v), color=color, label=th.label, **_KIND_STYLE[kind])
         lines.append(ln)
     ax.set_yscale("log")
     ax.set_xlim(0.0, panel.fmax_hz if panel.fmax_hz is not None else float(f[-1]))
     ax.set_xlabel("frequency [Hz]")
-    what = f"{panel.channel} chattering" if panel.channel else "chattering"
-    ax.set_ylabel(f"power spectrum S(f) of {what} [{power_unit(panel.unit)}]")
+    sub = f", {panel.channel}" if panel.channel else ""
+    ax.set_ylabel(f"power spectrum S(f){sub} [{power_unit(panel.unit)}]")
     if panel.title:
         ax.set_title(panel.title, fontsize=10)
     ax.grid(True, which="major", alpha=0.3)
+    if panel.note or panel.inset_hz is not None:
+        # the inset needs the upper half of the axes, a note about its upper third
+        _make_headroom(ax, panel, lines, data_fraction=0.5 if panel.inset_hz is not None else 0.68)
+    if panel.note:
+        ax.text(
+            0.025,
+            0.975,
+            panel.note,
+            transform=ax.transAxes,
+            ha="left",
+            va="top",
+            fontsize=6.5,
+            family="monospace",
+            bbox={"boxstyle": "round,pad=0.3", "fc": "white", "ec": "0.75", "alpha": 0.9},
+        )
     if panel.inset_hz is not None:
         _draw_inset(ax, panel, lines)
     if legend and lines:
-        # below the axes, so the spectra stay visible; the note becomes the legend title
-        leg = ax.legend(
-            handles=lines,
-            fontsize=7,
-            loc="upper center",
-            bbox_to_anchor=(0.5, -0.13),
-            ncols=2,
-            frameon=False,
-            title=panel.note or None,
-            title_fontsize=7,
-        )
-        leg._legend_box.align = "left"  # noqa: SLF001 - matplotlib has no public setter
+        ax.legend(handles=lines, fontsize=7, loc="upper left", framealpha=0.9)
     return lines
+
+
+def _make_headroom(
+    ax: Axes, panel: SpectrumPanel, lines: Sequence[Line2D], *, data_fraction: float = 0.5
+) -> None:
+    """Raise the top of the log y axis so the data (DC excluded) fills the lower ``data_fraction``.
+
+    Leaves room for the note (upper left) and the inset (upper right).
+    """
+    f = np.asarray(panel.freqs_hz, dtype=float)
+    right = f > 0
+    hi = 0.0
+    for ln in lines:
+        y = np.asarray(ln.get_ydata(), dtype=float)
+        if y.shape == f.shape:
+            yr = y[right]
+            yr = yr[np.isfinite(yr)]
+            if yr.size:
+                hi = max(hi, float(yr.max()))
+    lo, top = ax.get_ylim()
+    if hi > 0 and lo > 0:
+        decades = np.log10(hi / lo) + 0.15
+        ax.set_ylim(lo, max(top, lo * 10.0 ** (decades / data_fraction)))
 
 
 def _draw_inset(ax: Axes, panel: SpectrumPanel, lines: Sequence[Line2D]) -> Axes:
@@ -402,7 +433,7 @@ def _draw_inset(ax: Axes, panel: SpectrumPanel, lines: Sequence[Line2D]) -> Axes
     lo, hi = panel.inset_hz  # type: ignore[misc]
     if not hi > lo:
         raise ParameterError(f"inset_hz must be (f_lo, f_hi) with f_lo < f_hi; got {panel.inset_hz}")
-    ins = ax.inset_axes((0.56, 0.52, 0.42, 0.45))
+    ins = ax.inset_axes((0.6, 0.56, 0.38, 0.4))
     f = np.asarray(panel.freqs_hz, dtype=float)
     band = (f >= lo) & (f <= hi)
     ymin, ymax = np.inf, 0.0
@@ -439,8 +470,9 @@ def spectrum_figure(
     *,
     ncols: int | None = None,
     suptitle: str = "",
-    panel_size: tuple[float, float] = (5.6, 4.2),
+    panel_size: tuple[float, float] = (5.2, 3.9),
     sharey: bool = False,
+    legend_cols: int | None = None,
 ) -> Figure:
     """A figure with one axes per :class:`SpectrumPanel` (row-major, ``ncols`` per row).
 
@@ -456,11 +488,14 @@ def spectrum_figure(
         Size of one axes cell in inches.
     sharey : bool
         Share the (log) power axis between panels.
+    legend_cols : int, optional
+        Columns of the figure legend (below the panels; one entry per distinct label).
 
     Returns
     -------
     matplotlib.figure.Figure
-        ``len(panels)`` axes; unused grid cells are removed.
+        ``len(panels)`` main axes (plus one inset axes per panel with ``inset_hz``);
+        unused grid cells are removed.
     """
     panels = list(panels)
     nrows, ncols = _grid(len(panels), ncols)
@@ -473,13 +508,29 @@ def spectrum_figure(
         layout="constrained",
     )
     flat = axes.ravel()
+    handles: dict[str, Line2D] = {}
     for ax, panel in zip(flat, panels, strict=False):
-        draw_spectrum(ax, panel)
+        for ln in draw_spectrum(ax, panel, legend=False):
+            handles.setdefault(str(ln.get_label()), ln)
     for ax in flat[len(panels) :]:
         fig.delaxes(ax)
+    # one legend for the whole figure: every panel uses the same conventions
+    fig.legend(
+        handles=list(handles.values()),
+        loc="outside lower center",
+        ncols=legend_cols if legend_cols else ncols,
+        fontsize=8,
+        frameon=False,
+    )
     if suptitle:
-        fig.suptitle(suptitle, fontsize=11)
+        fig.suptitle(_wrap(suptitle, fig.get_figwidth()), fontsize=10)
     return fig
+
+
+def _wrap(text: str, width_in: float) -> str:
+    """Wrap each line of ``text`` to the width of a ``width_in``-inch figure (10 pt font)."""
+    chars = max(int(width_in * 15), 20)
+    return "\n".join(textwrap.fill(line, chars) for line in text.split("\n"))
 
 
 # --------------------------------------------------------------------------- spectrograms
@@ -492,7 +543,7 @@ def spectrogram_figure(
     panels: Sequence[SpectrogramPanel],
     *,
     suptitle: str = "",
-    db_range: float = 60.0,
+    db_range: float = 80.0,
     panel_size: tuple[float, float] = (6.4, 4.6),
 ) -> Figure:
     """Spectrograms (STFT power in dB) with true fault windows and detected intervals (Fig 8).
@@ -555,7 +606,7 @@ def spectrogram_figure(
         for text in leg.get_texts():
             text.set_color("white")
     if suptitle:
-        fig.suptitle(suptitle, fontsize=11)
+        fig.suptitle(_wrap(suptitle, fig.get_figwidth()), fontsize=10)
     return fig
 
 
@@ -625,7 +676,9 @@ def save_figure(fig: Figure, path: str | Path, *, dpi: int = DEFAULT_DPI, close:
     if not dpi > 0:
         raise ParameterError(f"dpi must be > 0; got {dpi!r}")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi, format="png", metadata={"Software": "chatterspec"})
+    fig.savefig(
+        path, dpi=dpi, format="png", metadata={"Software": "chatterspec"}, pil_kwargs={"optimize": True}
+    )
     if close:
         plt.close(fig)
     return path

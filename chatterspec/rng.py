@@ -26,6 +26,20 @@ def root_seed_sequence(seed: SeedLike) -> np.random.SeedSequence:
     A :class:`numpy.random.Generator` is consumed once (four 64-bit draws) to
     derive the root entropy, so passing the same generator state twice gives
     the same results.
+
+    Parameters
+    ----------
+    seed : int, SeedSequence, Generator or None
+        A non-negative integer (used as the SeedSequence entropy); a
+        SeedSequence (returned unchanged); a Generator (advanced by one draw); or
+        None (fresh OS entropy, not reproducible). Booleans, negative integers
+        and other types raise :class:`~chatterspec.errors.ParameterError`.
+
+    Returns
+    -------
+    numpy.random.SeedSequence
+        Root from which :func:`block_generator` derives one stream per block
+        of :data:`BLOCK` realizations.
     """
     if isinstance(seed, np.random.SeedSequence):
         return seed

@@ -23,7 +23,21 @@ __all__ = ["Scenario", "Segment", "catalogue", "scenario", "scenario_names"]
 
 @dataclass(frozen=True, eq=False)
 class Segment:
-    """The true plant on the half-open time window ``[start, stop)`` (seconds)."""
+    """The true plant on the half-open time window ``[start, stop)`` (seconds).
+
+    Attributes
+    ----------
+    start : float
+        Window start in seconds (finite, >= 0); samples with ``t >= start`` belong to it.
+    stop : float
+        Window end in seconds (finite, > ``start``); samples with ``t < stop`` belong to it.
+    model : LinearModel
+        The true plant simulated inside the window (e.g. a faulty EHA or a
+        mismatched second-order system); the filters keep using the nominal model.
+    label : str
+        Human-readable description of the window (e.g. ``"w0 = 8 Hz"``), used in
+        listings and plot annotations; empty by default.
+    """
 
     start: float
     stop: float

@@ -100,7 +100,22 @@ class Chirp:
 
 @dataclass(frozen=True)
 class SquareWave:
-    """Square wave of frequency ``frequency_hz`` between ``-amplitude`` and ``+amplitude`` (plus offset)."""
+    """Square wave of frequency ``frequency_hz`` between ``-amplitude`` and ``+amplitude`` (plus offset).
+
+    Sampled with :func:`scipy.signal.square`, so the wave starts high at ``t = 0``.
+
+    Attributes
+    ----------
+    frequency_hz : float
+        Fundamental frequency in Hz (> 0).
+    amplitude : float
+        Half the peak-to-peak swing (input units, e.g. rad/s of pump speed for the EHA).
+    offset : float
+        Constant added to the wave.
+    duty : float
+        Fraction of each period spent at ``offset + amplitude``, in the open
+        interval (0, 1); 0.5 (default) gives a symmetric wave.
+    """
 
     frequency_hz: float = 1.0
     amplitude: float = 1.0

@@ -124,7 +124,38 @@ def iter_simulations(
     chunk_runs: int | None = None,
     first_run: int = 0,
 ) -> Iterator[Simulation]:
-    """Yield the realizations ``first_run .. first_run + runs - 1`` in chunks (constant memory)."""
+    """Yield the realizations ``first_run .. first_run + runs - 1`` in chunks (constant memory).
+
+    Realization r always draws its noise from random block ``r // BLOCK`` of
+    ``seed``, so the concatenated chunks equal :func:`simulate` with the same seed
+    whatever ``chunk_runs`` and however the runs are split between calls.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Nominal model, time-segmented true plant, input and duration (seconds).
+    runs : int
+        Number of realizations to yield in total (>= 1).
+    seed : int, SeedSequence, Generator or None
+        Root of the random streams (see :func:`chatterspec.rng.root_seed_sequence`).
+    chunk_runs : int, optional
+        Realizations per yielded chunk; the default is a multiple of 64 (at
+        least 64) sized so that one chunk's state and measurement arrays stay
+        near ``CHUNK_BYTES`` (192 MiB).
+    first_run : int
+        Index of the first realization (default 0), for continuing or splitting a study.
+
+    Yields
+    ------
+    Simulation
+        One chunk with ``x`` (k, T, n), ``z`` (k, T, m), shared ``u`` (T, p) and
+        ``t`` (T,) in seconds, and ``first_run`` set to its first realization index.
+
+    Raises
+    ------
+    ShapeError
+        If the scenario's input has a different number of channels than the model.
+    """
     runs = positive_int("runs", runs)
     chunk = default_chunk_runs(scenario) if chunk_runs is None else positive_int("chunk_runs", chunk_runs)
     root = root_seed_sequence(seed)

@@ -18,7 +18,11 @@ so channel ``i`` has lag-0 and lag-1 autocovariances::
     gamma0_i = (C Q C^T + R + M R M^T)_ii,      gamma1_i = (M R)_ii
 
 and its periodogram has the exact finite-N expectation
-``gamma0 + 2 (1 - 1/N) gamma1 cos(2 pi f dt)``. The asymptotic form (N -> inf)
+``gamma0 + 2 (1 - 1/N) gamma1 cos(2 pi f dt)``. The exact finite-N *law* of a
+bin is ``l1 Z1^2 + l2 Z2^2`` (Z iid standard normal) with ``(l1, l2)`` the
+eigenvalues of the covariance of ``(Re X, Im X)`` divided by the normalisation
+(:func:`periodogram_eigenvalues`, :func:`frame_eigenvalues`); ``l1 + l2`` is
+the expectation and ``l1 = l2`` gives the chi2(2)/2 law of Lemma 2. The asymptotic form (N -> inf)
 is eq (56) read index-wise; for diagonal Q and R it equals
 ``sum_j C_ij^2 q_j + sum_j |e^{i w} delta_ij + M_ij|^2 r_j``.
 """
@@ -46,8 +50,10 @@ __all__ = [
     "expected_frame_spectrum",
     "expected_spectrum",
     "frame_columns",
+    "frame_eigenvalues",
     "mean_periodogram",
     "periodogram",
+    "periodogram_eigenvalues",
     "periodogram_freqs",
     "spectrogram",
     "window_overlap_ratio",
@@ -496,3 +502,118 @@ def expected_frame_spectrum(
     f = _freqs(freqs_hz)
     dt = model.dt if dt is None else positive("dt", dt, unit="s")
     return _ma1_spectrum(model, f, window_overlap_ratio(config, dt))
+
+
+# ---------------------------------------------------------------------------
+# Exact finite-N law of a bin: eigenvalues of the (Re, Im) covariance
+# ---------------------------------------------------------------------------
+def _bin_eigenvalues(
+    gamma0: np.ndarray, gamma1: np.ndarray, w: np.ndarray, f: np.ndarray, dt: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues ``(l1 >= l2 >= 0)``, each ``(bins, m)``, of ``|sum_k w_k x_k e^{-i omega k}|^2 / sum w_k^2``.
+
+    For the MA(1) ``x`` (lag-0 ``gamma0``, lag-1 ``gamma1``), with ``P = sum w_k^2``,
+    ``Q = sum w_k w_{k+1}``, ``A = sum w_k^2 e^{-2 i omega k}`` and
+    ``B = e^{-i omega} sum_k w_k w_{k+1} e^{-2 i omega k}``, the covariance of
+    ``(Re, Im)`` has trace ``T = gamma0 P + 2 gamma1 Q cos(omega)`` and
+    ``(Var Re - Var Im)^2 + 4 Cov^2 = |gamma0 A + 2 gamma1 B|^2 = D^2``, so
+    ``l1,2 = (T +- D) / (2 P)``. A constant phase shift of the frame does not change them.
+    """
+    L = w.size
+    omega = 2.0 * np.pi * f * dt
+    P = float(np.dot(w, w))
+    Q = float(np.dot(w[:-1], w[1:]))
+    w2 = w * w
+    u = np.zeros(L)
+    u[:-1] = w[:-1] * w[1:]
+    n = f * L * dt
+    ni = np.rint(n)
+    if np.all(np.abs(n - ni) <= 1e-6):  # DFT grid of length L: FFT, O(L log L)
+        idx = (2 * ni.astype(np.int64)) % L
+        A = scipy.fft.fft(w2)[idx]
+        B = np.exp(-1j * omega) * scipy.fft.fft(u)[idx]
+    else:  # arbitrary frequencies: direct sums, chunked to bound memory
+        k = np.arange(L)
+        A = np.empty(f.size, dtype=complex)
+        B = np.empty(f.size, dtype=complex)
+        step = max(1, 2_000_000 // L)
+        for s in range(0, f.size, step):
+            E = np.exp(-2j * np.outer(omega[s : s + step], k))
+            A[s : s + step] = E @ w2
+            B[s : s + step] = np.exp(-1j * omega[s : s + step]) * (E @ u)
+    T = gamma0[None, :] * P + 2.0 * gamma1[None, :] * Q * np.cos(omega)[:, None]
+    D = np.abs(gamma0[None, :] * A[:, None] + 2.0 * gamma1[None, :] * B[:, None])
+    l1 = (T + D) / (2.0 * P)
+    l2 = (T - D) / (2.0 * P)
+    # rounding: a real DFT bin (DC, Nyquist) has l2 = 0 exactly
+    scale = (np.abs(gamma0)[None, :] * P + 2.0 * np.abs(gamma1)[None, :] * abs(Q)) / (2.0 * P)
+    l2 = np.where(l2 <= 64.0 * np.finfo(float).eps * scale, 0.0, l2)
+    return l1, l2
+
+
+def periodogram_eigenvalues(
+    model: LinearModel, freqs_hz: np.ndarray, n_samples: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exact finite-N law of each healthy periodogram bin: ``S_i(f) = l1 Z1^2 + l2 Z2^2``.
+
+    ``Z1, Z2`` are independent standard normal; ``l1 >= l2 >= 0`` are the
+    eigenvalues of the covariance of ``(Re X, Im X) / sqrt(N)`` for the MA(1)
+    chattering. At the DFT frequencies ``0 < n < N/2``::
+
+        l1,2 = gamma0 / 2 + (1 - 1/N) gamma1 cos(omega) +- |gamma1| / N
+
+    (``l1 + l2`` is :func:`expected_spectrum` ``form="exact"``), and at DC and
+    Nyquist ``l2 = 0`` (chi2(1) bin). ``l1 = l2`` would be the chi2(2)/2 law of
+    Lemma 2; the difference matters where the spectrum is tiny compared with
+    ``|gamma1| / N`` (EHA position channel at the lowest bins).
+
+    Parameters
+    ----------
+    model : LinearModel
+        Nominal (full-measurement) model.
+    freqs_hz : (bins,) array
+        Frequencies (Hz), usually :attr:`Periodogram.freqs_hz` (any frequency is accepted).
+    n_samples : int
+        Record length N.
+
+    Returns
+    -------
+    (l1, l2) : two (bins, m) arrays
+    """
+    f = _freqs(freqs_hz)
+    n = positive_int("n_samples", n_samples)
+    if n < 2:
+        raise ParameterError(f"n_samples must be at least 2; got {n}")
+    gamma0, gamma1 = chattering_autocovariance(model)
+    return _bin_eigenvalues(gamma0, gamma1, np.ones(n), f, model.dt)
+
+
+def frame_eigenvalues(
+    model: LinearModel, freqs_hz: np.ndarray, config: STFTConfig, dt: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exact law ``l1 Z1^2 + l2 Z2^2`` of each healthy STFT frame bin (:class:`Spectrogram` scaling).
+
+    The eigenvalues of the covariance of ``(Re, Im)`` of ``sum_k w_k x(k) e^{-i omega k}``
+    (``w`` = :meth:`STFTConfig.taper`) divided by ``sum_k w_k^2``; ``l1 + l2`` is
+    :func:`expected_frame_spectrum`. Only the window matters (the frame's phase
+    convention in :func:`frame_columns` is a constant shift that leaves them unchanged).
+
+    Parameters
+    ----------
+    model : LinearModel
+        Nominal (full-measurement) model.
+    freqs_hz : (bins,) array
+        Frame frequencies (Hz), usually :attr:`Spectrogram.freqs_hz`.
+    config : STFTConfig
+        Window settings.
+    dt : float, optional
+        Sampling time (s); defaults to ``model.dt``.
+
+    Returns
+    -------
+    (l1, l2) : two (bins, m) arrays
+    """
+    f = _freqs(freqs_hz)
+    dt = model.dt if dt is None else positive("dt", dt, unit="s")
+    gamma0, gamma1 = chattering_autocovariance(model)
+    return _bin_eigenvalues(gamma0, gamma1, np.asarray(config.taper(dt), dtype=float), f, dt)

@@ -8,14 +8,25 @@ what its ``alpha`` means:
     ``Sigma_Gamma = C Q C^T + Lambda R Lambda^T``; ``alpha`` is a **per-bin**
     level (and the bound is conservative: it dominates the true spectrum).
 ``exact``
-    ``E[S_i(f)] chi2.ppf(1 - a, nu) / nu`` per bin with the exact expected
-    spectrum (:func:`chatterspec.spectral.expected_spectrum`); ``nu = 2`` for
-    bins ``1 .. ceil(N/2) - 1`` and ``nu = 1`` for DC and the Nyquist bin
-    (real-valued DFT there, ``DESIGN.md`` 8.8). Averaging K independent
-    periodograms multiplies ``nu`` by K.
+    The ``1 - a`` quantile of the exact finite-N law of each bin (``law="exact"``,
+    default): a healthy bin is ``S = l1 Z1^2 + l2 Z2^2`` with ``Z`` iid standard
+    normal and ``(l1, l2)`` from :func:`chatterspec.spectral.periodogram_eigenvalues`
+    (``l2 = 0`` at DC and Nyquist). ``law="chi2"`` is the previous approximation
+    ``E[S_i(f)] chi2.ppf(1 - a, nu) / nu`` with the exact expected spectrum
+    (:func:`chatterspec.spectral.expected_spectrum`), ``nu = 2`` for bins
+    ``1 .. ceil(N/2) - 1`` and ``nu = 1`` for DC and Nyquist (``DESIGN.md`` 8.8);
+    it assumes ``l1 = l2`` and under-estimates the tail where the spectrum is
+    tiny compared with ``|gamma1| / N`` (EHA position channel, lowest bins:
+    about twice the nominal per-bin rate there).
+    Averaging K independent periodograms: ``law="chi2"`` multiplies ``nu`` by K;
+    ``law="exact"`` uses the **Welch-Satterthwaite approximation**
+    ``(c / K) chi2(nu_eff)`` with ``c = (l1^2 + l2^2) / (l1 + l2)`` and
+    ``nu_eff = K (l1 + l2)^2 / (l1^2 + l2^2)`` (mean and variance matched; exact
+    when ``l1 = l2``, giving ``E chi2(2K) / (2K)``, or ``l2 = 0``).
 ``frame`` (STFT)
-    The same with the expected frame spectrum, family-wise over the bins of
-    **one frame** (``alpha_meaning = "per-frame"``).
+    The same (exact law from :func:`chatterspec.spectral.frame_eigenvalues`) for
+    the Hamming-windowed frames, family-wise over the bins of **one frame**
+    (``alpha_meaning = "per-frame"``).
 
 Family-wise control
     The family is the set of bins **tested for the verdict**: ``1 .. ceil(N/2) - 1``
@@ -36,18 +47,27 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+import scipy.special
 import scipy.stats
 
 from ._validate import finite_array, open_unit, positive, positive_int
 from .errors import ParameterError, ShapeError
 from .models import LinearModel
-from .spectral import STFTConfig, chattering_autocovariance, expected_frame_spectrum, expected_spectrum
+from .spectral import (
+    STFTConfig,
+    chattering_autocovariance,
+    expected_frame_spectrum,
+    expected_spectrum,
+    frame_eigenvalues,
+    periodogram_eigenvalues,
+)
 
 __all__ = [
     "AlphaMeaning",
     "Correction",
     "Threshold",
     "ThresholdKind",
+    "ThresholdLaw",
     "bin_layout",
     "exact_threshold",
     "frame_threshold",
@@ -55,12 +75,17 @@ __all__ = [
     "paper_threshold",
     "per_test_alpha",
     "threshold",
+    "weighted_chi2_isf",
+    "weighted_chi2_pdf",
+    "weighted_chi2_sf",
 ]
 
 ThresholdKind = Literal["paper", "exact", "empirical"]
 AlphaMeaning = Literal["per-bin", "family-wise", "per-frame"]
 Correction = Literal["none", "bonferroni", "sidak"]
+ThresholdLaw = Literal["exact", "chi2"]
 _CORRECTIONS = ("none", "bonferroni", "sidak")
+_LAWS = ("exact", "chi2")
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -90,13 +115,24 @@ class Threshold:
     tested : (bins,) bool array
         Bins used for the verdict (DC and Nyquist excluded).
     dof : (bins,) int array
-        Chi-squared degrees of freedom of ``nu S / E[S]`` per bin (2K, or K at DC/Nyquist).
+        Nominal chi-squared degrees of freedom of ``nu S / E[S]`` per bin (2K, or K at
+        DC/Nyquist): the law used by ``law="chi2"``; see ``effective_dof`` for the exact law.
     averaged : int
         Number K of independent spectra averaged (1 for a single record).
     per_test_alpha : float
         Level ``a`` applied to each tested bin after the correction.
     expected : (bins, m) array or None
         Expected healthy spectrum the threshold was built from (None for ``paper``).
+    law : {"exact", "chi2"} or None
+        Distribution the quantiles come from: ``"exact"`` (weighted sum
+        ``l1 Z1^2 + l2 Z2^2`` per bin), ``"chi2"`` (``E chi2(dof) / dof``), None
+        for ``empirical`` thresholds.
+    eigenvalues : (bins, m, 2) array or None
+        ``(l1, l2)`` per bin and channel for ``law="exact"`` (single-record law).
+    effective_dof : (bins, m) float array or None
+        ``K (l1 + l2)^2 / (l1^2 + l2^2)``: the Welch-Satterthwaite degrees of freedom
+        of the exact law (equals ``dof`` where ``l1 = l2`` or ``l2 = 0``); ``dof``
+        broadcast for ``law="chi2"``; None for ``empirical``.
     """
 
     values: np.ndarray
@@ -110,6 +146,9 @@ class Threshold:
     averaged: int = 1
     per_test_alpha: float = float("nan")
     expected: np.ndarray | None = None
+    law: ThresholdLaw | None = None
+    eigenvalues: np.ndarray | None = None
+    effective_dof: np.ndarray | None = None
 
     @property
     def n_tested(self) -> int:
@@ -198,6 +237,159 @@ def per_test_alpha(alpha: float, n_tests: int, correction: Correction = "bonferr
     raise ParameterError(f"correction must be one of {_CORRECTIONS}; got {correction!r}")
 
 
+# ---------------------------------------------------------------------------
+# Law of one bin: Y = l1 Z1^2 + l2 Z2^2 (weighted sum of two chi2(1))
+# ---------------------------------------------------------------------------
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(64)
+_ERFC_CUT = 12.0  # erfc(12) ~ 1e-64: the integrand beyond is negligible
+
+
+def _eigen_pair(l1: object, l2: object) -> tuple[np.ndarray, np.ndarray]:
+    a = np.asarray(l1, dtype=float)
+    b = np.asarray(l2, dtype=float)
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))) or np.any(a < 0) or np.any(b < 0):
+        raise ParameterError("weights l1, l2 must be finite and >= 0")
+    return np.maximum(a, b), np.minimum(a, b)
+
+
+def _sf_unit(x: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``P(Z1^2 + r Z2^2 > x)`` for ``0 <= r <= 1``, ``x >= 0`` (arrays of one shape).
+
+    Conditioning on ``Z1``: ``erfc(z1 / sqrt 2) + int_{|z| < z1} phi(z) erfc(sqrt((x - z^2) / (2 r))) dz``
+    with ``z1 = sqrt(x)``; the substitution ``z = z1 cos s`` gives
+    ``2 z1 int_0^{pi/2} phi(z1 cos s) erfc(K sin s) sin s ds``, ``K = sqrt(x / (2 r))``, an entire
+    integrand, cut where ``K sin s > 12`` and integrated by 64-point Gauss-Legendre (relative error
+    ~1e-15 against direct quadrature of the density, whatever ``r``).
+    """
+    z1 = np.sqrt(x)
+    first = scipy.special.erfc(z1 / np.sqrt(2.0))
+    pos = r > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        K = np.where(pos, np.sqrt(x / (2.0 * np.where(pos, r, 1.0))), np.inf)
+    Ks = np.where(np.isfinite(K) & (K > 0), K, 1.0)
+    smax = np.where(K > _ERFC_CUT, np.arcsin(np.minimum(1.0, _ERFC_CUT / Ks)), 0.5 * np.pi)
+    sn = smax[..., None] * (0.5 * (_GL_X + 1.0))
+    sin_s = np.sin(sn)
+    integrand = (
+        np.exp(-0.5 * (z1[..., None] * np.cos(sn)) ** 2)
+        * scipy.special.erfc(np.where(pos, Ks, 0.0)[..., None] * sin_s)
+        * sin_s
+    )
+    second = z1 * smax * (integrand @ _GL_W) / np.sqrt(2.0 * np.pi)
+    return first + np.where(pos & (x > 0), second, 0.0)
+
+
+def _pdf_unit(x: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Density of ``Z1^2 + r Z2^2`` at ``x > 0``: ``exp(-x/2) I0(x (1 - r) / (4 r)) e^{...} / (2 sqrt r)``."""
+    pos = r > 0
+    rs = np.where(pos, r, 1.0)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        gen = np.exp(-0.5 * x) * scipy.special.i0e(x * (1.0 - rs) / (4.0 * rs)) / (2.0 * np.sqrt(rs))
+        chi1 = np.exp(-0.5 * x) / np.sqrt(2.0 * np.pi * x)
+    return np.where(pos, gen, chi1)
+
+
+def weighted_chi2_sf(t: object, l1: object, l2: object) -> np.ndarray:
+    """Survival function ``P(l1 Z1^2 + l2 Z2^2 > t)``, ``Z1, Z2`` iid standard normal (broadcasting).
+
+    The exact law of a periodogram or frame bin of Gaussian data (see
+    :func:`chatterspec.spectral.periodogram_eigenvalues`). ``l1 = l2 = l`` gives
+    ``exp(-t / (2 l))`` (``l chi2(2)``), ``l2 = 0`` gives ``l1 chi2(1)``. Computed by a
+    one-dimensional integral (Gauss-Legendre, relative error ~1e-15) of non-negative terms,
+    so it is accurate far in the tail.
+
+    Parameters
+    ----------
+    t : array_like
+        Thresholds (any real; ``sf = 1`` for ``t <= 0``).
+    l1, l2 : array_like
+        Non-negative weights (their order does not matter).
+    """
+    a, b = _eigen_pair(l1, l2)
+    t = np.asarray(t, dtype=float)
+    t, a, b = np.broadcast_arrays(t, a, b)
+    out = np.ones(t.shape)
+    ok = (t > 0) & (a > 0)
+    if np.any(ok):
+        out[ok] = _sf_unit(t[ok] / a[ok], b[ok] / a[ok])
+    return out
+
+
+def weighted_chi2_pdf(t: object, l1: object, l2: object) -> np.ndarray:
+    """Density of ``l1 Z1^2 + l2 Z2^2`` at ``t > 0`` (0 for ``t <= 0``; requires ``max(l1, l2) > 0``)."""
+    a, b = _eigen_pair(l1, l2)
+    t = np.asarray(t, dtype=float)
+    t, a, b = np.broadcast_arrays(t, a, b)
+    if np.any(a <= 0):
+        raise ParameterError("weighted_chi2_pdf needs max(l1, l2) > 0")
+    out = np.zeros(t.shape)
+    ok = t > 0
+    out[ok] = _pdf_unit(t[ok] / a[ok], b[ok] / a[ok]) / a[ok]
+    return out
+
+
+def weighted_chi2_isf(p: object, l1: object, l2: object, rtol: float = 1e-10) -> np.ndarray:
+    """Inverse survival function of ``l1 Z1^2 + l2 Z2^2``: ``t`` with ``P(Y > t) = p`` (broadcasting).
+
+    Safeguarded Newton iteration on ``log sf`` (vectorized over every bin and channel)
+    inside the bracket ``l1 chi2.isf(p, 1) <= t <= l1 chi2.isf(p, 2)`` (``l1 Z1^2 <= Y <=
+    l1 (Z1^2 + Z2^2)``), to relative accuracy ``rtol``. ``l2 = 0`` is exactly
+    ``l1 chi2.isf(p, 1)``; ``l1 = l2 = 0`` gives 0.
+
+    Parameters
+    ----------
+    p : array_like
+        Exceedance probabilities in (0, 1).
+    l1, l2 : array_like
+        Non-negative weights (their order does not matter).
+    rtol : float
+        Relative tolerance on ``t``.
+    """
+    a, b = _eigen_pair(l1, l2)
+    p = np.asarray(p, dtype=float)
+    if not np.all((p > 0) & (p < 1)):
+        raise ParameterError("p must lie in the open interval (0, 1)")
+    p, a, b = np.broadcast_arrays(p, a, b)
+    out = np.zeros(p.shape)
+    ok = a > 0
+    if not np.any(ok):
+        return out
+    pv, r = p[ok], b[ok] / a[ok]
+    lo = scipy.stats.chi2.isf(pv, 1)
+    hi = scipy.stats.chi2.isf(pv, 2)
+    # start from the Welch-Satterthwaite approximation, clipped into the bracket
+    c = (1.0 + r * r) / (1.0 + r)
+    x = np.clip(c * scipy.stats.chi2.isf(pv, (1.0 + r) ** 2 / (1.0 + r * r)), lo, hi)
+    x = np.where(r > 0, x, lo)
+    act = r > 0
+    logp = np.log(pv)
+    for _ in range(200):
+        if not np.any(act):
+            break
+        xa, ra = x[act], r[act]
+        sf = _sf_unit(xa, ra)
+        h = np.log(sf) - logp[act]
+        lo_a = np.where(h > 0, xa, lo[act])  # sf too large: the quantile is above x
+        hi_a = np.where(h > 0, hi[act], xa)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = h * sf / _pdf_unit(xa, ra)  # Newton: x - h / h', h' = -pdf / sf
+        xn = xa + step
+        bad = ~np.isfinite(xn) | (xn <= lo_a) | (xn >= hi_a)
+        xn = np.where(bad, 0.5 * (lo_a + hi_a), xn)
+        done = (np.abs(xn - xa) <= rtol * xn) | (hi_a - lo_a <= rtol * xa) | (h == 0)
+        lo[act], hi[act], x[act] = lo_a, hi_a, xn
+        idx = np.flatnonzero(act)
+        act[idx[done]] = False
+    out[ok] = x * a[ok]
+    return out
+
+
+def _check_law(law: str) -> ThresholdLaw:
+    if law not in _LAWS:
+        raise ParameterError(f"law must be one of {_LAWS}; got {law!r}")
+    return law  # type: ignore[return-value]
+
+
 def _chi2_threshold(
     expected: np.ndarray,
     freqs: np.ndarray,
@@ -207,6 +399,7 @@ def _chi2_threshold(
     averaged: int,
     kind: ThresholdKind,
     meaning_if_corrected: AlphaMeaning,
+    eigen: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Threshold:
     is_dc, is_nyq = bin_layout(freqs, dt)
     tested = ~(is_dc | is_nyq)
@@ -215,8 +408,23 @@ def _chi2_threshold(
         raise ShapeError("no frequency bin left to test (need bins other than DC and Nyquist)")
     a = per_test_alpha(alpha, n_tested, correction)
     dof = np.where(is_dc | is_nyq, averaged, 2 * averaged)
-    quant = scipy.stats.chi2.isf(a, dof) / dof
-    values = expected * quant[:, None]
+    eigenvalues = None
+    if eigen is None:
+        quant = scipy.stats.chi2.isf(a, dof) / dof
+        values = expected * quant[:, None]
+        eff = np.broadcast_to(dof[:, None].astype(float), expected.shape)
+    else:
+        l1, l2 = eigen
+        eigenvalues = np.stack([l1, l2], axis=-1)
+        s1, s2 = l1 + l2, l1 * l1 + l2 * l2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            eff = np.where(s2 > 0, averaged * s1 * s1 / np.where(s2 > 0, s2, 1.0), 2.0 * averaged)
+        if averaged == 1:
+            values = weighted_chi2_isf(a, l1, l2)
+        else:  # Welch-Satterthwaite: (c / K) chi2(nu_eff), c = (l1^2 + l2^2) / (l1 + l2)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                c = np.where(s1 > 0, s2 / np.where(s1 > 0, s1, 1.0), 0.0)
+            values = c * scipy.stats.chi2.isf(a, eff) / averaged
     return Threshold(
         values=_readonly(values),
         freqs_hz=_readonly(np.array(freqs)),
@@ -229,6 +437,9 @@ def _chi2_threshold(
         averaged=averaged,
         per_test_alpha=a,
         expected=_readonly(np.array(expected)),
+        law="chi2" if eigen is None else "exact",
+        eigenvalues=None if eigenvalues is None else _readonly(eigenvalues),
+        effective_dof=_readonly(np.array(eff, dtype=float)),
     )
 
 
@@ -239,8 +450,15 @@ def exact_threshold(
     alpha: float = 1e-3,
     correction: Correction = "bonferroni",
     averaged: int = 1,
+    law: ThresholdLaw = "exact",
 ) -> Threshold:
-    """Exact per-bin chi-squared threshold ``E[S(f)] chi2.ppf(1 - a, nu) / nu``.
+    """Per-bin threshold from the exact finite-N law of each healthy periodogram bin.
+
+    ``law="exact"`` (default): the ``1 - a`` quantile of ``l1 Z1^2 + l2 Z2^2``
+    (:func:`weighted_chi2_isf`, eigenvalues from
+    :func:`chatterspec.spectral.periodogram_eigenvalues`); for ``averaged = K > 1`` the
+    Welch-Satterthwaite approximation ``(c / K) chi2(nu_eff)`` (module docstring).
+    ``law="chi2"``: the approximation ``E[S(f)] chi2.ppf(1 - a, nu) / nu`` (Lemma 2).
 
     Parameters
     ----------
@@ -256,6 +474,8 @@ def exact_threshold(
     correction : {"bonferroni", "sidak", "none"}
     averaged : int
         K independent periodograms averaged: ``nu = 2K`` (``K`` at DC/Nyquist).
+    law : {"exact", "chi2"}
+        Law of a healthy bin: exact weighted sum of two chi2(1) (default) or ``E chi2(nu) / nu``.
 
     Returns
     -------
@@ -264,9 +484,11 @@ def exact_threshold(
     """
     alpha = open_unit("alpha", alpha)
     averaged = positive_int("averaged", averaged)
+    law = _check_law(law)
     freqs = finite_array("freqs_hz", freqs_hz, ndim=1)
     E = expected_spectrum(model, freqs, n_samples, form="exact")
-    return _chi2_threshold(E, freqs, model.dt, alpha, correction, averaged, "exact", "family-wise")
+    eigen = periodogram_eigenvalues(model, freqs, n_samples) if law == "exact" else None
+    return _chi2_threshold(E, freqs, model.dt, alpha, correction, averaged, "exact", "family-wise", eigen)
 
 
 def frame_threshold(
@@ -276,14 +498,16 @@ def frame_threshold(
     dt: float | None = None,
     alpha: float = 1e-3,
     correction: Correction = "bonferroni",
+    law: ThresholdLaw = "exact",
 ) -> Threshold:
-    """Per-frame STFT threshold from :func:`chatterspec.spectral.expected_frame_spectrum`.
+    """Per-frame STFT threshold from the exact law of each healthy frame bin.
 
     ``alpha`` is the probability that one healthy frame has any tested bin
     (``1 .. W/2 - 1``) above the threshold (``alpha_meaning="per-frame"``);
-    with ``correction="none"`` it is per bin. A Hamming-windowed frame of the
-    MA(1) chattering is chi2(2)/2 times its mean to a very good approximation
-    (exactly for white noise at bins >= 2).
+    with ``correction="none"`` it is per bin. ``law="exact"`` (default): the
+    quantile of ``l1 Z1^2 + l2 Z2^2`` with :func:`chatterspec.spectral.frame_eigenvalues`.
+    ``law="chi2"``: :func:`chatterspec.spectral.expected_frame_spectrum` times
+    ``chi2(2)/2`` (exact for white noise at bins >= 2, an approximation otherwise).
 
     Parameters
     ----------
@@ -299,12 +523,16 @@ def frame_threshold(
         Per-frame false-alarm probability in (0, 1).
     correction : {"bonferroni", "sidak", "none"}
         Family-wise control over the tested bins of one frame.
+    law : {"exact", "chi2"}
+        Law of a healthy frame bin (see above).
     """
     alpha = open_unit("alpha", alpha)
+    law = _check_law(law)
     dt = model.dt if dt is None else positive("dt", dt, unit="s")
     freqs = finite_array("freqs_hz", freqs_hz, ndim=1)
     E = expected_frame_spectrum(model, freqs, config, dt)
-    return _chi2_threshold(E, freqs, dt, alpha, correction, 1, "exact", "per-frame")
+    eigen = frame_eigenvalues(model, freqs, config, dt) if law == "exact" else None
+    return _chi2_threshold(E, freqs, dt, alpha, correction, 1, "exact", "per-frame", eigen)
 
 
 def paper_gamma_matrix(model: LinearModel) -> np.ndarray:
@@ -362,6 +590,8 @@ def paper_threshold(model: LinearModel, freqs_hz: np.ndarray, alpha: float = 1e-
         averaged=1,
         per_test_alpha=alpha,
         expected=None,
+        law="chi2",
+        effective_dof=_readonly(np.broadcast_to(dof[:, None].astype(float), values.shape).copy()),
     )
 
 
@@ -375,6 +605,7 @@ def threshold(
     correction: Correction = "bonferroni",
     averaged: int = 1,
     config: STFTConfig | None = None,
+    law: ThresholdLaw = "exact",
 ) -> Threshold:
     """Build a threshold by name: ``"exact"`` (default detector), ``"paper"`` or ``"frame"``.
 
@@ -397,6 +628,8 @@ def threshold(
         K averaged spectra (``"exact"`` only; ``"paper"`` requires 1).
     config : STFTConfig, optional
         Window settings for ``"frame"`` (default 1 s Hamming, 0.2 s hop).
+    law : {"exact", "chi2"}
+        Bin law for ``"exact"`` and ``"frame"`` (ignored by ``"paper"``).
 
     Raises
     ------
@@ -407,11 +640,11 @@ def threshold(
     if kind == "exact":
         if n_samples is None:
             raise ParameterError('threshold("exact", ...) needs n_samples (the record length N)')
-        return exact_threshold(model, freqs_hz, n_samples, alpha, correction, averaged)
+        return exact_threshold(model, freqs_hz, n_samples, alpha, correction, averaged, law)
     if kind == "paper":
         if averaged != 1:
             raise ParameterError('the "paper" threshold is for a single record; use "exact" with averaged=K')
         return paper_threshold(model, freqs_hz, alpha)
     if kind == "frame":
-        return frame_threshold(model, freqs_hz, config or STFTConfig(), None, alpha, correction)
+        return frame_threshold(model, freqs_hz, config or STFTConfig(), None, alpha, correction, law)
     raise ParameterError(f"unknown threshold kind {kind!r}; choose one of 'exact', 'paper', 'frame'")

@@ -34,7 +34,7 @@ def write_model(path: Path) -> None:
     model = eha_linear()
     gamma0, _ = chattering_autocovariance(model)
     psi = 3.0 * np.sqrt(gamma0)  # ~3 sigma of the healthy chattering: the sat SVSF rarely chatters
-    text = f'''# Linear electro-hydraulic actuator (Table 1 of the paper, eq 65-67), discretized with explicit Euler.
+    text = f"""# Linear electro-hydraulic actuator (Table 1, eq 65-67), explicit Euler.
 # Format: see examples/README.md. Regenerate with scripts/make_example_data.py.
 name = "linear EHA (Table 1)"
 dt = {model.dt!r}                       # sampling time, s
@@ -63,7 +63,7 @@ correction = "bonferroni"
 window_s = 1.0
 hop_s = 0.2
 window = "hamming"
-'''
+"""
     path.write_text(text)
 
 

@@ -195,3 +195,57 @@ def test_boundary_layer_chattering_eq13() -> None:
     e = np.array([[-3.0, 0.5], [1.0, -2.5], [2.0, 0.1]])
     out = boundary_layer_chattering(e, np.array([2.0, 1.0]))
     np.testing.assert_array_equal(out, [[-1.0, 0.0], [0.0, -1.5], [0.0, 0.0]])
+
+
+@pytest.mark.parametrize("name", ["eha-healthy", "so-f11-high", "eha-bulk-50up"])
+def test_closed_form_path_equals_recursion(name: str) -> None:
+    """The eq (22)-(23) closed-form evaluation of the sgn filter equals the sample-by-sample recursion.
+
+    Both evaluate the same algebra; they differ only in the order of floating-point
+    operations, so agreement is to rounding: 1e-12 of each channel's scale is ~1e4 ulps.
+    """
+    sc = scenario(name)
+    sim = simulate(sc, runs=4, seed=21)
+    f = auxiliary_svsf(sc.nominal)
+    state = f.initialize(sim.z[:, 0])
+    s_fast, fast = f.update(state, sim.z[:, 1:], sim.u[:-1], store_states=True, store_post_error=True)
+    s_loop, loop = f.update(
+        state, sim.z[:, 1:], sim.u[:-1], store_states=True, store_post_error=True, closed_form=False
+    )
+    scale = np.abs(loop.e_prior).max(axis=(0, 1))
+    assert np.all(np.abs(fast.e_prior - loop.e_prior).max(axis=(0, 1)) <= 1e-12 * scale)
+    # the recursion keeps e(k|k) exactly zero, as the closed form assumes (eq 21 with e(0|0) = 0)
+    assert not np.any(loop.e_post) and not np.any(fast.e_post)
+    xs = np.abs(loop.x_post).max(axis=(0, 1))
+    assert np.all(np.abs(fast.x_post - loop.x_post).max(axis=(0, 1)) <= 1e-12 * xs)
+    np.testing.assert_array_equal(s_fast.y, s_loop.y)
+
+
+def test_closed_form_is_bitwise_chunk_and_run_invariant() -> None:
+    """Online (any chunk sizes, one run at a time) and batch give identical bits on the closed-form path."""
+    sc = scenario("eha-leak-major")
+    sim = simulate(sc, runs=3, seed=5)
+    f = auxiliary_svsf(sc.nominal)
+    batch = f.run(sim.z, sim.u).e_prior[:, 1:]
+    rng = np.random.default_rng(1)
+    for r in range(sim.runs):
+        state = f.initialize(sim.z[r : r + 1, 0])
+        k, pieces = 1, []
+        while k < sim.z.shape[1]:
+            K = min(int(rng.integers(1, 400)), sim.z.shape[1] - k)
+            state, out = f.update(state, sim.z[r : r + 1, k : k + K], sim.u[k - 1 : k - 1 + K])
+            pieces.append(out.e_prior)
+            k += K
+        np.testing.assert_array_equal(np.concatenate(pieces, axis=1)[0], batch[r])
+
+
+def test_nonzero_initial_error_uses_recursion_and_converges() -> None:
+    """With x0 != C^-1 z(0) the a-posteriori error decays at rate gamma (eq 21) through the recursion."""
+    sc = scenario("so-healthy-low")
+    sim = simulate(sc, runs=2, seed=3)
+    f = auxiliary_svsf(sc.nominal, gamma=0.5)
+    out = f.run(sim.z, sim.u, x0=np.array([0.1, -0.2]), store_post_error=True)
+    e_post = np.abs(out.e_post)
+    # |e(k|k)| = gamma^k |e(0|0)| exactly in exact arithmetic (eq 21); compare the first 20 steps
+    ratios = e_post[:, 1:21] / e_post[:, :20]
+    np.testing.assert_allclose(ratios, 0.5, rtol=1e-9)

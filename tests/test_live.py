@@ -1,0 +1,230 @@
+"""Rerun recordings and live streaming of the online monitor (headless)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import chatterspec as cs
+from chatterspec.detect import detect_frames
+from chatterspec.pipeline import chattering_record
+from chatterspec.scenarios import Scenario, Segment
+from chatterspec.spectral import spectrogram
+from chatterspec.thresholds import frame_threshold
+
+rr = pytest.importorskip("rerun")
+from rerun.chunk import RrdReader  # noqa: E402
+
+from chatterspec import live  # noqa: E402
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+@pytest.fixture(autouse=True)
+def _strict():
+    rr.set_strict_mode(True)
+    yield
+    rr.set_strict_mode(False)
+
+
+@pytest.fixture(scope="module")
+def sim():
+    nominal = cs.eha_linear()
+    sc = Scenario(
+        name="eha-leak-mid",
+        nominal=nominal,
+        input=cs.Chirp(10.0, 100.0, 5.0, 300.0),
+        duration=5.0,
+        windows=(Segment(2.5, 5.0, cs.eha_linear(leakage=9e-11), "leakage 9e-11"),),
+        fault_channel="pressure",
+    )
+    return cs.simulate(sc, runs=1, seed=5)
+
+
+@pytest.fixture(scope="module")
+def batch(sim):
+    rec = chattering_record(sim.scenario.nominal, sim.z, sim.u, scenario=sim.scenario)
+    spec = spectrogram(rec.values[0], rec.dt, t0=rec.t[0])
+    thr = frame_threshold(rec.model, spec.freqs_hz, spec.config, rec.dt)
+    return rec, spec, detect_frames(spec, thr)
+
+
+def _rows(reader: RrdReader, entity: str) -> list:
+    chunks = reader.stream().filter(content=entity, is_static=False).to_chunks()
+    return [c.to_record_batch() for c in chunks]
+
+
+def _column(reader: RrdReader, entity: str, name: str) -> tuple[np.ndarray, list]:
+    times, values = [], []
+    for rb in _rows(reader, entity):
+        times.extend(rb.column("time").cast("int64").to_pylist())
+        values.extend(rb.column(name).to_pylist())
+    order = np.argsort(times, kind="stable")
+    return np.asarray(times)[order] * 1e-9, [values[i] for i in order]
+
+
+def _check_recording(path: Path, rec, spec, flags, summary) -> None:
+    reader = RrdReader(path)
+    summary_text = reader.store().summary()  # needs the footer: the file was closed properly
+    assert "/spectrum/pressure" in summary_text
+    for c, name in enumerate(rec.channels):
+        t, cols = _column(reader, f"/spectrum/{name}", "Tensor:data")
+        assert len(cols) == spec.n_frames
+        np.testing.assert_allclose(t, spec.times_s, atol=1e-9)
+        buf = np.asarray(cols[-1][0]["buffer"])  # the union holds the F64 payload
+        np.testing.assert_array_equal(buf, spec.power[-1, :, c])
+        t, verdict = _column(reader, f"/detection/{name}/verdict", "Scalars:scalars")
+        np.testing.assert_array_equal(np.asarray(verdict)[:, 0] > 0.5, flags[:, c])
+        t_e, _ = _column(reader, f"/chattering/{name}/e", "Scalars:scalars")
+        assert t_e.size == rec.n_samples
+    t_ev, texts = _column(reader, "/events", "TextLog:text")
+    assert len(texts) == len(summary.events) > 0
+    for ev in summary.events:
+        hit = [k for k, s in enumerate(texts) if s[0].startswith(f"{ev.kind} {ev.channel}:")]
+        assert any(abs(t_ev[k] - ev.time_s) < 1e-9 for k in hit), ev
+        assert flags[ev.frame, ev.channel_index] == (ev.kind == "fault-start")
+    _, truth = _column(reader, "/truth/plant", "StateChange:state")
+    assert [s[0] for s in truth] == ["healthy", "leakage 9e-11"]
+
+
+def test_record_simulation_reads_back(tmp_path: Path, sim, batch) -> None:
+    rec, spec, flags = batch
+    path = tmp_path / "sub" / "run.rrd"
+    summary = live.record_detection(sim, path=path, chunk_samples=137)
+    assert summary.path == path and summary.n_frames == spec.n_frames
+    _check_recording(path, rec, spec, flags, summary)
+
+
+def test_record_chattering_record(tmp_path: Path, batch) -> None:
+    rec, spec, flags = batch
+    summary = live.record_detection(rec, path=tmp_path / "c.rrd", chunk_samples=1000)
+    _check_recording(tmp_path / "c.rrd", rec, spec, flags, summary)
+
+
+def test_unreachable_viewer_keeps_complete_file(tmp_path: Path, sim, batch) -> None:
+    rec, spec, flags = batch
+    port = live._free_port()  # nothing listens there
+    t0 = time.perf_counter()
+    with pytest.warns(live.LiveViewerWarning, match="unreachable"):
+        summary = live.record_detection(sim, path=tmp_path / "u.rrd", live=f"127.0.0.1:{port}")
+    assert time.perf_counter() - t0 < 10.0
+    assert summary.live_url is None and summary.notes
+    _check_recording(tmp_path / "u.rrd", rec, spec, flags, summary)
+
+
+def test_spawn_without_display_still_writes_file(tmp_path: Path, sim, monkeypatch) -> None:
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.chdir(tmp_path)
+    summary = live.record_detection(sim, live="spawn")
+    assert summary.path is not None and summary.path.parent == Path("recordings")
+    assert any("no display" in n for n in summary.notes)
+    RrdReader(summary.path).store()
+
+
+def test_ctrl_c_closes_recording(tmp_path: Path, sim) -> None:
+    def interrupt(ev):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        live.record_detection(sim, path=tmp_path / "k.rrd", on_event=interrupt)
+    summary = RrdReader(tmp_path / "k.rrd").store().summary()  # footer written
+    assert "/spectrum/pressure" in summary
+
+
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")
+def test_live_viewer_receives_data(tmp_path: Path, sim, batch) -> None:
+    exe = live.find_viewer()
+    if exe is None:
+        pytest.skip("the rerun viewer executable is not installed")
+    _, spec, _ = batch
+    port = live._free_port()
+    out = tmp_path / "server.rrd"
+    proc = subprocess.Popen(
+        [exe, "--bind", "127.0.0.1", "--port", str(port), "--save", str(out)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        url = f"rerun+http://127.0.0.1:{port}/proxy"
+        deadline = time.monotonic() + 15.0
+        while not live._reachable(url, 0.2)[0]:
+            if time.monotonic() > deadline or proc.poll() is not None:
+                pytest.skip("the headless rerun receiver did not start")
+            time.sleep(0.1)
+        summary = live.record_detection(sim, live=url, chunk_samples=500)
+        assert summary.live_url == url and summary.path is None
+        time.sleep(0.5)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    reader = RrdReader(out)
+    n = sum(
+        c.num_rows for c in reader.stream().filter(content="/spectrum/pressure", is_static=False).to_chunks()
+    )
+    assert n == spec.n_frames
+    n = sum(
+        c.num_rows
+        for c in reader.stream().filter(content="/spectrogram/pressure", is_static=False).to_chunks()
+    )
+    assert n == spec.n_frames  # the scrolling view goes to the live viewer at every hop
+
+
+def test_blueprint_builds() -> None:
+    bp = live.blueprint(("position", "velocity", "pressure"), has_truth=True)
+    assert bp is not None
+
+
+def _cli(*argv: str) -> int:
+    from chatterspec.commands import monitor, replay
+
+    parser = argparse.ArgumentParser()
+    sub = parser.add_subparsers()
+    monitor.register(sub)
+    replay.register(sub)
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+def test_monitor_command_on_example(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "m.rrd"
+    rc = _cli(
+        "monitor",
+        "--model",
+        str(EXAMPLES / "eha_model.toml"),
+        "--data",
+        str(EXAMPLES / "eha_data.csv"),
+        "--record",
+        str(out),
+        "--json",
+    )
+    assert rc == 0
+    import json
+
+    doc = json.loads(capsys.readouterr().out)
+    starts = [e for e in doc["events"] if e["kind"] == "fault-start" and e["channel"] == "pressure"]
+    assert starts and 3.0 < starts[0]["time_s"] < 5.0  # leakage from t = 4 s
+    assert "/spectrum/pressure" in RrdReader(out).store().summary()
+
+
+def test_replay_without_display(tmp_path: Path, monkeypatch, capsys) -> None:
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    f = tmp_path / "x.rrd"
+    f.write_bytes(b"")
+    assert _cli("replay", str(f)) == 1
+    assert "no display" in capsys.readouterr().err
+    from chatterspec.errors import DataFileError
+
+    with pytest.raises(DataFileError, match="no such file"):
+        _cli("replay", str(tmp_path / "missing.rrd"))

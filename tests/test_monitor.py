@@ -1,0 +1,149 @@
+"""Online chattering monitor: chunk invariance, equality with the batch path, events, bounded memory."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import chatterspec as cs
+from chatterspec.detect import detect_frames, frame_intervals
+from chatterspec.errors import NonFiniteError, ParameterError, ShapeError
+from chatterspec.monitor import ChatteringMonitor, MonitorSettings
+from chatterspec.pipeline import chattering_record
+from chatterspec.scenarios import Scenario, Segment
+from chatterspec.spectral import spectrogram
+from chatterspec.thresholds import frame_threshold
+
+
+def _scenario() -> Scenario:
+    nominal = cs.eha_linear()
+    return Scenario(
+        name="eha-leak-mid",
+        nominal=nominal,
+        input=cs.Chirp(10.0, 100.0, 6.0, 300.0),
+        duration=6.0,
+        windows=(Segment(3.0, 6.0, cs.eha_linear(leakage=9e-11), "leakage"),),
+    )
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return cs.simulate(_scenario(), runs=1, seed=11)
+
+
+@pytest.fixture(scope="module")
+def batch(sim):
+    rec = chattering_record(sim.scenario.nominal, sim.z, sim.u)
+    spec = spectrogram(rec.values[0], rec.dt, t0=rec.t[0])
+    thr = frame_threshold(rec.model, spec.freqs_hz, spec.config, rec.dt)
+    return rec, spec, detect_frames(spec, thr)
+
+
+def test_numeric_core_does_not_import_rerun() -> None:
+    code = (
+        "import sys, chatterspec, chatterspec.monitor, chatterspec.modelfile; print('rerun' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_random_chunks_reproduce_batch_spectrogram(sim, batch, seed: int) -> None:
+    rec, spec, flags = batch
+    rng = np.random.default_rng(seed)
+    sizes = rng.integers(1, 900, size=200)
+    mon = ChatteringMonitor(sim.scenario.nominal)
+    ups = list(mon.stream(sim.z[0], sim.u, sizes))
+    e = np.concatenate([u.chattering for u in ups])
+    np.testing.assert_array_equal(e, rec.values[0])  # same kernel: bit-identical chattering
+    np.testing.assert_array_equal(np.concatenate([u.t for u in ups]), rec.t)
+    power = np.concatenate([u.frames.power for u in ups])
+    assert power.shape == spec.power.shape
+    np.testing.assert_allclose(power, spec.power, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(
+        np.concatenate([u.frames.times_s for u in ups]), spec.times_s, rtol=0, atol=1e-12
+    )
+    np.testing.assert_array_equal(np.concatenate([u.frames.flags for u in ups]), flags)
+    np.testing.assert_array_equal(np.concatenate([u.frames.index for u in ups]), np.arange(spec.n_frames))
+    assert mon.n_frames == spec.n_frames
+
+
+def test_one_sample_at_a_time_and_bounded_buffer(sim, batch) -> None:
+    _, spec, _ = batch
+    mon = ChatteringMonitor(sim.scenario.nominal)
+    n = 1500  # one window + a few hops, sample by sample
+    cols = []
+    for k in range(n):
+        upd = mon.push(sim.z[0, k], sim.u[k])
+        cols.append(upd.frames.power)
+        assert mon.buffered_samples < mon.n_window
+    power = np.concatenate(cols)
+    np.testing.assert_allclose(power, spec.power[: power.shape[0]], rtol=1e-12, atol=0)
+    assert power.shape[0] == (n - 1 - mon.n_window) // mon.n_hop + 1
+
+
+def test_events_match_batch_frame_intervals(sim, batch) -> None:
+    rec, spec, flags = batch
+    mon = ChatteringMonitor(sim.scenario.nominal)
+    events = [ev for u in mon.stream(sim.z[0], sim.u, 333) for ev in u.events]
+    assert any(ev.channel == "pressure" and ev.kind == "fault-start" for ev in events)
+    for c, name in enumerate(rec.channels):
+        intervals = frame_intervals(flags[:, c], spec.times_s, spec.config, rec.dt)
+        starts = [ev for ev in events if ev.channel == name and ev.kind == "fault-start"]
+        ends = [ev for ev in events if ev.channel == name and ev.kind == "fault-end"]
+        assert len(starts) == len(intervals)
+        for ev, (onset, _) in zip(starts, intervals, strict=True):
+            assert ev.estimate_s == pytest.approx(onset, abs=1e-9)
+            assert flags[ev.frame, c]
+            assert ev.peak_ratio > 1.0
+        closed = [iv for iv in intervals if not (mon.active[c] and iv is intervals[-1])]
+        assert len(ends) == len(closed)
+        for ev, (_, offset) in zip(ends, closed, strict=True):
+            assert ev.estimate_s == pytest.approx(offset, abs=1e-9)
+            assert not flags[ev.frame, c]
+
+
+def test_pressure_fault_detected_after_onset(sim) -> None:
+    mon = ChatteringMonitor(sim.scenario.nominal)
+    events = [ev for u in mon.stream(sim.z[0], sim.u, 200) for ev in u.events if ev.channel == "pressure"]
+    first = events[0]
+    assert first.kind == "fault-start"
+    assert 2.5 < first.time_s < 4.0  # fault at 3 s; a 1 s frame centred >= 2.5 s overlaps it
+    assert 20.0 < first.peak_hz < 100.0
+
+
+def test_push_chattering_equals_raw_push(sim, batch) -> None:
+    rec, spec, _ = batch
+    mon = ChatteringMonitor(rec.model, t0=rec.t[0])
+    ups = [mon.push_chattering(rec.values[0, k : k + 777]) for k in range(0, rec.n_samples, 777)]
+    np.testing.assert_allclose(np.concatenate([u.frames.power for u in ups]), spec.power, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(np.concatenate([u.frames.times_s for u in ups]), spec.times_s, atol=1e-12)
+    with pytest.raises(ParameterError, match="one kind of input"):
+        mon.push(sim.z[0, :5], sim.u[:5])
+
+
+def test_sat_svsf_estimate_with_psi(sim) -> None:
+    mon = ChatteringMonitor(sim.scenario.nominal, MonitorSettings(psi=(1e-2, 1e-2, 5e3)))
+    upd = mon.push(sim.z[0, :500], sim.u[:500])
+    assert upd.estimate is not None and upd.estimate.shape == (499, 3)
+    assert np.all(np.isfinite(upd.estimate))
+
+
+def test_bad_input(sim) -> None:
+    mon = ChatteringMonitor(sim.scenario.nominal)
+    z = sim.z[0, :10].copy()
+    z[4, 1] = np.nan
+    with pytest.raises(NonFiniteError):
+        mon.push(z, sim.u[:10])
+    assert mon.n_samples == 0  # nothing consumed
+    with pytest.raises(ShapeError, match="3 channel"):
+        mon.push(sim.z[0, :10, :2], sim.u[:10])
+    with pytest.raises(ShapeError, match="u must have shape"):
+        mon.push(sim.z[0, :10], sim.u[:9])
+    with pytest.raises(ParameterError):
+        MonitorSettings(alpha=2.0)
+    with pytest.raises(ParameterError):
+        MonitorSettings(psi=(1.0, -1.0, 1.0))

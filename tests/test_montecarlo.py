@@ -1,0 +1,77 @@
+"""Monte Carlo engine: chunk planning, determinism across executors, bad input."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from chatterspec.calibration import false_alarm_study
+from chatterspec.errors import ChatterspecError, ParameterError
+from chatterspec.montecarlo import plan_chunks, run_study
+from chatterspec.rng import BLOCK, block_generator
+
+
+class _Draws:
+    """Sum of per-realization draws: any chunking mistake changes the float sum."""
+
+    def run_chunk(self, first_run, runs, seed):
+        out = []
+        for r in range(first_run, first_run + runs):
+            b = r // BLOCK
+            out.append(block_generator(seed, b).standard_normal(BLOCK)[r - b * BLOCK])
+        return np.array(out)
+
+    def reduce(self, acc, part):
+        return part if acc is None else np.concatenate([acc, part])
+
+
+def test_plan_chunks_aligned_to_blocks():
+    chunks = plan_chunks(1000, 100)
+    assert all(c.first_run % BLOCK == 0 for c in chunks)
+    assert sum(c.runs for c in chunks) == 1000
+    assert [c.index for c in chunks] == list(range(len(chunks)))
+
+
+def test_same_seed_same_draws_whatever_chunking():
+    a = run_study(_Draws(), 300, seed=7, chunk_runs=64, progress=False)
+    b = run_study(_Draws(), 300, seed=7, chunk_runs=256, progress=False)
+    np.testing.assert_array_equal(a, b)
+    assert a.shape == (300,)
+
+
+@pytest.mark.parametrize("bad", [0, -3])
+def test_runs_must_be_positive(bad):
+    with pytest.raises(ParameterError, match="runs"):
+        run_study(_Draws(), bad, seed=0)
+
+
+def test_workers_must_be_positive():
+    with pytest.raises(ParameterError, match="workers"):
+        run_study(_Draws(), 10, seed=0, workers=0)
+
+
+def _small_far(**kw):
+    return false_alarm_study(
+        "so-healthy-low", alpha=(1e-2,), runs=130, seed=11, chunk_runs=64, progress=False, **kw
+    ).to_dict()
+
+
+def test_identical_for_one_two_workers_and_dask():
+    """Same seed -> identical results for 1 worker, 2 local processes and a local Dask cluster."""
+    serial = _small_far()
+    assert _small_far(workers=2) == serial
+    dd = pytest.importorskip("dask.distributed")
+    with dd.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, host="127.0.0.1"
+    ) as cluster:
+        assert _small_far(scheduler=cluster.scheduler_address) == serial
+
+
+def test_unreachable_scheduler_fails_fast():
+    pytest.importorskip("dask.distributed")
+    t0 = time.perf_counter()
+    with pytest.raises(ChatterspecError, match="cannot reach the Dask scheduler"):
+        run_study(_Draws(), 10, seed=0, scheduler="tcp://127.0.0.1:9")
+    assert time.perf_counter() - t0 < 15

@@ -1,0 +1,301 @@
+"""Smoke tests of the matplotlib figures, the paper-figure registry and the figures/spectrum commands.
+
+Fast: tiny run counts, one realization per spectrum figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+matplotlib = pytest.importorskip("matplotlib")
+
+from chatterspec import paper_figures as pf  # noqa: E402
+from chatterspec import plotting as pl  # noqa: E402
+from chatterspec.commands import figures as figures_cmd  # noqa: E402
+from chatterspec.commands import spectrum as spectrum_cmd  # noqa: E402
+from chatterspec.errors import ChatterspecError, ParameterError, ShapeError, UnknownScenarioError  # noqa: E402
+from chatterspec.models import second_order  # noqa: E402
+from chatterspec.spectral import periodogram_freqs  # noqa: E402
+from chatterspec.thresholds import exact_threshold, paper_threshold  # noqa: E402
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+MAX_PNG_BYTES = 300_000
+
+
+@pytest.fixture(autouse=True)
+def _close_figures():
+    yield
+    matplotlib.pyplot.close("all")
+
+
+def _insets(fig):
+    """Inset axes (children of the figure's axes)."""
+    return [child for ax in fig.axes for child in ax.child_axes]
+
+
+def _synthetic_panel(n_thresholds: int = 2, inset=None) -> pl.SpectrumPanel:
+    f = np.linspace(0.0, 500.0, 201)
+    rng = np.random.default_rng(0)
+    p = rng.exponential(1e-6, f.size)
+    th = tuple(
+        pl.ThresholdCurve(np.full(f.size, 1e-5 * (i + 1)), f"thr {i}", "paper" if i % 2 else "exact", 1e-3)
+        for i in range(n_thresholds)
+    )
+    return pl.SpectrumPanel(
+        freqs_hz=f,
+        curves=(pl.SpectrumCurve(p, "S"),),
+        expected=np.full(f.size, 1e-6),
+        thresholds=th,
+        title="t",
+        channel="velocity",
+        unit="m/s",
+        note="peak",
+        inset_hz=inset,
+    )
+
+
+# --------------------------------------------------------------------------- labels
+def test_format_alpha_and_power_unit():
+    assert pl.format_alpha(1e-3) == "0.1 %"
+    assert pl.format_alpha(0.01) == "1 %"
+    assert pl.power_unit("m/s") == "(m/s)²"
+    assert pl.power_unit("Pa") == "Pa²"
+    assert pl.power_unit("") == "unit²"
+
+
+def test_threshold_label_says_which_threshold_and_alpha_meaning():
+    paper = pl.threshold_label("paper", 1e-3, "per-bin")
+    assert "paper" in paper and "eq 62" in paper and "per-bin" in paper and "0.1 %" in paper
+    exact = pl.threshold_label("exact", 1e-3, "family-wise", correction="bonferroni", n_tested=1999)
+    assert "exact" in exact and "family-wise" in exact and "Bonferroni" in exact and "1999" in exact
+    assert "K=100" in pl.threshold_label("exact", 1e-3, "family-wise", averaged=100)
+
+
+def test_threshold_curve_masks_untested_bins():
+    model = second_order(10.0, 0.1, Q=np.diag([1e-8, 1e-6]), R=np.diag([1e-8, 1e-6]))
+    f = periodogram_freqs(400, model.dt)
+    th = exact_threshold(model, f, 400, 1e-3)
+    c = pl.threshold_curve(th, 1)
+    assert c.kind == "exact" and np.isnan(c.values[0]) and np.isnan(c.values[-1])
+    assert np.all(np.isfinite(c.values[1:-1]))
+    assert "family-wise" in c.label and "Bonferroni" in c.label
+    cp = pl.threshold_curve(paper_threshold(model, f, 1e-2), 0)
+    assert cp.kind == "paper" and "per-bin" in cp.label and "1 %" in cp.label
+
+
+# --------------------------------------------------------------------------- figure functions
+def test_spectrum_figure_axes_lines_and_labels():
+    fig = pl.spectrum_figure([_synthetic_panel(2), _synthetic_panel(3)], ncols=2, suptitle="s")
+    axes = fig.axes
+    assert len(axes) == 2
+    # 1 spectrum + expected + thresholds
+    assert [len(ax.get_lines()) for ax in axes] == [4, 5]
+    for ax in axes:
+        assert ax.get_yscale() == "log"
+        assert "Hz" in ax.get_xlabel()
+        assert "(m/s)²" in ax.get_ylabel() and "velocity" in ax.get_ylabel()
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert "expected E[S] (eq 56)" in labels and "thr 2" in labels
+
+
+def test_spectrum_figure_inset_and_unused_cells():
+    fig = pl.spectrum_figure([_synthetic_panel(1, inset=(0.0, 40.0))] * 3, ncols=2)
+    assert len(fig.axes) == 3  # the 4th grid cell is removed
+    insets = _insets(fig)
+    assert len(insets) == 3 and insets[0].get_xlim() == (0.0, 40.0)
+    assert len(insets[0].get_lines()) == 3  # the panel's spectrum, expected and threshold
+
+
+def test_spectrum_figure_bad_input():
+    with pytest.raises(ParameterError):
+        pl.spectrum_figure([])
+    bad = pl.SpectrumPanel(freqs_hz=np.arange(5.0), curves=(pl.SpectrumCurve(np.ones(4), "x"),))
+    with pytest.raises(ShapeError, match="shape"):
+        pl.spectrum_figure([bad])
+
+
+def test_spectrogram_figure():
+    t = np.arange(10) * 0.2 + 0.5
+    f = np.arange(51.0)
+    panel = pl.SpectrogramPanel(
+        times_s=t,
+        freqs_hz=f,
+        power=np.ones((10, 51)),
+        title="a",
+        channel="velocity",
+        fault_intervals=((0.0, 1.0),),
+        detected_intervals=((0.2, 1.1),),
+        flags=np.arange(10) < 3,
+        fmax_hz=50.0,
+    )
+    fig = pl.spectrogram_figure([panel, panel])
+    assert len(fig.axes) == 4  # two spectrograms and two colorbars
+    ax = fig.axes[0]
+    assert "Hz" in ax.get_ylabel() and "[s]" in ax.get_xlabel()
+    with pytest.raises(ShapeError):
+        pl.spectrogram_figure([pl.SpectrogramPanel(times_s=t, freqs_hz=f, power=np.ones((3, 3)))])
+
+
+def test_boundary_layer_figure():
+    t = np.linspace(0, 5, 101)
+    k = 3
+    panel = pl.BoundaryLayerPanel(
+        t=t,
+        psi=np.array([1e-4, 5e-4, 2e-3]),
+        labels=("a", "b", "c"),
+        error_measured=np.zeros((k, t.size)),
+        error_unmeasured=np.zeros((k, t.size)),
+        chattering=np.zeros((k, t.size)),
+        fault_intervals=((1.0, 2.0),),
+        fault_labels=("f0 = 3 Hz",),
+    )
+    fig = pl.boundary_layer_figure(panel)
+    assert len(fig.axes) == 3
+    assert all(len(ax.get_lines()) == k for ax in fig.axes)
+    assert fig.axes[-1].get_xlabel() == "time [s]"
+    with pytest.raises(ShapeError):
+        pl.boundary_layer_figure(pl.BoundaryLayerPanel(**{**panel.__dict__, "chattering": np.zeros((2, 5))}))
+
+
+def test_save_figure_png(tmp_path):
+    fig = pl.spectrum_figure([_synthetic_panel(2)])
+    path = pl.save_figure(fig, tmp_path / "sub" / "x.png")
+    data = path.read_bytes()
+    assert data[:8] == PNG_SIGNATURE and 1000 < len(data) < MAX_PNG_BYTES
+    with pytest.raises(ParameterError, match=r"\.png"):
+        pl.save_figure(pl.spectrum_figure([_synthetic_panel(1)]), tmp_path / "x.pdf")
+
+
+# --------------------------------------------------------------------------- paper figures
+def test_registry_names():
+    assert pf.figure_names() == (
+        "fig2",
+        "fig4",
+        "fig5",
+        "fig6",
+        "fig7",
+        "fig8",
+        "fig9",
+        "fig10",
+        "fig11",
+        "fig12",
+    )
+
+
+def test_unknown_figure_lists_valid_names():
+    with pytest.raises(ParameterError, match="valid figures: fig2, fig4"):
+        pf.render("fig3")
+    with pytest.raises(ParameterError, match="runs"):
+        pf.render("fig5", runs=0)
+
+
+def test_fig5_shows_11hz_peak_and_both_thresholds():
+    res = pf.render("fig5", seed=0)
+    main = res.figure.axes
+    assert len(main) == 2 and len(_insets(res.figure)) == 2
+    for ax in main:
+        assert len(ax.get_lines()) == 6  # spectrum, expected, 2 paper, 2 exact thresholds
+        assert "velocity" in ax.get_ylabel() and "unit²" in ax.get_ylabel() and "Hz" in ax.get_xlabel()
+    labels = [t.get_text() for t in res.figure.legends[0].get_texts()]
+    assert any("paper" in s and "per-bin" in s for s in labels)
+    assert any("exact" in s and "family-wise" in s for s in labels)
+    assert all("11.00 Hz" in n for n in res.notes)
+
+
+def test_fig6_averaged_threshold_uses_K():
+    res = pf.render("fig6", runs=4, seed=1)
+    labels = [t.get_text() for t in res.figure.legends[0].get_texts()]
+    assert any("K=4" in s for s in labels)
+    assert any("single record" in s for s in labels)
+
+
+def test_fig8_spectrograms_and_intervals():
+    res = pf.render("fig8", seed=0)
+    assert len(res.figure.axes) == 4
+    assert len(res.notes) == 2 and all("true [0, 2) s, [4, 6) s" in n for n in res.notes)
+
+
+def test_fig2_small_run_count():
+    res = pf.render("fig2", runs=2, seed=0)
+    assert len(res.figure.axes) == 3
+    assert all(len(ax.get_lines()) == len(pf.FIG2_PSIS) for ax in res.figure.axes)
+    assert len(res.notes) == len(pf.FIG2_PSIS)
+
+
+def test_scenario_spectrum_errors():
+    with pytest.raises(UnknownScenarioError, match="valid names"):
+        pf.scenario_spectrum("no-such-scenario")
+    with pytest.raises(ParameterError, match="unknown channel"):
+        pf.scenario_spectrum("so-f11-low", channel="pressure")
+    with pytest.raises(ParameterError, match="threshold"):
+        pf.scenario_spectrum("so-f11-low", threshold="flat")
+
+
+def test_scenario_spectrum_all_channels_averaged():
+    res = pf.scenario_spectrum("eha-healthy", channel="all", runs=2, threshold="exact")
+    main = res.figure.axes
+    assert len(main) == 3 and not _insets(res.figure)
+    for ax in main:
+        assert len(ax.get_lines()) == 4  # one realization (grey), mean, expected, exact threshold
+
+
+# --------------------------------------------------------------------------- commands
+def _run(module, argv):
+    parser = argparse.ArgumentParser(prog="chatterspec")
+    module.register(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+def test_figures_command_writes_png(tmp_path, capsys):
+    out = tmp_path / "figs"
+    assert _run(figures_cmd, ["figures", "--out", str(out), "--only", "fig5,11", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert [e["name"] for e in doc["figures"]] == ["fig5", "fig11"]
+    for name in ("fig5", "fig11"):
+        data = (out / f"{name}.png").read_bytes()
+        assert data[:8] == PNG_SIGNATURE and 10_000 < len(data) < MAX_PNG_BYTES
+
+
+def test_figures_command_unknown_name(tmp_path):
+    with pytest.raises(ChatterspecError, match="valid figures: fig2, fig4, fig5"):
+        _run(figures_cmd, ["figures", "--out", str(tmp_path), "--only", "fig5,fig99"])
+
+
+def test_figures_command_list(capsys):
+    assert _run(figures_cmd, ["figures", "--list"]) == 0
+    assert "fig12" in capsys.readouterr().out
+
+
+def test_spectrum_command_writes_png(tmp_path, capsys):
+    out = tmp_path / "s.png"
+    argv = ["spectrum", "so-f11-high", "--out", str(out), "--channel", "velocity", "--threshold", "paper"]
+    assert _run(spectrum_cmd, argv) == 0
+    assert "wrote" in capsys.readouterr().out
+    data = out.read_bytes()
+    assert data[:8] == PNG_SIGNATURE and 10_000 < len(data) < MAX_PNG_BYTES
+
+
+def test_spectrum_command_errors(tmp_path):
+    with pytest.raises(UnknownScenarioError, match="valid names"):
+        _run(spectrum_cmd, ["spectrum", "nope", "--out", str(tmp_path / "x.png")])
+    with pytest.raises(ParameterError, match=r"\.png"):
+        _run(spectrum_cmd, ["spectrum", "so-f11-low", "--out", str(tmp_path / "x.jpg")])
+    with pytest.raises(SystemExit):
+        _run(spectrum_cmd, ["spectrum", "so-f11-low", "--alpha", "5"])
+
+
+def test_plotting_not_imported_by_numeric_core():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, chatterspec, chatterspec.spectral, chatterspec.thresholds, chatterspec.detect, "
+        "chatterspec.pipeline; print('matplotlib' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"
