@@ -437,7 +437,7 @@ class DetectionReport:
 def detect_record(
     record: ChatteringRecord,
     alpha: float = 1e-3,
-    threshold: str = "exact",
+    threshold: str | Threshold = "exact",
     correction: Correction = "bonferroni",
     *,
     stft: bool | None = None,
@@ -452,7 +452,11 @@ def detect_record(
     alpha : float
         False-alarm probability in (0, 1); family-wise for ``"exact"`` with a
         correction, per-bin for ``"paper"`` (the paper's rule).
-    threshold : {"exact", "paper"}
+    threshold : {"exact", "paper"} or Threshold
+        Threshold kind, or a ready :class:`~chatterspec.thresholds.Threshold`
+        (e.g. the empirical one of a saved calibration,
+        ``Calibration.threshold("family-wise")``), used as is: its ``alpha``
+        replaces ``alpha`` and it must cover this record's periodogram bins.
     correction : {"bonferroni", "sidak", "none"}
         Used by ``"exact"`` (ignored by ``"paper"``).
     stft : bool, optional
@@ -473,7 +477,16 @@ def detect_record(
     model = record.model
     pg = periodogram(record.values, record.dt)
     E = expected_spectrum(model, pg.freqs_hz, pg.n_samples)
-    if threshold == "exact":
+    if isinstance(threshold, Threshold):
+        th = threshold
+        if th.values.shape != pg.power.shape[-2:] or not np.allclose(th.freqs_hz, pg.freqs_hz):
+            raise ShapeError(
+                f"the given threshold covers {th.values.shape[0]} bins x {th.values.shape[1]} channels "
+                f"at other frequencies than this record's periodogram {pg.power.shape[-2:]}: it was "
+                "calibrated for another record length or model"
+            )
+        alpha = th.alpha
+    elif threshold == "exact":
         th = exact_threshold(model, pg.freqs_hz, pg.n_samples, alpha, correction)
     elif threshold == "paper":
         th = paper_threshold(model, pg.freqs_hz, alpha)

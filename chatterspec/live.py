@@ -20,9 +20,17 @@ Entity layout (timeline ``time``, seconds; ``<c>`` is an output channel name):
 ``/events``                           text log of fault start / end events
 ====================================  =================================================================
 
-The scrolling spectrogram is a 2-D float16 ``Tensor`` of the last ``scroll_frames``
-columns; it goes to a live viewer at every hop but into a file only every
-``file_scroll_every`` hops and at the end (a 2-D tensor per hop would cost ~90 MB per minute).
+Everything time-indexed is sent column-wise (``send_columns``), also the exact
+spectra: one ``Tensor`` row per frame, built in bulk from numpy (``rr.Tensor`` has
+no batch constructor), so a reader sees the same rows as from one ``rr.log`` per
+frame. A live viewer gets every update at once; a file gets batches of ~10 s of
+data (and the rest on close), which keeps logging well below the analysis cost.
+
+The scrolling spectrogram is a 2-D float16 ``Tensor`` (dB, ``freq`` x ``time``) of the
+last ``scroll_frames`` columns; it goes to a live viewer at every hop, into a file
+only every ``file_scroll_every`` hops (default: one block per ``scroll_frames``, so
+the blocks tile the record) and at the end (a 2-D tensor per hop would cost ~90 MB
+per minute).
 
 Default recording folder of ``chatterspec demo``: ``recordings/`` in the
 current directory (git-ignored).
@@ -344,8 +352,153 @@ def blueprint(channels: tuple[str, ...], *, has_truth: bool = False, history_s: 
 
 
 # --------------------------------------------------------------------------- logging
+#: numpy dtype -> variant of Rerun's ``TensorBuffer`` union
+_TENSOR_DTYPES = {
+    np.dtype(np.float64): "F64",
+    np.dtype(np.float32): "F32",
+    np.dtype(np.float16): "F16",
+}
+#: Most tensors per ``send_columns`` call (keeps chunks and int32 arrow offsets small).
+_MAX_TENSOR_ROWS = 256
+
+
+class _ArrowBatch:
+    """A ready pyarrow array as a Rerun component batch (the ``ComponentBatchLike`` protocol)."""
+
+    __slots__ = ("array",)
+
+    def __init__(self, array: Any) -> None:
+        self.array = array
+
+    def as_arrow_array(self) -> Any:
+        return self.array
+
+
+class _TimeIndex:
+    """A ``time`` column converted to arrow once and shared by several ``send_columns`` calls."""
+
+    __slots__ = ("array",)
+
+    def __init__(self, rr: Any, seconds: np.ndarray) -> None:
+        self.array = rr.TimeColumn(TIMELINE, duration=np.asarray(seconds, dtype=float)).as_arrow_array()
+
+    def timeline_name(self) -> str:
+        return TIMELINE
+
+    def as_arrow_array(self) -> Any:
+        return self.array
+
+    def __getitem__(self, sl: slice) -> _TimeIndex:
+        out = _TimeIndex.__new__(_TimeIndex)
+        out.array = self.array[sl]
+        return out
+
+
+class _Columns:
+    """``send_columns`` component columns built straight from numpy arrays.
+
+    ``rr.Tensor`` has no ``columns()`` batch constructor ("Tensors do not support
+    batches"), so a batch of tensors is assembled here as the arrow array Rerun
+    itself produces for one ``rr.log(path, rr.Tensor(...))`` per row (same
+    component descriptor, same arrow type): a reader sees one ``Tensor:data`` row
+    per frame either way. The layout is checked once against Rerun's own
+    encoding; on any mismatch (a future Rerun) ``tensors_ok`` is False and the
+    caller falls back to one ``rr.log`` per tensor.
+    """
+
+    def __init__(self, rr: Any) -> None:
+        import pyarrow as pa  # a dependency of rerun-sdk
+
+        self.rr, self.pa = rr, pa
+        self.scalars = rr.Scalars.descriptor_scalars()
+        self.tensor = rr.Tensor.descriptor_data()
+        self.value_range = rr.Tensor.descriptor_value_range()
+        self._parts: dict[tuple, tuple] = {}
+        self.value_range_row = rr.Tensor(
+            np.zeros((1, 1)), value_range=list(DB_RANGE)
+        ).value_range.as_arrow_array()
+        self.tensors_ok = False
+        try:
+            for probe in (np.array([[1.0, 2.0, 3.0]]), np.arange(6, dtype=np.float16).reshape(1, 3, 2)):
+                names = ("freq",) if probe.ndim == 2 else ("freq", "time")
+                ref = rr.Tensor(probe[0], dim_names=list(names)).data.as_arrow_array()
+                self.tensor_type = ref.type
+                if not self._tensor_array(probe, names).equals(ref):
+                    return
+            self.tensors_ok = True
+        except Exception:  # any layout change of a future Rerun: fall back to rr.log per tensor
+            self.tensors_ok = False
+
+    def scalars_column(self, values: np.ndarray) -> Any:
+        arr = self.pa.array(np.ascontiguousarray(values, dtype=np.float64))
+        return self.rr.ComponentColumn(self.scalars, _ArrowBatch(arr))
+
+    def tensor_columns(self, data: np.ndarray, names: tuple[str, ...], *, value_range: bool = False) -> list:
+        """One ``Tensor`` row per ``data[k]`` (and the dB ``value_range`` on each row if asked)."""
+        cols = [self.rr.ComponentColumn(self.tensor, _ArrowBatch(self._tensor_array(data, names)))]
+        if value_range:
+            vr = self.pa.concat_arrays([self.value_range_row] * data.shape[0])
+            cols.append(self.rr.ComponentColumn(self.value_range, _ArrowBatch(vr)))
+        return cols
+
+    def _tensor_array(self, data: np.ndarray, names: tuple[str, ...]) -> Any:
+        pa, t = self.pa, self.tensor_type
+        data = np.ascontiguousarray(data)
+        n, shape = data.shape[0], data.shape[1:]
+        key = (n, shape, names, data.dtype)
+        parts = self._parts.get(key)
+        if parts is None:  # everything but the values: the same for every batch of this layout
+            size, nd = int(np.prod(shape)), len(shape)
+            dim_offsets = pa.array(np.arange(0, n * nd + 1, nd, dtype=np.int32))
+            shape_arr = pa.ListArray.from_arrays(
+                dim_offsets,
+                pa.array(np.tile(np.asarray(shape, dtype=np.uint64), n)),
+                type=t.field("shape").type,
+            )
+            names_arr = pa.ListArray.from_arrays(
+                dim_offsets, pa.array(list(names) * n, type=pa.string()), type=t.field("names").type
+            )
+            union = t.field("buffer").type
+            k = [f.name for f in union].index(_TENSOR_DTYPES[data.dtype])
+            children = [pa.nulls(0, type=f.type) for f in union]
+            offsets = pa.array(np.arange(0, n * size + 1, size, dtype=np.int32))
+            union_buffers = [
+                None,
+                pa.py_buffer(np.full(n, k, np.int8)),
+                pa.py_buffer(np.arange(n, dtype=np.int32)),
+            ]
+            parts = (shape_arr, names_arr, union, k, children, offsets, union_buffers)
+            if len(self._parts) > 16:
+                self._parts.clear()
+            self._parts[key] = parts
+        shape_arr, names_arr, union, k, children, offsets, union_buffers = parts
+        children = list(children)
+        children[k] = pa.ListArray.from_arrays(offsets, pa.array(data.reshape(-1)), type=union[k].type)
+        buffer = pa.Array.from_buffers(type=union, length=n, buffers=union_buffers, children=children)
+        return pa.Array.from_buffers(
+            type=t, length=n, buffers=[None], children=[shape_arr, names_arr, buffer]
+        )
+
+
+@dataclass
+class _Outbox:
+    """Updates waiting to be sent to one stream."""
+
+    stream: Any
+    live: bool
+    updates: list[MonitorUpdate] = field(default_factory=list)
+    samples: int = 0
+    frames: int = 0
+
+
 class RerunLogger:
     """Writes :class:`~chatterspec.monitor.MonitorUpdate` objects to the open sinks.
+
+    Everything time-indexed is sent column-wise with ``send_columns`` (one call
+    per entity and batch, not one ``log`` per sample or frame): to a live viewer
+    at every update, to a file in batches of ``batch_samples`` samples or
+    ``batch_frames`` frames (and on :meth:`close`). The exact per-frame spectra
+    go out the same way, one ``Tensor`` row per frame.
 
     Parameters
     ----------
@@ -354,11 +507,13 @@ class RerunLogger:
         Gives channels, frequencies, threshold and the boundary layer.
     scroll_frames : int
         Columns in the scrolling spectrogram (50 = 10 s at a 0.2 s hop).
-    file_scroll_every : int
+    file_scroll_every : int, optional
         Frames between two scrolling-spectrogram tensors in the file (the live
         viewer gets one per frame); the last one is always written on close.
-    batch_samples : int
-        Samples buffered before a bulk ``send_columns`` when no viewer is live.
+        Default ``scroll_frames``: the file's 2-D blocks then tile the record
+        without overlap (each frame in exactly one block).
+    batch_samples, batch_frames : int
+        A file batch is sent once this many samples or frames are buffered.
     truth : list of (start_s, label, is_fault), optional
         True fault timeline to draw in ``/truth/plant``.
     """
@@ -369,8 +524,9 @@ class RerunLogger:
         monitor: ChatteringMonitor,
         *,
         scroll_frames: int = 50,
-        file_scroll_every: int = 25,
-        batch_samples: int = 2000,
+        file_scroll_every: int | None = None,
+        batch_samples: int = 10_000,
+        batch_frames: int = 50,
         truth: list[tuple[float, str, bool]] | None = None,
         send_blueprint: bool = True,
     ) -> None:
@@ -387,12 +543,16 @@ class RerunLogger:
         self._expected = expected_frame_spectrum(
             monitor.model, monitor.freqs_hz, monitor.settings.stft, monitor.dt
         )
-        self._scroll = np.full((m, bins, self.scroll_frames), DB_RANGE[0], dtype=np.float16)
-        self._frames_since_file_scroll = 0
-        self.file_scroll_every = int(file_scroll_every)
+        self._expected_db = (10.0 * np.log10(np.maximum(self._expected, 1e-300))).astype(np.float32)
+        # ring of the last scroll_frames columns in dB (slot j % S holds frame j)
+        self._ring = np.full((self.scroll_frames, bins, m), DB_RANGE[0], dtype=np.float16)
+        self._ring_n = 0
+        self._since_file_scroll = 0
+        self.file_scroll_every = int(file_scroll_every or self.scroll_frames)
         self.batch_samples = int(batch_samples)
-        self._pending: list[MonitorUpdate] = []
-        self._pending_samples = 0
+        self.batch_frames = int(batch_frames)
+        self._cols = _Columns(rr)
+        self._boxes = [_Outbox(s, live=s is sinks.live_stream) for s in sinks.streams]
         self._last_frame_time: float | None = None
         self.psi = monitor.settings.psi
         if send_blueprint:
@@ -493,109 +653,156 @@ class RerunLogger:
             s.log(f"/state/{c}", self.rr.StateChange(state="healthy"))
 
     def log_update(self, upd: MonitorUpdate) -> None:
-        """Log one update: one spectrum column per frame and events at once; sample series and
-        per-frame scalars are buffered and sent with ``send_columns`` in batches of at least
-        ``batch_samples`` samples (at every update when a live viewer is attached)."""
-        rr = self.rr
+        """Queue one update; send it at once to a live viewer, in batches to a file."""
         fr = upd.frames
-        if upd.t.shape[0]:
-            self._pending.append(upd)
-            self._pending_samples += upd.t.shape[0]
-        elif fr.n_frames:
-            self._pending.append(upd)
-        for f in range(fr.n_frames):
-            tf = float(fr.times_s[f])
-            for s in self.sinks.streams:
-                s.set_time(TIMELINE, duration=tf)
-                for i, c in enumerate(self.keys):
-                    s.log(f"/spectrum/{c}", rr.Tensor(fr.power[f, :, i], dim_names=["freq"]))
-            self._scroll_push(fr.power[f], tf)
-        for ev in upd.events:
-            self.log_event(ev)
-        if self.sinks.live or self._pending_samples >= self.batch_samples:
-            self.flush()
+        if upd.t.shape[0] or fr.n_frames:
+            for box in self._boxes:
+                box.updates.append(upd)
+                box.samples += upd.t.shape[0]
+                box.frames += fr.n_frames
+                if box.live or box.samples >= self.batch_samples or box.frames >= self.batch_frames:
+                    self._send(box)
+        if fr.n_frames:
+            self._scroll(fr)
 
     def flush(self) -> None:
-        """Send the buffered sample series and per-frame scalars (bulk ``send_columns``)."""
-        if not self._pending:
+        """Send everything buffered (bulk ``send_columns``)."""
+        for box in self._boxes:
+            self._send(box)
+
+    def close(self) -> None:
+        """Send what is buffered, and the final scrolling spectrogram to the file."""
+        self.flush()
+        if self._last_frame_time is not None and self._since_file_scroll and self.sinks.file_stream:
+            self._log_scroll([self.sinks.file_stream], self._last_frame_time)
+            self._since_file_scroll = 0
+
+    def _send(self, box: _Outbox) -> None:
+        if not box.updates:
             return
-        rr = self.rr
-        ups, self._pending, self._pending_samples = self._pending, [], 0
-        t = np.concatenate([u.t for u in ups])
+        ups, box.updates, box.samples, box.frames = box.updates, [], 0, 0
+        s, cols = box.stream, self._cols
+        t = np.concatenate([u.t for u in ups]) if len(ups) > 1 else ups[0].t
         if t.size:
-            tcol = rr.TimeColumn(TIMELINE, duration=t)
-            ends = rr.TimeColumn(TIMELINE, duration=t[[0, -1]])
+            tcol = _TimeIndex(self.rr, t)
             series = {"e": np.concatenate([u.chattering for u in ups])}
             for key in ("measured", "estimate"):
                 parts = [getattr(u, key) for u in ups]
                 if all(p is not None for p in parts):
                     series[key] = np.concatenate(parts)
+            ends = _TimeIndex(self.rr, t[[0, -1]])
             for i, c in enumerate(self.keys):
                 for key, arr in series.items():
                     path = f"/chattering/{c}/e" if key == "e" else f"/signal/{c}/{key}"
-                    cols = rr.Scalars.columns(scalars=arr[:, i])
-                    for s in self.sinks.streams:
-                        s.send_columns(path, indexes=[tcol], columns=cols)
+                    s.send_columns(path, indexes=[tcol], columns=[cols.scalars_column(arr[:, i])])
                 if self.psi is not None:
                     for side, v in (("upper", self.psi[i]), ("lower", -self.psi[i])):
-                        cols = rr.Scalars.columns(scalars=np.array([v, v]))
-                        for s in self.sinks.streams:
-                            s.send_columns(f"/chattering/{c}/psi_{side}", indexes=[ends], columns=cols)
+                        col = cols.scalars_column(np.array([v, v]))
+                        s.send_columns(f"/chattering/{c}/psi_{side}", indexes=[ends], columns=[col])
         frames = [u.frames for u in ups if u.frames.n_frames]
         if frames:
             times = np.concatenate([f.times_s for f in frames])
+            power = np.concatenate([f.power for f in frames])
             ratio = np.concatenate([f.peak_ratio for f in frames])
             flags = np.concatenate([f.flags for f in frames])
-            fcol = rr.TimeColumn(TIMELINE, duration=times)
+            fcol = _TimeIndex(self.rr, times)
+            ones = np.ones(times.shape[0])
             for i, c in enumerate(self.keys):
-                for key, vals in (
-                    ("peak_ratio", ratio[:, i]),
-                    ("threshold", np.ones(times.shape[0])),
-                    ("verdict", flags[:, i].astype(float)),
-                ):
-                    cols = rr.Scalars.columns(scalars=vals)
-                    for s in self.sinks.streams:
-                        s.send_columns(f"/detection/{c}/{key}", indexes=[fcol], columns=cols)
+                self._send_spectra(s, f"/spectrum/{c}", fcol, times, power[:, :, i])
+                for key, vals in (("peak_ratio", ratio[:, i]), ("threshold", ones), ("verdict", flags[:, i])):
+                    col = cols.scalars_column(vals)
+                    s.send_columns(f"/detection/{c}/{key}", indexes=[fcol], columns=[col])
+        events = [ev for u in ups for ev in u.events]
+        if events:
+            self._send_events(s, events)
 
-    def close(self) -> None:
-        """Send what is buffered, and the final scrolling spectrogram to the file."""
-        self.flush()
-        if self._last_frame_time is not None and self._frames_since_file_scroll:
-            self._log_scroll(
-                [self.sinks.file_stream] if self.sinks.file_stream else [], self._last_frame_time
-            )
+    def _send_spectra(
+        self, s: Any, path: str, tcol: _TimeIndex, times: np.ndarray, power: np.ndarray
+    ) -> None:
+        """One exact (float64) ``Tensor`` row per frame: ``power`` is (frames, bins)."""
+        if not self._cols.tensors_ok:
+            for f in range(power.shape[0]):
+                s.set_time(TIMELINE, duration=float(times[f]))
+                s.log(path, self.rr.Tensor(power[f], dim_names=["freq"]))
+            return
+        for lo in range(0, power.shape[0], _MAX_TENSOR_ROWS):
+            hi = lo + _MAX_TENSOR_ROWS
+            cols = self._cols.tensor_columns(power[lo:hi], ("freq",))
+            s.send_columns(path, indexes=[tcol[lo:hi]], columns=cols)
 
-    def _scroll_push(self, column: np.ndarray, t: float) -> None:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            db = 10.0 * np.log10(np.maximum(column, 1e-300) / self._expected)
-        self._scroll[:, :, :-1] = self._scroll[:, :, 1:]
-        self._scroll[:, :, -1] = np.clip(db, DB_RANGE[0], DB_RANGE[1]).T
-        self._last_frame_time = t
-        self._frames_since_file_scroll += 1
-        targets = [self.sinks.live_stream] if self.sinks.live_stream is not None else []
-        if self._frames_since_file_scroll >= self.file_scroll_every and self.sinks.file_stream is not None:
-            targets.append(self.sinks.file_stream)
-            self._frames_since_file_scroll = 0
-        self._log_scroll(targets, t)
+    def _send_events(self, s: Any, events: list[DetectionEvent]) -> None:
+        rr = self.rr
+        tcol = _TimeIndex(rr, np.array([ev.time_s for ev in events]))
+        text = [f"{ev.kind} {ev.channel}: {ev.describe()}" for ev in events]
+        level = ["WARN" if ev.kind == "fault-start" else "INFO" for ev in events]
+        s.send_columns("/events", indexes=[tcol], columns=rr.TextLog.columns(text=text, level=level))
+        for i, c in enumerate(self.keys):
+            mine = [k for k, ev in enumerate(events) if ev.channel_index == i]
+            if mine:
+                state = ["fault" if events[k].kind == "fault-start" else "healthy" for k in mine]
+                s.send_columns(
+                    f"/state/{c}",
+                    indexes=[_TimeIndex(rr, np.array([events[k].time_s for k in mine]))],
+                    columns=rr.StateChange.columns(state=state),
+                )
+
+    # ------------------------------------------------------------------ scrolling spectrogram
+    def _scroll(self, fr: Any) -> None:
+        """Push the frames' dB columns into the ring; a live viewer gets the 2-D view after every
+        frame, the file one view every ``file_scroll_every`` frames."""
+        live, file = self.sinks.live_stream, self.sinks.file_stream
+        every = self.file_scroll_every
+        F, lo = fr.n_frames, 0
+        while lo < F:
+            step = 1 if live is not None else max(1, min(F - lo, every - self._since_file_scroll))
+            self._ring_put(fr.power[lo : lo + step])
+            lo += step
+            self._since_file_scroll += step
+            targets = [live] if live is not None else []
+            if file is not None and self._since_file_scroll >= every:
+                targets.append(file)
+                self._since_file_scroll = 0
+            if targets:
+                self._log_scroll(targets, float(fr.times_s[lo - 1]))
+        self._last_frame_time = float(fr.times_s[-1])
+
+    def _ring_put(self, power: np.ndarray) -> None:
+        S, n_all = self.scroll_frames, power.shape[0]
+        power = power[-S:]  # older frames would be overwritten in the ring anyway
+        n = power.shape[0]
+        with np.errstate(divide="ignore", invalid="ignore"):  # 0 -> -inf -> clipped
+            db = np.log10(power.astype(np.float32))  # float32 is plenty for a float16 image
+        db *= 10.0
+        db -= self._expected_db
+        np.clip(db, DB_RANGE[0], DB_RANGE[1], out=db)
+        self._ring_n += n_all
+        self._ring[(self._ring_n - n + np.arange(n)) % S] = db
+
+    def _scroll_image(self) -> np.ndarray:
+        """(m, bins, S) float16, oldest column left (blank columns before the first frames)."""
+        S = self.scroll_frames
+        return np.transpose(self._ring[(self._ring_n + np.arange(S)) % S], (2, 1, 0))
 
     def _log_scroll(self, targets: list[Any], t: float) -> None:
         rr = self.rr
+        img = self._scroll_image()
+        tcol = _TimeIndex(rr, np.array([t]))
         for s in targets:
-            s.set_time(TIMELINE, duration=t)
             for i, c in enumerate(self.keys):
-                s.log(
-                    f"/spectrogram/{c}",
-                    rr.Tensor(self._scroll[i], dim_names=["freq", "time"], value_range=list(DB_RANGE)),
-                )
+                if self._cols.tensors_ok:
+                    cols = self._cols.tensor_columns(img[i][None], ("freq", "time"), value_range=True)
+                    s.send_columns(f"/spectrogram/{c}", indexes=[tcol], columns=cols)
+                else:
+                    s.set_time(TIMELINE, duration=t)
+                    s.log(
+                        f"/spectrogram/{c}",
+                        rr.Tensor(img[i], dim_names=["freq", "time"], value_range=list(DB_RANGE)),
+                    )
 
     def log_event(self, ev: DetectionEvent) -> None:
-        rr = self.rr
-        c = _entity(ev.channel)
-        level = "WARN" if ev.kind == "fault-start" else "INFO"
+        """Log one detection event at once (text log and state lane) to every stream."""
         for s in self.sinks.streams:
-            s.set_time(TIMELINE, duration=ev.time_s)
-            s.log("/events", rr.TextLog(f"{ev.kind} {ev.channel}: {ev.describe()}", level=level))
-            s.log(f"/state/{c}", rr.StateChange(state="fault" if ev.kind == "fault-start" else "healthy"))
+            self._send_events(s, [ev])
 
 
 # --------------------------------------------------------------------------- drivers

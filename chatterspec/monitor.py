@@ -201,13 +201,27 @@ def frame_verdicts(power: np.ndarray, threshold: Threshold) -> tuple[np.ndarray,
     the largest ``S / threshold`` over the tested bins is > 1.
     """
     power = threshold.check_spectrum(power)
-    tested = np.flatnonzero(threshold.tested)
-    ratio = power[..., tested, :] / threshold.values[tested]
-    k = np.argmax(ratio, axis=-2)
-    peak_ratio = np.take_along_axis(ratio, k[..., None, :], axis=-2)[..., 0, :]
-    peak_hz = threshold.freqs_hz[tested][k]
-    flags = np.any(power[..., tested, :] > threshold.values[tested], axis=-2)
-    return flags, peak_hz, peak_ratio
+    return _Verdicts(threshold)(power)
+
+
+class _Verdicts:
+    """:func:`frame_verdicts` with the tested bins and their threshold precomputed (per-push cost)."""
+
+    def __init__(self, threshold: Threshold) -> None:
+        tested = np.flatnonzero(threshold.tested)
+        contiguous = tested.size > 0 and bool(np.all(np.diff(tested) == 1))
+        # a slice is a view (no copy of the spectra); fancy indexing otherwise
+        self.sel: slice | np.ndarray = slice(int(tested[0]), int(tested[-1]) + 1) if contiguous else tested
+        self.values = np.ascontiguousarray(threshold.values[tested])
+        self.freqs = threshold.freqs_hz[tested]
+
+    def __call__(self, power: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        p = power[..., self.sel, :]
+        ratio = p / self.values
+        k = np.argmax(ratio, axis=-2)
+        peak_ratio = np.take_along_axis(ratio, k[..., None, :], axis=-2)[..., 0, :]
+        flags = np.any(p > self.values, axis=-2)
+        return flags, self.freqs[k], peak_ratio
 
 
 class ChatteringMonitor:
@@ -258,7 +272,12 @@ class ChatteringMonitor:
         self._n_chat = 0  # chattering samples produced / pushed
         self._t_chat0: float | None = None  # time of chattering sample 0
         m = model.n_outputs
-        self._tail = np.empty((0, m))  # chattering samples from the next frame's start on (< W rows)
+        # chattering samples from the next frame's start on (< W rows); room for one more hop so
+        # that small pushes append in place instead of re-concatenating the window every time
+        self._buf = np.empty((self.n_window + self.n_hop, m))
+        self._n_buf = 0
+        self._verdicts = _Verdicts(self.threshold)
+        self._no_frames = self._empty_frames()
         self._n_frames = 0
         self._active = np.zeros(m, dtype=bool)
         self._fault_peak = np.zeros(m)
@@ -288,7 +307,7 @@ class ChatteringMonitor:
     @property
     def buffered_samples(self) -> int:
         """Chattering samples held between pushes (always < one window)."""
-        return self._tail.shape[0]
+        return self._n_buf
 
     def frame_time(self, index: np.ndarray | int) -> np.ndarray:
         """Centre time (s) of global frame(s) ``index``."""
@@ -429,18 +448,28 @@ class ChatteringMonitor:
     def _analyse(
         self, e: np.ndarray, t: np.ndarray, *, measured: np.ndarray | None, estimate: np.ndarray | None
     ) -> MonitorUpdate:
-        buf_start = self._n_frames * self.n_hop  # global index of self._tail[0]
-        buf = np.concatenate([self._tail, e]) if self._tail.shape[0] else e
-        self._n_chat += e.shape[0]
-        idx, power = frame_columns(buf, self.dt, self.settings.stft, buf_start)
-        if idx.size == 0:
-            self._tail = buf.copy() if buf is e else buf
-            frames = self._empty_frames()
-            return MonitorUpdate(t, e, measured, estimate, frames, ())
-        next_start = (int(idx[-1]) + 1) * self.n_hop
-        self._tail = buf[next_start - buf_start :].copy()
+        W, H = self.n_window, self.n_hop
+        K, nb = e.shape[0], self._n_buf
+        self._n_chat += K
+        buf_start = self._n_frames * H  # global index of self._buf[0]
+        n = nb + K
+        if n < W:  # the next frame (samples buf_start .. buf_start + W) is not complete yet
+            self._buf[nb:n] = e
+            self._n_buf = n
+            return MonitorUpdate(t, e, measured, estimate, self._no_frames, ())
+        if nb == 0:
+            data = e
+        elif n <= self._buf.shape[0]:
+            self._buf[nb:n] = e
+            data = self._buf[:n]
+        else:
+            data = np.concatenate([self._buf[:nb], e])
+        idx, power = frame_columns(data, self.dt, self.settings.stft, buf_start)
         self._n_frames = int(idx[-1]) + 1
-        flags, peak_hz, peak_ratio = frame_verdicts(power, self.threshold)
+        keep = data[self._n_frames * H - buf_start :]  # < W samples: the next frame's start on
+        self._buf[: keep.shape[0]] = keep  # numpy copes with the overlap when data is self._buf
+        self._n_buf = keep.shape[0]
+        flags, peak_hz, peak_ratio = self._verdicts(power)
         times = self.frame_time(idx)
         frames = FrameBlock(idx, times, power, flags, peak_hz, peak_ratio)
         events = self._events(frames)

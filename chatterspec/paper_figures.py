@@ -500,8 +500,8 @@ def fig7(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
         Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
         :data:`FIGURES`; the figure shows a single realization, as in the paper.
     seed : int, SeedSequence, Generator or None
-        Root seed of the simulation; realization 0 of this seed is shown in every panel (common random
-        numbers across the three mismatch levels).
+        Root seed of the simulation; realization 0 of this seed is shown in
+        every panel (common random numbers across the three mismatch levels).
 
     Returns
     -------
@@ -622,8 +622,8 @@ def fig10(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
         Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
         :data:`FIGURES`; the figure shows a single realization, as in the paper.
     seed : int, SeedSequence, Generator or None
-        Root seed of the simulation; realization 0 of this seed is shown in every panel (each fault level is a
-        separate scenario with the same seed).
+        Root seed of the simulation; realization 0 of this seed is shown in
+        every panel (each fault level is a separate scenario with the same seed).
 
     Returns
     -------
@@ -649,8 +649,8 @@ def fig11(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
         Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
         :data:`FIGURES`; the figure shows a single realization, as in the paper.
     seed : int, SeedSequence, Generator or None
-        Root seed of the simulation; realization 0 of this seed is shown in every panel (each fault level is a
-        separate scenario with the same seed).
+        Root seed of the simulation; realization 0 of this seed is shown in
+        every panel (each fault level is a separate scenario with the same seed).
 
     Returns
     -------
@@ -676,8 +676,8 @@ def fig12(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
         Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
         :data:`FIGURES`; the figure shows a single realization, as in the paper.
     seed : int, SeedSequence, Generator or None
-        Root seed of the simulation; realization 0 of this seed is shown in every panel (each fault level is a
-        separate scenario with the same seed).
+        Root seed of the simulation; realization 0 of this seed is shown in
+        every panel (each fault level is a separate scenario with the same seed).
 
     Returns
     -------

@@ -23,7 +23,22 @@ __all__ = ["calibration_figure", "far_figure", "power_figure", "save"]
 
 
 def save(fig: Figure, path: str | Path, dpi: int = 120) -> Path:
-    """Save ``fig`` to ``path`` and close it."""
+    """Save ``fig`` to ``path`` and close it.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        Figure to write; it is closed afterwards (``plt.close``) to free memory.
+    path : str or Path
+        Output file; the format follows its suffix (``.png``, ``.pdf``, ``.svg``, ...).
+    dpi : int
+        Resolution in dots per inch for raster formats (default 120).
+
+    Returns
+    -------
+    Path
+        ``path`` as a :class:`~pathlib.Path`.
+    """
     path = Path(path)
     fig.savefig(path, dpi=dpi, bbox_inches="tight")
     plt.close(fig)
@@ -31,7 +46,22 @@ def save(fig: Figure, path: str | Path, dpi: int = 120) -> Path:
 
 
 def calibration_figure(cal: Calibration) -> Figure:
-    """Per channel: empirical per-bin quantile of S/E[S] with its interval vs the analytic exact factor."""
+    """Per channel: empirical per-bin quantile of S/E[S] with its interval vs the analytic exact factor.
+
+    One log-scale panel per output channel over the tested bins (Hz), also
+    showing the paper's flat threshold divided by E[S], the empirical
+    family-wise factor and the analytic Bonferroni factor.
+
+    Parameters
+    ----------
+    cal : Calibration
+        Result of :func:`chatterspec.calibration.calibrate` (or
+        :func:`~chatterspec.calibration.load_calibration`).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     m = len(cal.channels)
     fig, axes = plt.subplots(m, 1, figsize=(8, 2.4 * m), sharex=True, squeeze=False)
     f, t = cal.freqs_hz, cal.tested
@@ -61,7 +91,23 @@ def calibration_figure(cal: Calibration) -> Figure:
 
 
 def far_figure(res: FalseAlarmResult, kinds: tuple[str, ...] = ("paper", "exact")) -> Figure:
-    """Per-bin false-alarm rate vs frequency (per channel) for record kinds, with the nominal level."""
+    """Per-bin false-alarm rate vs frequency (per channel) for record kinds, with the nominal level.
+
+    Rates are smoothed by a moving average over about 1 % of the band; DC and
+    Nyquist are left out. Solid lines are the first alpha, dashed the second.
+
+    Parameters
+    ----------
+    res : FalseAlarmResult
+        Result of :func:`chatterspec.calibration.false_alarm_study`.
+    kinds : tuple of str
+        Threshold kinds to draw (default ``("paper", "exact")``); kinds absent
+        from ``res`` at an alpha are skipped.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     m = len(res.channels)
     fig, axes = plt.subplots(m, 1, figsize=(8, 2.4 * m), sharex=True, squeeze=False)
     alphas = sorted({r.alpha for r in res.rates if r.kind in kinds})
@@ -95,7 +141,20 @@ def far_figure(res: FalseAlarmResult, kinds: tuple[str, ...] = ("paper", "exact"
 
 
 def power_figure(res: PowerResult) -> Figure:
-    """Left: detection probability vs fault size per kind and noise; right: ROC curves (exact Bonferroni)."""
+    """Left: detection probability vs fault size per kind and noise; right: ROC curves (exact Bonferroni).
+
+    Parameters
+    ----------
+    res : PowerResult
+        Result of :func:`chatterspec.calibration.power_study`. The left panel
+        shows Clopper-Pearson error bars at ``res.alpha`` on the fault channel;
+        the right panel sweeps ``res.alphas`` for every non-healthy size
+        (false-alarm rates of 0 are drawn at ``0.5 / runs`` on the log axis).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
     x = np.arange(len(res.sizes))
     for i, nz in enumerate(res.noise):

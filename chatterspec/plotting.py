@@ -80,7 +80,18 @@ _CURVE_COLORS = ("tab:blue", "tab:orange", "tab:purple", "tab:brown", "tab:cyan"
 
 # --------------------------------------------------------------------------- labels
 def format_alpha(alpha: float) -> str:
-    """``0.001 -> "0.1 %"``, ``0.01 -> "1 %"``, ``1e-5 -> "0.001 %"``."""
+    """``0.001 -> "0.1 %"``, ``0.01 -> "1 %"``, ``1e-5 -> "0.001 %"``.
+
+    Parameters
+    ----------
+    alpha : float
+        False-alarm probability as a fraction (not validated); shown as a
+        percentage with up to 4 significant digits.
+
+    Returns
+    -------
+    str
+    """
     return f"{100.0 * float(alpha):.4g} %"
 
 
@@ -168,7 +179,22 @@ class ThresholdCurve:
 
 @dataclass(frozen=True)
 class SpectrumCurve:
-    """One power spectrum drawn in a panel: ``power`` (bins,) in the panel's unit."""
+    """One power spectrum drawn in a panel: ``power`` (bins,) in the panel's unit.
+
+    Attributes
+    ----------
+    power : (bins,) array
+        Periodogram values (eq 51) on the panel's ``freqs_hz``, in the square of
+        the channel unit (e.g. Pa^2); non-positive values are masked on the log axis.
+    label : str
+        Legend text.
+    color : str, optional
+        Matplotlib colour; default cycles through the panel's curve palette.
+    linewidth : float
+        Line width in points (default 0.8).
+    alpha : float
+        Line opacity in [0, 1] (matplotlib alpha, not a false-alarm level).
+    """
 
     power: np.ndarray
     label: str
@@ -280,6 +306,9 @@ class BoundaryLayerPanel:
         One label per fault window.
     error_label : str
         Y-axis text of the normalized errors (how they were normalized).
+    colors : tuple of str
+        Matplotlib colours of the psi rows, reused cyclically (default black,
+        blue, green, red).
     """
 
     t: np.ndarray
@@ -341,6 +370,22 @@ def draw_spectrum(ax: Axes, panel: SpectrumPanel, *, legend: bool = True) -> lis
     Draw order: spectra, expected spectrum ``E[S]`` (eq 56, black dashed), then
     thresholds (paper's flat bound dashed in red/orange, exact bound solid in
     green shades; the darkest shade is the smallest alpha, i.e. the highest line).
+
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+        Axes to draw into; its y axis is set to log scale.
+    panel : SpectrumPanel
+        Frequencies (Hz), spectra, optional expected spectrum and thresholds,
+        note and inset band. Arrays must match ``freqs_hz`` in shape
+        (:class:`ShapeError` otherwise); a scalar threshold is drawn flat.
+    legend : bool
+        Add a legend of the drawn lines in the upper-left corner (default True).
+
+    Returns
+    -------
+    list of matplotlib.lines.Line2D
+        Spectra, expected spectrum and thresholds, in draw order (inset lines excluded).
     """
     f = np.asarray(panel.freqs_hz, dtype=float)
     if f.ndim != 1:
@@ -553,6 +598,18 @@ def spectrogram_figure(
     fault windows (red) and the detected intervals (white, with flagged frames as
     ticks).
 
+    Parameters
+    ----------
+    panels : sequence of SpectrogramPanel
+        One panel per column (at least one; :class:`ParameterError` otherwise);
+        each ``power`` must have shape (frames, bins).
+    suptitle : str
+        Figure title, wrapped to the figure width; empty for none.
+    db_range : float
+        Dynamic range of the colour scale in dB below each panel's maximum (default 80).
+    panel_size : (width, height)
+        Size of one panel in inches; the figure is ``len(panels)`` panels wide.
+
     Returns
     -------
     matplotlib.figure.Figure
@@ -617,6 +674,16 @@ def boundary_layer_figure(panel: BoundaryLayerPanel, *, suptitle: str = "", unit
     Three stacked axes sharing time: (a) normalized estimation error of the
     measured state x1, (b) of the unmeasured state x2, (c) boundary-layer
     chattering of x1 (eq 13), one line per psi. True mismatch windows are shaded.
+
+    Parameters
+    ----------
+    panel : BoundaryLayerPanel
+        Time axis (s), boundary layers, labels, error and chattering arrays of
+        shape (len(psi), T) (:class:`ShapeError` otherwise), fault windows.
+    suptitle : str
+        Figure title; empty for none.
+    unit : str
+        Unit of x1, used in the chattering axis label (default ``"unit of x1"``).
 
     Returns
     -------

@@ -510,7 +510,7 @@ def expected_frame_spectrum(
 def _bin_eigenvalues(
     gamma0: np.ndarray, gamma1: np.ndarray, w: np.ndarray, f: np.ndarray, dt: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenvalues ``(l1 >= l2 >= 0)``, each ``(bins, m)``, of ``|sum_k w_k x_k e^{-i omega k}|^2 / sum w_k^2``.
+    """Eigenvalues ``l1 >= l2 >= 0`` (each ``(bins, m)``) of ``|sum_k w_k x_k e^{-i omega k}|^2 / sum w_k^2``.
 
     For the MA(1) ``x`` (lag-0 ``gamma0``, lag-1 ``gamma1``), with ``P = sum w_k^2``,
     ``Q = sum w_k w_{k+1}``, ``A = sum w_k^2 e^{-2 i omega k}`` and

@@ -374,9 +374,10 @@ def weighted_chi2_isf(p: object, l1: object, l2: object, rtol: float = 1e-10) ->
         with np.errstate(divide="ignore", invalid="ignore"):
             step = h * sf / _pdf_unit(xa, ra)  # Newton: x - h / h', h' = -pdf / sf
         xn = xa + step
+        conv = np.isfinite(step) & (np.abs(step) <= rtol * xa)  # converged (may sit on the bracket)
         bad = ~np.isfinite(xn) | (xn <= lo_a) | (xn >= hi_a)
-        xn = np.where(bad, 0.5 * (lo_a + hi_a), xn)
-        done = (np.abs(xn - xa) <= rtol * xn) | (hi_a - lo_a <= rtol * xa) | (h == 0)
+        xn = np.where(conv | (h == 0), np.where(h == 0, xa, xn), np.where(bad, 0.5 * (lo_a + hi_a), xn))
+        done = conv | (h == 0) | (hi_a - lo_a <= rtol * xa)
         lo[act], hi[act], x[act] = lo_a, hi_a, xn
         idx = np.flatnonzero(act)
         act[idx[done]] = False

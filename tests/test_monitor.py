@@ -85,6 +85,17 @@ def test_one_sample_at_a_time_and_bounded_buffer(sim, batch) -> None:
     assert power.shape[0] == (n - 1 - mon.n_window) // mon.n_hop + 1
 
 
+def test_mixed_small_and_huge_pushes(sim, batch) -> None:
+    rec, spec, flags = batch
+    mon = ChatteringMonitor(rec.model, t0=rec.t[0])
+    sizes = [1, 3, mon.n_window - 5, 1, 2 * mon.n_window + 7, 199, 200, 201, 1]
+    sizes.append(rec.n_samples - sum(sizes))  # the rest in one push
+    ups = [mon.push_chattering(part) for part in np.split(rec.values[0], np.cumsum(sizes)[:-1])]
+    np.testing.assert_allclose(np.concatenate([u.frames.power for u in ups]), spec.power, rtol=1e-12, atol=0)
+    np.testing.assert_array_equal(np.concatenate([u.frames.flags for u in ups]), flags)
+    assert mon.buffered_samples < mon.n_window
+
+
 def test_events_match_batch_frame_intervals(sim, batch) -> None:
     rec, spec, flags = batch
     mon = ChatteringMonitor(sim.scenario.nominal)

@@ -226,3 +226,67 @@ def test_expected_spectrum_of_custom_model_with_correlated_noise():
     M = -C @ A @ np.linalg.inv(C)
     np.testing.assert_allclose(g0, np.diag(C @ Q @ C.T + R + M @ R @ M.T))
     np.testing.assert_allclose(g1, np.diag(M @ R))
+
+
+# -- exact finite-N law of a bin: l1 Z1^2 + l2 Z2^2 ------------------------------------------
+def _scalar_ma1(a: float = 0.9, q: float = 1e-4, r: float = 1.0) -> LinearModel:
+    """One-channel model whose chattering is x_k = v_k + w_{k+1} - a w_k (gamma1 = -a r)."""
+    return LinearModel(
+        A=np.array([[a]]), B=np.zeros((1, 1)), C=np.eye(1), Q=np.array([[q]]), R=np.array([[r]]), dt=DT
+    )
+
+
+def _simulate_ma1(model: LinearModel, draws: int, n: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    a, q, r = model.A[0, 0], model.Q[0, 0], model.R[0, 0]
+    w = rng.standard_normal((draws, n + 1)) * np.sqrt(r)
+    v = rng.standard_normal((draws, n)) * np.sqrt(q)
+    return (v + w[:, 1:] - a * w[:, :-1])[..., None]
+
+
+def test_periodogram_eigenvalues_closed_form_and_monte_carlo():
+    """(l1, l2) = gamma0/2 + (1 - 1/N) gamma1 cos w +- |gamma1|/N; l2 = 0 at DC/Nyquist; MC of (Re, Im)."""
+    from chatterspec.spectral import periodogram_eigenvalues
+
+    model = _scalar_ma1()
+    N = 64
+    f = np.fft.rfftfreq(N, DT)
+    l1, l2 = periodogram_eigenvalues(model, f, N)
+    g0, g1 = chattering_autocovariance(model)
+    c = g0 / 2 + (1 - 1 / N) * g1 * np.cos(2 * np.pi * f * DT)[:, None]
+    np.testing.assert_allclose(l1[1:-1], (c + abs(g1) / N)[1:-1], rtol=1e-10)
+    np.testing.assert_allclose(l2[1:-1], (c - abs(g1) / N)[1:-1], rtol=1e-9)
+    np.testing.assert_allclose(l1 + l2, expected_spectrum(model, f, N), rtol=1e-10)
+    assert l2[0, 0] == 0.0 and l2[-1, 0] == 0.0
+    # Monte Carlo: eigenvalues of the empirical covariance of (Re X, Im X) / sqrt(N)
+    x = _simulate_ma1(model, 100_000, N, seed=5)[..., 0]
+    X = np.fft.rfft(x, axis=1) / np.sqrt(N)
+    for b in (1, 2, 5, 20):
+        lam = np.linalg.eigvalsh(np.cov(np.vstack([X[:, b].real, X[:, b].imag])))[::-1]
+        np.testing.assert_allclose(lam, [l1[b, 0], l2[b, 0]], rtol=0.03)
+    # arbitrary (off-grid) frequencies go through direct sums: l1 + l2 is still the exact mean
+    fo = np.array([3.3, 117.0, 401.7])
+    k = np.arange(N)
+    m1, m2 = periodogram_eigenvalues(model, fo, N)
+    for i, fi in enumerate(fo):
+        e = np.exp(-2j * np.pi * fi * DT * k)
+        cov = g0[0] * np.eye(N) + g1[0] * (np.eye(N, k=1) + np.eye(N, k=-1))
+        M = np.vstack([e.real, e.imag]) / np.sqrt(N)
+        np.testing.assert_allclose([m1[i, 0], m2[i, 0]], np.linalg.eigvalsh(M @ cov @ M.T)[::-1], rtol=1e-9)
+
+
+def test_frame_eigenvalues_match_frame_columns_monte_carlo():
+    """Hamming frames of W = 32 samples via frame_columns: mean l1 + l2, variance 2 (l1^2 + l2^2)."""
+    from chatterspec.spectral import frame_eigenvalues
+
+    model = _scalar_ma1()
+    cfg = STFTConfig(window_s=32 * DT, hop_s=32 * DT)
+    f = cfg.freqs_hz(DT)
+    l1, l2 = frame_eigenvalues(model, f, cfg)
+    np.testing.assert_allclose(l1 + l2, expected_frame_spectrum(model, f, cfg), rtol=1e-10)
+    assert l2[0, 0] == 0.0 and l2[-1, 0] == 0.0 and np.all(l2 <= l1)
+    _, power = frame_columns(_simulate_ma1(model, 100_000, 32, seed=6), DT, cfg)
+    power = power[:, 0, :, 0]  # (draws, bins)
+    for b in (0, 1, 2, 3, 8):
+        assert power[:, b].mean() == pytest.approx(l1[b, 0] + l2[b, 0], rel=0.02)
+        assert power[:, b].var() == pytest.approx(2 * (l1[b, 0] ** 2 + l2[b, 0] ** 2), rel=0.05)

@@ -50,7 +50,7 @@ def test_exact_threshold_values_dof_and_tested_bins():
     model = scenario("so-healthy-low").nominal
     N = 4000
     f = np.fft.rfftfreq(N, model.dt)
-    th = exact_threshold(model, f, N, alpha=1e-3)
+    th = exact_threshold(model, f, N, alpha=1e-3, law="chi2")
     E = expected_spectrum(model, f, N)
     n_tested = N // 2 - 1  # bins 1 .. N/2 - 1: DC and Nyquist excluded
     assert th.n_tested == n_tested and not th.tested[0] and not th.tested[-1]
@@ -59,6 +59,21 @@ def test_exact_threshold_values_dof_and_tested_bins():
     np.testing.assert_allclose(th.values[1:-1], E[1:-1] * scipy.stats.chi2.ppf(1 - a, 2) / 2, rtol=1e-9)
     np.testing.assert_allclose(th.values[0], E[0] * scipy.stats.chi2.ppf(1 - a, 1), rtol=1e-9)  # DC: 1 dof
     assert th.dof[0] == 1 and th.dof[1] == 2 and th.dof[-1] == 1
+    assert th.law == "chi2" and th.eigenvalues is None and np.all(th.effective_dof == th.dof[:, None])
+    # default exact law: at DC (l2 = 0) it is the chi2(1) quantile of l1 = E; elsewhere between
+    # E chi2(2)/2 (l1 = l2) and E chi2(1) (l2 = 0); effective dof in [1, 2]
+    ex = exact_threshold(model, f, N, alpha=1e-3)
+    assert ex.law == "exact" and ex.eigenvalues.shape == (f.size, 2, 2)
+    np.testing.assert_allclose(ex.values[0], th.values[0], rtol=1e-12)
+    np.testing.assert_allclose(ex.eigenvalues.sum(axis=-1), E, rtol=1e-9)
+    assert np.all(ex.values[1:-1] >= th.values[1:-1] * (1 - 1e-9))
+    assert np.all(ex.values[1:-1] <= E[1:-1] * scipy.stats.chi2.isf(a, 1))
+    assert np.all((ex.effective_dof >= 1 - 1e-12) & (ex.effective_dof <= 2 + 1e-12))
+    assert ex.effective_dof[0, 0] == pytest.approx(1.0) and ex.effective_dof[1000, 0] == pytest.approx(
+        2.0, abs=1e-3
+    )
+    with pytest.raises(ParameterError, match="law"):
+        exact_threshold(model, f, N, law="gauss")
     assert (th.kind, th.alpha_meaning, th.correction, th.averaged) == (
         "exact",
         "family-wise",
@@ -70,9 +85,17 @@ def test_exact_threshold_values_dof_and_tested_bins():
     f_odd = np.fft.rfftfreq(N + 1, model.dt)
     assert exact_threshold(model, f_odd, N + 1).tested[-1]
     # averaged K spectra: E chi2(2K)/(2K), DC chi2(K)/K
-    thk = exact_threshold(model, f, N, alpha=1e-3, averaged=10)
+    thk = exact_threshold(model, f, N, alpha=1e-3, averaged=10, law="chi2")
     np.testing.assert_allclose(thk.values[5], E[5] * scipy.stats.chi2.ppf(1 - a, 20) / 20, rtol=1e-9)
     np.testing.assert_allclose(thk.values[0], E[0] * scipy.stats.chi2.ppf(1 - a, 10) / 10, rtol=1e-9)
+    # exact law, K = 10: Welch-Satterthwaite (c / K) chi2(nu_eff); chi2(K)/K at DC (l2 = 0)
+    exk = exact_threshold(model, f, N, alpha=1e-3, averaged=10)
+    np.testing.assert_allclose(exk.values[0], thk.values[0], rtol=1e-9)
+    l1, l2 = exk.eigenvalues[5, :, 0], exk.eigenvalues[5, :, 1]
+    nu = 10 * (l1 + l2) ** 2 / (l1**2 + l2**2)
+    np.testing.assert_allclose(exk.effective_dof[5], nu, rtol=1e-12)
+    c = (l1**2 + l2**2) / (l1 + l2)
+    np.testing.assert_allclose(exk.values[5], c * scipy.stats.chi2.isf(a, nu) / 10, rtol=1e-9)
 
 
 def test_corrections():

@@ -18,6 +18,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("name", metavar="NAME", help="scenario name (see 'chatterspec scenarios')")
     add_detector_args(p)
     add_live_args(p)
+    p.add_argument(
+        "--calibration",
+        metavar="FILE",
+        help="use the empirical family-wise threshold of a calibration file written by "
+        "'chatterspec calibrate --out FILE' (refused if it was made for another model or length)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.set_defaults(func=run)
 
@@ -30,7 +36,13 @@ def run(args: argparse.Namespace) -> int:
     check_record_path(args.record)
     sc = scenario(args.name)
     record = scenario_chattering(sc, args.runs, args.seed)
-    report = detect_record(record, args.alpha, args.threshold, args.correction)
+    threshold = args.threshold
+    if args.calibration:
+        from ..calibration import load_calibration
+
+        cal = load_calibration(args.calibration, sc.nominal, record.n_samples)
+        threshold = cal.threshold("family-wise")
+    report = detect_record(record, args.alpha, threshold, args.correction)
     doc = report.to_dict()
     doc["seed"] = args.seed
     doc["fault_intervals_true"] = [list(iv) for iv in sc.fault_intervals]

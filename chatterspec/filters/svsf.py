@@ -503,7 +503,21 @@ def _switch(e: np.ndarray, inv_psi: np.ndarray | None, out: np.ndarray | None = 
 
 
 def auxiliary_svsf(model: LinearModel, gamma: float = 0.1) -> SVSF:
-    """The auxiliary filter of section III: the SVSF with ``sgn`` instead of ``sat``."""
+    """The auxiliary filter of section III: the SVSF with ``sgn`` instead of ``sat`` (eq 17).
+
+    Parameters
+    ----------
+    model : LinearModel
+        Nominal model (A-hat, B-hat, C-hat of eq 3).
+    gamma : float
+        Convergence rate in (0, 1) (eq 8); with ``x(0|0) = C^-1 z(0)`` it has no
+        effect on the chattering (eq 21-23).
+
+    Returns
+    -------
+    SVSF
+        ``SVSF(model, gamma=gamma, switching="sgn")``.
+    """
     return SVSF(model, gamma=gamma, switching="sgn")
 
 
