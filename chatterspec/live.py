@@ -74,6 +74,7 @@ __all__ = [
     "open_sinks",
     "record_detection",
     "run_monitor",
+    "scenario_truth",
 ]
 
 #: Folder (relative to the current directory) where ``chatterspec demo`` writes recordings.
@@ -143,6 +144,21 @@ class Sinks:
     Use as a context manager (or call :meth:`close`): the streams are always
     disconnected, which writes the ``.rrd`` footer, also on Ctrl-C. A dead live
     viewer is never flushed against, so closing takes at most a few seconds.
+
+    Attributes
+    ----------
+    file_stream : rerun.RecordingStream or None
+        Stream writing the ``.rrd`` file.
+    live_stream : rerun.RecordingStream or None
+        Stream to the live viewer (gRPC), sharing the file stream's recording id.
+    path : Path or None
+        The ``.rrd`` file being written.
+    live_url : str or None
+        gRPC URL of the viewer streamed to.
+    notes : list of str
+        Messages for the user (no display, unreachable viewer, fallback file).
+    viewer_process : subprocess.Popen or None
+        The viewer started by ``--live spawn`` (left running for the user).
     """
 
     file_stream: Any | None = None
@@ -180,7 +196,8 @@ class Sinks:
             self.file_stream.flush(timeout_sec=30.0)
             self.file_stream.disconnect()
         if self.live_stream is not None:
-            ok, why = _reachable(self.live_url or "", timeout=1.0)
+            # a stream the caller set up itself (notebook viewer, memory sink) has no URL to probe
+            ok, why = (True, "") if self.live_url is None else _reachable(self.live_url, timeout=1.0)
             if ok:
                 try:
                     self.live_stream.flush(timeout_sec=5.0)
@@ -295,7 +312,21 @@ def _entity(name: str) -> str:
 
 def blueprint(channels: tuple[str, ...], *, has_truth: bool = False, history_s: float = 10.0) -> Any:
     """The default layout: per channel (columns) chattering, scrolling spectrogram, detection statistic;
-    below, the state lanes (verdict per channel and true fault) and the event log."""
+    below, the state lanes (verdict per channel and true fault) and the event log.
+
+    Parameters
+    ----------
+    channels : tuple of str
+        Measured channel names, one column of views each.
+    has_truth : bool
+        Add the true fault timeline lane (simulated data).
+    history_s : float
+        Seconds of history shown by the time-series views (cursor-relative).
+
+    Returns
+    -------
+    rerun.blueprint.Blueprint
+    """
     import rerun as rr
     import rerun.blueprint as rrb
 
@@ -516,6 +547,8 @@ class RerunLogger:
         A file batch is sent once this many samples or frames are buffered.
     truth : list of (start_s, label, is_fault), optional
         True fault timeline to draw in ``/truth/plant``.
+    send_blueprint : bool
+        Send the default :func:`blueprint` to the sinks (default True).
     """
 
     def __init__(
@@ -610,7 +643,7 @@ class RerunLogger:
                     rr.StateConfiguration(
                         values=["healthy", "fault"],
                         labels=[f"{name}: healthy", f"{name}: FAULT"],
-                        colors=[0x4CAF50FF, 0xEF5350FF],
+                        colors=np.array([0x4CAF50FF, 0xEF5350FF], dtype=np.uint32),
                     ),
                     static=True,
                 )
@@ -636,7 +669,10 @@ class RerunLogger:
                     rr.StateConfiguration(
                         values=labels,
                         labels=[f"true plant: {lab}" for lab in labels],
-                        colors=[0x9E9E9EFF if lab == "healthy" else 0xFF9800FF for lab in labels],
+                        colors=np.array(
+                            [0x9E9E9EFF if lab == "healthy" else 0xFF9800FF for lab in labels],
+                            dtype=np.uint32,
+                        ),
                     ),
                     static=True,
                 )
@@ -889,13 +925,37 @@ def run_monitor(
     """Drive ``monitor`` over raw data (``z`` (T, m), ``u`` (T, p)) or precomputed ``chattering`` (N, m)
     and log everything to ``sinks``; closes the sinks at the end (also on Ctrl-C).
 
-    ``chunk_samples`` defaults to one hop. ``rate`` paces the replay (1.0 = real
-    time); ``None`` runs as fast as possible. ``on_event(event)`` is called for
-    each detection event (e.g. to print it).
+    Parameters
+    ----------
+    monitor : ChatteringMonitor
+        The online monitor to drive.
+    sinks : Sinks
+        Where to log (see :func:`open_sinks`); closed at the end.
+    z, u : arrays, optional
+        Raw measurements (T, m) and inputs (T, p): both SVSFs run online.
+    chattering : array, optional
+        Precomputed chattering (N, m) instead of ``z``/``u``.
+    chunk_samples : int, optional
+        Samples per push; default one hop when paced and five hops otherwise
+        (the output does not depend on it).
+    rate : float, optional
+        Replay speed (1.0 = real time); ``None`` runs as fast as possible.
+    truth : list of (start_s, label, is_fault), optional
+        True fault timeline for the viewer.
+    scroll_frames : int
+        Columns of the scrolling spectrogram.
+    on_event : callable, optional
+        Called with each :class:`~chatterspec.monitor.DetectionEvent` (e.g. to print it).
+
+    Returns
+    -------
+    RecordingSummary
     """
     t_start = time.perf_counter()
     events: list[DetectionEvent] = []
-    size = chunk_samples or monitor.n_hop
+    # paced replays push one hop at a time (smooth live view); unpaced runs push 5 hops
+    # (the output does not depend on the chunking, only the per-call overhead does)
+    size = chunk_samples or (monitor.n_hop if rate is not None else 5 * monitor.n_hop)
     try:
         logger = (
             RerunLogger(sinks, monitor, scroll_frames=scroll_frames, truth=truth) if sinks.streams else None
@@ -934,7 +994,20 @@ def run_monitor(
     )
 
 
-def _truth_from_scenario(scenario: Any) -> list[tuple[float, str, bool]]:
+def scenario_truth(scenario: Any) -> list[tuple[float, str, bool]]:
+    """The true fault timeline of a scenario, as the viewer's truth lane takes it.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        A simulated scenario (its segments of true plant).
+
+    Returns
+    -------
+    list of (start_s, label, is_fault)
+        One entry per segment: start time (s), label, and whether the true plant
+        differs from the nominal model there.
+    """
     from .scenarios import _same_model
 
     out = []
@@ -978,6 +1051,12 @@ def record_detection(
     run : int
         Which realization (index into the leading axis).
     chunk_samples, rate : see :func:`run_monitor`.
+    recording_name : str, optional
+        Name shown in the viewer (default: the scenario name).
+    application_id : str
+        Rerun application id.
+    on_event : callable, optional
+        Called with each detection event.
 
     Returns
     -------
@@ -999,7 +1078,7 @@ def record_detection(
         )
     if path is None and live is None:
         path = default_recording_path(name)
-    truth = _truth_from_scenario(scenario) if scenario is not None else None
+    truth = scenario_truth(scenario) if scenario is not None else None
     if isinstance(source, Simulation):
         model = source.scenario.nominal
         mon = ChatteringMonitor(model, settings, t0=float(source.t[0]))

@@ -194,11 +194,21 @@ class MonitorUpdate:
 
 
 def frame_verdicts(power: np.ndarray, threshold: Threshold) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-frame verdicts from frame spectra ``(..., F, bins, m)``.
+    """Per-frame verdicts from frame spectra.
 
-    Returns ``(flags, peak_hz, peak_ratio)``, each ``(..., F, m)``: a frame is
-    flagged on a channel when any tested bin exceeds the threshold, i.e. when
-    the largest ``S / threshold`` over the tested bins is > 1.
+    Parameters
+    ----------
+    power : (..., F, bins, m) array
+        Frame spectra (see :func:`chatterspec.spectral.frame_columns`).
+    threshold : Threshold
+        Per-frame threshold (:func:`chatterspec.thresholds.frame_threshold`).
+
+    Returns
+    -------
+    (flags, peak_hz, peak_ratio)
+        Each ``(..., F, m)``: a frame is flagged on a channel when any tested bin
+        exceeds the threshold, i.e. when the largest ``S / threshold`` over the
+        tested bins is > 1; ``peak_hz`` is that bin's frequency (Hz).
     """
     power = threshold.check_spectrum(power)
     return _Verdicts(threshold)(power)

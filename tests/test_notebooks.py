@@ -41,3 +41,18 @@ def test_notebook_executes(path, monkeypatch):
     client.execute()
     errors = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs if o.output_type == "error"]
     assert not errors
+    text = "".join(
+        o.get("text", "")
+        for c in nb.cells
+        if c.cell_type == "code"
+        for o in c.outputs
+        if o.output_type == "stream"
+    )
+    assert "Warning" not in text, text
+    if path.stem == "03_rerun_notebook":
+        import importlib.util
+
+        if importlib.util.find_spec("rerun_notebook") is None:
+            assert "skipping the viewer" in text
+        else:  # the monitor ran into the notebook viewer and found both mismatch windows
+            assert text.count("fault start on velocity") == 2, text

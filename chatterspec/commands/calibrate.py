@@ -10,46 +10,35 @@ import json
 from typing import Any
 
 from ..calibration import calibrate
-
-
-def _alpha(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"alpha must be a number in (0, 1); got {text!r}") from None
-    if not 0.0 < v < 1.0:
-        raise argparse.ArgumentTypeError(f"alpha must lie in the open interval (0, 1); got {v!r}")
-    return v
-
-
-def _runs(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1; got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1; got {v}")
-    return v
+from ._common import alpha_arg, nonnegative_int_arg, positive_int_arg
 
 
 def add_common(p: argparse.ArgumentParser, *, alpha: float, runs: int, multi_alpha: bool = False) -> None:
     if multi_alpha:
         p.add_argument(
-            "--alpha", type=_alpha, nargs="+", default=[alpha], help=f"nominal level(s) (default {alpha:g})"
+            "--alpha",
+            type=alpha_arg,
+            nargs="+",
+            default=[alpha],
+            help=f"nominal level(s) (default {alpha:g})",
         )
     else:
         p.add_argument(
-            "--alpha", type=_alpha, default=alpha, help=f"false-alarm probability (default {alpha:g})"
+            "--alpha", type=alpha_arg, default=alpha, help=f"false-alarm probability (default {alpha:g})"
         )
-    p.add_argument("--runs", type=_runs, default=runs, help=f"Monte Carlo realizations (default {runs})")
-    p.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
-    p.add_argument("--workers", type=_runs, default=1, help="local worker processes (default 1)")
+    p.add_argument(
+        "--runs", type=positive_int_arg, default=runs, help=f"Monte Carlo realizations (default {runs})"
+    )
+    p.add_argument("--seed", type=nonnegative_int_arg, default=0, help="root seed (default 0)")
+    p.add_argument("--workers", type=positive_int_arg, default=1, help="local worker processes (default 1)")
     p.add_argument(
         "--scheduler",
         metavar="ADDRESS",
         help="run on Dask: 'local-dask' or a scheduler address (needs chatterspec[distributed])",
     )
-    p.add_argument("--chunk-runs", type=_runs, default=None, help="realizations per chunk (multiple of 64)")
+    p.add_argument(
+        "--chunk-runs", type=positive_int_arg, default=None, help="realizations per chunk (multiple of 64)"
+    )
     p.add_argument("--confidence", type=float, default=0.99, help="interval level (default 0.99)")
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")

@@ -15,6 +15,7 @@ import warnings
 from pathlib import Path
 
 from ..errors import ParameterError
+from ._common import positive_int_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -41,7 +42,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="stream to a running viewer (rerun+http://host:port/proxy) or 'spawn' one",
     )
     p.add_argument("--alpha", type=float, default=None, help="per-frame false-alarm probability")
-    p.add_argument("--chunk", type=int, default=None, help="samples per push (default: one STFT hop)")
+    p.add_argument(
+        "--chunk",
+        type=positive_int_arg,
+        default=None,
+        help="samples per push (default: one STFT hop with --rate, five otherwise)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
     p.set_defaults(func=run)
 
