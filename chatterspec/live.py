@@ -353,6 +353,8 @@ def blueprint(channels: tuple[str, ...], *, has_truth: bool = False, history_s: 
                         height=rr.components.TensorHeightDimension(dimension=0, invert=True),
                     ),
                     scalar_mapping=rrb.TensorScalarMapping(colormap="viridis"),
+                    # 501 frequency rows x 50 time columns: stretch to the panel
+                    view_fit="Fill",
                 ),
                 rrb.TimeSeriesView(
                     origin=f"/detection/{c}",
@@ -581,6 +583,7 @@ class RerunLogger:
         self._ring = np.full((self.scroll_frames, bins, m), DB_RANGE[0], dtype=np.float16)
         self._ring_n = 0
         self._since_file_scroll = 0
+        self._file_block_t0 = 0.0
         self.file_scroll_every = int(file_scroll_every or self.scroll_frames)
         self.batch_samples = int(batch_samples)
         self.batch_frames = int(batch_frames)
@@ -710,7 +713,7 @@ class RerunLogger:
         """Send what is buffered, and the final scrolling spectrogram to the file."""
         self.flush()
         if self._last_frame_time is not None and self._since_file_scroll and self.sinks.file_stream:
-            self._log_scroll([self.sinks.file_stream], self._last_frame_time)
+            self._log_scroll([self.sinks.file_stream], self._file_block_t0)
             self._since_file_scroll = 0
 
     def _send(self, box: _Outbox) -> None:
@@ -791,15 +794,18 @@ class RerunLogger:
         F, lo = fr.n_frames, 0
         while lo < F:
             step = 1 if live is not None else max(1, min(F - lo, every - self._since_file_scroll))
+            if self._since_file_scroll == 0:
+                self._file_block_t0 = float(fr.times_s[lo])
             self._ring_put(fr.power[lo : lo + step])
             lo += step
             self._since_file_scroll += step
-            targets = [live] if live is not None else []
+            if live is not None:
+                self._log_scroll([live], float(fr.times_s[lo - 1]))
             if file is not None and self._since_file_scroll >= every:
-                targets.append(file)
+                # a file block is stamped with its FIRST frame's time, so that a reviewer
+                # scrubbing through the recording sees the block that covers the cursor
+                self._log_scroll([file], self._file_block_t0)
                 self._since_file_scroll = 0
-            if targets:
-                self._log_scroll(targets, float(fr.times_s[lo - 1]))
         self._last_frame_time = float(fr.times_s[-1])
 
     def _ring_put(self, power: np.ndarray) -> None:

@@ -46,19 +46,18 @@ def test_same_seed_same_numbers_whatever_the_chunking(short_so: Scenario) -> Non
     # an arbitrary split that cuts a random block (runs 0..69 + 70..199)
     parts = [c.z for f, r in ((0, 70), (70, 130)) for c in iter_simulations(short_so, r, 7, first_run=f)]
     _same(np.concatenate(parts), ref.z)
-    # chunk_runs=1 takes a different BLAS path (gemv): equal to rounding only (see the xfail below)
     one = simulate(short_so, runs=200, seed=7, chunk_runs=1)
-    np.testing.assert_allclose(one.x, ref.x, rtol=1e-12, atol=1e-13 * np.abs(ref.x).max())
-    np.testing.assert_allclose(one.z, ref.z, rtol=1e-12, atol=1e-13 * np.abs(ref.z).max())
+    _same(one.z, ref.z)
 
 
-@pytest.mark.xfail(
-    reason="a one-row chunk uses BLAS gemv instead of gemm: last-bit differences in the state recursion",
-    strict=False,
-)
 def test_single_run_chunks_are_bitwise_identical(short_so: Scenario) -> None:
+    """One-realization chunks (and a 1-run remainder) avoid BLAS's one-row kernel: identical bits."""
     ref = simulate(short_so, runs=4, seed=7)
-    np.testing.assert_array_equal(simulate(short_so, runs=4, seed=7, chunk_runs=1).x, ref.x)
+    one = simulate(short_so, runs=4, seed=7, chunk_runs=1)
+    np.testing.assert_array_equal(one.x, ref.x)
+    np.testing.assert_array_equal(one.z, ref.z)
+    last = simulate(short_so, runs=3, seed=7, chunk_runs=2)  # chunks of 2 + 1
+    np.testing.assert_array_equal(last.z, ref.z[:3])
 
 
 def test_different_seeds_differ(short_so: Scenario) -> None:
