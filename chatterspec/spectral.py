@@ -29,6 +29,7 @@ is eq (56) read index-wise; for diagonal Q and R it equals
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Literal
@@ -326,7 +327,9 @@ def _taper(window: str, n: int) -> np.ndarray:
 
 
 @lru_cache(maxsize=32)
+@functools.lru_cache(maxsize=32)
 def _stft_engine(window: str, n_window: int, n_hop: int, dt: float) -> scipy.signal.ShortTimeFFT:
+    # cached: the online monitor calls frame_columns once per push (never mutate the result)
     # scale_to=None keeps the raw sum_k w_k x_k e^{-i w k}; we divide |.|^2 by sum w_k^2 ourselves.
     return scipy.signal.ShortTimeFFT(
         _taper(window, n_window), n_hop, fs=1.0 / dt, fft_mode="onesided", mfft=n_window, phase_shift=None

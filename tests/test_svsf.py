@@ -249,3 +249,14 @@ def test_nonzero_initial_error_uses_recursion_and_converges() -> None:
     # |e(k|k)| = gamma^k |e(0|0)| exactly in exact arithmetic (eq 21); compare the first 20 steps
     ratios = e_post[:, 1:21] / e_post[:, :20]
     np.testing.assert_allclose(ratios, 0.5, rtol=1e-9)
+
+
+def test_closed_form_is_layout_invariant() -> None:
+    """Time-major (simulate's output) and realization-major arrays take different loops: same bits."""
+    sc = scenario("eha-bulk-25up")
+    sim = simulate(sc, runs=5, seed=2)
+    f = auxiliary_svsf(sc.nominal)
+    assert sim.z.strides[1] > sim.z.strides[0]  # a (runs, T, m) view of time-major storage
+    a = f.run(sim.z, sim.u).e_prior
+    b = f.run(np.ascontiguousarray(sim.z), sim.u).e_prior
+    np.testing.assert_array_equal(a, b)

@@ -388,23 +388,44 @@ class SVSF:
         n = m
         PhiT = self._PhiT
         shared_input = Gu.ndim == 2
-        # channel-major output (m, runs, K): unit stride along time, returned as a
-        # (runs, K, m) view; realizations are processed in cache-sized blocks
-        e = np.empty((m, runs, K))
-        block = max(1, 32768 // max(K, 1))
-        for r0 in range(0, runs, block):
-            r1 = min(r0 + block, runs)
-            zc = np.ascontiguousarray(np.moveaxis(z[r0:r1], 2, 0))  # (m, b, K)
-            gu = Gu.T if shared_input else np.moveaxis(Gu[r0:r1], 2, 0)  # (n, K) or (n, b, K)
-            y0 = state.y[r0:r1]
-            for i in range(m):
-                acc = e[i, r0:r1]
-                # e_i(k+1|k) = z_i(k+1) - G_i u(k) - sum_j Phi_ij y_j(k|k),  y(k|k) = z(k)
-                np.subtract(zc[i], gu[i], out=acc)
-                for j in range(n):
-                    acc[:, 1:] -= PhiT[j, i] * zc[j, :, :-1]
-                    acc[:, 0] -= PhiT[j, i] * y0[:, j]
-        e = np.moveaxis(e, 0, 2)
+        # Element-wise, in a fixed order per element: (z_i - G_i u) - sum_j Phi_ij y_j, so the
+        # bits do not depend on the chunking or on which memory layout is used below.
+        if z.strides[1] >= z.strides[0]:
+            # time-major storage (e.g. simulate() output): blocks of time steps, all runs
+            zt = np.swapaxes(z, 0, 1)  # (K, runs, m)
+            gt = Gu[:, None, :] if shared_input else np.swapaxes(Gu, 0, 1)  # (K, 1|runs, n)
+            et = np.empty((K, runs, m))
+            block = max(2, 65536 // max(runs * m, 1))
+            for k0 in range(0, K, block):
+                k1 = min(k0 + block, K)
+                zb = zt[k0:k1]
+                for i in range(m):
+                    acc = et[k0:k1, :, i]
+                    # e_i(k+1|k) = z_i(k+1) - G_i u(k) - sum_j Phi_ij y_j(k|k),  y(k|k) = z(k)
+                    np.subtract(zb[:, :, i], gt[k0:k1, :, i], out=acc)
+                    for j in range(n):
+                        if k0 == 0:
+                            acc[1:] -= PhiT[j, i] * zb[:-1, :, j]
+                            acc[0] -= PhiT[j, i] * state.y[:, j]
+                        else:
+                            acc -= PhiT[j, i] * zt[k0 - 1 : k1 - 1, :, j]
+            e = np.swapaxes(et, 0, 1)
+        else:
+            # realization-major storage: cache-sized blocks of runs, channel-major inside
+            ec = np.empty((m, runs, K))
+            block = max(1, 32768 // max(K, 1))
+            for r0 in range(0, runs, block):
+                r1 = min(r0 + block, runs)
+                zc = np.ascontiguousarray(np.moveaxis(z[r0:r1], 2, 0))  # (m, b, K)
+                gu = Gu.T if shared_input else np.moveaxis(Gu[r0:r1], 2, 0)  # (n, K) or (n, b, K)
+                y0 = state.y[r0:r1]
+                for i in range(m):
+                    acc = ec[i, r0:r1]
+                    np.subtract(zc[i], gu[i], out=acc)
+                    for j in range(n):
+                        acc[:, 1:] -= PhiT[j, i] * zc[j, :, :-1]
+                        acc[:, 0] -= PhiT[j, i] * y0[:, j]
+            e = np.moveaxis(ec, 0, 2)
         x_post = None
         if store_states:
             x_post = _rows_times(z, np.ascontiguousarray(self._S_inv.T))
