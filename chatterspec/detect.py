@@ -425,6 +425,16 @@ class DetectionReport:
             },
             "channels": chans,
         }
+        if self.averaged is not None:
+            ath = self.averaged.threshold
+            out["averaged_threshold"] = {
+                "kind": ath.kind,
+                "alpha": ath.alpha,
+                "alpha_meaning": ath.alpha_meaning,
+                "correction": ath.correction,
+                "records": ath.averaged,
+                "description": ath.describe(),
+            }
         if self.frames is not None:
             out["intervals"] = [
                 {"channel": ch, "onset_s": on, "offset_s": off}

@@ -260,3 +260,13 @@ def test_closed_form_is_layout_invariant() -> None:
     a = f.run(sim.z, sim.u).e_prior
     b = f.run(np.ascontiguousarray(sim.z), sim.u).e_prior
     np.testing.assert_array_equal(a, b)
+
+
+def test_per_run_input_of_length_one_broadcasts_on_both_layouts() -> None:
+    """u of shape (1, K, p) applies to every realization, whatever the memory layout of z."""
+    sc = scenario("eha-healthy")
+    sim = simulate(sc, runs=12, seed=4)
+    f = auxiliary_svsf(sc.nominal)
+    ref = f.run(sim.z, sim.u).e_prior
+    for z in (sim.z, np.ascontiguousarray(sim.z)):
+        np.testing.assert_array_equal(f.run(z, sim.u[None]).e_prior, ref)

@@ -72,7 +72,8 @@ def print_report(doc: dict) -> None:
     head = f"{'channel':<10} {'detected':<9} {'peak Hz':>8} {'peak ratio':>11} {'excess power':>13}"
     if runs > 1:
         head += f" {'rate':>6}"
-        print("(verdict of the averaged spectrum; rate = fraction of single runs detected)")
+        print(f"averaged spectrum: {doc['averaged_threshold']['description']}")
+        print("(verdicts of the averaged spectrum; rate = fraction of single runs detected)")
     print(head)
     for c in doc["channels"]:
         line = (

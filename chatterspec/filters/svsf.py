@@ -388,6 +388,8 @@ class SVSF:
         n = m
         PhiT = self._PhiT
         shared_input = Gu.ndim == 2
+        if not shared_input:
+            Gu = np.broadcast_to(Gu, (runs, K, n))  # u given as (1, K, p) for every run
         # Element-wise, in a fixed order per element: (z_i - G_i u) - sum_j Phi_ij y_j, so the
         # bits do not depend on the chunking or on which memory layout is used below.
         if z.strides[1] >= z.strides[0]:
