@@ -457,10 +457,14 @@ class HealthyStudy:
             if self.kf_top:
                 Yf = (P / self.fexpected).reshape(-1, *P.shape[-2:])
                 out["top_frame"] = _keep_top(Yf, self.kf_top)
+                if self.keep_max:  # per frame: the largest normalized tested bin (frame family-wise)
+                    out["top_frame_max"] = _keep_top(Yf[:, self.fthr_tested[0]].max(axis=1), self.kf_top)
         return out
 
     def reduce(self, acc: dict[str, np.ndarray] | None, part: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        return _reduce_dict(acc, part, {"top_bin": self.k_top, "top_frame": self.kf_top})
+        return _reduce_dict(
+            acc, part, {"top_bin": self.k_top, "top_frame": self.kf_top, "top_frame_max": self.kf_top}
+        )
 
 
 def _analytic_thresholds(
@@ -535,6 +539,11 @@ class Calibration:
         Bonferroni and Sidak factors ``chi2.isf(a, 2) / 2``.
     frame_freqs_hz, frame_tested, frame_expected, frame_analytic, per_frame, per_frame_low, per_frame_high
         The same for STFT frames (quantiles pooled over frames).
+    frame_family_wise : tuple of QuantileEstimate
+        Per channel: ``(1 - alpha)``-quantile over frames of ``max_tested S / E[S]``
+        (the empirical per-frame threshold of the live monitor, family-wise over
+        the bins of one frame); its interval counts only non-overlapping frames
+        as independent.
     """
 
     scenario: str
@@ -564,6 +573,7 @@ class Calibration:
     per_frame: np.ndarray
     per_frame_low: np.ndarray
     per_frame_high: np.ndarray
+    frame_family_wise: tuple[QuantileEstimate, ...] = ()
 
     # ---- derived
     @property
@@ -630,12 +640,19 @@ class Calibration:
             if want != self.stft:
                 raise CalibrationMismatchError(f"calibration STFT settings {self.stft} differ from {want}")
 
-    def threshold(self, meaning: Literal["per-bin", "family-wise", "per-frame"] = "family-wise") -> Threshold:
+    def threshold(
+        self, meaning: Literal["per-bin", "family-wise", "per-frame", "frame-family-wise"] = "family-wise"
+    ) -> Threshold:
         """The empirical threshold as a :class:`chatterspec.thresholds.Threshold` (``kind="empirical"``).
 
-        ``family-wise``: ``E[S] * q_max`` (per channel) on the record
-        periodogram; ``per-bin``: the per-bin quantiles; ``per-frame``: the
-        pooled per-frame quantiles on STFT frames (per bin, not corrected).
+        Parameters
+        ----------
+        meaning : {"family-wise", "per-bin", "per-frame", "frame-family-wise"}
+            ``family-wise``: ``E[S] * q_max`` (per channel) on the record
+            periodogram; ``per-bin``: the per-bin quantiles; ``per-frame``: the
+            pooled per-frame quantiles on STFT frames (per bin, not corrected);
+            ``frame-family-wise``: ``E_frame * q_frame_max`` per channel, the
+            live monitor's per-frame detector (``alpha_meaning="per-frame"``).
         """
         if meaning == "family-wise":
             factor = np.array([q.value for q in self.family_wise])
@@ -648,15 +665,27 @@ class Calibration:
             values = self.frame_expected * self.per_frame
             freqs, tested, E = self.frame_freqs_hz, self.frame_tested, self.frame_expected
             correction = "none"
+        elif meaning == "frame-family-wise":
+            if not self.frame_family_wise:
+                raise CalibrationMismatchError(
+                    "this calibration has no per-frame family-wise quantile (made by an older "
+                    "chatterspec): recalibrate it"
+                )
+            factor = np.array([q.value for q in self.frame_family_wise])
+            values = self.frame_expected * factor
+            freqs, tested, E = self.frame_freqs_hz, self.frame_tested, self.frame_expected
+            correction = "none"
         else:
-            raise ParameterError(f"meaning must be per-bin, family-wise or per-frame; got {meaning!r}")
+            raise ParameterError(
+                f"meaning must be per-bin, family-wise, per-frame or frame-family-wise; got {meaning!r}"
+            )
         dof = np.where(tested, 2, 1)
         return Threshold(
             values=_ro(values),
             freqs_hz=_ro(freqs),
             kind="empirical",
             alpha=self.alpha,
-            alpha_meaning=meaning,
+            alpha_meaning="per-frame" if meaning == "frame-family-wise" else meaning,
             correction=correction,
             tested=_ro(tested),
             dof=_ro(dof),
@@ -699,6 +728,7 @@ class Calibration:
                     float(v) for v in np.median(self.per_frame[self.frame_tested], axis=0)
                 ],
                 "family_wise": [q.to_dict() for q in self.family_wise],
+                "frame_family_wise": [q.to_dict() for q in self.frame_family_wise],
             },
             "agreement": ag,
         }
@@ -731,6 +761,7 @@ class Calibration:
         meta = self.to_dict(arrays=False)
         meta.pop("agreement", None)
         meta["family_wise"] = [q.to_dict() for q in self.family_wise]
+        meta["frame_family_wise"] = [q.to_dict() for q in self.frame_family_wise]
         meta["family_wise_analytic"] = self.family_wise_analytic
         if path.suffix == ".npz":
             np.savez(path, _meta=np.array(json.dumps(meta)), **self._arrays())
@@ -807,12 +838,16 @@ def load_calibration(
     if meta.get("version") != CALIBRATION_VERSION:
         raise DataFileError(f"{path}: calibration file version {meta.get('version')} is not supported")
     conf = float(meta["confidence"])
-    fw = tuple(
-        QuantileEstimate(
-            q["q"], q["value"], _none_to_inf(q["ci_low"], -1), _none_to_inf(q["ci_high"], 1), q["n"], conf
+
+    def quantiles(key: str) -> tuple[QuantileEstimate, ...]:
+        return tuple(
+            QuantileEstimate(
+                q["q"], q["value"], _none_to_inf(q["ci_low"], -1), _none_to_inf(q["ci_high"], 1), q["n"], conf
+            )
+            for q in meta.get(key, ())
         )
-        for q in meta["family_wise"]
-    )
+
+    fw = quantiles("family_wise")
     cal = Calibration(
         scenario=meta["scenario"],
         model_name=meta["model_name"],
@@ -847,6 +882,7 @@ def load_calibration(
         per_frame=_ro(arrays["per_frame"].astype(float)),
         per_frame_low=_ro(arrays["per_frame_low"].astype(float)),
         per_frame_high=_ro(arrays["per_frame_high"].astype(float)),
+        frame_family_wise=quantiles("frame_family_wise"),
     )
     if model is not None:
         cal.check(model, n_samples, config)
@@ -948,6 +984,8 @@ def calibrate(
     pf, pf_lo, pf_hi = _quantile_from_top(topf, runs * n_frames, q, confidence, runs * frames_eff)
     mx = -np.sort(-out["runs_max"], axis=0)
     mv, mlo, mhi = _quantile_from_top(mx, runs, q, confidence)
+    fmx = -np.sort(-out["top_frame_max"], axis=0)
+    fv, flo, fhi = _quantile_from_top(fmx, runs * n_frames, q, confidence, runs * frames_eff)
     n_tested = thr["exact"].n_tested
     fw = tuple(
         QuantileEstimate(q, float(mv[c]), float(mlo[c]), float(mhi[c]), runs, confidence)
@@ -985,6 +1023,10 @@ def calibrate(
         per_frame=_ro(pf),
         per_frame_low=_ro(pf_lo),
         per_frame_high=_ro(pf_hi),
+        frame_family_wise=tuple(
+            QuantileEstimate(q, float(fv[c]), float(flo[c]), float(fhi[c]), runs * n_frames, confidence)
+            for c in range(E.shape[1])
+        ),
     )
 
 

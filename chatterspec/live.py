@@ -38,6 +38,7 @@ current directory (git-ignored).
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 import socket
@@ -1075,13 +1076,7 @@ def record_detection(
     name = recording_name or (scenario.name if scenario is not None else "chattering")
     settings = settings or MonitorSettings()
     if settings.psi is None and scenario is not None and scenario.psi is not None:
-        settings = MonitorSettings(
-            stft=settings.stft,
-            alpha=settings.alpha,
-            correction=settings.correction,
-            gamma=settings.gamma,
-            psi=tuple(scenario.psi),
-        )
+        settings = dataclasses.replace(settings, psi=tuple(scenario.psi))
     if path is None and live is None:
         path = default_recording_path(name)
     truth = scenario_truth(scenario) if scenario is not None else None

@@ -71,6 +71,12 @@ class MonitorSettings:
         Smoothing boundary layer per output. When given, the ``sat`` SVSF runs
         too (its estimate is reported and the boundary drawn next to the
         chattering); ``None`` runs only the auxiliary filter.
+    threshold : Threshold, optional
+        Per-frame threshold to use instead of the analytic
+        :func:`~chatterspec.thresholds.frame_threshold`, e.g. the empirical one of
+        a saved calibration, ``load_calibration(...).threshold("frame-family-wise")``
+        (then ``alpha`` and ``correction`` are ignored). It must cover the STFT
+        frequencies of ``stft``.
     """
 
     stft: STFTConfig = field(default_factory=STFTConfig)
@@ -78,6 +84,7 @@ class MonitorSettings:
     correction: Literal["none", "bonferroni", "sidak"] = "bonferroni"
     gamma: float = 0.1
     psi: tuple[float, ...] | None = None
+    threshold: Threshold | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.stft, STFTConfig):
@@ -88,6 +95,8 @@ class MonitorSettings:
             raise ParameterError(
                 f"correction must be 'none', 'bonferroni' or 'sidak'; got {self.correction!r}"
             )
+        if self.threshold is not None and not isinstance(self.threshold, Threshold):
+            raise ParameterError(f"threshold must be a Threshold; got {type(self.threshold).__name__}")
         if self.psi is not None:
             psi = tuple(float(p) for p in np.atleast_1d(finite_array("psi", self.psi, ndim=(0, 1))))
             if any(p <= 0 for p in psi):
@@ -271,7 +280,19 @@ class ChatteringMonitor:
         self.n_window = s.stft.n_window(self.dt)
         self.n_hop = s.stft.n_hop(self.dt)
         self.freqs_hz = s.stft.freqs_hz(self.dt)
-        self.threshold = frame_threshold(model, self.freqs_hz, s.stft, self.dt, s.alpha, s.correction)
+        if s.threshold is None:
+            self.threshold = frame_threshold(model, self.freqs_hz, s.stft, self.dt, s.alpha, s.correction)
+        else:
+            th = s.threshold
+            if th.values.shape != (self.freqs_hz.size, model.n_outputs) or not np.allclose(
+                th.freqs_hz, self.freqs_hz
+            ):
+                raise ShapeError(
+                    f"the given per-frame threshold has shape {th.values.shape} at other frequencies than "
+                    f"this monitor's frames ({self.freqs_hz.size} bins x {model.n_outputs} channels): it "
+                    "was made for another STFT window or model"
+                )
+            self.threshold = th
         self._aux = auxiliary_svsf(model, s.gamma)
         self._sat = None if s.psi is None else SVSF(model, psi=np.asarray(s.psi), gamma=s.gamma)
         self._aux_state: SVSFState | None = None

@@ -9,13 +9,14 @@ and the run is recorded (``--record``) and/or streamed to a viewer (``--live``).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import warnings
 from pathlib import Path
 
 from ..errors import ParameterError
-from ._common import positive_int_arg
+from ._common import alpha_arg, positive_int_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -41,7 +42,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="URL|spawn",
         help="stream to a running viewer (rerun+http://host:port/proxy) or 'spawn' one",
     )
-    p.add_argument("--alpha", type=float, default=None, help="per-frame false-alarm probability")
+    p.add_argument(
+        "--alpha", type=alpha_arg, default=None, help="per-frame false-alarm probability (default 0.001)"
+    )
+    p.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="use the empirical per-frame threshold of a calibration file ('chatterspec calibrate "
+        "MODEL.toml --out FILE'); refused if it was made for another model or STFT setting",
+    )
     p.add_argument(
         "--chunk",
         type=positive_int_arg,
@@ -79,6 +90,16 @@ def run(args: argparse.Namespace) -> int:
         gamma=spec.gamma,
         psi=tuple(spec.psi.tolist()),
     )
+    if args.calibration is not None:
+        from ..calibration import load_calibration
+
+        cal = load_calibration(args.calibration, spec.model, config=stft)
+        settings = dataclasses.replace(settings, threshold=cal.threshold("frame-family-wise"))
+        print(
+            f"chatterspec monitor: empirical per-frame threshold of {args.calibration} "
+            f"(alpha {cal.alpha:g} per frame, {cal.runs} healthy runs)",
+            file=sys.stderr,
+        )
     monitor = ChatteringMonitor(spec.model, settings, t0=float(data.t[0]))
     sinks = open_sinks(
         record=args.record,
