@@ -31,11 +31,6 @@ ALLOW = {
     **{("chatterspec.errors", n): "exception" for n in chatterspec.errors.__all__},
 }
 
-# Docstring debt found when this test was written: each entry fails the check today and is
-# marked xfail (non-strict: other modules are being documented concurrently; prune the list when they pass).
-# Do not add entries for new code.
-KNOWN_UNDOCUMENTED: dict[str, set[str]] = {}
-
 
 def _modules() -> Iterator[str]:
     yield "chatterspec"
@@ -70,13 +65,7 @@ PUBLIC = _public_objects()
 
 
 def _params_for_docs() -> list:
-    out = []
-    for modname, name, obj in PUBLIC:
-        marks = []
-        if name in KNOWN_UNDOCUMENTED.get(modname, ()):
-            marks.append(pytest.mark.xfail(strict=False, reason="known docstring debt"))
-        out.append(pytest.param(modname, name, obj, id=f"{modname}.{name}", marks=marks))
-    return out
+    return [pytest.param(modname, name, obj, id=f"{modname}.{name}") for modname, name, obj in PUBLIC]
 
 
 def _section(doc: str, titles: tuple[str, ...]) -> str | None:
