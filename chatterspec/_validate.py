@@ -43,6 +43,16 @@ def finite_array(
     return arr
 
 
+def readonly(a: np.ndarray) -> np.ndarray:
+    """Mark ``a`` (as returned by ``np.asarray``, no copy) read-only and return it.
+
+    Pass a fresh array (``np.array(x)``) when the caller's array must stay writable.
+    """
+    a = np.asarray(a)
+    a.setflags(write=False)
+    return a
+
+
 def positive(name: str, value: float, *, unit: str = "") -> float:
     """Return ``float(value)`` after checking it is finite and > 0."""
     v = _finite_scalar(name, value)

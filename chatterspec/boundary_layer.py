@@ -516,7 +516,7 @@ def boundary_layer_study(
     T = sc.n_samples
     t = sim.t
     seg = sc.segment_index(t)
-    faulty = np.array([not _same(sc.segments[s].model, sc.nominal) for s in range(len(sc.segments))])
+    faulty = np.array([sc.deviates(seg) for seg in sc.segments])
     drive = np.zeros(T, dtype=bool)  # e(k|k-1), k >= 1, involves x(k-1) -> x(k)
     drive[1:] = faulty[seg[:-1]]
     inside = drive.copy()
@@ -588,7 +588,3 @@ def boundary_layer_study(
         chattering=chat0,
         runs=runs,
     )
-
-
-def _same(a: LinearModel, b: LinearModel) -> bool:
-    return a is b or (np.array_equal(a.A, b.A) and np.array_equal(a.B, b.B) and np.array_equal(a.C, b.C))

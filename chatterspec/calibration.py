@@ -46,7 +46,7 @@ from typing import Any, Literal
 import numpy as np
 import scipy.stats
 
-from ._validate import open_unit, positive_int
+from ._validate import open_unit, positive_int, readonly
 from .errors import CalibrationMismatchError, DataFileError, ParameterError
 from .models import EHA_PARAMETERS, LinearModel, eha_linear, second_order
 from .montecarlo import run_study
@@ -774,9 +774,7 @@ class Calibration:
 
 
 def _ro(a: np.ndarray) -> np.ndarray:
-    a = np.array(a)
-    a.setflags(write=False)
-    return a
+    return readonly(np.array(a))  # a copy: the caller's arrays stay writable
 
 
 def _stft_dict(config: STFTConfig) -> dict[str, Any]:

@@ -1015,11 +1015,9 @@ def scenario_truth(scenario: Any) -> list[tuple[float, str, bool]]:
         One entry per segment: start time (s), label, and whether the true plant
         differs from the nominal model there.
     """
-    from .scenarios import _same_model
-
     out = []
     for seg in scenario.segments:
-        fault = not _same_model(seg.model, scenario.nominal)
+        fault = scenario.deviates(seg)
         out.append(
             (seg.start, seg.label if fault and seg.label else ("fault" if fault else "healthy"), fault)
         )

@@ -22,7 +22,7 @@ from typing import Literal
 import numpy as np
 import scipy.linalg
 
-from ._validate import finite_array, nonnegative, positive
+from ._validate import finite_array, nonnegative, positive, readonly
 from .errors import ParameterError, ShapeError, SingularMatrixError, UnstableModelWarning
 
 __all__ = [
@@ -92,12 +92,6 @@ def oscillatory_mode(block: np.ndarray) -> OscillatoryMode:
         raise ParameterError(f"block has det = {det:g} <= 0: it has no oscillatory mode")
     wn = np.sqrt(det)
     return OscillatoryMode(float(wn / (2 * np.pi)), float(-np.trace(block) / (2 * wn)) + 0.0)
-
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, dtype=float, copy=True)
-    a.setflags(write=False)
-    return a
 
 
 def _check_covariance(name: str, M: np.ndarray) -> None:
@@ -200,18 +194,18 @@ class LinearModel:
             raise ShapeError(f"output_units must have {m} entries; got {len(units)}")
         block = self.oscillatory_block
         if block is not None:
-            block = _readonly(finite_array("oscillatory_block", block, shape=(2, 2)))
+            block = readonly(np.array(finite_array("oscillatory_block", block, shape=(2, 2)), dtype=float))
         object.__setattr__(self, "output_units", units)
         object.__setattr__(self, "oscillatory_block", block)
         object.__setattr__(self, "dt", dt)
         for attr, val in (("A", A), ("B", B), ("C", C), ("Q", Q), ("R", R)):
-            object.__setattr__(self, attr, _readonly(val))
+            object.__setattr__(self, attr, readonly(np.array(val, dtype=float)))
         cinv = None
         if m == n:
             if np.linalg.cond(C) > 1e12:
                 cinv = None
             else:
-                cinv = _readonly(np.linalg.inv(C))
+                cinv = readonly(np.array(np.linalg.inv(C), dtype=float))
         object.__setattr__(self, "_cinv", cinv)
 
     # -- sizes ---------------------------------------------------------------

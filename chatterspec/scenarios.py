@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._validate import finite_array, positive
+from ._validate import finite_array, positive, readonly
 from .errors import ParameterError, UnknownScenarioError
 from .models import EHA_PARAMETERS, LinearModel, eha_linear, second_order
 from .signals import Chirp, Constant, Signal, Step
@@ -118,8 +118,7 @@ class Scenario:
         object.__setattr__(self, "windows", windows)
         x0 = np.zeros(self.nominal.n_states) if self.x0 is None else self.x0
         x0 = finite_array("x0", x0, shape=(self.nominal.n_states,))
-        x0.setflags(write=False)
-        object.__setattr__(self, "x0", x0)
+        object.__setattr__(self, "x0", readonly(x0))
         # full partition of [0, duration)
         segs: list[Segment] = []
         t = 0.0
@@ -161,7 +160,17 @@ class Scenario:
     @property
     def fault_intervals(self) -> tuple[tuple[float, float], ...]:
         """Time windows (s) in which the true plant differs from the nominal model."""
-        return tuple((s.start, s.stop) for s in self.segments if not _same_model(s.model, self.nominal))
+        return tuple((s.start, s.stop) for s in self.segments if self.deviates(s))
+
+    def deviates(self, segment: Segment) -> bool:
+        """True where ``segment``'s true plant differs from the nominal model (A, B or C).
+
+        Parameters
+        ----------
+        segment : Segment
+            One of :attr:`segments`.
+        """
+        return not _same_model(segment.model, self.nominal)
 
     @property
     def is_healthy(self) -> bool:
@@ -185,7 +194,7 @@ class Scenario:
                     "start_s": s.start,
                     "stop_s": s.stop,
                     "label": s.label,
-                    "matches_nominal": _same_model(s.model, self.nominal),
+                    "matches_nominal": not self.deviates(s),
                     **_mode_dict(s.model),
                 }
                 for s in self.segments

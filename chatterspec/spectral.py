@@ -38,7 +38,7 @@ import numpy as np
 import scipy.fft
 import scipy.signal
 
-from ._validate import finite_array, positive, positive_int
+from ._validate import finite_array, positive, positive_int, readonly
 from .errors import ParameterError, ShapeError, SingularMatrixError
 from .models import LinearModel
 
@@ -61,12 +61,6 @@ __all__ = [
 ]
 
 SpectrumForm = Literal["exact", "asymptotic"]
-
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a = np.asarray(a)
-    a.setflags(write=False)
-    return a
 
 
 def _time_series(name: str, x: object) -> np.ndarray:
@@ -110,7 +104,7 @@ class Periodogram:
     def mean(self) -> Periodogram:
         """Average over every leading (realization) axis: the Monte Carlo spectrum of Fig 6."""
         p = self.power.reshape(-1, *self.power.shape[-2:]).mean(axis=0)
-        return Periodogram(self.freqs_hz, _readonly(p), self.n_samples, self.dt)
+        return Periodogram(self.freqs_hz, readonly(p), self.n_samples, self.dt)
 
 
 def periodogram_freqs(n_samples: int, dt: float) -> np.ndarray:
@@ -158,7 +152,7 @@ def periodogram(x: np.ndarray, dt: float) -> Periodogram:
     n = x.shape[-2]
     X = scipy.fft.rfft(x, axis=-2)
     power = (X.real**2 + X.imag**2) / n
-    return Periodogram(_readonly(periodogram_freqs(n, dt)), _readonly(power), n, dt)
+    return Periodogram(readonly(periodogram_freqs(n, dt)), readonly(power), n, dt)
 
 
 def mean_periodogram(x: np.ndarray, dt: float) -> Periodogram:
@@ -323,7 +317,7 @@ DEFAULT_STFT = STFTConfig()
 
 @lru_cache(maxsize=32)
 def _taper(window: str, n: int) -> np.ndarray:
-    return _readonly(np.asarray(scipy.signal.get_window(window, n), dtype=float))
+    return readonly(np.asarray(scipy.signal.get_window(window, n), dtype=float))
 
 
 @lru_cache(maxsize=32)
@@ -475,7 +469,7 @@ def spectrogram(x: np.ndarray, dt: float, config: STFTConfig = DEFAULT_STFT, t0:
     starts = j * H
     times = float(t0) + (starts + (W - 1) / 2.0) * dt
     return Spectrogram(
-        _readonly(times), _readonly(config.freqs_hz(dt)), _readonly(power), config, dt, _readonly(starts)
+        readonly(times), readonly(config.freqs_hz(dt)), readonly(power), config, dt, readonly(starts)
     )
 
 

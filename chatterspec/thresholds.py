@@ -50,7 +50,7 @@ import numpy as np
 import scipy.special
 import scipy.stats
 
-from ._validate import finite_array, open_unit, positive, positive_int
+from ._validate import finite_array, open_unit, positive, positive_int, readonly
 from .errors import ParameterError, ShapeError
 from .models import LinearModel
 from .spectral import (
@@ -86,12 +86,6 @@ Correction = Literal["none", "bonferroni", "sidak"]
 ThresholdLaw = Literal["exact", "chi2"]
 _CORRECTIONS = ("none", "bonferroni", "sidak")
 _LAWS = ("exact", "chi2")
-
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a = np.asarray(a)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True, eq=False)
@@ -427,20 +421,20 @@ def _chi2_threshold(
                 c = np.where(s1 > 0, s2 / np.where(s1 > 0, s1, 1.0), 0.0)
             values = c * scipy.stats.chi2.isf(a, eff) / averaged
     return Threshold(
-        values=_readonly(values),
-        freqs_hz=_readonly(np.array(freqs)),
+        values=readonly(values),
+        freqs_hz=readonly(np.array(freqs)),
         kind=kind,
         alpha=alpha,
         alpha_meaning="per-bin" if correction == "none" else meaning_if_corrected,
         correction=correction,
-        tested=_readonly(tested),
-        dof=_readonly(dof.astype(int)),
+        tested=readonly(tested),
+        dof=readonly(dof.astype(int)),
         averaged=averaged,
         per_test_alpha=a,
-        expected=_readonly(np.array(expected)),
+        expected=readonly(np.array(expected)),
         law="chi2" if eigen is None else "exact",
-        eigenvalues=None if eigenvalues is None else _readonly(eigenvalues),
-        effective_dof=_readonly(np.array(eff, dtype=float)),
+        eigenvalues=None if eigenvalues is None else readonly(eigenvalues),
+        effective_dof=readonly(np.array(eff, dtype=float)),
     )
 
 
@@ -580,19 +574,19 @@ def paper_threshold(model: LinearModel, freqs_hz: np.ndarray, alpha: float = 1e-
     values = np.broadcast_to(sigma * scipy.stats.chi2.isf(alpha, 2) / 2.0, (freqs.size, sigma.size))
     dof = np.where(is_dc | is_nyq, 1, 2)
     return Threshold(
-        values=_readonly(np.array(values)),
-        freqs_hz=_readonly(np.array(freqs)),
+        values=readonly(np.array(values)),
+        freqs_hz=readonly(np.array(freqs)),
         kind="paper",
         alpha=alpha,
         alpha_meaning="per-bin",
         correction="none",
-        tested=_readonly(~(is_dc | is_nyq)),
-        dof=_readonly(dof),
+        tested=readonly(~(is_dc | is_nyq)),
+        dof=readonly(dof),
         averaged=1,
         per_test_alpha=alpha,
         expected=None,
         law="chi2",
-        effective_dof=_readonly(np.broadcast_to(dof[:, None].astype(float), values.shape).copy()),
+        effective_dof=readonly(np.broadcast_to(dof[:, None].astype(float), values.shape).copy()),
     )
 
 
