@@ -56,7 +56,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..detect import detect_record
-    from ..pipeline import scenario_chattering
+    from ..pipeline import chattering_record
     from ..progress import Progress
     from ..scenarios import scenario
     from ..simulate import simulate
@@ -70,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
     with Progress(steps, "chatterspec demo") as bar:
         for name in DEMO_SCENARIOS:
             sc = scenario(name)
-            record = scenario_chattering(sc, args.runs, args.seed)
+            sim = simulate(sc, args.runs, args.seed)  # simulated once: detection and recording
+            record = chattering_record(sc.nominal, sim.z, sim.u, scenario=sc)
             report = detect_record(record, args.alpha, args.threshold, args.correction)
             doc = report.to_dict()
             doc["fault"] = sc.fault
@@ -91,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
                     boundary_layers[key] = tuple(float(p) for p in est.psi)
                 path = Path(args.recordings_dir) / f"{name}.rrd"
                 summary = record_detection(
-                    simulate(sc, 1, args.seed),
+                    sim,
                     MonitorSettings(alpha=args.alpha, correction=args.correction, psi=boundary_layers[key]),
                     path=path,
                 )

@@ -30,12 +30,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..detect import detect_record
-    from ..pipeline import scenario_chattering
+    from ..pipeline import chattering_record
     from ..scenarios import scenario
+    from ..simulate import simulate
 
     check_record_path(args.record)
     sc = scenario(args.name)
-    record = scenario_chattering(sc, args.runs, args.seed)
+    sim = simulate(sc, args.runs, args.seed)  # simulated once: detection and recording
+    record = chattering_record(sc.nominal, sim.z, sim.u, scenario=sc)
     threshold = args.threshold
     if args.calibration:
         from ..calibration import load_calibration
@@ -49,9 +51,7 @@ def run(args: argparse.Namespace) -> int:
     if args.record or args.live:
         from ..live import record_detection
         from ..monitor import MonitorSettings
-        from ..simulate import simulate
 
-        sim = simulate(sc, 1, args.seed)
         settings = MonitorSettings(alpha=args.alpha, correction=args.correction)
         summary = record_detection(sim, settings, path=args.record, live=args.live)
         doc["recording"] = summary.to_dict()
