@@ -28,13 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
-from chatterspec.live import RerunLogger, open_sinks
-from chatterspec.models import eha_linear
-from chatterspec.monitor import ChatteringMonitor, MonitorSettings
-from chatterspec.pipeline import chattering_record
-from chatterspec.scenarios import Scenario, Segment
-from chatterspec.signals import Chirp
-from chatterspec.simulate import simulate
+from chatterspec.detection.pipeline import chattering_record
+from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
+from chatterspec.online.rerun_log import RerunLogger
+from chatterspec.online.viewer import open_sinks
+from chatterspec.plants.models import eha_linear
+from chatterspec.plants.scenarios import Scenario, Segment
+from chatterspec.plants.signals import Chirp
+from chatterspec.plants.simulate import simulate
 
 PSI = (4.2e-3, 4.8e-3, 4.3e3)
 

@@ -18,10 +18,10 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 import chatterspec as cs
-from chatterspec.detect import detect_spectrum
-from chatterspec.pipeline import iter_chattering
-from chatterspec.spectral import expected_spectrum, periodogram, periodogram_freqs, spectrogram
-from chatterspec.thresholds import exact_threshold
+from chatterspec.detection.detect import detect_spectrum
+from chatterspec.detection.pipeline import iter_chattering
+from chatterspec.detection.spectral import expected_spectrum, periodogram, periodogram_freqs, spectrogram
+from chatterspec.detection.thresholds import exact_threshold
 
 
 def end_to_end(runs: int, threads: int, chunk: int, seed: int = 0) -> tuple[float, int]:

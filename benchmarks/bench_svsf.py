@@ -1,7 +1,7 @@
 """Benchmark: auxiliary-SVSF throughput (realization-steps per second) on the linear EHA.
 
 Times only the filter update (:meth:`chatterspec.SVSF.update`, the single kernel used
-for batch and online filtering) on measurements produced by :func:`chatterspec.simulate`
+for batch and online filtering) on measurements produced by :func:`chatterspec.plants.simulate`
 (already time-major in memory), for 1, 100 and 10^4 realizations x 4000 steps, beside a
 straightforward per-step loop over one realization (plain numpy on 1-D arrays, eq 4-12
 written literally). Also tries splitting the realization axis over a 2-thread

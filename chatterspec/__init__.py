@@ -2,7 +2,7 @@
 
 The numeric core (models, scenarios, simulation, filters, spectra,
 thresholds, detection) imports only numpy and scipy. Plotting
-(:mod:`chatterspec.plotting`) and the Rerun viewer (:mod:`chatterspec.live`)
+(:mod:`chatterspec.figures.plotting`) and the Rerun viewer (:mod:`chatterspec.online`)
 are imported on demand.
 """
 
@@ -18,10 +18,10 @@ from .errors import (
     UnknownScenarioError,
 )
 from .filters.svsf import SVSF, auxiliary_svsf, boundary_layer_chattering, chattering
-from .models import LinearModel, discretize, eha_linear, second_order
-from .scenarios import Scenario, Segment, catalogue, scenario, scenario_names
-from .signals import Chirp, Constant, SquareWave, Step
-from .simulate import Simulation, iter_simulations, simulate
+from .plants.models import LinearModel, discretize, eha_linear, second_order
+from .plants.scenarios import Scenario, Segment, catalogue, scenario, scenario_names
+from .plants.signals import Chirp, Constant, SquareWave, Step
+from .plants.simulate import Simulation, iter_simulations, simulate
 
 __version__ = "0.1.0"
 

@@ -15,11 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from chatterspec.models import eha_linear
-from chatterspec.scenarios import Scenario, Segment
-from chatterspec.signals import Chirp
-from chatterspec.simulate import simulate
-from chatterspec.spectral import chattering_autocovariance
+from chatterspec.detection.spectral import chattering_autocovariance
+from chatterspec.plants.models import eha_linear
+from chatterspec.plants.scenarios import Scenario, Segment
+from chatterspec.plants.signals import Chirp
+from chatterspec.plants.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1] / "examples"
 DURATION_S, FAULT_AT_S, LEAKAGE = 8.0, 4.0, 9e-11

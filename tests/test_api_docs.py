@@ -21,12 +21,12 @@ import pytest
 import chatterspec
 
 # Modules whose import needs optional dependencies or a display.
-OPTIONAL_MODULES = {"chatterspec.live", "chatterspec.plotting", "chatterspec.paper_figures"}
+OPTIONAL_MODULES = {"chatterspec.online", "chatterspec.figures.plotting", "chatterspec.figures.paper_figures"}
 
 # (module, object) pairs exempt from the parameter check, each with its reason.
 ALLOW = {
     # Protocols describe duck types; their methods are documented by the implementations.
-    ("chatterspec.signals", "Signal"): "typing.Protocol",
+    ("chatterspec.plants.signals", "Signal"): "typing.Protocol",
     # Exception classes take the message only.
     **{("chatterspec.errors", n): "exception" for n in chatterspec.errors.__all__},
 }
@@ -122,8 +122,8 @@ def test_docstring_mentions_every_parameter(modname: str, name: str, obj: object
 
 def _sample_calls() -> list[tuple[str, Callable[[], object]]]:
     from chatterspec import SVSF, boundary_layer_chattering, chattering, scenario, second_order, simulate
-    from chatterspec.boundary_layer import boundary_layer_study, estimate_boundary_layer
-    from chatterspec.models import LinearModel, eha_linear
+    from chatterspec.filters.boundary_layer import boundary_layer_study, estimate_boundary_layer
+    from chatterspec.plants.models import LinearModel, eha_linear
 
     m = second_order(10.0, 0.1)
     z = np.zeros((1, 5, 2))

@@ -7,12 +7,12 @@ import pytest
 import scipy.stats
 
 from chatterspec import scenario
-from chatterspec.boundary_layer import (
+from chatterspec.errors import ParameterError
+from chatterspec.filters.boundary_layer import (
     boundary_layer_study,
     estimate_boundary_layer,
     healthy_chattering_variance,
 )
-from chatterspec.errors import ParameterError
 
 
 @pytest.mark.parametrize("name", ["so-healthy-low", "so-healthy-high", "eha-healthy"])

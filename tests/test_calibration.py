@@ -18,17 +18,13 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from chatterspec.calibration import (
-    calibrate,
-    clopper_pearson,
-    false_alarm_study,
-    load_calibration,
-    power_study,
-    quantile_ci_ranks,
-)
+from chatterspec.detection.spectral import STFTConfig
 from chatterspec.errors import CalibrationMismatchError, ParameterError, ShapeError
-from chatterspec.models import eha_linear
-from chatterspec.spectral import STFTConfig
+from chatterspec.plants.models import eha_linear
+from chatterspec.studies.calibration import calibrate, load_calibration
+from chatterspec.studies.false_alarms import false_alarm_study
+from chatterspec.studies.intervals import clopper_pearson, quantile_ci_ranks
+from chatterspec.studies.power import power_study
 
 RUNS_PER_BIN = 128
 CONF = 0.99
@@ -149,8 +145,8 @@ def test_frame_family_wise_quantile_agrees_with_analytic(cal):
 
 
 def test_monitor_uses_calibrated_frame_threshold(cal):
-    from chatterspec.monitor import ChatteringMonitor, MonitorSettings
-    from chatterspec.simulate import simulate
+    from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
+    from chatterspec.plants.simulate import simulate
 
     thr = cal.threshold("frame-family-wise")
     mon = ChatteringMonitor(cal_model(), MonitorSettings(threshold=thr))
@@ -163,7 +159,7 @@ def test_monitor_uses_calibrated_frame_threshold(cal):
 
 
 def cal_model():
-    from chatterspec.scenarios import scenario
+    from chatterspec.plants.scenarios import scenario
 
     return scenario("so-healthy-low").nominal
 

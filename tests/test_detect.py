@@ -1,4 +1,4 @@
-"""Detection verdicts, severity and STFT intervals (chatterspec.detect)."""
+"""Detection verdicts, severity and STFT intervals (chatterspec.detection.detect)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from chatterspec.detect import (
+from chatterspec.detection.detect import (
     ChannelVerdict,
     detect_frames,
     detect_record,
@@ -16,11 +16,11 @@ from chatterspec.detect import (
     frame_intervals,
     stft_detect,
 )
+from chatterspec.detection.pipeline import ChatteringRecord, scenario_chattering
+from chatterspec.detection.spectral import STFTConfig, expected_spectrum, periodogram, spectrogram
+from chatterspec.detection.thresholds import exact_threshold, frame_threshold, paper_threshold
 from chatterspec.errors import ParameterError, ShapeError
-from chatterspec.pipeline import ChatteringRecord, scenario_chattering
-from chatterspec.scenarios import scenario
-from chatterspec.spectral import STFTConfig, expected_spectrum, periodogram, spectrogram
-from chatterspec.thresholds import exact_threshold, frame_threshold, paper_threshold
+from chatterspec.plants.scenarios import scenario
 
 RUNS = 4  # a handful of realizations per fault scenario keeps the file fast
 

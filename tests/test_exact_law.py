@@ -1,4 +1,4 @@
-"""Exact finite-N law of a healthy spectral bin: ``S = l1 Z1^2 + l2 Z2^2`` (chatterspec.thresholds).
+"""Exact finite-N law of a healthy spectral bin: ``S = l1 Z1^2 + l2 Z2^2`` (chatterspec.detection.thresholds).
 
 Numerics of the weighted-chi2 survival function and quantile (Monte Carlo, direct quadrature of the
 density, limits), and the false-alarm rates it gives on the EHA position channel, where the lowest
@@ -13,16 +13,16 @@ import pytest
 import scipy.integrate
 import scipy.stats
 
-from chatterspec.errors import ParameterError
-from chatterspec.pipeline import scenario_chattering
-from chatterspec.scenarios import scenario
-from chatterspec.spectral import periodogram
-from chatterspec.thresholds import (
+from chatterspec.detection.pipeline import scenario_chattering
+from chatterspec.detection.spectral import periodogram
+from chatterspec.detection.thresholds import (
     exact_threshold,
     weighted_chi2_isf,
     weighted_chi2_pdf,
     weighted_chi2_sf,
 )
+from chatterspec.errors import ParameterError
+from chatterspec.plants.scenarios import scenario
 
 PAIRS = [(1.0, 1.0), (1.0, 0.3), (1.0, 0.01), (1.0, 1e-4), (2.5, 0.0)]
 

@@ -12,16 +12,16 @@ import numpy as np
 import pytest
 
 import chatterspec as cs
-from chatterspec.detect import detect_frames
-from chatterspec.pipeline import chattering_record
-from chatterspec.scenarios import Scenario, Segment
-from chatterspec.spectral import spectrogram
-from chatterspec.thresholds import frame_threshold
+from chatterspec.detection.detect import detect_frames
+from chatterspec.detection.pipeline import chattering_record
+from chatterspec.detection.spectral import spectrogram
+from chatterspec.detection.thresholds import frame_threshold
+from chatterspec.plants.scenarios import Scenario, Segment
 
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
-from chatterspec import live  # noqa: E402
+from chatterspec.online import blueprint, drivers, rerun_log, viewer  # noqa: E402
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -96,14 +96,14 @@ def _check_recording(path: Path, rec, spec, flags, summary) -> None:
 def test_record_simulation_reads_back(tmp_path: Path, sim, batch) -> None:
     rec, spec, flags = batch
     path = tmp_path / "sub" / "run.rrd"
-    summary = live.record_detection(sim, path=path, chunk_samples=137)
+    summary = drivers.record_detection(sim, path=path, chunk_samples=137)
     assert summary.path == path and summary.n_frames == spec.n_frames
     _check_recording(path, rec, spec, flags, summary)
 
 
 def test_record_chattering_record(tmp_path: Path, batch) -> None:
     rec, spec, flags = batch
-    summary = live.record_detection(rec, path=tmp_path / "c.rrd", chunk_samples=1000)
+    summary = drivers.record_detection(rec, path=tmp_path / "c.rrd", chunk_samples=1000)
     _check_recording(tmp_path / "c.rrd", rec, spec, flags, summary)
     # the file gets the 2-D view in blocks of 50 frames (tiling the record) plus the last one on
     # close, each stamped with the time of its first frame (so scrubbing shows the covering block)
@@ -114,13 +114,13 @@ def test_record_chattering_record(tmp_path: Path, batch) -> None:
     block = blocks[-1][0]
     assert block["shape"] == [spec.freqs_hz.size, 50] and block["names"] == ["freq", "time"]
     img = np.asarray(block["buffer"], dtype=float).reshape(block["shape"])
-    expected = cs.spectral.expected_frame_spectrum(rec.model, spec.freqs_hz, spec.config, rec.dt)
-    db = np.clip(10 * np.log10(spec.power[-1, :, 2] / expected[:, 2]), *live.DB_RANGE)
+    expected = cs.detection.spectral.expected_frame_spectrum(rec.model, spec.freqs_hz, spec.config, rec.dt)
+    db = np.clip(10 * np.log10(spec.power[-1, :, 2] / expected[:, 2]), *rerun_log.DB_RANGE)
     np.testing.assert_allclose(img[:, -1], db, atol=0.05)  # float16 dB of the newest column
 
 
 def test_bulk_tensor_columns_match_rerun_encoding() -> None:
-    cols = live._Columns(rr)
+    cols = rerun_log._Columns(rr)
     assert cols.tensors_ok  # else every tensor falls back to one rr.log call (slow)
     x = np.random.default_rng(0).random((7, 11))
     ref = rr.Tensor(x[3], dim_names=["freq"]).data.as_arrow_array()
@@ -128,18 +128,18 @@ def test_bulk_tensor_columns_match_rerun_encoding() -> None:
 
 
 def test_fallback_without_bulk_tensors(tmp_path: Path, sim, batch, monkeypatch) -> None:
-    monkeypatch.setattr(live, "_TENSOR_DTYPES", {})  # the layout probe fails -> rr.log per tensor
+    monkeypatch.setattr(rerun_log, "_TENSOR_DTYPES", {})  # the layout probe fails -> rr.log per tensor
     rec, spec, flags = batch
-    summary = live.record_detection(sim, path=tmp_path / "f.rrd", chunk_samples=450)
+    summary = drivers.record_detection(sim, path=tmp_path / "f.rrd", chunk_samples=450)
     _check_recording(tmp_path / "f.rrd", rec, spec, flags, summary)
 
 
 def test_unreachable_viewer_keeps_complete_file(tmp_path: Path, sim, batch) -> None:
     rec, spec, flags = batch
-    port = live._free_port()  # nothing listens there
+    port = viewer._free_port()  # nothing listens there
     t0 = time.perf_counter()
-    with pytest.warns(live.LiveViewerWarning, match="unreachable"):
-        summary = live.record_detection(sim, path=tmp_path / "u.rrd", live=f"127.0.0.1:{port}")
+    with pytest.warns(viewer.LiveViewerWarning, match="unreachable"):
+        summary = drivers.record_detection(sim, path=tmp_path / "u.rrd", live=f"127.0.0.1:{port}")
     assert time.perf_counter() - t0 < 10.0
     assert summary.live_url is None and summary.notes
     _check_recording(tmp_path / "u.rrd", rec, spec, flags, summary)
@@ -149,7 +149,7 @@ def test_spawn_without_display_still_writes_file(tmp_path: Path, sim, monkeypatc
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     monkeypatch.chdir(tmp_path)
-    summary = live.record_detection(sim, live="spawn")
+    summary = drivers.record_detection(sim, live="spawn")
     assert summary.path is not None and summary.path.parent == Path("recordings")
     assert any("no display" in n for n in summary.notes)
     RrdReader(summary.path).store()
@@ -160,18 +160,18 @@ def test_ctrl_c_closes_recording(tmp_path: Path, sim) -> None:
         raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        live.record_detection(sim, path=tmp_path / "k.rrd", on_event=interrupt)
+        drivers.record_detection(sim, path=tmp_path / "k.rrd", on_event=interrupt)
     summary = RrdReader(tmp_path / "k.rrd").store().summary()  # footer written
     assert "/spectrum/pressure" in summary
 
 
 @pytest.mark.filterwarnings("ignore:RRD file has no footer")
 def test_live_viewer_receives_data(tmp_path: Path, sim, batch) -> None:
-    exe = live.find_viewer()
+    exe = viewer.find_viewer()
     if exe is None:
         pytest.skip("the rerun viewer executable is not installed")
     _, spec, _ = batch
-    port = live._free_port()
+    port = viewer._free_port()
     out = tmp_path / "server.rrd"
     proc = subprocess.Popen(
         [exe, "--bind", "127.0.0.1", "--port", str(port), "--save", str(out)],
@@ -181,11 +181,11 @@ def test_live_viewer_receives_data(tmp_path: Path, sim, batch) -> None:
     try:
         url = f"rerun+http://127.0.0.1:{port}/proxy"
         deadline = time.monotonic() + 15.0
-        while not live._reachable(url, 0.2)[0]:
+        while not viewer._reachable(url, 0.2)[0]:
             if time.monotonic() > deadline or proc.poll() is not None:
                 pytest.skip("the headless rerun receiver did not start")
             time.sleep(0.1)
-        summary = live.record_detection(sim, live=url, chunk_samples=500)
+        summary = drivers.record_detection(sim, live=url, chunk_samples=500)
         assert summary.live_url == url and summary.path is None
         time.sleep(0.5)
     finally:
@@ -208,12 +208,12 @@ def test_live_viewer_receives_data(tmp_path: Path, sim, batch) -> None:
 
 
 def test_blueprint_builds() -> None:
-    bp = live.blueprint(("position", "velocity", "pressure"), has_truth=True)
+    bp = blueprint.blueprint(("position", "velocity", "pressure"), has_truth=True)
     assert bp is not None
 
 
 def _cli(*argv: str) -> int:
-    from chatterspec.commands import monitor, replay
+    from chatterspec.cli import monitor, replay
 
     parser = argparse.ArgumentParser()
     sub = parser.add_subparsers()

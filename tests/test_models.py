@@ -9,7 +9,7 @@ import pytest
 import scipy.signal
 
 from chatterspec import scenario, scenario_names
-from chatterspec.models import (
+from chatterspec.plants.models import (
     EHA_PARAMETERS,
     LinearModel,
     discretize,

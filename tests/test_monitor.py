@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 import chatterspec as cs
-from chatterspec.detect import detect_frames, frame_intervals
+from chatterspec.detection.detect import detect_frames, frame_intervals
+from chatterspec.detection.pipeline import chattering_record
+from chatterspec.detection.spectral import spectrogram
+from chatterspec.detection.thresholds import frame_threshold
 from chatterspec.errors import NonFiniteError, ParameterError, ShapeError
-from chatterspec.monitor import ChatteringMonitor, MonitorSettings
-from chatterspec.pipeline import chattering_record
-from chatterspec.scenarios import Scenario, Segment
-from chatterspec.spectral import spectrogram
-from chatterspec.thresholds import frame_threshold
+from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
+from chatterspec.plants.scenarios import Scenario, Segment
 
 
 def _scenario() -> Scenario:
@@ -44,7 +44,8 @@ def batch(sim):
 
 def test_numeric_core_does_not_import_rerun() -> None:
     code = (
-        "import sys, chatterspec, chatterspec.monitor, chatterspec.modelfile; print('rerun' in sys.modules)"
+        "import sys, chatterspec, chatterspec.online.monitor, chatterspec.plants.modelfile; "
+        "print('rerun' in sys.modules)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

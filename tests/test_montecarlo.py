@@ -7,10 +7,10 @@ import time
 import numpy as np
 import pytest
 
-from chatterspec.calibration import false_alarm_study
 from chatterspec.errors import ChatterspecError, ParameterError
-from chatterspec.montecarlo import plan_chunks, run_study
 from chatterspec.rng import BLOCK, block_generator
+from chatterspec.studies.false_alarms import false_alarm_study
+from chatterspec.studies.montecarlo import plan_chunks, run_study
 
 
 class _Draws:

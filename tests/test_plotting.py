@@ -13,14 +13,14 @@ import pytest
 
 matplotlib = pytest.importorskip("matplotlib")
 
-from chatterspec import paper_figures as pf  # noqa: E402
-from chatterspec import plotting as pl  # noqa: E402
-from chatterspec.commands import figures as figures_cmd  # noqa: E402
-from chatterspec.commands import spectrum as spectrum_cmd  # noqa: E402
+from chatterspec.cli import figures as figures_cmd  # noqa: E402
+from chatterspec.cli import spectrum as spectrum_cmd  # noqa: E402
+from chatterspec.detection.spectral import periodogram_freqs  # noqa: E402
+from chatterspec.detection.thresholds import exact_threshold, paper_threshold  # noqa: E402
 from chatterspec.errors import ChatterspecError, ParameterError, ShapeError, UnknownScenarioError  # noqa: E402
-from chatterspec.models import second_order  # noqa: E402
-from chatterspec.spectral import periodogram_freqs  # noqa: E402
-from chatterspec.thresholds import exact_threshold, paper_threshold  # noqa: E402
+from chatterspec.figures import paper_figures as pf  # noqa: E402
+from chatterspec.figures import plotting as pl  # noqa: E402
+from chatterspec.plants.models import second_order  # noqa: E402
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 MAX_PNG_BYTES = 300_000
@@ -294,8 +294,9 @@ def test_plotting_not_imported_by_numeric_core():
     import sys
 
     code = (
-        "import sys, chatterspec, chatterspec.spectral, chatterspec.thresholds, chatterspec.detect, "
-        "chatterspec.pipeline; print('matplotlib' in sys.modules)"
+        "import sys, chatterspec, chatterspec.detection.spectral, chatterspec.detection.thresholds, "
+        "chatterspec.detection.detect, "
+        "chatterspec.detection.pipeline; print('matplotlib' in sys.modules)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from chatterspec import Scenario, Segment, UnknownScenarioError, catalogue, scenario, scenario_names
-from chatterspec.models import second_order
-from chatterspec.signals import Chirp, Step
+from chatterspec.plants.models import second_order
+from chatterspec.plants.signals import Chirp, Step
 
 NAMES = (
     "so-healthy-low",

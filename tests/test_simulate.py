@@ -7,8 +7,8 @@ import pytest
 import scipy.stats
 
 from chatterspec import Scenario, Segment, iter_simulations, scenario, simulate
-from chatterspec.models import LinearModel, second_order
-from chatterspec.signals import Constant
+from chatterspec.plants.models import LinearModel, second_order
+from chatterspec.plants.signals import Constant
 
 
 @pytest.fixture(scope="module")

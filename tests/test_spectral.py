@@ -1,4 +1,4 @@
-"""Periodogram, expected healthy spectrum and STFT (chatterspec.spectral)."""
+"""Periodogram, expected healthy spectrum and STFT (chatterspec.detection.spectral)."""
 
 from __future__ import annotations
 
@@ -6,11 +6,8 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from chatterspec.errors import NonFiniteError, ParameterError, ShapeError, SingularMatrixError
-from chatterspec.models import LinearModel, second_order
-from chatterspec.pipeline import scenario_chattering
-from chatterspec.scenarios import scenario
-from chatterspec.spectral import (
+from chatterspec.detection.pipeline import scenario_chattering
+from chatterspec.detection.spectral import (
     STFTConfig,
     chattering_autocovariance,
     expected_frame_spectrum,
@@ -21,6 +18,9 @@ from chatterspec.spectral import (
     spectrogram,
     window_overlap_ratio,
 )
+from chatterspec.errors import NonFiniteError, ParameterError, ShapeError, SingularMatrixError
+from chatterspec.plants.models import LinearModel, second_order
+from chatterspec.plants.scenarios import scenario
 
 DT = 1e-3
 RUNS_MC = 1000
@@ -246,7 +246,7 @@ def _simulate_ma1(model: LinearModel, draws: int, n: int, seed: int) -> np.ndarr
 
 def test_periodogram_eigenvalues_closed_form_and_monte_carlo():
     """(l1, l2) = gamma0/2 + (1 - 1/N) gamma1 cos w +- |gamma1|/N; l2 = 0 at DC/Nyquist; MC of (Re, Im)."""
-    from chatterspec.spectral import periodogram_eigenvalues
+    from chatterspec.detection.spectral import periodogram_eigenvalues
 
     model = _scalar_ma1()
     N = 64
@@ -277,7 +277,7 @@ def test_periodogram_eigenvalues_closed_form_and_monte_carlo():
 
 def test_frame_eigenvalues_match_frame_columns_monte_carlo():
     """Hamming frames of W = 32 samples via frame_columns: mean l1 + l2, variance 2 (l1^2 + l2^2)."""
-    from chatterspec.spectral import frame_eigenvalues
+    from chatterspec.detection.spectral import frame_eigenvalues
 
     model = _scalar_ma1()
     cfg = STFTConfig(window_s=32 * DT, hop_s=32 * DT)

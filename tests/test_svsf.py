@@ -7,8 +7,8 @@ import pytest
 import scipy.stats
 
 from chatterspec import SVSF, Scenario, auxiliary_svsf, chattering, scenario, simulate
-from chatterspec.models import LinearModel, second_order
-from chatterspec.signals import Chirp
+from chatterspec.plants.models import LinearModel, second_order
+from chatterspec.plants.signals import Chirp
 
 
 def _general_C_scenario() -> Scenario:

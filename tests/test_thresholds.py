@@ -1,4 +1,4 @@
-"""Chi-squared thresholds and their false-alarm rates (chatterspec.thresholds).
+"""Chi-squared thresholds and their false-alarm rates (chatterspec.detection.thresholds).
 
 False-alarm rates are tested against exact binomial (Clopper-Pearson) intervals. Realizations are
 independent; the DFT bins of one healthy record are *nearly* independent (the MA(1) chattering has a
@@ -12,12 +12,10 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from chatterspec.detect import detect_spectrum
-from chatterspec.errors import ParameterError, ShapeError
-from chatterspec.pipeline import scenario_chattering
-from chatterspec.scenarios import scenario
-from chatterspec.spectral import STFTConfig, expected_spectrum, periodogram, spectrogram
-from chatterspec.thresholds import (
+from chatterspec.detection.detect import detect_spectrum
+from chatterspec.detection.pipeline import scenario_chattering
+from chatterspec.detection.spectral import STFTConfig, expected_spectrum, periodogram, spectrogram
+from chatterspec.detection.thresholds import (
     exact_threshold,
     frame_threshold,
     paper_gamma_matrix,
@@ -25,6 +23,8 @@ from chatterspec.thresholds import (
     per_test_alpha,
     threshold,
 )
+from chatterspec.errors import ParameterError, ShapeError
+from chatterspec.plants.scenarios import scenario
 
 HEALTHY = ("so-healthy-low", "so-healthy-high", "eha-healthy")
 RUNS = 1000

@@ -14,8 +14,8 @@ from chatterspec.errors import (
     SingularMatrixError,
     UnknownScenarioError,
 )
-from chatterspec.models import LinearModel, discretize, eha_linear, second_order
-from chatterspec.signals import Step
+from chatterspec.plants.models import LinearModel, discretize, eha_linear, second_order
+from chatterspec.plants.signals import Step
 
 BASE = second_order(10.0, 0.1)
 GOOD = {"A": BASE.A, "B": BASE.B, "C": BASE.C, "Q": BASE.Q, "R": BASE.R, "dt": 1e-3}

@@ -41,7 +41,7 @@ import scipy.linalg
 
 from .._validate import finite_array, open_unit
 from ..errors import ParameterError, ShapeError, SingularMatrixError
-from ..models import LinearModel
+from ..plants.models import LinearModel
 
 __all__ = [
     "SVSF",

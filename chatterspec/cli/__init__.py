@@ -1,0 +1,63 @@
+"""The ``chatterspec`` command.
+
+Each subcommand lives in ``chatterspec/commands/<name>.py`` and exposes
+``register(subparsers)``, which adds its parser and sets ``func`` (a callable
+taking the parsed ``argparse.Namespace`` and returning an exit code). With
+``--json`` a subcommand prints exactly one JSON document on stdout and nothing
+else there (progress and warnings go to stderr).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from ..errors import ChatterspecError
+
+#: Subcommand modules, in help order.
+COMMANDS: tuple[str, ...] = (
+    "demo",
+    "scenarios",
+    "detect",
+    "spectrum",
+    "figures",
+    "monitor",
+    "replay",
+    "calibrate",
+    "far",
+    "power",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="chatterspec",
+        description="Fault detection from the spectral content of SVSF chattering.",
+    )
+    from .. import __version__
+
+    parser.add_argument("--version", action="version", version=f"chatterspec {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in COMMANDS:
+        importlib.import_module(f".{name}", __package__).register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except ChatterspecError as exc:
+        print(f"chatterspec {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"chatterspec {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

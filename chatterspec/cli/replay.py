@@ -1,0 +1,50 @@
+"""``chatterspec replay FILE.rrd``: open a recording in the Rerun viewer."""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+from ..errors import DataFileError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "replay",
+        help="open a .rrd recording in the Rerun viewer",
+        description="Open a recording written by `chatterspec detect/demo/monitor --record` in the Rerun "
+        "viewer. Without a display, prints how to open it elsewhere.",
+    )
+    p.add_argument("file", type=Path, help="the .rrd recording")
+    p.add_argument("--wait", action="store_true", help="block until the viewer window is closed")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..online.viewer import find_viewer, has_display
+
+    path: Path = args.file
+    if not path.is_file():
+        raise DataFileError(f"recording {str(path)!r}: no such file")
+    exe = find_viewer()
+    if exe is None:
+        print(
+            "chatterspec replay: the `rerun` viewer was not found; install rerun-sdk>=0.41,<0.42",
+            file=sys.stderr,
+        )
+        return 1
+    if not has_display():
+        print(
+            f"chatterspec replay: no display (DISPLAY / WAYLAND_DISPLAY unset). Copy {path} to a machine "
+            f"with a display and run `chatterspec replay {path.name}` or `rerun {path.name}` there; "
+            f"or serve it to a browser with `{exe} --serve-web {path}` and open the printed URL.",
+            file=sys.stderr,
+        )
+        return 1
+    proc = subprocess.Popen([exe, str(path)], start_new_session=not args.wait)
+    if args.wait:
+        return proc.wait()
+    print(f"opened {path} in the Rerun viewer (pid {proc.pid})", file=sys.stderr)
+    return 0

@@ -1,1 +1,0 @@
-"""Subcommands of the ``chatterspec`` CLI (one module each, see :mod:`chatterspec.cli`)."""

@@ -1,0 +1,1 @@
+"""Chattering to verdicts: chattering records, periodograms and STFT, thresholds, detection."""

@@ -1,0 +1,645 @@
+"""Chi-squared thresholds for the chattering power spectrum (eq 57-64, ``DESIGN.md`` section 5).
+
+Every threshold is an array ``(bins, m)`` with a :class:`Threshold` record of
+what its ``alpha`` means:
+
+``paper`` (eq 58-62)
+    The flat bound ``Sigma_Gamma_ii chi2.ppf(1 - alpha, 2) / 2`` with
+    ``Sigma_Gamma = C Q C^T + Lambda R Lambda^T``; ``alpha`` is a **per-bin**
+    level (and the bound is conservative: it dominates the true spectrum).
+``exact``
+    The ``1 - a`` quantile of the exact finite-N law of each bin (``law="exact"``,
+    default): a healthy bin is ``S = l1 Z1^2 + l2 Z2^2`` with ``Z`` iid standard
+    normal and ``(l1, l2)`` from :func:`chatterspec.detection.spectral.periodogram_eigenvalues`
+    (``l2 = 0`` at DC and Nyquist). ``law="chi2"`` is the previous approximation
+    ``E[S_i(f)] chi2.ppf(1 - a, nu) / nu`` with the exact expected spectrum
+    (:func:`chatterspec.detection.spectral.expected_spectrum`), ``nu = 2`` for bins
+    ``1 .. ceil(N/2) - 1`` and ``nu = 1`` for DC and Nyquist (``DESIGN.md`` 8.8);
+    it assumes ``l1 = l2`` and under-estimates the tail where the spectrum is
+    tiny compared with ``|gamma1| / N`` (EHA position channel, lowest bins:
+    about twice the nominal per-bin rate there).
+    Averaging K independent periodograms: ``law="chi2"`` multiplies ``nu`` by K;
+    ``law="exact"`` uses the **Welch-Satterthwaite approximation**
+    ``(c / K) chi2(nu_eff)`` with ``c = (l1^2 + l2^2) / (l1 + l2)`` and
+    ``nu_eff = K (l1 + l2)^2 / (l1^2 + l2^2)`` (mean and variance matched; exact
+    when ``l1 = l2``, giving ``E chi2(2K) / (2K)``, or ``l2 = 0``).
+``frame`` (STFT)
+    The same (exact law from :func:`chatterspec.detection.spectral.frame_eigenvalues`) for
+    the Hamming-windowed frames, family-wise over the bins of **one frame**
+    (``alpha_meaning = "per-frame"``).
+
+Family-wise control
+    The family is the set of bins **tested for the verdict**: ``1 .. ceil(N/2) - 1``
+    (DC excluded because a step input puts a large DC term into any mismatch, the
+    Nyquist bin excluded as in eq 43), ``n_tested = ceil(N/2) - 1``. DC is *not*
+    counted in the family because it never contributes to the verdict; its
+    threshold is computed at the same per-test level ``a`` and reported separately
+    (``dc_ratio``). Bonferroni: ``a = alpha / n_tested`` (default); Sidak:
+    ``a = 1 - (1 - alpha)^(1 / n_tested)`` (exact for independent bins; the DFT
+    bins of the healthy MA(1) chattering are nearly independent). Eq (64) is the
+    union bound: with per-bin alpha it gives ``n alpha``, which is vacuous for
+    ``n alpha >= 1`` and is not a guarantee.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import scipy.special
+import scipy.stats
+
+from .._validate import finite_array, open_unit, positive, positive_int, readonly
+from ..errors import ParameterError, ShapeError
+from ..plants.models import LinearModel
+from .spectral import (
+    STFTConfig,
+    chattering_autocovariance,
+    expected_frame_spectrum,
+    expected_spectrum,
+    frame_eigenvalues,
+    periodogram_eigenvalues,
+)
+
+__all__ = [
+    "AlphaMeaning",
+    "Correction",
+    "Threshold",
+    "ThresholdKind",
+    "ThresholdLaw",
+    "bin_layout",
+    "exact_threshold",
+    "frame_threshold",
+    "paper_gamma_matrix",
+    "paper_threshold",
+    "per_test_alpha",
+    "threshold",
+    "weighted_chi2_isf",
+    "weighted_chi2_pdf",
+    "weighted_chi2_sf",
+]
+
+ThresholdKind = Literal["paper", "exact", "empirical"]
+AlphaMeaning = Literal["per-bin", "family-wise", "per-frame"]
+Correction = Literal["none", "bonferroni", "sidak"]
+ThresholdLaw = Literal["exact", "chi2"]
+_CORRECTIONS = ("none", "bonferroni", "sidak")
+_LAWS = ("exact", "chi2")
+
+
+@dataclass(frozen=True, eq=False)
+class Threshold:
+    """A spectral threshold and the meaning of its false-alarm level.
+
+    Attributes
+    ----------
+    values : (bins, m) array
+        Threshold on the power of each bin and channel (units of the chattering squared).
+    freqs_hz : (bins,) array
+        Bin frequencies (Hz).
+    kind : {"paper", "exact", "empirical"}
+    alpha : float
+        The false-alarm probability the user asked for.
+    alpha_meaning : {"per-bin", "family-wise", "per-frame"}
+        ``per-bin``: each tested bin exceeds with probability alpha (healthy);
+        ``family-wise``: one record has any tested bin above with probability <= alpha;
+        ``per-frame``: one STFT frame has any tested bin above with probability <= alpha.
+    correction : {"none", "bonferroni", "sidak"}
+    tested : (bins,) bool array
+        Bins used for the verdict (DC and Nyquist excluded).
+    dof : (bins,) int array
+        Nominal chi-squared degrees of freedom of ``nu S / E[S]`` per bin (2K, or K at
+        DC/Nyquist): the law used by ``law="chi2"``; see ``effective_dof`` for the exact law.
+    averaged : int
+        Number K of independent spectra averaged (1 for a single record).
+    per_test_alpha : float
+        Level ``a`` applied to each tested bin after the correction.
+    expected : (bins, m) array or None
+        Expected healthy spectrum the threshold was built from (None for ``paper``).
+    law : {"exact", "chi2"} or None
+        Distribution the quantiles come from: ``"exact"`` (weighted sum
+        ``l1 Z1^2 + l2 Z2^2`` per bin), ``"chi2"`` (``E chi2(dof) / dof``), None
+        for ``empirical`` thresholds.
+    eigenvalues : (bins, m, 2) array or None
+        ``(l1, l2)`` per bin and channel for ``law="exact"`` (single-record law).
+    effective_dof : (bins, m) float array or None
+        ``K (l1 + l2)^2 / (l1^2 + l2^2)``: the Welch-Satterthwaite degrees of freedom
+        of the exact law (equals ``dof`` where ``l1 = l2`` or ``l2 = 0``); ``dof``
+        broadcast for ``law="chi2"``; None for ``empirical``.
+    """
+
+    values: np.ndarray
+    freqs_hz: np.ndarray
+    kind: ThresholdKind
+    alpha: float
+    alpha_meaning: AlphaMeaning
+    correction: Correction
+    tested: np.ndarray
+    dof: np.ndarray
+    averaged: int = 1
+    per_test_alpha: float = float("nan")
+    expected: np.ndarray | None = None
+    law: ThresholdLaw | None = None
+    eigenvalues: np.ndarray | None = None
+    effective_dof: np.ndarray | None = None
+
+    @property
+    def n_tested(self) -> int:
+        """Number of bins in the family (bins used for the verdict)."""
+        return int(np.count_nonzero(self.tested))
+
+    @property
+    def n_channels(self) -> int:
+        return self.values.shape[1]
+
+    def check_spectrum(self, power: np.ndarray) -> np.ndarray:
+        """Return ``power`` as an array after checking its last two axes are ``(bins, m)``.
+
+        Raises
+        ------
+        ShapeError
+            If the spectrum does not match the threshold's bins and channels.
+        """
+        power = np.asarray(power, dtype=float)
+        if power.ndim < 2 or power.shape[-2:] != self.values.shape:
+            raise ShapeError(
+                f"spectrum shape {power.shape} does not match the threshold "
+                f"(..., {self.values.shape[0]} bins, {self.values.shape[1]} channels); "
+                "build the threshold with the spectrum's freqs_hz and model"
+            )
+        return power
+
+    def describe(self) -> str:
+        """One sentence saying what ``alpha`` guarantees for this threshold."""
+        avg = f" for the average of {self.averaged} independent spectra" if self.averaged > 1 else ""
+        band = f"{self.n_tested} tested bins (DC and Nyquist excluded)"
+        if self.alpha_meaning == "per-bin":
+            return (
+                f"{self.kind} threshold{avg}: each of the {band} exceeds it with probability "
+                f"{'at most ' if self.kind == 'paper' else ''}{self.alpha:g} under healthy conditions; "
+                f"no family-wise guarantee (the union bound of eq 64 gives {self.n_tested * self.alpha:g})"
+            )
+        unit = "one record" if self.alpha_meaning == "family-wise" else "one STFT frame"
+        corr = f" with {self.correction} correction" if self.correction != "none" else ""
+        level = f" (per-bin level {self.per_test_alpha:.3g})" if np.isfinite(self.per_test_alpha) else ""
+        return (
+            f"{self.kind} threshold{avg}{corr}: under healthy conditions "
+            f"{unit} has any of its {band} above the threshold with probability at most {self.alpha:g}"
+            f"{level}"
+        )
+
+
+def bin_layout(freqs_hz: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(is_dc, is_nyquist)`` boolean masks of a one-sided frequency grid (Hz).
+
+    Parameters
+    ----------
+    freqs_hz : (bins,) array
+        Frequencies (Hz).
+    dt : float
+        Sampling time (s); the Nyquist frequency is ``1 / (2 dt)``.
+    """
+    f = finite_array("freqs_hz", freqs_hz, ndim=1)
+    dt = positive("dt", dt, unit="s")
+    nyq = 0.5 / dt
+    is_dc = np.abs(f) <= 1e-9 * nyq
+    is_nyq = np.abs(f - nyq) <= 1e-9 * nyq
+    return is_dc, is_nyq
+
+
+def per_test_alpha(alpha: float, n_tests: int, correction: Correction = "bonferroni") -> float:
+    """Per-bin level ``a`` giving family-wise level ``alpha`` over ``n_tests`` bins.
+
+    Parameters
+    ----------
+    alpha : float
+        Family-wise false-alarm probability in (0, 1).
+    n_tests : int
+        Number of bins in the family.
+    correction : {"bonferroni", "sidak", "none"}
+        ``none``: ``a = alpha``; ``bonferroni``: ``alpha / n``; ``sidak``: ``1 - (1 - alpha)^(1/n)``.
+    """
+    alpha = open_unit("alpha", alpha)
+    n = positive_int("n_tests", n_tests)
+    if correction == "none":
+        return alpha
+    if correction == "bonferroni":
+        return alpha / n
+    if correction == "sidak":
+        return float(-np.expm1(np.log1p(-alpha) / n))
+    raise ParameterError(f"correction must be one of {_CORRECTIONS}; got {correction!r}")
+
+
+# ---------------------------------------------------------------------------
+# Law of one bin: Y = l1 Z1^2 + l2 Z2^2 (weighted sum of two chi2(1))
+# ---------------------------------------------------------------------------
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(64)
+_ERFC_CUT = 12.0  # erfc(12) ~ 1e-64: the integrand beyond is negligible
+
+
+def _eigen_pair(l1: object, l2: object) -> tuple[np.ndarray, np.ndarray]:
+    a = np.asarray(l1, dtype=float)
+    b = np.asarray(l2, dtype=float)
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))) or np.any(a < 0) or np.any(b < 0):
+        raise ParameterError("weights l1, l2 must be finite and >= 0")
+    return np.maximum(a, b), np.minimum(a, b)
+
+
+def _sf_unit(x: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``P(Z1^2 + r Z2^2 > x)`` for ``0 <= r <= 1``, ``x >= 0`` (arrays of one shape).
+
+    Conditioning on ``Z1``: ``erfc(z1 / sqrt 2) + int_{|z| < z1} phi(z) erfc(sqrt((x - z^2) / (2 r))) dz``
+    with ``z1 = sqrt(x)``; the substitution ``z = z1 cos s`` gives
+    ``2 z1 int_0^{pi/2} phi(z1 cos s) erfc(K sin s) sin s ds``, ``K = sqrt(x / (2 r))``, an entire
+    integrand, cut where ``K sin s > 12`` and integrated by 64-point Gauss-Legendre (relative error
+    ~1e-15 against direct quadrature of the density, whatever ``r``).
+    """
+    z1 = np.sqrt(x)
+    first = scipy.special.erfc(z1 / np.sqrt(2.0))
+    pos = r > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        K = np.where(pos, np.sqrt(x / (2.0 * np.where(pos, r, 1.0))), np.inf)
+    Ks = np.where(np.isfinite(K) & (K > 0), K, 1.0)
+    smax = np.where(K > _ERFC_CUT, np.arcsin(np.minimum(1.0, _ERFC_CUT / Ks)), 0.5 * np.pi)
+    sn = smax[..., None] * (0.5 * (_GL_X + 1.0))
+    sin_s = np.sin(sn)
+    integrand = (
+        np.exp(-0.5 * (z1[..., None] * np.cos(sn)) ** 2)
+        * scipy.special.erfc(np.where(pos, Ks, 0.0)[..., None] * sin_s)
+        * sin_s
+    )
+    second = z1 * smax * (integrand @ _GL_W) / np.sqrt(2.0 * np.pi)
+    return first + np.where(pos & (x > 0), second, 0.0)
+
+
+def _pdf_unit(x: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Density of ``Z1^2 + r Z2^2`` at ``x > 0``: ``exp(-x/2) I0(x (1 - r) / (4 r)) e^{...} / (2 sqrt r)``."""
+    pos = r > 0
+    rs = np.where(pos, r, 1.0)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        gen = np.exp(-0.5 * x) * scipy.special.i0e(x * (1.0 - rs) / (4.0 * rs)) / (2.0 * np.sqrt(rs))
+        chi1 = np.exp(-0.5 * x) / np.sqrt(2.0 * np.pi * x)
+    return np.where(pos, gen, chi1)
+
+
+def weighted_chi2_sf(t: object, l1: object, l2: object) -> np.ndarray:
+    """Survival function ``P(l1 Z1^2 + l2 Z2^2 > t)``, ``Z1, Z2`` iid standard normal (broadcasting).
+
+    The exact law of a periodogram or frame bin of Gaussian data (see
+    :func:`chatterspec.detection.spectral.periodogram_eigenvalues`). ``l1 = l2 = l`` gives
+    ``exp(-t / (2 l))`` (``l chi2(2)``), ``l2 = 0`` gives ``l1 chi2(1)``. Computed by a
+    one-dimensional integral (Gauss-Legendre, relative error ~1e-15) of non-negative terms,
+    so it is accurate far in the tail.
+
+    Parameters
+    ----------
+    t : array_like
+        Thresholds (any real; ``sf = 1`` for ``t <= 0``).
+    l1, l2 : array_like
+        Non-negative weights (their order does not matter).
+    """
+    a, b = _eigen_pair(l1, l2)
+    t = np.asarray(t, dtype=float)
+    t, a, b = np.broadcast_arrays(t, a, b)
+    out = np.ones(t.shape)
+    ok = (t > 0) & (a > 0)
+    if np.any(ok):
+        out[ok] = _sf_unit(t[ok] / a[ok], b[ok] / a[ok])
+    return out
+
+
+def weighted_chi2_pdf(t: object, l1: object, l2: object) -> np.ndarray:
+    """Density of ``l1 Z1^2 + l2 Z2^2`` at ``t > 0`` (0 for ``t <= 0``; requires ``max(l1, l2) > 0``)."""
+    a, b = _eigen_pair(l1, l2)
+    t = np.asarray(t, dtype=float)
+    t, a, b = np.broadcast_arrays(t, a, b)
+    if np.any(a <= 0):
+        raise ParameterError("weighted_chi2_pdf needs max(l1, l2) > 0")
+    out = np.zeros(t.shape)
+    ok = t > 0
+    out[ok] = _pdf_unit(t[ok] / a[ok], b[ok] / a[ok]) / a[ok]
+    return out
+
+
+def weighted_chi2_isf(p: object, l1: object, l2: object, rtol: float = 1e-10) -> np.ndarray:
+    """Inverse survival function of ``l1 Z1^2 + l2 Z2^2``: ``t`` with ``P(Y > t) = p`` (broadcasting).
+
+    Safeguarded Newton iteration on ``log sf`` (vectorized over every bin and channel)
+    inside the bracket ``l1 chi2.isf(p, 1) <= t <= l1 chi2.isf(p, 2)`` (``l1 Z1^2 <= Y <=
+    l1 (Z1^2 + Z2^2)``), to relative accuracy ``rtol``. ``l2 = 0`` is exactly
+    ``l1 chi2.isf(p, 1)``; ``l1 = l2 = 0`` gives 0.
+
+    Parameters
+    ----------
+    p : array_like
+        Exceedance probabilities in (0, 1).
+    l1, l2 : array_like
+        Non-negative weights (their order does not matter).
+    rtol : float
+        Relative tolerance on ``t``.
+    """
+    a, b = _eigen_pair(l1, l2)
+    p = np.asarray(p, dtype=float)
+    if not np.all((p > 0) & (p < 1)):
+        raise ParameterError("p must lie in the open interval (0, 1)")
+    p, a, b = np.broadcast_arrays(p, a, b)
+    out = np.zeros(p.shape)
+    ok = a > 0
+    if not np.any(ok):
+        return out
+    pv, r = p[ok], b[ok] / a[ok]
+    lo = scipy.stats.chi2.isf(pv, 1)
+    hi = scipy.stats.chi2.isf(pv, 2)
+    # start from the Welch-Satterthwaite approximation, clipped into the bracket
+    c = (1.0 + r * r) / (1.0 + r)
+    x = np.clip(c * scipy.stats.chi2.isf(pv, (1.0 + r) ** 2 / (1.0 + r * r)), lo, hi)
+    x = np.where(r > 0, x, lo)
+    act = r > 0
+    logp = np.log(pv)
+    for _ in range(200):
+        if not np.any(act):
+            break
+        xa, ra = x[act], r[act]
+        sf = _sf_unit(xa, ra)
+        h = np.log(sf) - logp[act]
+        lo_a = np.where(h > 0, xa, lo[act])  # sf too large: the quantile is above x
+        hi_a = np.where(h > 0, hi[act], xa)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = h * sf / _pdf_unit(xa, ra)  # Newton: x - h / h', h' = -pdf / sf
+        xn = xa + step
+        conv = np.isfinite(step) & (np.abs(step) <= rtol * xa)  # converged (may sit on the bracket)
+        bad = ~np.isfinite(xn) | (xn <= lo_a) | (xn >= hi_a)
+        xn = np.where(conv | (h == 0), np.where(h == 0, xa, xn), np.where(bad, 0.5 * (lo_a + hi_a), xn))
+        done = conv | (h == 0) | (hi_a - lo_a <= rtol * xa)
+        lo[act], hi[act], x[act] = lo_a, hi_a, xn
+        idx = np.flatnonzero(act)
+        act[idx[done]] = False
+    out[ok] = x * a[ok]
+    return out
+
+
+def _check_law(law: str) -> ThresholdLaw:
+    if law not in _LAWS:
+        raise ParameterError(f"law must be one of {_LAWS}; got {law!r}")
+    return law  # type: ignore[return-value]
+
+
+def _chi2_threshold(
+    expected: np.ndarray,
+    freqs: np.ndarray,
+    dt: float,
+    alpha: float,
+    correction: Correction,
+    averaged: int,
+    kind: ThresholdKind,
+    meaning_if_corrected: AlphaMeaning,
+    eigen: tuple[np.ndarray, np.ndarray] | None = None,
+) -> Threshold:
+    is_dc, is_nyq = bin_layout(freqs, dt)
+    tested = ~(is_dc | is_nyq)
+    n_tested = int(np.count_nonzero(tested))
+    if n_tested == 0:
+        raise ShapeError("no frequency bin left to test (need bins other than DC and Nyquist)")
+    a = per_test_alpha(alpha, n_tested, correction)
+    dof = np.where(is_dc | is_nyq, averaged, 2 * averaged)
+    eigenvalues = None
+    if eigen is None:
+        quant = scipy.stats.chi2.isf(a, dof) / dof
+        values = expected * quant[:, None]
+        eff = np.broadcast_to(dof[:, None].astype(float), expected.shape)
+    else:
+        l1, l2 = eigen
+        eigenvalues = np.stack([l1, l2], axis=-1)
+        s1, s2 = l1 + l2, l1 * l1 + l2 * l2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            eff = np.where(s2 > 0, averaged * s1 * s1 / np.where(s2 > 0, s2, 1.0), 2.0 * averaged)
+        if averaged == 1:
+            values = weighted_chi2_isf(a, l1, l2)
+        else:  # Welch-Satterthwaite: (c / K) chi2(nu_eff), c = (l1^2 + l2^2) / (l1 + l2)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                c = np.where(s1 > 0, s2 / np.where(s1 > 0, s1, 1.0), 0.0)
+            values = c * scipy.stats.chi2.isf(a, eff) / averaged
+    return Threshold(
+        values=readonly(values),
+        freqs_hz=readonly(np.array(freqs)),
+        kind=kind,
+        alpha=alpha,
+        alpha_meaning="per-bin" if correction == "none" else meaning_if_corrected,
+        correction=correction,
+        tested=readonly(tested),
+        dof=readonly(dof.astype(int)),
+        averaged=averaged,
+        per_test_alpha=a,
+        expected=readonly(np.array(expected)),
+        law="chi2" if eigen is None else "exact",
+        eigenvalues=None if eigenvalues is None else readonly(eigenvalues),
+        effective_dof=readonly(np.array(eff, dtype=float)),
+    )
+
+
+def exact_threshold(
+    model: LinearModel,
+    freqs_hz: np.ndarray,
+    n_samples: int,
+    alpha: float = 1e-3,
+    correction: Correction = "bonferroni",
+    averaged: int = 1,
+    law: ThresholdLaw = "exact",
+) -> Threshold:
+    """Per-bin threshold from the exact finite-N law of each healthy periodogram bin.
+
+    ``law="exact"`` (default): the ``1 - a`` quantile of ``l1 Z1^2 + l2 Z2^2``
+    (:func:`weighted_chi2_isf`, eigenvalues from
+    :func:`chatterspec.detection.spectral.periodogram_eigenvalues`); for ``averaged = K > 1`` the
+    Welch-Satterthwaite approximation ``(c / K) chi2(nu_eff)`` (module docstring).
+    ``law="chi2"``: the approximation ``E[S(f)] chi2.ppf(1 - a, nu) / nu`` (Lemma 2).
+
+    Parameters
+    ----------
+    model : LinearModel
+        Nominal (full-measurement) model.
+    freqs_hz : (bins,) array
+        Periodogram frequencies (Hz) of an ``n_samples`` record.
+    n_samples : int
+        Record length N (for the exact finite-N expectation).
+    alpha : float
+        False-alarm probability in (0, 1): family-wise over the tested bins
+        (``correction`` "bonferroni" or "sidak") or per-bin (``"none"``).
+    correction : {"bonferroni", "sidak", "none"}
+    averaged : int
+        K independent periodograms averaged: ``nu = 2K`` (``K`` at DC/Nyquist).
+    law : {"exact", "chi2"}
+        Law of a healthy bin: exact weighted sum of two chi2(1) (default) or ``E chi2(nu) / nu``.
+
+    Returns
+    -------
+    Threshold
+        ``kind="exact"``; bins ``1 .. ceil(N/2) - 1`` tested.
+    """
+    alpha = open_unit("alpha", alpha)
+    averaged = positive_int("averaged", averaged)
+    law = _check_law(law)
+    freqs = finite_array("freqs_hz", freqs_hz, ndim=1)
+    E = expected_spectrum(model, freqs, n_samples, form="exact")
+    eigen = periodogram_eigenvalues(model, freqs, n_samples) if law == "exact" else None
+    return _chi2_threshold(E, freqs, model.dt, alpha, correction, averaged, "exact", "family-wise", eigen)
+
+
+def frame_threshold(
+    model: LinearModel,
+    freqs_hz: np.ndarray,
+    config: STFTConfig,
+    dt: float | None = None,
+    alpha: float = 1e-3,
+    correction: Correction = "bonferroni",
+    law: ThresholdLaw = "exact",
+) -> Threshold:
+    """Per-frame STFT threshold from the exact law of each healthy frame bin.
+
+    ``alpha`` is the probability that one healthy frame has any tested bin
+    (``1 .. W/2 - 1``) above the threshold (``alpha_meaning="per-frame"``);
+    with ``correction="none"`` it is per bin. ``law="exact"`` (default): the
+    quantile of ``l1 Z1^2 + l2 Z2^2`` with :func:`chatterspec.detection.spectral.frame_eigenvalues`.
+    ``law="chi2"``: :func:`chatterspec.detection.spectral.expected_frame_spectrum` times
+    ``chi2(2)/2`` (exact for white noise at bins >= 2, an approximation otherwise).
+
+    Parameters
+    ----------
+    model : LinearModel
+        Nominal (full-measurement) model.
+    freqs_hz : (bins,) array
+        Frame frequencies (Hz), :attr:`chatterspec.detection.spectral.Spectrogram.freqs_hz`.
+    config : STFTConfig
+        Window settings.
+    dt : float, optional
+        Sampling time (s); defaults to ``model.dt``.
+    alpha : float
+        Per-frame false-alarm probability in (0, 1).
+    correction : {"bonferroni", "sidak", "none"}
+        Family-wise control over the tested bins of one frame.
+    law : {"exact", "chi2"}
+        Law of a healthy frame bin (see above).
+    """
+    alpha = open_unit("alpha", alpha)
+    law = _check_law(law)
+    dt = model.dt if dt is None else positive("dt", dt, unit="s")
+    freqs = finite_array("freqs_hz", freqs_hz, ndim=1)
+    E = expected_frame_spectrum(model, freqs, config, dt)
+    eigen = frame_eigenvalues(model, freqs, config, dt) if law == "exact" else None
+    return _chi2_threshold(E, freqs, dt, alpha, correction, 1, "exact", "per-frame", eigen)
+
+
+def paper_gamma_matrix(model: LinearModel) -> np.ndarray:
+    """``Lambda`` of eq (58): ``M = -C A C^-1`` with ``m_ii +- 1`` on the diagonal.
+
+    The diagonal gets ``m_ii + 1`` where ``m_ii >= 0`` and ``m_ii - 1`` otherwise, so that
+    ``|e^{i w} delta_ij + m_ij| <= |lambda_ij|`` at every frequency (the paper's bound, eq 59).
+
+    Parameters
+    ----------
+    model : LinearModel
+        Nominal (full-measurement) model.
+    """
+    chattering_autocovariance(model)  # validates full measurement
+    M = -model.C @ model.A @ model.C_inv
+    L = M.copy()
+    d = np.diag(M)
+    L[np.diag_indices_from(L)] = np.where(d >= 0, d + 1.0, d - 1.0)
+    return L
+
+
+def paper_threshold(model: LinearModel, freqs_hz: np.ndarray, alpha: float = 1e-3) -> Threshold:
+    """The paper's flat threshold (eq 58-62): ``Sigma_Gamma_ii chi2.ppf(1 - alpha, 2) / 2``.
+
+    ``Sigma_Gamma = C Q C^T + Lambda R Lambda^T`` with ``Lambda`` from
+    :func:`paper_gamma_matrix`. ``alpha`` is a **per-bin** level (eq 57); the
+    threshold is the same at every bin, including DC (where it is not a valid
+    chi2(1) bound; DC is not tested anyway).
+
+    Parameters
+    ----------
+    model : LinearModel
+        Nominal (full-measurement) model.
+    freqs_hz : (bins,) array
+        Periodogram frequencies (Hz).
+    alpha : float
+        Per-bin false-alarm probability in (0, 1).
+    """
+    alpha = open_unit("alpha", alpha)
+    freqs = finite_array("freqs_hz", freqs_hz, ndim=1)
+    L = paper_gamma_matrix(model)
+    sigma = np.diag(model.C @ model.Q @ model.C.T + L @ model.R @ L.T)
+    is_dc, is_nyq = bin_layout(freqs, model.dt)
+    values = np.broadcast_to(sigma * scipy.stats.chi2.isf(alpha, 2) / 2.0, (freqs.size, sigma.size))
+    dof = np.where(is_dc | is_nyq, 1, 2)
+    return Threshold(
+        values=readonly(np.array(values)),
+        freqs_hz=readonly(np.array(freqs)),
+        kind="paper",
+        alpha=alpha,
+        alpha_meaning="per-bin",
+        correction="none",
+        tested=readonly(~(is_dc | is_nyq)),
+        dof=readonly(dof),
+        averaged=1,
+        per_test_alpha=alpha,
+        expected=None,
+        law="chi2",
+        effective_dof=readonly(np.broadcast_to(dof[:, None].astype(float), values.shape).copy()),
+    )
+
+
+def threshold(
+    kind: str,
+    model: LinearModel,
+    freqs_hz: np.ndarray,
+    *,
+    n_samples: int | None = None,
+    alpha: float = 1e-3,
+    correction: Correction = "bonferroni",
+    averaged: int = 1,
+    config: STFTConfig | None = None,
+    law: ThresholdLaw = "exact",
+) -> Threshold:
+    """Build a threshold by name: ``"exact"`` (default detector), ``"paper"`` or ``"frame"``.
+
+    Parameters
+    ----------
+    kind : {"exact", "paper", "frame"}
+        Threshold family (``"empirical"`` thresholds come from
+        :mod:`chatterspec.studies`).
+    model : LinearModel
+        Nominal (full-measurement) model.
+    freqs_hz : (bins,) array
+        Frequencies (Hz) of the spectra to test.
+    n_samples : int, optional
+        Record length N; required for ``"exact"``.
+    alpha : float
+        False-alarm probability in (0, 1).
+    correction : {"bonferroni", "sidak", "none"}
+        Ignored by ``"paper"`` (per-bin).
+    averaged : int
+        K averaged spectra (``"exact"`` only; ``"paper"`` requires 1).
+    config : STFTConfig, optional
+        Window settings for ``"frame"`` (default 1 s Hamming, 0.2 s hop).
+    law : {"exact", "chi2"}
+        Bin law for ``"exact"`` and ``"frame"`` (ignored by ``"paper"``).
+
+    Raises
+    ------
+    ParameterError
+        Unknown ``kind`` (the message lists the valid ones), missing argument, alpha outside (0, 1).
+    """
+    alpha = open_unit("alpha", alpha)
+    if kind == "exact":
+        if n_samples is None:
+            raise ParameterError('threshold("exact", ...) needs n_samples (the record length N)')
+        return exact_threshold(model, freqs_hz, n_samples, alpha, correction, averaged, law)
+    if kind == "paper":
+        if averaged != 1:
+            raise ParameterError('the "paper" threshold is for a single record; use "exact" with averaged=K')
+        return paper_threshold(model, freqs_hz, alpha)
+    if kind == "frame":
+        return frame_threshold(model, freqs_hz, config or STFTConfig(), None, alpha, correction, law)
+    raise ParameterError(f"unknown threshold kind {kind!r}; choose one of 'exact', 'paper', 'frame'")

@@ -1,0 +1,541 @@
+"""Online chattering monitor: chunks in, STFT columns, per-frame verdicts and detection events out.
+
+Pure numpy/scipy (no Rerun; :mod:`chatterspec.online` does the logging).
+
+The monitor advances the auxiliary ``sgn`` SVSF (whose a-priori output error is
+the chattering, eq 17) and, when a boundary layer ``psi`` is given, the
+smoothing ``sat`` SVSF (state estimate) with the single kernel
+:meth:`chatterspec.filters.svsf.SVSF.update`, the same call the batch path
+(:func:`chatterspec.detection.pipeline.chattering_record`) makes. Measurements may arrive
+in chunks of any size (one sample to millions); the chattering goes into a
+bounded buffer holding at most one STFT window (``W`` samples) plus the chunk
+being analysed, and every complete frame is turned into one column by
+:func:`chatterspec.detection.spectral.frame_columns` on the global frame grid, so the
+columns and verdicts equal those of :func:`chatterspec.detection.spectral.spectrogram` on
+the whole record whatever the chunking.
+
+Sample alignment matches :class:`chatterspec.detection.pipeline.ChatteringRecord`: the
+first measurement ``z(0)`` initializes the filters; chattering sample ``j`` is
+``e(j+1|j)`` at time ``t0 + (j + 1) dt``; frame ``j`` covers chattering samples
+``[j H, j H + W)`` and is time-stamped at its centre.
+
+Events: for each channel a ``fault-start`` is raised at the centre time of the
+first flagged frame after an unflagged one (or the first frame), a
+``fault-end`` at the centre time of the first unflagged frame after a flagged
+run. No debouncing: every frame verdict is a test at the per-frame level alpha.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from .._validate import finite_array, open_unit, positive_int
+from ..detection.spectral import STFTConfig, frame_columns
+from ..detection.thresholds import Threshold, frame_threshold
+from ..errors import ParameterError, ShapeError
+from ..filters.svsf import SVSF, SVSFState, auxiliary_svsf
+from ..plants.models import LinearModel
+
+__all__ = [
+    "ChatteringMonitor",
+    "DetectionEvent",
+    "FrameBlock",
+    "MonitorSettings",
+    "MonitorUpdate",
+    "frame_verdicts",
+]
+
+EventKind = Literal["fault-start", "fault-end"]
+
+
+@dataclass(frozen=True)
+class MonitorSettings:
+    """Detector settings of the online monitor.
+
+    Parameters
+    ----------
+    stft : STFTConfig
+        Window and hop (default 1 s Hamming, 0.2 s hop).
+    alpha : float
+        Per-frame false-alarm probability (0 < alpha < 1).
+    correction : {"bonferroni", "sidak", "none"}
+        Family-wise correction over the tested bins of a frame.
+    gamma : float
+        SVSF convergence rate (both filters).
+    psi : tuple of float, optional
+        Smoothing boundary layer per output. When given, the ``sat`` SVSF runs
+        too (its estimate is reported and the boundary drawn next to the
+        chattering); ``None`` runs only the auxiliary filter.
+    threshold : Threshold, optional
+        Per-frame threshold to use instead of the analytic
+        :func:`~chatterspec.detection.thresholds.frame_threshold`, e.g. the empirical one of
+        a saved calibration, ``load_calibration(...).threshold("frame-family-wise")``
+        (then ``alpha`` and ``correction`` are ignored). It must cover the STFT
+        frequencies of ``stft``.
+    """
+
+    stft: STFTConfig = field(default_factory=STFTConfig)
+    alpha: float = 1e-3
+    correction: Literal["none", "bonferroni", "sidak"] = "bonferroni"
+    gamma: float = 0.1
+    psi: tuple[float, ...] | None = None
+    threshold: Threshold | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.stft, STFTConfig):
+            raise ParameterError(f"stft must be an STFTConfig; got {type(self.stft).__name__}")
+        object.__setattr__(self, "alpha", open_unit("alpha", self.alpha))
+        object.__setattr__(self, "gamma", open_unit("gamma", self.gamma))
+        if self.correction not in ("none", "bonferroni", "sidak"):
+            raise ParameterError(
+                f"correction must be 'none', 'bonferroni' or 'sidak'; got {self.correction!r}"
+            )
+        if self.threshold is not None and not isinstance(self.threshold, Threshold):
+            raise ParameterError(f"threshold must be a Threshold; got {type(self.threshold).__name__}")
+        if self.psi is not None:
+            psi = tuple(float(p) for p in np.atleast_1d(finite_array("psi", self.psi, ndim=(0, 1))))
+            if any(p <= 0 for p in psi):
+                raise ParameterError(f"psi must be > 0; got {list(psi)}")
+            object.__setattr__(self, "psi", psi)
+
+
+@dataclass(frozen=True)
+class DetectionEvent:
+    """A change of a channel's verdict.
+
+    Attributes
+    ----------
+    kind : {"fault-start", "fault-end"}
+    channel : str
+    channel_index : int
+    time_s : float
+        Centre time of the frame where the verdict changed (s).
+    frame : int
+        Global frame number.
+    peak_hz : float
+        ``fault-start``: frequency of the largest ``S / threshold`` in that frame;
+        ``fault-end``: of the largest ratio seen during the fault.
+    peak_ratio : float
+        The corresponding ``S / threshold`` (> 1 means above threshold).
+    estimate_s : float
+        Onset / offset estimate of :func:`chatterspec.detection.detect.frame_intervals`:
+        half a hop before ``time_s`` (the start of frame 0's window when the
+        very first frame is flagged).
+    """
+
+    kind: EventKind
+    channel: str
+    channel_index: int
+    time_s: float
+    frame: int
+    peak_hz: float
+    peak_ratio: float
+    estimate_s: float = float("nan")
+
+    def describe(self) -> str:
+        what = "fault start" if self.kind == "fault-start" else "fault end"
+        peak = "peak" if self.kind == "fault-start" else "largest peak during the fault"
+        return (
+            f"{what} on {self.channel} at t = {self.time_s:.2f} s (estimated {self.estimate_s:.2f} s) "
+            f"({peak} {self.peak_ratio:.2f} x threshold at {self.peak_hz:.1f} Hz)"
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class FrameBlock:
+    """STFT frames completed by one push.
+
+    Attributes
+    ----------
+    index : (F,) int array
+        Global frame numbers.
+    times_s : (F,) array
+        Frame-centre times (s).
+    power : (F, bins, m) array
+        Frame spectra (columns of :func:`chatterspec.detection.spectral.spectrogram`).
+    flags : (F, m) bool array
+        Per-frame, per-channel verdict (any tested bin above the threshold).
+    peak_hz, peak_ratio : (F, m) arrays
+        Frequency and value of the largest ``S / threshold`` over the tested bins.
+    """
+
+    index: np.ndarray
+    times_s: np.ndarray
+    power: np.ndarray
+    flags: np.ndarray
+    peak_hz: np.ndarray
+    peak_ratio: np.ndarray
+
+    @property
+    def n_frames(self) -> int:
+        return self.index.shape[0]
+
+
+@dataclass(frozen=True, eq=False)
+class MonitorUpdate:
+    """What one :meth:`ChatteringMonitor.push` produced.
+
+    Attributes
+    ----------
+    t : (K,) array
+        Times of the new chattering samples (s).
+    chattering : (K, m) array
+        ``e(k|k-1)`` of the auxiliary filter.
+    measured : (K, m) array or None
+        The measurements at those times (raw pushes only).
+    estimate : (K, m) array or None
+        ``C x(k|k)`` of the ``sat`` SVSF (when ``psi`` is set and raw data pushed).
+    frames : FrameBlock
+    events : tuple of DetectionEvent
+    """
+
+    t: np.ndarray
+    chattering: np.ndarray
+    measured: np.ndarray | None
+    estimate: np.ndarray | None
+    frames: FrameBlock
+    events: tuple[DetectionEvent, ...]
+
+
+def frame_verdicts(power: np.ndarray, threshold: Threshold) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-frame verdicts from frame spectra.
+
+    Parameters
+    ----------
+    power : (..., F, bins, m) array
+        Frame spectra (see :func:`chatterspec.detection.spectral.frame_columns`).
+    threshold : Threshold
+        Per-frame threshold (:func:`chatterspec.detection.thresholds.frame_threshold`).
+
+    Returns
+    -------
+    (flags, peak_hz, peak_ratio)
+        Each ``(..., F, m)``: a frame is flagged on a channel when any tested bin
+        exceeds the threshold, i.e. when the largest ``S / threshold`` over the
+        tested bins is > 1; ``peak_hz`` is that bin's frequency (Hz).
+    """
+    power = threshold.check_spectrum(power)
+    return _Verdicts(threshold)(power)
+
+
+class _Verdicts:
+    """:func:`frame_verdicts` with the tested bins and their threshold precomputed (per-push cost)."""
+
+    def __init__(self, threshold: Threshold) -> None:
+        tested = np.flatnonzero(threshold.tested)
+        contiguous = tested.size > 0 and bool(np.all(np.diff(tested) == 1))
+        # a slice is a view (no copy of the spectra); fancy indexing otherwise
+        self.sel: slice | np.ndarray = slice(int(tested[0]), int(tested[-1]) + 1) if contiguous else tested
+        self.values = np.ascontiguousarray(threshold.values[tested])
+        self.freqs = threshold.freqs_hz[tested]
+
+    def __call__(self, power: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        p = power[..., self.sel, :]
+        ratio = p / self.values
+        k = np.argmax(ratio, axis=-2)
+        peak_ratio = np.take_along_axis(ratio, k[..., None, :], axis=-2)[..., 0, :]
+        flags = np.any(p > self.values, axis=-2)
+        return flags, self.freqs[k], peak_ratio
+
+
+class ChatteringMonitor:
+    """Streaming SVSF chattering detector with bounded memory.
+
+    Parameters
+    ----------
+    model : LinearModel
+        Nominal model (full measurement: the frame threshold needs it).
+    settings : MonitorSettings, optional
+    t0 : float
+        Time (s) of the first measurement pushed with :meth:`push`, or of the
+        first chattering sample pushed with :meth:`push_chattering`.
+
+    Examples
+    --------
+    >>> import chatterspec as cs
+    >>> from chatterspec.online.monitor import ChatteringMonitor
+    >>> sim = cs.simulate(cs.scenario("eha-leak-major"), runs=1, seed=1)
+    >>> mon = ChatteringMonitor(sim.scenario.nominal)
+    >>> for k in range(0, sim.z.shape[1], 250):
+    ...     upd = mon.push(sim.z[0, k : k + 250], sim.u[k : k + 250])
+    >>> mon.n_frames
+    16
+    """
+
+    def __init__(
+        self, model: LinearModel, settings: MonitorSettings | None = None, *, t0: float = 0.0
+    ) -> None:
+        if not isinstance(model, LinearModel):
+            raise TypeError(f"model must be a LinearModel; got {type(model).__name__}")
+        self.model = model
+        self.settings = settings or MonitorSettings()
+        s = self.settings
+        self.dt = model.dt
+        self.t0 = float(t0)
+        self.n_window = s.stft.n_window(self.dt)
+        self.n_hop = s.stft.n_hop(self.dt)
+        self.freqs_hz = s.stft.freqs_hz(self.dt)
+        if s.threshold is None:
+            self.threshold = frame_threshold(model, self.freqs_hz, s.stft, self.dt, s.alpha, s.correction)
+        else:
+            th = s.threshold
+            if th.values.shape != (self.freqs_hz.size, model.n_outputs) or not np.allclose(
+                th.freqs_hz, self.freqs_hz
+            ):
+                raise ShapeError(
+                    f"the given per-frame threshold has shape {th.values.shape} at other frequencies than "
+                    f"this monitor's frames ({self.freqs_hz.size} bins x {model.n_outputs} channels): it "
+                    "was made for another STFT window or model"
+                )
+            self.threshold = th
+        self._aux = auxiliary_svsf(model, s.gamma)
+        self._sat = None if s.psi is None else SVSF(model, psi=np.asarray(s.psi), gamma=s.gamma)
+        self._aux_state: SVSFState | None = None
+        self._sat_state: SVSFState | None = None
+        self._pending_u: np.ndarray | None = None
+        self._mode: str | None = None  # "raw" or "chattering"
+        self._n_meas = 0  # measurements pushed (raw mode)
+        self._n_chat = 0  # chattering samples produced / pushed
+        self._t_chat0: float | None = None  # time of chattering sample 0
+        m = model.n_outputs
+        # chattering samples from the next frame's start on (< W rows); room for one more hop so
+        # that small pushes append in place instead of re-concatenating the window every time
+        self._buf = np.empty((self.n_window + self.n_hop, m))
+        self._n_buf = 0
+        self._verdicts = _Verdicts(self.threshold)
+        self._no_frames = self._empty_frames()
+        self._n_frames = 0
+        self._active = np.zeros(m, dtype=bool)
+        self._fault_peak = np.zeros(m)
+        self._fault_peak_hz = np.zeros(m)
+        self.n_events = 0
+
+    # ------------------------------------------------------------- properties
+    @property
+    def channels(self) -> tuple[str, ...]:
+        return self.model.output_names
+
+    @property
+    def n_frames(self) -> int:
+        """Frames emitted so far."""
+        return self._n_frames
+
+    @property
+    def n_samples(self) -> int:
+        """Chattering samples processed so far."""
+        return self._n_chat
+
+    @property
+    def active(self) -> np.ndarray:
+        """Per channel, whether a fault is currently flagged (copy)."""
+        return self._active.copy()
+
+    @property
+    def buffered_samples(self) -> int:
+        """Chattering samples held between pushes (always < one window)."""
+        return self._n_buf
+
+    def frame_time(self, index: np.ndarray | int) -> np.ndarray:
+        """Centre time (s) of global frame(s) ``index``."""
+        t_first = self._chatter_time0()
+        return t_first + (np.asarray(index) * self.n_hop + (self.n_window - 1) / 2.0) * self.dt
+
+    def _chatter_time0(self) -> float:
+        if self._t_chat0 is not None:
+            return self._t_chat0
+        return self.t0 + (self.dt if self._mode != "chattering" else 0.0)
+
+    # ------------------------------------------------------------------ input
+    def push(self, z: np.ndarray, u: np.ndarray) -> MonitorUpdate:
+        """Feed measurements ``z`` (K, m) and inputs ``u`` (K, p) sampled at the same times.
+
+        ``u(k)`` is the input applied after ``z(k)`` was measured (it drives
+        x(k) -> x(k+1)). A 1-D ``z`` is one sample; a 1-D ``u`` is one sample
+        when ``p > 1`` or ``K == 1``, otherwise one input channel.
+
+        Raises
+        ------
+        ShapeError, NonFiniteError
+            On wrong shapes or NaN/inf samples (nothing is consumed then).
+        """
+        self._set_mode("raw")
+        m, p = self.model.n_outputs, self.model.n_inputs
+        z = finite_array("z", z, ndim=(1, 2))
+        if z.ndim == 1:
+            z = z[None, :]
+        if z.shape[1] != m:
+            raise ShapeError(f"z must have {m} channel(s) {list(self.channels)}; got shape {z.shape}")
+        K = z.shape[0]
+        u = finite_array("u", u, ndim=(1, 2))
+        if u.ndim == 1:
+            u = u[None, :] if (p > 1 or K == 1) and u.shape[0] == p else u[:, None]
+        if u.shape != (K, p):
+            raise ShapeError(f"u must have shape ({K}, {p}) to match z; got {u.shape}")
+        if K == 0:
+            return self._empty_update(raw=True)
+        if self._aux_state is None:
+            self._aux_state = self._aux.initialize(z[:1])
+            if self._sat is not None:
+                self._sat_state = self._sat.initialize(z[:1])
+            self._pending_u = u[0]
+            self._n_meas = 1
+            z, u = z[1:], u[1:]
+            K -= 1
+            if K == 0:
+                return self._empty_update(raw=True)
+        u_used = np.empty((K, p))
+        u_used[0] = self._pending_u
+        u_used[1:] = u[:-1]
+        self._pending_u = u[-1].copy()
+        self._aux_state, out = self._aux.update(self._aux_state, z[None], u_used, check=False)
+        e = out.e_prior[0]
+        estimate = None
+        if self._sat is not None:
+            self._sat_state, sat_out = self._sat.update(
+                self._sat_state, z[None], u_used, store_states=True, check=False
+            )
+            estimate = sat_out.x_post[0] @ self.model.C.T
+        t = self.t0 + (self._n_meas + np.arange(K)) * self.dt
+        self._n_meas += K
+        return self._analyse(e, t, measured=z, estimate=estimate)
+
+    def push_chattering(self, e: np.ndarray) -> MonitorUpdate:
+        """Feed precomputed chattering samples ``e`` (K, m) (e.g. a :class:`ChatteringRecord`'s values).
+
+        The first sample is at ``t0``; do not mix with :meth:`push` on one monitor.
+        """
+        self._set_mode("chattering")
+        m = self.model.n_outputs
+        e = finite_array("e", e, ndim=(1, 2))
+        if e.ndim == 1:
+            e = e[None, :]
+        if e.shape[1] != m:
+            raise ShapeError(f"chattering must have {m} channel(s); got shape {e.shape}")
+        if e.shape[0] == 0:
+            return self._empty_update(raw=False)
+        t = self._chatter_time0() + (self._n_chat + np.arange(e.shape[0])) * self.dt
+        return self._analyse(e, t, measured=None, estimate=None)
+
+    def stream(
+        self, z: np.ndarray, u: np.ndarray, chunk_samples: int | np.ndarray = 1000
+    ) -> Iterator[MonitorUpdate]:
+        """Push ``z`` (T, m) / ``u`` (T, p) in chunks; ``chunk_samples`` is a size or a sequence of sizes."""
+        z = np.asarray(z, dtype=float)
+        u = np.asarray(u, dtype=float)
+        if u.ndim == 1:
+            u = u[:, None]
+        T = z.shape[0]
+        if np.ndim(chunk_samples) == 0:
+            size = positive_int("chunk_samples", int(chunk_samples))
+            bounds = [*list(range(0, T, size)), T]
+        else:
+            bounds = [0, *np.cumsum(np.asarray(chunk_samples, dtype=int)).tolist()]
+            bounds = [b for b in bounds if b < T] + [T]
+        for lo, hi in itertools.pairwise(bounds):
+            yield self.push(z[lo:hi], u[lo:hi])
+
+    # --------------------------------------------------------------- internals
+    def _set_mode(self, mode: str) -> None:
+        if self._mode is None:
+            self._mode = mode
+            if mode == "chattering":
+                self._t_chat0 = self.t0
+            else:
+                self._t_chat0 = self.t0 + self.dt
+        elif self._mode != mode:
+            raise ParameterError(
+                "this monitor was fed with "
+                + ("raw measurements (push)" if self._mode == "raw" else "chattering (push_chattering)")
+                + "; use one kind of input per monitor"
+            )
+
+    def _empty_frames(self) -> FrameBlock:
+        m, bins = self.model.n_outputs, self.freqs_hz.shape[0]
+        return FrameBlock(
+            index=np.zeros(0, dtype=int),
+            times_s=np.zeros(0),
+            power=np.zeros((0, bins, m)),
+            flags=np.zeros((0, m), dtype=bool),
+            peak_hz=np.zeros((0, m)),
+            peak_ratio=np.zeros((0, m)),
+        )
+
+    def _empty_update(self, raw: bool) -> MonitorUpdate:
+        m = self.model.n_outputs
+        return MonitorUpdate(
+            t=np.zeros(0),
+            chattering=np.zeros((0, m)),
+            measured=np.zeros((0, m)) if raw else None,
+            estimate=np.zeros((0, m)) if (raw and self._sat is not None) else None,
+            frames=self._empty_frames(),
+            events=(),
+        )
+
+    def _analyse(
+        self, e: np.ndarray, t: np.ndarray, *, measured: np.ndarray | None, estimate: np.ndarray | None
+    ) -> MonitorUpdate:
+        W, H = self.n_window, self.n_hop
+        K, nb = e.shape[0], self._n_buf
+        self._n_chat += K
+        buf_start = self._n_frames * H  # global index of self._buf[0]
+        n = nb + K
+        if n < W:  # the next frame (samples buf_start .. buf_start + W) is not complete yet
+            self._buf[nb:n] = e
+            self._n_buf = n
+            return MonitorUpdate(t, e, measured, estimate, self._no_frames, ())
+        if nb == 0:
+            data = e
+        elif n <= self._buf.shape[0]:
+            self._buf[nb:n] = e
+            data = self._buf[:n]
+        else:
+            data = np.concatenate([self._buf[:nb], e])
+        idx, power = frame_columns(data, self.dt, self.settings.stft, buf_start)
+        self._n_frames = int(idx[-1]) + 1
+        keep = data[self._n_frames * H - buf_start :]  # < W samples: the next frame's start on
+        self._buf[: keep.shape[0]] = keep  # numpy copes with the overlap when data is self._buf
+        self._n_buf = keep.shape[0]
+        flags, peak_hz, peak_ratio = self._verdicts(power)
+        times = self.frame_time(idx)
+        frames = FrameBlock(idx, times, power, flags, peak_hz, peak_ratio)
+        events = self._events(frames)
+        return MonitorUpdate(t, e, measured, estimate, frames, events)
+
+    def _events(self, fr: FrameBlock) -> tuple[DetectionEvent, ...]:
+        events: list[DetectionEvent] = []
+        for c in range(fr.flags.shape[1]):
+            col = fr.flags[:, c]
+            if not self._active[c] and not col.any():
+                continue
+            for f in range(col.shape[0]):
+                if col[f]:
+                    ratio = float(fr.peak_ratio[f, c])
+                    if not self._active[c]:
+                        self._active[c] = True
+                        self._fault_peak[c], self._fault_peak_hz[c] = ratio, float(fr.peak_hz[f, c])
+                        events.append(self._event("fault-start", c, fr, f, fr.peak_hz[f, c], ratio))
+                    elif ratio > self._fault_peak[c]:
+                        self._fault_peak[c], self._fault_peak_hz[c] = ratio, float(fr.peak_hz[f, c])
+                elif self._active[c]:
+                    self._active[c] = False
+                    events.append(
+                        self._event("fault-end", c, fr, f, self._fault_peak_hz[c], self._fault_peak[c])
+                    )
+        events.sort(key=lambda ev: (ev.frame, ev.channel_index))
+        self.n_events += len(events)
+        return tuple(events)
+
+    def _event(
+        self, kind: EventKind, c: int, fr: FrameBlock, f: int, peak_hz: float, peak_ratio: float
+    ) -> DetectionEvent:
+        t = float(fr.times_s[f])
+        j = int(fr.index[f])
+        back = (self.n_window - 1) / 2.0 if j == 0 else self.n_hop / 2.0
+        return DetectionEvent(
+            kind, self.channels[c], c, t, j, float(peak_hz), float(peak_ratio), t - back * self.dt
+        )

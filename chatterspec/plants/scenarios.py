@@ -1,0 +1,355 @@
+"""Scenarios: a nominal model for the filters, a time-segmented true plant, an input and a duration.
+
+The named catalogue of ``DESIGN.md`` section 4 (23 entries) is reachable as
+:func:`scenario` and listed by ``chatterspec scenarios``. The names are part of
+the CLI contract.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._validate import finite_array, positive, readonly
+from ..errors import ParameterError, UnknownScenarioError
+from .models import EHA_PARAMETERS, LinearModel, eha_linear, second_order
+from .signals import Chirp, Constant, Signal, Step
+
+__all__ = ["Scenario", "Segment", "catalogue", "scenario", "scenario_names"]
+
+
+@dataclass(frozen=True, eq=False)
+class Segment:
+    """The true plant on the half-open time window ``[start, stop)`` (seconds).
+
+    Attributes
+    ----------
+    start : float
+        Window start in seconds (finite, >= 0); samples with ``t >= start`` belong to it.
+    stop : float
+        Window end in seconds (finite, > ``start``); samples with ``t < stop`` belong to it.
+    model : LinearModel
+        The true plant simulated inside the window (e.g. a faulty EHA or a
+        mismatched second-order system); the filters keep using the nominal model.
+    label : str
+        Human-readable description of the window (e.g. ``"w0 = 8 Hz"``), used in
+        listings and plot annotations; empty by default.
+    """
+
+    start: float
+    stop: float
+    model: LinearModel
+    label: str = ""
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.start) and np.isfinite(self.stop)) or not self.stop > self.start:
+            raise ParameterError(f"segment needs start < stop; got [{self.start}, {self.stop})")
+        if self.start < 0:
+            raise ParameterError(f"segment start must be >= 0 s; got {self.start}")
+
+
+@dataclass(frozen=True, eq=False)
+class Scenario:
+    """A simulation scenario.
+
+    Parameters
+    ----------
+    name : str
+        Catalogue name (e.g. ``"eha-leak-major"``).
+    nominal : LinearModel
+        The model the filters use (A-hat, B-hat, C-hat of eq 3).
+    input : Signal
+        Input u(t).
+    duration : float
+        Record length in seconds; the simulation has ``round(duration/dt) + 1``
+        samples at ``t = 0, dt, ..., duration``.
+    plant : LinearModel, optional
+        The true plant outside the fault windows (default: the nominal model).
+    windows : tuple of Segment
+        Time windows in which the true plant differs (non-overlapping).
+    description, family, fault, level : str
+        Metadata for listings; ``fault_channel`` names the output on which the
+        fault shows (DESIGN.md section 4, from eq 68-70).
+    x0 : array, optional
+        Initial true state (default zeros).
+    psi : tuple of float, optional
+        Smoothing boundary layer for the SVSF on this scenario (per sat channel);
+        ``None`` lets :mod:`chatterspec.filters.boundary_layer` derive it from statistics.
+    """
+
+    name: str
+    nominal: LinearModel
+    input: Signal
+    duration: float
+    plant: LinearModel | None = None
+    windows: tuple[Segment, ...] = ()
+    description: str = ""
+    family: str = ""
+    fault: str = "healthy"
+    level: str = ""
+    fault_channel: str | None = None
+    x0: np.ndarray | None = None
+    psi: tuple[float, ...] | None = None
+    _segments: tuple[Segment, ...] = field(default=(), init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        duration = positive("duration", self.duration, unit="s")
+        object.__setattr__(self, "duration", duration)
+        plant = self.plant if self.plant is not None else self.nominal
+        object.__setattr__(self, "plant", plant)
+        models = [plant, *(w.model for w in self.windows)]
+        for m in models:
+            if (m.n_states, m.n_outputs, m.n_inputs) != (
+                self.nominal.n_states,
+                self.nominal.n_outputs,
+                self.nominal.n_inputs,
+            ) or m.dt != self.nominal.dt:
+                raise ParameterError(
+                    f"scenario {self.name!r}: every true-plant model must have the nominal "
+                    "model's dimensions and dt"
+                )
+        windows = tuple(sorted(self.windows, key=lambda w: w.start))
+        for a, b in itertools.pairwise(windows):
+            if b.start < a.stop:
+                raise ParameterError(f"scenario {self.name!r}: fault windows overlap")
+        object.__setattr__(self, "windows", windows)
+        x0 = np.zeros(self.nominal.n_states) if self.x0 is None else self.x0
+        x0 = finite_array("x0", x0, shape=(self.nominal.n_states,))
+        object.__setattr__(self, "x0", readonly(x0))
+        # full partition of [0, duration)
+        segs: list[Segment] = []
+        t = 0.0
+        for w in windows:
+            if w.start >= duration:
+                break
+            if w.start > t:
+                segs.append(Segment(t, w.start, plant, "nominal plant"))
+            segs.append(Segment(w.start, min(w.stop, duration), w.model, w.label))
+            t = min(w.stop, duration)
+        if t < duration:
+            segs.append(Segment(t, duration, plant, "nominal plant" if plant is self.nominal else self.fault))
+        object.__setattr__(self, "_segments", tuple(segs))
+
+    @property
+    def dt(self) -> float:
+        return self.nominal.dt
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples ``T = round(duration / dt) + 1``."""
+        return round(self.duration / self.dt) + 1
+
+    @property
+    def time(self) -> np.ndarray:
+        return np.arange(self.n_samples) * self.dt
+
+    @property
+    def segments(self) -> tuple[Segment, ...]:
+        """The true plant as a partition of ``[0, duration)`` into segments."""
+        return self._segments
+
+    def segment_index(self, t: np.ndarray | None = None) -> np.ndarray:
+        """Index into :attr:`segments` of the true model that advances x(k) -> x(k+1) at each time."""
+        t = self.time if t is None else np.asarray(t, dtype=float)
+        starts = np.array([s.start for s in self.segments])
+        return np.clip(np.searchsorted(starts, t + 1e-9 * self.dt, side="right") - 1, 0, None)
+
+    @property
+    def fault_intervals(self) -> tuple[tuple[float, float], ...]:
+        """Time windows (s) in which the true plant differs from the nominal model."""
+        return tuple((s.start, s.stop) for s in self.segments if self.deviates(s))
+
+    def deviates(self, segment: Segment) -> bool:
+        """True where ``segment``'s true plant differs from the nominal model (A, B or C).
+
+        Parameters
+        ----------
+        segment : Segment
+            One of :attr:`segments`.
+        """
+        return not _same_model(segment.model, self.nominal)
+
+    @property
+    def is_healthy(self) -> bool:
+        return not self.fault_intervals
+
+    def describe(self) -> dict[str, object]:
+        """JSON-ready summary (used by ``chatterspec scenarios --json``)."""
+        return {
+            "name": self.name,
+            "description": self.description,
+            "plant": self.family,
+            "fault": self.fault,
+            "level": self.level,
+            "fault_channel": self.fault_channel,
+            "duration_s": self.duration,
+            "dt_s": self.dt,
+            "input": self.input.describe(),
+            "nominal": _mode_dict(self.nominal),
+            "segments": [
+                {
+                    "start_s": s.start,
+                    "stop_s": s.stop,
+                    "label": s.label,
+                    "matches_nominal": not self.deviates(s),
+                    **_mode_dict(s.model),
+                }
+                for s in self.segments
+            ],
+        }
+
+
+def _mode_dict(model: LinearModel) -> dict[str, float | None]:
+    return {"natural_frequency_hz": model.natural_frequency_hz, "damping_ratio": model.damping_ratio}
+
+
+def _same_model(a: LinearModel, b: LinearModel) -> bool:
+    return a is b or (np.array_equal(a.A, b.A) and np.array_equal(a.B, b.B) and np.array_equal(a.C, b.C))
+
+
+# --------------------------------------------------------------------------- catalogue
+_SO_Q = np.diag([1e-8, 1e-6])
+_SO_R_LOW = np.diag([1e-8, 1e-6])
+_SO_R_HIGH = np.diag([1e-6, 1e-4])
+_EHA_CHIRP = Chirp(10.0, 100.0, 4.0, 300.0)
+
+
+def _so_spectral(name: str, f_true: float | None, noise: str) -> Scenario:
+    R = _SO_R_LOW if noise == "low" else _SO_R_HIGH
+    nominal = second_order(10.0, 0.1, Q=_SO_Q, R=R)
+    plant = None if f_true is None else second_order(f_true, 0.1, Q=_SO_Q, R=R)
+    return Scenario(
+        name=name,
+        nominal=nominal,
+        plant=plant,
+        input=Step(0.0),
+        duration=4.0,
+        description=(
+            f"2nd-order f0 10 Hz zeta 0.1, {noise} noise, "
+            + ("healthy" if f_true is None else f"true f0 {f_true:g} Hz")
+        ),
+        family="second-order",
+        fault="healthy" if f_true is None else "natural-frequency",
+        level=f"{noise} noise" if f_true is None else f"{f_true:g} Hz, {noise} noise",
+        fault_channel=None if f_true is None else "velocity",
+    )
+
+
+def _so_timeline(name: str, signal: Signal) -> Scenario:
+    Q, R = _SO_Q, _SO_R_HIGH
+    nominal = second_order(5.0, 0.0, Q=Q, R=R)
+    return Scenario(
+        name=name,
+        nominal=nominal,
+        input=signal,
+        duration=8.0,
+        windows=(
+            Segment(0.0, 2.0, second_order(8.0, 0.0, Q=Q, R=R), "f0 = 8 Hz"),
+            Segment(4.0, 6.0, second_order(5.0, 0.1, Q=Q, R=R), "zeta = 0.1"),
+        ),
+        description=f"2nd-order f0 5 Hz zeta 0; f0 8 Hz on [0,2) s, zeta 0.1 on [4,6) s; {signal.describe()}",
+        family="second-order",
+        fault="timeline",
+        level="f0 8 Hz then zeta 0.1",
+        fault_channel="velocity",
+    )
+
+
+def _so_boundary_layer() -> Scenario:
+    Q = np.diag([1e-10, 1e-8])
+    R = np.array([[1e-8]])
+    kw = {"measure": "position", "Q": Q, "R": R}
+    nominal = second_order(2.0, 0.0, **kw)
+    return Scenario(
+        name="so-boundary-layer",
+        nominal=nominal,
+        input=Step(0.0),
+        duration=5.0,
+        windows=(
+            Segment(1.0, 2.0, second_order(3.0, 0.0, **kw), "f0 = 3 Hz"),
+            Segment(3.0, 4.0, second_order(2.0, 0.1, **kw), "zeta = 0.1"),
+        ),
+        description="2nd-order f0 2 Hz zeta 0, x1 measured; f0 3 Hz on [1,2) s, zeta 0.1 on [3,4) s (Fig 2)",
+        family="second-order",
+        fault="boundary-layer",
+        level="f0 3 Hz then zeta 0.1",
+        fault_channel="position",
+    )
+
+
+def _eha(name: str, fault: str, level: str, channel: str | None, **params: float) -> Scenario:
+    nominal = eha_linear()
+    plant = eha_linear(**params) if params else None
+    what = ", ".join(f"{k} = {v:.3g}" for k, v in params.items()) or "healthy"
+    return Scenario(
+        name=name,
+        nominal=nominal,
+        plant=plant,
+        input=_EHA_CHIRP,
+        duration=4.0,
+        description=f"linear EHA, {what}; chirp 10-100 Hz, 300 rad/s",
+        family="eha",
+        fault=fault,
+        level=level,
+        fault_channel=channel,
+    )
+
+
+def _build_catalogue() -> dict[str, Callable[[], Scenario]]:
+    cat: dict[str, Callable[[], Scenario]] = {}
+    for noise in ("low", "high"):
+        cat[f"so-healthy-{noise}"] = lambda n=noise: _so_spectral(f"so-healthy-{n}", None, n)
+    for noise in ("low", "high"):
+        for f in (9, 11, 12, 15):
+            cat[f"so-f{f}-{noise}"] = lambda f=f, n=noise: _so_spectral(f"so-f{f}-{n}", float(f), n)
+    cat["so-timeline-constant"] = lambda: _so_timeline("so-timeline-constant", Constant(1.0))
+    cat["so-timeline-step"] = lambda: _so_timeline("so-timeline-step", Step(5.0))
+    cat["so-boundary-layer"] = _so_boundary_layer
+    cat["eha-healthy"] = lambda: _eha("eha-healthy", "healthy", "", None)
+    for level, L in (("minor", 3e-11), ("medium", 6e-11), ("major", 9e-11)):
+        cat[f"eha-leak-{level}"] = lambda lv=level, L=L: _eha(
+            f"eha-leak-{lv}", "leakage", lv, "pressure", leakage=L
+        )
+    for level, a in (("minor", 4000.0), ("major", 7000.0)):
+        cat[f"eha-friction-{level}"] = lambda lv=level, a=a: _eha(
+            f"eha-friction-{lv}", "friction", lv, "velocity", friction=a
+        )
+    be = EHA_PARAMETERS["bulk_modulus"]
+    for level, factor in (("50down", 0.5), ("25down", 0.75), ("25up", 1.25), ("50up", 1.5)):
+        cat[f"eha-bulk-{level}"] = lambda lv=level, fac=factor: _eha(
+            f"eha-bulk-{lv}", "bulk-modulus", lv, "pressure", bulk_modulus=be * fac
+        )
+    return cat
+
+
+_CATALOGUE = _build_catalogue()
+
+
+def scenario_names() -> tuple[str, ...]:
+    """Names of every catalogue scenario, in catalogue order."""
+    return tuple(_CATALOGUE)
+
+
+def scenario(name: str) -> Scenario:
+    """Build the catalogue scenario ``name``.
+
+    Raises
+    ------
+    UnknownScenarioError
+        If ``name`` is not in the catalogue; the message lists the valid names.
+    """
+    try:
+        builder = _CATALOGUE[name]
+    except (KeyError, TypeError):
+        raise UnknownScenarioError(
+            f"unknown scenario {name!r}; valid names: {', '.join(_CATALOGUE)}"
+        ) from None
+    return builder()
+
+
+def catalogue() -> dict[str, Scenario]:
+    """Every catalogue scenario, built, keyed by name."""
+    return {name: build() for name, build in _CATALOGUE.items()}

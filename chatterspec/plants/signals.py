@@ -1,0 +1,139 @@
+"""Input signals u(t) for the scenarios.
+
+Each signal is a frozen dataclass with a ``sample(t)`` method that maps a
+time vector in seconds of shape ``(T,)`` to input values of shape ``(T,)``
+(single-input plants; stack several signals for more inputs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+import scipy.signal
+
+from .._validate import finite_array, nonnegative, positive
+
+__all__ = ["Chirp", "Constant", "Signal", "SquareWave", "Step"]
+
+
+@runtime_checkable
+class Signal(Protocol):
+    """Anything with ``sample(t) -> ndarray`` and a ``describe()`` string."""
+
+    def sample(self, t: np.ndarray) -> np.ndarray: ...
+
+    def describe(self) -> str: ...
+
+
+def _times(t: object) -> np.ndarray:
+    return finite_array("t", t, ndim=1)
+
+
+@dataclass(frozen=True)
+class Constant:
+    """u(t) = value for all t (the paper's "constant unit input", Fig 8a)."""
+
+    value: float = 1.0
+
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        return np.full(_times(t).shape, float(self.value))
+
+    def describe(self) -> str:
+        return f"constant {self.value:g}"
+
+
+@dataclass(frozen=True)
+class Step:
+    """u(t) = initial for t < time, amplitude for t >= time (seconds).
+
+    ``Step(0.0)`` is the paper's unit step applied at the start of the record.
+    """
+
+    time: float = 0.0
+    amplitude: float = 1.0
+    initial: float = 0.0
+
+    def __post_init__(self) -> None:
+        nonnegative("time", self.time)
+
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        t = _times(t)
+        # a tiny tolerance so that t = k*dt hits the step on the intended sample
+        return np.where(t >= self.time - 1e-12, float(self.amplitude), float(self.initial))
+
+    def describe(self) -> str:
+        return f"step {self.initial:g} -> {self.amplitude:g} at t = {self.time:g} s"
+
+
+@dataclass(frozen=True)
+class Chirp:
+    """Linear chirp ``amplitude * cos(phase)`` sweeping ``f_start_hz -> f_stop_hz`` over ``sweep_time`` s.
+
+    The EHA scenarios use 10 -> 100 Hz over the 4 s record at 300 rad/s
+    (amplitude unspecified in the paper; DESIGN.md 8.9).
+    """
+
+    f_start_hz: float = 10.0
+    f_stop_hz: float = 100.0
+    sweep_time: float = 4.0
+    amplitude: float = 300.0
+
+    def __post_init__(self) -> None:
+        positive("f_start_hz", self.f_start_hz, unit="Hz")
+        positive("f_stop_hz", self.f_stop_hz, unit="Hz")
+        positive("sweep_time", self.sweep_time, unit="s")
+
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        t = _times(t)
+        return self.amplitude * scipy.signal.chirp(
+            t, f0=self.f_start_hz, t1=self.sweep_time, f1=self.f_stop_hz, method="linear"
+        )
+
+    def describe(self) -> str:
+        return (
+            f"linear chirp {self.f_start_hz:g}->{self.f_stop_hz:g} Hz over {self.sweep_time:g} s, "
+            f"amplitude {self.amplitude:g}"
+        )
+
+
+@dataclass(frozen=True)
+class SquareWave:
+    """Square wave of frequency ``frequency_hz`` between ``-amplitude`` and ``+amplitude`` (plus offset).
+
+    Sampled with :func:`scipy.signal.square`, so the wave starts high at ``t = 0``.
+
+    Attributes
+    ----------
+    frequency_hz : float
+        Fundamental frequency in Hz (> 0).
+    amplitude : float
+        Half the peak-to-peak swing (input units, e.g. rad/s of pump speed for the EHA).
+    offset : float
+        Constant added to the wave.
+    duty : float
+        Fraction of each period spent at ``offset + amplitude``, in the open
+        interval (0, 1); 0.5 (default) gives a symmetric wave.
+    """
+
+    frequency_hz: float = 1.0
+    amplitude: float = 1.0
+    offset: float = 0.0
+    duty: float = 0.5
+
+    def __post_init__(self) -> None:
+        positive("frequency_hz", self.frequency_hz, unit="Hz")
+        if not 0.0 < self.duty < 1.0:
+            from ..errors import ParameterError
+
+            raise ParameterError(f"duty must lie in (0, 1); got {self.duty!r}")
+
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        t = _times(t)
+        return self.offset + self.amplitude * scipy.signal.square(
+            2 * np.pi * self.frequency_hz * t, duty=self.duty
+        )
+
+    def describe(self) -> str:
+        return f"square wave {self.frequency_hz:g} Hz, amplitude {self.amplitude:g}"

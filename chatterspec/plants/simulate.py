@@ -1,0 +1,232 @@
+"""Batched Monte Carlo simulation of a scenario's true plant (eq 1-2).
+
+All realizations advance together: the only Python loop is over time steps
+(and over fixed blocks of realizations when drawing random numbers, see
+:mod:`chatterspec.rng`). Arrays follow the package convention
+``(runs, T, channels)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validate import positive_int
+from ..rng import BLOCK, SeedLike, block_generator, root_seed_sequence
+from .scenarios import Scenario
+
+__all__ = ["Simulation", "covariance_sqrt", "iter_simulations", "simulate"]
+
+#: Target size (bytes) of the arrays of one internal chunk of realizations.
+CHUNK_BYTES = 192 * 2**20
+
+
+@dataclass(frozen=True, eq=False)
+class Simulation:
+    """Result of :func:`simulate`.
+
+    Attributes
+    ----------
+    t : (T,) array
+        Sample times in seconds, ``t[k] = k * dt``.
+    x : (runs, T, n) array
+        True states.
+    z : (runs, T, m) array
+        Measurements ``z(k) = C x(k) + w(k)``.
+    u : (T, p) array
+        Input (identical for all realizations).
+    scenario : Scenario
+    first_run : int
+        Global index of the first realization held here (non-zero for chunks).
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    z: np.ndarray
+    u: np.ndarray
+    scenario: Scenario
+    first_run: int = 0
+
+    @property
+    def runs(self) -> int:
+        return self.z.shape[0]
+
+
+def covariance_sqrt(M: np.ndarray) -> np.ndarray:
+    """A matrix L with L L^T = M for a symmetric PSD M (diagonal fast path, else eigh)."""
+    if np.count_nonzero(M - np.diag(np.diag(M))) == 0:
+        return np.diag(np.sqrt(np.clip(np.diag(M), 0.0, None)))
+    w, V = np.linalg.eigh(M)
+    return V * np.sqrt(np.clip(w, 0.0, None))
+
+
+def default_chunk_runs(scenario: Scenario) -> int:
+    T = scenario.n_samples
+    per_run = 8 * T * 2 * (scenario.nominal.n_states + scenario.nominal.n_outputs)
+    return max(64, int(CHUNK_BYTES // per_run) // 64 * 64)
+
+
+def simulate(
+    scenario: Scenario,
+    runs: int = 1,
+    seed: SeedLike = None,
+    *,
+    chunk_runs: int | None = None,
+) -> Simulation:
+    """Simulate ``runs`` independent realizations of ``scenario``'s true plant.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Nominal model, time-segmented true plant, input and duration.
+    runs : int
+        Number of Monte Carlo realizations (>= 1).
+    seed : int, SeedSequence, Generator or None
+        Root of the random streams. The same seed gives the same numbers
+        whatever ``chunk_runs`` is (realization r always draws from random
+        block r // 64).
+    chunk_runs : int, optional
+        Realizations simulated together internally (memory/speed trade-off).
+
+    Returns
+    -------
+    Simulation
+        ``x`` of shape (runs, T, n), ``z`` of shape (runs, T, m), ``u`` of
+        shape (T, p) and ``t`` of shape (T,), with T = round(duration/dt) + 1.
+
+    Examples
+    --------
+    >>> import chatterspec as cs
+    >>> sim = cs.simulate(cs.scenario("eha-healthy"), runs=2, seed=1)
+    >>> sim.z.shape
+    (2, 4001, 3)
+    """
+    runs = positive_int("runs", runs)
+    chunks = list(iter_simulations(scenario, runs, seed, chunk_runs=chunk_runs))
+    if len(chunks) == 1:
+        return chunks[0]
+    return Simulation(
+        t=chunks[0].t,
+        x=np.concatenate([c.x for c in chunks]),
+        z=np.concatenate([c.z for c in chunks]),
+        u=chunks[0].u,
+        scenario=scenario,
+    )
+
+
+def iter_simulations(
+    scenario: Scenario,
+    runs: int,
+    seed: SeedLike = None,
+    *,
+    chunk_runs: int | None = None,
+    first_run: int = 0,
+) -> Iterator[Simulation]:
+    """Yield the realizations ``first_run .. first_run + runs - 1`` in chunks (constant memory).
+
+    Realization r always draws its noise from random block ``r // BLOCK`` of
+    ``seed``, so the concatenated chunks equal :func:`simulate` with the same seed
+    whatever ``chunk_runs`` and however the runs are split between calls.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Nominal model, time-segmented true plant, input and duration (seconds).
+    runs : int
+        Number of realizations to yield in total (>= 1).
+    seed : int, SeedSequence, Generator or None
+        Root of the random streams (see :func:`chatterspec.rng.root_seed_sequence`).
+    chunk_runs : int, optional
+        Realizations per yielded chunk; the default is a multiple of 64 (at
+        least 64) sized so that one chunk's state and measurement arrays stay
+        near ``CHUNK_BYTES`` (192 MiB).
+    first_run : int
+        Index of the first realization (default 0), for continuing or splitting a study.
+
+    Yields
+    ------
+    Simulation
+        One chunk with ``x`` (k, T, n), ``z`` (k, T, m), shared ``u`` (T, p) and
+        ``t`` (T,) in seconds, and ``first_run`` set to its first realization index.
+
+    Raises
+    ------
+    ShapeError
+        If the scenario's input has a different number of channels than the model.
+    """
+    runs = positive_int("runs", runs)
+    chunk = default_chunk_runs(scenario) if chunk_runs is None else positive_int("chunk_runs", chunk_runs)
+    root = root_seed_sequence(seed)
+    t = scenario.time
+    u = scenario.input.sample(t).reshape(len(t), -1)
+    if u.shape[1] != scenario.nominal.n_inputs:
+        from ..errors import ShapeError
+
+        raise ShapeError(
+            f"scenario input gives {u.shape[1]} channel(s); the model has {scenario.nominal.n_inputs}"
+        )
+    for lo in range(first_run, first_run + runs, chunk):
+        hi = min(lo + chunk, first_run + runs)
+        x, z = _simulate_block(scenario, root, lo, hi, t, u)
+        yield Simulation(t=t, x=x, z=z, u=u, scenario=scenario, first_run=lo)
+
+
+def _simulate_block(
+    scenario: Scenario,
+    root: np.random.SeedSequence,
+    lo: int,
+    hi: int,
+    t: np.ndarray,
+    u: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    if hi - lo == 1:
+        # BLAS evaluates a one-row product by another kernel (gemv) whose rounding differs
+        # in the last bit; simulate two realizations so that realization ``lo`` is
+        # bit-identical whatever the chunking (realization lo + 1 is simply discarded)
+        x, z = _simulate_block(scenario, root, lo, lo + 2, t, u)
+        return x[:1], z[:1]
+    T = len(t)
+    n, m = scenario.nominal.n_states, scenario.nominal.n_outputs
+    seg_idx = scenario.segment_index(t)
+    segments = scenario.segments
+    ranges = []
+    for s, seg in enumerate(segments):
+        sel = np.flatnonzero(seg_idx == s)
+        if sel.size:
+            ranges.append((sel[0], sel[-1] + 1, seg.model))
+    # Noise is stored time-major (T, runs, channels) for the recursion; each
+    # random block is drawn realization-major so the numbers do not depend on
+    # the chunking (see chatterspec.rng).
+    vt = np.empty((T, hi - lo, n))
+    zt = np.empty((T, hi - lo, m))
+    for b in range(lo // BLOCK, (hi - 1) // BLOCK + 1):
+        b_lo, b_hi = b * BLOCK, (b + 1) * BLOCK
+        s0, s1 = max(b_lo, lo), min(b_hi, hi)
+        v = block_generator(root, b, 0).standard_normal((BLOCK, T, n))[s0 - b_lo : s1 - b_lo]
+        w = block_generator(root, b, 1).standard_normal((BLOCK, T, m))[s0 - b_lo : s1 - b_lo]
+        for k0, k1, model in ranges:
+            vt[k0:k1, s0 - lo : s1 - lo] = np.swapaxes(v[:, k0:k1] @ covariance_sqrt(model.Q).T, 0, 1)
+            zt[k0:k1, s0 - lo : s1 - lo] = np.swapaxes(w[:, k0:k1] @ covariance_sqrt(model.R).T, 0, 1)
+    xt = np.empty((T, hi - lo, n))
+    xt[0] = scenario.x0
+    # x_aug = [x, 1] and W = [[A^T], [(B u(k))^T]] fold the input into one matmul
+    x_aug = np.ones((hi - lo, n + 1))
+    x_aug[:, :n] = scenario.x0
+    W = [np.vstack([seg.model.A.T, np.zeros((1, n))]) for seg in segments]
+    Bu = [u @ seg.model.B.T for seg in segments]
+    for k in range(T - 1):
+        s = seg_idx[k]
+        Ws = W[s]
+        Ws[n] = Bu[s][k]
+        nxt = xt[k + 1]
+        np.matmul(x_aug, Ws, out=nxt)  # eq (1)
+        nxt += vt[k]
+        x_aug[:, :n] = nxt
+    del vt
+    # measurements z(k) = C x(k) + w(k), with the C of the segment active at k
+    for k0, k1, model in ranges:
+        zt[k0:k1] += xt[k0:k1] @ model.C.T
+    # (runs, T, channels) views of the time-major buffers (no copy)
+    return np.swapaxes(xt, 0, 1), np.swapaxes(zt, 0, 1)

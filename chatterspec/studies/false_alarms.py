@@ -1,0 +1,342 @@
+"""False-alarm study: per-bin, per-frame and family-wise rates with exact intervals."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._validate import open_unit, positive_int
+from ..detection.spectral import STFTConfig, expected_spectrum, periodogram_freqs
+from ..detection.thresholds import Threshold
+from ..errors import ParameterError
+from ..plants.models import LinearModel
+from ..plants.scenarios import Scenario
+from ..rng import SeedLike
+from .calibration import Calibration, _ro
+from .healthy import (
+    HealthyStudy,
+    _analytic_thresholds,
+    _check_alphas,
+    _frame_thresholds,
+    _n_frames,
+    resolve_scenario,
+)
+from .intervals import RateEstimate
+from .montecarlo import run_study
+
+__all__ = [
+    "FalseAlarmResult",
+    "FalseAlarmStudy",
+    "KindRates",
+    "false_alarm_study",
+]
+
+
+# --------------------------------------------------------------------------- false alarms
+@dataclass(frozen=True)
+class KindRates:
+    """False-alarm statistics of one threshold kind at one alpha.
+
+    Attributes
+    ----------
+    kind : str
+        ``paper``, ``exact`` (per-bin), ``exact-bonferroni`` (the default
+        detector), ``exact-sidak``, ``empirical-*`` (from a calibration file),
+        ``frame`` (per-bin on STFT frames) or ``frame-bonferroni`` (the STFT detector).
+    alpha : float
+    alpha_meaning : str
+        ``per-bin``, ``family-wise`` or ``per-frame``.
+    nominal_per_bin : float
+        Per-bin level the threshold aims at (alpha, or alpha / n for Bonferroni).
+    per_bin : RateEstimate
+        Exceedances over tested bins x channels x records (or x frames).
+    per_bin_by_channel : tuple of RateEstimate
+    family_wise : tuple of RateEstimate or None
+        Per channel, records with any tested bin above (record kinds only).
+    family_wise_any : RateEstimate or None
+        Records with any channel above.
+    per_frame : tuple of RateEstimate or None
+        Per channel, frames with any tested bin above (frame kinds only).
+    per_frame_any : RateEstimate or None
+    mean_false_bins : tuple of float
+        Mean number of false-alarm bins per record (or frame) and channel.
+    verdict : str
+        For per-bin kinds ``consistent`` if nominal_per_bin lies in the per-bin
+        interval, else ``above``/``below``; for family-wise and per-frame kinds
+        ``within`` if the interval's lower end is <= alpha, else ``exceeds``.
+    rate_vs_freq : (bins, m) array
+        Per-bin exceedance rate per frequency (the plot of per-bin rate vs frequency).
+    freqs_hz : (bins,) array
+    """
+
+    kind: str
+    alpha: float
+    alpha_meaning: str
+    nominal_per_bin: float
+    per_bin: RateEstimate
+    per_bin_by_channel: tuple[RateEstimate, ...]
+    family_wise: tuple[RateEstimate, ...] | None
+    family_wise_any: RateEstimate | None
+    per_frame: tuple[RateEstimate, ...] | None
+    per_frame_any: RateEstimate | None
+    mean_false_bins: tuple[float, ...]
+    verdict: str
+    rate_vs_freq: np.ndarray = field(repr=False, compare=False)
+    freqs_hz: np.ndarray = field(repr=False, compare=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {
+            "kind": self.kind,
+            "alpha": self.alpha,
+            "alpha_meaning": self.alpha_meaning,
+            "nominal_per_bin": self.nominal_per_bin,
+            "per_bin": self.per_bin.to_dict(),
+            "per_bin_by_channel": [r.to_dict() for r in self.per_bin_by_channel],
+            "mean_false_bins_per_record": list(self.mean_false_bins),
+            "verdict": self.verdict,
+        }
+        if self.family_wise is not None:
+            d["family_wise"] = [r.to_dict() for r in self.family_wise]
+            d["family_wise_any_channel"] = self.family_wise_any.to_dict() if self.family_wise_any else None
+        if self.per_frame is not None:
+            d["per_frame"] = [r.to_dict() for r in self.per_frame]
+            d["per_frame_any_channel"] = self.per_frame_any.to_dict() if self.per_frame_any else None
+        return d
+
+
+@dataclass(frozen=True)
+class FalseAlarmResult:
+    """Result of :func:`false_alarm_study`: one :class:`KindRates` per (alpha, kind).
+
+    Attributes
+    ----------
+    scenario : str
+        Name of the healthy scenario simulated.
+    runs : int
+        Healthy realizations (records).
+    seed : int or None
+        Root seed if it was an integer, else None.
+    confidence : float
+        Level of every Clopper-Pearson interval.
+    channels : tuple of str
+        Output channel names (order of the per-channel rates).
+    n_frames : int
+        STFT frames per record (0 when frames were not tested).
+    rates : tuple of KindRates
+        One entry per (alpha, threshold kind), alphas in the order given.
+    """
+
+    scenario: str
+    runs: int
+    seed: int | None
+    confidence: float
+    channels: tuple[str, ...]
+    n_frames: int
+    rates: tuple[KindRates, ...]
+
+    def get(self, kind: str, alpha: float | None = None) -> KindRates:
+        """The rates of ``kind`` (at ``alpha``, default the first alpha)."""
+        for r in self.rates:
+            if r.kind == kind and (alpha is None or math.isclose(r.alpha, alpha)):
+                return r
+        raise ParameterError(f"no rates for kind {kind!r} at alpha {alpha}; have {self.kinds}")
+
+    @property
+    def kinds(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(r.kind for r in self.rates))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "scenario": self.scenario,
+            "runs": self.runs,
+            "seed": self.seed,
+            "confidence": self.confidence,
+            "channels": list(self.channels),
+            "frames_per_record": self.n_frames,
+            "rates": [r.to_dict() for r in self.rates],
+        }
+
+
+FalseAlarmStudy = HealthyStudy
+
+
+def _verdict(meaning: str, nominal: float, alpha: float, est: RateEstimate) -> str:
+    if meaning == "per-bin":
+        if est.contains(nominal):
+            return "consistent"
+        return "above" if est.ci_low > nominal else "below"
+    return "within" if est.ci_low <= alpha else "exceeds"
+
+
+def false_alarm_study(
+    source: str | Scenario | LinearModel | Path,
+    alpha: float | Sequence[float] = 1e-2,
+    runs: int = 1000,
+    seed: SeedLike = 0,
+    *,
+    calibration: Calibration | None = None,
+    config: STFTConfig | None = None,
+    frames: bool = True,
+    confidence: float = 0.99,
+    workers: int = 1,
+    scheduler: str | None = None,
+    chunk_runs: int | None = None,
+    progress: bool | None = None,
+) -> FalseAlarmResult:
+    """False-alarm rates of every threshold kind on healthy runs, with Clopper-Pearson intervals.
+
+    Parameters
+    ----------
+    source : str, Scenario, LinearModel or path
+        Healthy scenario (name), scenario, user model or TOML model file.
+    alpha : float or sequence of float
+        Nominal level(s) in (0, 1); all share the same simulated runs.
+    runs : int
+        Healthy realizations (>= 1).
+    seed : int
+        Root seed.
+    calibration : Calibration, optional
+        Adds ``empirical-per-bin`` and ``empirical-family-wise`` kinds (its own
+        alpha); checked against the model (:class:`CalibrationMismatchError`).
+        Use a calibration made with another seed, or the rates are optimistic.
+    config : STFTConfig, optional
+        STFT settings of the per-frame kinds.
+    frames : bool
+        Also test the STFT detector (per-frame rates).
+    confidence : float
+        Level of the Clopper-Pearson intervals.
+    workers, scheduler, chunk_runs, progress
+        Execution (see :func:`chatterspec.studies.montecarlo.run_study`).
+
+    Returns
+    -------
+    FalseAlarmResult
+    """
+    alphas = _check_alphas(alpha)
+    runs = positive_int("runs", runs)
+    confidence = open_unit("confidence", confidence)
+    sc = resolve_scenario(source)
+    if not sc.is_healthy:
+        raise ParameterError(f"false-alarm study needs a healthy scenario; {sc.name!r} has faults")
+    model = sc.nominal
+    N = sc.n_samples - 1
+    config = STFTConfig() if config is None else config
+    kinds: list[tuple[str, float, Threshold]] = []
+    fkinds: list[tuple[str, float, Threshold]] = []
+    freqs = periodogram_freqs(N, model.dt)
+    for a in alphas:
+        _, thr = _analytic_thresholds(model, N, a)
+        kinds += [(k, a, t) for k, t in thr.items()]
+        if frames:
+            _, fthr = _frame_thresholds(model, config, a)
+            fkinds += [(k, a, t) for k, t in fthr.items()]
+    if calibration is not None:
+        calibration.check(model, N, config if frames else None)
+        for meaning in ("per-bin", "family-wise"):
+            kinds.append((f"empirical-{meaning}", calibration.alpha, calibration.threshold(meaning)))
+        if frames:
+            fkinds.append(("empirical-per-frame", calibration.alpha, calibration.threshold("per-frame")))
+    E = expected_spectrum(model, freqs, N, form="exact")
+    n_frames = _n_frames(N, config, model.dt) if frames else 0
+    if frames and n_frames < 1:
+        raise ParameterError(f"records of {N} samples are shorter than one STFT window; pass frames=False")
+    study = HealthyStudy(
+        scenario=sc,
+        thr_values=np.stack([t.values for _, _, t in kinds]),
+        thr_tested=np.stack([t.tested for _, _, t in kinds]),
+        expected=E,
+        tested=kinds[1][2].tested,
+        config=config if frames else None,
+        fthr_values=np.stack([t.values for _, _, t in fkinds]) if frames else None,
+        fthr_tested=np.stack([t.tested for _, _, t in fkinds]) if frames else None,
+        fexpected=None,
+    )
+    out = run_study(
+        study,
+        runs,
+        seed,
+        workers=workers,
+        scheduler=scheduler,
+        chunk_runs=chunk_runs,
+        progress=progress,
+        label=f"far {sc.name}",
+    )
+    m = model.n_outputs
+    rates: list[KindRates] = []
+    for i, (name, a, t) in enumerate(kinds):
+        tested = t.tested
+        nt = int(np.count_nonzero(tested))
+        counts = out["bin_exceed"][i]  # (bins, m)
+        per_ch = tuple(RateEstimate(int(counts[tested, c].sum()), runs * nt, confidence) for c in range(m))
+        pooled = RateEstimate(int(counts[tested].sum()), runs * nt * m, confidence)
+        meaning = t.alpha_meaning
+        nominal = t.per_test_alpha if np.isfinite(t.per_test_alpha) else a
+        fw = tuple(RateEstimate(int(out["fw"][i, c]), runs, confidence) for c in range(m))
+        fw_any = RateEstimate(int(out["fw_any"][i]), runs, confidence)
+        ref = pooled if meaning == "per-bin" else _worst(fw)
+        rates.append(
+            KindRates(
+                kind=name,
+                alpha=a,
+                alpha_meaning=meaning,
+                nominal_per_bin=float(nominal),
+                per_bin=pooled,
+                per_bin_by_channel=per_ch,
+                family_wise=fw,
+                family_wise_any=fw_any,
+                per_frame=None,
+                per_frame_any=None,
+                mean_false_bins=tuple(float(v) / runs for v in out["false_bins"][i]),
+                verdict=_verdict(meaning, nominal, a, ref),
+                rate_vs_freq=_ro(counts / runs),
+                freqs_hz=_ro(t.freqs_hz),
+            )
+        )
+    n_fr = runs * n_frames
+    for i, (name, a, t) in enumerate(fkinds):
+        tested = t.tested
+        nt = int(np.count_nonzero(tested))
+        counts = out["frame_bin_exceed"][i]
+        per_ch = tuple(RateEstimate(int(counts[tested, c].sum()), n_fr * nt, confidence) for c in range(m))
+        pooled = RateEstimate(int(counts[tested].sum()), n_fr * nt * m, confidence)
+        pf = tuple(RateEstimate(int(out["frame_flag"][i, c]), n_fr, confidence) for c in range(m))
+        pf_any = RateEstimate(int(out["frame_flag_any"][i]), n_fr, confidence)
+        meaning = t.alpha_meaning
+        nominal = t.per_test_alpha if np.isfinite(t.per_test_alpha) else a
+        ref = pooled if meaning == "per-bin" else _worst(pf)
+        rates.append(
+            KindRates(
+                kind=name,
+                alpha=a,
+                alpha_meaning=meaning,
+                nominal_per_bin=float(nominal),
+                per_bin=pooled,
+                per_bin_by_channel=per_ch,
+                family_wise=None,
+                family_wise_any=None,
+                per_frame=pf,
+                per_frame_any=pf_any,
+                mean_false_bins=tuple(float(counts[tested, c].sum()) / n_fr for c in range(m)),
+                verdict=_verdict(meaning, nominal, a, ref),
+                rate_vs_freq=_ro(counts / n_fr),
+                freqs_hz=_ro(t.freqs_hz),
+            )
+        )
+    return FalseAlarmResult(
+        scenario=sc.name,
+        runs=runs,
+        seed=int(seed) if isinstance(seed, int | np.integer) else None,
+        confidence=confidence,
+        channels=tuple(model.output_names),
+        n_frames=n_frames,
+        rates=tuple(rates),
+    )
+
+
+def _worst(ests: Iterable[RateEstimate]) -> RateEstimate:
+    return max(ests, key=lambda r: r.ci_low)

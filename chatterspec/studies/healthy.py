@@ -1,0 +1,266 @@
+"""Healthy-run scenarios and the streaming summary of a healthy Monte Carlo study."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .._validate import open_unit
+from ..detection.pipeline import iter_chattering
+from ..detection.spectral import STFTConfig, periodogram, periodogram_freqs
+from ..detection.spectral import spectrogram as stft_spectrogram
+from ..detection.thresholds import Threshold, exact_threshold, frame_threshold, paper_threshold
+from ..errors import ParameterError
+from ..plants.models import LinearModel
+from ..plants.scenarios import Scenario
+from ..plants.scenarios import scenario as catalogue_scenario
+
+__all__ = [
+    "model_scenario",
+    "resolve_scenario",
+]
+
+
+# --------------------------------------------------------------------------- scenarios
+@dataclass(frozen=True)
+class _ZeroInput:
+    """u(t) = 0 on ``channels`` inputs (healthy chattering of a matched linear model does not depend on u)."""
+
+    channels: int = 1
+
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        return np.zeros((np.size(t), self.channels))
+
+    def describe(self) -> dict[str, object]:
+        return {"kind": "zero", "channels": self.channels}
+
+
+def model_scenario(model: LinearModel, duration: float = 4.0, name: str | None = None) -> Scenario:
+    """A healthy scenario for a user model: zero input, the model as nominal and true plant.
+
+    The input is zero on every channel: the healthy chattering of a matched
+    linear model does not depend on u.
+
+    Parameters
+    ----------
+    model : LinearModel
+        Nominal model, also used as the true plant (no fault windows).
+    duration : float
+        Record length in seconds (default 4 s, the paper's record).
+    name : str, optional
+        Scenario name; default ``model.name``, or ``"user-model"`` if that is empty.
+
+    Returns
+    -------
+    Scenario
+        Family ``"user"``, healthy.
+    """
+    return Scenario(
+        name=name or model.name or "user-model",
+        nominal=model,
+        input=_ZeroInput(model.n_inputs),
+        duration=duration,
+        description="user model, healthy, zero input",
+        family="user",
+    )
+
+
+def resolve_scenario(source: str | Scenario | LinearModel | Path, duration: float = 4.0) -> Scenario:
+    """A catalogue name, a TOML model file (``.toml``), a Scenario or a LinearModel -> Scenario.
+
+    Parameters
+    ----------
+    source : str, Scenario, LinearModel or Path
+        A :class:`Scenario` is returned unchanged; a :class:`LinearModel` or a
+        path ending in ``.toml`` (read with :func:`~chatterspec.plants.modelfile.load_model`)
+        becomes a healthy zero-input scenario (:func:`model_scenario`, named
+        after the file stem); any other string is looked up in the scenario catalogue.
+    duration : float
+        Record length in seconds for model and model-file sources; ignored for
+        catalogue names and Scenario objects, which carry their own duration.
+
+    Returns
+    -------
+    Scenario
+
+    Raises
+    ------
+    UnknownScenarioError
+        A string that is neither a ``.toml`` path nor a catalogue name.
+    """
+    if isinstance(source, Scenario):
+        return source
+    if isinstance(source, LinearModel):
+        return model_scenario(source, duration)
+    text = str(source)
+    if text.endswith(".toml"):
+        from ..plants.modelfile import load_model
+
+        spec = load_model(text)
+        return model_scenario(spec.model, duration, name=Path(text).stem)
+    return catalogue_scenario(text)
+
+
+# --------------------------------------------------------------------------- summaries
+def _merge_top(a: np.ndarray, b: np.ndarray, k: int) -> np.ndarray:
+    both = np.concatenate([a, b], axis=0)
+    if both.shape[0] <= k:
+        return both
+    return np.partition(both, both.shape[0] - k, axis=0)[both.shape[0] - k :]
+
+
+def _reduce_dict(acc: dict[str, np.ndarray] | None, part: dict[str, np.ndarray], k_top: dict[str, int]):
+    if acc is None:
+        return dict(part)
+    out = {}
+    for key, val in part.items():
+        if key.startswith("top_"):
+            out[key] = _merge_top(acc[key], val, k_top[key])
+        elif key.startswith("runs_"):
+            out[key] = np.concatenate([acc[key], val], axis=0)
+        else:
+            out[key] = acc[key] + val
+    return out
+
+
+def _keep_top(x: np.ndarray, k: int) -> np.ndarray:
+    """The ``k`` largest values along axis 0 (unsorted)."""
+    if k <= 0:
+        return x[:0]
+    if x.shape[0] <= k:
+        return x
+    return np.partition(x, x.shape[0] - k, axis=0)[x.shape[0] - k :]
+
+
+@dataclass(frozen=True, eq=False)
+class HealthyStudy:
+    """Chunk function of calibration and false-alarm studies (picklable; see :mod:`~.montecarlo`).
+
+    Thresholds are passed as stacked arrays so that workers do not rebuild them.
+    Each chunk simulates healthy chattering, takes its periodogram (and STFT
+    frames if ``config`` and ``fthr_values`` are set) and counts exceedances.
+    Exported as ``FalseAlarmStudy``.
+
+    Attributes
+    ----------
+    scenario : Scenario
+        Healthy scenario to simulate.
+    thr_values : (K, bins, m) array
+        Power thresholds of the K record-level kinds, in the squared output
+        units of the periodogram (e.g. Pa^2 for pressure).
+    thr_tested : (K, bins) bool array
+        Bins each kind tests (DC and Nyquist excluded).
+    expected : (bins, m) array
+        Expected healthy periodogram E[S] (eq 56), used to normalize ``S / E[S]``.
+    tested : (bins,) bool array
+        Bins over which the normalized per-record maximum is taken.
+    config : STFTConfig, optional
+        STFT settings of the per-frame kinds; None skips the frame statistics.
+    fthr_values : (Kf, fbins, m) array, optional
+        Per-frame thresholds of the Kf frame kinds.
+    fthr_tested : (Kf, fbins) bool array, optional
+        Frame bins each frame kind tests.
+    fexpected : (fbins, m) array, optional
+        Expected healthy frame spectrum; needed only when ``kf_top > 0``.
+    k_top : int
+        Largest normalized bin powers to keep (for the empirical per-bin
+        quantile interval); 0 keeps none.
+    kf_top : int
+        Largest normalized frame powers to keep (empirical per-frame quantile).
+    keep_max : bool
+        Keep each record's normalized maximum over ``tested`` bins (for the
+        empirical family-wise threshold).
+    """
+
+    scenario: Scenario
+    thr_values: np.ndarray  # (K, bins, m)
+    thr_tested: np.ndarray  # (K, bins)
+    expected: np.ndarray  # (bins, m)
+    tested: np.ndarray  # (bins,) bins of the normalized maximum
+    config: STFTConfig | None = None
+    fthr_values: np.ndarray | None = None  # (Kf, fbins, m)
+    fthr_tested: np.ndarray | None = None  # (Kf, fbins)
+    fexpected: np.ndarray | None = None  # (fbins, m)
+    k_top: int = 0
+    kf_top: int = 0
+    keep_max: bool = False
+
+    def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> dict[str, np.ndarray]:
+        acc = None
+        for rec in iter_chattering(self.scenario, runs, seed, chunk_runs=runs, first_run=first_run):
+            acc = self.reduce(acc, self._summarize(rec.values, rec.dt))
+        return acc
+
+    def _summarize(self, x: np.ndarray, dt: float) -> dict[str, np.ndarray]:
+        out: dict[str, np.ndarray] = {"runs": np.array(x.shape[0])}
+        S = periodogram(x, dt).power  # (r, bins, m)
+        exc = S[None] > self.thr_values[:, None]  # (K, r, bins, m)
+        out["bin_exceed"] = exc.sum(axis=1)
+        masked = exc & self.thr_tested[:, None, :, None]
+        n_false = masked.sum(axis=2)  # (K, r, m)
+        out["false_bins"] = n_false.sum(axis=1)
+        out["false_bins_sq"] = (n_false.astype(np.int64) ** 2).sum(axis=1)
+        fw = n_false > 0
+        out["fw"] = fw.sum(axis=1)  # (K, m)
+        out["fw_any"] = fw.any(axis=-1).sum(axis=1)  # (K,)
+        Y = S / self.expected
+        if self.keep_max:
+            out["runs_max"] = Y[:, self.tested].max(axis=1)  # (r, m)
+        if self.k_top:
+            out["top_bin"] = _keep_top(Y, self.k_top)
+        if self.config is not None and self.fthr_values is not None:
+            P = stft_spectrogram(x, dt, self.config).power  # (r, F, fb, m)
+            out["frames"] = np.array(P.shape[0] * P.shape[1])
+            fexc = P[None] > self.fthr_values[:, None, None]  # (Kf, r, F, fb, m)
+            out["frame_bin_exceed"] = fexc.sum(axis=(1, 2))  # (Kf, fb, m)
+            flags = (fexc & self.fthr_tested[:, None, None, :, None]).any(axis=3)  # (Kf, r, F, m)
+            out["frame_flag"] = flags.sum(axis=(1, 2))  # (Kf, m)
+            out["frame_flag_any"] = flags.any(axis=-1).sum(axis=(1, 2))  # (Kf,)
+            if self.kf_top:
+                Yf = (P / self.fexpected).reshape(-1, *P.shape[-2:])
+                out["top_frame"] = _keep_top(Yf, self.kf_top)
+                if self.keep_max:  # per frame: the largest normalized tested bin (frame family-wise)
+                    out["top_frame_max"] = _keep_top(Yf[:, self.fthr_tested[0]].max(axis=1), self.kf_top)
+        return out
+
+    def reduce(self, acc: dict[str, np.ndarray] | None, part: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return _reduce_dict(
+            acc, part, {"top_bin": self.k_top, "top_frame": self.kf_top, "top_frame_max": self.kf_top}
+        )
+
+
+def _analytic_thresholds(
+    model: LinearModel, n_samples: int, alpha: float
+) -> tuple[np.ndarray, dict[str, Threshold]]:
+    freqs = periodogram_freqs(n_samples, model.dt)
+    return freqs, {
+        "paper": paper_threshold(model, freqs, alpha),
+        "exact": exact_threshold(model, freqs, n_samples, alpha, correction="none"),
+        "exact-bonferroni": exact_threshold(model, freqs, n_samples, alpha, correction="bonferroni"),
+        "exact-sidak": exact_threshold(model, freqs, n_samples, alpha, correction="sidak"),
+    }
+
+
+def _frame_thresholds(
+    model: LinearModel, config: STFTConfig, alpha: float
+) -> tuple[np.ndarray, dict[str, Threshold]]:
+    freqs = config.freqs_hz(model.dt)
+    return freqs, {
+        "frame": frame_threshold(model, freqs, config, model.dt, alpha, correction="none"),
+        "frame-bonferroni": frame_threshold(model, freqs, config, model.dt, alpha, correction="bonferroni"),
+    }
+
+
+def _check_alphas(alpha: float | Sequence[float]) -> tuple[float, ...]:
+    alphas = (alpha,) if np.isscalar(alpha) else tuple(alpha)
+    if not alphas:
+        raise ParameterError("alpha: give at least one value")
+    return tuple(open_unit("alpha", a) for a in alphas)
+
+
+def _n_frames(n_samples: int, config: STFTConfig, dt: float) -> int:
+    W, H = config.n_window(dt), config.n_hop(dt)
+    return max(0, (n_samples - W) // H + 1)

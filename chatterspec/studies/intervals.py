@@ -1,0 +1,195 @@
+"""Interval statistics: Clopper-Pearson rates and order-statistic quantile intervals."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import scipy.stats
+
+from .._validate import open_unit, positive_int
+from ..errors import ParameterError
+
+__all__ = [
+    "QuantileEstimate",
+    "RateEstimate",
+    "clopper_pearson",
+    "quantile_ci_ranks",
+]
+
+Verdict = Literal["consistent", "above", "below", "within", "exceeds"]
+
+
+# --------------------------------------------------------------------------- statistics
+def clopper_pearson(k: int, n: int, confidence: float = 0.99) -> tuple[float, float]:
+    """Exact (Clopper-Pearson) interval for a binomial proportion ``k / n``.
+
+    Parameters
+    ----------
+    k, n : int
+        Events and trials (``0 <= k <= n``, ``n >= 1``).
+    confidence : float
+        Two-sided confidence level in (0, 1).
+
+    Returns
+    -------
+    (low, high) : tuple of float
+    """
+    n = positive_int("n", n)
+    confidence = open_unit("confidence", confidence)
+    if not 0 <= k <= n:
+        raise ParameterError(f"need 0 <= k <= n; got k={k}, n={n}")
+    a = 1.0 - confidence
+    lo = 0.0 if k == 0 else float(scipy.stats.beta.ppf(a / 2, k, n - k + 1))
+    hi = 1.0 if k == n else float(scipy.stats.beta.ppf(1 - a / 2, k + 1, n - k))
+    return lo, hi
+
+
+def quantile_ci_ranks(n: int, q: float, confidence: float = 0.99) -> tuple[int, int, int]:
+    """1-based ascending ranks ``(point, low, high)`` of the order statistics for the ``q``-quantile.
+
+    ``point = ceil(n q)`` (inverse empirical CDF); ``[X_(low), X_(high)]``
+    covers the true quantile with probability >= ``confidence``. ``low = 0``
+    or ``high = n + 1`` mean the interval is unbounded on that side (too few
+    samples in the tail: the bound is -inf or +inf).
+    """
+    n = positive_int("n", n)
+    a = 1.0 - open_unit("confidence", confidence)
+    point = min(max(math.ceil(n * q), 1), n)
+    lo = int(scipy.stats.binom.ppf(a / 2, n, q))
+    hi = int(scipy.stats.binom.ppf(1 - a / 2, n, q)) + 1
+    return point, min(max(lo, 0), n), min(max(hi, 1), n + 1)
+
+
+def _pooled_ranks(n: int, n_eff: int, q: float, confidence: float) -> tuple[int, int, int]:
+    """Ranks for ``n`` pooled, dependent samples worth ``n_eff`` independent ones.
+
+    The interval ranks are computed for ``n_eff`` samples and rescaled to ``n``
+    (the binomial spread of the count below the quantile is inflated by
+    ``n / n_eff``); ``n_eff = n`` gives :func:`quantile_ci_ranks`.
+    """
+    point = min(max(math.ceil(n * q), 1), n)
+    _, lo, hi = quantile_ci_ranks(n_eff, q, confidence)
+    if n_eff == n:
+        return point, lo, hi
+    lo_n = 0 if lo == 0 else math.floor(n * (lo - 1) / n_eff) + 1
+    hi_n = n + 1 if hi > n_eff else math.ceil(n * hi / n_eff)
+    return point, min(max(lo_n, 0), n), min(max(hi_n, 1), n + 1)
+
+
+def _top_needed(n: int, q: float, confidence: float, n_eff: int | None = None) -> int:
+    """How many of the largest values must be kept to read the ``q``-quantile interval."""
+    _, lo, _ = _pooled_ranks(n, n if n_eff is None else n_eff, q, confidence)
+    return n - max(lo, 1) + 1
+
+
+@dataclass(frozen=True)
+class RateEstimate:
+    """``count`` events in ``trials`` with a Clopper-Pearson interval.
+
+    Attributes
+    ----------
+    count : int
+        Number of events (e.g. false alarms), ``0 <= count <= trials``.
+    trials : int
+        Number of trials (>= 1): bins x channels x records, records, or frames.
+    confidence : float
+        Two-sided level in (0, 1) of the interval (see :func:`clopper_pearson`).
+    rate : float
+        ``count / trials`` (computed).
+    ci_low, ci_high : float
+        Clopper-Pearson interval of the rate (computed).
+    """
+
+    count: int
+    trials: int
+    confidence: float
+    rate: float = field(init=False)
+    ci_low: float = field(init=False)
+    ci_high: float = field(init=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "rate", self.count / self.trials)
+        lo, hi = clopper_pearson(self.count, self.trials, self.confidence)
+        object.__setattr__(self, "ci_low", lo)
+        object.__setattr__(self, "ci_high", hi)
+
+    def contains(self, p: float) -> bool:
+        return self.ci_low <= p <= self.ci_high
+
+    def to_dict(self) -> dict[str, float | int]:
+        return {
+            "rate": self.rate,
+            "ci_low": self.ci_low,
+            "ci_high": self.ci_high,
+            "count": self.count,
+            "trials": self.trials,
+        }
+
+
+@dataclass(frozen=True)
+class QuantileEstimate:
+    """Empirical ``q``-quantile with a distribution-free order-statistic interval.
+
+    Used for the empirical thresholds of :func:`calibrate`: quantiles of the
+    normalized power ``S / E[S]`` (dimensionless) of healthy runs.
+
+    Attributes
+    ----------
+    q : float
+        Quantile level in (0, 1), e.g. ``1 - alpha``.
+    value : float
+        Point estimate, the order statistic of rank ``ceil(n q)``.
+    ci_low, ci_high : float
+        Order-statistic interval (ranks from :func:`quantile_ci_ranks`, or
+        pooled ranks for dependent STFT frames); ``-inf`` / ``+inf`` when the
+        tail holds too few samples to bound that side.
+    n : int
+        Number of samples the quantile was read from (records, or records x frames).
+    confidence : float
+        Coverage level in (0, 1) of the interval.
+    """
+
+    q: float
+    value: float
+    ci_low: float
+    ci_high: float
+    n: int
+    confidence: float
+
+    def contains(self, x: float) -> bool:
+        return self.ci_low <= x <= self.ci_high
+
+    def to_dict(self) -> dict[str, float | int | None]:
+        """JSON-ready; an unbounded interval end (too few tail samples) is ``None``."""
+        return {
+            "q": self.q,
+            "value": self.value,
+            "ci_low": _finite_or_none(self.ci_low),
+            "ci_high": _finite_or_none(self.ci_high),
+            "n": self.n,
+        }
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def _none_to_inf(x: float | None, sign: float) -> float:
+    return sign * np.inf if x is None else float(x)
+
+
+def _quantile_from_top(
+    top_desc: np.ndarray, n: int, q: float, confidence: float, n_eff: int | None = None
+) -> tuple[np.ndarray, ...]:
+    """Point and CI from the largest values sorted in descending order along axis 0."""
+    point, lo, hi = _pooled_ranks(n, n if n_eff is None else n_eff, q, confidence)
+    need = n - max(lo, 1) + 1
+    if top_desc.shape[0] < need:
+        raise ParameterError(f"kept {top_desc.shape[0]} tail values; the interval needs {need}")
+    shape = top_desc.shape[1:]
+    low = np.full(shape, -np.inf) if lo < 1 else top_desc[n - lo]
+    high = np.full(shape, np.inf) if hi > n else top_desc[n - hi]
+    return top_desc[n - point], low, high
