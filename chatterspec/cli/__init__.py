@@ -1,6 +1,6 @@
 """The ``chatterspec`` command.
 
-Each subcommand lives in ``chatterspec/commands/<name>.py`` and exposes
+Each subcommand lives in ``chatterspec/cli/<name>.py`` and exposes
 ``register(subparsers)``, which adds its parser and sets ``func`` (a callable
 taking the parsed ``argparse.Namespace`` and returning an exit code). With
 ``--json`` a subcommand prints exactly one JSON document on stdout and nothing

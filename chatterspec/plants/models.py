@@ -278,6 +278,39 @@ class LinearModel:
             return True
         return False
 
+    def transition(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """One step of the noise-free dynamics, ``A x + B u`` (eq 1), batched.
+
+        Parameters
+        ----------
+        x : (..., n) array
+            States.
+        u : (..., p) or (p,) array
+            Inputs (broadcast against ``x``'s leading axes).
+
+        Returns
+        -------
+        (..., n) array
+        """
+        return x @ self.A.T + np.asarray(u, dtype=float) @ self.B.T
+
+    def jacobian(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Jacobian of :meth:`transition` with respect to ``x``: ``A`` broadcast to ``(..., n, n)``.
+
+        Parameters
+        ----------
+        x : (..., n) array
+            States (only the leading shape is used).
+        u : (..., p) or (p,) array
+            Inputs (unused: the model is linear).
+
+        Returns
+        -------
+        (..., n, n) array
+            A read-only broadcast view of ``A``.
+        """
+        return np.broadcast_to(self.A, np.shape(x)[:-1] + self.A.shape)
+
     def replace(self, **changes: object) -> LinearModel:
         """Return a copy with fields replaced (validated again)."""
         return replace(self, **changes)
