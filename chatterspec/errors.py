@@ -13,6 +13,7 @@ __all__ = [
     "ChatterspecError",
     "DataFileError",
     "ModelFileError",
+    "ModelKindError",
     "NonFiniteError",
     "ParameterError",
     "ShapeError",
@@ -63,3 +64,7 @@ class CalibrationMismatchError(ChatterspecError):
 
 class UnstableModelWarning(UserWarning):
     """The nominal model has eigenvalues outside the unit circle."""
+
+
+class ModelKindError(ParameterError):
+    """A code path that needs a linear model (A, B) was handed a nonlinear one, or vice versa."""

@@ -1,0 +1,526 @@
+"""Nonlinear discrete-time plant models: ``x(k+1) = f(x(k), u(k)) + v(k)``, ``z(k) = C x(k) + w(k)``.
+
+The estimator papers (``smm-svsf-eha-journal.txt`` eq 4.1-4.5, ``imm-dynamic-2nd-order-svsf-eha.txt``
+eq 34-38) print their nonlinear plants directly in discrete time, as the explicit Euler step of the
+continuous equations. :class:`NonlinearModel` therefore stores the *discrete* transition ``f`` and its
+Jacobian ``F = df/dx``; :meth:`NonlinearModel.from_continuous` builds both from continuous-time
+``x' = g(x, u)`` by the same explicit Euler step (``f = x + dt g``, ``F = I + dt dg/dx``).
+
+The measurement stays linear (``C``), as in every paper: the filters of ``chatterspec.filters`` only
+need ``model.transition(x, u)``, ``model.jacobian(x, u)``, ``model.C``, ``model.Q``, ``model.R``,
+``model.dt`` and the sizes, which :class:`~chatterspec.plants.models.LinearModel` offers under the
+same names. :meth:`NonlinearModel.linearize` returns the small-signal ``LinearModel`` about an
+operating point.
+
+Callables must be picklable for local workers and Dask (module-level functions or
+:func:`functools.partial` of them, as :mod:`chatterspec.plants.eha4` does).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from .._validate import finite_array, positive, positive_int, readonly
+from ..errors import ModelKindError, NonFiniteError, ParameterError, ShapeError, SingularMatrixError
+from .models import LinearModel, OscillatoryMode, _check_covariance, oscillatory_mode
+
+__all__ = ["NonlinearModel", "is_linear", "require_linear"]
+
+Transition = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def _names(attr: str, given: tuple[str, ...], size: int, prefix: str) -> tuple[str, ...]:
+    given = tuple(str(s) for s in given)
+    if not given:
+        given = tuple(f"{prefix}{i + 1}" for i in range(size))
+    if len(given) != size:
+        raise ShapeError(f"{attr} must have {size} entries; got {len(given)}")
+    return given
+
+
+def _callable_id(fn: object) -> str:
+    """A stable text id of a (partial of a) module-level function, for fingerprints."""
+    parts = []
+    while hasattr(fn, "func"):  # functools.partial
+        kw = getattr(fn, "keywords", {}) or {}
+        args = getattr(fn, "args", ())
+        parts.append(json.dumps({"args": [repr(a) for a in args], "kw": {k: repr(v) for k, v in kw.items()}}))
+        fn = fn.func
+    parts.append(f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', repr(fn))}")
+    return "|".join(reversed(parts))
+
+
+@dataclass(frozen=True, eq=False)
+class NonlinearModel:
+    """A validated nonlinear discrete-time model with linear measurement.
+
+    ``x(k+1) = f(x(k), u(k)) + v(k)`` with ``v ~ N(0, Q)`` and ``z(k) = C x(k) + w(k)`` with
+    ``w ~ N(0, R)`` (the nonlinear counterpart of eq 1-2 of the chattering paper).
+
+    Parameters
+    ----------
+    f : callable
+        Discrete transition ``f(x, u) -> x_next``, batched: ``x`` (..., n), ``u`` (..., p) or (p,),
+        returns (..., n). Must not modify its arguments.
+    jac : callable
+        Jacobian ``jac(x, u) -> (..., n, n)``, ``F[..., i, j] = d f_i / d x_j``, batched like ``f``.
+    C : (m, n) array
+        Measurement matrix (a 1-D array is one measured channel); full row rank, ``m <= n``.
+    Q : (n, n) array
+        Process-noise covariance per step (symmetric positive semi-definite).
+    R : (m, m) array
+        Measurement-noise covariance (symmetric positive semi-definite).
+    dt : float
+        Sampling time in seconds (> 0).
+    n_inputs : int
+        Number of inputs p (>= 1, default 1).
+    input_jacobian : callable, optional
+        ``input_jacobian(x, u) -> (..., n, p)``, ``d f / d u``; used by :meth:`linearize`. Without
+        it :meth:`linearize` takes central differences in ``u``.
+    state_names, output_names, input_names : tuple of str, optional
+        Channel names; default ``x1..xn``, ``z1..zm``, ``u1..up``.
+    state_units, output_units : tuple of str, optional
+        Units of the states and of the measured channels (for reports and the viewer).
+    oscillatory_states : tuple of two int, optional
+        Indices ``(i, j)`` of the states whose continuous-equivalent Jacobian block
+        ``(F - I)[[i, j]][:, [i, j]] / dt`` (1/s) holds the plant's oscillatory mode; used by
+        :meth:`mode_at` and the linearized natural frequency / damping reported in listings.
+    rest_state : (n,) array, optional
+        Operating point (default zeros) at which :attr:`natural_frequency_hz` and
+        :attr:`damping_ratio` are evaluated (with zero input).
+    parameters : mapping of str to float, optional
+        Physical parameters (SI units), part of :meth:`fingerprint` and :meth:`to_dict`.
+    name : str
+        Short human-readable description.
+
+    Raises
+    ------
+    ShapeError, NonFiniteError, ParameterError
+        On inconsistent shapes (including ``f`` or ``jac`` returning the wrong shape at the rest
+        state), non-finite entries, ``dt <= 0`` or covariances that are not symmetric PSD.
+    """
+
+    f: Transition
+    jac: Transition
+    C: np.ndarray
+    Q: np.ndarray
+    R: np.ndarray
+    dt: float
+    n_inputs: int = 1
+    input_jacobian: Transition | None = None
+    state_names: tuple[str, ...] = ()
+    output_names: tuple[str, ...] = ()
+    input_names: tuple[str, ...] = ()
+    state_units: tuple[str, ...] = ()
+    output_units: tuple[str, ...] = ()
+    oscillatory_states: tuple[int, int] | None = None
+    rest_state: np.ndarray | None = None
+    parameters: Mapping[str, float] = field(default_factory=dict)
+    name: str = "nonlinear model"
+
+    def __post_init__(self) -> None:
+        if not callable(self.f) or not callable(self.jac):
+            raise ModelKindError("f and jac must be callables f(x, u) -> (..., n), jac(x, u) -> (..., n, n)")
+        C = finite_array("C", self.C, ndim=(1, 2))
+        if C.ndim == 1:
+            C = C[None, :]
+        m, n = C.shape
+        if m > n:
+            raise ShapeError(f"C has more rows ({m}) than states ({n})")
+        if np.linalg.matrix_rank(C) < m:
+            raise SingularMatrixError(f"C must have full row rank {m}; its rows are dependent")
+        Q = finite_array("Q", self.Q, shape=(n, n))
+        R = finite_array("R", self.R, shape=(m, m))
+        _check_covariance("Q", Q)
+        _check_covariance("R", R)
+        object.__setattr__(self, "dt", positive("dt", self.dt, unit="s"))
+        p = positive_int("n_inputs", self.n_inputs)
+        object.__setattr__(self, "n_inputs", p)
+        object.__setattr__(self, "state_names", _names("state_names", self.state_names, n, "x"))
+        object.__setattr__(self, "output_names", _names("output_names", self.output_names, m, "z"))
+        object.__setattr__(self, "input_names", _names("input_names", self.input_names, p, "u"))
+        su = tuple(str(u) for u in self.state_units) or ("",) * n
+        ou = tuple(str(u) for u in self.output_units) or ("",) * m
+        if len(su) != n:
+            raise ShapeError(f"state_units must have {n} entries; got {len(su)}")
+        if len(ou) != m:
+            raise ShapeError(f"output_units must have {m} entries; got {len(ou)}")
+        object.__setattr__(self, "state_units", su)
+        object.__setattr__(self, "output_units", ou)
+        rest = np.zeros(n) if self.rest_state is None else self.rest_state
+        rest = readonly(np.array(finite_array("rest_state", rest, shape=(n,))))
+        object.__setattr__(self, "rest_state", rest)
+        if self.oscillatory_states is not None:
+            idx = tuple(int(i) for i in self.oscillatory_states)
+            if len(idx) != 2 or len(set(idx)) != 2 or not all(0 <= i < n for i in idx):
+                raise ShapeError(
+                    f"oscillatory_states must be two distinct state indices in [0, {n}); got {idx}"
+                )
+            object.__setattr__(self, "oscillatory_states", idx)
+        params = {str(k): float(v) for k, v in dict(self.parameters).items()}
+        object.__setattr__(self, "parameters", params)
+        for attr, val in (("C", C), ("Q", Q), ("R", R)):
+            object.__setattr__(self, attr, readonly(np.array(val, dtype=float)))
+        # probe f and jac at the rest state (batched shape (2, n)) so that a wrong model fails here
+        x = np.broadcast_to(self.rest_state, (2, n)).copy()
+        u = np.zeros((2, p))
+        self.transition(x, u)
+        self.jacobian(x, u)
+
+    # -- sizes ---------------------------------------------------------------
+    @property
+    def n_states(self) -> int:
+        return self.C.shape[1]
+
+    @property
+    def n_outputs(self) -> int:
+        return self.C.shape[0]
+
+    @property
+    def is_linear(self) -> bool:
+        """Always False (``LinearModel`` has no such attribute; see :func:`is_linear`)."""
+        return False
+
+    @property
+    def full_measurement(self) -> bool:
+        """True when C is square and well conditioned (all states measured)."""
+        return self.n_outputs == self.n_states and np.linalg.cond(self.C) < 1e12
+
+    # -- dynamics ------------------------------------------------------------
+    def _inputs(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x = np.asarray(x, dtype=float)
+        u = np.asarray(u, dtype=float)
+        if x.ndim < 1 or x.shape[-1] != self.n_states:
+            raise ShapeError(f"x must have shape (..., {self.n_states}); got {x.shape}")
+        if u.ndim < 1 or u.shape[-1] != self.n_inputs:
+            raise ShapeError(f"u must have shape (..., {self.n_inputs}) or ({self.n_inputs},); got {u.shape}")
+        return x, u
+
+    def transition(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """One step of the noise-free dynamics ``f(x, u)``, batched.
+
+        Parameters
+        ----------
+        x : (..., n) array
+            States.
+        u : (..., p) or (p,) array
+            Inputs (broadcast against ``x``'s leading axes).
+
+        Returns
+        -------
+        (..., n) array
+
+        Raises
+        ------
+        ShapeError
+            If ``x``/``u`` have the wrong trailing size or ``f`` returns the wrong shape.
+        """
+        x, u = self._inputs(x, u)
+        out = np.asarray(self.f(x, u))
+        want = (*np.broadcast_shapes(x.shape[:-1], u.shape[:-1]), self.n_states)
+        if out.shape != want:
+            raise ShapeError(f"{self.name}: f(x, u) returned shape {out.shape}; expected {want}")
+        return out
+
+    def jacobian(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Jacobian ``F = df/dx`` at ``(x, u)``, batched: ``(..., n, n)``.
+
+        Parameters
+        ----------
+        x : (..., n) array
+            States.
+        u : (..., p) or (p,) array
+            Inputs.
+
+        Returns
+        -------
+        (..., n, n) array
+
+        Raises
+        ------
+        ShapeError
+            If the supplied ``jac`` returns the wrong shape.
+        """
+        x, u = self._inputs(x, u)
+        out = np.asarray(self.jac(x, u))
+        n = self.n_states
+        want = (*np.broadcast_shapes(x.shape[:-1], u.shape[:-1]), n, n)
+        if out.shape != want:
+            raise ShapeError(
+                f"{self.name}: the Jacobian jac(x, u) returned shape {out.shape}; expected {want}"
+            )
+        return out
+
+    def input_matrix(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """``df/du`` at one point ``(x, u)``: the supplied ``input_jacobian`` or central differences.
+
+        Parameters
+        ----------
+        x : (n,) array
+            State.
+        u : (p,) array
+            Input.
+
+        Returns
+        -------
+        (n, p) ndarray
+            Central differences use the step ``h = 1e-6 max(1, |u_j|)`` per input (error
+            O(h^2) times the third derivative; exact for inputs that enter affinely, as in the EHA).
+        """
+        x = finite_array("x", x, shape=(self.n_states,))
+        u = finite_array("u", u, shape=(self.n_inputs,))
+        if self.input_jacobian is not None:
+            B = np.asarray(self.input_jacobian(x, u), dtype=float)
+            if B.shape != (self.n_states, self.n_inputs):
+                raise ShapeError(
+                    f"input_jacobian returned shape {B.shape}; expected ({self.n_states}, {self.n_inputs})"
+                )
+            return B
+        B = np.empty((self.n_states, self.n_inputs))
+        for j in range(self.n_inputs):
+            h = 1e-6 * max(1.0, abs(u[j]))
+            up, um = u.copy(), u.copy()
+            up[j] += h
+            um[j] -= h
+            B[:, j] = (self.transition(x, up) - self.transition(x, um)) / (2 * h)
+        return B
+
+    def linearize(self, x0: np.ndarray | None = None, u0: np.ndarray | None = None) -> LinearModel:
+        """Small-signal linear model about ``(x0, u0)``: ``dx(k+1) = F dx(k) + G du(k)``.
+
+        ``F = jac(x0, u0)`` and ``G = df/du`` (see :meth:`input_matrix`); ``C``, ``Q``, ``R``, ``dt``
+        and the names are kept. The returned model acts on *deviations* from the operating point:
+        the offset ``f(x0, u0) - x0`` is not represented (it is zero at an equilibrium such as the
+        EHA at rest). Its ``oscillatory_block`` is the continuous-equivalent block of
+        ``oscillatory_states``, ``(F - I) / dt`` (the inverse of explicit Euler).
+
+        Parameters
+        ----------
+        x0 : (n,) array, optional
+            Operating state (default :attr:`rest_state`).
+        u0 : (p,) array, optional
+            Operating input (default zeros).
+
+        Returns
+        -------
+        LinearModel
+        """
+        x0 = self.rest_state if x0 is None else finite_array("x0", x0, shape=(self.n_states,))
+        u0 = np.zeros(self.n_inputs) if u0 is None else finite_array("u0", u0, shape=(self.n_inputs,))
+        F = self.jacobian(x0, u0)
+        if not np.all(np.isfinite(F)):
+            raise NonFiniteError(f"{self.name}: the Jacobian at the operating point is not finite")
+        G = self.input_matrix(x0, u0)
+        return LinearModel(
+            A=F,
+            B=G,
+            C=self.C,
+            Q=self.Q,
+            R=self.R,
+            dt=self.dt,
+            state_names=self.state_names,
+            output_names=self.output_names,
+            input_names=self.input_names,
+            output_units=self.output_units,
+            oscillatory_block=self._block(F),
+            name=f"{self.name} linearized",
+        )
+
+    def _block(self, F: np.ndarray) -> np.ndarray | None:
+        if self.oscillatory_states is None:
+            return None
+        idx = list(self.oscillatory_states)
+        return (F[np.ix_(idx, idx)] - np.eye(2)) / self.dt
+
+    def mode_at(self, x0: np.ndarray | None = None, u0: np.ndarray | None = None) -> OscillatoryMode | None:
+        """Natural frequency (Hz) and damping of the linearization at ``(x0, u0)``.
+
+        Parameters
+        ----------
+        x0 : (n,) array, optional
+            Operating state (default :attr:`rest_state`).
+        u0 : (p,) array, optional
+            Operating input (default zeros).
+
+        Returns
+        -------
+        OscillatoryMode or None
+            None without ``oscillatory_states`` or when the block has no oscillatory mode
+            (non-positive determinant).
+        """
+        x0 = self.rest_state if x0 is None else finite_array("x0", x0, shape=(self.n_states,))
+        u0 = np.zeros(self.n_inputs) if u0 is None else finite_array("u0", u0, shape=(self.n_inputs,))
+        block = self._block(self.jacobian(x0, u0))
+        if block is None or not np.all(np.isfinite(block)) or np.linalg.det(block) <= 0:
+            return None
+        return oscillatory_mode(block)
+
+    @property
+    def mode(self) -> OscillatoryMode | None:
+        """:meth:`mode_at` the rest state with zero input (a linearized value)."""
+        return self.mode_at()
+
+    @property
+    def natural_frequency_hz(self) -> float | None:
+        """Linearized natural frequency (Hz) at the rest state, or None."""
+        mode = self.mode
+        return None if mode is None else mode.natural_frequency_hz
+
+    @property
+    def damping_ratio(self) -> float | None:
+        """Linearized damping ratio at the rest state, or None."""
+        mode = self.mode
+        return None if mode is None else mode.damping_ratio
+
+    def replace(self, **changes: Any) -> NonlinearModel:
+        """Return a copy with fields replaced (validated again).
+
+        The sampling time is part of the discrete transition, so changing ``dt`` without passing a
+        new ``f`` and ``jac`` is a :class:`ParameterError` (rebuild the model, e.g. ``eha4(dt=...)``).
+        """
+        if "dt" in changes and not {"f", "jac"} <= set(changes):
+            raise ParameterError(
+                f"{self.name}: dt is built into the discrete transition f; pass new f and jac with dt "
+                "or rebuild the model from its factory"
+            )
+        return replace(self, **changes)
+
+    def fingerprint(self) -> str:
+        """SHA-256 of the transition's identity, the parameters, C, Q, R and dt."""
+        h = hashlib.sha256()
+        h.update(_callable_id(self.f).encode())
+        h.update(_callable_id(self.jac).encode())
+        h.update(json.dumps(self.parameters, sort_keys=True).encode())
+        for arr in (self.C, self.Q, self.R, np.array([self.dt])):
+            h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())
+            h.update(str(arr.shape).encode())
+        return h.hexdigest()
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-ready description (the transition is named, not serialized)."""
+        return {
+            "name": self.name,
+            "kind": "nonlinear",
+            "transition": _callable_id(self.f).split("|")[0],
+            "parameters": dict(self.parameters),
+            "dt": self.dt,
+            "C": self.C.tolist(),
+            "Q": self.Q.tolist(),
+            "R": self.R.tolist(),
+            "state_names": list(self.state_names),
+            "state_units": list(self.state_units),
+            "output_names": list(self.output_names),
+            "input_names": list(self.input_names),
+            "output_units": list(self.output_units),
+        }
+
+    @classmethod
+    def from_continuous(
+        cls,
+        g: Transition,
+        g_jac: Transition,
+        C: np.ndarray,
+        Q: np.ndarray,
+        R: np.ndarray,
+        dt: float,
+        **kwargs: Any,
+    ) -> NonlinearModel:
+        """Explicit Euler discretization of ``x' = g(x, u)``: ``f = x + dt g``, ``F = I + dt dg/dx``.
+
+        The papers discretize this way (e.g. eq 4.1-4.3 of the SMM paper). ``Q`` and ``R`` are
+        the *discrete* covariances. Euler is only stable while ``dt`` is small against the local
+        time constants (for the EHA's quadratic friction: ``2 dt a1 |v| / M < 1``).
+
+        Parameters
+        ----------
+        g : callable
+            Continuous dynamics ``g(x, u) -> (..., n)`` (units of the state per second).
+        g_jac : callable
+            Its Jacobian ``dg/dx`` ``-> (..., n, n)``.
+        C, Q, R : arrays
+            As in :class:`NonlinearModel`.
+        dt : float
+            Sampling time in seconds (> 0).
+        **kwargs
+            The other :class:`NonlinearModel` fields (names, units, ``n_inputs``, ...).
+        """
+        dt = positive("dt", dt, unit="s")
+        return cls(
+            f=_EulerStep(g, dt),
+            jac=_EulerJacobian(g_jac, dt),
+            C=C,
+            Q=Q,
+            R=R,
+            dt=dt,
+            **kwargs,
+        )
+
+
+@dataclass(frozen=True)
+class _EulerStep:
+    g: Transition
+    dt: float
+
+    def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        return x + self.dt * np.asarray(self.g(x, u))
+
+    @property
+    def func(self) -> Transition:  # for _callable_id
+        return self.g
+
+
+@dataclass(frozen=True)
+class _EulerJacobian:
+    g_jac: Transition
+    dt: float
+
+    def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        J = self.dt * np.asarray(self.g_jac(x, u))
+        return J + np.eye(J.shape[-1])
+
+    @property
+    def func(self) -> Transition:
+        return self.g_jac
+
+
+def is_linear(model: object) -> bool:
+    """True for a :class:`~chatterspec.plants.models.LinearModel` (A, B matrices available).
+
+    Parameters
+    ----------
+    model : object
+        A plant model.
+    """
+    return isinstance(model, LinearModel)
+
+
+def require_linear(model: object, what: str) -> LinearModel:
+    """Return ``model`` if it is a ``LinearModel``; raise :class:`ModelKindError` otherwise.
+
+    Parameters
+    ----------
+    model : object
+        The model handed to a linear-only code path.
+    what : str
+        What needs the linear model (named in the message), e.g. ``"the expected spectrum"``.
+
+    Raises
+    ------
+    ModelKindError
+        If ``model`` is a :class:`NonlinearModel` (or anything else without ``A``/``B``).
+    """
+    if isinstance(model, LinearModel):
+        return model
+    if isinstance(model, NonlinearModel):
+        raise ModelKindError(
+            f"{what} needs a linear model (A, B matrices); {model.name!r} is nonlinear. "
+            "Use model.linearize(x0, u0) for a small-signal model, or a method that supports "
+            "nonlinear plants (the estimators, or thresholds calibrated on healthy runs)"
+        )
+    raise ModelKindError(f"{what} needs a LinearModel; got {type(model).__name__}")
