@@ -26,17 +26,21 @@ NAMES = (
     "eha-bulk-25down",
     "eha-bulk-25up",
     "eha-bulk-50up",
+    "detc-normal",
+    "detc-uncertain",
+    "eha4-leak-timeline",
+    "eha4-imm-analogue",
 )
 
 
 def test_catalogue_names_are_the_cli_contract() -> None:
     assert set(scenario_names()) == set(NAMES)
-    assert len(scenario_names()) == 23
+    assert len(scenario_names()) == 27
     cat = catalogue()
     assert tuple(cat) == scenario_names()
     for name, sc in cat.items():
         assert sc.name == name
-        assert sc.dt == 1e-3
+        assert sc.dt == (1e-4 if name == "eha4-imm-analogue" else 1e-3)
 
 
 def test_unknown_name_lists_valid_names() -> None:

@@ -40,6 +40,7 @@ from typing import Literal
 
 import numpy as np
 
+from .._jit import enabled, njit
 from .._validate import finite_array, nonnegative, positive
 from ..errors import ParameterError
 from .nonlinear import NonlinearModel
@@ -145,6 +146,39 @@ def _coefficients(T: float, p: dict[str, float]) -> dict[str, float]:
     }
 
 
+@njit
+def _step_kernel(
+    x: np.ndarray,
+    w: float,
+    T: float,
+    c33: float,
+    c32: float,
+    cxx: float,
+    cl: float,
+    cu: float,
+    Dp: float,
+    QL0: float,
+    a1: float,
+    a3: float,
+    a2: float,
+    M: float,
+    A: float,
+    out: np.ndarray,
+) -> None:  # pragma: no cover - compiled (the numpy path below is the reference)
+    for r in range(x.shape[0]):
+        x2 = x[r, 1]
+        x3 = x[r, 2]
+        x4 = x[r, 3]
+        s = 1.0 if x2 > 0 else (-1.0 if x2 < 0 else 0.0)
+        s4 = 1.0 if x4 > 0 else (-1.0 if x4 < 0 else 0.0)
+        fric = a1 * x2 * x2 + a3
+        flow = Dp * w - s4 * QL0
+        out[r, 0] = x[r, 0] + T * x2
+        out[r, 1] = x2 + T * x3
+        out[r, 2] = c33 * x3 - c32 * x2 - (cxx * x2 * x3 + cl * fric) * s + cu * flow
+        out[r, 3] = (a2 * x2 + fric * s + M * x3) / A
+
+
 def eha4_transition(x: np.ndarray, u: np.ndarray, **c: float) -> np.ndarray:
     """One Euler step of the corrected eq (4.1)-(4.5), batched.
 
@@ -162,6 +196,16 @@ def eha4_transition(x: np.ndarray, u: np.ndarray, **c: float) -> np.ndarray:
     -------
     (..., 4) ndarray
     """
+    if u.ndim == 1 and x.ndim == 2 and enabled():
+        # one input for the whole batch (the simulation's case): compiled loop, same formulas
+        out = np.empty(x.shape)
+        _step_kernel(
+            np.ascontiguousarray(x, dtype=float),
+            float(u[0]),
+            *(c[k] for k in ("T", "c33", "c32", "cxx", "cl", "cu", "Dp", "QL0", "a1", "a3", "a2", "M", "A")),
+            out,
+        )
+        return out
     x2, x3, x4 = x[..., 1], x[..., 2], x[..., 3]
     s = np.sign(x2)
     fric = c["a1"] * x2 * x2 + c["a3"]  # (a1 x2^2 + a3)

@@ -30,7 +30,7 @@ from .._validate import finite_array, positive, positive_int, readonly
 from ..errors import ModelKindError, NonFiniteError, ParameterError, ShapeError, SingularMatrixError
 from .models import LinearModel, OscillatoryMode, _check_covariance, oscillatory_mode
 
-__all__ = ["NonlinearModel", "is_linear", "require_linear"]
+__all__ = ["NonlinearModel", "is_linear", "require_linear", "same_dynamics"]
 
 Transition = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -524,3 +524,28 @@ def require_linear(model: object, what: str) -> LinearModel:
             "nonlinear plants (the estimators, or thresholds calibrated on healthy runs)"
         )
     raise ModelKindError(f"{what} needs a LinearModel; got {type(model).__name__}")
+
+
+def same_dynamics(a: object, b: object) -> bool:
+    """True when two models have the same dynamics and measurement (noise covariances ignored).
+
+    ``LinearModel``: equal ``A``, ``B``, ``C``. ``NonlinearModel``: the same transition (function and
+    bound coefficients), equal ``C`` and ``dt``. A linear and a nonlinear model never match.
+
+    Parameters
+    ----------
+    a, b : LinearModel or NonlinearModel
+        The models to compare.
+    """
+    if a is b:
+        return True
+    if isinstance(a, LinearModel) and isinstance(b, LinearModel):
+        return np.array_equal(a.A, b.A) and np.array_equal(a.B, b.B) and np.array_equal(a.C, b.C)
+    if isinstance(a, NonlinearModel) and isinstance(b, NonlinearModel):
+        return (
+            _callable_id(a.f) == _callable_id(b.f)
+            and a.dt == b.dt
+            and a.C.shape == b.C.shape
+            and np.array_equal(a.C, b.C)
+        )
+    return False

@@ -15,7 +15,7 @@ import scipy.signal
 
 from .._validate import finite_array, nonnegative, positive
 
-__all__ = ["Chirp", "Constant", "Signal", "SquareWave", "Step"]
+__all__ = ["Chirp", "Constant", "HeldUniform", "Signal", "Sine", "SquareWave", "Step", "Sum"]
 
 
 @runtime_checkable
@@ -137,3 +137,123 @@ class SquareWave:
 
     def describe(self) -> str:
         return f"square wave {self.frequency_hz:g} Hz, amplitude {self.amplitude:g}"
+
+
+@dataclass(frozen=True)
+class Sine:
+    """u(t) = offset + amplitude * sin(2 pi frequency_hz t + phase).
+
+    The nonlinear EHA scenarios drive the pump with ``94.25 sin(2 pi 0.5 t)`` rad/s
+    (``shared/notes/estimators.md`` section 2.3).
+
+    Attributes
+    ----------
+    amplitude : float
+        Peak value (input units, e.g. rad/s of pump speed).
+    frequency_hz : float
+        Frequency in Hz (> 0).
+    phase : float
+        Phase at t = 0 in radians.
+    offset : float
+        Constant added to the sine.
+    """
+
+    amplitude: float = 1.0
+    frequency_hz: float = 1.0
+    phase: float = 0.0
+    offset: float = 0.0
+
+    def __post_init__(self) -> None:
+        positive("frequency_hz", self.frequency_hz, unit="Hz")
+
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        t = _times(t)
+        return self.offset + self.amplitude * np.sin(2 * np.pi * self.frequency_hz * t + self.phase)
+
+    def describe(self) -> str:
+        return f"sine {self.frequency_hz:g} Hz, amplitude {self.amplitude:g}"
+
+
+@dataclass(frozen=True)
+class HeldUniform:
+    """A seeded i.i.d. uniform(low, high) sequence held for ``hold_time`` seconds (zero-order hold).
+
+    Value ``j`` is held on ``[j hold_time, (j + 1) hold_time)``; the values are the first draws
+    of ``numpy.random.Generator(PCG64(SeedSequence(seed))).uniform(low, high)``, so the input is a
+    deterministic function of ``t`` (the same for every realization and whatever time vector is
+    asked for). The DETC2015 scenarios use U(-1, 1) per 1 ms sample.
+
+    Attributes
+    ----------
+    low, high : float
+        Bounds of the uniform law (low < high).
+    hold_time : float
+        Hold time in seconds (> 0), normally the sampling time.
+    seed : int
+        Non-negative seed of the sequence (part of the scenario definition).
+    """
+
+    low: float = -1.0
+    high: float = 1.0
+    hold_time: float = 1e-3
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        positive("hold_time", self.hold_time, unit="s")
+        if not float(self.low) < float(self.high):
+            from ..errors import ParameterError
+
+            raise ParameterError(f"need low < high; got [{self.low}, {self.high}]")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            from ..errors import ParameterError
+
+            raise ParameterError(f"seed must be a non-negative integer; got {self.seed!r}")
+
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        t = _nonnegative_times(t)
+        j = np.floor(t / self.hold_time + 1e-9).astype(np.int64)
+        if j.size == 0:
+            return np.zeros(0)
+        rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(self.seed)))
+        values = rng.uniform(float(self.low), float(self.high), size=int(j.max()) + 1)
+        return values[j]
+
+    def describe(self) -> str:
+        return f"uniform({self.low:g}, {self.high:g}) held {self.hold_time:g} s, seed {self.seed}"
+
+
+def _nonnegative_times(t: object) -> np.ndarray:
+    """Finite 1-D sample times that are all >= 0 (seconds)."""
+    t = _times(t)
+    if t.size and t.min() < 0:
+        from ..errors import ParameterError
+
+        raise ParameterError(f"sample times must be >= 0 s; got min {t.min():g}")
+    return t
+
+
+@dataclass(frozen=True)
+class Sum:
+    """The sum of several signals, e.g. a random sequence superimposed on a step (DETC2015).
+
+    Attributes
+    ----------
+    terms : tuple of Signal
+        The signals to add (at least one).
+    """
+
+    terms: tuple[Signal, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not self.terms:
+            from ..errors import ParameterError
+
+            raise ParameterError("Sum needs at least one signal")
+        object.__setattr__(self, "terms", tuple(self.terms))
+
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        t = _times(t)
+        return np.sum([s.sample(t) for s in self.terms], axis=0)
+
+    def describe(self) -> str:
+        return " + ".join(s.describe() for s in self.terms)

@@ -181,6 +181,11 @@ def _simulate_block(
     t: np.ndarray,
     u: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
+    if not getattr(scenario, "is_linear", True) and hi - lo > 1:
+        # nonlinear true plant: same seeding scheme, f(x, u) stepping (plants/simulate_nonlinear.py)
+        from .simulate_nonlinear import simulate_block_nonlinear
+
+        return simulate_block_nonlinear(scenario, root, lo, hi, t, u)
     if hi - lo == 1:
         # BLAS evaluates a one-row product by another kernel (gemv) whose rounding differs
         # in the last bit; simulate two realizations so that realization ``lo`` is
