@@ -344,6 +344,16 @@ DETC_H = np.array([[1.0, 0.0, 0.0]])
 DETC_INPUT_SEED = 2015
 
 
+def _complex_pair_block(F: np.ndarray, dt: float) -> np.ndarray | None:
+    """Real 2x2 block [[s, w], [-w, s]] of the complex pole pair of (F - I)/dt (Euler inverse), if any."""
+    ev = np.linalg.eigvals((F - np.eye(len(F))) / dt)
+    pair = [e for e in ev if e.imag > 0]
+    if not pair:
+        return None
+    s, w = pair[0].real, pair[0].imag
+    return np.array([[s, w], [-w, s]])
+
+
 def _detc_model(F: np.ndarray, Q: np.ndarray, R: np.ndarray, name: str) -> LinearModel:
     return LinearModel(
         A=F,
@@ -356,6 +366,7 @@ def _detc_model(F: np.ndarray, Q: np.ndarray, R: np.ndarray, name: str) -> Linea
         output_names=("position",),
         input_names=("u",),
         output_units=("",),
+        oscillatory_block=_complex_pair_block(F, 1e-3),
         name=name,
     )
 
@@ -484,7 +495,7 @@ def _eha4_imm_analogue() -> Scenario:
         "for 2 s each; square wave +-60 rad/s at 1 Hz",
         family="eha4",
         fault="leakage+friction",
-        level="leakage at 2 s, friction at 4 s",
+        level="leak 2 s, friction 4 s",
         fault_channel=None,
         filter_settings=settings,
     )
