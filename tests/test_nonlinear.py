@@ -172,3 +172,28 @@ def test_pickle_and_fingerprint() -> None:
         p.replace(dt=2e-3)
     d = p.to_dict()
     assert d["kind"] == "nonlinear" and d["parameters"] == {"w": 10.0} and "_pend" in d["transition"]
+
+
+def test_linear_only_code_paths_reject_nonlinear_models(capsys: pytest.CaptureFixture[str]) -> None:
+    """The chattering pipeline, the expected spectrum, the SVSF and the monitor need A and B: a
+    nonlinear model gets a ModelKindError naming the code path, and the CLI reports it (exit 2)."""
+    from chatterspec.cli import main
+    from chatterspec.detection.pipeline import chattering_record
+    from chatterspec.detection.spectral import expected_spectrum
+    from chatterspec.filters.svsf import SVSF
+    from chatterspec.online.monitor import ChatteringMonitor
+    from chatterspec.plants.eha4 import eha4
+
+    m = eha4()
+    z, u = np.zeros((1, 5, 4)), np.zeros((5, 1))
+    with pytest.raises(ModelKindError, match="chattering pipeline"):
+        chattering_record(m, z, u)
+    with pytest.raises(ModelKindError, match="expected chattering spectrum"):
+        expected_spectrum(m, np.array([1.0, 2.0]), 100)
+    with pytest.raises(ModelKindError, match="chattering SVSF"):
+        SVSF(m, psi=1.0)
+    with pytest.raises(ModelKindError, match="monitor"):
+        ChatteringMonitor(m)
+    assert main(["detect", "eha4-leak-timeline", "--runs", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "needs a linear model" in err and "Traceback" not in err

@@ -15,6 +15,7 @@ import numpy as np
 from .._validate import positive_int
 from ..filters.svsf import auxiliary_svsf
 from ..plants.models import LinearModel
+from ..plants.nonlinear import require_linear
 from ..plants.scenarios import Scenario
 from ..plants.simulate import Simulation, iter_simulations
 from ..rng import SeedLike
@@ -105,6 +106,7 @@ def chattering_record(
     ChatteringRecord
         ``values`` of shape (runs, T - 1, m).
     """
+    require_linear(model, "the chattering pipeline (auxiliary sgn-SVSF of eq 8-11)")
     e = auxiliary_svsf(model, gamma).run(z, u, x0=x0).e_prior
     if e.ndim == 2:
         e = e[None]

@@ -41,6 +41,7 @@ import scipy.signal
 from .._validate import finite_array, positive, positive_int, readonly
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
+from ..plants.nonlinear import NonlinearModel, require_linear
 
 __all__ = [
     "DEFAULT_STFT",
@@ -184,6 +185,8 @@ def chattering_autocovariance(model: LinearModel) -> tuple[np.ndarray, np.ndarra
         If the model is not full-measurement (C square and invertible): the
         reduced-order chattering (eq 26-28) is not an MA(1) of this form.
     """
+    if isinstance(model, NonlinearModel):
+        require_linear(model, "the expected chattering spectrum (eq 56-58)")
     if not isinstance(model, LinearModel):
         raise ParameterError(
             f"model must be a chatterspec.plants.models.LinearModel; got {type(model).__name__}"

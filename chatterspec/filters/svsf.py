@@ -42,6 +42,7 @@ import scipy.linalg
 from .._validate import finite_array, open_unit
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
+from ..plants.nonlinear import NonlinearModel, require_linear
 
 __all__ = [
     "SVSF",
@@ -137,6 +138,8 @@ class SVSF:
     _inv_psi: np.ndarray | None = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
+        if isinstance(self.model, NonlinearModel):  # a specific error, not a TypeError traceback
+            require_linear(self.model, "the chattering SVSF (eq 8-11)")
         if not isinstance(self.model, LinearModel):
             raise TypeError(f"model must be a LinearModel; got {type(self.model).__name__}")
         object.__setattr__(self, "gamma", open_unit("gamma", self.gamma))

@@ -40,6 +40,7 @@ from ..detection.thresholds import Threshold, frame_threshold
 from ..errors import ParameterError, ShapeError
 from ..filters.svsf import SVSF, SVSFState, auxiliary_svsf
 from ..plants.models import LinearModel
+from ..plants.nonlinear import NonlinearModel, require_linear
 
 __all__ = [
     "ChatteringMonitor",
@@ -270,6 +271,8 @@ class ChatteringMonitor:
     def __init__(
         self, model: LinearModel, settings: MonitorSettings | None = None, *, t0: float = 0.0
     ) -> None:
+        if isinstance(model, NonlinearModel):
+            require_linear(model, "the chattering monitor (expected spectrum and frame thresholds)")
         if not isinstance(model, LinearModel):
             raise TypeError(f"model must be a LinearModel; got {type(model).__name__}")
         self.model = model
