@@ -10,7 +10,7 @@ import scipy.stats
 
 from chatterspec import Scenario, Segment, iter_simulations, simulate
 from chatterspec.errors import NonFiniteError, ParameterError
-from chatterspec.plants.eha4 import eha4, eha4_transition
+from chatterspec.plants.eha4 import eha4, eha4_jacobian, eha4_transition
 from chatterspec.plants.models import LinearModel, second_order
 from chatterspec.plants.nonlinear import NonlinearModel
 from chatterspec.plants.signals import Constant, Sine
@@ -141,5 +141,9 @@ def test_compiled_step_equals_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
     fast = eha4_transition(x, u, **c)
     ref = eha4_transition(x, np.broadcast_to(u, (33, 1)), **c)  # 2-D u: numpy path
     np.testing.assert_allclose(fast, ref, rtol=1e-15, atol=0)
+    jfast = eha4_jacobian(x, u, **c)
+    jref = eha4_jacobian(x, np.broadcast_to(u, (33, 1)), **c)
+    np.testing.assert_allclose(jfast, jref, rtol=1e-15, atol=0)
     monkeypatch.setenv("CHATTERSPEC_JIT", "0")
     np.testing.assert_array_equal(eha4_transition(x, u, **c), ref)
+    np.testing.assert_array_equal(eha4_jacobian(x, u, **c), jref)

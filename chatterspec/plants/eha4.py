@@ -36,7 +36,7 @@ printed as "Major friction", a1 = 1.162e6, a2 = -7440, a3 = 500).
 from __future__ import annotations
 
 from functools import partial
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 
@@ -48,6 +48,7 @@ from .nonlinear import NonlinearModel
 __all__ = [
     "EHA4_MODES",
     "EHA4_PARAMETERS",
+    "EHA4Coefficients",
     "eha4",
     "eha4_jacobian",
     "eha4_mode_parameters",
@@ -125,31 +126,76 @@ def eha4_mode_parameters(mode: str = "normal", **overrides: float) -> dict[str, 
     return p
 
 
-def _coefficients(T: float, p: dict[str, float]) -> dict[str, float]:
+class EHA4Coefficients(NamedTuple):
+    """Step coefficients of the corrected eq (4.3)-(4.5) at sampling time ``T`` (built by :func:`eha4`).
+
+    Attributes
+    ----------
+    T : float
+        Sampling time (s).
+    c33 : float
+        ``1 - T (a2 V0 + M be L)/(M V0)``, the x3 coefficient of (4.3).
+    c32 : float
+        ``T (A_E^2 + a2 L) be/(M V0)``, minus the x2 coefficient of (4.3).
+    cxx : float
+        ``2 T a1 / M``, the coefficient of ``x2 x3 sgn(x2)``.
+    cl : float
+        ``T be L/(M V0)``, the coefficient of ``(a1 x2^2 + a3) sgn(x2)``.
+    cu : float
+        ``T A_E be/(M V0)``, the coefficient of the flow u of (4.5).
+    Dp : float
+        Pump displacement (m^3/rad).
+    QL0 : float
+        Flow-rate offset (m^3/s).
+    a1, a2, a3 : float
+        Friction coefficients (N s^2/m^2, N s/m, N).
+    M : float
+        Mass (kg).
+    A : float
+        Piston area A_E (m^2).
+    """
+
+    T: float
+    c33: float
+    c32: float
+    cxx: float
+    cl: float
+    cu: float
+    Dp: float
+    QL0: float
+    a1: float
+    a2: float
+    a3: float
+    M: float
+    A: float
+
+
+def _coefficients(T: float, p: dict[str, float]) -> EHA4Coefficients:
     A, M, V0, be, L = p["piston_area"], p["mass"], p["volume"], p["bulk_modulus"], p["leakage"]
     a1, a2, a3 = p["a1"], p["a2"], p["a3"]
     MV0 = M * V0
-    return {
-        "T": T,
-        "c33": 1.0 - T * (a2 * V0 + M * be * L) / MV0,  # x3 coefficient of (4.3)
-        "c32": T * (A * A + a2 * L) * be / MV0,  # -x2 coefficient of (4.3)
-        "cxx": T * 2.0 * a1 * V0 / MV0,  # = 2 T a1 / M, the x2 x3 sgn(x2) term
-        "cl": T * be * L / MV0,  # times (a1 x2^2 + a3) sgn(x2)
-        "cu": T * A * be / MV0,  # times the flow u of (4.5)
-        "Dp": p["pump_displacement"],
-        "QL0": p["flow_offset"],
-        "a1": a1,
-        "a2": a2,
-        "a3": a3,
-        "M": M,
-        "A": A,
-    }
+    return EHA4Coefficients(
+        T=T,
+        c33=1.0 - T * (a2 * V0 + M * be * L) / MV0,
+        c32=T * (A * A + a2 * L) * be / MV0,
+        cxx=T * 2.0 * a1 * V0 / MV0,
+        cl=T * be * L / MV0,
+        cu=T * A * be / MV0,
+        Dp=p["pump_displacement"],
+        QL0=p["flow_offset"],
+        a1=a1,
+        a2=a2,
+        a3=a3,
+        M=M,
+        A=A,
+    )
 
 
 @njit
 def _step_kernel(
     x: np.ndarray,
     w: float,
+    out: np.ndarray,
     T: float,
     c33: float,
     c32: float,
@@ -159,12 +205,11 @@ def _step_kernel(
     Dp: float,
     QL0: float,
     a1: float,
-    a3: float,
     a2: float,
+    a3: float,
     M: float,
     A: float,
-    out: np.ndarray,
-) -> None:  # pragma: no cover - compiled (the numpy path below is the reference)
+) -> None:  # pragma: no cover - compiled (arguments in EHA4Coefficients order)
     for r in range(x.shape[0]):
         x2 = x[r, 1]
         x3 = x[r, 2]
@@ -179,7 +224,45 @@ def _step_kernel(
         out[r, 3] = (a2 * x2 + fric * s + M * x3) / A
 
 
-def eha4_transition(x: np.ndarray, u: np.ndarray, **c: float) -> np.ndarray:
+@njit
+def _jacobian_kernel(
+    x: np.ndarray,
+    J: np.ndarray,
+    T: float,
+    c33: float,
+    c32: float,
+    cxx: float,
+    cl: float,
+    _cu: float,
+    _Dp: float,
+    _QL0: float,
+    a1: float,
+    a2: float,
+    _a3: float,
+    M: float,
+    A: float,
+) -> None:  # pragma: no cover - compiled (arguments in EHA4Coefficients order)
+    for r in range(x.shape[0]):
+        x2 = x[r, 1]
+        x3 = x[r, 2]
+        s = 1.0 if x2 > 0 else (-1.0 if x2 < 0 else 0.0)
+        ax2 = abs(x2)
+        J[r, 0, 0] = 1.0
+        J[r, 0, 1] = T
+        J[r, 1, 1] = 1.0
+        J[r, 1, 2] = T
+        J[r, 2, 1] = -c32 - cxx * x3 * s - 2.0 * cl * a1 * ax2
+        J[r, 2, 2] = c33 - cxx * ax2
+        J[r, 3, 1] = (a2 + 2.0 * a1 * ax2) / A
+        J[r, 3, 2] = M / A
+
+
+def _batched(x: np.ndarray, u: np.ndarray) -> bool:
+    """True for the compiled path: x (runs, 4) C-contiguous float, one input for all rows."""
+    return u.ndim == 1 and x.ndim == 2 and x.dtype == np.float64 and x.flags.c_contiguous and enabled()
+
+
+def eha4_transition(x: np.ndarray, u: np.ndarray, c: EHA4Coefficients) -> np.ndarray:
     """One Euler step of the corrected eq (4.1)-(4.5), batched.
 
     Parameters
@@ -188,39 +271,36 @@ def eha4_transition(x: np.ndarray, u: np.ndarray, **c: float) -> np.ndarray:
         Position (m), velocity (m/s), acceleration (m/s^2), differential pressure (Pa).
     u : (..., 1) or (1,) array
         Pump speed ``omega_p`` in rad/s.
-    **c : float
-        Step coefficients built by :func:`eha4` (``T``, ``c33``, ``c32``, ``cxx``, ``cl``, ``cu``,
-        ``Dp``, ``QL0``, ``a1``, ``a2``, ``a3``, ``M``, ``A``); not meant to be passed by hand.
+    c : EHA4Coefficients
+        Step coefficients built by :func:`eha4` (``model.f.keywords["c"]``).
 
     Returns
     -------
     (..., 4) ndarray
+        With numba, a 2-D ``x`` and one input for all rows take a compiled loop over the same
+        formulas (tested equal to the numpy path).
     """
-    if u.ndim == 1 and x.ndim == 2 and enabled():
-        # one input for the whole batch (the simulation's case): compiled loop, same formulas
+    x = np.asarray(x, dtype=float)
+    u = np.asarray(u, dtype=float)
+    if _batched(x, u):
         out = np.empty(x.shape)
-        _step_kernel(
-            np.ascontiguousarray(x, dtype=float),
-            float(u[0]),
-            *(c[k] for k in ("T", "c33", "c32", "cxx", "cl", "cu", "Dp", "QL0", "a1", "a3", "a2", "M", "A")),
-            out,
-        )
+        _step_kernel(x, float(u[0]), out, *c)
         return out
     x2, x3, x4 = x[..., 1], x[..., 2], x[..., 3]
     s = np.sign(x2)
-    fric = c["a1"] * x2 * x2 + c["a3"]  # (a1 x2^2 + a3)
-    flow = c["Dp"] * u[..., 0] - np.sign(x4) * c["QL0"]  # (4.5)
-    x3n = c["c33"] * x3 - c["c32"] * x2 - (c["cxx"] * x2 * x3 + c["cl"] * fric) * s + c["cu"] * flow  # (4.3)
-    x4n = (c["a2"] * x2 + fric * s + c["M"] * x3) / c["A"]  # (4.4)
+    fric = c.a1 * x2 * x2 + c.a3  # (a1 x2^2 + a3)
+    flow = c.Dp * u[..., 0] - np.sign(x4) * c.QL0  # (4.5)
+    x3n = c.c33 * x3 - c.c32 * x2 - (c.cxx * x2 * x3 + c.cl * fric) * s + c.cu * flow  # (4.3)
+    x4n = (c.a2 * x2 + fric * s + c.M * x3) / c.A  # (4.4)
     out = np.empty((*np.broadcast_shapes(x.shape[:-1], u.shape[:-1]), 4))
-    out[..., 0] = x[..., 0] + c["T"] * x2  # (4.1)
-    out[..., 1] = x2 + c["T"] * x3  # (4.2)
+    out[..., 0] = x[..., 0] + c.T * x2  # (4.1)
+    out[..., 1] = x2 + c.T * x3  # (4.2)
     out[..., 2] = x3n
     out[..., 3] = x4n
     return out
 
 
-def eha4_jacobian(x: np.ndarray, u: np.ndarray, **c: float) -> np.ndarray:
+def eha4_jacobian(x: np.ndarray, u: np.ndarray, c: EHA4Coefficients) -> np.ndarray:
     """Jacobian ``d x+ / d x`` of :func:`eha4_transition` (``sgn' = 0``), batched.
 
     Parameters
@@ -229,32 +309,38 @@ def eha4_jacobian(x: np.ndarray, u: np.ndarray, **c: float) -> np.ndarray:
         States (SI units, as in :func:`eha4_transition`).
     u : (..., 1) or (1,) array
         Pump speed in rad/s (the Jacobian does not depend on it).
-    **c : float
+    c : EHA4Coefficients
         Step coefficients built by :func:`eha4`.
 
     Returns
     -------
     (..., 4, 4) ndarray
     """
+    x = np.asarray(x, dtype=float)
+    u = np.asarray(u, dtype=float)
+    if _batched(x, u):
+        J = np.zeros((x.shape[0], 4, 4))
+        _jacobian_kernel(x, J, *c)
+        return J
     x2, x3 = x[..., 1], x[..., 2]
     s = np.sign(x2)
     ax2 = np.abs(x2)
     J = np.zeros((*np.broadcast_shapes(x.shape[:-1], u.shape[:-1]), 4, 4))
     J[..., 0, 0] = 1.0
-    J[..., 0, 1] = c["T"]
+    J[..., 0, 1] = c.T
     J[..., 1, 1] = 1.0
-    J[..., 1, 2] = c["T"]
+    J[..., 1, 2] = c.T
     # d/dx2 of -(cxx x2 x3 + cl (a1 x2^2 + a3)) sgn(x2) = -cxx x3 sgn(x2) - 2 cl a1 |x2|
-    J[..., 2, 1] = -c["c32"] - c["cxx"] * x3 * s - 2.0 * c["cl"] * c["a1"] * ax2
-    J[..., 2, 2] = c["c33"] - c["cxx"] * ax2
-    J[..., 3, 1] = (c["a2"] + 2.0 * c["a1"] * ax2) / c["A"]
-    J[..., 3, 2] = c["M"] / c["A"]
+    J[..., 2, 1] = -c.c32 - c.cxx * x3 * s - 2.0 * c.cl * c.a1 * ax2
+    J[..., 2, 2] = c.c33 - c.cxx * ax2
+    J[..., 3, 1] = (c.a2 + 2.0 * c.a1 * ax2) / c.A
+    J[..., 3, 2] = c.M / c.A
     return J
 
 
-def _input_jacobian(x: np.ndarray, u: np.ndarray, **c: float) -> np.ndarray:
+def _input_jacobian(x: np.ndarray, u: np.ndarray, c: EHA4Coefficients) -> np.ndarray:
     B = np.zeros((4, 1))
-    B[2, 0] = c["cu"] * c["Dp"]  # T A_E be D_p / (M V0)
+    B[2, 0] = c.cu * c.Dp  # T A_E be D_p / (M V0)
     return B
 
 
@@ -318,14 +404,14 @@ def eha4(
         raise ParameterError(f"measure must be 'full' or 'position-pressure'; got {measure!r}")
     c = _coefficients(dt, p)
     return NonlinearModel(
-        f=partial(eha4_transition, **c),
-        jac=partial(eha4_jacobian, **c),
+        f=partial(eha4_transition, c=c),
+        jac=partial(eha4_jacobian, c=c),
         C=C,
         Q=1e-9 * np.eye(4) if Q is None else Q,
         R=1e-6 * np.eye(C.shape[0]) if R is None else R,
         dt=dt,
         n_inputs=1,
-        input_jacobian=partial(_input_jacobian, **c),
+        input_jacobian=partial(_input_jacobian, c=c),
         state_names=("position", "velocity", "acceleration", "pressure"),
         state_units=("m", "m/s", "m/s^2", "Pa"),
         output_names=outputs,

@@ -193,14 +193,16 @@ class NonlinearModel:
         return self.n_outputs == self.n_states and np.linalg.cond(self.C) < 1e12
 
     # -- dynamics ------------------------------------------------------------
-    def _inputs(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _inputs(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
+        """Checked float arrays and the broadcast leading shape (kept cheap: called every step)."""
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)
-        if x.ndim < 1 or x.shape[-1] != self.n_states:
+        if x.shape[-1:] != (self.n_states,):
             raise ShapeError(f"x must have shape (..., {self.n_states}); got {x.shape}")
-        if u.ndim < 1 or u.shape[-1] != self.n_inputs:
+        if u.shape[-1:] != (self.n_inputs,):
             raise ShapeError(f"u must have shape (..., {self.n_inputs}) or ({self.n_inputs},); got {u.shape}")
-        return x, u
+        lead = x.shape[:-1] if u.ndim == 1 else np.broadcast_shapes(x.shape[:-1], u.shape[:-1])
+        return x, u, lead
 
     def transition(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """One step of the noise-free dynamics ``f(x, u)``, batched.
@@ -221,9 +223,9 @@ class NonlinearModel:
         ShapeError
             If ``x``/``u`` have the wrong trailing size or ``f`` returns the wrong shape.
         """
-        x, u = self._inputs(x, u)
+        x, u, lead = self._inputs(x, u)
         out = np.asarray(self.f(x, u))
-        want = (*np.broadcast_shapes(x.shape[:-1], u.shape[:-1]), self.n_states)
+        want = (*lead, self.n_states)
         if out.shape != want:
             raise ShapeError(f"{self.name}: f(x, u) returned shape {out.shape}; expected {want}")
         return out
@@ -247,10 +249,10 @@ class NonlinearModel:
         ShapeError
             If the supplied ``jac`` returns the wrong shape.
         """
-        x, u = self._inputs(x, u)
+        x, u, lead = self._inputs(x, u)
         out = np.asarray(self.jac(x, u))
         n = self.n_states
-        want = (*np.broadcast_shapes(x.shape[:-1], u.shape[:-1]), n, n)
+        want = (*lead, n, n)
         if out.shape != want:
             raise ShapeError(
                 f"{self.name}: the Jacobian jac(x, u) returned shape {out.shape}; expected {want}"
