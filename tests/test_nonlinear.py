@@ -119,6 +119,12 @@ def test_validation_errors_name_what_to_fix() -> None:
         NonlinearModel(**{**base, "jac": bad_jac})
     with pytest.raises(ShapeError, match=r"f\(x, u\)"):
         NonlinearModel(**{**base, "f": bad_f})
+
+    def nan_jac(x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        return np.full((*x.shape[:-1], 2, 2), np.nan)
+
+    with pytest.raises(NonFiniteError, match="not finite at the rest state"):
+        NonlinearModel(**{**base, "jac": nan_jac})
     with pytest.raises(ModelKindError, match="callables"):
         NonlinearModel(**{**base, "f": np.eye(2)})
     with pytest.raises(NonFiniteError, match="C"):

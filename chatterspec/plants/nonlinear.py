@@ -170,8 +170,8 @@ class NonlinearModel:
         # probe f and jac at the rest state (batched shape (2, n)) so that a wrong model fails here
         x = np.broadcast_to(self.rest_state, (2, n)).copy()
         u = np.zeros((2, p))
-        self.transition(x, u)
-        self.jacobian(x, u)
+        if not (np.all(np.isfinite(self.transition(x, u))) and np.all(np.isfinite(self.jacobian(x, u)))):
+            raise NonFiniteError(f"{self.name}: f or its Jacobian is not finite at the rest state")
 
     # -- sizes ---------------------------------------------------------------
     @property
