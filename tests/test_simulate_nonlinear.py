@@ -147,3 +147,19 @@ def test_compiled_step_equals_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("CHATTERSPEC_JIT", "0")
     np.testing.assert_array_equal(eha4_transition(x, u, **c), ref)
     np.testing.assert_array_equal(eha4_jacobian(x, u, **c), jref)
+
+
+def test_scenarios_pickle_for_workers() -> None:
+    """Process pools and Dask ship the scenario by pickle: the copy simulates the same numbers."""
+    import pickle
+
+    from chatterspec import scenario
+
+    for name in ("eha4-leak-timeline", "eha4-imm-analogue", "detc-uncertain"):
+        sc = scenario(name)
+        fs = sc.filter_settings
+        kw = {"plant": sc.plant, "windows": sc.windows, "filter_settings": fs}
+        short = Scenario(name, sc.nominal, sc.input, 0.05, **kw)
+        copy = pickle.loads(pickle.dumps(short))
+        assert copy.filter_settings.source == sc.filter_settings.source
+        np.testing.assert_array_equal(simulate(copy, 3, 11).z, simulate(short, 3, 11).z)
