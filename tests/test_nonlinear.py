@@ -67,6 +67,7 @@ def test_wrapped_linear_model_agrees_with_linear_model() -> None:
     np.testing.assert_array_equal(w.jacobian(x, u), m.jacobian(x, u))
     assert (w.n_states, w.n_outputs, w.n_inputs) == (2, 2, 1)
     assert w.full_measurement and not w.is_linear
+    np.testing.assert_array_equal(w.C_inv, np.eye(2))
     # u of shape (p,) broadcasts against x's leading axes
     assert w.transition(x, np.array([0.5])).shape == (7, 3, 2)
     lin = w.linearize(np.array([0.3, -1.0]), np.array([2.0]))
@@ -152,6 +153,9 @@ def test_validation_errors_name_what_to_fix() -> None:
         w.jacobian(np.zeros((3, 2)), np.zeros(2))
     with pytest.raises(ShapeError, match="x0"):
         w.linearize(np.zeros(3))
+    partial_c = NonlinearModel(**{**base, "C": [[1.0, 0.0]], "R": [[1.0]]})
+    with pytest.raises(SingularMatrixError, match="full measurement"):
+        _ = partial_c.C_inv
 
 
 def test_require_linear_guard() -> None:

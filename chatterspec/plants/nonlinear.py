@@ -192,6 +192,21 @@ class NonlinearModel:
         """True when C is square and well conditioned (all states measured)."""
         return self.n_outputs == self.n_states and np.linalg.cond(self.C) < 1e12
 
+    @property
+    def C_inv(self) -> np.ndarray:
+        """Inverse of C (full measurement only), as :attr:`LinearModel.C_inv`.
+
+        Raises
+        ------
+        SingularMatrixError
+            If C is not square or is singular (condition number > 1e12).
+        """
+        if not self.full_measurement:
+            raise SingularMatrixError(
+                f"C is {self.n_outputs}x{self.n_states} or singular: C^-1 exists only for full measurement"
+            )
+        return np.linalg.inv(self.C)
+
     # -- dynamics ------------------------------------------------------------
     def _inputs(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
         """Checked float arrays and the broadcast leading shape (kept cheap: called every step)."""
