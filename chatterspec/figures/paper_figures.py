@@ -28,6 +28,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+import scipy.stats
 from matplotlib.figure import Figure
 
 from ..detection.pipeline import ChatteringRecord, scenario_chattering
@@ -42,6 +43,7 @@ __all__ = [
     "FIGURES",
     "FigureSpec",
     "PaperFigure",
+    "averaged_paper_threshold",
     "fig2",
     "fig4",
     "fig5",
@@ -68,6 +70,9 @@ FIG2_PSIS: tuple[float | None, ...] = (1e-4, 5e-4, None, 2e-3)
 FIG2_PROBABILITY: float = 1e-3
 #: Zoom of the inset on the second-order fault figures (Hz): the peaks sit at 9-15 Hz.
 SO_INSET_HZ: tuple[float, float] = (0.0, 40.0)
+#: Upper frequency (Hz) of the fault-level overlays (Figs 7, 10-12): the faults' footprints lie below it
+#: (EHA chirp 10-100 Hz, natural frequencies 9-48 Hz); above it the chattering is healthy noise.
+OVERLAY_FMAX_HZ: float = 150.0
 
 _THRESHOLD_NOTE = (
     "dashed = paper's flat bound (eq 58-62), α = false-alarm probability PER BIN;  "
@@ -210,29 +215,56 @@ def _short(th: Threshold) -> str:
     return f"{kind} {pl.format_alpha(th.alpha)} {meaning}{avg}"
 
 
-def _note(power: np.ndarray, ths: Sequence[Threshold], channel: int) -> tuple[str, str]:
-    """(multi-line panel text, one-line summary) of the peak ratios ``S / threshold``.
+def _note(
+    power: np.ndarray, ths: Sequence[Threshold], channel: int, *, prefix: str = ""
+) -> tuple[list[str], str]:
+    """(panel text lines, one-line summary): each threshold's own maximum ratio ``S / threshold``.
 
-    The reference peak is the bin with the largest ratio to the last exact
-    threshold (the default detector), or to the last threshold if none is exact;
-    each threshold then reports its own maximum ratio, the number of tested bins
-    above it and its ratio at the reference peak.
+    For every threshold: its largest ``S(f) / threshold(f)`` over its tested bins
+    (DC and Nyquist excluded), the frequency of that bin and the number of tested
+    bins above it -- each threshold is compared with the spectrum on its own, so
+    a ratio above 1 always comes with at least one bin over.
     """
     if not ths:
-        return "", ""
-    ref = next((t for t in reversed(ths) if t.kind == "exact"), ths[-1])
-    f_ref, _, _ = peak_summary(power, ref, channel)
-    i_ref = int(np.argmin(np.abs(np.asarray(ref.freqs_hz) - f_ref)))
-    p = np.asarray(power, dtype=float)[:, channel]
+        return [], ""
     width = max(len(_short(t)) for t in ths)
-    lines = [f"S/threshold at {f_ref:.2f} Hz"]
-    summary = [f"peak {f_ref:.2f} Hz (max S/thr of {_short(ref)}, DC and Nyquist excluded)"]
+    lines, summary = [], []
     for th in ths:
         f, r, n_over = peak_summary(power, th, channel)
-        at = p[i_ref] / float(np.asarray(th.values)[i_ref, channel])
-        lines.append(f"{_short(th):<{width}} {at:6.3g}  ({n_over} bins over)")
-        summary.append(f"{_short(th)}: {at:.3g} at peak, max {r:.3g} at {f:.2f} Hz, {n_over} bins over")
-    return "\n".join(lines), "; ".join(summary)
+        lines.append(
+            f"{prefix}{_short(th):<{width}}  max S/thr {r:7.3g} at {f:6.2f} Hz, {n_over:4d} bins over"
+        )
+        summary.append(f"{_short(th)}: max S/threshold {r:.3g} at {f:.2f} Hz, {n_over} bins over")
+    return lines, "; ".join(summary)
+
+
+def _true_model(sc: Scenario):
+    """The true plant of a whole-record scenario (the nominal model when healthy)."""
+    return sc.plant if sc.plant is not None else sc.nominal
+
+
+def _context(
+    sc: Scenario, *, true_color: str = "tab:red", true_label: str | None = None, nominal: bool = True
+) -> tuple[tuple[pl.FrequencyLine, ...], tuple[float, float] | None, str]:
+    """Frequency lines (nominal and true natural frequency, Hz) and the chirp band of ``sc``.
+
+    The true natural frequency is drawn only where it differs from the nominal by
+    more than 0.05 Hz (about a fifth of a 4 s record's 0.25 Hz bin).
+    """
+    lines = []
+    f_nom, z_nom = sc.nominal.natural_frequency_hz, sc.nominal.damping_ratio
+    if nominal and f_nom is not None:
+        label = f"nominal natural frequency {f_nom:.1f} Hz (ζ = {z_nom:.2f})"
+        lines.append(pl.FrequencyLine(f_nom, label, "black", ":"))
+    true = _true_model(sc)
+    f_true, z_true = true.natural_frequency_hz, true.damping_ratio
+    if f_true is not None and (f_nom is None or abs(f_true - f_nom) > 0.05 or abs(z_true - z_nom) > 0.01):
+        label = true_label or f"true natural frequency {f_true:.1f} Hz (ζ = {z_true:.2f})"
+        lines.append(pl.FrequencyLine(f_true, label, true_color, (0, (4, 2))))
+    lo, hi = getattr(sc.input, "f_start_hz", None), getattr(sc.input, "f_stop_hz", None)
+    if lo is not None and hi is not None:
+        return tuple(lines), (float(lo), float(hi)), f"chirp input band {lo:g}-{hi:g} Hz"
+    return tuple(lines), None, ""
 
 
 def _channel_index(sc: Scenario, channel: str | int | None) -> int:
@@ -259,12 +291,15 @@ def _panel(
     curve_label: str | None = None,
     background: bool = False,
     inset: tuple[float, float] | None = None,
+    fmax_hz: float | None = None,
 ) -> tuple[pl.SpectrumPanel, str]:
     model = sp.scenario.nominal
     curves = []
     if background:
         curves.append(
-            pl.SpectrumCurve(sp.single[:, channel], "one realization", color="0.65", linewidth=0.6, alpha=0.8)
+            pl.SpectrumCurve(
+                sp.single[:, channel], "one realization", color="0.65", linewidth=0.6, alpha=0.8, mark=False
+            )
         )
     label = curve_label or (
         f"S(f) averaged over K = {sp.averaged} realizations"
@@ -273,6 +308,9 @@ def _panel(
     )
     curves.append(pl.SpectrumCurve(sp.power[:, channel], label, color="tab:blue"))
     text, line = _note(sp.power, ths, channel)
+    lines, band, band_label = _context(sp.scenario)
+    if sp.scenario.is_healthy:  # a healthy spectrum has no footprint for a natural-frequency line to explain
+        lines = ()
     panel = pl.SpectrumPanel(
         freqs_hz=sp.freqs_hz,
         curves=tuple(curves),
@@ -281,10 +319,81 @@ def _panel(
         title=title,
         channel=model.output_names[channel],
         unit=model.output_units[channel],
-        note=text,
+        fmax_hz=fmax_hz,
+        note="\n".join(text),
         inset_hz=inset,
+        lines=lines,
+        band_hz=band,
+        band_label=band_label,
     )
     return panel, f"{title}: {line}"
+
+
+def _overlay(
+    name: str,
+    title: str,
+    levels: Sequence[tuple[str, str, str]],
+    channel: str,
+    seed: SeedLike,
+    *,
+    healthy: str,
+    fmax_hz: float,
+    inset: tuple[float, float] | None = None,
+) -> PaperFigure:
+    """Fault levels overlaid on one axes (with the healthy spectrum in grey), as the paper compares them.
+
+    ``levels`` holds ``(scenario, legend label, colour)``. Every scenario shares the
+    nominal model and record length, so one set of thresholds (built from the
+    healthy scenario's nominal model) applies to all curves. Each curve's true
+    natural frequency is drawn in its colour, the nominal one in black.
+    """
+    base = _spectrum(healthy, 1, seed)
+    ch = _channel_index(base.scenario, channel)
+    ths = _thresholds(base, (FAULT_ALPHA,))
+    curves = [pl.SpectrumCurve(base.power[:, ch], f"{healthy} (healthy)", color="0.6", linewidth=0.7)]
+    text, _ = _note(base.power, ths, ch, prefix=f"{'healthy':<10}")
+    notes = [f"{name} {healthy}: {_note(base.power, ths, ch)[1]}"]
+    lines, band, band_label = _context(base.scenario)
+    lines = list(lines)
+    for sc_name, label, color in levels:
+        sp = _spectrum(sc_name, 1, seed)
+        if sp.scenario.nominal.fingerprint() != base.scenario.nominal.fingerprint():
+            raise ParameterError(f"{sc_name} and {healthy} must share the nominal model to share thresholds")
+        curves.append(pl.SpectrumCurve(sp.power[:, ch], f"{sc_name} ({label})", color=color, linewidth=0.8))
+        t, line = _note(sp.power, ths, ch, prefix=f"{label[:10]:<10}")
+        text += t
+        notes.append(f"{name} {sc_name}: {line}")
+        true = _true_model(sp.scenario)
+        lines += _context(
+            sp.scenario,
+            true_color=color,
+            true_label=f"true natural frequency {true.natural_frequency_hz:.1f} Hz, "
+            f"ζ = {true.damping_ratio:.2f} ({label})",
+            nominal=False,
+        )[0]
+    model = base.scenario.nominal
+    panel = pl.SpectrumPanel(
+        freqs_hz=base.freqs_hz,
+        curves=tuple(curves),
+        expected=base.expected[:, ch],
+        thresholds=tuple(pl.threshold_curve(t, ch) for t in ths),
+        channel=model.output_names[ch],
+        unit=model.output_units[ch],
+        fmax_hz=fmax_hz,
+        note="\n".join(text),
+        inset_hz=inset,
+        lines=tuple(lines),
+        band_hz=band,
+        band_label=band_label,
+    )
+    fig = pl.spectrum_figure(
+        [panel],
+        ncols=1,
+        suptitle=f"{title}\n{_THRESHOLD_NOTE}",
+        panel_size=(12.0, 5.6),
+        legend_cols=2,
+    )
+    return PaperFigure(name, fig, tuple(notes))
 
 
 # --------------------------------------------------------------------------- figures
@@ -386,7 +495,7 @@ def fig4(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
         panels,
         ncols=2,
         suptitle="Fig 4 — healthy chattering spectra, one 4 s realization\n" + _THRESHOLD_NOTE,
-        panel_size=(5.0, 3.6),
+        panel_size=(5.6, 4.3),
     )
     return PaperFigure("fig4", fig, tuple(notes))
 
@@ -419,76 +528,101 @@ def fig5(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
         notes.append(n)
     fig = pl.spectrum_figure(
         panels,
-        ncols=2,
+        ncols=1,
         suptitle="Fig 5 — mismatch f0 = 11 Hz (nominal 10 Hz), velocity chattering\n" + _THRESHOLD_NOTE,
+        panel_size=(12.0, 4.4),
+        legend_cols=2,
     )
     return PaperFigure("fig5", fig, tuple(notes))
+
+
+def averaged_paper_threshold(single: Threshold, averaged: int) -> Threshold:
+    """The paper's flat bound (eq 58-62) carried over to the mean of K independent periodograms.
+
+    A single record's bin obeys ``2 S / Sigma_Gamma_ii ~ chi2(2)`` (eq 62); the
+    mean of K independent records then obeys ``2K S_bar / Sigma_Gamma_ii ~ chi2(2K)``,
+    so the per-bin bound at level alpha is
+    ``Sigma_Gamma_ii chi2.ppf(1 - alpha, 2K) / (2K)`` (the paper's scale with
+    the averaged quantile; DESIGN.md section 5). This is chatterspec's extension:
+    the paper draws no averaged bound. ``alpha`` stays a per-bin level.
+
+    Parameters
+    ----------
+    single : Threshold
+        The single-record paper threshold (:func:`chatterspec.detection.thresholds.paper_threshold`).
+    averaged : int
+        Number K >= 1 of independent records averaged.
+
+    Returns
+    -------
+    Threshold
+        ``kind="paper"``, ``averaged=K``, ``dof = 2K`` (K at DC and Nyquist, not tested).
+
+    Raises
+    ------
+    ParameterError
+        ``single`` is not a single-record paper threshold, or K < 1.
+    """
+    if single.kind != "paper" or single.averaged != 1:
+        raise ParameterError("averaged_paper_threshold needs the single-record paper threshold")
+    if isinstance(averaged, bool) or int(averaged) != averaged or averaged < 1:
+        raise ParameterError(f"averaged must be an integer >= 1; got {averaged!r}")
+    k = int(averaged)
+    a = single.alpha
+    scale = scipy.stats.chi2.isf(a, 2 * k) / (2 * k) / (scipy.stats.chi2.isf(a, 2) / 2.0)
+    values = np.asarray(single.values, dtype=float) * scale
+    dof = np.asarray(single.dof) * k
+    return replace(
+        single,
+        values=values,
+        averaged=k,
+        dof=dof,
+        effective_dof=np.broadcast_to(dof[:, None].astype(float), values.shape).copy(),
+    )
 
 
 def fig6(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     """Fig 6: spectrum averaged over K realizations of ``so-f11-high`` (velocity).
 
-    The averaged threshold is ``E[S] chi2_{1-a}(2K) / (2K)`` (K independent
-    periodograms); the paper's single-record flat bound is drawn for reference.
+    Both thresholds are those of the average of K independent periodograms
+    (chi-squared with 2K degrees of freedom per bin): the paper's flat bound
+    ``Sigma_Gamma_ii chi2_{1-a}(2K) / (2K)`` (:func:`averaged_paper_threshold`)
+    and the exact bound ``E[S] chi2_{1-a'}(2K) / (2K)``. Realization 0 is drawn
+    in grey for comparison; the thresholds do not apply to it.
 
     Parameters
     ----------
     runs : int, optional
-        Number K of realizations averaged (default 100); the exact threshold
-        uses 2K degrees of freedom per bin.
+        Number K of realizations averaged (default 100); the thresholds use 2K
+        degrees of freedom per bin.
     seed : int, SeedSequence, Generator or None
         Root seed of the K realizations.
 
     Returns
     -------
     PaperFigure
-        The figure and a note with the peak ratios ``S / threshold``.
+        The figure and a note with each threshold's maximum ratio ``S / threshold``.
     """
     K = 100 if runs is None else runs
     sp = _spectrum("so-f11-high", K, seed, average=True)
     ths = [
-        paper_threshold(sp.scenario.nominal, sp.freqs_hz, FAULT_ALPHA),
+        averaged_paper_threshold(paper_threshold(sp.scenario.nominal, sp.freqs_hz, FAULT_ALPHA), sp.averaged),
         exact_threshold(
             sp.scenario.nominal, sp.freqs_hz, sp.record.n_samples, FAULT_ALPHA, averaged=sp.averaged
         ),
     ]
-    curves_th = [
-        pl.threshold_curve(
-            ths[0], 1, label=pl.threshold_label("paper", FAULT_ALPHA, "per-bin") + " (single record)"
-        ),
-        pl.threshold_curve(ths[1], 1),
-    ]
     p, n = _panel(
         sp, 1, ths, f"Fig 6: so-f11-high, velocity, mean of K = {K}", background=True, inset=SO_INSET_HZ
     )
-    p = replace(p, thresholds=tuple(curves_th))
     fig = pl.spectrum_figure(
         [p],
-        suptitle=f"Fig 6 — averaging {K} realizations (χ² with 2K = {2 * K} dof per bin)\n" + _THRESHOLD_NOTE,
-        panel_size=(9.0, 5.2),
+        suptitle=f"Fig 6 — averaging K = {K} realizations: both bounds are for the mean of K records "
+        f"(χ² with 2K = {2 * K} dof per bin; the paper's bound scaled by χ²₀.₉₉₉(2K)/(2K) "
+        f"÷ χ²₀.₉₉₉(2)/2)\n" + _THRESHOLD_NOTE,
+        panel_size=(12.0, 5.2),
+        legend_cols=2,
     )
     return PaperFigure("fig6", fig, (n,))
-
-
-def _family(
-    name: str,
-    title: str,
-    scenarios: Sequence[tuple[str, str]],
-    channel: str,
-    seed: SeedLike,
-    ncols: int,
-    inset=None,
-) -> PaperFigure:
-    panels, notes = [], []
-    for tag, sc_name in scenarios:
-        sp = _spectrum(sc_name, 1, seed)
-        ch = _channel_index(sp.scenario, channel)
-        ths = _thresholds(sp, (FAULT_ALPHA,))
-        p, n = _panel(sp, ch, ths, f"{name.replace('fig', 'Fig ')}{tag}: {sc_name}, {channel}", inset=inset)
-        panels.append(p)
-        notes.append(n)
-    fig = pl.spectrum_figure(panels, ncols=ncols, sharey=True, suptitle=f"{title}\n{_THRESHOLD_NOTE}")
-    return PaperFigure(name, fig, tuple(notes))
 
 
 def fig7(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
@@ -508,14 +642,20 @@ def fig7(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     PaperFigure
         The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
     """
-    return _family(
+    return _overlay(
         "fig7",
-        "Fig 7 — mismatch levels f0 = 9 / 12 / 15 Hz (nominal 10 Hz), low noise, velocity chattering",
-        (("a", "so-f9-low"), ("b", "so-f12-low"), ("c", "so-f15-low")),
+        "Fig 7 — mismatch levels f0 = 9 / 12 / 15 Hz (nominal 10 Hz), low noise, velocity chattering, "
+        "one realization each (same seed); the footprint moves with the true f0",
+        (
+            ("so-f9-low", "f0 9 Hz", "tab:blue"),
+            ("so-f12-low", "f0 12 Hz", "tab:purple"),
+            ("so-f15-low", "f0 15 Hz", "tab:red"),
+        ),
         "velocity",
         seed,
-        3,
-        SO_INSET_HZ,
+        healthy="so-healthy-low",
+        fmax_hz=OVERLAY_FMAX_HZ,
+        inset=SO_INSET_HZ,
     )
 
 
@@ -630,13 +770,19 @@ def fig10(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     PaperFigure
         The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
     """
-    return _family(
+    return _overlay(
         "fig10",
-        "Fig 10 — EHA leakage (L = 3e-11 / 6e-11 / 9e-11 m³/(s·Pa)), pressure chattering",
-        (("a", "eha-leak-minor"), ("b", "eha-leak-medium"), ("c", "eha-leak-major")),
+        "Fig 10 — EHA leakage (L = 3e-11 / 6e-11 / 9e-11 m³/(s·Pa)), pressure chattering, one realization "
+        f"each (same seed), 0-{OVERLAY_FMAX_HZ:g} Hz shown (all bins up to Nyquist are tested)",
+        (
+            ("eha-leak-minor", "minor", "gold"),
+            ("eha-leak-medium", "medium", "darkorange"),
+            ("eha-leak-major", "major", "tab:red"),
+        ),
         "pressure",
         seed,
-        3,
+        healthy="eha-healthy",
+        fmax_hz=OVERLAY_FMAX_HZ,
     )
 
 
@@ -657,13 +803,15 @@ def fig11(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     PaperFigure
         The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
     """
-    return _family(
+    return _overlay(
         "fig11",
-        "Fig 11 — EHA friction (a = 4000 / 7000 N·s/m), velocity chattering",
-        (("a", "eha-friction-minor"), ("b", "eha-friction-major")),
+        "Fig 11 — EHA friction (a = 4000 / 7000 N·s/m), velocity chattering, one realization each "
+        f"(same seed), 0-{OVERLAY_FMAX_HZ:g} Hz shown (all bins up to Nyquist are tested)",
+        (("eha-friction-minor", "minor", "darkorange"), ("eha-friction-major", "major", "tab:red")),
         "velocity",
         seed,
-        2,
+        healthy="eha-healthy",
+        fmax_hz=OVERLAY_FMAX_HZ,
     )
 
 
@@ -684,13 +832,20 @@ def fig12(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     PaperFigure
         The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
     """
-    return _family(
+    return _overlay(
         "fig12",
-        "Fig 12 — EHA bulk-modulus mismatch (βe × 0.5 / 0.75 / 1.25 / 1.5), pressure chattering",
-        (("a", "eha-bulk-50down"), ("b", "eha-bulk-25down"), ("c", "eha-bulk-25up"), ("d", "eha-bulk-50up")),
+        "Fig 12 — EHA bulk-modulus mismatch (βe × 0.5 / 0.75 / 1.25 / 1.5), pressure chattering, one "
+        f"realization each (same seed), 0-{OVERLAY_FMAX_HZ:g} Hz shown (all bins up to Nyquist are tested)",
+        (
+            ("eha-bulk-50down", "βe × 0.5", "navy"),
+            ("eha-bulk-25down", "βe × 0.75", "cornflowerblue"),
+            ("eha-bulk-25up", "βe × 1.25", "salmon"),
+            ("eha-bulk-50up", "βe × 1.5", "darkred"),
+        ),
         "pressure",
         seed,
-        2,
+        healthy="eha-healthy",
+        fmax_hz=OVERLAY_FMAX_HZ,
     )
 
 
@@ -816,6 +971,6 @@ def scenario_spectrum(
         panels,
         ncols=min(len(panels), 3),
         suptitle=f"{name}: {sc.description} ({what}, seed {seed})\n{_THRESHOLD_NOTE}",
-        panel_size=(8.0, 4.8) if len(panels) == 1 else (5.2, 3.9),
+        panel_size=((12.0 if inset else 8.0), 4.8) if len(panels) == 1 else (5.2, 4.3),
     )
     return PaperFigure(f"spectrum-{name}", fig, tuple(notes))

@@ -23,9 +23,10 @@ Conventions (DESIGN.md section 2 and 5):
 
 from __future__ import annotations
 
+import io
 import textwrap
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -35,6 +36,7 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.artist import Artist
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
@@ -44,6 +46,7 @@ from ..errors import ParameterError, ShapeError
 __all__ = [
     "DEFAULT_DPI",
     "BoundaryLayerPanel",
+    "FrequencyLine",
     "SpectrogramPanel",
     "SpectrumCurve",
     "SpectrumPanel",
@@ -51,12 +54,14 @@ __all__ = [
     "boundary_layer_figure",
     "draw_spectrum",
     "format_alpha",
+    "main_axes",
     "power_unit",
     "save_figure",
     "spectrogram_figure",
     "spectrum_figure",
     "threshold_curve",
     "threshold_label",
+    "zoom_axes",
 ]
 
 #: Resolution of saved PNGs (dots per inch); keeps a 12 x 7 inch figure well under 300 kB.
@@ -70,11 +75,19 @@ _KIND_STYLE: dict[str, dict[str, Any]] = {
     "exact": {"linestyle": "-", "linewidth": 1.6},
     "empirical": {"linestyle": ":", "linewidth": 1.8},
 }
+# larger alphas (lower lines) of the same kind: a second dash pattern, so 1 % and 0.1 % differ twice
+_KIND_STYLE_LIGHT: dict[str, dict[str, Any]] = {
+    "paper": {"linestyle": (0, (1.5, 1.5)), "linewidth": 1.6},
+    "exact": {"linestyle": (0, (7, 1.5, 1.5, 1.5)), "linewidth": 1.4},
+    "empirical": {"linestyle": (0, (1, 3)), "linewidth": 1.8},
+}
 _KIND_COLORS: dict[str, tuple[str, ...]] = {
-    "paper": ("tab:red", "tab:orange", "gold"),
-    "exact": ("tab:green", "yellowgreen", "turquoise"),
+    "paper": ("tab:red", "darkorange", "gold"),
+    "exact": ("darkgreen", "limegreen", "turquoise"),
     "empirical": ("tab:purple", "orchid", "pink"),
 }
+#: Shades of the true mismatch windows of Fig 2, one per window.
+_WINDOW_SHADES = ("tab:orange", "tab:purple", "tab:cyan")
 _CURVE_COLORS = ("tab:blue", "tab:orange", "tab:purple", "tab:brown", "tab:cyan", "tab:pink")
 
 
@@ -98,11 +111,20 @@ def format_alpha(alpha: float) -> str:
 def power_unit(unit: str) -> str:
     """Unit of a power spectrum (eq 49) of a signal in ``unit``: ``"m/s" -> "(m/s)²"``.
 
-    An empty unit gives ``"unit²"`` (the second-order benchmark's states carry no
-    physical unit).
+    An empty unit gives ``"dimensionless"``: the paper gives its second-order
+    benchmark (eq 63) no physical unit, so its spectra are dimensionless too.
+
+    Parameters
+    ----------
+    unit : str
+        Unit of the signal (``""`` for a dimensionless one).
+
+    Returns
+    -------
+    str
     """
     if not unit:
-        return "unit²"
+        return "dimensionless"
     if "/" in unit or " " in unit:
         return f"({unit})²"
     return f"{unit}²"
@@ -194,6 +216,10 @@ class SpectrumCurve:
         Line width in points (default 0.8).
     alpha : float
         Line opacity in [0, 1] (matplotlib alpha, not a false-alarm level).
+    mark : bool
+        Mark the bins of this curve above each threshold (default True; False for
+        a background curve the thresholds do not apply to, e.g. one record under
+        a K-average threshold).
     """
 
     power: np.ndarray
@@ -201,6 +227,29 @@ class SpectrumCurve:
     color: str | None = None
     linewidth: float = 0.8
     alpha: float = 1.0
+    mark: bool = True
+
+
+@dataclass(frozen=True)
+class FrequencyLine:
+    """A vertical line at a frequency that explains the spectrum (e.g. a natural frequency).
+
+    Attributes
+    ----------
+    hz : float
+        Frequency in Hz (not rad/s).
+    label : str
+        Legend text, e.g. ``"nominal natural frequency 10 Hz"``.
+    color : str
+        Matplotlib colour (default black).
+    linestyle : str or tuple
+        Matplotlib line style (default dotted).
+    """
+
+    hz: float
+    label: str
+    color: str = "black"
+    linestyle: Any = ":"
 
 
 @dataclass(frozen=True)
@@ -226,11 +275,17 @@ class SpectrumPanel:
     fmax_hz : float, optional
         Upper limit of the frequency axis (default: Nyquist).
     note : str
-        Text drawn in the upper-left corner (e.g. peak frequency and ratios); the
-        y axis gets headroom so it does not hide the data.
+        Text written below the axes (e.g. each threshold's maximum ratio), outside
+        the data area.
     inset_hz : (f_lo, f_hi), optional
-        Draw an inset zooming on this frequency band (Hz), e.g. the 9-15 Hz peaks
-        of the second-order mismatch figures.
+        Draw a zoom on this frequency band (Hz) beside the main axes, e.g. the
+        9-15 Hz peaks of the second-order mismatch figures.
+    lines : tuple of FrequencyLine
+        Vertical frequency lines (nominal and true natural frequencies, ...).
+    band_hz : (f_lo, f_hi), optional
+        Frequency band shaded in grey (Hz), e.g. the 10-100 Hz chirp of the EHA input.
+    band_label : str
+        Legend text of the band.
     """
 
     freqs_hz: np.ndarray
@@ -243,6 +298,9 @@ class SpectrumPanel:
     fmax_hz: float | None = None
     note: str = ""
     inset_hz: tuple[float, float] | None = None
+    lines: tuple[FrequencyLine, ...] = ()
+    band_hz: tuple[float, float] | None = None
+    band_label: str = ""
 
 
 @dataclass(frozen=True)
@@ -364,12 +422,69 @@ def _positive(y: np.ndarray) -> np.ndarray:
     return y
 
 
-def draw_spectrum(ax: Axes, panel: SpectrumPanel, *, legend: bool = True) -> list[Line2D]:
-    """Draw one :class:`SpectrumPanel` into ``ax`` (log y, Hz on x); return the lines drawn.
+def _threshold_styles(thresholds: Sequence[ThresholdCurve]) -> list[dict[str, Any]]:
+    """Colour and line style of each threshold.
 
-    Draw order: spectra, expected spectrum ``E[S]`` (eq 56, black dashed), then
-    thresholds (paper's flat bound dashed in red/orange, exact bound solid in
-    green shades; the darkest shade is the smallest alpha, i.e. the highest line).
+    Per kind, the smallest alpha (the highest line) gets the darkest colour and
+    the kind's base style; larger alphas get lighter colours and a second dash
+    pattern, so 1 % and 0.1 % lines differ in both colour and pattern.
+    """
+    ranks: dict[str, list[float]] = {}
+    for th in thresholds:
+        ranks.setdefault(th.kind if th.kind in _KIND_STYLE else "exact", []).append(th.alpha)
+    ranks = {k: sorted(set(v)) for k, v in ranks.items()}
+    styles = []
+    for th in thresholds:
+        kind = th.kind if th.kind in _KIND_STYLE else "exact"
+        rank = ranks[kind].index(th.alpha)
+        palette = _KIND_COLORS[kind]
+        style = dict(_KIND_STYLE[kind] if rank == 0 else _KIND_STYLE_LIGHT[kind])
+        style["color"] = palette[min(rank, len(palette) - 1)]
+        styles.append(style)
+    return styles
+
+
+def _checked(panel: SpectrumPanel) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
+    """Frequencies, curve powers and threshold values of ``panel`` as float arrays (shapes checked)."""
+    f = np.asarray(panel.freqs_hz, dtype=float)
+    if f.ndim != 1:
+        raise ShapeError(f"freqs_hz must be 1-D; got shape {f.shape}")
+    powers = []
+    for c in panel.curves:
+        p = np.asarray(c.power, dtype=float)
+        if p.shape != f.shape:
+            raise ShapeError(f"curve {c.label!r}: power has shape {p.shape}, freqs_hz {f.shape}")
+        powers.append(p)
+    if panel.expected is not None and np.shape(panel.expected) != f.shape:
+        raise ShapeError(f"expected has shape {np.shape(panel.expected)}, freqs_hz {f.shape}")
+    values = []
+    for th in panel.thresholds:
+        v = np.asarray(th.values, dtype=float)
+        if v.ndim == 0:
+            v = np.full(f.shape, float(v))
+        if v.shape != f.shape:
+            raise ShapeError(f"threshold {th.label!r} has shape {v.shape}, freqs_hz {f.shape}")
+        values.append(v)
+    return f, powers, values
+
+
+def draw_spectrum(
+    ax: Axes,
+    panel: SpectrumPanel,
+    *,
+    legend: bool = True,
+    xlim_hz: tuple[float, float] | None = None,
+    note: bool = True,
+) -> list[Artist]:
+    """Draw one :class:`SpectrumPanel` into ``ax`` (log y, Hz on x); return the artists drawn.
+
+    Draw order: the shaded input band, spectra, expected spectrum ``E[S]`` (eq 56,
+    black dashed), thresholds (paper's flat bound dashed in red/orange, exact
+    bound solid in green shades; the darkest shade is the smallest alpha, i.e.
+    the highest line), the bins of each marked curve above each threshold (dots
+    in the threshold's colour) and the frequency lines. The y axis is fitted to
+    what is drawn inside the frequency range (no headroom); the panel's note is
+    written **below** the axes, never over the data.
 
     Parameters
     ----------
@@ -377,128 +492,137 @@ def draw_spectrum(ax: Axes, panel: SpectrumPanel, *, legend: bool = True) -> lis
         Axes to draw into; its y axis is set to log scale.
     panel : SpectrumPanel
         Frequencies (Hz), spectra, optional expected spectrum and thresholds,
-        note and inset band. Arrays must match ``freqs_hz`` in shape
+        frequency lines, band and note. Arrays must match ``freqs_hz`` in shape
         (:class:`ShapeError` otherwise); a scalar threshold is drawn flat.
     legend : bool
-        Add a legend of the drawn lines in the upper-left corner (default True).
+        Add a legend of the drawn artists beside the axes (default True).
+    xlim_hz : (f_lo, f_hi), optional
+        Frequency range shown in Hz (default ``(0, panel.fmax_hz or Nyquist)``);
+        the y range is fitted to the data inside it.
+    note : bool
+        Write ``panel.note`` below the axes (default True).
 
     Returns
     -------
-    list of matplotlib.lines.Line2D
-        Spectra, expected spectrum and thresholds, in draw order (inset lines excluded).
+    list of matplotlib.artist.Artist
+        One artist per legend entry, in draw order: band, spectra, expected
+        spectrum, thresholds, the "bins above a threshold" marker (if any bin is
+        above) and the frequency lines.
     """
-    f = np.asarray(panel.freqs_hz, dtype=float)
-    if f.ndim != 1:
-        raise ShapeError(f"freqs_hz must be 1-D; got shape {f.shape}")
-    lines: list[Line2D] = []
-    for i, c in enumerate(panel.curves):
-        p = np.asarray(c.power, dtype=float)
-        if p.shape != f.shape:
-            raise ShapeError(f"curve {c.label!r}: power has shape {p.shape}, freqs_hz {f.shape}")
+    f, powers, values = _checked(panel)
+    if xlim_hz is None:
+        xlim_hz = (0.0, panel.fmax_hz if panel.fmax_hz is not None else float(f[-1]))
+    lo, hi = float(xlim_hz[0]), float(xlim_hz[1])
+    if not hi > lo:
+        raise ParameterError(f"frequency range must be (f_lo, f_hi) with f_lo < f_hi; got {xlim_hz}")
+    shown = (f >= lo) & (f <= hi) & (f > 0)  # DC is never tested and not used for the y range
+    artists: list[Artist] = []
+    y_data: list[np.ndarray] = []
+    if panel.band_hz is not None:
+        b0, b1 = panel.band_hz
+        artists.append(ax.axvspan(b0, b1, color="0.9", zorder=0, lw=0, label=panel.band_label or "band"))
+    for i, (c, p) in enumerate(zip(panel.curves, powers, strict=True)):
         color = c.color or _CURVE_COLORS[i % len(_CURVE_COLORS)]
         (ln,) = ax.plot(f, _positive(p), color=color, lw=c.linewidth, alpha=c.alpha, label=c.label)
-        lines.append(ln)
+        artists.append(ln)
+        y_data.append(p[shown])
     if panel.expected is not None:
         e = np.asarray(panel.expected, dtype=float)
-        if e.shape != f.shape:
-            raise ShapeError(f"expected has shape {e.shape}, freqs_hz {f.shape}")
         (ln,) = ax.plot(f, _positive(e), color="black", ls="--", lw=1.3, label="expected E[S] (eq 56)")
-        lines.append(ln)
-    # shade rank per kind: the smallest alpha (highest threshold) gets the darkest colour
-    ranks: dict[str, list[float]] = {}
-    for th in panel.thresholds:
-        ranks.setdefault(th.kind if th.kind in _KIND_STYLE else "exact", []).append(th.alpha)
-    ranks = {k: sorted(set(v)) for k, v in ranks.items()}
-    for th in panel.thresholds:
-        v = np.asarray(th.values, dtype=float)
-        if v.ndim == 0:
-            v = np.full(f.shape, float(v))
-        if v.shape != f.shape:
-            raise ShapeError(f"threshold {th.label!r} has shape {v.shape}, freqs_hz {f.shape}")
-        kind = th.kind if th.kind in _KIND_STYLE else "exact"
-        palette = _KIND_COLORS[kind]
-        color = palette[min(ranks[kind].index(th.alpha), len(palette) - 1)]
-        (ln,) = ax.plot(f, _positive(v), color=color, label=th.label, **_KIND_STYLE[kind])
-        lines.append(ln)
+        artists.append(ln)
+        y_data.append(e[shown])
+    styles = _threshold_styles(panel.thresholds)
+    for th, v, style in zip(panel.thresholds, values, styles, strict=True):
+        (ln,) = ax.plot(f, _positive(v), label=th.label, zorder=3, **style)
+        artists.append(ln)
+        y_data.append(v[shown])
+    # bins above each threshold, as a halo under the curve (the curve keeps its colour): the lowest
+    # threshold first, so a bin shows the highest one it exceeds
+    order = np.argsort([np.nanmedian(v) if np.any(np.isfinite(v)) else np.inf for v in values])
+    any_over = False
+    for c, p in zip(panel.curves, powers, strict=True):
+        if not c.mark:
+            continue
+        for j in order:
+            over = shown & np.isfinite(values[j]) & (p > values[j])
+            if np.any(over):
+                any_over = True
+                ax.plot(
+                    f[over],
+                    p[over],
+                    ls="none",
+                    marker="o",
+                    ms=3.4,
+                    mew=0,
+                    color=styles[j]["color"],
+                    zorder=1.5,
+                )
+    if any_over:
+        artists.append(
+            Line2D(
+                [],
+                [],
+                ls="none",
+                marker="o",
+                ms=4,
+                color="0.3",
+                label="bins above a threshold (halo in its colour)",
+            )
+        )
+    for fl in panel.lines:
+        artists.append(ax.axvline(fl.hz, color=fl.color, ls=fl.linestyle, lw=1.1, zorder=2, label=fl.label))
     ax.set_yscale("log")
-    ax.set_xlim(0.0, panel.fmax_hz if panel.fmax_hz is not None else float(f[-1]))
+    ax.set_xlim(lo, hi)
+    _fit_log_y(ax, y_data)
     ax.set_xlabel("frequency [Hz]")
-    sub = f", {panel.channel}" if panel.channel else ""
-    ax.set_ylabel(f"power spectrum S(f){sub} [{power_unit(panel.unit)}]")
+    name = f"{panel.channel} " if panel.channel else ""
+    ax.set_ylabel(f"{name}S(f) [{power_unit(panel.unit)}]")
     if panel.title:
         ax.set_title(panel.title, fontsize=10)
     ax.grid(True, which="major", alpha=0.3)
-    if panel.note or panel.inset_hz is not None:
-        # the inset needs the upper half of the axes, a note about its upper third
-        _make_headroom(ax, panel, lines, data_fraction=0.5 if panel.inset_hz is not None else 0.68)
-    if panel.note:
-        ax.text(
-            0.025,
-            0.975,
+    if note and panel.note:
+        # below the x label, in the layout: constrained layout makes room for it
+        ax.annotate(
             panel.note,
-            transform=ax.transAxes,
+            xy=(0.0, 0.0),
+            xycoords=(ax.transAxes, ax.xaxis.label),
+            xytext=(0.0, -4.0),
+            textcoords="offset points",
             ha="left",
             va="top",
             fontsize=6.5,
             family="monospace",
-            bbox={"boxstyle": "round,pad=0.3", "fc": "white", "ec": "0.75", "alpha": 0.9},
         )
-    if panel.inset_hz is not None:
-        _draw_inset(ax, panel, lines)
-    if legend and lines:
-        ax.legend(handles=lines, fontsize=7, loc="upper left", framealpha=0.9)
-    return lines
+    if legend and artists:
+        ax.legend(handles=artists, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    return artists
 
 
-def _make_headroom(
-    ax: Axes, panel: SpectrumPanel, lines: Sequence[Line2D], *, data_fraction: float = 0.5
-) -> None:
-    """Raise the top of the log y axis so the data (DC excluded) fills the lower ``data_fraction``.
+def _fit_log_y(ax: Axes, y_data: Sequence[np.ndarray]) -> None:
+    """Fit the log y axis to the drawn values: top just above the largest, bottom at the 0.5 % quantile.
 
-    Leaves room for the note (upper left) and the inset (upper right).
+    Isolated deep dips of a periodogram (a bin near zero) would otherwise spend
+    decades of the axis on nothing; the bottom is the 0.5 % quantile of the
+    positive values divided by 3.
     """
-    f = np.asarray(panel.freqs_hz, dtype=float)
-    right = f > 0
-    hi = 0.0
-    for ln in lines:
-        y = np.asarray(ln.get_ydata(), dtype=float)
-        if y.shape == f.shape:
-            yr = y[right]
-            yr = yr[np.isfinite(yr)]
-            if yr.size:
-                hi = max(hi, float(yr.max()))
-    lo, top = ax.get_ylim()
-    if hi > 0 and lo > 0:
-        decades = np.log10(hi / lo) + 0.15
-        ax.set_ylim(lo, max(top, lo * 10.0 ** (decades / data_fraction)))
+    vals = np.concatenate([np.ravel(y) for y in y_data]) if y_data else np.array([])
+    vals = vals[np.isfinite(vals) & (vals > 0)]
+    if vals.size:
+        top = float(vals.max()) * 1.6
+        bottom = float(np.quantile(vals, 0.005)) / 3.0
+        ax.set_ylim(bottom, max(top, bottom * 10.0))
 
 
-def _draw_inset(ax: Axes, panel: SpectrumPanel, lines: Sequence[Line2D]) -> Axes:
-    """Zoom on ``panel.inset_hz`` in the upper-right quarter of ``ax`` (same lines, same log scale)."""
+def _draw_zoom(ax: Axes, panel: SpectrumPanel) -> Axes:
+    """Draw ``panel`` again into ``ax`` on the band ``panel.inset_hz`` (no note, no legend)."""
     lo, hi = panel.inset_hz  # type: ignore[misc]
     if not hi > lo:
         raise ParameterError(f"inset_hz must be (f_lo, f_hi) with f_lo < f_hi; got {panel.inset_hz}")
-    ins = ax.inset_axes((0.6, 0.56, 0.38, 0.4))
-    f = np.asarray(panel.freqs_hz, dtype=float)
-    band = (f >= lo) & (f <= hi)
-    ymin, ymax = np.inf, 0.0
-    for ln in lines:
-        x, y = (np.asarray(a, dtype=float) for a in ln.get_data())
-        ins.plot(
-            x, y, color=ln.get_color(), ls=ln.get_linestyle(), lw=ln.get_linewidth(), alpha=ln.get_alpha()
-        )
-        yb = y[band] if y.shape == f.shape else y
-        yb = yb[np.isfinite(yb) & (yb > 0)]
-        if yb.size:
-            ymin, ymax = min(ymin, float(yb.min())), max(ymax, float(yb.max()))
-    ins.set_yscale("log")
-    ins.set_xlim(lo, hi)
-    if ymax > 0 and np.isfinite(ymin):
-        ins.set_ylim(ymin / 2.0, ymax * 2.0)
-    ins.tick_params(labelsize=6)
-    ins.set_title(f"zoom {lo:g}-{hi:g} Hz", fontsize=7, pad=2)
-    ins.grid(True, alpha=0.3)
-    return ins
+    draw_spectrum(ax, replace(panel, title=""), legend=False, xlim_hz=(lo, hi), note=False)
+    ax.set_title(f"zoom {lo:g}-{hi:g} Hz", fontsize=9)
+    ax.set_ylabel("")
+    ax.set_label("zoom")
+    return ax
 
 
 def _grid(n: int, ncols: int | None) -> tuple[int, int]:
@@ -508,6 +632,36 @@ def _grid(n: int, ncols: int | None) -> tuple[int, int]:
     if ncols < 1:
         raise ParameterError(f"ncols must be >= 1; got {ncols}")
     return -(-n // ncols), ncols
+
+
+def zoom_axes(fig: Figure) -> list[Axes]:
+    """The zoom axes of a :func:`spectrum_figure` (one per panel with ``inset_hz``), in panel order.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        A figure made by :func:`spectrum_figure`.
+
+    Returns
+    -------
+    list of matplotlib.axes.Axes
+    """
+    return [ax for ax in fig.axes if ax.get_label() == "zoom"]
+
+
+def main_axes(fig: Figure) -> list[Axes]:
+    """The main spectrum axes of a :func:`spectrum_figure`, in panel order (zoom axes excluded).
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        A figure made by :func:`spectrum_figure`.
+
+    Returns
+    -------
+    list of matplotlib.axes.Axes
+    """
+    return [ax for ax in fig.axes if ax.get_label() != "zoom"]
 
 
 def spectrum_figure(
@@ -521,44 +675,55 @@ def spectrum_figure(
 ) -> Figure:
     """A figure with one axes per :class:`SpectrumPanel` (row-major, ``ncols`` per row).
 
+    A panel with ``inset_hz`` gets a second axes to the right of its main axes
+    that zooms on that band (drawn beside the data, not over it); its note goes
+    below the axes.
+
     Parameters
     ----------
     panels : sequence of SpectrumPanel
-        One panel per axes.
+        One panel per grid cell.
     ncols : int, optional
-        Axes per row (default ``min(len(panels), 3)``).
+        Cells per row (default ``min(len(panels), 3)``).
     suptitle : str
         Figure title (name the paper figure and the threshold conventions).
     panel_size : (width, height)
-        Size of one axes cell in inches.
+        Size of one grid cell in inches.
     sharey : bool
-        Share the (log) power axis between panels.
+        Share the (log) power axis between the main axes.
     legend_cols : int, optional
         Columns of the figure legend (below the panels; one entry per distinct label).
 
     Returns
     -------
     matplotlib.figure.Figure
-        ``len(panels)`` main axes (plus one inset axes per panel with ``inset_hz``);
-        unused grid cells are removed.
+        ``len(panels)`` main axes plus one zoom axes per panel with ``inset_hz``
+        (see :func:`main_axes`, :func:`zoom_axes`).
     """
     panels = list(panels)
     nrows, ncols = _grid(len(panels), ncols)
-    fig, axes = plt.subplots(
-        nrows,
-        ncols,
+    fig = plt.figure(
         figsize=(panel_size[0] * ncols, panel_size[1] * nrows + (0.5 if suptitle else 0.0)),
-        squeeze=False,
-        sharey=sharey,
         layout="constrained",
     )
-    flat = axes.ravel()
-    handles: dict[str, Line2D] = {}
-    for ax, panel in zip(flat, panels, strict=False):
-        for ln in draw_spectrum(ax, panel, legend=False):
-            handles.setdefault(str(ln.get_label()), ln)
-    for ax in flat[len(panels) :]:
-        fig.delaxes(ax)
+    gs = fig.add_gridspec(nrows, ncols)
+    handles: dict[str, Artist] = {}
+    first: Axes | None = None
+    for k, panel in enumerate(panels):
+        cell = gs[k // ncols, k % ncols]
+        share = first if sharey else None
+        if panel.inset_hz is not None:
+            sub = cell.subgridspec(1, 2, width_ratios=(2.3, 1.0))
+            ax = fig.add_subplot(sub[0], sharey=share)
+            _draw_zoom(fig.add_subplot(sub[1]), panel)
+        else:
+            ax = fig.add_subplot(cell, sharey=share)
+        first = first or ax
+        for a in draw_spectrum(ax, panel, legend=False):
+            handles.setdefault(str(a.get_label()), a)
+    if sharey:  # each panel fitted its own range; the shared axis needs their union
+        lims = np.array([ax.get_ylim() for ax in main_axes(fig)])
+        first.set_ylim(float(lims[:, 0].min()), float(lims[:, 1].max()))  # type: ignore[union-attr]
     # one legend for the whole figure: every panel uses the same conventions
     fig.legend(
         handles=list(handles.values()),
@@ -574,7 +739,7 @@ def spectrum_figure(
 
 def _wrap(text: str, width_in: float) -> str:
     """Wrap each line of ``text`` to the width of a ``width_in``-inch figure (10 pt font)."""
-    chars = max(int(width_in * 15), 20)
+    chars = max(int(width_in * 12.5), 20)
     return "\n".join(textwrap.fill(line, chars) for line in text.split("\n"))
 
 
@@ -671,9 +836,11 @@ def spectrogram_figure(
 def boundary_layer_figure(panel: BoundaryLayerPanel, *, suptitle: str = "", unit: str = "") -> Figure:
     """Fig 2: estimation errors and measured-state chattering for several boundary layers.
 
-    Three stacked axes sharing time: (a) normalized estimation error of the
-    measured state x1, (b) of the unmeasured state x2, (c) boundary-layer
-    chattering of x1 (eq 13), one line per psi. True mismatch windows are shaded.
+    Stacked axes sharing time: (a) normalized estimation error of the measured
+    state x1, (b) of the unmeasured state x2, one line per psi, drawn largest
+    excursion first so the smaller traces stay visible on top; (c) the
+    boundary-layer chattering of x1 (eq 13), one thin axes per psi so no trace
+    hides another. Each true mismatch window is shaded in its own colour.
 
     Parameters
     ----------
@@ -683,12 +850,14 @@ def boundary_layer_figure(panel: BoundaryLayerPanel, *, suptitle: str = "", unit
     suptitle : str
         Figure title; empty for none.
     unit : str
-        Unit of x1, used in the chattering axis label (default ``"unit of x1"``).
+        Unit of x1, used in the chattering axis label (default: dimensionless,
+        as the paper's benchmark has no unit).
 
     Returns
     -------
     matplotlib.figure.Figure
-        Three axes, ``len(panel.psi)`` lines each.
+        ``2 + len(panel.psi)`` axes: (a), (b) with ``len(psi)`` lines each, then
+        one chattering axes per psi with one line.
     """
     t = np.asarray(panel.t, dtype=float)
     k = len(panel.psi)
@@ -698,29 +867,60 @@ def boundary_layer_figure(panel: BoundaryLayerPanel, *, suptitle: str = "", unit
             raise ShapeError(f"{name} must have shape (len(psi), T) = {(k, t.size)}; got {arr.shape}")
     if len(panel.labels) != k:
         raise ShapeError(f"labels must have {k} entries; got {len(panel.labels)}")
-    fig, axes = plt.subplots(3, 1, figsize=(9.0, 8.5), sharex=True, layout="constrained")
-    data = (panel.error_measured, panel.error_unmeasured, panel.chattering)
-    ylabels = (
-        f"(a) x1 (measured)\n{panel.error_label}",
-        f"(b) x2 (unmeasured)\n{panel.error_label}",
-        f"(c) x1 chattering, eq 13\n[{unit or 'unit of x1'}]",
+    fig, axes = plt.subplots(
+        2 + k,
+        1,
+        figsize=(9.5, 6.0 + 1.0 * k),
+        sharex=True,
+        layout="constrained",
+        gridspec_kw={"height_ratios": (3.0, 3.0) + (1.0,) * k},
     )
-    order = list(range(k))
-    for ax, arr, ylab in zip(axes, data, ylabels, strict=True):
-        for i in order:
-            ax.plot(
-                t,
-                np.asarray(arr)[i],
-                lw=0.8,
-                color=panel.colors[i % len(panel.colors)],
-                label=panel.labels[i],
-            )
-        for j, (a, b) in enumerate(panel.fault_intervals):
-            lab = panel.fault_labels[j] if j < len(panel.fault_labels) else "model mismatch"
-            ax.axvspan(a, b, color="0.85", zorder=0, label=f"true mismatch: {lab}")
+    colors = [panel.colors[i % len(panel.colors)] for i in range(k)]
+    spans: list[Artist] = []
+    for j, (a, b) in enumerate(panel.fault_intervals):
+        lab = panel.fault_labels[j] if j < len(panel.fault_labels) else "model mismatch"
+        shade = _WINDOW_SHADES[j % len(_WINDOW_SHADES)]
+        for ax in axes:
+            span = ax.axvspan(a, b, color=shade, alpha=0.22, lw=0, zorder=0, label=f"true mismatch: {lab}")
+        spans.append(span)
+    for ax, arr, ylab in zip(
+        axes[:2],
+        (panel.error_measured, panel.error_unmeasured),
+        (f"(a) x1 (measured)\n{panel.error_label}", f"(b) x2 (unmeasured)\n{panel.error_label}"),
+        strict=True,
+    ):
+        arr = np.asarray(arr, dtype=float)
+        # roughest trace (largest sample-to-sample variation) first: the smoother ones stay visible on top
+        rough = np.nanstd(np.diff(arr, axis=1), axis=1) if t.size > 1 else np.zeros(k)
+        for i in np.argsort(-rough, kind="stable"):
+            ax.plot(t, arr[i], lw=0.6, color=colors[i], label=panel.labels[i])
         ax.set_ylabel(ylab, fontsize=9)
         ax.grid(True, alpha=0.3)
-    axes[0].legend(fontsize=7, loc="upper right", ncols=2)
+    chat = np.asarray(panel.chattering, dtype=float)
+    lim = float(np.nanmax(np.abs(chat))) if chat.size and np.any(np.isfinite(chat)) else 1.0
+    for i, ax in enumerate(axes[2:]):
+        ax.plot(t, chat[i], lw=0.6, color=colors[i])
+        ax.set_ylim(-1.1 * lim if lim > 0 else -1.0, 1.1 * lim if lim > 0 else 1.0)
+        ax.text(
+            1.005,
+            0.5,
+            panel.labels[i],
+            transform=ax.transAxes,
+            fontsize=7,
+            va="center",
+            ha="left",
+            color=colors[i],
+        )
+        ax.tick_params(labelsize=7)
+        ax.grid(True, alpha=0.3)
+    if k:
+        axes[2].set_title(
+            f"(c) x1 chattering (eq 13) [{unit or 'dimensionless'}], one row per ψ₁, common scale",
+            fontsize=9,
+            loc="left",
+        )
+    line_handles = [Line2D([], [], color=colors[i], lw=1.5, label=panel.labels[i]) for i in range(k)]
+    fig.legend(handles=line_handles + spans, loc="outside lower center", ncols=3, fontsize=8, frameon=False)
     axes[-1].set_xlabel("time [s]")
     axes[-1].set_xlim(float(t[0]), float(t[-1]))
     if suptitle:
@@ -731,6 +931,21 @@ def boundary_layer_figure(panel: BoundaryLayerPanel, *, suptitle: str = "", unit
 # --------------------------------------------------------------------------- saving
 def save_figure(fig: Figure, path: str | Path, *, dpi: int = DEFAULT_DPI, close: bool = True) -> Path:
     """Save ``fig`` as PNG at ``dpi`` (creating parent folders) and close it; return the path.
+
+    The image is stored with a 256-colour adaptive palette (no dithering): line
+    figures lose nothing visible and the files are 2-3 times smaller than RGBA,
+    which keeps the committed figures small.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        Figure to save.
+    path : str or Path
+        Output file; must end in ``.png``.
+    dpi : int
+        Resolution in dots per inch (default :data:`DEFAULT_DPI`).
+    close : bool
+        Close the figure after saving (default True).
 
     Raises
     ------
@@ -743,9 +958,18 @@ def save_figure(fig: Figure, path: str | Path, *, dpi: int = DEFAULT_DPI, close:
     if not dpi > 0:
         raise ParameterError(f"dpi must be > 0; got {dpi!r}")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(
-        path, dpi=dpi, format="png", metadata={"Software": "chatterspec"}, pil_kwargs={"optimize": True}
-    )
+    from PIL import Image, PngImagePlugin  # matplotlib's own dependency
+
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=dpi, format="png")
+    buf.seek(0)
+    with Image.open(buf) as img:
+        pal = img.convert("RGB").quantize(
+            colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE
+        )
+    info = PngImagePlugin.PngInfo()
+    info.add_text("Software", "chatterspec")
+    pal.save(path, format="PNG", optimize=True, pnginfo=info)
     if close:
         plt.close(fig)
     return path
