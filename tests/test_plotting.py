@@ -322,6 +322,13 @@ def test_fig8_spectrograms_and_intervals():
     res = pf.render("fig8", seed=0)
     assert len(res.figure.axes) == 4
     assert len(res.notes) == 2 and all("true [0, 2) s, [4, 6) s" in n for n in res.notes)
+    ax = res.figure.axes[0]
+    labels = _legend_labels(res.figure)
+    assert any("nominal natural frequency 5.0 Hz" in s for s in labels)
+    assert any("true natural frequency 8.0 Hz on [0, 2) s" in s for s in labels)
+    (seg,) = [c for c in ax.collections if "8.0 Hz" in c.get_label()]
+    (xy,) = seg.get_segments()
+    assert xy[:, 0].tolist() == [0.0, 2.0] and xy[:, 1] == pytest.approx([8.0, 8.0])  # only in its window
 
 
 def test_fig2_small_run_count():

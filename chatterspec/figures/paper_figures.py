@@ -659,6 +659,22 @@ def fig7(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     )
 
 
+def _timeline_lines(sc: Scenario) -> tuple[pl.FrequencyLine, ...]:
+    """Nominal natural frequency and each fault window's differing natural frequency (Hz), for Fig 8."""
+    f_nom, z_nom = sc.nominal.natural_frequency_hz, sc.nominal.damping_ratio
+    if f_nom is None:
+        return ()
+    lines = [
+        pl.FrequencyLine(f_nom, f"nominal natural frequency {f_nom:.1f} Hz (ζ = {z_nom:.2f})", "white", ":")
+    ]
+    for seg in sc.segments:
+        f_seg = seg.model.natural_frequency_hz
+        if f_seg is not None and abs(f_seg - f_nom) > 0.05:
+            label = f"true natural frequency {f_seg:.1f} Hz on [{seg.start:g}, {seg.stop:g}) s"
+            lines.append(pl.FrequencyLine(f_seg, label, "tab:red", (0, (4, 2)), (seg.start, seg.stop)))
+    return tuple(lines)
+
+
 def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     """Fig 8: STFT spectrograms (1 s Hamming, 0.2 s hop) of the velocity chattering.
 
@@ -709,6 +725,7 @@ def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
                 detector_label=f"detected (exact, α = {pl.format_alpha(FAULT_ALPHA)} per frame)",
             )
         )
+        panels[-1] = replace(panels[-1], lines=_timeline_lines(sc))
         iv = ", ".join(f"[{a:.1f}, {b:.1f}) s" for a, b in intervals) or "none"
         tw = ", ".join(f"[{a:g}, {b:g}) s" for a, b in sc.fault_intervals)
         notes.append(

@@ -40,6 +40,7 @@ from matplotlib.artist import Artist
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
 
 from ..errors import ParameterError, ShapeError
 
@@ -244,12 +245,16 @@ class FrequencyLine:
         Matplotlib colour (default black).
     linestyle : str or tuple
         Matplotlib line style (default dotted).
+    span_s : (start_s, stop_s), optional
+        Time window in seconds the line applies to (spectrograms draw it only
+        there); None for the whole record.
     """
 
     hz: float
     label: str
     color: str = "black"
     linestyle: Any = ":"
+    span_s: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -327,6 +332,8 @@ class SpectrogramPanel:
         Upper limit of the frequency axis.
     detector_label : str
         Says which threshold and alpha produced ``detected_intervals``.
+    lines : tuple of FrequencyLine
+        Horizontal frequency lines (e.g. nominal and true natural frequencies, Hz).
     """
 
     times_s: np.ndarray
@@ -340,6 +347,7 @@ class SpectrogramPanel:
     flags: np.ndarray | None = None
     fmax_hz: float | None = None
     detector_label: str = "detected"
+    lines: tuple[FrequencyLine, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -790,6 +798,7 @@ def spectrogram_figure(
         squeeze=False,
         layout="constrained",
     )
+    handles: dict[str, Artist] = {}
     for ax, p in zip(axes[0], panels, strict=True):
         t = np.asarray(p.times_s, dtype=float)
         f = np.asarray(p.freqs_hz, dtype=float)
@@ -802,7 +811,8 @@ def spectrogram_figure(
         top = float(np.max(db))
         mesh = ax.pcolormesh(t, f, db.T, shading="nearest", cmap="viridis", vmin=top - db_range, vmax=top)
         cb = fig.colorbar(mesh, ax=ax, pad=0.01)
-        cb.set_label(f"10 log10 S [dB re 1 {power_unit(p.unit)}]")
+        ref = f"dB re 1 {power_unit(p.unit)}" if p.unit else "dB; S dimensionless"
+        cb.set_label(f"10 log10 S [{ref}]")
         ax.set_ylim(0.0, p.fmax_hz if p.fmax_hz is not None else float(f[-1]))
         ax.set_xlabel("time (frame centre) [s]")
         ax.set_ylabel(f"frequency [Hz] ({p.channel} chattering)" if p.channel else "frequency [Hz]")
@@ -820,13 +830,31 @@ def spectrogram_figure(
                 ms=5,
                 transform=ax.get_xaxis_transform(),
             )
-        handles = [
-            Line2D([], [], color="tab:red", lw=6, label="true fault window"),
-            Line2D([], [], color="white", lw=6, label=p.detector_label, markeredgecolor="k"),
-        ]
-        leg = ax.legend(handles=handles, fontsize=7, loc="center right", facecolor="0.35", framealpha=0.8)
-        for text in leg.get_texts():
-            text.set_color("white")
+        for fl in p.lines:
+            if fl.span_s is None:
+                ax.axhline(fl.hz, color=fl.color, ls=fl.linestyle, lw=1.2, label=fl.label)
+            else:
+                ax.hlines(fl.hz, *fl.span_s, color=fl.color, ls=fl.linestyle, lw=1.6, label=fl.label)
+        handles.setdefault(
+            "true fault window (bar)", Patch(fc="tab:red", ec="none", label="true fault window (bar)")
+        )
+        det = f"{p.detector_label} (bar; ticks = flagged frames)"
+        handles.setdefault(det, Patch(fc="white", ec="none", label=det))
+        for fl in p.lines:
+            handles.setdefault(
+                fl.label, Line2D([], [], color=fl.color, ls=fl.linestyle, lw=1.2, label=fl.label)
+            )
+    # one legend below the images, out of the data (dark, so the white marks show)
+    leg = fig.legend(
+        handles=list(handles.values()),
+        loc="outside lower center",
+        ncols=2,
+        fontsize=8,
+        facecolor="0.35",
+        framealpha=1.0,
+    )
+    for text in leg.get_texts():
+        text.set_color("white")
     if suptitle:
         fig.suptitle(_wrap(suptitle, fig.get_figwidth()), fontsize=10)
     return fig
