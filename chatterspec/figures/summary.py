@@ -19,7 +19,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from ..errors import ParameterError, ShapeError
-from .plotting import _CURVE_COLORS, format_alpha, plt, save_figure
+from .style import _CURVE_COLORS, format_alpha, plt, save_figure
 
 __all__ = ["RatioRow", "demo_summary", "rows_from_reports", "summary_figure"]
 
