@@ -353,6 +353,13 @@ def test_scenario_spectrum_errors():
         pf.scenario_spectrum("so-f11-low", threshold="flat")
 
 
+def test_scenario_spectrum_average_uses_averaged_paper_bound():
+    res = pf.scenario_spectrum("so-f11-high", runs=2, threshold="paper")
+    labels = _legend_labels(res.figure)
+    assert any("paper" in s and "K=2" in s for s in labels)
+    assert not any("single record" in s for s in labels)
+
+
 def test_scenario_spectrum_all_channels_averaged():
     res = pf.scenario_spectrum("eha-healthy", channel="all", runs=2, threshold="exact")
     main = res.figure.axes

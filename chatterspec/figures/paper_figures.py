@@ -584,8 +584,8 @@ def scenario_spectrum(
         Multiple-testing correction of the exact threshold.
     runs : int
         Realizations; with ``runs > 1`` the mean periodogram is drawn (over the first
-        realization in grey) with the averaged exact threshold (chi2 with 2K dof); the
-        paper's bound then refers to a single record.
+        realization in grey) with the thresholds of a K-record mean (chi2 with 2K dof):
+        the exact bound and the paper's bound scaled by :func:`averaged_paper_threshold`.
     seed : int, SeedSequence, Generator or None
 
     Raises
@@ -608,21 +608,14 @@ def scenario_spectrum(
     sp = _spectrum(name, runs, seed, average=runs > 1)
     model, f, n = sc.nominal, sp.freqs_hz, sp.record.n_samples
     ths: list[Threshold] = []
-    labels: list[str | None] = []
     if threshold in ("both", "paper"):
-        ths.append(paper_threshold(model, f, alpha))
-        labels.append(
-            pl.threshold_label("paper", alpha, "per-bin") + (" (single record)" if runs > 1 else "")
-        )
+        ths.append(averaged_paper_threshold(paper_threshold(model, f, alpha), sp.averaged))
     if threshold in ("both", "exact"):
         ths.append(exact_threshold(model, f, n, alpha, correction, averaged=sp.averaged))  # type: ignore[arg-type]
-        labels.append(None)
     panels, notes = [], []
     inset = SO_INSET_HZ if sc.family == "second-order" and not sc.is_healthy else None
     for ch in channels:
         p, note = _panel(sp, ch, ths, f"{name}, {model.output_names[ch]}", background=runs > 1, inset=inset)
-        curves = tuple(pl.threshold_curve(t, ch, label=lb) for t, lb in zip(ths, labels, strict=True))
-        p = replace(p, thresholds=curves)
         panels.append(p)
         notes.append(note)
     what = f"mean of {runs} realizations" if runs > 1 else "one realization"
