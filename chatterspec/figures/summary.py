@@ -53,7 +53,7 @@ def summary_figure(rows: Sequence[RatioRow], *, title: str = "", threshold_label
     """Peak ratio per scenario and channel on a log axis, threshold at 1: faults against healthy.
 
     One row per scenario (healthy rows shaded green), one symbol per channel; the
-    symbol is filled on the channel the fault acts on. A ratio above 1 means the
+    symbol is filled (and its value written) on the channel the fault acts on. A ratio above 1 means the
     channel's spectrum crosses the detection threshold somewhere.
 
     Parameters
@@ -106,10 +106,20 @@ def summary_figure(rows: Sequence[RatioRow], *, title: str = "", threshold_label
                 mew=1.4,
                 zorder=3,
             )
+            if filled:  # the number behind the fault channel's symbol
+                ax.annotate(
+                    f"{v:.3g}",
+                    (v, yy + offsets[channels.index(c)]),
+                    xytext=(7, 0),
+                    textcoords="offset points",
+                    va="center",
+                    fontsize=7,
+                    color=cmap[c],
+                )
     ax.axvline(1.0, color="tab:red", lw=1.4, zorder=2)
     ax.set_xscale("log")
     if vals:
-        ax.set_xlim(min(min(vals), 1.0) / 2.0, max(max(vals), 1.0) * 2.0)
+        ax.set_xlim(min(min(vals), 1.0) / 2.0, max(max(vals), 1.0) * 5.0)
     ax.set_yticks(range(n), [r.scenario for r in reversed(rows)], fontsize=8)
     ax.set_ylim(-0.6, n - 0.4)
     ax.set_xlabel("peak ratio max S(f) / threshold(f) over the tested bins (log; > 1 = detected)")
