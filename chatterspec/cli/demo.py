@@ -101,12 +101,14 @@ def run(args: argparse.Namespace) -> int:
         if not args.no_figures:
             from ..figures.paper_figures import render
             from ..figures.plotting import save_figure
+            from ..figures.summary import demo_summary
 
             for fig_name in DEMO_FIGURES:
                 rendered = render(fig_name, seed=args.seed)
                 path = save_figure(rendered.figure, Path(args.figures_dir) / f"{fig_name}.png")
                 figures.append(str(path))
                 bar.update(1, fig_name)
+            figures.append(str(demo_summary(results, Path(args.figures_dir) / "summary.png")))
     wall = time.perf_counter() - t_start
     faults = [r for r in results if not r["healthy"]]
     healthy = [r for r in results if r["healthy"]]

@@ -9,9 +9,10 @@ Usage::
 Draws the periodogram (eq 49) of one realization, or with ``--runs R > 1`` the
 mean of R periodograms over the first one in grey, the expected healthy
 spectrum (eq 56) and the chosen thresholds: the paper's flat bound (eq 58-62,
-``alpha`` per bin, single record) and/or the exact chi-squared bound (``alpha``
-family-wise over the tested bins with the chosen correction, per bin with
-``--correction none``; chi2 with 2R degrees of freedom for an R-run average).
+``alpha`` per bin; for an R-run mean scaled to chi2 with 2R degrees of freedom)
+and/or the exact chi-squared bound (``alpha`` family-wise over the tested bins
+with the chosen correction, per bin with ``--correction none``; chi2 with 2R
+degrees of freedom for an R-run average).
 """
 
 from __future__ import annotations

@@ -24,24 +24,42 @@ and Nyquist excluded, for each threshold).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
-from matplotlib.figure import Figure
 
-from ..detection.pipeline import ChatteringRecord, scenario_chattering
-from ..detection.spectral import STFTConfig, periodogram, spectrogram
+from ..detection.pipeline import scenario_chattering
+from ..detection.spectral import STFTConfig, spectrogram
 from ..detection.thresholds import Threshold, exact_threshold, frame_threshold, paper_threshold
 from ..errors import ParameterError
-from ..plants.scenarios import Scenario, scenario
+from ..plants.scenarios import scenario
 from ..rng import SeedLike
 from . import plotting as pl
+from .figure_data import (
+    _THRESHOLD_NOTE,
+    FAULT_ALPHA,
+    FIG2_PROBABILITY,
+    FIG2_PSIS,
+    OVERLAY_FMAX_HZ,
+    PAPER_ALPHAS,
+    SO_INSET_HZ,
+    PaperFigure,
+    _channel_index,
+    _overlay,
+    _panel,
+    _spectrum,
+    _thresholds,
+    _timeline_lines,
+    averaged_paper_threshold,
+    peak_summary,
+)
 
 __all__ = [
     "FIGURES",
     "FigureSpec",
     "PaperFigure",
+    "averaged_paper_threshold",
     "fig2",
     "fig4",
     "fig5",
@@ -57,41 +75,6 @@ __all__ = [
     "render",
     "scenario_spectrum",
 ]
-
-#: Alphas the paper draws in Figs 4, 5 and 9 (error probability 1 % and 0.1 %).
-PAPER_ALPHAS: tuple[float, ...] = (1e-2, 1e-3)
-#: Alpha of the fault figures (the paper detects at 0.1 %).
-FAULT_ALPHA: float = 1e-3
-#: Fig 2 boundary layers psi1: too small, the paper's 5e-4, chatterspec's proposal (None), too large.
-FIG2_PSIS: tuple[float | None, ...] = (1e-4, 5e-4, None, 2e-3)
-#: Healthy per-sample chattering probability behind the proposed psi1 of Fig 2.
-FIG2_PROBABILITY: float = 1e-3
-#: Zoom of the inset on the second-order fault figures (Hz): the peaks sit at 9-15 Hz.
-SO_INSET_HZ: tuple[float, float] = (0.0, 40.0)
-
-_THRESHOLD_NOTE = (
-    "dashed = paper's flat bound (eq 58-62), α = false-alarm probability PER BIN;  "
-    "solid = exact χ² bound on E[S] (eq 56),\nα = FAMILY-WISE false-alarm probability of the whole "
-    "spectrum (Bonferroni over the tested bins; DC and Nyquist not tested)"
-)
-
-
-@dataclass(frozen=True)
-class PaperFigure:
-    """A rendered paper figure.
-
-    Attributes
-    ----------
-    name : str
-        Registry key (``"fig5"``).
-    figure : matplotlib.figure.Figure
-    notes : tuple of str
-        One line per panel with what it shows (peak frequency in Hz, peak ratios).
-    """
-
-    name: str
-    figure: Figure
-    notes: tuple[str, ...]
 
 
 @dataclass(frozen=True)
@@ -114,177 +97,6 @@ class FigureSpec:
     caption: str
     builder: Callable[[int | None, SeedLike], PaperFigure]
     default_runs: int = 1
-
-
-# --------------------------------------------------------------------------- data helpers
-@dataclass(frozen=True)
-class _Spectrum:
-    """Spectrum of one scenario: single realization (or average) plus thresholds."""
-
-    scenario: Scenario
-    record: ChatteringRecord
-    freqs_hz: np.ndarray
-    power: np.ndarray  # (bins, m): realization 0, or the mean over runs when averaged
-    single: np.ndarray  # (bins, m): realization 0
-    expected: np.ndarray  # (bins, m)
-    averaged: int
-
-
-def _spectrum(name: str, runs: int = 1, seed: SeedLike = 0, *, average: bool = False) -> _Spectrum:
-    sc = scenario(name)
-    rec = scenario_chattering(sc, runs, seed)
-    pg = periodogram(rec.values, rec.dt)
-    single = np.asarray(pg.power[0])
-    power = np.asarray(pg.mean().power) if average else single
-    th = exact_threshold(sc.nominal, pg.freqs_hz, pg.n_samples, 0.5, "none")
-    return _Spectrum(
-        scenario=sc,
-        record=rec,
-        freqs_hz=np.asarray(pg.freqs_hz),
-        power=power,
-        single=single,
-        expected=np.asarray(th.expected),
-        averaged=rec.runs if average else 1,
-    )
-
-
-def _thresholds(
-    sp: _Spectrum, alphas: Sequence[float], kinds: Sequence[str] = ("paper", "exact")
-) -> list[Threshold]:
-    """Thresholds for ``sp``: for each kind, one per alpha (paper per-bin, exact Bonferroni family-wise)."""
-    model, f, n = sp.scenario.nominal, sp.freqs_hz, sp.record.n_samples
-    out: list[Threshold] = []
-    for kind in kinds:
-        for a in alphas:
-            if kind == "paper":
-                out.append(paper_threshold(model, f, a))
-            elif kind == "exact":
-                out.append(exact_threshold(model, f, n, a, "bonferroni", averaged=sp.averaged))
-            elif kind == "exact-per-bin":
-                out.append(exact_threshold(model, f, n, a, "none", averaged=sp.averaged))
-            else:
-                raise ParameterError(
-                    f"unknown threshold kind {kind!r}; choose 'paper', 'exact', 'exact-per-bin'"
-                )
-    return out
-
-
-def peak_summary(power: np.ndarray, threshold: Threshold, channel: int) -> tuple[float, float, int]:
-    """``(peak_hz, peak_ratio, n_over)`` of one channel over the threshold's tested bins.
-
-    ``peak_ratio = max_f S(f) / threshold(f)`` (DESIGN.md section 5; > 1 means
-    detected), ``peak_hz`` its frequency and ``n_over`` the number of tested bins above.
-
-    Parameters
-    ----------
-    power : (bins, m) array_like
-        Periodogram of the chattering (eq 51), in squared output units per bin
-        (e.g. Pa^2 for pressure), on the threshold's frequency grid.
-    threshold : Threshold
-        Threshold on the same bins; only its ``tested`` bins (DC and Nyquist
-        excluded) are considered.
-    channel : int
-        Index of the output channel (column of ``power``).
-
-    Returns
-    -------
-    peak_hz : float
-        Frequency in Hz of the largest ratio.
-    peak_ratio : float
-        Largest ``S / threshold`` over the tested bins.
-    n_over : int
-        Number of tested bins with ``S > threshold``.
-    """
-    p = np.asarray(power, dtype=float)[:, channel]
-    v = np.asarray(threshold.values, dtype=float)[:, channel]
-    tested = np.asarray(threshold.tested, dtype=bool)
-    ratio = np.where(tested, p / v, -np.inf)
-    i = int(np.argmax(ratio))
-    return float(threshold.freqs_hz[i]), float(ratio[i]), int(np.count_nonzero(ratio > 1.0))
-
-
-def _short(th: Threshold) -> str:
-    kind = "paper" if th.kind == "paper" else "exact"
-    meaning = "FW" if th.alpha_meaning == "family-wise" else "per-bin"
-    avg = f" K={th.averaged}" if th.averaged > 1 else ""
-    return f"{kind} {pl.format_alpha(th.alpha)} {meaning}{avg}"
-
-
-def _note(power: np.ndarray, ths: Sequence[Threshold], channel: int) -> tuple[str, str]:
-    """(multi-line panel text, one-line summary) of the peak ratios ``S / threshold``.
-
-    The reference peak is the bin with the largest ratio to the last exact
-    threshold (the default detector), or to the last threshold if none is exact;
-    each threshold then reports its own maximum ratio, the number of tested bins
-    above it and its ratio at the reference peak.
-    """
-    if not ths:
-        return "", ""
-    ref = next((t for t in reversed(ths) if t.kind == "exact"), ths[-1])
-    f_ref, _, _ = peak_summary(power, ref, channel)
-    i_ref = int(np.argmin(np.abs(np.asarray(ref.freqs_hz) - f_ref)))
-    p = np.asarray(power, dtype=float)[:, channel]
-    width = max(len(_short(t)) for t in ths)
-    lines = [f"S/threshold at {f_ref:.2f} Hz"]
-    summary = [f"peak {f_ref:.2f} Hz (max S/thr of {_short(ref)}, DC and Nyquist excluded)"]
-    for th in ths:
-        f, r, n_over = peak_summary(power, th, channel)
-        at = p[i_ref] / float(np.asarray(th.values)[i_ref, channel])
-        lines.append(f"{_short(th):<{width}} {at:6.3g}  ({n_over} bins over)")
-        summary.append(f"{_short(th)}: {at:.3g} at peak, max {r:.3g} at {f:.2f} Hz, {n_over} bins over")
-    return "\n".join(lines), "; ".join(summary)
-
-
-def _channel_index(sc: Scenario, channel: str | int | None) -> int:
-    names = sc.nominal.output_names
-    if channel is None:
-        channel = sc.fault_channel or names[-1]
-    if isinstance(channel, int | np.integer):
-        if not 0 <= int(channel) < len(names):
-            raise ParameterError(f"channel index {channel} out of range for outputs {names}")
-        return int(channel)
-    if channel not in names:
-        raise ParameterError(
-            f"unknown channel {channel!r} for scenario {sc.name!r}; valid: {', '.join(names)}"
-        )
-    return names.index(channel)
-
-
-def _panel(
-    sp: _Spectrum,
-    channel: int,
-    ths: Sequence[Threshold],
-    title: str,
-    *,
-    curve_label: str | None = None,
-    background: bool = False,
-    inset: tuple[float, float] | None = None,
-) -> tuple[pl.SpectrumPanel, str]:
-    model = sp.scenario.nominal
-    curves = []
-    if background:
-        curves.append(
-            pl.SpectrumCurve(sp.single[:, channel], "one realization", color="0.65", linewidth=0.6, alpha=0.8)
-        )
-    label = curve_label or (
-        f"S(f) averaged over K = {sp.averaged} realizations"
-        if sp.averaged > 1
-        else "S(f), one realization (eq 49)"
-    )
-    curves.append(pl.SpectrumCurve(sp.power[:, channel], label, color="tab:blue"))
-    text, line = _note(sp.power, ths, channel)
-    panel = pl.SpectrumPanel(
-        freqs_hz=sp.freqs_hz,
-        curves=tuple(curves),
-        expected=sp.expected[:, channel],
-        thresholds=tuple(pl.threshold_curve(t, channel) for t in ths),
-        title=title,
-        channel=model.output_names[channel],
-        unit=model.output_units[channel],
-        note=text,
-        inset_hz=inset,
-    )
-    return panel, f"{title}: {line}"
 
 
 # --------------------------------------------------------------------------- figures
@@ -386,7 +198,7 @@ def fig4(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
         panels,
         ncols=2,
         suptitle="Fig 4 — healthy chattering spectra, one 4 s realization\n" + _THRESHOLD_NOTE,
-        panel_size=(5.0, 3.6),
+        panel_size=(5.6, 4.3),
     )
     return PaperFigure("fig4", fig, tuple(notes))
 
@@ -419,8 +231,10 @@ def fig5(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
         notes.append(n)
     fig = pl.spectrum_figure(
         panels,
-        ncols=2,
+        ncols=1,
         suptitle="Fig 5 — mismatch f0 = 11 Hz (nominal 10 Hz), velocity chattering\n" + _THRESHOLD_NOTE,
+        panel_size=(12.0, 4.4),
+        legend_cols=2,
     )
     return PaperFigure("fig5", fig, tuple(notes))
 
@@ -428,67 +242,45 @@ def fig5(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
 def fig6(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     """Fig 6: spectrum averaged over K realizations of ``so-f11-high`` (velocity).
 
-    The averaged threshold is ``E[S] chi2_{1-a}(2K) / (2K)`` (K independent
-    periodograms); the paper's single-record flat bound is drawn for reference.
+    Both thresholds are those of the average of K independent periodograms
+    (chi-squared with 2K degrees of freedom per bin): the paper's flat bound
+    ``Sigma_Gamma_ii chi2_{1-a}(2K) / (2K)`` (:func:`averaged_paper_threshold`)
+    and the exact bound ``E[S] chi2_{1-a'}(2K) / (2K)``. Realization 0 is drawn
+    in grey for comparison; the thresholds do not apply to it.
 
     Parameters
     ----------
     runs : int, optional
-        Number K of realizations averaged (default 100); the exact threshold
-        uses 2K degrees of freedom per bin.
+        Number K of realizations averaged (default 100); the thresholds use 2K
+        degrees of freedom per bin.
     seed : int, SeedSequence, Generator or None
         Root seed of the K realizations.
 
     Returns
     -------
     PaperFigure
-        The figure and a note with the peak ratios ``S / threshold``.
+        The figure and a note with each threshold's maximum ratio ``S / threshold``.
     """
     K = 100 if runs is None else runs
     sp = _spectrum("so-f11-high", K, seed, average=True)
     ths = [
-        paper_threshold(sp.scenario.nominal, sp.freqs_hz, FAULT_ALPHA),
+        averaged_paper_threshold(paper_threshold(sp.scenario.nominal, sp.freqs_hz, FAULT_ALPHA), sp.averaged),
         exact_threshold(
             sp.scenario.nominal, sp.freqs_hz, sp.record.n_samples, FAULT_ALPHA, averaged=sp.averaged
         ),
     ]
-    curves_th = [
-        pl.threshold_curve(
-            ths[0], 1, label=pl.threshold_label("paper", FAULT_ALPHA, "per-bin") + " (single record)"
-        ),
-        pl.threshold_curve(ths[1], 1),
-    ]
     p, n = _panel(
         sp, 1, ths, f"Fig 6: so-f11-high, velocity, mean of K = {K}", background=True, inset=SO_INSET_HZ
     )
-    p = replace(p, thresholds=tuple(curves_th))
     fig = pl.spectrum_figure(
         [p],
-        suptitle=f"Fig 6 — averaging {K} realizations (χ² with 2K = {2 * K} dof per bin)\n" + _THRESHOLD_NOTE,
-        panel_size=(9.0, 5.2),
+        suptitle=f"Fig 6 — averaging K = {K} realizations: both bounds are for the mean of K records "
+        f"(χ² with 2K = {2 * K} dof per bin; the paper's bound scaled by χ²₀.₉₉₉(2K)/(2K) "
+        f"÷ χ²₀.₉₉₉(2)/2)\n" + _THRESHOLD_NOTE,
+        panel_size=(12.0, 5.2),
+        legend_cols=2,
     )
     return PaperFigure("fig6", fig, (n,))
-
-
-def _family(
-    name: str,
-    title: str,
-    scenarios: Sequence[tuple[str, str]],
-    channel: str,
-    seed: SeedLike,
-    ncols: int,
-    inset=None,
-) -> PaperFigure:
-    panels, notes = [], []
-    for tag, sc_name in scenarios:
-        sp = _spectrum(sc_name, 1, seed)
-        ch = _channel_index(sp.scenario, channel)
-        ths = _thresholds(sp, (FAULT_ALPHA,))
-        p, n = _panel(sp, ch, ths, f"{name.replace('fig', 'Fig ')}{tag}: {sc_name}, {channel}", inset=inset)
-        panels.append(p)
-        notes.append(n)
-    fig = pl.spectrum_figure(panels, ncols=ncols, sharey=True, suptitle=f"{title}\n{_THRESHOLD_NOTE}")
-    return PaperFigure(name, fig, tuple(notes))
 
 
 def fig7(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
@@ -508,14 +300,20 @@ def fig7(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     PaperFigure
         The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
     """
-    return _family(
+    return _overlay(
         "fig7",
-        "Fig 7 — mismatch levels f0 = 9 / 12 / 15 Hz (nominal 10 Hz), low noise, velocity chattering",
-        (("a", "so-f9-low"), ("b", "so-f12-low"), ("c", "so-f15-low")),
+        "Fig 7 — mismatch levels f0 = 9 / 12 / 15 Hz (nominal 10 Hz), low noise, velocity chattering, "
+        "one realization each (same seed); the footprint moves with the true f0",
+        (
+            ("so-f9-low", "f0 9 Hz", "tab:blue"),
+            ("so-f12-low", "f0 12 Hz", "tab:purple"),
+            ("so-f15-low", "f0 15 Hz", "tab:red"),
+        ),
         "velocity",
         seed,
-        3,
-        SO_INSET_HZ,
+        healthy="so-healthy-low",
+        fmax_hz=OVERLAY_FMAX_HZ,
+        inset=SO_INSET_HZ,
     )
 
 
@@ -569,6 +367,7 @@ def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
                 detector_label=f"detected (exact, α = {pl.format_alpha(FAULT_ALPHA)} per frame)",
             )
         )
+        panels[-1] = replace(panels[-1], lines=_timeline_lines(sc))
         iv = ", ".join(f"[{a:.1f}, {b:.1f}) s" for a, b in intervals) or "none"
         tw = ", ".join(f"[{a:g}, {b:g}) s" for a, b in sc.fault_intervals)
         notes.append(
@@ -630,13 +429,19 @@ def fig10(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     PaperFigure
         The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
     """
-    return _family(
+    return _overlay(
         "fig10",
-        "Fig 10 — EHA leakage (L = 3e-11 / 6e-11 / 9e-11 m³/(s·Pa)), pressure chattering",
-        (("a", "eha-leak-minor"), ("b", "eha-leak-medium"), ("c", "eha-leak-major")),
+        "Fig 10 — EHA leakage (L = 3e-11 / 6e-11 / 9e-11 m³/(s·Pa)), pressure chattering, one realization "
+        f"each (same seed), 0-{OVERLAY_FMAX_HZ:g} Hz shown (all bins up to Nyquist are tested)",
+        (
+            ("eha-leak-minor", "minor", "gold"),
+            ("eha-leak-medium", "medium", "darkorange"),
+            ("eha-leak-major", "major", "tab:red"),
+        ),
         "pressure",
         seed,
-        3,
+        healthy="eha-healthy",
+        fmax_hz=OVERLAY_FMAX_HZ,
     )
 
 
@@ -657,13 +462,15 @@ def fig11(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     PaperFigure
         The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
     """
-    return _family(
+    return _overlay(
         "fig11",
-        "Fig 11 — EHA friction (a = 4000 / 7000 N·s/m), velocity chattering",
-        (("a", "eha-friction-minor"), ("b", "eha-friction-major")),
+        "Fig 11 — EHA friction (a = 4000 / 7000 N·s/m), velocity chattering, one realization each "
+        f"(same seed), 0-{OVERLAY_FMAX_HZ:g} Hz shown (all bins up to Nyquist are tested)",
+        (("eha-friction-minor", "minor", "darkorange"), ("eha-friction-major", "major", "tab:red")),
         "velocity",
         seed,
-        2,
+        healthy="eha-healthy",
+        fmax_hz=OVERLAY_FMAX_HZ,
     )
 
 
@@ -684,13 +491,20 @@ def fig12(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     PaperFigure
         The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
     """
-    return _family(
+    return _overlay(
         "fig12",
-        "Fig 12 — EHA bulk-modulus mismatch (βe × 0.5 / 0.75 / 1.25 / 1.5), pressure chattering",
-        (("a", "eha-bulk-50down"), ("b", "eha-bulk-25down"), ("c", "eha-bulk-25up"), ("d", "eha-bulk-50up")),
+        "Fig 12 — EHA bulk-modulus mismatch (βe × 0.5 / 0.75 / 1.25 / 1.5), pressure chattering, one "
+        f"realization each (same seed), 0-{OVERLAY_FMAX_HZ:g} Hz shown (all bins up to Nyquist are tested)",
+        (
+            ("eha-bulk-50down", "βe × 0.5", "navy"),
+            ("eha-bulk-25down", "βe × 0.75", "cornflowerblue"),
+            ("eha-bulk-25up", "βe × 1.25", "salmon"),
+            ("eha-bulk-50up", "βe × 1.5", "darkred"),
+        ),
         "pressure",
         seed,
-        2,
+        healthy="eha-healthy",
+        fmax_hz=OVERLAY_FMAX_HZ,
     )
 
 
@@ -770,8 +584,8 @@ def scenario_spectrum(
         Multiple-testing correction of the exact threshold.
     runs : int
         Realizations; with ``runs > 1`` the mean periodogram is drawn (over the first
-        realization in grey) with the averaged exact threshold (chi2 with 2K dof); the
-        paper's bound then refers to a single record.
+        realization in grey) with the thresholds of a K-record mean (chi2 with 2K dof):
+        the exact bound and the paper's bound scaled by :func:`averaged_paper_threshold`.
     seed : int, SeedSequence, Generator or None
 
     Raises
@@ -794,21 +608,14 @@ def scenario_spectrum(
     sp = _spectrum(name, runs, seed, average=runs > 1)
     model, f, n = sc.nominal, sp.freqs_hz, sp.record.n_samples
     ths: list[Threshold] = []
-    labels: list[str | None] = []
     if threshold in ("both", "paper"):
-        ths.append(paper_threshold(model, f, alpha))
-        labels.append(
-            pl.threshold_label("paper", alpha, "per-bin") + (" (single record)" if runs > 1 else "")
-        )
+        ths.append(averaged_paper_threshold(paper_threshold(model, f, alpha), sp.averaged))
     if threshold in ("both", "exact"):
         ths.append(exact_threshold(model, f, n, alpha, correction, averaged=sp.averaged))  # type: ignore[arg-type]
-        labels.append(None)
     panels, notes = [], []
     inset = SO_INSET_HZ if sc.family == "second-order" and not sc.is_healthy else None
     for ch in channels:
         p, note = _panel(sp, ch, ths, f"{name}, {model.output_names[ch]}", background=runs > 1, inset=inset)
-        curves = tuple(pl.threshold_curve(t, ch, label=lb) for t, lb in zip(ths, labels, strict=True))
-        p = replace(p, thresholds=curves)
         panels.append(p)
         notes.append(note)
     what = f"mean of {runs} realizations" if runs > 1 else "one realization"
@@ -816,6 +623,6 @@ def scenario_spectrum(
         panels,
         ncols=min(len(panels), 3),
         suptitle=f"{name}: {sc.description} ({what}, seed {seed})\n{_THRESHOLD_NOTE}",
-        panel_size=(8.0, 4.8) if len(panels) == 1 else (5.2, 3.9),
+        panel_size=((12.0 if inset else 8.0), 4.8) if len(panels) == 1 else (5.2, 4.3),
     )
     return PaperFigure(f"spectrum-{name}", fig, tuple(notes))
