@@ -4,6 +4,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Iterator
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..detection.pipeline import ChatteringRecord
+    from ..plants.scenarios import Scenario
+    from ..plants.simulate import Simulation
 
 from ._common import add_detector_args, add_live_args, band_from_args, check_record_path, print_json
 
@@ -66,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def stream_chunks(sc, runs: int, seed: int, first: list):
+def stream_chunks(sc: Scenario, runs: int, seed: int, first: list[Simulation]) -> Iterator[ChatteringRecord]:
     """Chattering records of ``runs`` realizations in chunks; appends run 0's Simulation to ``first``.
 
     Peak memory is one chunk (``DETECT_CHUNK_RUNS`` realizations), whatever ``runs``.
