@@ -248,3 +248,22 @@ def test_stft_per_frame_false_alarm_rate(healthy):
     assert lo <= alpha * 1.0 and alpha * 0.8 <= hi  # Bonferroni: rate <= alpha, and close to it
     lo, hi = clopper_pearson(round(k_all / 5), n_all // 5)
     assert lo <= alpha and alpha * 0.8 <= hi, f"per-frame rate {k_all / n_all:.4f}"
+
+
+def test_band_family_wise_rate_counts_only_the_band(healthy):
+    """Bonferroni over a band (50-200 Hz: 601 bins): healthy family-wise rate <= alpha and near it.
+
+    alpha = 5 %: 1000 runs x 2 channels = 2000 independent (run, channel) families; 99 % Clopper-Pearson.
+    Bonferroni over nearly independent bins gives 1 - exp(-alpha) ~ 4.9 %, so the interval must reach
+    0.8 alpha; a correction over all 1999 bins (alpha / 1999 per bin) would give ~1.5 % and fail that.
+    """
+    rec, pg = healthy["so-healthy-high"]
+    th = exact_threshold(rec.model, pg.freqs_hz, pg.n_samples, 0.05, band=(50.0, 200.0))
+    assert th.n_tested == 601 and th.band == (50.0, 200.0)
+    crossed = (pg.power[:, th.tested] > th.values[th.tested]).any(axis=1)
+    lo, hi = clopper_pearson(int(crossed.sum()), crossed.size)
+    assert lo <= 0.05 and hi >= 0.8 * 0.05, (lo, hi)
+    # the STFT frame and the paper's threshold take the same band
+    assert threshold("paper", rec.model, pg.freqs_hz, band=(50.0, 200.0)).n_tested == 601
+    with pytest.raises(ParameterError, match="band"):
+        threshold("exact", rec.model, pg.freqs_hz, n_samples=pg.n_samples, band=(200.0, 50.0))

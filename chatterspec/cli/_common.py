@@ -42,8 +42,35 @@ def nonnegative_int_arg(text: str) -> int:
     return value
 
 
+def band_edge_arg(text: str) -> float:
+    """argparse type: one edge of ``--band LO HI``, a finite frequency >= 0 in Hz."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--band edges are frequencies in Hz; got {text!r}") from None
+    if not (value >= 0.0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"--band edges must be finite and >= 0 Hz; got {text!r}")
+    return value
+
+
+def band_from_args(args: argparse.Namespace) -> tuple[float, float] | None:
+    """The validated ``--band LO HI`` of ``args`` (None when not given).
+
+    Raises
+    ------
+    ParameterError
+        If ``LO >= HI``.
+    """
+    band = getattr(args, "band", None)
+    if band is None:
+        return None
+    from ..detection.thresholds import check_band
+
+    return check_band(band)
+
+
 def add_detector_args(p: argparse.ArgumentParser) -> None:
-    """--alpha, --threshold, --correction, --runs, --seed."""
+    """--alpha, --threshold, --correction, --band, --runs, --seed."""
     p.add_argument(
         "--alpha",
         type=alpha_arg,
@@ -61,7 +88,16 @@ def add_detector_args(p: argparse.ArgumentParser) -> None:
         "--correction",
         choices=("bonferroni", "sidak", "none"),
         default="bonferroni",
-        help="family-wise correction over the tested bins for 'exact' (default bonferroni)",
+        help="family-wise correction over the tested bins for 'exact' and for the averaged verdict "
+        "of every threshold with --runs > 1 (default bonferroni)",
+    )
+    p.add_argument(
+        "--band",
+        nargs=2,
+        type=band_edge_arg,
+        metavar=("LO", "HI"),
+        help="test only the bins with LO <= f <= HI (Hz), for every threshold (single, averaged, STFT "
+        "frames); the correction counts only these bins; DC and Nyquist stay excluded",
     )
     p.add_argument("--runs", type=positive_int_arg, default=1, help="Monte Carlo realizations (default 1)")
     p.add_argument("--seed", type=nonnegative_int_arg, default=0, help="random seed (default 0)")

@@ -5,6 +5,17 @@ bin (DC and Nyquist excluded; the DC ratio is reported separately because a
 step input puts a large DC term into any mismatch). The default detector is the
 ``exact`` threshold with Bonferroni correction at family-wise alpha = 0.1 %.
 
+Where the fault is (two frequencies, both over the tested bins):
+
+``peak_hz``
+    Frequency (Hz) of the largest **excess power** ``S(f_n) - E[S(f_n)]``: the
+    spectrum's peak above the healthy expectation, the fault footprint the paper
+    reads off its figures (e.g. 34-36 Hz for EHA leakage).
+``most_significant_hz``
+    Frequency (Hz) of the largest ``S(f_n) / threshold(f_n)``: the bin that decides
+    the verdict (``peak_ratio`` is its ratio). Where the healthy spectrum is small
+    this can sit far from ``peak_hz`` (14-22 Hz for EHA leakage).
+
 Severity scores (both grow with fault size within a fault family):
 
 ``peak_ratio``
@@ -18,29 +29,48 @@ Severity scores (both grow with fault size within a fault family):
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import open_unit
+from .._validate import open_unit, positive_int
 from ..errors import ParameterError, ShapeError
 from ..plants.models import LinearModel
-from .pipeline import ChatteringRecord
+from ..plants.scenarios import Scenario
+from ..rng import SeedLike
+from .pipeline import ChatteringRecord, iter_chattering
 from .spectral import DEFAULT_STFT, Spectrogram, STFTConfig, expected_spectrum, periodogram, spectrogram
-from .thresholds import Correction, Threshold, exact_threshold, frame_threshold, paper_threshold
+from .thresholds import (
+    Band,
+    Correction,
+    Threshold,
+    check_band,
+    exact_threshold,
+    frame_threshold,
+    paper_threshold,
+)
 
 __all__ = [
+    "DETECT_CHUNK_RUNS",
     "ChannelVerdict",
     "DetectionReport",
     "FrameDetection",
     "SpectrumDetection",
+    "detect_chunks",
     "detect_frames",
     "detect_record",
+    "detect_scenario",
     "detect_spectrum",
     "frame_intervals",
+    "frame_statistic",
+    "healthy_frame_level",
     "stft_detect",
 ]
+
+
+#: Realizations per chunk of :func:`detect_scenario` (EHA: ~100 MB of working arrays per chunk).
+DETECT_CHUNK_RUNS = 256
 
 
 @dataclass(frozen=True)
@@ -53,9 +83,11 @@ class ChannelVerdict:
     detected : bool
         Any tested bin above the threshold.
     peak_hz : float
+        Frequency (Hz) of the tested bin with the largest excess power ``S - E[S]``.
+    most_significant_hz : float
         Frequency (Hz) of the tested bin with the largest ``S / threshold``.
     peak_ratio : float
-        ``max S / threshold`` over the tested bins.
+        ``max S / threshold`` over the tested bins (at ``most_significant_hz``).
     excess_power : float
         ``sum (S - E[S]) / sum E[S]`` over the tested bins.
     dc_ratio : float
@@ -68,6 +100,7 @@ class ChannelVerdict:
     channel: str
     detected: bool
     peak_hz: float
+    most_significant_hz: float
     peak_ratio: float
     excess_power: float
     dc_ratio: float
@@ -76,11 +109,12 @@ class ChannelVerdict:
     alpha_meaning: str
 
     def to_dict(self) -> dict[str, object]:
-        """JSON-ready ``{"channel", "detected", "peak_hz", "peak_ratio", "excess_power", "dc_ratio"}``."""
+        """JSON-ready ``{"channel", "detected", "peak_hz", "most_significant_hz", "peak_ratio", ...}``."""
         return {
             "channel": self.channel,
             "detected": bool(self.detected),
             "peak_hz": float(self.peak_hz),
+            "most_significant_hz": float(self.most_significant_hz),
             "peak_ratio": float(self.peak_ratio),
             "excess_power": float(self.excess_power),
             "dc_ratio": float(self.dc_ratio),
@@ -93,7 +127,7 @@ class SpectrumDetection:
 
     Attributes
     ----------
-    detected, peak_hz, peak_ratio, excess_power, dc_ratio : (..., m) arrays
+    detected, peak_hz, most_significant_hz, peak_ratio, excess_power, dc_ratio : (..., m) arrays
         See :class:`ChannelVerdict`; the leading axes are those of the spectra.
     channels : tuple of str
     threshold : Threshold
@@ -101,6 +135,7 @@ class SpectrumDetection:
 
     detected: np.ndarray
     peak_hz: np.ndarray
+    most_significant_hz: np.ndarray
     peak_ratio: np.ndarray
     excess_power: np.ndarray
     dc_ratio: np.ndarray
@@ -125,6 +160,7 @@ class SpectrumDetection:
                 channel=name,
                 detected=bool(self.detected[index][i]),
                 peak_hz=float(self.peak_hz[index][i]),
+                most_significant_hz=float(self.most_significant_hz[index][i]),
                 peak_ratio=float(self.peak_ratio[index][i]),
                 excess_power=float(self.excess_power[index][i]),
                 dc_ratio=float(self.dc_ratio[index][i]),
@@ -181,12 +217,15 @@ def detect_spectrum(
     if expected.shape != threshold.values.shape:
         raise ShapeError(f"expected must have shape {threshold.values.shape}; got {expected.shape}")
     tested = threshold.tested
-    ratio = power[..., tested, :] / threshold.values[tested]
+    p_tested = power[..., tested, :]
+    f_tested = threshold.freqs_hz[tested]
+    ratio = p_tested / threshold.values[tested]
     k = np.argmax(ratio, axis=-2)  # (..., m)
     peak_ratio = np.take_along_axis(ratio, k[..., None, :], axis=-2)[..., 0, :]
-    peak_hz = threshold.freqs_hz[tested][k]
+    most_significant_hz = f_tested[k]
+    peak_hz = f_tested[np.argmax(p_tested - expected[tested], axis=-2)]  # largest excess power S - E[S]
     e_sum = expected[tested].sum(axis=0)
-    excess = (power[..., tested, :].sum(axis=-2) - e_sum) / e_sum
+    excess = (p_tested.sum(axis=-2) - e_sum) / e_sum
     dc = np.flatnonzero(threshold.freqs_hz == 0.0)
     if dc.size:
         dc_ratio = power[..., dc[0], :] / threshold.values[dc[0]]
@@ -195,6 +234,7 @@ def detect_spectrum(
     return SpectrumDetection(
         detected=peak_ratio > 1.0,
         peak_hz=peak_hz,
+        most_significant_hz=most_significant_hz,
         peak_ratio=peak_ratio,
         excess_power=excess,
         dc_ratio=dc_ratio,
@@ -229,20 +269,77 @@ def detect_frames(spec: Spectrogram, frame_threshold: Threshold) -> np.ndarray:
     return (power[..., tested, :] > frame_threshold.values[tested]).any(axis=-2)
 
 
+def frame_statistic(spec: Spectrogram, frame_threshold: Threshold) -> np.ndarray:
+    """``(..., frames, m)``: the per-frame statistic ``max_n S(f_n) / threshold(f_n)`` over the tested bins.
+
+    A frame is flagged by :func:`detect_frames` exactly when this exceeds 1.
+
+    Parameters
+    ----------
+    spec : Spectrogram
+        Frame spectra ``(..., frames, bins, m)``.
+    frame_threshold : Threshold
+        Per-frame threshold on the same frequency grid.
+    """
+    power = frame_threshold.check_spectrum(spec.power)
+    tested = frame_threshold.tested
+    return (power[..., tested, :] / frame_threshold.values[tested]).max(axis=-2)
+
+
+def healthy_frame_level(frame_threshold: Threshold) -> float:
+    """Median of the per-frame statistic (:func:`frame_statistic`) on a healthy frame.
+
+    With ``n`` tested bins, each at per-bin level ``a`` (after the correction), and the
+    chi2(2)/2 law of a healthy bin (``P(S / t > x) = a^x``; bins independent),
+    ``P(max <= x) = (1 - a^x)^n``, so the median is ``m0 = ln(1 - 2^(-1/n)) / ln a``
+    (0.50 for 499 bins at family-wise 0.1 % Bonferroni; the exact-law value is close:
+    0.50 observed over healthy frames). Clipped to ``(0, 1]``; 1 (the threshold) when the
+    threshold has no per-bin level (empirical thresholds).
+
+    Parameters
+    ----------
+    frame_threshold : Threshold
+        Per-frame threshold.
+    """
+    a, n = frame_threshold.per_test_alpha, frame_threshold.n_tested
+    if not np.isfinite(a) or not 0.0 < a < 1.0:
+        return 1.0
+    m0 = float(np.log(-np.expm1(-np.log(2.0) / n)) / np.log(a))
+    return float(min(1.0, max(m0, 1e-12)))
+
+
 def frame_intervals(
-    flags: np.ndarray, times_s: np.ndarray, config: STFTConfig, dt: float
+    flags: np.ndarray,
+    times_s: np.ndarray,
+    config: STFTConfig,
+    dt: float,
+    statistic: np.ndarray | None = None,
+    level: float = 1.0,
 ) -> list[tuple[float, float]]:
     """Merge runs of contiguous flagged frames into ``(onset_s, offset_s)`` estimates.
 
-    Estimator: a frame is assumed to be flagged once its centre lies inside the
-    fault (about half its window faulty), so the onset is placed half-way
-    between the centres of the last unflagged and the first flagged frame,
-    ``onset = c_first - H dt / 2``, and the offset half-way after the last
-    flagged centre, ``offset = c_last + H dt / 2``. If the first (last) frame of
-    the record is flagged the fault may predate (outlast) it: the onset (offset)
-    is then the start (end) of that frame's window. Strong faults flag frames
-    that overlap the fault by a single hop, which biases onsets early and
-    offsets late by up to ``(W - H) dt / 2``.
+    **Window-extent estimator** (with ``statistic``, used by :func:`stft_detect`):
+    a frame whose window ``[s_j, s_j + W dt)`` overlaps the fault can flag, one that
+    does not has the healthy law. So the onset of a run whose first flagged frame is
+    ``f`` lies in ``[s_{f-1} + W dt, s_f + W dt]`` (end of the last unflagged window, end
+    of the first flagged one) and the offset of a run whose last flagged frame is ``l``
+    in ``[s_l, s_{l+1}]``. Inside each bracket the per-frame statistic ``r_j``
+    (:func:`frame_statistic`) locates the edge: ``log r`` is interpolated linearly
+    between the two frames and the crossing of ``log level`` (the healthy median
+    :func:`healthy_frame_level`, the value of a window that just touches the fault)
+    gives the position ``s*`` (clipped to the bracket) of the window that just touches
+    the fault: ``onset = s* + W dt`` (its end), ``offset = s*`` (its start). A run
+    shorter than a window whose estimates cross (onset > offset) is reported as a
+    zero-length interval at their mean. A run touching the start (end) of the record
+    gets the start of the first (end of the last) window: the fault may predate
+    (outlast) it. Resolution: a strong fault edge is found within the bracket of one
+    hop ``H dt``; a fault whose signature fades before it ends (a decaying transient)
+    is ended where it becomes invisible (``docs/paper-notes.md``, STFT onset/offset).
+
+    **Frame-centre estimator** (``statistic=None``, the online monitor's): a frame is
+    assumed flagged once its centre lies inside the fault, ``onset = c_first - H dt / 2``,
+    ``offset = c_last + H dt / 2``; strong faults flag frames that overlap them by a
+    single hop, which biases it outward by up to ``(W - H) dt / 2``.
 
     Parameters
     ----------
@@ -253,6 +350,11 @@ def frame_intervals(
     config : STFTConfig
     dt : float
         Sampling time (s).
+    statistic : (frames,) array, optional
+        Per-frame statistic ``max S / threshold`` (:func:`frame_statistic`, same channel);
+        selects the window-extent estimator.
+    level : float
+        Healthy median of the statistic (:func:`healthy_frame_level`), in (0, 1].
     """
     flags = np.asarray(flags, dtype=bool)
     times = np.asarray(times_s, dtype=float)
@@ -261,17 +363,51 @@ def frame_intervals(
             f"flags and times_s must be 1-D of equal length (one run, one channel); got {flags.shape} "
             f"and {times.shape}"
         )
+    if statistic is not None:
+        stat = np.asarray(statistic, dtype=float)
+        if stat.shape != flags.shape:
+            raise ShapeError(f"statistic must have the shape of flags {flags.shape}; got {stat.shape}")
+        if not 0.0 < float(level) <= 1.0:
+            raise ParameterError(
+                f"level must lie in (0, 1] (a healthy median of max S / threshold); got {level}"
+            )
     if not flags.any():
         return []
-    half_hop = config.n_hop(dt) * dt / 2.0
+    hop = config.n_hop(dt) * dt
+    half_hop = hop / 2.0
     half_win = (config.n_window(dt) - 1) * dt / 2.0
     padded = np.concatenate(([False], flags, [False]))
     edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
     out = []
+    if statistic is None:
+        for start, stop in zip(edges[::2], edges[1::2], strict=True):
+            last = stop - 1
+            onset = times[start] - (half_win if start == 0 else half_hop)
+            offset = times[last] + (half_win + dt if last == flags.size - 1 else half_hop)
+            out.append((float(onset), float(offset)))
+        return out
+    win = config.n_window(dt) * dt
+    starts = times - half_win  # first sample of each window
+    logr = np.log(np.maximum(stat, 1e-300))
+    lvl = np.log(level)
+
+    def crossing(inside: int, outside: int) -> float:
+        """Fraction (0..1) of the way from frame ``inside`` to ``outside`` where log r reaches lvl."""
+        drop = logr[inside] - logr[outside]
+        return float(np.clip((logr[inside] - lvl) / drop, 0.0, 1.0)) if drop > 0 else 1.0
+
     for start, stop in zip(edges[::2], edges[1::2], strict=True):
         last = stop - 1
-        onset = times[start] - (half_win if start == 0 else half_hop)
-        offset = times[last] + (half_win + dt if last == flags.size - 1 else half_hop)
+        if start == 0:
+            onset = starts[0]
+        else:
+            onset = starts[start] - crossing(start, start - 1) * hop + win
+        if last == flags.size - 1:
+            offset = starts[last] + win
+        else:
+            offset = starts[last] + crossing(last, last + 1) * hop
+        if onset > offset:
+            onset = offset = 0.5 * (onset + offset)
         out.append((float(onset), float(offset)))
     return out
 
@@ -287,13 +423,17 @@ class FrameDetection:
         Per-frame threshold (``alpha_meaning="per-frame"``).
     flags : (..., frames, m) bool array
     intervals : dict of str -> list of (onset_s, offset_s)
-        Per channel and under ``"any"`` (any channel flagged), for run 0.
+        Per channel and under ``"any"`` (any channel flagged), for run 0
+        (window-extent estimator of :func:`frame_intervals`).
+    statistic : (..., frames, m) array or None
+        Per-frame statistic ``max S / threshold`` (:func:`frame_statistic`).
     """
 
     spectrogram: Spectrogram
     threshold: Threshold
     flags: np.ndarray
     intervals: dict[str, list[tuple[float, float]]]
+    statistic: np.ndarray | None = None
 
 
 def stft_detect(
@@ -305,6 +445,7 @@ def stft_detect(
     alpha: float = 1e-3,
     correction: Correction = "bonferroni",
     channels: Sequence[str] | None = None,
+    band: Band | None = None,
 ) -> FrameDetection:
     """Spectrogram + per-frame threshold + flags + intervals for chattering ``x`` (..., N, m).
 
@@ -324,6 +465,8 @@ def stft_detect(
         Family-wise control over the bins of one frame.
     channels : sequence of str, optional
         Channel names (default ``model.output_names``).
+    band : (float, float), optional
+        ``(lo, hi)`` in Hz: frame bins tested (the correction counts only these).
 
     Raises
     ------
@@ -331,13 +474,21 @@ def stft_detect(
         If the record is shorter than one window.
     """
     spec = spectrogram(x, model.dt, config, t0=t0)
-    th = frame_threshold(model, spec.freqs_hz, config, model.dt, alpha, correction)
+    th = frame_threshold(model, spec.freqs_hz, config, model.dt, alpha, correction, band=band)
     flags = detect_frames(spec, th)
+    stat = frame_statistic(spec, th)
+    level = healthy_frame_level(th)
     names = _channel_names(channels or model.output_names, flags.shape[-1])
     first = flags.reshape(-1, *flags.shape[-2:])[0]
-    intervals = {n: frame_intervals(first[:, i], spec.times_s, config, model.dt) for i, n in enumerate(names)}
-    intervals["any"] = frame_intervals(first.any(axis=-1), spec.times_s, config, model.dt)
-    return FrameDetection(spec, th, flags, intervals)
+    first_stat = stat.reshape(-1, *stat.shape[-2:])[0]
+    times, dt = spec.times_s, model.dt
+    intervals = {
+        n: frame_intervals(first[:, i], times, config, dt, first_stat[:, i], level)
+        for i, n in enumerate(names)
+    }
+    # any channel: the frame's largest statistic over the channels
+    intervals["any"] = frame_intervals(first.any(axis=-1), times, config, dt, first_stat.max(axis=-1), level)
+    return FrameDetection(spec, th, flags, intervals, stat)
 
 
 # ---------------------------------------------------------------------------
@@ -345,7 +496,7 @@ def stft_detect(
 # ---------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class DetectionReport:
-    """Detection of a :class:`~chatterspec.detection.pipeline.ChatteringRecord`.
+    """Detection of a :class:`~chatterspec.detection.pipeline.ChatteringRecord` (or a stream of chunks).
 
     Attributes
     ----------
@@ -354,12 +505,14 @@ class DetectionReport:
     channels : tuple of str
     runs : int
     per_run : SpectrumDetection
-        ``(runs, m)`` verdict arrays, one per realization.
+        ``(runs, m)`` verdict arrays, one per realization, against the single-record
+        threshold (``per_run.threshold``).
     averaged : SpectrumDetection or None
         ``(m,)`` verdict of the Monte Carlo averaged spectrum (Fig 6) against the
-        averaged threshold (``nu = 2K``, K = runs); None when runs == 1.
+        averaged ``exact`` threshold with K = runs (``averaged.threshold``), whatever
+        the single-record rule; None when runs == 1.
     frames : FrameDetection or None
-        STFT detection (multi-segment scenarios, or when requested).
+        STFT detection of run 0 (multi-segment scenarios, or when requested).
     """
 
     scenario: str | None
@@ -383,25 +536,31 @@ class DetectionReport:
 
     @property
     def detection_rate(self) -> dict[str, float]:
-        """Fraction of the runs detected, per channel."""
+        """Fraction of the runs detected, per channel (single-record threshold)."""
         return {c: float(r) for c, r in zip(self.channels, self.per_run.detection_rate, strict=True)}
 
     def to_dict(self) -> dict[str, object]:
         """JSON-ready report.
 
-        Keys: ``scenario``, ``runs``, ``detected``, ``threshold`` (kind, alpha,
-        alpha_meaning, correction, description), ``channels`` (list of
-        ``{"channel", "detected", "peak_hz", "peak_ratio", "excess_power", "dc_ratio"}``:
-        the single run, or with ``runs > 1`` the averaged-spectrum verdict plus
-        ``"detection_rate"``, the fraction of single runs detected),
-        ``"averaged"`` (bool) and, when the STFT was run, ``"intervals"``
-        (list of ``{"channel", "onset_s", "offset_s"}`` for run 0, channel ``"any"`` included).
+        Keys: ``scenario``, ``runs``, ``detected``, ``threshold`` (the single-record
+        threshold: kind, alpha, alpha_meaning, correction, band, n_tested,
+        description), ``channels`` (list of ``{"channel", "detected", "peak_hz",
+        "most_significant_hz", "peak_ratio", "excess_power", "dc_ratio",
+        "ratio_threshold"}``: the single run, or with ``runs > 1`` the
+        averaged-spectrum verdict plus ``"detection_rate"``, the fraction of single
+        runs detected by ``threshold``), ``"averaged"`` (bool), with ``runs > 1``
+        ``"averaged_threshold"`` (same keys plus ``records``), ``"verdict_threshold"``
+        (``"threshold"`` or ``"averaged_threshold"``: the one ``detected``,
+        ``peak_ratio`` and ``most_significant_hz`` refer to; ``ratio_threshold``
+        repeats it per channel) and, when the STFT was run, ``"intervals"`` (list of
+        ``{"channel", "onset_s", "offset_s"}`` for run 0, channel ``"any"`` included).
         """
-        th = self.per_run.threshold
         chans = []
         rates = self.detection_rate
+        which = "averaged_threshold" if self.averaged is not None else "threshold"
         for v in self.verdicts:
             d = v.to_dict()
+            d["ratio_threshold"] = which
             if self.runs > 1:
                 d["detection_rate"] = rates[v.channel]
             chans.append(d)
@@ -410,25 +569,12 @@ class DetectionReport:
             "runs": self.runs,
             "detected": bool(self.detected),
             "averaged": self.averaged is not None,
-            "threshold": {
-                "kind": th.kind,
-                "alpha": th.alpha,
-                "alpha_meaning": th.alpha_meaning,
-                "correction": th.correction,
-                "description": th.describe(),
-            },
+            "verdict_threshold": which,
+            "threshold": _threshold_dict(self.per_run.threshold),
             "channels": chans,
         }
         if self.averaged is not None:
-            ath = self.averaged.threshold
-            out["averaged_threshold"] = {
-                "kind": ath.kind,
-                "alpha": ath.alpha,
-                "alpha_meaning": ath.alpha_meaning,
-                "correction": ath.correction,
-                "records": ath.averaged,
-                "description": ath.describe(),
-            }
+            out["averaged_threshold"] = {**_threshold_dict(self.averaged.threshold), "records": self.runs}
         if self.frames is not None:
             out["intervals"] = [
                 {"channel": ch, "onset_s": on, "offset_s": off}
@@ -436,6 +582,18 @@ class DetectionReport:
                 for on, off in ivs
             ]
         return out
+
+
+def _threshold_dict(th: Threshold) -> dict[str, object]:
+    return {
+        "kind": th.kind,
+        "alpha": th.alpha,
+        "alpha_meaning": th.alpha_meaning,
+        "correction": th.correction,
+        "band": None if th.band is None else list(th.band),
+        "n_tested": th.n_tested,
+        "description": th.describe(),
+    }
 
 
 def detect_record(
@@ -446,6 +604,7 @@ def detect_record(
     *,
     stft: bool | None = None,
     config: STFTConfig = DEFAULT_STFT,
+    band: Band | None = None,
 ) -> DetectionReport:
     """Detect model mismatch in a chattering record (default: exact + Bonferroni, family-wise 0.1 %).
 
@@ -455,67 +614,177 @@ def detect_record(
         ``values`` (runs, N, m) and the nominal model.
     alpha : float
         False-alarm probability in (0, 1); family-wise for ``"exact"`` with a
-        correction, per-bin for ``"paper"`` (the paper's rule).
+        correction, per-bin for ``"paper"`` (the paper's rule, eq 57).
     threshold : {"exact", "paper"} or Threshold
         Threshold kind, or a ready :class:`~chatterspec.detection.thresholds.Threshold`
         (e.g. the empirical one of a saved calibration,
         ``Calibration.threshold("family-wise")``), used as is: its ``alpha``
         replaces ``alpha`` and it must cover this record's periodogram bins.
     correction : {"bonferroni", "sidak", "none"}
-        Used by ``"exact"`` (ignored by ``"paper"``).
+        Used by ``"exact"`` and by the averaged verdict of every kind (``"paper"``
+        itself is per-bin).
     stft : bool, optional
-        Also run the STFT detector (intervals). Default: when the record's
+        Also run the STFT detector on run 0 (intervals). Default: when the record's
         scenario has more than one segment and the record holds one window.
     config : STFTConfig
+    band : (float, float), optional
+        ``(lo, hi)`` in Hz: only these bins are tested, by every threshold (single,
+        averaged, STFT frames); the correction counts only them; DC and Nyquist stay
+        excluded. A ready threshold is narrowed with :meth:`Threshold.restricted`.
 
     Notes
     -----
     With ``runs > 1`` the report holds every run's verdict (detection rate per
-    channel) and the verdict of the averaged spectrum against the averaged
-    ``exact`` threshold with K = runs (for ``"paper"`` at per-bin alpha, with
-    the same correction otherwise). Runs are assumed independent realizations.
+    channel, single-record threshold) and the verdict of the averaged spectrum
+    against the averaged ``exact`` threshold with K = runs at ``alpha`` with
+    ``correction`` (family-wise by default) **whatever the single-record rule**:
+    the paper's per-bin rule applied to ~2000 averaged bins would flag most
+    healthy averages. Runs are assumed independent realizations. Identical to
+    :func:`detect_chunks` on the record split in chunks.
     """
-    alpha = open_unit("alpha", alpha)
     if not isinstance(record, ChatteringRecord):
         raise ParameterError(f"record must be a ChatteringRecord; got {type(record).__name__}")
-    model = record.model
-    pg = periodogram(record.values, record.dt)
-    E = expected_spectrum(model, pg.freqs_hz, pg.n_samples)
+    return detect_chunks([record], alpha, threshold, correction, stft=stft, config=config, band=band)
+
+
+def detect_chunks(
+    chunks: Iterable[ChatteringRecord],
+    alpha: float = 1e-3,
+    threshold: str | Threshold = "exact",
+    correction: Correction = "bonferroni",
+    *,
+    stft: bool | None = None,
+    config: STFTConfig = DEFAULT_STFT,
+    band: Band | None = None,
+) -> DetectionReport:
+    """:func:`detect_record` over a stream of chunks of realizations, in memory bounded by one chunk.
+
+    Each chunk's periodograms are tested and dropped: only the per-run verdict
+    scalars (``(runs, m)``, 48 bytes per run and channel), the running sum of the
+    spectra (for the averaged verdict) and run 0's STFT are kept.
+
+    Parameters
+    ----------
+    chunks : iterable of ChatteringRecord
+        Chunks of one study (same model, length and scenario), e.g.
+        :func:`chatterspec.detection.pipeline.iter_chattering`.
+    alpha, threshold, correction, stft, config, band
+        As in :func:`detect_record`.
+
+    Raises
+    ------
+    ParameterError
+        If ``chunks`` is empty or its records do not belong to one study.
+    """
+    alpha = open_unit("alpha", alpha)
+    if band is not None:
+        band = check_band(band)
+    it = iter(chunks)
+    first = next(it, None)
+    if first is None:
+        raise ParameterError("no chattering record to detect (empty chunk stream)")
+    model, channels, dt = first.model, first.channels, first.dt
+    pg = periodogram(first.values, dt)
+    freqs, n_samples = pg.freqs_hz, pg.n_samples
+    E = expected_spectrum(model, freqs, n_samples)
     if isinstance(threshold, Threshold):
         th = threshold
-        if th.values.shape != pg.power.shape[-2:] or not np.allclose(th.freqs_hz, pg.freqs_hz):
+        if th.values.shape != pg.power.shape[-2:] or not np.allclose(th.freqs_hz, freqs):
             raise ShapeError(
                 f"the given threshold covers {th.values.shape[0]} bins x {th.values.shape[1]} channels "
                 f"at other frequencies than this record's periodogram {pg.power.shape[-2:]}: it was "
                 "calibrated for another record length or model"
             )
+        th = th.restricted(band)
         alpha = th.alpha
     elif threshold == "exact":
-        th = exact_threshold(model, pg.freqs_hz, pg.n_samples, alpha, correction)
+        th = exact_threshold(model, freqs, n_samples, alpha, correction, band=band)
     elif threshold == "paper":
-        th = paper_threshold(model, pg.freqs_hz, alpha)
+        th = paper_threshold(model, freqs, alpha, band=band)
     else:
         raise ParameterError(f"unknown threshold kind {threshold!r}; choose 'exact' or 'paper'")
-    channels = record.channels
-    per_run = detect_spectrum(pg.power, th, E, channels)
-    averaged = None
-    if record.runs > 1:
-        corr = "none" if threshold == "paper" else correction
-        th_avg = exact_threshold(model, pg.freqs_hz, pg.n_samples, alpha, corr, averaged=record.runs)
-        averaged = detect_spectrum(pg.power.mean(axis=0), th_avg, E, channels)
-    sc = record.scenario
+    sc = first.scenario
     if stft is None:
-        stft = sc is not None and len(sc.segments) > 1 and record.n_samples >= config.n_window(record.dt)
+        stft = sc is not None and len(sc.segments) > 1 and n_samples >= config.n_window(dt)
     frames = None
     if stft:
+        t0 = float(first.t[0])
         frames = stft_detect(
-            record.values, model, t0=float(record.t[0]), config=config, alpha=alpha, channels=channels
+            first.values[:1], model, t0=t0, config=config, alpha=alpha, channels=channels, band=band
         )
+    parts: list[SpectrumDetection] = []
+    power_sum = np.zeros(pg.power.shape[-2:])
+    runs = 0
+    record: ChatteringRecord | None = first
+    while record is not None:
+        if record is not first:
+            if record.model is not model and record.model.fingerprint() != model.fingerprint():
+                raise ParameterError("all chunks must share the nominal model of the first chunk")
+            pg = periodogram(record.values, dt)
+            if pg.power.shape[-2:] != power_sum.shape:
+                raise ShapeError(
+                    f"chunk of {record.n_samples} samples does not match the first chunk's {n_samples}"
+                )
+        parts.append(detect_spectrum(pg.power, th, E, channels))
+        power_sum += pg.power.sum(axis=0)
+        runs += record.runs
+        record = next(it, None)
+    per_run = SpectrumDetection(
+        **{k: np.concatenate([getattr(p, k) for p in parts]) for k in _VERDICT_FIELDS},
+        channels=channels,
+        threshold=th,
+    )
+    averaged = None
+    if runs > 1:
+        th_avg = exact_threshold(model, freqs, n_samples, alpha, correction, averaged=runs, band=band)
+        averaged = detect_spectrum(power_sum / runs, th_avg, E, channels)
     return DetectionReport(
         scenario=None if sc is None else sc.name,
         channels=channels,
-        runs=record.runs,
+        runs=runs,
         per_run=per_run,
         averaged=averaged,
         frames=frames,
     )
+
+
+_VERDICT_FIELDS = ("detected", "peak_hz", "most_significant_hz", "peak_ratio", "excess_power", "dc_ratio")
+
+
+def detect_scenario(
+    scenario: Scenario,
+    runs: int = 1,
+    seed: SeedLike = None,
+    alpha: float = 1e-3,
+    threshold: str | Threshold = "exact",
+    correction: Correction = "bonferroni",
+    *,
+    stft: bool | None = None,
+    config: STFTConfig = DEFAULT_STFT,
+    band: Band | None = None,
+    chunk_runs: int | None = DETECT_CHUNK_RUNS,
+    gamma: float = 0.1,
+) -> DetectionReport:
+    """Simulate, filter and detect ``runs`` realizations of ``scenario`` chunk by chunk (bounded memory).
+
+    Same numbers as ``detect_record(scenario_chattering(scenario, runs, seed), ...)``
+    (verdicts identical; the averaged spectrum summed chunk by chunk, equal to
+    rounding), with peak memory set by ``chunk_runs``, not by ``runs``.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Catalogue or user scenario.
+    runs : int
+        Monte Carlo realizations (>= 1).
+    seed : int, SeedSequence, Generator or None
+        Root of the random streams (realization r is the same whatever the chunking).
+    alpha, threshold, correction, stft, config, band
+        As in :func:`detect_record`.
+    chunk_runs : int, optional
+        Realizations per chunk (default 256; None: the simulator's memory-sized default).
+    gamma : float
+        SVSF convergence rate in (0, 1) (eq 8-10).
+    """
+    chunks = iter_chattering(scenario, positive_int("runs", runs), seed, chunk_runs=chunk_runs, gamma=gamma)
+    return detect_chunks(chunks, alpha, threshold, correction, stft=stft, config=config, band=band)

@@ -39,11 +39,20 @@ Family-wise control
     bins of the healthy MA(1) chattering are nearly independent). Eq (64) is the
     union bound: with per-bin alpha it gives ``n alpha``, which is vacuous for
     ``n alpha >= 1`` and is not a guarantee.
+
+Frequency band (beyond the paper)
+    Every builder takes ``band=(lo, hi)`` in Hz: only bins with ``lo <= f <= hi``
+    are tested (DC and Nyquist stay excluded), and the family of the correction is
+    those bins only (Bonferroni ``a = alpha / n_tested`` with ``n_tested`` the bins
+    in the band). The paper's rule (eq 57-62) tests every bin; a band keeps, e.g.,
+    near-Nyquist noise out of the verdict when the fault band is known.
+    :meth:`Threshold.restricted` narrows a ready threshold (an empirical one) to
+    a band; its level is then conservative (a sub-family of the calibrated one).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -64,11 +73,14 @@ from .spectral import (
 
 __all__ = [
     "AlphaMeaning",
+    "Band",
     "Correction",
     "Threshold",
     "ThresholdKind",
     "ThresholdLaw",
+    "band_mask",
     "bin_layout",
+    "check_band",
     "exact_threshold",
     "frame_threshold",
     "paper_gamma_matrix",
@@ -84,6 +96,7 @@ ThresholdKind = Literal["paper", "exact", "empirical"]
 AlphaMeaning = Literal["per-bin", "family-wise", "per-frame"]
 Correction = Literal["none", "bonferroni", "sidak"]
 ThresholdLaw = Literal["exact", "chi2"]
+Band = tuple[float, float]
 _CORRECTIONS = ("none", "bonferroni", "sidak")
 _LAWS = ("exact", "chi2")
 
@@ -127,6 +140,9 @@ class Threshold:
         ``K (l1 + l2)^2 / (l1^2 + l2^2)``: the Welch-Satterthwaite degrees of freedom
         of the exact law (equals ``dof`` where ``l1 = l2`` or ``l2 = 0``); ``dof``
         broadcast for ``law="chi2"``; None for ``empirical``.
+    band : (float, float) or None
+        ``(lo, hi)`` in Hz: only bins with ``lo <= f <= hi`` are tested (None: every bin
+        but DC and Nyquist).
     """
 
     values: np.ndarray
@@ -143,6 +159,7 @@ class Threshold:
     law: ThresholdLaw | None = None
     eigenvalues: np.ndarray | None = None
     effective_dof: np.ndarray | None = None
+    band: Band | None = None
 
     @property
     def n_tested(self) -> int:
@@ -170,10 +187,39 @@ class Threshold:
             )
         return power
 
+    def restricted(self, band: Band | None) -> Threshold:
+        """This threshold with only the bins of ``band`` (Hz) tested; ``None`` returns it unchanged.
+
+        The values are not recomputed: for a family-wise threshold the level over the
+        narrower family is at most ``alpha`` (conservative). Builders that take
+        ``band=`` (:func:`exact_threshold`, ...) recompute the correction for the band.
+
+        Parameters
+        ----------
+        band : (float, float) or None
+            ``(lo, hi)`` in Hz.
+
+        Raises
+        ------
+        ParameterError
+            If the band is malformed or holds no tested bin.
+        """
+        if band is None:
+            return self
+        lo, hi = check_band(band)
+        tested = self.tested & band_mask(self.freqs_hz, (lo, hi))
+        if not tested.any():
+            raise ParameterError(
+                f"band [{lo:g}, {hi:g}] Hz holds none of this threshold's tested bins "
+                f"({self.freqs_hz[self.tested].min():g} .. {self.freqs_hz[self.tested].max():g} Hz)"
+            )
+        return replace(self, tested=readonly(tested), band=(lo, hi))
+
     def describe(self) -> str:
         """One sentence saying what ``alpha`` guarantees for this threshold."""
         avg = f" for the average of {self.averaged} independent spectra" if self.averaged > 1 else ""
-        band = f"{self.n_tested} tested bins (DC and Nyquist excluded)"
+        where = "" if self.band is None else f" in {self.band[0]:g}-{self.band[1]:g} Hz"
+        band = f"{self.n_tested} tested bins{where} (DC and Nyquist excluded)"
         if self.alpha_meaning == "per-bin":
             return (
                 f"{self.kind} threshold{avg}: each of the {band} exceeds it with probability "
@@ -206,6 +252,46 @@ def bin_layout(freqs_hz: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]
     is_dc = np.abs(f) <= 1e-9 * nyq
     is_nyq = np.abs(f - nyq) <= 1e-9 * nyq
     return is_dc, is_nyq
+
+
+def check_band(band: object) -> Band:
+    """Validate a frequency band ``(lo, hi)`` in Hz: finite, ``0 <= lo < hi``.
+
+    Parameters
+    ----------
+    band : pair of float
+        Lower and upper edge (Hz), both included.
+
+    Raises
+    ------
+    ParameterError
+        If it is not two finite numbers with ``0 <= lo < hi``.
+    """
+    try:
+        lo, hi = (float(v) for v in band)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        raise ParameterError(f"band must be two numbers (lo, hi) in Hz; got {band!r}") from None
+    if not (np.isfinite(lo) and np.isfinite(hi)) or lo < 0 or hi <= lo:
+        raise ParameterError(f"band must satisfy 0 <= lo < hi (Hz, finite); got ({lo:g}, {hi:g})")
+    return lo, hi
+
+
+def band_mask(freqs_hz: np.ndarray, band: Band | None) -> np.ndarray:
+    """``(bins,)`` bool: bins with ``lo <= f <= hi`` (all True for ``band=None``).
+
+    Parameters
+    ----------
+    freqs_hz : (bins,) array
+        Frequencies (Hz).
+    band : (float, float) or None
+        ``(lo, hi)`` in Hz (validated by :func:`check_band`).
+    """
+    f = np.asarray(freqs_hz, dtype=float)
+    if band is None:
+        return np.ones(f.shape, dtype=bool)
+    lo, hi = check_band(band)
+    tol = 1e-9 * max(1.0, hi)
+    return (f >= lo - tol) & (f <= hi + tol)
 
 
 def per_test_alpha(alpha: float, n_tests: int, correction: Correction = "bonferroni") -> float:
@@ -395,12 +481,15 @@ def _chi2_threshold(
     kind: ThresholdKind,
     meaning_if_corrected: AlphaMeaning,
     eigen: tuple[np.ndarray, np.ndarray] | None = None,
+    band: Band | None = None,
 ) -> Threshold:
     is_dc, is_nyq = bin_layout(freqs, dt)
     tested = ~(is_dc | is_nyq)
-    n_tested = int(np.count_nonzero(tested))
-    if n_tested == 0:
+    if not tested.any():
         raise ShapeError("no frequency bin left to test (need bins other than DC and Nyquist)")
+    band = None if band is None else check_band(band)
+    tested = _band_tested(tested, freqs, band)
+    n_tested = int(np.count_nonzero(tested))
     a = per_test_alpha(alpha, n_tested, correction)
     dof = np.where(is_dc | is_nyq, averaged, 2 * averaged)
     eigenvalues = None
@@ -435,7 +524,22 @@ def _chi2_threshold(
         law="chi2" if eigen is None else "exact",
         eigenvalues=None if eigenvalues is None else readonly(eigenvalues),
         effective_dof=readonly(np.array(eff, dtype=float)),
+        band=band,
     )
+
+
+def _band_tested(tested: np.ndarray, freqs: np.ndarray, band: Band | None) -> np.ndarray:
+    """``tested`` restricted to ``band``; a band holding no tested bin is a ParameterError."""
+    if band is None:
+        return tested
+    out = tested & band_mask(freqs, band)
+    if not out.any():
+        f = freqs[tested]
+        raise ParameterError(
+            f"band [{band[0]:g}, {band[1]:g}] Hz holds no tested bin: the tested bins span "
+            f"{f.min():g} .. {f.max():g} Hz (DC and Nyquist are never tested)"
+        )
+    return out
 
 
 def exact_threshold(
@@ -446,6 +550,7 @@ def exact_threshold(
     correction: Correction = "bonferroni",
     averaged: int = 1,
     law: ThresholdLaw = "exact",
+    band: Band | None = None,
 ) -> Threshold:
     """Per-bin threshold from the exact finite-N law of each healthy periodogram bin.
 
@@ -471,11 +576,13 @@ def exact_threshold(
         K independent periodograms averaged: ``nu = 2K`` (``K`` at DC/Nyquist).
     law : {"exact", "chi2"}
         Law of a healthy bin: exact weighted sum of two chi2(1) (default) or ``E chi2(nu) / nu``.
+    band : (float, float), optional
+        ``(lo, hi)`` in Hz: test only these bins; the correction counts only them.
 
     Returns
     -------
     Threshold
-        ``kind="exact"``; bins ``1 .. ceil(N/2) - 1`` tested.
+        ``kind="exact"``; bins ``1 .. ceil(N/2) - 1`` (within ``band``) tested.
     """
     alpha = open_unit("alpha", alpha)
     averaged = positive_int("averaged", averaged)
@@ -483,7 +590,9 @@ def exact_threshold(
     freqs = finite_array("freqs_hz", freqs_hz, ndim=1)
     E = expected_spectrum(model, freqs, n_samples, form="exact")
     eigen = periodogram_eigenvalues(model, freqs, n_samples) if law == "exact" else None
-    return _chi2_threshold(E, freqs, model.dt, alpha, correction, averaged, "exact", "family-wise", eigen)
+    return _chi2_threshold(
+        E, freqs, model.dt, alpha, correction, averaged, "exact", "family-wise", eigen, band
+    )
 
 
 def frame_threshold(
@@ -494,6 +603,7 @@ def frame_threshold(
     alpha: float = 1e-3,
     correction: Correction = "bonferroni",
     law: ThresholdLaw = "exact",
+    band: Band | None = None,
 ) -> Threshold:
     """Per-frame STFT threshold from the exact law of each healthy frame bin.
 
@@ -520,6 +630,8 @@ def frame_threshold(
         Family-wise control over the tested bins of one frame.
     law : {"exact", "chi2"}
         Law of a healthy frame bin (see above).
+    band : (float, float), optional
+        ``(lo, hi)`` in Hz: test only these frame bins; the correction counts only them.
     """
     alpha = open_unit("alpha", alpha)
     law = _check_law(law)
@@ -527,7 +639,7 @@ def frame_threshold(
     freqs = finite_array("freqs_hz", freqs_hz, ndim=1)
     E = expected_frame_spectrum(model, freqs, config, dt)
     eigen = frame_eigenvalues(model, freqs, config, dt) if law == "exact" else None
-    return _chi2_threshold(E, freqs, dt, alpha, correction, 1, "exact", "per-frame", eigen)
+    return _chi2_threshold(E, freqs, dt, alpha, correction, 1, "exact", "per-frame", eigen, band)
 
 
 def paper_gamma_matrix(model: LinearModel) -> np.ndarray:
@@ -549,7 +661,9 @@ def paper_gamma_matrix(model: LinearModel) -> np.ndarray:
     return L
 
 
-def paper_threshold(model: LinearModel, freqs_hz: np.ndarray, alpha: float = 1e-3) -> Threshold:
+def paper_threshold(
+    model: LinearModel, freqs_hz: np.ndarray, alpha: float = 1e-3, band: Band | None = None
+) -> Threshold:
     """The paper's flat threshold (eq 58-62): ``Sigma_Gamma_ii chi2.ppf(1 - alpha, 2) / 2``.
 
     ``Sigma_Gamma = C Q C^T + Lambda R Lambda^T`` with ``Lambda`` from
@@ -565,9 +679,12 @@ def paper_threshold(model: LinearModel, freqs_hz: np.ndarray, alpha: float = 1e-
         Periodogram frequencies (Hz).
     alpha : float
         Per-bin false-alarm probability in (0, 1).
+    band : (float, float), optional
+        ``(lo, hi)`` in Hz: test only these bins (beyond the paper; the per-bin level is unchanged).
     """
     alpha = open_unit("alpha", alpha)
     freqs = finite_array("freqs_hz", freqs_hz, ndim=1)
+    band = None if band is None else check_band(band)
     L = paper_gamma_matrix(model)
     sigma = np.diag(model.C @ model.Q @ model.C.T + L @ model.R @ L.T)
     is_dc, is_nyq = bin_layout(freqs, model.dt)
@@ -580,13 +697,14 @@ def paper_threshold(model: LinearModel, freqs_hz: np.ndarray, alpha: float = 1e-
         alpha=alpha,
         alpha_meaning="per-bin",
         correction="none",
-        tested=readonly(~(is_dc | is_nyq)),
+        tested=readonly(_band_tested(~(is_dc | is_nyq), freqs, band)),
         dof=readonly(dof),
         averaged=1,
         per_test_alpha=alpha,
         expected=None,
         law="chi2",
         effective_dof=readonly(np.broadcast_to(dof[:, None].astype(float), values.shape).copy()),
+        band=band,
     )
 
 
@@ -601,6 +719,7 @@ def threshold(
     averaged: int = 1,
     config: STFTConfig | None = None,
     law: ThresholdLaw = "exact",
+    band: Band | None = None,
 ) -> Threshold:
     """Build a threshold by name: ``"exact"`` (default detector), ``"paper"`` or ``"frame"``.
 
@@ -625,6 +744,8 @@ def threshold(
         Window settings for ``"frame"`` (default 1 s Hamming, 0.2 s hop).
     law : {"exact", "chi2"}
         Bin law for ``"exact"`` and ``"frame"`` (ignored by ``"paper"``).
+    band : (float, float), optional
+        ``(lo, hi)`` in Hz: bins tested (every kind); corrections count only these bins.
 
     Raises
     ------
@@ -635,11 +756,11 @@ def threshold(
     if kind == "exact":
         if n_samples is None:
             raise ParameterError('threshold("exact", ...) needs n_samples (the record length N)')
-        return exact_threshold(model, freqs_hz, n_samples, alpha, correction, averaged, law)
+        return exact_threshold(model, freqs_hz, n_samples, alpha, correction, averaged, law, band)
     if kind == "paper":
         if averaged != 1:
             raise ParameterError('the "paper" threshold is for a single record; use "exact" with averaged=K')
-        return paper_threshold(model, freqs_hz, alpha)
+        return paper_threshold(model, freqs_hz, alpha, band)
     if kind == "frame":
-        return frame_threshold(model, freqs_hz, config or STFTConfig(), None, alpha, correction, law)
+        return frame_threshold(model, freqs_hz, config or STFTConfig(), None, alpha, correction, law, band)
     raise ParameterError(f"unknown threshold kind {kind!r}; choose one of 'exact', 'paper', 'frame'")
