@@ -144,12 +144,13 @@ def _cov_kernel(
                     for q in range(n):
                         s += F[i, q] * P[r, q, j]
                     T1[i, j] = s
-            for i in range(n):
-                for j in range(n):
+            for i in range(n):  # symmetric: upper triangle, mirrored
+                for j in range(i, n):
                     s = Q[i, j]
                     for q in range(n):
                         s += T1[i, q] * F[j, q]
                     Pp[i, j] = s
+                    Pp[j, i] = s
             # innovation, S, log-likelihood
             for i in range(m):
                 s = z[r, k, i]
@@ -237,14 +238,15 @@ def _cov_kernel(
                     for q in range(m):
                         s += KgT[q, i] * R[q, j]
                     KR[i, j] = s
-            for i in range(n):
-                for j in range(n):
+            for i in range(n):  # symmetric: upper triangle, mirrored
+                for j in range(i, n):
                     s = 0.0
                     for q in range(n):
                         s += T1[i, q] * IKC[j, q]
                     for q in range(m):
                         s += KR[i, q] * KgT[q, j]
                     P[r, i, j] = s
+                    P[r, j, i] = s
             # residuals
             for i in range(m):
                 epp[r, i] = ep[r, i]
