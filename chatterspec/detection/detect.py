@@ -10,7 +10,10 @@ Where the fault is (two frequencies, both over the tested bins):
 ``peak_hz``
     Frequency (Hz) of the largest **excess power** ``S(f_n) - E[S(f_n)]``: the
     spectrum's peak above the healthy expectation, the fault footprint the paper
-    reads off its figures (e.g. 34-36 Hz for EHA leakage).
+    reads off its figures (e.g. 34-36 Hz for EHA leakage). When some bins exceed
+    the threshold, the largest excess among those bins (on one noisy record the
+    largest excess overall often sits on a healthy high-frequency bin where
+    ``E[S]`` and its spread are largest).
 ``most_significant_hz``
     Frequency (Hz) of the largest ``S(f_n) / threshold(f_n)``: the bin that decides
     the verdict (``peak_ratio`` is its ratio). Where the healthy spectrum is small
@@ -83,7 +86,8 @@ class ChannelVerdict:
     detected : bool
         Any tested bin above the threshold.
     peak_hz : float
-        Frequency (Hz) of the tested bin with the largest excess power ``S - E[S]``.
+        Frequency (Hz) of the tested bin with the largest excess power ``S - E[S]``
+        (among the bins over the threshold when there are any).
     most_significant_hz : float
         Frequency (Hz) of the tested bin with the largest ``S / threshold``.
     peak_ratio : float
@@ -223,7 +227,16 @@ def detect_spectrum(
     k = np.argmax(ratio, axis=-2)  # (..., m)
     peak_ratio = np.take_along_axis(ratio, k[..., None, :], axis=-2)[..., 0, :]
     most_significant_hz = f_tested[k]
-    peak_hz = f_tested[np.argmax(p_tested - expected[tested], axis=-2)]  # largest excess power S - E[S]
+    # largest excess power S - E[S]; among the bins over the threshold when there are any, so that
+    # on a single noisy record the footprint is not taken from a healthy bin where E[S] is large
+    excess_bins = p_tested - expected[tested]
+    over = ratio > 1.0
+    k_excess = np.where(
+        over.any(axis=-2),
+        np.argmax(np.where(over, excess_bins, -np.inf), axis=-2),
+        np.argmax(excess_bins, axis=-2),
+    )
+    peak_hz = f_tested[k_excess]
     e_sum = expected[tested].sum(axis=0)
     excess = (p_tested.sum(axis=-2) - e_sum) / e_sum
     dc = np.flatnonzero(threshold.freqs_hz == 0.0)
