@@ -42,6 +42,7 @@ def save(fig: Figure, path: str | Path, dpi: int = 120) -> Path:
         ``path`` as a :class:`~pathlib.Path`.
     """
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi, bbox_inches="tight")
     plt.close(fig)
     return path
