@@ -53,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     print(
         f"false alarms on {res.scenario}: {res.runs} healthy runs, seed {res.seed}, "
-        f"{res.confidence:.0%} Clopper-Pearson intervals"
+        f"{res.confidence:.0%} Clopper-Pearson intervals (per-bin and per-frame: from run-level counts, "
+        "effective trials; see docs)"
     )
     print(
         f"{'kind':<22} {'alpha':>7} {'meaning':<12} {'per-bin rate [interval]':<36} "
