@@ -358,3 +358,24 @@ def test_far_design_effect():
     assert pb.trials / pb.effective_trials < 1.3
     assert fr.trials / fr.effective_trials > 1.5
     assert res.get("exact").to_dict()["per_bin"]["effective_trials"] == pb.effective_trials
+
+
+def test_incomplete_calibration_file_names_the_missing_entry(cal, tmp_path):
+    import json
+
+    from chatterspec.errors import DataFileError
+
+    good = json.loads(cal.save(tmp_path / "c.json").read_text())
+    for key, words in (("arrays", "threshold arrays"), ("scenario", "scenario name")):
+        doc = {k: v for k, v in good.items() if k != key}
+        path = tmp_path / f"no-{key}.json"
+        path.write_text(json.dumps(doc))
+        with pytest.raises(DataFileError, match=f"no {words}") as exc:
+            load_calibration(path)
+        assert "KeyError" not in str(exc.value)
+    (tmp_path / "other.json").write_text('{"alpha": 0.01}')
+    with pytest.raises(DataFileError, match="not a chatterspec calibration file"):
+        load_calibration(tmp_path / "other.json")
+    (tmp_path / "g.npz").write_bytes(b"garbage")
+    with pytest.raises(DataFileError, match="cannot read calibration file"):
+        load_calibration(tmp_path / "g.npz")
