@@ -15,6 +15,7 @@ with the fixed seeds used here the outcome is deterministic.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -379,3 +380,48 @@ def test_incomplete_calibration_file_names_the_missing_entry(cal, tmp_path):
     (tmp_path / "g.npz").write_bytes(b"garbage")
     with pytest.raises(DataFileError, match="cannot read calibration file"):
         load_calibration(tmp_path / "g.npz")
+
+
+def test_roc_tick_labels_do_not_overlap():
+    """A narrow false-alarm range (0.125-0.25, as 8 runs give) used to label the log axis's minor
+    ticks, which overlapped; the drawn labels' boxes must be disjoint."""
+    from chatterspec.figures.plot_studies import power_figure
+    from chatterspec.studies.power import PowerResult
+
+    alphas = np.array([1e-3, 1e-2, 0.1])
+    counts = np.zeros((1, 3, 3, 3, 3), dtype=int)
+    counts[0, 0, :, :, 2] = [1, 1, 2]  # healthy: 1/8 .. 2/8 false alarms
+    counts[0, 1, :, :, 2] = [2, 4, 6]
+    counts[0, 2, :, :, 2] = [6, 8, 8]
+    res = PowerResult(
+        family="leakage",
+        sizes=(4.8e-12, 2e-11, 6e-11),
+        noise=(1.0,),
+        kinds=("paper", "exact", "exact-bonferroni"),
+        alphas=alphas,
+        alpha=1e-3,
+        runs=8,
+        seed=0,
+        confidence=0.99,
+        channel="pressure",
+        channels=("position", "velocity", "pressure"),
+        counts=counts,
+        counts_any=counts.max(axis=-1),
+    )
+    fig = power_figure(res)
+    fig.canvas.draw()
+    ax = fig.axes[1]
+    renderer = fig.canvas.get_renderer()
+    lo, hi = ax.get_xlim()
+    labels = [
+        t
+        for t in ax.get_xticklabels(minor=False) + ax.get_xticklabels(minor=True)
+        if t.get_text() and t.get_visible() and lo <= t.get_position()[0] <= hi
+    ]
+    assert len(labels) >= 2
+    boxes = sorted((t.get_window_extent(renderer) for t in labels), key=lambda b: b.x0)
+    for a, b in itertools.pairwise(boxes):
+        assert a.x1 <= b.x0, "ROC tick labels overlap"
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
