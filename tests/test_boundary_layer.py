@@ -157,3 +157,53 @@ def test_study_errors_grow_in_the_windows(study) -> None:
 def test_study_rejects_full_measurement() -> None:
     with pytest.raises(ParameterError, match="reduced-order"):
         boundary_layer_study(runs=1, source="so-healthy-low")
+
+
+# -- independent oracles for the proposed value (issue 11 item 8) -----------------------------------
+def _fresh_healthy_runs(name: str, runs: int, seed: int):
+    """New healthy realizations (nominal plant as the truth), not those the estimate was made from."""
+    from chatterspec.plants.scenarios import Scenario
+    from chatterspec.plants.simulate import simulate
+
+    sc = scenario(name)
+    healthy = Scenario(name="fresh healthy", nominal=sc.nominal, input=sc.input, duration=sc.duration)
+    return sc.nominal, simulate(healthy, runs, seed)
+
+
+def test_proposed_psi_hits_its_target_probability_on_fresh_runs() -> None:
+    """Out-of-sample Monte Carlo: the smoothing SVSF run with the proposed psi on *new* healthy runs
+    chatters (|e| > psi, eq 13) with per-sample probability p.
+
+    Realizations are the independent units: the per-run exceedance fractions of
+    the 32 fresh runs give the standard error; the proposal itself is a
+    quantile read from 32 other runs, whose own error is of the same size, so
+    the tolerance is 4 sqrt(2) standard errors (two-sided ~1e-4).
+    """
+    from chatterspec.filters.svsf import SVSF
+
+    p = 1e-2
+    est = estimate_boundary_layer("so-boundary-layer", p, runs=32, seed=3)
+    model, sim = _fresh_healthy_runs("so-boundary-layer", 32, seed=9090)
+    e = SVSF(model, psi=est.psi, psi_lower=est.psi_lower).run(sim.z, sim.u).e_prior[:, 6:, 0]
+    per_run = np.mean(np.abs(e) > est.psi[0], axis=1)
+    se = per_run.std(ddof=1) / np.sqrt(per_run.size)
+    assert abs(per_run.mean() - p) < 4 * np.sqrt(2) * se, (per_run.mean(), se)
+    # and the sgn proposal is far off for the smoothing filter (why the fixed point exists)
+    e_sgn = SVSF(model, psi=est.psi_sgn, psi_lower=est.psi_lower).run(sim.z, sim.u).e_prior[:, 6:, 0]
+    assert np.mean(np.abs(e_sgn) > est.psi_sgn[0]) < p / 3
+
+
+def test_sgn_proposal_equals_closed_form_for_full_measurement() -> None:
+    """Closed form: full-measurement healthy chattering is MA(1) with variance
+    gamma0 = diag(C Q C' + R + M R M'), M = -C A C^-1 (eq 23), computed here without the package,
+    so psi_sgn = sqrt(gamma0) Phi^-1(1 - p/2). The sample variance of 16 x 999 MA(1) samples
+    has relative sd sqrt(2 (1 + 2 rho1^2) / N) <= sqrt(6 / N) = 1.9 %; tolerance 4 sd on psi^2."""
+    m = scenario("so-healthy-high").nominal
+    C, A, Q, R = m.C, m.A, m.Q, m.R
+    M = -C @ A @ np.linalg.inv(C)
+    gamma0 = np.array([(C @ Q @ C.T)[i, i] + R[i, i] + (M @ R @ M.T)[i, i] for i in range(C.shape[0])])
+    p = 1e-3
+    est = estimate_boundary_layer(m, p, runs=16, seed=4, duration=1.0, switching="sgn")
+    z = scipy.stats.norm.isf(p / 2)
+    N = est.runs * est.n_samples
+    np.testing.assert_allclose(est.psi**2 / (gamma0 * z**2), 1.0, atol=4 * np.sqrt(6 / N))

@@ -149,7 +149,7 @@ def test_nan_sample_stops_with_row_and_time(tmp_path: Path, model) -> None:
     rows = _rows()
     rows[3] = "0.003,nan,0.6,1.0"
     with pytest.raises(
-        DataFileError, match=r"column 'x' has 1 NaN/inf sample\(s\), first at data row 4 \(t = 0.003 s\)"
+        DataFileError, match=r"column 'x' has 1 NaN/inf sample\(s\), first at line 5 \(t = 0.003 s\)"
     ):
         load_data(_csv(tmp_path, rows), model)
     rows[3] = "0.003,,0.6,1.0"  # empty cell = missing value
@@ -161,7 +161,7 @@ def test_non_monotonic_and_irregular_timestamps(tmp_path: Path, model) -> None:
     rows = _rows()
     rows[2], rows[3] = rows[3], rows[2]
     path = _csv(tmp_path, rows)
-    with pytest.raises(DataFileError, match="column 'time' is not strictly increasing: data row 4") as exc:
+    with pytest.raises(DataFileError, match="column 'time' is not strictly increasing: line 5") as exc:
         load_data(path, model)
     assert str(path) in str(exc.value)
     rows = _rows()
@@ -173,11 +173,72 @@ def test_non_monotonic_and_irregular_timestamps(tmp_path: Path, model) -> None:
 def test_bad_cell_and_ragged_row(tmp_path: Path, model) -> None:
     rows = _rows()
     rows[1] = "0.001,abc,0.2,1.0"
-    with pytest.raises(DataFileError, match=r"column 'x', row 3: 'abc' is not a number"):
+    with pytest.raises(DataFileError, match=r"column 'x', line 3: 'abc' is not a number"):
         load_data(_csv(tmp_path, rows), model)
     rows[1] = "0.001,0.1,0.2"
-    with pytest.raises(DataFileError, match="row 3 has 3 fields"):
+    with pytest.raises(DataFileError, match="line 3 has 3 fields"):
         load_data(_csv(tmp_path, rows), model)
+
+
+def test_every_csv_message_uses_file_line_numbers(tmp_path: Path, model) -> None:
+    """One convention: the line of the file (header and comment lines counted), as an editor shows it."""
+    p = tmp_path / "c.csv"
+    good = _rows()
+
+    def write(rows: list[str]) -> Path:
+        p.write_text("# a comment\ntime,x,v,u\n" + "\n".join(rows) + "\n")  # data row k on line k + 3
+        return p
+
+    cases = [
+        (2, "0.002,abc,0.4,1.0", r"column 'x', line 5: 'abc' is not a number"),
+        (2, "0.002,0.2", "line 5 has 2 fields"),
+        (2, "0.002,inf,0.4,1.0", r"first at line 5 \(t = 0.002 s\)"),
+        (2, "0.0005,0.2,0.4,1.0", "not strictly increasing: line 5"),
+        (2, "0.0025,0.2,0.4,1.0", "between line 4 and line 5"),
+    ]
+    for k, row, message in cases:
+        rows = list(good)
+        rows[k] = row
+        with pytest.raises(DataFileError, match=message):
+            load_data(write(rows), model)
+
+
+def test_npz_of_garbage_does_not_mention_pickle(tmp_path: Path, model) -> None:
+    p = tmp_path / "g.npz"
+    p.write_bytes(np.random.default_rng(0).bytes(300))
+    with pytest.raises(DataFileError, match=r"not a \.npz archive") as exc:
+        load_data(p, model)
+    assert "pickle" not in str(exc.value)
+    p.write_bytes(b"PK\x03\x04" + b"\x00" * 60)  # a zip header, then nothing readable
+    with pytest.raises(DataFileError, match=r"not a readable \.npz archive") as exc:
+        load_data(p, model)
+    assert "allow_pickle" not in str(exc.value)
+
+
+def test_wrong_shaped_A_is_reported_as_A(tmp_path: Path) -> None:
+    a3 = "A = [[1, 0.001, 0], [-3.9, 0.98, 0], [0, 0, 1]]"  # square, but 3 states where B and C have 2
+    bad = GOOD.replace("A = [[1.0, 0.001], [-3.9478, 0.98743]]", a3)
+    assert bad != GOOD
+    path = _write(tmp_path, bad)
+    with pytest.raises(ModelFileError) as exc:
+        load_model(path)
+    assert "A must" in str(exc.value) and "B must" not in str(exc.value), str(exc.value)
+
+
+@pytest.mark.parametrize(
+    "detector, field",
+    [
+        ("window_s = 1.0\nhop_s = 2.0", "hop_s"),
+        ('window = "hammingx"', "window"),
+        ("window_s = 0.001\nhop_s = 0.001", "window_s"),
+    ],
+)
+def test_detector_stft_errors_name_the_file_and_field(tmp_path: Path, detector: str, field: str) -> None:
+    path = _write(tmp_path, GOOD + "\n[detector]\n" + detector + "\n")
+    with pytest.raises(ModelFileError) as exc:
+        load_model(path)
+    msg = str(exc.value)
+    assert str(path) in msg and f"[detector] {field}" in msg, msg
 
 
 def test_npz_and_generated_time(tmp_path: Path, model) -> None:

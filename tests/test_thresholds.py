@@ -113,17 +113,49 @@ def test_corrections():
 
 
 def test_paper_threshold_eq58_62():
+    """Sigma_Gamma built here from the paper's eq 58 text, without the package's helper."""
     model = scenario("so-healthy-high").nominal
     f = np.fft.rfftfreq(4000, model.dt)
     th = paper_threshold(model, f, alpha=1e-3)
-    M = -model.C @ model.A @ model.C_inv
-    L = paper_gamma_matrix(model)
-    # eq 58: +-1 on the diagonal following the sign of m_ii, off-diagonal unchanged
-    assert L[0, 0] == pytest.approx(M[0, 0] - 1) and L[1, 1] == pytest.approx(M[1, 1] - 1)
-    assert L[0, 1] == M[0, 1] and L[1, 0] == M[1, 0]
-    sigma = np.diag(model.Q + L @ model.R @ L.T)
-    np.testing.assert_allclose(th.values, np.tile(sigma * scipy.stats.chi2.ppf(1 - 1e-3, 2) / 2, (f.size, 1)))
+    C, A, Q, R = model.C, model.A, model.Q, model.R
+    M = -C @ A @ np.linalg.inv(C)
+    m = M.shape[0]
+    # eq 58: lambda_ij = m_ij off the diagonal, m_ii + 1 (m_ii >= 0) or m_ii - 1 (m_ii < 0) on it
+    lam = [
+        [M[i, j] if i != j else (M[i, i] + 1 if M[i, i] >= 0 else M[i, i] - 1) for j in range(m)]
+        for i in range(m)
+    ]
+    sigma = [
+        sum(C[i, j] * Q[j, k] * C[i, k] for j in range(m) for k in range(m))
+        + sum(lam[i][j] * R[j, k] * lam[i][k] for j in range(m) for k in range(m))
+        for i in range(m)
+    ]
+    chi = scipy.stats.chi2.ppf(1 - 1e-3, 2) / 2
+    np.testing.assert_allclose(th.values, np.tile(np.array(sigma) * chi, (f.size, 1)), rtol=1e-12)
+    np.testing.assert_allclose(paper_gamma_matrix(model), np.array(lam), rtol=1e-15)
     assert (th.kind, th.alpha_meaning, th.correction) == ("paper", "per-bin", "none")
+    # eq 59: with diagonal R, Sigma_Gamma bounds the chattering's spectral density
+    # diag(C Q C' + G(w) R G(w)^H), G(w) = e^{iw} I + M, at every frequency
+    assert np.count_nonzero(R - np.diag(np.diag(R))) == 0
+    w = np.linspace(0.0, np.pi, 4001)
+    G = np.exp(1j * w)[:, None, None] * np.eye(m) + M
+    psd = np.real(np.einsum("wij,jk,wik->wi", G, R, G.conj())) + np.diag(C @ Q @ C.T)
+    assert np.all(psd <= np.array(sigma) * (1 + 1e-12))
+
+
+def test_paper_threshold_scalar_closed_form():
+    """One channel, x_k = v_k + w_{k+1} - a w_k: the bound is attained, Sigma = q + r (1 + |a|)^2,
+    the density's maximum over frequency (at Nyquist for a > 0, at DC for a < 0)."""
+    from chatterspec.plants.models import LinearModel
+
+    for a in (0.9, -0.5):
+        q, r = 2e-4, 3.0
+        model = LinearModel(
+            np.array([[a]]), np.zeros((1, 1)), np.eye(1), np.array([[q]]), np.array([[r]]), 1e-3
+        )
+        th = paper_threshold(model, np.fft.rfftfreq(100, 1e-3), alpha=0.01)
+        expected = (q + r * (1 + abs(a)) ** 2) * scipy.stats.chi2.ppf(0.99, 2) / 2
+        np.testing.assert_allclose(th.values, expected, rtol=1e-12)
 
 
 def test_dispatcher_and_bad_input():

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 from collections.abc import Sequence
 
 from ..errors import ChatterspecError
@@ -50,13 +51,34 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        with warnings.catch_warnings():
+            _one_line_warnings(args.command)
+            return int(args.func(args) or 0)
     except ChatterspecError as exc:
         print(f"chatterspec {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"chatterspec {args.command}: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:  # a file that cannot be read or written: one line, never a traceback
+        where = f" {exc.filename!r}" if getattr(exc, "filename", None) else ""
+        print(f"chatterspec {args.command}: error:{where} {exc.strerror or exc}", file=sys.stderr)
+        return 2
+
+
+def _one_line_warnings(command: str) -> None:
+    """Show warnings as one ``chatterspec CMD: warning: ...`` line (no source path, no code line).
+
+    :class:`~chatterspec.online.viewer.LiveViewerWarning` is not shown: its text is
+    also in the sinks' notes, which every command prints.
+    """
+    from ..online.viewer import LiveViewerWarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"chatterspec {command}: warning: {message}", file=sys.stderr)
+
+    warnings.showwarning = show
+    warnings.simplefilter("ignore", LiveViewerWarning)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+from pathlib import Path
 from typing import Any
 
 from ..errors import ParameterError
@@ -108,10 +110,24 @@ def add_live_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--record", metavar="FILE.rrd", help="write a Rerun recording of the run to FILE.rrd")
     p.add_argument(
         "--live",
+        type=live_arg,
         metavar="URL|spawn",
         help="stream to a running Rerun viewer (gRPC URL such as rerun+http://127.0.0.1:9876/proxy) "
         "or 'spawn' one (needs a display)",
     )
+
+
+def live_arg(text: str) -> str:
+    """argparse type of ``--live``: ``spawn``, a port, ``host:port`` or a viewer URL (not a bare word)."""
+    if text == "spawn":
+        return text
+    from ..online.viewer import viewer_url
+
+    try:
+        viewer_url(text)
+    except ParameterError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix(f"--live {text!r} ")) from None
+    return text
 
 
 def print_json(doc: Any) -> None:
@@ -129,6 +145,152 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"not JSON serializable: {type(obj).__name__}")
 
 
-def check_record_path(path: str | None) -> None:
-    if path is not None and not path.endswith(".rrd"):
-        raise ParameterError(f"--record expects a path ending in .rrd; got {path!r}")
+def check_record_path(path: str | os.PathLike | None) -> None:
+    """``--record FILE.rrd``: a ``.rrd`` name whose file can be created (see :func:`check_output_file`)."""
+    if path is not None and not str(path).endswith(".rrd"):
+        raise ParameterError(f"--record expects a path ending in .rrd; got {str(path)!r}")
+    check_output_file(path, "--record")
+
+
+# --- output paths (issue 11 item 6) -------------------------------------------------------------------
+class OutputPathError(ParameterError):
+    """An output path cannot be written (checked before the computation, or failed at the end)."""
+
+
+def _nearest_existing(path: Path) -> Path:
+    p = path
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return p
+
+
+def _probe_writable(folder: Path) -> str | None:
+    """Create and remove one empty file in ``folder``; None when that works, else the reason."""
+    import tempfile
+
+    if not folder.is_dir():
+        return f"{str(folder)!r} is not a folder"
+    try:
+        fd, name = tempfile.mkstemp(prefix=".chatterspec-probe-", dir=folder)
+    except OSError as exc:
+        return f"cannot create files in {str(folder)!r} ({exc.strerror or exc})"
+    os.close(fd)
+    try:
+        os.unlink(name)
+    except OSError:  # pragma: no cover - the probe file is empty; leaving it is harmless
+        pass
+    return None
+
+
+def check_output_file(
+    path: str | os.PathLike | None, option: str, *, suffixes: tuple[str, ...] | None = None
+) -> Path | None:
+    """Check, before any computation, that ``path`` can be written as a file.
+
+    Parameters
+    ----------
+    path : str or path-like or None
+        The file the command will write (None: nothing to check).
+    option : str
+        The option that named it (e.g. ``"--plot"``), for the message.
+    suffixes : tuple of str, optional
+        Accepted lower-case suffixes (e.g. ``(".png",)``); None accepts any.
+
+    Returns
+    -------
+    Path or None
+        ``path`` as a :class:`~pathlib.Path`.
+
+    Raises
+    ------
+    OutputPathError
+        ``path`` is an existing folder, an existing read-only file, has a refused
+        suffix, or its nearest existing parent is not a writable folder (missing
+        parent folders are created at write time).
+    """
+    if path is None:
+        return None
+    p = Path(path)
+    if suffixes is not None and p.suffix.lower() not in suffixes:
+        raise OutputPathError(f"{option} {str(p)!r}: the file name must end in {' or '.join(suffixes)}")
+    if p.is_dir():
+        raise OutputPathError(f"{option} {str(p)!r} is an existing folder; give a file name")
+    if p.exists() and not os.access(p, os.W_OK):
+        raise OutputPathError(f"{option} {str(p)!r}: the file exists and is not writable")
+    base = _nearest_existing(p.parent if str(p.parent) else Path("."))
+    why = _probe_writable(base)
+    if why is not None:
+        raise OutputPathError(f"{option} {str(p)!r} cannot be written: {why}")
+    return p
+
+
+def check_output_dir(path: str | os.PathLike | None, option: str) -> Path | None:
+    """Check, before any computation, that ``path`` is (or can be created as) a writable folder.
+
+    Parameters
+    ----------
+    path : str or path-like or None
+        The folder the command will write into (None: nothing to check).
+    option : str
+        The option that named it (e.g. ``"--out"``), for the message.
+
+    Returns
+    -------
+    Path or None
+        ``path`` as a :class:`~pathlib.Path`.
+
+    Raises
+    ------
+    OutputPathError
+        ``path`` is an existing file, or neither it nor its nearest existing
+        parent is a writable folder.
+    """
+    if path is None:
+        return None
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise OutputPathError(f"{option} {str(p)!r} is an existing file; give a folder")
+    why = _probe_writable(_nearest_existing(p))
+    if why is not None:
+        raise OutputPathError(f"{option} {str(p)!r} cannot be written: {why}")
+    return p
+
+
+def figure_suffixes() -> tuple[str, ...]:
+    """File suffixes matplotlib can write (``.png``, ``.pdf``, ``.svg``, ...)."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    return tuple(sorted(f".{k}" for k in FigureCanvasBase.get_supported_filetypes()))
+
+
+class Outputs:
+    """Write the outputs of a finished computation; failures are kept, not raised, until :meth:`finish`.
+
+    A command computes, writes through :meth:`write`, prints its result (table
+    or JSON) and then calls :meth:`finish`, so a study whose output cannot be
+    written (disk full, folder removed meanwhile) is still shown before the
+    one-line error (exit 2).
+    """
+
+    def __init__(self) -> None:
+        self.failures: list[str] = []
+
+    def write(self, option: str, target: str | os.PathLike, fn: Any, /, *args: Any, **kwargs: Any) -> Any:
+        """Call ``fn(*args, **kwargs)``; on ``OSError`` (or Rerun's file-sink ``RuntimeError``) note it.
+
+        Returns ``fn``'s result, or None when the write failed.
+        """
+        try:
+            return fn(*args, **kwargs)
+        except (OSError, RuntimeError) as exc:
+            if isinstance(exc, RuntimeError) and "file" not in str(exc).lower():
+                raise
+            reason = getattr(exc, "strerror", None) or str(exc).splitlines()[0]
+            self.failures.append(f"{option} {str(target)!r} could not be written ({reason})")
+            return None
+
+    def finish(self) -> None:
+        """Raise :class:`OutputPathError` naming every failed write (after the result was printed)."""
+        if self.failures:
+            done = " -- the result above was computed but not saved"
+            raise OutputPathError("; ".join(self.failures) + done)

@@ -7,10 +7,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from typing import Any
 
 from ..studies.calibration import calibrate
-from ._common import alpha_arg, nonnegative_int_arg, positive_int_arg
+from ._common import (
+    Outputs,
+    alpha_arg,
+    check_output_file,
+    figure_suffixes,
+    nonnegative_int_arg,
+    positive_int_arg,
+)
 
 
 def add_common(p: argparse.ArgumentParser, *, alpha: float, runs: int, multi_alpha: bool = False) -> None:
@@ -37,7 +45,10 @@ def add_common(p: argparse.ArgumentParser, *, alpha: float, runs: int, multi_alp
         help="run on Dask: 'local-dask' or a scheduler address (needs chatterspec[distributed])",
     )
     p.add_argument(
-        "--chunk-runs", type=positive_int_arg, default=None, help="realizations per chunk (multiple of 64)"
+        "--chunk-runs",
+        type=positive_int_arg,
+        default=None,
+        help="realizations per chunk (rounded up to a multiple of 64, with a note)",
     )
     p.add_argument("--confidence", type=float, default=0.99, help="interval level (default 0.99)")
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
@@ -45,6 +56,16 @@ def add_common(p: argparse.ArgumentParser, *, alpha: float, runs: int, multi_alp
 
 
 def execution(args: argparse.Namespace) -> dict[str, Any]:
+    from ..rng import BLOCK
+
+    if args.chunk_runs is not None and args.chunk_runs % BLOCK:
+        rounded = -(-args.chunk_runs // BLOCK) * BLOCK
+        print(
+            f"chatterspec: note: --chunk-runs {args.chunk_runs} rounded up to {rounded} (chunks are whole "
+            f"blocks of {BLOCK} realizations, so results do not depend on the chunking)",
+            file=sys.stderr,
+        )
+        args.chunk_runs = rounded
     return {
         "workers": args.workers,
         "scheduler": args.scheduler,
@@ -71,16 +92,23 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_file(args.out, "--out")
+    if args.plot:
+        check_output_file(args.plot, "--plot", suffixes=figure_suffixes())
+    outputs = Outputs()
     cal = calibrate(args.name, alpha=args.alpha, runs=args.runs, seed=args.seed, **execution(args))
     doc = cal.to_dict()
     if args.out:
-        doc["calibration_file"] = str(cal.save(args.out))
+        saved = outputs.write("--out", args.out, _save_calibration, cal, args.out)
+        doc["calibration_file"] = None if saved is None else str(saved)
     if args.plot:
         from ..figures.plot_studies import calibration_figure, save
 
-        doc["figure"] = str(save(calibration_figure(cal), args.plot))
+        saved = outputs.write("--plot", args.plot, save, calibration_figure(cal), args.plot)
+        doc["figure"] = None if saved is None else str(saved)
     if args.json:
         print(json.dumps(doc, indent=2))
+        outputs.finish()
         return 0
     a, ag = doc["analytic_factor"], doc["agreement"]
     print(f"calibration of {cal.scenario}: alpha = {cal.alpha:g}, {cal.runs} healthy runs, seed {cal.seed}")
@@ -102,6 +130,14 @@ def run(args: argparse.Namespace) -> int:
             + ("" if ok else "  <- analytic outside")
         )
     print(f"  per-frame median ratio empirical/analytic {ag['per_frame_median_ratio']:.3f}")
-    if args.out:
+    if args.out and doc["calibration_file"] is not None:
         print(f"  calibration file: {doc['calibration_file']}")
+    outputs.finish()
     return 0
+
+
+def _save_calibration(cal: Any, path: str) -> Any:
+    from pathlib import Path
+
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    return cal.save(path)

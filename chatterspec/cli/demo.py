@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from ._common import add_detector_args, band_from_args, print_json
+from ._common import Outputs, add_detector_args, band_from_args, check_output_dir, print_json
 
 #: Scenarios of the demo, in table order.
 DEMO_SCENARIOS: tuple[str, ...] = (
@@ -61,6 +61,9 @@ def run(args: argparse.Namespace) -> int:
     from .detect import stream_chunks
 
     band = band_from_args(args)
+    check_output_dir(None if args.no_figures else args.figures_dir, "--figures-dir")
+    check_output_dir(None if args.no_record else args.recordings_dir, "--recordings-dir")
+    outputs = Outputs()
     t_start = time.perf_counter()
     steps = len(DEMO_SCENARIOS) * (1 if args.no_record else 2) + (0 if args.no_figures else len(DEMO_FIGURES))
     results = []
@@ -94,12 +97,16 @@ def run(args: argparse.Namespace) -> int:
                     est = estimate_boundary_layer(sc, 1e-3, runs=4, seed=args.seed)
                     boundary_layers[key] = tuple(float(p) for p in est.psi)
                 path = Path(args.recordings_dir) / f"{name}.rrd"
-                summary = record_detection(
+                summary = outputs.write(
+                    "--recordings-dir",
+                    path,
+                    record_detection,
                     sim,
                     MonitorSettings(alpha=args.alpha, correction=args.correction, psi=boundary_layers[key]),
                     path=path,
                 )
-                recordings.append(summary.to_dict())
+                if summary is not None:
+                    recordings.append(summary.to_dict())
                 bar.update(1, f"{name} recorded")
         if not args.no_figures:
             from ..figures.paper_figures import render
@@ -108,8 +115,10 @@ def run(args: argparse.Namespace) -> int:
 
             for fig_name in DEMO_FIGURES:
                 rendered = render(fig_name, seed=args.seed)
-                path = save_figure(rendered.figure, Path(args.figures_dir) / f"{fig_name}.png")
-                figures.append(str(path))
+                target = Path(args.figures_dir) / f"{fig_name}.png"
+                path = outputs.write("--figures-dir", target, save_figure, rendered.figure, target)
+                if path is not None:
+                    figures.append(str(path))
                 bar.update(1, fig_name)
             figures.append(str(demo_summary(results, Path(args.figures_dir) / "summary.png")))
     wall = time.perf_counter() - t_start
@@ -137,6 +146,7 @@ def run(args: argparse.Namespace) -> int:
                 "runs": args.runs,
             }
         )
+        outputs.finish()
         return 0
     _print_table(results, args)
     print()
@@ -158,6 +168,7 @@ def run(args: argparse.Namespace) -> int:
         for rec in recordings:
             for note in rec["notes"]:
                 print(f"note: {note}", file=sys.stderr)
+    outputs.finish()
     return 0
 
 

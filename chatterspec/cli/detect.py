@@ -12,7 +12,7 @@ if TYPE_CHECKING:
     from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
 
-from ._common import add_detector_args, add_live_args, band_from_args, check_record_path, print_json
+from ._common import Outputs, add_detector_args, add_live_args, band_from_args, check_record_path, print_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -62,14 +62,20 @@ def run(args: argparse.Namespace) -> int:
         from ..online.monitor import MonitorSettings
 
         settings = MonitorSettings(alpha=args.alpha, correction=args.correction)
-        summary = record_detection(sim, settings, path=args.record, live=args.live)
-        doc["recording"] = summary.to_dict()
-        for note in summary.notes:
-            print(note, file=sys.stderr)
+        outputs = Outputs()
+        summary = outputs.write(
+            "--record", args.record, record_detection, sim, settings, path=args.record, live=args.live
+        )
+        if summary is not None:
+            doc["recording"] = summary.to_dict()
+            for note in summary.notes:
+                print(note, file=sys.stderr)
     if args.json:
         print_json(doc)
-        return 0
-    print_report(doc)
+    else:
+        print_report(doc)
+    if args.record or args.live:
+        outputs.finish()  # a failed recording: the result above is printed first
     return 0
 
 
@@ -122,4 +128,5 @@ def print_report(doc: dict) -> None:
         true = ", ".join(f"[{a:g}, {b:g}) s" for a, b in doc["fault_intervals_true"]) or "none"
         print(f"true fault windows: {true}")
     if "recording" in doc and doc["recording"]["recording"]:
-        print(f"recording: {doc['recording']['recording']}  (open with: chatterspec replay FILE.rrd)")
+        rrd = doc["recording"]["recording"]
+        print(f"recording: {rrd}  (open with: chatterspec replay {rrd})")

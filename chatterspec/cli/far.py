@@ -7,6 +7,7 @@ import json
 
 from ..studies.calibration import load_calibration
 from ..studies.false_alarms import false_alarm_study
+from ._common import Outputs, check_output_file, figure_suffixes
 from .calibrate import add_common, execution
 
 
@@ -27,6 +28,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.plot:
+        check_output_file(args.plot, "--plot", suffixes=figure_suffixes())
+    outputs = Outputs()
     cal = load_calibration(args.calibration) if args.calibration else None
     res = false_alarm_study(
         args.name,
@@ -41,13 +45,16 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         from ..figures.plot_studies import far_figure, save
 
-        doc["figure"] = str(save(far_figure(res), args.plot))
+        saved = outputs.write("--plot", args.plot, save, far_figure(res), args.plot)
+        doc["figure"] = None if saved is None else str(saved)
     if args.json:
         print(json.dumps(doc, indent=2))
+        outputs.finish()
         return 0
     print(
         f"false alarms on {res.scenario}: {res.runs} healthy runs, seed {res.seed}, "
-        f"{res.confidence:.0%} Clopper-Pearson intervals"
+        f"{res.confidence:.0%} Clopper-Pearson intervals (per-bin and per-frame: from run-level counts, "
+        "effective trials; see docs)"
     )
     print(
         f"{'kind':<22} {'alpha':>7} {'meaning':<12} {'per-bin rate [interval]':<36} "
@@ -62,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
             f"{pb.rate:.3e} [{pb.ci_low:.2e}, {pb.ci_high:.2e}]   "
             f"{w.rate:.4f} [{w.ci_low:.4f}, {w.ci_high:.4f}]          {r.verdict}"
         )
-    if args.plot:
+    if args.plot and doc["figure"] is not None:
         print(f"figure: {doc['figure']}")
+    outputs.finish()
     return 0

@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 from ..errors import ParameterError
-from ._common import nonnegative_int_arg, positive_int_arg, print_json
+from ._common import Outputs, check_output_dir, nonnegative_int_arg, positive_int_arg, print_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -90,6 +90,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ParameterError(f"--out must be a folder; {str(out)!r} is a file")
+    check_output_dir(out, "--out")
+    outputs = Outputs()
     dpi = plotting.DEFAULT_DPI if args.dpi is None else args.dpi
     entries = []
     t_all = time.perf_counter()
@@ -97,8 +99,12 @@ def run(args: argparse.Namespace) -> int:
         for name in names:
             t0 = time.perf_counter()
             fig = render(name, runs=args.runs, seed=args.seed)
-            path = plotting.save_figure(fig.figure, out / f"{name}.png", dpi=dpi)
+            target = out / f"{name}.png"
+            path = outputs.write("--out", target, plotting.save_figure, fig.figure, target, dpi=dpi)
             seconds = time.perf_counter() - t0
+            if path is None:
+                bar.update(1, note=f"{name} not written")
+                continue
             entries.append(
                 {
                     "name": name,
@@ -127,4 +133,5 @@ def run(args: argparse.Namespace) -> int:
         )
     else:
         print(f"{len(entries)} figure(s) in {total:.1f} s")
+    outputs.finish()
     return 0

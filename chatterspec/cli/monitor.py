@@ -16,7 +16,7 @@ import warnings
 from pathlib import Path
 
 from ..errors import ParameterError
-from ._common import alpha_arg, positive_int_arg
+from ._common import alpha_arg, check_record_path, live_arg, positive_int_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -38,6 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--record", type=Path, default=None, metavar="FILE.rrd", help="write a Rerun recording")
     p.add_argument(
         "--live",
+        type=live_arg,
         default=None,
         metavar="URL|spawn",
         help="stream to a running viewer (rerun+http://host:port/proxy) or 'spawn' one",
@@ -72,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.rate is not None and not args.rate > 0:
         raise ParameterError(f"--rate must be > 0 (1.0 = real time); got {args.rate}")
+    check_record_path(args.record)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         spec = load_model(args.model)
@@ -110,17 +112,44 @@ def run(args: argparse.Namespace) -> int:
     )
     for note in sinks.notes:
         print(f"chatterspec monitor: {note}", file=sys.stderr)
+    shown = len(sinks.notes)
 
     def show(ev: object) -> None:
         if not args.json:
             print(ev.describe())  # type: ignore[attr-defined]
 
-    summary = run_monitor(
-        monitor, sinks, z=data.z, u=data.u, chunk_samples=args.chunk, rate=args.rate, on_event=show
-    )
+    try:
+        summary = run_monitor(
+            monitor, sinks, z=data.z, u=data.u, chunk_samples=args.chunk, rate=args.rate, on_event=show
+        )
+    except KeyboardInterrupt:
+        if sinks.path is not None:  # run_monitor closed the sinks: the file has its footer
+            print(
+                f"chatterspec monitor: interrupted after {monitor.n_samples * monitor.dt:.2f} s of data; "
+                f"partial recording: {sinks.path} (open with `chatterspec replay {sinks.path}`)",
+                file=sys.stderr,
+            )
+        raise
+    for note in summary.notes[shown:]:  # e.g. a live viewer that went away during the run
+        print(f"chatterspec monitor: {note}", file=sys.stderr)
+    no_frame = None
+    if summary.n_frames == 0:
+        n_window = stft.n_window(spec.model.dt)
+        no_frame = (
+            f"no STFT frame could be analysed: the data give {summary.n_samples} chattering samples "
+            f"({summary.duration_s:.3g} s), fewer than one window of {n_window} samples "
+            f"(window_s = {stft.window_s:g} s at dt = {spec.model.dt:g} s); give longer data or a "
+            f"shorter [detector] window_s in {args.model}"
+        )
     if args.json:
         doc = {"model": str(args.model), "data": str(args.data), **summary.to_dict()}
+        if no_frame is not None:
+            doc["notes"] = [*doc["notes"], no_frame]
         print(json.dumps(doc, indent=2))
+        return 0 if no_frame is None else 1
+    if no_frame is not None:
+        print(f"chatterspec monitor: error: {no_frame}", file=sys.stderr)
+        return 1
     else:
         n = sum(e.kind == "fault-start" for e in summary.events)
         print(

@@ -6,6 +6,7 @@ import argparse
 import json
 
 from ..studies.power import POWER_FAMILIES, power_study
+from ._common import Outputs, check_output_file, figure_suffixes
 from .calibrate import add_common, execution
 
 
@@ -26,6 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.plot:
+        check_output_file(args.plot, "--plot", suffixes=figure_suffixes())
+    outputs = Outputs()
     res = power_study(
         args.family,
         sizes=args.sizes,
@@ -39,9 +43,11 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         from ..figures.plot_studies import power_figure, save
 
-        doc["figure"] = str(save(power_figure(res), args.plot))
+        saved = outputs.write("--plot", args.plot, save, power_figure(res), args.plot)
+        doc["figure"] = None if saved is None else str(saved)
     if args.json:
         print(json.dumps(doc, indent=2))
+        outputs.finish()
         return 0
     print(
         f"detection power, {res.family} ({POWER_FAMILIES[res.family]['unit']}), channel {res.channel}, "
@@ -55,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
                 e = res.estimate(i, j, k)
                 cells.append(f"{e.rate:.3f} [{e.ci_low:.3f}, {e.ci_high:.3f}]".ljust(26))
             print(f"{nz:>6g} {sz:>10.3g}  " + "  ".join(cells) + ("  (healthy)" if j == 0 else ""))
-    if args.plot:
+    if args.plot and doc["figure"] is not None:
         print(f"figure: {doc['figure']}")
+    outputs.finish()
     return 0

@@ -22,12 +22,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+#: First bytes of every Rerun (>= 0.x, RRF2 encoding) recording file.
+RRD_MAGIC = b"RRF2"
+
+
+def _is_rrd(path: Path) -> bool:
+    """True unless the file has bytes and they do not start with :data:`RRD_MAGIC` (an empty file is let
+    through: the viewer shows it as an empty recording)."""
+    with path.open("rb") as fh:
+        head = fh.read(len(RRD_MAGIC))
+    return head in (b"", RRD_MAGIC)
+
+
 def run(args: argparse.Namespace) -> int:
     from ..online.viewer import find_viewer, has_display
 
     path: Path = args.file
     if not path.is_file():
         raise DataFileError(f"recording {str(path)!r}: no such file")
+    if path.suffix.lower() != ".rrd" or not _is_rrd(path):
+        raise DataFileError(
+            f"{str(path)!r} is not a Rerun recording (.rrd file starting with the RRF2 header); give a file "
+            "written by `chatterspec detect/demo/monitor --record FILE.rrd`"
+        )
     exe = find_viewer()
     if exe is None:
         print(

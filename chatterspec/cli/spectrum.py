@@ -13,6 +13,7 @@ spectrum (eq 56) and the chosen thresholds: the paper's flat bound (eq 58-62,
 and/or the exact chi-squared bound (``alpha`` family-wise over the tested bins
 with the chosen correction, per bin with ``--correction none``; chi2 with 2R
 degrees of freedom for an R-run average).
+Without ``--out`` the PNG goes to ``figures/NAME-spectrum.png``.
 """
 
 from __future__ import annotations
@@ -21,7 +22,10 @@ import argparse
 from pathlib import Path
 
 from ..errors import ParameterError
-from ._common import alpha_arg, nonnegative_int_arg, positive_int_arg, print_json
+from ._common import Outputs, alpha_arg, check_output_file, nonnegative_int_arg, positive_int_arg, print_json
+
+#: Folder of ``spectrum``'s PNG when ``--out`` is not given (like ``demo``'s ``figures/demo``).
+DEFAULT_FOLDER = Path("figures")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,7 +36,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "expected healthy spectrum (eq 56) and the paper's and/or the exact threshold.",
     )
     p.add_argument("name", metavar="NAME", help="scenario name (see 'chatterspec scenarios')")
-    p.add_argument("--out", default=None, metavar="FILE.png", help="output PNG (default: NAME-spectrum.png)")
+    p.add_argument(
+        "--out", default=None, metavar="FILE.png", help="output PNG (default: figures/NAME-spectrum.png)"
+    )
     p.add_argument(
         "--channel",
         default=None,
@@ -70,9 +76,11 @@ def run(args: argparse.Namespace) -> int:
     from ..plants.scenarios import scenario
 
     scenario(args.name)  # UnknownScenarioError (listing the valid names) before any work
-    out = Path(args.out) if args.out else Path(f"{args.name}-spectrum.png")
+    out = Path(args.out) if args.out else DEFAULT_FOLDER / f"{args.name}-spectrum.png"
     if out.suffix.lower() != ".png":
         raise ParameterError(f"--out must name a .png file; got {str(out)!r}")
+    check_output_file(out, "--out")
+    outputs = Outputs()
     channel: str | None = args.channel
     if channel is not None and channel.isdigit():
         channel = int(channel)  # type: ignore[assignment]
@@ -86,11 +94,11 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
     )
     dpi = plotting.DEFAULT_DPI if args.dpi is None else args.dpi
-    path = plotting.save_figure(fig.figure, out, dpi=dpi)
+    path = outputs.write("--out", out, plotting.save_figure, fig.figure, out, dpi=dpi)
     doc = {
         "scenario": args.name,
-        "path": str(path),
-        "bytes": path.stat().st_size,
+        "path": None if path is None else str(path),
+        "bytes": None if path is None else path.stat().st_size,
         "alpha": args.alpha,
         "threshold": args.threshold,
         "correction": args.correction,
@@ -100,8 +108,11 @@ def run(args: argparse.Namespace) -> int:
     }
     if args.json:
         print_json(doc)
+        outputs.finish()
         return 0
-    print(f"wrote {path} ({doc['bytes'] / 1024:.0f} kB)")
+    if path is not None:
+        print(f"wrote {path} ({doc['bytes'] / 1024:.0f} kB)")
     for note in fig.notes:
         print(f"  {note}")
+    outputs.finish()
     return 0

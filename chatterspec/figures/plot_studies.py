@@ -13,6 +13,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.ticker import LogLocator, NullFormatter
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
@@ -42,6 +43,7 @@ def save(fig: Figure, path: str | Path, dpi: int = 120) -> Path:
         ``path`` as a :class:`~pathlib.Path`.
     """
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi, bbox_inches="tight")
     plt.close(fig)
     return path
@@ -193,6 +195,10 @@ def power_figure(res: PowerResult) -> Figure:
                 label=f"size {res.sizes[j]:.3g}, noise x{nz:g}",
             )
     ax2.set_xscale("log")
+    # at least two decades, labels on the decades only: minor-tick labels (1.4e-1, 1.6e-1, ...) overlap
+    ax2.set_xlim(min(0.4 / res.runs, 1e-2), 1.0)
+    ax2.xaxis.set_major_locator(LogLocator(base=10.0))
+    ax2.xaxis.set_minor_formatter(NullFormatter())
     ax2.set_xlabel("false-alarm rate (healthy records)")
     ax2.set_ylabel("detection rate")
     ax2.set_title("ROC, exact Bonferroni, alpha swept")

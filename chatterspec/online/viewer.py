@@ -26,6 +26,7 @@ __all__ = [
     "find_viewer",
     "has_display",
     "open_sinks",
+    "viewer_url",
 ]
 
 
@@ -64,13 +65,56 @@ def default_recording_path(name: str, folder: str | Path = DEFAULT_RECORDINGS_DI
     return Path(folder) / f"{safe}-{stamp}.rrd"
 
 
+def viewer_url(live: str) -> str:
+    """The gRPC URL of a live viewer given as a URL, ``host:port`` or a port number.
+
+    Parameters
+    ----------
+    live : str
+        ``rerun+http://host:port/proxy`` (or ``rerun+https://``), ``host:port``
+        or a port number (then the host is 127.0.0.1).
+
+    Returns
+    -------
+    str
+        ``rerun+http(s)://host:port/proxy``.
+
+    Raises
+    ------
+    ParameterError
+        ``live`` is none of these (e.g. a bare word such as ``foo``, which is
+        not taken as a host name), or its port is outside 1-65535.
+    """
+    from ..errors import ParameterError
+
+    text = str(live).strip()
+    hint = (
+        "give 'spawn', a port (9876), HOST:PORT (127.0.0.1:9876) or a URL (rerun+http://127.0.0.1:9876/proxy)"
+    )
+    if text.isdigit():
+        url = f"rerun+http://127.0.0.1:{text}/proxy"
+    elif "://" not in text:
+        host, sep, port = text.rpartition(":")
+        if not sep or not host or not port.isdigit():
+            raise ParameterError(f"--live {live!r} is not a viewer address; {hint}")
+        url = f"rerun+http://{text}/proxy"
+    else:
+        url = text
+    parsed = urlparse(url)
+    if parsed.scheme not in ("rerun+http", "rerun+https", "rerun") or not parsed.hostname:
+        raise ParameterError(f"--live {live!r} is not a Rerun viewer URL; {hint}")
+    try:
+        port = parsed.port
+    except ValueError:
+        port = -1
+    if port is not None and not 0 < port < 65536:
+        raise ParameterError(f"--live {live!r}: the port must lie in 1-65535; {hint}")
+    return url
+
+
 def _grpc_url(live: str) -> str:
-    """Accept ``rerun+http://host:port/proxy``, ``host:port`` or a port number."""
-    if live.isdigit():
-        return f"rerun+http://127.0.0.1:{live}/proxy"
-    if "://" not in live:
-        return f"rerun+http://{live}/proxy"
-    return live
+    """Accept ``rerun+http://host:port/proxy``, ``host:port`` or a port number (see :func:`viewer_url`)."""
+    return viewer_url(live)
 
 
 def _reachable(url: str, timeout: float = CONNECT_TIMEOUT_S) -> tuple[bool, str]:
@@ -139,6 +183,10 @@ class Sinks:
         for s in self.streams:
             s.send_blueprint(bp, make_active=True, make_default=True)
 
+    def _note(self, msg: str) -> None:
+        self.notes.append(msg)
+        _warn(msg)
+
     def close(self) -> None:
         """Disconnect every stream (writes the file footer); idempotent."""
         if self._closed:
@@ -154,14 +202,14 @@ class Sinks:
                 try:
                     self.live_stream.flush(timeout_sec=5.0)
                 except RuntimeError as exc:  # viewer went away meanwhile
-                    _warn(f"live viewer {self.live_url}: pending data dropped ({exc})")
+                    self._note(f"live viewer {self.live_url}: pending data dropped ({exc})")
             else:
-                _warn(f"live viewer {self.live_url} went away ({why}); pending live data dropped")
+                self._note(f"live viewer {self.live_url} went away ({why}); pending live data dropped")
             self.live_stream.disconnect()
 
 
 def _warn(msg: str) -> None:
-    warnings.warn(msg, LiveViewerWarning, stacklevel=3)
+    warnings.warn(msg, LiveViewerWarning, stacklevel=4)
 
 
 def open_sinks(
@@ -244,8 +292,7 @@ def open_sinks(
                 s.set_sinks(rr.GrpcSink(url))
                 sinks.live_stream, sinks.live_url = s, url
             else:
-                _warn(f"live viewer {url} is unreachable ({why}); continuing without it")
-                sinks.notes.append(f"live viewer {url} unreachable; nothing streamed")
+                sinks._note(f"live viewer {url} is unreachable ({why}); continuing without it")
         if sinks.live_stream is None and record is None and default_record is not None:
             record = default_record
     if record is not None:

@@ -51,6 +51,7 @@ import csv
 import math
 import tomllib
 import warnings
+import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -185,8 +186,17 @@ def load_model(path: str | Path) -> ModelSpec:
     B = _matrix(mats, "B", where, "matrices", vector_ok=True)
     if B.ndim == 1:
         B = B[:, None]
+    C_raw = _matrix(mats, "C", where, "matrices", vector_ok=True)
+    n_B, n_C = B.shape[0], C_raw.shape[-1]
+    if n not in (n_B, n_C) and (n_B == n_C or (states and len(states) in (n_B, n_C))):
+        # B's rows and C's columns agree on the state count: A is the odd one out
+        n_other = n_B if n_B == n_C else len(states)
+        raise ModelFileError(
+            f"{where}: [matrices] A must have shape ({n_other}, {n_other}) (n = {n_other} states, as B's "
+            f"rows and C's columns say); got {A.shape}"
+        )
     _expect_shape(B, (n, p), "B", where, f"n = {n} states x p = {p} inputs")
-    C = _matrix(mats, "C", where, "matrices", vector_ok=True)
+    C = C_raw
     if C.ndim == 1:
         C = C[None, :]
     _expect_shape(C, (m, n), "C", where, f"m = {m} outputs x n = {n} states")
@@ -255,7 +265,33 @@ def load_model(path: str | Path) -> ModelSpec:
         raise ModelFileError(
             f"{where}: [detector] has unknown key(s) {sorted(unknown)}; allowed: {sorted(_DETECTOR_KEYS)}"
         )
+    _check_detector(detector, model.dt, where)
     return ModelSpec(model=model, psi=psi, gamma=gamma, detector=dict(detector), path=path)
+
+
+def _check_detector(detector: Mapping[str, Any], dt: float, where: str) -> None:
+    """The STFT fields of ``[detector]`` (window_s, hop_s, window) make a valid STFT at ``dt``."""
+    if not {"window_s", "hop_s", "window"} & set(detector):
+        return
+    from ..detection.spectral import STFTConfig
+
+    field = "window"
+    try:
+        field = "window_s"
+        window_s = float(detector.get("window_s", 1.0))
+        field = "hop_s"
+        hop_s = float(detector.get("hop_s", 0.2))
+        field = "window"
+        cfg = STFTConfig(window_s=window_s, hop_s=hop_s, window=str(detector.get("window", "hamming")))
+        cfg.n_window(dt)
+        cfg.n_hop(dt)
+        cfg.taper(dt)
+    except (ChatterspecError, ValueError, TypeError) as exc:
+        msg = str(exc)
+        if field == "window" and "window" in msg and "hop" in msg:
+            field = "hop_s"
+        named = msg if msg.startswith(field) else f"{field}: {msg}"
+        raise ModelFileError(f"{where}: [detector] {named}") from None
 
 
 def _table(doc: Mapping[str, Any], key: str, where: str) -> Mapping[str, Any]:
@@ -379,6 +415,7 @@ def load_data(path: str | Path, model: LinearModel, *, dt_tolerance: float = 0.0
         columns = _read_csv(path, where)
     else:
         raise DataFileError(f"{where}: unknown format {suffix!r}; use .csv or .npz")
+    lines = columns.pop(_LINES, None)
     needed = [*model.output_names, *model.input_names]
     missing = [c for c in needed if c not in columns]
     if missing:
@@ -398,12 +435,12 @@ def load_data(path: str | Path, model: LinearModel, *, dt_tolerance: float = 0.0
         t = columns[time_column]
         if t.shape[0] != T:
             raise DataFileError(f"{where}: column {time_column!r} has {t.shape[0]} rows; the data has {T}")
-        _check_finite(t, time_column, None, where)
-        _check_times(t, time_column, model.dt, dt_tolerance, where)
+        _check_finite(t, time_column, None, where, lines)
+        _check_times(t, time_column, model.dt, dt_tolerance, where, lines)
     else:
         t = np.arange(T) * model.dt
     for c in needed:
-        _check_finite(columns[c], c, t, where)
+        _check_finite(columns[c], c, t, where, lines)
     z = np.column_stack([columns[c] for c in model.output_names])
     u = np.column_stack([columns[c] for c in model.input_names])
     return DataSet(t=t, z=z, u=u, path=path, time_column=time_column)
@@ -412,7 +449,12 @@ def load_data(path: str | Path, model: LinearModel, *, dt_tolerance: float = 0.0
 def _read_csv(path: Path, where: str) -> dict[str, np.ndarray]:
     try:
         with path.open(newline="") as fh:
-            rows = [r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#")]
+            reader = csv.reader(fh)
+            rows, lines = [], []
+            for r in reader:
+                if r and not r[0].lstrip().startswith("#"):
+                    rows.append(r)
+                    lines.append(reader.line_num)  # 1-based line of the file (comments counted)
     except (OSError, UnicodeDecodeError) as exc:
         raise DataFileError(f"{where}: cannot be read ({exc})") from None
     if not rows:
@@ -424,7 +466,7 @@ def _read_csv(path: Path, where: str) -> dict[str, np.ndarray]:
     for i, row in enumerate(rows[1:]):
         if len(row) != len(header):
             raise DataFileError(
-                f"{where}: row {i + 2} has {len(row)} fields; the header has {len(header)} columns"
+                f"{where}: line {lines[i + 1]} has {len(row)} fields; the header has {len(header)} columns"
             )
         for j, cell in enumerate(row):
             s = cell.strip()
@@ -432,12 +474,28 @@ def _read_csv(path: Path, where: str) -> dict[str, np.ndarray]:
                 data[i, j] = float(s) if s else np.nan
             except ValueError:
                 raise DataFileError(
-                    f"{where}: column {header[j]!r}, row {i + 2}: {s!r} is not a number"
+                    f"{where}: column {header[j]!r}, line {lines[i + 1]}: {s!r} is not a number"
                 ) from None
-    return {h: data[:, j] for j, h in enumerate(header)}
+    out = {h: data[:, j] for j, h in enumerate(header)}
+    out[_LINES] = np.asarray(lines[1:], dtype=float)
+    return out
+
+
+#: Hidden column of :func:`_read_csv`: the file line of every data row (messages use file lines).
+_LINES = "\x00lines"
+
+
+def _where_row(i: int, lines: np.ndarray | None) -> str:
+    """Position of data row ``i`` (0-based): the CSV file line, or the array index of an NPZ file."""
+    return f"line {int(lines[i])}" if lines is not None else f"index {i}"
 
 
 def _read_npz(path: Path, where: str) -> dict[str, np.ndarray]:
+    with path.open("rb") as fh:
+        if fh.read(4) != b"PK\x03\x04":  # .npz is a zip archive; never fall back to pickle
+            raise DataFileError(
+                f"{where}: not a .npz archive (a .npz file is a zip of .npy arrays, as numpy.savez writes)"
+            )
     try:
         with np.load(path, allow_pickle=False) as npz:
             out = {}
@@ -452,35 +510,42 @@ def _read_npz(path: Path, where: str) -> dict[str, np.ndarray]:
             return out
     except DataFileError:
         raise
-    except (OSError, ValueError) as exc:
-        raise DataFileError(f"{where}: not a readable .npz archive ({exc})") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        reason = "it holds Python objects, which are never loaded" if "pickle" in str(exc) else str(exc)
+        raise DataFileError(f"{where}: not a readable .npz archive ({reason})") from None
 
 
-def _check_finite(x: np.ndarray, column: str, t: np.ndarray | None, where: str) -> None:
+def _check_finite(
+    x: np.ndarray, column: str, t: np.ndarray | None, where: str, lines: np.ndarray | None = None
+) -> None:
     bad = np.flatnonzero(~np.isfinite(x))
     if bad.size:
         i = int(bad[0])
         at = "" if t is None else f" (t = {t[i]:.6g} s)"
         raise DataFileError(
-            f"{where}: column {column!r} has {bad.size} NaN/inf sample(s), first at data row {i + 1}{at}; "
+            f"{where}: column {column!r} has {bad.size} NaN/inf sample(s), "
+            f"first at {_where_row(i, lines)}{at}; "
             "the monitor needs uniformly sampled finite data (clean or interpolate the file first)"
         )
 
 
-def _check_times(t: np.ndarray, column: str, dt: float, tol: float, where: str) -> None:
+def _check_times(
+    t: np.ndarray, column: str, dt: float, tol: float, where: str, lines: np.ndarray | None = None
+) -> None:
     step = np.diff(t)
     bad = np.flatnonzero(step <= 0)
     if bad.size:
         i = int(bad[0])
         raise DataFileError(
-            f"{where}: column {column!r} is not strictly increasing: data row {i + 2} (t = {t[i + 1]:.9g} s) "
-            f"follows t = {t[i]:.9g} s"
+            f"{where}: column {column!r} is not strictly increasing: {_where_row(i + 1, lines)} "
+            f"(t = {t[i + 1]:.9g} s) follows t = {t[i]:.9g} s"
         )
     off = np.flatnonzero(np.abs(step - dt) > tol * dt)
     if off.size:
         i = int(off[0])
         raise DataFileError(
             f"{where}: column {column!r} is not sampled at the model's dt = {dt:g} s: step "
-            f"{step[i]:.9g} s between data rows {i + 1} and {i + 2} ({off.size} irregular step(s)); "
+            f"{step[i]:.9g} s between {_where_row(i, lines)} and {_where_row(i + 1, lines)} "
+            f"({off.size} irregular step(s)); "
             "resample the data or set dt in the model file"
         )

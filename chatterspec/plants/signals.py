@@ -69,33 +69,77 @@ class Step:
 
 @dataclass(frozen=True)
 class Chirp:
-    """Linear chirp ``amplitude * cos(phase)`` sweeping ``f_start_hz -> f_stop_hz`` over ``sweep_time`` s.
+    """Linear chirp ``amplitude * cos(2 pi (f0 t + k t^2 / 2) + phase)`` sweeping ``f0 -> f1``.
 
-    The EHA scenarios use 10 -> 100 Hz over the 4 s record at 300 rad/s
-    (amplitude unspecified in the paper; DESIGN.md 8.9).
+    ``k = (f_stop_hz - f_start_hz) / sweep_time``. With the default
+    ``phase_deg = 0`` the chirp is a cosine, so ``u(0) = amplitude``: the input
+    jumps from rest to its full value at ``t = 0`` and adds a start-up transient;
+    ``phase_deg = -90`` gives a sine chirp that starts at ``u(0) = 0``. The EHA
+    scenarios use 10 -> 100 Hz over the 4 s record at 300 rad/s (amplitude and
+    phase unspecified in the paper; DESIGN.md 8.9; the phase choice is
+    documented where the scenarios are defined, ``plants/scenarios.py``).
+
+    Attributes
+    ----------
+    f_start_hz, f_stop_hz : float
+        Start and stop frequency in Hz (> 0).
+    sweep_time : float
+        Time in s at which ``f_stop_hz`` is reached (> 0).
+    amplitude : float
+        Peak value (input units, e.g. rad/s of pump speed for the EHA).
+    phase_deg : float
+        Phase offset in degrees: 0 = cosine chirp (default), -90 = sine chirp.
     """
 
     f_start_hz: float = 10.0
     f_stop_hz: float = 100.0
     sweep_time: float = 4.0
     amplitude: float = 300.0
+    phase_deg: float = 0.0
 
     def __post_init__(self) -> None:
         positive("f_start_hz", self.f_start_hz, unit="Hz")
         positive("f_stop_hz", self.f_stop_hz, unit="Hz")
         positive("sweep_time", self.sweep_time, unit="s")
+        finite_array("phase_deg", np.asarray(self.phase_deg, dtype=float), ndim=0)
+
+    @classmethod
+    def sine(
+        cls,
+        f_start_hz: float = 10.0,
+        f_stop_hz: float = 100.0,
+        sweep_time: float = 4.0,
+        amplitude: float = 300.0,
+    ) -> Chirp:
+        """The sine chirp (``phase_deg = -90``, ``u(0) = 0``), no step at ``t = 0``.
+
+        Parameters
+        ----------
+        f_start_hz, f_stop_hz : float
+            Start and stop frequency in Hz (> 0).
+        sweep_time : float
+            Time in s at which ``f_stop_hz`` is reached (> 0).
+        amplitude : float
+            Peak value (input units).
+        """
+        return cls(f_start_hz, f_stop_hz, sweep_time, amplitude, phase_deg=-90.0)
 
     def sample(self, t: np.ndarray) -> np.ndarray:
         t = _times(t)
         return self.amplitude * scipy.signal.chirp(
-            t, f0=self.f_start_hz, t1=self.sweep_time, f1=self.f_stop_hz, method="linear"
+            t, f0=self.f_start_hz, t1=self.sweep_time, f1=self.f_stop_hz, method="linear", phi=self.phase_deg
         )
 
     def describe(self) -> str:
-        return (
+        text = (
             f"linear chirp {self.f_start_hz:g}->{self.f_stop_hz:g} Hz over {self.sweep_time:g} s, "
             f"amplitude {self.amplitude:g}"
         )
+        if self.phase_deg == -90.0:
+            return text + ", sine (u(0) = 0)"
+        if self.phase_deg != 0.0:
+            return text + f", phase {self.phase_deg:g} deg"
+        return text
 
 
 @dataclass(frozen=True)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -354,15 +355,53 @@ def load_calibration(
     """
     path = Path(path)
     try:
+        return _load_calibration(path, model, n_samples, config)
+    except KeyError as exc:  # an incomplete file: name what is missing in words, not KeyError: 'arrays'
+        key = str(exc.args[0]) if exc.args else "?"
+        what = _CALIBRATION_KEY_WORDS.get(key, f"the entry {key!r}")
+        raise DataFileError(
+            f"{path}: incomplete calibration file: it has no {what}; write it again with "
+            "'chatterspec calibrate NAME --out FILE'"
+        ) from None
+
+
+#: Words for the entries of a calibration file (messages of :func:`load_calibration`).
+_CALIBRATION_KEY_WORDS = {
+    "arrays": "threshold arrays ('arrays')",
+    "_meta": "metadata ('_meta')",
+    "confidence": "confidence level ('confidence')",
+    "scenario": "scenario name ('scenario')",
+    "model_fingerprint": "model fingerprint ('model_fingerprint')",
+    "n_samples": "record length ('n_samples')",
+    "stft": "STFT settings ('stft')",
+    "alpha": "alpha ('alpha')",
+    "per_bin": "per-bin quantiles ('per_bin')",
+    "per_frame": "per-frame quantiles ('per_frame')",
+    "family_wise_analytic": "analytic family-wise factors ('family_wise_analytic')",
+}
+
+
+def _load_calibration(
+    path: Path, model: LinearModel | None, n_samples: int | None, config: STFTConfig | None
+) -> Calibration:
+    try:
         if path.suffix == ".npz":
             with np.load(path, allow_pickle=False) as z:
                 meta = json.loads(str(z["_meta"]))
                 arrays = {k: np.array(z[k]) for k in z.files if k != "_meta"}
         else:
             meta = json.loads(path.read_text())
+            if not isinstance(meta, dict) or meta.get("format") != CALIBRATION_FORMAT:
+                fmt = meta.get("format") if isinstance(meta, dict) else None
+                raise DataFileError(f"{path}: not a chatterspec calibration file (format {fmt!r})")
             arrays = {k: _json_array(k, v) for k, v in meta.pop("arrays").items()}
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise DataFileError(f"{path}: cannot read calibration file ({type(exc).__name__}: {exc})") from None
+    except KeyError:
+        raise
+    except (OSError, ValueError, TypeError, EOFError, zipfile.BadZipFile) as exc:
+        if isinstance(exc, DataFileError):
+            raise
+        reason = "not a zip of .npy arrays" if "pickle" in str(exc) else f"{type(exc).__name__}: {exc}"
+        raise DataFileError(f"{path}: cannot read calibration file ({reason})") from None
     if meta.get("format") != CALIBRATION_FORMAT:
         raise DataFileError(f"{path}: not a chatterspec calibration file (format {meta.get('format')!r})")
     if meta.get("version") != CALIBRATION_VERSION:

@@ -54,14 +54,18 @@ class KindRates:
     nominal_per_bin : float
         Per-bin level the threshold aims at (alpha, or alpha / n for Bonferroni).
     per_bin : RateEstimate
-        Exceedances over tested bins x channels x records (or x frames).
+        Exceedances over tested bins x channels x records (or x frames). Its
+        interval comes from the run-level counts (records are the independent
+        units; the bins, channels and overlapping frames of one record are not):
+        :func:`~chatterspec.studies.intervals.cluster_clopper_pearson`.
     per_bin_by_channel : tuple of RateEstimate
     family_wise : tuple of RateEstimate or None
         Per channel, records with any tested bin above (record kinds only).
     family_wise_any : RateEstimate or None
         Records with any channel above.
     per_frame : tuple of RateEstimate or None
-        Per channel, frames with any tested bin above (frame kinds only).
+        Per channel, frames with any tested bin above (frame kinds only);
+        run-level intervals as for ``per_bin`` (overlapping frames are dependent).
     per_frame_any : RateEstimate or None
     mean_false_bins : tuple of float
         Mean number of false-alarm bins per record (or frame) and channel.
@@ -122,7 +126,8 @@ class FalseAlarmResult:
     seed : int or None
         Root seed if it was an integer, else None.
     confidence : float
-        Level of every Clopper-Pearson interval.
+        Level of every interval (Clopper-Pearson; per-bin and per-frame ones with
+        the effective number of trials estimated from run-level counts).
     channels : tuple of str
         Output channel names (order of the per-channel rates).
     n_frames : int
@@ -272,8 +277,16 @@ def false_alarm_study(
         tested = t.tested
         nt = int(np.count_nonzero(tested))
         counts = out["bin_exceed"][i]  # (bins, m)
-        per_ch = tuple(RateEstimate(int(counts[tested, c].sum()), runs * nt, confidence) for c in range(m))
-        pooled = RateEstimate(int(counts[tested].sum()), runs * nt * m, confidence)
+        # the bins (and channels) of one record are dependent trials, the records are independent:
+        # intervals from run-level counts (cluster_clopper_pearson), not from bins as if independent
+        sq = out["false_bins_sq"][i]
+        per_ch = tuple(
+            RateEstimate(int(counts[tested, c].sum()), runs * nt, confidence, runs, float(sq[c]))
+            for c in range(m)
+        )
+        pooled = RateEstimate(
+            int(counts[tested].sum()), runs * nt * m, confidence, runs, float(out["false_total_sq"][i])
+        )
         meaning = t.alpha_meaning
         nominal = t.per_test_alpha if np.isfinite(t.per_test_alpha) else a
         fw = tuple(RateEstimate(int(out["fw"][i, c]), runs, confidence) for c in range(m))
@@ -302,10 +315,22 @@ def false_alarm_study(
         tested = t.tested
         nt = int(np.count_nonzero(tested))
         counts = out["frame_bin_exceed"][i]
-        per_ch = tuple(RateEstimate(int(counts[tested, c].sum()), n_fr * nt, confidence) for c in range(m))
-        pooled = RateEstimate(int(counts[tested].sum()), n_fr * nt * m, confidence)
-        pf = tuple(RateEstimate(int(out["frame_flag"][i, c]), n_fr, confidence) for c in range(m))
-        pf_any = RateEstimate(int(out["frame_flag_any"][i]), n_fr, confidence)
+        # overlapping frames of one record are dependent: intervals from run-level counts
+        fsq, flsq = out["frame_false_sq"][i], out["frame_flag_sq"][i]
+        per_ch = tuple(
+            RateEstimate(int(counts[tested, c].sum()), n_fr * nt, confidence, runs, float(fsq[c]))
+            for c in range(m)
+        )
+        pooled = RateEstimate(
+            int(counts[tested].sum()), n_fr * nt * m, confidence, runs, float(out["frame_false_total_sq"][i])
+        )
+        pf = tuple(
+            RateEstimate(int(out["frame_flag"][i, c]), n_fr, confidence, runs, float(flsq[c]))
+            for c in range(m)
+        )
+        pf_any = RateEstimate(
+            int(out["frame_flag_any"][i]), n_fr, confidence, runs, float(out["frame_flag_any_sq"][i])
+        )
         meaning = t.alpha_meaning
         nominal = t.per_test_alpha if np.isfinite(t.per_test_alpha) else a
         ref = pooled if meaning == "per-bin" else _worst(pf)

@@ -203,6 +203,8 @@ class HealthyStudy:
         n_false = masked.sum(axis=2)  # (K, r, m)
         out["false_bins"] = n_false.sum(axis=1)
         out["false_bins_sq"] = (n_false.astype(np.int64) ** 2).sum(axis=1)
+        # per-record squares: the false-alarm intervals are computed from run-level counts (issue 11)
+        out["false_total_sq"] = (n_false.sum(axis=-1).astype(np.int64) ** 2).sum(axis=1)  # (K,)
         fw = n_false > 0
         out["fw"] = fw.sum(axis=1)  # (K, m)
         out["fw_any"] = fw.any(axis=-1).sum(axis=1)  # (K,)
@@ -216,9 +218,17 @@ class HealthyStudy:
             out["frames"] = np.array(P.shape[0] * P.shape[1])
             fexc = P[None] > self.fthr_values[:, None, None]  # (Kf, r, F, fb, m)
             out["frame_bin_exceed"] = fexc.sum(axis=(1, 2))  # (Kf, fb, m)
-            flags = (fexc & self.fthr_tested[:, None, None, :, None]).any(axis=3)  # (Kf, r, F, m)
+            fmasked = fexc & self.fthr_tested[:, None, None, :, None]
+            flags = fmasked.any(axis=3)  # (Kf, r, F, m)
             out["frame_flag"] = flags.sum(axis=(1, 2))  # (Kf, m)
             out["frame_flag_any"] = flags.any(axis=-1).sum(axis=(1, 2))  # (Kf,)
+            # per-record sums of squares (overlapping frames of one record are dependent trials)
+            f_false = fmasked.sum(axis=(2, 3)).astype(np.int64)  # (Kf, r, m) false frame-bins per record
+            out["frame_false_sq"] = (f_false**2).sum(axis=1)  # (Kf, m)
+            out["frame_false_total_sq"] = (f_false.sum(axis=-1) ** 2).sum(axis=1)  # (Kf,)
+            f_flag = flags.sum(axis=2).astype(np.int64)  # (Kf, r, m) flagged frames per record
+            out["frame_flag_sq"] = (f_flag**2).sum(axis=1)  # (Kf, m)
+            out["frame_flag_any_sq"] = (flags.any(axis=-1).sum(axis=2).astype(np.int64) ** 2).sum(axis=1)
             if self.kf_top:
                 Yf = (P / self.fexpected).reshape(-1, *P.shape[-2:])
                 out["top_frame"] = _keep_top(Yf, self.kf_top)

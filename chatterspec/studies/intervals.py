@@ -16,6 +16,7 @@ __all__ = [
     "QuantileEstimate",
     "RateEstimate",
     "clopper_pearson",
+    "cluster_clopper_pearson",
     "quantile_ci_ranks",
 ]
 
@@ -45,6 +46,70 @@ def clopper_pearson(k: int, n: int, confidence: float = 0.99) -> tuple[float, fl
     lo = 0.0 if k == 0 else float(scipy.stats.beta.ppf(a / 2, k, n - k + 1))
     hi = 1.0 if k == n else float(scipy.stats.beta.ppf(1 - a / 2, k + 1, n - k))
     return lo, hi
+
+
+def cluster_clopper_pearson(
+    count: int, trials: int, clusters: int, count_sq: float, confidence: float = 0.99
+) -> tuple[float, float, float]:
+    """Interval for a rate whose trials come in independent clusters of dependent trials.
+
+    The ~2000 bins of one record (or the overlapping frames of one record) are
+    not independent trials; the records are. The rate's variance is therefore
+    estimated from the per-record counts ``x_r`` (``r = 1..R``, ``R = clusters``,
+    ``trials / R`` trials each): ``Var(p) = s^2 / (R (trials/R)^2)`` with ``s^2``
+    the sample variance of ``x_r``. The Clopper-Pearson interval is then taken
+    with the effective sample size ``n_eff = p (1 - p) / Var(p)`` (capped at
+    ``trials``) and ``k_eff = p n_eff`` events: the Korn-Graubard (1998)
+    interval for clustered samples, which reduces to :func:`clopper_pearson`
+    when the trials are independent (design effect 1) and widens by the
+    design effect ``trials / n_eff`` when neighbouring bins correlate.
+
+    Parameters
+    ----------
+    count : int
+        Events over all clusters, ``sum(x_r)``.
+    trials : int
+        Trials over all clusters (``R`` times the trials per cluster).
+    clusters : int
+        Independent clusters R (records). With ``R = 1`` the variance cannot be
+        estimated and the whole record counts as one trial (a wide interval).
+    count_sq : float
+        ``sum(x_r ** 2)``, the sum of squared per-cluster counts.
+    confidence : float
+        Two-sided confidence level in (0, 1).
+
+    Returns
+    -------
+    (low, high, n_eff) : tuple of float
+        Interval of the rate and the effective number of independent trials.
+
+    References
+    ----------
+    E. L. Korn and B. I. Graubard, "Confidence intervals for proportions with
+    small expected number of positive counts estimated from survey data",
+    Survey Methodology 24(2), 193-201, 1998.
+    """
+    trials = positive_int("trials", trials)
+    clusters = positive_int("clusters", clusters)
+    confidence = open_unit("confidence", confidence)
+    if not 0 <= count <= trials:
+        raise ParameterError(f"need 0 <= count <= trials; got count={count}, trials={trials}")
+    if clusters > trials:
+        raise ParameterError(f"need clusters <= trials; got clusters={clusters}, trials={trials}")
+    p = count / trials
+    n_eff = float(trials)
+    if clusters < 2:
+        n_eff = 1.0
+    elif 0 < count < trials:
+        s2 = max(0.0, (count_sq - count**2 / clusters) / (clusters - 1))
+        var_p = s2 / (clusters * (trials / clusters) ** 2)
+        if var_p > 0:
+            n_eff = min(float(trials), p * (1.0 - p) / var_p)
+    a = 1.0 - confidence
+    k = p * n_eff
+    lo = 0.0 if count == 0 else float(scipy.stats.beta.ppf(a / 2, k, n_eff - k + 1))
+    hi = 1.0 if count == trials else float(scipy.stats.beta.ppf(1 - a / 2, k + 1, n_eff - k))
+    return lo, hi, n_eff
 
 
 def quantile_ci_ranks(n: int, q: float, confidence: float = 0.99) -> tuple[int, int, int]:
@@ -89,6 +154,11 @@ def _top_needed(n: int, q: float, confidence: float, n_eff: int | None = None) -
 class RateEstimate:
     """``count`` events in ``trials`` with a Clopper-Pearson interval.
 
+    With ``clusters`` and ``count_sq`` the trials are taken as independent
+    clusters (records) of dependent trials (bins or frames of one record) and
+    the interval is :func:`cluster_clopper_pearson`'s; without them the trials
+    are independent (:func:`clopper_pearson`).
+
     Attributes
     ----------
     count : int
@@ -97,24 +167,42 @@ class RateEstimate:
         Number of trials (>= 1): bins x channels x records, records, or frames.
     confidence : float
         Two-sided level in (0, 1) of the interval (see :func:`clopper_pearson`).
+    clusters : int or None
+        Independent clusters (records) the trials come in, or None for independent trials.
+    count_sq : float or None
+        Sum over clusters of the squared per-cluster count (needed with ``clusters``).
     rate : float
         ``count / trials`` (computed).
     ci_low, ci_high : float
         Clopper-Pearson interval of the rate (computed).
+    effective_trials : float
+        Independent trials the interval is worth (``trials`` without clusters).
     """
 
     count: int
     trials: int
     confidence: float
+    clusters: int | None = None
+    count_sq: float | None = None
     rate: float = field(init=False)
     ci_low: float = field(init=False)
     ci_high: float = field(init=False)
+    effective_trials: float = field(init=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rate", self.count / self.trials)
-        lo, hi = clopper_pearson(self.count, self.trials, self.confidence)
+        if self.clusters is None:
+            lo, hi = clopper_pearson(self.count, self.trials, self.confidence)
+            n_eff = float(self.trials)
+        else:
+            if self.count_sq is None:
+                raise ParameterError("RateEstimate: clusters needs count_sq (sum of squared cluster counts)")
+            lo, hi, n_eff = cluster_clopper_pearson(
+                self.count, self.trials, self.clusters, self.count_sq, self.confidence
+            )
         object.__setattr__(self, "ci_low", lo)
         object.__setattr__(self, "ci_high", hi)
+        object.__setattr__(self, "effective_trials", n_eff)
 
     def contains(self, p: float) -> bool:
         return self.ci_low <= p <= self.ci_high
@@ -126,6 +214,7 @@ class RateEstimate:
             "ci_high": self.ci_high,
             "count": self.count,
             "trials": self.trials,
+            "effective_trials": self.effective_trials,
         }
 
 
