@@ -140,7 +140,7 @@ def run_monitor(
     chattering : array, optional
         Precomputed chattering (N, m) instead of ``z``/``u``.
     chunk_samples : int, optional
-        Samples per push; default one hop when paced and five hops otherwise
+        Samples per push; default one hop when paced and 50 hops otherwise
         (the output does not depend on it).
     rate : float, optional
         Replay speed (1.0 = real time); ``None`` runs as fast as possible.
@@ -159,9 +159,10 @@ def run_monitor(
     """
     t_start = time.perf_counter()
     events: list[DetectionEvent] = []
-    # paced replays push one hop at a time (smooth live view); unpaced runs push 5 hops
-    # (the output does not depend on the chunking, only the per-call overhead does)
-    size = chunk_samples or (monitor.n_hop if rate is not None else 5 * monitor.n_hop)
+    # paced replays push one hop at a time (smooth live view); unpaced runs push 50 hops (10 s
+    # at the default hop: the per-push STFT and logging overhead is then small; memory stays
+    # bounded). The output does not depend on the chunking, only the per-call overhead does.
+    size = chunk_samples or (monitor.n_hop if rate is not None else 50 * monitor.n_hop)
     try:
         data = chattering if chattering is not None else z
         if data is None:

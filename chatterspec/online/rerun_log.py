@@ -117,13 +117,28 @@ class _ArrowBatch:
         return self.array
 
 
+def _arrow(pa: Any, x: np.ndarray, type_: Any) -> Any:
+    """Zero-copy arrow view of a 1-D numpy array (``pa.array`` copies and scans: ~25 ns per value)."""
+    x = np.ascontiguousarray(x)
+    buf = pa.py_buffer(x)  # keeps x alive as long as the arrow array
+    return pa.Array.from_buffers(type_, x.shape[0], [None, buf])
+
+
+#: numpy dtype -> arrow type of the zero-copy views
+_ARROW_TYPES = {
+    np.dtype(np.float64): "float64",
+    np.dtype(np.float32): "float32",
+    np.dtype(np.float16): "float16",
+}
+
+
 class _TimeIndex:
     """A ``time`` column converted to arrow once and shared by several ``send_columns`` calls."""
 
     __slots__ = ("array",)
 
     def __init__(self, pa: Any, ns: np.ndarray) -> None:
-        self.array = pa.array(np.asarray(ns, dtype=np.int64), type=pa.duration("ns"))
+        self.array = _arrow(pa, np.asarray(ns, dtype=np.int64), pa.duration("ns"))
 
     def timeline_name(self) -> str:
         return TIMELINE
@@ -173,7 +188,8 @@ class _Columns:
             self.tensors_ok = False
 
     def scalars_column(self, values: np.ndarray) -> Any:
-        arr = self.pa.array(np.ascontiguousarray(values, dtype=np.float64))
+        # a private copy (~20 us per 60k values): Rerun encodes later, the caller may reuse its array
+        arr = _arrow(self.pa, np.array(values, dtype=np.float64, order="C"), self.pa.float64())
         return self.rr.ComponentColumn(self.scalars, _ArrowBatch(arr))
 
     def tensor_columns(self, data: np.ndarray, names: tuple[str, ...], *, value_range: bool = False) -> list:
@@ -216,7 +232,8 @@ class _Columns:
             self._parts[key] = parts
         shape_arr, names_arr, union, k, children, offsets, union_buffers = parts
         children = list(children)
-        children[k] = pa.ListArray.from_arrays(offsets, pa.array(data.reshape(-1)), type=union[k].type)
+        flat = _arrow(pa, data.reshape(-1), getattr(pa, _ARROW_TYPES[data.dtype])())
+        children[k] = pa.ListArray.from_arrays(offsets, flat, type=union[k].type)
         buffer = pa.Array.from_buffers(type=union, length=n, buffers=union_buffers, children=children)
         return pa.Array.from_buffers(
             type=t, length=n, buffers=[None], children=[shape_arr, names_arr, buffer]
@@ -281,7 +298,9 @@ class RerunLogger:
         streams: 18 000 frames = 1 h at a 0.2 s hop, ~16 MB for 3 channels x 150 bins);
         longer records get consecutive blocks that tile the record.
     batch_samples, batch_frames : int
-        A file batch is sent once this many samples or frames are buffered.
+        A file batch is sent once this many samples or frames are buffered (default one
+        minute of 1 kHz data / 0.2 s hops: ~30 ``send_columns`` calls per minute of data, each
+        costing ~0.1 ms of fixed overhead, and at most ~8 MB buffered for 3 channels).
     truth : list of (start_s, label, is_fault), optional
         True fault timeline, drawn as the top lane.
     send_blueprint : bool
@@ -297,8 +316,8 @@ class RerunLogger:
         band_hz: tuple[float, float] | None = None,
         span_s: tuple[float, float] | None = None,
         file_block_frames: int = 18_000,
-        batch_samples: int = 10_000,
-        batch_frames: int = 50,
+        batch_samples: int = 60_000,
+        batch_frames: int = 300,
         truth: list[tuple[float, str, bool]] | None = None,
         send_blueprint: bool = True,
     ) -> None:
@@ -324,7 +343,7 @@ class RerunLogger:
         contiguous = tested.size > 0 and bool(np.all(np.diff(tested) == 1))
         self._tested = slice(int(tested[0]), int(tested[-1]) + 1) if contiguous else tested
         self._tested_hz = freqs[tested]
-        self._tested_expected = np.ascontiguousarray(self._expected[tested])
+        self._tested_expected_cm = np.ascontiguousarray(self._expected[tested].T)[:, None, :]  # (m, 1, k)
         lo, hi = default_band_hz(monitor) if band_hz is None else (float(band_hz[0]), float(band_hz[1]))
         inside = np.flatnonzero((freqs >= lo - 1e-9) & (freqs <= hi + 1e-9))
         if inside.size == 0:
@@ -576,12 +595,14 @@ class RerunLogger:
             fcol = _TimeIndex(pa, fns)
             fends = _TimeIndex(pa, fns[[0, -1]])
             stat_db = 10.0 * np.log10(np.maximum(ratio, 1e-30))
-            # peak_hz: the tested bin with the largest excess power S - E (F, m)
-            excess = power[:, self._tested, :] - self._tested_expected
-            peak_hz = self._tested_hz[np.argmax(excess, axis=1)]
+            # one channel-major copy (m, F, bins): contiguous rows for the tensors and a fast argmax
+            pc = np.ascontiguousarray(np.moveaxis(power, 2, 0))
+            # peak_hz: the tested bin with the largest excess power S - E, (m, F)
+            excess = pc[:, :, self._tested] - self._tested_expected_cm
+            peak_hz = self._tested_hz[np.argmax(excess, axis=-1)].T
             zero = cols.scalars_column(np.zeros(2))
             for i, c in enumerate(self.keys):
-                self._send_spectra(s, f"/spectrum/{c}", fcol, fns, power[:, :, i])
+                self._send_spectra(s, f"/spectrum/{c}", fcol, fns, pc[i])
                 det = f"/detection/{c}"
                 s.send_columns(
                     f"{det}/statistic_db", indexes=[fcol], columns=[cols.scalars_column(stat_db[:, i])]
