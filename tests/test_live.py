@@ -283,3 +283,22 @@ def test_replay_without_display(tmp_path: Path, monkeypatch, capsys) -> None:
 
     with pytest.raises(DataFileError, match="no such file"):
         _cli("replay", str(tmp_path / "missing.rrd"))
+
+
+def test_file_spectrogram_blocks_tile_long_records(tmp_path: Path, batch) -> None:
+    """With file_block_frames, consecutive tensors tile the record: every frame in exactly one."""
+    from chatterspec.online.monitor import ChatteringMonitor
+
+    rec, spec, _ = batch
+    mon = ChatteringMonitor(rec.model, t0=float(rec.t[0]))
+    with viewer.open_sinks(record=tmp_path / "b.rrd") as sinks:
+        logger = rerun_log.RerunLogger(sinks, mon, file_block_frames=7, send_blueprint=False)
+        for lo in range(0, rec.n_samples, 333):
+            logger.log_update(mon.push_chattering(rec.values[0, lo : lo + 333]))
+        logger.close()
+    t, blocks = _column(RrdReader(tmp_path / "b.rrd"), "/spectrogram/velocity", "Tensor:data")
+    widths = [b[0]["shape"][1] for b in blocks]
+    assert widths == [7] * (spec.n_frames // 7) + ([spec.n_frames % 7] if spec.n_frames % 7 else [])
+    # block k starts half a hop before its first frame (the first one at the record's start)
+    np.testing.assert_allclose(t[1:], spec.times_s[7::7] - 0.1, atol=1e-9)
+    assert t[0] <= rec.t[0] + 1e-12
