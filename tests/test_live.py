@@ -21,7 +21,7 @@ from chatterspec.plants.scenarios import Scenario, Segment
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
-from chatterspec.online import blueprint, drivers, rerun_log, viewer  # noqa: E402
+from chatterspec.online import arrow_columns, blueprint, drivers, rerun_log, viewer  # noqa: E402
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -131,7 +131,7 @@ def _monitor(rec):
 
 
 def test_bulk_tensor_columns_match_rerun_encoding() -> None:
-    cols = rerun_log._Columns(rr)
+    cols = arrow_columns._Columns(rr, rerun_log.DB_RANGE)
     assert cols.tensors_ok  # else every tensor falls back to one rr.log call (slow)
     x = np.random.default_rng(0).random((7, 11))
     ref = rr.Tensor(x[3], dim_names=["freq"]).data.as_arrow_array()
@@ -139,7 +139,7 @@ def test_bulk_tensor_columns_match_rerun_encoding() -> None:
 
 
 def test_fallback_without_bulk_tensors(tmp_path: Path, sim, batch, monkeypatch) -> None:
-    monkeypatch.setattr(rerun_log, "_TENSOR_DTYPES", {})  # the layout probe fails -> rr.log per tensor
+    monkeypatch.setattr(arrow_columns, "_TENSOR_DTYPES", {})  # the layout probe fails -> rr.log per tensor
     rec, spec, flags = batch
     summary = drivers.record_detection(sim, path=tmp_path / "f.rrd", chunk_samples=450)
     _check_recording(tmp_path / "f.rrd", rec, spec, flags, summary)
