@@ -426,13 +426,13 @@ def frame_columns(
     w = _stft_engine(config.window, W, H, dt).win
     # ShortTimeFFT.stft(seg, k_offset=W // 2) computes rfft(seg[p H : p H + W] * win.conj(), n=W)
     # one frame per Python iteration; the same products and the same scipy.fft.rfft over a block
-    # of frames at once give bit-identical columns (tests/test_spectral.py) several times faster
-    # (the online monitor calls this for every push). Blocks of frames keep the windowed copy
-    # below ~32 MB whatever the leading (runs) axes.
+    # of frames at once give bit-identical columns (tests/test_spectral.py) with ~1.4x less CPU per
+    # frame (the online monitor calls this for every push). Blocks of frames keep the windowed
+    # copy cache-sized (2^15 values, 256 kB; measured faster than 2^22) whatever the runs axes.
     seg = np.moveaxis(seg, -2, -1)  # (..., m, n): time last
     frames = np.lib.stride_tricks.sliding_window_view(seg, W, axis=-1)[..., ::H, :]  # (..., m, F, W)
     per_frame = max(1, int(np.prod(seg.shape[:-1], dtype=np.int64)) * W)
-    block = max(1, (1 << 22) // per_frame)
+    block = max(1, (1 << 15) // per_frame)
     scale = float(np.dot(w, w))
     power = np.empty((*seg.shape[:-2], n_frames, n_bins, seg.shape[-2]))
     for lo in range(0, n_frames, block):
