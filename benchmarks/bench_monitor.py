@@ -16,12 +16,21 @@ and also folded into "incl. setup". Each figure is the best of ``--repeat``
 runs (the machine may be shared). One warm-up recording is written first so
 that one-time imports (pyarrow.compute, ...) are not charged to the first case.
 
+The last columns split each run's wall time into the monitor's pushes (SVSFs, STFT,
+verdicts) and the Rerun logging path (``RerunLogger.log_update`` + ``close`` + closing
+the file sink, i.e. everything that waits for the recording), each as x real time.
+With ``--cpu`` every figure is process CPU time (all threads) instead of wall time,
+which is less disturbed by other jobs on a shared machine. The issue-10 baselines
+(same machine class, before this work) are printed beside the
+targets; the machine's core count and the compiled-kernel switch are printed on top.
+
 Usage: ``python benchmarks/bench_monitor.py [--minutes 1] [--chunk 1000] [--repeat 3]``
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -38,29 +47,42 @@ from chatterspec.plants.signals import Chirp
 from chatterspec.plants.simulate import simulate
 
 PSI = (4.2e-3, 4.8e-3, 4.3e3)
+#: Measure process CPU time (all threads, incl. Rerun's encoder threads) instead of wall time:
+#: less sensitive to other jobs on a shared machine (``--cpu``).
+CPU = False
 
 
-def _run(mon: ChatteringMonitor, data: dict, chunk: int, path: Path | None) -> tuple[float, float, int]:
-    """(setup_s, streaming_s, file bytes): streaming = pushes + logging + close."""
-    t0 = time.perf_counter()
+def _run(
+    mon: ChatteringMonitor, data: dict, chunk: int, path: Path | None
+) -> tuple[float, float, int, float, float]:
+    """(setup_s, streaming_s, file bytes, push_s, logging_s): streaming = pushes + logging + close."""
+    clock = time.perf_counter if not CPU else time.process_time
+    t0 = clock()
     sinks = logger = None
     if path is not None:
         sinks = open_sinks(record=path)
         logger = RerunLogger(sinks, mon)
-    t1 = time.perf_counter()
+    t1 = clock()
     n = next(iter(data.values())).shape[0]
+    t_push = t_log = 0.0
     for lo in range(0, n, chunk):
+        a = clock()
         if "chattering" in data:
             upd = mon.push_chattering(data["chattering"][lo : lo + chunk])
         else:
             upd = mon.push(data["z"][lo : lo + chunk], data["u"][lo : lo + chunk])
+        b = clock()
+        t_push += b - a
         if logger is not None:
             logger.log_update(upd)
+            t_log += clock() - b
     if logger is not None:
+        a = clock()
         logger.close()
         sinks.close()
-    t2 = time.perf_counter()
-    return t1 - t0, t2 - t1, path.stat().st_size if path is not None else 0
+        t_log += clock() - a
+    t2 = clock()
+    return t1 - t0, t2 - t1, path.stat().st_size if path is not None else 0, t_push, t_log
 
 
 def main() -> None:
@@ -68,7 +90,10 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=1.0)
     ap.add_argument("--chunk", type=int, default=1000, help="samples per push (one hop = 200)")
     ap.add_argument("--repeat", type=int, default=3, help="runs per configuration; the best is shown")
+    ap.add_argument("--cpu", action="store_true", help="process CPU time (all threads) instead of wall time")
     args = ap.parse_args()
+    global CPU
+    CPU = args.cpu
     import rerun  # noqa: F401  (import once up front: ~0.5 s that is not per-run cost)
 
     T = args.minutes * 60.0
@@ -91,23 +116,37 @@ def main() -> None:
         ("(c) raw z,u: aux SVSF, .rrd file", MonitorSettings(), raw, True),
         ("(d) raw z,u: both SVSFs, .rrd file", MonitorSettings(psi=PSI), raw, True),
     ]
-    print(f"{T:g} s of 1 kHz, 3-channel data; chunk {args.chunk} samples; best of {args.repeat}")
-    print(f"{'':<38}{'x real time':>12}{'incl. setup':>13}{'setup ms':>10}{'MB/min':>9}")
+    from chatterspec import _jit
+
+    print(
+        f"{T:g} s of 1 kHz, 3-channel data; chunk {args.chunk} samples; best of {args.repeat}; "
+        f"{os.cpu_count()} cores; compiled kernels {'on' if _jit.enabled() else 'off'}; "
+        f"{'process CPU time' if CPU else 'wall time'}"
+    )
+    print("issue-10 baseline (before): (d) 87x real time, (b) 910x; target >= 2000x for both")
+    print(
+        f"{'':<38}{'x real time':>12}{'incl. setup':>13}{'setup ms':>10}{'MB/min':>9}"
+        f"{'push x':>9}{'logging x':>11}"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "bench.rrd"
         warm = ChatteringMonitor(nominal, MonitorSettings(), t0=rec.t[0])
         _run(warm, {"chattering": rec.values[0, :5000]}, args.chunk, path)  # one-time imports
         for label, settings, data, record in cases:
-            best = (np.inf, np.inf, 0)
+            best = (np.inf, np.inf, 0, np.inf, np.inf)
             for _ in range(args.repeat):
                 mon = ChatteringMonitor(nominal, settings, t0=rec.t[0] if "chattering" in data else 0.0)
-                setup, stream, size = _run(mon, data, args.chunk, path if record else None)
-                best = min(best, (stream, setup, size))
+                setup, stream, size, t_push, t_log = _run(mon, data, args.chunk, path if record else None)
+                best = min(best, (stream, setup, size, t_push, t_log))
                 if path.exists():
                     path.unlink()
-            stream, setup, size = best
+            stream, setup, size, t_push, t_log = best
             mb = f"{size / 1e6 / args.minutes:9.2f}" if record else f"{'-':>9}"
-            print(f"{label:<38}{T / stream:12.0f}{T / (stream + setup):13.0f}{setup * 1e3:10.1f}{mb}")
+            log_x = f"{T / t_log:11.0f}" if record else f"{'-':>11}"
+            print(
+                f"{label:<38}{T / stream:12.0f}{T / (stream + setup):13.0f}{setup * 1e3:10.1f}{mb}"
+                f"{T / t_push:9.0f}{log_x}"
+            )
 
 
 if __name__ == "__main__":

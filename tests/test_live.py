@@ -21,7 +21,7 @@ from chatterspec.plants.scenarios import Scenario, Segment
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
-from chatterspec.online import blueprint, drivers, rerun_log, viewer  # noqa: E402
+from chatterspec.online import arrow_columns, blueprint, drivers, rerun_log, viewer  # noqa: E402
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -86,10 +86,11 @@ def _check_recording(path: Path, rec, spec, flags, summary) -> None:
     t_ev, texts = _column(reader, "/events", "TextLog:text")
     assert len(texts) == len(summary.events) > 0
     for ev in summary.events:
-        hit = [k for k, s in enumerate(texts) if s[0].startswith(f"{ev.kind} {ev.channel}:")]
+        word = "FAULT from" if ev.kind == "fault-start" else "healthy again"
+        hit = [k for k, s in enumerate(texts) if s[0].startswith(f"{ev.channel}: {word}")]
         assert any(abs(t_ev[k] - ev.time_s) < 1e-9 for k in hit), ev
         assert flags[ev.frame, ev.channel_index] == (ev.kind == "fault-start")
-    _, truth = _column(reader, "/truth/plant", "StateChange:state")
+    _, truth = _column(reader, blueprint.TRUTH_LANE, "StateChange:state")
     assert [s[0] for s in truth] == ["healthy", "leakage 9e-11"]
 
 
@@ -105,22 +106,32 @@ def test_record_chattering_record(tmp_path: Path, batch) -> None:
     rec, spec, flags = batch
     summary = drivers.record_detection(rec, path=tmp_path / "c.rrd", chunk_samples=1000)
     _check_recording(tmp_path / "c.rrd", rec, spec, flags, summary)
-    # the file gets the 2-D view in blocks of 50 frames (tiling the record) plus the last one on
-    # close, each stamped with the time of its first frame (so scrubbing shows the covering block)
+    # the file gets ONE spectrogram tensor per channel for the whole record: band rows x one column
+    # per frame (no padding), 10 log10(S / threshold) clipped to DB_RANGE, logged at the record start
     reader = RrdReader(tmp_path / "c.rrd")
     t, blocks = _column(reader, "/spectrogram/pressure", "Tensor:data")
-    assert len(blocks) == spec.n_frames // 50 + (spec.n_frames % 50 > 0)
-    np.testing.assert_allclose(np.sort(t), spec.times_s[::50][: len(blocks)], atol=1e-9)
-    block = blocks[-1][0]
-    assert block["shape"] == [spec.freqs_hz.size, 50] and block["names"] == ["freq", "time"]
+    assert len(blocks) == 1 and t[0] <= rec.t[0] + 1e-12
+    block = blocks[0][0]
+    lo, hi = rerun_log.default_band_hz(_monitor(rec))
+    assert (lo, hi) == (1.0, 150.0)  # EHA: tested band from 1 Hz, capped at 3 x 41.8 Hz -> 150 Hz
+    band = (spec.freqs_hz >= lo) & (spec.freqs_hz <= hi)
+    assert block["shape"] == [int(band.sum()), spec.n_frames]
+    assert block["names"][0].startswith("freq 1-150 Hz (1 Hz/row")
+    assert block["names"][1].startswith(f"time {spec.times_s[0] - 0.1:.2f}-{spec.times_s[-1] + 0.1:.2f} s")
     img = np.asarray(block["buffer"], dtype=float).reshape(block["shape"])
-    expected = cs.detection.spectral.expected_frame_spectrum(rec.model, spec.freqs_hz, spec.config, rec.dt)
-    db = np.clip(10 * np.log10(spec.power[-1, :, 2] / expected[:, 2]), *rerun_log.DB_RANGE)
-    np.testing.assert_allclose(img[:, -1], db, atol=0.05)  # float16 dB of the newest column
+    thr = frame_threshold(rec.model, spec.freqs_hz, spec.config, rec.dt)
+    db = np.clip(10 * np.log10(spec.power[:, band, 2] / thr.values[band, 2]), *rerun_log.DB_RANGE)
+    np.testing.assert_allclose(img, db.T, atol=0.02)  # float16 dB (resolution 0.016 dB at 30 dB)
+
+
+def _monitor(rec):
+    from chatterspec.online.monitor import ChatteringMonitor
+
+    return ChatteringMonitor(rec.model)
 
 
 def test_bulk_tensor_columns_match_rerun_encoding() -> None:
-    cols = rerun_log._Columns(rr)
+    cols = arrow_columns._Columns(rr, rerun_log.DB_RANGE)
     assert cols.tensors_ok  # else every tensor falls back to one rr.log call (slow)
     x = np.random.default_rng(0).random((7, 11))
     ref = rr.Tensor(x[3], dim_names=["freq"]).data.as_arrow_array()
@@ -128,7 +139,7 @@ def test_bulk_tensor_columns_match_rerun_encoding() -> None:
 
 
 def test_fallback_without_bulk_tensors(tmp_path: Path, sim, batch, monkeypatch) -> None:
-    monkeypatch.setattr(rerun_log, "_TENSOR_DTYPES", {})  # the layout probe fails -> rr.log per tensor
+    monkeypatch.setattr(arrow_columns, "_TENSOR_DTYPES", {})  # the layout probe fails -> rr.log per tensor
     rec, spec, flags = batch
     summary = drivers.record_detection(sim, path=tmp_path / "f.rrd", chunk_samples=450)
     _check_recording(tmp_path / "f.rrd", rec, spec, flags, summary)
@@ -205,11 +216,28 @@ def test_live_viewer_receives_data(tmp_path: Path, sim, batch) -> None:
         for c in reader.stream().filter(content="/spectrogram/pressure", is_static=False).to_chunks()
     )
     assert n == spec.n_frames  # the scrolling view goes to the live viewer at every hop
+    _, views = _column(reader, "/spectrogram/pressure", "Tensor:data")
+    widths = [v[0]["shape"][1] for v in views]
+    assert widths == [min(k + 1, 50) for k in range(spec.n_frames)]  # grows to 50 columns, no padding
+    assert views[-1][0]["names"][1].endswith(f"newest (right) = {spec.times_s[-1]:.1f} s")
 
 
 def test_blueprint_builds() -> None:
     bp = blueprint.blueprint(("position", "velocity", "pressure"), has_truth=True)
     assert bp is not None
+    bp = blueprint.blueprint(("position",), band_hz=(1.0, 150.0), span_s=(0.4, 3.6))
+    assert bp is not None
+    # lanes sort in channel order below the truth lane (the viewer orders them by entity path)
+    lanes = [blueprint.lane_entity(i, c) for i, c in enumerate(("position", "velocity", "pressure"))]
+    assert sorted([blueprint.TRUTH_LANE, *lanes]) == [blueprint.TRUTH_LANE, *lanes]
+
+
+def test_default_band_second_order() -> None:
+    from chatterspec.online.monitor import ChatteringMonitor
+    from chatterspec.plants.scenarios import scenario
+
+    mon = ChatteringMonitor(scenario("so-timeline-constant").nominal)
+    assert rerun_log.default_band_hz(mon) == (1.0, 15.0)  # 3 x 5 Hz natural frequency
 
 
 def _cli(*argv: str) -> int:
@@ -255,3 +283,22 @@ def test_replay_without_display(tmp_path: Path, monkeypatch, capsys) -> None:
 
     with pytest.raises(DataFileError, match="no such file"):
         _cli("replay", str(tmp_path / "missing.rrd"))
+
+
+def test_file_spectrogram_blocks_tile_long_records(tmp_path: Path, batch) -> None:
+    """With file_block_frames, consecutive tensors tile the record: every frame in exactly one."""
+    from chatterspec.online.monitor import ChatteringMonitor
+
+    rec, spec, _ = batch
+    mon = ChatteringMonitor(rec.model, t0=float(rec.t[0]))
+    with viewer.open_sinks(record=tmp_path / "b.rrd") as sinks:
+        logger = rerun_log.RerunLogger(sinks, mon, file_block_frames=7, send_blueprint=False)
+        for lo in range(0, rec.n_samples, 333):
+            logger.log_update(mon.push_chattering(rec.values[0, lo : lo + 333]))
+        logger.close()
+    t, blocks = _column(RrdReader(tmp_path / "b.rrd"), "/spectrogram/velocity", "Tensor:data")
+    widths = [b[0]["shape"][1] for b in blocks]
+    assert widths == [7] * (spec.n_frames // 7) + ([spec.n_frames % 7] if spec.n_frames % 7 else [])
+    # block k starts half a hop before its first frame (the first one at the record's start)
+    np.testing.assert_allclose(t[1:], spec.times_s[7::7] - 0.1, atol=1e-9)
+    assert t[0] <= rec.t[0] + 1e-12

@@ -390,8 +390,9 @@ def frame_columns(
     ``[j H, j H + W)``. ``first_sample`` is the global index of ``x[..., 0, :]``
     (an online monitor passes the global index of the oldest sample in its ring
     buffer). Each frame's column is computed from its own W samples only, by the
-    same :class:`scipy.signal.ShortTimeFFT` call whatever the buffer, so the
-    values of a frame are identical whether computed from the whole record
+    same operations as :meth:`scipy.signal.ShortTimeFFT.stft` (taper product and
+    ``scipy.fft.rfft``, vectorized over frames) whatever the buffer, so the values
+    of a frame are identical whether computed from the whole record
     (:func:`spectrogram`) or from any buffer that contains it.
 
     Parameters
@@ -425,14 +426,24 @@ def frame_columns(
     n_frames = j_last - j_first + 1
     offset = j_first * H - int(first_sample)
     seg = x[..., offset : offset + (n_frames - 1) * H + W, :]
-    sft = _stft_engine(config.window, W, H, dt)
-    # k_offset = W // 2 places slice p at seg[p H : p H + W] (no padded, partial frames).
+    w = _stft_engine(config.window, W, H, dt).win
+    # ShortTimeFFT.stft(seg, k_offset=W // 2) computes rfft(seg[p H : p H + W] * win.conj(), n=W)
+    # one frame per Python iteration; the same products and the same scipy.fft.rfft over a block
+    # of frames at once give bit-identical columns (tests/test_spectral.py) with ~1.4x less CPU per
+    # frame (the online monitor calls this for every push). Blocks of frames keep the windowed
+    # copy cache-sized (2^15 values, 256 kB; measured faster than 2^22) whatever the runs axes.
     seg = np.moveaxis(seg, -2, -1)  # (..., m, n): time last
-    Y = sft.stft(seg, p0=0, p1=n_frames, k_offset=W // 2, axis=-1)  # (..., m, bins, frames)
-    w = sft.win
-    power = (Y.real**2 + Y.imag**2) / float(np.dot(w, w))
-    power = np.swapaxes(power, -3, -1)  # (..., frames, bins, m)
-    return np.arange(j_first, j_last + 1), np.ascontiguousarray(power)
+    frames = np.lib.stride_tricks.sliding_window_view(seg, W, axis=-1)[..., ::H, :]  # (..., m, F, W)
+    per_frame = max(1, int(np.prod(seg.shape[:-1], dtype=np.int64)) * W)
+    block = max(1, (1 << 15) // per_frame)
+    scale = float(np.dot(w, w))
+    power = np.empty((*seg.shape[:-2], n_frames, n_bins, seg.shape[-2]))
+    for lo in range(0, n_frames, block):
+        hi = min(lo + block, n_frames)
+        Y = scipy.fft.rfft(frames[..., lo:hi, :] * w.conj(), n=W, axis=-1)  # (..., m, f, bins)
+        p = (Y.real**2 + Y.imag**2) / scale
+        power[..., lo:hi, :, :] = np.moveaxis(p, -3, -1)  # (..., f, bins, m)
+    return np.arange(j_first, j_last + 1), power
 
 
 def spectrogram(x: np.ndarray, dt: float, config: STFTConfig = DEFAULT_STFT, t0: float = 0.0) -> Spectrogram:

@@ -5,34 +5,41 @@ Rerun output of the online monitor: sinks (file / live viewer), entity layout, d
 ``rerun`` is imported lazily inside the functions: ``import chatterspec.online``
 does not load it, and the numeric core never imports this module.
 
-Entity layout (timeline ``time``, seconds; ``<c>`` is an output channel name):
+Entity layout (timeline ``time``: integer nanoseconds, every time rounded once by
+:func:`chatterspec.online.rerun_log.to_ns`; ``<c>`` is an output channel name, ``<k>`` its
+1-based index):
 
-====================================  =================================================================
-``/chattering/<c>/e``                 chattering ``e(k|k-1)`` of the auxiliary filter (bulk ``send_columns``)
-``/chattering/<c>/psi_upper|lower``   the SVSF boundary layer ``+-psi`` (when known)
-``/signal/<c>/measured|estimate``     measurement and ``sat``-SVSF estimate ``C x(k|k)`` (raw data only)
-``/spectrum/<c>``                     one exact STFT column per hop (``Tensor``, dim ``freq``, float64)
-``/spectrogram/<c>``                  scrolling 2-D view, dB re the expected healthy frame spectrum
-``/detection/<c>/peak_ratio``         largest ``S / threshold`` over the tested bins, per frame
-``/detection/<c>/threshold``          the decision level 1.0 on the same axis
-``/detection/<c>/verdict``            per-frame verdict, 1 = fault, 0 = healthy
-``/threshold/<c>``, ``/expected/<c>`` static frame threshold and expected healthy spectrum per bin
-``/state/<c>``                        state lane ``healthy`` / ``fault``
-``/truth/plant``                      true fault timeline (simulated data only)
-``/events``                           text log of fault start / end events
-====================================  =================================================================
+========================================  =============================================================
+``/chattering/<c>/e``                     chattering ``e(k|k-1)`` of the auxiliary filter
+``/chattering/<c>/psi_upper|lower``       the SVSF boundary layer ``+-psi`` (when known)
+``/signal/<c>/measured|estimate``         measurement and ``sat``-SVSF estimate ``C x(k|k)`` (raw data only)
+``/spectrum/<c>``                         one exact STFT column per hop (``Tensor``, dim ``freq``, float64)
+``/spectrogram/<c>``                      ``10 log10(S / threshold)`` dB over the band, clipped
+``/detection/<c>/statistic_db``           ``10 log10`` of the largest ``S / threshold`` over the tested bins
+``/detection/<c>/threshold_db``           the decision level, 0 dB
+``/detection/<c>/fault``                  the statistic at flagged frames only (red points)
+``/detection/<c>/verdict``                per-frame verdict, 1 = fault, 0 = healthy (not drawn)
+``/frequency/<c>/peak_hz``                tested bin with the largest excess power ``S - E`` (Hz)
+``/frequency/<c>/most_significant_hz``    tested bin with the largest ``S / threshold`` (Hz)
+``/threshold/<c>``, ``/expected/<c>``     static frame threshold and expected healthy spectrum per bin
+``/state/0_truth``                        true fault timeline (simulated data only), the top lane
+``/state/<k>_<c>``                        verdict lane ``healthy`` / ``fault``, in channel order
+``/events``                               text log of fault start / end events
+========================================  =============================================================
 
-Everything time-indexed is sent column-wise (``send_columns``), also the exact
-spectra: one ``Tensor`` row per frame, built in bulk from numpy (``rr.Tensor`` has
-no batch constructor), so a reader sees the same rows as from one ``rr.log`` per
-frame. A live viewer gets every update at once; a file gets batches of ~10 s of
-data (and the rest on close), which keeps logging well below the analysis cost.
+Everything time-indexed is sent column-wise (``send_columns``) from zero-copy arrow
+views, also the exact spectra: one ``Tensor`` row per frame, built in bulk from numpy
+(``rr.Tensor`` has no batch constructor), so a reader sees the same rows as from one
+``rr.log`` per frame. A live viewer gets every update at once; a file gets batches of
+about a minute of data (and the rest on close).
 
-The scrolling spectrogram is a 2-D float16 ``Tensor`` (dB, ``freq`` x ``time``) of the
-last ``scroll_frames`` columns; it goes to a live viewer at every hop, into a file
-only every ``file_scroll_every`` hops (default: one block per ``scroll_frames``, so
-the blocks tile the record) and at the end (a 2-D tensor per hop would cost ~90 MB
-per minute).
+The spectrogram band defaults to the detector's tested bins capped at 3x the model's
+highest natural frequency (EHA: 1-150 Hz). In a file it is ONE float16 tensor per
+channel for the whole record (one column per frame, no padding; blocks of at most an
+hour on longer streams), logged at the record's start, and the file's blueprint shows
+exactly the spectrogram's time span in every time-series view and opens paused on the
+whole record. A live viewer gets a scrolling view of the last ``scroll_frames``
+columns after every frame, whose time dimension names the newest column's time.
 
 Default recording folder of ``chatterspec demo``: ``recordings/`` in the
 current directory (git-ignored).

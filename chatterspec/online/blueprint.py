@@ -11,7 +11,11 @@ if TYPE_CHECKING:
 
 __all__ = [
     "blueprint",
+    "lane_entity",
 ]
+
+#: Entity of the true-fault lane: sorts before every channel lane (the viewer orders lanes by path).
+TRUTH_LANE = "/state/0_truth"
 
 
 # --------------------------------------------------------------------------- blueprint
@@ -19,9 +23,40 @@ def _entity(name: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in name)
 
 
-def blueprint(channels: tuple[str, ...], *, has_truth: bool = False, history_s: float = 10.0) -> Any:
-    """The default layout: per channel (columns) chattering, scrolling spectrogram, detection statistic;
-    below, the state lanes (verdict per channel and true fault) and the event log.
+def lane_entity(index: int, name: str) -> str:
+    """Entity path of the verdict lane of output channel ``index`` (0-based) called ``name``.
+
+    The viewer sorts lanes by entity path, so the path carries the 1-based channel
+    number: lanes then appear in channel order below the true-fault lane.
+
+    Parameters
+    ----------
+    index : int
+        Channel index (0-based, model output order).
+    name : str
+        Channel name.
+
+    Returns
+    -------
+    str
+        ``/state/<index + 1>_<name>`` (name made entity-safe).
+    """
+    return f"/state/{index + 1}_{_entity(name)}"
+
+
+def blueprint(
+    channels: tuple[str, ...],
+    *,
+    has_truth: bool = False,
+    history_s: float = 10.0,
+    band_hz: tuple[float, float] | None = None,
+    span_s: tuple[float, float] | None = None,
+    db_range: tuple[float, float] = (-5.0, 30.0),
+) -> Any:
+    """The default layout: per channel (columns) chattering, spectrogram, detection statistic and peak
+    frequency; below, the state lanes (true fault first, then one verdict lane per channel in channel
+    order) and the event log. The time panel is collapsed and legends are hidden (view titles say what
+    each colour is), so no plot area is covered.
 
     Parameters
     ----------
@@ -30,7 +65,16 @@ def blueprint(channels: tuple[str, ...], *, has_truth: bool = False, history_s: 
     has_truth : bool
         Add the true fault timeline lane (simulated data).
     history_s : float
-        Seconds of history shown by the time-series views (cursor-relative).
+        Live mode (``span_s`` None): seconds of history shown by the time-series views, relative to
+        the time cursor (which follows the incoming data).
+    band_hz : (float, float), optional
+        Frequency band of the spectrogram (Hz), shown in its title.
+    span_s : (float, float), optional
+        File mode: the time span (s) of the whole record's spectrogram. Every time-series view then
+        shows exactly this span (so the spectrogram columns line up with the time axes) and playback
+        opens paused on the whole record.
+    db_range : (float, float)
+        Colour range of the spectrogram (dB re the frame threshold), shown in its title.
 
     Returns
     -------
@@ -38,12 +82,22 @@ def blueprint(channels: tuple[str, ...], *, has_truth: bool = False, history_s: 
     """
     import rerun as rr
     import rerun.blueprint as rrb
+    from rerun.encodings import AbsoluteTimeRange, TimeInt
 
-    recent = rrb.VisibleTimeRange(
-        TIMELINE,
-        start=rrb.TimeRangeBoundary.cursor_relative(seconds=-history_s),
-        end=rrb.TimeRangeBoundary.cursor_relative(),
-    )
+    if span_s is None:
+        time_range = rrb.VisibleTimeRange(
+            TIMELINE,
+            start=rrb.TimeRangeBoundary.cursor_relative(seconds=-history_s),
+            end=rrb.TimeRangeBoundary.cursor_relative(),
+        )
+    else:
+        time_range = rrb.VisibleTimeRange(
+            TIMELINE,
+            start=rrb.TimeRangeBoundary.absolute(nanos=round(float(span_s[0]) * 1e9)),
+            end=rrb.TimeRangeBoundary.absolute(nanos=round(float(span_s[1]) * 1e9)),
+        )
+    no_legend = rrb.PlotLegend(visible=False)
+    band = "" if band_hz is None else f" {band_hz[0]:g}-{band_hz[1]:g} Hz"
     columns = []
     for name in channels:
         c = _entity(name)
@@ -51,43 +105,66 @@ def blueprint(channels: tuple[str, ...], *, has_truth: bool = False, history_s: 
             rrb.Vertical(
                 rrb.TimeSeriesView(
                     origin=f"/chattering/{c}",
-                    name=f"{name}: chattering e(k|k-1) and boundary ±psi",
-                    time_ranges=recent,
+                    name=f"{name}: chattering e(k|k-1), grey ±psi",
+                    time_ranges=time_range,
+                    plot_legend=no_legend,
                 ),
                 rrb.TensorView(
                     origin=f"/spectrogram/{c}",
-                    name=f"{name}: spectrogram, dB above healthy (freq up, time right)",
+                    name=f"{name}: spectrogram{band}, dB re threshold [{db_range[0]:g}, {db_range[1]:g}]",
                     slice_selection=rrb.TensorSliceSelection(
                         width=rr.components.TensorWidthDimension(dimension=1),
                         height=rr.components.TensorHeightDimension(dimension=0, invert=True),
                     ),
-                    scalar_mapping=rrb.TensorScalarMapping(colormap="viridis"),
-                    # 501 frequency rows x 50 time columns: stretch to the panel
+                    scalar_mapping=rrb.TensorScalarMapping(colormap="magma"),
                     view_fit="Fill",
                 ),
                 rrb.TimeSeriesView(
                     origin=f"/detection/{c}",
-                    name=f"{name}: peak S/threshold (fault when > 1)",
-                    time_ranges=recent,
+                    contents=["+ $origin/**", "- $origin/verdict"],
+                    name=f"{name}: max S/threshold [dB], 0 dB = threshold, red = fault",
+                    time_ranges=time_range,
+                    plot_legend=no_legend,
                 ),
-                row_shares=[1, 1.4, 1],
+                rrb.TimeSeriesView(
+                    origin=f"/frequency/{c}",
+                    name=f"{name}: peak frequency [Hz], dots = most significant",
+                    time_ranges=time_range,
+                    plot_legend=no_legend,
+                    axis_y=None if band_hz is None else rrb.ScalarAxis(range=(0.0, float(band_hz[1]))),
+                ),
+                row_shares=[1, 1.5, 1, 0.8],
             )
         )
-    lanes = ["/state/**", "/truth/**"] if has_truth else ["/state/**"]
+    n_lanes = len(channels) + (1 if has_truth else 0)
+    time_panel = (
+        rrb.TimePanel(state="collapsed", timeline=TIMELINE)
+        if span_s is None
+        else rrb.TimePanel(
+            state="collapsed",
+            timeline=TIMELINE,
+            play_state="paused",
+            time_selection=AbsoluteTimeRange(
+                min=TimeInt(nanos=round(float(span_s[0]) * 1e9)),
+                max=TimeInt(nanos=round(float(span_s[1]) * 1e9)),
+            ),
+        )
+    )
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Horizontal(*columns),
             rrb.Horizontal(
                 rrb.StateTimelineView(
-                    origin="/",
-                    contents=lanes,
-                    name="verdict per channel" + (" vs true fault" if has_truth else ""),
+                    origin="/state",
+                    name="true fault (top) and verdict per channel" if has_truth else "verdict per channel",
+                    time_ranges=time_range,
                 ),
                 rrb.TextLogView(origin="/events", name="detection events"),
                 column_shares=[2, 1],
             ),
-            row_shares=[4, 1],
+            # about 45 px per lane at 1000 px: every lane visible at 1600x1000
+            row_shares=[5.2, 0.55 + 0.25 * n_lanes],
         ),
-        rrb.TimePanel(state="expanded", timeline=TIMELINE),
+        time_panel,
         collapse_panels=True,
     )

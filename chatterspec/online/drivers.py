@@ -95,6 +95,23 @@ def _chunks(total: int, size: int) -> Iterator[tuple[int, int]]:
         yield lo, min(lo + size, total)
 
 
+def _record_span(monitor: ChatteringMonitor, total: int, *, raw: bool) -> tuple[float, float] | None:
+    """Time span (s) of the frames a fresh ``monitor`` will emit from ``total`` samples: the first
+    frame's centre minus half a hop to the last one's plus half a hop (None if no frame fits)."""
+    if monitor.n_samples or monitor.n_frames:
+        return None  # not a fresh monitor: the record's extent is not known
+    n_chat = total - 1 if raw else total  # raw: z(0) initializes the filters
+    if n_chat < monitor.n_window:
+        return None
+    last = (n_chat - monitor.n_window) // monitor.n_hop
+    t_chat0 = monitor.t0 + (monitor.dt if raw else 0.0)
+    half = monitor.n_hop * monitor.dt / 2.0
+    centre = (monitor.n_window - 1) / 2.0
+    first_c = t_chat0 + centre * monitor.dt
+    last_c = t_chat0 + (last * monitor.n_hop + centre) * monitor.dt
+    return (first_c - half, last_c + half)
+
+
 def run_monitor(
     monitor: ChatteringMonitor,
     sinks: Sinks,
@@ -107,6 +124,7 @@ def run_monitor(
     truth: list[tuple[float, str, bool]] | None = None,
     scroll_frames: int = 50,
     on_event: Any = None,
+    band_hz: tuple[float, float] | None = None,
 ) -> RecordingSummary:
     """Drive ``monitor`` over raw data (``z`` (T, m), ``u`` (T, p)) or precomputed ``chattering`` (N, m)
     and log everything to ``sinks``; closes the sinks at the end (also on Ctrl-C).
@@ -122,7 +140,7 @@ def run_monitor(
     chattering : array, optional
         Precomputed chattering (N, m) instead of ``z``/``u``.
     chunk_samples : int, optional
-        Samples per push; default one hop when paced and five hops otherwise
+        Samples per push; default one hop when paced and 50 hops otherwise
         (the output does not depend on it).
     rate : float, optional
         Replay speed (1.0 = real time); ``None`` runs as fast as possible.
@@ -132,6 +150,8 @@ def run_monitor(
         Columns of the scrolling spectrogram.
     on_event : callable, optional
         Called with each :class:`~chatterspec.online.monitor.DetectionEvent` (e.g. to print it).
+    band_hz : (float, float), optional
+        Spectrogram band (Hz); default :func:`~chatterspec.online.rerun_log.default_band_hz`.
 
     Returns
     -------
@@ -139,17 +159,27 @@ def run_monitor(
     """
     t_start = time.perf_counter()
     events: list[DetectionEvent] = []
-    # paced replays push one hop at a time (smooth live view); unpaced runs push 5 hops
-    # (the output does not depend on the chunking, only the per-call overhead does)
-    size = chunk_samples or (monitor.n_hop if rate is not None else 5 * monitor.n_hop)
+    # paced replays push one hop at a time (smooth live view); unpaced runs push 50 hops (10 s
+    # at the default hop: the per-push STFT and logging overhead is then small; memory stays
+    # bounded). The output does not depend on the chunking, only the per-call overhead does.
+    size = chunk_samples or (monitor.n_hop if rate is not None else 50 * monitor.n_hop)
     try:
-        logger = (
-            RerunLogger(sinks, monitor, scroll_frames=scroll_frames, truth=truth) if sinks.streams else None
-        )
         data = chattering if chattering is not None else z
         if data is None:
             raise ValueError("give z and u, or chattering")
         total = data.shape[0]
+        logger = (
+            RerunLogger(
+                sinks,
+                monitor,
+                scroll_frames=scroll_frames,
+                truth=truth,
+                band_hz=band_hz,
+                span_s=_record_span(monitor, total, raw=chattering is None),
+            )
+            if sinks.streams
+            else None
+        )
         for lo, hi in _chunks(total, size):
             if chattering is not None:
                 upd = monitor.push_chattering(chattering[lo:hi])
@@ -215,6 +245,7 @@ def record_detection(
     recording_name: str | None = None,
     application_id: str = "chatterspec",
     on_event: Any = None,
+    band_hz: tuple[float, float] | None = None,
 ) -> RecordingSummary:
     """Run the online monitor over one realization of a simulation or chattering record and record it.
 
@@ -241,6 +272,8 @@ def record_detection(
         Rerun application id.
     on_event : callable, optional
         Called with each detection event.
+    band_hz : (float, float), optional
+        Spectrogram band (Hz); see :func:`run_monitor`.
 
     Returns
     -------
@@ -274,5 +307,12 @@ def record_detection(
         default_record=default_recording_path(name),
     )
     return run_monitor(
-        mon, sinks, chunk_samples=chunk_samples, rate=rate, truth=truth, on_event=on_event, **kw
+        mon,
+        sinks,
+        chunk_samples=chunk_samples,
+        rate=rate,
+        truth=truth,
+        on_event=on_event,
+        band_hz=band_hz,
+        **kw,
     )

@@ -1,4 +1,11 @@
-"""Column-wise Rerun logging of monitor updates (:class:`RerunLogger`)."""
+"""Column-wise Rerun logging of monitor updates (:class:`RerunLogger`).
+
+One time rule for everything logged: seconds are converted once to integer
+nanoseconds by :func:`to_ns` (rounded to the nearest ns) and only integers reach
+Rerun, whether through ``send_columns`` or ``set_time``. (Rerun's own float paths
+differ: ``TimeColumn(duration=seconds)`` truncates, ``set_time(duration=seconds)``
+rounds, which put a state logged "before" a frame 1 ns after it.)
+"""
 
 from __future__ import annotations
 
@@ -8,144 +15,84 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..detection.spectral import expected_frame_spectrum
-from .blueprint import _entity, blueprint
+from ..errors import ParameterError
+from .arrow_columns import _MAX_TENSOR_ROWS, _Columns, _TimeIndex
+from .blueprint import TRUTH_LANE, _entity, blueprint, lane_entity
 from .monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
-from .viewer import DB_RANGE, TIMELINE, Sinks
+from .viewer import TIMELINE, Sinks
 
 if TYPE_CHECKING:
     pass
 
 __all__ = [
+    "DB_RANGE",
     "RerunLogger",
+    "default_band_hz",
+    "to_ns",
 ]
 
-# --------------------------------------------------------------------------- logging
-#: numpy dtype -> variant of Rerun's ``TensorBuffer`` union
-_TENSOR_DTYPES = {
-    np.dtype(np.float64): "F64",
-    np.dtype(np.float32): "F32",
-    np.dtype(np.float16): "F16",
-}
-#: Most tensors per ``send_columns`` call (keeps chunks and int32 arrow offsets small).
-_MAX_TENSOR_ROWS = 256
+#: Colour range of the spectrogram, dB re the per-frame threshold (0 dB = threshold): healthy
+#: frames (about -11 dB on average at alpha = 1e-3, Bonferroni over 499 bins) stay near black,
+#: only excess lights up; fixed so that colours mean the same in every recording.
+DB_RANGE = (-5.0, 30.0)
 
 
-class _ArrowBatch:
-    """A ready pyarrow array as a Rerun component batch (the ``ComponentBatchLike`` protocol)."""
+def to_ns(seconds: Any) -> np.ndarray:
+    """Seconds -> integer nanoseconds, rounded to the nearest ns: the one time rule of a recording.
 
-    __slots__ = ("array",)
+    Parameters
+    ----------
+    seconds : float or array of float
+        Times (s).
 
-    def __init__(self, array: Any) -> None:
-        self.array = array
-
-    def as_arrow_array(self) -> Any:
-        return self.array
-
-
-class _TimeIndex:
-    """A ``time`` column converted to arrow once and shared by several ``send_columns`` calls."""
-
-    __slots__ = ("array",)
-
-    def __init__(self, rr: Any, seconds: np.ndarray) -> None:
-        self.array = rr.TimeColumn(TIMELINE, duration=np.asarray(seconds, dtype=float)).as_arrow_array()
-
-    def timeline_name(self) -> str:
-        return TIMELINE
-
-    def as_arrow_array(self) -> Any:
-        return self.array
-
-    def __getitem__(self, sl: slice) -> _TimeIndex:
-        out = _TimeIndex.__new__(_TimeIndex)
-        out.array = self.array[sl]
-        return out
-
-
-class _Columns:
-    """``send_columns`` component columns built straight from numpy arrays.
-
-    ``rr.Tensor`` has no ``columns()`` batch constructor ("Tensors do not support
-    batches"), so a batch of tensors is assembled here as the arrow array Rerun
-    itself produces for one ``rr.log(path, rr.Tensor(...))`` per row (same
-    component descriptor, same arrow type): a reader sees one ``Tensor:data`` row
-    per frame either way. The layout is checked once against Rerun's own
-    encoding; on any mismatch (a future Rerun) ``tensors_ok`` is False and the
-    caller falls back to one ``rr.log`` per tensor.
+    Returns
+    -------
+    int64 array
+        ``round(seconds * 1e9)`` (same shape; 0-d for a scalar).
     """
+    return np.rint(np.asarray(seconds, dtype=float) * 1e9).astype(np.int64)
 
-    def __init__(self, rr: Any) -> None:
-        import pyarrow as pa  # a dependency of rerun-sdk
 
-        self.rr, self.pa = rr, pa
-        self.scalars = rr.Scalars.descriptor_scalars()
-        self.tensor = rr.Tensor.descriptor_data()
-        self.value_range = rr.Tensor.descriptor_value_range()
-        self._parts: dict[tuple, tuple] = {}
-        self.value_range_row = rr.Tensor(
-            np.zeros((1, 1)), value_range=list(DB_RANGE)
-        ).value_range.as_arrow_array()
-        self.tensors_ok = False
-        try:
-            for probe in (np.array([[1.0, 2.0, 3.0]]), np.arange(6, dtype=np.float16).reshape(1, 3, 2)):
-                names = ("freq",) if probe.ndim == 2 else ("freq", "time")
-                ref = rr.Tensor(probe[0], dim_names=list(names)).data.as_arrow_array()
-                self.tensor_type = ref.type
-                if not self._tensor_array(probe, names).equals(ref):
-                    return
-            self.tensors_ok = True
-        except Exception:  # any layout change of a future Rerun: fall back to rr.log per tensor
-            self.tensors_ok = False
+def _nice_ceil(x: float) -> float:
+    """Smallest multiple of half a decade's unit >= x (125 -> 150, 15 -> 15, 12.5 -> 15)."""
+    step = 10.0 ** np.floor(np.log10(x)) / 2.0
+    return float(np.ceil(x / step - 1e-9) * step)
 
-    def scalars_column(self, values: np.ndarray) -> Any:
-        arr = self.pa.array(np.ascontiguousarray(values, dtype=np.float64))
-        return self.rr.ComponentColumn(self.scalars, _ArrowBatch(arr))
 
-    def tensor_columns(self, data: np.ndarray, names: tuple[str, ...], *, value_range: bool = False) -> list:
-        """One ``Tensor`` row per ``data[k]`` (and the dB ``value_range`` on each row if asked)."""
-        cols = [self.rr.ComponentColumn(self.tensor, _ArrowBatch(self._tensor_array(data, names)))]
-        if value_range:
-            vr = self.pa.concat_arrays([self.value_range_row] * data.shape[0])
-            cols.append(self.rr.ComponentColumn(self.value_range, _ArrowBatch(vr)))
-        return cols
+def default_band_hz(monitor: ChatteringMonitor, factor: float = 3.0) -> tuple[float, float]:
+    """Default spectrogram band: the bins the detector tests, capped where the model has no content.
 
-    def _tensor_array(self, data: np.ndarray, names: tuple[str, ...]) -> Any:
-        pa, t = self.pa, self.tensor_type
-        data = np.ascontiguousarray(data)
-        n, shape = data.shape[0], data.shape[1:]
-        key = (n, shape, names, data.dtype)
-        parts = self._parts.get(key)
-        if parts is None:  # everything but the values: the same for every batch of this layout
-            size, nd = int(np.prod(shape)), len(shape)
-            dim_offsets = pa.array(np.arange(0, n * nd + 1, nd, dtype=np.int32))
-            shape_arr = pa.ListArray.from_arrays(
-                dim_offsets,
-                pa.array(np.tile(np.asarray(shape, dtype=np.uint64), n)),
-                type=t.field("shape").type,
-            )
-            names_arr = pa.ListArray.from_arrays(
-                dim_offsets, pa.array(list(names) * n, type=pa.string()), type=t.field("names").type
-            )
-            union = t.field("buffer").type
-            k = [f.name for f in union].index(_TENSOR_DTYPES[data.dtype])
-            children = [pa.nulls(0, type=f.type) for f in union]
-            offsets = pa.array(np.arange(0, n * size + 1, size, dtype=np.int32))
-            union_buffers = [
-                None,
-                pa.py_buffer(np.full(n, k, np.int8)),
-                pa.py_buffer(np.arange(n, dtype=np.int32)),
-            ]
-            parts = (shape_arr, names_arr, union, k, children, offsets, union_buffers)
-            if len(self._parts) > 16:
-                self._parts.clear()
-            self._parts[key] = parts
-        shape_arr, names_arr, union, k, children, offsets, union_buffers = parts
-        children = list(children)
-        children[k] = pa.ListArray.from_arrays(offsets, pa.array(data.reshape(-1)), type=union[k].type)
-        buffer = pa.Array.from_buffers(type=union, length=n, buffers=union_buffers, children=children)
-        return pa.Array.from_buffers(
-            type=t, length=n, buffers=[None], children=[shape_arr, names_arr, buffer]
-        )
+    The cap is ``factor`` times the model's highest natural frequency ``|ln(lambda)| / (2 pi dt)``
+    over the eigenvalues ``lambda`` of ``A`` (Hz), rounded up to a multiple of half a decade's unit
+    (EHA: 3 x 41.8 Hz -> 150 Hz; second-order 5 Hz plant -> 15 Hz). Without an oscillatory or
+    decaying mode (all eigenvalues 1) the band is the whole tested band.
+
+    Parameters
+    ----------
+    monitor : ChatteringMonitor
+        Gives the model, the STFT frequencies and the tested bins of the threshold.
+    factor : float
+        Multiple of the highest natural frequency kept (> 0).
+
+    Returns
+    -------
+    (lo_hz, hi_hz) : tuple of float
+        Lowest and highest tested bin frequency inside the band (Hz).
+    """
+    if not factor > 0:
+        raise ParameterError(f"factor must be > 0; got {factor!r}")
+    f = monitor.threshold.freqs_hz[monitor.threshold.tested]
+    if f.size == 0:
+        f = monitor.freqs_hz
+    lo, hi = float(f.min()), float(f.max())
+    with np.errstate(divide="ignore"):
+        s = np.log(np.linalg.eigvals(np.asarray(monitor.model.A, dtype=float)).astype(complex))
+    fn = float(np.max(np.abs(s[np.isfinite(s)]), initial=0.0)) / (2 * np.pi * monitor.dt)
+    if fn > 0:
+        cap = _nice_ceil(factor * fn)
+        inside = f[f <= cap]
+        hi = float(inside.max()) if inside.size else hi
+    return lo, hi
 
 
 @dataclass
@@ -159,14 +106,33 @@ class _Outbox:
     frames: int = 0
 
 
+_COLORS = [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189]]
+_GREY, _RED, _WHITE = [150, 150, 150], [230, 40, 40], [235, 235, 235]
+
+
 class RerunLogger:
     """Writes :class:`~chatterspec.online.monitor.MonitorUpdate` objects to the open sinks.
 
     Everything time-indexed is sent column-wise with ``send_columns`` (one call
     per entity and batch, not one ``log`` per sample or frame): to a live viewer
     at every update, to a file in batches of ``batch_samples`` samples or
-    ``batch_frames`` frames (and on :meth:`close`). The exact per-frame spectra
-    go out the same way, one ``Tensor`` row per frame.
+    ``batch_frames`` frames (and on :meth:`close`). Times follow :func:`to_ns`.
+
+    What is logged per frame (entity layout in :mod:`chatterspec.online`): the exact
+    frame spectrum (float64 ``Tensor``); the detection statistic
+    ``10 log10(max_k S_k / threshold_k)`` in dB (0 dB = threshold) with the
+    flagged frames as red points and the 0/1 verdict; ``peak_hz`` (largest excess
+    power ``S - E`` over the tested bins) and ``most_significant_hz`` (largest
+    ``S / threshold``, the detector's peak) in Hz. The verdict lanes start with
+    ``healthy`` (or the monitor's current state) before the first frame and change
+    exactly at the events.
+
+    The spectrogram shows ``10 log10(S / threshold)`` in dB over ``band_hz``,
+    clipped to :data:`DB_RANGE` (float16): in a file ONE tensor per channel for the
+    whole record (``freq`` x ``time``, one column per frame, no padding), logged
+    on :meth:`close` at the start of the record; a live viewer gets a scrolling
+    view of the last ``scroll_frames`` columns after every frame whose time
+    dimension names the newest (right-most) column's time.
 
     Parameters
     ----------
@@ -174,18 +140,26 @@ class RerunLogger:
     monitor : ChatteringMonitor
         Gives channels, frequencies, threshold and the boundary layer.
     scroll_frames : int
-        Columns in the scrolling spectrogram (50 = 10 s at a 0.2 s hop).
-    file_scroll_every : int, optional
-        Frames between two scrolling-spectrogram tensors in the file (the live
-        viewer gets one per frame); the last one is always written on close.
-        Default ``scroll_frames``: the file's 2-D blocks then tile the record
-        without overlap (each frame in exactly one block).
+        Columns of the live scrolling spectrogram (50 = 10 s at a 0.2 s hop).
+    band_hz : (float, float), optional
+        Spectrogram band (Hz); default :func:`default_band_hz`.
+    span_s : (float, float), optional
+        Time span (s) the whole record's spectrogram will cover (first frame's
+        centre minus half a hop to the last one's plus half a hop), when known in
+        advance (a file): the file's blueprint then shows exactly this span in
+        every time-series view and opens paused on the whole record.
+    file_block_frames : int
+        Most frames in one spectrogram tensor of the file (bounds memory on long
+        streams: 18 000 frames = 1 h at a 0.2 s hop, ~16 MB for 3 channels x 150 bins);
+        longer records get consecutive blocks that tile the record.
     batch_samples, batch_frames : int
-        A file batch is sent once this many samples or frames are buffered.
+        A file batch is sent once this many samples or frames are buffered (default one
+        minute of 1 kHz data / 0.2 s hops: ~30 ``send_columns`` calls per minute of data, each
+        costing ~0.1 ms of fixed overhead, and at most ~8 MB buffered for 3 channels).
     truth : list of (start_s, label, is_fault), optional
-        True fault timeline to draw in ``/truth/plant``.
+        True fault timeline, drawn as the top lane.
     send_blueprint : bool
-        Send the default :func:`blueprint` to the sinks (default True).
+        Send the default :func:`~chatterspec.online.blueprint.blueprint` to the sinks (default True).
     """
 
     def __init__(
@@ -194,63 +168,104 @@ class RerunLogger:
         monitor: ChatteringMonitor,
         *,
         scroll_frames: int = 50,
-        file_scroll_every: int | None = None,
-        batch_samples: int = 10_000,
-        batch_frames: int = 50,
+        band_hz: tuple[float, float] | None = None,
+        span_s: tuple[float, float] | None = None,
+        file_block_frames: int = 18_000,
+        batch_samples: int = 60_000,
+        batch_frames: int = 300,
         truth: list[tuple[float, str, bool]] | None = None,
         send_blueprint: bool = True,
     ) -> None:
+        import pyarrow as pa
         import rerun as rr
 
-        self.rr = rr
+        self.rr, self.pa = rr, pa
         self.sinks = sinks
         self.monitor = monitor
         self.channels = monitor.channels
         self.keys = [_entity(c) for c in self.channels]
+        self.lanes = [lane_entity(i, c) for i, c in enumerate(self.channels)]
         self.scroll_frames = int(scroll_frames)
+        self.file_block_frames = int(file_block_frames)
+        if self.scroll_frames < 1 or self.file_block_frames < 1:
+            raise ParameterError("scroll_frames and file_block_frames must be >= 1")
         m = len(self.channels)
-        bins = monitor.freqs_hz.shape[0]
-        self._expected = expected_frame_spectrum(
-            monitor.model, monitor.freqs_hz, monitor.settings.stft, monitor.dt
+        freqs = monitor.freqs_hz
+        thr = monitor.threshold
+        self._expected = expected_frame_spectrum(monitor.model, freqs, monitor.settings.stft, monitor.dt)
+        # the bins tested by the detector (a slice when contiguous: a view, no copy)
+        tested = np.flatnonzero(thr.tested)
+        contiguous = tested.size > 0 and bool(np.all(np.diff(tested) == 1))
+        self._tested = slice(int(tested[0]), int(tested[-1]) + 1) if contiguous else tested
+        self._tested_hz = freqs[tested]
+        self._tested_expected_cm = np.ascontiguousarray(self._expected[tested].T)[:, None, :]  # (m, 1, k)
+        lo, hi = default_band_hz(monitor) if band_hz is None else (float(band_hz[0]), float(band_hz[1]))
+        inside = np.flatnonzero((freqs >= lo - 1e-9) & (freqs <= hi + 1e-9))
+        if inside.size == 0:
+            raise ParameterError(
+                f"band_hz {band_hz} holds no STFT bin "
+                f"({freqs[0]:g} .. {freqs[-1]:g} Hz, step {freqs[1]:g} Hz)"
+            )
+        self.band = slice(int(inside[0]), int(inside[-1]) + 1)
+        self.band_hz = (float(freqs[self.band][0]), float(freqs[self.band][-1]))
+        self._band_thr_db = (10.0 * np.log10(np.maximum(thr.values[self.band], 1e-300))).astype(np.float32)
+        self.hop_s = monitor.n_hop * monitor.dt
+        self.span_s = span_s
+        self._freq_dim = (
+            f"freq {self.band_hz[0]:g}-{self.band_hz[1]:g} Hz ({freqs[1] - freqs[0]:g} Hz/row, up)"
         )
-        self._expected_db = (10.0 * np.log10(np.maximum(self._expected, 1e-300))).astype(np.float32)
-        # ring of the last scroll_frames columns in dB (slot j % S holds frame j)
-        self._ring = np.full((self.scroll_frames, bins, m), DB_RANGE[0], dtype=np.float16)
+        # live: ring of the last scroll_frames dB columns (slot j % S holds frame j)
+        nb = self.band.stop - self.band.start
+        self._ring = np.zeros((self.scroll_frames, nb, m), dtype=np.float16)
         self._ring_n = 0
-        self._since_file_scroll = 0
-        self._file_block_t0 = 0.0
-        self.file_scroll_every = int(file_scroll_every or self.scroll_frames)
+        # file: the dB columns of the current block, frame times (ns) of its first / last column
+        self._file_cols: list[np.ndarray] = []
+        self._file_n = 0
+        self._file_block_start: int | None = None
+        self._file_t: tuple[float, float] | None = None
         self.batch_samples = int(batch_samples)
         self.batch_frames = int(batch_frames)
-        self._cols = _Columns(rr)
+        self._cols = _Columns(rr, DB_RANGE)
         self._boxes = [_Outbox(s, live=s is sinks.live_stream) for s in sinks.streams]
-        self._last_frame_time: float | None = None
         self.psi = monitor.settings.psi
+        self._origin_ns: int | None = None  # earliest time logged (truth start / initial state)
+        self._started = False
         if send_blueprint:
-            sinks.send_blueprint(blueprint(self.channels, has_truth=bool(truth)))
+            for s in sinks.streams:
+                bp = blueprint(
+                    self.channels,
+                    has_truth=bool(truth),
+                    band_hz=self.band_hz,
+                    span_s=None if s is sinks.live_stream else span_s,
+                    db_range=DB_RANGE,
+                )
+                s.send_blueprint(bp, make_active=True, make_default=True)
         self._log_static(truth)
 
     def _each(self, fn: Any) -> None:
         for s in self.sinks.streams:
             fn(s)
 
+    def _set_time(self, s: Any, ns: int) -> None:
+        s.set_time(TIMELINE, duration=np.timedelta64(int(ns), "ns"))
+
     def _log_static(self, truth: list[tuple[float, str, bool]] | None) -> None:
         rr = self.rr
         thr = self.monitor.threshold
         units = self.monitor.model.output_units
-        colors = [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189]]
-        for i, (name, c) in enumerate(zip(self.channels, self.keys, strict=True)):
-            unit = f" [{units[i]}]" if units[i] else ""
+        lo, hi = self.band_hz
 
-            def static(s: Any, name: str = name, c: str = c, i: int = i, unit: str = unit) -> None:
-                col = colors[i % len(colors)]
+        def static(s: Any) -> None:
+            for i, (name, c) in enumerate(zip(self.channels, self.keys, strict=True)):
+                unit = f" [{units[i]}]" if units[i] else ""
+                col = _COLORS[i % len(_COLORS)]
                 s.log(
                     f"/chattering/{c}/e", rr.SeriesLines(colors=[col], names=[f"{name}{unit}"]), static=True
                 )
                 for side in ("upper", "lower"):
                     s.log(
                         f"/chattering/{c}/psi_{side}",
-                        rr.SeriesLines(colors=[[120, 120, 120]], widths=[1.0], names=[f"±psi {side}"]),
+                        rr.SeriesLines(colors=[_GREY], widths=[1.0], names=[f"±psi {side}"]),
                         static=True,
                     )
                 s.log(f"/signal/{c}/measured", rr.SeriesLines(colors=[col], names=["measured"]), static=True)
@@ -260,76 +275,127 @@ class RerunLogger:
                     static=True,
                 )
                 s.log(
-                    f"/detection/{c}/peak_ratio",
-                    rr.SeriesLines(colors=[col], widths=[2.0], names=["peak S/threshold"]),
+                    f"/detection/{c}/statistic_db",
+                    rr.SeriesLines(colors=[col], widths=[1.5], names=["max S/threshold [dB]"]),
                     static=True,
                 )
                 s.log(
-                    f"/detection/{c}/threshold",
-                    rr.SeriesLines(colors=[[214, 39, 40]], widths=[1.0], names=["threshold (1.0)"]),
+                    f"/detection/{c}/threshold_db",
+                    rr.SeriesLines(colors=[_GREY], widths=[1.0], names=["threshold (0 dB)"]),
+                    static=True,
+                )
+                s.log(
+                    f"/detection/{c}/fault",
+                    rr.SeriesPoints(colors=[_RED], marker_sizes=[2.5], names=["fault (flagged frame)"]),
                     static=True,
                 )
                 s.log(
                     f"/detection/{c}/verdict",
-                    rr.SeriesPoints(colors=[[214, 39, 40]], names=["verdict (1 = fault)"]),
+                    rr.SeriesPoints(colors=[_RED], names=["verdict (1 = fault)"]),
+                    static=True,
+                )
+                s.log(
+                    f"/frequency/{c}/peak_hz",
+                    rr.SeriesLines(colors=[col], widths=[1.0], names=["peak_hz: largest S-E [Hz]"]),
+                    static=True,
+                )
+                s.log(
+                    f"/frequency/{c}/most_significant_hz",
+                    rr.SeriesPoints(
+                        colors=[_WHITE], marker_sizes=[1.5], names=["most_significant_hz: largest S/thr [Hz]"]
+                    ),
                     static=True,
                 )
                 s.log(f"/threshold/{c}", rr.Tensor(thr.values[:, i], dim_names=["freq"]), static=True)
                 s.log(f"/expected/{c}", rr.Tensor(self._expected[:, i], dim_names=["freq"]), static=True)
                 s.log(
-                    f"/state/{c}",
+                    self.lanes[i],
                     rr.StateConfiguration(
                         values=["healthy", "fault"],
                         labels=[f"{name}: healthy", f"{name}: FAULT"],
-                        colors=np.array([0x4CAF50FF, 0xEF5350FF], dtype=np.uint32),
+                        colors=np.array([0x2E7D32FF, 0xE53935FF], dtype=np.uint32),
                     ),
                     static=True,
                 )
-
-            self._each(static)
-        self._each(
-            lambda s: s.log(
+            s.log(
                 "/frequencies",
                 rr.TextDocument(
                     f"Spectra: {len(self.monitor.freqs_hz)} bins, 0 .. {self.monitor.freqs_hz[-1]:g} Hz "
-                    f"(step {self.monitor.freqs_hz[1]:g} Hz). {thr.describe()}"
+                    f"(step {self.monitor.freqs_hz[1]:g} Hz); spectrogram {lo:g}-{hi:g} Hz, hop "
+                    f"{self.hop_s:g} s, dB re threshold in [{DB_RANGE[0]:g}, {DB_RANGE[1]:g}]. "
+                    f"{thr.describe()}"
                 ),
                 static=True,
             )
-        )
+
+        self._each(static)
         if truth:
-            t0 = truth[0][0]
+            t_first = truth[0][0]
+            self._origin_ns = int(to_ns(t_first))
 
             def log_truth(s: Any) -> None:
-                labels = sorted({lab for _, lab, _ in truth})
+                labels = list(dict.fromkeys(lab for _, lab, _ in truth))
+                fault = {lab: f for _, lab, f in truth}
                 s.log(
-                    "/truth/plant",
+                    TRUTH_LANE,
                     rr.StateConfiguration(
                         values=labels,
                         labels=[f"true plant: {lab}" for lab in labels],
                         colors=np.array(
-                            [0x9E9E9EFF if lab == "healthy" else 0xFF9800FF for lab in labels],
-                            dtype=np.uint32,
+                            [0xFF9800FF if fault[lab] else 0x757575FF for lab in labels], dtype=np.uint32
                         ),
                     ),
                     static=True,
                 )
-                for start, label, _ in truth:
-                    s.set_time(TIMELINE, duration=max(start, t0))
-                    s.log("/truth/plant", rr.StateChange(state=label))
+                ns = to_ns([max(start, t_first) for start, _, _ in truth])
+                s.send_columns(
+                    TRUTH_LANE,
+                    indexes=[_TimeIndex(self.pa, ns)],
+                    columns=rr.StateChange.columns(state=[lab for _, lab, _ in truth]),
+                )
 
             self._each(log_truth)
-        self._each(self._initial_state)
 
-    def _initial_state(self, s: Any) -> None:
-        s.set_time(TIMELINE, duration=float(self.monitor.frame_time(0)))
-        for c in self.keys:
-            s.log(f"/state/{c}", self.rr.StateChange(state="healthy"))
+    def _initial_state(self, upd: MonitorUpdate) -> None:
+        """The lanes' state before ``upd``: logged before its first sample and frame (1 ns before
+        the earliest of them at least), so no frame's verdict can land before it."""
+        mon, fr = self.monitor, upd.frames
+        m = len(self.channels)
+        state = mon.active  # after upd: undo its first event per channel
+        seen = np.zeros(m, dtype=bool)
+        for ev in upd.events:
+            if not seen[ev.channel_index]:
+                seen[ev.channel_index] = True
+                state[ev.channel_index] = ev.kind == "fault-end"
+        n_before = mon.n_frames - fr.n_frames
+        if n_before == 0:  # the record's start: the first chattering sample
+            t0 = mon.frame_time(0) - (mon.n_window - 1) / 2.0 * mon.dt
+            ns = min(int(to_ns(t0)), int(to_ns(mon.frame_time(0))) - 1)
+        else:
+            firsts = [t[0] for t in (upd.t, fr.times_s) if t.shape[0]]
+            ns = int(to_ns(min(firsts))) - 1
+        self._origin_ns = ns if self._origin_ns is None else min(ns, self._origin_ns)
+
+        def log(s: Any) -> None:
+            self._set_time(s, ns)
+            for i in range(m):
+                s.log(self.lanes[i], self.rr.StateChange(state="fault" if state[i] else "healthy"))
+
+        self._each(log)
 
     def log_update(self, upd: MonitorUpdate) -> None:
-        """Queue one update; send it at once to a live viewer, in batches to a file."""
+        """Queue one update; send it at once to a live viewer, in batches to a file.
+
+        Parameters
+        ----------
+        upd : MonitorUpdate
+            What one push of the monitor produced.
+        """
         fr = upd.frames
         if upd.t.shape[0] or fr.n_frames:
+            if not self._started:
+                self._started = True
+                self._initial_state(upd)
             for box in self._boxes:
                 box.updates.append(upd)
                 box.samples += upd.t.shape[0]
@@ -337,7 +403,7 @@ class RerunLogger:
                 if box.live or box.samples >= self.batch_samples or box.frames >= self.batch_frames:
                     self._send(box)
         if fr.n_frames:
-            self._scroll(fr)
+            self._spectrogram(fr)
 
     def flush(self) -> None:
         """Send everything buffered (bulk ``send_columns``)."""
@@ -345,26 +411,25 @@ class RerunLogger:
             self._send(box)
 
     def close(self) -> None:
-        """Send what is buffered, and the final scrolling spectrogram to the file."""
+        """Send what is buffered, and the file's spectrogram (the whole record, or its last block)."""
         self.flush()
-        if self._last_frame_time is not None and self._since_file_scroll and self.sinks.file_stream:
-            self._log_scroll([self.sinks.file_stream], self._file_block_t0)
-            self._since_file_scroll = 0
+        self._flush_file_block()
 
     def _send(self, box: _Outbox) -> None:
         if not box.updates:
             return
         ups, box.updates, box.samples, box.frames = box.updates, [], 0, 0
-        s, cols = box.stream, self._cols
+        s, cols, pa = box.stream, self._cols, self.pa
         t = np.concatenate([u.t for u in ups]) if len(ups) > 1 else ups[0].t
         if t.size:
-            tcol = _TimeIndex(self.rr, t)
-            series = {"e": np.concatenate([u.chattering for u in ups])}
+            ns = to_ns(t)
+            tcol = _TimeIndex(pa, ns)
+            series = {"e": np.concatenate([u.chattering for u in ups]) if len(ups) > 1 else ups[0].chattering}
             for key in ("measured", "estimate"):
                 parts = [getattr(u, key) for u in ups]
                 if all(p is not None for p in parts):
-                    series[key] = np.concatenate(parts)
-            ends = _TimeIndex(self.rr, t[[0, -1]])
+                    series[key] = np.concatenate(parts) if len(parts) > 1 else parts[0]
+            ends = _TimeIndex(pa, ns[[0, -1]])
             for i, c in enumerate(self.keys):
                 for key, arr in series.items():
                     path = f"/chattering/{c}/e" if key == "e" else f"/signal/{c}/{key}"
@@ -375,28 +440,51 @@ class RerunLogger:
                         s.send_columns(f"/chattering/{c}/psi_{side}", indexes=[ends], columns=[col])
         frames = [u.frames for u in ups if u.frames.n_frames]
         if frames:
-            times = np.concatenate([f.times_s for f in frames])
-            power = np.concatenate([f.power for f in frames])
-            ratio = np.concatenate([f.peak_ratio for f in frames])
-            flags = np.concatenate([f.flags for f in frames])
-            fcol = _TimeIndex(self.rr, times)
-            ones = np.ones(times.shape[0])
+            one = len(frames) == 1
+            times = frames[0].times_s if one else np.concatenate([f.times_s for f in frames])
+            power = frames[0].power if one else np.concatenate([f.power for f in frames])
+            ratio = frames[0].peak_ratio if one else np.concatenate([f.peak_ratio for f in frames])
+            flags = frames[0].flags if one else np.concatenate([f.flags for f in frames])
+            sig_hz = frames[0].peak_hz if one else np.concatenate([f.peak_hz for f in frames])
+            fns = to_ns(times)
+            fcol = _TimeIndex(pa, fns)
+            fends = _TimeIndex(pa, fns[[0, -1]])
+            stat_db = 10.0 * np.log10(np.maximum(ratio, 1e-30))
+            # one channel-major copy (m, F, bins): contiguous rows for the tensors and a fast argmax
+            pc = np.ascontiguousarray(np.moveaxis(power, 2, 0))
+            # peak_hz: the tested bin with the largest excess power S - E, (m, F)
+            excess = pc[:, :, self._tested] - self._tested_expected_cm
+            peak_hz = self._tested_hz[np.argmax(excess, axis=-1)].T
+            zero = cols.scalars_column(np.zeros(2))
             for i, c in enumerate(self.keys):
-                self._send_spectra(s, f"/spectrum/{c}", fcol, times, power[:, :, i])
-                for key, vals in (("peak_ratio", ratio[:, i]), ("threshold", ones), ("verdict", flags[:, i])):
-                    col = cols.scalars_column(vals)
-                    s.send_columns(f"/detection/{c}/{key}", indexes=[fcol], columns=[col])
+                self._send_spectra(s, f"/spectrum/{c}", fcol, fns, pc[i])
+                det = f"/detection/{c}"
+                s.send_columns(
+                    f"{det}/statistic_db", indexes=[fcol], columns=[cols.scalars_column(stat_db[:, i])]
+                )
+                s.send_columns(f"{det}/threshold_db", indexes=[fends], columns=[zero])
+                s.send_columns(f"{det}/verdict", indexes=[fcol], columns=[cols.scalars_column(flags[:, i])])
+                hit = np.flatnonzero(flags[:, i])
+                if hit.size:
+                    s.send_columns(
+                        f"{det}/fault",
+                        indexes=[_TimeIndex(pa, fns[hit])],
+                        columns=[cols.scalars_column(stat_db[hit, i])],
+                    )
+                fq = f"/frequency/{c}"
+                s.send_columns(f"{fq}/peak_hz", indexes=[fcol], columns=[cols.scalars_column(peak_hz[:, i])])
+                s.send_columns(
+                    f"{fq}/most_significant_hz", indexes=[fcol], columns=[cols.scalars_column(sig_hz[:, i])]
+                )
         events = [ev for u in ups for ev in u.events]
         if events:
             self._send_events(s, events)
 
-    def _send_spectra(
-        self, s: Any, path: str, tcol: _TimeIndex, times: np.ndarray, power: np.ndarray
-    ) -> None:
+    def _send_spectra(self, s: Any, path: str, tcol: _TimeIndex, ns: np.ndarray, power: np.ndarray) -> None:
         """One exact (float64) ``Tensor`` row per frame: ``power`` is (frames, bins)."""
         if not self._cols.tensors_ok:
             for f in range(power.shape[0]):
-                s.set_time(TIMELINE, duration=float(times[f]))
+                self._set_time(s, ns[f])
                 s.log(path, self.rr.Tensor(power[f], dim_names=["freq"]))
             return
         for lo in range(0, power.shape[0], _MAX_TENSOR_ROWS):
@@ -404,79 +492,103 @@ class RerunLogger:
             cols = self._cols.tensor_columns(power[lo:hi], ("freq",))
             s.send_columns(path, indexes=[tcol[lo:hi]], columns=cols)
 
+    @staticmethod
+    def _event_text(ev: DetectionEvent) -> str:
+        db = 10.0 * np.log10(max(ev.peak_ratio, 1e-30))
+        if ev.kind == "fault-start":
+            return (
+                f"{ev.channel}: FAULT from {ev.time_s:.2f} s (onset ~{ev.estimate_s:.2f} s), "
+                f"{db:+.1f} dB at {ev.peak_hz:.1f} Hz"
+            )
+        return f"{ev.channel}: healthy again at {ev.time_s:.2f} s (worst {db:+.1f} dB at {ev.peak_hz:.1f} Hz)"
+
     def _send_events(self, s: Any, events: list[DetectionEvent]) -> None:
-        rr = self.rr
-        tcol = _TimeIndex(rr, np.array([ev.time_s for ev in events]))
-        text = [f"{ev.kind} {ev.channel}: {ev.describe()}" for ev in events]
+        rr, pa = self.rr, self.pa
+        ns = to_ns([ev.time_s for ev in events])
+        text = [self._event_text(ev) for ev in events]
         level = ["WARN" if ev.kind == "fault-start" else "INFO" for ev in events]
-        s.send_columns("/events", indexes=[tcol], columns=rr.TextLog.columns(text=text, level=level))
-        for i, c in enumerate(self.keys):
+        s.send_columns(
+            "/events", indexes=[_TimeIndex(pa, ns)], columns=rr.TextLog.columns(text=text, level=level)
+        )
+        for i in range(len(self.keys)):
             mine = [k for k, ev in enumerate(events) if ev.channel_index == i]
             if mine:
                 state = ["fault" if events[k].kind == "fault-start" else "healthy" for k in mine]
                 s.send_columns(
-                    f"/state/{c}",
-                    indexes=[_TimeIndex(rr, np.array([events[k].time_s for k in mine]))],
+                    self.lanes[i],
+                    indexes=[_TimeIndex(pa, ns[mine])],
                     columns=rr.StateChange.columns(state=state),
                 )
 
-    # ------------------------------------------------------------------ scrolling spectrogram
-    def _scroll(self, fr: Any) -> None:
-        """Push the frames' dB columns into the ring; a live viewer gets the 2-D view after every
-        frame, the file one view every ``file_scroll_every`` frames."""
-        live, file = self.sinks.live_stream, self.sinks.file_stream
-        every = self.file_scroll_every
-        F, lo = fr.n_frames, 0
-        while lo < F:
-            step = 1 if live is not None else max(1, min(F - lo, every - self._since_file_scroll))
-            if self._since_file_scroll == 0:
-                self._file_block_t0 = float(fr.times_s[lo])
-            self._ring_put(fr.power[lo : lo + step])
-            lo += step
-            self._since_file_scroll += step
-            if live is not None:
-                self._log_scroll([live], float(fr.times_s[lo - 1]))
-            if file is not None and self._since_file_scroll >= every:
-                # a file block is stamped with its FIRST frame's time, so that a reviewer
-                # scrubbing through the recording sees the block that covers the cursor
-                self._log_scroll([file], self._file_block_t0)
-                self._since_file_scroll = 0
-        self._last_frame_time = float(fr.times_s[-1])
-
-    def _ring_put(self, power: np.ndarray) -> None:
-        S, n_all = self.scroll_frames, power.shape[0]
-        power = power[-S:]  # older frames would be overwritten in the ring anyway
-        n = power.shape[0]
-        with np.errstate(divide="ignore", invalid="ignore"):  # 0 -> -inf -> clipped
-            db = np.log10(power.astype(np.float32))  # float32 is plenty for a float16 image
-        db *= 10.0
-        db -= self._expected_db
-        np.clip(db, DB_RANGE[0], DB_RANGE[1], out=db)
-        self._ring_n += n_all
-        self._ring[(self._ring_n - n + np.arange(n)) % S] = db
-
-    def _scroll_image(self) -> np.ndarray:
-        """(m, bins, S) float16, oldest column left (blank columns before the first frames)."""
-        S = self.scroll_frames
-        return np.transpose(self._ring[(self._ring_n + np.arange(S)) % S], (2, 1, 0))
-
-    def _log_scroll(self, targets: list[Any], t: float) -> None:
-        rr = self.rr
-        img = self._scroll_image()
-        tcol = _TimeIndex(rr, np.array([t]))
-        for s in targets:
-            for i, c in enumerate(self.keys):
-                if self._cols.tensors_ok:
-                    cols = self._cols.tensor_columns(img[i][None], ("freq", "time"), value_range=True)
-                    s.send_columns(f"/spectrogram/{c}", indexes=[tcol], columns=cols)
-                else:
-                    s.set_time(TIMELINE, duration=t)
-                    s.log(
-                        f"/spectrogram/{c}",
-                        rr.Tensor(img[i], dim_names=["freq", "time"], value_range=list(DB_RANGE)),
-                    )
-
     def log_event(self, ev: DetectionEvent) -> None:
-        """Log one detection event at once (text log and state lane) to every stream."""
+        """Log one detection event at once (text log and state lane) to every stream.
+
+        Parameters
+        ----------
+        ev : DetectionEvent
+            The event (its time is converted by :func:`to_ns`).
+        """
         for s in self.sinks.streams:
             self._send_events(s, [ev])
+
+    # ------------------------------------------------------------------ spectrogram
+    def _db(self, power: np.ndarray) -> np.ndarray:
+        """(F, bins, m) power -> (F, band, m) float16 ``10 log10(S / threshold)`` clipped to DB_RANGE."""
+        with np.errstate(divide="ignore", invalid="ignore"):  # 0 -> -inf -> clipped
+            db = np.log10(power[:, self.band, :].astype(np.float32))
+        db *= 10.0
+        db -= self._band_thr_db
+        np.clip(db, DB_RANGE[0], DB_RANGE[1], out=db)
+        return db.astype(np.float16)
+
+    def _spectrogram(self, fr: Any) -> None:
+        db = self._db(fr.power)
+        if self.sinks.file_stream is not None:
+            lo = 0
+            while lo < db.shape[0]:
+                take = min(db.shape[0] - lo, self.file_block_frames - self._file_n)
+                if self._file_n == 0:
+                    self._file_t = (float(fr.times_s[lo]), float(fr.times_s[lo]))
+                    if self._file_block_start is None:  # the first block starts with the record
+                        self._file_block_start = self._origin_ns
+                    else:
+                        self._file_block_start = int(to_ns(fr.times_s[lo] - self.hop_s / 2))
+                self._file_cols.append(db[lo : lo + take])
+                self._file_n += take
+                self._file_t = (self._file_t[0], float(fr.times_s[lo + take - 1]))
+                lo += take
+                if self._file_n >= self.file_block_frames:
+                    self._flush_file_block()
+        live = self.sinks.live_stream
+        if live is not None:
+            S = self.scroll_frames
+            for f in range(db.shape[0]):
+                self._ring[self._ring_n % S] = db[f]
+                self._ring_n += 1
+                n = min(self._ring_n, S)
+                img = self._ring[(self._ring_n - n + np.arange(n)) % S]  # oldest first, no padding
+                t = float(fr.times_s[f])
+                names = [self._freq_dim, f"time ({self.hop_s:g} s/col), newest (right) = {t:.1f} s"]
+                self._set_time(live, int(to_ns(t)))
+                for i, c in enumerate(self.keys):
+                    live.log(
+                        f"/spectrogram/{c}",
+                        self.rr.Tensor(img[:, :, i].T, dim_names=names, value_range=list(DB_RANGE)),
+                    )
+
+    def _flush_file_block(self) -> None:
+        file = self.sinks.file_stream
+        if file is None or not self._file_n:
+            return
+        block = np.concatenate(self._file_cols) if len(self._file_cols) > 1 else self._file_cols[0]
+        self._file_cols, self._file_n = [], 0
+        ta, tb = self._file_t
+        names = [
+            self._freq_dim,
+            f"time {ta - self.hop_s / 2:.2f}-{tb + self.hop_s / 2:.2f} s ({self.hop_s:g} s/col)",
+        ]
+        ns = self._file_block_start if self._file_block_start is not None else int(to_ns(ta))
+        self._set_time(file, ns)
+        for i, c in enumerate(self.keys):
+            img = np.ascontiguousarray(block[:, :, i].T)  # (band, frames): freq rows, time columns
+            file.log(f"/spectrogram/{c}", self.rr.Tensor(img, dim_names=names, value_range=list(DB_RANGE)))
