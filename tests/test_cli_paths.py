@@ -48,11 +48,11 @@ def not_a_folder(tmp_path: Path) -> Path:
 
 @pytest.fixture
 def no_compute(monkeypatch):
-    import chatterspec.cli.calibrate as cal_cli
-    import chatterspec.cli.far as far_cli
-    import chatterspec.cli.power as power_cli
     import chatterspec.figures.paper_figures as pf
     import chatterspec.plants.simulate as sim
+    import chatterspec.studies.calibration as cal_cli
+    import chatterspec.studies.false_alarms as far_cli
+    import chatterspec.studies.power as power_cli
 
     monkeypatch.setattr(sim, "simulate", _forbid)
     monkeypatch.setattr(power_cli, "power_study", _forbid)
@@ -261,7 +261,7 @@ def test_monitor_ctrl_c_names_the_partial_recording(tmp_path: Path, monkeypatch,
 
 
 def test_chunk_runs_not_a_multiple_of_64_is_rounded_with_a_note(monkeypatch, capsys) -> None:
-    import chatterspec.cli.calibrate as cal_cli
+    import chatterspec.studies.calibration as cal_cli
 
     seen = {}
 

@@ -10,7 +10,6 @@ import json
 import sys
 from typing import Any
 
-from ..studies.calibration import calibrate
 from ._common import (
     Outputs,
     alpha_arg,
@@ -96,6 +95,8 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         check_output_file(args.plot, "--plot", suffixes=figure_suffixes())
     outputs = Outputs()
+    from ..studies.calibration import calibrate
+
     cal = calibrate(args.name, alpha=args.alpha, runs=args.runs, seed=args.seed, **execution(args))
     doc = cal.to_dict()
     if args.out:

@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 
-from ..studies.calibration import load_calibration
-from ..studies.false_alarms import false_alarm_study
 from ._common import Outputs, check_output_file, figure_suffixes
 from .calibrate import add_common, execution
 
@@ -31,6 +29,9 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         check_output_file(args.plot, "--plot", suffixes=figure_suffixes())
     outputs = Outputs()
+    from ..studies.calibration import load_calibration
+    from ..studies.false_alarms import false_alarm_study
+
     cal = load_calibration(args.calibration) if args.calibration else None
     res = false_alarm_study(
         args.name,

@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 
-from ..plants.scenarios import catalogue
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -25,6 +23,8 @@ def _fmt(x: float | None, spec: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..plants.scenarios import catalogue
+
     entries = [sc.describe() for sc in catalogue().values()]
     if args.json:
         print(json.dumps({"scenarios": entries}, indent=2))
