@@ -24,6 +24,7 @@ COMMANDS: tuple[str, ...] = (
     "spectrum",
     "figures",
     "monitor",
+    "simulate",
     "replay",
     "calibrate",
     "far",
