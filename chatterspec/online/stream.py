@@ -127,20 +127,30 @@ def follow_file(
     except OSError as exc:
         raise DataFileError(f"{where}: cannot be followed ({exc.strerror or exc})") from None
     try:
-        if from_end:
-            while True:  # comment lines and the header first
-                line = fh.readline()
-                if not line:
-                    break
-                yield line, time.perf_counter()
-                if line.strip() and not line.lstrip().startswith(b"#"):
-                    break
+        head: list[bytes] = []
+        if from_end:  # positions fixed now (not when the consumer resumes us)
             size = os.fstat(fh.fileno()).st_size
-            if size > fh.tell():  # skip what is already there, up to its last complete line
-                back = min(size - fh.tell(), read_bytes)
+            buf = fh.read(min(size, 1 << 20))
+            offset, found = 0, False
+            while not found:  # comment lines and the header
+                nl = buf.find(b"\n", offset)
+                if nl < 0:
+                    break
+                line = buf[offset : nl + 1]
+                head.append(line)
+                offset = nl + 1
+                found = bool(line.strip()) and not line.lstrip().startswith(b"#")
+            start = 0
+            if found:
+                back = min(size - offset, read_bytes)
                 fh.seek(size - back)
                 cut = fh.read(back).rfind(b"\n")
-                fh.seek(size - back + cut + 1 if cut >= 0 else size)
+                start = size - back + cut + 1 if cut >= 0 else offset
+            else:
+                head = []
+            fh.seek(start if found else 0)
+        for line in head:
+            yield line, time.perf_counter()
         last_data = time.perf_counter()
         inode = os.fstat(fh.fileno()).st_ino
         while True:
