@@ -207,7 +207,9 @@ class StreamSummary:
     counts : dict
         Events per kind (all of them), and ``bad-row`` (rows skipped).
     latency : dict
-        ``frames``, ``median_ms``, ``max_ms`` (see :class:`LatencyStats`).
+        ``frames``, ``median_ms``, ``max_ms`` (see :class:`LatencyStats`), and
+        ``rotation_max_ms``: the longest stop of the loop to close one recording
+        and open the next (rows arriving meanwhile wait in the pipe).
     recordings : tuple of dict
         Per ``.rrd`` written: ``path``, ``start_s`` / ``stop_s`` (data time), ``bytes``.
     live_url : str or None
@@ -300,6 +302,9 @@ class StreamMonitor:
         # before any data arrives so that opening them does not count as latency
         self._proto = ChatteringMonitor(model, settings, t0=0.0)
         self._threshold_settings = dataclasses.replace(settings, threshold=self._proto.threshold)
+        self._warm_up()
+        if self.record is not None or self.live is not None:
+            import rerun  # noqa: F401  (loaded now, not when the first rows are waiting)
         self._t_wall0 = time.perf_counter()
         self._last_t: float | None = None
         self._t_next = 0.0  # synthesized time (no time column)
@@ -320,6 +325,7 @@ class StreamMonitor:
         self._file_rows = 0
         self._file_start: float | None = None
         self._live_url: str | None = None
+        self._rotation_max_s = 0.0
         if self.live is not None or (self.record is not None and self.record_every is None):
             self._open_live()
 
@@ -419,6 +425,13 @@ class StreamMonitor:
         self._last_t = float(t[-1])
 
     # --------------------------------------------------------------- internals
+    def _warm_up(self) -> None:
+        """Run one window of zeros through a throw-away monitor before any data arrives, so that the
+        first real frame does not pay for loading compiled kernels (numba cache) or FFT plans."""
+        warm = ChatteringMonitor(self.model, self._threshold_settings)
+        n = warm.n_window + 2
+        warm.push(np.zeros((n, self.model.n_outputs)), np.zeros((n, self.model.n_inputs)))
+
     def _open_faults(self) -> tuple[str, ...]:
         if self.monitor is None:
             return ()
@@ -432,26 +445,33 @@ class StreamMonitor:
         self._reset_next = False
 
     def _push(self, z: np.ndarray, u: np.ndarray, t: np.ndarray, arrival: float) -> None:
-        lo = 0
+        # verdicts first (events out, latency taken), then logging and recording rotation, so that
+        # neither Rerun nor opening / closing a file delays a verdict of rows already read
         K = z.shape[0]
+        parts: list[tuple[MonitorUpdate, int, int]] = []
+        lo, in_file = 0, self._file_rows
         while lo < K:
-            hi = K
-            if self.record_every is not None:
-                if self._file_logger is None:
-                    self._open_file(float(t[lo]))
-                hi = min(K, lo + self.record_every - self._file_rows)
+            hi = K if self.record_every is None else min(K, lo + self.record_every - in_file)
             upd = self.monitor.push(z[lo:hi], u[lo:hi])
             self.n_rows += hi - lo
             for ev in upd.events:
                 self._emit(StreamEvent.from_detection(ev, time.time()))
             if upd.frames.n_frames:
                 self.latency.add(time.perf_counter() - arrival, upd.frames.n_frames)
+            parts.append((upd, lo, hi))
+            if self.record_every is not None:
+                in_file = (in_file + hi - lo) % self.record_every
+            lo = hi
+        for upd, lo, hi in parts:
+            if self.record_every is not None and self._file_logger is None:
+                self._open_file(float(t[lo]))
             self._log(upd)
             if self.record_every is not None:
                 self._file_rows += hi - lo
                 if self._file_rows >= self.record_every:
+                    t_rot = time.perf_counter()
                     self._close_file(float(t[hi - 1]) + self.dt)
-            lo = hi
+                    self._rotation_max_s = max(self._rotation_max_s, time.perf_counter() - t_rot)
 
     def _emit(self, ev: StreamEvent) -> None:
         self.events.append(ev)
@@ -494,6 +514,7 @@ class StreamMonitor:
     def _open_file(self, t_start: float) -> None:
         from .viewer import default_recording_path, open_sinks
 
+        t_open = time.perf_counter()
         base = self.record or default_recording_path(self.recording_name)
         now = time.time()
         stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime(now)) + f".{int(now % 1 * 1000):03d}"
@@ -506,6 +527,7 @@ class StreamMonitor:
         self._file_logger = self._logger(self._file_sinks)
         self._file_rows = 0
         self._file_start = t_start
+        self._rotation_max_s = max(self._rotation_max_s, time.perf_counter() - t_open)
 
     def _close_file(self, t_stop: float | None) -> None:
         if self._file_logger is None:
@@ -570,7 +592,7 @@ class StreamMonitor:
             wall_s=time.perf_counter() - self._t_wall0,
             events=tuple(self.events),
             counts=dict(self.counts),
-            latency=self.latency.to_dict(),
+            latency={**self.latency.to_dict(), "rotation_max_ms": 1e3 * self._rotation_max_s},
             recordings=tuple(self.recordings),
             live_url=self._live_url,
             stopped_by=stopped_by,
