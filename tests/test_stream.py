@@ -463,3 +463,22 @@ def test_stream_option_errors_are_reported_without_traceback(tmp_path, capsys, m
         ["monitor", "--model", str(EXAMPLE_MODEL), "--data", "-"], "", tmp_path, capsys, monkeypatch
     )
     assert rc == 2 and "no header line" in err
+
+
+def test_restart_resets_without_a_gap_event(spec) -> None:
+    """A producer that starts over (new header, time back to 0) is one restart event, not a gap."""
+    ds = load_data(EXAMPLE_DATA, spec.model)
+    settings = MonitorSettings(psi=tuple(spec.psi), gamma=spec.gamma)
+    events = []
+    sm = StreamMonitor(spec.model, settings, on_event=events.append)
+    sm.process(_blocks(ds.t[:5000], ds.z[:5000], ds.u[:5000]))  # through the fault start at 3.7 s
+    first = sm.monitor
+    assert first.active.any()
+    sm.process(Restart(5002, "a new header at line 5002 (the producer started over)"))
+    sm.process(_blocks(ds.t[:1500], ds.z[:1500], ds.u[:1500], np.arange(1500) + 5003))
+    summary = sm.close()
+    kinds = [e.kind for e in events]
+    assert kinds == ["fault-start", "restart"]
+    assert events[1].open_faults == ("pressure",) and events[1].sample_time_s == pytest.approx(4.999)
+    assert sm.monitor is not first and sm.monitor.n_samples == 1499  # a fresh filter: z(0) initializes
+    assert summary.n_rows == 6500 and summary.counts["restart"] == 1 and summary.counts["gap"] == 0

@@ -549,9 +549,8 @@ class StreamMonitor:
             self._file_logger.log_update(upd)
 
     def _log_text(self, ev: StreamEvent) -> None:
-        streams = [s for lg in self._loggers for s in lg.sinks.streams]
-        if self._file_logger is not None:
-            streams += self._file_logger.sinks.streams
+        sinks = [x for x in (self._live_sinks, self._file_sinks) if x is not None]
+        streams = [s for x in sinks for s in x.streams]
         if not streams or ev.sample_time_s is None:
             return
         import rerun as rr

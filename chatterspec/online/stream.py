@@ -281,9 +281,10 @@ class CsvRows:
         """
         if data is RESTART or data == RESTART:
             self._partial = b""
-            had = self.header is not None
+            had, line = self.header is not None, self.line_no
             self.header = None
-            return [Restart(self.line_no, "the followed file was truncated or replaced")] if had else []
+            self.line_no = 0  # line numbers of the new file
+            return [Restart(line, "the followed file was truncated or replaced")] if had else []
         buf = self._partial + data
         cut = buf.rfind(b"\n")
         if cut < 0:
