@@ -492,10 +492,15 @@ class StreamMonitor:
         return RerunLogger(sinks, self._proto) if sinks.streams else None
 
     def _open_live(self) -> None:
-        from .viewer import open_sinks
+        from .viewer import default_recording_path, open_sinks
 
-        if self.record_every is None:
-            sinks = open_sinks(record=self.record, live=self.live, recording_name=self.recording_name)
+        if self.record_every is None:  # a viewer that cannot be used falls back to a file, as for replays
+            sinks = open_sinks(
+                record=self.record,
+                live=self.live,
+                recording_name=self.recording_name,
+                default_record=default_recording_path(self.recording_name),
+            )
         elif self.live is not None:
             sinks = open_sinks(live=self.live, recording_name=self.recording_name)
         else:
