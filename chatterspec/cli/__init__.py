@@ -25,6 +25,7 @@ COMMANDS: tuple[str, ...] = (
     "spectrum",
     "figures",
     "monitor",
+    "simulate",
     "replay",
     "calibrate",
     "far",

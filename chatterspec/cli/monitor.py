@@ -1,9 +1,15 @@
-"""``chatterspec monitor --model MODEL.toml --data DATA.csv|DATA.npz``: monitor a user's own plant.
+"""``chatterspec monitor --model MODEL.toml --data DATA.csv|DATA.npz|-``: monitor a user's own plant.
 
 The model file and data format are documented in ``examples/README.md`` and
-:mod:`chatterspec.plants.modelfile`. The data are replayed through the online monitor
-(as fast as possible, or paced with ``--rate``), detection events are printed,
-and the run is recorded (``--record``) and/or streamed to a viewer (``--live``).
+:mod:`chatterspec.plants.modelfile`. A finished file is replayed through the online monitor
+(as fast as possible, or paced with ``--rate``); ``--data -`` reads CSV rows from
+standard input as they arrive and ``--follow`` reads a file another process is
+still writing (see :mod:`chatterspec.online.live_stream`: gaps, restarts, bad rows,
+latency, rotating recordings). Detection events are printed (``--events jsonl``:
+one JSON object per line on stdout, human lines on stderr), and the run is
+recorded (``--record``, rotated with ``--record-every``) and/or streamed to a
+viewer (``--live``). End of input, Ctrl-C and SIGTERM all finish cleanly:
+recordings get their footer and the summary is printed.
 """
 
 from __future__ import annotations
@@ -11,7 +17,9 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import signal
 import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -28,7 +36,48 @@ def register(sub: argparse._SubParsersAction) -> None:
         "names); data: CSV or NPZ with columns named after the model's outputs and inputs.",
     )
     p.add_argument("--model", required=True, type=Path, help="model file (.toml)")
-    p.add_argument("--data", required=True, type=Path, help="data file (.csv or .npz)")
+    p.add_argument(
+        "--data",
+        required=True,
+        type=Path,
+        help="data file (.csv or .npz), or '-' for CSV rows on standard input (header first), read as "
+        "they arrive",
+    )
+    p.add_argument(
+        "--follow",
+        action="store_true",
+        help="keep reading the CSV file as another process appends to it (like tail -f); stop with "
+        "Ctrl-C / SIGTERM or --idle-timeout",
+    )
+    p.add_argument("--from-end", action="store_true", help="with --follow: skip the rows already in the file")
+    p.add_argument(
+        "--idle-timeout",
+        type=float,
+        default=None,
+        metavar="S",
+        help="with --follow: stop after S seconds without new data (default: never)",
+    )
+    p.add_argument(
+        "--events",
+        choices=("text", "jsonl"),
+        default="text",
+        help="'jsonl': one JSON object per event (fault-start/-end, gap, restart) on stdout, flushed "
+        "at once; human lines go to stderr (default 'text')",
+    )
+    p.add_argument(
+        "--skip-bad-rows",
+        action="store_true",
+        help="streams: skip (and report) rows that do not parse or hold NaN/inf, as a gap; default: "
+        "stop with the error",
+    )
+    p.add_argument(
+        "--record-every",
+        type=float,
+        default=None,
+        metavar="MINUTES",
+        help="streams: start a new .rrd every MINUTES of data (each complete on its own, named "
+        "<record stem>-<UTC start time>.rrd)",
+    )
     p.add_argument(
         "--rate",
         type=float,
@@ -64,22 +113,44 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def _stream_mode(args: argparse.Namespace) -> bool:
+    stdin = str(args.data) == "-"
+    if args.follow and stdin:
+        raise ParameterError("--follow needs a file; '--data -' already reads standard input as it arrives")
+    stream = stdin or args.follow
+    if not args.follow and (args.from_end or args.idle_timeout is not None):
+        raise ParameterError("--from-end and --idle-timeout apply to --follow")
+    if stream and args.rate is not None:
+        raise ParameterError("--rate paces a file replay; a stream is monitored as it arrives")
+    if not stream and (args.skip_bad_rows or args.record_every is not None):
+        raise ParameterError(
+            "--skip-bad-rows and --record-every apply to streams (--data - or --follow); a file is "
+            "checked whole before it is replayed"
+        )
+    if args.record_every is not None and not args.record_every > 0:
+        raise ParameterError(f"--record-every must be > 0 minutes; got {args.record_every}")
+    if args.idle_timeout is not None and not args.idle_timeout > 0:
+        raise ParameterError(f"--idle-timeout must be > 0 s; got {args.idle_timeout}")
+    return stream
+
+
 def run(args: argparse.Namespace) -> int:
     from ..detection.spectral import STFTConfig
-    from ..online.drivers import run_monitor
     from ..online.monitor import ChatteringMonitor, MonitorSettings
-    from ..online.viewer import default_recording_path, open_sinks
     from ..plants.modelfile import load_data, load_model
 
     if args.rate is not None and not args.rate > 0:
         raise ParameterError(f"--rate must be > 0 (1.0 = real time); got {args.rate}")
     check_record_path(args.record)
+    stream = _stream_mode(args)
+    jsonl = args.events == "jsonl"
+    # stdout carries only JSON with --events jsonl or --json; the human lines go to stderr then
+    human = sys.stderr if (jsonl or (args.json and stream)) else sys.stdout
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         spec = load_model(args.model)
     for w in caught:
         print(f"chatterspec monitor: warning: {w.message}", file=sys.stderr)
-    data = load_data(args.data, spec.model)
     det = spec.detector
     stft = STFTConfig(
         window_s=float(det.get("window_s", 1.0)),
@@ -103,6 +174,14 @@ def run(args: argparse.Namespace) -> int:
             f"(alpha {cal.alpha:g} per frame, {cal.runs} healthy runs)",
             file=sys.stderr,
         )
+    if stream:
+        return _run_stream(args, spec, settings, jsonl, human)
+
+    from ..online.drivers import run_monitor
+    from ..online.live_stream import StreamEvent
+    from ..online.viewer import default_recording_path, open_sinks
+
+    data = load_data(args.data, spec.model)
     monitor = ChatteringMonitor(spec.model, settings, t0=float(data.t[0]))
     sinks = open_sinks(
         record=args.record,
@@ -115,8 +194,11 @@ def run(args: argparse.Namespace) -> int:
     shown = len(sinks.notes)
 
     def show(ev: object) -> None:
-        if not args.json:
-            print(ev.describe())  # type: ignore[attr-defined]
+        sev = StreamEvent.from_detection(ev, time.time())  # type: ignore[arg-type]
+        if jsonl:
+            _emit_line(sev.to_json())
+        if not args.json or jsonl:
+            print(sev.describe(), file=human, flush=True)
 
     try:
         summary = run_monitor(
@@ -145,7 +227,10 @@ def run(args: argparse.Namespace) -> int:
         doc = {"model": str(args.model), "data": str(args.data), **summary.to_dict()}
         if no_frame is not None:
             doc["notes"] = [*doc["notes"], no_frame]
-        print(json.dumps(doc, indent=2))
+        if jsonl:
+            _emit_line(json.dumps({"event": "summary", **doc}))
+        else:
+            print(json.dumps(doc, indent=2))
         return 0 if no_frame is None else 1
     if no_frame is not None:
         print(f"chatterspec monitor: error: {no_frame}", file=sys.stderr)
@@ -154,8 +239,123 @@ def run(args: argparse.Namespace) -> int:
         n = sum(e.kind == "fault-start" for e in summary.events)
         print(
             f"{summary.duration_s:.2f} s of data, {summary.n_frames} frames, {n} fault start(s); "
-            f"{summary.wall_s:.2f} s wall"
+            f"{summary.wall_s:.2f} s wall",
+            file=human,
         )
         if summary.path is not None:
-            print(f"recording: {summary.path} (open with `chatterspec replay {summary.path}`)")
+            print(f"recording: {summary.path} (open with `chatterspec replay {summary.path}`)", file=human)
     return 0
+
+
+class _Terminated(Exception):
+    """SIGTERM arrived (raised from the signal handler to unwind the read loop)."""
+
+
+def _emit_line(text: str) -> None:
+    sys.stdout.write(text + "\n")
+    sys.stdout.flush()
+
+
+def _run_stream(args: argparse.Namespace, spec: object, settings: object, jsonl: bool, human: object) -> int:
+    from ..errors import ChatterspecError
+    from ..online.live_stream import StreamMonitor, drive
+    from ..online.stream import CsvRows, follow_file, read_fd
+
+    stdin = str(args.data) == "-"
+    where = "standard input" if stdin else f"data file {str(args.data)!r}"
+    if args.follow and not args.data.is_file():
+        raise ParameterError(f"--follow: {where} does not exist (create it, header first, then follow it)")
+    model = spec.model  # type: ignore[attr-defined]
+
+    def on_event(ev: object) -> None:
+        if jsonl:
+            _emit_line(ev.to_json())  # type: ignore[attr-defined]
+        print(ev.describe(), file=human, flush=True)  # type: ignore[attr-defined]
+
+    def on_note(text: str) -> None:
+        print(f"chatterspec monitor: {text}", file=sys.stderr, flush=True)
+
+    mon = StreamMonitor(
+        model,
+        settings,  # type: ignore[arg-type]
+        record=args.record,
+        record_every_s=None if args.record_every is None else 60.0 * args.record_every,
+        live=args.live,
+        recording_name="monitor stdin" if stdin else f"monitor {args.data.name}",
+        skip_bad_rows=args.skip_bad_rows,
+        on_event=on_event,
+        on_note=on_note,
+    )
+    rows = CsvRows(model, where)
+    if stdin:
+        chunks = read_fd(sys.stdin.fileno())
+    else:
+        chunks = follow_file(args.data, from_end=args.from_end, idle_timeout_s=args.idle_timeout)
+
+    def on_term(signum: int, frame: object) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # finishing must not be interrupted again
+        raise _Terminated
+
+    previous = signal.signal(signal.SIGTERM, on_term)
+    stopped, error = "idle timeout" if args.follow else "end of input", None
+    try:
+        drive(chunks, rows, mon)
+    except KeyboardInterrupt:
+        stopped = "SIGINT"
+    except _Terminated:
+        stopped = "SIGTERM"
+    except BrokenPipeError:
+        stopped = "output closed"
+        _quiet_stdout()
+    except ChatterspecError as exc:
+        stopped, error = "error", exc
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        try:
+            summary = mon.close(stopped)
+        finally:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+            signal.signal(signal.SIGTERM, previous)
+    try:
+        _report(args, summary, jsonl, human)
+    except BrokenPipeError:
+        _quiet_stdout()
+    if error is not None:
+        raise error
+    return 0
+
+
+def _quiet_stdout() -> None:
+    """The reader of stdout went away: send further output (and the exit flush) to /dev/null."""
+    import os
+
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+
+
+def _report(args: argparse.Namespace, summary: object, jsonl: bool, human: object) -> None:
+    s = summary  # StreamSummary
+    if args.json:
+        doc = {"model": str(args.model), "data": str(args.data), **s.to_dict()}  # type: ignore[attr-defined]
+        if jsonl:
+            _emit_line(json.dumps({"event": "summary", **doc}, allow_nan=False))
+        else:
+            print(json.dumps(doc, indent=2, allow_nan=False))
+        return
+    lat = s.latency  # type: ignore[attr-defined]
+    c = s.counts  # type: ignore[attr-defined]
+    latency = (
+        f"latency median {lat['median_ms']:.2f} ms, max {lat['max_ms']:.2f} ms"
+        if lat["frames"]
+        else "no frame completed"
+    )
+    print(
+        f"{s.duration_s:.2f} s of data ({s.n_rows} rows), {s.n_frames} frames, "  # type: ignore[attr-defined]
+        f"{c['fault-start']} fault start(s), {c['gap']} gap(s), {c['restart']} restart(s), "
+        f"{c['bad-row']} bad row(s) skipped; {latency}; {s.wall_s:.2f} s wall; "  # type: ignore[attr-defined]
+        f"stopped by {s.stopped_by}",  # type: ignore[attr-defined]
+        file=human,
+    )
+    for rec in s.recordings:  # type: ignore[attr-defined]
+        print(f"recording: {rec['path']} (open with `chatterspec replay {rec['path']}`)", file=human)

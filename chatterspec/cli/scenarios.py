@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
+
+from ..errors import ParameterError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -15,7 +18,44 @@ def register(sub: argparse._SubParsersAction) -> None:
         "of its linearization at rest, marked ~).",
     )
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    p.add_argument(
+        "name", nargs="?", default=None, metavar="NAME", help="one scenario (needed by --model-toml)"
+    )
+    p.add_argument(
+        "--model-toml",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="write NAME's nominal model as a TOML model file for `chatterspec monitor --model FILE`",
+    )
     p.set_defaults(func=run)
+
+
+def export_model_toml(name: str, path: Path) -> Path:
+    """Write the nominal model of catalogue scenario ``name`` as a monitor model file.
+
+    ``psi`` is the scenario's boundary layer when it has one, otherwise three
+    standard deviations of the healthy chattering per output (eq 58; the value
+    ``examples/eha_model.toml`` uses): the smoothing SVSF then rarely chatters
+    on healthy data. The ``[detector]`` table is left to the loader's defaults.
+    """
+    import numpy as np
+
+    from ..detection.spectral import chattering_autocovariance
+    from ..plants.modelfile import write_model_toml
+    from ..plants.scenarios import scenario
+
+    sc = scenario(name)
+    if sc.psi is not None:
+        psi, why = np.asarray(sc.psi, dtype=float), "the scenario's boundary layer"
+    else:
+        psi, why = 3.0 * np.sqrt(chattering_autocovariance(sc.nominal)[0]), "3 x healthy chattering std"
+    comment = (
+        f"Nominal model of the chatterspec catalogue scenario {name!r}: {sc.description}\n"
+        f"Written by `chatterspec scenarios {name} --model-toml`; psi = {why}.\n"
+        f"Stream it: chatterspec simulate {name} | chatterspec monitor --model {path.name} --data -"
+    )
+    return write_model_toml(path, sc.nominal, psi, gamma=0.1, comment=comment)
 
 
 def _fmt(x: float | None, spec: str) -> str:
@@ -23,9 +63,20 @@ def _fmt(x: float | None, spec: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..plants.scenarios import catalogue
+    if args.model_toml is not None:
+        if args.name is None:
+            raise ParameterError("--model-toml needs a scenario NAME (see `chatterspec scenarios`)")
+        path = export_model_toml(args.name, args.model_toml)
+        if args.json:
+            print(json.dumps({"scenario": args.name, "model_toml": str(path)}, indent=2))
+        else:
+            print(f"wrote {path} (nominal model of {args.name}; use it with `chatterspec monitor --model`)")
+        return 0
+    from ..plants.scenarios import catalogue, scenario
 
     entries = [sc.describe() for sc in catalogue().values()]
+    if args.name is not None:
+        entries = [scenario(args.name).describe()]
     if args.json:
         print(json.dumps({"scenarios": entries}, indent=2))
         return 0

@@ -1,0 +1,146 @@
+"""Soak run of the live monitor (issue 13): hours of 1 kHz 3-channel data through standard input.
+
+    python benchmarks/bench_soak.py                    # 60 min of data at full speed, 10-min recordings
+    python benchmarks/bench_soak.py --minutes 10       # a shorter soak
+    python benchmarks/bench_soak.py --rate 1 --minutes 1 --record-every 0   # latency at real time
+    python benchmarks/bench_soak.py --json
+
+This process plays the producer: it simulates ``eha-healthy`` block by block
+(:func:`chatterspec.online.stream.simulate_blocks`, the source of ``chatterspec
+simulate``) and writes the CSV rows into the standard input of a
+``chatterspec monitor --data - --record ... --record-every ...`` subprocess with
+both SVSFs (the model file has ``psi``). After each minute of data has been
+written it samples the monitor's resident memory (``VmRSS``; the monitor is at
+most a pipe buffer, ~1 s of data, behind). At the end it reports the peak RSS
+(``ru_maxrss`` of the child), wall time, the monitor's latency figures and the
+size of every rotated recording, and checks the issue's criterion: RSS at the
+last minute within 10 % of RSS at minute 5.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from chatterspec.cli.scenarios import export_model_toml  # noqa: E402
+from chatterspec.online.stream import csv_header, csv_lines, simulate_blocks  # noqa: E402
+from chatterspec.plants.scenarios import scenario  # noqa: E402
+
+
+def _rss_mb(pid: int) -> float:
+    with open(f"/proc/{pid}/status") as fh:
+        for line in fh:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=60.0, help="minutes of data (default 60)")
+    ap.add_argument(
+        "--record-every", type=float, default=10.0, help="minutes per recording (0: no recording)"
+    )
+    ap.add_argument("--rate", type=float, default=0.0, help="data s per wall s (0 = full speed)")
+    ap.add_argument("--scenario", default="eha-healthy")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, default=None, help="folder for the recordings (default: a temp dir)")
+    ap.add_argument("--keep", action="store_true", help="keep the recordings")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args()
+
+    tmp = tempfile.TemporaryDirectory(prefix="soak-")
+    out = args.out or Path(tmp.name)
+    out.mkdir(parents=True, exist_ok=True)
+    model = export_model_toml(args.scenario, out / "model.toml")
+    cmd = [sys.executable, "-m", "chatterspec", "monitor", "--model", str(model), "--data", "-", "--json"]
+    if args.record_every > 0:
+        cmd += ["--record", str(out / "soak.rrd"), "--record-every", str(args.record_every)]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    err_path = out / "monitor.stderr"
+    sc = scenario(args.scenario)
+    with err_path.open("w") as err:
+        t0 = time.perf_counter()
+        mon = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=err, env=env)
+        rss: list[tuple[float, float]] = []
+        next_minute = 1.0
+        mon.stdin.write((csv_header(sc.nominal) + "\n").encode())
+        start = time.perf_counter()
+        # paced: rows go out every ~5 ms of wall time as `chatterspec simulate` writes them
+        block_s = max(sc.dt, 0.005 * args.rate) if args.rate > 0 else 1.0
+        for t, z, u in simulate_blocks(sc, args.seed, 60.0 * args.minutes, block_s=block_s):
+            if args.rate > 0:
+                delay = start + float(t[-1]) / args.rate - time.perf_counter()
+                if delay > 0:
+                    time.sleep(delay)
+            mon.stdin.write(csv_lines(t, z, u).encode())
+            mon.stdin.flush()
+            if t[-1] >= 60.0 * next_minute - 1e-9:
+                rss.append((next_minute, _rss_mb(mon.pid)))
+                next_minute += 1.0
+        produced = time.perf_counter() - t0
+        mon.stdin.close()
+        stdout = mon.stdout.read()
+        _, status, usage = os.wait4(mon.pid, 0)
+        mon.returncode = os.waitstatus_to_exitcode(status)
+        wall = time.perf_counter() - t0
+    if mon.returncode != 0:
+        sys.exit(f"monitor failed ({mon.returncode}):\n{err_path.read_text()[-3000:]}")
+    doc = json.loads(stdout)
+    at = dict(rss)
+    m5 = at.get(5.0)
+    last = rss[-1] if rss else (None, None)
+    result = {
+        "minutes_of_data": args.minutes,
+        "rate": args.rate,
+        "rows": doc["n_rows"],
+        "wall_s": wall,
+        "producer_s": produced,
+        "x_real_time": doc["duration_s"] / wall,
+        "peak_rss_mb": usage.ru_maxrss / 1024.0,
+        "rss_mb_by_minute": rss,
+        "rss_5min_mb": m5,
+        "rss_last_mb": last[1],
+        "rss_growth_5_to_last": None if m5 is None else last[1] / m5 - 1.0,
+        "within_10_percent": None if m5 is None else abs(last[1] / m5 - 1.0) <= 0.10,
+        "latency": doc["latency"],
+        "frames": doc["n_frames"],
+        "events": doc["counts"],
+        "recordings": [{"file": Path(r["path"]).name, "bytes": r["bytes"]} for r in doc["recordings"]],
+    }
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        print(f"{args.minutes:g} min of 1 kHz 3-channel data ({result['rows']} rows), rate {args.rate:g}")
+        xrt = result["x_real_time"]
+        print(f"wall {wall:.1f} s ({xrt:.1f}x real time); producer done at {produced:.1f} s")
+        print(f"peak RSS {result['peak_rss_mb']:.1f} MB; RSS at 5 min {m5} MB, at {last[0]} min {last[1]} MB")
+        if m5 is not None:
+            growth = 100 * result["rss_growth_5_to_last"]
+            print(f"growth 5 min -> end: {growth:+.1f} % (criterion: within 10 %)")
+        print("RSS by minute (MB): " + ", ".join(f"{m:g}:{v:.0f}" for m, v in rss))
+        lat = doc["latency"]
+        print(
+            f"latency over {lat['frames']} frames: median {lat['median_ms']:.2f} ms, "
+            f"max {lat['max_ms']:.2f} ms; longest rotation {lat.get('rotation_max_ms', 0):.0f} ms"
+        )
+        print(f"events: {doc['counts']}")
+        for r in result["recordings"]:
+            print(f"  {r['file']}: {r['bytes'] / 1e6:.1f} MB")
+    if args.keep and args.out is None:
+        print(f"kept in {out}", file=sys.stderr)
+    elif not args.keep:
+        tmp.cleanup()
+
+
+if __name__ == "__main__":
+    main()

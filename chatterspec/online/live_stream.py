@@ -1,0 +1,627 @@
+"""Monitor a live measurement stream: gaps, restarts, bad rows, events, latency, rotating recordings.
+
+:class:`StreamMonitor` takes the rows of :class:`chatterspec.online.stream.CsvRows`
+as they arrive and drives a :class:`~chatterspec.online.monitor.ChatteringMonitor`
+(both SVSFs, the same kernel as the batch path) through them.
+
+Gaps. Samples must be ``dt`` apart for the SVSF prediction and the STFT. With a
+time column, a step outside ``(0.5 dt, 1.5 dt]`` (a jump, a repeated or a
+backwards time) is a *gap*; without one, a skipped bad row is (a sample is
+missing). A gap is not a fault: a ``gap`` event is emitted at the next good
+sample, the filters and the STFT buffer are reset (a new monitor whose first
+measurement is that sample, with the same per-frame threshold), and the
+monitor resumes. A fault that was open is not declared ended: the ``gap`` event
+lists it in ``open_faults`` and the fault state restarts as healthy. A restart
+(a second header, a truncated or replaced followed file) resets the same way.
+
+Events: :class:`StreamEvent` (``fault-start``, ``fault-end`` per channel,
+``gap``, ``restart``) with sample time, wall time, channel, peak frequency and
+``S / threshold`` ratio; :meth:`StreamEvent.to_json` is one JSON object.
+
+Latency: for every completed frame, the wall time from the arrival of the
+bytes holding its last sample (the read that returned them) to its verdict
+(after its events were handed to ``on_event``); median and max in the summary.
+Time a row spent in the pipe before it was read is not seen by the monitor.
+
+Memory is bounded whatever the duration: the monitor holds less than one STFT
+window, the Rerun logger a bounded batch, the summary the last
+:data:`MAX_EVENTS` events and fixed-size latency histogram. With
+``record_every_s`` the recording rotates: one complete ``.rrd`` per period of
+*data* time (footer written, static data and blueprint repeated, so each file
+opens on its own), named by its wall-clock start time.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+import math
+import time
+from collections import deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import DataFileError
+from ..plants.models import LinearModel
+from .monitor import ChatteringMonitor, DetectionEvent, MonitorSettings, MonitorUpdate
+from .stream import BadRow, CsvRows, Restart, RowBlock
+
+__all__ = ["MAX_EVENTS", "LatencyStats", "StreamEvent", "StreamMonitor", "StreamSummary", "drive"]
+
+#: Events kept for the summary (older ones are counted, not kept).
+MAX_EVENTS = 1000
+#: A time step outside ``(GAP_LOW dt, GAP_HIGH dt]`` is a gap.
+GAP_LOW, GAP_HIGH = 0.5, 1.5
+
+
+@dataclass(frozen=True)
+class StreamEvent:
+    """One event of a live run, as ``--events jsonl`` prints it.
+
+    Attributes
+    ----------
+    kind : {"fault-start", "fault-end", "gap", "restart"}
+    sample_time_s : float or None
+        Data time (s): frame centre for fault events, the resuming sample for a
+        gap, the last sample before a restart (None if there was none).
+    wall_time : float
+        Unix time (s) when the event was emitted.
+    channel : str or None
+        Output channel of a fault event.
+    peak_hz : float or None
+        Frequency (Hz) of the largest ``S / threshold`` (fault events).
+    ratio : float or None
+        That largest ``S / threshold`` (fault events; > 1 is above threshold).
+    estimate_s : float or None
+        Onset / offset estimate (s) of a fault event.
+    line : int or None
+        Input line where a gap or restart was seen.
+    reason : str
+        Why a gap or restart happened.
+    open_faults : tuple of str
+        Channels whose fault was open when a gap or restart reset the monitor.
+    """
+
+    kind: str
+    sample_time_s: float | None
+    wall_time: float
+    channel: str | None = None
+    peak_hz: float | None = None
+    ratio: float | None = None
+    estimate_s: float | None = None
+    line: int | None = None
+    reason: str = ""
+    open_faults: tuple[str, ...] = ()
+
+    @classmethod
+    def from_detection(cls, ev: DetectionEvent, wall_time: float) -> StreamEvent:
+        """Wrap a monitor's fault event.
+
+        Parameters
+        ----------
+        ev : DetectionEvent
+            The monitor's event.
+        wall_time : float
+            Unix time (s) of emission.
+        """
+        return cls(ev.kind, ev.time_s, wall_time, ev.channel, ev.peak_hz, ev.peak_ratio, ev.estimate_s)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["event"] = d.pop("kind")
+        d["open_faults"] = list(self.open_faults)
+        return {"event": d.pop("event"), **d}
+
+    def to_json(self) -> str:
+        """One line of JSON (no NaN: non-finite numbers become null)."""
+        d = {
+            k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+            for k, v in self.to_dict().items()
+        }
+        return json.dumps(d, allow_nan=False)
+
+    def describe(self) -> str:
+        if self.kind in ("fault-start", "fault-end"):
+            what = "fault start" if self.kind == "fault-start" else "fault end"
+            return (
+                f"{what} on {self.channel} at t = {self.sample_time_s:.2f} s (estimated "
+                f"{self.estimate_s:.2f} s) (peak {self.ratio:.2f} x threshold at {self.peak_hz:.1f} Hz)"
+            )
+        at = "" if self.sample_time_s is None else f" at t = {self.sample_time_s:.3f} s"
+        opened = f"; open fault(s) on {', '.join(self.open_faults)} reset" if self.open_faults else ""
+        return f"{self.kind}{at} (line {self.line}): {self.reason}; filters and spectrogram reset{opened}"
+
+
+class LatencyStats:
+    """Median and max of latencies in bounded memory (log-spaced histogram, 0.5 % bins, 1 us .. 1000 s).
+
+    The median is the centre of the histogram bin holding it (relative error
+    below 0.3 %); the max is exact.
+    """
+
+    _LO, _HI, _BINS = 1e-6, 1e3, 4200
+
+    def __init__(self) -> None:
+        self.counts = np.zeros(self._BINS + 2, dtype=np.int64)
+        self.max_s = 0.0
+        self.n = 0
+        self._scale = self._BINS / math.log(self._HI / self._LO)
+
+    def add(self, seconds: float, count: int = 1) -> None:
+        """Record ``count`` observations of ``seconds``.
+
+        Parameters
+        ----------
+        seconds : float
+            Latency (s).
+        count : int
+            How many frames had it.
+        """
+        if count <= 0:
+            return
+        s = max(float(seconds), 0.0)
+        k = 0 if s < self._LO else min(int(math.log(s / self._LO) * self._scale) + 1, self._BINS + 1)
+        self.counts[k] += count
+        self.n += count
+        self.max_s = max(self.max_s, s)
+
+    def median(self) -> float | None:
+        """Median latency (s), None without observations."""
+        if self.n == 0:
+            return None
+        k = int(np.searchsorted(np.cumsum(self.counts), (self.n + 1) / 2.0))
+        if k == 0:
+            return self._LO / 2
+        return self._LO * math.exp((k - 0.5) / self._scale)
+
+    def to_dict(self) -> dict[str, float | int | None]:
+        med = self.median()
+        return {
+            "frames": self.n,
+            "median_ms": None if med is None else 1e3 * med,
+            "max_ms": None if self.n == 0 else 1e3 * self.max_s,
+        }
+
+
+@dataclass(frozen=True)
+class StreamSummary:
+    """Outcome of a live run.
+
+    Attributes
+    ----------
+    n_rows : int
+        Rows (measurements) monitored.
+    n_frames : int
+        STFT frames (verdicts) over all resets.
+    duration_s : float
+        Data time covered, ``n_rows * dt`` (s).
+    wall_s : float
+        Wall-clock time of the run (s).
+    events : tuple of StreamEvent
+        The last :data:`MAX_EVENTS` events.
+    counts : dict
+        Events per kind (all of them), and ``bad-row`` (rows skipped).
+    latency : dict
+        ``frames``, ``median_ms``, ``max_ms`` (see :class:`LatencyStats`), and
+        ``rotation_max_ms``: the longest stop of the loop to close one recording
+        and open the next (rows arriving meanwhile wait in the pipe).
+    recordings : tuple of dict
+        Per ``.rrd`` written: ``path``, ``start_s`` / ``stop_s`` (data time), ``bytes``.
+    live_url : str or None
+        Viewer streamed to.
+    stopped_by : str
+        ``"end of input"``, ``"SIGTERM"``, ``"SIGINT"``, ``"idle timeout"`` or an error.
+    notes : tuple of str
+        Messages for the user.
+    """
+
+    n_rows: int
+    n_frames: int
+    duration_s: float
+    wall_s: float
+    events: tuple[StreamEvent, ...]
+    counts: dict[str, int]
+    latency: dict[str, float | int | None]
+    recordings: tuple[dict[str, Any], ...]
+    live_url: str | None
+    stopped_by: str
+    notes: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "n_rows": self.n_rows,
+            "n_frames": self.n_frames,
+            "duration_s": self.duration_s,
+            "wall_s": self.wall_s,
+            "stopped_by": self.stopped_by,
+            "counts": dict(self.counts),
+            "latency": dict(self.latency),
+            "recordings": [dict(r) for r in self.recordings],
+            "live_url": self.live_url,
+            "events": [e.to_dict() for e in self.events],
+            "notes": list(self.notes),
+        }
+
+
+class StreamMonitor:
+    """Drive a :class:`ChatteringMonitor` over rows as they arrive (see the module docstring).
+
+    Parameters
+    ----------
+    model : LinearModel
+        Nominal model.
+    settings : MonitorSettings
+        Detector settings (``psi`` set: both SVSFs run).
+    record : path, optional
+        ``.rrd`` file; with ``record_every_s`` the base name of the rotated files
+        ``<stem>-<YYYYmmdd-HHMMSS.mmm>.rrd`` (UTC wall time of the period's first sample).
+    record_every_s : float, optional
+        Data seconds per recording (rotation).
+    live : str, optional
+        ``"spawn"`` or a viewer URL (see :func:`chatterspec.online.viewer.open_sinks`).
+    recording_name : str
+        Name shown in the viewer.
+    skip_bad_rows : bool
+        Skip (and report) bad rows instead of stopping with :class:`DataFileError`.
+    on_event : callable, optional
+        Called with each :class:`StreamEvent` as soon as it happens.
+    on_note : callable, optional
+        Called with human-readable notes (skipped rows, recordings closed).
+    """
+
+    def __init__(
+        self,
+        model: LinearModel,
+        settings: MonitorSettings,
+        *,
+        record: str | Path | None = None,
+        record_every_s: float | None = None,
+        live: str | None = None,
+        recording_name: str = "monitor",
+        skip_bad_rows: bool = False,
+        on_event: Callable[[StreamEvent], None] | None = None,
+        on_note: Callable[[str], None] | None = None,
+    ) -> None:
+        self.model = model
+        self.dt = model.dt
+        self.settings = settings
+        self.skip_bad_rows = skip_bad_rows
+        self.on_event = on_event
+        self.on_note = on_note
+        self.recording_name = recording_name
+        self.record = None if record is None else Path(record)
+        self.record_every = None if record_every_s is None else max(1, round(record_every_s / self.dt))
+        self.live = live
+        self.monitor: ChatteringMonitor | None = None
+        # the Rerun loggers are bound to this one (channels, threshold, layout); the sinks are opened
+        # before any data arrives so that opening them does not count as latency
+        self._proto = ChatteringMonitor(model, settings, t0=0.0)
+        self._threshold_settings = dataclasses.replace(settings, threshold=self._proto.threshold)
+        self._warm_up()
+        if self.record is not None or self.live is not None:
+            import rerun  # noqa: F401  (loaded now, not when the first rows are waiting)
+        self._t_wall0 = time.perf_counter()
+        self._last_t: float | None = None
+        self._t_next = 0.0  # synthesized time (no time column)
+        self._pending: list[str] = []  # reasons of a gap to emit at the next sample
+        self._pending_line: int | None = None
+        self._reset_next = False
+        self.n_rows = 0
+        self._frames_done = 0  # frames of monitors already replaced
+        self.events: deque[StreamEvent] = deque(maxlen=MAX_EVENTS)
+        self.counts = {"fault-start": 0, "fault-end": 0, "gap": 0, "restart": 0, "bad-row": 0}
+        self.latency = LatencyStats()
+        self.notes: list[str] = []
+        self.recordings: list[dict[str, Any]] = []
+        self._loggers: list[Any] = []
+        self._live_sinks: Any = None
+        self._file_sinks: Any = None
+        self._file_logger: Any = None
+        self._file_rows = 0
+        self._file_start: float | None = None
+        self._live_url: str | None = None
+        self._rotation_max_s = 0.0
+        if self.live is not None or (self.record is not None and self.record_every is None):
+            self._open_live()
+
+    # ------------------------------------------------------------------ input
+    def process(self, item: RowBlock | BadRow | Restart) -> None:
+        """Handle one parser output.
+
+        Parameters
+        ----------
+        item : RowBlock, BadRow or Restart
+            From :meth:`CsvRows.feed` / :meth:`CsvRows.finish`.
+
+        Raises
+        ------
+        DataFileError
+            A bad row without ``skip_bad_rows``.
+        """
+        if isinstance(item, RowBlock):
+            self._rows(item)
+        elif isinstance(item, BadRow):
+            if not self.skip_bad_rows:
+                raise DataFileError(
+                    f"{item.message} (use --skip-bad-rows to skip such rows; a skipped row is a gap)"
+                )
+            self.counts["bad-row"] += 1
+            self._note(f"skipped {item.message}")
+            self._pending.append(f"bad row at line {item.line} skipped")
+            self._pending_line = self._pending_line or item.line
+            if self.monitor is not None:
+                self._t_next += self.dt  # a sample is missing
+        elif isinstance(item, Restart):
+            self._emit(
+                StreamEvent(
+                    "restart",
+                    self._last_t,
+                    time.time(),
+                    line=item.line,
+                    reason=item.reason,
+                    open_faults=self._open_faults(),
+                )
+            )
+            self._reset_next = True
+            self._pending, self._pending_line = [], None
+            self._last_t = None  # the new data's time base is not compared with the old one
+
+    def _rows(self, b: RowBlock) -> None:
+        K = b.n_rows
+        if K == 0:
+            return
+        dt = self.dt
+        if b.t is not None:
+            t = b.t
+        else:
+            t = self._t_next + dt * np.arange(K)
+        self._t_next = float(t[-1]) + dt
+        # split points: gaps by time step, a pending gap / restart at the first row
+        starts: dict[int, list[str]] = {}
+        if b.t is not None:
+            prev = np.r_[self._last_t if self._last_t is not None else t[0] - dt, t]
+            step = np.diff(prev)
+            bad = np.flatnonzero((step <= GAP_LOW * dt) | (step > GAP_HIGH * dt))
+            if self._last_t is None:
+                bad = bad[bad > 0]
+            for i in bad.tolist():
+                a, s = float(prev[i]), float(step[i])
+                if s <= 0:
+                    why = f"time went from {a:.6g} s to {t[i]:.6g} s (not increasing)"
+                elif s > GAP_HIGH * dt:
+                    why = f"time jumped from {a:.6g} s to {t[i]:.6g} s ({s / dt:.3g} dt > {GAP_HIGH:g} dt)"
+                else:
+                    why = f"time step {s:.3g} s is below {GAP_LOW:g} dt"
+                starts.setdefault(i, []).append(why)
+        if self._pending and self.monitor is not None:
+            starts.setdefault(0, [])[:0] = self._pending
+        elif self.monitor is None:
+            self._pending_line = None  # nothing to reset yet
+        self._pending = []
+        bounds = sorted({0, *starts, K})
+        for lo, hi in itertools.pairwise(bounds):
+            reasons = starts.get(lo)
+            if reasons and self.monitor is not None:
+                self._emit(
+                    StreamEvent(
+                        "gap",
+                        float(t[lo]),
+                        time.time(),
+                        line=int(b.lines[lo]) if self._pending_line is None else self._pending_line,
+                        reason="; ".join(reasons),
+                        open_faults=self._open_faults(),
+                    )
+                )
+                self._pending_line = None
+                self._new_monitor(float(t[lo]))
+            elif self.monitor is None or self._reset_next:
+                self._new_monitor(float(t[lo]))
+            self._push(b.z[lo:hi], b.u[lo:hi], t[lo:hi], b.arrival)
+        self._last_t = float(t[-1])
+
+    # --------------------------------------------------------------- internals
+    def _warm_up(self) -> None:
+        """Run one window of zeros through a throw-away monitor before any data arrives, so that the
+        first real frame does not pay for loading compiled kernels (numba cache) or FFT plans."""
+        warm = ChatteringMonitor(self.model, self._threshold_settings)
+        n = warm.n_window + 2
+        warm.push(np.zeros((n, self.model.n_outputs)), np.zeros((n, self.model.n_inputs)))
+
+    def _open_faults(self) -> tuple[str, ...]:
+        if self.monitor is None:
+            return ()
+        return tuple(c for c, a in zip(self.monitor.channels, self.monitor.active, strict=True) if a)
+
+    def _new_monitor(self, t0: float) -> None:
+        if self.monitor is not None:
+            self._frames_done += self.monitor.n_frames
+        # every monitor shares the first one's threshold (no recomputation at a reset)
+        self.monitor = ChatteringMonitor(self.model, self._threshold_settings, t0=t0)
+        self._reset_next = False
+
+    def _push(self, z: np.ndarray, u: np.ndarray, t: np.ndarray, arrival: float) -> None:
+        # verdicts first (events out, latency taken), then logging and recording rotation, so that
+        # neither Rerun nor opening / closing a file delays a verdict of rows already read
+        K = z.shape[0]
+        parts: list[tuple[MonitorUpdate, int, int]] = []
+        lo, in_file = 0, self._file_rows
+        while lo < K:
+            hi = K if self.record_every is None else min(K, lo + self.record_every - in_file)
+            upd = self.monitor.push(z[lo:hi], u[lo:hi])
+            self.n_rows += hi - lo
+            for ev in upd.events:
+                self._emit(StreamEvent.from_detection(ev, time.time()))
+            if upd.frames.n_frames:
+                self.latency.add(time.perf_counter() - arrival, upd.frames.n_frames)
+            parts.append((upd, lo, hi))
+            if self.record_every is not None:
+                in_file = (in_file + hi - lo) % self.record_every
+            lo = hi
+        for upd, lo, hi in parts:
+            if self.record_every is not None and self._file_logger is None:
+                self._open_file(float(t[lo]))
+            self._log(upd)
+            if self.record_every is not None:
+                self._file_rows += hi - lo
+                if self._file_rows >= self.record_every:
+                    t_rot = time.perf_counter()
+                    self._close_file(float(t[hi - 1]) + self.dt)
+                    self._rotation_max_s = max(self._rotation_max_s, time.perf_counter() - t_rot)
+
+    def _emit(self, ev: StreamEvent) -> None:
+        self.events.append(ev)
+        self.counts[ev.kind] = self.counts.get(ev.kind, 0) + 1
+        if self.on_event is not None:
+            self.on_event(ev)
+        if ev.kind in ("gap", "restart"):
+            self._log_text(ev)
+
+    def _note(self, text: str) -> None:
+        if self.on_note is not None:
+            self.on_note(text)
+
+    # ------------------------------------------------------------------ Rerun
+    def _logger(self, sinks: Any) -> Any:
+        from .rerun_log import RerunLogger
+
+        return RerunLogger(sinks, self._proto) if sinks.streams else None
+
+    def _open_live(self) -> None:
+        from .viewer import default_recording_path, open_sinks
+
+        if self.record_every is None:  # a viewer that cannot be used falls back to a file, as for replays
+            sinks = open_sinks(
+                record=self.record,
+                live=self.live,
+                recording_name=self.recording_name,
+                default_record=default_recording_path(self.recording_name),
+            )
+        elif self.live is not None:
+            sinks = open_sinks(live=self.live, recording_name=self.recording_name)
+        else:
+            return
+        self._live_sinks = sinks
+        self._live_url = sinks.live_url
+        for note in sinks.notes:
+            self.notes.append(note)
+            self._note(note)
+        logger = self._logger(sinks)
+        if logger is not None:
+            self._loggers.append(logger)
+        if sinks.path is not None:
+            self.recordings.append({"path": str(sinks.path), "start_s": None, "stop_s": None, "bytes": None})
+
+    def _open_file(self, t_start: float) -> None:
+        from .viewer import default_recording_path, open_sinks
+
+        t_open = time.perf_counter()
+        base = self.record or default_recording_path(self.recording_name)
+        now = time.time()
+        stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime(now)) + f".{int(now % 1 * 1000):03d}"
+        path = base.parent / f"{base.stem}-{stamp}.rrd"
+        k = 1
+        while path.exists():
+            path = base.parent / f"{base.stem}-{stamp}-{k}.rrd"
+            k += 1
+        self._file_sinks = open_sinks(record=path, recording_name=f"{self.recording_name} {stamp}")
+        self._file_logger = self._logger(self._file_sinks)
+        self._file_rows = 0
+        self._file_start = t_start
+        self._rotation_max_s = max(self._rotation_max_s, time.perf_counter() - t_open)
+
+    def _close_file(self, t_stop: float | None) -> None:
+        if self._file_logger is None:
+            return
+        try:
+            self._file_logger.close()
+        finally:
+            self._file_sinks.close()
+        path = self._file_sinks.path
+        rec = {"path": str(path), "start_s": self._file_start, "stop_s": t_stop, "bytes": path.stat().st_size}
+        self.recordings.append(rec)
+        self._note(f"recording {path} closed ({rec['bytes'] / 1e6:.1f} MB)")
+        self._file_logger = self._file_sinks = None
+
+    def _log(self, upd: MonitorUpdate) -> None:
+        for logger in self._loggers:
+            logger.log_update(upd)
+        if self._file_logger is not None:
+            self._file_logger.log_update(upd)
+
+    def _log_text(self, ev: StreamEvent) -> None:
+        sinks = [x for x in (self._live_sinks, self._file_sinks) if x is not None]
+        streams = [s for x in sinks for s in x.streams]
+        if not streams or ev.sample_time_s is None:
+            return
+        import rerun as rr
+
+        from .viewer import TIMELINE
+
+        for s in streams:
+            s.set_time(TIMELINE, duration=float(ev.sample_time_s))
+            s.log("/events", rr.TextLog(f"{ev.kind}: {ev.describe()}", level="WARN"))
+
+    # ------------------------------------------------------------------ end
+    def close(self, stopped_by: str = "end of input") -> StreamSummary:
+        """Flush and close every recording (footer written) and return the summary.
+
+        Parameters
+        ----------
+        stopped_by : str
+            Why the run ended (reported in the summary).
+        """
+        t_stop = self._t_next if self.monitor is not None else None
+        try:
+            self._close_file(t_stop)
+        finally:
+            try:
+                for logger in self._loggers:
+                    logger.close()
+            finally:
+                if self._live_sinks is not None:
+                    self._live_sinks.close()
+        for rec in self.recordings:
+            if rec["bytes"] is None and Path(rec["path"]).exists():
+                rec["bytes"] = Path(rec["path"]).stat().st_size
+        frames = self._frames_done + (self.monitor.n_frames if self.monitor is not None else 0)
+        return StreamSummary(
+            n_rows=self.n_rows,
+            n_frames=frames,
+            duration_s=self.n_rows * self.dt,
+            wall_s=time.perf_counter() - self._t_wall0,
+            events=tuple(self.events),
+            counts=dict(self.counts),
+            latency={**self.latency.to_dict(), "rotation_max_ms": 1e3 * self._rotation_max_s},
+            recordings=tuple(self.recordings),
+            live_url=self._live_url,
+            stopped_by=stopped_by,
+            notes=tuple(self.notes),
+        )
+
+
+def drive(chunks: Iterable[tuple[bytes, float]], rows: CsvRows, monitor: StreamMonitor) -> None:
+    """Feed byte chunks through the parser into the monitor until the source ends.
+
+    Parameters
+    ----------
+    chunks : iterable of (bytes, float)
+        From :func:`chatterspec.online.stream.read_fd` or
+        :func:`~chatterspec.online.stream.follow_file`.
+    rows : CsvRows
+        The parser.
+    monitor : StreamMonitor
+        Receives every parsed item; call its :meth:`StreamMonitor.close` afterwards
+        (also on an exception or a signal).
+    """
+    for data, arrival in chunks:
+        for item in rows.feed(data, arrival):
+            monitor.process(item)
+    for item in rows.finish(time.perf_counter()):
+        monitor.process(item)
+    if rows.header is None and monitor.n_rows == 0:
+        raise DataFileError(f"{rows.where}: no header line (the first line must name the columns)")
