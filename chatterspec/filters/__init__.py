@@ -9,6 +9,8 @@ and ``svsf2`` (dynamic second-order SVSF, [DETC] eq 5-24) implement it.
 from .kalman import ExtendedKalmanFilter, KalmanFilter
 from .protocol import Filter, FilterOutput, FilterState
 from .svsf import SVSF, SVSFOutput, SVSFState, auxiliary_svsf, boundary_layer_chattering, chattering
+from .svsf2 import SecondOrderSVSF
+from .svsf_cov import SVSFCov
 
 __all__ = [
     "SVSF",
@@ -17,8 +19,10 @@ __all__ = [
     "FilterOutput",
     "FilterState",
     "KalmanFilter",
+    "SVSFCov",
     "SVSFOutput",
     "SVSFState",
+    "SecondOrderSVSF",
     "auxiliary_svsf",
     "boundary_layer_chattering",
     "chattering",

@@ -89,7 +89,7 @@ def _cov_kernel(
     M_const,
     gamma,
     lam,
-    inv_psi,
+    psi,
     lo,
     hi,
     flags,
@@ -200,7 +200,7 @@ def _cov_kernel(
                 for i in range(m):
                     if kind == SVSF1:
                         a = abs(e[i])
-                        den = a if a * inv_psi[i] > 1.0 else 1.0 / inv_psi[i]
+                        den = a if a > psi[i] else psi[i]
                         g[i] = (a + gamma[i] * abs(ep[r, i])) / den
                         dz[i] = g[i] * e[i]
                     else:
@@ -369,7 +369,7 @@ def cov_step(
     M_const: np.ndarray | None = None,
     gamma: np.ndarray | None = None,
     lam: np.ndarray | None = None,
-    inv_psi: np.ndarray | None = None,
+    psi: np.ndarray | None = None,
     lo: float = 0.0,
     hi: float = 2.0,
 ) -> dict[str, np.ndarray | None]:
@@ -396,7 +396,7 @@ def cov_step(
     args = dict(
         gamma=zeros_m if gamma is None else gamma,
         lam=zeros_m if lam is None else lam,
-        inv_psi=np.ones(m) if inv_psi is None else inv_psi,
+        psi=np.ones(m) if psi is None else psi,
         M_const=np.zeros((n, m)) if M_const is None else np.ascontiguousarray(M_const),
     )
     if linear:
@@ -427,7 +427,7 @@ def cov_step(
             args["M_const"],
             args["gamma"],
             args["lam"],
-            args["inv_psi"],
+            args["psi"],
             float(lo),
             float(hi),
             flags,
@@ -488,7 +488,7 @@ def _cov_numpy(
     *,
     gamma,
     lam,
-    inv_psi,
+    psi,
     M_const,
 ):
     """Numpy twin of :func:`_cov_kernel`: vectorized over runs, loop over time."""
@@ -523,7 +523,7 @@ def _cov_numpy(
                 Mp = np.broadcast_to(M_const, (runs, n, m))
             if kind == SVSF1:
                 a = np.abs(e)
-                g = (a + gamma * np.abs(ep)) / np.where(a * inv_psi > 1.0, a, 1.0 / inv_psi)
+                g = (a + gamma * np.abs(ep)) / np.maximum(a, psi)
                 dz = g * e
             else:
                 dz = e - (gamma + lam) * ep + gamma * lam * epp
