@@ -26,7 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="kf,svsf,svsf2",
         help=f"comma-separated filters from {','.join(FILTERS)} (default kf,svsf,svsf2)",
     )
-    p.add_argument("--runs", type=positive_int_arg, default=100, help="Monte Carlo realizations (default 100)")
+    p.add_argument(
+        "--runs", type=positive_int_arg, default=100, help="Monte Carlo realizations (default 100)"
+    )
     p.add_argument("--seed", type=nonnegative_int_arg, default=0, help="root seed (default 0)")
     p.add_argument("--workers", type=positive_int_arg, default=1, help="local worker processes (default 1)")
     p.add_argument(
@@ -38,7 +40,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--chunk-runs", type=positive_int_arg, default=None, help="realizations per chunk (multiple of 64)"
     )
     p.add_argument(
-        "--alpha", type=alpha_arg, default=0.05, help="two-sided level of the NEES/NIS intervals (default 0.05)"
+        "--alpha",
+        type=alpha_arg,
+        default=0.05,
+        help="two-sided level of the NEES/NIS intervals (default 0.05)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
@@ -100,4 +105,3 @@ def run(args: argparse.Namespace) -> int:
     if args.record:
         print(f"recording (realization 0): {doc['recording']}")
     return 0
-

@@ -36,7 +36,8 @@ def record_estimates(records: Any, path: str | Path, *, run: int = 0) -> Path:
     Parameters
     ----------
     records : EstimateRecords
-        Truth, measurements and filter outputs (from :func:`~chatterspec.studies.estimation.estimate_records`).
+        Truth, measurements and filter outputs
+        (from :func:`~chatterspec.studies.estimation.estimate_records`).
     path : str or Path
         Output file, ending in ``.rrd`` (parent folders are created).
     run : int
@@ -82,10 +83,14 @@ def record_estimates(records: Any, path: str | Path, *, run: int = 0) -> Path:
         )
         x = records.x[run]
         for i, s in enumerate(states):
-            rec.send_columns(f"/states/{s}/truth", indexes=[t_all], columns=rr.Scalars.columns(scalars=x[:, i]))
+            rec.send_columns(
+                f"/states/{s}/truth", indexes=[t_all], columns=rr.Scalars.columns(scalars=x[:, i])
+            )
         for j, o in enumerate(outputs):
             rec.send_columns(
-                f"/measurements/{o}", indexes=[t_all], columns=rr.Scalars.columns(scalars=records.z[run, :, j])
+                f"/measurements/{o}",
+                indexes=[t_all],
+                columns=rr.Scalars.columns(scalars=records.z[run, :, j]),
             )
         for name in names:
             out = records.outputs[name]

@@ -27,7 +27,7 @@ well that bookkeeping matches the errors, not whether the filter is optimal.
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -39,7 +39,15 @@ from ..plants.scenarios import Scenario
 from ..plants.scenarios import scenario as _catalogue_scenario
 from ..plants.simulate import iter_simulations
 from ..rng import SeedLike
-from .metrics import ConsistencyTest, MonteCarloMean, consistency_from_sums, nees, nis, state_error_metrics
+from .metrics import (
+    ConsistencyTest,
+    MonteCarloMean,
+    StateErrorMetrics,
+    consistency_from_sums,
+    nees,
+    nis,
+    state_error_metrics,
+)
 from .montecarlo import run_study
 
 __all__ = [
@@ -154,7 +162,7 @@ def build_filter(name: str, scenario: str | Scenario) -> Any:
         try:
             from ..filters.svsf_cov import SVSFCov
         except ImportError:  # pragma: no cover - only while the filter is being merged
-            raise ParameterError("filter 'svsf' (SVSF with covariance) is not available in this build") from None
+            raise ParameterError("filter 'svsf' (SVSF with covariance) is not in this build") from None
         return SVSFCov(model, psi=np.asarray(fs.psi, dtype=float), gamma=gamma, mapping=mapping)
     try:
         from ..filters.svsf2 import SecondOrderSVSF
@@ -263,6 +271,9 @@ class FilterMetrics:
         with its standard error (state units, e.g. m, m/s, m/s^2).
     nees, nis : ConsistencyTest
         Chi-squared consistency of the normalized estimation error and innovation squared.
+    per_run : StateErrorMetrics
+        The per-run values ``(runs, n)`` behind the means (for paired comparisons between filters,
+        which ran on the same measurements).
     """
 
     name: str
@@ -271,6 +282,7 @@ class FilterMetrics:
     std: MonteCarloMean
     nees: ConsistencyTest
     nis: ConsistencyTest
+    per_run: StateErrorMetrics = field(repr=False, default=None)  # type: ignore[assignment]
 
     def to_dict(self, state_names: Sequence[str]) -> dict[str, Any]:
         """JSON-ready dict.
@@ -283,7 +295,8 @@ class FilterMetrics:
 
         def per_state(mc: MonteCarloMean) -> dict[str, dict[str, float]]:
             return {
-                s: {"mean": float(mc.mean[i]), "stderr": _num(mc.stderr[i])} for i, s in enumerate(state_names)
+                s: {"mean": float(mc.mean[i]), "stderr": _num(mc.stderr[i])}
+                for i, s in enumerate(state_names)
             }
 
         def cons(c: ConsistencyTest) -> dict[str, Any]:
@@ -359,6 +372,23 @@ class EstimationResult:
                 return f
         raise ParameterError(f"no filter {name!r} in this result; it has {[f.name for f in self.filters]}")
 
+    def difference(self, a: str, b: str, metric: str = "rmse") -> MonteCarloMean:
+        """Paired Monte Carlo difference ``metric(a) - metric(b)`` per state, with its standard error.
+
+        Both filters ran on the same realizations, so the per-run difference has a much smaller
+        standard error than the two means' errors combined.
+
+        Parameters
+        ----------
+        a, b : str
+            Filter names.
+        metric : {"rmse", "bias", "std"}
+            Which per-run statistic.
+        """
+        if metric not in ("rmse", "bias", "std"):
+            raise ParameterError(f'metric must be "rmse", "bias" or "std"; got {metric!r}')
+        return MonteCarloMean.of(getattr(self.get(a).per_run, metric) - getattr(self.get(b).per_run, metric))
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (the ``--json`` document of ``chatterspec estimate``)."""
         return {
@@ -391,13 +421,15 @@ class EstimationResult:
                 lines.append(row)
         lines.append("")
         lines.append(
-            f"consistency (two-sided {1 - self.alpha:.0%} chi-squared intervals; a consistent filter lies inside)"
+            f"consistency (two-sided {1 - self.alpha:.0%} chi-squared intervals; "
+            "a consistent filter lies inside)"
         )
         for f in self.filters:
             for c, kind in ((f.nees, "NEES"), (f.nis, "NIS")):
                 verdict = "consistent" if c.consistent else "INCONSISTENT"
                 lines.append(
-                    f"  {f.name:<6} {kind:<4} {c.statistic:10.4g}  [{c.lower:.4g}, {c.upper:.4g}]  {verdict:<12}"
+                    f"  {f.name:<6} {kind:<4} {c.statistic:10.4g}  [{c.lower:.4g}, {c.upper:.4g}]  "
+                    f"{verdict:<12}"
                     f" steps inside per-step interval: {c.fraction_inside:.1%}"
                 )
         return "\n".join(lines)
@@ -548,6 +580,9 @@ def estimation_study(
                 std=MonteCarloMean.of(s["std"]),
                 nees=consistency_from_sums(s["nees_sum"], s["nees_step"], runs, n, alpha=alpha, kind="NEES"),
                 nis=consistency_from_sums(s["nis_sum"], s["nis_step"], runs, m, alpha=alpha, kind="NIS"),
+                per_run=StateErrorMetrics(
+                    rmse=s["rmse"], bias=s["bias"], std=s["std"], state_names=tuple(sc.nominal.state_names)
+                ),
             )
         )
     return EstimationResult(
@@ -560,4 +595,3 @@ def estimation_study(
         settings=sc.filter_settings.describe(),
         alpha=alpha,
     )
-

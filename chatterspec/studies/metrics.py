@@ -299,10 +299,8 @@ def consistency(values: np.ndarray, dim: int, *, alpha: float = 0.05, kind: str 
         raise ShapeError(f'kind must be "NIS" or "NEES"; got {kind!r}')
     if dim < 1:
         raise ShapeError(f"dim must be a positive dimension; got {dim}")
-    runs, steps = values.shape
-    return consistency_from_sums(
-        float(values.sum()), values.sum(axis=0), runs, dim, alpha=alpha, kind=kind
-    )
+    runs = values.shape[0]
+    return consistency_from_sums(float(values.sum()), values.sum(axis=0), runs, dim, alpha=alpha, kind=kind)
 
 
 def consistency_from_sums(
@@ -342,7 +340,9 @@ def consistency_from_sums(
     if dim < 1:
         raise ShapeError(f"dim must be a positive dimension; got {dim}")
     if runs < 1 or per_step_sum.ndim != 1:
-        raise ShapeError(f"need runs >= 1 and a (T,) per-step sum; got runs={runs}, shape {per_step_sum.shape}")
+        raise ShapeError(
+            f"need runs >= 1 and a (T,) per-step sum; got runs={runs}, shape {per_step_sum.shape}"
+        )
     if not np.isfinite(total):
         raise NonFiniteError(f"the {kind} total is not finite")
     steps = per_step_sum.shape[0]
