@@ -144,3 +144,18 @@ def test_cli_record_writes_truth_estimates_and_innovations(tmp_path, capsys):
     assert rows["/states/velocity/svsf2"] == 1000
     assert rows["/innovations/position/kf"] == 1000
     assert rows["/errors/acceleration/kf"] == 1000
+
+
+def test_estimation_error_figure(tmp_path):
+    from chatterspec.figures.estimators import estimation_error_figure
+    from chatterspec.figures.plot_studies import save
+
+    rec = estimate_records("detc-uncertain", "kf,svsf2", runs=3, seed=0)
+    fig = estimation_error_figure(rec, run=2)
+    assert len(fig.axes) == 6
+    # the left column shows realization 2's error of the first filter
+    line = fig.axes[0].get_lines()[0]
+    np.testing.assert_allclose(line.get_ydata(), rec.error("kf")[2, :, 0])
+    assert save(fig, tmp_path / "f.png").stat().st_size > 10_000
+    with pytest.raises(ParameterError, match="run"):
+        estimation_error_figure(rec, run=3)
