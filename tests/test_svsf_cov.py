@@ -188,3 +188,44 @@ def test_bad_input_is_named() -> None:
     state = filt.initialize(np.zeros(3), np.eye(3), runs=2)
     with pytest.raises(ShapeError, match=r"z must have shape \(2, K, 2\)"):
         filt.update(state, np.zeros((2, 4, 3)), np.zeros((4, 1)))
+
+
+def test_vbl_equals_the_kalman_filter_inside_the_layer() -> None:
+    """A layer so wide that psi_vbl <= psi always: the VBL-SVSF is the Kalman filter."""
+    from chatterspec.filters import KalmanFilter
+
+    model = model_with(THIN_C)
+    z, u = data(model)
+    vbl = SVSFCov(model, psi=1e6, gamma=0.3, vbl=True).run(z, u, x0=np.zeros(3), P0=np.eye(3), store=STORE)
+    P0 = np.broadcast_to(np.eye(3), (3, 3, 3))  # per-run P: the KF takes the same kernel
+    kf = KalmanFilter(model).run(z, u, x0=np.zeros(3), P0=P0, store=STORE)
+    for f in STORE:  # same kernel, same Kalman-gain branch: identical arithmetic
+        np.testing.assert_array_equal(getattr(vbl, f), getattr(kf, f), err_msg=f)
+    # and a layer so narrow that psi_vbl > psi always: the fixed-psi SVSF
+    narrow = SVSFCov(model, psi=1e-9, gamma=0.3, vbl=True).run(z, u, x0=np.zeros(3), P0=np.eye(3))
+    fixed = SVSFCov(model, psi=1e-9, gamma=0.3).run(z, u, x0=np.zeros(3), P0=np.eye(3))
+    np.testing.assert_array_equal(narrow.x_post, fixed.x_post)
+
+
+@pytest.mark.parametrize("jit", [True, False])
+def test_vbl_switches_per_sample_by_its_criterion(jit: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    if not jit:
+        monkeypatch.setattr(_jit, "enabled", lambda: False)
+    model = model_with(SQUARE_C)
+    z, u = data(model)
+    psi, gamma = np.array([3.2, 6.4, 2.4]), 0.3  # wide enough that both gains occur
+    filt = SVSFCov(model, psi=psi, gamma=gamma, vbl=True)
+    out = filt.run(z, u, x0=np.zeros(3), P0=np.eye(3), store=STORE)
+    ebar = previous(out.e_post, np.zeros((3, 3)))
+    M = np.linalg.inv(SQUARE_C)
+    used = []
+    for r in range(3):
+        for k in range(z.shape[1]):
+            e = out.innovation[r, k]
+            Kkf = out.P_prior[r, k] @ SQUARE_C.T @ np.linalg.inv(out.S[r, k])
+            need = np.abs(e) + gamma * np.abs(ebar[r, k])
+            kf = bool(np.all(need / np.diag(SQUARE_C @ Kkf) <= psi))
+            K = Kkf if kf else M @ np.diag(need / np.maximum(np.abs(e), psi))
+            used.append(kf)
+            np.testing.assert_allclose(out.x_post[r, k] - out.x_prior[r, k], K @ e, rtol=1e-9, atol=1e-13)
+    assert 0.1 < np.mean(used) < 0.9  # both branches are exercised

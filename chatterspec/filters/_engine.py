@@ -12,7 +12,9 @@ One step, for every realization (notation of ``estimators.md`` §1)::
 ``kind`` selects the correction: 0 = Kalman gain; 1 = SVSF with covariance, division-free
 form of [SMM] eq (2.5): g_i = (|e_i| + gamma_i |e_i(k|k)|) / max(|e_i|, psi_i), dz = g o e;
 2 = dynamic second-order SVSF, [DETC] eq (9): dz = e - (gamma + Lambda) e(k|k) +
-gamma Lambda e(k-1|k-1), g = clip(dz / e, lo, hi) (1 where e = 0; covariance only).
+gamma Lambda e(k-1|k-1), g = clip(dz / e, lo, hi) (1 where e = 0; covariance only);
+3 = SVSF with the variable boundary layer: the Kalman gain when the VBL
+psi_vbl,i = (|e_i| + gamma_i |e_i(k|k)|) / (C K_KF)_ii is <= psi_i in every channel, else kind 1.
 ``mapping`` gives M: 0 = a constant matrix (C^-1 for ``full``, C^+ for ``pinv``),
 1 = ``cov``: M = P(k+1|k) C^T (C P(k+1|k) C^T)^-1.
 
@@ -29,7 +31,7 @@ import numpy as np
 from .. import _jit
 from ..errors import SingularMatrixError
 
-KF, SVSF1, SVSF2 = 0, 1, 2
+KF, SVSF1, SVSF2, VBL = 0, 1, 2, 3
 MAP_CONST, MAP_COV = 0, 1
 LOG2PI = float(np.log(2.0 * np.pi))
 FIELDS = ("x_prior", "x_post", "innovation", "S", "loglik", "e_post", "P_prior", "P_post")
@@ -144,12 +146,13 @@ def _cov_kernel(
                     for q in range(n):
                         s += F[i, q] * P[r, q, j]
                     T1[i, j] = s
-            for i in range(n):
-                for j in range(n):
+            for i in range(n):  # symmetric: upper triangle, mirrored
+                for j in range(i, n):
                     s = Q[i, j]
                     for q in range(n):
                         s += T1[i, q] * F[j, q]
                     Pp[i, j] = s
+                    Pp[j, i] = s
             # innovation, S, log-likelihood
             for i in range(m):
                 s = z[r, k, i]
@@ -181,8 +184,21 @@ def _cov_kernel(
                 logdet += np.log(L[i, i])
             ll = -0.5 * (m * 1.8378770664093453 + 2.0 * logdet + quad)
             # correction
-            if kind == KF:
+            use_kf = kind == KF
+            if kind == VBL:
+                # Kalman gain where psi_vbl,i = (|e_i| + gamma_i |e_i(k|k)|) / (C K_KF)_ii <= psi_i for all i
                 _chol_solve_rows(L, PCtT, KgT, m, n)
+                use_kf = True
+                for i in range(m):
+                    ck = 0.0
+                    for q in range(n):
+                        ck += C[i, q] * KgT[i, q]
+                    need = abs(e[i]) + gamma[i] * abs(ep[r, i])
+                    if not (ck > 0.0 and need <= psi[i] * ck):
+                        use_kf = False
+            elif kind == KF:
+                _chol_solve_rows(L, PCtT, KgT, m, n)
+            if use_kf:
                 for i in range(n):
                     s = xp[i]
                     for j in range(m):
@@ -198,7 +214,7 @@ def _cov_kernel(
                         for j in range(n):
                             MpT[i, j] = M_const[j, i]
                 for i in range(m):
-                    if kind == SVSF1:
+                    if kind != SVSF2:
                         a = abs(e[i])
                         den = a if a > psi[i] else psi[i]
                         g[i] = (a + gamma[i] * abs(ep[r, i])) / den
@@ -237,14 +253,15 @@ def _cov_kernel(
                     for q in range(m):
                         s += KgT[q, i] * R[q, j]
                     KR[i, j] = s
-            for i in range(n):
-                for j in range(n):
+            for i in range(n):  # symmetric: upper triangle, mirrored
+                for j in range(i, n):
                     s = 0.0
                     for q in range(n):
                         s += T1[i, q] * IKC[j, q]
                     for q in range(m):
                         s += KR[i, q] * KgT[q, j]
                     P[r, i, j] = s
+                    P[r, j, i] = s
             # residuals
             for i in range(m):
                 epp[r, i] = ep[r, i]
@@ -512,8 +529,10 @@ def _cov_numpy(
         w = np.linalg.solve(S, e[..., None])[..., 0]
         ll = -0.5 * (m * LOG2PI + 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1))
         ll = ll - 0.5 * np.einsum("ri,ri->r", e, w)
+        if kind in (KF, VBL):
+            Kkf = np.swapaxes(np.linalg.solve(S, np.swapaxes(PCt, -1, -2)), -1, -2)
         if kind == KF:
-            Kg = np.swapaxes(np.linalg.solve(S, np.swapaxes(PCt, -1, -2)), -1, -2)
+            Kg = Kkf
             x[...] = xp + np.einsum("rij,rj->ri", Kg, e)
         else:
             if mapping == MAP_COV:
@@ -521,7 +540,7 @@ def _cov_numpy(
                 Mp = np.swapaxes(np.linalg.solve(D, np.swapaxes(PCt, -1, -2)), -1, -2)
             else:
                 Mp = np.broadcast_to(M_const, (runs, n, m))
-            if kind == SVSF1:
+            if kind != SVSF2:
                 a = np.abs(e)
                 g = (a + gamma * np.abs(ep)) / np.maximum(a, psi)
                 dz = g * e
@@ -531,6 +550,11 @@ def _cov_numpy(
                     g = np.where(e != 0.0, np.clip(dz / np.where(e != 0.0, e, 1.0), lo, hi), 1.0)
             Kg = Mp * g[:, None, :]
             x[...] = xp + np.einsum("rij,rj->ri", Mp, dz)
+            if kind == VBL:
+                ck = np.einsum("iq,rqi->ri", C, Kkf)
+                use_kf = np.all((ck > 0.0) & (np.abs(e) + gamma * np.abs(ep) <= psi * ck), axis=1)
+                Kg = np.where(use_kf[:, None, None], Kkf, Kg)
+                x[...] = np.where(use_kf[:, None], xp + np.einsum("rij,rj->ri", Kkf, e), x)
         IKC = eye - Kg @ C
         P[...] = IKC @ Pp @ np.swapaxes(IKC, -1, -2) + Kg @ R @ np.swapaxes(Kg, -1, -2)
         epp[...] = ep

@@ -120,6 +120,11 @@ class SVSFCov(CovarianceFilterBase):
     mapping : {"full", "pinv", "cov"}, optional
         Output-to-state map (module docstring); default ``"full"`` for a square invertible C,
         else ``"cov"``.
+    vbl : bool
+        Variable boundary layer (``estimators.md`` §1.2, beyond the papers, which never define
+        it): use the Kalman gain ``K_KF = P C^T S^-1`` when
+        ``psi_vbl,i = (|e_i| + gamma_i |e_i(k|k)|) / (C K_KF)_ii <= psi_i`` in every channel,
+        else the fixed-``psi`` SVSF gain. Inside the layer it equals the Kalman filter (tested).
 
     Raises
     ------
@@ -133,12 +138,15 @@ class SVSFCov(CovarianceFilterBase):
     psi: float | np.ndarray
     gamma: float | np.ndarray = 0.1
     mapping: Mapping | None = None
+    vbl: bool = False
     _M: np.ndarray | None = field(init=False, repr=False, default=None)
 
     def __post_init__(self) -> None:
         check_model(self.model)
         m = int(self.model.n_outputs)  # type: ignore[attr-defined]
         C = np.asarray(self.model.C, dtype=float)  # type: ignore[attr-defined]
+        if not isinstance(self.vbl, bool | np.bool_):
+            raise ParameterError(f"vbl must be True or False; got {self.vbl!r}")
         mapping = default_mapping(C) if self.mapping is None else self.mapping
         object.__setattr__(self, "_M", mapping_matrix(C, mapping))
         object.__setattr__(self, "mapping", mapping)
@@ -156,7 +164,7 @@ class SVSFCov(CovarianceFilterBase):
 
     def _correction(self) -> dict[str, object]:
         return {
-            "kind": _engine.SVSF1,
+            "kind": _engine.VBL if self.vbl else _engine.SVSF1,
             "mapping": _engine.MAP_COV if self._M is None else _engine.MAP_CONST,
             "M_const": self._M,
             "gamma": self.gamma,
