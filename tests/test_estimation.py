@@ -159,3 +159,12 @@ def test_estimation_error_figure(tmp_path):
     assert save(fig, tmp_path / "f.png").stat().st_size > 10_000
     with pytest.raises(ParameterError, match="run"):
         estimation_error_figure(rec, run=3)
+
+
+def test_two_local_workers_give_identical_numbers():
+    kw = {"runs": 128, "seed": 9, "chunk_runs": 64, "progress": False}
+    a = estimation_study("detc-uncertain", "kf,svsf", workers=1, **kw)
+    b = estimation_study("detc-uncertain", "kf,svsf", workers=2, **kw)
+    for name in ("kf", "svsf"):
+        np.testing.assert_array_equal(a.get(name).per_run.bias, b.get(name).per_run.bias)
+        assert a.get(name).nis == b.get(name).nis
