@@ -155,15 +155,20 @@ def build_filter(name: str, scenario: str | Scenario) -> Any:
     if name == "ekf":
         return ExtendedKalmanFilter(model)
     gamma = 0.1 if fs.gamma is None else fs.gamma
-    mapping = None if fs.mapping in (None, "luen") else fs.mapping
+    mapping = fs.mapping
     if name == "svsf":
         if fs.psi is None:
             raise ParameterError(f"scenario {sc.name!r} gives no boundary layer psi for the first-order SVSF")
+        psi = fs.psi
+        if mapping == "luen":  # reduced-order form: psi of the measured, then of the unmeasured states
+            if fs.psi_lower is None:
+                raise ParameterError(f"scenario {sc.name!r}: mapping 'luen' needs psi_lower in its settings")
+            psi = fs.psi + fs.psi_lower
         try:
             from ..filters.svsf_cov import SVSFCov
         except ImportError:  # pragma: no cover - only while the filter is being merged
             raise ParameterError("filter 'svsf' (SVSF with covariance) is not in this build") from None
-        return SVSFCov(model, psi=np.asarray(fs.psi, dtype=float), gamma=gamma, mapping=mapping)
+        return SVSFCov(model, psi=np.asarray(psi, dtype=float), gamma=gamma, mapping=mapping)
     try:
         from ..filters.svsf2 import SecondOrderSVSF
     except ImportError:  # pragma: no cover - only while the filter is being merged
