@@ -168,3 +168,11 @@ def test_two_local_workers_give_identical_numbers():
     for name in ("kf", "svsf"):
         np.testing.assert_array_equal(a.get(name).per_run.bias, b.get(name).per_run.bias)
         assert a.get(name).nis == b.get(name).nis
+
+
+def test_cli_refuses_record_path_under_a_file(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert main(["estimate", "detc-normal", "--runs", "1", "--record", str(blocker / "sub" / "a.rrd")]) == 2
+    assert "cannot write" in capsys.readouterr().err
+    assert blocker.read_text() == "x"

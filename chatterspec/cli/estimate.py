@@ -66,13 +66,15 @@ def _check_output(path: str | None) -> None:
     parent = target.parent if str(target.parent) else Path(".")
     if parent.exists() and not parent.is_dir():
         raise ParameterError(f"--record: {str(parent)!r} is not a directory")
-    probe = parent
-    while not probe.exists():
-        probe = probe.parent
-    import os
-
-    if not os.access(probe, os.W_OK):
-        raise ParameterError(f"--record: cannot write into {str(probe)!r} (permission denied)")
+    existed = target.exists()
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        with open(target, "ab"):
+            pass
+    except OSError as exc:
+        raise ParameterError(f"--record: cannot write {path!r}: {exc.strerror or exc}") from None
+    if not existed:
+        target.unlink()
 
 
 def run(args: argparse.Namespace) -> int:

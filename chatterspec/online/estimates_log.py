@@ -67,7 +67,10 @@ def record_estimates(records: Any, path: str | Path, *, run: int = 0) -> Path:
     outputs = tuple(model.output_names)
     path.parent.mkdir(parents=True, exist_ok=True)
     rec = rr.RecordingStream("chatterspec", recording_id=f"estimate-{sc.name}-{records.first_run + run}")
-    rec.save(str(path))
+    try:
+        rec.save(str(path))
+    except RuntimeError as exc:  # rerun reports file errors as RuntimeError
+        raise ParameterError(f"cannot write the recording {str(path)!r}: {exc}") from None
     try:
         rec.send_recording_name(f"estimate {sc.name} run {records.first_run + run}")
         t_all = rr.TimeColumn("time", duration=_ns(records.t))
