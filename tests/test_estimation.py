@@ -176,3 +176,14 @@ def test_cli_refuses_record_path_under_a_file(tmp_path, capsys):
     assert main(["estimate", "detc-normal", "--runs", "1", "--record", str(blocker / "sub" / "a.rrd")]) == 2
     assert "cannot write" in capsys.readouterr().err
     assert blocker.read_text() == "x"
+
+
+def test_time_blocks_inside_a_chunk_do_not_change_the_numbers(monkeypatch):
+    import chatterspec.studies.estimation as est
+
+    a = estimation_study("detc-uncertain", "kf,svsf,svsf2", runs=64, seed=4, progress=False)
+    monkeypatch.setattr(est, "TIME_BLOCK", 137)
+    b = estimation_study("detc-uncertain", "kf,svsf,svsf2", runs=64, seed=4, progress=False)
+    for name in ("kf", "svsf", "svsf2"):
+        np.testing.assert_array_equal(a.get(name).per_run.rmse, b.get(name).per_run.rmse)
+        assert a.get(name).nees.statistic == pytest.approx(b.get(name).nees.statistic, rel=1e-12)
