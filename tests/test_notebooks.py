@@ -16,7 +16,12 @@ NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.i
 
 def test_notebooks_exist():
     names = {p.name for p in NOTEBOOKS}
-    assert {"01_exploration.ipynb", "02_calibration.ipynb", "03_rerun_notebook.ipynb"} <= names
+    assert {
+        "01_exploration.ipynb",
+        "02_calibration.ipynb",
+        "03_rerun_notebook.ipynb",
+        "04_estimators.ipynb",
+    } <= names
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)

@@ -30,6 +30,7 @@ COMMANDS: tuple[str, ...] = (
     "calibrate",
     "far",
     "power",
+    "estimate",
 )
 
 

@@ -37,6 +37,7 @@ __all__ = [
     "MonteCarloMean",
     "StateErrorMetrics",
     "consistency",
+    "consistency_from_sums",
     "nees",
     "nis",
     "state_error_metrics",
@@ -298,12 +299,58 @@ def consistency(values: np.ndarray, dim: int, *, alpha: float = 0.05, kind: str 
         raise ShapeError(f'kind must be "NIS" or "NEES"; got {kind!r}')
     if dim < 1:
         raise ShapeError(f"dim must be a positive dimension; got {dim}")
-    runs, steps = values.shape
+    runs = values.shape[0]
+    return consistency_from_sums(float(values.sum()), values.sum(axis=0), runs, dim, alpha=alpha, kind=kind)
+
+
+def consistency_from_sums(
+    total: float,
+    per_step_sum: np.ndarray,
+    runs: int,
+    dim: int,
+    *,
+    alpha: float = 0.05,
+    kind: str = "NIS",
+) -> ConsistencyTest:
+    """:func:`consistency` from running sums (chunked Monte Carlo studies, constant memory).
+
+    Parameters
+    ----------
+    total : float
+        Sum of the NEES or NIS values over all runs and steps.
+    per_step_sum : (T,) array
+        Sum over runs at each step.
+    runs : int
+        Number of runs summed (>= 1).
+    dim : int
+        State or measurement dimension (> 0).
+    alpha : float
+        Two-sided significance level in (0, 1).
+    kind : {"NIS", "NEES"}
+        Which statistic the values are.
+
+    Returns
+    -------
+    ConsistencyTest
+    """
+    alpha = open_unit("alpha", alpha)
+    per_step_sum = _finite("per_step_sum", np.atleast_1d(per_step_sum))
+    if kind not in ("NIS", "NEES"):
+        raise ShapeError(f'kind must be "NIS" or "NEES"; got {kind!r}')
+    if dim < 1:
+        raise ShapeError(f"dim must be a positive dimension; got {dim}")
+    if runs < 1 or per_step_sum.ndim != 1:
+        raise ShapeError(
+            f"need runs >= 1 and a (T,) per-step sum; got runs={runs}, shape {per_step_sum.shape}"
+        )
+    if not np.isfinite(total):
+        raise NonFiniteError(f"the {kind} total is not finite")
+    steps = per_step_sum.shape[0]
     dof = runs * steps * dim
     lo, hi = scipy.stats.chi2.ppf([alpha / 2, 1 - alpha / 2], dof) / (runs * steps)
-    stat = float(values.mean())
+    stat = float(total) / (runs * steps)
     step_lo, step_hi = scipy.stats.chi2.ppf([alpha / 2, 1 - alpha / 2], runs * dim) / runs
-    per_step = values.mean(axis=0)
+    per_step = per_step_sum / runs
     inside = float(np.mean((per_step >= step_lo) & (per_step <= step_hi)))
     exact = (
         "exact for a consistent filter (white innovations)"
