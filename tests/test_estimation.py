@@ -125,7 +125,7 @@ def test_cli_refuses_unwritable_record_path_before_computing(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("x")
     assert main(["estimate", "detc-normal", "--runs", "1", "--record", str(blocker / "a.rrd")]) == 2
-    assert "not a directory" in capsys.readouterr().err
+    assert "is not a folder" in capsys.readouterr().err
 
 
 def test_cli_record_writes_truth_estimates_and_innovations(tmp_path, capsys):
