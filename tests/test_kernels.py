@@ -14,10 +14,16 @@ import numpy as np
 import pytest
 
 from chatterspec import _jit
+from chatterspec.detection.pipeline import (
+    _chattering_kernel,
+    chattering_record,
+    iter_chattering,
+    scenario_chattering,
+)
 from chatterspec.filters import svsf as svsf_mod
 from chatterspec.filters.svsf import SVSF, auxiliary_svsf
 from chatterspec.plants.scenarios import scenario
-from chatterspec.plants.simulate import simulate
+from chatterspec.plants.simulate import _simulate_kernel, _tables, simulate
 
 needs_numba = pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed (pip install '.[fast]')")
 
@@ -116,3 +122,69 @@ def test_enabled_follows_the_environment(monkeypatch: pytest.MonkeyPatch) -> Non
     assert not _jit.enabled()
     monkeypatch.setenv("CHATTERSPEC_JIT", "1")
     assert _jit.enabled() == _jit.HAVE_NUMBA
+
+
+@needs_numba
+@pytest.mark.parametrize("name", ["eha-healthy", "eha-leak-major", "so-boundary-layer"])
+def test_compiled_simulation_equals_numpy_path(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Same random numbers (chatterspec.rng blocks); only the order of the 3-term sums differs.
+
+    BLAS may evaluate x_aug @ W with fused multiply-adds and in another order: about one ulp per
+    step, not amplified by the stable plant, so 1e-12 of each channel's scale is a wide bound.
+    """
+    sc = scenario(name)
+    monkeypatch.setenv("CHATTERSPEC_JIT", "1")
+    fast = simulate(sc, runs=70, seed=5, chunk_runs=64)  # crosses a random-block boundary
+    monkeypatch.setenv("CHATTERSPEC_JIT", "0")
+    ref = simulate(sc, runs=70, seed=5, chunk_runs=64)
+    for a, b in ((fast.x, ref.x), (fast.z, ref.z)):
+        scale = np.abs(b).max(axis=(0, 1))
+        assert np.all(np.abs(a - b).max(axis=(0, 1)) <= REL_TOL * scale)
+    assert fast.z.strides[1] > fast.z.strides[0]  # time-major storage, as the numpy path returns
+
+
+@needs_numba
+@pytest.mark.parametrize("name", ["eha-healthy", "eha-leak-major", "so-f11-high"])
+def test_fused_chattering_is_the_filtered_simulation(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The fused kernel repeats the simulation's and the closed form's arithmetic: same bits, any chunking."""
+    monkeypatch.setenv("CHATTERSPEC_JIT", "1")
+    sc = scenario(name)
+    sim = simulate(sc, runs=70, seed=6)
+    ref = chattering_record(sc.nominal, sim.z, sim.u, scenario=sc)
+    recs = list(iter_chattering(sc, 60, seed=6, chunk_runs=64, first_run=10))
+    assert [r.first_run for r in recs] == [10]
+    np.testing.assert_array_equal(recs[0].values, ref.values[10:])
+    np.testing.assert_array_equal(recs[0].t, ref.t)
+    whole = scenario_chattering(sc, runs=70, seed=6)
+    np.testing.assert_array_equal(whole.values, ref.values)
+    monkeypatch.setenv("CHATTERSPEC_JIT", "0")  # numpy path: same noise, rounding-level difference
+    slow = scenario_chattering(sc, runs=70, seed=6)
+    assert np.abs(slow.values - whole.values).max() <= REL_TOL * np.abs(sim.z).max()
+
+
+@needs_numba
+def test_simulation_kernels_equal_their_python_form_bitwise() -> None:
+    sc = scenario("eha-leak-major")
+    t = sc.time[:40]
+    u = sc.input.sample(t).reshape(len(t), -1)
+    tb = _tables(sc, t, u)
+    rng = np.random.default_rng(0)
+    v, w = rng.standard_normal((2, 40, 3)), rng.standard_normal((2, 40, 3))
+    f = auxiliary_svsf(sc.nominal)
+    Gu = np.ascontiguousarray(svsf_mod._rows_times(u[:-1], f._GT))
+    outs = []
+    for kernel in (_simulate_kernel, _simulate_kernel.py_func):
+        xt, zt = np.empty((40, 3, 3)), np.empty((40, 3, 3))
+        kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, xt, zt, 1)
+        outs.append((xt[:, 1:], zt[:, 1:]))
+    for kernel in (_chattering_kernel, _chattering_kernel.py_func):
+        e = np.empty((3, 39, 3))
+        kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, f._PhiT, Gu, e, 1)
+        outs.append((e[1:],))
+    np.testing.assert_array_equal(outs[0][0], outs[1][0])
+    np.testing.assert_array_equal(outs[0][1], outs[1][1])
+    np.testing.assert_array_equal(outs[2][0], outs[3][0])
+    # and the fused chattering is the closed form applied to the simulated z
+    z = np.swapaxes(outs[0][1], 0, 1)
+    e_ref = f.run(z, np.broadcast_to(u, (2, 40, u.shape[1]))).e_prior[:, 1:]
+    np.testing.assert_array_equal(outs[2][0], e_ref)
