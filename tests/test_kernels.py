@@ -175,15 +175,22 @@ def test_simulation_kernels_equal_their_python_form_bitwise() -> None:
     outs = []
     for kernel in (_simulate_kernel, _simulate_kernel.py_func):
         xt, zt = np.empty((40, 3, 3)), np.empty((40, 3, 3))
-        kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, xt, zt, 1)
+        kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, xt, zt, 1)
         outs.append((xt[:, 1:], zt[:, 1:]))
     for kernel in (_chattering_kernel, _chattering_kernel.py_func):
         e = np.empty((3, 39, 3))
-        kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, f._PhiT, Gu, e, 1)
+        kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, f._PhiT, Gu, e, 1)
         outs.append((e[1:],))
     np.testing.assert_array_equal(outs[0][0], outs[1][0])
     np.testing.assert_array_equal(outs[0][1], outs[1][1])
     np.testing.assert_array_equal(outs[2][0], outs[3][0])
+    # the diagonal shortcut gives the bits of the full sums (the skipped terms are exact zeros)
+    assert tb.diag.all()
+    e_full = np.empty((3, 39, 3))
+    no_diag = np.zeros_like(tb.diag)
+    args = (tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, no_diag)
+    _chattering_kernel(v, w, *args, f._PhiT, Gu, e_full, 1)
+    np.testing.assert_array_equal(e_full[1:], outs[2][0])
     # and the fused chattering is the closed form applied to the simulated z
     z = np.swapaxes(outs[0][1], 0, 1)
     e_ref = f.run(z, np.broadcast_to(u, (2, 40, u.shape[1]))).e_prior[:, 1:]

@@ -131,6 +131,7 @@ def _chattering_kernel(
     Lr: np.ndarray,
     Bu: np.ndarray,
     x0: np.ndarray,
+    diag: np.ndarray,
     PhiT: np.ndarray,
     Gu: np.ndarray,
     e_out: np.ndarray,
@@ -159,9 +160,12 @@ def _chattering_kernel(
                 cx = 0.0
                 for j in range(n):
                     cx += C[s, i, j] * x[j]
-                nz = 0.0
-                for j in range(m):
-                    nz += Lr[s, i, j] * w[r, k, j]
+                if diag[s, 1]:
+                    nz = Lr[s, i, i] * w[r, k, i]
+                else:
+                    nz = 0.0
+                    for j in range(m):
+                        nz += Lr[s, i, j] * w[r, k, j]
                 z[i] = cx + nz
             if k > 0:
                 for i in range(m):
@@ -176,9 +180,12 @@ def _chattering_kernel(
                     ax = 0.0
                     for j in range(n):
                         ax += A[s, i, j] * x[j]
-                    nv = 0.0
-                    for j in range(n):
-                        nv += Lq[s, i, j] * v[r, k, j]
+                    if diag[s, 0]:
+                        nv = Lq[s, i, i] * v[r, k, i]
+                    else:
+                        nv = 0.0
+                        for j in range(n):
+                            nv += Lq[s, i, j] * v[r, k, j]
                     xn[i] = (ax + Bu[s, k, i]) + nv
                 for i in range(n):
                     x[i] = xn[i]
@@ -205,7 +212,9 @@ def _fused_chattering(
         hi = min(lo + chunk, first_run + runs)
         e = np.empty((hi - lo, T - 1, m))
         for off, v, w in _noise_blocks(root, lo, hi, T, n, m):
-            _chattering_kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, PhiT, Gu, e, off)
+            _chattering_kernel(
+                v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, PhiT, Gu, e, off
+            )
         yield ChatteringRecord(t=times, values=e, model=model, scenario=scenario, first_run=lo)
 
 

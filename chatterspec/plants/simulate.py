@@ -185,6 +185,7 @@ class _Tables:
     Lr: np.ndarray  # (S, m, m), Lr Lr^T = R
     Bu: np.ndarray  # (S, T, n), B u(k)
     x0: np.ndarray  # (n,)
+    diag: np.ndarray  # (S, 2) bool: Lq, Lr diagonal (then only the diagonal terms are summed)
 
 
 def _tables(scenario: Scenario, t: np.ndarray, u: np.ndarray) -> _Tables:
@@ -198,7 +199,12 @@ def _tables(scenario: Scenario, t: np.ndarray, u: np.ndarray) -> _Tables:
         Lr=c(np.stack([covariance_sqrt(sg.model.R) for sg in segs]), dtype=float),
         Bu=c(np.stack([u @ sg.model.B.T for sg in segs]), dtype=float),
         x0=c(scenario.x0, dtype=float),
+        diag=np.array([[_is_diagonal(sg.model.Q), _is_diagonal(sg.model.R)] for sg in segs], dtype=np.bool_),
     )
+
+
+def _is_diagonal(M: np.ndarray) -> bool:
+    return bool(np.count_nonzero(M - np.diag(np.diag(M))) == 0)
 
 
 def _noise_blocks(
@@ -229,6 +235,7 @@ def _simulate_kernel(
     Lr: np.ndarray,
     Bu: np.ndarray,
     x0: np.ndarray,
+    diag: np.ndarray,
     xt: np.ndarray,
     zt: np.ndarray,
     offset: int,
@@ -238,7 +245,9 @@ def _simulate_kernel(
     ``x(k+1) = A_s x(k) + B_s u(k) + Lq_s v(k)`` and ``z(k) = C_s x(k) + Lr_s w(k)`` with the
     segment s active at sample k, ``v``/``w`` raw standard normals ``(runs, T, n|m)``; run r
     goes to ``xt[:, offset + r]``. Sums run over j = 0, 1, ... in that order (the fused
-    chattering kernel of :mod:`chatterspec.detection.pipeline` repeats this arithmetic).
+    chattering kernel of :mod:`chatterspec.detection.pipeline` repeats this arithmetic);
+    where ``diag[s]`` says Lq_s (Lr_s) is diagonal only the diagonal term is computed,
+    which gives the same bits (the other terms are exact zeros).
     """
     runs, T, n = v.shape
     m = w.shape[2]
@@ -253,9 +262,12 @@ def _simulate_kernel(
                 cx = 0.0
                 for j in range(n):
                     cx += C[s, i, j] * x[j]
-                nz = 0.0
-                for j in range(m):
-                    nz += Lr[s, i, j] * w[r, k, j]
+                if diag[s, 1]:
+                    nz = Lr[s, i, i] * w[r, k, i]
+                else:
+                    nz = 0.0
+                    for j in range(m):
+                        nz += Lr[s, i, j] * w[r, k, j]
                 zt[k, offset + r, i] = cx + nz
             for i in range(n):
                 xt[k, offset + r, i] = x[i]
@@ -264,9 +276,12 @@ def _simulate_kernel(
                     ax = 0.0
                     for j in range(n):
                         ax += A[s, i, j] * x[j]
-                    nv = 0.0
-                    for j in range(n):
-                        nv += Lq[s, i, j] * v[r, k, j]
+                    if diag[s, 0]:
+                        nv = Lq[s, i, i] * v[r, k, i]
+                    else:
+                        nv = 0.0
+                        for j in range(n):
+                            nv += Lq[s, i, j] * v[r, k, j]
                     xn[i] = (ax + Bu[s, k, i]) + nv
                 for i in range(n):
                     x[i] = xn[i]
@@ -288,7 +303,7 @@ def _simulate_block(
         xt = np.empty((T, hi - lo, n))
         zt = np.empty((T, hi - lo, m))
         for off, v, w in _noise_blocks(root, lo, hi, T, n, m):
-            _simulate_kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, xt, zt, off)
+            _simulate_kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, xt, zt, off)
         return np.swapaxes(xt, 0, 1), np.swapaxes(zt, 0, 1)
     if hi - lo == 1:
         # BLAS evaluates a one-row product by another kernel (gemv) whose rounding differs
