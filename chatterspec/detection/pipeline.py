@@ -18,7 +18,14 @@ from ..errors import ShapeError
 from ..filters.svsf import _rows_times, auxiliary_svsf
 from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario
-from ..plants.simulate import Simulation, _noise_blocks, _tables, default_chunk_runs, iter_simulations
+from ..plants.simulate import (
+    Simulation,
+    _noise_blocks,
+    _same_shapes,
+    _tables,
+    default_chunk_runs,
+    iter_simulations,
+)
 from ..rng import SeedLike, root_seed_sequence
 
 __all__ = ["ChatteringRecord", "chattering_record", "iter_chattering", "scenario_chattering"]
@@ -221,12 +228,7 @@ def _fused_chattering(
 def _can_fuse(scenario: Scenario) -> bool:
     """The fused kernel covers the closed-form case: compiled kernels on, full measurement, T >= 2."""
     model = scenario.nominal
-    return (
-        _jit.enabled()
-        and model.full_measurement
-        and scenario.n_samples >= 2
-        and all(sg.model.n_states == model.n_states for sg in scenario.segments)
-    )
+    return _jit.enabled() and model.full_measurement and scenario.n_samples >= 2 and _same_shapes(scenario)
 
 
 def iter_chattering(

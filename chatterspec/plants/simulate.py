@@ -203,6 +203,13 @@ def _tables(scenario: Scenario, t: np.ndarray, u: np.ndarray) -> _Tables:
     )
 
 
+def _same_shapes(scenario: Scenario) -> bool:
+    """Whether every segment's model has the nominal's dimensions (the kernels stack them)."""
+    nom = scenario.nominal
+    dims = (nom.n_states, nom.n_outputs, nom.n_inputs)
+    return all((sg.model.n_states, sg.model.n_outputs, sg.model.n_inputs) == dims for sg in scenario.segments)
+
+
 def _is_diagonal(M: np.ndarray) -> bool:
     return bool(np.count_nonzero(M - np.diag(np.diag(M))) == 0)
 
@@ -295,7 +302,7 @@ def _simulate_block(
     t: np.ndarray,
     u: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    if _jit.enabled():
+    if _jit.enabled() and _same_shapes(scenario):
         # compiled path: per-run scalar arithmetic, so any chunking gives the same bits
         T = len(t)
         n, m = scenario.nominal.n_states, scenario.nominal.n_outputs
