@@ -83,16 +83,19 @@ PROBE = (
     "from chatterspec.filters.svsf import SVSF; from chatterspec.plants.scenarios import scenario; "
     "m = scenario('eha-healthy').nominal; f = SVSF(m, psi=3 * np.sqrt(np.diag(m.R))); "
     "s = f.initialize(np.zeros(3)); t1 = time.perf_counter(); "
-    "f.update(s, np.zeros((1, 2, 3)), np.zeros((2, 1)), check=False); "
-    "print(t1 - t0, time.perf_counter() - t1)"
+    "f.update(s, np.zeros((1, 2, 3)), np.zeros((2, 1)), check=False); t2 = time.perf_counter(); "
+    "from chatterspec.detection.pipeline import iter_chattering; "
+    "next(iter_chattering(scenario('eha-healthy'), 1, 0)); "
+    "print(t1 - t0, t2 - t1, time.perf_counter() - t2)"
 )
 
 
-def probe(env_jit: str) -> tuple[float, float]:
+def probe(env_jit: str) -> tuple[float, float, float]:
+    """(import + setup, first SVSF.update, first 1-run iter_chattering) in seconds, fresh process."""
     env = dict(os.environ, CHATTERSPEC_JIT=env_jit, PYTHONPATH=str(ROOT))
     out = subprocess.run([sys.executable, "-c", PROBE], env=env, capture_output=True, text=True, check=True)
-    a, b = out.stdout.split()
-    return float(a), float(b)
+    a, b, c = out.stdout.split()
+    return float(a), float(b), float(c)
 
 
 def clear_cache() -> int:
@@ -130,10 +133,14 @@ def main(argv: list[str] | None = None) -> int:
         cold = probe("1")
         warm = probe("1")
         off = probe("0")
-        print(f"first kernel call in a fresh process (numba cache: {n} file(s) deleted first):")
-        print(f"  cold cache (numba import + compile + cache write): {cold[1]:.2f} s")
-        print(f"  warm cache (numba import + cache load):            {warm[1]:.2f} s")
-        print(f"  numpy path (CHATTERSPEC_JIT=0):                    {off[1]:.4f} s")
+        print(f"first calls in a fresh process (numba cache: {n} file(s) deleted first); seconds")
+        print(f"  {'':<48} {'SVSF.update':>12} {'1-run chattering':>17}")
+        for label, r in (
+            ("cold cache (numba import + compile + cache write)", cold),
+            ("warm cache (numba import + cache load)", warm),
+            ("numpy path (CHATTERSPEC_JIT=0)", off),
+        ):
+            print(f"  {label:<48} {r[1]:12.3f} {r[2]:17.3f}")
         print(f"  (import chatterspec + setup: {cold[0]:.2f} / {warm[0]:.2f} / {off[0]:.2f} s)")
     return 0
 
