@@ -20,6 +20,7 @@ from chatterspec.detection.pipeline import (
     iter_chattering,
     scenario_chattering,
 )
+from chatterspec.detection.spectral import periodogram
 from chatterspec.filters import svsf as svsf_mod
 from chatterspec.filters.svsf import SVSF, auxiliary_svsf
 from chatterspec.plants.scenarios import scenario
@@ -155,6 +156,10 @@ def test_fused_chattering_is_the_filtered_simulation(name: str, monkeypatch: pyt
     assert [r.first_run for r in recs] == [10]
     np.testing.assert_array_equal(recs[0].values, ref.values[10:])
     np.testing.assert_array_equal(recs[0].t, ref.t)
+    # channel-major storage behind the (runs, N, m) view: the periodogram does not see it
+    np.testing.assert_array_equal(
+        periodogram(recs[0].values, sc.dt).power, periodogram(ref.values[10:], sc.dt).power
+    )
     whole = scenario_chattering(sc, runs=70, seed=6)
     np.testing.assert_array_equal(whole.values, ref.values)
     monkeypatch.setenv("CHATTERSPEC_JIT", "0")  # numpy path: same noise, rounding-level difference
@@ -178,19 +183,19 @@ def test_simulation_kernels_equal_their_python_form_bitwise() -> None:
         kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, xt, zt, 1)
         outs.append((xt[:, 1:], zt[:, 1:]))
     for kernel in (_chattering_kernel, _chattering_kernel.py_func):
-        e = np.empty((3, 39, 3))
+        e = np.empty((3, 3, 39))  # (runs, m, N): channel-major
         kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, f._PhiT, Gu, e, 1)
-        outs.append((e[1:],))
+        outs.append((e[1:].transpose(0, 2, 1),))
     np.testing.assert_array_equal(outs[0][0], outs[1][0])
     np.testing.assert_array_equal(outs[0][1], outs[1][1])
     np.testing.assert_array_equal(outs[2][0], outs[3][0])
     # the diagonal shortcut gives the bits of the full sums (the skipped terms are exact zeros)
     assert tb.diag.all()
-    e_full = np.empty((3, 39, 3))
+    e_full = np.empty((3, 3, 39))
     no_diag = np.zeros_like(tb.diag)
     args = (tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, no_diag)
     _chattering_kernel(v, w, *args, f._PhiT, Gu, e_full, 1)
-    np.testing.assert_array_equal(e_full[1:], outs[2][0])
+    np.testing.assert_array_equal(e_full[1:].transpose(0, 2, 1), outs[2][0])
     # and the fused chattering is the closed form applied to the simulated z
     z = np.swapaxes(outs[0][1], 0, 1)
     e_ref = f.run(z, np.broadcast_to(u, (2, 40, u.shape[1]))).e_prior[:, 1:]

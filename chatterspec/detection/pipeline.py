@@ -150,7 +150,8 @@ def _chattering_kernel(
     chattering that of ``SVSF._update_closed_form`` (``(z_i(k) - G_i u(k-1)) - sum_j Phi_ij
     z_j(k-1)``, j = 0, 1, ...), so the result is bit-identical to filtering the simulation;
     only x(k) and z(k), z(k-1) of the current run are held (no ``(runs, T, n)`` arrays).
-    ``e_out[offset + r, k - 1] = e(k|k-1)``, k = 1..T-1.
+    ``e_out[offset + r, :, k - 1] = e(k|k-1)``, k = 1..T-1: channel-major, so that each
+    channel's record is contiguous for the periodogram's FFT.
     """
     runs, T, n = v.shape
     m = w.shape[2]
@@ -179,7 +180,7 @@ def _chattering_kernel(
                     acc = z[i] - Gu[k - 1, i]
                     for j in range(m):
                         acc -= PhiT[j, i] * zp[j]
-                    e_out[offset + r, k - 1, i] = acc
+                    e_out[offset + r, i, k - 1] = acc
             for i in range(m):
                 zp[i] = z[i]
             if k + 1 < T:
@@ -217,12 +218,13 @@ def _fused_chattering(
     chunk = default_chunk_runs(scenario) if chunk_runs is None else positive_int("chunk_runs", chunk_runs)
     for lo in range(first_run, first_run + runs, chunk):
         hi = min(lo + chunk, first_run + runs)
-        e = np.empty((hi - lo, T - 1, m))
+        e = np.empty((hi - lo, m, T - 1))  # channel-major storage (contiguous FFT lines)
         for off, v, w in _noise_blocks(root, lo, hi, T, n, m):
             _chattering_kernel(
                 v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, PhiT, Gu, e, off
             )
-        yield ChatteringRecord(t=times, values=e, model=model, scenario=scenario, first_run=lo)
+        values = e.transpose(0, 2, 1)  # the (runs, N, m) view of the package convention
+        yield ChatteringRecord(t=times, values=values, model=model, scenario=scenario, first_run=lo)
 
 
 def _can_fuse(scenario: Scenario) -> bool:
