@@ -8,8 +8,9 @@ With numba installed, :func:`njit` compiles it on first call
 ``__pycache__/*.nbi|*.nbc``, so a second process loads it instead of
 recompiling); without numba, or with ``CHATTERSPEC_JIT=0`` in the environment,
 the caller takes its numpy path instead (see :func:`enabled`). numba is
-imported lazily, on the first call of a compiled kernel, so commands that never
-run one do not pay its import time.
+imported lazily, by the first :func:`enabled` call, so commands that never reach
+a kernel do not pay its import time; a numba that is installed but fails to
+import means the numpy path, with a warning.
 
 How to add a compiled kernel
 ----------------------------
@@ -49,6 +50,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import warnings
 from collections.abc import Callable
 from typing import Any, TypeVar
 
@@ -60,12 +62,34 @@ F = TypeVar("F", bound=Callable[..., Any])
 HAVE_NUMBA = importlib.util.find_spec("numba") is not None
 
 
-def enabled() -> bool:
-    """True when compiled kernels are used (numba installed and ``CHATTERSPEC_JIT`` is not ``0``).
+_IMPORTABLE: list[bool] = []  # memo of the one import attempt
 
-    Read at every call, so a test can switch paths with ``monkeypatch.setenv``.
+
+def _numba_importable() -> bool:
+    """Import numba once; an installed but broken numba (e.g. built for another numpy) means no."""
+    if not _IMPORTABLE:
+        try:
+            import numba  # noqa: F401
+
+            _IMPORTABLE.append(True)
+        except Exception as exc:  # pragma: no cover - depends on the environment
+            warnings.warn(
+                f"numba is installed but cannot be imported ({type(exc).__name__}: {exc}); "
+                "chatterspec uses its numpy path",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+            _IMPORTABLE.append(False)
+    return _IMPORTABLE[0]
+
+
+def enabled() -> bool:
+    """True when compiled kernels are used (numba importable and ``CHATTERSPEC_JIT`` is not ``0``).
+
+    The environment is read at every call, so a test can switch paths with
+    ``monkeypatch.setenv``; numba itself is imported on the first call that needs it.
     """
-    return HAVE_NUMBA and os.environ.get("CHATTERSPEC_JIT", "1") != "0"
+    return HAVE_NUMBA and os.environ.get("CHATTERSPEC_JIT", "1") != "0" and _numba_importable()
 
 
 class _LazyKernel:
