@@ -7,6 +7,10 @@ straightforward per-step loop over one realization (plain numpy on 1-D arrays, e
 written literally). Also tries splitting the realization axis over a 2-thread
 ``ThreadPoolExecutor`` (numpy releases the GIL inside ufuncs/matmul).
 
+The "recursion" columns force ``closed_form=False``: with numba installed that is the
+compiled kernel of :mod:`chatterspec._jit` (``CHATTERSPEC_JIT=0`` selects the numpy loop);
+``benchmarks/bench_kernels.py`` compares the two paths directly.
+
 Targets (issue 8): >= 15 M realization-steps/s at 10^4 realizations and >= 300x the loop.
 
 Usage::

@@ -12,13 +12,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import _jit
 from .._validate import positive_int
-from ..filters.svsf import auxiliary_svsf
+from ..errors import ShapeError
+from ..filters.svsf import _rows_times, auxiliary_svsf
 from ..plants.models import LinearModel
 from ..plants.nonlinear import require_linear
 from ..plants.scenarios import Scenario
-from ..plants.simulate import Simulation, iter_simulations
-from ..rng import SeedLike
+from ..plants.simulate import (
+    Simulation,
+    _noise_blocks,
+    _same_shapes,
+    _tables,
+    default_chunk_runs,
+    iter_simulations,
+)
+from ..rng import SeedLike, root_seed_sequence
 
 __all__ = ["ChatteringRecord", "chattering_record", "iter_chattering", "scenario_chattering"]
 
@@ -120,6 +129,118 @@ def _from_simulation(sim: Simulation, gamma: float) -> ChatteringRecord:
     return chattering_record(sc.nominal, sim.z, sim.u, gamma=gamma, scenario=sc, first_run=sim.first_run)
 
 
+@_jit.njit
+def _chattering_kernel(
+    v: np.ndarray,
+    w: np.ndarray,
+    seg_idx: np.ndarray,
+    A: np.ndarray,
+    C: np.ndarray,
+    Lq: np.ndarray,
+    Lr: np.ndarray,
+    Bu: np.ndarray,
+    x0: np.ndarray,
+    diag: np.ndarray,
+    PhiT: np.ndarray,
+    Gu: np.ndarray,
+    e_out: np.ndarray,
+    offset: int,
+) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_kernels.py)
+    """Simulation (eq 1-2) and the auxiliary SVSF's chattering (eq 23) fused, one block of runs.
+
+    The plant arithmetic is that of ``chatterspec.plants.simulate._simulate_kernel`` and the
+    chattering that of ``SVSF._update_closed_form`` (``(z_i(k) - G_i u(k-1)) - sum_j Phi_ij
+    z_j(k-1)``, j = 0, 1, ...), so the result is bit-identical to filtering the simulation;
+    only x(k) and z(k), z(k-1) of the current run are held (no ``(runs, T, n)`` arrays).
+    ``e_out[offset + r, :, k - 1] = e(k|k-1)``, k = 1..T-1: channel-major, so that each
+    channel's record is contiguous for the periodogram's FFT.
+    """
+    runs, T, n = v.shape
+    m = w.shape[2]
+    x = np.empty(n)
+    xn = np.empty(n)
+    z = np.empty(m)
+    zp = np.empty(m)
+    for r in range(runs):
+        for i in range(n):
+            x[i] = x0[i]
+        for k in range(T):
+            s = seg_idx[k]
+            for i in range(m):
+                cx = 0.0
+                for j in range(n):
+                    cx += C[s, i, j] * x[j]
+                if diag[s, 1]:
+                    nz = Lr[s, i, i] * w[r, k, i]
+                else:
+                    nz = 0.0
+                    for j in range(m):
+                        nz += Lr[s, i, j] * w[r, k, j]
+                z[i] = cx + nz
+            if k > 0:
+                for i in range(m):
+                    acc = z[i] - Gu[k - 1, i]
+                    for j in range(m):
+                        acc -= PhiT[j, i] * zp[j]
+                    e_out[offset + r, i, k - 1] = acc
+            for i in range(m):
+                zp[i] = z[i]
+            if k + 1 < T:
+                for i in range(n):
+                    ax = 0.0
+                    for j in range(n):
+                        ax += A[s, i, j] * x[j]
+                    if diag[s, 0]:
+                        nv = Lq[s, i, i] * v[r, k, i]
+                    else:
+                        nv = 0.0
+                        for j in range(n):
+                            nv += Lq[s, i, j] * v[r, k, j]
+                    xn[i] = (ax + Bu[s, k, i]) + nv
+                for i in range(n):
+                    x[i] = xn[i]
+
+
+def _fused_chattering(
+    scenario: Scenario, runs: int, seed: SeedLike, chunk_runs: int | None, first_run: int, gamma: float
+) -> Iterator[ChatteringRecord]:
+    """:func:`iter_chattering` through :func:`_chattering_kernel` (same numbers, no x or z arrays)."""
+    model = scenario.nominal
+    f = auxiliary_svsf(model, gamma)
+    root = root_seed_sequence(seed)
+    t = scenario.time
+    u = scenario.input.sample(t).reshape(len(t), -1)
+    if u.shape[1] != model.n_inputs:
+        raise ShapeError(f"scenario input gives {u.shape[1]} channel(s); the model has {model.n_inputs}")
+    T, n, m = len(t), model.n_states, model.n_outputs
+    tb = _tables(scenario, t, u)
+    Gu = np.ascontiguousarray(_rows_times(u[:-1], f._GT), dtype=float)  # as SVSF.update computes it
+    PhiT = np.ascontiguousarray(f._PhiT, dtype=float)
+    times = np.arange(1, T) * model.dt
+    chunk = default_chunk_runs(scenario) if chunk_runs is None else positive_int("chunk_runs", chunk_runs)
+    for lo in range(first_run, first_run + runs, chunk):
+        hi = min(lo + chunk, first_run + runs)
+        e = np.empty((hi - lo, m, T - 1))  # channel-major storage (contiguous FFT lines)
+        for off, v, w in _noise_blocks(root, lo, hi, T, n, m):
+            _chattering_kernel(
+                v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, PhiT, Gu, e, off
+            )
+        values = e.transpose(0, 2, 1)  # the (runs, N, m) view of the package convention
+        yield ChatteringRecord(t=times, values=values, model=model, scenario=scenario, first_run=lo)
+
+
+def _can_fuse(scenario: Scenario) -> bool:
+    """The fused kernel covers the closed-form case: compiled kernels on, full measurement, T >= 2."""
+    model = scenario.nominal
+    return (
+        _jit.enabled()
+        and getattr(scenario, "is_linear", True)
+        and model.full_measurement
+        and scenario.n_samples >= 2
+        and _same_shapes(scenario)
+    )
+
+
 def iter_chattering(
     scenario: Scenario,
     runs: int,
@@ -156,6 +277,10 @@ def iter_chattering(
     ChatteringRecord
         One record per chunk, each with ``first_run`` set to its first realization.
     """
+    if _can_fuse(scenario):
+        runs = positive_int("runs", runs)
+        yield from _fused_chattering(scenario, runs, seed, chunk_runs, first_run, gamma)
+        return
     for sim in iter_simulations(scenario, runs, seed, chunk_runs=chunk_runs, first_run=first_run):
         yield _from_simulation(sim, gamma)
 

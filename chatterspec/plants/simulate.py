@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import _jit
 from .._validate import positive_int
 from ..rng import BLOCK, SeedLike, block_generator, root_seed_sequence
 from .scenarios import Scenario
@@ -173,6 +174,126 @@ def iter_simulations(
         yield Simulation(t=t, x=x, z=z, u=u, scenario=scenario, first_run=lo)
 
 
+@dataclass(frozen=True, eq=False)
+class _Tables:
+    """Per-segment arrays of a scenario for the compiled kernels (segment s active at sample k)."""
+
+    seg_idx: np.ndarray  # (T,) int64
+    A: np.ndarray  # (S, n, n)
+    C: np.ndarray  # (S, m, n)
+    Lq: np.ndarray  # (S, n, n), Lq Lq^T = Q
+    Lr: np.ndarray  # (S, m, m), Lr Lr^T = R
+    Bu: np.ndarray  # (S, T, n), B u(k)
+    x0: np.ndarray  # (n,)
+    diag: np.ndarray  # (S, 2) bool: Lq, Lr diagonal (then only the diagonal terms are summed)
+
+
+def _tables(scenario: Scenario, t: np.ndarray, u: np.ndarray) -> _Tables:
+    segs = scenario.segments
+    c = np.ascontiguousarray
+    return _Tables(
+        seg_idx=c(scenario.segment_index(t), dtype=np.int64),
+        A=c(np.stack([sg.model.A for sg in segs]), dtype=float),
+        C=c(np.stack([sg.model.C for sg in segs]), dtype=float),
+        Lq=c(np.stack([covariance_sqrt(sg.model.Q) for sg in segs]), dtype=float),
+        Lr=c(np.stack([covariance_sqrt(sg.model.R) for sg in segs]), dtype=float),
+        Bu=c(np.stack([u @ sg.model.B.T for sg in segs]), dtype=float),
+        x0=c(scenario.x0, dtype=float),
+        diag=np.array([[_is_diagonal(sg.model.Q), _is_diagonal(sg.model.R)] for sg in segs], dtype=np.bool_),
+    )
+
+
+def _same_shapes(scenario: Scenario) -> bool:
+    """Whether every segment's model has the nominal's dimensions (the kernels stack them)."""
+    nom = scenario.nominal
+    dims = (nom.n_states, nom.n_outputs, nom.n_inputs)
+    return all((sg.model.n_states, sg.model.n_outputs, sg.model.n_inputs) == dims for sg in scenario.segments)
+
+
+def _is_diagonal(M: np.ndarray) -> bool:
+    return bool(np.count_nonzero(M - np.diag(np.diag(M))) == 0)
+
+
+def _noise_blocks(
+    root: np.random.SeedSequence, lo: int, hi: int, T: int, n: int, m: int
+) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """``(offset, v, w)`` per random block overlapping ``[lo, hi)``: raw normals ``(b, T, n|m)``.
+
+    Exactly the numbers of :func:`chatterspec.rng.block_generator` streams 0 (process) and
+    1 (measurement) of each block, realization-major; ``offset`` is the first run's index
+    relative to ``lo``.
+    """
+    for b in range(lo // BLOCK, (hi - 1) // BLOCK + 1):
+        b_lo, b_hi = b * BLOCK, (b + 1) * BLOCK
+        s0, s1 = max(b_lo, lo), min(b_hi, hi)
+        v = block_generator(root, b, 0).standard_normal((BLOCK, T, n))[s0 - b_lo : s1 - b_lo]
+        w = block_generator(root, b, 1).standard_normal((BLOCK, T, m))[s0 - b_lo : s1 - b_lo]
+        yield s0 - lo, v, w
+
+
+@_jit.njit
+def _simulate_kernel(
+    v: np.ndarray,
+    w: np.ndarray,
+    seg_idx: np.ndarray,
+    A: np.ndarray,
+    C: np.ndarray,
+    Lq: np.ndarray,
+    Lr: np.ndarray,
+    Bu: np.ndarray,
+    x0: np.ndarray,
+    diag: np.ndarray,
+    xt: np.ndarray,
+    zt: np.ndarray,
+    offset: int,
+) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_kernels.py)
+    """Eq (1)-(2) for the runs of one random block, written time-major into ``xt``/``zt``.
+
+    ``x(k+1) = A_s x(k) + B_s u(k) + Lq_s v(k)`` and ``z(k) = C_s x(k) + Lr_s w(k)`` with the
+    segment s active at sample k, ``v``/``w`` raw standard normals ``(runs, T, n|m)``; run r
+    goes to ``xt[:, offset + r]``. Sums run over j = 0, 1, ... in that order (the fused
+    chattering kernel of :mod:`chatterspec.detection.pipeline` repeats this arithmetic);
+    where ``diag[s]`` says Lq_s (Lr_s) is diagonal only the diagonal term is computed,
+    which gives the same bits (the other terms are exact zeros).
+    """
+    runs, T, n = v.shape
+    m = w.shape[2]
+    x = np.empty(n)
+    xn = np.empty(n)
+    for r in range(runs):
+        for i in range(n):
+            x[i] = x0[i]
+        for k in range(T):
+            s = seg_idx[k]
+            for i in range(m):
+                cx = 0.0
+                for j in range(n):
+                    cx += C[s, i, j] * x[j]
+                if diag[s, 1]:
+                    nz = Lr[s, i, i] * w[r, k, i]
+                else:
+                    nz = 0.0
+                    for j in range(m):
+                        nz += Lr[s, i, j] * w[r, k, j]
+                zt[k, offset + r, i] = cx + nz
+            for i in range(n):
+                xt[k, offset + r, i] = x[i]
+            if k + 1 < T:
+                for i in range(n):
+                    ax = 0.0
+                    for j in range(n):
+                        ax += A[s, i, j] * x[j]
+                    if diag[s, 0]:
+                        nv = Lq[s, i, i] * v[r, k, i]
+                    else:
+                        nv = 0.0
+                        for j in range(n):
+                            nv += Lq[s, i, j] * v[r, k, j]
+                    xn[i] = (ax + Bu[s, k, i]) + nv
+                for i in range(n):
+                    x[i] = xn[i]
+
+
 def _simulate_block(
     scenario: Scenario,
     root: np.random.SeedSequence,
@@ -186,6 +307,16 @@ def _simulate_block(
         from .simulate_nonlinear import simulate_block_nonlinear
 
         return simulate_block_nonlinear(scenario, root, lo, hi, t, u)
+    if _jit.enabled() and getattr(scenario, "is_linear", True) and _same_shapes(scenario):
+        # compiled path: per-run scalar arithmetic, so any chunking gives the same bits
+        T = len(t)
+        n, m = scenario.nominal.n_states, scenario.nominal.n_outputs
+        tb = _tables(scenario, t, u)
+        xt = np.empty((T, hi - lo, n))
+        zt = np.empty((T, hi - lo, m))
+        for off, v, w in _noise_blocks(root, lo, hi, T, n, m):
+            _simulate_kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, xt, zt, off)
+        return np.swapaxes(xt, 0, 1), np.swapaxes(zt, 0, 1)
     if hi - lo == 1:
         # BLAS evaluates a one-row product by another kernel (gemv) whose rounding differs
         # in the last bit; simulate two realizations so that realization ``lo`` is

@@ -1,0 +1,202 @@
+"""Compiled kernels (chatterspec._jit) against the numpy path they replace.
+
+Both paths evaluate the same per-element arithmetic; the only difference is the
+order of the terms in the small matrix-vector products (BLAS in the numpy loop,
+j = 0..n-1 in the kernel), i.e. a few ulps per step. The SVSF recursion is
+stable (|1 - sat'| <= 1 and Phi is stable), so these differences do not grow:
+1e-12 of each channel's scale (~1e4 ulps) bounds them with a wide margin, the
+same tolerance as the closed-form/recursion test of tests/test_svsf.py.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from chatterspec import _jit
+from chatterspec.detection.pipeline import (
+    _chattering_kernel,
+    chattering_record,
+    iter_chattering,
+    scenario_chattering,
+)
+from chatterspec.detection.spectral import periodogram
+from chatterspec.filters import svsf as svsf_mod
+from chatterspec.filters.svsf import SVSF, auxiliary_svsf
+from chatterspec.plants.scenarios import scenario
+from chatterspec.plants.simulate import _simulate_kernel, _tables, simulate
+
+needs_numba = pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed (pip install '.[fast]')")
+
+REL_TOL = 1e-12  # see the module docstring
+
+
+def _filters() -> dict[str, tuple[str, SVSF, np.ndarray | None]]:
+    eha = scenario("eha-healthy").nominal
+    so = scenario("so-boundary-layer").nominal
+    return {
+        "sat-full": ("eha-healthy", SVSF(eha, psi=3 * np.sqrt(np.diag(eha.R))), None),
+        "sat-reduced": ("so-boundary-layer", SVSF(so, psi=8e-4, psi_lower=0.8), None),
+        "sgn-reduced": ("so-boundary-layer", SVSF(so, switching="sgn"), None),
+        # non-zero initial error: the sgn filter leaves the closed form and runs the recursion
+        "sgn-full-x0": ("eha-healthy", auxiliary_svsf(eha, gamma=0.5), np.array([0.01, -0.02, 0.5])),
+    }
+
+
+def _run(f: SVSF, z: np.ndarray, u: np.ndarray, x0: np.ndarray | None):
+    return f.run(z, u, x0=x0, store_states=True, store_post_error=True, store_lower=True)
+
+
+@needs_numba
+@pytest.mark.parametrize("case", list(_filters()))
+def test_compiled_svsf_equals_numpy_path(case: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    name, f, x0 = _filters()[case]
+    sim = simulate(scenario(name), runs=3, seed=11)
+    z, u = sim.z[:, :1500], sim.u[:1500]
+    monkeypatch.setenv("CHATTERSPEC_JIT", "1")
+    fast = _run(f, z, u, x0)
+    monkeypatch.setenv("CHATTERSPEC_JIT", "0")
+    ref = _run(f, z, u, x0)
+    # The output errors are differences of measurement-sized numbers (e = z - z_pred, e(k|k) =
+    # z - y_u), so their rounding is counted in ulps of z, not of the (much smaller) errors;
+    # e_lower = Phi22 Phi12^-1 e scales that by the row sums of |Phi22 Phi12^-1|.
+    z_scale = np.abs(z).max()
+    scales = {
+        "e_prior": z_scale,
+        "e_post": z_scale,
+        "x_post": np.abs(ref.x_post).max(axis=(0, 1)),
+        "e_lower": None if f._L is None else z_scale * np.abs(f._L).sum(axis=1),
+    }
+    for attr, scale in scales.items():
+        a, b = getattr(fast, attr), getattr(ref, attr)
+        if b is None:
+            assert a is None, attr
+            continue
+        err = np.abs(a - b).max(axis=(0, 1))
+        assert np.all(err <= REL_TOL * scale), (attr, err / scale)
+
+
+@needs_numba
+def test_compiled_kernel_equals_its_python_form_bitwise() -> None:
+    """numba compiles the kernel without fastmath: same operations, same order, same bits."""
+    sc = scenario("so-boundary-layer")
+    sim = simulate(sc, runs=2, seed=4)
+    f = SVSF(sc.nominal, psi=8e-4, psi_lower=0.8)
+    z = np.ascontiguousarray(sim.z[:, 1:60])
+    Gu = np.ascontiguousarray(svsf_mod._rows_times(sim.u[:59], f._GT)[None])
+    state = f.initialize(sim.z[:, 0], x0=np.array([0.001, -0.01]))
+    K, n, m = z.shape[1], 2, 1
+
+    def call(kernel):
+        y, ep = state.y.copy(), state.e_post.copy()
+        outs = [np.empty((2, K, m)), np.empty((2, K, n)), np.empty((2, K, m)), np.empty((2, K, n - m))]
+        kernel(z, Gu, f._PhiT, f._L, f._P, f._inv_psi, f.gamma, f._S_inv, y, ep, *outs)
+        return [y, ep, *outs]
+
+    for a, b in zip(call(svsf_mod._svsf_kernel), call(svsf_mod._svsf_kernel.py_func), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("jit", ["0", "1"])
+def test_online_single_samples_equal_batch_on_both_paths(jit: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The monitor's use: 1-sample updates give the batch bits, whichever path is active."""
+    if jit == "1" and not _jit.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    monkeypatch.setenv("CHATTERSPEC_JIT", jit)
+    sc = scenario("eha-healthy")
+    sim = simulate(sc, runs=1, seed=2)
+    z, u = sim.z[0, :400], sim.u[:400]
+    f = SVSF(sc.nominal, psi=3 * np.sqrt(np.diag(sc.nominal.R)))
+    batch = f.run(z, u, store_states=True)
+    state = f.initialize(z[0])
+    e, x = [], []
+    for k in range(1, len(z)):
+        state, out = f.update(state, z[k : k + 1], u[k - 1 : k], store_states=True, check=False)
+        e.append(out.e_prior[0, 0])
+        x.append(out.x_post[0, 0])
+    np.testing.assert_array_equal(np.array(e), batch.e_prior[1:])
+    np.testing.assert_array_equal(np.array(x), batch.x_post[1:])
+
+
+def test_enabled_follows_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CHATTERSPEC_JIT", "0")
+    assert not _jit.enabled()
+    monkeypatch.setenv("CHATTERSPEC_JIT", "1")
+    assert _jit.enabled() == _jit.HAVE_NUMBA
+
+
+@needs_numba
+@pytest.mark.parametrize("name", ["eha-healthy", "eha-leak-major", "so-boundary-layer"])
+def test_compiled_simulation_equals_numpy_path(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Same random numbers (chatterspec.rng blocks); only the order of the 3-term sums differs.
+
+    BLAS may evaluate x_aug @ W with fused multiply-adds and in another order: about one ulp per
+    step, not amplified by the stable plant, so 1e-12 of each channel's scale is a wide bound.
+    """
+    sc = scenario(name)
+    monkeypatch.setenv("CHATTERSPEC_JIT", "1")
+    fast = simulate(sc, runs=70, seed=5, chunk_runs=64)  # crosses a random-block boundary
+    monkeypatch.setenv("CHATTERSPEC_JIT", "0")
+    ref = simulate(sc, runs=70, seed=5, chunk_runs=64)
+    for a, b in ((fast.x, ref.x), (fast.z, ref.z)):
+        scale = np.abs(b).max(axis=(0, 1))
+        assert np.all(np.abs(a - b).max(axis=(0, 1)) <= REL_TOL * scale)
+    assert fast.z.strides[1] > fast.z.strides[0]  # time-major storage, as the numpy path returns
+
+
+@needs_numba
+@pytest.mark.parametrize("name", ["eha-healthy", "eha-leak-major", "so-f11-high"])
+def test_fused_chattering_is_the_filtered_simulation(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The fused kernel repeats the simulation's and the closed form's arithmetic: same bits, any chunking."""
+    monkeypatch.setenv("CHATTERSPEC_JIT", "1")
+    sc = scenario(name)
+    sim = simulate(sc, runs=70, seed=6)
+    ref = chattering_record(sc.nominal, sim.z, sim.u, scenario=sc)
+    recs = list(iter_chattering(sc, 60, seed=6, chunk_runs=64, first_run=10))
+    assert [r.first_run for r in recs] == [10]
+    np.testing.assert_array_equal(recs[0].values, ref.values[10:])
+    np.testing.assert_array_equal(recs[0].t, ref.t)
+    # channel-major storage behind the (runs, N, m) view: the periodogram does not see it
+    np.testing.assert_array_equal(
+        periodogram(recs[0].values, sc.dt).power, periodogram(ref.values[10:], sc.dt).power
+    )
+    whole = scenario_chattering(sc, runs=70, seed=6)
+    np.testing.assert_array_equal(whole.values, ref.values)
+    monkeypatch.setenv("CHATTERSPEC_JIT", "0")  # numpy path: same noise, rounding-level difference
+    slow = scenario_chattering(sc, runs=70, seed=6)
+    assert np.abs(slow.values - whole.values).max() <= REL_TOL * np.abs(sim.z).max()
+
+
+@needs_numba
+def test_simulation_kernels_equal_their_python_form_bitwise() -> None:
+    sc = scenario("eha-leak-major")
+    t = sc.time[:40]
+    u = sc.input.sample(t).reshape(len(t), -1)
+    tb = _tables(sc, t, u)
+    rng = np.random.default_rng(0)
+    v, w = rng.standard_normal((2, 40, 3)), rng.standard_normal((2, 40, 3))
+    f = auxiliary_svsf(sc.nominal)
+    Gu = np.ascontiguousarray(svsf_mod._rows_times(u[:-1], f._GT))
+    outs = []
+    for kernel in (_simulate_kernel, _simulate_kernel.py_func):
+        xt, zt = np.empty((40, 3, 3)), np.empty((40, 3, 3))
+        kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, xt, zt, 1)
+        outs.append((xt[:, 1:], zt[:, 1:]))
+    for kernel in (_chattering_kernel, _chattering_kernel.py_func):
+        e = np.empty((3, 3, 39))  # (runs, m, N): channel-major
+        kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, f._PhiT, Gu, e, 1)
+        outs.append((e[1:].transpose(0, 2, 1),))
+    np.testing.assert_array_equal(outs[0][0], outs[1][0])
+    np.testing.assert_array_equal(outs[0][1], outs[1][1])
+    np.testing.assert_array_equal(outs[2][0], outs[3][0])
+    # the diagonal shortcut gives the bits of the full sums (the skipped terms are exact zeros)
+    assert tb.diag.all()
+    e_full = np.empty((3, 3, 39))
+    no_diag = np.zeros_like(tb.diag)
+    args = (tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, no_diag)
+    _chattering_kernel(v, w, *args, f._PhiT, Gu, e_full, 1)
+    np.testing.assert_array_equal(e_full[1:].transpose(0, 2, 1), outs[2][0])
+    # and the fused chattering is the closed form applied to the simulated z
+    z = np.swapaxes(outs[0][1], 0, 1)
+    e_ref = f.run(z, np.broadcast_to(u, (2, 40, u.shape[1]))).e_prior[:, 1:]
+    np.testing.assert_array_equal(outs[2][0], e_ref)
