@@ -174,7 +174,7 @@ def test_cli_refuses_record_path_under_a_file(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("x")
     assert main(["estimate", "detc-normal", "--runs", "1", "--record", str(blocker / "sub" / "a.rrd")]) == 2
-    assert "cannot write" in capsys.readouterr().err
+    assert "cannot be written" in capsys.readouterr().err
     assert blocker.read_text() == "x"
 
 

@@ -6,7 +6,9 @@ import subprocess
 import sys
 
 import chatterspec
+from chatterspec.cli.estimate import FILTERS as CLI_FILTERS
 from chatterspec.cli.power import FAMILY_NAMES
+from chatterspec.studies.estimation import FILTERS
 from chatterspec.studies.power import POWER_FAMILIES
 
 
@@ -33,3 +35,7 @@ def test_lazy_names_resolve_and_unknown_names_raise() -> None:
 
 def test_power_family_names_match_the_study() -> None:
     assert FAMILY_NAMES == tuple(POWER_FAMILIES)
+
+
+def test_estimate_filter_names_match_the_study() -> None:
+    assert CLI_FILTERS == FILTERS
