@@ -1,0 +1,203 @@
+"""Shared ``initialize / update / run`` of the covariance-carrying filters (private)."""
+
+from __future__ import annotations
+
+from collections.abc import Collection
+
+import numpy as np
+
+from .._validate import finite_array
+from ..errors import ShapeError
+from ..plants.models import LinearModel
+from . import _engine
+from .protocol import FilterOutput, FilterState, check_chunk, initial_state, resolve_store
+from .svsf import _rows_times
+
+_MODEL_ATTRS = ("transition", "jacobian", "C", "Q", "R", "dt", "n_states", "n_outputs", "n_inputs")
+
+
+def check_model(model: object) -> None:
+    """Duck-type check of the model interface the filters use."""
+    missing = [a for a in _MODEL_ATTRS if not hasattr(model, a)]
+    if missing:
+        raise TypeError(
+            f"model must provide {', '.join(_MODEL_ATTRS)} (like LinearModel); "
+            f"{type(model).__name__} lacks {', '.join(missing)}"
+        )
+    n, m = int(model.n_states), int(model.n_outputs)  # type: ignore[attr-defined]
+    for name, shape in (("C", (m, n)), ("Q", (n, n)), ("R", (m, m))):
+        finite_array(f"model.{name}", getattr(model, name), shape=shape)
+
+
+class CovarianceFilterBase:
+    """Common machinery; subclasses set ``model``, ``_linear`` and implement ``_correction``."""
+
+    model: object
+    _linear: bool = False
+    _shared_ok: bool = False
+
+    def _correction(self) -> dict[str, object]:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def initialize(
+        self,
+        x0: np.ndarray,
+        P0: np.ndarray,
+        *,
+        runs: int | None = None,
+        e0: np.ndarray | None = None,
+        e_prev0: np.ndarray | None = None,
+    ) -> FilterState:
+        """State at k = 0: ``x(0|0) = x0``, ``P(0|0) = P0``, ``e(0|0) = e0``, ``e(-1|-1) = e_prev0``.
+
+        Parameters
+        ----------
+        x0 : (n,) or (runs, n) array
+            Initial estimate.
+        P0 : (n, n) or (runs, n, n) array
+            Initial covariance, symmetric positive definite (else ParameterError).
+        runs : int, optional
+            Number of realizations when ``x0`` is shared (default: rows of ``x0``, or 1).
+        e0, e_prev0 : (m,) or (runs, m) array, optional
+            Initial a-posteriori residuals; default 0 (the papers do not print them, note §1.2).
+
+        Returns
+        -------
+        FilterState
+        """
+        return initial_state(self.model, x0, P0, runs=runs, e0=e0, e_prev0=e_prev0, shared_ok=self._shared_ok)
+
+    def update(
+        self,
+        state: FilterState,
+        z: np.ndarray,
+        u: np.ndarray,
+        *,
+        store: Collection[str] | None = None,
+        check: bool = True,
+    ) -> tuple[FilterState, FilterOutput]:
+        """Advance every realization over K samples (K = 1 online, K = T batch; same numbers).
+
+        Parameters
+        ----------
+        state : FilterState
+            Posterior after sample k (from :meth:`initialize` or a previous ``update``).
+        z : (runs, K, m) array
+            Measurements ``z(k+1) .. z(k+K)`` (``(K, m)`` accepted for one run).
+        u : (K, p), (runs, K, p) or (K,) array
+            Inputs ``u(k) .. u(k+K-1)`` (``u(k)`` drives ``x(k) -> x(k+1)``).
+        store : collection of str, optional
+            Output fields to keep (default :data:`~chatterspec.filters.protocol.DEFAULT_STORE`;
+            add ``"P_prior"``/``"P_post"`` for the covariances).
+        check : bool
+            Validate finiteness (turn off only in trusted hot loops).
+
+        Returns
+        -------
+        (FilterState, FilterOutput)
+        """
+        keep = resolve_store(store)
+        if not isinstance(state, FilterState):
+            raise TypeError(f"state must be a FilterState; got {type(state).__name__}")
+        z, u = check_chunk(self.model, state, z, u, check)
+        x, ep, epp = state.x.copy(), state.e_post.copy(), state.e_prev.copy()
+        P = state.P.copy()
+        n = x.shape[1]
+        if P.shape[-2:] != (n, n) or (P.ndim == 3 and P.shape[0] != state.runs):
+            raise ShapeError(f"state.P must have shape ({n}, {n}) or ({state.runs}, {n}, {n}); got {P.shape}")
+        K = z.shape[1]
+        if K == 0:
+            out = FilterOutput()
+            return state, out
+        P, res = self._advance(x, P, ep, epp, z, u, keep)
+        new = FilterState(x=x, P=P, e_post=ep, e_prev=epp, k=state.k + K)
+        return new, FilterOutput(**res)
+
+    def _advance(self, x, P, ep, epp, z, u, keep):  # type: ignore[no-untyped-def]
+        model = self.model
+        C = np.asarray(model.C, dtype=float)  # type: ignore[attr-defined]
+        Q = np.asarray(model.Q, dtype=float)  # type: ignore[attr-defined]
+        R = np.asarray(model.R, dtype=float)  # type: ignore[attr-defined]
+        if P.ndim == 2:  # shared covariance given to a per-run filter (e.g. replaced by a bank)
+            P = np.array(np.broadcast_to(P, (x.shape[0], *P.shape)))
+        corr = self._correction()
+        if self._linear:
+            Bu = _rows_times(u, np.ascontiguousarray(model.B.T))  # type: ignore[attr-defined]
+            res = _engine.cov_step(
+                corr.pop("kind"),
+                corr.pop("mapping"),
+                x,
+                P,
+                ep,
+                epp,
+                z,
+                C,
+                Q,
+                R,
+                keep,
+                Bu=Bu,
+                A=model.A,
+                **corr,
+            )  # type: ignore[attr-defined]
+            return P, res
+        kind, mapping = corr.pop("kind"), corr.pop("mapping")
+        steps = []
+        for k in range(z.shape[1]):
+            uk = u[:, k]
+            xp = np.asarray(model.transition(x, uk), dtype=float)  # type: ignore[attr-defined]
+            F = np.asarray(model.jacobian(x, uk), dtype=float)  # type: ignore[attr-defined]
+            if xp.shape != x.shape or F.shape != (*x.shape, x.shape[1]):
+                raise ShapeError(
+                    f"model.transition/jacobian must return {x.shape} and {(*x.shape, x.shape[1])}; "
+                    f"got {xp.shape} and {F.shape}"
+                )
+            F = np.broadcast_to(F, (*x.shape, x.shape[1]))
+            steps.append(
+                _engine.cov_step(
+                    kind, mapping, x, P, ep, epp, z[:, k : k + 1], C, Q, R, keep, xp_in=xp, F_in=F, **corr
+                )
+            )
+        res = {
+            f: (None if steps[0][f] is None else np.concatenate([s[f] for s in steps], axis=1))
+            for f in steps[0]
+        }
+        return P, res
+
+    def run(
+        self,
+        z: np.ndarray,
+        u: np.ndarray,
+        *,
+        x0: np.ndarray,
+        P0: np.ndarray,
+        store: Collection[str] | None = None,
+    ) -> FilterOutput:
+        """Filter whole records: :meth:`initialize` then one :meth:`update` (same kernel).
+
+        Parameters
+        ----------
+        z : (runs, T, m) array
+            Measurements ``z(1) .. z(T)`` (``(T, m)`` for one run).
+        u : (T, p), (runs, T, p) or (T,) array
+            Inputs ``u(0) .. u(T-1)``.
+        x0 : (n,) or (runs, n) array
+            ``x(0|0)``.
+        P0 : (n, n) or (runs, n, n) array
+            ``P(0|0)``, symmetric positive definite.
+        store : collection of str, optional
+            Output fields to keep (see :meth:`update`).
+
+        Returns
+        -------
+        FilterOutput
+            Sample j belongs to time j + 1.
+        """
+        zz = finite_array("z", z, ndim=(2, 3))
+        runs = 1 if zz.ndim == 2 else zz.shape[0]
+        state = self.initialize(x0, P0, runs=runs)
+        return self.update(state, zz, u, store=store)[1]
+
+
+def is_linear(model: object) -> bool:
+    """True for :class:`LinearModel` (the compiled path loops over time inside the kernel)."""
+    return isinstance(model, LinearModel)

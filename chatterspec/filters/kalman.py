@@ -1,0 +1,128 @@
+"""Kalman filter and extended Kalman filter, batched over realizations (``estimators.md`` §1.1).
+
+Equations ([DETC] and [IMM] baselines)::
+
+    x(k+1|k) = f(x(k|k), u(k))                  (linear: A x + B u)
+    P(k+1|k) = F P(k|k) F^T + Q,                F = df/dx at x(k|k)   (linear: F = A)
+    S = C P(k+1|k) C^T + R,   K = P(k+1|k) C^T S^-1,   x(k+1|k+1) = x(k+1|k) + K e(k+1|k)
+    P(k+1|k+1) = (I - K C) P(k+1|k) (I - K C)^T + K R K^T      (Joseph form)
+
+For a :class:`~chatterspec.plants.models.LinearModel` started from one shared ``P0``, the
+covariance and gain do not depend on the data: :class:`KalmanFilter` computes them once per
+sample for all realizations (``P`` stays ``(n, n)``, ``S`` is ``(K, m, m)``) and runs only the
+state recursion per realization. A per-run ``P`` (e.g. after a bank's mixing) takes the
+per-run path. :class:`ExtendedKalmanFilter` uses the model's own ``transition`` and batched
+``jacobian`` and works with any model that provides them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..plants.models import LinearModel
+from . import _engine
+from ._base import CovarianceFilterBase, check_model
+
+__all__ = ["ExtendedKalmanFilter", "KalmanFilter"]
+
+
+@dataclass(frozen=True, eq=False)
+class KalmanFilter(CovarianceFilterBase):
+    """Linear Kalman filter with the Joseph-form covariance update, batched over realizations.
+
+    Implements the :class:`~chatterspec.filters.protocol.Filter` protocol.
+
+    Parameters
+    ----------
+    model : LinearModel
+        Filter model (A, B, C, Q, R).
+
+    Raises
+    ------
+    TypeError
+        If ``model`` is not a LinearModel (use :class:`ExtendedKalmanFilter`).
+    """
+
+    model: LinearModel
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.model, LinearModel):
+            raise TypeError(
+                f"KalmanFilter needs a LinearModel; got {type(self.model).__name__} "
+                "(use ExtendedKalmanFilter for a nonlinear model)"
+            )
+
+    _linear = True
+    _shared_ok = True
+
+    def _correction(self) -> dict[str, object]:
+        return {"kind": _engine.KF, "mapping": _engine.MAP_CONST}
+
+    def _advance(self, x, P, ep, epp, z, u, keep):  # type: ignore[no-untyped-def]
+        if P.ndim == 3:
+            return super()._advance(x, P, ep, epp, z, u, keep)
+        model = self.model
+        K = z.shape[1]
+        P, Pp, Pq, S, Kg, Sinv, logdet = _engine.riccati(P, model.A, model.C, model.Q, model.R, K)
+        Bu = _rows_times_B(u, model)
+        res = _engine.kf_shared_states(x, ep, epp, z, Bu, model.A, model.C, Kg, Sinv, logdet, keep)
+        res["S"] = S if "S" in keep else None
+        res["P_prior"] = Pp if "P_prior" in keep else None
+        res["P_post"] = Pq if "P_post" in keep else None
+        return P, res
+
+    def gain_sequence(self, P0: np.ndarray, K: int) -> tuple[np.ndarray, np.ndarray]:
+        """Data-independent gains and posterior covariances from a shared ``P0``.
+
+        Parameters
+        ----------
+        P0 : (n, n) array
+            ``P(0|0)``, symmetric positive definite.
+        K : int
+            Number of samples.
+
+        Returns
+        -------
+        (gains (K, n, m), P_post (K, n, n))
+        """
+        state = self.initialize(np.zeros(self.model.n_states), P0)
+        _, _, Pq, _, Kg, _, _ = _engine.riccati(
+            state.P, self.model.A, self.model.C, self.model.Q, self.model.R, K
+        )
+        return Kg, Pq
+
+
+def _rows_times_B(u: np.ndarray, model: LinearModel) -> np.ndarray:
+    from .svsf import _rows_times
+
+    return _rows_times(u, np.ascontiguousarray(model.B.T))
+
+
+@dataclass(frozen=True, eq=False)
+class ExtendedKalmanFilter(CovarianceFilterBase):
+    """Extended Kalman filter: the model's ``transition`` and batched ``jacobian`` (Joseph form).
+
+    Implements the :class:`~chatterspec.filters.protocol.Filter` protocol; covariances are per
+    run ``(runs, n, n)`` because the Jacobian depends on the estimate.
+
+    Parameters
+    ----------
+    model : model object
+        Anything with ``transition(x, u)`` (runs, n), ``jacobian(x, u)`` (runs, n, n), ``C``,
+        ``Q``, ``R``, ``dt``, ``n_states``, ``n_outputs``, ``n_inputs`` (e.g. LinearModel or the
+        nonlinear EHA). With a LinearModel the EKF equals the KF (tested).
+    """
+
+    model: object
+
+    def __post_init__(self) -> None:
+        check_model(self.model)
+
+    def _correction(self) -> dict[str, object]:
+        return {"kind": _engine.KF, "mapping": _engine.MAP_CONST}
+
+    # The EKF always calls the model (no linear shortcut), so it is the reference for nonlinear models.
+    _linear = False
+    _shared_ok = False

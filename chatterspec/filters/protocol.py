@@ -1,0 +1,290 @@
+"""The one filter protocol: state, per-sample output and the ``initialize / update / run`` interface.
+
+Every estimator of :mod:`chatterspec.filters` that carries a covariance (Kalman filter, EKF,
+SVSF with covariance, dynamic second-order SVSF) follows the same contract, so a
+multiple-model bank (SMM, IMM) can drive any of them through this interface alone:
+
+* **Vectorized over realizations.** States are ``(runs, n)``; covariances are ``(runs, n, n)``,
+  or one shared ``(n, n)`` matrix when they do not depend on the data (the linear Kalman
+  filter started from a shared ``P0``).
+* **One kernel for one sample or a chunk.** ``update(state, z, u)`` advances every realization
+  over K samples; K = 1 is the online case, K = T the batch case. The per-sample arithmetic
+  does not depend on K, so any chunking gives bit-identical numbers (tested).
+* **Time convention.** A :class:`FilterState` holds the posterior after sample k:
+  ``x(k|k)``, ``P(k|k)``, ``e(k|k)`` and ``e(k-1|k-1)``. ``update`` takes the measurements
+  ``z(k+1) .. z(k+K)`` and the inputs ``u(k) .. u(k+K-1)`` (the input that drives
+  ``x(k) -> x(k+1)``); sample j of the :class:`FilterOutput` belongs to time ``k+1+j``.
+  ``run(z, u, x0=..., P0=...)`` is ``initialize`` followed by one ``update`` over the record.
+* **Bank access.** A bank reads ``state.x`` and ``state.P`` (mode-conditioned estimate) and
+  writes mixed values back with :meth:`FilterState.replace` between steps; a shared ``(n, n)``
+  covariance may be replaced by a per-run ``(runs, n, n)`` one, and the filter then takes its
+  per-run path. The per-sample innovation likelihood is ``FilterOutput.loglik``.
+
+Notation of ``/work/shared/notes/estimators.md``: e(k+1|k) = z(k+1) - C x(k+1|k) (innovation),
+e(k|k) = z(k) - C x(k|k) (a-posteriori residual), S = C P(k+1|k) C^T + R.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Collection
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from .._validate import finite_array
+from ..errors import ParameterError, ShapeError
+
+__all__ = ["DEFAULT_STORE", "STORABLE", "Filter", "FilterOutput", "FilterState"]
+
+#: Output fields stored per sample when ``store`` is not given.
+DEFAULT_STORE: frozenset[str] = frozenset({"x_prior", "x_post", "innovation", "S", "loglik", "e_post"})
+#: Every field that ``store`` may name (covariances are stored only on request).
+STORABLE: frozenset[str] = DEFAULT_STORE | {"P_prior", "P_post"}
+
+
+@dataclass(frozen=True, eq=False)
+class FilterState:
+    """Posterior of every realization after sample ``k`` (what a bank reads and replaces).
+
+    Attributes
+    ----------
+    x : (runs, n) array
+        A-posteriori estimate ``x(k|k)``.
+    P : (n, n) or (runs, n, n) array
+        A-posteriori covariance ``P(k|k)``; ``(n, n)`` when shared by all realizations
+        (data-independent, linear Kalman filter only).
+    e_post : (runs, m) array
+        A-posteriori residual ``e(k|k) = z(k) - C x(k|k)``.
+    e_prev : (runs, m) array
+        The residual one step earlier, ``e(k-1|k-1)`` (used by the second-order SVSF, eq 9).
+    k : int
+        Index of the last processed sample.
+    """
+
+    x: np.ndarray
+    P: np.ndarray
+    e_post: np.ndarray
+    e_prev: np.ndarray
+    k: int
+
+    @property
+    def runs(self) -> int:
+        """Number of realizations (leading axis of ``x``)."""
+        return self.x.shape[0]
+
+    @property
+    def shared_covariance(self) -> bool:
+        """True when ``P`` is one ``(n, n)`` matrix shared by every realization."""
+        return self.P.ndim == 2
+
+    def replace(self, **changes: object) -> FilterState:
+        """Copy with fields replaced (e.g. a bank's mixed ``x`` and ``P``), shapes checked.
+
+        Parameters
+        ----------
+        **changes
+            New values for ``x``, ``P``, ``e_post``, ``e_prev`` or ``k``.
+
+        Returns
+        -------
+        FilterState
+        """
+        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            raise TypeError(f"FilterState.replace() got unexpected keyword argument(s): {sorted(unknown)}")
+        new = dataclasses.replace(self, **changes)
+        runs, n = self.x.shape
+        m = self.e_post.shape[1]
+        x = finite_array("x", new.x, shape=(runs, n))
+        P = finite_array("P", new.P, ndim=(2, 3))
+        if P.shape[-2:] != (n, n) or (P.ndim == 3 and P.shape[0] != runs):
+            raise ShapeError(f"P must have shape ({n}, {n}) or ({runs}, {n}, {n}); got {P.shape}")
+        e_post = finite_array("e_post", new.e_post, shape=(runs, m))
+        e_prev = finite_array("e_prev", new.e_prev, shape=(runs, m))
+        return FilterState(x=x, P=P, e_post=e_post, e_prev=e_prev, k=int(new.k))
+
+
+@dataclass(frozen=True, eq=False)
+class FilterOutput:
+    """Per-sample outputs of one ``update`` (shapes ``(runs, K, .)``; fields not stored are None).
+
+    Attributes
+    ----------
+    x_prior : (runs, K, n) array or None
+        Prior ``x(k+1|k)``.
+    x_post : (runs, K, n) array or None
+        Posterior ``x(k+1|k+1)``.
+    innovation : (runs, K, m) array or None
+        ``e(k+1|k) = z(k+1) - C x(k+1|k)``.
+    S : (runs, K, m, m) or (K, m, m) array or None
+        Innovation covariance ``C P(k+1|k) C^T + R``; ``(K, m, m)`` when shared by all runs.
+    loglik : (runs, K) array or None
+        ``log N(e(k+1|k); 0, S)`` (natural log), the likelihood a multiple-model bank weighs.
+    e_post : (runs, K, m) array or None
+        A-posteriori residual ``e(k+1|k+1)``.
+    P_prior : (runs, K, n, n) or (K, n, n) array or None
+        ``P(k+1|k)`` (stored only when requested).
+    P_post : (runs, K, n, n) or (K, n, n) array or None
+        ``P(k+1|k+1)`` (stored only when requested).
+    """
+
+    x_prior: np.ndarray | None = None
+    x_post: np.ndarray | None = None
+    innovation: np.ndarray | None = None
+    S: np.ndarray | None = None
+    loglik: np.ndarray | None = None
+    e_post: np.ndarray | None = None
+    P_prior: np.ndarray | None = None
+    P_post: np.ndarray | None = None
+
+
+@runtime_checkable
+class Filter(Protocol):
+    """What every covariance-carrying filter provides (see the module docstring).
+
+    ``initialize(x0, P0, *, runs=None, e0=None, e_prev0=None) -> FilterState``;
+    ``update(state, z, u, *, store=None, check=True) -> (FilterState, FilterOutput)`` with
+    ``z`` of shape ``(runs, K, m)`` and ``u`` of shape ``(K, p)`` or ``(runs, K, p)``;
+    ``run(z, u, *, x0, P0, store=None) -> FilterOutput``. ``model`` is the filter's model
+    (``transition``, ``jacobian``, ``C``, ``Q``, ``R``, ``dt``, ``n_states``, ``n_outputs``,
+    ``n_inputs``).
+    """
+
+    model: object
+
+    def initialize(
+        self,
+        x0: np.ndarray,
+        P0: np.ndarray,
+        *,
+        runs: int | None = None,
+        e0: np.ndarray | None = None,
+        e_prev0: np.ndarray | None = None,
+    ) -> FilterState: ...
+
+    def update(
+        self,
+        state: FilterState,
+        z: np.ndarray,
+        u: np.ndarray,
+        *,
+        store: Collection[str] | None = None,
+        check: bool = True,
+    ) -> tuple[FilterState, FilterOutput]: ...
+
+    def run(
+        self,
+        z: np.ndarray,
+        u: np.ndarray,
+        *,
+        x0: np.ndarray,
+        P0: np.ndarray,
+        store: Collection[str] | None = None,
+    ) -> FilterOutput: ...
+
+
+# ---------------------------------------------------------------------- shared validation helpers
+def check_spd(name: str, M: np.ndarray) -> None:
+    """Raise ParameterError unless every (n, n) block of ``M`` is symmetric positive definite."""
+    sym_err = np.max(np.abs(M - np.swapaxes(M, -1, -2)), initial=0.0)
+    scale = max(1.0, float(np.max(np.abs(M), initial=0.0)))
+    if sym_err > 1e-10 * scale:
+        raise ParameterError(f"{name} must be symmetric; max |{name} - {name}^T| = {sym_err:.3g}")
+    try:
+        np.linalg.cholesky(M)
+    except np.linalg.LinAlgError:
+        eig = np.min(np.linalg.eigvalsh(M))
+        raise ParameterError(
+            f"{name} must be positive definite (a covariance with every variance > 0); "
+            f"smallest eigenvalue {eig:.3g}"
+        ) from None
+
+
+def resolve_store(store: Collection[str] | None) -> frozenset[str]:
+    """The set of output fields to keep (``None`` = :data:`DEFAULT_STORE`)."""
+    if store is None:
+        return DEFAULT_STORE
+    keep = frozenset(store)
+    bad = keep - STORABLE
+    if bad:
+        raise ParameterError(f"store may name only {sorted(STORABLE)}; got unknown {sorted(bad)}")
+    return keep
+
+
+def initial_state(
+    model: object,
+    x0: object,
+    P0: object,
+    *,
+    runs: int | None,
+    e0: object | None,
+    e_prev0: object | None,
+    shared_ok: bool,
+) -> FilterState:
+    """Validated :class:`FilterState` at k = 0 (initial residuals default to 0, note §1.2)."""
+    n, m = model.n_states, model.n_outputs  # type: ignore[attr-defined]
+    x0 = finite_array("x0", x0, ndim=(1, 2))
+    if x0.shape[-1] != n:
+        raise ShapeError(f"x0 must have {n} entries per run; got shape {x0.shape}")
+    if runs is None:
+        runs = x0.shape[0] if x0.ndim == 2 else 1
+    if isinstance(runs, bool) or not isinstance(runs, int | np.integer) or runs < 1:
+        raise ParameterError(f"runs must be an integer >= 1; got {runs!r}")
+    runs = int(runs)
+    if x0.ndim == 2 and x0.shape[0] not in (1, runs):
+        raise ShapeError(f"x0 must have shape ({n},) or ({runs}, {n}); got {x0.shape}")
+    x = np.array(np.broadcast_to(x0, (runs, n)), dtype=float)
+    P0 = finite_array("P0", P0, ndim=(2, 3))
+    if P0.shape[-2:] != (n, n) or (P0.ndim == 3 and P0.shape[0] not in (1, runs)):
+        raise ShapeError(f"P0 must have shape ({n}, {n}) or ({runs}, {n}, {n}); got {P0.shape}")
+    check_spd("P0", P0)
+    if P0.ndim == 2 and shared_ok:
+        P = np.array(P0, dtype=float)
+    else:
+        P = np.array(np.broadcast_to(P0, (runs, n, n)), dtype=float)
+
+    def residual(name: str, val: object | None) -> np.ndarray:
+        if val is None:
+            return np.zeros((runs, m))
+        arr = finite_array(name, val, ndim=(1, 2))
+        if arr.shape[-1] != m or (arr.ndim == 2 and arr.shape[0] not in (1, runs)):
+            raise ShapeError(f"{name} must have shape ({m},) or ({runs}, {m}); got {arr.shape}")
+        return np.array(np.broadcast_to(arr, (runs, m)), dtype=float)
+
+    return FilterState(x=x, P=P, e_post=residual("e0", e0), e_prev=residual("e_prev0", e_prev0), k=0)
+
+
+def check_chunk(
+    model: object, state: FilterState, z: object, u: object, check: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Validate ``z`` (runs, K, m) and ``u`` (K, p) / (runs, K, p); returns ``(z, u)`` as float arrays.
+
+    ``u`` comes back 3-D, ``(1, K, p)`` when shared by all runs.
+    """
+    m, p = model.n_outputs, model.n_inputs  # type: ignore[attr-defined]
+    runs = state.runs
+    if check:
+        z = finite_array("z", z, ndim=(2, 3))
+        u = finite_array("u", u, ndim=(1, 2, 3))
+    else:
+        z, u = np.asarray(z, dtype=float), np.asarray(u, dtype=float)
+    if z.ndim == 2:
+        if runs != 1:
+            raise ShapeError(f"z must have shape ({runs}, K, {m}); got {z.shape}")
+        z = z[None]
+    if z.shape[0] != runs or z.shape[2] != m:
+        raise ShapeError(f"z must have shape ({runs}, K, {m}) (runs, samples, outputs); got {z.shape}")
+    K = z.shape[1]
+    if u.ndim == 1:
+        u = u[:, None] if p == 1 else u[None, :]
+    if u.ndim == 2:
+        u = u[None]
+    if u.shape[1] != K or u.shape[2] != p or u.shape[0] not in (1, runs):
+        raise ShapeError(
+            f"u must have shape ({K}, {p}) or ({runs}, {K}, {p}) (samples like z); got {u.shape}"
+        )
+    if state.e_post.shape != (runs, m) or state.e_prev.shape != (runs, m):
+        raise ShapeError(f"state residuals must have shape ({runs}, {m})")
+    return z, u

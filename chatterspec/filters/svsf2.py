@@ -1,0 +1,131 @@
+"""Dynamic second-order SVSF: [DETC] eq (5)-(24), [IMM] eq (6)-(14), (26)-(28) (``estimators.md`` §1.3).
+
+Per sample, for every realization::
+
+    (5)  x(k+1|k) = f(x(k|k), u(k))                  (linear: F x + G u)
+    (8)  P(k+1|k) = F P(k|k) F^T + Q
+    (7)  e(k+1|k) = z(k+1) - H x(k+1|k)
+    (9)  dz = e(k+1|k) - (gamma + Lambda) e(k|k) + gamma Lambda e(k-1|k-1)
+    (10) x(k+1|k+1) = x(k+1|k) + M dz                 ([DETC]: M = H^-1)
+    (12) K = M diag(dz) diag(e(k+1|k))^-1             ([IMM] gain form, used for the covariance)
+    (14) P(k+1|k+1) = (I - K C) P(k+1|k) (I - K C)^T + K R K^T      (Joseph form)
+    (17) Lambda = diag(lambda_ii),  lambda_ii = 1 / (1 + c_ii),  0 < gamma_ii < 1
+
+``M`` is the output-to-state map of :mod:`chatterspec.filters.svsf_cov` (``full`` = H^-1,
+``pinv``, ``cov``). The state update uses the exact ``dz``; the covariance gain uses the ratio
+``dz_i / e_i`` clipped to ``ratio_clip`` (default [0, 2], ``estimators.md`` §1.3: the ratio is
+unbounded as ``e -> 0``) and 1 where ``e_i = 0`` exactly (the limit when the residuals are
+zero). [IMM] eq (28) ``P = P - K E K^T`` holds only for the Kalman gain, hence Joseph.
+
+Properties (tested exactly, square H): the a-posteriori residual obeys
+``e(k+1|k+1) = (gamma + Lambda) e(k|k) - gamma Lambda e(k-1|k-1)`` ([DETC] eq 21), with roots
+gamma and lambda per channel; the manifold ``sigma_k = (1 + c) e(k|k) - e(k-1|k-1)`` obeys
+``sigma_{k+1} = gamma sigma_k`` (printed eq 24 has (1 + lambda) where (1 + c) belongs); zero
+initial residuals keep ``e(k|k) = 0``, i.e. ``x_measured = H^-1 z``, for every k.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._validate import finite_array
+from ..errors import ParameterError
+from . import _engine
+from ._base import CovarianceFilterBase, check_model, is_linear
+from .svsf_cov import Mapping, check_gamma, default_mapping, mapping_matrix, per_channel
+
+__all__ = ["SecondOrderSVSF"]
+
+
+@dataclass(frozen=True, eq=False)
+class SecondOrderSVSF(CovarianceFilterBase):
+    """Dynamic second-order SVSF with covariance, batched over realizations.
+
+    Implements the :class:`~chatterspec.filters.protocol.Filter` protocol. Give ``lam`` (Lambda)
+    or ``cutoff`` (c, with ``lambda = 1 / (1 + c)``, eq 17), not both; neither means c = 1,
+    Lambda = 0.5 (the "identity cut-off frequency matrix" of [IMM] §6, ``estimators.md`` §1.3).
+
+    Parameters
+    ----------
+    model : model object
+        LinearModel (compiled loop over time) or any model with ``transition``, ``jacobian``,
+        ``C``, ``Q``, ``R``, ``dt``, ``n_states``, ``n_outputs``, ``n_inputs``.
+    gamma : float or (m,) array
+        Convergence rate, ``0 < gamma < 1`` per channel.
+    lam : float or (m,) array, optional
+        Lambda per channel, ``0 < lam < 1``.
+    cutoff : float or (m,) array, optional
+        Cut-off c per channel, ``c > 0`` (dimensionless slope of the manifold ``dS + c S``).
+    mapping : {"full", "pinv", "cov"}, optional
+        Output-to-state map; default ``"full"`` for a square invertible H, else ``"cov"``.
+    ratio_clip : (float, float)
+        Bounds of ``dz / e`` in the covariance gain (default (0, 2)); the state update is exact.
+
+    Raises
+    ------
+    ParameterError
+        ``gamma`` outside (0, 1); ``lam >= 1`` or ``cutoff <= 0`` (a residual root on or outside
+        the unit circle: the residual never decays); ``lam <= 0``; both ``lam`` and ``cutoff``.
+    SingularMatrixError
+        ``mapping="full"`` with a non-square or singular H.
+    """
+
+    model: object
+    gamma: float | np.ndarray = 0.1
+    lam: float | np.ndarray | None = None
+    cutoff: float | np.ndarray | None = None
+    mapping: Mapping | None = None
+    ratio_clip: tuple[float, float] = (0.0, 2.0)
+    _M: np.ndarray | None = field(init=False, repr=False, default=None)
+
+    def __post_init__(self) -> None:
+        check_model(self.model)
+        m = int(self.model.n_outputs)  # type: ignore[attr-defined]
+        C = np.asarray(self.model.C, dtype=float)  # type: ignore[attr-defined]
+        mapping = default_mapping(C) if self.mapping is None else self.mapping
+        object.__setattr__(self, "_M", mapping_matrix(C, mapping))
+        object.__setattr__(self, "mapping", mapping)
+        object.__setattr__(self, "gamma", check_gamma(self.gamma, m))
+        if self.lam is not None and self.cutoff is not None:
+            raise ParameterError("give lam (Lambda) or cutoff (c, lambda = 1/(1+c)), not both")
+        if self.cutoff is not None:
+            c = per_channel("cutoff", self.cutoff, m, rule="the cut-off c")
+            if np.any(c <= 0):
+                raise ParameterError(
+                    f"cutoff c must be > 0 for every channel (lambda = 1/(1+c) < 1); got {c.tolist()}: "
+                    "c = 0 gives lambda = 1, a residual root on the unit circle, so the residual never decays"
+                )
+            lam = 1.0 / (1.0 + c)
+        else:
+            lam = per_channel("lam", 0.5 if self.lam is None else self.lam, m, rule="Lambda")
+        if np.any(lam >= 1):
+            raise ParameterError(
+                f"lam (Lambda) must be < 1 for every channel; got {lam.tolist()}: Lambda >= 1 puts a "
+                "residual root on or outside the unit circle (eq 21), so the residual never decays; "
+                "use e.g. Lambda = 0.5 (cut-off c = 1)"
+            )
+        if np.any(lam <= 0):
+            raise ParameterError(f"lam (Lambda) must be > 0 (lambda = 1/(1+c), c > 0); got {lam.tolist()}")
+        object.__setattr__(self, "lam", np.ascontiguousarray(lam))
+        object.__setattr__(self, "cutoff", np.ascontiguousarray(1.0 / lam - 1.0))
+        clip = finite_array("ratio_clip", self.ratio_clip, shape=(2,))
+        if not clip[0] < clip[1]:
+            raise ParameterError(f"ratio_clip must be (low, high) with low < high; got {tuple(clip)}")
+        object.__setattr__(self, "ratio_clip", (float(clip[0]), float(clip[1])))
+
+    @property
+    def _linear(self) -> bool:  # type: ignore[override]
+        return is_linear(self.model)
+
+    def _correction(self) -> dict[str, object]:
+        return {
+            "kind": _engine.SVSF2,
+            "mapping": _engine.MAP_COV if self._M is None else _engine.MAP_CONST,
+            "M_const": self._M,
+            "gamma": self.gamma,
+            "lam": self.lam,
+            "lo": self.ratio_clip[0],
+            "hi": self.ratio_clip[1],
+        }

@@ -1,0 +1,175 @@
+"""SVSF with covariance: [SMM] eq (2.1)-(2.10), in the division-free gain form (``estimators.md`` §1.2).
+
+Per sample, for every realization::
+
+    (2.1)  x(k+1|k) = f(x(k|k), u(k))                       (linear: A x + B u)
+    (2.2)  P(k+1|k) = F P(k|k) F^T + Q                       (F: Jacobian; linear: A)
+    (2.3)-(2.4)  e(k+1|k) = z(k+1) - C x(k+1|k)
+    (2.5)  K = M diag(kappa),  kappa_i = (|e_i(k+1|k)| + gamma_i |e_i(k|k)|) / max(|e_i(k+1|k)|, psi_i)
+    (2.8)  x(k+1|k+1) = x(k+1|k) + K e(k+1|k)
+    (2.9)  P(k+1|k+1) = (I - K C) P(k+1|k) (I - K C)^T + K R K^T     (Joseph form)
+    (2.10) e(k+1|k+1) = z(k+1) - C x(k+1|k+1)
+
+``kappa`` is eq (2.5)'s ``diag[(|e| + gamma |e(k|k)|) o sat(psi^-1 e)] diag(e)^-1`` with the
+division by ``e`` carried out analytically (``sat(e/psi)/e = 1/max(|e|, psi)`` for ``e != 0``): no
+singularity at ``e = 0`` (tested equal to eq 2.5 wherever ``e != 0``). The gain does not depend on
+``P``; the covariance is bookkeeping that feeds the innovation covariance ``S`` and the
+log-likelihood a multiple-model bank weighs ([SMM] eq 3.3).
+
+``M`` maps the output-space correction to the states (``estimators.md`` §1.4):
+
+* ``"full"``: ``C^-1`` (C square, e.g. [SMM]'s C = I4);
+* ``"pinv"``: ``C^+`` ([SMM] eq 2.5 read literally; only the measured states move);
+* ``"cov"``: ``P(k+1|k) C^T (C P(k+1|k) C^T)^-1``, a covariance regression of the unmeasured on
+  the measured errors (default when C is not square).
+
+The reduced-order Luenberger form (chattering paper eq 9-11) is the existing
+:class:`chatterspec.filters.svsf.SVSF`; it carries no covariance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from .._validate import finite_array
+from ..errors import ParameterError, ShapeError, SingularMatrixError
+from . import _engine
+from ._base import CovarianceFilterBase, check_model, is_linear
+
+__all__ = ["Mapping", "SVSFCov", "mapping_matrix"]
+
+Mapping = Literal["full", "pinv", "cov"]
+
+
+def mapping_matrix(C: np.ndarray, mapping: str) -> np.ndarray | None:
+    """The constant output-to-state map of ``mapping`` (None for ``"cov"``, which changes each step).
+
+    Parameters
+    ----------
+    C : (m, n) array
+        Measurement matrix.
+    mapping : {"full", "pinv", "cov"}
+        ``"full"`` = ``C^-1`` (needs m = n and C invertible), ``"pinv"`` = ``C^+``.
+
+    Returns
+    -------
+    (n, m) array or None
+
+    Raises
+    ------
+    SingularMatrixError
+        ``"full"`` with a non-square or singular C.
+    ParameterError
+        Unknown mapping.
+    """
+    C = finite_array("C", C, ndim=2)
+    m, n = C.shape
+    if mapping == "full":
+        if m != n:
+            raise SingularMatrixError(
+                f"mapping='full' needs a square invertible C (C^-1 in eq 2.5/9); C is {m}x{n}: "
+                "use mapping='cov' or 'pinv' for fewer measurements than states"
+            )
+        if np.linalg.cond(C) > 1e12:
+            raise SingularMatrixError("mapping='full' needs C^-1 but C is singular (condition number > 1e12)")
+        return np.linalg.inv(C)
+    if mapping == "pinv":
+        return np.linalg.pinv(C)
+    if mapping == "cov":
+        return None
+    raise ParameterError(f"mapping must be 'full', 'pinv' or 'cov'; got {mapping!r}")
+
+
+def default_mapping(C: np.ndarray) -> str:
+    """``"full"`` when C is square and well conditioned, else ``"cov"`` (``estimators.md`` §1.4)."""
+    m, n = np.shape(C)
+    return "full" if m == n and np.linalg.cond(C) <= 1e12 else "cov"
+
+
+def per_channel(name: str, value: object, m: int, *, rule: str) -> np.ndarray:
+    """Scalar or (m,) parameter as a float (m,) array (finite)."""
+    arr = np.atleast_1d(finite_array(name, value, ndim=(0, 1)))
+    if arr.size == 1:
+        arr = np.full(m, float(arr[0]))
+    if arr.shape != (m,):
+        raise ShapeError(
+            f"{name} must be a scalar or have {m} entries (one per output, {rule}); got {arr.size}"
+        )
+    return np.ascontiguousarray(arr, dtype=float)
+
+
+@dataclass(frozen=True, eq=False)
+class SVSFCov(CovarianceFilterBase):
+    """SVSF with covariance ([SMM] eq 2.1-2.10), batched over realizations.
+
+    Implements the :class:`~chatterspec.filters.protocol.Filter` protocol. Covariances are per
+    run ``(runs, n, n)``: the gain depends on the data.
+
+    Parameters
+    ----------
+    model : model object
+        LinearModel (compiled loop over time) or any model with ``transition``, ``jacobian``,
+        ``C``, ``Q``, ``R``, ``dt``, ``n_states``, ``n_outputs``, ``n_inputs``.
+    psi : float or (m,) array
+        Smoothing boundary layer per output channel (> 0), in output units.
+    gamma : float or (m,) array
+        Convergence rate, ``0 < gamma < 1`` ([SMM] eq 2.5).
+    mapping : {"full", "pinv", "cov"}, optional
+        Output-to-state map (module docstring); default ``"full"`` for a square invertible C,
+        else ``"cov"``.
+
+    Raises
+    ------
+    ParameterError
+        ``psi <= 0``, ``gamma`` outside (0, 1), unknown mapping.
+    SingularMatrixError
+        ``mapping="full"`` with a non-square or singular C.
+    """
+
+    model: object
+    psi: float | np.ndarray
+    gamma: float | np.ndarray = 0.1
+    mapping: Mapping | None = None
+    _M: np.ndarray | None = field(init=False, repr=False, default=None)
+
+    def __post_init__(self) -> None:
+        check_model(self.model)
+        m = int(self.model.n_outputs)  # type: ignore[attr-defined]
+        C = np.asarray(self.model.C, dtype=float)  # type: ignore[attr-defined]
+        mapping = default_mapping(C) if self.mapping is None else self.mapping
+        object.__setattr__(self, "_M", mapping_matrix(C, mapping))
+        object.__setattr__(self, "mapping", mapping)
+        psi = per_channel("psi", self.psi, m, rule="the boundary layer")
+        if np.any(psi <= 0):
+            raise ParameterError(
+                f"psi must be > 0 (smoothing boundary layer, output units); got {psi.tolist()}"
+            )
+        object.__setattr__(self, "psi", psi)
+        object.__setattr__(self, "gamma", check_gamma(self.gamma, m))
+
+    @property
+    def _linear(self) -> bool:  # type: ignore[override]
+        return is_linear(self.model)
+
+    def _correction(self) -> dict[str, object]:
+        return {
+            "kind": _engine.SVSF1,
+            "mapping": _engine.MAP_COV if self._M is None else _engine.MAP_CONST,
+            "M_const": self._M,
+            "gamma": self.gamma,
+            "psi": self.psi,
+        }
+
+
+def check_gamma(gamma: object, m: int) -> np.ndarray:
+    """``gamma`` per channel in the open interval (0, 1), else ParameterError."""
+    g = per_channel("gamma", gamma, m, rule="the convergence rate")
+    if np.any((g <= 0) | (g >= 1)):
+        raise ParameterError(
+            f"gamma must lie in the open interval (0, 1) for every channel (convergence rate, "
+            f"0 < gamma_ii < 1); got {g.tolist()}"
+        )
+    return g

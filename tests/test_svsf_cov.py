@@ -1,0 +1,190 @@
+"""SVSF with covariance ([SMM] eq 2.1-2.10): the division-free gain equals eq (2.5) wherever
+e != 0, the Joseph covariance uses that gain, the state path equals the existing SVSF, and the
+usual batch/online, compiled/numpy and bad-input checks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from chatterspec import _jit
+from chatterspec.errors import NonFiniteError, ParameterError, ShapeError, SingularMatrixError
+from chatterspec.filters import SVSF, SVSFCov
+from chatterspec.plants.models import LinearModel
+
+STORE = ["x_prior", "x_post", "innovation", "S", "loglik", "e_post", "P_prior", "P_post"]
+
+
+def model_with(C: np.ndarray) -> LinearModel:
+    A = np.array([[1.0, 0.01, 0.0], [-0.4, 0.98, 0.01], [0.0, -0.1, 0.95]])
+    B = np.array([[0.0], [0.01], [0.05]])
+    m = C.shape[0]
+    return LinearModel(A, B, C, np.diag([1e-3, 2e-3, 1e-3]), 0.01 * np.eye(m) + 0.002, 0.01)
+
+
+SQUARE_C = np.array([[1.0, 0.2, 0.0], [0.0, 1.0, -0.3], [0.4, 0.0, 1.0]])
+THIN_C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+class Duck:
+    """A LinearModel seen only through the duck-typed interface (forces the per-sample model path)."""
+
+    def __init__(self, model: LinearModel) -> None:
+        self._m = model
+        for a in ("C", "Q", "R", "dt", "n_states", "n_outputs", "n_inputs"):
+            setattr(self, a, getattr(model, a))
+
+    def transition(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        return self._m.transition(x, u)
+
+    def jacobian(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        return self._m.jacobian(x, u)
+
+
+def data(model: LinearModel, runs: int = 3, T: int = 60, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return rng.normal(scale=0.5, size=(runs, T, model.n_outputs)), rng.uniform(-1, 1, size=(T, 1))
+
+
+def previous(out_e_post: np.ndarray, e0: np.ndarray) -> np.ndarray:
+    """e(k|k) for every sample: the initial residual, then the stored posteriors shifted by one."""
+    return np.concatenate([e0[:, None], out_e_post[:, :-1]], axis=1)
+
+
+@pytest.mark.parametrize(
+    ("C", "mapping"), [(SQUARE_C, "full"), (THIN_C, "pinv"), (THIN_C, "cov"), (SQUARE_C, "cov")]
+)
+def test_division_free_gain_equals_eq_2_5(C: np.ndarray, mapping: str) -> None:
+    model = model_with(C)
+    z, u = data(model)
+    psi, gamma = np.array([0.3, 0.6, 0.2])[: model.n_outputs], 0.4
+    filt = SVSFCov(model, psi=psi, gamma=gamma, mapping=mapping)
+    e0 = np.full((3, model.n_outputs), 0.1)
+    state = filt.initialize(np.zeros(3), np.eye(3) * 0.5, runs=3, e0=e0)
+    _, out = filt.update(state, z, u, store=STORE)
+    e, ebar = out.innovation, previous(out.e_post, e0)
+    inside = np.abs(e) < psi
+    assert 0.2 < inside.mean() < 0.8  # both regimes of sat() are exercised
+    assert np.all(e != 0)
+    for r in range(3):
+        for k in range(z.shape[1]):
+            Pp = out.P_prior[r, k]
+            if mapping == "full":
+                M = np.linalg.inv(C)
+            elif mapping == "pinv":
+                M = np.linalg.pinv(C)
+            else:
+                M = Pp @ C.T @ np.linalg.inv(C @ Pp @ C.T)
+            sat = np.clip(e[r, k] / psi, -1, 1)
+            # eq (2.5) literally: C+ diag[(|e| + gamma |e(k|k)|) o sat(e / psi)] diag(e)^-1
+            K = (
+                M
+                @ np.diag((np.abs(e[r, k]) + gamma * np.abs(ebar[r, k])) * sat)
+                @ np.linalg.inv(np.diag(e[r, k]))
+            )
+            # rounding only: the filter divides by max(|e|, psi) instead of multiplying by sat/e
+            np.testing.assert_allclose(
+                out.x_post[r, k] - out.x_prior[r, k], K @ e[r, k], rtol=1e-10, atol=1e-13
+            )
+            IKC = np.eye(3) - K @ C
+            joseph = IKC @ Pp @ IKC.T + K @ model.R @ K.T  # eq (2.9)
+            np.testing.assert_allclose(out.P_post[r, k], joseph, rtol=1e-9, atol=1e-14)
+            np.testing.assert_allclose(out.S[r, k], C @ Pp @ C.T + model.R, rtol=1e-12)
+
+
+def test_outside_the_layer_the_residual_shrinks_by_gamma() -> None:
+    model = model_with(SQUARE_C)
+    z, u = data(model)
+    psi, gamma = np.array([0.3, 0.6, 0.2]), 0.4
+    filt = SVSFCov(model, psi=psi, gamma=gamma)
+    out = filt.run(z, u, x0=np.zeros(3), P0=np.eye(3))
+    ebar = previous(out.e_post, np.zeros((3, 3)))
+    outside = np.abs(out.innovation) > psi
+    assert outside.mean() > 0.2
+    # |e(k+1|k+1)| = gamma |e(k|k)| outside the layer (note §1.2); C C^-1 = I up to rounding of O(1) values
+    np.testing.assert_allclose(np.abs(out.e_post)[outside], gamma * np.abs(ebar)[outside], atol=1e-13)
+
+
+def test_state_path_equals_the_existing_svsf() -> None:
+    """Full measurement: the covariance is bookkeeping; the estimates are those of eq (8)."""
+    model = model_with(SQUARE_C)
+    z, u = data(model, T=80)
+    psi = [0.2, 0.5, 1.0]
+    ref = SVSF(model, psi=psi, gamma=0.3).run(z, u, x0=np.zeros(3), store_states=True)
+    filt = SVSFCov(model, psi=psi, gamma=0.3)
+    state = filt.initialize(np.zeros(3), np.eye(3), runs=3, e0=z[:, 0])
+    _, out = filt.update(state, z[:, 1:], u[:-1])
+    # identical equations, SVSF works in C-aligned coordinates: rounding relative to |x| ~ 30
+    np.testing.assert_allclose(out.x_post, ref.x_post[:, 1:], rtol=1e-12, atol=1e-12)
+
+
+def test_zero_innovation_is_not_a_singularity() -> None:
+    model = model_with(SQUARE_C)
+    out = SVSFCov(model, psi=0.1).run(np.zeros((2, 5, 3)), np.zeros((5, 1)), x0=np.zeros(3), P0=np.eye(3))
+    assert np.all(out.innovation == 0) and np.all(out.x_post == 0) and np.all(np.isfinite(out.loglik))
+
+
+def test_nonlinear_path_equals_linear_path() -> None:
+    model = model_with(THIN_C)
+    z, u = data(model)
+    a = SVSFCov(model, psi=0.3, gamma=0.2).run(z, u, x0=np.zeros(3), P0=np.eye(3), store=STORE)
+    b = SVSFCov(Duck(model), psi=0.3, gamma=0.2).run(z, u, x0=np.zeros(3), P0=np.eye(3), store=STORE)
+    for f in STORE:  # same kernel; the prediction comes from model.transition (numpy) instead: rounding
+        np.testing.assert_allclose(getattr(b, f), getattr(a, f), rtol=1e-10, atol=1e-13, err_msg=f)
+
+
+@pytest.mark.parametrize("mapping", ["pinv", "cov"])
+def test_chunked_equals_batch_bit_for_bit(mapping: str) -> None:
+    model = model_with(THIN_C)
+    z, u = data(model, T=37)
+    filt = SVSFCov(model, psi=[0.3, 0.2], gamma=0.5, mapping=mapping)
+    batch = filt.run(z, u, x0=np.zeros(3), P0=np.eye(3), store=STORE)
+    state = filt.initialize(np.zeros(3), np.eye(3), runs=3)
+    parts = []
+    for a, b in ((0, 1), (1, 2), (2, 20), (20, 37)):
+        state, out = filt.update(state, z[:, a:b], u[a:b], store=STORE)
+        parts.append(out)
+    for f in STORE:
+        np.testing.assert_array_equal(
+            np.concatenate([getattr(p, f) for p in parts], axis=1), getattr(batch, f)
+        )
+
+
+@pytest.mark.parametrize("mapping", ["full", "cov"])
+def test_compiled_and_numpy_paths_agree(mapping: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    if not _jit.enabled():
+        pytest.skip("numba not available: only the numpy path exists")
+    model = model_with(SQUARE_C)
+    z, u = data(model, T=100)
+    filt = SVSFCov(model, psi=[0.3, 0.6, 0.2], gamma=0.4, mapping=mapping)
+    fast = filt.run(z, u, x0=np.zeros(3), P0=np.eye(3), store=STORE)
+    monkeypatch.setattr(_jit, "enabled", lambda: False)
+    slow = filt.run(z, u, x0=np.zeros(3), P0=np.eye(3), store=STORE)
+    for f in STORE:  # scalar loops vs BLAS/LAPACK: summation order only
+        np.testing.assert_allclose(getattr(fast, f), getattr(slow, f), rtol=1e-10, atol=1e-13, err_msg=f)
+
+
+def test_bad_input_is_named() -> None:
+    thin = model_with(THIN_C)
+    with pytest.raises(SingularMatrixError, match="mapping='full' needs a square invertible C"):
+        SVSFCov(thin, psi=0.1, mapping="full")
+    with pytest.raises(ParameterError, match="psi must be > 0"):
+        SVSFCov(thin, psi=[0.1, 0.0])
+    with pytest.raises(ShapeError, match="psi must be a scalar or have 2 entries"):
+        SVSFCov(thin, psi=[0.1, 0.2, 0.3])
+    with pytest.raises(NonFiniteError, match="psi contains"):
+        SVSFCov(thin, psi=np.nan)
+    for g in (0.0, 1.0, -0.5, 1.5):
+        with pytest.raises(ParameterError, match="gamma must lie in the open interval"):
+            SVSFCov(thin, psi=0.1, gamma=g)
+    with pytest.raises(ParameterError, match="mapping must be"):
+        SVSFCov(thin, psi=0.1, mapping="luen")
+    with pytest.raises(TypeError, match="unexpected keyword"):
+        SVSFCov(thin, psi=0.1, boundary=1.0)
+    filt = SVSFCov(thin, psi=0.1)
+    assert filt.mapping == "cov"
+    with pytest.raises(ParameterError, match="P0 must be positive definite"):
+        filt.initialize(np.zeros(3), -np.eye(3))
+    state = filt.initialize(np.zeros(3), np.eye(3), runs=2)
+    with pytest.raises(ShapeError, match=r"z must have shape \(2, K, 2\)"):
+        filt.update(state, np.zeros((2, 4, 3)), np.zeros((4, 1)))
