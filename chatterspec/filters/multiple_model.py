@@ -821,6 +821,9 @@ class IMM:
         o_P = np.empty((runs, K, n, n)) if store_covariance else None
         o_mx = np.empty((runs, K, r, n)) if store_modes else None
         ll = np.empty((runs, r))
+        m = C.shape[0]
+        es = np.empty((runs, r, m))
+        Ss = np.empty((runs, r, m, m))
         first = state.k == 0
         x = state.x
         P = state.P
@@ -842,8 +845,9 @@ class IMM:
                 s = FilterState(x=x0s[:, j], P=P0s[:, j], e_post=e_mix, e_prev=s.e_prev, k=s.k)
                 s, out = f.update(s, zk, uk, store=keep, check=False)  # type: ignore[attr-defined]
                 sts[j] = s
-                S = out.S[:, 0] if out.S.ndim == 4 else out.S[0]
-                ll[:, j] = log_gaussian(out.innovation[:, 0], S)  # (29)
+                es[:, j] = out.innovation[:, 0]
+                Ss[:, j] = out.S[:, 0] if out.S.ndim == 4 else out.S[0]
+            ll = log_gaussian(es, Ss)  # (29), all modes at once
             mu = normalize_log_weights(np.log(c) + ll, self.weight_floor)  # (30)
             xs = np.stack([s.x for s in sts], axis=1)
             if o_P is not None or k == K - 1:
