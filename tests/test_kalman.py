@@ -249,3 +249,27 @@ def test_bad_input_is_named() -> None:
         ExtendedKalmanFilter(object())
     with pytest.raises(ShapeError, match="P must have shape"):
         state.replace(P=np.eye(2))
+
+
+@pytest.mark.parametrize("jit", [True, False])
+def test_a_covariance_that_is_not_positive_definite_is_named(
+    jit: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from chatterspec.errors import SingularMatrixError
+
+    if not jit:
+        monkeypatch.setattr(_jit, "enabled", lambda: False)
+    duck = Pendulum()
+    duck.R = np.array([[-1.0]])
+    with pytest.raises(ParameterError, match=r"model.R must be positive semi-definite"):
+        ExtendedKalmanFilter(duck)
+    duck.R = np.array([[1e-3]])
+    duck.Q = np.array([[1.0, 0.5], [0.0, 1.0]])
+    with pytest.raises(ParameterError, match=r"model.Q must be symmetric"):
+        ExtendedKalmanFilter(duck)
+    model = detc_model()
+    kf = KalmanFilter(model)
+    state = kf.initialize(np.zeros(3), np.eye(3), runs=2)
+    broken = state.replace(P=-np.broadcast_to(np.eye(3) * 10, (2, 3, 3)))  # e.g. a bad mixing step
+    with pytest.raises(SingularMatrixError, match="not positive definite in run 0"):
+        kf.update(broken, np.zeros((2, 3, 1)), np.zeros((3, 1)))

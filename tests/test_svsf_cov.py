@@ -178,6 +178,8 @@ def test_bad_input_is_named() -> None:
         with pytest.raises(ParameterError, match="gamma must lie in the open interval"):
             SVSFCov(thin, psi=0.1, gamma=g)
     with pytest.raises(ParameterError, match="mapping must be"):
+        SVSFCov(thin, psi=0.1, mapping="bogus")
+    with pytest.raises(SingularMatrixError, match="mapping='luen' needs n = 2m"):
         SVSFCov(thin, psi=0.1, mapping="luen")
     with pytest.raises(TypeError, match="unexpected keyword"):
         SVSFCov(thin, psi=0.1, boundary=1.0)
@@ -188,3 +190,98 @@ def test_bad_input_is_named() -> None:
     state = filt.initialize(np.zeros(3), np.eye(3), runs=2)
     with pytest.raises(ShapeError, match=r"z must have shape \(2, K, 2\)"):
         filt.update(state, np.zeros((2, 4, 3)), np.zeros((4, 1)))
+
+
+def test_vbl_equals_the_kalman_filter_inside_the_layer() -> None:
+    """A layer so wide that psi_vbl <= psi always: the VBL-SVSF is the Kalman filter."""
+    from chatterspec.filters import KalmanFilter
+
+    model = model_with(THIN_C)
+    z, u = data(model)
+    vbl = SVSFCov(model, psi=1e6, gamma=0.3, vbl=True).run(z, u, x0=np.zeros(3), P0=np.eye(3), store=STORE)
+    P0 = np.broadcast_to(np.eye(3), (3, 3, 3))  # per-run P: the KF takes the same kernel
+    kf = KalmanFilter(model).run(z, u, x0=np.zeros(3), P0=P0, store=STORE)
+    for f in STORE:  # same kernel, same Kalman-gain branch: identical arithmetic
+        np.testing.assert_array_equal(getattr(vbl, f), getattr(kf, f), err_msg=f)
+    # and a layer so narrow that psi_vbl > psi always: the fixed-psi SVSF
+    narrow = SVSFCov(model, psi=1e-9, gamma=0.3, vbl=True).run(z, u, x0=np.zeros(3), P0=np.eye(3))
+    fixed = SVSFCov(model, psi=1e-9, gamma=0.3).run(z, u, x0=np.zeros(3), P0=np.eye(3))
+    np.testing.assert_array_equal(narrow.x_post, fixed.x_post)
+
+
+@pytest.mark.parametrize("jit", [True, False])
+def test_vbl_switches_per_sample_by_its_criterion(jit: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    if not jit:
+        monkeypatch.setattr(_jit, "enabled", lambda: False)
+    model = model_with(SQUARE_C)
+    z, u = data(model)
+    psi, gamma = np.array([3.2, 6.4, 2.4]), 0.3  # wide enough that both gains occur
+    filt = SVSFCov(model, psi=psi, gamma=gamma, vbl=True)
+    out = filt.run(z, u, x0=np.zeros(3), P0=np.eye(3), store=STORE)
+    ebar = previous(out.e_post, np.zeros((3, 3)))
+    M = np.linalg.inv(SQUARE_C)
+    used = []
+    for r in range(3):
+        for k in range(z.shape[1]):
+            e = out.innovation[r, k]
+            Kkf = out.P_prior[r, k] @ SQUARE_C.T @ np.linalg.inv(out.S[r, k])
+            need = np.abs(e) + gamma * np.abs(ebar[r, k])
+            kf = bool(np.all(need / np.diag(SQUARE_C @ Kkf) <= psi))
+            K = Kkf if kf else M @ np.diag(need / np.maximum(np.abs(e), psi))
+            used.append(kf)
+            np.testing.assert_allclose(out.x_post[r, k] - out.x_prior[r, k], K @ e, rtol=1e-9, atol=1e-13)
+    assert 0.1 < np.mean(used) < 0.9  # both branches are exercised
+
+
+def four_state_model() -> LinearModel:
+    """n = 4, m = 2 (x1 and x4 measured, like the EHA): the Luenberger form applies."""
+    A = np.array(
+        [[1.0, 0.01, 0.0, 0.0], [0.0, 1.0, 0.01, 0.0], [-0.5, -0.3, 0.97, 0.01], [0.0, 0.4, 0.2, 0.9]]
+    )
+    B = np.array([[0.0], [0.0], [0.05], [0.01]])
+    C = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+    return LinearModel(A, B, C, np.diag([1e-4, 1e-3, 1e-2, 1e-3]), np.diag([1e-3, 2e-3]), 0.01)
+
+
+def test_luen_mapping_equals_the_existing_reduced_order_svsf() -> None:
+    model = four_state_model()
+    z, u = data(model, T=80)
+    psi = np.array([0.2, 0.3, 0.5, 0.8])
+    ref = SVSF(model, psi=psi, gamma=0.3).run(z, u, x0=np.zeros(4), store_states=True)
+    filt = SVSFCov(model, psi=psi, gamma=0.3, mapping="luen")
+    state = filt.initialize(np.zeros(4), np.eye(4), runs=3, e0=z[:, 0])
+    _, out = filt.update(state, z[:, 1:], u[:-1], store=STORE)
+    # same eq 9-11 in the same coordinates; matrices formed in a different order: rounding only
+    np.testing.assert_allclose(out.x_post, ref.x_post[:, 1:], rtol=1e-10, atol=1e-12)
+    assert np.all(np.linalg.eigvalsh(out.P_post) > 0)  # the Joseph form keeps P positive definite
+    with pytest.raises(ShapeError, match="psi must be a scalar or have 4 entries"):
+        SVSFCov(model, psi=[0.1, 0.2], mapping="luen")
+
+
+def test_second_order_luen_residual_recursion_and_freeze() -> None:
+    from chatterspec.filters import SecondOrderSVSF
+
+    model = four_state_model()
+    z, u = data(model, T=60)
+    g, lam = np.array([0.3, 0.6]), np.array([0.5, 0.2])
+    filt = SecondOrderSVSF(model, gamma=g, lam=lam, mapping="luen")
+    e0, em1 = np.array([[1.0, -0.5]]), np.array([[0.3, 0.2]])
+    state = filt.initialize(np.zeros(4), np.eye(4), runs=3, e0=e0, e_prev0=em1)
+    _, out = filt.update(state, z, u, store=STORE)
+    s = np.concatenate(
+        [np.broadcast_to(em1, (3, 2))[:, None], np.broadcast_to(e0, (3, 2))[:, None], out.e_post], 1
+    )
+    # d_u = e - r makes the measured residual e(k+1|k+1) = r = (g + L) e(k|k) - g L e(k-1|k-1) (eq 21)
+    np.testing.assert_allclose(s[:, 2:], (g + lam) * s[:, 1:-1] - g * lam * s[:, :-2], atol=1e-13)
+    frozen = SecondOrderSVSF(model, gamma=g, lam=lam, mapping="luen").run(z, u, x0=np.zeros(4), P0=np.eye(4))
+    np.testing.assert_allclose(frozen.x_post[..., [0, 3]], z, atol=1e-13)
+
+
+def test_luen_with_a_per_run_jacobian_equals_the_linear_path() -> None:
+    model = four_state_model()
+    z, u = data(model, T=40)
+    psi = np.array([0.2, 0.3, 0.5, 0.8])
+    a = SVSFCov(model, psi=psi, mapping="luen").run(z, u, x0=np.zeros(4), P0=np.eye(4), store=STORE)
+    b = SVSFCov(Duck(model), psi=psi, mapping="luen").run(z, u, x0=np.zeros(4), P0=np.eye(4), store=STORE)
+    for f in STORE:  # model.transition (numpy) vs A x + B u in the engine: rounding only
+        np.testing.assert_allclose(getattr(b, f), getattr(a, f), rtol=1e-10, atol=1e-13, err_msg=f)

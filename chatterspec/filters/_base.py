@@ -7,7 +7,7 @@ from collections.abc import Collection
 import numpy as np
 
 from .._validate import finite_array
-from ..errors import ShapeError
+from ..errors import ParameterError, ShapeError
 from ..plants.models import LinearModel
 from . import _engine
 from .protocol import FilterOutput, FilterState, check_chunk, initial_state, resolve_store
@@ -26,7 +26,12 @@ def check_model(model: object) -> None:
         )
     n, m = int(model.n_states), int(model.n_outputs)  # type: ignore[attr-defined]
     for name, shape in (("C", (m, n)), ("Q", (n, n)), ("R", (m, m))):
-        finite_array(f"model.{name}", getattr(model, name), shape=shape)
+        M = finite_array(f"model.{name}", getattr(model, name), shape=shape)
+        if name != "C":
+            if np.max(np.abs(M - M.T), initial=0.0) > 1e-10 * max(1.0, float(np.max(np.abs(M)))):
+                raise ParameterError(f"model.{name} must be symmetric (a covariance)")
+            if np.min(np.linalg.eigvalsh(M)) < -1e-12 * max(1.0, float(np.max(np.abs(M)))):
+                raise ParameterError(f"model.{name} must be positive semi-definite (a covariance)")
 
 
 class CovarianceFilterBase:

@@ -12,9 +12,12 @@ One step, for every realization (notation of ``estimators.md`` §1)::
 ``kind`` selects the correction: 0 = Kalman gain; 1 = SVSF with covariance, division-free
 form of [SMM] eq (2.5): g_i = (|e_i| + gamma_i |e_i(k|k)|) / max(|e_i|, psi_i), dz = g o e;
 2 = dynamic second-order SVSF, [DETC] eq (9): dz = e - (gamma + Lambda) e(k|k) +
-gamma Lambda e(k-1|k-1), g = clip(dz / e, lo, hi) (1 where e = 0; covariance only).
+gamma Lambda e(k-1|k-1), g = clip(dz / e, lo, hi) (1 where e = 0; covariance only);
+3 = SVSF with the variable boundary layer: the Kalman gain when the VBL
+psi_vbl,i = (|e_i| + gamma_i |e_i(k|k)|) / (C K_KF)_ii is <= psi_i in every channel, else kind 1.
 ``mapping`` gives M: 0 = a constant matrix (C^-1 for ``full``, C^+ for ``pinv``),
-1 = ``cov``: M = P(k+1|k) C^T (C P(k+1|k) C^T)^-1.
+1 = ``cov``: M = P(k+1|k) C^T (C P(k+1|k) C^T)^-1, 2 = ``luen``: the reduced-order Luenberger
+form (:func:`luen_correction`; numpy path only).
 
 There are two implementations of the same arithmetic: :func:`_cov_kernel` (scalar loops over
 runs and time, compiled by :func:`chatterspec._jit.njit`) and :func:`cov_numpy` (vectorized
@@ -29,8 +32,8 @@ import numpy as np
 from .. import _jit
 from ..errors import SingularMatrixError
 
-KF, SVSF1, SVSF2 = 0, 1, 2
-MAP_CONST, MAP_COV = 0, 1
+KF, SVSF1, SVSF2, VBL = 0, 1, 2, 3
+MAP_CONST, MAP_COV, MAP_LUEN = 0, 1, 2
 LOG2PI = float(np.log(2.0 * np.pi))
 FIELDS = ("x_prior", "x_post", "innovation", "S", "loglik", "e_post", "P_prior", "P_post")
 
@@ -182,8 +185,21 @@ def _cov_kernel(
                 logdet += np.log(L[i, i])
             ll = -0.5 * (m * 1.8378770664093453 + 2.0 * logdet + quad)
             # correction
-            if kind == KF:
+            use_kf = kind == KF
+            if kind == VBL:
+                # Kalman gain where psi_vbl,i = (|e_i| + gamma_i |e_i(k|k)|) / (C K_KF)_ii <= psi_i for all i
                 _chol_solve_rows(L, PCtT, KgT, m, n)
+                use_kf = True
+                for i in range(m):
+                    ck = 0.0
+                    for q in range(n):
+                        ck += C[i, q] * KgT[i, q]
+                    need = abs(e[i]) + gamma[i] * abs(ep[r, i])
+                    if not (ck > 0.0 and need <= psi[i] * ck):
+                        use_kf = False
+            elif kind == KF:
+                _chol_solve_rows(L, PCtT, KgT, m, n)
+            if use_kf:
                 for i in range(n):
                     s = xp[i]
                     for j in range(m):
@@ -199,7 +215,7 @@ def _cov_kernel(
                         for j in range(n):
                             MpT[i, j] = M_const[j, i]
                 for i in range(m):
-                    if kind == SVSF1:
+                    if kind != SVSF2:
                         a = abs(e[i])
                         den = a if a > psi[i] else psi[i]
                         g[i] = (a + gamma[i] * abs(ep[r, i])) / den
@@ -374,6 +390,7 @@ def cov_step(
     psi: np.ndarray | None = None,
     lo: float = 0.0,
     hi: float = 2.0,
+    luen: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> dict[str, np.ndarray | None]:
     """Advance ``x, P, ep, epp`` (modified in place) over ``z`` (runs, K, m).
 
@@ -409,7 +426,7 @@ def cov_step(
             raise ValueError("nonlinear steps take one sample at a time")
         Bu, A = np.zeros((1, 1, n)), np.zeros((n, n))
         xp_in, F_in = np.ascontiguousarray(xp_in, dtype=float), np.ascontiguousarray(F_in, dtype=float)
-    if _jit.enabled():
+    if _jit.enabled() and mapping != MAP_LUEN:
         status = _cov_kernel(
             kind,
             mapping,
@@ -446,7 +463,27 @@ def cov_step(
             raise SingularMatrixError(_not_pd_message(mapping, status - 1))
     else:
         _cov_numpy(
-            kind, mapping, linear, x, P, ep, epp, z, Bu, A, xp_in, F_in, C, Q, R, lo, hi, flags, out, **args
+            kind,
+            mapping,
+            linear,
+            x,
+            P,
+            ep,
+            epp,
+            z,
+            Bu,
+            A,
+            xp_in,
+            F_in,
+            C,
+            Q,
+            R,
+            lo,
+            hi,
+            flags,
+            out,
+            luen=luen,
+            **args,
         )
     return {f: (out[f] if f in keep else None) for f in FIELDS}
 
@@ -492,6 +529,7 @@ def _cov_numpy(
     lam,
     psi,
     M_const,
+    luen=None,
 ):
     """Numpy twin of :func:`_cov_kernel`: vectorized over runs, loop over time."""
     runs, K, m = z.shape
@@ -514,16 +552,21 @@ def _cov_numpy(
         w = np.linalg.solve(S, e[..., None])[..., 0]
         ll = -0.5 * (m * LOG2PI + 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1))
         ll = ll - 0.5 * np.einsum("ri,ri->r", e, w)
+        if kind in (KF, VBL):
+            Kkf = np.swapaxes(np.linalg.solve(S, np.swapaxes(PCt, -1, -2)), -1, -2)
         if kind == KF:
-            Kg = np.swapaxes(np.linalg.solve(S, np.swapaxes(PCt, -1, -2)), -1, -2)
+            Kg = Kkf
             x[...] = xp + np.einsum("rij,rj->ri", Kg, e)
+        elif mapping == MAP_LUEN:
+            Kg, dx = luen_correction(kind, F, e, ep, epp, luen[0], luen[1], gamma, lam, psi, lo, hi)
+            x[...] = xp + dx
         else:
             if mapping == MAP_COV:
                 _chol_np(D, mapping)
                 Mp = np.swapaxes(np.linalg.solve(D, np.swapaxes(PCt, -1, -2)), -1, -2)
             else:
                 Mp = np.broadcast_to(M_const, (runs, n, m))
-            if kind == SVSF1:
+            if kind != SVSF2:
                 a = np.abs(e)
                 g = (a + gamma * np.abs(ep)) / np.maximum(a, psi)
                 dz = g * e
@@ -533,6 +576,11 @@ def _cov_numpy(
                     g = np.where(e != 0.0, np.clip(dz / np.where(e != 0.0, e, 1.0), lo, hi), 1.0)
             Kg = Mp * g[:, None, :]
             x[...] = xp + np.einsum("rij,rj->ri", Mp, dz)
+            if kind == VBL:
+                ck = np.einsum("iq,rqi->ri", C, Kkf)
+                use_kf = np.all((ck > 0.0) & (np.abs(e) + gamma * np.abs(ep) <= psi * ck), axis=1)
+                Kg = np.where(use_kf[:, None, None], Kkf, Kg)
+                x[...] = np.where(use_kf[:, None], xp + np.einsum("rij,rj->ri", Kkf, e), x)
         IKC = eye - Kg @ C
         P[...] = IKC @ Pp @ np.swapaxes(IKC, -1, -2) + Kg @ R @ np.swapaxes(Kg, -1, -2)
         epp[...] = ep
@@ -644,3 +692,56 @@ def riccati(
         Pp_all[k], Pq_all[k], S_all[k], Kg_all[k], Sinv_all[k] = Pp, P, S, Kg, Sinv
         logdet[k] = 2.0 * np.sum(np.log(np.diag(L)))
     return P, Pp_all, Pq_all, S_all, Kg_all, Sinv_all, logdet
+
+
+def luen_correction(
+    kind: int,
+    F: np.ndarray,
+    e: np.ndarray,
+    ep: np.ndarray,
+    epp: np.ndarray,
+    T: np.ndarray,
+    Tinv: np.ndarray,
+    gamma: np.ndarray,
+    lam: np.ndarray,
+    psi: np.ndarray,
+    lo: float,
+    hi: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Reduced-order (Luenberger) correction (``estimators.md`` §1.4): ``(K (runs, n, m), dx (runs, n))``.
+
+    In measurement-aligned coordinates ``y = T x`` (``C T^-1 = [I 0]``), ``Phi = T F T^-1`` and
+    ``A_l = Phi22 Phi12^-1`` (n = 2m, Phi12 invertible):
+
+    * first order (chattering paper eq 9-11): ``d_u = kappa_u o e``, ``d_l = kappa_l o (A_l e)``
+      with ``kappa_u = (|e| + g|ebar|)/max(|e|, psi_u)``,
+      ``kappa_l = (|A_l e| + g|Phi12^-1 ebar|)/max(|A_l e|, psi_l)``;
+      gain ``[diag(kappa_u); diag(kappa_l) A_l]`` (exact: ``K e = d``);
+    * second order: ``d_u = e - r``, ``d_l = A_l e - Phi12^-1 r``, ``r = (g + L) ebar - g L ebar(k-1)``;
+      covariance gain ``[diag(q); A_l diag(q)]`` with ``q = clip(d_u / e)`` (exact when r = 0).
+    """
+    runs, m = e.shape
+    Phi = np.broadcast_to(T @ F @ Tinv, (runs, 2 * m, 2 * m))
+    try:
+        P12i = np.linalg.inv(Phi[:, :m, m:])
+    except np.linalg.LinAlgError:
+        raise SingularMatrixError(
+            "the Luenberger form needs Phi12 = d(measured)/d(unmeasured) invertible at the estimate (eq 10)"
+        ) from None
+    Al = Phi[:, m:, m:] @ P12i
+    Ae = np.einsum("rij,rj->ri", Al, e)
+    if kind == SVSF2:
+        r = (gamma + lam) * ep - gamma * lam * epp
+        du = e - r
+        dl = Ae - np.einsum("rij,rj->ri", P12i, r)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = np.where(e != 0.0, np.clip(du / np.where(e != 0.0, e, 1.0), lo, hi), 1.0)
+        Ky = np.concatenate([q[:, :, None] * np.eye(m), Al * q[:, None, :]], axis=1)
+    else:
+        a = np.abs(e)
+        ku = (a + gamma * np.abs(ep)) / np.maximum(a, psi[:m])
+        al = np.abs(Ae)
+        kl = (al + gamma * np.abs(np.einsum("rij,rj->ri", P12i, ep))) / np.maximum(al, psi[m:])
+        du, dl = ku * e, kl * Ae
+        Ky = np.concatenate([ku[:, :, None] * np.eye(m), kl[:, :, None] * Al], axis=1)
+    return Tinv @ Ky, np.concatenate([du, dl], axis=1) @ Tinv.T

@@ -12,10 +12,13 @@ Per sample, for every realization::
     (17) Lambda = diag(lambda_ii),  lambda_ii = 1 / (1 + c_ii),  0 < gamma_ii < 1
 
 ``M`` is the output-to-state map of :mod:`chatterspec.filters.svsf_cov` (``full`` = H^-1,
-``pinv``, ``cov``). The state update uses the exact ``dz``; the covariance gain uses the ratio
-``dz_i / e_i`` clipped to ``ratio_clip`` (default [0, 2], ``estimators.md`` §1.3: the ratio is
-unbounded as ``e -> 0``) and 1 where ``e_i = 0`` exactly (the limit when the residuals are
-zero). [IMM] eq (28) ``P = P - K E K^T`` holds only for the Kalman gain, hence Joseph.
+``pinv``, ``cov``; ``luen``: ``d_u = e - r``, ``d_l = A_l e - Phi12^-1 r`` with
+``r = (gamma + Lambda) e(k|k) - gamma Lambda e(k-1|k-1)``, one construction of the papers'
+"combined with Luenberger's observer"). The state update uses the exact ``dz``; the
+covariance gain uses the ratio ``dz_i / e_i`` clipped to ``ratio_clip`` (default [0, 2],
+``estimators.md`` §1.3: the ratio is unbounded as ``e -> 0``) and 1 where ``e_i = 0``
+exactly (the limit when the residuals are zero). [IMM] eq (28) ``P = P - K E K^T`` holds
+only for the Kalman gain, hence Joseph.
 
 Properties (tested exactly, square H): the a-posteriori residual obeys
 ``e(k+1|k+1) = (gamma + Lambda) e(k|k) - gamma Lambda e(k-1|k-1)`` ([DETC] eq 21), with roots
@@ -34,7 +37,15 @@ from .._validate import finite_array
 from ..errors import ParameterError
 from . import _engine
 from ._base import CovarianceFilterBase, check_model, is_linear
-from .svsf_cov import Mapping, check_gamma, default_mapping, mapping_matrix, per_channel
+from .svsf_cov import (
+    Mapping,
+    _mapping_code,
+    check_gamma,
+    default_mapping,
+    luen_transform,
+    mapping_matrix,
+    per_channel,
+)
 
 __all__ = ["SecondOrderSVSF"]
 
@@ -58,8 +69,9 @@ class SecondOrderSVSF(CovarianceFilterBase):
         Lambda per channel, ``0 < lam < 1``.
     cutoff : float or (m,) array, optional
         Cut-off c per channel, ``c > 0`` (dimensionless slope of the manifold ``dS + c S``).
-    mapping : {"full", "pinv", "cov"}, optional
+    mapping : {"full", "pinv", "cov", "luen"}, optional
         Output-to-state map; default ``"full"`` for a square invertible H, else ``"cov"``.
+        ``"luen"``: the reduced-order form of ``estimators.md`` §1.4 (n = 2m; numpy path).
     ratio_clip : (float, float)
         Bounds of ``dz / e`` in the covariance gain (default (0, 2)); the state update is exact.
 
@@ -79,6 +91,7 @@ class SecondOrderSVSF(CovarianceFilterBase):
     mapping: Mapping | None = None
     ratio_clip: tuple[float, float] = (0.0, 2.0)
     _M: np.ndarray | None = field(init=False, repr=False, default=None)
+    _luen: tuple[np.ndarray, np.ndarray] | None = field(init=False, repr=False, default=None)
 
     def __post_init__(self) -> None:
         check_model(self.model)
@@ -86,6 +99,7 @@ class SecondOrderSVSF(CovarianceFilterBase):
         C = np.asarray(self.model.C, dtype=float)  # type: ignore[attr-defined]
         mapping = default_mapping(C) if self.mapping is None else self.mapping
         object.__setattr__(self, "_M", mapping_matrix(C, mapping))
+        object.__setattr__(self, "_luen", luen_transform(C) if mapping == "luen" else None)
         object.__setattr__(self, "mapping", mapping)
         object.__setattr__(self, "gamma", check_gamma(self.gamma, m))
         if self.lam is not None and self.cutoff is not None:
@@ -122,7 +136,8 @@ class SecondOrderSVSF(CovarianceFilterBase):
     def _correction(self) -> dict[str, object]:
         return {
             "kind": _engine.SVSF2,
-            "mapping": _engine.MAP_COV if self._M is None else _engine.MAP_CONST,
+            "mapping": _mapping_code(self._M, self._luen),
+            "luen": self._luen,
             "M_const": self._M,
             "gamma": self.gamma,
             "lam": self.lam,

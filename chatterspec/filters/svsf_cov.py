@@ -23,8 +23,10 @@ log-likelihood a multiple-model bank weighs ([SMM] eq 3.3).
 * ``"cov"``: ``P(k+1|k) C^T (C P(k+1|k) C^T)^-1``, a covariance regression of the unmeasured on
   the measured errors (default when C is not square).
 
-The reduced-order Luenberger form (chattering paper eq 9-11) is the existing
-:class:`chatterspec.filters.svsf.SVSF`; it carries no covariance.
+* ``"luen"``: the reduced-order Luenberger form (chattering paper eq 9-11, ``estimators.md`` §1.4)
+  with ``Phi`` the model Jacobian at ``x(k|k)``; needs ``n = 2m`` and ``Phi12`` invertible, and
+  ``psi`` for all n coordinates (measured first). Same estimates as
+  :class:`chatterspec.filters.svsf.SVSF` for a linear model (tested); numpy path only.
 """
 
 from __future__ import annotations
@@ -38,10 +40,11 @@ from .._validate import finite_array
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from . import _engine
 from ._base import CovarianceFilterBase, check_model, is_linear
+from .svsf import _reduced_order_transform
 
 __all__ = ["Mapping", "SVSFCov", "mapping_matrix"]
 
-Mapping = Literal["full", "pinv", "cov"]
+Mapping = Literal["full", "pinv", "cov", "luen"]
 
 
 def mapping_matrix(C: np.ndarray, mapping: str) -> np.ndarray | None:
@@ -78,9 +81,20 @@ def mapping_matrix(C: np.ndarray, mapping: str) -> np.ndarray | None:
         return np.linalg.inv(C)
     if mapping == "pinv":
         return np.linalg.pinv(C)
-    if mapping == "cov":
+    if mapping in ("cov", "luen"):
         return None
-    raise ParameterError(f"mapping must be 'full', 'pinv' or 'cov'; got {mapping!r}")
+    raise ParameterError(f"mapping must be 'full', 'pinv', 'cov' or 'luen'; got {mapping!r}")
+
+
+def luen_transform(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(T, T^-1)`` of the reduced-order form, ``T = [[C], [E_l]]``; needs ``n = 2m`` (square Phi12)."""
+    m, n = np.shape(C)
+    if n != 2 * m:
+        raise SingularMatrixError(
+            f"mapping='luen' needs n = 2m (Phi12 square and invertible, eq 10); C is {m}x{n}: "
+            "use mapping='cov' or 'pinv'"
+        )
+    return _reduced_order_transform(np.asarray(C, dtype=float))
 
 
 def default_mapping(C: np.ndarray) -> str:
@@ -117,9 +131,14 @@ class SVSFCov(CovarianceFilterBase):
         Smoothing boundary layer per output channel (> 0), in output units.
     gamma : float or (m,) array
         Convergence rate, ``0 < gamma < 1`` ([SMM] eq 2.5).
-    mapping : {"full", "pinv", "cov"}, optional
+    mapping : {"full", "pinv", "cov", "luen"}, optional
         Output-to-state map (module docstring); default ``"full"`` for a square invertible C,
-        else ``"cov"``.
+        else ``"cov"``. With ``"luen"``, ``psi`` has n entries (measured coordinates first).
+    vbl : bool
+        Variable boundary layer (``estimators.md`` §1.2, beyond the papers, which never define
+        it): use the Kalman gain ``K_KF = P C^T S^-1`` when
+        ``psi_vbl,i = (|e_i| + gamma_i |e_i(k|k)|) / (C K_KF)_ii <= psi_i`` in every channel,
+        else the fixed-``psi`` SVSF gain. Inside the layer it equals the Kalman filter (tested).
 
     Raises
     ------
@@ -133,16 +152,25 @@ class SVSFCov(CovarianceFilterBase):
     psi: float | np.ndarray
     gamma: float | np.ndarray = 0.1
     mapping: Mapping | None = None
+    vbl: bool = False
     _M: np.ndarray | None = field(init=False, repr=False, default=None)
+    _luen: tuple[np.ndarray, np.ndarray] | None = field(init=False, repr=False, default=None)
 
     def __post_init__(self) -> None:
         check_model(self.model)
         m = int(self.model.n_outputs)  # type: ignore[attr-defined]
         C = np.asarray(self.model.C, dtype=float)  # type: ignore[attr-defined]
+        if not isinstance(self.vbl, bool | np.bool_):
+            raise ParameterError(f"vbl must be True or False; got {self.vbl!r}")
         mapping = default_mapping(C) if self.mapping is None else self.mapping
         object.__setattr__(self, "_M", mapping_matrix(C, mapping))
         object.__setattr__(self, "mapping", mapping)
-        psi = per_channel("psi", self.psi, m, rule="the boundary layer")
+        luen = luen_transform(C) if mapping == "luen" else None
+        object.__setattr__(self, "_luen", luen)
+        if luen is not None and self.vbl:
+            raise ParameterError("vbl=True is not available with mapping='luen'")
+        n_psi = int(self.model.n_states) if luen is not None else m  # type: ignore[attr-defined]
+        psi = per_channel("psi", self.psi, n_psi, rule="the boundary layer")
         if np.any(psi <= 0):
             raise ParameterError(
                 f"psi must be > 0 (smoothing boundary layer, output units); got {psi.tolist()}"
@@ -156,8 +184,9 @@ class SVSFCov(CovarianceFilterBase):
 
     def _correction(self) -> dict[str, object]:
         return {
-            "kind": _engine.SVSF1,
-            "mapping": _engine.MAP_COV if self._M is None else _engine.MAP_CONST,
+            "kind": _engine.VBL if self.vbl else _engine.SVSF1,
+            "mapping": _mapping_code(self._M, self._luen),
+            "luen": self._luen,
             "M_const": self._M,
             "gamma": self.gamma,
             "psi": self.psi,
@@ -173,3 +202,9 @@ def check_gamma(gamma: object, m: int) -> np.ndarray:
             f"0 < gamma_ii < 1); got {g.tolist()}"
         )
     return g
+
+
+def _mapping_code(M: np.ndarray | None, luen: tuple[np.ndarray, np.ndarray] | None) -> int:
+    if luen is not None:
+        return _engine.MAP_LUEN
+    return _engine.MAP_COV if M is None else _engine.MAP_CONST
