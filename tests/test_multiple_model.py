@@ -233,13 +233,25 @@ def test_smm_svsf_targets_on_the_leak_timeline_many_runs() -> None:
 
 
 @pytest.mark.slow
-def test_imm_ekf_confusion_on_the_imm_analogue() -> None:
+@pytest.mark.parametrize("bank", ["ekf", "svsf-cov"])
+def test_imm_confusion_on_the_imm_analogue(bank: str) -> None:
+    """Issue target for IMM-EKF (every diagonal > 80 %, columns sum to 100 %); the SVSF-cov bank meets it too.
+
+    Measured (seed 2, 2 runs): EKF 89.9 / 89.7 / 100.0, SVSF-cov 90.0 / 89.7 / 100.0. The 2nd-order SVSF
+    and the ``luen`` mapping lose the friction mode (50 % and 6 %, docs/paper-notes.md), so they are
+    reported, not asserted. A diagonal is a mean over 2 x 20 000 strongly correlated samples; the margin
+    of 80 % against ~90 % is the issue's own threshold, not a fitted tolerance.
+    """
     sc = cs.scenario("eha4-imm-analogue")
     fs = sc.filter_settings
-    sim = cs.simulate(sc, runs=2, seed=21)
-    imm = IMM(
-        [ExtendedKalmanFilter(mdl) for mdl in fs.mode_models], fs.transition_matrix, mu0=np.array(fs.mu0)
-    )
+    sim = cs.simulate(sc, runs=2, seed=2)
+    if bank == "ekf":
+        filters = [ExtendedKalmanFilter(mdl) for mdl in fs.mode_models]
+    else:
+        filters = [
+            SVSFCov(mdl, psi=np.array(fs.psi), gamma=fs.gamma, mapping="cov") for mdl in fs.mode_models
+        ]
+    imm = IMM(filters, fs.transition_matrix, mu0=np.array(fs.mu0))
     out = imm.run(sim.z[:, 1:], sim.u[:-1], x0=fs.x0, P0=fs.P0)
     conf = confusion_matrix(out.mu, fs.mode_index(sc)[1:])
     np.testing.assert_allclose(conf.sum(axis=0), 100.0, rtol=1e-12)
