@@ -80,3 +80,25 @@ def test_mode_figures_render(tmp_path) -> None:  # type: ignore[no-untyped-def]
     assert p1.stat().st_size > 1000 and p2.stat().st_size > 1000
     with pytest.raises(ShapeError):
         confusion_figure(np.zeros((2, 2)), ("a", "b", "c"))
+
+
+def test_mode_diagnosis_of_smm_on_the_leak_timeline() -> None:
+    import chatterspec as cs
+    from chatterspec.studies.mode_diagnosis import diagnose_modes
+
+    sim = cs.simulate(cs.scenario("eha4-leak-timeline"), runs=2, seed=3)
+    (res,) = diagnose_modes(sim, ("smm",))
+    assert res.onsets == pytest.approx((3.0, 6.0))
+    np.testing.assert_allclose(res.confusion.sum(axis=0), 100.0, rtol=1e-12)
+    # the SMM targets seen as diagnosis: isolation within 5 ms of each onset, none missed, and the
+    # healthy samples in alarm at most 1 % (argmax = true mode in >= 99 % of the normal segment)
+    assert res.missed == (0, 0)
+    assert max(res.isolation_p90) <= 0.005
+    assert res.healthy_alarm_fraction <= 0.01
+    lo, hi = res.false_alarm_ci
+    assert lo <= res.false_alarm_rate <= hi
+    assert res.describe()["method"] == "smm" and res.steps_per_second > 0
+    with pytest.raises(ParameterError, match="transition_matrix"):
+        diagnose_modes(sim, ("imm",))  # the SMM scenario prints no transition matrix
+    with pytest.raises(ParameterError, match="method must be"):
+        diagnose_modes(sim, ("chattering",))
