@@ -102,3 +102,18 @@ def test_mode_diagnosis_of_smm_on_the_leak_timeline() -> None:
         diagnose_modes(sim, ("imm",))  # the SMM scenario prints no transition matrix
     with pytest.raises(ParameterError, match="method must be"):
         diagnose_modes(sim, ("chattering",))
+
+
+def test_diagnose_command_json_and_errors(capsys) -> None:  # type: ignore[no-untyped-def]
+    import json
+
+    from chatterspec.cli import main
+
+    assert main(["diagnose", "eha4-leak-timeline", "--runs", "1", "--seed", "2", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["scenario"] == "eha4-leak-timeline" and [m["method"] for m in doc["methods"]] == ["smm"]
+    assert doc["methods"][0]["onsets_s"] == pytest.approx([3.0, 6.0])
+    assert main(["diagnose", "eha4-leak-timeline", "--methods", "chattering"]) == 2
+    assert "not available yet" in capsys.readouterr().err
+    assert main(["diagnose", "eha-healthy"]) == 2
+    assert "names no filter modes" in capsys.readouterr().err

@@ -28,6 +28,7 @@ COMMANDS: tuple[str, ...] = (
     "calibrate",
     "far",
     "power",
+    "diagnose",
 )
 
 
