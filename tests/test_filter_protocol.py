@@ -144,3 +144,26 @@ def test_replace_rejects_unknown_fields_and_wrong_shapes() -> None:
         state.replace(mu=1)
     with pytest.raises(ValueError, match="x must have shape"):
         state.replace(x=np.zeros((3, 3)))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_correct_from_the_filters_own_prior_reproduces_update(name: str) -> None:
+    """correct() (measurement update from a supplied prior, [SMM] Table 1) = update()'s second half."""
+    filt = filters(model())[name]
+    z, u = data()
+    state = filt.initialize(np.zeros(3), np.eye(3) * 0.1, runs=4)
+    for k in range(5):
+        new, out = filt.update(state, z[:, k : k + 1], u[:, k : k + 1], store=ALL)
+        Pp = out.P_prior[:, 0] if out.P_prior.ndim == 4 else out.P_prior[0]
+        fixed, cout = filt.correct(state, out.x_prior[:, 0], Pp, z[:, k], store=ALL)
+        if name == "kf":  # the shared-covariance path computes the gain with LAPACK: rounding only
+            np.testing.assert_allclose(cout.x_post, out.x_post, rtol=1e-12, atol=1e-15)
+        else:  # same kernel after the prediction: bit for bit
+            np.testing.assert_array_equal(cout.x_post, out.x_post)
+            np.testing.assert_array_equal(cout.loglik, out.loglik)
+            np.testing.assert_array_equal(fixed.P, new.P)
+        np.testing.assert_array_equal(fixed.e_prev, new.e_prev)
+        assert fixed.k == new.k
+        state = new
+    with pytest.raises(ValueError, match="x_prior must have shape"):
+        filt.correct(state, np.zeros((2, 3)), np.eye(3), z[:, 0])

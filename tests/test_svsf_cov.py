@@ -254,6 +254,8 @@ def test_luen_mapping_equals_the_existing_reduced_order_svsf() -> None:
     # same eq 9-11 in the same coordinates; matrices formed in a different order: rounding only
     np.testing.assert_allclose(out.x_post, ref.x_post[:, 1:], rtol=1e-10, atol=1e-12)
     assert np.all(np.linalg.eigvalsh(out.P_post) > 0)  # the Joseph form keeps P positive definite
+    with pytest.raises(ParameterError, match=r"correct\(\) is not available with mapping='luen'"):
+        filt.correct(state, np.zeros((3, 4)), np.eye(4), z[:, 1])
     with pytest.raises(ShapeError, match="psi must be a scalar or have 4 entries"):
         SVSFCov(model, psi=[0.1, 0.2], mapping="luen")
 

@@ -168,6 +168,74 @@ class CovarianceFilterBase:
         }
         return P, res
 
+    def correct(
+        self,
+        state: FilterState,
+        x_prior: np.ndarray,
+        P_prior: np.ndarray,
+        z: np.ndarray,
+        *,
+        store: Collection[str] | None = None,
+    ) -> tuple[FilterState, FilterOutput]:
+        """Measurement update only, from a prior the caller supplies (one sample).
+
+        For multiple-model schemes that mix predictions rather than posteriors ([SMM] Table 1:
+        ``x(k+1|k) = sum_j mu_j x_j(k+1|k)``, ``P(k+1|k) = sum_j mu_j [P_j + spread]``). The
+        residual memory ``e(k|k)``, ``e(k-1|k-1)`` and ``k`` come from ``state``. The arithmetic
+        after the prediction is that of :meth:`update`: given ``update``'s own ``x_prior`` and
+        ``P_prior``, the posterior is bit-identical (tested).
+
+        Parameters
+        ----------
+        state : FilterState
+            Posterior after sample k (only its residuals and ``k`` are used).
+        x_prior : (runs, n) array
+            ``x(k+1|k)``.
+        P_prior : (n, n) or (runs, n, n) array
+            ``P(k+1|k)``, symmetric positive definite.
+        z : (runs, m) or (runs, 1, m) array
+            ``z(k+1)``.
+        store : collection of str, optional
+            Output fields to keep (see :meth:`update`).
+
+        Returns
+        -------
+        (FilterState, FilterOutput)
+            Outputs have one sample; ``x_prior``/``P_prior`` echo the inputs.
+        """
+        keep = resolve_store(store)
+        if not isinstance(state, FilterState):
+            raise TypeError(f"state must be a FilterState; got {type(state).__name__}")
+        runs, n = state.x.shape
+        m = state.e_post.shape[1]
+        xp = finite_array("x_prior", x_prior, shape=(runs, n))
+        Pp = finite_array("P_prior", P_prior, ndim=(2, 3))
+        if Pp.shape[-2:] != (n, n) or (Pp.ndim == 3 and Pp.shape[0] != runs):
+            raise ShapeError(f"P_prior must have shape ({n}, {n}) or ({runs}, {n}, {n}); got {Pp.shape}")
+        zz = finite_array("z", z, ndim=(2, 3))
+        if zz.ndim == 2:
+            zz = zz[:, None]
+        if zz.shape != (runs, 1, m):
+            raise ShapeError(f"z must have shape ({runs}, {m}) (one sample); got {zz.shape}")
+        model = self.model
+        C = np.asarray(model.C, dtype=float)  # type: ignore[attr-defined]
+        R = np.asarray(model.R, dtype=float)  # type: ignore[attr-defined]
+        P = np.array(np.broadcast_to(Pp, (runs, n, n)), dtype=float)
+        x, ep, epp = np.array(xp, dtype=float), state.e_post.copy(), state.e_prev.copy()
+        corr = self._correction()
+        kind, mapping = corr.pop("kind"), corr.pop("mapping")
+        if mapping == _engine.MAP_LUEN:
+            raise ParameterError(
+                "correct() is not available with mapping='luen' (it needs the Jacobian at x(k|k))"
+            )
+        # F = I and Q = 0 make the engine's prediction P(k+1|k) = I P I^T + 0 = P_prior exactly
+        res = _engine.cov_step(
+            kind, mapping, x, P, ep, epp, zz, C, np.zeros((n, n)), R, keep,
+            xp_in=xp, F_in=np.broadcast_to(np.eye(n), (runs, n, n)), **corr,
+        )  # fmt: skip
+        new = FilterState(x=x, P=P, e_post=ep, e_prev=epp, k=state.k + 1)
+        return new, FilterOutput(**res)
+
     def run(
         self,
         z: np.ndarray,

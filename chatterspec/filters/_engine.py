@@ -17,7 +17,8 @@ gamma Lambda e(k-1|k-1), g = clip(dz / e, lo, hi) (1 where e = 0; covariance onl
 psi_vbl,i = (|e_i| + gamma_i |e_i(k|k)|) / (C K_KF)_ii is <= psi_i in every channel, else kind 1.
 ``mapping`` gives M: 0 = a constant matrix (C^-1 for ``full``, C^+ for ``pinv``),
 1 = ``cov``: M = P(k+1|k) C^T (C P(k+1|k) C^T)^-1, 2 = ``luen``: the reduced-order Luenberger
-form (:func:`luen_correction`; numpy path only).
+form (:func:`chatterspec.filters._luen.luen_correction`; numpy path only). The linear KF with a
+shared covariance has its own state kernel in :mod:`chatterspec.filters._kalman_shared`.
 
 There are two implementations of the same arithmetic: :func:`_cov_kernel` (scalar loops over
 runs and time, compiled by :func:`chatterspec._jit.njit`) and :func:`cov_numpy` (vectorized
@@ -299,63 +300,6 @@ def _cov_kernel(
     return 0
 
 
-@_jit.njit
-def _kf_shared_kernel(
-    x, ep, epp, z, Bu, A, C, KgT, Sinv, logdet, flags, o_xprior, o_xpost, o_e, o_ll, o_ep
-):  # pragma: no cover
-    """State recursion of the Kalman filter with a precomputed, shared gain sequence."""
-    runs, K, m = z.shape
-    n = x.shape[1]
-    shared_bu = Bu.shape[0] == 1
-    xp = np.empty(n)
-    e = np.empty(m)
-    for r in range(runs):
-        br = 0 if shared_bu else r
-        for k in range(K):
-            for i in range(n):
-                s = Bu[br, k, i]
-                for j in range(n):
-                    s += A[i, j] * x[r, j]
-                xp[i] = s
-            for i in range(m):
-                s = z[r, k, i]
-                for j in range(n):
-                    s -= C[i, j] * xp[j]
-                e[i] = s
-            for i in range(n):
-                s = xp[i]
-                for j in range(m):
-                    s += KgT[k, j, i] * e[j]
-                x[r, i] = s
-            quad = 0.0
-            for i in range(m):
-                s = 0.0
-                for j in range(m):
-                    s += Sinv[k, i, j] * e[j]
-                quad += e[i] * s
-            for i in range(m):
-                epp[r, i] = ep[r, i]
-                s = z[r, k, i]
-                for j in range(n):
-                    s -= C[i, j] * x[r, j]
-                ep[r, i] = s
-            if flags[0]:
-                for i in range(n):
-                    o_xprior[r, k, i] = xp[i]
-            if flags[1]:
-                for i in range(n):
-                    o_xpost[r, k, i] = x[r, i]
-            if flags[2]:
-                for i in range(m):
-                    o_e[r, k, i] = e[i]
-            if flags[4]:
-                o_ll[r, k] = -0.5 * (m * 1.8378770664093453 + logdet[k] + quad)
-            if flags[5]:
-                for i in range(m):
-                    o_ep[r, k, i] = ep[r, i]
-    return 0
-
-
 # ----------------------------------------------------------------------------- drivers
 def _alloc(
     keep: frozenset[str], shapes: dict[str, tuple[int, ...]]
@@ -558,6 +502,8 @@ def _cov_numpy(
             Kg = Kkf
             x[...] = xp + np.einsum("rij,rj->ri", Kg, e)
         elif mapping == MAP_LUEN:
+            from ._luen import luen_correction  # deferred: _luen imports this module's constants
+
             Kg, dx = luen_correction(kind, F, e, ep, epp, luen[0], luen[1], gamma, lam, psi, lo, hi)
             x[...] = xp + dx
         else:
@@ -588,160 +534,3 @@ def _cov_numpy(
         for f, flag, val in zip(FIELDS, flags, (xp, x, e, S, ll, ep, Pp, P), strict=True):
             if flag:
                 out[f][:, k] = val
-
-
-def kf_shared_states(
-    x: np.ndarray,
-    ep: np.ndarray,
-    epp: np.ndarray,
-    z: np.ndarray,
-    Bu: np.ndarray,
-    A: np.ndarray,
-    C: np.ndarray,
-    Kg: np.ndarray,
-    Sinv: np.ndarray,
-    logdet: np.ndarray,
-    keep: frozenset[str],
-) -> dict[str, np.ndarray | None]:
-    """State recursion of the linear KF with a shared gain sequence ``Kg`` (K, n, m); in place."""
-    runs, K, m = z.shape
-    n = x.shape[1]
-    shapes = {
-        "x_prior": (runs, K, n),
-        "x_post": (runs, K, n),
-        "innovation": (runs, K, m),
-        "S": (0, 0, 0, 0),
-        "loglik": (runs, K),
-        "e_post": (runs, K, m),
-        "P_prior": (0, 0, 0, 0),
-        "P_post": (0, 0, 0, 0),
-    }
-    flags, out = _alloc(keep, shapes)
-    KgT = np.ascontiguousarray(np.swapaxes(Kg, -1, -2))
-    if _jit.enabled():
-        _kf_shared_kernel(
-            x,
-            ep,
-            epp,
-            np.ascontiguousarray(z),
-            np.ascontiguousarray(Bu),
-            np.ascontiguousarray(A),
-            np.ascontiguousarray(C),
-            KgT,
-            np.ascontiguousarray(Sinv),
-            np.ascontiguousarray(logdet),
-            flags,
-            out["x_prior"],
-            out["x_post"],
-            out["innovation"],
-            out["loglik"],
-            out["e_post"],
-        )
-    else:
-        AT, CT = A.T, C.T
-        for k in range(K):
-            xp = x @ AT + Bu[:, k]
-            e = z[:, k] - xp @ CT
-            x[...] = xp + e @ KgT[k]
-            if flags[4]:
-                out["loglik"][:, k] = -0.5 * (
-                    m * LOG2PI + logdet[k] + np.einsum("ri,ij,rj->r", e, Sinv[k], e)
-                )
-            epp[...] = ep
-            ep[...] = z[:, k] - x @ CT
-            for f, flag, val in (
-                ("x_prior", flags[0], xp),
-                ("x_post", flags[1], x),
-                ("innovation", flags[2], e),
-            ):
-                if flag:
-                    out[f][:, k] = val
-            if flags[5]:
-                out["e_post"][:, k] = ep
-    return {
-        f: (out[f] if (f in keep and f in ("x_prior", "x_post", "innovation", "loglik", "e_post")) else None)
-        for f in FIELDS
-    }
-
-
-def riccati(
-    P: np.ndarray, A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray, K: int
-) -> tuple[np.ndarray, ...]:
-    """Shared covariance sequence of the linear KF over K steps (Joseph form).
-
-    Returns ``(P_end, P_prior (K,n,n), P_post (K,n,n), S (K,m,m), Kg (K,n,m), Sinv (K,m,m), logdet (K,))``,
-    ``logdet`` = log det(2 pi S) - m log(2 pi) = log det S.
-    """
-    n, m = A.shape[0], C.shape[0]
-    Pp_all = np.empty((K, n, n))
-    Pq_all = np.empty((K, n, n))
-    S_all = np.empty((K, m, m))
-    Kg_all = np.empty((K, n, m))
-    Sinv_all = np.empty((K, m, m))
-    logdet = np.empty(K)
-    eye = np.eye(n)
-    for k in range(K):
-        Pp = A @ P @ A.T + Q
-        PCt = Pp @ C.T
-        S = C @ PCt + R
-        L = _chol_np(S, MAP_CONST)
-        Sinv = np.linalg.inv(S)
-        Kg = PCt @ Sinv
-        IKC = eye - Kg @ C
-        P = IKC @ Pp @ IKC.T + Kg @ R @ Kg.T
-        Pp_all[k], Pq_all[k], S_all[k], Kg_all[k], Sinv_all[k] = Pp, P, S, Kg, Sinv
-        logdet[k] = 2.0 * np.sum(np.log(np.diag(L)))
-    return P, Pp_all, Pq_all, S_all, Kg_all, Sinv_all, logdet
-
-
-def luen_correction(
-    kind: int,
-    F: np.ndarray,
-    e: np.ndarray,
-    ep: np.ndarray,
-    epp: np.ndarray,
-    T: np.ndarray,
-    Tinv: np.ndarray,
-    gamma: np.ndarray,
-    lam: np.ndarray,
-    psi: np.ndarray,
-    lo: float,
-    hi: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Reduced-order (Luenberger) correction (``estimators.md`` §1.4): ``(K (runs, n, m), dx (runs, n))``.
-
-    In measurement-aligned coordinates ``y = T x`` (``C T^-1 = [I 0]``), ``Phi = T F T^-1`` and
-    ``A_l = Phi22 Phi12^-1`` (n = 2m, Phi12 invertible):
-
-    * first order (chattering paper eq 9-11): ``d_u = kappa_u o e``, ``d_l = kappa_l o (A_l e)``
-      with ``kappa_u = (|e| + g|ebar|)/max(|e|, psi_u)``,
-      ``kappa_l = (|A_l e| + g|Phi12^-1 ebar|)/max(|A_l e|, psi_l)``;
-      gain ``[diag(kappa_u); diag(kappa_l) A_l]`` (exact: ``K e = d``);
-    * second order: ``d_u = e - r``, ``d_l = A_l e - Phi12^-1 r``, ``r = (g + L) ebar - g L ebar(k-1)``;
-      covariance gain ``[diag(q); A_l diag(q)]`` with ``q = clip(d_u / e)`` (exact when r = 0).
-    """
-    runs, m = e.shape
-    Phi = np.broadcast_to(T @ F @ Tinv, (runs, 2 * m, 2 * m))
-    try:
-        P12i = np.linalg.inv(Phi[:, :m, m:])
-    except np.linalg.LinAlgError:
-        raise SingularMatrixError(
-            "the Luenberger form needs Phi12 = d(measured)/d(unmeasured) invertible at the estimate (eq 10)"
-        ) from None
-    Al = Phi[:, m:, m:] @ P12i
-    Ae = np.einsum("rij,rj->ri", Al, e)
-    if kind == SVSF2:
-        r = (gamma + lam) * ep - gamma * lam * epp
-        du = e - r
-        dl = Ae - np.einsum("rij,rj->ri", P12i, r)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            q = np.where(e != 0.0, np.clip(du / np.where(e != 0.0, e, 1.0), lo, hi), 1.0)
-        Ky = np.concatenate([q[:, :, None] * np.eye(m), Al * q[:, None, :]], axis=1)
-    else:
-        a = np.abs(e)
-        ku = (a + gamma * np.abs(ep)) / np.maximum(a, psi[:m])
-        al = np.abs(Ae)
-        kl = (al + gamma * np.abs(np.einsum("rij,rj->ri", P12i, ep))) / np.maximum(al, psi[m:])
-        du, dl = ku * e, kl * Ae
-        Ky = np.concatenate([ku[:, :, None] * np.eye(m), kl[:, :, None] * Al], axis=1)
-    return Tinv @ Ky, np.concatenate([du, dl], axis=1) @ Tinv.T

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..plants.models import LinearModel
-from . import _engine
+from . import _engine, _kalman_shared
 from ._base import CovarianceFilterBase, check_model
 
 __all__ = ["ExtendedKalmanFilter", "KalmanFilter"]
@@ -65,9 +65,9 @@ class KalmanFilter(CovarianceFilterBase):
             return super()._advance(x, P, ep, epp, z, u, keep)
         model = self.model
         K = z.shape[1]
-        P, Pp, Pq, S, Kg, Sinv, logdet = _engine.riccati(P, model.A, model.C, model.Q, model.R, K)
+        P, Pp, Pq, S, Kg, Sinv, logdet = _kalman_shared.riccati(P, model.A, model.C, model.Q, model.R, K)
         Bu = _rows_times_B(u, model)
-        res = _engine.kf_shared_states(x, ep, epp, z, Bu, model.A, model.C, Kg, Sinv, logdet, keep)
+        res = _kalman_shared.kf_shared_states(x, ep, epp, z, Bu, model.A, model.C, Kg, Sinv, logdet, keep)
         res["S"] = S if "S" in keep else None
         res["P_prior"] = Pp if "P_prior" in keep else None
         res["P_post"] = Pq if "P_post" in keep else None
@@ -88,7 +88,7 @@ class KalmanFilter(CovarianceFilterBase):
         (gains (K, n, m), P_post (K, n, n))
         """
         state = self.initialize(np.zeros(self.model.n_states), P0)
-        _, _, Pq, _, Kg, _, _ = _engine.riccati(
+        _, _, Pq, _, Kg, _, _ = _kalman_shared.riccati(
             state.P, self.model.A, self.model.C, self.model.Q, self.model.R, K
         )
         return Kg, Pq

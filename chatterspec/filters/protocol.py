@@ -147,7 +147,10 @@ class Filter(Protocol):
     ``initialize(x0, P0, *, runs=None, e0=None, e_prev0=None) -> FilterState``;
     ``update(state, z, u, *, store=None, check=True) -> (FilterState, FilterOutput)`` with
     ``z`` of shape ``(runs, K, m)`` and ``u`` of shape ``(K, p)`` or ``(runs, K, p)``;
-    ``run(z, u, *, x0, P0, store=None) -> FilterOutput``. ``model`` is the filter's model
+    ``run(z, u, *, x0, P0, store=None) -> FilterOutput``;
+    ``correct(state, x_prior, P_prior, z, *, store=None) -> (FilterState, FilterOutput)``, the
+    measurement update from a caller's prior (banks that mix predictions, [SMM] Table 1).
+    ``model`` is the filter's model
     (``transition``, ``jacobian``, ``C``, ``Q``, ``R``, ``dt``, ``n_states``, ``n_outputs``,
     ``n_inputs``).
     """
@@ -183,6 +186,16 @@ class Filter(Protocol):
         P0: np.ndarray,
         store: Collection[str] | None = None,
     ) -> FilterOutput: ...
+
+    def correct(
+        self,
+        state: FilterState,
+        x_prior: np.ndarray,
+        P_prior: np.ndarray,
+        z: np.ndarray,
+        *,
+        store: Collection[str] | None = None,
+    ) -> tuple[FilterState, FilterOutput]: ...
 
 
 # ---------------------------------------------------------------------- shared validation helpers
