@@ -319,6 +319,8 @@ class MultipleModelState:
         Mode-matched filter states (IMM and the SMM bank reading; empty for Table 1).
     k : int
         Index of the last processed sample.
+    e_prev : (runs, m) array or None
+        Residual one step earlier, ``e(k-1|k-1)`` (SMM Table 1; None = zeros).
     """
 
     x: np.ndarray
@@ -328,6 +330,7 @@ class MultipleModelState:
     z_last: np.ndarray
     mode_states: tuple[FilterState, ...] = ()
     k: int = 0
+    e_prev: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -455,7 +458,7 @@ class SMMSVSF:
     mu0: np.ndarray | None = None
     reading: Literal["table1", "bank"] = "table1"
     modes: Sequence[str] | None = None
-    _M: np.ndarray | None = field(init=False, repr=False, default=None)
+    _svsf: SVSFCov | None = field(init=False, repr=False, default=None)
     _bank: tuple[SVSFCov, ...] = field(init=False, repr=False, default=())
 
     def __post_init__(self) -> None:
@@ -473,7 +476,7 @@ class SMMSVSF:
         if self.reading not in ("table1", "bank"):
             raise ParameterError(f"reading must be 'table1' or 'bank'; got {self.reading!r}")
         mapping = default_mapping(C) if self.mapping is None else self.mapping
-        object.__setattr__(self, "_M", mapping_matrix(C, mapping))
+        mapping_matrix(C, mapping)  # named error for an unusable mapping
         object.__setattr__(self, "mapping", mapping)
         psi = per_channel("psi", self.psi, m, rule="the boundary layer")
         if np.any(psi <= 0):
@@ -488,6 +491,8 @@ class SMMSVSF:
             raise ShapeError(f"mu0 must have shape ({r},); got {mu0.shape}")
         object.__setattr__(self, "mu0", mu0)
         object.__setattr__(self, "modes", _mode_names(self.modes, r))
+        # Table 1 steps 6-7b: one SVSF-cov (the modes share C and R) corrects the mixed prediction
+        object.__setattr__(self, "_svsf", SVSFCov(models[0], psi=psi, gamma=self.gamma, mapping=mapping))
         if self.reading == "bank":
             bank = tuple(SVSFCov(mdl, psi=psi, gamma=self.gamma, mapping=mapping) for mdl in models)
             object.__setattr__(self, "_bank", bank)
@@ -562,20 +567,20 @@ class SMMSVSF:
     def _update_table1(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
         models = self.models
         r = len(models)
-        runs, K, m = z.shape
+        runs, K, _m = z.shape
         n = state.x.shape[1]
         C = np.asarray(models[0].C, dtype=float)  # type: ignore[attr-defined]
         R = np.asarray(models[0].R, dtype=float)  # type: ignore[attr-defined]
         Qs = np.stack([np.asarray(mdl.Q, dtype=float) for mdl in models])  # type: ignore[attr-defined]
-        psi, gamma, floor = self.psi, self.gamma, self.weight_floor
-        Mc = self._M
+        floor = self.weight_floor
+        svsf = self._svsf
         x, P, mu, ep = state.x.copy(), state.P.copy(), state.mu.copy(), state.e_post.copy()
+        epp = np.zeros_like(ep) if state.e_prev is None else state.e_prev.copy()
         o_x = np.empty((runs, K, n))
         o_mu = np.empty((runs, K, r))
         o_ll = np.empty((runs, K, r))
         o_P = np.empty((runs, K, n, n)) if store_cov else None
         o_mx = np.empty((runs, K, r, n)) if store_modes else None
-        eye = np.eye(n)
         shared_u = u.shape[0] == 1
         xs = np.empty((runs, r, n))
         Fs = np.empty((runs, r, n, n))
@@ -590,26 +595,24 @@ class SMMSVSF:
             ll = log_gaussian(zk[:, None, :] - xs @ C.T, Ss)  # eq 3.2-3.3
             mu = normalize_log_weights(np.log(np.maximum(mu, 1e-300)) + ll, floor)  # eq 3.1 + floor
             xp, Pp = combine(mu, xs, Ps)  # steps 4a-5
-            e = zk - xp @ C.T  # eq 2.3-2.4
-            kappa = (np.abs(e) + gamma * np.abs(ep)) / np.maximum(np.abs(e), psi)  # eq 2.5, division-free
-            if Mc is None:  # cov mapping: M = P C^T (C P C^T)^-1
-                PCt = Pp @ C.T
-                M = np.swapaxes(np.linalg.solve(C @ PCt, np.swapaxes(PCt, -1, -2)), -1, -2)
-            else:
-                M = np.broadcast_to(Mc, (runs, n, m))
-            Kg = M * kappa[:, None, :]
-            x = xp + np.einsum("rnm,rm->rn", Kg, e)  # eq 2.8
-            IKC = eye - Kg @ C
-            P = IKC @ Pp @ np.swapaxes(IKC, -1, -2) + Kg @ R @ np.swapaxes(Kg, -1, -2)  # eq 2.9 Joseph
-            P = 0.5 * (P + np.swapaxes(P, -1, -2))
-            ep = zk - x @ C.T  # eq 2.10
+            # steps 6-7b: the SVSF-cov measurement update (eq 2.5-2.10) from the mixed prior, through the
+            # protocol's correct() (bit-identical to the second half of SVSFCov.update)
+            fstate = FilterState(x=x, P=P, e_post=ep, e_prev=epp, k=state.k + k)
+            fstate, _ = svsf.correct(fstate, xp, Pp, zk, store=())
+            x, P, ep, epp = fstate.x, fstate.P, fstate.e_post, fstate.e_prev
             o_x[:, k], o_mu[:, k], o_ll[:, k] = x, mu, ll
             if o_P is not None:
                 o_P[:, k] = P
             if o_mx is not None:
                 o_mx[:, k] = xs
         new = MultipleModelState(
-            x=x, P=P, mu=mu, e_post=ep, z_last=z[:, -1].copy() if K else state.z_last, k=state.k + K
+            x=x,
+            P=P,
+            mu=mu,
+            e_post=ep,
+            z_last=z[:, -1].copy() if K else state.z_last,
+            k=state.k + K,
+            e_prev=epp,
         )
         return new, MultipleModelOutput(o_x, o_mu, o_ll, tuple(self.modes), o_P, o_mx)  # type: ignore[arg-type]
 
