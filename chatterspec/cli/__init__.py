@@ -31,6 +31,7 @@ COMMANDS: tuple[str, ...] = (
     "far",
     "power",
     "estimate",
+    "diagnose",
 )
 
 
