@@ -105,6 +105,14 @@ class _LazyKernel:
     def _compile(self) -> Callable[..., Any]:
         import numba
 
+        # A kernel may call other kernels: numba can only type their compiled dispatchers, so
+        # compile those first and put the dispatchers in the module's globals (they keep
+        # ``py_func`` and are callable from Python like the wrapper they replace).
+        env = self.py_func.__globals__
+        for name in self.py_func.__code__.co_names:
+            dep = env.get(name)
+            if isinstance(dep, _LazyKernel):
+                env[name] = dep._compiled if dep._compiled is not None else dep._compile()
         self._compiled = numba.njit(cache=True, nogil=True)(self.py_func)
         return self._compiled
 

@@ -10,9 +10,6 @@ from __future__ import annotations
 import argparse
 
 from ..errors import ParameterError
-from ..plants.scenarios import scenario
-from ..plants.simulate import simulate
-from ..studies.mode_diagnosis import METHODS, diagnose_modes
 from ._common import positive_int_arg, print_json
 
 
@@ -39,6 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _methods(text: str | None, fs: object) -> tuple[str, ...]:
+    from ..studies.mode_diagnosis import METHODS
+
     if text is None:
         out = []
         if fs.psi is not None:  # type: ignore[attr-defined]
@@ -61,6 +60,10 @@ def _methods(text: str | None, fs: object) -> tuple[str, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..plants.scenarios import scenario
+    from ..plants.simulate import simulate
+    from ..studies.mode_diagnosis import diagnose_modes
+
     sc = scenario(args.name)
     fs = sc.filter_settings
     if fs is None or not fs.modes:
