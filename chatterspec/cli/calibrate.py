@@ -82,6 +82,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(doc, indent=2))
         return 0
+    if cal.normalization == "empirical":
+        return _print_empirical(cal, doc)
     a, ag = doc["analytic_factor"], doc["agreement"]
     print(f"calibration of {cal.scenario}: alpha = {cal.alpha:g}, {cal.runs} healthy runs, seed {cal.seed}")
     print(f"  normalized thresholds S/E[S] ({cal.confidence:.0%} intervals):")
@@ -103,5 +105,22 @@ def run(args: argparse.Namespace) -> int:
         )
     print(f"  per-frame median ratio empirical/analytic {ag['per_frame_median_ratio']:.3f}")
     if args.out:
+        print(f"  calibration file: {doc['calibration_file']}")
+    return 0
+
+
+def _print_empirical(cal, doc: dict) -> int:
+    """Text report of a calibration with an empirical normalization (nonlinear model)."""
+    info = cal.normalization_info
+    print(f"calibration of {cal.scenario}: alpha = {cal.alpha:g}, {cal.runs} healthy runs, seed {cal.seed}")
+    width = 2 * info.get("smooth_half_width_bins", 0) + 1
+    print(
+        f"  normalization: empirical (no closed-form spectrum for a nonlinear model): mean periodogram of "
+        f"{info.get('pilot_runs')} other healthy runs, smoothed over {width} bins"
+    )
+    print(f"  family-wise thresholds on S / E_hat ({cal.confidence:.0%} order-statistic intervals):")
+    for ch, q in zip(cal.channels, cal.family_wise, strict=True):
+        print(f"  empirical family-wise, {ch:<14} {q.value:.3f} [{q.ci_low:.3f}, {q.ci_high:.3f}]")
+    if "calibration_file" in doc:
         print(f"  calibration file: {doc['calibration_file']}")
     return 0

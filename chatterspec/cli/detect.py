@@ -99,11 +99,14 @@ def print_report(doc: dict) -> None:
     )
     if runs > 1:
         head += f" {'rate':>6}"
+    if runs > 1 and "averaged_threshold" in doc:  # none for an empirical (nonlinear) calibration
         print(f"averaged spectrum: {doc['averaged_threshold']['description']}")
         print(
             "(detected, signif Hz and peak ratio: averaged spectrum vs the averaged threshold; "
             "rate: fraction of single runs detected by the single-record threshold)"
         )
+    elif runs > 1:
+        print("(detected, signif Hz and peak ratio: run 0; rate: fraction of runs detected)")
     print("(peak Hz: largest excess power S - E[S]; signif Hz: largest S / threshold, ratio = peak ratio)")
     print(head)
     for c in doc["channels"]:

@@ -35,8 +35,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._validate import open_unit, positive_int
-from ..errors import ParameterError, ShapeError
+from ..errors import ModelKindError, ParameterError, ShapeError
 from ..plants.models import LinearModel
+from ..plants.nonlinear import is_linear
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
 from .pipeline import ChatteringRecord, iter_chattering
@@ -686,7 +687,11 @@ def detect_chunks(
     model, channels, dt = first.model, first.channels, first.dt
     pg = periodogram(first.values, dt)
     freqs, n_samples = pg.freqs_hz, pg.n_samples
-    E = expected_spectrum(model, freqs, n_samples)
+    linear = is_linear(model)
+    if not linear:  # nonlinear: no closed-form E[S]; the calibrated empirical threshold carries E_hat
+        _require_empirical(model, threshold)
+        stft = False if stft is None else stft
+    E = expected_spectrum(model, freqs, n_samples) if linear else threshold.expected
     if isinstance(threshold, Threshold):
         th = threshold
         if th.values.shape != pg.power.shape[-2:] or not np.allclose(th.freqs_hz, freqs):
@@ -735,7 +740,7 @@ def detect_chunks(
         threshold=th,
     )
     averaged = None
-    if runs > 1:
+    if runs > 1 and linear:
         th_avg = exact_threshold(model, freqs, n_samples, alpha, correction, averaged=runs, band=band)
         averaged = detect_spectrum(power_sum / runs, th_avg, E, channels)
     return DetectionReport(
@@ -746,6 +751,17 @@ def detect_chunks(
         averaged=averaged,
         frames=frames,
     )
+
+
+def _require_empirical(model: object, threshold: object) -> None:
+    """A nonlinear nominal model needs a calibrated threshold carrying its normalization."""
+    if not (isinstance(threshold, Threshold) and threshold.expected is not None):
+        raise ModelKindError(
+            "the 'exact'/'paper' thresholds: detection needs a linear model (closed-form chattering "
+            "spectrum, eq 56); "
+            f"{getattr(model, 'name', 'the model')!r} is nonlinear. Calibrate a threshold on healthy runs "
+            "(chatterspec calibrate <healthy scenario> --out FILE, then detect --calibration FILE)"
+        )
 
 
 _VERDICT_FIELDS = ("detected", "peak_hz", "most_significant_hz", "peak_ratio", "excess_power", "dc_ratio")
