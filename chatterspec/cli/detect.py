@@ -62,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
         from ..online.monitor import MonitorSettings
 
         settings = MonitorSettings(alpha=args.alpha, correction=args.correction)
+        if args.calibration and not sc.is_linear:  # nonlinear: the calibrated per-frame threshold
+            settings = MonitorSettings(threshold=cal.threshold("frame-family-wise"))
         summary = record_detection(sim, settings, path=args.record, live=args.live)
         doc["recording"] = summary.to_dict()
         for note in summary.notes:

@@ -169,6 +169,7 @@ class NonlinearSgnSVSF:
         *,
         store_states: bool = False,
         closed_form: bool = True,
+        check: bool = True,
     ) -> tuple[NonlinearSVSFState, NonlinearSVSFOutput]:
         """Advance all realizations by a chunk of K samples (online: K = 1; batch: the record).
 
@@ -185,6 +186,8 @@ class NonlinearSgnSVSF:
         closed_form : bool
             Allow the closed form (eq 23, nonlinear) when ``e(k|k) = 0``; ``False`` forces the
             sample-by-sample recursion (same numbers up to rounding).
+        check : bool
+            Validate finiteness (turn off only in trusted hot loops); shapes are always checked.
 
         Returns
         -------
@@ -194,8 +197,9 @@ class NonlinearSgnSVSF:
         """
         m = self.model.n_outputs
         runs = state.runs
-        z = finite_array("z", z, ndim=(2, 3))
-        u = finite_array("u", u, ndim=(1, 2, 3))
+        if check:
+            z = finite_array("z", z, ndim=(2, 3))
+            u = finite_array("u", u, ndim=(1, 2, 3))
         if z.ndim == 2:
             z = z[None]
         if z.shape[0] != runs or z.shape[2] != m:
