@@ -185,6 +185,10 @@ def test_cli_calibrate_then_detect(tmp_path, capsys: pytest.CaptureFixture[str])
     assert det["detected"] and det["threshold"]["kind"] == "empirical"
     assert main(["detect", "eha4-leak-major", "--calibration", str(out), "--runs", "3"]) == 0
     assert "fault detected: YES" in capsys.readouterr().out
+    rrd = tmp_path / "eha4.rrd"  # the recording goes through the live monitor with the calibrated threshold
+    assert main(["detect", "eha4-leak-major", "--calibration", str(out), "--record", str(rrd)]) == 0
+    assert rrd.stat().st_size > 0
+    capsys.readouterr()
     # without a calibration, or with one made for another model: a message, exit 2, no traceback
     assert main(["detect", "eha4-leak-major"]) == 2
     assert main(["detect", "eha-leak-major", "--calibration", str(out)]) == 2

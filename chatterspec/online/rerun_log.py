@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..detection.spectral import expected_frame_spectrum
+from ..plants.nonlinear import is_linear
 from .blueprint import _entity, blueprint
 from .monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
 from .viewer import DB_RANGE, TIMELINE, Sinks
@@ -210,9 +211,12 @@ class RerunLogger:
         self.scroll_frames = int(scroll_frames)
         m = len(self.channels)
         bins = monitor.freqs_hz.shape[0]
-        self._expected = expected_frame_spectrum(
-            monitor.model, monitor.freqs_hz, monitor.settings.stft, monitor.dt
-        )
+        if not is_linear(monitor.model):  # nonlinear: the calibrated threshold's empirical normalization
+            self._expected = np.asarray(monitor.threshold.expected)
+        else:
+            self._expected = expected_frame_spectrum(
+                monitor.model, monitor.freqs_hz, monitor.settings.stft, monitor.dt
+            )
         self._expected_db = (10.0 * np.log10(np.maximum(self._expected, 1e-300))).astype(np.float32)
         # ring of the last scroll_frames columns in dB (slot j % S holds frame j)
         self._ring = np.full((self.scroll_frames, bins, m), DB_RANGE[0], dtype=np.float16)
