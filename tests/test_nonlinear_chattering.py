@@ -226,3 +226,17 @@ def test_live_monitor_on_the_nonlinear_eha_with_a_calibrated_frame_threshold(cal
     # require fewer than half the frames, a bound a correct threshold misses with negligible probability.
     assert flags["fault"].any(axis=-1).all()
     assert flags["healthy"].any(axis=-1).mean() < 0.5
+
+
+def test_stft_intervals_localize_a_leak_onset_on_the_nonlinear_eha(calibration_file: str) -> None:
+    sc = scenario("eha4-leak-onset")  # healthy 0-2 s, major leakage 2-4 s; eha4-healthy's calibration
+    cal = load_calibration(calibration_file, sc.nominal, sc.n_samples - 1)
+    report = detect_chunks(
+        iter_chattering(sc, 1, seed=0),
+        threshold=cal.threshold(),
+        frame_threshold=cal.threshold("frame-family-wise"),
+    )
+    assert report.frames is not None and report.frames.threshold.kind == "empirical"
+    ivs = report.frames.intervals["acceleration"]
+    # one run: the leak's interval starts within one hop (0.2 s) of 2 s and lasts to the end
+    assert any(abs(on - 2.0) <= 0.2 and off >= 3.9 for on, off in ivs), ivs

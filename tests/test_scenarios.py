@@ -33,12 +33,13 @@ NAMES = (
     "eha4-healthy",
     "eha4-leak-minor",
     "eha4-leak-major",
+    "eha4-leak-onset",
 )
 
 
 def test_catalogue_names_are_the_cli_contract() -> None:
     assert set(scenario_names()) == set(NAMES)
-    assert len(scenario_names()) == 30
+    assert len(scenario_names()) == 31
     cat = catalogue()
     assert tuple(cat) == scenario_names()
     for name, sc in cat.items():
@@ -162,6 +163,7 @@ def test_plant_kinds_and_json_listing() -> None:
         "eha4-healthy",
         "eha4-leak-minor",
         "eha4-leak-major",
+        "eha4-leak-onset",
     }
     d = scenario("eha4-leak-timeline").describe()
     json.dumps(d)
@@ -326,4 +328,4 @@ def test_cli_lists_plant_kinds(capsys: pytest.CaptureFixture[str]) -> None:
     doc = json.loads(capsys.readouterr().out)
     kinds = {e["name"]: e["plant_kind"] for e in doc["scenarios"]}
     assert kinds["eha4-imm-analogue"] == "nonlinear" and kinds["eha-healthy"] == "linear"
-    assert len(kinds) == 30
+    assert len(kinds) == 31

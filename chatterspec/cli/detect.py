@@ -43,15 +43,23 @@ def run(args: argparse.Namespace) -> int:
     band = band_from_args(args)
     sc = scenario(args.name)
     threshold = args.threshold
+    extra: dict = {}
     if args.calibration:
         from ..studies.calibration import load_calibration
 
         n_samples = round(sc.duration / sc.nominal.dt)  # chattering samples of one record
         cal = load_calibration(args.calibration, sc.nominal, n_samples)
         threshold = cal.threshold("family-wise")
+        if not sc.is_linear:  # nonlinear: STFT intervals from the calibrated per-frame threshold
+            extra["frame_threshold"] = cal.threshold("frame-family-wise")
     first: list = []
     report = detect_chunks(
-        stream_chunks(sc, args.runs, args.seed, first), args.alpha, threshold, args.correction, band=band
+        stream_chunks(sc, args.runs, args.seed, first),
+        args.alpha,
+        threshold,
+        args.correction,
+        band=band,
+        **extra,
     )
     sim = first[0]  # run 0, simulated once: detection and recording
     doc = report.to_dict()

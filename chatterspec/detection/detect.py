@@ -447,6 +447,7 @@ def stft_detect(
     correction: Correction = "bonferroni",
     channels: Sequence[str] | None = None,
     band: Band | None = None,
+    threshold: Threshold | None = None,
 ) -> FrameDetection:
     """Spectrogram + per-frame threshold + flags + intervals for chattering ``x`` (..., N, m).
 
@@ -468,6 +469,10 @@ def stft_detect(
         Channel names (default ``model.output_names``).
     band : (float, float), optional
         ``(lo, hi)`` in Hz: frame bins tested (the correction counts only these).
+    threshold : Threshold, optional
+        Per-frame threshold to use instead of the analytic one (``alpha`` and ``correction`` are
+        then ignored), e.g. a calibration's ``threshold("frame-family-wise")``; required for a
+        nonlinear model, which has no closed-form frame spectrum.
 
     Raises
     ------
@@ -475,7 +480,15 @@ def stft_detect(
         If the record is shorter than one window.
     """
     spec = spectrogram(x, model.dt, config, t0=t0)
-    th = frame_threshold(model, spec.freqs_hz, config, model.dt, alpha, correction, band=band)
+    if threshold is not None:
+        th = threshold.restricted(band)
+        if th.values.shape != spec.power.shape[-2:]:
+            raise ShapeError(
+                f"the per-frame threshold covers {th.values.shape} (bins, channels); these frames have "
+                f"{spec.power.shape[-2:]}: it was made for another STFT window or model"
+            )
+    else:
+        th = frame_threshold(model, spec.freqs_hz, config, model.dt, alpha, correction, band=band)
     flags = detect_frames(spec, th)
     stat = frame_statistic(spec, th)
     level = healthy_frame_level(th)
@@ -657,6 +670,7 @@ def detect_chunks(
     stft: bool | None = None,
     config: STFTConfig = DEFAULT_STFT,
     band: Band | None = None,
+    frame_threshold: Threshold | None = None,
 ) -> DetectionReport:
     """:func:`detect_record` over a stream of chunks of realizations, in memory bounded by one chunk.
 
@@ -671,6 +685,9 @@ def detect_chunks(
         :func:`chatterspec.detection.pipeline.iter_chattering`.
     alpha, threshold, correction, stft, config, band
         As in :func:`detect_record`.
+    frame_threshold : Threshold, optional
+        Per-frame threshold of the STFT intervals instead of the analytic one (see
+        :func:`stft_detect`); with a nonlinear model the STFT runs only when it is given.
 
     Raises
     ------
@@ -690,7 +707,8 @@ def detect_chunks(
     linear = is_linear(model)
     if not linear:  # nonlinear: no closed-form E[S]; the calibrated empirical threshold carries E_hat
         _require_empirical(model, threshold)
-        stft = False if stft is None else stft
+        if frame_threshold is None:
+            stft = False  # no closed-form frame spectrum either
     E = expected_spectrum(model, freqs, n_samples) if linear else threshold.expected
     if isinstance(threshold, Threshold):
         th = threshold
@@ -715,7 +733,14 @@ def detect_chunks(
     if stft:
         t0 = float(first.t[0])
         frames = stft_detect(
-            first.values[:1], model, t0=t0, config=config, alpha=alpha, channels=channels, band=band
+            first.values[:1],
+            model,
+            t0=t0,
+            config=config,
+            alpha=alpha,
+            channels=channels,
+            band=band,
+            threshold=frame_threshold,
         )
     parts: list[SpectrumDetection] = []
     power_sum = np.zeros(pg.power.shape[-2:])

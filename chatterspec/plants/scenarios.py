@@ -598,7 +598,28 @@ def _eha4_chattering_entries() -> dict[str, Callable[[], Scenario]]:
         "eha4-healthy": lambda: _eha4_chattering("eha4-healthy", None),
         "eha4-leak-minor": lambda: _eha4_chattering("eha4-leak-minor", "leak-minor"),
         "eha4-leak-major": lambda: _eha4_chattering("eha4-leak-major", "leak-major"),
+        "eha4-leak-onset": _eha4_leak_onset,
     }
+
+
+def _eha4_leak_onset() -> Scenario:
+    """Like eha4-healthy (same nominal model and 4 s length, so its calibration applies) with the
+    major leakage from 2 s on: the STFT intervals / live monitor localize the onset."""
+    base = _eha4_chattering("eha4-leak-onset", None)
+    Q, R = 1e-9 * np.eye(4), 1e-6 * np.eye(4)
+    leak = Segment(2.0, EHA4_CHATTERING_DURATION, eha4("leak-major", dt=1e-3, Q=Q, R=R), "leak-major")
+    return Scenario(
+        name=base.name,
+        nominal=base.nominal,
+        windows=(leak,),
+        input=base.input,
+        duration=base.duration,
+        description=base.description.replace("healthy;", "healthy, major leakage from 2 s;"),
+        family="eha4",
+        fault="leakage",
+        level="major at 2 s",
+        fault_channel="acceleration",
+    )
 
 
 _CATALOGUE.update(_eha4_chattering_entries())
