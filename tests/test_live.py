@@ -302,3 +302,15 @@ def test_file_spectrogram_blocks_tile_long_records(tmp_path: Path, batch) -> Non
     # block k starts half a hop before its first frame (the first one at the record's start)
     np.testing.assert_allclose(t[1:], spec.times_s[7::7] - 0.1, atol=1e-9)
     assert t[0] <= rec.t[0] + 1e-12
+
+
+def test_logger_construction_error_is_not_hidden(tmp_path: Path, sim, monkeypatch) -> None:
+    """A RerunLogger that fails to build raises its own error (it used to surface as UnboundLocalError)."""
+    from chatterspec.errors import ParameterError
+
+    def broken(*args, **kwargs):
+        raise ParameterError("band_hz holds no STFT bin")
+
+    monkeypatch.setattr(drivers, "RerunLogger", broken)
+    with pytest.raises(ParameterError, match="no STFT bin"):
+        drivers.record_detection(sim, path=tmp_path / "b.rrd")

@@ -30,12 +30,16 @@ NAMES = (
     "detc-uncertain",
     "eha4-leak-timeline",
     "eha4-imm-analogue",
+    "eha4-healthy",
+    "eha4-leak-minor",
+    "eha4-leak-major",
+    "eha4-leak-onset",
 )
 
 
 def test_catalogue_names_are_the_cli_contract() -> None:
     assert set(scenario_names()) == set(NAMES)
-    assert len(scenario_names()) == 27
+    assert len(scenario_names()) == 31
     cat = catalogue()
     assert tuple(cat) == scenario_names()
     for name, sc in cat.items():
@@ -153,7 +157,14 @@ def test_plant_kinds_and_json_listing() -> None:
     from chatterspec.plants.nonlinear import NonlinearModel
 
     kinds = {name: sc.plant_kind for name, sc in catalogue().items()}
-    assert {n for n, k in kinds.items() if k == "nonlinear"} == {"eha4-leak-timeline", "eha4-imm-analogue"}
+    assert {n for n, k in kinds.items() if k == "nonlinear"} == {
+        "eha4-leak-timeline",
+        "eha4-imm-analogue",
+        "eha4-healthy",
+        "eha4-leak-minor",
+        "eha4-leak-major",
+        "eha4-leak-onset",
+    }
     d = scenario("eha4-leak-timeline").describe()
     json.dumps(d)
     assert d["plant_kind"] == "nonlinear" and d["nominal"]["linearized"] is True
@@ -317,4 +328,4 @@ def test_cli_lists_plant_kinds(capsys: pytest.CaptureFixture[str]) -> None:
     doc = json.loads(capsys.readouterr().out)
     kinds = {e["name"]: e["plant_kind"] for e in doc["scenarios"]}
     assert kinds["eha4-imm-analogue"] == "nonlinear" and kinds["eha-healthy"] == "linear"
-    assert len(kinds) == 27
+    assert len(kinds) == 31

@@ -111,6 +111,10 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(doc, indent=2))
         outputs.finish()
         return 0
+    if cal.normalization == "empirical":
+        _print_empirical(cal, doc)
+        outputs.finish()
+        return 0
     a, ag = doc["analytic_factor"], doc["agreement"]
     print(f"calibration of {cal.scenario}: alpha = {cal.alpha:g}, {cal.runs} healthy runs, seed {cal.seed}")
     print(f"  normalized thresholds S/E[S] ({cal.confidence:.0%} intervals):")
@@ -142,3 +146,20 @@ def _save_calibration(cal: Any, path: str) -> Any:
 
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     return cal.save(path)
+
+
+def _print_empirical(cal, doc: dict) -> int:
+    """Text report of a calibration with an empirical normalization (nonlinear model)."""
+    info = cal.normalization_info
+    print(f"calibration of {cal.scenario}: alpha = {cal.alpha:g}, {cal.runs} healthy runs, seed {cal.seed}")
+    width = 2 * info.get("smooth_half_width_bins", 0) + 1
+    print(
+        f"  normalization: empirical (no closed-form spectrum for a nonlinear model): mean periodogram of "
+        f"{info.get('pilot_runs')} other healthy runs, smoothed over {width} bins"
+    )
+    print(f"  family-wise thresholds on S / E_hat ({cal.confidence:.0%} order-statistic intervals):")
+    for ch, q in zip(cal.channels, cal.family_wise, strict=True):
+        print(f"  empirical family-wise, {ch:<14} {q.value:.3f} [{q.ci_low:.3f}, {q.ci_high:.3f}]")
+    if doc.get("calibration_file") is not None:
+        print(f"  calibration file: {doc['calibration_file']}")
+    return 0

@@ -43,15 +43,23 @@ def run(args: argparse.Namespace) -> int:
     band = band_from_args(args)
     sc = scenario(args.name)
     threshold = args.threshold
+    extra: dict = {}
     if args.calibration:
         from ..studies.calibration import load_calibration
 
         n_samples = round(sc.duration / sc.nominal.dt)  # chattering samples of one record
         cal = load_calibration(args.calibration, sc.nominal, n_samples)
         threshold = cal.threshold("family-wise")
+        if not sc.is_linear:  # nonlinear: STFT intervals from the calibrated per-frame threshold
+            extra["frame_threshold"] = cal.threshold("frame-family-wise")
     first: list = []
     report = detect_chunks(
-        stream_chunks(sc, args.runs, args.seed, first), args.alpha, threshold, args.correction, band=band
+        stream_chunks(sc, args.runs, args.seed, first),
+        args.alpha,
+        threshold,
+        args.correction,
+        band=band,
+        **extra,
     )
     sim = first[0]  # run 0, simulated once: detection and recording
     doc = report.to_dict()
@@ -62,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
         from ..online.monitor import MonitorSettings
 
         settings = MonitorSettings(alpha=args.alpha, correction=args.correction)
+        if args.calibration and not sc.is_linear:  # nonlinear: the calibrated per-frame threshold
+            settings = MonitorSettings(threshold=cal.threshold("frame-family-wise"))
         outputs = Outputs()
         summary = outputs.write(
             "--record", args.record, record_detection, sim, settings, path=args.record, live=args.live
@@ -105,11 +115,14 @@ def print_report(doc: dict) -> None:
     )
     if runs > 1:
         head += f" {'rate':>6}"
+    if runs > 1 and "averaged_threshold" in doc:  # none for an empirical (nonlinear) calibration
         print(f"averaged spectrum: {doc['averaged_threshold']['description']}")
         print(
             "(detected, signif Hz and peak ratio: averaged spectrum vs the averaged threshold; "
             "rate: fraction of single runs detected by the single-record threshold)"
         )
+    elif runs > 1:
+        print("(detected, signif Hz and peak ratio: run 0; rate: fraction of runs detected)")
     print("(peak Hz: largest excess power S - E[S]; signif Hz: largest S / threshold, ratio = peak ratio)")
     print(head)
     for c in doc["channels"]:

@@ -38,8 +38,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._validate import open_unit, positive_int
-from ..errors import ParameterError, ShapeError
+from ..errors import ModelKindError, ParameterError, ShapeError
 from ..plants.models import LinearModel
+from ..plants.nonlinear import is_linear
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
 from .pipeline import ChatteringRecord, iter_chattering
@@ -459,6 +460,7 @@ def stft_detect(
     correction: Correction = "bonferroni",
     channels: Sequence[str] | None = None,
     band: Band | None = None,
+    threshold: Threshold | None = None,
 ) -> FrameDetection:
     """Spectrogram + per-frame threshold + flags + intervals for chattering ``x`` (..., N, m).
 
@@ -480,6 +482,10 @@ def stft_detect(
         Channel names (default ``model.output_names``).
     band : (float, float), optional
         ``(lo, hi)`` in Hz: frame bins tested (the correction counts only these).
+    threshold : Threshold, optional
+        Per-frame threshold to use instead of the analytic one (``alpha`` and ``correction`` are
+        then ignored), e.g. a calibration's ``threshold("frame-family-wise")``; required for a
+        nonlinear model, which has no closed-form frame spectrum.
 
     Raises
     ------
@@ -487,7 +493,15 @@ def stft_detect(
         If the record is shorter than one window.
     """
     spec = spectrogram(x, model.dt, config, t0=t0)
-    th = frame_threshold(model, spec.freqs_hz, config, model.dt, alpha, correction, band=band)
+    if threshold is not None:
+        th = threshold.restricted(band)
+        if th.values.shape != spec.power.shape[-2:]:
+            raise ShapeError(
+                f"the per-frame threshold covers {th.values.shape} (bins, channels); these frames have "
+                f"{spec.power.shape[-2:]}: it was made for another STFT window or model"
+            )
+    else:
+        th = frame_threshold(model, spec.freqs_hz, config, model.dt, alpha, correction, band=band)
     flags = detect_frames(spec, th)
     stat = frame_statistic(spec, th)
     level = healthy_frame_level(th)
@@ -669,6 +683,7 @@ def detect_chunks(
     stft: bool | None = None,
     config: STFTConfig = DEFAULT_STFT,
     band: Band | None = None,
+    frame_threshold: Threshold | None = None,
 ) -> DetectionReport:
     """:func:`detect_record` over a stream of chunks of realizations, in memory bounded by one chunk.
 
@@ -683,6 +698,9 @@ def detect_chunks(
         :func:`chatterspec.detection.pipeline.iter_chattering`.
     alpha, threshold, correction, stft, config, band
         As in :func:`detect_record`.
+    frame_threshold : Threshold, optional
+        Per-frame threshold of the STFT intervals instead of the analytic one (see
+        :func:`stft_detect`); with a nonlinear model the STFT runs only when it is given.
 
     Raises
     ------
@@ -699,7 +717,12 @@ def detect_chunks(
     model, channels, dt = first.model, first.channels, first.dt
     pg = periodogram(first.values, dt)
     freqs, n_samples = pg.freqs_hz, pg.n_samples
-    E = expected_spectrum(model, freqs, n_samples)
+    linear = is_linear(model)
+    if not linear:  # nonlinear: no closed-form E[S]; the calibrated empirical threshold carries E_hat
+        _require_empirical(model, threshold)
+        if frame_threshold is None:
+            stft = False  # no closed-form frame spectrum either
+    E = expected_spectrum(model, freqs, n_samples) if linear else threshold.expected
     if isinstance(threshold, Threshold):
         th = threshold
         if th.values.shape != pg.power.shape[-2:] or not np.allclose(th.freqs_hz, freqs):
@@ -723,7 +746,14 @@ def detect_chunks(
     if stft:
         t0 = float(first.t[0])
         frames = stft_detect(
-            first.values[:1], model, t0=t0, config=config, alpha=alpha, channels=channels, band=band
+            first.values[:1],
+            model,
+            t0=t0,
+            config=config,
+            alpha=alpha,
+            channels=channels,
+            band=band,
+            threshold=frame_threshold,
         )
     parts: list[SpectrumDetection] = []
     power_sum = np.zeros(pg.power.shape[-2:])
@@ -748,7 +778,7 @@ def detect_chunks(
         threshold=th,
     )
     averaged = None
-    if runs > 1:
+    if runs > 1 and linear:
         th_avg = exact_threshold(model, freqs, n_samples, alpha, correction, averaged=runs, band=band)
         averaged = detect_spectrum(power_sum / runs, th_avg, E, channels)
     return DetectionReport(
@@ -759,6 +789,17 @@ def detect_chunks(
         averaged=averaged,
         frames=frames,
     )
+
+
+def _require_empirical(model: object, threshold: object) -> None:
+    """A nonlinear nominal model needs a calibrated threshold carrying its normalization."""
+    if not (isinstance(threshold, Threshold) and threshold.expected is not None):
+        raise ModelKindError(
+            "the 'exact'/'paper' thresholds: detection needs a linear model (closed-form chattering "
+            "spectrum, eq 56); "
+            f"{getattr(model, 'name', 'the model')!r} is nonlinear. Calibrate a threshold on healthy runs "
+            "(chatterspec calibrate <healthy scenario> --out FILE, then detect --calibration FILE)"
+        )
 
 
 _VERDICT_FIELDS = ("detected", "peak_hz", "most_significant_hz", "peak_ratio", "excess_power", "dc_ratio")

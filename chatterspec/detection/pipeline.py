@@ -15,9 +15,10 @@ import numpy as np
 from .. import _jit
 from .._validate import positive_int
 from ..errors import ShapeError
+from ..filters.nonlinear_svsf import nonlinear_chattering
 from ..filters.svsf import _rows_times, auxiliary_svsf
 from ..plants.models import LinearModel
-from ..plants.nonlinear import require_linear
+from ..plants.nonlinear import is_linear, require_linear
 from ..plants.scenarios import Scenario
 from ..plants.simulate import (
     Simulation,
@@ -115,8 +116,11 @@ def chattering_record(
     ChatteringRecord
         ``values`` of shape (runs, T - 1, m).
     """
-    require_linear(model, "the chattering pipeline (auxiliary sgn-SVSF of eq 8-11)")
-    e = auxiliary_svsf(model, gamma).run(z, u, x0=x0).e_prior
+    if not is_linear(model):  # nonlinear nominal model: filters/nonlinear_svsf (full measurement)
+        e = nonlinear_chattering(model, z, u, gamma=gamma, x0=x0)
+    else:
+        require_linear(model, "the chattering pipeline (auxiliary sgn-SVSF of eq 8-11)")
+        e = auxiliary_svsf(model, gamma).run(z, u, x0=x0).e_prior
     if e.ndim == 2:
         e = e[None]
     T = e.shape[1]

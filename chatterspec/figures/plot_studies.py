@@ -80,11 +80,15 @@ def calibration_figure(cal: Calibration) -> Figure:
             label=f"empirical {cal.confidence:.0%} interval",
         )
         ax.plot(f[t], cal.per_bin[t, c], color="C0", lw=0.5, label="empirical quantile")
-        ax.plot(f[t], cal.exact_factor[t, c], color="k", lw=1.2, label="exact (analytic)")
-        ax.plot(f[t], (cal.analytic["paper"] / cal.expected)[t, c], color="C3", lw=1, label="paper (flat)")
+        if cal.analytic:  # none for an empirical normalization (nonlinear model)
+            ax.plot(f[t], cal.exact_factor[t, c], color="k", lw=1.2, label="exact (analytic)")
+            ax.plot(
+                f[t], (cal.analytic["paper"] / cal.expected)[t, c], color="C3", lw=1, label="paper (flat)"
+            )
         q = cal.family_wise[c]
         ax.axhline(q.value, color="C2", ls="--", lw=1, label="empirical family-wise")
-        ax.axhline(cal.family_wise_analytic["bonferroni"], color="C2", ls=":", lw=1, label="Bonferroni")
+        if cal.family_wise_analytic:
+            ax.axhline(cal.family_wise_analytic["bonferroni"], color="C2", ls=":", lw=1, label="Bonferroni")
         ax.set_yscale("log")
         ax.set_ylabel(f"{cal.channels[c]}\nthreshold / E[S]")
     axes[0, 0].set_title(f"{cal.scenario}: thresholds at alpha = {cal.alpha:g} ({cal.runs} healthy runs)")

@@ -163,6 +163,7 @@ def run_monitor(
     # at the default hop: the per-push STFT and logging overhead is then small; memory stays
     # bounded). The output does not depend on the chunking, only the per-call overhead does.
     size = chunk_samples or (monitor.n_hop if rate is not None else 50 * monitor.n_hop)
+    logger = None  # a RerunLogger that fails to build must not hide its error behind this name
     try:
         data = chattering if chattering is not None else z
         if data is None:

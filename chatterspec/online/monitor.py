@@ -38,6 +38,7 @@ from .._validate import finite_array, open_unit, positive_int
 from ..detection.spectral import STFTConfig, frame_columns
 from ..detection.thresholds import Threshold, frame_threshold
 from ..errors import ParameterError, ShapeError
+from ..filters.nonlinear_svsf import NonlinearSgnSVSF
 from ..filters.svsf import SVSF, SVSFState, auxiliary_svsf
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
@@ -271,9 +272,15 @@ class ChatteringMonitor:
     def __init__(
         self, model: LinearModel, settings: MonitorSettings | None = None, *, t0: float = 0.0
     ) -> None:
-        if isinstance(model, NonlinearModel):
-            require_linear(model, "the chattering monitor (expected spectrum and frame thresholds)")
-        if not isinstance(model, LinearModel):
+        nonlinear = isinstance(model, NonlinearModel)
+        if nonlinear and (settings is None or settings.threshold is None or settings.psi is not None):
+            # a nonlinear model works with a calibrated per-frame threshold (issue 9 item 5), no sat-SVSF
+            require_linear(
+                model,
+                "the chattering monitor without a calibrated threshold (pass MonitorSettings(threshold="
+                "calibrate(...).threshold('frame-family-wise'), psi=None))",
+            )
+        if not (nonlinear or isinstance(model, LinearModel)):
             raise TypeError(f"model must be a LinearModel; got {type(model).__name__}")
         self.model = model
         self.settings = settings or MonitorSettings()
@@ -296,7 +303,7 @@ class ChatteringMonitor:
                     "was made for another STFT window or model"
                 )
             self.threshold = th
-        self._aux = auxiliary_svsf(model, s.gamma)
+        self._aux = NonlinearSgnSVSF(model, s.gamma) if nonlinear else auxiliary_svsf(model, s.gamma)
         self._sat = None if s.psi is None else SVSF(model, psi=np.asarray(s.psi), gamma=s.gamma)
         self._aux_state: SVSFState | None = None
         self._sat_state: SVSFState | None = None

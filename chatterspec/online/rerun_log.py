@@ -16,6 +16,7 @@ import numpy as np
 
 from ..detection.spectral import expected_frame_spectrum
 from ..errors import ParameterError
+from ..plants.nonlinear import is_linear
 from .arrow_columns import _MAX_TENSOR_ROWS, _Columns, _TimeIndex
 from .blueprint import TRUTH_LANE, _entity, blueprint, lane_entity
 from .monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
@@ -85,9 +86,13 @@ def default_band_hz(monitor: ChatteringMonitor, factor: float = 3.0) -> tuple[fl
     if f.size == 0:
         f = monitor.freqs_hz
     lo, hi = float(f.min()), float(f.max())
-    with np.errstate(divide="ignore"):
-        s = np.log(np.linalg.eigvals(np.asarray(monitor.model.A, dtype=float)).astype(complex))
-    fn = float(np.max(np.abs(s[np.isfinite(s)]), initial=0.0)) / (2 * np.pi * monitor.dt)
+    A = getattr(monitor.model, "A", None)
+    if A is None:  # nonlinear model: the natural frequency of its linearization at rest (Hz)
+        fn = float(getattr(monitor.model, "natural_frequency_hz", None) or 0.0)
+    else:
+        with np.errstate(divide="ignore"):
+            s = np.log(np.linalg.eigvals(np.asarray(A, dtype=float)).astype(complex))
+        fn = float(np.max(np.abs(s[np.isfinite(s)]), initial=0.0)) / (2 * np.pi * monitor.dt)
     if fn > 0:
         cap = _nice_ceil(factor * fn)
         inside = f[f <= cap]
@@ -192,7 +197,10 @@ class RerunLogger:
         m = len(self.channels)
         freqs = monitor.freqs_hz
         thr = monitor.threshold
-        self._expected = expected_frame_spectrum(monitor.model, freqs, monitor.settings.stft, monitor.dt)
+        if not is_linear(monitor.model):  # nonlinear: the calibrated threshold's empirical normalization
+            self._expected = np.asarray(thr.expected)
+        else:
+            self._expected = expected_frame_spectrum(monitor.model, freqs, monitor.settings.stft, monitor.dt)
         # the bins tested by the detector (a slice when contiguous: a view, no copy)
         tested = np.flatnonzero(thr.tested)
         contiguous = tested.size > 0 and bool(np.all(np.diff(tested) == 1))

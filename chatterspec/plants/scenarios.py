@@ -568,3 +568,66 @@ def scenario(name: str) -> Scenario:
 def catalogue() -> dict[str, Scenario]:
     """Every catalogue scenario, built, keyed by name."""
     return {name: build() for name, build in _CATALOGUE.items()}
+
+
+# --------------------------------------------------------------------------- issue 9 item 5
+EHA4_CHATTERING_DURATION = 4.0  # s: the chattering paper's record length
+
+
+def _eha4_chattering(name: str, mode: str | None) -> Scenario:
+    """Nonlinear EHA4 for the chattering detector: C = I4, eha4-leak-timeline's noise and input, 4 s.
+
+    The fault (``mode``, a key of ``EHA4_MODES``) is active for the whole record; ``None`` is healthy.
+    There is no closed-form expected spectrum: thresholds come from ``calibrate eha4-healthy``.
+    """
+    Q, R = 1e-9 * np.eye(4), 1e-6 * np.eye(4)
+    nominal = eha4("normal", dt=1e-3, Q=Q, R=R)
+    windows = (
+        () if mode is None else (Segment(0.0, EHA4_CHATTERING_DURATION, eha4(mode, dt=1e-3, Q=Q, R=R), mode),)
+    )
+    return Scenario(
+        name=name,
+        nominal=nominal,
+        windows=windows,
+        input=EHA4_SMM_INPUT,
+        duration=EHA4_CHATTERING_DURATION,
+        description="nonlinear EHA4 (SMM eq 4.1-4.5), C = I4, Q = 1e-9 I4, R = 1e-6 I4, "
+        f"pump 94.25 sin(2 pi 0.5 t) rad/s; {'healthy' if mode is None else mode + ' for the whole record'}; "
+        "chattering thresholds are empirical (calibrate eha4-healthy)",
+        family="eha4",
+        fault="healthy" if mode is None else "leakage",
+        level="" if mode is None else mode.removeprefix("leak-"),
+        fault_channel=None if mode is None else "acceleration",
+    )
+
+
+def _eha4_chattering_entries() -> dict[str, Callable[[], Scenario]]:
+    return {
+        "eha4-healthy": lambda: _eha4_chattering("eha4-healthy", None),
+        "eha4-leak-minor": lambda: _eha4_chattering("eha4-leak-minor", "leak-minor"),
+        "eha4-leak-major": lambda: _eha4_chattering("eha4-leak-major", "leak-major"),
+        "eha4-leak-onset": _eha4_leak_onset,
+    }
+
+
+def _eha4_leak_onset() -> Scenario:
+    """Like eha4-healthy (same nominal model and 4 s length, so its calibration applies) with the
+    major leakage from 2 s on: the STFT intervals / live monitor localize the onset."""
+    base = _eha4_chattering("eha4-leak-onset", None)
+    Q, R = 1e-9 * np.eye(4), 1e-6 * np.eye(4)
+    leak = Segment(2.0, EHA4_CHATTERING_DURATION, eha4("leak-major", dt=1e-3, Q=Q, R=R), "leak-major")
+    return Scenario(
+        name=base.name,
+        nominal=base.nominal,
+        windows=(leak,),
+        input=base.input,
+        duration=base.duration,
+        description=base.description.replace("healthy;", "healthy, major leakage from 2 s;"),
+        family="eha4",
+        fault="leakage",
+        level="major at 2 s",
+        fault_channel="acceleration",
+    )
+
+
+_CATALOGUE.update(_eha4_chattering_entries())

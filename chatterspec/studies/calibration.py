@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import math
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -17,6 +17,7 @@ from ..detection.spectral import STFTConfig
 from ..detection.thresholds import Threshold
 from ..errors import CalibrationMismatchError, DataFileError, ParameterError
 from ..plants.models import LinearModel
+from ..plants.nonlinear import is_linear
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
 from .healthy import HealthyStudy, _analytic_thresholds, _frame_thresholds, _n_frames, resolve_scenario
@@ -77,6 +78,12 @@ class Calibration:
         (the empirical per-frame threshold of the live monitor, family-wise over
         the bins of one frame); its interval counts only non-overlapping frames
         as independent.
+    normalization : {"analytic", "empirical"}
+        ``expected``/``frame_expected`` are the closed-form spectrum (linear model, eq 56) or an
+        estimate from healthy pilot runs (nonlinear model; :mod:`~.empirical_calibration`; then
+        ``analytic``, ``frame_analytic`` and ``family_wise_analytic`` are empty).
+    normalization_info : dict
+        How an empirical normalization was estimated (pilot runs, smoothing); empty otherwise.
     """
 
     scenario: str
@@ -107,6 +114,8 @@ class Calibration:
     per_frame_low: np.ndarray
     per_frame_high: np.ndarray
     frame_family_wise: tuple[QuantileEstimate, ...] = ()
+    normalization: str = "analytic"
+    normalization_info: dict[str, Any] = field(default_factory=dict)
 
     # ---- derived
     @property
@@ -121,8 +130,10 @@ class Calibration:
         analytic factor lies in the empirical interval), the number of misses
         and the largest miss count consistent with intervals of level
         ``confidence`` (binomial 0.999 quantile, bins treated as independent),
-        and the family-wise check per channel.
+        and the family-wise check per channel. Empty for an empirical normalization.
         """
+        if self.normalization == "empirical":
+            return {}
         t = self.tested
         f = self.exact_factor[t]
         inside = (self.per_bin_low[t] <= f) & (f <= self.per_bin_high[t])
@@ -230,6 +241,8 @@ class Calibration:
     # ---- serialization
     def to_dict(self, arrays: bool = False) -> dict[str, Any]:
         """JSON-ready summary; ``arrays=True`` adds every array (the calibration file content)."""
+        if self.normalization == "empirical":
+            return self._empirical_dict(arrays)
         ag = self.agreement()
         t = self.tested
         d: dict[str, Any] = {
@@ -269,6 +282,29 @@ class Calibration:
             d["arrays"] = {k: np.where(np.isfinite(v), v, None).tolist() for k, v in self._arrays().items()}
         return d
 
+    def _empirical_dict(self, arrays: bool) -> dict[str, Any]:
+        """:meth:`to_dict` of an empirically normalized calibration (no analytic keys)."""
+        d: dict[str, Any] = {
+            "format": CALIBRATION_FORMAT,
+            "version": CALIBRATION_VERSION,
+            "normalization": self.normalization,
+            "normalization_info": self.normalization_info,
+            **{k: getattr(self, k) for k in ("scenario", "model_name", "model_fingerprint", "dt")},
+            **{k: getattr(self, k) for k in ("n_samples", "stft", "alpha", "runs", "seed", "confidence")},
+            "channels": list(self.channels),
+            "empirical": {
+                "per_bin_factor_median": [float(v) for v in np.median(self.per_bin[self.tested], axis=0)],
+                "per_frame_factor_median": [
+                    float(v) for v in np.median(self.per_frame[self.frame_tested], axis=0)
+                ],
+                "family_wise": [q.to_dict() for q in self.family_wise],
+                "frame_family_wise": [q.to_dict() for q in self.frame_family_wise],
+            },
+        }
+        if arrays:
+            d["arrays"] = {k: np.where(np.isfinite(v), v, None).tolist() for k, v in self._arrays().items()}
+        return d
+
     def _arrays(self) -> dict[str, np.ndarray]:
         a = {
             "freqs_hz": self.freqs_hz,
@@ -296,6 +332,8 @@ class Calibration:
         meta["family_wise"] = [q.to_dict() for q in self.family_wise]
         meta["frame_family_wise"] = [q.to_dict() for q in self.frame_family_wise]
         meta["family_wise_analytic"] = self.family_wise_analytic
+        meta["normalization"] = self.normalization
+        meta["normalization_info"] = self.normalization_info
         if path.suffix == ".npz":
             np.savez(path, _meta=np.array(json.dumps(meta)), **self._arrays())
         else:
@@ -452,6 +490,8 @@ def _load_calibration(
         per_frame_low=_ro(arrays["per_frame_low"].astype(float)),
         per_frame_high=_ro(arrays["per_frame_high"].astype(float)),
         frame_family_wise=quantiles("frame_family_wise"),
+        normalization=str(meta.get("normalization", "analytic")),
+        normalization_info=dict(meta.get("normalization_info", {})),
     )
     if model is not None:
         cal.check(model, n_samples, config)
@@ -509,6 +549,11 @@ def calibrate(
             f"calibrate needs a healthy scenario; {sc.name!r} has faults at {sc.fault_intervals}"
         )
     config = STFTConfig() if config is None else config
+    if not is_linear(sc.nominal):  # no closed-form spectrum: empirical normalization (issue 9 item 5)
+        from .empirical_calibration import calibrate_empirical
+
+        ex = {"workers": workers, "scheduler": scheduler, "chunk_runs": chunk_runs, "progress": progress}
+        return calibrate_empirical(sc, alpha, runs, seed, config, confidence, **ex)
     model = sc.nominal
     N = sc.n_samples - 1
     freqs, thr = _analytic_thresholds(model, N, alpha)

@@ -1,0 +1,185 @@
+"""Calibration of a nonlinear model: empirical normalization + empirical family-wise threshold.
+
+:func:`chatterspec.studies.calibration.calibrate` dispatches here when the scenario's nominal model
+is nonlinear (no closed-form expected spectrum, eq 56 needs linearity). Two disjoint sets of
+healthy realizations of the same root seed are used:
+
+1. **pilot** realizations ``[runs, runs + pilot_runs)``: the normalization spectrum ``E_hat``
+   (record periodogram and STFT frames; :mod:`chatterspec.detection.empirical`);
+2. **calibration** realizations ``[0, runs)``: the ``(1 - alpha)``-quantiles of ``S / E_hat`` --
+   per bin, per frame, and the family-wise ones (maximum over the tested bins of a record, or of
+   a frame) -- with their order-statistic intervals (:mod:`~chatterspec.studies.intervals`),
+   exactly as for a linear model.
+
+Because ``E_hat`` is fixed before the quantiles are estimated, the family-wise threshold
+``E_hat * q`` has false-alarm probability ``alpha`` on new healthy runs up to the quantile's
+order-statistic uncertainty. The resulting :class:`~chatterspec.studies.calibration.Calibration`
+has ``normalization="empirical"``, no analytic thresholds, and ``expected`` = ``E_hat``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..detection.empirical import NORMALIZATION_SMOOTH_BINS, frame_normalization, normalization_spectrum
+from ..detection.pipeline import iter_chattering
+from ..detection.spectral import STFTConfig, periodogram_freqs
+from ..errors import ParameterError
+from ..plants.scenarios import Scenario
+from ..rng import SeedLike
+from .healthy import HealthyStudy, _n_frames
+from .intervals import QuantileEstimate, _quantile_from_top, _top_needed
+from .montecarlo import run_study
+
+__all__ = ["DEFAULT_PILOT_RUNS", "calibrate_empirical"]
+
+DEFAULT_PILOT_RUNS = 200  # E_hat relative SE ~ 1/sqrt(200 * 11) ~ 2 % per bin (see detection.empirical)
+
+
+def calibrate_empirical(
+    sc: Scenario,
+    alpha: float,
+    runs: int,
+    seed: SeedLike,
+    config: STFTConfig,
+    confidence: float,
+    *,
+    pilot_runs: int = DEFAULT_PILOT_RUNS,
+    half_width: int = NORMALIZATION_SMOOTH_BINS,
+    workers: int = 1,
+    scheduler: str | None = None,
+    chunk_runs: int | None = None,
+    progress: bool | None = None,
+):
+    """Empirical calibration of a healthy scenario (any nominal model the pipeline can filter).
+
+    Parameters
+    ----------
+    sc : Scenario
+        Healthy scenario (validated by the caller).
+    alpha : float
+        False-alarm probability in (0, 1).
+    runs : int
+        Calibration realizations (>= 1).
+    seed : int, SeedSequence, Generator or None
+        Root seed; pilot and calibration realizations are disjoint streams of it.
+    config : STFTConfig
+        STFT settings (window, hop in seconds) of the per-frame calibration.
+    confidence : float
+        Level of the order-statistic intervals.
+    pilot_runs : int
+        Realizations for the normalization spectrum (>= 2).
+    half_width : int
+        Smoothing half-width of the normalization in bins.
+    workers, scheduler, chunk_runs, progress
+        Execution (see :func:`chatterspec.studies.montecarlo.run_study`).
+
+    Returns
+    -------
+    Calibration
+        ``normalization="empirical"``.
+    """
+    from .calibration import Calibration, _ro, _stft_dict
+
+    if int(pilot_runs) < 2:
+        raise ParameterError(f"pilot_runs must be >= 2; got {pilot_runs}")
+    model = sc.nominal
+    N = sc.n_samples - 1
+    dt = model.dt
+    n_frames = _n_frames(N, config, dt)
+    if n_frames < 1:
+        raise ParameterError(f"records of {N} samples are shorter than one STFT window")
+    pilot = [rec.values for rec in iter_chattering(sc, int(pilot_runs), seed, first_run=runs)]
+    E, _ = normalization_spectrum(pilot, dt, half_width)
+    Ef = frame_normalization(pilot, dt, config, half_width)
+    del pilot
+    freqs = periodogram_freqs(N, dt)
+    ffreqs = config.freqs_hz(dt)
+    tested = np.ones(freqs.size, dtype=bool)
+    tested[0] = False
+    if N % 2 == 0:
+        tested[-1] = False
+    ftested = np.ones(ffreqs.size, dtype=bool)
+    ftested[0] = False
+    if config.n_window(dt) % 2 == 0:
+        ftested[-1] = False
+    m = E.shape[1]
+    k_top = _top_needed(runs, 1 - alpha, confidence)
+    frames_eff = max(1, (N - config.n_window(dt)) // config.n_window(dt) + 1)
+    kf_top = _top_needed(runs * n_frames, 1 - alpha, confidence, runs * frames_eff)
+    study = HealthyStudy(
+        scenario=sc,
+        thr_values=np.zeros((0, freqs.size, m)),  # no fixed threshold to count: quantiles only
+        thr_tested=np.zeros((0, freqs.size), dtype=bool),
+        expected=E,
+        tested=tested,
+        config=config,
+        fthr_values=np.full((1, ffreqs.size, m), np.inf),  # never exceeded: frame quantiles only
+        fthr_tested=ftested[None],
+        fexpected=Ef,
+        k_top=k_top,
+        kf_top=kf_top,
+        keep_max=True,
+    )
+    out = run_study(
+        study,
+        runs,
+        seed,
+        workers=workers,
+        scheduler=scheduler,
+        chunk_runs=chunk_runs,
+        progress=progress,
+        label=f"calibrate {sc.name} (empirical)",
+    )
+    q = 1 - alpha
+    pb, pb_lo, pb_hi = _quantile_from_top(-np.sort(-out["top_bin"], axis=0), runs, q, confidence)
+    nf = runs * n_frames
+    pf, pf_lo, pf_hi = _quantile_from_top(
+        -np.sort(-out["top_frame"], axis=0), nf, q, confidence, runs * frames_eff
+    )
+    mv, mlo, mhi = _quantile_from_top(-np.sort(-out["runs_max"], axis=0), runs, q, confidence)
+    fv, flo, fhi = _quantile_from_top(
+        -np.sort(-out["top_frame_max"], axis=0), nf, q, confidence, runs * frames_eff
+    )
+    return Calibration(
+        scenario=sc.name,
+        model_name=model.name,
+        model_fingerprint=model.fingerprint(),
+        dt=dt,
+        n_samples=N,
+        stft=_stft_dict(config),
+        alpha=alpha,
+        runs=runs,
+        seed=int(seed) if isinstance(seed, int | np.integer) else None,
+        confidence=confidence,
+        channels=tuple(model.output_names),
+        freqs_hz=_ro(freqs),
+        tested=_ro(tested),
+        expected=_ro(E),
+        analytic={},
+        per_bin=_ro(pb),
+        per_bin_low=_ro(pb_lo),
+        per_bin_high=_ro(pb_hi),
+        family_wise=tuple(
+            QuantileEstimate(q, float(mv[c]), float(mlo[c]), float(mhi[c]), runs, confidence)
+            for c in range(m)
+        ),
+        family_wise_analytic={},
+        frame_freqs_hz=_ro(ffreqs),
+        frame_tested=_ro(ftested),
+        frame_expected=_ro(Ef),
+        frame_analytic={},
+        per_frame=_ro(pf),
+        per_frame_low=_ro(pf_lo),
+        per_frame_high=_ro(pf_hi),
+        frame_family_wise=tuple(
+            QuantileEstimate(q, float(fv[c]), float(flo[c]), float(fhi[c]), nf, confidence) for c in range(m)
+        ),
+        normalization="empirical",
+        normalization_info={
+            "pilot_runs": int(pilot_runs),
+            "pilot_first_run": int(runs),
+            "smooth_half_width_bins": int(half_width),
+            "estimator": "mean healthy periodogram of the pilot runs, moving average over 2h+1 bins",
+        },
+    )
