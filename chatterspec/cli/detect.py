@@ -36,10 +36,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_record_path(args.record)  # before the (slow) imports: a bad path fails at once
     from ..detection.detect import detect_chunks
     from ..plants.scenarios import scenario
 
-    check_record_path(args.record)
     band = band_from_args(args)
     sc = scenario(args.name)
     threshold = args.threshold
