@@ -52,11 +52,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit:  # --help / usage errors: `chatterspec --help | head` must not end in a traceback
+        _flush_stdout()
+        raise
     try:
         with warnings.catch_warnings():
             _one_line_warnings(args.command)
-            return int(args.func(args) or 0)
+            code = int(args.func(args) or 0)
+        sys.stdout.flush()  # a reader that went away shows here, not as a traceback at exit
+        return code
+    except BrokenPipeError:  # stdout's reader closed it (`chatterspec scenarios | head -1`): not an error
+        _quiet_stdout()
+        return 0
     except ChatterspecError as exc:
         print(f"chatterspec {args.command}: error: {exc}", file=sys.stderr)
         return 2
@@ -67,6 +76,26 @@ def main(argv: Sequence[str] | None = None) -> int:
         where = f" {exc.filename!r}" if getattr(exc, "filename", None) else ""
         print(f"chatterspec {args.command}: error:{where} {exc.strerror or exc}", file=sys.stderr)
         return 2
+
+
+def _quiet_stdout() -> None:
+    """Send further output to stdout, and the flush at exit, to /dev/null (its reader went away)."""
+    import os
+
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # not a real file (e.g. captured in tests)
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    os.close(devnull)
+
+
+def _flush_stdout() -> None:
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _quiet_stdout()
 
 
 def _one_line_warnings(command: str) -> None:

@@ -55,14 +55,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # output folders first, before the (slow) imports: a bad path fails at once
+    check_output_dir(None if args.no_figures else args.figures_dir, "--figures-dir")
+    check_output_dir(None if args.no_record else args.recordings_dir, "--recordings-dir")
     from ..detection.detect import detect_chunks
     from ..plants.scenarios import scenario
     from ..progress import Progress
     from .detect import stream_chunks
 
     band = band_from_args(args)
-    check_output_dir(None if args.no_figures else args.figures_dir, "--figures-dir")
-    check_output_dir(None if args.no_record else args.recordings_dir, "--recordings-dir")
     outputs = Outputs()
     t_start = time.perf_counter()
     steps = len(DEMO_SCENARIOS) * (1 if args.no_record else 2) + (0 if args.no_figures else len(DEMO_FIGURES))

@@ -36,10 +36,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_record_path(args.record)  # before the (slow) imports: a bad path fails at once
     from ..detection.detect import detect_chunks
     from ..plants.scenarios import scenario
 
-    check_record_path(args.record)
     band = band_from_args(args)
     sc = scenario(args.name)
     threshold = args.threshold
@@ -69,9 +69,9 @@ def run(args: argparse.Namespace) -> int:
         from ..online.drivers import record_detection
         from ..online.monitor import MonitorSettings
 
-        settings = MonitorSettings(alpha=args.alpha, correction=args.correction)
+        settings = MonitorSettings(alpha=args.alpha, correction=args.correction, band=band)
         if args.calibration and not sc.is_linear:  # nonlinear: the calibrated per-frame threshold
-            settings = MonitorSettings(threshold=cal.threshold("frame-family-wise"))
+            settings = MonitorSettings(threshold=cal.threshold("frame-family-wise"), band=band)
         outputs = Outputs()
         summary = outputs.write(
             "--record", args.record, record_detection, sim, settings, path=args.record, live=args.live

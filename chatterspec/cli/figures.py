@@ -75,6 +75,11 @@ def selected_figures(only: str | None) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.list:  # before the (slow) imports: a bad --out fails at once
+        out = Path(args.out)
+        if out.exists() and not out.is_dir():
+            raise ParameterError(f"--out must be a folder; {str(out)!r} is a file")
+        check_output_dir(out, "--out")
     from ..figures import plotting
     from ..figures.paper_figures import FIGURES, render
     from ..progress import Progress
@@ -87,10 +92,6 @@ def run(args: argparse.Namespace) -> int:
             for n in names:
                 print(f"{n:<6} {FIGURES[n].caption}")
         return 0
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise ParameterError(f"--out must be a folder; {str(out)!r} is a file")
-    check_output_dir(out, "--out")
     outputs = Outputs()
     dpi = plotting.DEFAULT_DPI if args.dpi is None else args.dpi
     entries = []

@@ -24,7 +24,7 @@ import warnings
 from pathlib import Path
 
 from ..errors import ParameterError
-from ._common import alpha_arg, check_record_path, live_arg, positive_int_arg
+from ._common import alpha_arg, band_edge_arg, band_from_args, check_record_path, live_arg, positive_int_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -96,6 +96,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--alpha", type=alpha_arg, default=None, help="per-frame false-alarm probability (default 0.001)"
     )
     p.add_argument(
+        "--band",
+        nargs=2,
+        type=band_edge_arg,
+        default=None,
+        metavar=("LO", "HI"),
+        help="test only the frame bins with LO <= f <= HI (Hz); the correction counts only these bins "
+        "(default: [detector] band of the model file, else every bin but DC and Nyquist)",
+    )
+    p.add_argument(
         "--calibration",
         type=Path,
         default=None,
@@ -163,6 +172,7 @@ def run(args: argparse.Namespace) -> int:
         correction=str(det.get("correction", "bonferroni")),  # type: ignore[arg-type]
         gamma=spec.gamma,
         psi=tuple(spec.psi.tolist()),
+        band=band_from_args(args) or det.get("band"),
     )
     if args.calibration is not None:
         from ..studies.calibration import load_calibration

@@ -71,15 +71,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    out = Path(args.out) if args.out else DEFAULT_FOLDER / f"{args.name}-spectrum.png"
+    if out.suffix.lower() != ".png":
+        raise ParameterError(f"--out must name a .png file; got {str(out)!r}")
+    check_output_file(out, "--out")  # before the (slow) imports: a bad path fails at once
+
     from ..figures import plotting
     from ..figures.paper_figures import scenario_spectrum
     from ..plants.scenarios import scenario
 
     scenario(args.name)  # UnknownScenarioError (listing the valid names) before any work
-    out = Path(args.out) if args.out else DEFAULT_FOLDER / f"{args.name}-spectrum.png"
-    if out.suffix.lower() != ".png":
-        raise ParameterError(f"--out must name a .png file; got {str(out)!r}")
-    check_output_file(out, "--out")
     outputs = Outputs()
     channel: str | None = args.channel
     if channel is not None and channel.isdigit():

@@ -40,8 +40,8 @@ SO_INSET_HZ: tuple[float, float] = (0.0, 40.0)
 OVERLAY_FMAX_HZ: float = 150.0
 
 _THRESHOLD_NOTE = (
-    "dashed = paper's flat bound (eq 58-62), α = false-alarm probability PER BIN;  "
-    "solid = exact χ² bound on E[S] (eq 56),\nα = FAMILY-WISE false-alarm probability of the whole "
+    "dashed = paper's flat bound (eq 58-62), α = false-alarm probability PER BIN;\n"
+    "solid = exact χ² bound on E[S] (eq 56), α = FAMILY-WISE false-alarm probability of the whole "
     "spectrum (Bonferroni over the tested bins; DC and Nyquist not tested)"
 )
 

@@ -97,9 +97,20 @@ class FrequencyLine:
 
 
 def _wrap(text: str, width_in: float) -> str:
-    """Wrap each line of ``text`` to the width of a ``width_in``-inch figure (10 pt font)."""
+    """Wrap each line of ``text`` to the width of a ``width_in``-inch figure (10 pt font).
+
+    A line too long for the figure is split into the fewest lines that fit, of balanced
+    length (no short orphan such as ``on E[S] (eq 56),`` left on a line of its own).
+    """
     chars = max(int(width_in * 12.5), 20)
-    return "\n".join(textwrap.fill(line, chars) for line in text.split("\n"))
+    out: list[str] = []
+    for line in text.split("\n"):
+        n_lines = len(textwrap.wrap(line, chars)) if len(line) > chars else 1
+        width = min(chars, -(-len(line) // n_lines))
+        while len(textwrap.wrap(line, width)) > n_lines:  # ends at chars at the latest
+            width += 1
+        out.extend(textwrap.wrap(line, width) if n_lines > 1 else [line])
+    return "\n".join(out)
 
 
 # --------------------------------------------------------------------------- saving

@@ -36,7 +36,7 @@ import numpy as np
 
 from .._validate import finite_array, open_unit, positive_int
 from ..detection.spectral import STFTConfig, frame_columns
-from ..detection.thresholds import Threshold, frame_threshold
+from ..detection.thresholds import Threshold, check_band, frame_threshold
 from ..errors import ParameterError, ShapeError
 from ..filters.nonlinear_svsf import NonlinearSgnSVSF
 from ..filters.svsf import SVSF, SVSFState, auxiliary_svsf
@@ -79,6 +79,12 @@ class MonitorSettings:
         a saved calibration, ``load_calibration(...).threshold("frame-family-wise")``
         (then ``alpha`` and ``correction`` are ignored). It must cover the STFT
         frequencies of ``stft``.
+    band : (float, float), optional
+        ``(lo, hi)`` in Hz: test only the frame bins with ``lo <= f <= hi`` (beyond the
+        paper, see :mod:`chatterspec.detection.thresholds`); the correction counts only
+        them. With ``threshold`` given, that threshold is restricted to the band
+        (:meth:`~chatterspec.detection.thresholds.Threshold.restricted`: its level is then
+        conservative). ``None`` (default): every bin but DC and Nyquist.
     """
 
     stft: STFTConfig = field(default_factory=STFTConfig)
@@ -87,8 +93,11 @@ class MonitorSettings:
     gamma: float = 0.1
     psi: tuple[float, ...] | None = None
     threshold: Threshold | None = None
+    band: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
+        if self.band is not None:
+            object.__setattr__(self, "band", check_band(self.band))
         if not isinstance(self.stft, STFTConfig):
             raise ParameterError(f"stft must be an STFTConfig; got {type(self.stft).__name__}")
         object.__setattr__(self, "alpha", open_unit("alpha", self.alpha))
@@ -291,7 +300,9 @@ class ChatteringMonitor:
         self.n_hop = s.stft.n_hop(self.dt)
         self.freqs_hz = s.stft.freqs_hz(self.dt)
         if s.threshold is None:
-            self.threshold = frame_threshold(model, self.freqs_hz, s.stft, self.dt, s.alpha, s.correction)
+            self.threshold = frame_threshold(
+                model, self.freqs_hz, s.stft, self.dt, s.alpha, s.correction, band=s.band
+            )
         else:
             th = s.threshold
             if th.values.shape != (self.freqs_hz.size, model.n_outputs) or not np.allclose(
@@ -302,7 +313,7 @@ class ChatteringMonitor:
                     f"this monitor's frames ({self.freqs_hz.size} bins x {model.n_outputs} channels): it "
                     "was made for another STFT window or model"
                 )
-            self.threshold = th
+            self.threshold = th.restricted(s.band)
         self._aux = NonlinearSgnSVSF(model, s.gamma) if nonlinear else auxiliary_svsf(model, s.gamma)
         self._sat = None if s.psi is None else SVSF(model, psi=np.asarray(s.psi), gamma=s.gamma)
         self._aux_state: SVSFState | None = None

@@ -30,6 +30,7 @@ Model file (TOML, read with :mod:`tomllib`; see ``examples/README.md``)::
     window_s = 1.0
     hop_s = 0.2
     window = "hamming"
+    band = [5.0, 100.0]                # optional (default: none): test only 5 <= f <= 100 Hz
 
 Data file: CSV with a header row, or NPZ with one 1-D array per name. Columns are
 matched **by name** to the model's outputs and inputs; an optional time column
@@ -82,7 +83,8 @@ class ModelSpec:
         SVSF convergence rate.
     detector : dict
         The optional ``[detector]`` table (keys ``alpha``, ``correction``,
-        ``window_s``, ``hop_s``, ``window``), unvalidated here.
+        ``window_s``, ``hop_s``, ``window``, ``band``); the STFT fields are checked
+        and ``band`` (Hz) is validated into a ``(lo, hi)`` tuple, the rest is unvalidated here.
     path : Path
         The file read.
     """
@@ -123,7 +125,7 @@ class DataSet:
 
 
 # --------------------------------------------------------------------------- model files
-_DETECTOR_KEYS = {"alpha", "correction", "window_s", "hop_s", "window", "threshold"}
+_DETECTOR_KEYS = {"alpha", "correction", "window_s", "hop_s", "window", "threshold", "band"}
 
 
 def load_model(path: str | Path) -> ModelSpec:
@@ -266,7 +268,22 @@ def load_model(path: str | Path) -> ModelSpec:
             f"{where}: [detector] has unknown key(s) {sorted(unknown)}; allowed: {sorted(_DETECTOR_KEYS)}"
         )
     _check_detector(detector, model.dt, where)
-    return ModelSpec(model=model, psi=psi, gamma=gamma, detector=dict(detector), path=path)
+    detector = dict(detector)
+    if "band" in detector:
+        detector["band"] = _detector_band(detector["band"], where)
+    return ModelSpec(model=model, psi=psi, gamma=gamma, detector=detector, path=path)
+
+
+def _detector_band(value: object, where: str) -> tuple[float, float]:
+    """``[detector] band = [lo, hi]`` (Hz) validated into a tuple; errors name the file and field."""
+    from ..detection.thresholds import check_band
+
+    if isinstance(value, (str, bytes)):
+        raise ModelFileError(f"{where}: [detector] band must be [lo, hi] in Hz (two numbers); got {value!r}")
+    try:
+        return check_band(value)
+    except ChatterspecError as exc:
+        raise ModelFileError(f"{where}: [detector] {exc}") from None
 
 
 def _check_detector(detector: Mapping[str, Any], dt: float, where: str) -> None:
@@ -608,7 +625,8 @@ def write_model_toml(
         SVSF convergence rate, 0 < gamma < 1.
     detector : mapping, optional
         ``[detector]`` table (keys ``alpha``, ``correction``, ``window_s`` (s),
-        ``hop_s`` (s), ``window``); omitted when None (the loader's defaults apply).
+        ``hop_s`` (s), ``window``, ``band`` (``(lo, hi)`` in Hz)); omitted when None (the
+        loader's defaults apply).
     comment : str
         Text written as ``#`` comment lines at the top of the file.
 
@@ -662,7 +680,12 @@ def write_model_toml(
     if detector:
         lines += ["", "[detector]"]
         for key, value in detector.items():
-            text = _toml_strings([value])[1:-1] if isinstance(value, str) else _toml_number(value)
+            if isinstance(value, str):
+                text = _toml_strings([value])[1:-1]
+            elif key == "band":
+                text = _toml_vector(np.asarray(_detector_band(value, where)))
+            else:
+                text = _toml_number(value)
             lines.append(f"{key} = {text}")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n")

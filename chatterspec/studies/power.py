@@ -13,7 +13,7 @@ from .._validate import open_unit, positive_int
 from ..detection.pipeline import iter_chattering
 from ..detection.spectral import periodogram
 from ..errors import ParameterError
-from ..plants.models import EHA_PARAMETERS, eha_linear, second_order
+from ..plants.models import EHA_PARAMETERS, LinearModel, eha_linear, second_order
 from ..plants.scenarios import Scenario
 from ..plants.signals import Chirp, Step
 from ..rng import SeedLike
@@ -81,17 +81,13 @@ def power_scenario(family: str, size: float, noise: float = 1.0) -> Scenario:
     size, noise = float(size), float(noise)
     if not (np.isfinite(size) and size > 0 and np.isfinite(noise) and noise > 0):
         raise ParameterError(f"fault size and noise level must be finite and > 0; got {size}, {noise}")
+    plant = _true_plant(family, size, noise)
+    _check_stable(family, size, plant)
     if family == "f0":
-        R = noise * _SO_R
-        nominal = second_order(10.0, 0.1, Q=_SO_Q, R=R)
-        plant = second_order(size, 0.1, Q=_SO_Q, R=R)
+        nominal = second_order(10.0, 0.1, Q=_SO_Q, R=noise * _SO_R)
         inp: Any = Step(0.0)
     else:
-        R = noise * np.diag([1e-6, 1e-6, 1e6])
-        nominal = eha_linear(R=R)
-        key = {"leakage": "leakage", "bulk-modulus": "bulk_modulus", "friction": "friction"}[family]
-        value = size * EHA_PARAMETERS["bulk_modulus"] if family == "bulk-modulus" else size
-        plant = eha_linear(R=R, **{key: value})
+        nominal = eha_linear(R=noise * np.diag([1e-6, 1e-6, 1e6]))
         inp = Chirp(10.0, 100.0, 4.0, 300.0)
     return Scenario(
         name=f"power-{family}-{size:g}-noise{noise:g}",
@@ -102,6 +98,64 @@ def power_scenario(family: str, size: float, noise: float = 1.0) -> Scenario:
         family="second-order" if family == "f0" else "eha",
         fault=family,
         fault_channel=POWER_FAMILIES[family]["channel"],
+    )
+
+
+def _true_plant(family: str, size: float, noise: float = 1.0) -> LinearModel:
+    """The true (faulty) plant of :func:`power_scenario` (Euler-discretized like the paper's models)."""
+    if family == "f0":
+        return second_order(size, 0.1, Q=_SO_Q, R=noise * _SO_R)
+    key = {"leakage": "leakage", "bulk-modulus": "bulk_modulus", "friction": "friction"}[family]
+    value = size * EHA_PARAMETERS["bulk_modulus"] if family == "bulk-modulus" else size
+    return eha_linear(R=noise * np.diag([1e-6, 1e-6, 1e6]), **{key: value})
+
+
+#: Largest spectral radius of the true plant's discrete A accepted as stable (the EHA position is an
+#: integrator: an eigenvalue of exactly 1).
+_RHO_MAX = 1.0 + 1e-9
+
+
+def _spectral_radius(family: str, size: float) -> float:
+    return float(np.abs(np.linalg.eigvals(_true_plant(family, size).A)).max())
+
+
+def _stable_range(family: str) -> tuple[float, float]:
+    """``(lo, hi)``: fault sizes around the healthy one with a stable true plant (log-scale bisection)."""
+    healthy = float(POWER_FAMILIES[family]["sizes"][0])
+
+    def edge(direction: float) -> float:
+        inside, step = healthy, 2.0**direction
+        outside = healthy * step
+        while _stable(family, outside):  # widen until unstable or implausibly far (then: no edge)
+            inside, outside = outside, outside * step
+            if not 1e-12 < outside / healthy < 1e12:
+                return 0.0 if direction < 0 else np.inf
+        for _ in range(60):  # geometric bisection: 2^-60 relative width
+            mid = float(np.sqrt(inside * outside))
+            inside, outside = (mid, outside) if _stable(family, mid) else (inside, mid)
+        return inside
+
+    return edge(-1.0), edge(1.0)
+
+
+def _stable(family: str, size: float) -> bool:
+    try:
+        return _spectral_radius(family, size) <= _RHO_MAX
+    except ParameterError:
+        return False
+
+
+def _check_stable(family: str, size: float, plant: Any) -> None:
+    """A fault size whose true plant is unstable diverges in simulation: reject it up front."""
+    rho = float(np.abs(np.linalg.eigvals(plant.A)).max())
+    if rho <= _RHO_MAX:
+        return
+    lo, hi = _stable_range(family)
+    unit = POWER_FAMILIES[family]["unit"]
+    raise ParameterError(
+        f"{family} size {size:g} ({unit}) makes the true plant unstable (discrete A at dt = {plant.dt:g} s "
+        f"has spectral radius {rho:.3g} > 1; the simulation would diverge); the stable range is "
+        f"{lo:.3g} < size < {hi:.3g} ({unit})"
     )
 
 
