@@ -513,4 +513,6 @@ def test_rotation_releases_rerun_streams_and_threads(spec, tmp_path) -> None:
     assert sorted(str(p) for p in tmp_path.glob("r-*.rrd")) == sorted(r["path"] for r in summary.recordings)
     for r in (summary.recordings[0], summary.recordings[-1]):
         _verify(Path(r["path"]))
-    assert summary.latency["rotation_max_ms"] < 1e3 * 0.5  # well within a period (a rename, a hand-off)
+    # a rotation is a rename and a hand-off (measured 1-10 ms); closing and opening in the loop, as
+    # before, took 170-260 ms (opening alone 70-110 ms): 150 ms separates the two with a wide margin
+    assert summary.latency["rotation_max_ms"] < 150.0
