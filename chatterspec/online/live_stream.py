@@ -29,6 +29,19 @@ window, the Rerun logger a bounded batch, the summary the last
 ``record_every_s`` the recording rotates: one complete ``.rrd`` per period of
 *data* time (footer written, static data and blueprint repeated, so each file
 opens on its own), named by its wall-clock start time.
+
+Rotation is off the verdict path. Opening a recording (stream, file sink,
+blueprint, static data: ~70-110 ms) and closing one (last batch, spectrogram
+block, footer: ~50-80 ms; more on a loaded machine) both run on one background
+thread: the next file is opened ahead under a temporary name
+(``.<stem>-<id>.rrd.part``) and, at the rotation, renamed to its final name and
+taken over by the loop (a rename and a pointer swap), while the background
+thread finishes the old one. Rows keep flowing meanwhile. rerun-sdk 0.41 keeps
+every dropped ``RecordingStream`` (and its batcher and sink threads, ~1-2 MB)
+in a list of "orphaned" recordings that only ``rr.init`` sweeps; after each
+closed file the background thread sweeps it
+(``rerun.bindings.flush_and_cleanup_orphaned_recordings``), so memory and
+threads stay flat over any number of rotations.
 """
 
 from __future__ import annotations
@@ -37,9 +50,12 @@ import dataclasses
 import itertools
 import json
 import math
+import threading
 import time
+import uuid
 from collections import deque
 from collections.abc import Callable, Iterable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -53,8 +69,10 @@ from .stream import BadRow, CsvRows, Restart, RowBlock
 
 __all__ = ["MAX_EVENTS", "LatencyStats", "StreamEvent", "StreamMonitor", "StreamSummary", "drive"]
 
-#: Events kept for the summary (older ones are counted, not kept).
+#: Events (and recordings) kept for the summary (older ones are counted, not kept).
 MAX_EVENTS = 1000
+#: Closed-file jobs the rotation thread may fall behind by before the loop waits for it.
+MAX_PENDING_CLOSES = 2
 #: A time step outside ``(GAP_LOW dt, GAP_HIGH dt]`` is a gap.
 GAP_LOW, GAP_HIGH = 0.5, 1.5
 
@@ -208,10 +226,12 @@ class StreamSummary:
         Events per kind (all of them), and ``bad-row`` (rows skipped).
     latency : dict
         ``frames``, ``median_ms``, ``max_ms`` (see :class:`LatencyStats`), and
-        ``rotation_max_ms``: the longest stop of the loop to close one recording
-        and open the next (rows arriving meanwhile wait in the pipe).
+        ``rotation_max_ms``: the longest stop of the loop at a rotation (taking
+        over the file opened ahead and handing the old one to the rotation
+        thread; the opening and closing themselves run on that thread).
     recordings : tuple of dict
-        Per ``.rrd`` written: ``path``, ``start_s`` / ``stop_s`` (data time), ``bytes``.
+        Per ``.rrd`` written (the last :data:`MAX_EVENTS`): ``path``, ``start_s`` /
+        ``stop_s`` (data time), ``bytes``.
     live_url : str or None
         Viewer streamed to.
     stopped_by : str
@@ -317,7 +337,8 @@ class StreamMonitor:
         self.counts = {"fault-start": 0, "fault-end": 0, "gap": 0, "restart": 0, "bad-row": 0}
         self.latency = LatencyStats()
         self.notes: list[str] = []
-        self.recordings: list[dict[str, Any]] = []
+        self.recordings: deque[dict[str, Any]] = deque(maxlen=MAX_EVENTS)
+        self.n_recordings = 0  # recordings completed (all of them)
         self._loggers: list[Any] = []
         self._live_sinks: Any = None
         self._file_sinks: Any = None
@@ -326,8 +347,17 @@ class StreamMonitor:
         self._file_start: float | None = None
         self._live_url: str | None = None
         self._rotation_max_s = 0.0
+        self._rotator: ThreadPoolExecutor | None = None  # opens the next file, closes the old ones
+        self._spare: Future | None = None  # the next file, opened ahead: (sinks, logger)
+        self._closing: deque[Future] = deque()  # files being closed, oldest first
         if self.live is not None or (self.record is not None and self.record_every is None):
             self._open_live()
+        if self.record_every is not None:  # the first file is opened now (errors surface here)
+            from .viewer import default_recording_path
+
+            self._base = self.record or default_recording_path(self.recording_name)
+            self._spare = Future()
+            self._spare.set_result(self._make_file())
 
     # ------------------------------------------------------------------ input
     def process(self, item: RowBlock | BadRow | Restart) -> None:
@@ -470,8 +500,9 @@ class StreamMonitor:
                 self._file_rows += hi - lo
                 if self._file_rows >= self.record_every:
                     t_rot = time.perf_counter()
-                    self._close_file(float(t[hi - 1]) + self.dt)
+                    self._close_file(float(t[hi - 1]) + self.dt, wait=False)
                     self._rotation_max_s = max(self._rotation_max_s, time.perf_counter() - t_rot)
+        self._collect_closed(block=False)
 
     def _emit(self, ev: StreamEvent) -> None:
         self.events.append(ev)
@@ -516,36 +547,74 @@ class StreamMonitor:
         if sinks.path is not None:
             self.recordings.append({"path": str(sinks.path), "start_s": None, "stop_s": None, "bytes": None})
 
-    def _open_file(self, t_start: float) -> None:
-        from .viewer import default_recording_path, open_sinks
+    def _pool(self) -> ThreadPoolExecutor:
+        if self._rotator is None:
+            self._rotator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="chatterspec-rotation")
+        return self._rotator
 
+    def _make_file(self) -> tuple[Any, Any]:
+        """Open the next recording under a temporary name (rotation thread, or the constructor)."""
+        from .viewer import open_sinks
+
+        base = self._base
+        tmp = base.parent / f".{base.stem}-{uuid.uuid4().hex[:12]}.rrd.part"
+        sinks = open_sinks(record=tmp, recording_name=self.recording_name)
+        from .rerun_log import RerunLogger
+
+        logger = RerunLogger(sinks, self._proto, send_blueprint=False)
+        for st in sinks.streams:
+            _send_blueprint_released(st, logger)
+        return sinks, logger
+
+    def _open_file(self, t_start: float) -> None:
+        """Take over the file opened ahead: rename it after this moment, and open the next one."""
         t_open = time.perf_counter()
-        base = self.record or default_recording_path(self.recording_name)
+        sinks, logger = self._spare.result()  # ready unless the rotation thread is far behind
+        self._spare = None
+        base = self._base
         now = time.time()
         stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime(now)) + f".{int(now % 1 * 1000):03d}"
-        path = base.parent / f"{base.stem}-{stamp}.rrd"
+        stem = base.stem
+        path = base.parent / f"{stem}-{stamp}.rrd"
         k = 1
         while path.exists():
-            path = base.parent / f"{base.stem}-{stamp}-{k}.rrd"
+            path = base.parent / f"{stem}-{stamp}-{k}.rrd"
             k += 1
-        self._file_sinks = open_sinks(record=path, recording_name=f"{self.recording_name} {stamp}")
-        self._file_logger = self._logger(self._file_sinks)
+        Path(sinks.path).rename(path)  # the sink keeps writing to the open file
+        sinks.path = path
+        for st in sinks.streams:
+            st.send_recording_name(f"{self.recording_name} {stamp}")
+        self._file_sinks, self._file_logger = sinks, logger
         self._file_rows = 0
         self._file_start = t_start
+        self._spare = self._pool().submit(self._make_file)
         self._rotation_max_s = max(self._rotation_max_s, time.perf_counter() - t_open)
 
-    def _close_file(self, t_stop: float | None) -> None:
-        if self._file_logger is None:
-            return
-        try:
-            self._file_logger.close()
-        finally:
-            self._file_sinks.close()
-        path = self._file_sinks.path
-        rec = {"path": str(path), "start_s": self._file_start, "stop_s": t_stop, "bytes": path.stat().st_size}
+    def _close_file(self, t_stop: float | None, *, wait: bool = True) -> None:
+        """Hand the current file to the rotation thread (``wait``: and wait until every file is done)."""
+        if self._file_sinks is not None:
+            held = [self._file_sinks, self._file_logger]  # the job empties it: no reference outlives it
+            self._file_logger = self._file_sinks = None
+            self._closing.append(self._pool().submit(_finish_file, held, self._file_start, t_stop))
+        while len(self._closing) > MAX_PENDING_CLOSES:
+            self._collect_one()
+        if wait:
+            self.wait_closed()
+
+    def _collect_one(self) -> None:
+        rec = self._closing.popleft().result()  # an error while closing is raised here
         self.recordings.append(rec)
-        self._note(f"recording {path} closed ({rec['bytes'] / 1e6:.1f} MB)")
-        self._file_logger = self._file_sinks = None
+        self.n_recordings += 1
+        size = "file gone" if rec["bytes"] is None else f"{rec['bytes'] / 1e6:.1f} MB"
+        self._note(f"recording {rec['path']} closed ({size})")
+
+    def _collect_closed(self, *, block: bool) -> None:
+        while self._closing and (block or self._closing[0].done()):
+            self._collect_one()
+
+    def wait_closed(self) -> None:
+        """Wait until every rotated-out recording is complete (footer written) and listed."""
+        self._collect_closed(block=True)
 
     def _log(self, upd: MonitorUpdate) -> None:
         for logger in self._loggers:
@@ -567,6 +636,20 @@ class StreamMonitor:
             s.log("/events", rr.TextLog(f"{ev.kind}: {ev.describe()}", level="WARN"))
 
     # ------------------------------------------------------------------ end
+    def _discard_spare(self) -> None:
+        """Close and delete the file opened ahead for a period that never came; stop the thread."""
+        spare, self._spare = self._spare, None
+        try:
+            if spare is not None:
+                held = list(spare.result())
+                path = held[0].path
+                self._pool().submit(_finish_file, held, None, None).result()
+                Path(path).unlink(missing_ok=True)
+        finally:
+            if self._rotator is not None:
+                self._rotator.shutdown(wait=True)
+                self._rotator = None
+
     def close(self, stopped_by: str = "end of input") -> StreamSummary:
         """Flush and close every recording (footer written) and return the summary.
 
@@ -580,14 +663,19 @@ class StreamMonitor:
             self._close_file(t_stop)
         finally:
             try:
-                for logger in self._loggers:
-                    logger.close()
+                self._discard_spare()
             finally:
-                if self._live_sinks is not None:
-                    self._live_sinks.close()
+                try:
+                    for logger in self._loggers:
+                        logger.close()
+                finally:
+                    if self._live_sinks is not None:
+                        self._live_sinks.close()
         for rec in self.recordings:
             if rec["bytes"] is None and Path(rec["path"]).exists():
                 rec["bytes"] = Path(rec["path"]).stat().st_size
+        if self.record_every is None:
+            self.n_recordings = len(self.recordings)
         frames = self._frames_done + (self.monitor.n_frames if self.monitor is not None else 0)
         return StreamSummary(
             n_rows=self.n_rows,
@@ -602,6 +690,87 @@ class StreamMonitor:
             stopped_by=stopped_by,
             notes=tuple(self.notes),
         )
+
+
+def _send_blueprint_released(stream: Any, logger: Any) -> None:
+    """Send the logger's default blueprint to ``stream`` (as :class:`RerunLogger` does) without leaking.
+
+    ``RecordingStream.send_blueprint`` builds the blueprint in a temporary blueprint
+    stream whose memory sink refers back to it; rerun-sdk 0.41 never frees that stream
+    (measured: +2 OS threads per call, also after the orphan sweep). Here it is built the
+    same way and disconnected once sent, which frees it. Falls back to the public call
+    if those internals are not there (another rerun-sdk version).
+    """
+    import rerun as rr
+
+    from .blueprint import blueprint
+    from .rerun_log import DB_RANGE
+
+    bp = blueprint(logger.channels, has_truth=False, band_hz=logger.band_hz, span_s=None, db_range=DB_RANGE)
+    native = getattr(rr.bindings, "new_blueprint", None)
+    from_native = getattr(rr.RecordingStream, "_from_native", None)
+    full = bp.to_blueprint()
+    if native is None or from_native is None or not hasattr(full, "_log_to_stream"):  # pragma: no cover
+        stream.send_blueprint(bp, make_active=True, make_default=True)
+        return
+    app_id = stream.get_application_id()
+    bp_stream = from_native(native(application_id=app_id, make_default=False, make_thread_default=False))
+    try:
+        bp_stream.set_time("blueprint", sequence=0)
+        full._log_to_stream(bp_stream)
+        storage = bp_stream.memory_recording().storage
+        rr.bindings.send_blueprint(storage, True, True, recording=stream.to_native())
+        del storage
+    finally:
+        bp_stream.disconnect()
+
+
+def _finish_file(held: list[Any], t_start: float | None, t_stop: float | None) -> dict[str, Any]:
+    """Close one recording (rotation thread): last batch and spectrogram block, footer; then let
+    rerun-sdk free it. ``held`` is ``[sinks, logger]`` and is emptied, so that when the streams are
+    closed nothing refers to them any more and the orphan sweep releases them (and their threads)."""
+    sinks, logger = held
+    held.clear()
+    try:
+        if logger is not None:
+            logger.close()
+    finally:
+        sinks.close()
+    path = sinks.path
+    size = path.stat().st_size if path.exists() else None  # None: removed by someone else meanwhile
+    rec = {"path": str(path), "start_s": t_start, "stop_s": t_stop, "bytes": size}
+    del sinks, logger
+    _sweep_orphaned_recordings()
+    return rec
+
+
+_sweep_lock = threading.Lock()
+
+
+def _sweep_orphaned_recordings() -> None:
+    """Free the recordings nothing refers to any more.
+
+    rerun-sdk 0.41 moves a dropped ``RecordingStream`` into a list of orphaned
+    recordings, where it keeps its batcher and sink threads and buffers (measured:
+    +2 threads and ~1-2 MB per rotated file), until ``rr.init`` calls
+    ``flush_and_cleanup_orphaned_recordings``; we call it after each closed file.
+    That function also clears Rerun's *global* recording (this module never
+    uses it), so a global recording set by the caller is put back.
+    """
+    import rerun as rr
+
+    sweep = getattr(rr.bindings, "flush_and_cleanup_orphaned_recordings", None)
+    if sweep is None:  # pragma: no cover  (another rerun-sdk version)
+        return
+    with _sweep_lock:
+        previous = rr.bindings.get_global_data_recording()
+        try:
+            sweep()
+        except RuntimeError:  # pragma: no cover  (a flush of some live stream timed out: sweep next time)
+            pass
+        finally:
+            if previous is not None:
+                rr.bindings.set_global_data_recording(previous)
 
 
 def drive(chunks: Iterable[tuple[bytes, float]], rows: CsvRows, monitor: StreamMonitor) -> None:
