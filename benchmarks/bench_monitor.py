@@ -99,6 +99,7 @@ def main() -> None:
         default=None,
         help="RerunLogger batch_samples (file batches; batch_frames follows at one frame per hop)",
     )
+    ap.add_argument("--cases", default="", help="comma-separated subset of the cases to run, e.g. b,d")
     args = ap.parse_args()
     global CPU
     CPU = args.cpu
@@ -126,6 +127,9 @@ def main() -> None:
         ("(c) raw z,u: aux SVSF, .rrd file", MonitorSettings(), raw, True),
         ("(d) raw z,u: both SVSFs, .rrd file", MonitorSettings(psi=PSI), raw, True),
     ]
+    if args.cases:
+        keep = {f"({c.strip()})" for c in args.cases.split(",")}
+        cases = [case for case in cases if case[0].split()[0] in keep]
     from chatterspec import _jit
 
     print(
