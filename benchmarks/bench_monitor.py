@@ -50,6 +50,8 @@ PSI = (4.2e-3, 4.8e-3, 4.3e3)
 #: Measure process CPU time (all threads, incl. Rerun's encoder threads) instead of wall time:
 #: less sensitive to other jobs on a shared machine (``--cpu``).
 CPU = False
+#: Extra ``RerunLogger`` keywords (``--batch-samples``).
+LOGGER_KW: dict = {}
 
 
 def _run(
@@ -61,7 +63,7 @@ def _run(
     sinks = logger = None
     if path is not None:
         sinks = open_sinks(record=path)
-        logger = RerunLogger(sinks, mon)
+        logger = RerunLogger(sinks, mon, **LOGGER_KW)
     t1 = clock()
     n = next(iter(data.values())).shape[0]
     t_push = t_log = 0.0
@@ -91,9 +93,18 @@ def main() -> None:
     ap.add_argument("--chunk", type=int, default=1000, help="samples per push (one hop = 200)")
     ap.add_argument("--repeat", type=int, default=3, help="runs per configuration; the best is shown")
     ap.add_argument("--cpu", action="store_true", help="process CPU time (all threads) instead of wall time")
+    ap.add_argument(
+        "--batch-samples",
+        type=int,
+        default=None,
+        help="RerunLogger batch_samples (file batches; batch_frames follows at one frame per hop)",
+    )
+    ap.add_argument("--cases", default="", help="comma-separated subset of the cases to run, e.g. b,d")
     args = ap.parse_args()
     global CPU
     CPU = args.cpu
+    if args.batch_samples is not None:
+        LOGGER_KW.update(batch_samples=args.batch_samples, batch_frames=max(1, args.batch_samples // 200))
     import rerun  # noqa: F401  (import once up front: ~0.5 s that is not per-run cost)
 
     T = args.minutes * 60.0
@@ -116,6 +127,9 @@ def main() -> None:
         ("(c) raw z,u: aux SVSF, .rrd file", MonitorSettings(), raw, True),
         ("(d) raw z,u: both SVSFs, .rrd file", MonitorSettings(psi=PSI), raw, True),
     ]
+    if args.cases:
+        keep = {f"({c.strip()})" for c in args.cases.split(",")}
+        cases = [case for case in cases if case[0].split()[0] in keep]
     from chatterspec import _jit
 
     print(

@@ -16,6 +16,7 @@ from chatterspec.detection.detect import detect_frames
 from chatterspec.detection.pipeline import chattering_record
 from chatterspec.detection.spectral import spectrogram
 from chatterspec.detection.thresholds import frame_threshold
+from chatterspec.errors import ParameterError
 from chatterspec.plants.scenarios import Scenario, Segment
 
 rr = pytest.importorskip("rerun")
@@ -77,8 +78,8 @@ def _check_recording(path: Path, rec, spec, flags, summary) -> None:
         t, cols = _column(reader, f"/spectrum/{name}", "Tensor:data")
         assert len(cols) == spec.n_frames
         np.testing.assert_allclose(t, spec.times_s, atol=1e-9)
-        buf = np.asarray(cols[-1][0]["buffer"])  # the union holds the F64 payload
-        np.testing.assert_array_equal(buf, spec.power[-1, :, c])
+        buf = np.asarray(cols[-1][0]["buffer"])  # the union holds the F32 payload (spectrum_dtype default)
+        np.testing.assert_array_equal(buf, spec.power[-1, :, c].astype(np.float32))
         t, verdict = _column(reader, f"/detection/{name}/verdict", "Scalars:scalars")
         np.testing.assert_array_equal(np.asarray(verdict)[:, 0] > 0.5, flags[:, c])
         t_e, _ = _column(reader, f"/chattering/{name}/e", "Scalars:scalars")
@@ -314,3 +315,30 @@ def test_logger_construction_error_is_not_hidden(tmp_path: Path, sim, monkeypatc
     monkeypatch.setattr(drivers, "RerunLogger", broken)
     with pytest.raises(ParameterError, match="no STFT bin"):
         drivers.record_detection(sim, path=tmp_path / "b.rrd")
+
+
+def test_signal_rows_and_float64_spectra(tmp_path: Path, sim) -> None:
+    """/signal/<c> holds one row per sample: [measured, sat-SVSF estimate], equal to the monitor's
+    values; spectrum_dtype="float64" logs the monitor's spectra bit-exactly."""
+    from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
+
+    mon = ChatteringMonitor(sim.scenario.nominal, MonitorSettings(psi=(4.2e-3, 4.8e-3, 4.3e3)))
+    ups = []
+    with viewer.open_sinks(record=tmp_path / "s.rrd") as sinks:
+        logger = rerun_log.RerunLogger(sinks, mon, spectrum_dtype="float64", send_blueprint=False)
+        for lo in range(0, sim.z.shape[1], 700):
+            ups.append(mon.push(sim.z[0, lo : lo + 700], sim.u[lo : lo + 700]))
+            logger.log_update(ups[-1])
+        logger.close()
+    reader = RrdReader(tmp_path / "s.rrd")
+    est = np.concatenate([u.estimate for u in ups])
+    meas = np.concatenate([u.measured for u in ups])
+    for c, name in enumerate(mon.channels):
+        t, rows = _column(reader, f"/signal/{name}", "Scalars:scalars")
+        np.testing.assert_allclose(t, np.concatenate([u.t for u in ups]), atol=1e-9)
+        np.testing.assert_array_equal(np.asarray(rows), np.stack([meas[:, c], est[:, c]], axis=1))
+        _, cols = _column(reader, f"/spectrum/{name}", "Tensor:data")
+        last = [u.frames for u in ups if u.frames.n_frames][-1]
+        np.testing.assert_array_equal(np.asarray(cols[-1][0]["buffer"]), last.power[-1, :, c])
+    with pytest.raises(ParameterError, match="spectrum_dtype"):
+        rerun_log.RerunLogger(viewer.Sinks(), mon, spectrum_dtype="float16")

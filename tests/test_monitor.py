@@ -159,3 +159,35 @@ def test_bad_input(sim) -> None:
         MonitorSettings(alpha=2.0)
     with pytest.raises(ParameterError):
         MonitorSettings(psi=(1.0, -1.0, 1.0))
+
+
+def test_frame_verdict_flags_equal_direct_comparison_at_ties() -> None:
+    """The one-pass flags (from max S / threshold) equal detect_frames' any(S > threshold) also at
+    exact ties: S == threshold (ratio 1, not flagged) and S one ulp above it (ratio may round to 1,
+    flagged), placed on random tested bins of random frames and channels."""
+    from chatterspec.online.monitor import frame_verdicts
+
+    model = cs.eha_linear()
+    cfg = MonitorSettings().stft
+    freqs = cfg.freqs_hz(model.dt)
+    thr = frame_threshold(model, freqs, cfg, model.dt)
+    rng = np.random.default_rng(3)
+    F, m = 400, model.n_outputs
+    power = thr.values * rng.uniform(0.0, 0.999, size=(F, *thr.values.shape))
+    tested = np.flatnonzero(thr.tested)
+    f = rng.integers(0, F, 300)
+    b = rng.choice(tested, 300)
+    c = rng.integers(0, m, 300)
+    v = thr.values[b, c]
+    power[f[:150], b[:150], c[:150]] = v[:150]  # exactly at the threshold: not a fault
+    power[f[150:], b[150:], c[150:]] = np.nextafter(v[150:], np.inf)  # one ulp above: a fault
+    ratio = power[:, tested, :] / thr.values[tested]
+    assert np.any(ratio.max(axis=1) == 1.0)  # the tie branch is exercised
+    direct = (power[:, tested, :] > thr.values[tested]).any(axis=1)
+    assert direct.any() and not direct.all()
+    flags, _, peak_ratio = frame_verdicts(power, thr)
+    np.testing.assert_array_equal(flags, direct)
+    np.testing.assert_array_equal(peak_ratio, ratio.max(axis=1))
+    # a NaN bin (no monitor makes one) does not hide a bin above the threshold: the direct rule
+    power[0, tested[:2], 0] = [np.nan, 2.0 * thr.values[tested[1], 0]]
+    assert frame_verdicts(power, thr)[0][0, 0]

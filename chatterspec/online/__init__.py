@@ -12,8 +12,10 @@ Entity layout (timeline ``time``: integer nanoseconds, every time rounded once b
 ========================================  =============================================================
 ``/chattering/<c>/e``                     chattering ``e(k|k-1)`` of the auxiliary filter
 ``/chattering/<c>/psi_upper|lower``       the SVSF boundary layer ``+-psi`` (when known)
-``/signal/<c>/measured|estimate``         measurement and ``sat``-SVSF estimate ``C x(k|k)`` (raw data only)
-``/spectrum/<c>``                         one exact STFT column per hop (``Tensor``, dim ``freq``, float64)
+``/signal/<c>``                           measurement [and ``sat``-SVSF estimate ``C x(k|k)``]: one row of
+                                          1 or 2 scalars per sample (raw data only)
+``/spectrum/<c>``                         one STFT column per hop (``Tensor``, dim ``freq``, float32;
+                                          float64 with ``RerunLogger(spectrum_dtype="float64")``)
 ``/spectrogram/<c>``                      ``10 log10(S / threshold)`` dB over the band, clipped
 ``/detection/<c>/statistic_db``           ``10 log10`` of the largest ``S / threshold`` over the tested bins
 ``/detection/<c>/threshold_db``           the decision level, 0 dB
@@ -28,7 +30,7 @@ Entity layout (timeline ``time``: integer nanoseconds, every time rounded once b
 ========================================  =============================================================
 
 Everything time-indexed is sent column-wise (``send_columns``) from zero-copy arrow
-views, also the exact spectra: one ``Tensor`` row per frame, built in bulk from numpy
+views, also the spectra: one ``Tensor`` row per frame, built in bulk from numpy
 (``rr.Tensor`` has no batch constructor), so a reader sees the same rows as from one
 ``rr.log`` per frame. A live viewer gets every update at once; a file gets batches of
 about a minute of data (and the rest on close).

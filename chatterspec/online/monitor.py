@@ -231,7 +231,7 @@ def frame_verdicts(power: np.ndarray, threshold: Threshold) -> tuple[np.ndarray,
         tested bins is > 1; ``peak_hz`` is that bin's frequency (Hz).
     """
     power = threshold.check_spectrum(power)
-    return _Verdicts(threshold)(power)
+    return _Verdicts(threshold)(power, finite=bool(np.isfinite(power).all()))
 
 
 class _Verdicts:
@@ -244,13 +244,23 @@ class _Verdicts:
         self.sel: slice | np.ndarray = slice(int(tested[0]), int(tested[-1]) + 1) if contiguous else tested
         self.values = np.ascontiguousarray(threshold.values[tested])
         self.freqs = threshold.freqs_hz[tested]
+        # the one-pass flag rule below needs finite normal thresholds > 0 (else: the direct comparison)
+        tiny = np.finfo(float).tiny
+        self.one_pass = bool(np.all((self.values >= tiny) & np.isfinite(self.values)))
 
-    def __call__(self, power: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def __call__(self, power: np.ndarray, finite: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``finite``: ``power`` holds no NaN / inf (always so in the monitor: its input is checked)."""
         p = power[..., self.sel, :]
         ratio = p / self.values
         k = np.argmax(ratio, axis=-2)
         peak_ratio = np.take_along_axis(ratio, k[..., None, :], axis=-2)[..., 0, :]
-        flags = np.any(p > self.values, axis=-2)
+        # flags = any(p > threshold) (detect_frames' rule) without a second pass over the bins: for
+        # a normal v > 0 and finite p >= 0, p > v means p >= v + ulp(v), so p / v >= 1 + ulp(v) / v
+        # > 1 + 2^-53 rounds to > 1; p <= v gives fl(p / v) <= 1. Hence fl(p / v) > 1 <=> p > v,
+        # and max_k fl(p / v) > 1 <=> any(p > v) (checked at exact ties in tests/test_monitor.py).
+        if not (self.one_pass and finite):
+            return np.any(p > self.values, axis=-2), self.freqs[k], peak_ratio
+        flags = peak_ratio > 1.0
         return flags, self.freqs[k], peak_ratio
 
 
