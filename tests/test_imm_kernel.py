@@ -38,6 +38,10 @@ def make_bank(kind: str, fs) -> list[object]:  # type: ignore[no-untyped-def]
             return SVSFCov(m, psi=np.array(fs.psi), gamma=fs.gamma, mapping="cov")
         if kind == "svsf2-cov":
             return SecondOrderSVSF(m, gamma=fs.gamma, lam=np.array(fs.cutoff_lambda), mapping="cov")
+        if kind == "svsf-luen":
+            return SVSFCov(m, psi=np.array(fs.psi + fs.psi_lower), gamma=fs.gamma, mapping="luen")
+        if kind == "svsf2-luen":
+            return SecondOrderSVSF(m, gamma=fs.gamma, lam=np.array(fs.cutoff_lambda), mapping="luen")
         if kind == "mixed":  # a heterogeneous bank
             return None
         raise AssertionError(kind)
@@ -77,7 +81,7 @@ def assert_close(a, b) -> None:  # type: ignore[no-untyped-def]
 
 
 @needs_numba
-@pytest.mark.parametrize("kind", ["ekf", "svsf-cov", "svsf2-cov", "mixed"])
+@pytest.mark.parametrize("kind", ["ekf", "svsf-cov", "svsf2-cov", "svsf-luen", "svsf2-luen", "mixed"])
 def test_fused_imm_matches_the_protocol_path_on_the_analogue(kind: str) -> None:
     fs, z, u = analogue(600, 3)
     f = IMM(make_bank(kind, fs), fs.transition_matrix, mu0=np.array(fs.mu0), modes=fs.modes)
@@ -133,8 +137,6 @@ def test_fused_imm_is_chunk_invariant_bit_for_bit() -> None:
 def test_unsupported_banks_take_the_protocol_path() -> None:
     fs, _, _ = analogue(10, 1)
     ms = fs.mode_models
-    luen = [SVSFCov(m, psi=np.array(fs.psi + fs.psi_lower), gamma=fs.gamma, mapping="luen") for m in ms]
-    assert IMM(luen, fs.transition_matrix)._fused is None
     vbl = [SVSFCov(m, psi=np.array(fs.psi), gamma=fs.gamma, mapping="cov", vbl=True) for m in ms]
     assert IMM(vbl, fs.transition_matrix)._fused is None
     assert IMM([ExtendedKalmanFilter(m) for m in ms], fs.transition_matrix)._fused is not None

@@ -70,6 +70,41 @@ def _chol_into(A, L, m):  # pragma: no cover - compiled
 
 
 @_jit.njit
+def _invert(A, Ainv, m):  # pragma: no cover - compiled
+    """Ainv = A^-1 by Gauss-Jordan elimination with partial pivoting; False if A is singular."""
+    W = np.empty((m, 2 * m))
+    for i in range(m):
+        for j in range(m):
+            W[i, j] = A[i, j]
+            W[i, m + j] = 1.0 if i == j else 0.0
+    for c in range(m):
+        piv = c
+        for i in range(c + 1, m):
+            if abs(W[i, c]) > abs(W[piv, c]):
+                piv = i
+        if W[piv, c] == 0.0:
+            return False
+        if piv != c:
+            for j in range(2 * m):
+                t = W[c, j]
+                W[c, j] = W[piv, j]
+                W[piv, j] = t
+        d = W[c, c]
+        for j in range(2 * m):
+            W[c, j] = W[c, j] / d
+        for i in range(m):
+            if i != c:
+                f = W[i, c]
+                if f != 0.0:
+                    for j in range(2 * m):
+                        W[i, j] = W[i, j] - f * W[c, j]
+    for i in range(m):
+        for j in range(m):
+            Ainv[i, j] = W[i, m + j]
+    return True
+
+
+@_jit.njit
 def _solve_col(L, b, out, m):  # pragma: no cover - compiled
     """out = (L L^T)^-1 b for a vector b."""
     for i in range(m):
@@ -142,6 +177,8 @@ def _imm_kernel(
     C,
     R,
     M_const,
+    Tm,
+    Tinv,
     gamma,
     lam,
     psi,
@@ -169,7 +206,8 @@ def _imm_kernel(
     """The fused IMM step of the module docstring; state arrays updated in place.
 
     Returns 0, ``1 + run`` when an innovation covariance (or the ``cov`` mapping's ``C P C^T``) is
-    not positive definite, or ``-(1 + run)`` when every mode likelihood is zero or non-finite.
+    not positive definite, ``-(1 + run)`` when every mode likelihood is zero or non-finite, or
+    ``-(1 + runs + run)`` when the ``luen`` form meets a singular ``Phi12``.
     """
     runs, K, m = z.shape
     nm = mu.shape[1]
@@ -207,6 +245,14 @@ def _imm_kernel(
     ec = np.empty(m)
     col = np.empty(m)
     tmp = np.empty(2 * m)
+    Phi = np.empty((n, n))
+    G12 = np.empty((m, m))
+    P12i = np.empty((m, m))
+    Al = np.empty((n - m, m))
+    Ae = np.empty(n - m)
+    rr = np.empty(m)
+    dy = np.empty(n)
+    Ky = np.empty((n, m))
     for r in range(runs):
         ur = 0 if shared_u else r
         for k in range(K):
@@ -321,6 +367,84 @@ def _imm_kernel(
                         for q in range(m):
                             s += KgT[q, i] * e[q]
                         xs[r, j, i] = s
+                elif mapping[j] == 2:
+                    # reduced-order (Luenberger) form, _luen.luen_correction: y = T x, Phi = T F T^-1
+                    Tj = Tm[j]
+                    Ti = Tinv[j]
+                    for i in range(n):
+                        for jj in range(n):
+                            s = 0.0
+                            for q in range(n):
+                                s += Tj[i, q] * F[q, jj]
+                            T1[i, jj] = s
+                    for i in range(n):
+                        for jj in range(n):
+                            s = 0.0
+                            for q in range(n):
+                                s += T1[i, q] * Ti[q, jj]
+                            Phi[i, jj] = s
+                    for i in range(m):
+                        for jj in range(m):
+                            G12[i, jj] = Phi[i, m + jj]
+                    if not _invert(G12, P12i, m):
+                        return -(1 + runs + r)
+                    for i in range(m):
+                        for jj in range(m):
+                            s = 0.0
+                            for q in range(m):
+                                s += Phi[m + i, m + q] * P12i[q, jj]
+                            Al[i, jj] = s
+                    for i in range(m):
+                        s = 0.0
+                        for q in range(m):
+                            s += Al[i, q] * e[q]
+                        Ae[i] = s
+                    if kj == 2:
+                        for i in range(m):
+                            rr[i] = (gamma[j, i] + lam[j, i]) * em[i] - gamma[j, i] * lam[j, i] * epps[
+                                r, j, i
+                            ]
+                        for i in range(m):
+                            dy[i] = e[i] - rr[i]
+                            s = Ae[i]
+                            for q in range(m):
+                                s -= P12i[i, q] * rr[q]
+                            dy[m + i] = s
+                            if e[i] != 0.0:
+                                gi = dy[i] / e[i]
+                                g[i] = lo[j] if gi < lo[j] else (hi[j] if gi > hi[j] else gi)
+                            else:
+                                g[i] = 1.0
+                        for i in range(m):  # Ky = [diag(q); Al diag(q)]
+                            for q in range(m):
+                                Ky[i, q] = g[q] if i == q else 0.0
+                                Ky[m + i, q] = Al[i, q] * g[q]
+                    else:
+                        for i in range(m):
+                            a = abs(e[i])
+                            den = a if a > psi[j, i] else psi[j, i]
+                            g[i] = (a + gamma[j, i] * abs(em[i])) / den
+                            s = 0.0
+                            for q in range(m):
+                                s += P12i[i, q] * em[q]
+                            al = abs(Ae[i])
+                            den = al if al > psi[j, m + i] else psi[j, m + i]
+                            kl = (al + gamma[j, i] * abs(s)) / den
+                            dy[i] = g[i] * e[i]
+                            dy[m + i] = kl * Ae[i]
+                            for q in range(m):  # Ky = [diag(ku); diag(kl) Al]
+                                Ky[i, q] = g[i] if i == q else 0.0
+                                Ky[m + i, q] = kl * Al[i, q]
+                    for i in range(n):  # K = T^-1 Ky, dx = T^-1 [d_u; d_l]
+                        for q in range(m):
+                            s = 0.0
+                            for t in range(n):
+                                s += Ti[i, t] * Ky[t, q]
+                            KgT[q, i] = s
+                        s = 0.0
+                        for t in range(n):
+                            s += dy[t] * Ti[i, t]
+                        xs[r, j, i] = xp[i] + s
                 else:
                     if mapping[j] == 1:
                         if not _chol_into(D, L, m):
@@ -490,9 +614,11 @@ def fused_spec(filters: tuple[object, ...]) -> dict[str, np.ndarray] | None:
         "C": np.zeros((r, m, n)),
         "R": np.zeros((r, m, m)),
         "M_const": np.zeros((r, n, m)),
+        "T": np.zeros((r, n, n)),
+        "Tinv": np.zeros((r, n, n)),
         "gamma": np.zeros((r, m)),
         "lam": np.zeros((r, m)),
-        "psi": np.ones((r, m)),
+        "psi": np.ones((r, n)),
         "lo": np.zeros(r),
         "hi": np.full(r, 2.0),
     }
@@ -523,11 +649,11 @@ def fused_spec(filters: tuple[object, ...]) -> dict[str, np.ndarray] | None:
         if type(f) in (ExtendedKalmanFilter, KalmanFilter):
             spec["kind"][j] = _engine.KF
             continue
-        if type(f) not in (SVSFCov, SecondOrderSVSF) or f._luen is not None:  # luen: numpy path only
+        if type(f) not in (SVSFCov, SecondOrderSVSF):
             return None
         if type(f) is SVSFCov and not f.vbl:
             spec["kind"][j] = _engine.SVSF1
-            spec["psi"][j] = f.psi
+            spec["psi"][j, : len(f.psi)] = f.psi  # m entries, n with "luen" (measured first)
         elif type(f) is SecondOrderSVSF:
             spec["kind"][j] = _engine.SVSF2
             spec["lam"][j] = f.lam
@@ -535,7 +661,10 @@ def fused_spec(filters: tuple[object, ...]) -> dict[str, np.ndarray] | None:
         else:
             return None
         spec["gamma"][j] = f.gamma
-        if f._M is None:
+        if f._luen is not None:
+            spec["mapping"][j] = _engine.MAP_LUEN
+            spec["T"][j], spec["Tinv"][j] = f._luen
+        elif f._M is None:
             spec["mapping"][j] = _engine.MAP_COV
         else:
             spec["mapping"][j] = _engine.MAP_CONST
@@ -610,7 +739,8 @@ def run_fused(
     }
     status = _imm_kernel(
         spec["model_kind"], spec["coef"], spec["A"], spec["B"], spec["kind"], spec["mapping"],
-        spec["Q"], spec["C"], spec["R"], spec["M_const"], spec["gamma"], spec["lam"], spec["psi"],
+        spec["Q"], spec["C"], spec["R"], spec["M_const"], spec["T"], spec["Tinv"], spec["gamma"],
+        spec["lam"], spec["psi"],
         spec["lo"], spec["hi"], np.ascontiguousarray(pi, dtype=float), float(floor),
         np.ascontiguousarray(z, dtype=float), np.ascontiguousarray(u, dtype=float),
         bool(state.k == 0),  # type: ignore[attr-defined]
@@ -620,6 +750,10 @@ def run_fused(
     if status > 0:
         worst = int(np.max(spec["mapping"]))
         raise SingularMatrixError(_not_pd_message(worst if worst != MAP_CONST else MAP_CONST, status - 1))
+    if status < -runs:
+        raise SingularMatrixError(
+            "the Luenberger form needs Phi12 = d(measured)/d(unmeasured) invertible at the estimate (eq 10)"
+        )
     if status < 0:
         raise SingularMatrixError(
             "every mode likelihood is zero or non-finite in some realization; check R and Q of the mode "
