@@ -32,6 +32,13 @@ SVSF-type mode filters, ``e(k|k)`` of mode j is the residual of its mixed estima
 Likelihoods (:func:`log_gaussian`) use the correlation-scaled ``S`` with eigenvalues floored at
 1e-12 (the EHA states span about 20 decades, note §1.6), so a near-singular ``S`` gives a finite,
 conservative likelihood instead of NaN.
+
+**Compiled IMM step.** When :func:`chatterspec._jit.enabled` and every mode is supported (EKF/KF,
+SVSF-cov without ``vbl``, second-order SVSF, on nonlinear-EHA or linear models; see
+:mod:`chatterspec.filters._imm_kernel`), :meth:`IMM.update` runs the whole recursion above in one
+compiled loop over runs and samples; otherwise it drives the mode filters through the protocol,
+one sample at a time. The two agree to rounding (summation order; tolerances in
+``tests/test_imm_kernel.py``), and each is chunk-invariant bit for bit.
 """
 
 from __future__ import annotations
