@@ -9,18 +9,23 @@ after each onset. ``imm``: one IMM bank type over the whole analogue record: the
 Usage::
 
     python benchmarks/bench_multiple_model.py smm --runs 2 --scales 0.1 1 10
-    python benchmarks/bench_multiple_model.py imm --bank ekf --runs 2 [--steps 60000]
+    python benchmarks/bench_multiple_model.py imm --bank ekf --runs 10 [--steps 60000] [--path protocol]
+
+``imm`` reports the wall and CPU time of the filter call alone (after a 2-sample warm-up that
+compiles or loads the kernels, reported as ``warmup_seconds``) and the 1-minute load average.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 
 import numpy as np
 
 import chatterspec as cs
+from chatterspec import _jit
 from chatterspec.filters import ExtendedKalmanFilter, SecondOrderSVSF, SVSFCov
 from chatterspec.filters.multiple_model import IMM, SMMSVSF
 from chatterspec.studies.modes import argmax_accuracy, confusion_matrix, rmse_table, switch_delays
@@ -77,22 +82,34 @@ def bank(kind: str, fs: object) -> list[object]:
     return [make(m) for m in fs.mode_models]  # type: ignore[attr-defined]
 
 
-def imm(kind: str, runs: int, seed: int, steps: int | None) -> dict[str, object]:
+def imm(kind: str, runs: int, seed: int, steps: int | None, path: str = "auto") -> dict[str, object]:
     sc = cs.scenario("eha4-imm-analogue")
     fs = sc.filter_settings
     sim = cs.simulate(sc, runs=runs, seed=seed)
     T = sim.z.shape[1] - 1 if steps is None else steps
     z, u, truth = sim.z[:, 1 : T + 1], sim.u[:T], sim.x[:, 1 : T + 1]
     f = IMM(bank(kind, fs), fs.transition_matrix, mu0=np.array(fs.mu0), modes=fs.modes)
+    fused = getattr(f, "_fused", None) is not None and path == "auto" and _jit.enabled()
+    if path == "protocol":  # the per-mode Filter.update path (the fused kernel's reference)
+        object.__setattr__(f, "_fused", None)
+    # warm-up on 2 samples: compiles the kernels (or loads them from numba's cache), not timed
     t0 = time.perf_counter()
+    f.run(z[:1, :2], u[:2], x0=fs.x0, P0=fs.P0)
+    warm = time.perf_counter() - t0
+    load0 = os.getloadavg()
+    t0, c0 = time.perf_counter(), time.process_time()
     out = f.run(z, u, x0=fs.x0, P0=fs.P0)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     true = fs.mode_index(sc)[1 : T + 1]
     row = {
         "bank": kind,
+        "path": "fused" if fused else ("protocol" if _jit.enabled() else "numpy"),
         "runs": runs,
         "steps": T,
         "seconds": wall,
+        "cpu_seconds": cpu,
+        "warmup_seconds": warm,
+        "loadavg_1min_before_after": [load0[0], os.getloadavg()[0]],
         "confusion_percent": np.round(confusion_matrix(out.mu, true), 2).tolist(),
         "argmax_accuracy": np.round(argmax_accuracy(out.mu, true), 4).tolist(),
         "rmse": rmse_table({kind: out.x_post}, truth, sc.nominal.state_names)[kind],
@@ -109,11 +126,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scales", type=float, nargs="+", default=[0.01, 0.1, 1.0, 10.0])
     p.add_argument("--bank", default="ekf")
     p.add_argument("--steps", type=int, default=None)
+    p.add_argument(
+        "--path",
+        choices=["auto", "protocol"],
+        default="auto",
+        help="auto: the compiled fused IMM step when the bank supports it; protocol: per-mode "
+        "Filter.update calls (CHATTERSPEC_JIT=0 in the environment gives the numpy path)",
+    )
     args = p.parse_args(argv)
     if args.what == "smm":
         smm(args.runs, args.seed, args.scales)
     else:
-        imm(args.bank, args.runs, args.seed, args.steps)
+        imm(args.bank, args.runs, args.seed, args.steps, args.path)
     return 0
 
 

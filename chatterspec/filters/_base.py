@@ -147,8 +147,10 @@ class CovarianceFilterBase:
             return P, res
         kind, mapping = corr.pop("kind"), corr.pop("mapping")
         steps = []
+        shared_u = u.shape[0] == 1
         for k in range(z.shape[1]):
-            uk = u[:, k]
+            # one input for every run as (p,), so a model's compiled batched kernel applies (eha4)
+            uk = u[0, k] if shared_u else u[:, k]
             xp = np.asarray(model.transition(x, uk), dtype=float)  # type: ignore[attr-defined]
             F = np.asarray(model.jacobian(x, uk), dtype=float)  # type: ignore[attr-defined]
             if xp.shape != x.shape or F.shape != (*x.shape, x.shape[1]):

@@ -32,6 +32,13 @@ SVSF-type mode filters, ``e(k|k)`` of mode j is the residual of its mixed estima
 Likelihoods (:func:`log_gaussian`) use the correlation-scaled ``S`` with eigenvalues floored at
 1e-12 (the EHA states span about 20 decades, note §1.6), so a near-singular ``S`` gives a finite,
 conservative likelihood instead of NaN.
+
+**Compiled IMM step.** When :func:`chatterspec._jit.enabled` and every mode is supported (EKF/KF,
+SVSF-cov without ``vbl``, second-order SVSF, on nonlinear-EHA or linear models; see
+:mod:`chatterspec.filters._imm_kernel`), :meth:`IMM.update` runs the whole recursion above in one
+compiled loop over runs and samples; otherwise it drives the mode filters through the protocol,
+one sample at a time. The two agree to rounding (summation order; tolerances in
+``tests/test_imm_kernel.py``), and each is chunk-invariant bit for bit.
 """
 
 from __future__ import annotations
@@ -42,8 +49,10 @@ from typing import Literal
 
 import numpy as np
 
+from .. import _jit
 from .._validate import finite_array, nonnegative
 from ..errors import ParameterError, ShapeError, SingularMatrixError
+from . import _imm_kernel
 from ._base import check_model
 from .protocol import FilterState, check_spd
 from .svsf_cov import SVSFCov, check_gamma, default_mapping, mapping_matrix, per_channel
@@ -726,6 +735,7 @@ class IMM:
     mu0: np.ndarray | None = None
     weight_floor: float = 0.0
     modes: Sequence[str] | None = None
+    _fused: dict[str, np.ndarray] | None = field(init=False, repr=False, default=None)
 
     def __post_init__(self) -> None:
         filters = tuple(self.filters)
@@ -746,6 +756,8 @@ class IMM:
         object.__setattr__(self, "mu0", mu0)
         object.__setattr__(self, "weight_floor", check_weight_floor(self.weight_floor, r))
         object.__setattr__(self, "modes", _mode_names(self.modes, r))
+        # arrays of the compiled fused step when every mode is supported (else the protocol path)
+        object.__setattr__(self, "_fused", _imm_kernel.fused_spec(filters))
 
     @property
     def n_modes(self) -> int:
@@ -810,6 +822,8 @@ class IMM:
         runs = state.x.shape[0]
         z, u = _check_data(z, u, runs, m, p)
         K = z.shape[1]
+        if K and self._fused is not None and len(state.mode_states) == self.n_modes and _jit.enabled():
+            return self._update_fused(state, z, u, store_covariance, store_modes)
         n = state.x.shape[1]
         r = self.n_modes
         C = np.asarray(mdl0.C, dtype=float)
@@ -877,6 +891,35 @@ class IMM:
             k=state.k + K,
         )
         return new, MultipleModelOutput(o_x, o_mu, o_ll, tuple(self.modes), o_P, o_mx)  # type: ignore[arg-type]
+
+    def _update_fused(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
+        # the same recursion as update()'s loop, compiled (chatterspec.filters._imm_kernel)
+        st, o = _imm_kernel.run_fused(
+            self._fused, self.transition_matrix, self.weight_floor, state, z, u, store_cov, store_modes
+        )
+        K = z.shape[1]
+        sts = tuple(
+            FilterState(
+                x=st["xs"][:, j].copy(),
+                P=st["Ps"][:, j].copy(),
+                e_post=st["eps"][:, j].copy(),
+                e_prev=st["epps"][:, j].copy(),
+                k=s.k + K,
+            )
+            for j, s in enumerate(state.mode_states)
+        )
+        C = np.asarray(self.filters[0].model.C, dtype=float)  # type: ignore[attr-defined]
+        new = MultipleModelState(
+            x=st["x"],
+            P=st["P"],
+            mu=st["mu"],
+            e_post=st["zl"] - st["x"] @ C.T,
+            z_last=st["zl"],
+            mode_states=sts,
+            k=state.k + K,
+        )
+        out = MultipleModelOutput(o["x"], o["mu"], o["ll"], tuple(self.modes), o["P"], o["mx"])  # type: ignore[arg-type]
+        return new, out
 
     def run(
         self,
