@@ -119,3 +119,39 @@ def test_diagnose_command_with_the_chattering_route(tmp_path, capsys, onset_cali
     # --record is checked before anything is computed
     assert main(["diagnose", "eha4-leak-onset", "--record", str(tmp_path / "x.txt")]) == 2
     assert ".rrd" in capsys.readouterr().err
+
+
+def test_diagnose_record_puts_modes_and_chattering_on_one_timeline(tmp_path, onset_calibration) -> None:  # type: ignore[no-untyped-def]
+    rr = pytest.importorskip("rerun")
+    from rerun.chunk import RrdReader
+
+    from chatterspec.online.diagnosis_log import record_diagnosis
+    from chatterspec.studies.mode_diagnosis import diagnose_modes
+
+    rr.set_strict_mode(True)
+    try:
+        sim = cs.simulate(cs.scenario("eha4-leak-timeline"), runs=1, seed=6)
+        keep: dict = {}
+        diagnose_modes(sim, ("smm",), keep=keep)
+        path = record_diagnosis(
+            tmp_path / "d.rrd", sim, onset_calibration.threshold("frame-family-wise"), keep
+        )
+    finally:
+        rr.set_strict_mode(False)
+    reader = RrdReader(path)
+    summary = reader.store().summary()  # needs the footer: the file is complete
+    assert "/spectrogram/" in summary and "/modes/smm/" in summary
+    t, mu, modes = keep["smm"]
+    for j, mode in enumerate(modes):
+        times, values = [], []
+        for chunk in reader.stream().filter(content=f"/modes/smm/{mode}", is_static=False).to_chunks():
+            rb = chunk.to_record_batch()
+            times.extend(rb.column("time").cast("int64").to_pylist())
+            values.extend(v[0] for v in rb.column("Scalars:scalars").to_pylist())
+        order = np.argsort(times)
+        # the same timeline as the monitor: integer ns of the sample times (to_ns rounds)
+        np.testing.assert_array_equal(np.asarray(times)[order], np.round(t * 1e9).astype(np.int64))
+        np.testing.assert_allclose(np.asarray(values)[order], mu[:, j], rtol=0, atol=0)
+    # the detection events of the chattering route are in the same file
+    events = list(reader.stream().filter(content="/events", is_static=False).to_chunks())
+    assert sum(c.num_rows for c in events) >= 1
