@@ -81,7 +81,7 @@ def test_chattering_and_smm_on_the_same_realizations(onset_calibration) -> None:
     # the minor leakage is still flagged when the major one starts: 6 s is not a new detection
     assert chat.in_alarm_at_onset[1] == 3
     t, mu, modes = keep["smm"]
-    assert mu.shape == (sim.t.size - 1, 3) and t.shape == (sim.t.size - 1,) and modes[0] == "normal"
+    assert mu.shape == (3, sim.t.size - 1, 3) and t.shape == (sim.t.size - 1,) and modes[0] == "normal"
     header, rows = diagnosis_rows([chat, smm])
     assert header == DIAGNOSIS_HEADER and len(rows) == 4
     assert rows[0][0] == "chattering" and rows[2][0] == "smm" and "acceleration" in rows[0][4]
@@ -151,7 +151,7 @@ def test_diagnose_record_puts_modes_and_chattering_on_one_timeline(tmp_path, ons
         order = np.argsort(times)
         # the same timeline as the monitor: integer ns of the sample times (to_ns rounds)
         np.testing.assert_array_equal(np.asarray(times)[order], np.round(t * 1e9).astype(np.int64))
-        np.testing.assert_allclose(np.asarray(values)[order], mu[:, j], rtol=0, atol=0)
+        np.testing.assert_allclose(np.asarray(values)[order], mu[0, :, j], rtol=0, atol=0)
     # the detection events of the chattering route are in the same file
     events = list(reader.stream().filter(content="/events", is_static=False).to_chunks())
     assert sum(c.num_rows for c in events) >= 1

@@ -57,8 +57,8 @@ def record_diagnosis(
     threshold : Threshold or None
         Per-frame threshold of the chattering route (``None``: no chattering part).
     mode_outputs : dict
-        ``method -> (t (T-1,) s, mu (T-1, r), modes)`` of realization 0
-        (``diagnose_modes(..., keep=...)``).
+        ``method -> (t (T-1,) s, mu (runs, T-1, r) or (T-1, r), modes)`` (``diagnose_modes(..., keep=...)``);
+        realization 0 is recorded.
     config : STFTConfig, optional
         STFT settings of the threshold (default 1 s Hamming, 0.2 s hop).
     chunk_samples : int
@@ -100,6 +100,8 @@ def record_diagnosis(
         views = []
         for method, (t, mu, modes) in mode_outputs.items():
             ns = to_ns(np.asarray(t, dtype=float))
+            mu = np.asarray(mu, dtype=float)
+            mu = mu[0] if mu.ndim == 3 else mu
             for s in sinks.streams:
                 for j, mode in enumerate(modes):
                     ent = f"/modes/{method}/{_entity(mode)}"

@@ -159,8 +159,8 @@ def diagnose_modes(
     methods : sequence of str
         Any of :data:`METHODS`. IMM uses a bank of EKFs and the scenario's transition matrix.
     keep : dict, optional
-        When given, ``keep[method]`` receives the mode probabilities of realization 0, ``(T - 1, r)``
-        at times ``sim.t[1:]`` (for ``diagnose --record``).
+        When given, ``keep[method]`` receives ``(t, mu, modes)``: the times ``sim.t[1:]`` (s), the mode
+        probabilities ``(runs, T - 1, r)`` and the mode names (for ``diagnose --record`` and figures).
 
     Returns
     -------
@@ -186,7 +186,7 @@ def diagnose_modes(
         out = filt.run(z, u, x0=x0, P0=P0)
         wall = time.perf_counter() - t0
         if keep is not None:
-            keep[method] = (t, np.array(out.mu[0]), tuple(fs.modes))
+            keep[method] = (t, np.asarray(out.mu), tuple(fs.modes))
         am = out.argmax_mode
         alarm = am != 0
         healthy = true == 0
