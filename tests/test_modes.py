@@ -109,11 +109,12 @@ def test_diagnose_command_json_and_errors(capsys) -> None:  # type: ignore[no-un
 
     from chatterspec.cli import main
 
-    assert main(["diagnose", "eha4-leak-timeline", "--runs", "1", "--seed", "2", "--json"]) == 0
+    args = ["diagnose", "eha4-leak-timeline", "--methods", "smm", "--runs", "1", "--seed", "2", "--json"]
+    assert main(args) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["scenario"] == "eha4-leak-timeline" and [m["method"] for m in doc["methods"]] == ["smm"]
     assert doc["methods"][0]["onsets_s"] == pytest.approx([3.0, 6.0])
-    assert main(["diagnose", "eha4-leak-timeline", "--methods", "chattering"]) == 2
-    assert "not available yet" in capsys.readouterr().err
+    assert main(["diagnose", "eha4-leak-timeline", "--methods", "imm"]) == 2
+    assert "does not support --methods imm" in capsys.readouterr().err
     assert main(["diagnose", "eha-healthy"]) == 2
-    assert "names no filter modes" in capsys.readouterr().err
+    assert "supports no diagnosis method" in capsys.readouterr().err

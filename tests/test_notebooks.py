@@ -21,6 +21,7 @@ def test_notebooks_exist():
         "02_calibration.ipynb",
         "03_rerun_notebook.ipynb",
         "04_estimators.ipynb",
+        "05_diagnosis.ipynb",
     } <= names
 
 

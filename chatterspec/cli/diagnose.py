@@ -1,103 +1,210 @@
-"""``chatterspec diagnose NAME [--methods smm,imm] [--runs N] [--seed S] [--json]``: fault diagnosis by mode
-probabilities, every method on the same realizations (issue 9 item 6, mode-based methods only).
+"""``chatterspec diagnose NAME [--methods chattering,smm,imm] [--runs N] [--seed S] [--json]
+[--record FILE.rrd]``: fault diagnosis side by side, every method on the same realizations (issue 9 item 6).
 
-The chattering route on the nonlinear plant (issue 9 item 5) is not available yet: ``--methods chattering``
-is rejected with a message saying so. ``--record`` (Rerun) is not implemented either.
+* ``smm``, ``imm``: mode probabilities (:mod:`chatterspec.studies.mode_diagnosis`);
+* ``chattering``: the STFT of the auxiliary sgn-SVSF's chattering against a calibrated per-frame threshold
+  (:mod:`chatterspec.studies.chattering_diagnosis`). The threshold is calibrated once per call on healthy
+  runs of the scenario's healthy version (other seeds; ``--calibration-runs`` runs plus, for a nonlinear
+  model, 200 pilot runs), or read from ``--calibration FILE`` (``chatterspec calibrate ... --save``; it
+  must be for the same nominal model and STFT settings; the per-frame threshold does not depend on the
+  record length).
+
+``--record FILE.rrd`` writes realization 0 to Rerun: the chattering spectrogram, frame verdicts and
+detection events of the online monitor, and the mode probabilities of smm / imm on the same timeline.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import time
 
 from ..errors import ParameterError
-from ._common import positive_int_arg, print_json
+from ._common import alpha_arg, check_record_path, positive_int_arg, print_json
+
+#: Every method ``--methods`` accepts.
+ALL_METHODS = ("chattering", "smm", "imm")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "diagnose",
-        help="fault diagnosis by mode probabilities (SMM-SVSF, IMM) on the same realizations",
+        help="fault diagnosis side by side (chattering spectrum, SMM-SVSF, IMM) on the same realizations",
         description="Runs each method on the same seeded realizations and reports false alarms on the "
-        "healthy samples (family-wise per run, 99%% Clopper-Pearson), detection and isolation delays per "
-        "fault onset (median, 90th percentile), the confusion matrix and the cost.",
+        "healthy segments (family-wise per run, 99%% Clopper-Pearson), detection delays per fault onset "
+        "(median, 90th percentile), isolation (confusion matrix; chattering: flagged channel and peak "
+        "frequency per segment) and the cost.",
     )
-    p.add_argument(
-        "name", metavar="NAME", help="scenario with filter_settings modes (e.g. eha4-leak-timeline)"
-    )
+    p.add_argument("name", metavar="NAME", help="scenario (e.g. eha4-leak-timeline, eha4-imm-analogue)")
     p.add_argument(
         "--methods",
         default=None,
-        help="comma-separated subset of smm,imm (default: those the scenario's filter_settings support)",
+        help="comma-separated subset of chattering,smm,imm (default: every method the scenario supports)",
     )
     p.add_argument("--runs", type=positive_int_arg, default=10, help="realizations (default 10)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument(
+        "--calibration",
+        metavar="FILE",
+        default=None,
+        help="chattering: saved calibration of the nominal model (default: calibrate on healthy runs now)",
+    )
+    p.add_argument(
+        "--calibration-runs",
+        type=positive_int_arg,
+        default=500,
+        help="chattering: healthy runs of the in-call calibration (default 500)",
+    )
+    p.add_argument(
+        "--alpha",
+        type=alpha_arg,
+        default=1e-3,
+        help="chattering: per-frame false-alarm probability of the in-call calibration (default 1e-3)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON document")
+    p.add_argument("--record", metavar="FILE.rrd", default=None, help="write realization 0 to a Rerun file")
     p.set_defaults(func=run)
 
 
-def _methods(text: str | None, fs: object) -> tuple[str, ...]:
-    from ..studies.mode_diagnosis import METHODS
-
-    if text is None:
-        out = []
-        if fs.psi is not None:  # type: ignore[attr-defined]
+def _supported(sc: object) -> tuple[str, ...]:
+    """The methods the scenario supports, in ALL_METHODS order."""
+    out = []
+    if getattr(sc.nominal, "full_measurement", False) and not sc.is_healthy:  # type: ignore[attr-defined]
+        out.append("chattering")
+    fs = sc.filter_settings  # type: ignore[attr-defined]
+    if fs is not None and fs.modes:
+        if fs.psi is not None:
             out.append("smm")
-        if fs.transition_matrix is not None:  # type: ignore[attr-defined]
+        if fs.transition_matrix is not None:
             out.append("imm")
-        return tuple(out)
+    return tuple(out)
+
+
+def _methods(text: str | None, sc: object) -> tuple[str, ...]:
+    supported = _supported(sc)
+    if text is None:
+        if not supported:
+            raise ParameterError(
+                f"scenario {sc.name!r} supports no diagnosis method (it needs a fault and a full "  # type: ignore[attr-defined]
+                "measurement, or filter_settings modes); try eha4-leak-timeline or eha4-imm-analogue"
+            )
+        return supported
     names = tuple(s.strip() for s in text.split(",") if s.strip())
+    if not names:
+        raise ParameterError(f"--methods takes a comma-separated subset of {','.join(ALL_METHODS)}; got none")
     for name in names:
-        if name == "chattering":
+        if name not in ALL_METHODS:
             raise ParameterError(
-                "the chattering method on the nonlinear plant is not available yet (issue 9 item 5); "
-                f"use --methods {','.join(METHODS)}"
+                f"--methods takes a comma-separated subset of {','.join(ALL_METHODS)}; got {name!r}"
             )
-        if name not in METHODS:
+        if name not in supported:
+            why = {
+                "chattering": "a faulty scenario whose nominal model measures every state",
+                "smm": "filter_settings with modes and psi",
+                "imm": "filter_settings with modes and a transition matrix",
+            }[name]
             raise ParameterError(
-                f"--methods takes a comma-separated subset of {','.join(METHODS)}; got {name!r}"
+                f"scenario {sc.name!r} does not support --methods {name} (it needs {why}); "  # type: ignore[attr-defined]
+                f"supported here: {','.join(supported) or 'none'}"
             )
-    return names
+    return tuple(dict.fromkeys(names))
+
+
+def _threshold(args: argparse.Namespace, sc: object) -> tuple[object, dict]:
+    from ..detection.spectral import STFTConfig
+
+    config = STFTConfig()
+    if args.calibration is not None:
+        from ..studies.calibration import load_calibration
+
+        cal = load_calibration(args.calibration, sc.nominal, config=config)  # type: ignore[attr-defined]
+        info = {"source": str(args.calibration), "runs": cal.runs, "alpha": cal.alpha, "seconds": 0.0}
+    else:
+        from ..studies.chattering_diagnosis import CALIBRATION_SALT, calibrate_for_diagnosis
+
+        t0 = time.perf_counter()
+        cal = calibrate_for_diagnosis(sc, args.seed, runs=args.calibration_runs, alpha=args.alpha)
+        info = {
+            "source": "calibrated now on healthy runs",
+            "runs": cal.runs,
+            "pilot_runs": cal.normalization_info.get("pilot_runs", 0),
+            "alpha": cal.alpha,
+            "seed": f"SeedSequence([{args.seed}, {CALIBRATION_SALT:#x}])",
+            "seconds": time.perf_counter() - t0,
+        }
+    q = cal.frame_family_wise
+    # per channel: the per-frame (1 - alpha)-quantile of max S / E_hat and its interval (inf: unbounded)
+    info["frame_quantile"] = [
+        [x if math.isfinite(x) else None for x in (v.value, v.ci_low, v.ci_high)] for v in q
+    ]
+    return cal.threshold("frame-family-wise"), info
 
 
 def run(args: argparse.Namespace) -> int:
     from ..plants.scenarios import scenario
-    from ..plants.simulate import simulate
-    from ..studies.mode_diagnosis import diagnose_modes
 
+    check_record_path(args.record)
     sc = scenario(args.name)
-    fs = sc.filter_settings
-    if fs is None or not fs.modes:
-        raise ParameterError(
-            f"scenario {sc.name!r} names no filter modes; try eha4-leak-timeline or eha4-imm-analogue"
-        )
-    methods = _methods(args.methods, fs)
+    methods = _methods(args.methods, sc)
+    from ..plants.simulate import simulate
+
+    threshold, info = _threshold(args, sc) if "chattering" in methods else (None, {})
+    t0 = time.perf_counter()
     sim = simulate(sc, runs=args.runs, seed=args.seed)
-    results = diagnose_modes(sim, methods)
+    sim_s = time.perf_counter() - t0
+    results: list = []
+    outputs: dict = {}
+    for method in methods:
+        if method == "chattering":
+            from ..studies.chattering_diagnosis import diagnose_chattering
+
+            results.append(diagnose_chattering(sim, threshold, calibration_info=info))
+        else:
+            from ..studies.mode_diagnosis import diagnose_modes
+
+            res = diagnose_modes(sim, (method,), keep=outputs if args.record else None)
+            results.extend(res)
+    recording = None
+    if args.record is not None:
+        from ..online.diagnosis_log import record_diagnosis
+
+        recording = record_diagnosis(args.record, sim, threshold, outputs)
     if args.json:
         print_json(
             {
                 "scenario": sc.name,
                 "runs": args.runs,
                 "seed": args.seed,
+                "simulation_s": sim_s,
                 "methods": [r.describe() for r in results],
+                "recording": None if recording is None else str(recording),
             }
         )
         return 0
-    print(f"diagnosis on {sc.name}: {args.runs} runs, seed {args.seed}; modes {', '.join(fs.modes)}")
-    print(
-        f"{'method':<7} {'FA runs [99% CI]':<24} {'healthy in alarm':>16}  {'onset':>6} "
-        f"{'detect med/p90 [ms]':>20} {'isolate med/p90 [ms]':>21} {'missed':>6}  {'steps/s':>9}"
-    )
-    for r in results:
-        fa = f"{r.false_alarm_rate:.3f} [{r.false_alarm_ci[0]:.3f}, {r.false_alarm_ci[1]:.3f}]"
-        for i, onset in enumerate(r.onsets):
-            head = f"{r.method:<7} {fa:<24} {r.healthy_alarm_fraction:>16.4f}" if i == 0 else " " * 49
-            print(
-                f"{head}  {onset:>6.2f} "
-                f"{1e3 * r.detection_median[i]:>9.2f}/{1e3 * r.detection_p90[i]:<10.2f} "
-                f"{1e3 * r.isolation_median[i]:>10.2f}/{1e3 * r.isolation_p90[i]:<10.2f} {r.missed[i]:>6}"
-                + (f"  {r.steps_per_second:>9.0f}" if i == 0 else "")
-            )
-        diag = ", ".join(f"{m} {r.confusion[j, j]:.1f}%" for j, m in enumerate(r.modes))
-        print(f"        confusion diagonal: {diag}")
+    _print_table(sc, args, results)
+    if recording is not None:
+        print(f"recording: {recording} (open with `chatterspec replay {recording}` or `rerun {recording}`)")
     return 0
+
+
+def _print_table(sc: object, args: argparse.Namespace, results: list) -> None:
+    from ..figures.plot_diagnosis import diagnosis_rows
+
+    print(f"diagnosis on {sc.name}: {args.runs} runs, seed {args.seed}")  # type: ignore[attr-defined]
+    header, rows = diagnosis_rows(results)
+    widths = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]
+    for r in [header, *rows]:
+        print("  ".join(str(c).ljust(w) for c, w in zip(r, widths, strict=True)).rstrip())
+    for r in results:
+        if r.method == "chattering":
+            c = r.calibration
+            print(
+                f"chattering threshold: {c.get('source')} ({c.get('runs')} runs, alpha "
+                f"{c.get('alpha'):g} per frame, {c.get('seconds', 0.0):.1f} s); "
+                f"{r.healthy_frames_per_run} healthy frames per run, "
+                f"flag fraction there {r.healthy_alarm_fraction:.4f}; delays are frame-end times (hop "
+                f"quantized); runs already in alarm at each onset: {list(r.in_alarm_at_onset)}"
+            )
+        else:
+            diag = ", ".join(f"{m} {r.confusion[j, j]:.1f}%" for j, m in enumerate(r.modes))
+            print(f"{r.method} confusion diagonal (mean probability of the true mode): {diag}")

@@ -66,6 +66,8 @@ class ModeDiagnosis:
         Mean mode probability per actual mode (percent; columns sum to 100).
     steps_per_second : float
         Realization-steps per second of the filter.
+    new_modes : tuple of int
+        Index of the mode switched to at each onset.
     """
 
     method: str
@@ -83,6 +85,7 @@ class ModeDiagnosis:
     missed: tuple[int, ...]
     confusion: np.ndarray
     steps_per_second: float
+    new_modes: tuple[int, ...] = ()
 
     def describe(self) -> dict[str, object]:
         """JSON-ready summary (NaN -> None)."""
@@ -106,6 +109,7 @@ class ModeDiagnosis:
             "missed": list(self.missed),
             "confusion_percent": [[f(v) for v in row] for row in self.confusion],
             "steps_per_second": self.steps_per_second,
+            "new_modes": [self.modes[i] for i in self.new_modes],
         }
 
 
@@ -142,7 +146,9 @@ def _delays(first: np.ndarray, t: np.ndarray, k0: int) -> np.ndarray:
     return np.where(first >= 0, t[k0 + np.maximum(first, 0)] - t[k0], np.nan)
 
 
-def diagnose_modes(sim: object, methods: Sequence[str] = METHODS) -> list[ModeDiagnosis]:
+def diagnose_modes(
+    sim: object, methods: Sequence[str] = METHODS, *, keep: dict | None = None
+) -> list[ModeDiagnosis]:
     """Run each mode-based method on the same realizations and measure its diagnosis figures.
 
     Parameters
@@ -152,6 +158,9 @@ def diagnose_modes(sim: object, methods: Sequence[str] = METHODS) -> list[ModeDi
         ``simulate(scenario("eha4-leak-timeline"), runs, seed)``.
     methods : sequence of str
         Any of :data:`METHODS`. IMM uses a bank of EKFs and the scenario's transition matrix.
+    keep : dict, optional
+        When given, ``keep[method]`` receives ``(t, mu, modes)``: the times ``sim.t[1:]`` (s), the mode
+        probabilities ``(runs, T - 1, r)`` and the mode names (for ``diagnose --record`` and figures).
 
     Returns
     -------
@@ -176,6 +185,8 @@ def diagnose_modes(sim: object, methods: Sequence[str] = METHODS) -> list[ModeDi
         t0 = time.perf_counter()
         out = filt.run(z, u, x0=x0, P0=P0)
         wall = time.perf_counter() - t0
+        if keep is not None:
+            keep[method] = (t, np.asarray(out.mu), tuple(fs.modes))
         am = out.argmax_mode
         alarm = am != 0
         healthy = true == 0
@@ -209,6 +220,7 @@ def diagnose_modes(sim: object, methods: Sequence[str] = METHODS) -> list[ModeDi
                 missed=tuple(missed),
                 confusion=confusion_matrix(out.mu, true),
                 steps_per_second=runs * T / wall if wall > 0 else float("inf"),
+                new_modes=tuple(int(true[k]) for k in change),
             )
         )
     return results
