@@ -1,14 +1,14 @@
 """Regenerate the diagnosis figures of issue 9 item 7 under figures/:
 
 * ``diagnosis_smm_table.png``: the ``chatterspec diagnose eha4-leak-timeline`` comparison table
-  (chattering and SMM-SVSF on the same ``--runs`` realizations);
+  (chattering, SMM-SVSF and IMM-EKF on the same ``--runs`` realizations);
 * ``smm_mode_weights.png``: SMM-SVSF mode weights over time, mean over the runs (the SMM paper's Fig 5),
   with the true mode shaded;
 * ``imm_confusion.png``: the IMM-EKF confusion matrix on ``eha4-imm-analogue`` (``--imm-runs`` runs;
-  0 skips it: the IMM bank runs at a few thousand realization-steps per second today).
+  0 skips it).
 
-Usage: ``python scripts/make_diagnosis_figures.py [--out figures] [--runs 100] [--seed 0] [--imm-runs 2]``
-(about 45 s for the SMM scenario at 100 runs, plus about 25 s per IMM run).
+Usage: ``python scripts/make_diagnosis_figures.py [--out figures] [--runs 100] [--seed 0] [--imm-runs 10]``
+(about 30 s for the SMM scenario at 100 runs, plus a few seconds for the IMM analogue).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ def main() -> None:
     p.add_argument("--out", default="figures")
     p.add_argument("--runs", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--imm-runs", type=int, default=2)
+    p.add_argument("--imm-runs", type=int, default=10)
     args = p.parse_args()
     out = Path(args.out)
     sc = cs.scenario("eha4-leak-timeline")
@@ -39,7 +39,7 @@ def main() -> None:
     sim = cs.simulate(sc, runs=args.runs, seed=args.seed)
     chat = diagnose_chattering(sim, cal.threshold("frame-family-wise"))
     keep: dict = {}
-    results = [chat, *diagnose_modes(sim, ("smm",), keep=keep)]
+    results = [chat, *diagnose_modes(sim, ("smm", "imm"), keep=keep)]
     wall = time.perf_counter() - t0
     header, rows = diagnosis_rows(results)
     print(" | ".join(header))

@@ -98,8 +98,19 @@ def test_mode_diagnosis_of_smm_on_the_leak_timeline() -> None:
     lo, hi = res.false_alarm_ci
     assert lo <= res.false_alarm_rate <= hi
     assert res.describe()["method"] == "smm" and res.steps_per_second > 0
+    # the IMM route on the same plant (chatterspec's transition matrix: 0.999 per 1 ms step): an EKF bank
+    # isolates both onsets within 5 ms and puts >= 95 % mean probability on the true mode in every segment
+    (imm,) = diagnose_modes(sim, ("imm",))
+    assert imm.missed == (0, 0) and max(imm.isolation_p90) <= 0.005
+    assert np.all(np.diag(imm.confusion) >= 95.0), np.diag(imm.confusion)
+    import dataclasses
+
+    sc = sim.scenario
+    bare = dataclasses.replace(
+        sc, filter_settings=dataclasses.replace(sc.filter_settings, transition_matrix=None)
+    )
     with pytest.raises(ParameterError, match="transition_matrix"):
-        diagnose_modes(sim, ("imm",))  # the SMM scenario prints no transition matrix
+        diagnose_modes(dataclasses.replace(sim, scenario=bare), ("imm",))
     with pytest.raises(ParameterError, match="method must be"):
         diagnose_modes(sim, ("chattering",))
 
@@ -114,7 +125,7 @@ def test_diagnose_command_json_and_errors(capsys) -> None:  # type: ignore[no-un
     doc = json.loads(capsys.readouterr().out)
     assert doc["scenario"] == "eha4-leak-timeline" and [m["method"] for m in doc["methods"]] == ["smm"]
     assert doc["methods"][0]["onsets_s"] == pytest.approx([3.0, 6.0])
-    assert main(["diagnose", "eha4-leak-timeline", "--methods", "imm"]) == 2
-    assert "does not support --methods imm" in capsys.readouterr().err
+    assert main(["diagnose", "eha4-imm-analogue", "--methods", "chattering"]) == 2
+    assert "does not support --methods chattering" in capsys.readouterr().err
     assert main(["diagnose", "eha-healthy"]) == 2
     assert "supports no diagnosis method" in capsys.readouterr().err

@@ -444,8 +444,12 @@ def _eha4_leak_timeline() -> Scenario:
         mode_models=models,
         mu0=(1 / 3, 1 / 3, 1 / 3),
         weight_floor=1e-3,
+        # for the IMM route of `chatterspec diagnose` on the same plant (the SMM paper has no IMM):
+        # stay 0.999 per 1 ms step, i.e. a mean dwell of 1 s in each mode, leave uniformly
+        transition_matrix=np.full((3, 3), 0.0005) + np.eye(3) * (0.999 - 0.0005),
         source="SMM paper section 5: Q = 1e-9 I4, R = 1e-6 I4, P0 = 10 Q, x0 = 0; gamma, psi and the "
-        "weight floor are the note's choices (section 2.3), not printed",
+        "weight floor are the note's choices (section 2.3), not printed; the transition matrix "
+        "(0.999 on the diagonal per 1 ms step) is chatterspec's, for the IMM route of `diagnose`",
     )
     return Scenario(
         name="eha4-leak-timeline",
