@@ -342,3 +342,37 @@ def test_signal_rows_and_float64_spectra(tmp_path: Path, sim) -> None:
         np.testing.assert_array_equal(np.asarray(cols[-1][0]["buffer"]), last.power[-1, :, c])
     with pytest.raises(ParameterError, match="spectrum_dtype"):
         rerun_log.RerunLogger(viewer.Sinks(), mon, spectrum_dtype="float16")
+
+
+def test_peak_hz_series_is_the_largest_excess_among_flagged_bins(tmp_path: Path) -> None:
+    """The per-frame ``peak_hz`` series follows the batch report's rule, recomputed here from the batch
+    spectrogram: the largest S - E among the bins over the threshold when a frame has any, else over
+    all tested bins. On minor leakage (seed 0) the overall largest excess of flagged frames sits on
+    healthy high-frequency noise (the old rule: up to ~400 Hz once the footprint fades)."""
+    from chatterspec.detection.spectral import expected_frame_spectrum
+
+    sim = cs.simulate(cs.scenario("eha-leak-minor"), runs=1, seed=0)
+    rec = chattering_record(sim.scenario.nominal, sim.z, sim.u, scenario=sim.scenario)
+    spec = spectrogram(rec.values[0], rec.dt, t0=rec.t[0])
+    thr = frame_threshold(rec.model, spec.freqs_hz, spec.config, rec.dt)
+    flags = detect_frames(spec, thr)
+    expected = expected_frame_spectrum(rec.model, spec.freqs_hz, spec.config, rec.dt)
+    path = tmp_path / "p.rrd"
+    drivers.record_detection(sim, path=path, chunk_samples=1000)
+    t = thr.tested
+    f_t = spec.freqs_hz[t]
+    reader = RrdReader(path)
+    c = rec.channels.index("pressure")
+    _, got = _column(reader, "/frequency/pressure/peak_hz", "Scalars:scalars")
+    got = np.asarray(got)[:, 0]
+    want, overall = [], []
+    for j in range(spec.n_frames):
+        s = spec.power[j, t, c]
+        excess = s - expected[t, c]
+        over = s > thr.values[t, c]
+        overall.append(f_t[np.argmax(excess)])
+        want.append(f_t[np.argmax(np.where(over, excess, -np.inf))] if over.any() else overall[-1])
+    np.testing.assert_array_equal(got, want)
+    fl = flags[:, c]
+    assert fl.any() and np.all((got[fl] >= 10.0) & (got[fl] <= 100.0))  # inside the chirp band
+    assert np.any(np.asarray(overall)[fl] > 100.0)  # where the old rule left the footprint

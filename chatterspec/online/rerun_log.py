@@ -127,7 +127,8 @@ class RerunLogger:
     frame spectrum (``Tensor``, float32 by default, see ``spectrum_dtype``); the detection statistic
     ``10 log10(max_k S_k / threshold_k)`` in dB (0 dB = threshold) with the
     flagged frames as red points and the 0/1 verdict; ``peak_hz`` (largest excess
-    power ``S - E`` over the tested bins) and ``most_significant_hz`` (largest
+    power ``S - E``, among the bins over the threshold when there are any, else over
+    the tested bins) and ``most_significant_hz`` (largest
     ``S / threshold``, the detector's peak) in Hz. The verdict lanes start with
     ``healthy`` (or the monitor's current state) before the first frame and change
     exactly at the events.
@@ -217,6 +218,7 @@ class RerunLogger:
         self._tested = slice(int(tested[0]), int(tested[-1]) + 1) if contiguous else tested
         self._tested_hz = freqs[tested]
         self._tested_expected = np.ascontiguousarray(self._expected[tested])  # (k, m)
+        self._tested_thr = np.ascontiguousarray(thr.values[tested])  # (k, m)
         lo, hi = default_band_hz(monitor) if band_hz is None else (float(band_hz[0]), float(band_hz[1]))
         inside = np.flatnonzero((freqs >= lo - 1e-9) & (freqs <= hi + 1e-9))
         if inside.size == 0:
@@ -487,8 +489,17 @@ class RerunLogger:
             for f in frames:
                 b = a + f.n_frames
                 spectra[:, a:b] = np.moveaxis(f.power, 2, 0)
-                excess = f.power[:, self._tested, :] - self._tested_expected
-                peak_hz[a:b] = self._tested_hz[np.argmax(excess, axis=1)]
+                # the largest excess among the bins over the threshold when there are any (as the batch
+                # report's peak_hz): a frame's overall largest excess sits on noise once a fault fades
+                p_t = f.power[:, self._tested, :]
+                excess = p_t - self._tested_expected
+                over = p_t > self._tested_thr
+                k = np.where(
+                    over.any(axis=1),
+                    np.argmax(np.where(over, excess, -np.inf), axis=1),
+                    np.argmax(excess, axis=1),
+                )
+                peak_hz[a:b] = self._tested_hz[k]
                 a = b
             zero = cols.scalars_column(np.zeros(2))
             for i, c in enumerate(self.keys):
