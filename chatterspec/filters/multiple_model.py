@@ -423,8 +423,48 @@ def _check_data(z: object, u: object, runs: int, m: int, p: int) -> tuple[np.nda
 
 
 # ------------------------------------------------------------------------------------------ SMM
+class _RecordRunner:
+    """``run`` shared by the banks: :meth:`initialize` then one :meth:`update` over whole records."""
+
+    def run(
+        self,
+        z: np.ndarray,
+        u: np.ndarray,
+        *,
+        x0: np.ndarray,
+        P0: np.ndarray,
+        store_covariance: bool = False,
+        store_modes: bool = False,
+    ) -> MultipleModelOutput:
+        """Filter whole records: :meth:`initialize` then one :meth:`update`.
+
+        Parameters
+        ----------
+        z : (runs, T, m) array
+            Measurements ``z(1) .. z(T)``.
+        u : (T, p) or (runs, T, p) array
+            Inputs ``u(0) .. u(T-1)``.
+        x0 : (n,) or (runs, n) array
+            ``x(0|0)``.
+        P0 : (n, n) or (runs, n, n) array
+            ``P(0|0)``.
+        store_covariance : bool
+            See :meth:`update`.
+        store_modes : bool
+            See :meth:`update`.
+
+        Returns
+        -------
+        MultipleModelOutput
+        """
+        zz = finite_array("z", z, ndim=(2, 3))
+        runs = 1 if zz.ndim == 2 else zz.shape[0]
+        state = self.initialize(x0, P0, runs=runs)
+        return self.update(state, zz, u, store_covariance=store_covariance, store_modes=store_modes)[1]
+
+
 @dataclass(frozen=True, eq=False)
-class SMMSVSF:
+class SMMSVSF(_RecordRunner):
     """SMM-SVSF: static multiple models inside the SVSF with covariance ([SMM] eq 3.1-3.5, Table 1).
 
     Parameters
@@ -661,46 +701,10 @@ class SMMSVSF:
             new = state
         return new, MultipleModelOutput(x, o_mu, ll, tuple(self.modes), P, xs if store_modes else None)  # type: ignore[arg-type]
 
-    def run(
-        self,
-        z: np.ndarray,
-        u: np.ndarray,
-        *,
-        x0: np.ndarray,
-        P0: np.ndarray,
-        store_covariance: bool = False,
-        store_modes: bool = False,
-    ) -> MultipleModelOutput:
-        """Filter whole records: :meth:`initialize` then one :meth:`update`.
-
-        Parameters
-        ----------
-        z : (runs, T, m) array
-            Measurements ``z(1) .. z(T)``.
-        u : (T, p) or (runs, T, p) array
-            Inputs ``u(0) .. u(T-1)``.
-        x0 : (n,) or (runs, n) array
-            ``x(0|0)``.
-        P0 : (n, n) or (runs, n, n) array
-            ``P(0|0)``.
-        store_covariance : bool
-            See :meth:`update`.
-        store_modes : bool
-            See :meth:`update`.
-
-        Returns
-        -------
-        MultipleModelOutput
-        """
-        zz = finite_array("z", z, ndim=(2, 3))
-        runs = 1 if zz.ndim == 2 else zz.shape[0]
-        state = self.initialize(x0, P0, runs=runs)
-        return self.update(state, zz, u, store_covariance=store_covariance, store_modes=store_modes)[1]
-
 
 # ------------------------------------------------------------------------------------------ IMM
 @dataclass(frozen=True, eq=False)
-class IMM:
+class IMM(_RecordRunner):
     """Interacting multiple model estimator ([IMM] eq 15-33, corrected per note §1.6), batched.
 
     Parameters
@@ -920,39 +924,3 @@ class IMM:
         )
         out = MultipleModelOutput(o["x"], o["mu"], o["ll"], tuple(self.modes), o["P"], o["mx"])  # type: ignore[arg-type]
         return new, out
-
-    def run(
-        self,
-        z: np.ndarray,
-        u: np.ndarray,
-        *,
-        x0: np.ndarray,
-        P0: np.ndarray,
-        store_covariance: bool = False,
-        store_modes: bool = False,
-    ) -> MultipleModelOutput:
-        """Filter whole records: :meth:`initialize` then one :meth:`update`.
-
-        Parameters
-        ----------
-        z : (runs, T, m) array
-            Measurements ``z(1) .. z(T)``.
-        u : (T, p) or (runs, T, p) array
-            Inputs ``u(0) .. u(T-1)``.
-        x0 : (n,) or (runs, n) array
-            ``x(0|0)``.
-        P0 : (n, n) or (runs, n, n) array
-            ``P(0|0)``.
-        store_covariance : bool
-            See :meth:`update`.
-        store_modes : bool
-            See :meth:`update`.
-
-        Returns
-        -------
-        MultipleModelOutput
-        """
-        zz = finite_array("z", z, ndim=(2, 3))
-        runs = 1 if zz.ndim == 2 else zz.shape[0]
-        state = self.initialize(x0, P0, runs=runs)
-        return self.update(state, zz, u, store_covariance=store_covariance, store_modes=store_modes)[1]
