@@ -200,3 +200,67 @@ def test_simulation_kernels_equal_their_python_form_bitwise() -> None:
     z = np.swapaxes(outs[0][1], 0, 1)
     e_ref = f.run(z, np.broadcast_to(u, (2, 40, u.shape[1]))).e_prior[:, 1:]
     np.testing.assert_array_equal(outs[2][0], e_ref)
+
+
+def _closed_form_inputs(runs: int, layout: str, K: int = 700, per_run_input: bool = False):
+    """Random measurements of EHA scale in either memory layout, and inputs shared or per run."""
+    rng = np.random.default_rng(100 + runs)
+    scale = np.array([1e-3, 1e-2, 1e6])  # position (m), velocity (m/s), pressure (Pa): mixed magnitudes
+    if layout == "time-major":
+        z = np.swapaxes(rng.standard_normal((K + 1, runs, 3)), 0, 1) * scale
+    else:
+        z = rng.standard_normal((runs, K + 1, 3)) * scale
+    u = rng.standard_normal((runs, K + 1, 1) if per_run_input else (K + 1, 1)) * 50.0
+    return z, u
+
+
+@needs_numba
+@pytest.mark.parametrize("runs", [1, 64])
+@pytest.mark.parametrize("layout", ["time-major", "realization-major"])
+@pytest.mark.parametrize("per_run_input", [False, True])
+def test_compiled_closed_form_is_bitwise_the_numpy_closed_form(
+    runs: int, layout: str, per_run_input: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Eq (23) compiled: the same element-wise operations in the same order, so the same bits.
+
+    (numba without fastmath does not contract a * b - c into an FMA; an FMA would change the
+    last bit of some samples and this exact comparison would fail.) Chunked calls too, in both
+    layouts, since the online monitor feeds the filter in pieces of any size.
+    """
+    f = auxiliary_svsf(scenario("eha-healthy").nominal)
+    z, u = _closed_form_inputs(runs, layout, per_run_input=per_run_input)
+    out = {}
+    for jit in ("1", "0"):
+        monkeypatch.setenv("CHATTERSPEC_JIT", jit)
+        whole = f.run(z, u).e_prior
+        state, pieces = f.initialize(z[:, 0]), []
+        for lo, hi in [(1, 2), (2, 300), (300, 301), (301, 701)]:
+            state, o = f.update(state, z[:, lo:hi], u[..., lo - 1 : hi - 1, :])
+            pieces.append(o.e_prior)
+        out[jit] = (whole, np.concatenate(pieces, axis=1))
+        assert out[jit][0].strides == out["1"][0].strides  # the same memory layout on both paths
+    np.testing.assert_array_equal(out["1"][0], out["0"][0])
+    np.testing.assert_array_equal(out["1"][1], out["0"][1])
+    np.testing.assert_array_equal(out["1"][1], out["1"][0][:, 1:])
+
+
+@needs_numba
+def test_closed_form_kernel_equals_its_python_form() -> None:
+    f = auxiliary_svsf(scenario("eha-healthy").nominal)
+    z, u = _closed_form_inputs(2, "realization-major", K=30)
+    Gu = svsf_mod._rows_times(u[:-1], f._GT)[None]
+    y0 = z[:, 0].copy()
+    outs = []
+    for kernel in (svsf_mod._closed_form_kernel, svsf_mod._closed_form_kernel.py_func):
+        for time_major in (True, False):
+            e = np.empty((2, 30, 3))
+            kernel(z[:, 1:], Gu, f._PhiT, y0, e, time_major)
+            outs.append(e)
+    for e in outs[1:]:
+        np.testing.assert_array_equal(e, outs[0])
+    # and the Python form is eq (23) written out: e(k+1|k) = z(k+1) - Phi z(k) - G u(k), up to the
+    # rounding of the einsum's other summation order: a few ulps of the terms' magnitude, bounded
+    # element-wise by REL_TOL (1e-12, ~1e4 ulps) times the sum of the terms' absolute values
+    ref = z[:, 1:] - np.einsum("ij,rkj->rki", f._PhiT.T, z[:, :-1]) - Gu
+    size = np.abs(z[:, 1:]) + np.einsum("ij,rkj->rki", np.abs(f._PhiT.T), np.abs(z[:, :-1])) + np.abs(Gu)
+    assert np.all(np.abs(outs[1] - ref) <= REL_TOL * size)

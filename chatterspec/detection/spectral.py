@@ -416,34 +416,74 @@ def frame_columns(
     dt = positive("dt", dt, unit="s")
     if isinstance(first_sample, bool) or not isinstance(first_sample, int | np.integer) or first_sample < 0:
         raise ParameterError(f"first_sample must be an integer >= 0; got {first_sample!r}")
-    W, H = config.n_window(dt), config.n_hop(dt)
-    n = x.shape[-2]
-    j_first = -(-int(first_sample) // H)  # first global frame starting at or after first_sample
-    j_last = (int(first_sample) + n - W) // H  # last global frame ending inside x
-    n_bins = W // 2 + 1
-    if j_last < j_first:
-        return np.arange(0), np.zeros((*x.shape[:-2], 0, n_bins, x.shape[-1]))
-    n_frames = j_last - j_first + 1
-    offset = j_first * H - int(first_sample)
-    seg = x[..., offset : offset + (n_frames - 1) * H + W, :]
-    w = _stft_engine(config.window, W, H, dt).win
-    # ShortTimeFFT.stft(seg, k_offset=W // 2) computes rfft(seg[p H : p H + W] * win.conj(), n=W)
-    # one frame per Python iteration; the same products and the same scipy.fft.rfft over a block
-    # of frames at once give bit-identical columns (tests/test_spectral.py) with ~1.4x less CPU per
-    # frame (the online monitor calls this for every push). Blocks of frames keep the windowed
-    # copy cache-sized (2^15 values, 256 kB; measured faster than 2^22) whatever the runs axes.
-    seg = np.moveaxis(seg, -2, -1)  # (..., m, n): time last
-    frames = np.lib.stride_tricks.sliding_window_view(seg, W, axis=-1)[..., ::H, :]  # (..., m, F, W)
-    per_frame = max(1, int(np.prod(seg.shape[:-1], dtype=np.int64)) * W)
-    block = max(1, (1 << 15) // per_frame)
-    scale = float(np.dot(w, w))
-    power = np.empty((*seg.shape[:-2], n_frames, n_bins, seg.shape[-2]))
-    for lo in range(0, n_frames, block):
-        hi = min(lo + block, n_frames)
-        Y = scipy.fft.rfft(frames[..., lo:hi, :] * w.conj(), n=W, axis=-1)  # (..., m, f, bins)
-        p = (Y.real**2 + Y.imag**2) / scale
-        power[..., lo:hi, :, :] = np.moveaxis(p, -3, -1)  # (..., f, bins, m)
-    return np.arange(j_first, j_last + 1), power
+    return _FrameEngine(config, dt)(x, int(first_sample))
+
+
+class _FrameEngine:
+    """:func:`frame_columns` for one ``(config, dt)``, unchecked, with reusable scratch buffers.
+
+    ``ShortTimeFFT.stft(seg, k_offset=W // 2)`` computes ``rfft(seg[p H : p H + W] * win.conj(), n=W)``
+    one frame per Python iteration; the same products and the same ``scipy.fft.rfft`` over a block of
+    frames at once give bit-identical columns (tests/test_spectral.py) with much less CPU per frame.
+    ``|Y|^2 / sum w^2`` is evaluated as ``(Re Y * Re Y + Im Y * Im Y) / scale``, the same correctly
+    rounded operations as ``(Y.real**2 + Y.imag**2) / scale`` (numpy's ``x**2`` is ``x * x``), written
+    straight into the ``(..., frames, bins, m)`` output. Blocks of frames keep the windowed copy
+    cache-sized (2^15 values, 256 kB) whatever the runs axes.
+
+    The online monitor keeps one engine per monitor, so that a push allocates only its output
+    (the windowed frames and the spectrum's real part live in buffers kept between calls):
+    one engine must not be shared between threads. :func:`frame_columns` makes a new one per call.
+    The caller has validated ``x`` (a float array, time on axis -2) and ``first_sample`` (int >= 0).
+    """
+
+    def __init__(self, config: STFTConfig, dt: float) -> None:
+        self.W, self.H = config.n_window(dt), config.n_hop(dt)
+        self.n_bins = self.W // 2 + 1
+        w = _stft_engine(config.window, self.W, self.H, dt).win
+        self.win = np.ascontiguousarray(w.conj())
+        self.scale = float(np.dot(w, w))
+        self._work: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
+
+    def _buffers(self, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+        bufs = self._work.get(shape)
+        if bufs is None:
+            if len(self._work) > 4:  # a handful of shapes (full blocks, the last block, one per push size)
+                self._work.clear()
+            bufs = (np.empty(shape), np.empty((*shape[:-1], self.n_bins)))
+            self._work[shape] = bufs
+        return bufs
+
+    def __call__(self, x: np.ndarray, first_sample: int) -> tuple[np.ndarray, np.ndarray]:
+        W, H, n_bins = self.W, self.H, self.n_bins
+        n = x.shape[-2]
+        j_first = -(-first_sample // H)  # first global frame starting at or after first_sample
+        j_last = (first_sample + n - W) // H  # last global frame ending inside x
+        lead, m = x.shape[:-2], x.shape[-1]
+        if j_last < j_first:
+            return np.arange(0), np.zeros((*lead, 0, n_bins, m))
+        n_frames = j_last - j_first + 1
+        offset = j_first * H - first_sample
+        seg = x[..., offset : offset + (n_frames - 1) * H + W, :]
+        s_t, s_c = seg.strides[-2], seg.strides[-1]
+        # (..., m, F, W) view: frame f of channel c is seg[..., f H : f H + W, c]
+        frames = np.lib.stride_tricks.as_strided(
+            seg, (*lead, m, n_frames, W), (*seg.strides[:-2], s_c, H * s_t, s_t), writeable=False
+        )
+        per_frame = max(1, int(np.prod(lead, dtype=np.int64)) * m * W)
+        block = max(1, (1 << 15) // per_frame)
+        power = np.empty((*lead, n_frames, n_bins, m))
+        pv = np.moveaxis(power, -1, -3)  # (..., m, F, bins) view of the output
+        for lo in range(0, n_frames, block):
+            hi = min(lo + block, n_frames)
+            tapered, re2 = self._buffers((*lead, m, hi - lo, W))
+            np.multiply(frames[..., lo:hi, :], self.win, out=tapered)
+            Y = scipy.fft.rfft(tapered, n=W, axis=-1)  # (..., m, f, bins)
+            out = pv[..., lo:hi, :]
+            np.multiply(Y.real, Y.real, out=re2)
+            np.multiply(Y.imag, Y.imag, out=out)
+            np.add(re2, out, out=out)
+            np.divide(out, self.scale, out=out)
+        return np.arange(j_first, j_last + 1), power
 
 
 def spectrogram(x: np.ndarray, dt: float, config: STFTConfig = DEFAULT_STFT, t0: float = 0.0) -> Spectrogram:

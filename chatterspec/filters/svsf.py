@@ -137,6 +137,9 @@ class SVSF:
     _L: np.ndarray | None = field(init=False, repr=False)  # Phi22 Phi12^-1, (n-m, m)
     _P: np.ndarray | None = field(init=False, repr=False)  # Phi12^-1, (n-m, m)
     _inv_psi: np.ndarray | None = field(init=False, repr=False)
+    _kernel_consts: tuple = field(
+        init=False, repr=False
+    )  # (PhiT, L, P, inv_psi, gamma, S_inv) for the kernel
 
     def __post_init__(self) -> None:
         if isinstance(self.model, NonlinearModel):  # a specific error, not a TypeError traceback
@@ -175,6 +178,17 @@ class SVSF:
         object.__setattr__(self, "_L", L)
         object.__setattr__(self, "_P", P)
         object.__setattr__(self, "_inv_psi", self._boundary_layer_inverse())
+        # C-contiguous float constants of the compiled kernel (one specialization serves every call)
+        c, empty2 = np.ascontiguousarray, np.empty((0, 0))
+        consts = (
+            c(self._PhiT, dtype=float),
+            empty2 if L is None else c(L, dtype=float),
+            empty2 if P is None else c(P, dtype=float),
+            np.empty(0) if self._inv_psi is None else c(self._inv_psi, dtype=float),
+            float(self.gamma),
+            c(S_inv, dtype=float),
+        )
+        object.__setattr__(self, "_kernel_consts", consts)
 
     def _boundary_layer_inverse(self) -> np.ndarray | None:
         if self.switching == "sgn":
@@ -291,7 +305,7 @@ class SVSF:
         scale, tests/test_kernels.py), since BLAS orders the sums of the
         numpy loop's matrix products differently.
         """
-        m, n = self.model.n_outputs, self.model.n_states
+        m = self.model.n_outputs
         runs = state.runs
         if check:
             z = finite_array("z", z, ndim=(2, 3))
@@ -313,7 +327,26 @@ class SVSF:
                 f"{self.model.n_inputs}); got {u.shape}"
             )
         Gu = _rows_times(u, self._GT)  # (K, n) or (runs, K, n): G u(k), element-wise
-        if closed_form and self._inv_psi is None and self._L is None and not np.any(state.e_post):
+        return self._advance(state, z, Gu, store_states, store_post_error, store_lower, closed_form)
+
+    def _advance(
+        self,
+        state: SVSFState,
+        z: np.ndarray,
+        Gu: np.ndarray,
+        store_states: bool = False,
+        store_post_error: bool = False,
+        store_lower: bool = False,
+        closed_form: bool = True,
+    ) -> tuple[SVSFState, SVSFOutput]:
+        """:meth:`update` after its checks, from ``Gu`` = G u(k) ((K, n) or (runs, K, n), ``_rows_times``).
+
+        ``z`` is a float (runs, K, m) array. The online monitor calls this directly with one ``Gu``
+        for both its filters (same model, same G): the numbers are those of :meth:`update`.
+        """
+        m, n = self.model.n_outputs, self.model.n_states
+        runs, K = z.shape[0], z.shape[1]
+        if closed_form and self._inv_psi is None and self._L is None and not state.e_post.any():
             return self._update_closed_form(state, z, Gu, store_states, store_post_error)
         if _jit.enabled():
             return self._update_compiled(state, z, Gu, store_states, store_post_error, store_lower)
@@ -413,28 +446,10 @@ class SVSF:
         x_out = np.empty((runs, K, n)) if store_states else none
         ep_out = np.empty((runs, K, m)) if store_post_error else none
         lower_out = np.empty((runs, K, n - m)) if (store_lower and n > m) else none
-        empty2 = np.empty((0, 0))
-        L = empty2 if self._L is None else c(self._L, dtype=float)
-        P = empty2 if self._P is None else c(self._P, dtype=float)
-        inv_psi = np.empty(0) if self._inv_psi is None else c(self._inv_psi, dtype=float)
+        PhiT, L, P, inv_psi, gamma, S_inv = self._kernel_consts
         y = np.array(state.y, dtype=float, order="C", copy=True)
         ep = np.array(state.e_post, dtype=float, order="C", copy=True)
-        _svsf_kernel(
-            z,
-            Gu,
-            c(self._PhiT, dtype=float),
-            L,
-            P,
-            inv_psi,
-            float(self.gamma),
-            c(self._S_inv, dtype=float),
-            y,
-            ep,
-            e_out,
-            x_out,
-            ep_out,
-            lower_out,
-        )
+        _svsf_kernel(z, Gu, PhiT, L, P, inv_psi, gamma, S_inv, y, ep, e_out, x_out, ep_out, lower_out)
         return SVSFState(y=y, e_post=ep, k=state.k + K), SVSFOutput(
             e_prior=e_out,
             x_post=x_out if store_states else None,
@@ -454,7 +469,15 @@ class SVSF:
             Gu = np.broadcast_to(Gu, (runs, K, n))  # u given as (1, K, p) for every run
         # Element-wise, in a fixed order per element: (z_i - G_i u) - sum_j Phi_ij y_j, so the
         # bits do not depend on the chunking or on which memory layout is used below.
-        if z.strides[1] >= z.strides[0]:
+        time_major = z.strides[1] >= z.strides[0]
+        if _jit.enabled():
+            # the same operations, in the same order, in one compiled pass (no FMA contraction
+            # without fastmath: bit-identical to the numpy branches below, tests/test_kernels.py);
+            # the output has the numpy branch's memory layout, so later steps see the same strides
+            store = np.empty((K, runs, m)) if time_major else np.empty((m, runs, K))
+            e = np.swapaxes(store, 0, 1) if time_major else np.moveaxis(store, 0, 2)
+            _closed_form_kernel(z, Gu if not shared_input else Gu[None], PhiT, state.y, e, time_major)
+        elif time_major:
             # time-major storage (e.g. simulate() output): blocks of time steps, all runs
             zt = np.swapaxes(z, 0, 1)  # (K, runs, m)
             gt = Gu[:, None, :] if shared_input else np.swapaxes(Gu, 0, 1)  # (K, 1|runs, n)
@@ -657,6 +680,49 @@ def _svsf_kernel(
             y[r, j] = yc[j]
         for j in range(m):
             ep[r, j] = epc[j]
+
+
+@_jit.njit
+def _closed_form_kernel(
+    z: np.ndarray, Gu: np.ndarray, PhiT: np.ndarray, y0: np.ndarray, e_out: np.ndarray, time_major: bool
+) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_kernels.py)
+    """Eq (23) of the sgn filter with e(k|k) = 0 (:meth:`SVSF._update_closed_form`), compiled.
+
+    ``z`` (runs, K, m) = z(k+1); ``Gu`` (1 or runs, K, m) = G u(k); ``PhiT`` = Phi^T (m, m);
+    ``y0`` (runs, m) = y(k|k) before the chunk; ``e_out`` (runs, K, m) receives e(k+1|k), any strides.
+    Per element ``acc = z_i(k+1) - G_i u(k)``, then ``acc -= Phi_ij y_j(k|k)`` for j = 0 .. m-1
+    with ``y(k|k) = z(k)`` (``y0`` at the chunk's first sample): exactly the operations and order
+    of the numpy closed form, so the same bits. ``time_major`` only picks the loop nest that walks
+    memory in order (samples outer for time-major storage, runs outer otherwise).
+    """
+    runs, K, m = z.shape
+    shared = Gu.shape[0] == 1
+    if time_major:
+        for k in range(K):
+            for r in range(runs):
+                g = 0 if shared else r
+                for i in range(m):
+                    acc = z[r, k, i] - Gu[g, k, i]
+                    if k == 0:
+                        for j in range(m):
+                            acc -= PhiT[j, i] * y0[r, j]
+                    else:
+                        for j in range(m):
+                            acc -= PhiT[j, i] * z[r, k - 1, j]
+                    e_out[r, k, i] = acc
+    else:  # the same element loop body, runs outer
+        for r in range(runs):
+            g = 0 if shared else r
+            for k in range(K):
+                for i in range(m):
+                    acc = z[r, k, i] - Gu[g, k, i]
+                    if k == 0:
+                        for j in range(m):
+                            acc -= PhiT[j, i] * y0[r, j]
+                    else:
+                        for j in range(m):
+                            acc -= PhiT[j, i] * z[r, k - 1, j]
+                    e_out[r, k, i] = acc
 
 
 def _rows_times(a: np.ndarray, MT: np.ndarray) -> np.ndarray:

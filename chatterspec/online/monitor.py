@@ -35,11 +35,11 @@ from typing import Literal
 import numpy as np
 
 from .._validate import finite_array, open_unit, positive_int
-from ..detection.spectral import STFTConfig, frame_columns
+from ..detection.spectral import STFTConfig, _FrameEngine
 from ..detection.thresholds import Threshold, check_band, frame_threshold
 from ..errors import ParameterError, ShapeError
 from ..filters.nonlinear_svsf import NonlinearSgnSVSF
-from ..filters.svsf import SVSF, SVSFState, auxiliary_svsf
+from ..filters.svsf import SVSF, SVSFState, _rows_times, auxiliary_svsf
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
 
@@ -339,6 +339,7 @@ class ChatteringMonitor:
         self._buf = np.empty((self.n_window + self.n_hop, m))
         self._n_buf = 0
         self._verdicts = _Verdicts(self.threshold)
+        self._columns = _FrameEngine(s.stft, self.dt)  # frame_columns with this monitor's scratch buffers
         self._no_frames = self._empty_frames()
         self._n_frames = 0
         self._active = np.zeros(m, dtype=bool)
@@ -423,13 +424,16 @@ class ChatteringMonitor:
         u_used[0] = self._pending_u
         u_used[1:] = u[:-1]
         self._pending_u = u[-1].copy()
-        self._aux_state, out = self._aux.update(self._aux_state, z[None], u_used, check=False)
+        if isinstance(self._aux, SVSF):
+            # the checks of SVSF.update are done above; both filters share the model, hence G u(k)
+            Gu = _rows_times(u_used, self._aux._GT)
+            self._aux_state, out = self._aux._advance(self._aux_state, z[None], Gu)
+        else:
+            self._aux_state, out = self._aux.update(self._aux_state, z[None], u_used, check=False)
         e = out.e_prior[0]
         estimate = None
         if self._sat is not None:
-            self._sat_state, sat_out = self._sat.update(
-                self._sat_state, z[None], u_used, store_states=True, check=False
-            )
+            self._sat_state, sat_out = self._sat._advance(self._sat_state, z[None], Gu, store_states=True)
             estimate = sat_out.x_post[0] @ self.model.C.T
         t = self.t0 + (self._n_meas + np.arange(K)) * self.dt
         self._n_meas += K
@@ -526,7 +530,7 @@ class ChatteringMonitor:
             data = self._buf[:n]
         else:
             data = np.concatenate([self._buf[:nb], e])
-        idx, power = frame_columns(data, self.dt, self.settings.stft, buf_start)
+        idx, power = self._columns(data, buf_start)
         self._n_frames = int(idx[-1]) + 1
         keep = data[self._n_frames * H - buf_start :]  # < W samples: the next frame's start on
         self._buf[: keep.shape[0]] = keep  # numpy copes with the overlap when data is self._buf
