@@ -358,3 +358,48 @@ def test_frame_columns_bit_identical_to_short_time_fft(window, window_s, hop_s, 
     Y = sft.stft(seg, p0=0, p1=j.size, k_offset=W // 2, axis=-1)  # the former implementation
     ref = np.swapaxes((Y.real**2 + Y.imag**2) / float(np.dot(sft.win, sft.win)), -3, -1)
     np.testing.assert_array_equal(power, ref)
+
+
+@pytest.mark.parametrize(
+    ("window", "window_s", "hop_s", "shape", "first"),
+    [
+        ("hamming", 1.0, 0.2, (1800, 3), 0),  # the online monitor's push: one run, 5 frames
+        ("hamming", 1.0, 0.2, (2, 4000, 3), 7),
+        ("hann", 0.101, 0.033, (5001, 2), 3),
+        ("hamming", 1.0, 0.2, (60, 3000, 3), 0),  # frame blocks of one frame (bounded windowed copy)
+    ],
+)
+def test_frame_engine_compiled_loops_give_the_numpy_bits(window, window_s, hop_s, shape, first):
+    """The monitor's compiled taper / power loops: the same products, sums and divisions, so the same bits.
+
+    (numba without fastmath does not contract ``re * re + im * im`` into an FMA, which would change
+    the last bit of some bins; the Python form of each kernel is checked too.)
+    """
+    from chatterspec import _jit
+    from chatterspec.detection import spectral as sp
+
+    cfg = STFTConfig(window_s=window_s, hop_s=hop_s, window=window)
+    x = np.random.default_rng(12).standard_normal(shape) * 3e-3
+    j_ref, ref = sp._FrameEngine(cfg, DT)(x, first)
+    np.testing.assert_array_equal(ref, frame_columns(x, DT, cfg, first_sample=first)[1])
+    engine = sp._FrameEngine(cfg, DT, compiled=True)
+    for _ in range(2):  # the second call reuses the scratch buffers
+        j, power = engine(x, first)
+        np.testing.assert_array_equal(j, j_ref)
+        np.testing.assert_array_equal(power, ref)
+    if _jit.HAVE_NUMBA:  # the kernels' Python form on a small input
+        W, H = cfg.n_window(DT), cfg.n_hop(DT)
+        F = 3
+        x3 = x.reshape(-1, *x.shape[-2:])[:1, : W + 2 * H]
+        taps = [np.empty((1, x.shape[-1], F, W)) for _ in range(2)]
+        sp._taper_kernel(x3, 0, H, engine.win, taps[0])
+        sp._taper_kernel.py_func(x3, 0, H, engine.win, taps[1])
+        np.testing.assert_array_equal(taps[0], taps[1])
+        Y = np.fft.rfft(taps[0], axis=-1)
+        pows = [np.empty((1, F, W // 2 + 1, x.shape[-1])) for _ in range(2)]
+        sp._power_kernel(Y, engine.scale, pows[0])
+        sp._power_kernel.py_func(Y, engine.scale, pows[1])
+        np.testing.assert_array_equal(pows[0], pows[1])
+        np.testing.assert_array_equal(
+            pows[0][0], np.moveaxis((Y.real**2 + Y.imag**2) / engine.scale, -3, -1)[0]
+        )

@@ -34,6 +34,7 @@ from typing import Literal
 
 import numpy as np
 
+from .. import _jit
 from .._validate import finite_array, open_unit, positive_int
 from ..detection.spectral import STFTConfig, _FrameEngine
 from ..detection.thresholds import Threshold, check_band, frame_threshold
@@ -339,7 +340,8 @@ class ChatteringMonitor:
         self._buf = np.empty((self.n_window + self.n_hop, m))
         self._n_buf = 0
         self._verdicts = _Verdicts(self.threshold)
-        self._columns = _FrameEngine(s.stft, self.dt)  # frame_columns with this monitor's scratch buffers
+        # frame_columns with this monitor's scratch buffers (and compiled loops when enabled: same bits)
+        self._columns = _FrameEngine(s.stft, self.dt, compiled=_jit.enabled())
         self._no_frames = self._empty_frames()
         self._n_frames = 0
         self._active = np.zeros(m, dtype=bool)
