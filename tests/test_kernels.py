@@ -264,3 +264,15 @@ def test_closed_form_kernel_equals_its_python_form() -> None:
     ref = z[:, 1:] - np.einsum("ij,rkj->rki", f._PhiT.T, z[:, :-1]) - Gu
     size = np.abs(z[:, 1:]) + np.einsum("ij,rkj->rki", np.abs(f._PhiT.T), np.abs(z[:, :-1])) + np.abs(Gu)
     assert np.all(np.abs(outs[1] - ref) <= REL_TOL * size)
+
+
+def test_rows_times_channel_major_gives_the_same_bits() -> None:
+    """The monitor's faster G u(k) layout: the same products summed in the same order (j = 0, 1, ...)."""
+    rng = np.random.default_rng(8)
+    MT = rng.standard_normal((2, 3)) * [1.0, 1e3, 1e-3]
+    for shape in [(1000, 2), (4, 50, 2), (7, 1)]:
+        a = rng.standard_normal(shape) * 300.0
+        ref = svsf_mod._rows_times(a, MT[: shape[-1]])
+        got = svsf_mod._rows_times(a, MT[: shape[-1]], channel_major=True)
+        assert got.shape == ref.shape
+        np.testing.assert_array_equal(got, ref)

@@ -191,3 +191,45 @@ def test_frame_verdict_flags_equal_direct_comparison_at_ties() -> None:
     # a NaN bin (no monitor makes one) does not hide a bin above the threshold: the direct rule
     power[0, tested[:2], 0] = [np.nan, 2.0 * thr.values[tested[1], 0]]
     assert frame_verdicts(power, thr)[0][0, 0]
+
+
+@pytest.mark.parametrize("ties", [False, True])
+def test_compiled_frame_verdicts_equal_the_numpy_ones(ties: bool) -> None:
+    """The monitor's one-pass verdict kernel (numba) gives the numpy path's flags, peaks and ratios.
+
+    Random spectra around the threshold, with repeated maxima (the first bin wins in both, as
+    np.argmax) and, with ``ties``, bins exactly at the threshold and one ulp above it.
+    """
+    from chatterspec import _jit
+    from chatterspec.online._push_kernels import _verdict_kernel
+    from chatterspec.online.monitor import _Verdicts
+
+    model = cs.eha_linear()
+    cfg = MonitorSettings().stft
+    thr = frame_threshold(model, cfg.freqs_hz(model.dt), cfg, model.dt)
+    rng = np.random.default_rng(5)
+    power = thr.values * rng.uniform(0.0, 0.99, size=(40, *thr.values.shape))
+    hot = rng.random((40, 3)) < 0.5  # about half the frames and channels get one bin above the threshold
+    f_hot, c_hot = np.nonzero(hot)
+    b_hot = rng.choice(np.flatnonzero(thr.tested), f_hot.size)
+    power[f_hot, b_hot, c_hot] = thr.values[b_hot, c_hot] * rng.uniform(1.01, 3.0, f_hot.size)
+    power[3, 100:103, 1] = power[3, 100:103, 1].max() * 50  # three equal maxima: the first one is the peak
+    if ties:
+        tested = np.flatnonzero(thr.tested)
+        b = rng.choice(tested, 40, replace=False)
+        power[np.arange(40), b, 0] = thr.values[b, 0] * 2.0
+        power[np.arange(20), b[:20], 2] = thr.values[b[:20], 2]
+        power[np.arange(20, 40), b[20:], 2] = np.nextafter(thr.values[b[20:], 2], np.inf)
+    ref = _Verdicts(thr)(power)
+    fast = _Verdicts(thr, compiled=True)
+    assert fast.compiled  # the EHA threshold: contiguous tested bins, finite normal values
+    outs = [fast(power)]
+    if _jit.HAVE_NUMBA:  # the kernel's Python form too
+        py = [np.empty((40, 3), dtype=bool), np.empty((40, 3)), np.empty((40, 3))]
+        _verdict_kernel.py_func(power, fast.sel.start, fast.values, fast.freqs, *py)
+        outs.append(tuple(py))
+    for out in outs:
+        for a, b in zip(out, ref, strict=True):
+            assert a.dtype == b.dtype
+            np.testing.assert_array_equal(a, b)
+    assert ref[0].any() and not ref[0].all()

@@ -725,12 +725,20 @@ def _closed_form_kernel(
                     e_out[r, k, i] = acc
 
 
-def _rows_times(a: np.ndarray, MT: np.ndarray) -> np.ndarray:
+def _rows_times(a: np.ndarray, MT: np.ndarray, channel_major: bool = False) -> np.ndarray:
     """``a @ MT`` over the last axis, element-wise in a fixed order.
 
     Unlike BLAS, the rounding of each output element does not depend on the
     number of rows, so chunked and whole-record processing agree bit for bit.
+    ``channel_major=True`` returns the same numbers as a ``(..., n)`` view of
+    ``(n, ...)`` storage, which numpy fills ~3x faster when n is small (the
+    online monitor's per-push ``G u(k)``; the kernels take any strides).
     """
+    if channel_major and a.shape[-1]:
+        out = np.multiply.outer(MT[0], a[..., 0])
+        for j in range(1, a.shape[-1]):
+            out += np.multiply.outer(MT[j], a[..., j])
+        return out.transpose((*range(1, out.ndim), 0))
     out = np.multiply.outer(a[..., 0], MT[0]) if a.shape[-1] else np.zeros((*a.shape[:-1], MT.shape[1]))
     for j in range(1, a.shape[-1]):
         out += np.multiply.outer(a[..., j], MT[j])

@@ -43,6 +43,7 @@ from ..filters.nonlinear_svsf import NonlinearSgnSVSF
 from ..filters.svsf import SVSF, SVSFState, _rows_times, auxiliary_svsf
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
+from ._push_kernels import _verdict_kernel
 
 __all__ = [
     "ChatteringMonitor",
@@ -238,19 +239,26 @@ def frame_verdicts(power: np.ndarray, threshold: Threshold) -> tuple[np.ndarray,
 class _Verdicts:
     """:func:`frame_verdicts` with the tested bins and their threshold precomputed (per-push cost)."""
 
-    def __init__(self, threshold: Threshold) -> None:
+    def __init__(self, threshold: Threshold, compiled: bool = False) -> None:
         tested = np.flatnonzero(threshold.tested)
         contiguous = tested.size > 0 and bool(np.all(np.diff(tested) == 1))
         # a slice is a view (no copy of the spectra); fancy indexing otherwise
         self.sel: slice | np.ndarray = slice(int(tested[0]), int(tested[-1]) + 1) if contiguous else tested
         self.values = np.ascontiguousarray(threshold.values[tested])
-        self.freqs = threshold.freqs_hz[tested]
+        self.freqs = np.ascontiguousarray(threshold.freqs_hz[tested], dtype=float)
         # the one-pass flag rule below needs finite normal thresholds > 0 (else: the direct comparison)
         tiny = np.finfo(float).tiny
         self.one_pass = bool(np.all((self.values >= tiny) & np.isfinite(self.values)))
+        # the monitor's case (contiguous tested bins, one-pass rule) in one compiled pass when enabled
+        self.compiled = compiled and self.one_pass and isinstance(self.sel, slice)
 
     def __call__(self, power: np.ndarray, finite: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``finite``: ``power`` holds no NaN / inf (always so in the monitor: its input is checked)."""
+        if self.compiled and finite and power.ndim == 3:
+            F, m = power.shape[0], power.shape[2]
+            flags, peak_hz, peak_ratio = np.empty((F, m), dtype=bool), np.empty((F, m)), np.empty((F, m))
+            _verdict_kernel(power, self.sel.start, self.values, self.freqs, flags, peak_hz, peak_ratio)
+            return flags, peak_hz, peak_ratio
         p = power[..., self.sel, :]
         ratio = p / self.values
         k = np.argmax(ratio, axis=-2)
@@ -339,7 +347,7 @@ class ChatteringMonitor:
         # that small pushes append in place instead of re-concatenating the window every time
         self._buf = np.empty((self.n_window + self.n_hop, m))
         self._n_buf = 0
-        self._verdicts = _Verdicts(self.threshold)
+        self._verdicts = _Verdicts(self.threshold, compiled=_jit.enabled())
         # frame_columns with this monitor's scratch buffers (and compiled loops when enabled: same bits)
         self._columns = _FrameEngine(s.stft, self.dt, compiled=_jit.enabled())
         self._no_frames = self._empty_frames()
@@ -428,7 +436,7 @@ class ChatteringMonitor:
         self._pending_u = u[-1].copy()
         if isinstance(self._aux, SVSF):
             # the checks of SVSF.update are done above; both filters share the model, hence G u(k)
-            Gu = _rows_times(u_used, self._aux._GT)
+            Gu = _rows_times(u_used, self._aux._GT, channel_major=True)
             self._aux_state, out = self._aux._advance(self._aux_state, z[None], Gu)
         else:
             self._aux_state, out = self._aux.update(self._aux_state, z[None], u_used, check=False)
@@ -544,6 +552,8 @@ class ChatteringMonitor:
         return MonitorUpdate(t, e, measured, estimate, frames, events)
 
     def _events(self, fr: FrameBlock) -> tuple[DetectionEvent, ...]:
+        if not (fr.flags.any() or self._active.any()):  # nothing flagged, nothing active: no event
+            return ()
         events: list[DetectionEvent] = []
         for c in range(fr.flags.shape[1]):
             col = fr.flags[:, c]
