@@ -30,6 +30,7 @@ is eq (56) read index-wise; for diagonal Q and R it equals
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Literal
@@ -471,7 +472,7 @@ class _FrameEngine:
             return np.arange(0), np.zeros((*lead, 0, n_bins, m))
         n_frames = j_last - j_first + 1
         offset = j_first * H - first_sample
-        per_frame = max(1, int(np.prod(lead, dtype=np.int64)) * m * W)
+        per_frame = max(1, math.prod(lead) * m * W)
         block = max(1, (1 << 15) // per_frame)
         power = np.empty((*lead, n_frames, n_bins, m))
         if self.compiled and x.ndim <= 3:

@@ -424,7 +424,7 @@ class ChatteringMonitor:
             self._aux_state = self._aux.initialize(z[:1])
             if self._sat is not None:
                 self._sat_state = self._sat.initialize(z[:1])
-            self._pending_u = u[0]
+            self._pending_u = u[0].copy()  # not a view of the caller's array
             self._n_meas = 1
             z, u = z[1:], u[1:]
             K -= 1
@@ -445,7 +445,8 @@ class ChatteringMonitor:
         if self._sat is not None:
             self._sat_state, sat_out = self._sat._advance(self._sat_state, z[None], Gu, store_states=True)
             estimate = sat_out.x_post[0] @ self.model.C.T
-        t = self.t0 + (self._n_meas + np.arange(K)) * self.dt
+        # float arange of integers (exact below 2^53): the bits of t0 + (n + arange(K)) * dt, one pass fewer
+        t = self.t0 + np.arange(self._n_meas, self._n_meas + K, dtype=float) * self.dt
         self._n_meas += K
         return self._analyse(e, t, measured=z, estimate=estimate)
 
@@ -463,7 +464,7 @@ class ChatteringMonitor:
             raise ShapeError(f"chattering must have {m} channel(s); got shape {e.shape}")
         if e.shape[0] == 0:
             return self._empty_update(raw=False)
-        t = self._chatter_time0() + (self._n_chat + np.arange(e.shape[0])) * self.dt
+        t = self._chatter_time0() + np.arange(self._n_chat, self._n_chat + e.shape[0], dtype=float) * self.dt
         return self._analyse(e, t, measured=None, estimate=None)
 
     def stream(
@@ -558,6 +559,11 @@ class ChatteringMonitor:
         for c in range(fr.flags.shape[1]):
             col = fr.flags[:, c]
             if not self._active[c] and not col.any():
+                continue
+            if self._active[c] and col.all():  # the fault goes on: only its largest peak may change
+                f = int(np.argmax(fr.peak_ratio[:, c]))  # the first largest, as the loop's strict '>'
+                if fr.peak_ratio[f, c] > self._fault_peak[c]:
+                    self._fault_peak[c], self._fault_peak_hz[c] = fr.peak_ratio[f, c], fr.peak_hz[f, c]
                 continue
             for f in range(col.shape[0]):
                 if col[f]:
