@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _jit
+from ..filters.svsf import _closed_form_kernel, _svsf_kernel
 
 __all__: list[str] = []
 
@@ -48,3 +49,48 @@ def _verdict_kernel(
             peak_ratio[f, c] = best
             peak_hz[f, c] = freqs[kb]
             flags[f, c] = best > 1.0
+
+
+@_jit.njit
+def _filters_kernel(
+    z: np.ndarray,
+    u: np.ndarray,
+    GT: np.ndarray,
+    aux_PhiT: np.ndarray,
+    aux_y: np.ndarray,
+    e_out: np.ndarray,
+    Gu: np.ndarray,
+    run_sat: bool,
+    PhiT: np.ndarray,
+    L: np.ndarray,
+    P: np.ndarray,
+    inv_psi: np.ndarray,
+    gamma: float,
+    S_inv: np.ndarray,
+    y: np.ndarray,
+    ep: np.ndarray,
+    sat_e: np.ndarray,
+    x_out: np.ndarray,
+    none: np.ndarray,
+) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_monitor.py)
+    """One push of the monitor's two filters in one call: G u(k), the aux chattering, the sat SVSF.
+
+    ``z`` (1, K, m) = z(k+1); ``u`` (K, p), p >= 1, = u(k); ``GT`` = G^T (p, n). ``Gu`` (1, K, n)
+    receives ``G u(k)`` summed as ``_rows_times`` does (``u_0 G_0`` then ``+= u_j G_j``, j = 1 ..),
+    then :func:`~chatterspec.filters.svsf._closed_form_kernel` writes the chattering (eq 23) into
+    ``e_out`` (1, K, m) from ``aux_y`` = y(k|k) and, when ``run_sat``,
+    :func:`~chatterspec.filters.svsf._svsf_kernel` advances the sat SVSF (``y``, ``ep`` in place;
+    ``sat_e`` and ``x_out`` (1, K, n) outputs; ``none`` an empty (0, 0, 0) array). The same
+    kernels and the same sums as ``SVSF.update``, so the same bits (tests/test_monitor.py).
+    """
+    K = z.shape[1]
+    p, n = GT.shape
+    for k in range(K):
+        for i in range(n):
+            g = u[k, 0] * GT[0, i]
+            for j in range(1, p):
+                g += u[k, j] * GT[j, i]
+            Gu[0, k, i] = g
+    _closed_form_kernel(z, Gu, aux_PhiT, aux_y, e_out, True)
+    if run_sat:
+        _svsf_kernel(z, Gu, PhiT, L, P, inv_psi, gamma, S_inv, y, ep, sat_e, x_out, none, none)

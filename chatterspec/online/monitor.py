@@ -43,7 +43,7 @@ from ..filters.nonlinear_svsf import NonlinearSgnSVSF
 from ..filters.svsf import SVSF, SVSFState, _rows_times, auxiliary_svsf
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
-from ._push_kernels import _verdict_kernel
+from ._push_kernels import _filters_kernel, _verdict_kernel
 
 __all__ = [
     "ChatteringMonitor",
@@ -336,6 +336,17 @@ class ChatteringMonitor:
         self._aux = NonlinearSgnSVSF(model, s.gamma) if nonlinear else auxiliary_svsf(model, s.gamma)
         self._sat = None if s.psi is None else SVSF(model, psi=np.asarray(s.psi), gamma=s.gamma)
         self._aux_state: SVSFState | None = None
+        # one compiled call per push for both filters (full measurement: the closed form of eq 23;
+        # at least one input; numba installed, and enabled at push time)
+        self._fused = (
+            isinstance(self._aux, SVSF) and self._aux._L is None and model.n_inputs >= 1 and _jit.HAVE_NUMBA
+        )
+        if self._fused:
+            self._GT = np.ascontiguousarray(self._aux._GT, dtype=float)
+            self._aux_PhiT = np.ascontiguousarray(self._aux._PhiT, dtype=float)
+            self._none3 = np.empty((0, 0, 0))
+            e2 = np.empty((0, 0))
+            self._no_sat = (e2, e2, e2, np.empty(0), 0.0, e2, e2, e2, self._none3, self._none3, self._none3)
         self._sat_state: SVSFState | None = None
         self._pending_u: np.ndarray | None = None
         self._mode: str | None = None  # "raw" or "chattering"
@@ -434,21 +445,53 @@ class ChatteringMonitor:
         u_used[0] = self._pending_u
         u_used[1:] = u[:-1]
         self._pending_u = u[-1].copy()
-        if isinstance(self._aux, SVSF):
+        if self._fused and _jit.enabled():
+            e, estimate = self._advance_fused(z, u_used)
+        elif isinstance(self._aux, SVSF):
             # the checks of SVSF.update are done above; both filters share the model, hence G u(k)
             Gu = _rows_times(u_used, self._aux._GT, channel_major=True)
             self._aux_state, out = self._aux._advance(self._aux_state, z[None], Gu)
-        else:
+            e, estimate = out.e_prior[0], None
+            if self._sat is not None:
+                self._sat_state, sat_out = self._sat._advance(self._sat_state, z[None], Gu, store_states=True)
+                estimate = sat_out.x_post[0] @ self.model.C.T
+        else:  # nonlinear auxiliary filter (no sat SVSF)
             self._aux_state, out = self._aux.update(self._aux_state, z[None], u_used, check=False)
-        e = out.e_prior[0]
-        estimate = None
-        if self._sat is not None:
-            self._sat_state, sat_out = self._sat._advance(self._sat_state, z[None], Gu, store_states=True)
-            estimate = sat_out.x_post[0] @ self.model.C.T
+            e, estimate = out.e_prior[0], None
         # float arange of integers (exact below 2^53): the bits of t0 + (n + arange(K)) * dt, one pass fewer
         t = self.t0 + np.arange(self._n_meas, self._n_meas + K, dtype=float) * self.dt
         self._n_meas += K
         return self._analyse(e, t, measured=z, estimate=estimate)
+
+    def _advance_fused(self, z: np.ndarray, u_used: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Both filters over one push in one compiled call (:func:`._push_kernels._filters_kernel`).
+
+        The same kernels and sums as :meth:`SVSF.update` with compiled kernels on (closed form of
+        eq 23 for the aux filter, whose a-posteriori error stays exactly 0; the recursion for
+        the sat SVSF), without its per-call Python work; returns ``(e, estimate)``.
+        """
+        K, m = z.shape
+        aux = self._aux_state
+        e = np.empty((1, K, m))
+        Gu = np.empty((1, K, self.model.n_states))
+        sat = self._sat
+        if sat is None:
+            _filters_kernel(z[None], u_used, self._GT, self._aux_PhiT, aux.y, e, Gu, False, *self._no_sat)
+            estimate = None
+        else:
+            PhiT, L, P, inv_psi, gamma, S_inv = sat._kernel_consts
+            st = self._sat_state
+            y, ep = st.y.copy(), st.e_post.copy()
+            x_out = np.empty((1, K, self.model.n_states))
+            _filters_kernel(
+                z[None], u_used, self._GT, self._aux_PhiT, aux.y, e, Gu, True,
+                PhiT, L, P, inv_psi, gamma, S_inv, y, ep, np.empty((1, K, m)), x_out, self._none3,
+            )  # fmt: skip
+            self._sat_state = SVSFState(y=y, e_post=ep, k=st.k + K)
+            estimate = x_out[0] @ self.model.C.T
+        # the closed form's state: y(k|k) = z(k) exactly, e(k|k) = 0 (see SVSF.update, Notes)
+        self._aux_state = SVSFState(y=z[-1:].copy(), e_post=aux.e_post, k=aux.k + K)
+        return e[0], estimate
 
     def push_chattering(self, e: np.ndarray) -> MonitorUpdate:
         """Feed precomputed chattering samples ``e`` (K, m) (e.g. a :class:`ChatteringRecord`'s values).
