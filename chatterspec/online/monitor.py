@@ -4,9 +4,11 @@ Pure numpy/scipy (no Rerun; :mod:`chatterspec.online` does the logging).
 
 The monitor advances the auxiliary ``sgn`` SVSF (whose a-priori output error is
 the chattering, eq 17) and, when a boundary layer ``psi`` is given, the
-smoothing ``sat`` SVSF (state estimate) with the single kernel
-:meth:`chatterspec.filters.svsf.SVSF.update`, the same call the batch path
-(:func:`chatterspec.detection.pipeline.chattering_record`) makes. Measurements may arrive
+smoothing ``sat`` SVSF (state estimate) with the kernels of
+:meth:`chatterspec.filters.svsf.SVSF.update`, which the batch path
+(:func:`chatterspec.detection.pipeline.chattering_record`) runs too (with numba, both
+filters of a push in one compiled call, :mod:`chatterspec.online._push_kernels`: the
+same kernels and sums, the same bits). Measurements may arrive
 in chunks of any size (one sample to millions); the chattering goes into a
 bounded buffer holding at most one STFT window (``W`` samples) plus the chunk
 being analysed, and every complete frame is turned into one column by
@@ -43,7 +45,7 @@ from ..filters.nonlinear_svsf import NonlinearSgnSVSF
 from ..filters.svsf import SVSF, SVSFState, _rows_times, auxiliary_svsf
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
-from ._push_kernels import _filters_kernel, _verdict_kernel
+from ._push_kernels import _filters_kernel, _Verdicts
 
 __all__ = [
     "ChatteringMonitor",
@@ -234,43 +236,6 @@ def frame_verdicts(power: np.ndarray, threshold: Threshold) -> tuple[np.ndarray,
     """
     power = threshold.check_spectrum(power)
     return _Verdicts(threshold)(power, finite=bool(np.isfinite(power).all()))
-
-
-class _Verdicts:
-    """:func:`frame_verdicts` with the tested bins and their threshold precomputed (per-push cost)."""
-
-    def __init__(self, threshold: Threshold, compiled: bool = False) -> None:
-        tested = np.flatnonzero(threshold.tested)
-        contiguous = tested.size > 0 and bool(np.all(np.diff(tested) == 1))
-        # a slice is a view (no copy of the spectra); fancy indexing otherwise
-        self.sel: slice | np.ndarray = slice(int(tested[0]), int(tested[-1]) + 1) if contiguous else tested
-        self.values = np.ascontiguousarray(threshold.values[tested])
-        self.freqs = np.ascontiguousarray(threshold.freqs_hz[tested], dtype=float)
-        # the one-pass flag rule below needs finite normal thresholds > 0 (else: the direct comparison)
-        tiny = np.finfo(float).tiny
-        self.one_pass = bool(np.all((self.values >= tiny) & np.isfinite(self.values)))
-        # the monitor's case (contiguous tested bins, one-pass rule) in one compiled pass when enabled
-        self.compiled = compiled and self.one_pass and isinstance(self.sel, slice)
-
-    def __call__(self, power: np.ndarray, finite: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``finite``: ``power`` holds no NaN / inf (always so in the monitor: its input is checked)."""
-        if self.compiled and finite and power.ndim == 3:
-            F, m = power.shape[0], power.shape[2]
-            flags, peak_hz, peak_ratio = np.empty((F, m), dtype=bool), np.empty((F, m)), np.empty((F, m))
-            _verdict_kernel(power, self.sel.start, self.values, self.freqs, flags, peak_hz, peak_ratio)
-            return flags, peak_hz, peak_ratio
-        p = power[..., self.sel, :]
-        ratio = p / self.values
-        k = np.argmax(ratio, axis=-2)
-        peak_ratio = np.take_along_axis(ratio, k[..., None, :], axis=-2)[..., 0, :]
-        # flags = any(p > threshold) (detect_frames' rule) without a second pass over the bins: for
-        # a normal v > 0 and finite p >= 0, p > v means p >= v + ulp(v), so p / v >= 1 + ulp(v) / v
-        # > 1 + 2^-53 rounds to > 1; p <= v gives fl(p / v) <= 1. Hence fl(p / v) > 1 <=> p > v,
-        # and max_k fl(p / v) > 1 <=> any(p > v) (checked at exact ties in tests/test_monitor.py).
-        if not (self.one_pass and finite):
-            return np.any(p > self.values, axis=-2), self.freqs[k], peak_ratio
-        flags = peak_ratio > 1.0
-        return flags, self.freqs[k], peak_ratio
 
 
 class ChatteringMonitor:
