@@ -37,7 +37,7 @@ def finite_array(
         ):
             want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
             raise ShapeError(f"{name} must have shape {want}; got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():  # the method: no fromnumeric dispatch (hot in per-push checks)
         bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
         raise NonFiniteError(f"{name} contains {bad} NaN/inf value(s); all entries must be finite")
     return arr
