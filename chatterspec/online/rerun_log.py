@@ -14,11 +14,26 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .._jit import enabled, njit
 from ..detection.spectral import expected_frame_spectrum
 from ..errors import ParameterError
 from ..plants.nonlinear import is_linear
 from .arrow_columns import _MAX_TENSOR_ROWS, _Columns, _TimeIndex
-from .blueprint import TRUTH_LANE, _entity, blueprint, lane_entity
+from .blueprint import (
+    CHATTERING,
+    MOST_SIGNIFICANT_HZ,
+    PEAK_HZ,
+    PSI,
+    SIGNAL,
+    STATISTIC,
+    THRESHOLD,
+    TRUTH_LANE,
+    VERDICT,
+    _entity,
+    blueprint,
+    fault_entity,
+    lane_entity,
+)
 from .monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
 from .viewer import TIMELINE, Sinks
 
@@ -29,6 +44,7 @@ __all__ = [
     "DB_RANGE",
     "RerunLogger",
     "default_band_hz",
+    "peak_bins",
     "to_ns",
 ]
 
@@ -98,6 +114,70 @@ def default_band_hz(monitor: ChatteringMonitor, factor: float = 3.0) -> tuple[fl
         inside = f[f <= cap]
         hi = float(inside.max()) if inside.size else hi
     return lo, hi
+
+
+@njit
+def _peak_bins_kernel(
+    power: np.ndarray, tested: np.ndarray, expected: np.ndarray, thr: np.ndarray, out: np.ndarray
+) -> None:  # pragma: no cover - compiled; its py_func is tested
+    """:func:`peak_bins` in one pass over the tested bins of each frame and channel (first maximum
+    wins, as ``np.argmax``; only subtractions and comparisons: the same bits as the numpy path)."""
+    n_frames, m, n_tested = power.shape[0], power.shape[2], tested.shape[0]
+    for f in range(n_frames):
+        for c in range(m):
+            best, v_best, over, v_over = 0, -np.inf, -1, -np.inf
+            for j in range(n_tested):
+                p = power[f, tested[j], c]
+                ex = p - expected[j, c]
+                if ex > v_best:
+                    best, v_best = j, ex
+                if p > thr[j, c] and (over < 0 or ex > v_over):
+                    over, v_over = j, ex
+            out[f, c] = over if over >= 0 else best
+
+
+def _peak_bins_numpy(
+    power: np.ndarray, tested: np.ndarray, expected: np.ndarray, thr: np.ndarray
+) -> np.ndarray:
+    """Numpy path of :func:`peak_bins` (channel-major, so every reduction runs over contiguous bins)."""
+    p = np.ascontiguousarray(np.moveaxis(power[:, tested, :], 2, 0))  # (m, F, k)
+    over = p > thr.T[:, None, :]
+    excess = p - expected.T[:, None, :]
+    k = excess.argmax(axis=2)
+    rows = np.flatnonzero(over.any(axis=2))  # the (channel, frame) pairs with a bin over the threshold
+    if rows.size:
+        n = p.shape[2]
+        masked = np.where(over.reshape(-1, n)[rows], excess.reshape(-1, n)[rows], -np.inf)
+        k.reshape(-1)[rows] = masked.argmax(axis=1)
+    return k.T
+
+
+def peak_bins(power: np.ndarray, tested: np.ndarray, expected: np.ndarray, thr: np.ndarray) -> np.ndarray:
+    """Index (into ``tested``) of each frame's largest excess power ``S - E`` among the bins over the
+    threshold, or among all tested bins when none is over: the rule of the batch report's ``peak_hz``.
+
+    Parameters
+    ----------
+    power : (F, bins, m) float array
+        Frame spectra ``S`` (the monitor's frame power).
+    tested : (k,) int array
+        The tested bins (indices into ``bins``).
+    expected : (k, m) float array
+        Expected healthy spectrum ``E`` at the tested bins.
+    thr : (k, m) float array
+        Frame threshold at the tested bins (a bin is over when ``S > thr``).
+
+    Returns
+    -------
+    (F, m) int64 array
+        Position in ``tested`` of the peak bin of each frame and channel.
+    """
+    power = np.asarray(power, dtype=float)
+    if not enabled():
+        return _peak_bins_numpy(power, tested, expected, thr)
+    out = np.empty((power.shape[0], power.shape[2]), dtype=np.int64)
+    _peak_bins_kernel(power, tested, expected, thr, out)
+    return out
 
 
 @dataclass
@@ -212,10 +292,9 @@ class RerunLogger:
             self._expected = np.asarray(thr.expected)
         else:
             self._expected = expected_frame_spectrum(monitor.model, freqs, monitor.settings.stft, monitor.dt)
-        # the bins tested by the detector (a slice when contiguous: a view, no copy)
+        # the bins tested by the detector
         tested = np.flatnonzero(thr.tested)
-        contiguous = tested.size > 0 and bool(np.all(np.diff(tested) == 1))
-        self._tested = slice(int(tested[0]), int(tested[-1]) + 1) if contiguous else tested
+        self._tested_idx = tested.astype(np.int64)
         self._tested_hz = freqs[tested]
         self._tested_expected = np.ascontiguousarray(self._expected[tested])  # (k, m)
         self._tested_thr = np.ascontiguousarray(thr.values[tested])  # (k, m)
@@ -248,6 +327,13 @@ class RerunLogger:
         self._cols = _Columns(rr, DB_RANGE)
         self._boxes = [_Outbox(s, live=s is sinks.live_stream) for s in sinks.streams]
         self.psi = monitor.settings.psi
+        # two-row columns reused by every batch: the ±psi lines (+psi_0, -psi_0, +psi_1, ...) and 0 dB
+        self._psi_rows = None
+        if self.psi is not None:
+            pm = np.repeat(np.asarray(self.psi, dtype=float), 2) * np.tile([1.0, -1.0], m)
+            self._psi_rows = self._cols.scalars_column(np.tile(pm, (2, 1)), own=True)
+        self._zero_rows = self._cols.scalars_column(np.zeros(2), own=True)
+        self._fault = [fault_entity(c) for c in self.channels]
         self._origin_ns: int | None = None  # earliest time logged (truth start / initial state)
         self._started = False
         if send_blueprint:
@@ -276,53 +362,75 @@ class RerunLogger:
         lo, hi = self.band_hz
 
         def static(s: Any) -> None:
+            m = len(self.channels)
+            cols = [_COLORS[i % len(_COLORS)] for i in range(m)]
+            named = [f"{name} [{units[i]}]" if units[i] else name for i, name in enumerate(self.channels)]
+            # one entity per quantity, one series per channel (series j = channel j); each channel's view
+            # shows its own series (blueprint: SeriesLines/SeriesPoints visible_series overrides)
+            s.log(CHATTERING, rr.SeriesLines(colors=cols, names=named), static=True)
+            s.log(
+                PSI,
+                rr.SeriesLines(
+                    colors=[_GREY] * (2 * m),
+                    widths=[1.0] * (2 * m),
+                    names=[f"{name}: {side}psi" for name in self.channels for side in ("+", "-")],
+                ),
+                static=True,
+            )
+            sat = self.monitor.settings.psi is not None  # the sat SVSF runs: its estimate is logged too
+            sig_names = ("measured", "SVSF estimate") if sat else ("measured",)
+            s.log(
+                SIGNAL,
+                rr.SeriesLines(
+                    colors=[col if k == 0 else [0, 0, 0] for col in cols for k in range(len(sig_names))],
+                    names=[f"{name}: {what}" for name in named for what in sig_names],
+                ),
+                static=True,
+            )
+            s.log(
+                STATISTIC,
+                rr.SeriesLines(
+                    colors=cols,
+                    widths=[1.5] * m,
+                    names=[f"{name}: max S/threshold [dB]" for name in self.channels],
+                ),
+                static=True,
+            )
+            s.log(
+                THRESHOLD,
+                rr.SeriesLines(colors=[_GREY], widths=[1.0], names=["threshold (0 dB)"]),
+                static=True,
+            )
+            s.log(
+                VERDICT,
+                rr.SeriesPoints(
+                    colors=[_RED] * m, names=[f"{name}: verdict (1 = fault)" for name in self.channels]
+                ),
+                static=True,
+            )
+            s.log(
+                PEAK_HZ,
+                rr.SeriesLines(
+                    colors=cols,
+                    widths=[1.0] * m,
+                    names=[f"{name}: peak_hz, largest S-E [Hz]" for name in self.channels],
+                ),
+                static=True,
+            )
+            s.log(
+                MOST_SIGNIFICANT_HZ,
+                rr.SeriesPoints(
+                    colors=[_WHITE] * m,
+                    marker_sizes=[1.5] * m,
+                    names=[f"{name}: most_significant_hz, largest S/thr [Hz]" for name in self.channels],
+                ),
+                static=True,
+            )
             for i, (name, c) in enumerate(zip(self.channels, self.keys, strict=True)):
-                unit = f" [{units[i]}]" if units[i] else ""
-                col = _COLORS[i % len(_COLORS)]
                 s.log(
-                    f"/chattering/{c}/e", rr.SeriesLines(colors=[col], names=[f"{name}{unit}"]), static=True
-                )
-                for side in ("upper", "lower"):
-                    s.log(
-                        f"/chattering/{c}/psi_{side}",
-                        rr.SeriesLines(colors=[_GREY], widths=[1.0], names=[f"±psi {side}"]),
-                        static=True,
-                    )
-                # one entity, one row per sample: the measurement, then (sat SVSF) the estimate
-                s.log(
-                    f"/signal/{c}",
-                    rr.SeriesLines(colors=[col, [0, 0, 0]], names=["measured", "SVSF estimate"]),
-                    static=True,
-                )
-                s.log(
-                    f"/detection/{c}/statistic_db",
-                    rr.SeriesLines(colors=[col], widths=[1.5], names=["max S/threshold [dB]"]),
-                    static=True,
-                )
-                s.log(
-                    f"/detection/{c}/threshold_db",
-                    rr.SeriesLines(colors=[_GREY], widths=[1.0], names=["threshold (0 dB)"]),
-                    static=True,
-                )
-                s.log(
-                    f"/detection/{c}/fault",
-                    rr.SeriesPoints(colors=[_RED], marker_sizes=[2.5], names=["fault (flagged frame)"]),
-                    static=True,
-                )
-                s.log(
-                    f"/detection/{c}/verdict",
-                    rr.SeriesPoints(colors=[_RED], names=["verdict (1 = fault)"]),
-                    static=True,
-                )
-                s.log(
-                    f"/frequency/{c}/peak_hz",
-                    rr.SeriesLines(colors=[col], widths=[1.0], names=["peak_hz: largest S-E [Hz]"]),
-                    static=True,
-                )
-                s.log(
-                    f"/frequency/{c}/most_significant_hz",
+                    fault_entity(name),
                     rr.SeriesPoints(
-                        colors=[_WHITE], marker_sizes=[1.5], names=["most_significant_hz: largest S/thr [Hz]"]
+                        colors=[_RED], marker_sizes=[2.5], names=[f"{name}: fault (flagged frame)"]
                     ),
                     static=True,
                 )
@@ -441,34 +549,29 @@ class RerunLogger:
         ups, box.updates, box.samples, box.frames = box.updates, [], 0, 0
         s, cols, pa = box.stream, self._cols, self.pa
         m = len(self.keys)
-        t = np.concatenate([u.t for u in ups]) if len(ups) > 1 else ups[0].t
+        one = len(ups) == 1
+        t = ups[0].t if one else np.concatenate([u.t for u in ups])
         if t.size:
             ns = to_ns(t)
             tcol = _TimeIndex(pa, ns)
-            # channel-major copies filled straight from the updates (one pass, contiguous rows that
-            # become the arrow columns without a further copy): e (m, N); /signal/<c> rows (m, N, k)
-            # of measurement [and sat-SVSF estimate]
+            # ONE row per sample for all channels (Rerun's cost is per row: a row id and a time each):
+            # /chattering/e (N, m); /signal (N, m * k): per channel the measurement [and sat-SVSF estimate]
+            e = ups[0].chattering if one else np.concatenate([u.chattering for u in ups])
+            s.send_columns(CHATTERING, indexes=[tcol], columns=[cols.scalars_column(e, own=not one)])
             keys = [k for k in ("measured", "estimate") if all(getattr(u, k) is not None for u in ups)]
-            e = np.empty((m, t.size))
-            sig = np.empty((m, t.size, len(keys))) if keys else None
-            a = 0
-            for u in ups:
-                b = a + u.t.shape[0]
-                e[:, a:b] = u.chattering.T
-                for j, k in enumerate(keys):
-                    sig[:, a:b, j] = getattr(u, k).T
-                a = b
-            ends = _TimeIndex(pa, ns[[0, -1]])
-            for i, c in enumerate(self.keys):
-                col = cols.scalars_column(e[i], own=True)
-                s.send_columns(f"/chattering/{c}/e", indexes=[tcol], columns=[col])
-                if sig is not None:
-                    col = cols.scalars_column(sig[i], own=True)
-                    s.send_columns(f"/signal/{c}", indexes=[tcol], columns=[col])
-                if self.psi is not None:
-                    for side, v in (("upper", self.psi[i]), ("lower", -self.psi[i])):
-                        col = cols.scalars_column(np.array([v, v]))
-                        s.send_columns(f"/chattering/{c}/psi_{side}", indexes=[ends], columns=[col])
+            if keys:
+                sig = np.empty((t.size, m, len(keys)))
+                a = 0
+                for u in ups:
+                    b = a + u.t.shape[0]
+                    for j, k in enumerate(keys):
+                        sig[a:b, :, j] = getattr(u, k)
+                    a = b
+                s.send_columns(
+                    SIGNAL, indexes=[tcol], columns=[cols.scalars_column(sig.reshape(t.size, -1), own=True)]
+                )
+            if self._psi_rows is not None:  # the batch's first and last sample: +psi_0, -psi_0, +psi_1, ...
+                s.send_columns(PSI, indexes=[_TimeIndex(pa, ns[[0, -1]])], columns=[self._psi_rows])
         frames = [u.frames for u in ups if u.frames.n_frames]
         if frames:
             one = len(frames) == 1
@@ -478,55 +581,48 @@ class RerunLogger:
             sig_hz = frames[0].peak_hz if one else np.concatenate([f.peak_hz for f in frames])
             fns = to_ns(times)
             fcol = _TimeIndex(pa, fns)
-            fends = _TimeIndex(pa, fns[[0, -1]])
             stat_db = 10.0 * np.log10(np.maximum(ratio, 1e-30))
-            # channel-major spectra (m, F, bins) in spectrum_dtype, converted while transposing (one
-            # pass); peak_hz (F, m): the tested bin with the largest excess power S - E (float64)
+            # channel-major spectra (m, F, bins) in spectrum_dtype, converted while transposing (one pass)
             F = times.shape[0]
             spectra = np.empty((m, F, frames[0].power.shape[1]), dtype=self.spectrum_dtype)
-            peak_hz = np.empty((F, m))
             a = 0
             for f in frames:
                 b = a + f.n_frames
                 spectra[:, a:b] = np.moveaxis(f.power, 2, 0)
-                # the largest excess among the bins over the threshold when there are any (as the batch
-                # report's peak_hz): a frame's overall largest excess sits on noise once a fault fades
-                p_t = f.power[:, self._tested, :]
-                excess = p_t - self._tested_expected
-                over = p_t > self._tested_thr
-                k = np.where(
-                    over.any(axis=1),
-                    np.argmax(np.where(over, excess, -np.inf), axis=1),
-                    np.argmax(excess, axis=1),
-                )
-                peak_hz[a:b] = self._tested_hz[k]
                 a = b
-            zero = cols.scalars_column(np.zeros(2))
+            peak_hz = self._peak_hz(frames)
+            s.send_columns(STATISTIC, indexes=[fcol], columns=[cols.scalars_column(stat_db, own=True)])
+            s.send_columns(THRESHOLD, indexes=[_TimeIndex(pa, fns[[0, -1]])], columns=[self._zero_rows])
+            s.send_columns(VERDICT, indexes=[fcol], columns=[cols.scalars_column(flags)])
+            s.send_columns(PEAK_HZ, indexes=[fcol], columns=[cols.scalars_column(peak_hz, own=True)])
+            s.send_columns(MOST_SIGNIFICANT_HZ, indexes=[fcol], columns=[cols.scalars_column(sig_hz)])
             for i, c in enumerate(self.keys):
                 self._send_spectra(s, f"/spectrum/{c}", fcol, fns, spectra[i])
-                det = f"/detection/{c}"
-                s.send_columns(
-                    f"{det}/statistic_db", indexes=[fcol], columns=[cols.scalars_column(stat_db[:, i])]
-                )
-                s.send_columns(f"{det}/threshold_db", indexes=[fends], columns=[zero])
-                s.send_columns(f"{det}/verdict", indexes=[fcol], columns=[cols.scalars_column(flags[:, i])])
                 hit = np.flatnonzero(flags[:, i])
-                if hit.size:
+                if hit.size:  # sparse: one entity per channel, rows at its flagged frames only
                     s.send_columns(
-                        f"{det}/fault",
+                        self._fault[i],
                         indexes=[_TimeIndex(pa, fns[hit])],
                         columns=[cols.scalars_column(stat_db[hit, i])],
                     )
-                fq = f"/frequency/{c}"
-                s.send_columns(f"{fq}/peak_hz", indexes=[fcol], columns=[cols.scalars_column(peak_hz[:, i])])
-                s.send_columns(
-                    f"{fq}/most_significant_hz", indexes=[fcol], columns=[cols.scalars_column(sig_hz[:, i])]
-                )
             if not box.live:  # the file's spectrogram: dB columns of the whole batch at once
                 self._file_spectrogram(times, spectra)
         events = [ev for u in ups for ev in u.events]
         if events:
             self._send_events(s, events)
+
+    def _peak_hz(self, frames: list[Any]) -> np.ndarray:
+        """(F, m) tested bin (Hz) with the largest excess power ``S - E`` among the bins over the threshold
+        when a frame has any (as the batch report's ``peak_hz``: a frame's overall largest excess sits on
+        noise once a fault fades), else among all tested bins (:func:`peak_bins`)."""
+        F = sum(f.n_frames for f in frames)
+        k = np.empty((F, len(self.channels)), dtype=np.int64)
+        a = 0
+        for f in frames:
+            b = a + f.n_frames
+            k[a:b] = peak_bins(f.power, self._tested_idx, self._tested_expected, self._tested_thr)
+            a = b
+        return self._tested_hz[k]
 
     def _send_spectra(self, s: Any, path: str, tcol: _TimeIndex, ns: np.ndarray, power: np.ndarray) -> None:
         """One ``Tensor`` row per frame: ``power`` is (frames, bins) in ``spectrum_dtype``."""
