@@ -124,6 +124,8 @@ def test_record_chattering_record(tmp_path: Path, batch) -> None:
     thr = frame_threshold(rec.model, spec.freqs_hz, spec.config, rec.dt)
     db = np.clip(10 * np.log10(spec.power[:, band, 2] / thr.values[band, 2]), *rerun_log.DB_RANGE)
     np.testing.assert_allclose(img, db.T, atol=0.02)  # float16 dB (resolution 0.016 dB at 30 dB)
+    _, vr = _column(reader, "/spectrogram/pressure", "Tensor:value_range")  # fixed colour range
+    np.testing.assert_array_equal(np.asarray(vr[0]).ravel(), rerun_log.DB_RANGE)
 
 
 def _monitor(rec):
@@ -222,6 +224,8 @@ def test_live_viewer_receives_data(tmp_path: Path, sim, batch) -> None:
     widths = [v[0]["shape"][1] for v in views]
     assert widths == [min(k + 1, 50) for k in range(spec.n_frames)]  # grows to 50 columns, no padding
     assert views[-1][0]["names"][1].endswith(f"newest (right) = {spec.times_s[-1]:.1f} s")
+    _, vr = _column(reader, "/spectrogram/pressure", "Tensor:value_range")
+    assert len(vr) == spec.n_frames and np.array_equal(np.asarray(vr[-1]).ravel(), rerun_log.DB_RANGE)
 
 
 def test_blueprint_builds() -> None:
