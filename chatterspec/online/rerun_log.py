@@ -199,7 +199,8 @@ class RerunLogger:
     """Writes :class:`~chatterspec.online.monitor.MonitorUpdate` objects to the open sinks.
 
     Everything time-indexed is sent column-wise with ``send_columns`` (one call
-    per entity and batch, not one ``log`` per sample or frame): to a live viewer
+    per entity and batch, not one ``log`` per sample or frame; one row per sample or
+    frame holding every channel, since Rerun's cost is per row): to a live viewer
     at every update, to a file in batches of ``batch_samples`` samples or
     ``batch_frames`` frames (and on :meth:`close`). Times follow :func:`to_ns`.
 
@@ -588,7 +589,7 @@ class RerunLogger:
             a = 0
             for f in frames:
                 b = a + f.n_frames
-                spectra[:, a:b] = np.moveaxis(f.power, 2, 0)
+                spectra[:, a:b] = f.power.transpose(2, 0, 1)  # (m, n, bins), cast on the fly
                 a = b
             peak_hz = self._peak_hz(frames)
             s.send_columns(STATISTIC, indexes=[fcol], columns=[cols.scalars_column(stat_db, own=True)])
@@ -719,7 +720,7 @@ class RerunLogger:
         if self.sinks.file_stream is None:
             return
         with np.errstate(divide="ignore", invalid="ignore"):  # 0 -> -inf -> clipped
-            db = np.log10(spectra[:, :, self.band].astype(np.float32))  # (m, F, band)
+            db = np.log10(spectra[:, :, self.band], dtype=np.float32)  # (m, F, band), one pass
         db *= 10.0
         db -= self._band_thr_db.T[:, None, :]
         np.clip(db, DB_RANGE[0], DB_RANGE[1], out=db)
