@@ -505,10 +505,11 @@ class RerunLogger:
             ns = int(to_ns(min(firsts))) - 1
         self._origin_ns = ns if self._origin_ns is None else min(ns, self._origin_ns)
 
-        def log(s: Any) -> None:
-            self._set_time(s, ns)
+        def log(s: Any) -> None:  # send_columns, like every other temporal row: no batcher left to flush
+            t = _TimeIndex(self.pa, np.array([ns], dtype=np.int64))
             for i in range(m):
-                s.log(self.lanes[i], self.rr.StateChange(state="fault" if state[i] else "healthy"))
+                state_col = self.rr.StateChange.columns(state=["fault" if state[i] else "healthy"])
+                s.send_columns(self.lanes[i], indexes=[t], columns=state_col)
 
         self._each(log)
 
