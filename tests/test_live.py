@@ -22,7 +22,7 @@ from chatterspec.plants.scenarios import Scenario, Segment
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
-from chatterspec.online import arrow_columns, blueprint, drivers, rerun_log, viewer  # noqa: E402
+from chatterspec.online import arrow_columns, blueprint, drivers, frame_peaks, rerun_log, viewer  # noqa: E402
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -415,10 +415,10 @@ def test_peak_bins_paths_agree(tested: str, monkeypatch) -> None:
     assert (p_t > thr).any(axis=1)[:, 0].any() and not (p_t > thr).any(axis=1)[:, 1].any()
     assert want[5, 0] == 2  # the tie: the first of the two bins
     monkeypatch.setenv("CHATTERSPEC_JIT", "0")
-    np.testing.assert_array_equal(rerun_log.peak_bins(power, idx, expected, thr), want)
+    np.testing.assert_array_equal(frame_peaks.peak_bins(power, idx, expected, thr), want)
     out = np.empty((F, m), dtype=np.int64)
-    kernel = rerun_log._peak_bins_kernel
+    kernel = frame_peaks._peak_bins_kernel
     getattr(kernel, "py_func", kernel)(power, idx, expected, thr, out)  # the kernel's Python source
     np.testing.assert_array_equal(out, want)
     monkeypatch.delenv("CHATTERSPEC_JIT")
-    np.testing.assert_array_equal(rerun_log.peak_bins(power, idx, expected, thr), want)
+    np.testing.assert_array_equal(frame_peaks.peak_bins(power, idx, expected, thr), want)

@@ -21,6 +21,7 @@ __all__ = [
     "blueprint",
     "fault_entity",
     "lane_entity",
+    "series_styles",
 ]
 
 #: Entity of the true-fault lane: sorts before every channel lane (the viewer orders lanes by path).
@@ -88,6 +89,82 @@ def fault_entity(name: str) -> str:
         ``/detection/fault/<name>`` (name made entity-safe).
     """
     return f"/detection/fault/{_entity(name)}"
+
+
+_COLORS = [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189]]
+_GREY, _RED, _WHITE = [150, 150, 150], [230, 40, 40], [235, 235, 235]
+
+
+def series_styles(
+    channels: tuple[str, ...], units: tuple[str, ...], *, has_estimate: bool = False
+) -> list[tuple[str, Any]]:
+    """Static styling of the time series: one ``SeriesLines`` / ``SeriesPoints`` per entity with one
+    name and colour per series (series ``j`` = channel ``j``; ``/chattering/psi`` and ``/signal``
+    hold 2 series per channel, channel-major), logged once with ``static=True``.
+
+    Parameters
+    ----------
+    channels : tuple of str
+        Output channel names (model order).
+    units : tuple of str
+        Their units ("" for none), shown in the chattering series names.
+    has_estimate : bool
+        ``/signal`` holds the ``sat``-SVSF estimate after each measurement (``psi`` known).
+
+    Returns
+    -------
+    list of (entity path, archetype)
+    """
+    import rerun as rr
+
+    m = len(channels)
+    cols = [_COLORS[i % len(_COLORS)] for i in range(m)]
+    named = [f"{c} [{u}]" if u else c for c, u in zip(channels, units, strict=True)]
+    sig = ("measured", "SVSF estimate") if has_estimate else ("measured",)
+    out = [
+        (CHATTERING, rr.SeriesLines(colors=cols, names=named)),
+        (
+            PSI,
+            rr.SeriesLines(
+                colors=[_GREY] * (2 * m),
+                widths=[1.0] * (2 * m),
+                names=[f"{c}: {side}psi" for c in channels for side in "+-"],
+            ),
+        ),
+        (
+            SIGNAL,
+            rr.SeriesLines(
+                colors=[col if k == 0 else [0, 0, 0] for col in cols for k in range(len(sig))],
+                names=[f"{c}: {what}" for c in named for what in sig],
+            ),
+        ),
+        (
+            STATISTIC,
+            rr.SeriesLines(
+                colors=cols, widths=[1.5] * m, names=[f"{c}: max S/threshold [dB]" for c in channels]
+            ),
+        ),
+        (THRESHOLD, rr.SeriesLines(colors=[_GREY], widths=[1.0], names=["threshold (0 dB)"])),
+        (VERDICT, rr.SeriesPoints(colors=[_RED] * m, names=[f"{c}: verdict (1 = fault)" for c in channels])),
+        (
+            PEAK_HZ,
+            rr.SeriesLines(
+                colors=cols, widths=[1.0] * m, names=[f"{c}: peak_hz, largest S-E [Hz]" for c in channels]
+            ),
+        ),
+        (
+            MOST_SIGNIFICANT_HZ,
+            rr.SeriesPoints(
+                colors=[_WHITE] * m,
+                marker_sizes=[1.5] * m,
+                names=[f"{c}: most_significant_hz, largest S/thr [Hz]" for c in channels],
+            ),
+        ),
+    ]
+    for c in channels:
+        style = rr.SeriesPoints(colors=[_RED], marker_sizes=[2.5], names=[f"{c}: fault (flagged frame)"])
+        out.append((fault_entity(c), style))
+    return out
 
 
 def blueprint(

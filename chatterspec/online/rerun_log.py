@@ -14,7 +14,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .._jit import enabled, njit
 from ..detection.spectral import expected_frame_spectrum
 from ..errors import ParameterError
 from ..plants.nonlinear import is_linear
@@ -33,7 +32,9 @@ from .blueprint import (
     blueprint,
     fault_entity,
     lane_entity,
+    series_styles,
 )
+from .frame_peaks import peak_bins
 from .monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
 from .viewer import TIMELINE, Sinks
 
@@ -44,7 +45,6 @@ __all__ = [
     "DB_RANGE",
     "RerunLogger",
     "default_band_hz",
-    "peak_bins",
     "to_ns",
 ]
 
@@ -116,70 +116,6 @@ def default_band_hz(monitor: ChatteringMonitor, factor: float = 3.0) -> tuple[fl
     return lo, hi
 
 
-@njit
-def _peak_bins_kernel(
-    power: np.ndarray, tested: np.ndarray, expected: np.ndarray, thr: np.ndarray, out: np.ndarray
-) -> None:  # pragma: no cover - compiled; its py_func is tested
-    """:func:`peak_bins` in one pass over the tested bins of each frame and channel (first maximum
-    wins, as ``np.argmax``; only subtractions and comparisons: the same bits as the numpy path)."""
-    n_frames, m, n_tested = power.shape[0], power.shape[2], tested.shape[0]
-    for f in range(n_frames):
-        for c in range(m):
-            best, v_best, over, v_over = 0, -np.inf, -1, -np.inf
-            for j in range(n_tested):
-                p = power[f, tested[j], c]
-                ex = p - expected[j, c]
-                if ex > v_best:
-                    best, v_best = j, ex
-                if p > thr[j, c] and (over < 0 or ex > v_over):
-                    over, v_over = j, ex
-            out[f, c] = over if over >= 0 else best
-
-
-def _peak_bins_numpy(
-    power: np.ndarray, tested: np.ndarray, expected: np.ndarray, thr: np.ndarray
-) -> np.ndarray:
-    """Numpy path of :func:`peak_bins` (channel-major, so every reduction runs over contiguous bins)."""
-    p = np.ascontiguousarray(np.moveaxis(power[:, tested, :], 2, 0))  # (m, F, k)
-    over = p > thr.T[:, None, :]
-    excess = p - expected.T[:, None, :]
-    k = excess.argmax(axis=2)
-    rows = np.flatnonzero(over.any(axis=2))  # the (channel, frame) pairs with a bin over the threshold
-    if rows.size:
-        n = p.shape[2]
-        masked = np.where(over.reshape(-1, n)[rows], excess.reshape(-1, n)[rows], -np.inf)
-        k.reshape(-1)[rows] = masked.argmax(axis=1)
-    return k.T
-
-
-def peak_bins(power: np.ndarray, tested: np.ndarray, expected: np.ndarray, thr: np.ndarray) -> np.ndarray:
-    """Index (into ``tested``) of each frame's largest excess power ``S - E`` among the bins over the
-    threshold, or among all tested bins when none is over: the rule of the batch report's ``peak_hz``.
-
-    Parameters
-    ----------
-    power : (F, bins, m) float array
-        Frame spectra ``S`` (the monitor's frame power).
-    tested : (k,) int array
-        The tested bins (indices into ``bins``).
-    expected : (k, m) float array
-        Expected healthy spectrum ``E`` at the tested bins.
-    thr : (k, m) float array
-        Frame threshold at the tested bins (a bin is over when ``S > thr``).
-
-    Returns
-    -------
-    (F, m) int64 array
-        Position in ``tested`` of the peak bin of each frame and channel.
-    """
-    power = np.asarray(power, dtype=float)
-    if not enabled():
-        return _peak_bins_numpy(power, tested, expected, thr)
-    out = np.empty((power.shape[0], power.shape[2]), dtype=np.int64)
-    _peak_bins_kernel(power, tested, expected, thr, out)
-    return out
-
-
 @dataclass
 class _Outbox:
     """Updates waiting to be sent to one stream."""
@@ -189,10 +125,6 @@ class _Outbox:
     updates: list[MonitorUpdate] = field(default_factory=list)
     samples: int = 0
     frames: int = 0
-
-
-_COLORS = [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189]]
-_GREY, _RED, _WHITE = [150, 150, 150], [230, 40, 40], [235, 235, 235]
 
 
 class RerunLogger:
@@ -362,79 +294,12 @@ class RerunLogger:
         units = self.monitor.model.output_units
         lo, hi = self.band_hz
 
+        styles = series_styles(self.channels, units, has_estimate=self.monitor.settings.psi is not None)
+
         def static(s: Any) -> None:
-            m = len(self.channels)
-            cols = [_COLORS[i % len(_COLORS)] for i in range(m)]
-            named = [f"{name} [{units[i]}]" if units[i] else name for i, name in enumerate(self.channels)]
-            # one entity per quantity, one series per channel (series j = channel j); each channel's view
-            # shows its own series (blueprint: SeriesLines/SeriesPoints visible_series overrides)
-            s.log(CHATTERING, rr.SeriesLines(colors=cols, names=named), static=True)
-            s.log(
-                PSI,
-                rr.SeriesLines(
-                    colors=[_GREY] * (2 * m),
-                    widths=[1.0] * (2 * m),
-                    names=[f"{name}: {side}psi" for name in self.channels for side in ("+", "-")],
-                ),
-                static=True,
-            )
-            sat = self.monitor.settings.psi is not None  # the sat SVSF runs: its estimate is logged too
-            sig_names = ("measured", "SVSF estimate") if sat else ("measured",)
-            s.log(
-                SIGNAL,
-                rr.SeriesLines(
-                    colors=[col if k == 0 else [0, 0, 0] for col in cols for k in range(len(sig_names))],
-                    names=[f"{name}: {what}" for name in named for what in sig_names],
-                ),
-                static=True,
-            )
-            s.log(
-                STATISTIC,
-                rr.SeriesLines(
-                    colors=cols,
-                    widths=[1.5] * m,
-                    names=[f"{name}: max S/threshold [dB]" for name in self.channels],
-                ),
-                static=True,
-            )
-            s.log(
-                THRESHOLD,
-                rr.SeriesLines(colors=[_GREY], widths=[1.0], names=["threshold (0 dB)"]),
-                static=True,
-            )
-            s.log(
-                VERDICT,
-                rr.SeriesPoints(
-                    colors=[_RED] * m, names=[f"{name}: verdict (1 = fault)" for name in self.channels]
-                ),
-                static=True,
-            )
-            s.log(
-                PEAK_HZ,
-                rr.SeriesLines(
-                    colors=cols,
-                    widths=[1.0] * m,
-                    names=[f"{name}: peak_hz, largest S-E [Hz]" for name in self.channels],
-                ),
-                static=True,
-            )
-            s.log(
-                MOST_SIGNIFICANT_HZ,
-                rr.SeriesPoints(
-                    colors=[_WHITE] * m,
-                    marker_sizes=[1.5] * m,
-                    names=[f"{name}: most_significant_hz, largest S/thr [Hz]" for name in self.channels],
-                ),
-                static=True,
-            )
+            for path, style in styles:
+                s.log(path, style, static=True)
             for i, (name, c) in enumerate(zip(self.channels, self.keys, strict=True)):
-                s.log(
-                    fault_entity(name),
-                    rr.SeriesPoints(
-                        colors=[_RED], marker_sizes=[2.5], names=[f"{name}: fault (flagged frame)"]
-                    ),
-                    static=True,
-                )
                 s.log(f"/threshold/{c}", rr.Tensor(thr.values[:, i], dim_names=["freq"]), static=True)
                 s.log(f"/expected/{c}", rr.Tensor(self._expected[:, i], dim_names=["freq"]), static=True)
                 s.log(
