@@ -140,6 +140,12 @@ def test_bulk_tensor_columns_match_rerun_encoding() -> None:
     x = np.random.default_rng(0).random((7, 11))
     ref = rr.Tensor(x[3], dim_names=["freq"]).data.as_arrow_array()
     assert cols._tensor_array(x, ("freq",))[3:4].equals(ref)
+    # the layout parts are cached per process: a second batch (other values) and another logger's
+    # columns reuse them and still encode exactly like rr.Tensor
+    y = x[::-1].copy()
+    again = arrow_columns._Columns(rr, rerun_log.DB_RANGE)._tensor_array(y, ("freq",))
+    assert again[3:4].equals(rr.Tensor(y[3], dim_names=["freq"]).data.as_arrow_array())
+    assert again.equals(cols._tensor_array(y, ("freq",), cache=False))
 
 
 def test_fallback_without_bulk_tensors(tmp_path: Path, sim, batch, monkeypatch) -> None:

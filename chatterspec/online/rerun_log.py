@@ -577,7 +577,7 @@ class RerunLogger:
             self._set_time(s, ns)
             s.log(path, self.rr.Tensor(img, dim_names=list(names), value_range=list(DB_RANGE)))
             return
-        cols = self._cols.tensor_columns(img[None], names, value_range=True)
+        cols = self._cols.tensor_columns(img[None], names, value_range=True, cache=False)
         s.send_columns(path, indexes=[_TimeIndex(self.pa, np.array([ns], dtype=np.int64))], columns=cols)
 
     def _file_spectrogram(self, times: np.ndarray, spectra: np.ndarray) -> None:
