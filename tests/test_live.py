@@ -234,9 +234,30 @@ def test_live_viewer_receives_data(tmp_path: Path, sim, batch) -> None:
     assert len(vr) == spec.n_frames and np.array_equal(np.asarray(vr[-1]).ravel(), rerun_log.DB_RANGE)
 
 
+def _visible(view, entity: str) -> list[bool]:
+    """The visible_series override of ``entity`` in ``view`` (SeriesLines or SeriesPoints)."""
+    (batch,) = view.visualizer_overrides[entity].as_component_batches()
+    return batch.as_arrow_array().to_pylist()
+
+
 def test_blueprint_builds() -> None:
-    bp = blueprint.blueprint(("position", "velocity", "pressure"), has_truth=True)
+    channels = ("position", "velocity", "pressure")
+    bp = blueprint.blueprint(channels, has_truth=True)
     assert bp is not None
+    # one column of views per channel, in channel order; each time-series view shows only its own
+    # channel's series of the shared entities (series j = channel j; psi: +psi_j, -psi_j)
+    columns = bp.root_container.contents[0].contents
+    assert len(columns) == len(channels)
+    for c, (name, col) in enumerate(zip(channels, columns, strict=True)):
+        chat, _, det, freq = col.contents
+        assert all(v.name.startswith(f"{name}:") for v in col.contents)
+        own = [j == c for j in range(len(channels))]
+        assert _visible(chat, blueprint.CHATTERING) == own
+        assert _visible(chat, blueprint.PSI) == [j // 2 == c for j in range(2 * len(channels))]
+        assert _visible(det, blueprint.STATISTIC) == own
+        assert [e for e in det.contents if "/fault/" in e] == [f"+ {blueprint.fault_entity(name)}"]
+        assert _visible(freq, blueprint.PEAK_HZ) == own
+        assert _visible(freq, blueprint.MOST_SIGNIFICANT_HZ) == own
     bp = blueprint.blueprint(("position",), band_hz=(1.0, 150.0), span_s=(0.4, 3.6))
     assert bp is not None
     # lanes sort in channel order below the truth lane (the viewer orders them by entity path)
