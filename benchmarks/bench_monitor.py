@@ -11,8 +11,9 @@ stream is processed and (with a file) the recording size per minute of data:
 plus the auxiliary SVSF without a file for reference. "x real time" counts the
 whole run: pushes, logging and closing the file (flush + footer) — everything
 that grows with the data. The fixed cost of opening the file and sending the
-blueprint and static entities (tens of ms, once per run) is printed separately
-and also folded into "incl. setup". Each figure is the best of ``--repeat``
+blueprint and static entities (tens of ms, once per run; including their encoding, which is
+waited for with a ``flush`` before the clock starts) is printed separately and also folded into
+"incl. setup". Each figure is the best of ``--repeat``
 runs (the machine may be shared). One warm-up recording is written first so
 that one-time imports (pyarrow.compute, ...) are not charged to the first case.
 
@@ -24,13 +25,21 @@ which is less disturbed by other jobs on a shared machine. The issue-10 baseline
 (same machine class, before this work) are printed beside the
 targets; the machine's core count and the compiled-kernel switch are printed on top.
 
-Usage: ``python benchmarks/bench_monitor.py [--minutes 1] [--chunk 1000] [--repeat 3]``
+``--breakdown`` splits the logging path (updates computed beforehand, so only logging is timed) by
+entity group: each group's share is the time saved when its ``send_columns`` / ``log`` calls are
+dropped (Rerun's synchronous part, its encoder threads and the final flush), "python side" is what
+remains with every call dropped (building the columns, closing the empty stream). ``--live``
+times the live path: one hop (200 samples) per push to an in-memory stream, ms per hop.
+
+Usage: ``python benchmarks/bench_monitor.py [--minutes 1] [--chunk 1000] [--repeat 3] [--cases b,d]
+[--cpu] [--breakdown] [--live]``
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import tempfile
 import time
 from pathlib import Path
@@ -47,6 +56,15 @@ from chatterspec.plants.signals import Chirp
 from chatterspec.plants.simulate import simulate
 
 PSI = (4.2e-3, 4.8e-3, 4.3e3)
+
+
+class _Setup:
+    """A monitor's model and settings (``--breakdown`` builds a fresh monitor per case)."""
+
+    def __init__(self, model, settings) -> None:
+        self.model, self.settings = model, settings
+
+
 #: Measure process CPU time (all threads, incl. Rerun's encoder threads) instead of wall time:
 #: less sensitive to other jobs on a shared machine (``--cpu``).
 CPU = False
@@ -64,6 +82,7 @@ def _run(
     if path is not None:
         sinks = open_sinks(record=path)
         logger = RerunLogger(sinks, mon, **LOGGER_KW)
+        sinks.file_stream.flush()  # the blueprint and static entities are encoded here, as setup
     t1 = clock()
     n = next(iter(data.values())).shape[0]
     t_push = t_log = 0.0
@@ -87,6 +106,88 @@ def _run(
     return t1 - t0, t2 - t1, path.stat().st_size if path is not None else 0, t_push, t_log
 
 
+#: Entity groups of ``--breakdown``: regular expressions matched against the entity path, written for
+#: both the one-row-per-sample layout (``/chattering/e``) and the earlier per-channel one
+#: (``/chattering/<c>/e``), so the script also splits the time of an older checkout.
+GROUPS = {
+    "chattering e (1 row/sample)": r"/chattering(/[^/]+)?/e$",
+    "signal (1 row/sample)": r"/signal(/|$)",
+    "spectrum/<c> (1 tensor/frame)": r"/spectrum/",
+    "spectrogram/<c> (file block)": r"/spectrogram/",
+    "per-frame series, psi, events, lanes": r"/(detection|frequency|events|state)|psi",
+}
+
+
+def _logging_only(mon: ChatteringMonitor, ups: list, path: Path, drop: str) -> float:
+    """Time of logging ``ups`` (log_update + close + closing the file) with the calls whose entity path
+    matches the regular expression ``drop`` skipped."""
+    clock = time.perf_counter if not CPU else time.process_time
+    sinks = open_sinks(record=path)
+    logger = RerunLogger(sinks, mon, **LOGGER_KW)
+    s = sinks.file_stream
+    s.flush()  # the static entities and the blueprint are encoded before the clock starts
+    if drop:
+        send, log = s.send_columns, s.log
+        skip = re.compile(drop).search
+        s.send_columns = lambda p, *a, **k: None if skip(p) else send(p, *a, **k)
+        s.log = lambda p, *a, **k: None if skip(p) else log(p, *a, **k)
+    t0 = clock()
+    for u in ups:
+        logger.log_update(u)
+    logger.close()
+    sinks.close()
+    return clock() - t0
+
+
+def _breakdown(cases: list, chunk: int, repeat: int, path: Path, T: float) -> None:
+    print(f"\nwhere the logging time goes (ms per {T:g} s of data, best of {repeat}; updates precomputed)")
+    for label, settings, data, record, t0 in cases:
+        if not record:
+            continue
+        mon = ChatteringMonitor(settings.model, settings.settings, t0=t0)
+        n = next(iter(data.values())).shape[0]
+        if "chattering" in data:
+            ups = [mon.push_chattering(data["chattering"][lo : lo + chunk]) for lo in range(0, n, chunk)]
+        else:
+            z, u = data["z"], data["u"]
+            ups = [mon.push(z[lo : lo + chunk], u[lo : lo + chunk]) for lo in range(0, n, chunk)]
+        rest = "python side (every call dropped)"
+        variants = {"all": "", **GROUPS, rest: "."}
+        best = {k: np.inf for k in variants}
+        for _ in range(repeat):  # interleaved, so a burst of load hits every variant alike
+            for k, drop in variants.items():
+                best[k] = min(best[k], _logging_only(mon, ups, path, drop))
+                path.unlink()
+        print(f"{label}: all {best['all'] * 1e3:.1f} ms ({T / best['all']:.0f}x real time)")
+        for k in GROUPS:
+            print(f"    {k:<40}{(best['all'] - best[k]) * 1e3:7.1f}")
+        print(f"    {rest:<40}{best[rest] * 1e3:7.1f}")
+
+
+def _live(nominal, raw: dict, repeat: int) -> None:
+    import rerun as rr
+
+    from chatterspec.online.viewer import Sinks
+
+    mon = ChatteringMonitor(nominal, MonitorSettings(psi=PSI), t0=0.0)
+    ups = [mon.push(raw["z"][lo : lo + 200], raw["u"][lo : lo + 200]) for lo in range(0, 20_000, 200)]
+    clock = time.perf_counter if not CPU else time.process_time
+    best = np.inf
+    for _ in range(repeat):
+        s = rr.RecordingStream("bench-live", recording_id="live")
+        mem = s.memory_recording()  # noqa: F841  (kept alive: a dropped memory sink discards the data)
+        sinks = Sinks(live_stream=s)
+        logger = RerunLogger(sinks, mon)
+        t0 = clock()
+        for u in ups:
+            logger.log_update(u)
+        best = min(best, clock() - t0)
+        logger.close()
+        sinks.close()
+    ms = best / len(ups) * 1e3
+    print(f"\nlive path (in-memory stream, both SVSFs, one hop per push): {ms:.2f} ms per hop")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=1.0)
@@ -100,6 +201,8 @@ def main() -> None:
         help="RerunLogger batch_samples (file batches; batch_frames follows at one frame per hop)",
     )
     ap.add_argument("--cases", default="", help="comma-separated subset of the cases to run, e.g. b,d")
+    ap.add_argument("--breakdown", action="store_true", help="split the logging time by entity group")
+    ap.add_argument("--live", action="store_true", help="time the live path per hop")
     args = ap.parse_args()
     global CPU
     CPU = args.cpu
@@ -139,6 +242,9 @@ def main() -> None:
     )
     print("issue-10 baseline (before): (d) 87x real time, (b) 910x; target >= 2000x for both")
     print(
+        "before the one-row-per-sample layout (idle machine): (b) 1756x, 6.3 MB/min; (d) 1023x, 11.7 MB/min"
+    )
+    print(
         "'push x' before the pushfast branch (idle machine): (a) ~4400x, (d) ~2350x; "
         "target (a) >= 8000x, (d) >= 5000x"
     )
@@ -165,6 +271,14 @@ def main() -> None:
                 f"{label:<38}{T / stream:12.0f}{T / (stream + setup):13.0f}{setup * 1e3:10.1f}{mb}"
                 f"{T / t_push:9.0f}{log_x}"
             )
+        if args.breakdown:
+            jobs = [
+                (label, _Setup(nominal, settings), data, record, rec.t[0] if "chattering" in data else 0.0)
+                for label, settings, data, record in cases
+            ]
+            _breakdown(jobs, args.chunk, args.repeat, path, T)
+    if args.live:
+        _live(nominal, raw, args.repeat)
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ from chatterspec.plants.scenarios import Scenario, Segment
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
-from chatterspec.online import arrow_columns, blueprint, drivers, rerun_log, viewer  # noqa: E402
+from chatterspec.online import arrow_columns, blueprint, drivers, frame_peaks, rerun_log, viewer  # noqa: E402
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -80,10 +80,11 @@ def _check_recording(path: Path, rec, spec, flags, summary) -> None:
         np.testing.assert_allclose(t, spec.times_s, atol=1e-9)
         buf = np.asarray(cols[-1][0]["buffer"])  # the union holds the F32 payload (spectrum_dtype default)
         np.testing.assert_array_equal(buf, spec.power[-1, :, c].astype(np.float32))
-        t, verdict = _column(reader, f"/detection/{name}/verdict", "Scalars:scalars")
-        np.testing.assert_array_equal(np.asarray(verdict)[:, 0] > 0.5, flags[:, c])
-        t_e, _ = _column(reader, f"/chattering/{name}/e", "Scalars:scalars")
-        assert t_e.size == rec.n_samples
+        # one row per frame / per sample for all channels: series c is channel c
+        t, verdict = _column(reader, blueprint.VERDICT, "Scalars:scalars")
+        np.testing.assert_array_equal(np.asarray(verdict)[:, c] > 0.5, flags[:, c])
+        t_e, e = _column(reader, blueprint.CHATTERING, "Scalars:scalars")
+        assert t_e.size == rec.n_samples and np.asarray(e).shape == (rec.n_samples, len(rec.channels))
     t_ev, texts = _column(reader, "/events", "TextLog:text")
     assert len(texts) == len(summary.events) > 0
     for ev in summary.events:
@@ -123,6 +124,8 @@ def test_record_chattering_record(tmp_path: Path, batch) -> None:
     thr = frame_threshold(rec.model, spec.freqs_hz, spec.config, rec.dt)
     db = np.clip(10 * np.log10(spec.power[:, band, 2] / thr.values[band, 2]), *rerun_log.DB_RANGE)
     np.testing.assert_allclose(img, db.T, atol=0.02)  # float16 dB (resolution 0.016 dB at 30 dB)
+    _, vr = _column(reader, "/spectrogram/pressure", "Tensor:value_range")  # fixed colour range
+    np.testing.assert_array_equal(np.asarray(vr[0]).ravel(), rerun_log.DB_RANGE)
 
 
 def _monitor(rec):
@@ -137,6 +140,12 @@ def test_bulk_tensor_columns_match_rerun_encoding() -> None:
     x = np.random.default_rng(0).random((7, 11))
     ref = rr.Tensor(x[3], dim_names=["freq"]).data.as_arrow_array()
     assert cols._tensor_array(x, ("freq",))[3:4].equals(ref)
+    # the layout parts are cached per process: a second batch (other values) and another logger's
+    # columns reuse them and still encode exactly like rr.Tensor
+    y = x[::-1].copy()
+    again = arrow_columns._Columns(rr, rerun_log.DB_RANGE)._tensor_array(y, ("freq",))
+    assert again[3:4].equals(rr.Tensor(y[3], dim_names=["freq"]).data.as_arrow_array())
+    assert again.equals(cols._tensor_array(y, ("freq",), cache=False))
 
 
 def test_fallback_without_bulk_tensors(tmp_path: Path, sim, batch, monkeypatch) -> None:
@@ -221,11 +230,34 @@ def test_live_viewer_receives_data(tmp_path: Path, sim, batch) -> None:
     widths = [v[0]["shape"][1] for v in views]
     assert widths == [min(k + 1, 50) for k in range(spec.n_frames)]  # grows to 50 columns, no padding
     assert views[-1][0]["names"][1].endswith(f"newest (right) = {spec.times_s[-1]:.1f} s")
+    _, vr = _column(reader, "/spectrogram/pressure", "Tensor:value_range")
+    assert len(vr) == spec.n_frames and np.array_equal(np.asarray(vr[-1]).ravel(), rerun_log.DB_RANGE)
+
+
+def _visible(view, entity: str) -> list[bool]:
+    """The visible_series override of ``entity`` in ``view`` (SeriesLines or SeriesPoints)."""
+    (batch,) = view.visualizer_overrides[entity].as_component_batches()
+    return batch.as_arrow_array().to_pylist()
 
 
 def test_blueprint_builds() -> None:
-    bp = blueprint.blueprint(("position", "velocity", "pressure"), has_truth=True)
+    channels = ("position", "velocity", "pressure")
+    bp = blueprint.blueprint(channels, has_truth=True)
     assert bp is not None
+    # one column of views per channel, in channel order; each time-series view shows only its own
+    # channel's series of the shared entities (series j = channel j; psi: +psi_j, -psi_j)
+    columns = bp.root_container.contents[0].contents
+    assert len(columns) == len(channels)
+    for c, (name, col) in enumerate(zip(channels, columns, strict=True)):
+        chat, _, det, freq = col.contents
+        assert all(v.name.startswith(f"{name}:") for v in col.contents)
+        own = [j == c for j in range(len(channels))]
+        assert _visible(chat, blueprint.CHATTERING) == own
+        assert _visible(chat, blueprint.PSI) == [j // 2 == c for j in range(2 * len(channels))]
+        assert _visible(det, blueprint.STATISTIC) == own
+        assert [e for e in det.contents if "/fault/" in e] == [f"+ {blueprint.fault_entity(name)}"]
+        assert _visible(freq, blueprint.PEAK_HZ) == own
+        assert _visible(freq, blueprint.MOST_SIGNIFICANT_HZ) == own
     bp = blueprint.blueprint(("position",), band_hz=(1.0, 150.0), span_s=(0.4, 3.6))
     assert bp is not None
     # lanes sort in channel order below the truth lane (the viewer orders them by entity path)
@@ -318,8 +350,9 @@ def test_logger_construction_error_is_not_hidden(tmp_path: Path, sim, monkeypatc
 
 
 def test_signal_rows_and_float64_spectra(tmp_path: Path, sim) -> None:
-    """/signal/<c> holds one row per sample: [measured, sat-SVSF estimate], equal to the monitor's
-    values; spectrum_dtype="float64" logs the monitor's spectra bit-exactly."""
+    """/signal holds one row per sample: [measured, sat-SVSF estimate] of each channel in turn, and
+    /chattering/e one chattering value per channel, equal to the monitor's values; the ±psi lines hold
+    +psi_c, -psi_c per channel; spectrum_dtype="float64" logs the monitor's spectra bit-exactly."""
     from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
 
     mon = ChatteringMonitor(sim.scenario.nominal, MonitorSettings(psi=(4.2e-3, 4.8e-3, 4.3e3)))
@@ -333,10 +366,19 @@ def test_signal_rows_and_float64_spectra(tmp_path: Path, sim) -> None:
     reader = RrdReader(tmp_path / "s.rrd")
     est = np.concatenate([u.estimate for u in ups])
     meas = np.concatenate([u.measured for u in ups])
+    chat = np.concatenate([u.chattering for u in ups])
+    t_all = np.concatenate([u.t for u in ups])
+    t, rows = _column(reader, blueprint.SIGNAL, "Scalars:scalars")
+    np.testing.assert_allclose(t, t_all, atol=1e-9)
+    t_e, e = _column(reader, blueprint.CHATTERING, "Scalars:scalars")
+    np.testing.assert_allclose(t_e, t_all, atol=1e-9)
+    np.testing.assert_array_equal(np.asarray(e), chat)
+    _, psi = _column(reader, blueprint.PSI, "Scalars:scalars")
+    np.testing.assert_array_equal(psi[0], [4.2e-3, -4.2e-3, 4.8e-3, -4.8e-3, 4.3e3, -4.3e3])
     for c, name in enumerate(mon.channels):
-        t, rows = _column(reader, f"/signal/{name}", "Scalars:scalars")
-        np.testing.assert_allclose(t, np.concatenate([u.t for u in ups]), atol=1e-9)
-        np.testing.assert_array_equal(np.asarray(rows), np.stack([meas[:, c], est[:, c]], axis=1))
+        np.testing.assert_array_equal(
+            np.asarray(rows)[:, 2 * c : 2 * c + 2], np.stack([meas[:, c], est[:, c]], axis=1)
+        )
         _, cols = _column(reader, f"/spectrum/{name}", "Tensor:data")
         last = [u.frames for u in ups if u.frames.n_frames][-1]
         np.testing.assert_array_equal(np.asarray(cols[-1][0]["buffer"]), last.power[-1, :, c])
@@ -363,8 +405,8 @@ def test_peak_hz_series_is_the_largest_excess_among_flagged_bins(tmp_path: Path)
     f_t = spec.freqs_hz[t]
     reader = RrdReader(path)
     c = rec.channels.index("pressure")
-    _, got = _column(reader, "/frequency/pressure/peak_hz", "Scalars:scalars")
-    got = np.asarray(got)[:, 0]
+    _, got = _column(reader, blueprint.PEAK_HZ, "Scalars:scalars")
+    got = np.asarray(got)[:, c]
     want, overall = [], []
     for j in range(spec.n_frames):
         s = spec.power[j, t, c]
@@ -376,3 +418,34 @@ def test_peak_hz_series_is_the_largest_excess_among_flagged_bins(tmp_path: Path)
     fl = flags[:, c]
     assert fl.any() and np.all((got[fl] >= 10.0) & (got[fl] <= 100.0))  # inside the chirp band
     assert np.any(np.asarray(overall)[fl] > 100.0)  # where the old rule left the footprint
+
+
+@pytest.mark.parametrize("tested", ["contiguous", "sparse"])
+def test_peak_bins_paths_agree(tested: str, monkeypatch) -> None:
+    """The compiled and numpy paths of ``peak_bins`` pick the same bins (bit-identical: subtractions and
+    comparisons only), equal to the rule written out with np.where/argmax on the frame-major array:
+    frames with bins over the threshold (their largest excess among those), frames with none (the
+    overall largest excess), exact ties (the first bin wins, as np.argmax)."""
+    rng = np.random.default_rng(7)
+    F, B, m = 40, 64, 3
+    power = rng.exponential(size=(F, B, m))
+    idx = np.arange(1, B - 1) if tested == "contiguous" else np.arange(1, B, 3)
+    expected = rng.uniform(0.5, 1.5, size=(idx.size, m))
+    thr = expected * 4.0
+    thr[:, 1] = 1e9  # channel 1: never over the threshold
+    power[5, idx[[2, 7]], 0] = power[5, idx[7], 0] + 10.0  # a tie in excess needs equal E as well
+    expected[7, 0] = expected[2, 0]
+    p_t = power[:, idx, :]
+    excess = p_t - expected
+    masked = np.where(p_t > thr, excess, -np.inf)
+    want = np.where((p_t > thr).any(axis=1), masked.argmax(axis=1), excess.argmax(axis=1))
+    assert (p_t > thr).any(axis=1)[:, 0].any() and not (p_t > thr).any(axis=1)[:, 1].any()
+    assert want[5, 0] == 2  # the tie: the first of the two bins
+    monkeypatch.setenv("CHATTERSPEC_JIT", "0")
+    np.testing.assert_array_equal(frame_peaks.peak_bins(power, idx, expected, thr), want)
+    out = np.empty((F, m), dtype=np.int64)
+    kernel = frame_peaks._peak_bins_kernel
+    getattr(kernel, "py_func", kernel)(power, idx, expected, thr, out)  # the kernel's Python source
+    np.testing.assert_array_equal(out, want)
+    monkeypatch.delenv("CHATTERSPEC_JIT")
+    np.testing.assert_array_equal(frame_peaks.peak_bins(power, idx, expected, thr), want)

@@ -83,8 +83,9 @@ def test_lanes_match_events_and_batch_verdicts(tmp_path: Path, name: str) -> Non
         t_lane, raw = _read(reader, lane, "StateChange:state")
         states = [s[0] for s in raw]
         # one time rule: the frames of the recording sit exactly at the rounded batch frame times
-        t_stat, _ = _read(reader, f"/detection/{blueprint._entity(channel)}/statistic_db", "Scalars:scalars")
+        t_stat, stat = _read(reader, blueprint.STATISTIC, "Scalars:scalars")  # one row per frame, m values
         np.testing.assert_array_equal(t_stat, frame_ns)
+        assert all(len(row) == len(rec.channels) for row in stat)
         # no two changes at one time (the viewer's order of equal times is arbitrary)
         assert np.all(np.diff(t_lane) > 0), (name, channel, t_lane)
         # the initial state comes strictly before the first frame

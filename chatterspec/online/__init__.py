@@ -7,27 +7,38 @@ does not load it, and the numeric core never imports this module.
 
 Entity layout (timeline ``time``: integer nanoseconds, every time rounded once by
 :func:`chatterspec.online.rerun_log.to_ns`; ``<c>`` is an output channel name, ``<k>`` its
-1-based index):
+1-based index). Per-sample and per-frame series hold ONE row per sample / frame for all
+``m`` channels (series ``j`` = channel ``j``, named and coloured in the static
+``SeriesLines`` / ``SeriesPoints``): Rerun's cost is per row (a 16-byte row id and an
+8-byte time besides the values), so this halves the recording time of the per-channel
+layout. Each channel's view shows only its own series (blueprint overrides of
+``visible_series``; hidden series do not enter the auto-scaled y range):
 
 ========================================  =============================================================
-``/chattering/<c>/e``                     chattering ``e(k|k-1)`` of the auxiliary filter
-``/chattering/<c>/psi_upper|lower``       the SVSF boundary layer ``+-psi`` (when known)
-``/signal/<c>``                           measurement [and ``sat``-SVSF estimate ``C x(k|k)``]: one row of
-                                          1 or 2 scalars per sample (raw data only)
+``/chattering/e``                         chattering ``e(k|k-1)`` of the auxiliary filter: m per row
+``/chattering/psi``                       the SVSF boundary layer ``+psi_0, -psi_0, +psi_1, ...`` (when
+                                          known): 2 m per row, at each batch's first and last sample
+``/signal``                               per channel the measurement [and ``sat``-SVSF estimate
+                                          ``C x(k|k)``]: m (or 2 m) per row (raw data only)
 ``/spectrum/<c>``                         one STFT column per hop (``Tensor``, dim ``freq``, float32;
                                           float64 with ``RerunLogger(spectrum_dtype="float64")``)
 ``/spectrogram/<c>``                      ``10 log10(S / threshold)`` dB over the band, clipped
-``/detection/<c>/statistic_db``           ``10 log10`` of the largest ``S / threshold`` over the tested bins
-``/detection/<c>/threshold_db``           the decision level, 0 dB
-``/detection/<c>/fault``                  the statistic at flagged frames only (red points)
-``/detection/<c>/verdict``                per-frame verdict, 1 = fault, 0 = healthy (not drawn)
-``/frequency/<c>/peak_hz``                tested bin with the largest excess power ``S - E`` (Hz)
-``/frequency/<c>/most_significant_hz``    tested bin with the largest ``S / threshold`` (Hz)
+``/detection/statistic_db``               ``10 log10`` of the largest ``S / threshold`` over the tested
+                                          bins: m per row, one row per frame
+``/detection/threshold_db``               the decision level, 0 dB (one series)
+``/detection/fault/<c>``                  the statistic at flagged frames only (red points)
+``/detection/verdict``                    per-frame verdict, 1 = fault, 0 = healthy: m per row (not drawn)
+``/frequency/peak_hz``                    tested bin with the largest excess power ``S - E`` (Hz): m per row
+``/frequency/most_significant_hz``        tested bin with the largest ``S / threshold`` (Hz): m per row
 ``/threshold/<c>``, ``/expected/<c>``     static frame threshold and expected healthy spectrum per bin
 ``/state/0_truth``                        true fault timeline (simulated data only), the top lane
 ``/state/<k>_<c>``                        verdict lane ``healthy`` / ``fault``, in channel order
 ``/events``                               text log of fault start / end events
 ========================================  =============================================================
+
+The paths are constants of :mod:`chatterspec.online.blueprint` (``CHATTERING``, ``PSI``,
+``SIGNAL``, ``STATISTIC``, ``THRESHOLD``, ``VERDICT``, ``PEAK_HZ``, ``MOST_SIGNIFICANT_HZ``,
+:func:`~chatterspec.online.blueprint.fault_entity`, :func:`~chatterspec.online.blueprint.lane_entity`).
 
 Everything time-indexed is sent column-wise (``send_columns``) from zero-copy arrow
 views, also the spectra: one ``Tensor`` row per frame, built in bulk from numpy

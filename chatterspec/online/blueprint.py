@@ -10,12 +10,42 @@ if TYPE_CHECKING:
     pass
 
 __all__ = [
+    "CHATTERING",
+    "MOST_SIGNIFICANT_HZ",
+    "PEAK_HZ",
+    "PSI",
+    "SIGNAL",
+    "STATISTIC",
+    "THRESHOLD",
+    "VERDICT",
     "blueprint",
+    "fault_entity",
     "lane_entity",
+    "series_styles",
 ]
 
 #: Entity of the true-fault lane: sorts before every channel lane (the viewer orders lanes by path).
 TRUTH_LANE = "/state/0_truth"
+
+# Per-sample and per-frame series: ONE entity per quantity with one scalar per channel in each row
+# (series j = output channel j), so a sample costs one Rerun row (a row id and a time) for all channels;
+# each channel's view shows only its own series (``visible_series`` overrides, :func:`blueprint`).
+#: Chattering ``e(k|k-1)`` of the auxiliary filter, one row per sample, m scalars.
+CHATTERING = "/chattering/e"
+#: The boundary layer: +psi_0, -psi_0, +psi_1, ... (2 m scalars), at each batch's first and last sample.
+PSI = "/chattering/psi"
+#: Measurement [and ``sat``-SVSF estimate] per channel: one row per sample of m (or 2 m) scalars.
+SIGNAL = "/signal"
+#: ``10 log10(max_k S_k / threshold_k)`` (dB) per channel, one row per frame.
+STATISTIC = "/detection/statistic_db"
+#: The decision level, 0 dB (one series shared by every channel's view).
+THRESHOLD = "/detection/threshold_db"
+#: Per-frame verdict per channel, 1 = fault (not drawn).
+VERDICT = "/detection/verdict"
+#: Tested bin with the largest excess power ``S - E`` per channel (Hz), one row per frame.
+PEAK_HZ = "/frequency/peak_hz"
+#: Tested bin with the largest ``S / threshold`` per channel (Hz), one row per frame.
+MOST_SIGNIFICANT_HZ = "/frequency/most_significant_hz"
 
 
 # --------------------------------------------------------------------------- blueprint
@@ -42,6 +72,99 @@ def lane_entity(index: int, name: str) -> str:
         ``/state/<index + 1>_<name>`` (name made entity-safe).
     """
     return f"/state/{index + 1}_{_entity(name)}"
+
+
+def fault_entity(name: str) -> str:
+    """Entity path of the flagged frames of output channel ``name``: the statistic (dB) at those frames
+    only, drawn as red points (sparse, so one entity per channel).
+
+    Parameters
+    ----------
+    name : str
+        Channel name.
+
+    Returns
+    -------
+    str
+        ``/detection/fault/<name>`` (name made entity-safe).
+    """
+    return f"/detection/fault/{_entity(name)}"
+
+
+_COLORS = [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189]]
+_GREY, _RED, _WHITE = [150, 150, 150], [230, 40, 40], [235, 235, 235]
+
+
+def series_styles(
+    channels: tuple[str, ...], units: tuple[str, ...], *, has_estimate: bool = False
+) -> list[tuple[str, Any]]:
+    """Static styling of the time series: one ``SeriesLines`` / ``SeriesPoints`` per entity with one
+    name and colour per series (series ``j`` = channel ``j``; ``/chattering/psi`` and ``/signal``
+    hold 2 series per channel, channel-major), logged once with ``static=True``.
+
+    Parameters
+    ----------
+    channels : tuple of str
+        Output channel names (model order).
+    units : tuple of str
+        Their units ("" for none), shown in the chattering series names.
+    has_estimate : bool
+        ``/signal`` holds the ``sat``-SVSF estimate after each measurement (``psi`` known).
+
+    Returns
+    -------
+    list of (entity path, archetype)
+    """
+    import rerun as rr
+
+    m = len(channels)
+    cols = [_COLORS[i % len(_COLORS)] for i in range(m)]
+    named = [f"{c} [{u}]" if u else c for c, u in zip(channels, units, strict=True)]
+    sig = ("measured", "SVSF estimate") if has_estimate else ("measured",)
+    out = [
+        (CHATTERING, rr.SeriesLines(colors=cols, names=named)),
+        (
+            PSI,
+            rr.SeriesLines(
+                colors=[_GREY] * (2 * m),
+                widths=[1.0] * (2 * m),
+                names=[f"{c}: {side}psi" for c in channels for side in "+-"],
+            ),
+        ),
+        (
+            SIGNAL,
+            rr.SeriesLines(
+                colors=[col if k == 0 else [0, 0, 0] for col in cols for k in range(len(sig))],
+                names=[f"{c}: {what}" for c in named for what in sig],
+            ),
+        ),
+        (
+            STATISTIC,
+            rr.SeriesLines(
+                colors=cols, widths=[1.5] * m, names=[f"{c}: max S/threshold [dB]" for c in channels]
+            ),
+        ),
+        (THRESHOLD, rr.SeriesLines(colors=[_GREY], widths=[1.0], names=["threshold (0 dB)"])),
+        (VERDICT, rr.SeriesPoints(colors=[_RED] * m, names=[f"{c}: verdict (1 = fault)" for c in channels])),
+        (
+            PEAK_HZ,
+            rr.SeriesLines(
+                colors=cols, widths=[1.0] * m, names=[f"{c}: peak_hz, largest S-E [Hz]" for c in channels]
+            ),
+        ),
+        (
+            MOST_SIGNIFICANT_HZ,
+            rr.SeriesPoints(
+                colors=[_WHITE] * m,
+                marker_sizes=[1.5] * m,
+                names=[f"{c}: most_significant_hz, largest S/thr [Hz]" for c in channels],
+            ),
+        ),
+    ]
+    for c in channels:
+        style = rr.SeriesPoints(colors=[_RED], marker_sizes=[2.5], names=[f"{c}: fault (flagged frame)"])
+        out.append((fault_entity(c), style))
+    return out
 
 
 def blueprint(
@@ -98,16 +221,28 @@ def blueprint(
         )
     no_legend = rrb.PlotLegend(visible=False)
     band = "" if band_hz is None else f" {band_hz[0]:g}-{band_hz[1]:g} Hz"
+    m = len(channels)
+
+    def only(i: int, k: int = 1) -> list[bool]:
+        """visible_series of channel i in an entity with k series per channel (channel-major)."""
+        return [j // k == i for j in range(k * m)]
+
     columns = []
-    for name in channels:
+    for i, name in enumerate(channels):
         c = _entity(name)
         columns.append(
             rrb.Vertical(
                 rrb.TimeSeriesView(
-                    origin=f"/chattering/{c}",
+                    origin="/chattering",
+                    contents=[f"+ {CHATTERING}", f"+ {PSI}"],
                     name=f"{name}: chattering e(k|k-1), grey ±psi",
                     time_ranges=time_range,
                     plot_legend=no_legend,
+                    # hidden series do not enter the auto-scaled y range (checked in the viewer)
+                    overrides={
+                        CHATTERING: rr.SeriesLines.from_fields(visible_series=only(i)),
+                        PSI: rr.SeriesLines.from_fields(visible_series=only(i, 2)),
+                    },
                 ),
                 rrb.TensorView(
                     origin=f"/spectrogram/{c}",
@@ -120,17 +255,23 @@ def blueprint(
                     view_fit="Fill",
                 ),
                 rrb.TimeSeriesView(
-                    origin=f"/detection/{c}",
-                    contents=["+ $origin/**", "- $origin/verdict"],
+                    origin="/detection",
+                    contents=[f"+ {STATISTIC}", f"+ {THRESHOLD}", f"+ {fault_entity(name)}"],
                     name=f"{name}: max S/threshold [dB], 0 dB = threshold, red = fault",
                     time_ranges=time_range,
                     plot_legend=no_legend,
+                    overrides={STATISTIC: rr.SeriesLines.from_fields(visible_series=only(i))},
                 ),
                 rrb.TimeSeriesView(
-                    origin=f"/frequency/{c}",
+                    origin="/frequency",
+                    contents=[f"+ {PEAK_HZ}", f"+ {MOST_SIGNIFICANT_HZ}"],
                     name=f"{name}: peak frequency [Hz], dots = most significant",
                     time_ranges=time_range,
                     plot_legend=no_legend,
+                    overrides={
+                        PEAK_HZ: rr.SeriesLines.from_fields(visible_series=only(i)),
+                        MOST_SIGNIFICANT_HZ: rr.SeriesPoints.from_fields(visible_series=only(i)),
+                    },
                     axis_y=None if band_hz is None else rrb.ScalarAxis(range=(0.0, float(band_hz[1]))),
                 ),
                 row_shares=[1, 1.5, 1, 0.8],

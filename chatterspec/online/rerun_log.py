@@ -18,7 +18,23 @@ from ..detection.spectral import expected_frame_spectrum
 from ..errors import ParameterError
 from ..plants.nonlinear import is_linear
 from .arrow_columns import _MAX_TENSOR_ROWS, _Columns, _TimeIndex
-from .blueprint import TRUTH_LANE, _entity, blueprint, lane_entity
+from .blueprint import (
+    CHATTERING,
+    MOST_SIGNIFICANT_HZ,
+    PEAK_HZ,
+    PSI,
+    SIGNAL,
+    STATISTIC,
+    THRESHOLD,
+    TRUTH_LANE,
+    VERDICT,
+    _entity,
+    blueprint,
+    fault_entity,
+    lane_entity,
+    series_styles,
+)
+from .frame_peaks import peak_bins
 from .monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
 from .viewer import TIMELINE, Sinks
 
@@ -111,15 +127,12 @@ class _Outbox:
     frames: int = 0
 
 
-_COLORS = [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189]]
-_GREY, _RED, _WHITE = [150, 150, 150], [230, 40, 40], [235, 235, 235]
-
-
 class RerunLogger:
     """Writes :class:`~chatterspec.online.monitor.MonitorUpdate` objects to the open sinks.
 
     Everything time-indexed is sent column-wise with ``send_columns`` (one call
-    per entity and batch, not one ``log`` per sample or frame): to a live viewer
+    per entity and batch, not one ``log`` per sample or frame; one row per sample or
+    frame holding every channel, since Rerun's cost is per row): to a live viewer
     at every update, to a file in batches of ``batch_samples`` samples or
     ``batch_frames`` frames (and on :meth:`close`). Times follow :func:`to_ns`.
 
@@ -212,10 +225,9 @@ class RerunLogger:
             self._expected = np.asarray(thr.expected)
         else:
             self._expected = expected_frame_spectrum(monitor.model, freqs, monitor.settings.stft, monitor.dt)
-        # the bins tested by the detector (a slice when contiguous: a view, no copy)
+        # the bins tested by the detector
         tested = np.flatnonzero(thr.tested)
-        contiguous = tested.size > 0 and bool(np.all(np.diff(tested) == 1))
-        self._tested = slice(int(tested[0]), int(tested[-1]) + 1) if contiguous else tested
+        self._tested_idx = tested.astype(np.int64)
         self._tested_hz = freqs[tested]
         self._tested_expected = np.ascontiguousarray(self._expected[tested])  # (k, m)
         self._tested_thr = np.ascontiguousarray(thr.values[tested])  # (k, m)
@@ -248,6 +260,13 @@ class RerunLogger:
         self._cols = _Columns(rr, DB_RANGE)
         self._boxes = [_Outbox(s, live=s is sinks.live_stream) for s in sinks.streams]
         self.psi = monitor.settings.psi
+        # two-row columns reused by every batch: the ±psi lines (+psi_0, -psi_0, +psi_1, ...) and 0 dB
+        self._psi_rows = None
+        if self.psi is not None:
+            pm = np.repeat(np.asarray(self.psi, dtype=float), 2) * np.tile([1.0, -1.0], m)
+            self._psi_rows = self._cols.scalars_column(np.tile(pm, (2, 1)), own=True)
+        self._zero_rows = self._cols.scalars_column(np.zeros(2), own=True)
+        self._fault = [fault_entity(c) for c in self.channels]
         self._origin_ns: int | None = None  # earliest time logged (truth start / initial state)
         self._started = False
         if send_blueprint:
@@ -275,57 +294,12 @@ class RerunLogger:
         units = self.monitor.model.output_units
         lo, hi = self.band_hz
 
+        styles = series_styles(self.channels, units, has_estimate=self.monitor.settings.psi is not None)
+
         def static(s: Any) -> None:
+            for path, style in styles:
+                s.log(path, style, static=True)
             for i, (name, c) in enumerate(zip(self.channels, self.keys, strict=True)):
-                unit = f" [{units[i]}]" if units[i] else ""
-                col = _COLORS[i % len(_COLORS)]
-                s.log(
-                    f"/chattering/{c}/e", rr.SeriesLines(colors=[col], names=[f"{name}{unit}"]), static=True
-                )
-                for side in ("upper", "lower"):
-                    s.log(
-                        f"/chattering/{c}/psi_{side}",
-                        rr.SeriesLines(colors=[_GREY], widths=[1.0], names=[f"±psi {side}"]),
-                        static=True,
-                    )
-                # one entity, one row per sample: the measurement, then (sat SVSF) the estimate
-                s.log(
-                    f"/signal/{c}",
-                    rr.SeriesLines(colors=[col, [0, 0, 0]], names=["measured", "SVSF estimate"]),
-                    static=True,
-                )
-                s.log(
-                    f"/detection/{c}/statistic_db",
-                    rr.SeriesLines(colors=[col], widths=[1.5], names=["max S/threshold [dB]"]),
-                    static=True,
-                )
-                s.log(
-                    f"/detection/{c}/threshold_db",
-                    rr.SeriesLines(colors=[_GREY], widths=[1.0], names=["threshold (0 dB)"]),
-                    static=True,
-                )
-                s.log(
-                    f"/detection/{c}/fault",
-                    rr.SeriesPoints(colors=[_RED], marker_sizes=[2.5], names=["fault (flagged frame)"]),
-                    static=True,
-                )
-                s.log(
-                    f"/detection/{c}/verdict",
-                    rr.SeriesPoints(colors=[_RED], names=["verdict (1 = fault)"]),
-                    static=True,
-                )
-                s.log(
-                    f"/frequency/{c}/peak_hz",
-                    rr.SeriesLines(colors=[col], widths=[1.0], names=["peak_hz: largest S-E [Hz]"]),
-                    static=True,
-                )
-                s.log(
-                    f"/frequency/{c}/most_significant_hz",
-                    rr.SeriesPoints(
-                        colors=[_WHITE], marker_sizes=[1.5], names=["most_significant_hz: largest S/thr [Hz]"]
-                    ),
-                    static=True,
-                )
                 s.log(f"/threshold/{c}", rr.Tensor(thr.values[:, i], dim_names=["freq"]), static=True)
                 s.log(f"/expected/{c}", rr.Tensor(self._expected[:, i], dim_names=["freq"]), static=True)
                 s.log(
@@ -396,10 +370,11 @@ class RerunLogger:
             ns = int(to_ns(min(firsts))) - 1
         self._origin_ns = ns if self._origin_ns is None else min(ns, self._origin_ns)
 
-        def log(s: Any) -> None:
-            self._set_time(s, ns)
+        def log(s: Any) -> None:  # send_columns, like every other temporal row: no batcher left to flush
+            t = _TimeIndex(self.pa, np.array([ns], dtype=np.int64))
             for i in range(m):
-                s.log(self.lanes[i], self.rr.StateChange(state="fault" if state[i] else "healthy"))
+                state_col = self.rr.StateChange.columns(state=["fault" if state[i] else "healthy"])
+                s.send_columns(self.lanes[i], indexes=[t], columns=state_col)
 
         self._each(log)
 
@@ -441,34 +416,29 @@ class RerunLogger:
         ups, box.updates, box.samples, box.frames = box.updates, [], 0, 0
         s, cols, pa = box.stream, self._cols, self.pa
         m = len(self.keys)
-        t = np.concatenate([u.t for u in ups]) if len(ups) > 1 else ups[0].t
+        one = len(ups) == 1
+        t = ups[0].t if one else np.concatenate([u.t for u in ups])
         if t.size:
             ns = to_ns(t)
             tcol = _TimeIndex(pa, ns)
-            # channel-major copies filled straight from the updates (one pass, contiguous rows that
-            # become the arrow columns without a further copy): e (m, N); /signal/<c> rows (m, N, k)
-            # of measurement [and sat-SVSF estimate]
+            # ONE row per sample for all channels (Rerun's cost is per row: a row id and a time each):
+            # /chattering/e (N, m); /signal (N, m * k): per channel the measurement [and sat-SVSF estimate]
+            e = ups[0].chattering if one else np.concatenate([u.chattering for u in ups])
+            s.send_columns(CHATTERING, indexes=[tcol], columns=[cols.scalars_column(e, own=not one)])
             keys = [k for k in ("measured", "estimate") if all(getattr(u, k) is not None for u in ups)]
-            e = np.empty((m, t.size))
-            sig = np.empty((m, t.size, len(keys))) if keys else None
-            a = 0
-            for u in ups:
-                b = a + u.t.shape[0]
-                e[:, a:b] = u.chattering.T
-                for j, k in enumerate(keys):
-                    sig[:, a:b, j] = getattr(u, k).T
-                a = b
-            ends = _TimeIndex(pa, ns[[0, -1]])
-            for i, c in enumerate(self.keys):
-                col = cols.scalars_column(e[i], own=True)
-                s.send_columns(f"/chattering/{c}/e", indexes=[tcol], columns=[col])
-                if sig is not None:
-                    col = cols.scalars_column(sig[i], own=True)
-                    s.send_columns(f"/signal/{c}", indexes=[tcol], columns=[col])
-                if self.psi is not None:
-                    for side, v in (("upper", self.psi[i]), ("lower", -self.psi[i])):
-                        col = cols.scalars_column(np.array([v, v]))
-                        s.send_columns(f"/chattering/{c}/psi_{side}", indexes=[ends], columns=[col])
+            if keys:
+                sig = np.empty((t.size, m, len(keys)))
+                a = 0
+                for u in ups:
+                    b = a + u.t.shape[0]
+                    for j, k in enumerate(keys):
+                        sig[a:b, :, j] = getattr(u, k)
+                    a = b
+                s.send_columns(
+                    SIGNAL, indexes=[tcol], columns=[cols.scalars_column(sig.reshape(t.size, -1), own=True)]
+                )
+            if self._psi_rows is not None:  # the batch's first and last sample: +psi_0, -psi_0, +psi_1, ...
+                s.send_columns(PSI, indexes=[_TimeIndex(pa, ns[[0, -1]])], columns=[self._psi_rows])
         frames = [u.frames for u in ups if u.frames.n_frames]
         if frames:
             one = len(frames) == 1
@@ -478,55 +448,48 @@ class RerunLogger:
             sig_hz = frames[0].peak_hz if one else np.concatenate([f.peak_hz for f in frames])
             fns = to_ns(times)
             fcol = _TimeIndex(pa, fns)
-            fends = _TimeIndex(pa, fns[[0, -1]])
             stat_db = 10.0 * np.log10(np.maximum(ratio, 1e-30))
-            # channel-major spectra (m, F, bins) in spectrum_dtype, converted while transposing (one
-            # pass); peak_hz (F, m): the tested bin with the largest excess power S - E (float64)
+            # channel-major spectra (m, F, bins) in spectrum_dtype, converted while transposing (one pass)
             F = times.shape[0]
             spectra = np.empty((m, F, frames[0].power.shape[1]), dtype=self.spectrum_dtype)
-            peak_hz = np.empty((F, m))
             a = 0
             for f in frames:
                 b = a + f.n_frames
-                spectra[:, a:b] = np.moveaxis(f.power, 2, 0)
-                # the largest excess among the bins over the threshold when there are any (as the batch
-                # report's peak_hz): a frame's overall largest excess sits on noise once a fault fades
-                p_t = f.power[:, self._tested, :]
-                excess = p_t - self._tested_expected
-                over = p_t > self._tested_thr
-                k = np.where(
-                    over.any(axis=1),
-                    np.argmax(np.where(over, excess, -np.inf), axis=1),
-                    np.argmax(excess, axis=1),
-                )
-                peak_hz[a:b] = self._tested_hz[k]
+                spectra[:, a:b] = f.power.transpose(2, 0, 1)  # (m, n, bins), cast on the fly
                 a = b
-            zero = cols.scalars_column(np.zeros(2))
+            peak_hz = self._peak_hz(frames)
+            s.send_columns(STATISTIC, indexes=[fcol], columns=[cols.scalars_column(stat_db, own=True)])
+            s.send_columns(THRESHOLD, indexes=[_TimeIndex(pa, fns[[0, -1]])], columns=[self._zero_rows])
+            s.send_columns(VERDICT, indexes=[fcol], columns=[cols.scalars_column(flags)])
+            s.send_columns(PEAK_HZ, indexes=[fcol], columns=[cols.scalars_column(peak_hz, own=True)])
+            s.send_columns(MOST_SIGNIFICANT_HZ, indexes=[fcol], columns=[cols.scalars_column(sig_hz)])
             for i, c in enumerate(self.keys):
                 self._send_spectra(s, f"/spectrum/{c}", fcol, fns, spectra[i])
-                det = f"/detection/{c}"
-                s.send_columns(
-                    f"{det}/statistic_db", indexes=[fcol], columns=[cols.scalars_column(stat_db[:, i])]
-                )
-                s.send_columns(f"{det}/threshold_db", indexes=[fends], columns=[zero])
-                s.send_columns(f"{det}/verdict", indexes=[fcol], columns=[cols.scalars_column(flags[:, i])])
                 hit = np.flatnonzero(flags[:, i])
-                if hit.size:
+                if hit.size:  # sparse: one entity per channel, rows at its flagged frames only
                     s.send_columns(
-                        f"{det}/fault",
+                        self._fault[i],
                         indexes=[_TimeIndex(pa, fns[hit])],
                         columns=[cols.scalars_column(stat_db[hit, i])],
                     )
-                fq = f"/frequency/{c}"
-                s.send_columns(f"{fq}/peak_hz", indexes=[fcol], columns=[cols.scalars_column(peak_hz[:, i])])
-                s.send_columns(
-                    f"{fq}/most_significant_hz", indexes=[fcol], columns=[cols.scalars_column(sig_hz[:, i])]
-                )
             if not box.live:  # the file's spectrogram: dB columns of the whole batch at once
                 self._file_spectrogram(times, spectra)
         events = [ev for u in ups for ev in u.events]
         if events:
             self._send_events(s, events)
+
+    def _peak_hz(self, frames: list[Any]) -> np.ndarray:
+        """(F, m) tested bin (Hz) with the largest excess power ``S - E`` among the bins over the threshold
+        when a frame has any (as the batch report's ``peak_hz``: a frame's overall largest excess sits on
+        noise once a fault fades), else among all tested bins (:func:`peak_bins`)."""
+        F = sum(f.n_frames for f in frames)
+        k = np.empty((F, len(self.channels)), dtype=np.int64)
+        a = 0
+        for f in frames:
+            b = a + f.n_frames
+            k[a:b] = peak_bins(f.power, self._tested_idx, self._tested_expected, self._tested_thr)
+            a = b
+        return self._tested_hz[k]
 
     def _send_spectra(self, s: Any, path: str, tcol: _TimeIndex, ns: np.ndarray, power: np.ndarray) -> None:
         """One ``Tensor`` row per frame: ``power`` is (frames, bins) in ``spectrum_dtype``."""
@@ -602,13 +565,20 @@ class RerunLogger:
             n = min(self._ring_n, S)
             img = self._ring[(self._ring_n - n + np.arange(n)) % S]  # oldest first, no padding
             t = float(fr.times_s[f])
-            names = [self._freq_dim, f"time ({self.hop_s:g} s/col), newest (right) = {t:.1f} s"]
-            self._set_time(live, int(to_ns(t)))
+            names = (self._freq_dim, f"time ({self.hop_s:g} s/col), newest (right) = {t:.1f} s")
+            ns = int(to_ns(t))
             for i, c in enumerate(self.keys):
-                live.log(
-                    f"/spectrogram/{c}",
-                    self.rr.Tensor(img[:, :, i].T, dim_names=names, value_range=list(DB_RANGE)),
-                )
+                self._log_db_tensor(live, f"/spectrogram/{c}", ns, img[:, :, i].T, names)
+
+    def _log_db_tensor(self, s: Any, path: str, ns: int, img: np.ndarray, names: tuple[str, str]) -> None:
+        """One dB spectrogram ``Tensor`` (``value_range`` :data:`DB_RANGE`) at time ``ns``: built straight
+        from numpy (``rr.Tensor`` spends ~1.5 ms per call in Python) unless the layout check failed."""
+        if not self._cols.tensors_ok:
+            self._set_time(s, ns)
+            s.log(path, self.rr.Tensor(img, dim_names=list(names), value_range=list(DB_RANGE)))
+            return
+        cols = self._cols.tensor_columns(img[None], names, value_range=True, cache=False)
+        s.send_columns(path, indexes=[_TimeIndex(self.pa, np.array([ns], dtype=np.int64))], columns=cols)
 
     def _file_spectrogram(self, times: np.ndarray, spectra: np.ndarray) -> None:
         """Append a file batch's frames (``times`` (F,) s, channel-major ``spectra`` (m, F, bins)) to
@@ -616,7 +586,7 @@ class RerunLogger:
         if self.sinks.file_stream is None:
             return
         with np.errstate(divide="ignore", invalid="ignore"):  # 0 -> -inf -> clipped
-            db = np.log10(spectra[:, :, self.band].astype(np.float32))  # (m, F, band)
+            db = np.log10(spectra[:, :, self.band], dtype=np.float32)  # (m, F, band), one pass
         db *= 10.0
         db -= self._band_thr_db.T[:, None, :]
         np.clip(db, DB_RANGE[0], DB_RANGE[1], out=db)
@@ -645,12 +615,11 @@ class RerunLogger:
         block = np.concatenate(self._file_cols, axis=1) if len(self._file_cols) > 1 else self._file_cols[0]
         self._file_cols, self._file_n = [], 0
         ta, tb = self._file_t
-        names = [
+        names = (
             self._freq_dim,
             f"time {ta - self.hop_s / 2:.2f}-{tb + self.hop_s / 2:.2f} s ({self.hop_s:g} s/col)",
-        ]
+        )
         ns = self._file_block_start if self._file_block_start is not None else int(to_ns(ta))
-        self._set_time(file, ns)
         for i, c in enumerate(self.keys):
             img = np.ascontiguousarray(block[i].T)  # (band, frames): freq rows, time columns
-            file.log(f"/spectrogram/{c}", self.rr.Tensor(img, dim_names=names, value_range=list(DB_RANGE)))
+            self._log_db_tensor(file, f"/spectrogram/{c}", ns, img, names)

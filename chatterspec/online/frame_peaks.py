@@ -1,0 +1,77 @@
+"""Per-frame peak frequency of the Rerun ``peak_hz`` series (:func:`peak_bins`), compiled when numba is on.
+
+Private helper of :mod:`chatterspec.online.rerun_log`: the same rule as the batch report's
+``peak_hz`` (:mod:`chatterspec.detection.detect`), applied to every frame of a batch in one pass.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._jit import enabled, njit
+
+__all__ = ["peak_bins"]
+
+
+@njit
+def _peak_bins_kernel(
+    power: np.ndarray, tested: np.ndarray, expected: np.ndarray, thr: np.ndarray, out: np.ndarray
+) -> None:  # pragma: no cover - compiled; its py_func is tested
+    """:func:`peak_bins` in one pass over the tested bins of each frame and channel (first maximum
+    wins, as ``np.argmax``; only subtractions and comparisons: the same bits as the numpy path)."""
+    n_frames, m, n_tested = power.shape[0], power.shape[2], tested.shape[0]
+    for f in range(n_frames):
+        for c in range(m):
+            best, v_best, over, v_over = 0, -np.inf, -1, -np.inf
+            for j in range(n_tested):
+                p = power[f, tested[j], c]
+                ex = p - expected[j, c]
+                if ex > v_best:
+                    best, v_best = j, ex
+                if p > thr[j, c] and (over < 0 or ex > v_over):
+                    over, v_over = j, ex
+            out[f, c] = over if over >= 0 else best
+
+
+def _peak_bins_numpy(
+    power: np.ndarray, tested: np.ndarray, expected: np.ndarray, thr: np.ndarray
+) -> np.ndarray:
+    """Numpy path of :func:`peak_bins` (channel-major, so every reduction runs over contiguous bins)."""
+    p = np.ascontiguousarray(np.moveaxis(power[:, tested, :], 2, 0))  # (m, F, k)
+    over = p > thr.T[:, None, :]
+    excess = p - expected.T[:, None, :]
+    k = excess.argmax(axis=2)
+    rows = np.flatnonzero(over.any(axis=2))  # the (channel, frame) pairs with a bin over the threshold
+    if rows.size:
+        n = p.shape[2]
+        masked = np.where(over.reshape(-1, n)[rows], excess.reshape(-1, n)[rows], -np.inf)
+        k.reshape(-1)[rows] = masked.argmax(axis=1)
+    return k.T
+
+
+def peak_bins(power: np.ndarray, tested: np.ndarray, expected: np.ndarray, thr: np.ndarray) -> np.ndarray:
+    """Index (into ``tested``) of each frame's largest excess power ``S - E`` among the bins over the
+    threshold, or among all tested bins when none is over: the rule of the batch report's ``peak_hz``.
+
+    Parameters
+    ----------
+    power : (F, bins, m) float array
+        Frame spectra ``S`` (the monitor's frame power).
+    tested : (k,) int array
+        The tested bins (indices into ``bins``).
+    expected : (k, m) float array
+        Expected healthy spectrum ``E`` at the tested bins.
+    thr : (k, m) float array
+        Frame threshold at the tested bins (a bin is over when ``S > thr``).
+
+    Returns
+    -------
+    (F, m) int64 array
+        Position in ``tested`` of the peak bin of each frame and channel.
+    """
+    power = np.asarray(power, dtype=float)
+    if not enabled():
+        return _peak_bins_numpy(power, tested, expected, thr)
+    out = np.empty((power.shape[0], power.shape[2]), dtype=np.int64)
+    _peak_bins_kernel(power, tested, expected, thr, out)
+    return out
