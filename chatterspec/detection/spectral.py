@@ -532,14 +532,16 @@ def _power_kernel(
     ``(Y.real**2 + Y.imag**2) / scale`` (tests/test_spectral.py compares the bits).
     """
     runs, m, F, B = Y.shape
+    row = np.empty(B)  # one contiguous line of bins, then scattered to the (bins, m) layout
     for r in range(runs):
-        for f in range(F):
-            for b in range(B):
-                for c in range(m):
-                    v = Y[r, c, f, b]
-                    re = v.real
-                    im = v.imag
-                    out[r, f, b, c] = (re * re + im * im) / scale
+        for c in range(m):
+            for f in range(F):
+                y = Y[r, c, f]
+                for b in range(B):
+                    v = y[b]
+                    row[b] = (v.real * v.real + v.imag * v.imag) / scale
+                for b in range(B):
+                    out[r, f, b, c] = row[b]
 
 
 def spectrogram(x: np.ndarray, dt: float, config: STFTConfig = DEFAULT_STFT, t0: float = 0.0) -> Spectrogram:
