@@ -476,7 +476,9 @@ class _FrameEngine:
         block = max(1, (1 << 15) // per_frame)
         power = np.empty((*lead, n_frames, n_bins, m))
         if self.compiled and x.ndim <= 3:
-            x3, p3 = (x, power) if x.ndim == 3 else (x[None], power[None])
+            # C-contiguous input: one compiled specialization (a copy only for strided input)
+            x3 = np.ascontiguousarray(x) if x.ndim == 3 else np.ascontiguousarray(x)[None]
+            p3 = power if x.ndim == 3 else power[None]
             for lo in range(0, n_frames, block):
                 hi = min(lo + block, n_frames)
                 tapered = self._buffers((x3.shape[0], m, hi - lo, W))[0]

@@ -436,12 +436,13 @@ class ChatteringMonitor:
         the sat SVSF), without its per-call Python work; returns ``(e, estimate)``.
         """
         K, m = z.shape
+        z3 = np.ascontiguousarray(z)[None]  # one compiled specialization (no copy when contiguous)
         aux = self._aux_state
         e = np.empty((1, K, m))
         Gu = np.empty((1, K, self.model.n_states))
         sat = self._sat
         if sat is None:
-            _filters_kernel(z[None], u_used, self._GT, self._aux_PhiT, aux.y, e, Gu, False, *self._no_sat)
+            _filters_kernel(z3, u_used, self._GT, self._aux_PhiT, aux.y, e, Gu, False, *self._no_sat)
             estimate = None
         else:
             PhiT, L, P, inv_psi, gamma, S_inv = sat._kernel_consts
@@ -449,7 +450,7 @@ class ChatteringMonitor:
             y, ep = st.y.copy(), st.e_post.copy()
             x_out = np.empty((1, K, self.model.n_states))
             _filters_kernel(
-                z[None], u_used, self._GT, self._aux_PhiT, aux.y, e, Gu, True,
+                z3, u_used, self._GT, self._aux_PhiT, aux.y, e, Gu, True,
                 PhiT, L, P, inv_psi, gamma, S_inv, y, ep, np.empty((1, K, m)), x_out, self._none3,
             )  # fmt: skip
             self._sat_state = SVSFState(y=y, e_post=ep, k=st.k + K)
