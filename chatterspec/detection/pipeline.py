@@ -22,13 +22,12 @@ from ..plants.nonlinear import is_linear, require_linear
 from ..plants.scenarios import Scenario
 from ..plants.simulate import (
     Simulation,
-    _noise_blocks,
     _same_shapes,
     _tables,
     default_chunk_runs,
     iter_simulations,
 )
-from ..rng import SeedLike, root_seed_sequence
+from ..rng import BLOCK, SeedLike, block_generator, root_seed_sequence
 
 __all__ = ["ChatteringRecord", "chattering_record", "iter_chattering", "scenario_chattering"]
 
@@ -205,6 +204,54 @@ def _chattering_kernel(
                     x[i] = xn[i]
 
 
+@_jit.njit
+def _chattering_rng_kernel(
+    g0: np.random.Generator,
+    g1: np.random.Generator,
+    skip: int,
+    runs: int,
+    seg_idx: np.ndarray,
+    A: np.ndarray,
+    C: np.ndarray,
+    Lq: np.ndarray,
+    Lr: np.ndarray,
+    Bu: np.ndarray,
+    x0: np.ndarray,
+    diag: np.ndarray,
+    PhiT: np.ndarray,
+    Gu: np.ndarray,
+    e_out: np.ndarray,
+    offset: int,
+) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_kernels.py)
+    """:func:`_chattering_kernel` on runs ``skip .. skip + runs - 1`` of one random block, drawing as it goes.
+
+    ``g0`` and ``g1`` are the block's generators (streams 0 and 1 of
+    :func:`chatterspec.rng.block_generator`). ``standard_normal((BLOCK, T, n))`` fills its
+    array in C order, one number after the other from the same stream, so drawing run r's
+    ``(T, n)`` numbers when run r starts (after discarding the ``skip`` runs before it) gives
+    the same numbers; numba's ``Generator.standard_normal`` is numpy's ziggurat on the same
+    bit generator (tests/test_kernels.py compares them). Only one run's noise is held (2 x 96
+    kB for the EHA's 4001 x 3, in the core's L2 cache), not ``(BLOCK, T, n)`` arrays.
+    """
+    T = seg_idx.shape[0]
+    n = A.shape[1]
+    m = C.shape[1]
+    for _ in range(skip * T * n):
+        g0.standard_normal()
+    for _ in range(skip * T * m):
+        g1.standard_normal()
+    v = np.empty((1, T, n))
+    w = np.empty((1, T, m))
+    for r in range(runs):
+        for k in range(T):
+            for i in range(n):
+                v[0, k, i] = g0.standard_normal()
+        for k in range(T):
+            for i in range(m):
+                w[0, k, i] = g1.standard_normal()
+        _chattering_kernel(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, PhiT, Gu, e_out, offset + r)
+
+
 def _fused_chattering(
     scenario: Scenario, runs: int, seed: SeedLike, chunk_runs: int | None, first_run: int, gamma: float
 ) -> Iterator[ChatteringRecord]:
@@ -216,7 +263,7 @@ def _fused_chattering(
     u = scenario.input.sample(t).reshape(len(t), -1)
     if u.shape[1] != model.n_inputs:
         raise ShapeError(f"scenario input gives {u.shape[1]} channel(s); the model has {model.n_inputs}")
-    T, n, m = len(t), model.n_states, model.n_outputs
+    T, m = len(t), model.n_outputs
     tb = _tables(scenario, t, u)
     Gu = np.ascontiguousarray(_rows_times(u[:-1], f._GT), dtype=float)  # as SVSF.update computes it
     PhiT = np.ascontiguousarray(f._PhiT, dtype=float)
@@ -225,10 +272,11 @@ def _fused_chattering(
     for lo in range(first_run, first_run + runs, chunk):
         hi = min(lo + chunk, first_run + runs)
         e = np.empty((hi - lo, m, T - 1))  # channel-major storage (contiguous FFT lines)
-        for off, v, w in _noise_blocks(root, lo, hi, T, n, m):
-            _chattering_kernel(
-                v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, PhiT, Gu, e, off
-            )
+        for b in range(lo // BLOCK, (hi - 1) // BLOCK + 1):  # the random blocks overlapping [lo, hi)
+            s0, s1 = max(b * BLOCK, lo), min((b + 1) * BLOCK, hi)
+            g0, g1 = block_generator(root, b, 0), block_generator(root, b, 1)
+            args = (tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, PhiT, Gu, e, s0 - lo)
+            _chattering_rng_kernel(g0, g1, s0 - b * BLOCK, s1 - s0, *args)
         values = e.transpose(0, 2, 1)  # the (runs, N, m) view of the package convention
         yield ChatteringRecord(t=times, values=values, model=model, scenario=scenario, first_run=lo)
 

@@ -1,0 +1,169 @@
+"""The end-to-end Monte Carlo kernels give the numbers of the code they replace, bit for bit.
+
+* ``_chattering_rng_kernel`` draws the noise inside the compiled simulation + auxiliary-SVSF
+  kernel, run by run, instead of drawing ``(BLOCK, T, n)`` arrays first: the same numbers
+  only if numba's ``Generator.standard_normal`` is numpy's ziggurat on the same bit
+  generator and the draws are consumed in the same order (including the runs skipped at
+  the start of a block and the last step's unused process noise).
+* ``verdict_kernel`` replaces the numpy passes of ``detect_spectrum``: the same ``argmax``
+  semantics (first maximum, first NaN) and the same elementwise arithmetic.
+
+Every comparison is exact (``assert_array_equal``): there is no rounding to tolerate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from chatterspec import _jit
+from chatterspec.detection import _verdict
+from chatterspec.detection.detect import _VERDICT_FIELDS, detect_spectrum
+from chatterspec.detection.pipeline import _chattering_kernel, _chattering_rng_kernel, iter_chattering
+from chatterspec.detection.spectral import periodogram_freqs
+from chatterspec.detection.thresholds import exact_threshold
+from chatterspec.filters import svsf as svsf_mod
+from chatterspec.filters.svsf import auxiliary_svsf
+from chatterspec.plants.scenarios import scenario
+from chatterspec.plants.simulate import _noise_blocks, _tables
+from chatterspec.rng import BLOCK, block_generator, root_seed_sequence
+
+needs_numba = pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed (pip install '.[fast]')")
+
+
+@needs_numba
+def test_numba_generator_draws_numpys_normals() -> None:
+    """2 x 10^6 draws: about 1.4 % take the ziggurat's slow paths (wedges, tail), all covered."""
+    import numba
+
+    @numba.njit
+    def fill(g: np.random.Generator, out: np.ndarray) -> None:
+        for i in range(out.size):
+            out[i] = g.standard_normal()
+
+    root = root_seed_sequence(123)
+    for stream in (0, 1):
+        ref = block_generator(root, 3, stream).standard_normal(1_000_000)
+        got = np.empty_like(ref)
+        fill(block_generator(root, 3, stream), got)
+        np.testing.assert_array_equal(got, ref)
+    assert np.abs(ref).max() > 3.442619855899  # the tail beyond the ziggurat's last layer was drawn
+
+
+def _rng_kernel_inputs(name: str, T: int):
+    sc = scenario(name)
+    t = sc.time[:T]
+    u = sc.input.sample(t).reshape(len(t), -1)
+    f = auxiliary_svsf(sc.nominal)
+    Gu = np.ascontiguousarray(svsf_mod._rows_times(u[:-1], f._GT))
+    tb = _tables(sc, t, u)
+    return (tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, np.ascontiguousarray(f._PhiT), Gu)
+
+
+@needs_numba
+@pytest.mark.parametrize(("lo", "hi"), [(0, 64), (5, 9), (70, 75), (60, 130)])
+def test_rng_kernel_equals_drawing_blocks_first(lo: int, hi: int) -> None:
+    """Runs [lo, hi) from the block streams: partial blocks at both ends, a block boundary crossed."""
+    T, m = 50, 3
+    args = _rng_kernel_inputs("eha-leak-major", T)
+    root = root_seed_sequence(9)
+    ref = np.full((hi - lo, m, T - 1), np.nan)
+    for off, v, w in _noise_blocks(root, lo, hi, T, 3, m):
+        _chattering_kernel(v, w, *args, ref, off)
+    for kernel in (_chattering_rng_kernel, _chattering_rng_kernel.py_func):
+        e = np.full((hi - lo, m, T - 1), np.nan)
+        for b in range(lo // BLOCK, (hi - 1) // BLOCK + 1):
+            s0, s1 = max(b * BLOCK, lo), min((b + 1) * BLOCK, hi)
+            g0, g1 = block_generator(root, b, 0), block_generator(root, b, 1)
+            kernel(g0, g1, s0 - b * BLOCK, s1 - s0, *args, e, s0 - lo)
+        np.testing.assert_array_equal(e, ref)
+
+
+@needs_numba
+def test_fused_records_do_not_depend_on_the_chunking(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CHATTERSPEC_JIT", "1")
+    sc = scenario("eha-healthy")
+    whole = next(iter_chattering(sc, 140, seed=2, chunk_runs=140)).values
+    parts = np.concatenate([r.values for r in iter_chattering(sc, 137, seed=2, chunk_runs=37, first_run=3)])
+    np.testing.assert_array_equal(parts, whole[3:])
+
+
+def _spectra(rng: np.random.Generator, shape: tuple[int, ...], threshold) -> np.ndarray:
+    """Healthy-like spectra with some bins pushed over the threshold."""
+    p = rng.exponential(size=shape) * threshold.expected
+    hot = rng.random(shape) < 2e-3
+    return np.where(hot, threshold.values * rng.uniform(0.5, 3.0, shape), p)
+
+
+def _verdicts(power, threshold, monkeypatch: pytest.MonkeyPatch, jit: str) -> dict[str, np.ndarray]:
+    monkeypatch.setenv("CHATTERSPEC_JIT", jit)
+    d = detect_spectrum(power, threshold, threshold.expected)
+    return {k: getattr(d, k) for k in _VERDICT_FIELDS}
+
+
+@needs_numba
+@pytest.mark.parametrize("band", [None, (5.0, 60.0)])
+def test_compiled_verdict_equals_numpy_path(band, monkeypatch: pytest.MonkeyPatch) -> None:
+    model = scenario("eha-healthy").nominal
+    N = 400
+    freqs = periodogram_freqs(N, model.dt)
+    th = exact_threshold(model, freqs, N, 1e-2, band=band)
+    rng = np.random.default_rng(4)
+    base = _spectra(rng, (300, *th.values.shape), th)
+    base[0, 7] = base[0, 9] = 10 * th.values[7]  # ties: the first bin wins
+    base[1] = th.values * 2.0  # every bin over, equal ratios
+    base[2, 11, 0] = np.nan  # NaN: argmax returns its bin
+    base[3, 5, 1] = np.inf
+    base[4] = th.expected  # no bin over, zero excess everywhere
+    cases = {
+        "runs": base,
+        "one": base[5],
+        "2-d lead": base[:12].reshape(3, 4, *th.values.shape),
+        "strided": base[::-2],
+        "channel-major": np.ascontiguousarray(base.transpose(0, 2, 1)).transpose(0, 2, 1),
+        "empty": base[:0],
+    }
+    for name, power in cases.items():
+        fast = _verdicts(power, th, monkeypatch, "1")
+        ref = _verdicts(power, th, monkeypatch, "0")
+        for k in _VERDICT_FIELDS:
+            np.testing.assert_array_equal(fast[k], ref[k], err_msg=f"{name}: {k}")
+    assert fast["detected"].shape == (0, 3)
+
+
+@needs_numba
+def test_verdict_kernel_equals_its_python_form_and_handles_scattered_bins(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Scattered tested bins (not one run) and a single channel, where numpy sums pairwise."""
+    model = scenario("eha-healthy").nominal
+    N = 64
+    freqs = periodogram_freqs(N, model.dt)
+    th = exact_threshold(model, freqs, N, 1e-2)
+    rng = np.random.default_rng(5)
+    power = _spectra(rng, (40, *th.values.shape), th)
+    idx = np.array([1, 2, 5, 6, 7, 20, 31])
+    outs = []
+    for kernel in (_verdict.verdict_kernel, _verdict.verdict_kernel.py_func):
+        k, pr, ke = np.empty((40, 3), np.intp), np.empty((40, 3)), np.empty((40, 3), np.intp)
+        kernel(power, th.values, th.expected, idx, k, pr, ke)
+        outs.append((k, pr, ke))
+    for a, b in zip(*outs, strict=True):
+        np.testing.assert_array_equal(a, b)
+    ratio = power[:, idx] / th.values[idx]
+    np.testing.assert_array_equal(outs[0][0], np.argmax(ratio, axis=1))
+    # a threshold testing scattered bins, and one channel (numpy sums it pairwise: the sum stays numpy's)
+    tested = np.zeros(th.tested.shape, bool)
+    tested[idx] = True
+    for thr in (replace(th, tested=tested), _one_channel(th)):
+        p = power[..., : thr.values.shape[1]]
+        fast = _verdicts(p, thr, monkeypatch, "1")
+        ref = _verdicts(p, thr, monkeypatch, "0")
+        for key in _VERDICT_FIELDS:
+            np.testing.assert_array_equal(fast[key], ref[key], err_msg=key)
+
+
+def _one_channel(th):
+    return replace(th, values=th.values[:, :1], expected=th.expected[:, :1])
