@@ -137,7 +137,7 @@ def test_compiled_verdict_equals_numpy_path(band, monkeypatch: pytest.MonkeyPatc
 def test_verdict_kernel_equals_its_python_form_and_handles_scattered_bins(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """Scattered tested bins (not one run) and a single channel, where numpy sums pairwise."""
+    """Scattered tested bins (not one run of bins); one channel (numpy sums it pairwise) and two."""
     model = scenario("eha-healthy").nominal
     N = 64
     freqs = periodogram_freqs(N, model.dt)
@@ -147,17 +147,19 @@ def test_verdict_kernel_equals_its_python_form_and_handles_scattered_bins(
     idx = np.array([1, 2, 5, 6, 7, 20, 31])
     outs = []
     for kernel in (_verdict.verdict_kernel, _verdict.verdict_kernel.py_func):
-        k, pr, ke = np.empty((40, 3), np.intp), np.empty((40, 3)), np.empty((40, 3), np.intp)
-        kernel(power, th.values, th.expected, idx, k, pr, ke)
-        outs.append((k, pr, ke))
+        k, ke = np.empty((40, 3), np.intp), np.empty((40, 3), np.intp)
+        pr, ps = np.empty((40, 3)), np.empty((40, 3))
+        kernel(power, th.values, th.expected, idx, k, pr, ke, ps)
+        outs.append((k, pr, ke, ps))
     for a, b in zip(*outs, strict=True):
         np.testing.assert_array_equal(a, b)
     ratio = power[:, idx] / th.values[idx]
     np.testing.assert_array_equal(outs[0][0], np.argmax(ratio, axis=1))
-    # a threshold testing scattered bins, and one channel (numpy sums it pairwise: the sum stays numpy's)
+    np.testing.assert_array_equal(outs[0][3], power[:, idx].sum(axis=1))  # numpy adds bin after bin
+    # a threshold testing scattered bins; one channel (numpy sums it pairwise: the sum stays numpy's)
     tested = np.zeros(th.tested.shape, bool)
     tested[idx] = True
-    for thr in (replace(th, tested=tested), _one_channel(th)):
+    for thr in (replace(th, tested=tested), _channels(th, 1), _channels(th, 2)):
         p = power[..., : thr.values.shape[1]]
         fast = _verdicts(p, thr, monkeypatch, "1")
         ref = _verdicts(p, thr, monkeypatch, "0")
@@ -165,5 +167,5 @@ def test_verdict_kernel_equals_its_python_form_and_handles_scattered_bins(
             np.testing.assert_array_equal(fast[key], ref[key], err_msg=key)
 
 
-def _one_channel(th):
-    return replace(th, values=th.values[:, :1], expected=th.expected[:, :1])
+def _channels(th, m: int):
+    return replace(th, values=th.values[:, :m], expected=th.expected[:, :m])

@@ -9,9 +9,12 @@ excess ``S - E[S]`` among the bins over the threshold, or over all tested bins w
 none is over (``peak_hz``), and whether any bin is over. Every value is an element
 of the arrays numpy computes (one correctly rounded ``/`` or ``-`` each, no sums),
 and ``argmax`` is reproduced exactly: first occurrence of the maximum, or the first
-NaN if there is one. The results are therefore bit-identical to the numpy path
-(``tests/test_kernels.py``); the ``excess_power`` sum stays in numpy, whose order
-of summation depends on the memory layout.
+NaN if there is one. The sum over the tested bins (``excess_power``) is added in bin
+order, ``S_0 + S_1 + ...``: the order numpy uses for a C-contiguous ``(..., bins, m)``
+array with m >= 2 channels (the reduced axis is not the innermost one, so numpy adds
+bin after bin); for other layouts, where numpy may sum pairwise, the caller keeps
+numpy's sum. The results are therefore bit-identical to the numpy path
+(``tests/test_e2e_kernels.py``).
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ def verdict_kernel(
     k_ratio: np.ndarray,
     peak_ratio: np.ndarray,
     k_excess: np.ndarray,
+    p_sum: np.ndarray,
 ) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_kernels.py)
     """Per spectrum r and channel c, over the tested bins ``idx`` (positions j = 0 .. len(idx) - 1).
 
@@ -52,6 +56,8 @@ def verdict_kernel(
     k_excess : (R, m) int array
         Output: position j of ``argmax_j (S - E[S])`` over the bins with ``S / thr > 1``
         (the others count as ``-inf``), or over every tested bin when none is over.
+    p_sum : (R, m) array
+        Output: ``sum_j S`` added in the order j = 0, 1, ... (``S_0 + S_1 + ...``).
     """
     R = power.shape[0]
     m = power.shape[2]
@@ -69,12 +75,14 @@ def verdict_kernel(
             wv = ex if over else -np.inf  # np.where(over, excess, -inf)
             kw, vw, nw = 0, wv, wv != wv
             any_over = over
+            ps = p
             for j in range(1, nt):
                 b = idx[j]
                 p = power[r, b, c]
                 ratio = p / thr[b, c]
                 ex = p - expected[b, c]
                 over = ratio > 1.0
+                ps += p
                 if not nr:
                     if ratio != ratio:
                         kr, vr, nr = j, ratio, True
@@ -95,3 +103,4 @@ def verdict_kernel(
             k_ratio[r, c] = kr
             peak_ratio[r, c] = vr
             k_excess[r, c] = kw if any_over else ke
+            p_sum[r, c] = ps

@@ -190,27 +190,16 @@ def _channel_names(channels: Sequence[str] | None, m: int) -> tuple[str, ...]:
 
 def _compiled_verdict(
     power: np.ndarray, values: np.ndarray, expected: np.ndarray, idx: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(k, peak_ratio, k_excess)`` of :func:`detect_spectrum` by :func:`._verdict.verdict_kernel`."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(k, peak_ratio, k_excess, p_sum)`` of :func:`detect_spectrum` by :func:`._verdict.verdict_kernel`."""
     lead, (bins, m) = power.shape[:-2], power.shape[-2:]
     p3 = power.reshape(-1, bins, m)  # a view for the usual (runs, bins, m) spectra
     k = np.empty((p3.shape[0], m), dtype=np.intp)
     peak_ratio = np.empty((p3.shape[0], m))
     k_excess = np.empty((p3.shape[0], m), dtype=np.intp)
-    verdict_kernel(p3, values, expected, idx, k, peak_ratio, k_excess)
-    return k.reshape(*lead, m), peak_ratio.reshape(*lead, m), k_excess.reshape(*lead, m)
-
-
-def _tested_bins(power: np.ndarray, tested: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """``power[..., tested, :]``, as a view when the tested bins are one run of bins.
-
-    For a C-contiguous ``power`` the view's axes have the stride order of the (C-contiguous)
-    copy, so numpy sums them over the bins in the same order (the same bits); any other
-    layout gets the copy.
-    """
-    if power.flags.c_contiguous and idx[-1] - idx[0] + 1 == idx.size:
-        return power[..., idx[0] : idx[-1] + 1, :]
-    return power[..., tested, :]
+    p_sum = np.empty((p3.shape[0], m))
+    verdict_kernel(p3, values, expected, idx, k, peak_ratio, k_excess, p_sum)
+    return tuple(a.reshape(*lead, m) for a in (k, peak_ratio, k_excess, p_sum))
 
 
 def detect_spectrum(
@@ -253,8 +242,9 @@ def detect_spectrum(
     f_tested = threshold.freqs_hz[tested]
     if _jit.enabled() and idx.size:
         # one compiled pass, bit-identical to the numpy lines below (chatterspec.detection._verdict)
-        k, peak_ratio, k_excess = _compiled_verdict(power, threshold.values, expected, idx)
-        p_tested = _tested_bins(power, tested, idx)
+        k, peak_ratio, k_excess, p_sum = _compiled_verdict(power, threshold.values, expected, idx)
+        if not (power.flags.c_contiguous and power.shape[-1] > 1):  # numpy may sum pairwise
+            p_sum = power[..., tested, :].sum(axis=-2)
     else:
         p_tested = power[..., tested, :]
         ratio = p_tested / threshold.values[tested]
@@ -269,10 +259,11 @@ def detect_spectrum(
             np.argmax(np.where(over, excess_bins, -np.inf), axis=-2),
             np.argmax(excess_bins, axis=-2),
         )
+        p_sum = p_tested.sum(axis=-2)
     most_significant_hz = f_tested[k]
     peak_hz = f_tested[k_excess]
     e_sum = expected[tested].sum(axis=0)
-    excess = (p_tested.sum(axis=-2) - e_sum) / e_sum
+    excess = (p_sum - e_sum) / e_sum
     dc = np.flatnonzero(threshold.freqs_hz == 0.0)
     if dc.size:
         dc_ratio = power[..., dc[0], :] / threshold.values[dc[0]]
