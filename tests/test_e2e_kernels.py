@@ -169,3 +169,30 @@ def test_verdict_kernel_equals_its_python_form_and_handles_scattered_bins(
 
 def _channels(th, m: int):
     return replace(th, values=th.values[:, :m], expected=th.expected[:, :m])
+
+
+@needs_numba
+def test_detect_cli_streams_the_fused_records(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``chatterspec detect`` (and demo) take the fused path: the records and run 0 of the old route."""
+    from chatterspec.cli.detect import stream_chunks
+    from chatterspec.detection.pipeline import chattering_record
+    from chatterspec.plants import simulate as simulate_mod
+
+    monkeypatch.setenv("CHATTERSPEC_JIT", "1")
+    sc = scenario("eha-leak-minor")
+    ref_sim = simulate_mod.simulate(sc, runs=70, seed=3)
+    ref = chattering_record(sc.nominal, ref_sim.z, ref_sim.u)
+
+    batch = simulate_mod.iter_simulations
+
+    def run0_only(scenario, runs, *args, **kwargs):  # simulate(sc, 1, seed): run 0 for the recording
+        assert runs == 1, "stream_chunks simulated (runs, T, n) arrays instead of the fused kernel"
+        return batch(scenario, runs, *args, **kwargs)
+
+    monkeypatch.setattr(simulate_mod, "iter_simulations", run0_only)
+    first: list = []
+    recs = list(stream_chunks(sc, 70, 3, first))
+    np.testing.assert_array_equal(np.concatenate([r.values for r in recs]), ref.values)
+    assert [r.first_run for r in recs] == [0]
+    np.testing.assert_array_equal(first[0].x, ref_sim.x[:1])
+    np.testing.assert_array_equal(first[0].z, ref_sim.z[:1])
