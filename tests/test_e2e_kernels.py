@@ -196,3 +196,55 @@ def test_detect_cli_streams_the_fused_records(monkeypatch: pytest.MonkeyPatch) -
     assert [r.first_run for r in recs] == [0]
     np.testing.assert_array_equal(first[0].x, ref_sim.x[:1])
     np.testing.assert_array_equal(first[0].z, ref_sim.z[:1])
+
+
+def _captured_study(module, call, monkeypatch: pytest.MonkeyPatch):
+    """The HealthyStudy a study function builds (its run_study is intercepted)."""
+    seen = []
+
+    def capture(study, *args, **kwargs):
+        seen.append(study)
+        return real(study, *args, **kwargs)
+
+    real = module.run_study
+    monkeypatch.setattr(module, "run_study", capture)
+    call()
+    return seen[0]
+
+
+@needs_numba
+@pytest.mark.parametrize("which", ["far", "far-no-frames", "calibrate"])
+def test_healthy_study_counts_equal_numpy_path(which: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The compiled exceedance counts (integers) give the numpy path's summary exactly, with its dtypes."""
+    from chatterspec.studies import _exceedance, calibration, false_alarms
+
+    sc = scenario("eha-healthy")
+    if which == "calibrate":
+        study = _captured_study(
+            calibration, lambda: calibration.calibrate(sc, 1e-2, runs=64, seed=1), monkeypatch
+        )
+    else:
+        frames = which == "far"
+        study = _captured_study(
+            false_alarms,
+            lambda: false_alarms.false_alarm_study(sc, [1e-2, 0.2], runs=64, seed=1, frames=frames),
+            monkeypatch,
+        )
+    x = next(iter_chattering(sc, 70, seed=8, chunk_runs=70)).values
+    monkeypatch.setenv("CHATTERSPEC_JIT", "1")
+    fast = study._summarize(x, sc.dt)
+    monkeypatch.setenv("CHATTERSPEC_JIT", "0")
+    ref = study._summarize(x, sc.dt)
+    assert list(fast) == list(ref)
+    for key in ref:
+        assert fast[key].dtype == ref[key].dtype, key
+        np.testing.assert_array_equal(fast[key], ref[key], err_msg=key)
+    assert ref["fw"].sum() > 0  # alpha = 0.2 (or the per-bin kinds): exceedances were counted
+    # the kernel's Python form on a small input
+    power, thr = x[:3, None, :40] ** 2, study.thr_values[:, :40]
+    tested = study.thr_tested[:, :40]
+    a = _exceedance.exceedance_counts(power, thr, tested)
+    monkeypatch.setattr(_exceedance, "_exceedance_kernel", _exceedance._exceedance_kernel.py_func)
+    b = _exceedance.exceedance_counts(power, thr, tested)
+    for u, v in zip(a, b, strict=True):
+        np.testing.assert_array_equal(u, v)
