@@ -64,13 +64,25 @@ def _rng_kernel_inputs(name: str, T: int):
 
 @needs_numba
 @pytest.mark.parametrize(("lo", "hi"), [(0, 64), (5, 9), (70, 75), (60, 130)])
-def test_rng_kernel_equals_drawing_blocks_first(lo: int, hi: int) -> None:
-    """Runs [lo, hi) from the block streams: partial blocks at both ends, a block boundary crossed."""
-    T, m = 50, 3
-    args = _rng_kernel_inputs("eha-leak-major", T)
+@pytest.mark.parametrize("dims", [3, 2])
+@pytest.mark.parametrize("diag", [True, False])
+def test_rng_kernel_equals_drawing_blocks_first(lo: int, hi: int, dims: int, diag: bool) -> None:
+    """Runs [lo, hi) from the block streams: partial blocks at both ends, a block boundary crossed.
+
+    3 x 3 takes the written-out ``_chattering_run3``, 2 x 2 (the EHA's matrices cut down: any
+    numbers do for a bitwise comparison) the generic loops; both with the diagonal shortcut
+    for Lq, Lr and without it (full sums, non-diagonal factors).
+    """
+    T, m = 50, dims
+    seg_idx, A, C, Lq, Lr, Bu, x0, dg, PhiT, Gu = _rng_kernel_inputs("eha-leak-major", T)
+    c = np.ascontiguousarray
+    if not diag:  # non-diagonal noise factors: the full sums
+        Lq, Lr, dg = Lq + 1e-3, Lr + 1e-4, np.zeros_like(dg)
+    cut = (A[:, :m, :m], C[:, :m, :m], Lq[:, :m, :m], Lr[:, :m, :m], Bu[:, :, :m], x0[:m])
+    args = (seg_idx, *map(c, cut), dg, c(PhiT[:m, :m]), c(Gu[:, :m]))
     root = root_seed_sequence(9)
     ref = np.full((hi - lo, m, T - 1), np.nan)
-    for off, v, w in _noise_blocks(root, lo, hi, T, 3, m):
+    for off, v, w in _noise_blocks(root, lo, hi, T, m, m):
         _chattering_kernel(v, w, *args, ref, off)
     for kernel in (_chattering_rng_kernel, _chattering_rng_kernel.py_func):
         e = np.full((hi - lo, m, T - 1), np.nan)
