@@ -36,7 +36,7 @@ def verdict_kernel(
     peak_ratio: np.ndarray,
     k_excess: np.ndarray,
     p_sum: np.ndarray,
-) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_kernels.py)
+) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_e2e_kernels.py)
     """Per spectrum r and channel c, over the tested bins ``idx`` (positions j = 0 .. len(idx) - 1).
 
     Parameters

@@ -285,7 +285,7 @@ def _chattering_rng_kernel(
     Gu: np.ndarray,
     e_out: np.ndarray,
     offset: int,
-) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_kernels.py)
+) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_e2e_kernels.py)
     """:func:`_chattering_kernel` on runs ``skip .. skip + runs - 1`` of one random block, drawing as it goes.
 
     ``g0`` and ``g1`` are the block's generators (streams 0 and 1 of
@@ -293,7 +293,7 @@ def _chattering_rng_kernel(
     array in C order, one number after the other from the same stream, so drawing run r's
     ``(T, n)`` numbers when run r starts (after discarding the ``skip`` runs before it) gives
     the same numbers; numba's ``Generator.standard_normal`` is numpy's ziggurat on the same
-    bit generator (tests/test_kernels.py compares them). Only one run's noise is held (2 x 96
+    bit generator (tests/test_e2e_kernels.py compares them). Only one run's noise is held (2 x 96
     kB for the EHA's 4001 x 3, in the core's L2 cache), not ``(BLOCK, T, n)`` arrays.
     """
     T = seg_idx.shape[0]
