@@ -92,12 +92,19 @@ def run(args: argparse.Namespace) -> int:
 def stream_chunks(sc: Scenario, runs: int, seed: int, first: list[Simulation]) -> Iterator[ChatteringRecord]:
     """Chattering records of ``runs`` realizations in chunks; appends run 0's Simulation to ``first``.
 
-    Peak memory is one chunk (``DETECT_CHUNK_RUNS`` realizations), whatever ``runs``.
+    Peak memory is one chunk (``DETECT_CHUNK_RUNS`` realizations), whatever ``runs``. Where the
+    fused simulation + auxiliary-SVSF kernel applies (``iter_chattering``'s fast path, the same
+    numbers), run 0 is simulated once more on its own for the recording (realization r's
+    numbers do not depend on the chunking).
     """
     from ..detection.detect import DETECT_CHUNK_RUNS
-    from ..detection.pipeline import chattering_record
-    from ..plants.simulate import Simulation, iter_simulations
+    from ..detection.pipeline import _can_fuse, chattering_record, iter_chattering
+    from ..plants.simulate import Simulation, iter_simulations, simulate
 
+    if _can_fuse(sc):
+        first.append(simulate(sc, 1, seed))
+        yield from iter_chattering(sc, runs, seed, chunk_runs=min(runs, DETECT_CHUNK_RUNS))
+        return
     for sim in iter_simulations(sc, runs, seed, chunk_runs=min(runs, DETECT_CHUNK_RUNS)):
         if not first:
             first.append(Simulation(sim.t, sim.x[:1].copy(), sim.z[:1].copy(), sim.u, sc, 0))

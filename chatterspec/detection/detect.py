@@ -37,12 +37,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import _jit
 from .._validate import open_unit, positive_int
 from ..errors import ModelKindError, ParameterError, ShapeError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import is_linear
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
+from ._verdict import verdict_kernel
 from .pipeline import ChatteringRecord, iter_chattering
 from .spectral import DEFAULT_STFT, Spectrogram, STFTConfig, expected_spectrum, periodogram, spectrogram
 from .thresholds import (
@@ -186,6 +188,20 @@ def _channel_names(channels: Sequence[str] | None, m: int) -> tuple[str, ...]:
     return names
 
 
+def _compiled_verdict(
+    power: np.ndarray, values: np.ndarray, expected: np.ndarray, idx: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(k, peak_ratio, k_excess, p_sum)`` of :func:`detect_spectrum` by :func:`._verdict.verdict_kernel`."""
+    lead, (bins, m) = power.shape[:-2], power.shape[-2:]
+    p3 = power.reshape(-1, bins, m)  # a view for the usual (runs, bins, m) spectra
+    k = np.empty((p3.shape[0], m), dtype=np.intp)
+    peak_ratio = np.empty((p3.shape[0], m))
+    k_excess = np.empty((p3.shape[0], m), dtype=np.intp)
+    p_sum = np.empty((p3.shape[0], m))
+    verdict_kernel(p3, values, expected, idx, k, peak_ratio, k_excess, p_sum)
+    return tuple(a.reshape(*lead, m) for a in (k, peak_ratio, k_excess, p_sum))
+
+
 def detect_spectrum(
     power: np.ndarray,
     threshold: Threshold,
@@ -222,24 +238,32 @@ def detect_spectrum(
     if expected.shape != threshold.values.shape:
         raise ShapeError(f"expected must have shape {threshold.values.shape}; got {expected.shape}")
     tested = threshold.tested
-    p_tested = power[..., tested, :]
+    idx = np.flatnonzero(tested)
     f_tested = threshold.freqs_hz[tested]
-    ratio = p_tested / threshold.values[tested]
-    k = np.argmax(ratio, axis=-2)  # (..., m)
-    peak_ratio = np.take_along_axis(ratio, k[..., None, :], axis=-2)[..., 0, :]
+    if _jit.enabled() and idx.size:
+        # one compiled pass, bit-identical to the numpy lines below (chatterspec.detection._verdict)
+        k, peak_ratio, k_excess, p_sum = _compiled_verdict(power, threshold.values, expected, idx)
+        if not (power.flags.c_contiguous and power.shape[-1] > 1):  # numpy may sum pairwise
+            p_sum = power[..., tested, :].sum(axis=-2)
+    else:
+        p_tested = power[..., tested, :]
+        ratio = p_tested / threshold.values[tested]
+        k = np.argmax(ratio, axis=-2)  # (..., m)
+        peak_ratio = np.take_along_axis(ratio, k[..., None, :], axis=-2)[..., 0, :]
+        # largest excess power S - E[S]; among the bins over the threshold when there are any, so that
+        # on a single noisy record the footprint is not taken from a healthy bin where E[S] is large
+        excess_bins = p_tested - expected[tested]
+        over = ratio > 1.0
+        k_excess = np.where(
+            over.any(axis=-2),
+            np.argmax(np.where(over, excess_bins, -np.inf), axis=-2),
+            np.argmax(excess_bins, axis=-2),
+        )
+        p_sum = p_tested.sum(axis=-2)
     most_significant_hz = f_tested[k]
-    # largest excess power S - E[S]; among the bins over the threshold when there are any, so that
-    # on a single noisy record the footprint is not taken from a healthy bin where E[S] is large
-    excess_bins = p_tested - expected[tested]
-    over = ratio > 1.0
-    k_excess = np.where(
-        over.any(axis=-2),
-        np.argmax(np.where(over, excess_bins, -np.inf), axis=-2),
-        np.argmax(excess_bins, axis=-2),
-    )
     peak_hz = f_tested[k_excess]
     e_sum = expected[tested].sum(axis=0)
-    excess = (p_tested.sum(axis=-2) - e_sum) / e_sum
+    excess = (p_sum - e_sum) / e_sum
     dc = np.flatnonzero(threshold.freqs_hz == 0.0)
     if dc.size:
         dc_ratio = power[..., dc[0], :] / threshold.values[dc[0]]

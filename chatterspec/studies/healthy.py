@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import _jit
 from .._validate import open_unit
 from ..detection.pipeline import iter_chattering
 from ..detection.spectral import STFTConfig, periodogram, periodogram_freqs
@@ -17,6 +18,7 @@ from ..errors import ParameterError
 from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario
 from ..plants.scenarios import scenario as catalogue_scenario
+from ._exceedance import exceedance_counts
 
 __all__ = [
     "model_scenario",
@@ -197,10 +199,15 @@ class HealthyStudy:
     def _summarize(self, x: np.ndarray, dt: float) -> dict[str, np.ndarray]:
         out: dict[str, np.ndarray] = {"runs": np.array(x.shape[0])}
         S = periodogram(x, dt).power  # (r, bins, m)
-        exc = S[None] > self.thr_values[:, None]  # (K, r, bins, m)
-        out["bin_exceed"] = exc.sum(axis=1)
-        masked = exc & self.thr_tested[:, None, :, None]
-        n_false = masked.sum(axis=2)  # (K, r, m)
+        compiled = _jit.enabled()  # one pass of integer counts, the numbers of the numpy lines
+        if compiled:
+            out["bin_exceed"], n_false = exceedance_counts(S[:, None], self.thr_values, self.thr_tested)
+            n_false = n_false[:, :, 0]  # (K, r, m)
+        else:
+            exc = S[None] > self.thr_values[:, None]  # (K, r, bins, m)
+            out["bin_exceed"] = exc.sum(axis=1)
+            masked = exc & self.thr_tested[:, None, :, None]
+            n_false = masked.sum(axis=2)  # (K, r, m)
         out["false_bins"] = n_false.sum(axis=1)
         out["false_bins_sq"] = (n_false.astype(np.int64) ** 2).sum(axis=1)
         # per-record squares: the false-alarm intervals are computed from run-level counts (issue 11)
@@ -208,7 +215,8 @@ class HealthyStudy:
         fw = n_false > 0
         out["fw"] = fw.sum(axis=1)  # (K, m)
         out["fw_any"] = fw.any(axis=-1).sum(axis=1)  # (K,)
-        Y = S / self.expected
+        if self.keep_max or self.k_top:
+            Y = S / self.expected
         if self.keep_max:
             out["runs_max"] = Y[:, self.tested].max(axis=1)  # (r, m)
         if self.k_top:
@@ -216,14 +224,19 @@ class HealthyStudy:
         if self.config is not None and self.fthr_values is not None:
             P = stft_spectrogram(x, dt, self.config).power  # (r, F, fb, m)
             out["frames"] = np.array(P.shape[0] * P.shape[1])
-            fexc = P[None] > self.fthr_values[:, None, None]  # (Kf, r, F, fb, m)
-            out["frame_bin_exceed"] = fexc.sum(axis=(1, 2))  # (Kf, fb, m)
-            fmasked = fexc & self.fthr_tested[:, None, None, :, None]
-            flags = fmasked.any(axis=3)  # (Kf, r, F, m)
+            if compiled:
+                out["frame_bin_exceed"], f_n = exceedance_counts(P, self.fthr_values, self.fthr_tested)
+                flags = f_n > 0  # (Kf, r, F, m)
+                f_false = f_n.sum(axis=2)  # (Kf, r, m) false frame-bins per record
+            else:
+                fexc = P[None] > self.fthr_values[:, None, None]  # (Kf, r, F, fb, m)
+                out["frame_bin_exceed"] = fexc.sum(axis=(1, 2))  # (Kf, fb, m)
+                fmasked = fexc & self.fthr_tested[:, None, None, :, None]
+                flags = fmasked.any(axis=3)  # (Kf, r, F, m)
+                f_false = fmasked.sum(axis=(2, 3)).astype(np.int64)  # (Kf, r, m) false frame-bins per record
             out["frame_flag"] = flags.sum(axis=(1, 2))  # (Kf, m)
             out["frame_flag_any"] = flags.any(axis=-1).sum(axis=(1, 2))  # (Kf,)
             # per-record sums of squares (overlapping frames of one record are dependent trials)
-            f_false = fmasked.sum(axis=(2, 3)).astype(np.int64)  # (Kf, r, m) false frame-bins per record
             out["frame_false_sq"] = (f_false**2).sum(axis=1)  # (Kf, m)
             out["frame_false_total_sq"] = (f_false.sum(axis=-1) ** 2).sum(axis=1)  # (Kf,)
             f_flag = flags.sum(axis=2).astype(np.int64)  # (Kf, r, m) flagged frames per record
