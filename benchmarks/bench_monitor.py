@@ -203,6 +203,7 @@ def main() -> None:
     ap.add_argument("--cases", default="", help="comma-separated subset of the cases to run, e.g. b,d")
     ap.add_argument("--breakdown", action="store_true", help="split the logging time by entity group")
     ap.add_argument("--live", action="store_true", help="time the live path per hop")
+    ap.add_argument("--no-baseline", action="store_true", help="skip the numpy-path baseline run of case (d)")
     args = ap.parse_args()
     global CPU
     CPU = args.cpu
@@ -270,6 +271,20 @@ def main() -> None:
             print(
                 f"{label:<38}{T / stream:12.0f}{T / (stream + setup):13.0f}{setup * 1e3:10.1f}{mb}"
                 f"{T / t_push:9.0f}{log_x}"
+            )
+        if _jit.enabled() and not args.no_baseline and any(c[0].startswith("(d)") for c in cases):
+            # the same-process baseline of the issue: case (d) on the numpy path (CHATTERSPEC_JIT=0
+            # switches the kernels at run time); one run, it is ~50x slower
+            os.environ["CHATTERSPEC_JIT"] = "0"
+            try:
+                mon = ChatteringMonitor(nominal, MonitorSettings(psi=PSI), t0=0.0)
+                setup, stream, size, t_push, t_log = _run(mon, raw, args.chunk, path)
+                path.unlink()
+            finally:
+                os.environ.pop("CHATTERSPEC_JIT", None)
+            print(
+                f"{'(d) numpy path (baseline, 1 run)':<38}{T / stream:12.0f}{T / (stream + setup):13.0f}"
+                f"{setup * 1e3:10.1f}{size / 1e6 / args.minutes:9.2f}{T / t_push:9.0f}{T / t_log:11.0f}"
             )
         if args.breakdown:
             jobs = [
