@@ -136,3 +136,15 @@ def test_pilot_window_brackets_full_study_ranks():
     assert np.all(lo <= el) and np.all(eh < hi)
     true = -np.log(1 - q)
     assert np.all(lo < true) and np.all(true < hi)
+
+
+def test_cli_tail_budget(capsys):
+    import json
+
+    from chatterspec.cli import main
+
+    argv = ["calibrate", "so-healthy-low", "--runs", "128", "--tail-budget", "0", "--json", "--no-progress"]
+    assert main(argv) == 0
+    assert json.loads(capsys.readouterr().out)["tails"]["method"] == "histogram"
+    with pytest.raises(SystemExit):
+        main(["calibrate", "so-healthy-low", "--tail-budget", "nan"])
