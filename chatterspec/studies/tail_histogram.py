@@ -69,6 +69,7 @@ WINDOW_Z = 6.0
 _NC = COARSE_BUCKETS + 2  # coarse buckets of one side, with underflow and overflow
 N_BUCKETS = 2 * _NC + FINE_BUCKETS
 _DC = math.log(COARSE_HI / COARSE_LO) / COARSE_BUCKETS
+_BLOCK_VALUES = 2**19  # values binned at once (bounds the temporaries of bucket_counts)
 _OUT = 1e-12  # reported edges are widened by this relative amount (floating rounding of the logs)
 
 
@@ -148,16 +149,19 @@ def bucket_counts(y: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     cells = lo.shape
     y = y.reshape(y.shape[0], -1)
     lo_f, hi_f = lo.reshape(-1), hi.reshape(-1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ly = np.log(np.where(np.isnan(y), np.inf, y))
-    coarse = np.clip(np.floor((ly - math.log(COARSE_LO)) / _DC) + 1, 0, _NC - 1)
-    llo = np.log(lo_f)
-    dfine = (np.log(hi_f) - llo) / FINE_BUCKETS
-    fine = np.clip(np.floor((ly - llo) / dfine), 0, FINE_BUCKETS - 1)
-    below, above = ly < llo, ly >= np.log(hi_f)
-    idx = np.where(below, coarse, np.where(above, _NC + FINE_BUCKETS + coarse, _NC + fine)).astype(np.int64)
-    idx += N_BUCKETS * np.arange(idx.shape[1])
-    counts = np.bincount(idx.ravel(), minlength=idx.shape[1] * N_BUCKETS)
+    llo, lhi = np.log(lo_f), np.log(hi_f)
+    dfine = (lhi - llo) / FINE_BUCKETS
+    offset = N_BUCKETS * np.arange(y.shape[1])
+    counts = np.zeros(y.shape[1] * N_BUCKETS, dtype=np.int64)
+    step = max(1, _BLOCK_VALUES // max(y.shape[1], 1))  # rows per block: ~4 MB temporaries
+    for start in range(0, y.shape[0], step):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            yb = y[start : start + step]
+            ly = np.log(np.where(np.isnan(yb), np.inf, yb))
+        coarse = np.clip(np.floor((ly - math.log(COARSE_LO)) / _DC) + 1, 0, _NC - 1)
+        fine = np.clip(np.floor((ly - llo) / dfine), 0, FINE_BUCKETS - 1)
+        idx = np.where(ly < llo, coarse, np.where(ly >= lhi, _NC + FINE_BUCKETS + coarse, _NC + fine))
+        counts += np.bincount((idx.astype(np.int64) + offset).ravel(), minlength=counts.size)
     return counts.reshape(*cells, N_BUCKETS)
 
 
