@@ -61,26 +61,28 @@ def study_quantiles(
         }
         return res, {"method": "exact", "budget_bytes": int(budget), "exact_bytes": int(need)}
 
-    # ---- bounded path: pilot windows, then bucket counts over every run
-    def keeps(p: int) -> tuple[int, int]:
-        return (
-            th.pilot_keep(p, p, runs, runs, q, confidence),
-            th.pilot_keep(p * n_frames, p * frames_eff, nf, nf_eff, q, confidence),
-        )
-
-    P = th.pilot_runs(runs, lambda p: th.tail_bytes(*keeps(p), bins, fbins, m), budget, BLOCK)
-    kp, kfp = keeps(P)
+    # ---- bounded path: a pilot histogram places each cell's fine window, then counts over every run
+    P = th.pilot_runs(runs, 1 - q, BLOCK)
+    pw_bin, pw_frame = th.pilot_window((bins, m)), th.pilot_window((fbins, m))
     pilot = run_study(
-        dataclasses.replace(study, k_top=kp, kf_top=kfp), P, seed, label=f"{label} (pilot)", **run_kw
+        dataclasses.replace(
+            study,
+            k_top=0,
+            kf_top=0,
+            bin_window=pw_bin,
+            frame_window=pw_frame,
+            frame_max_window=th.pilot_window((m,)),
+        ),
+        P,
+        seed,
+        label=f"{label} (pilot)",
+        **run_kw,
     )
+    pf, pfe = P * n_frames, P * frames_eff
     win = {
-        "bin": th.window(_desc(pilot["top_bin"]), P, P, runs, runs, q, confidence),
-        "frame": th.window(
-            _desc(pilot["top_frame"]), P * n_frames, P * frames_eff, nf, nf_eff, q, confidence
-        ),
-        "frame_max": th.window(
-            _desc(pilot["top_frame_max"]), P * n_frames, P * frames_eff, nf, nf_eff, q, confidence
-        ),
+        "bin": th.window(pilot["hist_bin"], P, P, runs, runs, q, confidence),
+        "frame": th.window(pilot["hist_frame"], pf, pfe, nf, nf_eff, q, confidence),
+        "frame_max": th.window(pilot["hist_frame_max"], pf, pfe, nf, nf_eff, q, confidence),
     }
     del pilot
     main = dataclasses.replace(

@@ -43,7 +43,6 @@ for 3 channels) stays exact; it is the only per-run array left.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import numpy as np
 
@@ -66,6 +65,10 @@ COARSE_LO, COARSE_HI = 1e-6, 1e6
 #: One-sided miss probability of each pilot window edge, and the full study's scatter in SEs.
 WINDOW_EPS = 1e-9
 WINDOW_Z = 6.0
+#: Window of the pilot's own histogram (normalized power; 512 buckets of 1.8 %), and the pilot's
+#: target number of values above the quantile per cell.
+PILOT_WINDOW = (1e-2, 1e2)
+PILOT_TAIL = 64
 _NC = COARSE_BUCKETS + 2  # coarse buckets of one side, with underflow and overflow
 N_BUCKETS = 2 * _NC + FINE_BUCKETS
 _DC = math.log(COARSE_HI / COARSE_LO) / COARSE_BUCKETS
@@ -94,39 +97,45 @@ def tail_bytes(k_top: int, kf_top: int, bins: int, fbins: int, m: int) -> int:
     return 16 * (k_top * bins * m + kf_top * (fbins + 1) * m)
 
 
-def pilot_runs(runs: int, bytes_at: Callable[[int], int], budget: int, block: int) -> int:
-    """Pilot size: ``block`` doubled while its exact tails fit ``budget / 4``, at most ``runs / 4``."""
-    hi = max(block, (runs // 4) // block * block)
-    p = block
-    while p * 2 <= hi and bytes_at(p * 2) <= budget / 4:
-        p *= 2
-    return min(p, runs)
+def pilot_runs(runs: int, alpha: float, block: int) -> int:
+    """Pilot size: ``max(runs / 16, PILOT_TAIL / alpha)`` in whole blocks, within ``[block, runs / 4]``.
+
+    ``PILOT_TAIL / alpha`` runs put ~``PILOT_TAIL`` values above the quantile of each bin (enough
+    for a bounded window at ``WINDOW_Z``); ``runs / 16`` narrows the window as the study grows.
+    At most a quarter of the runs (and one block at least, then ``min(block, runs)``).
+    """
+    want = max(runs // 16, math.ceil(PILOT_TAIL / alpha))
+    p = min(want, runs // 4) // block * block
+    return min(max(p, block), runs)
+
+
+def pilot_window(shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """The pilot's own window: :data:`PILOT_WINDOW` for every cell."""
+    return np.full(shape, PILOT_WINDOW[0]), np.full(shape, PILOT_WINDOW[1])
 
 
 def window(
-    top_desc: np.ndarray, n_p: int, n_p_eff: int, n: int, n_eff: int, q: float, confidence: float
+    counts: np.ndarray, n_p: int, n_p_eff: int, n: int, n_eff: int, q: float, confidence: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per-cell window ``[lo, hi)`` from the pilot's descending tail (see the module docstring).
+    """Per-cell window ``[lo, hi)`` of the main pass from the pilot's bucket counts.
 
-    ``top_desc`` holds the pilot's largest values sorted descending along axis 0 (it must hold
-    at least :func:`pilot_keep` values); ``n_p`` / ``n_p_eff`` are the pilot's samples and
-    independent samples, ``n`` / ``n_eff`` the full study's.
+    ``counts`` are the pilot's :func:`bucket_counts` in :func:`pilot_window` (``n_p`` samples,
+    ``n_p_eff`` independent ones); ``n`` / ``n_eff`` are the full study's. The pilot's one-sided
+    ``1 - WINDOW_EPS`` order-statistic bounds of the levels of :func:`_levels` are read as bucket
+    edges (outward), so each edge is on the safe side with probability ``>= 1 - WINDOW_EPS``.
     """
     a_lvl, b_lvl = _levels(n, n_eff, q, confidence)
-    shape = top_desc.shape[1:]
+    shape = counts.shape[:-1]
+    plo, phi = pilot_window(shape)
+    cum = np.cumsum(counts, axis=-1)
     r_lo = _pooled_ranks(n_p, n_p_eff, a_lvl, 1 - 2 * WINDOW_EPS)[1]
     r_hi = _pooled_ranks(n_p, n_p_eff, b_lvl, 1 - 2 * WINDOW_EPS)[2]
-    lo = np.full(shape, COARSE_LO) if r_lo < 1 else np.maximum(top_desc[n_p - r_lo], COARSE_LO)
-    hi = np.full(shape, COARSE_HI) if r_hi > n_p else np.minimum(top_desc[n_p - r_hi], COARSE_HI)
+    lo = np.full(shape, COARSE_LO) if r_lo < 1 else _edges(np.sum(cum < r_lo, axis=-1), plo, phi)[0]
+    hi = np.full(shape, COARSE_HI) if r_hi > n_p else _edges(np.sum(cum < r_hi, axis=-1), plo, phi)[1]
+    lo = np.clip(lo, COARSE_LO, COARSE_HI)
+    hi = np.clip(hi, COARSE_LO, COARSE_HI)
     hi = np.where(hi > lo * (1 + 1e-9), hi, lo * (1 + 1e-6))  # ties (or an empty window): keep it open
     return lo.astype(float), hi.astype(float)
-
-
-def pilot_keep(n_p: int, n_p_eff: int, n: int, n_eff: int, q: float, confidence: float) -> int:
-    """Tail values the pilot must keep for :func:`window`."""
-    a_lvl, _ = _levels(n, n_eff, q, confidence)
-    r_lo = _pooled_ranks(n_p, n_p_eff, a_lvl, 1 - 2 * WINDOW_EPS)[1]
-    return n_p - max(r_lo, 1) + 1
 
 
 def _levels(n: int, n_eff: int, q: float, confidence: float) -> tuple[float, float]:
