@@ -87,7 +87,27 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_common(p, alpha=1e-2, runs=1000)
     p.add_argument("--out", metavar="FILE", help="write the calibration file (.json or .npz)")
     p.add_argument("--plot", metavar="FILE", help="save a figure of analytic vs empirical thresholds")
+    p.add_argument(
+        "--tail-budget",
+        type=_megabytes,
+        default=None,
+        metavar="MB",
+        help="memory (MB) allowed for the exact order-statistic tails, which grow like runs x alpha "
+        "(default 128); above it the quantiles come from fixed-size tail histograms (point at most one "
+        "fine bucket above the exact one, intervals widened outward); 0 forces the histograms",
+    )
     p.set_defaults(func=run)
+
+
+def _megabytes(text: str) -> int:
+    """``--tail-budget MB`` -> bytes (MB = 2^20 bytes)."""
+    try:
+        mb = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of MB; got {text!r}") from None
+    if not mb >= 0 or mb == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number of MB >= 0; got {text!r}")
+    return int(mb * 2**20)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -97,7 +117,10 @@ def run(args: argparse.Namespace) -> int:
     outputs = Outputs()
     from ..studies.calibration import calibrate
 
-    cal = calibrate(args.name, alpha=args.alpha, runs=args.runs, seed=args.seed, **execution(args))
+    ex = execution(args)
+    if args.tail_budget is not None:
+        ex["tail_budget"] = args.tail_budget
+    cal = calibrate(args.name, alpha=args.alpha, runs=args.runs, seed=args.seed, **ex)
     doc = cal.to_dict()
     if args.out:
         saved = outputs.write("--out", args.out, _save_calibration, cal, args.out)
@@ -135,6 +158,7 @@ def run(args: argparse.Namespace) -> int:
             + ("" if ok else "  <- analytic outside")
         )
     print(f"  per-frame median ratio empirical/analytic {ag['per_frame_median_ratio']:.3f}")
+    _print_tails(cal.tails)
     if args.out and doc["calibration_file"] is not None:
         print(f"  calibration file: {doc['calibration_file']}")
     outputs.finish()
@@ -160,6 +184,18 @@ def _print_empirical(cal, doc: dict) -> int:
     print(f"  family-wise thresholds on S / E_hat ({cal.confidence:.0%} order-statistic intervals):")
     for ch, q in zip(cal.channels, cal.family_wise, strict=True):
         print(f"  empirical family-wise, {ch:<14} {q.value:.3f} [{q.ci_low:.3f}, {q.ci_high:.3f}]")
+    _print_tails(cal.tails)
     if doc.get("calibration_file") is not None:
         print(f"  calibration file: {doc['calibration_file']}")
     return 0
+
+
+def _print_tails(tails: dict) -> None:
+    """One line on how the empirical quantiles were read (only for the bounded-memory histograms)."""
+    if tails.get("method") == "histogram":
+        print(
+            f"  quantiles from tail histograms (exact tails would need {tails['exact_bytes'] / 2**20:.0f} MB "
+            f"> budget {tails['budget_bytes'] / 2**20:.0f} MB): points at most "
+            f"{tails['fine_rel_width']:.2%} above the exact order statistics, intervals widened outward"
+            + (f"; {tails['outside_window']} read outside the fine window" if tails["outside_window"] else "")
+        )

@@ -15,7 +15,7 @@ import numpy as np
 import scipy.stats
 from matplotlib.figure import Figure
 
-from ..detection.pipeline import ChatteringRecord, scenario_chattering
+from ..detection.pipeline import ChatteringRecord, iter_chattering
 from ..detection.spectral import periodogram
 from ..detection.thresholds import Threshold, exact_threshold, paper_threshold
 from ..errors import ParameterError
@@ -80,10 +80,18 @@ class _Spectrum:
 
 def _spectrum(name: str, runs: int = 1, seed: SeedLike = 0, *, average: bool = False) -> _Spectrum:
     sc = scenario(name)
-    rec = scenario_chattering(sc, runs, seed)
-    pg = periodogram(rec.values, rec.dt)
-    single = np.asarray(pg.power[0])
-    power = np.asarray(pg.mean().power) if average else single
+    if not average:
+        runs = 1  # only realization 0 is drawn: simulate nothing else
+    # chunk by chunk (memory independent of runs, issue 10): sum of the periodograms + realization 0
+    total, rec, pg = None, None, None
+    for chunk in iter_chattering(sc, runs, seed):
+        pg = periodogram(chunk.values, chunk.dt)
+        part = pg.power.reshape(-1, *pg.power.shape[-2:]).sum(axis=0)
+        total = part if total is None else total + part
+        if rec is None:
+            rec = replace(chunk, values=np.array(chunk.values[:1]))  # a copy: frees the chunk
+            single = np.array(pg.power[0])
+    power = total / runs if average else single
     th = exact_threshold(sc.nominal, pg.freqs_hz, pg.n_samples, 0.5, "none")
     return _Spectrum(
         scenario=sc,
@@ -92,7 +100,7 @@ def _spectrum(name: str, runs: int = 1, seed: SeedLike = 0, *, average: bool = F
         power=power,
         single=single,
         expected=np.asarray(th.expected),
-        averaged=rec.runs if average else 1,
+        averaged=runs if average else 1,
     )
 
 

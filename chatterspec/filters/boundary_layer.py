@@ -50,7 +50,7 @@ from ..errors import ParameterError
 from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario, scenario
 from ..plants.signals import Signal, Step
-from ..plants.simulate import simulate
+from ..plants.simulate import iter_simulations, simulate
 from ..rng import SeedLike, root_seed_sequence
 from .svsf import SVSF, auxiliary_svsf, boundary_layer_chattering
 
@@ -440,6 +440,10 @@ class BoundaryLayerStudy:
         ]
 
 
+#: Realizations per chunk of :func:`boundary_layer_study` (so-boundary-layer: ~50 MB of filter arrays).
+_STUDY_CHUNK_RUNS = 256
+
+
 def boundary_layer_study(
     psis: Sequence[float | None] = (1e-4, None, 2e-3),
     runs: int = 20,
@@ -512,9 +516,10 @@ def boundary_layer_study(
     )
     psi_values = np.array([est.psi[0] if p is None else positive("psi", p) for p in psis], dtype=float)
     psi_l = float(est.psi_lower[0]) if psi_lower is None else positive("psi_lower", psi_lower)
-    sim = simulate(sc, runs, study_seed)
     T = sc.n_samples
-    t = sim.t
+    chunks = iter_simulations(sc, runs, study_seed, chunk_runs=min(runs, _STUDY_CHUNK_RUNS))
+    first = next(chunks)
+    t = first.t
     seg = sc.segment_index(t)
     faulty = np.array([sc.deviates(seg) for seg in sc.segments])
     drive = np.zeros(T, dtype=bool)  # e(k|k-1), k >= 1, involves x(k-1) -> x(k)
@@ -524,49 +529,66 @@ def boundary_layer_study(
     valid = t >= max(startup, t[1])
     outside = valid & ~inside
     inside &= valid
-    rms_x = np.sqrt(np.mean(sim.x**2, axis=1, keepdims=True))  # (runs, 1, n)
     P = len(psi_values)
     n = sc.nominal.n_states
-    rate_in = np.empty(P)
-    rate_out = np.empty(P)
-    c_in = np.empty(P, dtype=int)
-    c_out = np.empty(P, dtype=int)
-    pv = np.empty(P)
-    run_pv = np.empty(P)
-    nerr = np.empty((P, T, n))
-    rms_in = np.empty((P, n))
-    rms_out = np.empty((P, n))
-    chat0 = np.empty((P, T))
     win_masks = [inside & (t >= a) & (t < b + 1.5 * sc.dt) for a, b in sc.fault_intervals]
-    rate_win = np.empty((P, len(win_masks)))
     n_in = int(inside.sum()) * runs
     n_out = int(outside.sum()) * runs
-    for i, psi in enumerate(psi_values):
-        filt = SVSF(sc.nominal, psi=psi, psi_lower=psi_l, gamma=gamma, switching="sat")
-        out = filt.run(sim.z, sim.u, store_states=True)
-        ch = boundary_layer_chattering(out.e_prior[..., 0], psi)  # (runs, T)
-        on = ch != 0
-        c_in[i] = int(on[:, inside].sum())
-        c_out[i] = int(on[:, outside].sum())
-        rate_in[i] = c_in[i] / n_in
-        rate_out[i] = c_out[i] / n_out
-        rate_win[i] = [on[:, w].mean() for w in win_masks]
-        pv[i] = scipy.stats.fisher_exact(
-            [[c_in[i], n_in - c_in[i]], [c_out[i], n_out - c_out[i]]], alternative="greater"
-        ).pvalue
-        r_in = on[:, inside].mean(axis=1)
-        r_out = on[:, outside].mean(axis=1)
-        wins, ties = int(np.sum(r_in > r_out)), int(np.sum(r_in == r_out))
-        run_pv[i] = (
-            scipy.stats.binomtest(wins, runs - ties, 0.5, alternative="greater").pvalue
-            if runs > ties
+    filters = [SVSF(sc.nominal, psi=psi, psi_lower=psi_l, gamma=gamma, switching="sat") for psi in psi_values]
+    # sums over chunks of realizations (memory independent of runs, issue 10); counts are exact
+    c_in = np.zeros(P, dtype=np.int64)
+    c_out = np.zeros(P, dtype=np.int64)
+    c_win = np.zeros((P, len(win_masks)), dtype=np.int64)
+    wins = np.zeros(P, dtype=np.int64)
+    ties = np.zeros(P, dtype=np.int64)
+    err_sum = np.zeros((P, T, n))
+    sq_in = np.zeros((P, n))
+    sq_out = np.zeros((P, n))
+    chat0 = np.empty((P, T))
+    sim = first
+    while sim is not None:
+        rms_x = np.sqrt(np.mean(sim.x**2, axis=1, keepdims=True))  # (runs, 1, n)
+        for i, filt in enumerate(filters):
+            out = filt.run(sim.z, sim.u, store_states=True)
+            ch = boundary_layer_chattering(out.e_prior[..., 0], psi_values[i])  # (runs, T)
+            on = ch != 0
+            c_in[i] += int(on[:, inside].sum())
+            c_out[i] += int(on[:, outside].sum())
+            c_win[i] += [int(on[:, w].sum()) for w in win_masks]
+            r_in = on[:, inside].mean(axis=1)
+            r_out = on[:, outside].mean(axis=1)
+            wins[i] += int(np.sum(r_in > r_out))
+            ties[i] += int(np.sum(r_in == r_out))
+            err = (sim.x - out.x_post) / rms_x
+            err_sum[i] += err.sum(axis=0)
+            sq_in[i] += np.sum(err[:, inside] ** 2, axis=(0, 1))
+            sq_out[i] += np.sum(err[:, outside] ** 2, axis=(0, 1))
+            if sim.first_run == 0:
+                chat0[i] = ch[0]
+        sim = next(chunks, None)
+    rate_in = c_in / n_in
+    rate_out = c_out / n_out
+    with np.errstate(invalid="ignore", divide="ignore"):  # an empty window: nan, as the mean of nothing
+        rate_win = c_win / (runs * np.array([w.sum() for w in win_masks], dtype=float))
+        rms_in = np.sqrt(sq_in / (runs * inside.sum()))
+        rms_out = np.sqrt(sq_out / (runs * outside.sum()))
+    nerr = err_sum / runs
+    pv = np.array(
+        [
+            scipy.stats.fisher_exact(
+                [[c_in[i], n_in - c_in[i]], [c_out[i], n_out - c_out[i]]], alternative="greater"
+            ).pvalue
+            for i in range(P)
+        ]
+    )
+    run_pv = np.array(
+        [
+            scipy.stats.binomtest(int(wins[i]), int(runs - ties[i]), 0.5, alternative="greater").pvalue
+            if runs > ties[i]
             else 1.0
-        )
-        err = (sim.x - out.x_post) / rms_x
-        nerr[i] = err.mean(axis=0)
-        rms_in[i] = np.sqrt(np.mean(err[:, inside] ** 2, axis=(0, 1)))
-        rms_out[i] = np.sqrt(np.mean(err[:, outside] ** 2, axis=(0, 1)))
-        chat0[i] = ch[0]
+            for i in range(P)
+        ]
+    )
     return BoundaryLayerStudy(
         t=t,
         psis=psi_values,

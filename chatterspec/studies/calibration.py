@@ -20,9 +20,10 @@ from ..plants.models import LinearModel
 from ..plants.nonlinear import is_linear
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
+from .calibration_tails import study_quantiles
 from .healthy import HealthyStudy, _analytic_thresholds, _frame_thresholds, _n_frames, resolve_scenario
-from .intervals import QuantileEstimate, _none_to_inf, _quantile_from_top, _top_needed
-from .montecarlo import run_study
+from .intervals import QuantileEstimate, _none_to_inf
+from .tail_histogram import DEFAULT_TAIL_BUDGET
 
 __all__ = [
     "CALIBRATION_FORMAT",
@@ -84,6 +85,11 @@ class Calibration:
         ``analytic``, ``frame_analytic`` and ``family_wise_analytic`` are empty).
     normalization_info : dict
         How an empirical normalization was estimated (pilot runs, smoothing); empty otherwise.
+    tails : dict
+        How the empirical quantiles were read: ``method`` ``"exact"`` (order statistics of the
+        kept top-k tails) or ``"histogram"`` (bounded memory, :mod:`~.tail_histogram`, with
+        ``pilot_runs``, ``fine_rel_width``, ``outside_window``); ``budget_bytes`` and the
+        ``exact_bytes`` the exact tails would need. Empty for files of older versions.
     """
 
     scenario: str
@@ -116,6 +122,7 @@ class Calibration:
     frame_family_wise: tuple[QuantileEstimate, ...] = ()
     normalization: str = "analytic"
     normalization_info: dict[str, Any] = field(default_factory=dict)
+    tails: dict[str, Any] = field(default_factory=dict)
 
     # ---- derived
     @property
@@ -277,6 +284,7 @@ class Calibration:
                 "frame_family_wise": [q.to_dict() for q in self.frame_family_wise],
             },
             "agreement": ag,
+            "tails": self.tails,
         }
         if arrays:
             d["arrays"] = {k: np.where(np.isfinite(v), v, None).tolist() for k, v in self._arrays().items()}
@@ -300,6 +308,7 @@ class Calibration:
                 "family_wise": [q.to_dict() for q in self.family_wise],
                 "frame_family_wise": [q.to_dict() for q in self.frame_family_wise],
             },
+            "tails": self.tails,
         }
         if arrays:
             d["arrays"] = {k: np.where(np.isfinite(v), v, None).tolist() for k, v in self._arrays().items()}
@@ -334,6 +343,7 @@ class Calibration:
         meta["family_wise_analytic"] = self.family_wise_analytic
         meta["normalization"] = self.normalization
         meta["normalization_info"] = self.normalization_info
+        meta["tails"] = self.tails
         if path.suffix == ".npz":
             np.savez(path, _meta=np.array(json.dumps(meta)), **self._arrays())
         else:
@@ -492,6 +502,7 @@ def _load_calibration(
         frame_family_wise=quantiles("frame_family_wise"),
         normalization=str(meta.get("normalization", "analytic")),
         normalization_info=dict(meta.get("normalization_info", {})),
+        tails=dict(meta.get("tails", {})),
     )
     if model is not None:
         cal.check(model, n_samples, config)
@@ -510,6 +521,7 @@ def calibrate(
     scheduler: str | None = None,
     chunk_runs: int | None = None,
     progress: bool | None = None,
+    tail_budget: int = DEFAULT_TAIL_BUDGET,
 ) -> Calibration:
     """Calibrate thresholds on healthy Monte Carlo runs and compare them with the analytic ones.
 
@@ -530,6 +542,13 @@ def calibrate(
         Level of the order-statistic intervals.
     workers, scheduler, chunk_runs, progress
         Execution (see :func:`chatterspec.studies.montecarlo.run_study`).
+    tail_budget : int
+        Memory budget in bytes (default :data:`~.tail_histogram.DEFAULT_TAIL_BUDGET`, 128 MiB)
+        of the exact order-statistic tails, which grow like ``runs x alpha``. At or below it
+        the quantiles are exact order statistics; above it they are read from per-bin tail
+        histograms of fixed size (:mod:`~.tail_histogram`: point at most one fine bucket above
+        the exact value, intervals widened outward to bucket edges); ``0`` forces the histograms.
+        ``Calibration.tails`` records which path ran.
 
     Returns
     -------
@@ -553,7 +572,7 @@ def calibrate(
         from .empirical_calibration import calibrate_empirical
 
         ex = {"workers": workers, "scheduler": scheduler, "chunk_runs": chunk_runs, "progress": progress}
-        return calibrate_empirical(sc, alpha, runs, seed, config, confidence, **ex)
+        return calibrate_empirical(sc, alpha, runs, seed, config, confidence, tail_budget=tail_budget, **ex)
     model = sc.nominal
     N = sc.n_samples - 1
     freqs, thr = _analytic_thresholds(model, N, alpha)
@@ -563,10 +582,8 @@ def calibrate(
     n_frames = _n_frames(N, config, model.dt)
     if n_frames < 1:
         raise ParameterError(f"records of {N} samples are shorter than one STFT window")
-    k_top = _top_needed(runs, 1 - alpha, confidence)
     # overlapping frames are dependent: count only non-overlapping ones as independent samples
     frames_eff = max(1, (N - config.n_window(model.dt)) // config.n_window(model.dt) + 1)
-    kf_top = _top_needed(runs * n_frames, 1 - alpha, confidence, runs * frames_eff)
     study = HealthyStudy(
         scenario=sc,
         thr_values=np.stack([t.values for t in thr.values()]),
@@ -577,29 +594,17 @@ def calibrate(
         fthr_values=np.stack([t.values for t in fthr.values()]),
         fthr_tested=np.stack([t.tested for t in fthr.values()]),
         fexpected=Ef,
-        k_top=k_top,
-        kf_top=kf_top,
         keep_max=True,
     )
-    out = run_study(
-        study,
-        runs,
-        seed,
-        workers=workers,
-        scheduler=scheduler,
-        chunk_runs=chunk_runs,
-        progress=progress,
-        label=f"calibrate {sc.name}",
-    )
     q = 1 - alpha
-    top = -np.sort(-out["top_bin"], axis=0)
-    pb, pb_lo, pb_hi = _quantile_from_top(top, runs, q, confidence)
-    topf = -np.sort(-out["top_frame"], axis=0)
-    pf, pf_lo, pf_hi = _quantile_from_top(topf, runs * n_frames, q, confidence, runs * frames_eff)
-    mx = -np.sort(-out["runs_max"], axis=0)
-    mv, mlo, mhi = _quantile_from_top(mx, runs, q, confidence)
-    fmx = -np.sort(-out["top_frame_max"], axis=0)
-    fv, flo, fhi = _quantile_from_top(fmx, runs * n_frames, q, confidence, runs * frames_eff)
+    ex = {"workers": workers, "scheduler": scheduler, "chunk_runs": chunk_runs, "progress": progress}
+    res, tails = study_quantiles(
+        study, runs, seed, n_frames, frames_eff, q, confidence, tail_budget, ex, f"calibrate {sc.name}"
+    )
+    pb, pb_lo, pb_hi = res["bin"]
+    pf, pf_lo, pf_hi = res["frame"]
+    mv, mlo, mhi = res["max"]
+    fv, flo, fhi = res["frame_max"]
     n_tested = thr["exact"].n_tested
     fw = tuple(
         QuantileEstimate(q, float(mv[c]), float(mlo[c]), float(mhi[c]), runs, confidence)
@@ -641,4 +646,5 @@ def calibrate(
             QuantileEstimate(q, float(fv[c]), float(flo[c]), float(fhi[c]), runs * n_frames, confidence)
             for c in range(E.shape[1])
         ),
+        tails=tails,
     )

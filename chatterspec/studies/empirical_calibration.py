@@ -27,9 +27,10 @@ from ..detection.spectral import STFTConfig, periodogram_freqs
 from ..errors import ParameterError
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
+from .calibration_tails import study_quantiles
 from .healthy import HealthyStudy, _n_frames
-from .intervals import QuantileEstimate, _quantile_from_top, _top_needed
-from .montecarlo import run_study
+from .intervals import QuantileEstimate
+from .tail_histogram import DEFAULT_TAIL_BUDGET
 
 __all__ = ["DEFAULT_PILOT_RUNS", "calibrate_empirical"]
 
@@ -50,6 +51,7 @@ def calibrate_empirical(
     scheduler: str | None = None,
     chunk_runs: int | None = None,
     progress: bool | None = None,
+    tail_budget: int = DEFAULT_TAIL_BUDGET,
 ):
     """Empirical calibration of a healthy scenario (any nominal model the pipeline can filter).
 
@@ -73,6 +75,9 @@ def calibrate_empirical(
         Smoothing half-width of the normalization in bins.
     workers, scheduler, chunk_runs, progress
         Execution (see :func:`chatterspec.studies.montecarlo.run_study`).
+    tail_budget : int
+        Memory budget in bytes of the exact quantile tails; above it the bounded tail
+        histograms are used (see :func:`~.calibration.calibrate`).
 
     Returns
     -------
@@ -104,9 +109,7 @@ def calibrate_empirical(
     if config.n_window(dt) % 2 == 0:
         ftested[-1] = False
     m = E.shape[1]
-    k_top = _top_needed(runs, 1 - alpha, confidence)
     frames_eff = max(1, (N - config.n_window(dt)) // config.n_window(dt) + 1)
-    kf_top = _top_needed(runs * n_frames, 1 - alpha, confidence, runs * frames_eff)
     study = HealthyStudy(
         scenario=sc,
         thr_values=np.zeros((0, freqs.size, m)),  # no fixed threshold to count: quantiles only
@@ -117,30 +120,19 @@ def calibrate_empirical(
         fthr_values=np.full((1, ffreqs.size, m), np.inf),  # never exceeded: frame quantiles only
         fthr_tested=ftested[None],
         fexpected=Ef,
-        k_top=k_top,
-        kf_top=kf_top,
         keep_max=True,
     )
-    out = run_study(
-        study,
-        runs,
-        seed,
-        workers=workers,
-        scheduler=scheduler,
-        chunk_runs=chunk_runs,
-        progress=progress,
-        label=f"calibrate {sc.name} (empirical)",
-    )
     q = 1 - alpha
-    pb, pb_lo, pb_hi = _quantile_from_top(-np.sort(-out["top_bin"], axis=0), runs, q, confidence)
     nf = runs * n_frames
-    pf, pf_lo, pf_hi = _quantile_from_top(
-        -np.sort(-out["top_frame"], axis=0), nf, q, confidence, runs * frames_eff
+    ex = {"workers": workers, "scheduler": scheduler, "chunk_runs": chunk_runs, "progress": progress}
+    label = f"calibrate {sc.name} (empirical)"
+    res, tails = study_quantiles(
+        study, runs, seed, n_frames, frames_eff, q, confidence, tail_budget, ex, label
     )
-    mv, mlo, mhi = _quantile_from_top(-np.sort(-out["runs_max"], axis=0), runs, q, confidence)
-    fv, flo, fhi = _quantile_from_top(
-        -np.sort(-out["top_frame_max"], axis=0), nf, q, confidence, runs * frames_eff
-    )
+    pb, pb_lo, pb_hi = res["bin"]
+    pf, pf_lo, pf_hi = res["frame"]
+    mv, mlo, mhi = res["max"]
+    fv, flo, fhi = res["frame_max"]
     return Calibration(
         scenario=sc.name,
         model_name=model.name,
@@ -182,4 +174,5 @@ def calibrate_empirical(
             "smooth_half_width_bins": int(half_width),
             "estimator": "mean healthy periodogram of the pilot runs, moving average over 2h+1 bins",
         },
+        tails=tails,
     )

@@ -19,6 +19,7 @@ from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario
 from ..plants.scenarios import scenario as catalogue_scenario
 from ._exceedance import exceedance_counts
+from .tail_histogram import bucket_counts
 
 __all__ = [
     "model_scenario",
@@ -111,7 +112,8 @@ def _merge_top(a: np.ndarray, b: np.ndarray, k: int) -> np.ndarray:
     both = np.concatenate([a, b], axis=0)
     if both.shape[0] <= k:
         return both
-    return np.partition(both, both.shape[0] - k, axis=0)[both.shape[0] - k :]
+    # copy: the slice of the partitioned 2k rows would keep all of them alive in the accumulator
+    return np.partition(both, both.shape[0] - k, axis=0)[both.shape[0] - k :].copy()
 
 
 def _reduce_dict(acc: dict[str, np.ndarray] | None, part: dict[str, np.ndarray], k_top: dict[str, int]):
@@ -175,6 +177,11 @@ class HealthyStudy:
     keep_max : bool
         Keep each record's normalized maximum over ``tested`` bins (for the
         empirical family-wise threshold).
+    bin_window, frame_window, frame_max_window : (lo, hi) pairs of arrays, optional
+        Bounded-memory alternative to ``k_top`` / ``kf_top`` (used when those are 0):
+        per-cell windows of the tail histograms of :mod:`~.tail_histogram` for the
+        normalized bin powers ``(bins, m)``, frame powers ``(fbins, m)`` and frame
+        maxima ``(m,)``; the summary then holds ``hist_*`` bucket counts.
     """
 
     scenario: Scenario
@@ -189,6 +196,9 @@ class HealthyStudy:
     k_top: int = 0
     kf_top: int = 0
     keep_max: bool = False
+    bin_window: tuple[np.ndarray, np.ndarray] | None = None
+    frame_window: tuple[np.ndarray, np.ndarray] | None = None
+    frame_max_window: tuple[np.ndarray, np.ndarray] | None = None
 
     def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> dict[str, np.ndarray]:
         acc = None
@@ -215,12 +225,14 @@ class HealthyStudy:
         fw = n_false > 0
         out["fw"] = fw.sum(axis=1)  # (K, m)
         out["fw_any"] = fw.any(axis=-1).sum(axis=1)  # (K,)
-        if self.keep_max or self.k_top:
+        if self.keep_max or self.k_top or self.bin_window is not None:
             Y = S / self.expected
         if self.keep_max:
             out["runs_max"] = Y[:, self.tested].max(axis=1)  # (r, m)
         if self.k_top:
             out["top_bin"] = _keep_top(Y, self.k_top)
+        elif self.bin_window is not None:
+            out["hist_bin"] = bucket_counts(Y, *self.bin_window)
         if self.config is not None and self.fthr_values is not None:
             P = stft_spectrogram(x, dt, self.config).power  # (r, F, fb, m)
             out["frames"] = np.array(P.shape[0] * P.shape[1])
@@ -247,6 +259,13 @@ class HealthyStudy:
                 out["top_frame"] = _keep_top(Yf, self.kf_top)
                 if self.keep_max:  # per frame: the largest normalized tested bin (frame family-wise)
                     out["top_frame_max"] = _keep_top(Yf[:, self.fthr_tested[0]].max(axis=1), self.kf_top)
+            elif self.frame_window is not None:
+                Yf = (P / self.fexpected).reshape(-1, *P.shape[-2:])
+                out["hist_frame"] = bucket_counts(Yf, *self.frame_window)
+                if self.keep_max and self.frame_max_window is not None:
+                    out["hist_frame_max"] = bucket_counts(
+                        Yf[:, self.fthr_tested[0]].max(axis=1), *self.frame_max_window
+                    )
         return out
 
     def reduce(self, acc: dict[str, np.ndarray] | None, part: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

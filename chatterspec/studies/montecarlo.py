@@ -42,6 +42,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from .._memory import fix_mmap_threshold
 from .._validate import positive_int
 from ..errors import ChatterspecError, ParameterError
 from ..progress import Progress
@@ -244,7 +245,7 @@ def _process_results(
     for k in env_keys:
         os.environ[k] = "1"
     try:
-        with ProcessPoolExecutor(max_workers=n, mp_context=ctx) as pool:
+        with ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=fix_mmap_threshold) as pool:
 
             def wait_some(running: set[Future]) -> tuple[set, set]:
                 done, rest = wait(running, return_when=FIRST_COMPLETED)

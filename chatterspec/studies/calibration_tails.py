@@ -1,0 +1,117 @@
+"""The empirical quantiles of a calibration study: exact top-k tails, or tail histograms above a budget.
+
+Shared by :func:`~chatterspec.studies.calibration.calibrate` (linear models) and
+:func:`~chatterspec.studies.empirical_calibration.calibrate_empirical` (nonlinear models). Below
+the memory budget the exact path keeps the largest normalized values (exact order statistics,
+the numbers of every earlier chatterspec); above it the bounded path of
+:mod:`~chatterspec.studies.tail_histogram` is used (pilot windows + per-cell bucket counts).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from ..rng import BLOCK, SeedLike
+from . import tail_histogram as th
+from .healthy import HealthyStudy
+from .intervals import _quantile_from_top, _top_needed
+from .montecarlo import run_study
+
+__all__: list[str] = []
+
+Triple = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def study_quantiles(
+    study: HealthyStudy,
+    runs: int,
+    seed: SeedLike,
+    n_frames: int,
+    frames_eff: int,
+    q: float,
+    confidence: float,
+    budget: int,
+    run_kw: dict[str, Any],
+    label: str,
+) -> tuple[dict[str, Triple], dict[str, Any]]:
+    """Run ``study`` and return the four empirical quantiles and how they were read.
+
+    Returns ``({"bin", "frame", "max", "frame_max"} -> (value, low, high), tails_info)``;
+    ``bin``: ``(bins, m)``, ``frame``: ``(fbins, m)``, ``max`` and ``frame_max``: ``(m,)``.
+    ``study`` must have ``keep_max=True`` and frame statistics; its ``k_top``/``kf_top`` are set here.
+    """
+    nf, nf_eff = runs * n_frames, runs * frames_eff
+    bins, m = study.expected.shape
+    fbins = study.fexpected.shape[0]
+    k_top = _top_needed(runs, q, confidence)
+    kf_top = _top_needed(nf, q, confidence, nf_eff)
+    need = th.tail_bytes(k_top, kf_top, bins, fbins, m)
+    if need <= budget:
+        out = run_study(
+            dataclasses.replace(study, k_top=k_top, kf_top=kf_top), runs, seed, label=label, **run_kw
+        )
+        res = {
+            "bin": _quantile_from_top(_desc(out["top_bin"]), runs, q, confidence),
+            "frame": _quantile_from_top(_desc(out["top_frame"]), nf, q, confidence, nf_eff),
+            "max": _quantile_from_top(_desc(out["runs_max"]), runs, q, confidence),
+            "frame_max": _quantile_from_top(_desc(out["top_frame_max"]), nf, q, confidence, nf_eff),
+        }
+        return res, {"method": "exact", "budget_bytes": int(budget), "exact_bytes": int(need)}
+
+    # ---- bounded path: a pilot histogram places each cell's fine window, then counts over every run
+    P = th.pilot_runs(runs, 1 - q, BLOCK)
+    pw_bin, pw_frame = th.pilot_window((bins, m)), th.pilot_window((fbins, m))
+    pilot = run_study(
+        dataclasses.replace(
+            study,
+            k_top=0,
+            kf_top=0,
+            bin_window=pw_bin,
+            frame_window=pw_frame,
+            frame_max_window=th.pilot_window((m,)),
+        ),
+        P,
+        seed,
+        label=f"{label} (pilot)",
+        **run_kw,
+    )
+    pf, pfe = P * n_frames, P * frames_eff
+    win = {
+        "bin": th.window(pilot["hist_bin"], P, P, runs, runs, q, confidence),
+        "frame": th.window(pilot["hist_frame"], pf, pfe, nf, nf_eff, q, confidence),
+        "frame_max": th.window(pilot["hist_frame_max"], pf, pfe, nf, nf_eff, q, confidence),
+    }
+    del pilot
+    main = dataclasses.replace(
+        study,
+        k_top=0,
+        kf_top=0,
+        bin_window=win["bin"],
+        frame_window=win["frame"],
+        frame_max_window=win["frame_max"],
+    )
+    out = run_study(main, runs, seed, label=label, **run_kw)
+    res: dict[str, Triple] = {}
+    outside = 0
+    for key, n, n_eff in (("bin", runs, runs), ("frame", nf, nf_eff), ("frame_max", nf, nf_eff)):
+        v, lo, hi, o = th.quantile_from_counts(out[f"hist_{key}"], *win[key], n, q, confidence, n_eff)
+        res[key] = (v, lo, hi)
+        outside += o
+    res["max"] = _quantile_from_top(_desc(out["runs_max"]), runs, q, confidence)
+    info = {
+        "method": "histogram",
+        "budget_bytes": int(budget),
+        "exact_bytes": int(need),
+        "pilot_runs": int(P),
+        "fine_buckets": th.FINE_BUCKETS,
+        "fine_rel_width": max(th.fine_rel_width(*w) for w in win.values()),
+        "outside_window": outside,
+    }
+    return res, info
+
+
+def _desc(a: np.ndarray) -> np.ndarray:
+    return -np.sort(-a, axis=0)
