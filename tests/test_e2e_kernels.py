@@ -261,3 +261,15 @@ def test_healthy_study_counts_equal_numpy_path(which: str, monkeypatch: pytest.M
     b = _exceedance.exceedance_counts(power, thr, tested)
     for u, v in zip(a, b, strict=True):
         np.testing.assert_array_equal(u, v)
+
+
+def test_detect_progress_bar_counts_every_realization(capsys: pytest.CaptureFixture[str]) -> None:
+    """``detect --runs`` advances its progress bar by each chunk's realizations, to the total."""
+    from chatterspec.cli.detect import stream_chunks, with_progress
+
+    sc = scenario("eha-healthy")
+    recs = list(with_progress(stream_chunks(sc, 300, 0, []), 300, "detect test", enabled=True))
+    assert sum(r.values.shape[0] for r in recs) == 300
+    err = capsys.readouterr().err
+    assert "detect test" in err and "300/300" in err
+    assert err.endswith("\n")  # the bar is closed once the chunks are exhausted

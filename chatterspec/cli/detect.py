@@ -32,6 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "'chatterspec calibrate --out FILE' (refused if it was made for another model or length)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.set_defaults(func=run)
 
 
@@ -54,7 +55,12 @@ def run(args: argparse.Namespace) -> int:
             extra["frame_threshold"] = cal.threshold("frame-family-wise")
     first: list = []
     report = detect_chunks(
-        stream_chunks(sc, args.runs, args.seed, first),
+        with_progress(
+            stream_chunks(sc, args.runs, args.seed, first),
+            args.runs,
+            f"detect {sc.name}",
+            enabled=False if args.no_progress or args.runs < PROGRESS_MIN_RUNS else None,
+        ),
         args.alpha,
         threshold,
         args.correction,
@@ -87,6 +93,22 @@ def run(args: argparse.Namespace) -> int:
     if args.record or args.live:
         outputs.finish()  # a failed recording: the result above is printed first
     return 0
+
+
+#: Below this many realizations ``detect`` shows no progress bar (a few seconds at most).
+PROGRESS_MIN_RUNS = 1024
+
+
+def with_progress(
+    chunks: Iterator[ChatteringRecord], runs: int, label: str, enabled: bool | None = None
+) -> Iterator[ChatteringRecord]:
+    """Pass ``chunks`` through, advancing a progress bar on stderr (only on a terminal by default)."""
+    from ..progress import Progress
+
+    with Progress(runs, label, enabled=enabled) as bar:
+        for rec in chunks:
+            yield rec
+            bar.update(rec.values.shape[0])
 
 
 def stream_chunks(sc: Scenario, runs: int, seed: int, first: list[Simulation]) -> Iterator[ChatteringRecord]:
