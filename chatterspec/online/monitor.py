@@ -38,7 +38,8 @@ import numpy as np
 
 from .. import _jit
 from .._validate import finite_array, open_unit, positive_int
-from ..detection.spectral import STFTConfig, _FrameEngine
+from ..detection._frame_engine import _FrameEngine
+from ..detection.spectral import STFTConfig
 from ..detection.thresholds import Threshold, check_band, frame_threshold
 from ..errors import ParameterError, ShapeError
 from ..filters.nonlinear_svsf import NonlinearSgnSVSF
