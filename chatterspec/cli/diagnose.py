@@ -138,7 +138,13 @@ def _threshold(args: argparse.Namespace, sc: object) -> tuple[object, dict]:
         from ..studies.chattering_diagnosis import CALIBRATION_SALT, calibrate_for_diagnosis
 
         t0 = time.perf_counter()
-        cal = calibrate_for_diagnosis(sc, args.seed, runs=args.calibration_runs, alpha=args.alpha)
+        cal = calibrate_for_diagnosis(
+            sc,
+            args.seed,
+            runs=args.calibration_runs,
+            alpha=args.alpha,
+            progress=False if args.no_progress else None,
+        )
         info = {
             "source": "calibrated now on healthy runs",
             "runs": cal.runs,
