@@ -21,7 +21,8 @@ The figures, per run and then over runs (beyond the papers, which show single ru
 * **detection delay** per fault onset ``t0`` (next change ``t1``): the first flagged frame whose window
   ends in ``(t0, t1]``; the delay is its *end* time minus ``t0`` (the causal delay: a frame's verdict
   exists once its last sample has arrived). Runs already in alarm on the last frame that ends before
-  ``t0`` are counted (``in_alarm_at_onset``): for them the onset is not a new detection;
+  ``t0`` are counted (``in_alarm_at_onset``): for them the onset is not a new detection. A scenario
+  faulty from the start has an onset at ``t0 = 0`` (the delay is then the time to the first flag);
 * **isolation**: per segment, the fraction of its frames flagged on each channel, the channel flagged
   most, and the median peak frequency (Hz) of its flagged frames on that channel;
 * **cost**: realization-steps per second of chattering + STFT + verdicts (the calibration is reported
@@ -52,6 +53,7 @@ from .intervals import clopper_pearson
 __all__ = [
     "CALIBRATION_SALT",
     "ChatteringDiagnosis",
+    "ChatteringTally",
     "calibrate_for_diagnosis",
     "diagnose_chattering",
     "healthy_version",
@@ -63,7 +65,12 @@ CALIBRATION_SALT = 0xCA11B
 
 
 def healthy_version(sc: Scenario) -> Scenario:
-    """The scenario without its fault windows (same nominal model, input, duration and dt).
+    """The scenario's nominal plant over the same input, duration, dt and initial state (no fault).
+
+    The fault windows are dropped, and so is a faulty base plant: a scenario such as ``eha-leak-minor``
+    is faulty over the whole record (its ``plant`` is the leaky model), so removing the windows alone
+    would not make it healthy; its healthy version simulates the nominal model. A base plant with the
+    nominal A, B, C (e.g. other noise covariances) is kept.
 
     Parameters
     ----------
@@ -75,7 +82,10 @@ def healthy_version(sc: Scenario) -> Scenario:
     Scenario
         Named ``<name>-healthy``; ``is_healthy`` is True.
     """
-    return dataclasses.replace(sc, name=f"{sc.name}-healthy", windows=())
+    out = dataclasses.replace(sc, name=f"{sc.name}-healthy", windows=())
+    if not out.is_healthy:  # the base plant itself is faulty: use the nominal model (its Q and R too)
+        out = dataclasses.replace(out, plant=None)
+    return out
 
 
 def calibrate_for_diagnosis(
@@ -267,95 +277,238 @@ def diagnose_chattering(
     Returns
     -------
     ChatteringDiagnosis
+
+    Notes
+    -----
+    Same as one :meth:`ChatteringTally.add` of ``sim`` (use the tally to feed the runs in chunks).
     """
-    gamma = open_unit("gamma", gamma)
-    config = STFTConfig() if config is None else config
-    if not isinstance(threshold, Threshold):
-        raise ParameterError(f"threshold must be a Threshold; got {type(threshold).__name__}")
-    sc = sim.scenario  # type: ignore[attr-defined]
-    model = sc.nominal
-    dt = model.dt
-    W = config.n_window(dt)
-    fr = config.freqs_hz(dt)
-    if threshold.values.shape[0] != fr.size or not np.allclose(threshold.freqs_hz, fr):
-        raise ParameterError(
-            f"the threshold has {threshold.values.shape[0]} frequency bins, the STFT of "
-            f"{config.window_s} s windows at dt = {dt} s has {fr.size}: calibrate with the same STFT settings"
+    tally = ChatteringTally(sim.scenario, threshold, config=config, gamma=gamma)  # type: ignore[attr-defined]
+    tally.add(sim)
+    return tally.result(calibration_info)
+
+
+class ChatteringTally:
+    """:func:`diagnose_chattering` fed chunk by chunk: memory bounded independently of the run count.
+
+    Each :meth:`add` runs the auxiliary SVSF, the STFT and the frame verdicts on one chunk of
+    realizations and keeps only per-run scalars (first-detection delays) and counts (false-alarm
+    runs, flags per segment and channel, a histogram of the peak bins); :meth:`result` gives the
+    same :class:`ChatteringDiagnosis` (every figure bit for bit, ``steps_per_second`` aside) as
+    :func:`diagnose_chattering` on the concatenated runs, whatever the chunking: every realization's
+    numbers depend only on that realization, the counts are integers, and the medians come from the
+    same multisets of values.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The diagnosed scenario (nominal model with full measurement).
+    threshold : Threshold
+        Per-frame threshold (see :func:`diagnose_chattering`).
+    config : STFTConfig, optional
+        STFT settings (default 1 s Hamming, 0.2 s hop); must match the threshold's frequencies.
+    gamma : float
+        Convergence rate of the auxiliary SVSF in (0, 1) (eq 8-10).
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        threshold: Threshold,
+        *,
+        config: STFTConfig | None = None,
+        gamma: float = 0.1,
+    ) -> None:
+        self.gamma = open_unit("gamma", gamma)
+        self.config = STFTConfig() if config is None else config
+        if not isinstance(threshold, Threshold):
+            raise ParameterError(f"threshold must be a Threshold; got {type(threshold).__name__}")
+        self.scenario = scenario
+        self.threshold = threshold
+        model = scenario.nominal
+        dt = model.dt
+        self._W = self.config.n_window(dt)
+        fr = self.config.freqs_hz(dt)
+        if threshold.values.shape[0] != fr.size or not np.allclose(threshold.freqs_hz, fr):
+            raise ParameterError(
+                f"the threshold has {threshold.values.shape[0]} frequency bins, the STFT of "
+                f"{self.config.window_s} s windows at dt = {dt} s has {fr.size}: calibrate with the same "
+                "STFT settings"
+            )
+        self._freqs = np.asarray(threshold.freqs_hz, dtype=float)
+        self.runs = 0
+        self._wall = 0.0
+        self._geo: dict | None = None
+
+    def _geometry(self, frame_starts: np.ndarray, t: np.ndarray, F: int, m: int) -> dict:
+        sc = self.scenario
+        T = t.size
+        # frame j covers chattering samples [jH, jH + W) = simulation samples [jH + 1, jH + W]
+        first = frame_starts + 1
+        last = frame_starts + self._W
+        seg = sc.segment_index(t)
+        healthy_seg = np.array([not sc.deviates(s) for s in sc.segments])
+        seg_first, seg_last = seg[first], seg[last]
+        pure = seg_first == seg_last  # the whole window lies in one segment
+        change = np.flatnonzero((seg[1:] != seg[:-1]) & ~healthy_seg[seg[1:]]) + 1
+        if not healthy_seg[seg[0]]:  # faulty from the start (e.g. eha-leak-minor): an onset at t = 0
+            change = np.insert(change, 0, 0)
+        ends = np.append(change[1:], T)[: change.size]
+        S = len(sc.segments)
+        self._fa_runs = 0
+        self._healthy_flags = 0
+        self._delays: list[list[np.ndarray]] = [[] for _ in change]
+        self._in_alarm = [0] * change.size
+        self._seg_flags = np.zeros((S, m), dtype=np.int64)
+        self._seg_frames = np.zeros(S, dtype=np.int64)
+        self._peak_hist = np.zeros((S, m, self._freqs.size), dtype=np.int64)
+        return {
+            "t": t,
+            "T": T,
+            "F": F,
+            "m": m,
+            "last": last,
+            "healthy_seg": healthy_seg,
+            "seg_first": seg_first,
+            "pure": pure,
+            "healthy": pure & healthy_seg[seg_first],
+            "end_t": t[last],
+            "change": change,
+            "ends": ends,
+        }
+
+    def add(self, sim: object) -> None:
+        """Diagnose one chunk of realizations and keep its per-run figures.
+
+        Parameters
+        ----------
+        sim : Simulation
+            Realizations (k, T, m) of the tally's scenario (e.g. one chunk of
+            :func:`~chatterspec.plants.simulate.iter_simulations`).
+        """
+        model = self.scenario.nominal
+        z, u, t = sim.z, sim.u, sim.t  # type: ignore[attr-defined]
+        k = z.shape[0]
+        t0 = time.perf_counter()
+        rec = chattering_record(model, z, u, gamma=self.gamma)
+        spec = spectrogram(rec.values, model.dt, self.config)
+        flags, peak_hz, _ = frame_verdicts(spec.power, self.threshold)  # (k, F, m)
+        self._wall += time.perf_counter() - t0
+        if self._geo is None:
+            self._geo = self._geometry(spec.frame_starts, t, flags.shape[1], flags.shape[2])
+        g = self._geo
+        if flags.shape[1:] != (g["F"], g["m"]):
+            raise ParameterError(
+                f"every chunk must have the scenario's record length: got {flags.shape[1]} frames of "
+                f"{flags.shape[2]} channels, the first chunk had {g['F']} of {g['m']}"
+            )
+        self.runs += k
+        any_flag = flags.any(axis=-1)  # (k, F)
+        healthy, last, T = g["healthy"], g["last"], g["T"]
+        if healthy.any():
+            self._fa_runs += int(np.count_nonzero(any_flag[:, healthy].any(axis=1)))
+            self._healthy_flags += int(np.count_nonzero(flags[:, healthy]))
+        for i, (k0, k1) in enumerate(zip(g["change"], g["ends"], strict=True)):
+            cand = (last >= k0) & (last <= min(k1, T - 1))
+            hit = any_flag[:, cand]
+            idx = np.where(hit.any(axis=1), np.argmax(hit, axis=1), -1)
+            self._delays[i].append(
+                np.where(idx >= 0, g["end_t"][cand][np.maximum(idx, 0)] - g["t"][k0], np.nan)
+            )
+            before = np.flatnonzero(last < k0)
+            self._in_alarm[i] += int(np.count_nonzero(any_flag[:, before[-1]])) if before.size else 0
+        for s in range(len(self.scenario.segments)):
+            sel = g["pure"] & (g["seg_first"] == s)
+            if not sel.any():
+                continue
+            fl = flags[:, sel]  # (k, f, m)
+            self._seg_flags[s] += np.count_nonzero(fl, axis=(0, 1))
+            self._seg_frames[s] += fl.shape[0] * fl.shape[1]
+            pk = peak_hz[:, sel]
+            for c in range(g["m"]):
+                # peak_hz is the tested bin's frequency: count the bins of the flagged frames
+                b = np.searchsorted(self._freqs, pk[..., c][fl[..., c]])
+                self._peak_hist[s, c] += np.bincount(b, minlength=self._freqs.size)
+
+    def _hist_median(self, counts: np.ndarray) -> float:
+        """``np.median`` of the multiset ``freqs[b]`` repeated ``counts[b]`` times (same bits)."""
+        n = int(counts.sum())
+        cum = np.cumsum(counts)
+
+        def nth(i: int) -> float:
+            return float(self._freqs[np.searchsorted(cum, i, side="right")])
+
+        if n % 2:
+            return nth(n // 2)
+        return (nth(n // 2 - 1) + nth(n // 2)) / 2.0
+
+    def result(self, calibration_info: dict | None = None) -> ChatteringDiagnosis:
+        """The diagnosis figures of every realization added so far.
+
+        Parameters
+        ----------
+        calibration_info : dict, optional
+            Provenance of the threshold, copied into the result.
+
+        Returns
+        -------
+        ChatteringDiagnosis
+        """
+        if self._geo is None:
+            raise ParameterError("no realization was added to the tally: call add(sim) first")
+        g = self._geo
+        runs, T, m = self.runs, g["T"], g["m"]
+        model = self.scenario.nominal
+        healthy = g["healthy"]
+        n_healthy = int(np.count_nonzero(healthy))
+        det_med, det_p90 = [], []
+        missed = []
+        for parts in self._delays:
+            delay = np.concatenate(parts)
+            med, p90 = _quantiles(delay)
+            det_med.append(med)
+            det_p90.append(p90)
+            missed.append(int(np.count_nonzero(np.isnan(delay))))
+        names, spans, frac, chan, peaks = [], [], [], [], []
+        for s, segment in enumerate(self.scenario.segments):
+            names.append("healthy" if g["healthy_seg"][s] else (segment.label or "fault"))
+            spans.append((float(segment.start), float(segment.stop)))
+            if not self._seg_frames[s]:
+                frac.append(np.full(m, np.nan))
+                chan.append(None)
+                peaks.append(float("nan"))
+                continue
+            ff = self._seg_flags[s] / self._seg_frames[s]
+            frac.append(ff)
+            if not self._seg_flags[s].any():
+                chan.append(None)
+                peaks.append(float("nan"))
+                continue
+            c = int(np.argmax(ff))
+            chan.append(model.output_names[c])
+            peaks.append(self._hist_median(self._peak_hist[s, c]))
+        return ChatteringDiagnosis(
+            method="chattering",
+            channels=tuple(model.output_names),
+            runs=runs,
+            frames_per_run=g["F"],
+            healthy_frames_per_run=n_healthy,
+            alpha_per_frame=float(self.threshold.alpha),
+            false_alarm_runs=self._fa_runs,
+            false_alarm_rate=self._fa_runs / runs,
+            false_alarm_ci=clopper_pearson(self._fa_runs, runs, 0.99),
+            healthy_alarm_fraction=(
+                self._healthy_flags / (runs * n_healthy * m) if n_healthy else float("nan")
+            ),
+            onsets=tuple(float(g["t"][k]) for k in g["change"]),
+            detection_median=tuple(det_med),
+            detection_p90=tuple(det_p90),
+            missed=tuple(missed),
+            in_alarm_at_onset=tuple(self._in_alarm),
+            segments=tuple(names),
+            segment_span_s=tuple(spans),
+            flag_fraction=np.array(frac),
+            flagged_channel=tuple(chan),
+            peak_hz=tuple(peaks),
+            steps_per_second=runs * T / self._wall if self._wall > 0 else float("inf"),
+            calibration=dict(calibration_info or {}),
         )
-    z, u, t = sim.z, sim.u, sim.t  # type: ignore[attr-defined]
-    runs, T = z.shape[:2]
-    t0 = time.perf_counter()
-    rec = chattering_record(model, z, u, gamma=gamma)
-    spec = spectrogram(rec.values, dt, config)
-    flags, peak_hz, _ = frame_verdicts(spec.power, threshold)  # (runs, F, m)
-    wall = time.perf_counter() - t0
-    F = flags.shape[1]
-    # frame j covers chattering samples [jH, jH + W) = simulation samples [jH + 1, jH + W]
-    first = spec.frame_starts + 1
-    last = spec.frame_starts + W
-    seg = sc.segment_index(t)
-    healthy_seg = np.array([not sc.deviates(s) for s in sc.segments])
-    seg_first, seg_last = seg[first], seg[last]
-    pure = seg_first == seg_last  # the whole window lies in one segment
-    healthy = pure & healthy_seg[seg_first]
-    any_flag = flags.any(axis=-1)  # (runs, F)
-    fa_runs = int(np.count_nonzero(any_flag[:, healthy].any(axis=1))) if healthy.any() else 0
-    end_t = t[last]
-    change = np.flatnonzero((seg[1:] != seg[:-1]) & ~healthy_seg[seg[1:]]) + 1
-    ends = np.append(change[1:], T)
-    det_med, det_p90, missed, in_alarm = [], [], [], []
-    for k0, k1 in zip(change, ends, strict=True):
-        cand = (last >= k0) & (last <= min(k1, T - 1))
-        hit = any_flag[:, cand]
-        idx = np.where(hit.any(axis=1), np.argmax(hit, axis=1), -1)
-        delay = np.where(idx >= 0, end_t[cand][np.maximum(idx, 0)] - t[k0], np.nan)
-        med, p90 = _quantiles(delay)
-        det_med.append(med)
-        det_p90.append(p90)
-        missed.append(int(np.count_nonzero(idx < 0)))
-        before = np.flatnonzero(last < k0)
-        in_alarm.append(int(np.count_nonzero(any_flag[:, before[-1]])) if before.size else 0)
-    names, spans, frac, chan, peaks = [], [], [], [], []
-    for s, segment in enumerate(sc.segments):
-        names.append("healthy" if healthy_seg[s] else (segment.label or "fault"))
-        spans.append((float(segment.start), float(segment.stop)))
-        sel = pure & (seg_first == s)
-        if not sel.any():
-            frac.append(np.full(flags.shape[-1], np.nan))
-            chan.append(None)
-            peaks.append(float("nan"))
-            continue
-        fl = flags[:, sel]  # (runs, f, m)
-        ff = fl.mean(axis=(0, 1))
-        frac.append(ff)
-        if not fl.any():
-            chan.append(None)
-            peaks.append(float("nan"))
-            continue
-        c = int(np.argmax(ff))
-        chan.append(model.output_names[c])
-        peaks.append(float(np.median(peak_hz[:, sel, c][fl[..., c]])))
-    return ChatteringDiagnosis(
-        method="chattering",
-        channels=tuple(model.output_names),
-        runs=runs,
-        frames_per_run=F,
-        healthy_frames_per_run=int(np.count_nonzero(healthy)),
-        alpha_per_frame=float(threshold.alpha),
-        false_alarm_runs=fa_runs,
-        false_alarm_rate=fa_runs / runs,
-        false_alarm_ci=clopper_pearson(fa_runs, runs, 0.99),
-        healthy_alarm_fraction=float(flags[:, healthy].mean()) if healthy.any() else float("nan"),
-        onsets=tuple(float(t[k]) for k in change),
-        detection_median=tuple(det_med),
-        detection_p90=tuple(det_p90),
-        missed=tuple(missed),
-        in_alarm_at_onset=tuple(in_alarm),
-        segments=tuple(names),
-        segment_span_s=tuple(spans),
-        flag_fraction=np.array(frac),
-        flagged_channel=tuple(chan),
-        peak_hz=tuple(peaks),
-        steps_per_second=runs * T / wall if wall > 0 else float("inf"),
-        calibration=dict(calibration_info or {}),
-    )

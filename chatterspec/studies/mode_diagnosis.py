@@ -22,13 +22,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._validate import finite_array
 from ..errors import ParameterError
 from ..filters import ExtendedKalmanFilter
 from ..filters.multiple_model import IMM, SMMSVSF
 from .intervals import clopper_pearson
-from .modes import confusion_matrix
 
-__all__ = ["METHODS", "ModeDiagnosis", "diagnose_modes"]
+__all__ = ["METHODS", "ModeDiagnosis", "ModeTally", "diagnose_modes"]
 
 #: Mode-based methods offered here.
 METHODS = ("smm", "imm")
@@ -166,61 +166,163 @@ def diagnose_modes(
     -------
     list of ModeDiagnosis
         One per method, in the given order.
+
+    Notes
+    -----
+    Same as one :meth:`ModeTally.add` of ``sim`` per method (use the tallies to feed runs in chunks).
     """
     sc = sim.scenario  # type: ignore[attr-defined]
-    fs = sc.filter_settings
-    if fs is None:
-        raise ParameterError(f"scenario {sc.name!r} has no filter_settings (no modes to diagnose)")
-    z, u = sim.z[:, 1:], sim.u[:-1]  # type: ignore[attr-defined]
-    t = sim.t[1:]  # type: ignore[attr-defined]
-    runs, T = z.shape[:2]
-    true = fs.mode_index(sc)[1:]
-    x0 = np.zeros(sc.nominal.n_states) if fs.x0 is None else fs.x0
-    P0 = fs.P0 if fs.P0 is not None else np.asarray(sc.nominal.Q) * 10.0
-    change = np.flatnonzero((true[1:] != true[:-1]) & (true[1:] > 0)) + 1
-    ends = np.append(change[1:], T)
     results = []
     for method in methods:
-        filt = _filter_for(method, fs)
+        tally = ModeTally(sc, method)
+        tally.add(sim, keep=keep, keep_runs=None)
+        results.append(tally.result())
+    return results
+
+
+class ModeTally:
+    """One method of :func:`diagnose_modes` fed chunk by chunk: memory bounded independently of the runs.
+
+    Each :meth:`add` runs the filter on one chunk of realizations and keeps only per-run scalars (the
+    detection and isolation delays per onset) and running totals (false-alarm runs, healthy samples in
+    alarm, the confusion sums); :meth:`result` gives the same :class:`ModeDiagnosis` (bit for bit,
+    ``steps_per_second`` aside) as :func:`diagnose_modes` on the concatenated runs whatever the
+    chunking: each realization's filter output depends only on that realization, the counts are
+    integers, the medians come from the same multisets of delays, and the confusion sums continue
+    numpy's sequential sum over (run, sample) rows from one chunk to the next.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The diagnosed scenario (``filter_settings`` with modes; mode 0 = healthy).
+    method : str
+        One of :data:`METHODS`.
+    """
+
+    def __init__(self, scenario: object, method: str) -> None:
+        sc = scenario
+        fs = sc.filter_settings  # type: ignore[attr-defined]
+        if fs is None:
+            raise ParameterError(f"scenario {sc.name!r} has no filter_settings (no modes to diagnose)")  # type: ignore[attr-defined]
+        self.scenario = sc
+        self.method = method
+        self._filter = _filter_for(method, fs)
+        self._fs = fs
+        t = sc.time[1:]  # type: ignore[attr-defined]
+        T = t.size
+        true = np.asarray(fs.mode_index(sc))[1:]
+        self._t, self._true = t, true
+        self._x0 = np.zeros(sc.nominal.n_states) if fs.x0 is None else fs.x0  # type: ignore[attr-defined]
+        self._P0 = fs.P0 if fs.P0 is not None else np.asarray(sc.nominal.Q) * 10.0  # type: ignore[attr-defined]
+        change = np.flatnonzero((true[1:] != true[:-1]) & (true[1:] > 0)) + 1
+        if true[0] > 0:  # faulty from the start: an onset at the first sample
+            change = np.insert(change, 0, 0)
+        self._change = change
+        self._ends = np.append(change[1:], T)[: change.size]
+        self._healthy = true == 0
+        r = len(fs.modes)
+        self._sums = [np.zeros(r) for _ in range(r)]
+        self.runs = 0
+        self._wall = 0.0
+        self._fa_runs = 0
+        self._healthy_alarms = 0
+        self._dd: list[list[np.ndarray]] = [[] for _ in self._change]
+        self._di: list[list[np.ndarray]] = [[] for _ in self._change]
+
+    def add(self, sim: object, *, keep: dict | None = None, keep_runs: int | None = 1) -> None:
+        """Run the filter on one chunk of realizations and keep its per-run figures.
+
+        Parameters
+        ----------
+        sim : Simulation
+            Realizations (k, T, m) of the tally's scenario (e.g. one chunk of
+            :func:`~chatterspec.plants.simulate.iter_simulations`).
+        keep : dict, optional
+            When given and nothing is kept yet, ``keep[method]`` receives ``(t, mu, modes)`` as in
+            :func:`diagnose_modes`, with the first ``keep_runs`` realizations of this chunk.
+        keep_runs : int or None
+            Realizations kept in ``keep`` (None: all of this chunk).
+        """
+        fs = self._fs
+        z, u = sim.z[:, 1:], sim.u[:-1]  # type: ignore[attr-defined]
+        if z.shape[1] != self._t.size:
+            raise ParameterError(
+                f"every chunk must have the scenario's {self._t.size + 1} samples; got {z.shape[1] + 1}"
+            )
+        k = z.shape[0]
         t0 = time.perf_counter()
-        out = filt.run(z, u, x0=x0, P0=P0)
-        wall = time.perf_counter() - t0
-        if keep is not None:
-            keep[method] = (t, np.asarray(out.mu), tuple(fs.modes))
+        out = self._filter.run(z, u, x0=self._x0, P0=self._P0)
+        self._wall += time.perf_counter() - t0
+        mu = finite_array("mu", out.mu, ndim=3)  # as confusion_matrix checks it
+        if keep is not None and self.method not in keep:
+            kept = mu if keep_runs is None else mu[:keep_runs].copy()
+            keep[self.method] = (self._t, kept, tuple(fs.modes))
+        self.runs += k
+        true, healthy = self._true, self._healthy
         am = out.argmax_mode
         alarm = am != 0
-        healthy = true == 0
-        fa_runs = int(np.count_nonzero(alarm[:, healthy].any(axis=1))) if healthy.any() else 0
-        det_med, det_p90, iso_med, iso_p90, missed = [], [], [], [], []
-        for k0, k1 in zip(change, ends, strict=True):
+        if healthy.any():
+            self._fa_runs += int(np.count_nonzero(alarm[:, healthy].any(axis=1)))
+            self._healthy_alarms += int(np.count_nonzero(alarm[:, healthy]))
+        for i, (k0, k1) in enumerate(zip(self._change, self._ends, strict=True)):
             seg = slice(k0, k1)
             hit_d = alarm[:, seg]
             hit_i = am[:, seg] == true[k0]
-            dd = _delays(np.where(hit_d.any(axis=1), np.argmax(hit_d, axis=1), -1), t, k0)
-            di = _delays(np.where(hit_i.any(axis=1), np.argmax(hit_i, axis=1), -1), t, k0)
+            first_d = np.where(hit_d.any(axis=1), np.argmax(hit_d, axis=1), -1)
+            first_i = np.where(hit_i.any(axis=1), np.argmax(hit_i, axis=1), -1)
+            self._dd[i].append(_delays(first_d, self._t, k0))
+            self._di[i].append(_delays(first_i, self._t, k0))
+        # confusion sums per actual mode a: numpy sums the (run, sample) rows of mu[true == a] one after
+        # the other (axis-0 reduction); prepending the running sum continues that same sequence, so the
+        # result is the whole-array mean of confusion_matrix bit for bit, whatever the chunking
+        r = mu.shape[-1]
+        for a in range(r):
+            sel = true == a
+            if sel.any():
+                rows = mu[:, sel].reshape(-1, r)
+                self._sums[a] = np.concatenate([self._sums[a][None], rows]).sum(axis=0)
+
+    def result(self) -> ModeDiagnosis:
+        """The diagnosis figures of every realization added so far.
+
+        Returns
+        -------
+        ModeDiagnosis
+        """
+        if not self.runs:
+            raise ParameterError("no realization was added to the tally: call add(sim) first")
+        runs, T = self.runs, self._t.size
+        fs, true, healthy = self._fs, self._true, self._healthy
+        det_med, det_p90, iso_med, iso_p90, missed = [], [], [], [], []
+        for dparts, iparts in zip(self._dd, self._di, strict=True):
+            dd, di = np.concatenate(dparts), np.concatenate(iparts)
             for arr, med, p90 in ((dd, det_med, det_p90), (di, iso_med, iso_p90)):
                 ok = arr[np.isfinite(arr)]
                 med.append(float(np.median(ok)) if ok.size else float("nan"))
                 p90.append(float(np.quantile(ok, 0.9)) if ok.size else float("nan"))
             missed.append(int(np.count_nonzero(~np.isfinite(di))))
-        results.append(
-            ModeDiagnosis(
-                method=method,
-                modes=tuple(fs.modes),
-                runs=runs,
-                false_alarm_runs=fa_runs,
-                false_alarm_rate=fa_runs / runs,
-                false_alarm_ci=clopper_pearson(fa_runs, runs, 0.99),
-                healthy_alarm_fraction=float(alarm[:, healthy].mean()) if healthy.any() else float("nan"),
-                onsets=tuple(float(v) for v in t[change]),
-                detection_median=tuple(det_med),
-                detection_p90=tuple(det_p90),
-                isolation_median=tuple(iso_med),
-                isolation_p90=tuple(iso_p90),
-                missed=tuple(missed),
-                confusion=confusion_matrix(out.mu, true),
-                steps_per_second=runs * T / wall if wall > 0 else float("inf"),
-                new_modes=tuple(int(true[k]) for k in change),
-            )
+        r = len(fs.modes)
+        confusion = np.full((r, r), np.nan)
+        for a in range(r):
+            n = int(np.count_nonzero(true == a)) * runs
+            if n:
+                confusion[:, a] = 100.0 * (self._sums[a] / n)
+        n_healthy = int(np.count_nonzero(healthy))
+        return ModeDiagnosis(
+            method=self.method,
+            modes=tuple(fs.modes),
+            runs=runs,
+            false_alarm_runs=self._fa_runs,
+            false_alarm_rate=self._fa_runs / runs,
+            false_alarm_ci=clopper_pearson(self._fa_runs, runs, 0.99),
+            healthy_alarm_fraction=self._healthy_alarms / (runs * n_healthy) if n_healthy else float("nan"),
+            onsets=tuple(float(v) for v in self._t[self._change]),
+            detection_median=tuple(det_med),
+            detection_p90=tuple(det_p90),
+            isolation_median=tuple(iso_med),
+            isolation_p90=tuple(iso_p90),
+            missed=tuple(missed),
+            confusion=confusion,
+            steps_per_second=runs * T / self._wall if self._wall > 0 else float("inf"),
+            new_modes=tuple(int(true[k]) for k in self._change),
         )
-    return results
