@@ -84,7 +84,9 @@ def _check_recording(path: Path, rec, spec, flags, summary) -> None:
         t, verdict = _column(reader, blueprint.VERDICT, "Scalars:scalars")
         np.testing.assert_array_equal(np.asarray(verdict)[:, c] > 0.5, flags[:, c])
         t_e, e = _column(reader, blueprint.CHATTERING, "Scalars:scalars")
-        assert t_e.size == rec.n_samples and np.asarray(e).shape == (rec.n_samples, len(rec.channels))
+        m = len(rec.channels)  # the m chattering series first, then the raw ones (raw data only)
+        assert t_e.size == rec.n_samples and np.asarray(e).shape[1] in (m, 2 * m, 3 * m)
+        np.testing.assert_array_equal(np.asarray(e)[:, :m], rec.values[0])
     t_ev, texts = _column(reader, "/events", "TextLog:text")
     assert len(texts) == len(summary.events) > 0
     for ev in summary.events:
@@ -252,7 +254,9 @@ def test_blueprint_builds() -> None:
         chat, _, det, freq = col.contents
         assert all(v.name.startswith(f"{name}:") for v in col.contents)
         own = [j == c for j in range(len(channels))]
-        assert _visible(chat, blueprint.CHATTERING) == own
+        # /chattering/e: the m chattering series, then up to 2 raw series per channel, all hidden
+        hidden_raw = [False] * (blueprint.SAMPLE_SERIES_PER_CHANNEL - 1) * len(channels)
+        assert _visible(chat, blueprint.CHATTERING) == own + hidden_raw
         assert _visible(chat, blueprint.PSI) == [j // 2 == c for j in range(2 * len(channels))]
         assert _visible(det, blueprint.STATISTIC) == own
         assert [e for e in det.contents if "/fault/" in e] == [f"+ {blueprint.fault_entity(name)}"]
@@ -349,10 +353,11 @@ def test_logger_construction_error_is_not_hidden(tmp_path: Path, sim, monkeypatc
         drivers.record_detection(sim, path=tmp_path / "b.rrd")
 
 
-def test_signal_rows_and_float64_spectra(tmp_path: Path, sim) -> None:
-    """/signal holds one row per sample: [measured, sat-SVSF estimate] of each channel in turn, and
-    /chattering/e one chattering value per channel, equal to the monitor's values; the ±psi lines hold
-    +psi_c, -psi_c per channel; spectrum_dtype="float64" logs the monitor's spectra bit-exactly."""
+def test_sample_rows_and_float64_spectra(tmp_path: Path, sim) -> None:
+    """/chattering/e holds one row per sample: the chattering value of each channel, then
+    [measured, sat-SVSF estimate] of each channel in turn, equal to the monitor's values; the ±psi
+    lines hold +psi_c, -psi_c per channel; spectrum_dtype="float64" logs the monitor's spectra
+    bit-exactly."""
     from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
 
     mon = ChatteringMonitor(sim.scenario.nominal, MonitorSettings(psi=(4.2e-3, 4.8e-3, 4.3e3)))
@@ -368,17 +373,17 @@ def test_signal_rows_and_float64_spectra(tmp_path: Path, sim) -> None:
     meas = np.concatenate([u.measured for u in ups])
     chat = np.concatenate([u.chattering for u in ups])
     t_all = np.concatenate([u.t for u in ups])
-    t, rows = _column(reader, blueprint.SIGNAL, "Scalars:scalars")
+    t, rows = _column(reader, blueprint.CHATTERING, "Scalars:scalars")
     np.testing.assert_allclose(t, t_all, atol=1e-9)
-    t_e, e = _column(reader, blueprint.CHATTERING, "Scalars:scalars")
-    np.testing.assert_allclose(t_e, t_all, atol=1e-9)
-    np.testing.assert_array_equal(np.asarray(e), chat)
+    m = len(mon.channels)
+    rows = np.asarray(rows)
+    assert rows.shape == (t_all.size, 3 * m)
+    np.testing.assert_array_equal(rows[:, :m], chat)
+    raw = rows[:, m:]
     _, psi = _column(reader, blueprint.PSI, "Scalars:scalars")
     np.testing.assert_array_equal(psi[0], [4.2e-3, -4.2e-3, 4.8e-3, -4.8e-3, 4.3e3, -4.3e3])
     for c, name in enumerate(mon.channels):
-        np.testing.assert_array_equal(
-            np.asarray(rows)[:, 2 * c : 2 * c + 2], np.stack([meas[:, c], est[:, c]], axis=1)
-        )
+        np.testing.assert_array_equal(raw[:, 2 * c : 2 * c + 2], np.stack([meas[:, c], est[:, c]], axis=1))
         _, cols = _column(reader, f"/spectrum/{name}", "Tensor:data")
         last = [u.frames for u in ups if u.frames.n_frames][-1]
         np.testing.assert_array_equal(np.asarray(cols[-1][0]["buffer"]), last.power[-1, :, c])
