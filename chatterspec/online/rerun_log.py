@@ -514,7 +514,7 @@ class RerunLogger:
         a = 0
         for f in frames:
             b = a + f.n_frames
-            k[a:b] = peak_bins(f.power, self._tested_idx, self._tested_expected, self._tested_thr)
+            peak_bins(f.power, self._tested_idx, self._tested_expected, self._tested_thr, out=k[a:b])
             a = b
         return self._tested_hz[k]
 
