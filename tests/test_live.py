@@ -84,7 +84,9 @@ def _check_recording(path: Path, rec, spec, flags, summary) -> None:
         t, verdict = _column(reader, blueprint.VERDICT, "Scalars:scalars")
         np.testing.assert_array_equal(np.asarray(verdict)[:, c] > 0.5, flags[:, c])
         t_e, e = _column(reader, blueprint.CHATTERING, "Scalars:scalars")
-        assert t_e.size == rec.n_samples and np.asarray(e).shape == (rec.n_samples, len(rec.channels))
+        m = len(rec.channels)  # the m chattering series first, then the raw ones (raw data only)
+        assert t_e.size == rec.n_samples and np.asarray(e).shape[1] in (m, 2 * m, 3 * m)
+        np.testing.assert_array_equal(np.asarray(e)[:, :m], rec.values[0])
     t_ev, texts = _column(reader, "/events", "TextLog:text")
     assert len(texts) == len(summary.events) > 0
     for ev in summary.events:
@@ -252,7 +254,9 @@ def test_blueprint_builds() -> None:
         chat, _, det, freq = col.contents
         assert all(v.name.startswith(f"{name}:") for v in col.contents)
         own = [j == c for j in range(len(channels))]
-        assert _visible(chat, blueprint.CHATTERING) == own
+        # /chattering/e: the m chattering series, then up to 2 raw series per channel, all hidden
+        hidden_raw = [False] * (blueprint.SAMPLE_SERIES_PER_CHANNEL - 1) * len(channels)
+        assert _visible(chat, blueprint.CHATTERING) == own + hidden_raw
         assert _visible(chat, blueprint.PSI) == [j // 2 == c for j in range(2 * len(channels))]
         assert _visible(det, blueprint.STATISTIC) == own
         assert [e for e in det.contents if "/fault/" in e] == [f"+ {blueprint.fault_entity(name)}"]
@@ -349,10 +353,11 @@ def test_logger_construction_error_is_not_hidden(tmp_path: Path, sim, monkeypatc
         drivers.record_detection(sim, path=tmp_path / "b.rrd")
 
 
-def test_signal_rows_and_float64_spectra(tmp_path: Path, sim) -> None:
-    """/signal holds one row per sample: [measured, sat-SVSF estimate] of each channel in turn, and
-    /chattering/e one chattering value per channel, equal to the monitor's values; the ±psi lines hold
-    +psi_c, -psi_c per channel; spectrum_dtype="float64" logs the monitor's spectra bit-exactly."""
+def test_sample_rows_and_float64_spectra(tmp_path: Path, sim) -> None:
+    """/chattering/e holds one row per sample: the chattering value of each channel, then
+    [measured, sat-SVSF estimate] of each channel in turn, equal to the monitor's values; the ±psi
+    lines hold +psi_c, -psi_c per channel; spectrum_dtype="float64" logs the monitor's spectra
+    bit-exactly."""
     from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
 
     mon = ChatteringMonitor(sim.scenario.nominal, MonitorSettings(psi=(4.2e-3, 4.8e-3, 4.3e3)))
@@ -368,22 +373,76 @@ def test_signal_rows_and_float64_spectra(tmp_path: Path, sim) -> None:
     meas = np.concatenate([u.measured for u in ups])
     chat = np.concatenate([u.chattering for u in ups])
     t_all = np.concatenate([u.t for u in ups])
-    t, rows = _column(reader, blueprint.SIGNAL, "Scalars:scalars")
+    t, rows = _column(reader, blueprint.CHATTERING, "Scalars:scalars")
     np.testing.assert_allclose(t, t_all, atol=1e-9)
-    t_e, e = _column(reader, blueprint.CHATTERING, "Scalars:scalars")
-    np.testing.assert_allclose(t_e, t_all, atol=1e-9)
-    np.testing.assert_array_equal(np.asarray(e), chat)
+    m = len(mon.channels)
+    rows = np.asarray(rows)
+    assert rows.shape == (t_all.size, 3 * m)
+    np.testing.assert_array_equal(rows[:, :m], chat)
+    raw = rows[:, m:]
     _, psi = _column(reader, blueprint.PSI, "Scalars:scalars")
     np.testing.assert_array_equal(psi[0], [4.2e-3, -4.2e-3, 4.8e-3, -4.8e-3, 4.3e3, -4.3e3])
     for c, name in enumerate(mon.channels):
-        np.testing.assert_array_equal(
-            np.asarray(rows)[:, 2 * c : 2 * c + 2], np.stack([meas[:, c], est[:, c]], axis=1)
-        )
+        np.testing.assert_array_equal(raw[:, 2 * c : 2 * c + 2], np.stack([meas[:, c], est[:, c]], axis=1))
         _, cols = _column(reader, f"/spectrum/{name}", "Tensor:data")
         last = [u.frames for u in ups if u.frames.n_frames][-1]
         np.testing.assert_array_equal(np.asarray(cols[-1][0]["buffer"]), last.power[-1, :, c])
     with pytest.raises(ParameterError, match="spectrum_dtype"):
         rerun_log.RerunLogger(viewer.Sinks(), mon, spectrum_dtype="float16")
+
+
+def _temporal_rows(path: Path) -> dict[str, list]:
+    """Every temporal row of a recording: entity -> rows sorted by time, each (time, component values)."""
+    out: dict[str, list] = {}
+    for chunk in RrdReader(path).stream().filter(is_static=False).to_chunks():
+        rb = chunk.to_record_batch()
+        entity = rb.schema.metadata[b"rerun:entity_path"].decode()
+        names = [n for n in rb.schema.names if ":" in n]  # the components ("Archetype:field")
+        times = rb.column("time").cast("int64").to_pylist()
+        cols = [rb.column(n).to_pylist() for n in names]
+        out.setdefault(entity, []).extend(
+            (t, tuple(zip(names, (c[i] for c in cols), strict=True))) for i, t in enumerate(times)
+        )
+    return {k: sorted(v, key=lambda r: r[0]) for k, v in out.items()}
+
+
+def test_file_batches_do_not_change_the_recording(tmp_path: Path, sim) -> None:
+    """The per-sample and per-frame file batches are a transport detail: one batch per stream, the
+    defaults and tiny batches (a few pushes of samples, 2 frames) record the same rows, except the
+    two-row helper lines (±psi, 0 dB), which hold one row at each batch's first and last sample or
+    frame and the same values."""
+    from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
+
+    mon = ChatteringMonitor(sim.scenario.nominal, MonitorSettings(psi=(4.2e-3, 4.8e-3, 4.3e3)))
+    ups = [mon.push(sim.z[0, lo : lo + 700], sim.u[lo : lo + 700]) for lo in range(0, sim.z.shape[1], 700)]
+    assert sum(u.frames.n_frames for u in ups) > 10 and sum(len(u.events) for u in ups) > 0
+    rows = {}
+    for name, kw in {
+        "one": {"batch_samples": 10**9, "batch_frames": 10**9},
+        "default": {},
+        "tiny": {"batch_samples": 1000, "batch_frames": 2},
+    }.items():
+        path = tmp_path / f"{name}.rrd"
+        with viewer.open_sinks(record=path) as sinks:
+            logger = rerun_log.RerunLogger(sinks, mon, send_blueprint=False, **kw)
+            for u in ups:
+                logger.log_update(u)
+            logger.close()
+        rows[name] = _temporal_rows(path)
+    helpers = {blueprint.PSI, blueprint.THRESHOLD}
+    assert set(rows["one"]) >= {blueprint.CHATTERING, blueprint.STATISTIC, "/events", "/spectrum/pressure"}
+    for name in ("default", "tiny"):
+        assert set(rows[name]) == set(rows["one"])
+        for entity, want in rows["one"].items():
+            got = rows[name][entity]
+            if entity in helpers:  # more rows with more batches, all with the same values
+                assert len(got) >= len(want) == 2 and all(r[1] == want[0][1] for r in got)
+                assert got[0][0] == want[0][0] and got[-1][0] == want[-1][0]
+            else:
+                assert got == want, entity
+    assert len(rows["tiny"][blueprint.PSI]) > len(rows["default"][blueprint.PSI])
+    with pytest.raises(ParameterError, match="batch_samples"):
+        rerun_log.RerunLogger(viewer.Sinks(), mon, batch_samples=0)
 
 
 def test_peak_hz_series_is_the_largest_excess_among_flagged_bins(tmp_path: Path) -> None:
@@ -447,5 +506,12 @@ def test_peak_bins_paths_agree(tested: str, monkeypatch) -> None:
     kernel = frame_peaks._peak_bins_kernel
     getattr(kernel, "py_func", kernel)(power, idx, expected, thr, out)  # the kernel's Python source
     np.testing.assert_array_equal(out, want)
+    # out=: rows of a batch array filled block by block (the logger's use), on both paths
+    for jit in ("0", "1"):
+        monkeypatch.setenv("CHATTERSPEC_JIT", jit)
+        batch = np.full((F + 5, m), -1, dtype=np.int64)
+        got = frame_peaks.peak_bins(power, idx, expected, thr, out=batch[5:])
+        assert np.shares_memory(got, batch) and (batch[:5] == -1).all()
+        np.testing.assert_array_equal(batch[5:], want)
     monkeypatch.delenv("CHATTERSPEC_JIT")
     np.testing.assert_array_equal(frame_peaks.peak_bins(power, idx, expected, thr), want)

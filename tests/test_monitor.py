@@ -246,12 +246,12 @@ def test_fused_filter_kernel_gives_the_bits_of_the_svsf_update_path(sim, psi) ->
     with a monitor that goes through SVSF._advance (compiled kernels too); the kernel's Python form
     on a small push gives the same bits as well.
     """
-    from chatterspec.online._push_kernels import _filters_kernel
+    from chatterspec.online._push_kernels import _filters_kernel, _filters_run3
 
     model = sim.scenario.nominal
     fused = ChatteringMonitor(model, MonitorSettings(psi=psi))
     plain = ChatteringMonitor(model, MonitorSettings(psi=psi))
-    assert fused._fused
+    assert fused._fused and fused._run3  # the EHA: the written-out 3-state kernel
     plain._fused = False
     z, u = sim.z[0, :4000], sim.u[:4000]
     bounds = [0, 1, 2, 3, 250, 251, 1950, 2000, 3700, 4000]
@@ -266,14 +266,29 @@ def test_fused_filter_kernel_gives_the_bits_of_the_svsf_update_path(sim, psi) ->
     if psi is not None:
         sat = fused._sat
         outs = []
+        # samples 4000 .. 4039 of the stream (z above stops at 4000; an empty push would compare
+        # the uninitialized outputs), with u(k) and y(k|k) = z(k) of the sample before each
+        zk, uk, y_aux = sim.z[0, None, 4000:4040], sim.u[3999:4039], sim.z[0, 3999:4000]
+        assert zk.shape == (1, 40, 3) and uk.shape[0] == 40
         for kernel in (_filters_kernel, _filters_kernel.py_func):
             y, ep = fused._sat_state.y.copy(), fused._sat_state.e_post.copy()
             e, Gu, x_out = np.empty((1, 40, 3)), np.empty((1, 40, 3)), np.empty((1, 40, 3))
             PhiT, L, P, inv_psi, gamma, S_inv = sat._kernel_consts
             kernel(
-                z[None, 4000:4040], u[3999:4039], fused._GT, fused._aux_PhiT, z[3999:4000], e, Gu, True,
+                zk, uk, fused._GT, fused._aux_PhiT, y_aux, e, Gu, True,
                 PhiT, L, P, inv_psi, gamma, S_inv, y, ep, np.empty((1, 40, 3)), x_out, fused._none3,
             )  # fmt: skip
             outs.append((e, x_out, y, ep))
-        for a, b in zip(*outs, strict=True):
-            np.testing.assert_array_equal(a, b)
+        # the written-out 3-state kernel (the EHA's path in push), compiled and in its Python form
+        for kernel in (_filters_run3, _filters_run3.py_func):
+            y, ep = fused._sat_state.y.copy(), fused._sat_state.e_post.copy()
+            e, x_out = np.empty((1, 40, 3)), np.empty((1, 40, 3))
+            kernel(
+                zk, uk, fused._GT, fused._aux_PhiT, y_aux, e, True,
+                PhiT, inv_psi, gamma, S_inv, y, ep, x_out,
+            )  # fmt: skip
+            outs.append((e, x_out, y, ep))
+        assert np.all(np.isfinite(outs[0][0])) and np.all(outs[0][0] != 0.0)  # written, not left empty
+        for other in outs[1:]:
+            for a, b in zip(outs[0], other, strict=True):
+                np.testing.assert_array_equal(a, b)

@@ -15,11 +15,13 @@ layout. Each channel's view shows only its own series (blueprint overrides of
 ``visible_series``; hidden series do not enter the auto-scaled y range):
 
 ========================================  =============================================================
-``/chattering/e``                         chattering ``e(k|k-1)`` of the auxiliary filter: m per row
+``/chattering/e``                         everything per sample, one row per sample: the chattering
+                                          ``e(k|k-1)`` of the auxiliary filter per channel (series
+                                          ``0 .. m-1``), then for raw data per channel the measurement
+                                          [and the ``sat``-SVSF estimate ``C x(k|k)``] (series
+                                          ``m + c k + j``, k = 1 or 2): m, 2 m or 3 m per row
 ``/chattering/psi``                       the SVSF boundary layer ``+psi_0, -psi_0, +psi_1, ...`` (when
                                           known): 2 m per row, at each batch's first and last sample
-``/signal``                               per channel the measurement [and ``sat``-SVSF estimate
-                                          ``C x(k|k)``]: m (or 2 m) per row (raw data only)
 ``/spectrum/<c>``                         one STFT column per hop (``Tensor``, dim ``freq``, float32;
                                           float64 with ``RerunLogger(spectrum_dtype="float64")``)
 ``/spectrogram/<c>``                      ``10 log10(S / threshold)`` dB over the band, clipped
@@ -37,14 +39,15 @@ layout. Each channel's view shows only its own series (blueprint overrides of
 ========================================  =============================================================
 
 The paths are constants of :mod:`chatterspec.online.blueprint` (``CHATTERING``, ``PSI``,
-``SIGNAL``, ``STATISTIC``, ``THRESHOLD``, ``VERDICT``, ``PEAK_HZ``, ``MOST_SIGNIFICANT_HZ``,
+``STATISTIC``, ``THRESHOLD``, ``VERDICT``, ``PEAK_HZ``, ``MOST_SIGNIFICANT_HZ``,
 :func:`~chatterspec.online.blueprint.fault_entity`, :func:`~chatterspec.online.blueprint.lane_entity`).
 
 Everything time-indexed is sent column-wise (``send_columns``) from zero-copy arrow
 views, also the spectra: one ``Tensor`` row per frame, built in bulk from numpy
 (``rr.Tensor`` has no batch constructor), so a reader sees the same rows as from one
-``rr.log`` per frame. A live viewer gets every update at once; a file gets batches of
-about a minute of data (and the rest on close).
+``rr.log`` per frame. A live viewer gets every update at once; a file gets the per-sample
+series in batches of 20 s of 1 kHz data and the frames in batches of a minute at a 0.2 s hop
+(and the rest on close).
 
 The spectrogram band defaults to the detector's tested bins capped at 3x the model's
 highest natural frequency (EHA: 1-150 Hz). In a file it is ONE float16 tensor per

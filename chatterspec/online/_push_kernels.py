@@ -134,3 +134,68 @@ def _filters_kernel(
     _closed_form_kernel(z, Gu, aux_PhiT, aux_y, e_out, True)
     if run_sat:
         _svsf_kernel(z, Gu, PhiT, L, P, inv_psi, gamma, S_inv, y, ep, sat_e, x_out, none, none)
+
+
+@_jit.njit
+def _filters_run3(
+    z: np.ndarray,
+    u: np.ndarray,
+    GT: np.ndarray,
+    aux_PhiT: np.ndarray,
+    aux_y: np.ndarray,
+    e_out: np.ndarray,
+    run_sat: bool,
+    PhiT: np.ndarray,
+    inv_psi: np.ndarray,
+    gamma: float,
+    S_inv: np.ndarray,
+    y: np.ndarray,
+    ep: np.ndarray,
+    x_out: np.ndarray,
+) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_monitor.py)
+    """:func:`_filters_kernel` for one stream of a 3-state, 3-output model with full measurement (EHA).
+
+    The same operations in the same order, term by term (``G u``: ``u_0 G_0`` then ``+= u_j G_j``;
+    the chattering ``(((z - Gu) - Phi_0 z_0) - Phi_1 z_1) - Phi_2 z_2`` of
+    :func:`~chatterspec.filters.svsf._closed_form_kernel`; the sat SVSF's
+    ``(((0 + y_0 Phi_0) + y_1 Phi_1) + y_2 Phi_2) + Gu`` and eq (8)/(9)/(12) of
+    :func:`~chatterspec.filters.svsf._svsf_kernel`), hence the same bits (tests/test_monitor.py), but
+    written out: the states stay in registers and there are no 3-element loops (the generic
+    kernel takes 2.6x the time: 1.86 against 0.72 ms per minute of 1 kHz data, both filters).
+    ``sat`` switching only (``inv_psi`` has 3 entries); ``e_out`` and ``x_out`` (1, K, 3) outputs;
+    ``y`` and ``ep`` (1, 3) updated in place; ``aux_y`` (1, 3) = y(k|k) = z(k) before the push.
+    """
+    K = z.shape[1]
+    p = GT.shape[0]
+    zp0, zp1, zp2 = aux_y[0, 0], aux_y[0, 1], aux_y[0, 2]
+    y0, y1, y2 = y[0, 0], y[0, 1], y[0, 2]
+    ep0, ep1, ep2 = ep[0, 0], ep[0, 1], ep[0, 2]
+    for k in range(K):
+        g0 = u[k, 0] * GT[0, 0]
+        g1 = u[k, 0] * GT[0, 1]
+        g2 = u[k, 0] * GT[0, 2]
+        for j in range(1, p):
+            g0 += u[k, j] * GT[j, 0]
+            g1 += u[k, j] * GT[j, 1]
+            g2 += u[k, j] * GT[j, 2]
+        z0, z1, z2 = z[0, k, 0], z[0, k, 1], z[0, k, 2]
+        # the auxiliary (sgn) filter's closed form of eq (23): y(k|k) = z(k)
+        e_out[0, k, 0] = (((z0 - g0) - aux_PhiT[0, 0] * zp0) - aux_PhiT[1, 0] * zp1) - aux_PhiT[2, 0] * zp2
+        e_out[0, k, 1] = (((z1 - g1) - aux_PhiT[0, 1] * zp0) - aux_PhiT[1, 1] * zp1) - aux_PhiT[2, 1] * zp2
+        e_out[0, k, 2] = (((z2 - g2) - aux_PhiT[0, 2] * zp0) - aux_PhiT[1, 2] * zp1) - aux_PhiT[2, 2] * zp2
+        zp0, zp1, zp2 = z0, z1, z2
+        if run_sat:
+            # eq (4) and (6)
+            e0 = z0 - ((((0.0 + y0 * PhiT[0, 0]) + y1 * PhiT[1, 0]) + y2 * PhiT[2, 0]) + g0)
+            e1 = z1 - ((((0.0 + y0 * PhiT[0, 1]) + y1 * PhiT[1, 1]) + y2 * PhiT[2, 1]) + g1)
+            e2 = z2 - ((((0.0 + y0 * PhiT[0, 2]) + y1 * PhiT[1, 2]) + y2 * PhiT[2, 2]) + g2)
+            # eq (8)/(9) and (12): e(k+1|k+1) = e - sat(e / psi) (|e| + gamma |e(k|k)|), y = z - e(k+1|k+1)
+            ep0 = e0 - min(max(e0 * inv_psi[0], -1.0), 1.0) * (abs(e0) + gamma * abs(ep0))
+            ep1 = e1 - min(max(e1 * inv_psi[1], -1.0), 1.0) * (abs(e1) + gamma * abs(ep1))
+            ep2 = e2 - min(max(e2 * inv_psi[2], -1.0), 1.0) * (abs(e2) + gamma * abs(ep2))
+            y0, y1, y2 = z0 - ep0, z1 - ep1, z2 - ep2
+            x_out[0, k, 0] = ((0.0 + S_inv[0, 0] * y0) + S_inv[0, 1] * y1) + S_inv[0, 2] * y2
+            x_out[0, k, 1] = ((0.0 + S_inv[1, 0] * y0) + S_inv[1, 1] * y1) + S_inv[1, 2] * y2
+            x_out[0, k, 2] = ((0.0 + S_inv[2, 0] * y0) + S_inv[2, 1] * y1) + S_inv[2, 2] * y2
+    y[0, 0], y[0, 1], y[0, 2] = y0, y1, y2
+    ep[0, 0], ep[0, 1], ep[0, 2] = ep0, ep1, ep2

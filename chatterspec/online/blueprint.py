@@ -14,7 +14,7 @@ __all__ = [
     "MOST_SIGNIFICANT_HZ",
     "PEAK_HZ",
     "PSI",
-    "SIGNAL",
+    "SAMPLE_SERIES_PER_CHANNEL",
     "STATISTIC",
     "THRESHOLD",
     "VERDICT",
@@ -30,12 +30,16 @@ TRUTH_LANE = "/state/0_truth"
 # Per-sample and per-frame series: ONE entity per quantity with one scalar per channel in each row
 # (series j = output channel j), so a sample costs one Rerun row (a row id and a time) for all channels;
 # each channel's view shows only its own series (``visible_series`` overrides, :func:`blueprint`).
-#: Chattering ``e(k|k-1)`` of the auxiliary filter, one row per sample, m scalars.
+#: Everything per sample, ONE row per sample: the chattering ``e(k|k-1)`` of the auxiliary filter per
+#: channel (series ``0 .. m-1``), then, for raw data, per channel the measurement [and the
+#: ``sat``-SVSF estimate ``C x(k|k)``] (series ``m + c k + j``, ``k`` = 1 or 2 per channel). One entity
+#: instead of two halves what the file writer encodes per sample (a row id and a time per row).
 CHATTERING = "/chattering/e"
+#: Most series per channel in :data:`CHATTERING` (chattering, measurement, estimate): the length of
+#: the views' ``visible_series`` overrides, whatever the input mode.
+SAMPLE_SERIES_PER_CHANNEL = 3
 #: The boundary layer: +psi_0, -psi_0, +psi_1, ... (2 m scalars), at each batch's first and last sample.
 PSI = "/chattering/psi"
-#: Measurement [and ``sat``-SVSF estimate] per channel: one row per sample of m (or 2 m) scalars.
-SIGNAL = "/signal"
 #: ``10 log10(max_k S_k / threshold_k)`` (dB) per channel, one row per frame.
 STATISTIC = "/detection/statistic_db"
 #: The decision level, 0 dB (one series shared by every channel's view).
@@ -99,8 +103,9 @@ def series_styles(
     channels: tuple[str, ...], units: tuple[str, ...], *, has_estimate: bool = False
 ) -> list[tuple[str, Any]]:
     """Static styling of the time series: one ``SeriesLines`` / ``SeriesPoints`` per entity with one
-    name and colour per series (series ``j`` = channel ``j``; ``/chattering/psi`` and ``/signal``
-    hold 2 series per channel, channel-major), logged once with ``static=True``.
+    name and colour per series (series ``j`` = channel ``j``; ``/chattering/psi`` holds 2 series per
+    channel, channel-major, and :data:`CHATTERING` the raw series after the m chattering ones), logged
+    once with ``static=True``.
 
     Parameters
     ----------
@@ -109,7 +114,9 @@ def series_styles(
     units : tuple of str
         Their units ("" for none), shown in the chattering series names.
     has_estimate : bool
-        ``/signal`` holds the ``sat``-SVSF estimate after each measurement (``psi`` known).
+        :data:`CHATTERING` holds the ``sat``-SVSF estimate after each measurement (``psi`` known).
+        The names of the raw series are listed in either input mode; with the chattering given they
+        name no series (the rows hold only the m chattering values).
 
     Returns
     -------
@@ -122,20 +129,19 @@ def series_styles(
     named = [f"{c} [{u}]" if u else c for c, u in zip(channels, units, strict=True)]
     sig = ("measured", "SVSF estimate") if has_estimate else ("measured",)
     out = [
-        (CHATTERING, rr.SeriesLines(colors=cols, names=named)),
+        (
+            CHATTERING,
+            rr.SeriesLines(
+                colors=cols + [col if k == 0 else [0, 0, 0] for col in cols for k in range(len(sig))],
+                names=named + [f"{c}: {what}" for c in named for what in sig],
+            ),
+        ),
         (
             PSI,
             rr.SeriesLines(
                 colors=[_GREY] * (2 * m),
                 widths=[1.0] * (2 * m),
                 names=[f"{c}: {side}psi" for c in channels for side in "+-"],
-            ),
-        ),
-        (
-            SIGNAL,
-            rr.SeriesLines(
-                colors=[col if k == 0 else [0, 0, 0] for col in cols for k in range(len(sig))],
-                names=[f"{c}: {what}" for c in named for what in sig],
             ),
         ),
         (
@@ -223,9 +229,10 @@ def blueprint(
     band = "" if band_hz is None else f" {band_hz[0]:g}-{band_hz[1]:g} Hz"
     m = len(channels)
 
-    def only(i: int, k: int = 1) -> list[bool]:
-        """visible_series of channel i in an entity with k series per channel (channel-major)."""
-        return [j // k == i for j in range(k * m)]
+    def only(i: int, k: int = 1, total: int | None = None) -> list[bool]:
+        """visible_series of channel i in an entity with k series per channel (channel-major), padded
+        with False up to ``total`` series."""
+        return [j // k == i for j in range(k * m)] + [False] * ((total or k * m) - k * m)
 
     columns = []
     for i, name in enumerate(channels):
@@ -240,7 +247,10 @@ def blueprint(
                     plot_legend=no_legend,
                     # hidden series do not enter the auto-scaled y range (checked in the viewer)
                     overrides={
-                        CHATTERING: rr.SeriesLines.from_fields(visible_series=only(i)),
+                        # the chattering of channel i only, not the raw series after it
+                        CHATTERING: rr.SeriesLines.from_fields(
+                            visible_series=only(i, total=SAMPLE_SERIES_PER_CHANNEL * m)
+                        ),
                         PSI: rr.SeriesLines.from_fields(visible_series=only(i, 2)),
                     },
                 ),

@@ -49,7 +49,13 @@ def _peak_bins_numpy(
     return k.T
 
 
-def peak_bins(power: np.ndarray, tested: np.ndarray, expected: np.ndarray, thr: np.ndarray) -> np.ndarray:
+def peak_bins(
+    power: np.ndarray,
+    tested: np.ndarray,
+    expected: np.ndarray,
+    thr: np.ndarray,
+    out: np.ndarray | None = None,
+) -> np.ndarray:
     """Index (into ``tested``) of each frame's largest excess power ``S - E`` among the bins over the
     threshold, or among all tested bins when none is over: the rule of the batch report's ``peak_hz``.
 
@@ -64,6 +70,9 @@ def peak_bins(power: np.ndarray, tested: np.ndarray, expected: np.ndarray, thr: 
     thr : (k, m) float array
         Frame threshold at the tested bins (a bin is over when ``S > thr``).
 
+    out : (F, m) int64 array, optional
+        Written in place and returned (the logger fills one batch array block by block).
+
     Returns
     -------
     (F, m) int64 array
@@ -71,7 +80,12 @@ def peak_bins(power: np.ndarray, tested: np.ndarray, expected: np.ndarray, thr: 
     """
     power = np.asarray(power, dtype=float)
     if not enabled():
-        return _peak_bins_numpy(power, tested, expected, thr)
-    out = np.empty((power.shape[0], power.shape[2]), dtype=np.int64)
+        k = _peak_bins_numpy(power, tested, expected, thr)
+        if out is None:
+            return k
+        out[...] = k
+        return out
+    if out is None:
+        out = np.empty((power.shape[0], power.shape[2]), dtype=np.int64)
     _peak_bins_kernel(power, tested, expected, thr, out)
     return out

@@ -23,7 +23,6 @@ from .blueprint import (
     MOST_SIGNIFICANT_HZ,
     PEAK_HZ,
     PSI,
-    SIGNAL,
     STATISTIC,
     THRESHOLD,
     TRUTH_LANE,
@@ -118,13 +117,16 @@ def default_band_hz(monitor: ChatteringMonitor, factor: float = 3.0) -> tuple[fl
 
 @dataclass
 class _Outbox:
-    """Updates waiting to be sent to one stream."""
+    """What waits to be sent to one stream: the per-sample part of the updates and, separately, their
+    frames and events (each part has its own batch size, see :class:`RerunLogger`)."""
 
     stream: Any
     live: bool
-    updates: list[MonitorUpdate] = field(default_factory=list)
-    samples: int = 0
-    frames: int = 0
+    updates: list[MonitorUpdate] = field(default_factory=list)  # with samples
+    frames: list[Any] = field(default_factory=list)  # FrameBlocks with frames
+    events: list[DetectionEvent] = field(default_factory=list)
+    n_samples: int = 0
+    n_frames: int = 0
 
 
 class RerunLogger:
@@ -133,8 +135,9 @@ class RerunLogger:
     Everything time-indexed is sent column-wise with ``send_columns`` (one call
     per entity and batch, not one ``log`` per sample or frame; one row per sample or
     frame holding every channel, since Rerun's cost is per row): to a live viewer
-    at every update, to a file in batches of ``batch_samples`` samples or
-    ``batch_frames`` frames (and on :meth:`close`). Times follow :func:`to_ns`.
+    at every update; to a file the per-sample series in batches of ``batch_samples``
+    samples and, separately, the frames (spectra, per-frame series, events) in batches of
+    ``batch_frames`` frames (and the rest on :meth:`close`). Times follow :func:`to_ns`.
 
     What is logged per frame (entity layout in :mod:`chatterspec.online`): the
     frame spectrum (``Tensor``, float32 by default, see ``spectrum_dtype``); the detection statistic
@@ -172,9 +175,14 @@ class RerunLogger:
         streams: 18 000 frames = 1 h at a 0.2 s hop, ~16 MB for 3 channels x 150 bins);
         longer records get consecutive blocks that tile the record.
     batch_samples, batch_frames : int
-        A file batch is sent once this many samples or frames are buffered (default one
-        minute of 1 kHz data / 0.2 s hops: ~30 ``send_columns`` calls per minute of data, each
-        costing ~0.1 ms of fixed overhead, and at most ~8 MB buffered for 3 channels).
+        File batches (>= 1): the per-sample series are sent once this many samples are buffered,
+        the frames once this many frames are. Defaults (measured on the 3-channel EHA monitor,
+        ``benchmarks/bench_monitor.py``): 20 000 samples, so that Rerun's file writer encodes one
+        batch on the second core while the monitor computes the next (one batch per minute left
+        all of the encoding to the end: 1860x against 2630x real time, best of 60), and 300 frames
+        (one minute at a 0.2 s hop: every ``send_columns`` call is a chunk with its own schema,
+        ~0.15 ms of CPU for a small one, and the per-frame series are small). At most ~2 MB of
+        samples and ~2 MB of spectra are buffered for 3 channels.
     truth : list of (start_s, label, is_fault), optional
         True fault timeline, drawn as the top lane.
     send_blueprint : bool
@@ -196,7 +204,7 @@ class RerunLogger:
         band_hz: tuple[float, float] | None = None,
         span_s: tuple[float, float] | None = None,
         file_block_frames: int = 18_000,
-        batch_samples: int = 60_000,
+        batch_samples: int = 20_000,
         batch_frames: int = 300,
         truth: list[tuple[float, str, bool]] | None = None,
         send_blueprint: bool = True,
@@ -257,6 +265,10 @@ class RerunLogger:
         self._file_t: tuple[float, float] | None = None
         self.batch_samples = int(batch_samples)
         self.batch_frames = int(batch_frames)
+        if self.batch_samples < 1 or self.batch_frames < 1:
+            raise ParameterError(
+                f"batch_samples and batch_frames must be >= 1; got {batch_samples!r}, {batch_frames!r}"
+            )
         self._cols = _Columns(rr, DB_RANGE)
         self._boxes = [_Outbox(s, live=s is sinks.live_stream) for s in sinks.streams]
         self.psi = monitor.settings.psi
@@ -392,89 +404,104 @@ class RerunLogger:
                 self._started = True
                 self._initial_state(upd)
             for box in self._boxes:
-                box.updates.append(upd)
-                box.samples += upd.t.shape[0]
-                box.frames += fr.n_frames
-                if box.live or box.samples >= self.batch_samples or box.frames >= self.batch_frames:
-                    self._send(box)
+                if upd.t.shape[0]:
+                    box.updates.append(upd)
+                    box.n_samples += upd.t.shape[0]
+                    if box.live or box.n_samples >= self.batch_samples:
+                        self._send_samples(box)
+                if fr.n_frames:
+                    box.frames.append(fr)
+                    box.events.extend(upd.events)
+                    box.n_frames += fr.n_frames
+                    if box.live or box.n_frames >= self.batch_frames:
+                        self._send_frames(box)
         if fr.n_frames and self.sinks.live_stream is not None:
             self._spectrogram(fr)
 
     def flush(self) -> None:
         """Send everything buffered (bulk ``send_columns``)."""
         for box in self._boxes:
-            self._send(box)
+            self._send_samples(box)
+            self._send_frames(box)
 
     def close(self) -> None:
         """Send what is buffered, and the file's spectrogram (the whole record, or its last block)."""
         self.flush()
         self._flush_file_block()
 
-    def _send(self, box: _Outbox) -> None:
+    def _send_samples(self, box: _Outbox) -> None:
+        """Send the per-sample part of the updates in ``box`` (one ``send_columns`` per entity)."""
         if not box.updates:
             return
-        ups, box.updates, box.samples, box.frames = box.updates, [], 0, 0
+        ups, box.updates, box.n_samples = box.updates, [], 0
         s, cols, pa = box.stream, self._cols, self.pa
         m = len(self.keys)
         one = len(ups) == 1
         t = ups[0].t if one else np.concatenate([u.t for u in ups])
-        if t.size:
-            ns = to_ns(t)
-            tcol = _TimeIndex(pa, ns)
-            # ONE row per sample for all channels (Rerun's cost is per row: a row id and a time each):
-            # /chattering/e (N, m); /signal (N, m * k): per channel the measurement [and sat-SVSF estimate]
-            e = ups[0].chattering if one else np.concatenate([u.chattering for u in ups])
-            s.send_columns(CHATTERING, indexes=[tcol], columns=[cols.scalars_column(e, own=not one)])
-            keys = [k for k in ("measured", "estimate") if all(getattr(u, k) is not None for u in ups)]
-            if keys:
-                sig = np.empty((t.size, m, len(keys)))
-                a = 0
-                for u in ups:
-                    b = a + u.t.shape[0]
-                    for j, k in enumerate(keys):
-                        sig[a:b, :, j] = getattr(u, k)
-                    a = b
-                s.send_columns(
-                    SIGNAL, indexes=[tcol], columns=[cols.scalars_column(sig.reshape(t.size, -1), own=True)]
-                )
-            if self._psi_rows is not None:  # the batch's first and last sample: +psi_0, -psi_0, +psi_1, ...
-                s.send_columns(PSI, indexes=[_TimeIndex(pa, ns[[0, -1]])], columns=[self._psi_rows])
-        frames = [u.frames for u in ups if u.frames.n_frames]
-        if frames:
-            one = len(frames) == 1
-            times = frames[0].times_s if one else np.concatenate([f.times_s for f in frames])
-            ratio = frames[0].peak_ratio if one else np.concatenate([f.peak_ratio for f in frames])
-            flags = frames[0].flags if one else np.concatenate([f.flags for f in frames])
-            sig_hz = frames[0].peak_hz if one else np.concatenate([f.peak_hz for f in frames])
-            fns = to_ns(times)
-            fcol = _TimeIndex(pa, fns)
-            stat_db = 10.0 * np.log10(np.maximum(ratio, 1e-30))
-            # channel-major spectra (m, F, bins) in spectrum_dtype, converted while transposing (one pass)
-            F = times.shape[0]
-            spectra = np.empty((m, F, frames[0].power.shape[1]), dtype=self.spectrum_dtype)
+        ns = to_ns(t)
+        tcol = _TimeIndex(pa, ns)
+        # ONE row per sample for all channels and quantities (Rerun's cost is per row: a row id and
+        # a time each, encoded again by the file writer): /chattering/e holds e(k|k-1) of each channel,
+        # then for raw data per channel the measurement [and the sat-SVSF estimate]
+        keys = [k for k in ("measured", "estimate") if all(getattr(u, k) is not None for u in ups)]
+        if keys or not one:
+            row = np.empty((t.size, m * (1 + len(keys))))
+            sig = row[:, m:].reshape(t.size, m, len(keys))  # view: channel-major (measured, estimate)
             a = 0
-            for f in frames:
-                b = a + f.n_frames
-                spectra[:, a:b] = f.power.transpose(2, 0, 1)  # (m, n, bins), cast on the fly
+            for u in ups:
+                b = a + u.t.shape[0]
+                row[a:b, :m] = u.chattering
+                for j, k in enumerate(keys):
+                    sig[a:b, :, j] = getattr(u, k)
                 a = b
-            peak_hz = self._peak_hz(frames)
-            s.send_columns(STATISTIC, indexes=[fcol], columns=[cols.scalars_column(stat_db, own=True)])
-            s.send_columns(THRESHOLD, indexes=[_TimeIndex(pa, fns[[0, -1]])], columns=[self._zero_rows])
-            s.send_columns(VERDICT, indexes=[fcol], columns=[cols.scalars_column(flags)])
-            s.send_columns(PEAK_HZ, indexes=[fcol], columns=[cols.scalars_column(peak_hz, own=True)])
-            s.send_columns(MOST_SIGNIFICANT_HZ, indexes=[fcol], columns=[cols.scalars_column(sig_hz)])
-            for i, c in enumerate(self.keys):
-                self._send_spectra(s, f"/spectrum/{c}", fcol, fns, spectra[i])
-                hit = np.flatnonzero(flags[:, i])
-                if hit.size:  # sparse: one entity per channel, rows at its flagged frames only
-                    s.send_columns(
-                        self._fault[i],
-                        indexes=[_TimeIndex(pa, fns[hit])],
-                        columns=[cols.scalars_column(stat_db[hit, i])],
-                    )
-            if not box.live:  # the file's spectrogram: dB columns of the whole batch at once
-                self._file_spectrogram(times, spectra)
-        events = [ev for u in ups for ev in u.events]
+        else:
+            row = ups[0].chattering
+        own = bool(keys) or not one  # a fresh array here; else the update's own (copied)
+        s.send_columns(CHATTERING, indexes=[tcol], columns=[cols.scalars_column(row, own=own)])
+        if self._psi_rows is not None:  # the batch's first and last sample: +psi_0, -psi_0, +psi_1, ...
+            s.send_columns(PSI, indexes=[_TimeIndex(pa, ns[[0, -1]])], columns=[self._psi_rows])
+
+    def _send_frames(self, box: _Outbox) -> None:
+        """Send the frames and events in ``box``: spectra, per-frame series, fault points, events and
+        lanes, and (file) append the frames to the file's spectrogram block."""
+        if not box.frames:
+            return
+        frames, events, box.frames, box.events, box.n_frames = box.frames, box.events, [], [], 0
+        s, cols, pa = box.stream, self._cols, self.pa
+        m = len(self.keys)
+        one = len(frames) == 1
+        times = frames[0].times_s if one else np.concatenate([f.times_s for f in frames])
+        ratio = frames[0].peak_ratio if one else np.concatenate([f.peak_ratio for f in frames])
+        flags = frames[0].flags if one else np.concatenate([f.flags for f in frames])
+        sig_hz = frames[0].peak_hz if one else np.concatenate([f.peak_hz for f in frames])
+        fns = to_ns(times)
+        fcol = _TimeIndex(pa, fns)
+        stat_db = 10.0 * np.log10(np.maximum(ratio, 1e-30))
+        # channel-major spectra (m, F, bins) in spectrum_dtype, converted while transposing (one pass)
+        F = times.shape[0]
+        spectra = np.empty((m, F, frames[0].power.shape[1]), dtype=self.spectrum_dtype)
+        a = 0
+        for f in frames:
+            b = a + f.n_frames
+            spectra[:, a:b] = f.power.transpose(2, 0, 1)  # (m, n, bins), cast on the fly
+            a = b
+        peak_hz = self._peak_hz(frames)
+        s.send_columns(STATISTIC, indexes=[fcol], columns=[cols.scalars_column(stat_db, own=True)])
+        s.send_columns(THRESHOLD, indexes=[_TimeIndex(pa, fns[[0, -1]])], columns=[self._zero_rows])
+        s.send_columns(VERDICT, indexes=[fcol], columns=[cols.scalars_column(flags)])
+        s.send_columns(PEAK_HZ, indexes=[fcol], columns=[cols.scalars_column(peak_hz, own=True)])
+        s.send_columns(MOST_SIGNIFICANT_HZ, indexes=[fcol], columns=[cols.scalars_column(sig_hz)])
+        for i, c in enumerate(self.keys):
+            self._send_spectra(s, f"/spectrum/{c}", fcol, fns, spectra[i])
+            hit = np.flatnonzero(flags[:, i])
+            if hit.size:  # sparse: one entity per channel, rows at its flagged frames only
+                s.send_columns(
+                    self._fault[i],
+                    indexes=[_TimeIndex(pa, fns[hit])],
+                    columns=[cols.scalars_column(stat_db[hit, i])],
+                )
+        if not box.live:  # the file's spectrogram: dB columns of the whole batch at once
+            self._file_spectrogram(times, spectra)
         if events:
             self._send_events(s, events)
 
@@ -487,7 +514,7 @@ class RerunLogger:
         a = 0
         for f in frames:
             b = a + f.n_frames
-            k[a:b] = peak_bins(f.power, self._tested_idx, self._tested_expected, self._tested_thr)
+            peak_bins(f.power, self._tested_idx, self._tested_expected, self._tested_thr, out=k[a:b])
             a = b
         return self._tested_hz[k]
 
