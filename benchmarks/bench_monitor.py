@@ -8,7 +8,8 @@ stream is processed and (with a file) the recording size per minute of data:
 (c) raw z, u: auxiliary ``sgn`` SVSF + analysis, .rrd file
 (d) raw z, u: both SVSFs (``psi`` set) + analysis, .rrd file
 
-plus the auxiliary SVSF without a file for reference. "x real time" counts the
+plus the auxiliary SVSF without a file for reference, and each case with a file once more on the
+numpy path (``CHATTERSPEC_JIT=0``, one run: the same-process baseline). "x real time" counts the
 whole run: pushes, logging and closing the file (flush + footer) — everything
 that grows with the data. The fixed cost of opening the file and sending the
 blueprint and static entities (tens of ms, once per run; including their encoding, which is
@@ -205,7 +206,9 @@ def main() -> None:
     ap.add_argument("--cases", default="", help="comma-separated subset of the cases to run, e.g. b,d")
     ap.add_argument("--breakdown", action="store_true", help="split the logging time by entity group")
     ap.add_argument("--live", action="store_true", help="time the live path per hop")
-    ap.add_argument("--no-baseline", action="store_true", help="skip the numpy-path baseline run of case (d)")
+    ap.add_argument(
+        "--no-baseline", action="store_true", help="skip the numpy-path runs of the cases with a file"
+    )
     args = ap.parse_args()
     global CPU
     CPU = args.cpu
@@ -276,21 +279,25 @@ def main() -> None:
                 f"{label:<38}{T / stream:12.0f}{T / np.median(streams):9.0f}{T / (stream + setup):13.0f}"
                 f"{setup * 1e3:10.1f}{mb}{T / t_push:9.0f}{log_x}"
             )
-        if _jit.enabled() and not args.no_baseline and any(c[0].startswith("(d)") for c in cases):
-            # the same-process baseline of the issue: case (d) on the numpy path (CHATTERSPEC_JIT=0
-            # switches the kernels at run time); one run, it is ~50x slower
-            os.environ["CHATTERSPEC_JIT"] = "0"
-            try:
-                mon = ChatteringMonitor(nominal, MonitorSettings(psi=PSI), t0=0.0)
-                setup, stream, size, t_push, t_log = _run(mon, raw, args.chunk, path)
-                path.unlink()
-            finally:
-                os.environ.pop("CHATTERSPEC_JIT", None)
-            print(
-                f"{'(d) numpy path (baseline, 1 run)':<38}{T / stream:12.0f}{'-':>9}"
-                f"{T / (stream + setup):13.0f}{setup * 1e3:10.1f}{size / 1e6 / args.minutes:9.2f}"
-                f"{T / t_push:9.0f}{T / t_log:11.0f}"
-            )
+        if _jit.enabled() and not args.no_baseline:
+            # the same-process baseline of the issue: every case with a file on the numpy path
+            # (CHATTERSPEC_JIT=0 switches the kernels at run time); one run each, they are 25-50x slower
+            for label, settings, data, record in cases:
+                if not record:
+                    continue
+                os.environ["CHATTERSPEC_JIT"] = "0"
+                try:
+                    mon = ChatteringMonitor(nominal, settings, t0=rec.t[0] if "chattering" in data else 0.0)
+                    setup, stream, size, t_push, t_log = _run(mon, data, args.chunk, path)
+                    path.unlink()
+                finally:
+                    os.environ.pop("CHATTERSPEC_JIT", None)
+                name = f"{label.split()[0]} numpy path (baseline, 1 run)"
+                print(
+                    f"{name:<38}{T / stream:12.0f}{'-':>9}"
+                    f"{T / (stream + setup):13.0f}{setup * 1e3:10.1f}{size / 1e6 / args.minutes:9.2f}"
+                    f"{T / t_push:9.0f}{T / t_log:11.0f}"
+                )
         if args.breakdown:
             jobs = [
                 (label, _Setup(nominal, settings), data, record, rec.t[0] if "chattering" in data else 0.0)
