@@ -159,9 +159,10 @@ def test_verdict_kernel_equals_its_python_form_and_handles_scattered_bins(
     idx = np.array([1, 2, 5, 6, 7, 20, 31])
     outs = []
     for kernel in (_verdict.verdict_kernel, _verdict.verdict_kernel.py_func):
-        k, ke = np.empty((40, 3), np.intp), np.empty((40, 3), np.intp)
-        pr, ps = np.empty((40, 3)), np.empty((40, 3))
+        k, ke = np.full((40, 3), -1, np.intp), np.full((40, 3), -1, np.intp)  # -1 / NaN: unwritten
+        pr, ps = np.full((40, 3), np.nan), np.full((40, 3), np.nan)
         kernel(power, th.values, th.expected, idx, k, pr, ke, ps)
+        assert (k >= 0).all() and (ke >= 0).all() and np.isfinite(pr).all() and np.isfinite(ps).all()
         outs.append((k, pr, ke, ps))
     for a, b in zip(*outs, strict=True):
         np.testing.assert_array_equal(a, b)

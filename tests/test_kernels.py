@@ -89,8 +89,10 @@ def test_compiled_kernel_equals_its_python_form_bitwise() -> None:
 
     def call(kernel):
         y, ep = state.y.copy(), state.e_post.copy()
-        outs = [np.empty((2, K, m)), np.empty((2, K, n)), np.empty((2, K, m)), np.empty((2, K, n - m))]
+        # NaN-filled, so that an output the kernel leaves unwritten fails instead of comparing garbage
+        outs = [np.full((2, K, k), np.nan) for k in (m, n, m, n - m)]
         kernel(z, Gu, f._PhiT, f._L, f._P, f._inv_psi, f.gamma, f._S_inv, y, ep, *outs)
+        assert all(np.isfinite(o).all() for o in outs)
         return [y, ep, *outs]
 
     for a, b in zip(call(svsf_mod._svsf_kernel), call(svsf_mod._svsf_kernel.py_func), strict=True):
@@ -179,12 +181,14 @@ def test_simulation_kernels_equal_their_python_form_bitwise() -> None:
     Gu = np.ascontiguousarray(svsf_mod._rows_times(u[:-1], f._GT))
     outs = []
     for kernel in (_simulate_kernel, _simulate_kernel.py_func):
-        xt, zt = np.empty((40, 3, 3)), np.empty((40, 3, 3))
+        xt, zt = np.full((40, 3, 3), np.nan), np.full((40, 3, 3), np.nan)  # run 1 of 3 is written
         kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, xt, zt, 1)
+        assert np.isfinite(xt[:, 1:]).all() and np.isfinite(zt[:, 1:]).all()
         outs.append((xt[:, 1:], zt[:, 1:]))
     for kernel in (_chattering_kernel, _chattering_kernel.py_func):
-        e = np.empty((3, 3, 39))  # (runs, m, N): channel-major
+        e = np.full((3, 3, 39), np.nan)  # (runs, m, N): channel-major; run 1 is written
         kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, f._PhiT, Gu, e, 1)
+        assert np.isfinite(e[1:]).all()
         outs.append((e[1:].transpose(0, 2, 1),))
     np.testing.assert_array_equal(outs[0][0], outs[1][0])
     np.testing.assert_array_equal(outs[0][1], outs[1][1])
@@ -253,8 +257,9 @@ def test_closed_form_kernel_equals_its_python_form() -> None:
     outs = []
     for kernel in (svsf_mod._closed_form_kernel, svsf_mod._closed_form_kernel.py_func):
         for time_major in (True, False):
-            e = np.empty((2, 30, 3))
+            e = np.full((2, 30, 3), np.nan)
             kernel(z[:, 1:], Gu, f._PhiT, y0, e, time_major)
+            assert np.isfinite(e).all()
             outs.append(e)
     for e in outs[1:]:
         np.testing.assert_array_equal(e, outs[0])

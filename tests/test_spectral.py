@@ -391,12 +391,13 @@ def test_frame_engine_compiled_loops_give_the_numpy_bits(window, window_s, hop_s
         W, H = cfg.n_window(DT), cfg.n_hop(DT)
         F = 3
         x3 = x.reshape(-1, *x.shape[-2:])[:1, : W + 2 * H]
-        taps = [np.empty((1, x.shape[-1], F, W)) for _ in range(2)]
+        taps = [np.full((1, x.shape[-1], F, W), np.nan) for _ in range(2)]  # NaN: unwritten
         fe._taper_kernel(x3, 0, H, engine.win, taps[0])
         fe._taper_kernel.py_func(x3, 0, H, engine.win, taps[1])
+        assert np.isfinite(taps[0]).all() and np.isfinite(taps[1]).all()
         np.testing.assert_array_equal(taps[0], taps[1])
         Y = np.fft.rfft(taps[0], axis=-1)
-        pows = [np.empty((1, F, W // 2 + 1, x.shape[-1])) for _ in range(2)]
+        pows = [np.full((1, F, W // 2 + 1, x.shape[-1]), np.nan) for _ in range(2)]
         fe._power_kernel(Y, engine.scale, pows[0])
         fe._power_kernel.py_func(Y, engine.scale, pows[1])
         np.testing.assert_array_equal(pows[0], pows[1])
