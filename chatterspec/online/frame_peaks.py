@@ -69,7 +69,6 @@ def peak_bins(
         Expected healthy spectrum ``E`` at the tested bins.
     thr : (k, m) float array
         Frame threshold at the tested bins (a bin is over when ``S > thr``).
-
     out : (F, m) int64 array, optional
         Written in place and returned (the logger fills one batch array block by block).
 
