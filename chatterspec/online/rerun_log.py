@@ -115,6 +115,13 @@ def default_band_hz(monitor: ChatteringMonitor, factor: float = 3.0) -> tuple[fl
     return lo, hi
 
 
+def _joined(items: list[Any], name: str) -> np.ndarray:
+    """Attribute ``name`` of every item, concatenated along axis 0 (the item's own array for one item)."""
+    if len(items) == 1:
+        return getattr(items[0], name)
+    return np.concatenate([getattr(it, name) for it in items])
+
+
 @dataclass
 class _Outbox:
     """What waits to be sent to one stream: the per-sample part of the updates and, separately, their
@@ -437,7 +444,7 @@ class RerunLogger:
         s, cols, pa = box.stream, self._cols, self.pa
         m = len(self.keys)
         one = len(ups) == 1
-        t = ups[0].t if one else np.concatenate([u.t for u in ups])
+        t = _joined(ups, "t")
         ns = to_ns(t)
         tcol = _TimeIndex(pa, ns)
         # ONE row per sample for all channels and quantities (Rerun's cost is per row: a row id and
@@ -456,7 +463,7 @@ class RerunLogger:
                 a = b
         else:
             row = ups[0].chattering
-        own = bool(keys) or not one  # a fresh array here; else the update's own (copied)
+        own = row is not ups[0].chattering  # a fresh array here; else the update's own (copied)
         s.send_columns(CHATTERING, indexes=[tcol], columns=[cols.scalars_column(row, own=own)])
         if self._psi_rows is not None:  # the batch's first and last sample: +psi_0, -psi_0, +psi_1, ...
             s.send_columns(PSI, indexes=[_TimeIndex(pa, ns[[0, -1]])], columns=[self._psi_rows])
@@ -469,11 +476,8 @@ class RerunLogger:
         frames, events, box.frames, box.events, box.n_frames = box.frames, box.events, [], [], 0
         s, cols, pa = box.stream, self._cols, self.pa
         m = len(self.keys)
-        one = len(frames) == 1
-        times = frames[0].times_s if one else np.concatenate([f.times_s for f in frames])
-        ratio = frames[0].peak_ratio if one else np.concatenate([f.peak_ratio for f in frames])
-        flags = frames[0].flags if one else np.concatenate([f.flags for f in frames])
-        sig_hz = frames[0].peak_hz if one else np.concatenate([f.peak_hz for f in frames])
+        times, ratio = _joined(frames, "times_s"), _joined(frames, "peak_ratio")
+        flags, sig_hz = _joined(frames, "flags"), _joined(frames, "peak_hz")
         fns = to_ns(times)
         fcol = _TimeIndex(pa, fns)
         stat_db = 10.0 * np.log10(np.maximum(ratio, 1e-30))
