@@ -103,7 +103,16 @@ def test_record_of_realization_zero_with_chunks(cal_path, tmp_path) -> None:  # 
 
     path = tmp_path / "d.rrd"
     argv = ["diagnose", "eha4-leak-timeline", "--methods", "chattering,smm", "--runs", "3", "--seed", "6"]
-    argv += ["--chunk-runs", "2", "--calibration", str(cal_path), "--record", str(path), "--json", "--per-record"]
+    argv += [
+        "--chunk-runs",
+        "2",
+        "--calibration",
+        str(cal_path),
+        "--record",
+        str(path),
+        "--json",
+        "--per-record",
+    ]
     assert main(argv) == 0
     reader = RrdReader(path)
     summary = reader.store().summary()  # needs the footer: the file is complete

@@ -72,7 +72,7 @@ DEFAULT_CHUNK_RUNS = 64
 
 
 def run_per_record(args: argparse.Namespace, sc: object, methods: tuple[str, ...]) -> int:
-    """``diagnose --per-record``: each route's own rule (argmax of the modes, per-frame chattering at ``--alpha``)."""
+    """``diagnose --per-record``: each route with its own rule (argmax; per-frame at ``--alpha``)."""
     from ..plants.simulate import Simulation, iter_simulations
     from ..progress import Progress
 

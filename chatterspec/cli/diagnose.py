@@ -52,11 +52,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "per route the realized false-alarm rate (Poisson interval), the detection delay per fault onset "
         "(median, 90th percentile), missed onsets, isolation and the cost.",
     )
-    p.add_argument("name", metavar="NAME", help="scenario (e.g. eha4-leak-timeline, eha-leak-minor --onset 2)")
+    p.add_argument(
+        "name", metavar="NAME", help="scenario (e.g. eha4-leak-timeline, eha-leak-minor --onset 2)"
+    )
     p.add_argument(
         "--methods",
         default=None,
-        help=f"comma-separated subset of {','.join(ALL_METHODS)} (default: every method the scenario supports)",
+        help=f"comma-separated subset of {','.join(ALL_METHODS)} (default: every one the scenario supports)",
     )
     p.add_argument("--runs", type=positive_int_arg, default=10, help="realizations (default 10)")
     p.add_argument("--seed", type=nonnegative_int_arg, default=0, help="random seed (default 0)")
@@ -66,7 +68,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="X",
         help="false-alarm budget of every route: alarm starts per hour of healthy time (default 1)",
     )
-    p.add_argument("--rule", choices=rule_names(), default="cusum", help="alarm rule of every route (default cusum)")
+    p.add_argument(
+        "--rule", choices=rule_names(), default="cusum", help="alarm rule of every route (default cusum)"
+    )
     p.add_argument(
         "--persistence",
         nargs=2,
@@ -87,7 +91,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=float,
         default=None,
         metavar="L",
-        help="innovation route: covariance inflation L > 1 of its CUSUM likelihood ratio (default 2)",
+        help="innovation route: covariance inflation L > 1 of its CUSUM likelihood ratio (default 1.5)",
     )
     p.add_argument(
         "--onset",
@@ -129,7 +133,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the results do not depend on it)",
     )
     p.add_argument("--figure", metavar="FILE", default=None, help="write the delay-vs-false-alarms figure")
-    p.add_argument("--per-record", action="store_true", help="each route with its own rule (the former table)")
+    p.add_argument(
+        "--per-record", action="store_true", help="each route with its own rule (the former table)"
+    )
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--record", metavar="FILE.rrd", default=None, help="write realization 0 to a Rerun file")
@@ -152,7 +158,9 @@ def _methods(text: str | None, sc: object, per_record: bool) -> tuple[str, ...]:
         raise ParameterError(f"--methods takes a comma-separated subset of {','.join(ALL_METHODS)}; got none")
     for name in names:
         if name not in ALL_METHODS:
-            raise ParameterError(f"--methods takes a comma-separated subset of {','.join(ALL_METHODS)}; got {name!r}")
+            raise ParameterError(
+                f"--methods takes a comma-separated subset of {','.join(ALL_METHODS)}; got {name!r}"
+            )
         if name not in allowed:
             raise ParameterError("--methods innovation runs at a false-alarm budget only (drop --per-record)")
         why = unsupported_reason(sc, name)
@@ -192,7 +200,9 @@ def _settings(args: argparse.Namespace) -> object:
             raise ParameterError("--persistence K N applies to --rule persistence only")
         k, n = args.persistence
         if k > n:
-            raise ParameterError(f"--persistence K N needs K <= N (K of the last N steps); got K = {k}, N = {n}")
+            raise ParameterError(
+                f"--persistence K N needs K <= N (K of the last N steps); got K = {k}, N = {n}"
+            )
         params = (("k", k), ("n", n))
     if not (args.warmup >= 0 and args.warmup < float("inf")):
         raise ParameterError(f"--warmup must be a finite number of seconds >= 0; got {args.warmup!r}")
@@ -266,13 +276,23 @@ def run(args: argparse.Namespace) -> int:
         from ..figures.plot_diagnosis import delay_far_figure
         from ..figures.plot_studies import save
 
-        title = f"{sc.name}: {args.runs} runs, {args.rule} rule at {settings.budget_per_hour:g} false alarm(s)/h"  # type: ignore[attr-defined]
+        title = (
+            f"{sc.name}: {args.runs} runs, {args.rule} rule at {settings.budget_per_hour:g} false alarm(s)/h"  # type: ignore[attr-defined]
+        )
         figure = outputs.write("--figure", args.figure, save, delay_far_figure(results, title), args.figure)
     if args.record is not None:
         from ..online.diagnosis_log import record_budget_diagnosis
 
         recording = outputs.write(
-            "--record", args.record, record_budget_diagnosis, args.record, sc, args.seed, routes, results, threshold
+            "--record",
+            args.record,
+            record_budget_diagnosis,
+            args.record,
+            sc,
+            args.seed,
+            routes,
+            results,
+            threshold,
         )
     if args.json:
         print_json(
@@ -301,7 +321,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_budget_table(sc: object, args: argparse.Namespace, settings: object, results: list, wall: float) -> None:
+def _print_budget_table(
+    sc: object, args: argparse.Namespace, settings: object, results: list, wall: float
+) -> None:
     from ..figures.plot_diagnosis import budget_rows
 
     print(

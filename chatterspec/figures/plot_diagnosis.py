@@ -162,14 +162,10 @@ def _rate(v: float) -> str:
 
 def _budget_isolation(o: object) -> str:
     iso = o.isolated  # type: ignore[attr-defined]
-    if not iso:
-        return "-"
-    parts = ", ".join(f"{k} {v}" for k, v in sorted(iso.items(), key=lambda kv: -kv[1]))
-    if o.correct is None:  # type: ignore[attr-defined]
+    parts = ", ".join(f"{k} {v}" for k, v in sorted(iso.items(), key=lambda kv: -kv[1])) or "-"
+    if o.true_label is None:  # type: ignore[attr-defined]
         return parts
-    return (
-        f"{parts}; {o.true_label} after {_ms(o.isolation_median_s)}/{_ms(o.isolation_p90_s)} ms"  # type: ignore[attr-defined]
-    )
+    return f"{parts}; {o.true_label} after {_ms(o.isolation_median_s)}/{_ms(o.isolation_p90_s)} ms"  # type: ignore[attr-defined]
 
 
 def budget_rows(results: Sequence[object]) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
@@ -221,6 +217,8 @@ def delay_far_figure(results: Sequence[object], title: str = "") -> Figure:
     per hour of the healthy calibration streams at that threshold (thresholds without a start there are
     not drawn: their rate is below what the streams resolve, marked by the dotted line of one start
     in the calibration hours). The star is the threshold calibrated to the budget (vertical line).
+    Delays are over the runs not in alarm before the onset; an onset met in alarm by every run (a
+    second fault) has no panel.
 
     Parameters
     ----------
@@ -237,11 +235,17 @@ def delay_far_figure(results: Sequence[object], title: str = "") -> Figure:
     import matplotlib.pyplot as plt
 
     results = list(results)
-    n_on = max((len(r.onsets) for r in results), default=1)  # type: ignore[attr-defined]
-    fig, axes = plt.subplots(1, n_on, figsize=(5.2 * n_on, 4.2), squeeze=False, sharey=True)
+    n_on = max((len(r.onsets) for r in results), default=0)  # type: ignore[attr-defined]
+    # an onset that every run meets already in alarm (a second fault) has no delay to draw
+    panels = [
+        i
+        for i in range(n_on)
+        if any(i < len(r.onsets) and np.isfinite(r.curve["delay_median_s"][i]).any() for r in results)  # type: ignore[attr-defined]
+    ] or [0]
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.6 * len(panels), 4.4), squeeze=False, sharey=True)
     budget = results[0].budget_per_hour if results else 1.0  # type: ignore[attr-defined]
-    for i in range(n_on):
-        ax = axes[0, i]
+    for col, i in enumerate(panels):
+        ax = axes[0, col]
         for r in results:
             if i >= len(r.onsets):  # type: ignore[attr-defined]
                 continue
@@ -267,7 +271,7 @@ def delay_far_figure(results: Sequence[object], title: str = "") -> Figure:
         onset = next((r.onsets[i].onset_s for r in results if i < len(r.onsets)), float("nan"))  # type: ignore[attr-defined]
         ax.set_title(f"onset at {onset:g} s", fontsize=10)
         ax.set_xlabel("false alarms per hour (healthy calibration streams)")
-        if i == 0:
+        if col == 0:
             ax.set_ylabel("detection delay [s] (median; shaded to p90)")
         ax.grid(True, which="both", alpha=0.3)
     axes[0, 0].legend(fontsize=8, loc="best")

@@ -127,7 +127,8 @@ def record_diagnosis(
                 )
             )
         route_views = [
-            _log_route(sinks, rr, rrb, method, series, time_range) for method, series in (route_series or {}).items()
+            _log_route(sinks, rr, rrb, method, series, time_range)
+            for method, series in (route_series or {}).items()
         ]
         parts: list[Any] = []
         if route_views:
@@ -166,7 +167,9 @@ def _log_route(sinks: Any, rr: Any, rrb: Any, method: str, series: tuple, time_r
             s.send_columns(
                 ent, indexes=[rr.TimeColumn(TIMELINE, duration=ns)], columns=rr.Scalars.columns(scalars=vals)
             )
-    return rrb.TimeSeriesView(origin=f"/routes/{method}", name=f"{method}: {name} and threshold", time_ranges=time_range)
+    return rrb.TimeSeriesView(
+        origin=f"/routes/{method}", name=f"{method}: {name} and threshold", time_ranges=time_range
+    )
 
 
 def record_budget_diagnosis(
@@ -218,7 +221,7 @@ def record_budget_diagnosis(
             rs = route.scores(sim)
             score, times = rs.score, rs.times
         blk = run_rule(rule, score)
-        stat = blk.statistic[0].max(axis=-1) if rule.name != "frame" else blk.statistic[0].max(axis=-1)
+        stat = blk.statistic[0].max(axis=-1)  # the largest over the channels (the route's alarm is any)
         label = {"frame": "score", "persistence": "exceedances in window", "cusum": "CUSUM g"}[rule.name]
         series[method] = (times, stat, rule.threshold, label)
     return record_diagnosis(

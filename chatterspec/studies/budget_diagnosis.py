@@ -73,6 +73,8 @@ class BudgetSettings:
         Healthy realizations of the calibration streams.
     confidence : float
         Level of the realized rate's Poisson interval.
+    calibration_confidence : float
+        Level of the calibration's threshold and rate intervals (jackknife).
     """
 
     budget_per_hour: float = 1.0
@@ -81,13 +83,16 @@ class BudgetSettings:
     warmup_s: float = DEFAULT_WARMUP_S
     calibration_runs: int = 500
     confidence: float = 0.99
+    calibration_confidence: float = 0.95
 
     def __post_init__(self) -> None:
         from ..detection.alarm_calibration import check_budget
 
         object.__setattr__(self, "budget_per_hour", check_budget(self.budget_per_hour, "budget_per_hour"))
         if not (math.isfinite(self.warmup_s) and self.warmup_s >= 0):
-            raise ParameterError(f"the warm-up must be a finite number of seconds >= 0; got {self.warmup_s!r}")
+            raise ParameterError(
+                f"the warm-up must be a finite number of seconds >= 0; got {self.warmup_s!r}"
+            )
 
     def make_rule(self, route: Any, threshold: float = float("inf")) -> Any:
         """The rule for ``route`` at ``threshold`` (route defaults, then the common parameters)."""
@@ -276,7 +281,9 @@ def diagnose_at_budget(
         scores = np.concatenate(healthy.pop(m))
         cal_hours[m] = scores.shape[0] * scores.shape[1] * route.step_s / 3600.0
         base = settings.make_rule(route)
-        h_star, info = _calibrate(base, scores, settings.budget_per_hour, 3600.0 / route.step_s, 0.95)
+        h_star, info = _calibrate(
+            base, scores, settings.budget_per_hour, 3600.0 / route.step_s, settings.calibration_confidence
+        )
         grid = np.append(threshold_grid(base, scores, h_star), h_star)
         rules[m], grids[m] = base.with_threshold(h_star), grid
         far[m] = _count_starts(base, scores, grid)
@@ -291,11 +298,13 @@ def diagnose_at_budget(
     for m, route in routes.items():
         times = route.step_times()
         geos[m] = route_geometry(
-            scenario, times, route.step_s, warm, getattr(route, "labels", None) if m in ("smm", "imm") else None
+            scenario,
+            times,
+            route.step_s,
+            warm,
+            getattr(route, "labels", None) if m in ("smm", "imm") else None,
         )
-    merged = run_study(
-        BudgetStudy(scenario, routes, rules, grids, geos), runs, seed, label="diagnose", **ex
-    )
+    merged = run_study(BudgetStudy(scenario, routes, rules, grids, geos), runs, seed, label="diagnose", **ex)
     samples = runs * (scenario.n_samples - 1)
     return [
         summarize_route(

@@ -25,6 +25,19 @@ def _f(v: float) -> float | None:
     return float(v) if np.isfinite(v) else None
 
 
+def _clean(x: Any) -> Any:
+    """JSON-ready copy: arrays to lists, NaN and inf to None (recursively)."""
+    if isinstance(x, dict):
+        return {k: _clean(v) for k, v in x.items()}
+    if isinstance(x, list | tuple | np.ndarray):
+        return [_clean(v) for v in x]
+    if isinstance(x, float | np.floating):
+        return _f(float(x))
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
+
+
 _BIG = 1e300
 
 
@@ -49,15 +62,16 @@ class OnsetFigures:
     onset_s : float
         Onset time (s).
     detected : int
-        Runs in alarm at some step of the onset's window (delays are over these).
+        Runs not in alarm before the onset that are in alarm at some step of its window.
     missed : int
-        Runs never in alarm in the window.
+        Runs not in alarm before the onset and never in alarm in its window.
     in_alarm_at_onset : int
-        Runs already in alarm on the last step before the onset (their delay is 0 or one step: the
-        onset is not a new detection for them).
+        Runs already in alarm on the last step before the onset: the onset is no new detection for
+        them (no delay).
     delay_median_s, delay_p90_s : float
-        Median and 90th percentile over the runs of the delay (s): time of the first step in alarm
-        minus the onset; a missed onset counts as an infinite delay.
+        Median and 90th percentile of the delay (s) over the runs not in alarm before the onset: time
+        of the first step in alarm minus the onset; a missed onset counts as an infinite delay (NaN:
+        every run was in alarm before).
     true_label : str or None
         The new mode (mode routes) a correct isolation names.
     isolated : dict
@@ -153,26 +167,25 @@ class RouteBudget:
     curve: dict[str, Any] = field(repr=False)
 
     def describe(self) -> dict[str, Any]:
-        """JSON-ready summary (NaN and inf -> None)."""
-        return {
-            "method": self.method,
-            "rule": dict(self.rule),
-            "budget_per_hour": self.budget_per_hour,
-            "score": dict(self.score),
-            "runs": self.runs,
-            "healthy_hours": self.healthy_hours,
-            "false_alarms": self.false_alarms,
-            "false_alarm_rate_per_hour": _f(self.rate_per_hour),
-            f"false_alarm_rate_ci{round(100 * self.confidence)}": [_f(v) for v in self.rate_ci],
-            "budget_inside_interval": self.budget_inside,
-            "calibration": dict(self.calibration),
-            "onsets": [o.describe() for o in self.onsets],
-            "steps_per_second": self.steps_per_second,
-            "curve": {
-                k: ([[_f(x) for x in row] for row in v] if k in ("delay_median_s", "delay_p90_s") else v)
-                for k, v in self.curve.items()
-            },
-        }
+        """JSON-ready summary (NaN and inf -> None: a missed onset's delay, an uncalibrated threshold)."""
+        return _clean(
+            {
+                "method": self.method,
+                "rule": dict(self.rule),
+                "budget_per_hour": self.budget_per_hour,
+                "score": dict(self.score),
+                "runs": self.runs,
+                "healthy_hours": self.healthy_hours,
+                "false_alarms": self.false_alarms,
+                "false_alarm_rate_per_hour": self.rate_per_hour,
+                f"false_alarm_rate_ci{round(100 * self.confidence)}": list(self.rate_ci),
+                "budget_inside_interval": self.budget_inside,
+                "calibration": dict(self.calibration),
+                "onsets": [o.describe() for o in self.onsets],
+                "steps_per_second": self.steps_per_second,
+                "curve": dict(self.curve),
+            }
+        )
 
 
 def _delays(first: np.ndarray, geo: Any, i: int) -> np.ndarray:
@@ -181,6 +194,12 @@ def _delays(first: np.ndarray, geo: Any, i: int) -> np.ndarray:
     k = geo.lo[i] + np.maximum(first, 0)
     d = t[np.minimum(k, t.size - 1)] - geo.onsets[i]
     return np.where(first >= 0, np.maximum(d, 0.0), np.nan)
+
+
+def _quantiles_fresh(d: np.ndarray, before: np.ndarray) -> tuple[float, float]:
+    """:func:`_quantiles` of the delays of the runs not in alarm before the onset (NaN if none)."""
+    fresh = d[~before]
+    return _quantiles(fresh) if fresh.size else (float("nan"), float("nan"))
 
 
 def summarize_route(
@@ -242,11 +261,12 @@ def summarize_route(
     labels = tuple(route.labels)
     for i, onset in enumerate(geo.onsets):
         d = _delays(sweep["first"][i], geo, i)  # (G, runs)
-        med_p90 = [_quantiles(d[g]) for g in range(G)]
+        before = sweep["before"][i]  # (G, runs)
+        med_p90 = [_quantiles_fresh(d[g], before[g]) for g in range(G)]
         curve_med.append([m for m, _ in med_p90])
         curve_p90.append([p for _, p in med_p90])
-        curve_missed.append([int(np.count_nonzero(~np.isfinite(d[g]))) for g in range(G)])
-        det = np.isfinite(d[-1])
+        curve_missed.append([int(np.count_nonzero(~np.isfinite(d[g]) & ~before[g])) for g in range(G)])
+        det = np.isfinite(d[-1]) & ~before[-1]
         lab = sweep["label"][i][-1]
         iso = {labels[j]: int(np.count_nonzero(lab[det] == j)) for j in np.unique(lab[det]).tolist()}
         true = geo.true_labels[i]
@@ -261,8 +281,8 @@ def summarize_route(
             OnsetFigures(
                 onset_s=float(onset),
                 detected=int(det.sum()),
-                missed=int(runs - det.sum()),
-                in_alarm_at_onset=int(sweep["in_alarm"][i][-1]),
+                missed=int(np.count_nonzero(~np.isfinite(d[-1]) & ~before[-1])),
+                in_alarm_at_onset=int(np.count_nonzero(before[-1])),
                 delay_median_s=med_p90[-1][0],
                 delay_p90_s=med_p90[-1][1],
                 true_label=true,

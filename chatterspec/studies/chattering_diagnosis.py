@@ -128,7 +128,14 @@ def calibrate_for_diagnosis(
 
     root = np.random.SeedSequence([int(seed), CALIBRATION_SALT])
     return calibrate(
-        healthy_version(sc), alpha, runs, root, config=config, progress=progress, workers=workers, scheduler=scheduler
+        healthy_version(sc),
+        alpha,
+        runs,
+        root,
+        config=config,
+        progress=progress,
+        workers=workers,
+        scheduler=scheduler,
     )
 
 

@@ -18,10 +18,15 @@ Conventions
       start-up transient of a filter started from ``x0 = 0``, uniform mode probabilities, is not a
       false alarm a person monitoring for hours would see).
     * Healthy time is the time before the first fault onset (after the warm-up); a step is healthy
-      when its score is known before the onset (a frame whose last sample precedes it).
+      when its score is known by the onset (a frame whose last sample is at or before it: the data
+      of time ``t`` come from the plant active before ``t``).
+    * Onset ``a`` (next change ``b``) is detected at the first step in alarm known in ``(a, b]``.
     * A route is in alarm when any of its score channels is; its alarm starts are counted per
       channel (all channels together, as the monitor's budget counts them).
     * An onset's detection window ends at the next change of the true plant (or the record's end).
+    * A run already in alarm on the last step before an onset (a false alarm still active, or an
+      earlier fault's alarm) has no new detection there: its delay is not defined (the conditional
+      delay of sequential detection, given no alarm at the change) and it is counted apart.
 """
 
 from __future__ import annotations
@@ -67,11 +72,11 @@ class RouteGeometry:
     times : (steps,) array
         Step times (s) from ``first`` on.
     healthy : (steps,) bool array
-        Steps known before the first onset.
+        Steps known by the first onset.
     onsets : tuple of float
         Onset times (s).
     lo, hi : tuple of int
-        Per onset, the detection window ``[lo, hi)`` in steps (from ``first``).
+        Per onset, the detection window: steps ``lo .. hi - 1`` (from ``first``), known in ``(a, b]``.
     true_labels : tuple of str or None
         Per onset, the label a correct isolation names (the new mode), when the route isolates modes.
     step_s : float
@@ -92,7 +97,9 @@ class RouteGeometry:
         return int(np.count_nonzero(self.healthy))
 
 
-def route_geometry(sc: Any, times: np.ndarray, step_s: float, warmup: float, modes: tuple[str, ...] | None = None) -> RouteGeometry:
+def route_geometry(
+    sc: Any, times: np.ndarray, step_s: float, warmup: float, modes: tuple[str, ...] | None = None
+) -> RouteGeometry:
     """Healthy steps and onset windows of a route whose step ``j`` is known at ``times[j]`` (s).
 
     Parameters
@@ -119,9 +126,12 @@ def route_geometry(sc: Any, times: np.ndarray, step_s: float, warmup: float, mod
         raise ParameterError(f"the warm-up ({warmup:g} s) leaves no step of the record to diagnose")
     ons = onsets_of(sc)
     t_first = ons[0][0] if ons else float("inf")
-    healthy = t < t_first - 1e-9 * step_s
-    lo = tuple(int(np.searchsorted(t, a - 1e-9 * step_s, side="left")) for a, _, _ in ons)
-    hi = tuple(int(np.searchsorted(t, b - 1e-9 * step_s, side="left")) for _, b, _ in ons)
+    # the score known at t depends on the data up to t, which the plant active before t produced:
+    # a step is healthy when t <= the first onset, and onset a's window (next change b) is (a, b]
+    eps = 1e-9 * step_s
+    healthy = t <= t_first + eps
+    lo = tuple(int(np.searchsorted(t, a + eps, side="right")) for a, _, _ in ons)
+    hi = tuple(int(np.searchsorted(t, b + eps, side="right")) for _, b, _ in ons)
     labels: list[str | None] = []
     for _, _, i in ons:
         name = None
@@ -161,7 +171,8 @@ def sweep_chunk(
     dict
         ``healthy_starts`` (G,) int; per onset ``first`` (G, runs) int step in the window (-1: none),
         ``label`` (G, runs) int label at detection (-1), ``iso_first`` (G, runs) first step in alarm
-        with the correct label (-1; mode routes); ``in_alarm`` (G,) runs in alarm before the onset.
+        with the correct label (-1; mode routes), ``before`` (G, runs) bool: in alarm on the last step
+        before the onset.
     """
     from ..detection.alarms import run_rule
 
@@ -171,7 +182,7 @@ def sweep_chunk(
     runs = s.shape[0]
     if s.shape[1] != g0.times.size:
         raise ParameterError(
-            f"every chunk must have the scenario's record length: {s.shape[1]} steps, expected {g0.times.size}"
+            f"every chunk must have the scenario's record length: {s.shape[1]} steps, not {g0.times.size}"
         )
     G = len(thresholds)
     n_on = len(g0.onsets)
@@ -181,7 +192,7 @@ def sweep_chunk(
         "first": [np.full((G, runs), -1, dtype=np.int32) for _ in range(n_on)],
         "label": [np.full((G, runs), -1, dtype=np.int16) for _ in range(n_on)],
         "iso_first": [np.full((G, runs), -1, dtype=np.int32) for _ in range(n_on)],
-        "in_alarm": [np.zeros(G, dtype=np.int64) for _ in range(n_on)],
+        "before": [np.zeros((G, runs), dtype=bool) for _ in range(n_on)],
     }
     true_idx = [labels.index(x) if x is not None and x in labels else -1 for x in g0.true_labels]
     rows = np.arange(runs)
@@ -198,7 +209,7 @@ def sweep_chunk(
             first = np.where(hit, np.argmax(win, axis=1), -1)
             out["first"][i][g] = first
             if lo > 0:
-                out["in_alarm"][i][g] = int(np.count_nonzero(active[:, lo - 1]))
+                out["before"][i][g] = active[:, lo - 1]
             k = lo + np.maximum(first, 0)
             if lab is not None:
                 at = lab[rows, k]
@@ -215,8 +226,10 @@ def merge_sweeps(acc: dict[str, Any] | None, part: dict[str, Any]) -> dict[str, 
     """Fold one chunk's :func:`sweep_chunk` into the accumulator (runs concatenated in chunk order)."""
     if acc is None:
         return part
-    out = {"runs": acc["runs"] + part["runs"], "healthy_starts": acc["healthy_starts"] + part["healthy_starts"]}
-    for key in ("first", "label", "iso_first"):
+    out = {
+        "runs": acc["runs"] + part["runs"],
+        "healthy_starts": acc["healthy_starts"] + part["healthy_starts"],
+    }
+    for key in ("first", "label", "iso_first", "before"):
         out[key] = [np.concatenate([a, b], axis=1) for a, b in zip(acc[key], part[key], strict=True)]
-    out["in_alarm"] = [a + b for a, b in zip(acc["in_alarm"], part["in_alarm"], strict=True)]
     return out

@@ -186,7 +186,8 @@ class InnovationRoute:
         Any scenario; the filter runs on its nominal model (whose ``Q`` and ``R`` are the scenario's
         filter tuning) from the filter settings' ``x0``, ``P0`` (default zeros and ``10 Q``).
     inflation : float
-        ``L > 1`` of the covariance-inflation likelihood ratio (default 2).
+        ``L > 1`` of the covariance-inflation likelihood ratio (default
+        :data:`~chatterspec.detection.route_scores.DEFAULT_INFLATION`).
     cap : bool
         Cap NIS at the chi-square quantile of tail :data:`~chatterspec.detection.route_scores.NIS_CAP_TAIL`
         (the CUSUM's robust form; irrelevant to the frame and persistence rules, whose thresholds
@@ -221,13 +222,6 @@ class InnovationRoute:
         """CUSUM drift ``(m/2) log L``: the constant term of the likelihood ratio."""
         return {"drift": self.drift} if rule == "cusum" else {}
 
-    def for_rule(self, rule: str) -> InnovationRoute:
-        """This route with the NIS cap for the CUSUM rule only."""
-        want = rule == "cusum"
-        if (self.cap is not None) == want:
-            return self
-        return InnovationRoute(self.scenario, self.inflation, cap=want)
-
     def describe(self) -> dict[str, Any]:
         return {
             "score": f"(1 - 1/L) min(NIS, cap) / 2 of the {self.kind}",
@@ -252,7 +246,7 @@ class InnovationRoute:
         return nis, chan
 
     def scores(self, sim: Any) -> RouteScores:
-        """Score stream of one chunk: times ``t[1:]``, ``(1 - 1/L) min(NIS, cap) / 2`` ``(runs, T - 1, 1)``."""
+        """Score stream of one chunk: times ``t[1:]``, ``(1 - 1/L) min(NIS, cap) / 2`` (runs, T - 1, 1)."""
         t0 = time.perf_counter()
         nis, chan = self.nis(sim)
         score = inflation_score(nis, self.inflation, self.cap)[..., None]
