@@ -92,7 +92,7 @@ def test_sweep_agrees_with_the_rule_run_by_hand() -> None:
 def _strip(doc: dict) -> dict:
     doc = json.loads(json.dumps(doc))
     doc.pop("steps_per_second")
-    doc["calibration"].pop("seconds_all_routes")
+    doc.pop("timings_s")
     return doc
 
 
@@ -215,3 +215,23 @@ def test_command_json_figure_and_recording(tmp_path, capsys) -> None:  # type: i
     assert main(argv[:-4]) == 0
     out = capsys.readouterr().out
     assert "cusum rule" in out and "30 false alarm(s) per hour" in out and "innovation" in out
+
+
+def test_innovation_route_off_the_chi_square_law_is_scaled_on_healthy_runs() -> None:
+    import scipy.stats
+
+    from chatterspec.studies.chattering_diagnosis import healthy_version
+
+    assert InnovationRoute(with_onset(cs.scenario("eha-leak-minor"), 2.0)).matched  # KF, plant Q and R
+    assert not InnovationRoute(cs.scenario("eha4-leak-timeline")).matched  # EKF on the nonlinear plant
+    detc = cs.scenario("detc-uncertain")
+    route = InnovationRoute(detc, cap=False)  # uncapped: the score is proportional to NIS
+    assert not route.matched  # filter Q = diag(1, 10, 100) against a noise of (0.05, 0.1, 0.1)^2
+    sim = cs.simulate(healthy_version(detc), runs=8, seed=1)
+    scaled = route.with_healthy_scale(sim)
+    nis, _ = route.nis(sim)
+    want = np.median(nis[:, nis.shape[1] // 10 :]) / scipy.stats.chi2.median(1)
+    assert scaled.scale == pytest.approx(want, rel=1e-12) and scaled.scale < 0.05
+    np.testing.assert_allclose(
+        scaled.scores(sim).score[..., 0], route.scores(sim).score[..., 0] / scaled.scale
+    )

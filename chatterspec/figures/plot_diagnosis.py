@@ -217,8 +217,8 @@ def delay_far_figure(results: Sequence[object], title: str = "") -> Figure:
     per hour of the healthy calibration streams at that threshold (thresholds without a start there are
     not drawn: their rate is below what the streams resolve, marked by the dotted line of one start
     in the calibration hours). The star is the threshold calibrated to the budget (vertical line).
-    Delays are over the runs not in alarm before the onset; an onset met in alarm by every run (a
-    second fault) has no panel.
+    Delays are over the runs not in alarm before the onset; an onset whose delay no route defines at
+    the budget (every run meets it in alarm: a second fault) has no panel.
 
     Parameters
     ----------
@@ -236,11 +236,11 @@ def delay_far_figure(results: Sequence[object], title: str = "") -> Figure:
 
     results = list(results)
     n_on = max((len(r.onsets) for r in results), default=0)  # type: ignore[attr-defined]
-    # an onset that every run meets already in alarm (a second fault) has no delay to draw
+    # an onset that the runs meet already in alarm at the budget (a second fault) has no delay to draw
     panels = [
         i
         for i in range(n_on)
-        if any(i < len(r.onsets) and np.isfinite(r.curve["delay_median_s"][i]).any() for r in results)  # type: ignore[attr-defined]
+        if any(i < len(r.onsets) and np.isfinite(r.onsets[i].delay_median_s) for r in results)  # type: ignore[attr-defined]
     ] or [0]
     fig, axes = plt.subplots(1, len(panels), figsize=(5.6 * len(panels), 4.4), squeeze=False, sharey=True)
     budget = results[0].budget_per_hour if results else 1.0  # type: ignore[attr-defined]

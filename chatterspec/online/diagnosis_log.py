@@ -191,7 +191,8 @@ def record_budget_diagnosis(
     seed : int
         Seed of the diagnosed runs (realization 0 is simulated again, identical).
     routes : dict
-        Method -> route (:mod:`chatterspec.studies.routes`).
+        Method -> route (:mod:`chatterspec.studies.routes`); the results' own routes (as diagnosed,
+        e.g. with a healthy NIS scale) are used where they carry one.
     results : list of RouteBudget
         Their results (the calibrated rules).
     threshold : Threshold or None
@@ -210,6 +211,7 @@ def record_budget_diagnosis(
     series: dict = {}
     by_method = {r.method: r for r in results}
     for method, route in routes.items():
+        route = by_method[method].route or route
         rule = rule_from_dict(by_method[method].rule)
         if method in ("smm", "imm"):
             x0, P0 = route._x0, route._P0

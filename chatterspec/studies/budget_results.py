@@ -148,6 +148,13 @@ class RouteBudget:
     curve : dict
         ``thresholds``, ``far_per_hour`` (calibration streams), ``far_count``, and per onset
         ``delay_median_s``, ``delay_p90_s``, ``missed`` at each threshold.
+    route : route object
+        The route as diagnosed (e.g. an innovation route with its healthy NIS scale).
+    timings : dict
+        Seconds (summed over worker processes) per stage: ``healthy_scores_s`` (the route's scores on
+        the calibration streams), ``calibrate_s`` (the layer's calibration), ``curve_s`` (starts at
+        every threshold of the grid), ``scores_s`` (scores of the diagnosed runs), ``sweep_s`` (the rule
+        at every threshold on them).
     """
 
     method: str
@@ -165,6 +172,8 @@ class RouteBudget:
     onsets: tuple[OnsetFigures, ...]
     steps_per_second: float
     curve: dict[str, Any] = field(repr=False)
+    timings: dict[str, float] = field(default_factory=dict)
+    route: Any = field(default=None, repr=False)
 
     def describe(self) -> dict[str, Any]:
         """JSON-ready summary (NaN and inf -> None: a missed onset's delay, an uncalibrated threshold)."""
@@ -183,6 +192,7 @@ class RouteBudget:
                 "calibration": dict(self.calibration),
                 "onsets": [o.describe() for o in self.onsets],
                 "steps_per_second": self.steps_per_second,
+                "timings_s": dict(self.timings),
                 "curve": dict(self.curve),
             }
         )
@@ -216,6 +226,7 @@ def summarize_route(
     seconds: float,
     samples: int,
     confidence: float,
+    timings: dict[str, float] | None = None,
 ) -> RouteBudget:
     """:class:`RouteBudget` from the merged sweep (the last threshold is the calibrated one).
 
@@ -245,6 +256,8 @@ def summarize_route(
         Realization-samples diagnosed.
     confidence : float
         Level of the Poisson interval.
+    timings : dict, optional
+        Seconds per stage (:attr:`RouteBudget.timings`).
     """
     runs = sweep["runs"]
     G = len(thresholds)
@@ -318,4 +331,6 @@ def summarize_route(
             "delay_p90_s": curve_p90,
             "missed": curve_missed,
         },
+        timings=dict(timings or {}),
+        route=route,
     )
