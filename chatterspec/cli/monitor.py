@@ -24,6 +24,7 @@ import warnings
 from pathlib import Path
 
 from ..errors import ParameterError
+from ._alarm_args import add_alarm_args, alarm_choice
 from ._common import alpha_arg, band_edge_arg, band_from_args, check_record_path, live_arg, positive_int_arg
 
 
@@ -93,8 +94,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="stream to a running viewer (rerun+http://host:port/proxy) or 'spawn' one",
     )
     p.add_argument(
-        "--alpha", type=alpha_arg, default=None, help="per-frame false-alarm probability (default 0.001)"
+        "--alpha",
+        type=alpha_arg,
+        default=None,
+        help="per-frame false-alarm probability: the frame rule at this level, every frame a test (the "
+        "rule before alarm budgets; ~42 false alarms per hour at 0.001 on 3 channels). Only with --rule "
+        "frame; default: the [detector] alpha of the model file (0.001), which then only sets the "
+        "per-frame verdict drawn in the recording",
     )
+    add_alarm_args(p)
     p.add_argument(
         "--band",
         nargs=2,
@@ -174,6 +182,8 @@ def run(args: argparse.Namespace) -> int:
         psi=tuple(spec.psi.tolist()),
         band=band_from_args(args) or det.get("band"),
     )
+    choice = alarm_choice(args, alpha_given=args.alpha is not None)
+    cal = None
     if args.calibration is not None:
         from ..studies.calibration import load_calibration
 
@@ -184,6 +194,8 @@ def run(args: argparse.Namespace) -> int:
             f"(alpha {cal.alpha:g} per frame, {cal.runs} healthy runs)",
             file=sys.stderr,
         )
+    settings = _alarm_settings(args, choice, spec.model, settings, cal)
+    print(f"chatterspec monitor: {_alarm_line(settings)}", file=sys.stderr)
     if stream:
         return _run_stream(args, spec, settings, jsonl, human)
 
@@ -234,7 +246,12 @@ def run(args: argparse.Namespace) -> int:
             f"shorter [detector] window_s in {args.model}"
         )
     if args.json:
-        doc = {"model": str(args.model), "data": str(args.data), **summary.to_dict()}
+        doc = {
+            "model": str(args.model),
+            "data": str(args.data),
+            "alarm": alarm_doc(settings),
+            **summary.to_dict(),
+        }
         if no_frame is not None:
             doc["notes"] = [*doc["notes"], no_frame]
         if jsonl:
@@ -248,8 +265,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         n = sum(e.kind == "fault-start" for e in summary.events)
         print(
-            f"{summary.duration_s:.2f} s of data, {summary.n_frames} frames, {n} fault start(s); "
-            f"{summary.wall_s:.2f} s wall",
+            f"{summary.duration_s:.2f} s of data, {summary.n_frames} frames, {n} fault start(s) "
+            f"[{_alarm_short(settings)}]; {summary.wall_s:.2f} s wall",
             file=human,
         )
         if summary.path is not None:
@@ -328,7 +345,7 @@ def _run_stream(args: argparse.Namespace, spec: object, settings: object, jsonl:
             signal.signal(signal.SIGINT, signal.default_int_handler)
             signal.signal(signal.SIGTERM, previous)
     try:
-        _report(args, summary, jsonl, human)
+        _report(args, summary, jsonl, human, settings)
     except BrokenPipeError:
         _quiet_stdout()
     if error is not None:
@@ -344,10 +361,11 @@ def _quiet_stdout() -> None:
     os.dup2(devnull, sys.stdout.fileno())
 
 
-def _report(args: argparse.Namespace, summary: object, jsonl: bool, human: object) -> None:
+def _report(args: argparse.Namespace, summary: object, jsonl: bool, human: object, settings: object) -> None:
     s = summary  # StreamSummary
     if args.json:
-        doc = {"model": str(args.model), "data": str(args.data), **s.to_dict()}  # type: ignore[attr-defined]
+        doc = {"model": str(args.model), "data": str(args.data), "alarm": alarm_doc(settings)}
+        doc.update(s.to_dict())  # type: ignore[attr-defined]
         if jsonl:
             _emit_line(json.dumps({"event": "summary", **doc}, allow_nan=False))
         else:
@@ -362,10 +380,84 @@ def _report(args: argparse.Namespace, summary: object, jsonl: bool, human: objec
     )
     print(
         f"{s.duration_s:.2f} s of data ({s.n_rows} rows), {s.n_frames} frames, "  # type: ignore[attr-defined]
-        f"{c['fault-start']} fault start(s), {c['gap']} gap(s), {c['restart']} restart(s), "
+        f"{c['fault-start']} fault start(s) [{_alarm_short(settings)}], {c['gap']} gap(s), "
+        f"{c['restart']} restart(s), "
         f"{c['bad-row']} bad row(s) skipped; {latency}; {s.wall_s:.2f} s wall; "  # type: ignore[attr-defined]
         f"stopped by {s.stopped_by}",  # type: ignore[attr-defined]
         file=human,
     )
     for rec in s.recordings:  # type: ignore[attr-defined]
         print(f"recording: {rec['path']} (open with `chatterspec replay {rec['path']}`)", file=human)
+
+
+def _alarm_settings(
+    args: argparse.Namespace, choice: object, model: object, settings: object, cal: object
+) -> object:
+    """The monitor's alarm rule: ``--alpha`` (the per-frame rule), a calibration file's, or set here."""
+    from ..studies.alarm_budget import IN_CALL_HOURS, alarm_settings
+
+    c = choice  # AlarmChoice
+    if args.alpha is not None:
+        return dataclasses.replace(settings, alpha=float(args.alpha))  # type: ignore[type-var]
+    file_alarm = getattr(cal, "alarm", None)
+    if file_alarm is not None:
+        from ._alarm_args import check_file_alarm
+
+        rc = check_file_alarm(c, file_alarm, args.calibration)  # type: ignore[arg-type]
+        return alarm_settings(model, settings, calibration=rc)
+    if cal is not None and not (c.explicit_rule or c.explicit_budget):  # type: ignore[attr-defined]
+        print(
+            f"chatterspec monitor: note: {args.calibration} holds no alarm calibration (made without "
+            f"--rule): the per-frame rule at its alpha {cal.alpha:g}",  # type: ignore[attr-defined]
+            file=sys.stderr,
+        )
+        return settings
+    hours = c.hours or IN_CALL_HOURS  # type: ignore[attr-defined]
+    return alarm_settings(
+        model,
+        settings,
+        c.rule,
+        c.budget,
+        hours=hours,
+        **c.parameters,  # type: ignore[attr-defined]
+    )
+
+
+def alarm_doc(settings: object) -> dict:
+    """The ``alarm`` entry of the JSON summary: rule, threshold, budget and how it was set."""
+    import math
+
+    b = getattr(settings, "budget", None)
+    rule = getattr(settings, "rule", None)
+    if rule is None:
+        a = float(settings.alpha)  # type: ignore[attr-defined]
+        return {
+            "rule": {"rule": "frame", "threshold": -math.log(a)},
+            "alpha": a,
+            "false_alarms_per_hour": None,
+            "calibration": None,
+        }
+    return {
+        "rule": rule.to_dict(),
+        "alpha": None,
+        "false_alarms_per_hour": None if b is None else b.false_alarms_per_hour,
+        "calibration": None if b is None else b.to_dict(),
+    }
+
+
+def _alarm_short(settings: object) -> str:
+    from ..online.monitor_types import alarm_label
+
+    rule = getattr(settings, "rule", None)
+    if rule is None:
+        return f"frame rule, per-frame alpha {settings.alpha:g}"  # type: ignore[attr-defined]
+    return alarm_label(rule.name, settings.false_alarms_per_hour)  # type: ignore[attr-defined]
+
+
+def _alarm_line(settings: object) -> str:
+    """One stderr line on the rule in use and where its threshold comes from."""
+    rule = getattr(settings, "rule", None)
+    if rule is None:
+        return f"alarms: {_alarm_short(settings)} (every frame a test)"
+    b = settings.budget  # type: ignore[attr-defined]
+    return f"alarms: {b.describe()}" if b is not None else f"alarms: {rule.describe()}"

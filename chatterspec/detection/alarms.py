@@ -145,8 +145,8 @@ class PersistenceRule:
     """
 
     threshold: float = float("inf")
-    k: int = 2
-    n: int = 3
+    k: int = 3
+    n: int = 5
     name: ClassVar[str] = "persistence"
 
     def __post_init__(self) -> None:
@@ -266,7 +266,7 @@ RULES: Mapping[str, RuleSpec] = MappingProxyType(
             "persistence",
             PersistenceRule,
             "alarm when k of the last n steps have a score >= h; ends after n clean steps",
-            {"k": 2, "n": 3},
+            {"k": 3, "n": 5},
             "exceedances in the last n steps",
             {"color": "#ff7f0e", "marker": "s", "linestyle": "--"},
         ),

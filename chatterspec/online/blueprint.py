@@ -10,6 +10,9 @@ if TYPE_CHECKING:
     pass
 
 __all__ = [
+    "ALARM_SCORE",
+    "ALARM_STATISTIC",
+    "ALARM_THRESHOLD",
     "CHATTERING",
     "MOST_SIGNIFICANT_HZ",
     "PEAK_HZ",
@@ -50,6 +53,13 @@ VERDICT = "/detection/verdict"
 PEAK_HZ = "/frequency/peak_hz"
 #: Tested bin with the largest ``S / threshold`` per channel (Hz), one row per frame.
 MOST_SIGNIFICANT_HZ = "/frequency/most_significant_hz"
+#: The frame score ``-log p`` (nats) per channel, one row per frame (see chatterspec.detection.frame_score).
+ALARM_SCORE = "/alarm/score"
+#: What the alarm rule compares with its threshold, per channel, one row per frame: the score (frame and
+#: persistence rules) or the CUSUM ``g``.
+ALARM_STATISTIC = "/alarm/statistic"
+#: The rule's threshold ``h`` (one series shared by every channel's view).
+ALARM_THRESHOLD = "/alarm/threshold"
 
 
 # --------------------------------------------------------------------------- blueprint
@@ -100,7 +110,11 @@ _GREY, _RED, _WHITE = [150, 150, 150], [230, 40, 40], [235, 235, 235]
 
 
 def series_styles(
-    channels: tuple[str, ...], units: tuple[str, ...], *, has_estimate: bool = False
+    channels: tuple[str, ...],
+    units: tuple[str, ...],
+    *,
+    has_estimate: bool = False,
+    alarm_statistic: str = "score -log p [nats]",
 ) -> list[tuple[str, Any]]:
     """Static styling of the time series: one ``SeriesLines`` / ``SeriesPoints`` per entity with one
     name and colour per series (series ``j`` = channel ``j``; ``/chattering/psi`` holds 2 series per
@@ -117,6 +131,8 @@ def series_styles(
         :data:`CHATTERING` holds the ``sat``-SVSF estimate after each measurement (``psi`` known).
         The names of the raw series are listed in either input mode; with the chattering given they
         name no series (the rows hold only the m chattering values).
+    alarm_statistic : str
+        Name of what :data:`ALARM_STATISTIC` holds (the rule's statistic, with its unit).
 
     Returns
     -------
@@ -167,6 +183,21 @@ def series_styles(
             ),
         ),
     ]
+    out += [
+        (
+            ALARM_SCORE,
+            rr.SeriesLines(
+                colors=[_GREY] * m, widths=[1.0] * m, names=[f"{c}: score -log p [nats]" for c in channels]
+            ),
+        ),
+        (
+            ALARM_STATISTIC,
+            rr.SeriesLines(
+                colors=cols, widths=[1.5] * m, names=[f"{c}: {alarm_statistic}" for c in channels]
+            ),
+        ),
+        (ALARM_THRESHOLD, rr.SeriesLines(colors=[_RED], widths=[1.0], names=["alarm threshold h"])),
+    ]
     for c in channels:
         style = rr.SeriesPoints(colors=[_RED], marker_sizes=[2.5], names=[f"{c}: fault (flagged frame)"])
         out.append((fault_entity(c), style))
@@ -181,6 +212,8 @@ def blueprint(
     band_hz: tuple[float, float] | None = None,
     span_s: tuple[float, float] | None = None,
     db_range: tuple[float, float] = (-5.0, 30.0),
+    alarm: str | None = None,
+    alarm_score: bool = False,
 ) -> Any:
     """The default layout: per channel (columns) chattering, spectrogram, detection statistic and peak
     frequency; below, the state lanes (true fault first, then one verdict lane per channel in channel
@@ -204,6 +237,11 @@ def blueprint(
         opens paused on the whole record.
     db_range : (float, float)
         Colour range of the spectrogram (dB re the frame threshold), shown in its title.
+    alarm : str, optional
+        Title of the alarm view (the rule, its statistic and budget), which shows :data:`ALARM_STATISTIC`
+        against :data:`ALARM_THRESHOLD` below the detection statistic; None: no alarm view.
+    alarm_score : bool
+        Also draw :data:`ALARM_SCORE` in the alarm view (when the statistic is not the score itself).
 
     Returns
     -------
@@ -272,6 +310,27 @@ def blueprint(
                     plot_legend=no_legend,
                     overrides={STATISTIC: rr.SeriesLines.from_fields(visible_series=only(i))},
                 ),
+                *(
+                    []
+                    if alarm is None
+                    else [
+                        rrb.TimeSeriesView(
+                            origin="/alarm",
+                            contents=[
+                                f"+ {ALARM_STATISTIC}",
+                                f"+ {ALARM_THRESHOLD}",
+                                *([f"+ {ALARM_SCORE}"] if alarm_score else []),
+                            ],
+                            name=f"{name}: {alarm}",
+                            time_ranges=time_range,
+                            plot_legend=no_legend,
+                            overrides={
+                                ALARM_STATISTIC: rr.SeriesLines.from_fields(visible_series=only(i)),
+                                ALARM_SCORE: rr.SeriesLines.from_fields(visible_series=only(i)),
+                            },
+                        )
+                    ]
+                ),
                 rrb.TimeSeriesView(
                     origin="/frequency",
                     contents=[f"+ {PEAK_HZ}", f"+ {MOST_SIGNIFICANT_HZ}"],
@@ -284,7 +343,7 @@ def blueprint(
                     },
                     axis_y=None if band_hz is None else rrb.ScalarAxis(range=(0.0, float(band_hz[1]))),
                 ),
-                row_shares=[1, 1.5, 1, 0.8],
+                row_shares=[1, 1.5, 1, 0.8] if alarm is None else [1, 1.5, 1, 0.9, 0.8],
             )
         )
     n_lanes = len(channels) + (1 if has_truth else 0)

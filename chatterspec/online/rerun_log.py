@@ -19,6 +19,9 @@ from ..errors import ParameterError
 from ..plants.nonlinear import is_linear
 from .arrow_columns import _MAX_TENSOR_ROWS, _Columns, _TimeIndex
 from .blueprint import (
+    ALARM_SCORE,
+    ALARM_STATISTIC,
+    ALARM_THRESHOLD,
     CHATTERING,
     MOST_SIGNIFICANT_HZ,
     PEAK_HZ,
@@ -288,6 +291,10 @@ class RerunLogger:
         self._fault = [fault_entity(c) for c in self.channels]
         self._origin_ns: int | None = None  # earliest time logged (truth start / initial state)
         self._started = False
+        rule = monitor.rule
+        self._cusum = rule.name == "cusum"  # the alarm view draws g; else the score itself
+        h = float(rule.threshold)
+        self._h_rows = self._cols.scalars_column(np.full(2, h if np.isfinite(h) else np.nan), own=True)
         if send_blueprint:
             for s in sinks.streams:
                 bp = blueprint(
@@ -296,9 +303,20 @@ class RerunLogger:
                     band_hz=self.band_hz,
                     span_s=None if s is sinks.live_stream else span_s,
                     db_range=DB_RANGE,
+                    alarm=self._alarm_title(),
+                    alarm_score=self._cusum,
                 )
                 s.send_blueprint(bp, make_active=True, make_default=True)
         self._log_static(truth)
+
+    def _alarm_title(self) -> str:
+        """The alarm view's title: the rule's statistic, threshold and budget."""
+        from .monitor_types import alarm_label
+
+        rule, budget = self.monitor.rule, self.monitor.settings.false_alarms_per_hour
+        what = "CUSUM g [nats], grey = score" if self._cusum else "score -log p [nats]"
+        extra = f" ({rule.k} of {rule.n} frames)" if rule.name == "persistence" else ""
+        return f"{what}, red = threshold {rule.threshold:.3g}{extra} [{alarm_label(rule.name, budget)}]"
 
     def _each(self, fn: Any) -> None:
         for s in self.sinks.streams:
@@ -313,7 +331,12 @@ class RerunLogger:
         units = self.monitor.model.output_units
         lo, hi = self.band_hz
 
-        styles = series_styles(self.channels, units, has_estimate=self.monitor.settings.psi is not None)
+        styles = series_styles(
+            self.channels,
+            units,
+            has_estimate=self.monitor.settings.psi is not None,
+            alarm_statistic="CUSUM g [nats]" if self._cusum else "score -log p [nats]",
+        )
 
         def static(s: Any) -> None:
             for path, style in styles:
@@ -495,6 +518,14 @@ class RerunLogger:
         s.send_columns(VERDICT, indexes=[fcol], columns=[cols.scalars_column(flags)])
         s.send_columns(PEAK_HZ, indexes=[fcol], columns=[cols.scalars_column(peak_hz, own=True)])
         s.send_columns(MOST_SIGNIFICANT_HZ, indexes=[fcol], columns=[cols.scalars_column(sig_hz)])
+        score = _joined(frames, "score")
+        s.send_columns(ALARM_SCORE, indexes=[fcol], columns=[cols.scalars_column(score)])
+        if self._cusum:
+            g = _joined(frames, "alarm_statistic")
+            s.send_columns(ALARM_STATISTIC, indexes=[fcol], columns=[cols.scalars_column(g)])
+        else:
+            s.send_columns(ALARM_STATISTIC, indexes=[fcol], columns=[cols.scalars_column(score)])
+        s.send_columns(ALARM_THRESHOLD, indexes=[_TimeIndex(pa, fns[[0, -1]])], columns=[self._h_rows])
         for i, c in enumerate(self.keys):
             self._send_spectra(s, f"/spectrum/{c}", fcol, fns, spectra[i])
             hit = np.flatnonzero(flags[:, i])
@@ -536,13 +567,19 @@ class RerunLogger:
 
     @staticmethod
     def _event_text(ev: DetectionEvent) -> str:
+        from .monitor_types import alarm_label
+
         db = 10.0 * np.log10(max(ev.peak_ratio, 1e-30))
+        rule = alarm_label(ev.rule, ev.false_alarms_per_hour)
         if ev.kind == "fault-start":
             return (
                 f"{ev.channel}: FAULT from {ev.time_s:.2f} s (onset ~{ev.estimate_s:.2f} s), "
-                f"{db:+.1f} dB at {ev.peak_hz:.1f} Hz"
+                f"{db:+.1f} dB at {ev.peak_hz:.1f} Hz [{rule}]"
             )
-        return f"{ev.channel}: healthy again at {ev.time_s:.2f} s (worst {db:+.1f} dB at {ev.peak_hz:.1f} Hz)"
+        return (
+            f"{ev.channel}: healthy again at {ev.time_s:.2f} s (worst {db:+.1f} dB at {ev.peak_hz:.1f} Hz) "
+            f"[{rule}]"
+        )
 
     def _send_events(self, s: Any, events: list[DetectionEvent]) -> None:
         rr, pa = self.rr, self.pa
