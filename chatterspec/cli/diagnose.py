@@ -64,20 +64,27 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=nonnegative_int_arg, default=0, help="random seed (default 0)")
     p.add_argument(
         "--false-alarms-per-hour",
+        dest="false_alarms_per_hour",
         default="1",
         metavar="X",
         help="false-alarm budget of every route: alarm starts per hour of healthy time (default 1)",
     )
     p.add_argument(
-        "--rule", choices=rule_names(), default="cusum", help="alarm rule of every route (default cusum)"
+        "--rule", choices=rule_names(), default=None, help="alarm rule of every route (default cusum)"
     )
     p.add_argument(
-        "--persistence",
-        nargs=2,
-        type=positive_int_arg,
-        metavar=("K", "N"),
+        "--persistence-k",
+        dest="persistence_k",
         default=None,
-        help="persistence rule: K of the last N steps (frames or samples) above the threshold",
+        metavar="K",
+        help="persistence rule: steps (frames or samples) over the threshold among the last N (default 2)",
+    )
+    p.add_argument(
+        "--persistence-n",
+        dest="persistence_n",
+        default=None,
+        metavar="N",
+        help="persistence rule: window in steps (default 3)",
     )
     p.add_argument(
         "--warmup",
@@ -139,7 +146,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--record", metavar="FILE.rrd", default=None, help="write realization 0 to a Rerun file")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, cusum_drift=None)  # each route sets its own CUSUM drift
 
 
 def _methods(text: str | None, sc: object, per_record: bool) -> tuple[str, ...]:
@@ -190,23 +197,14 @@ def _scenario(args: argparse.Namespace) -> object:
 
 
 def _settings(args: argparse.Namespace) -> object:
-    from ..detection.alarm_calibration import check_budget
     from ..studies.budget_diagnosis import BudgetSettings
+    from ._alarm_args import alarm_choice
 
-    budget = check_budget(args.false_alarms_per_hour, "--false-alarms-per-hour")
-    params: tuple = ()
-    if args.persistence is not None:
-        if args.rule != "persistence":
-            raise ParameterError("--persistence K N applies to --rule persistence only")
-        k, n = args.persistence
-        if k > n:
-            raise ParameterError(
-                f"--persistence K N needs K <= N (K of the last N steps); got K = {k}, N = {n}"
-            )
-        params = (("k", k), ("n", n))
+    choice = alarm_choice(args)  # the monitor's checks: one line naming the option
     if not (args.warmup >= 0 and args.warmup < float("inf")):
         raise ParameterError(f"--warmup must be a finite number of seconds >= 0; got {args.warmup!r}")
-    return BudgetSettings(budget, args.rule, params, args.warmup, args.calibration_runs)
+    params = tuple(sorted(choice.parameters.items()))
+    return BudgetSettings(choice.budget, choice.rule, params, args.warmup, args.calibration_runs)
 
 
 def _routes(args: argparse.Namespace, sc: object, methods: tuple[str, ...]) -> tuple[dict, object, dict]:
@@ -221,7 +219,7 @@ def _routes(args: argparse.Namespace, sc: object, methods: tuple[str, ...]) -> t
             routes[m] = ChatteringRoute(sc, threshold)
         elif m == "innovation":
             kw = {} if args.nis_inflation is None else {"inflation": args.nis_inflation}
-            routes[m] = InnovationRoute(sc, cap=args.rule == "cusum", **kw)
+            routes[m] = InnovationRoute(sc, cap=(args.rule or "cusum") == "cusum", **kw)
         else:
             routes[m] = ModeRoute(sc, m)
     return routes, threshold, info
@@ -276,9 +274,8 @@ def run(args: argparse.Namespace) -> int:
         from ..figures.plot_diagnosis import delay_far_figure
         from ..figures.plot_studies import save
 
-        title = (
-            f"{sc.name}: {args.runs} runs, {args.rule} rule at {settings.budget_per_hour:g} false alarm(s)/h"  # type: ignore[attr-defined]
-        )
+        at = f"{settings.rule} rule at {settings.budget_per_hour:g} false alarm(s)/h"  # type: ignore[attr-defined]
+        title = f"{sc.name}: {args.runs} runs, {at}"  # type: ignore[attr-defined]
         figure = outputs.write("--figure", args.figure, save, delay_far_figure(results, title), args.figure)
     if args.record is not None:
         from ..online.diagnosis_log import record_budget_diagnosis
