@@ -99,16 +99,22 @@ def _strip(doc: dict) -> dict:
 def test_same_numbers_whatever_the_workers_and_the_chunks() -> None:
     # 130 runs = 3 blocks of 64: chunks of 64, one chunk of 192, and 2 worker processes must give the
     # same results (exact equality: each realization's scores depend only on it, counts are integers)
+    # (the chattering route goes to the worker processes too: its frame score must pickle)
+    from chatterspec.detection.spectral import STFTConfig
+    from chatterspec.detection.thresholds import frame_threshold
+    from chatterspec.studies.routes import ChatteringRoute
+
     sc = with_onset(cs.scenario("eha-leak-minor"), 2.0)
+    m, cfg = sc.nominal, STFTConfig()
+    law = frame_threshold(m, cfg.freqs_hz(m.dt), cfg, m.dt, 1e-3)
+    routes = {"chattering": ChatteringRoute(sc, law), "innovation": InnovationRoute(sc)}
     settings = BudgetSettings(60.0, "cusum", calibration_runs=70)
     docs = []
     for kw in ({"chunk_runs": 64}, {"chunk_runs": 192}, {"chunk_runs": 64, "workers": 2}):
-        res = diagnose_at_budget(
-            sc, {"innovation": InnovationRoute(sc)}, 130, 3, settings, progress=False, **kw
-        )
+        res = diagnose_at_budget(sc, routes, 130, 3, settings, progress=False, **kw)
         docs.append([_strip(r.describe()) for r in res])
     assert docs[1] == docs[0] and docs[2] == docs[0]
-    assert docs[0][0]["runs"] == 130 and docs[0][0]["onsets"][0]["onset_s"] == 2.0
+    assert [d["runs"] for d in docs[0]] == [130, 130] and docs[0][1]["onsets"][0]["onset_s"] == 2.0
 
 
 def test_realized_false_alarms_agree_with_the_calibration() -> None:

@@ -23,7 +23,6 @@ Carlo commands: the numbers do not depend on them.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 
 from ..errors import ParameterError
@@ -335,4 +334,4 @@ def _print_budget_table(
     for r in results:
         c = r.calibration
         how = c.get("describe") or c.get("reason", "")
-        print(f"{r.method}: {how}", file=sys.stdout)
+        print(f"{r.method}: {how}" + (f"; {c['never_alarms']}" if "never_alarms" in c else ""))

@@ -304,6 +304,12 @@ def diagnose_at_budget(
             base, scores, settings.budget_per_hour, 3600.0 / route.step_s, settings.calibration_confidence
         )
         t1 = time.perf_counter()
+        top = getattr(route, "score_max", float("inf"))
+        if base.name != "cusum" and math.isfinite(h_star) and h_star > top:
+            info["never_alarms"] = (
+                f"the threshold {h_star:.4g} lies above the score's largest value {top:.4g}: at this budget "
+                f"the {base.name} rule never alarms on this route"
+            )
         grid = np.append(threshold_grid(base, scores, h_star), h_star)
         rules[m], grids[m] = base.with_threshold(h_star), grid
         far[m] = _count_starts(base, scores, grid)

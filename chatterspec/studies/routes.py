@@ -152,6 +152,8 @@ class ModeRoute:
         if floor is None:
             floor = fs.weight_floor if fs.weight_floor else DEFAULT_MODE_FLOOR
         self.floor = float(floor)
+        #: The score's largest value, ``-log floor``: a frame or persistence threshold above it never alarms.
+        self.score_max = -float(np.log(self.floor))
         self.labels = tuple(fs.modes)
         self.channels = ("log odds",)
         self.step_s = float(scenario.dt)
@@ -325,7 +327,7 @@ class ChatteringRoute:
         self.config = STFTConfig() if config is None else config
         self.gamma = float(gamma)
         self.law = law
-        self.frame_score = FrameScore(law)
+        self._score: FrameScore | None = FrameScore(law)
         model = scenario.nominal
         self.labels = tuple(model.output_names)
         self.channels = tuple(model.output_names)
@@ -339,6 +341,20 @@ class ChatteringRoute:
         H = self.config.n_hop(self.scenario.dt)
         starts = np.arange((n - self._W) // H + 1) * H if n >= self._W else np.zeros(0, dtype=int)
         return t[starts + self._W]
+
+    @property
+    def frame_score(self) -> Any:
+        """The :class:`~chatterspec.detection.frame_score.FrameScore` of the law (rebuilt after pickling)."""
+        if self._score is None:
+            from ..detection.frame_score import FrameScore
+
+            self._score = FrameScore(self.law)
+        return self._score
+
+    def __getstate__(self) -> dict[str, Any]:
+        # a FrameScore holds the Python function behind a compiled kernel, which pickle cannot send to a
+        # worker process; the law it is built from can
+        return {**self.__dict__, "_score": None}
 
     def rule_parameters(self, rule: str) -> dict[str, float]:
         """The layer's defaults (its CUSUM drift is set for ``-log p``)."""
