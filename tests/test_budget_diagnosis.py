@@ -147,6 +147,7 @@ def test_realized_false_alarms_agree_with_the_calibration() -> None:
         (["--rule", "persistence", "--persistence-k", "0"], "--persistence-k must be an integer >= 1"),
         (["--per-record", "--methods", "innovation"], "at a false-alarm budget only"),
         (["--warmup", "-1"], "--warmup"),
+        (["--calibration", "cal.npz"], "exact law"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(capsys, extra, needle) -> None:  # type: ignore[no-untyped-def]

@@ -227,6 +227,11 @@ def _routes(args: argparse.Namespace, sc: object, methods: tuple[str, ...]) -> t
 def _chattering_law(args: argparse.Namespace, sc: object) -> tuple[object, dict]:
     """The healthy law of the chattering frame score: exact for a linear model, else calibrated."""
     if sc.is_linear:  # type: ignore[attr-defined]
+        if args.calibration is not None:
+            raise ParameterError(
+                "--calibration: a linear model's frame score uses its exact law, not a calibration file; "
+                "drop --calibration (or give --per-record for the per-frame table)"
+            )
         from ..detection.spectral import STFTConfig
         from ..detection.thresholds import frame_threshold
 
