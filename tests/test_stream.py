@@ -236,6 +236,28 @@ def test_backwards_time_and_skipped_row_are_gaps(spec) -> None:
         strict.process(BadRow(1600, "standard input, line 1600: column 'pressure': 'x' is not a number"))
 
 
+def test_gap_rule_boundary_jitter_is_not_a_gap_two_dt_is(spec) -> None:
+    """The rule: a step outside (0.5 dt, 1.5 dt] is a gap. A sample 0.4 dt late (steps of 1.4 dt
+    and 0.6 dt around it) is clock jitter, not a gap; one missing sample (a 2 dt step) is a gap."""
+    ds = load_data(EXAMPLE_DATA, spec.model)
+    dt = spec.model.dt
+    settings = MonitorSettings(psi=tuple(spec.psi), gamma=spec.gamma)
+    keep = np.r_[0:1700, 1701:2500]  # sample 1700 missing: a 2 dt step into 1701
+    t = ds.t[keep].copy()
+    t[900] += 0.4 * dt  # jitter: 1.4 dt after sample 899, 0.6 dt before sample 901
+    steps = np.diff(t) / dt
+    assert steps.max() == pytest.approx(2.0) and steps[899] == pytest.approx(1.4)
+    assert steps.min() == pytest.approx(0.6)
+    events = []
+    sm = StreamMonitor(spec.model, settings, on_event=events.append)
+    sm.process(_blocks(t, ds.z[keep], ds.u[keep], keep + 2))
+    summary = sm.close()
+    gaps = [e for e in events if e.kind == "gap"]
+    assert summary.counts["gap"] == 1 and len(gaps) == 1
+    assert gaps[0].line == 1701 + 2 and gaps[0].sample_time_s == pytest.approx(ds.t[1701])
+    assert "2 dt" in gaps[0].reason
+
+
 def test_simulate_blocks_streams_the_scenario(spec) -> None:
     sc = cs.scenario("eha-leak-major")
     parts = list(simulate_blocks(sc, seed=2, duration_s=10.0, block_s=0.7))
