@@ -95,12 +95,13 @@ def enabled() -> bool:
 class _LazyKernel:
     """A kernel compiled by ``numba.njit(cache=True, nogil=True)`` on its first call."""
 
-    __slots__ = ("__name__", "_compiled", "py_func")
+    __slots__ = ("__name__", "_compiled", "_options", "py_func")
 
-    def __init__(self, func: Callable[..., Any]) -> None:
+    def __init__(self, func: Callable[..., Any], **options: Any) -> None:
         self.py_func = func
         self.__name__ = func.__name__
         self._compiled: Callable[..., Any] | None = None
+        self._options = options
 
     def _compile(self) -> Callable[..., Any]:
         import numba
@@ -113,7 +114,7 @@ class _LazyKernel:
             dep = env.get(name)
             if isinstance(dep, _LazyKernel):
                 env[name] = dep._compiled if dep._compiled is not None else dep._compile()
-        self._compiled = numba.njit(cache=True, nogil=True)(self.py_func)
+        self._compiled = numba.njit(cache=True, nogil=True, **self._options)(self.py_func)
         return self._compiled
 
     def __call__(self, *args: Any) -> Any:
@@ -123,13 +124,17 @@ class _LazyKernel:
         return compiled(*args)
 
 
-def njit(func: F) -> F:
+def njit(func: F | None = None, *, inline: bool = False) -> Any:
     """Mark ``func`` as a compiled kernel (lazily ``numba.njit(cache=True, nogil=True)``).
 
     Parameters
     ----------
     func : callable
         A module-level function of scalars and numpy arrays written with explicit loops.
+    inline : bool
+        For a small step called from other kernels' loops: ``numba.njit(inline="always")``, which
+        inlines its body into the caller (a separately compiled call costs 4x in the closed-loop
+        simulation's loop). Use as ``@njit(inline=True)``.
 
     Returns
     -------
@@ -137,6 +142,10 @@ def njit(func: F) -> F:
         A wrapper compiling ``func`` on first call (its ``py_func`` attribute is
         ``func``), or ``func`` itself when numba is not installed.
     """
+    if func is None:
+        return lambda f: njit(f, inline=inline)
     if not HAVE_NUMBA:
         return func
-    return _LazyKernel(func)  # type: ignore[return-value]
+    if inline:
+        return _LazyKernel(func, inline="always")
+    return _LazyKernel(func)

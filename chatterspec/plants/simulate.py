@@ -36,8 +36,9 @@ class Simulation:
         True states.
     z : (runs, T, m) array
         Measurements ``z(k) = C x(k) + w(k)``.
-    u : (T, p) array
-        Input (identical for all realizations).
+    u : (T, p) or (runs, T, p) array
+        Input: identical for all realizations (T, p), or per realization (runs, T, p) when a
+        controller computes it (closed-loop scenarios, ``scenario.closed_loop``).
     scenario : Scenario
     first_run : int
         Global index of the first realization held here (non-zero for chunks).
@@ -53,6 +54,16 @@ class Simulation:
     @property
     def runs(self) -> int:
         return self.z.shape[0]
+
+    def take(self, runs: slice) -> Simulation:
+        """The realizations ``runs`` (a slice of this chunk), as copies; a per-realization ``u`` follows."""
+        u = self.u[runs].copy() if self.u.ndim == 3 else self.u
+        first = self.first_run + (runs.indices(self.runs)[0])
+        return Simulation(self.t, self.x[runs].copy(), self.z[runs].copy(), u, self.scenario, first)
+
+    def input_of(self, run: int) -> np.ndarray:
+        """The input ``(T, p)`` of realization ``run`` (index within this chunk)."""
+        return self.u[run] if self.u.ndim == 3 else self.u
 
 
 def covariance_sqrt(M: np.ndarray) -> np.ndarray:
@@ -112,7 +123,7 @@ def simulate(
         t=chunks[0].t,
         x=np.concatenate([c.x for c in chunks]),
         z=np.concatenate([c.z for c in chunks]),
-        u=chunks[0].u,
+        u=np.concatenate([c.u for c in chunks]) if chunks[0].u.ndim == 3 else chunks[0].u,
         scenario=scenario,
     )
 
@@ -149,8 +160,10 @@ def iter_simulations(
     Yields
     ------
     Simulation
-        One chunk with ``x`` (k, T, n), ``z`` (k, T, m), shared ``u`` (T, p) and
-        ``t`` (T,) in seconds, and ``first_run`` set to its first realization index.
+        One chunk with ``x`` (k, T, n), ``z`` (k, T, m), shared ``u`` (T, p) (closed loop: the
+        controller's output per realization, (k, T, 1), see
+        :mod:`chatterspec.plants.simulate_closed_loop`) and ``t`` (T,) in seconds, and
+        ``first_run`` set to its first realization index.
 
     Raises
     ------
@@ -161,6 +174,14 @@ def iter_simulations(
     chunk = default_chunk_runs(scenario) if chunk_runs is None else positive_int("chunk_runs", chunk_runs)
     root = root_seed_sequence(seed)
     t = scenario.time
+    if getattr(scenario, "closed_loop", None) is not None:
+        from .simulate_closed_loop import simulate_block_closed_loop
+
+        for lo in range(first_run, first_run + runs, chunk):
+            hi = min(lo + chunk, first_run + runs)
+            x, z, u = simulate_block_closed_loop(scenario, root, lo, hi, t)
+            yield Simulation(t=t, x=x, z=z, u=u, scenario=scenario, first_run=lo)
+        return
     u = scenario.input.sample(t).reshape(len(t), -1)
     if u.shape[1] != scenario.nominal.n_inputs:
         from ..errors import ShapeError
