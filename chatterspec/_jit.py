@@ -54,7 +54,7 @@ import warnings
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-__all__ = ["HAVE_NUMBA", "enabled", "njit"]
+__all__ = ["HAVE_NUMBA", "enabled", "njit", "step"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -95,13 +95,13 @@ def enabled() -> bool:
 class _LazyKernel:
     """A kernel compiled by ``numba.njit(cache=True, nogil=True)`` on its first call."""
 
-    __slots__ = ("__name__", "_compiled", "_options", "py_func")
+    __slots__ = ("__name__", "_compiled", "_inline", "py_func")
 
-    def __init__(self, func: Callable[..., Any], **options: Any) -> None:
+    def __init__(self, func: Callable[..., Any], inline: bool = False) -> None:
         self.py_func = func
         self.__name__ = func.__name__
+        self._inline = inline
         self._compiled: Callable[..., Any] | None = None
-        self._options = options
 
     def _compile(self) -> Callable[..., Any]:
         import numba
@@ -114,7 +114,10 @@ class _LazyKernel:
             dep = env.get(name)
             if isinstance(dep, _LazyKernel):
                 env[name] = dep._compiled if dep._compiled is not None else dep._compile()
-        self._compiled = numba.njit(cache=True, nogil=True, **self._options)(self.py_func)
+        if self._inline:
+            self._compiled = numba.njit(inline="always", nogil=True)(self.py_func)
+        else:
+            self._compiled = numba.njit(cache=True, nogil=True)(self.py_func)
         return self._compiled
 
     def __call__(self, *args: Any) -> Any:
@@ -124,17 +127,13 @@ class _LazyKernel:
         return compiled(*args)
 
 
-def njit(func: F | None = None, *, inline: bool = False) -> Any:
+def njit(func: F) -> F:
     """Mark ``func`` as a compiled kernel (lazily ``numba.njit(cache=True, nogil=True)``).
 
     Parameters
     ----------
     func : callable
         A module-level function of scalars and numpy arrays written with explicit loops.
-    inline : bool
-        For a small step called from other kernels' loops: ``numba.njit(inline="always")``, which
-        inlines its body into the caller (a separately compiled call costs 4x in the closed-loop
-        simulation's loop). Use as ``@njit(inline=True)``.
 
     Returns
     -------
@@ -142,10 +141,34 @@ def njit(func: F | None = None, *, inline: bool = False) -> Any:
         A wrapper compiling ``func`` on first call (its ``py_func`` attribute is
         ``func``), or ``func`` itself when numba is not installed.
     """
-    if func is None:
-        return lambda f: njit(f, inline=inline)
     if not HAVE_NUMBA:
         return func
-    if inline:
-        return _LazyKernel(func, inline="always")
-    return _LazyKernel(func)
+    return _LazyKernel(func)  # type: ignore[return-value]
+
+
+def step(func: F) -> F:
+    """Mark ``func`` as a step: arithmetic that compiled loops inline (``numba.njit(inline="always")``).
+
+    A step is one piece of per-sample arithmetic (a plant's measurement or transition, a
+    controller's update) written with scalar operations, which a loop calls by name; numba
+    inlines it into the loop at compile time (a separately compiled call made the closed-loop
+    simulation's loop 4x slower). Called from Python it runs compiled on its own; its
+    ``py_func`` is the plain function (the numpy path calls it on rows of realizations).
+
+    Parameters
+    ----------
+    func : callable
+        A module-level function written with explicit loops.
+
+    Returns
+    -------
+    callable
+        The lazily compiled step, or ``func`` itself when numba is not installed.
+
+    See Also
+    --------
+    njit
+    """
+    if not HAVE_NUMBA:
+        return func
+    return _LazyKernel(func, inline=True)  # type: ignore[return-value]

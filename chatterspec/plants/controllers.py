@@ -35,7 +35,7 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
-from .._jit import njit
+from .._jit import step
 from .._validate import _finite_scalar, nonnegative, positive
 from ..errors import ParameterError
 
@@ -230,7 +230,7 @@ def pid_coefficients(controller: PIDController, dt: float) -> PIDCoefficients:
     )
 
 
-@njit(inline=True)
+@step
 def pid_step(
     kp: float,
     kpb: float,

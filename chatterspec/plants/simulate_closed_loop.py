@@ -72,7 +72,7 @@ def _initial_state(x0: np.ndarray, runs: int) -> LoopState:
 
 
 # --------------------------------------------------------------------------- the steps
-@_jit.njit(inline=True)
+@_jit.step
 def _measure(
     C: np.ndarray, Lr: np.ndarray, diag_r: bool, x: np.ndarray, w: np.ndarray, z: np.ndarray
 ) -> None:  # pragma: no cover - compiled (its Python form runs on the numpy path)
@@ -95,7 +95,7 @@ def _measure(
         z[i] = cx + nz
 
 
-@_jit.njit(inline=True)
+@_jit.step
 def _advance(
     A: np.ndarray,
     B: np.ndarray,
