@@ -133,8 +133,9 @@ def test_unstable_gains_raise_with_each_gains_stable_range() -> None:
     lo, hi = ranges["kp"][0]
     assert f"{lo:.4g} < kp < {hi:.4g}" in msg
     # the edges are the stability boundary: just inside stable, just outside not
-    assert is_stable(model, bad.with_gains(kp=hi * 0.999)) and not is_stable(model, bad.with_gains(kp=hi * 1.001))
-    assert is_stable(model, bad.with_gains(kp=lo * 1.001)) and not is_stable(model, bad.with_gains(kp=lo * 0.999))
+    for edge, inside, outside in ((hi, 0.999, 1.001), (lo, 1.001, 0.999)):
+        assert is_stable(model, bad.with_gains(kp=edge * inside))
+        assert not is_stable(model, bad.with_gains(kp=edge * outside))
     assert ranges["ki"] == () and ranges["kd"] == ()  # with kp = 2e6 nothing else helps
 
 
@@ -200,7 +201,8 @@ def test_references_and_dither_signals() -> None:
     with pytest.raises(ParameterError, match="moves overlap"):
         SCurve((0.0, 0.3), (1.0, 0.0), 0.5)
     st = StepSequence((0.5, 1.0), (0.02, 0.0), initial=0.01)
-    np.testing.assert_array_equal(st.sample(np.array([0.0, 0.4999, 0.5, 0.999, 1.0])), [0.01, 0.01, 0.02, 0.02, 0.0])
+    got = st.sample(np.array([0.0, 0.4999, 0.5, 0.999, 1.0]))
+    np.testing.assert_array_equal(got, [0.01, 0.01, 0.02, 0.02, 0.0])
     with pytest.raises(ParameterError, match="increasing"):
         StepSequence((1.0, 0.5), (0.0, 1.0))
     for order in (3, 7, 10):

@@ -65,7 +65,7 @@ def test_closed_loop_is_chunk_invariant(jit: str, monkeypatch: pytest.MonkeyPatc
 
 
 def test_loop_kernel_python_form_equals_numpy_path() -> None:
-    """The compiled loop's Python function (no compiler involved) on a tiny input gives the numpy path's bits."""
+    """The compiled loop's Python function (no compiler) on a tiny input gives the numpy path's bits."""
     sc = _saturating()
     t = sc.time[:120]
     ref, dith = sc.input.signals(t)
@@ -109,7 +109,9 @@ def test_state_carries_across_calls(jit: str, monkeypatch: pytest.MonkeyPatch) -
 
 
 @needs_numba
-def test_zero_gain_loop_with_input_dither_is_the_open_loop_simulation(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_zero_gain_loop_with_input_dither_is_the_open_loop_simulation(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     """No feedback and ``d(t)`` = the open-loop input: the open-loop simulation, bit for bit (compiled).
 
     The plant step repeats the open-loop kernel's operations in its order; a stable plant (second
@@ -176,7 +178,7 @@ def test_nonlinear_closed_loop_runs_chunked_and_streams() -> None:
 
 def test_stream_repeats_the_reference_beyond_the_duration() -> None:
     sc = scenario("eha-cl-healthy")
-    t, z, u = zip(*scl.closed_loop_blocks(sc, 0, 6.0, block_s=1.0), strict=True)
+    t, z, _ = zip(*scl.closed_loop_blocks(sc, 0, 6.0, block_s=1.0), strict=True)
     t, z = np.concatenate(t), np.concatenate(z)
     ref = EHA_CL_REFERENCE.sample(np.mod(t, 4.0))
     settled = (np.mod(t, 4.0) > 0.9) & (np.mod(t, 4.0) < 1.2)  # after the first move, both laps
