@@ -1,4 +1,4 @@
-"""Soak run of the live monitor (issue 13): hours of 1 kHz 3-channel data through standard input.
+"""Soak run of the live monitor: hours of 1 kHz 3-channel data through standard input.
 
     python benchmarks/bench_soak.py                    # 60 min of data at full speed, 10-min recordings
     python benchmarks/bench_soak.py --minutes 10       # a shorter soak

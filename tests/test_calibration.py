@@ -270,7 +270,7 @@ def test_power_counts_match_the_detector_run_directly():
     assert dr[-1] > far[-1]  # the fault is seen more often than the healthy record at alpha = 5 %
 
 
-# ------------------------------------------------------------------ false-alarm verdict intervals (item 5)
+# ------------------------------------------------------------------------- false-alarm verdict intervals
 def _ma_exceedances(
     datasets: int, records: int, bins: int, width: int, alpha: float, seed: int
 ) -> np.ndarray:

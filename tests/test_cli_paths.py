@@ -1,4 +1,4 @@
-"""Output paths and small CLI defects (issue 11 items 6 and 7).
+"""Output paths and small CLI defects.
 
 Every writing command checks its path before computing (the computation is
 replaced by a function that fails the test if it is reached), fails with one
@@ -154,7 +154,7 @@ def test_no_traceback_for_any_oserror(monkeypatch, capsys) -> None:
     _one_line_error(capsys.readouterr().err, "Permission denied", "/somewhere/file")
 
 
-# ------------------------------------------------------------------------------------------- item 7
+# ------------------------------------------------------------------------------ hints and small defects
 def test_detect_record_hint_names_the_real_file(tmp_path: Path, capsys) -> None:
     rrd = tmp_path / "rec.rrd"
     assert main(["detect", "eha-healthy", "--record", str(rrd)]) == 0

@@ -1,4 +1,4 @@
-"""Issue 11 item 7 check-through: closed output pipes and unstable power-sweep fault sizes."""
+"""CLI check-through: closed output pipes and unstable power-sweep fault sizes."""
 
 from __future__ import annotations
 
@@ -87,7 +87,7 @@ def test_cli_power_unstable_size_fails_fast(capsys) -> None:
     ],
 )
 def test_bad_output_path_fails_before_the_heavy_imports(argv: list[str]) -> None:
-    """Item 6: a bad path fails at once; measured 0.1-0.25 s per command (was 1.1-2.4 s, imports first)."""
+    """A bad path fails at once; measured 0.1-0.25 s per command (was 1.1-2.4 s, imports first)."""
     code = (
         "import sys\nfrom chatterspec.cli import main\n"
         f"rc = main({argv!r})\n"

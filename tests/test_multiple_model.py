@@ -1,6 +1,6 @@
 """Multiple-model filters: exact identities (one-mode IMM = its filter, identical-KF IMM = the KF,
 SMM of identical modes = the SVSF, the printed IMM spread = 2x the standard one), bad input, and the
-issue-9 targets of SMM-SVSF on ``eha4-leak-timeline`` and IMM-EKF on ``eha4-imm-analogue``."""
+diagnosis targets of SMM-SVSF on ``eha4-leak-timeline`` and IMM-EKF on ``eha4-imm-analogue``."""
 
 from __future__ import annotations
 

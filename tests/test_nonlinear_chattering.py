@@ -1,4 +1,4 @@
-"""Chattering spectra on the nonlinear EHA (issue 9 item 5).
+"""Chattering spectra on the nonlinear EHA (beyond the chattering paper; docs/paper-notes.md).
 
 The auxiliary sgn-SVSF of a NonlinearModel (chatterspec/filters/nonlinear_svsf.py), its empirical
 normalization and family-wise calibration (detection/empirical.py, studies/empirical_calibration.py)

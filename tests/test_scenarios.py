@@ -1,4 +1,4 @@
-"""The scenario catalogue of DESIGN.md section 4."""
+"""The scenario catalogue of docs/design.md §5."""
 
 from __future__ import annotations
 
@@ -194,7 +194,7 @@ def test_plant_kinds_and_json_listing() -> None:
 
 
 def test_detc_scenarios_as_printed() -> None:
-    """DETC2015 eq (25)-(27) and note section 4.1 (eigenvalue moduli, DC gains)."""
+    """DETC2015 eq (25)-(27) and docs/design.md D1 (eigenvalue moduli, DC gains)."""
     normal, uncertain = scenario("detc-normal"), scenario("detc-uncertain")
     F = np.array([[1, 0.001, 0], [0, 1, 0.001], [-557.02, -28.616, 0.9418]])
     F2 = np.array([[1, 0.001, 0], [0, 1, 0.001], [-240, -28, 0.9418]])
@@ -275,7 +275,7 @@ def test_eha4_imm_analogue() -> None:
 
 
 def test_imm_analogue_moves_the_piston_where_the_printed_input_cannot() -> None:
-    """Note section 3.3: with +-60 rad/s the piston moves in every mode (|v| ~ 2 cm/s, a few
+    """docs/design.md I10: with +-60 rad/s the piston moves in every mode (|v| ~ 2 cm/s, a few
     direction changes per 2 s); with the printed +-5 rad/s it creeps at < 1 mm/s in the normal and
     leakage modes with hundreds of velocity sign flips (the evidence for the analogue)."""
     from chatterspec import simulate

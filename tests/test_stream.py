@@ -1,4 +1,4 @@
-"""Live sources (issue 13): stdin and followed files, simulate, gaps, bad rows, signals, rotation, events."""
+"""Live sources: stdin and followed files, simulate, gaps, bad rows, signals, rotation, events."""
 
 from __future__ import annotations
 

@@ -152,7 +152,7 @@ def check_record_path(path: str | os.PathLike | None) -> None:
     check_output_file(path, "--record")
 
 
-# --- output paths (issue 11 item 6) -------------------------------------------------------------------
+# --- output paths --------------------------------------------------------------------------------------
 class OutputPathError(ParameterError):
     """An output path cannot be written (checked before the computation, or failed at the end)."""
 

@@ -1,6 +1,6 @@
 """``chatterspec diagnose NAME [--methods chattering,smm,imm] [--runs N] [--seed S] [--chunk-runs K]
 [--json] [--record FILE.rrd] [--no-progress]``: fault diagnosis side by side, every method on the same
-realizations (issue 9 item 6).
+realizations (``docs/design.md`` §2, the estimator routes).
 
 * ``smm``, ``imm``: mode probabilities (:mod:`chatterspec.studies.mode_diagnosis`);
 * ``chattering``: the STFT of the auxiliary sgn-SVSF's chattering against a calibrated per-frame threshold

@@ -1,4 +1,4 @@
-"""``chatterspec scenarios [--json]``: list the scenario catalogue (DESIGN.md section 4)."""
+"""``chatterspec scenarios [--json]``: list the scenario catalogue (``docs/design.md`` §5)."""
 
 from __future__ import annotations
 

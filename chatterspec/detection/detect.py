@@ -1,4 +1,4 @@
-"""Detection verdicts, severity scores and onset/offset localization (``DESIGN.md`` section 5).
+"""Detection verdicts, severity scores and onset/offset localization (``docs/design.md`` §6).
 
 A channel is flagged when its spectrum exceeds the threshold at any **tested**
 bin (DC and Nyquist excluded; the DC ratio is reported separately because a

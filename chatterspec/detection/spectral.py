@@ -1,6 +1,6 @@
 """Power spectra of the chattering signal: periodogram, expected healthy spectrum, STFT.
 
-Conventions (``DESIGN.md`` section 5, ``docs/internal-contracts.md``): time is the
+Conventions (``docs/design.md`` §4 and §6, ``docs/internal-contracts.md``): time is the
 second-to-last axis and channels the last, ``(..., N, m)``; realizations (any
 number of leading axes) are handled by vectorized numpy/scipy calls. Frequencies
 are in **Hz**, times in **seconds**.
@@ -9,7 +9,7 @@ Healthy chattering model
 ------------------------
 For a full-measurement auxiliary (sgn) SVSF with zero initial error, the healthy
 chattering is the vector MA(1) process (eq 23 and 52-53 with the index
-corrections of ``DESIGN.md`` section 8, item 6)::
+corrections of ``docs/design.md`` C6)::
 
     e(k+1|k) = C v(k) + w(k+1) + M w(k),        M = -C A C^-1
 
@@ -138,7 +138,7 @@ def periodogram(x: np.ndarray, dt: float) -> Periodogram:
         ``power`` has shape ``(..., N // 2 + 1, m)``. No window is applied: the
         chi-squared law of Lemma 2 (eq 43) holds for the raw DFT. Bins
         ``1 .. ceil(N/2) - 1`` are chi2(2)/2 times their mean; DC (and the
-        Nyquist bin for even N) are chi2(1) times their mean (``DESIGN.md`` 8.8).
+        Nyquist bin for even N) are chi2(1) times their mean (``docs/design.md`` C8).
 
     Examples
     --------

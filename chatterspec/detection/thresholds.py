@@ -1,4 +1,4 @@
-"""Chi-squared thresholds for the chattering power spectrum (eq 57-64, ``DESIGN.md`` section 5).
+"""Chi-squared thresholds for the chattering power spectrum (eq 57-64, ``docs/design.md`` §6).
 
 Every threshold is an array ``(bins, m)`` with a :class:`Threshold` record of
 what its ``alpha`` means:
@@ -14,7 +14,7 @@ what its ``alpha`` means:
     (``l2 = 0`` at DC and Nyquist). ``law="chi2"`` is the previous approximation
     ``E[S_i(f)] chi2.ppf(1 - a, nu) / nu`` with the exact expected spectrum
     (:func:`chatterspec.detection.spectral.expected_spectrum`), ``nu = 2`` for bins
-    ``1 .. ceil(N/2) - 1`` and ``nu = 1`` for DC and Nyquist (``DESIGN.md`` 8.8);
+    ``1 .. ceil(N/2) - 1`` and ``nu = 1`` for DC and Nyquist (``docs/design.md`` C8);
     it assumes ``l1 = l2`` and under-estimates the tail where the spectrum is
     tiny compared with ``|gamma1| / N`` (EHA position channel, lowest bins:
     about twice the nominal per-bin rate there).

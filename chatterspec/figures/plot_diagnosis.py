@@ -1,4 +1,4 @@
-"""The diagnosis comparison table (``chatterspec diagnose``, issue 9 items 6-7) as text rows and as a figure.
+"""The diagnosis comparison table (``chatterspec diagnose``) as text rows and as a figure.
 
 One row per (method, fault onset): false alarms on the healthy segments (runs with any alarm, 99 %
 Clopper-Pearson interval), the onset (s), the detection delay (median / 90th percentile over runs, ms),

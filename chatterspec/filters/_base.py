@@ -64,7 +64,7 @@ class CovarianceFilterBase:
         runs : int, optional
             Number of realizations when ``x0`` is shared (default: rows of ``x0``, or 1).
         e0, e_prev0 : (m,) or (runs, m) array, optional
-            Initial a-posteriori residuals; default 0 (the papers do not print them, note §1.2).
+            Initial a-posteriori residuals; default 0 (the papers do not print them, ``docs/design.md`` §7.2).
 
         Returns
         -------

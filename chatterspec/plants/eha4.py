@@ -2,8 +2,8 @@
 
 States: ``x1`` position (m), ``x2`` velocity (m/s), ``x3`` acceleration (m/s^2), ``x4 = P1 - P2``
 differential pressure (Pa); input: pump speed ``omega_p`` (rad/s). Eq (4.1)-(4.5) of the SMM
-paper (``smm-svsf-eha-journal.txt``; = eq 34-38 of ``imm-dynamic-2nd-order-svsf-eha.txt``), with
-the two corrections derived in ``shared/notes/estimators.md`` section 2.1::
+paper ([SMM]; = eq 34-38 of the IMM paper [IMM]; tags as in ``docs/design.md``), with the two
+corrections derived in ``docs/design.md`` S1-S2::
 
     x1+ = x1 + T x2                                                                  (4.1)
     x2+ = x2 + T x3                                                                  (4.2)
@@ -19,7 +19,7 @@ explicit Euler step of the jerk equation obtained by differentiating ``M x'' = A
 is the algebraic force balance, printed with a one-step lag (it uses ``x2(k), x3(k)``); we keep
 that as printed. ``sgn(0) = 0`` (``numpy.sign``), so at exactly ``v = 0`` the Coulomb term vanishes.
 
-Jacobian (``sgn' = 0``; note section 2.1): ``J11 = J22 = 1``, ``J12 = J23 = T``,
+Jacobian (``sgn' = 0``; ``docs/design.md`` S1): ``J11 = J22 = 1``, ``J12 = J23 = T``,
 ``J32 = -T (A_E^2 + a2 L) be/(M V0) - T (2 a1 V0 x3 sgn x2 + 2 be L a1 |x2|)/(M V0)``,
 ``J33 = 1 - T (a2 V0 + M be L)/(M V0) - 2 T a1 |x2| / M``, ``J42 = (a2 + 2 a1 |x2|)/A_E``,
 ``J43 = M / A_E``; every other entry is 0 (``x4`` enters only through ``sgn(x4)``).

@@ -7,7 +7,7 @@ The state-space form is eq (1)-(2) of Saeedzadeh et al. (2023)::
 
 Factories build the under-damped second-order system of eq (30) and the
 linear 3-state electro-hydraulic actuator (EHA) of eq (65)/(67), with the
-index/sign corrections listed in ``DESIGN.md`` section 8 (items 2-4).
+index/sign corrections listed in ``docs/design.md`` (C2-C4).
 Frequencies are given in **Hz** and converted to rad/s inside the factories
 (w0 = 2 pi f0); times are in seconds.
 """
@@ -419,7 +419,7 @@ def second_order(
     R: np.ndarray | None = None,
     discretization: Discretization = "euler",
 ) -> LinearModel:
-    """Second-order system of eq (30) (corrected per DESIGN.md 8.2).
+    """Second-order system of eq (30) (corrected per ``docs/design.md`` C2).
 
     Continuous form ``x1' = x2``, ``x2' = -w0^2 x1 - 2 zeta w0 x2 + b u`` with
     ``w0 = 2 pi f0_hz`` (rad/s). Explicit Euler gives eq (30)::
@@ -492,7 +492,7 @@ def eha_velocity_pressure_block(
     ``[[-a/M, Ac/M], [-be Ac/V0, -leakage_sign * be L/V0]]``. The physical model
     has ``leakage_sign = +1`` (leakage dissipates pressure). The paper's Table 2
     natural frequencies and damping ratios are reproduced digit for digit only
-    with ``leakage_sign = -1`` (DESIGN.md 8.4); that option exists to document
+    with ``leakage_sign = -1`` (``docs/design.md`` C4); that option exists to document
     the discrepancy, not for use.
 
     Parameters
@@ -538,7 +538,7 @@ def eha_linear(
     R: np.ndarray | None = None,
     discretization: Discretization = "euler",
 ) -> LinearModel:
-    """Linear 3-state electro-hydraulic actuator, eq (65)/(67) corrected (DESIGN.md 8.3).
+    """Linear 3-state electro-hydraulic actuator, eq (65)/(67) corrected (``docs/design.md`` C3).
 
     States: position (m), velocity (m/s), differential pressure (Pa); input:
     pump speed (rad/s); C = I. Continuous dynamics::

@@ -76,7 +76,7 @@ class Chirp:
     jumps from rest to its full value at ``t = 0`` and adds a start-up transient;
     ``phase_deg = -90`` gives a sine chirp that starts at ``u(0) = 0``. The EHA
     scenarios use 10 -> 100 Hz over the 4 s record at 300 rad/s (amplitude and
-    phase unspecified in the paper; DESIGN.md 8.9; the phase choice is
+    phase unspecified in the paper; ``docs/design.md`` C9; the phase choice is
     documented where the scenarios are defined, ``plants/scenarios.py``).
 
     Attributes
@@ -188,7 +188,7 @@ class Sine:
     """u(t) = offset + amplitude * sin(2 pi frequency_hz t + phase).
 
     The nonlinear EHA scenarios drive the pump with ``94.25 sin(2 pi 0.5 t)`` rad/s
-    (``shared/notes/estimators.md`` section 2.3).
+    (``docs/design.md`` S6).
 
     Attributes
     ----------

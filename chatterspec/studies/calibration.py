@@ -568,7 +568,7 @@ def calibrate(
             f"calibrate needs a healthy scenario; {sc.name!r} has faults at {sc.fault_intervals}"
         )
     config = STFTConfig() if config is None else config
-    if not is_linear(sc.nominal):  # no closed-form spectrum: empirical normalization (issue 9 item 5)
+    if not is_linear(sc.nominal):  # no closed-form spectrum: empirical normalization (docs/design.md §6)
         from .empirical_calibration import calibrate_empirical
 
         ex = {"workers": workers, "scheduler": scheduler, "chunk_runs": chunk_runs, "progress": progress}

@@ -1,5 +1,5 @@
 """Fault diagnosis by the chattering spectrum, on the same realizations as the mode-based methods: the
-chattering half of issue 9 item 6 (``chatterspec diagnose --methods chattering``).
+chattering route of ``chatterspec diagnose --methods chattering`` (``docs/design.md`` §2).
 
 On one :class:`~chatterspec.plants.simulate.Simulation` (the same z and u the SMM-SVSF / IMM see):
 

@@ -220,7 +220,7 @@ class HealthyStudy:
             n_false = masked.sum(axis=2)  # (K, r, m)
         out["false_bins"] = n_false.sum(axis=1)
         out["false_bins_sq"] = (n_false.astype(np.int64) ** 2).sum(axis=1)
-        # per-record squares: the false-alarm intervals are computed from run-level counts (issue 11)
+        # per-record squares: the false-alarm intervals come from run-level counts (cluster Clopper-Pearson)
         out["false_total_sq"] = (n_false.sum(axis=-1).astype(np.int64) ** 2).sum(axis=1)  # (K,)
         fw = n_false > 0
         out["fw"] = fw.sum(axis=1)  # (K, m)

@@ -1,5 +1,6 @@
-"""Fault diagnosis by mode probabilities (SMM-SVSF, IMM) on the same realizations: the mode-based half of
-issue 9 item 6 (``chatterspec diagnose``); the chattering route (item 5) plugs in beside it.
+"""Fault diagnosis by mode probabilities (SMM-SVSF, IMM) on the same realizations: the mode-based routes of
+``chatterspec diagnose`` (``docs/design.md`` §2); the chattering route
+(:mod:`chatterspec.studies.chattering_diagnosis`) plugs in beside it.
 
 Per method, on one :class:`~chatterspec.plants.simulate.Simulation`:
 
