@@ -58,7 +58,17 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["HAVE_NUMBA", "STACK_CAPACITY", "borrow", "enabled", "njit", "scratch", "scratch2", "specialize", "step"]
+__all__ = [
+    "HAVE_NUMBA",
+    "STACK_CAPACITY",
+    "borrow",
+    "enabled",
+    "njit",
+    "scratch",
+    "scratch2",
+    "specialize",
+    "step",
+]
 
 #: Floats a compiled :func:`scratch` / :func:`scratch2` of run-time size keeps on the stack (larger: heap).
 STACK_CAPACITY = 64
@@ -114,7 +124,7 @@ def scratch(n: int) -> np.ndarray:
 
 
 def scratch2(n: int, m: int) -> np.ndarray:
-    """Scratch ``(n, m)`` C-order matrix: :func:`scratch` for matrices (stack up to ``STACK_CAPACITY`` floats)."""
+    """Scratch ``(n, m)`` C-order matrix: :func:`scratch` for matrices (stack up to ``STACK_CAPACITY``)."""
     return np.empty((n, m))
 
 

@@ -66,8 +66,6 @@ def _stack2(typingctx, n, m):  # type: ignore[no-untyped-def]
     return types.Array(_F8, 2, "C")(n, m), codegen
 
 
-
-
 @intrinsic
 def _borrow(typingctx, a):  # type: ignore[no-untyped-def]
     if not isinstance(a, types.Array):

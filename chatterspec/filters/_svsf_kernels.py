@@ -97,7 +97,7 @@ def closed_form_step(i: int, zi: float, gi: float, PhiT: np.ndarray, zp: np.ndar
 
 @_jit.step
 def rows_times_step(a: np.ndarray, MT: np.ndarray, out: np.ndarray, p: int, n: int) -> None:
-    """``out = a @ MT`` for one row ``a`` (p,), summed as :func:`_rows_times` does: ``a_0 M_0``, then ``+= a_j M_j``."""
+    """``out = a @ MT`` for one row ``a`` (p,), summed as :func:`_rows_times` (``a_0 M_0``, ``+ a_j M_j``)."""
     for i in range(n):
         acc = a[0] * MT[0, i]
         for j in range(1, p):
@@ -197,7 +197,8 @@ def _closed_form_kernel(
     picks the loop nest that walks memory in order (samples outer for time-major storage, runs
     outer otherwise).
     """
-    z, Gu, PhiT, y0, e_out = _jit.borrow(z), _jit.borrow(Gu), _jit.borrow(PhiT), _jit.borrow(y0), _jit.borrow(e_out)
+    b = _jit.borrow
+    z, Gu, PhiT, y0, e_out = b(z), b(Gu), b(PhiT), b(y0), b(e_out)
     runs, K, m = z.shape
     shared = Gu.shape[0] == 1
     if time_major:

@@ -18,6 +18,10 @@ from ..filters._svsf_kernels import closed_form_step, matvec_step, rows_times_st
 
 __all__: list[str] = []
 
+#: Sizes of :func:`_filters_loop` (states, outputs, unmeasured states), bound by :func:`filters_kernel`;
+#: 0 reads them from the arrays.
+NX = NZ = NL = 0
+
 
 class _Verdicts:
     """:func:`frame_verdicts` with the tested bins and their threshold precomputed (per-push cost)."""
