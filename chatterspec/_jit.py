@@ -67,6 +67,7 @@ __all__ = [
     "scratch",
     "scratch2",
     "specialize",
+    "specialize_sizes",
     "step",
 ]
 
@@ -317,3 +318,49 @@ def specialize(template: Callable[..., Any], tag: str, **bindings: Any) -> Calla
     if not HAVE_NUMBA:
         return func
     return _LazyKernel(func)
+
+
+#: Largest size :func:`specialize_sizes` binds as a compile-time constant.
+MAX_UNROLL = 4
+
+_SIZED: dict[tuple[Any, ...], Callable[..., Any]] = {}
+
+
+def specialize_sizes(template: Callable[..., Any], tag: str, sizes: dict[str, int], **bindings: Any) -> Any:
+    """:func:`specialize` with the template's size names bound to literals when all are small.
+
+    ``sizes`` maps the template's size names (``NX``, ``NZ``, ...) to this model's sizes; when
+    every one is at most :data:`MAX_UNROLL` they are bound as they are (LLVM unrolls the
+    per-channel loops and keeps the per-run state in registers), otherwise all to 0 (the
+    template reads them from its arrays). One kernel per template, tag, sizes and bindings,
+    kept for the process (and numba caches its machine code).
+
+    Parameters
+    ----------
+    template : callable
+        The loop.
+    tag : str
+        Name of the specialization (the sizes are appended).
+    sizes : dict of str to int
+        Size names of ``template`` and their values.
+    **bindings
+        Other names bound as by :func:`specialize`.
+
+    Returns
+    -------
+    callable
+    """
+    small = all(0 <= v <= MAX_UNROLL for v in sizes.values())
+    values = {k: (int(v) if small else 0) for k, v in sizes.items()}
+    key = (
+        template,
+        tag,
+        tuple(sorted(values.items())),
+        tuple(sorted((k, id(v)) for k, v in bindings.items())),
+    )
+    kernel = _SIZED.get(key)
+    if kernel is None:
+        suffix = "_".join(f"{k.lower()}{v}" for k, v in sorted(values.items()))
+        kernel = specialize(template, f"{tag}_{suffix}", **values, **bindings)
+        _SIZED[key] = kernel
+    return kernel
