@@ -65,7 +65,11 @@ def test_closed_loop_is_chunk_invariant(jit: str, monkeypatch: pytest.MonkeyPatc
 
 
 def test_loop_kernel_python_form_equals_numpy_path() -> None:
-    """The compiled loop's Python function (no compiler) on a tiny input gives the numpy path's bits."""
+    """The compiled loop's Python form (no compiler) on a tiny input gives the numpy path's bits.
+
+    The Python form of ``_plant_loop`` with the controller as input step: the same loop as the
+    open-loop simulation's, the steps' plain functions.
+    """
     sc = _saturating()
     t = sc.time[:120]
     ref, dith = sc.input.signals(t)
@@ -74,18 +78,30 @@ def test_loop_kernel_python_form_equals_numpy_path() -> None:
     tb = scl._linear_tables(sc)
     seg = np.ascontiguousarray(sc.segment_index(t), dtype=np.int64)
     coef = np.asarray(pid_coefficients(sc.input.controller, sc.dt))
-    state = scl._initial_state(sc.x0, 3)
-    x_np, z_np, u_np, st_np = scl._loop_numpy(v, w, seg, tb, ref, dith, coef, 0, state)
-    xs = np.array(state.x)
-    cs = np.stack([state.integ, state.deriv, state.y_prev], axis=1)
-    xt, zt, ut = np.empty((120, 3, 3)), np.empty((120, 3, 3)), np.empty((120, 3))
-    kernel = getattr(scl._loop_kernel, "py_func", scl._loop_kernel)
-    kernel(v, w, seg, tb.A, tb.B, tb.C, tb.Lq, tb.Lr, tb.diag, ref, dith, coef, 0, xs, cs, xt, zt, ut, 0)
+    x_np, z_np, u_np, _ = scl._loop_numpy(v, w, seg, tb, ref, dith, coef, 0, scl._initial_state(sc.x0, 3))
+    loop = dict(scl._plant_loop.__globals__)
+    loop.update(
+        INPUT=scl._py(scl.controller_input),
+        SINK=scl._py(loop["store_sink"]),
+        measure_step=scl._py(scl.measure_step),
+        advance_step=scl._py(scl.advance_step),
+    )
+    import types
+
+    py_loop = types.FunctionType(scl._plant_loop.__code__, loop)
+    step_globals = scl._py(scl.controller_input).__globals__
+    saved = step_globals["pid_step"]
+    step_globals["pid_step"] = scl._py(saved)
+    try:
+        ctrl = scl._pack(coef, 0, tb.B, ref, dith, 3)
+        xt, zt = np.empty((120, 3, 3)), np.empty((120, 3, 3))
+        py_loop(v, w, seg, tb.A, tb.C, tb.Lq, tb.Lr, np.empty((0, 0, 0)), np.zeros(3), tb.diag, ctrl, xt, zt,
+                scl.NO_ARRAY, scl.NO_ARRAY, 0)  # fmt: skip
+    finally:
+        step_globals["pid_step"] = saved
     np.testing.assert_array_equal(xt, x_np)
     np.testing.assert_array_equal(zt, z_np)
-    np.testing.assert_array_equal(ut, u_np)
-    np.testing.assert_array_equal(xs, st_np.x)
-    np.testing.assert_array_equal(cs[:, 0], st_np.integ)
+    np.testing.assert_array_equal(scl._unpack_u(ctrl, tb.B, 120, 3), u_np)
 
 
 @pytest.mark.parametrize("jit", ["1", "0"])

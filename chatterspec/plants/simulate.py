@@ -255,13 +255,15 @@ def _noise_blocks(
 
 @_jit.step
 def open_loop_input(
-    s: int, k: int, z: np.ndarray, Bu: np.ndarray, ctrl: np.ndarray, bu: np.ndarray, n: int
+    row: int, s: int, k: int, z: np.ndarray, Bu: np.ndarray, ctrl: np.ndarray, bu: np.ndarray, n: int
 ) -> None:
-    """The input step of an open-loop scenario: ``bu = B_s u(k)`` from the table (``ctrl`` unused).
+    """The input step of an open-loop scenario: ``bu = B_s u(k)`` from the table (``row``, ``ctrl`` unused).
 
-    The simulation loop asks this step for the input's effect before it advances the plant; a
-    controller step with the same signature (reading ``z(k)`` and its gains and state in
-    ``ctrl``) closes the loop without another copy of the loop.
+    The simulation loop asks this step for the input's effect at every sample, after the sink and
+    before it advances the plant; a controller step with the same signature (reading ``z(k)``,
+    its gains, reference and per-run state in ``ctrl``, writing u(k) of run ``row`` there) closes
+    the loop without another copy of the loop
+    (:func:`chatterspec.plants.simulate_closed_loop.controller_input`).
     """
     for i in range(n):
         bu[i] = Bu[s, k, i]
@@ -317,8 +319,9 @@ def _plant_loop(
 
     Per run r and sample k, with the segment s active at k: ``z(k)`` by
     :func:`~chatterspec.plants.linear_steps.measure_step`, then ``SINK(offset + r, k, x, z, zp,
-    out_a, out_b, PhiT, Gu, n, m)`` (``zp`` is the sink's own per-run memory), then, before the
-    last sample, ``INPUT`` gives ``B_s u(k)`` and :func:`~chatterspec.plants.linear_steps.advance_step`
+    out_a, out_b, PhiT, Gu, n, m)`` (``zp`` is the sink's own per-run memory), then ``INPUT(offset + r,
+    s, k, z, Bu, ctrl, bu, n)`` gives ``B_s u(k)`` (a table lookup, or a controller's output from
+    ``z(k)``) and, before the last sample, :func:`~chatterspec.plants.linear_steps.advance_step`
     ``x(k+1)``. ``v``, ``w`` are raw standard normals ``(runs, T, n|m)``; tables from
     :func:`_tables`. Sinks: :func:`store_sink` (:data:`_simulate_kernel`) and the auxiliary
     SVSF's chattering (:mod:`chatterspec.detection.pipeline`). Every run starts from ``x0``
@@ -342,8 +345,8 @@ def _plant_loop(
             s = seg_idx[k]
             measure_step(s, x, w[r, k], C, Lr, diag, z, n, m)
             SINK(offset + r, k, x, z, zp, out_a, out_b, PhiT, Gu, n, m)
+            INPUT(offset + r, s, k, z, Bu, ctrl, bu, n)
             if k + 1 < T:
-                INPUT(s, k, z, Bu, ctrl, bu, n)
                 advance_step(s, x, bu, v[r, k], A, Lq, diag, xn, n)
                 for i in range(n):
                     x[i] = xn[i]

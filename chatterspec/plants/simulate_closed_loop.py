@@ -13,14 +13,16 @@ filters run the open-loop nominal model with it. Seeding is that of the open-loo
 any chunking gives the same numbers, and a loop with zero gains whose input dither equals an
 open-loop scenario's input reproduces that scenario's simulation bit for bit (tested).
 
-The per-sample arithmetic is written once, as three steps with scalar arithmetic:
-:func:`_measure` (eq 2), :func:`_advance` (eq 1, linear) and
-:func:`chatterspec.plants.controllers.pid_step`. The compiled loop (:func:`_loop_kernel`, numba)
-calls them on one realization at a time; the numpy path (:func:`_loop_numpy`) calls the same Python
-functions on rows of realizations (channel-major ``(n, runs)`` state), doing the same correctly
-rounded operations in the same order, so both paths give the same bits. The linear plant's
-operations and their order are those of the open-loop ``plants.simulate._simulate_kernel``.
-A nonlinear plant (the 4-state EHA) runs on the numpy path with its vectorized ``f``.
+The per-sample arithmetic is written once, as steps: the linear plant's
+:func:`~chatterspec.plants.linear_steps.measure_step` (eq 2) and
+:func:`~chatterspec.plants.linear_steps.advance_step` (eq 1), and the controller's
+:func:`~chatterspec.plants.controllers.pid_step`. The compiled path is the open-loop simulation's
+loop (``plants.simulate._plant_loop``) with :func:`controller_input` as its input step, in place
+of the input table; the numpy path (:func:`_loop_numpy`) calls the same steps' Python functions on
+rows of realizations (channel-major ``(n, runs)`` state), doing the same correctly rounded
+operations in the same order, so both paths give the same bits. A nonlinear plant (the 4-state
+EHA) runs on the numpy path with its vectorized ``f``. The streaming generator
+:func:`closed_loop_blocks` (one realization, state carried between blocks) uses the numpy path.
 """
 
 from __future__ import annotations
@@ -36,7 +38,8 @@ from ..errors import NonFiniteError, ParameterError
 from ..rng import SeedLike
 from .closed_loop import ClosedLoop
 from .controllers import pid_coefficients, pid_step
-from .simulate import _is_diagonal, _noise_blocks, covariance_sqrt
+from .linear_steps import advance_step, measure_step
+from .simulate import NO_ARRAY, _is_diagonal, _noise_blocks, _plant_loop, _same_shapes, covariance_sqrt
 
 __all__ = ["LoopState", "closed_loop_blocks", "is_closed_loop", "loop_response", "simulate_block_closed_loop"]
 
@@ -71,162 +74,73 @@ def _initial_state(x0: np.ndarray, runs: int) -> LoopState:
     )
 
 
-# --------------------------------------------------------------------------- the steps
-@_jit.step
-def _measure(
-    C: np.ndarray, Lr: np.ndarray, diag_r: bool, x: np.ndarray, w: np.ndarray, z: np.ndarray
-) -> None:  # pragma: no cover - compiled (its Python form runs on the numpy path)
-    """``z = C x + Lr w`` (eq 2), sums over j = 0, 1, ... in order; only Lr's diagonal when ``diag_r``.
-
-    ``x`` (n,), ``w`` (m,), ``z`` (m,) floats (compiled, one realization) or rows of realizations
-    ``(n, runs)``, ``(m, runs)`` (numpy path).
-    """
-    m, n = C.shape
-    for i in range(m):
-        cx = 0.0
-        for j in range(n):
-            cx += C[i, j] * x[j]
-        if diag_r:
-            nz = Lr[i, i] * w[i]
-        else:
-            nz = 0.0
-            for j in range(m):
-                nz += Lr[i, j] * w[j]
-        z[i] = cx + nz
+# --------------------------------------------------------------------------- the controller as input step
+#: Layout of the ``ctrl`` vector of :func:`controller_input` (float slots): the eight
+#: :class:`~chatterspec.plants.controllers.PIDCoefficients`, then the record length T, the number of
+#: segments S, the position output index, the running state (I, D, y_prev) of the current run,
+#: then B_s (S x n, row-major), the reference r (T), the input dither d (T) and the output u (rows x T).
+_T, _S, _OUT, _STATE, _B = 8, 9, 10, 11, 14
 
 
 @_jit.step
-def _advance(
-    A: np.ndarray,
-    B: np.ndarray,
-    Lq: np.ndarray,
-    diag_q: bool,
-    x: np.ndarray,
-    u: float,
-    v: np.ndarray,
-    xn: np.ndarray,
-) -> None:  # pragma: no cover - compiled (its Python form runs on the numpy path)
-    """``xn = (A x + B u) + Lq v`` (eq 1, one input), in the order of the open-loop simulation kernel."""
-    n = A.shape[0]
-    for i in range(n):
-        ax = 0.0
-        for j in range(n):
-            ax += A[i, j] * x[j]
-        if diag_q:
-            nv = Lq[i, i] * v[i]
-        else:
-            nv = 0.0
-            for j in range(n):
-                nv += Lq[i, j] * v[j]
-        xn[i] = (ax + B[i] * u) + nv
-
-
-@_jit.njit
-def _loop_kernel(
-    v: np.ndarray,
-    w: np.ndarray,
-    seg_idx: np.ndarray,
-    A: np.ndarray,
-    B: np.ndarray,
-    C: np.ndarray,
-    Lq: np.ndarray,
-    Lr: np.ndarray,
-    diag: np.ndarray,
-    ref: np.ndarray,
-    dith: np.ndarray,
-    coef: np.ndarray,
-    out_idx: int,
-    xs: np.ndarray,
-    cs: np.ndarray,
-    xt: np.ndarray,
-    zt: np.ndarray,
-    ut: np.ndarray,
-    offset: int,
+def controller_input(
+    row: int, s: int, k: int, z: np.ndarray, Bu: np.ndarray, ctrl: np.ndarray, bu: np.ndarray, n: int
 ) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_closed_loop_sim.py)
-    """The closed loop for the runs of one random block; states in ``xs`` (runs, n), ``cs`` (runs, 3) updated.
+    """The simulation loop's input step in closed loop: ``u(k)`` from ``z(k)``, then ``bu = B_s u(k)``.
 
-    Run r's samples go to ``xt[:, offset + r]``, ``zt[:, offset + r]``, ``ut[:, offset + r]`` (time-major);
-    ``cs[r] = (I, D, y_prev)``, ``y_prev`` NaN before the first sample. After the last sample the
-    plant is advanced once more, so ``xs`` holds ``x(K)`` for the next block.
+    Reads the position ``z[out]``, runs :func:`~chatterspec.plants.controllers.pid_step` on the
+    state kept in ``ctrl`` (reset at ``k = 0``: I = 0, D = 0, y_prev = y(0), so every run is
+    independent of the others), writes u(k) of run ``row`` into ``ctrl``'s output slots; ``Bu``
+    (the open-loop input table) is unused. Layout: :data:`_T` and following (see :func:`_pack`).
     """
-    runs, K, n = v.shape
-    m = w.shape[2]
-    x = np.empty(n)
-    xn = np.empty(n)
-    z = np.empty(m)
-    kp, kpb, ki_dt, a_d, kd_f, u_max, k_t, clamp = (
-        coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6], coef[7]
+    T = int(ctrl[_T])
+    rb = _B + int(ctrl[_S]) * n
+    db = rb + T
+    ub = db + T
+    y = z[int(ctrl[_OUT])]
+    if k == 0:
+        ctrl[_STATE] = 0.0
+        ctrl[_STATE + 1] = 0.0
+        ctrl[_STATE + 2] = y
+    u, integ, deriv = pid_step(
+        ctrl[0], ctrl[1], ctrl[2], ctrl[3], ctrl[4], ctrl[5], ctrl[6], ctrl[7],
+        ctrl[_STATE], ctrl[_STATE + 1], ctrl[_STATE + 2], ctrl[rb + k], y, ctrl[db + k],
     )  # fmt: skip
-    for r in range(runs):
-        for i in range(n):
-            x[i] = xs[r, i]
-        integ, deriv, y_prev = cs[r, 0], cs[r, 1], cs[r, 2]
-        for k in range(K):
-            s = seg_idx[k]
-            _measure(C[s], Lr[s], diag[s, 1], x, w[r, k], z)
-            y = z[out_idx]
-            if y_prev != y_prev:  # NaN: no earlier measurement (no derivative kick at the start)
-                y_prev = y
-            u, integ, deriv = pid_step(
-                kp, kpb, ki_dt, a_d, kd_f, u_max, k_t, clamp, integ, deriv, y_prev, ref[k], y, dith[k]
-            )
-            y_prev = y
-            for i in range(m):
-                zt[k, offset + r, i] = z[i]
-            for i in range(n):
-                xt[k, offset + r, i] = x[i]
-            ut[k, offset + r] = u
-            _advance(A[s], B[s], Lq[s], diag[s, 0], x, u, v[r, k], xn)
-            for i in range(n):
-                x[i] = xn[i]
-        for i in range(n):
-            xs[r, i] = x[i]
-        cs[r, 0], cs[r, 1], cs[r, 2] = integ, deriv, y_prev
+    ctrl[_STATE] = integ
+    ctrl[_STATE + 1] = deriv
+    ctrl[_STATE + 2] = y
+    ctrl[ub + row * T + k] = u
+    for i in range(n):
+        bu[i] = ctrl[_B + s * n + i] * u
+
+
+def _pack(
+    coef: np.ndarray, out: int, B: np.ndarray, ref: np.ndarray, dith: np.ndarray, rows: int
+) -> np.ndarray:
+    """The ``ctrl`` vector of :func:`controller_input` for ``rows`` runs (u slots uninitialized)."""
+    T = ref.shape[0]
+    head = np.array([*coef, T, B.shape[0], out, 0.0, 0.0, 0.0], dtype=float)
+    return np.concatenate([head, B.ravel(), ref, dith, np.empty(rows * T)])
+
+
+def _unpack_u(ctrl: np.ndarray, B: np.ndarray, T: int, rows: int) -> np.ndarray:
+    """The controller outputs ``(T, rows)`` (time-major) from a ``ctrl`` vector after the loop."""
+    ub = _B + B.size + 2 * T
+    return ctrl[ub : ub + rows * T].reshape(rows, T).T
+
+
+#: The closed-loop simulation kernel: the open-loop simulation's loop with the controller as input step.
+_closed_loop_kernel = _jit.specialize(_plant_loop, "closed_loop", INPUT=controller_input)
+
+
+def _closed_loop_sized(n: int, m: int):  # type: ignore[no-untyped-def]
+    """:data:`_closed_loop_kernel` with the model's sizes as constants when small (as the open loop's)."""
+    return _jit.specialize_sizes(_plant_loop, "closed_loop", {"NX": n, "NZ": m}, INPUT=controller_input)
 
 
 def _py(fn: object) -> object:
-    """The Python function behind a compiled kernel (numpy path)."""
+    """The Python function behind a compiled kernel or step (numpy path)."""
     return getattr(fn, "py_func", fn)
-
-
-def _loop_numpy(
-    v: np.ndarray,
-    w: np.ndarray,
-    seg_idx: np.ndarray,
-    tb: _LinearTables,
-    ref: np.ndarray,
-    dith: np.ndarray,
-    coef: np.ndarray,
-    out_idx: int,
-    state: LoopState,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, LoopState]:
-    """:func:`_loop_kernel` vectorized over realizations: the same steps on ``(channels, runs)`` rows."""
-    measure, advance, step = _py(_measure), _py(_advance), _py(pid_step)
-    runs, K, n = v.shape
-    m = w.shape[2]
-    vt = np.ascontiguousarray(v.transpose(1, 2, 0))  # (K, n, runs)
-    wt = np.ascontiguousarray(w.transpose(1, 2, 0))
-    x = np.ascontiguousarray(state.x.T)  # (n, runs)
-    xn = np.empty_like(x)
-    z = np.empty((m, runs))
-    integ, deriv = state.integ.copy(), state.deriv.copy()
-    y_prev = state.y_prev.copy()
-    xt, zt, ut = np.empty((K, runs, n)), np.empty((K, runs, m)), np.empty((K, runs))
-    for k in range(K):
-        s = seg_idx[k]
-        measure(tb.C[s], tb.Lr[s], tb.diag[s, 1], x, wt[k], z)
-        y = z[out_idx].copy()
-        first = np.isnan(y_prev)
-        if first.any():
-            y_prev[first] = y[first]
-        u, integ, deriv = step(*coef, integ, deriv, y_prev, ref[k], y, dith[k])
-        y_prev = y
-        zt[k] = z.T
-        xt[k] = x.T
-        ut[k] = u
-        advance(tb.A[s], tb.B[s], tb.Lq[s], tb.diag[s, 0], x, u, vt[k], xn)
-        x, xn = xn, x
-    return xt, zt, ut, LoopState(np.ascontiguousarray(x.T), integ, deriv, y_prev)
 
 
 @dataclass(frozen=True, eq=False)
@@ -254,6 +168,53 @@ def _linear_tables(scenario: object) -> _LinearTables:
     )
 
 
+def _loop_numpy(
+    v: np.ndarray,
+    w: np.ndarray,
+    seg_idx: np.ndarray,
+    tb: _LinearTables,
+    ref: np.ndarray,
+    dith: np.ndarray,
+    coef: np.ndarray,
+    out_idx: int,
+    state: LoopState,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, LoopState]:
+    """The compiled closed loop vectorized over realizations: the same steps on ``(channels, runs)`` rows.
+
+    Unlike the compiled loop it starts from ``state`` and returns the state after the last
+    sample (the plant advanced once more), for :func:`closed_loop_blocks`.
+    """
+    measure, advance, step = _py(measure_step), _py(advance_step), _py(pid_step)
+    runs, K, n = v.shape
+    m = w.shape[2]
+    vt = np.ascontiguousarray(v.transpose(1, 2, 0))  # (K, n, runs)
+    wt = np.ascontiguousarray(w.transpose(1, 2, 0))
+    x = np.ascontiguousarray(state.x.T)  # (n, runs)
+    xn = np.empty_like(x)
+    z = np.empty((m, runs))
+    bu = np.empty((n, runs))
+    integ, deriv = state.integ.copy(), state.deriv.copy()
+    y_prev = state.y_prev.copy()
+    xt, zt, ut = np.empty((K, runs, n)), np.empty((K, runs, m)), np.empty((K, runs))
+    for k in range(K):
+        s = seg_idx[k]
+        measure(s, x, wt[k], tb.C, tb.Lr, tb.diag, z, n, m)
+        y = z[out_idx].copy()
+        first = np.isnan(y_prev)
+        if first.any():
+            y_prev[first] = y[first]
+        u, integ, deriv = step(*coef, integ, deriv, y_prev, ref[k], y, dith[k])
+        y_prev = y
+        zt[k] = z.T
+        xt[k] = x.T
+        ut[k] = u
+        for i in range(n):
+            bu[i] = tb.B[s, i] * u
+        advance(s, x, bu, vt[k], tb.A, tb.Lq, tb.diag, xn, n)
+        x, xn = xn, x
+    return xt, zt, ut, LoopState(np.ascontiguousarray(x.T), integ, deriv, y_prev)
+
+
 def _loop_of(scenario: object) -> ClosedLoop:
     loop = getattr(scenario, "input", None)
     if not isinstance(loop, ClosedLoop):
@@ -271,39 +232,30 @@ def _step_linear(
     state: LoopState,
     tb: _LinearTables,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, LoopState]:
-    """K samples of the linear loop for ``runs`` realizations (noise ``v``, ``w``: ``(runs, K, n|m)``)."""
+    """K samples of the linear loop for ``runs`` realizations from ``state`` (numpy path)."""
     loop = _loop_of(scenario)
     coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)  # type: ignore[attr-defined]
-    seg_idx = np.ascontiguousarray(seg_idx, dtype=np.int64)
-    if not _jit.enabled():
-        return _loop_numpy(v, w, seg_idx, tb, ref, dith, coef, loop.output, state)
-    runs, K, n = v.shape
+    return _loop_numpy(v, w, np.asarray(seg_idx), tb, ref, dith, coef, loop.output, state)
+
+
+def _block_linear_compiled(
+    scenario: object, v: np.ndarray, w: np.ndarray, seg_idx: np.ndarray, ref: np.ndarray, dith: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Runs of one random block from rest through the compiled loop: ``(x, z, u)`` time-major."""
+    loop = _loop_of(scenario)
+    runs, T, n = v.shape
     m = w.shape[2]
-    xs = np.array(state.x, dtype=float)
-    cs = np.ascontiguousarray(np.stack([state.integ, state.deriv, state.y_prev], axis=1), dtype=float)
-    xt, zt, ut = np.empty((K, runs, n)), np.empty((K, runs, m)), np.empty((K, runs))
-    _loop_kernel(
-        v,
-        w,
-        seg_idx,
-        tb.A,
-        tb.B,
-        tb.C,
-        tb.Lq,
-        tb.Lr,
-        tb.diag,
-        ref,
-        dith,
-        coef,
-        loop.output,
-        xs,
-        cs,
-        xt,
-        zt,
-        ut,
-        0,
-    )
-    return xt, zt, ut, LoopState(xs, cs[:, 0].copy(), cs[:, 1].copy(), cs[:, 2].copy())
+    tb = _linear_tables(scenario)
+    coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)  # type: ignore[attr-defined]
+    ctrl = _pack(coef, loop.output, tb.B, ref, dith, runs)
+    xt, zt = np.empty((T, runs, n)), np.empty((T, runs, m))
+    x0 = np.ascontiguousarray(scenario.x0, dtype=float)  # type: ignore[attr-defined]
+    seg = np.ascontiguousarray(seg_idx, dtype=np.int64)
+    no_table = np.empty((0, 0, 0))  # the open-loop input table: unused by the controller step
+    _closed_loop_sized(n, m)(
+        v, w, seg, tb.A, tb.C, tb.Lq, tb.Lr, no_table, x0, tb.diag, ctrl, xt, zt, NO_ARRAY, NO_ARRAY, 0
+    )  # fmt: skip
+    return xt, zt, _unpack_u(ctrl, tb.B, T, runs)
 
 
 def _step_nonlinear(
@@ -406,10 +358,13 @@ def simulate_block_closed_loop(
     ref, dith = loop.signals(t)
     seg_idx = scenario.segment_index(t)  # type: ignore[attr-defined]
     xt, zt, ut = np.empty((T, hi - lo, n)), np.empty((T, hi - lo, m)), np.empty((T, hi - lo))
+    compiled = _jit.enabled() and getattr(scenario, "is_linear", True) and _same_shapes(scenario)
     for off, v, w in _noise_blocks(root, lo, hi, T, n, m):
         b = v.shape[0]
-        state = _initial_state(scenario.x0, b)  # type: ignore[attr-defined]
-        x, z, u, _ = _run(scenario, v, w, seg_idx, ref, dith, state)
+        if compiled:
+            x, z, u = _block_linear_compiled(scenario, v, w, seg_idx, ref, dith)
+        else:
+            x, z, u, _ = _run(scenario, v, w, seg_idx, ref, dith, _initial_state(scenario.x0, b))  # type: ignore[attr-defined]
         xt[:, off : off + b], zt[:, off : off + b], ut[:, off : off + b] = x, z, u
     return np.swapaxes(xt, 0, 1), np.swapaxes(zt, 0, 1), np.swapaxes(ut, 0, 1)[..., None]
 
