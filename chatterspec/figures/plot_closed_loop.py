@@ -20,7 +20,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..plants.scenarios import Scenario
     from ..studies.excitation import ExcitationResult
 
-__all__ = ["closed_loop_spectra_figure", "excitation_figure", "step_response_figure"]
+__all__ = ["closed_loop_spectra_figure", "excitation_figure", "footprint_figure", "step_response_figure"]
 
 
 def _errorbar(ax: plt.Axes, x: np.ndarray, ests: list, **kw: object) -> None:
@@ -241,5 +241,75 @@ def closed_loop_spectra_figure(
     axes[0, 0].legend(fontsize=7, ncol=2)
     axes[-1, 0].set_xlabel("frequency (Hz)")
     axes[0, 0].set_title(f"mean chattering periodogram over {runs} runs", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def footprint_figure(scenario: Scenario, seed: int = 0) -> Figure:
+    """Fault minus healthy, realization 0, same noise: the loop hides the fault in the position, not in u.
+
+    Three rows against time: the position change (closed loop, and the healthy loop's command
+    replayed open loop, :func:`chatterspec.studies.footprint.replayed_open_loop`), the pump speed
+    change (closed loop), and the pressure chattering of the faulty closed loop (with its 100 ms
+    moving average, where the leak's slow term shows) against the healthy chattering's +-3 standard
+    deviations.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        A faulty closed-loop scenario (linear), e.g. ``eha-cl-leak-medium``.
+    seed : int
+        Root seed.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from ..detection.pipeline import chattering_record
+    from ..detection.spectral import chattering_autocovariance
+    from ..plants.simulate import simulate
+    from ..studies.chattering_diagnosis import healthy_version
+    from ..studies.footprint import replayed_open_loop
+
+    replay = replayed_open_loop(scenario)
+    sims = {
+        k: simulate(s, 1, seed)
+        for k, s in (
+            ("closed", scenario),
+            ("closed-healthy", healthy_version(scenario)),
+            ("replay", replay),
+            ("replay-healthy", healthy_version(replay)),
+        )
+    }
+    t = sims["closed"].t
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
+    for key, color, label in (
+        ("replay", "C3", "command replayed open loop"),
+        ("closed", "C0", "closed loop"),
+    ):
+        d = (sims[key].z[0, :, 0] - sims[f"{key}-healthy"].z[0, :, 0]) * 1e3
+        axes[0].plot(t, d, color=color, lw=1, label=f"{label}: RMS {np.sqrt(np.mean(d**2)):.3f} mm")
+    du = sims["closed"].u[0, :, 0] - sims["closed-healthy"].u[0, :, 0]
+    axes[1].plot(t, du, color="C0", lw=0.8, label=f"closed loop: RMS {np.sqrt(np.mean(du**2)):.2f} rad/s")
+    model = scenario.nominal
+    p = model.output_names.index("pressure") if "pressure" in model.output_names else model.n_outputs - 1
+    e = chattering_record(model, sims["closed"].z, sims["closed"].u).values[0, :, p]
+    sd = np.sqrt(chattering_autocovariance(model)[0][p])
+    axes[2].plot(
+        t[1:], e, color="C0", lw=0.4, label=f"{model.output_names[p]} chattering, faulty closed loop"
+    )
+    for v in (-3 * sd, 3 * sd):
+        axes[2].axhline(v, color="k", lw=0.8, ls="--")
+    axes[0].set_ylabel("position change (mm)")
+    axes[1].set_ylabel("pump speed change (rad/s)")
+    axes[2].set_ylabel(f"chattering ({model.output_units[p]})")
+    axes[2].set_xlabel("time (s)")
+    axes[0].set_title(
+        f"{scenario.name}: fault minus healthy on the same noise (realization 0); dashed: +-3 sd healthy",
+        fontsize=10,
+    )
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper right")
     fig.tight_layout()
     return fig
