@@ -44,8 +44,8 @@ def test_richness_and_the_noisy_sensor() -> None:
     """A move excites the leak without dither; a 1 mm position sensor makes the loop its own dither.
 
     Deterministic facts of the design, with large margins: the catalogue's four 10-20 mm moves
-    give pressure swings of 100 kPa (the leak's chattering term 1 kPa at 0.5-2 Hz, where the
-    healthy spectrum is ~2e3 Pa^2: detected in every run of 64); with eq 66's 1 mm sensor the PI
+    give pressure swings of 100 kPa (the leak's chattering term ~1 kPa at 0.5-2.5 Hz, where the
+    healthy spectrum is ~9e4 Pa^2: detected in every run of 64); with eq 66's 1 mm sensor the PI
     loop feeds ~100 rad/s rms of noise into the pump, which excites the held actuator as much.
     """
     res = excitation_study(

@@ -63,13 +63,13 @@ def excitation_figure(res: ExcitationResult, target: float = 0.95) -> Figure:
             ests = [res.detection(i, still[k]) for k in order]
             _errorbar(axes[0], speed[order], ests, ls=ls, color="C0", label=tag)
             if i == 0:
-                for k in order:
+                for n_lab, k in enumerate(order):  # labels alternately above and below the points
+                    below = n_lab % 2 == 1
                     axes[0].annotate(
                         res.points[still[k]][0],
-                        (speed[k], ests[list(order).index(k)].rate),
+                        (speed[k], ests[n_lab].rate),
                         fontsize=7,
-                        rotation=35,
-                        xytext=(2, 4),
+                        xytext=(-8, -14 if below else 8),
                         textcoords="offset points",
                     )
         for c, ref in enumerate(swept):
