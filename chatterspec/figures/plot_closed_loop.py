@@ -298,6 +298,8 @@ def footprint_figure(scenario: Scenario, seed: int = 0) -> Figure:
     axes[2].plot(
         t[1:], e, color="C0", lw=0.4, label=f"{model.output_names[p]} chattering, faulty closed loop"
     )
+    smooth = np.convolve(e, np.full(100, 0.01), mode="same")
+    axes[2].plot(t[1:], smooth, color="C1", lw=1.2, label="its 100 ms moving average (the leak's slow term)")
     for v in (-3 * sd, 3 * sd):
         axes[2].axhline(v, color="k", lw=0.8, ls="--")
     axes[0].set_ylabel("position change (mm)")
