@@ -492,7 +492,9 @@ class EstimationStudy:
             # covariances are kept only for TIME_BLOCK samples at a time, so memory does not grow with T
             for lo in range(0, K, TIME_BLOCK):
                 hi = min(lo + TIME_BLOCK, K)
-                state, o = filt.update(state, np.ascontiguousarray(z[:, lo:hi]), u[lo:hi], store=_STORE)
+                state, o = filt.update(
+                    state, np.ascontiguousarray(z[:, lo:hi]), u[..., lo:hi, :], store=_STORE
+                )
                 err[:, lo:hi] = truth[:, lo:hi] - o.x_post
                 ne_step[lo:hi] = nees(err[:, lo:hi], o.P_post).sum(axis=0)
                 ni_step[lo:hi] = nis(o.innovation, o.S).sum(axis=0)
