@@ -118,15 +118,9 @@ def spectral_radius(model: LinearModel | NonlinearModel, controller: PIDControll
 
 
 def is_stable(model: LinearModel | NonlinearModel, controller: PIDController, output: int = 0) -> bool:
-    """Whether the linear closed loop is asymptotically stable (spectral radius < 1).
+    """Whether ``controller`` closing the loop on ``model``'s position ``output`` is asymptotically stable.
 
-    Parameters
-    ----------
-    model : LinearModel or NonlinearModel
-        The plant (linearized at rest if nonlinear).
-    controller : PIDController
-    output : int
-        Index of the measured position among the model's outputs.
+    That is :func:`spectral_radius` ``< 1`` (strictly, with a 1e-12 margin for rounding).
     """
     return spectral_radius(model, controller, output) < _RHO_STABLE
 

@@ -78,6 +78,14 @@ def _levels(times: object, levels: object, name: str) -> tuple[tuple[float, ...]
     return tuple(float(x) for x in tt), tuple(float(x) for x in ll)
 
 
+def _init_levels(ref: StepSequence | SCurve) -> None:
+    """Validate and normalize the ``times``, ``levels`` and ``initial`` of a frozen reference in place."""
+    tt, ll = _levels(ref.times, ref.levels, type(ref).__name__)
+    object.__setattr__(ref, "times", tt)
+    object.__setattr__(ref, "levels", ll)
+    object.__setattr__(ref, "initial", _finite_scalar("initial", ref.initial))
+
+
 @dataclass(frozen=True)
 class StepSequence:
     """r(t) = levels[j] from times[j] on (``initial`` before the first time).
@@ -97,10 +105,7 @@ class StepSequence:
     initial: float = 0.0
 
     def __post_init__(self) -> None:
-        tt, ll = _levels(self.times, self.levels, "StepSequence")
-        object.__setattr__(self, "times", tt)
-        object.__setattr__(self, "levels", ll)
-        object.__setattr__(self, "initial", _finite_scalar("initial", self.initial))
+        _init_levels(self)
 
     @property
     def peak(self) -> float:
@@ -150,13 +155,10 @@ class SCurve:
     initial: float = 0.0
 
     def __post_init__(self) -> None:
-        tt, ll = _levels(self.times, self.levels, "SCurve")
-        object.__setattr__(self, "times", tt)
-        object.__setattr__(self, "levels", ll)
+        _init_levels(self)
         mt = positive("move_time", self.move_time, unit="s")
         object.__setattr__(self, "move_time", mt)
-        object.__setattr__(self, "initial", _finite_scalar("initial", self.initial))
-        gaps = np.diff(tt)
+        gaps = np.diff(self.times)
         if gaps.size and gaps.min() < mt - 1e-12:
             raise ParameterError(
                 f"SCurve moves overlap: move_time {mt:g} s is longer than the shortest gap between "

@@ -39,7 +39,8 @@ from ..rng import SeedLike
 from .closed_loop import ClosedLoop
 from .controllers import pid_coefficients, pid_step
 from .linear_steps import advance_step, measure_step
-from .simulate import NO_ARRAY, _is_diagonal, _noise_blocks, _plant_loop, _same_shapes, covariance_sqrt
+from .simulate import NO_ARRAY, _noise_blocks, _plant_loop, _same_shapes, _tables, covariance_sqrt
+from .simulate_nonlinear import _scale
 
 __all__ = ["LoopState", "closed_loop_blocks", "is_closed_loop", "loop_response", "simulate_block_closed_loop"]
 
@@ -156,16 +157,27 @@ class _LinearTables:
 
 
 def _linear_tables(scenario: object) -> _LinearTables:
+    """The open-loop simulation's per-segment tables (``plants.simulate._tables``) and each segment's B."""
+    tb = _tables(scenario, np.zeros(1), np.zeros((1, 1)))  # type: ignore[arg-type]  # no input table needed
     segs = scenario.segments  # type: ignore[attr-defined]
-    c = np.ascontiguousarray
-    return _LinearTables(
-        A=c(np.stack([sg.model.A for sg in segs]), dtype=float),
-        B=c(np.stack([sg.model.B[:, 0] for sg in segs]), dtype=float),
-        C=c(np.stack([sg.model.C for sg in segs]), dtype=float),
-        Lq=c(np.stack([covariance_sqrt(sg.model.Q) for sg in segs]), dtype=float),
-        Lr=c(np.stack([covariance_sqrt(sg.model.R) for sg in segs]), dtype=float),
-        diag=np.array([[_is_diagonal(sg.model.Q), _is_diagonal(sg.model.R)] for sg in segs], dtype=np.bool_),
-    )
+    B = np.ascontiguousarray(np.stack([sg.model.B[:, 0] for sg in segs]), dtype=float)
+    return _LinearTables(A=tb.A, B=B, C=tb.C, Lq=tb.Lq, Lr=tb.Lr, diag=tb.diag)
+
+
+def _control_rows(
+    coef: np.ndarray,
+    integ: np.ndarray,
+    deriv: np.ndarray,
+    y_prev: np.ndarray,
+    r: float,
+    y: np.ndarray,
+    d: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``pid_step`` on rows of realizations; a NaN ``y_prev`` means no earlier sample (no derivative kick)."""
+    first = np.isnan(y_prev)
+    if first.any():  # as controller_input at k = 0
+        y_prev = np.where(first, y, y_prev)
+    return _py(pid_step)(*coef, integ, deriv, y_prev, r, y, d)
 
 
 def _loop_numpy(
@@ -184,7 +196,7 @@ def _loop_numpy(
     Unlike the compiled loop it starts from ``state`` and returns the state after the last
     sample (the plant advanced once more), for :func:`closed_loop_blocks`.
     """
-    measure, advance, step = _py(measure_step), _py(advance_step), _py(pid_step)
+    measure, advance = _py(measure_step), _py(advance_step)
     runs, K, n = v.shape
     m = w.shape[2]
     vt = np.ascontiguousarray(v.transpose(1, 2, 0))  # (K, n, runs)
@@ -200,10 +212,7 @@ def _loop_numpy(
         s = seg_idx[k]
         measure(s, x, wt[k], tb.C, tb.Lr, tb.diag, z, n, m)
         y = z[out_idx].copy()
-        first = np.isnan(y_prev)
-        if first.any():
-            y_prev[first] = y[first]
-        u, integ, deriv = step(*coef, integ, deriv, y_prev, ref[k], y, dith[k])
+        u, integ, deriv = _control_rows(coef, integ, deriv, y_prev, ref[k], y, dith[k])
         y_prev = y
         zt[k] = z.T
         xt[k] = x.T
@@ -269,8 +278,7 @@ def _step_nonlinear(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, LoopState]:
     """K samples of the loop around a nonlinear plant (numpy path, vectorized ``f``)."""
     loop = _loop_of(scenario)
-    coef = pid_coefficients(loop.controller, scenario.dt)  # type: ignore[attr-defined]
-    step = _py(pid_step)
+    coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)  # type: ignore[attr-defined]
     segs = scenario.segments  # type: ignore[attr-defined]
     runs, K, n = v.shape
     m = w.shape[2]
@@ -287,10 +295,7 @@ def _step_nonlinear(
             C = segs[s].model.C
             z = (x if np.array_equal(C, np.eye(n)) else x @ C.T) + _scale(w[:, k], Lr[s])
             y = z[:, out].copy()
-            first = np.isnan(y_prev)
-            if first.any():
-                y_prev[first] = y[first]
-            u, integ, deriv = step(*coef, integ, deriv, y_prev, ref[k], y, dith[k])
+            u, integ, deriv = _control_rows(coef, integ, deriv, y_prev, ref[k], y, dith[k])
             y_prev = y
             xt[k], zt[k], ut[k] = x, z, u
             x = f[s](x, u[:, None]) + _scale(v[:, k], Lq[s])
@@ -303,13 +308,6 @@ def _step_nonlinear(
             "2 dt a1 |v| / M must stay below 1)"
         )
     return xt, zt, ut, LoopState(x, integ, deriv, y_prev)
-
-
-def _scale(noise: np.ndarray, L: np.ndarray) -> np.ndarray:
-    """``noise @ L.T``, element-wise when L is diagonal (as the open-loop nonlinear simulation)."""
-    if _is_diagonal(L):
-        return noise * np.diag(L)
-    return noise @ L.T
 
 
 def _run(
