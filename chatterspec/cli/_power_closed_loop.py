@@ -46,6 +46,13 @@ def add_closed_loop_args(p: argparse.ArgumentParser) -> None:
         help="multisine (Schroeder phases, equal tones) or PRBS (5 ms clock); default multisine",
     )
     g.add_argument(
+        "--dither-at",
+        choices=("input", "reference"),
+        default="input",
+        help="add the dither to the pump-speed command (levels in rad/s, default) or to the position "
+        "reference (levels in mm)",
+    )
+    g.add_argument(
         "--dither-hz",
         type=float,
         nargs="+",
@@ -79,6 +86,7 @@ def run_closed_loop(args: argparse.Namespace) -> int:
         size=None if args.sizes is None else args.sizes[0],
         points=points,
         dither_kind=args.dither_signal,
+        dither_at=args.dither_at,
         tones_hz=DITHER_TONES_HZ if args.dither_hz is None else tuple(args.dither_hz),
         position_noise=noise,
         alpha=args.alpha,
@@ -103,7 +111,7 @@ def run_closed_loop(args: argparse.Namespace) -> int:
         f"under its PI position loop; family-wise alpha = {res.alpha:g} (exact threshold, Bonferroni); "
         f"{res.runs} runs per point, {res.confidence:.0%} Clopper-Pearson"
     )
-    print(f"dither on the pump-speed command: {res.dither_description}")
+    print(f"dither: {res.dither_description}")
     print(
         "(v mm/s: RMS velocity of the noise-free healthy response, the reference's richness; cost mm: "
         "tracking RMS minus the same reference's without dither; u RMS: pump speed, rad/s; healthy loop)"
@@ -132,7 +140,8 @@ def run_closed_loop(args: argparse.Namespace) -> int:
         else:
             cost = a["tracking_cost_mm"]
             print(
-                f"{where}: smallest dither with >= 95 % detection: {a['dither']:g} rad/s "
+                f"{where}: smallest dither with >= 95 % detection: {a['dither']:g} "
+                f"{'mm' if args.dither_at == 'reference' else 'rad/s'} "
                 f"(detection {_rate(a['detection'])}); tracking RMS {a['tracking_rms_mm']:.4f} mm"
                 + ("" if cost is None else f", +{cost:.4f} mm over no dither")
             )

@@ -98,7 +98,8 @@ def excitation_figure(res: ExcitationResult, target: float = 0.95) -> Figure:
     axes[0].set_title("(a) richness of the reference, no dither", fontsize=10)
     axes[1].axhline(target, color="k", lw=0.8, ls=":", label=f"{target:.0%}")
     axes[1].axhline(res.alpha, color="grey", lw=0.8, ls="--", label=f"alpha = {res.alpha:g}")
-    unit = "rad/s per tone" if "multisine" in res.dither_description else "rad/s"
+    unit = "mm" if "reference" in res.dither_description else "rad/s"
+    unit += " per tone" if "multisine" in res.dither_description else ""
     axes[1].set_xlabel(f"dither amplitude ({unit})")
     axes[1].set_ylabel("detection rate (faint: false alarms)")
     axes[1].set_title(f"(b) dither: {res.dither_description}", fontsize=10)

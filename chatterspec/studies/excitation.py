@@ -141,6 +141,7 @@ def excitation_scenario(
     reference: str,
     dither: Any = None,
     *,
+    dither_at: str = "input",
     position_noise: float = EHA_CL_POSITION_NOISE,
 ) -> Scenario:
     """One point of the study: the linear EHA under the catalogue PI loop, healthy or faulty.
@@ -155,7 +156,9 @@ def excitation_scenario(
     reference : str
         A key of :data:`EXCITATION_REFERENCES`.
     dither : Signal, optional
-        Added to the pump-speed command (rad/s), e.g. from :func:`dither_signal`.
+        Added to the pump-speed command (rad/s) or to the reference (m), e.g. from :func:`dither_signal`.
+    dither_at : {"input", "reference"}
+        Where the dither enters (:class:`~chatterspec.plants.closed_loop.ClosedLoop`).
     position_noise : float
         Position sensor standard deviation in m.
     """
@@ -166,7 +169,7 @@ def excitation_scenario(
     if reference not in EXCITATION_REFERENCES:
         raise ParameterError(f"unknown reference {reference!r}; valid: {', '.join(EXCITATION_REFERENCES)}")
     spec = CLOSED_LOOP_FAMILIES[family]
-    loop = ClosedLoop(EHA_CL_CONTROLLER, EXCITATION_REFERENCES[reference], dither=dither)
+    loop = ClosedLoop(EHA_CL_CONTROLLER, EXCITATION_REFERENCES[reference], dither=dither, dither_at=dither_at)
     params: dict[str, float] = {}
     if size is not None:
         value = positive("size", size)
@@ -207,7 +210,7 @@ class _ExcitationChunks:
                 flags = (S > thr).any(axis=1)  # (runs, m)
                 det[p, h] += flags.sum(axis=0)
                 det_any[p, h] += flags.any(axis=1).sum()
-                r, _ = sc.input.signals(sim.t)
+                r = sc.input.reference.sample(sim.t)  # the task, without a reference dither
                 rms = np.sqrt(np.mean((sim.x[:, :, sc.input.output] - r) ** 2, axis=1))
                 track[p, h] += rms.sum()
                 track_sq[p, h] += (rms**2).sum()
@@ -252,7 +255,8 @@ class ExcitationResult:
     detections_any : (noise, points, 2) int array
         Records flagged on any channel.
     tracking_mm : (noise, points, 2) array
-        Mean over runs of the per-run RMS tracking error (true position - reference), mm.
+        Mean over runs of the per-run RMS tracking error (true position - reference, the reference
+        without a dither added to it), mm.
     tracking_se_mm : (noise, points, 2) array
         Its Monte Carlo standard error, mm.
     u_rms : (noise, points, 2) array
@@ -423,6 +427,7 @@ def excitation_study(
     *,
     dither_kind: str = "multisine",
     tones_hz: Sequence[float] = DITHER_TONES_HZ,
+    dither_at: str = "input",
     position_noise: Sequence[float] = (EHA_CL_POSITION_NOISE,),
     alpha: float = 1e-3,
     runs: int = 200,
@@ -448,6 +453,9 @@ def excitation_study(
         The dither signal (:func:`dither_signal`), added to the pump-speed command.
     tones_hz : sequence of float
         Multisine tones in Hz.
+    dither_at : {"input", "reference"}
+        ``input``: the levels are pump-speed amplitudes in rad/s; ``reference``: the dither is added to
+        the position reference and the levels are in mm.
     position_noise : sequence of float
         Position sensor standard deviations in m (default: the catalogue's 10 um; eq 66's is 1e-3).
     alpha : float
@@ -487,9 +495,10 @@ def excitation_study(
     tested = None
     for i, noise in enumerate(noises):
         for ref, level in pts:
-            d = dither_signal(dither_kind, level, tones_hz)
-            healthy = excitation_scenario(family, None, ref, d, position_noise=noise)
-            pairs.append((healthy, excitation_scenario(family, size, ref, d, position_noise=noise)))
+            d = dither_signal(dither_kind, level * (1e-3 if dither_at == "reference" else 1.0), tones_hz)
+            kw = {"dither_at": dither_at, "position_noise": noise}
+            healthy = excitation_scenario(family, None, ref, d, **kw)
+            pairs.append((healthy, excitation_scenario(family, size, ref, d, **kw)))
             noise_index.append(i)
         _, thr = _analytic_thresholds(healthy.nominal, healthy.n_samples - 1, alpha)
         thresholds.append(thr["exact-bonferroni"].values)
@@ -510,6 +519,7 @@ def excitation_study(
     var = np.maximum(out["track_sq"] / runs - mean**2, 0.0) / max(runs - 1, 1)
     refs = tuple(dict.fromkeys(r for r, _ in pts))
     d1 = dither_signal(dither_kind, 1.0, tones_hz)
+    unit = "mm on the reference" if dither_at == "reference" else "rad/s on the pump-speed command"
     return ExcitationResult(
         family=family,
         unit=spec["unit"],
@@ -518,9 +528,8 @@ def excitation_study(
         points=pts,
         reference_descriptions={r: EXCITATION_REFERENCES[r].describe() for r in refs},
         response_speed={r: response_speed_rms(r) for r in refs},
-        dither_description=d1.describe()
-        .replace("1 per tone", "LEVEL rad/s per tone")
-        .replace("+-1,", "+-LEVEL,"),
+        dither_description=d1.describe().replace("1 per tone", "LEVEL per tone").replace("+-1,", "+-LEVEL,")
+        + f", LEVEL in {unit}",
         position_noise=noises,
         alpha=alpha,
         runs=runs,
