@@ -215,7 +215,7 @@ def record_budget_diagnosis(
         rule = rule_from_dict(by_method[method].rule)
         if method in ("smm", "imm"):
             x0, P0 = route._x0, route._P0
-            out = route.filter.run(sim.z[:, 1:], sim.u[:-1], x0=x0, P0=P0)
+            out = route.filter.run(sim.z[:, 1:], sim.u[..., :-1, :], x0=x0, P0=P0)
             modes[method] = (sim.t[1:], out.mu, route.labels)
             score = mode_log_odds(out.mu, route.floor)[..., None]
             times = sim.t[1:]

@@ -172,7 +172,7 @@ class ModeRoute:
 
     def scores(self, sim: Any) -> RouteScores:
         """Score stream of one chunk: times ``t[1:]``, score ``(runs, T - 1, 1)``, label = fault mode."""
-        z, u = sim.z[:, 1:], sim.u[:-1]
+        z, u = sim.z[:, 1:], sim.u[..., :-1, :]  # u per run in closed loop
         t0 = time.perf_counter()
         out = self.filter.run(z, u, x0=self._x0, P0=self._P0)
         score = mode_log_odds(out.mu, self.floor)[..., None]
@@ -275,14 +275,14 @@ class InnovationRoute:
 
     def nis(self, sim: Any) -> tuple[np.ndarray, np.ndarray]:
         """NIS ``(runs, T - 1)`` and the channel of the largest ``e_i^2 / S_ii`` (runs, T - 1)."""
-        z, u = sim.z[:, 1:], sim.u[:-1]
+        z, u = sim.z[:, 1:], sim.u[..., :-1, :]  # u per run in closed loop
         runs, K = z.shape[:2]
         state = self.filter.initialize(self._x0, self._P0, runs=runs)
         nis = np.empty((runs, K))
         chan = np.empty((runs, K), dtype=np.int8)
         for lo in range(0, K, INNOVATION_BLOCK):
             hi = min(lo + INNOVATION_BLOCK, K)
-            state, out = self.filter.update(state, z[:, lo:hi], u[lo:hi], store=("innovation", "S"))
+            state, out = self.filter.update(state, z[:, lo:hi], u[..., lo:hi, :], store=("innovation", "S"))
             nis[:, lo:hi] = normalized_innovation_squared(out.innovation, out.S)
             chan[:, lo:hi] = innovation_channel(out.innovation, out.S)
         return nis, chan
