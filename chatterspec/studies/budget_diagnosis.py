@@ -112,7 +112,17 @@ def _scores_after_warmup(route: Any, sim: Any, warmup: float) -> tuple[np.ndarra
 
 
 class HealthyScoresStudy:
-    """Scores of every route on healthy realizations (a :class:`~.montecarlo.Study`)."""
+    """Scores of every route on healthy realizations (a :class:`~.montecarlo.Study`).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        A healthy scenario (the diagnosed one's healthy version).
+    routes : dict
+        Method -> route.
+    warmup : float
+        Steps known before this time (s) are dropped.
+    """
 
     def __init__(self, scenario: Any, routes: dict[str, Any], warmup: float) -> None:
         self.scenario = scenario

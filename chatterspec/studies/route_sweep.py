@@ -45,7 +45,7 @@ DEFAULT_WARMUP_S = 0.1
 
 
 def onsets_of(sc: Any) -> tuple[tuple[float, float, int], ...]:
-    """Fault onsets of a scenario: ``(onset_s, end_s, segment)`` per change into a faulty segment.
+    """Fault onsets of scenario ``sc``: ``(onset_s, end_s, segment)`` per change into a faulty segment.
 
     ``end_s`` is the next change of the true plant (or the record's end); a scenario faulty from
     ``t = 0`` has an onset at 0.
@@ -223,7 +223,7 @@ def sweep_chunk(
 
 
 def merge_sweeps(acc: dict[str, Any] | None, part: dict[str, Any]) -> dict[str, Any]:
-    """Fold one chunk's :func:`sweep_chunk` into the accumulator (runs concatenated in chunk order)."""
+    """Fold ``part``, one chunk's :func:`sweep_chunk`, into ``acc`` (None at first; runs in chunk order)."""
     if acc is None:
         return part
     out = {

@@ -21,7 +21,7 @@ __all__ = ["faulty_at_start", "with_onset"]
 
 
 def faulty_at_start(sc: Scenario) -> bool:
-    """True when the scenario's true plant differs from its nominal model at ``t = 0``."""
+    """True when scenario ``sc``'s true plant differs from its nominal model at ``t = 0``."""
     return bool(sc.segments) and sc.deviates(sc.segments[0])
 
 
