@@ -114,13 +114,16 @@ def _int(value: Any, option: str) -> int:
     return v
 
 
-def alarm_choice(args: argparse.Namespace, *, alpha_given: bool = False) -> AlarmChoice:
+def alarm_choice(
+    args: argparse.Namespace, *, alpha_given: bool = False, default_rule: str | None = None
+) -> AlarmChoice:
     """Check the alarm options of ``args`` (one ``ParameterError`` line naming the option).
 
     ``alpha_given``: an explicit per-frame ``--alpha`` (the frame rule at that level), which
-    only the frame rule takes and which excludes ``--false-alarms-per-hour``.
+    only the frame rule takes and which excludes ``--false-alarms-per-hour``. ``default_rule``:
+    the rule when ``--rule`` is not given (a calibration file's; else cusum).
     """
-    rule = args.rule or _DEFAULT_RULE
+    rule = args.rule or default_rule or _DEFAULT_RULE
     if alpha_given and args.rule not in (None, "frame"):
         raise ParameterError(
             f"--alpha sets the per-frame level of the frame rule; the {args.rule} rule takes "

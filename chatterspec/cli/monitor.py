@@ -182,12 +182,14 @@ def run(args: argparse.Namespace) -> int:
         psi=tuple(spec.psi.tolist()),
         band=band_from_args(args) or det.get("band"),
     )
-    choice = alarm_choice(args, alpha_given=args.alpha is not None)
     cal = None
     if args.calibration is not None:
         from ..studies.calibration import load_calibration
 
         cal = load_calibration(args.calibration, spec.model, config=stft)
+    file_rule = None if cal is None or cal.alarm is None else cal.alarm.rule.name
+    choice = alarm_choice(args, alpha_given=args.alpha is not None, default_rule=file_rule)
+    if cal is not None:
         settings = dataclasses.replace(settings, threshold=cal.threshold("frame-family-wise"))
         print(
             f"chatterspec monitor: empirical per-frame threshold of {args.calibration} "

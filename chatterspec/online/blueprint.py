@@ -10,9 +10,7 @@ if TYPE_CHECKING:
     pass
 
 __all__ = [
-    "ALARM_SCORE",
-    "ALARM_STATISTIC",
-    "ALARM_THRESHOLD",
+    "ALARM",
     "CHATTERING",
     "MOST_SIGNIFICANT_HZ",
     "PEAK_HZ",
@@ -53,13 +51,11 @@ VERDICT = "/detection/verdict"
 PEAK_HZ = "/frequency/peak_hz"
 #: Tested bin with the largest ``S / threshold`` per channel (Hz), one row per frame.
 MOST_SIGNIFICANT_HZ = "/frequency/most_significant_hz"
-#: The frame score ``-log p`` (nats) per channel, one row per frame (see chatterspec.detection.frame_score).
-ALARM_SCORE = "/alarm/score"
-#: What the alarm rule compares with its threshold, per channel, one row per frame: the score (frame and
-#: persistence rules) or the CUSUM ``g``.
-ALARM_STATISTIC = "/alarm/statistic"
-#: The rule's threshold ``h`` (one series shared by every channel's view).
-ALARM_THRESHOLD = "/alarm/threshold"
+#: The alarm rule, ONE row per frame with ``2 m + 1`` series: what the rule compares with its threshold
+#: per channel (series ``0 .. m-1``: the frame score ``-log p`` in nats for the frame and persistence
+#: rules, the CUSUM ``g`` for the CUSUM rule), the frame score per channel (series ``m .. 2m-1``; see
+#: chatterspec.detection.frame_score) and the rule's threshold ``h`` (series ``2m``).
+ALARM = "/alarm/series"
 
 
 # --------------------------------------------------------------------------- blueprint
@@ -132,7 +128,7 @@ def series_styles(
         The names of the raw series are listed in either input mode; with the chattering given they
         name no series (the rows hold only the m chattering values).
     alarm_statistic : str
-        Name of what :data:`ALARM_STATISTIC` holds (the rule's statistic, with its unit).
+        Name of the rule's statistic in :data:`ALARM` (series ``0 .. m-1``), with its unit.
 
     Returns
     -------
@@ -183,21 +179,18 @@ def series_styles(
             ),
         ),
     ]
-    out += [
+    out.append(
         (
-            ALARM_SCORE,
+            ALARM,
             rr.SeriesLines(
-                colors=[_GREY] * m, widths=[1.0] * m, names=[f"{c}: score -log p [nats]" for c in channels]
+                colors=cols + [_GREY] * m + [_RED],
+                widths=[1.5] * m + [1.0] * (m + 1),
+                names=[f"{c}: {alarm_statistic}" for c in channels]
+                + [f"{c}: score -log p [nats]" for c in channels]
+                + ["alarm threshold h"],
             ),
-        ),
-        (
-            ALARM_STATISTIC,
-            rr.SeriesLines(
-                colors=cols, widths=[1.5] * m, names=[f"{c}: {alarm_statistic}" for c in channels]
-            ),
-        ),
-        (ALARM_THRESHOLD, rr.SeriesLines(colors=[_RED], widths=[1.0], names=["alarm threshold h"])),
-    ]
+        )
+    )
     for c in channels:
         style = rr.SeriesPoints(colors=[_RED], marker_sizes=[2.5], names=[f"{c}: fault (flagged frame)"])
         out.append((fault_entity(c), style))
@@ -238,10 +231,10 @@ def blueprint(
     db_range : (float, float)
         Colour range of the spectrogram (dB re the frame threshold), shown in its title.
     alarm : str, optional
-        Title of the alarm view (the rule, its statistic and budget), which shows :data:`ALARM_STATISTIC`
-        against :data:`ALARM_THRESHOLD` below the detection statistic; None: no alarm view.
+        Title of the alarm view (the rule, its statistic and budget) below the detection statistic:
+        channel ``i``'s rule statistic against the threshold (:data:`ALARM`); None: no alarm view.
     alarm_score : bool
-        Also draw :data:`ALARM_SCORE` in the alarm view (when the statistic is not the score itself).
+        Also draw the frame score in the alarm view (when the statistic is not the score itself).
 
     Returns
     -------
@@ -316,17 +309,17 @@ def blueprint(
                     else [
                         rrb.TimeSeriesView(
                             origin="/alarm",
-                            contents=[
-                                f"+ {ALARM_STATISTIC}",
-                                f"+ {ALARM_THRESHOLD}",
-                                *([f"+ {ALARM_SCORE}"] if alarm_score else []),
-                            ],
+                            contents=[f"+ {ALARM}"],
                             name=f"{name}: {alarm}",
                             time_ranges=time_range,
                             plot_legend=no_legend,
                             overrides={
-                                ALARM_STATISTIC: rr.SeriesLines.from_fields(visible_series=only(i)),
-                                ALARM_SCORE: rr.SeriesLines.from_fields(visible_series=only(i)),
+                                ALARM: rr.SeriesLines.from_fields(
+                                    visible_series=[
+                                        j == i or (alarm_score and j == m + i) or j == 2 * m
+                                        for j in range(2 * m + 1)
+                                    ]
+                                )
                             },
                         )
                     ]

@@ -182,7 +182,9 @@ class ChatteringMonitor:
         self._score = FrameScore(self.threshold, compiled=_jit.enabled())
         self._legacy = s.rule is None
         self.rule = FrameRule(-math.log(self.threshold.alpha)) if s.rule is None else s.rule
-        self._alarm = AlarmStream(FrameRule(0.5) if self._legacy else self.rule, (m,))
+        self._alarm = AlarmStream(
+            FrameRule(0.5) if self._legacy else self.rule, (m,), compiled=_jit.enabled()
+        )
         self._fault_peak = np.zeros(m)
         self._fault_peak_hz = np.zeros(m)
         self.n_events = 0
@@ -427,7 +429,7 @@ class ChatteringMonitor:
         self._buf[: keep.shape[0]] = keep  # numpy copes with the overlap when data is self._buf
         self._n_buf = keep.shape[0]
         flags, peak_hz, peak_ratio = self._verdicts(power)
-        score = self._score(power)
+        score = self._score._unchecked(power)
         blk = self._alarm._advance(flags.astype(float) if self._legacy else score)
         stat = score if self._legacy else blk.statistic
         times = self.frame_time(idx)
@@ -438,16 +440,17 @@ class ChatteringMonitor:
     def _events(self, fr: FrameBlock, starts: np.ndarray, ends: np.ndarray) -> tuple[DetectionEvent, ...]:
         """Events from the alarm layer's starts / ends (F, m); tracks each fault's largest peak."""
         active = fr.alarm
-        if not (starts.any() or ends.any() or active[0].any()):  # no change and nothing active: no event
+        changed = (starts | ends).any(axis=0)  # (m,)
+        on = active[0]  # active at the first frame and unchanged: active throughout
+        if not (changed.any() or on.any()):  # no change and nothing active: no event
             return ()
         events: list[DetectionEvent] = []
-        for c in range(starts.shape[1]):
+        for c in np.flatnonzero(changed | on).tolist():
             s_c, e_c = starts[:, c], ends[:, c]
-            if not (s_c.any() or e_c.any()):
-                if active[0, c]:  # the fault goes on: only its largest peak may change
-                    f = int(np.argmax(fr.peak_ratio[:, c]))  # the first largest, as the loop's strict '>'
-                    if fr.peak_ratio[f, c] > self._fault_peak[c]:
-                        self._fault_peak[c], self._fault_peak_hz[c] = fr.peak_ratio[f, c], fr.peak_hz[f, c]
+            if not changed[c]:  # the fault goes on: only its largest peak may change
+                f = int(np.argmax(fr.peak_ratio[:, c]))  # the first largest, as the loop's strict '>'
+                if fr.peak_ratio[f, c] > self._fault_peak[c]:
+                    self._fault_peak[c], self._fault_peak_hz[c] = fr.peak_ratio[f, c], fr.peak_hz[f, c]
                 continue
             for f in range(s_c.shape[0]):
                 ratio = float(fr.peak_ratio[f, c])

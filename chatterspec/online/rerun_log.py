@@ -19,9 +19,7 @@ from ..errors import ParameterError
 from ..plants.nonlinear import is_linear
 from .arrow_columns import _MAX_TENSOR_ROWS, _Columns, _TimeIndex
 from .blueprint import (
-    ALARM_SCORE,
-    ALARM_STATISTIC,
-    ALARM_THRESHOLD,
+    ALARM,
     CHATTERING,
     MOST_SIGNIFICANT_HZ,
     PEAK_HZ,
@@ -293,8 +291,7 @@ class RerunLogger:
         self._started = False
         rule = monitor.rule
         self._cusum = rule.name == "cusum"  # the alarm view draws g; else the score itself
-        h = float(rule.threshold)
-        self._h_rows = self._cols.scalars_column(np.full(2, h if np.isfinite(h) else np.nan), own=True)
+        self._h = float(rule.threshold) if np.isfinite(rule.threshold) else np.nan
         if send_blueprint:
             for s in sinks.streams:
                 bp = blueprint(
@@ -518,14 +515,15 @@ class RerunLogger:
         s.send_columns(VERDICT, indexes=[fcol], columns=[cols.scalars_column(flags)])
         s.send_columns(PEAK_HZ, indexes=[fcol], columns=[cols.scalars_column(peak_hz, own=True)])
         s.send_columns(MOST_SIGNIFICANT_HZ, indexes=[fcol], columns=[cols.scalars_column(sig_hz)])
-        score = _joined(frames, "score")
-        s.send_columns(ALARM_SCORE, indexes=[fcol], columns=[cols.scalars_column(score)])
-        if self._cusum:
-            g = _joined(frames, "alarm_statistic")
-            s.send_columns(ALARM_STATISTIC, indexes=[fcol], columns=[cols.scalars_column(g)])
-        else:
-            s.send_columns(ALARM_STATISTIC, indexes=[fcol], columns=[cols.scalars_column(score)])
-        s.send_columns(ALARM_THRESHOLD, indexes=[_TimeIndex(pa, fns[[0, -1]])], columns=[self._h_rows])
+        alarm = np.empty((F, 2 * m + 1))  # one row per frame: rule statistic, score, threshold
+        a = 0
+        for f in frames:
+            b = a + f.n_frames
+            alarm[a:b, :m] = f.alarm_statistic if self._cusum else f.score
+            alarm[a:b, m : 2 * m] = f.score
+            a = b
+        alarm[:, 2 * m] = self._h
+        s.send_columns(ALARM, indexes=[fcol], columns=[cols.scalars_column(alarm, own=True)])
         for i, c in enumerate(self.keys):
             self._send_spectra(s, f"/spectrum/{c}", fcol, fns, spectra[i])
             hit = np.flatnonzero(flags[:, i])
