@@ -207,6 +207,7 @@ def blueprint(
     db_range: tuple[float, float] = (-5.0, 30.0),
     alarm: str | None = None,
     alarm_score: bool = False,
+    alarm_range: tuple[float, float] | None = None,
 ) -> Any:
     """The default layout: per channel (columns) chattering, spectrogram, detection statistic and peak
     frequency; below, the state lanes (true fault first, then one verdict lane per channel in channel
@@ -235,6 +236,9 @@ def blueprint(
         channel ``i``'s rule statistic against the threshold (:data:`ALARM`); None: no alarm view.
     alarm_score : bool
         Also draw the frame score in the alarm view (when the statistic is not the score itself).
+    alarm_range : (float, float), optional
+        Fixed y range of the alarm view (a fault's score, thousands of nats, would otherwise hide the
+        threshold and the CUSUM ``g``, which is capped at it).
 
     Returns
     -------
@@ -313,6 +317,7 @@ def blueprint(
                             name=f"{name}: {alarm}",
                             time_ranges=time_range,
                             plot_legend=no_legend,
+                            axis_y=None if alarm_range is None else rrb.ScalarAxis(range=alarm_range),
                             overrides={
                                 ALARM: rr.SeriesLines.from_fields(
                                     visible_series=[

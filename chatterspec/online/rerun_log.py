@@ -302,18 +302,21 @@ class RerunLogger:
                     db_range=DB_RANGE,
                     alarm=self._alarm_title(),
                     alarm_score=self._cusum,
+                    alarm_range=(0.0, 1.5 * self._h) if self._h > 0 else None,
                 )
                 s.send_blueprint(bp, make_active=True, make_default=True)
         self._log_static(truth)
 
     def _alarm_title(self) -> str:
-        """The alarm view's title: the rule's statistic, threshold and budget."""
+        """The alarm view's title: the rule's statistic against its threshold, and the budget."""
         from .monitor_types import alarm_label
 
         rule, budget = self.monitor.rule, self.monitor.settings.false_alarms_per_hour
-        what = "CUSUM g [nats], grey = score" if self._cusum else "score -log p [nats]"
-        extra = f" ({rule.k} of {rule.n} frames)" if rule.name == "persistence" else ""
-        return f"{what}, red = threshold {rule.threshold:.3g}{extra} [{alarm_label(rule.name, budget)}]"
+        what = {"cusum": "CUSUM g", "persistence": f"score ({rule.name} {getattr(rule, 'k', '')} of "
+                f"{getattr(rule, 'n', '')})"}.get(rule.name, "score")  # fmt: skip
+        label = alarm_label(rule.name, budget).split(", ", 1)[1]
+        grey = ", grey = score" if self._cusum else ""
+        return f"{what} vs h = {rule.threshold:.3g} [nats] ({label}){grey}"
 
     def _each(self, fn: Any) -> None:
         for s in self.sinks.streams:
