@@ -118,6 +118,7 @@ GROUPS = {
     "spectrum/<c> (1 tensor/frame)": r"/spectrum/",
     "spectrogram/<c> (file block)": r"/spectrogram/",
     "per-frame series, psi, events, lanes": r"/(detection|frequency|events|state)|psi",
+    "alarm series (1 row/frame)": r"/alarm/",
 }
 
 

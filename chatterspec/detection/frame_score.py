@@ -167,6 +167,7 @@ def _score_kernel(
     n_low: np.ndarray,
     is_low: np.ndarray,
     hi_invr: np.ndarray,
+    inv1T: np.ndarray,
     log_n: float,
     out: np.ndarray,
 ) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_frame_score.py)
@@ -175,7 +176,8 @@ def _score_kernel(
     ``inv1`` = 1 / (2 l1), ``invr`` = l1 / l2 (>= 1, inf for l2 = 0), ``off`` / ``cnt`` the node
     tables of :func:`_node_tables`, ``is_low`` (bool), all (n_tested, m). The "low" bins of channel
     ``c`` (``r < 1 / (1 + LOW_GAP)``, a handful at the lowest frequencies) are ``low[c, :n_low[c]]``;
-    every other bin has ``invr <= hi_invr[c]``. One pass takes ``u = S inv1``, its largest value ``A``
+    every other bin has ``invr <= hi_invr[c]``; ``inv1T`` is ``inv1`` channel-major (m, n_tested).
+    One pass takes ``u = S inv1``, its largest value ``A``
     (bin ``kA``) and the second largest ``U2``; the exact value at ``kA`` is then compared with the
     upper bounds ``u invr`` of the low bins and, only when ``U2 hi_invr`` exceeds it (rare), of every
     other bin: the maximum of the exact values over the bins that can hold it.
@@ -183,13 +185,16 @@ def _score_kernel(
     F = power.shape[0]
     m = power.shape[2]
     nt = idx.shape[0]
+    lo = idx[0]
+    contiguous = idx[nt - 1] - lo == nt - 1  # the usual case: a slice of bins, no index loads
     for f in range(F):
         for c in range(m):
             A = -1.0
             kA = 0
             U2 = -1.0
+            w = inv1T[c]
             for j in range(nt):
-                u = power[f, idx[j], c] * inv1[j, c]
+                u = (power[f, lo + j, c] if contiguous else power[f, idx[j], c]) * w[j]
                 if u > U2:
                     if u > A:
                         U2 = A
@@ -307,7 +312,8 @@ class FrameScore:
         )
         self._kernel_args = (
             self._idx, self._inv1, self._invr, self._off, self._cnt, self._cvals, self._wvals,
-            self._low, self._n_low, self._is_low, self._hi_invr, self.log_n,
+            self._low, self._n_low, self._is_low, self._hi_invr, np.ascontiguousarray(self._inv1.T),
+            self.log_n,
         )  # fmt: skip
         self._compiled = compiled
         self._exact_py = getattr(_exact_log_sf, "py_func", _exact_log_sf)

@@ -45,17 +45,18 @@ PSI = "/chattering/psi"
 STATISTIC = "/detection/statistic_db"
 #: The decision level, 0 dB (one series shared by every channel's view).
 THRESHOLD = "/detection/threshold_db"
-#: Per-frame verdict per channel, 1 = fault (not drawn).
+#: Per frame ONE row of ``3 m + 1`` series: the per-frame verdict per channel (series ``0 .. m-1``,
+#: 1 = fault; not drawn), then the alarm rule's statistic per channel (``m .. 2m-1``: the frame
+#: score ``-log p`` in nats for the frame and persistence rules, the CUSUM ``g``), the frame score
+#: per channel (``2m .. 3m-1``; see chatterspec.detection.frame_score) and the rule's threshold ``h``
+#: (``3m``). The alarm series share the verdict's rows: Rerun's cost is per row.
 VERDICT = "/detection/verdict"
 #: Tested bin with the largest excess power ``S - E`` per channel (Hz), one row per frame.
 PEAK_HZ = "/frequency/peak_hz"
 #: Tested bin with the largest ``S / threshold`` per channel (Hz), one row per frame.
 MOST_SIGNIFICANT_HZ = "/frequency/most_significant_hz"
-#: The alarm rule, ONE row per frame with ``2 m + 1`` series: what the rule compares with its threshold
-#: per channel (series ``0 .. m-1``: the frame score ``-log p`` in nats for the frame and persistence
-#: rules, the CUSUM ``g`` for the CUSUM rule), the frame score per channel (series ``m .. 2m-1``; see
-#: chatterspec.detection.frame_score) and the rule's threshold ``h`` (series ``2m``).
-ALARM = "/alarm/series"
+#: The alarm series live in the rows of :data:`VERDICT` (series ``m .. 3m``).
+ALARM = VERDICT
 
 
 # --------------------------------------------------------------------------- blueprint
@@ -128,7 +129,7 @@ def series_styles(
         The names of the raw series are listed in either input mode; with the chattering given they
         name no series (the rows hold only the m chattering values).
     alarm_statistic : str
-        Name of the rule's statistic in :data:`ALARM` (series ``0 .. m-1``), with its unit.
+        Name of the rule's statistic in :data:`VERDICT` (series ``m .. 2m-1``), with its unit.
 
     Returns
     -------
@@ -163,7 +164,6 @@ def series_styles(
             ),
         ),
         (THRESHOLD, rr.SeriesLines(colors=[_GREY], widths=[1.0], names=["threshold (0 dB)"])),
-        (VERDICT, rr.SeriesPoints(colors=[_RED] * m, names=[f"{c}: verdict (1 = fault)" for c in channels])),
         (
             PEAK_HZ,
             rr.SeriesLines(
@@ -181,11 +181,12 @@ def series_styles(
     ]
     out.append(
         (
-            ALARM,
+            VERDICT,
             rr.SeriesLines(
-                colors=cols + [_GREY] * m + [_RED],
-                widths=[1.5] * m + [1.0] * (m + 1),
-                names=[f"{c}: {alarm_statistic}" for c in channels]
+                colors=[_RED] * m + cols + [_GREY] * m + [_RED],
+                widths=[1.0] * m + [1.5] * m + [1.0] * (m + 1),
+                names=[f"{c}: verdict (1 = fault)" for c in channels]
+                + [f"{c}: {alarm_statistic}" for c in channels]
                 + [f"{c}: score -log p [nats]" for c in channels]
                 + ["alarm threshold h"],
             ),
@@ -233,7 +234,7 @@ def blueprint(
         Colour range of the spectrogram (dB re the frame threshold), shown in its title.
     alarm : str, optional
         Title of the alarm view (the rule, its statistic and budget) below the detection statistic:
-        channel ``i``'s rule statistic against the threshold (:data:`ALARM`); None: no alarm view.
+        channel ``i``'s rule statistic against the threshold (:data:`VERDICT`); None: no alarm view.
     alarm_score : bool
         Also draw the frame score in the alarm view (when the statistic is not the score itself).
     alarm_range : (float, float), optional
@@ -313,16 +314,16 @@ def blueprint(
                     else [
                         rrb.TimeSeriesView(
                             origin="/alarm",
-                            contents=[f"+ {ALARM}"],
+                            contents=[f"+ {VERDICT}"],
                             name=f"{name}: {alarm}",
                             time_ranges=time_range,
                             plot_legend=no_legend,
                             axis_y=None if alarm_range is None else rrb.ScalarAxis(range=alarm_range),
                             overrides={
-                                ALARM: rr.SeriesLines.from_fields(
+                                VERDICT: rr.SeriesLines.from_fields(
                                     visible_series=[
-                                        j == i or (alarm_score and j == m + i) or j == 2 * m
-                                        for j in range(2 * m + 1)
+                                        j == m + i or (alarm_score and j == 2 * m + i) or j == 3 * m
+                                        for j in range(3 * m + 1)
                                     ]
                                 )
                             },

@@ -19,7 +19,6 @@ from ..errors import ParameterError
 from ..plants.nonlinear import is_linear
 from .arrow_columns import _MAX_TENSOR_ROWS, _Columns, _TimeIndex
 from .blueprint import (
-    ALARM,
     CHATTERING,
     MOST_SIGNIFICANT_HZ,
     PEAK_HZ,
@@ -515,18 +514,20 @@ class RerunLogger:
         peak_hz = self._peak_hz(frames)
         s.send_columns(STATISTIC, indexes=[fcol], columns=[cols.scalars_column(stat_db, own=True)])
         s.send_columns(THRESHOLD, indexes=[_TimeIndex(pa, fns[[0, -1]])], columns=[self._zero_rows])
-        s.send_columns(VERDICT, indexes=[fcol], columns=[cols.scalars_column(flags)])
+
         s.send_columns(PEAK_HZ, indexes=[fcol], columns=[cols.scalars_column(peak_hz, own=True)])
         s.send_columns(MOST_SIGNIFICANT_HZ, indexes=[fcol], columns=[cols.scalars_column(sig_hz)])
-        alarm = np.empty((F, 2 * m + 1))  # one row per frame: rule statistic, score, threshold
+        # one row per frame: verdict flags, rule statistic, score, threshold (blueprint.VERDICT)
+        rows = np.empty((F, 3 * m + 1))
+        rows[:, :m] = flags
         a = 0
         for f in frames:
             b = a + f.n_frames
-            alarm[a:b, :m] = f.alarm_statistic if self._cusum else f.score
-            alarm[a:b, m : 2 * m] = f.score
+            rows[a:b, m : 2 * m] = f.alarm_statistic if self._cusum else f.score
+            rows[a:b, 2 * m : 3 * m] = f.score
             a = b
-        alarm[:, 2 * m] = self._h
-        s.send_columns(ALARM, indexes=[fcol], columns=[cols.scalars_column(alarm, own=True)])
+        rows[:, 3 * m] = self._h
+        s.send_columns(VERDICT, indexes=[fcol], columns=[cols.scalars_column(rows, own=True)])
         for i, c in enumerate(self.keys):
             self._send_spectra(s, f"/spectrum/{c}", fcol, fns, spectra[i])
             hit = np.flatnonzero(flags[:, i])
