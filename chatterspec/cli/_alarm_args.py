@@ -70,8 +70,8 @@ def add_alarm_args(p: argparse.ArgumentParser, *, what: str = "the monitor", hou
             default=None,
             metavar="H",
             help="hours of healthy data simulated to set the threshold of the persistence and CUSUM rules "
-            "(default 4, a few seconds; a calibration file from `chatterspec calibrate --rule ... --hours H` "
-            "gives a tighter one)",
+            "(default 12 / channels, 4 for the EHA: a few seconds; a calibration file from `chatterspec "
+            "calibrate --rule ...` (48 h) gives a tighter one)",
         )
 
 

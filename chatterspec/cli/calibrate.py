@@ -94,7 +94,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         metavar="H",
         help="with --rule / --false-alarms-per-hour: hours of healthy data simulated for the alarm "
-        "threshold (default 24; its interval shrinks like 1/sqrt(H))",
+        "threshold (default 48; its interval shrinks like 1/sqrt(H))",
     )
     p.add_argument("--out", metavar="FILE", help="write the calibration file (.json or .npz)")
     p.add_argument("--plot", metavar="FILE", help="save a figure of analytic vs empirical thresholds")
@@ -184,13 +184,13 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _hours(text: str | None) -> float:
-    """``--hours H`` (default 24): a positive, finite number of hours."""
+    """``--hours H`` (default 48): a positive, finite number of hours."""
     import math
 
     from ..errors import ParameterError
 
     if text is None:
-        return 24.0
+        return 48.0
     try:
         h = float(text)
     except ValueError:

@@ -115,7 +115,7 @@ def _alarm_settings(
 ) -> object:
     """The recording monitor's alarm rule: the calibration file's, or set here for the budget (linear);
     a nonlinear scenario whose file holds no alarm calibration keeps the per-frame rule."""
-    from ..studies.alarm_budget import IN_CALL_HOURS, alarm_settings
+    from ..studies.alarm_budget import alarm_settings
     from ._alarm_args import check_file_alarm
 
     file_alarm = getattr(cal, "alarm", None)
@@ -135,7 +135,7 @@ def _alarm_settings(
         settings,
         c.rule,  # type: ignore[attr-defined]
         c.budget,  # type: ignore[attr-defined]
-        hours=c.hours or IN_CALL_HOURS,  # type: ignore[attr-defined]
+        hours=c.hours,  # type: ignore[attr-defined]
         **c.parameters,  # type: ignore[attr-defined]
     )
 

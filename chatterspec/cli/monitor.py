@@ -396,7 +396,7 @@ def _alarm_settings(
     args: argparse.Namespace, choice: object, model: object, settings: object, cal: object
 ) -> object:
     """The monitor's alarm rule: ``--alpha`` (the per-frame rule), a calibration file's, or set here."""
-    from ..studies.alarm_budget import IN_CALL_HOURS, alarm_settings
+    from ..studies.alarm_budget import alarm_settings
 
     c = choice  # AlarmChoice
     if args.alpha is not None:
@@ -414,7 +414,7 @@ def _alarm_settings(
             file=sys.stderr,
         )
         return settings
-    hours = c.hours or IN_CALL_HOURS  # type: ignore[attr-defined]
+    hours = c.hours  # type: ignore[attr-defined]  (None: the in-call default)
     return alarm_settings(
         model,
         settings,
