@@ -176,17 +176,24 @@ def verify(args: argparse.Namespace) -> dict:
 def delays(args: argparse.Namespace) -> dict:
     from chatterspec.studies.alarm_delays import alarm_delays, onset_scenarios
 
-    faults = args.faults.split(",")
+    faults = args.faults.split(",") + [f for f in args.extra.split(",") if f]
     out: dict = {"budget_per_hour": args.budget, "runs_per_scenario": args.runs, "faults": {}}
     rules_by_model: dict[str, dict] = {}
-    print(f"{'fault':<22}{'rule':<18}{'detected':>9}{'median s':>10}{'p90 s':>8}{'fault ch':>9}{'false':>7}")
+    print(
+        f"{'fault':<22}{'rule':<22}{'detected':>9}{'median s':>10}{'p90 s':>8}{'max s':>8}"
+        f"{'fault ch':>9}{'false':>7}"
+    )
     for name in faults:
-        scs = onset_scenarios(name)
+        if name.startswith("eha-leak=") or name.startswith("eha-leak-"):
+            base = _leak(name)
+        else:
+            base = scenario(name)
+        scs = onset_scenarios(base)
         model = scs[0].nominal
         key = model.fingerprint()
         if key not in rules_by_model:
             base = MonitorSettings()
-            rules = {"frame 0.1%/frame": FrameRule(-math.log(1e-3))}
+            rules = {"frame 0.1% per frame": FrameRule(-math.log(1e-3))}
             for r in RULES:
                 c = calibrate_alarm(
                     model, base, make_rule(r), args.budget, hours=args.calibration_hours, seed=CAL_SEED
@@ -200,9 +207,22 @@ def delays(args: argparse.Namespace) -> dict:
             d = v.to_dict()
             med = "miss" if d["median_s"] is None else f"{d['median_s']:.2f}"
             p90 = "miss" if d["p90_s"] is None else f"{d['p90_s']:.2f}"
-            print(f"{name:<22}{k:<18}{d['detected']:>9.3f}{med:>10}{p90:>8}{d['on_fault_channel']:>9.3f}"
+            mx = "miss" if d["max_s"] is None else f"{d['max_s']:.2f}"
+            print(f"{name:<22}{k:<22}{d['detected']:>9.3f}{med:>10}{p90:>8}{mx:>8}{d['on_fault_channel']:>9.3f}"
                   f"{d['false_starts_before_onset']:>7d}")  # fmt: skip
     return out
+
+
+def _leak(name: str) -> Scenario:
+    """``eha-leak=1e-11``: the catalogue's leakage scenario with another leakage coefficient."""
+    if "=" not in name:
+        return scenario(name)
+    import dataclasses
+
+    from chatterspec.plants.models import eha_linear
+
+    L = float(name.split("=", 1)[1])
+    return dataclasses.replace(scenario("eha-leak-minor"), name=name, plant=eha_linear(leakage=L), level=name)
 
 
 def main() -> None:
@@ -217,6 +237,9 @@ def main() -> None:
     v.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     d = sub.add_parser("delays")
     d.add_argument("--runs", type=int, default=25, help="realizations per onset scenario")
+    d.add_argument(
+        "--extra", default="eha-leak=1e-11", help="more faults, e.g. eha-leak=1e-11 (a weak leakage)"
+    )
     d.add_argument(
         "--faults",
         default="eha-leak-minor,eha-leak-medium,eha-leak-major,eha-friction-minor,eha-friction-major,"

@@ -265,3 +265,26 @@ def test_detect_record_takes_the_alarm_options(tmp_path: Path, capsys):
     with pytest.raises(SystemExit) as exc:  # argparse's choices: usage and the valid names, exit 2
         cli_main(["detect", "eha-leak-major", "--record", str(rrd), "--rule", "banana"])
     assert exc.value.code == 2 and "choose from 'frame', 'persistence', 'cusum'" in capsys.readouterr().err
+
+
+def test_onset_scenarios_and_delays():
+    """Onset scenarios start healthy; the CUSUM at its one-per-day EHA threshold (about 21 nats)
+    raises the major leakage within 0.5 s of the onset (the target; benchmarks/bench_alarms.py
+    measures it on 200 runs), the per-frame rule at 0.1 % alarms in the healthy stretch."""
+    from chatterspec.studies.alarm_delays import alarm_delays, onset_scenarios
+
+    scs = onset_scenarios("eha-leak-major", healthy_s=4.0, fault_s=2.0, phases=(0.0, 3.0))
+    assert [sc.fault_intervals for sc in scs] == [((4.0, 6.0),)] * 2
+    assert scs[1].input.sample([4.0])[0] == pytest.approx(scenario("eha-leak-major").input.sample([3.0])[0])
+    tl = onset_scenarios("so-timeline-step", healthy_s=3.0)
+    assert [sc.fault_intervals for sc in tl] == [((3.0, 5.0),), ((3.0, 5.0),)]
+    base = scenario("so-timeline-step").input  # each window keeps its own input, shifted to the onset
+    for sc, start in zip(tl, (0.0, 4.0), strict=True):
+        x = np.array([0.0, 0.5, 1.9])
+        np.testing.assert_array_equal(sc.input.sample(3.0 + x), base.sample(start + x))
+    res = alarm_delays(scs, {"cusum": CusumRule(21.0), "frame 0.1%": FrameRule(-math.log(1e-3))}, 4, seed=1)
+    c = res["cusum"]
+    assert c.detected == 1.0 and c.quantile(1.0) <= 0.5 and c.on_fault_channel.all()
+    assert c.false_starts == 0 and c.healthy_hours == pytest.approx(8 * 3.0 / 3600, rel=0.05)
+    d = c.to_dict()
+    assert d["runs"] == 8 and d["median_s"] <= 0.5

@@ -61,7 +61,7 @@ class Shifted:
 
 
 def onset_scenarios(
-    name: str,
+    name: str | Scenario,
     *,
     healthy_s: float = 6.0,
     fault_s: float = 8.0,
@@ -71,9 +71,9 @@ def onset_scenarios(
 
     Parameters
     ----------
-    name : str
-        A faulty catalogue scenario: a whole-record fault (``eha-leak-minor``, ...) or a
-        timeline (``so-timeline-constant``, ...).
+    name : str or Scenario
+        A faulty catalogue scenario (or a Scenario built like one): a whole-record fault
+        (``eha-leak-minor``, ...) or a timeline (``so-timeline-constant``, ...).
     healthy_s : float
         Healthy stretch before the onset (s); it must exceed one STFT window.
     fault_s : float
@@ -82,7 +82,8 @@ def onset_scenarios(
         Whole-record faults: times into the scenario's input (s) at which the onset falls
         (the input repeats with the scenario's duration).
     """
-    base = scenario(name)
+    base = name if isinstance(name, Scenario) else scenario(name)
+    name = base.name
     if base.is_healthy:
         raise ParameterError(f"{name!r} is healthy: no onset")
     out = []
@@ -150,12 +151,13 @@ class DelayResult:
         return float(d[k])
 
     def to_dict(self) -> dict[str, Any]:
-        med, p90 = self.quantile(0.5), self.quantile(0.9)
+        med, p90, mx = self.quantile(0.5), self.quantile(0.9), self.quantile(1.0)
         return {
             "runs": int(self.delays_s.size),
             "detected": self.detected,
             "median_s": med if math.isfinite(med) else None,
             "p90_s": p90 if math.isfinite(p90) else None,
+            "max_s": mx if math.isfinite(mx) else None,
             "on_fault_channel": float(np.mean(self.on_fault_channel)),
             "false_starts_before_onset": self.false_starts,
             "healthy_hours": self.healthy_hours,
