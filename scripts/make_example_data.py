@@ -58,7 +58,7 @@ psi = [{", ".join(f"{v:.6g}" for v in psi)}]   # 3 x healthy chattering std per 
 gamma = 0.1
 
 [detector]
-alpha = 0.001            # per-frame false-alarm probability
+alpha = 0.001            # per-frame level: the drawn verdict, and the rule of `monitor --rule frame --alpha`
 correction = "bonferroni"
 window_s = 1.0
 hop_s = 0.2

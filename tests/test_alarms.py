@@ -65,23 +65,23 @@ def test_numpy_and_compiled_paths_give_the_same_bits(rule, monkeypatch):
     if _jit.enabled():
         _same(run_rule(rule, s), ref)
     # the kernel's own Python form (meaningful without the compiler)
-    if rule.name != "frame":
-        small = s[:2, :300]
-        want = run_rule(rule, small)
-        R, K, C = small.shape
-        out = [np.empty((R, K, C), dtype=bool), np.empty((R, K, C)), np.empty((R, K, C), dtype=bool),
-               np.empty((R, K, C), dtype=bool)]  # fmt: skip
-        n = getattr(rule, "n", 1)
-        kern = getattr(alarms._alarm_kernel, "py_func", alarms._alarm_kernel)
-        kern(
-            {"persistence": 1, "cusum": 2}[rule.name], small, rule.threshold, getattr(rule, "drift", 0.0),
-            getattr(rule, "k", 1), n, np.zeros((R, C), dtype=bool), np.zeros((R, C)),
-            np.zeros((R, C), dtype=np.int64),
-            np.zeros((R, C, n if rule.name == "persistence" else 0), dtype=bool),
-            np.zeros(1, dtype=np.int64), *out,
-        )  # fmt: skip
-        for f, o in zip(FIELDS, out, strict=True):
-            assert np.array_equal(getattr(want, f), o), f
+    small = s[:2, :300]
+    want = run_rule(rule, small)
+    R, K, C = small.shape
+    out = [np.empty((R, K, C), dtype=bool), np.empty((R, K, C)), np.empty((R, K, C), dtype=bool),
+           np.empty((R, K, C), dtype=bool)]  # fmt: skip
+    n = getattr(rule, "n", 1)
+    kern = getattr(alarms._alarm_kernel, "py_func", alarms._alarm_kernel)
+    kern(
+        {"frame": 0, "persistence": 1, "cusum": 2}[rule.name], small, rule.threshold,
+        getattr(rule, "drift", 0.0),
+        getattr(rule, "k", 1), n, np.zeros((R, C), dtype=bool), np.zeros((R, C)),
+        np.zeros((R, C), dtype=np.int64),
+        np.zeros((R, C, n if rule.name == "persistence" else 0), dtype=bool),
+        np.zeros(1, dtype=np.int64), *out,
+    )  # fmt: skip
+    for f, o in zip(FIELDS, out, strict=True):
+        assert np.array_equal(getattr(want, f), o), f
 
 
 def test_frame_rule_is_a_threshold_per_step():

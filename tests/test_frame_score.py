@@ -97,7 +97,7 @@ def test_paths_agree(eha, monkeypatch):
     kern = getattr(frame_score._score_kernel, "py_func", frame_score._score_kernel)
     s = FrameScore(th)
     out = np.empty((4, 3))
-    kern(P[98:102], s._idx, s._inv1, s._invr, s._off, s._cnt, s._cvals, s._wvals, s.log_n, out)
+    kern(P[98:102], *s._kernel_args, out)
     np.testing.assert_allclose(out, numpy[98:102], rtol=1e-13)
 
 

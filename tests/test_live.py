@@ -422,8 +422,8 @@ def _temporal_rows(path: Path) -> dict[str, list]:
 def test_file_batches_do_not_change_the_recording(tmp_path: Path, sim) -> None:
     """The per-sample and per-frame file batches are a transport detail: one batch per stream, the
     defaults and tiny batches (a few pushes of samples, 2 frames) record the same rows, except the
-    two-row helper lines (±psi, 0 dB, the alarm threshold), which hold one row at each batch's first
-    and last sample or frame and the same values."""
+    two-row helper lines (±psi, 0 dB), which hold one row at each batch's first and last sample or
+    frame and the same values."""
     from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
 
     mon = ChatteringMonitor(sim.scenario.nominal, MonitorSettings(psi=(4.2e-3, 4.8e-3, 4.3e3)))
@@ -442,7 +442,7 @@ def test_file_batches_do_not_change_the_recording(tmp_path: Path, sim) -> None:
                 logger.log_update(u)
             logger.close()
         rows[name] = _temporal_rows(path)
-    helpers = {blueprint.PSI, blueprint.THRESHOLD, blueprint.ALARM_THRESHOLD}
+    helpers = {blueprint.PSI, blueprint.THRESHOLD}
     assert set(rows["one"]) >= {blueprint.CHATTERING, blueprint.STATISTIC, "/events", "/spectrum/pressure"}
     for name in ("default", "tiny"):
         assert set(rows[name]) == set(rows["one"])

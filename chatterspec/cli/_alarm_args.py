@@ -70,8 +70,8 @@ def add_alarm_args(p: argparse.ArgumentParser, *, what: str = "the monitor", hou
             default=None,
             metavar="H",
             help="hours of healthy data simulated to set the threshold of the persistence and CUSUM rules "
-            "(default 4, a few seconds; a calibration file from `chatterspec calibrate --rule ... --hours H` "
-            "gives a tighter one)",
+            "(default 12 / channels, 4 for the EHA: a few seconds; a calibration file from `chatterspec "
+            "calibrate --rule ...` (48 h) gives a tighter one)",
         )
 
 
@@ -114,13 +114,16 @@ def _int(value: Any, option: str) -> int:
     return v
 
 
-def alarm_choice(args: argparse.Namespace, *, alpha_given: bool = False) -> AlarmChoice:
+def alarm_choice(
+    args: argparse.Namespace, *, alpha_given: bool = False, default_rule: str | None = None
+) -> AlarmChoice:
     """Check the alarm options of ``args`` (one ``ParameterError`` line naming the option).
 
     ``alpha_given``: an explicit per-frame ``--alpha`` (the frame rule at that level), which
-    only the frame rule takes and which excludes ``--false-alarms-per-hour``.
+    only the frame rule takes and which excludes ``--false-alarms-per-hour``. ``default_rule``:
+    the rule when ``--rule`` is not given (a calibration file's; else cusum).
     """
-    rule = args.rule or _DEFAULT_RULE
+    rule = args.rule or default_rule or _DEFAULT_RULE
     if alpha_given and args.rule not in (None, "frame"):
         raise ParameterError(
             f"--alpha sets the per-frame level of the frame rule; the {args.rule} rule takes "

@@ -182,12 +182,14 @@ def run(args: argparse.Namespace) -> int:
         psi=tuple(spec.psi.tolist()),
         band=band_from_args(args) or det.get("band"),
     )
-    choice = alarm_choice(args, alpha_given=args.alpha is not None)
     cal = None
     if args.calibration is not None:
         from ..studies.calibration import load_calibration
 
         cal = load_calibration(args.calibration, spec.model, config=stft)
+    file_rule = None if cal is None or cal.alarm is None else cal.alarm.rule.name
+    choice = alarm_choice(args, alpha_given=args.alpha is not None, default_rule=file_rule)
+    if cal is not None:
         settings = dataclasses.replace(settings, threshold=cal.threshold("frame-family-wise"))
         print(
             f"chatterspec monitor: empirical per-frame threshold of {args.calibration} "
@@ -394,7 +396,7 @@ def _alarm_settings(
     args: argparse.Namespace, choice: object, model: object, settings: object, cal: object
 ) -> object:
     """The monitor's alarm rule: ``--alpha`` (the per-frame rule), a calibration file's, or set here."""
-    from ..studies.alarm_budget import IN_CALL_HOURS, alarm_settings
+    from ..studies.alarm_budget import alarm_settings
 
     c = choice  # AlarmChoice
     if args.alpha is not None:
@@ -412,7 +414,7 @@ def _alarm_settings(
             file=sys.stderr,
         )
         return settings
-    hours = c.hours or IN_CALL_HOURS  # type: ignore[attr-defined]
+    hours = c.hours  # type: ignore[attr-defined]  (None: the in-call default)
     return alarm_settings(
         model,
         settings,

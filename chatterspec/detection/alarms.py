@@ -404,6 +404,9 @@ class AlarmStream:
     shape : tuple of int
         ``(..., channels)``: the leading (streams) axes and the number of channels of the
         scores that :meth:`update` will get.
+    compiled : bool, optional
+        Use the compiled loop (default: :func:`chatterspec._jit.enabled` at each update; the
+        online monitor fixes it at construction, as for its other kernels).
 
     Examples
     --------
@@ -417,7 +420,7 @@ class AlarmStream:
     [('alarm-start', 2)]
     """
 
-    def __init__(self, rule: AlarmRule, shape: tuple[int, ...]) -> None:
+    def __init__(self, rule: AlarmRule, shape: tuple[int, ...], *, compiled: bool | None = None) -> None:
         if not isinstance(rule, FrameRule | PersistenceRule | CusumRule):
             raise ParameterError(f"rule must be one of the alarm rules; got {type(rule).__name__}")
         shape = tuple(int(s) for s in shape)
@@ -433,6 +436,7 @@ class AlarmStream:
         self._drift = float(getattr(rule, "drift", 0.0))
         self._k = int(getattr(rule, "k", 1))
         self._n = int(getattr(rule, "n", 1))
+        self._compiled = None if compiled is None else bool(compiled and _jit.HAVE_NUMBA)
         self.reset()
 
     def reset(self) -> None:
@@ -492,9 +496,10 @@ class AlarmStream:
         ends = np.empty((R, K, C), dtype=np.bool_)
         first = self._step
         if K:
-            if self._code == _FRAME:
+            compiled = _jit.enabled() if self._compiled is None else self._compiled
+            if self._code == _FRAME and not compiled:
                 _frame_numpy(s3, self._h, self._active, active, stat, starts, ends)
-            elif _jit.enabled():
+            elif compiled:
                 pos = np.array([self._step], dtype=np.int64)
                 _alarm_kernel(
                     self._code, s3, self._h, self._drift, self._k, self._n,
@@ -614,7 +619,7 @@ def _alarm_kernel(
     starts: np.ndarray,
     ends: np.ndarray,
 ) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_alarms.py)
-    """Persistence (``code`` 1) or CUSUM (``code`` 2) over scores ``s`` (R, K, C).
+    """Frame (``code`` 0), persistence (1) or CUSUM (2) rule over scores ``s`` (R, K, C).
 
     State (updated in place): ``act`` (R, C) bool, ``g`` (R, C), ``count`` (R, C) int,
     ``ring`` (R, C, n) bool (persistence: exceedance of the last n steps, slot ``step % n``),
@@ -627,7 +632,16 @@ def _alarm_kernel(
     for r in range(R):
         for c in range(C):
             a = act[r, c]
-            if code == 2:
+            if code == 0:
+                for j in range(K):
+                    x = s[r, j, c]
+                    now = x >= h
+                    starts[r, j, c] = now and not a
+                    ends[r, j, c] = a and not now
+                    a = now
+                    active[r, j, c] = a
+                    stat[r, j, c] = x
+            elif code == 2:
                 x = g[r, c]
                 for j in range(K):
                     x = max((x + s[r, j, c]) - drift, 0.0)

@@ -35,10 +35,12 @@ Laws
 Cost
     A special function on every bin of every frame would cost more than the monitor's whole
     analysis. Since ``u <= -log p_k <= u / r`` (``c`` lies in ``[0, (1 - r) / r]``), one pass over
-    the tested bins computes ``u`` (one product) and the upper bound ``u / r`` (a second one);
-    ``J`` is evaluated only at the bin of largest ``u`` and at the bins whose upper bound exceeds
-    the best exact value so far: usually one bin per frame and channel, a few when the lowest
-    bins (``r`` down to 0.44 on the EHA position channel) are large.
+    the tested bins computes ``u`` (one product per bin) and keeps its two largest values; ``J`` is
+    evaluated at the bin of largest ``u``, then at the few "low" bins (``r`` well below 1: the
+    lowest frequencies, ``r`` down to 0.44 on the EHA position channel) whose bound ``u / r``
+    exceeds the best exact value, and at the other bins only when the second largest ``u`` times
+    their common bound ``max 1 / r <= 1 + LOW_GAP`` exceeds it (about 1 frame in 100): usually one
+    special-function evaluation per frame and channel.
 
 Paths
     :class:`FrameScore` runs the compiled kernel :func:`_score_kernel` when
@@ -66,6 +68,8 @@ __all__ = ["FrameScore", "frame_scores"]
 
 #: ``u`` (about ``-log p_k``) at which the trapezoid rule is converged to 1e-13 in ``log J``.
 U_CONVERGED = 200.0
+#: Bins with ``l1 / l2 > 1 + LOW_GAP`` are checked one by one; the others share one bound.
+LOW_GAP = 1e-3
 _TOL = 1e-13
 _MAX_NODES = 4096
 
@@ -159,50 +163,62 @@ def _score_kernel(
     cnt: np.ndarray,
     cvals: np.ndarray,
     wvals: np.ndarray,
+    low: np.ndarray,
+    n_low: np.ndarray,
+    is_low: np.ndarray,
+    hi_invr: np.ndarray,
+    inv1T: np.ndarray,
     log_n: float,
     out: np.ndarray,
 ) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_frame_score.py)
     """Frame scores of ``power`` (F, bins, m) over the tested bins ``idx`` into ``out`` (F, m).
 
     ``inv1`` = 1 / (2 l1), ``invr`` = l1 / l2 (>= 1, inf for l2 = 0), ``off`` / ``cnt`` the node
-    tables of :func:`_node_tables`, all (n_tested, m). Pass 1: ``u = S inv1`` and its maximum,
-    the upper bounds ``v = u invr`` and their two largest; exact value at the bin of largest
-    ``u``; pass 2 (only when another bin's bound exceeds it) evaluates the bins whose bound
-    exceeds the running best.
+    tables of :func:`_node_tables`, ``is_low`` (bool), all (n_tested, m). The "low" bins of channel
+    ``c`` (``r < 1 / (1 + LOW_GAP)``, a handful at the lowest frequencies) are ``low[c, :n_low[c]]``;
+    every other bin has ``invr <= hi_invr[c]``; ``inv1T`` is ``inv1`` channel-major (m, n_tested).
+    One pass takes ``u = S inv1``, its largest value ``A``
+    (bin ``kA``) and the second largest ``U2``; the exact value at ``kA`` is then compared with the
+    upper bounds ``u invr`` of the low bins and, only when ``U2 hi_invr`` exceeds it (rare), of every
+    other bin: the maximum of the exact values over the bins that can hold it.
     """
     F = power.shape[0]
     m = power.shape[2]
     nt = idx.shape[0]
+    lo = idx[0]
+    contiguous = idx[nt - 1] - lo == nt - 1  # the usual case: a slice of bins, no index loads
     for f in range(F):
         for c in range(m):
             A = -1.0
             kA = 0
-            V1 = -1.0
-            kV1 = -1
-            V2 = -1.0
+            U2 = -1.0
+            w = inv1T[c]
             for j in range(nt):
-                u = power[f, idx[j], c] * inv1[j, c]
-                if u > A:
-                    A = u
-                    kA = j
-                v = u * invr[j, c]
-                if v > V1:
-                    V2 = V1
-                    V1 = v
-                    kV1 = j
-                elif v > V2:
-                    V2 = v
+                u = (power[f, lo + j, c] if contiguous else power[f, idx[j], c]) * w[j]
+                if u > U2:
+                    if u > A:
+                        U2 = A
+                        A = u
+                        kA = j
+                    else:
+                        U2 = u
             e = _exact_log_sf(A, off[kA, c], cnt[kA, c], cvals, wvals)
-            other = V2 if kV1 == kA else V1
-            if other > e:
-                for j in range(nt):
-                    if j == kA:
-                        continue
+            for t in range(n_low[c]):
+                j = low[c, t]
+                if j != kA:
                     u = power[f, idx[j], c] * inv1[j, c]
                     if u * invr[j, c] > e:
                         ej = _exact_log_sf(u, off[j, c], cnt[j, c], cvals, wvals)
                         if ej > e:
                             e = ej
+            if U2 * hi_invr[c] > e:
+                for j in range(nt):
+                    if j != kA and not is_low[j, c]:
+                        u = power[f, idx[j], c] * inv1[j, c]
+                        if u * invr[j, c] > e:
+                            ej = _exact_log_sf(u, off[j, c], cnt[j, c], cvals, wvals)
+                            if ej > e:
+                                e = ej
             out[f, c] = max(e - log_n, 0.0)
 
 
@@ -283,6 +299,22 @@ class FrameScore:
         off, cnt, self._cvals, self._wvals = _node_tables(r.ravel())
         self._off = np.ascontiguousarray(off.reshape(r.shape))
         self._cnt = np.ascontiguousarray(cnt.reshape(r.shape))
+        invr = self._invr
+        is_low = invr > 1.0 + LOW_GAP
+        self._is_low = np.ascontiguousarray(is_low)
+        self._n_low = np.ascontiguousarray(is_low.sum(axis=0).astype(np.int64))
+        self._low = np.zeros((self.n_channels, max(1, int(self._n_low.max()))), dtype=np.int64)
+        for c in range(self.n_channels):
+            js = np.flatnonzero(is_low[:, c])
+            self._low[c, : js.size] = js
+        self._hi_invr = np.ascontiguousarray(
+            np.array([invr[~is_low[:, c], c].max(initial=1.0) for c in range(self.n_channels)])
+        )
+        self._kernel_args = (
+            self._idx, self._inv1, self._invr, self._off, self._cnt, self._cvals, self._wvals,
+            self._low, self._n_low, self._is_low, self._hi_invr, np.ascontiguousarray(self._inv1.T),
+            self.log_n,
+        )  # fmt: skip
         self._compiled = compiled
         self._exact_py = getattr(_exact_log_sf, "py_func", _exact_log_sf)
 
@@ -331,13 +363,21 @@ class FrameScore:
         flat = p.reshape(-1, *p.shape[-2:])
         out = np.empty((flat.shape[0], self.n_channels))
         if compiled and _jit.HAVE_NUMBA:
-            _score_kernel(
-                flat, self._idx, self._inv1, self._invr, self._off, self._cnt,
-                self._cvals, self._wvals, self.log_n, out,
-            )  # fmt: skip
+            _score_kernel(flat, *self._kernel_args, out)
         else:
             self._numpy(flat, out)
         return out.reshape(*lead, self.n_channels)
+
+    def _unchecked(self, power: np.ndarray) -> np.ndarray:
+        """:meth:`__call__` for ``(F, bins, m)`` float arrays of the right shape (the monitor calls it)."""
+        out = np.empty((power.shape[0], self.n_channels))
+        if self._compiled and _jit.HAVE_NUMBA:
+            _score_kernel(power, *self._kernel_args, out)
+        elif self._compiled is None:
+            return self(power)
+        else:
+            self._numpy(power, out)
+        return out
 
     def _numpy(self, power: np.ndarray, out: np.ndarray) -> None:
         """Bounds vectorized; the exact value at the candidate bins by the kernel's scalar code."""

@@ -10,9 +10,7 @@ if TYPE_CHECKING:
     pass
 
 __all__ = [
-    "ALARM_SCORE",
-    "ALARM_STATISTIC",
-    "ALARM_THRESHOLD",
+    "ALARM",
     "CHATTERING",
     "MOST_SIGNIFICANT_HZ",
     "PEAK_HZ",
@@ -47,19 +45,18 @@ PSI = "/chattering/psi"
 STATISTIC = "/detection/statistic_db"
 #: The decision level, 0 dB (one series shared by every channel's view).
 THRESHOLD = "/detection/threshold_db"
-#: Per-frame verdict per channel, 1 = fault (not drawn).
+#: Per frame ONE row of ``3 m + 1`` series: the per-frame verdict per channel (series ``0 .. m-1``,
+#: 1 = fault; not drawn), then the alarm rule's statistic per channel (``m .. 2m-1``: the frame
+#: score ``-log p`` in nats for the frame and persistence rules, the CUSUM ``g``), the frame score
+#: per channel (``2m .. 3m-1``; see chatterspec.detection.frame_score) and the rule's threshold ``h``
+#: (``3m``). The alarm series share the verdict's rows: Rerun's cost is per row.
 VERDICT = "/detection/verdict"
 #: Tested bin with the largest excess power ``S - E`` per channel (Hz), one row per frame.
 PEAK_HZ = "/frequency/peak_hz"
 #: Tested bin with the largest ``S / threshold`` per channel (Hz), one row per frame.
 MOST_SIGNIFICANT_HZ = "/frequency/most_significant_hz"
-#: The frame score ``-log p`` (nats) per channel, one row per frame (see chatterspec.detection.frame_score).
-ALARM_SCORE = "/alarm/score"
-#: What the alarm rule compares with its threshold, per channel, one row per frame: the score (frame and
-#: persistence rules) or the CUSUM ``g``.
-ALARM_STATISTIC = "/alarm/statistic"
-#: The rule's threshold ``h`` (one series shared by every channel's view).
-ALARM_THRESHOLD = "/alarm/threshold"
+#: The alarm series live in the rows of :data:`VERDICT` (series ``m .. 3m``).
+ALARM = VERDICT
 
 
 # --------------------------------------------------------------------------- blueprint
@@ -132,7 +129,7 @@ def series_styles(
         The names of the raw series are listed in either input mode; with the chattering given they
         name no series (the rows hold only the m chattering values).
     alarm_statistic : str
-        Name of what :data:`ALARM_STATISTIC` holds (the rule's statistic, with its unit).
+        Name of the rule's statistic in :data:`VERDICT` (series ``m .. 2m-1``), with its unit.
 
     Returns
     -------
@@ -167,7 +164,6 @@ def series_styles(
             ),
         ),
         (THRESHOLD, rr.SeriesLines(colors=[_GREY], widths=[1.0], names=["threshold (0 dB)"])),
-        (VERDICT, rr.SeriesPoints(colors=[_RED] * m, names=[f"{c}: verdict (1 = fault)" for c in channels])),
         (
             PEAK_HZ,
             rr.SeriesLines(
@@ -183,21 +179,19 @@ def series_styles(
             ),
         ),
     ]
-    out += [
+    out.append(
         (
-            ALARM_SCORE,
+            VERDICT,
             rr.SeriesLines(
-                colors=[_GREY] * m, widths=[1.0] * m, names=[f"{c}: score -log p [nats]" for c in channels]
+                colors=[_RED] * m + cols + [_GREY] * m + [_RED],
+                widths=[1.0] * m + [1.5] * m + [1.0] * (m + 1),
+                names=[f"{c}: verdict (1 = fault)" for c in channels]
+                + [f"{c}: {alarm_statistic}" for c in channels]
+                + [f"{c}: score -log p [nats]" for c in channels]
+                + ["alarm threshold h"],
             ),
-        ),
-        (
-            ALARM_STATISTIC,
-            rr.SeriesLines(
-                colors=cols, widths=[1.5] * m, names=[f"{c}: {alarm_statistic}" for c in channels]
-            ),
-        ),
-        (ALARM_THRESHOLD, rr.SeriesLines(colors=[_RED], widths=[1.0], names=["alarm threshold h"])),
-    ]
+        )
+    )
     for c in channels:
         style = rr.SeriesPoints(colors=[_RED], marker_sizes=[2.5], names=[f"{c}: fault (flagged frame)"])
         out.append((fault_entity(c), style))
@@ -214,6 +208,7 @@ def blueprint(
     db_range: tuple[float, float] = (-5.0, 30.0),
     alarm: str | None = None,
     alarm_score: bool = False,
+    alarm_range: tuple[float, float] | None = None,
 ) -> Any:
     """The default layout: per channel (columns) chattering, spectrogram, detection statistic and peak
     frequency; below, the state lanes (true fault first, then one verdict lane per channel in channel
@@ -238,10 +233,13 @@ def blueprint(
     db_range : (float, float)
         Colour range of the spectrogram (dB re the frame threshold), shown in its title.
     alarm : str, optional
-        Title of the alarm view (the rule, its statistic and budget), which shows :data:`ALARM_STATISTIC`
-        against :data:`ALARM_THRESHOLD` below the detection statistic; None: no alarm view.
+        Title of the alarm view (the rule, its statistic and budget) below the detection statistic:
+        channel ``i``'s rule statistic against the threshold (:data:`VERDICT`); None: no alarm view.
     alarm_score : bool
-        Also draw :data:`ALARM_SCORE` in the alarm view (when the statistic is not the score itself).
+        Also draw the frame score in the alarm view (when the statistic is not the score itself).
+    alarm_range : (float, float), optional
+        Fixed y range of the alarm view (a fault's score, thousands of nats, would otherwise hide the
+        threshold and the CUSUM ``g``, which is capped at it).
 
     Returns
     -------
@@ -316,17 +314,18 @@ def blueprint(
                     else [
                         rrb.TimeSeriesView(
                             origin="/alarm",
-                            contents=[
-                                f"+ {ALARM_STATISTIC}",
-                                f"+ {ALARM_THRESHOLD}",
-                                *([f"+ {ALARM_SCORE}"] if alarm_score else []),
-                            ],
+                            contents=[f"+ {VERDICT}"],
                             name=f"{name}: {alarm}",
                             time_ranges=time_range,
                             plot_legend=no_legend,
+                            axis_y=None if alarm_range is None else rrb.ScalarAxis(range=alarm_range),
                             overrides={
-                                ALARM_STATISTIC: rr.SeriesLines.from_fields(visible_series=only(i)),
-                                ALARM_SCORE: rr.SeriesLines.from_fields(visible_series=only(i)),
+                                VERDICT: rr.SeriesLines.from_fields(
+                                    visible_series=[
+                                        j == m + i or (alarm_score and j == 2 * m + i) or j == 3 * m
+                                        for j in range(3 * m + 1)
+                                    ]
+                                )
                             },
                         )
                     ]

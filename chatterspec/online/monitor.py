@@ -21,10 +21,19 @@ first measurement ``z(0)`` initializes the filters; chattering sample ``j`` is
 ``e(j+1|j)`` at time ``t0 + (j + 1) dt``; frame ``j`` covers chattering samples
 ``[j H, j H + W)`` and is time-stamped at its centre.
 
-Events: for each channel a ``fault-start`` is raised at the centre time of the
-first flagged frame after an unflagged one (or the first frame), a
-``fault-end`` at the centre time of the first unflagged frame after a flagged
-run. No debouncing: every frame verdict is a test at the per-frame level alpha.
+Alarms: every frame gets a score per channel, ``-log p`` of its Bonferroni p-value
+(:class:`chatterspec.detection.frame_score.FrameScore`, the per-frame threshold's law), and an
+alarm rule of :mod:`chatterspec.detection.alarms` (``MonitorSettings.rule``: frame, k-of-n
+persistence or CUSUM, its threshold set for a budget in false alarms per hour by
+:mod:`chatterspec.studies.alarm_budget`) turns the scores into an alarm state per channel, in
+an :class:`~chatterspec.detection.alarms.AlarmStream` that continues across pushes (any chunking
+gives the same alarms). A ``fault-start`` is raised at the centre time of the frame where a
+channel's alarm starts, a ``fault-end`` at the centre of the frame where it ends; both carry the
+rule, the frame's score, the rule's statistic and threshold and the budget. Without a rule
+(``MonitorSettings.rule = None``, the API default) the events are those of the per-frame verdict
+at ``alpha``, as before the alarm layer: a start at the first flagged frame after an unflagged
+one, an end at the first unflagged frame, every frame a test at level ``alpha`` (at 0.001 and
+3 channels about 42 false alarms per hour of healthy data).
 """
 
 from __future__ import annotations
@@ -180,7 +189,9 @@ class ChatteringMonitor:
         self._score = FrameScore(self.threshold, compiled=_jit.enabled())
         self._legacy = s.rule is None
         self.rule = FrameRule(-math.log(self.threshold.alpha)) if s.rule is None else s.rule
-        self._alarm = AlarmStream(FrameRule(0.5) if self._legacy else self.rule, (m,))
+        self._alarm = AlarmStream(
+            FrameRule(0.5) if self._legacy else self.rule, (m,), compiled=_jit.enabled()
+        )
         self._fault_peak = np.zeros(m)
         self._fault_peak_hz = np.zeros(m)
         self.n_events = 0
@@ -414,7 +425,7 @@ class ChatteringMonitor:
         self._buf[: keep.shape[0]] = keep  # numpy copes with the overlap when data is self._buf
         self._n_buf = keep.shape[0]
         flags, peak_hz, peak_ratio = self._verdicts(power)
-        score = self._score(power)
+        score = self._score._unchecked(power)
         blk = self._alarm._advance(flags.astype(float) if self._legacy else score)
         stat = score if self._legacy else blk.statistic
         times = self.frame_time(idx)
@@ -425,16 +436,17 @@ class ChatteringMonitor:
     def _events(self, fr: FrameBlock, starts: np.ndarray, ends: np.ndarray) -> tuple[DetectionEvent, ...]:
         """Events from the alarm layer's starts / ends (F, m); tracks each fault's largest peak."""
         active = fr.alarm
-        if not (starts.any() or ends.any() or active[0].any()):  # no change and nothing active: no event
+        changed = (starts | ends).any(axis=0)  # (m,)
+        on = active[0]  # active at the first frame and unchanged: active throughout
+        if not (changed.any() or on.any()):  # no change and nothing active: no event
             return ()
         events: list[DetectionEvent] = []
-        for c in range(starts.shape[1]):
+        for c in np.flatnonzero(changed | on).tolist():
             s_c, e_c = starts[:, c], ends[:, c]
-            if not (s_c.any() or e_c.any()):
-                if active[0, c]:  # the fault goes on: only its largest peak may change
-                    f = int(np.argmax(fr.peak_ratio[:, c]))  # the first largest, as the loop's strict '>'
-                    if fr.peak_ratio[f, c] > self._fault_peak[c]:
-                        self._fault_peak[c], self._fault_peak_hz[c] = fr.peak_ratio[f, c], fr.peak_hz[f, c]
+            if not changed[c]:  # the fault goes on: only its largest peak may change
+                f = int(np.argmax(fr.peak_ratio[:, c]))  # the first largest, as the loop's strict '>'
+                if fr.peak_ratio[f, c] > self._fault_peak[c]:
+                    self._fault_peak[c], self._fault_peak_hz[c] = fr.peak_ratio[f, c], fr.peak_hz[f, c]
                 continue
             for f in range(s_c.shape[0]):
                 ratio = float(fr.peak_ratio[f, c])

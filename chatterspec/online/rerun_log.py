@@ -19,9 +19,6 @@ from ..errors import ParameterError
 from ..plants.nonlinear import is_linear
 from .arrow_columns import _MAX_TENSOR_ROWS, _Columns, _TimeIndex
 from .blueprint import (
-    ALARM_SCORE,
-    ALARM_STATISTIC,
-    ALARM_THRESHOLD,
     CHATTERING,
     MOST_SIGNIFICANT_HZ,
     PEAK_HZ,
@@ -293,8 +290,7 @@ class RerunLogger:
         self._started = False
         rule = monitor.rule
         self._cusum = rule.name == "cusum"  # the alarm view draws g; else the score itself
-        h = float(rule.threshold)
-        self._h_rows = self._cols.scalars_column(np.full(2, h if np.isfinite(h) else np.nan), own=True)
+        self._h = float(rule.threshold) if np.isfinite(rule.threshold) else np.nan
         if send_blueprint:
             for s in sinks.streams:
                 bp = blueprint(
@@ -305,18 +301,21 @@ class RerunLogger:
                     db_range=DB_RANGE,
                     alarm=self._alarm_title(),
                     alarm_score=self._cusum,
+                    alarm_range=(0.0, 1.5 * self._h) if self._h > 0 else None,
                 )
                 s.send_blueprint(bp, make_active=True, make_default=True)
         self._log_static(truth)
 
     def _alarm_title(self) -> str:
-        """The alarm view's title: the rule's statistic, threshold and budget."""
+        """The alarm view's title: the rule's statistic against its threshold, and the budget."""
         from .monitor_types import alarm_label
 
         rule, budget = self.monitor.rule, self.monitor.settings.false_alarms_per_hour
-        what = "CUSUM g [nats], grey = score" if self._cusum else "score -log p [nats]"
-        extra = f" ({rule.k} of {rule.n} frames)" if rule.name == "persistence" else ""
-        return f"{what}, red = threshold {rule.threshold:.3g}{extra} [{alarm_label(rule.name, budget)}]"
+        what = {"cusum": "CUSUM g", "persistence": f"score ({rule.name} {getattr(rule, 'k', '')} of "
+                f"{getattr(rule, 'n', '')})"}.get(rule.name, "score")  # fmt: skip
+        label = alarm_label(rule.name, budget).split(", ", 1)[1]
+        grey = ", grey = score" if self._cusum else ""
+        return f"{what} vs h = {rule.threshold:.3g} [nats] ({label}){grey}"
 
     def _each(self, fn: Any) -> None:
         for s in self.sinks.streams:
@@ -515,17 +514,20 @@ class RerunLogger:
         peak_hz = self._peak_hz(frames)
         s.send_columns(STATISTIC, indexes=[fcol], columns=[cols.scalars_column(stat_db, own=True)])
         s.send_columns(THRESHOLD, indexes=[_TimeIndex(pa, fns[[0, -1]])], columns=[self._zero_rows])
-        s.send_columns(VERDICT, indexes=[fcol], columns=[cols.scalars_column(flags)])
+
         s.send_columns(PEAK_HZ, indexes=[fcol], columns=[cols.scalars_column(peak_hz, own=True)])
         s.send_columns(MOST_SIGNIFICANT_HZ, indexes=[fcol], columns=[cols.scalars_column(sig_hz)])
-        score = _joined(frames, "score")
-        s.send_columns(ALARM_SCORE, indexes=[fcol], columns=[cols.scalars_column(score)])
-        if self._cusum:
-            g = _joined(frames, "alarm_statistic")
-            s.send_columns(ALARM_STATISTIC, indexes=[fcol], columns=[cols.scalars_column(g)])
-        else:
-            s.send_columns(ALARM_STATISTIC, indexes=[fcol], columns=[cols.scalars_column(score)])
-        s.send_columns(ALARM_THRESHOLD, indexes=[_TimeIndex(pa, fns[[0, -1]])], columns=[self._h_rows])
+        # one row per frame: verdict flags, rule statistic, score, threshold (blueprint.VERDICT)
+        rows = np.empty((F, 3 * m + 1))
+        rows[:, :m] = flags
+        a = 0
+        for f in frames:
+            b = a + f.n_frames
+            rows[a:b, m : 2 * m] = f.alarm_statistic if self._cusum else f.score
+            rows[a:b, 2 * m : 3 * m] = f.score
+            a = b
+        rows[:, 3 * m] = self._h
+        s.send_columns(VERDICT, indexes=[fcol], columns=[cols.scalars_column(rows, own=True)])
         for i, c in enumerate(self.keys):
             self._send_spectra(s, f"/spectrum/{c}", fcol, fns, spectra[i])
             hit = np.flatnonzero(flags[:, i])
