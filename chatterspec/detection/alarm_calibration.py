@@ -104,7 +104,7 @@ Method = Literal["law", "counted", "extrapolated"]
 
 
 def check_budget(false_alarms_per_hour: object, option: str = "false_alarms_per_hour") -> float:
-    """A budget in false alarms per hour: a finite number > 0 (``ParameterError`` naming ``option``)."""
+    """``false_alarms_per_hour`` as a budget: a finite number > 0 (``ParameterError`` naming ``option``)."""
     try:
         x = float(false_alarms_per_hour)  # type: ignore[arg-type]
     except (TypeError, ValueError):

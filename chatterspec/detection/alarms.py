@@ -318,7 +318,7 @@ def make_rule(name: str, threshold: float = float("inf"), **parameters: Any) -> 
 
 
 def rule_from_dict(d: Mapping[str, Any]) -> AlarmRule:
-    """Inverse of ``rule.to_dict()`` (``threshold`` ``None`` reads as ``inf``)."""
+    """Inverse of ``rule.to_dict()``: the rule of dict ``d`` (``threshold`` ``None`` reads as ``inf``)."""
     d = dict(d)
     name = d.pop("rule", None)
     if not isinstance(name, str):
@@ -704,5 +704,5 @@ def run_rule(rule: AlarmRule, scores: np.ndarray) -> AlarmBlock:
 
 
 def count_starts(rule: AlarmRule, scores: np.ndarray) -> np.ndarray:
-    """Alarm starts per stream and channel ``(..., channels)`` of :func:`run_rule`."""
+    """Alarm starts per stream and channel ``(..., channels)`` of :func:`run_rule` (``rule``, ``scores``)."""
     return run_rule(rule, scores).starts.sum(axis=-2)

@@ -102,7 +102,7 @@ _CACHE: dict[str, RuleCalibration] = {}
 
 
 def frames_per_hour(settings: Any, dt: float) -> float:
-    """STFT frames per hour of data: ``3600 / (hop samples * dt)``."""
+    """STFT frames per hour of data: ``3600 / (hop samples * dt)`` (hop of ``settings.stft``, ``dt`` in s)."""
     return 3600.0 / (settings.stft.n_hop(dt) * dt)
 
 
