@@ -13,7 +13,6 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from ..detection.alarm_calibration import check_budget
 from ..detection.alarms import RULES, rule_names
 from ..errors import CalibrationMismatchError, ParameterError
 
@@ -123,6 +122,8 @@ def alarm_choice(
     only the frame rule takes and which excludes ``--false-alarms-per-hour``. ``default_rule``:
     the rule when ``--rule`` is not given (a calibration file's; else cusum).
     """
+    from ..detection.alarm_calibration import check_budget  # scipy: not at parser build time
+
     rule = args.rule or default_rule or _DEFAULT_RULE
     if alpha_given and args.rule not in (None, "frame"):
         raise ParameterError(
