@@ -449,10 +449,18 @@ def calibrate_rule(
     # batches of consecutive steps, each run from the initial state (the budget counts renewals)
     edges = np.linspace(0, K, B + 1).astype(int)
     parts = [s3[:, a:b] for a, b in itertools.pairwise(edges)]
-    grid = _grid(rule, s3, GRID_POINTS)
-    counts = np.stack([starts_on_grid(rule, p, grid).reshape(grid.size, -1).sum(axis=1) for p in parts])
     steps = np.array([p.shape[0] * p.shape[1] for p in parts], dtype=float)  # per batch, one channel
     hours = float(steps.sum() / F)
+    coarse = _grid(rule, s3, GRID_POINTS)
+    total = starts_on_grid(rule, s3, coarse).reshape(coarse.size, -1).sum(axis=1)
+    # a finer grid where it matters: from the last threshold still above the rare-alarm rate (or the
+    # budget) to the first one with too few starts to count
+    top = min(MAX_RATE_PER_STEP * steps.sum() * C, max(X * hours, MIN_COUNT))
+    i_lo = int(np.flatnonzero(total > top)[-1]) if np.any(total > top) else 0
+    i_hi = int(np.flatnonzero(total < MIN_COUNT)[0]) if np.any(total < MIN_COUNT) else coarse.size - 1
+    fine = np.linspace(coarse[i_lo], coarse[max(i_hi, i_lo)], GRID_POINTS // 2)
+    grid = np.unique(np.concatenate([coarse, fine]))
+    counts = np.stack([starts_on_grid(rule, p, grid).reshape(grid.size, -1).sum(axis=1) for p in parts])
 
     def solve(cnt: np.ndarray, n_steps: float) -> tuple[float, str, dict[str, Any]]:
         T = n_steps / F
