@@ -6,8 +6,8 @@ from collections.abc import Collection
 
 import numpy as np
 
-from .._validate import finite_array
 from .. import _jit
+from .._validate import finite_array
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
 from . import _engine
