@@ -120,7 +120,9 @@ def test_calibrate_prints_result_when_the_final_write_fails(tmp_path: Path, monk
 
     monkeypatch.setattr(Calibration, "save", full)
     out = tmp_path / "c.json"
-    rc = main(["calibrate", "eha-healthy", "--runs", "8", "--no-progress", "--out", str(out)])
+    rc = main(
+        ["calibrate", "eha-healthy", "--runs", "8", "--alpha", "0.2", "--no-progress", "--out", str(out)]
+    )
     cap = capsys.readouterr()
     assert rc == 2
     assert "calibration of eha-healthy" in cap.out and "per-bin agreement" in cap.out

@@ -47,9 +47,11 @@ def run(args: argparse.Namespace) -> int:
     extra: dict = {}
     if args.calibration:
         from ..studies.calibration import load_calibration
+        from ..studies.calibration_support import require_support
 
         n_samples = round(sc.duration / sc.nominal.dt)  # chattering samples of one record
         cal = load_calibration(args.calibration, sc.nominal, n_samples)
+        require_support(cal, "detect", args.calibration)  # enough runs for its alpha, or refused
         threshold = cal.threshold("family-wise")
         if not sc.is_linear:  # nonlinear: STFT intervals from the calibrated per-frame threshold
             extra["frame_threshold"] = cal.threshold("frame-family-wise")

@@ -131,8 +131,10 @@ def _threshold(args: argparse.Namespace, sc: object) -> tuple[object, dict]:
     config = STFTConfig()
     if args.calibration is not None:
         from ..studies.calibration import load_calibration
+        from ..studies.calibration_support import require_support
 
         cal = load_calibration(args.calibration, sc.nominal, config=config)  # type: ignore[attr-defined]
+        require_support(cal, "monitor", args.calibration)  # the per-frame threshold needs enough runs
         info = {"source": str(args.calibration), "runs": cal.runs, "alpha": cal.alpha, "seconds": 0.0}
     else:
         from ..studies.chattering_diagnosis import CALIBRATION_SALT, calibrate_for_diagnosis

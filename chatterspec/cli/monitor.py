@@ -176,8 +176,10 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.calibration is not None:
         from ..studies.calibration import load_calibration
+        from ..studies.calibration_support import require_support
 
         cal = load_calibration(args.calibration, spec.model, config=stft)
+        require_support(cal, "monitor", args.calibration)  # enough runs for its per-frame alpha
         settings = dataclasses.replace(settings, threshold=cal.threshold("frame-family-wise"))
         print(
             f"chatterspec monitor: empirical per-frame threshold of {args.calibration} "
