@@ -12,6 +12,7 @@ if TYPE_CHECKING:
     from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
 
+from ..errors import ParameterError
 from ._common import Outputs, add_detector_args, add_live_args, band_from_args, check_record_path, print_json
 
 
@@ -33,11 +34,31 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    p.set_defaults(func=run)
+    # None = not given (the defaults of add_detector_args are filled in by run): a calibration fixes
+    # the threshold, so an explicit --alpha / --threshold / --correction next to it is refused
+    p.set_defaults(func=run, alpha=None, threshold=None, correction=None)
+
+
+#: Defaults of the detector options when no calibration file is given.
+DETECTOR_DEFAULTS = {"alpha": 1e-3, "threshold": "exact", "correction": "bonferroni"}
+
+
+def refuse_with_calibration(args: argparse.Namespace, names: tuple[str, ...]) -> None:
+    """Refuse options that a ``--calibration`` file would override (they were silently ignored)."""
+    given = [f"--{n.replace('_', '-')}" for n in names if getattr(args, n, None) is not None]
+    if getattr(args, "calibration", None) is not None and given:
+        raise ParameterError(
+            f"{' and '.join(given)} cannot be used with --calibration: the calibration file fixes the "
+            "threshold and its alpha (drop the option, or drop --calibration)"
+        )
 
 
 def run(args: argparse.Namespace) -> int:
     check_record_path(args.record)  # before the (slow) imports: a bad path fails at once
+    refuse_with_calibration(args, tuple(DETECTOR_DEFAULTS))
+    for key, value in DETECTOR_DEFAULTS.items():
+        if getattr(args, key) is None:
+            setattr(args, key, value)
     from ..detection.detect import detect_chunks
     from ..plants.scenarios import scenario
 

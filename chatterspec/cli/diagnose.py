@@ -59,14 +59,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--calibration-runs",
         type=positive_int_arg,
-        default=500,
-        help="chattering: healthy runs of the in-call calibration (default 500)",
+        default=None,
+        help="chattering: healthy runs of the in-call calibration (default 500; not with --calibration)",
     )
     p.add_argument(
         "--alpha",
         type=alpha_arg,
-        default=1e-3,
-        help="chattering: per-frame false-alarm probability of the in-call calibration (default 1e-3)",
+        default=None,
+        help="chattering: per-frame false-alarm probability of the in-call calibration (default 1e-3; not "
+        "with --calibration)",
     )
     p.add_argument(
         "--chunk-runs",
@@ -170,8 +171,12 @@ DEFAULT_CHUNK_RUNS = 64
 
 def run(args: argparse.Namespace) -> int:
     from ..plants.scenarios import scenario
+    from .detect import refuse_with_calibration
 
     check_record_path(args.record)
+    refuse_with_calibration(args, ("alpha", "calibration_runs"))
+    args.alpha = 1e-3 if args.alpha is None else args.alpha
+    args.calibration_runs = 500 if args.calibration_runs is None else args.calibration_runs
     sc = scenario(args.name)
     methods = _methods(args.methods, sc)
     from ..plants.simulate import Simulation, iter_simulations

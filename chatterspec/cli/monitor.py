@@ -75,7 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=float,
         default=None,
         metavar="MINUTES",
-        help="streams: start a new .rrd every MINUTES of data (each complete on its own, named "
+        help="streams: start a new .rrd every MINUTES of data (>= 0.1; each complete on its own, named "
         "<record stem>-<UTC start time>.rrd)",
     )
     p.add_argument(
@@ -122,6 +122,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+#: Smallest ``--record-every`` (minutes): 0.0001 min would write 667 files for 4 s of data.
+MIN_RECORD_EVERY_MIN = 0.1
+
+
 def _stream_mode(args: argparse.Namespace) -> bool:
     stdin = str(args.data) == "-"
     if args.follow and stdin:
@@ -136,8 +140,12 @@ def _stream_mode(args: argparse.Namespace) -> bool:
             "--skip-bad-rows and --record-every apply to streams (--data - or --follow); a file is "
             "checked whole before it is replayed"
         )
-    if args.record_every is not None and not args.record_every > 0:
-        raise ParameterError(f"--record-every must be > 0 minutes; got {args.record_every}")
+    if args.record_every is not None and not args.record_every >= MIN_RECORD_EVERY_MIN:
+        raise ParameterError(
+            f"--record-every must be >= {MIN_RECORD_EVERY_MIN:g} minutes (one file per "
+            f"{60 * MIN_RECORD_EVERY_MIN:g} s of data at most: each file holds whole spectrogram frames and "
+            f"costs a rotation); got {args.record_every}"
+        )
     if args.idle_timeout is not None and not args.idle_timeout > 0:
         raise ParameterError(f"--idle-timeout must be > 0 s; got {args.idle_timeout}")
     return stream
@@ -175,6 +183,11 @@ def run(args: argparse.Namespace) -> int:
         band=band_from_args(args) or det.get("band"),
     )
     if args.calibration is not None:
+        if args.alpha is not None:
+            raise ParameterError(
+                "--alpha cannot be used with --calibration: the calibration file fixes the per-frame "
+                "threshold and its alpha (drop one of them)"
+            )
         from ..studies.calibration import load_calibration
         from ..studies.calibration_support import require_support
 

@@ -393,11 +393,22 @@ def _covariance(table: Mapping[str, Any], key: str, size: int, where: str) -> np
             raise ModelFileError(
                 f"{where}: [matrices] {diag_key} must have {size} entries; got shape {d.shape}"
             )
+        if np.any(d < 0):
+            i = int(np.flatnonzero(d < 0)[0])
+            raise ModelFileError(
+                f"{where}: [matrices] {diag_key} holds variances, which must be >= 0; entry {i} is {d[i]:g}"
+            )
         return np.diag(d)
     if key not in table:
         raise ModelFileError(f"{where}: [matrices] matrix {key} (or {diag_key}) is missing")
     M = _matrix(table, key, where, "matrices")
     _expect_shape(M, (size, size), key, where, "covariance")
+    from .models import _check_covariance
+
+    try:
+        _check_covariance(key, M)
+    except ChatterspecError as exc:
+        raise ModelFileError(f"{where}: [matrices] {exc} (a covariance)") from None
     return M
 
 

@@ -95,6 +95,10 @@ def oscillatory_mode(block: np.ndarray) -> OscillatoryMode:
 
 
 def _check_covariance(name: str, M: np.ndarray) -> None:
+    d = np.diag(M)
+    if np.any(d < 0):  # a variance: never negative (the relative eigenvalue tolerance would let it pass)
+        i = int(np.flatnonzero(d < 0)[0])
+        raise ParameterError(f"{name} must be positive semi-definite: diagonal entry {i} is {d[i]:g} < 0")
     if not np.allclose(M, M.T, rtol=1e-10, atol=0.0):
         raise ParameterError(f"{name} must be symmetric")
     eig = np.linalg.eigvalsh(M)
