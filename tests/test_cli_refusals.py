@@ -76,4 +76,4 @@ def test_negative_variances_name_the_file_and_field(
 def test_record_every_below_the_minimum_is_refused(capsys) -> None:
     argv = ["monitor", "--model", str(EXAMPLE_MODEL), "--data", "-", "--record", "x.rrd"]
     err = _error(capsys, [*argv, "--record-every", "0.0001"])
-    assert "--record-every must be >= 0.1 minutes" in err
+    assert "--record-every must be >= 0.05 minutes" in err

@@ -75,7 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=float,
         default=None,
         metavar="MINUTES",
-        help="streams: start a new .rrd every MINUTES of data (>= 0.1; each complete on its own, named "
+        help="streams: start a new .rrd every MINUTES of data (>= 0.05; each complete on its own, named "
         "<record stem>-<UTC start time>.rrd)",
     )
     p.add_argument(
@@ -123,7 +123,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 #: Smallest ``--record-every`` (minutes): 0.0001 min would write 667 files for 4 s of data.
-MIN_RECORD_EVERY_MIN = 0.1
+MIN_RECORD_EVERY_MIN = 0.05
 
 
 def _stream_mode(args: argparse.Namespace) -> bool:

@@ -75,6 +75,11 @@ MAX_EVENTS = 1000
 MAX_PENDING_CLOSES = 2
 #: A time step outside ``(GAP_LOW dt, GAP_HIGH dt]`` is a gap.
 GAP_LOW, GAP_HIGH = 0.5, 1.5
+#: The first rows of a stream (with a time column) are held until this many arrived and their time
+#: steps are compared with the model's dt; at end of input, at least RATE_CHECK_ROWS_MIN are needed.
+RATE_CHECK_ROWS, RATE_CHECK_ROWS_MIN = 5, 3
+#: Relative tolerance of that comparison (the data file's: every step within 1 % of dt).
+RATE_TOLERANCE = 0.01
 
 
 @dataclass(frozen=True)
@@ -159,7 +164,8 @@ class LatencyStats:
     """Median and max of latencies in bounded memory (log-spaced histogram, 0.5 % bins, 1 us .. 1000 s).
 
     The median is the centre of the histogram bin holding it (relative error
-    below 0.3 %); the max is exact.
+    below 0.3 %), clamped to the exact min and max (a bin centre can lie above
+    every observation in it); the max is exact.
     """
 
     _LO, _HI, _BINS = 1e-6, 1e3, 4200
@@ -167,6 +173,7 @@ class LatencyStats:
     def __init__(self) -> None:
         self.counts = np.zeros(self._BINS + 2, dtype=np.int64)
         self.max_s = 0.0
+        self.min_s = math.inf
         self.n = 0
         self._scale = self._BINS / math.log(self._HI / self._LO)
 
@@ -187,15 +194,15 @@ class LatencyStats:
         self.counts[k] += count
         self.n += count
         self.max_s = max(self.max_s, s)
+        self.min_s = min(self.min_s, s)
 
     def median(self) -> float | None:
         """Median latency (s), None without observations."""
         if self.n == 0:
             return None
         k = int(np.searchsorted(np.cumsum(self.counts), (self.n + 1) / 2.0))
-        if k == 0:
-            return self._LO / 2
-        return self._LO * math.exp((k - 0.5) / self._scale)
+        centre = self._LO / 2 if k == 0 else self._LO * math.exp((k - 0.5) / self._scale)
+        return min(max(centre, self.min_s), self.max_s)
 
     def to_dict(self) -> dict[str, float | int | None]:
         med = self.median()
@@ -331,6 +338,8 @@ class StreamMonitor:
         self._pending: list[str] = []  # reasons of a gap to emit at the next sample
         self._pending_line: int | None = None
         self._reset_next = False
+        self._held: list[RowBlock] = []  # first rows, held until the sampling-rate check
+        self._rate_checked = False
         self.n_rows = 0
         self._frames_done = 0  # frames of monitors already replaced
         self.events: deque[StreamEvent] = deque(maxlen=MAX_EVENTS)
@@ -374,8 +383,10 @@ class StreamMonitor:
             A bad row without ``skip_bad_rows``.
         """
         if isinstance(item, RowBlock):
-            self._rows(item)
-        elif isinstance(item, BadRow):
+            self._rate_gate(item)
+            return
+        self._release_held()  # rows held for the rate check go first, in input order
+        if isinstance(item, BadRow):
             if not self.skip_bad_rows:
                 raise DataFileError(
                     f"{item.message} (use --skip-bad-rows to skip such rows; a skipped row is a gap)"
@@ -400,6 +411,60 @@ class StreamMonitor:
             self._reset_next = True
             self._pending, self._pending_line = [], None
             self._last_t = None  # the new data's time base is not compared with the old one
+            self._rate_checked = False  # the new data's sampling is checked again
+
+    def end_of_input(self) -> None:
+        """The source ended: rows still held for the rate check are checked (if >= 3) and monitored.
+
+        Raises
+        ------
+        DataFileError
+            The held rows show a sampling interval other than the model's ``dt``.
+        """
+        held = self._held_rows()
+        if held >= RATE_CHECK_ROWS_MIN:
+            self._check_rate(_merge_blocks(self._held))
+        self._release_held()
+
+    # ------------------------------------------------------- sampling-rate check
+    def _held_rows(self) -> int:
+        return sum(b.n_rows for b in self._held)
+
+    def _rate_gate(self, b: RowBlock) -> None:
+        """Hold the first rows with a time column until :data:`RATE_CHECK_ROWS` arrived, check their
+        sampling interval against ``dt``, then monitor them (a mismatch would otherwise make every
+        step a gap: nothing monitored, exit 0)."""
+        if self._rate_checked or b.t is None:
+            self._release_held()
+            self._rows(b)
+            return
+        self._held.append(b)
+        if self._held_rows() >= RATE_CHECK_ROWS:
+            self._check_rate(_merge_blocks(self._held))
+            self._release_held()
+
+    def _release_held(self) -> None:
+        held, self._held = self._held, []
+        if held:
+            self._rate_checked = True
+            self._rows(_merge_blocks(held))
+
+    def _check_rate(self, b: RowBlock) -> None:
+        """Raise :class:`DataFileError` when the first steps agree with each other but not with ``dt``."""
+        self._rate_checked = True
+        steps = np.diff(b.t[:RATE_CHECK_ROWS])  # type: ignore[index]
+        step = float(np.median(steps))
+        dt = self.dt
+        consistent = step > 0 and np.all(np.abs(steps - step) <= RATE_TOLERANCE * step)
+        if consistent and abs(step - dt) > RATE_TOLERANCE * dt:
+            self._held = []  # not monitored: the run stops here
+            lines = b.lines[: steps.size + 1]
+            raise DataFileError(
+                f"lines {int(lines[0])}-{int(lines[-1])}: the stream is sampled every {1e3 * step:.6g} ms "
+                f"({1 / step:.6g} Hz), but the model's dt is {1e3 * dt:.6g} ms ({1 / dt:.6g} Hz): every "
+                "step would be a gap and nothing would be monitored; resample the data or set dt in the "
+                "model file"
+            )
 
     def _rows(self, b: RowBlock) -> None:
         K = b.n_rows
@@ -658,6 +723,7 @@ class StreamMonitor:
         stopped_by : str
             Why the run ended (reported in the summary).
         """
+        self._release_held()  # rows held for the rate check when the input stopped early
         t_stop = self._t_next if self.monitor is not None else None
         try:
             self._close_file(t_stop)
@@ -690,6 +756,20 @@ class StreamMonitor:
             stopped_by=stopped_by,
             notes=tuple(self.notes),
         )
+
+
+def _merge_blocks(blocks: list[RowBlock]) -> RowBlock:
+    """Consecutive row blocks as one (the last arrival time)."""
+    if len(blocks) == 1:
+        return blocks[0]
+    t = None if blocks[0].t is None else np.concatenate([b.t for b in blocks])  # type: ignore[misc]
+    return RowBlock(
+        t,
+        np.concatenate([b.z for b in blocks]),
+        np.concatenate([b.u for b in blocks]),
+        np.concatenate([b.lines for b in blocks]),
+        blocks[-1].arrival,
+    )
 
 
 def _send_blueprint_released(stream: Any, logger: Any) -> None:
@@ -792,5 +872,6 @@ def drive(chunks: Iterable[tuple[bytes, float]], rows: CsvRows, monitor: StreamM
             monitor.process(item)
     for item in rows.finish(time.perf_counter()):
         monitor.process(item)
+    monitor.end_of_input()
     if rows.header is None and monitor.n_rows == 0:
         raise DataFileError(f"{rows.where}: no header line (the first line must name the columns)")

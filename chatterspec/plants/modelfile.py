@@ -569,6 +569,13 @@ def _check_times(
             f"(t = {t[i + 1]:.9g} s) follows t = {t[i]:.9g} s"
         )
     off = np.flatnonzero(np.abs(step - dt) > tol * dt)
+    med = float(np.median(step))
+    if off.size and np.all(np.abs(step - med) <= tol * med):  # uniformly sampled at another rate
+        raise DataFileError(
+            f"{where}: column {column!r}: the data is sampled every {1e3 * med:.6g} ms ({1 / med:.6g} Hz), "
+            f"but the model's dt is {1e3 * dt:.6g} ms ({1 / dt:.6g} Hz); resample the data or set dt in "
+            "the model file"
+        )
     if off.size:
         i = int(off[0])
         raise DataFileError(
