@@ -281,13 +281,20 @@ class Outputs:
         Returns ``fn``'s result, or None when the write failed.
         """
         try:
-            return fn(*args, **kwargs)
+            result = fn(*args, **kwargs)
         except (OSError, RuntimeError) as exc:
-            if isinstance(exc, RuntimeError) and "file" not in str(exc).lower():
+            from ..online.viewer import file_error  # Rerun reports a full disk as a RuntimeError
+
+            err = file_error(exc, target) if isinstance(exc, RuntimeError) else exc
+            if err is None:
                 raise
-            reason = getattr(exc, "strerror", None) or str(exc).splitlines()[0]
+            reason = getattr(err, "strerror", None) or str(err).splitlines()[0]
             self.failures.append(f"{option} {str(target)!r} could not be written ({reason})")
             return None
+        late = getattr(result, "write_error", None)  # a recording that failed after the run finished
+        if late:
+            self.failures.append(f"{option} {str(target)!r} could not be completed ({late})")
+        return result
 
     def finish(self) -> None:
         """Raise :class:`OutputPathError` naming every failed write (after the result was printed)."""

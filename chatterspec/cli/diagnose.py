@@ -27,7 +27,7 @@ import math
 import time
 
 from ..errors import ParameterError
-from ._common import alpha_arg, check_record_path, positive_int_arg, print_json
+from ._common import Outputs, alpha_arg, check_record_path, positive_int_arg, print_json
 
 #: Every method ``--methods`` accepts.
 ALL_METHODS = ("chattering", "smm", "imm")
@@ -213,11 +213,13 @@ def run(args: argparse.Namespace) -> int:
             bar.update(sim.runs)
             del sim
     results = [t.result(info) if isinstance(t, ChatteringTally) else t.result() for t in tallies]
-    recording = None
+    recording, written = None, Outputs()  # a recording that fails: the result first, then exit 2
     if args.record is not None:
         from ..online.diagnosis_log import record_diagnosis
 
-        recording = record_diagnosis(args.record, first, threshold, outputs)
+        recording = written.write(
+            "--record", args.record, record_diagnosis, args.record, first, threshold, outputs
+        )
     if args.json:
         print_json(
             {
@@ -229,10 +231,12 @@ def run(args: argparse.Namespace) -> int:
                 "recording": None if recording is None else str(recording),
             }
         )
+        written.finish()
         return 0
     _print_table(sc, args, results)
     if recording is not None:
         print(f"recording: {recording} (open with `chatterspec replay {recording}` or `rerun {recording}`)")
+    written.finish()
     return 0
 
 

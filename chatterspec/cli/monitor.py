@@ -24,7 +24,15 @@ import warnings
 from pathlib import Path
 
 from ..errors import ParameterError
-from ._common import alpha_arg, band_edge_arg, band_from_args, check_record_path, live_arg, positive_int_arg
+from ._common import (
+    Outputs,
+    alpha_arg,
+    band_edge_arg,
+    band_from_args,
+    check_record_path,
+    live_arg,
+    positive_int_arg,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -208,12 +216,19 @@ def run(args: argparse.Namespace) -> int:
 
     data = load_data(args.data, spec.model)
     monitor = ChatteringMonitor(spec.model, settings, t0=float(data.t[0]))
-    sinks = open_sinks(
+    outputs = Outputs()  # a recording that cannot be written: the run is reported first, then exit 2
+    name = f"monitor {args.data.name}"
+    sinks = outputs.write(
+        "--record",
+        args.record,
+        open_sinks,
         record=args.record,
         live=args.live,
-        recording_name=f"monitor {args.data.name}",
+        recording_name=name,
         default_record=default_recording_path(args.data.stem),
     )
+    if sinks is None:
+        sinks = open_sinks(live=args.live, recording_name=name)
     for note in sinks.notes:
         print(f"chatterspec monitor: {note}", file=sys.stderr)
     shown = len(sinks.notes)
@@ -239,6 +254,17 @@ def run(args: argparse.Namespace) -> int:
         raise
     for note in summary.notes[shown:]:  # e.g. a live viewer that went away during the run
         print(f"chatterspec monitor: {note}", file=sys.stderr)
+    if summary.write_error:
+        outputs.failures.append(
+            f"--record {str(args.record)!r} could not be completed ({summary.write_error})"
+        )
+    rc = _report_replay(args, spec, stft, summary, jsonl, human)
+    outputs.finish()
+    return rc
+
+
+def _report_replay(args, spec, stft, summary, jsonl: bool, human) -> int:  # type: ignore[no-untyped-def]
+    """Print the summary of a file replay; 1 when the data gave no STFT frame."""
     no_frame = None
     if summary.n_frames == 0:
         n_window = stft.n_window(spec.model.dt)
@@ -267,7 +293,7 @@ def run(args: argparse.Namespace) -> int:
             f"{summary.wall_s:.2f} s wall",
             file=human,
         )
-        if summary.path is not None:
+        if summary.path is not None and not summary.write_error:
             print(f"recording: {summary.path} (open with `chatterspec replay {summary.path}`)", file=human)
     return 0
 
@@ -300,17 +326,24 @@ def _run_stream(args: argparse.Namespace, spec: object, settings: object, jsonl:
     def on_note(text: str) -> None:
         print(f"chatterspec monitor: {text}", file=sys.stderr, flush=True)
 
-    mon = StreamMonitor(
-        model,
-        settings,  # type: ignore[arg-type]
-        record=args.record,
-        record_every_s=None if args.record_every is None else 60.0 * args.record_every,
-        live=args.live,
-        recording_name="monitor stdin" if stdin else f"monitor {args.data.name}",
-        skip_bad_rows=args.skip_bad_rows,
-        on_event=on_event,
-        on_note=on_note,
-    )
+    try:
+        mon = StreamMonitor(
+            model,
+            settings,  # type: ignore[arg-type]
+            record=args.record,
+            record_every_s=None if args.record_every is None else 60.0 * args.record_every,
+            live=args.live,
+            recording_name="monitor stdin" if stdin else f"monitor {args.data.name}",
+            skip_bad_rows=args.skip_bad_rows,
+            on_event=on_event,
+            on_note=on_note,
+        )
+    except OSError as exc:  # e.g. disk full when the recording opens: before any row is read
+        from ._common import OutputPathError
+
+        raise OutputPathError(
+            f"--record {str(args.record)!r} cannot be written ({exc.strerror or exc}); nothing was monitored"
+        ) from None
     rows = CsvRows(model, where)
     if stdin:
         chunks = read_fd(sys.stdin.fileno())
