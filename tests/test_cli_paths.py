@@ -142,7 +142,7 @@ def test_detect_json_printed_when_the_recording_fails(tmp_path: Path, monkeypatc
     assert rc == 2
     doc = json.loads(cap.out)
     assert doc["scenario"] == "eha-healthy" and "recording" not in doc
-    _one_line_error(cap.err, "--record", "Failed to create file")
+    _one_line_error(cap.err, "--record", "No space left on device")
 
 
 def test_no_traceback_for_any_oserror(monkeypatch, capsys) -> None:
