@@ -251,12 +251,17 @@ def _print_table(sc: object, args: argparse.Namespace, results: list) -> None:
     for r in results:
         if r.method == "chattering":
             c = r.calibration
+            healthy = (
+                f"{r.healthy_frames_per_run} healthy frames per run, flag fraction there "
+                f"{r.healthy_alarm_fraction:.4f}"
+                if r.healthy_frames_per_run
+                else "no healthy frames (faulty from the start: no false-alarm figure)"
+            )
             print(
                 f"chattering threshold: {c.get('source')} ({c.get('runs')} runs, alpha "
-                f"{c.get('alpha'):g} per frame, {c.get('seconds', 0.0):.1f} s); "
-                f"{r.healthy_frames_per_run} healthy frames per run, "
-                f"flag fraction there {r.healthy_alarm_fraction:.4f}; delays are frame-end times (hop "
-                f"quantized); runs already in alarm at each onset: {list(r.in_alarm_at_onset)}"
+                f"{c.get('alpha'):g} per frame, {c.get('seconds', 0.0):.1f} s); {healthy}; delays are "
+                f"frame-end times (hop quantized); runs already in alarm at each onset: "
+                f"{list(r.in_alarm_at_onset)}"
             )
         else:
             diag = ", ".join(f"{m} {r.confusion[j, j]:.1f}%" for j, m in enumerate(r.modes))
