@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import numpy as np
@@ -78,11 +77,3 @@ def test_record_every_below_the_minimum_is_refused(capsys) -> None:
     argv = ["monitor", "--model", str(EXAMPLE_MODEL), "--data", "-", "--record", "x.rrd"]
     err = _error(capsys, [*argv, "--record-every", "0.0001"])
     assert "--record-every must be >= 0.05 minutes" in err
-
-
-def test_diagnose_a_scenario_faulty_from_the_start_prints_no_nan(capsys) -> None:
-    argv = ["diagnose", "eha-leak-minor", "--runs", "2", "--calibration-runs", "40", "--no-progress"]
-    assert main(argv) == 0
-    out = capsys.readouterr().out
-    assert not re.search(r"\bnan\b", out, flags=re.IGNORECASE), out
-    assert "n/a (no healthy part)" in out and "no healthy frames" in out

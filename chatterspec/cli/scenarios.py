@@ -51,11 +51,24 @@ def export_model_toml(name: str, path: Path) -> Path:
     else:
         psi, why = 3.0 * np.sqrt(chattering_autocovariance(sc.nominal)[0]), "3 x healthy chattering std"
     comment = (
-        f"Nominal model of the chatterspec catalogue scenario {name!r}: {sc.description}\n"
-        f"Written by `chatterspec scenarios {name} --model-toml`; psi = {why}.\n"
+        f"Nominal (healthy) model of the chatterspec catalogue scenario {name!r}: {_nominal_text(sc)}.\n"
+        + (
+            f"The scenario's true plant differs from it (the fault to find): {sc.description}.\n"
+            if not sc.is_healthy
+            else ""
+        )
+        + f"Written by `chatterspec scenarios {name} --model-toml`; psi = {why}.\n"
         f"Stream it: chatterspec simulate {name} | chatterspec monitor --model {path.name} --data -"
     )
     return write_model_toml(path, sc.nominal, psi, gamma=0.1, comment=comment)
+
+
+def _nominal_text(sc: object) -> str:
+    """One line on the nominal model itself (name, natural frequency, damping), not the scenario's plant."""
+    nominal = sc.nominal  # type: ignore[attr-defined]
+    f0, zeta = nominal.natural_frequency_hz, nominal.damping_ratio
+    mode = "" if f0 is None else f", natural frequency {f0:.4g} Hz, damping {zeta:.4g}"
+    return f"{nominal.name}{mode}, dt = {nominal.dt:g} s"
 
 
 def _fmt(x: float | None, spec: str) -> str:
