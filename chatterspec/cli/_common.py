@@ -105,6 +105,21 @@ def add_detector_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=nonnegative_int_arg, default=0, help="random seed (default 0)")
 
 
+def add_execution_args(p: argparse.ArgumentParser) -> None:
+    """--workers N and --scheduler ADDRESS (the Monte Carlo commands; the numbers do not depend on them)."""
+    p.add_argument(
+        "--workers",
+        type=positive_int_arg,
+        default=1,
+        help="local worker processes (default 1; the results do not depend on it)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run on Dask: 'local-dask' or a scheduler address (needs chatterspec[distributed])",
+    )
+
+
 def add_live_args(p: argparse.ArgumentParser) -> None:
     """--record FILE.rrd and --live URL|spawn."""
     p.add_argument("--record", metavar="FILE.rrd", help="write a Rerun recording of the run to FILE.rrd")

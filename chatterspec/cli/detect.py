@@ -13,7 +13,15 @@ if TYPE_CHECKING:
     from ..plants.simulate import Simulation
 
 from ..errors import ParameterError
-from ._common import Outputs, add_detector_args, add_live_args, band_from_args, check_record_path, print_json
+from ._common import (
+    Outputs,
+    add_detector_args,
+    add_execution_args,
+    add_live_args,
+    band_from_args,
+    check_record_path,
+    print_json,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,6 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="use the empirical family-wise threshold of a calibration file written by "
         "'chatterspec calibrate --out FILE' (refused if it was made for another model or length)",
     )
+    add_execution_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     # None = not given (the defaults of add_detector_args are filled in by run): a calibration fixes
@@ -77,20 +86,39 @@ def run(args: argparse.Namespace) -> int:
         if not sc.is_linear:  # nonlinear: STFT intervals from the calibrated per-frame threshold
             extra["frame_threshold"] = cal.threshold("frame-family-wise")
     first: list = []
-    report = detect_chunks(
-        with_progress(
-            stream_chunks(sc, args.runs, args.seed, first),
+    progress = False if args.no_progress or args.runs < PROGRESS_MIN_RUNS else None
+    if args.workers > 1 or args.scheduler is not None:  # the same numbers from worker processes / Dask
+        from ..detection.detect_parallel import detect_parallel
+
+        report = detect_parallel(
+            sc,
             args.runs,
-            f"detect {sc.name}",
-            enabled=False if args.no_progress or args.runs < PROGRESS_MIN_RUNS else None,
-        ),
-        args.alpha,
-        threshold,
-        args.correction,
-        band=band,
-        **extra,
-    )
-    sim = first[0]  # run 0, simulated once: detection and recording
+            args.seed,
+            args.alpha,
+            threshold,
+            args.correction,
+            band=band,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            progress=progress,
+            **extra,
+        )
+        if args.record or args.live:
+            from ..plants.simulate import simulate
+
+            first.append(simulate(sc, 1, args.seed))
+    else:
+        report = detect_chunks(
+            with_progress(
+                stream_chunks(sc, args.runs, args.seed, first), args.runs, f"detect {sc.name}", progress
+            ),
+            args.alpha,
+            threshold,
+            args.correction,
+            band=band,
+            **extra,
+        )
+    sim = first[0] if first else None  # run 0, simulated once: detection and recording
     doc = report.to_dict()
     doc["seed"] = args.seed
     doc["fault_intervals_true"] = [list(iv) for iv in sc.fault_intervals]

@@ -27,7 +27,7 @@ import math
 import time
 
 from ..errors import ParameterError
-from ._common import Outputs, alpha_arg, check_record_path, positive_int_arg, print_json
+from ._common import Outputs, add_execution_args, alpha_arg, check_record_path, positive_int_arg, print_json
 
 #: Every method ``--methods`` accepts.
 ALL_METHODS = ("chattering", "smm", "imm")
@@ -76,6 +76,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help=f"realizations simulated and diagnosed together (default {DEFAULT_CHUNK_RUNS}; memory grows "
         "with it, not with --runs; the results do not depend on it)",
     )
+    add_execution_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--record", metavar="FILE.rrd", default=None, help="write realization 0 to a Rerun file")
@@ -180,38 +181,39 @@ def run(args: argparse.Namespace) -> int:
     sc = scenario(args.name)
     methods = _methods(args.methods, sc)
     from ..plants.simulate import Simulation, iter_simulations
-    from ..progress import Progress
 
     threshold, info = _threshold(args, sc) if "chattering" in methods else (None, {})
     from ..studies.chattering_diagnosis import ChatteringTally
     from ..studies.mode_diagnosis import ModeTally
 
-    tallies = [ChatteringTally(sc, threshold) if m == "chattering" else ModeTally(sc, m) for m in methods]
     # the runs go through in chunks (realization r's numbers do not depend on the chunking); only per-run
     # figures are kept, and realization 0 for --record
     outputs: dict = {}
     first: Simulation | None = None
-    sim_s = 0.0
+    sim_s: float | None = None  # seconds spent simulating (None: on workers, inside their chunks)
     chunk = args.chunk_runs or DEFAULT_CHUNK_RUNS
-    chunks = iter_simulations(sc, args.runs, args.seed, chunk_runs=min(chunk, args.runs))
-    with Progress(args.runs, "diagnose", enabled=False if args.no_progress else None) as bar:
-        while True:
-            t0 = time.perf_counter()
-            sim = next(chunks, None)
-            sim_s += time.perf_counter() - t0
-            if sim is None:
-                break
-            if args.record is not None and first is None:
-                first = Simulation(
-                    t=sim.t, x=sim.x[:1].copy(), z=sim.z[:1].copy(), u=sim.u, scenario=sc, first_run=0
-                )
-            for tally in tallies:
-                if isinstance(tally, ModeTally):
-                    tally.add(sim, keep=outputs if args.record else None, keep_runs=1)
-                else:
-                    tally.add(sim)
-            bar.update(sim.runs)
-            del sim
+    if args.workers > 1 or args.scheduler is not None:  # simulation and filters on workers: same figures
+        from ..plants.simulate import simulate
+        from ..studies.diagnosis_parallel import diagnose_parallel
+
+        tallies, outputs = diagnose_parallel(
+            sc,
+            methods,
+            threshold,
+            args.runs,
+            args.seed,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            chunk_runs=chunk,
+            progress=False if args.no_progress else None,
+            keep=args.record is not None,
+        )
+        if args.record is not None:
+            first = simulate(sc, 1, args.seed)
+    else:
+        chunks = iter_simulations(sc, args.runs, args.seed, chunk_runs=min(chunk, args.runs))
+        tallies = [ChatteringTally(sc, threshold) if m == "chattering" else ModeTally(sc, m) for m in methods]
+        first, sim_s = _serial(args, sc, tallies, chunks, outputs)
     results = [t.result(info) if isinstance(t, ChatteringTally) else t.result() for t in tallies]
     recording, written = None, Outputs()  # a recording that fails: the result first, then exit 2
     if args.record is not None:
@@ -238,6 +240,36 @@ def run(args: argparse.Namespace) -> int:
         print(f"recording: {recording} (open with `chatterspec replay {recording}` or `rerun {recording}`)")
     written.finish()
     return 0
+
+
+def _serial(
+    args: argparse.Namespace, sc: object, tallies: list, chunks: object, outputs: dict
+) -> tuple[object, float]:
+    """The in-process loop over chunks: realization 0 (for --record, else None) and the simulation time."""
+    from ..plants.simulate import Simulation
+    from ..progress import Progress
+    from ..studies.mode_diagnosis import ModeTally
+
+    first, sim_s = None, 0.0
+    with Progress(args.runs, "diagnose", enabled=False if args.no_progress else None) as bar:
+        while True:
+            t0 = time.perf_counter()
+            sim = next(chunks, None)  # type: ignore[call-overload]
+            sim_s += time.perf_counter() - t0
+            if sim is None:
+                break
+            if args.record is not None and first is None:
+                first = Simulation(
+                    t=sim.t, x=sim.x[:1].copy(), z=sim.z[:1].copy(), u=sim.u, scenario=sc, first_run=0
+                )
+            for tally in tallies:
+                if isinstance(tally, ModeTally):
+                    tally.add(sim, keep=outputs if args.record else None, keep_runs=1)
+                else:
+                    tally.add(sim)
+            bar.update(sim.runs)
+            del sim
+    return first, sim_s
 
 
 def _print_table(sc: object, args: argparse.Namespace, results: list) -> None:
