@@ -145,6 +145,22 @@ def live_arg(text: str) -> str:
     return text
 
 
+def load_scenario(name: str) -> Any:
+    """A catalogue scenario, or the healthy scenario of a model file (``NAME.toml``, linear or nonlinear).
+
+    A model file's scenario is its ``[simulation]`` table (input, initial state, duration; zero input
+    and 4 s by default) with the file's model as nominal model and true plant.
+    """
+    if str(name).endswith(".toml"):
+        from ..plants.modelfile import load_model
+        from ..plants.modelfile_nonlinear import file_scenario
+
+        return file_scenario(load_model(name), name=Path(name).stem)
+    from ..plants.scenarios import scenario
+
+    return scenario(name)
+
+
 def print_json(doc: Any) -> None:
     json.dump(doc, sys.stdout, indent=2, allow_nan=False, default=_json_default)
     sys.stdout.write("\n")

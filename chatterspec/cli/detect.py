@@ -20,6 +20,7 @@ from ._common import (
     add_live_args,
     band_from_args,
     check_record_path,
+    load_scenario,
     print_json,
 )
 
@@ -31,7 +32,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Simulate NAME, run the auxiliary SVSF, compare the chattering periodogram with "
         "chi-squared thresholds and, for multi-segment scenarios, localize the fault with the STFT.",
     )
-    p.add_argument("name", metavar="NAME", help="scenario name (see 'chatterspec scenarios')")
+    p.add_argument(
+        "name",
+        metavar="NAME",
+        help="scenario name (see 'chatterspec scenarios'), or a model file MODEL.toml: its healthy plant "
+        "under its [simulation] table (a nonlinear model needs --calibration)",
+    )
     add_detector_args(p)
     add_live_args(p)
     p.add_argument(
@@ -69,10 +75,9 @@ def run(args: argparse.Namespace) -> int:
         if getattr(args, key) is None:
             setattr(args, key, value)
     from ..detection.detect import detect_chunks
-    from ..plants.scenarios import scenario
 
     band = band_from_args(args)
-    sc = scenario(args.name)
+    sc = load_scenario(args.name)
     threshold = args.threshold
     extra: dict = {}
     if args.calibration:

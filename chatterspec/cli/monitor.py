@@ -41,9 +41,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="run the online chattering monitor on your own model and data",
         description="Replay measurement data through the SVSF chattering monitor of a user model and "
         "report fault start/end events per channel. Model: TOML (A, B, C, Q, R, dt, psi, gamma, channel "
-        "names); data: CSV or NPZ with columns named after the model's outputs and inputs.",
+        "names; or a nonlinear model naming Python functions for f and its Jacobian, with --calibration); "
+        "data: CSV or NPZ with columns named after the model's outputs and inputs.",
     )
-    p.add_argument("--model", required=True, type=Path, help="model file (.toml)")
+    p.add_argument(
+        "--model",
+        required=True,
+        type=Path,
+        help="model file (.toml; linear, or nonlinear with --calibration)",
+    )
     p.add_argument(
         "--data",
         required=True,
@@ -176,6 +182,12 @@ def run(args: argparse.Namespace) -> int:
         spec = load_model(args.model)
     for w in caught:
         print(f"chatterspec monitor: warning: {w.message}", file=sys.stderr)
+    if not spec.is_linear and args.calibration is None:
+        raise ParameterError(
+            f"{args.model} is a nonlinear model: it has no closed-form chattering spectrum, so the monitor "
+            f"needs a threshold calibrated on healthy runs: `chatterspec calibrate {args.model} --out "
+            "CAL.npz`, then --calibration CAL.npz"
+        )
     det = spec.detector
     stft = STFTConfig(
         window_s=float(det.get("window_s", 1.0)),
@@ -187,7 +199,7 @@ def run(args: argparse.Namespace) -> int:
         alpha=float(args.alpha if args.alpha is not None else det.get("alpha", 1e-3)),
         correction=str(det.get("correction", "bonferroni")),  # type: ignore[arg-type]
         gamma=spec.gamma,
-        psi=tuple(spec.psi.tolist()),
+        psi=None if spec.psi is None else tuple(spec.psi.tolist()),  # nonlinear: the sgn-SVSF only
         band=band_from_args(args) or det.get("band"),
     )
     if args.calibration is not None:

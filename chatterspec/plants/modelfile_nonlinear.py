@@ -113,6 +113,10 @@ class ModelFunction:
     def args(self) -> tuple[()]:
         return ()
 
+    def __repr__(self) -> str:
+        kw = "".join(f", {k}={v!r}" for k, v in self.keywords.items())
+        return f"ModelFunction({self.ref or f'{self.module}:{self.name}'!r}{kw})"
+
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         return self.func(x, u, **self.keywords)
 

@@ -13,7 +13,7 @@ from ..errors import ModelFileError
 from .modelfile import _DETECTOR_KEYS, _detector_band
 from .models import LinearModel
 
-__all__ = ["write_model_toml"]
+__all__ = ["signal_table", "write_model_toml", "write_nonlinear_model_toml"]
 
 
 def _toml_number(v: float) -> str:
@@ -134,6 +134,158 @@ def write_model_toml(
             else:
                 text = _toml_number(value)
             lines.append(f"{key} = {text}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+# --------------------------------------------------------------------------- nonlinear models
+def _toml_value(v: Any) -> str:
+    if isinstance(v, str):
+        return _toml_strings([v])[1:-1]
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return _toml_vector(np.asarray(v, dtype=float))
+    return _toml_number(v)
+
+
+def _inline_table(d: Mapping[str, Any]) -> str:
+    return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in d.items()) + " }"
+
+
+def signal_table(signal: Any) -> dict[str, Any] | None:
+    """A :mod:`chatterspec.plants.signals` input as a ``[simulation] input`` table (None if it has none).
+
+    Parameters
+    ----------
+    signal : Signal
+        ``Constant``, ``Step``, ``Sine``, ``SquareWave`` or ``Chirp`` (other signals have no table form).
+    """
+    import dataclasses
+
+    from . import signals
+
+    kinds = {
+        signals.Constant: "constant",
+        signals.Step: "step",
+        signals.Sine: "sine",
+        signals.SquareWave: "square",
+        signals.Chirp: "chirp",
+    }
+    kind = kinds.get(type(signal))
+    if kind is None:
+        return None
+    return {"kind": kind, **{f.name: getattr(signal, f.name) for f in dataclasses.fields(signal)}}
+
+
+def _function_refs(model: Any) -> tuple[str, str, str | None, str, dict[str, float]]:
+    """``(f, jacobian, input_jacobian, form, parameters)`` naming a nonlinear model's functions."""
+    from functools import partial
+
+    from .eha4 import eha4_transition
+    from .modelfile_nonlinear import ModelFunction
+    from .nonlinear import _EulerJacobian, _EulerStep
+
+    f, jac = model.f, model.jac
+    if isinstance(f, partial) and f.func is eha4_transition:
+        mod = "chatterspec.plants.eha4"
+        return (
+            f"{mod}:eha4_step",
+            f"{mod}:eha4_step_jacobian",
+            f"{mod}:eha4_step_input",
+            "discrete",
+            dict(model.parameters),
+        )
+    form = "discrete"
+    if isinstance(f, _EulerStep) and isinstance(jac, _EulerJacobian):
+        f, jac, form = f.g, jac.g_jac, "continuous"
+    if isinstance(f, ModelFunction) and isinstance(jac, ModelFunction):
+
+        def ref(fn: ModelFunction) -> str:
+            return f"{fn.filename}:{fn.name}" if fn.source is not None else f"{fn.module}:{fn.name}"
+
+        inp = model.input_jacobian
+        params = {k: v for k, v in f.keywords.items() if k != "dt"}
+        return ref(f), ref(jac), ref(inp) if isinstance(inp, ModelFunction) else None, form, params
+    raise ModelFileError(
+        f"{model.name!r}: its f is not a function named in a module (a model file names f as "
+        "'module:function'), so it cannot be written as a model file"
+    )
+
+
+def write_nonlinear_model_toml(
+    path: str | Path,
+    model: Any,
+    *,
+    gamma: float = 0.1,
+    simulation: Mapping[str, Any] | None = None,
+    detector: Mapping[str, Any] | None = None,
+    comment: str = "",
+) -> Path:
+    """Write a nonlinear model as a model file that names its functions (:mod:`.modelfile_nonlinear`).
+
+    Parameters
+    ----------
+    path : str or Path
+        File to write (parent folders are created).
+    model : NonlinearModel
+        A model whose ``f`` and Jacobian are named functions: the catalogue's nonlinear EHA
+        (written as ``chatterspec.plants.eha4:eha4_step`` with its ten parameters) or one loaded from a
+        model file.
+    gamma : float
+        SVSF convergence rate, 0 < gamma < 1.
+    simulation : mapping, optional
+        ``[simulation]`` table (``duration_s`` in s, ``x0``, ``input`` as from :func:`signal_table`).
+    detector : mapping, optional
+        ``[detector]`` table, as for :func:`write_model_toml`.
+    comment : str
+        Text written as ``#`` comment lines at the top of the file.
+
+    Returns
+    -------
+    Path
+        The file written; :func:`~chatterspec.plants.modelfile.load_model` reads back the same
+        transition (the same numbers), ``C``, ``Q``, ``R`` and ``dt``.
+
+    Raises
+    ------
+    ModelFileError
+        If the model's functions are not named functions of a module.
+    """
+    path = Path(path)
+    f, jac, inp, form, params = _function_refs(model)
+    lines = [f"# {line}".rstrip() for line in comment.splitlines()]
+    lines += [f"name = {_toml_strings([model.name])[1:-1]}", f"dt = {_toml_number(model.dt)}  # s", ""]
+    lines += ["[channels]", f"outputs = {_toml_strings(model.output_names)}"]
+    if any(model.output_units):
+        lines.append(f"units = {_toml_strings(model.output_units)}")
+    lines += [f"inputs = {_toml_strings(model.input_names)}", f"states = {_toml_strings(model.state_names)}"]
+    lines += ["", "[dynamics]", f'form = "{form}"', f"f = {_toml_value(f)}", f"jacobian = {_toml_value(jac)}"]
+    if inp is not None:
+        lines.append(f"input_jacobian = {_toml_value(inp)}")
+    if model.oscillatory_states is not None:
+        lines.append(f"oscillatory_states = [{', '.join(str(i) for i in model.oscillatory_states)}]")
+    if np.any(model.rest_state):
+        lines.append(f"rest_state = {_toml_vector(model.rest_state)}")
+    if params:
+        lines += ["", "[dynamics.parameters]", *(f"{k} = {_toml_number(v)}" for k, v in params.items())]
+    lines += [
+        "",
+        "[matrices]",
+        f"C = {_toml_matrix(model.C)}",
+        _toml_covariance("Q", model.Q),
+        _toml_covariance("R", model.R),
+        "",
+        "[svsf]",
+        f"gamma = {_toml_number(gamma)}",
+    ]
+    if simulation:
+        lines += ["", "[simulation]"]
+        for key, value in simulation.items():
+            lines.append(
+                f"{key} = {_inline_table(value) if isinstance(value, Mapping) else _toml_value(value)}"
+            )
+    if detector:
+        lines += ["", "[detector]", *(f"{k} = {_toml_value(v)}" for k, v in detector.items())]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n")
     return path
