@@ -378,12 +378,36 @@ def eha4_step(x: np.ndarray, u: np.ndarray, *, dt: float, **parameters: float) -
 
 
 def eha4_step_jacobian(x: np.ndarray, u: np.ndarray, *, dt: float, **parameters: float) -> np.ndarray:
-    """:func:`eha4_jacobian` with the physical parameters as keywords (see :func:`eha4_step`)."""
+    """:func:`eha4_jacobian` with the physical parameters as keywords (see :func:`eha4_step`).
+
+    Parameters
+    ----------
+    x : (..., 4) array
+        States (SI units).
+    u : (..., 1) or (1,) array
+        Pump speed in rad/s (the Jacobian does not depend on it).
+    dt : float
+        Sampling time T in seconds.
+    **parameters : float
+        Keys of :data:`EHA4_PARAMETERS`.
+    """
     return eha4_jacobian(x, u, _cached_coefficients(float(dt), tuple(sorted(parameters.items()))))
 
 
 def eha4_step_input(x: np.ndarray, u: np.ndarray, *, dt: float, **parameters: float) -> np.ndarray:
-    """``d f / d u`` (4, 1) with the physical parameters as keywords (see :func:`eha4_step`)."""
+    """``d f / d u`` (4, 1) with the physical parameters as keywords (see :func:`eha4_step`).
+
+    Parameters
+    ----------
+    x : (4,) array
+        State (SI units; the input enters affinely, so it does not matter).
+    u : (1,) array
+        Pump speed in rad/s.
+    dt : float
+        Sampling time T in seconds.
+    **parameters : float
+        Keys of :data:`EHA4_PARAMETERS`.
+    """
     return _input_jacobian(x, u, _cached_coefficients(float(dt), tuple(sorted(parameters.items()))))
 
 

@@ -385,6 +385,20 @@ def parse_simulation(doc: Mapping[str, Any], model: Any, where: str) -> Simulati
     ``input`` is one table for a one-input model, or a list of tables (one per input); each has a
     ``kind`` (``constant``, ``step``, ``sine``, ``square``, ``chirp``) and the keyword arguments of the
     matching class of :mod:`chatterspec.plants.signals` (e.g. ``amplitude``, ``frequency_hz``).
+
+    Parameters
+    ----------
+    doc : mapping
+        The parsed TOML.
+    model : LinearModel or NonlinearModel
+        The file's model (sizes of ``x0`` and of the input).
+    where : str
+        ``"model file '...'"``, for messages.
+
+    Returns
+    -------
+    SimulationSpec or None
+        None when the file has no ``[simulation]`` table.
     """
     from .modelfile import _array, _scalar
 

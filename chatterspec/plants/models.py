@@ -20,7 +20,6 @@ from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
-import scipy.linalg
 
 from .._validate import finite_array, nonnegative, positive, readonly
 from ..errors import ParameterError, ShapeError, SingularMatrixError, UnstableModelWarning
@@ -407,6 +406,8 @@ def discretize(
         big = np.zeros((n + p, n + p))
         big[:n, :n] = Ac
         big[:n, n:] = Bc
+        import scipy.linalg  # on demand: listing the catalogue must not wait for scipy
+
         e = scipy.linalg.expm(big * dt)
         return e[:n, :n], e[:n, n:]
     raise ParameterError(f"discretization must be 'euler' or 'zoh'; got {method!r}")

@@ -113,7 +113,21 @@ class Support:
 
 
 def support_for(use: Use, runs: int, alpha: float, confidence: float, per_run: int = 1) -> Support:
-    """:class:`Support` of ``runs`` healthy runs at ``alpha`` (``per_run`` independent values each)."""
+    """:class:`Support` of ``runs`` healthy runs at ``alpha`` (``per_run`` independent values each).
+
+    Parameters
+    ----------
+    use : {"detect", "monitor"}
+        The record threshold, or the per-frame one.
+    runs : int
+        Healthy runs.
+    alpha : float
+        Nominal false-alarm probability in (0, 1).
+    confidence : float
+        Level of the order-statistic interval, for the bounded-interval minimum.
+    per_run : int
+        Independent values per run (1, or the non-overlapping frames of a record).
+    """
     return Support(
         use=use,
         runs=int(runs),
@@ -133,7 +147,13 @@ def frames_per_run(n_samples: int, window_s: float, dt: float) -> int:
 
 
 def calibration_support(cal: Calibration) -> dict[Use, Support]:
-    """The :class:`Support` of a calibration for ``detect`` (record) and ``monitor`` (frames)."""
+    """The :class:`Support` of a calibration for ``detect`` (record) and ``monitor`` (frames).
+
+    Parameters
+    ----------
+    cal : Calibration
+        A calibration (its runs, alpha, confidence, record length and STFT window).
+    """
     per_frame = frames_per_run(cal.n_samples, float(cal.stft["window_s"]), cal.dt)
     return {
         "detect": support_for("detect", cal.runs, cal.alpha, cal.confidence),
