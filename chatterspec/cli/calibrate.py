@@ -116,9 +116,9 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         check_output_file(args.plot, "--plot", suffixes=figure_suffixes())
     outputs = Outputs()
+    supports = _check_support(args)  # also an unknown name or a bad model file, before the heavy imports
     from ..studies.calibration import calibrate
 
-    supports = _check_support(args)
     ex = execution(args)
     if args.tail_budget is not None:
         ex["tail_budget"] = args.tail_budget
@@ -175,12 +175,11 @@ def _check_support(args: argparse.Namespace) -> dict[str, Any]:
     per-frame one (``monitor`` / ``diagnose --calibration``) pools the non-overlapping frames of every
     run (:mod:`chatterspec.studies.calibration_support`).
     """
-    from ..detection.spectral import STFTConfig
     from ..studies.calibration_support import frames_per_run, support_for
-    from ..studies.healthy import resolve_scenario
+    from ._common import load_scenario
 
-    sc = resolve_scenario(args.name)
-    per_frame = frames_per_run(sc.n_samples - 1, STFTConfig().window_s, sc.dt)
+    sc = load_scenario(args.name)
+    per_frame = frames_per_run(sc.n_samples - 1, 1.0, sc.dt)  # the calibration's STFT: 1 s windows
     supports = {
         "detect": support_for("detect", args.runs, args.alpha, args.confidence),
         "monitor": support_for("monitor", args.runs, args.alpha, args.confidence, per_frame),

@@ -74,10 +74,9 @@ def run(args: argparse.Namespace) -> int:
     for key, value in DETECTOR_DEFAULTS.items():
         if getattr(args, key) is None:
             setattr(args, key, value)
-    from ..detection.detect import detect_chunks
-
+    sc = load_scenario(args.name)  # an unknown name fails here, before the heavy imports
     band = band_from_args(args)
-    sc = load_scenario(args.name)
+    from ..detection.detect import detect_chunks
     threshold = args.threshold
     extra: dict = {}
     if args.calibration:
