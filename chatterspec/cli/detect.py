@@ -77,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
     sc = load_scenario(args.name)  # an unknown name fails here, before the heavy imports
     band = band_from_args(args)
     from ..detection.detect import detect_chunks
+
     threshold = args.threshold
     extra: dict = {}
     if args.calibration:

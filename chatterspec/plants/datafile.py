@@ -209,7 +209,7 @@ def _check_times(
             f"(t = {t[i + 1]:.9g} s) follows t = {t[i]:.9g} s"
         )
     off = np.flatnonzero(np.abs(step - dt) > tol * dt)
-    med = float(np.median(step))
+    med = float(np.median(step)) if off.size else dt
     if off.size and np.all(np.abs(step - med) <= tol * med):  # uniformly sampled at another rate
         raise DataFileError(
             f"{where}: column {column!r}: the data is sampled every {1e3 * med:.6g} ms ({1 / med:.6g} Hz), "
