@@ -19,6 +19,11 @@ def g(x, u, *, mass, stiffness, cubic, damping):
     return np.stack([vel, acc], axis=-1)
 
 
+def g_input(x, u, *, mass, stiffness, cubic, damping):
+    """dg/du at one point, shape (2, 1): the force enters the acceleration as 1 / mass."""
+    return np.array([[0.0], [1.0 / mass]])
+
+
 def g_jacobian(x, u, *, mass, stiffness, cubic, damping):
     """dg/dx, shape (..., 2, 2)."""
     pos = x[..., 0]

@@ -35,6 +35,10 @@ def test_the_example_loads_as_its_equations_say() -> None:
     x, u = np.array([[1e-3, 0.02]]), np.array([2.0])
     acc = (2.0 - 15.08 * 0.02 - 5685.0 * 1e-3 - 5e8 * 1e-9) / 1.0
     np.testing.assert_allclose(m.transition(x, u), [[1e-3 + 1e-3 * 0.02, 0.02 + 1e-3 * acc]], rtol=1e-15)
+    # the file gives dg/du = [0, 1/m]; the Euler step's df/du is dt times it, as central differences say
+    B = m.input_matrix(x[0], u)
+    np.testing.assert_array_equal(B, [[0.0], [1e-3 / 1.0]])
+    np.testing.assert_allclose(m.replace(input_jacobian=None).input_matrix(x[0], u), B, rtol=1e-6, atol=1e-12)
     sc = file_scenario(spec)
     assert sc.duration == 4.0 and sc.input.describe() == "sine 3 Hz, amplitude 10"
 

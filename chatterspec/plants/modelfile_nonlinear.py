@@ -15,7 +15,8 @@ A model file with a ``[dynamics]`` table describes a :class:`~chatterspec.plants
                                                 # "discrete": f(x, u) is x(k+1) itself
     f = "duffing.py:g"                          # FILE.py:function, FILE relative to this model file,
     jacobian = "duffing.py:g_jacobian"          # or an importable module: "package.module:function"
-    input_jacobian = "duffing.py:g_input"       # optional (d f / d u; default: central differences)
+    input_jacobian = "duffing.py:g_input"       # optional: d f / d u (continuous: d g / d u; default:
+                                                # central differences)
 
     [dynamics.parameters]                       # optional: keyword arguments of every function above
     stiffness = 3948.0
@@ -119,6 +120,17 @@ class ModelFunction:
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         return self.func(x, u, **self.keywords)
+
+
+@dataclass(frozen=True)
+class _TimesDt:
+    """``dt * fn(x, u)``: the explicit Euler step's ``df/du`` from a continuous model's ``dg/du``."""
+
+    fn: ModelFunction
+    dt: float
+
+    def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        return self.dt * np.asarray(self.fn(x, u), dtype=float)
 
 
 def _module(name: str, source: str | None, filename: str | None) -> types.ModuleType:
@@ -289,6 +301,8 @@ def load_nonlinear(doc: Mapping[str, Any], path: Path, where: str) -> Any:
         kwargs["oscillatory_states"] = tuple(dyn["oscillatory_states"])
     try:
         if form == "continuous":
+            if input_jac is not None:  # the file gives dg/du; the discrete model's df/du is dt dg/du
+                kwargs["input_jacobian"] = _TimesDt(input_jac, dt)
             model = NonlinearModel.from_continuous(f, jac, **kwargs)
         else:
             model = NonlinearModel(f=f, jac=jac, **kwargs)
