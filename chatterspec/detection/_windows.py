@@ -15,7 +15,7 @@ import numpy as np
 __all__ = ["NATIVE_WINDOWS", "get_window"]
 
 #: Windows computed here: name -> Hamming coefficient ``alpha`` of ``alpha - (1 - alpha) cos``.
-NATIVE_WINDOWS: dict[str, float] = {"hamming": 0.54, "hann": 0.5, "hanning": 0.5}
+NATIVE_WINDOWS: dict[str, float] = {"hamming": 0.54, "hann": 0.5}
 
 
 def get_window(name: str, n: int) -> np.ndarray:
