@@ -251,9 +251,7 @@ def load_model(path: str | Path) -> ModelSpec:
         )
     if np.any(psi <= 0):
         raise ModelFileError(f"{where}: [svsf] psi must be > 0; got {psi.tolist()}")
-    gamma = float(_scalar(svsf, "gamma", f"{where}: [svsf]", default=0.1))
-    if not 0.0 < gamma < 1.0:
-        raise ModelFileError(f"{where}: [svsf] gamma must lie in (0, 1); got {gamma}")
+    gamma = svsf_gamma(svsf, where)
     from .modelfile_nonlinear import parse_simulation
 
     return ModelSpec(
@@ -264,6 +262,14 @@ def load_model(path: str | Path) -> ModelSpec:
         path=path,
         simulation=parse_simulation(doc, model, where),
     )
+
+
+def svsf_gamma(svsf: Mapping[str, Any], where: str) -> float:
+    """``[svsf] gamma`` (default 0.1), checked to lie in (0, 1)."""
+    gamma = float(_scalar(svsf, "gamma", f"{where}: [svsf]", default=0.1))
+    if not 0.0 < gamma < 1.0:
+        raise ModelFileError(f"{where}: [svsf] gamma must lie in (0, 1); got {gamma}")
+    return gamma
 
 
 def detector_table(doc: Mapping[str, Any], dt: float, where: str) -> dict[str, Any]:

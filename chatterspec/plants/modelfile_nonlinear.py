@@ -234,7 +234,16 @@ def load_nonlinear(doc: Mapping[str, Any], path: Path, where: str) -> Any:
         functions do not take, or a model that fails its checks (shapes, NaN at the rest state); the
         message names the file and the field.
     """
-    from .modelfile import ModelSpec, _covariance, _matrix, _names, _scalar, _table, detector_table
+    from .modelfile import (
+        ModelSpec,
+        _covariance,
+        _matrix,
+        _names,
+        _scalar,
+        _table,
+        detector_table,
+        svsf_gamma,
+    )
     from .nonlinear import NonlinearModel
 
     dt = _scalar(doc, "dt", where, positive=True)
@@ -316,13 +325,10 @@ def load_nonlinear(doc: Mapping[str, Any], path: Path, where: str) -> Any:
     svsf = doc.get("svsf", {})
     if not isinstance(svsf, dict):
         raise ModelFileError(f"{where}: [svsf] must be a table")
-    gamma = float(_scalar(svsf, "gamma", f"{where}: [svsf]", default=0.1))
-    if not 0.0 < gamma < 1.0:
-        raise ModelFileError(f"{where}: [svsf] gamma must lie in (0, 1); got {gamma}")
     return ModelSpec(
         model=model,
         psi=None,
-        gamma=gamma,
+        gamma=svsf_gamma(svsf, where),
         detector=detector_table(doc, dt, where),
         path=path,
         simulation=parse_simulation(doc, model, where),
