@@ -2,9 +2,9 @@
 
 :func:`detect_parallel` is :func:`~chatterspec.detection.detect.detect_scenario` through
 :func:`chatterspec.studies.montecarlo.run_study`: the thresholds and run 0's STFT intervals come
-from a one-run record in the calling process (:meth:`~chatterspec.detection.detect.ChunkPlan.build`),
+from a one-run record in the calling process (:meth:`~chatterspec.detection._chunk_plan.ChunkPlan.build`),
 each chunk of :data:`~chatterspec.detection.detect.DETECT_CHUNK_RUNS` realizations is simulated,
-filtered and tested on a worker (:meth:`~chatterspec.detection.detect.ChunkPlan.test`), and the
+filtered and tested on a worker (:meth:`~chatterspec.detection._chunk_plan.ChunkPlan.test`), and the
 chunks are folded in chunk order. Realization ``r`` does not depend on the chunking and the chunk
 boundaries are those of the serial path, so the report is the same, bit for bit, whatever
 ``workers`` or ``scheduler`` (``chatterspec detect --workers N``).
@@ -20,7 +20,8 @@ import numpy as np
 from .._validate import positive_int
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
-from .detect import DETECT_CHUNK_RUNS, ChunkPlan, DetectionReport
+from ._chunk_plan import ChunkPlan
+from .detect import DETECT_CHUNK_RUNS, DetectionReport
 from .pipeline import iter_chattering
 from .spectral import DEFAULT_STFT, STFTConfig
 from .thresholds import Band, Correction, Threshold

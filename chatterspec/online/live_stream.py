@@ -66,6 +66,7 @@ from ..errors import DataFileError
 from ..plants.models import LinearModel
 from .monitor import ChatteringMonitor, DetectionEvent, MonitorSettings, MonitorUpdate
 from .stream import BadRow, CsvRows, Restart, RowBlock
+from .stream_checks import RATE_CHECK_ROWS, RATE_CHECK_ROWS_MIN, LatencyStats, merge_blocks, rate_mismatch
 
 __all__ = ["MAX_EVENTS", "LatencyStats", "StreamEvent", "StreamMonitor", "StreamSummary", "drive"]
 
@@ -75,11 +76,6 @@ MAX_EVENTS = 1000
 MAX_PENDING_CLOSES = 2
 #: A time step outside ``(GAP_LOW dt, GAP_HIGH dt]`` is a gap.
 GAP_LOW, GAP_HIGH = 0.5, 1.5
-#: The first rows of a stream (with a time column) are held until this many arrived and their time
-#: steps are compared with the model's dt; at end of input, at least RATE_CHECK_ROWS_MIN are needed.
-RATE_CHECK_ROWS, RATE_CHECK_ROWS_MIN = 5, 3
-#: Relative tolerance of that comparison (the data file's: every step within 1 % of dt).
-RATE_TOLERANCE = 0.01
 
 
 @dataclass(frozen=True)
@@ -158,59 +154,6 @@ class StreamEvent:
         at = "" if self.sample_time_s is None else f" at t = {self.sample_time_s:.3f} s"
         opened = f"; open fault(s) on {', '.join(self.open_faults)} reset" if self.open_faults else ""
         return f"{self.kind}{at} (line {self.line}): {self.reason}; filters and spectrogram reset{opened}"
-
-
-class LatencyStats:
-    """Median and max of latencies in bounded memory (log-spaced histogram, 0.5 % bins, 1 us .. 1000 s).
-
-    The median is the centre of the histogram bin holding it (relative error
-    below 0.3 %), clamped to the exact min and max (a bin centre can lie above
-    every observation in it); the max is exact.
-    """
-
-    _LO, _HI, _BINS = 1e-6, 1e3, 4200
-
-    def __init__(self) -> None:
-        self.counts = np.zeros(self._BINS + 2, dtype=np.int64)
-        self.max_s = 0.0
-        self.min_s = math.inf
-        self.n = 0
-        self._scale = self._BINS / math.log(self._HI / self._LO)
-
-    def add(self, seconds: float, count: int = 1) -> None:
-        """Record ``count`` observations of ``seconds``.
-
-        Parameters
-        ----------
-        seconds : float
-            Latency (s).
-        count : int
-            How many frames had it.
-        """
-        if count <= 0:
-            return
-        s = max(float(seconds), 0.0)
-        k = 0 if s < self._LO else min(int(math.log(s / self._LO) * self._scale) + 1, self._BINS + 1)
-        self.counts[k] += count
-        self.n += count
-        self.max_s = max(self.max_s, s)
-        self.min_s = min(self.min_s, s)
-
-    def median(self) -> float | None:
-        """Median latency (s), None without observations."""
-        if self.n == 0:
-            return None
-        k = int(np.searchsorted(np.cumsum(self.counts), (self.n + 1) / 2.0))
-        centre = self._LO / 2 if k == 0 else self._LO * math.exp((k - 0.5) / self._scale)
-        return min(max(centre, self.min_s), self.max_s)
-
-    def to_dict(self) -> dict[str, float | int | None]:
-        med = self.median()
-        return {
-            "frames": self.n,
-            "median_ms": None if med is None else 1e3 * med,
-            "max_ms": None if self.n == 0 else 1e3 * self.max_s,
-        }
 
 
 @dataclass(frozen=True)
@@ -423,7 +366,7 @@ class StreamMonitor:
         """
         held = self._held_rows()
         if held >= RATE_CHECK_ROWS_MIN:
-            self._check_rate(_merge_blocks(self._held))
+            self._check_rate(merge_blocks(self._held))
         self._release_held()
 
     # ------------------------------------------------------- sampling-rate check
@@ -440,31 +383,22 @@ class StreamMonitor:
             return
         self._held.append(b)
         if self._held_rows() >= RATE_CHECK_ROWS:
-            self._check_rate(_merge_blocks(self._held))
+            self._check_rate(merge_blocks(self._held))
             self._release_held()
 
     def _release_held(self) -> None:
         held, self._held = self._held, []
         if held:
             self._rate_checked = True
-            self._rows(_merge_blocks(held))
+            self._rows(merge_blocks(held))
 
     def _check_rate(self, b: RowBlock) -> None:
         """Raise :class:`DataFileError` when the first steps agree with each other but not with ``dt``."""
         self._rate_checked = True
-        steps = np.diff(b.t[:RATE_CHECK_ROWS])  # type: ignore[index]
-        step = float(np.median(steps))
-        dt = self.dt
-        consistent = step > 0 and np.all(np.abs(steps - step) <= RATE_TOLERANCE * step)
-        if consistent and abs(step - dt) > RATE_TOLERANCE * dt:
+        message = rate_mismatch(b, self.dt)
+        if message is not None:
             self._held = []  # not monitored: the run stops here
-            lines = b.lines[: steps.size + 1]
-            raise DataFileError(
-                f"lines {int(lines[0])}-{int(lines[-1])}: the stream is sampled every {1e3 * step:.6g} ms "
-                f"({1 / step:.6g} Hz), but the model's dt is {1e3 * dt:.6g} ms ({1 / dt:.6g} Hz): every "
-                "step would be a gap and nothing would be monitored; resample the data or set dt in the "
-                "model file"
-            )
+            raise DataFileError(message)
 
     def _rows(self, b: RowBlock) -> None:
         K = b.n_rows
@@ -756,20 +690,6 @@ class StreamMonitor:
             stopped_by=stopped_by,
             notes=tuple(self.notes),
         )
-
-
-def _merge_blocks(blocks: list[RowBlock]) -> RowBlock:
-    """Consecutive row blocks as one (the last arrival time)."""
-    if len(blocks) == 1:
-        return blocks[0]
-    t = None if blocks[0].t is None else np.concatenate([b.t for b in blocks])  # type: ignore[misc]
-    return RowBlock(
-        t,
-        np.concatenate([b.z for b in blocks]),
-        np.concatenate([b.u for b in blocks]),
-        np.concatenate([b.lines for b in blocks]),
-        blocks[-1].arrival,
-    )
 
 
 def _send_blueprint_released(stream: Any, logger: Any) -> None:
