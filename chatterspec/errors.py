@@ -20,6 +20,7 @@ __all__ = [
     "ShapeError",
     "SingularMatrixError",
     "UnknownScenarioError",
+    "UnstableLoopError",
     "UnstableModelWarning",
 ]
 
@@ -74,3 +75,7 @@ class UnstableModelWarning(UserWarning):
 
 class ModelKindError(ParameterError):
     """A code path that needs a linear model (A, B) was handed a nonlinear one, or vice versa."""
+
+
+class UnstableLoopError(ParameterError):
+    """A controller's gains make the closed loop unstable; the message gives each gain's stable range."""

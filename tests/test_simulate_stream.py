@@ -65,3 +65,10 @@ def test_nonlinear_blocks_follow_the_plant_and_do_not_depend_on_the_block_length
     for k in range(t.size - 1):
         assert np.array_equal(zq[k], x)
         x = q.segments[seg[k]].model.transition(x[None], u[k])[0]
+
+
+@pytest.mark.parametrize("name", ["eha-cl-bulk-25down", "eha4-cl-leak-timeline"])
+def test_closed_loop_blocks_do_not_depend_on_the_block_length(name: str) -> None:
+    sc = cs.scenario(name)
+    z = [np.concatenate([p[1] for p in simulate_blocks(sc, 3, 2.0, block_s=b)]) for b in (0.001, 0.37, 5.0)]
+    assert all(np.array_equal(z[0], other) for other in z[1:])

@@ -246,7 +246,6 @@ def _serial(
     args: argparse.Namespace, sc: object, tallies: list, chunks: object, outputs: dict
 ) -> tuple[object, float]:
     """The in-process loop over chunks: realization 0 (for --record, else None) and the simulation time."""
-    from ..plants.simulate import Simulation
     from ..progress import Progress
     from ..studies.mode_diagnosis import ModeTally
 
@@ -259,9 +258,7 @@ def _serial(
             if sim is None:
                 break
             if args.record is not None and first is None:
-                first = Simulation(
-                    t=sim.t, x=sim.x[:1].copy(), z=sim.z[:1].copy(), u=sim.u, scenario=sc, first_run=0
-                )
+                first = sim.take(slice(0, 1))
             for tally in tallies:
                 if isinstance(tally, ModeTally):
                     tally.add(sim, keep=outputs if args.record else None, keep_runs=1)

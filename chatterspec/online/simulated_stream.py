@@ -85,6 +85,11 @@ def simulate_blocks(
         The true state left the finite numbers (e.g. explicit Euler beyond its stability
         limit); the message gives the time.
     """
+    if getattr(scenario, "closed_loop", None) is not None:  # the controller computes u from z
+        from ..plants.simulate_closed_loop import closed_loop_blocks
+
+        yield from closed_loop_blocks(scenario, seed, duration_s, block_s=block_s)
+        return
     dt = scenario.dt
     D = scenario.duration
     duration = D if duration_s is None else float(duration_s)

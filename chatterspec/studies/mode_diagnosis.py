@@ -252,7 +252,7 @@ class ModeTally:
         Returns ``(mu (k, T, r), argmax mode (k, T), seconds)`` for :meth:`absorb`: worker processes
         compute, the tally absorbs in chunk order (the same figures, bit for bit, as :meth:`add`).
         """
-        z, u = sim.z[:, 1:], sim.u[:-1]  # type: ignore[attr-defined]
+        z, u = sim.z[:, 1:], sim.u[..., :-1, :]  # type: ignore[attr-defined]  # u per run in closed loop
         if z.shape[1] != self._t.size:
             raise ParameterError(
                 f"every chunk must have the scenario's {self._t.size + 1} samples; got {z.shape[1] + 1}"
