@@ -23,7 +23,7 @@ from chatterspec.cli import main
 from chatterspec.errors import ParameterError
 from chatterspec.online.viewer import viewer_url
 
-HAS_PROC = Path("/proc").is_dir()  # the reproductions use /proc (not writable, even for root)
+HAS_PROC = Path("/proc").is_dir()  # the reproductions use /proc (not writable, even for root)
 
 
 def _forbid(*_a, **_k):
