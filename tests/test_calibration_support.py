@@ -36,7 +36,7 @@ def test_minimum_runs_is_where_the_threshold_stops_being_the_sample_maximum(alph
 
 
 def test_calibrate_refuses_runs_that_support_alpha_for_no_use(capsys) -> None:
-    # the case: 5 runs at alpha 0.001 (measured healthy rate 4.5-8.5 % instead of 0.1 %)
+    # 5 runs at alpha 0.001: the threshold would be the largest of 5 healthy values (rate ~1/6, not 0.1 %)
     assert main(["calibrate", "eha-healthy", "--runs", "5", "--alpha", "0.001", "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "cannot support alpha = 0.001" in err and "--runs >= 999" in err and "--runs >= 250" in err
