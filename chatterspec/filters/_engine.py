@@ -1,6 +1,6 @@
 """The shared per-sample recursion of the covariance-carrying filters (private).
 
-One step, for every realization (notation of ``estimators.md`` §1)::
+One step, for every realization (notation of ``docs/design.md`` §7)::
 
     x(k+1|k) = f(x(k|k), u(k)),            F = df/dx at x(k|k)      (linear: A x + B u, F = A)
     P(k+1|k) = F P(k|k) F^T + Q

@@ -3,7 +3,7 @@
 One sample of :meth:`chatterspec.filters.multiple_model.IMM.update` for every realization, in one
 compiled loop over runs (outer) and time (inner), instead of three protocol ``update`` calls and a
 dozen numpy calls on (runs, 3, 4) arrays per sample. The arithmetic is that of the protocol path
-([IMM] eq 15-33 as corrected in ``estimators.md`` §1.6)::
+([IMM] eq 15-33 as corrected in ``docs/design.md`` §7.6)::
 
     (19) c_j = sum_i pi_ij mu_i,  c_j >= 1e-300   (18) w_ij = mu_i pi_ij / c_j
     (20) x_0j = sum_i w_ij x_i                    (21) P_0j = sum_i w_ij [P_i + (x_i - x_0j)(.)^T]
@@ -283,7 +283,7 @@ def _imm_kernel(
             for j in range(nm):
                 Cj = C[j]
                 Rj = R[j]
-                for i in range(m):  # e(k|k) of mode j: residual of its mixed estimate (note §1.6)
+                for i in range(m):  # e(k|k) of mode j: residual of its mixed estimate (design.md I4)
                     if first and k == 0:
                         em[i] = eps[r, j, i]
                     else:

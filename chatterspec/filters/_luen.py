@@ -1,4 +1,4 @@
-"""Reduced-order (Luenberger) correction of the SVSF-type filters, ``estimators.md`` §1.4 (private)."""
+"""Reduced-order (Luenberger) correction of the SVSF-type filters, ``docs/design.md`` §7.4 (private)."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ def luen_correction(
     lo: float,
     hi: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Reduced-order (Luenberger) correction (``estimators.md`` §1.4): ``(K (runs, n, m), dx (runs, n))``.
+    """Reduced-order (Luenberger) correction (``docs/design.md`` §7.4): ``(K (runs, n, m), dx (runs, n))``.
 
     In measurement-aligned coordinates ``y = T x`` (``C T^-1 = [I 0]``), ``Phi = T F T^-1`` and
     ``A_l = Phi22 Phi12^-1`` (n = 2m, Phi12 invertible):

@@ -102,7 +102,15 @@ _CACHE: dict[str, RuleCalibration] = {}
 
 
 def frames_per_hour(settings: Any, dt: float) -> float:
-    """STFT frames per hour of data: ``3600 / (hop samples * dt)``."""
+    """STFT frames per hour of data: ``3600 / (hop samples * dt)``.
+
+    Parameters
+    ----------
+    settings : MonitorSettings
+        Gives the STFT hop.
+    dt : float
+        Sampling time (s).
+    """
     return 3600.0 / (settings.stft.n_hop(dt) * dt)
 
 
