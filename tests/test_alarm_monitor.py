@@ -15,7 +15,7 @@ from chatterspec.detection.alarms import CusumRule, FrameRule, PersistenceRule, 
 from chatterspec.detection.frame_score import FrameScore
 from chatterspec.detection.pipeline import chattering_record
 from chatterspec.detection.spectral import chattering_autocovariance, frame_columns
-from chatterspec.errors import ParameterError
+from chatterspec.errors import CalibrationMismatchError, ParameterError
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
 from chatterspec.online.stream import simulate_blocks
 from chatterspec.plants.scenarios import scenario
@@ -108,6 +108,11 @@ def test_events_carry_rule_and_budget(onset):
     assert d["score"] >= cal.threshold and "[frame rule, 2 false alarms per hour]" in ev.describe()
     with pytest.raises(ParameterError, match="budget was calibrated for"):
         MonitorSettings(rule=CusumRule(3.0), budget=cal)
+    # the API refuses a calibration for another rule or budget, as the CLI does (CalibrationMismatchError)
+    with pytest.raises(CalibrationMismatchError, match="calibrated for the frame rule; got --rule cusum"):
+        alarm_settings(model, MonitorSettings(), "cusum", calibration=cal)
+    with pytest.raises(CalibrationMismatchError, match="calibrated for 2 false alarms per hour"):
+        alarm_settings(model, MonitorSettings(), false_alarms_per_hour=1.0, calibration=cal)
 
 
 def test_healthy_chattering_has_the_ma1_law():
