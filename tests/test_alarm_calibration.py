@@ -117,7 +117,7 @@ def test_too_short_streams_are_refused():
 @pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed")
 def test_calibration_does_not_depend_on_the_path(monkeypatch):
     s = np.random.default_rng(4).exponential(size=(1, 40_000, 2))
-    a = calibrate_rule(PersistenceRule(k=2, n=3), s, 3600.0, 1.0)
+    a = calibrate_rule(PersistenceRule(k=2, n=3), s, 3600.0, 3.0)
     monkeypatch.setenv("CHATTERSPEC_JIT", "0")
-    b = calibrate_rule(PersistenceRule(k=2, n=3), s, 3600.0, 1.0)
+    b = calibrate_rule(PersistenceRule(k=2, n=3), s, 3600.0, 3.0)
     assert a == b

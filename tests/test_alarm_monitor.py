@@ -15,7 +15,7 @@ from chatterspec.detection.alarms import CusumRule, FrameRule, PersistenceRule, 
 from chatterspec.detection.frame_score import FrameScore
 from chatterspec.detection.pipeline import chattering_record
 from chatterspec.detection.spectral import chattering_autocovariance, frame_columns
-from chatterspec.errors import ParameterError
+from chatterspec.errors import CalibrationMismatchError, ParameterError
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
 from chatterspec.online.stream import simulate_blocks
 from chatterspec.plants.scenarios import scenario
@@ -108,6 +108,11 @@ def test_events_carry_rule_and_budget(onset):
     assert d["score"] >= cal.threshold and "[frame rule, 2 false alarms per hour]" in ev.describe()
     with pytest.raises(ParameterError, match="budget was calibrated for"):
         MonitorSettings(rule=CusumRule(3.0), budget=cal)
+    # the API refuses a calibration for another rule or budget, as the CLI does (CalibrationMismatchError)
+    with pytest.raises(CalibrationMismatchError, match="calibrated for the frame rule; got --rule cusum"):
+        alarm_settings(model, MonitorSettings(), "cusum", calibration=cal)
+    with pytest.raises(CalibrationMismatchError, match="calibrated for 2 false alarms per hour"):
+        alarm_settings(model, MonitorSettings(), false_alarms_per_hour=1.0, calibration=cal)
 
 
 def test_healthy_chattering_has_the_ma1_law():
@@ -225,8 +230,8 @@ def test_cli_monitor_reports_rule_and_budget(capsys):
 def test_calibration_file_records_the_rule_and_is_refused_for_another(tmp_path: Path, capsys):
     cal = tmp_path / "cal.npz"
     rc, out, err = _run(
-        capsys, "calibrate", str(MODEL), "--runs", "64", "--no-progress", "--rule", "persistence",
-        "--persistence-k", "2", "--persistence-n", "4", "--false-alarms-per-hour", "2", "--hours", "1",
+        capsys, "calibrate", str(MODEL), "--runs", "99", "--no-progress", "--rule", "persistence",
+        "--persistence-k", "2", "--persistence-n", "4", "--false-alarms-per-hour", "60", "--hours", "1",
         "--out", str(cal),
     )  # fmt: skip
     assert rc == 0, err
@@ -235,11 +240,12 @@ def test_calibration_file_records_the_rule_and_is_refused_for_another(tmp_path: 
 
     c = load_calibration(cal)
     assert c.alarm.rule == PersistenceRule(c.alarm.threshold, k=2, n=4)
-    assert c.alarm.false_alarms_per_hour == 2.0 and c.alarm.steps_per_hour == pytest.approx(18000.0)
+    assert c.alarm.false_alarms_per_hour == 60.0 and c.alarm.steps_per_hour == pytest.approx(18000.0)
+    assert c.alarm.method == "counted"
     base = ["monitor", "--model", str(MODEL), "--data", str(DATA), "--calibration", str(cal)]
     for extra, needle in (
         (["--rule", "cusum"], "was calibrated for the persistence rule; got --rule cusum"),
-        (["--false-alarms-per-hour", "1"], "was calibrated for 2 false alarms per hour"),
+        (["--false-alarms-per-hour", "1"], "was calibrated for 60 false alarms per hour"),
         (["--persistence-n", "5"], "with n = 4; got 5"),
     ):
         rc, out, err = _run(capsys, *base, *extra)

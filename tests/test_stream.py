@@ -475,7 +475,7 @@ def test_stream_option_errors_are_reported_without_traceback(tmp_path, capsys, m
         (["--data", str(EXAMPLE_DATA), "--record-every", "1"], "apply to streams"),
         (["--data", "-", "--rate", "2"], "--rate paces a file replay"),
         (["--data", str(tmp_path / "none.csv"), "--follow"], "does not exist"),
-        (["--data", "-", "--record-every", "0"], "must be > 0"),
+        (["--data", "-", "--record-every", "0"], "must be >= 0.05 minutes"),
     ):
         rc, _, err = _main(
             ["monitor", "--model", str(EXAMPLE_MODEL), *argv], None, tmp_path, capsys, monkeypatch

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..detection.alarms import RULES, rule_names
-from ..errors import CalibrationMismatchError, ParameterError
+from ..errors import ParameterError
 
 __all__ = ["AlarmChoice", "add_alarm_args", "alarm_choice", "check_file_alarm"]
 
@@ -184,28 +184,15 @@ def alarm_choice(
 
 
 def check_file_alarm(choice: AlarmChoice, cal_alarm: Any, path: Any) -> Any:
-    """The calibration file's rule calibration if it fits ``choice``, else ``CalibrationMismatchError``.
+    """The calibration file's rule calibration if it fits ``choice`` (the options given on the command
+    line), else ``CalibrationMismatchError``
+    (:func:`chatterspec.studies.alarm_budget.check_alarm_calibration`)."""
+    from ..studies.alarm_budget import check_alarm_calibration
 
-    A file records its rule (with parameters), budget and frames per hour; it is refused for
-    another rule, another budget or other rule parameters given on the command line.
-    """
-    file_rule = cal_alarm.rule
-    if choice.explicit_rule and choice.rule != file_rule.name:
-        raise CalibrationMismatchError(
-            f"{path} was calibrated for the {file_rule.name} rule; got --rule {choice.rule} "
-            f"(calibrate again with --rule {choice.rule})"
-        )
-    if choice.explicit_budget and not math.isclose(
-        choice.budget, cal_alarm.false_alarms_per_hour, rel_tol=1e-9
-    ):
-        raise CalibrationMismatchError(
-            f"{path} was calibrated for {cal_alarm.false_alarms_per_hour:g} false alarms per hour; got "
-            f"--false-alarms-per-hour {choice.budget:g}"
-        )
-    mine = file_rule.parameters()
-    for k, v in choice.parameters.items():
-        if mine.get(k) != v:
-            raise CalibrationMismatchError(
-                f"{path} was calibrated for the {file_rule.name} rule with {k} = {mine.get(k)}; got {v}"
-            )
-    return cal_alarm
+    return check_alarm_calibration(
+        cal_alarm,
+        choice.rule if choice.explicit_rule else None,
+        choice.budget if choice.explicit_budget else None,
+        choice.parameters,
+        path,
+    )

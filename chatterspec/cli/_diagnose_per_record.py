@@ -9,7 +9,9 @@ not alarm equally often, so the delays of this table cannot rank the routes; ``d
 ``--per-record`` compares them at one false-alarm budget (:mod:`chatterspec.cli.diagnose`).
 
 The runs are simulated and diagnosed in chunks of ``--chunk-runs`` (default 64): only per-run figures
-are kept, so the memory does not grow with ``--runs``, and the output does not depend on the chunking.
+are kept, so the memory does not grow with ``--runs``, and the output does not depend on the chunking;
+with ``--workers`` / ``--scheduler`` the chunks run on worker processes
+(:func:`~chatterspec.studies.diagnosis_parallel.diagnose_parallel`), with the same figures.
 """
 
 from __future__ import annotations
@@ -18,24 +20,27 @@ import argparse
 import math
 import time
 
-from ._common import print_json
+from ._common import Outputs, print_json
 
 
 def chattering_threshold(args: argparse.Namespace, sc: object) -> tuple[object, dict]:
     """The chattering route's per-frame threshold at ``--alpha`` and its provenance.
 
-    From ``--calibration FILE``, or calibrated now on ``--calibration-runs`` healthy runs of the
-    scenario's healthy version (:func:`~chatterspec.studies.chattering_diagnosis.calibrate_for_diagnosis`;
-    ``--workers`` / ``--scheduler`` when the arguments have them). Its expected spectrum is also the
-    healthy law of the frame score of a nonlinear model at a budget.
+    From ``--calibration FILE`` (refused without enough runs for the per-frame threshold), or
+    calibrated now on ``--calibration-runs`` healthy runs of the scenario's healthy version
+    (:func:`~chatterspec.studies.chattering_diagnosis.calibrate_for_diagnosis`, on ``--workers`` /
+    ``--scheduler``). Its expected spectrum is also the healthy law of the frame score of a nonlinear
+    model at a budget.
     """
     from ..detection.spectral import STFTConfig
 
     config = STFTConfig()
     if args.calibration is not None:
         from ..studies.calibration import load_calibration
+        from ..studies.calibration_support import require_support
 
         cal = load_calibration(args.calibration, sc.nominal, config=config)  # type: ignore[attr-defined]
+        require_support(cal, "monitor", args.calibration)  # the per-frame threshold needs enough runs
         info = {"source": str(args.calibration), "runs": cal.runs, "alpha": cal.alpha, "seconds": 0.0}
     else:
         from ..studies.chattering_diagnosis import CALIBRATION_SALT, calibrate_for_diagnosis
@@ -47,8 +52,8 @@ def chattering_threshold(args: argparse.Namespace, sc: object) -> tuple[object, 
             runs=args.calibration_runs,
             alpha=args.alpha,
             progress=False if args.no_progress else None,
-            workers=getattr(args, "workers", 1),
-            scheduler=getattr(args, "scheduler", None),
+            workers=args.workers,
+            scheduler=args.scheduler,
         )
         info = {
             "source": "calibrated now on healthy runs",
@@ -74,24 +79,79 @@ DEFAULT_CHUNK_RUNS = 64
 def run_per_record(args: argparse.Namespace, sc: object, methods: tuple[str, ...]) -> int:
     """``diagnose --per-record``: each route with its own rule (argmax; per-frame at ``--alpha``)."""
     from ..plants.simulate import Simulation, iter_simulations
-    from ..progress import Progress
 
     threshold, info = chattering_threshold(args, sc) if "chattering" in methods else (None, {})
     from ..studies.chattering_diagnosis import ChatteringTally
     from ..studies.mode_diagnosis import ModeTally
 
-    tallies = [ChatteringTally(sc, threshold) if m == "chattering" else ModeTally(sc, m) for m in methods]
     # the runs go through in chunks (realization r's numbers do not depend on the chunking); only per-run
     # figures are kept, and realization 0 for --record
     outputs: dict = {}
     first: Simulation | None = None
-    sim_s = 0.0
+    sim_s: float | None = None  # seconds spent simulating (None: on workers, inside their chunks)
     chunk = args.chunk_runs or DEFAULT_CHUNK_RUNS
-    chunks = iter_simulations(sc, args.runs, args.seed, chunk_runs=min(chunk, args.runs))
+    if args.workers > 1 or args.scheduler is not None:  # simulation and filters on workers: same figures
+        from ..plants.simulate import simulate
+        from ..studies.diagnosis_parallel import diagnose_parallel
+
+        tallies, outputs = diagnose_parallel(
+            sc,
+            methods,
+            threshold,
+            args.runs,
+            args.seed,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            chunk_runs=chunk,
+            progress=False if args.no_progress else None,
+            keep=args.record is not None,
+        )
+        if args.record is not None:
+            first = simulate(sc, 1, args.seed)
+    else:
+        chunks = iter_simulations(sc, args.runs, args.seed, chunk_runs=min(chunk, args.runs))
+        tallies = [ChatteringTally(sc, threshold) if m == "chattering" else ModeTally(sc, m) for m in methods]
+        first, sim_s = _serial(args, sc, tallies, chunks, outputs)
+    results = [t.result(info) if isinstance(t, ChatteringTally) else t.result() for t in tallies]
+    recording, written = None, Outputs()  # a recording that fails: the result first, then exit 2
+    if args.record is not None:
+        from ..online.diagnosis_log import record_diagnosis
+
+        recording = written.write(
+            "--record", args.record, record_diagnosis, args.record, first, threshold, outputs
+        )
+    if args.json:
+        print_json(
+            {
+                "scenario": sc.name,
+                "runs": args.runs,
+                "seed": args.seed,
+                "simulation_s": sim_s,
+                "methods": [r.describe() for r in results],
+                "recording": None if recording is None else str(recording),
+            }
+        )
+        written.finish()
+        return 0
+    _print_table(sc, args, results)
+    if recording is not None:
+        print(f"recording: {recording} (open with `chatterspec replay {recording}` or `rerun {recording}`)")
+    written.finish()
+    return 0
+
+
+def _serial(
+    args: argparse.Namespace, sc: object, tallies: list, chunks: object, outputs: dict
+) -> tuple[object, float]:
+    """The in-process loop over chunks: realization 0 (for --record, else None) and the simulation time."""
+    from ..progress import Progress
+    from ..studies.mode_diagnosis import ModeTally
+
+    first, sim_s = None, 0.0
     with Progress(args.runs, "diagnose", enabled=False if args.no_progress else None) as bar:
         while True:
             t0 = time.perf_counter()
-            sim = next(chunks, None)
+            sim = next(chunks, None)  # type: ignore[call-overload]
             sim_s += time.perf_counter() - t0
             if sim is None:
                 break
@@ -104,28 +164,7 @@ def run_per_record(args: argparse.Namespace, sc: object, methods: tuple[str, ...
                     tally.add(sim)
             bar.update(sim.runs)
             del sim
-    results = [t.result(info) if isinstance(t, ChatteringTally) else t.result() for t in tallies]
-    recording = None
-    if args.record is not None:
-        from ..online.diagnosis_log import record_diagnosis
-
-        recording = record_diagnosis(args.record, first, threshold, outputs)
-    if args.json:
-        print_json(
-            {
-                "scenario": sc.name,
-                "runs": args.runs,
-                "seed": args.seed,
-                "simulation_s": sim_s,
-                "methods": [r.describe() for r in results],
-                "recording": None if recording is None else str(recording),
-            }
-        )
-        return 0
-    _print_table(sc, args, results)
-    if recording is not None:
-        print(f"recording: {recording} (open with `chatterspec replay {recording}` or `rerun {recording}`)")
-    return 0
+    return first, sim_s
 
 
 def _print_table(sc: object, args: argparse.Namespace, results: list) -> None:
@@ -139,12 +178,17 @@ def _print_table(sc: object, args: argparse.Namespace, results: list) -> None:
     for r in results:
         if r.method == "chattering":
             c = r.calibration
+            healthy = (
+                f"{r.healthy_frames_per_run} healthy frames per run, flag fraction there "
+                f"{r.healthy_alarm_fraction:.4f}"
+                if r.healthy_frames_per_run
+                else "no healthy frames (faulty from the start: no false-alarm figure)"
+            )
             print(
                 f"chattering threshold: {c.get('source')} ({c.get('runs')} runs, alpha "
-                f"{c.get('alpha'):g} per frame, {c.get('seconds', 0.0):.1f} s); "
-                f"{r.healthy_frames_per_run} healthy frames per run, "
-                f"flag fraction there {r.healthy_alarm_fraction:.4f}; delays are frame-end times (hop "
-                f"quantized); runs already in alarm at each onset: {list(r.in_alarm_at_onset)}"
+                f"{c.get('alpha'):g} per frame, {c.get('seconds', 0.0):.1f} s); {healthy}; delays are "
+                f"frame-end times (hop quantized); runs already in alarm at each onset: "
+                f"{list(r.in_alarm_at_onset)}"
             )
         else:
             diag = ", ".join(f"{m} {r.confusion[j, j]:.1f}%" for j, m in enumerate(r.modes))

@@ -10,6 +10,7 @@ import json
 import sys
 from typing import Any
 
+from ..errors import ParameterError
 from ._alarm_args import add_alarm_args, alarm_choice
 from ._common import (
     Outputs,
@@ -126,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         check_output_file(args.plot, "--plot", suffixes=figure_suffixes())
     outputs = Outputs()
+    supports = _check_support(args)  # also an unknown name or a bad model file, before the heavy imports
     choice = alarm_choice(args)
     wants_alarm = choice.explicit_rule or choice.explicit_budget or args.hours is not None
     hours = _hours(args.hours)
@@ -138,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
     if wants_alarm:
         cal = _with_alarm(cal, args.name, choice, hours, args.seed)
     doc = cal.to_dict()
+    doc["support"] = {use: s.to_dict() for use, s in supports.items()}
     if args.out:
         saved = outputs.write("--out", args.out, _save_calibration, cal, args.out)
         doc["calibration_file"] = None if saved is None else str(saved)
@@ -187,8 +190,6 @@ def _hours(text: str | None) -> float:
     """``--hours H`` (default 48): a positive, finite number of hours."""
     import math
 
-    from ..errors import ParameterError
-
     if text is None:
         return 48.0
     try:
@@ -217,6 +218,37 @@ def _with_alarm(cal: Any, name: str, choice: Any, hours: float, seed: int) -> An
     rule = make_rule(choice.rule, **choice.parameters)
     rc = calibrate_alarm(sc.nominal, settings, rule, choice.budget, hours=hours, seed=seed, scenario=sc)
     return dataclasses.replace(cal, alarm=rc)
+
+
+def _check_support(args: argparse.Namespace) -> dict[str, Any]:
+    """Before computing: refuse runs that support alpha for neither use; warn when only one is supported.
+
+    The record family-wise threshold (``detect --calibration``) needs ``ceil(1/alpha) - 1`` runs; the
+    per-frame one (``monitor`` / ``diagnose --calibration``) pools the non-overlapping frames of every
+    run (:mod:`chatterspec.studies.calibration_support`).
+    """
+    from ..studies.calibration_support import frames_per_run, support_for
+    from ._common import load_scenario
+
+    sc = load_scenario(args.name)
+    per_frame = frames_per_run(sc.n_samples - 1, 1.0, sc.dt)  # the calibration's STFT: 1 s windows
+    supports = {
+        "detect": support_for("detect", args.runs, args.alpha, args.confidence),
+        "monitor": support_for("monitor", args.runs, args.alpha, args.confidence, per_frame),
+    }
+    bad = [s for s in supports.values() if not s.supported]
+    if len(bad) == len(supports):
+        d, m = supports["detect"], supports["monitor"]
+        raise ParameterError(
+            f"{d.message()}; per frame (monitor) it needs --runs >= {m.min_runs}; nothing computed"
+        )
+    for s in bad:
+        print(
+            f"chatterspec calibrate: warning: the file will be refused by "
+            f"{'detect' if s.use == 'detect' else 'monitor and diagnose'}: {s.message()}",
+            file=sys.stderr,
+        )
+    return supports
 
 
 def _save_calibration(cal: Any, path: str) -> Any:

@@ -28,6 +28,7 @@ import time
 from ..errors import ParameterError
 from ._common import (
     Outputs,
+    add_execution_args,
     alpha_arg,
     check_output_file,
     check_record_path,
@@ -116,21 +117,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--calibration-runs",
         type=positive_int_arg,
-        default=500,
-        help="healthy runs of the in-call calibrations (default 500)",
+        default=None,
+        help="healthy runs of the in-call calibrations (default 500; --per-record: not with --calibration)",
     )
     p.add_argument(
         "--alpha",
         type=alpha_arg,
-        default=1e-3,
-        help="chattering: per-frame level of the --per-record threshold and of the recording (default 1e-3)",
+        default=None,
+        help="chattering: per-frame level of the in-call calibration, the --per-record threshold and the "
+        "recording (default 1e-3; not with --calibration)",
     )
-    p.add_argument("--workers", type=positive_int_arg, default=1, help="local worker processes (default 1)")
-    p.add_argument(
-        "--scheduler",
-        metavar="ADDRESS",
-        help="run on Dask: 'local-dask' or a scheduler address (needs chatterspec[distributed])",
-    )
+    add_execution_args(p)
     p.add_argument(
         "--chunk-runs",
         type=positive_int_arg,
@@ -244,7 +241,14 @@ def _chattering_law(args: argparse.Namespace, sc: object) -> tuple[object, dict]
 
 
 def run(args: argparse.Namespace) -> int:
+    from .detect import refuse_with_calibration
+
     check_record_path(args.record)
+    # a calibration file fixes the chattering threshold and its alpha; at a budget, --calibration-runs
+    # also sets the healthy streams of every route, so it stays allowed there
+    refuse_with_calibration(args, ("alpha", "calibration_runs") if args.per_record else ("alpha",))
+    args.alpha = 1e-3 if args.alpha is None else args.alpha
+    args.calibration_runs = 500 if args.calibration_runs is None else args.calibration_runs
     if args.figure is not None:
         check_output_file(args.figure, "--figure", suffixes=figure_suffixes())
     sc = _scenario(args)

@@ -104,7 +104,15 @@ Method = Literal["law", "counted", "extrapolated"]
 
 
 def check_budget(false_alarms_per_hour: object, option: str = "false_alarms_per_hour") -> float:
-    """``false_alarms_per_hour`` as a budget: a finite number > 0 (``ParameterError`` naming ``option``)."""
+    """A budget in false alarms per hour: a finite number > 0 (``ParameterError`` naming ``option``).
+
+    Parameters
+    ----------
+    false_alarms_per_hour : float or str
+        The budget (alarm starts per hour).
+    option : str
+        How the caller names it in the error message (e.g. ``--false-alarms-per-hour``).
+    """
     try:
         x = float(false_alarms_per_hour)  # type: ignore[arg-type]
     except (TypeError, ValueError):
@@ -476,10 +484,12 @@ def calibrate_rule(
                 h = float(grid[i])
             return float(h), "counted", {}
         ok = (cnt >= MIN_COUNT) & (rate <= MAX_RATE_PER_STEP)
-        if np.count_nonzero(ok) < 2:
+        # a slope needs a range of counts: at least a factor e^1 between the ends of the fit
+        if np.count_nonzero(ok) < 2 or cnt[ok].max() < math.e * cnt[ok].min():
             raise ParameterError(
-                f"{T:.3g} h of healthy streams are too short to calibrate the {rule.name} rule: fewer than "
-                f"two thresholds with >= {MIN_COUNT} alarm starts at rare-alarm rates; simulate more hours"
+                f"{T:.3g} h of healthy streams are too short to calibrate the {rule.name} rule for "
+                f"{X:g} false alarms per hour: the thresholds with >= {MIN_COUNT} alarm starts at rare-alarm "
+                f"rates span less than a factor e of starts; simulate more hours"
             )
         hh, cc = grid[ok], cnt[ok]
         w = cc.astype(float)  # Poisson: var(log count) ~ 1 / count
@@ -515,7 +525,8 @@ def calibrate_rule(
         i = int(np.clip(np.searchsorted(grid, h), 1, grid.size - 1))
         c0, c1 = counts.sum(axis=0)[i - 1], counts.sum(axis=0)[i]
         slope = (math.log(max(c1, 0.5)) - math.log(max(c0, 0.5))) / (grid[i] - grid[i - 1])
-    rate_int = (X * math.exp(slope * z * se), X * math.exp(-slope * z * se))
+    spread = min(700.0, abs(slope) * z * se) if math.isfinite(se) else 700.0
+    rate_int = (X * math.exp(-spread), X * math.exp(spread))
     total = counts.sum(axis=0).tolist()
     fit = {**fit, "h": grid.tolist(), "starts": total, "hours": hours, "jackknife_se": se}
     return RuleCalibration(

@@ -318,7 +318,13 @@ def make_rule(name: str, threshold: float = float("inf"), **parameters: Any) -> 
 
 
 def rule_from_dict(d: Mapping[str, Any]) -> AlarmRule:
-    """Inverse of ``rule.to_dict()``: the rule of dict ``d`` (``threshold`` ``None`` reads as ``inf``)."""
+    """Inverse of ``rule.to_dict()`` (``threshold`` ``None`` reads as ``inf``).
+
+    Parameters
+    ----------
+    d : mapping
+        ``{"rule": name, "threshold": h or None, **parameters}``.
+    """
     d = dict(d)
     name = d.pop("rule", None)
     if not isinstance(name, str):
@@ -704,5 +710,11 @@ def run_rule(rule: AlarmRule, scores: np.ndarray) -> AlarmBlock:
 
 
 def count_starts(rule: AlarmRule, scores: np.ndarray) -> np.ndarray:
-    """Alarm starts per stream and channel ``(..., channels)`` of :func:`run_rule` (``rule``, ``scores``)."""
+    """Alarm starts per stream and channel ``(..., channels)`` of :func:`run_rule`.
+
+    Parameters
+    ----------
+    rule : FrameRule, PersistenceRule or CusumRule
+    scores : (..., steps, channels) array
+    """
     return run_rule(rule, scores).starts.sum(axis=-2)

@@ -41,7 +41,7 @@ import json
 import math
 import os
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from typing import Any
@@ -59,7 +59,7 @@ from ..detection.alarm_calibration import (
 from ..detection.alarms import AlarmRule, make_rule
 from ..detection.frame_score import FrameScore
 from ..detection.thresholds import frame_threshold
-from ..errors import ParameterError
+from ..errors import CalibrationMismatchError, ParameterError
 from ..plants.nonlinear import is_linear
 from ..plants.simulate import covariance_sqrt
 
@@ -70,6 +70,7 @@ __all__ = [
     "IN_CALL_HOURS",
     "alarm_settings",
     "calibrate_alarm",
+    "check_alarm_calibration",
     "display_alpha",
     "frames_per_hour",
     "healthy_chattering",
@@ -102,7 +103,15 @@ _CACHE: dict[str, RuleCalibration] = {}
 
 
 def frames_per_hour(settings: Any, dt: float) -> float:
-    """STFT frames per hour of data: ``3600 / (hop samples * dt)`` (hop of ``settings.stft``, ``dt`` in s)."""
+    """STFT frames per hour of data: ``3600 / (hop samples * dt)``.
+
+    Parameters
+    ----------
+    settings : MonitorSettings
+        Gives the STFT hop.
+    dt : float
+        Sampling time (s).
+    """
     return 3600.0 / (settings.stft.n_hop(dt) * dt)
 
 
@@ -298,11 +307,62 @@ def calibrate_alarm(
     return cal
 
 
+def check_alarm_calibration(
+    calibration: RuleCalibration,
+    rule: str | None = None,
+    false_alarms_per_hour: float | None = None,
+    parameters: Mapping[str, Any] | None = None,
+    source: object = "the calibration",
+) -> RuleCalibration:
+    """``calibration`` if it was made for ``rule``, the budget and the rule's ``parameters``.
+
+    A calibration records its rule (with parameters), budget and frames per hour; it is refused
+    for another rule, budget or parameter value (``None`` / missing: not checked).
+
+    Parameters
+    ----------
+    calibration : RuleCalibration
+    rule : str, optional
+        The rule name asked for.
+    false_alarms_per_hour : float, optional
+        The budget asked for.
+    parameters : mapping, optional
+        Rule parameters asked for (``k``, ``n``, ``drift``).
+    source : object
+        How to name the calibration in the message (e.g. its file).
+
+    Raises
+    ------
+    CalibrationMismatchError
+        It was made for another rule, budget or parameter.
+    """
+    file_rule = calibration.rule
+    if rule is not None and rule != file_rule.name:
+        raise CalibrationMismatchError(
+            f"{source} was calibrated for the {file_rule.name} rule; got --rule {rule} "
+            f"(calibrate again with --rule {rule})"
+        )
+    if false_alarms_per_hour is not None and not math.isclose(
+        float(false_alarms_per_hour), calibration.false_alarms_per_hour, rel_tol=1e-9
+    ):
+        raise CalibrationMismatchError(
+            f"{source} was calibrated for {calibration.false_alarms_per_hour:g} false alarms per hour; got "
+            f"--false-alarms-per-hour {float(false_alarms_per_hour):g}"
+        )
+    mine = file_rule.parameters()
+    for k, v in (parameters or {}).items():
+        if mine.get(k) != v:
+            raise CalibrationMismatchError(
+                f"{source} was calibrated for the {file_rule.name} rule with {k} = {mine.get(k)}; got {v}"
+            )
+    return calibration
+
+
 def alarm_settings(
     model: Any,
     settings: Any,
-    rule: str = DEFAULT_RULE,
-    false_alarms_per_hour: float = DEFAULT_BUDGET,
+    rule: str | None = None,
+    false_alarms_per_hour: float | None = None,
     *,
     hours: float | None = None,
     seed: int = 0,
@@ -316,16 +376,25 @@ def alarm_settings(
     ----------
     model : LinearModel or NonlinearModel
     settings : MonitorSettings
-    rule : {"frame", "persistence", "cusum"}
-        Default :data:`DEFAULT_RULE`.
-    false_alarms_per_hour : float
-        Default :data:`DEFAULT_BUDGET` (one per day).
+    rule : {"frame", "persistence", "cusum"}, optional
+        Default :data:`DEFAULT_RULE` (with ``calibration``: its rule, and another one is refused).
+    false_alarms_per_hour : float, optional
+        Default :data:`DEFAULT_BUDGET`, one per day (with ``calibration``: its budget, and another
+        one is refused).
     hours, seed, scenario
         See :func:`calibrate_alarm`.
     calibration : RuleCalibration, optional
-        A ready threshold (e.g. from a calibration file): used as is.
+        A ready threshold (e.g. from a calibration file): used as is, after
+        :func:`check_alarm_calibration` against ``rule``, the budget and ``parameters``.
     **parameters
         The rule's parameters (``k``, ``n``; ``drift``).
+
+    Raises
+    ------
+    ParameterError
+        Bad budget or rule parameters.
+    CalibrationMismatchError
+        ``calibration`` was made for another rule, budget or parameters.
 
     Returns
     -------
@@ -334,10 +403,11 @@ def alarm_settings(
         :func:`display_alpha` (the drawn per-frame verdict is the rule's per-step exceedance).
     """
     if calibration is None:
-        r = make_rule(rule, **parameters)
-        calibration = calibrate_alarm(
-            model, settings, r, false_alarms_per_hour, hours=hours, seed=seed, scenario=scenario
-        )
+        r = make_rule(rule or DEFAULT_RULE, **parameters)
+        X = DEFAULT_BUDGET if false_alarms_per_hour is None else false_alarms_per_hour
+        calibration = calibrate_alarm(model, settings, r, X, hours=hours, seed=seed, scenario=scenario)
+    else:
+        check_alarm_calibration(calibration, rule, false_alarms_per_hour, parameters)
     r = calibration.rule
     alpha = settings.alpha if settings.threshold is not None else display_alpha(r, settings.alpha)
     return replace(settings, rule=r, budget=calibration, alpha=alpha)
