@@ -187,12 +187,14 @@ def budget_rows(results: Sequence[object]) -> tuple[tuple[str, ...], list[tuple[
     rows = []
     for r in results:
         lo, hi = r.rate_ci  # type: ignore[attr-defined]
-        fa = (
-            f"{_rate(r.rate_per_hour)} [{_rate(lo)}, {_rate(hi)}] "  # type: ignore[attr-defined]
-            f"({r.false_alarms}/{r.healthy_hours:.3g})"  # type: ignore[attr-defined]
-        )
         if r.healthy_hours > 0:  # type: ignore[attr-defined]
+            fa = (
+                f"{_rate(r.rate_per_hour)} [{_rate(lo)}, {_rate(hi)}] "  # type: ignore[attr-defined]
+                f"({r.false_alarms}/{r.healthy_hours:.3g})"  # type: ignore[attr-defined]
+            )
             fa += "" if r.budget_inside else " <- budget outside"  # type: ignore[attr-defined]
+        else:
+            fa = "n/a (no healthy part; --onset S gives one)"
         h = r.rule.get("threshold")  # type: ignore[attr-defined]
         for i, o in enumerate(r.onsets):  # type: ignore[attr-defined]
             rows.append(
