@@ -342,8 +342,9 @@ def _print_budget_table(
 
     print(
         f"diagnosis on {sc.name}: {args.runs} runs, seed {args.seed}; {settings.rule} rule, every route "  # type: ignore[attr-defined]
-        f"calibrated to {settings.budget_per_hour:g} false alarm(s) per hour on "  # type: ignore[attr-defined]
-        f"{settings.calibration_runs} healthy runs; warm-up {settings.warmup_s:g} s; {wall:.1f} s"  # type: ignore[attr-defined]
+        f"calibrated to {settings.budget_per_hour:g} false alarm(s) per hour on healthy streams "  # type: ignore[attr-defined]
+        f"({settings.calibration_runs} runs; how, per route, below); warm-up {settings.warmup_s:g} s; "  # type: ignore[attr-defined]
+        f"{wall:.1f} s"
     )
     header, rows = budget_rows(results)
     widths = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]

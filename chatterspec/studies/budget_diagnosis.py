@@ -249,10 +249,15 @@ def _calibrate(
         cal = calibrate_rule(rule, scores, steps_per_hour, budget, confidence=confidence)
     except ParameterError as exc:
         return float("inf"), {"method": "failed", "reason": str(exc)}
+    return float(cal.threshold), _provenance(cal)
+
+
+def _provenance(cal: Any) -> dict[str, Any]:
+    """A :class:`~chatterspec.detection.alarm_calibration.RuleCalibration` as JSON (without its fit)."""
     d = cal.to_dict()
     d.pop("fit", None)
     d["describe"] = cal.describe()
-    return float(cal.threshold), d
+    return d
 
 
 def diagnose_at_budget(
@@ -310,9 +315,18 @@ def diagnose_at_budget(
         cal_hours[m] = scores.shape[0] * scores.shape[1] * route.step_s / 3600.0
         base = settings.make_rule(route)
         t0 = time.perf_counter()
-        h_star, info = _calibrate(
-            base, scores, settings.budget_per_hour, 3600.0 / route.step_s, settings.calibration_confidence
+        own = getattr(route, "own_calibration", None)
+        cal = (
+            None
+            if own is None
+            else own(base, settings.budget_per_hour, seed, settings.calibration_confidence)
         )
+        if cal is not None:  # the monitor's threshold on the exact healthy law (chattering, linear model)
+            h_star, info = float(cal.threshold), _provenance(cal)
+        else:
+            h_star, info = _calibrate(
+                base, scores, settings.budget_per_hour, 3600.0 / route.step_s, settings.calibration_confidence
+            )
         t1 = time.perf_counter()
         top = getattr(route, "score_max", float("inf"))
         if base.name != "cusum" and math.isfinite(h_star) and h_star > top:

@@ -356,6 +356,27 @@ class ChatteringRoute:
         # worker process; the law it is built from can
         return {**self.__dict__, "_score": None}
 
+    def own_calibration(self, rule: Any, budget: float, seed: int, confidence: float) -> Any:
+        """On a linear model, the monitor's threshold for ``rule`` at ``budget`` (else None).
+
+        The healthy chattering of a linear model is an exact MA(1) process, so the alarm layer's monitor
+        calibration (:func:`~chatterspec.studies.alarm_budget.calibrate_alarm`: its in-call hours of
+        continuous healthy frames, seeds ``[seed, ALARM_SALT, block]``) applies as it stands, and gives
+        the threshold ``chatterspec monitor`` would use at this budget; the 4 s records of the linear
+        catalogue hold too few frames per run (16) for the diagnosis's own healthy runs to reach one
+        false alarm per hour.
+        """
+        from ..plants.models import LinearModel
+
+        model = self.scenario.nominal
+        if not isinstance(model, LinearModel) or self.frame_score.law != "exact":
+            return None
+        from ..online.monitor import MonitorSettings
+        from .alarm_budget import calibrate_alarm
+
+        settings = MonitorSettings(stft=self.config, threshold=self.law)
+        return calibrate_alarm(model, settings, rule, budget, seed=int(seed), confidence=confidence)
+
     def rule_parameters(self, rule: str) -> dict[str, float]:
         """The layer's defaults (its CUSUM drift is set for ``-log p``)."""
         return {}
