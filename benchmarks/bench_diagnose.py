@@ -10,7 +10,7 @@ at the budget, the realized false alarms and their Poisson interval, the delay p
 Usage::
 
     python benchmarks/bench_diagnose.py [NAME] [--budget 1] [--rule cusum] [--runs 100] [--seed 0]
-        [--calibration-runs 500] [--onset S] [--workers 1] [--json]
+        [--calibration-runs 1000] [--onset S] [--workers 1] [--json]
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import time
 import chatterspec as cs
 
 
-def _routes(sc: object, alpha: float) -> dict:
+def _routes(sc: object, alpha: float, calibration_runs: int) -> dict:
     from chatterspec.detection.spectral import STFTConfig
     from chatterspec.detection.thresholds import frame_threshold
     from chatterspec.studies.chattering_diagnosis import calibrate_for_diagnosis
@@ -36,7 +36,8 @@ def _routes(sc: object, alpha: float) -> dict:
                 model, cfg = sc.nominal, STFTConfig()  # type: ignore[attr-defined]
                 law = frame_threshold(model, cfg.freqs_hz(model.dt), cfg, model.dt, alpha)
             else:
-                law = calibrate_for_diagnosis(sc, 0, runs=500, alpha=alpha).threshold("frame-family-wise")  # type: ignore[arg-type]
+                law = calibrate_for_diagnosis(sc, 0, runs=calibration_runs, alpha=alpha)  # type: ignore[arg-type]
+                law = law.threshold("frame-family-wise")
             routes[m] = ChatteringRoute(sc, law)
         elif m == "innovation":
             routes[m] = InnovationRoute(sc)
@@ -54,7 +55,7 @@ def main() -> None:
     p.add_argument("--rule", default="cusum")
     p.add_argument("--runs", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--calibration-runs", type=int, default=500)
+    p.add_argument("--calibration-runs", type=int, default=1000)
     p.add_argument("--onset", type=float, default=None)
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--json", action="store_true")
@@ -66,7 +67,7 @@ def main() -> None:
         sc = with_onset(sc, args.onset)
     t0 = time.perf_counter()
     c0 = time.process_time()
-    routes = _routes(sc, 1e-3)
+    routes = _routes(sc, 1e-3, args.calibration_runs)  # as the CLI: the normalization on the same runs
     setup_s = time.perf_counter() - t0
     settings = BudgetSettings(args.budget, args.rule, calibration_runs=args.calibration_runs)
     res = diagnose_at_budget(sc, routes, args.runs, args.seed, settings, workers=args.workers, progress=False)
