@@ -12,6 +12,7 @@ if TYPE_CHECKING:
     from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
 
+from . import _identify
 from ._common import Outputs, add_detector_args, add_live_args, band_from_args, check_record_path, print_json
 
 
@@ -31,6 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="use the empirical family-wise threshold of a calibration file written by "
         "'chatterspec calibrate --out FILE' (refused if it was made for another model or length)",
     )
+    _identify.add_identification_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.set_defaults(func=run)
@@ -54,9 +56,14 @@ def run(args: argparse.Namespace) -> int:
         if not sc.is_linear:  # nonlinear: STFT intervals from the calibrated per-frame threshold
             extra["frame_threshold"] = cal.threshold("frame-family-wise")
     first: list = []
+    setup, why_not = _identify.setup_or_reason(sc.nominal, args)
+    chunks = stream_chunks(sc, args.runs, args.seed, first, measurements=setup is not None)
+    if setup is not None:  # identification taps the same chunks as they stream past the detector
+        ident = _identify.stream(setup, args)
+        chunks = ident.tap(chunks)
     report = detect_chunks(
         with_progress(
-            stream_chunks(sc, args.runs, args.seed, first),
+            chunks,
             args.runs,
             f"detect {sc.name}",
             enabled=False if args.no_progress or args.runs < PROGRESS_MIN_RUNS else None,
@@ -71,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
     doc = report.to_dict()
     doc["seed"] = args.seed
     doc["fault_intervals_true"] = [list(iv) for iv in sc.fault_intervals]
+    add_identification(doc, report, setup, why_not, ident if setup is not None else None, sim, sc, args)
     if args.record or args.live:
         from ..online.drivers import record_detection
         from ..online.monitor import MonitorSettings
@@ -90,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
         print_json(doc)
     else:
         print_report(doc)
+        _identify.print_identification(doc)
     if args.record or args.live:
         outputs.finish()  # a failed recording: the result above is printed first
     return 0
@@ -111,13 +120,46 @@ def with_progress(
             bar.update(rec.values.shape[0])
 
 
-def stream_chunks(sc: Scenario, runs: int, seed: int, first: list[Simulation]) -> Iterator[ChatteringRecord]:
+def add_identification(
+    doc: dict,
+    report: object,
+    setup: object,
+    why_not: str | None,
+    ident: object,
+    sim: Simulation,
+    sc: Scenario,
+    args: argparse.Namespace,
+) -> None:
+    """``doc["identification"]`` (whole record) and ``doc["identification_intervals"]`` (run 0's
+    STFT intervals)."""
+    if setup is None:
+        doc["identification"] = {"reason": why_not}
+        return
+    doc["identification"] = _identify.record_doc(ident, args.runs, setup, sc)
+    frames = getattr(report, "frames", None)
+    if frames is not None and frames.intervals.get("any"):
+        doc["identification_intervals"] = _identify.interval_docs(
+            setup,
+            sim.z[:1],
+            sim.u,
+            frames.intervals["any"],
+            sc.duration,
+            frames.spectrogram.config.hop_s,
+            args,
+            sc,
+        )
+
+
+def stream_chunks(
+    sc: Scenario, runs: int, seed: int, first: list[Simulation], *, measurements: bool = False
+) -> Iterator[ChatteringRecord]:
     """Chattering records of ``runs`` realizations in chunks; appends run 0's Simulation to ``first``.
 
     Peak memory is one chunk (``DETECT_CHUNK_RUNS`` realizations), whatever ``runs``. Where the
     fused simulation + auxiliary-SVSF kernel applies (``iter_chattering``'s fast path, the same
     numbers), run 0 is simulated once more on its own for the recording (realization r's
-    numbers do not depend on the chunking).
+    numbers do not depend on the chunking). With ``measurements`` the records keep z and u
+    (fault identification).
     """
     from ..detection.detect import DETECT_CHUNK_RUNS
     from ..detection.pipeline import _can_fuse, chattering_record, iter_chattering
@@ -125,7 +167,9 @@ def stream_chunks(sc: Scenario, runs: int, seed: int, first: list[Simulation]) -
 
     if _can_fuse(sc):
         first.append(simulate(sc, 1, seed))
-        yield from iter_chattering(sc, runs, seed, chunk_runs=min(runs, DETECT_CHUNK_RUNS))
+        yield from iter_chattering(
+            sc, runs, seed, chunk_runs=min(runs, DETECT_CHUNK_RUNS), measurements=measurements
+        )
         return
     for sim in iter_simulations(sc, runs, seed, chunk_runs=min(runs, DETECT_CHUNK_RUNS)):
         if not first:

@@ -48,6 +48,11 @@ class ChatteringRecord:
         The scenario simulated, if any.
     first_run : int
         Global index of the first realization (chunks of a larger study).
+    z : (runs, N + 1, m) array or None
+        The measurements z(0) .. z(N) the chattering came from, when kept (fault
+        identification, :mod:`chatterspec.detection.identification`, regresses on them).
+    u : (N + 1, p) or (runs, N + 1, p) array or None
+        The inputs u(0) .. u(N), when kept.
     """
 
     t: np.ndarray
@@ -55,6 +60,8 @@ class ChatteringRecord:
     model: LinearModel
     scenario: Scenario | None = None
     first_run: int = 0
+    z: np.ndarray | None = None
+    u: np.ndarray | None = None
 
     @property
     def dt(self) -> float:
@@ -124,7 +131,16 @@ def chattering_record(
         e = e[None]
     T = e.shape[1]
     t = t0 + np.arange(1, T) * model.dt
-    return ChatteringRecord(t=t, values=e[:, 1:], model=model, scenario=scenario, first_run=first_run)
+    z = np.asarray(z, dtype=float)
+    return ChatteringRecord(
+        t=t,
+        values=e[:, 1:],
+        model=model,
+        scenario=scenario,
+        first_run=first_run,
+        z=z[None] if z.ndim == 2 else z,
+        u=np.asarray(u, dtype=float),
+    )
 
 
 def _from_simulation(sim: Simulation, gamma: float) -> ChatteringRecord:
@@ -148,6 +164,7 @@ def _chattering_kernel(
     Gu: np.ndarray,
     e_out: np.ndarray,
     offset: int,
+    z_out: np.ndarray | None = None,
 ) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_kernels.py)
     """Simulation (eq 1-2) and the auxiliary SVSF's chattering (eq 23) fused, one block of runs.
 
@@ -156,7 +173,8 @@ def _chattering_kernel(
     z_j(k-1)``, j = 0, 1, ...), so the result is bit-identical to filtering the simulation;
     only x(k) and z(k), z(k-1) of the current run are held (no ``(runs, T, n)`` arrays).
     ``e_out[offset + r, :, k - 1] = e(k|k-1)``, k = 1..T-1: channel-major, so that each
-    channel's record is contiguous for the periodogram's FFT.
+    channel's record is contiguous for the periodogram's FFT. With ``z_out`` (``(runs, m, T)``,
+    channel-major) the measurements are kept too (fault identification regresses on them).
     """
     runs, T, n = v.shape
     m = w.shape[2]
@@ -180,6 +198,8 @@ def _chattering_kernel(
                     for j in range(m):
                         nz += Lr[s, i, j] * w[r, k, j]
                 z[i] = cx + nz
+                if z_out is not None:
+                    z_out[offset + r, i, k] = z[i]
             if k > 0:
                 for i in range(m):
                     acc = z[i] - Gu[k - 1, i]
@@ -220,6 +240,7 @@ def _chattering_run3(
     Gu: np.ndarray,
     e_out: np.ndarray,
     row: int,
+    z_out: np.ndarray | None = None,
 ) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_e2e_kernels.py)
     """:func:`_chattering_kernel` for one run (``v``, ``w``: ``(T, 3)``) of a 3-state, 3-output model.
 
@@ -245,6 +266,10 @@ def _chattering_run3(
         z0 = (((0.0 + C[s, 0, 0] * x0_) + C[s, 0, 1] * x1_) + C[s, 0, 2] * x2_) + nz0
         z1 = (((0.0 + C[s, 1, 0] * x0_) + C[s, 1, 1] * x1_) + C[s, 1, 2] * x2_) + nz1
         z2 = (((0.0 + C[s, 2, 0] * x0_) + C[s, 2, 1] * x1_) + C[s, 2, 2] * x2_) + nz2
+        if z_out is not None:
+            z_out[row, 0, k] = z0
+            z_out[row, 1, k] = z1
+            z_out[row, 2, k] = z2
         if k > 0:
             j = k - 1
             e_out[row, 0, j] = (((z0 - Gu[j, 0]) - PhiT[0, 0] * zp0) - PhiT[1, 0] * zp1) - PhiT[2, 0] * zp2
@@ -285,6 +310,7 @@ def _chattering_rng_kernel(
     Gu: np.ndarray,
     e_out: np.ndarray,
     offset: int,
+    z_out: np.ndarray | None = None,
 ) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_e2e_kernels.py)
     """:func:`_chattering_kernel` on runs ``skip .. skip + runs - 1`` of one random block, drawing as it goes.
 
@@ -313,15 +339,24 @@ def _chattering_rng_kernel(
             for i in range(m):
                 w[0, k, i] = g1.standard_normal()
         if n == 3 and m == 3:  # the EHA family: the written-out form (same bits)
-            _chattering_run3(v[0], w[0], seg_idx, A, C, Lq, Lr, Bu, x0, diag, PhiT, Gu, e_out, offset + r)
+            _chattering_run3(
+                v[0], w[0], seg_idx, A, C, Lq, Lr, Bu, x0, diag, PhiT, Gu, e_out, offset + r, z_out
+            )
         else:
-            _chattering_kernel(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, PhiT, Gu, e_out, offset + r)
+            _chattering_kernel(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, PhiT, Gu, e_out, offset + r, z_out)
 
 
 def _fused_chattering(
-    scenario: Scenario, runs: int, seed: SeedLike, chunk_runs: int | None, first_run: int, gamma: float
+    scenario: Scenario,
+    runs: int,
+    seed: SeedLike,
+    chunk_runs: int | None,
+    first_run: int,
+    gamma: float,
+    measurements: bool = False,
 ) -> Iterator[ChatteringRecord]:
-    """:func:`iter_chattering` through :func:`_chattering_kernel` (same numbers, no x or z arrays)."""
+    """:func:`iter_chattering` through :func:`_chattering_kernel` (same numbers, no x arrays; z only
+    with ``measurements``)."""
     model = scenario.nominal
     f = auxiliary_svsf(model, gamma)
     root = root_seed_sequence(seed)
@@ -338,13 +373,22 @@ def _fused_chattering(
     for lo in range(first_run, first_run + runs, chunk):
         hi = min(lo + chunk, first_run + runs)
         e = np.empty((hi - lo, m, T - 1))  # channel-major storage (contiguous FFT lines)
+        z = np.empty((hi - lo, m, T)) if measurements else None
         for b in range(lo // BLOCK, (hi - 1) // BLOCK + 1):  # the random blocks overlapping [lo, hi)
             s0, s1 = max(b * BLOCK, lo), min((b + 1) * BLOCK, hi)
             g0, g1 = block_generator(root, b, 0), block_generator(root, b, 1)
-            args = (tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, PhiT, Gu, e, s0 - lo)
+            args = (tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, PhiT, Gu, e, s0 - lo, z)
             _chattering_rng_kernel(g0, g1, s0 - b * BLOCK, s1 - s0, *args)
         values = e.transpose(0, 2, 1)  # the (runs, N, m) view of the package convention
-        yield ChatteringRecord(t=times, values=values, model=model, scenario=scenario, first_run=lo)
+        yield ChatteringRecord(
+            t=times,
+            values=values,
+            model=model,
+            scenario=scenario,
+            first_run=lo,
+            z=None if z is None else z.transpose(0, 2, 1),
+            u=u if measurements else None,
+        )
 
 
 def _can_fuse(scenario: Scenario) -> bool:
@@ -367,6 +411,7 @@ def iter_chattering(
     chunk_runs: int | None = None,
     first_run: int = 0,
     gamma: float = 0.1,
+    measurements: bool = False,
 ) -> Iterator[ChatteringRecord]:
     """Simulate and filter ``runs`` realizations chunk by chunk (constant memory).
 
@@ -389,6 +434,10 @@ def iter_chattering(
         Index of the first realization (default 0).
     gamma : float
         SVSF convergence rate in (0, 1) (eq 8-10).
+    measurements : bool
+        Keep the measurements and inputs in the records (``record.z``, ``record.u``), for
+        fault identification; the fused compiled path then also writes z (8 bytes per
+        sample and channel). The simulated path always keeps them.
 
     Yields
     ------
@@ -397,7 +446,7 @@ def iter_chattering(
     """
     if _can_fuse(scenario):
         runs = positive_int("runs", runs)
-        yield from _fused_chattering(scenario, runs, seed, chunk_runs, first_run, gamma)
+        yield from _fused_chattering(scenario, runs, seed, chunk_runs, first_run, gamma, measurements)
         return
     for sim in iter_simulations(scenario, runs, seed, chunk_runs=chunk_runs, first_run=first_run):
         yield _from_simulation(sim, gamma)

@@ -1,0 +1,222 @@
+"""Fault identification in the command line: options, JSON documents and table lines.
+
+Shared by ``detect``, ``demo``, ``monitor`` and ``diagnose``. A scenario's whole record is
+identified for every realization as the chunks stream past the detector (pooled estimate
+and per-record selection rates with ``--runs R > 1``); when the STFT found fault intervals,
+each interval of run 0 is identified on its own, one hop inside its edges.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.identification import IdentificationSetup, IdentificationStream
+    from ..plants.models import LinearModel
+    from ..plants.scenarios import Scenario
+
+
+def confidence_arg(text: str) -> float:
+    """argparse type: a confidence level in (0, 1)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"confidence must be a number in (0, 1); got {text!r}") from None
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"confidence must lie in the open interval (0, 1); got {value}")
+    return value
+
+
+def add_identification_args(p: argparse.ArgumentParser) -> None:
+    """``--no-identify`` and ``--confidence``."""
+    p.add_argument(
+        "--no-identify",
+        action="store_true",
+        help="skip fault identification (which parameter changed, in physical units)",
+    )
+    p.add_argument(
+        "--confidence",
+        type=confidence_arg,
+        default=0.95,
+        help="confidence level of the identified parameters' intervals (default 0.95); the hypothesis "
+        "tests use --alpha",
+    )
+
+
+def setup_or_reason(
+    model: LinearModel, args: argparse.Namespace
+) -> tuple[IdentificationSetup | None, str | None]:
+    """The identification setup of ``model``, or why there is none (``--no-identify``, reduced order, ...)."""
+    if getattr(args, "no_identify", False):
+        return None, "skipped (--no-identify)"
+    from ..detection.identification import identification_setup
+    from ..errors import IdentifiabilityError
+
+    try:
+        return identification_setup(model), None
+    except IdentifiabilityError as exc:
+        return None, str(exc)
+
+
+def stream(setup: IdentificationSetup, args: argparse.Namespace) -> IdentificationStream:
+    from ..detection.identification import IdentificationStream
+
+    return IdentificationStream(setup, alpha=args.alpha, confidence=args.confidence)
+
+
+def truth(
+    setup: IdentificationSetup, sc: Scenario, window: tuple[float, float] | None
+) -> dict[str, Any] | None:
+    """The true hypothesis and parameter values of the segment covering most of ``window`` (simulations)."""
+    from ..detection.identification import NO_FAULT, true_hypothesis, true_parameters
+    from ..plants.nonlinear import is_linear
+
+    lo, hi = window if window is not None else (0.0, sc.duration)
+    inside = [s for s in sc.segments if min(s.stop, hi) - max(s.start, lo) > sc.dt]
+    if len({id(s.model) for s in inside}) != 1 and len({s.model.fingerprint() for s in inside}) != 1:
+        return {"hypothesis": None, "note": "the window spans segments with different plants"}
+    seg = inside[0]
+    if not is_linear(seg.model) or not seg.model.full_measurement:
+        return None
+    name = true_hypothesis(setup, seg.model)
+    out: dict[str, Any] = {"hypothesis": name, "segment_s": [seg.start, seg.stop]}
+    if name not in (None, NO_FAULT):
+        names = next(h.parameters for h in setup.hypotheses if h.name == name)
+        values = true_parameters(setup, seg.model)[name]
+        out["parameters"] = {p: float(v) for p, v in zip(names, values, strict=True)}
+    return out
+
+
+def record_doc(
+    ident: IdentificationStream, runs: int, setup: IdentificationSetup, sc: Scenario | None
+) -> dict[str, Any]:
+    """Whole-record identification: run 0 (one run) or the pooled estimate with selection rates."""
+    rep = ident.pooled() if runs > 1 else ident.result().report(0)
+    doc = rep.to_dict()
+    doc["scope"] = "pooled over runs" if runs > 1 else "run 0"
+    if sc is not None:
+        doc["true"] = truth(setup, sc, None)
+    return doc
+
+
+def interval_docs(
+    setup: IdentificationSetup,
+    z: Any,
+    u: Any,
+    intervals: list[tuple[float, float]],
+    duration: float,
+    hop_s: float,
+    args: argparse.Namespace,
+    sc: Scenario | None,
+) -> list[dict[str, Any]]:
+    """Identification of run 0 inside each STFT interval, one hop inside its interior edges.
+
+    A window that straddles a change of the plant mixes two regressions (one sample on the
+    wrong side is enough for the test to reject the right hypothesis), so the window starts a
+    hop after the estimated onset and ends a hop before the estimated offset, unless the
+    interval touches the record's start or end, or the trimmed window would be shorter than
+    two hops.
+    """
+    from ..detection.identification import identify
+    from ..errors import ParameterError
+
+    out = []
+    for on, off in intervals:
+        lo = on if on <= hop_s else on + hop_s
+        hi = off if off >= duration - hop_s else off - hop_s
+        if hi - lo < 2 * hop_s:
+            lo, hi = on, off
+        doc: dict[str, Any] = {"interval_s": [on, off]}
+        try:
+            rep = identify(
+                setup.model,
+                z,
+                u,
+                hypotheses=setup.hypotheses,
+                window_s=(lo, hi),
+                alpha=args.alpha,
+                confidence=args.confidence,
+            ).report(0)
+            doc.update(rep.to_dict())
+        except ParameterError as exc:  # e.g. a window too short to hold two samples
+            doc.update({"selected": None, "reason": str(exc)})
+        if sc is not None:
+            doc["true"] = truth(setup, sc, (lo, hi))
+        out.append(doc)
+    return out
+
+
+def _selected_rows(doc: dict[str, Any]) -> list[dict[str, Any]]:
+    return [h for h in doc.get("hypotheses", []) if h["hypothesis"] == doc.get("selected")]
+
+
+def _num(x: float | None) -> str:
+    return "-" if x is None else f"{x:.6g}"
+
+
+def summary_line(doc: dict[str, Any]) -> str:
+    """``leakage = 8.96e-11 [8.90e-11, 9.02e-11] m^3/(s Pa)`` (or the selected name without a parameter)."""
+    sel = doc.get("selected")
+    rows = _selected_rows(doc)
+    if not rows or rows[0]["parameter"] is None:
+        return str(sel)
+    parts = []
+    for h in rows:
+        if h["estimate"] is None:
+            parts.append(f"{h['parameter']}: no estimate ({h.get('reason', '')})")
+        else:
+            unit = f" {h['unit']}" if h["unit"] else ""
+            parts.append(
+                f"{h['parameter']} = {_num(h['estimate'])} [{_num(h['ci_low'])}, {_num(h['ci_high'])}]{unit}"
+            )
+    return f"{sel}: " + "; ".join(parts)
+
+
+def true_text(doc: dict[str, Any]) -> str:
+    t = doc.get("true")
+    if not t or t.get("hypothesis") is None:
+        return ""
+    params = t.get("parameters")
+    if not params:
+        return str(t["hypothesis"])
+    return ", ".join(f"{k} = {v:.6g}" for k, v in params.items())
+
+
+def print_identification(doc: dict[str, Any]) -> None:
+    """The ``detect`` text block: the table of the whole record, then each interval's line."""
+    ident = doc.get("identification")
+    if ident is None:
+        return
+    if "reason" in ident and "hypotheses" not in ident:
+        print(f"identification: not available: {ident['reason']}")
+        return
+    scope = ident.get("scope", "")
+    conf = f"{ident['confidence']:.0%}"
+    w0, w1 = ident["window_s"]
+    print(
+        f"identification ({scope}, {w0:.3f}-{w1:.3f} s, {conf} intervals, tests at alpha = "
+        f"{ident['alpha']:g}; estimate = the plant's value):"
+    )
+    header = (
+        f"{'hypothesis':<18} {'parameter':<18} {'estimate':>12} {conf + ' interval':>28} {'unit':<11} "
+        f"{'p-value':>9}"
+    )
+    print(header)
+    for h in ident["hypotheses"]:
+        mark = "  <- selected" if h["hypothesis"] == ident["selected"] else ""
+        ci = "-" if h["ci_low"] is None else f"[{_num(h['ci_low'])}, {_num(h['ci_high'])}]"
+        print(
+            f"{h['hypothesis']:<18} {h['parameter'] or '-':<18} {_num(h['estimate']):>12} {ci:>28} "
+            f"{h['unit'] or '-':<11} {_num(h['p_value']):>9}{mark}"
+        )
+    rate = ident.get("selection_rate")
+    if rate:
+        print("selected per record: " + ", ".join(f"{k} {v:.3f}" for k, v in rate.items() if v))
+    tt = true_text(ident)
+    print(f"selected: {summary_line(ident)}" + (f"   (true: {tt})" if tt else ""))
+    for iv in doc.get("identification_intervals", []):
+        a, b = iv["interval_s"]
+        tt = true_text(iv)
+        what = summary_line(iv) if iv.get("selected") is not None else f"no estimate ({iv.get('reason')})"
+        print(f"  interval [{a:.1f}, {b:.1f}] s, run 0: {what}" + (f"   (true: {tt})" if tt else ""))

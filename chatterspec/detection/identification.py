@@ -1,0 +1,763 @@
+"""Fault identification in physical units: which parameter changed, by how much, with an interval.
+
+The method (goes beyond the paper, which reads severity off spectral peaks)
+---------------------------------------------------------------------------
+With full measurement (C invertible) and zero initial error, the auxiliary sgn filter's
+chattering is eq (23)::
+
+    e(k+1) = z(k+1) - Phi z(k) - G u(k),           Phi = C A C^-1,  G = C B (nominal)
+
+If the true plant has ``A + dA``, ``B + dB``, then with ``dPhi = C dA C^-1``, ``dG = C dB``::
+
+    e(k+1) = dPhi z(k) + dG u(k) + eta(k+1),
+    eta(k+1) = C v(k) + w(k+1) - Phi_t w(k)         (Phi_t: the true plant's C A C^-1)
+
+so every channel's chattering is a linear regression of the deviations on the measured
+states and the input, with a vector MA(1) error (the structure behind eq 56-58):
+``E[eta eta'] = C Q C' + R + Phi_t R Phi_t'``, ``E[eta(k) eta(k+1)'] = -R Phi_t'``.
+
+**Errors in variables.** ``z(k) = C x(k) + w(k)`` carries ``w(k)``, which also enters
+``eta(k+1)``: ordinary least squares on z(k) is biased by ``-R Phi_t'`` times the inverse
+regressor Gram. chatterspec uses **instrumental variables**: the instrument of ``z_j(k)`` is
+``z_j(k-1)`` (independent of ``eta(k+1)``, strongly correlated with z_j(k)), an input is its own
+instrument. The alternative, least squares corrected with the known R, needs R and the
+unknown ``Phi_t`` and is biased as soon as the declared R is off; IV needs neither (the
+comparison, measured, is in ``docs/paper-notes.md`` and ``scripts/identification_study.py``).
+
+**Interval.** The estimate's covariance is the lag-1 sandwich
+``A^-1 (Gamma0 S0 + Gamma1 S1 + Gamma1' S1') A^-T`` with the instrument Grams at lags 0 and 1
+(``S0``, ``S1``) and the MA(1) autocovariances above at the fitted true plant (Newey-West
+with the known lag and the known noise covariances). The MA(1) colour matters: the pressure
+channel's ``eta`` is almost a first difference of white noise, and ignoring it overstates the
+variance about tenfold.
+
+**Physical parameters.** The entries of ``[dPhi, dG]`` that some parameter enters (the
+model's :class:`~chatterspec.plants.parameters.ParameterMap`) are estimated channel by
+channel. Each hypothesis (a set of parameters) is fitted to them by minimum distance with the
+estimates' covariance as weight (Gauss-Newton, exact in one step for entries affine in the
+parameters); the estimate is the **plant's value** of the parameter (nominal + deviation), its
+interval the delta-method Wald interval at ``confidence``; the minimum distance is the test of
+the hypothesis (chi-squared with entries - parameters degrees of freedom).
+
+**Isolation.** "no fault" is the Wald test of all deviations = 0 at ``alpha`` (chi-squared with
+one degree of freedom per estimated entry). If it is not rejected, "no fault" is selected;
+else the hypothesis with the fewest parameters that its own test does not reject at
+``alpha`` (ties: the largest p-value); "unexplained" if every declared hypothesis is rejected.
+With the detector's alpha, a healthy record selects "no fault" at the detector's false-alarm
+rate.
+
+**What cannot be identified.** Reduced-order measurement (C not invertible): the deviations
+multiply unmeasured states (eq 24-28); :class:`~chatterspec.errors.IdentifiabilityError` says
+which entries involve which unmeasured states. A regressor without excitation over the window
+(an input identically zero, a measured state at the noise level): the entries it carries are
+not estimated and a hypothesis that needs them gets no estimate, with the reason.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from .._validate import finite_array
+from ..errors import ParameterError, ShapeError
+from ..plants.models import LinearModel
+from ..plants.parameters import NO_FAULT, UNEXPLAINED, Hypothesis
+from ._identification_fit import (
+    REASONS,
+    IdentificationSetup,
+    build_setup,
+    check_alpha,
+    fit_moments,
+    selection_names,
+    true_hypothesis,
+    true_parameters,
+)
+from ._identification_moments import IdentificationMoments, compute_moments
+from .pipeline import ChatteringRecord
+
+__all__ = [
+    "NO_FAULT",
+    "UNEXPLAINED",
+    "HypothesisTest",
+    "Identification",
+    "IdentificationMoments",
+    "IdentificationReport",
+    "IdentificationSetup",
+    "IdentificationStream",
+    "ParameterEstimate",
+    "identification_moments",
+    "identification_setup",
+    "identify",
+    "identify_moments",
+    "identify_record",
+    "true_hypothesis",
+    "true_parameters",
+]
+
+#: Method name reported with every result.
+METHOD = "instrumental variables (z(k-1)), lag-1 sandwich covariance, minimum-distance hypotheses"
+
+
+def identification_setup(
+    model: LinearModel, hypotheses: Sequence[Hypothesis | str | Sequence[str]] | None = None
+) -> IdentificationSetup:
+    """What identification estimates for ``model``: entries, regressors and hypotheses.
+
+    Parameters
+    ----------
+    model : LinearModel
+        Nominal model with full measurement and a ``parameter_map``.
+    hypotheses : sequence, optional
+        Declared hypothesis names, parameter names (one-parameter hypotheses), lists of
+        parameter names (combinations, named ``"a+b"``) or
+        :class:`~chatterspec.plants.parameters.Hypothesis`; default: the map's hypotheses.
+
+    Raises
+    ------
+    IdentifiabilityError
+        Nonlinear model, reduced-order measurement (the message says which entries involve
+        unmeasured states), no parameter map, or parameters that cannot be told apart.
+    ParameterError
+        A hypothesis naming a parameter the model does not have.
+    """
+    return build_setup(model, hypotheses)
+
+
+def _window(times_e: np.ndarray, window_s: tuple[float, float] | None, T: int) -> tuple[int, int]:
+    """Regressor indices ``[ka, kb)`` whose chattering ``e(k+1)`` (at ``times_e[k]``) lies in the window."""
+    ka, kb = 1, T - 1
+    if window_s is not None:
+        lo, hi = (float(x) for x in window_s)
+        if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
+            raise ParameterError(
+                f"window_s must be (start, stop) in seconds with start < stop; got {window_s!r}"
+            )
+        tol = 1e-9 * max(1.0, abs(hi))
+        ka = max(ka, int(np.searchsorted(times_e, lo - tol, side="left")))
+        kb = min(kb, int(np.searchsorted(times_e, hi - tol, side="left")))
+    if kb - ka < 2:
+        raise ParameterError(
+            f"the identification window holds {max(kb - ka, 0)} chattering samples; it needs at least 2 "
+            f"(record {times_e[0]:.6g}-{times_e[-1]:.6g} s, window {window_s})"
+        )
+    return ka, kb
+
+
+def identification_moments(
+    setup: IdentificationSetup,
+    z: np.ndarray,
+    u: np.ndarray,
+    e: np.ndarray | None = None,
+    *,
+    window_s: tuple[float, float] | None = None,
+    t0: float = 0.0,
+) -> IdentificationMoments:
+    """The sums identification needs over a time window, per realization (additive).
+
+    Parameters
+    ----------
+    setup : IdentificationSetup
+    z : (runs, T, m) or (T, m) array
+        Measurements z(0) .. z(T-1) (one realization per leading index).
+    u : (T, p), (runs, T, p) or (T,) array
+        Inputs u(0) .. u(T-1) (u(k) drives the plant from sample k to k+1).
+    e : (runs, T-1, m) array, optional
+        The auxiliary filter's chattering ``e[:, k] = e(k+1|k)``; default its closed form
+        eq (23) ``z(k+1) - Phi z(k) - G u(k)`` (zero initial error, chatterspec's default).
+    window_s : (float, float), optional
+        ``[start, stop)`` in seconds: the chattering samples used (default: the whole record
+        except its first, which has no instrument).
+    t0 : float
+        Time (s) of ``z[..., 0, :]``.
+
+    Raises
+    ------
+    ShapeError, NonFiniteError
+        On inconsistent shapes or NaN/inf data.
+    ParameterError
+        A window holding fewer than 2 chattering samples.
+    """
+    return _moments(setup, z, u, e, window_s, t0, check=True)
+
+
+def _moments(
+    setup: IdentificationSetup,
+    z: np.ndarray,
+    u: np.ndarray,
+    e: np.ndarray | None,
+    window_s: tuple[float, float] | None,
+    t0: float,
+    check: bool,
+) -> IdentificationMoments:
+    """:func:`identification_moments`; ``check=False`` skips the finiteness checks (pipeline data)."""
+    model = setup.model
+    if not check:
+        z = z[None] if z.ndim == 2 else z
+        u = u[:, None] if u.ndim == 1 else u
+        T = z.shape[1]
+        times_e = t0 + np.arange(1, T) * model.dt
+        ka, kb = _window(times_e, window_s, T)
+        return compute_moments(
+            z, u, e, setup.J, setup.L, setup.R, ka, kb, (times_e[ka], times_e[kb - 1] + model.dt)
+        )
+    z = finite_array("z", z, ndim=(2, 3))
+    z = z[None] if z.ndim == 2 else z
+    runs, T, m = z.shape
+    if m != model.n_outputs or T < 4:
+        raise ShapeError(f"z must have shape (runs, T >= 4, {model.n_outputs}); got {z.shape}")
+    u = finite_array("u", u, ndim=(1, 2, 3))
+    if u.ndim == 1:
+        u = u[:, None]
+    if u.shape[-2:] != (T, model.n_inputs) or (u.ndim == 3 and u.shape[0] != runs):
+        raise ShapeError(
+            f"u must have shape ({T}, {model.n_inputs}) or ({runs}, {T}, {model.n_inputs}); got {u.shape}"
+        )
+    if e is None:
+        Phi, G = model.C @ model.A @ model.C_inv, model.C @ model.B
+        e = z[:, 1:] - z[:, :-1] @ Phi.T - (u[..., :-1, :] @ G.T)
+    else:
+        e = finite_array("e", e, shape=(runs, T - 1, m))
+    times_e = t0 + np.arange(1, T) * model.dt  # e[:, k] is at time t0 + (k+1) dt
+    ka, kb = _window(times_e, window_s, T)
+    return compute_moments(
+        z, u, e, setup.J, setup.L, setup.R, ka, kb, (times_e[ka], times_e[kb - 1] + model.dt)
+    )
+
+
+@dataclass(frozen=True)
+class ParameterEstimate:
+    """One parameter of one hypothesis: the plant's value with its interval.
+
+    Attributes
+    ----------
+    hypothesis, parameter : str
+    estimate : float
+        The plant's value (nominal + estimated deviation), in ``unit``; NaN without an estimate.
+    ci_low, ci_high : float
+        Delta-method Wald interval at ``confidence``.
+    std_error : float
+    unit : str
+    nominal : float
+        The nominal model's value.
+    confidence : float
+    reason : str
+        Why there is no estimate (empty when there is one).
+    """
+
+    hypothesis: str
+    parameter: str
+    estimate: float
+    ci_low: float
+    ci_high: float
+    std_error: float
+    unit: str
+    nominal: float
+    confidence: float
+    reason: str = ""
+
+    def __repr__(self) -> str:
+        if not np.isfinite(self.estimate):
+            return f"ParameterEstimate({self.parameter}: no estimate, {self.reason})"
+        u, se = (f" {self.unit}" if self.unit else ""), self.std_error
+        return (
+            f"ParameterEstimate({self.parameter} = {_fmt(self.estimate, se)}{u}, "
+            f"{self.confidence:.0%} [{_fmt(self.ci_low, se)}, {_fmt(self.ci_high, se)}])"
+        )
+
+
+@dataclass(frozen=True)
+class HypothesisTest:
+    """The test of one hypothesis: minimum distance (or the Wald statistic for "no fault").
+
+    Attributes
+    ----------
+    hypothesis : str
+    parameters : tuple of str
+    statistic : float
+        Chi-squared statistic (NaN when the hypothesis could not be fitted).
+    dof : int
+    p_value : float
+    fits : bool
+        Not rejected at ``alpha`` (``p_value > alpha``).
+    """
+
+    hypothesis: str
+    parameters: tuple[str, ...]
+    statistic: float
+    dof: int
+    p_value: float
+    fits: bool
+
+
+def _sig(x: float, se: float) -> int:
+    """Significant digits that keep two of the standard error."""
+    if not (np.isfinite(x) and np.isfinite(se)) or x == 0 or se <= 0:
+        return 6
+    return int(min(12, max(2, np.floor(np.log10(abs(x))) - np.floor(np.log10(se)) + 2)))
+
+
+def _fmt(x: float, se: float) -> str:
+    return "nan" if not np.isfinite(x) else f"{x:.{_sig(x, se)}g}"
+
+
+def _round(x: float, se: float) -> float | None:
+    return None if not np.isfinite(x) else float(f"{x:.{_sig(x, se)}g}")
+
+
+def _round_stat(x: float) -> float | None:
+    return None if not np.isfinite(x) else float(f"{x:.4g}")
+
+
+@dataclass(frozen=True)
+class IdentificationReport:
+    """Identification of one record (or of many records pooled): estimates, tests, selection.
+
+    Attributes
+    ----------
+    selected : str
+        The selected hypothesis, ``"no fault"`` or ``"unexplained"``.
+    estimates : tuple of ParameterEstimate
+        One per (hypothesis, parameter), in hypothesis order.
+    tests : tuple of HypothesisTest
+        ``"no fault"`` first, then one per hypothesis.
+    window_s : (float, float)
+        Times (s) of the first and one past the last chattering sample used.
+    n_samples : int
+        Chattering samples per record.
+    records : int
+        Records pooled (1 for a single record).
+    alpha, confidence : float
+    entries : tuple of (str, float, float)
+        Estimated matrix entries' deviations ``(label, estimate, std_error)``.
+    selection_rate : dict or None
+        Fraction of single records selecting each hypothesis (pooled reports of many runs).
+    """
+
+    selected: str
+    estimates: tuple[ParameterEstimate, ...]
+    tests: tuple[HypothesisTest, ...]
+    window_s: tuple[float, float]
+    n_samples: int
+    records: int
+    alpha: float
+    confidence: float
+    entries: tuple[tuple[str, float, float], ...] = ()
+    selection_rate: dict[str, float] | None = None
+
+    def estimate(self, hypothesis: str | None = None) -> tuple[ParameterEstimate, ...]:
+        """The estimates of ``hypothesis`` (default: the selected one; empty for no fault)."""
+        name = self.selected if hypothesis is None else hypothesis
+        return tuple(e for e in self.estimates if e.hypothesis == name)
+
+    def __repr__(self) -> str:
+        sel = self.estimate()
+        what = ", ".join(
+            f"{e.parameter} = {_fmt(e.estimate, e.std_error)} [{_fmt(e.ci_low, e.std_error)}, "
+            f"{_fmt(e.ci_high, e.std_error)}]{(' ' + e.unit) if e.unit else ''}"
+            for e in sel
+        )
+        return f"IdentificationReport(selected={self.selected!r}{', ' + what if what else ''})"
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-ready: ``selected``, ``hypotheses`` (one entry per hypothesis and parameter with
+        ``hypothesis``, ``parameter``, ``estimate``, ``ci_low``, ``ci_high``, ``unit``, ``nominal``,
+        ``std_error``, ``statistic``, ``dof``, ``p_value``, ``fits``, ``reason``; "no fault" first with
+        ``parameter`` null), ``window_s``, ``n_samples``, ``records``, ``alpha``, ``confidence``,
+        ``method``, ``entries`` and, for pooled runs, ``selection_rate``. Estimates keep two
+        significant digits of their standard error; statistics four digits."""
+        tests = {t.hypothesis: t for t in self.tests}
+        rows: list[dict[str, object]] = []
+        t0 = tests[NO_FAULT]
+        rows.append(
+            {
+                "hypothesis": NO_FAULT,
+                "parameter": None,
+                "estimate": None,
+                "ci_low": None,
+                "ci_high": None,
+                "unit": None,
+                "statistic": _round_stat(t0.statistic),
+                "dof": t0.dof,
+                "p_value": _round_stat(t0.p_value),
+                "fits": bool(t0.fits),
+            }
+        )
+        for e in self.estimates:
+            t = tests[e.hypothesis]
+            rows.append(
+                {
+                    "hypothesis": e.hypothesis,
+                    "parameter": e.parameter,
+                    "estimate": _round(e.estimate, e.std_error),
+                    "ci_low": _round(e.ci_low, e.std_error),
+                    "ci_high": _round(e.ci_high, e.std_error),
+                    "unit": e.unit,
+                    "nominal": e.nominal,
+                    "std_error": _round_stat(e.std_error),
+                    "statistic": _round_stat(t.statistic),
+                    "dof": t.dof,
+                    "p_value": _round_stat(t.p_value),
+                    "fits": bool(t.fits),
+                    **({"reason": e.reason} if e.reason else {}),
+                }
+            )
+        out: dict[str, object] = {
+            "selected": self.selected,
+            "hypotheses": rows,
+            "window_s": [round(self.window_s[0], 9), round(self.window_s[1], 9)],
+            "n_samples": self.n_samples,
+            "records": self.records,
+            "alpha": self.alpha,
+            "confidence": self.confidence,
+            "method": METHOD,
+            "entries": [
+                {"entry": lab, "deviation": _round(v, s), "std_error": _round_stat(s)}
+                for lab, v, s in self.entries
+            ],
+        }
+        if self.selection_rate is not None:
+            out["selection_rate"] = {k: round(v, 6) for k, v in self.selection_rate.items()}
+        return out
+
+    def table(self) -> str:
+        """A plain-text table: one row per hypothesis and parameter, "no fault" first."""
+        pct = f"{self.confidence:.0%}"
+        head = (
+            f"{'hypothesis':<18} {'parameter':<18} {'estimate':>12} {pct + ' interval':>27} {'unit':<11} "
+            f"{'nominal':>10} {'statistic':>10} {'dof':>4} {'p-value':>9}"
+        )
+        lines = [head]
+        tests = {t.hypothesis: t for t in self.tests}
+
+        def mark(name: str) -> str:
+            return "  <- selected" if name == self.selected else ""
+
+        t0 = tests[NO_FAULT]
+        lines.append(
+            f"{NO_FAULT:<18} {'-':<18} {'-':>12} {'-':>27} {'-':<11} {'-':>10} {t0.statistic:10.4g} "
+            f"{t0.dof:4d} {t0.p_value:9.3g}{mark(NO_FAULT)}"
+        )
+        for e in self.estimates:
+            t = tests[e.hypothesis]
+            if np.isfinite(e.estimate):
+                est = _fmt(e.estimate, e.std_error)
+                ci = f"[{_fmt(e.ci_low, e.std_error)}, {_fmt(e.ci_high, e.std_error)}]"
+            else:
+                est, ci = "none", "-"
+            lines.append(
+                f"{e.hypothesis:<18} {e.parameter:<18} {est:>12} {ci:>27} {e.unit:<11} {e.nominal:10.4g} "
+                f"{t.statistic:10.4g} {t.dof:4d} {t.p_value:9.3g}{mark(e.hypothesis)}"
+            )
+            if e.reason:
+                lines.append(f"{'':<18} ({e.reason})")
+        lines.append(f"selected: {self.selected}")
+        if self.selected == UNEXPLAINED:
+            lines.append(
+                "(every declared hypothesis is rejected: a fault outside the declared ones, or several)"
+            )
+        return "\n".join(lines)
+
+
+@dataclass(frozen=True, eq=False)
+class Identification:
+    """Identification of many realizations at once (arrays with realizations leading).
+
+    Attributes
+    ----------
+    setup : IdentificationSetup
+    moments : IdentificationMoments
+        The sums it was computed from (``moments.total()`` gives the pooled estimate).
+    alpha, confidence : float
+    fit : dict of arrays
+        ``theta (runs, H, P)`` (plant's values), ``se``, ``statistic (runs, H)``, ``dof``, ``p``,
+        ``no_fault_statistic (runs,)``, ``no_fault_dof``, ``no_fault_p``, ``selected (runs,)``
+        (-1 no fault, -2 unexplained, else the hypothesis index), ``entries (runs, D)``,
+        ``entry_cov``, ``active``, ``reason``.
+    """
+
+    setup: IdentificationSetup
+    moments: IdentificationMoments
+    alpha: float
+    confidence: float
+    fit: dict[str, np.ndarray]
+
+    @property
+    def runs(self) -> int:
+        return self.moments.runs
+
+    @property
+    def hypothesis_names(self) -> tuple[str, ...]:
+        return tuple(h.name for h in self.setup.hypotheses)
+
+    @property
+    def selected(self) -> list[str]:
+        """Selected hypothesis name per realization."""
+        return selection_names(self.setup, self.fit["selected"])
+
+    def selection_rate(self) -> dict[str, float]:
+        """Fraction of realizations selecting each name ("no fault", hypotheses, "unexplained")."""
+        sel = self.fit["selected"]
+        names = {NO_FAULT: -1, **{n: i for i, n in enumerate(self.hypothesis_names)}, UNEXPLAINED: -2}
+        return {n: float(np.mean(sel == i)) for n, i in names.items()}
+
+    def _index(self, hypothesis: str, parameter: str | None) -> tuple[int, int]:
+        names = self.hypothesis_names
+        if hypothesis not in names:
+            raise ParameterError(f"no hypothesis {hypothesis!r}; tested: {', '.join(names)}")
+        h = names.index(hypothesis)
+        params = self.setup.hypotheses[h].parameters
+        parameter = params[0] if parameter is None else parameter
+        if parameter not in params:
+            raise ParameterError(f"hypothesis {hypothesis!r} has parameters {params}; not {parameter!r}")
+        return h, params.index(parameter)
+
+    def estimate(self, hypothesis: str, parameter: str | None = None) -> np.ndarray:
+        """``(runs,)`` plant's value of ``parameter`` under ``hypothesis`` (NaN where not estimated)."""
+        h, i = self._index(hypothesis, parameter)
+        return self.fit["theta"][:, h, i]
+
+    def interval(self, hypothesis: str, parameter: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``(low, high)`` arrays of the Wald interval at ``confidence``."""
+        h, i = self._index(hypothesis, parameter)
+        zq = stats.norm.ppf(0.5 + self.confidence / 2)
+        th, se = self.fit["theta"][:, h, i], self.fit["se"][:, h, i]
+        return th - zq * se, th + zq * se
+
+    def report(self, run: int = 0, *, selection_rate: dict[str, float] | None = None) -> IdentificationReport:
+        """The :class:`IdentificationReport` of realization ``run``."""
+        f, s = self.fit, self.setup
+        zq = stats.norm.ppf(0.5 + self.confidence / 2)
+        pm = s.parameter_map
+        estimates, tests = [], []
+        tests.append(
+            HypothesisTest(
+                NO_FAULT,
+                (),
+                float(f["no_fault_statistic"][run]),
+                int(f["no_fault_dof"][run]),
+                float(f["no_fault_p"][run]),
+                bool(f["no_fault_p"][run] > self.alpha),
+            )
+        )
+        for h, hyp in enumerate(s.hypotheses):
+            p = float(f["p"][run, h])
+            tests.append(
+                HypothesisTest(
+                    hyp.name,
+                    hyp.parameters,
+                    float(f["statistic"][run, h]),
+                    int(f["dof"][run, h]),
+                    p,
+                    bool(p > self.alpha),
+                )
+            )
+            for i, name in enumerate(hyp.parameters):
+                th, se = float(f["theta"][run, h, i]), float(f["se"][run, h, i])
+                par = pm.parameter(name)
+                estimates.append(
+                    ParameterEstimate(
+                        hypothesis=hyp.name,
+                        parameter=name,
+                        estimate=th,
+                        ci_low=th - zq * se,
+                        ci_high=th + zq * se,
+                        std_error=se,
+                        unit=par.unit,
+                        nominal=par.value,
+                        confidence=self.confidence,
+                        reason=REASONS[int(f["reason"][run, h])] if not np.isfinite(th) else "",
+                    )
+                )
+        entries = tuple(
+            (lab, float(f["entries"][run, a]), float(np.sqrt(max(f["entry_cov"][run, a, a], 0.0))))
+            for a, lab in enumerate(s.labels)
+        )
+        mom = self.moments
+        return IdentificationReport(
+            selected=selection_names(s, f["selected"][run : run + 1])[0],
+            estimates=tuple(estimates),
+            tests=tuple(tests),
+            window_s=(mom.t_start, mom.t_stop),
+            n_samples=mom.n_samples,
+            records=mom.records,
+            alpha=self.alpha,
+            confidence=self.confidence,
+            entries=entries,
+            selection_rate=selection_rate,
+        )
+
+
+def identify_moments(
+    setup: IdentificationSetup,
+    moments: IdentificationMoments,
+    *,
+    alpha: float = 1e-3,
+    confidence: float = 0.95,
+) -> Identification:
+    """Estimate, test and select from the sums of a window (every realization at once).
+
+    Parameters
+    ----------
+    setup : IdentificationSetup
+    moments : IdentificationMoments
+        From :func:`identification_moments`; ``moments.total()`` pools the realizations.
+    alpha : float
+        Level of every hypothesis test (use the detector's: healthy records then select
+        "no fault" at its false-alarm rate).
+    confidence : float
+        Level of the parameter intervals (default 95 %).
+    """
+    alpha, confidence = check_alpha(alpha, confidence)
+    return Identification(setup, moments, alpha, confidence, fit_moments(setup, moments, alpha, confidence))
+
+
+def identify(
+    model: LinearModel,
+    z: np.ndarray,
+    u: np.ndarray,
+    e: np.ndarray | None = None,
+    *,
+    hypotheses: Sequence[Hypothesis | str | Sequence[str]] | None = None,
+    window_s: tuple[float, float] | None = None,
+    t0: float = 0.0,
+    alpha: float = 1e-3,
+    confidence: float = 0.95,
+) -> Identification:
+    """Which physical parameter changed, by how much: every realization of ``z`` at once.
+
+    Parameters
+    ----------
+    model : LinearModel
+        Nominal model (full measurement) with a ``parameter_map``.
+    z : (runs, T, m) or (T, m) array
+        Measurements.
+    u : (T, p), (runs, T, p) or (T,) array
+        Inputs.
+    e : (runs, T-1, m) array, optional
+        The chattering (default: its closed form eq 23).
+    hypotheses : sequence, optional
+        See :func:`identification_setup`.
+    window_s : (float, float), optional
+        ``[start, stop)`` in seconds (e.g. an STFT fault interval); default the whole record.
+    t0 : float
+        Time (s) of the first sample of ``z``.
+    alpha, confidence : float
+        Test level and interval level.
+
+    Returns
+    -------
+    Identification
+        ``.report(run)`` for one record; ``.estimate(h)``, ``.interval(h)``, ``.selection_rate()``
+        over the realizations.
+
+    See Also
+    --------
+    identify_record : the same on a :class:`~chatterspec.detection.pipeline.ChatteringRecord`.
+    chatterspec.detection.detect.detect_record : the spectral detector.
+    """
+    setup = identification_setup(model, hypotheses)
+    mom = identification_moments(setup, z, u, e, window_s=window_s, t0=t0)
+    return identify_moments(setup, mom, alpha=alpha, confidence=confidence)
+
+
+def identify_record(
+    record: ChatteringRecord,
+    *,
+    hypotheses: Sequence[Hypothesis | str | Sequence[str]] | None = None,
+    window_s: tuple[float, float] | None = None,
+    alpha: float = 1e-3,
+    confidence: float = 0.95,
+    setup: IdentificationSetup | None = None,
+) -> Identification:
+    """:func:`identify` on a chattering record that kept its measurements (``record.z``, ``record.u``).
+
+    Raises
+    ------
+    ParameterError
+        If the record holds no measurements (``iter_chattering(..., measurements=True)`` keeps them).
+    """
+    if record.z is None or record.u is None:
+        raise ParameterError(
+            "this chattering record did not keep its measurements: build it with chattering_record(...) or "
+            "iter_chattering(..., measurements=True)"
+        )
+    setup = setup or identification_setup(record.model, hypotheses)
+    t0 = float(record.t[0]) - record.dt
+    # the pipeline's arrays are finite (the simulation and filters check their inputs)
+    mom = _moments(setup, record.z, record.u, record.values, window_s, t0, check=False)
+    return identify_moments(setup, mom, alpha=alpha, confidence=confidence)
+
+
+class IdentificationStream:
+    """Identification over a stream of chattering chunks (e.g. those ``detect`` consumes).
+
+    :meth:`tap` passes the chunks through unchanged while it identifies each one; then
+    :meth:`result` gives every realization's identification and :meth:`pooled` the estimate
+    from all realizations together (their sums added), with the per-record selection rates.
+
+    Parameters
+    ----------
+    setup : IdentificationSetup
+    window_s : (float, float), optional
+    alpha, confidence : float
+    """
+
+    def __init__(
+        self,
+        setup: IdentificationSetup,
+        *,
+        window_s: tuple[float, float] | None = None,
+        alpha: float = 1e-3,
+        confidence: float = 0.95,
+    ) -> None:
+        self.setup = setup
+        self.window_s = window_s
+        self.alpha, self.confidence = check_alpha(alpha, confidence)
+        self._parts: list[Identification] = []
+        self._total: IdentificationMoments | None = None
+
+    def tap(self, chunks: Iterable[ChatteringRecord]) -> Iterator[ChatteringRecord]:
+        """Yield ``chunks`` unchanged, identifying each (it must keep its measurements)."""
+        for rec in chunks:
+            part = identify_record(
+                rec, window_s=self.window_s, alpha=self.alpha, confidence=self.confidence, setup=self.setup
+            )
+            self._parts.append(part)
+            tot = part.moments.total()
+            self._total = tot if self._total is None else self._total.add_records(tot)
+            yield rec
+
+    def result(self) -> Identification:
+        """Every realization's identification, in order."""
+        if not self._parts:
+            raise ParameterError("no chunk has been identified yet")
+        if len(self._parts) == 1:
+            return self._parts[0]
+        first = self._parts[0]
+        fit = {k: np.concatenate([p.fit[k] for p in self._parts]) for k in first.fit}
+        mom = _concat_moments([p.moments for p in self._parts])
+        return Identification(self.setup, mom, self.alpha, self.confidence, fit)
+
+    def pooled(self) -> IdentificationReport:
+        """The estimate from every realization's sums together, with the single-record selection rates."""
+        if self._total is None:
+            raise ParameterError("no chunk has been identified yet")
+        pooled = identify_moments(self.setup, self._total, alpha=self.alpha, confidence=self.confidence)
+        return pooled.report(0, selection_rate=self.result().selection_rate())
+
+
+def _concat_moments(parts: list[IdentificationMoments]) -> IdentificationMoments:
+    a = parts[0]
+    return IdentificationMoments(
+        **{
+            k: np.concatenate([getattr(p, k) for p in parts])
+            for k in ("swx", "swe", "s0", "s1", "w_first", "w_last")
+        },
+        n_samples=a.n_samples,
+        t_start=a.t_start,
+        t_stop=a.t_stop,
+        records=a.records,
+    )
