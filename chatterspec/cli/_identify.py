@@ -151,8 +151,15 @@ def _selected_rows(doc: dict[str, Any]) -> list[dict[str, Any]]:
     return [h for h in doc.get("hypotheses", []) if h["hypothesis"] == doc.get("selected")]
 
 
-def _num(x: float | None) -> str:
-    return "-" if x is None else f"{x:.6g}"
+def _num(x: float | None, se: float | None = None) -> str:
+    """A number of the JSON document; with its standard error, the digits that keep two of it."""
+    if x is None:
+        return "-"
+    if se is None:
+        return f"{x:.6g}"
+    from ..detection.identification_results import _fmt
+
+    return _fmt(x, se)
 
 
 def summary_line(doc: dict[str, Any]) -> str:
@@ -167,8 +174,10 @@ def summary_line(doc: dict[str, Any]) -> str:
             parts.append(f"{h['parameter']}: no estimate ({h.get('reason', '')})")
         else:
             unit = f" {h['unit']}" if h["unit"] else ""
+            se = h["std_error"]
             parts.append(
-                f"{h['parameter']} = {_num(h['estimate'])} [{_num(h['ci_low'])}, {_num(h['ci_high'])}]{unit}"
+                f"{h['parameter']} = {_num(h['estimate'], se)} [{_num(h['ci_low'], se)}, "
+                f"{_num(h['ci_high'], se)}]{unit}"
             )
     return f"{sel}: " + "; ".join(parts)
 
@@ -205,9 +214,10 @@ def print_identification(doc: dict[str, Any]) -> None:
     print(header)
     for h in ident["hypotheses"]:
         mark = "  <- selected" if h["hypothesis"] == ident["selected"] else ""
-        ci = "-" if h["ci_low"] is None else f"[{_num(h['ci_low'])}, {_num(h['ci_high'])}]"
+        se = h.get("std_error")
+        ci = "-" if h["ci_low"] is None else f"[{_num(h['ci_low'], se)}, {_num(h['ci_high'], se)}]"
         print(
-            f"{h['hypothesis']:<18} {h['parameter'] or '-':<18} {_num(h['estimate']):>12} {ci:>28} "
+            f"{h['hypothesis']:<18} {h['parameter'] or '-':<18} {_num(h['estimate'], se):>12} {ci:>28} "
             f"{h['unit'] or '-':<11} {_num(h['p_value']):>9}{mark}"
         )
     rate = ident.get("selection_rate")
@@ -220,3 +230,141 @@ def print_identification(doc: dict[str, Any]) -> None:
         tt = true_text(iv)
         what = summary_line(iv) if iv.get("selected") is not None else f"no estimate ({iv.get('reason')})"
         print(f"  interval [{a:.1f}, {b:.1f}] s, run 0: {what}" + (f"   (true: {tt})" if tt else ""))
+
+
+def _windows(r: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
+    """The identification windows of one demo scenario: its STFT intervals if any, else the record."""
+    ivs = r.get("identification_intervals")
+    if ivs:
+        return [(f"{iv['interval_s'][0]:.1f}-{iv['interval_s'][1]:.1f}", iv) for iv in ivs]
+    ident = r.get("identification")
+    if not ident or "hypotheses" not in ident:
+        return []
+    w0, w1 = ident["window_s"]
+    return [(f"{w0:.1f}-{w1:.1f}", ident)]
+
+
+def print_demo_table(results: list[dict[str, Any]]) -> None:
+    """The demo's identification table: per scenario (and STFT interval) the selected hypothesis,
+    the parameter's estimate with its interval in physical units, and the true value."""
+    rows = [(r, w, d) for r in results for w, d in _windows(r)]
+    if not rows:
+        why = next((r["identification"].get("reason") for r in results if r.get("identification")), None)
+        print(f"identification: not available ({why})")
+        return
+    d0 = rows[0][2]
+    conf = f"{d0['confidence']:.0%}"
+    print(
+        f"identification: which parameter changed, in physical units ({conf} intervals; hypothesis tests at "
+        f"alpha = {d0['alpha']:g}; STFT intervals of run 0, else the whole record"
+        + (", pooled over runs" if d0.get("records", 1) > 1 else "")
+        + ")"
+    )
+    head = (
+        f"{'scenario':<22} {'window (s)':<10} {'selected':<18} {'estimate':>12} {conf + ' interval':>27} "
+        f"{'unit':<11} {'true':>10}"
+    )
+    print(head)
+    print("-" * len(head))
+    for r, win, d in rows:
+        sel = d.get("selected")
+        picked = _selected_rows(d)
+        true = d.get("true") or {}
+        tv = (true.get("parameters") or {}) if isinstance(true, dict) else {}
+        if not picked or picked[0]["parameter"] is None:
+            t_name = true.get("hypothesis") if isinstance(true, dict) else None
+            truth_s = "" if t_name in (None, sel) else str(t_name)
+            print(
+                f"{r['scenario']:<22} {win:<10} {sel or '-':<18} {'-':>12} {'-':>27} {'-':<11} {truth_s:>10}"
+            )
+            continue
+        for h in picked:
+            se = h["std_error"]
+            est = _num(h["estimate"], se) if h["estimate"] is not None else "none"
+            ci = "-" if h["ci_low"] is None else f"[{_num(h['ci_low'], se)}, {_num(h['ci_high'], se)}]"
+            t = tv.get(h["parameter"])
+            print(
+                f"{r['scenario']:<22} {win:<10} {sel:<18} {est:>12} {ci:>27} {h['unit'] or '-':<11} "
+                f"{'-' if t is None else f'{t:.6g}':>10}"
+            )
+
+
+class MonitorIdentification:
+    """Online identification for ``chatterspec monitor``: per hop an ``identification`` event (JSON
+    lines), a human line when the selected hypothesis changes, and a summary for ``--json``.
+
+    Parameters
+    ----------
+    setup : IdentificationSetup
+    hop_samples, window_hops : int
+        The monitor's hop and the window in hops (default: the STFT window).
+    t0 : float
+        Time (s) of the first row.
+    args : argparse.Namespace
+        ``alpha`` (the monitor's per-frame alpha) and ``confidence``.
+    emit : callable or None
+        Writes one JSON line (``--events jsonl``); None: no per-hop events.
+    say : callable
+        Writes one human line.
+    """
+
+    def __init__(
+        self,
+        setup: IdentificationSetup,
+        hop_samples: int,
+        window_hops: int,
+        t0: float,
+        alpha: float,
+        confidence: float,
+        emit: Any,
+        say: Any,
+    ) -> None:
+        from ..detection.identification_online import OnlineIdentifier
+
+        self.identifier = OnlineIdentifier(
+            setup, hop_samples=hop_samples, window_hops=window_hops, t0=t0, alpha=alpha, confidence=confidence
+        )
+        self.emit, self.say = emit, say
+        self.selected: str | None = None
+        self.changes: list[dict[str, Any]] = []
+        self.last: dict[str, Any] | None = None
+        self.windows = 0
+
+    def reset(self, t0: float) -> None:
+        """A gap or restart: start over at ``t0``."""
+        self.identifier.reset(t0)
+        self.selected = None
+
+    def push(self, z: Any, u: Any) -> None:
+        self.handle(self.identifier.push(z, u))
+
+    def handle(self, out: Any) -> None:
+        """Report the windows of one push."""
+        import json
+
+        for i in range(out.n_windows):
+            rep = out.report(i)
+            self.windows += 1
+            doc = {"sample_time_s": round(float(out.times_s[i]), 9), **rep.to_dict()}
+            doc.pop("entries", None)
+            doc.pop("method", None)
+            if self.emit is not None:
+                self.emit(json.dumps({"event": "identification", **doc}, allow_nan=False))
+            if rep.selected != self.selected:
+                self.selected = rep.selected
+                line = summary_line(rep.to_dict())
+                self.say(
+                    f"identified at t = {float(out.times_s[i]):.2f} s (window {rep.window_s[0]:.2f}-"
+                    f"{rep.window_s[1]:.2f} s): {line}"
+                )
+                self.changes.append({"time_s": doc["sample_time_s"], "selected": rep.selected, "line": line})
+            self.last = doc
+
+    def to_dict(self) -> dict[str, Any]:
+        """``windows`` identified, the ``changes`` of the selected hypothesis and the ``last`` window."""
+        return {
+            "window_s": self.identifier.window_s,
+            "windows": self.windows,
+            "changes": self.changes,
+            "last": self.last,
+        }

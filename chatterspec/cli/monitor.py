@@ -24,6 +24,7 @@ import warnings
 from pathlib import Path
 
 from ..errors import ParameterError
+from . import _identify
 from ._common import alpha_arg, band_edge_arg, band_from_args, check_record_path, live_arg, positive_int_arg
 
 
@@ -118,6 +119,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="samples per push (default: one STFT hop with --rate, five otherwise)",
     )
+    _identify.add_identification_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
     p.set_defaults(func=run)
 
@@ -184,8 +186,28 @@ def run(args: argparse.Namespace) -> int:
             f"(alpha {cal.alpha:g} per frame, {cal.runs} healthy runs)",
             file=sys.stderr,
         )
+    setup, why_not = _identify.setup_or_reason(spec.model, args)
+    if why_not is not None and not args.no_identify:
+        print(f"chatterspec monitor: no fault identification: {why_not}", file=sys.stderr)
+
+    def identification(t0: float) -> _identify.MonitorIdentification | None:
+        """Per-hop identification over the STFT window, at the monitor's per-frame alpha."""
+        if setup is None:
+            return None
+        hop = stft.n_hop(spec.model.dt)
+        return _identify.MonitorIdentification(
+            setup,
+            hop,
+            max(1, round(stft.n_window(spec.model.dt) / hop)),
+            t0,
+            settings.alpha,
+            args.confidence,
+            _emit_line if jsonl else None,
+            lambda text: print(text, file=human, flush=True) if not args.json or jsonl else None,
+        )
+
     if stream:
-        return _run_stream(args, spec, settings, jsonl, human)
+        return _run_stream(args, spec, settings, jsonl, human, identification(0.0))
 
     from ..online.drivers import run_monitor
     from ..online.live_stream import StreamEvent
@@ -210,9 +232,18 @@ def run(args: argparse.Namespace) -> int:
         if not args.json or jsonl:
             print(sev.describe(), file=human, flush=True)
 
+    ident = identification(float(data.t[0]))
     try:
         summary = run_monitor(
-            monitor, sinks, z=data.z, u=data.u, chunk_samples=args.chunk, rate=args.rate, on_event=show
+            monitor,
+            sinks,
+            z=data.z,
+            u=data.u,
+            chunk_samples=args.chunk,
+            rate=args.rate,
+            on_event=show,
+            identifier=None if ident is None else ident.identifier,
+            on_identification=None if ident is None else ident.handle,
         )
     except KeyboardInterrupt:
         if sinks.path is not None:  # run_monitor closed the sinks: the file has its footer
@@ -235,6 +266,7 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.json:
         doc = {"model": str(args.model), "data": str(args.data), **summary.to_dict()}
+        doc["identification"] = {"reason": why_not} if ident is None else ident.to_dict()
         if no_frame is not None:
             doc["notes"] = [*doc["notes"], no_frame]
         if jsonl:
@@ -266,7 +298,14 @@ def _emit_line(text: str) -> None:
     sys.stdout.flush()
 
 
-def _run_stream(args: argparse.Namespace, spec: object, settings: object, jsonl: bool, human: object) -> int:
+def _run_stream(
+    args: argparse.Namespace,
+    spec: object,
+    settings: object,
+    jsonl: bool,
+    human: object,
+    ident: _identify.MonitorIdentification | None = None,
+) -> int:
     from ..errors import ChatterspecError
     from ..online.live_stream import StreamMonitor, drive
     from ..online.stream import CsvRows, follow_file, read_fd
@@ -295,6 +334,8 @@ def _run_stream(args: argparse.Namespace, spec: object, settings: object, jsonl:
         skip_bad_rows=args.skip_bad_rows,
         on_event=on_event,
         on_note=on_note,
+        on_push=None if ident is None else ident.push,
+        on_reset=None if ident is None else ident.reset,
     )
     rows = CsvRows(model, where)
     if stdin:
@@ -328,7 +369,7 @@ def _run_stream(args: argparse.Namespace, spec: object, settings: object, jsonl:
             signal.signal(signal.SIGINT, signal.default_int_handler)
             signal.signal(signal.SIGTERM, previous)
     try:
-        _report(args, summary, jsonl, human)
+        _report(args, summary, jsonl, human, ident)
     except BrokenPipeError:
         _quiet_stdout()
     if error is not None:
@@ -344,10 +385,18 @@ def _quiet_stdout() -> None:
     os.dup2(devnull, sys.stdout.fileno())
 
 
-def _report(args: argparse.Namespace, summary: object, jsonl: bool, human: object) -> None:
+def _report(
+    args: argparse.Namespace,
+    summary: object,
+    jsonl: bool,
+    human: object,
+    ident: _identify.MonitorIdentification | None = None,
+) -> None:
     s = summary  # StreamSummary
     if args.json:
         doc = {"model": str(args.model), "data": str(args.data), **s.to_dict()}  # type: ignore[attr-defined]
+        if ident is not None:
+            doc["identification"] = ident.to_dict()
         if jsonl:
             _emit_line(json.dumps({"event": "summary", **doc}, allow_nan=False))
         else:

@@ -406,8 +406,8 @@ def _fit_hypothesis(
         Gt = np.einsum("rab,rbk->rak", W, G)
         r0 = np.einsum("rab,rb->ra", W, dn)
         cn = np.linalg.norm(Gt, axis=1)
-        ok = cn.min(axis=1) > 1e-12 * np.maximum(np.linalg.norm(G, axis=1).max(axis=1), 1e-300)
-        ok &= np.all(cn > 0, axis=1)
+        # a parameter whose entries are all inactive (no excitation) has a zero whitened column
+        ok = np.all(cn > 1e-12 * np.maximum(np.linalg.norm(G, axis=1), 1e-300), axis=1)
         cs = np.where(cn > 0, cn, 1.0)
         Gs = Gt / cs[:, None, :]
         N = Gs.transpose(0, 2, 1) @ Gs + np.where(ok, 0.0, 1.0)[:, None, None] * np.eye(theta0.size)

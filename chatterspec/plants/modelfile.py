@@ -62,6 +62,7 @@ import numpy as np
 
 from ..errors import ChatterspecError, DataFileError, ModelFileError, UnstableModelWarning
 from .models import LinearModel, discretize
+from .parameters import ParameterMap, parameter_map_from_tables
 
 __all__ = ["TIME_COLUMNS", "DataSet", "ModelSpec", "load_data", "load_model", "write_model_toml"]
 
@@ -211,13 +212,14 @@ def load_model(path: str | Path) -> ModelSpec:
     if len(set(outputs) | set(inputs)) != m + p:
         raise ModelFileError(f"{where}: [channels] output and input names must all be distinct")
 
+    method = str(mats.get("discretization", "euler"))
     if form == "continuous":
-        method = str(mats.get("discretization", "euler"))
         if method not in ("euler", "zoh"):
             raise ModelFileError(
                 f"{where}: [matrices] discretization must be 'euler' or 'zoh'; got {method!r}"
             )
         A, B = discretize(A, B, dt, method)  # type: ignore[arg-type]
+    pmap = _parameter_map(doc, where, form, method)
     try:
         model = LinearModel(
             A=A,
@@ -231,7 +233,10 @@ def load_model(path: str | Path) -> ModelSpec:
             input_names=tuple(inputs),
             output_units=tuple(units),
             name=str(doc.get("name", path.stem)),
+            parameter_map=pmap,
         )
+        if pmap is not None:
+            pmap.check(model)
     except ChatterspecError as exc:
         raise ModelFileError(f"{where}: invalid model: {exc}") from exc
     rho = model.spectral_radius
@@ -272,6 +277,21 @@ def load_model(path: str | Path) -> ModelSpec:
     if "band" in detector:
         detector["band"] = _detector_band(detector["band"], where)
     return ModelSpec(model=model, psi=psi, gamma=gamma, detector=detector, path=path)
+
+
+def _parameter_map(doc: Mapping[str, Any], where: str, form: str, method: str) -> ParameterMap | None:
+    """The optional ``[parameters]``, ``[constants]``, ``[entries]``, ``[hypotheses]`` tables
+    (:func:`chatterspec.plants.parameters.parameter_map_from_tables`); continuous entries need Euler."""
+    if form == "continuous" and method != "euler" and "parameters" in doc:
+        raise ModelFileError(
+            f"{where}: [entries] of a continuous model are discretized with explicit Euler; with "
+            "discretization = 'zoh' the discrete entries have no closed form: write [matrices] in "
+            "discrete form"
+        )
+    try:
+        return parameter_map_from_tables(doc, where, continuous=form == "continuous")
+    except ChatterspecError as exc:
+        raise ModelFileError(str(exc)) from None
 
 
 def _detector_band(value: object, where: str) -> tuple[float, float]:
@@ -677,6 +697,8 @@ def write_model_toml(
         f"psi = {_toml_vector(psi_arr)}",
         f"gamma = {_toml_number(gamma)}",
     ]
+    if model.parameter_map is not None:  # fault identification: how physical parameters enter A and B
+        lines += ["", model.parameter_map.to_toml()]
     if detector:
         lines += ["", "[detector]"]
         for key, value in detector.items():
