@@ -368,3 +368,37 @@ class MonitorIdentification:
             "changes": self.changes,
             "last": self.last,
         }
+
+
+def print_diagnosis(doc: dict[str, Any]) -> None:
+    """The ``diagnose`` block: per segment isolation rate, median estimate, relative error, coverage."""
+    if "segments" not in doc:
+        print(f"identification: not available: {doc.get('reason')}")
+        return
+    conf = f"{doc['confidence']:.0%}"
+    print(
+        f"identification per segment (tests at alpha = {doc['alpha']:g}; isolation and coverage with 99% "
+        f"Clopper-Pearson intervals; {conf} parameter intervals):"
+    )
+    for seg in doc["segments"]:
+        a, b = seg["segment_s"]
+        iso = seg["isolation"]
+        head = f"  [{a:g}, {b:g}) s: true {seg['true_hypothesis']}"
+        if iso[0] is not None:
+            head += f", selected in {iso[0]:.3f} [{iso[1]:.3f}, {iso[2]:.3f}] of {seg['runs']} runs"
+        others = {k: v for k, v in seg["selection_rate"].items() if k != seg["true_hypothesis"]}
+        if others:
+            head += " (else " + ", ".join(f"{k} {v:.3f}" for k, v in others.items()) + ")"
+        print(head)
+        for p, t in seg["true_values"].items():
+            cov = seg["coverage"].get(p, [None, None, None])
+            med = seg["median_estimate"].get(p)
+            rel = seg["median_relative_error"].get(p)
+
+            def g(x: float | None) -> str:
+                return "-" if x is None else f"{x:.4g}"
+
+            print(
+                f"    {p}: true {t:.6g}, median estimate {_num(med)}, median relative error {g(rel)}, "
+                f"{conf} interval coverage {g(cov[0])} [{g(cov[1])}, {g(cov[2])}]"
+            )

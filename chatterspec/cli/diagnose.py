@@ -27,6 +27,7 @@ import math
 import time
 
 from ..errors import ParameterError
+from . import _identify
 from ._common import alpha_arg, check_record_path, positive_int_arg, print_json
 
 #: Every method ``--methods`` accepts.
@@ -75,6 +76,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help=f"realizations simulated and diagnosed together (default {DEFAULT_CHUNK_RUNS}; memory grows "
         "with it, not with --runs; the results do not depend on it)",
     )
+    _identify.add_identification_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--record", metavar="FILE.rrd", default=None, help="write realization 0 to a Rerun file")
@@ -180,6 +182,13 @@ def run(args: argparse.Namespace) -> int:
     from ..studies.mode_diagnosis import ModeTally
 
     tallies = [ChatteringTally(sc, threshold) if m == "chattering" else ModeTally(sc, m) for m in methods]
+    # fault identification beside the routes: per segment, on the same realizations (test level --alpha)
+    setup, why_not = _identify.setup_or_reason(sc.nominal, args)
+    ident = None
+    if setup is not None:
+        from ..studies.identification_diagnosis import IdentificationTally
+
+        ident = IdentificationTally(sc, setup, alpha=args.alpha, confidence=args.confidence)
     # the runs go through in chunks (realization r's numbers do not depend on the chunking); only per-run
     # figures are kept, and realization 0 for --record
     outputs: dict = {}
@@ -203,9 +212,20 @@ def run(args: argparse.Namespace) -> int:
                     tally.add(sim, keep=outputs if args.record else None, keep_runs=1)
                 else:
                     tally.add(sim)
+            if ident is not None:
+                ident.add(sim)
             bar.update(sim.runs)
             del sim
     results = [t.result(info) if isinstance(t, ChatteringTally) else t.result() for t in tallies]
+    ident_doc = (
+        {"reason": why_not}
+        if ident is None
+        else {
+            "alpha": args.alpha,
+            "confidence": args.confidence,
+            "segments": [r.to_dict() for r in ident.result()],
+        }
+    )
     recording = None
     if args.record is not None:
         from ..online.diagnosis_log import record_diagnosis
@@ -219,11 +239,13 @@ def run(args: argparse.Namespace) -> int:
                 "seed": args.seed,
                 "simulation_s": sim_s,
                 "methods": [r.describe() for r in results],
+                "identification": ident_doc,
                 "recording": None if recording is None else str(recording),
             }
         )
         return 0
     _print_table(sc, args, results)
+    _identify.print_diagnosis(ident_doc)
     if recording is not None:
         print(f"recording: {recording} (open with `chatterspec replay {recording}` or `rerun {recording}`)")
     return 0
