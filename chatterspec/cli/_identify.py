@@ -235,8 +235,12 @@ def print_identification(doc: dict[str, Any]) -> None:
 def _windows(r: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
     """The identification windows of one demo scenario: its STFT intervals if any, else the record."""
     ivs = r.get("identification_intervals")
-    if ivs:
-        return [(f"{iv['interval_s'][0]:.1f}-{iv['interval_s'][1]:.1f}", iv) for iv in ivs]
+    if ivs:  # the window identified: the STFT interval, a hop inside its interior edges
+        out = []
+        for iv in ivs:
+            w0, w1 = iv.get("window_s", iv["interval_s"])
+            out.append((f"{w0:.1f}-{w1:.1f}", iv))
+        return out
     ident = r.get("identification")
     if not ident or "hypotheses" not in ident:
         return []
@@ -256,7 +260,7 @@ def print_demo_table(results: list[dict[str, Any]]) -> None:
     conf = f"{d0['confidence']:.0%}"
     print(
         f"identification: which parameter changed, in physical units ({conf} intervals; hypothesis tests at "
-        f"alpha = {d0['alpha']:g}; STFT intervals of run 0, else the whole record"
+        f"alpha = {d0['alpha']:g}; window: the STFT intervals of run 0 a hop inside, else the whole record"
         + (", pooled over runs" if d0.get("records", 1) > 1 else "")
         + ")"
     )
@@ -303,9 +307,11 @@ class MonitorIdentification:
     args : argparse.Namespace
         ``alpha`` (the monitor's per-frame alpha) and ``confidence``.
     emit : callable or None
-        Writes one JSON line (``--events jsonl``); None: no per-hop events.
+        Writes one JSON line (``--events jsonl`` with ``--identification-events``); None: no events.
     say : callable
         Writes one human line.
+    every_hop : bool
+        An event per hop (``every-hop``), or only when the selected hypothesis changes (``changes``).
     """
 
     def __init__(
@@ -318,13 +324,14 @@ class MonitorIdentification:
         confidence: float,
         emit: Any,
         say: Any,
+        every_hop: bool = False,
     ) -> None:
         from ..detection.identification_online import OnlineIdentifier
 
         self.identifier = OnlineIdentifier(
             setup, hop_samples=hop_samples, window_hops=window_hops, t0=t0, alpha=alpha, confidence=confidence
         )
-        self.emit, self.say = emit, say
+        self.emit, self.say, self.every_hop = emit, say, every_hop
         self.selected: str | None = None
         self.changes: list[dict[str, Any]] = []
         self.last: dict[str, Any] | None = None
@@ -348,9 +355,10 @@ class MonitorIdentification:
             doc = {"sample_time_s": round(float(out.times_s[i]), 9), **rep.to_dict()}
             doc.pop("entries", None)
             doc.pop("method", None)
-            if self.emit is not None:
+            changed = rep.selected != self.selected
+            if self.emit is not None and (self.every_hop or changed):
                 self.emit(json.dumps({"event": "identification", **doc}, allow_nan=False))
-            if rep.selected != self.selected:
+            if changed:
                 self.selected = rep.selected
                 line = summary_line(rep.to_dict())
                 self.say(

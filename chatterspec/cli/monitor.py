@@ -120,6 +120,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="samples per push (default: one STFT hop with --rate, five otherwise)",
     )
     _identify.add_identification_args(p)
+    p.add_argument(
+        "--identification-events",
+        choices=("none", "changes", "every-hop"),
+        default="none",
+        help="with --events jsonl: an 'identification' event (estimates, intervals, tests of the window "
+        "ending at that hop) whenever the identified hypothesis changes, or at every hop; emitted after "
+        "the monitor's events of the same push (order by sample_time_s). Default none",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
     p.set_defaults(func=run)
 
@@ -202,8 +210,9 @@ def run(args: argparse.Namespace) -> int:
             t0,
             settings.alpha,
             args.confidence,
-            _emit_line if jsonl else None,
+            _emit_line if jsonl and args.identification_events != "none" else None,
             lambda text: print(text, file=human, flush=True) if not args.json or jsonl else None,
+            every_hop=args.identification_events == "every-hop",
         )
 
     if stream:

@@ -310,6 +310,19 @@ def identify_record(
 ) -> Identification:
     """:func:`identify` on a chattering record that kept its measurements (``record.z``, ``record.u``).
 
+    Parameters
+    ----------
+    record : ChatteringRecord
+        Chattering ``values`` with ``z`` and ``u`` (its time axis gives the window's times).
+    hypotheses : sequence, optional
+        See :func:`identification_setup` (ignored when ``setup`` is given).
+    window_s : (float, float), optional
+        ``[start, stop)`` in seconds; default the whole record.
+    alpha, confidence : float
+        Test level and interval level.
+    setup : IdentificationSetup, optional
+        A setup built once for many records (e.g. the chunks of a study).
+
     Raises
     ------
     ParameterError

@@ -40,7 +40,15 @@ def _path(parameter: str) -> str:
 def identification_views(setup: Any, confidence: float) -> Any:
     """``make(time_range) -> views``: one time-series view per identified parameter (estimate and
     interval of the selected hypothesis) and the log of the selected hypothesis, for
-    :func:`chatterspec.online.blueprint.blueprint`'s ``extra_row``."""
+    :func:`chatterspec.online.blueprint.blueprint`'s ``extra_row``.
+
+    Parameters
+    ----------
+    setup : IdentificationSetup
+        Gives the parameters (and their units) of the hypotheses tested.
+    confidence : float
+        Level of the logged intervals (shown in the view titles).
+    """
     pm = setup.parameter_map
     used = [p for p in pm.parameter_names if any(p in h.parameters for h in setup.hypotheses)]
 

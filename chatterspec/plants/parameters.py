@@ -419,7 +419,15 @@ def eha_parameter_map(
     ``A[2,2] = 1 - dt a/M``, ``A[2,3] = dt Ac/M``, ``A[3,2] = -dt be Ac/V0``,
     ``A[3,3] = 1 - dt be L/V0``, ``B[3,1] = dt be Dp/V0``: leakage L enters A33, friction a
     enters A22, the bulk modulus be enters A32, A33 and B3 jointly (eq 68-70). Hypotheses:
-    one per parameter. Values in SI units (the model factory's arguments).
+    one per parameter.
+
+    Parameters
+    ----------
+    leakage, friction, bulk_modulus : float
+        Nominal values of the identifiable parameters: L in m^3/(s Pa), a in N s/m, be in Pa.
+    piston_area, pump_displacement, mass, volume : float
+        The other Table 1 values, constants of the formulas: Ac in m^2, Dp in m^3/rad, M in kg,
+        V0 in m^3.
     """
     params = (
         PhysicalParameter("leakage", leakage, "m^3/(s Pa)", "internal leakage coefficient L"),
@@ -451,6 +459,13 @@ def second_order_parameter_map(f0_hz: float, zeta: float) -> ParameterMap:
     ``A[2,1] = -dt (2 pi f0)^2``, ``A[2,2] = 1 - 2 dt zeta (2 pi f0)`` (B does not depend on
     them). Hypotheses: ``natural_frequency`` (f0 alone; with a nominal zeta > 0 it moves A21 and
     A22), ``damping`` (zeta alone).
+
+    Parameters
+    ----------
+    f0_hz : float
+        Nominal natural frequency in Hz.
+    zeta : float
+        Nominal damping ratio.
     """
     params = (
         PhysicalParameter("natural_frequency", f0_hz, "Hz", "undamped natural frequency f0"),

@@ -30,7 +30,15 @@ EDGE_TRIM_S = 0.2
 
 
 def segment_windows(sc: Scenario, trim_s: float = EDGE_TRIM_S) -> list[tuple[int, tuple[float, float]]]:
-    """``(segment index, (start, stop))`` windows inside each segment, ``trim_s`` inside shared edges."""
+    """``(segment index, (start, stop))`` windows inside each segment, ``trim_s`` inside shared edges.
+
+    Parameters
+    ----------
+    sc : Scenario
+        Its segments of true plant.
+    trim_s : float
+        Seconds left out on each side of an edge shared with another segment.
+    """
     out = []
     last = len(sc.segments) - 1
     for i, s in enumerate(sc.segments):
