@@ -91,8 +91,8 @@ def identification_sweep_figure(
             bot.legend(fontsize=7, loc="lower left")
     fig.suptitle(
         title
-        or "fault identification from the chattering: estimate vs true parameter (numbers on the axis: "
-        "fraction of records selecting the true hypothesis)",
+        or "fault identification from the chattering: estimate vs true parameter (percentages: records "
+        "selecting the true hypothesis, 'no fault' at the nominal size)",
         fontsize=10,
     )
     fig.tight_layout()
