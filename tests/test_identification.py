@@ -191,7 +191,7 @@ def test_model_without_parameter_map_or_nonlinear_is_refused() -> None:
 
 
 def test_hypothesis_naming_an_unknown_parameter() -> None:
-    with pytest.raises(ParameterError, match="does not have; its parameters: leakage, friction, bulk_modulus"):
+    with pytest.raises(ParameterError, match="does not have; its parameters: leakage, friction, bulk_mod"):
         identification_setup(eha_linear(), [["leakage", "viscosity"]])
 
 
