@@ -7,6 +7,10 @@ run with ``PYTHONPATH=PATH``). Reports the median wall time and the median CPU t
 system of the child, from ``os.wait4``: does not depend on the load) of each, and the
 identification's share. The numba cache is warmed first.
 
+``--in-process`` instead times, inside one process, the part of ``detect``'s work that identification
+adds (the identification of every chunk, and the measurements the fused kernel then writes) against
+the whole command's CPU time: one run of the same code, so the machine's load hardly matters.
+
 Usage::
 
     python benchmarks/bench_identification.py [--scenario eha-leak-major] [--runs 10000] [--repeat 5]
@@ -55,7 +59,10 @@ def main() -> None:
     p.add_argument("--repeat", type=int, default=5)
     p.add_argument("--baseline", default=None, help="another checkout to compare with (PYTHONPATH)")
     p.add_argument("--json", action="store_true")
+    p.add_argument("--in-process", action="store_true", help="time identification's share inside one process")
     args = p.parse_args()
+    if args.in_process:
+        return _in_process(args)
     base = ["detect", args.scenario, "--runs", str(args.runs), "--no-progress"]
     variants = {"identification": (base, str(ROOT)), "no-identify": ([*base, "--no-identify"], str(ROOT))}
     if args.baseline:
@@ -85,6 +92,47 @@ def main() -> None:
     print(
         f"identification adds {100 * out[f'added_wall_vs_{ref}']:+.1f} % wall, "
         f"{100 * out[f'added_cpu_vs_{ref}']:+.1f} % CPU (vs {ref})"
+    )
+
+
+def _in_process(args: argparse.Namespace) -> None:
+    """CPU time of the identification calls within ``detect``, and of the whole command."""
+    import chatterspec.detection.identification as ident
+    from chatterspec.cli import main as cli_main
+
+    spent = [0.0]
+    inner = ident.identify_record
+
+    def timed(*a: object, **kw: object) -> object:
+        t = time.process_time()
+        try:
+            return inner(*a, **kw)
+        finally:
+            spent[0] += time.process_time() - t
+
+    ident.identify_record = timed  # IdentificationStream.tap calls it once per chunk
+    argv = ["detect", args.scenario, "--runs", str(args.runs), "--no-progress", "--json"]
+    cli_main([*argv[:3], "64", *argv[4:]])  # warm up (numba cache, imports)
+    rows = []
+    for _ in range(args.repeat):
+        for extra in ([], ["--no-identify"]):
+            spent[0] = 0.0
+            t0 = time.process_time()
+            with open(os.devnull, "w") as devnull:
+                import contextlib
+
+                with contextlib.redirect_stdout(devnull):
+                    cli_main([*argv, *extra])
+            rows.append((bool(extra), time.process_time() - t0, spent[0]))
+    with_id = [(c, s) for no, c, s in rows if not no]
+    without = [c for no, c, _ in rows if no]
+    c_with, s_med = _median([c for c, _ in with_id]), _median([s for _, s in with_id])
+    c_without = _median(without)
+    print(
+        f"detect {args.scenario} --runs {args.runs} in one process, {args.repeat} alternating repeats: "
+        f"CPU {c_with:.2f} s with identification (of which identify_record {s_med:.2f} s), "
+        f"{c_without:.2f} s with --no-identify; identification = {100 * s_med / (c_with - s_med):.1f} % "
+        f"of the rest; with/without {100 * (c_with / c_without - 1):+.1f} %"
     )
 
 

@@ -89,6 +89,11 @@ class IdentificationSetup:
         return bool(np.all(np.abs(got - pred) <= 1e-8 * ref)), G
 
     @property
+    def swe_pairs(self) -> np.ndarray:
+        """``(D, 2)``: the (regressor column, chattering row) pair of each estimated entry."""
+        return np.stack([self.cols, self.rows], axis=1)
+
+    @property
     def n_entries(self) -> int:
         return int(self.rows.size)
 
@@ -274,6 +279,21 @@ def build_setup(
 
 
 # --------------------------------------------------------------------------- the estimation
+def _masked_inverse(A: np.ndarray, active: np.ndarray, eye: np.ndarray) -> np.ndarray:
+    """Inverse of ``A`` with the inactive rows and columns replaced by the identity; a realization
+    whose active block is exactly singular gets NaN (it fails the condition check)."""
+    act2 = active[:, :, None] & active[:, None, :]
+    M = np.where(act2, A, 0.0) + np.where(active, 0.0, 1.0)[:, :, None] * eye
+    try:
+        return np.linalg.inv(M)
+    except np.linalg.LinAlgError:  # a singular realization fails the whole batch (exactly collinear data)
+        sv = np.linalg.svd(M, compute_uv=False)
+        singular = ~(sv[:, -1] > 1e-14 * sv[:, 0])
+        out = np.linalg.inv(np.where(singular[:, None, None], eye, M))
+        out[singular] = np.nan
+        return out
+
+
 def _gather(M: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``M[:, a[:, None], b[None, :]]``."""
     return M[:, a[:, None], b[None, :]]
@@ -306,20 +326,23 @@ def fit_moments(
     sc = np.sqrt(np.where(diag0 > 0, diag0, 1.0))[:, cols]  # (runs, D)
     A = np.where(same, _gather(mom.swx, cols, cols), 0.0) / (sc[:, :, None] * sc[:, None, :])
     b = mom.swe[:, cols, rows] / sc
-    for ri in range(setup.R.size):  # collinearity, channel by channel (not realization by realization)
-        blk = np.flatnonzero(rows == ri)
-        act = entry_reason[:, blk] == 0
-        sub = np.where(act[:, :, None] & act[:, None, :], A[:, blk[:, None], blk[None, :]], 0.0)
-        sub = sub + np.where(act, 0.0, 1.0)[:, :, None] * np.eye(blk.size)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            cond = np.linalg.cond(sub)
-        bad = ~(cond < MAX_CONDITION)
-        entry_reason[:, blk] = np.where(bad[:, None] & (entry_reason[:, blk] == 0), 2, entry_reason[:, blk])
+    eye = np.eye(D)
     active = entry_reason == 0
+    Ainv = _masked_inverse(A, active, eye)
+    # collinear regressors of a channel: 1-norm condition number of its block (A and its inverse at hand)
+    for ri in range(setup.R.size):
+        blk = np.flatnonzero(rows == ri)
+        sub_a = np.abs(A[:, blk[:, None], blk[None, :]] * active[:, blk, None] * active[:, None, blk])
+        sub_i = np.abs(Ainv[:, blk[:, None], blk[None, :]])
+        with np.errstate(invalid="ignore", over="ignore"):
+            cond = sub_a.sum(axis=1).max(axis=1) * sub_i.sum(axis=1).max(axis=1)
+        bad = ~(cond < MAX_CONDITION) & active[:, blk].any(axis=1)
+        entry_reason[:, blk] = np.where(bad[:, None] & active[:, blk], 2, entry_reason[:, blk])
+    if np.any(entry_reason != (~active).astype(int)):  # some block was dropped: invert again without it
+        active = entry_reason == 0
+        Ainv = _masked_inverse(A, active, eye)
     act2 = active[:, :, None] & active[:, None, :]
-    A = np.where(act2, A, 0.0) + np.where(active, 0.0, 1.0)[:, :, None] * np.eye(D)
     b = np.where(active, b, 0.0)
-    Ainv = np.linalg.inv(A)
     d = np.einsum("rab,rb->ra", Ainv, b) / sc
     # --- covariance: lag-1 sandwich with the MA(1) autocovariances at the fitted true plant
     Phi_t = np.broadcast_to(model.C @ model.A @ model.C_inv, (runs, *model.A.shape)).copy()
@@ -340,9 +363,10 @@ def fit_moments(
     V = Ainv @ Om @ Ainv.transpose(0, 2, 1) / (sc[:, :, None] * sc[:, None, :])
     se_e = np.sqrt(np.clip(np.einsum("raa->ra", V), 0.0, None))
     T = np.where(active & (se_e > 0), se_e, 1.0)
-    Vn = np.where(act2, V / (T[:, :, None] * T[:, None, :]), 0.0) + np.where(active, 0.0, 1.0)[
-        :, :, None
-    ] * np.eye(D)
+    Vn = (
+        np.where(act2, V / (T[:, :, None] * T[:, None, :]), 0.0)
+        + np.where(active, 0.0, 1.0)[:, :, None] * eye
+    )
     lam, Q = np.linalg.eigh(Vn)
     keep = lam > 1e-10 * lam[:, -1:]
     W = np.where(keep, 1.0 / np.sqrt(np.where(keep, lam, 1.0)), 0.0)[:, :, None] * Q.transpose(0, 2, 1)

@@ -199,9 +199,8 @@ def _moments(
         T = z.shape[1]
         times_e = t0 + np.arange(1, T) * model.dt
         ka, kb = _window(times_e, window_s, T)
-        return compute_moments(
-            z, u, e, setup.J, setup.L, setup.R, ka, kb, (times_e[ka], times_e[kb - 1] + model.dt)
-        )
+        times = (times_e[ka], times_e[kb - 1] + model.dt)
+        return compute_moments(z, u, e, setup.J, setup.L, setup.R, ka, kb, times, setup.swe_pairs)
     z = finite_array("z", z, ndim=(2, 3))
     z = z[None] if z.ndim == 2 else z
     runs, T, m = z.shape
@@ -221,9 +220,8 @@ def _moments(
         e = finite_array("e", e, shape=(runs, T - 1, m))
     times_e = t0 + np.arange(1, T) * model.dt  # e[:, k] is at time t0 + (k+1) dt
     ka, kb = _window(times_e, window_s, T)
-    return compute_moments(
-        z, u, e, setup.J, setup.L, setup.R, ka, kb, (times_e[ka], times_e[kb - 1] + model.dt)
-    )
+    times = (times_e[ka], times_e[kb - 1] + model.dt)
+    return compute_moments(z, u, e, setup.J, setup.L, setup.R, ka, kb, times, setup.swe_pairs)
 
 
 def identify_moments(

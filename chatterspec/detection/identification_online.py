@@ -179,10 +179,9 @@ class OnlineIdentifier:
         zb, ub = self._z[idx], self._u[idx]
         e = zb[:, 1:] - zb[:, :-1] @ self._Phi_T - ub[:, :-1] @ self._G_T  # closed form, eq (23)
         t_first = self.t0 + (self._first + start + 2) * self.dt  # e(k+1) of the block's first k
-        mom = compute_moments(
-            zb, ub, e, self.setup.J, self.setup.L, self.setup.R, 1, H + 1, (t_first, t_first + H * self.dt)
-        )
-        return mom
+        st = self.setup
+        times = (t_first, t_first + H * self.dt)
+        return compute_moments(zb, ub, e, st.J, st.L, st.R, 1, H + 1, times, st.swe_pairs)
 
 
 def _stack(parts: list[IdentificationMoments]) -> IdentificationMoments:
