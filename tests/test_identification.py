@@ -247,3 +247,17 @@ def test_second_order_map_reproduces_the_factory() -> None:
         setup = identification_setup(m)
         assert true_hypothesis(setup, other) == "natural_frequency"
         assert true_parameters(setup, other)["natural_frequency"][0] == pytest.approx(12.0, rel=1e-12)
+
+
+def test_collinear_regressors_give_no_estimate_and_say_why() -> None:
+    """Pressure proportional to velocity (constructed data): the pressure channel's entries cannot be
+    separated, so the hypotheses that move them get no estimate; friction (velocity channel) still does."""
+    rng = np.random.default_rng(0)
+    T = 2001
+    z2 = np.cumsum(rng.standard_normal(T)) * 1e-2
+    z = np.stack([np.cumsum(z2) * 1e-3, z2, 2e5 * z2], axis=-1)
+    u = rng.standard_normal((T, 1))
+    rep = identify(eha_linear(), z, u).report(0)
+    assert "collinear" in rep.estimate("leakage")[0].reason
+    assert "collinear" in rep.estimate("bulk_modulus")[0].reason
+    assert np.isfinite(rep.estimate("friction")[0].estimate)

@@ -389,7 +389,9 @@ def fit_moments(
         se[:, h, :k] = np.where(ok[:, None], np.sqrt(np.clip(np.einsum("rii->ri", cov), 0.0, None)), np.nan)
         stat[:, h] = np.where(ok, J, np.nan)
         dof[:, h] = n_dirs - k
-        reason[:, h] = why
+        touched = np.any(setup.slopes[h] != 0, axis=1)  # the entries the hypothesis moves
+        collinear = np.any((entry_reason == 2) & touched, axis=1)
+        reason[:, h] = np.where((why == 1) & collinear, 3, why)
     p = np.where(dof > 0, stats.chi2.sf(stat, np.maximum(dof, 1)), np.where(np.isfinite(stat), 1.0, np.nan))
     selected = _select(setup, p0, p, alpha)
     return {
@@ -413,8 +415,9 @@ def fit_moments(
 #: Reason codes of a missing estimate (``fit_moments`` ``reason``).
 REASONS = {
     0: "",
-    1: "not identifiable on this window: the regressors it enters carry no excitation",
+    1: "not identifiable on this window: the regressors of the entries it enters carry no excitation",
     2: "the fit did not converge",
+    3: "not identifiable on this window: the regressors of the entries it enters are collinear",
 }
 
 

@@ -62,7 +62,7 @@ import numpy as np
 
 from ..errors import ChatterspecError, DataFileError, ModelFileError, UnstableModelWarning
 from .models import LinearModel, discretize
-from .parameters import ParameterMap, parameter_map_from_tables
+from .parameters import model_file_parameter_map
 
 __all__ = ["TIME_COLUMNS", "DataSet", "ModelSpec", "load_data", "load_model", "write_model_toml"]
 
@@ -219,7 +219,7 @@ def load_model(path: str | Path) -> ModelSpec:
                 f"{where}: [matrices] discretization must be 'euler' or 'zoh'; got {method!r}"
             )
         A, B = discretize(A, B, dt, method)  # type: ignore[arg-type]
-    pmap = _parameter_map(doc, where, form, method)
+    pmap = model_file_parameter_map(doc, where, form, method)
     try:
         model = LinearModel(
             A=A,
@@ -277,21 +277,6 @@ def load_model(path: str | Path) -> ModelSpec:
     if "band" in detector:
         detector["band"] = _detector_band(detector["band"], where)
     return ModelSpec(model=model, psi=psi, gamma=gamma, detector=detector, path=path)
-
-
-def _parameter_map(doc: Mapping[str, Any], where: str, form: str, method: str) -> ParameterMap | None:
-    """The optional ``[parameters]``, ``[constants]``, ``[entries]``, ``[hypotheses]`` tables
-    (:func:`chatterspec.plants.parameters.parameter_map_from_tables`); continuous entries need Euler."""
-    if form == "continuous" and method != "euler" and "parameters" in doc:
-        raise ModelFileError(
-            f"{where}: [entries] of a continuous model are discretized with explicit Euler; with "
-            "discretization = 'zoh' the discrete entries have no closed form: write [matrices] in "
-            "discrete form"
-        )
-    try:
-        return parameter_map_from_tables(doc, where, continuous=form == "continuous")
-    except ChatterspecError as exc:
-        raise ModelFileError(str(exc)) from None
 
 
 def _detector_band(value: object, where: str) -> tuple[float, float]:

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import ChatterspecError, ModelFileError, ParameterError
 from ._expressions import BUILTIN_CONSTANTS, FUNCTIONS, Formula, compile_formula
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -393,6 +393,23 @@ def parameter_map_from_tables(
         return ParameterMap(tuple(params), tuple(entries), consts, tuple(hyps))
     except ParameterError as exc:
         raise ParameterError(f"{where}: {exc}") from None
+
+
+def model_file_parameter_map(
+    doc: Mapping[str, Any], where: str, form: str, method: str
+) -> ParameterMap | None:
+    """:func:`parameter_map_from_tables` for :func:`chatterspec.plants.modelfile.load_model`: errors
+    become :class:`~chatterspec.errors.ModelFileError`; continuous entries need explicit Euler."""
+    if form == "continuous" and method != "euler" and "parameters" in doc:
+        raise ModelFileError(
+            f"{where}: [entries] of a continuous model are discretized with explicit Euler; with "
+            "discretization = 'zoh' the discrete entries have no closed form: write [matrices] in "
+            "discrete form"
+        )
+    try:
+        return parameter_map_from_tables(doc, where, continuous=form == "continuous")
+    except ChatterspecError as exc:
+        raise ModelFileError(str(exc)) from None
 
 
 # --------------------------------------------------------------------------- catalogue models
