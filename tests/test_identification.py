@@ -261,3 +261,13 @@ def test_collinear_regressors_give_no_estimate_and_say_why() -> None:
     assert "collinear" in rep.estimate("leakage")[0].reason
     assert "collinear" in rep.estimate("bulk_modulus")[0].reason
     assert np.isfinite(rep.estimate("friction")[0].estimate)
+
+
+def test_models_with_parameter_maps_pickle() -> None:
+    """Models travel to worker processes: the compiled formulas must pickle (rebuilt from their text)."""
+    import pickle
+
+    m = pickle.loads(pickle.dumps(eha_linear(leakage=9e-11)))
+    assert np.array_equal(
+        m.parameter_map.evaluate(1e-3), eha_linear(leakage=9e-11).parameter_map.evaluate(1e-3)
+    )

@@ -19,13 +19,12 @@ if TYPE_CHECKING:  # pragma: no cover
 
 def confidence_arg(text: str) -> float:
     """argparse type: a confidence level in (0, 1)."""
+    from ._common import alpha_arg
+
     try:
-        value = float(text)
-    except ValueError:
+        return alpha_arg(text)  # the same open interval
+    except argparse.ArgumentTypeError:
         raise argparse.ArgumentTypeError(f"confidence must be a number in (0, 1); got {text!r}") from None
-    if not 0.0 < value < 1.0:
-        raise argparse.ArgumentTypeError(f"confidence must lie in the open interval (0, 1); got {value}")
-    return value
 
 
 def add_identification_args(p: argparse.ArgumentParser) -> None:

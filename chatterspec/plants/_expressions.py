@@ -50,6 +50,10 @@ class Formula:
     names: frozenset[str]
     _code: object = field(repr=False, compare=False)
 
+    def __reduce__(self) -> tuple[object, tuple[str]]:
+        # code objects do not pickle (models travel to worker processes): rebuild from the text
+        return (compile_formula, (self.text,))
+
     def __call__(self, values: Mapping[str, object]) -> np.ndarray:
         """Evaluate with ``values`` (name -> number or array; arrays broadcast).
 
