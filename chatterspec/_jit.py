@@ -48,13 +48,31 @@ How to add a compiled kernel
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import os
+import types
 import warnings
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-__all__ = ["HAVE_NUMBA", "enabled", "njit"]
+import numpy as np
+
+__all__ = [
+    "HAVE_NUMBA",
+    "STACK_CAPACITY",
+    "borrow",
+    "enabled",
+    "njit",
+    "scratch",
+    "scratch2",
+    "specialize",
+    "specialize_sizes",
+    "step",
+]
+
+#: Floats a compiled :func:`scratch` / :func:`scratch2` of run-time size keeps on the stack (larger: heap).
+STACK_CAPACITY = 64
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -92,34 +110,121 @@ def enabled() -> bool:
     return HAVE_NUMBA and os.environ.get("CHATTERSPEC_JIT", "1") != "0" and _numba_importable()
 
 
+def scratch(n: int) -> np.ndarray:
+    """Scratch vector of ``n`` floats for a kernel's per-run state (uninitialized).
+
+    In Python this is ``np.empty(n)``. In a compiled kernel it lives on the kernel's stack
+    (no allocation, no reference count): of exactly ``n`` floats when ``n`` is a compile-time
+    constant (a literal bound by :func:`specialize`, e.g. ``NX = 3``), where with the steps
+    inlined and their loops unrolled LLVM keeps it in registers; of :data:`STACK_CAPACITY`
+    floats' room otherwise (a larger ``n`` gets a heap array). Each call site has its own
+    memory, valid until the kernel returns: call it in the loop itself, before the loops, never
+    in a step, and never return it.
+    """
+    return np.empty(n)
+
+
+def scratch2(n: int, m: int) -> np.ndarray:
+    """Scratch ``(n, m)`` C-order matrix: :func:`scratch` for matrices (stack up to ``STACK_CAPACITY``)."""
+    return np.empty((n, m))
+
+
+def borrow(a: Any) -> Any:
+    """``a`` itself; in compiled code, the same array without its reference count.
+
+    Every array a compiled loop hands to an inlined step costs numba an atomic increment and
+    decrement of its reference count per call, which numba cannot prune when the step has loops
+    of run-time length: three times the arithmetic of an SVSF step. A loop therefore borrows its
+    array arguments once, at its top (the caller holds them for the whole call), and passes the
+    borrowed arrays (and views of them) to its steps. Never borrow an array the kernel itself
+    allocates on the heap: nothing would keep it alive.
+    """
+    return a
+
+
+def _code_digest(code: types.CodeType, h: Any) -> None:
+    h.update(code.co_code)
+    h.update(repr(code.co_names).encode())
+    for c in code.co_consts:
+        if isinstance(c, types.CodeType):
+            _code_digest(c, h)
+        else:
+            h.update(repr(c).encode())
+
+
 class _LazyKernel:
-    """A kernel compiled by ``numba.njit(cache=True, nogil=True)`` on its first call."""
+    """A kernel compiled by numba on its first call (``cache=True, nogil=True``; steps: ``inline="always"``).
 
-    __slots__ = ("__name__", "_compiled", "py_func")
+    ``py_func`` is the plain Python function (with the :func:`specialize` bindings among its
+    globals). Compilation gives numba a copy of it whose globals hold the compiled dispatchers of
+    the kernels and steps it names, and whose name carries a digest of its own code, of the
+    bound values and of every kernel or step it reaches: numba's cache is stamped only with the
+    source file of the function it compiles, so without the digest a loop would keep running
+    a step from another file as it was when the loop was first cached.
+    """
 
-    def __init__(self, func: Callable[..., Any]) -> None:
+    __slots__ = ("__name__", "_compiled", "_digest", "_inline", "py_func")
+
+    def __init__(self, func: Callable[..., Any], inline: bool = False) -> None:
         self.py_func = func
         self.__name__ = func.__name__
+        self._inline = inline
         self._compiled: Callable[..., Any] | None = None
+        self._digest: str | None = None
 
-    def _compile(self) -> Callable[..., Any]:
-        import numba
+    def _names(self) -> list[str]:
+        names: list[str] = []
 
-        # A kernel may call other kernels: numba can only type their compiled dispatchers, so
-        # compile those first and put the dispatchers in the module's globals (they keep
-        # ``py_func`` and are callable from Python like the wrapper they replace).
-        env = self.py_func.__globals__
-        for name in self.py_func.__code__.co_names:
-            dep = env.get(name)
-            if isinstance(dep, _LazyKernel):
-                env[name] = dep._compiled if dep._compiled is not None else dep._compile()
-        self._compiled = numba.njit(cache=True, nogil=True)(self.py_func)
+        def walk(code: types.CodeType) -> None:
+            names.extend(code.co_names)
+            for c in code.co_consts:
+                if isinstance(c, types.CodeType):
+                    walk(c)
+
+        walk(self.py_func.__code__)
+        return names
+
+    def digest(self) -> str:
+        """Hex digest of this kernel's code, its bound constants and every kernel it calls."""
+        if self._digest is None:
+            h = hashlib.sha256()
+            _code_digest(self.py_func.__code__, h)
+            env = self.py_func.__globals__
+            for name in sorted(set(self._names())):
+                dep = env.get(name)
+                if isinstance(dep, _LazyKernel):
+                    h.update(f"{name}={dep.digest()}".encode())
+                elif isinstance(dep, bool | int | float | str):
+                    h.update(f"{name}={dep!r}".encode())
+            self._digest = h.hexdigest()[:12]
+        return self._digest
+
+    def dispatcher(self) -> Callable[..., Any]:
+        """The numba dispatcher (compiled lazily on first call, or loaded from the cache)."""
+        if self._compiled is None:
+            import numba
+
+            from . import _jit_numba  # noqa: F401  (compiled forms of scratch / scratch2)
+
+            func = self.py_func
+            env = dict(func.__globals__)
+            for name in set(self._names()):
+                dep = env.get(name)
+                if isinstance(dep, _LazyKernel):
+                    env[name] = dep.dispatcher()
+            copy = types.FunctionType(func.__code__, env, func.__name__, func.__defaults__, func.__closure__)
+            copy.__qualname__ = f"{func.__qualname__}__{self.digest()}"
+            copy.__module__ = func.__module__
+            if self._inline:
+                self._compiled = numba.njit(inline="always", nogil=True)(copy)
+            else:
+                self._compiled = numba.njit(cache=True, nogil=True)(copy)
         return self._compiled
 
     def __call__(self, *args: Any) -> Any:
         compiled = self._compiled
         if compiled is None:
-            compiled = self._compile()
+            compiled = self.dispatcher()
         return compiled(*args)
 
 
@@ -136,7 +241,126 @@ def njit(func: F) -> F:
     callable
         A wrapper compiling ``func`` on first call (its ``py_func`` attribute is
         ``func``), or ``func`` itself when numba is not installed.
+
+    See Also
+    --------
+    step : a piece of arithmetic that kernels inline.
+    specialize : a kernel built from a loop template and the steps it calls.
     """
     if not HAVE_NUMBA:
         return func
     return _LazyKernel(func)  # type: ignore[return-value]
+
+
+def step(func: F) -> F:
+    """Mark ``func`` as a step: arithmetic that compiled loops inline (``numba.njit(inline="always")``).
+
+    A step is the one implementation of a piece of a filter or plant (one sample of eq (4)-(12),
+    a plant's transition, ...). Loops call it by name, or get it bound by :func:`specialize`;
+    numba inlines it into each loop at compile time, so a loop built from steps runs like one
+    written out by hand. Steps take scalars, arrays and indices, write into output arrays and
+    return scalars or nothing; they allocate nothing. Called from Python (a test, or a loop's
+    ``py_func``) a step runs compiled on its own.
+
+    Parameters
+    ----------
+    func : callable
+        A module-level function written with explicit loops.
+
+    Returns
+    -------
+    callable
+        The lazily compiled step, or ``func`` itself when numba is not installed.
+
+    See Also
+    --------
+    njit, specialize
+    """
+    if not HAVE_NUMBA:
+        return func
+    return _LazyKernel(func, inline=True)  # type: ignore[return-value]
+
+
+def specialize(template: Callable[..., Any], tag: str, **bindings: Any) -> Callable[..., Any]:
+    """A kernel made of the loop ``template`` with some of its global names bound (compile-time dispatch).
+
+    ``template`` is a module-level function that calls steps (and reads constants) by global
+    names it does not define, e.g. ``PLANT(...)`` or ``NX``; ``bindings`` gives them (a step, an
+    int). The result compiles to a loop specialized for those steps: numba sees them as
+    constants and inlines them, so there is no call through a function value and a literal
+    ``NX`` lets LLVM unroll the per-channel loops (see :func:`scratch`). One template serves
+    every plant and filter that plugs into it; its compiled form is cached per binding.
+
+    Parameters
+    ----------
+    template : callable
+        The loop, a module-level function.
+    tag : str
+        A short name of this specialization (letters, digits, ``_``), part of the cache file name.
+    **bindings
+        Global names of ``template`` and their values for this specialization.
+
+    Returns
+    -------
+    callable
+        A kernel like :func:`njit`'s; without numba, the plain Python function.
+
+    See Also
+    --------
+    njit, step
+    """
+    env = dict(template.__globals__)
+    env.update(bindings)
+    func = types.FunctionType(template.__code__, env, template.__name__, template.__defaults__)
+    func.__qualname__ = f"{template.__qualname__}__{tag}"
+    func.__module__ = template.__module__
+    func.__doc__ = template.__doc__
+    if not HAVE_NUMBA:
+        return func
+    return _LazyKernel(func)
+
+
+#: Largest size :func:`specialize_sizes` binds as a compile-time constant.
+MAX_UNROLL = 4
+
+_SIZED: dict[tuple[Any, ...], Callable[..., Any]] = {}
+
+
+def specialize_sizes(template: Callable[..., Any], tag: str, sizes: dict[str, int], **bindings: Any) -> Any:
+    """:func:`specialize` with the template's size names bound to literals when all are small.
+
+    ``sizes`` maps the template's size names (``NX``, ``NZ``, ...) to this model's sizes; when
+    every one is at most :data:`MAX_UNROLL` they are bound as they are (LLVM unrolls the
+    per-channel loops and keeps the per-run state in registers), otherwise all to 0 (the
+    template reads them from its arrays). One kernel per template, tag, sizes and bindings,
+    kept for the process (and numba caches its machine code).
+
+    Parameters
+    ----------
+    template : callable
+        The loop.
+    tag : str
+        Name of the specialization (the sizes are appended).
+    sizes : dict of str to int
+        Size names of ``template`` and their values.
+    **bindings
+        Other names bound as by :func:`specialize`.
+
+    Returns
+    -------
+    callable
+    """
+    small = all(0 <= v <= MAX_UNROLL for v in sizes.values())
+    values = {k: (int(v) if small else 0) for k, v in sizes.items()}
+    key = (
+        template,
+        tag,
+        tuple(sorted(values.items())),
+        tuple(sorted((k, id(v)) for k, v in bindings.items())),
+    )
+    kernel = _SIZED.get(key)
+    if kernel is None:
+        suffix = "_".join(f"{k.lower()}{v}" for k, v in sorted(values.items()))
+        kernel = specialize(template, f"{tag}_{suffix}", **values, **bindings)
+        _SIZED[key] = kernel
+    return kernel

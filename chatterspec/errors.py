@@ -20,6 +20,7 @@ __all__ = [
     "ShapeError",
     "SingularMatrixError",
     "UnknownScenarioError",
+    "UnstableLoopError",
     "UnstableModelWarning",
 ]
 
@@ -74,3 +75,7 @@ class ModelKindError(ParameterError):
 class IdentifiabilityError(ParameterError):
     """A physical parameter cannot be identified from this model's chattering (reduced-order
     measurement, a nonlinear model, no declared parameters, or parameters that cannot be told apart)."""
+
+
+class UnstableLoopError(ParameterError):
+    """A controller's gains make the closed loop unstable; the message gives each gain's stable range."""

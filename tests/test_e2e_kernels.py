@@ -21,7 +21,12 @@ import pytest
 from chatterspec import _jit
 from chatterspec.detection import _verdict
 from chatterspec.detection.detect import _VERDICT_FIELDS, detect_spectrum
-from chatterspec.detection.pipeline import _chattering_kernel, _chattering_rng_kernel, iter_chattering
+from chatterspec.detection.pipeline import (
+    _chattering_kernel,
+    _chattering_rng_kernel,
+    _rng_kernel,
+    iter_chattering,
+)
 from chatterspec.detection.spectral import periodogram_freqs
 from chatterspec.detection.thresholds import exact_threshold
 from chatterspec.filters import svsf as svsf_mod
@@ -69,9 +74,9 @@ def _rng_kernel_inputs(name: str, T: int):
 def test_rng_kernel_equals_drawing_blocks_first(lo: int, hi: int, dims: int, diag: bool) -> None:
     """Runs [lo, hi) from the block streams: partial blocks at both ends, a block boundary crossed.
 
-    3 x 3 takes the written-out ``_chattering_run3``, 2 x 2 (the EHA's matrices cut down: any
-    numbers do for a bitwise comparison) the generic loops; both with the diagonal shortcut
-    for Lq, Lr and without it (full sums, non-diagonal factors).
+    3 x 3 (the EHA) and 2 x 2 (the EHA's matrices cut down: any numbers do for a bitwise
+    comparison), through the loop for any size and the unrolled one for that size; both with
+    the diagonal shortcut for Lq, Lr and without it (full sums, non-diagonal factors).
     """
     T, m = 50, dims
     seg_idx, A, C, Lq, Lr, Bu, x0, dg, PhiT, Gu = _rng_kernel_inputs("eha-leak-major", T)
@@ -79,12 +84,13 @@ def test_rng_kernel_equals_drawing_blocks_first(lo: int, hi: int, dims: int, dia
     if not diag:  # non-diagonal noise factors: the full sums
         Lq, Lr, dg = Lq + 1e-3, Lr + 1e-4, np.zeros_like(dg)
     cut = (A[:, :m, :m], C[:, :m, :m], Lq[:, :m, :m], Lr[:, :m, :m], Bu[:, :, :m], x0[:m])
-    args = (seg_idx, *map(c, cut), dg, c(PhiT[:m, :m]), c(Gu[:, :m]))
+    args = (seg_idx, *map(c, cut), dg, np.empty(0), c(PhiT[:m, :m]), c(Gu[:, :m]))
     root = root_seed_sequence(9)
     ref = np.full((hi - lo, m, T - 1), np.nan)
     for off, v, w in _noise_blocks(root, lo, hi, T, m, m):
-        _chattering_kernel(v, w, *args, ref, off)
-    for kernel in (_chattering_rng_kernel, _chattering_rng_kernel.py_func):
+        _chattering_kernel(v, w, *args[:9], ref, np.empty((0, 0)), *args[9:], off)
+    # the drawing loop for any size, its Python form, and its per-size form (unrolled for 2 and 3)
+    for kernel in (_chattering_rng_kernel, _chattering_rng_kernel.py_func, _rng_kernel(m, m)):
         e = np.full((hi - lo, m, T - 1), np.nan)
         for b in range(lo // BLOCK, (hi - 1) // BLOCK + 1):
             s0, s1 = max(b * BLOCK, lo), min((b + 1) * BLOCK, hi)

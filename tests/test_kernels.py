@@ -180,14 +180,34 @@ def test_simulation_kernels_equal_their_python_form_bitwise() -> None:
     f = auxiliary_svsf(sc.nominal)
     Gu = np.ascontiguousarray(svsf_mod._rows_times(u[:-1], f._GT))
     outs = []
+    none, no_ctrl = np.empty((0, 0)), np.empty(0)
     for kernel in (_simulate_kernel, _simulate_kernel.py_func):
         xt, zt = np.full((40, 3, 3), np.nan), np.full((40, 3, 3), np.nan)  # run 1 of 3 is written
-        kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, xt, zt, 1)
+        kernel(
+            v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, no_ctrl, xt, zt, none, none, 1
+        )
         assert np.isfinite(xt[:, 1:]).all() and np.isfinite(zt[:, 1:]).all()
         outs.append((xt[:, 1:], zt[:, 1:]))
     for kernel in (_chattering_kernel, _chattering_kernel.py_func):
         e = np.full((3, 3, 39), np.nan)  # (runs, m, N): channel-major; run 1 is written
-        kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, f._PhiT, Gu, e, 1)
+        kernel(
+            v,
+            w,
+            tb.seg_idx,
+            tb.A,
+            tb.C,
+            tb.Lq,
+            tb.Lr,
+            tb.Bu,
+            tb.x0,
+            tb.diag,
+            no_ctrl,
+            e,
+            none,
+            f._PhiT,
+            Gu,
+            1,
+        )
         assert np.isfinite(e[1:]).all()
         outs.append((e[1:].transpose(0, 2, 1),))
     np.testing.assert_array_equal(outs[0][0], outs[1][0])
@@ -198,7 +218,7 @@ def test_simulation_kernels_equal_their_python_form_bitwise() -> None:
     e_full = np.empty((3, 3, 39))
     no_diag = np.zeros_like(tb.diag)
     args = (tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, no_diag)
-    _chattering_kernel(v, w, *args, f._PhiT, Gu, e_full, 1)
+    _chattering_kernel(v, w, *args, no_ctrl, e_full, none, f._PhiT, Gu, 1)
     np.testing.assert_array_equal(e_full[1:].transpose(0, 2, 1), outs[2][0])
     # and the fused chattering is the closed form applied to the simulated z
     z = np.swapaxes(outs[0][1], 0, 1)

@@ -246,12 +246,12 @@ def test_fused_filter_kernel_gives_the_bits_of_the_svsf_update_path(sim, psi) ->
     with a monitor that goes through SVSF._advance (compiled kernels too); the kernel's Python form
     on a small push gives the same bits as well.
     """
-    from chatterspec.online._push_kernels import _filters_kernel, _filters_run3
+    from chatterspec.online._push_kernels import _filters_kernel, filters_kernel
 
     model = sim.scenario.nominal
     fused = ChatteringMonitor(model, MonitorSettings(psi=psi))
     plain = ChatteringMonitor(model, MonitorSettings(psi=psi))
-    assert fused._fused and fused._run3  # the EHA: the written-out 3-state kernel
+    assert fused._fused and fused._kernel is filters_kernel(3, 3)  # the EHA: the unrolled 3-state loop
     plain._fused = False
     z, u = sim.z[0, :4000], sim.u[:4000]
     bounds = [0, 1, 2, 3, 250, 251, 1950, 2000, 3700, 4000]
@@ -279,13 +279,14 @@ def test_fused_filter_kernel_gives_the_bits_of_the_svsf_update_path(sim, psi) ->
                 PhiT, L, P, inv_psi, gamma, S_inv, y, ep, np.empty((1, 40, 3)), x_out, fused._none3,
             )  # fmt: skip
             outs.append((e, x_out, y, ep))
-        # the written-out 3-state kernel (the EHA's path in push), compiled and in its Python form
-        for kernel in (_filters_run3, _filters_run3.py_func):
+        # the unrolled 3-state loop (the EHA's path in push), compiled and in its Python form
+        run3 = filters_kernel(3, 3)
+        for kernel in (run3, run3.py_func):
             y, ep = fused._sat_state.y.copy(), fused._sat_state.e_post.copy()
             e, x_out = np.full((1, 40, 3), np.nan), np.full((1, 40, 3), np.nan)
             kernel(
-                zk, uk, fused._GT, fused._aux_PhiT, y_aux, e, True,
-                PhiT, inv_psi, gamma, S_inv, y, ep, x_out,
+                zk, uk, fused._GT, fused._aux_PhiT, y_aux, e, fused._none3, True,
+                PhiT, L, P, inv_psi, gamma, S_inv, y, ep, fused._none3, x_out, fused._none3,
             )  # fmt: skip
             outs.append((e, x_out, y, ep))
         assert all(np.isfinite(a).all() for out in outs for a in out)  # every output written

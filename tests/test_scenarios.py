@@ -34,12 +34,23 @@ NAMES = (
     "eha4-leak-minor",
     "eha4-leak-major",
     "eha4-leak-onset",
+    # closed loop (the EHA under its position controller)
+    "eha-cl-healthy",
+    "eha-cl-leak-minor",
+    "eha-cl-leak-medium",
+    "eha-cl-leak-major",
+    "eha-cl-friction-major",
+    "eha-cl-bulk-25down",
+    "eha-cl-hold-healthy",
+    "eha-cl-hold-leak-medium",
+    "eha4-cl-healthy",
+    "eha4-cl-leak-timeline",
 )
 
 
 def test_catalogue_names_are_the_cli_contract() -> None:
     assert set(scenario_names()) == set(NAMES)
-    assert len(scenario_names()) == 31
+    assert len(scenario_names()) == 41
     cat = catalogue()
     assert tuple(cat) == scenario_names()
     for name, sc in cat.items():
@@ -164,6 +175,8 @@ def test_plant_kinds_and_json_listing() -> None:
         "eha4-leak-minor",
         "eha4-leak-major",
         "eha4-leak-onset",
+        "eha4-cl-healthy",
+        "eha4-cl-leak-timeline",
     }
     d = scenario("eha4-leak-timeline").describe()
     json.dumps(d)
@@ -328,4 +341,4 @@ def test_cli_lists_plant_kinds(capsys: pytest.CaptureFixture[str]) -> None:
     doc = json.loads(capsys.readouterr().out)
     kinds = {e["name"]: e["plant_kind"] for e in doc["scenarios"]}
     assert kinds["eha4-imm-analogue"] == "nonlinear" and kinds["eha-healthy"] == "linear"
-    assert len(kinds) == 31
+    assert len(kinds) == 41

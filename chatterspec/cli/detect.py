@@ -163,7 +163,7 @@ def stream_chunks(
     """
     from ..detection.detect import DETECT_CHUNK_RUNS
     from ..detection.pipeline import _can_fuse, chattering_record, iter_chattering
-    from ..plants.simulate import Simulation, iter_simulations, simulate
+    from ..plants.simulate import iter_simulations, simulate
 
     if _can_fuse(sc):
         first.append(simulate(sc, 1, seed))
@@ -173,7 +173,7 @@ def stream_chunks(
         return
     for sim in iter_simulations(sc, runs, seed, chunk_runs=min(runs, DETECT_CHUNK_RUNS)):
         if not first:
-            first.append(Simulation(sim.t, sim.x[:1].copy(), sim.z[:1].copy(), sim.u, sc, 0))
+            first.append(sim.take(slice(0, 1)))
         yield chattering_record(sc.nominal, sim.z, sim.u, scenario=sc, first_run=sim.first_run)
 
 

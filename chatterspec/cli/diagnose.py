@@ -204,9 +204,7 @@ def run(args: argparse.Namespace) -> int:
             if sim is None:
                 break
             if args.record is not None and first is None:
-                first = Simulation(
-                    t=sim.t, x=sim.x[:1].copy(), z=sim.z[:1].copy(), u=sim.u, scenario=sc, first_run=0
-                )
+                first = sim.take(slice(0, 1))
             for tally in tallies:
                 if isinstance(tally, ModeTally):
                     tally.add(sim, keep=outputs if args.record else None, keep_runs=1)

@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps({"scenarios": entries}, indent=2))
         return 0
     print(
-        f"{'name':<22} {'kind':<9} {'fault':<18} {'level':<26} "
+        f"{'name':<24} {'kind':<9} {'fault':<18} {'level':<26} "
         "segments (true plant: f0 Hz / zeta on [start, stop) s)"
     )
     for e in entries:
@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
             f"{_fmt(s['damping_ratio'], '.4f')}" + ("" if s["matches_nominal"] else " *")
             for s in e["segments"]
         )
-        print(f"{e['name']:<22} {e['plant_kind']:<9} {e['fault']:<18} {e['level']:<26} {segs}")
+        print(f"{e['name']:<24} {e['plant_kind']:<9} {e['fault']:<18} {e['level']:<26} {segs}")
     print("\n* = true plant differs from the filter's nominal model")
     print("~ = nonlinear plant: natural frequency and damping of its linearization at rest")
     return 0

@@ -15,13 +15,16 @@ import numpy as np
 from .. import _jit
 from .._validate import positive_int
 from ..errors import ShapeError
+from ..filters._svsf_kernels import closed_form_step
 from ..filters.nonlinear_svsf import nonlinear_chattering
 from ..filters.svsf import _rows_times, auxiliary_svsf
 from ..plants.models import LinearModel
 from ..plants.nonlinear import is_linear, require_linear
 from ..plants.scenarios import Scenario
 from ..plants.simulate import (
+    NO_CTRL,
     Simulation,
+    _plant_loop,
     _same_shapes,
     _tables,
     default_chunk_runs,
@@ -148,152 +151,50 @@ def _from_simulation(sim: Simulation, gamma: float) -> ChatteringRecord:
     return chattering_record(sc.nominal, sim.z, sim.u, gamma=gamma, scenario=sc, first_run=sim.first_run)
 
 
-@_jit.njit
-def _chattering_kernel(
-    v: np.ndarray,
-    w: np.ndarray,
-    seg_idx: np.ndarray,
-    A: np.ndarray,
-    C: np.ndarray,
-    Lq: np.ndarray,
-    Lr: np.ndarray,
-    Bu: np.ndarray,
-    x0: np.ndarray,
-    diag: np.ndarray,
-    PhiT: np.ndarray,
-    Gu: np.ndarray,
-    e_out: np.ndarray,
-    offset: int,
-    z_out: np.ndarray | None = None,
-) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_kernels.py)
-    """Simulation (eq 1-2) and the auxiliary SVSF's chattering (eq 23) fused, one block of runs.
-
-    The plant arithmetic is that of ``chatterspec.plants.simulate._simulate_kernel`` and the
-    chattering that of ``SVSF._update_closed_form`` (``(z_i(k) - G_i u(k-1)) - sum_j Phi_ij
-    z_j(k-1)``, j = 0, 1, ...), so the result is bit-identical to filtering the simulation;
-    only x(k) and z(k), z(k-1) of the current run are held (no ``(runs, T, n)`` arrays).
-    ``e_out[offset + r, :, k - 1] = e(k|k-1)``, k = 1..T-1: channel-major, so that each
-    channel's record is contiguous for the periodogram's FFT. With ``z_out`` (``(runs, m, T)``,
-    channel-major) the measurements are kept too (fault identification regresses on them).
-    """
-    runs, T, n = v.shape
-    m = w.shape[2]
-    x = np.empty(n)
-    xn = np.empty(n)
-    z = np.empty(m)
-    zp = np.empty(m)
-    for r in range(runs):
-        for i in range(n):
-            x[i] = x0[i]
-        for k in range(T):
-            s = seg_idx[k]
-            for i in range(m):
-                cx = 0.0
-                for j in range(n):
-                    cx += C[s, i, j] * x[j]
-                if diag[s, 1]:
-                    nz = Lr[s, i, i] * w[r, k, i]
-                else:
-                    nz = 0.0
-                    for j in range(m):
-                        nz += Lr[s, i, j] * w[r, k, j]
-                z[i] = cx + nz
-                if z_out is not None:
-                    z_out[offset + r, i, k] = z[i]
-            if k > 0:
-                for i in range(m):
-                    acc = z[i] - Gu[k - 1, i]
-                    for j in range(m):
-                        acc -= PhiT[j, i] * zp[j]
-                    e_out[offset + r, i, k - 1] = acc
-            for i in range(m):
-                zp[i] = z[i]
-            if k + 1 < T:
-                for i in range(n):
-                    ax = 0.0
-                    for j in range(n):
-                        ax += A[s, i, j] * x[j]
-                    if diag[s, 0]:
-                        nv = Lq[s, i, i] * v[r, k, i]
-                    else:
-                        nv = 0.0
-                        for j in range(n):
-                            nv += Lq[s, i, j] * v[r, k, j]
-                    xn[i] = (ax + Bu[s, k, i]) + nv
-                for i in range(n):
-                    x[i] = xn[i]
-
-
-@_jit.njit
-def _chattering_run3(
-    v: np.ndarray,
-    w: np.ndarray,
-    seg_idx: np.ndarray,
-    A: np.ndarray,
-    C: np.ndarray,
-    Lq: np.ndarray,
-    Lr: np.ndarray,
-    Bu: np.ndarray,
-    x0: np.ndarray,
-    diag: np.ndarray,
-    PhiT: np.ndarray,
-    Gu: np.ndarray,
-    e_out: np.ndarray,
+@_jit.step
+def chattering_sink(
     row: int,
-    z_out: np.ndarray | None = None,
-) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_e2e_kernels.py)
-    """:func:`_chattering_kernel` for one run (``v``, ``w``: ``(T, 3)``) of a 3-state, 3-output model.
+    k: int,
+    x: np.ndarray,
+    z: np.ndarray,
+    zp: np.ndarray,
+    e_out: np.ndarray,
+    z_out: np.ndarray,
+    PhiT: np.ndarray,
+    Gu: np.ndarray,
+    n: int,
+    m: int,
+) -> None:  # pragma: no cover - compiled
+    """The auxiliary SVSF's chattering of each simulated sample: the sink of the fused loop.
 
-    The same operations in the same order, term by term (``((0 + a0 x0) + a1 x1) + a2 x2``,
-    ``(((z - Gu) - Phi_0 zp0) - Phi_1 zp1) - Phi_2 zp2``), hence the same bits, but written
-    out: the state stays in registers and there are no 3-element loops, which made the
-    generic kernel three times slower (EHA: 33 -> 100 M steps/s).
+    ``e_out[row, i, k - 1] = e_i(k|k-1)`` by :func:`~chatterspec.filters._svsf_kernels.closed_form_step`
+    (eq 23) from ``z(k)``, ``zp = z(k-1)`` and ``Gu[k - 1]`` = G u(k-1), for k >= 1; then ``zp = z(k)``.
+    Channel-major output, so that each channel's record is contiguous for the periodogram's FFT.
+    With a non-empty ``z_out`` (``(runs * m, T)``: the ``(runs, m, T)`` channel-major measurements)
+    ``z(k)`` is kept too (fault identification regresses on it).
     """
-    T = v.shape[0]
-    x0_, x1_, x2_ = x0[0], x0[1], x0[2]
-    zp0 = zp1 = zp2 = 0.0
-    for k in range(T):
-        s = seg_idx[k]
-        w0, w1, w2 = w[k, 0], w[k, 1], w[k, 2]
-        if diag[s, 1]:
-            nz0 = Lr[s, 0, 0] * w0
-            nz1 = Lr[s, 1, 1] * w1
-            nz2 = Lr[s, 2, 2] * w2
-        else:
-            nz0 = ((0.0 + Lr[s, 0, 0] * w0) + Lr[s, 0, 1] * w1) + Lr[s, 0, 2] * w2
-            nz1 = ((0.0 + Lr[s, 1, 0] * w0) + Lr[s, 1, 1] * w1) + Lr[s, 1, 2] * w2
-            nz2 = ((0.0 + Lr[s, 2, 0] * w0) + Lr[s, 2, 1] * w1) + Lr[s, 2, 2] * w2
-        z0 = (((0.0 + C[s, 0, 0] * x0_) + C[s, 0, 1] * x1_) + C[s, 0, 2] * x2_) + nz0
-        z1 = (((0.0 + C[s, 1, 0] * x0_) + C[s, 1, 1] * x1_) + C[s, 1, 2] * x2_) + nz1
-        z2 = (((0.0 + C[s, 2, 0] * x0_) + C[s, 2, 1] * x1_) + C[s, 2, 2] * x2_) + nz2
-        if z_out is not None:
-            z_out[row, 0, k] = z0
-            z_out[row, 1, k] = z1
-            z_out[row, 2, k] = z2
-        if k > 0:
-            j = k - 1
-            e_out[row, 0, j] = (((z0 - Gu[j, 0]) - PhiT[0, 0] * zp0) - PhiT[1, 0] * zp1) - PhiT[2, 0] * zp2
-            e_out[row, 1, j] = (((z1 - Gu[j, 1]) - PhiT[0, 1] * zp0) - PhiT[1, 1] * zp1) - PhiT[2, 1] * zp2
-            e_out[row, 2, j] = (((z2 - Gu[j, 2]) - PhiT[0, 2] * zp0) - PhiT[1, 2] * zp1) - PhiT[2, 2] * zp2
-        zp0, zp1, zp2 = z0, z1, z2
-        if k + 1 < T:
-            v0, v1, v2 = v[k, 0], v[k, 1], v[k, 2]
-            if diag[s, 0]:
-                nv0 = Lq[s, 0, 0] * v0
-                nv1 = Lq[s, 1, 1] * v1
-                nv2 = Lq[s, 2, 2] * v2
-            else:
-                nv0 = ((0.0 + Lq[s, 0, 0] * v0) + Lq[s, 0, 1] * v1) + Lq[s, 0, 2] * v2
-                nv1 = ((0.0 + Lq[s, 1, 0] * v0) + Lq[s, 1, 1] * v1) + Lq[s, 1, 2] * v2
-                nv2 = ((0.0 + Lq[s, 2, 0] * v0) + Lq[s, 2, 1] * v1) + Lq[s, 2, 2] * v2
-            n0 = ((((0.0 + A[s, 0, 0] * x0_) + A[s, 0, 1] * x1_) + A[s, 0, 2] * x2_) + Bu[s, k, 0]) + nv0
-            n1 = ((((0.0 + A[s, 1, 0] * x0_) + A[s, 1, 1] * x1_) + A[s, 1, 2] * x2_) + Bu[s, k, 1]) + nv1
-            n2 = ((((0.0 + A[s, 2, 0] * x0_) + A[s, 2, 1] * x1_) + A[s, 2, 2] * x2_) + Bu[s, k, 2]) + nv2
-            x0_, x1_, x2_ = n0, n1, n2
+    if k > 0:
+        for i in range(m):
+            e_out[row, i, k - 1] = closed_form_step(i, z[i], Gu[k - 1, i], PhiT, zp, m)
+    for i in range(m):
+        zp[i] = z[i]
+    if z_out.shape[0] > 0:
+        for i in range(m):
+            z_out[row * m + i, k] = z[i]
 
 
-@_jit.njit
-def _chattering_rng_kernel(
+#: Simulation (eq 1-2) and the auxiliary SVSF's chattering (eq 23) fused, one block of runs:
+#: ``_chattering_kernel(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, e_out, NO_ARRAY, PhiT, Gu,
+#: offset)``. The plant steps of :func:`chatterspec.plants.simulate.simulate` and the closed-form
+#: step of ``SVSF.update``, so the result is bit-identical to filtering the simulation; only x(k),
+#: z(k), z(k-1) of the current run are held (no ``(runs, T, n)`` arrays).
+_chattering_kernel = _jit.specialize(_plant_loop, "chattering", SINK=chattering_sink)
+
+#: The plant loop :func:`_rng_loop` calls for each run (bound per size, see :func:`_rng_kernel`).
+RUN = _chattering_kernel
+
+
+def _rng_loop(
     g0: np.random.Generator,
     g1: np.random.Generator,
     skip: int,
@@ -306,13 +207,14 @@ def _chattering_rng_kernel(
     Bu: np.ndarray,
     x0: np.ndarray,
     diag: np.ndarray,
+    ctrl: np.ndarray,
     PhiT: np.ndarray,
     Gu: np.ndarray,
     e_out: np.ndarray,
     offset: int,
     z_out: np.ndarray | None = None,
 ) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_e2e_kernels.py)
-    """:func:`_chattering_kernel` on runs ``skip .. skip + runs - 1`` of one random block, drawing as it goes.
+    """``RUN`` (the fused loop) on runs ``skip .. skip + runs - 1`` of one random block, drawing as it goes.
 
     ``g0`` and ``g1`` are the block's generators (streams 0 and 1 of
     :func:`chatterspec.rng.block_generator`). ``standard_normal((BLOCK, T, n))`` fills its
@@ -320,7 +222,8 @@ def _chattering_rng_kernel(
     ``(T, n)`` numbers when run r starts (after discarding the ``skip`` runs before it) gives
     the same numbers; numba's ``Generator.standard_normal`` is numpy's ziggurat on the same
     bit generator (tests/test_e2e_kernels.py compares them). Only one run's noise is held (2 x 96
-    kB for the EHA's 4001 x 3, in the core's L2 cache), not ``(BLOCK, T, n)`` arrays.
+    kB for the EHA's 4001 x 3, in the core's L2 cache), not ``(BLOCK, T, n)`` arrays. ``z_out``
+    (``(runs * m, T)``, optional) receives the measurements (see :func:`chattering_sink`).
     """
     T = seg_idx.shape[0]
     n = A.shape[1]
@@ -331,6 +234,7 @@ def _chattering_rng_kernel(
         g1.standard_normal()
     v = np.empty((1, T, n))
     w = np.empty((1, T, m))
+    keep = np.empty((0, 0)) if z_out is None else z_out
     for r in range(runs):
         for k in range(T):
             for i in range(n):
@@ -338,12 +242,21 @@ def _chattering_rng_kernel(
         for k in range(T):
             for i in range(m):
                 w[0, k, i] = g1.standard_normal()
-        if n == 3 and m == 3:  # the EHA family: the written-out form (same bits)
-            _chattering_run3(
-                v[0], w[0], seg_idx, A, C, Lq, Lr, Bu, x0, diag, PhiT, Gu, e_out, offset + r, z_out
-            )
-        else:
-            _chattering_kernel(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, PhiT, Gu, e_out, offset + r, z_out)
+        RUN(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, e_out, keep, PhiT, Gu, offset + r)
+
+
+#: :func:`_rng_loop` for any size (the per-size kernels of :func:`_rng_kernel` give the same bits).
+_chattering_rng_kernel = _jit.specialize(_rng_loop, "any")
+
+
+def _rng_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
+    """The drawing loop whose fused loop has this model's sizes as constants when small (unrolled).
+
+    For the EHA's 3 x 3 this runs the arithmetic at the speed of the loop written out by hand
+    (119 against 39 M steps/s for the loops over 3-element vectors), with the same steps.
+    """
+    run = _jit.specialize_sizes(_plant_loop, "chattering", {"NX": n, "NZ": m}, SINK=chattering_sink)
+    return _jit.specialize_sizes(_rng_loop, "rng", {"NX": n, "NZ": m}, RUN=run)
 
 
 def _fused_chattering(
@@ -370,6 +283,7 @@ def _fused_chattering(
     PhiT = np.ascontiguousarray(f._PhiT, dtype=float)
     times = np.arange(1, T) * model.dt
     chunk = default_chunk_runs(scenario) if chunk_runs is None else positive_int("chunk_runs", chunk_runs)
+    kernel = _rng_kernel(model.n_states, m)
     for lo in range(first_run, first_run + runs, chunk):
         hi = min(lo + chunk, first_run + runs)
         e = np.empty((hi - lo, m, T - 1))  # channel-major storage (contiguous FFT lines)
@@ -377,8 +291,25 @@ def _fused_chattering(
         for b in range(lo // BLOCK, (hi - 1) // BLOCK + 1):  # the random blocks overlapping [lo, hi)
             s0, s1 = max(b * BLOCK, lo), min((b + 1) * BLOCK, hi)
             g0, g1 = block_generator(root, b, 0), block_generator(root, b, 1)
-            args = (tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, PhiT, Gu, e, s0 - lo, z)
-            _chattering_rng_kernel(g0, g1, s0 - b * BLOCK, s1 - s0, *args)
+            args = (
+                tb.seg_idx,
+                tb.A,
+                tb.C,
+                tb.Lq,
+                tb.Lr,
+                tb.Bu,
+                tb.x0,
+                tb.diag,
+                NO_CTRL,
+                PhiT,
+                Gu,
+                e,
+                s0 - lo,
+            )
+            if z is None:
+                kernel(g0, g1, s0 - b * BLOCK, s1 - s0, *args)
+            else:
+                kernel(g0, g1, s0 - b * BLOCK, s1 - s0, *args, z.reshape(-1, T))
         values = e.transpose(0, 2, 1)  # the (runs, N, m) view of the package convention
         yield ChatteringRecord(
             t=times,
@@ -392,10 +323,11 @@ def _fused_chattering(
 
 
 def _can_fuse(scenario: Scenario) -> bool:
-    """The fused kernel covers the closed-form case: compiled kernels on, full measurement, T >= 2."""
+    """The fused kernel covers the closed-form case: compiled kernels, full measurement, T >= 2, open loop."""
     model = scenario.nominal
     return (
         _jit.enabled()
+        and getattr(scenario, "closed_loop", None) is None
         and getattr(scenario, "is_linear", True)
         and model.full_measurement
         and scenario.n_samples >= 2

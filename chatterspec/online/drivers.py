@@ -317,7 +317,7 @@ def record_detection(
     if isinstance(source, Simulation):
         model = source.scenario.nominal
         mon = ChatteringMonitor(model, settings, t0=float(source.t[0]))
-        kw: dict[str, Any] = {"z": source.z[run], "u": source.u}
+        kw: dict[str, Any] = {"z": source.z[run], "u": source.input_of(run)}
     elif isinstance(source, ChatteringRecord):
         mon = ChatteringMonitor(source.model, settings, t0=float(source.t[0]))
         kw = {"chattering": source.values[run]}

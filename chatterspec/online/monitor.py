@@ -46,7 +46,7 @@ from ..filters.nonlinear_svsf import NonlinearSgnSVSF
 from ..filters.svsf import SVSF, SVSFState, _rows_times, auxiliary_svsf
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
-from ._push_kernels import _filters_kernel, _filters_run3, _Verdicts
+from ._push_kernels import _Verdicts, filters_kernel
 
 __all__ = [
     "ChatteringMonitor",
@@ -313,10 +313,8 @@ class ChatteringMonitor:
             self._none3 = np.empty((0, 0, 0))
             e2 = np.empty((0, 0))
             self._no_sat = (e2, e2, e2, np.empty(0), 0.0, e2, e2, e2, self._none3, self._none3, self._none3)
-        # 3 states = 3 outputs (the EHA): the written-out kernel, same bits (_push_kernels._filters_run3)
-        self._run3 = self._fused and model.n_states == 3 and model.n_outputs == 3
-        if self._run3:
-            self._no_sat3 = (e2, np.empty(0), 0.0, e2, e2, e2, self._none3)
+            # the push loop, unrolled for small models (the EHA's 3 states): same steps, same bits
+            self._kernel = filters_kernel(model.n_states, model.n_outputs)
         self._sat_state: SVSFState | None = None
         # C = I (every state measured in its own units, the EHA): the estimate C x is x itself
         C = getattr(model, "C", None)
@@ -437,10 +435,9 @@ class ChatteringMonitor:
         return self._analyse(e, t, measured=z, estimate=estimate)
 
     def _advance_fused(self, z: np.ndarray, u_used: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """Both filters over one push in one compiled call (:func:`._push_kernels._filters_kernel`, or
-        its written-out 3-state form :func:`._push_kernels._filters_run3`).
+        """Both filters over one push in one compiled call (:func:`._push_kernels.filters_kernel`).
 
-        The same kernels and sums as :meth:`SVSF.update` with compiled kernels on (closed form of
+        The same steps and sums as :meth:`SVSF.update` with compiled kernels on (closed form of
         eq 23 for the aux filter, whose a-posteriori error stays exactly 0; the recursion for
         the sat SVSF), without its per-call Python work; returns ``(e, estimate)``.
         """
@@ -449,29 +446,19 @@ class ChatteringMonitor:
         aux = self._aux_state
         e = np.empty((1, K, m))
         sat = self._sat
+        none = self._none3
         if sat is None:
-            if self._run3:
-                _filters_run3(z3, u_used, self._GT, self._aux_PhiT, aux.y, e, False, *self._no_sat3)
-            else:
-                Gu = np.empty((1, K, self.model.n_states))
-                _filters_kernel(z3, u_used, self._GT, self._aux_PhiT, aux.y, e, Gu, False, *self._no_sat)
+            self._kernel(z3, u_used, self._GT, self._aux_PhiT, aux.y, e, none, False, *self._no_sat)
             estimate = None
         else:
             PhiT, L, P, inv_psi, gamma, S_inv = sat._kernel_consts
             st = self._sat_state
             y, ep = st.y.copy(), st.e_post.copy()
             x_out = np.empty((1, K, self.model.n_states))
-            if self._run3:
-                _filters_run3(
-                    z3, u_used, self._GT, self._aux_PhiT, aux.y, e, True,
-                    PhiT, inv_psi, gamma, S_inv, y, ep, x_out,
-                )  # fmt: skip
-            else:
-                Gu = np.empty((1, K, self.model.n_states))
-                _filters_kernel(
-                    z3, u_used, self._GT, self._aux_PhiT, aux.y, e, Gu, True,
-                    PhiT, L, P, inv_psi, gamma, S_inv, y, ep, np.empty((1, K, m)), x_out, self._none3,
-                )  # fmt: skip
+            self._kernel(
+                z3, u_used, self._GT, self._aux_PhiT, aux.y, e, none, True,
+                PhiT, L, P, inv_psi, gamma, S_inv, y, ep, none, x_out, none,
+            )  # fmt: skip
             self._sat_state = SVSFState(y=y, e_post=ep, k=st.k + K)
             estimate = self._output(x_out[0])
         # the closed form's state: y(k|k) = z(k) exactly, e(k|k) = 0 (see SVSF.update, Notes)

@@ -495,6 +495,11 @@ def simulate_blocks(
     (t, z, u)
         Times (K,) in s, measurements (K, m), inputs (K, p).
     """
+    if getattr(scenario, "closed_loop", None) is not None:  # the controller computes u from z
+        from ..plants.simulate_closed_loop import closed_loop_blocks
+
+        yield from closed_loop_blocks(scenario, seed, duration_s, block_s=block_s)
+        return
     dt = scenario.dt
     D = scenario.duration
     duration = D if duration_s is None else float(duration_s)

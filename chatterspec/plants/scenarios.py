@@ -21,6 +21,7 @@ import numpy as np
 
 from .._validate import finite_array, positive, readonly
 from ..errors import ParameterError, UnknownScenarioError
+from .closed_loop import ClosedLoop
 from .eha4 import eha4
 from .filter_settings import FilterSettings
 from .models import EHA_PARAMETERS, LinearModel, eha_linear, second_order
@@ -71,8 +72,11 @@ class Scenario:
     nominal : LinearModel or NonlinearModel
         The model the filters use (A-hat, B-hat, C-hat of eq 3; for a nonlinear plant the
         filter's f and Jacobian).
-    input : Signal
-        Input u(t).
+    input : Signal or ClosedLoop
+        Input u(t), or a :class:`~chatterspec.plants.closed_loop.ClosedLoop` (controller, position
+        reference, dither) that computes u per realization from the measurements; its gains must
+        keep the loop stable on the nominal model and on every true-plant segment (linearized at
+        rest if nonlinear), else :class:`~chatterspec.errors.UnstableLoopError`.
     duration : float
         Record length in seconds; the simulation has ``round(duration/dt) + 1``
         samples at ``t = 0, dt, ..., duration``.
@@ -96,7 +100,7 @@ class Scenario:
 
     name: str
     nominal: LinearModel | NonlinearModel
-    input: Signal
+    input: Signal | ClosedLoop
     duration: float
     plant: LinearModel | NonlinearModel | None = None
     windows: tuple[Segment, ...] = ()
@@ -149,6 +153,20 @@ class Scenario:
         object.__setattr__(self, "_segments", tuple(segs))
         if self.filter_settings is not None:
             self.filter_settings.check_dimensions(self.nominal.n_states, self.nominal.n_outputs)
+        if isinstance(self.input, ClosedLoop):
+            self.input.check(self.nominal, what=f"the nominal model of scenario {self.name!r}")
+            for sg in segs:
+                if sg.model is not self.nominal:
+                    self.input.check(
+                        sg.model,
+                        what=f"the true plant of scenario {self.name!r} on "
+                        f"[{sg.start:g}, {sg.stop:g}) s ({sg.label or sg.model.name})",
+                    )
+
+    @property
+    def closed_loop(self) -> ClosedLoop | None:
+        """The controller closing the loop (the ``input`` of a closed-loop scenario), else None."""
+        return self.input if isinstance(self.input, ClosedLoop) else None
 
     @property
     def dt(self) -> float:
@@ -218,6 +236,7 @@ class Scenario:
             "duration_s": self.duration,
             "dt_s": self.dt,
             "input": self.input.describe(),
+            "closed_loop": None if self.closed_loop is None else self.closed_loop.to_dict(),
             "nominal": _mode_dict(self.nominal),
             "segments": [
                 {
@@ -636,3 +655,13 @@ def _eha4_leak_onset() -> Scenario:
 
 
 _CATALOGUE.update(_eha4_chattering_entries())
+
+
+def _closed_loop_catalogue() -> dict[str, Callable[[], Scenario]]:
+    """The ``eha-cl-*`` / ``eha4-cl-*`` scenarios (:mod:`chatterspec.plants.scenarios_closed_loop`)."""
+    from .scenarios_closed_loop import closed_loop_entries
+
+    return closed_loop_entries()
+
+
+_CATALOGUE.update(_closed_loop_catalogue())

@@ -16,6 +16,7 @@ import numpy as np
 from .. import _jit
 from .._validate import positive_int
 from ..rng import BLOCK, SeedLike, block_generator, root_seed_sequence
+from .linear_steps import advance_step, measure_step
 from .scenarios import Scenario
 
 __all__ = ["Simulation", "covariance_sqrt", "iter_simulations", "simulate"]
@@ -36,8 +37,9 @@ class Simulation:
         True states.
     z : (runs, T, m) array
         Measurements ``z(k) = C x(k) + w(k)``.
-    u : (T, p) array
-        Input (identical for all realizations).
+    u : (T, p) or (runs, T, p) array
+        Input: identical for all realizations (T, p), or per realization (runs, T, p) when a
+        controller computes it (closed-loop scenarios, ``scenario.closed_loop``).
     scenario : Scenario
     first_run : int
         Global index of the first realization held here (non-zero for chunks).
@@ -53,6 +55,16 @@ class Simulation:
     @property
     def runs(self) -> int:
         return self.z.shape[0]
+
+    def take(self, runs: slice) -> Simulation:
+        """The realizations ``runs`` (a slice of this chunk), as copies; a per-realization ``u`` follows."""
+        u = self.u[runs].copy() if self.u.ndim == 3 else self.u
+        first = self.first_run + (runs.indices(self.runs)[0])
+        return Simulation(self.t, self.x[runs].copy(), self.z[runs].copy(), u, self.scenario, first)
+
+    def input_of(self, run: int) -> np.ndarray:
+        """The input ``(T, p)`` of realization ``run`` (index within this chunk)."""
+        return self.u[run] if self.u.ndim == 3 else self.u
 
 
 def covariance_sqrt(M: np.ndarray) -> np.ndarray:
@@ -112,7 +124,7 @@ def simulate(
         t=chunks[0].t,
         x=np.concatenate([c.x for c in chunks]),
         z=np.concatenate([c.z for c in chunks]),
-        u=chunks[0].u,
+        u=np.concatenate([c.u for c in chunks]) if chunks[0].u.ndim == 3 else chunks[0].u,
         scenario=scenario,
     )
 
@@ -149,8 +161,10 @@ def iter_simulations(
     Yields
     ------
     Simulation
-        One chunk with ``x`` (k, T, n), ``z`` (k, T, m), shared ``u`` (T, p) and
-        ``t`` (T,) in seconds, and ``first_run`` set to its first realization index.
+        One chunk with ``x`` (k, T, n), ``z`` (k, T, m), shared ``u`` (T, p) (closed loop: the
+        controller's output per realization, (k, T, 1), see
+        :mod:`chatterspec.plants.simulate_closed_loop`) and ``t`` (T,) in seconds, and
+        ``first_run`` set to its first realization index.
 
     Raises
     ------
@@ -161,6 +175,14 @@ def iter_simulations(
     chunk = default_chunk_runs(scenario) if chunk_runs is None else positive_int("chunk_runs", chunk_runs)
     root = root_seed_sequence(seed)
     t = scenario.time
+    if getattr(scenario, "closed_loop", None) is not None:
+        from .simulate_closed_loop import simulate_block_closed_loop
+
+        for lo in range(first_run, first_run + runs, chunk):
+            hi = min(lo + chunk, first_run + runs)
+            x, z, u = simulate_block_closed_loop(scenario, root, lo, hi, t)
+            yield Simulation(t=t, x=x, z=z, u=u, scenario=scenario, first_run=lo)
+        return
     u = scenario.input.sample(t).reshape(len(t), -1)
     if u.shape[1] != scenario.nominal.n_inputs:
         from ..errors import ShapeError
@@ -231,8 +253,51 @@ def _noise_blocks(
         yield s0 - lo, v, w
 
 
-@_jit.njit
-def _simulate_kernel(
+@_jit.step
+def open_loop_input(
+    row: int, s: int, k: int, z: np.ndarray, Bu: np.ndarray, ctrl: np.ndarray, bu: np.ndarray, n: int
+) -> None:
+    """The input step of an open-loop scenario: ``bu = B_s u(k)`` from the table (``row``, ``ctrl`` unused).
+
+    The simulation loop asks this step for the input's effect at every sample, after the sink and
+    before it advances the plant; a controller step with the same signature (reading ``z(k)``,
+    its gains, reference and per-run state in ``ctrl``, writing u(k) of run ``row`` there) closes
+    the loop without another copy of the loop
+    (:func:`chatterspec.plants.simulate_closed_loop.controller_input`).
+    """
+    for i in range(n):
+        bu[i] = Bu[s, k, i]
+
+
+@_jit.step
+def store_sink(
+    row: int,
+    k: int,
+    x: np.ndarray,
+    z: np.ndarray,
+    zp: np.ndarray,
+    out_a: np.ndarray,
+    out_b: np.ndarray,
+    PhiT: np.ndarray,
+    Gu: np.ndarray,
+    n: int,
+    m: int,
+) -> None:  # pragma: no cover - compiled
+    """The sink of :func:`simulate`: ``x(k)`` into ``out_a[k, row]``, ``z(k)`` into ``out_b[k, row]``."""
+    for i in range(m):
+        out_b[k, row, i] = z[i]
+    for i in range(n):
+        out_a[k, row, i] = x[i]
+
+
+#: Bindings of :func:`_plant_loop` (see :func:`chatterspec._jit.specialize`): sizes (0: from the arrays),
+#: what consumes each sample, and the input step.
+NX = NZ = 0
+SINK = store_sink
+INPUT = open_loop_input
+
+
+def _plant_loop(
     v: np.ndarray,
     w: np.ndarray,
     seg_idx: np.ndarray,
@@ -243,55 +308,58 @@ def _simulate_kernel(
     Bu: np.ndarray,
     x0: np.ndarray,
     diag: np.ndarray,
-    xt: np.ndarray,
-    zt: np.ndarray,
+    ctrl: np.ndarray,
+    out_a: np.ndarray,
+    out_b: np.ndarray,
+    PhiT: np.ndarray,
+    Gu: np.ndarray,
     offset: int,
 ) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_kernels.py)
-    """Eq (1)-(2) for the runs of one random block, written time-major into ``xt``/``zt``.
+    """Eq (1)-(2) for the runs of one random block, each sample handed to ``SINK`` (a template).
 
-    ``x(k+1) = A_s x(k) + B_s u(k) + Lq_s v(k)`` and ``z(k) = C_s x(k) + Lr_s w(k)`` with the
-    segment s active at sample k, ``v``/``w`` raw standard normals ``(runs, T, n|m)``; run r
-    goes to ``xt[:, offset + r]``. Sums run over j = 0, 1, ... in that order (the fused
-    chattering kernel of :mod:`chatterspec.detection.pipeline` repeats this arithmetic);
-    where ``diag[s]`` says Lq_s (Lr_s) is diagonal only the diagonal term is computed,
-    which gives the same bits (the other terms are exact zeros).
+    Per run r and sample k, with the segment s active at k: ``z(k)`` by
+    :func:`~chatterspec.plants.linear_steps.measure_step`, then ``SINK(offset + r, k, x, z, zp,
+    out_a, out_b, PhiT, Gu, n, m)`` (``zp`` is the sink's own per-run memory), then ``INPUT(offset + r,
+    s, k, z, Bu, ctrl, bu, n)`` gives ``B_s u(k)`` (a table lookup, or a controller's output from
+    ``z(k)``) and, before the last sample, :func:`~chatterspec.plants.linear_steps.advance_step`
+    ``x(k+1)``. ``v``, ``w`` are raw standard normals ``(runs, T, n|m)``; tables from
+    :func:`_tables`. Sinks: :func:`store_sink` (:data:`_simulate_kernel`) and the auxiliary
+    SVSF's chattering (:mod:`chatterspec.detection.pipeline`). Every run starts from ``x0``
+    and is independent of the others, so any chunking gives the same bits.
     """
-    runs, T, n = v.shape
-    m = w.shape[2]
-    x = np.empty(n)
-    xn = np.empty(n)
+    b = _jit.borrow
+    v, w, seg_idx, A, C, Lq, Lr, Bu, x0 = b(v), b(w), b(seg_idx), b(A), b(C), b(Lq), b(Lr), b(Bu), b(x0)
+    diag, ctrl, out_a, out_b, PhiT, Gu = b(diag), b(ctrl), b(out_a), b(out_b), b(PhiT), b(Gu)
+    runs, T, _ = v.shape
+    n = NX if NX > 0 else v.shape[2]
+    m = NZ if NZ > 0 else w.shape[2]
+    x = _jit.scratch(n)
+    xn = _jit.scratch(n)
+    bu = _jit.scratch(n)
+    z = _jit.scratch(m)
+    zp = _jit.scratch(m)
     for r in range(runs):
         for i in range(n):
             x[i] = x0[i]
         for k in range(T):
             s = seg_idx[k]
-            for i in range(m):
-                cx = 0.0
-                for j in range(n):
-                    cx += C[s, i, j] * x[j]
-                if diag[s, 1]:
-                    nz = Lr[s, i, i] * w[r, k, i]
-                else:
-                    nz = 0.0
-                    for j in range(m):
-                        nz += Lr[s, i, j] * w[r, k, j]
-                zt[k, offset + r, i] = cx + nz
-            for i in range(n):
-                xt[k, offset + r, i] = x[i]
+            measure_step(s, x, w[r, k], C, Lr, diag, z, n, m)
+            SINK(offset + r, k, x, z, zp, out_a, out_b, PhiT, Gu, n, m)
+            INPUT(offset + r, s, k, z, Bu, ctrl, bu, n)
             if k + 1 < T:
-                for i in range(n):
-                    ax = 0.0
-                    for j in range(n):
-                        ax += A[s, i, j] * x[j]
-                    if diag[s, 0]:
-                        nv = Lq[s, i, i] * v[r, k, i]
-                    else:
-                        nv = 0.0
-                        for j in range(n):
-                            nv += Lq[s, i, j] * v[r, k, j]
-                    xn[i] = (ax + Bu[s, k, i]) + nv
+                advance_step(s, x, bu, v[r, k], A, Lq, diag, xn, n)
                 for i in range(n):
                     x[i] = xn[i]
+
+
+#: The simulation kernel: ``_simulate_kernel(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, xt, zt,
+#: PhiT, Gu, offset)`` writes run r to ``xt[:, offset + r]``, ``zt[:, offset + r]`` (time-major;
+#: ``ctrl``, ``PhiT``, ``Gu`` unused).
+_simulate_kernel = _jit.specialize(_plant_loop, "store")
+
+#: Empty float arrays for the unused arguments of :func:`_plant_loop`.
+NO_ARRAY = np.empty((0, 0))
+NO_CTRL = np.empty(0)
 
 
 def _simulate_block(
@@ -314,8 +382,12 @@ def _simulate_block(
         tb = _tables(scenario, t, u)
         xt = np.empty((T, hi - lo, n))
         zt = np.empty((T, hi - lo, m))
+        kernel = _jit.specialize_sizes(_plant_loop, "store", {"NX": n, "NZ": m})
         for off, v, w in _noise_blocks(root, lo, hi, T, n, m):
-            _simulate_kernel(v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, xt, zt, off)
+            kernel(
+                v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, NO_CTRL, xt, zt, NO_ARRAY,
+                NO_ARRAY, off,
+            )  # fmt: skip
         return np.swapaxes(xt, 0, 1), np.swapaxes(zt, 0, 1)
     if hi - lo == 1:
         # BLAS evaluates a one-row product by another kernel (gemv) whose rounding differs

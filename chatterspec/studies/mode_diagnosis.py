@@ -245,7 +245,7 @@ class ModeTally:
             Realizations kept in ``keep`` (None: all of this chunk).
         """
         fs = self._fs
-        z, u = sim.z[:, 1:], sim.u[:-1]  # type: ignore[attr-defined]
+        z, u = sim.z[:, 1:], sim.u[..., :-1, :]  # type: ignore[attr-defined]  # u per run in closed loop
         if z.shape[1] != self._t.size:
             raise ParameterError(
                 f"every chunk must have the scenario's {self._t.size + 1} samples; got {z.shape[1] + 1}"
