@@ -20,6 +20,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import subprocess
@@ -33,11 +34,13 @@ ROOT = Path(__file__).resolve().parents[1]
 def _run(argv: list[str], pythonpath: str) -> tuple[float, float]:
     env = {**os.environ, "PYTHONPATH": pythonpath}
     t0 = time.perf_counter()
+    # run from the checkout itself: ``python -m`` puts the working directory before PYTHONPATH
     proc = subprocess.Popen(
         [sys.executable, "-m", "chatterspec", *argv],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         env=env,
+        cwd=pythonpath,
     )
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
@@ -112,17 +115,15 @@ def _in_process(args: argparse.Namespace) -> None:
 
     ident.identify_record = timed  # IdentificationStream.tap calls it once per chunk
     argv = ["detect", args.scenario, "--runs", str(args.runs), "--no-progress", "--json"]
-    cli_main([*argv[:3], "64", *argv[4:]])  # warm up (numba cache, imports)
+    with open(os.devnull, "w") as devnull, contextlib.redirect_stdout(devnull):
+        cli_main([*argv[:3], "64", *argv[4:]])  # warm up (numba cache, imports)
     rows = []
     for _ in range(args.repeat):
         for extra in ([], ["--no-identify"]):
             spent[0] = 0.0
             t0 = time.process_time()
-            with open(os.devnull, "w") as devnull:
-                import contextlib
-
-                with contextlib.redirect_stdout(devnull):
-                    cli_main([*argv, *extra])
+            with open(os.devnull, "w") as devnull, contextlib.redirect_stdout(devnull):
+                cli_main([*argv, *extra])
             rows.append((bool(extra), time.process_time() - t0, spent[0]))
     with_id = [(c, s) for no, c, s in rows if not no]
     without = [c for no, c, _ in rows if no]

@@ -127,6 +127,10 @@ def test_same_numbers_whatever_the_chunking_and_the_fused_path_keeps_z() -> None
     recs = list(a.tap(iter_chattering(sc, 70, 4, chunk_runs=70, measurements=True)))
     list(b.tap(iter_chattering(sc, 70, 4, chunk_runs=16, measurements=True)))
     assert np.array_equal(a.result().fit["theta"], b.result().fit["theta"], equal_nan=True)
+    c = IdentificationStream(setup)  # on a worker thread, one reused measurement buffer: same numbers
+    chunks = iter_chattering(sc, 70, 4, chunk_runs=16, measurements=True, reuse_measurements=True)
+    list(c.tap(chunks, background=True))
+    assert np.array_equal(a.result().fit["theta"], c.result().fit["theta"], equal_nan=True)
     sim = simulate(sc, 70, 4)
     assert np.array_equal(recs[0].z, sim.z)  # the measurements the fused kernel writes are the simulation's
     direct = identify(sc.nominal, sim.z, sim.u)

@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
             ident = None
             if setup is not None:
                 ident = _identify.stream(setup, args)
-                chunks = ident.tap(chunks)
+                chunks = ident.tap(chunks, background=True)
             report = detect_chunks(chunks, args.alpha, args.threshold, args.correction, band=band)
             sim = first[0]
             doc = report.to_dict()

@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     chunks = stream_chunks(sc, args.runs, args.seed, first, measurements=setup is not None)
     if setup is not None:  # identification taps the same chunks as they stream past the detector
         ident = _identify.stream(setup, args)
-        chunks = ident.tap(chunks)
+        chunks = ident.tap(chunks, background=True)
     report = detect_chunks(
         with_progress(
             chunks,
@@ -167,8 +167,14 @@ def stream_chunks(
 
     if _can_fuse(sc):
         first.append(simulate(sc, 1, seed))
+        # identification consumes each chunk's z before the next: one buffer serves every chunk
         yield from iter_chattering(
-            sc, runs, seed, chunk_runs=min(runs, DETECT_CHUNK_RUNS), measurements=measurements
+            sc,
+            runs,
+            seed,
+            chunk_runs=min(runs, DETECT_CHUNK_RUNS),
+            measurements=measurements,
+            reuse_measurements=measurements,
         )
         return
     for sim in iter_simulations(sc, runs, seed, chunk_runs=min(runs, DETECT_CHUNK_RUNS)):

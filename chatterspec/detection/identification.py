@@ -366,16 +366,41 @@ class IdentificationStream:
         self._parts: list[Identification] = []
         self._total: IdentificationMoments | None = None
 
-    def tap(self, chunks: Iterable[ChatteringRecord]) -> Iterator[ChatteringRecord]:
-        """Yield ``chunks`` unchanged, identifying each (it must keep its measurements)."""
-        for rec in chunks:
-            part = identify_record(
-                rec, window_s=self.window_s, alpha=self.alpha, confidence=self.confidence, setup=self.setup
-            )
-            self._parts.append(part)
-            tot = part.moments.total()
-            self._total = tot if self._total is None else self._total.add_records(tot)
-            yield rec
+    def tap(
+        self, chunks: Iterable[ChatteringRecord], *, background: bool = False
+    ) -> Iterator[ChatteringRecord]:
+        """Yield ``chunks`` unchanged, identifying each (it must keep its measurements).
+
+        With ``background``, a record is identified on a worker thread while the consumer works on
+        it (numpy releases the GIL in both: the identification uses a core the single-threaded
+        detector leaves idle); the tap waits for it before it asks for the next record, so a
+        reused measurement buffer (``iter_chattering(..., reuse_measurements=True)``) is safe and
+        the results are the same as without.
+        """
+        if not background:
+            for rec in chunks:
+                self._add(self._identify(rec))
+                yield rec
+            return
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="identify") as pool:
+            for rec in chunks:
+                job = pool.submit(self._identify, rec)
+                try:
+                    yield rec
+                finally:
+                    self._add(job.result())
+
+    def _identify(self, rec: ChatteringRecord) -> Identification:
+        return identify_record(
+            rec, window_s=self.window_s, alpha=self.alpha, confidence=self.confidence, setup=self.setup
+        )
+
+    def _add(self, part: Identification) -> None:
+        self._parts.append(part)
+        tot = part.moments.total()
+        self._total = tot if self._total is None else self._total.add_records(tot)
 
     def result(self) -> Identification:
         """Every realization's identification, in order."""

@@ -267,6 +267,7 @@ def _fused_chattering(
     first_run: int,
     gamma: float,
     measurements: bool = False,
+    reuse: bool = False,
 ) -> Iterator[ChatteringRecord]:
     """:func:`iter_chattering` through :func:`_chattering_kernel` (same numbers, no x arrays; z only
     with ``measurements``)."""
@@ -284,10 +285,16 @@ def _fused_chattering(
     times = np.arange(1, T) * model.dt
     chunk = default_chunk_runs(scenario) if chunk_runs is None else positive_int("chunk_runs", chunk_runs)
     kernel = _rng_kernel(model.n_states, m)
+    z_buf = None
     for lo in range(first_run, first_run + runs, chunk):
         hi = min(lo + chunk, first_run + runs)
         e = np.empty((hi - lo, m, T - 1))  # channel-major storage (contiguous FFT lines)
-        z = np.empty((hi - lo, m, T)) if measurements else None
+        if not measurements:
+            z = None
+        elif not reuse or z_buf is None or z_buf.shape[0] < hi - lo:
+            z = z_buf = np.empty((hi - lo, m, T))
+        else:  # the previous record's buffer: no fresh pages to fault in per chunk
+            z = z_buf[: hi - lo]
         for b in range(lo // BLOCK, (hi - 1) // BLOCK + 1):  # the random blocks overlapping [lo, hi)
             s0, s1 = max(b * BLOCK, lo), min((b + 1) * BLOCK, hi)
             g0, g1 = block_generator(root, b, 0), block_generator(root, b, 1)
@@ -344,6 +351,7 @@ def iter_chattering(
     first_run: int = 0,
     gamma: float = 0.1,
     measurements: bool = False,
+    reuse_measurements: bool = False,
 ) -> Iterator[ChatteringRecord]:
     """Simulate and filter ``runs`` realizations chunk by chunk (constant memory).
 
@@ -370,6 +378,11 @@ def iter_chattering(
         Keep the measurements and inputs in the records (``record.z``, ``record.u``), for
         fault identification; the fused compiled path then also writes z (8 bytes per
         sample and channel). The simulated path always keeps them.
+    reuse_measurements : bool
+        With ``measurements`` on the fused path: every record's ``z`` is a view of one buffer,
+        overwritten by the next record (for a consumer that is done with a record before it asks
+        for the next, like :class:`~chatterspec.detection.identification.IdentificationStream`:
+        no fresh memory to fault in per chunk).
 
     Yields
     ------
@@ -378,7 +391,9 @@ def iter_chattering(
     """
     if _can_fuse(scenario):
         runs = positive_int("runs", runs)
-        yield from _fused_chattering(scenario, runs, seed, chunk_runs, first_run, gamma, measurements)
+        yield from _fused_chattering(
+            scenario, runs, seed, chunk_runs, first_run, gamma, measurements, reuse_measurements
+        )
         return
     for sim in iter_simulations(scenario, runs, seed, chunk_runs=chunk_runs, first_run=first_run):
         yield _from_simulation(sim, gamma)
