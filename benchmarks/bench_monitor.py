@@ -280,7 +280,7 @@ def main() -> None:
                 f"{setup * 1e3:10.1f}{mb}{T / t_push:9.0f}{log_x}"
             )
         if _jit.enabled() and not args.no_baseline:
-            # the same-process baseline of the issue: every case with a file on the numpy path
+            # the same-process baseline: every case with a file on the numpy path
             # (CHATTERSPEC_JIT=0 switches the kernels at run time); one run each, they are 25-50x slower
             for label, settings, data, record in cases:
                 if not record:

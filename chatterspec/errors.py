@@ -12,6 +12,7 @@ __all__ = [
     "CalibrationMismatchError",
     "ChatterspecError",
     "DataFileError",
+    "DivergenceError",
     "IdentifiabilityError",
     "ModelFileError",
     "ModelKindError",
@@ -35,6 +36,11 @@ class ShapeError(ChatterspecError):
 
 class NonFiniteError(ChatterspecError):
     """An array holds NaN or infinite values where finite numbers are required."""
+
+
+class DivergenceError(NonFiniteError):
+    """A filter's estimate stopped being finite (diverging model, or f(x, u) returned NaN/inf); the
+    message names the first non-finite sample and realization."""
 
 
 class SingularMatrixError(ChatterspecError):

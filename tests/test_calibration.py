@@ -429,7 +429,7 @@ def test_roc_tick_labels_do_not_overlap():
 
 @pytest.mark.slow
 def test_far_eha_healthy_verdict_rate_over_seeds():
-    """The issue's case, `far eha-healthy --alpha 0.01`, over 20 seeds of 500 runs (~1 min).
+    """The reported case, `far eha-healthy --alpha 0.01`, over 20 seeds of 500 runs (~1 min).
 
     At confidence 0.9 a valid interval calls the exact per-bin detector
     "above" (or "below") with probability <= 5 % each; allowed: the 99.9 %

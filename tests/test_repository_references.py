@@ -26,7 +26,10 @@ FORBIDDEN: tuple[tuple[str, re.Pattern[str]], ...] = (
         "a section of an outside note",
         re.compile(r"\bnote (?:§|sections? \d)|\bthe note's\b|\bclosing note\b|\s\(note\)", re.IGNORECASE),
     ),
-    ("a tracker issue", re.compile(r"\bissues?[- ]#?\d+", re.IGNORECASE)),
+    (
+        "a tracker issue",
+        re.compile(r"\bissues?[- ]#?\d+|\bthe issue(?:'s)?\b|\bissue targets?\b", re.IGNORECASE),
+    ),
     ("an item of a tracker issue", re.compile(r"\bitems? \d+(?:-\d+)?\b(?! (?:above|below))", re.IGNORECASE)),
     (
         "a development round or branch",
@@ -88,6 +91,8 @@ def find_outside_references(text: str) -> list[tuple[int, str, str]]:
         "(issue 9 item 5)",
         "Issue 11: a single record",
         "The issue-10 baselines",
+        "checks the issue's criterion",
+        "# issue target: argmax",
         "# --- item 7 ---",
         "after the third round",
         "branch pushfast",

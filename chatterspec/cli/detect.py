@@ -12,8 +12,18 @@ if TYPE_CHECKING:
     from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
 
+from ..errors import ParameterError
 from . import _identify
-from ._common import Outputs, add_detector_args, add_live_args, band_from_args, check_record_path, print_json
+from ._common import (
+    Outputs,
+    add_detector_args,
+    add_execution_args,
+    add_live_args,
+    band_from_args,
+    check_record_path,
+    load_scenario,
+    print_json,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,7 +33,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Simulate NAME, run the auxiliary SVSF, compare the chattering periodogram with "
         "chi-squared thresholds and, for multi-segment scenarios, localize the fault with the STFT.",
     )
-    p.add_argument("name", metavar="NAME", help="scenario name (see 'chatterspec scenarios')")
+    p.add_argument(
+        "name",
+        metavar="NAME",
+        help="scenario name (see 'chatterspec scenarios'), or a model file MODEL.toml: its healthy plant "
+        "under its [simulation] table (a nonlinear model needs --calibration)",
+    )
     add_detector_args(p)
     add_live_args(p)
     p.add_argument(
@@ -32,53 +47,103 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="use the empirical family-wise threshold of a calibration file written by "
         "'chatterspec calibrate --out FILE' (refused if it was made for another model or length)",
     )
+    add_execution_args(p)
     _identify.add_identification_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    p.set_defaults(func=run)
+    # None = not given (the defaults of add_detector_args are filled in by run): a calibration fixes
+    # the threshold, so an explicit --alpha / --threshold / --correction next to it is refused
+    p.set_defaults(func=run, alpha=None, threshold=None, correction=None)
+
+
+#: Defaults of the detector options when no calibration file is given.
+DETECTOR_DEFAULTS = {"alpha": 1e-3, "threshold": "exact", "correction": "bonferroni"}
+
+
+def refuse_with_calibration(args: argparse.Namespace, names: tuple[str, ...]) -> None:
+    """Refuse options that a ``--calibration`` file would override (they were silently ignored)."""
+    given = [f"--{n.replace('_', '-')}" for n in names if getattr(args, n, None) is not None]
+    if getattr(args, "calibration", None) is not None and given:
+        raise ParameterError(
+            f"{' and '.join(given)} cannot be used with --calibration: the calibration file fixes the "
+            "threshold and its alpha (drop the option, or drop --calibration)"
+        )
 
 
 def run(args: argparse.Namespace) -> int:
     check_record_path(args.record)  # before the (slow) imports: a bad path fails at once
-    from ..detection.detect import detect_chunks
-    from ..plants.scenarios import scenario
-
+    refuse_with_calibration(args, tuple(DETECTOR_DEFAULTS))
+    for key, value in DETECTOR_DEFAULTS.items():
+        if getattr(args, key) is None:
+            setattr(args, key, value)
+    sc = load_scenario(args.name)  # an unknown name fails here, before the heavy imports
     band = band_from_args(args)
-    sc = scenario(args.name)
+    from ..detection.detect import detect_chunks
+
     threshold = args.threshold
     extra: dict = {}
     if args.calibration:
         from ..studies.calibration import load_calibration
+        from ..studies.calibration_support import require_support
 
         n_samples = round(sc.duration / sc.nominal.dt)  # chattering samples of one record
         cal = load_calibration(args.calibration, sc.nominal, n_samples)
+        require_support(cal, "detect", args.calibration)  # enough runs for its alpha, or refused
         threshold = cal.threshold("family-wise")
         if not sc.is_linear:  # nonlinear: STFT intervals from the calibrated per-frame threshold
             extra["frame_threshold"] = cal.threshold("frame-family-wise")
     first: list = []
+    progress = False if args.no_progress or args.runs < PROGRESS_MIN_RUNS else None
     setup, why_not = _identify.setup_or_reason(sc.nominal, args)
-    chunks = stream_chunks(sc, args.runs, args.seed, first, measurements=setup is not None)
-    if setup is not None:  # identification taps the same chunks as they stream past the detector
-        ident = _identify.stream(setup, args)
-        chunks = ident.tap(chunks, background=True)
-    report = detect_chunks(
-        with_progress(
-            chunks,
+    ident = None
+    parallel = args.workers > 1 or args.scheduler is not None
+    if parallel:  # the same numbers from worker processes / Dask
+        from ..detection.detect_parallel import detect_parallel
+
+        report = detect_parallel(
+            sc,
             args.runs,
-            f"detect {sc.name}",
-            enabled=False if args.no_progress or args.runs < PROGRESS_MIN_RUNS else None,
-        ),
-        args.alpha,
-        threshold,
-        args.correction,
-        band=band,
-        **extra,
-    )
-    sim = first[0]  # run 0, simulated once: detection and recording
+            args.seed,
+            args.alpha,
+            threshold,
+            args.correction,
+            band=band,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            progress=progress,
+            **extra,
+        )
+        if args.record or args.live or setup is not None:
+            from ..plants.simulate import simulate
+
+            first.append(simulate(sc, 1, args.seed))
+    else:
+        chunks = stream_chunks(sc, args.runs, args.seed, first, measurements=setup is not None)
+        if setup is not None:  # identification taps the same chunks as they stream past the detector
+            ident = _identify.stream(setup, args)
+            chunks = ident.tap(chunks, background=True)
+        report = detect_chunks(
+            with_progress(chunks, args.runs, f"detect {sc.name}", progress),
+            args.alpha,
+            threshold,
+            args.correction,
+            band=band,
+            **extra,
+        )
+    sim = first[0] if first else None  # run 0, simulated once: detection and recording
     doc = report.to_dict()
     doc["seed"] = args.seed
     doc["fault_intervals_true"] = [list(iv) for iv in sc.fault_intervals]
-    add_identification(doc, report, setup, why_not, ident if setup is not None else None, sim, sc, args)
+    if parallel and setup is not None:  # identification does not run in the worker processes: run 0
+        from ..detection.identification import IdentificationStream
+        from ..detection.pipeline import chattering_record
+
+        ident = IdentificationStream(setup, alpha=args.alpha, confidence=args.confidence)
+        list(ident.tap([chattering_record(sc.nominal, sim.z, sim.u, scenario=sc)]))
+        add_identification(doc, report, setup, why_not, ident, sim, sc, args, runs=1)
+        doc["identification"]["scope"] = "run 0 (identification does not run in --workers / --scheduler)"
+    else:
+        add_identification(doc, report, setup, why_not, ident, sim, sc, args)
     if args.record or args.live:
         from ..online.drivers import record_detection
         from ..online.monitor import MonitorSettings
@@ -126,27 +191,22 @@ def add_identification(
     setup: object,
     why_not: str | None,
     ident: object,
-    sim: Simulation,
+    sim: Simulation | None,
     sc: Scenario,
     args: argparse.Namespace,
+    runs: int | None = None,
 ) -> None:
     """``doc["identification"]`` (whole record) and ``doc["identification_intervals"]`` (run 0's
     STFT intervals)."""
     if setup is None:
         doc["identification"] = {"reason": why_not}
         return
-    doc["identification"] = _identify.record_doc(ident, args.runs, setup, sc)
+    doc["identification"] = _identify.record_doc(ident, args.runs if runs is None else runs, setup, sc)
     frames = getattr(report, "frames", None)
-    if frames is not None and frames.intervals.get("any"):
+    if sim is not None and frames is not None and frames.intervals.get("any"):
+        hop = frames.spectrogram.config.hop_s
         doc["identification_intervals"] = _identify.interval_docs(
-            setup,
-            sim.z[:1],
-            sim.u,
-            frames.intervals["any"],
-            sc.duration,
-            frames.spectrogram.config.hop_s,
-            args,
-            sc,
+            setup, sim.z[:1], sim.u, frames.intervals["any"], sc.duration, hop, args, sc
         )
 
 
@@ -159,7 +219,7 @@ def stream_chunks(
     fused simulation + auxiliary-SVSF kernel applies (``iter_chattering``'s fast path, the same
     numbers), run 0 is simulated once more on its own for the recording (realization r's
     numbers do not depend on the chunking). With ``measurements`` the records keep z and u
-    (fault identification).
+    (fault identification; on the fused path in one reused buffer).
     """
     from ..detection.detect import DETECT_CHUNK_RUNS
     from ..detection.pipeline import _can_fuse, chattering_record, iter_chattering

@@ -35,12 +35,12 @@ from typing import Literal
 
 import numpy as np
 import scipy.fft
-import scipy.signal
 
 from .._validate import finite_array, positive, positive_int, readonly
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
+from ._windows import NATIVE_WINDOWS, get_window
 
 __all__ = [
     "DEFAULT_STFT",
@@ -290,10 +290,13 @@ class STFTConfig:
                 f"hop_s ({self.hop_s} s) must not exceed window_s ({self.window_s} s): "
                 "frames would skip samples"
             )
-        try:
-            scipy.signal.get_window(self.window, 8)
-        except (ValueError, TypeError) as exc:
-            raise ParameterError(f"unknown window {self.window!r} for scipy.signal.get_window") from exc
+        if self.window not in NATIVE_WINDOWS:  # hamming / hann need no scipy.signal (0.3-0.6 s to import)
+            import scipy.signal
+
+            try:
+                scipy.signal.get_window(self.window, 8)
+            except (ValueError, TypeError) as exc:
+                raise ParameterError(f"unknown window {self.window!r} for scipy.signal.get_window") from exc
 
     def n_window(self, dt: float) -> int:
         """Window length W in samples, ``round(window_s / dt)`` (at least 2)."""
@@ -326,12 +329,14 @@ DEFAULT_STFT = STFTConfig()
 
 @lru_cache(maxsize=32)
 def _taper(window: str, n: int) -> np.ndarray:
-    return readonly(np.asarray(scipy.signal.get_window(window, n), dtype=float))
+    return readonly(get_window(window, n))
 
 
 @lru_cache(maxsize=32)
 def _stft_engine(window: str, n_window: int, n_hop: int, dt: float) -> scipy.signal.ShortTimeFFT:
     # cached: the online monitor calls frame_columns once per push (never mutate the result)
+    import scipy.signal
+
     # scale_to=None keeps the raw sum_k w_k x_k e^{-i w k}; we divide |.|^2 by sum w_k^2 ourselves.
     return scipy.signal.ShortTimeFFT(
         _taper(window, n_window), n_hop, fs=1.0 / dt, fft_mode="onesided", mfft=n_window, phase_shift=None

@@ -35,7 +35,7 @@ printed as "Major friction", a1 = 1.162e6, a2 = -7440, a3 = 500).
 
 from __future__ import annotations
 
-from functools import partial
+from functools import lru_cache, partial
 from typing import Literal, NamedTuple
 
 import numpy as np
@@ -52,6 +52,9 @@ __all__ = [
     "eha4",
     "eha4_jacobian",
     "eha4_mode_parameters",
+    "eha4_step",
+    "eha4_step_input",
+    "eha4_step_jacobian",
     "eha4_transition",
 ]
 
@@ -342,6 +345,70 @@ def _input_jacobian(x: np.ndarray, u: np.ndarray, c: EHA4Coefficients) -> np.nda
     B = np.zeros((4, 1))
     B[2, 0] = c.cu * c.Dp  # T A_E be D_p / (M V0)
     return B
+
+
+@lru_cache(maxsize=64)
+def _cached_coefficients(dt: float, items: tuple[tuple[str, float], ...]) -> EHA4Coefficients:
+    return _coefficients(dt, eha4_mode_parameters("normal", **dict(items)))
+
+
+def eha4_step(x: np.ndarray, u: np.ndarray, *, dt: float, **parameters: float) -> np.ndarray:
+    """:func:`eha4_transition` with the physical parameters as keywords (for model files).
+
+    A model file names it as ``f = "chatterspec.plants.eha4:eha4_step"`` with the ten parameters of
+    :data:`EHA4_PARAMETERS` in ``[dynamics.parameters]`` (SI units) and receives the file's ``dt`` (s);
+    the step coefficients are those of :func:`eha4`, so the numbers are the catalogue model's.
+
+    Parameters
+    ----------
+    x : (..., 4) array
+        States (SI units).
+    u : (..., 1) or (1,) array
+        Pump speed in rad/s.
+    dt : float
+        Sampling time T in seconds.
+    **parameters : float
+        Keys of :data:`EHA4_PARAMETERS` (missing ones take the normal mode's value).
+
+    See Also
+    --------
+    eha4_transition : the same step from precomputed coefficients.
+    """
+    return eha4_transition(x, u, _cached_coefficients(float(dt), tuple(sorted(parameters.items()))))
+
+
+def eha4_step_jacobian(x: np.ndarray, u: np.ndarray, *, dt: float, **parameters: float) -> np.ndarray:
+    """:func:`eha4_jacobian` with the physical parameters as keywords (see :func:`eha4_step`).
+
+    Parameters
+    ----------
+    x : (..., 4) array
+        States (SI units).
+    u : (..., 1) or (1,) array
+        Pump speed in rad/s (the Jacobian does not depend on it).
+    dt : float
+        Sampling time T in seconds.
+    **parameters : float
+        Keys of :data:`EHA4_PARAMETERS`.
+    """
+    return eha4_jacobian(x, u, _cached_coefficients(float(dt), tuple(sorted(parameters.items()))))
+
+
+def eha4_step_input(x: np.ndarray, u: np.ndarray, *, dt: float, **parameters: float) -> np.ndarray:
+    """``d f / d u`` (4, 1) with the physical parameters as keywords (see :func:`eha4_step`).
+
+    Parameters
+    ----------
+    x : (4,) array
+        State (SI units; the input enters affinely, so it does not matter).
+    u : (1,) array
+        Pump speed in rad/s.
+    dt : float
+        Sampling time T in seconds.
+    **parameters : float
+        Keys of :data:`EHA4_PARAMETERS`.
+    """
+    return _input_jacobian(x, u, _cached_coefficients(float(dt), tuple(sorted(parameters.items()))))
 
 
 def eha4(

@@ -20,7 +20,6 @@ from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
-import scipy.linalg
 
 from .._validate import finite_array, nonnegative, positive, readonly
 from ..errors import ParameterError, ShapeError, SingularMatrixError, UnstableModelWarning
@@ -96,6 +95,10 @@ def oscillatory_mode(block: np.ndarray) -> OscillatoryMode:
 
 
 def _check_covariance(name: str, M: np.ndarray) -> None:
+    d = np.diag(M)
+    if np.any(d < 0):  # a variance: never negative (the relative eigenvalue tolerance would let it pass)
+        i = int(np.flatnonzero(d < 0)[0])
+        raise ParameterError(f"{name} must be positive semi-definite: diagonal entry {i} is {d[i]:g} < 0")
     if not np.allclose(M, M.T, rtol=1e-10, atol=0.0):
         raise ParameterError(f"{name} must be symmetric")
     eig = np.linalg.eigvalsh(M)
@@ -408,6 +411,8 @@ def discretize(
         big = np.zeros((n + p, n + p))
         big[:n, :n] = Ac
         big[:n, n:] = Bc
+        import scipy.linalg  # on demand: listing the catalogue must not wait for scipy
+
         e = scipy.linalg.expm(big * dt)
         return e[:n, :n], e[:n, n:]
     raise ParameterError(f"discretization must be 'euler' or 'zoh'; got {method!r}")

@@ -467,8 +467,9 @@ def _eha4_leak_timeline() -> Scenario:
         # for the IMM route of `chatterspec diagnose` on the same plant (the SMM paper has no IMM):
         # stay 0.999 per 1 ms step, i.e. a mean dwell of 1 s in each mode, leave uniformly
         transition_matrix=np.full((3, 3), 0.0005) + np.eye(3) * (0.999 - 0.0005),
-        source="SMM paper section 5: Q = 1e-9 I4, R = 1e-6 I4, P0 = 10 Q, x0 = 0; gamma, psi and the "
-        "weight floor are chatterspec's choices (docs/design.md S6), not printed; the transition matrix "
+        source="SMM paper section 5: Q = 1e-9 I4, R = 1e-6 I4, P0 = 10 Q, x0 = 0, uniform mu0 (section 3), "
+        "modes of Table 3; gamma = 0.1 from the IMM paper; psi and the weight floor are chatterspec's "
+        "choices (docs/design.md S6), not printed; the transition matrix "
         "(0.999 on the diagonal per 1 ms step) is chatterspec's, for the IMM route of `diagnose`",
     )
     return Scenario(

@@ -11,7 +11,6 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
-import scipy.signal
 
 from .._validate import finite_array, nonnegative, positive
 
@@ -125,6 +124,8 @@ class Chirp:
         return cls(f_start_hz, f_stop_hz, sweep_time, amplitude, phase_deg=-90.0)
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        import scipy.signal  # on demand: listing the catalogue must not wait for scipy.signal
+
         t = _times(t)
         return self.amplitude * scipy.signal.chirp(
             t, f0=self.f_start_hz, t1=self.sweep_time, f1=self.f_stop_hz, method="linear", phi=self.phase_deg
@@ -174,6 +175,8 @@ class SquareWave:
             raise ParameterError(f"duty must lie in (0, 1); got {self.duty!r}")
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        import scipy.signal
+
         t = _times(t)
         return self.offset + self.amplitude * scipy.signal.square(
             2 * np.pi * self.frequency_hz * t, duty=self.duty

@@ -373,8 +373,9 @@ def closed_loop_blocks(
     """One realization of a closed-loop scenario block by block in time (bounded memory).
 
     The closed-loop counterpart of :func:`chatterspec.online.stream.simulate_blocks`: plant and
-    controller state run on from block to block, the noise of block ``b`` comes from
-    ``SeedSequence(seed, spawn_key=(b,))``, and beyond the scenario's duration ``D`` the reference,
+    controller state run on from block to block, the noise comes from one generator
+    (``SeedSequence(seed)``, ``n + m`` normals per sample in time order, so the rows for a seed do not
+    depend on ``block_s``), and beyond the scenario's duration ``D`` the reference,
     the dither and the true-plant timeline repeat (evaluated at ``t mod D``).
 
     Parameters
@@ -406,14 +407,15 @@ def closed_loop_blocks(
     n, m = nom.n_states, nom.n_outputs
     state = _initial_state(scenario.x0, 1)  # type: ignore[attr-defined]
     tables = _linear_tables(scenario) if getattr(scenario, "is_linear", True) else None
-    for b, lo in enumerate(range(0, total, K)):
+    # one generator drawn sample by sample: the rows of a seed do not depend on block_s (the --rate pacing)
+    rng = np.random.default_rng(np.random.SeedSequence(int(seed)))  # type: ignore[arg-type]
+    for lo in range(0, total, K):
         hi = min(lo + K, total)
         k = np.arange(lo, hi)
         tp = (k % period) * dt
         ref, dith = loop.signals(tp)
-        rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(b,)))  # type: ignore[arg-type]
-        v = rng.standard_normal((1, hi - lo, n))
-        w = rng.standard_normal((1, hi - lo, m))
+        noise = rng.standard_normal((hi - lo, n + m))  # per sample: n process, m measurement normals
+        v, w = noise[None, :, :n], noise[None, :, n:]
         seg = scenario.segment_index(tp)  # type: ignore[attr-defined]
         if tables is not None:
             _, z, u, state = _step_linear(scenario, v, w, seg, ref, dith, state, tables)
