@@ -100,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
     if parallel:  # the same numbers from worker processes / Dask
         from ..detection.detect_parallel import detect_parallel
 
+        ident = None if setup is None else _identify.stream(setup, args)
         report = detect_parallel(
             sc,
             args.runs,
@@ -111,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
             workers=args.workers,
             scheduler=args.scheduler,
             progress=progress,
+            identification=ident,
             **extra,
         )
         if args.record or args.live or setup is not None:
@@ -134,16 +136,7 @@ def run(args: argparse.Namespace) -> int:
     doc = report.to_dict()
     doc["seed"] = args.seed
     doc["fault_intervals_true"] = [list(iv) for iv in sc.fault_intervals]
-    if parallel and setup is not None:  # identification does not run in the worker processes: run 0
-        from ..detection.identification import IdentificationStream
-        from ..detection.pipeline import chattering_record
-
-        ident = IdentificationStream(setup, alpha=args.alpha, confidence=args.confidence)
-        list(ident.tap([chattering_record(sc.nominal, sim.z, sim.u, scenario=sc)]))
-        add_identification(doc, report, setup, why_not, ident, sim, sc, args, runs=1)
-        doc["identification"]["scope"] = "run 0 (identification does not run in --workers / --scheduler)"
-    else:
-        add_identification(doc, report, setup, why_not, ident, sim, sc, args)
+    add_identification(doc, report, setup, why_not, ident, sim, sc, args)
     if args.record or args.live:
         from ..online.drivers import record_detection
         from ..online.monitor import MonitorSettings
@@ -194,14 +187,13 @@ def add_identification(
     sim: Simulation | None,
     sc: Scenario,
     args: argparse.Namespace,
-    runs: int | None = None,
 ) -> None:
     """``doc["identification"]`` (whole record) and ``doc["identification_intervals"]`` (run 0's
     STFT intervals)."""
     if setup is None:
         doc["identification"] = {"reason": why_not}
         return
-    doc["identification"] = _identify.record_doc(ident, args.runs if runs is None else runs, setup, sc)
+    doc["identification"] = _identify.record_doc(ident, args.runs, setup, sc)
     frames = getattr(report, "frames", None)
     if sim is not None and frames is not None and frames.intervals.get("any"):
         hop = frames.spectrogram.config.hop_s

@@ -198,9 +198,7 @@ def run(args: argparse.Namespace) -> int:
     setup, why_not = _identify.setup_or_reason(sc.nominal, args)
     ident = None
     parallel = args.workers > 1 or args.scheduler is not None
-    if setup is not None and parallel:
-        setup, why_not = None, "not run with --workers / --scheduler (it runs in this process only)"
-    if setup is not None:
+    if setup is not None and not parallel:
         from ..studies.identification_diagnosis import IdentificationTally
 
         ident = IdentificationTally(sc, setup, alpha=args.alpha, confidence=args.confidence)
@@ -219,7 +217,10 @@ def run(args: argparse.Namespace) -> int:
             chunk_runs=chunk,
             progress=False if args.no_progress else None,
             keep=args.record is not None,
+            identification=None if setup is None else (setup, args.alpha, args.confidence),
         )
+        if setup is not None:
+            ident = tallies.pop()  # the identification tally comes last
         if args.record is not None:
             first = simulate(sc, 1, args.seed)
     else:

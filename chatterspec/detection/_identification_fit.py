@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+import scipy.special
 
 from ..errors import IdentifiabilityError, ParameterError
 from ..plants.models import LinearModel
@@ -279,6 +279,11 @@ def build_setup(
 
 
 # --------------------------------------------------------------------------- the estimation
+def _chi2_sf(x: np.ndarray, dof: np.ndarray) -> np.ndarray:
+    """``scipy.stats.chi2.sf(x, dof)`` without importing :mod:`scipy.stats` (slow at start-up)."""
+    return scipy.special.chdtrc(dof, x)
+
+
 def _masked_inverse(A: np.ndarray, active: np.ndarray, eye: np.ndarray) -> np.ndarray:
     """Inverse of ``A`` with the inactive rows and columns replaced by the identity; a realization
     whose active block is exactly singular gets NaN (it fails the condition check)."""
@@ -374,7 +379,7 @@ def fit_moments(
     dn = np.where(active, d / T, 0.0)
     wd = np.einsum("rab,rb->ra", W, dn)
     stat0 = (wd**2).sum(axis=1)
-    p0 = np.where(n_dirs > 0, stats.chi2.sf(stat0, np.maximum(n_dirs, 1)), 1.0)
+    p0 = np.where(n_dirs > 0, _chi2_sf(stat0, np.maximum(n_dirs, 1)), 1.0)
     # --- each hypothesis: minimum-distance fit of its parameters to the entries
     P = max(len(h.parameters) for h in setup.hypotheses)
     theta = np.full((runs, H, P), np.nan)
@@ -392,7 +397,7 @@ def fit_moments(
         touched = np.any(setup.slopes[h] != 0, axis=1)  # the entries the hypothesis moves
         collinear = np.any((entry_reason == 2) & touched, axis=1)
         reason[:, h] = np.where((why == 1) & collinear, 3, why)
-    p = np.where(dof > 0, stats.chi2.sf(stat, np.maximum(dof, 1)), np.where(np.isfinite(stat), 1.0, np.nan))
+    p = np.where(dof > 0, _chi2_sf(stat, np.maximum(dof, 1)), np.where(np.isfinite(stat), 1.0, np.nan))
     selected = _select(setup, p0, p, alpha)
     return {
         "entries": np.where(active, d, np.nan),

@@ -379,7 +379,7 @@ class IdentificationStream:
         """
         if not background:
             for rec in chunks:
-                self._add(self._identify(rec))
+                self.add(self._identify(rec))
                 yield rec
             return
         from concurrent.futures import ThreadPoolExecutor
@@ -390,14 +390,15 @@ class IdentificationStream:
                 try:
                     yield rec
                 finally:
-                    self._add(job.result())
+                    self.add(job.result())
 
     def _identify(self, rec: ChatteringRecord) -> Identification:
         return identify_record(
             rec, window_s=self.window_s, alpha=self.alpha, confidence=self.confidence, setup=self.setup
         )
 
-    def _add(self, part: Identification) -> None:
+    def add(self, part: Identification) -> None:
+        """Add one chunk's identification (chunks in order), e.g. computed on a worker process."""
         self._parts.append(part)
         tot = part.moments.total()
         self._total = tot if self._total is None else self._total.add_records(tot)

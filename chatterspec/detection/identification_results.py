@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+import scipy.special
 
 from ..errors import ParameterError
 from ..plants.parameters import NO_FAULT, UNEXPLAINED
@@ -325,14 +325,14 @@ class Identification:
     def interval(self, hypothesis: str, parameter: str | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``(low, high)`` arrays of the Wald interval at ``confidence``."""
         h, i = self._index(hypothesis, parameter)
-        zq = stats.norm.ppf(0.5 + self.confidence / 2)
+        zq = scipy.special.ndtri(0.5 + self.confidence / 2)  # normal quantile
         th, se = self.fit["theta"][:, h, i], self.fit["se"][:, h, i]
         return th - zq * se, th + zq * se
 
     def report(self, run: int = 0, *, selection_rate: dict[str, float] | None = None) -> IdentificationReport:
         """The :class:`IdentificationReport` of realization ``run``."""
         f, s = self.fit, self.setup
-        zq = stats.norm.ppf(0.5 + self.confidence / 2)
+        zq = scipy.special.ndtri(0.5 + self.confidence / 2)  # normal quantile
         pm = s.parameter_map
         estimates, tests = [], []
         tests.append(

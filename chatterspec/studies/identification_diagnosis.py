@@ -130,6 +130,12 @@ class IdentificationTally:
 
     def add(self, sim: Simulation) -> None:
         """Identify every run of a simulation chunk in every segment window."""
+        self.absorb(sim.t, self.compute(sim))
+
+    def compute(self, sim: Simulation) -> list[tuple[list[str], np.ndarray | None, np.ndarray | None]]:
+        """The heavy part of :meth:`add` (on a worker with ``diagnose --workers``): per window the
+        selected names, the true hypothesis's estimates and whether its intervals cover the truth."""
+        out = []
         for w, (_, window) in enumerate(self.windows):
             idn = identify(
                 self.setup.model,
@@ -141,8 +147,8 @@ class IdentificationTally:
                 alpha=self.alpha,
                 confidence=self.confidence,
             )
-            self._selected[w] += idn.selected
             name, values = self.truth[w]
+            est = cover = None
             if values:
                 est = np.stack([idn.estimate(name, p) for p in values], axis=1)
                 lo_hi = [idn.interval(name, p) for p in values]
@@ -150,6 +156,16 @@ class IdentificationTally:
                 cover = np.stack(
                     [(lo <= t) & (t <= hi) for (lo, hi), t in zip(lo_hi, tv, strict=True)], axis=1
                 )
+            out.append((idn.selected, est, cover))
+        return out
+
+    def absorb(
+        self, t: np.ndarray, computed: list[tuple[list[str], np.ndarray | None, np.ndarray | None]]
+    ) -> None:
+        """Fold one chunk's :meth:`compute` in (chunks in order: the serial figures)."""
+        for w, (selected, est, cover) in enumerate(computed):
+            self._selected[w] += selected
+            if est is not None:
                 self._est[w].append(est)
                 self._cover[w].append(cover)
 
