@@ -26,6 +26,7 @@ import argparse
 import time
 
 from ..errors import ParameterError
+from . import _identify
 from ._common import (
     Outputs,
     add_execution_args,
@@ -145,6 +146,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--per-record", action="store_true", help="each route with its own rule (the former table)"
     )
+    _identify.add_identification_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--record", metavar="FILE.rrd", default=None, help="write realization 0 to a Rerun file")
@@ -284,6 +286,7 @@ def run(args: argparse.Namespace) -> int:
         chunk_runs=args.chunk_runs,
         progress=False if args.no_progress else None,
     )
+    ident_doc = identification_doc(args, sc)
     wall = time.perf_counter() - t0
     outputs = Outputs()
     figure = recording = None
@@ -321,12 +324,14 @@ def run(args: argparse.Namespace) -> int:
                 "wall_s": wall,
                 "methods": [r.describe() for r in results],
                 "figure": None if figure is None else str(figure),
+                "identification": ident_doc,
                 "recording": None if recording is None else str(recording),
             }
         )
         outputs.finish()
         return 0
     _print_budget_table(sc, args, settings, results, wall)
+    _identify.print_diagnosis(ident_doc)
     if figure is not None:
         print(f"figure: {figure}")
     if recording is not None:
@@ -354,3 +359,23 @@ def _print_budget_table(
         c = r.calibration
         how = c.get("describe") or c.get("reason", "")
         print(f"{r.method}: {how}" + (f"; {c['never_alarms']}" if "never_alarms" in c else ""))
+
+
+def identification_doc(args: argparse.Namespace, sc: object) -> dict:
+    """Fault identification per fault segment on the diagnosed realizations (seed ``--seed``, the
+    routes' runs), at test level ``--alpha``; ``{"reason": ...}`` where the model gives none."""
+    setup, why_not = _identify.setup_or_reason(sc.nominal, args)  # type: ignore[attr-defined]
+    if setup is None:
+        return {"reason": why_not}
+    from ..plants.simulate import iter_simulations
+    from ..studies.identification_diagnosis import IdentificationTally
+
+    tally = IdentificationTally(sc, setup, alpha=args.alpha, confidence=args.confidence)
+    chunk = min(args.chunk_runs or 64, args.runs)
+    for sim in iter_simulations(sc, args.runs, args.seed, chunk_runs=chunk):
+        tally.add(sim)
+    return {
+        "alpha": args.alpha,
+        "confidence": args.confidence,
+        "segments": [r.to_dict() for r in tally.result()],
+    }

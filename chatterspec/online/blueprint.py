@@ -209,6 +209,7 @@ def blueprint(
     alarm: str | None = None,
     alarm_score: bool = False,
     alarm_range: tuple[float, float] | None = None,
+    extra_row: Any = None,
 ) -> Any:
     """The default layout: per channel (columns) chattering, spectrogram, detection statistic and peak
     frequency; below, the state lanes (true fault first, then one verdict lane per channel in channel
@@ -240,6 +241,10 @@ def blueprint(
     alarm_range : (float, float), optional
         Fixed y range of the alarm view (a fault's score, thousands of nats, would otherwise hide the
         threshold and the CUSUM ``g``, which is capped at it).
+    extra_row : callable, optional
+        ``extra_row(time_range)`` returns views added as a row below the lanes, with the time range
+        of the other views (e.g. the identified parameters,
+        :func:`chatterspec.online.identification_log.identification_views`).
 
     Returns
     -------
@@ -359,6 +364,7 @@ def blueprint(
             ),
         )
     )
+    extra = [] if extra_row is None else [rrb.Horizontal(*extra_row(time_range))]
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Horizontal(*columns),
@@ -371,8 +377,10 @@ def blueprint(
                 rrb.TextLogView(origin="/events", name="detection events"),
                 column_shares=[2, 1],
             ),
+            *extra,
             # about 45 px per lane at 1000 px: every lane visible at 1600x1000
-            row_shares=[5.2, 0.55 + 0.25 * n_lanes],
+            # the extra row (identified parameters) takes its height from the views above
+            row_shares=[4.4 if extra else 5.2, 0.55 + 0.25 * n_lanes] + ([1.3] if extra else []),
         ),
         time_panel,
         collapse_panels=True,
