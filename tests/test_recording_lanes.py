@@ -1,13 +1,13 @@
-"""The state lanes of every demo recording agree with the detector (read back from the .rrd file).
+"""The state lanes of every recording show the fault intervals that ``detect --json`` reports (read
+back from the .rrd file).
 
 For each scenario of ``chatterspec demo`` one realization is recorded by the online
-monitor and read back with Rerun's own reader. The lanes are then evaluated the
-way the viewer draws them (the state at time t is the last change at or before t)
-and compared, frame by frame, with the verdicts of the independent batch path
-(``spectrogram`` + ``frame_threshold`` + ``detect_frames`` on the whole record),
-and change by change with the detection events. Exact comparisons: the online
-frames equal the batch frames by construction (same kernel, same frame grid), and
-every time in the file is the rounded integer ns of :func:`rerun_log.to_ns`.
+monitor and read back with Rerun's own reader. The per-frame verdicts are compared
+frame by frame with the independent batch path (``stft_detect`` on the whole record),
+and the lanes' changes with its window-extent intervals (the numbers of ``detect
+--json`` and Fig 8). Exact comparisons: the online frames equal the batch frames by
+construction (same kernel, same frame grid), and every time in the file is the
+rounded integer ns of :func:`rerun_log.to_ns`.
 """
 
 from __future__ import annotations
@@ -19,10 +19,8 @@ import pytest
 
 import chatterspec as cs
 from chatterspec.cli.demo import DEMO_SCENARIOS
-from chatterspec.detection.detect import detect_frames
+from chatterspec.detection.detect import stft_detect
 from chatterspec.detection.pipeline import chattering_record
-from chatterspec.detection.spectral import spectrogram
-from chatterspec.detection.thresholds import frame_threshold
 from chatterspec.plants.scenarios import scenario
 
 rr = pytest.importorskip("rerun")
@@ -49,13 +47,6 @@ def _read(reader: RrdReader, entity: str, column: str) -> tuple[np.ndarray, list
     return np.asarray(times, dtype=np.int64)[order], [values[i] for i in order]
 
 
-def _lane_at(change_ns: np.ndarray, states: list[str], query_ns: np.ndarray) -> np.ndarray:
-    """The viewer's latest-at rule: the state of the last change at or before each query time."""
-    k = np.searchsorted(change_ns, query_ns, side="right") - 1
-    assert np.all(k >= 0), "a frame lies before the lane's first state"
-    return np.asarray(states, dtype=object)[k]
-
-
 def test_to_ns_rounds() -> None:
     # the truncating float path gives 500499999 for 0.5005 s; the recording's rule rounds
     assert int(rerun_log.to_ns(0.5005)) == 500_500_000
@@ -69,43 +60,73 @@ def test_lanes_match_events_and_batch_verdicts(tmp_path: Path, name: str) -> Non
     path = tmp_path / f"{name}.rrd"
     summary = drivers.record_detection(sim, path=path)
 
-    # independent batch verdicts of the same realization (default detector: alpha 1e-3, Bonferroni)
+    # independent batch path on the same realization (default detector: alpha 1e-3, Bonferroni): the
+    # per-frame verdicts and the window-extent intervals that `detect --json` reports
     rec = chattering_record(sc.nominal, sim.z, sim.u, scenario=sc)
-    spec = spectrogram(rec.values[0], rec.dt, t0=rec.t[0])
-    thr = frame_threshold(rec.model, spec.freqs_hz, spec.config, rec.dt)
-    flags = detect_frames(spec, thr)
+    found = stft_detect(rec.values[:1], rec.model, t0=float(rec.t[0]))
+    spec, flags = found.spectrogram, found.flags[0]
     frame_ns = rerun_log.to_ns(spec.times_s)
+    half_win = (spec.config.n_window(rec.dt) - 1) * rec.dt / 2.0
+    start_ns = int(rerun_log.to_ns(spec.times_s[0] - half_win))  # the first window's first sample
 
     reader = RrdReader(path)
     assert "/spectrum/" in reader.store().summary()  # footer written: the file is complete
+    # one time rule: the frames of the recording sit exactly at the rounded batch frame times
+    t_stat, stat = _read(reader, blueprint.STATISTIC, "Scalars:scalars")  # one row per frame, m values
+    np.testing.assert_array_equal(t_stat, frame_ns)
+    assert all(len(row) == len(rec.channels) for row in stat)
+    t_verdict, verdict = _read(reader, blueprint.VERDICT, "Scalars:scalars")
+    np.testing.assert_array_equal(np.asarray(verdict)[:, : len(rec.channels)] == 1.0, flags)
+    n_drawn = 0
     for c, channel in enumerate(rec.channels):
         lane = blueprint.lane_entity(c, channel)
         t_lane, raw = _read(reader, lane, "StateChange:state")
         states = [s[0] for s in raw]
-        # one time rule: the frames of the recording sit exactly at the rounded batch frame times
-        t_stat, stat = _read(reader, blueprint.STATISTIC, "Scalars:scalars")  # one row per frame, m values
-        np.testing.assert_array_equal(t_stat, frame_ns)
-        assert all(len(row) == len(rec.channels) for row in stat)
-        # no two changes at one time (the viewer's order of equal times is arbitrary)
+        # the lane's changes ARE the JSON intervals of this channel: fault at each onset, healthy at
+        # each offset (zero-length intervals are not drawn), healthy from the first window's start
+        ivs = [iv for iv in found.intervals[channel] if iv[1] > iv[0]]
+        want_t = [t for iv in ivs for t in iv]
+        want_s = ["fault", "healthy"] * len(ivs)
+        if not ivs or rerun_log.to_ns(ivs[0][0]) > start_ns:
+            want_t, want_s = [spec.times_s[0] - half_win, *want_t], ["healthy", *want_s]
+        np.testing.assert_array_equal(t_lane, rerun_log.to_ns(want_t), err_msg=f"{name}: {channel}")
+        assert states == want_s, (name, channel)
+        # nothing is painted before the record's first window; no two changes at one time
+        assert t_lane[0] == start_ns
         assert np.all(np.diff(t_lane) > 0), (name, channel, t_lane)
-        # the initial state comes strictly before the first frame
-        assert states[0] == "healthy" and t_lane[0] < frame_ns[0]
-        # every frame: lane == batch verdict
-        shown = _lane_at(t_lane, states, frame_ns)
-        np.testing.assert_array_equal(shown == "fault", flags[:, c], err_msg=f"{name}: {channel}")
-        # every later change is one of this channel's events, at its time
-        mine = [ev for ev in summary.events if ev.channel_index == c]
-        assert len(states) == 1 + len(mine)
-        for ev, t, s in zip(mine, t_lane[1:], states[1:], strict=True):
-            assert t == rerun_log.to_ns(ev.time_s)
-            assert s == ("fault" if ev.kind == "fault-start" else "healthy")
-            assert flags[ev.frame, c] == (ev.kind == "fault-start")
-    # the event log holds each event once, at its time
+        n_drawn += len(ivs)
+    # the event log: each alarm once, at the end of its deciding frame (when the detector knew), and
+    # each drawn or zero-length interval once, at its onset
     t_ev, texts = _read(reader, "/events", "TextLog:text")
-    assert len(texts) == len(summary.events)
-    np.testing.assert_array_equal(t_ev, np.sort(rerun_log.to_ns([ev.time_s for ev in summary.events])))
+    n_iv = sum(len(v) for k, v in found.intervals.items() if k != "any")
+    assert len(texts) == len(summary.events) + n_iv
+    alarm_ns = rerun_log.to_ns([ev.time_s + half_win for ev in summary.events])
+    assert set(alarm_ns) <= set(t_ev.tolist())
+    assert n_drawn <= n_iv
     # the truth lane: one change per segment of the scenario, at its start
     t_truth, truth = _read(reader, blueprint.TRUTH_LANE, "StateChange:state")
     expected = drivers.scenario_truth(sc)
     assert [s[0] for s in truth] == [lab for _, lab, _ in expected]
     np.testing.assert_array_equal(t_truth, rerun_log.to_ns([start for start, _, _ in expected]))
+
+
+def test_cli_lanes_equal_json_intervals(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # the issue's case: so-timeline-constant, true faults [0, 2) and [4, 6) s, alarm rule CUSUM (the
+    # default of --record): lanes, interval events and `detect --json` give the same numbers
+    import json
+
+    from chatterspec.cli import main
+
+    path = tmp_path / "tl.rrd"
+    assert main(["detect", "so-timeline-constant", "--record", str(path), "--json", "--no-identify"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    ivs = [(iv["onset_s"], iv["offset_s"]) for iv in doc["intervals"] if iv["channel"] == "velocity"]
+    assert len(ivs) == 2
+    reader = RrdReader(path)
+    t_lane, raw = _read(reader, blueprint.lane_entity(1, "velocity"), "StateChange:state")
+    assert [s[0] for s in raw] == ["fault", "healthy", "fault", "healthy"]
+    np.testing.assert_array_equal(t_lane, rerun_log.to_ns([t for iv in ivs for t in iv]))
+    t_ev, texts = _read(reader, "/events", "TextLog:text")
+    for a, b in ivs:  # one interval event at each onset, with the same numbers
+        k = int(np.flatnonzero(t_ev == rerun_log.to_ns(a))[0])
+        assert f"fault {a:.2f}-{b:.2f} s" in texts[k][0]

@@ -339,7 +339,7 @@ def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
         The matplotlib figure and one note per panel with the detected and true fault intervals (s) and the
         number of flagged frames.
     """
-    from ..detection.detect import detect_frames, frame_intervals
+    from ..detection.detect import detect_frames, frame_intervals, frame_statistic, healthy_frame_level
 
     config = STFTConfig(1.0, 0.2, "hamming")
     panels, notes = [], []
@@ -350,7 +350,9 @@ def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
         th = frame_threshold(sc.nominal, sg.freqs_hz, config, rec.dt, FAULT_ALPHA, "bonferroni")
         ch = _channel_index(sc, "velocity")
         flags = np.asarray(detect_frames(sg, th))[:, ch]
-        intervals = frame_intervals(flags, sg.times_s, config, rec.dt)
+        # the window-extent estimates of `detect --json` and of the recording's lanes
+        stat = np.asarray(frame_statistic(sg, th))[:, ch]
+        intervals = frame_intervals(flags, sg.times_s, config, rec.dt, stat, healthy_frame_level(th))
         intervals = tuple((float(a), float(b)) for a, b in intervals)
         panels.append(
             pl.SpectrogramPanel(
@@ -368,7 +370,7 @@ def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
             )
         )
         panels[-1] = replace(panels[-1], lines=_timeline_lines(sc))
-        iv = ", ".join(f"[{a:.1f}, {b:.1f}) s" for a, b in intervals) or "none"
+        iv = ", ".join(f"[{a:.2f}, {b:.2f}] s" for a, b in intervals) or "none"
         tw = ", ".join(f"[{a:g}, {b:g}) s" for a, b in sc.fault_intervals)
         notes.append(
             f"Fig 8{tag} {name}: detected {iv}; true {tw}; {int(flags.sum())}/{flags.size} frames flagged"

@@ -119,7 +119,7 @@ def spectrogram_figure(
     """Spectrograms (STFT power in dB) with true fault windows and detected intervals (Fig 8).
 
     Each panel shows ``10 log10(power)`` over time (s) and frequency (Hz), clipped
-    to ``db_range`` dB below its maximum. Above the image two bars mark the true
+    to ``db_range`` dB below the largest value of all panels (one colour scale for the figure). Above the image two bars mark the true
     fault windows (red) and the detected intervals (white, with flagged frames as
     ticks).
 
@@ -131,7 +131,7 @@ def spectrogram_figure(
     suptitle : str
         Figure title, wrapped to the figure width; empty for none.
     db_range : float
-        Dynamic range of the colour scale in dB below each panel's maximum (default 80).
+        Dynamic range of the colour scale in dB below the maximum over all panels (default 80).
     panel_size : (width, height)
         Size of one panel in inches; the figure is ``len(panels)`` panels wide.
 
@@ -151,6 +151,8 @@ def spectrogram_figure(
         layout="constrained",
     )
     handles: dict[str, Artist] = {}
+    tiny = np.finfo(float).tiny
+    top = max(10.0 * np.log10(max(float(np.max(np.asarray(p.power, dtype=float))), tiny)) for p in panels)
     for ax, p in zip(axes[0], panels, strict=True):
         t = np.asarray(p.times_s, dtype=float)
         f = np.asarray(p.freqs_hz, dtype=float)
@@ -159,8 +161,7 @@ def spectrogram_figure(
             raise ShapeError(
                 f"spectrogram power must have shape (frames, bins) = {(t.size, f.size)}; got {s.shape}"
             )
-        db = 10.0 * np.log10(np.maximum(s, np.finfo(float).tiny))
-        top = float(np.max(db))
+        db = 10.0 * np.log10(np.maximum(s, tiny))
         mesh = ax.pcolormesh(t, f, db.T, shading="nearest", cmap="viridis", vmin=top - db_range, vmax=top)
         cb = fig.colorbar(mesh, ax=ax, pad=0.01)
         ref = f"dB re 1 {power_unit(p.unit)}" if p.unit else "dB; S dimensionless"

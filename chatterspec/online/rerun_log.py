@@ -34,6 +34,7 @@ from .blueprint import (
     series_styles,
 )
 from .frame_peaks import peak_bins
+from .interval_lanes import IntervalCollector, lane_changes
 from .monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
 from .viewer import TIMELINE, Sinks
 
@@ -289,7 +290,11 @@ class RerunLogger:
             self._psi_rows = self._cols.scalars_column(np.tile(pm, (2, 1)), own=True)
         self._zero_rows = self._cols.scalars_column(np.zeros(2), own=True)
         self._fault = [fault_entity(c) for c in self.channels]
-        self._origin_ns: int | None = None  # earliest time logged (truth start / initial state)
+        # a file's lanes: the record's interval estimates, drawn on close (interval_lanes)
+        self._collector = IntervalCollector(monitor) if sinks.file_stream is not None else None
+        self._half_win = (monitor.n_window - 1) / 2.0 * monitor.dt  # frame centre -> its last sample
+        self._origin_ns: int | None = None  # earliest time logged (truth start / record start)
+        self._start_s: float | None = None  # start of the record's first STFT window (s)
         self._started = False
         rule = monitor.rule
         self._cusum = rule.name == "cusum"  # the alarm view draws g; else the score itself
@@ -396,8 +401,10 @@ class RerunLogger:
             self._each(log_truth)
 
     def _initial_state(self, upd: MonitorUpdate) -> None:
-        """The lanes' state before ``upd``: logged before its first sample and frame (1 ns before
-        the earliest of them at least), so no frame's verdict can land before it."""
+        """The live lanes' state before ``upd``, logged 1 ns before the end of its first frame (when the
+        detector first knows anything; nothing is painted before). A file's lanes are drawn on
+        :meth:`close` from the record's interval estimates."""
+        live = self.sinks.live_stream
         mon, fr = self.monitor, upd.frames
         m = len(self.channels)
         state = mon.active  # after upd: undo its first event per channel
@@ -407,21 +414,18 @@ class RerunLogger:
                 seen[ev.channel_index] = True
                 state[ev.channel_index] = ev.kind == "fault-end"
         n_before = mon.n_frames - fr.n_frames
-        if n_before == 0:  # the record's start: the first chattering sample
-            t0 = mon.frame_time(0) - (mon.n_window - 1) / 2.0 * mon.dt
-            ns = min(int(to_ns(t0)), int(to_ns(mon.frame_time(0))) - 1)
-        else:
-            firsts = [t[0] for t in (upd.t, fr.times_s) if t.shape[0]]
-            ns = int(to_ns(min(firsts))) - 1
-        self._origin_ns = ns if self._origin_ns is None else min(ns, self._origin_ns)
-
-        def log(s: Any) -> None:  # send_columns, like every other temporal row: no batcher left to flush
-            t = _TimeIndex(self.pa, np.array([ns], dtype=np.int64))
-            for i in range(m):
-                state_col = self.rr.StateChange.columns(state=["fault" if state[i] else "healthy"])
-                s.send_columns(self.lanes[i], indexes=[t], columns=state_col)
-
-        self._each(log)
+        t_first = mon.frame_time(0) if n_before == 0 else (fr.times_s[0] if fr.n_frames else upd.t[0])
+        # the start of this record's first STFT window (the first chattering sample of a fresh monitor)
+        self._start_s = float(t_first - self._half_win) if n_before == 0 or fr.n_frames else float(upd.t[0])
+        ns0 = int(to_ns(self._start_s))
+        self._origin_ns = ns0 if self._origin_ns is None else min(ns0, self._origin_ns)
+        if live is None:
+            return
+        ns = int(to_ns(t_first + self._half_win)) - 1
+        t = _TimeIndex(self.pa, np.array([ns], dtype=np.int64))
+        for i in range(m):
+            state_col = self.rr.StateChange.columns(state=["fault" if state[i] else "healthy"])
+            live.send_columns(self.lanes[i], indexes=[t], columns=state_col)
 
     def log_update(self, upd: MonitorUpdate) -> None:
         """Queue one update; send it at once to a live viewer, in batches to a file.
@@ -436,6 +440,8 @@ class RerunLogger:
             if not self._started:
                 self._started = True
                 self._initial_state(upd)
+            if self._collector is not None:
+                self._collector.add(fr)
             for box in self._boxes:
                 if upd.t.shape[0]:
                     box.updates.append(upd)
@@ -458,9 +464,37 @@ class RerunLogger:
             self._send_frames(box)
 
     def close(self) -> None:
-        """Send what is buffered, and the file's spectrogram (the whole record, or its last block)."""
+        """Send what is buffered, the file's spectrogram (the whole record, or its last block) and the
+        file's lanes: the record's fault intervals (:mod:`chatterspec.online.interval_lanes`)."""
         self.flush()
         self._flush_file_block()
+        self._send_intervals()
+
+    def _send_intervals(self) -> None:
+        """The file's verdict lanes and interval events: the window-extent onset/offset estimates of the
+        record's flagged frames, as ``detect --json`` and Fig 8 report them."""
+        file = self.sinks.file_stream
+        if file is None or self._collector is None or self._start_s is None:
+            return
+        rr, pa = self.rr, self.pa
+        ivs = self._collector.intervals()
+        for i, lane in enumerate(self.lanes):
+            times, states = lane_changes(ivs, i, self._start_s)
+            ns = to_ns(times)
+            file.send_columns(lane, indexes=[_TimeIndex(pa, ns)], columns=rr.StateChange.columns(state=states))
+        if ivs:
+            order = sorted(range(len(ivs)), key=lambda k: ivs[k].onset_s)
+            text = [
+                f"{self.channels[ivs[k].channel_index]} {ivs[k].peak_hz:.1f} Hz {ivs[k].peak_db:+.0f} dB: "
+                f"fault {ivs[k].onset_s:.2f}-{ivs[k].offset_s:.2f} s (estimate)"
+                for k in order
+            ]
+            ns = to_ns([ivs[k].onset_s for k in order])
+            file.send_columns(
+                "/events",
+                indexes=[_TimeIndex(pa, ns)],
+                columns=rr.TextLog.columns(text=text, level=["ERROR"] * len(text)),
+            )
 
     def _send_samples(self, box: _Outbox) -> None:
         """Send the per-sample part of the updates in ``box`` (one ``send_columns`` per entity)."""
@@ -544,7 +578,7 @@ class RerunLogger:
         if not box.live:  # the file's spectrogram: dB columns of the whole batch at once
             self._file_spectrogram(times, spectra)
         if events:
-            self._send_events(s, events)
+            self._send_events(s, events, lanes=box.live)
 
     def _peak_hz(self, frames: list[Any]) -> np.ndarray:
         """(F, m) tested bin (Hz) with the largest excess power ``S - E`` among the bins over the threshold
@@ -571,30 +605,29 @@ class RerunLogger:
             cols = self._cols.tensor_columns(power[lo:hi], ("freq",))
             s.send_columns(path, indexes=[tcol[lo:hi]], columns=cols)
 
-    @staticmethod
-    def _event_text(ev: DetectionEvent) -> str:
-        from .monitor_types import alarm_label
-
+    def _event_text(self, ev: DetectionEvent) -> str:
+        """Short: channel, frequency and level first (the log view cuts long bodies)."""
         db = 10.0 * np.log10(max(ev.peak_ratio, 1e-30))
-        rule = alarm_label(ev.rule, ev.false_alarms_per_hour)
+        end = ev.time_s + self._half_win
         if ev.kind == "fault-start":
             return (
-                f"{ev.channel}: FAULT from {ev.time_s:.2f} s (onset ~{ev.estimate_s:.2f} s), "
-                f"{db:+.1f} dB at {ev.peak_hz:.1f} Hz [{rule}]"
+                f"{ev.channel} {ev.peak_hz:.1f} Hz {db:+.0f} dB: ALARM ({ev.rule}) at {end:.2f} s "
+                "(end of the deciding frame: when the detector knew)"
             )
-        return (
-            f"{ev.channel}: healthy again at {ev.time_s:.2f} s (worst {db:+.1f} dB at {ev.peak_hz:.1f} Hz) "
-            f"[{rule}]"
-        )
+        return f"{ev.channel} {ev.peak_hz:.1f} Hz {db:+.0f} dB: alarm ({ev.rule}) cleared at {end:.2f} s"
 
-    def _send_events(self, s: Any, events: list[DetectionEvent]) -> None:
+    def _send_events(self, s: Any, events: list[DetectionEvent], *, lanes: bool) -> None:
+        """The alarm events at the end of their deciding frame (when the detector knew); with ``lanes``
+        (a live viewer) also the lanes' changes there."""
         rr, pa = self.rr, self.pa
-        ns = to_ns([ev.time_s for ev in events])
+        ns = to_ns([ev.time_s + self._half_win for ev in events])
         text = [self._event_text(ev) for ev in events]
         level = ["WARN" if ev.kind == "fault-start" else "INFO" for ev in events]
         s.send_columns(
             "/events", indexes=[_TimeIndex(pa, ns)], columns=rr.TextLog.columns(text=text, level=level)
         )
+        if not lanes:
+            return
         for i in range(len(self.keys)):
             mine = [k for k, ev in enumerate(events) if ev.channel_index == i]
             if mine:
@@ -606,15 +639,15 @@ class RerunLogger:
                 )
 
     def log_event(self, ev: DetectionEvent) -> None:
-        """Log one detection event at once (text log and state lane) to every stream.
+        """Log one detection event at once (text log, and the lane of a live viewer) to every stream.
 
         Parameters
         ----------
         ev : DetectionEvent
-            The event (its time is converted by :func:`to_ns`).
+            The event (logged at the end of its frame, converted by :func:`to_ns`).
         """
         for s in self.sinks.streams:
-            self._send_events(s, [ev])
+            self._send_events(s, [ev], lanes=s is self.sinks.live_stream)
 
     # ------------------------------------------------------------------ spectrogram
     def _db(self, power: np.ndarray) -> np.ndarray:
