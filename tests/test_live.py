@@ -88,11 +88,13 @@ def _check_recording(path: Path, rec, spec, flags, summary) -> None:
         assert t_e.size == rec.n_samples and np.asarray(e).shape[1] in (m, 2 * m, 3 * m)
         np.testing.assert_array_equal(np.asarray(e)[:, :m], rec.values[0])
     t_ev, texts = _column(reader, "/events", "TextLog:text")
-    assert len(texts) == len(summary.events) > 0
+    alarms = [k for k, s in enumerate(texts) if "ALARM" in s[0] or "cleared" in s[0]]
+    assert len(alarms) == len(summary.events) > 0
+    half_win = (spec.config.n_window(rec.dt) - 1) * rec.dt / 2.0  # logged when the detector knew
     for ev in summary.events:
-        word = "FAULT from" if ev.kind == "fault-start" else "healthy again"
-        hit = [k for k, s in enumerate(texts) if s[0].startswith(f"{ev.channel}: {word}")]
-        assert any(abs(t_ev[k] - ev.time_s) < 1e-9 for k in hit), ev
+        word = "ALARM" if ev.kind == "fault-start" else "cleared"
+        hit = [k for k in alarms if texts[k][0].startswith(f"{ev.channel} ") and word in texts[k][0]]
+        assert any(abs(t_ev[k] - (ev.time_s + half_win)) < 1e-9 for k in hit), ev
         assert flags[ev.frame, ev.channel_index] == (ev.kind == "fault-start")
     _, truth = _column(reader, blueprint.TRUTH_LANE, "StateChange:state")
     assert [s[0] for s in truth] == ["healthy", "leakage 9e-11"]
@@ -111,7 +113,9 @@ def test_record_chattering_record(tmp_path: Path, batch) -> None:
     summary = drivers.record_detection(rec, path=tmp_path / "c.rrd", chunk_samples=1000)
     _check_recording(tmp_path / "c.rrd", rec, spec, flags, summary)
     # the file gets ONE spectrogram tensor per channel for the whole record: band rows x one column
-    # per frame (no padding), 10 log10(S / threshold) clipped to DB_RANGE, logged at the record start
+    # per frame, padded by pad_columns blank (DB_RANGE[0]) columns on each side so that the image covers
+    # the whole record (the span of every time view), 10 log10(S / threshold) clipped to DB_RANGE,
+    # logged at the record start
     reader = RrdReader(tmp_path / "c.rrd")
     t, blocks = _column(reader, "/spectrogram/pressure", "Tensor:data")
     assert len(blocks) == 1 and t[0] <= rec.t[0] + 1e-12
@@ -119,10 +123,15 @@ def test_record_chattering_record(tmp_path: Path, batch) -> None:
     lo, hi = rerun_log.default_band_hz(_monitor(rec))
     assert (lo, hi) == (1.0, 150.0)  # EHA: tested band from 1 Hz, capped at 3 x 41.8 Hz -> 150 Hz
     band = (spec.freqs_hz >= lo) & (spec.freqs_hz <= hi)
-    assert block["shape"] == [int(band.sum()), spec.n_frames]
+    p = rerun_log.pad_columns(_monitor(rec))
+    assert p == 2  # 1 s window, 0.2 s hop: the first window starts 0.4 s before the first column's edge
+    assert block["shape"] == [int(band.sum()), spec.n_frames + 2 * p]
     assert block["names"][0].startswith("freq 1-150 Hz (1 Hz/row")
-    assert block["names"][1].startswith(f"time {spec.times_s[0] - 0.1:.2f}-{spec.times_s[-1] + 0.1:.2f} s")
+    edge = 0.1 + p * 0.2
+    assert block["names"][1].startswith(f"time {spec.times_s[0] - edge:.2f}-{spec.times_s[-1] + edge:.2f} s")
     img = np.asarray(block["buffer"], dtype=float).reshape(block["shape"])
+    assert np.all(img[:, :p] == rerun_log.DB_RANGE[0]) and np.all(img[:, -p:] == rerun_log.DB_RANGE[0])
+    img = img[:, p:-p]
     thr = frame_threshold(rec.model, spec.freqs_hz, spec.config, rec.dt)
     db = np.clip(10 * np.log10(spec.power[:, band, 2] / thr.values[band, 2]), *rerun_log.DB_RANGE)
     np.testing.assert_allclose(img, db.T, atol=0.02)  # float16 dB (resolution 0.016 dB at 30 dB)
@@ -348,7 +357,11 @@ def test_file_spectrogram_blocks_tile_long_records(tmp_path: Path, batch) -> Non
         logger.close()
     t, blocks = _column(RrdReader(tmp_path / "b.rrd"), "/spectrogram/velocity", "Tensor:data")
     widths = [b[0]["shape"][1] for b in blocks]
-    assert widths == [7] * (spec.n_frames // 7) + ([spec.n_frames % 7] if spec.n_frames % 7 else [])
+    p = rerun_log.pad_columns(mon)  # blank columns before the first frame and after the last one
+    want = [7] * (spec.n_frames // 7) + ([spec.n_frames % 7] if spec.n_frames % 7 else [])
+    want[0] += p
+    want[-1] += p
+    assert widths == want
     # block k starts half a hop before its first frame (the first one at the record's start)
     np.testing.assert_allclose(t[1:], spec.times_s[7::7] - 0.1, atol=1e-9)
     assert t[0] <= rec.t[0] + 1e-12

@@ -75,7 +75,7 @@ def test_lanes_match_events_and_batch_verdicts(tmp_path: Path, name: str) -> Non
     t_stat, stat = _read(reader, blueprint.STATISTIC, "Scalars:scalars")  # one row per frame, m values
     np.testing.assert_array_equal(t_stat, frame_ns)
     assert all(len(row) == len(rec.channels) for row in stat)
-    t_verdict, verdict = _read(reader, blueprint.VERDICT, "Scalars:scalars")
+    _, verdict = _read(reader, blueprint.VERDICT, "Scalars:scalars")
     np.testing.assert_array_equal(np.asarray(verdict)[:, : len(rec.channels)] == 1.0, flags)
     n_drawn = 0
     for c, channel in enumerate(rec.channels):

@@ -119,7 +119,8 @@ def spectrogram_figure(
     """Spectrograms (STFT power in dB) with true fault windows and detected intervals (Fig 8).
 
     Each panel shows ``10 log10(power)`` over time (s) and frequency (Hz), clipped
-    to ``db_range`` dB below the largest value of all panels (one colour scale for the figure). Above the image two bars mark the true
+    to ``db_range`` dB below the largest value of all panels (one colour scale for the
+    figure). Above the image two bars mark the true
     fault windows (red) and the detected intervals (white, with flagged frames as
     ticks).
 

@@ -23,6 +23,7 @@ __all__ = [
     "fault_entity",
     "lane_entity",
     "series_styles",
+    "time_axis",
 ]
 
 #: Entity of the true-fault lane: sorts before every channel lane (the viewer orders lanes by path).
@@ -198,6 +199,41 @@ def series_styles(
     return out
 
 
+def time_axis(span_s: tuple[float, float] | None, history_s: float = 10.0) -> tuple[Any, Any]:
+    """The one time axis of a recording's views: the data range every time view queries and the x axis
+    it shows, linked across views (zooming one zooms all).
+
+    Parameters
+    ----------
+    span_s : (float, float) or None
+        A file's whole record (s): every view shows exactly this span. None: a live viewer, the last
+        ``history_s`` seconds before the time cursor (which follows the incoming data).
+    history_s : float
+        Seconds of history of a live viewer.
+
+    Returns
+    -------
+    (VisibleTimeRange, TimeAxis)
+        For ``time_ranges=`` and ``axis_x=`` of a ``TimeSeriesView`` (``time_view=`` of a
+        ``StateTimelineView``).
+    """
+    import rerun.blueprint as rrb
+    from rerun.blueprint.archetypes import TimeAxis
+    from rerun.blueprint.components import LinkAxis
+    from rerun.encodings import TimeRange
+
+    if span_s is None:
+        start = rrb.TimeRangeBoundary.cursor_relative(seconds=-history_s)
+        end = rrb.TimeRangeBoundary.cursor_relative()
+    else:
+        start = rrb.TimeRangeBoundary.absolute(nanos=round(float(span_s[0]) * 1e9))
+        end = rrb.TimeRangeBoundary.absolute(nanos=round(float(span_s[1]) * 1e9))
+    return (
+        rrb.VisibleTimeRange(TIMELINE, start=start, end=end),
+        TimeAxis(link=LinkAxis.Independent, view_range=TimeRange(start, end)),
+    )
+
+
 def blueprint(
     channels: tuple[str, ...],
     *,
@@ -242,8 +278,8 @@ def blueprint(
         Fixed y range of the alarm view (a fault's score, thousands of nats, would otherwise hide the
         threshold and the CUSUM ``g``, which is capped at it).
     extra_row : callable, optional
-        ``extra_row(time_range)`` returns views added as a row below the lanes, with the time range
-        of the other views (e.g. the identified parameters,
+        ``extra_row(time_range, axis)`` returns views added as a row below the lanes, with the time range
+        and the (linked) time axis of the other views (:func:`time_axis`) (e.g. the identified parameters,
         :func:`chatterspec.online.identification_log.identification_views`).
 
     Returns
@@ -254,18 +290,7 @@ def blueprint(
     import rerun.blueprint as rrb
     from rerun.encodings import AbsoluteTimeRange, TimeInt
 
-    if span_s is None:
-        time_range = rrb.VisibleTimeRange(
-            TIMELINE,
-            start=rrb.TimeRangeBoundary.cursor_relative(seconds=-history_s),
-            end=rrb.TimeRangeBoundary.cursor_relative(),
-        )
-    else:
-        time_range = rrb.VisibleTimeRange(
-            TIMELINE,
-            start=rrb.TimeRangeBoundary.absolute(nanos=round(float(span_s[0]) * 1e9)),
-            end=rrb.TimeRangeBoundary.absolute(nanos=round(float(span_s[1]) * 1e9)),
-        )
+    time_range, axis = time_axis(span_s, history_s)
     no_legend = rrb.PlotLegend(visible=False)
     band = "" if band_hz is None else f" {band_hz[0]:g}-{band_hz[1]:g} Hz"
     m = len(channels)
@@ -285,6 +310,7 @@ def blueprint(
                     contents=[f"+ {CHATTERING}", f"+ {PSI}"],
                     name=f"{name}: chattering e(k|k-1), grey ±psi",
                     time_ranges=time_range,
+                    axis_x=axis,
                     plot_legend=no_legend,
                     # hidden series do not enter the auto-scaled y range (checked in the viewer)
                     overrides={
@@ -310,6 +336,7 @@ def blueprint(
                     contents=[f"+ {STATISTIC}", f"+ {THRESHOLD}", f"+ {fault_entity(name)}"],
                     name=f"{name}: max S/threshold [dB], 0 dB = threshold, red = fault",
                     time_ranges=time_range,
+                    axis_x=axis,
                     plot_legend=no_legend,
                     overrides={STATISTIC: rr.SeriesLines.from_fields(visible_series=only(i))},
                 ),
@@ -322,6 +349,7 @@ def blueprint(
                             contents=[f"+ {VERDICT}"],
                             name=f"{name}: {alarm}",
                             time_ranges=time_range,
+                            axis_x=axis,
                             plot_legend=no_legend,
                             axis_y=None if alarm_range is None else rrb.ScalarAxis(range=alarm_range),
                             overrides={
@@ -340,6 +368,7 @@ def blueprint(
                     contents=[f"+ {PEAK_HZ}", f"+ {MOST_SIGNIFICANT_HZ}"],
                     name=f"{name}: peak frequency [Hz], dots = most significant",
                     time_ranges=time_range,
+                    axis_x=axis,
                     plot_legend=no_legend,
                     overrides={
                         PEAK_HZ: rr.SeriesLines.from_fields(visible_series=only(i)),
@@ -352,7 +381,7 @@ def blueprint(
         )
     n_lanes = len(channels) + (1 if has_truth else 0)
     time_panel = (
-        rrb.TimePanel(state="collapsed", timeline=TIMELINE)
+        rrb.TimePanel(state="collapsed", timeline=TIMELINE, play_state="following")
         if span_s is None
         else rrb.TimePanel(
             state="collapsed",
@@ -364,7 +393,7 @@ def blueprint(
             ),
         )
     )
-    extra = [] if extra_row is None else [rrb.Horizontal(*extra_row(time_range))]
+    extra = [] if extra_row is None else [rrb.Horizontal(*extra_row(time_range, axis))]
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Horizontal(*columns),
@@ -373,6 +402,7 @@ def blueprint(
                     origin="/state",
                     name="true fault (top) and verdict per channel" if has_truth else "verdict per channel",
                     time_ranges=time_range,
+                    time_view=axis,
                 ),
                 rrb.TextLogView(origin="/events", name="detection events"),
                 column_shares=[2, 1],

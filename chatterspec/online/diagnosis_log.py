@@ -20,23 +20,12 @@ from ..detection.thresholds import Threshold
 from .blueprint import _entity, blueprint
 from .drivers import scenario_truth
 from .monitor import ChatteringMonitor, MonitorSettings
-from .rerun_log import DB_RANGE, RerunLogger, to_ns
+from .rerun_log import DB_RANGE, RerunLogger, record_span, to_ns
 from .viewer import TIMELINE, open_sinks
 
 __all__ = ["record_budget_diagnosis", "record_diagnosis"]
 
 _MODE_COLORS = ([31, 119, 180], [255, 127, 14], [214, 39, 40], [44, 160, 44], [148, 103, 189])
-
-
-def _span(mon: ChatteringMonitor, n_meas: int) -> tuple[float, float] | None:
-    """Time span (s) of the frames of ``n_meas`` raw measurements (first centre - hop/2, last + hop/2)."""
-    n_chat = n_meas - 1
-    if n_chat < mon.n_window:
-        return None
-    last = (n_chat - mon.n_window) // mon.n_hop
-    half, centre = mon.n_hop * mon.dt / 2.0, (mon.n_window - 1) / 2.0
-    t0 = mon.t0 + mon.dt
-    return (t0 + centre * mon.dt - half, t0 + (last * mon.n_hop + centre) * mon.dt + half)
 
 
 def record_diagnosis(
@@ -88,7 +77,7 @@ def record_diagnosis(
         if threshold is not None:
             settings = MonitorSettings(stft=config or STFTConfig(), threshold=threshold)
             mon = ChatteringMonitor(sc.nominal, settings)
-            span = _span(mon, z0.shape[0])
+            span = record_span(mon, z0.shape[0], raw=True)
             truth = scenario_truth(sc)
             logger = RerunLogger(sinks, mon, truth=truth, span_s=span, send_blueprint=False)
             for lo in range(0, z0.shape[0], int(chunk_samples)):

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .monitor import ChatteringMonitor, DetectionEvent, MonitorSettings
-from .rerun_log import RerunLogger
+from .rerun_log import RerunLogger, record_span
 from .viewer import Sinks, default_recording_path, file_error, open_sinks
 
 if TYPE_CHECKING:
@@ -86,23 +86,6 @@ def _pace(start_wall: float, data_elapsed: float, rate: float | None) -> None:
 def _chunks(total: int, size: int) -> Iterator[tuple[int, int]]:
     for lo in range(0, total, size):
         yield lo, min(lo + size, total)
-
-
-def _record_span(monitor: ChatteringMonitor, total: int, *, raw: bool) -> tuple[float, float] | None:
-    """Time span (s) of the frames a fresh ``monitor`` will emit from ``total`` samples: the first
-    frame's centre minus half a hop to the last one's plus half a hop (None if no frame fits)."""
-    if monitor.n_samples or monitor.n_frames:
-        return None  # not a fresh monitor: the record's extent is not known
-    n_chat = total - 1 if raw else total  # raw: z(0) initializes the filters
-    if n_chat < monitor.n_window:
-        return None
-    last = (n_chat - monitor.n_window) // monitor.n_hop
-    t_chat0 = monitor.t0 + (monitor.dt if raw else 0.0)
-    half = monitor.n_hop * monitor.dt / 2.0
-    centre = (monitor.n_window - 1) / 2.0
-    first_c = t_chat0 + centre * monitor.dt
-    last_c = t_chat0 + (last * monitor.n_hop + centre) * monitor.dt
-    return (first_c - half, last_c + half)
 
 
 def run_monitor(
@@ -185,7 +168,7 @@ def run_monitor(
                 scroll_frames=scroll_frames,
                 truth=truth,
                 band_hz=band_hz,
-                span_s=_record_span(monitor, total, raw=chattering is None),
+                span_s=record_span(monitor, total, raw=chattering is None),
                 extra_row=views,
             )
             if sinks.streams

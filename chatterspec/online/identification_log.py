@@ -38,7 +38,7 @@ def _path(parameter: str) -> str:
 
 
 def identification_views(setup: Any, confidence: float) -> Any:
-    """``make(time_range) -> views``: one time-series view per identified parameter (estimate and
+    """``make(time_range, axis) -> views``: one time-series view per identified parameter (estimate and
     interval of the selected hypothesis) and the log of the selected hypothesis, for
     :func:`chatterspec.online.blueprint.blueprint`'s ``extra_row``.
 
@@ -52,7 +52,7 @@ def identification_views(setup: Any, confidence: float) -> Any:
     pm = setup.parameter_map
     used = [p for p in pm.parameter_names if any(p in h.parameters for h in setup.hypotheses)]
 
-    def make(time_range: Any) -> list[Any]:
+    def make(time_range: Any, axis: Any = None) -> list[Any]:
         import rerun.blueprint as rrb
 
         views = []
@@ -63,6 +63,7 @@ def identification_views(setup: Any, confidence: float) -> Any:
                     origin=_path(p),
                     name=f"identified {p}" + (f" [{unit}]" if unit else "") + f", {confidence:.0%} interval",
                     time_ranges=time_range,
+                    axis_x=axis,
                     plot_legend=rrb.PlotLegend(visible=False),
                 )
             )

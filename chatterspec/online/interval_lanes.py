@@ -99,7 +99,9 @@ def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
-def lane_changes(intervals: list[FaultInterval], channel: int, start_s: float) -> tuple[list[float], list[str]]:
+def lane_changes(
+    intervals: list[FaultInterval], channel: int, start_s: float
+) -> tuple[list[float], list[str]]:
     """The state changes that draw ``channel``'s intervals on its lane: ``healthy`` at ``start_s`` (the
     record's first window start) unless a fault starts there, ``fault`` at each onset and ``healthy`` at
     each offset; zero-length intervals are not drawn (two changes at one time have no order in the viewer).

@@ -45,6 +45,8 @@ __all__ = [
     "DB_RANGE",
     "RerunLogger",
     "default_band_hz",
+    "pad_columns",
+    "record_span",
     "to_ns",
 ]
 
@@ -68,6 +70,56 @@ def to_ns(seconds: Any) -> np.ndarray:
         ``round(seconds * 1e9)`` (same shape; 0-d for a scalar).
     """
     return np.rint(np.asarray(seconds, dtype=float) * 1e9).astype(np.int64)
+
+
+def pad_columns(monitor: ChatteringMonitor) -> int:
+    """Blank columns added on each side of a file's spectrogram so that it covers the whole record: the
+    first frame's window starts about ``(W - H) / 2`` samples before the first column's left edge
+    (2 columns for a 1 s window at a 0.2 s hop).
+
+    Parameters
+    ----------
+    monitor : ChatteringMonitor
+
+    Returns
+    -------
+    int
+        ``round((W - 1 - H) / (2 H))`` (>= 0) for window ``W`` and hop ``H`` in samples.
+    """
+    return max(0, round((monitor.n_window - 1 - monitor.n_hop) / (2.0 * monitor.n_hop)))
+
+
+def record_span(monitor: ChatteringMonitor, total: int, *, raw: bool) -> tuple[float, float] | None:
+    """The time span (s) of a file recording: the columns of its spectrogram, padded by
+    :func:`pad_columns` on each side, which covers the whole record; every time view shows exactly it.
+
+    Parameters
+    ----------
+    monitor : ChatteringMonitor
+        A fresh monitor (no sample pushed yet).
+    total : int
+        Samples that will be pushed.
+    raw : bool
+        Raw measurements (``z(0)`` initializes the filters) rather than chattering.
+
+    Returns
+    -------
+    (start_s, stop_s) or None
+        None if no frame fits or the monitor is not fresh.
+    """
+    if monitor.n_samples or monitor.n_frames:
+        return None  # not a fresh monitor: the record's extent is not known
+    n_chat = total - 1 if raw else total
+    if n_chat < monitor.n_window:
+        return None
+    last = (n_chat - monitor.n_window) // monitor.n_hop
+    t_chat0 = monitor.t0 + (monitor.dt if raw else 0.0)
+    hop = monitor.n_hop * monitor.dt
+    edge = hop / 2.0 + pad_columns(monitor) * hop
+    centre = (monitor.n_window - 1) / 2.0
+    first_c = t_chat0 + centre * monitor.dt
+    last_c = t_chat0 + (last * monitor.n_hop + centre) * monitor.dt
+    return (first_c - edge, last_c + edge)
 
 
 def _nice_ceil(x: float) -> float:
@@ -271,6 +323,7 @@ class RerunLogger:
         self._ring_n = 0
         # file: the dB columns of the current block, frame times (ns) of its first / last column
         self._file_cols: list[np.ndarray] = []
+        self._pad = pad_columns(monitor)  # blank columns before the first and after the last frame
         self._file_n = 0
         self._file_block_start: int | None = None
         self._file_t: tuple[float, float] | None = None
@@ -467,6 +520,12 @@ class RerunLogger:
         """Send what is buffered, the file's spectrogram (the whole record, or its last block) and the
         file's lanes: the record's fault intervals (:mod:`chatterspec.online.interval_lanes`)."""
         self.flush()
+        if self._pad and self._file_n:  # the last block ends with the record, padded
+            last = self._file_cols[-1]
+            self._file_cols.append(
+                np.full((last.shape[0], self._pad, last.shape[2]), DB_RANGE[0], last.dtype)
+            )
+            self._file_t = (self._file_t[0], self._file_t[1] + self._pad * self.hop_s)
         self._flush_file_block()
         self._send_intervals()
 
@@ -481,7 +540,9 @@ class RerunLogger:
         for i, lane in enumerate(self.lanes):
             times, states = lane_changes(ivs, i, self._start_s)
             ns = to_ns(times)
-            file.send_columns(lane, indexes=[_TimeIndex(pa, ns)], columns=rr.StateChange.columns(state=states))
+            file.send_columns(
+                lane, indexes=[_TimeIndex(pa, ns)], columns=rr.StateChange.columns(state=states)
+            )
         if ivs:
             order = sorted(range(len(ivs)), key=lambda k: ivs[k].onset_s)
             text = [
@@ -700,19 +761,24 @@ class RerunLogger:
         db = db.astype(np.float16)
         lo = 0
         while lo < db.shape[1]:
+            if self._file_n >= self.file_block_frames:  # full: sent once more frames come (the last
+                self._flush_file_block()  # block waits for close, which pads it)
             take = min(db.shape[1] - lo, self.file_block_frames - self._file_n)
             if self._file_n == 0:
                 self._file_t = (float(times[lo]), float(times[lo]))
-                if self._file_block_start is None:  # the first block starts with the record
+                if self._file_block_start is None:  # the first block starts with the record, padded
                     self._file_block_start = self._origin_ns
+                    if self._pad:
+                        self._file_cols.append(
+                            np.full((db.shape[0], self._pad, db.shape[2]), DB_RANGE[0], db.dtype)
+                        )
+                        self._file_t = (self._file_t[0] - self._pad * self.hop_s, self._file_t[1])
                 else:
                     self._file_block_start = int(to_ns(times[lo] - self.hop_s / 2))
             self._file_cols.append(db[:, lo : lo + take])
             self._file_n += take
             self._file_t = (self._file_t[0], float(times[lo + take - 1]))
             lo += take
-            if self._file_n >= self.file_block_frames:
-                self._flush_file_block()
 
     def _flush_file_block(self) -> None:
         file = self.sinks.file_stream
