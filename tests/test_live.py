@@ -70,6 +70,27 @@ def _column(reader: RrdReader, entity: str, name: str) -> tuple[np.ndarray, list
     return np.asarray(times)[order] * 1e-9, [values[i] for i in order]
 
 
+def _images(reader: RrdReader, channel: str) -> tuple[np.ndarray, list[np.ndarray], list]:
+    """(times s, dB images (bins, columns) with row 0 = the lowest frequency, depth ranges) of the
+    spectrogram of ``channel`` (a ``DepthImage``, top row = highest frequency)."""
+    t, buf = _column(reader, f"/spectrogram/{channel}/image", "DepthImage:buffer")
+    _, fmt = _column(reader, f"/spectrogram/{channel}/image", "DepthImage:format")
+    _, rng = _column(reader, f"/spectrogram/{channel}/image", "DepthImage:depth_range")
+    imgs = []
+    for b, f in zip(buf, fmt, strict=True):
+        img = np.frombuffer(bytes(b[0]), dtype=np.float16).reshape(f[0]["height"], f[0]["width"])
+        imgs.append(img[::-1].astype(float))
+    return t, imgs, rng
+
+
+def _column_static(reader: RrdReader, entity: str, name: str) -> tuple[None, list]:
+    """The static rows of ``entity``'s column ``name``."""
+    values = []
+    for chunk in reader.stream().filter(content=entity, is_static=True).to_chunks():
+        values.extend(chunk.to_record_batch().column(name).to_pylist())
+    return None, values
+
+
 def _check_recording(path: Path, rec, spec, flags, summary) -> None:
     reader = RrdReader(path)
     summary_text = reader.store().summary()  # needs the footer: the file was closed properly
@@ -117,26 +138,26 @@ def test_record_chattering_record(tmp_path: Path, batch) -> None:
     # the whole record (the span of every time view), 10 log10(S / threshold) clipped to DB_RANGE,
     # logged at the record start
     reader = RrdReader(tmp_path / "c.rrd")
-    t, blocks = _column(reader, "/spectrogram/pressure", "Tensor:data")
+    t, blocks, rng = _images(reader, "pressure")
     assert len(blocks) == 1 and t[0] <= rec.t[0] + 1e-12
-    block = blocks[0][0]
     lo, hi = rerun_log.default_band_hz(_monitor(rec))
     assert (lo, hi) == (1.0, 150.0)  # EHA: tested band from 1 Hz, capped at 3 x 41.8 Hz -> 150 Hz
     band = (spec.freqs_hz >= lo) & (spec.freqs_hz <= hi)
     p = rerun_log.pad_columns(_monitor(rec))
     assert p == 2  # 1 s window, 0.2 s hop: the first window starts 0.4 s before the first column's edge
-    assert block["shape"] == [int(band.sum()), spec.n_frames + 2 * p]
-    assert block["names"][0].startswith("freq 1-150 Hz (1 Hz/row")
-    edge = 0.1 + p * 0.2
-    assert block["names"][1].startswith(f"time {spec.times_s[0] - edge:.2f}-{spec.times_s[-1] + edge:.2f} s")
-    img = np.asarray(block["buffer"], dtype=float).reshape(block["shape"])
+    img = blocks[0]
+    assert img.shape == (int(band.sum()), spec.n_frames + 2 * p)
     assert np.all(img[:, :p] == rerun_log.DB_RANGE[0]) and np.all(img[:, -p:] == rerun_log.DB_RANGE[0])
     img = img[:, p:-p]
     thr = frame_threshold(rec.model, spec.freqs_hz, spec.config, rec.dt)
     db = np.clip(10 * np.log10(spec.power[:, band, 2] / thr.values[band, 2]), *rerun_log.DB_RANGE)
     np.testing.assert_allclose(img, db.T, atol=0.02)  # float16 dB (resolution 0.016 dB at 30 dB)
-    _, vr = _column(reader, "/spectrogram/pressure", "Tensor:value_range")  # fixed colour range
-    np.testing.assert_array_equal(np.asarray(vr[0]).ravel(), rerun_log.DB_RANGE)
+    np.testing.assert_array_equal(np.asarray(rng[0]).ravel(), rerun_log.DB_RANGE)  # fixed colour range
+    # the scale: frequency labels inside the band and a colour key with the dB range
+    _, labels = _column_static(reader, "/spectrogram/pressure/freq_ticks", "Points2D:labels")
+    assert labels[0][0] == "50 Hz" and labels[0][-1] == "150 Hz"
+    _, key = _column_static(reader, "/spectrogram/pressure/key_ticks", "Points2D:labels")
+    assert key[0][0] == f"{rerun_log.DB_RANGE[1]:g} dB"
 
 
 def _monitor(rec):
@@ -247,15 +268,14 @@ def test_live_viewer_receives_data(tmp_path: Path, sim, batch) -> None:
     assert n == spec.n_frames
     n = sum(
         c.num_rows
-        for c in reader.stream().filter(content="/spectrogram/pressure", is_static=False).to_chunks()
+        for c in reader.stream().filter(content="/spectrogram/pressure/image", is_static=False).to_chunks()
     )
     assert n == spec.n_frames  # the scrolling view goes to the live viewer at every hop
-    _, views = _column(reader, "/spectrogram/pressure", "Tensor:data")
-    widths = [v[0]["shape"][1] for v in views]
-    assert widths == [min(k + 1, 50) for k in range(spec.n_frames)]  # grows to 50 columns, no padding
-    assert views[-1][0]["names"][1].endswith(f"newest (right) = {spec.times_s[-1]:.1f} s")
-    _, vr = _column(reader, "/spectrogram/pressure", "Tensor:value_range")
-    assert len(vr) == spec.n_frames and np.array_equal(np.asarray(vr[-1]).ravel(), rerun_log.DB_RANGE)
+    _, views, rng = _images(reader, "pressure")
+    # always 50 columns (a fixed scale in the view), blank before the 50th frame, newest on the right
+    assert all(v.shape[1] == 50 for v in views)
+    assert np.all(views[0][:, :49] == rerun_log.DB_RANGE[0])
+    assert len(rng) == spec.n_frames and np.array_equal(np.asarray(rng[-1]).ravel(), rerun_log.DB_RANGE)
 
 
 def _visible(view, entity: str) -> list[bool]:
@@ -355,8 +375,8 @@ def test_file_spectrogram_blocks_tile_long_records(tmp_path: Path, batch) -> Non
         for lo in range(0, rec.n_samples, 333):
             logger.log_update(mon.push_chattering(rec.values[0, lo : lo + 333]))
         logger.close()
-    t, blocks = _column(RrdReader(tmp_path / "b.rrd"), "/spectrogram/velocity", "Tensor:data")
-    widths = [b[0]["shape"][1] for b in blocks]
+    t, blocks, _ = _images(RrdReader(tmp_path / "b.rrd"), "velocity")
+    widths = [b.shape[1] for b in blocks]
     p = rerun_log.pad_columns(mon)  # blank columns before the first frame and after the last one
     want = [7] * (spec.n_frames // 7) + ([spec.n_frames % 7] if spec.n_frames % 7 else [])
     want[0] += p

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from .spectrogram_view import image_width, spectrogram_view
 from .viewer import TIMELINE
 
 if TYPE_CHECKING:
@@ -321,15 +322,10 @@ def blueprint(
                         PSI: rr.SeriesLines.from_fields(visible_series=only(i, 2)),
                     },
                 ),
-                rrb.TensorView(
-                    origin=f"/spectrogram/{c}",
-                    name=f"{name}: spectrogram{band}, dB re threshold [{db_range[0]:g}, {db_range[1]:g}]",
-                    slice_selection=rrb.TensorSliceSelection(
-                        width=rr.components.TensorWidthDimension(dimension=1),
-                        height=rr.components.TensorHeightDimension(dimension=0, invert=True),
-                    ),
-                    scalar_mapping=rrb.TensorScalarMapping(colormap="magma"),
-                    view_fit="Fill",
+                spectrogram_view(
+                    f"/spectrogram/{c}",
+                    f"{name}: spectrogram{band}, dB re threshold (colour key left)",
+                    image_width(m),
                 ),
                 rrb.TimeSeriesView(
                     origin="/detection",

@@ -36,6 +36,7 @@ from .blueprint import (
 from .frame_peaks import peak_bins
 from .interval_lanes import IntervalCollector, lane_changes
 from .monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
+from .spectrogram_view import image_width, log_axes, log_image
 from .viewer import TIMELINE, Sinks
 
 if TYPE_CHECKING:
@@ -314,9 +315,6 @@ class RerunLogger:
         self._band_thr_db = (10.0 * np.log10(np.maximum(thr.values[self.band], 1e-300))).astype(np.float32)
         self.hop_s = monitor.n_hop * monitor.dt
         self.span_s = span_s
-        self._freq_dim = (
-            f"freq {self.band_hz[0]:g}-{self.band_hz[1]:g} Hz ({freqs[1] - freqs[0]:g} Hz/row, up)"
-        )
         # live: ring of the last scroll_frames dB columns (slot j % S holds frame j)
         nb = self.band.stop - self.band.start
         self._ring = np.zeros((self.scroll_frames, nb, m), dtype=np.float16)
@@ -324,6 +322,7 @@ class RerunLogger:
         # file: the dB columns of the current block, frame times (ns) of its first / last column
         self._file_cols: list[np.ndarray] = []
         self._pad = pad_columns(monitor)  # blank columns before the first and after the last frame
+        self._width = image_width(m)  # world width of the spectrogram image (spectrogram_view)
         self._file_n = 0
         self._file_block_start: int | None = None
         self._file_t: tuple[float, float] | None = None
@@ -402,7 +401,9 @@ class RerunLogger:
         def static(s: Any) -> None:
             for path, style in styles:
                 s.log(path, style, static=True)
+            df = float(self.monitor.freqs_hz[1] - self.monitor.freqs_hz[0])
             for i, (name, c) in enumerate(zip(self.channels, self.keys, strict=True)):
+                log_axes(s, f"/spectrogram/{c}", self.band_hz, df, DB_RANGE, self._width)
                 s.log(f"/threshold/{c}", rr.Tensor(thr.values[:, i], dim_names=["freq"]), static=True)
                 s.log(f"/expected/{c}", rr.Tensor(self._expected[:, i], dim_names=["freq"]), static=True)
                 s.log(
@@ -730,23 +731,14 @@ class RerunLogger:
         for f in range(db.shape[0]):
             self._ring[self._ring_n % S] = db[f]
             self._ring_n += 1
-            n = min(self._ring_n, S)
-            img = self._ring[(self._ring_n - n + np.arange(n)) % S]  # oldest first, no padding
-            t = float(fr.times_s[f])
-            names = (self._freq_dim, f"time ({self.hop_s:g} s/col), newest (right) = {t:.1f} s")
-            ns = int(to_ns(t))
+            # always S columns, oldest first (blank before the S-th frame): a fixed scale in the view
+            img = self._ring[(self._ring_n + np.arange(S)) % S]
+            if self._ring_n < S:
+                img = img.copy()
+                img[: S - self._ring_n] = DB_RANGE[0]
+            ns = int(to_ns(float(fr.times_s[f])))
             for i, c in enumerate(self.keys):
-                self._log_db_tensor(live, f"/spectrogram/{c}", ns, img[:, :, i].T, names)
-
-    def _log_db_tensor(self, s: Any, path: str, ns: int, img: np.ndarray, names: tuple[str, str]) -> None:
-        """One dB spectrogram ``Tensor`` (``value_range`` :data:`DB_RANGE`) at time ``ns``: built straight
-        from numpy (``rr.Tensor`` spends ~1.5 ms per call in Python) unless the layout check failed."""
-        if not self._cols.tensors_ok:
-            self._set_time(s, ns)
-            s.log(path, self.rr.Tensor(img, dim_names=list(names), value_range=list(DB_RANGE)))
-            return
-        cols = self._cols.tensor_columns(img[None], names, value_range=True, cache=False)
-        s.send_columns(path, indexes=[_TimeIndex(self.pa, np.array([ns], dtype=np.int64))], columns=cols)
+                log_image(live, f"/spectrogram/{c}", ns, img[:, :, i].T, self._width, DB_RANGE)
 
     def _file_spectrogram(self, times: np.ndarray, spectra: np.ndarray) -> None:
         """Append a file batch's frames (``times`` (F,) s, channel-major ``spectra`` (m, F, bins)) to
@@ -787,12 +779,7 @@ class RerunLogger:
         # (m, frames, band)
         block = np.concatenate(self._file_cols, axis=1) if len(self._file_cols) > 1 else self._file_cols[0]
         self._file_cols, self._file_n = [], 0
-        ta, tb = self._file_t
-        names = (
-            self._freq_dim,
-            f"time {ta - self.hop_s / 2:.2f}-{tb + self.hop_s / 2:.2f} s ({self.hop_s:g} s/col)",
-        )
+        ta = self._file_t[0]
         ns = self._file_block_start if self._file_block_start is not None else int(to_ns(ta))
-        for i, c in enumerate(self.keys):
-            img = np.ascontiguousarray(block[i].T)  # (band, frames): freq rows, time columns
-            self._log_db_tensor(file, f"/spectrogram/{c}", ns, img, names)
+        for i, c in enumerate(self.keys):  # (band, frames): freq rows, time columns
+            log_image(file, f"/spectrogram/{c}", ns, block[i].T, self._width, DB_RANGE)
