@@ -304,6 +304,8 @@ def test_blueprint_builds() -> None:
         assert [e for e in det.contents if "/fault/" in e] == [f"+ {blueprint.fault_entity(name)}"]
         assert _visible(freq, blueprint.PEAK_HZ) == own
         assert _visible(freq, blueprint.MOST_SIGNIFICANT_HZ) == own
+        # the peak frequency in red only at flagged frames (its own sparse entity)
+        assert [e for e in freq.contents if "/fault/" in e] == [f"+ {blueprint.fault_hz_entity(name)}"]
     bp = blueprint.blueprint(("position",), band_hz=(1.0, 150.0), span_s=(0.4, 3.6))
     assert bp is not None
     # lanes sort in channel order below the truth lane (the viewer orders them by entity path)

@@ -22,6 +22,7 @@ __all__ = [
     "VERDICT",
     "blueprint",
     "fault_entity",
+    "fault_hz_entity",
     "lane_entity",
     "series_styles",
     "time_axis",
@@ -53,6 +54,10 @@ THRESHOLD = "/detection/threshold_db"
 #: per channel (``2m .. 3m-1``; see chatterspec.detection.frame_score) and the rule's threshold ``h``
 #: (``3m``). The alarm series share the verdict's rows: Rerun's cost is per row.
 VERDICT = "/detection/verdict"
+#: Fixed y range of the statistic views (dB): healthy frames sit near -3 dB, the threshold at 0 dB; a
+#: fixed range keeps the viewer's tick labels (it labels powers of ten only when they are far enough
+#: apart: an auto range of -5..60 dB showed the "0" tick alone at 1600x1000). Larger values run off the top.
+STATISTIC_RANGE_DB = (-10.0, 30.0)
 #: Tested bin with the largest excess power ``S - E`` per channel (Hz), one row per frame.
 PEAK_HZ = "/frequency/peak_hz"
 #: Tested bin with the largest ``S / threshold`` per channel (Hz), one row per frame.
@@ -87,6 +92,23 @@ def lane_entity(index: int, name: str) -> str:
     return f"/state/{index + 1}_{_entity(name)}"
 
 
+def fault_hz_entity(name: str) -> str:
+    """Entity path of the peak frequency (Hz) of channel ``name`` at its flagged frames only (red points;
+    the peak frequency of every frame is drawn dimmed).
+
+    Parameters
+    ----------
+    name : str
+        Channel name.
+
+    Returns
+    -------
+    str
+        ``/frequency/fault/<name>`` (name made entity-safe).
+    """
+    return f"/frequency/fault/{_entity(name)}"
+
+
 def fault_entity(name: str) -> str:
     """Entity path of the flagged frames of output channel ``name``: the statistic (dB) at those frames
     only, drawn as red points (sparse, so one entity per channel).
@@ -105,7 +127,7 @@ def fault_entity(name: str) -> str:
 
 
 _COLORS = [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189]]
-_GREY, _RED, _WHITE = [150, 150, 150], [230, 40, 40], [235, 235, 235]
+_GREY, _RED, _WHITE, _DIM = [150, 150, 150], [230, 40, 40], [235, 235, 235], [90, 90, 90]
 
 
 def series_styles(
@@ -169,14 +191,16 @@ def series_styles(
         (
             PEAK_HZ,
             rr.SeriesLines(
-                colors=cols, widths=[1.0] * m, names=[f"{c}: peak_hz, largest S-E [Hz]" for c in channels]
+                colors=[_DIM] * m,
+                widths=[1.0] * m,
+                names=[f"{c}: peak_hz, largest S-E [Hz]" for c in channels],
             ),
         ),
         (
             MOST_SIGNIFICANT_HZ,
             rr.SeriesPoints(
-                colors=[_WHITE] * m,
-                marker_sizes=[1.5] * m,
+                colors=[_DIM] * m,
+                marker_sizes=[1.0] * m,
                 names=[f"{c}: most_significant_hz, largest S/thr [Hz]" for c in channels],
             ),
         ),
@@ -197,6 +221,8 @@ def series_styles(
     for c in channels:
         style = rr.SeriesPoints(colors=[_RED], marker_sizes=[2.5], names=[f"{c}: fault (flagged frame)"])
         out.append((fault_entity(c), style))
+        style = rr.SeriesPoints(colors=[_RED], marker_sizes=[2.5], names=[f"{c}: peak_hz of a flagged frame"])
+        out.append((fault_hz_entity(c), style))
     return out
 
 
@@ -247,6 +273,7 @@ def blueprint(
     alarm_score: bool = False,
     alarm_range: tuple[float, float] | None = None,
     extra_row: Any = None,
+    units: tuple[str, ...] | None = None,
 ) -> Any:
     """The default layout: per channel (columns) chattering, spectrogram, detection statistic and peak
     frequency; below, the state lanes (true fault first, then one verdict lane per channel in channel
@@ -283,6 +310,9 @@ def blueprint(
         and the (linked) time axis of the other views (:func:`time_axis`) (e.g. the identified parameters,
         :func:`chatterspec.online.identification_log.identification_views`).
 
+    units : tuple of str, optional
+        The channels' units, shown in the chattering views' titles.
+
     Returns
     -------
     rerun.blueprint.Blueprint
@@ -301,6 +331,9 @@ def blueprint(
         with False up to ``total`` series."""
         return [j // k == i for j in range(k * m)] + [False] * ((total or k * m) - k * m)
 
+    def unit(i: int) -> str:
+        return f" [{units[i]}]" if units and units[i] else ""
+
     columns = []
     for i, name in enumerate(channels):
         c = _entity(name)
@@ -309,7 +342,7 @@ def blueprint(
                 rrb.TimeSeriesView(
                     origin="/chattering",
                     contents=[f"+ {CHATTERING}", f"+ {PSI}"],
-                    name=f"{name}: chattering e(k|k-1), grey ±psi",
+                    name=f"{name}: chattering e(k|k-1){unit(i)}, grey ±psi",
                     time_ranges=time_range,
                     axis_x=axis,
                     plot_legend=no_legend,
@@ -333,6 +366,7 @@ def blueprint(
                     name=f"{name}: max S/threshold [dB], 0 dB = threshold, red = fault",
                     time_ranges=time_range,
                     axis_x=axis,
+                    axis_y=rrb.ScalarAxis(range=STATISTIC_RANGE_DB),
                     plot_legend=no_legend,
                     overrides={STATISTIC: rr.SeriesLines.from_fields(visible_series=only(i))},
                 ),
@@ -361,8 +395,8 @@ def blueprint(
                 ),
                 rrb.TimeSeriesView(
                     origin="/frequency",
-                    contents=[f"+ {PEAK_HZ}", f"+ {MOST_SIGNIFICANT_HZ}"],
-                    name=f"{name}: peak frequency [Hz], dots = most significant",
+                    contents=[f"+ {PEAK_HZ}", f"+ {MOST_SIGNIFICANT_HZ}", f"+ {fault_hz_entity(name)}"],
+                    name=f"{name}: peak frequency [Hz], red = flagged frame (grey: not flagged)",
                     time_ranges=time_range,
                     axis_x=axis,
                     plot_legend=no_legend,

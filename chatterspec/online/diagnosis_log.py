@@ -17,10 +17,10 @@ import numpy as np
 
 from ..detection.spectral import STFTConfig
 from ..detection.thresholds import Threshold
-from .blueprint import _entity, blueprint
+from .blueprint import _entity
 from .drivers import scenario_truth
 from .monitor import ChatteringMonitor, MonitorSettings
-from .rerun_log import DB_RANGE, RerunLogger, record_span, to_ns
+from .rerun_log import RerunLogger, record_span, to_ns
 from .viewer import TIMELINE, open_sinks
 
 __all__ = ["record_budget_diagnosis", "record_diagnosis"]
@@ -82,9 +82,7 @@ def record_diagnosis(
             logger = RerunLogger(sinks, mon, truth=truth, span_s=span, send_blueprint=False)
             for lo in range(0, z0.shape[0], int(chunk_samples)):
                 logger.log_update(mon.push(z0[lo : lo + chunk_samples], u0[lo : lo + chunk_samples]))
-            base = blueprint(
-                mon.channels, has_truth=True, band_hz=logger.band_hz, span_s=span, db_range=DB_RANGE
-            )
+            base = logger.layout(span_s=span, has_truth=True)
         else:
             span = (float(sim.t[0]), float(sim.t[-1]))
         time_range = rrb.VisibleTimeRange(

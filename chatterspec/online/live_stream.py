@@ -728,10 +728,7 @@ def _send_blueprint_released(stream: Any, logger: Any) -> None:
     """
     import rerun as rr
 
-    from .blueprint import blueprint
-    from .rerun_log import DB_RANGE
-
-    bp = blueprint(logger.channels, has_truth=False, band_hz=logger.band_hz, span_s=None, db_range=DB_RANGE)
+    bp = logger.layout(span_s=None)
     native = getattr(rr.bindings, "new_blueprint", None)
     from_native = getattr(rr.RecordingStream, "_from_native", None)
     full = bp.to_blueprint()

@@ -30,6 +30,7 @@ from .blueprint import (
     _entity,
     blueprint,
     fault_entity,
+    fault_hz_entity,
     lane_entity,
     series_styles,
 )
@@ -342,6 +343,7 @@ class RerunLogger:
             self._psi_rows = self._cols.scalars_column(np.tile(pm, (2, 1)), own=True)
         self._zero_rows = self._cols.scalars_column(np.zeros(2), own=True)
         self._fault = [fault_entity(c) for c in self.channels]
+        self._fault_hz = [fault_hz_entity(c) for c in self.channels]
         # a file's lanes: the record's interval estimates, drawn on close (interval_lanes)
         self._collector = IntervalCollector(monitor) if sinks.file_stream is not None else None
         self._half_win = (monitor.n_window - 1) / 2.0 * monitor.dt  # frame centre -> its last sample
@@ -353,19 +355,40 @@ class RerunLogger:
         self._h = float(rule.threshold) if np.isfinite(rule.threshold) else np.nan
         if send_blueprint:
             for s in sinks.streams:
-                bp = blueprint(
-                    self.channels,
-                    has_truth=bool(truth),
-                    band_hz=self.band_hz,
+                bp = self.layout(
                     span_s=None if s is sinks.live_stream else span_s,
-                    db_range=DB_RANGE,
-                    alarm=self._alarm_title(),
-                    alarm_score=self._cusum,
-                    alarm_range=(0.0, 1.5 * self._h) if self._h > 0 else None,
+                    has_truth=bool(truth),
                     extra_row=extra_row,
                 )
                 s.send_blueprint(bp, make_active=True, make_default=True)
         self._log_static(truth)
+
+    def layout(
+        self, *, span_s: tuple[float, float] | None, has_truth: bool = False, extra_row: Any = None
+    ) -> Any:
+        """This logger's default :func:`~chatterspec.online.blueprint.blueprint` (band, alarm view, units).
+
+        Parameters
+        ----------
+        span_s : (float, float) or None
+            A file's whole record (s); None for a live viewer (follows the data).
+        has_truth : bool
+            Draw the true fault lane.
+        extra_row : callable, optional
+            See :func:`~chatterspec.online.blueprint.blueprint`.
+        """
+        return blueprint(
+            self.channels,
+            has_truth=has_truth,
+            band_hz=self.band_hz,
+            span_s=span_s,
+            db_range=DB_RANGE,
+            alarm=self._alarm_title(),
+            alarm_score=self._cusum,
+            alarm_range=(0.0, 1.5 * self._h) if self._h > 0 else None,
+            extra_row=extra_row,
+            units=tuple(self.monitor.model.output_units),
+        )
 
     def _alarm_title(self) -> str:
         """The alarm view's title: the rule's statistic against its threshold, and the budget."""
@@ -632,10 +655,12 @@ class RerunLogger:
             self._send_spectra(s, f"/spectrum/{c}", fcol, fns, spectra[i])
             hit = np.flatnonzero(flags[:, i])
             if hit.size:  # sparse: one entity per channel, rows at its flagged frames only
+                hit_t = _TimeIndex(pa, fns[hit])
                 s.send_columns(
-                    self._fault[i],
-                    indexes=[_TimeIndex(pa, fns[hit])],
-                    columns=[cols.scalars_column(stat_db[hit, i])],
+                    self._fault[i], indexes=[hit_t], columns=[cols.scalars_column(stat_db[hit, i])]
+                )
+                s.send_columns(
+                    self._fault_hz[i], indexes=[hit_t], columns=[cols.scalars_column(peak_hz[hit, i])]
                 )
         if not box.live:  # the file's spectrogram: dB columns of the whole batch at once
             self._file_spectrogram(times, spectra)
