@@ -139,11 +139,22 @@ def test_cli_record_writes_truth_estimates_and_innovations(tmp_path, capsys):
     reader = rr.chunk.RrdReader(str(path))
     rows = {}
     for chunk in reader.stream().to_chunks():
-        rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+        if not chunk.is_static:  # the static rows are the series' styles
+            rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
     assert rows["/states/velocity/truth"] == 1001
     assert rows["/states/velocity/svsf2"] == 1000
     assert rows["/innovations/position/kf"] == 1000
     assert rows["/errors/acceleration/kf"] == 1000
+    # a designed layout (not Rerun's automatic grid): per state, truth and estimates above the errors
+    from chatterspec.online.estimates_log import estimate_blueprint
+
+    bp = estimate_blueprint(("position", "velocity"), ("position",), ["kf", "svsf2"], (0.0, 1.0), ("m", ""))
+    columns = bp.root_container.contents[0].contents
+    assert [[v.origin for v in col.contents] for col in columns] == [
+        ["/states/position", "/errors/position"],
+        ["/states/velocity", "/errors/velocity"],
+    ]
+    assert columns[0].contents[0].name.startswith("position [m]: truth")
 
 
 def test_estimation_error_figure(tmp_path):

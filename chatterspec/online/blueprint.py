@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from .. import palette
 from .spectrogram_view import image_width, spectrogram_view
 from .viewer import TIMELINE
 
@@ -126,8 +127,9 @@ def fault_entity(name: str) -> str:
     return f"/detection/fault/{_entity(name)}"
 
 
-_COLORS = [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189]]
-_GREY, _RED, _WHITE, _DIM = [150, 150, 150], [230, 40, 40], [235, 235, 235], [90, 90, 90]
+# the shared palette (chatterspec.palette): channels without red, red only for faults
+_COLORS = [list(c) for c in palette.CHANNEL_COLORS]
+_GREY, _RED, _WHITE, _DIM = list(palette.NEUTRAL), list(palette.FAULT), list(palette.TRUTH), [90, 90, 90]
 
 
 def series_styles(

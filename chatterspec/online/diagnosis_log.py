@@ -17,6 +17,7 @@ import numpy as np
 
 from ..detection.spectral import STFTConfig
 from ..detection.thresholds import Threshold
+from ..palette import MODE_COLORS, NEUTRAL, filter_color
 from .blueprint import _entity
 from .drivers import scenario_truth
 from .monitor import ChatteringMonitor, MonitorSettings
@@ -25,7 +26,7 @@ from .viewer import TIMELINE, open_sinks
 
 __all__ = ["record_budget_diagnosis", "record_diagnosis"]
 
-_MODE_COLORS = ([31, 119, 180], [255, 127, 14], [214, 39, 40], [44, 160, 44], [148, 103, 189])
+_MODE_COLORS = [list(c) for c in MODE_COLORS]  # the shared palette: no red
 
 
 def record_diagnosis(
@@ -147,8 +148,8 @@ def _log_route(sinks: Any, rr: Any, rrb: Any, method: str, series: tuple, time_r
     hline = np.full(stat.shape, float(h) if np.isfinite(h) else np.nan)
     for s in sinks.streams:
         for ent, vals, color, label in (
-            (f"/routes/{method}/statistic", stat, [31, 119, 180], name),
-            (f"/routes/{method}/threshold", hline, [214, 39, 40], "threshold"),
+            (f"/routes/{method}/statistic", stat, list(filter_color(method)), name),
+            (f"/routes/{method}/threshold", hline, list(NEUTRAL), "threshold"),
         ):
             s.log(ent, rr.SeriesLines(colors=[color], names=[label]), static=True)
             s.send_columns(

@@ -21,8 +21,9 @@ from typing import Any
 import numpy as np
 
 from ..errors import ParameterError
+from ..palette import TRUTH, filter_color
 
-__all__ = ["record_estimates"]
+__all__ = ["estimate_blueprint", "record_estimates"]
 
 
 def _ns(seconds: np.ndarray) -> np.ndarray:
@@ -77,19 +78,22 @@ def record_estimates(records: Any, path: str | Path, *, run: int = 0) -> Path:
             raise ParameterError(f"cannot write the recording {str(path)!r}: {exc}") from None
         raise err from None
     try:
+        from .viewer import TIMELINE
+
         rec.send_recording_name(f"estimate {sc.name} run {records.first_run + run}")
         t_all = rr.TimeColumn("time", duration=_ns(records.t))
         t_post = rr.TimeColumn("time", duration=_ns(records.t[1:]))
         names = list(records.outputs)
+        rec.set_time(TIMELINE, duration=np.timedelta64(int(_ns(records.t[:1])[0].astype(np.int64)), "ns"))
         rec.log(
             "/info",
             rr.TextLog(
                 f"scenario {sc.name}, realization {records.first_run + run}, filters {', '.join(names)}",
                 level="INFO",
             ),
-            static=True,
         )
         x = records.x[run]
+        _log_styles(rec, states, outputs, names)
         for i, s in enumerate(states):
             rec.send_columns(
                 f"/states/{s}/truth", indexes=[t_all], columns=rr.Scalars.columns(scalars=x[:, i])
@@ -118,7 +122,132 @@ def record_estimates(records: Any, path: str | Path, *, run: int = 0) -> Path:
                         indexes=[t_post],
                         columns=rr.Scalars.columns(scalars=out.innovation[run, :, j]),
                     )
+        span = (float(records.t[0]), float(records.t[-1]))
+        units = _state_units(model, states)
+        rec.send_blueprint(
+            estimate_blueprint(
+                states, outputs, names, span, units, title=f"{sc.name}, run {records.first_run + run}"
+            ),
+            make_active=True,
+            make_default=True,
+        )
         rec.flush()
     finally:
         rec.disconnect()
     return path
+
+
+def _state_units(model: Any, states: tuple[str, ...]) -> tuple[str, ...]:
+    """A state's unit where it is measured under its own name (the model lists output units only)."""
+    by_output = dict(zip(model.output_names, model.output_units, strict=True))
+    return tuple(by_output.get(s, "") for s in states)
+
+
+def _log_styles(rec: Any, states: tuple[str, ...], outputs: tuple[str, ...], names: list[str]) -> None:
+    """Static colours and widths (the shared palette): the truth a thin light line over the estimates,
+    each filter in its own colour in the state, error and innovation views (earlier filters wider)."""
+    import rerun as rr
+
+    for s in states:
+        rec.log(
+            f"/states/{s}/truth",
+            rr.SeriesLines(colors=[list(TRUTH)], widths=[1.0], names=["truth"]),
+            static=True,
+        )
+        for k, name in enumerate(names):
+            # drawn in name order: the first filter widest, so that a later one does not hide it
+            width = 1.0 + 0.8 * (len(names) - 1 - k)
+            style = rr.SeriesLines(colors=[list(filter_color(name, k))], widths=[width], names=[name])
+            rec.log(f"/states/{s}/{name}", style, static=True)
+            rec.log(f"/errors/{s}/{name}", style, static=True)
+    for o in outputs:
+        for k, name in enumerate(names):
+            width = 1.0 + 0.8 * (len(names) - 1 - k)
+            style = rr.SeriesLines(colors=[list(filter_color(name, k))], widths=[width], names=[name])
+            rec.log(f"/innovations/{o}/{name}", style, static=True)
+
+
+def estimate_blueprint(
+    states: tuple[str, ...],
+    outputs: tuple[str, ...],
+    filters: list[str],
+    span_s: tuple[float, float],
+    units: tuple[str, ...],
+    *,
+    title: str = "",
+) -> Any:
+    """The layout of an estimate recording: one column per state with the truth and every filter's
+    estimate on shared axes above the estimation errors; below, the innovations per output and the
+    run's description. Every time view shows ``span_s`` (linked time axis); legends sit in a corner
+    out of the data; playback opens paused on the whole record.
+
+    Parameters
+    ----------
+    states, outputs : tuple of str
+        State and output names.
+    filters : list of str
+        Filter names (their colours come from :data:`chatterspec.palette.FILTER_COLORS`).
+    span_s : (float, float)
+        The record's time span (s).
+    units : tuple of str
+        Unit per state ("" where unknown).
+    title : str
+        Scenario and run, shown in the view titles.
+
+    Returns
+    -------
+    rerun.blueprint.Blueprint
+    """
+    import rerun.blueprint as rrb
+    from rerun.encodings import AbsoluteTimeRange, TimeInt
+
+    from .blueprint import time_axis
+    from .viewer import TIMELINE
+
+    time_range, axis = time_axis(span_s)
+    legend = rrb.PlotLegend(corner="LeftTop", visible=True)
+    who = ", ".join(filters)
+    columns = []
+    for s, u in zip(states, units, strict=True):
+        unit = f" [{u}]" if u else ""
+        columns.append(
+            rrb.Vertical(
+                rrb.TimeSeriesView(
+                    origin=f"/states/{s}",
+                    name=f"{s}{unit}: truth (thin, light) and {who}",
+                    time_ranges=time_range,
+                    axis_x=axis,
+                    plot_legend=legend,
+                ),
+                rrb.TimeSeriesView(
+                    origin=f"/errors/{s}",
+                    name=f"{s} error: truth - estimate{unit}",
+                    time_ranges=time_range,
+                    axis_x=axis,
+                    plot_legend=rrb.PlotLegend(visible=False),
+                ),
+                row_shares=[1.4, 1.0],
+            )
+        )
+    bottom = [
+        rrb.TimeSeriesView(
+            origin=f"/innovations/{o}",
+            name=f"{o}: innovation z - C x(k|k-1) per filter",
+            time_ranges=time_range,
+            axis_x=axis,
+            plot_legend=rrb.PlotLegend(visible=False),
+        )
+        for o in outputs
+    ]
+    bottom.append(rrb.TextLogView(origin="/info", name=f"estimate {title}"))
+    ns = (round(span_s[0] * 1e9), round(span_s[1] * 1e9))
+    return rrb.Blueprint(
+        rrb.Vertical(rrb.Horizontal(*columns), rrb.Horizontal(*bottom), row_shares=[4.0, 1.0]),
+        rrb.TimePanel(
+            state="collapsed",
+            timeline=TIMELINE,
+            play_state="paused",
+            time_selection=AbsoluteTimeRange(min=TimeInt(nanos=ns[0]), max=TimeInt(nanos=ns[1])),
+        ),
+        collapse_panels=True,
+    )

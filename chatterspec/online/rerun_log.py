@@ -16,6 +16,7 @@ import numpy as np
 
 from ..detection.spectral import expected_frame_spectrum
 from ..errors import ParameterError
+from ..palette import FAULT, HEALTHY, NEUTRAL, fault_level_color, rgba32
 from ..plants.nonlinear import is_linear
 from .arrow_columns import _MAX_TENSOR_ROWS, _Columns, _TimeIndex
 from .blueprint import (
@@ -434,7 +435,7 @@ class RerunLogger:
                     rr.StateConfiguration(
                         values=["healthy", "fault"],
                         labels=[f"{name}: healthy", f"{name}: FAULT"],
-                        colors=np.array([0x2E7D32FF, 0xE53935FF], dtype=np.uint32),
+                        colors=np.array([rgba32(HEALTHY), rgba32(FAULT)], dtype=np.uint32),
                     ),
                     static=True,
                 )
@@ -457,13 +458,19 @@ class RerunLogger:
             def log_truth(s: Any) -> None:
                 labels = list(dict.fromkeys(lab for _, lab, _ in truth))
                 fault = {lab: f for _, lab, f in truth}
+                level = {lab: k for k, lab in enumerate(lab for lab in labels if fault[lab])}
                 s.log(
                     TRUTH_LANE,
                     rr.StateConfiguration(
                         values=labels,
                         labels=[f"true plant: {lab}" for lab in labels],
+                        # each fault level its own amber (never red: red is a verdict), healthy grey
                         colors=np.array(
-                            [0xFF9800FF if fault[lab] else 0x757575FF for lab in labels], dtype=np.uint32
+                            [
+                                rgba32(fault_level_color(level[lab]) if fault[lab] else NEUTRAL)
+                                for lab in labels
+                            ],
+                            dtype=np.uint32,
                         ),
                     ),
                     static=True,

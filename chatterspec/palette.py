@@ -1,0 +1,116 @@
+"""The one colour palette of chatterspec: figures (matplotlib) and recordings (Rerun) both use it.
+
+Rules: **red only means fault** (a fault verdict, a flagged frame, a fault interval); channels,
+filters and modes take their colours from lists without red; the true fault timeline draws each
+fault level in its own shade of amber (never red: truth is not a verdict) and healthy segments grey.
+
+Colours are ``(r, g, b)`` tuples of 0-255 integers; :func:`mpl` converts one for matplotlib and
+:func:`rgba32` packs one for Rerun's ``StateConfiguration``. Pure data: no import of matplotlib or
+rerun.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "CHANNEL_COLORS",
+    "FAULT",
+    "FAULT_LEVEL_COLORS",
+    "FILTER_COLORS",
+    "HEALTHY",
+    "MODE_COLORS",
+    "NEUTRAL",
+    "TRUTH",
+    "channel_color",
+    "fault_level_color",
+    "filter_color",
+    "mode_color",
+    "mpl",
+    "rgba32",
+]
+
+RGB = tuple[int, int, int]
+
+#: A fault (verdict, flagged frame, detected interval); nothing else is drawn in red.
+FAULT: RGB = (229, 57, 53)
+#: A healthy verdict (lanes).
+HEALTHY: RGB = (46, 125, 50)
+#: Reference lines and healthy truth segments.
+NEUTRAL: RGB = (140, 140, 140)
+#: The true state (drawn under the estimates): light grey on Rerun's dark background; figures use black.
+TRUTH: RGB = (235, 235, 235)
+
+#: Output channels, in model order (matplotlib's tab10 without its red and grey): blue, orange, green,
+#: purple, brown, pink, olive, cyan.
+CHANNEL_COLORS: tuple[RGB, ...] = (
+    (31, 119, 180),
+    (255, 127, 14),
+    (44, 160, 44),
+    (148, 103, 189),
+    (140, 86, 75),
+    (227, 119, 194),
+    (188, 189, 34),
+    (23, 190, 207),
+)
+
+#: Estimators and diagnosis methods by name (the KF and EKF share a colour: one runs per plant).
+FILTER_COLORS: dict[str, RGB] = {
+    "kf": (31, 119, 180),
+    "ekf": (31, 119, 180),
+    "svsf": (255, 127, 14),
+    "svsf2": (44, 160, 44),
+    "smm": (148, 103, 189),
+    "imm": (23, 190, 207),
+    "chattering": (255, 127, 14),
+    "innovation": (140, 86, 75),
+}
+
+#: Modes of a multiple-model diagnosis, in mode order (no red).
+MODE_COLORS: tuple[RGB, ...] = (
+    (31, 119, 180),
+    (255, 127, 14),
+    (44, 160, 44),
+    (148, 103, 189),
+    (23, 190, 207),
+    (188, 189, 34),
+    (227, 119, 194),
+    (140, 86, 75),
+)
+
+#: True fault levels in order of appearance: light to dark amber (distinct, never red).
+FAULT_LEVEL_COLORS: tuple[RGB, ...] = (
+    (255, 213, 79),
+    (255, 160, 0),
+    (230, 110, 0),
+    (170, 80, 0),
+    (255, 236, 150),
+)
+
+
+def channel_color(index: int) -> RGB:
+    """Colour of output channel ``index`` (0-based; cycles after 8)."""
+    return CHANNEL_COLORS[index % len(CHANNEL_COLORS)]
+
+
+def filter_color(name: str, index: int = 0) -> RGB:
+    """Colour of estimator / method ``name``; an unknown name gets channel colour ``index``."""
+    return FILTER_COLORS.get(name.lower(), channel_color(index))
+
+
+def mode_color(index: int) -> RGB:
+    """Colour of mode ``index`` of a multiple-model diagnosis."""
+    return MODE_COLORS[index % len(MODE_COLORS)]
+
+
+def fault_level_color(index: int) -> RGB:
+    """Colour of the ``index``-th distinct true fault level of a timeline."""
+    return FAULT_LEVEL_COLORS[index % len(FAULT_LEVEL_COLORS)]
+
+
+def mpl(color: RGB) -> tuple[float, float, float]:
+    """A palette colour as a matplotlib RGB tuple (0-1)."""
+    return (color[0] / 255.0, color[1] / 255.0, color[2] / 255.0)
+
+
+def rgba32(color: RGB, alpha: int = 255) -> int:
+    """A palette colour packed as Rerun's ``0xRRGGBBAA`` integer."""
+    return (color[0] << 24) | (color[1] << 16) | (color[2] << 8) | alpha
