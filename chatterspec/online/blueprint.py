@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from .. import palette
-from .spectrogram_view import image_width, spectrogram_view
+from .spectrogram_view import KEY_FRACTION, spectrogram_view
 from .viewer import TIMELINE
 
 if TYPE_CHECKING:
@@ -25,6 +25,7 @@ __all__ = [
     "fault_entity",
     "fault_hz_entity",
     "lane_entity",
+    "layout_geometry",
     "series_styles",
     "time_axis",
 ]
@@ -94,8 +95,9 @@ def lane_entity(index: int, name: str) -> str:
 
 
 def fault_hz_entity(name: str) -> str:
-    """Entity path of the peak frequency (Hz) of channel ``name`` at its flagged frames only (red points;
-    the peak frequency of every frame is drawn dimmed).
+    """Entity path of the most significant frequency (largest ``S / threshold``, Hz: the brightest bin of
+    the dB spectrogram) of channel ``name`` at its flagged frames only (red points; the peak frequencies
+    of every frame are drawn dimmed).
 
     Parameters
     ----------
@@ -223,7 +225,9 @@ def series_styles(
     for c in channels:
         style = rr.SeriesPoints(colors=[_RED], marker_sizes=[2.5], names=[f"{c}: fault (flagged frame)"])
         out.append((fault_entity(c), style))
-        style = rr.SeriesPoints(colors=[_RED], marker_sizes=[2.5], names=[f"{c}: peak_hz of a flagged frame"])
+        style = rr.SeriesPoints(
+            colors=[_RED], marker_sizes=[2.5], names=[f"{c}: most_significant_hz of a flagged frame"]
+        )
         out.append((fault_hz_entity(c), style))
     return out
 
@@ -263,6 +267,61 @@ def time_axis(span_s: tuple[float, float] | None, history_s: float = 10.0) -> tu
     )
 
 
+#: Logical pixels of the window the layouts are designed for (1600x1000, menu and time panel excluded).
+_WINDOW = (1600.0, 840.0)
+#: Pixels of one state lane, of a view's title bar, of an extra row above or below the columns.
+_LANE_PX, _TITLE_PX, _ROW_PX = 42.0, 26.0, 100.0
+
+
+def _column_shares(alarm: bool, peak: bool = True) -> list[float]:
+    shares = [1, 1.5, 1] + ([0.9] if alarm else []) + ([0.8] if peak else [])
+    return [float(x) for x in shares]
+
+
+def layout_geometry(
+    n_channels: int,
+    n_lanes: int,
+    *,
+    alarm: bool = True,
+    rows_above: int = 0,
+    rows_below: int = 0,
+    peak: bool = True,
+) -> tuple[list[float], float]:
+    """Row heights of the default layout at 1600x1000 and the spectrogram image's world width.
+
+    The lanes row gets ``45 + 42`` px per lane (a lane and its name; every lane visible), each extra
+    row 100 px, the channel
+    columns the rest; the spectrogram image's width (:func:`~chatterspec.online.spectrogram_view`) is
+    its view's aspect ratio there, so that it fills the view.
+
+    Parameters
+    ----------
+    n_channels : int
+        Channel columns.
+    n_lanes : int
+        State lanes (truth, mode lanes, one per channel).
+    alarm : bool
+        The columns hold the alarm view.
+    rows_above, rows_below : int
+        Extra rows above the columns and below the lanes.
+    peak : bool
+        The columns hold the peak-frequency view.
+
+    Returns
+    -------
+    (row_shares, image_width)
+        Shares (px) of: the rows above, the columns, the lanes, the rows below; the image width
+        (its height is 1).
+    """
+    lanes = 45.0 + _LANE_PX * n_lanes
+    cols = max(_WINDOW[1] - lanes - _ROW_PX * (rows_above + rows_below), 200.0)
+    shares = _column_shares(alarm, peak)
+    spec_h = max(cols * shares[1] / sum(shares) - _TITLE_PX, 20.0)
+    view_w = _WINDOW[0] / max(n_channels, 1) - 8.0
+    width = view_w / spec_h / (1.0 + KEY_FRACTION)
+    return [_ROW_PX] * rows_above + [cols, lanes] + [_ROW_PX] * rows_below, float(width)
+
+
 def blueprint(
     channels: tuple[str, ...],
     *,
@@ -276,6 +335,10 @@ def blueprint(
     alarm_range: tuple[float, float] | None = None,
     extra_row: Any = None,
     units: tuple[str, ...] | None = None,
+    above: list[Any] | None = None,
+    extra_lanes: int = 0,
+    lanes_name: str | None = None,
+    peak_view: bool = True,
 ) -> Any:
     """The default layout: per channel (columns) chattering, spectrogram, detection statistic and peak
     frequency; below, the state lanes (true fault first, then one verdict lane per channel in channel
@@ -314,6 +377,16 @@ def blueprint(
 
     units : tuple of str, optional
         The channels' units, shown in the chattering views' titles.
+    above : list of views, optional
+        A row of views above the channel columns (e.g. a diagnosis's route statistics).
+    extra_lanes : int
+        Lanes logged under ``/state`` besides the truth and the channels (e.g. most probable modes):
+        the lanes row grows so that every lane stays visible.
+    lanes_name : str, optional
+        Title of the lanes view.
+    peak_view : bool
+        Show the peak-frequency view in each column (the viewer keeps a minimum height per view: a
+        layout with many lanes leaves it out so that every lane stays visible).
 
     Returns
     -------
@@ -332,6 +405,16 @@ def blueprint(
         """visible_series of channel i in an entity with k series per channel (channel-major), padded
         with False up to ``total`` series."""
         return [j // k == i for j in range(k * m)] + [False] * ((total or k * m) - k * m)
+
+    n_lanes = len(channels) + (1 if has_truth else 0) + int(extra_lanes)
+    row_px, width = layout_geometry(
+        m,
+        n_lanes,
+        alarm=alarm is not None,
+        rows_above=1 if above else 0,
+        rows_below=1 if extra_row else 0,
+        peak=peak_view,
+    )
 
     def unit(i: int) -> str:
         return f" [{units[i]}]" if units and units[i] else ""
@@ -360,7 +443,7 @@ def blueprint(
                 spectrogram_view(
                     f"/spectrogram/{c}",
                     f"{name}: spectrogram{band}, dB re threshold (colour key left)",
-                    image_width(m),
+                    width,
                 ),
                 rrb.TimeSeriesView(
                     origin="/detection",
@@ -395,23 +478,34 @@ def blueprint(
                         )
                     ]
                 ),
-                rrb.TimeSeriesView(
-                    origin="/frequency",
-                    contents=[f"+ {PEAK_HZ}", f"+ {MOST_SIGNIFICANT_HZ}", f"+ {fault_hz_entity(name)}"],
-                    name=f"{name}: peak frequency [Hz], red = flagged frame (grey: not flagged)",
-                    time_ranges=time_range,
-                    axis_x=axis,
-                    plot_legend=no_legend,
-                    overrides={
-                        PEAK_HZ: rr.SeriesLines.from_fields(visible_series=only(i)),
-                        MOST_SIGNIFICANT_HZ: rr.SeriesPoints.from_fields(visible_series=only(i)),
-                    },
-                    axis_y=None if band_hz is None else rrb.ScalarAxis(range=(0.0, float(band_hz[1]))),
+                *(
+                    []
+                    if not peak_view
+                    else [
+                        rrb.TimeSeriesView(
+                            origin="/frequency",
+                            contents=[
+                                f"+ {PEAK_HZ}",
+                                f"+ {MOST_SIGNIFICANT_HZ}",
+                                f"+ {fault_hz_entity(name)}",
+                            ],
+                            name=f"{name}: frequency [Hz] of max S/thr, red = flagged (grey: largest S-E)",
+                            time_ranges=time_range,
+                            axis_x=axis,
+                            plot_legend=no_legend,
+                            overrides={
+                                PEAK_HZ: rr.SeriesLines.from_fields(visible_series=only(i)),
+                                MOST_SIGNIFICANT_HZ: rr.SeriesPoints.from_fields(visible_series=only(i)),
+                            },
+                            axis_y=None
+                            if band_hz is None
+                            else rrb.ScalarAxis(range=(0.0, float(band_hz[1]))),
+                        ),
+                    ]
                 ),
-                row_shares=[1, 1.5, 1, 0.8] if alarm is None else [1, 1.5, 1, 0.9, 0.8],
+                row_shares=_column_shares(alarm is not None, peak_view),
             )
         )
-    n_lanes = len(channels) + (1 if has_truth else 0)
     time_panel = (
         rrb.TimePanel(state="collapsed", timeline=TIMELINE, play_state="following")
         if span_s is None
@@ -426,13 +520,16 @@ def blueprint(
         )
     )
     extra = [] if extra_row is None else [rrb.Horizontal(*extra_row(time_range, axis))]
+    top = [rrb.Horizontal(*above)] if above else []
+    default_name = "true fault (top) and verdict per channel" if has_truth else "verdict per channel"
     return rrb.Blueprint(
         rrb.Vertical(
+            *top,
             rrb.Horizontal(*columns),
             rrb.Horizontal(
                 rrb.StateTimelineView(
                     origin="/state",
-                    name="true fault (top) and verdict per channel" if has_truth else "verdict per channel",
+                    name=lanes_name or default_name,
                     time_ranges=time_range,
                     time_view=axis,
                 ),
@@ -440,9 +537,8 @@ def blueprint(
                 column_shares=[2, 1],
             ),
             *extra,
-            # about 45 px per lane at 1000 px: every lane visible at 1600x1000
-            # the extra row (identified parameters) takes its height from the views above
-            row_shares=[4.4 if extra else 5.2, 0.55 + 0.25 * n_lanes] + ([1.3] if extra else []),
+            # pixels at 1600x1000 (layout_geometry): every lane visible
+            row_shares=row_px,
         ),
         time_panel,
         collapse_panels=True,

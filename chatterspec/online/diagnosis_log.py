@@ -17,16 +17,14 @@ import numpy as np
 
 from ..detection.spectral import STFTConfig
 from ..detection.thresholds import Threshold
-from ..palette import MODE_COLORS, NEUTRAL, filter_color
-from .blueprint import _entity
+from ..palette import NEUTRAL, fault_level_color, filter_color, mode_color, rgba32
+from .blueprint import _entity, time_axis
 from .drivers import scenario_truth
 from .monitor import ChatteringMonitor, MonitorSettings
 from .rerun_log import RerunLogger, record_span, to_ns
 from .viewer import TIMELINE, open_sinks
 
-__all__ = ["record_budget_diagnosis", "record_diagnosis"]
-
-_MODE_COLORS = [list(c) for c in MODE_COLORS]  # the shared palette: no red
+__all__ = ["mode_lane_entity", "record_budget_diagnosis", "record_diagnosis"]
 
 
 def record_diagnosis(
@@ -74,61 +72,57 @@ def record_diagnosis(
     sinks = open_sinks(record=path, recording_name=f"diagnose {sc.name} (realization 0)")
     logger: RerunLogger | None = None
     try:
-        base = None
         if threshold is not None:
             settings = MonitorSettings(stft=config or STFTConfig(), threshold=threshold)
             mon = ChatteringMonitor(sc.nominal, settings)
             span = record_span(mon, z0.shape[0], raw=True)
             truth = scenario_truth(sc)
-            logger = RerunLogger(sinks, mon, truth=truth, span_s=span, send_blueprint=False)
+            logger = RerunLogger(
+                sinks,
+                mon,
+                truth=truth,
+                span_s=span,
+                send_blueprint=False,
+                extra_lanes=len(mode_outputs),
+                rows_above=1 if route_series else 0,
+                peak_view=False,  # every lane visible at 1600x1000: the events and spectrogram give it
+            )
             for lo in range(0, z0.shape[0], int(chunk_samples)):
                 logger.log_update(mon.push(z0[lo : lo + chunk_samples], u0[lo : lo + chunk_samples]))
-            base = logger.layout(span_s=span, has_truth=True)
         else:
             span = (float(sim.t[0]), float(sim.t[-1]))
-        time_range = rrb.VisibleTimeRange(
-            TIMELINE,
-            start=rrb.TimeRangeBoundary.absolute(nanos=int(to_ns(span[0]))),
-            end=rrb.TimeRangeBoundary.absolute(nanos=int(to_ns(span[1]))),
-        )
-        views = []
+        time_range, axis = time_axis(span)
+        truth = scenario_truth(sc)
+        lane_colors = _label_colors(truth)
         for method, (t, mu, modes) in mode_outputs.items():
-            ns = to_ns(np.asarray(t, dtype=float))
             mu = np.asarray(mu, dtype=float)
-            mu = mu[0] if mu.ndim == 3 else mu
-            for s in sinks.streams:
-                for j, mode in enumerate(modes):
-                    ent = f"/modes/{method}/{_entity(mode)}"
-                    color = _MODE_COLORS[j % len(_MODE_COLORS)]
-                    s.log(ent, rr.SeriesLines(colors=[color], names=[f"mu {mode}"]), static=True)
-                    s.send_columns(
-                        ent,
-                        indexes=[rr.TimeColumn(TIMELINE, duration=ns.astype("timedelta64[ns]"))],
-                        columns=rr.Scalars.columns(scalars=np.asarray(mu[:, j], dtype=float)),
-                    )
-            views.append(
-                rrb.TimeSeriesView(
-                    origin=f"/modes/{method}",
-                    name=f"{method}: mode probabilities ({', '.join(modes)})",
-                    time_ranges=time_range,
-                    axis_y=rrb.ScalarAxis(range=(0.0, 1.0)),
-                )
+            _log_modes(
+                sinks,
+                rr,
+                method,
+                np.asarray(t, dtype=float),
+                mu[0] if mu.ndim == 3 else mu,
+                modes,
+                lane_colors,
             )
         route_views = [
-            _log_route(sinks, rr, rrb, method, series, time_range)
+            _log_route(sinks, rr, rrb, method, series, time_range, axis)
             for method, series in (route_series or {}).items()
         ]
-        parts: list[Any] = []
-        if route_views:
-            parts.append(rrb.Horizontal(*route_views))
-        if views:
-            parts.append(rrb.Horizontal(*views))
-        if base is not None:
-            parts.append(base.root_container)
-        shares = [1.2] * (len(parts) - (base is not None)) + ([6.0] if base is not None else [])
-        root = rrb.Vertical(*parts, row_shares=shares)
-        extra = [base.time_panel] if base is not None else []
-        bp = rrb.Blueprint(root, *extra, collapse_panels=True)
+        lanes_name = "true fault (top), most probable mode per method, verdict per channel"
+        if logger is not None:
+            bp = logger.layout(span_s=span, has_truth=True, above=route_views or None, lanes_name=lanes_name)
+        else:  # no chattering route: the route statistics above the truth and mode lanes
+            _log_truth_lane(sinks, rr, truth, lane_colors)
+            lanes = rrb.StateTimelineView(
+                origin="/state", name=lanes_name, time_ranges=time_range, time_view=axis
+            )
+            rows = ([rrb.Horizontal(*route_views)] if route_views else []) + [lanes]
+            bp = rrb.Blueprint(
+                rrb.Vertical(*rows, row_shares=[1.0] * (len(rows) - 1) + [0.6]),
+                rrb.TimePanel(state="collapsed", timeline=TIMELINE, play_state="paused"),
+                collapse_panels=True,
+            )
         for s in sinks.streams:
             s.send_blueprint(bp, make_active=True, make_default=True)
     finally:
@@ -140,8 +134,103 @@ def record_diagnosis(
     return Path(path)
 
 
-def _log_route(sinks: Any, rr: Any, rrb: Any, method: str, series: tuple, time_range: Any) -> Any:
-    """Log one route's statistic and threshold as two series; return its view."""
+def _label_colors(truth: list[tuple[float, str, bool]]) -> dict[str, int]:
+    """Lane colours by label (``0xRRGGBBAA``): each true fault level its own amber, healthy grey (as the
+    monitor's truth lane), so that a mode lane whose label names a true segment reads like the truth."""
+    out: dict[str, int] = {}
+    k = 0
+    for _, label, fault in truth:
+        if label not in out:
+            out[label] = rgba32(fault_level_color(k) if fault else NEUTRAL)
+            k += bool(fault)
+    return out
+
+
+def _log_truth_lane(
+    sinks: Any, rr: Any, truth: list[tuple[float, str, bool]], colors: dict[str, int]
+) -> None:
+    """The true fault lane (without a chattering monitor, which draws it otherwise)."""
+    from .blueprint import TRUTH_LANE
+
+    labels = list(dict.fromkeys(lab for _, lab, _ in truth))
+    for s in sinks.streams:
+        s.log(
+            TRUTH_LANE,
+            rr.StateConfiguration(
+                values=labels,
+                labels=[f"true plant: {lab}" for lab in labels],
+                colors=np.array([colors[lab] for lab in labels], dtype=np.uint32),
+            ),
+            static=True,
+        )
+        s.send_columns(
+            TRUTH_LANE,
+            indexes=[
+                rr.TimeColumn(TIMELINE, duration=to_ns([a for a, _, _ in truth]).astype("timedelta64[ns]"))
+            ],
+            columns=rr.StateChange.columns(state=[lab for _, lab, _ in truth]),
+        )
+
+
+def mode_lane_entity(method: str) -> str:
+    """Entity of the most-probable-mode lane of ``method``: sorts right below the truth lane.
+
+    Parameters
+    ----------
+    method : str
+
+    Returns
+    -------
+    str
+        ``/state/0m_<method>``.
+    """
+    return f"/state/0m_{_entity(method)}"
+
+
+def _log_modes(
+    sinks: Any,
+    rr: Any,
+    method: str,
+    t: np.ndarray,
+    mu: np.ndarray,
+    modes: tuple[str, ...],
+    colors: dict[str, int],
+) -> None:
+    """Mode probabilities ``/modes/<method>/<mode>`` (series, palette colours) and the most probable mode
+    as a lane (a change at each switch), coloured like the truth lane where a mode names a true segment."""
+    ns = to_ns(t)
+    tcol = rr.TimeColumn(TIMELINE, duration=ns.astype("timedelta64[ns]"))
+    best = np.argmax(mu, axis=1)
+    change = np.flatnonzero(np.concatenate(([True], best[1:] != best[:-1])))
+    names = {"normal": "healthy"}  # the truth lane's name of the nominal mode
+    lane_col = [colors.get(names.get(m, m), rgba32(mode_color(j))) for j, m in enumerate(modes)]
+    for s in sinks.streams:
+        for j, mode in enumerate(modes):
+            ent = f"/modes/{method}/{_entity(mode)}"
+            s.log(ent, rr.SeriesLines(colors=[list(mode_color(j))], names=[f"mu {mode}"]), static=True)
+            s.send_columns(ent, indexes=[tcol], columns=rr.Scalars.columns(scalars=np.asarray(mu[:, j])))
+        s.log(
+            mode_lane_entity(method),
+            rr.StateConfiguration(
+                values=list(modes),
+                labels=[f"{method}: {m}" for m in modes],
+                colors=np.array(lane_col, dtype=np.uint32),
+            ),
+            static=True,
+        )
+        s.send_columns(
+            mode_lane_entity(method),
+            indexes=[rr.TimeColumn(TIMELINE, duration=ns[change].astype("timedelta64[ns]"))],
+            columns=rr.StateChange.columns(state=[modes[k] for k in best[change]]),
+        )
+
+
+def _log_route(
+    sinks: Any, rr: Any, rrb: Any, method: str, series: tuple, time_range: Any, axis: Any = None
+) -> Any:
+    """Log one route's statistic and threshold as two series; return its view (no legend over the data:
+    the title names them; y range up to 1.5 h, so that the threshold shows even when a fault's statistic
+    runs far above it)."""
     t, stat, h, name = series
     ns = to_ns(np.asarray(t, dtype=float)).astype("timedelta64[ns]")
     stat = np.asarray(stat, dtype=float)
@@ -155,8 +244,14 @@ def _log_route(sinks: Any, rr: Any, rrb: Any, method: str, series: tuple, time_r
             s.send_columns(
                 ent, indexes=[rr.TimeColumn(TIMELINE, duration=ns)], columns=rr.Scalars.columns(scalars=vals)
             )
+    top = 1.5 * float(h) if np.isfinite(h) and h > 0 else None
     return rrb.TimeSeriesView(
-        origin=f"/routes/{method}", name=f"{method}: {name} and threshold", time_ranges=time_range
+        origin=f"/routes/{method}",
+        name=f"{method}: {name} (colour) vs threshold h = {h:.3g} (grey)",
+        time_ranges=time_range,
+        axis_x=axis,
+        axis_y=None if top is None else rrb.ScalarAxis(range=(0.0, top)),
+        plot_legend=rrb.PlotLegend(visible=False),
     )
 
 

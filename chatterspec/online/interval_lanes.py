@@ -31,7 +31,8 @@ class FaultInterval:
     onset_s, offset_s : float
         Window-extent estimates (s), as ``detect --json``'s ``intervals``.
     peak_hz : float
-        Frequency of the largest ``S / threshold`` over the interval's flagged frames (Hz).
+        Peak frequency (largest excess ``S - E`` over the threshold) of the interval's frame with the
+        largest ``S / threshold`` (Hz).
     peak_db : float
         That largest ``10 log10(S / threshold)`` (dB).
     """
@@ -60,13 +61,21 @@ class IntervalCollector:
     _hz: list[np.ndarray] = field(default_factory=list)
     _times: list[np.ndarray] = field(default_factory=list)
 
-    def add(self, frames: Any) -> None:
-        """Append a :class:`~chatterspec.online.monitor_types.FrameBlock`'s frames."""
-        if frames.n_frames:
-            self._flags.append(np.asarray(frames.flags, dtype=bool))
-            self._ratio.append(np.asarray(frames.peak_ratio, dtype=np.float32))
-            self._hz.append(np.asarray(frames.peak_hz, dtype=np.float32))
-            self._times.append(np.asarray(frames.times_s, dtype=float))
+    def add(self, times: np.ndarray, flags: np.ndarray, ratio: np.ndarray, peak_hz: np.ndarray) -> None:
+        """Append frames: centre times (F,) s, flags (F, m), ``max S / threshold`` (F, m) and the peak
+        frequency shown for them (F, m) Hz (the logger's ``peak_hz``: the largest excess ``S - E``
+        among the bins over the threshold)."""
+        if len(times):
+            self._flags.append(np.asarray(flags, dtype=bool))
+            self._ratio.append(np.asarray(ratio, dtype=np.float32))
+            self._hz.append(np.asarray(peak_hz, dtype=np.float32))
+            self._times.append(np.asarray(times, dtype=float))
+
+    def frames(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """All frames so far: (times (F,) s, flags (F, m), peak_hz (F, m) Hz)."""
+        if not self._flags:
+            return np.zeros(0), np.zeros((0, 0), dtype=bool), np.zeros((0, 0))
+        return np.concatenate(self._times), np.concatenate(self._flags), np.concatenate(self._hz)
 
     def intervals(self) -> list[FaultInterval]:
         """The record's fault intervals, channel by channel in time order (zero-length ones included).

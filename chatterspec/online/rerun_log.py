@@ -33,12 +33,13 @@ from .blueprint import (
     fault_entity,
     fault_hz_entity,
     lane_entity,
+    layout_geometry,
     series_styles,
 )
 from .frame_peaks import peak_bins
 from .interval_lanes import IntervalCollector, lane_changes
 from .monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
-from .spectrogram_view import image_width, log_axes, log_image
+from .spectrogram_view import log_axes, log_image
 from .viewer import TIMELINE, Sinks
 
 if TYPE_CHECKING:
@@ -258,6 +259,11 @@ class RerunLogger:
         in float64 before logging either way. "float64" logs the monitor's values bit-exactly.
     extra_row : callable, optional
         Views below the default layout (see :func:`~chatterspec.online.blueprint.blueprint`).
+    extra_lanes, rows_above : int
+        Lanes under ``/state`` and rows above the columns that the caller's layout adds (its
+        :meth:`layout` ``above=``): they set the spectrogram image's aspect ratio.
+    peak_view : bool
+        The layout shows the peak-frequency views (see :func:`~chatterspec.online.blueprint.blueprint`).
     """
 
     def __init__(
@@ -275,6 +281,9 @@ class RerunLogger:
         send_blueprint: bool = True,
         spectrum_dtype: str = "float32",
         extra_row: Any = None,
+        extra_lanes: int = 0,
+        rows_above: int = 0,
+        peak_view: bool = True,
     ) -> None:
         import pyarrow as pa
         import rerun as rr
@@ -324,7 +333,19 @@ class RerunLogger:
         # file: the dB columns of the current block, frame times (ns) of its first / last column
         self._file_cols: list[np.ndarray] = []
         self._pad = pad_columns(monitor)  # blank columns before the first and after the last frame
-        self._width = image_width(m)  # world width of the spectrogram image (spectrogram_view)
+        self._n_blocks = 0  # spectrogram blocks logged to the file
+        # the layout's geometry: the spectrogram image fills its view at 1600x1000 (blueprint.layout_geometry)
+        self._has_truth, self._extra_lanes, self._rows_above = bool(truth), int(extra_lanes), int(rows_above)
+        self._extra_row, self._peak_view = extra_row, bool(peak_view)
+        n_lanes = m + self._has_truth + self._extra_lanes
+        self._width = layout_geometry(
+            m,
+            n_lanes,
+            alarm=True,
+            rows_above=self._rows_above,
+            rows_below=1 if extra_row else 0,
+            peak=self._peak_view,
+        )[1]
         self._file_n = 0
         self._file_block_start: int | None = None
         self._file_t: tuple[float, float] | None = None
@@ -365,30 +386,45 @@ class RerunLogger:
         self._log_static(truth)
 
     def layout(
-        self, *, span_s: tuple[float, float] | None, has_truth: bool = False, extra_row: Any = None
+        self,
+        *,
+        span_s: tuple[float, float] | None,
+        has_truth: bool | None = None,
+        extra_row: Any = None,
+        above: list[Any] | None = None,
+        lanes_name: str | None = None,
     ) -> Any:
-        """This logger's default :func:`~chatterspec.online.blueprint.blueprint` (band, alarm view, units).
+        """This logger's default :func:`~chatterspec.online.blueprint.blueprint` (band, alarm view, units,
+        and the geometry given to the constructor).
 
         Parameters
         ----------
         span_s : (float, float) or None
             A file's whole record (s); None for a live viewer (follows the data).
-        has_truth : bool
-            Draw the true fault lane.
+        has_truth : bool, optional
+            Draw the true fault lane (default: a truth was given).
         extra_row : callable, optional
-            See :func:`~chatterspec.online.blueprint.blueprint`.
+            See :func:`~chatterspec.online.blueprint.blueprint` (default: the constructor's).
+        above : list of views, optional
+            A row above the channel columns (the constructor's ``rows_above`` must be 1).
+        lanes_name : str, optional
+            Title of the lanes view.
         """
         return blueprint(
             self.channels,
-            has_truth=has_truth,
+            has_truth=self._has_truth if has_truth is None else has_truth,
             band_hz=self.band_hz,
             span_s=span_s,
             db_range=DB_RANGE,
             alarm=self._alarm_title(),
             alarm_score=self._cusum,
             alarm_range=(0.0, 1.5 * self._h) if self._h > 0 else None,
-            extra_row=extra_row,
+            extra_row=extra_row if extra_row is not None else self._extra_row,
             units=tuple(self.monitor.model.output_units),
+            above=above,
+            extra_lanes=self._extra_lanes,
+            lanes_name=lanes_name,
+            peak_view=self._peak_view,
         )
 
     def _alarm_title(self) -> str:
@@ -524,8 +560,6 @@ class RerunLogger:
             if not self._started:
                 self._started = True
                 self._initial_state(upd)
-            if self._collector is not None:
-                self._collector.add(fr)
             for box in self._boxes:
                 if upd.t.shape[0]:
                     box.updates.append(upd)
@@ -574,6 +608,7 @@ class RerunLogger:
             file.send_columns(
                 lane, indexes=[_TimeIndex(pa, ns)], columns=rr.StateChange.columns(state=states)
             )
+        self._mark_outside_band(file)
         if ivs:
             order = sorted(range(len(ivs)), key=lambda k: ivs[k].onset_s)
             text = [
@@ -586,6 +621,33 @@ class RerunLogger:
                 "/events",
                 indexes=[_TimeIndex(pa, ns)],
                 columns=rr.TextLog.columns(text=text, level=["ERROR"] * len(text)),
+            )
+
+    def _mark_outside_band(self, file: Any) -> None:
+        """Flagged frames whose peak frequency lies outside the spectrogram's band get a labelled mark at
+        the image's top (above the band) or bottom edge, so that a fault verdict always has a visible
+        cause; one mark per run of such frames (a record that fits one spectrogram block)."""
+        times, flags, hz = self._collector.frames()
+        if not times.size or self._n_blocks > 1:
+            return
+        lo, hi = self.band_hz
+        cols = times.size + 2 * self._pad
+        for i, c in enumerate(self.keys):
+            out = flags[:, i] & ((hz[:, i] > hi) | (hz[:, i] < lo))
+            if not out.any():
+                continue
+            pts, labels = [], []
+            padded = np.concatenate(([False], out, [False]))
+            edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
+            for a, b in zip(edges[::2], edges[1::2], strict=True):
+                f = float(np.median(hz[a:b, i]))
+                x = (self._pad + (a + b) / 2.0) * self._width / cols
+                pts.append([x, 0.07 if f > hi else 0.93])  # y grows downwards: 0 = the band's top
+                labels.append(f"{'^' if f > hi else 'v'} {f:.0f} Hz (outside the band)")
+            file.log(
+                f"/spectrogram/{c}/outside",
+                self.rr.Points2D(pts, labels=labels, colors=[list(FAULT)], radii=0.02, show_labels=True),
+                static=True,
             )
 
     def _send_samples(self, box: _Outbox) -> None:
@@ -667,10 +729,12 @@ class RerunLogger:
                     self._fault[i], indexes=[hit_t], columns=[cols.scalars_column(stat_db[hit, i])]
                 )
                 s.send_columns(
-                    self._fault_hz[i], indexes=[hit_t], columns=[cols.scalars_column(peak_hz[hit, i])]
+                    self._fault_hz[i], indexes=[hit_t], columns=[cols.scalars_column(sig_hz[hit, i])]
                 )
         if not box.live:  # the file's spectrogram: dB columns of the whole batch at once
             self._file_spectrogram(times, spectra)
+            if self._collector is not None:  # the file's intervals, drawn on close
+                self._collector.add(times, flags, ratio, sig_hz)
         if events:
             self._send_events(s, events, lanes=box.live)
 
@@ -812,6 +876,7 @@ class RerunLogger:
         block = np.concatenate(self._file_cols, axis=1) if len(self._file_cols) > 1 else self._file_cols[0]
         self._file_cols, self._file_n = [], 0
         ta = self._file_t[0]
+        self._n_blocks += 1
         ns = self._file_block_start if self._file_block_start is not None else int(to_ns(ta))
         for i, c in enumerate(self.keys):  # (band, frames): freq rows, time columns
             log_image(file, f"/spectrogram/{c}", ns, block[i].T, self._width, DB_RANGE)

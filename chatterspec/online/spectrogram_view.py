@@ -23,10 +23,11 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["image_width", "log_axes", "log_image", "spectrogram_view"]
+__all__ = ["KEY_FRACTION", "image_width", "log_axes", "log_image", "spectrogram_view"]
 
 #: Width of the colour key (and its labels) in world units, as a fraction of the image width.
-_KEY = 0.05
+KEY_FRACTION = 0.07
+_KEY = KEY_FRACTION
 
 
 def image_width(n_channels: int) -> float:
