@@ -1,6 +1,6 @@
 """Regenerate the diagnosis figures under figures/:
 
-* ``diagnosis_smm_table.png``: the ``chatterspec diagnose eha4-leak-timeline --per-record`` table
+* ``diagnosis_table_eha4.png``: the ``chatterspec diagnose eha4-leak-timeline --per-record`` table
   (chattering, SMM-SVSF and IMM-EKF on the same ``--runs`` realizations, each with its own rule; the
   comparison at one false-alarm budget is ``diagnose ... --figure``, ``figures/diagnosis_budget_*.png``);
 * ``smm_mode_weights.png``: SMM-SVSF mode weights over time, mean over the runs (the SMM paper's Fig 5),
@@ -47,11 +47,17 @@ def main() -> None:
     for r in rows:
         print(" | ".join(r))
     print(f"wall time {wall:.1f} s (calibration included)")
-    title = f"diagnose {sc.name}: {args.runs} runs, seed {args.seed} (chattering threshold: 500 healthy runs)"
-    print(save(diagnosis_table_figure(results, title=title), out / "diagnosis_smm_table.png"))
+    title = (
+        f"diagnose {sc.name} per record: chattering, SMM-SVSF, IMM; {args.runs} runs, seed {args.seed} "
+        "(chattering threshold: 500 healthy runs)"
+    )
+    print(save(diagnosis_table_figure(results, title=title), out / "diagnosis_table_eha4.png"))
     t, mu, modes = keep["smm"]
     true = sc.filter_settings.mode_index(sc)[1:]
-    print(save(mode_weights_figure(t, mu, modes, true_mode=true), out / "smm_mode_weights.png"))
+    mw_title = f"SMM-SVSF mode weights on {sc.name}, mean over {args.runs} runs (seed {args.seed})"
+    print(
+        save(mode_weights_figure(t, mu, modes, true_mode=true, title=mw_title), out / "smm_mode_weights.png")
+    )
     if args.imm_runs > 0:
         imm_sc = cs.scenario("eha4-imm-analogue")
         (imm,) = diagnose_modes(cs.simulate(imm_sc, runs=args.imm_runs, seed=args.seed), ("imm",))

@@ -17,15 +17,20 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from ..errors import ParameterError
+from ..palette import filter_color, mpl
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 __all__ = ["estimation_error_figure"]
 
-#: Line colours per filter name (stable across figures).
-COLORS = {"kf": "tab:blue", "ekf": "tab:blue", "svsf": "tab:orange", "svsf2": "tab:green"}
+#: Line colours per filter name: the shared palette (chatterspec.palette, also used by the recordings).
+COLORS = {name: mpl(filter_color(name)) for name in ("kf", "ekf", "svsf", "svsf2")}
 STYLES = {"kf": "-", "ekf": "-", "svsf": "-", "svsf2": "--"}
+#: Drawing order and widths: the first filters wide and light underneath, the later ones thin on top, so
+#: that curves that coincide (the KF and the 2nd-order SVSF often do) both stay visible.
+WIDTHS = {"kf": 2.6, "ekf": 2.6, "svsf": 1.3, "svsf2": 1.0}
+ALPHAS = {"kf": 0.45, "ekf": 0.45, "svsf": 0.85, "svsf2": 1.0}
 LABELS = {"kf": "Kalman filter", "ekf": "EKF", "svsf": "1st-order SVSF", "svsf2": "dynamic 2nd-order SVSF"}
 
 
@@ -51,20 +56,24 @@ def estimation_error_figure(records: Any, *, run: int = 0, title: str | None = N
     model = records.scenario.nominal
     names = list(records.outputs)
     states = tuple(model.state_names)
-    units = tuple(getattr(model, "state_units", ()) or ("",) * len(states))
+    # a state's unit where an output of the same name has one (models list output units only)
+    by_output = dict(zip(model.output_names, model.output_units, strict=True))
+    units = tuple(by_output.get(s, "") for s in states)
     t = records.t[1:]
     fig, axes = plt.subplots(len(states), 2, figsize=(12, 2.6 * len(states)), sharex=True, squeeze=False)
-    for name in names:
+    for k, name in enumerate(names):
         err = records.error(name)
         rms = np.sqrt(np.mean(err**2, axis=0))
         for i in range(len(states)):
             kw = {
-                "color": COLORS.get(name),
+                "color": COLORS.get(name, mpl(filter_color(name, k))),
                 "ls": STYLES.get(name, "-"),
                 "label": LABELS.get(name, name),
-                "lw": 0.9,
+                "lw": WIDTHS.get(name, 1.0),
+                "alpha": ALPHAS.get(name, 1.0),
+                "zorder": 2 + k,
             }
-            axes[i, 0].plot(t, err[run, :, i], alpha=0.8, **kw)
+            axes[i, 0].plot(t, err[run, :, i], **kw)
             axes[i, 1].semilogy(t, rms[:, i], **kw)
     for i, s in enumerate(states):
         unit = f" [{units[i]}]" if units[i] else ""
@@ -79,7 +88,9 @@ def estimation_error_figure(records: Any, *, run: int = 0, title: str | None = N
     axes[-1, 0].set_xlabel("time [s]")
     axes[-1, 1].set_xlabel("time [s]")
     handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.suptitle(title or f"{records.scenario.name}: {records.scenario.description}", fontsize=10)
+    who = ", ".join(LABELS.get(n, n) for n in names)
+    default = f"{records.scenario.name}: {who}; {runs} realizations\n{records.scenario.description}"
+    fig.suptitle(title or default, fontsize=10)
     fig.legend(handles, labels, loc="lower center", ncol=len(names), fontsize=9, frameon=False)
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     return fig

@@ -15,12 +15,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..palette import filter_color, mpl
+
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
 __all__ = [
     "BUDGET_HEADER",
     "DIAGNOSIS_HEADER",
+    "DIAGNOSIS_NOTES",
     "budget_rows",
     "delay_far_figure",
     "diagnosis_rows",
@@ -101,40 +104,70 @@ def diagnosis_rows(results: Sequence[object]) -> tuple[tuple[str, ...], list[tup
     return DIAGNOSIS_HEADER, rows
 
 
-def diagnosis_table_figure(results: Sequence[object], title: str = "") -> Figure:
-    """The comparison table drawn as a matplotlib table.
+#: Footnotes of :func:`diagnosis_table_figure`: what the columns count.
+DIAGNOSIS_NOTES = (
+    "false alarms (runs): runs whose healthy part raised an alarm under the route's own per-record rule, "
+    "of all runs, with its 99 % Clopper-Pearson interval (n/runs = every run; the routes are not at one "
+    "budget: `chatterspec diagnose` without --per-record compares them at one)",
+    "detect med/p90: delay from the onset to the first alarm, median / 90th percentile over the runs [ms]; "
+    "isolation: the true mode's share of the argmax after the onset and its delay [ms]; '-' = none",
+    "steps/s: filter steps per second of wall time (one realization, one core)",
+)
+
+
+def diagnosis_table_figure(
+    results: Sequence[object], title: str = "", notes: Sequence[str] = DIAGNOSIS_NOTES
+) -> Figure:
+    """The comparison table drawn as a compact matplotlib table, with footnotes.
+
+    The figure is sized to the table (no blank margins); numbers keep the formats of
+    :func:`diagnosis_rows` (milliseconds without decimals from 100 ms on, probabilities with 3 decimals).
 
     Parameters
     ----------
     results : sequence of ModeDiagnosis or ChatteringDiagnosis
         As for :func:`diagnosis_rows`.
     title : str
-        Figure title (e.g. scenario, runs and seed).
+        Figure title (e.g. scenario, methods, runs and seed).
+    notes : sequence of str
+        Footnotes under the table (default :data:`DIAGNOSIS_NOTES`).
 
     Returns
     -------
     matplotlib.figure.Figure
     """
+    import textwrap
+
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     header, rows = diagnosis_rows(results)
-    fig, ax = plt.subplots(figsize=(12, 0.45 * (len(rows) + 1) + 0.8))
+    header = tuple(textwrap.fill(h, 16) for h in header)
+    n = len(rows) + 1
+    wrapped = [textwrap.fill(f"{k + 1}. {t}" if len(notes) > 1 else t, 150) for k, t in enumerate(notes)]
+    note_lines = sum(w.count("\n") + 1 for w in wrapped)
+    height = 0.3 * n + 0.45 + 0.17 * note_lines + (0.35 if title else 0.0)
+    fig = plt.figure(figsize=(10.5, height))
+    top = 1.0 - (0.35 / height if title else 0.05 / height)
+    bottom = (0.17 * note_lines + 0.15) / height
+    ax = fig.add_axes((0.01, bottom, 0.98, top - bottom))
     ax.axis("off")
-    table = ax.table(cellText=rows or [[""] * len(header)], colLabels=header, loc="center", cellLoc="left")
+    table = ax.table(
+        cellText=rows or [[""] * len(header)], colLabels=header, loc="upper center", cellLoc="left"
+    )
     table.auto_set_font_size(False)
-    table.set_fontsize(9)
+    table.set_fontsize(8.5)
     table.auto_set_column_width(list(range(len(header))))
-    table.scale(1.0, 1.4)
     for (row, _col), cell in table.get_celld().items():
+        cell.set_height(1.0 / n)
         if row == 0:
             cell.set_text_props(weight="bold")
             cell.set_facecolor("#e8e8e8")
     if title:
-        ax.set_title(title, fontsize=10)
-    fig.tight_layout()
+        fig.suptitle(title, fontsize=10, y=1.0 - 0.08 / height, va="top")
+    fig.text(0.01, 0.02 / height, "\n".join(wrapped), fontsize=7, va="bottom", ha="left")
     return fig
 
 
@@ -153,7 +186,7 @@ BUDGET_HEADER = (
 )
 
 #: Line colour of each route in the budget figure.
-METHOD_COLORS = {"chattering": "#1f77b4", "smm": "#ff7f0e", "imm": "#2ca02c", "innovation": "#d62728"}
+METHOD_COLORS = {m: mpl(filter_color(m)) for m in ("chattering", "smm", "imm", "innovation")}  # palette
 
 
 def _rate(v: float) -> str:

@@ -13,6 +13,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from ..errors import ShapeError
+from ..palette import mode_color, mpl
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
@@ -26,8 +27,10 @@ def mode_weights_figure(
     modes: Sequence[str],
     true_mode: np.ndarray | None = None,
     run: int | None = None,
+    title: str = "",
 ) -> Figure:
-    """Mode weights / probabilities over time (the SMM paper's Fig 5).
+    """Mode weights / probabilities over time (the SMM paper's Fig 5), in the shared palette's mode colours
+    (the recordings' colours; no red), legend below the axes (out of the data).
 
     Parameters
     ----------
@@ -41,6 +44,8 @@ def mode_weights_figure(
         Actual mode per sample, drawn as a shaded background per segment.
     run : int, optional
         Plot this realization; default: the mean over runs.
+    title : str
+        Axes title (scenario, method and runs).
 
     Returns
     -------
@@ -50,8 +55,8 @@ def mode_weights_figure(
     if mu.ndim != 3 or mu.shape[1] != len(t) or mu.shape[2] != len(modes):
         raise ShapeError(f"mu must have shape (runs, {len(t)}, {len(modes)}); got {mu.shape}")
     curve = mu.mean(axis=0) if run is None else mu[run]
-    fig, ax = plt.subplots(figsize=(8, 3.2))
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fig, ax = plt.subplots(figsize=(8, 3.6))
+    colors = [mpl(mode_color(j)) for j in range(len(modes))]
     if true_mode is not None:
         tm = np.asarray(true_mode)
         edges = np.flatnonzero(np.diff(tm)) + 1
@@ -63,10 +68,12 @@ def mode_weights_figure(
     for j, name in enumerate(modes):
         ax.plot(t, curve[:, j], color=colors[j % len(colors)], lw=1.2, label=name)
     ax.set_ylim(-0.02, 1.02)
-    ax.set_xlabel("time [s]")
+    ax.set_xlabel("time [s]" + ("; shaded: true mode" if true_mode is not None else ""))
     ax.set_ylabel("mode weight" + (" (mean over runs)" if run is None else f" (run {run})"))
-    ax.legend(loc="center right", fontsize=8)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.22), ncol=len(modes), fontsize=8, frameon=False)
     ax.grid(alpha=0.3)
+    if title:
+        ax.set_title(title, fontsize=10)
     fig.tight_layout()
     return fig
 
