@@ -436,10 +436,10 @@ class ChatteringMonitor:
     def _events(self, fr: FrameBlock, starts: np.ndarray, ends: np.ndarray) -> tuple[DetectionEvent, ...]:
         """Events from the alarm layer's starts / ends (F, m); tracks each fault's largest peak."""
         active = fr.alarm
-        changed = (starts | ends).any(axis=0)  # (m,)
         on = active[0]  # active at the first frame and unchanged: active throughout
-        if not (changed.any() or on.any()):  # no change and nothing active: no event
+        if not (starts.any() or ends.any() or on.any()):  # no change and nothing active: no event
             return ()
+        changed = (starts | ends).any(axis=0)  # (m,)
         events: list[DetectionEvent] = []
         for c in np.flatnonzero(changed | on).tolist():
             s_c, e_c = starts[:, c], ends[:, c]
