@@ -215,7 +215,7 @@ class _LazyKernel:
             copy = types.FunctionType(func.__code__, env, func.__name__, func.__defaults__, func.__closure__)
             copy.__qualname__ = f"{func.__qualname__}__{self.digest()}"
             copy.__module__ = func.__module__
-            if self._inline:
+            if self._inline and os.environ.get("CHATTERSPEC_INLINE", "1") == "1":
                 self._compiled = numba.njit(inline="always", nogil=True)(copy)
             else:
                 self._compiled = numba.njit(cache=True, nogil=True)(copy)
@@ -281,7 +281,9 @@ def step(func: F) -> F:
     return _LazyKernel(func, inline=True)  # type: ignore[return-value]
 
 
-def specialize(template: Callable[..., Any], tag: str, **bindings: Any) -> Callable[..., Any]:
+def specialize(
+    template: Callable[..., Any], tag: str, *, inline: bool = False, **bindings: Any
+) -> Callable[..., Any]:
     """A kernel made of the loop ``template`` with some of its global names bound (compile-time dispatch).
 
     ``template`` is a module-level function that calls steps (and reads constants) by global
@@ -297,13 +299,15 @@ def specialize(template: Callable[..., Any], tag: str, **bindings: Any) -> Calla
         The loop, a module-level function.
     tag : str
         A short name of this specialization (letters, digits, ``_``), part of the cache file name.
+    inline : bool
+        Make a step (inlined by the loops that call it, like :func:`step`) instead of a kernel.
     **bindings
         Global names of ``template`` and their values for this specialization.
 
     Returns
     -------
     callable
-        A kernel like :func:`njit`'s; without numba, the plain Python function.
+        A kernel like :func:`njit`'s (or a step); without numba, the plain Python function.
 
     See Also
     --------
@@ -317,7 +321,7 @@ def specialize(template: Callable[..., Any], tag: str, **bindings: Any) -> Calla
     func.__doc__ = template.__doc__
     if not HAVE_NUMBA:
         return func
-    return _LazyKernel(func)
+    return _LazyKernel(func, inline=inline)
 
 
 #: Largest size :func:`specialize_sizes` binds as a compile-time constant.
@@ -326,7 +330,9 @@ MAX_UNROLL = 4
 _SIZED: dict[tuple[Any, ...], Callable[..., Any]] = {}
 
 
-def specialize_sizes(template: Callable[..., Any], tag: str, sizes: dict[str, int], **bindings: Any) -> Any:
+def specialize_sizes(
+    template: Callable[..., Any], tag: str, sizes: dict[str, int], *, inline: bool = False, **bindings: Any
+) -> Any:
     """:func:`specialize` with the template's size names bound to literals when all are small.
 
     ``sizes`` maps the template's size names (``NX``, ``NZ``, ...) to this model's sizes; when
@@ -355,12 +361,13 @@ def specialize_sizes(template: Callable[..., Any], tag: str, sizes: dict[str, in
     key = (
         template,
         tag,
+        inline,
         tuple(sorted(values.items())),
         tuple(sorted((k, id(v)) for k, v in bindings.items())),
     )
     kernel = _SIZED.get(key)
     if kernel is None:
         suffix = "_".join(f"{k.lower()}{v}" for k, v in sorted(values.items()))
-        kernel = specialize(template, f"{tag}_{suffix}", **values, **bindings)
+        kernel = specialize(template, f"{tag}_{suffix}", inline=inline, **values, **bindings)
         _SIZED[key] = kernel
     return kernel

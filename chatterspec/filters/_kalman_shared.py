@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _jit
-from ._engine import FIELDS, LOG2PI, MAP_CONST, _alloc, _chol_np
+from ._engine import FIELDS, LOG2PI, MAP_CONST, _alloc
+from ._engine import chol_np as _chol_np
 
 
 @_jit.njit

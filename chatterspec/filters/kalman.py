@@ -21,9 +21,33 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import _jit
 from ..plants.models import LinearModel
 from . import _engine, _kalman_shared
 from ._base import CovarianceFilterBase, check_model
+from ._engine import chol_solve_step
+
+
+@_jit.step
+def kalman_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+    """The Kalman correction (compiled step): ``K^T = S^-1 (P C^T)^T`` from the factor ``L`` of ``S``,
+    ``x(k+1|k+1) = x(k+1|k) + K e``. Signature of :mod:`chatterspec.filters._engine`; returns 0."""
+    chol_solve_step(L, PCtT, KgT, m, n)
+    for i in range(n):
+        s = xp[i]
+        for j in range(m):
+            s += KgT[j, i] * e[j]
+        x[i] = s
+    return 0
+
+
+def kalman_correct_numpy(e, ep, epp, xp, PCt, D, S, C, F):  # type: ignore[no-untyped-def]
+    """:func:`kalman_correct` vectorized over realizations: ``(K, x(k+1|k+1))``."""
+    Kg = _engine.kalman_gain_numpy(S, PCt)
+    return Kg, xp + np.einsum("rij,rj->ri", Kg, e)
+
+
+_KF_STEP = _engine.CorrectionStep("kf", kalman_correct, np.zeros(1), kalman_correct_numpy)
 
 __all__ = ["ExtendedKalmanFilter", "KalmanFilter"]
 
@@ -57,8 +81,8 @@ class KalmanFilter(CovarianceFilterBase):
     _linear = True
     _shared_ok = True
 
-    def _correction(self) -> dict[str, object]:
-        return {"kind": _engine.KF, "mapping": _engine.MAP_CONST}
+    def _correction_step(self) -> _engine.CorrectionStep:
+        return _KF_STEP
 
     def _advance(self, x, P, ep, epp, z, u, keep):  # type: ignore[no-untyped-def]
         if P.ndim == 3:
@@ -120,8 +144,8 @@ class ExtendedKalmanFilter(CovarianceFilterBase):
     def __post_init__(self) -> None:
         check_model(self.model)
 
-    def _correction(self) -> dict[str, object]:
-        return {"kind": _engine.KF, "mapping": _engine.MAP_CONST}
+    def _correction_step(self) -> _engine.CorrectionStep:
+        return _KF_STEP
 
     # The EKF always calls the model (no linear shortcut), so it is the reference for nonlinear models.
     _linear = False

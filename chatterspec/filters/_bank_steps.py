@@ -1,0 +1,127 @@
+"""Compiled steps shared by the multiple-model banks (IMM, SMM-SVSF): likelihood, probabilities, combination.
+
+:func:`log_gaussian_step` is :func:`chatterspec.filters.multiple_model.log_gaussian` for one
+innovation; :func:`mode_probabilities_step` is ``normalize_log_weights`` for one realization;
+:func:`combine_step` is ``combine`` for one realization. Each does its numpy twin's arithmetic in
+loop order, so the banks' compiled loops agree with their numpy paths to a few ulps per sample
+(summation order; tolerances in tests/test_imm_kernel.py and tests/test_smm_kernel.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import _jit
+from ._engine import chol_solve_step, chol_step
+
+#: Lower bound of the smallest eigenvalue of Sc above which the Cholesky likelihood is used.
+CHOL_SAFE = 1e-10
+EIG_FLOOR = 1e-12
+_TINY = float(np.finfo(float).tiny)
+_LOG2PI = 1.8378770664093453
+
+
+@_jit.step
+def _solve_col(L: np.ndarray, b: np.ndarray, out: np.ndarray, m: int) -> None:  # pragma: no cover
+    """out = (L L^T)^-1 b for a vector b (the one-column case of ``chol_solve_step``)."""
+    chol_solve_step(L, b.reshape((m, 1)), out.reshape((m, 1)), m, 1)
+
+
+@_jit.step
+def log_gaussian_step(e, S, m, Sc, L, ec, col, tmp):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """``log N(e; 0, S)`` of one innovation, as :func:`~chatterspec.filters.multiple_model.log_gaussian`.
+
+    ``S`` is scaled to its correlation matrix ``Sc`` (``D = sqrt(diag S)``); with the Cholesky
+    factor of ``Sc`` when ``1 / trace(Sc^-1)`` -- a lower bound of its smallest eigenvalue --
+    exceeds :data:`CHOL_SAFE`, so the numpy function's eigenvalue floor (1e-12) cannot be active
+    and ``quad = ec^T Sc^-1 ec``, ``log det Sc = 2 sum log L_ii`` are the same numbers up to
+    rounding; otherwise ``np.linalg.eigh`` and the floor, as the numpy function. Scratch: ``Sc``,
+    ``L`` (m, m), ``ec``, ``col`` (m), ``tmp`` (2m).
+    """
+    logd = 0.0
+    for i in range(m):
+        di = S[i, i]
+        if not di > _TINY:
+            di = _TINY
+        d = np.sqrt(di)
+        tmp[i] = d
+        ec[i] = e[i] / d
+        logd += np.log(d)
+    for i in range(m):
+        for j in range(m):
+            Sc[i, j] = S[i, j] / (tmp[i] * tmp[j])
+    ok = chol_step(Sc, L, m)
+    if ok:
+        tr = 0.0  # trace(Sc^-1) = sum_i (Sc^-1)_ii
+        for i in range(m):
+            for q in range(m):
+                col[q] = 1.0 if q == i else 0.0
+            _solve_col(L, col, tmp[m:], m)
+            tr += tmp[m + i]
+        ok = tr > 0.0 and 1.0 / tr > CHOL_SAFE
+    if ok:
+        _solve_col(L, ec, col, m)
+        quad = 0.0
+        logdet = 0.0
+        for i in range(m):
+            quad += ec[i] * col[i]
+            logdet += np.log(L[i, i])
+        logdet = 2.0 * logdet
+    else:  # the eigenvalue floor may be active: the numpy function's own arithmetic
+        w, V = np.linalg.eigh(Sc)
+        quad = 0.0
+        logdet = 0.0
+        for j in range(m):
+            wj = w[j] if w[j] > EIG_FLOOR else EIG_FLOOR
+            p = 0.0
+            for i in range(m):
+                p += V[i, j] * ec[i]
+            quad += p * p / wj
+            logdet += np.log(wj)
+    return -0.5 * (quad + logdet + 2.0 * logd + m * _LOG2PI)
+
+
+@_jit.step
+def mode_probabilities_step(lw: np.ndarray, mu: np.ndarray, floor: float, nm: int) -> bool:  # pragma: no cover
+    """``mu = exp(lw - max lw) / sum`` (log weights ``lw`` (nm,), overwritten), then the optional floor.
+
+    False when every log weight is ``-inf`` or the largest is not finite (the numpy function raises).
+    """
+    top = -np.inf
+    for j in range(nm):
+        if lw[j] > top:
+            top = lw[j]
+    if not np.isfinite(top):
+        return False
+    s = 0.0
+    for j in range(nm):
+        lw[j] = np.exp(lw[j] - top)
+        s += lw[j]
+    for j in range(nm):
+        mu[j] = lw[j] / s
+    if floor > 0.0:
+        s = 0.0
+        for j in range(nm):
+            if mu[j] < floor:
+                mu[j] = floor
+            s += mu[j]
+        for j in range(nm):
+            mu[j] = mu[j] / s
+    return True
+
+
+@_jit.step
+def combine_step(mu, xs, Ps, x, P, nm, n):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """``x = sum_j mu_j x_j``, ``P = sum_j mu_j [P_j + (x_j - x)(x_j - x)^T]`` for one realization."""
+    for a in range(n):
+        s = 0.0
+        for j in range(nm):
+            s += mu[j] * xs[j, a]
+        x[a] = s
+    for a in range(n):
+        for b in range(n):
+            s = 0.0
+            for j in range(nm):
+                da = xs[j, a] - x[a]
+                s += mu[j] * (Ps[j, a, b] + da * (xs[j, b] - x[b]))
+            P[a, b] = s
