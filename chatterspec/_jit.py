@@ -63,16 +63,22 @@ __all__ = [
     "STACK_CAPACITY",
     "borrow",
     "enabled",
+    "fits",
     "njit",
     "scratch",
     "scratch2",
+    "scratch_block",
     "specialize",
     "specialize_sizes",
     "step",
 ]
 
-#: Floats a compiled :func:`scratch` / :func:`scratch2` of run-time size keeps on the stack (larger: heap).
-STACK_CAPACITY = 64
+#: Room (floats) of a compiled :func:`scratch` / :func:`scratch2` whose size is known only at run time.
+STACK_CAPACITY = 256
+#: Largest number of states or outputs of a loop with matrix scratch (16 x 16 = STACK_CAPACITY).
+MAX_DIMENSION = 16
+#: Room (floats) of a compiled :func:`scratch_block` (a covariance filter's workspace up to MAX_DIMENSION).
+BLOCK_CAPACITY = 8192
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -81,6 +87,7 @@ HAVE_NUMBA = importlib.util.find_spec("numba") is not None
 
 
 _IMPORTABLE: list[bool] = []  # memo of the one import attempt
+_THIS_MODULE = __import__("sys").modules[__name__]
 
 
 def _numba_importable() -> bool:
@@ -113,20 +120,31 @@ def enabled() -> bool:
 def scratch(n: int) -> np.ndarray:
     """Scratch vector of ``n`` floats for a kernel's per-run state (uninitialized).
 
-    In Python this is ``np.empty(n)``. In a compiled kernel it lives on the kernel's stack
-    (no allocation, no reference count): of exactly ``n`` floats when ``n`` is a compile-time
-    constant (a literal bound by :func:`specialize`, e.g. ``NX = 3``), where with the steps
-    inlined and their loops unrolled LLVM keeps it in registers; of :data:`STACK_CAPACITY`
-    floats' room otherwise (a larger ``n`` gets a heap array). Each call site has its own
-    memory, valid until the kernel returns: call it in the loop itself, before the loops, never
-    in a step, and never return it.
+    In Python this is ``np.empty(n)``. In a compiled kernel it lives on the stack of the
+    compiled function that calls it (no allocation, no reference count): exactly ``n`` floats
+    when ``n`` is a compile-time constant (a literal bound by :func:`specialize`, e.g. ``NX =
+    3``), where with the steps inlined and their loops unrolled LLVM keeps it in registers;
+    :data:`STACK_CAPACITY` floats' room otherwise, of which it uses ``n``: the Python caller
+    keeps ``n`` within it (:func:`fits`). Each call site has its own memory, valid until that
+    function returns: allocate in the loop, before its loops, or in a step inlined into it, and
+    never return it from a compiled function of its own.
     """
     return np.empty(n)
 
 
 def scratch2(n: int, m: int) -> np.ndarray:
-    """Scratch ``(n, m)`` C-order matrix: :func:`scratch` for matrices (stack up to ``STACK_CAPACITY``)."""
+    """Scratch ``(n, m)`` C-order matrix: :func:`scratch` for matrices (``n m <= STACK_CAPACITY``)."""
     return np.empty((n, m))
+
+
+def scratch_block(n: int) -> np.ndarray:
+    """Scratch vector with :data:`BLOCK_CAPACITY` floats' room (a workspace carved into views)."""
+    return np.empty(n)
+
+
+def fits(n: int, m: int = 0) -> bool:
+    """Whether loops with ``n`` states and ``m`` outputs fit the compiled scratch (else numpy path)."""
+    return 0 <= n <= MAX_DIMENSION and 0 <= m <= MAX_DIMENSION
 
 
 def borrow(a: Any) -> Any:
@@ -204,14 +222,22 @@ class _LazyKernel:
         if self._compiled is None:
             import numba
 
-            from . import _jit_numba  # noqa: F401  (compiled forms of scratch / scratch2)
+            from . import _jit_numba
 
             func = self.py_func
             env = dict(func.__globals__)
+            compiled_forms = {id(scratch): _jit_numba.scratch, id(scratch2): _jit_numba.scratch2}
+            compiled_forms.update(
+                {id(scratch_block): _jit_numba.scratch_block, id(borrow): _jit_numba.borrow}
+            )
             for name in set(self._names()):
                 dep = env.get(name)
                 if isinstance(dep, _LazyKernel):
                     env[name] = dep.dispatcher()
+                elif dep is _THIS_MODULE:
+                    env[name] = _jit_numba
+                elif id(dep) in compiled_forms:
+                    env[name] = compiled_forms[id(dep)]
             copy = types.FunctionType(func.__code__, env, func.__name__, func.__defaults__, func.__closure__)
             copy.__qualname__ = f"{func.__qualname__}__{self.digest()}"
             copy.__module__ = func.__module__

@@ -27,16 +27,19 @@ def _solve_col(L: np.ndarray, b: np.ndarray, out: np.ndarray, m: int) -> None:  
     chol_solve_step(L, b.reshape((m, 1)), out.reshape((m, 1)), m, 1)
 
 
-@_jit.step
-def log_gaussian_step(e, S, m, Sc, L, ec, col, tmp):  # type: ignore[no-untyped-def]  # pragma: no cover
+def _log_gaussian(e, S, m, Sc, L, ec, col, tmp):  # type: ignore[no-untyped-def]  # pragma: no cover
     """``log N(e; 0, S)`` of one innovation, as :func:`~chatterspec.filters.multiple_model.log_gaussian`.
 
     ``S`` is scaled to its correlation matrix ``Sc`` (``D = sqrt(diag S)``); with the Cholesky
-    factor of ``Sc`` when ``1 / trace(Sc^-1)`` -- a lower bound of its smallest eigenvalue --
+    factor of ``Sc`` when ``1 / trace(Sc^-1)`` -- a lower bound of its smallest eigenvalue, with
+    ``trace(Sc^-1) = ||L^-1||_F^2`` by forward substitution --
     exceeds :data:`CHOL_SAFE`, so the numpy function's eigenvalue floor (1e-12) cannot be active
     and ``quad = ec^T Sc^-1 ec``, ``log det Sc = 2 sum log L_ii`` are the same numbers up to
     rounding; otherwise ``np.linalg.eigh`` and the floor, as the numpy function. Scratch: ``Sc``,
-    ``L`` (m, m), ``ec``, ``col`` (m), ``tmp`` (2m).
+    ``L`` (m, m), ``ec``, ``col`` (m), ``tmp`` (2m). Two forms of this one template:
+    :data:`log_gaussian_step`, a compiled function of its own (LAPACK's ``eigh`` is slow to
+    compile; the IMM calls it once per mode and sample), and :data:`log_gaussian_inline`, inlined
+    (the SMM loop, whose literal sizes then unroll it).
     """
     logd = 0.0
     for i in range(m):
@@ -52,12 +55,15 @@ def log_gaussian_step(e, S, m, Sc, L, ec, col, tmp):  # type: ignore[no-untyped-
             Sc[i, j] = S[i, j] / (tmp[i] * tmp[j])
     ok = chol_step(Sc, L, m)
     if ok:
-        tr = 0.0  # trace(Sc^-1) = sum_i (Sc^-1)_ii
+        # trace(Sc^-1) = ||L^-1||_F^2: column i of L^-1 by forward substitution (from row i on)
+        tr = 0.0
         for i in range(m):
-            for q in range(m):
-                col[q] = 1.0 if q == i else 0.0
-            _solve_col(L, col, tmp[m:], m)
-            tr += tmp[m + i]
+            for r in range(i, m):
+                s = 1.0 if r == i else 0.0
+                for q in range(i, r):
+                    s -= L[r, q] * col[q]
+                col[r] = s / L[r, r]
+                tr += col[r] * col[r]
         ok = tr > 0.0 and 1.0 / tr > CHOL_SAFE
     if ok:
         _solve_col(L, ec, col, m)
@@ -81,8 +87,16 @@ def log_gaussian_step(e, S, m, Sc, L, ec, col, tmp):  # type: ignore[no-untyped-
     return -0.5 * (quad + logdet + 2.0 * logd + m * _LOG2PI)
 
 
+#: :func:`_log_gaussian` as a compiled function (not inlined).
+log_gaussian_step = _jit.specialize(_log_gaussian, "call")
+#: :func:`_log_gaussian` as a step (inlined).
+log_gaussian_inline = _jit.specialize(_log_gaussian, "inline", inline=True)
+
+
 @_jit.step
-def mode_probabilities_step(lw: np.ndarray, mu: np.ndarray, floor: float, nm: int) -> bool:  # pragma: no cover
+def mode_probabilities_step(
+    lw: np.ndarray, mu: np.ndarray, floor: float, nm: int
+) -> bool:  # pragma: no cover
     """``mu = exp(lw - max lw) / sum`` (log weights ``lw`` (nm,), overwritten), then the optional floor.
 
     False when every log weight is ``-inf`` or the largest is not finite (the numpy function raises).

@@ -166,7 +166,11 @@ class CovarianceFilterBase:
             F = np.broadcast_to(F, (*x.shape, x.shape[1]))
             zk = z[:, k : k + 1]
             if compiled:
-                steps.append(_engine.cov_loop(corr, None, x, P, ep, epp, zk, u[:, k : k + 1], C, Q, R, keep, xp_in=xp, F_in=F))
+                steps.append(
+                    _engine.cov_loop(
+                        corr, None, x, P, ep, epp, zk, u[:, k : k + 1], C, Q, R, keep, xp_in=xp, F_in=F
+                    )
+                )
             else:
                 steps.append(_engine.cov_numpy(corr, x, P, ep, epp, zk, C, Q, R, keep, xp_in=xp, F_in=F))
         res = {

@@ -138,7 +138,9 @@ def chol_step(A: np.ndarray, L: np.ndarray, m: int) -> bool:  # pragma: no cover
 
 
 @_jit.step
-def chol_solve_step(L: np.ndarray, B: np.ndarray, X: np.ndarray, m: int, ncol: int) -> None:  # pragma: no cover
+def chol_solve_step(
+    L: np.ndarray, B: np.ndarray, X: np.ndarray, m: int, ncol: int
+) -> None:  # pragma: no cover
     """X = (L L^T)^-1 B for B of shape (m, ncol): forward then back substitution, column by column."""
     for c in range(ncol):
         for i in range(m):
@@ -155,7 +157,15 @@ def chol_solve_step(L: np.ndarray, B: np.ndarray, X: np.ndarray, m: int, ncol: i
 
 @_jit.step
 def map_step(
-    mapping: int, D: np.ndarray, L: np.ndarray, PCtT: np.ndarray, fp: np.ndarray, o_M: int, MpT: np.ndarray, n: int, m: int
+    mapping: int,
+    D: np.ndarray,
+    L: np.ndarray,
+    PCtT: np.ndarray,
+    fp: np.ndarray,
+    o_M: int,
+    MpT: np.ndarray,
+    n: int,
+    m: int,
 ) -> bool:  # pragma: no cover - compiled
     """``MpT`` = M^T, the output-to-state map of the SVSF-type corrections; False if ``C P C^T`` is not PD.
 
@@ -175,7 +185,14 @@ def map_step(
 
 @_jit.step
 def map_update_step(
-    xp: np.ndarray, MpT: np.ndarray, g: np.ndarray, dz: np.ndarray, x: np.ndarray, KgT: np.ndarray, n: int, m: int
+    xp: np.ndarray,
+    MpT: np.ndarray,
+    g: np.ndarray,
+    dz: np.ndarray,
+    x: np.ndarray,
+    KgT: np.ndarray,
+    n: int,
+    m: int,
 ) -> None:  # pragma: no cover - compiled
     """``K = M diag(g)`` (into ``KgT``) and ``x(k+1|k+1) = x(k+1|k) + M dz``."""
     for i in range(m):
@@ -186,6 +203,63 @@ def map_update_step(
         for j in range(m):
             s += MpT[j, i] * dz[j]
         x[i] = s
+
+
+@_jit.step
+def predict_cov_step(
+    F: np.ndarray, P: np.ndarray, Q: np.ndarray, T1: np.ndarray, Pp: np.ndarray, n: int
+) -> None:
+    """``Pp = F P F^T + Q`` (``T1 = F P`` first; the upper triangle summed, then mirrored)."""
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for q in range(n):
+                s += F[i, q] * P[q, j]
+            T1[i, j] = s
+    for i in range(n):  # symmetric: upper triangle, mirrored
+        for j in range(i, n):
+            s = Q[i, j]
+            for q in range(n):
+                s += T1[i, q] * F[j, q]
+            Pp[i, j] = s
+            Pp[j, i] = s
+
+
+@_jit.step
+def innovation_step(
+    zk: np.ndarray,
+    xp: np.ndarray,
+    Pp: np.ndarray,
+    C: np.ndarray,
+    R: np.ndarray,
+    e: np.ndarray,
+    PCt: np.ndarray,
+    PCtT: np.ndarray,
+    D: np.ndarray,
+    S: np.ndarray,
+    n: int,
+    m: int,
+) -> None:  # pragma: no cover - compiled
+    """``e = z - C xp``, ``PCt = Pp C^T`` (and its transpose), ``D = C Pp C^T``, ``S = D + R``."""
+    for i in range(m):
+        s = zk[i]
+        for j in range(n):
+            s -= C[i, j] * xp[j]
+        e[i] = s
+    for i in range(n):
+        for j in range(m):
+            s = 0.0
+            for q in range(n):
+                s += Pp[i, q] * C[j, q]
+            PCt[i, j] = s
+            PCtT[j, i] = s
+    for i in range(m):
+        for j in range(m):
+            s = 0.0
+            for q in range(n):
+                s += C[i, q] * PCt[q, j]
+            D[i, j] = s
+            S[i, j] = s + R[i, j]
 
 
 def _sample(
@@ -212,39 +286,10 @@ def _sample(
     log N(e; 0, S) for the caller. Returns 0 or the correction's / the Cholesky's code.
     """
     T1, Pp, PCt, PCtT, S, D, L, e, eb, wv, KgT, IKC, KR, ll = ws[0:14]
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for q in range(n):
-                s += F[i, q] * P[q, j]
-            T1[i, j] = s
-    for i in range(n):  # symmetric: upper triangle, mirrored
-        for j in range(i, n):
-            s = Q[i, j]
-            for q in range(n):
-                s += T1[i, q] * F[j, q]
-            Pp[i, j] = s
-            Pp[j, i] = s
+    predict_cov_step(F, P, Q, T1, Pp, n)
+    innovation_step(zk, xp, Pp, C, R, e, PCt, PCtT, D, S, n, m)
     for i in range(m):
-        s = zk[i]
-        for j in range(n):
-            s -= C[i, j] * xp[j]
-        e[i] = s
-        eb[i, 0] = s
-    for i in range(n):
-        for j in range(m):
-            s = 0.0
-            for q in range(n):
-                s += Pp[i, q] * C[j, q]
-            PCt[i, j] = s
-            PCtT[j, i] = s
-    for i in range(m):
-        for j in range(m):
-            s = 0.0
-            for q in range(n):
-                s += C[i, q] * PCt[q, j]
-            D[i, j] = s
-            S[i, j] = s + R[i, j]
+        eb[i, 0] = e[i]
     if not chol_step(S, L, m):
         return NOT_PD
     if WANT_LL:
@@ -321,39 +366,69 @@ def _no_sample(fp, x, P, ep, epp, zk, xp, F, C, Q, R, ws, n, m):  # type: ignore
 
 @_jit.step
 def workspace(n: int, m: int) -> tuple:  # pragma: no cover - compiled (inlined into the loops)
-    """Scratch of :func:`_sample` and the correction steps (stack arrays of the loop that inlines it).
+    """Scratch of :func:`_sample` and the correction steps: views of one stack block of the loop.
 
     ``(T1, Pp, PCt, PCtT, S, D, L, e, eb, wv, KgT, IKC, KR, ll, MpT, g, dz, Phi, G12, P12i, Al,
-    Ae, rr, dy, Ky, W)``; the last nine are the reduced-order form's (n = 2m).
+    Ae, rr, dy, Ky, W)``; the last nine are the reduced-order form's (n = 2m). One block of
+    :data:`~chatterspec._jit.BLOCK_CAPACITY` floats (enough for n, m up to
+    :data:`~chatterspec._jit.MAX_DIMENSION`).
     """
     h = max(n - m, 1)
+    size = 4 * n * n + 6 * n * m + 3 * m * m + 3 * m * h + 2 * h * h + 6 * m + n + h + 1
+    buf = _jit.scratch_block(size)
+    o0 = 0
+    o1 = o0 + n * n
+    o2 = o1 + n * n
+    o3 = o2 + n * m
+    o4 = o3 + m * n
+    o5 = o4 + m * m
+    o6 = o5 + m * m
+    o7 = o6 + m * m
+    o8 = o7 + m
+    o9 = o8 + m
+    o10 = o9 + m
+    o11 = o10 + m * n
+    o12 = o11 + n * n
+    o13 = o12 + n * m
+    o14 = o13 + 1
+    o15 = o14 + m * n
+    o16 = o15 + m
+    o17 = o16 + m
+    o18 = o17 + n * n
+    o19 = o18 + m * h
+    o20 = o19 + h * m
+    o21 = o20 + h * m
+    o22 = o21 + h
+    o23 = o22 + m
+    o24 = o23 + n
+    o25 = o24 + n * m
     return (
-        _jit.scratch2(n, n),
-        _jit.scratch2(n, n),
-        _jit.scratch2(n, m),
-        _jit.scratch2(m, n),
-        _jit.scratch2(m, m),
-        _jit.scratch2(m, m),
-        _jit.scratch2(m, m),
-        _jit.scratch(m),
-        _jit.scratch2(m, 1),
-        _jit.scratch2(m, 1),
-        _jit.scratch2(m, n),
-        _jit.scratch2(n, n),
-        _jit.scratch2(n, m),
-        _jit.scratch(1),
-        _jit.scratch2(m, n),
-        _jit.scratch(m),
-        _jit.scratch(m),
-        _jit.scratch2(n, n),
-        _jit.scratch2(m, h),
-        _jit.scratch2(h, m),
-        _jit.scratch2(h, m),
-        _jit.scratch(h),
-        _jit.scratch(m),
-        _jit.scratch(n),
-        _jit.scratch2(n, m),
-        _jit.scratch2(h, 2 * h),
+        buf[o0:o1].reshape((n, n)),
+        buf[o1:o2].reshape((n, n)),
+        buf[o2:o3].reshape((n, m)),
+        buf[o3:o4].reshape((m, n)),
+        buf[o4:o5].reshape((m, m)),
+        buf[o5:o6].reshape((m, m)),
+        buf[o6:o7].reshape((m, m)),
+        buf[o7:o8],
+        buf[o8:o9].reshape((m, 1)),
+        buf[o9:o10].reshape((m, 1)),
+        buf[o10:o11].reshape((m, n)),
+        buf[o11:o12].reshape((n, n)),
+        buf[o12:o13].reshape((n, m)),
+        buf[o13:o14],
+        buf[o14:o15].reshape((m, n)),
+        buf[o15:o16],
+        buf[o16:o17],
+        buf[o17:o18].reshape((n, n)),
+        buf[o18:o19].reshape((m, h)),
+        buf[o19:o20].reshape((h, m)),
+        buf[o20:o21].reshape((h, m)),
+        buf[o21:o22],
+        buf[o22:o23],
+        buf[o23:o24],
+        buf[o24:o25].reshape((n, m)),
+        buf[o25 : o25 + 2 * h * h].reshape((h, 2 * h)),
     )
 
 
@@ -412,7 +487,19 @@ def _cov_loop(
     ``1 + runs + r`` (a singular ``Phi12`` in run r).
     """
     b = _jit.borrow
-    prm, u, z, x, P, ep, epp, C, Q, R, fp = b(prm), b(u), b(z), b(x), b(P), b(ep), b(epp), b(C), b(Q), b(R), b(fp)
+    prm, u, z, x, P, ep, epp, C, Q, R, fp = (
+        b(prm),
+        b(u),
+        b(z),
+        b(x),
+        b(P),
+        b(ep),
+        b(epp),
+        b(C),
+        b(Q),
+        b(R),
+        b(fp),
+    )
     o_xprior, o_xpost, o_e, o_S = b(o_xprior), b(o_xpost), b(o_e), b(o_S)
     o_ll, o_ep, o_Pprior, o_Ppost = b(o_ll), b(o_ep), b(o_Pprior), b(o_Ppost)
     runs, K, _ = z.shape

@@ -8,7 +8,7 @@ dozen numpy calls on (runs, 3, 4) arrays per sample. The arithmetic is that of t
     (19) c_j = sum_i pi_ij mu_i,  c_j >= 1e-300   (18) w_ij = mu_i pi_ij / c_j
     (20) x_0j = sum_i w_ij x_i                    (21) P_0j = sum_i w_ij [P_i + (x_i - x_0j)(.)^T]
     (22)-(28) mode j's filter step (:func:`chatterspec.filters._engine._sample` with the mode's
-         correction step) from (x_0j, P_0j), its model's compiled ``predict``/``jacobian`` steps, and
+         correction step, inlined) from (x_0j, P_0j), its model's compiled ``predict``/``jacobian`` steps, and
          e(k|k) = z(k) - C_0 x_0j (the stored residual before the first sample)
     (29) log N(e_j; 0, S_j) (:func:`chatterspec.filters._bank_steps.log_gaussian_step`)
     (30) mu_j ∝ c_j Lambda_j in the log domain, optional floor
@@ -46,8 +46,33 @@ NX = NZ = 0
 
 
 def _imm_loop(
-    prm, plant_slot, fp, corr_slot, Q, C, R, pi, floor, z, u, first, mu, xs, Ps, eps, epps, zl, x, P,
-    x0, P0, o_x, o_mu, o_ll, o_P, o_mx,
+    prm,
+    plant_slot,
+    fp,
+    corr_slot,
+    Q,
+    C,
+    R,
+    pi,
+    floor,
+    z,
+    u,
+    first,
+    mu,
+    xs,
+    Ps,
+    eps,
+    epps,
+    zl,
+    x,
+    P,
+    x0,
+    P0,
+    o_x,
+    o_mu,
+    o_ll,
+    o_P,
+    o_mx,
 ):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (a template: see run_fused)
     """The IMM recursion of the module docstring; state arrays updated in place.
 
@@ -59,8 +84,28 @@ def _imm_loop(
     non-finite, or ``-(1 + runs + run)`` when the ``luen`` form meets a singular ``Phi12``.
     """
     b = _jit.borrow
-    prm, plant_slot, fp, corr_slot, Q, C, R, pi = b(prm), b(plant_slot), b(fp), b(corr_slot), b(Q), b(C), b(R), b(pi)
-    z, u, mu, xs, Ps, eps, epps, zl, x, P = b(z), b(u), b(mu), b(xs), b(Ps), b(eps), b(epps), b(zl), b(x), b(P)
+    prm, plant_slot, fp, corr_slot, Q, C, R, pi = (
+        b(prm),
+        b(plant_slot),
+        b(fp),
+        b(corr_slot),
+        b(Q),
+        b(C),
+        b(R),
+        b(pi),
+    )
+    z, u, mu, xs, Ps, eps, epps, zl, x, P = (
+        b(z),
+        b(u),
+        b(mu),
+        b(xs),
+        b(Ps),
+        b(eps),
+        b(epps),
+        b(zl),
+        b(x),
+        b(P),
+    )
     x0, P0, o_x, o_mu, o_ll, o_P, o_mx = b(x0), b(P0), b(o_x), b(o_mu), b(o_ll), b(o_P), b(o_mx)
     runs, K, _ = z.shape
     nm = mu.shape[1]
@@ -290,16 +335,16 @@ def run_fused(
     sts = state.mode_states  # type: ignore[attr-defined]
     r = len(sts)
     st = {
-        "mu": np.array(state.mu, dtype=float),  # type: ignore[attr-defined]
+        "mu": np.array(state.mu, dtype=float, order="C"),  # type: ignore[attr-defined]
         "xs": np.ascontiguousarray(np.stack([s.x for s in sts], axis=1), dtype=float),
         "Ps": np.ascontiguousarray(
             np.stack([np.broadcast_to(s.P, (runs, n, n)) for s in sts], axis=1), dtype=float
         ),
         "eps": np.ascontiguousarray(np.stack([s.e_post for s in sts], axis=1), dtype=float),
         "epps": np.ascontiguousarray(np.stack([s.e_prev for s in sts], axis=1), dtype=float),
-        "zl": np.array(state.z_last, dtype=float),  # type: ignore[attr-defined]
-        "x": np.array(state.x, dtype=float),  # type: ignore[attr-defined]
-        "P": np.array(np.broadcast_to(state.P, (runs, n, n)), dtype=float),  # type: ignore[attr-defined]
+        "zl": np.array(state.z_last, dtype=float, order="C"),  # type: ignore[attr-defined]
+        "x": np.array(state.x, dtype=float, order="C"),  # type: ignore[attr-defined]
+        "P": np.array(np.broadcast_to(state.P, (runs, n, n)), dtype=float, order="C"),  # type: ignore[attr-defined]
     }
     out = {
         "x": np.empty((runs, K, n)),

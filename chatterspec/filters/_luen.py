@@ -70,7 +70,7 @@ def luen_correction(
 # ----------------------------------------------------------------------------- compiled steps
 @_jit.step
 def invert_step(A: np.ndarray, Ainv: np.ndarray, W: np.ndarray, m: int) -> bool:  # pragma: no cover
-    """Ainv = A^-1 by Gauss-Jordan elimination with partial pivoting (scratch ``W`` (m, 2m)); False if singular."""
+    """Ainv = A^-1, Gauss-Jordan with partial pivoting (scratch ``W`` (m, 2m)); False if singular."""
     for i in range(m):
         for j in range(m):
             W[i, j] = A[i, j]
@@ -103,7 +103,9 @@ def invert_step(A: np.ndarray, Ainv: np.ndarray, W: np.ndarray, m: int) -> bool:
 
 
 @_jit.step
-def _phi_blocks(fp: np.ndarray, F: np.ndarray, e: np.ndarray, ws: tuple, n: int, m: int) -> bool:  # pragma: no cover
+def _phi_blocks(
+    fp: np.ndarray, F: np.ndarray, e: np.ndarray, ws: tuple, n: int, m: int
+) -> bool:  # pragma: no cover
     """``Phi = T F T^-1``, ``Phi12^-1`` (``P12i``), ``A_l = Phi22 Phi12^-1`` and ``A_l e`` into ``ws``."""
     T1, Phi, G12, P12i, Al, Ae, W = ws[0], ws[17], ws[18], ws[19], ws[20], ws[21], ws[25]
     _, _, _, _, _, o_T, o_Ti = svsf_offsets(n, m)
@@ -159,8 +161,16 @@ def _luen_update(
 
 @_jit.step
 def luen_first_order(
-    fp: np.ndarray, e: np.ndarray, ep: np.ndarray, xp: np.ndarray, F: np.ndarray, x: np.ndarray,
-    KgT: np.ndarray, ws: tuple, n: int, m: int,
+    fp: np.ndarray,
+    e: np.ndarray,
+    ep: np.ndarray,
+    xp: np.ndarray,
+    F: np.ndarray,
+    x: np.ndarray,
+    KgT: np.ndarray,
+    ws: tuple,
+    n: int,
+    m: int,
 ) -> int:  # pragma: no cover - compiled
     """The first-order correction of the module docstring; returns 0 or ``SINGULAR_PHI12``."""
     if not _phi_blocks(fp, F, e, ws, n, m):
@@ -188,8 +198,17 @@ def luen_first_order(
 
 @_jit.step
 def luen_second_order(
-    fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarray, xp: np.ndarray, F: np.ndarray,
-    x: np.ndarray, KgT: np.ndarray, ws: tuple, n: int, m: int,
+    fp: np.ndarray,
+    e: np.ndarray,
+    ep: np.ndarray,
+    epp: np.ndarray,
+    xp: np.ndarray,
+    F: np.ndarray,
+    x: np.ndarray,
+    KgT: np.ndarray,
+    ws: tuple,
+    n: int,
+    m: int,
 ) -> int:  # pragma: no cover - compiled
     """The second-order correction of the module docstring; returns 0 or ``SINGULAR_PHI12``."""
     if not _phi_blocks(fp, F, e, ws, n, m):

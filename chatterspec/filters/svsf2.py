@@ -159,6 +159,14 @@ class SecondOrderSVSF(CovarianceFilterBase):
         return _engine.CorrectionStep("svsf2", svsf2_correct, fp, numpy, mapping)
 
 
+def from_settings(model: object, settings: object, source: str) -> SecondOrderSVSF:
+    """Registry builder of ``svsf2``: gamma (default 0.1), Lambda (``cutoff_lambda``), mapping."""
+    fs = settings
+    gamma = 0.1 if fs.gamma is None else fs.gamma  # type: ignore[attr-defined]
+    lam = None if fs.cutoff_lambda is None else np.asarray(fs.cutoff_lambda, dtype=float)  # type: ignore[attr-defined]
+    return SecondOrderSVSF(model, gamma=gamma, lam=lam, mapping=fs.mapping)  # type: ignore[attr-defined]
+
+
 @_jit.step
 def svsf2_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
     """The second-order SVSF's correction (compiled step, signature of :mod:`chatterspec.filters._engine`).
@@ -186,5 +194,5 @@ def svsf2_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # ty
 
 @_jit.step
 def svsf2_luen_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
-    """The second-order SVSF's correction in the reduced-order form (:func:`~chatterspec.filters._luen.luen_second_order`)."""
+    """The second-order SVSF, reduced order (:func:`~chatterspec.filters._luen.luen_second_order`)."""
     return luen_second_order(fp, e, ep, epp, xp, F, x, KgT, ws, n, m)

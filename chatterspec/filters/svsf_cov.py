@@ -245,7 +245,7 @@ def svsf_cov_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  #
 
 @_jit.step
 def svsf_luen_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
-    """The SVSF-with-covariance correction in the reduced-order form (:func:`~chatterspec.filters._luen.luen_first_order`)."""
+    """The SVSF-cov correction, reduced-order form (:func:`~chatterspec.filters._luen.luen_first_order`)."""
     return luen_first_order(fp, e, ep, xp, F, x, KgT, ws, n, m)
 
 
@@ -273,6 +273,29 @@ def vbl_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type
     if not _svsf_gain(fp, e, ep, xp, PCtT, D, L, x, KgT, ws, n, m):
         return NOT_PD
     return 0
+
+
+def from_settings(model: object, settings: object, source: str) -> SVSFCov:
+    """Registry builder of ``svsf``: psi, gamma (default 0.1) and mapping of ``settings``.
+
+    With the ``luen`` mapping the boundary layer is ``psi`` of the measured then ``psi_lower`` of
+    the unmeasured coordinates.
+
+    Raises
+    ------
+    ParameterError
+        ``settings`` gives no ``psi`` (or no ``psi_lower`` with ``luen``).
+    """
+    fs = settings
+    if fs.psi is None:  # type: ignore[attr-defined]
+        raise ParameterError(f"scenario {source!r} gives no boundary layer psi for the first-order SVSF")
+    psi = fs.psi  # type: ignore[attr-defined]
+    if fs.mapping == "luen":  # type: ignore[attr-defined]
+        if fs.psi_lower is None:  # type: ignore[attr-defined]
+            raise ParameterError(f"scenario {source!r}: mapping 'luen' needs psi_lower in its settings")
+        psi = fs.psi + fs.psi_lower  # type: ignore[attr-defined]
+    gamma = 0.1 if fs.gamma is None else fs.gamma  # type: ignore[attr-defined]
+    return SVSFCov(model, psi=np.asarray(psi, dtype=float), gamma=gamma, mapping=fs.mapping)  # type: ignore[attr-defined]
 
 
 def check_gamma(gamma: object, m: int) -> np.ndarray:

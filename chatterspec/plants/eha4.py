@@ -193,7 +193,7 @@ def _coefficients(T: float, p: dict[str, float]) -> EHA4Coefficients:
 
 @step
 def predict_step(prm: np.ndarray, x: np.ndarray, u: np.ndarray, xp: np.ndarray, n: int, p: int) -> None:
-    """One Euler step of the corrected eq (4.1)-(4.5) for one realization into ``xp`` (4,) (the EHA4 plant step).
+    """The EHA4 plant step: one Euler step of the corrected eq (4.1)-(4.5), one realization, into ``xp``.
 
     ``prm`` = the 13 :class:`EHA4Coefficients` in their order; ``u[0]`` is the pump speed (rad/s).
     The same operations in the same order as the numpy formulas of :func:`eha4_transition`.
@@ -244,7 +244,9 @@ def _step_kernel(x: np.ndarray, u: np.ndarray, out: np.ndarray, prm: np.ndarray)
 
 
 @njit
-def _jacobian_kernel(x: np.ndarray, u: np.ndarray, J: np.ndarray, prm: np.ndarray) -> None:  # pragma: no cover
+def _jacobian_kernel(
+    x: np.ndarray, u: np.ndarray, J: np.ndarray, prm: np.ndarray
+) -> None:  # pragma: no cover
     """:func:`jacobian_step` for every row of ``x`` (runs, 4)."""
     x, u, J, prm = borrow(x), borrow(u), borrow(J), borrow(prm)
     for r in range(x.shape[0]):
