@@ -12,38 +12,52 @@ imported lazily, by the first :func:`enabled` call, so commands that never reach
 a kernel do not pay its import time; a numba that is installed but fails to
 import means the numpy path, with a warning.
 
+Steps, loops and specializations
+--------------------------------
+The arithmetic of a filter or a plant is written **once**, as a *step* (:func:`step`): one sample
+of one realization, scalar loops over channels, writing into arrays it is given. *Loops* (kernels,
+:func:`njit`) iterate runs and samples and call steps; numba inlines every step into every loop
+that calls it, so a loop built from steps runs like one written out by hand. A loop that works
+for several plants or filters is a *template*: it calls steps by global names it does not define
+(``PLANT``, ``SAMPLE``, ...) and reads sizes ``NX``, ``NZ``; :func:`specialize` (or
+:func:`specialize_sizes`) binds them, at compile time, for one plant and filter. Small sizes bound
+as literals let LLVM unroll the channel loops and keep the per-run state in registers: the EHA's
+3-state loops run as fast as the copies written out for 3 states that they replace.
+
+Three things make that true, and the first attempts at sharing steps (1.6-1.8x slower) missed them:
+
+* **No reference counting in the inner loop.** Every array a loop passes to an inlined step costs
+  an atomic increment and decrement of its reference count per call when the step has loops of
+  run-time length (numba cannot prune them): three times the arithmetic of an SVSF step. A loop
+  therefore borrows its array arguments at its top (:func:`borrow`) and keeps its per-run state in
+  stack arrays (:func:`scratch`, :func:`scratch2`, :func:`scratch_block`), which have no count.
+* **No function values.** A step passed as an argument is typed per function object and defeats
+  numba's cache (a new machine-code file per process); a closure over it does too. Bindings are
+  global names of a copy of the template, so the compiled loop is cached per binding.
+* **A digest in every compiled name.** numba stamps its cache with the source file of the function
+  it compiles, not of the steps inlined into it; each kernel's name carries a digest of its code,
+  its bound values and every kernel or step it reaches, so editing a step recompiles its loops.
+
 How to add a compiled kernel
 ----------------------------
-1. **Signature.** A module-level function ``_<name>_kernel(...)`` of numpy
-   arrays and scalars only (no dataclasses, no ``None``: pass an empty array,
-   e.g. ``np.empty((0, 0, 0))``, for an output that is not wanted, and test
-   ``out.shape[0] > 0`` inside). Inputs first, then the state arrays it updates
-   in place, then the preallocated outputs; it returns nothing. Arrays keep the
-   package layout ``(runs, K, channels)``; strided views are fine (numba
-   compiles one specialization per layout, and all of them are cached).
-2. **Body.** ``for r in range(runs):`` outermost, then ``for k in range(K):``,
-   with the per-run state in small local arrays allocated once before the loops
-   and explicit scalar loops over channels (no array expressions, which would
-   allocate a temporary per sample). Use only ``+ - * /``, ``abs``, ``min``,
-   ``max``, ``np.sign``, ``np.sqrt``: each is correctly rounded and numba does
-   not fuse or reorder them (no ``fastmath``), so the kernel's bits depend only
-   on the order in which you write the sums. Runs are independent, so a chunk
-   of runs or of samples gives the same bits as the whole record.
-3. **Dispatch.** Decorate with :func:`njit`; in the public method, after
-   validating the input in Python, branch on :func:`enabled`: compiled kernel
-   if true, the existing numpy loop otherwise (keep it: it is the fallback
-   without numba and the baseline of the benchmarks). Both branches must give
-   the same results for every chunking, since online and batch use the same
-   method.
-4. **Equality test.** In ``tests/test_kernels.py``, run the same input through
-   both branches (``monkeypatch.setenv("CHATTERSPEC_JIT", "0")`` selects the
-   numpy one) and compare: bit-identical where both evaluate sums in the same
-   order, otherwise to a stated tolerance with its reason (BLAS sums matrix
-   products in a different order than the kernel's loop: a few ulps per step,
-   which a stable filter does not amplify). Also run the kernel's Python
-   function (``kernel.py_func``) on a tiny input, so the test does not depend
-   on the compiler for its meaning. The tests skip the compiled side when
-   numba is not installed; the ``test`` extra installs it so CI covers both.
+1. **Signature.** Arrays and scalars only (no dataclasses, no ``None``: pass an empty array,
+   e.g. ``np.empty((0, 0, 0))``, for an output that is not wanted, and test ``out.shape[0] > 0``
+   inside). Inputs first, then the state arrays it updates in place, then the preallocated
+   outputs. Arrays keep the package layout ``(runs, K, channels)``.
+2. **Body.** Borrow the arrays; allocate the per-run state with :func:`scratch` before the loops
+   (sizes within :data:`STACK_CAPACITY`, or :func:`fits` in the Python caller); ``for r in
+   range(runs):`` outermost, then ``for k in range(K):``, calling the steps. Use only ``+ - * /``,
+   ``abs``, ``min``, ``max``, ``np.sign``, ``np.sqrt``, ``np.log``: each is correctly rounded and
+   numba does not fuse or reorder them (no ``fastmath``), so the bits depend only on the order of
+   the sums. Runs are independent, so a chunk of runs or of samples gives the same bits. Steps and
+   kernels are called by their names (``from .x import step``), not as module attributes.
+3. **Dispatch.** In the public method, after validating the input in Python, branch on
+   :func:`enabled`: compiled kernel if true, the numpy path otherwise (keep it: it is the fallback
+   without numba and the baseline of the benchmarks).
+4. **Tests.** The compiled path against the numpy path (bit-identical where both sum in the same
+   order, else a stated tolerance with its reason), the kernel's Python function
+   (``kernel.py_func``) on a tiny input, and every new step against an independent hand formula
+   (``tests/test_steps.py``): a wrong step is wrong on both paths.
 """
 
 from __future__ import annotations
@@ -142,9 +156,14 @@ def scratch_block(n: int) -> np.ndarray:
     return np.empty(n)
 
 
-def fits(n: int, m: int = 0) -> bool:
-    """Whether loops with ``n`` states and ``m`` outputs fit the compiled scratch (else numpy path)."""
-    return 0 <= n <= MAX_DIMENSION and 0 <= m <= MAX_DIMENSION
+def fits(n: int, m: int = 0, *, vectors_only: bool = False) -> bool:
+    """Whether a loop with ``n`` states and ``m`` outputs fits the compiled scratch (else: numpy path).
+
+    Matrices of scratch need ``n, m <= MAX_DIMENSION``; with ``vectors_only`` (the SVSF, the
+    simulation) ``n, m <= STACK_CAPACITY``.
+    """
+    limit = STACK_CAPACITY if vectors_only else MAX_DIMENSION
+    return 0 <= n <= limit and 0 <= m <= limit
 
 
 def borrow(a: Any) -> Any:

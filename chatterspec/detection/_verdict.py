@@ -27,6 +27,22 @@ from .. import _jit
 
 __all__ = ["peak_kernel", "verdict_kernel"]
 
+
+@_jit.step
+def argmax_update(j: int, v: float, k: int, best: float, nan: bool) -> tuple[int, float, bool]:
+    """One element of numpy's ``argmax``: ``(k, best, nan)`` after value ``v`` at position ``j``.
+
+    The first NaN wins for good; otherwise only a strictly larger value replaces the best one.
+    """
+    if nan:
+        return k, best, nan
+    if v != v:
+        return j, v, True
+    if v > best:
+        return j, v, False
+    return k, best, nan
+
+
 #: Binding of :func:`_verdict_loop`: also the excess bin and the sum (False: only the ratio's argmax).
 FULL = True
 
@@ -92,27 +108,14 @@ def _verdict_loop(
                 b = idx[j]
                 p = power[r, b, c]
                 ratio = p / thr[b, c]
-                if not nr:
-                    if ratio != ratio:
-                        kr, vr, nr = j, ratio, True
-                    elif ratio > vr:
-                        kr, vr = j, ratio
+                kr, vr, nr = argmax_update(j, ratio, kr, vr, nr)
                 if FULL:
                     ex = p - expected[b, c]
-                    over = ratio > 1.0
                     ps += p
-                    if not ne:
-                        if ex != ex:
-                            ke, ve, ne = j, ex, True
-                        elif ex > ve:
-                            ke, ve = j, ex
-                    if over:
+                    ke, ve, ne = argmax_update(j, ex, ke, ve, ne)
+                    if ratio > 1.0:
                         any_over = True
-                        if not nw:
-                            if ex != ex:
-                                kw, vw, nw = j, ex, True
-                            elif ex > vw:
-                                kw, vw = j, ex
+                        kw, vw, nw = argmax_update(j, ex, kw, vw, nw)
             k_ratio[r, c] = kr
             peak_ratio[r, c] = vr
             if FULL:

@@ -14,7 +14,6 @@ import numpy as np
 
 from .. import _jit
 from .._validate import positive_int
-from ..errors import ShapeError
 from ..filters._svsf_kernels import closed_form_step
 from ..filters.nonlinear_svsf import nonlinear_chattering
 from ..filters.svsf import _rows_times, auxiliary_svsf
@@ -29,6 +28,7 @@ from ..plants.simulate import (
     _tables,
     default_chunk_runs,
     iter_simulations,
+    scenario_input,
 )
 from ..rng import BLOCK, SeedLike, block_generator, root_seed_sequence
 
@@ -173,25 +173,7 @@ _chattering_kernel = _jit.specialize(_plant_loop, "chattering", SINK=chattering_
 RUN = _chattering_kernel
 
 
-def _rng_loop(
-    g0: np.random.Generator,
-    g1: np.random.Generator,
-    skip: int,
-    runs: int,
-    seg_idx: np.ndarray,
-    A: np.ndarray,
-    C: np.ndarray,
-    Lq: np.ndarray,
-    Lr: np.ndarray,
-    Bu: np.ndarray,
-    x0: np.ndarray,
-    diag: np.ndarray,
-    ctrl: np.ndarray,
-    PhiT: np.ndarray,
-    Gu: np.ndarray,
-    e_out: np.ndarray,
-    offset: int,
-) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_e2e_kernels.py)
+def _rng_loop(g0, g1, skip, runs, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, PhiT, Gu, e_out, offset):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (Python form tested in tests/test_e2e_kernels.py)
     """``RUN`` (the fused loop) on runs ``skip .. skip + runs - 1`` of one random block, drawing as it goes.
 
     ``g0`` and ``g1`` are the block's generators (streams 0 and 1 of
@@ -243,10 +225,7 @@ def _fused_chattering(
     model = scenario.nominal
     f = auxiliary_svsf(model, gamma)
     root = root_seed_sequence(seed)
-    t = scenario.time
-    u = scenario.input.sample(t).reshape(len(t), -1)
-    if u.shape[1] != model.n_inputs:
-        raise ShapeError(f"scenario input gives {u.shape[1]} channel(s); the model has {model.n_inputs}")
+    t, u = scenario_input(scenario)
     T, m = len(t), model.n_outputs
     tb = _tables(scenario, t, u)
     Gu = np.ascontiguousarray(_rows_times(u[:-1], f._GT), dtype=float)  # as SVSF.update computes it
@@ -285,6 +264,7 @@ def _can_fuse(scenario: Scenario) -> bool:
     model = scenario.nominal
     return (
         _jit.enabled()
+        and _jit.fits(model.n_states, model.n_outputs, vectors_only=True)
         and getattr(scenario, "is_linear", True)
         and model.full_measurement
         and scenario.n_samples >= 2

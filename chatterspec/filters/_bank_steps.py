@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _jit
-from ._engine import chol_solve_step, chol_step
+from ._engine import chol_solve_step, chol_step, given_jacobian, given_predict
 
 #: Lower bound of the smallest eigenvalue of Sc above which the Cholesky likelihood is used.
 CHOL_SAFE = 1e-10
@@ -139,3 +139,68 @@ def combine_step(mu, xs, Ps, x, P, nm, n):  # type: ignore[no-untyped-def]  # pr
                 da = xs[j, a] - x[a]
                 s += mu[j] * (Ps[j, a, b] + da * (xs[j, b] - x[b]))
             P[a, b] = s
+
+
+@_jit.step
+def bank_store_step(r, k, x, mu, ll, P, xs, o_x, o_mu, o_ll, o_P, o_mx, nm, n):  # type: ignore[no-untyped-def]
+    """Write sample k of run r of a bank: ``x``, ``mu``, ``ll``; ``P`` and the modes' ``xs`` if wanted."""
+    for a in range(n):
+        o_x[r, k, a] = x[a]
+    for j in range(nm):
+        o_mu[r, k, j] = mu[j]
+        o_ll[r, k, j] = ll[j]
+    if o_P.shape[0] > 0:
+        for a in range(n):
+            for c in range(n):
+                o_P[r, k, a, c] = P[a, c]
+    if o_mx.shape[0] > 0:
+        for j in range(nm):
+            for a in range(n):
+                o_mx[r, k, j, a] = xs[j, a]
+
+
+#: Bindings of :func:`_bank_plant`: the two plant kinds a bank may mix.
+PREDICT_A = PREDICT_B = given_predict
+JACOBIAN_A = JACOBIAN_B = given_jacobian
+
+
+def _bank_plant(slot, prm, x, u, xp, F, n, p):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """A mode's prediction and Jacobian by its plant kind: ``slot`` 0 = ``PREDICT_A``, 1 = ``PREDICT_B``."""
+    if slot == 0:
+        PREDICT_A(prm, x, u, xp, n, p)
+        JACOBIAN_A(prm, x, u, F, n, p)
+    else:
+        PREDICT_B(prm, x, u, xp, n, p)
+        JACOBIAN_B(prm, x, u, F, n, p)
+
+
+def bank_plants(plants: list) -> tuple[object, np.ndarray, np.ndarray]:  # type: ignore[type-arg]
+    """``(step, slot per mode, prm rows)`` for the modes' :class:`~chatterspec.plants.steps.PlantSteps`.
+
+    ``step`` is :func:`_bank_plant` with the (at most two) plant kinds bound; None when there are more.
+    """
+    kinds = list(dict.fromkeys(pl.name for pl in plants))
+    if len(kinds) > 2:
+        return None, np.empty(0, dtype=np.int64), np.empty((0, 0))
+    by_name = {pl.name: pl for pl in plants}
+    a, b = by_name[kinds[0]], by_name[kinds[-1]]
+    step = _jit.specialize_sizes(
+        _bank_plant, f"{a.name}_{b.name}", {}, inline=True,
+        PREDICT_A=a.predict, JACOBIAN_A=a.jacobian, PREDICT_B=b.predict, JACOBIAN_B=b.jacobian,
+    )  # fmt: skip
+    prm = np.zeros((len(plants), max(len(pl.parameters) for pl in plants)))
+    for j, pl in enumerate(plants):
+        prm[j, : len(pl.parameters)] = pl.parameters
+    return step, np.array([kinds.index(pl.name) for pl in plants], dtype=np.int64), prm
+
+
+def bank_outputs(runs: int, K: int, n: int, r: int, store_covariance: bool, store_modes: bool) -> dict:  # type: ignore[type-arg]
+    """The per-sample output arrays of a bank's loop (empty 4-D arrays for the ones not stored)."""
+    none = np.empty((0, 0, 0, 0))
+    return {
+        "x": np.empty((runs, K, n)),
+        "mu": np.empty((runs, K, r)),
+        "ll": np.empty((runs, K, r)),
+        "P": np.empty((runs, K, n, n)) if store_covariance else none,
+        "mx": np.empty((runs, K, r, n)) if store_modes else none,
+    }

@@ -11,7 +11,7 @@ from .._validate import finite_array
 from ..errors import ParameterError, ShapeError
 from ..plants.models import LinearModel
 from ..plants.steps import PlantSteps, plant_steps
-from . import _engine
+from . import _engine, _engine_numpy
 from .protocol import FilterOutput, FilterState, check_chunk, initial_state, resolve_store
 from .svsf import _rows_times
 
@@ -144,13 +144,14 @@ class CovarianceFilterBase:
         if P.ndim == 2:  # shared covariance given to a per-run filter (e.g. replaced by a bank)
             P = np.array(np.broadcast_to(P, (x.shape[0], *P.shape)))
         corr = self._correction_step()
-        compiled = _jit.enabled() and corr.mapping != _engine.MAP_LUEN
+        n, m = x.shape[1], z.shape[2]
+        compiled = _jit.enabled() and corr.mapping != _engine.MAP_LUEN and _jit.fits(n, m)
         plant = self._plant()
         if compiled and plant is not None:  # every sample in one compiled loop
             return P, _engine.cov_loop(corr, plant, x, P, ep, epp, z, u, C, Q, R, keep)
         if self._linear:
             Bu = _rows_times(u, np.ascontiguousarray(model.B.T))  # type: ignore[attr-defined]
-            return P, _engine.cov_numpy(corr, x, P, ep, epp, z, C, Q, R, keep, A=model.A, Bu=Bu)  # type: ignore[attr-defined]
+            return P, _engine_numpy.cov_numpy(corr, x, P, ep, epp, z, C, Q, R, keep, A=model.A, Bu=Bu)  # type: ignore[attr-defined]
         steps = []
         shared_u = u.shape[0] == 1
         for k in range(z.shape[1]):
@@ -164,15 +165,13 @@ class CovarianceFilterBase:
                     f"got {xp.shape} and {F.shape}"
                 )
             F = np.broadcast_to(F, (*x.shape, x.shape[1]))
-            zk = z[:, k : k + 1]
+            zk, given = z[:, k : k + 1], {"xp_in": xp, "F_in": F}
             if compiled:
                 steps.append(
-                    _engine.cov_loop(
-                        corr, None, x, P, ep, epp, zk, u[:, k : k + 1], C, Q, R, keep, xp_in=xp, F_in=F
-                    )
+                    _engine.cov_loop(corr, None, x, P, ep, epp, zk, u[:, k : k + 1], C, Q, R, keep, **given)
                 )
             else:
-                steps.append(_engine.cov_numpy(corr, x, P, ep, epp, zk, C, Q, R, keep, xp_in=xp, F_in=F))
+                steps.append(_engine_numpy.cov_numpy(corr, x, P, ep, epp, zk, C, Q, R, keep, **given))
         res = {
             f: (None if steps[0][f] is None else np.concatenate([s[f] for s in steps], axis=1))
             for f in steps[0]
@@ -240,11 +239,11 @@ class CovarianceFilterBase:
             )
         # F = I and Q = 0 make the engine's prediction P(k+1|k) = I P I^T + 0 = P_prior exactly
         eye, Q0 = np.broadcast_to(np.eye(n), (runs, n, n)), np.zeros((n, n))
-        if _jit.enabled():
+        if _jit.enabled() and _jit.fits(n, m):
             u0 = np.zeros((1, 1, 0))
             res = _engine.cov_loop(corr, None, x, P, ep, epp, zz, u0, C, Q0, R, keep, xp_in=xp, F_in=eye)
         else:
-            res = _engine.cov_numpy(corr, x, P, ep, epp, zz, C, Q0, R, keep, xp_in=xp, F_in=eye)
+            res = _engine_numpy.cov_numpy(corr, x, P, ep, epp, zz, C, Q0, R, keep, xp_in=xp, F_in=eye)
         new = FilterState(x=x, P=P, e_post=ep, e_prev=epp, k=state.k + 1)
         return new, FilterOutput(**res)
 

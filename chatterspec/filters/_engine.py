@@ -23,10 +23,11 @@ factors is not positive definite) or :data:`SINGULAR_PHI12` (the reduced-order f
 or ``C^+``), :data:`MAP_COV` (``P C^T (C P C^T)^-1``), :data:`MAP_LUEN` (the reduced-order
 Luenberger form, :mod:`chatterspec.filters._luen`).
 
-**numpy.** :func:`cov_numpy` is the same step vectorized over realizations with a Python loop over
-samples and the filter's numpy correction; it runs when :func:`chatterspec._jit.enabled` is
-false, and for the ``luen`` mapping of a single filter. The two agree to rounding (summation
-order, LAPACK vs the hand-written Cholesky).
+**numpy.** :func:`chatterspec.filters._engine_numpy.cov_numpy` is the same step vectorized over
+realizations with a Python loop over samples and the filter's numpy correction; it runs when
+:func:`chatterspec._jit.enabled` is false, and for the ``luen`` mapping of a single filter. The
+two agree to rounding (summation order, LAPACK vs the hand-written Cholesky). The linear-algebra
+steps are in :mod:`chatterspec.filters._linalg`.
 """
 
 from __future__ import annotations
@@ -38,6 +39,39 @@ import numpy as np
 
 from .. import _jit
 from ..errors import SingularMatrixError
+from ._linalg import (
+    chol_solve_step,
+    chol_step,
+    gain_update_step,
+    innovation_step,
+    predict_cov_step,
+    product_step,
+    residual_step,
+)
+
+__all__ = [
+    "FIELDS",
+    "MAP_CONST",
+    "MAP_COV",
+    "MAP_LUEN",
+    "NOT_PD",
+    "SINGULAR_PHI12",
+    "CorrectionStep",
+    "chol_solve_step",
+    "chol_step",
+    "cov_loop",
+    "gain_update_step",
+    "innovation_step",
+    "map_step",
+    "map_update_step",
+    "predict_cov_step",
+    "product_step",
+    "residual_step",
+    "sample_step",
+    "svsf_offsets",
+    "svsf_parameters",
+    "workspace",
+]
 
 KF, SVSF1, SVSF2, VBL = 0, 1, 2, 3
 MAP_CONST, MAP_COV, MAP_LUEN = 0, 1, 2
@@ -121,41 +155,6 @@ def svsf_offsets(n: int, m: int) -> tuple[int, int, int, int, int, int, int]:
 
 
 @_jit.step
-def chol_step(A: np.ndarray, L: np.ndarray, m: int) -> bool:  # pragma: no cover - compiled
-    """Lower Cholesky factor of the (m, m) matrix A into L; False if A is not positive definite."""
-    for i in range(m):
-        for j in range(i + 1):
-            s = A[i, j]
-            for q in range(j):
-                s -= L[i, q] * L[j, q]
-            if i == j:
-                if not s > 0.0:
-                    return False
-                L[i, i] = np.sqrt(s)
-            else:
-                L[i, j] = s / L[j, j]
-    return True
-
-
-@_jit.step
-def chol_solve_step(
-    L: np.ndarray, B: np.ndarray, X: np.ndarray, m: int, ncol: int
-) -> None:  # pragma: no cover
-    """X = (L L^T)^-1 B for B of shape (m, ncol): forward then back substitution, column by column."""
-    for c in range(ncol):
-        for i in range(m):
-            s = B[i, c]
-            for q in range(i):
-                s -= L[i, q] * X[q, c]
-            X[i, c] = s / L[i, i]
-        for i in range(m - 1, -1, -1):
-            s = X[i, c]
-            for q in range(i + 1, m):
-                s -= L[q, i] * X[q, c]
-            X[i, c] = s / L[i, i]
-
-
-@_jit.step
 def map_step(
     mapping: int,
     D: np.ndarray,
@@ -198,68 +197,7 @@ def map_update_step(
     for i in range(m):
         for j in range(n):
             KgT[i, j] = MpT[i, j] * g[i]
-    for i in range(n):
-        s = xp[i]
-        for j in range(m):
-            s += MpT[j, i] * dz[j]
-        x[i] = s
-
-
-@_jit.step
-def predict_cov_step(
-    F: np.ndarray, P: np.ndarray, Q: np.ndarray, T1: np.ndarray, Pp: np.ndarray, n: int
-) -> None:
-    """``Pp = F P F^T + Q`` (``T1 = F P`` first; the upper triangle summed, then mirrored)."""
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for q in range(n):
-                s += F[i, q] * P[q, j]
-            T1[i, j] = s
-    for i in range(n):  # symmetric: upper triangle, mirrored
-        for j in range(i, n):
-            s = Q[i, j]
-            for q in range(n):
-                s += T1[i, q] * F[j, q]
-            Pp[i, j] = s
-            Pp[j, i] = s
-
-
-@_jit.step
-def innovation_step(
-    zk: np.ndarray,
-    xp: np.ndarray,
-    Pp: np.ndarray,
-    C: np.ndarray,
-    R: np.ndarray,
-    e: np.ndarray,
-    PCt: np.ndarray,
-    PCtT: np.ndarray,
-    D: np.ndarray,
-    S: np.ndarray,
-    n: int,
-    m: int,
-) -> None:  # pragma: no cover - compiled
-    """``e = z - C xp``, ``PCt = Pp C^T`` (and its transpose), ``D = C Pp C^T``, ``S = D + R``."""
-    for i in range(m):
-        s = zk[i]
-        for j in range(n):
-            s -= C[i, j] * xp[j]
-        e[i] = s
-    for i in range(n):
-        for j in range(m):
-            s = 0.0
-            for q in range(n):
-                s += Pp[i, q] * C[j, q]
-            PCt[i, j] = s
-            PCtT[j, i] = s
-    for i in range(m):
-        for j in range(m):
-            s = 0.0
-            for q in range(n):
-                s += C[i, q] * PCt[q, j]
-            D[i, j] = s
-            S[i, j] = s + R[i, j]
+    gain_update_step(xp, MpT, dz, x, n, m)
 
 
 def _sample(
@@ -310,18 +248,8 @@ def _sample(
             for q in range(m):
                 s -= KgT[q, i] * C[q, j]
             IKC[i, j] = s
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for q in range(n):
-                s += IKC[i, q] * Pp[q, j]
-            T1[i, j] = s
-    for i in range(n):
-        for j in range(m):
-            s = 0.0
-            for q in range(m):
-                s += KgT[q, i] * R[q, j]
-            KR[i, j] = s
+    product_step(IKC, Pp, T1, n, n, n, False, False)
+    product_step(KgT, R, KR, n, m, m, True, False)
     for i in range(n):  # symmetric: upper triangle, mirrored
         for j in range(i, n):
             s = 0.0
@@ -333,10 +261,7 @@ def _sample(
             P[j, i] = s
     for i in range(m):
         epp[i] = ep[i]
-        s = zk[i]
-        for j in range(n):
-            s -= C[i, j] * x[j]
-        ep[i] = s
+    residual_step(zk, C, x, ep, n, m)
     return 0
 
 
@@ -433,6 +358,33 @@ def workspace(n: int, m: int) -> tuple:  # pragma: no cover - compiled (inlined 
 
 
 @_jit.step
+def store_step(flags, outs, r, k, xp, x, e, S, ll, ep, Pp, P, n, m):  # type: ignore[no-untyped-def]
+    """Write sample k of run r into the outputs of :data:`FIELDS` whose ``flags`` entry is set."""
+    o_xprior, o_xpost, o_e, o_S, o_ll, o_ep, o_Pprior, o_Ppost = outs
+    for i in range(n):
+        if flags[0]:
+            o_xprior[r, k, i] = xp[i]
+        if flags[1]:
+            o_xpost[r, k, i] = x[i]
+    for i in range(m):
+        if flags[2]:
+            o_e[r, k, i] = e[i]
+        if flags[5]:
+            o_ep[r, k, i] = ep[i]
+        if flags[3]:
+            for j in range(m):
+                o_S[r, k, i, j] = S[i, j]
+    if flags[4]:
+        o_ll[r, k] = ll
+    for i in range(n):
+        for j in range(n):
+            if flags[6]:
+                o_Pprior[r, k, i, j] = Pp[i, j]
+            if flags[7]:
+                o_Ppost[r, k, i, j] = P[i, j]
+
+
+@_jit.step
 def given_predict(prm: np.ndarray, x: np.ndarray, u: np.ndarray, xp: np.ndarray, n: int, p: int) -> None:
     """A prediction computed by the caller: ``xp = prm[:n]`` (the per-run row of :func:`cov_loop`)."""
     for i in range(n):
@@ -526,32 +478,8 @@ def _cov_loop(
                 return 1 + r
             if status == SINGULAR_PHI12:
                 return 1 + runs + r
-            if flags[0]:
-                for i in range(n):
-                    o_xprior[r, k, i] = xp[i]
-            if flags[1]:
-                for i in range(n):
-                    o_xpost[r, k, i] = x[r, i]
-            if flags[2]:
-                for i in range(m):
-                    o_e[r, k, i] = e[i]
-            if flags[3]:
-                for i in range(m):
-                    for j in range(m):
-                        o_S[r, k, i, j] = S[i, j]
-            if flags[4]:
-                o_ll[r, k] = ll[0]
-            if flags[5]:
-                for i in range(m):
-                    o_ep[r, k, i] = ep[r, i]
-            if flags[6]:
-                for i in range(n):
-                    for j in range(n):
-                        o_Pprior[r, k, i, j] = Pp[i, j]
-            if flags[7]:
-                for i in range(n):
-                    for j in range(n):
-                        o_Ppost[r, k, i, j] = P[r, i, j]
+            outs = (o_xprior, o_xpost, o_e, o_S, o_ll, o_ep, o_Pprior, o_Ppost)
+            store_step(flags, outs, r, k, xp, x[r], e, S, ll[0], ep[r], Pp, P[r], n, m)
     return 0
 
 
@@ -659,80 +587,3 @@ def _not_pd_message(mapping: int, run: int) -> str:
         f"{what} is not positive definite in run {run}: check that R (and P0) are positive definite "
         "and that the model does not diverge"
     )
-
-
-def chol_np(M: np.ndarray, mapping: int) -> np.ndarray:
-    """numpy Cholesky of every block of ``M``; SingularMatrixError (naming the run) if one is not PD."""
-    try:
-        return np.linalg.cholesky(M)
-    except np.linalg.LinAlgError:
-        bad = np.flatnonzero(~np.all(np.linalg.eigvalsh(M) > 0, axis=-1))
-        raise SingularMatrixError(_not_pd_message(mapping, int(bad[0]) if bad.size else 0)) from None
-
-
-def map_numpy(mapping: int, D: np.ndarray, PCt: np.ndarray, M: np.ndarray | None, runs: int) -> np.ndarray:
-    """numpy twin of :func:`map_step`: ``M`` (runs, n, m)."""
-    if mapping == MAP_COV:
-        chol_np(D, mapping)
-        return np.swapaxes(np.linalg.solve(D, np.swapaxes(PCt, -1, -2)), -1, -2)
-    return np.broadcast_to(M, (runs, *M.shape))  # type: ignore[union-attr]
-
-
-def kalman_gain_numpy(S: np.ndarray, PCt: np.ndarray) -> np.ndarray:
-    """``K = P C^T S^-1`` for every run (numpy)."""
-    return np.swapaxes(np.linalg.solve(S, np.swapaxes(PCt, -1, -2)), -1, -2)
-
-
-def cov_numpy(
-    correct: CorrectionStep,
-    x: np.ndarray,
-    P: np.ndarray,
-    ep: np.ndarray,
-    epp: np.ndarray,
-    z: np.ndarray,
-    C: np.ndarray,
-    Q: np.ndarray,
-    R: np.ndarray,
-    keep: frozenset[str],
-    *,
-    A: np.ndarray | None = None,
-    Bu: np.ndarray | None = None,
-    xp_in: np.ndarray | None = None,
-    F_in: np.ndarray | None = None,
-) -> dict[str, np.ndarray | None]:
-    """numpy twin of :func:`cov_loop`: vectorized over runs, a loop over samples; in place.
-
-    Linear when ``A`` and ``Bu`` (1|runs, K, n) = B u(k) are given; otherwise ``xp_in`` (runs, n)
-    and ``F_in`` (runs, n, n) are the prediction and Jacobian of the single sample (K = 1).
-    """
-    runs, K, m = z.shape
-    n = x.shape[1]
-    flags, out = _alloc(keep, _shapes(runs, K, n, m))
-    CT = C.T
-    eye = np.eye(n)
-    for k in range(K):
-        if A is not None:
-            F = A
-            xp = x @ A.T + Bu[:, k]  # type: ignore[index]
-        else:
-            F = F_in
-            xp = np.array(xp_in, dtype=float)
-        Pp = F @ P @ np.swapaxes(F, -1, -2) + Q  # type: ignore[operator]
-        e = z[:, k] - xp @ CT
-        PCt = Pp @ CT
-        D = C @ PCt
-        S = D + R
-        L = chol_np(S, correct.mapping)
-        w = np.linalg.solve(S, e[..., None])[..., 0]
-        ll = -0.5 * (m * LOG2PI + 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1))
-        ll = ll - 0.5 * np.einsum("ri,ri->r", e, w)
-        Kg, x_new = correct.numpy(e, ep, epp, xp, PCt, D, S, C, F)
-        x[...] = x_new
-        IKC = eye - Kg @ C
-        P[...] = IKC @ Pp @ np.swapaxes(IKC, -1, -2) + Kg @ R @ np.swapaxes(Kg, -1, -2)
-        epp[...] = ep
-        ep[...] = z[:, k] - x @ CT
-        for f, flag, val in zip(FIELDS, flags, (xp, x, e, S, ll, ep, Pp, P), strict=True):
-            if flag:
-                out[f][:, k] = val
-    return {f: (out[f] if f in keep else None) for f in FIELDS}

@@ -15,10 +15,10 @@ dozen numpy calls on (runs, 3, 4) arrays per sample. The arithmetic is that of t
     (31)-(33) x = sum_j mu_j x_j,  P = sum_j mu_j [P_j + (x_j - x)(x_j - x)^T]
 
 Nothing here is specific to a filter or a plant: the modes' plant steps come from
-:func:`chatterspec.plants.steps.plant_steps` (two kinds per bank at most, bound as ``PREDICT_A``,
-``PREDICT_B``) and their corrections from each filter's ``_correction_step()`` (four kinds at most,
-``SAMPLE_0`` .. ``SAMPLE_3``); :func:`fused_spec` returns None (the protocol path) for anything else
-and for the variable boundary layer.
+:func:`chatterspec.plants.steps.plant_steps` (two kinds per bank at most,
+:func:`chatterspec.filters._bank_steps.bank_plants`) and their corrections from each filter's
+``_correction_step()`` (four kinds at most, ``SAMPLE_0`` .. ``SAMPLE_3``); :func:`fused_spec`
+returns None (the protocol path) for anything else and for the variable boundary layer.
 
 **Equality.** The kernel is not bit-identical to the protocol path: numpy evaluates ``mu @ pi``, the
 mixing and combination ``einsum`` and the likelihood (eigh) in other summation orders than the
@@ -32,15 +32,23 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _jit
-from ._bank_steps import combine_step, log_gaussian_step, mode_probabilities_step
-from ._engine import NOT_PD, SINGULAR_PHI12, _no_sample, given_jacobian, given_predict, sample_step, workspace
+from ._bank_steps import (
+    _bank_plant,
+    bank_outputs,
+    bank_plants,
+    bank_store_step,
+    combine_step,
+    log_gaussian_step,
+    mode_probabilities_step,
+)
+from ._engine import NOT_PD, SINGULAR_PHI12, _no_sample, sample_step, workspace
 
 #: The per-innovation likelihood of eq (29) (kept under its former name).
 _log_gaussian_1 = log_gaussian_step
 
-#: Bindings of :func:`_imm_loop`: two plant kinds, four correction kinds (sample steps), sizes.
-PREDICT_A = PREDICT_B = given_predict
-JACOBIAN_A = JACOBIAN_B = given_jacobian
+#: Bindings of :func:`_imm_loop`: the modes' plant step (:func:`._bank_steps.bank_plants`), four
+#: correction kinds (sample steps), sizes.
+PLANT = _bank_plant
 SAMPLE_0 = SAMPLE_1 = SAMPLE_2 = SAMPLE_3 = _no_sample
 NX = NZ = 0
 
@@ -76,11 +84,11 @@ def _imm_loop(
 ):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (a template: see run_fused)
     """The IMM recursion of the module docstring; state arrays updated in place.
 
-    Per mode j: ``prm[j]`` (its plant's parameters, plant ``plant_slot[j]``: 0 = ``PREDICT_A``,
-    1 = ``PREDICT_B``), ``fp[j]`` (its correction's parameters, ``corr_slot[j]`` = 0 .. 3),
-    ``Q[j]``, ``C[j]``, ``R[j]``. ``x0``, ``P0`` (nm, n), (nm, n, n): scratch of the mixed initial
-    conditions. Returns 0, ``1 + run`` when an innovation covariance (or the ``cov`` mapping's
-    ``C P C^T``) is not positive definite, ``-(1 + run)`` when every mode likelihood is zero or
+    Per mode j: ``prm[j]`` (its plant's parameters, plant kind ``plant_slot[j]`` of ``PLANT``),
+    ``fp[j]`` (its correction's parameters, ``corr_slot[j]`` = 0 .. 3), ``Q[j]``, ``C[j]``, ``R[j]``.
+    ``x0``, ``P0`` (nm, n), (nm, n, n): scratch of the mixed initial conditions. Returns 0,
+    ``1 + run`` when an innovation covariance (or the ``cov`` mapping's ``C P C^T``) is not positive
+    definite, ``-(1 + run)`` when every mode likelihood is zero or
     non-finite, or ``-(1 + runs + run)`` when the ``luen`` form meets a singular ``Phi12``.
     """
     b = _jit.borrow
@@ -113,8 +121,6 @@ def _imm_loop(
     m = NZ if NZ > 0 else z.shape[2]
     p = u.shape[2]
     shared_u = u.shape[0] == 1
-    want_P = o_P.shape[0] > 0
-    want_mx = o_mx.shape[0] > 0
     c = _jit.scratch(nm)
     w = _jit.scratch2(nm, nm)
     ll = _jit.scratch(nm)
@@ -165,12 +171,7 @@ def _imm_loop(
                         for q in range(n):
                             s -= C[0, i, q] * x0[j, q]
                         em[i] = s
-                if plant_slot[j] == 0:
-                    PREDICT_A(prm[j], x0[j], u[ur, k], xp, n, p)
-                    JACOBIAN_A(prm[j], x0[j], u[ur, k], F, n, p)
-                else:
-                    PREDICT_B(prm[j], x0[j], u[ur, k], xp, n, p)
-                    JACOBIAN_B(prm[j], x0[j], u[ur, k], F, n, p)
+                PLANT(plant_slot[j], prm[j], x0[j], u[ur, k], xp, F, n, p)
                 for a in range(n):
                     for bb in range(n):
                         Ps[r, j, a, bb] = P0[j, a, bb]
@@ -200,19 +201,7 @@ def _imm_loop(
             combine_step(mu[r], xs[r], Ps[r], x[r], P[r], nm, n)
             for i in range(m):
                 zl[r, i] = z[r, k, i]
-            for a in range(n):
-                o_x[r, k, a] = x[r, a]
-            for j in range(nm):
-                o_mu[r, k, j] = mu[r, j]
-                o_ll[r, k, j] = ll[j]
-            if want_P:
-                for a in range(n):
-                    for bb in range(n):
-                        o_P[r, k, a, bb] = P[r, a, bb]
-            if want_mx:
-                for j in range(nm):
-                    for a in range(n):
-                        o_mx[r, k, j, a] = xs[r, j, a]
+            bank_store_step(r, k, x[r], mu[r], ll, P[r], xs[r], o_x, o_mu, o_ll, o_P, o_mx, nm, n)
     return 0
 
 
@@ -246,9 +235,11 @@ def fused_spec(filters: tuple[object, ...]) -> dict[str, object] | None:
             return None
         plants.append(plant)
         corrections.append(corr)
-    plant_kinds = list(dict.fromkeys(p.name for p in plants))
+    plant, plant_slot, prm = bank_plants(plants)
     corr_kinds = list(dict.fromkeys(c.name for c in corrections))
-    if len(plant_kinds) > 2 or len(corr_kinds) > 4:
+    mdl = filters[0].model  # type: ignore[attr-defined]
+    sizes_fit = _jit.fits(int(mdl.n_states), int(mdl.n_outputs)) and _jit.fits(len(filters))
+    if plant is None or len(corr_kinds) > 4 or not sizes_fit:
         return None
 
     def rows(vectors: list[np.ndarray]) -> np.ndarray:
@@ -258,22 +249,15 @@ def fused_spec(filters: tuple[object, ...]) -> dict[str, object] | None:
         return out
 
     models = [f.model for f in filters]  # type: ignore[attr-defined]
-    steps = {p.name: p for p in plants}
     samples = {c.name: c for c in corrections}
-    slot_plants = [steps[k] for k in plant_kinds] * (2 if len(plant_kinds) == 1 else 1)
-    bind = {
-        "PREDICT_A": slot_plants[0].predict,
-        "JACOBIAN_A": slot_plants[0].jacobian,
-        "PREDICT_B": slot_plants[1].predict,
-        "JACOBIAN_B": slot_plants[1].jacobian,
-    }
+    bind: dict[str, object] = {"PLANT": plant}
     for i, name in enumerate(corr_kinds):
         bind[f"SAMPLE_{i}"] = sample_step(samples[name], want_ll=False)
-    tag = "_".join(["imm", *plant_kinds, *corr_kinds])
+    tag = "_".join(["imm", *dict.fromkeys(p.name for p in plants), *corr_kinds])
     n, m = int(models[0].n_states), int(models[0].n_outputs)
     return {
-        "prm": rows([p.parameters for p in plants]),
-        "plant_slot": np.array([plant_kinds.index(p.name) for p in plants], dtype=np.int64),
+        "prm": prm,
+        "plant_slot": plant_slot,
         "fp": rows([c.parameters for c in corrections]),
         "corr_slot": np.array([corr_kinds.index(c.name) for c in corrections], dtype=np.int64),
         "Q": np.ascontiguousarray(np.stack([np.asarray(md.Q, dtype=float) for md in models])),
@@ -346,13 +330,7 @@ def run_fused(
         "x": np.array(state.x, dtype=float, order="C"),  # type: ignore[attr-defined]
         "P": np.array(np.broadcast_to(state.P, (runs, n, n)), dtype=float, order="C"),  # type: ignore[attr-defined]
     }
-    out = {
-        "x": np.empty((runs, K, n)),
-        "mu": np.empty((runs, K, r)),
-        "ll": np.empty((runs, K, r)),
-        "P": np.empty((runs, K, n, n)) if store_covariance else np.empty((0, 0, 0, 0)),
-        "mx": np.empty((runs, K, r, n)) if store_modes else np.empty((0, 0, 0, 0)),
-    }
+    out = bank_outputs(runs, K, n, r, store_covariance, store_modes)
     kernel = spec["kernel"]
     if python:
         kernel = getattr(kernel, "py_func", kernel)

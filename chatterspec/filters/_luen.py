@@ -22,7 +22,7 @@ import numpy as np
 
 from .. import _jit
 from ..errors import SingularMatrixError
-from ._engine import SINGULAR_PHI12, SVSF2, svsf_offsets
+from ._engine import SINGULAR_PHI12, SVSF2, product_step, svsf_offsets
 
 
 def luen_correction(
@@ -109,34 +109,15 @@ def _phi_blocks(
     """``Phi = T F T^-1``, ``Phi12^-1`` (``P12i``), ``A_l = Phi22 Phi12^-1`` and ``A_l e`` into ``ws``."""
     T1, Phi, G12, P12i, Al, Ae, W = ws[0], ws[17], ws[18], ws[19], ws[20], ws[21], ws[25]
     _, _, _, _, _, o_T, o_Ti = svsf_offsets(n, m)
-    for i in range(n):
-        for jj in range(n):
-            s = 0.0
-            for q in range(n):
-                s += fp[o_T + i * n + q] * F[q, jj]
-            T1[i, jj] = s
-    for i in range(n):
-        for jj in range(n):
-            s = 0.0
-            for q in range(n):
-                s += T1[i, q] * fp[o_Ti + q * n + jj]
-            Phi[i, jj] = s
+    product_step(fp[o_T : o_T + n * n].reshape((n, n)), F, T1, n, n, n, False, False)
+    product_step(T1, fp[o_Ti : o_Ti + n * n].reshape((n, n)), Phi, n, n, n, False, False)
     for i in range(m):
         for jj in range(m):
             G12[i, jj] = Phi[i, m + jj]
     if not invert_step(G12, P12i, W, m):
         return False
-    for i in range(m):
-        for jj in range(m):
-            s = 0.0
-            for q in range(m):
-                s += Phi[m + i, m + q] * P12i[q, jj]
-            Al[i, jj] = s
-    for i in range(m):
-        s = 0.0
-        for q in range(m):
-            s += Al[i, q] * e[q]
-        Ae[i] = s
+    product_step(Phi[m:, m:], P12i, Al, m, m, m, False, False)
+    product_step(Al, e.reshape((m, 1)), Ae.reshape((m, 1)), m, 1, m, False, False)
     return True
 
 
@@ -147,32 +128,19 @@ def _luen_update(
     """``K = T^-1 Ky`` (into ``KgT``) and ``x = x(k+1|k) + T^-1 dy``."""
     dy, Ky = ws[23], ws[24]
     o_Ti = svsf_offsets(n, m)[6]
+    Tinv = fp[o_Ti : o_Ti + n * n].reshape((n, n))
+    product_step(Tinv, Ky, KgT.T, n, m, n, False, False)
     for i in range(n):
-        for q in range(m):
-            s = 0.0
-            for t in range(n):
-                s += fp[o_Ti + i * n + t] * Ky[t, q]
-            KgT[q, i] = s
         s = 0.0
         for t in range(n):
-            s += dy[t] * fp[o_Ti + i * n + t]
+            s += dy[t] * Tinv[i, t]
         x[i] = xp[i] + s
 
 
 @_jit.step
-def luen_first_order(
-    fp: np.ndarray,
-    e: np.ndarray,
-    ep: np.ndarray,
-    xp: np.ndarray,
-    F: np.ndarray,
-    x: np.ndarray,
-    KgT: np.ndarray,
-    ws: tuple,
-    n: int,
-    m: int,
-) -> int:  # pragma: no cover - compiled
-    """The first-order correction of the module docstring; returns 0 or ``SINGULAR_PHI12``."""
+def luen_first_order(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+    """The first-order correction of the module docstring (the correction-step signature of
+    :mod:`chatterspec.filters._engine`); returns 0 or ``SINGULAR_PHI12``."""
     if not _phi_blocks(fp, F, e, ws, n, m):
         return SINGULAR_PHI12
     P12i, Al, Ae, g, dy, Ky = ws[19], ws[20], ws[21], ws[15], ws[23], ws[24]
@@ -197,20 +165,9 @@ def luen_first_order(
 
 
 @_jit.step
-def luen_second_order(
-    fp: np.ndarray,
-    e: np.ndarray,
-    ep: np.ndarray,
-    epp: np.ndarray,
-    xp: np.ndarray,
-    F: np.ndarray,
-    x: np.ndarray,
-    KgT: np.ndarray,
-    ws: tuple,
-    n: int,
-    m: int,
-) -> int:  # pragma: no cover - compiled
-    """The second-order correction of the module docstring; returns 0 or ``SINGULAR_PHI12``."""
+def luen_second_order(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+    """The second-order correction of the module docstring (the correction-step signature of
+    :mod:`chatterspec.filters._engine`); returns 0 or ``SINGULAR_PHI12``."""
     if not _phi_blocks(fp, F, e, ws, n, m):
         return SINGULAR_PHI12
     P12i, Al, Ae, g, rr, dy, Ky = ws[19], ws[20], ws[21], ws[15], ws[22], ws[23], ws[24]

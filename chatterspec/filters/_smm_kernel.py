@@ -10,7 +10,8 @@ loop over runs (outer) and samples (inner), built from the same steps as the oth
     the SVSF-cov correction from (x(k+1|k), P(k+1|k))           the covariance filters' sample step
                                                                  (F = I, Q = 0: P(k+1|k) as given)
 
-The modes' plant steps come from :func:`chatterspec.plants.steps.plant_steps` (two kinds at most).
+The modes' plant steps come from :func:`chatterspec.plants.steps.plant_steps` (two kinds at most,
+:func:`chatterspec.filters._bank_steps.bank_plants`).
 The numpy path (:meth:`SMMSVSF._update_table1`) evaluates the same formulas with BLAS products,
 ``einsum`` and LAPACK ``eigh``: the two agree to a few ulps per sample (tests/test_smm_kernel.py),
 and each is bit-for-bit invariant to the chunking of runs and samples.
@@ -22,21 +23,27 @@ import numpy as np
 
 from .. import _jit
 from ..errors import SingularMatrixError
-from ._bank_steps import combine_step, log_gaussian_inline, mode_probabilities_step
+from ._bank_steps import (
+    _bank_plant,
+    bank_outputs,
+    bank_plants,
+    bank_store_step,
+    combine_step,
+    log_gaussian_inline,
+    mode_probabilities_step,
+)
 from ._engine import (
     _no_sample,
     _not_pd_message,
-    given_jacobian,
-    given_predict,
     innovation_step,
     predict_cov_step,
     sample_step,
     workspace,
 )
 
-#: Bindings of :func:`_smm_loop`: two plant kinds, the SVSF-cov sample step, sizes (0: from the arrays).
-PREDICT_A = PREDICT_B = given_predict
-JACOBIAN_A = JACOBIAN_B = given_jacobian
+#: Bindings of :func:`_smm_loop`: the modes' plant step (:func:`._bank_steps.bank_plants`), the
+#: SVSF-cov sample step, sizes (0: from the arrays).
+PLANT = _bank_plant
 SAMPLE = _no_sample
 NX = NZ = 0
 
@@ -59,8 +66,6 @@ def _smm_loop(
     m = NZ if NZ > 0 else z.shape[2]
     p = u.shape[2]
     shared_u = u.shape[0] == 1
-    want_P = o_P.shape[0] > 0
-    want_mx = o_mx.shape[0] > 0
     ws = workspace(n, m)
     T1, PCt, PCtT, S, D, e = ws[0], ws[2], ws[3], ws[4], ws[5], ws[7]
     F = _jit.scratch2(n, n)
@@ -82,12 +87,7 @@ def _smm_loop(
         ur = 0 if shared_u else r
         for k in range(K):
             for j in range(nm):  # Table 1 steps 1-2: every mode from the common posterior
-                if plant_slot[j] == 0:
-                    PREDICT_A(prm[j], x[r], u[ur, k], xs[j], n, p)
-                    JACOBIAN_A(prm[j], x[r], u[ur, k], F, n, p)
-                else:
-                    PREDICT_B(prm[j], x[r], u[ur, k], xs[j], n, p)
-                    JACOBIAN_B(prm[j], x[r], u[ur, k], F, n, p)
+                PLANT(plant_slot[j], prm[j], x[r], u[ur, k], xs[j], F, n, p)
                 predict_cov_step(F, P[r], Qs[j], T1, Ps[j], n)
                 innovation_step(z[r, k], xs[j], Ps[j], C, R, e, PCt, PCtT, D, S, n, m)
                 ll[j] = log_gaussian_inline(e, S, m, Sc, Lc, ec, col, tmp)  # eq 3.2-3.3
@@ -100,19 +100,7 @@ def _smm_loop(
             status = SAMPLE(fp, x[r], P[r], ep[r], epp[r], z[r, k], xp, eye, C, Q0, R, ws, n, m)
             if status != 0:
                 return 1 + r
-            for a in range(n):
-                o_x[r, k, a] = x[r, a]
-            for j in range(nm):
-                o_mu[r, k, j] = mu[r, j]
-                o_ll[r, k, j] = ll[j]
-            if want_P:
-                for a in range(n):
-                    for c in range(n):
-                        o_P[r, k, a, c] = P[r, a, c]
-            if want_mx:
-                for j in range(nm):
-                    for a in range(n):
-                        o_mx[r, k, j, a] = xs[j, a]
+            bank_store_step(r, k, x[r], mu[r], ll, P[r], xs, o_x, o_mu, o_ll, o_P, o_mx, nm, n)
     return 0
 
 
@@ -134,25 +122,22 @@ def smm_spec(models: tuple[object, ...], correct: object) -> dict[str, object] |
 
     plants = [plant_steps(mdl) for mdl in models]
     n, m = int(models[0].n_states), int(models[0].n_outputs)  # type: ignore[attr-defined]
-    if any(pl is None for pl in plants) or not _jit.fits(n, m):
+    if any(pl is None for pl in plants) or not (_jit.fits(n, m) and _jit.fits(len(models))):
         return None
-    kinds = list(dict.fromkeys(pl.name for pl in plants))  # type: ignore[union-attr]
-    if len(kinds) > 2:
+    plant, plant_slot, prm = bank_plants(plants)
+    if plant is None:
         return None
-    by_name = {pl.name: pl for pl in plants}  # type: ignore[union-attr]
-    a, b = by_name[kinds[0]], by_name[kinds[-1]]
-    width = max(len(pl.parameters) for pl in plants)  # type: ignore[union-attr]
-    prm = np.zeros((len(plants), width))
-    for j, pl in enumerate(plants):
-        prm[j, : len(pl.parameters)] = pl.parameters  # type: ignore[union-attr]
+    tag = "_".join(["smm", *dict.fromkeys(pl.name for pl in plants)])  # type: ignore[union-attr]
     kernel = _jit.specialize_sizes(
-        _smm_loop, "_".join(["smm", *kinds]), {"NX": n, "NZ": m},
-        PREDICT_A=a.predict, JACOBIAN_A=a.jacobian, PREDICT_B=b.predict, JACOBIAN_B=b.jacobian,
+        _smm_loop,
+        tag,
+        {"NX": n, "NZ": m},
+        PLANT=plant,
         SAMPLE=sample_step(correct, want_ll=False),  # type: ignore[arg-type]
-    )  # fmt: skip
+    )
     return {
         "prm": prm,
-        "plant_slot": np.array([kinds.index(pl.name) for pl in plants], dtype=np.int64),  # type: ignore[union-attr]
+        "plant_slot": plant_slot,
         "Qs": np.ascontiguousarray(np.stack([np.asarray(mdl.Q, dtype=float) for mdl in models])),  # type: ignore[attr-defined]
         "C": np.ascontiguousarray(models[0].C, dtype=float),  # type: ignore[attr-defined]
         "R": np.ascontiguousarray(models[0].R, dtype=float),  # type: ignore[attr-defined]
@@ -208,13 +193,7 @@ def run_smm(
     """
     runs, K, _ = z.shape
     n, r = x.shape[1], mu.shape[1]
-    out = {
-        "x": np.empty((runs, K, n)),
-        "mu": np.empty((runs, K, r)),
-        "ll": np.empty((runs, K, r)),
-        "P": np.empty((runs, K, n, n)) if store_covariance else np.empty((0, 0, 0, 0)),
-        "mx": np.empty((runs, K, r, n)) if store_modes else np.empty((0, 0, 0, 0)),
-    }
+    out = bank_outputs(runs, K, n, r, store_covariance, store_modes)
     kernel = spec["kernel"]
     if python:
         kernel = getattr(kernel, "py_func", kernel)

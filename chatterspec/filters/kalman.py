@@ -26,9 +26,9 @@ import numpy as np
 
 from .. import _jit
 from ..plants.models import LinearModel
-from . import _engine, _kalman_shared
+from . import _engine, _engine_numpy, _kalman_shared
 from ._base import CovarianceFilterBase, check_model
-from ._engine import chol_solve_step
+from ._engine import chol_solve_step, gain_update_step
 
 
 @_jit.step
@@ -36,17 +36,13 @@ def kalman_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # t
     """The Kalman correction (compiled step): ``K^T = S^-1 (P C^T)^T`` from the factor ``L`` of ``S``,
     ``x(k+1|k+1) = x(k+1|k) + K e``. Signature of :mod:`chatterspec.filters._engine`; returns 0."""
     chol_solve_step(L, PCtT, KgT, m, n)
-    for i in range(n):
-        s = xp[i]
-        for j in range(m):
-            s += KgT[j, i] * e[j]
-        x[i] = s
+    gain_update_step(xp, KgT, e, x, n, m)
     return 0
 
 
 def kalman_correct_numpy(e, ep, epp, xp, PCt, D, S, C, F):  # type: ignore[no-untyped-def]
     """:func:`kalman_correct` vectorized over realizations: ``(K, x(k+1|k+1))``."""
-    Kg = _engine.kalman_gain_numpy(S, PCt)
+    Kg = _engine_numpy.kalman_gain_numpy(S, PCt)
     return Kg, xp + np.einsum("rij,rj->ri", Kg, e)
 
 
@@ -99,8 +95,9 @@ class KalmanFilter(CovarianceFilterBase):
         model = self.model
         K = z.shape[1]
         P, Pp, Pq, S, Kg, Sinv, logdet = _kalman_shared.riccati(P, model.A, model.C, model.Q, model.R, K)
-        Bu = _rows_times_B(u, model)
-        res = _kalman_shared.kf_shared_states(x, ep, epp, z, Bu, model.A, model.C, Kg, Sinv, logdet, keep)
+        res = _kalman_shared.kf_shared_states(
+            x, ep, epp, z, u, model.A, model.B, model.C, Kg, Sinv, logdet, keep
+        )
         res["S"] = S if "S" in keep else None
         res["P_prior"] = Pp if "P_prior" in keep else None
         res["P_post"] = Pq if "P_post" in keep else None
@@ -125,12 +122,6 @@ class KalmanFilter(CovarianceFilterBase):
             state.P, self.model.A, self.model.C, self.model.Q, self.model.R, K
         )
         return Kg, Pq
-
-
-def _rows_times_B(u: np.ndarray, model: LinearModel) -> np.ndarray:
-    from .svsf import _rows_times
-
-    return _rows_times(u, np.ascontiguousarray(model.B.T))
 
 
 @dataclass(frozen=True, eq=False)

@@ -36,7 +36,7 @@ import numpy as np
 from .. import _jit
 from .._validate import finite_array
 from ..errors import ParameterError
-from . import _engine
+from . import _engine, _engine_numpy
 from ._base import CovarianceFilterBase, check_model, is_linear
 from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets
 from ._luen import luen_correction, luen_second_order
@@ -148,14 +148,14 @@ class SecondOrderSVSF(CovarianceFilterBase):
             if luen is not None:
                 Kg, dx = luen_correction(_engine.SVSF2, F, e, ep, epp, *luen, gamma, lam, np.ones(n), lo, hi)
                 return Kg, xp + dx
-            Mp = _engine.map_numpy(mapping, D, PCt, M, e.shape[0])
+            Mp = _engine_numpy.map_numpy(mapping, D, PCt, M, e.shape[0])
             dz = e - (gamma + lam) * ep + gamma * lam * epp
             with np.errstate(divide="ignore", invalid="ignore"):
                 g = np.where(e != 0.0, np.clip(dz / np.where(e != 0.0, e, 1.0), lo, hi), 1.0)
             return Mp * g[:, None, :], xp + np.einsum("rij,rj->ri", Mp, dz)
 
         if luen is not None:
-            return _engine.CorrectionStep("svsf2_luen", svsf2_luen_correct, fp, numpy, mapping)
+            return _engine.CorrectionStep("svsf2_luen", luen_second_order, fp, numpy, mapping)
         return _engine.CorrectionStep("svsf2", svsf2_correct, fp, numpy, mapping)
 
 
@@ -190,9 +190,3 @@ def svsf2_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # ty
             g[i] = 1.0
     map_update_step(xp, MpT, g, dz, x, KgT, n, m)
     return 0
-
-
-@_jit.step
-def svsf2_luen_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
-    """The second-order SVSF, reduced order (:func:`~chatterspec.filters._luen.luen_second_order`)."""
-    return luen_second_order(fp, e, ep, epp, xp, F, x, KgT, ws, n, m)

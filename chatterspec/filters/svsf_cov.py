@@ -39,10 +39,11 @@ import numpy as np
 from .. import _jit
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError, SingularMatrixError
-from . import _engine
+from . import _engine, _engine_numpy
 from ._base import CovarianceFilterBase, check_model, is_linear
-from ._engine import NOT_PD, chol_solve_step, map_step, map_update_step, svsf_offsets
+from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets
 from ._luen import luen_correction, luen_first_order
+from .kalman import kalman_correct
 from .svsf import _reduced_order_transform
 
 __all__ = ["Mapping", "SVSFCov", "mapping_matrix"]
@@ -195,8 +196,8 @@ class SVSFCov(CovarianceFilterBase):
             if luen is not None:
                 Kg, dx = luen_correction(_engine.SVSF1, F, e, ep, epp, *luen, gamma, 0 * gamma, psi, 0.0, 2.0)
                 return Kg, xp + dx
-            Kkf = _engine.kalman_gain_numpy(S, PCt) if self.vbl else None
-            Mp = _engine.map_numpy(mapping, D, PCt, M, e.shape[0])
+            Kkf = _engine_numpy.kalman_gain_numpy(S, PCt) if self.vbl else None
+            Mp = _engine_numpy.map_numpy(mapping, D, PCt, M, e.shape[0])
             a = np.abs(e)
             g = (a + gamma * np.abs(ep)) / np.maximum(a, psi)
             Kg = Mp * g[:, None, :]
@@ -209,7 +210,7 @@ class SVSFCov(CovarianceFilterBase):
             return Kg, x
 
         if luen is not None:
-            return _engine.CorrectionStep("svsf_luen", svsf_luen_correct, fp, numpy, mapping)
+            return _engine.CorrectionStep("svsf_luen", luen_first_order, fp, numpy, mapping)
         step = vbl_correct if self.vbl else svsf_cov_correct
         return _engine.CorrectionStep("vbl" if self.vbl else "svsf", step, fp, numpy, mapping)
 
@@ -244,16 +245,10 @@ def svsf_cov_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  #
 
 
 @_jit.step
-def svsf_luen_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
-    """The SVSF-cov correction, reduced-order form (:func:`~chatterspec.filters._luen.luen_first_order`)."""
-    return luen_first_order(fp, e, ep, xp, F, x, KgT, ws, n, m)
-
-
-@_jit.step
 def vbl_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
     """The variable boundary layer (compiled step): the Kalman gain when every channel has
     ``psi_vbl,i = (|e_i| + gamma_i |e_i(k|k)|) / (C K_KF)_ii <= psi_i``, else :func:`svsf_cov_correct`."""
-    chol_solve_step(L, PCtT, KgT, m, n)
+    kalman_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m)
     o_g, _, o_psi, _, _, _, _ = svsf_offsets(n, m)
     use_kf = True
     for i in range(m):
@@ -264,11 +259,6 @@ def vbl_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type
         if not (ck > 0.0 and need <= fp[o_psi + i] * ck):
             use_kf = False
     if use_kf:
-        for i in range(n):
-            s = xp[i]
-            for j in range(m):
-                s += KgT[j, i] * e[j]
-            x[i] = s
         return 0
     if not _svsf_gain(fp, e, ep, xp, PCtT, D, L, x, KgT, ws, n, m):
         return NOT_PD

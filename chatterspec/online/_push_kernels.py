@@ -74,26 +74,26 @@ class _Verdicts:
 
 
 def _filters_loop(
-    z: np.ndarray,
-    u: np.ndarray,
-    GT: np.ndarray,
-    aux_PhiT: np.ndarray,
-    aux_y: np.ndarray,
-    e_out: np.ndarray,
-    Gu: np.ndarray,
-    run_sat: bool,
-    PhiT: np.ndarray,
-    L: np.ndarray,
-    P: np.ndarray,
-    inv_psi: np.ndarray,
-    gamma: float,
-    S_inv: np.ndarray,
-    y: np.ndarray,
-    ep: np.ndarray,
-    sat_e: np.ndarray,
-    x_out: np.ndarray,
-    none: np.ndarray,
-) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_monitor.py)
+    z,
+    u,
+    GT,
+    aux_PhiT,
+    aux_y,
+    e_out,
+    Gu,
+    run_sat,
+    PhiT,
+    L,
+    P,
+    inv_psi,
+    gamma,
+    S_inv,
+    y,
+    ep,
+    sat_e,
+    x_out,
+    none,
+):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (Python form tested in tests/test_monitor.py)
     """One push of the monitor's two filters in one call: G u(k), the aux chattering, the sat SVSF.
 
     ``z`` (1, K, m) = z(k+1); ``u`` (K, p), p >= 1, = u(k); ``GT`` = G^T (p, n). Per sample:
