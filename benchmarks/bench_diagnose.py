@@ -3,7 +3,7 @@
 Times, in one process, the stages the command runs: the chattering threshold's in-call calibration (healthy
 runs of the 9 s healthy version, plus the pilot runs of the empirical normalization), the simulation of the
 diagnosed runs, the chattering route (auxiliary SVSF + STFT + verdicts) and the SMM-SVSF, and the total.
-Target (issue 9): 100 runs, all methods, under 60 s on 2 cores.
+Target: 100 runs, all methods, under 60 s on 2 cores.
 
 Usage::
 

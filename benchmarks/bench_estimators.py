@@ -11,7 +11,7 @@ Measures, in realization-steps per second (one realization advanced by one sampl
 * the SVSF with covariance and the dynamic second-order SVSF (per-run Joseph covariances) at 10^4;
 * the wall time of ``chatterspec estimate detc-uncertain --runs 1000`` (subprocess, default filters).
 
-Targets (issue 8): KF >= 10 M/s and >= 300x filterpy; SVSF-cov and 2nd-order SVSF >= 2 M/s; estimate
+Targets: KF >= 10 M/s and >= 300x filterpy; SVSF-cov and 2nd-order SVSF >= 2 M/s; estimate
 < 10 s on 2 cores. Not a timed test: numbers depend on the machine and its load.
 
 Usage::

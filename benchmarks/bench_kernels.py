@@ -9,7 +9,7 @@
    cache deleted (cold: compiles and writes the cache), then a second fresh process
    (warm: loads it), each against the same process with ``CHATTERSPEC_JIT=0``.
 
-Targets (issue 10): >= 10 M steps/s and >= 50x the numpy path on the EHA stream.
+Targets: >= 10 M steps/s and >= 50x the numpy path on the EHA stream.
 
 Usage::
 

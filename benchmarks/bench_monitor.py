@@ -23,8 +23,8 @@ The last columns split each run's wall time into the monitor's pushes (SVSFs, ST
 verdicts) and the Rerun logging path (``RerunLogger.log_update`` + ``close`` + closing
 the file sink, i.e. everything that waits for the recording), each as x real time.
 With ``--cpu`` every figure is process CPU time (all threads) instead of wall time,
-which is less disturbed by other jobs on a shared machine. The issue-10 baselines
-(same machine class, before this work) are printed beside the
+which is less disturbed by other jobs on a shared machine. The baselines before the
+compiled monitor (same machine class) are printed beside the
 targets; the machine's core count and the compiled-kernel switch are printed on top.
 
 ``--breakdown`` splits the logging path (updates computed beforehand, so only logging is timed) by
@@ -246,12 +246,12 @@ def main() -> None:
         f"{os.cpu_count()} cores; compiled kernels {'on' if _jit.enabled() else 'off'}; "
         f"{'process CPU time' if CPU else 'wall time'}"
     )
-    print("issue-10 baseline (before): (d) 87x real time, (b) 910x; target >= 2000x for both")
+    print("before the compiled monitor: (d) 87x real time, (b) 910x; target >= 2000x for both")
     print(
         "before the one-row-per-sample layout (idle machine): (b) 1756x, 6.3 MB/min; (d) 1023x, 11.7 MB/min"
     )
     print(
-        "'push x' before the pushfast branch (idle machine): (a) ~4400x, (d) ~2350x; "
+        "'push x' before the one-call-per-push kernel (idle machine): (a) ~4400x, (d) ~2350x; "
         "target (a) >= 8000x, (d) >= 5000x"
     )
     print(
@@ -280,7 +280,7 @@ def main() -> None:
                 f"{setup * 1e3:10.1f}{mb}{T / t_push:9.0f}{log_x}"
             )
         if _jit.enabled() and not args.no_baseline:
-            # the same-process baseline of the issue: every case with a file on the numpy path
+            # the same-process baseline: every case with a file on the numpy path
             # (CHATTERSPEC_JIT=0 switches the kernels at run time); one run each, they are 25-50x slower
             for label, settings, data, record in cases:
                 if not record:

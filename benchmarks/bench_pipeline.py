@@ -1,4 +1,4 @@
-"""End-to-end Monte Carlo throughput (issue 3, item 8).
+"""End-to-end Monte Carlo throughput.
 
 simulate (true plant + noise) -> auxiliary SVSF -> periodogram (eq 49) ->
 exact-threshold verdict, for the EHA healthy scenario, in realization-steps
@@ -11,14 +11,14 @@ its compiled one-pass verdict; the numpy path (``CHATTERSPEC_JIT=0``, selected i
 process) is the baseline. The random-number bound is the rate at which the block generators
 of :mod:`chatterspec.rng` draw the 6 standard normals a step needs (3 process, 3
 measurement), measured on one thread in two ways: numpy's ``standard_normal`` filling
-``(BLOCK, T, 3)`` arrays (how the numpy path draws; the bound issue 10 refers to) and
+``(BLOCK, T, 3)`` arrays (how the numpy path draws; the bound the targets refer to) and
 numba's, one number at a time (how the fused kernel draws). Rates are given per wall second
 and per CPU second of this process (``time.process_time``, all threads, user + system): on
 a shared machine the second is the one to compare with the bounds.
 
 Run: ``python benchmarks/bench_pipeline.py [--runs 10000] [--threads 2]``.
-Targets: issue 3, >= 5 M realization-steps/s at 10^4 realizations on 2 cores; issue 10,
->= 10 M with 2 workers.
+Targets: >= 5 M realization-steps/s at 10^4 realizations on 2 cores (numpy path); >= 10 M with
+2 workers (compiled kernels).
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ The "recursion" columns force ``closed_form=False``: with numba installed that i
 compiled kernel of :mod:`chatterspec._jit` (``CHATTERSPEC_JIT=0`` selects the numpy loop);
 ``benchmarks/bench_kernels.py`` compares the two paths directly.
 
-Targets (issue 8): >= 15 M realization-steps/s at 10^4 realizations and >= 300x the loop.
+Targets: >= 15 M realization-steps/s at 10^4 realizations and >= 300x the loop.
 
 Usage::
 

@@ -65,9 +65,11 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import os
+import threading
 import types
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any, TypeVar
 
 import numpy as np
@@ -79,6 +81,7 @@ __all__ = [
     "enabled",
     "fits",
     "njit",
+    "numpy_path",
     "scratch",
     "scratch2",
     "scratch_block",
@@ -128,7 +131,30 @@ def enabled() -> bool:
     The environment is read at every call, so a test can switch paths with
     ``monkeypatch.setenv``; numba itself is imported on the first call that needs it.
     """
-    return HAVE_NUMBA and os.environ.get("CHATTERSPEC_JIT", "1") != "0" and _numba_importable()
+    return (
+        HAVE_NUMBA
+        and not getattr(_FORCED, "numpy", False)
+        and os.environ.get("CHATTERSPEC_JIT", "1") != "0"
+        and _numba_importable()
+    )
+
+
+_FORCED = threading.local()
+
+
+@contextmanager
+def numpy_path() -> Iterator[None]:
+    """Within the block (this thread only), :func:`enabled` is False: the numpy path runs.
+
+    Used to re-run a chunk whose compiled kernel stopped on a non-finite covariance, so that the
+    numpy path (same numbers) can locate the first non-finite sample.
+    """
+    before = getattr(_FORCED, "numpy", False)
+    _FORCED.numpy = True
+    try:
+        yield
+    finally:
+        _FORCED.numpy = before
 
 
 def scratch(n: int) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Process memory: a fixed glibc mmap threshold, so that freed large arrays go back to the OS (issue 10).
+"""Process memory: a fixed glibc mmap threshold, so that freed large arrays go back to the OS.
 
 glibc's ``malloc`` raises its mmap threshold each time a large ``mmap``-ed block is freed (up to
 32 MiB on 64-bit), after which arrays of a few MiB come from the heap instead; a chunked Monte

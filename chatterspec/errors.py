@@ -12,6 +12,7 @@ __all__ = [
     "CalibrationMismatchError",
     "ChatterspecError",
     "DataFileError",
+    "DivergenceError",
     "ModelFileError",
     "ModelKindError",
     "NonFiniteError",
@@ -19,6 +20,7 @@ __all__ = [
     "ShapeError",
     "SingularMatrixError",
     "UnknownScenarioError",
+    "UnstableLoopError",
     "UnstableModelWarning",
 ]
 
@@ -33,6 +35,11 @@ class ShapeError(ChatterspecError):
 
 class NonFiniteError(ChatterspecError):
     """An array holds NaN or infinite values where finite numbers are required."""
+
+
+class DivergenceError(NonFiniteError):
+    """A filter's estimate stopped being finite (diverging model, or f(x, u) returned NaN/inf); the
+    message names the first non-finite sample and realization."""
 
 
 class SingularMatrixError(ChatterspecError):
@@ -68,3 +75,7 @@ class UnstableModelWarning(UserWarning):
 
 class ModelKindError(ParameterError):
     """A code path that needs a linear model (A, B) was handed a nonlinear one, or vice versa."""
+
+
+class UnstableLoopError(ParameterError):
+    """A controller's gains make the closed loop unstable; the message gives each gain's stable range."""

@@ -1,4 +1,4 @@
-"""Regenerate the diagnosis figures of issue 9 item 7 under figures/:
+"""Regenerate the diagnosis figures under figures/:
 
 * ``diagnosis_smm_table.png``: the ``chatterspec diagnose eha4-leak-timeline`` comparison table
   (chattering, SMM-SVSF and IMM-EKF on the same ``--runs`` realizations);

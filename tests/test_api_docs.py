@@ -1,4 +1,4 @@
-"""Public API documentation (DESIGN.md section 7, in the style of python-control's docstring tests).
+"""Public API documentation (docs/design.md §12, in the style of python-control's docstring tests).
 
 Every public function and class (the ``__all__`` of every chatterspec module that can be
 imported when the test runs) must have a docstring that mentions each of its parameters.

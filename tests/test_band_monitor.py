@@ -1,6 +1,6 @@
 """``band`` for the online monitor: MonitorSettings, ``[detector]``, ``monitor --band``, ``detect --record``.
 
-Issue 11 item 1: every threshold kind offers a frequency band; the monitor had none.
+Every threshold kind offers a frequency band; the monitor must too.
 """
 
 from __future__ import annotations

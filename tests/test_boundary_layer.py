@@ -1,4 +1,4 @@
-"""Boundary-layer selection (DESIGN.md 8.7) and the Fig 2 study."""
+"""Boundary-layer selection (docs/design.md C7) and the Fig 2 study."""
 
 from __future__ import annotations
 
@@ -159,7 +159,7 @@ def test_study_rejects_full_measurement() -> None:
         boundary_layer_study(runs=1, source="so-healthy-low")
 
 
-# -- independent oracles for the proposed value (issue 11 item 8) -----------------------------------
+# -- independent oracles for the proposed value ----------------------------------------------------
 def _fresh_healthy_runs(name: str, runs: int, seed: int):
     """New healthy realizations (nominal plant as the truth), not those the estimate was made from."""
     from chatterspec.plants.scenarios import Scenario

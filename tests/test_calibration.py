@@ -270,7 +270,7 @@ def test_power_counts_match_the_detector_run_directly():
     assert dr[-1] > far[-1]  # the fault is seen more often than the healthy record at alpha = 5 %
 
 
-# ------------------------------------------------------------------ false-alarm verdict intervals (item 5)
+# ------------------------------------------------------------------------- false-alarm verdict intervals
 def _ma_exceedances(
     datasets: int, records: int, bins: int, width: int, alpha: float, seed: int
 ) -> np.ndarray:
@@ -429,7 +429,7 @@ def test_roc_tick_labels_do_not_overlap():
 
 @pytest.mark.slow
 def test_far_eha_healthy_verdict_rate_over_seeds():
-    """The issue's case, `far eha-healthy --alpha 0.01`, over 20 seeds of 500 runs (~1 min).
+    """The reported case, `far eha-healthy --alpha 0.01`, over 20 seeds of 500 runs (~1 min).
 
     At confidence 0.9 a valid interval calls the exact per-bin detector
     "above" (or "below") with probability <= 5 % each; allowed: the 99.9 %

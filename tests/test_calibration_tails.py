@@ -1,4 +1,4 @@
-"""Bounded-memory calibration quantiles (tail histograms, issue 10) against the exact top-k path."""
+"""Bounded-memory calibration quantiles (tail histograms) against the exact top-k path."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Output paths and small CLI defects (issue 11 items 6 and 7).
+"""Output paths and small CLI defects.
 
 Every writing command checks its path before computing (the computation is
 replaced by a function that fails the test if it is reached), fails with one
@@ -23,7 +23,7 @@ from chatterspec.cli import main
 from chatterspec.errors import ParameterError
 from chatterspec.online.viewer import viewer_url
 
-HAS_PROC = Path("/proc").is_dir()  # the issue's reproductions use /proc (not writable, even for root)
+HAS_PROC = Path("/proc").is_dir()  # the reproductions use /proc (not writable, even for root)
 
 
 def _forbid(*_a, **_k):
@@ -120,7 +120,9 @@ def test_calibrate_prints_result_when_the_final_write_fails(tmp_path: Path, monk
 
     monkeypatch.setattr(Calibration, "save", full)
     out = tmp_path / "c.json"
-    rc = main(["calibrate", "eha-healthy", "--runs", "8", "--no-progress", "--out", str(out)])
+    rc = main(
+        ["calibrate", "eha-healthy", "--runs", "8", "--alpha", "0.2", "--no-progress", "--out", str(out)]
+    )
     cap = capsys.readouterr()
     assert rc == 2
     assert "calibration of eha-healthy" in cap.out and "per-bin agreement" in cap.out
@@ -140,7 +142,7 @@ def test_detect_json_printed_when_the_recording_fails(tmp_path: Path, monkeypatc
     assert rc == 2
     doc = json.loads(cap.out)
     assert doc["scenario"] == "eha-healthy" and "recording" not in doc
-    _one_line_error(cap.err, "--record", "Failed to create file")
+    _one_line_error(cap.err, "--record", "No space left on device")
 
 
 def test_no_traceback_for_any_oserror(monkeypatch, capsys) -> None:
@@ -154,7 +156,7 @@ def test_no_traceback_for_any_oserror(monkeypatch, capsys) -> None:
     _one_line_error(capsys.readouterr().err, "Permission denied", "/somewhere/file")
 
 
-# ------------------------------------------------------------------------------------------- item 7
+# ------------------------------------------------------------------------------ hints and small defects
 def test_detect_record_hint_names_the_real_file(tmp_path: Path, capsys) -> None:
     rrd = tmp_path / "rec.rrd"
     assert main(["detect", "eha-healthy", "--record", str(rrd)]) == 0

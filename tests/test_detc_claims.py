@@ -1,7 +1,7 @@
-"""DETC2015 (dynamic-2nd-order-svsf-eha.txt) claims under its printed setup, 10^3 runs as in the paper.
+"""DETC2015 ([DETC]) claims under its printed setup, 10^3 runs as in the paper.
 
 Setup: scenarios ``detc-normal`` / ``detc-uncertain`` (eq 25-27, printed noise, Q, R, P0 = 20 Q, gamma = 0.5,
-psi = 5 v_std; resolutions of ``estimators.md`` section 4.2). All three filters run on the same realizations,
+psi = 5 v_std; resolutions of ``docs/design.md`` D1-D5). All three filters run on the same realizations,
 so filter comparisons use the *paired* per-run difference and its Monte Carlo standard error.
 
 Tolerances: a one-sided ordering claim "a < b" is accepted when the paired mean difference exceeds
@@ -57,7 +57,7 @@ def test_normal_first_order_svsf_has_the_highest_velocity_and_acceleration_rmse(
 
 
 def test_second_order_svsf_position_is_the_measurement_itself():
-    # e(0|0) = e(-1|-1) = 0 => e(k|k) = 0 for all k (eq 21): x1_hat = z exactly (note section 1.3)
+    # e(0|0) = e(-1|-1) = 0 => e(k|k) = 0 for all k (eq 21): x1_hat = z exactly (docs/design.md §7.3)
     rec = estimate_records("detc-normal", "svsf2", runs=3, seed=SEED)
     np.testing.assert_allclose(rec.outputs["svsf2"].x_post[:, :, 0], rec.z[:, 1:, 0], rtol=0, atol=1e-12)
 

@@ -294,7 +294,7 @@ def _endpoint_errors(intervals: list[tuple[float, float]], truth: list[tuple[flo
 
 @pytest.mark.parametrize("name", ["so-timeline-constant", "so-timeline-step"])
 def test_stft_total_endpoint_error_over_20_seeds(name):
-    """Issue 11 item 3: total endpoint error (4 endpoints) <= 0.4 s on average over 20 realizations.
+    """Total endpoint error (4 endpoints) <= 0.4 s on average over 20 realizations.
 
     Observed (realizations 0..19 of seeds 0, 100, 200): constant 0.209 s, step 0.236-0.264 s; the
     frame-centre estimator gave 1.0 s. The mean of 20 totals has a standard error of ~0.03 s (per-run
@@ -371,7 +371,7 @@ def test_healthy_frame_level_is_the_median_of_the_frame_statistic():
     assert 0.45 < m0 < 0.55
 
 
-# -- issue 11 item 1: averaged verdict and band ---------------------------------------------------
+# -- averaged verdict and band --------------------------------------------------------------------
 def test_averaged_paper_verdict_controls_family_wise_rate_on_healthy_data():
     """--threshold paper --runs 200 on healthy so-healthy-low and eha-healthy: averaged verdict at <= alpha.
 
@@ -427,7 +427,7 @@ def test_band_counts_only_tested_bins_for_every_threshold():
 
 
 def test_band_keeps_near_nyquist_noise_out_of_the_paper_verdict(capsys):
-    """Issue 11: a single so-f11-high record is flagged near Nyquist by the paper's rule; --band 0 100 not."""
+    """A single so-f11-high record is flagged near Nyquist by the paper's rule; --band 0 100 not."""
     flagged = []
     for seed in range(8):
         rep = _report("so-f11-high", runs=1, seed=seed, threshold="paper")
@@ -461,7 +461,7 @@ def test_demo_counts_a_fault_only_on_its_channel(capsys):
     assert d["summary"]["faults_detected"] < d["summary"]["faults"]
 
 
-# -- issue 11 item 2: peak_hz vs most_significant_hz -----------------------------------------------
+# -- peak_hz vs most_significant_hz ----------------------------------------------------------------
 def test_peak_hz_is_largest_excess_and_most_significant_hz_largest_ratio():
     """Leakage: the averaged spectrum peaks at 34-36 Hz (the footprint of the paper's figures) while
     the bin most significant against the threshold is at 14-22 Hz, where the healthy spectrum is small."""
@@ -503,7 +503,7 @@ def test_single_record_peak_hz_stays_on_the_footprint():
     assert np.all((det.peak_hz[:, p] >= 10.0) & (det.peak_hz[:, p] <= 100.0)), det.peak_hz[:, p]
 
 
-# -- issue 10 memory bullet: streaming over chunks of realizations ----------------------------------
+# -- memory: streaming over chunks of realizations ---------------------------------------------------
 def test_detect_scenario_streams_chunks_with_the_same_numbers():
     """Chunks of 64 realizations give the same per-run verdicts, averaged verdict and intervals."""
     sc = scenario("so-timeline-step")

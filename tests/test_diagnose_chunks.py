@@ -1,4 +1,4 @@
-"""``chatterspec diagnose`` in chunks (issue 10): memory bounded independently of ``--runs``, the same table
+"""``chatterspec diagnose`` in chunks: memory bounded independently of ``--runs``, the same table
 and JSON whatever the chunking, the recording of realization 0, and a scenario faulty from the start."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``chatterspec diagnose`` with the chattering route (issue 9 item 6): the chattering diagnosis on the same
+"""``chatterspec diagnose`` with the chattering route: the chattering diagnosis on the same
 realizations as the mode-based methods, its calibration, the comparison table and the CLI."""
 
 from __future__ import annotations

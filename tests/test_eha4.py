@@ -54,7 +54,7 @@ def test_jacobian_equals_central_differences(mode: str, dt: float) -> None:
 def test_transition_is_the_euler_step_of_the_physics() -> None:
     """x3+ - x3 = T * jerk with the jerk derived independently from the force balance
     M a = A_E P - F_f(v) and the pressure dynamics (V0/be) P' = u - A_E v - L P, with
-    P = (M a + F_f(v)) / A_E eliminated (note section 2.1). Checks the two corrections."""
+    P = (M a + F_f(v)) / A_E eliminated (docs/design.md S1-S2). Checks the two corrections."""
     p = EHA4_PARAMETERS
     A, M, V0, be, L = p["piston_area"], p["mass"], p["volume"], p["bulk_modulus"], p["leakage"]
     a1, a2, a3, Dp, QL0 = p["a1"], p["a2"], p["a3"], p["pump_displacement"], p["flow_offset"]

@@ -165,7 +165,7 @@ def test_kernel_likelihood_equals_log_gaussian_including_the_eigenvalue_floor(co
     for _ in range(20):  # well conditioned: the Cholesky branch
         G = rng.normal(size=(3, 3))
         cases.append((rng.normal(size=3), G @ G.T + 0.1 * np.eye(3)))
-    scale = np.diag([1e-10, 1.0, 1e10])  # 20 decades (note §1.6), still well conditioned once scaled
+    scale = np.diag([1e-10, 1.0, 1e10])  # 20 decades (design.md S3), still well conditioned once scaled
     cases.append((np.array([1e-5, 0.3, 2e4]), scale @ (np.eye(3) + 0.2) @ scale))
     # nearly singular correlation: the eigh branch with the 1e-12 floor active
     v = np.array([1.0, 1.0, 1.0]) / np.sqrt(3.0)

@@ -1,4 +1,4 @@
-"""`import chatterspec` and the CLI parser stay light, so bad arguments fail at once (issue 11 item 6)."""
+"""`import chatterspec` and the CLI parser stay light, so bad arguments fail at once."""
 
 from __future__ import annotations
 

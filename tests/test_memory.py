@@ -1,4 +1,4 @@
-"""The CLI's fixed glibc mmap threshold (chatterspec._memory, issue 10)."""
+"""The CLI's fixed glibc mmap threshold (chatterspec._memory)."""
 
 from __future__ import annotations
 

@@ -90,7 +90,7 @@ def test_mode_diagnosis_of_smm_on_the_leak_timeline() -> None:
     (res,) = diagnose_modes(sim, ("smm",))
     assert res.onsets == pytest.approx((3.0, 6.0))
     np.testing.assert_allclose(res.confusion.sum(axis=0), 100.0, rtol=1e-12)
-    # the SMM targets seen as diagnosis: isolation within 5 ms of each onset, none missed, and the
+    # the SMM targets seen as diagnosis: isolation within 5 ms of each onset, none missed, and the
     # healthy samples in alarm at most 1 % (argmax = true mode in >= 99 % of the normal segment)
     assert res.missed == (0, 0)
     assert max(res.isolation_p90) <= 0.005

@@ -1,6 +1,6 @@
 """Multiple-model filters: exact identities (one-mode IMM = its filter, identical-KF IMM = the KF,
 SMM of identical modes = the SVSF, the printed IMM spread = 2x the standard one), bad input, and the
-issue-9 targets of SMM-SVSF on ``eha4-leak-timeline`` and IMM-EKF on ``eha4-imm-analogue``."""
+diagnosis targets of SMM-SVSF on ``eha4-leak-timeline`` and IMM-EKF on ``eha4-imm-analogue``."""
 
 from __future__ import annotations
 
@@ -189,7 +189,7 @@ def test_bad_input_gets_specific_errors() -> None:
         IMM([kf, object()], PI2)
 
 
-# --------------------------------------------------------------------------- the issue's targets
+# --------------------------------------------------------------------------- the diagnosis targets
 def _smm_case(runs: int, seed: int) -> dict[str, object]:
     sc = cs.scenario("eha4-leak-timeline")
     fs = sc.filter_settings
@@ -206,7 +206,7 @@ def _smm_case(runs: int, seed: int) -> dict[str, object]:
 def _check_smm_targets(case: dict[str, object], n_samples: int) -> None:
     out, true, table = case["out"], case["true"], case["table"]
     am = out.argmax_mode  # type: ignore[attr-defined]
-    for j in range(3):  # issue target: argmax = true mode in >= 99 % of every segment's samples
+    for j in range(3):  # target: argmax = true mode in >= 99 % of every segment's samples
         assert np.mean(am[:, true == j] == j) >= 0.99, j  # type: ignore[operator]
     d = switch_delays(out.mu, true, case["t"], levels=(0.8,))  # type: ignore[arg-type, attr-defined]
     assert d.onsets.tolist() == pytest.approx([3.0, 6.0])
@@ -234,7 +234,7 @@ def test_smm_svsf_targets_on_the_leak_timeline_many_runs() -> None:
 
 @pytest.mark.parametrize("bank", ["ekf", "svsf-cov"])
 def test_imm_confusion_on_the_imm_analogue(bank: str) -> None:
-    """Issue target for IMM-EKF (every diagonal > 80 %, columns sum to 100 %); the SVSF-cov bank meets it too.
+    """Target for IMM-EKF (every diagonal > 80 %, columns sum to 100 %); the SVSF-cov bank meets it too.
 
     Not marked slow since the compiled IMM step (2 x 60 000 samples: about 0.4 s of CPU for the
     filter; the numpy path, CHATTERSPEC_JIT=0, takes about 40 s, so it is not in the numpy CI list).
@@ -242,7 +242,7 @@ def test_imm_confusion_on_the_imm_analogue(bank: str) -> None:
     Measured (seed 2, 2 runs): EKF 89.9 / 89.7 / 100.0, SVSF-cov 90.0 / 89.7 / 100.0. The 2nd-order SVSF
     and the ``luen`` mapping lose the friction mode (50 % and 6 %, docs/paper-notes.md), so they are
     reported, not asserted. A diagonal is a mean over 2 x 20 000 strongly correlated samples; the margin
-    of 80 % against ~90 % is the issue's own threshold, not a fitted tolerance.
+    of 80 % against ~90 % is the target's own threshold, not a fitted tolerance.
     """
     sc = cs.scenario("eha4-imm-analogue")
     fs = sc.filter_settings

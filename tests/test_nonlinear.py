@@ -196,8 +196,8 @@ def test_linear_only_code_paths_reject_nonlinear_models(capsys: pytest.CaptureFi
 
     m = eha4()
     u = np.zeros((5, 1))
-    # the chattering pipeline takes a nonlinear model with full measurement (issue 9 item 5,
-    # tests/test_nonlinear_chattering.py), not one with fewer measurements than states
+    # the chattering pipeline takes a nonlinear model with full measurement
+    # (tests/test_nonlinear_chattering.py), not one with fewer measurements than states
     with pytest.raises(SingularMatrixError, match="full measurement"):
         chattering_record(eha4(measure="position-pressure"), np.zeros((1, 5, 2)), u)
     with pytest.raises(ModelKindError, match="expected chattering spectrum"):

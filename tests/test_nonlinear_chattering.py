@@ -1,4 +1,4 @@
-"""Chattering spectra on the nonlinear EHA (issue 9 item 5).
+"""Chattering spectra on the nonlinear EHA (beyond the chattering paper; docs/paper-notes.md).
 
 The auxiliary sgn-SVSF of a NonlinearModel (chatterspec/filters/nonlinear_svsf.py), its empirical
 normalization and family-wise calibration (detection/empirical.py, studies/empirical_calibration.py)
@@ -197,7 +197,7 @@ def test_cli_calibrate_then_detect(tmp_path, capsys: pytest.CaptureFixture[str])
 
 
 def test_held_out_family_wise_rate_over_2000_runs() -> None:
-    """The issue's target: 2000 held-out healthy runs (2000 + 200 calibration runs: ~12 s on 1 core)."""
+    """The target: 2000 held-out healthy runs (2000 + 200 calibration runs: ~12 s on 1 core)."""
     res = _held_out_check(alpha=0.01, n_cal=2000, n_test=2000, cal_seed=101, test_seed=202)
     lo, hi = res["interval"]
     assert all(lo <= c <= hi for c in res["counts"]), (res["counts"].tolist(), (lo, hi))

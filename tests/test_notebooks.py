@@ -22,6 +22,7 @@ def test_notebooks_exist():
         "03_rerun_notebook.ipynb",
         "04_estimators.ipynb",
         "05_diagnosis.ipynb",
+        "06_closed_loop.ipynb",
     } <= names
 
 

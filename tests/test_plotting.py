@@ -231,7 +231,7 @@ _RATIO = re.compile(r"max S/threshold ([0-9.e+-]+) at ([0-9.]+) Hz, (\d+) bins o
 
 @pytest.mark.parametrize("name", ["fig5", "fig10"])
 def test_notes_report_each_thresholds_own_maximum(name):
-    """A ratio above 1 always comes with bins over, and 'no bin over' with a ratio <= 1 (issue 12)."""
+    """A ratio above 1 always comes with bins over, and 'no bin over' with a ratio <= 1."""
     res = pf.render(name, seed=0)
     found = [m for n in res.notes for m in _RATIO.findall(n)]
     assert len(found) >= 4

@@ -1,4 +1,4 @@
-"""The scenario catalogue of DESIGN.md section 4."""
+"""The scenario catalogue of docs/design.md §5."""
 
 from __future__ import annotations
 
@@ -34,12 +34,23 @@ NAMES = (
     "eha4-leak-minor",
     "eha4-leak-major",
     "eha4-leak-onset",
+    # closed loop (the EHA under its position controller)
+    "eha-cl-healthy",
+    "eha-cl-leak-minor",
+    "eha-cl-leak-medium",
+    "eha-cl-leak-major",
+    "eha-cl-friction-major",
+    "eha-cl-bulk-25down",
+    "eha-cl-hold-healthy",
+    "eha-cl-hold-leak-medium",
+    "eha4-cl-healthy",
+    "eha4-cl-leak-timeline",
 )
 
 
 def test_catalogue_names_are_the_cli_contract() -> None:
     assert set(scenario_names()) == set(NAMES)
-    assert len(scenario_names()) == 31
+    assert len(scenario_names()) == 41
     cat = catalogue()
     assert tuple(cat) == scenario_names()
     for name, sc in cat.items():
@@ -164,6 +175,8 @@ def test_plant_kinds_and_json_listing() -> None:
         "eha4-leak-minor",
         "eha4-leak-major",
         "eha4-leak-onset",
+        "eha4-cl-healthy",
+        "eha4-cl-leak-timeline",
     }
     d = scenario("eha4-leak-timeline").describe()
     json.dumps(d)
@@ -181,7 +194,7 @@ def test_plant_kinds_and_json_listing() -> None:
 
 
 def test_detc_scenarios_as_printed() -> None:
-    """DETC2015 eq (25)-(27) and note section 4.1 (eigenvalue moduli, DC gains)."""
+    """DETC2015 eq (25)-(27) and docs/design.md D1 (eigenvalue moduli, DC gains)."""
     normal, uncertain = scenario("detc-normal"), scenario("detc-uncertain")
     F = np.array([[1, 0.001, 0], [0, 1, 0.001], [-557.02, -28.616, 0.9418]])
     F2 = np.array([[1, 0.001, 0], [0, 1, 0.001], [-240, -28, 0.9418]])
@@ -262,7 +275,7 @@ def test_eha4_imm_analogue() -> None:
 
 
 def test_imm_analogue_moves_the_piston_where_the_printed_input_cannot() -> None:
-    """Note section 3.3: with +-60 rad/s the piston moves in every mode (|v| ~ 2 cm/s, a few
+    """docs/design.md I10: with +-60 rad/s the piston moves in every mode (|v| ~ 2 cm/s, a few
     direction changes per 2 s); with the printed +-5 rad/s it creeps at < 1 mm/s in the normal and
     leakage modes with hundreds of velocity sign flips (the evidence for the analogue)."""
     from chatterspec import simulate
@@ -328,4 +341,4 @@ def test_cli_lists_plant_kinds(capsys: pytest.CaptureFixture[str]) -> None:
     doc = json.loads(capsys.readouterr().out)
     kinds = {e["name"]: e["plant_kind"] for e in doc["scenarios"]}
     assert kinds["eha4-imm-analogue"] == "nonlinear" and kinds["eha-healthy"] == "linear"
-    assert len(kinds) == 31
+    assert len(kinds) == 41

@@ -1,4 +1,4 @@
-"""Input signals: the chirp's phase (issue 11 item 4)."""
+"""Input signals: the chirp's phase (docs/design.md C9)."""
 
 from __future__ import annotations
 

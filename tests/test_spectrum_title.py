@@ -1,4 +1,4 @@
-"""The single-channel ``spectrum`` figure's title (issue 11 item 7): inside the figure, no orphans."""
+"""The single-channel ``spectrum`` figure's title: inside the figure, no orphans."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Live sources (issue 13): stdin and followed files, simulate, gaps, bad rows, signals, rotation, events."""
+"""Live sources: stdin and followed files, simulate, gaps, bad rows, signals, rotation, events."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ import pytest
 import chatterspec as cs
 from chatterspec.cli.scenarios import export_model_toml
 from chatterspec.errors import DataFileError
+from chatterspec.online import live_stream, viewer
 from chatterspec.online.live_stream import LatencyStats, StreamMonitor
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
 from chatterspec.online.stream import (
@@ -236,6 +237,28 @@ def test_backwards_time_and_skipped_row_are_gaps(spec) -> None:
         strict.process(BadRow(1600, "standard input, line 1600: column 'pressure': 'x' is not a number"))
 
 
+def test_gap_rule_boundary_jitter_is_not_a_gap_two_dt_is(spec) -> None:
+    """The rule: a step outside (0.5 dt, 1.5 dt] is a gap. A sample 0.4 dt late (steps of 1.4 dt
+    and 0.6 dt around it) is clock jitter, not a gap; one missing sample (a 2 dt step) is a gap."""
+    ds = load_data(EXAMPLE_DATA, spec.model)
+    dt = spec.model.dt
+    settings = MonitorSettings(psi=tuple(spec.psi), gamma=spec.gamma)
+    keep = np.r_[0:1700, 1701:2500]  # sample 1700 missing: a 2 dt step into 1701
+    t = ds.t[keep].copy()
+    t[900] += 0.4 * dt  # jitter: 1.4 dt after sample 899, 0.6 dt before sample 901
+    steps = np.diff(t) / dt
+    assert steps.max() == pytest.approx(2.0) and steps[899] == pytest.approx(1.4)
+    assert steps.min() == pytest.approx(0.6)
+    events = []
+    sm = StreamMonitor(spec.model, settings, on_event=events.append)
+    sm.process(_blocks(t, ds.z[keep], ds.u[keep], keep + 2))
+    summary = sm.close()
+    gaps = [e for e in events if e.kind == "gap"]
+    assert summary.counts["gap"] == 1 and len(gaps) == 1
+    assert gaps[0].line == 1701 + 2 and gaps[0].sample_time_s == pytest.approx(ds.t[1701])
+    assert "2 dt" in gaps[0].reason
+
+
 def test_simulate_blocks_streams_the_scenario(spec) -> None:
     sc = cs.scenario("eha-leak-major")
     parts = list(simulate_blocks(sc, seed=2, duration_s=10.0, block_s=0.7))
@@ -452,7 +475,7 @@ def test_stream_option_errors_are_reported_without_traceback(tmp_path, capsys, m
         (["--data", str(EXAMPLE_DATA), "--record-every", "1"], "apply to streams"),
         (["--data", "-", "--rate", "2"], "--rate paces a file replay"),
         (["--data", str(tmp_path / "none.csv"), "--follow"], "does not exist"),
-        (["--data", "-", "--record-every", "0"], "must be > 0"),
+        (["--data", "-", "--record-every", "0"], "must be >= 0.05 minutes"),
     ):
         rc, _, err = _main(
             ["monitor", "--model", str(EXAMPLE_MODEL), *argv], None, tmp_path, capsys, monkeypatch
@@ -489,17 +512,32 @@ def _os_threads() -> int:
 
 
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="counts threads in /proc")
-def test_rotation_releases_rerun_streams_and_threads(spec, tmp_path) -> None:
-    """16 rotations: every file complete and listed, no ``.part`` left, and the OS threads do not grow.
+def test_rotation_releases_rerun_streams_and_threads(spec, tmp_path, monkeypatch) -> None:
+    """16 rotations: every file complete and listed, no ``.part`` left, the OS threads do not grow,
+    and no recording is opened or closed on the loop's thread.
 
     rerun-sdk 0.41 kept each dropped recording stream (and the blueprint stream
     ``send_blueprint`` makes) with two threads each, so before the fix every rotation
-    added 4 threads (and ~2 MB); a few threads of slack cover the file being opened
-    ahead on the rotation thread at the moment of counting.
+    added 4 threads (and ~2 MB); a few threads of slack cover the files being opened
+    ahead and swept on the rotation thread at the moment of counting (seen: +5 under load).
     """
     ds = load_data(EXAMPLE_DATA, spec.model)
     settings = MonitorSettings(psi=tuple(spec.psi), gamma=spec.gamma)
     sm = StreamMonitor(spec.model, settings, record=tmp_path / "r.rrd", record_every_s=0.5)
+    # from here on, opening (70-110 ms) and closing (50-80 ms) a recording must never stop the loop:
+    # both run on the rotation thread, the loop only renames the file opened ahead and hands over
+    real_open, real_finish = viewer.open_sinks, live_stream._finish_file
+
+    def watched(fn, what):
+        def call(*args, **kwargs):
+            if threading.current_thread() is threading.main_thread():  # fail at once, do not block
+                raise AssertionError(f"a recording was {what} on the monitor loop's thread")
+            return fn(*args, **kwargs)
+
+        return call
+
+    monkeypatch.setattr(viewer, "open_sinks", watched(real_open, "opened"))
+    monkeypatch.setattr(live_stream, "_finish_file", watched(real_finish, "closed"))
     counts = []
     for lo in range(0, ds.n_samples, 500):  # one rotation per block
         hi = min(lo + 500, ds.n_samples)
@@ -508,11 +546,11 @@ def test_rotation_releases_rerun_streams_and_threads(spec, tmp_path) -> None:
         counts.append(_os_threads())
     summary = sm.close()
     assert sm.n_recordings == len(summary.recordings) == 17  # 16 full files of 0.5 s, the last sample
-    assert counts[-1] - counts[2] <= 3, counts  # a leak would add 4 per rotation: +52
+    # a leak adds 4 threads per rotation (+52 here); in flight at a count, on a loaded machine: the file
+    # opened ahead and the one still being swept, with their blueprint streams (2 threads each, <= 8)
+    assert counts[-1] - counts[2] <= 8, counts
     assert not list(tmp_path.glob(".*.part"))
     assert sorted(str(p) for p in tmp_path.glob("r-*.rrd")) == sorted(r["path"] for r in summary.recordings)
     for r in (summary.recordings[0], summary.recordings[-1]):
         _verify(Path(r["path"]))
-    # a rotation is a rename and a hand-off (measured 1-10 ms); closing and opening in the loop, as
-    # before, took 170-260 ms (opening alone 70-110 ms): 150 ms separates the two with a wide margin
-    assert summary.latency["rotation_max_ms"] < 150.0
+    # (the loop's stop per rotation is timed by benchmarks/bench_soak.py --rotations)

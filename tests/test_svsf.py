@@ -169,16 +169,22 @@ def test_vectorized_runs_equal_per_run_calls(name: str) -> None:
     sim = simulate(sc, runs=4, seed=9)
     f = SVSF(sc.nominal, psi=1.0, psi_lower=1.0)
     batch = f.run(sim.z, sim.u, store_states=True)
+    # Per-run calls take one-row BLAS paths on the numpy path (the compiled path gives the same bits), so
+    # the two differ by rounding, which the filter then carries on: on the undamped Euler plant of
+    # so-boundary-layer a 1e-12 difference grows to ~1e-4 over the record. The bound is the filter's own
+    # response to a one-ulp perturbation of every measurement (rounding of the same size as the BLAS
+    # paths'), with a factor 4 of margin; a mix-up of realizations gives differences of the signal's size.
+    signs = np.random.default_rng(1).choice([-1.0, 1.0], size=sim.z.shape)
+    nudged = f.run(sim.z * (1.0 + np.finfo(float).eps * signs), sim.u, store_states=True)
     for r in range(sim.runs):
         single = f.run(sim.z[r], sim.u, store_states=True)
         assert single.e_prior.shape == sim.z.shape[1:]
-        # per-run calls take one-row BLAS paths: equal to rounding
-        np.testing.assert_allclose(
-            single.e_prior, batch.e_prior[r], rtol=1e-10, atol=1e-12 * np.abs(batch.e_prior[r]).max()
-        )
-        np.testing.assert_allclose(
-            single.x_post, batch.x_post[r], rtol=1e-10, atol=1e-12 * np.abs(batch.x_post[r]).max()
-        )
+        for attr in ("e_prior", "x_post"):
+            ref = getattr(batch, attr)[r]
+            ulp_response = np.abs(getattr(nudged, attr)[r] - ref).max()
+            tol = 4.0 * ulp_response + 1e-12 * np.abs(ref).max()
+            assert ulp_response < 1e-4 * np.abs(ref).max(), (attr, ulp_response)
+            np.testing.assert_allclose(getattr(single, attr), ref, rtol=0, atol=tol)
 
 
 def test_per_run_inputs_equal_shared_input() -> None:

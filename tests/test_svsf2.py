@@ -1,4 +1,4 @@
-"""Dynamic second-order SVSF: every item of the "Properties" list of estimators.md §1.3 as an
+"""Dynamic second-order SVSF: every property listed in ``docs/design.md`` §7.3 as an
 exact (deterministic) test, plus the covariance gain, parametrization and bad input."""
 
 from __future__ import annotations
@@ -132,7 +132,7 @@ def test_covariance_uses_the_clipped_ratio_gain() -> None:
             np.testing.assert_allclose(
                 out.x_post[r, k] - out.x_prior[r, k], Minv @ dz[r, k], rtol=1e-10, atol=1e-13
             )
-            K = Minv @ np.diag(np.clip(ratio[r, k], 0.0, 2.0))  # [IMM] eq (12) with the clip of note §1.3
+            K = Minv @ np.diag(np.clip(ratio[r, k], 0.0, 2.0))  # [IMM] eq (12) with the clip of design.md I7
             IKC = np.eye(3) - K @ SQUARE_C
             joseph = IKC @ out.P_prior[r, k] @ IKC.T + K @ model.R @ K.T  # eq (14)
             np.testing.assert_allclose(out.P_post[r, k], joseph, rtol=1e-9, atol=1e-14)

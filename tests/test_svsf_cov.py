@@ -101,7 +101,7 @@ def test_outside_the_layer_the_residual_shrinks_by_gamma() -> None:
     ebar = previous(out.e_post, np.zeros((3, 3)))
     outside = np.abs(out.innovation) > psi
     assert outside.mean() > 0.2
-    # |e(k+1|k+1)| = gamma |e(k|k)| outside the layer (note §1.2); C C^-1 = I up to rounding of O(1) values
+    # |e(k+1|k+1)| = gamma |e(k|k)| outside the layer (design.md §7.2); C C^-1 = I up to rounding of O(1)
     np.testing.assert_allclose(np.abs(out.e_post)[outside], gamma * np.abs(ebar)[outside], atol=1e-13)
 
 

@@ -53,7 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     from .._memory import fix_mmap_threshold
 
-    fix_mmap_threshold()  # peak memory independent of --runs (issue 10; see chatterspec._memory)
+    fix_mmap_threshold()  # peak memory independent of --runs (see chatterspec._memory)
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

@@ -105,6 +105,21 @@ def add_detector_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=nonnegative_int_arg, default=0, help="random seed (default 0)")
 
 
+def add_execution_args(p: argparse.ArgumentParser) -> None:
+    """--workers N and --scheduler ADDRESS (the Monte Carlo commands; the numbers do not depend on them)."""
+    p.add_argument(
+        "--workers",
+        type=positive_int_arg,
+        default=1,
+        help="local worker processes (default 1; the results do not depend on it)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run on Dask: 'local-dask' or a scheduler address (needs chatterspec[distributed])",
+    )
+
+
 def add_live_args(p: argparse.ArgumentParser) -> None:
     """--record FILE.rrd and --live URL|spawn."""
     p.add_argument("--record", metavar="FILE.rrd", help="write a Rerun recording of the run to FILE.rrd")
@@ -130,6 +145,22 @@ def live_arg(text: str) -> str:
     return text
 
 
+def load_scenario(name: str) -> Any:
+    """A catalogue scenario, or the healthy scenario of a model file (``NAME.toml``, linear or nonlinear).
+
+    A model file's scenario is its ``[simulation]`` table (input, initial state, duration; zero input
+    and 4 s by default) with the file's model as nominal model and true plant.
+    """
+    if str(name).endswith(".toml"):
+        from ..plants.modelfile import load_model
+        from ..plants.modelfile_nonlinear import file_scenario
+
+        return file_scenario(load_model(name), name=Path(name).stem)
+    from ..plants.scenarios import scenario
+
+    return scenario(name)
+
+
 def print_json(doc: Any) -> None:
     json.dump(doc, sys.stdout, indent=2, allow_nan=False, default=_json_default)
     sys.stdout.write("\n")
@@ -152,7 +183,7 @@ def check_record_path(path: str | os.PathLike | None) -> None:
     check_output_file(path, "--record")
 
 
-# --- output paths (issue 11 item 6) -------------------------------------------------------------------
+# --- output paths --------------------------------------------------------------------------------------
 class OutputPathError(ParameterError):
     """An output path cannot be written (checked before the computation, or failed at the end)."""
 
@@ -281,13 +312,20 @@ class Outputs:
         Returns ``fn``'s result, or None when the write failed.
         """
         try:
-            return fn(*args, **kwargs)
+            result = fn(*args, **kwargs)
         except (OSError, RuntimeError) as exc:
-            if isinstance(exc, RuntimeError) and "file" not in str(exc).lower():
+            from ..online.viewer import file_error  # Rerun reports a full disk as a RuntimeError
+
+            err = file_error(exc, target) if isinstance(exc, RuntimeError) else exc
+            if err is None:
                 raise
-            reason = getattr(exc, "strerror", None) or str(exc).splitlines()[0]
+            reason = getattr(err, "strerror", None) or str(err).splitlines()[0]
             self.failures.append(f"{option} {str(target)!r} could not be written ({reason})")
             return None
+        late = getattr(result, "write_error", None)  # a recording that failed after the run finished
+        if late:
+            self.failures.append(f"{option} {str(target)!r} could not be completed ({late})")
+        return result
 
     def finish(self) -> None:
         """Raise :class:`OutputPathError` naming every failed write (after the result was printed)."""

@@ -10,6 +10,7 @@ import json
 import sys
 from typing import Any
 
+from ..errors import ParameterError
 from ._common import (
     Outputs,
     alpha_arg,
@@ -115,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         check_output_file(args.plot, "--plot", suffixes=figure_suffixes())
     outputs = Outputs()
+    supports = _check_support(args)  # also an unknown name or a bad model file, before the heavy imports
     from ..studies.calibration import calibrate
 
     ex = execution(args)
@@ -122,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
         ex["tail_budget"] = args.tail_budget
     cal = calibrate(args.name, alpha=args.alpha, runs=args.runs, seed=args.seed, **ex)
     doc = cal.to_dict()
+    doc["support"] = {use: s.to_dict() for use, s in supports.items()}
     if args.out:
         saved = outputs.write("--out", args.out, _save_calibration, cal, args.out)
         doc["calibration_file"] = None if saved is None else str(saved)
@@ -163,6 +166,37 @@ def run(args: argparse.Namespace) -> int:
         print(f"  calibration file: {doc['calibration_file']}")
     outputs.finish()
     return 0
+
+
+def _check_support(args: argparse.Namespace) -> dict[str, Any]:
+    """Before computing: refuse runs that support alpha for neither use; warn when only one is supported.
+
+    The record family-wise threshold (``detect --calibration``) needs ``ceil(1/alpha) - 1`` runs; the
+    per-frame one (``monitor`` / ``diagnose --calibration``) pools the non-overlapping frames of every
+    run (:mod:`chatterspec.studies.calibration_support`).
+    """
+    from ..studies.calibration_support import frames_per_run, support_for
+    from ._common import load_scenario
+
+    sc = load_scenario(args.name)
+    per_frame = frames_per_run(sc.n_samples - 1, 1.0, sc.dt)  # the calibration's STFT: 1 s windows
+    supports = {
+        "detect": support_for("detect", args.runs, args.alpha, args.confidence),
+        "monitor": support_for("monitor", args.runs, args.alpha, args.confidence, per_frame),
+    }
+    bad = [s for s in supports.values() if not s.supported]
+    if len(bad) == len(supports):
+        d, m = supports["detect"], supports["monitor"]
+        raise ParameterError(
+            f"{d.message()}; per frame (monitor) it needs --runs >= {m.min_runs}; nothing computed"
+        )
+    for s in bad:
+        print(
+            f"chatterspec calibrate: warning: the file will be refused by "
+            f"{'detect' if s.use == 'detect' else 'monitor and diagnose'}: {s.message()}",
+            file=sys.stderr,
+        )
+    return supports
 
 
 def _save_calibration(cal: Any, path: str) -> Any:

@@ -12,7 +12,17 @@ if TYPE_CHECKING:
     from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
 
-from ._common import Outputs, add_detector_args, add_live_args, band_from_args, check_record_path, print_json
+from ..errors import ParameterError
+from ._common import (
+    Outputs,
+    add_detector_args,
+    add_execution_args,
+    add_live_args,
+    band_from_args,
+    check_record_path,
+    load_scenario,
+    print_json,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,7 +32,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Simulate NAME, run the auxiliary SVSF, compare the chattering periodogram with "
         "chi-squared thresholds and, for multi-segment scenarios, localize the fault with the STFT.",
     )
-    p.add_argument("name", metavar="NAME", help="scenario name (see 'chatterspec scenarios')")
+    p.add_argument(
+        "name",
+        metavar="NAME",
+        help="scenario name (see 'chatterspec scenarios'), or a model file MODEL.toml: its healthy plant "
+        "under its [simulation] table (a nonlinear model needs --calibration)",
+    )
     add_detector_args(p)
     add_live_args(p)
     p.add_argument(
@@ -31,43 +46,84 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="use the empirical family-wise threshold of a calibration file written by "
         "'chatterspec calibrate --out FILE' (refused if it was made for another model or length)",
     )
+    add_execution_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    p.set_defaults(func=run)
+    # None = not given (the defaults of add_detector_args are filled in by run): a calibration fixes
+    # the threshold, so an explicit --alpha / --threshold / --correction next to it is refused
+    p.set_defaults(func=run, alpha=None, threshold=None, correction=None)
+
+
+#: Defaults of the detector options when no calibration file is given.
+DETECTOR_DEFAULTS = {"alpha": 1e-3, "threshold": "exact", "correction": "bonferroni"}
+
+
+def refuse_with_calibration(args: argparse.Namespace, names: tuple[str, ...]) -> None:
+    """Refuse options that a ``--calibration`` file would override (they were silently ignored)."""
+    given = [f"--{n.replace('_', '-')}" for n in names if getattr(args, n, None) is not None]
+    if getattr(args, "calibration", None) is not None and given:
+        raise ParameterError(
+            f"{' and '.join(given)} cannot be used with --calibration: the calibration file fixes the "
+            "threshold and its alpha (drop the option, or drop --calibration)"
+        )
 
 
 def run(args: argparse.Namespace) -> int:
     check_record_path(args.record)  # before the (slow) imports: a bad path fails at once
-    from ..detection.detect import detect_chunks
-    from ..plants.scenarios import scenario
-
+    refuse_with_calibration(args, tuple(DETECTOR_DEFAULTS))
+    for key, value in DETECTOR_DEFAULTS.items():
+        if getattr(args, key) is None:
+            setattr(args, key, value)
+    sc = load_scenario(args.name)  # an unknown name fails here, before the heavy imports
     band = band_from_args(args)
-    sc = scenario(args.name)
+    from ..detection.detect import detect_chunks
+
     threshold = args.threshold
     extra: dict = {}
     if args.calibration:
         from ..studies.calibration import load_calibration
+        from ..studies.calibration_support import require_support
 
         n_samples = round(sc.duration / sc.nominal.dt)  # chattering samples of one record
         cal = load_calibration(args.calibration, sc.nominal, n_samples)
+        require_support(cal, "detect", args.calibration)  # enough runs for its alpha, or refused
         threshold = cal.threshold("family-wise")
         if not sc.is_linear:  # nonlinear: STFT intervals from the calibrated per-frame threshold
             extra["frame_threshold"] = cal.threshold("frame-family-wise")
     first: list = []
-    report = detect_chunks(
-        with_progress(
-            stream_chunks(sc, args.runs, args.seed, first),
+    progress = False if args.no_progress or args.runs < PROGRESS_MIN_RUNS else None
+    if args.workers > 1 or args.scheduler is not None:  # the same numbers from worker processes / Dask
+        from ..detection.detect_parallel import detect_parallel
+
+        report = detect_parallel(
+            sc,
             args.runs,
-            f"detect {sc.name}",
-            enabled=False if args.no_progress or args.runs < PROGRESS_MIN_RUNS else None,
-        ),
-        args.alpha,
-        threshold,
-        args.correction,
-        band=band,
-        **extra,
-    )
-    sim = first[0]  # run 0, simulated once: detection and recording
+            args.seed,
+            args.alpha,
+            threshold,
+            args.correction,
+            band=band,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            progress=progress,
+            **extra,
+        )
+        if args.record or args.live:
+            from ..plants.simulate import simulate
+
+            first.append(simulate(sc, 1, args.seed))
+    else:
+        report = detect_chunks(
+            with_progress(
+                stream_chunks(sc, args.runs, args.seed, first), args.runs, f"detect {sc.name}", progress
+            ),
+            args.alpha,
+            threshold,
+            args.correction,
+            band=band,
+            **extra,
+        )
+    sim = first[0] if first else None  # run 0, simulated once: detection and recording
     doc = report.to_dict()
     doc["seed"] = args.seed
     doc["fault_intervals_true"] = [list(iv) for iv in sc.fault_intervals]
@@ -121,7 +177,7 @@ def stream_chunks(sc: Scenario, runs: int, seed: int, first: list[Simulation]) -
     """
     from ..detection.detect import DETECT_CHUNK_RUNS
     from ..detection.pipeline import _can_fuse, chattering_record, iter_chattering
-    from ..plants.simulate import Simulation, iter_simulations, simulate
+    from ..plants.simulate import iter_simulations, simulate
 
     if _can_fuse(sc):
         first.append(simulate(sc, 1, seed))
@@ -129,7 +185,7 @@ def stream_chunks(sc: Scenario, runs: int, seed: int, first: list[Simulation]) -
         return
     for sim in iter_simulations(sc, runs, seed, chunk_runs=min(runs, DETECT_CHUNK_RUNS)):
         if not first:
-            first.append(Simulation(sim.t, sim.x[:1].copy(), sim.z[:1].copy(), sim.u, sc, 0))
+            first.append(sim.take(slice(0, 1)))
         yield chattering_record(sc.nominal, sim.z, sim.u, scenario=sc, first_run=sim.first_run)
 
 

@@ -1,6 +1,6 @@
 """``chatterspec diagnose NAME [--methods chattering,smm,imm] [--runs N] [--seed S] [--chunk-runs K]
 [--json] [--record FILE.rrd] [--no-progress]``: fault diagnosis side by side, every method on the same
-realizations (issue 9 item 6).
+realizations (``docs/design.md`` §2, the estimator routes).
 
 * ``smm``, ``imm``: mode probabilities (:mod:`chatterspec.studies.mode_diagnosis`);
 * ``chattering``: the STFT of the auxiliary sgn-SVSF's chattering against a calibrated per-frame threshold
@@ -27,7 +27,7 @@ import math
 import time
 
 from ..errors import ParameterError
-from ._common import alpha_arg, check_record_path, positive_int_arg, print_json
+from ._common import Outputs, add_execution_args, alpha_arg, check_record_path, positive_int_arg, print_json
 
 #: Every method ``--methods`` accepts.
 ALL_METHODS = ("chattering", "smm", "imm")
@@ -59,14 +59,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--calibration-runs",
         type=positive_int_arg,
-        default=500,
-        help="chattering: healthy runs of the in-call calibration (default 500)",
+        default=None,
+        help="chattering: healthy runs of the in-call calibration (default 500; not with --calibration)",
     )
     p.add_argument(
         "--alpha",
         type=alpha_arg,
-        default=1e-3,
-        help="chattering: per-frame false-alarm probability of the in-call calibration (default 1e-3)",
+        default=None,
+        help="chattering: per-frame false-alarm probability of the in-call calibration (default 1e-3; not "
+        "with --calibration)",
     )
     p.add_argument(
         "--chunk-runs",
@@ -75,6 +76,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help=f"realizations simulated and diagnosed together (default {DEFAULT_CHUNK_RUNS}; memory grows "
         "with it, not with --runs; the results do not depend on it)",
     )
+    add_execution_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--record", metavar="FILE.rrd", default=None, help="write realization 0 to a Rerun file")
@@ -131,8 +133,10 @@ def _threshold(args: argparse.Namespace, sc: object) -> tuple[object, dict]:
     config = STFTConfig()
     if args.calibration is not None:
         from ..studies.calibration import load_calibration
+        from ..studies.calibration_support import require_support
 
         cal = load_calibration(args.calibration, sc.nominal, config=config)  # type: ignore[attr-defined]
+        require_support(cal, "monitor", args.calibration)  # the per-frame threshold needs enough runs
         info = {"source": str(args.calibration), "runs": cal.runs, "alpha": cal.alpha, "seconds": 0.0}
     else:
         from ..studies.chattering_diagnosis import CALIBRATION_SALT, calibrate_for_diagnosis
@@ -168,49 +172,56 @@ DEFAULT_CHUNK_RUNS = 64
 
 def run(args: argparse.Namespace) -> int:
     from ..plants.scenarios import scenario
+    from .detect import refuse_with_calibration
 
     check_record_path(args.record)
+    refuse_with_calibration(args, ("alpha", "calibration_runs"))
+    args.alpha = 1e-3 if args.alpha is None else args.alpha
+    args.calibration_runs = 500 if args.calibration_runs is None else args.calibration_runs
     sc = scenario(args.name)
     methods = _methods(args.methods, sc)
     from ..plants.simulate import Simulation, iter_simulations
-    from ..progress import Progress
 
     threshold, info = _threshold(args, sc) if "chattering" in methods else (None, {})
     from ..studies.chattering_diagnosis import ChatteringTally
     from ..studies.mode_diagnosis import ModeTally
 
-    tallies = [ChatteringTally(sc, threshold) if m == "chattering" else ModeTally(sc, m) for m in methods]
     # the runs go through in chunks (realization r's numbers do not depend on the chunking); only per-run
     # figures are kept, and realization 0 for --record
     outputs: dict = {}
     first: Simulation | None = None
-    sim_s = 0.0
+    sim_s: float | None = None  # seconds spent simulating (None: on workers, inside their chunks)
     chunk = args.chunk_runs or DEFAULT_CHUNK_RUNS
-    chunks = iter_simulations(sc, args.runs, args.seed, chunk_runs=min(chunk, args.runs))
-    with Progress(args.runs, "diagnose", enabled=False if args.no_progress else None) as bar:
-        while True:
-            t0 = time.perf_counter()
-            sim = next(chunks, None)
-            sim_s += time.perf_counter() - t0
-            if sim is None:
-                break
-            if args.record is not None and first is None:
-                first = Simulation(
-                    t=sim.t, x=sim.x[:1].copy(), z=sim.z[:1].copy(), u=sim.u, scenario=sc, first_run=0
-                )
-            for tally in tallies:
-                if isinstance(tally, ModeTally):
-                    tally.add(sim, keep=outputs if args.record else None, keep_runs=1)
-                else:
-                    tally.add(sim)
-            bar.update(sim.runs)
-            del sim
+    if args.workers > 1 or args.scheduler is not None:  # simulation and filters on workers: same figures
+        from ..plants.simulate import simulate
+        from ..studies.diagnosis_parallel import diagnose_parallel
+
+        tallies, outputs = diagnose_parallel(
+            sc,
+            methods,
+            threshold,
+            args.runs,
+            args.seed,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            chunk_runs=chunk,
+            progress=False if args.no_progress else None,
+            keep=args.record is not None,
+        )
+        if args.record is not None:
+            first = simulate(sc, 1, args.seed)
+    else:
+        chunks = iter_simulations(sc, args.runs, args.seed, chunk_runs=min(chunk, args.runs))
+        tallies = [ChatteringTally(sc, threshold) if m == "chattering" else ModeTally(sc, m) for m in methods]
+        first, sim_s = _serial(args, sc, tallies, chunks, outputs)
     results = [t.result(info) if isinstance(t, ChatteringTally) else t.result() for t in tallies]
-    recording = None
+    recording, written = None, Outputs()  # a recording that fails: the result first, then exit 2
     if args.record is not None:
         from ..online.diagnosis_log import record_diagnosis
 
-        recording = record_diagnosis(args.record, first, threshold, outputs)
+        recording = written.write(
+            "--record", args.record, record_diagnosis, args.record, first, threshold, outputs
+        )
     if args.json:
         print_json(
             {
@@ -222,11 +233,40 @@ def run(args: argparse.Namespace) -> int:
                 "recording": None if recording is None else str(recording),
             }
         )
+        written.finish()
         return 0
     _print_table(sc, args, results)
     if recording is not None:
         print(f"recording: {recording} (open with `chatterspec replay {recording}` or `rerun {recording}`)")
+    written.finish()
     return 0
+
+
+def _serial(
+    args: argparse.Namespace, sc: object, tallies: list, chunks: object, outputs: dict
+) -> tuple[object, float]:
+    """The in-process loop over chunks: realization 0 (for --record, else None) and the simulation time."""
+    from ..progress import Progress
+    from ..studies.mode_diagnosis import ModeTally
+
+    first, sim_s = None, 0.0
+    with Progress(args.runs, "diagnose", enabled=False if args.no_progress else None) as bar:
+        while True:
+            t0 = time.perf_counter()
+            sim = next(chunks, None)  # type: ignore[call-overload]
+            sim_s += time.perf_counter() - t0
+            if sim is None:
+                break
+            if args.record is not None and first is None:
+                first = sim.take(slice(0, 1))
+            for tally in tallies:
+                if isinstance(tally, ModeTally):
+                    tally.add(sim, keep=outputs if args.record else None, keep_runs=1)
+                else:
+                    tally.add(sim)
+            bar.update(sim.runs)
+            del sim
+    return first, sim_s
 
 
 def _print_table(sc: object, args: argparse.Namespace, results: list) -> None:
@@ -240,12 +280,17 @@ def _print_table(sc: object, args: argparse.Namespace, results: list) -> None:
     for r in results:
         if r.method == "chattering":
             c = r.calibration
+            healthy = (
+                f"{r.healthy_frames_per_run} healthy frames per run, flag fraction there "
+                f"{r.healthy_alarm_fraction:.4f}"
+                if r.healthy_frames_per_run
+                else "no healthy frames (faulty from the start: no false-alarm figure)"
+            )
             print(
                 f"chattering threshold: {c.get('source')} ({c.get('runs')} runs, alpha "
-                f"{c.get('alpha'):g} per frame, {c.get('seconds', 0.0):.1f} s); "
-                f"{r.healthy_frames_per_run} healthy frames per run, "
-                f"flag fraction there {r.healthy_alarm_fraction:.4f}; delays are frame-end times (hop "
-                f"quantized); runs already in alarm at each onset: {list(r.in_alarm_at_onset)}"
+                f"{c.get('alpha'):g} per frame, {c.get('seconds', 0.0):.1f} s); {healthy}; delays are "
+                f"frame-end times (hop quantized); runs already in alarm at each onset: "
+                f"{list(r.in_alarm_at_onset)}"
             )
         else:
             diag = ", ".join(f"{m} {r.confusion[j, j]:.1f}%" for j, m in enumerate(r.modes))

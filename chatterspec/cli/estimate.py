@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..errors import ParameterError
 from ..filter_registry import FILTERS
-from ._common import alpha_arg, check_record_path, nonnegative_int_arg, positive_int_arg
+from ._common import Outputs, alpha_arg, check_record_path, nonnegative_int_arg, positive_int_arg
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -94,18 +94,22 @@ def run(args: argparse.Namespace) -> int:
         progress=False if args.no_progress else None,
     )
     doc = res.to_dict()
+    outputs = Outputs()  # a recording that cannot be written: the table first, then one line, exit 2
     if args.record:
         from ..online.estimates_log import record_estimates
         from ..studies.estimation import estimate_records
 
         recs = estimate_records(args.name, names, runs=1, seed=args.seed)
-        doc["recording"] = str(record_estimates(recs, args.record))
+        saved = outputs.write("--record", args.record, record_estimates, recs, args.record)
+        doc["recording"] = None if saved is None else str(saved)
     if args.json:
         from ._common import print_json
 
         print_json(doc)
+        outputs.finish()
         return 0
     print(res.table())
-    if args.record:
+    if args.record and doc["recording"] is not None:
         print(f"recording (realization 0): {doc['recording']}")
+    outputs.finish()
     return 0

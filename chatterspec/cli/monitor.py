@@ -19,12 +19,21 @@ import dataclasses
 import json
 import signal
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
 
 from ..errors import ParameterError
-from ._common import alpha_arg, band_edge_arg, band_from_args, check_record_path, live_arg, positive_int_arg
+from ._common import (
+    Outputs,
+    alpha_arg,
+    band_edge_arg,
+    band_from_args,
+    check_record_path,
+    live_arg,
+    positive_int_arg,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,9 +42,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="run the online chattering monitor on your own model and data",
         description="Replay measurement data through the SVSF chattering monitor of a user model and "
         "report fault start/end events per channel. Model: TOML (A, B, C, Q, R, dt, psi, gamma, channel "
-        "names); data: CSV or NPZ with columns named after the model's outputs and inputs.",
+        "names; or a nonlinear model naming Python functions for f and its Jacobian, with --calibration); "
+        "data: CSV or NPZ with columns named after the model's outputs and inputs.",
     )
-    p.add_argument("--model", required=True, type=Path, help="model file (.toml)")
+    p.add_argument(
+        "--model",
+        required=True,
+        type=Path,
+        help="model file (.toml; linear, or nonlinear with --calibration)",
+    )
     p.add_argument(
         "--data",
         required=True,
@@ -75,7 +90,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=float,
         default=None,
         metavar="MINUTES",
-        help="streams: start a new .rrd every MINUTES of data (each complete on its own, named "
+        help="streams: start a new .rrd every MINUTES of data (>= 0.05; each complete on its own, named "
         "<record stem>-<UTC start time>.rrd)",
     )
     p.add_argument(
@@ -122,6 +137,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+#: Smallest ``--record-every`` (minutes): 0.0001 min would write 667 files for 4 s of data.
+MIN_RECORD_EVERY_MIN = 0.05
+
+
 def _stream_mode(args: argparse.Namespace) -> bool:
     stdin = str(args.data) == "-"
     if args.follow and stdin:
@@ -136,16 +155,18 @@ def _stream_mode(args: argparse.Namespace) -> bool:
             "--skip-bad-rows and --record-every apply to streams (--data - or --follow); a file is "
             "checked whole before it is replayed"
         )
-    if args.record_every is not None and not args.record_every > 0:
-        raise ParameterError(f"--record-every must be > 0 minutes; got {args.record_every}")
+    if args.record_every is not None and not args.record_every >= MIN_RECORD_EVERY_MIN:
+        raise ParameterError(
+            f"--record-every must be >= {MIN_RECORD_EVERY_MIN:g} minutes (one file per "
+            f"{60 * MIN_RECORD_EVERY_MIN:g} s of data at most: each file holds whole spectrogram frames and "
+            f"costs a rotation); got {args.record_every}"
+        )
     if args.idle_timeout is not None and not args.idle_timeout > 0:
         raise ParameterError(f"--idle-timeout must be > 0 s; got {args.idle_timeout}")
     return stream
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..detection.spectral import STFTConfig
-    from ..online.monitor import ChatteringMonitor, MonitorSettings
     from ..plants.modelfile import load_data, load_model
 
     if args.rate is not None and not args.rate > 0:
@@ -160,6 +181,15 @@ def run(args: argparse.Namespace) -> int:
         spec = load_model(args.model)
     for w in caught:
         print(f"chatterspec monitor: warning: {w.message}", file=sys.stderr)
+    from ..detection.spectral import STFTConfig  # after the model file: its errors come at once
+    from ..online.monitor import ChatteringMonitor, MonitorSettings
+
+    if not spec.is_linear and args.calibration is None:
+        raise ParameterError(
+            f"{args.model} is a nonlinear model: it has no closed-form chattering spectrum, so the monitor "
+            f"needs a threshold calibrated on healthy runs: `chatterspec calibrate {args.model} --out "
+            "CAL.npz`, then --calibration CAL.npz"
+        )
     det = spec.detector
     stft = STFTConfig(
         window_s=float(det.get("window_s", 1.0)),
@@ -171,13 +201,20 @@ def run(args: argparse.Namespace) -> int:
         alpha=float(args.alpha if args.alpha is not None else det.get("alpha", 1e-3)),
         correction=str(det.get("correction", "bonferroni")),  # type: ignore[arg-type]
         gamma=spec.gamma,
-        psi=tuple(spec.psi.tolist()),
+        psi=None if spec.psi is None else tuple(spec.psi.tolist()),  # nonlinear: the sgn-SVSF only
         band=band_from_args(args) or det.get("band"),
     )
     if args.calibration is not None:
+        if args.alpha is not None:
+            raise ParameterError(
+                "--alpha cannot be used with --calibration: the calibration file fixes the per-frame "
+                "threshold and its alpha (drop one of them)"
+            )
         from ..studies.calibration import load_calibration
+        from ..studies.calibration_support import require_support
 
         cal = load_calibration(args.calibration, spec.model, config=stft)
+        require_support(cal, "monitor", args.calibration)  # enough runs for its per-frame alpha
         settings = dataclasses.replace(settings, threshold=cal.threshold("frame-family-wise"))
         print(
             f"chatterspec monitor: empirical per-frame threshold of {args.calibration} "
@@ -191,14 +228,25 @@ def run(args: argparse.Namespace) -> int:
     from ..online.live_stream import StreamEvent
     from ..online.viewer import default_recording_path, open_sinks
 
+    preload = _preload_rerun() if (args.record is not None or args.live is not None) else None
     data = load_data(args.data, spec.model)
     monitor = ChatteringMonitor(spec.model, settings, t0=float(data.t[0]))
-    sinks = open_sinks(
+    _warm_up(monitor)  # kernels and FFT plans load here (while Rerun loads on its thread), not in the loop
+    if preload is not None:
+        preload.join()
+    outputs = Outputs()  # a recording that cannot be written: the run is reported first, then exit 2
+    name = f"monitor {args.data.name}"
+    sinks = outputs.write(
+        "--record",
+        args.record,
+        open_sinks,
         record=args.record,
         live=args.live,
-        recording_name=f"monitor {args.data.name}",
+        recording_name=name,
         default_record=default_recording_path(args.data.stem),
     )
+    if sinks is None:
+        sinks = open_sinks(live=args.live, recording_name=name)
     for note in sinks.notes:
         print(f"chatterspec monitor: {note}", file=sys.stderr)
     shown = len(sinks.notes)
@@ -224,6 +272,17 @@ def run(args: argparse.Namespace) -> int:
         raise
     for note in summary.notes[shown:]:  # e.g. a live viewer that went away during the run
         print(f"chatterspec monitor: {note}", file=sys.stderr)
+    if summary.write_error:
+        outputs.failures.append(
+            f"--record {str(args.record)!r} could not be completed ({summary.write_error})"
+        )
+    rc = _report_replay(args, spec, stft, summary, jsonl, human)
+    outputs.finish()
+    return rc
+
+
+def _report_replay(args, spec, stft, summary, jsonl: bool, human) -> int:  # type: ignore[no-untyped-def]
+    """Print the summary of a file replay; 1 when the data gave no STFT frame."""
     no_frame = None
     if summary.n_frames == 0:
         n_window = stft.n_window(spec.model.dt)
@@ -252,9 +311,41 @@ def run(args: argparse.Namespace) -> int:
             f"{summary.wall_s:.2f} s wall",
             file=human,
         )
-        if summary.path is not None:
+        if summary.path is not None and not summary.write_error:
             print(f"recording: {summary.path} (open with `chatterspec replay {summary.path}`)", file=human)
     return 0
+
+
+def _preload_rerun() -> threading.Thread:
+    """Import Rerun, its blueprint classes and pyarrow.compute on a thread (~0.25 s of CPU at every start)
+    while the main thread reads the data and loads the compiled kernels: on two cores the two overlap."""
+
+    def load() -> None:
+        try:
+            import pyarrow.compute  # noqa: F401  (Rerun's first send_columns imports it)
+            import rerun
+            import rerun.blueprint  # noqa: F401
+        except Exception:  # pragma: no cover - the main thread imports them again and reports any error
+            pass
+
+    thread = threading.Thread(target=load, name="chatterspec-preload", daemon=True)
+    thread.start()
+    return thread
+
+
+def _warm_up(monitor: object) -> None:
+    """One window of zeros through a throw-away copy of ``monitor`` (same model, settings, threshold):
+    the compiled kernels (numba cache) and FFT plans load before the replay's clock starts, as in the
+    stream monitor and the in-process benchmark."""
+    import numpy as np
+
+    from ..online.monitor import ChatteringMonitor
+
+    m = monitor.model  # type: ignore[attr-defined]
+    settings = dataclasses.replace(monitor.settings, threshold=monitor.threshold)  # type: ignore[attr-defined]
+    warm = ChatteringMonitor(m, settings)
+    n = warm.n_window + 2
+    warm.push(np.zeros((n, m.n_outputs)), np.zeros((n, m.n_inputs)))
 
 
 class _Terminated(Exception):
@@ -285,17 +376,24 @@ def _run_stream(args: argparse.Namespace, spec: object, settings: object, jsonl:
     def on_note(text: str) -> None:
         print(f"chatterspec monitor: {text}", file=sys.stderr, flush=True)
 
-    mon = StreamMonitor(
-        model,
-        settings,  # type: ignore[arg-type]
-        record=args.record,
-        record_every_s=None if args.record_every is None else 60.0 * args.record_every,
-        live=args.live,
-        recording_name="monitor stdin" if stdin else f"monitor {args.data.name}",
-        skip_bad_rows=args.skip_bad_rows,
-        on_event=on_event,
-        on_note=on_note,
-    )
+    try:
+        mon = StreamMonitor(
+            model,
+            settings,  # type: ignore[arg-type]
+            record=args.record,
+            record_every_s=None if args.record_every is None else 60.0 * args.record_every,
+            live=args.live,
+            recording_name="monitor stdin" if stdin else f"monitor {args.data.name}",
+            skip_bad_rows=args.skip_bad_rows,
+            on_event=on_event,
+            on_note=on_note,
+        )
+    except OSError as exc:  # e.g. disk full when the recording opens: before any row is read
+        from ._common import OutputPathError
+
+        raise OutputPathError(
+            f"--record {str(args.record)!r} cannot be written ({exc.strerror or exc}); nothing was monitored"
+        ) from None
     rows = CsvRows(model, where)
     if stdin:
         chunks = read_fd(sys.stdin.fileno())

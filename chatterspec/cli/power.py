@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 
+from ..errors import ParameterError
 from ._common import Outputs, check_output_file, figure_suffixes
+from ._power_closed_loop import add_closed_loop_args, run_closed_loop
 from .calibrate import add_common, execution
 
 #: The fault families of :data:`chatterspec.studies.power.POWER_FAMILIES` (listed here so that parsing the
@@ -26,12 +28,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sizes", type=float, nargs="+", help="fault sizes (default: the family's grid)")
     p.add_argument("--noise", type=float, nargs="+", help="measurement-noise multipliers of R")
     p.add_argument("--plot", metavar="FILE", help="save power and ROC curves")
+    add_closed_loop_args(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.plot:
         check_output_file(args.plot, "--plot", suffixes=figure_suffixes())
+    if args.closed_loop:
+        return run_closed_loop(args)
+    for opt in ("dither", "references", "dither_hz", "position_noise_mm"):
+        if getattr(args, opt) is not None:
+            raise ParameterError(f"--{opt.replace('_', '-')} needs --closed-loop")
     from ..studies.power import POWER_FAMILIES, power_study
 
     outputs = Outputs()

@@ -1,4 +1,4 @@
-"""``chatterspec scenarios [--json]``: list the scenario catalogue (DESIGN.md section 4)."""
+"""``chatterspec scenarios [--json]``: list the scenario catalogue (``docs/design.md`` §5)."""
 
 from __future__ import annotations
 
@@ -46,16 +46,55 @@ def export_model_toml(name: str, path: Path) -> Path:
     from ..plants.scenarios import scenario
 
     sc = scenario(name)
+    if not sc.is_linear:
+        return _export_nonlinear(sc, name, path)
     if sc.psi is not None:
         psi, why = np.asarray(sc.psi, dtype=float), "the scenario's boundary layer"
     else:
         psi, why = 3.0 * np.sqrt(chattering_autocovariance(sc.nominal)[0]), "3 x healthy chattering std"
     comment = (
-        f"Nominal model of the chatterspec catalogue scenario {name!r}: {sc.description}\n"
-        f"Written by `chatterspec scenarios {name} --model-toml`; psi = {why}.\n"
+        f"Nominal (healthy) model of the chatterspec catalogue scenario {name!r}: {_nominal_text(sc)}.\n"
+        + (
+            f"The scenario's true plant differs from it (the fault to find): {sc.description}.\n"
+            if not sc.is_healthy
+            else ""
+        )
+        + f"Written by `chatterspec scenarios {name} --model-toml`; psi = {why}.\n"
         f"Stream it: chatterspec simulate {name} | chatterspec monitor --model {path.name} --data -"
     )
     return write_model_toml(path, sc.nominal, psi, gamma=0.1, comment=comment)
+
+
+def _export_nonlinear(sc: object, name: str, path: Path) -> Path:
+    """A nonlinear nominal model as a model file naming its functions, with the scenario's input."""
+    from ..plants.modelfile_writer import signal_table, write_nonlinear_model_toml
+
+    simulation: dict = {"duration_s": sc.duration}  # type: ignore[attr-defined]
+    if sc.x0 is not None and sc.x0.any():  # type: ignore[attr-defined]
+        simulation["x0"] = sc.x0  # type: ignore[attr-defined]
+    table = signal_table(sc.input)  # type: ignore[attr-defined]
+    if table is not None:
+        simulation["input"] = table
+    comment = (
+        f"Nominal (healthy) model of the chatterspec catalogue scenario {name!r}: {_nominal_text(sc)}.\n"
+        + (
+            f"The scenario's true plant differs from it (the fault to find): {sc.description}.\n"  # type: ignore[attr-defined]
+            if not sc.is_healthy  # type: ignore[attr-defined]
+            else ""
+        )
+        + f"Written by `chatterspec scenarios {name} --model-toml`. A nonlinear model: calibrate it\n"
+        f"first (chatterspec calibrate {path.name} --out cal.npz), then\n"
+        f"chatterspec monitor --model {path.name} --calibration cal.npz"
+    )
+    return write_nonlinear_model_toml(path, sc.nominal, simulation=simulation, comment=comment)  # type: ignore[attr-defined]
+
+
+def _nominal_text(sc: object) -> str:
+    """One line on the nominal model itself (name, natural frequency, damping), not the scenario's plant."""
+    nominal = sc.nominal  # type: ignore[attr-defined]
+    f0, zeta = nominal.natural_frequency_hz, nominal.damping_ratio
+    mode = "" if f0 is None else f", natural frequency {f0:.4g} Hz, damping {zeta:.4g}"
+    return f"{nominal.name}{mode}, dt = {nominal.dt:g} s"
 
 
 def _fmt(x: float | None, spec: str) -> str:
@@ -81,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps({"scenarios": entries}, indent=2))
         return 0
     print(
-        f"{'name':<22} {'kind':<9} {'fault':<18} {'level':<26} "
+        f"{'name':<24} {'kind':<9} {'fault':<18} {'level':<26} "
         "segments (true plant: f0 Hz / zeta on [start, stop) s)"
     )
     for e in entries:
@@ -91,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
             f"{_fmt(s['damping_ratio'], '.4f')}" + ("" if s["matches_nominal"] else " *")
             for s in e["segments"]
         )
-        print(f"{e['name']:<22} {e['plant_kind']:<9} {e['fault']:<18} {e['level']:<26} {segs}")
+        print(f"{e['name']:<24} {e['plant_kind']:<9} {e['fault']:<18} {e['level']:<26} {segs}")
     print("\n* = true plant differs from the filter's nominal model")
     print("~ = nonlinear plant: natural frequency and damping of its linearization at rest")
     return 0

@@ -1,4 +1,4 @@
-"""``chatterspec simulate NAME [--rate 1.0] [--seed S] [--duration S]``: a scenario as a live CSV stream.
+"""``chatterspec simulate NAME|MODEL.toml [--rate 1.0] [--seed S] [--duration S]``: a live CSV stream.
 
 Writes the header ``time,<outputs>,<inputs>`` and then one row per sample to
 standard output, paced so that data time advances ``--rate`` times as fast as
@@ -8,10 +8,11 @@ wall time (``--rate 0``: as fast as the reader takes it). The columns are those
     chatterspec scenarios eha-leak-major --model-toml eha.toml
     chatterspec simulate eha-leak-major | chatterspec monitor --model eha.toml --data -
 
-monitors the scenario live. The scenario is simulated block by block in time
+monitors the scenario live. A model file (linear or nonlinear) streams its healthy plant under its
+``[simulation]`` table (input, initial state, duration). The scenario is simulated block by block in time
 (:func:`chatterspec.online.stream.simulate_blocks`: constant memory, the
-scenario repeats beyond its own duration). A reader that goes away (a closed
-pipe) ends the program quietly with status 0.
+scenario repeats beyond its own duration; the same ``--seed`` gives the same rows at any
+``--rate``). A reader that goes away (a closed pipe) ends the program quietly with status 0.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import sys
 import time
 
 from ..errors import ParameterError
-from ._common import nonnegative_int_arg
+from ._common import load_scenario, nonnegative_int_arg
 
 #: Most seconds of wall time between two writes when paced (rows are written when due).
 PACE_S = 0.005
@@ -35,7 +36,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Simulate a catalogue scenario and write time, measurements and inputs as CSV rows "
         "to standard output, paced in real time (the input of `chatterspec monitor --data -`).",
     )
-    p.add_argument("name", metavar="NAME", help="catalogue scenario (see `chatterspec scenarios`)")
+    p.add_argument(
+        "name",
+        metavar="NAME",
+        help="catalogue scenario (see `chatterspec scenarios`) or model file MODEL.toml (its [simulation] "
+        "table: input, initial state, duration)",
+    )
     p.add_argument(
         "--rate",
         type=float,
@@ -55,13 +61,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..online.stream import csv_header, csv_lines, simulate_blocks
-    from ..plants.scenarios import scenario
 
     if not (args.rate >= 0 and args.rate < float("inf")):
         raise ParameterError(f"--rate must be >= 0 (1.0 = real time, 0 = unpaced); got {args.rate}")
     if args.duration is not None and not (args.duration > 0 and args.duration < float("inf")):
         raise ParameterError(f"--duration must be > 0 s; got {args.duration}")
-    sc = scenario(args.name)
+    sc = load_scenario(args.name)
     dt = sc.dt
     out = sys.stdout
     # blocks of ~PACE_S of wall time when paced (rows go out when due), 1 s of data otherwise

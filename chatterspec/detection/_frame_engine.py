@@ -14,7 +14,7 @@ import numpy as np
 import scipy.fft
 
 from .. import _jit
-from .spectral import STFTConfig, _stft_engine
+from .spectral import STFTConfig
 
 __all__: list[str] = []
 
@@ -45,7 +45,7 @@ class _FrameEngine:
     def __init__(self, config: STFTConfig, dt: float, compiled: bool = False) -> None:
         self.W, self.H = config.n_window(dt), config.n_hop(dt)
         self.n_bins = self.W // 2 + 1
-        w = _stft_engine(config.window, self.W, self.H, dt).win
+        w = config.taper(dt)  # the taper the batch STFT (ShortTimeFFT) is built with: the same bits
         self.win = np.ascontiguousarray(w.conj())
         self.scale = float(np.dot(w, w))
         self.compiled = compiled

@@ -1,4 +1,4 @@
-"""Detection verdicts, severity scores and onset/offset localization (``DESIGN.md`` section 5).
+"""Detection verdicts, severity scores and onset/offset localization (``docs/design.md`` §6).
 
 A channel is flagged when its spectrum exceeds the threshold at any **tested**
 bin (DC and Nyquist excluded; the DC ratio is reported separately because a
@@ -38,23 +38,19 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import _jit
-from .._validate import open_unit, positive_int
+from .._validate import positive_int
 from ..errors import ModelKindError, ParameterError, ShapeError
 from ..plants.models import LinearModel
-from ..plants.nonlinear import is_linear
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
 from ._verdict import verdict_kernel
 from .pipeline import ChatteringRecord, iter_chattering
-from .spectral import DEFAULT_STFT, Spectrogram, STFTConfig, expected_spectrum, periodogram, spectrogram
+from .spectral import DEFAULT_STFT, Spectrogram, STFTConfig, spectrogram
 from .thresholds import (
     Band,
     Correction,
     Threshold,
-    check_band,
-    exact_threshold,
     frame_threshold,
-    paper_threshold,
 )
 
 __all__ = [
@@ -730,89 +726,27 @@ def detect_chunks(
     ------
     ParameterError
         If ``chunks`` is empty or its records do not belong to one study.
+
+    See Also
+    --------
+    chatterspec.detection.detect_parallel.detect_parallel : the same numbers from worker processes.
     """
-    alpha = open_unit("alpha", alpha)
-    if band is not None:
-        band = check_band(band)
     it = iter(chunks)
     first = next(it, None)
     if first is None:
         raise ParameterError("no chattering record to detect (empty chunk stream)")
-    model, channels, dt = first.model, first.channels, first.dt
-    pg = periodogram(first.values, dt)
-    freqs, n_samples = pg.freqs_hz, pg.n_samples
-    linear = is_linear(model)
-    if not linear:  # nonlinear: no closed-form E[S]; the calibrated empirical threshold carries E_hat
-        _require_empirical(model, threshold)
-        if frame_threshold is None:
-            stft = False  # no closed-form frame spectrum either
-    E = expected_spectrum(model, freqs, n_samples) if linear else threshold.expected
-    if isinstance(threshold, Threshold):
-        th = threshold
-        if th.values.shape != pg.power.shape[-2:] or not np.allclose(th.freqs_hz, freqs):
-            raise ShapeError(
-                f"the given threshold covers {th.values.shape[0]} bins x {th.values.shape[1]} channels "
-                f"at other frequencies than this record's periodogram {pg.power.shape[-2:]}: it was "
-                "calibrated for another record length or model"
-            )
-        th = th.restricted(band)
-        alpha = th.alpha
-    elif threshold == "exact":
-        th = exact_threshold(model, freqs, n_samples, alpha, correction, band=band)
-    elif threshold == "paper":
-        th = paper_threshold(model, freqs, alpha, band=band)
-    else:
-        raise ParameterError(f"unknown threshold kind {threshold!r}; choose 'exact' or 'paper'")
-    sc = first.scenario
-    if stft is None:
-        stft = sc is not None and len(sc.segments) > 1 and n_samples >= config.n_window(dt)
-    frames = None
-    if stft:
-        t0 = float(first.t[0])
-        frames = stft_detect(
-            first.values[:1],
-            model,
-            t0=t0,
-            config=config,
-            alpha=alpha,
-            channels=channels,
-            band=band,
-            threshold=frame_threshold,
-        )
-    parts: list[SpectrumDetection] = []
-    power_sum = np.zeros(pg.power.shape[-2:])
-    runs = 0
+    from ._chunk_plan import ChunkPlan
+
+    plan = ChunkPlan.build(first, alpha, threshold, correction, stft, config, band, frame_threshold)
+    acc = None
     record: ChatteringRecord | None = first
     while record is not None:
-        if record is not first:
-            if record.model is not model and record.model.fingerprint() != model.fingerprint():
+        if record is not first and record.model is not plan.model:
+            if record.model.fingerprint() != plan.model.fingerprint():
                 raise ParameterError("all chunks must share the nominal model of the first chunk")
-            pg = periodogram(record.values, dt)
-            if pg.power.shape[-2:] != power_sum.shape:
-                raise ShapeError(
-                    f"chunk of {record.n_samples} samples does not match the first chunk's {n_samples}"
-                )
-        parts.append(detect_spectrum(pg.power, th, E, channels))
-        power_sum += pg.power.sum(axis=0)
-        runs += record.runs
+        acc = plan.reduce(acc, plan.test(record.values))
         record = next(it, None)
-    per_run = SpectrumDetection(
-        **{k: np.concatenate([getattr(p, k) for p in parts]) for k in _VERDICT_FIELDS},
-        channels=channels,
-        threshold=th,
-    )
-    averaged = None
-    if runs > 1 and linear:
-        th_avg = exact_threshold(model, freqs, n_samples, alpha, correction, averaged=runs, band=band)
-        averaged = detect_spectrum(power_sum / runs, th_avg, E, channels)
-    return DetectionReport(
-        scenario=None if sc is None else sc.name,
-        channels=channels,
-        runs=runs,
-        per_run=per_run,
-        averaged=averaged,
-        frames=frames,
-    )
+    return plan.report(acc)
 
 
 def _require_empirical(model: object, threshold: object) -> None:

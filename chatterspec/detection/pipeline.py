@@ -260,11 +260,12 @@ def _fused_chattering(
 
 
 def _can_fuse(scenario: Scenario) -> bool:
-    """The fused kernel covers the closed-form case: compiled kernels on, full measurement, T >= 2."""
+    """The fused kernel covers the closed-form case: compiled kernels, full measurement, T >= 2, open loop."""
     model = scenario.nominal
     return (
         _jit.enabled()
         and _jit.fits(model.n_states, model.n_outputs, vectors_only=True)
+        and getattr(scenario, "closed_loop", None) is None
         and getattr(scenario, "is_linear", True)
         and model.full_measurement
         and scenario.n_samples >= 2

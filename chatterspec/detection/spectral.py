@@ -1,6 +1,6 @@
 """Power spectra of the chattering signal: periodogram, expected healthy spectrum, STFT.
 
-Conventions (``DESIGN.md`` section 5, ``docs/internal-contracts.md``): time is the
+Conventions (``docs/design.md`` §4 and §6, ``docs/internal-contracts.md``): time is the
 second-to-last axis and channels the last, ``(..., N, m)``; realizations (any
 number of leading axes) are handled by vectorized numpy/scipy calls. Frequencies
 are in **Hz**, times in **seconds**.
@@ -9,7 +9,7 @@ Healthy chattering model
 ------------------------
 For a full-measurement auxiliary (sgn) SVSF with zero initial error, the healthy
 chattering is the vector MA(1) process (eq 23 and 52-53 with the index
-corrections of ``DESIGN.md`` section 8, item 6)::
+corrections of ``docs/design.md`` C6)::
 
     e(k+1|k) = C v(k) + w(k+1) + M w(k),        M = -C A C^-1
 
@@ -35,12 +35,12 @@ from typing import Literal
 
 import numpy as np
 import scipy.fft
-import scipy.signal
 
 from .._validate import finite_array, positive, positive_int, readonly
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
+from ._windows import NATIVE_WINDOWS, get_window
 
 __all__ = [
     "DEFAULT_STFT",
@@ -138,7 +138,7 @@ def periodogram(x: np.ndarray, dt: float) -> Periodogram:
         ``power`` has shape ``(..., N // 2 + 1, m)``. No window is applied: the
         chi-squared law of Lemma 2 (eq 43) holds for the raw DFT. Bins
         ``1 .. ceil(N/2) - 1`` are chi2(2)/2 times their mean; DC (and the
-        Nyquist bin for even N) are chi2(1) times their mean (``DESIGN.md`` 8.8).
+        Nyquist bin for even N) are chi2(1) times their mean (``docs/design.md`` C8).
 
     Examples
     --------
@@ -290,10 +290,13 @@ class STFTConfig:
                 f"hop_s ({self.hop_s} s) must not exceed window_s ({self.window_s} s): "
                 "frames would skip samples"
             )
-        try:
-            scipy.signal.get_window(self.window, 8)
-        except (ValueError, TypeError) as exc:
-            raise ParameterError(f"unknown window {self.window!r} for scipy.signal.get_window") from exc
+        if self.window not in NATIVE_WINDOWS:  # hamming / hann need no scipy.signal (0.3-0.6 s to import)
+            import scipy.signal
+
+            try:
+                scipy.signal.get_window(self.window, 8)
+            except (ValueError, TypeError) as exc:
+                raise ParameterError(f"unknown window {self.window!r} for scipy.signal.get_window") from exc
 
     def n_window(self, dt: float) -> int:
         """Window length W in samples, ``round(window_s / dt)`` (at least 2)."""
@@ -326,12 +329,14 @@ DEFAULT_STFT = STFTConfig()
 
 @lru_cache(maxsize=32)
 def _taper(window: str, n: int) -> np.ndarray:
-    return readonly(np.asarray(scipy.signal.get_window(window, n), dtype=float))
+    return readonly(get_window(window, n))
 
 
 @lru_cache(maxsize=32)
 def _stft_engine(window: str, n_window: int, n_hop: int, dt: float) -> scipy.signal.ShortTimeFFT:
     # cached: the online monitor calls frame_columns once per push (never mutate the result)
+    import scipy.signal
+
     # scale_to=None keeps the raw sum_k w_k x_k e^{-i w k}; we divide |.|^2 by sum w_k^2 ourselves.
     return scipy.signal.ShortTimeFFT(
         _taper(window, n_window), n_hop, fs=1.0 / dt, fft_mode="onesided", mfft=n_window, phase_shift=None

@@ -1,4 +1,4 @@
-"""Chi-squared thresholds for the chattering power spectrum (eq 57-64, ``DESIGN.md`` section 5).
+"""Chi-squared thresholds for the chattering power spectrum (eq 57-64, ``docs/design.md`` §6).
 
 Every threshold is an array ``(bins, m)`` with a :class:`Threshold` record of
 what its ``alpha`` means:
@@ -14,7 +14,7 @@ what its ``alpha`` means:
     (``l2 = 0`` at DC and Nyquist). ``law="chi2"`` is the previous approximation
     ``E[S_i(f)] chi2.ppf(1 - a, nu) / nu`` with the exact expected spectrum
     (:func:`chatterspec.detection.spectral.expected_spectrum`), ``nu = 2`` for bins
-    ``1 .. ceil(N/2) - 1`` and ``nu = 1`` for DC and Nyquist (``DESIGN.md`` 8.8);
+    ``1 .. ceil(N/2) - 1`` and ``nu = 1`` for DC and Nyquist (``docs/design.md`` C8);
     it assumes ``l1 = l2`` and under-estimates the tail where the spectrum is
     tiny compared with ``|gamma1| / N`` (EHA position channel, lowest bins:
     about twice the nominal per-bin rate there).
@@ -57,7 +57,6 @@ from typing import Literal
 
 import numpy as np
 import scipy.special
-import scipy.stats
 
 from .._validate import finite_array, open_unit, positive, positive_int, readonly
 from ..errors import ParameterError, ShapeError
@@ -70,6 +69,16 @@ from .spectral import (
     frame_eigenvalues,
     periodogram_eigenvalues,
 )
+
+
+def _chi2_isf(p: object, dof: object) -> np.ndarray:
+    """Inverse survival function of the chi-squared law: ``scipy.stats.chi2.isf(p, dof)``.
+
+    The same function underneath (``scipy.special.chdtri``), without importing :mod:`scipy.stats`
+    (a few hundred ms at every command start).
+    """
+    return scipy.special.chdtri(dof, p)
+
 
 __all__ = [
     "AlphaMeaning",
@@ -435,11 +444,11 @@ def weighted_chi2_isf(p: object, l1: object, l2: object, rtol: float = 1e-10) ->
     if not np.any(ok):
         return out
     pv, r = p[ok], b[ok] / a[ok]
-    lo = scipy.stats.chi2.isf(pv, 1)
-    hi = scipy.stats.chi2.isf(pv, 2)
+    lo = _chi2_isf(pv, 1)
+    hi = _chi2_isf(pv, 2)
     # start from the Welch-Satterthwaite approximation, clipped into the bracket
     c = (1.0 + r * r) / (1.0 + r)
-    x = np.clip(c * scipy.stats.chi2.isf(pv, (1.0 + r) ** 2 / (1.0 + r * r)), lo, hi)
+    x = np.clip(c * _chi2_isf(pv, (1.0 + r) ** 2 / (1.0 + r * r)), lo, hi)
     x = np.where(r > 0, x, lo)
     act = r > 0
     logp = np.log(pv)
@@ -494,7 +503,7 @@ def _chi2_threshold(
     dof = np.where(is_dc | is_nyq, averaged, 2 * averaged)
     eigenvalues = None
     if eigen is None:
-        quant = scipy.stats.chi2.isf(a, dof) / dof
+        quant = _chi2_isf(a, dof) / dof
         values = expected * quant[:, None]
         eff = np.broadcast_to(dof[:, None].astype(float), expected.shape)
     else:
@@ -508,7 +517,7 @@ def _chi2_threshold(
         else:  # Welch-Satterthwaite: (c / K) chi2(nu_eff), c = (l1^2 + l2^2) / (l1 + l2)
             with np.errstate(divide="ignore", invalid="ignore"):
                 c = np.where(s1 > 0, s2 / np.where(s1 > 0, s1, 1.0), 0.0)
-            values = c * scipy.stats.chi2.isf(a, eff) / averaged
+            values = c * _chi2_isf(a, eff) / averaged
     return Threshold(
         values=readonly(values),
         freqs_hz=readonly(np.array(freqs)),
@@ -688,7 +697,7 @@ def paper_threshold(
     L = paper_gamma_matrix(model)
     sigma = np.diag(model.C @ model.Q @ model.C.T + L @ model.R @ L.T)
     is_dc, is_nyq = bin_layout(freqs, model.dt)
-    values = np.broadcast_to(sigma * scipy.stats.chi2.isf(alpha, 2) / 2.0, (freqs.size, sigma.size))
+    values = np.broadcast_to(sigma * _chi2_isf(alpha, 2) / 2.0, (freqs.size, sigma.size))
     dof = np.where(is_dc | is_nyq, 1, 2)
     return Threshold(
         values=readonly(np.array(values)),

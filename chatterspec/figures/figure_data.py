@@ -82,7 +82,7 @@ def _spectrum(name: str, runs: int = 1, seed: SeedLike = 0, *, average: bool = F
     sc = scenario(name)
     if not average:
         runs = 1  # only realization 0 is drawn: simulate nothing else
-    # chunk by chunk (memory independent of runs, issue 10): sum of the periodograms + realization 0
+    # chunk by chunk (memory independent of runs): sum of the periodograms + realization 0
     total, rec, pg = None, None, None
     for chunk in iter_chattering(sc, runs, seed):
         pg = periodogram(chunk.values, chunk.dt)
@@ -128,7 +128,7 @@ def _thresholds(
 def peak_summary(power: np.ndarray, threshold: Threshold, channel: int) -> tuple[float, float, int]:
     """``(peak_hz, peak_ratio, n_over)`` of one channel over the threshold's tested bins.
 
-    ``peak_ratio = max_f S(f) / threshold(f)`` (DESIGN.md section 5; > 1 means
+    ``peak_ratio = max_f S(f) / threshold(f)`` (``docs/design.md`` §6; > 1 means
     detected), ``peak_hz`` its frequency and ``n_over`` the number of tested bins above.
 
     Parameters
@@ -354,7 +354,7 @@ def averaged_paper_threshold(single: Threshold, averaged: int) -> Threshold:
     mean of K independent records then obeys ``2K S_bar / Sigma_Gamma_ii ~ chi2(2K)``,
     so the per-bin bound at level alpha is
     ``Sigma_Gamma_ii chi2.ppf(1 - alpha, 2K) / (2K)`` (the paper's scale with
-    the averaged quantile; DESIGN.md section 5). This is chatterspec's extension:
+    the averaged quantile; ``docs/design.md`` §6). This is chatterspec's extension:
     the paper draws no averaged bound. ``alpha`` stays a per-bin level.
 
     Parameters

@@ -8,7 +8,7 @@ One function per figure computes its data through the public API
 :class:`FigureSpec`; ``chatterspec figures`` renders them all.
 
 Thresholds are drawn the way the paper draws them **and** the way chatterspec
-detects by default (``DESIGN.md`` section 5):
+detects by default (``docs/design.md`` §6):
 
 * the paper's flat bound of eq 58-62, ``Sigma_Gamma_ii chi2_{1-alpha}(2) / 2``,
   where ``alpha`` is a **per-bin** false-alarm probability (dashed, red shades);
@@ -109,7 +109,7 @@ def fig2(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     psi1 = 1e-4 (too small), 5e-4 (the paper's choice) and 2e-3 (too large), plus
     chatterspec's proposal ``sigma Phi^-1(1 - p/2)`` at p = 0.1 % from the measured
     healthy chattering (:func:`chatterspec.filters.boundary_layer.estimate_boundary_layer`;
-    sigma = 2.45e-4, not the 1.42e-4 of eq 34, DESIGN.md 8.7).
+    sigma = 2.45e-4, not the 1.42e-4 of eq 34, ``docs/design.md`` C7).
 
     Parameters
     ----------

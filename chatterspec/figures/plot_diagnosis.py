@@ -1,4 +1,4 @@
-"""The diagnosis comparison table (``chatterspec diagnose``, issue 9 items 6-7) as text rows and as a figure.
+"""The diagnosis comparison table (``chatterspec diagnose``) as text rows and as a figure.
 
 One row per (method, fault onset): false alarms on the healthy segments (runs with any alarm, 99 %
 Clopper-Pearson interval), the onset (s), the detection delay (median / 90th percentile over runs, ms),
@@ -77,6 +77,8 @@ def diagnosis_rows(results: Sequence[object]) -> tuple[tuple[str, ...], list[tup
     for r in results:
         lo, hi = r.false_alarm_ci  # type: ignore[attr-defined]
         fa = f"{r.false_alarm_runs}/{r.runs} [{lo:.3f}, {hi:.3f}]"  # type: ignore[attr-defined]
+        if not np.isfinite(r.healthy_alarm_fraction):  # type: ignore[attr-defined]
+            fa = "n/a (no healthy part)"  # faulty from the start: no false alarm can be counted
         for i, onset in enumerate(r.onsets):  # type: ignore[attr-defined]
             rows.append(
                 (

@@ -12,7 +12,7 @@ arrays) and return a :class:`matplotlib.figure.Figure`; they compute nothing
 statistical themselves. :mod:`chatterspec.figures.paper_figures` computes the data of
 the core paper's figures and calls them.
 
-Conventions (DESIGN.md section 2 and 5):
+Conventions (``docs/design.md`` §4 and §6):
 
 * frequencies in Hz on a linear axis, power spectra on a log axis;
 * a power spectrum ``S(f) = |rfft(x)|^2 / N`` (eq 49) of a chattering channel in

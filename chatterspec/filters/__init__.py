@@ -7,12 +7,44 @@ and ``svsf2`` (dynamic second-order SVSF, [DETC] eq 5-24) implement it; ``multip
 builds SMM-SVSF ([SMM] eq 3.1-3.5) and IMM ([IMM] eq 15-33) banks from them.
 """
 
-from .kalman import ExtendedKalmanFilter, KalmanFilter
-from .multiple_model import IMM, SMMSVSF
-from .protocol import Filter, FilterOutput, FilterState
-from .svsf import SVSF, SVSFOutput, SVSFState, auxiliary_svsf, boundary_layer_chattering, chattering
-from .svsf2 import SecondOrderSVSF
-from .svsf_cov import SVSFCov
+import importlib
+from typing import TYPE_CHECKING, Any
+
+# The names load on first use (PEP 562): importing one filter module (e.g. the online monitor's
+# ``filters.svsf``) does not import the Kalman family and the multiple-model banks.
+_LAZY: dict[str, str] = {
+    **dict.fromkeys(("ExtendedKalmanFilter", "KalmanFilter"), ".kalman"),
+    **dict.fromkeys(("IMM", "SMMSVSF"), ".multiple_model"),
+    **dict.fromkeys(("Filter", "FilterOutput", "FilterState"), ".protocol"),
+    **dict.fromkeys(
+        ("SVSF", "SVSFOutput", "SVSFState", "auxiliary_svsf", "boundary_layer_chattering", "chattering"),
+        ".svsf",
+    ),
+    "SecondOrderSVSF": ".svsf2",
+    "SVSFCov": ".svsf_cov",
+}
+
+if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
+    from .kalman import ExtendedKalmanFilter, KalmanFilter
+    from .multiple_model import IMM, SMMSVSF
+    from .protocol import Filter, FilterOutput, FilterState
+    from .svsf import SVSF, SVSFOutput, SVSFState, auxiliary_svsf, boundary_layer_chattering, chattering
+    from .svsf2 import SecondOrderSVSF
+    from .svsf_cov import SVSFCov
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'chatterspec.filters' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "IMM",

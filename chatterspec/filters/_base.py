@@ -8,10 +8,11 @@ import numpy as np
 
 from .. import _jit
 from .._validate import finite_array
-from ..errors import ParameterError, ShapeError
+from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
 from ..plants.steps import PlantSteps, plant_steps
 from . import _engine, _engine_numpy
+from ._finite import require_finite
 from .protocol import FilterOutput, FilterState, check_chunk, initial_state, resolve_store
 from .svsf import _rows_times
 
@@ -72,7 +73,7 @@ class CovarianceFilterBase:
         runs : int, optional
             Number of realizations when ``x0`` is shared (default: rows of ``x0``, or 1).
         e0, e_prev0 : (m,) or (runs, m) array, optional
-            Initial a-posteriori residuals; default 0 (the papers do not print them, note §1.2).
+            Initial a-posteriori residuals; default 0 (the papers do not print them, ``docs/design.md`` §7.2).
 
         Returns
         -------
@@ -113,16 +114,28 @@ class CovarianceFilterBase:
         if not isinstance(state, FilterState):
             raise TypeError(f"state must be a FilterState; got {type(state).__name__}")
         z, u = check_chunk(self.model, state, z, u, check)
-        x, ep, epp = state.x.copy(), state.e_post.copy(), state.e_prev.copy()
-        P = state.P.copy()
-        n = x.shape[1]
-        if P.shape[-2:] != (n, n) or (P.ndim == 3 and P.shape[0] != state.runs):
-            raise ShapeError(f"state.P must have shape ({n}, {n}) or ({state.runs}, {n}, {n}); got {P.shape}")
+        n = state.x.shape[1]
+        if state.P.shape[-2:] != (n, n) or (state.P.ndim == 3 and state.P.shape[0] != state.runs):
+            raise ShapeError(
+                f"state.P must have shape ({n}, {n}) or ({state.runs}, {n}, {n}); got {state.P.shape}"
+            )
         K = z.shape[1]
         if K == 0:
             out = FilterOutput()
             return state, out
-        P, res = self._advance(x, P, ep, epp, z, u, keep)
+        x, ep, epp, P = state.x.copy(), state.e_post.copy(), state.e_prev.copy(), state.P.copy()
+        try:
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # checked below
+                P, res = self._advance(x, P, ep, epp, z, u, keep)
+        except SingularMatrixError:
+            if not _jit.enabled():
+                raise
+            # a compiled kernel stops where S is not positive definite, which a diverging (NaN/inf)
+            # covariance also is: the numpy path (same numbers) runs on and locates the first bad sample
+            x, ep, epp, P = state.x.copy(), state.e_post.copy(), state.e_prev.copy(), state.P.copy()
+            with _jit.numpy_path(), np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                P, res = self._advance(x, P, ep, epp, z, u, keep)
+        require_finite(type(self).__name__, (x, P), res, state.k, K)
         new = FilterState(x=x, P=P, e_post=ep, e_prev=epp, k=state.k + K)
         return new, FilterOutput(**res)
 
@@ -239,11 +252,13 @@ class CovarianceFilterBase:
             )
         # F = I and Q = 0 make the engine's prediction P(k+1|k) = I P I^T + 0 = P_prior exactly
         eye, Q0 = np.broadcast_to(np.eye(n), (runs, n, n)), np.zeros((n, n))
-        if _jit.enabled() and _jit.fits(n, m):
-            u0 = np.zeros((1, 1, 0))
-            res = _engine.cov_loop(corr, None, x, P, ep, epp, zz, u0, C, Q0, R, keep, xp_in=xp, F_in=eye)
-        else:
-            res = _engine_numpy.cov_numpy(corr, x, P, ep, epp, zz, C, Q0, R, keep, xp_in=xp, F_in=eye)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # checked just below
+            if _jit.enabled() and _jit.fits(n, m):
+                u0 = np.zeros((1, 1, 0))
+                res = _engine.cov_loop(corr, None, x, P, ep, epp, zz, u0, C, Q0, R, keep, xp_in=xp, F_in=eye)
+            else:
+                res = _engine_numpy.cov_numpy(corr, x, P, ep, epp, zz, C, Q0, R, keep, xp_in=xp, F_in=eye)
+        require_finite(type(self).__name__, (x, P), res, state.k, 1)
         new = FilterState(x=x, P=P, e_post=ep, e_prev=epp, k=state.k + 1)
         return new, FilterOutput(**res)
 

@@ -1,6 +1,6 @@
 """The covariance filters' per-sample step and the loop around it (private).
 
-One step, for every realization (notation of ``docs/design.md``, "Estimators")::
+One step, for every realization (notation of ``docs/design.md`` §7)::
 
     x(k+1|k) = f(x(k|k), u(k)),            F = df/dx at x(k|k)      (linear: A x + B u, F = A)
     P(k+1|k) = F P(k|k) F^T + Q

@@ -3,7 +3,7 @@
 One call of :meth:`chatterspec.filters.multiple_model.IMM.update` for every realization, in one
 compiled loop over runs (outer) and time (inner), instead of three protocol ``update`` calls and a
 dozen numpy calls on (runs, 3, 4) arrays per sample. The arithmetic is that of the protocol path
-([IMM] eq 15-33 as corrected in ``docs/paper-notes.md``)::
+([IMM] eq 15-33 as corrected in ``docs/design.md`` §7.6)::
 
     (19) c_j = sum_i pi_ij mu_i,  c_j >= 1e-300   (18) w_ij = mu_i pi_ij / c_j
     (20) x_0j = sum_i w_ij x_i                    (21) P_0j = sum_i w_ij [P_i + (x_i - x_0j)(.)^T]
@@ -163,7 +163,7 @@ def _imm_loop(
                         P0[j, a, bb] = s
             # (22)-(29): mode-matched filters
             for j in range(nm):
-                for i in range(m):  # e(k|k) of mode j: residual of its mixed estimate
+                for i in range(m):  # e(k|k) of mode j: residual of its mixed estimate (design.md I4)
                     if first and k == 0:
                         em[i] = eps[r, j, i]
                     else:

@@ -1,4 +1,4 @@
-"""Reduced-order (Luenberger) correction of the SVSF-type filters (private).
+"""Reduced-order (Luenberger) correction of the SVSF-type filters, ``docs/design.md`` §7.4 (private).
 
 In measurement-aligned coordinates ``y = T x`` (``C T^-1 = [I 0]``), ``Phi = T F T^-1`` and
 ``A_l = Phi22 Phi12^-1`` (n = 2m, Phi12 invertible):

@@ -27,7 +27,7 @@ r = 1e-8) the measured chattering is the MA(2) sequence::
 
 whose variance is ``r (1 + 4 + (1 + Ts^2 w0^2)^2) + 2 q1 + Ts^2 q2 = 6.02e-8``.
 Eq (34) keeps only ``w(k) - w(k-1)`` and one ``v1`` pair and prints
-``2.02e-8`` (DESIGN.md 8.7); the paper's "0.067" after eq (35) is a
+``2.02e-8`` (``docs/design.md`` C7); the paper's "0.067" after eq (35) is a
 percentage, not a probability.
 
 :func:`estimate_boundary_layer` measures the same distribution by Monte Carlo
@@ -238,7 +238,7 @@ def estimate_boundary_layer(
     its a-priori error is narrower than the ``sgn`` filter's (about 0.75x for the
     Fig 2 setup) and the ``sgn``-based value (kept as ``psi_sgn``) would make the
     filter nearly blind to small mismatches. This is a chatterspec correction of
-    the paper's procedure (DESIGN.md 8.7: eq 34 also drops terms, the
+    the paper's procedure (``docs/design.md`` C7: eq 34 also drops terms, the
     measured-state variance is 6.0e-8, not 2.02e-8).
 
     Parameters
@@ -535,7 +535,7 @@ def boundary_layer_study(
     n_in = int(inside.sum()) * runs
     n_out = int(outside.sum()) * runs
     filters = [SVSF(sc.nominal, psi=psi, psi_lower=psi_l, gamma=gamma, switching="sat") for psi in psi_values]
-    # sums over chunks of realizations (memory independent of runs, issue 10); counts are exact
+    # sums over chunks of realizations (memory independent of runs); counts are exact
     c_in = np.zeros(P, dtype=np.int64)
     c_out = np.zeros(P, dtype=np.int64)
     c_win = np.zeros((P, len(win_masks)), dtype=np.int64)

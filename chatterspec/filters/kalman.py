@@ -1,4 +1,4 @@
-"""Kalman filter and extended Kalman filter, batched over realizations (``estimators.md`` §1.1).
+"""Kalman filter and extended Kalman filter, batched over realizations (``docs/design.md`` §7.1).
 
 Equations ([DETC] and [IMM] baselines)::
 

@@ -1,6 +1,6 @@
 """Multiple-model filters: SMM-SVSF ([SMM] eq 3.1-3.5, Table 1) and IMM ([IMM] eq 15-33, corrected).
 
-Notation and corrections of ``shared/notes/estimators.md`` §1.5-§1.6. Everything is batched over a
+Notation and corrections of ``docs/design.md`` §7.5-§7.6. Everything is batched over a
 leading realization axis ``runs``; the only Python loop is over time (the recursions are sequential).
 
 **SMM-SVSF, Table 1 reading** (default, :class:`SMMSVSF` with ``reading="table1"``): one SVSF whose
@@ -27,10 +27,10 @@ likelihood; the output is the mu-weighted posterior.
 The printed (32)-(33) sum ``mu_i mu_j (x_i - x_j)(x_i - x_j)^T`` over all ``i, j``; that is exactly twice
 the spread of (33) here (:func:`pairwise_spread`, tested), so it is read with a factor 1/2. For the
 SVSF-type mode filters, ``e(k|k)`` of mode j is the residual of its mixed estimate ``z(k) - C x_0j``
-(note §1.6); ``e(k-1|k-1)`` stays the value that mode stored.
+(``docs/design.md`` I4); ``e(k-1|k-1)`` stays the value that mode stored.
 
 Likelihoods (:func:`log_gaussian`) use the correlation-scaled ``S`` with eigenvalues floored at
-1e-12 (the EHA states span about 20 decades, note §1.6), so a near-singular ``S`` gives a finite,
+1e-12 (the EHA states span about 20 decades, ``docs/design.md`` S3), so a near-singular ``S`` gives a finite,
 conservative likelihood instead of NaN.
 
 **Compiled IMM step.** When :func:`chatterspec._jit.enabled` and every mode is supported (EKF/KF,
@@ -72,9 +72,9 @@ __all__ = [
 ]
 
 LOG2PI = float(np.log(2.0 * np.pi))
-#: Eigenvalue floor of the correlation-scaled innovation covariance (note §1.6).
+#: Eigenvalue floor of the correlation-scaled innovation covariance (``docs/design.md`` S3).
 EIG_FLOOR = 1e-12
-#: Default SMM weight floor ([SMM] Table 1 step 3 as resolved in note §1.5).
+#: Default SMM weight floor ([SMM] Table 1 step 3 as resolved in ``docs/design.md`` S4).
 DEFAULT_WEIGHT_FLOOR = 1e-3
 
 
@@ -151,7 +151,7 @@ def check_transition_matrix(pi: object, r: int) -> np.ndarray:
 
 
 def check_weight_floor(floor: object, r: int) -> float:
-    """SMM weight floor in ``[0, 1/r)`` ([SMM] Table 1 step 3, note §1.5).
+    """SMM weight floor in ``[0, 1/r)`` ([SMM] Table 1 step 3, ``docs/design.md`` S4).
 
     Parameters
     ----------
@@ -197,7 +197,7 @@ def log_gaussian(e: np.ndarray, S: np.ndarray) -> np.ndarray:
     """``log N(e; 0, S)`` over leading axes, robust to badly scaled ``S`` ([SMM] eq 3.2-3.3 vector form).
 
     ``S`` is scaled to its correlation matrix ``D^-1 S D^-1`` (``D = sqrt(diag S)``), whose eigenvalues
-    are floored at 1e-12 ([IMM] eq 29 with ``sqrt(det(2 pi S))``, note §1.6).
+    are floored at 1e-12 ([IMM] eq 29 with ``sqrt(det(2 pi S))``, ``docs/design.md`` I3).
 
     Parameters
     ----------
@@ -323,7 +323,7 @@ class MultipleModelState:
     e_post : (runs, m) array
         Posterior residual ``z(k) - C x(k|k)`` of the combined estimate.
     z_last : (runs, m) array
-        Last measurement ``z(k)`` (IMM: residual of each mixed estimate, note §1.6).
+        Last measurement ``z(k)`` (IMM: residual of each mixed estimate, ``docs/design.md`` I4).
     mode_states : tuple of FilterState
         Mode-matched filter states (IMM and the SMM bank reading; empty for Table 1).
     k : int
@@ -731,7 +731,7 @@ class SMMSVSF(_RecordRunner):
 # ------------------------------------------------------------------------------------------ IMM
 @dataclass(frozen=True, eq=False)
 class IMM(_RecordRunner):
-    """Interacting multiple model estimator ([IMM] eq 15-33, corrected per note §1.6), batched.
+    """Interacting multiple model estimator ([IMM] eq 15-33, corrected per ``docs/design.md`` §7.6), batched.
 
     Parameters
     ----------
@@ -887,7 +887,7 @@ class IMM(_RecordRunner):
             uk = u[:, k : k + 1]
             for j, f in enumerate(self.filters):
                 s = sts[j]
-                # note §1.6: e(k|k) of mode j is the residual of its mixed estimate (0 before any data)
+                # design.md I4: e(k|k) of mode j is the residual of its mixed estimate (0 before any data)
                 e_mix = s.e_post if first else zl - x0s[:, j] @ C.T
                 s = FilterState(x=x0s[:, j], P=P0s[:, j], e_post=e_mix, e_prev=s.e_prev, k=s.k)
                 s, out = f.update(s, zk, uk, store=keep, check=False)  # type: ignore[attr-defined]

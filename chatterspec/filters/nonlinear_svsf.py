@@ -40,6 +40,7 @@ from .._validate import finite_array, open_unit
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel
+from ._finite import require_finite
 from ._svsf_kernels import _rows_times
 from .svsf import check_chunk
 
@@ -196,8 +197,10 @@ class NonlinearSgnSVSF:
         if closed_form and not np.any(state.e_post):
             y_prev = np.concatenate([state.y[:, None, :], z[:, :-1, :]], axis=1)  # y(j|j) = z(j)
             x_prev = _rows_times(y_prev, self._CinvT)
-            x_pred = np.asarray(self.model.transition(x_prev, u), dtype=float)  # eq 4
-            e = z - _rows_times(x_pred, self._CT)  # eq 6
+            with np.errstate(over="ignore", invalid="ignore"):  # checked just below
+                x_pred = np.asarray(self.model.transition(x_prev, u), dtype=float)  # eq 4
+                e = z - _rows_times(x_pred, self._CT)  # eq 6
+            require_finite(type(self).__name__, (e,), {"e_prior": e}, state.k, K)
             x_post = _rows_times(z, self._CinvT) if store_states else None
             new = NonlinearSVSFState(y=z[:, -1, :].copy(), e_post=np.zeros((runs, m)), k=state.k + K)
             return new, NonlinearSVSFOutput(e_prior=e, x_post=x_post)
@@ -214,6 +217,7 @@ class NonlinearSgnSVSF:
             e_out[:, k] = e
             if x_out is not None:
                 x_out[:, k] = _rows_times(y, self._CinvT)
+        require_finite(type(self).__name__, (y, e_out), {"e_prior": e_out}, state.k, K)
         new = NonlinearSVSFState(y=y, e_post=ep, k=state.k + K)
         return new, NonlinearSVSFOutput(e_prior=e_out, x_post=x_out)
 

@@ -20,7 +20,7 @@ multiple-model bank (SMM, IMM) can drive any of them through this interface alon
   covariance may be replaced by a per-run ``(runs, n, n)`` one, and the filter then takes its
   per-run path. The per-sample innovation likelihood is ``FilterOutput.loglik``.
 
-Notation of ``/work/shared/notes/estimators.md``: e(k+1|k) = z(k+1) - C x(k+1|k) (innovation),
+Notation of ``docs/design.md`` §7: e(k+1|k) = z(k+1) - C x(k+1|k) (innovation),
 e(k|k) = z(k) - C x(k|k) (a-posteriori residual), S = C P(k+1|k) C^T + R.
 """
 
@@ -236,7 +236,7 @@ def initial_state(
     e_prev0: object | None,
     shared_ok: bool,
 ) -> FilterState:
-    """Validated :class:`FilterState` at k = 0 (initial residuals default to 0, note §1.2)."""
+    """Validated :class:`FilterState` at k = 0 (initial residuals default to 0, ``docs/design.md`` §7.2)."""
     n, m = model.n_states, model.n_outputs  # type: ignore[attr-defined]
     x0 = finite_array("x0", x0, ndim=(1, 2))
     if x0.shape[-1] != n:

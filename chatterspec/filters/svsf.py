@@ -37,7 +37,6 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-import scipy.linalg
 
 from .. import _jit
 from .._validate import finite_array, open_unit
@@ -634,7 +633,7 @@ def boundary_layer_chattering(e: np.ndarray, psi: float | np.ndarray) -> np.ndar
 
 
 def chattering(
-    model: LinearModel,
+    model: LinearModel | NonlinearModel,
     z: np.ndarray,
     u: np.ndarray,
     *,
@@ -645,8 +644,11 @@ def chattering(
 
     Parameters
     ----------
-    model : LinearModel
-        Nominal model used by the filter.
+    model : LinearModel or NonlinearModel
+        Nominal model used by the filter. A
+        :class:`~chatterspec.plants.nonlinear.NonlinearModel` (full measurement) goes to
+        :func:`~chatterspec.filters.nonlinear_svsf.nonlinear_chattering` (eq 23 with the nonlinear
+        prediction), as :func:`chatterspec.simulate` accepts such models too.
     z : (runs, T, m) or (T, m) array
         Measurements.
     u : (T, p), (runs, T, p) or (T,) array
@@ -662,7 +664,20 @@ def chattering(
     ndarray, same leading shape as ``z``
         ``out[..., k, :] = e(k|k-1)`` for k >= 1; ``out[..., 0, :] = 0``.
         Spectral analysis uses samples 1..T-1 (N = T - 1 samples).
+
+    Raises
+    ------
+    DivergenceError
+        A nonlinear ``f`` returned NaN/inf (the message names the first such sample).
+
+    See Also
+    --------
+    chatterspec.filters.nonlinear_svsf.nonlinear_chattering : the nonlinear model's chattering.
     """
+    if isinstance(model, NonlinearModel):
+        from .nonlinear_svsf import nonlinear_chattering
+
+        return nonlinear_chattering(model, z, u, gamma=gamma, x0=x0)
     return auxiliary_svsf(model, gamma).run(z, u, x0=x0).e_prior
 
 
@@ -673,6 +688,8 @@ def _reduced_order_transform(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     by pivoted QR, i.e. the best-conditioned square sub-block). Measured
     coordinates come first. Returns ``(S, S^-1)``.
     """
+    import scipy.linalg
+
     m, n = C.shape
     _, _, piv = scipy.linalg.qr(C, pivoting=True, mode="economic")
     measured = sorted(piv[:m].tolist())

@@ -1,4 +1,4 @@
-"""Dynamic second-order SVSF: [DETC] eq (5)-(24), [IMM] eq (6)-(14), (26)-(28) (``estimators.md`` §1.3).
+"""Dynamic second-order SVSF: [DETC] eq (5)-(24), [IMM] eq (6)-(14), (26)-(28) (``docs/design.md`` §7.3).
 
 Per sample, for every realization::
 
@@ -16,7 +16,7 @@ Per sample, for every realization::
 ``r = (gamma + Lambda) e(k|k) - gamma Lambda e(k-1|k-1)``, one construction of the papers'
 "combined with Luenberger's observer"). The state update uses the exact ``dz``; the
 covariance gain uses the ratio ``dz_i / e_i`` clipped to ``ratio_clip`` (default [0, 2],
-``estimators.md`` §1.3: the ratio is unbounded as ``e -> 0``) and 1 where ``e_i = 0``
+``docs/design.md`` I7: the ratio is unbounded as ``e -> 0``) and 1 where ``e_i = 0``
 exactly (the limit when the residuals are zero). [IMM] eq (28) ``P = P - K E K^T`` holds
 only for the Kalman gain, hence Joseph.
 
@@ -59,7 +59,7 @@ class SecondOrderSVSF(CovarianceFilterBase):
 
     Implements the :class:`~chatterspec.filters.protocol.Filter` protocol. Give ``lam`` (Lambda)
     or ``cutoff`` (c, with ``lambda = 1 / (1 + c)``, eq 17), not both; neither means c = 1,
-    Lambda = 0.5 (the "identity cut-off frequency matrix" of [IMM] §6, ``estimators.md`` §1.3).
+    Lambda = 0.5 (the "identity cut-off frequency matrix" of [IMM] §6, ``docs/design.md`` I6).
 
     Parameters
     ----------
@@ -74,7 +74,7 @@ class SecondOrderSVSF(CovarianceFilterBase):
         Cut-off c per channel, ``c > 0`` (dimensionless slope of the manifold ``dS + c S``).
     mapping : {"full", "pinv", "cov", "luen"}, optional
         Output-to-state map; default ``"full"`` for a square invertible H, else ``"cov"``.
-        ``"luen"``: the reduced-order form of ``estimators.md`` §1.4 (n = 2m; numpy path).
+        ``"luen"``: the reduced-order form of ``docs/design.md`` §7.4 (n = 2m; numpy path).
     ratio_clip : (float, float)
         Bounds of ``dz / e`` in the covariance gain (default (0, 2)); the state update is exact.
 

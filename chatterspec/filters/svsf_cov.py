@@ -1,4 +1,4 @@
-"""SVSF with covariance: [SMM] eq (2.1)-(2.10), in the division-free gain form (``estimators.md`` §1.2).
+"""SVSF with covariance: [SMM] eq (2.1)-(2.10), in the division-free gain form (``docs/design.md`` §7.2).
 
 Per sample, for every realization::
 
@@ -16,14 +16,14 @@ singularity at ``e = 0`` (tested equal to eq 2.5 wherever ``e != 0``). The gain 
 ``P``; the covariance is bookkeeping that feeds the innovation covariance ``S`` and the
 log-likelihood a multiple-model bank weighs ([SMM] eq 3.3).
 
-``M`` maps the output-space correction to the states (``estimators.md`` §1.4):
+``M`` maps the output-space correction to the states (``docs/design.md`` §7.4):
 
 * ``"full"``: ``C^-1`` (C square, e.g. [SMM]'s C = I4);
 * ``"pinv"``: ``C^+`` ([SMM] eq 2.5 read literally; only the measured states move);
 * ``"cov"``: ``P(k+1|k) C^T (C P(k+1|k) C^T)^-1``, a covariance regression of the unmeasured on
   the measured errors (default when C is not square).
 
-* ``"luen"``: the reduced-order Luenberger form (chattering paper eq 9-11, ``estimators.md`` §1.4)
+* ``"luen"``: the reduced-order Luenberger form (chattering paper eq 9-11, ``docs/design.md`` §7.4)
   with ``Phi`` the model Jacobian at ``x(k|k)``; needs ``n = 2m`` and ``Phi12`` invertible, and
   ``psi`` for all n coordinates (measured first). Same estimates as
   :class:`chatterspec.filters.svsf.SVSF` for a linear model (tested); numpy path only.
@@ -102,7 +102,7 @@ def luen_transform(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def default_mapping(C: np.ndarray) -> str:
-    """``"full"`` when C is square and well conditioned, else ``"cov"`` (``estimators.md`` §1.4)."""
+    """``"full"`` when C is square and well conditioned, else ``"cov"`` (``docs/design.md`` §7.4)."""
     m, n = np.shape(C)
     return "full" if m == n and np.linalg.cond(C) <= 1e12 else "cov"
 
@@ -139,7 +139,7 @@ class SVSFCov(CovarianceFilterBase):
         Output-to-state map (module docstring); default ``"full"`` for a square invertible C,
         else ``"cov"``. With ``"luen"``, ``psi`` has n entries (measured coordinates first).
     vbl : bool
-        Variable boundary layer (``estimators.md`` §1.2, beyond the papers, which never define
+        Variable boundary layer (``docs/design.md`` §7.2, beyond the papers, which never define
         it): use the Kalman gain ``K_KF = P C^T S^-1`` when
         ``psi_vbl,i = (|e_i| + gamma_i |e_i(k|k)|) / (C K_KF)_ii <= psi_i`` in every channel,
         else the fixed-``psi`` SVSF gain. Inside the layer it equals the Kalman filter (tested).

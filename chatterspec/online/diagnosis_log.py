@@ -1,4 +1,4 @@
-"""Rerun recording of ``chatterspec diagnose --record FILE.rrd`` (issue 9 item 6): realization 0 on one
+"""Rerun recording of ``chatterspec diagnose --record FILE.rrd``: realization 0 on one
 timeline -- the chattering spectrogram, frame verdicts and detection events of the online monitor
 (:class:`~chatterspec.online.rerun_log.RerunLogger`, unchanged) beside the mode probabilities of the
 SMM-SVSF / IMM (one scalar series per mode under ``/modes/<method>/<mode>``).

@@ -13,7 +13,7 @@ import numpy as np
 
 from .monitor import ChatteringMonitor, DetectionEvent, MonitorSettings
 from .rerun_log import RerunLogger
-from .viewer import Sinks, default_recording_path, open_sinks
+from .viewer import Sinks, default_recording_path, file_error, open_sinks
 
 if TYPE_CHECKING:
     from ..detection.pipeline import ChatteringRecord
@@ -47,6 +47,9 @@ class RecordingSummary:
         Wall-clock time of the run (s).
     notes : tuple of str
         Messages for the user (no display, unreachable viewer, ...).
+    write_error : str or None
+        Why the recording could not be completed (e.g. the disk filled during the run); the run
+        itself finished and its events are here.
     """
 
     path: Path | None
@@ -57,6 +60,7 @@ class RecordingSummary:
     duration_s: float
     wall_s: float
     notes: tuple[str, ...] = ()
+    write_error: str | None = None
 
     def to_dict(self) -> dict[str, object]:
         return {
@@ -164,6 +168,7 @@ def run_monitor(
     # bounded). The output does not depend on the chunking, only the per-call overhead does.
     size = chunk_samples or (monitor.n_hop if rate is not None else 50 * monitor.n_hop)
     logger = None  # a RerunLogger that fails to build must not hide its error behind this name
+    done = False
     try:
         data = chattering if chattering is not None else z
         if data is None:
@@ -193,12 +198,9 @@ def run_monitor(
                 if on_event is not None:
                     on_event(ev)
             _pace(t_start, hi * monitor.dt, rate)
+        done = True
     finally:
-        try:
-            if logger is not None:
-                logger.close()
-        finally:
-            sinks.close()
+        write_error = _close(logger, sinks, keep_going=done)
     return RecordingSummary(
         path=sinks.path,
         live_url=sinks.live_url,
@@ -208,7 +210,24 @@ def run_monitor(
         duration_s=monitor.n_samples * monitor.dt,
         wall_s=time.perf_counter() - t_start,
         notes=tuple(sinks.notes),
+        write_error=write_error,
     )
+
+
+def _close(logger: Any, sinks: Sinks, *, keep_going: bool) -> str | None:
+    """Close the logger and the sinks; after a finished run, a write failure is returned, not raised."""
+    try:
+        try:
+            if logger is not None:
+                logger.close()
+        finally:
+            sinks.close()
+    except (OSError, RuntimeError) as exc:
+        err = file_error(exc, sinks.path or "recording")
+        if not keep_going or err is None:
+            raise
+        return err.strerror or str(err)
+    return None
 
 
 def scenario_truth(scenario: Any) -> list[tuple[float, str, bool]]:
@@ -294,7 +313,7 @@ def record_detection(
     if isinstance(source, Simulation):
         model = source.scenario.nominal
         mon = ChatteringMonitor(model, settings, t0=float(source.t[0]))
-        kw: dict[str, Any] = {"z": source.z[run], "u": source.u}
+        kw: dict[str, Any] = {"z": source.z[run], "u": source.input_of(run)}
     elif isinstance(source, ChatteringRecord):
         mon = ChatteringMonitor(source.model, settings, t0=float(source.t[0]))
         kw = {"chattering": source.values[run]}

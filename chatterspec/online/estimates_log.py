@@ -69,8 +69,13 @@ def record_estimates(records: Any, path: str | Path, *, run: int = 0) -> Path:
     rec = rr.RecordingStream("chatterspec", recording_id=f"estimate-{sc.name}-{records.first_run + run}")
     try:
         rec.save(str(path))
-    except RuntimeError as exc:  # rerun reports file errors as RuntimeError
-        raise ParameterError(f"cannot write the recording {str(path)!r}: {exc}") from None
+    except RuntimeError as exc:  # rerun reports file errors (e.g. disk full) as RuntimeError
+        from .viewer import file_error
+
+        err = file_error(exc, path)
+        if err is None:
+            raise ParameterError(f"cannot write the recording {str(path)!r}: {exc}") from None
+        raise err from None
     try:
         rec.send_recording_name(f"estimate {sc.name} run {records.first_run + run}")
         t_all = rr.TimeColumn("time", duration=_ns(records.t))

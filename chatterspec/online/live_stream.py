@@ -66,6 +66,7 @@ from ..errors import DataFileError
 from ..plants.models import LinearModel
 from .monitor import ChatteringMonitor, DetectionEvent, MonitorSettings, MonitorUpdate
 from .stream import BadRow, CsvRows, Restart, RowBlock
+from .stream_checks import RATE_CHECK_ROWS, RATE_CHECK_ROWS_MIN, LatencyStats, merge_blocks, rate_mismatch
 
 __all__ = ["MAX_EVENTS", "LatencyStats", "StreamEvent", "StreamMonitor", "StreamSummary", "drive"]
 
@@ -153,57 +154,6 @@ class StreamEvent:
         at = "" if self.sample_time_s is None else f" at t = {self.sample_time_s:.3f} s"
         opened = f"; open fault(s) on {', '.join(self.open_faults)} reset" if self.open_faults else ""
         return f"{self.kind}{at} (line {self.line}): {self.reason}; filters and spectrogram reset{opened}"
-
-
-class LatencyStats:
-    """Median and max of latencies in bounded memory (log-spaced histogram, 0.5 % bins, 1 us .. 1000 s).
-
-    The median is the centre of the histogram bin holding it (relative error
-    below 0.3 %); the max is exact.
-    """
-
-    _LO, _HI, _BINS = 1e-6, 1e3, 4200
-
-    def __init__(self) -> None:
-        self.counts = np.zeros(self._BINS + 2, dtype=np.int64)
-        self.max_s = 0.0
-        self.n = 0
-        self._scale = self._BINS / math.log(self._HI / self._LO)
-
-    def add(self, seconds: float, count: int = 1) -> None:
-        """Record ``count`` observations of ``seconds``.
-
-        Parameters
-        ----------
-        seconds : float
-            Latency (s).
-        count : int
-            How many frames had it.
-        """
-        if count <= 0:
-            return
-        s = max(float(seconds), 0.0)
-        k = 0 if s < self._LO else min(int(math.log(s / self._LO) * self._scale) + 1, self._BINS + 1)
-        self.counts[k] += count
-        self.n += count
-        self.max_s = max(self.max_s, s)
-
-    def median(self) -> float | None:
-        """Median latency (s), None without observations."""
-        if self.n == 0:
-            return None
-        k = int(np.searchsorted(np.cumsum(self.counts), (self.n + 1) / 2.0))
-        if k == 0:
-            return self._LO / 2
-        return self._LO * math.exp((k - 0.5) / self._scale)
-
-    def to_dict(self) -> dict[str, float | int | None]:
-        med = self.median()
-        return {
-            "frames": self.n,
-            "median_ms": None if med is None else 1e3 * med,
-            "max_ms": None if self.n == 0 else 1e3 * self.max_s,
-        }
 
 
 @dataclass(frozen=True)
@@ -331,6 +281,8 @@ class StreamMonitor:
         self._pending: list[str] = []  # reasons of a gap to emit at the next sample
         self._pending_line: int | None = None
         self._reset_next = False
+        self._held: list[RowBlock] = []  # first rows, held until the sampling-rate check
+        self._rate_checked = False
         self.n_rows = 0
         self._frames_done = 0  # frames of monitors already replaced
         self.events: deque[StreamEvent] = deque(maxlen=MAX_EVENTS)
@@ -374,8 +326,10 @@ class StreamMonitor:
             A bad row without ``skip_bad_rows``.
         """
         if isinstance(item, RowBlock):
-            self._rows(item)
-        elif isinstance(item, BadRow):
+            self._rate_gate(item)
+            return
+        self._release_held()  # rows held for the rate check go first, in input order
+        if isinstance(item, BadRow):
             if not self.skip_bad_rows:
                 raise DataFileError(
                     f"{item.message} (use --skip-bad-rows to skip such rows; a skipped row is a gap)"
@@ -400,6 +354,51 @@ class StreamMonitor:
             self._reset_next = True
             self._pending, self._pending_line = [], None
             self._last_t = None  # the new data's time base is not compared with the old one
+            self._rate_checked = False  # the new data's sampling is checked again
+
+    def end_of_input(self) -> None:
+        """The source ended: rows still held for the rate check are checked (if >= 3) and monitored.
+
+        Raises
+        ------
+        DataFileError
+            The held rows show a sampling interval other than the model's ``dt``.
+        """
+        held = self._held_rows()
+        if held >= RATE_CHECK_ROWS_MIN:
+            self._check_rate(merge_blocks(self._held))
+        self._release_held()
+
+    # ------------------------------------------------------- sampling-rate check
+    def _held_rows(self) -> int:
+        return sum(b.n_rows for b in self._held)
+
+    def _rate_gate(self, b: RowBlock) -> None:
+        """Hold the first rows with a time column until :data:`RATE_CHECK_ROWS` arrived, check their
+        sampling interval against ``dt``, then monitor them (a mismatch would otherwise make every
+        step a gap: nothing monitored, exit 0)."""
+        if self._rate_checked or b.t is None:
+            self._release_held()
+            self._rows(b)
+            return
+        self._held.append(b)
+        if self._held_rows() >= RATE_CHECK_ROWS:
+            self._check_rate(merge_blocks(self._held))
+            self._release_held()
+
+    def _release_held(self) -> None:
+        held, self._held = self._held, []
+        if held:
+            self._rate_checked = True
+            self._rows(merge_blocks(held))
+
+    def _check_rate(self, b: RowBlock) -> None:
+        """Raise :class:`DataFileError` when the first steps agree with each other but not with ``dt``."""
+        self._rate_checked = True
+        message = rate_mismatch(b, self.dt)
+        if message is not None:
+            self._held = []  # not monitored: the run stops here
+            raise DataFileError(message)
 
     def _rows(self, b: RowBlock) -> None:
         K = b.n_rows
@@ -658,6 +657,7 @@ class StreamMonitor:
         stopped_by : str
             Why the run ended (reported in the summary).
         """
+        self._release_held()  # rows held for the rate check when the input stopped early
         t_stop = self._t_next if self.monitor is not None else None
         try:
             self._close_file(t_stop)
@@ -792,5 +792,6 @@ def drive(chunks: Iterable[tuple[bytes, float]], rows: CsvRows, monitor: StreamM
             monitor.process(item)
     for item in rows.finish(time.perf_counter()):
         monitor.process(item)
+    monitor.end_of_input()
     if rows.header is None and monitor.n_rows == 0:
         raise DataFileError(f"{rows.where}: no header line (the first line must name the columns)")

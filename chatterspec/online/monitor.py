@@ -268,7 +268,7 @@ class ChatteringMonitor:
     ) -> None:
         nonlinear = isinstance(model, NonlinearModel)
         if nonlinear and (settings is None or settings.threshold is None or settings.psi is not None):
-            # a nonlinear model works with a calibrated per-frame threshold (issue 9 item 5), no sat-SVSF
+            # a nonlinear model works with a calibrated per-frame threshold (docs/design.md §6), no sat-SVSF
             require_linear(
                 model,
                 "the chattering monitor without a calibrated threshold (pass MonitorSettings(threshold="

@@ -33,13 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .._jit import enabled as _jit_enabled
-from .._jit import njit
-from ..errors import DataFileError, ParameterError
+from ..errors import DataFileError
 from ..plants.modelfile import TIME_COLUMNS
 from ..plants.models import LinearModel
-from ..plants.scenarios import Scenario
-from ..plants.simulate import covariance_sqrt
 
 __all__ = [
     "BadRow",
@@ -441,127 +437,4 @@ def _is_number(s: str) -> bool:
     return True
 
 
-# --------------------------------------------------------------------------- simulated stream
-@njit
-def _propagate(A: np.ndarray, x0: np.ndarray, f: np.ndarray, x: np.ndarray) -> None:  # pragma: no cover
-    """``x[0] = x0``, ``x[k+1] = A x[k] + f[k]`` (eq 1 with the input and noise folded into ``f``)."""
-    n = x0.shape[0]
-    for i in range(n):
-        x[0, i] = x0[i]
-    for k in range(x.shape[0] - 1):
-        for i in range(n):
-            acc = f[k, i]
-            for j in range(n):
-                acc += A[i, j] * x[k, j]
-            x[k + 1, i] = acc
-
-
-def _propagate_numpy(A: np.ndarray, x0: np.ndarray, f: np.ndarray, x: np.ndarray) -> None:
-    x[0] = x0
-    AT = A.T.copy()
-    for k in range(x.shape[0] - 1):
-        np.dot(x[k], AT, out=x[k + 1])
-        x[k + 1] += f[k]
-
-
-def simulate_blocks(
-    scenario: Scenario, seed: int, duration_s: float | None = None, *, block_s: float = 1.0
-) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Simulate one realization of ``scenario`` block by block in time (bounded memory).
-
-    The true plant follows eq (1)-(2) as in :func:`chatterspec.plants.simulate.simulate`
-    (same segments, input, ``Q`` and ``R``), but the state is carried from block
-    to block and the noise of block ``b`` comes from its own generator
-    (``SeedSequence(seed).spawn``), so any duration runs in constant memory.
-    Beyond the scenario's own duration ``D`` the scenario repeats: input and
-    true-plant timeline are evaluated at ``t mod D`` while the state runs on
-    (a 4 s chirp, say, restarts every 4 s). The numbers are therefore not those
-    of ``simulate(scenario, seed=seed)``; the distribution is.
-
-    Parameters
-    ----------
-    scenario : Scenario
-        A catalogue scenario.
-    seed : int
-        Root seed (>= 0).
-    duration_s : float, optional
-        Seconds of data (default: the scenario's duration); samples at
-        ``0, dt, ..., duration_s``.
-    block_s : float
-        Seconds of data per yielded block.
-
-    Yields
-    ------
-    (t, z, u)
-        Times (K,) in s, measurements (K, m), inputs (K, p).
-    """
-    dt = scenario.dt
-    D = scenario.duration
-    duration = D if duration_s is None else float(duration_s)
-    if not (np.isfinite(duration) and duration > 0):
-        raise ParameterError(f"duration must be > 0 s; got {duration_s!r}")
-    total = round(duration / dt) + 1
-    period = round(D / dt)
-    K = max(1, round(block_s / dt))
-    segs = scenario.segments
-    n = scenario.nominal.n_states
-    LQ = [covariance_sqrt(s.model.Q) for s in segs]
-    LR = [covariance_sqrt(s.model.R) for s in segs]
-    x = np.array(scenario.x0, dtype=float)
-    propagate = _propagate if _jit_enabled() else _propagate_numpy
-    for b, lo in enumerate(range(0, total, K)):
-        hi = min(lo + K, total)
-        k = np.arange(lo, hi)
-        t = k * dt
-        tp = (k % period) * dt  # time within the repeating scenario
-        seg = scenario.segment_index(tp)
-        u = scenario.input.sample(tp).reshape(hi - lo, -1)
-        rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(b,)))
-        v = rng.standard_normal((hi - lo, n))
-        w = rng.standard_normal((hi - lo, scenario.nominal.n_outputs))
-        xs = np.empty((hi - lo + 1, n))
-        z = np.empty((hi - lo, scenario.nominal.n_outputs))
-        xs[0] = x
-        edges = np.flatnonzero(np.diff(seg)) + 1
-        for a, e in zip(np.r_[0, edges], np.r_[edges, hi - lo], strict=True):
-            model = segs[int(seg[a])].model
-            f = u[a:e] @ model.B.T + v[a:e] @ LQ[int(seg[a])].T
-            part = np.empty((e - a + 1, n))
-            propagate(np.ascontiguousarray(model.A), xs[a].copy(), np.ascontiguousarray(f), part)
-            xs[a : e + 1] = part
-            z[a:e] = xs[a:e] @ model.C.T + w[a:e] @ LR[int(seg[a])].T
-        x = xs[-1].copy()
-        yield t, z, u
-
-
-def csv_header(model: LinearModel) -> str:
-    """The CSV header line (no newline) of a stream for ``model``: ``time``, outputs, inputs.
-
-    Parameters
-    ----------
-    model : LinearModel
-        Gives the column names.
-    """
-    return ",".join(["time", *model.output_names, *model.input_names])
-
-
-def csv_lines(t: np.ndarray, z: np.ndarray, u: np.ndarray, *, digits: int = 9) -> str:
-    """Rows ``time,z...,u...`` as CSV text, one line per sample, each ending in a newline.
-
-    Parameters
-    ----------
-    t : (K,) array
-        Times (s), written with microsecond resolution.
-    z : (K, m) array
-        Measurements.
-    u : (K, p) array
-        Inputs.
-    digits : int
-        Significant digits of ``z`` and ``u``.
-    """
-    K = t.shape[0]
-    if K == 0:
-        return ""
-    vals = np.column_stack([t, z, u])
-    row = "%.6f" + (",%." + str(int(digits)) + "g") * (vals.shape[1] - 1) + "\n"
-    return (row * K) % tuple(vals.ravel().tolist())
+from .simulated_stream import csv_header, csv_lines, simulate_blocks  # noqa: E402  (re-exported)

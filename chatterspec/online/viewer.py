@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import errno
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -192,8 +194,14 @@ class Sinks:
         if self._closed:
             return
         self._closed = True
+        failed: OSError | None = None
         if self.file_stream is not None:
-            self.file_stream.flush(timeout_sec=30.0)
+            try:
+                self.file_stream.flush(timeout_sec=30.0)
+            except RuntimeError as exc:  # the disk filled during the run: an OSError for the caller
+                failed = file_error(exc, self.path or "recording")
+                if failed is None:
+                    raise
             self.file_stream.disconnect()
         if self.live_stream is not None:
             # a stream the caller set up itself (notebook viewer, memory sink) has no URL to probe
@@ -206,6 +214,8 @@ class Sinks:
             else:
                 self._note(f"live viewer {self.live_url} went away ({why}); pending live data dropped")
             self.live_stream.disconnect()
+        if failed is not None:
+            raise failed
 
 
 def _warn(msg: str) -> None:
@@ -299,6 +309,38 @@ def open_sinks(
         path = Path(record)
         path.parent.mkdir(parents=True, exist_ok=True)
         s = new_stream()
-        s.set_sinks(rr.FileSink(str(path)))
+        try:
+            s.set_sinks(rr.FileSink(str(path)))
+        except RuntimeError as exc:  # e.g. disk full: Rerun's error as the OSError it is
+            err = file_error(exc, path)
+            if err is None:
+                raise
+            sinks.close()
+            raise err from None
         sinks.file_stream, sinks.path = s, path
     return sinks
+
+
+def file_error(exc: BaseException, path: str | Path) -> OSError | None:
+    """The :class:`OSError` behind a Rerun file-sink ``RuntimeError`` (None if it is not about a file).
+
+    Rerun reports I/O failures as ``RuntimeError("Failed to encode LogMsg: Failed to write: No space
+    left on device (os error 28)")``; the command line turns an ``OSError`` into one error line.
+
+    Parameters
+    ----------
+    exc : BaseException
+        What Rerun raised.
+    path : str or Path
+        The ``.rrd`` file being written.
+    """
+    if isinstance(exc, OSError):
+        return exc
+    text = str(exc)
+    code = re.search(r"os error (\d+)", text)
+    if code is not None:
+        n = int(code.group(1))
+        return OSError(n, os.strerror(n), str(path))
+    if any(w in text.lower() for w in ("file", "write", "disk")):
+        return OSError(errno.EIO, text.splitlines()[0] if text else "write failed", str(path))
+    return None

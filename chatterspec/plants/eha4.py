@@ -2,8 +2,8 @@
 
 States: ``x1`` position (m), ``x2`` velocity (m/s), ``x3`` acceleration (m/s^2), ``x4 = P1 - P2``
 differential pressure (Pa); input: pump speed ``omega_p`` (rad/s). Eq (4.1)-(4.5) of the SMM
-paper (``smm-svsf-eha-journal.txt``; = eq 34-38 of ``imm-dynamic-2nd-order-svsf-eha.txt``), with
-the two corrections derived in ``shared/notes/estimators.md`` section 2.1::
+paper ([SMM]; = eq 34-38 of the IMM paper [IMM]; tags as in ``docs/design.md``), with the two
+corrections derived in ``docs/design.md`` S1-S2::
 
     x1+ = x1 + T x2                                                                  (4.1)
     x2+ = x2 + T x3                                                                  (4.2)
@@ -19,7 +19,7 @@ explicit Euler step of the jerk equation obtained by differentiating ``M x'' = A
 is the algebraic force balance, printed with a one-step lag (it uses ``x2(k), x3(k)``); we keep
 that as printed. ``sgn(0) = 0`` (``numpy.sign``), so at exactly ``v = 0`` the Coulomb term vanishes.
 
-Jacobian (``sgn' = 0``; note section 2.1): ``J11 = J22 = 1``, ``J12 = J23 = T``,
+Jacobian (``sgn' = 0``; ``docs/design.md`` S1): ``J11 = J22 = 1``, ``J12 = J23 = T``,
 ``J32 = -T (A_E^2 + a2 L) be/(M V0) - T (2 a1 V0 x3 sgn x2 + 2 be L a1 |x2|)/(M V0)``,
 ``J33 = 1 - T (a2 V0 + M be L)/(M V0) - 2 T a1 |x2| / M``, ``J42 = (a2 + 2 a1 |x2|)/A_E``,
 ``J43 = M / A_E``; every other entry is 0 (``x4`` enters only through ``sgn(x4)``).
@@ -35,7 +35,7 @@ printed as "Major friction", a1 = 1.162e6, a2 = -7440, a3 = 500).
 
 from __future__ import annotations
 
-from functools import partial
+from functools import lru_cache, partial
 from typing import Literal, NamedTuple
 
 import numpy as np
@@ -52,6 +52,9 @@ __all__ = [
     "eha4",
     "eha4_jacobian",
     "eha4_mode_parameters",
+    "eha4_step",
+    "eha4_step_input",
+    "eha4_step_jacobian",
     "eha4_transition",
 ]
 
@@ -369,6 +372,70 @@ def _input_jacobian(x: np.ndarray, u: np.ndarray, c: EHA4Coefficients) -> np.nda
     B = np.zeros((4, 1))
     B[2, 0] = c.cu * c.Dp  # T A_E be D_p / (M V0)
     return B
+
+
+@lru_cache(maxsize=64)
+def _cached_coefficients(dt: float, items: tuple[tuple[str, float], ...]) -> EHA4Coefficients:
+    return _coefficients(dt, eha4_mode_parameters("normal", **dict(items)))
+
+
+def eha4_step(x: np.ndarray, u: np.ndarray, *, dt: float, **parameters: float) -> np.ndarray:
+    """:func:`eha4_transition` with the physical parameters as keywords (for model files).
+
+    A model file names it as ``f = "chatterspec.plants.eha4:eha4_step"`` with the ten parameters of
+    :data:`EHA4_PARAMETERS` in ``[dynamics.parameters]`` (SI units) and receives the file's ``dt`` (s);
+    the step coefficients are those of :func:`eha4`, so the numbers are the catalogue model's.
+
+    Parameters
+    ----------
+    x : (..., 4) array
+        States (SI units).
+    u : (..., 1) or (1,) array
+        Pump speed in rad/s.
+    dt : float
+        Sampling time T in seconds.
+    **parameters : float
+        Keys of :data:`EHA4_PARAMETERS` (missing ones take the normal mode's value).
+
+    See Also
+    --------
+    eha4_transition : the same step from precomputed coefficients.
+    """
+    return eha4_transition(x, u, _cached_coefficients(float(dt), tuple(sorted(parameters.items()))))
+
+
+def eha4_step_jacobian(x: np.ndarray, u: np.ndarray, *, dt: float, **parameters: float) -> np.ndarray:
+    """:func:`eha4_jacobian` with the physical parameters as keywords (see :func:`eha4_step`).
+
+    Parameters
+    ----------
+    x : (..., 4) array
+        States (SI units).
+    u : (..., 1) or (1,) array
+        Pump speed in rad/s (the Jacobian does not depend on it).
+    dt : float
+        Sampling time T in seconds.
+    **parameters : float
+        Keys of :data:`EHA4_PARAMETERS`.
+    """
+    return eha4_jacobian(x, u, _cached_coefficients(float(dt), tuple(sorted(parameters.items()))))
+
+
+def eha4_step_input(x: np.ndarray, u: np.ndarray, *, dt: float, **parameters: float) -> np.ndarray:
+    """``d f / d u`` (4, 1) with the physical parameters as keywords (see :func:`eha4_step`).
+
+    Parameters
+    ----------
+    x : (4,) array
+        State (SI units; the input enters affinely, so it does not matter).
+    u : (1,) array
+        Pump speed in rad/s.
+    dt : float
+        Sampling time T in seconds.
+    **parameters : float
+        Keys of :data:`EHA4_PARAMETERS`.
+    """
+    return _input_jacobian(x, u, _cached_coefficients(float(dt), tuple(sorted(parameters.items()))))
 
 
 def eha4(

@@ -5,7 +5,7 @@ A :class:`FilterSettings` rides on a :class:`~chatterspec.plants.scenarios.Scena
 SVSF, SMM-SVSF, IMM) find the paper's tuning next to the plant, instead of each command
 re-typing it. Every field is optional: ``None`` means "the paper does not say; use the filter's own
 default or the nominal model's value". Sources and resolutions are in
-``shared/notes/estimators.md`` and ``docs/paper-notes.md``.
+``docs/design.md`` (section 13) and ``docs/paper-notes.md``.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from .nonlinear import same_dynamics
 
 __all__ = ["MAPPINGS", "FilterSettings"]
 
-#: State-correction mappings for fewer measurements than states (note section 1.4).
+#: State-correction mappings for fewer measurements than states (``docs/design.md`` §7.4).
 MAPPINGS = ("full", "pinv", "cov", "luen")
 
 
@@ -78,7 +78,7 @@ class FilterSettings:
     weight_floor : float or None
         Floor of the SMM mode weights, in [0, 1/r).
     source : str
-        Where the values come from (paper, table, equation, or the note's resolution).
+        Where the values come from (paper, table, equation, or chatterspec's resolution).
     """
 
     Q: np.ndarray | None = None

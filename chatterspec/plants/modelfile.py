@@ -32,6 +32,13 @@ Model file (TOML, read with :mod:`tomllib`; see ``examples/README.md``)::
     window = "hamming"
     band = [5.0, 100.0]                # optional (default: none): test only 5 <= f <= 100 Hz
 
+A file with a ``[dynamics]`` table instead of ``A`` and ``B`` describes a nonlinear model whose ``f`` and
+Jacobian are Python functions it names (:mod:`chatterspec.plants.modelfile_nonlinear`); an optional
+``[simulation]`` table (input, initial state, duration) sets the healthy operating condition that
+``calibrate``, ``detect`` and ``simulate`` use for either kind. The writer is
+:mod:`chatterspec.plants.modelfile_writer`, the data-file reader :mod:`chatterspec.plants.datafile`
+(both re-exported here).
+
 Data file: CSV with a header row, or NPZ with one 1-D array per name. Columns are
 matched **by name** to the model's outputs and inputs; an optional time column
 (``time`` or ``t``, seconds) must be strictly increasing with spacing equal to
@@ -48,25 +55,25 @@ sample puts a step into the chattering that itself shows up as broadband power
 
 from __future__ import annotations
 
-import csv
 import math
 import tomllib
 import warnings
-import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..errors import ChatterspecError, DataFileError, ModelFileError, UnstableModelWarning
+from ..errors import ChatterspecError, ModelFileError, UnstableModelWarning
+from .datafile import TIME_COLUMNS, DataSet, load_data
 from .models import LinearModel, discretize
 
-__all__ = ["TIME_COLUMNS", "DataSet", "ModelSpec", "load_data", "load_model", "write_model_toml"]
+if TYPE_CHECKING:  # pragma: no cover
+    from .modelfile_nonlinear import SimulationSpec
+    from .nonlinear import NonlinearModel
 
-#: Accepted names of the time column (seconds), in order of preference.
-TIME_COLUMNS: tuple[str, ...] = ("time", "t")
+__all__ = ["TIME_COLUMNS", "DataSet", "ModelSpec", "load_data", "load_model", "write_model_toml"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -75,10 +82,13 @@ class ModelSpec:
 
     Attributes
     ----------
-    model : LinearModel
-        Nominal discrete model (names and units from ``[channels]``).
-    psi : (m,) array
-        Smoothing boundary layer of the SVSF per output.
+    model : LinearModel or NonlinearModel
+        Nominal discrete model (names and units from ``[channels]``); a file with a ``[dynamics]``
+        table gives a :class:`~chatterspec.plants.nonlinear.NonlinearModel`
+        (:mod:`~chatterspec.plants.modelfile_nonlinear`).
+    psi : (m,) array or None
+        Smoothing boundary layer of the SVSF per output (None for a nonlinear model: its monitor
+        runs the auxiliary SVSF only).
     gamma : float
         SVSF convergence rate.
     detector : dict
@@ -87,41 +97,22 @@ class ModelSpec:
         and ``band`` (Hz) is validated into a ``(lo, hi)`` tuple, the rest is unvalidated here.
     path : Path
         The file read.
+    simulation : SimulationSpec or None
+        The optional ``[simulation]`` table (input, initial state, duration) used by ``calibrate``,
+        ``detect`` and ``simulate`` on the file.
     """
 
-    model: LinearModel
-    psi: np.ndarray
+    model: LinearModel | NonlinearModel
+    psi: np.ndarray | None
     gamma: float
     detector: Mapping[str, Any]
     path: Path
-
-
-@dataclass(frozen=True, eq=False)
-class DataSet:
-    """Measurements and inputs read from a data file, aligned to a model.
-
-    Attributes
-    ----------
-    t : (T,) array
-        Sample times (s).
-    z : (T, m) array
-        Measurements in the model's output order.
-    u : (T, p) array
-        Inputs in the model's input order.
-    path : Path
-    time_column : str or None
-        Name of the time column used, ``None`` if times were generated from dt.
-    """
-
-    t: np.ndarray
-    z: np.ndarray
-    u: np.ndarray
-    path: Path
-    time_column: str | None
+    simulation: SimulationSpec | None = None
 
     @property
-    def n_samples(self) -> int:
-        return self.t.shape[0]
+    def is_linear(self) -> bool:
+        """False for a nonlinear model file (a ``[dynamics]`` table naming f and its Jacobian)."""
+        return isinstance(self.model, LinearModel)
 
 
 # --------------------------------------------------------------------------- model files
@@ -169,6 +160,10 @@ def load_model(path: str | Path) -> ModelSpec:
     except OSError as exc:
         raise ModelFileError(f"{where}: cannot be read ({exc})") from None
 
+    if "dynamics" in doc:  # a nonlinear model: f and its Jacobian named as Python functions
+        from .modelfile_nonlinear import load_nonlinear
+
+        return load_nonlinear(doc, path, where)
     dt = _scalar(doc, "dt", where, positive=True)
     channels = _table(doc, "channels", where)
     outputs = _names(channels, "outputs", where, required=True)
@@ -256,9 +251,29 @@ def load_model(path: str | Path) -> ModelSpec:
         )
     if np.any(psi <= 0):
         raise ModelFileError(f"{where}: [svsf] psi must be > 0; got {psi.tolist()}")
+    gamma = svsf_gamma(svsf, where)
+    from .modelfile_nonlinear import parse_simulation
+
+    return ModelSpec(
+        model=model,
+        psi=psi,
+        gamma=gamma,
+        detector=detector_table(doc, model.dt, where),
+        path=path,
+        simulation=parse_simulation(doc, model, where),
+    )
+
+
+def svsf_gamma(svsf: Mapping[str, Any], where: str) -> float:
+    """``[svsf] gamma`` (default 0.1), checked to lie in (0, 1)."""
     gamma = float(_scalar(svsf, "gamma", f"{where}: [svsf]", default=0.1))
     if not 0.0 < gamma < 1.0:
         raise ModelFileError(f"{where}: [svsf] gamma must lie in (0, 1); got {gamma}")
+    return gamma
+
+
+def detector_table(doc: Mapping[str, Any], dt: float, where: str) -> dict[str, Any]:
+    """The optional ``[detector]`` table, checked (STFT fields at ``dt``; ``band`` as a tuple in Hz)."""
     detector = doc.get("detector", {})
     if not isinstance(detector, dict):
         raise ModelFileError(f"{where}: [detector] must be a table")
@@ -267,11 +282,11 @@ def load_model(path: str | Path) -> ModelSpec:
         raise ModelFileError(
             f"{where}: [detector] has unknown key(s) {sorted(unknown)}; allowed: {sorted(_DETECTOR_KEYS)}"
         )
-    _check_detector(detector, model.dt, where)
+    _check_detector(detector, dt, where)
     detector = dict(detector)
     if "band" in detector:
         detector["band"] = _detector_band(detector["band"], where)
-    return ModelSpec(model=model, psi=psi, gamma=gamma, detector=detector, path=path)
+    return detector
 
 
 def _detector_band(value: object, where: str) -> tuple[float, float]:
@@ -393,300 +408,23 @@ def _covariance(table: Mapping[str, Any], key: str, size: int, where: str) -> np
             raise ModelFileError(
                 f"{where}: [matrices] {diag_key} must have {size} entries; got shape {d.shape}"
             )
+        if np.any(d < 0):
+            i = int(np.flatnonzero(d < 0)[0])
+            raise ModelFileError(
+                f"{where}: [matrices] {diag_key} holds variances, which must be >= 0; entry {i} is {d[i]:g}"
+            )
         return np.diag(d)
     if key not in table:
         raise ModelFileError(f"{where}: [matrices] matrix {key} (or {diag_key}) is missing")
     M = _matrix(table, key, where, "matrices")
     _expect_shape(M, (size, size), key, where, "covariance")
+    from .models import _check_covariance
+
+    try:
+        _check_covariance(key, M)
+    except ChatterspecError as exc:
+        raise ModelFileError(f"{where}: [matrices] {exc} (a covariance)") from None
     return M
 
 
-# --------------------------------------------------------------------------- data files
-def load_data(path: str | Path, model: LinearModel, *, dt_tolerance: float = 0.01) -> DataSet:
-    """Read measurements and inputs for ``model`` from a CSV or NPZ file (columns matched by name).
-
-    Parameters
-    ----------
-    path : str or Path
-        ``.csv`` (header row, comma separated) or ``.npz`` (one 1-D array per name).
-    model : LinearModel
-        Gives the column names (``output_names``, ``input_names``) and ``dt``.
-    dt_tolerance : float
-        Allowed relative deviation of every time step from ``model.dt``.
-
-    Raises
-    ------
-    DataFileError
-        Missing file or column, unparsable value, NaN/inf sample (see the NaN
-        policy in the module docstring), non-monotonic or irregular timestamps,
-        or fewer than two samples. The message names the file and the column.
-    """
-    path = Path(path)
-    where = f"data file {str(path)!r}"
-    if not path.exists():
-        raise DataFileError(f"{where}: no such file")
-    suffix = path.suffix.lower()
-    if suffix == ".npz":
-        columns = _read_npz(path, where)
-    elif suffix in (".csv", ".txt"):
-        columns = _read_csv(path, where)
-    else:
-        raise DataFileError(f"{where}: unknown format {suffix!r}; use .csv or .npz")
-    lines = columns.pop(_LINES, None)
-    needed = [*model.output_names, *model.input_names]
-    missing = [c for c in needed if c not in columns]
-    if missing:
-        raise DataFileError(
-            f"{where}: missing column(s) {missing}; the model needs outputs {list(model.output_names)} and "
-            f"inputs {list(model.input_names)}; the file has {sorted(columns)}"
-        )
-    lengths = {c: columns[c].shape[0] for c in needed}
-    T = max(lengths.values())
-    short = {c: n for c, n in lengths.items() if n != T}
-    if short:
-        raise DataFileError(f"{where}: columns have different lengths: {lengths}")
-    if T < 2:
-        raise DataFileError(f"{where}: needs at least 2 samples; got {T}")
-    time_column = next((c for c in TIME_COLUMNS if c in columns), None)
-    if time_column is not None:
-        t = columns[time_column]
-        if t.shape[0] != T:
-            raise DataFileError(f"{where}: column {time_column!r} has {t.shape[0]} rows; the data has {T}")
-        _check_finite(t, time_column, None, where, lines)
-        _check_times(t, time_column, model.dt, dt_tolerance, where, lines)
-    else:
-        t = np.arange(T) * model.dt
-    for c in needed:
-        _check_finite(columns[c], c, t, where, lines)
-    z = np.column_stack([columns[c] for c in model.output_names])
-    u = np.column_stack([columns[c] for c in model.input_names])
-    return DataSet(t=t, z=z, u=u, path=path, time_column=time_column)
-
-
-def _read_csv(path: Path, where: str) -> dict[str, np.ndarray]:
-    try:
-        with path.open(newline="") as fh:
-            reader = csv.reader(fh)
-            rows, lines = [], []
-            for r in reader:
-                if r and not r[0].lstrip().startswith("#"):
-                    rows.append(r)
-                    lines.append(reader.line_num)  # 1-based line of the file (comments counted)
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataFileError(f"{where}: cannot be read ({exc})") from None
-    if not rows:
-        raise DataFileError(f"{where}: empty file (a header row with column names is required)")
-    header = [h.strip() for h in rows[0]]
-    if len(set(header)) != len(header):
-        raise DataFileError(f"{where}: duplicate column names in the header {header}")
-    data = np.empty((len(rows) - 1, len(header)))
-    for i, row in enumerate(rows[1:]):
-        if len(row) != len(header):
-            raise DataFileError(
-                f"{where}: line {lines[i + 1]} has {len(row)} fields; the header has {len(header)} columns"
-            )
-        for j, cell in enumerate(row):
-            s = cell.strip()
-            try:
-                data[i, j] = float(s) if s else np.nan
-            except ValueError:
-                raise DataFileError(
-                    f"{where}: column {header[j]!r}, line {lines[i + 1]}: {s!r} is not a number"
-                ) from None
-    out = {h: data[:, j] for j, h in enumerate(header)}
-    out[_LINES] = np.asarray(lines[1:], dtype=float)
-    return out
-
-
-#: Hidden column of :func:`_read_csv`: the file line of every data row (messages use file lines).
-_LINES = "\x00lines"
-
-
-def _where_row(i: int, lines: np.ndarray | None) -> str:
-    """Position of data row ``i`` (0-based): the CSV file line, or the array index of an NPZ file."""
-    return f"line {int(lines[i])}" if lines is not None else f"index {i}"
-
-
-def _read_npz(path: Path, where: str) -> dict[str, np.ndarray]:
-    with path.open("rb") as fh:
-        if fh.read(4) != b"PK\x03\x04":  # .npz is a zip archive; never fall back to pickle
-            raise DataFileError(
-                f"{where}: not a .npz archive (a .npz file is a zip of .npy arrays, as numpy.savez writes)"
-            )
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            out = {}
-            for k in npz.files:
-                arr = np.asarray(npz[k])
-                if arr.ndim != 1 or not np.issubdtype(arr.dtype, np.number):
-                    raise DataFileError(
-                        f"{where}: array {k!r} must be 1-D numeric (one array per column); got "
-                        f"shape {arr.shape}, dtype {arr.dtype}"
-                    )
-                out[k] = arr.astype(float)
-            return out
-    except DataFileError:
-        raise
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        reason = "it holds Python objects, which are never loaded" if "pickle" in str(exc) else str(exc)
-        raise DataFileError(f"{where}: not a readable .npz archive ({reason})") from None
-
-
-def _check_finite(
-    x: np.ndarray, column: str, t: np.ndarray | None, where: str, lines: np.ndarray | None = None
-) -> None:
-    bad = np.flatnonzero(~np.isfinite(x))
-    if bad.size:
-        i = int(bad[0])
-        at = "" if t is None else f" (t = {t[i]:.6g} s)"
-        raise DataFileError(
-            f"{where}: column {column!r} has {bad.size} NaN/inf sample(s), "
-            f"first at {_where_row(i, lines)}{at}; "
-            "the monitor needs uniformly sampled finite data (clean or interpolate the file first)"
-        )
-
-
-def _check_times(
-    t: np.ndarray, column: str, dt: float, tol: float, where: str, lines: np.ndarray | None = None
-) -> None:
-    step = np.diff(t)
-    bad = np.flatnonzero(step <= 0)
-    if bad.size:
-        i = int(bad[0])
-        raise DataFileError(
-            f"{where}: column {column!r} is not strictly increasing: {_where_row(i + 1, lines)} "
-            f"(t = {t[i + 1]:.9g} s) follows t = {t[i]:.9g} s"
-        )
-    off = np.flatnonzero(np.abs(step - dt) > tol * dt)
-    if off.size:
-        i = int(off[0])
-        raise DataFileError(
-            f"{where}: column {column!r} is not sampled at the model's dt = {dt:g} s: step "
-            f"{step[i]:.9g} s between {_where_row(i, lines)} and {_where_row(i + 1, lines)} "
-            f"({off.size} irregular step(s)); "
-            "resample the data or set dt in the model file"
-        )
-
-
-# --------------------------------------------------------------------------- model-file writer
-def _toml_number(v: float) -> str:
-    """A float as TOML text that reads back bit-identically (``repr`` is the shortest round trip)."""
-    v = float(v)
-    if not math.isfinite(v):
-        raise ModelFileError(f"cannot write a non-finite value {v!r} to a model file")
-    return repr(v)
-
-
-def _toml_vector(v: np.ndarray) -> str:
-    return "[" + ", ".join(_toml_number(x) for x in np.asarray(v, dtype=float).ravel()) + "]"
-
-
-def _toml_matrix(M: np.ndarray) -> str:
-    return "[" + ", ".join(_toml_vector(row) for row in np.atleast_2d(M)) + "]"
-
-
-def _toml_strings(names: tuple[str, ...] | list[str]) -> str:
-    import json
-
-    return "[" + ", ".join(json.dumps(str(n)) for n in names) + "]"
-
-
-def _toml_covariance(key: str, M: np.ndarray) -> str:
-    if np.count_nonzero(M - np.diag(np.diag(M))) == 0:
-        return f"{key}_diag = {_toml_vector(np.diag(M))}"
-    return f"{key} = {_toml_matrix(M)}"
-
-
-def write_model_toml(
-    path: str | Path,
-    model: LinearModel,
-    psi: np.ndarray | tuple[float, ...] | list[float],
-    *,
-    gamma: float = 0.1,
-    detector: Mapping[str, Any] | None = None,
-    comment: str = "",
-) -> Path:
-    """Write ``model`` as a TOML model file that :func:`load_model` reads back exactly.
-
-    The matrices are written in discrete form (``form = "discrete"``) with every
-    float as its shortest round-trip decimal (``repr``), so ``load_model`` gives
-    back bit-identical ``A``, ``B``, ``C``, ``Q``, ``R`` and ``dt``; a diagonal
-    ``Q`` / ``R`` is written as ``Q_diag`` / ``R_diag``.
-
-    Parameters
-    ----------
-    path : str or Path
-        File to write (parent folders are created; an existing file is replaced).
-    model : LinearModel
-        Nominal discrete model (``dt`` in s); its channel names and units are written too.
-    psi : array-like
-        Smoothing boundary layer of the SVSF, one value > 0 per output (output units).
-    gamma : float
-        SVSF convergence rate, 0 < gamma < 1.
-    detector : mapping, optional
-        ``[detector]`` table (keys ``alpha``, ``correction``, ``window_s`` (s),
-        ``hop_s`` (s), ``window``, ``band`` (``(lo, hi)`` in Hz)); omitted when None (the
-        loader's defaults apply).
-    comment : str
-        Text written as ``#`` comment lines at the top of the file.
-
-    Returns
-    -------
-    Path
-        The file written.
-
-    Raises
-    ------
-    ModelFileError
-        If ``psi`` does not have one positive finite entry per output, ``gamma``
-        is outside (0, 1), a ``[detector]`` key is unknown, or a value is not finite.
-    """
-    path = Path(path)
-    where = f"model file {str(path)!r}"
-    m = model.n_outputs
-    psi_arr = np.atleast_1d(np.asarray(psi, dtype=float))
-    if psi_arr.shape != (m,) or not np.all(np.isfinite(psi_arr)) or np.any(psi_arr <= 0):
-        raise ModelFileError(f"{where}: psi must hold {m} finite values > 0 (one per output); got {psi!r}")
-    if not 0.0 < float(gamma) < 1.0:
-        raise ModelFileError(f"{where}: gamma must lie in (0, 1); got {gamma!r}")
-    detector = dict(detector or {})
-    unknown = set(detector) - _DETECTOR_KEYS
-    if unknown:
-        raise ModelFileError(
-            f"{where}: [detector] has unknown key(s) {sorted(unknown)}; allowed: {sorted(_DETECTOR_KEYS)}"
-        )
-    lines = [f"# {line}".rstrip() for line in comment.splitlines()]
-    lines += [f"name = {_toml_strings([model.name])[1:-1]}", f"dt = {_toml_number(model.dt)}  # s", ""]
-    lines += ["[channels]", f"outputs = {_toml_strings(model.output_names)}"]
-    if any(model.output_units):
-        lines.append(f"units = {_toml_strings(model.output_units)}")
-    lines.append(f"inputs = {_toml_strings(model.input_names)}")
-    if model.state_names:
-        lines.append(f"states = {_toml_strings(model.state_names)}")
-    lines += [
-        "",
-        "[matrices]",
-        'form = "discrete"',
-        f"A = {_toml_matrix(model.A)}",
-        f"B = {_toml_matrix(model.B)}",
-        f"C = {_toml_matrix(model.C)}",
-        _toml_covariance("Q", model.Q),
-        _toml_covariance("R", model.R),
-        "",
-        "[svsf]",
-        f"psi = {_toml_vector(psi_arr)}",
-        f"gamma = {_toml_number(gamma)}",
-    ]
-    if detector:
-        lines += ["", "[detector]"]
-        for key, value in detector.items():
-            if isinstance(value, str):
-                text = _toml_strings([value])[1:-1]
-            elif key == "band":
-                text = _toml_vector(np.asarray(_detector_band(value, where)))
-            else:
-                text = _toml_number(value)
-            lines.append(f"{key} = {text}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(lines) + "\n")
-    return path
+from .modelfile_writer import write_model_toml  # noqa: E402  (it uses the helpers above)

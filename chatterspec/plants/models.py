@@ -7,7 +7,7 @@ The state-space form is eq (1)-(2) of Saeedzadeh et al. (2023)::
 
 Factories build the under-damped second-order system of eq (30) and the
 linear 3-state electro-hydraulic actuator (EHA) of eq (65)/(67), with the
-index/sign corrections listed in ``DESIGN.md`` section 8 (items 2-4).
+index/sign corrections listed in ``docs/design.md`` (C2-C4).
 Frequencies are given in **Hz** and converted to rad/s inside the factories
 (w0 = 2 pi f0); times are in seconds.
 """
@@ -20,7 +20,6 @@ from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
-import scipy.linalg
 
 from .._validate import finite_array, nonnegative, positive, readonly
 from ..errors import ParameterError, ShapeError, SingularMatrixError, UnstableModelWarning
@@ -95,6 +94,10 @@ def oscillatory_mode(block: np.ndarray) -> OscillatoryMode:
 
 
 def _check_covariance(name: str, M: np.ndarray) -> None:
+    d = np.diag(M)
+    if np.any(d < 0):  # a variance: never negative (the relative eigenvalue tolerance would let it pass)
+        i = int(np.flatnonzero(d < 0)[0])
+        raise ParameterError(f"{name} must be positive semi-definite: diagonal entry {i} is {d[i]:g} < 0")
     if not np.allclose(M, M.T, rtol=1e-10, atol=0.0):
         raise ParameterError(f"{name} must be symmetric")
     eig = np.linalg.eigvalsh(M)
@@ -403,6 +406,8 @@ def discretize(
         big = np.zeros((n + p, n + p))
         big[:n, :n] = Ac
         big[:n, n:] = Bc
+        import scipy.linalg  # on demand: listing the catalogue must not wait for scipy
+
         e = scipy.linalg.expm(big * dt)
         return e[:n, :n], e[:n, n:]
     raise ParameterError(f"discretization must be 'euler' or 'zoh'; got {method!r}")
@@ -419,7 +424,7 @@ def second_order(
     R: np.ndarray | None = None,
     discretization: Discretization = "euler",
 ) -> LinearModel:
-    """Second-order system of eq (30) (corrected per DESIGN.md 8.2).
+    """Second-order system of eq (30) (corrected per ``docs/design.md`` C2).
 
     Continuous form ``x1' = x2``, ``x2' = -w0^2 x1 - 2 zeta w0 x2 + b u`` with
     ``w0 = 2 pi f0_hz`` (rad/s). Explicit Euler gives eq (30)::
@@ -492,7 +497,7 @@ def eha_velocity_pressure_block(
     ``[[-a/M, Ac/M], [-be Ac/V0, -leakage_sign * be L/V0]]``. The physical model
     has ``leakage_sign = +1`` (leakage dissipates pressure). The paper's Table 2
     natural frequencies and damping ratios are reproduced digit for digit only
-    with ``leakage_sign = -1`` (DESIGN.md 8.4); that option exists to document
+    with ``leakage_sign = -1`` (``docs/design.md`` C4); that option exists to document
     the discrepancy, not for use.
 
     Parameters
@@ -538,7 +543,7 @@ def eha_linear(
     R: np.ndarray | None = None,
     discretization: Discretization = "euler",
 ) -> LinearModel:
-    """Linear 3-state electro-hydraulic actuator, eq (65)/(67) corrected (DESIGN.md 8.3).
+    """Linear 3-state electro-hydraulic actuator, eq (65)/(67) corrected (``docs/design.md`` C3).
 
     States: position (m), velocity (m/s), differential pressure (Pa); input:
     pump speed (rad/s); C = I. Continuous dynamics::

@@ -1,10 +1,10 @@
 """Nonlinear discrete-time plant models: ``x(k+1) = f(x(k), u(k)) + v(k)``, ``z(k) = C x(k) + w(k)``.
 
-The estimator papers (``smm-svsf-eha-journal.txt`` eq 4.1-4.5, ``imm-dynamic-2nd-order-svsf-eha.txt``
-eq 34-38) print their nonlinear plants directly in discrete time, as the explicit Euler step of the
-continuous equations. :class:`NonlinearModel` therefore stores the *discrete* transition ``f`` and its
-Jacobian ``F = df/dx``; :meth:`NonlinearModel.from_continuous` builds both from continuous-time
-``x' = g(x, u)`` by the same explicit Euler step (``f = x + dt g``, ``F = I + dt dg/dx``).
+The estimator papers ([SMM] eq 4.1-4.5, [IMM] eq 34-38; tags as in ``docs/design.md``) print their
+nonlinear plants directly in discrete time, as the explicit Euler step of the continuous equations.
+:class:`NonlinearModel` therefore stores the *discrete* transition ``f`` and its Jacobian ``F = df/dx``;
+:meth:`NonlinearModel.from_continuous` builds both from continuous-time ``x' = g(x, u)`` by the same
+explicit Euler step (``f = x + dt g``, ``F = I + dt dg/dx``).
 
 The measurement stays linear (``C``), as in every paper: the filters of ``chatterspec.filters`` only
 need ``model.transition(x, u)``, ``model.jacobian(x, u)``, ``model.C``, ``model.Q``, ``model.R``,

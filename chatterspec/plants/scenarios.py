@@ -1,6 +1,6 @@
 """Scenarios: a nominal model for the filters, a time-segmented true plant, an input and a duration.
 
-The named catalogue of ``DESIGN.md`` section 4 (23 entries) is reachable as
+The named catalogue of ``docs/design.md`` §5 is reachable as
 :func:`scenario` and listed by ``chatterspec scenarios``. The names are part of
 the CLI contract.
 
@@ -21,6 +21,7 @@ import numpy as np
 
 from .._validate import finite_array, positive, readonly
 from ..errors import ParameterError, UnknownScenarioError
+from .closed_loop import ClosedLoop
 from .eha4 import eha4
 from .filter_settings import FilterSettings
 from .models import EHA_PARAMETERS, LinearModel, eha_linear, second_order
@@ -71,8 +72,11 @@ class Scenario:
     nominal : LinearModel or NonlinearModel
         The model the filters use (A-hat, B-hat, C-hat of eq 3; for a nonlinear plant the
         filter's f and Jacobian).
-    input : Signal
-        Input u(t).
+    input : Signal or ClosedLoop
+        Input u(t), or a :class:`~chatterspec.plants.closed_loop.ClosedLoop` (controller, position
+        reference, dither) that computes u per realization from the measurements; its gains must
+        keep the loop stable on the nominal model and on every true-plant segment (linearized at
+        rest if nonlinear), else :class:`~chatterspec.errors.UnstableLoopError`.
     duration : float
         Record length in seconds; the simulation has ``round(duration/dt) + 1``
         samples at ``t = 0, dt, ..., duration``.
@@ -83,7 +87,7 @@ class Scenario:
         Time windows in which the true plant differs (non-overlapping).
     description, family, fault, level : str
         Metadata for listings; ``fault_channel`` names the output on which the
-        fault shows (DESIGN.md section 4, from eq 68-70).
+        fault shows (``docs/design.md`` §5, from eq 68-70).
     x0 : array, optional
         Initial true state (default zeros).
     psi : tuple of float, optional
@@ -96,7 +100,7 @@ class Scenario:
 
     name: str
     nominal: LinearModel | NonlinearModel
-    input: Signal
+    input: Signal | ClosedLoop
     duration: float
     plant: LinearModel | NonlinearModel | None = None
     windows: tuple[Segment, ...] = ()
@@ -149,6 +153,20 @@ class Scenario:
         object.__setattr__(self, "_segments", tuple(segs))
         if self.filter_settings is not None:
             self.filter_settings.check_dimensions(self.nominal.n_states, self.nominal.n_outputs)
+        if isinstance(self.input, ClosedLoop):
+            self.input.check(self.nominal, what=f"the nominal model of scenario {self.name!r}")
+            for sg in segs:
+                if sg.model is not self.nominal:
+                    self.input.check(
+                        sg.model,
+                        what=f"the true plant of scenario {self.name!r} on "
+                        f"[{sg.start:g}, {sg.stop:g}) s ({sg.label or sg.model.name})",
+                    )
+
+    @property
+    def closed_loop(self) -> ClosedLoop | None:
+        """The controller closing the loop (the ``input`` of a closed-loop scenario), else None."""
+        return self.input if isinstance(self.input, ClosedLoop) else None
 
     @property
     def dt(self) -> float:
@@ -218,6 +236,7 @@ class Scenario:
             "duration_s": self.duration,
             "dt_s": self.dt,
             "input": self.input.describe(),
+            "closed_loop": None if self.closed_loop is None else self.closed_loop.to_dict(),
             "nominal": _mode_dict(self.nominal),
             "segments": [
                 {
@@ -380,7 +399,7 @@ def _detc_model(F: np.ndarray, Q: np.ndarray, R: np.ndarray, name: str) -> Linea
 
 
 def _detc(name: str, uncertain: bool) -> Scenario:
-    """DETC2015 (dynamic-2nd-order-svsf-eha.txt) eq (25)-(27), note section 4.
+    """DETC2015 ([DETC]) eq (25)-(27), resolved as in ``docs/design.md`` D1-D5.
 
     The true plant has the printed noise w_std = (0.05, 0.1, 0.1), v_std = 0.05 (eq 26); the nominal
     model carries the *filter's* printed Q = diag(1, 10, 100) and R = 0.1 (what the filters use);
@@ -423,12 +442,13 @@ def _detc(name: str, uncertain: bool) -> Scenario:
     )
 
 
-#: SMM paper section 2.3 choices (note): pump speed 94.25 rad/s, direction change every second.
+#: chatterspec's input for the SMM scenarios (docs/design.md S6): pump speed 94.25 rad/s, direction change
+#: every second.
 EHA4_SMM_INPUT = Sine(94.25, 0.5)
 
 
 def _eha4_leak_timeline() -> Scenario:
-    """SMM paper (smm-svsf-eha-journal.txt) section 5: normal / minor / major leakage, 9 s at 1 ms."""
+    """SMM paper ([SMM]) section 5: normal / minor / major leakage, 9 s at 1 ms."""
     Q, R = 1e-9 * np.eye(4), 1e-6 * np.eye(4)
     modes = ("normal", "leak-minor", "leak-major")
     models = tuple(eha4(mode, dt=1e-3, Q=Q, R=R) for mode in modes)
@@ -447,8 +467,9 @@ def _eha4_leak_timeline() -> Scenario:
         # for the IMM route of `chatterspec diagnose` on the same plant (the SMM paper has no IMM):
         # stay 0.999 per 1 ms step, i.e. a mean dwell of 1 s in each mode, leave uniformly
         transition_matrix=np.full((3, 3), 0.0005) + np.eye(3) * (0.999 - 0.0005),
-        source="SMM paper section 5: Q = 1e-9 I4, R = 1e-6 I4, P0 = 10 Q, x0 = 0; gamma, psi and the "
-        "weight floor are the note's choices (section 2.3), not printed; the transition matrix "
+        source="SMM paper section 5: Q = 1e-9 I4, R = 1e-6 I4, P0 = 10 Q, x0 = 0, uniform mu0 (section 3), "
+        "modes of Table 3; gamma = 0.1 from the IMM paper; psi and the weight floor are chatterspec's "
+        "choices (docs/design.md S6), not printed; the transition matrix "
         "(0.999 on the diagonal per 1 ms step) is chatterspec's, for the IMM route of `diagnose`",
     )
     return Scenario(
@@ -468,7 +489,7 @@ def _eha4_leak_timeline() -> Scenario:
 
 
 def _eha4_imm_analogue() -> Scenario:
-    """Simulation analogue of the IMM paper's rig experiment (note section 3.3), 6 s at 0.1 ms."""
+    """Simulation analogue of the IMM paper's rig experiment (``docs/design.md`` I10), 6 s at 0.1 ms."""
     Q = np.diag([1e-9, 1e-7, 1e-2, 1e2]) ** 2
     R = np.diag([1e-7, 200.0]) ** 2
     modes = ("normal", "leak-minor", "friction-imm-major")
@@ -489,8 +510,8 @@ def _eha4_imm_analogue() -> Scenario:
         mode_models=models,
         mu0=(0.90, 0.05, 0.05),
         transition_matrix=pi,
-        source="IMM paper section 6 (T, segments, H, mu0, Pi per step, gamma = 0.1) with the note's "
-        "simulation analogue (section 3.3): noise, Q, P0 = 10 Q, psi, Lambda = 0.5 I; the printed "
+        source="IMM paper section 6 (T, segments, H, mu0, Pi per step, gamma = 0.1) with chatterspec's "
+        "simulation analogue (docs/design.md I10): noise, Q, P0 = 10 Q, psi, Lambda = 0.5 I; the printed "
         "+-5 rad/s input, Q, R and psi cannot be simulated literally",
     )
     return Scenario(
@@ -574,7 +595,7 @@ def catalogue() -> dict[str, Scenario]:
     return {name: build() for name, build in _CATALOGUE.items()}
 
 
-# --------------------------------------------------------------------------- issue 9 item 5
+# --------------------------------------------------------------------------- chattering on the EHA4
 EHA4_CHATTERING_DURATION = 4.0  # s: the chattering paper's record length
 
 
@@ -635,3 +656,13 @@ def _eha4_leak_onset() -> Scenario:
 
 
 _CATALOGUE.update(_eha4_chattering_entries())
+
+
+def _closed_loop_catalogue() -> dict[str, Callable[[], Scenario]]:
+    """The ``eha-cl-*`` / ``eha4-cl-*`` scenarios (:mod:`chatterspec.plants.scenarios_closed_loop`)."""
+    from .scenarios_closed_loop import closed_loop_entries
+
+    return closed_loop_entries()
+
+
+_CATALOGUE.update(_closed_loop_catalogue())

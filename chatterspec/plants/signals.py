@@ -11,7 +11,6 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
-import scipy.signal
 
 from .._validate import finite_array, nonnegative, positive
 
@@ -76,7 +75,7 @@ class Chirp:
     jumps from rest to its full value at ``t = 0`` and adds a start-up transient;
     ``phase_deg = -90`` gives a sine chirp that starts at ``u(0) = 0``. The EHA
     scenarios use 10 -> 100 Hz over the 4 s record at 300 rad/s (amplitude and
-    phase unspecified in the paper; DESIGN.md 8.9; the phase choice is
+    phase unspecified in the paper; ``docs/design.md`` C9; the phase choice is
     documented where the scenarios are defined, ``plants/scenarios.py``).
 
     Attributes
@@ -125,6 +124,8 @@ class Chirp:
         return cls(f_start_hz, f_stop_hz, sweep_time, amplitude, phase_deg=-90.0)
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        import scipy.signal  # on demand: listing the catalogue must not wait for scipy.signal
+
         t = _times(t)
         return self.amplitude * scipy.signal.chirp(
             t, f0=self.f_start_hz, t1=self.sweep_time, f1=self.f_stop_hz, method="linear", phi=self.phase_deg
@@ -174,6 +175,8 @@ class SquareWave:
             raise ParameterError(f"duty must lie in (0, 1); got {self.duty!r}")
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        import scipy.signal
+
         t = _times(t)
         return self.offset + self.amplitude * scipy.signal.square(
             2 * np.pi * self.frequency_hz * t, duty=self.duty
@@ -188,7 +191,7 @@ class Sine:
     """u(t) = offset + amplitude * sin(2 pi frequency_hz t + phase).
 
     The nonlinear EHA scenarios drive the pump with ``94.25 sin(2 pi 0.5 t)`` rad/s
-    (``shared/notes/estimators.md`` section 2.3).
+    (``docs/design.md`` S6).
 
     Attributes
     ----------

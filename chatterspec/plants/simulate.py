@@ -37,8 +37,9 @@ class Simulation:
         True states.
     z : (runs, T, m) array
         Measurements ``z(k) = C x(k) + w(k)``.
-    u : (T, p) array
-        Input (identical for all realizations).
+    u : (T, p) or (runs, T, p) array
+        Input: identical for all realizations (T, p), or per realization (runs, T, p) when a
+        controller computes it (closed-loop scenarios, ``scenario.closed_loop``).
     scenario : Scenario
     first_run : int
         Global index of the first realization held here (non-zero for chunks).
@@ -54,6 +55,16 @@ class Simulation:
     @property
     def runs(self) -> int:
         return self.z.shape[0]
+
+    def take(self, runs: slice) -> Simulation:
+        """The realizations ``runs`` (a slice of this chunk), as copies; a per-realization ``u`` follows."""
+        u = self.u[runs].copy() if self.u.ndim == 3 else self.u
+        first = self.first_run + (runs.indices(self.runs)[0])
+        return Simulation(self.t, self.x[runs].copy(), self.z[runs].copy(), u, self.scenario, first)
+
+    def input_of(self, run: int) -> np.ndarray:
+        """The input ``(T, p)`` of realization ``run`` (index within this chunk)."""
+        return self.u[run] if self.u.ndim == 3 else self.u
 
 
 def covariance_sqrt(M: np.ndarray) -> np.ndarray:
@@ -113,7 +124,7 @@ def simulate(
         t=chunks[0].t,
         x=np.concatenate([c.x for c in chunks]),
         z=np.concatenate([c.z for c in chunks]),
-        u=chunks[0].u,
+        u=np.concatenate([c.u for c in chunks]) if chunks[0].u.ndim == 3 else chunks[0].u,
         scenario=scenario,
     )
 
@@ -150,8 +161,10 @@ def iter_simulations(
     Yields
     ------
     Simulation
-        One chunk with ``x`` (k, T, n), ``z`` (k, T, m), shared ``u`` (T, p) and
-        ``t`` (T,) in seconds, and ``first_run`` set to its first realization index.
+        One chunk with ``x`` (k, T, n), ``z`` (k, T, m), shared ``u`` (T, p) (closed loop: the
+        controller's output per realization, (k, T, 1), see
+        :mod:`chatterspec.plants.simulate_closed_loop`) and ``t`` (T,) in seconds, and
+        ``first_run`` set to its first realization index.
 
     Raises
     ------
@@ -177,6 +190,14 @@ def scenario_input(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
         If the input has a different number of channels than the nominal model.
     """
     t = scenario.time
+    if getattr(scenario, "closed_loop", None) is not None:
+        from .simulate_closed_loop import simulate_block_closed_loop
+
+        for lo in range(first_run, first_run + runs, chunk):
+            hi = min(lo + chunk, first_run + runs)
+            x, z, u = simulate_block_closed_loop(scenario, root, lo, hi, t)
+            yield Simulation(t=t, x=x, z=z, u=u, scenario=scenario, first_run=lo)
+        return
     u = scenario.input.sample(t).reshape(len(t), -1)
     if u.shape[1] != scenario.nominal.n_inputs:
         from ..errors import ShapeError
@@ -287,13 +308,15 @@ def _noise_blocks(
 
 @_jit.step
 def open_loop_input(
-    s: int, k: int, z: np.ndarray, Bu: np.ndarray, ctrl: np.ndarray, bu: np.ndarray, n: int
+    row: int, s: int, k: int, z: np.ndarray, Bu: np.ndarray, ctrl: np.ndarray, bu: np.ndarray, n: int
 ) -> None:
-    """The input step of an open-loop scenario: ``bu = B_s u(k)`` from the table (``ctrl`` unused).
+    """The input step of an open-loop scenario: ``bu = B_s u(k)`` from the table (``row``, ``ctrl`` unused).
 
-    The simulation loop asks this step for the input's effect before it advances the plant; a
-    controller step with the same signature (reading ``z(k)`` and its gains and state in
-    ``ctrl``) closes the loop without another copy of the loop.
+    The simulation loop asks this step for the input's effect at every sample, after the sink and
+    before it advances the plant; a controller step with the same signature (reading ``z(k)``,
+    its gains, reference and per-run state in ``ctrl``, writing u(k) of run ``row`` there) closes
+    the loop without another copy of the loop
+    (:func:`chatterspec.plants.simulate_closed_loop.controller_input`).
     """
     for i in range(n):
         bu[i] = Bu[s, k, i]
@@ -332,8 +355,9 @@ def _plant_loop(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, out_a, out_b, P
 
     Per run r and sample k, with the segment s active at k: ``z(k)`` by
     :func:`~chatterspec.plants.linear_steps.measure_step`, then ``SINK(offset + r, k, x, z, zp,
-    out_a, out_b, PhiT, Gu, n, m)`` (``zp`` is the sink's own per-run memory), then, before the
-    last sample, ``INPUT`` gives ``B_s u(k)`` and :func:`~chatterspec.plants.linear_steps.advance_step`
+    out_a, out_b, PhiT, Gu, n, m)`` (``zp`` is the sink's own per-run memory), then ``INPUT(offset + r,
+    s, k, z, Bu, ctrl, bu, n)`` gives ``B_s u(k)`` (a table lookup, or a controller's output from
+    ``z(k)``) and, before the last sample, :func:`~chatterspec.plants.linear_steps.advance_step`
     ``x(k+1)``. ``v``, ``w`` are raw standard normals ``(runs, T, n|m)``; tables from
     :func:`_tables`. Sinks: :func:`store_sink` (:data:`_simulate_kernel`) and the auxiliary
     SVSF's chattering (:mod:`chatterspec.detection.pipeline`). Every run starts from ``x0``
@@ -357,8 +381,8 @@ def _plant_loop(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, out_a, out_b, P
             s = seg_idx[k]
             measure_step(s, x, w[r, k], C, Lr, diag, z, n, m)
             SINK(offset + r, k, x, z, zp, out_a, out_b, PhiT, Gu, n, m)
+            INPUT(offset + r, s, k, z, Bu, ctrl, bu, n)
             if k + 1 < T:
-                INPUT(s, k, z, Bu, ctrl, bu, n)
                 advance_step(s, x, bu, v[r, k], A, Lq, diag, xn, n)
                 for i in range(n):
                     x[i] = xn[i]

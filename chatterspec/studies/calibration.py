@@ -435,6 +435,13 @@ def _load_calibration(
     try:
         if path.suffix == ".npz":
             with np.load(path, allow_pickle=False) as z:
+                if "_meta" not in z.files:  # e.g. a data file: say what it is, not a KeyError's text
+                    held = ", ".join(sorted(z.files)[:6]) + (", ..." if len(z.files) > 6 else "")
+                    raise DataFileError(
+                        f"{path}: not a chatterspec calibration file: the .npz archive holds "
+                        f"[{held or 'nothing'}] but no calibration metadata ('_meta'); write one with "
+                        "'chatterspec calibrate NAME --out FILE'"
+                    )
                 meta = json.loads(str(z["_meta"]))
                 arrays = {k: np.array(z[k]) for k in z.files if k != "_meta"}
         else:
@@ -448,6 +455,11 @@ def _load_calibration(
     except (OSError, ValueError, TypeError, EOFError, zipfile.BadZipFile) as exc:
         if isinstance(exc, DataFileError):
             raise
+        if isinstance(exc, json.JSONDecodeError):
+            raise DataFileError(
+                f"{path}: not a chatterspec calibration file (neither an .npz archive nor JSON; write one "
+                "with 'chatterspec calibrate NAME --out FILE')"
+            ) from None
         reason = "not a zip of .npy arrays" if "pickle" in str(exc) else f"{type(exc).__name__}: {exc}"
         raise DataFileError(f"{path}: cannot read calibration file ({reason})") from None
     if meta.get("format") != CALIBRATION_FORMAT:
@@ -568,7 +580,7 @@ def calibrate(
             f"calibrate needs a healthy scenario; {sc.name!r} has faults at {sc.fault_intervals}"
         )
     config = STFTConfig() if config is None else config
-    if not is_linear(sc.nominal):  # no closed-form spectrum: empirical normalization (issue 9 item 5)
+    if not is_linear(sc.nominal):  # no closed-form spectrum: empirical normalization (docs/design.md §6)
         from .empirical_calibration import calibrate_empirical
 
         ex = {"workers": workers, "scheduler": scheduler, "chunk_runs": chunk_runs, "progress": progress}

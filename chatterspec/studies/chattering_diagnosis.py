@@ -1,5 +1,5 @@
 """Fault diagnosis by the chattering spectrum, on the same realizations as the mode-based methods: the
-chattering half of issue 9 item 6 (``chatterspec diagnose --methods chattering``).
+chattering route of ``chatterspec diagnose --methods chattering`` (``docs/design.md`` §2).
 
 On one :class:`~chatterspec.plants.simulate.Simulation` (the same z and u the SMM-SVSF / IMM see):
 
@@ -385,16 +385,28 @@ class ChatteringTally:
             Realizations (k, T, m) of the tally's scenario (e.g. one chunk of
             :func:`~chatterspec.plants.simulate.iter_simulations`).
         """
+        self.absorb(sim.t, self.compute(sim))  # type: ignore[attr-defined]
+
+    def compute(self, sim: object) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """The heavy part of :meth:`add` (auxiliary SVSF, STFT, frame verdicts), without changing the tally.
+
+        Returns ``(flags (k, F, m), peak_hz (k, F, m), frame_starts (F,), seconds)`` for :meth:`absorb`:
+        worker processes compute, the tally absorbs in chunk order (the same figures as :meth:`add`).
+        """
         model = self.scenario.nominal
-        z, u, t = sim.z, sim.u, sim.t  # type: ignore[attr-defined]
-        k = z.shape[0]
         t0 = time.perf_counter()
-        rec = chattering_record(model, z, u, gamma=self.gamma)
+        rec = chattering_record(model, sim.z, sim.u, gamma=self.gamma)  # type: ignore[attr-defined]
         spec = spectrogram(rec.values, model.dt, self.config)
         flags, peak_hz, _ = frame_verdicts(spec.power, self.threshold)  # (k, F, m)
-        self._wall += time.perf_counter() - t0
+        return flags, peak_hz, spec.frame_starts, time.perf_counter() - t0
+
+    def absorb(self, t: np.ndarray, computed: tuple[np.ndarray, np.ndarray, np.ndarray, float]) -> None:
+        """Count one chunk's :meth:`compute` output (sample times ``t`` of the record, s)."""
+        flags, peak_hz, frame_starts, seconds = computed
+        k = flags.shape[0]
+        self._wall += seconds
         if self._geo is None:
-            self._geo = self._geometry(spec.frame_starts, t, flags.shape[1], flags.shape[2])
+            self._geo = self._geometry(frame_starts, t, flags.shape[1], flags.shape[2])
         g = self._geo
         if flags.shape[1:] != (g["F"], g["m"]):
             raise ParameterError(

@@ -204,7 +204,7 @@ def estimate_records(
 def _run(filt: Any, sc: Scenario, z: np.ndarray, u: np.ndarray) -> Any:
     fs = sc.filter_settings
     x0 = np.zeros(sc.nominal.n_states) if fs.x0 is None else fs.x0
-    return filt.run(np.ascontiguousarray(z[:, 1:]), u[:-1], x0=x0, P0=fs.P0, store=_STORE)
+    return filt.run(np.ascontiguousarray(z[:, 1:]), u[..., :-1, :], x0=x0, P0=fs.P0, store=_STORE)
 
 
 @dataclass(frozen=True)
@@ -420,7 +420,7 @@ class EstimationStudy:
         sc = self.scenario
         fs = sc.filter_settings
         sim = next(iter(iter_simulations(sc, runs, seed, chunk_runs=runs, first_run=first_run)))
-        z, u, truth = sim.z[:, 1:], sim.u[:-1], sim.x[:, 1:]
+        z, u, truth = sim.z[:, 1:], sim.u[..., :-1, :], sim.x[:, 1:]  # u: (T, p) or per run (closed loop)
         x0 = np.zeros(sc.nominal.n_states) if fs.x0 is None else fs.x0
         K = z.shape[1]
         out: dict[str, Any] = {}
@@ -433,7 +433,9 @@ class EstimationStudy:
             # covariances are kept only for TIME_BLOCK samples at a time, so memory does not grow with T
             for lo in range(0, K, TIME_BLOCK):
                 hi = min(lo + TIME_BLOCK, K)
-                state, o = filt.update(state, np.ascontiguousarray(z[:, lo:hi]), u[lo:hi], store=_STORE)
+                state, o = filt.update(
+                    state, np.ascontiguousarray(z[:, lo:hi]), u[..., lo:hi, :], store=_STORE
+                )
                 err[:, lo:hi] = truth[:, lo:hi] - o.x_post
                 ne_step[lo:hi] = nees(err[:, lo:hi], o.P_post).sum(axis=0)
                 ni_step[lo:hi] = nis(o.innovation, o.S).sum(axis=0)

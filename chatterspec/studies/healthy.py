@@ -77,13 +77,16 @@ def resolve_scenario(source: str | Scenario | LinearModel | Path, duration: floa
     Parameters
     ----------
     source : str, Scenario, LinearModel or Path
-        A :class:`Scenario` is returned unchanged; a :class:`LinearModel` or a
-        path ending in ``.toml`` (read with :func:`~chatterspec.plants.modelfile.load_model`)
-        becomes a healthy zero-input scenario (:func:`model_scenario`, named
-        after the file stem); any other string is looked up in the scenario catalogue.
+        A :class:`Scenario` is returned unchanged; a :class:`LinearModel` becomes a healthy
+        zero-input scenario (:func:`model_scenario`); a path ending in ``.toml`` (read with
+        :func:`~chatterspec.plants.modelfile.load_model`, linear or nonlinear) becomes the healthy
+        scenario of its ``[simulation]`` table (zero input by default;
+        :func:`~chatterspec.plants.modelfile_nonlinear.file_scenario`), named after the file stem;
+        any other string is looked up in the scenario catalogue.
     duration : float
-        Record length in seconds for model and model-file sources; ignored for
-        catalogue names and Scenario objects, which carry their own duration.
+        Record length in seconds for model and model-file sources (a model file's
+        ``[simulation] duration_s`` wins); ignored for catalogue names and Scenario objects,
+        which carry their own duration.
 
     Returns
     -------
@@ -101,9 +104,9 @@ def resolve_scenario(source: str | Scenario | LinearModel | Path, duration: floa
     text = str(source)
     if text.endswith(".toml"):
         from ..plants.modelfile import load_model
+        from ..plants.modelfile_nonlinear import file_scenario
 
-        spec = load_model(text)
-        return model_scenario(spec.model, duration, name=Path(text).stem)
+        return file_scenario(load_model(text), default_duration=duration, name=Path(text).stem)
     return catalogue_scenario(text)
 
 
@@ -220,7 +223,7 @@ class HealthyStudy:
             n_false = masked.sum(axis=2)  # (K, r, m)
         out["false_bins"] = n_false.sum(axis=1)
         out["false_bins_sq"] = (n_false.astype(np.int64) ** 2).sum(axis=1)
-        # per-record squares: the false-alarm intervals are computed from run-level counts (issue 11)
+        # per-record squares: the false-alarm intervals come from run-level counts (cluster Clopper-Pearson)
         out["false_total_sq"] = (n_false.sum(axis=-1).astype(np.int64) ** 2).sum(axis=1)  # (K,)
         fw = n_false > 0
         out["fw"] = fw.sum(axis=1)  # (K, m)

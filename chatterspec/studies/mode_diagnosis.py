@@ -1,5 +1,6 @@
-"""Fault diagnosis by mode probabilities (SMM-SVSF, IMM) on the same realizations: the mode-based half of
-issue 9 item 6 (``chatterspec diagnose``); the chattering route (item 5) plugs in beside it.
+"""Fault diagnosis by mode probabilities (SMM-SVSF, IMM) on the same realizations: the mode-based routes of
+``chatterspec diagnose`` (``docs/design.md`` §2); the chattering route
+(:mod:`chatterspec.studies.chattering_diagnosis`) plugs in beside it.
 
 Per method, on one :class:`~chatterspec.plants.simulate.Simulation`:
 
@@ -243,23 +244,41 @@ class ModeTally:
         keep_runs : int or None
             Realizations kept in ``keep`` (None: all of this chunk).
         """
-        fs = self._fs
-        z, u = sim.z[:, 1:], sim.u[:-1]  # type: ignore[attr-defined]
+        self.absorb(self.compute(sim), keep=keep, keep_runs=keep_runs)
+
+    def compute(self, sim: object) -> tuple[np.ndarray, np.ndarray, float]:
+        """The heavy part of :meth:`add` (the mode filter), without changing the tally.
+
+        Returns ``(mu (k, T, r), argmax mode (k, T), seconds)`` for :meth:`absorb`: worker processes
+        compute, the tally absorbs in chunk order (the same figures, bit for bit, as :meth:`add`).
+        """
+        z, u = sim.z[:, 1:], sim.u[..., :-1, :]  # type: ignore[attr-defined]  # u per run in closed loop
         if z.shape[1] != self._t.size:
             raise ParameterError(
                 f"every chunk must have the scenario's {self._t.size + 1} samples; got {z.shape[1] + 1}"
             )
-        k = z.shape[0]
         t0 = time.perf_counter()
         out = self._filter.run(z, u, x0=self._x0, P0=self._P0)
-        self._wall += time.perf_counter() - t0
-        mu = finite_array("mu", out.mu, ndim=3)  # as confusion_matrix checks it
+        return out.mu, out.argmax_mode, time.perf_counter() - t0
+
+    def absorb(
+        self,
+        computed: tuple[np.ndarray, np.ndarray, float],
+        *,
+        keep: dict | None = None,
+        keep_runs: int | None = 1,
+    ) -> None:
+        """Count one chunk's :meth:`compute` output (``keep``, ``keep_runs`` as in :meth:`add`)."""
+        fs = self._fs
+        mu_raw, am, seconds = computed
+        self._wall += seconds
+        k = mu_raw.shape[0]
+        mu = finite_array("mu", mu_raw, ndim=3)  # as confusion_matrix checks it
         if keep is not None and self.method not in keep:
             kept = mu if keep_runs is None else mu[:keep_runs].copy()
             keep[self.method] = (self._t, kept, tuple(fs.modes))
         self.runs += k
         true, healthy = self._true, self._healthy
-        am = out.argmax_mode
         alarm = am != 0
         if healthy.any():
             self._fa_runs += int(np.count_nonzero(alarm[:, healthy].any(axis=1)))

@@ -1,4 +1,4 @@
-"""Mode-identification outputs of the multiple-model filters (issue 9 item 4).
+"""Mode-identification outputs of the multiple-model filters.
 
 * :func:`confusion_matrix`: the IMM paper's Tables 5-7 -- cell ``[i, a]`` is the mean probability of
   mode ``i`` over the samples whose actual mode is ``a``, in percent; every column sums to 100.

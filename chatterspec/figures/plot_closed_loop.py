@@ -1,0 +1,318 @@
+"""Figures of the closed loop: power vs richness and dither, step responses, chattering spectra.
+
+Imported on demand only (the numeric core never imports matplotlib).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from matplotlib.figure import Figure
+
+    from ..plants.scenarios import Scenario
+    from ..studies.excitation import ExcitationResult
+
+__all__ = ["closed_loop_spectra_figure", "excitation_figure", "footprint_figure", "step_response_figure"]
+
+
+def _errorbar(ax: plt.Axes, x: np.ndarray, ests: list, **kw: object) -> None:
+    rate = np.array([e.rate for e in ests])
+    lo = np.array([e.ci_low for e in ests])
+    hi = np.array([e.ci_high for e in ests])
+    ax.errorbar(x, rate, yerr=[rate - lo, hi - rate], capsize=3, marker="o", ms=4, **kw)
+
+
+def excitation_figure(res: ExcitationResult, target: float = 0.95) -> Figure:
+    """Detection power vs the reference's richness and vs dither, and the tracking cost of the dither.
+
+    Left: detection rate (Clopper-Pearson bars) without dither against the RMS velocity of each
+    reference's noise-free response. Middle: detection rate against the dither level for every
+    reference run at several levels, with the ``target`` line and (faint) the healthy loop's
+    false-alarm rate. Right: the healthy loop's tracking RMS (mm) against the dither level. One
+    line style per position-sensor noise.
+
+    Parameters
+    ----------
+    res : ExcitationResult
+        From :func:`chatterspec.studies.excitation.excitation_study`.
+    target : float
+        Detection rate drawn as the target line.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.4))
+    styles = ("-", "--", ":", "-.")
+    swept = [r for r in res.references if len(res.levels(r)) > 1]
+    for i, noise in enumerate(res.position_noise):
+        ls = styles[i % len(styles)]
+        tag = f"sensor {noise * 1e3:g} mm"
+        still = [p for p, (_, d) in enumerate(res.points) if d == 0.0]
+        if still:
+            speed = np.array([max(res.response_speed[res.points[p][0]] * 1e3, 0.1) for p in still])
+            order = np.argsort(speed)
+            ests = [res.detection(i, still[k]) for k in order]
+            _errorbar(axes[0], speed[order], ests, ls=ls, color="C0", label=tag)
+            if i == 0:
+                for n_lab, k in enumerate(order):  # labels alternately above and below the points
+                    below = n_lab % 2 == 1
+                    axes[0].annotate(
+                        res.points[still[k]][0],
+                        (speed[k], ests[n_lab].rate),
+                        fontsize=7,
+                        xytext=(-8, -14 if below else 8),
+                        textcoords="offset points",
+                    )
+        for c, ref in enumerate(swept):
+            ps = res.levels(ref)
+            x = np.array([res.points[p][1] for p in ps])
+            _errorbar(
+                axes[1], x, [res.detection(i, p) for p in ps], ls=ls, color=f"C{c + 1}", label=f"{ref}, {tag}"
+            )
+            axes[1].plot(
+                x, [res.false_alarm(i, p).rate for p in ps], ls=ls, color=f"C{c + 1}", alpha=0.35, lw=1
+            )
+            axes[2].errorbar(
+                x,
+                res.tracking_mm[i, ps, 0],
+                yerr=res.tracking_se_mm[i, ps, 0],
+                ls=ls,
+                color=f"C{c + 1}",
+                marker="o",
+                ms=4,
+                capsize=3,
+                label=f"{ref}, {tag}",
+            )
+    axes[0].set_xscale("log")
+    axes[0].set_xlabel("RMS velocity of the response (mm/s; hold drawn at 0.1)")
+    axes[0].set_ylabel(f"detection rate on {res.channel}")
+    axes[0].set_title("(a) richness of the reference, no dither", fontsize=10)
+    axes[1].axhline(target, color="k", lw=0.8, ls=":", label=f"{target:.0%}")
+    axes[1].axhline(res.alpha, color="grey", lw=0.8, ls="--", label=f"alpha = {res.alpha:g}")
+    unit = "mm" if "reference" in res.dither_description else "rad/s"
+    unit += " per tone" if "multisine" in res.dither_description else ""
+    axes[1].set_xlabel(f"dither amplitude ({unit})")
+    axes[1].set_ylabel("detection rate (faint: false alarms)")
+    axes[1].set_title(f"(b) dither: {res.dither_description}", fontsize=10)
+    axes[2].set_xlabel(axes[1].get_xlabel())
+    axes[2].set_ylabel("tracking RMS, healthy loop (mm)")
+    axes[2].set_title("(c) the price in tracking", fontsize=10)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
+    for ax in axes[:2]:
+        ax.set_ylim(-0.03, 1.05)
+    fig.suptitle(
+        f"closed-loop EHA (PI position loop), {res.family} {res.size:g} {res.unit}: detection at family-wise "
+        f"alpha = {res.alpha:g}, {res.runs} runs per point, {res.confidence:.0%} Clopper-Pearson",
+        fontsize=11,
+    )
+    fig.tight_layout()
+    return fig
+
+
+def step_response_figure(scenarios: Sequence[Scenario], runs: int = 1, seed: int = 0) -> Figure:
+    """Position, pump speed and pressure of closed-loop scenarios (realization 0 and the noise-free response).
+
+    Parameters
+    ----------
+    scenarios : sequence of Scenario
+        Closed-loop scenarios on the same reference (e.g. healthy and faulty).
+    runs : int
+        Realizations simulated (the first is drawn).
+    seed : int
+        Root seed.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from ..plants.simulate import simulate
+    from ..plants.simulate_closed_loop import loop_response
+
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
+    for s, sc in enumerate(scenarios):
+        t, r, x, u = loop_response(sc)
+        sim = simulate(sc, runs, seed)
+        if s == 0:
+            axes[0].plot(t, r * 1e3, color="k", lw=1, ls="--", label="reference")
+        axes[0].plot(t, x[:, 0] * 1e3, color=f"C{s}", lw=1.2, label=f"{sc.name} (noise-free)")
+        axes[0].plot(t, sim.x[0, :, 0] * 1e3, color=f"C{s}", lw=0.5, alpha=0.6)
+        axes[1].plot(t, sim.u[0, :, 0], color=f"C{s}", lw=0.5, alpha=0.6)
+        axes[1].plot(t, u, color=f"C{s}", lw=1.2, label=sc.name)
+        axes[2].plot(t, x[:, 2] * 1e-3, color=f"C{s}", lw=1.2, label=sc.name)
+    sat = scenarios[0].closed_loop.controller.saturation  # type: ignore[union-attr]
+    for v in (-sat, sat):
+        axes[1].axhline(v, color="grey", lw=0.8, ls=":")
+    axes[0].set_ylabel("position (mm)")
+    axes[1].set_ylabel("pump speed u (rad/s)")
+    axes[2].set_ylabel("pressure (kPa), noise-free")
+    axes[2].set_xlabel("time (s)")
+    axes[0].set_title("closed-loop response: noise-free (thick) and realization 0 (thin)", fontsize=10)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    return fig
+
+
+def closed_loop_spectra_figure(
+    scenarios: Sequence[Scenario],
+    runs: int = 50,
+    seed: int = 0,
+    alpha: float = 1e-3,
+) -> Figure:
+    """Mean chattering periodogram per channel of several scenarios against their expected healthy spectra.
+
+    Typically an open-loop fault beside the same fault in closed loop, moving and held still
+    (``eha-leak-medium``, ``eha-cl-leak-medium``, ``eha-cl-hold-leak-medium``). The expected healthy
+    spectrum (eq 56, exact finite-N form) and the single-record threshold are drawn once per
+    distinct nominal model (the closed-loop scenarios' position sensor is quieter than eq 66's).
+
+    Parameters
+    ----------
+    scenarios : sequence of Scenario
+        Linear scenarios with the same output channels.
+    runs : int
+        Realizations averaged.
+    seed : int
+        Root seed.
+    alpha : float
+        Family-wise level of the single-record threshold drawn.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from ..detection.pipeline import iter_chattering
+    from ..detection.spectral import expected_spectrum, periodogram
+    from ..detection.thresholds import exact_threshold
+
+    m = scenarios[0].nominal.n_outputs
+    fig, axes = plt.subplots(m, 1, figsize=(9, 2.6 * m), sharex=True, squeeze=False)
+    drawn: dict[str, str] = {}
+    for k, sc in enumerate(scenarios):
+        total, P = None, None
+        for rec in iter_chattering(sc, runs, seed):
+            P = periodogram(rec.values, rec.dt)
+            part = P.power.sum(axis=0)
+            total = part if total is None else total + part
+        mean = total / runs
+        f = P.freqs_hz
+        nom, N = sc.nominal, sc.n_samples - 1
+        key = nom.fingerprint()
+        if key not in drawn:
+            drawn[key] = sc.name
+            E = expected_spectrum(nom, f, N)
+            thr = exact_threshold(nom, f, N, alpha)
+        for c in range(m):
+            ax = axes[c, 0]
+            ax.semilogy(f[1:], mean[1:, c], lw=0.8, color=f"C{k}", label=sc.name)
+            if drawn[key] == sc.name:
+                ax.semilogy(
+                    f[1:],
+                    E[1:, c],
+                    color="k",
+                    lw=1,
+                    ls="-" if k == 0 else "-.",
+                    label=f"E[S] healthy ({sc.name}'s model)",
+                )
+                ax.semilogy(
+                    f[1:],
+                    thr.values[1:, c],
+                    color="k",
+                    lw=0.8,
+                    ls="--" if k == 0 else ":",
+                    label=f"threshold, alpha {alpha:g} ({sc.name}'s model)",
+                )
+    for c in range(m):
+        axes[c, 0].set_ylabel(f"{scenarios[0].nominal.output_names[c]}")
+        axes[c, 0].set_xscale("log")
+        axes[c, 0].grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7, ncol=2)
+    axes[-1, 0].set_xlabel("frequency (Hz)")
+    axes[0, 0].set_title(f"mean chattering periodogram over {runs} runs", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def footprint_figure(scenario: Scenario, seed: int = 0) -> Figure:
+    """Fault minus healthy, realization 0, same noise: the loop hides the fault in the position, not in u.
+
+    Three rows against time: the position change (closed loop, and the healthy loop's command
+    replayed open loop, :func:`chatterspec.studies.footprint.replayed_open_loop`), the pump speed
+    change (closed loop), and the pressure chattering of the faulty closed loop (with its 100 ms
+    moving average, where the leak's slow term shows) against the healthy chattering's +-3 standard
+    deviations.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        A faulty closed-loop scenario (linear), e.g. ``eha-cl-leak-medium``.
+    seed : int
+        Root seed.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from ..detection.pipeline import chattering_record
+    from ..detection.spectral import chattering_autocovariance
+    from ..plants.simulate import simulate
+    from ..studies.chattering_diagnosis import healthy_version
+    from ..studies.footprint import replayed_open_loop
+
+    replay = replayed_open_loop(scenario)
+    sims = {
+        k: simulate(s, 1, seed)
+        for k, s in (
+            ("closed", scenario),
+            ("closed-healthy", healthy_version(scenario)),
+            ("replay", replay),
+            ("replay-healthy", healthy_version(replay)),
+        )
+    }
+    t = sims["closed"].t
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
+    for key, color, label in (
+        ("replay", "C3", "command replayed open loop"),
+        ("closed", "C0", "closed loop"),
+    ):
+        d = (sims[key].z[0, :, 0] - sims[f"{key}-healthy"].z[0, :, 0]) * 1e3
+        axes[0].plot(t, d, color=color, lw=1, label=f"{label}: RMS {np.sqrt(np.mean(d**2)):.3f} mm")
+    du = sims["closed"].u[0, :, 0] - sims["closed-healthy"].u[0, :, 0]
+    axes[1].plot(t, du, color="C0", lw=0.8, label=f"closed loop: RMS {np.sqrt(np.mean(du**2)):.2f} rad/s")
+    model = scenario.nominal
+    p = model.output_names.index("pressure") if "pressure" in model.output_names else model.n_outputs - 1
+    e = chattering_record(model, sims["closed"].z, sims["closed"].u).values[0, :, p]
+    sd = np.sqrt(chattering_autocovariance(model)[0][p])
+    axes[2].plot(
+        t[1:], e, color="C0", lw=0.4, label=f"{model.output_names[p]} chattering, faulty closed loop"
+    )
+    smooth = np.convolve(e, np.full(100, 0.01), mode="same")
+    axes[2].plot(t[1:], smooth, color="C1", lw=1.2, label="its 100 ms moving average (the leak's slow term)")
+    for v in (-3 * sd, 3 * sd):
+        axes[2].axhline(v, color="k", lw=0.8, ls="--")
+    axes[0].set_ylabel("position change (mm)")
+    axes[1].set_ylabel("pump speed change (rad/s)")
+    axes[2].set_ylabel(f"chattering ({model.output_units[p]})")
+    axes[2].set_xlabel("time (s)")
+    axes[0].set_title(
+        f"{scenario.name}: fault minus healthy on the same noise (realization 0); dashed: +-3 sd healthy",
+        fontsize=10,
+    )
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    return fig

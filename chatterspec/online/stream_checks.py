@@ -1,0 +1,125 @@
+"""Bookkeeping of the live stream monitor: latency statistics and the sampling-rate check of a stream.
+
+:class:`LatencyStats` keeps the median and max latency in bounded memory; :func:`rate_mismatch` compares
+the first rows' time steps with the model's ``dt`` (:class:`~chatterspec.online.live_stream.StreamMonitor`
+holds the first :data:`RATE_CHECK_ROWS` rows for it, so a stream sampled at another rate is an error
+naming both rates, not a gap at every row).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .stream import RowBlock
+
+__all__ = [
+    "RATE_CHECK_ROWS",
+    "RATE_CHECK_ROWS_MIN",
+    "RATE_TOLERANCE",
+    "LatencyStats",
+    "merge_blocks",
+    "rate_mismatch",
+]
+
+#: The first rows of a stream (with a time column) are held until this many arrived and their time
+#: steps are compared with the model's dt; at end of input, at least RATE_CHECK_ROWS_MIN are needed.
+RATE_CHECK_ROWS, RATE_CHECK_ROWS_MIN = 5, 3
+#: Relative tolerance of that comparison (the data file's: every step within 1 % of dt).
+RATE_TOLERANCE = 0.01
+
+
+class LatencyStats:
+    """Median and max of latencies in bounded memory (log-spaced histogram, 0.5 % bins, 1 us .. 1000 s).
+
+    The median is the centre of the histogram bin holding it (relative error
+    below 0.3 %), clamped to the exact min and max (a bin centre can lie above
+    every observation in it); the max is exact.
+    """
+
+    _LO, _HI, _BINS = 1e-6, 1e3, 4200
+
+    def __init__(self) -> None:
+        self.counts = np.zeros(self._BINS + 2, dtype=np.int64)
+        self.max_s = 0.0
+        self.min_s = math.inf
+        self.n = 0
+        self._scale = self._BINS / math.log(self._HI / self._LO)
+
+    def add(self, seconds: float, count: int = 1) -> None:
+        """Record ``count`` observations of ``seconds``.
+
+        Parameters
+        ----------
+        seconds : float
+            Latency (s).
+        count : int
+            How many frames had it.
+        """
+        if count <= 0:
+            return
+        s = max(float(seconds), 0.0)
+        k = 0 if s < self._LO else min(int(math.log(s / self._LO) * self._scale) + 1, self._BINS + 1)
+        self.counts[k] += count
+        self.n += count
+        self.max_s = max(self.max_s, s)
+        self.min_s = min(self.min_s, s)
+
+    def median(self) -> float | None:
+        """Median latency (s), None without observations."""
+        if self.n == 0:
+            return None
+        k = int(np.searchsorted(np.cumsum(self.counts), (self.n + 1) / 2.0))
+        centre = self._LO / 2 if k == 0 else self._LO * math.exp((k - 0.5) / self._scale)
+        return min(max(centre, self.min_s), self.max_s)
+
+    def to_dict(self) -> dict[str, float | int | None]:
+        med = self.median()
+        return {
+            "frames": self.n,
+            "median_ms": None if med is None else 1e3 * med,
+            "max_ms": None if self.n == 0 else 1e3 * self.max_s,
+        }
+
+
+def rate_mismatch(b: RowBlock, dt: float) -> str | None:
+    """Why the first rows of ``b`` are sampled at another rate than ``dt``, or None.
+
+    The first ``RATE_CHECK_ROWS - 1`` time steps must agree with each other (within
+    :data:`RATE_TOLERANCE` of their median) and differ from ``dt`` by more than that: a stream at another
+    uniform rate. Mixed steps are left to the gap handling.
+
+    Parameters
+    ----------
+    b : RowBlock
+        The first rows of a stream (with a time column).
+    dt : float
+        The model's sampling time (s).
+    """
+    steps = np.diff(b.t[:RATE_CHECK_ROWS])  # type: ignore[index]
+    step = float(np.median(steps))
+    consistent = step > 0 and np.all(np.abs(steps - step) <= RATE_TOLERANCE * step)
+    if not (consistent and abs(step - dt) > RATE_TOLERANCE * dt):
+        return None
+    lines = b.lines[: steps.size + 1]
+    return (
+        f"lines {int(lines[0])}-{int(lines[-1])}: the stream is sampled every {1e3 * step:.6g} ms "
+        f"({1 / step:.6g} Hz), but the model's dt is {1e3 * dt:.6g} ms ({1 / dt:.6g} Hz): every "
+        "step would be a gap and nothing would be monitored; resample the data or set dt in the "
+        "model file"
+    )
+
+
+def merge_blocks(blocks: list[RowBlock]) -> RowBlock:
+    """Consecutive row blocks as one (the last arrival time)."""
+    if len(blocks) == 1:
+        return blocks[0]
+    t = None if blocks[0].t is None else np.concatenate([b.t for b in blocks])  # type: ignore[misc]
+    return RowBlock(
+        t,
+        np.concatenate([b.z for b in blocks]),
+        np.concatenate([b.u for b in blocks]),
+        np.concatenate([b.lines for b in blocks]),
+        blocks[-1].arrival,
+    )

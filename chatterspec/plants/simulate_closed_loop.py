@@ -1,0 +1,462 @@
+"""Batched simulation of a plant under its position controller (``plants.closed_loop.ClosedLoop``).
+
+At each sample ``k``, for every realization::
+
+    z(k)   = C_s x(k) + Lr_s w(k)                         measurement (eq 2)
+    u(k)   = pid_step(r(k), z_pos(k), d(k), controller state)   pump speed, rad/s
+    x(k+1) = A_s x(k) + B_s u(k) + Lq_s v(k)              (eq 1; f_s(x, u) + v for a nonlinear plant)
+
+with the segment ``s`` active at ``t_k``. The controller reads the same noisy measurement the filters
+see, and ``u(k)`` is returned per realization (``Simulation.u`` of shape ``(runs, T, 1)``): the
+filters run the open-loop nominal model with it. Seeding is that of the open-loop simulation
+(:mod:`chatterspec.rng`: realization ``r`` draws block ``r // 64``, stream 0 = v, stream 1 = w), so
+any chunking gives the same numbers, and a loop with zero gains whose input dither equals an
+open-loop scenario's input reproduces that scenario's simulation bit for bit (tested).
+
+The per-sample arithmetic is written once, as steps: the linear plant's
+:func:`~chatterspec.plants.linear_steps.measure_step` (eq 2) and
+:func:`~chatterspec.plants.linear_steps.advance_step` (eq 1), and the controller's
+:func:`~chatterspec.plants.controllers.pid_step`. The compiled path is the open-loop simulation's
+loop (``plants.simulate._plant_loop``) with :func:`controller_input` as its input step, in place
+of the input table; the numpy path (:func:`_loop_numpy`) calls the same steps' Python functions on
+rows of realizations (channel-major ``(n, runs)`` state), doing the same correctly rounded
+operations in the same order, so both paths give the same bits. A nonlinear plant (the 4-state
+EHA) runs on the numpy path with its vectorized ``f``. The streaming generator
+:func:`closed_loop_blocks` (one realization, state carried between blocks) uses the numpy path.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from .. import _jit
+from ..errors import NonFiniteError, ParameterError
+from ..rng import SeedLike
+from .closed_loop import ClosedLoop
+from .controllers import pid_coefficients, pid_step
+from .linear_steps import advance_step, measure_step
+from .simulate import NO_ARRAY, _noise_blocks, _plant_loop, _same_shapes, _tables, covariance_sqrt
+from .simulate_nonlinear import _scale
+
+__all__ = ["LoopState", "closed_loop_blocks", "is_closed_loop", "loop_response", "simulate_block_closed_loop"]
+
+
+class LoopState(NamedTuple):
+    """Plant and controller state of a batch of realizations between two calls.
+
+    Attributes
+    ----------
+    x : (runs, n) array
+        True state ``x(k)``.
+    integ : (runs,) array
+        Integrator ``I(k)`` (rad/s).
+    deriv : (runs,) array
+        Filtered derivative ``D(k-1)`` (rad/s).
+    y_prev : (runs,) array
+        Last measured position ``y(k-1)`` (m); NaN before the first sample.
+    """
+
+    x: np.ndarray
+    integ: np.ndarray
+    deriv: np.ndarray
+    y_prev: np.ndarray
+
+
+def _initial_state(x0: np.ndarray, runs: int) -> LoopState:
+    return LoopState(
+        x=np.repeat(np.asarray(x0, dtype=float)[None], runs, axis=0),
+        integ=np.zeros(runs),
+        deriv=np.zeros(runs),
+        y_prev=np.full(runs, np.nan),
+    )
+
+
+# --------------------------------------------------------------------------- the controller as input step
+#: Layout of the ``ctrl`` vector of :func:`controller_input` (float slots): the eight
+#: :class:`~chatterspec.plants.controllers.PIDCoefficients`, then the record length T, the number of
+#: segments S, the position output index, the running state (I, D, y_prev) of the current run,
+#: then B_s (S x n, row-major), the reference r (T), the input dither d (T) and the output u (rows x T).
+_T, _S, _OUT, _STATE, _B = 8, 9, 10, 11, 14
+
+
+@_jit.step
+def controller_input(
+    row: int, s: int, k: int, z: np.ndarray, Bu: np.ndarray, ctrl: np.ndarray, bu: np.ndarray, n: int
+) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_closed_loop_sim.py)
+    """The simulation loop's input step in closed loop: ``u(k)`` from ``z(k)``, then ``bu = B_s u(k)``.
+
+    Reads the position ``z[out]``, runs :func:`~chatterspec.plants.controllers.pid_step` on the
+    state kept in ``ctrl`` (reset at ``k = 0``: I = 0, D = 0, y_prev = y(0), so every run is
+    independent of the others), writes u(k) of run ``row`` into ``ctrl``'s output slots; ``Bu``
+    (the open-loop input table) is unused. Layout: :data:`_T` and following (see :func:`_pack`).
+    """
+    T = int(ctrl[_T])
+    rb = _B + int(ctrl[_S]) * n
+    db = rb + T
+    ub = db + T
+    y = z[int(ctrl[_OUT])]
+    if k == 0:
+        ctrl[_STATE] = 0.0
+        ctrl[_STATE + 1] = 0.0
+        ctrl[_STATE + 2] = y
+    u, integ, deriv = pid_step(
+        ctrl[0], ctrl[1], ctrl[2], ctrl[3], ctrl[4], ctrl[5], ctrl[6], ctrl[7],
+        ctrl[_STATE], ctrl[_STATE + 1], ctrl[_STATE + 2], ctrl[rb + k], y, ctrl[db + k],
+    )  # fmt: skip
+    ctrl[_STATE] = integ
+    ctrl[_STATE + 1] = deriv
+    ctrl[_STATE + 2] = y
+    ctrl[ub + row * T + k] = u
+    for i in range(n):
+        bu[i] = ctrl[_B + s * n + i] * u
+
+
+def _pack(
+    coef: np.ndarray, out: int, B: np.ndarray, ref: np.ndarray, dith: np.ndarray, rows: int
+) -> np.ndarray:
+    """The ``ctrl`` vector of :func:`controller_input` for ``rows`` runs (u slots uninitialized)."""
+    T = ref.shape[0]
+    head = np.array([*coef, T, B.shape[0], out, 0.0, 0.0, 0.0], dtype=float)
+    return np.concatenate([head, B.ravel(), ref, dith, np.empty(rows * T)])
+
+
+def _unpack_u(ctrl: np.ndarray, B: np.ndarray, T: int, rows: int) -> np.ndarray:
+    """The controller outputs ``(T, rows)`` (time-major) from a ``ctrl`` vector after the loop."""
+    ub = _B + B.size + 2 * T
+    return ctrl[ub : ub + rows * T].reshape(rows, T).T
+
+
+#: The closed-loop simulation kernel: the open-loop simulation's loop with the controller as input step.
+_closed_loop_kernel = _jit.specialize(_plant_loop, "closed_loop", INPUT=controller_input)
+
+
+def _closed_loop_sized(n: int, m: int):  # type: ignore[no-untyped-def]
+    """:data:`_closed_loop_kernel` with the model's sizes as constants when small (as the open loop's)."""
+    return _jit.specialize_sizes(_plant_loop, "closed_loop", {"NX": n, "NZ": m}, INPUT=controller_input)
+
+
+def _py(fn: object) -> object:
+    """The Python function behind a compiled kernel or step (numpy path)."""
+    return getattr(fn, "py_func", fn)
+
+
+@dataclass(frozen=True, eq=False)
+class _LinearTables:
+    """Per-segment arrays of a linear closed-loop scenario (segment s active at sample k)."""
+
+    A: np.ndarray  # (S, n, n)
+    B: np.ndarray  # (S, n), the one input column
+    C: np.ndarray  # (S, m, n)
+    Lq: np.ndarray  # (S, n, n), Lq Lq^T = Q
+    Lr: np.ndarray  # (S, m, m), Lr Lr^T = R
+    diag: np.ndarray  # (S, 2) bool: Lq, Lr diagonal
+
+
+def _linear_tables(scenario: object) -> _LinearTables:
+    """The open-loop simulation's per-segment tables (``plants.simulate._tables``) and each segment's B."""
+    tb = _tables(scenario, np.zeros(1), np.zeros((1, 1)))  # type: ignore[arg-type]  # no input table needed
+    segs = scenario.segments  # type: ignore[attr-defined]
+    B = np.ascontiguousarray(np.stack([sg.model.B[:, 0] for sg in segs]), dtype=float)
+    return _LinearTables(A=tb.A, B=B, C=tb.C, Lq=tb.Lq, Lr=tb.Lr, diag=tb.diag)
+
+
+def _control_rows(
+    coef: np.ndarray,
+    integ: np.ndarray,
+    deriv: np.ndarray,
+    y_prev: np.ndarray,
+    r: float,
+    y: np.ndarray,
+    d: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``pid_step`` on rows of realizations; a NaN ``y_prev`` means no earlier sample (no derivative kick)."""
+    first = np.isnan(y_prev)
+    if first.any():  # as controller_input at k = 0
+        y_prev = np.where(first, y, y_prev)
+    return _py(pid_step)(*coef, integ, deriv, y_prev, r, y, d)
+
+
+def _loop_numpy(
+    v: np.ndarray,
+    w: np.ndarray,
+    seg_idx: np.ndarray,
+    tb: _LinearTables,
+    ref: np.ndarray,
+    dith: np.ndarray,
+    coef: np.ndarray,
+    out_idx: int,
+    state: LoopState,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, LoopState]:
+    """The compiled closed loop vectorized over realizations: the same steps on ``(channels, runs)`` rows.
+
+    Unlike the compiled loop it starts from ``state`` and returns the state after the last
+    sample (the plant advanced once more), for :func:`closed_loop_blocks`.
+    """
+    measure, advance = _py(measure_step), _py(advance_step)
+    runs, K, n = v.shape
+    m = w.shape[2]
+    vt = np.ascontiguousarray(v.transpose(1, 2, 0))  # (K, n, runs)
+    wt = np.ascontiguousarray(w.transpose(1, 2, 0))
+    x = np.ascontiguousarray(state.x.T)  # (n, runs)
+    xn = np.empty_like(x)
+    z = np.empty((m, runs))
+    bu = np.empty((n, runs))
+    integ, deriv = state.integ.copy(), state.deriv.copy()
+    y_prev = state.y_prev.copy()
+    xt, zt, ut = np.empty((K, runs, n)), np.empty((K, runs, m)), np.empty((K, runs))
+    for k in range(K):
+        s = seg_idx[k]
+        measure(s, x, wt[k], tb.C, tb.Lr, tb.diag, z, n, m)
+        y = z[out_idx].copy()
+        u, integ, deriv = _control_rows(coef, integ, deriv, y_prev, ref[k], y, dith[k])
+        y_prev = y
+        zt[k] = z.T
+        xt[k] = x.T
+        ut[k] = u
+        for i in range(n):
+            bu[i] = tb.B[s, i] * u
+        advance(s, x, bu, vt[k], tb.A, tb.Lq, tb.diag, xn, n)
+        x, xn = xn, x
+    return xt, zt, ut, LoopState(np.ascontiguousarray(x.T), integ, deriv, y_prev)
+
+
+def _loop_of(scenario: object) -> ClosedLoop:
+    loop = getattr(scenario, "input", None)
+    if not isinstance(loop, ClosedLoop):
+        raise ParameterError(f"scenario {getattr(scenario, 'name', '?')!r} is not a closed-loop scenario")
+    return loop
+
+
+def _step_linear(
+    scenario: object,
+    v: np.ndarray,
+    w: np.ndarray,
+    seg_idx: np.ndarray,
+    ref: np.ndarray,
+    dith: np.ndarray,
+    state: LoopState,
+    tb: _LinearTables,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, LoopState]:
+    """K samples of the linear loop for ``runs`` realizations from ``state`` (numpy path)."""
+    loop = _loop_of(scenario)
+    coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)  # type: ignore[attr-defined]
+    return _loop_numpy(v, w, np.asarray(seg_idx), tb, ref, dith, coef, loop.output, state)
+
+
+def _block_linear_compiled(
+    scenario: object, v: np.ndarray, w: np.ndarray, seg_idx: np.ndarray, ref: np.ndarray, dith: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Runs of one random block from rest through the compiled loop: ``(x, z, u)`` time-major."""
+    loop = _loop_of(scenario)
+    runs, T, n = v.shape
+    m = w.shape[2]
+    tb = _linear_tables(scenario)
+    coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)  # type: ignore[attr-defined]
+    ctrl = _pack(coef, loop.output, tb.B, ref, dith, runs)
+    xt, zt = np.empty((T, runs, n)), np.empty((T, runs, m))
+    x0 = np.ascontiguousarray(scenario.x0, dtype=float)  # type: ignore[attr-defined]
+    seg = np.ascontiguousarray(seg_idx, dtype=np.int64)
+    no_table = np.empty((0, 0, 0))  # the open-loop input table: unused by the controller step
+    _closed_loop_sized(n, m)(
+        v, w, seg, tb.A, tb.C, tb.Lq, tb.Lr, no_table, x0, tb.diag, ctrl, xt, zt, NO_ARRAY, NO_ARRAY, 0
+    )  # fmt: skip
+    return xt, zt, _unpack_u(ctrl, tb.B, T, runs)
+
+
+def _step_nonlinear(
+    scenario: object,
+    v: np.ndarray,
+    w: np.ndarray,
+    seg_idx: np.ndarray,
+    ref: np.ndarray,
+    dith: np.ndarray,
+    state: LoopState,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, LoopState]:
+    """K samples of the loop around a nonlinear plant (numpy path, vectorized ``f``)."""
+    loop = _loop_of(scenario)
+    coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)  # type: ignore[attr-defined]
+    segs = scenario.segments  # type: ignore[attr-defined]
+    runs, K, n = v.shape
+    m = w.shape[2]
+    Lq = [covariance_sqrt(sg.model.Q) for sg in segs]
+    Lr = [covariance_sqrt(sg.model.R) for sg in segs]
+    f = [getattr(sg.model, "f", sg.model.transition) for sg in segs]
+    x = np.array(state.x, dtype=float)
+    integ, deriv, y_prev = state.integ.copy(), state.deriv.copy(), state.y_prev.copy()
+    xt, zt, ut = np.empty((K, runs, n)), np.empty((K, runs, m)), np.empty((K, runs))
+    out = loop.output
+    with np.errstate(over="ignore", invalid="ignore"):
+        for k in range(K):
+            s = int(seg_idx[k])
+            C = segs[s].model.C
+            z = (x if np.array_equal(C, np.eye(n)) else x @ C.T) + _scale(w[:, k], Lr[s])
+            y = z[:, out].copy()
+            u, integ, deriv = _control_rows(coef, integ, deriv, y_prev, ref[k], y, dith[k])
+            y_prev = y
+            xt[k], zt[k], ut[k] = x, z, u
+            x = f[s](x, u[:, None]) + _scale(v[:, k], Lq[s])
+    bad = ~np.isfinite(xt)
+    if bad.any():
+        k, r, _ = np.argwhere(bad)[0]
+        raise NonFiniteError(
+            f"scenario {scenario.name!r}: the true state is not finite from sample {k} (realization {r} of "  # type: ignore[attr-defined]
+            "this chunk): the closed loop diverged -- lower the controller gains or the saturation (EHA4: "
+            "2 dt a1 |v| / M must stay below 1)"
+        )
+    return xt, zt, ut, LoopState(x, integ, deriv, y_prev)
+
+
+def _run(
+    scenario: object,
+    v: np.ndarray,
+    w: np.ndarray,
+    seg_idx: np.ndarray,
+    ref: np.ndarray,
+    dith: np.ndarray,
+    state: LoopState,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, LoopState]:
+    if getattr(scenario, "is_linear", True):
+        return _step_linear(scenario, v, w, seg_idx, ref, dith, state, _linear_tables(scenario))
+    return _step_nonlinear(scenario, v, w, seg_idx, ref, dith, state)
+
+
+def simulate_block_closed_loop(
+    scenario: object, root: np.random.SeedSequence, lo: int, hi: int, t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Simulate realizations ``lo .. hi - 1`` of a closed-loop scenario.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Its ``input`` is a :class:`~chatterspec.plants.closed_loop.ClosedLoop`.
+    root : numpy.random.SeedSequence
+        Root of the random streams (:mod:`chatterspec.rng`).
+    lo, hi : int
+        Global indices of the first and one-past-the-last realization.
+    t : (T,) array
+        Sample times in s.
+
+    Returns
+    -------
+    x : (hi - lo, T, n) ndarray
+        True states.
+    z : (hi - lo, T, m) ndarray
+        Measurements.
+    u : (hi - lo, T, 1) ndarray
+        Applied (saturated) pump speed in rad/s.
+    """
+    loop = _loop_of(scenario)
+    T = len(t)
+    nom = scenario.nominal  # type: ignore[attr-defined]
+    n, m = nom.n_states, nom.n_outputs
+    ref, dith = loop.signals(t)
+    seg_idx = scenario.segment_index(t)  # type: ignore[attr-defined]
+    xt, zt, ut = np.empty((T, hi - lo, n)), np.empty((T, hi - lo, m)), np.empty((T, hi - lo))
+    compiled = _jit.enabled() and getattr(scenario, "is_linear", True) and _same_shapes(scenario)
+    for off, v, w in _noise_blocks(root, lo, hi, T, n, m):
+        b = v.shape[0]
+        if compiled:
+            x, z, u = _block_linear_compiled(scenario, v, w, seg_idx, ref, dith)
+        else:
+            x, z, u, _ = _run(scenario, v, w, seg_idx, ref, dith, _initial_state(scenario.x0, b))  # type: ignore[attr-defined]
+        xt[:, off : off + b], zt[:, off : off + b], ut[:, off : off + b] = x, z, u
+    return np.swapaxes(xt, 0, 1), np.swapaxes(zt, 0, 1), np.swapaxes(ut, 0, 1)[..., None]
+
+
+def closed_loop_blocks(
+    scenario: object, seed: SeedLike, duration_s: float | None = None, *, block_s: float = 1.0
+) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """One realization of a closed-loop scenario block by block in time (bounded memory).
+
+    The closed-loop counterpart of :func:`chatterspec.online.stream.simulate_blocks`: plant and
+    controller state run on from block to block, the noise comes from one generator
+    (``SeedSequence(seed)``, ``n + m`` normals per sample in time order, so the rows for a seed do not
+    depend on ``block_s``), and beyond the scenario's duration ``D`` the reference,
+    the dither and the true-plant timeline repeat (evaluated at ``t mod D``).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        A closed-loop scenario.
+    seed : int
+        Root seed (>= 0).
+    duration_s : float, optional
+        Seconds of data (default: the scenario's duration); samples at ``0, dt, ..., duration_s``.
+    block_s : float
+        Seconds of data per yielded block.
+
+    Yields
+    ------
+    (t, z, u)
+        Times (K,) in s, measurements (K, m), applied pump speed (K, 1) in rad/s.
+    """
+    loop = _loop_of(scenario)
+    dt = scenario.dt  # type: ignore[attr-defined]
+    D = scenario.duration  # type: ignore[attr-defined]
+    duration = D if duration_s is None else float(duration_s)
+    if not (np.isfinite(duration) and duration > 0):
+        raise ParameterError(f"duration must be > 0 s; got {duration_s!r}")
+    total = round(duration / dt) + 1
+    period = round(D / dt)
+    K = max(1, round(block_s / dt))
+    nom = scenario.nominal  # type: ignore[attr-defined]
+    n, m = nom.n_states, nom.n_outputs
+    state = _initial_state(scenario.x0, 1)  # type: ignore[attr-defined]
+    tables = _linear_tables(scenario) if getattr(scenario, "is_linear", True) else None
+    # one generator drawn sample by sample: the rows of a seed do not depend on block_s (the --rate pacing)
+    rng = np.random.default_rng(np.random.SeedSequence(int(seed)))  # type: ignore[arg-type]
+    for lo in range(0, total, K):
+        hi = min(lo + K, total)
+        k = np.arange(lo, hi)
+        tp = (k % period) * dt
+        ref, dith = loop.signals(tp)
+        noise = rng.standard_normal((hi - lo, n + m))  # per sample: n process, m measurement normals
+        v, w = noise[None, :, :n], noise[None, :, n:]
+        seg = scenario.segment_index(tp)  # type: ignore[attr-defined]
+        if tables is not None:
+            _, z, u, state = _step_linear(scenario, v, w, seg, ref, dith, state, tables)
+        else:
+            _, z, u, state = _step_nonlinear(scenario, v, w, seg, ref, dith, state)
+        yield k * dt, z[:, 0], u[:, 0, None]
+
+
+def loop_response(
+    scenario: object, t: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The noise-free response of a closed-loop scenario (its plant segments, no v or w).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        A closed-loop scenario.
+    t : (T,) array, optional
+        Sample times in s (default ``scenario.time``).
+
+    Returns
+    -------
+    t : (T,) ndarray
+    r : (T,) ndarray
+        Reference (m), dither on the reference included.
+    x : (T, n) ndarray
+        True state.
+    u : (T,) ndarray
+        Applied pump speed (rad/s).
+    """
+    loop = _loop_of(scenario)
+    t = scenario.time if t is None else np.asarray(t, dtype=float)  # type: ignore[attr-defined]
+    nom = scenario.nominal  # type: ignore[attr-defined]
+    ref, dith = loop.signals(t)
+    zeros_v = np.zeros((1, len(t), nom.n_states))
+    zeros_w = np.zeros((1, len(t), nom.n_outputs))
+    state = _initial_state(scenario.x0, 1)  # type: ignore[attr-defined]
+    x, _, u, _ = _run(scenario, zeros_v, zeros_w, scenario.segment_index(t), ref, dith, state)  # type: ignore[attr-defined]
+    return t, ref, x[:, 0], u[:, 0]
+
+
+def is_closed_loop(scenario: object) -> bool:
+    """Whether ``scenario``'s input is a :class:`~chatterspec.plants.closed_loop.ClosedLoop`."""
+    return isinstance(getattr(scenario, "input", None), ClosedLoop)

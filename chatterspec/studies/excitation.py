@@ -1,0 +1,544 @@
+"""Excitation study: detection power in closed loop against the reference's richness and a dither.
+
+Under a position controller the actuator moves only as the reference asks. A fault that acts
+through the motion -- a leak needs pressure (eq 68 of the core paper: the pressure chattering
+carries ``dt be dL / V0 x3``), friction needs velocity (eq 69) -- leaves the chattering at its
+noise floor while the actuator holds still. :func:`excitation_study` measures, on the linear EHA
+under its catalogue PI controller (:mod:`chatterspec.plants.scenarios_closed_loop`):
+
+* the detection power of one fault (default: the medium leak) on its channel, at the default
+  detector's fixed family-wise false-alarm rate (exact threshold, Bonferroni, ``alpha``), and the
+  false-alarm rate on the same healthy loop, with Clopper-Pearson intervals;
+* against (a) the reference's richness (:data:`EXCITATION_REFERENCES`: held still, one to eight
+  S-curve moves, four steps) and (b) a dither on the pump-speed command (a Schroeder multisine or
+  a PRBS, amplitude in rad/s), and optionally the position sensor's noise;
+* the price: the tracking error (RMS of true position minus reference, mm, per run, averaged
+  over runs) and the pump-speed RMS (rad/s).
+
+Every point shares the realizations (common random numbers: the same seed and run indices), so
+differences between points are not sampling noise of the noise.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .._validate import open_unit, positive, positive_int
+from ..detection.pipeline import chattering_record
+from ..detection.spectral import periodogram
+from ..errors import ParameterError
+from ..plants.closed_loop import ClosedLoop
+from ..plants.dither import PRBS, Multisine
+from ..plants.models import EHA_PARAMETERS
+from ..plants.references import Hold, SCurve, StepSequence
+from ..plants.scenarios import Scenario
+from ..plants.scenarios_closed_loop import (
+    EHA_CL_CONTROLLER,
+    EHA_CL_POSITION_NOISE,
+    EHA_CL_REFERENCE,
+    eha_closed_loop_scenario,
+)
+from ..plants.simulate import iter_simulations
+from ..rng import SeedLike
+from .calibration import _ro
+from .healthy import _analytic_thresholds, _reduce_dict
+from .intervals import RateEstimate
+from .montecarlo import run_study
+
+__all__ = [
+    "CLOSED_LOOP_FAMILIES",
+    "EXCITATION_REFERENCES",
+    "ExcitationResult",
+    "dither_signal",
+    "excitation_points",
+    "excitation_scenario",
+    "excitation_study",
+    "response_speed_rms",
+]
+
+_T4 = (0.25, 1.25, 2.25, 3.25)  # s: move starts of the four-move references
+
+#: The references of the richness axis (m), poorest to richest (4 s records): held still, S-curve moves
+#: of growing stroke and number (0.5 s each unless said), steps (which saturate the pump).
+EXCITATION_REFERENCES: dict[str, Any] = {
+    "hold": Hold(0.0),
+    "1-move-2mm": SCurve((0.25,), (0.002,), 0.5),
+    "4-moves-1mm": SCurve(_T4, (0.001, -0.001, 0.001, 0.0), 0.5),
+    "4-moves-2mm": SCurve(_T4, (0.002, -0.002, 0.002, 0.0), 0.5),
+    "1-move": SCurve((0.25,), (0.01,), 0.5),
+    "4-moves": EHA_CL_REFERENCE,
+    "8-moves": SCurve(
+        (0.1, 0.6, 1.1, 1.6, 2.1, 2.6, 3.1, 3.6), (0.01, -0.01, 0.01, -0.01, 0.01, -0.01, 0.01, 0.0), 0.4
+    ),
+    "4-steps": StepSequence(_T4, (0.01, -0.01, 0.01, 0.0)),
+}
+
+
+def response_speed_rms(reference: str, position_noise: float = EHA_CL_POSITION_NOISE) -> float:
+    """The richness measure: RMS velocity (m/s) of the healthy loop's noise-free response to a reference.
+
+    What the reference actually makes the actuator do (a step asks for an infinite speed, the
+    saturated pump delivers at most 0.11 m/s); the leak's footprint grows with the pressure, which
+    at low frequency follows the velocity (``p = a v / Ac``).
+
+    Parameters
+    ----------
+    reference : str
+        A key of :data:`EXCITATION_REFERENCES`.
+    position_noise : float
+        Position sensor standard deviation (m) of the loop's nominal model (no effect without noise).
+    """
+    from ..plants.simulate_closed_loop import loop_response
+
+    _, _, x, _ = loop_response(excitation_scenario("leakage", None, reference, position_noise=position_noise))
+    return float(np.sqrt(np.mean(x[:, 1] ** 2)))
+
+
+#: Fault families of the closed-loop study: the EHA parameter, the default size (Table 2), channel, unit.
+CLOSED_LOOP_FAMILIES: dict[str, dict[str, Any]] = {
+    "leakage": {"param": "leakage", "size": 6e-11, "channel": "pressure", "unit": "m^3/(s Pa)"},
+    "friction": {"param": "friction", "size": 7000.0, "channel": "velocity", "unit": "N s/m"},
+    "bulk-modulus": {"param": "bulk_modulus", "size": 0.75, "channel": "pressure", "unit": "x nominal"},
+}
+
+#: Tones (Hz) of the default multisine dither: above the loop's 3 Hz bandwidth (the controller does
+#: not cancel them) and below the 39 Hz hydraulic mode.
+DITHER_TONES_HZ: tuple[float, ...] = (20.0, 30.0, 40.0)
+
+
+def dither_signal(kind: str, level: float, tones_hz: Sequence[float] = DITHER_TONES_HZ) -> Any:
+    """The dither of one study point: ``None`` for level 0, else a multisine or a PRBS.
+
+    Parameters
+    ----------
+    kind : {"multisine", "prbs"}
+        ``multisine``: :class:`~chatterspec.plants.dither.Multisine` of ``level`` rad/s per tone at
+        ``tones_hz``; ``prbs``: :class:`~chatterspec.plants.dither.PRBS` of +-``level`` rad/s, 5 ms clock.
+    level : float
+        Amplitude in rad/s (>= 0).
+    tones_hz : sequence of float
+        Multisine tones in Hz.
+    """
+    if level < 0 or not math.isfinite(level):
+        raise ParameterError(f"dither level must be a finite amplitude >= 0 rad/s; got {level!r}")
+    if level == 0:
+        return None
+    if kind == "multisine":
+        return Multisine(level, tuple(tones_hz))
+    if kind == "prbs":
+        return PRBS(level, 0.005)
+    raise ParameterError(f"dither signal must be 'multisine' or 'prbs'; got {kind!r}")
+
+
+def excitation_scenario(
+    family: str,
+    size: float | None,
+    reference: str,
+    dither: Any = None,
+    *,
+    dither_at: str = "input",
+    position_noise: float = EHA_CL_POSITION_NOISE,
+) -> Scenario:
+    """One point of the study: the linear EHA under the catalogue PI loop, healthy or faulty.
+
+    Parameters
+    ----------
+    family : {"leakage", "friction", "bulk-modulus"}
+        Fault family (:data:`CLOSED_LOOP_FAMILIES`).
+    size : float or None
+        Fault size (leakage m^3/(s Pa), friction N s/m, bulk modulus as a factor of the nominal);
+        ``None``: the healthy loop.
+    reference : str
+        A key of :data:`EXCITATION_REFERENCES`.
+    dither : Signal, optional
+        Added to the pump-speed command (rad/s) or to the reference (m), e.g. from :func:`dither_signal`.
+    dither_at : {"input", "reference"}
+        Where the dither enters (:class:`~chatterspec.plants.closed_loop.ClosedLoop`).
+    position_noise : float
+        Position sensor standard deviation in m.
+    """
+    if family not in CLOSED_LOOP_FAMILIES:
+        raise ParameterError(
+            f"the closed-loop study covers the EHA families {', '.join(CLOSED_LOOP_FAMILIES)}; got {family!r}"
+        )
+    if reference not in EXCITATION_REFERENCES:
+        raise ParameterError(f"unknown reference {reference!r}; valid: {', '.join(EXCITATION_REFERENCES)}")
+    spec = CLOSED_LOOP_FAMILIES[family]
+    loop = ClosedLoop(EHA_CL_CONTROLLER, EXCITATION_REFERENCES[reference], dither=dither, dither_at=dither_at)
+    params: dict[str, float] = {}
+    if size is not None:
+        value = positive("size", size)
+        params[spec["param"]] = value * EHA_PARAMETERS["bulk_modulus"] if family == "bulk-modulus" else value
+    return eha_closed_loop_scenario(
+        f"excitation-{family}-{reference}",
+        loop,
+        fault=family if params else "healthy",
+        channel=spec["channel"],
+        position_noise=position_noise,
+        **params,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class _ExcitationChunks:
+    """Chunk function of :func:`excitation_study`: per point, detections and tracking sums."""
+
+    scenarios: tuple[tuple[Scenario, Scenario], ...]  # per point: (healthy, faulty)
+    thresholds: tuple[np.ndarray, ...]  # per position noise: (bins, m) exact Bonferroni values
+    tested: np.ndarray  # (bins,)
+    noise_index: tuple[int, ...]  # per point
+
+    def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> dict[str, np.ndarray]:
+        n_points = len(self.scenarios)
+        m = self.scenarios[0][0].nominal.n_outputs
+        det = np.zeros((n_points, 2, m), dtype=np.int64)  # [point, healthy|faulty, channel]
+        det_any = np.zeros((n_points, 2), dtype=np.int64)
+        track = np.zeros((n_points, 2))  # sum over runs of the per-run RMS tracking error (m)
+        track_sq = np.zeros((n_points, 2))
+        u_rms = np.zeros((n_points, 2))
+        for p, pair in enumerate(self.scenarios):
+            thr = self.thresholds[self.noise_index[p]][self.tested]
+            for h, sc in enumerate(pair):
+                sim = next(iter_simulations(sc, runs, seed, chunk_runs=runs, first_run=first_run))
+                rec = chattering_record(sc.nominal, sim.z, sim.u, scenario=sc, first_run=first_run)
+                S = periodogram(rec.values, rec.dt).power[:, self.tested]  # (runs, bins, m)
+                flags = (S > thr).any(axis=1)  # (runs, m)
+                det[p, h] += flags.sum(axis=0)
+                det_any[p, h] += flags.any(axis=1).sum()
+                r = sc.input.reference.sample(sim.t)  # the task, without a reference dither
+                rms = np.sqrt(np.mean((sim.x[:, :, sc.input.output] - r) ** 2, axis=1))
+                track[p, h] += rms.sum()
+                track_sq[p, h] += (rms**2).sum()
+                u_rms[p, h] += np.sqrt(np.mean(sim.u[..., 0] ** 2, axis=1)).sum()
+        return {"det": det, "det_any": det_any, "track": track, "track_sq": track_sq, "u_rms": u_rms}
+
+    def reduce(self, acc: dict[str, np.ndarray] | None, part: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return _reduce_dict(acc, part, {})
+
+
+@dataclass(frozen=True, eq=False)
+class ExcitationResult:
+    """Detection power, false alarms and tracking cost per (sensor noise, point = (reference, dither level)).
+
+    Attributes
+    ----------
+    family, unit, channel : str
+        Fault family, unit of its size, and the channel it acts on (the verdict's channel).
+    size : float
+        Fault size (``unit``).
+    points : tuple of (str, float)
+        ``(reference, dither level)``: a key of :data:`EXCITATION_REFERENCES` and a dither
+        amplitude in rad/s (per tone for a multisine; 0 = none).
+    reference_descriptions : dict
+        Reference key -> description.
+    response_speed : dict
+        Reference key -> RMS velocity of the noise-free healthy response, m/s (the richness measure).
+    dither_description : str
+        The dither signal (kind and tones).
+    position_noise : tuple of float
+        Position sensor standard deviations (m).
+    alpha : float
+        Family-wise false-alarm level of the detector (exact threshold, Bonferroni).
+    runs : int
+        Realizations per point (shared by all points).
+    seed : int or None
+    confidence : float
+        Level of the Clopper-Pearson intervals.
+    channels : tuple of str
+    detections : (noise, points, 2, m) int array
+        Records flagged per channel, healthy (index 0) and faulty (index 1).
+    detections_any : (noise, points, 2) int array
+        Records flagged on any channel.
+    tracking_mm : (noise, points, 2) array
+        Mean over runs of the per-run RMS tracking error (true position - reference, the reference
+        without a dither added to it), mm.
+    tracking_se_mm : (noise, points, 2) array
+        Its Monte Carlo standard error, mm.
+    u_rms : (noise, points, 2) array
+        Mean over runs of the per-run RMS pump speed, rad/s.
+    """
+
+    family: str
+    unit: str
+    channel: str
+    size: float
+    points: tuple[tuple[str, float], ...]
+    reference_descriptions: dict[str, str]
+    response_speed: dict[str, float]
+    dither_description: str
+    position_noise: tuple[float, ...]
+    alpha: float
+    runs: int
+    seed: int | None
+    confidence: float
+    channels: tuple[str, ...]
+    detections: np.ndarray
+    detections_any: np.ndarray
+    tracking_mm: np.ndarray
+    tracking_se_mm: np.ndarray
+    u_rms: np.ndarray
+
+    @property
+    def references(self) -> tuple[str, ...]:
+        """The references of the points, in order of first appearance."""
+        return tuple(dict.fromkeys(r for r, _ in self.points))
+
+    def levels(self, reference: str) -> list[int]:
+        """Indices of ``reference``'s points, by increasing dither level."""
+        idx = [p for p, (r, _) in enumerate(self.points) if r == reference]
+        return sorted(idx, key=lambda p: self.points[p][1])
+
+    def detection(self, i_noise: int, p: int) -> RateEstimate:
+        """Detection rate of the faulty loop on the fault channel at point ``p``, with its interval."""
+        k = int(self.detections[i_noise, p, 1, self.channels.index(self.channel)])
+        return RateEstimate(k, self.runs, self.confidence)
+
+    def false_alarm(self, i_noise: int, p: int, any_channel: bool = False) -> RateEstimate:
+        """False-alarm rate of the healthy loop at point ``p`` (fault channel, or any channel)."""
+        if any_channel:
+            k = int(self.detections_any[i_noise, p, 0])
+        else:
+            k = int(self.detections[i_noise, p, 0, self.channels.index(self.channel)])
+        return RateEstimate(k, self.runs, self.confidence)
+
+    def smallest_dither(self, i_noise: int, reference: str, target: float = 0.95) -> int | None:
+        """The point of ``reference`` with the smallest dither whose detection rate is >= ``target``."""
+        for p in self.levels(reference):
+            if self.detection(i_noise, p).rate >= target:
+                return p
+        return None
+
+    def tracking_cost_mm(self, i_noise: int, p: int) -> float | None:
+        """Healthy tracking RMS at point ``p`` minus at the same reference without dither (mm), if run."""
+        ref = self.points[p][0]
+        zero = [q for q in self.levels(ref) if self.points[q][1] == 0.0]
+        if not zero:
+            return None
+        return float(self.tracking_mm[i_noise, p, 0] - self.tracking_mm[i_noise, zero[0], 0])
+
+    def rows(self) -> list[dict[str, Any]]:
+        """One dict per (sensor noise, point): the table and ``to_dict``."""
+        out = []
+        for i, noise in enumerate(self.position_noise):
+            for p, (ref, level) in enumerate(self.points):
+                out.append(
+                    {
+                        "position_noise_mm": noise * 1e3,
+                        "reference": ref,
+                        "response_speed_rms_mm_s": self.response_speed[ref] * 1e3,
+                        "dither": level,
+                        "false_alarm": self.false_alarm(i, p).to_dict(),
+                        "false_alarm_any_channel": self.false_alarm(i, p, any_channel=True).to_dict(),
+                        "detection": self.detection(i, p).to_dict(),
+                        "tracking_rms_mm": float(self.tracking_mm[i, p, 0]),
+                        "tracking_rms_se_mm": float(self.tracking_se_mm[i, p, 0]),
+                        "tracking_cost_mm": self.tracking_cost_mm(i, p),
+                        "tracking_rms_faulty_mm": float(self.tracking_mm[i, p, 1]),
+                        "u_rms": float(self.u_rms[i, p, 0]),
+                    }
+                )
+        return out
+
+    def answers(self, target: float = 0.95) -> list[dict[str, Any]]:
+        """Per (sensor noise, reference): the smallest dither reaching ``target`` and its tracking cost."""
+        out = []
+        for i, noise in enumerate(self.position_noise):
+            for ref in self.references:
+                p = self.smallest_dither(i, ref, target)
+                ps = self.levels(ref)
+                out.append(
+                    {
+                        "position_noise_mm": noise * 1e3,
+                        "reference": ref,
+                        "target": target,
+                        "dither_tried": any(self.points[q][1] > 0 for q in ps),
+                        "detection_without_dither": self.detection(i, ps[0]).to_dict()
+                        if self.points[ps[0]][1] == 0.0
+                        else None,
+                        "dither": None if p is None else self.points[p][1],
+                        "detection": None if p is None else self.detection(i, p).to_dict(),
+                        "tracking_rms_mm": None if p is None else float(self.tracking_mm[i, p, 0]),
+                        "tracking_cost_mm": None if p is None else self.tracking_cost_mm(i, p),
+                    }
+                )
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "family": self.family,
+            "size": self.size,
+            "unit": self.unit,
+            "channel": self.channel,
+            "alpha": self.alpha,
+            "alpha_meaning": "family-wise (exact threshold, Bonferroni)",
+            "runs": self.runs,
+            "seed": self.seed,
+            "confidence": self.confidence,
+            "controller": EHA_CL_CONTROLLER.to_dict(),
+            "references": dict(self.reference_descriptions),
+            "dither_signal": self.dither_description,
+            "dither_unit": "rad/s",
+            "points": self.rows(),
+            "smallest_dither_for_95_percent": self.answers(0.95),
+        }
+
+
+def excitation_points(
+    references: Sequence[str] | None = None, dither: Sequence[float] | None = None
+) -> tuple[tuple[str, float], ...]:
+    """The study's default design: every reference without dither, and the dither levels while holding.
+
+    Parameters
+    ----------
+    references : sequence of str, optional
+        Keys of :data:`EXCITATION_REFERENCES` (default: all). With ``dither`` given as well, every
+        reference is crossed with every level.
+    dither : sequence of float, optional
+        Dither levels in rad/s (default :data:`DEFAULT_DITHER` on ``hold`` only).
+
+    Returns
+    -------
+    tuple of (str, float)
+    """
+    if references is not None and dither is not None:
+        return tuple((r, float(d)) for r in references for d in dither)
+    if dither is not None:
+        return tuple(("hold", float(d)) for d in dither)
+    refs = tuple(EXCITATION_REFERENCES) if references is None else tuple(references)
+    pts = [(r, 0.0) for r in refs]
+    if "hold" in refs:
+        pts[refs.index("hold") + 1 : refs.index("hold") + 1] = [("hold", d) for d in DEFAULT_DITHER if d > 0]
+    return tuple(pts)
+
+
+#: Default dither levels (rad/s per tone) of the hold sweep.
+DEFAULT_DITHER: tuple[float, ...] = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 16.0)
+
+
+def excitation_study(
+    family: str = "leakage",
+    size: float | None = None,
+    points: Sequence[tuple[str, float]] | None = None,
+    *,
+    dither_kind: str = "multisine",
+    tones_hz: Sequence[float] = DITHER_TONES_HZ,
+    dither_at: str = "input",
+    position_noise: Sequence[float] = (EHA_CL_POSITION_NOISE,),
+    alpha: float = 1e-3,
+    runs: int = 200,
+    seed: SeedLike = 0,
+    confidence: float = 0.99,
+    workers: int = 1,
+    scheduler: str | None = None,
+    chunk_runs: int | None = None,
+    progress: bool | None = None,
+) -> ExcitationResult:
+    """Detection power and tracking cost of the closed-loop EHA over references and dither levels.
+
+    Parameters
+    ----------
+    family : {"leakage", "friction", "bulk-modulus"}
+        Fault family (:data:`CLOSED_LOOP_FAMILIES`).
+    size : float, optional
+        Fault size (default: the family's, e.g. the medium leak 6e-11 m^3/(s Pa)).
+    points : sequence of (str, float), optional
+        ``(reference, dither level in rad/s)`` pairs (default :func:`excitation_points`: every
+        reference without dither, and the hold with :data:`DEFAULT_DITHER`).
+    dither_kind : {"multisine", "prbs"}
+        The dither signal (:func:`dither_signal`), added to the pump-speed command.
+    tones_hz : sequence of float
+        Multisine tones in Hz.
+    dither_at : {"input", "reference"}
+        ``input``: the levels are pump-speed amplitudes in rad/s; ``reference``: the dither is added to
+        the position reference and the levels are in mm.
+    position_noise : sequence of float
+        Position sensor standard deviations in m (default: the catalogue's 10 um; eq 66's is 1e-3).
+    alpha : float
+        Family-wise false-alarm level of the detector in (0, 1).
+    runs : int
+        Realizations per point (common random numbers across points).
+    seed : int
+    confidence : float
+        Level of the Clopper-Pearson intervals.
+    workers, scheduler, chunk_runs, progress
+        Execution (see :func:`chatterspec.studies.montecarlo.run_study`).
+
+    Returns
+    -------
+    ExcitationResult
+
+    Raises
+    ------
+    ParameterError
+        On an unknown family or reference, a dither level < 0 or whose peak reaches the
+        controller's saturation (300 rad/s), or a non-positive sensor noise.
+    """
+    if family not in CLOSED_LOOP_FAMILIES:
+        raise ParameterError(
+            f"the closed-loop study covers the EHA families {', '.join(CLOSED_LOOP_FAMILIES)}; got {family!r}"
+        )
+    spec = CLOSED_LOOP_FAMILIES[family]
+    size = float(spec["size"] if size is None else positive("size", size))
+    pts = excitation_points() if points is None else tuple((str(r), float(d)) for r, d in points)
+    if not pts:
+        raise ParameterError("the study needs at least one (reference, dither level) point")
+    noises = tuple(positive("position_noise", x, unit="m") for x in position_noise)
+    alpha = open_unit("alpha", alpha)
+    runs = positive_int("runs", runs)
+    confidence = open_unit("confidence", confidence)
+    pairs, noise_index, thresholds = [], [], []
+    tested = None
+    for i, noise in enumerate(noises):
+        for ref, level in pts:
+            d = dither_signal(dither_kind, level * (1e-3 if dither_at == "reference" else 1.0), tones_hz)
+            kw = {"dither_at": dither_at, "position_noise": noise}
+            healthy = excitation_scenario(family, None, ref, d, **kw)
+            pairs.append((healthy, excitation_scenario(family, size, ref, d, **kw)))
+            noise_index.append(i)
+        _, thr = _analytic_thresholds(healthy.nominal, healthy.n_samples - 1, alpha)
+        thresholds.append(thr["exact-bonferroni"].values)
+        tested = thr["exact-bonferroni"].tested
+    study = _ExcitationChunks(tuple(pairs), tuple(thresholds), np.asarray(tested), tuple(noise_index))
+    out = run_study(
+        study,
+        runs,
+        seed,
+        workers=workers,
+        scheduler=scheduler,
+        chunk_runs=chunk_runs,
+        progress=progress,
+        label=f"closed-loop power {family}",
+    )
+    shape = (len(noises), len(pts))
+    mean = out["track"] / runs
+    var = np.maximum(out["track_sq"] / runs - mean**2, 0.0) / max(runs - 1, 1)
+    refs = tuple(dict.fromkeys(r for r, _ in pts))
+    d1 = dither_signal(dither_kind, 1.0, tones_hz)
+    unit = "mm on the reference" if dither_at == "reference" else "rad/s on the pump-speed command"
+    return ExcitationResult(
+        family=family,
+        unit=spec["unit"],
+        channel=spec["channel"],
+        size=size,
+        points=pts,
+        reference_descriptions={r: EXCITATION_REFERENCES[r].describe() for r in refs},
+        response_speed={r: response_speed_rms(r) for r in refs},
+        dither_description=d1.describe().replace("1 per tone", "LEVEL per tone").replace("+-1,", "+-LEVEL,")
+        + f", LEVEL in {unit}",
+        position_noise=noises,
+        alpha=alpha,
+        runs=runs,
+        seed=int(seed) if isinstance(seed, int | np.integer) else None,
+        confidence=confidence,
+        channels=tuple(pairs[0][0].nominal.output_names),
+        detections=_ro(out["det"].reshape(*shape, *out["det"].shape[1:])),
+        detections_any=_ro(out["det_any"].reshape(*shape, 2)),
+        tracking_mm=_ro((mean * 1e3).reshape(*shape, 2)),
+        tracking_se_mm=_ro((np.sqrt(var) * 1e3).reshape(*shape, 2)),
+        u_rms=_ro((out["u_rms"] / runs).reshape(*shape, 2)),
+    )

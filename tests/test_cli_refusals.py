@@ -1,0 +1,79 @@
+"""Options the command would silently ignore or misuse are refused with a message that says what to fix."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from chatterspec.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE_MODEL = ROOT / "examples" / "eha_model.toml"
+EXAMPLE_DATA = ROOT / "examples" / "eha_data.csv"
+
+
+def _error(capsys, argv: list[str]) -> str:
+    assert main(argv) == 2, argv
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    return err
+
+
+@pytest.mark.parametrize(
+    ("argv", "named"),
+    [
+        (["detect", "eha-healthy", "--alpha", "0.01"], "--alpha"),
+        (["detect", "eha-healthy", "--threshold", "paper"], "--threshold"),
+        (["detect", "eha-healthy", "--correction", "sidak", "--alpha", "0.01"], "--alpha and --correction"),
+        (["diagnose", "eha4-leak-onset", "--alpha", "0.01"], "--alpha"),
+        (["diagnose", "eha4-leak-onset", "--calibration-runs", "50"], "--calibration-runs"),
+        (
+            ["monitor", "--model", str(EXAMPLE_MODEL), "--data", str(EXAMPLE_DATA), "--alpha", "0.01"],
+            "--alpha",
+        ),
+    ],
+)
+def test_options_a_calibration_overrides_are_refused(argv: list[str], named: str, capsys) -> None:
+    # refused before the file is even read (it does not exist here): nothing is computed
+    err = _error(capsys, [*argv, "--calibration", "no-such-calibration.npz"])
+    assert f"{named} cannot be used with --calibration" in err
+
+
+def test_a_file_that_is_not_a_calibration_is_named_as_such(tmp_path: Path, capsys) -> None:
+    data = tmp_path / "data.npz"
+    np.savez(data, time=np.arange(3.0), position=np.zeros(3))
+    err = _error(capsys, ["detect", "eha-healthy", "--calibration", str(data)])
+    assert "not a chatterspec calibration file" in err and "[position, time]" in err
+    assert "has no the entry" not in err
+    err = _error(capsys, ["detect", "eha-healthy", "--calibration", str(EXAMPLE_MODEL)])
+    assert "not a chatterspec calibration file" in err and "JSONDecodeError" not in err
+
+
+@pytest.mark.parametrize(
+    ("key", "line", "message"),
+    [
+        (
+            "R_diag",
+            "R_diag = [-1e-06, 1e-06, 1000000]",
+            "[matrices] R_diag holds variances, which must be >= 0",
+        ),
+        ("Q_diag", "Q_diag = [-1e-12, 1e-06, 1]", "[matrices] Q_diag holds variances, which must be >= 0"),
+        ("R_diag", "R = [[1e-06, 0, 0], [0, -1e-06, 0], [0, 0, 1e6]]", "[matrices] R must be positive"),
+    ],
+)
+def test_negative_variances_name_the_file_and_field(
+    key: str, line: str, message: str, tmp_path: Path, capsys
+) -> None:
+    text = "\n".join(line if s.startswith(f"{key} =") else s for s in EXAMPLE_MODEL.read_text().splitlines())
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text + "\n")
+    err = _error(capsys, ["monitor", "--model", str(bad), "--data", str(EXAMPLE_DATA)])
+    assert f"model file {str(bad)!r}" in err and message in err
+
+
+def test_record_every_below_the_minimum_is_refused(capsys) -> None:
+    argv = ["monitor", "--model", str(EXAMPLE_MODEL), "--data", "-", "--record", "x.rrd"]
+    err = _error(capsys, [*argv, "--record-every", "0.0001"])
+    assert "--record-every must be >= 0.05 minutes" in err
