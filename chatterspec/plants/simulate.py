@@ -174,6 +174,15 @@ def iter_simulations(
     runs = positive_int("runs", runs)
     chunk = default_chunk_runs(scenario) if chunk_runs is None else positive_int("chunk_runs", chunk_runs)
     root = root_seed_sequence(seed)
+    if getattr(scenario, "closed_loop", None) is not None:
+        from .simulate_closed_loop import simulate_block_closed_loop
+
+        t = scenario.time
+        for lo in range(first_run, first_run + runs, chunk):
+            hi = min(lo + chunk, first_run + runs)
+            x, z, u = simulate_block_closed_loop(scenario, root, lo, hi, t)
+            yield Simulation(t=t, x=x, z=z, u=u, scenario=scenario, first_run=lo)
+        return
     t, u = scenario_input(scenario)
     for lo in range(first_run, first_run + runs, chunk):
         hi = min(lo + chunk, first_run + runs)
@@ -182,7 +191,7 @@ def iter_simulations(
 
 
 def scenario_input(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
-    """The sample times ``t`` (T,) in seconds and the input ``u`` (T, p) of a scenario.
+    """The sample times ``t`` (T,) in seconds and the input ``u`` (T, p) of an open-loop scenario.
 
     Raises
     ------
@@ -190,14 +199,6 @@ def scenario_input(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
         If the input has a different number of channels than the nominal model.
     """
     t = scenario.time
-    if getattr(scenario, "closed_loop", None) is not None:
-        from .simulate_closed_loop import simulate_block_closed_loop
-
-        for lo in range(first_run, first_run + runs, chunk):
-            hi = min(lo + chunk, first_run + runs)
-            x, z, u = simulate_block_closed_loop(scenario, root, lo, hi, t)
-            yield Simulation(t=t, x=x, z=z, u=u, scenario=scenario, first_run=lo)
-        return
     u = scenario.input.sample(t).reshape(len(t), -1)
     if u.shape[1] != scenario.nominal.n_inputs:
         from ..errors import ShapeError
