@@ -13,6 +13,7 @@ __all__ = [
     "ChatterspecError",
     "DataFileError",
     "DivergenceError",
+    "IdentifiabilityError",
     "ModelFileError",
     "ModelKindError",
     "NonFiniteError",
@@ -75,6 +76,11 @@ class UnstableModelWarning(UserWarning):
 
 class ModelKindError(ParameterError):
     """A code path that needs a linear model (A, B) was handed a nonlinear one, or vice versa."""
+
+
+class IdentifiabilityError(ParameterError):
+    """A physical parameter cannot be identified from this model's chattering (reduced-order
+    measurement, a nonlinear model, no declared parameters, or parameters that cannot be told apart)."""
 
 
 class UnstableLoopError(ParameterError):

@@ -57,6 +57,13 @@ R_diag = [{", ".join(f"{v:.17g}" for v in np.diag(model.R))}]
 psi = [{", ".join(f"{v:.6g}" for v in psi)}]   # 3 x healthy chattering std per output
 gamma = 0.1
 
+# Fault identification: the physical parameters, the other constants the formulas use (dt is
+# the model's), the entries of the DISCRETE A and B they enter (1-based [row, column]), and the
+# hypotheses (sets of parameters that may have changed together; default one per parameter).
+# At the nominal values the formulas must give A and B above.
+{model.parameter_map.to_toml()}
+"leakage+friction" = ["leakage", "friction"]
+
 [detector]
 alpha = 0.001            # per-frame false-alarm probability
 correction = "bonferroni"

@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+from . import _identify
 from ._common import Outputs, add_detector_args, band_from_args, check_output_dir, print_json
 
 #: Scenarios of the demo, in table order.
@@ -50,6 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     p.add_argument("--no-record", action="store_true", help="skip the Rerun recordings")
+    _identify.add_identification_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.set_defaults(func=run)
 
@@ -61,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     from ..detection.detect import detect_chunks
     from ..plants.scenarios import scenario
     from ..progress import Progress
-    from .detect import stream_chunks
+    from .detect import add_identification, stream_chunks
 
     band = band_from_args(args)
     outputs = Outputs()
@@ -74,11 +76,17 @@ def run(args: argparse.Namespace) -> int:
     with Progress(steps, "chatterspec demo") as bar:
         for name in DEMO_SCENARIOS:
             sc = scenario(name)
-            first: list = []  # run 0's simulation: detection and recording share it
-            chunks = stream_chunks(sc, args.runs, args.seed, first)
+            first: list = []  # run 0's simulation: detection, identification and recording share it
+            setup, why_not = _identify.setup_or_reason(sc.nominal, args)
+            chunks = stream_chunks(sc, args.runs, args.seed, first, measurements=setup is not None)
+            ident = None
+            if setup is not None:
+                ident = _identify.stream(setup, args)
+                chunks = ident.tap(chunks, background=True)
             report = detect_chunks(chunks, args.alpha, args.threshold, args.correction, band=band)
             sim = first[0]
             doc = report.to_dict()
+            add_identification(doc, report, setup, why_not, ident, sim, sc, args)
             doc["fault"] = sc.fault
             doc["level"] = sc.level
             doc["fault_channel"] = sc.fault_channel
@@ -150,6 +158,8 @@ def run(args: argparse.Namespace) -> int:
         outputs.finish()
         return 0
     _print_table(results, args)
+    print()
+    _identify.print_demo_table(results)
     print()
     elsewhere = summary_doc["faults_flagged_elsewhere_only"]
     print(

@@ -13,6 +13,7 @@ if TYPE_CHECKING:
     from ..plants.simulate import Simulation
 
 from ..errors import ParameterError
+from . import _identify
 from ._common import (
     Outputs,
     add_detector_args,
@@ -47,6 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "'chatterspec calibrate --out FILE' (refused if it was made for another model or length)",
     )
     add_execution_args(p)
+    _identify.add_identification_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     # None = not given (the defaults of add_detector_args are filled in by run): a calibration fixes
@@ -92,9 +94,13 @@ def run(args: argparse.Namespace) -> int:
             extra["frame_threshold"] = cal.threshold("frame-family-wise")
     first: list = []
     progress = False if args.no_progress or args.runs < PROGRESS_MIN_RUNS else None
-    if args.workers > 1 or args.scheduler is not None:  # the same numbers from worker processes / Dask
+    setup, why_not = _identify.setup_or_reason(sc.nominal, args)
+    ident = None
+    parallel = args.workers > 1 or args.scheduler is not None
+    if parallel:  # the same numbers from worker processes / Dask
         from ..detection.detect_parallel import detect_parallel
 
+        ident = None if setup is None else _identify.stream(setup, args)
         report = detect_parallel(
             sc,
             args.runs,
@@ -106,17 +112,20 @@ def run(args: argparse.Namespace) -> int:
             workers=args.workers,
             scheduler=args.scheduler,
             progress=progress,
+            identification=ident,
             **extra,
         )
-        if args.record or args.live:
+        if args.record or args.live or setup is not None:
             from ..plants.simulate import simulate
 
             first.append(simulate(sc, 1, args.seed))
     else:
+        chunks = stream_chunks(sc, args.runs, args.seed, first, measurements=setup is not None)
+        if setup is not None:  # identification taps the same chunks as they stream past the detector
+            ident = _identify.stream(setup, args)
+            chunks = ident.tap(chunks, background=True)
         report = detect_chunks(
-            with_progress(
-                stream_chunks(sc, args.runs, args.seed, first), args.runs, f"detect {sc.name}", progress
-            ),
+            with_progress(chunks, args.runs, f"detect {sc.name}", progress),
             args.alpha,
             threshold,
             args.correction,
@@ -127,6 +136,7 @@ def run(args: argparse.Namespace) -> int:
     doc = report.to_dict()
     doc["seed"] = args.seed
     doc["fault_intervals_true"] = [list(iv) for iv in sc.fault_intervals]
+    add_identification(doc, report, setup, why_not, ident, sim, sc, args)
     if args.record or args.live:
         from ..online.drivers import record_detection
         from ..online.monitor import MonitorSettings
@@ -146,6 +156,7 @@ def run(args: argparse.Namespace) -> int:
         print_json(doc)
     else:
         print_report(doc)
+        _identify.print_identification(doc)
     if args.record or args.live:
         outputs.finish()  # a failed recording: the result above is printed first
     return 0
@@ -167,13 +178,40 @@ def with_progress(
             bar.update(rec.values.shape[0])
 
 
-def stream_chunks(sc: Scenario, runs: int, seed: int, first: list[Simulation]) -> Iterator[ChatteringRecord]:
+def add_identification(
+    doc: dict,
+    report: object,
+    setup: object,
+    why_not: str | None,
+    ident: object,
+    sim: Simulation | None,
+    sc: Scenario,
+    args: argparse.Namespace,
+) -> None:
+    """``doc["identification"]`` (whole record) and ``doc["identification_intervals"]`` (run 0's
+    STFT intervals)."""
+    if setup is None:
+        doc["identification"] = {"reason": why_not}
+        return
+    doc["identification"] = _identify.record_doc(ident, args.runs, setup, sc)
+    frames = getattr(report, "frames", None)
+    if sim is not None and frames is not None and frames.intervals.get("any"):
+        hop = frames.spectrogram.config.hop_s
+        doc["identification_intervals"] = _identify.interval_docs(
+            setup, sim.z[:1], sim.u, frames.intervals["any"], sc.duration, hop, args, sc
+        )
+
+
+def stream_chunks(
+    sc: Scenario, runs: int, seed: int, first: list[Simulation], *, measurements: bool = False
+) -> Iterator[ChatteringRecord]:
     """Chattering records of ``runs`` realizations in chunks; appends run 0's Simulation to ``first``.
 
     Peak memory is one chunk (``DETECT_CHUNK_RUNS`` realizations), whatever ``runs``. Where the
     fused simulation + auxiliary-SVSF kernel applies (``iter_chattering``'s fast path, the same
     numbers), run 0 is simulated once more on its own for the recording (realization r's
-    numbers do not depend on the chunking).
+    numbers do not depend on the chunking). With ``measurements`` the records keep z and u
+    (fault identification; on the fused path in one reused buffer).
     """
     from ..detection.detect import DETECT_CHUNK_RUNS
     from ..detection.pipeline import _can_fuse, chattering_record, iter_chattering
@@ -181,7 +219,15 @@ def stream_chunks(sc: Scenario, runs: int, seed: int, first: list[Simulation]) -
 
     if _can_fuse(sc):
         first.append(simulate(sc, 1, seed))
-        yield from iter_chattering(sc, runs, seed, chunk_runs=min(runs, DETECT_CHUNK_RUNS))
+        # identification consumes each chunk's z before the next: one buffer serves every chunk
+        yield from iter_chattering(
+            sc,
+            runs,
+            seed,
+            chunk_runs=min(runs, DETECT_CHUNK_RUNS),
+            measurements=measurements,
+            reuse_measurements=measurements,
+        )
         return
     for sim in iter_simulations(sc, runs, seed, chunk_runs=min(runs, DETECT_CHUNK_RUNS)):
         if not first:

@@ -27,6 +27,7 @@ import math
 import time
 
 from ..errors import ParameterError
+from . import _identify
 from ._common import Outputs, add_execution_args, alpha_arg, check_record_path, positive_int_arg, print_json
 
 #: Every method ``--methods`` accepts.
@@ -77,6 +78,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "with it, not with --runs; the results do not depend on it)",
     )
     add_execution_args(p)
+    _identify.add_identification_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--record", metavar="FILE.rrd", default=None, help="write realization 0 to a Rerun file")
@@ -192,7 +194,15 @@ def run(args: argparse.Namespace) -> int:
     first: Simulation | None = None
     sim_s: float | None = None  # seconds spent simulating (None: on workers, inside their chunks)
     chunk = args.chunk_runs or DEFAULT_CHUNK_RUNS
-    if args.workers > 1 or args.scheduler is not None:  # simulation and filters on workers: same figures
+    # fault identification beside the routes: per segment, on the same realizations (test level --alpha)
+    setup, why_not = _identify.setup_or_reason(sc.nominal, args)
+    ident = None
+    parallel = args.workers > 1 or args.scheduler is not None
+    if setup is not None and not parallel:
+        from ..studies.identification_diagnosis import IdentificationTally
+
+        ident = IdentificationTally(sc, setup, alpha=args.alpha, confidence=args.confidence)
+    if parallel:  # simulation and filters on workers: same figures
         from ..plants.simulate import simulate
         from ..studies.diagnosis_parallel import diagnose_parallel
 
@@ -207,14 +217,26 @@ def run(args: argparse.Namespace) -> int:
             chunk_runs=chunk,
             progress=False if args.no_progress else None,
             keep=args.record is not None,
+            identification=None if setup is None else (setup, args.alpha, args.confidence),
         )
+        if setup is not None:
+            ident = tallies.pop()  # the identification tally comes last
         if args.record is not None:
             first = simulate(sc, 1, args.seed)
     else:
         chunks = iter_simulations(sc, args.runs, args.seed, chunk_runs=min(chunk, args.runs))
         tallies = [ChatteringTally(sc, threshold) if m == "chattering" else ModeTally(sc, m) for m in methods]
-        first, sim_s = _serial(args, sc, tallies, chunks, outputs)
+        first, sim_s = _serial(args, sc, [*tallies, *([ident] if ident is not None else [])], chunks, outputs)
     results = [t.result(info) if isinstance(t, ChatteringTally) else t.result() for t in tallies]
+    ident_doc = (
+        {"reason": why_not}
+        if ident is None
+        else {
+            "alpha": args.alpha,
+            "confidence": args.confidence,
+            "segments": [r.to_dict() for r in ident.result()],
+        }
+    )
     recording, written = None, Outputs()  # a recording that fails: the result first, then exit 2
     if args.record is not None:
         from ..online.diagnosis_log import record_diagnosis
@@ -230,12 +252,14 @@ def run(args: argparse.Namespace) -> int:
                 "seed": args.seed,
                 "simulation_s": sim_s,
                 "methods": [r.describe() for r in results],
+                "identification": ident_doc,
                 "recording": None if recording is None else str(recording),
             }
         )
         written.finish()
         return 0
     _print_table(sc, args, results)
+    _identify.print_diagnosis(ident_doc)
     if recording is not None:
         print(f"recording: {recording} (open with `chatterspec replay {recording}` or `rerun {recording}`)")
     written.finish()

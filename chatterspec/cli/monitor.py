@@ -25,6 +25,7 @@ import warnings
 from pathlib import Path
 
 from ..errors import ParameterError
+from . import _identify
 from ._common import (
     Outputs,
     alpha_arg,
@@ -133,6 +134,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="samples per push (default: one STFT hop with --rate, five otherwise)",
     )
+    _identify.add_identification_args(p)
+    p.add_argument(
+        "--identification-events",
+        choices=("none", "changes", "every-hop"),
+        default="none",
+        help="with --events jsonl: an 'identification' event (estimates, intervals, tests of the window "
+        "ending at that hop) whenever the identified hypothesis changes, or at every hop; emitted after "
+        "the monitor's events of the same push (order by sample_time_s). Default none",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
     p.set_defaults(func=run)
 
@@ -221,8 +231,29 @@ def run(args: argparse.Namespace) -> int:
             f"(alpha {cal.alpha:g} per frame, {cal.runs} healthy runs)",
             file=sys.stderr,
         )
+    setup, why_not = _identify.setup_or_reason(spec.model, args)
+    if why_not is not None and not args.no_identify:
+        print(f"chatterspec monitor: no fault identification: {why_not}", file=sys.stderr)
+
+    def identification(t0: float) -> _identify.MonitorIdentification | None:
+        """Per-hop identification over the STFT window, at the monitor's per-frame alpha."""
+        if setup is None:
+            return None
+        hop = stft.n_hop(spec.model.dt)
+        return _identify.MonitorIdentification(
+            setup,
+            hop,
+            max(1, round(stft.n_window(spec.model.dt) / hop)),
+            t0,
+            settings.alpha,
+            args.confidence,
+            _emit_line if jsonl and args.identification_events != "none" else None,
+            lambda text: print(text, file=human, flush=True) if not args.json or jsonl else None,
+            every_hop=args.identification_events == "every-hop",
+        )
+
     if stream:
-        return _run_stream(args, spec, settings, jsonl, human)
+        return _run_stream(args, spec, settings, jsonl, human, identification(0.0))
 
     from ..online.drivers import run_monitor
     from ..online.live_stream import StreamEvent
@@ -258,9 +289,18 @@ def run(args: argparse.Namespace) -> int:
         if not args.json or jsonl:
             print(sev.describe(), file=human, flush=True)
 
+    ident = identification(float(data.t[0]))
     try:
         summary = run_monitor(
-            monitor, sinks, z=data.z, u=data.u, chunk_samples=args.chunk, rate=args.rate, on_event=show
+            monitor,
+            sinks,
+            z=data.z,
+            u=data.u,
+            chunk_samples=args.chunk,
+            rate=args.rate,
+            on_event=show,
+            identifier=None if ident is None else ident.identifier,
+            on_identification=None if ident is None else ident.handle,
         )
     except KeyboardInterrupt:
         if sinks.path is not None:  # run_monitor closed the sinks: the file has its footer
@@ -276,12 +316,12 @@ def run(args: argparse.Namespace) -> int:
         outputs.failures.append(
             f"--record {str(args.record)!r} could not be completed ({summary.write_error})"
         )
-    rc = _report_replay(args, spec, stft, summary, jsonl, human)
+    rc = _report_replay(args, spec, stft, summary, jsonl, human, ident, why_not)
     outputs.finish()
     return rc
 
 
-def _report_replay(args, spec, stft, summary, jsonl: bool, human) -> int:  # type: ignore[no-untyped-def]
+def _report_replay(args, spec, stft, summary, jsonl: bool, human, ident=None, why_not=None) -> int:  # type: ignore[no-untyped-def]
     """Print the summary of a file replay; 1 when the data gave no STFT frame."""
     no_frame = None
     if summary.n_frames == 0:
@@ -294,6 +334,7 @@ def _report_replay(args, spec, stft, summary, jsonl: bool, human) -> int:  # typ
         )
     if args.json:
         doc = {"model": str(args.model), "data": str(args.data), **summary.to_dict()}
+        doc["identification"] = {"reason": why_not} if ident is None else ident.to_dict()
         if no_frame is not None:
             doc["notes"] = [*doc["notes"], no_frame]
         if jsonl:
@@ -357,7 +398,14 @@ def _emit_line(text: str) -> None:
     sys.stdout.flush()
 
 
-def _run_stream(args: argparse.Namespace, spec: object, settings: object, jsonl: bool, human: object) -> int:
+def _run_stream(
+    args: argparse.Namespace,
+    spec: object,
+    settings: object,
+    jsonl: bool,
+    human: object,
+    ident: _identify.MonitorIdentification | None = None,
+) -> int:
     from ..errors import ChatterspecError
     from ..online.live_stream import StreamMonitor, drive
     from ..online.stream import CsvRows, follow_file, read_fd
@@ -387,6 +435,8 @@ def _run_stream(args: argparse.Namespace, spec: object, settings: object, jsonl:
             skip_bad_rows=args.skip_bad_rows,
             on_event=on_event,
             on_note=on_note,
+            on_push=None if ident is None else ident.push,
+            on_reset=None if ident is None else ident.reset,
         )
     except OSError as exc:  # e.g. disk full when the recording opens: before any row is read
         from ._common import OutputPathError
@@ -426,7 +476,7 @@ def _run_stream(args: argparse.Namespace, spec: object, settings: object, jsonl:
             signal.signal(signal.SIGINT, signal.default_int_handler)
             signal.signal(signal.SIGTERM, previous)
     try:
-        _report(args, summary, jsonl, human)
+        _report(args, summary, jsonl, human, ident)
     except BrokenPipeError:
         _quiet_stdout()
     if error is not None:
@@ -442,10 +492,18 @@ def _quiet_stdout() -> None:
     os.dup2(devnull, sys.stdout.fileno())
 
 
-def _report(args: argparse.Namespace, summary: object, jsonl: bool, human: object) -> None:
+def _report(
+    args: argparse.Namespace,
+    summary: object,
+    jsonl: bool,
+    human: object,
+    ident: _identify.MonitorIdentification | None = None,
+) -> None:
     s = summary  # StreamSummary
     if args.json:
         doc = {"model": str(args.model), "data": str(args.data), **s.to_dict()}  # type: ignore[attr-defined]
+        if ident is not None:
+            doc["identification"] = ident.to_dict()
         if jsonl:
             _emit_line(json.dumps({"event": "summary", **doc}, allow_nan=False))
         else:

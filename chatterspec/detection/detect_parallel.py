@@ -36,21 +36,36 @@ class _DetectStudy:
     scenario: Scenario
     plan: ChunkPlan
     gamma: float
+    identification: Any = None  # an IdentificationStream's (setup, alpha, confidence), or None
 
     def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> Any:
-        acc = None
+        acc, parts = None, []
+        keep = self.identification is not None
         for rec in iter_chattering(
-            self.scenario, runs, seed, chunk_runs=runs, first_run=first_run, gamma=self.gamma
+            self.scenario,
+            runs,
+            seed,
+            chunk_runs=runs,
+            first_run=first_run,
+            gamma=self.gamma,
+            measurements=keep,
+            reuse_measurements=keep,
         ):
             acc = self.plan.reduce(acc, self.plan.test(rec.values))
-        return acc
+            if keep:
+                from .identification import identify_record
+
+                setup, alpha, confidence = self.identification
+                parts.append(identify_record(rec, alpha=alpha, confidence=confidence, setup=setup))
+        return acc, parts
 
     def reduce(self, acc: Any, part: Any) -> Any:
         if acc is None:
             return part
-        acc[0].extend(part[0])
-        acc[1] += part[1]
-        acc[2] += part[2]
+        acc[0][0].extend(part[0][0])
+        acc[0][1] += part[0][1]
+        acc[0][2] += part[0][2]
+        acc[1].extend(part[1])
         return acc
 
 
@@ -70,6 +85,7 @@ def detect_parallel(
     workers: int = 1,
     scheduler: str | None = None,
     progress: bool | None = None,
+    identification: Any = None,
 ) -> DetectionReport:
     """:func:`~chatterspec.detection.detect.detect_scenario` on worker processes or Dask (same numbers).
 
@@ -91,6 +107,9 @@ def detect_parallel(
         ``"local-dask"`` or a Dask scheduler address (see :func:`~chatterspec.studies.montecarlo.run_study`).
     progress : bool, optional
         Progress bar on stderr (default: on a terminal).
+    identification : IdentificationStream, optional
+        Fault identification of every chunk on the workers too, added to this stream in chunk order
+        (the serial ``IdentificationStream.tap`` numbers).
 
     Returns
     -------
@@ -108,7 +127,12 @@ def detect_parallel(
     root = root_seed_sequence(seed)
     first = next(iter_chattering(scenario, 1, root, chunk_runs=1, gamma=gamma))  # realization 0
     plan = ChunkPlan.build(first, alpha, threshold, correction, stft, config, band, frame_threshold)
-    study = _DetectStudy(scenario, plan, gamma)
+    ident = (
+        None
+        if identification is None
+        else (identification.setup, identification.alpha, identification.confidence)
+    )
+    study = _DetectStudy(scenario, plan, gamma, ident)
     acc = run_study(
         study,
         runs,
@@ -119,4 +143,7 @@ def detect_parallel(
         progress=progress,
         label=f"detect {scenario.name}",
     )
+    acc, parts = acc
+    for part in parts:
+        identification.add(part)
     return plan.report(acc)

@@ -51,6 +51,11 @@ class ChatteringRecord:
         The scenario simulated, if any.
     first_run : int
         Global index of the first realization (chunks of a larger study).
+    z : (runs, N + 1, m) array or None
+        The measurements z(0) .. z(N) the chattering came from, when kept (fault
+        identification, :mod:`chatterspec.detection.identification`, regresses on them).
+    u : (N + 1, p) or (runs, N + 1, p) array or None
+        The inputs u(0) .. u(N), when kept.
     """
 
     t: np.ndarray
@@ -58,6 +63,8 @@ class ChatteringRecord:
     model: LinearModel
     scenario: Scenario | None = None
     first_run: int = 0
+    z: np.ndarray | None = None
+    u: np.ndarray | None = None
 
     @property
     def dt(self) -> float:
@@ -127,7 +134,16 @@ def chattering_record(
         e = e[None]
     T = e.shape[1]
     t = t0 + np.arange(1, T) * model.dt
-    return ChatteringRecord(t=t, values=e[:, 1:], model=model, scenario=scenario, first_run=first_run)
+    z = np.asarray(z, dtype=float)
+    return ChatteringRecord(
+        t=t,
+        values=e[:, 1:],
+        model=model,
+        scenario=scenario,
+        first_run=first_run,
+        z=z[None] if z.ndim == 2 else z,
+        u=np.asarray(u, dtype=float),
+    )
 
 
 def _from_simulation(sim: Simulation, gamma: float) -> ChatteringRecord:
@@ -143,7 +159,7 @@ def chattering_sink(
     z: np.ndarray,
     zp: np.ndarray,
     e_out: np.ndarray,
-    unused: np.ndarray,
+    z_out: np.ndarray,
     PhiT: np.ndarray,
     Gu: np.ndarray,
     n: int,
@@ -154,12 +170,17 @@ def chattering_sink(
     ``e_out[row, i, k - 1] = e_i(k|k-1)`` by :func:`~chatterspec.filters._svsf_kernels.closed_form_step`
     (eq 23) from ``z(k)``, ``zp = z(k-1)`` and ``Gu[k - 1]`` = G u(k-1), for k >= 1; then ``zp = z(k)``.
     Channel-major output, so that each channel's record is contiguous for the periodogram's FFT.
+    With a non-empty ``z_out`` (``(runs * m, T)``: the ``(runs, m, T)`` channel-major measurements)
+    ``z(k)`` is kept too (fault identification regresses on it).
     """
     if k > 0:
         for i in range(m):
             e_out[row, i, k - 1] = closed_form_step(i, z[i], Gu[k - 1, i], PhiT, zp, m)
     for i in range(m):
         zp[i] = z[i]
+    if z_out.shape[0] > 0:
+        for i in range(m):
+            z_out[row * m + i, k] = z[i]
 
 
 #: Simulation (eq 1-2) and the auxiliary SVSF's chattering (eq 23) fused, one block of runs:
@@ -173,7 +194,26 @@ _chattering_kernel = _jit.specialize(_plant_loop, "chattering", SINK=chattering_
 RUN = _chattering_kernel
 
 
-def _rng_loop(g0, g1, skip, runs, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, PhiT, Gu, e_out, offset):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (Python form tested in tests/test_e2e_kernels.py)
+def _rng_loop(
+    g0: np.random.Generator,
+    g1: np.random.Generator,
+    skip: int,
+    runs: int,
+    seg_idx: np.ndarray,
+    A: np.ndarray,
+    C: np.ndarray,
+    Lq: np.ndarray,
+    Lr: np.ndarray,
+    Bu: np.ndarray,
+    x0: np.ndarray,
+    diag: np.ndarray,
+    ctrl: np.ndarray,
+    PhiT: np.ndarray,
+    Gu: np.ndarray,
+    e_out: np.ndarray,
+    offset: int,
+    z_out: np.ndarray | None = None,
+) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_e2e_kernels.py)
     """``RUN`` (the fused loop) on runs ``skip .. skip + runs - 1`` of one random block, drawing as it goes.
 
     ``g0`` and ``g1`` are the block's generators (streams 0 and 1 of
@@ -182,7 +222,8 @@ def _rng_loop(g0, g1, skip, runs, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, Phi
     ``(T, n)`` numbers when run r starts (after discarding the ``skip`` runs before it) gives
     the same numbers; numba's ``Generator.standard_normal`` is numpy's ziggurat on the same
     bit generator (tests/test_e2e_kernels.py compares them). Only one run's noise is held (2 x 96
-    kB for the EHA's 4001 x 3, in the core's L2 cache), not ``(BLOCK, T, n)`` arrays.
+    kB for the EHA's 4001 x 3, in the core's L2 cache), not ``(BLOCK, T, n)`` arrays. ``z_out``
+    (``(runs * m, T)``, optional) receives the measurements (see :func:`chattering_sink`).
     """
     T = seg_idx.shape[0]
     n = A.shape[1]
@@ -193,7 +234,7 @@ def _rng_loop(g0, g1, skip, runs, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, Phi
         g1.standard_normal()
     v = np.empty((1, T, n))
     w = np.empty((1, T, m))
-    unused = np.empty((0, 0))
+    keep = np.empty((0, 0)) if z_out is None else z_out
     for r in range(runs):
         for k in range(T):
             for i in range(n):
@@ -201,7 +242,7 @@ def _rng_loop(g0, g1, skip, runs, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, Phi
         for k in range(T):
             for i in range(m):
                 w[0, k, i] = g1.standard_normal()
-        RUN(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, e_out, unused, PhiT, Gu, offset + r)
+        RUN(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, e_out, keep, PhiT, Gu, offset + r)
 
 
 #: :func:`_rng_loop` for any size (the per-size kernels of :func:`_rng_kernel` give the same bits).
@@ -219,9 +260,17 @@ def _rng_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
 
 
 def _fused_chattering(
-    scenario: Scenario, runs: int, seed: SeedLike, chunk_runs: int | None, first_run: int, gamma: float
+    scenario: Scenario,
+    runs: int,
+    seed: SeedLike,
+    chunk_runs: int | None,
+    first_run: int,
+    gamma: float,
+    measurements: bool = False,
+    reuse: bool = False,
 ) -> Iterator[ChatteringRecord]:
-    """:func:`iter_chattering` through :func:`_chattering_kernel` (same numbers, no x or z arrays)."""
+    """:func:`iter_chattering` through :func:`_chattering_kernel` (same numbers, no x arrays; z only
+    with ``measurements``)."""
     model = scenario.nominal
     f = auxiliary_svsf(model, gamma)
     root = root_seed_sequence(seed)
@@ -233,9 +282,16 @@ def _fused_chattering(
     times = np.arange(1, T) * model.dt
     chunk = default_chunk_runs(scenario) if chunk_runs is None else positive_int("chunk_runs", chunk_runs)
     kernel = _rng_kernel(model.n_states, m)
+    z_buf = None
     for lo in range(first_run, first_run + runs, chunk):
         hi = min(lo + chunk, first_run + runs)
         e = np.empty((hi - lo, m, T - 1))  # channel-major storage (contiguous FFT lines)
+        if not measurements:
+            z = None
+        elif not reuse or z_buf is None or z_buf.shape[0] < hi - lo:
+            z = z_buf = np.empty((hi - lo, m, T))
+        else:  # the previous record's buffer: no fresh pages to fault in per chunk
+            z = z_buf[: hi - lo]
         for b in range(lo // BLOCK, (hi - 1) // BLOCK + 1):  # the random blocks overlapping [lo, hi)
             s0, s1 = max(b * BLOCK, lo), min((b + 1) * BLOCK, hi)
             g0, g1 = block_generator(root, b, 0), block_generator(root, b, 1)
@@ -254,9 +310,20 @@ def _fused_chattering(
                 e,
                 s0 - lo,
             )
-            kernel(g0, g1, s0 - b * BLOCK, s1 - s0, *args)
+            if z is None:
+                kernel(g0, g1, s0 - b * BLOCK, s1 - s0, *args)
+            else:
+                kernel(g0, g1, s0 - b * BLOCK, s1 - s0, *args, z.reshape(-1, T))
         values = e.transpose(0, 2, 1)  # the (runs, N, m) view of the package convention
-        yield ChatteringRecord(t=times, values=values, model=model, scenario=scenario, first_run=lo)
+        yield ChatteringRecord(
+            t=times,
+            values=values,
+            model=model,
+            scenario=scenario,
+            first_run=lo,
+            z=None if z is None else z.transpose(0, 2, 1),
+            u=u if measurements else None,
+        )
 
 
 def _can_fuse(scenario: Scenario) -> bool:
@@ -281,6 +348,8 @@ def iter_chattering(
     chunk_runs: int | None = None,
     first_run: int = 0,
     gamma: float = 0.1,
+    measurements: bool = False,
+    reuse_measurements: bool = False,
 ) -> Iterator[ChatteringRecord]:
     """Simulate and filter ``runs`` realizations chunk by chunk (constant memory).
 
@@ -303,6 +372,15 @@ def iter_chattering(
         Index of the first realization (default 0).
     gamma : float
         SVSF convergence rate in (0, 1) (eq 8-10).
+    measurements : bool
+        Keep the measurements and inputs in the records (``record.z``, ``record.u``), for
+        fault identification; the fused compiled path then also writes z (8 bytes per
+        sample and channel). The simulated path always keeps them.
+    reuse_measurements : bool
+        With ``measurements`` on the fused path: every record's ``z`` is a view of one buffer,
+        overwritten by the next record (for a consumer that is done with a record before it asks
+        for the next, like :class:`~chatterspec.detection.identification.IdentificationStream`:
+        no fresh memory to fault in per chunk).
 
     Yields
     ------
@@ -311,7 +389,9 @@ def iter_chattering(
     """
     if _can_fuse(scenario):
         runs = positive_int("runs", runs)
-        yield from _fused_chattering(scenario, runs, seed, chunk_runs, first_run, gamma)
+        yield from _fused_chattering(
+            scenario, runs, seed, chunk_runs, first_run, gamma, measurements, reuse_measurements
+        )
         return
     for sim in iter_simulations(scenario, runs, seed, chunk_runs=chunk_runs, first_run=first_run):
         yield _from_simulation(sim, gamma)

@@ -181,6 +181,7 @@ def blueprint(
     band_hz: tuple[float, float] | None = None,
     span_s: tuple[float, float] | None = None,
     db_range: tuple[float, float] = (-5.0, 30.0),
+    extra_row: Any = None,
 ) -> Any:
     """The default layout: per channel (columns) chattering, spectrogram, detection statistic and peak
     frequency; below, the state lanes (true fault first, then one verdict lane per channel in channel
@@ -204,6 +205,10 @@ def blueprint(
         opens paused on the whole record.
     db_range : (float, float)
         Colour range of the spectrogram (dB re the frame threshold), shown in its title.
+    extra_row : callable, optional
+        ``extra_row(time_range)`` returns views added as a row below the lanes, with the time range
+        of the other views (e.g. the identified parameters,
+        :func:`chatterspec.online.identification_log.identification_views`).
 
     Returns
     -------
@@ -301,6 +306,7 @@ def blueprint(
             ),
         )
     )
+    extra = [] if extra_row is None else [rrb.Horizontal(*extra_row(time_range))]
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Horizontal(*columns),
@@ -313,8 +319,10 @@ def blueprint(
                 rrb.TextLogView(origin="/events", name="detection events"),
                 column_shares=[2, 1],
             ),
+            *extra,
             # about 45 px per lane at 1000 px: every lane visible at 1600x1000
-            row_shares=[5.2, 0.55 + 0.25 * n_lanes],
+            # the extra row (identified parameters) takes its height from the views above
+            row_shares=[4.4 if extra else 5.2, 0.55 + 0.25 * n_lanes] + ([1.3] if extra else []),
         ),
         time_panel,
         collapse_panels=True,

@@ -129,6 +129,8 @@ def run_monitor(
     scroll_frames: int = 50,
     on_event: Any = None,
     band_hz: tuple[float, float] | None = None,
+    identifier: Any = None,
+    on_identification: Any = None,
 ) -> RecordingSummary:
     """Drive ``monitor`` over raw data (``z`` (T, m), ``u`` (T, p)) or precomputed ``chattering`` (N, m)
     and log everything to ``sinks``; closes the sinks at the end (also on Ctrl-C).
@@ -156,6 +158,12 @@ def run_monitor(
         Called with each :class:`~chatterspec.online.monitor.DetectionEvent` (e.g. to print it).
     band_hz : (float, float), optional
         Spectrogram band (Hz); default :func:`~chatterspec.online.rerun_log.default_band_hz`.
+    identifier : OnlineIdentifier, optional
+        Fault identification per hop on the same raw pushes
+        (:class:`~chatterspec.detection.identification_online.OnlineIdentifier`), logged to the
+        sinks (:mod:`chatterspec.online.identification_log`); raw data only.
+    on_identification : callable, optional
+        Called with each push's :class:`~chatterspec.detection.identification_online.OnlineIdentification`.
 
     Returns
     -------
@@ -174,6 +182,13 @@ def run_monitor(
         if data is None:
             raise ValueError("give z and u, or chattering")
         total = data.shape[0]
+        if chattering is not None:
+            identifier = None  # identification regresses on the raw measurements
+        views = None
+        if identifier is not None and sinks.streams:
+            from .identification_log import IdentificationLog, identification_views
+
+            views = identification_views(identifier.setup, identifier.confidence)
         logger = (
             RerunLogger(
                 sinks,
@@ -182,10 +197,12 @@ def run_monitor(
                 truth=truth,
                 band_hz=band_hz,
                 span_s=_record_span(monitor, total, raw=chattering is None),
+                extra_row=views,
             )
             if sinks.streams
             else None
         )
+        ident_log = IdentificationLog(sinks, identifier.setup) if views is not None else None
         for lo, hi in _chunks(total, size):
             if chattering is not None:
                 upd = monitor.push_chattering(chattering[lo:hi])
@@ -197,6 +214,12 @@ def run_monitor(
                 events.append(ev)
                 if on_event is not None:
                     on_event(ev)
+            if identifier is not None:
+                found = identifier.push(z[lo:hi], u[lo:hi])
+                if ident_log is not None:
+                    ident_log.log(found)
+                if on_identification is not None:
+                    on_identification(found)
             _pace(t_start, hi * monitor.dt, rate)
         done = True
     finally:

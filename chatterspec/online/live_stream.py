@@ -242,6 +242,11 @@ class StreamMonitor:
         Called with each :class:`StreamEvent` as soon as it happens.
     on_note : callable, optional
         Called with human-readable notes (skipped rows, recordings closed).
+    on_push : callable, optional
+        Called with every block of raw rows ``(z (K, m), u (K, p))`` after the monitor's verdicts
+        (the CLI feeds online fault identification with it).
+    on_reset : callable, optional
+        Called with the new ``t0`` (s) when a gap or restart starts the filters over.
     """
 
     def __init__(
@@ -256,7 +261,11 @@ class StreamMonitor:
         skip_bad_rows: bool = False,
         on_event: Callable[[StreamEvent], None] | None = None,
         on_note: Callable[[str], None] | None = None,
+        on_push: Callable[[np.ndarray, np.ndarray], None] | None = None,
+        on_reset: Callable[[float], None] | None = None,
     ) -> None:
+        self.on_push = on_push  # e.g. online fault identification, fed the same raw rows
+        self.on_reset = on_reset  # called with t0 when a gap or restart starts the filters over
         self.model = model
         self.dt = model.dt
         self.settings = settings
@@ -472,6 +481,8 @@ class StreamMonitor:
         # every monitor shares the first one's threshold (no recomputation at a reset)
         self.monitor = ChatteringMonitor(self.model, self._threshold_settings, t0=t0)
         self._reset_next = False
+        if self.on_reset is not None:
+            self.on_reset(t0)
 
     def _push(self, z: np.ndarray, u: np.ndarray, t: np.ndarray, arrival: float) -> None:
         # verdicts first (events out, latency taken), then logging and recording rotation, so that
@@ -491,6 +502,8 @@ class StreamMonitor:
             if self.record_every is not None:
                 in_file = (in_file + hi - lo) % self.record_every
             lo = hi
+        if self.on_push is not None:
+            self.on_push(z, u)
         for upd, lo, hi in parts:
             if self.record_every is not None and self._file_logger is None:
                 self._open_file(float(t[lo]))

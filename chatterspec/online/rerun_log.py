@@ -200,6 +200,8 @@ class RerunLogger:
         frame's bins and below any display resolution) and halves the largest payload of the file
         (~3.6 -> 1.8 MB per minute for 3 channels x 501 bins); the monitor's verdicts are computed
         in float64 before logging either way. "float64" logs the monitor's values bit-exactly.
+    extra_row : callable, optional
+        Views below the default layout (see :func:`~chatterspec.online.blueprint.blueprint`).
     """
 
     def __init__(
@@ -216,6 +218,7 @@ class RerunLogger:
         truth: list[tuple[float, str, bool]] | None = None,
         send_blueprint: bool = True,
         spectrum_dtype: str = "float32",
+        extra_row: Any = None,
     ) -> None:
         import pyarrow as pa
         import rerun as rr
@@ -296,6 +299,7 @@ class RerunLogger:
                     band_hz=self.band_hz,
                     span_s=None if s is sinks.live_stream else span_s,
                     db_range=DB_RANGE,
+                    extra_row=extra_row,
                 )
                 s.send_blueprint(bp, make_active=True, make_default=True)
         self._log_static(truth)

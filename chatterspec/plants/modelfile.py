@@ -68,6 +68,7 @@ import numpy as np
 from ..errors import ChatterspecError, ModelFileError, UnstableModelWarning
 from .datafile import TIME_COLUMNS, DataSet, load_data
 from .models import LinearModel, discretize
+from .parameters import model_file_parameter_map
 
 if TYPE_CHECKING:  # pragma: no cover
     from .modelfile_nonlinear import SimulationSpec
@@ -206,13 +207,14 @@ def load_model(path: str | Path) -> ModelSpec:
     if len(set(outputs) | set(inputs)) != m + p:
         raise ModelFileError(f"{where}: [channels] output and input names must all be distinct")
 
+    method = str(mats.get("discretization", "euler"))
     if form == "continuous":
-        method = str(mats.get("discretization", "euler"))
         if method not in ("euler", "zoh"):
             raise ModelFileError(
                 f"{where}: [matrices] discretization must be 'euler' or 'zoh'; got {method!r}"
             )
         A, B = discretize(A, B, dt, method)  # type: ignore[arg-type]
+    pmap = model_file_parameter_map(doc, where, form, method)  # fault identification (optional)
     try:
         model = LinearModel(
             A=A,
@@ -226,7 +228,10 @@ def load_model(path: str | Path) -> ModelSpec:
             input_names=tuple(inputs),
             output_units=tuple(units),
             name=str(doc.get("name", path.stem)),
+            parameter_map=pmap,
         )
+        if pmap is not None:
+            pmap.check(model)
     except ChatterspecError as exc:
         raise ModelFileError(f"{where}: invalid model: {exc}") from exc
     rho = model.spectral_radius

@@ -124,6 +124,8 @@ def write_model_toml(
         f"psi = {_toml_vector(psi_arr)}",
         f"gamma = {_toml_number(gamma)}",
     ]
+    if model.parameter_map is not None:  # fault identification: how physical parameters enter A and B
+        lines += ["", model.parameter_map.to_toml()]
     if detector:
         lines += ["", "[detector]"]
         for key, value in detector.items():

@@ -23,6 +23,7 @@ import numpy as np
 
 from .._validate import finite_array, nonnegative, positive, readonly
 from ..errors import ParameterError, ShapeError, SingularMatrixError, UnstableModelWarning
+from .parameters import ParameterMap, eha_parameter_map, second_order_parameter_map
 
 __all__ = [
     "EHA_PARAMETERS",
@@ -133,6 +134,9 @@ class LinearModel:
         second-order system).
     name : str
         Short human-readable description.
+    parameter_map : ParameterMap, optional
+        How named physical parameters enter A and B (:mod:`chatterspec.plants.parameters`),
+        for fault identification; checked against A and B when identification uses it.
 
     Raises
     ------
@@ -152,6 +156,7 @@ class LinearModel:
     output_units: tuple[str, ...] = ()
     oscillatory_block: np.ndarray | None = None
     name: str = "linear model"
+    parameter_map: ParameterMap | None = field(default=None, repr=False)
     _cinv: np.ndarray | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -479,6 +484,8 @@ def second_order(
         input_names=("u",),
         oscillatory_block=Ac,
         name=f"second-order f0={f0:g} Hz zeta={zeta:g}",
+        # the formulas are those of explicit Euler; a ZOH model has no closed-form entries
+        parameter_map=second_order_parameter_map(f0, zeta) if discretization == "euler" else None,
     )
 
 
@@ -624,4 +631,6 @@ def eha_linear(
         output_units=("m", "m/s", "Pa"),
         oscillatory_block=block,
         name=(f"EHA L={params['leakage']:.3g} a={params['friction']:.4g} be={params['bulk_modulus']:.4g}"),
+        # the formulas are those of explicit Euler; a ZOH model has no closed-form entries
+        parameter_map=eha_parameter_map(**params) if discretization == "euler" else None,
     )

@@ -24,10 +24,18 @@ from .mode_diagnosis import ModeTally
 __all__ = ["diagnose_parallel"]
 
 
-def _tallies(scenario: object, methods: tuple[str, ...], threshold: object) -> list[Any]:
-    return [
+def _tallies(
+    scenario: object, methods: tuple[str, ...], threshold: object, identification: Any = None
+) -> list[Any]:
+    out = [
         ChatteringTally(scenario, threshold) if m == "chattering" else ModeTally(scenario, m) for m in methods
     ]  # type: ignore[arg-type]
+    if identification is not None:  # (setup, alpha, confidence): fault identification per segment, last
+        from .identification_diagnosis import IdentificationTally
+
+        setup, alpha, confidence = identification
+        out.append(IdentificationTally(scenario, setup, alpha=alpha, confidence=confidence))  # type: ignore[arg-type]
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,14 +46,19 @@ class _DiagnoseStudy:
     methods: tuple[str, ...]
     threshold: object
     keep: bool
+    identification: Any = None
 
     def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> Any:
         (sim,) = iter_simulations(self.scenario, runs, seed, chunk_runs=runs, first_run=first_run)  # type: ignore[arg-type]
-        return sim.t, [tally.compute(sim) for tally in _tallies(self.scenario, self.methods, self.threshold)]
+        tallies = _tallies(self.scenario, self.methods, self.threshold, self.identification)
+        return sim.t, [tally.compute(sim) for tally in tallies]
 
     def reduce(self, acc: Any, part: Any) -> Any:
         if acc is None:
-            acc = {"tallies": _tallies(self.scenario, self.methods, self.threshold), "keep": {}}
+            acc = {
+                "tallies": _tallies(self.scenario, self.methods, self.threshold, self.identification),
+                "keep": {},
+            }
         t, computed = part
         for tally, c in zip(acc["tallies"], computed, strict=True):
             if isinstance(tally, ModeTally):
@@ -67,6 +80,7 @@ def diagnose_parallel(
     chunk_runs: int | None = None,
     progress: bool | None = None,
     keep: bool = False,
+    identification: Any = None,
 ) -> tuple[list[Any], dict]:
     """The tallies of ``methods`` over ``runs`` realizations, computed on workers (same figures as serial).
 
@@ -84,6 +98,9 @@ def diagnose_parallel(
         As in :func:`~chatterspec.studies.montecarlo.run_study` (chunks are multiples of 64 runs).
     keep : bool
         Keep realization 0's mode probabilities per mode method (for ``--record``).
+    identification : (IdentificationSetup, float, float), optional
+        ``(setup, alpha, confidence)``: fault identification per segment too
+        (:class:`~chatterspec.studies.identification_diagnosis.IdentificationTally`), returned last.
 
     Returns
     -------
@@ -92,7 +109,7 @@ def diagnose_parallel(
     """
     from .montecarlo import run_study
 
-    study = _DiagnoseStudy(scenario, tuple(methods), threshold, keep)
+    study = _DiagnoseStudy(scenario, tuple(methods), threshold, keep, identification)
     acc = run_study(
         study,
         runs,

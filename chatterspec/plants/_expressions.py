@@ -1,0 +1,124 @@
+"""Safe arithmetic formulas over named values, evaluated with numpy (private module).
+
+A model file writes how a physical parameter enters a matrix entry as text, e.g.
+``"1 - dt*bulk_modulus*leakage/volume"``. :func:`compile_formula` parses it with
+:mod:`ast` and accepts only numbers, names, ``+ - * / **``, unary ``+ -``, parentheses and
+the functions of :data:`FUNCTIONS`; anything else (attribute access, calls of other
+names, subscripts, comparisons, ...) is refused. The result evaluates on numpy arrays, so
+one call covers every Monte Carlo realization.
+"""
+
+from __future__ import annotations
+
+import ast
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ParameterError
+
+__all__ = ["FUNCTIONS", "Formula", "compile_formula"]
+
+#: Functions a formula may call (one argument each).
+FUNCTIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+    "sqrt": np.sqrt,
+    "exp": np.exp,
+    "log": np.log,
+    "sin": np.sin,
+    "cos": np.cos,
+}
+#: Constants every formula knows (a name declared by the model takes precedence).
+BUILTIN_CONSTANTS: dict[str, float] = {"pi": float(np.pi)}
+
+_BINARY = (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow)
+
+
+@dataclass(frozen=True)
+class Formula:
+    """A parsed formula: its text, the names it reads, and an evaluator.
+
+    Attributes
+    ----------
+    text : str
+        The formula as written.
+    names : frozenset of str
+        Names it reads (parameters and constants; not the function names).
+    """
+
+    text: str
+    names: frozenset[str]
+    _code: object = field(repr=False, compare=False)
+
+    def __reduce__(self) -> tuple[object, tuple[str]]:
+        # code objects do not pickle (models travel to worker processes): rebuild from the text
+        return (compile_formula, (self.text,))
+
+    def __call__(self, values: Mapping[str, object]) -> np.ndarray:
+        """Evaluate with ``values`` (name -> number or array; arrays broadcast).
+
+        Raises
+        ------
+        ParameterError
+            If a name is missing from ``values`` (and is not ``pi``).
+        """
+        missing = self.names - values.keys() - BUILTIN_CONSTANTS.keys()
+        if missing:
+            raise ParameterError(f"formula {self.text!r}: no value for {sorted(missing)}")
+        scope: dict[str, object] = {**BUILTIN_CONSTANTS, **FUNCTIONS}
+        scope.update({k: np.asarray(values[k], dtype=float) for k in self.names if k in values})
+        try:
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                # the tree holds only the whitelisted nodes (compile_formula): no builtins are reachable
+                return np.asarray(eval(self._code, {"__builtins__": {}}, scope), dtype=float)
+        except ArithmeticError as exc:  # e.g. 1/0 between two literal numbers
+            raise ParameterError(f"formula {self.text!r} cannot be evaluated: {exc}") from None
+
+
+def compile_formula(text: str, where: str = "formula") -> Formula:
+    """Parse ``text`` into a :class:`Formula`.
+
+    Parameters
+    ----------
+    text : str
+        Arithmetic over names and numbers, e.g. ``"-dt*(2*pi*f0)**2"``.
+    where : str
+        Prefix of error messages (e.g. the model file and key).
+
+    Raises
+    ------
+    ParameterError
+        On a syntax error or a construct other than numbers, names, ``+ - * / **``,
+        unary ``+ -`` and calls of :data:`FUNCTIONS`.
+    """
+    if not isinstance(text, str) or not text.strip():
+        raise ParameterError(f"{where}: a formula must be a non-empty string; got {text!r}")
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+    except SyntaxError as exc:
+        raise ParameterError(f"{where}: {text!r} is not a valid formula ({exc.msg})") from None
+    names: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call):
+            if not (isinstance(node.func, ast.Name) and node.func.id in FUNCTIONS) or len(node.args) != 1:
+                raise ParameterError(
+                    f"{where}: {text!r}: only one-argument calls of {', '.join(FUNCTIONS)} are allowed"
+                )
+            if node.keywords:
+                raise ParameterError(f"{where}: {text!r}: keyword arguments are not allowed")
+        elif isinstance(node, ast.Name):
+            if node.id not in FUNCTIONS:
+                names.add(node.id)
+        elif isinstance(node, ast.Constant):
+            if isinstance(node.value, bool) or not isinstance(node.value, int | float):
+                raise ParameterError(f"{where}: {text!r}: only numbers are allowed as constants")
+        elif isinstance(node, ast.BinOp):
+            if not isinstance(node.op, _BINARY):
+                raise ParameterError(f"{where}: {text!r}: only + - * / ** are allowed")
+        elif isinstance(node, ast.UnaryOp):
+            if not isinstance(node.op, ast.UAdd | ast.USub):
+                raise ParameterError(f"{where}: {text!r}: only unary + and - are allowed")
+        elif not isinstance(node, ast.Expression | ast.Load | ast.operator | ast.unaryop):
+            raise ParameterError(f"{where}: {text!r}: {type(node).__name__} is not allowed in a formula")
+    code = compile(tree, "<formula>", "eval")
+    return Formula(text=text.strip(), names=frozenset(names), _code=code)
