@@ -155,7 +155,11 @@ class ChatteringMonitor:
         # one compiled call per push for both filters (full measurement: the closed form of eq 23;
         # at least one input; numba installed, and enabled at push time)
         self._fused = (
-            isinstance(self._aux, SVSF) and self._aux._L is None and model.n_inputs >= 1 and _jit.HAVE_NUMBA
+            isinstance(self._aux, SVSF)
+            and self._aux._L is None
+            and model.n_inputs >= 1
+            and _jit.HAVE_NUMBA
+            and _jit.fits(model.n_states, model.n_outputs, vectors_only=True)
         )
         if self._fused:
             self._GT = np.ascontiguousarray(self._aux._GT, dtype=float)
