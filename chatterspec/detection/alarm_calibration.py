@@ -122,7 +122,6 @@ def check_budget(false_alarms_per_hour: object, option: str = "false_alarms_per_
     return x
 
 
-
 def _poisson_ppf(q: float, mu: float) -> int:
     """The smallest count ``k`` with ``P(N <= k) >= q`` for ``N`` ~ Poisson(``mu``) (scipy.stats' rule)."""
     k = math.ceil(scipy.special.pdtrik(q, mu))
