@@ -141,7 +141,8 @@ def verify(args: argparse.Namespace) -> dict:
                 n2 = int(sum(run_rule(c2.rule, s).starts.sum() for s in scores))
                 lo2, hi2 = poisson_count_interval(x * total_h, 0.99)
                 extra[f"{x:g}"] = {"threshold": c2.threshold, "starts": n2, "interval_99": [lo2, hi2],
-                                   "inside": bool(lo2 <= n2 <= hi2)}  # fmt: skip
+                                   "inside": bool(lo2 <= n2 <= hi2), "method": c2.method,
+                                   "rate_interval": list(c2.rate_interval)}  # fmt: skip
             c3 = calibrate_alarm(model, base, cal.rule, args.budget, hours=in_call_hours(model.n_outputs))
             n3 = int(sum(run_rule(c3.rule, s).starts.sum() for s in scores))
             row["extra_budgets"] = extra

@@ -6,9 +6,14 @@ against sqrt(R), the worst per-segment argmax accuracy and the delay of the run-
 after each onset. ``imm``: one IMM bank type over the whole analogue record: the confusion matrix
 (percent, rows predicted, columns actual), argmax accuracy, RMSE per state and the wall time.
 
+``rate``: realization-steps per second of the SMM-SVSF (Table 1) on ``eha4-leak-timeline``, compiled
+(:mod:`chatterspec.filters._smm_kernel`) and its numpy path in the same run (outputs compared first),
+and the SVSF-cov alone on the same data for scale.
+
 Usage::
 
     python benchmarks/bench_multiple_model.py smm --runs 2 --scales 0.1 1 10
+    python benchmarks/bench_multiple_model.py rate --runs 20
     python benchmarks/bench_multiple_model.py imm --bank ekf --runs 10 [--steps 60000] [--path protocol]
 
 ``imm`` reports the wall and CPU time of the filter call alone (after a 2-sample warm-up that
@@ -63,6 +68,46 @@ def smm(runs: int, seed: int, scales: list[float]) -> list[dict[str, object]]:
         )
         print(json.dumps(rows[-1]), flush=True)
     return rows
+
+
+def rate(runs: int, seed: int) -> dict[str, object]:
+    """SMM-SVSF realization-steps per CPU second: compiled loop vs numpy path (same run, same data)."""
+    sc = cs.scenario("eha4-leak-timeline")
+    fs = sc.filter_settings
+    sim = cs.simulate(sc, runs=runs, seed=seed)
+    z, u = sim.z[:, 1:], sim.u[:-1]
+    f = SMMSVSF(fs.mode_models, psi=np.array(fs.psi), gamma=fs.gamma, mapping=fs.mapping)
+    numpy_path = SMMSVSF(fs.mode_models, psi=np.array(fs.psi), gamma=fs.gamma, mapping=fs.mapping)
+    object.__setattr__(numpy_path, "_compiled", None)
+    f.run(z[:1, :2], u[:2], x0=fs.x0, P0=fs.P0)  # compile or load the kernel
+    steps = z.shape[0] * z.shape[1]
+
+    def cpu(fn) -> float:  # type: ignore[no-untyped-def]
+        best = np.inf
+        for _ in range(3):
+            c0 = time.process_time()
+            fn()
+            best = min(best, time.process_time() - c0)
+        return best
+
+    a = f.run(z, u, x0=fs.x0, P0=fs.P0)
+    n_np = min(runs, 2)
+    b = numpy_path.run(z[:n_np], u, x0=fs.x0, P0=fs.P0)
+    gap = float(np.max(np.abs(a.x_post[:n_np] - b.x_post) / np.max(np.abs(b.x_post), axis=(0, 1))))
+    svsf = SVSFCov(fs.mode_models[0], psi=np.array(fs.psi), gamma=fs.gamma, mapping=fs.mapping)
+    t_numpy = cpu(lambda: numpy_path.run(z[:n_np], u, x0=fs.x0, P0=fs.P0))
+    t_svsf = cpu(lambda: svsf.run(z, u, x0=fs.x0, P0=fs.P0, store=["x_post"]))
+    row = {
+        "runs": runs,
+        "steps": z.shape[1],
+        "smm_compiled_Msteps_per_cpu_s": steps / cpu(lambda: f.run(z, u, x0=fs.x0, P0=fs.P0)) / 1e6,
+        "smm_numpy_Msteps_per_cpu_s": n_np * z.shape[1] / t_numpy / 1e6,
+        "svsf_cov_Msteps_per_cpu_s": steps / t_svsf / 1e6,
+        "max_rel_gap_x_post": gap,
+        "loadavg_1min": os.getloadavg()[0],
+    }
+    print(json.dumps(row), flush=True)
+    return row
 
 
 def bank(kind: str, fs: object) -> list[object]:
@@ -120,7 +165,7 @@ def imm(kind: str, runs: int, seed: int, steps: int | None, path: str = "auto") 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("what", choices=["smm", "imm"])
+    p.add_argument("what", choices=["smm", "imm", "rate"])
     p.add_argument("--runs", type=int, default=2)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--scales", type=float, nargs="+", default=[0.01, 0.1, 1.0, 10.0])
@@ -136,6 +181,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.what == "smm":
         smm(args.runs, args.seed, args.scales)
+    elif args.what == "rate":
+        rate(args.runs, args.seed)
     else:
         imm(args.bank, args.runs, args.seed, args.steps, args.path)
     return 0

@@ -12,38 +12,52 @@ imported lazily, by the first :func:`enabled` call, so commands that never reach
 a kernel do not pay its import time; a numba that is installed but fails to
 import means the numpy path, with a warning.
 
+Steps, loops and specializations
+--------------------------------
+The arithmetic of a filter or a plant is written **once**, as a *step* (:func:`step`): one sample
+of one realization, scalar loops over channels, writing into arrays it is given. *Loops* (kernels,
+:func:`njit`) iterate runs and samples and call steps; numba inlines every step into every loop
+that calls it, so a loop built from steps runs like one written out by hand. A loop that works
+for several plants or filters is a *template*: it calls steps by global names it does not define
+(``PLANT``, ``SAMPLE``, ...) and reads sizes ``NX``, ``NZ``; :func:`specialize` (or
+:func:`specialize_sizes`) binds them, at compile time, for one plant and filter. Small sizes bound
+as literals let LLVM unroll the channel loops and keep the per-run state in registers: the EHA's
+3-state loops run as fast as the copies written out for 3 states that they replace.
+
+Three things make that true, and the first attempts at sharing steps (1.6-1.8x slower) missed them:
+
+* **No reference counting in the inner loop.** Every array a loop passes to an inlined step costs
+  an atomic increment and decrement of its reference count per call when the step has loops of
+  run-time length (numba cannot prune them): three times the arithmetic of an SVSF step. A loop
+  therefore borrows its array arguments at its top (:func:`borrow`) and keeps its per-run state in
+  stack arrays (:func:`scratch`, :func:`scratch2`, :func:`scratch_block`), which have no count.
+* **No function values.** A step passed as an argument is typed per function object and defeats
+  numba's cache (a new machine-code file per process); a closure over it does too. Bindings are
+  global names of a copy of the template, so the compiled loop is cached per binding.
+* **A digest in every compiled name.** numba stamps its cache with the source file of the function
+  it compiles, not of the steps inlined into it; each kernel's name carries a digest of its code,
+  its bound values and every kernel or step it reaches, so editing a step recompiles its loops.
+
 How to add a compiled kernel
 ----------------------------
-1. **Signature.** A module-level function ``_<name>_kernel(...)`` of numpy
-   arrays and scalars only (no dataclasses, no ``None``: pass an empty array,
-   e.g. ``np.empty((0, 0, 0))``, for an output that is not wanted, and test
-   ``out.shape[0] > 0`` inside). Inputs first, then the state arrays it updates
-   in place, then the preallocated outputs; it returns nothing. Arrays keep the
-   package layout ``(runs, K, channels)``; strided views are fine (numba
-   compiles one specialization per layout, and all of them are cached).
-2. **Body.** ``for r in range(runs):`` outermost, then ``for k in range(K):``,
-   with the per-run state in small local arrays allocated once before the loops
-   and explicit scalar loops over channels (no array expressions, which would
-   allocate a temporary per sample). Use only ``+ - * /``, ``abs``, ``min``,
-   ``max``, ``np.sign``, ``np.sqrt``: each is correctly rounded and numba does
-   not fuse or reorder them (no ``fastmath``), so the kernel's bits depend only
-   on the order in which you write the sums. Runs are independent, so a chunk
-   of runs or of samples gives the same bits as the whole record.
-3. **Dispatch.** Decorate with :func:`njit`; in the public method, after
-   validating the input in Python, branch on :func:`enabled`: compiled kernel
-   if true, the existing numpy loop otherwise (keep it: it is the fallback
-   without numba and the baseline of the benchmarks). Both branches must give
-   the same results for every chunking, since online and batch use the same
-   method.
-4. **Equality test.** In ``tests/test_kernels.py``, run the same input through
-   both branches (``monkeypatch.setenv("CHATTERSPEC_JIT", "0")`` selects the
-   numpy one) and compare: bit-identical where both evaluate sums in the same
-   order, otherwise to a stated tolerance with its reason (BLAS sums matrix
-   products in a different order than the kernel's loop: a few ulps per step,
-   which a stable filter does not amplify). Also run the kernel's Python
-   function (``kernel.py_func``) on a tiny input, so the test does not depend
-   on the compiler for its meaning. The tests skip the compiled side when
-   numba is not installed; the ``test`` extra installs it so CI covers both.
+1. **Signature.** Arrays and scalars only (no dataclasses, no ``None``: pass an empty array,
+   e.g. ``np.empty((0, 0, 0))``, for an output that is not wanted, and test ``out.shape[0] > 0``
+   inside). Inputs first, then the state arrays it updates in place, then the preallocated
+   outputs. Arrays keep the package layout ``(runs, K, channels)``.
+2. **Body.** Borrow the arrays; allocate the per-run state with :func:`scratch` before the loops
+   (sizes within :data:`STACK_CAPACITY`, or :func:`fits` in the Python caller); ``for r in
+   range(runs):`` outermost, then ``for k in range(K):``, calling the steps. Use only ``+ - * /``,
+   ``abs``, ``min``, ``max``, ``np.sign``, ``np.sqrt``, ``np.log``: each is correctly rounded and
+   numba does not fuse or reorder them (no ``fastmath``), so the bits depend only on the order of
+   the sums. Runs are independent, so a chunk of runs or of samples gives the same bits. Steps and
+   kernels are called by their names (``from .x import step``), not as module attributes.
+3. **Dispatch.** In the public method, after validating the input in Python, branch on
+   :func:`enabled`: compiled kernel if true, the numpy path otherwise (keep it: it is the fallback
+   without numba and the baseline of the benchmarks).
+4. **Tests.** The compiled path against the numpy path (bit-identical where both sum in the same
+   order, else a stated tolerance with its reason), the kernel's Python function
+   (``kernel.py_func``) on a tiny input, and every new step against an independent hand formula
+   (``tests/test_steps.py``): a wrong step is wrong on both paths.
 """
 
 from __future__ import annotations
@@ -65,17 +79,23 @@ __all__ = [
     "STACK_CAPACITY",
     "borrow",
     "enabled",
+    "fits",
     "njit",
     "numpy_path",
     "scratch",
     "scratch2",
+    "scratch_block",
     "specialize",
     "specialize_sizes",
     "step",
 ]
 
-#: Floats a compiled :func:`scratch` / :func:`scratch2` of run-time size keeps on the stack (larger: heap).
-STACK_CAPACITY = 64
+#: Room (floats) of a compiled :func:`scratch` / :func:`scratch2` whose size is known only at run time.
+STACK_CAPACITY = 256
+#: Largest number of states or outputs of a loop with matrix scratch (16 x 16 = STACK_CAPACITY).
+MAX_DIMENSION = 16
+#: Room (floats) of a compiled :func:`scratch_block` (a covariance filter's workspace up to MAX_DIMENSION).
+BLOCK_CAPACITY = 8192
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -84,6 +104,7 @@ HAVE_NUMBA = importlib.util.find_spec("numba") is not None
 
 
 _IMPORTABLE: list[bool] = []  # memo of the one import attempt
+_THIS_MODULE = __import__("sys").modules[__name__]
 
 
 def _numba_importable() -> bool:
@@ -139,20 +160,36 @@ def numpy_path() -> Iterator[None]:
 def scratch(n: int) -> np.ndarray:
     """Scratch vector of ``n`` floats for a kernel's per-run state (uninitialized).
 
-    In Python this is ``np.empty(n)``. In a compiled kernel it lives on the kernel's stack
-    (no allocation, no reference count): of exactly ``n`` floats when ``n`` is a compile-time
-    constant (a literal bound by :func:`specialize`, e.g. ``NX = 3``), where with the steps
-    inlined and their loops unrolled LLVM keeps it in registers; of :data:`STACK_CAPACITY`
-    floats' room otherwise (a larger ``n`` gets a heap array). Each call site has its own
-    memory, valid until the kernel returns: call it in the loop itself, before the loops, never
-    in a step, and never return it.
+    In Python this is ``np.empty(n)``. In a compiled kernel it lives on the stack of the
+    compiled function that calls it (no allocation, no reference count): exactly ``n`` floats
+    when ``n`` is a compile-time constant (a literal bound by :func:`specialize`, e.g. ``NX =
+    3``), where with the steps inlined and their loops unrolled LLVM keeps it in registers;
+    :data:`STACK_CAPACITY` floats' room otherwise, of which it uses ``n``: the Python caller
+    keeps ``n`` within it (:func:`fits`). Each call site has its own memory, valid until that
+    function returns: allocate in the loop, before its loops, or in a step inlined into it, and
+    never return it from a compiled function of its own.
     """
     return np.empty(n)
 
 
 def scratch2(n: int, m: int) -> np.ndarray:
-    """Scratch ``(n, m)`` C-order matrix: :func:`scratch` for matrices (stack up to ``STACK_CAPACITY``)."""
+    """Scratch ``(n, m)`` C-order matrix: :func:`scratch` for matrices (``n m <= STACK_CAPACITY``)."""
     return np.empty((n, m))
+
+
+def scratch_block(n: int) -> np.ndarray:
+    """Scratch vector with :data:`BLOCK_CAPACITY` floats' room (a workspace carved into views)."""
+    return np.empty(n)
+
+
+def fits(n: int, m: int = 0, *, vectors_only: bool = False) -> bool:
+    """Whether a loop with ``n`` states and ``m`` outputs fits the compiled scratch (else: numpy path).
+
+    Matrices of scratch need ``n, m <= MAX_DIMENSION``; with ``vectors_only`` (the SVSF, the
+    simulation) ``n, m <= STACK_CAPACITY``.
+    """
+    limit = STACK_CAPACITY if vectors_only else MAX_DIMENSION
+    return 0 <= n <= limit and 0 <= m <= limit
 
 
 def borrow(a: Any) -> Any:
@@ -189,7 +226,7 @@ class _LazyKernel:
     a step from another file as it was when the loop was first cached.
     """
 
-    __slots__ = ("__name__", "_compiled", "_digest", "_inline", "py_func")
+    __slots__ = ("__name__", "_compiled", "_digest", "_inline", "_python", "py_func")
 
     def __init__(self, func: Callable[..., Any], inline: bool = False) -> None:
         self.py_func = func
@@ -197,6 +234,7 @@ class _LazyKernel:
         self._inline = inline
         self._compiled: Callable[..., Any] | None = None
         self._digest: str | None = None
+        self._python: Callable[..., Any] | None = None
 
     def _names(self) -> list[str]:
         names: list[str] = []
@@ -225,23 +263,51 @@ class _LazyKernel:
             self._digest = h.hexdigest()[:12]
         return self._digest
 
-    def dispatcher(self) -> Callable[..., Any]:
-        """The numba dispatcher (compiled lazily on first call, or loaded from the cache)."""
-        if self._compiled is None:
-            import numba
+    def python(self) -> Callable[..., Any]:
+        """``py_func`` with the kernels and steps it names also in their Python form.
 
-            from . import _jit_numba  # noqa: F401  (compiled forms of scratch / scratch2)
-
+        ``py_func`` alone calls its steps compiled (their dispatchers), which takes scalars only;
+        this form runs every step as Python, so a numpy path can call it on rows of realizations.
+        """
+        if self._python is None:
             func = self.py_func
             env = dict(func.__globals__)
             for name in set(self._names()):
                 dep = env.get(name)
                 if isinstance(dep, _LazyKernel):
+                    env[name] = dep.python()
+            copy = types.FunctionType(func.__code__, env, func.__name__, func.__defaults__, func.__closure__)
+            copy.__qualname__ = func.__qualname__
+            copy.__module__ = func.__module__
+            copy.__doc__ = func.__doc__
+            self._python = copy
+        return self._python
+
+    def dispatcher(self) -> Callable[..., Any]:
+        """The numba dispatcher (compiled lazily on first call, or loaded from the cache)."""
+        if self._compiled is None:
+            import numba
+
+            from . import _jit_numba
+
+            func = self.py_func
+            env = dict(func.__globals__)
+            compiled_forms = {id(scratch): _jit_numba.scratch, id(scratch2): _jit_numba.scratch2}
+            compiled_forms.update(
+                {id(scratch_block): _jit_numba.scratch_block, id(borrow): _jit_numba.borrow}
+            )
+            for name in set(self._names()):
+                dep = env.get(name)
+                if isinstance(dep, _LazyKernel):
                     env[name] = dep.dispatcher()
+                elif dep is _THIS_MODULE:
+                    env[name] = _jit_numba
+                elif id(dep) in compiled_forms:
+                    env[name] = compiled_forms[id(dep)]
             copy = types.FunctionType(func.__code__, env, func.__name__, func.__defaults__, func.__closure__)
             copy.__qualname__ = f"{func.__qualname__}__{self.digest()}"
             copy.__module__ = func.__module__
-            if self._inline:
+            if self._inline and os.environ.get("CHATTERSPEC_INLINE", "1") == "1":
                 self._compiled = numba.njit(inline="always", nogil=True)(copy)
             else:
                 self._compiled = numba.njit(cache=True, nogil=True)(copy)
@@ -252,6 +318,25 @@ class _LazyKernel:
         if compiled is None:
             compiled = self.dispatcher()
         return compiled(*args)
+
+
+def python_form(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """The plain Python form of a kernel or step, with every step it calls in Python form too.
+
+    Numpy paths call it on ``(channels, runs)`` rows: the same arithmetic, vectorized over
+    realizations (a step called from Python otherwise runs compiled, on scalars only).
+
+    Parameters
+    ----------
+    fn : callable
+        A kernel or step (:func:`njit`, :func:`step`, :func:`specialize`) or a plain function.
+
+    Returns
+    -------
+    callable
+        The Python function (``fn`` itself when it is not a compiled kernel or step).
+    """
+    return fn.python() if isinstance(fn, _LazyKernel) else fn
 
 
 def njit(func: F) -> F:
@@ -307,7 +392,9 @@ def step(func: F) -> F:
     return _LazyKernel(func, inline=True)  # type: ignore[return-value]
 
 
-def specialize(template: Callable[..., Any], tag: str, **bindings: Any) -> Callable[..., Any]:
+def specialize(
+    template: Callable[..., Any], tag: str, *, inline: bool = False, **bindings: Any
+) -> Callable[..., Any]:
     """A kernel made of the loop ``template`` with some of its global names bound (compile-time dispatch).
 
     ``template`` is a module-level function that calls steps (and reads constants) by global
@@ -323,13 +410,15 @@ def specialize(template: Callable[..., Any], tag: str, **bindings: Any) -> Calla
         The loop, a module-level function.
     tag : str
         A short name of this specialization (letters, digits, ``_``), part of the cache file name.
+    inline : bool
+        Make a step (inlined by the loops that call it, like :func:`step`) instead of a kernel.
     **bindings
         Global names of ``template`` and their values for this specialization.
 
     Returns
     -------
     callable
-        A kernel like :func:`njit`'s; without numba, the plain Python function.
+        A kernel like :func:`njit`'s (or a step); without numba, the plain Python function.
 
     See Also
     --------
@@ -343,7 +432,7 @@ def specialize(template: Callable[..., Any], tag: str, **bindings: Any) -> Calla
     func.__doc__ = template.__doc__
     if not HAVE_NUMBA:
         return func
-    return _LazyKernel(func)
+    return _LazyKernel(func, inline=inline)
 
 
 #: Largest size :func:`specialize_sizes` binds as a compile-time constant.
@@ -352,7 +441,9 @@ MAX_UNROLL = 4
 _SIZED: dict[tuple[Any, ...], Callable[..., Any]] = {}
 
 
-def specialize_sizes(template: Callable[..., Any], tag: str, sizes: dict[str, int], **bindings: Any) -> Any:
+def specialize_sizes(
+    template: Callable[..., Any], tag: str, sizes: dict[str, int], *, inline: bool = False, **bindings: Any
+) -> Any:
     """:func:`specialize` with the template's size names bound to literals when all are small.
 
     ``sizes`` maps the template's size names (``NX``, ``NZ``, ...) to this model's sizes; when
@@ -381,12 +472,13 @@ def specialize_sizes(template: Callable[..., Any], tag: str, sizes: dict[str, in
     key = (
         template,
         tag,
+        inline,
         tuple(sorted(values.items())),
         tuple(sorted((k, id(v)) for k, v in bindings.items())),
     )
     kernel = _SIZED.get(key)
     if kernel is None:
         suffix = "_".join(f"{k.lower()}{v}" for k, v in sorted(values.items()))
-        kernel = specialize(template, f"{tag}_{suffix}", **values, **bindings)
+        kernel = specialize(template, f"{tag}_{suffix}", inline=inline, **values, **bindings)
         _SIZED[key] = kernel
     return kernel

@@ -1,75 +1,113 @@
-"""Compiled forms of :func:`chatterspec._jit.scratch` / ``scratch2`` (imported only when numba compiles).
+"""The compiled forms of :func:`chatterspec._jit.scratch`, ``scratch2``, ``scratch_block`` and ``borrow``.
 
-A literal size gives a stack array (``alloca`` in the kernel's entry block, no allocator call, no
-reference count); LLVM promotes it to registers once the loops over it are unrolled. A run-time
-size gives ``np.empty``. The stack array must not outlive the kernel that allocates it: kernels
-use it for per-run state only and never return it.
+numba intrinsics, imported only when numba compiles: :class:`chatterspec._jit._LazyKernel` gives a
+kernel this module in place of :mod:`chatterspec._jit` (and these functions in place of the
+Python ones it imported by name), so ``_jit.scratch(n)`` in a loop is a stack array. A literal size
+gives an array of exactly that size (LLVM promotes it to registers once the loops over it are
+unrolled); a run-time size gives the room of :data:`~chatterspec._jit.STACK_CAPACITY` floats
+(``scratch_block``: :data:`~chatterspec._jit.BLOCK_CAPACITY`), of which the array uses the first
+``n`` (``n m``): callers keep the sizes within it (``chatterspec._jit.fits``). The memory belongs
+to the frame of the compiled function that calls the intrinsic (the loop, or the step inlined into
+it) and is valid until that function returns: never return it.
 """
 
 from __future__ import annotations
 
-import numpy as np
 from numba import types
 from numba.core import cgutils
-from numba.extending import intrinsic, overload
+from numba.extending import intrinsic
 
-from ._jit import STACK_CAPACITY, borrow, scratch, scratch2
+from ._jit import BLOCK_CAPACITY, MAX_DIMENSION, STACK_CAPACITY
+
+__all__ = [
+    "BLOCK_CAPACITY",
+    "MAX_DIMENSION",
+    "STACK_CAPACITY",
+    "borrow",
+    "scratch",
+    "scratch2",
+    "scratch_block",
+]
 
 _F8 = types.float64
 
 
-def _stack_array(context, builder, shape: tuple[int, ...]):  # type: ignore[no-untyped-def]
-    arrty = types.Array(_F8, len(shape), "C")
-    size = 1
-    for s in shape:
-        size *= s
-    ptr = cgutils.alloca_once(builder, context.get_value_type(_F8), size=max(size, 1))
+def _array(context, builder, ptr, shape, ndim):  # type: ignore[no-untyped-def]
+    """A C-order float64 array of ``shape`` (intp values) at ``ptr``, without a meminfo."""
+    arrty = types.Array(_F8, ndim, "C")
     ary = context.make_array(arrty)(context, builder)
     itemsize = context.get_constant(types.intp, 8)
-    strides, acc = [], 8
-    for s in reversed(shape):
-        strides.append(acc)
-        acc *= max(s, 1)
-    strides.reverse()
+    strides = [itemsize]
+    for s in reversed(shape[1:]):
+        strides.insert(0, builder.mul(strides[0], s))
     context.populate_array(
         ary,
         data=ptr,
-        shape=cgutils.pack_array(builder, [context.get_constant(types.intp, s) for s in shape]),
-        strides=cgutils.pack_array(builder, [context.get_constant(types.intp, s) for s in strides]),
+        shape=cgutils.pack_array(builder, list(shape)),
+        strides=cgutils.pack_array(builder, strides),
         itemsize=itemsize,
         meminfo=None,
     )
     return ary._getvalue()
 
 
-@intrinsic
-def _stack1(typingctx, n):  # type: ignore[no-untyped-def]
-    if not isinstance(n, types.IntegerLiteral):
-        return None
-    size = (n.literal_value,)
+def _stack(capacity: int, ndim: int):  # type: ignore[no-untyped-def]
+    """Codegen of a stack array: ``capacity`` floats when a size is not literal, else their product."""
 
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
-        return _stack_array(context, builder, size)
+        sizes = signature.args
+        if all(isinstance(t, types.IntegerLiteral) for t in sizes):
+            room = 1
+            for t in sizes:
+                room *= max(int(t.literal_value), 1)
+        else:
+            room = capacity
+        ptr = cgutils.alloca_once(builder, context.get_value_type(_F8), size=room)
+        shape = [context.cast(builder, v, t, types.intp) for v, t in zip(args, sizes, strict=True)]
+        return _array(context, builder, ptr, shape, ndim)
+
+    return codegen
+
+
+@intrinsic
+def scratch(typingctx, n):  # type: ignore[no-untyped-def]
+    """Stack vector of ``n`` floats (see the module docstring)."""
+    if not isinstance(n, types.Integer):
+        return None
+    return types.Array(_F8, 1, "C")(n), _stack(STACK_CAPACITY, 1)
+
+
+@intrinsic
+def scratch2(typingctx, n, m):  # type: ignore[no-untyped-def]
+    """Stack ``(n, m)`` C-order matrix (see the module docstring)."""
+    if not (isinstance(n, types.Integer) and isinstance(m, types.Integer)):
+        return None
+    return types.Array(_F8, 2, "C")(n, m), _stack(STACK_CAPACITY, 2)
+
+
+@intrinsic
+def scratch_block(typingctx, n):  # type: ignore[no-untyped-def]
+    """Stack vector with the room of ``BLOCK_CAPACITY`` floats (a workspace carved into pieces)."""
+    if not isinstance(n, types.Integer):
+        return None
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        ptr = cgutils.alloca_once(builder, context.get_value_type(_F8), size=BLOCK_CAPACITY)
+        shape = [context.cast(builder, args[0], signature.args[0], types.intp)]
+        return _array(context, builder, ptr, shape, 1)
 
     return types.Array(_F8, 1, "C")(n), codegen
 
 
 @intrinsic
-def _stack2(typingctx, n, m):  # type: ignore[no-untyped-def]
-    if not (isinstance(n, types.IntegerLiteral) and isinstance(m, types.IntegerLiteral)):
-        return None
-    size = (n.literal_value, m.literal_value)
-
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
-        return _stack_array(context, builder, size)
-
-    return types.Array(_F8, 2, "C")(n, m), codegen
-
-
-@intrinsic
-def _borrow(typingctx, a):  # type: ignore[no-untyped-def]
+def borrow(typingctx, a):  # type: ignore[no-untyped-def]
+    """The same array without its meminfo (no reference counting); anything else unchanged."""
     if not isinstance(a, types.Array):
-        return None
+
+        def identity(context, builder, signature, args):  # type: ignore[no-untyped-def]
+            return args[0]
+
+        return a(a), identity
 
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
         src = context.make_array(a)(context, builder, value=args[0])
@@ -80,63 +118,3 @@ def _borrow(typingctx, a):  # type: ignore[no-untyped-def]
         return dst._getvalue()
 
     return a(a), codegen
-
-
-@intrinsic
-def _stack_dyn(typingctx, n, m):  # type: ignore[no-untyped-def]
-    """A (n, m) C-order stack array of STACK_CAPACITY floats' room (the caller checks n m <= capacity)."""
-
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
-        arrty = types.Array(_F8, 2, "C")
-        ptr = cgutils.alloca_once(builder, context.get_value_type(_F8), size=STACK_CAPACITY)
-        ary = context.make_array(arrty)(context, builder)
-        itemsize = context.get_constant(types.intp, 8)
-        n_, m_ = (context.cast(builder, v, t, types.intp) for v, t in zip(args, signature.args, strict=True))
-        context.populate_array(
-            ary,
-            data=ptr,
-            shape=cgutils.pack_array(builder, [n_, m_]),
-            strides=cgutils.pack_array(builder, [builder.mul(m_, itemsize), itemsize]),
-            itemsize=itemsize,
-            meminfo=None,
-        )
-        return ary._getvalue()
-
-    return types.Array(_F8, 2, "C")(n, m), codegen
-
-
-def _literal(t) -> bool:  # type: ignore[no-untyped-def]
-    return isinstance(t, types.IntegerLiteral) and t.literal_value > 0
-
-
-@overload(scratch, prefer_literal=True, inline="always")
-def _scratch(n):  # type: ignore[no-untyped-def]
-    if _literal(n):
-        return lambda n: _stack1(n)
-
-    def impl(n):  # type: ignore[no-untyped-def]
-        if n <= STACK_CAPACITY:
-            return _stack_dyn(1, n)[0]
-        return np.empty(n)  # too large for the stack: a heap array, reference counted
-
-    return impl
-
-
-@overload(scratch2, prefer_literal=True, inline="always")
-def _scratch2(n, m):  # type: ignore[no-untyped-def]
-    if _literal(n) and _literal(m):
-        return lambda n, m: _stack2(n, m)
-
-    def impl(n, m):  # type: ignore[no-untyped-def]
-        if n * m <= STACK_CAPACITY:
-            return _stack_dyn(n, m)
-        return np.empty((n, m))
-
-    return impl
-
-
-@overload(borrow, inline="always")
-def _borrow_overload(a):  # type: ignore[no-untyped-def]
-    if isinstance(a, types.Array):
-        return lambda a: _borrow(a)
-    return lambda a: a

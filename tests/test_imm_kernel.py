@@ -146,10 +146,9 @@ def test_kernel_python_function_matches_the_protocol_path(monkeypatch) -> None: 
     # the kernel's own Python function, so the test does not depend on the compiler for its meaning
     fs, z, u = analogue(6, 2)
     f = IMM(make_bank("mixed", fs), fs.transition_matrix, mu0=np.array(fs.mu0), modes=fs.modes)
-    monkeypatch.setattr(ik, "_imm_kernel", getattr(ik._imm_kernel, "py_func", ik._imm_kernel))
     state = f.initialize(fs.x0, fs.P0, runs=2)
     zz, uu = z, u[None]
-    _st, o = ik.run_fused(f._fused, f.transition_matrix, 0.0, state, zz, uu, True, True)
+    _st, o = ik.run_fused(f._fused, f.transition_matrix, 0.0, state, zz, uu, True, True, python=True)
     ref = protocol(f).run(z, u, x0=fs.x0, P0=fs.P0, store_covariance=True, store_modes=True)
     np.testing.assert_allclose(o["mu"], ref.mu, rtol=0, atol=1e-9)
     np.testing.assert_allclose(o["x"], ref.x_post, rtol=1e-9, atol=0)

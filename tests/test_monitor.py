@@ -203,7 +203,7 @@ def test_compiled_frame_verdicts_equal_the_numpy_ones(ties: bool) -> None:
     np.argmax) and, with ``ties``, bins exactly at the threshold and one ulp above it.
     """
     from chatterspec import _jit
-    from chatterspec.online._push_kernels import _verdict_kernel
+    from chatterspec.detection._verdict import peak_kernel
     from chatterspec.online.monitor import _Verdicts
 
     model = cs.eha_linear()
@@ -227,9 +227,18 @@ def test_compiled_frame_verdicts_equal_the_numpy_ones(ties: bool) -> None:
     assert fast.compiled  # the EHA threshold: contiguous tested bins, finite normal values
     outs = [fast(power)]
     if _jit.HAVE_NUMBA:  # the kernel's Python form too
-        py = [np.empty((40, 3), dtype=bool), np.empty((40, 3)), np.empty((40, 3))]
-        _verdict_kernel.py_func(power, fast.sel.start, fast.values, fast.freqs, *py)
-        outs.append(tuple(py))
+        k, ratio = np.empty((40, 3), dtype=np.int64), np.empty((40, 3))
+        peak_kernel.py_func(
+            power[:, fast.sel],
+            fast.values,
+            np.empty((0, 0)),
+            np.arange(fast.values.shape[0]),
+            k,
+            ratio,
+            k,
+            ratio,
+        )
+        outs.append((ratio > 1.0, fast.freqs[k], ratio))
     for out in outs:
         for a, b in zip(out, ref, strict=True):
             assert a.dtype == b.dtype

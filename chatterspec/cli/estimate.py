@@ -6,16 +6,8 @@ import argparse
 from pathlib import Path
 
 from ..errors import ParameterError
+from ..filter_registry import FILTERS
 from ._common import Outputs, alpha_arg, check_record_path, nonnegative_int_arg, positive_int_arg
-
-#: :data:`chatterspec.studies.estimation.FILTERS`, listed here so that parsing the command line does not
-#: import the studies (a test keeps the two equal).
-FILTERS: dict[str, str] = {
-    "kf": "Kalman filter (EKF on a nonlinear plant)",
-    "ekf": "extended Kalman filter",
-    "svsf": "first-order SVSF with covariance [SMM eq 2.1-2.10]",
-    "svsf2": "dynamic second-order SVSF [DETC eq 5-24]",
-}
 
 
 def register(sub: argparse._SubParsersAction) -> None:

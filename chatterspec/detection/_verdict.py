@@ -14,7 +14,9 @@ order, ``S_0 + S_1 + ...``: the order numpy uses for a C-contiguous ``(..., bins
 array with m >= 2 channels (the reduced axis is not the innermost one, so numpy adds
 bin after bin); for other layouts, where numpy may sum pairwise, the caller keeps
 numpy's sum. The results are therefore bit-identical to the numpy path
-(``tests/test_e2e_kernels.py``).
+(``tests/test_e2e_kernels.py``). The online monitor takes the same loop without the excess
+and the sum (:data:`peak_kernel`); its frames hold no NaN, where ``argmax``'s rule is "the first
+strictly larger ratio", and it flags a frame when the largest ratio exceeds 1.
 """
 
 from __future__ import annotations
@@ -23,11 +25,29 @@ import numpy as np
 
 from .. import _jit
 
-__all__ = ["verdict_kernel"]
+__all__ = ["peak_kernel", "verdict_kernel"]
 
 
-@_jit.njit
-def verdict_kernel(
+@_jit.step
+def argmax_update(j: int, v: float, k: int, best: float, nan: bool) -> tuple[int, float, bool]:
+    """One element of numpy's ``argmax``: ``(k, best, nan)`` after value ``v`` at position ``j``.
+
+    The first NaN wins for good; otherwise only a strictly larger value replaces the best one.
+    """
+    if nan:
+        return k, best, nan
+    if v != v:
+        return j, v, True
+    if v > best:
+        return j, v, False
+    return k, best, nan
+
+
+#: Binding of :func:`_verdict_loop`: also the excess bin and the sum (False: only the ratio's argmax).
+FULL = True
+
+
+def _verdict_loop(
     power: np.ndarray,
     thr: np.ndarray,
     expected: np.ndarray,
@@ -36,8 +56,12 @@ def verdict_kernel(
     peak_ratio: np.ndarray,
     k_excess: np.ndarray,
     p_sum: np.ndarray,
-) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_e2e_kernels.py)
+) -> None:  # pragma: no cover - compiled (a template: verdict_kernel, peak_kernel)
     """Per spectrum r and channel c, over the tested bins ``idx`` (positions j = 0 .. len(idx) - 1).
+
+    With ``FULL`` (:data:`verdict_kernel`, :func:`~chatterspec.detection.detect.detect_spectrum`)
+    all four outputs; without (:data:`peak_kernel`, the online monitor's frames) only ``k_ratio``
+    and ``peak_ratio`` (``expected``, ``k_excess``, ``p_sum`` unused).
 
     Parameters
     ----------
@@ -59,6 +83,9 @@ def verdict_kernel(
     p_sum : (R, m) array
         Output: ``sum_j S`` added in the order j = 0, 1, ... (``S_0 + S_1 + ...``).
     """
+    b_ = _jit.borrow
+    power, thr, expected, idx = b_(power), b_(thr), b_(expected), b_(idx)
+    k_ratio, peak_ratio, k_excess, p_sum = b_(k_ratio), b_(peak_ratio), b_(k_excess), b_(p_sum)
     R = power.shape[0]
     m = power.shape[2]
     nt = idx.shape[0]
@@ -67,40 +94,36 @@ def verdict_kernel(
             b = idx[0]
             p = power[r, b, c]
             ratio = p / thr[b, c]
-            ex = p - expected[b, c]
-            over = ratio > 1.0
             # argmax trackers: index, value, NaN seen (argmax returns the first NaN)
             kr, vr, nr = 0, ratio, ratio != ratio
-            ke, ve, ne = 0, ex, ex != ex
-            wv = ex if over else -np.inf  # np.where(over, excess, -inf)
-            kw, vw, nw = 0, wv, wv != wv
-            any_over = over
-            ps = p
+            if FULL:
+                ex = p - expected[b, c]
+                over = ratio > 1.0
+                ke, ve, ne = 0, ex, ex != ex
+                wv = ex if over else -np.inf  # np.where(over, excess, -inf)
+                kw, vw, nw = 0, wv, wv != wv
+                any_over = over
+                ps = p
             for j in range(1, nt):
                 b = idx[j]
                 p = power[r, b, c]
                 ratio = p / thr[b, c]
-                ex = p - expected[b, c]
-                over = ratio > 1.0
-                ps += p
-                if not nr:
-                    if ratio != ratio:
-                        kr, vr, nr = j, ratio, True
-                    elif ratio > vr:
-                        kr, vr = j, ratio
-                if not ne:
-                    if ex != ex:
-                        ke, ve, ne = j, ex, True
-                    elif ex > ve:
-                        ke, ve = j, ex
-                if over:
-                    any_over = True
-                    if not nw:
-                        if ex != ex:
-                            kw, vw, nw = j, ex, True
-                        elif ex > vw:
-                            kw, vw = j, ex
+                kr, vr, nr = argmax_update(j, ratio, kr, vr, nr)
+                if FULL:
+                    ex = p - expected[b, c]
+                    ps += p
+                    ke, ve, ne = argmax_update(j, ex, ke, ve, ne)
+                    if ratio > 1.0:
+                        any_over = True
+                        kw, vw, nw = argmax_update(j, ex, kw, vw, nw)
             k_ratio[r, c] = kr
             peak_ratio[r, c] = vr
-            k_excess[r, c] = kw if any_over else ke
-            p_sum[r, c] = ps
+            if FULL:
+                k_excess[r, c] = kw if any_over else ke
+                p_sum[r, c] = ps
+
+
+#: The one-pass verdict of :func:`~chatterspec.detection.detect.detect_spectrum`.
+verdict_kernel = _jit.specialize(_verdict_loop, "full", FULL=True)
+#: The same pass for the online monitor's frames: the bin of the largest ``S / threshold`` only.
+peak_kernel = _jit.specialize(_verdict_loop, "peak", FULL=False)

@@ -453,6 +453,7 @@ class AlarmStream:
         self._count = np.zeros((R, C), dtype=np.int64)
         self._ring = np.zeros((R, C, self._n if self._code == _PERSISTENCE else 0), dtype=np.bool_)
         self._step = 0
+        self._pos = np.zeros(1, dtype=np.int64)  # the kernel's step number, one array for every call
 
     @property
     def steps(self) -> int:
@@ -506,7 +507,8 @@ class AlarmStream:
             if self._code == _FRAME and not compiled:
                 _frame_numpy(s3, self._h, self._active, active, stat, starts, ends)
             elif compiled:
-                pos = np.array([self._step], dtype=np.int64)
+                pos = self._pos
+                pos[0] = self._step
                 _alarm_kernel(
                     self._code, s3, self._h, self._drift, self._k, self._n,
                     self._active, self._g, self._count, self._ring, pos,

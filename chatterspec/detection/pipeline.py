@@ -14,7 +14,6 @@ import numpy as np
 
 from .. import _jit
 from .._validate import positive_int
-from ..errors import ShapeError
 from ..filters._svsf_kernels import closed_form_step
 from ..filters.nonlinear_svsf import nonlinear_chattering
 from ..filters.svsf import _rows_times, auxiliary_svsf
@@ -29,6 +28,7 @@ from ..plants.simulate import (
     _tables,
     default_chunk_runs,
     iter_simulations,
+    scenario_input,
 )
 from ..rng import BLOCK, SeedLike, block_generator, root_seed_sequence
 
@@ -274,10 +274,7 @@ def _fused_chattering(
     model = scenario.nominal
     f = auxiliary_svsf(model, gamma)
     root = root_seed_sequence(seed)
-    t = scenario.time
-    u = scenario.input.sample(t).reshape(len(t), -1)
-    if u.shape[1] != model.n_inputs:
-        raise ShapeError(f"scenario input gives {u.shape[1]} channel(s); the model has {model.n_inputs}")
+    t, u = scenario_input(scenario)
     T, m = len(t), model.n_outputs
     tb = _tables(scenario, t, u)
     Gu = np.ascontiguousarray(_rows_times(u[:-1], f._GT), dtype=float)  # as SVSF.update computes it
@@ -334,6 +331,7 @@ def _can_fuse(scenario: Scenario) -> bool:
     model = scenario.nominal
     return (
         _jit.enabled()
+        and _jit.fits(model.n_states, model.n_outputs, vectors_only=True)
         and getattr(scenario, "closed_loop", None) is None
         and getattr(scenario, "is_linear", True)
         and model.full_measurement

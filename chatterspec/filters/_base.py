@@ -10,7 +10,8 @@ from .. import _jit
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
-from . import _engine
+from ..plants.steps import PlantSteps, plant_steps
+from . import _engine, _engine_numpy
 from ._finite import require_finite
 from .protocol import FilterOutput, FilterState, check_chunk, initial_state, resolve_store
 from .svsf import _rows_times
@@ -37,13 +38,19 @@ def check_model(model: object) -> None:
 
 
 class CovarianceFilterBase:
-    """Common machinery; subclasses set ``model``, ``_linear`` and implement ``_correction``."""
+    """Common machinery; subclasses set ``model``, ``_linear`` and implement ``_correction_step``.
+
+    A subclass gives its correction as a :class:`~chatterspec.filters._engine.CorrectionStep`
+    (compiled step, parameters, numpy form); the prediction, the covariance and the loops are
+    shared (:mod:`chatterspec.filters._engine`): adding a covariance filter is one module with
+    its class and its correction step, plus its entry in :mod:`chatterspec.filters.registry`.
+    """
 
     model: object
     _linear: bool = False
     _shared_ok: bool = False
 
-    def _correction(self) -> dict[str, object]:  # pragma: no cover - abstract
+    def _correction_step(self) -> _engine.CorrectionStep:  # pragma: no cover - abstract
         raise NotImplementedError
 
     def initialize(
@@ -132,6 +139,16 @@ class CovarianceFilterBase:
         new = FilterState(x=x, P=P, e_post=ep, e_prev=epp, k=state.k + K)
         return new, FilterOutput(**res)
 
+    def _plant(self) -> PlantSteps | None:
+        """The model's compiled steps for the loop, or None (its Python ``transition`` per sample).
+
+        A filter that is not ``_linear`` on a :class:`LinearModel` (the EKF, which always calls
+        its model) does not take the linear steps: its numbers are those of the model's methods.
+        """
+        if not self._linear and is_linear(self.model):
+            return None
+        return plant_steps(self.model)
+
     def _advance(self, x, P, ep, epp, z, u, keep):  # type: ignore[no-untyped-def]
         model = self.model
         C = np.asarray(model.C, dtype=float)  # type: ignore[attr-defined]
@@ -139,27 +156,15 @@ class CovarianceFilterBase:
         R = np.asarray(model.R, dtype=float)  # type: ignore[attr-defined]
         if P.ndim == 2:  # shared covariance given to a per-run filter (e.g. replaced by a bank)
             P = np.array(np.broadcast_to(P, (x.shape[0], *P.shape)))
-        corr = self._correction()
+        corr = self._correction_step()
+        n, m = x.shape[1], z.shape[2]
+        compiled = _jit.enabled() and corr.mapping != _engine.MAP_LUEN and _jit.fits(n, m)
+        plant = self._plant()
+        if compiled and plant is not None:  # every sample in one compiled loop
+            return P, _engine.cov_loop(corr, plant, x, P, ep, epp, z, u, C, Q, R, keep)
         if self._linear:
             Bu = _rows_times(u, np.ascontiguousarray(model.B.T))  # type: ignore[attr-defined]
-            res = _engine.cov_step(
-                corr.pop("kind"),
-                corr.pop("mapping"),
-                x,
-                P,
-                ep,
-                epp,
-                z,
-                C,
-                Q,
-                R,
-                keep,
-                Bu=Bu,
-                A=model.A,
-                **corr,
-            )  # type: ignore[attr-defined]
-            return P, res
-        kind, mapping = corr.pop("kind"), corr.pop("mapping")
+            return P, _engine_numpy.cov_numpy(corr, x, P, ep, epp, z, C, Q, R, keep, A=model.A, Bu=Bu)  # type: ignore[attr-defined]
         steps = []
         shared_u = u.shape[0] == 1
         for k in range(z.shape[1]):
@@ -173,11 +178,13 @@ class CovarianceFilterBase:
                     f"got {xp.shape} and {F.shape}"
                 )
             F = np.broadcast_to(F, (*x.shape, x.shape[1]))
-            steps.append(
-                _engine.cov_step(
-                    kind, mapping, x, P, ep, epp, z[:, k : k + 1], C, Q, R, keep, xp_in=xp, F_in=F, **corr
+            zk, given = z[:, k : k + 1], {"xp_in": xp, "F_in": F}
+            if compiled:
+                steps.append(
+                    _engine.cov_loop(corr, None, x, P, ep, epp, zk, u[:, k : k + 1], C, Q, R, keep, **given)
                 )
-            )
+            else:
+                steps.append(_engine_numpy.cov_numpy(corr, x, P, ep, epp, zk, C, Q, R, keep, **given))
         res = {
             f: (None if steps[0][f] is None else np.concatenate([s[f] for s in steps], axis=1))
             for f in steps[0]
@@ -238,18 +245,19 @@ class CovarianceFilterBase:
         R = np.asarray(model.R, dtype=float)  # type: ignore[attr-defined]
         P = np.array(np.broadcast_to(Pp, (runs, n, n)), dtype=float)
         x, ep, epp = np.array(xp, dtype=float), state.e_post.copy(), state.e_prev.copy()
-        corr = self._correction()
-        kind, mapping = corr.pop("kind"), corr.pop("mapping")
-        if mapping == _engine.MAP_LUEN:
+        corr = self._correction_step()
+        if corr.mapping == _engine.MAP_LUEN:
             raise ParameterError(
                 "correct() is not available with mapping='luen' (it needs the Jacobian at x(k|k))"
             )
         # F = I and Q = 0 make the engine's prediction P(k+1|k) = I P I^T + 0 = P_prior exactly
+        eye, Q0 = np.broadcast_to(np.eye(n), (runs, n, n)), np.zeros((n, n))
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # checked just below
-            res = _engine.cov_step(
-                kind, mapping, x, P, ep, epp, zz, C, np.zeros((n, n)), R, keep,
-                xp_in=xp, F_in=np.broadcast_to(np.eye(n), (runs, n, n)), **corr,
-            )  # fmt: skip
+            if _jit.enabled() and _jit.fits(n, m):
+                u0 = np.zeros((1, 1, 0))
+                res = _engine.cov_loop(corr, None, x, P, ep, epp, zz, u0, C, Q0, R, keep, xp_in=xp, F_in=eye)
+            else:
+                res = _engine_numpy.cov_numpy(corr, x, P, ep, epp, zz, C, Q0, R, keep, xp_in=xp, F_in=eye)
         require_finite(type(self).__name__, (x, P), res, state.k, 1)
         new = FilterState(x=x, P=P, e_post=ep, e_prev=epp, k=state.k + 1)
         return new, FilterOutput(**res)

@@ -1,302 +1,485 @@
-"""The shared per-sample recursion of the covariance-carrying filters (private).
+"""The covariance filters' per-sample step and the loop around it (private).
 
 One step, for every realization (notation of ``docs/design.md`` §7)::
 
     x(k+1|k) = f(x(k|k), u(k)),            F = df/dx at x(k|k)      (linear: A x + B u, F = A)
     P(k+1|k) = F P(k|k) F^T + Q
     e = z(k+1) - C x(k+1|k),   S = C P(k+1|k) C^T + R,   loglik = log N(e; 0, S)
-    correction:  dx = M dz,    gain for the covariance  K = M diag(g)  (KF: K = P C^T S^-1, dx = K e)
+    correction:  x(k+1|k+1) and the gain K of the filter (its own step, see below)
     P(k+1|k+1) = (I - K C) P(k+1|k) (I - K C)^T + K R K^T            (Joseph form)
-    x(k+1|k+1) = x(k+1|k) + dx,   e(k+1|k+1) = z(k+1) - C x(k+1|k+1)
+    e(k-1|k-1) <- e(k|k),   e(k+1|k+1) = z(k+1) - C x(k+1|k+1)
 
-``kind`` selects the correction: 0 = Kalman gain; 1 = SVSF with covariance, division-free
-form of [SMM] eq (2.5): g_i = (|e_i| + gamma_i |e_i(k|k)|) / max(|e_i|, psi_i), dz = g o e;
-2 = dynamic second-order SVSF, [DETC] eq (9): dz = e - (gamma + Lambda) e(k|k) +
-gamma Lambda e(k-1|k-1), g = clip(dz / e, lo, hi) (1 where e = 0; covariance only);
-3 = SVSF with the variable boundary layer: the Kalman gain when the VBL
-psi_vbl,i = (|e_i| + gamma_i |e_i(k|k)|) / (C K_KF)_ii is <= psi_i in every channel, else kind 1.
-``mapping`` gives M: 0 = a constant matrix (C^-1 for ``full``, C^+ for ``pinv``),
-1 = ``cov``: M = P(k+1|k) C^T (C P(k+1|k) C^T)^-1, 2 = ``luen``: the reduced-order Luenberger
-form (:func:`chatterspec.filters._luen.luen_correction`; numpy path only). The linear KF with a
-shared covariance has its own state kernel in :mod:`chatterspec.filters._kalman_shared`.
+**Compiled.** :func:`_sample` is that step for one realization; it takes the prediction from the
+loop and calls the filter's **correction step** ``CORRECT(fp, e, ep, epp, xp, PCtT, D, L, C, F, x,
+KgT, ws, n, m)``, bound by :func:`chatterspec._jit.specialize`: the Kalman gain
+(:func:`chatterspec.filters.kalman.kalman_correct`), the SVSF with covariance and its variable
+boundary layer (:mod:`chatterspec.filters.svsf_cov`), the second-order SVSF
+(:mod:`chatterspec.filters.svsf2`). A filter gives its step and a parameter vector ``fp`` through
+``_correction_step()`` (:class:`CorrectionStep`); the step returns 0, :data:`NOT_PD` (a matrix it
+factors is not positive definite) or :data:`SINGULAR_PHI12` (the reduced-order form's ``Phi12``).
+:func:`_cov_loop` runs runs (outer) and samples (inner) with the plant's ``predict`` and
+``jacobian`` steps (:mod:`chatterspec.plants.steps`) bound the same way; the IMM and SMM banks call
+:func:`sample_step` per mode. ``mapping`` of the SVSF-type corrections: :data:`MAP_CONST` (``C^-1``
+or ``C^+``), :data:`MAP_COV` (``P C^T (C P C^T)^-1``), :data:`MAP_LUEN` (the reduced-order
+Luenberger form, :mod:`chatterspec.filters._luen`).
 
-There are two implementations of the same arithmetic: :func:`_cov_kernel` (scalar loops over
-runs and time, compiled by :func:`chatterspec._jit.njit`) and :func:`cov_numpy` (vectorized
-over runs, a Python loop over time), used when :func:`chatterspec._jit.enabled` is false.
-They agree to rounding (different summation order / LAPACK vs hand-written Cholesky).
+**numpy.** :func:`chatterspec.filters._engine_numpy.cov_numpy` is the same step vectorized over
+realizations with a Python loop over samples and the filter's numpy correction; it runs when
+:func:`chatterspec._jit.enabled` is false, and for the ``luen`` mapping of a single filter. The
+two agree to rounding (summation order, LAPACK vs the hand-written Cholesky). The linear-algebra
+steps are in :mod:`chatterspec.filters._linalg`.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from .. import _jit
 from ..errors import SingularMatrixError
+from ._linalg import (
+    chol_solve_step,
+    chol_step,
+    gain_update_step,
+    innovation_step,
+    predict_cov_step,
+    product_step,
+    residual_step,
+)
+
+__all__ = [
+    "FIELDS",
+    "MAP_CONST",
+    "MAP_COV",
+    "MAP_LUEN",
+    "NOT_PD",
+    "SINGULAR_PHI12",
+    "CorrectionStep",
+    "chol_solve_step",
+    "chol_step",
+    "cov_loop",
+    "gain_update_step",
+    "innovation_step",
+    "map_step",
+    "map_update_step",
+    "predict_cov_step",
+    "product_step",
+    "residual_step",
+    "sample_step",
+    "svsf_offsets",
+    "svsf_parameters",
+    "workspace",
+]
 
 KF, SVSF1, SVSF2, VBL = 0, 1, 2, 3
 MAP_CONST, MAP_COV, MAP_LUEN = 0, 1, 2
+#: Return codes of a correction step (0 = done).
+NOT_PD, SINGULAR_PHI12 = 1, 2
 LOG2PI = float(np.log(2.0 * np.pi))
 FIELDS = ("x_prior", "x_post", "innovation", "S", "loglik", "e_post", "P_prior", "P_post")
 
 
-# ----------------------------------------------------------------------------- compiled kernels
-@_jit.njit
-def _chol(A, L, m):  # pragma: no cover - compiled
-    """Lower Cholesky factor of the (m, m) matrix A into L; False if A is not positive definite."""
-    for i in range(m):
-        for j in range(i + 1):
-            s = A[i, j]
-            for q in range(j):
-                s -= L[i, q] * L[j, q]
-            if i == j:
-                if not s > 0.0:
-                    return False
-                L[i, i] = np.sqrt(s)
-            else:
-                L[i, j] = s / L[j, j]
+@dataclass(frozen=True, eq=False)
+class CorrectionStep:
+    """A covariance filter's correction, as the loops take it.
+
+    Attributes
+    ----------
+    name : str
+        Short name (part of the compiled loops' names).
+    step : callable
+        The compiled correction step (signature in the module docstring).
+    parameters : (L,) array
+        ``fp`` of the step (its layout is the step's own).
+    numpy : callable
+        ``numpy(e, ep, epp, xp, PCt, D, S, C, F) -> (K (runs, n, m), x (runs, n))``: the same
+        correction vectorized over realizations.
+    mapping : int
+        :data:`MAP_CONST`, :data:`MAP_COV` or :data:`MAP_LUEN` (error messages; ``luen`` single
+        filters take the numpy path).
+    """
+
+    name: str
+    step: Callable[..., int]
+    parameters: np.ndarray
+    numpy: Callable[..., tuple[np.ndarray, np.ndarray]]
+    mapping: int = MAP_CONST
+
+
+def svsf_parameters(
+    mapping: int,
+    n: int,
+    m: int,
+    gamma: np.ndarray,
+    *,
+    lam: np.ndarray | None = None,
+    psi: np.ndarray | None = None,
+    clip: tuple[float, float] = (0.0, 2.0),
+    M: np.ndarray | None = None,
+    luen: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
+    """``fp`` of the SVSF-type corrections (layout of :func:`svsf_offsets`).
+
+    ``[mapping, gamma (m), lam (m), psi (n), lo, hi, M (n m), T (n n), T^-1 (n n)]``: ``psi`` has
+    m entries, or n with the ``luen`` mapping (measured coordinates first; padded with ones);
+    ``lam`` and ``(lo, hi)`` are the second-order SVSF's; ``M`` the constant map (zeros unless
+    :data:`MAP_CONST`); ``T``, ``T^-1`` the Luenberger transformation (zeros unless :data:`MAP_LUEN`).
+    """
+    psi_n = np.ones(n)
+    if psi is not None:
+        psi_n[: len(psi)] = psi
+    parts = [
+        np.array([float(mapping)]),
+        np.broadcast_to(np.asarray(gamma, dtype=float), (m,)),
+        np.zeros(m) if lam is None else np.broadcast_to(np.asarray(lam, dtype=float), (m,)),
+        psi_n,
+        np.array([float(clip[0]), float(clip[1])]),
+        np.zeros(n * m) if M is None else np.ravel(M),
+        np.zeros(n * n) if luen is None else np.ravel(luen[0]),
+        np.zeros(n * n) if luen is None else np.ravel(luen[1]),
+    ]
+    return np.ascontiguousarray(np.concatenate(parts), dtype=float)
+
+
+# ----------------------------------------------------------------------------- steps
+@_jit.step
+def svsf_offsets(n: int, m: int) -> tuple[int, int, int, int, int, int, int]:
+    """Offsets in ``fp`` (:func:`svsf_parameters`) of gamma, lam, psi, lo (hi = lo + 1), M, T, T^-1."""
+    o_psi = 1 + 2 * m
+    o_lo = o_psi + n
+    o_M = o_lo + 2
+    o_T = o_M + n * m
+    return 1, 1 + m, o_psi, o_lo, o_M, o_T, o_T + n * n
+
+
+@_jit.step
+def map_step(
+    mapping: int,
+    D: np.ndarray,
+    L: np.ndarray,
+    PCtT: np.ndarray,
+    fp: np.ndarray,
+    o_M: int,
+    MpT: np.ndarray,
+    n: int,
+    m: int,
+) -> bool:  # pragma: no cover - compiled
+    """``MpT`` = M^T, the output-to-state map of the SVSF-type corrections; False if ``C P C^T`` is not PD.
+
+    :data:`MAP_COV`: ``M^T = (C P C^T)^-1 (P C^T)^T`` (Cholesky of ``D`` into ``L``); otherwise
+    the constant ``M`` stored row-major at ``fp[o_M:]``.
+    """
+    if mapping == MAP_COV:
+        if not chol_step(D, L, m):
+            return False
+        chol_solve_step(L, PCtT, MpT, m, n)
+    else:
+        for i in range(m):
+            for j in range(n):
+                MpT[i, j] = fp[o_M + j * m + i]
     return True
 
 
-@_jit.njit
-def _chol_solve_rows(L, B, X, m, ncol):  # pragma: no cover - compiled
-    """X = (L L^T)^-1 B for B of shape (m, ncol)."""
-    for c in range(ncol):
+@_jit.step
+def map_update_step(
+    xp: np.ndarray,
+    MpT: np.ndarray,
+    g: np.ndarray,
+    dz: np.ndarray,
+    x: np.ndarray,
+    KgT: np.ndarray,
+    n: int,
+    m: int,
+) -> None:  # pragma: no cover - compiled
+    """``K = M diag(g)`` (into ``KgT``) and ``x(k+1|k+1) = x(k+1|k) + M dz``."""
+    for i in range(m):
+        for j in range(n):
+            KgT[i, j] = MpT[i, j] * g[i]
+    gain_update_step(xp, MpT, dz, x, n, m)
+
+
+def _sample(
+    fp: np.ndarray,
+    x: np.ndarray,
+    P: np.ndarray,
+    ep: np.ndarray,
+    epp: np.ndarray,
+    zk: np.ndarray,
+    xp: np.ndarray,
+    F: np.ndarray,
+    C: np.ndarray,
+    Q: np.ndarray,
+    R: np.ndarray,
+    ws: tuple,
+    n: int,
+    m: int,
+) -> int:  # pragma: no cover - compiled (a template: see sample_step)
+    """The step of the module docstring for one realization, from ``xp`` = x(k+1|k) and ``F``.
+
+    In place: ``x`` <- x(k+1|k+1), ``P`` <- P(k+1|k+1) (``P`` holds P(k|k) on entry), ``epp`` <-
+    ``ep`` (e(k|k), which the correction reads), ``ep`` <- e(k+1|k+1). Scratch ``ws`` (see
+    :func:`workspace`) keeps ``Pp`` = P(k+1|k), ``e``, ``S`` and, with ``WANT_LL``, ``ll[0]`` =
+    log N(e; 0, S) for the caller. Returns 0 or the correction's / the Cholesky's code.
+    """
+    T1, Pp, PCt, PCtT, S, D, L, e, eb, wv, KgT, IKC, KR, ll = ws[0:14]
+    predict_cov_step(F, P, Q, T1, Pp, n)
+    innovation_step(zk, xp, Pp, C, R, e, PCt, PCtT, D, S, n, m)
+    for i in range(m):
+        eb[i, 0] = e[i]
+    if not chol_step(S, L, m):
+        return NOT_PD
+    if WANT_LL:
+        chol_solve_step(L, eb, wv, m, 1)
+        quad = 0.0
+        logdet = 0.0
         for i in range(m):
-            s = B[i, c]
-            for q in range(i):
-                s -= L[i, q] * X[q, c]
-            X[i, c] = s / L[i, i]
-        for i in range(m - 1, -1, -1):
-            s = X[i, c]
-            for q in range(i + 1, m):
-                s -= L[q, i] * X[q, c]
-            X[i, c] = s / L[i, i]
+            quad += e[i] * wv[i, 0]
+            logdet += np.log(L[i, i])
+        ll[0] = -0.5 * (m * 1.8378770664093453 + 2.0 * logdet + quad)
+    status = CORRECT(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m)
+    if status != 0:
+        return status
+    # Joseph form: P = (I - K C) Pp (I - K C)^T + K R K^T
+    for i in range(n):
+        for j in range(n):
+            s = 1.0 if i == j else 0.0
+            for q in range(m):
+                s -= KgT[q, i] * C[q, j]
+            IKC[i, j] = s
+    product_step(IKC, Pp, T1, n, n, n, False, False)
+    product_step(KgT, R, KR, n, m, m, True, False)
+    for i in range(n):  # symmetric: upper triangle, mirrored
+        for j in range(i, n):
+            s = 0.0
+            for q in range(n):
+                s += T1[i, q] * IKC[j, q]
+            for q in range(m):
+                s += KR[i, q] * KgT[q, j]
+            P[i, j] = s
+            P[j, i] = s
+    for i in range(m):
+        epp[i] = ep[i]
+    residual_step(zk, C, x, ep, n, m)
+    return 0
 
 
-@_jit.njit
-def _cov_kernel(
-    kind,
-    mapping,
-    linear,
-    x,
-    P,
-    ep,
-    epp,
-    z,
-    Bu,
-    A,
-    xp_in,
-    F_in,
-    C,
-    Q,
-    R,
-    M_const,
-    gamma,
-    lam,
-    psi,
-    lo,
-    hi,
-    flags,
-    o_xprior,
-    o_xpost,
-    o_e,
-    o_S,
-    o_ll,
-    o_ep,
-    o_Pprior,
-    o_Ppost,
-):  # pragma: no cover - compiled
-    """The step of the module docstring over runs (outer) and time (inner); returns 0 or 1 + bad run."""
-    runs, K, m = z.shape
-    n = x.shape[1]
-    shared_bu = Bu.shape[0] == 1
-    xp = np.empty(n)
-    T1 = np.empty((n, n))
-    Pp = np.empty((n, n))
-    PCt = np.empty((n, m))
-    PCtT = np.empty((m, n))
-    S = np.empty((m, m))
-    D = np.empty((m, m))
-    L = np.zeros((m, m))
-    e = np.empty(m)
-    w = np.empty((m, 1))
-    eb = np.empty((m, 1))
-    KgT = np.empty((m, n))
-    MpT = np.empty((m, n))
-    dz = np.empty(m)
-    g = np.empty(m)
-    IKC = np.empty((n, n))
-    KR = np.empty((n, m))
-    for r in range(runs):
-        br = 0 if shared_bu else r
-        for k in range(K):
-            # prediction: x(k+1|k), P(k+1|k) = F P F^T + Q
-            if linear:
-                F = A
-                for i in range(n):
-                    s = Bu[br, k, i]
-                    for j in range(n):
-                        s += A[i, j] * x[r, j]
-                    xp[i] = s
-            else:
-                F = F_in[r]
-                for i in range(n):
-                    xp[i] = xp_in[r, i]
-            for i in range(n):
-                for j in range(n):
-                    s = 0.0
-                    for q in range(n):
-                        s += F[i, q] * P[r, q, j]
-                    T1[i, j] = s
-            for i in range(n):  # symmetric: upper triangle, mirrored
-                for j in range(i, n):
-                    s = Q[i, j]
-                    for q in range(n):
-                        s += T1[i, q] * F[j, q]
-                    Pp[i, j] = s
-                    Pp[j, i] = s
-            # innovation, S, log-likelihood
-            for i in range(m):
-                s = z[r, k, i]
-                for j in range(n):
-                    s -= C[i, j] * xp[j]
-                e[i] = s
-                eb[i, 0] = s
-            for i in range(n):
-                for j in range(m):
-                    s = 0.0
-                    for q in range(n):
-                        s += Pp[i, q] * C[j, q]
-                    PCt[i, j] = s
-                    PCtT[j, i] = s
-            for i in range(m):
-                for j in range(m):
-                    s = 0.0
-                    for q in range(n):
-                        s += C[i, q] * PCt[q, j]
-                    D[i, j] = s
-                    S[i, j] = s + R[i, j]
-            if not _chol(S, L, m):
-                return 1 + r
-            _chol_solve_rows(L, eb, w, m, 1)
-            quad = 0.0
-            logdet = 0.0
-            for i in range(m):
-                quad += e[i] * w[i, 0]
-                logdet += np.log(L[i, i])
-            ll = -0.5 * (m * 1.8378770664093453 + 2.0 * logdet + quad)
-            # correction
-            use_kf = kind == KF
-            if kind == VBL:
-                # Kalman gain where psi_vbl,i = (|e_i| + gamma_i |e_i(k|k)|) / (C K_KF)_ii <= psi_i for all i
-                _chol_solve_rows(L, PCtT, KgT, m, n)
-                use_kf = True
-                for i in range(m):
-                    ck = 0.0
-                    for q in range(n):
-                        ck += C[i, q] * KgT[i, q]
-                    need = abs(e[i]) + gamma[i] * abs(ep[r, i])
-                    if not (ck > 0.0 and need <= psi[i] * ck):
-                        use_kf = False
-            elif kind == KF:
-                _chol_solve_rows(L, PCtT, KgT, m, n)
-            if use_kf:
-                for i in range(n):
-                    s = xp[i]
-                    for j in range(m):
-                        s += KgT[j, i] * e[j]
-                    x[r, i] = s
-            else:
-                if mapping == MAP_COV:
-                    if not _chol(D, L, m):
-                        return 1 + r
-                    _chol_solve_rows(L, PCtT, MpT, m, n)
-                else:
-                    for i in range(m):
-                        for j in range(n):
-                            MpT[i, j] = M_const[j, i]
-                for i in range(m):
-                    if kind != SVSF2:
-                        a = abs(e[i])
-                        den = a if a > psi[i] else psi[i]
-                        g[i] = (a + gamma[i] * abs(ep[r, i])) / den
-                        dz[i] = g[i] * e[i]
-                    else:
-                        dz[i] = e[i] - (gamma[i] + lam[i]) * ep[r, i] + gamma[i] * lam[i] * epp[r, i]
-                        if e[i] != 0.0:
-                            gi = dz[i] / e[i]
-                            g[i] = lo if gi < lo else (hi if gi > hi else gi)
-                        else:
-                            g[i] = 1.0
-                for i in range(m):
-                    for j in range(n):
-                        KgT[i, j] = MpT[i, j] * g[i]
-                for i in range(n):
-                    s = xp[i]
-                    for j in range(m):
-                        s += MpT[j, i] * dz[j]
-                    x[r, i] = s
-            # Joseph form: P = (I - K C) Pp (I - K C)^T + K R K^T
-            for i in range(n):
-                for j in range(n):
-                    s = 1.0 if i == j else 0.0
-                    for q in range(m):
-                        s -= KgT[q, i] * C[q, j]
-                    IKC[i, j] = s
-            for i in range(n):
-                for j in range(n):
-                    s = 0.0
-                    for q in range(n):
-                        s += IKC[i, q] * Pp[q, j]
-                    T1[i, j] = s
-            for i in range(n):
-                for j in range(m):
-                    s = 0.0
-                    for q in range(m):
-                        s += KgT[q, i] * R[q, j]
-                    KR[i, j] = s
-            for i in range(n):  # symmetric: upper triangle, mirrored
-                for j in range(i, n):
-                    s = 0.0
-                    for q in range(n):
-                        s += T1[i, q] * IKC[j, q]
-                    for q in range(m):
-                        s += KR[i, q] * KgT[q, j]
-                    P[r, i, j] = s
-                    P[r, j, i] = s
-            # residuals
-            for i in range(m):
-                epp[r, i] = ep[r, i]
-                s = z[r, k, i]
-                for j in range(n):
-                    s -= C[i, j] * x[r, j]
-                ep[r, i] = s
-            if flags[0]:
-                for i in range(n):
-                    o_xprior[r, k, i] = xp[i]
-            if flags[1]:
-                for i in range(n):
-                    o_xpost[r, k, i] = x[r, i]
-            if flags[2]:
-                for i in range(m):
-                    o_e[r, k, i] = e[i]
-            if flags[3]:
-                for i in range(m):
-                    for j in range(m):
-                        o_S[r, k, i, j] = S[i, j]
-            if flags[4]:
-                o_ll[r, k] = ll
-            if flags[5]:
-                for i in range(m):
-                    o_ep[r, k, i] = ep[r, i]
+@_jit.step
+def _no_correction(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+    """Placeholder binding of :func:`_sample` (never called)."""
+    return NOT_PD
+
+
+#: Bindings of :func:`_sample`.
+CORRECT = _no_correction
+WANT_LL = True
+
+
+def sample_step(correct: CorrectionStep, want_ll: bool = True):  # type: ignore[no-untyped-def]
+    """:func:`_sample` with ``correct``'s step bound: an inlined step for the loops."""
+    return _jit.specialize_sizes(
+        _sample, f"{correct.name}_ll{int(want_ll)}", {}, inline=True, CORRECT=correct.step, WANT_LL=want_ll
+    )
+
+
+@_jit.step
+def _no_sample(fp, x, P, ep, epp, zk, xp, F, C, Q, R, ws, n, m):  # type: ignore[no-untyped-def]
+    """Placeholder binding of the loops (never called)."""
+    return NOT_PD
+
+
+@_jit.step
+def workspace(n: int, m: int) -> tuple:  # pragma: no cover - compiled (inlined into the loops)
+    """Scratch of :func:`_sample` and the correction steps: views of one stack block of the loop.
+
+    ``(T1, Pp, PCt, PCtT, S, D, L, e, eb, wv, KgT, IKC, KR, ll, MpT, g, dz, Phi, G12, P12i, Al,
+    Ae, rr, dy, Ky, W)``; the last nine are the reduced-order form's (n = 2m). One block of
+    :data:`~chatterspec._jit.BLOCK_CAPACITY` floats (enough for n, m up to
+    :data:`~chatterspec._jit.MAX_DIMENSION`).
+    """
+    h = max(n - m, 1)
+    size = 4 * n * n + 6 * n * m + 3 * m * m + 3 * m * h + 2 * h * h + 6 * m + n + h + 1
+    buf = _jit.scratch_block(size)
+    o0 = 0
+    o1 = o0 + n * n
+    o2 = o1 + n * n
+    o3 = o2 + n * m
+    o4 = o3 + m * n
+    o5 = o4 + m * m
+    o6 = o5 + m * m
+    o7 = o6 + m * m
+    o8 = o7 + m
+    o9 = o8 + m
+    o10 = o9 + m
+    o11 = o10 + m * n
+    o12 = o11 + n * n
+    o13 = o12 + n * m
+    o14 = o13 + 1
+    o15 = o14 + m * n
+    o16 = o15 + m
+    o17 = o16 + m
+    o18 = o17 + n * n
+    o19 = o18 + m * h
+    o20 = o19 + h * m
+    o21 = o20 + h * m
+    o22 = o21 + h
+    o23 = o22 + m
+    o24 = o23 + n
+    o25 = o24 + n * m
+    return (
+        buf[o0:o1].reshape((n, n)),
+        buf[o1:o2].reshape((n, n)),
+        buf[o2:o3].reshape((n, m)),
+        buf[o3:o4].reshape((m, n)),
+        buf[o4:o5].reshape((m, m)),
+        buf[o5:o6].reshape((m, m)),
+        buf[o6:o7].reshape((m, m)),
+        buf[o7:o8],
+        buf[o8:o9].reshape((m, 1)),
+        buf[o9:o10].reshape((m, 1)),
+        buf[o10:o11].reshape((m, n)),
+        buf[o11:o12].reshape((n, n)),
+        buf[o12:o13].reshape((n, m)),
+        buf[o13:o14],
+        buf[o14:o15].reshape((m, n)),
+        buf[o15:o16],
+        buf[o16:o17],
+        buf[o17:o18].reshape((n, n)),
+        buf[o18:o19].reshape((m, h)),
+        buf[o19:o20].reshape((h, m)),
+        buf[o20:o21].reshape((h, m)),
+        buf[o21:o22],
+        buf[o22:o23],
+        buf[o23:o24],
+        buf[o24:o25].reshape((n, m)),
+        buf[o25 : o25 + 2 * h * h].reshape((h, 2 * h)),
+    )
+
+
+@_jit.step
+def store_step(flags, outs, r, k, xp, x, e, S, ll, ep, Pp, P, n, m):  # type: ignore[no-untyped-def]
+    """Write sample k of run r into the outputs of :data:`FIELDS` whose ``flags`` entry is set."""
+    o_xprior, o_xpost, o_e, o_S, o_ll, o_ep, o_Pprior, o_Ppost = outs
+    for i in range(n):
+        if flags[0]:
+            o_xprior[r, k, i] = xp[i]
+        if flags[1]:
+            o_xpost[r, k, i] = x[i]
+    for i in range(m):
+        if flags[2]:
+            o_e[r, k, i] = e[i]
+        if flags[5]:
+            o_ep[r, k, i] = ep[i]
+        if flags[3]:
+            for j in range(m):
+                o_S[r, k, i, j] = S[i, j]
+    if flags[4]:
+        o_ll[r, k] = ll
+    for i in range(n):
+        for j in range(n):
             if flags[6]:
-                for i in range(n):
-                    for j in range(n):
-                        o_Pprior[r, k, i, j] = Pp[i, j]
+                o_Pprior[r, k, i, j] = Pp[i, j]
             if flags[7]:
-                for i in range(n):
-                    for j in range(n):
-                        o_Ppost[r, k, i, j] = P[r, i, j]
+                o_Ppost[r, k, i, j] = P[i, j]
+
+
+@_jit.step
+def given_predict(prm: np.ndarray, x: np.ndarray, u: np.ndarray, xp: np.ndarray, n: int, p: int) -> None:
+    """A prediction computed by the caller: ``xp = prm[:n]`` (the per-run row of :func:`cov_loop`)."""
+    for i in range(n):
+        xp[i] = prm[i]
+
+
+@_jit.step
+def given_jacobian(prm: np.ndarray, x: np.ndarray, u: np.ndarray, F: np.ndarray, n: int, p: int) -> None:
+    """A Jacobian computed by the caller: ``F = prm[n:]`` row-major."""
+    for i in range(n):
+        for j in range(n):
+            F[i, j] = prm[n + i * n + j]
+
+
+#: Bindings of :func:`_cov_loop`: the plant's steps, whether its Jacobian is constant, the sample
+#: step (with the filter's correction), sizes (0: from the arrays).
+PREDICT = given_predict
+JACOBIAN = given_jacobian
+CONST_F = False
+SAMPLE = _no_sample
+NX = NZ = 0
+
+
+def _cov_loop(
+    prm: np.ndarray,
+    u: np.ndarray,
+    z: np.ndarray,
+    x: np.ndarray,
+    P: np.ndarray,
+    ep: np.ndarray,
+    epp: np.ndarray,
+    C: np.ndarray,
+    Q: np.ndarray,
+    R: np.ndarray,
+    fp: np.ndarray,
+    flags: np.ndarray,
+    o_xprior: np.ndarray,
+    o_xpost: np.ndarray,
+    o_e: np.ndarray,
+    o_S: np.ndarray,
+    o_ll: np.ndarray,
+    o_ep: np.ndarray,
+    o_Pprior: np.ndarray,
+    o_Ppost: np.ndarray,
+) -> int:  # pragma: no cover - compiled (a template: see cov_loop)
+    """The filter of ``SAMPLE`` on the plant of ``PREDICT``/``JACOBIAN``, runs outer, samples inner.
+
+    ``prm`` (1 or runs, L): the plant's parameters (one row per run for :func:`given_predict`);
+    ``u`` (1 or runs, K, p); ``z`` (runs, K, m); state ``x`` (runs, n), ``P`` (runs, n, n), ``ep``,
+    ``epp`` (runs, m) updated in place; outputs as :data:`FIELDS`, each written when its ``flags``
+    entry is set. Returns 0, ``1 + r`` (a matrix of run r not positive definite) or
+    ``1 + runs + r`` (a singular ``Phi12`` in run r).
+    """
+    b = _jit.borrow
+    prm, u, z, x, P, ep, epp, C, Q, R, fp = (
+        b(prm),
+        b(u),
+        b(z),
+        b(x),
+        b(P),
+        b(ep),
+        b(epp),
+        b(C),
+        b(Q),
+        b(R),
+        b(fp),
+    )
+    o_xprior, o_xpost, o_e, o_S = b(o_xprior), b(o_xpost), b(o_e), b(o_S)
+    o_ll, o_ep, o_Pprior, o_Ppost = b(o_ll), b(o_ep), b(o_Pprior), b(o_Ppost)
+    runs, K, _ = z.shape
+    n = NX if NX > 0 else x.shape[1]
+    m = NZ if NZ > 0 else z.shape[2]
+    p = u.shape[2]
+    shared_prm = prm.shape[0] == 1
+    shared_u = u.shape[0] == 1
+    xp = _jit.scratch(n)
+    F = _jit.scratch2(n, n)
+    ws = workspace(n, m)
+    Pp, S, e, ll = ws[1], ws[4], ws[7], ws[13]
+    if CONST_F:
+        JACOBIAN(prm[0], x[0], u[0, 0], F, n, p)
+    for r in range(runs):
+        pr = 0 if shared_prm else r
+        ur = 0 if shared_u else r
+        for k in range(K):
+            PREDICT(prm[pr], x[r], u[ur, k], xp, n, p)
+            if not CONST_F:
+                JACOBIAN(prm[pr], x[r], u[ur, k], F, n, p)
+            status = SAMPLE(fp, x[r], P[r], ep[r], epp[r], z[r, k], xp, F, C, Q, R, ws, n, m)
+            if status == NOT_PD:
+                return 1 + r
+            if status == SINGULAR_PHI12:
+                return 1 + runs + r
+            outs = (o_xprior, o_xpost, o_e, o_S, o_ll, o_ep, o_Pprior, o_Ppost)
+            store_step(flags, outs, r, k, xp, x[r], e, S, ll[0], ep[r], Pp, P[r], n, m)
     return 0
 
 
@@ -311,40 +494,8 @@ def _alloc(
     return flags, arrays
 
 
-def cov_step(
-    kind: int,
-    mapping: int,
-    x: np.ndarray,
-    P: np.ndarray,
-    ep: np.ndarray,
-    epp: np.ndarray,
-    z: np.ndarray,
-    C: np.ndarray,
-    Q: np.ndarray,
-    R: np.ndarray,
-    keep: frozenset[str],
-    *,
-    Bu: np.ndarray | None = None,
-    A: np.ndarray | None = None,
-    xp_in: np.ndarray | None = None,
-    F_in: np.ndarray | None = None,
-    M_const: np.ndarray | None = None,
-    gamma: np.ndarray | None = None,
-    lam: np.ndarray | None = None,
-    psi: np.ndarray | None = None,
-    lo: float = 0.0,
-    hi: float = 2.0,
-    luen: tuple[np.ndarray, np.ndarray] | None = None,
-) -> dict[str, np.ndarray | None]:
-    """Advance ``x, P, ep, epp`` (modified in place) over ``z`` (runs, K, m).
-
-    Linear when ``A`` and ``Bu`` (1|runs, K, n) are given; otherwise ``xp_in`` (runs, n) and
-    ``F_in`` (runs, n, n) are the prediction and Jacobian of the single sample (K = 1).
-    """
-    runs, K, m = z.shape
-    n = x.shape[1]
-    linear = A is not None
-    shapes = {
+def _shapes(runs: int, K: int, n: int, m: int) -> dict[str, tuple[int, ...]]:
+    return {
         "x_prior": (runs, K, n),
         "x_post": (runs, K, n),
         "innovation": (runs, K, m),
@@ -354,82 +505,80 @@ def cov_step(
         "P_prior": (runs, K, n, n),
         "P_post": (runs, K, n, n),
     }
-    flags, out = _alloc(keep, shapes)
-    zeros_m = np.zeros(m)
-    args = dict(
-        gamma=zeros_m if gamma is None else gamma,
-        lam=zeros_m if lam is None else lam,
-        psi=np.ones(m) if psi is None else psi,
-        M_const=np.zeros((n, m)) if M_const is None else np.ascontiguousarray(M_const),
-    )
-    if linear:
-        Bu, A = np.ascontiguousarray(Bu), np.ascontiguousarray(A)
-        xp_in, F_in = np.zeros((1, n)), np.zeros((1, n, n))
+
+
+def cov_loop(
+    correct: CorrectionStep,
+    plant: object | None,
+    x: np.ndarray,
+    P: np.ndarray,
+    ep: np.ndarray,
+    epp: np.ndarray,
+    z: np.ndarray,
+    u: np.ndarray,
+    C: np.ndarray,
+    Q: np.ndarray,
+    R: np.ndarray,
+    keep: frozenset[str],
+    *,
+    xp_in: np.ndarray | None = None,
+    F_in: np.ndarray | None = None,
+) -> dict[str, np.ndarray | None]:
+    """Advance ``x, P, ep, epp`` (in place) over ``z`` (runs, K, m) with the compiled loop.
+
+    Parameters
+    ----------
+    correct : CorrectionStep
+        The filter's correction.
+    plant : PlantSteps or None
+        The model's steps (:func:`chatterspec.plants.steps.plant_steps`); None with ``xp_in`` and
+        ``F_in`` (runs, n) / (runs, n, n), a prediction the caller computed (K = 1).
+    x, P, ep, epp : arrays
+        State (runs, n), (runs, n, n), (runs, m), (runs, m), C-contiguous float, updated in place.
+    z : (runs, K, m) array
+        Measurements.
+    u : (1 | runs, K, p) array
+        Inputs.
+    C, Q, R : arrays
+        The filter model's matrices.
+    keep : frozenset of str
+        Outputs to return (others None).
+
+    Returns
+    -------
+    dict of str to array or None
+    """
+    runs, K, m = z.shape
+    n = x.shape[1]
+    flags, out = _alloc(keep, _shapes(runs, K, n, m))
+    c = np.ascontiguousarray
+    if plant is None:
+        prm = c(np.concatenate([xp_in, np.reshape(F_in, (runs, n * n))], axis=1), dtype=float)
+        bind = {"PREDICT": given_predict, "JACOBIAN": given_jacobian, "CONST_F": False}
+        tag = f"given_{correct.name}"
     else:
-        if K != 1:
-            raise ValueError("nonlinear steps take one sample at a time")
-        Bu, A = np.zeros((1, 1, n)), np.zeros((n, n))
-        xp_in, F_in = np.ascontiguousarray(xp_in, dtype=float), np.ascontiguousarray(F_in, dtype=float)
-    if _jit.enabled() and mapping != MAP_LUEN:
-        status = _cov_kernel(
-            kind,
-            mapping,
-            linear,
-            x,
-            P,
-            ep,
-            epp,
-            np.ascontiguousarray(z),
-            Bu,
-            A,
-            xp_in,
-            F_in,
-            np.ascontiguousarray(C),
-            np.ascontiguousarray(Q),
-            np.ascontiguousarray(R),
-            args["M_const"],
-            args["gamma"],
-            args["lam"],
-            args["psi"],
-            float(lo),
-            float(hi),
-            flags,
-            out["x_prior"],
-            out["x_post"],
-            out["innovation"],
-            out["S"],
-            out["loglik"],
-            out["e_post"],
-            out["P_prior"],
-            out["P_post"],
-        )
-        if status:
-            raise SingularMatrixError(_not_pd_message(mapping, status - 1))
-    else:
-        _cov_numpy(
-            kind,
-            mapping,
-            linear,
-            x,
-            P,
-            ep,
-            epp,
-            z,
-            Bu,
-            A,
-            xp_in,
-            F_in,
-            C,
-            Q,
-            R,
-            lo,
-            hi,
-            flags,
-            out,
-            luen=luen,
-            **args,
-        )
+        prm = c(plant.parameters, dtype=float)[None]  # type: ignore[attr-defined]
+        bind = {
+            "PREDICT": plant.predict,  # type: ignore[attr-defined]
+            "JACOBIAN": plant.jacobian,  # type: ignore[attr-defined]
+            "CONST_F": bool(plant.constant_jacobian),  # type: ignore[attr-defined]
+        }
+        tag = f"{plant.name}_{correct.name}"  # type: ignore[attr-defined]
+    kernel = _jit.specialize_sizes(_cov_loop, tag, {"NX": n, "NZ": m}, SAMPLE=sample_step(correct), **bind)
+    status = kernel(
+        prm, c(u, dtype=float), c(z, dtype=float), x, P, ep, epp, c(C, dtype=float), c(Q, dtype=float),
+        c(R, dtype=float), correct.parameters, flags, out["x_prior"], out["x_post"], out["innovation"],
+        out["S"], out["loglik"], out["e_post"], out["P_prior"], out["P_post"],
+    )  # fmt: skip
+    if status > runs:
+        raise SingularMatrixError(_luen_message())
+    if status:
+        raise SingularMatrixError(_not_pd_message(correct.mapping, status - 1))
     return {f: (out[f] if f in keep else None) for f in FIELDS}
+
+
+def _luen_message() -> str:
+    return "the Luenberger form needs Phi12 = d(measured)/d(unmeasured) invertible at the estimate (eq 10)"
 
 
 def _not_pd_message(mapping: int, run: int) -> str:
@@ -438,99 +587,3 @@ def _not_pd_message(mapping: int, run: int) -> str:
         f"{what} is not positive definite in run {run}: check that R (and P0) are positive definite "
         "and that the model does not diverge"
     )
-
-
-def _chol_np(M: np.ndarray, mapping: int) -> np.ndarray:
-    try:
-        return np.linalg.cholesky(M)
-    except np.linalg.LinAlgError:
-        bad = np.flatnonzero(~np.all(np.linalg.eigvalsh(M) > 0, axis=-1))
-        raise SingularMatrixError(_not_pd_message(mapping, int(bad[0]) if bad.size else 0)) from None
-
-
-def _cov_numpy(
-    kind,
-    mapping,
-    linear,
-    x,
-    P,
-    ep,
-    epp,
-    z,
-    Bu,
-    A,
-    xp_in,
-    F_in,
-    C,
-    Q,
-    R,
-    lo,
-    hi,
-    flags,
-    out,
-    *,
-    gamma,
-    lam,
-    psi,
-    M_const,
-    luen=None,
-):
-    """Numpy twin of :func:`_cov_kernel`: vectorized over runs, loop over time."""
-    runs, K, m = z.shape
-    n = x.shape[1]
-    CT = C.T
-    eye = np.eye(n)
-    for k in range(K):
-        if linear:
-            F = A
-            xp = x @ A.T + Bu[:, k]
-        else:
-            F = F_in
-            xp = np.array(xp_in, dtype=float)
-        Pp = F @ P @ np.swapaxes(F, -1, -2) + Q
-        e = z[:, k] - xp @ CT
-        PCt = Pp @ CT
-        D = C @ PCt
-        S = D + R
-        L = _chol_np(S, mapping)
-        w = np.linalg.solve(S, e[..., None])[..., 0]
-        ll = -0.5 * (m * LOG2PI + 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1))
-        ll = ll - 0.5 * np.einsum("ri,ri->r", e, w)
-        if kind in (KF, VBL):
-            Kkf = np.swapaxes(np.linalg.solve(S, np.swapaxes(PCt, -1, -2)), -1, -2)
-        if kind == KF:
-            Kg = Kkf
-            x[...] = xp + np.einsum("rij,rj->ri", Kg, e)
-        elif mapping == MAP_LUEN:
-            from ._luen import luen_correction  # deferred: _luen imports this module's constants
-
-            Kg, dx = luen_correction(kind, F, e, ep, epp, luen[0], luen[1], gamma, lam, psi, lo, hi)
-            x[...] = xp + dx
-        else:
-            if mapping == MAP_COV:
-                _chol_np(D, mapping)
-                Mp = np.swapaxes(np.linalg.solve(D, np.swapaxes(PCt, -1, -2)), -1, -2)
-            else:
-                Mp = np.broadcast_to(M_const, (runs, n, m))
-            if kind != SVSF2:
-                a = np.abs(e)
-                g = (a + gamma * np.abs(ep)) / np.maximum(a, psi)
-                dz = g * e
-            else:
-                dz = e - (gamma + lam) * ep + gamma * lam * epp
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    g = np.where(e != 0.0, np.clip(dz / np.where(e != 0.0, e, 1.0), lo, hi), 1.0)
-            Kg = Mp * g[:, None, :]
-            x[...] = xp + np.einsum("rij,rj->ri", Mp, dz)
-            if kind == VBL:
-                ck = np.einsum("iq,rqi->ri", C, Kkf)
-                use_kf = np.all((ck > 0.0) & (np.abs(e) + gamma * np.abs(ep) <= psi * ck), axis=1)
-                Kg = np.where(use_kf[:, None, None], Kkf, Kg)
-                x[...] = np.where(use_kf[:, None], xp + np.einsum("rij,rj->ri", Kkf, e), x)
-        IKC = eye - Kg @ C
-        P[...] = IKC @ Pp @ np.swapaxes(IKC, -1, -2) + Kg @ R @ np.swapaxes(Kg, -1, -2)
-        epp[...] = ep
-        ep[...] = z[:, k] - x @ CT
-        for f, flag, val in zip(FIELDS, flags, (xp, x, e, S, ll, ep, Pp, P), strict=True):
-            if flag:
-                out[f][:, k] = val

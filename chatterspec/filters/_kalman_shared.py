@@ -2,8 +2,9 @@
 
 For a :class:`~chatterspec.plants.models.LinearModel` started from one shared ``P0`` the
 covariance and gain depend only on k: :func:`riccati` computes them once per sample for all
-realizations, and :func:`kf_shared_states` runs the state recursion per realization (compiled
-kernel, or numpy when :func:`chatterspec._jit.enabled` is false).
+realizations (numpy), and :func:`kf_shared_states` runs the state recursion per realization
+(compiled from the plant's and the per-run filter's steps, or numpy when
+:func:`chatterspec._jit.enabled` is false).
 """
 
 from __future__ import annotations
@@ -11,37 +12,48 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _jit
-from ._engine import FIELDS, LOG2PI, MAP_CONST, _alloc, _chol_np
+from ..plants.linear_steps import parameters, predict_step
+from ._engine import FIELDS, LOG2PI, MAP_CONST, _alloc, gain_update_step, residual_step, store_step
+from ._engine_numpy import chol_np as _chol_np
+from ._svsf_kernels import _rows_times
 
 
 @_jit.njit
-def _kf_shared_kernel(
-    x, ep, epp, z, Bu, A, C, KgT, Sinv, logdet, flags, o_xprior, o_xpost, o_e, o_ll, o_ep
-):  # pragma: no cover
-    """State recursion of the Kalman filter with a precomputed, shared gain sequence."""
+def _kf_shared_kernel(prm, u, z, x, ep, epp, C, KgT, Sinv, logdet, flags, outs):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """State recursion of the Kalman filter with a precomputed, shared gain sequence ``KgT`` (K, m, n).
+
+    Per run and sample: the linear plant's prediction (:func:`~chatterspec.plants.linear_steps.predict_step`,
+    ``prm`` of :func:`~chatterspec.plants.linear_steps.parameters`), the innovation, ``x = x(k+1|k)
+    + K e``, the log-likelihood from ``Sinv`` and ``logdet``, the residuals: the steps of the per-run
+    filter (:mod:`chatterspec.filters._engine`). ``outs``: the eight outputs of ``FIELDS`` (S and the
+    covariances, which the shared path returns itself, empty and not flagged).
+    """
+    b = _jit.borrow
+    prm, u, z, x, ep, epp, C, KgT, Sinv, logdet = (
+        b(prm),
+        b(u),
+        b(z),
+        b(x),
+        b(ep),
+        b(epp),
+        b(C),
+        b(KgT),
+        b(Sinv),
+        b(logdet),
+    )
     runs, K, m = z.shape
     n = x.shape[1]
-    shared_bu = Bu.shape[0] == 1
-    xp = np.empty(n)
-    e = np.empty(m)
+    p = u.shape[2]
+    shared_u = u.shape[0] == 1
+    xp = _jit.scratch(n)
+    e = _jit.scratch(m)
+    none2 = _jit.scratch2(0, 0)
     for r in range(runs):
-        br = 0 if shared_bu else r
+        ur = 0 if shared_u else r
         for k in range(K):
-            for i in range(n):
-                s = Bu[br, k, i]
-                for j in range(n):
-                    s += A[i, j] * x[r, j]
-                xp[i] = s
-            for i in range(m):
-                s = z[r, k, i]
-                for j in range(n):
-                    s -= C[i, j] * xp[j]
-                e[i] = s
-            for i in range(n):
-                s = xp[i]
-                for j in range(m):
-                    s += KgT[k, j, i] * e[j]
-                x[r, i] = s
+            predict_step(prm, x[r], u[ur, k], xp, n, p)
+            residual_step(z[r, k], C, xp, e, n, m)
+            gain_update_step(xp, KgT[k], e, x[r], n, m)
             quad = 0.0
             for i in range(m):
                 s = 0.0
@@ -50,24 +62,9 @@ def _kf_shared_kernel(
                 quad += e[i] * s
             for i in range(m):
                 epp[r, i] = ep[r, i]
-                s = z[r, k, i]
-                for j in range(n):
-                    s -= C[i, j] * x[r, j]
-                ep[r, i] = s
-            if flags[0]:
-                for i in range(n):
-                    o_xprior[r, k, i] = xp[i]
-            if flags[1]:
-                for i in range(n):
-                    o_xpost[r, k, i] = x[r, i]
-            if flags[2]:
-                for i in range(m):
-                    o_e[r, k, i] = e[i]
-            if flags[4]:
-                o_ll[r, k] = -0.5 * (m * 1.8378770664093453 + logdet[k] + quad)
-            if flags[5]:
-                for i in range(m):
-                    o_ep[r, k, i] = ep[r, i]
+            residual_step(z[r, k], C, x[r], ep[r], n, m)
+            ll = -0.5 * (m * 1.8378770664093453 + logdet[k] + quad)
+            store_step(flags, outs, r, k, xp, x[r], e, none2, ll, ep[r], none2, none2, n, m)
     return 0
 
 
@@ -76,15 +73,19 @@ def kf_shared_states(
     ep: np.ndarray,
     epp: np.ndarray,
     z: np.ndarray,
-    Bu: np.ndarray,
+    u: np.ndarray,
     A: np.ndarray,
+    B: np.ndarray,
     C: np.ndarray,
     Kg: np.ndarray,
     Sinv: np.ndarray,
     logdet: np.ndarray,
     keep: frozenset[str],
 ) -> dict[str, np.ndarray | None]:
-    """State recursion of the linear KF with a shared gain sequence ``Kg`` (K, n, m); in place."""
+    """State recursion of the linear KF with a shared gain sequence ``Kg`` (K, n, m); in place.
+
+    ``u`` is (1 | runs, K, p); the numpy path sums ``B u`` as ``_rows_times`` does.
+    """
     runs, K, m = z.shape
     n = x.shape[1]
     shapes = {
@@ -98,28 +99,18 @@ def kf_shared_states(
         "P_post": (0, 0, 0, 0),
     }
     flags, out = _alloc(keep, shapes)
+    # S and the covariances are shared (K, ...) arrays that the caller returns itself
+    flags[[FIELDS.index("S"), FIELDS.index("P_prior"), FIELDS.index("P_post")]] = False
     KgT = np.ascontiguousarray(np.swapaxes(Kg, -1, -2))
-    if _jit.enabled():
+    if _jit.enabled() and _jit.fits(n, m, vectors_only=True):
+        c = np.ascontiguousarray
         _kf_shared_kernel(
-            x,
-            ep,
-            epp,
-            np.ascontiguousarray(z),
-            np.ascontiguousarray(Bu),
-            np.ascontiguousarray(A),
-            np.ascontiguousarray(C),
-            KgT,
-            np.ascontiguousarray(Sinv),
-            np.ascontiguousarray(logdet),
-            flags,
-            out["x_prior"],
-            out["x_post"],
-            out["innovation"],
-            out["loglik"],
-            out["e_post"],
-        )
+            parameters(A, B), c(u, dtype=float), c(z), x, ep, epp, c(C), KgT, c(Sinv), c(logdet), flags,
+            tuple(out[f] for f in FIELDS),
+        )  # fmt: skip
     else:
         AT, CT = A.T, C.T
+        Bu = _rows_times(u, np.ascontiguousarray(B.T))
         for k in range(K):
             xp = x @ AT + Bu[:, k]
             e = z[:, k] - xp @ CT

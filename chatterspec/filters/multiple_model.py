@@ -52,7 +52,7 @@ import numpy as np
 from .. import _jit
 from .._validate import finite_array, nonnegative
 from ..errors import ParameterError, ShapeError, SingularMatrixError
-from . import _imm_kernel
+from . import _imm_kernel, _smm_kernel
 from ._base import check_model
 from .protocol import FilterState, check_spd
 from .svsf_cov import SVSFCov, check_gamma, default_mapping, mapping_matrix, per_channel
@@ -509,6 +509,7 @@ class SMMSVSF(_RecordRunner):
     modes: Sequence[str] | None = None
     _svsf: SVSFCov | None = field(init=False, repr=False, default=None)
     _bank: tuple[SVSFCov, ...] = field(init=False, repr=False, default=())
+    _compiled: dict[str, object] | None = field(init=False, repr=False, default=None)
 
     def __post_init__(self) -> None:
         models = tuple(self.models)
@@ -545,6 +546,8 @@ class SMMSVSF(_RecordRunner):
         if self.reading == "bank":
             bank = tuple(SVSFCov(mdl, psi=psi, gamma=self.gamma, mapping=mapping) for mdl in models)
             object.__setattr__(self, "_bank", bank)
+        else:  # the compiled Table 1 loop when every mode has compiled plant steps (else numpy)
+            object.__setattr__(self, "_compiled", _smm_kernel.smm_spec(models, self._svsf._correction_step()))
 
     @property
     def n_modes(self) -> int:
@@ -614,6 +617,8 @@ class SMMSVSF(_RecordRunner):
         return self._update_table1(state, z, u, store_covariance, store_modes)
 
     def _update_table1(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
+        if self._compiled is not None and _jit.enabled() and z.shape[1]:
+            return self._update_table1_compiled(state, z, u, store_cov, store_modes)
         models = self.models
         r = len(models)
         runs, K, _m = z.shape
@@ -664,6 +669,27 @@ class SMMSVSF(_RecordRunner):
             e_prev=epp,
         )
         return new, MultipleModelOutput(o_x, o_mu, o_ll, tuple(self.modes), o_P, o_mx)  # type: ignore[arg-type]
+
+    def _update_table1_compiled(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
+        # the same recursion as _update_table1's loop, compiled (chatterspec.filters._smm_kernel)
+        c = lambda a: np.array(a, dtype=float, order="C")  # noqa: E731
+        runs = state.x.shape[0]
+        x, P, mu, ep = (
+            c(state.x),
+            c(np.broadcast_to(state.P, (runs, *state.P.shape[-2:]))),
+            c(state.mu),
+            c(state.e_post),
+        )
+        epp = np.zeros_like(ep) if state.e_prev is None else c(state.e_prev)
+        o = _smm_kernel.run_smm(
+            self._compiled, self.weight_floor, x, P, mu, ep, epp, z, u, store_cov, store_modes
+        )
+        K = z.shape[1]
+        new = MultipleModelState(
+            x=x, P=P, mu=mu, e_post=ep, z_last=z[:, -1].copy(), k=state.k + K, e_prev=epp
+        )
+        out = MultipleModelOutput(o["x"], o["mu"], o["ll"], tuple(self.modes), o["P"], o["mx"])  # type: ignore[arg-type]
+        return new, out
 
     def _update_bank(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
         runs, K, _m = z.shape

@@ -41,6 +41,8 @@ from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel
 from ._finite import require_finite
+from ._svsf_kernels import _rows_times
+from .svsf import check_chunk
 
 __all__ = ["NonlinearSVSFOutput", "NonlinearSVSFState", "NonlinearSgnSVSF", "nonlinear_chattering"]
 
@@ -83,14 +85,6 @@ class NonlinearSVSFOutput:
 
     e_prior: np.ndarray
     x_post: np.ndarray | None = None
-
-
-def _rows_times(a: np.ndarray, MT: np.ndarray) -> np.ndarray:
-    """``a @ MT`` over the last axis, element by element in a fixed order (chunk-invariant bits)."""
-    out = np.multiply.outer(a[..., 0], MT[0])
-    for j in range(1, a.shape[-1]):
-        out += np.multiply.outer(a[..., j], MT[j])
-    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -198,19 +192,8 @@ class NonlinearSgnSVSF:
         """
         m = self.model.n_outputs
         runs = state.runs
-        if check:
-            z = finite_array("z", z, ndim=(2, 3))
-            u = finite_array("u", u, ndim=(1, 2, 3))
-        if z.ndim == 2:
-            z = z[None]
-        if z.shape[0] != runs or z.shape[2] != m:
-            raise ShapeError(f"z must have shape ({runs}, K, {m}); got {z.shape}")
+        z, u = check_chunk(z, u, runs, m, self.model.n_inputs, check)
         K = z.shape[1]
-        p = self.model.n_inputs
-        if u.ndim == 1:
-            u = u[:, None]
-        if u.shape[-2] != K or u.shape[-1] != p or (u.ndim == 3 and u.shape[0] not in (1, runs)):
-            raise ShapeError(f"u must have shape ({K}, {p}) or ({runs}, {K}, {p}); got {u.shape}")
         if closed_form and not np.any(state.e_post):
             y_prev = np.concatenate([state.y[:, None, :], z[:, :-1, :]], axis=1)  # y(j|j) = z(j)
             x_prev = _rows_times(y_prev, self._CinvT)

@@ -305,27 +305,7 @@ class SVSF:
         scale, tests/test_kernels.py), since BLAS orders the sums of the
         numpy loop's matrix products differently.
         """
-        m = self.model.n_outputs
-        runs = state.runs
-        if check:
-            z = finite_array("z", z, ndim=(2, 3))
-            u = finite_array("u", u, ndim=(1, 2, 3))
-        if z.ndim == 2:
-            z = z[None]
-        if z.shape[0] != runs or z.shape[2] != m:
-            raise ShapeError(f"z must have shape ({runs}, K, {m}); got {z.shape}")
-        K = z.shape[1]
-        if u.ndim == 1:
-            u = u[:, None]
-        if (
-            u.shape[-2] != K
-            or u.shape[-1] != self.model.n_inputs
-            or (u.ndim == 3 and u.shape[0] not in (1, runs))
-        ):
-            raise ShapeError(
-                f"u must have shape ({K}, {self.model.n_inputs}) or ({runs}, {K}, "
-                f"{self.model.n_inputs}); got {u.shape}"
-            )
+        z, u = check_chunk(z, u, state.runs, self.model.n_outputs, self.model.n_inputs, check)
         Gu = _rows_times(u, self._GT)  # (K, n) or (runs, K, n): G u(k), element-wise
         return self._advance(state, z, Gu, store_states, store_post_error, store_lower, closed_form)
 
@@ -348,7 +328,7 @@ class SVSF:
         runs, K = z.shape[0], z.shape[1]
         if closed_form and self._inv_psi is None and self._L is None and not state.e_post.any():
             return self._update_closed_form(state, z, Gu, store_states, store_post_error)
-        if _jit.enabled():
+        if _jit.enabled() and _jit.fits(n, m, vectors_only=True):
             return self._update_compiled(state, z, Gu, store_states, store_post_error, store_lower)
         # time-major working copies
         zt = np.ascontiguousarray(np.swapaxes(z, 0, 1))  # (K, runs, m)
@@ -588,6 +568,35 @@ class SVSF:
             e_post=with_first(out.e_post, state.e_post),
             e_lower=with_first(out.e_lower, np.zeros((runs, n - m))),
         )
+
+
+def check_chunk(
+    z: np.ndarray, u: np.ndarray, runs: int, m: int, p: int, check: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Measurements ``z`` as (runs, K, m) and inputs ``u`` as (K, p) or (runs, K, p) of an SVSF update.
+
+    Validates finiteness when ``check``; a 2-D ``z`` is one run, a 1-D ``u`` one input channel.
+
+    Raises
+    ------
+    ShapeError
+        Shapes that do not match the filter.
+    NonFiniteError
+        NaN or inf (with ``check``).
+    """
+    if check:
+        z = finite_array("z", z, ndim=(2, 3))
+        u = finite_array("u", u, ndim=(1, 2, 3))
+    if z.ndim == 2:
+        z = z[None]
+    if z.shape[0] != runs or z.shape[2] != m:
+        raise ShapeError(f"z must have shape ({runs}, K, {m}); got {z.shape}")
+    K = z.shape[1]
+    if u.ndim == 1:
+        u = u[:, None]
+    if u.shape[-2] != K or u.shape[-1] != p or (u.ndim == 3 and u.shape[0] not in (1, runs)):
+        raise ShapeError(f"u must have shape ({K}, {p}) or ({runs}, {K}, {p}); got {u.shape}")
+    return z, u
 
 
 def auxiliary_svsf(model: LinearModel, gamma: float = 0.1) -> SVSF:

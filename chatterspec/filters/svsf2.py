@@ -33,10 +33,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import _jit
 from .._validate import finite_array
 from ..errors import ParameterError
-from . import _engine
+from . import _engine, _engine_numpy
 from ._base import CovarianceFilterBase, check_model, is_linear
+from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets
+from ._luen import luen_correction, luen_second_order
 from .svsf_cov import (
     Mapping,
     _mapping_code,
@@ -133,14 +136,57 @@ class SecondOrderSVSF(CovarianceFilterBase):
     def _linear(self) -> bool:  # type: ignore[override]
         return is_linear(self.model)
 
-    def _correction(self) -> dict[str, object]:
-        return {
-            "kind": _engine.SVSF2,
-            "mapping": _mapping_code(self._M, self._luen),
-            "luen": self._luen,
-            "M_const": self._M,
-            "gamma": self.gamma,
-            "lam": self.lam,
-            "lo": self.ratio_clip[0],
-            "hi": self.ratio_clip[1],
-        }
+    def _correction_step(self) -> _engine.CorrectionStep:
+        mapping = _mapping_code(self._M, self._luen)
+        n, m = int(self.model.n_states), int(self.model.n_outputs)  # type: ignore[attr-defined]
+        fp = _engine.svsf_parameters(
+            mapping, n, m, self.gamma, lam=self.lam, clip=self.ratio_clip, M=self._M, luen=self._luen
+        )
+        gamma, lam, (lo, hi), M, luen = self.gamma, self.lam, self.ratio_clip, self._M, self._luen
+
+        def numpy(e, ep, epp, xp, PCt, D, S, C, F):  # type: ignore[no-untyped-def]
+            if luen is not None:
+                Kg, dx = luen_correction(_engine.SVSF2, F, e, ep, epp, *luen, gamma, lam, np.ones(n), lo, hi)
+                return Kg, xp + dx
+            Mp = _engine_numpy.map_numpy(mapping, D, PCt, M, e.shape[0])
+            dz = e - (gamma + lam) * ep + gamma * lam * epp
+            with np.errstate(divide="ignore", invalid="ignore"):
+                g = np.where(e != 0.0, np.clip(dz / np.where(e != 0.0, e, 1.0), lo, hi), 1.0)
+            return Mp * g[:, None, :], xp + np.einsum("rij,rj->ri", Mp, dz)
+
+        if luen is not None:
+            return _engine.CorrectionStep("svsf2_luen", luen_second_order, fp, numpy, mapping)
+        return _engine.CorrectionStep("svsf2", svsf2_correct, fp, numpy, mapping)
+
+
+def from_settings(model: object, settings: object, source: str) -> SecondOrderSVSF:
+    """Registry builder of ``svsf2``: gamma (default 0.1), Lambda (``cutoff_lambda``), mapping."""
+    fs = settings
+    gamma = 0.1 if fs.gamma is None else fs.gamma  # type: ignore[attr-defined]
+    lam = None if fs.cutoff_lambda is None else np.asarray(fs.cutoff_lambda, dtype=float)  # type: ignore[attr-defined]
+    return SecondOrderSVSF(model, gamma=gamma, lam=lam, mapping=fs.mapping)  # type: ignore[attr-defined]
+
+
+@_jit.step
+def svsf2_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+    """The second-order SVSF's correction (compiled step, signature of :mod:`chatterspec.filters._engine`).
+
+    [DETC] eq (9): ``dz = e - (gamma + Lambda) e(k|k) + gamma Lambda e(k-1|k-1)``; the covariance
+    gain ``g = clip(dz / e, lo, hi)`` (1 where ``e = 0``); ``x = x(k+1|k) + M dz`` (constant or
+    ``cov`` map).
+    """
+    MpT, g, dz = ws[14], ws[15], ws[16]
+    o_g, o_l, _, o_lo, o_M, _, _ = svsf_offsets(n, m)
+    if not map_step(int(fp[0]), D, L, PCtT, fp, o_M, MpT, n, m):
+        return NOT_PD
+    lo, hi = fp[o_lo], fp[o_lo + 1]
+    for i in range(m):
+        gi, li = fp[o_g + i], fp[o_l + i]
+        dz[i] = e[i] - (gi + li) * ep[i] + gi * li * epp[i]
+        if e[i] != 0.0:
+            q = dz[i] / e[i]
+            g[i] = lo if q < lo else (hi if q > hi else q)
+        else:
+            g[i] = 1.0
+    map_update_step(xp, MpT, g, dz, x, KgT, n, m)
+    return 0

@@ -36,10 +36,14 @@ from typing import Literal
 
 import numpy as np
 
+from .. import _jit
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError, SingularMatrixError
-from . import _engine
+from . import _engine, _engine_numpy
 from ._base import CovarianceFilterBase, check_model, is_linear
+from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets
+from ._luen import luen_correction, luen_first_order
+from .kalman import kalman_correct
 from .svsf import _reduced_order_transform
 
 __all__ = ["Mapping", "SVSFCov", "mapping_matrix"]
@@ -182,15 +186,106 @@ class SVSFCov(CovarianceFilterBase):
     def _linear(self) -> bool:  # type: ignore[override]
         return is_linear(self.model)
 
-    def _correction(self) -> dict[str, object]:
-        return {
-            "kind": _engine.VBL if self.vbl else _engine.SVSF1,
-            "mapping": _mapping_code(self._M, self._luen),
-            "luen": self._luen,
-            "M_const": self._M,
-            "gamma": self.gamma,
-            "psi": self.psi,
-        }
+    def _correction_step(self) -> _engine.CorrectionStep:
+        mapping = _mapping_code(self._M, self._luen)
+        n, m = int(self.model.n_states), int(self.model.n_outputs)  # type: ignore[attr-defined]
+        fp = _engine.svsf_parameters(mapping, n, m, self.gamma, psi=self.psi, M=self._M, luen=self._luen)
+        gamma, psi, M, luen = self.gamma, self.psi, self._M, self._luen
+
+        def numpy(e, ep, epp, xp, PCt, D, S, C, F):  # type: ignore[no-untyped-def]
+            if luen is not None:
+                Kg, dx = luen_correction(_engine.SVSF1, F, e, ep, epp, *luen, gamma, 0 * gamma, psi, 0.0, 2.0)
+                return Kg, xp + dx
+            Kkf = _engine_numpy.kalman_gain_numpy(S, PCt) if self.vbl else None
+            Mp = _engine_numpy.map_numpy(mapping, D, PCt, M, e.shape[0])
+            a = np.abs(e)
+            g = (a + gamma * np.abs(ep)) / np.maximum(a, psi)
+            Kg = Mp * g[:, None, :]
+            x = xp + np.einsum("rij,rj->ri", Mp, g * e)
+            if self.vbl:
+                ck = np.einsum("iq,rqi->ri", C, Kkf)
+                use_kf = np.all((ck > 0.0) & (np.abs(e) + gamma * np.abs(ep) <= psi * ck), axis=1)
+                Kg = np.where(use_kf[:, None, None], Kkf, Kg)
+                x = np.where(use_kf[:, None], xp + np.einsum("rij,rj->ri", Kkf, e), x)
+            return Kg, x
+
+        if luen is not None:
+            return _engine.CorrectionStep("svsf_luen", luen_first_order, fp, numpy, mapping)
+        step = vbl_correct if self.vbl else svsf_cov_correct
+        return _engine.CorrectionStep("vbl" if self.vbl else "svsf", step, fp, numpy, mapping)
+
+
+@_jit.step
+def _svsf_gain(fp, e, ep, xp, PCtT, D, L, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+    """[SMM] eq (2.5), (2.8) for the constant and ``cov`` maps: ``g_i = (|e_i| + gamma_i |e_i(k|k)|) /
+    max(|e_i|, psi_i)``, ``dz = g o e``, ``K = M diag(g)``, ``x = x(k+1|k) + M dz``; False if ``C P C^T``
+    is not positive definite (``cov``)."""
+    MpT, g, dz = ws[14], ws[15], ws[16]
+    o_g, _, o_psi, _, o_M, _, _ = svsf_offsets(n, m)
+    if not map_step(int(fp[0]), D, L, PCtT, fp, o_M, MpT, n, m):
+        return False
+    for i in range(m):
+        a = abs(e[i])
+        den = a if a > fp[o_psi + i] else fp[o_psi + i]
+        g[i] = (a + fp[o_g + i] * abs(ep[i])) / den
+        dz[i] = g[i] * e[i]
+    map_update_step(xp, MpT, g, dz, x, KgT, n, m)
+    return True
+
+
+@_jit.step
+def svsf_cov_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+    """The SVSF-with-covariance correction (compiled step, signature of :mod:`chatterspec.filters._engine`).
+
+    ``fp`` from :func:`~chatterspec.filters._engine.svsf_parameters`; constant or ``cov`` map.
+    """
+    if not _svsf_gain(fp, e, ep, xp, PCtT, D, L, x, KgT, ws, n, m):
+        return NOT_PD
+    return 0
+
+
+@_jit.step
+def vbl_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+    """The variable boundary layer (compiled step): the Kalman gain when every channel has
+    ``psi_vbl,i = (|e_i| + gamma_i |e_i(k|k)|) / (C K_KF)_ii <= psi_i``, else :func:`svsf_cov_correct`."""
+    kalman_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m)
+    o_g, _, o_psi, _, _, _, _ = svsf_offsets(n, m)
+    use_kf = True
+    for i in range(m):
+        ck = 0.0
+        for q in range(n):
+            ck += C[i, q] * KgT[i, q]
+        need = abs(e[i]) + fp[o_g + i] * abs(ep[i])
+        if not (ck > 0.0 and need <= fp[o_psi + i] * ck):
+            use_kf = False
+    if use_kf:
+        return 0
+    if not _svsf_gain(fp, e, ep, xp, PCtT, D, L, x, KgT, ws, n, m):
+        return NOT_PD
+    return 0
+
+
+def from_settings(model: object, settings: object, source: str) -> SVSFCov:
+    """Registry builder of ``svsf``: psi, gamma (default 0.1) and mapping of ``settings``.
+
+    With the ``luen`` mapping the boundary layer is ``psi`` of the measured then ``psi_lower`` of
+    the unmeasured coordinates.
+
+    Raises
+    ------
+    ParameterError
+        ``settings`` gives no ``psi`` (or no ``psi_lower`` with ``luen``).
+    """
+    fs = settings
+    if fs.psi is None:  # type: ignore[attr-defined]
+        raise ParameterError(f"scenario {source!r} gives no boundary layer psi for the first-order SVSF")
+    psi = fs.psi  # type: ignore[attr-defined]
+    if fs.mapping == "luen":  # type: ignore[attr-defined]
+        if fs.psi_lower is None:  # type: ignore[attr-defined]
+            raise ParameterError(f"scenario {source!r}: mapping 'luen' needs psi_lower in its settings")
+        psi = fs.psi + fs.psi_lower  # type: ignore[attr-defined]
+    gamma = 0.1 if fs.gamma is None else fs.gamma  # type: ignore[attr-defined]
+    return SVSFCov(model, psi=np.asarray(psi, dtype=float), gamma=gamma, mapping=fs.mapping)  # type: ignore[attr-defined]
 
 
 def check_gamma(gamma: object, m: int) -> np.ndarray:

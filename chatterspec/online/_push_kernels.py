@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _jit
+from ..detection._verdict import peak_kernel
 from ..detection.thresholds import Threshold
 from ..filters._svsf_kernels import closed_form_step, matvec_step, rows_times_step, svsf_step
 
@@ -36,16 +37,28 @@ class _Verdicts:
         # the one-pass flag rule below needs finite normal thresholds > 0 (else: the direct comparison)
         tiny = np.finfo(float).tiny
         self.one_pass = bool(np.all((self.values >= tiny) & np.isfinite(self.values)))
-        # the monitor's case (contiguous tested bins, one-pass rule) in one compiled pass when enabled
+        # the monitor's case (contiguous tested bins, one-pass rule) in one compiled pass when enabled:
+        # the detection verdict's loop without the excess and the sum (detection._verdict.peak_kernel)
         self.compiled = compiled and self.one_pass and isinstance(self.sel, slice)
+        self._positions = np.arange(tested.size, dtype=np.int64)
+        self._no_expected = np.empty((0, 0))
 
     def __call__(self, power: np.ndarray, finite: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``finite``: ``power`` holds no NaN / inf (always so in the monitor: its input is checked)."""
         if self.compiled and finite and power.ndim == 3:
             F, m = power.shape[0], power.shape[2]
-            flags, peak_hz, peak_ratio = np.empty((F, m), dtype=bool), np.empty((F, m)), np.empty((F, m))
-            _verdict_kernel(power, self.sel.start, self.values, self.freqs, flags, peak_hz, peak_ratio)
-            return flags, peak_hz, peak_ratio
+            k, peak_ratio = np.empty((F, m), dtype=np.int64), np.empty((F, m))
+            peak_kernel(
+                power[:, self.sel],
+                self.values,
+                self._no_expected,
+                self._positions,
+                k,
+                peak_ratio,
+                k,
+                peak_ratio,
+            )
+            return peak_ratio > 1.0, self.freqs[k], peak_ratio
         p = power[..., self.sel, :]
         ratio = p / self.values
         k = np.argmax(ratio, axis=-2)
@@ -60,62 +73,27 @@ class _Verdicts:
         return flags, self.freqs[k], peak_ratio
 
 
-@_jit.njit
-def _verdict_kernel(
-    power: np.ndarray,
-    lo: int,
-    values: np.ndarray,
-    freqs: np.ndarray,
-    flags: np.ndarray,
-    peak_hz: np.ndarray,
-    peak_ratio: np.ndarray,
-) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_monitor.py)
-    """Per-frame verdicts over the tested bins ``lo .. lo + len(values) - 1`` of ``power`` (F, bins, m).
-
-    ``ratio = power / values`` per bin (one division, as numpy's ``p / values``); the peak is the
-    first bin of largest ratio (``np.argmax``'s rule for NaN-free input: only a strictly larger
-    ratio replaces the current one); ``flags = peak_ratio > 1``, which equals ``any(p > values)``
-    for finite ``p`` and finite normal ``values > 0`` (see ``_Verdicts``). The caller passes only
-    such inputs. Outputs ``flags`` (F, m) bool, ``peak_hz`` and ``peak_ratio`` (F, m).
-    """
-    F = power.shape[0]
-    m = power.shape[2]
-    nt = values.shape[0]
-    for f in range(F):
-        for c in range(m):
-            best = power[f, lo, c] / values[0, c]
-            kb = 0
-            for k in range(1, nt):
-                r = power[f, lo + k, c] / values[k, c]
-                if r > best:
-                    best = r
-                    kb = k
-            peak_ratio[f, c] = best
-            peak_hz[f, c] = freqs[kb]
-            flags[f, c] = best > 1.0
-
-
 def _filters_loop(
-    z: np.ndarray,
-    u: np.ndarray,
-    GT: np.ndarray,
-    aux_PhiT: np.ndarray,
-    aux_y: np.ndarray,
-    e_out: np.ndarray,
-    Gu: np.ndarray,
-    run_sat: bool,
-    PhiT: np.ndarray,
-    L: np.ndarray,
-    P: np.ndarray,
-    inv_psi: np.ndarray,
-    gamma: float,
-    S_inv: np.ndarray,
-    y: np.ndarray,
-    ep: np.ndarray,
-    sat_e: np.ndarray,
-    x_out: np.ndarray,
-    none: np.ndarray,
-) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_monitor.py)
+    z,
+    u,
+    GT,
+    aux_PhiT,
+    aux_y,
+    e_out,
+    Gu,
+    run_sat,
+    PhiT,
+    L,
+    P,
+    inv_psi,
+    gamma,
+    S_inv,
+    y,
+    ep,
+    sat_e,
+    x_out,
+    none,
+):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (Python form tested in tests/test_monitor.py)
     """One push of the monitor's two filters in one call: G u(k), the aux chattering, the sat SVSF.
 
     ``z`` (1, K, m) = z(k+1); ``u`` (K, p), p >= 1, = u(k); ``GT`` = G^T (p, n). Per sample:

@@ -155,7 +155,11 @@ class ChatteringMonitor:
         # one compiled call per push for both filters (full measurement: the closed form of eq 23;
         # at least one input; numba installed, and enabled at push time)
         self._fused = (
-            isinstance(self._aux, SVSF) and self._aux._L is None and model.n_inputs >= 1 and _jit.HAVE_NUMBA
+            isinstance(self._aux, SVSF)
+            and self._aux._L is None
+            and model.n_inputs >= 1
+            and _jit.HAVE_NUMBA
+            and _jit.fits(model.n_states, model.n_outputs, vectors_only=True)
         )
         if self._fused:
             self._GT = np.ascontiguousarray(self._aux._GT, dtype=float)
@@ -436,10 +440,10 @@ class ChatteringMonitor:
     def _events(self, fr: FrameBlock, starts: np.ndarray, ends: np.ndarray) -> tuple[DetectionEvent, ...]:
         """Events from the alarm layer's starts / ends (F, m); tracks each fault's largest peak."""
         active = fr.alarm
-        changed = (starts | ends).any(axis=0)  # (m,)
         on = active[0]  # active at the first frame and unchanged: active throughout
-        if not (changed.any() or on.any()):  # no change and nothing active: no event
+        if not (starts.any() or ends.any() or on.any()):  # no change and nothing active: no event
             return ()
+        changed = (starts | ends).any(axis=0)  # (m,)
         events: list[DetectionEvent] = []
         for c in np.flatnonzero(changed | on).tolist():
             s_c, e_c = starts[:, c], ends[:, c]

@@ -40,7 +40,7 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
-from .._jit import enabled, njit
+from .._jit import borrow, enabled, njit, step
 from .._validate import finite_array, nonnegative, positive
 from ..errors import ParameterError
 from .nonlinear import NonlinearModel
@@ -194,70 +194,66 @@ def _coefficients(T: float, p: dict[str, float]) -> EHA4Coefficients:
     )
 
 
+@step
+def predict_step(prm: np.ndarray, x: np.ndarray, u: np.ndarray, xp: np.ndarray, n: int, p: int) -> None:
+    """The EHA4 plant step: one Euler step of the corrected eq (4.1)-(4.5), one realization, into ``xp``.
+
+    ``prm`` = the 13 :class:`EHA4Coefficients` in their order; ``u[0]`` is the pump speed (rad/s).
+    The same operations in the same order as the numpy formulas of :func:`eha4_transition`.
+    """
+    T, c33, c32, cxx, cl, cu, Dp, QL0 = prm[0], prm[1], prm[2], prm[3], prm[4], prm[5], prm[6], prm[7]
+    a1, a2, a3, M, A = prm[8], prm[9], prm[10], prm[11], prm[12]
+    x2 = x[1]
+    x3 = x[2]
+    x4 = x[3]
+    s = 1.0 if x2 > 0 else (-1.0 if x2 < 0 else 0.0)
+    s4 = 1.0 if x4 > 0 else (-1.0 if x4 < 0 else 0.0)
+    fric = a1 * x2 * x2 + a3
+    flow = Dp * u[0] - s4 * QL0
+    xp[0] = x[0] + T * x2
+    xp[1] = x2 + T * x3
+    xp[2] = c33 * x3 - c32 * x2 - (cxx * x2 * x3 + cl * fric) * s + cu * flow
+    xp[3] = (a2 * x2 + fric * s + M * x3) / A
+
+
+@step
+def jacobian_step(prm: np.ndarray, x: np.ndarray, u: np.ndarray, F: np.ndarray, n: int, p: int) -> None:
+    """``F = d x+ / d x`` of :func:`predict_step` at ``x`` (``sgn' = 0``; every entry written)."""
+    T, c33, c32, cxx, cl = prm[0], prm[1], prm[2], prm[3], prm[4]
+    a1, a2, M, A = prm[8], prm[9], prm[11], prm[12]
+    x2 = x[1]
+    x3 = x[2]
+    s = 1.0 if x2 > 0 else (-1.0 if x2 < 0 else 0.0)
+    ax2 = abs(x2)
+    for i in range(4):
+        for j in range(4):
+            F[i, j] = 0.0
+    F[0, 0] = 1.0
+    F[0, 1] = T
+    F[1, 1] = 1.0
+    F[1, 2] = T
+    F[2, 1] = -c32 - cxx * x3 * s - 2.0 * cl * a1 * ax2
+    F[2, 2] = c33 - cxx * ax2
+    F[3, 1] = (a2 + 2.0 * a1 * ax2) / A
+    F[3, 2] = M / A
+
+
 @njit
-def _step_kernel(
-    x: np.ndarray,
-    w: float,
-    out: np.ndarray,
-    T: float,
-    c33: float,
-    c32: float,
-    cxx: float,
-    cl: float,
-    cu: float,
-    Dp: float,
-    QL0: float,
-    a1: float,
-    a2: float,
-    a3: float,
-    M: float,
-    A: float,
-) -> None:  # pragma: no cover - compiled (arguments in EHA4Coefficients order)
+def _step_kernel(x: np.ndarray, u: np.ndarray, out: np.ndarray, prm: np.ndarray) -> None:  # pragma: no cover
+    """:func:`predict_step` for every row of ``x`` (runs, 4) with one input ``u`` (1,)."""
+    x, u, out, prm = borrow(x), borrow(u), borrow(out), borrow(prm)
     for r in range(x.shape[0]):
-        x2 = x[r, 1]
-        x3 = x[r, 2]
-        x4 = x[r, 3]
-        s = 1.0 if x2 > 0 else (-1.0 if x2 < 0 else 0.0)
-        s4 = 1.0 if x4 > 0 else (-1.0 if x4 < 0 else 0.0)
-        fric = a1 * x2 * x2 + a3
-        flow = Dp * w - s4 * QL0
-        out[r, 0] = x[r, 0] + T * x2
-        out[r, 1] = x2 + T * x3
-        out[r, 2] = c33 * x3 - c32 * x2 - (cxx * x2 * x3 + cl * fric) * s + cu * flow
-        out[r, 3] = (a2 * x2 + fric * s + M * x3) / A
+        predict_step(prm, x[r], u, out[r], 4, 1)
 
 
 @njit
 def _jacobian_kernel(
-    x: np.ndarray,
-    J: np.ndarray,
-    T: float,
-    c33: float,
-    c32: float,
-    cxx: float,
-    cl: float,
-    _cu: float,
-    _Dp: float,
-    _QL0: float,
-    a1: float,
-    a2: float,
-    _a3: float,
-    M: float,
-    A: float,
-) -> None:  # pragma: no cover - compiled (arguments in EHA4Coefficients order)
+    x: np.ndarray, u: np.ndarray, J: np.ndarray, prm: np.ndarray
+) -> None:  # pragma: no cover
+    """:func:`jacobian_step` for every row of ``x`` (runs, 4)."""
+    x, u, J, prm = borrow(x), borrow(u), borrow(J), borrow(prm)
     for r in range(x.shape[0]):
-        x2 = x[r, 1]
-        x3 = x[r, 2]
-        s = 1.0 if x2 > 0 else (-1.0 if x2 < 0 else 0.0)
-        ax2 = abs(x2)
-        J[r, 0, 0] = 1.0
-        J[r, 0, 1] = T
-        J[r, 1, 1] = 1.0
-        J[r, 1, 2] = T
-        J[r, 2, 1] = -c32 - cxx * x3 * s - 2.0 * cl * a1 * ax2
-        J[r, 2, 2] = c33 - cxx * ax2
-        J[r, 3, 1] = (a2 + 2.0 * a1 * ax2) / A
-        J[r, 3, 2] = M / A
+        jacobian_step(prm, x[r], u, J[r], 4, 1)
 
 
 def _batched(x: np.ndarray, u: np.ndarray) -> bool:
@@ -287,7 +283,7 @@ def eha4_transition(x: np.ndarray, u: np.ndarray, c: EHA4Coefficients) -> np.nda
     u = np.asarray(u, dtype=float)
     if _batched(x, u):
         out = np.empty(x.shape)
-        _step_kernel(x, float(u[0]), out, *c)
+        _step_kernel(x, u, out, coefficient_vector(c))
         return out
     x2, x3, x4 = x[..., 1], x[..., 2], x[..., 3]
     s = np.sign(x2)
@@ -322,8 +318,8 @@ def eha4_jacobian(x: np.ndarray, u: np.ndarray, c: EHA4Coefficients) -> np.ndarr
     x = np.asarray(x, dtype=float)
     u = np.asarray(u, dtype=float)
     if _batched(x, u):
-        J = np.zeros((x.shape[0], 4, 4))
-        _jacobian_kernel(x, J, *c)
+        J = np.empty((x.shape[0], 4, 4))
+        _jacobian_kernel(x, u, J, coefficient_vector(c))
         return J
     x2, x3 = x[..., 1], x[..., 2]
     s = np.sign(x2)
@@ -339,6 +335,37 @@ def eha4_jacobian(x: np.ndarray, u: np.ndarray, c: EHA4Coefficients) -> np.ndarr
     J[..., 3, 1] = (c.a2 + 2.0 * c.a1 * ax2) / c.A
     J[..., 3, 2] = c.M / c.A
     return J
+
+
+def coefficient_vector(c: EHA4Coefficients) -> np.ndarray:
+    """The parameter vector ``prm`` of :func:`predict_step` / :func:`jacobian_step` (the 13 coefficients)."""
+    return np.asarray(tuple(c), dtype=float)
+
+
+def plant_steps(model: object) -> tuple[object, object, bool, np.ndarray] | None:
+    """``(predict, jacobian, constant_jacobian, prm)`` of a model built by :func:`eha4`, else None.
+
+    A :class:`~chatterspec.plants.nonlinear.NonlinearModel` is recognized as the EHA4 when its ``f``
+    and ``jac`` are :func:`eha4_transition` / :func:`eha4_jacobian` with one coefficient set (what
+    :func:`eha4` builds), 4 states and one input; the compiled steps then reproduce its
+    ``transition`` and ``jacobian`` exactly.
+    """
+    f, jac = getattr(model, "f", None), getattr(model, "jac", None)
+    if not (
+        isinstance(f, partial)
+        and isinstance(jac, partial)
+        and f.func is eha4_transition
+        and jac.func is eha4_jacobian
+        and not f.args
+        and not jac.args
+        and set(f.keywords) == {"c"}
+        and set(jac.keywords) == {"c"}
+        and f.keywords["c"] == jac.keywords["c"]
+        and getattr(model, "n_states", None) == 4
+        and getattr(model, "n_inputs", None) == 1
+    ):
+        return None
+    return predict_step, jacobian_step, False, coefficient_vector(f.keywords["c"])
 
 
 def _input_jacobian(x: np.ndarray, u: np.ndarray, c: EHA4Coefficients) -> np.ndarray:

@@ -29,47 +29,30 @@ CONSTANT_JACOBIAN = True
 
 
 @_jit.step
-def measure_step(
-    s: int,
-    x: np.ndarray,
-    wk: np.ndarray,
-    C: np.ndarray,
-    Lr: np.ndarray,
-    diag: np.ndarray,
-    z: np.ndarray,
-    n: int,
-    m: int,
-) -> None:  # pragma: no cover - compiled
-    """Eq (2): ``z = C_s x + Lr_s w(k)`` into ``z`` (m,); sums from 0.0 over j = 0, 1, ...
+def noise_step(L: np.ndarray, s: int, i: int, v: np.ndarray, diag: bool, k: int) -> float:  # pragma: no cover
+    """Component i of ``L_s v``: ``L_s[i, i] v_i`` when ``diag`` (the other terms are exact zeros: the
+    same bits), else the sum from 0.0 over j = 0 .. k-1."""
+    if diag:
+        return L[s, i, i] * v[i]
+    acc = 0.0
+    for j in range(k):
+        acc += L[s, i, j] * v[j]
+    return acc
 
-    ``diag[s, 1]`` says ``Lr_s`` is diagonal: then only ``Lr_ii w_i`` is computed, the same bits
-    (the other terms are exact zeros).
-    """
+
+@_jit.step
+def measure_step(s, x, wk, C, Lr, diag, z, n, m):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Eq (2): ``z = C_s x + Lr_s w(k)`` into ``z`` (m,); ``C_s x`` summed from 0.0 over j = 0, 1, ...
+    (``diag[s, 1]``: ``Lr_s`` diagonal)."""
     for i in range(m):
         cx = 0.0
         for j in range(n):
             cx += C[s, i, j] * x[j]
-        if diag[s, 1]:
-            nz = Lr[s, i, i] * wk[i]
-        else:
-            nz = 0.0
-            for j in range(m):
-                nz += Lr[s, i, j] * wk[j]
-        z[i] = cx + nz
+        z[i] = cx + noise_step(Lr, s, i, wk, diag[s, 1], m)
 
 
 @_jit.step
-def advance_step(
-    s: int,
-    x: np.ndarray,
-    bu: np.ndarray,
-    vk: np.ndarray,
-    A: np.ndarray,
-    Lq: np.ndarray,
-    diag: np.ndarray,
-    xn: np.ndarray,
-    n: int,
-) -> None:  # pragma: no cover - compiled
+def advance_step(s, x, bu, vk, A, Lq, diag, xn, n):  # type: ignore[no-untyped-def]  # pragma: no cover
     """Eq (1): ``x(k+1) = (A_s x(k) + B_s u(k)) + Lq_s v(k)`` into ``xn`` (n,), given ``bu`` = B_s u(k).
 
     ``A_s x`` is summed from 0.0 over j = 0, 1, ...; ``diag[s, 0]`` says ``Lq_s`` is diagonal.
@@ -78,13 +61,7 @@ def advance_step(
         ax = 0.0
         for j in range(n):
             ax += A[s, i, j] * x[j]
-        if diag[s, 0]:
-            nv = Lq[s, i, i] * vk[i]
-        else:
-            nv = 0.0
-            for j in range(n):
-                nv += Lq[s, i, j] * vk[j]
-        xn[i] = (ax + bu[i]) + nv
+        xn[i] = (ax + bu[i]) + noise_step(Lq, s, i, vk, diag[s, 0], n)
 
 
 @_jit.step

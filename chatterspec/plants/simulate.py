@@ -8,7 +8,7 @@ All realizations advance together: the only Python loop is over time steps
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -174,15 +174,31 @@ def iter_simulations(
     runs = positive_int("runs", runs)
     chunk = default_chunk_runs(scenario) if chunk_runs is None else positive_int("chunk_runs", chunk_runs)
     root = root_seed_sequence(seed)
-    t = scenario.time
     if getattr(scenario, "closed_loop", None) is not None:
         from .simulate_closed_loop import simulate_block_closed_loop
 
+        t = scenario.time
         for lo in range(first_run, first_run + runs, chunk):
             hi = min(lo + chunk, first_run + runs)
             x, z, u = simulate_block_closed_loop(scenario, root, lo, hi, t)
             yield Simulation(t=t, x=x, z=z, u=u, scenario=scenario, first_run=lo)
         return
+    t, u = scenario_input(scenario)
+    for lo in range(first_run, first_run + runs, chunk):
+        hi = min(lo + chunk, first_run + runs)
+        x, z = _simulate_block(scenario, root, lo, hi, t, u)
+        yield Simulation(t=t, x=x, z=z, u=u, scenario=scenario, first_run=lo)
+
+
+def scenario_input(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
+    """The sample times ``t`` (T,) in seconds and the input ``u`` (T, p) of an open-loop scenario.
+
+    Raises
+    ------
+    ShapeError
+        If the input has a different number of channels than the nominal model.
+    """
+    t = scenario.time
     u = scenario.input.sample(t).reshape(len(t), -1)
     if u.shape[1] != scenario.nominal.n_inputs:
         from ..errors import ShapeError
@@ -190,10 +206,48 @@ def iter_simulations(
         raise ShapeError(
             f"scenario input gives {u.shape[1]} channel(s); the model has {scenario.nominal.n_inputs}"
         )
-    for lo in range(first_run, first_run + runs, chunk):
-        hi = min(lo + chunk, first_run + runs)
-        x, z = _simulate_block(scenario, root, lo, hi, t, u)
-        yield Simulation(t=t, x=x, z=z, u=u, scenario=scenario, first_run=lo)
+    return t, u
+
+
+def segment_ranges(scenario: Scenario, t: np.ndarray) -> list[tuple[int, int, object]]:
+    """``(k0, k1, model)`` per active segment: the true model of samples ``k0 .. k1 - 1``."""
+    seg_idx = scenario.segment_index(t)
+    ranges = []
+    for s, seg in enumerate(scenario.segments):
+        sel = np.flatnonzero(seg_idx == s)
+        if sel.size:
+            ranges.append((int(sel[0]), int(sel[-1]) + 1, seg.model))
+    return ranges
+
+
+def scaled_noise(
+    scenario: Scenario,
+    root: np.random.SeedSequence,
+    lo: int,
+    hi: int,
+    t: np.ndarray,
+    scale: Callable[[np.ndarray, np.ndarray], np.ndarray],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Process and measurement noise of runs ``lo .. hi - 1``, time-major ``(T, runs, n|m)``.
+
+    The raw normals of :func:`_noise_blocks` scaled per segment by ``scale(noise, Q)`` and
+    ``scale(noise, R)`` of the segment's true model (``noise @ L^T`` with ``L L^T`` the covariance).
+    """
+    T = len(t)
+    n, m = scenario.nominal.n_states, scenario.nominal.n_outputs
+    ranges = segment_ranges(scenario, t)
+    vt = np.empty((T, hi - lo, n))
+    zt = np.empty((T, hi - lo, m))
+    for off, v, w in _noise_blocks(root, lo, hi, T, n, m):
+        rows = slice(off, off + v.shape[0])
+        for k0, k1, model in ranges:
+            vt[k0:k1, rows] = np.swapaxes(scale(v[:, k0:k1], model.Q), 0, 1)  # type: ignore[attr-defined]
+            zt[k0:k1, rows] = np.swapaxes(scale(w[:, k0:k1], model.R), 0, 1)  # type: ignore[attr-defined]
+    return vt, zt
+
+
+def _linear_scale(noise: np.ndarray, M: np.ndarray) -> np.ndarray:
+    return noise @ covariance_sqrt(M).T
 
 
 @dataclass(frozen=True, eq=False)
@@ -297,24 +351,7 @@ SINK = store_sink
 INPUT = open_loop_input
 
 
-def _plant_loop(
-    v: np.ndarray,
-    w: np.ndarray,
-    seg_idx: np.ndarray,
-    A: np.ndarray,
-    C: np.ndarray,
-    Lq: np.ndarray,
-    Lr: np.ndarray,
-    Bu: np.ndarray,
-    x0: np.ndarray,
-    diag: np.ndarray,
-    ctrl: np.ndarray,
-    out_a: np.ndarray,
-    out_b: np.ndarray,
-    PhiT: np.ndarray,
-    Gu: np.ndarray,
-    offset: int,
-) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_kernels.py)
+def _plant_loop(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, out_a, out_b, PhiT, Gu, offset):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (Python form tested in tests/test_kernels.py)
     """Eq (1)-(2) for the runs of one random block, each sample handed to ``SINK`` (a template).
 
     Per run r and sample k, with the segment s active at k: ``z(k)`` by
@@ -363,19 +400,16 @@ NO_CTRL = np.empty(0)
 
 
 def _simulate_block(
-    scenario: Scenario,
-    root: np.random.SeedSequence,
-    lo: int,
-    hi: int,
-    t: np.ndarray,
-    u: np.ndarray,
+    scenario: Scenario, root: np.random.SeedSequence, lo: int, hi: int, t: np.ndarray, u: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     if not getattr(scenario, "is_linear", True) and hi - lo > 1:
         # nonlinear true plant: same seeding scheme, f(x, u) stepping (plants/simulate_nonlinear.py)
         from .simulate_nonlinear import simulate_block_nonlinear
 
         return simulate_block_nonlinear(scenario, root, lo, hi, t, u)
-    if _jit.enabled() and getattr(scenario, "is_linear", True) and _same_shapes(scenario):
+    n, m = scenario.nominal.n_states, scenario.nominal.n_outputs
+    compiled = _jit.enabled() and _jit.fits(n, m, vectors_only=True)
+    if compiled and getattr(scenario, "is_linear", True) and _same_shapes(scenario):
         # compiled path: per-run scalar arithmetic, so any chunking gives the same bits
         T = len(t)
         n, m = scenario.nominal.n_states, scenario.nominal.n_outputs
@@ -396,27 +430,14 @@ def _simulate_block(
         x, z = _simulate_block(scenario, root, lo, lo + 2, t, u)
         return x[:1], z[:1]
     T = len(t)
-    n, m = scenario.nominal.n_states, scenario.nominal.n_outputs
+    n = scenario.nominal.n_states
     seg_idx = scenario.segment_index(t)
     segments = scenario.segments
-    ranges = []
-    for s, seg in enumerate(segments):
-        sel = np.flatnonzero(seg_idx == s)
-        if sel.size:
-            ranges.append((sel[0], sel[-1] + 1, seg.model))
+    ranges = segment_ranges(scenario, t)
     # Noise is stored time-major (T, runs, channels) for the recursion; each
     # random block is drawn realization-major so the numbers do not depend on
     # the chunking (see chatterspec.rng).
-    vt = np.empty((T, hi - lo, n))
-    zt = np.empty((T, hi - lo, m))
-    for b in range(lo // BLOCK, (hi - 1) // BLOCK + 1):
-        b_lo, b_hi = b * BLOCK, (b + 1) * BLOCK
-        s0, s1 = max(b_lo, lo), min(b_hi, hi)
-        v = block_generator(root, b, 0).standard_normal((BLOCK, T, n))[s0 - b_lo : s1 - b_lo]
-        w = block_generator(root, b, 1).standard_normal((BLOCK, T, m))[s0 - b_lo : s1 - b_lo]
-        for k0, k1, model in ranges:
-            vt[k0:k1, s0 - lo : s1 - lo] = np.swapaxes(v[:, k0:k1] @ covariance_sqrt(model.Q).T, 0, 1)
-            zt[k0:k1, s0 - lo : s1 - lo] = np.swapaxes(w[:, k0:k1] @ covariance_sqrt(model.R).T, 0, 1)
+    vt, zt = scaled_noise(scenario, root, lo, hi, t, _linear_scale)
     xt = np.empty((T, hi - lo, n))
     xt[0] = scenario.x0
     # x_aug = [x, 1] and W = [[A^T], [(B u(k))^T]] fold the input into one matmul

@@ -22,7 +22,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import NonFiniteError
-from ..rng import BLOCK, block_generator
 
 __all__ = ["simulate_block_nonlinear"]
 
@@ -43,12 +42,7 @@ def _scale(noise: np.ndarray, L: np.ndarray) -> np.ndarray:
 
 
 def simulate_block_nonlinear(
-    scenario: object,
-    root: np.random.SeedSequence,
-    lo: int,
-    hi: int,
-    t: np.ndarray,
-    u: np.ndarray,
+    scenario: object, root: np.random.SeedSequence, lo: int, hi: int, t: np.ndarray, u: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Simulate realizations ``lo .. hi - 1`` of a scenario with a nonlinear true plant.
 
@@ -78,26 +72,15 @@ def simulate_block_nonlinear(
         If the state leaves the finite numbers (e.g. explicit Euler beyond its stability limit);
         the message gives the first time and realization.
     """
+    from .simulate import scaled_noise, segment_ranges  # simulate imports this module when it needs it
+
     T = len(t)
     runs = hi - lo
-    n, m = scenario.nominal.n_states, scenario.nominal.n_outputs
+    n = scenario.nominal.n_states
     seg_idx = scenario.segment_index(t)
     segments = scenario.segments
-    ranges = []
-    for s, seg in enumerate(segments):
-        sel = np.flatnonzero(seg_idx == s)
-        if sel.size:
-            ranges.append((int(sel[0]), int(sel[-1]) + 1, seg.model))
-    vt = np.empty((T, runs, n))
-    zt = np.empty((T, runs, m))
-    for b in range(lo // BLOCK, (hi - 1) // BLOCK + 1):
-        b_lo, b_hi = b * BLOCK, (b + 1) * BLOCK
-        s0, s1 = max(b_lo, lo), min(b_hi, hi)
-        v = block_generator(root, b, 0).standard_normal((BLOCK, T, n))[s0 - b_lo : s1 - b_lo]
-        w = block_generator(root, b, 1).standard_normal((BLOCK, T, m))[s0 - b_lo : s1 - b_lo]
-        for k0, k1, model in ranges:
-            vt[k0:k1, s0 - lo : s1 - lo] = np.swapaxes(_scale(v[:, k0:k1], _sqrt_cov(model.Q)), 0, 1)
-            zt[k0:k1, s0 - lo : s1 - lo] = np.swapaxes(_scale(w[:, k0:k1], _sqrt_cov(model.R)), 0, 1)
+    ranges = segment_ranges(scenario, t)
+    vt, zt = scaled_noise(scenario, root, lo, hi, t, lambda noise, M: _scale(noise, _sqrt_cov(M)))
     xt = np.empty((T, runs, n))
     xt[0] = scenario.x0
     # NonlinearModel.f was shape-checked when the model was built: call it directly in the loop

@@ -32,9 +32,9 @@ from typing import Any
 
 import numpy as np
 
+from .. import filter_registry
 from .._validate import positive_int
 from ..errors import ParameterError
-from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario
 from ..plants.scenarios import scenario as _catalogue_scenario
 from ..plants.simulate import iter_simulations
@@ -62,13 +62,8 @@ __all__ = [
     "parse_filters",
 ]
 
-#: Filter names accepted by ``--filters`` and :func:`build_filter`, with a description.
-FILTERS: dict[str, str] = {
-    "kf": "Kalman filter (EKF on a nonlinear plant)",
-    "ekf": "extended Kalman filter",
-    "svsf": "first-order SVSF with covariance [SMM eq 2.1-2.10]",
-    "svsf2": "dynamic second-order SVSF [DETC eq 5-24]",
-}
+#: Filter names accepted by ``--filters`` and :func:`build_filter`, with a description (the registry's).
+FILTERS = filter_registry.FILTERS
 
 #: Samples per filter update inside a study chunk (bounds the stored covariances per chunk).
 TIME_BLOCK = 1000
@@ -77,33 +72,7 @@ TIME_BLOCK = 1000
 _STORE = ("x_post", "innovation", "S", "P_post")
 
 
-def parse_filters(filters: str | Iterable[str]) -> tuple[str, ...]:
-    """Normalize a filter list (``"kf,svsf2"`` or an iterable) and reject unknown or repeated names.
-
-    Parameters
-    ----------
-    filters : str or iterable of str
-        Comma-separated names or a sequence of names from :data:`FILTERS`.
-
-    Returns
-    -------
-    tuple of str
-
-    Raises
-    ------
-    ParameterError
-        An empty list, an unknown name or a repeated name.
-    """
-    names = [s.strip().lower() for s in (filters.split(",") if isinstance(filters, str) else filters)]
-    names = [s for s in names if s]
-    if not names:
-        raise ParameterError(f"no filter given; choose from {', '.join(FILTERS)}")
-    bad = [s for s in names if s not in FILTERS]
-    if bad:
-        raise ParameterError(f"unknown filter(s) {', '.join(bad)}; choose from {', '.join(FILTERS)}")
-    if len(set(names)) != len(names):
-        raise ParameterError(f"each filter may be named once; got {','.join(names)}")
-    return tuple(names)
+parse_filters = filter_registry.parse_filters
 
 
 def _resolve(source: str | Scenario) -> Scenario:
@@ -149,35 +118,7 @@ def build_filter(name: str, scenario: str | Scenario) -> Any:
     """
     (name,) = parse_filters([name])
     sc = _resolve(scenario)
-    fs = sc.filter_settings
-    model = _filter_model(sc)
-    from ..filters.kalman import ExtendedKalmanFilter, KalmanFilter
-
-    if name == "kf":
-        return KalmanFilter(model) if isinstance(model, LinearModel) else ExtendedKalmanFilter(model)
-    if name == "ekf":
-        return ExtendedKalmanFilter(model)
-    gamma = 0.1 if fs.gamma is None else fs.gamma
-    mapping = fs.mapping
-    if name == "svsf":
-        if fs.psi is None:
-            raise ParameterError(f"scenario {sc.name!r} gives no boundary layer psi for the first-order SVSF")
-        psi = fs.psi
-        if mapping == "luen":  # reduced-order form: psi of the measured, then of the unmeasured states
-            if fs.psi_lower is None:
-                raise ParameterError(f"scenario {sc.name!r}: mapping 'luen' needs psi_lower in its settings")
-            psi = fs.psi + fs.psi_lower
-        try:
-            from ..filters.svsf_cov import SVSFCov
-        except ImportError:  # pragma: no cover - only while the filter is being merged
-            raise ParameterError("filter 'svsf' (SVSF with covariance) is not in this build") from None
-        return SVSFCov(model, psi=np.asarray(psi, dtype=float), gamma=gamma, mapping=mapping)
-    try:
-        from ..filters.svsf2 import SecondOrderSVSF
-    except ImportError:  # pragma: no cover - only while the filter is being merged
-        raise ParameterError("filter 'svsf2' (second-order SVSF) is not available in this build") from None
-    lam = None if fs.cutoff_lambda is None else np.asarray(fs.cutoff_lambda, dtype=float)
-    return SecondOrderSVSF(model, gamma=gamma, lam=lam, mapping=mapping)
+    return filter_registry.build(name, _filter_model(sc), sc.filter_settings, sc.name)
 
 
 @dataclass(frozen=True, eq=False)

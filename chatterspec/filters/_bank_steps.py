@@ -1,0 +1,206 @@
+"""Compiled steps shared by the multiple-model banks (IMM, SMM-SVSF): likelihood, probabilities, combination.
+
+:func:`log_gaussian_step` is :func:`chatterspec.filters.multiple_model.log_gaussian` for one
+innovation; :func:`mode_probabilities_step` is ``normalize_log_weights`` for one realization;
+:func:`combine_step` is ``combine`` for one realization. Each does its numpy twin's arithmetic in
+loop order, so the banks' compiled loops agree with their numpy paths to a few ulps per sample
+(summation order; tolerances in tests/test_imm_kernel.py and tests/test_smm_kernel.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import _jit
+from ._engine import chol_solve_step, chol_step, given_jacobian, given_predict
+
+#: Lower bound of the smallest eigenvalue of Sc above which the Cholesky likelihood is used.
+CHOL_SAFE = 1e-10
+EIG_FLOOR = 1e-12
+_TINY = float(np.finfo(float).tiny)
+_LOG2PI = 1.8378770664093453
+
+
+@_jit.step
+def _solve_col(L: np.ndarray, b: np.ndarray, out: np.ndarray, m: int) -> None:  # pragma: no cover
+    """out = (L L^T)^-1 b for a vector b (the one-column case of ``chol_solve_step``)."""
+    chol_solve_step(L, b.reshape((m, 1)), out.reshape((m, 1)), m, 1)
+
+
+def _log_gaussian(e, S, m, Sc, L, ec, col, tmp):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """``log N(e; 0, S)`` of one innovation, as :func:`~chatterspec.filters.multiple_model.log_gaussian`.
+
+    ``S`` is scaled to its correlation matrix ``Sc`` (``D = sqrt(diag S)``); with the Cholesky
+    factor of ``Sc`` when ``1 / trace(Sc^-1)`` -- a lower bound of its smallest eigenvalue, with
+    ``trace(Sc^-1) = ||L^-1||_F^2`` by forward substitution --
+    exceeds :data:`CHOL_SAFE`, so the numpy function's eigenvalue floor (1e-12) cannot be active
+    and ``quad = ec^T Sc^-1 ec``, ``log det Sc = 2 sum log L_ii`` are the same numbers up to
+    rounding; otherwise ``np.linalg.eigh`` and the floor, as the numpy function. Scratch: ``Sc``,
+    ``L`` (m, m), ``ec``, ``col`` (m), ``tmp`` (2m). Two forms of this one template:
+    :data:`log_gaussian_step`, a compiled function of its own (LAPACK's ``eigh`` is slow to
+    compile; the IMM calls it once per mode and sample), and :data:`log_gaussian_inline`, inlined
+    (the SMM loop, whose literal sizes then unroll it).
+    """
+    logd = 0.0
+    for i in range(m):
+        di = S[i, i]
+        if not di > _TINY:
+            di = _TINY
+        d = np.sqrt(di)
+        tmp[i] = d
+        ec[i] = e[i] / d
+        logd += np.log(d)
+    for i in range(m):
+        for j in range(m):
+            Sc[i, j] = S[i, j] / (tmp[i] * tmp[j])
+    ok = chol_step(Sc, L, m)
+    if ok:
+        # trace(Sc^-1) = ||L^-1||_F^2: column i of L^-1 by forward substitution (from row i on)
+        tr = 0.0
+        for i in range(m):
+            for r in range(i, m):
+                s = 1.0 if r == i else 0.0
+                for q in range(i, r):
+                    s -= L[r, q] * col[q]
+                col[r] = s / L[r, r]
+                tr += col[r] * col[r]
+        ok = tr > 0.0 and 1.0 / tr > CHOL_SAFE
+    if ok:
+        _solve_col(L, ec, col, m)
+        quad = 0.0
+        logdet = 0.0
+        for i in range(m):
+            quad += ec[i] * col[i]
+            logdet += np.log(L[i, i])
+        logdet = 2.0 * logdet
+    else:  # the eigenvalue floor may be active: the numpy function's own arithmetic
+        w, V = np.linalg.eigh(Sc)
+        quad = 0.0
+        logdet = 0.0
+        for j in range(m):
+            wj = w[j] if w[j] > EIG_FLOOR else EIG_FLOOR
+            p = 0.0
+            for i in range(m):
+                p += V[i, j] * ec[i]
+            quad += p * p / wj
+            logdet += np.log(wj)
+    return -0.5 * (quad + logdet + 2.0 * logd + m * _LOG2PI)
+
+
+#: :func:`_log_gaussian` as a compiled function (not inlined).
+log_gaussian_step = _jit.specialize(_log_gaussian, "call")
+#: :func:`_log_gaussian` as a step (inlined).
+log_gaussian_inline = _jit.specialize(_log_gaussian, "inline", inline=True)
+
+
+@_jit.step
+def mode_probabilities_step(
+    lw: np.ndarray, mu: np.ndarray, floor: float, nm: int
+) -> bool:  # pragma: no cover
+    """``mu = exp(lw - max lw) / sum`` (log weights ``lw`` (nm,), overwritten), then the optional floor.
+
+    False when every log weight is ``-inf`` or the largest is not finite (the numpy function raises).
+    """
+    top = -np.inf
+    for j in range(nm):
+        if lw[j] > top:
+            top = lw[j]
+    if not np.isfinite(top):
+        return False
+    s = 0.0
+    for j in range(nm):
+        lw[j] = np.exp(lw[j] - top)
+        s += lw[j]
+    for j in range(nm):
+        mu[j] = lw[j] / s
+    if floor > 0.0:
+        s = 0.0
+        for j in range(nm):
+            if mu[j] < floor:
+                mu[j] = floor
+            s += mu[j]
+        for j in range(nm):
+            mu[j] = mu[j] / s
+    return True
+
+
+@_jit.step
+def combine_step(mu, xs, Ps, x, P, nm, n):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """``x = sum_j mu_j x_j``, ``P = sum_j mu_j [P_j + (x_j - x)(x_j - x)^T]`` for one realization."""
+    for a in range(n):
+        s = 0.0
+        for j in range(nm):
+            s += mu[j] * xs[j, a]
+        x[a] = s
+    for a in range(n):
+        for b in range(n):
+            s = 0.0
+            for j in range(nm):
+                da = xs[j, a] - x[a]
+                s += mu[j] * (Ps[j, a, b] + da * (xs[j, b] - x[b]))
+            P[a, b] = s
+
+
+@_jit.step
+def bank_store_step(r, k, x, mu, ll, P, xs, o_x, o_mu, o_ll, o_P, o_mx, nm, n):  # type: ignore[no-untyped-def]
+    """Write sample k of run r of a bank: ``x``, ``mu``, ``ll``; ``P`` and the modes' ``xs`` if wanted."""
+    for a in range(n):
+        o_x[r, k, a] = x[a]
+    for j in range(nm):
+        o_mu[r, k, j] = mu[j]
+        o_ll[r, k, j] = ll[j]
+    if o_P.shape[0] > 0:
+        for a in range(n):
+            for c in range(n):
+                o_P[r, k, a, c] = P[a, c]
+    if o_mx.shape[0] > 0:
+        for j in range(nm):
+            for a in range(n):
+                o_mx[r, k, j, a] = xs[j, a]
+
+
+#: Bindings of :func:`_bank_plant`: the two plant kinds a bank may mix.
+PREDICT_A = PREDICT_B = given_predict
+JACOBIAN_A = JACOBIAN_B = given_jacobian
+
+
+def _bank_plant(slot, prm, x, u, xp, F, n, p):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """A mode's prediction and Jacobian by its plant kind: ``slot`` 0 = ``PREDICT_A``, 1 = ``PREDICT_B``."""
+    if slot == 0:
+        PREDICT_A(prm, x, u, xp, n, p)
+        JACOBIAN_A(prm, x, u, F, n, p)
+    else:
+        PREDICT_B(prm, x, u, xp, n, p)
+        JACOBIAN_B(prm, x, u, F, n, p)
+
+
+def bank_plants(plants: list) -> tuple[object, np.ndarray, np.ndarray]:  # type: ignore[type-arg]
+    """``(step, slot per mode, prm rows)`` for the modes' :class:`~chatterspec.plants.steps.PlantSteps`.
+
+    ``step`` is :func:`_bank_plant` with the (at most two) plant kinds bound; None when there are more.
+    """
+    kinds = list(dict.fromkeys(pl.name for pl in plants))
+    if len(kinds) > 2:
+        return None, np.empty(0, dtype=np.int64), np.empty((0, 0))
+    by_name = {pl.name: pl for pl in plants}
+    a, b = by_name[kinds[0]], by_name[kinds[-1]]
+    step = _jit.specialize_sizes(
+        _bank_plant, f"{a.name}_{b.name}", {}, inline=True,
+        PREDICT_A=a.predict, JACOBIAN_A=a.jacobian, PREDICT_B=b.predict, JACOBIAN_B=b.jacobian,
+    )  # fmt: skip
+    prm = np.zeros((len(plants), max(len(pl.parameters) for pl in plants)))
+    for j, pl in enumerate(plants):
+        prm[j, : len(pl.parameters)] = pl.parameters
+    return step, np.array([kinds.index(pl.name) for pl in plants], dtype=np.int64), prm
+
+
+def bank_outputs(runs: int, K: int, n: int, r: int, store_covariance: bool, store_modes: bool) -> dict:  # type: ignore[type-arg]
+    """The per-sample output arrays of a bank's loop (empty 4-D arrays for the ones not stored)."""
+    none = np.empty((0, 0, 0, 0))
+    return {
+        "x": np.empty((runs, K, n)),
+        "mu": np.empty((runs, K, r)),
+        "ll": np.empty((runs, K, r)),
+        "P": np.empty((runs, K, n, n)) if store_covariance else none,
+        "mx": np.empty((runs, K, r, n)) if store_modes else none,
+    }
