@@ -24,11 +24,18 @@ layout. Each channel's view shows only its own series (blueprint overrides of
                                           known): 2 m per row, at each batch's first and last sample
 ``/spectrum/<c>``                         one STFT column per hop (``Tensor``, dim ``freq``, float32;
                                           float64 with ``RerunLogger(spectrum_dtype="float64")``)
-``/spectrogram/<c>``                      ``10 log10(S / threshold)`` dB over the band, clipped
+``/spectrogram/<c>/image``                ``10 log10(S / threshold)`` dB over the band, clipped to
+                                          ``DB_RANGE`` (``DepthImage``, float16, top row = highest
+                                          frequency, with its scale ``Transform3D``), in a 2-D view
+``/spectrogram/<c>/freq_ticks``, ``key``, frequency labels, the dB colour key (a gradient image) and its
+``key_ticks``, ``outside``                labels; marks of flagged frames whose peak lies outside the
+                                          band (static; :mod:`chatterspec.online.spectrogram_view`)
 ``/detection/statistic_db``               ``10 log10`` of the largest ``S / threshold`` over the tested
                                           bins: m per row, one row per frame
 ``/detection/threshold_db``               the decision level, 0 dB (one series)
 ``/detection/fault/<c>``                  the statistic at flagged frames only (red points)
+``/frequency/fault/<c>``                  the largest-``S / threshold`` frequency at flagged frames only
+                                          (red points; the per-frame peak series are drawn dimmed)
 ``/detection/verdict``                    per-frame verdict, 1 = fault, 0 = healthy (m, not drawn), then
                                           the alarm rule's statistic (m), the frame score ``-log p`` (m)
                                           and the rule's threshold (1): 3 m + 1 per row
@@ -36,8 +43,14 @@ layout. Each channel's view shows only its own series (blueprint overrides of
 ``/frequency/most_significant_hz``        tested bin with the largest ``S / threshold`` (Hz): m per row
 ``/threshold/<c>``, ``/expected/<c>``     static frame threshold and expected healthy spectrum per bin
 ``/state/0_truth``                        true fault timeline (simulated data only), the top lane
-``/state/<k>_<c>``                        verdict lane ``healthy`` / ``fault``, in channel order
-``/events``                               text log of fault start / end events
+``/state/0m_<method>``                     most probable mode of a multiple-model diagnosis (``diagnose``)
+``/state/<k>_<c>``                        verdict lane ``healthy`` / ``fault``, in channel order. In a
+                                          file: the window-extent fault intervals of the record's
+                                          flagged frames (the numbers of ``detect --json`` and Fig 8),
+                                          drawn on close; in a live viewer: the alarm rule's state,
+                                          changed at the end of the deciding frame (when it was known)
+``/events``                               text log: alarm raised / cleared (at the end of the deciding
+                                          frame) and, in a file, each fault interval at its onset
 ========================================  =============================================================
 
 The paths are constants of :mod:`chatterspec.online.blueprint` (``CHATTERING``, ``PSI``,
@@ -52,12 +65,17 @@ series in batches of 20 s of 1 kHz data and the frames in batches of a minute at
 (and the rest on close).
 
 The spectrogram band defaults to the detector's tested bins capped at 3x the model's
-highest natural frequency (EHA: 1-150 Hz). In a file it is ONE float16 tensor per
-channel for the whole record (one column per frame, no padding; blocks of at most an
-hour on longer streams), logged at the record's start, and the file's blueprint shows
-exactly the spectrogram's time span in every time-series view and opens paused on the
-whole record. A live viewer gets a scrolling view of the last ``scroll_frames``
-columns after every frame, whose time dimension names the newest column's time.
+highest natural frequency (EHA: 1-150 Hz). Rerun draws tensors without ticks, so the
+spectrogram is an image in a 2-D view beside labelled points (frequency labels, a dB colour
+key). In a file it is ONE float16 image per channel for the whole record (one column per
+frame, padded by ``pad_columns`` blank columns on each side so that it covers the whole
+record; blocks of at most an hour on longer streams), logged at the record's start, and the
+file's blueprint shows exactly that span (``record_span``) in every time view (linked x axes,
+lanes too) and opens paused on the whole record. A live viewer gets a scrolling image of the
+last ``scroll_frames`` columns (always that many, blank before they fill) after every frame,
+and follows the incoming data.
+
+Colours come from :mod:`chatterspec.palette` (shared with the figures): red only for faults.
 
 Default recording folder of ``chatterspec demo``: ``recordings/`` in the
 current directory (git-ignored).
