@@ -13,7 +13,7 @@ from chatterspec import palette
 
 def _reddish(rgb) -> bool:
     """Red enough to read as 'fault' on a dark or white background."""
-    r, g, b = (int(round(255 * c)) if isinstance(c, float) else int(c) for c in rgb[:3])
+    r, g, b = (round(255 * c) if isinstance(c, float) else int(c) for c in rgb[:3])
     return r > 170 and g < 110 and b < 110
 
 
