@@ -107,10 +107,33 @@ def fault_level_color(index: int) -> RGB:
 
 
 def mpl(color: RGB) -> tuple[float, float, float]:
-    """A palette colour as a matplotlib RGB tuple (0-1)."""
+    """A palette colour as a matplotlib RGB tuple.
+
+    Parameters
+    ----------
+    color : (int, int, int)
+        0-255 components.
+
+    Returns
+    -------
+    (float, float, float)
+        0-1 components.
+    """
     return (color[0] / 255.0, color[1] / 255.0, color[2] / 255.0)
 
 
 def rgba32(color: RGB, alpha: int = 255) -> int:
-    """A palette colour packed as Rerun's ``0xRRGGBBAA`` integer."""
+    """A palette colour packed as Rerun's ``0xRRGGBBAA`` integer.
+
+    Parameters
+    ----------
+    color : (int, int, int)
+        0-255 components.
+    alpha : int
+        Opacity 0-255.
+
+    Returns
+    -------
+    int
+    """
     return (color[0] << 24) | (color[1] << 16) | (color[2] << 8) | alpha

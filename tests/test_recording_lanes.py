@@ -111,7 +111,7 @@ def test_lanes_match_events_and_batch_verdicts(tmp_path: Path, name: str) -> Non
 
 
 def test_cli_lanes_equal_json_intervals(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    # the case: so-timeline-constant, true faults [0, 2) and [4, 6) s, alarm rule CUSUM (the
+    # the reported case: so-timeline-constant, true faults [0, 2) and [4, 6) s, alarm rule CUSUM (the
     # default of --record): lanes, interval events and `detect --json` give the same numbers
     import json
 

@@ -138,6 +138,9 @@ def log_image(
     stream : rerun.RecordingStream
     path : str
         ``/spectrogram/<channel>``; the image goes to ``<path>/image``.
+    ns : int
+        Time of the image (integer nanoseconds on the ``time`` timeline): a file's block start, or a
+        live frame's centre.
     img : (bins, columns) float16 or float32 array
         dB values, row 0 = lowest frequency, one column per frame (oldest left).
     width : float
