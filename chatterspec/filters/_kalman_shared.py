@@ -17,9 +17,11 @@ from ._engine import FIELDS, LOG2PI, MAP_CONST, _alloc, gain_update_step, residu
 from ._engine_numpy import chol_np as _chol_np
 from ._svsf_kernels import _rows_times
 
+#: Sizes of :func:`_kf_shared_loop`, bound per model by :func:`_kf_shared_kernel` (0: read from the arrays).
+NX = NZ = 0
 
-@_jit.njit
-def _kf_shared_kernel(prm, u, z, x, ep, epp, C, KgT, Sinv, logdet, flags, outs):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+
+def _kf_shared_loop(prm, u, z, x, ep, epp, C, KgT, Sinv, logdet, flags, outs):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     """State recursion of the Kalman filter with a precomputed, shared gain sequence ``KgT`` (K, m, n).
 
     Per run and sample: the linear plant's prediction (:func:`~chatterspec.plants.linear_steps.predict_step`,
@@ -44,8 +46,9 @@ def _kf_shared_kernel(prm, u, z, x, ep, epp, C, KgT, Sinv, logdet, flags, outs):
     o0, o1, o2, o3, o4, o5, o6, o7 = outs
     # borrowed: no reference counts per sample
     outs = (b(o0), b(o1), b(o2), b(o3), b(o4), b(o5), b(o6), b(o7))
-    runs, K, m = z.shape
-    n = x.shape[1]
+    runs, K, _ = z.shape
+    n = NX if NX > 0 else x.shape[1]
+    m = NZ if NZ > 0 else z.shape[2]
     p = u.shape[2]
     shared_u = u.shape[0] == 1
     xp = _jit.scratch(n)
@@ -79,6 +82,12 @@ def _kf_shared_kernel(prm, u, z, x, ep, epp, C, KgT, Sinv, logdet, flags, outs):
         for i in range(m):
             ep[r, i] = epr[i]
     return 0
+
+
+def _kf_shared_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
+    """:func:`_kf_shared_loop` compiled for n states and m outputs (literal sizes up to
+    :data:`chatterspec._jit.MAX_UNROLL`: the per-channel loops unrolled, as the per-run filters')."""
+    return _jit.specialize_sizes(_kf_shared_loop, "kfshared", {"NX": n, "NZ": m})
 
 
 def kf_shared_states(
@@ -117,7 +126,7 @@ def kf_shared_states(
     KgT = np.ascontiguousarray(np.swapaxes(Kg, -1, -2))
     if _jit.enabled() and _jit.fits(n, m, vectors_only=True):
         c = np.ascontiguousarray
-        _kf_shared_kernel(
+        _kf_shared_kernel(n, m)(
             parameters(A, B), c(u, dtype=float), c(z), x, ep, epp, c(C), KgT, c(Sinv), c(logdet), flags,
             tuple(out[f] for f in FIELDS),
         )  # fmt: skip
