@@ -397,26 +397,30 @@ def draw_spectrum(
         (ln,) = ax.plot(f, _positive(v), label=th.label, zorder=3, **style)
         artists.append(ln)
         y_data.append(v[shown])
-    # bins above each threshold, as a halo under the curve (the curve keeps its colour): the lowest
-    # threshold first, so a bin shows the highest one it exceeds
+    # bins above each threshold, as ticks along the bottom (one row per marked curve, first curve lowest;
+    # each tick in the colour of the highest threshold it exceeds): nothing covers the curves
     order = np.argsort([np.nanmedian(v) if np.any(np.isfinite(v)) else np.inf for v in values])
     any_over = False
+    row = 0
     for c, p in zip(panel.curves, powers, strict=True):
         if not c.mark:
             continue
+        y = 0.02 + 0.035 * row
+        row += 1
         for j in order:
             over = shown & np.isfinite(values[j]) & (p > values[j])
             if np.any(over):
                 any_over = True
                 ax.plot(
                     f[over],
-                    p[over],
+                    np.full(int(over.sum()), y),
                     ls="none",
-                    marker="o",
-                    ms=3.4,
-                    mew=0,
+                    marker="|",
+                    ms=5,
+                    mew=1.0,
                     color=styles[j]["color"],
-                    zorder=1.5,
+                    zorder=4,
+                    transform=ax.get_xaxis_transform(),
                 )
     if any_over:
         artists.append(
@@ -424,14 +428,30 @@ def draw_spectrum(
                 [],
                 [],
                 ls="none",
-                marker="o",
-                ms=4,
+                marker="|",
+                ms=6,
                 color="0.3",
-                label="bins above a threshold (halo in its colour)",
+                label="bins above a threshold: ticks at the bottom in its colour, one row per curve",
             )
         )
+    # frequency lines: the nominal one over the whole height; lines of one style (the true natural
+    # frequencies of several curves) only at the top, in one legend entry
+    by_style: dict[str, list] = {}
     for fl in panel.lines:
-        artists.append(ax.axvline(fl.hz, color=fl.color, ls=fl.linestyle, lw=1.1, zorder=2, label=fl.label))
+        by_style.setdefault(fl.linestyle, []).append(fl)
+    for group in by_style.values():
+        if len(group) == 1:
+            fl = group[0]
+            artists.append(
+                ax.axvline(fl.hz, color=fl.color, ls=fl.linestyle, lw=1.1, zorder=2, label=fl.label)
+            )
+            continue
+        for fl in group:
+            ax.axvline(fl.hz, ymin=0.88, color=fl.color, ls="-", lw=2.0, zorder=2, label=fl.label)
+        hz = " / ".join(f"{fl.hz:.1f}" for fl in group)
+        head = group[0].label.split(" ")[:3]
+        label = f"{' '.join(head)} {hz} Hz (marks at the top, curve colours)"
+        artists.append(Line2D([], [], color=group[0].color, lw=2.0, label=label))
     ax.set_yscale("log")
     ax.set_xlim(lo, hi)
     _fit_log_y(ax, y_data)
