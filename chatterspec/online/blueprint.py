@@ -521,7 +521,11 @@ def blueprint(
     )
     extra = [] if extra_row is None else [rrb.Horizontal(*extra_row(time_range, axis))]
     top = [rrb.Horizontal(*above)] if above else []
-    default_name = "true fault (top) and verdict per channel" if has_truth else "verdict per channel"
+    if span_s is None:  # live: the alarm state, changed when the detector knew
+        what = "alarm per channel, set at the end of the deciding frame (when the detector knew)"
+    else:  # a file: the record's interval estimates
+        what = "fault intervals per channel (onset/offset estimates, as detect --json)"
+    default_name = f"true fault (top); {what}" if has_truth else what
     return rrb.Blueprint(
         rrb.Vertical(
             *top,
