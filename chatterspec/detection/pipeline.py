@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import _jit
+from .._repr import short_repr
 from .._validate import positive_int
 from ..filters._svsf_kernels import closed_form_step
 from ..filters.nonlinear_svsf import nonlinear_chattering
@@ -57,6 +58,8 @@ class ChatteringRecord:
     u : (N + 1, p) or (runs, N + 1, p) array or None
         The inputs u(0) .. u(N), when kept.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     t: np.ndarray
     values: np.ndarray

@@ -45,6 +45,7 @@ import numpy as np
 import scipy.linalg
 import scipy.stats
 
+from .._repr import short_repr
 from .._validate import open_unit, positive, positive_int
 from ..errors import ParameterError
 from ..plants.models import LinearModel
@@ -148,6 +149,8 @@ class BoundaryLayerEstimate:
     note : str
         Human-readable statement of the confidence of the empirical quantile.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     psi: np.ndarray
     sigma: np.ndarray

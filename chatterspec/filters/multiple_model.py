@@ -50,6 +50,7 @@ from typing import Literal
 import numpy as np
 
 from .. import _jit
+from .._repr import short_repr
 from .._validate import finite_array, nonnegative
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from . import _imm_kernel, _smm_kernel
@@ -361,6 +362,8 @@ class MultipleModelOutput:
     mode_x_post : (runs, K, r, n) array or None
         Mode-conditioned posteriors (IMM / bank; only with ``store_modes=True``).
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     x_post: np.ndarray
     mu: np.ndarray

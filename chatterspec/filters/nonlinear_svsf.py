@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._repr import short_repr
 from .._validate import finite_array, open_unit
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
@@ -82,6 +83,8 @@ class NonlinearSVSFOutput:
     x_post : (runs, K, n) array or None
         ``x(k|k)`` if requested.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     e_prior: np.ndarray
     x_post: np.ndarray | None = None

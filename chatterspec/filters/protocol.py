@@ -33,6 +33,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from .._repr import short_repr
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError
 
@@ -62,6 +63,8 @@ class FilterState:
     k : int
         Index of the last processed sample.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     x: np.ndarray
     P: np.ndarray
@@ -129,6 +132,8 @@ class FilterOutput:
     P_post : (runs, K, n, n) or (K, n, n) array or None
         ``P(k+1|k+1)`` (stored only when requested).
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     x_prior: np.ndarray | None = None
     x_post: np.ndarray | None = None

@@ -39,6 +39,7 @@ from typing import Literal
 import numpy as np
 
 from .. import _jit
+from .._repr import short_repr
 from .._validate import finite_array, open_unit
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
@@ -88,7 +89,20 @@ class SVSFOutput:
     ``x_post``, ``e_post`` and (reduced-order only) ``e_lower`` =
     ``Phi22 Phi12^-1 e(k|k-1)``, the argument of the unmeasured states' switching
     term (eq 10, 28), are filled only when requested.
+
+    Attributes
+    ----------
+    e_prior : (runs, K, m) array
+        A-priori output error ``e(k|k-1)`` (the chattering of the ``sgn`` filter, eq 17).
+    x_post : (runs, K, n) array or None
+        Posterior estimate ``x(k|k)`` (when requested).
+    e_post : (runs, K, m) array or None
+        A-posteriori output error ``e(k|k)`` (when requested).
+    e_lower : (runs, K, n - m) array or None
+        ``Phi22 Phi12^-1 e(k|k-1)`` of the reduced-order filter (when requested).
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     e_prior: np.ndarray
     x_post: np.ndarray | None = None
@@ -623,6 +637,22 @@ def boundary_layer_chattering(e: np.ndarray, psi: float | np.ndarray) -> np.ndar
 
     ``(|e| - psi) sgn(e)`` where ``|e| > psi`` and 0 elsewhere, per channel
     (``psi`` broadcasts along the last axis).
+
+    Parameters
+    ----------
+    e : array (..., m)
+        Output errors, in output units.
+    psi : float or (m,) array
+        Smoothing boundary layer (> 0), in output units.
+
+    Returns
+    -------
+    array like ``e``
+        The part of ``e`` outside the boundary layer.
+
+    See Also
+    --------
+    chattering : the auxiliary ``sgn`` filter's chattering (eq 17).
     """
     e = np.asarray(e, dtype=float)
     psi = np.asarray(psi, dtype=float)

@@ -576,6 +576,15 @@ def scenario_names() -> tuple[str, ...]:
 def scenario(name: str) -> Scenario:
     """Build the catalogue scenario ``name``.
 
+    Parameters
+    ----------
+    name : str
+        One of :func:`scenario_names` (``chatterspec scenarios`` lists them with descriptions).
+
+    Returns
+    -------
+    Scenario
+
     Raises
     ------
     UnknownScenarioError

@@ -12,6 +12,7 @@ from typing import Any, Literal
 import numpy as np
 import scipy.stats
 
+from .._repr import short_repr
 from .._validate import open_unit, positive_int, readonly
 from ..detection.spectral import STFTConfig
 from ..detection.thresholds import Threshold
@@ -91,6 +92,8 @@ class Calibration:
         ``pilot_runs``, ``fine_rel_width``, ``outside_window``); ``budget_bytes`` and the
         ``exact_bytes`` the exact tails would need. Empty for files of older versions.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     scenario: str
     model_name: str
