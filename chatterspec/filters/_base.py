@@ -9,9 +9,11 @@ import numpy as np
 from .. import _jit
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError, SingularMatrixError
+from ..plants.measurement import has_measurement_function
 from ..plants.models import LinearModel
 from ..plants.steps import PlantSteps, plant_steps
 from . import _engine, _engine_numpy
+from ._ekf_measurement import ekf_h_numpy
 from ._finite import require_finite
 from .protocol import FilterOutput, FilterState, check_chunk, initial_state, resolve_store
 from .svsf import _rows_times
@@ -156,6 +158,8 @@ class CovarianceFilterBase:
         R = np.asarray(model.R, dtype=float)  # type: ignore[attr-defined]
         if P.ndim == 2:  # shared covariance given to a per-run filter (e.g. replaced by a bank)
             P = np.array(np.broadcast_to(P, (x.shape[0], *P.shape)))
+        if has_measurement_function(model):  # EKF with h(x): H = dh/dx in place of C
+            return P, ekf_h_numpy(model, x, P, ep, epp, z, u, Q, R, keep)
         corr = self._correction_step()
         n, m = x.shape[1], z.shape[2]
         compiled = _jit.enabled() and corr.mapping != _engine.MAP_LUEN and _jit.fits(n, m)
@@ -253,7 +257,9 @@ class CovarianceFilterBase:
         # F = I and Q = 0 make the engine's prediction P(k+1|k) = I P I^T + 0 = P_prior exactly
         eye, Q0 = np.broadcast_to(np.eye(n), (runs, n, n)), np.zeros((n, n))
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # checked just below
-            if _jit.enabled() and _jit.fits(n, m):
+            if has_measurement_function(model):
+                res = ekf_h_numpy(model, x, P, ep, epp, zz, None, Q0, R, keep, xp_in=xp, F_in=eye)
+            elif _jit.enabled() and _jit.fits(n, m):
                 u0 = np.zeros((1, 1, 0))
                 res = _engine.cov_loop(corr, None, x, P, ep, epp, zz, u0, C, Q0, R, keep, xp_in=xp, F_in=eye)
             else:

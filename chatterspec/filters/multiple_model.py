@@ -53,6 +53,7 @@ from .. import _jit
 from .._repr import short_repr
 from .._validate import finite_array, nonnegative
 from ..errors import ParameterError, ShapeError, SingularMatrixError
+from ..plants.measurement import require_linear_measurement
 from . import _imm_kernel, _smm_kernel
 from ._base import check_model
 from .protocol import FilterState, check_spd
@@ -517,6 +518,8 @@ class SMMSVSF(_RecordRunner):
     def __post_init__(self) -> None:
         models = tuple(self.models)
         _n, m = _check_bank_models(models)
+        for mdl in models:
+            require_linear_measurement(mdl, "SMM-SVSF")
         r = len(models)
         C = np.asarray(models[0].C, dtype=float)  # type: ignore[attr-defined]
         R = np.asarray(models[0].R, dtype=float)  # type: ignore[attr-defined]

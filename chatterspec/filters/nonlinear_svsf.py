@@ -39,6 +39,7 @@ import numpy as np
 from .._repr import short_repr
 from .._validate import finite_array, open_unit
 from ..errors import ParameterError, ShapeError, SingularMatrixError
+from ..plants.measurement import require_linear_measurement
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel
 from ._finite import require_finite
@@ -115,6 +116,7 @@ class NonlinearSgnSVSF:
     _CinvT: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
+        require_linear_measurement(self.model, "the chattering SVSF")
         if not isinstance(self.model, NonlinearModel | LinearModel):
             raise ParameterError(
                 f"model must be a NonlinearModel or LinearModel; got {type(self.model).__name__}"

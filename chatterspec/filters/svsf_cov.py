@@ -39,6 +39,7 @@ import numpy as np
 from .. import _jit
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError, SingularMatrixError
+from ..plants.measurement import require_linear_measurement
 from . import _engine, _engine_numpy
 from ._base import CovarianceFilterBase, check_model, is_linear
 from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets
@@ -162,6 +163,7 @@ class SVSFCov(CovarianceFilterBase):
 
     def __post_init__(self) -> None:
         check_model(self.model)
+        require_linear_measurement(self.model, "SVSFCov")
         m = int(self.model.n_outputs)  # type: ignore[attr-defined]
         C = np.asarray(self.model.C, dtype=float)  # type: ignore[attr-defined]
         if not isinstance(self.vbl, bool | np.bool_):
