@@ -226,7 +226,7 @@ class _LazyKernel:
     a step from another file as it was when the loop was first cached.
     """
 
-    __slots__ = ("__name__", "_compiled", "_digest", "_inline", "py_func")
+    __slots__ = ("__name__", "_compiled", "_digest", "_inline", "_python", "py_func")
 
     def __init__(self, func: Callable[..., Any], inline: bool = False) -> None:
         self.py_func = func
@@ -234,6 +234,7 @@ class _LazyKernel:
         self._inline = inline
         self._compiled: Callable[..., Any] | None = None
         self._digest: str | None = None
+        self._python: Callable[..., Any] | None = None
 
     def _names(self) -> list[str]:
         names: list[str] = []
@@ -261,6 +262,26 @@ class _LazyKernel:
                     h.update(f"{name}={dep!r}".encode())
             self._digest = h.hexdigest()[:12]
         return self._digest
+
+    def python(self) -> Callable[..., Any]:
+        """``py_func`` with the kernels and steps it names also in their Python form.
+
+        ``py_func`` alone calls its steps compiled (their dispatchers), which takes scalars only;
+        this form runs every step as Python, so a numpy path can call it on rows of realizations.
+        """
+        if self._python is None:
+            func = self.py_func
+            env = dict(func.__globals__)
+            for name in set(self._names()):
+                dep = env.get(name)
+                if isinstance(dep, _LazyKernel):
+                    env[name] = dep.python()
+            copy = types.FunctionType(func.__code__, env, func.__name__, func.__defaults__, func.__closure__)
+            copy.__qualname__ = func.__qualname__
+            copy.__module__ = func.__module__
+            copy.__doc__ = func.__doc__
+            self._python = copy
+        return self._python
 
     def dispatcher(self) -> Callable[..., Any]:
         """The numba dispatcher (compiled lazily on first call, or loaded from the cache)."""
@@ -297,6 +318,25 @@ class _LazyKernel:
         if compiled is None:
             compiled = self.dispatcher()
         return compiled(*args)
+
+
+def python_form(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """The plain Python form of a kernel or step, with every step it calls in Python form too.
+
+    Numpy paths call it on ``(channels, runs)`` rows: the same arithmetic, vectorized over
+    realizations (a step called from Python otherwise runs compiled, on scalars only).
+
+    Parameters
+    ----------
+    fn : callable
+        A kernel or step (:func:`njit`, :func:`step`, :func:`specialize`) or a plain function.
+
+    Returns
+    -------
+    callable
+        The Python function (``fn`` itself when it is not a compiled kernel or step).
+    """
+    return fn.python() if isinstance(fn, _LazyKernel) else fn
 
 
 def njit(func: F) -> F:

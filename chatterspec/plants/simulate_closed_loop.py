@@ -140,8 +140,8 @@ def _closed_loop_sized(n: int, m: int):  # type: ignore[no-untyped-def]
 
 
 def _py(fn: object) -> object:
-    """The Python function behind a compiled kernel or step (numpy path)."""
-    return getattr(fn, "py_func", fn)
+    """The Python form of a compiled kernel or step, its steps included (numpy path on rows)."""
+    return _jit.python_form(fn)  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True, eq=False)
