@@ -204,7 +204,7 @@ def test_imm_equals_an_independent_imm_with_distinct_modes(
     psi, gamma = 0.03, 0.4
     svsf = None if kind == "kf" else (psi, gamma)
     bank = [KalmanFilter(m) if kind == "kf" else SVSFCov(m, psi=psi, gamma=gamma) for m in models]
-    out = IMM(bank, PI3, mu0=MU0).run(z, u, x0=x0, P0=P0, store_covariance=True)
+    out = IMM(bank, PI3, mu0=MU0).run(z, u, x0=x0, P0=P0, store={"P_post"})
     X, MU, P, spread = _reference_imm(models, PI3, MU0, x0, P0, z, u, svsf)
     np.testing.assert_allclose(out.mu, MU, rtol=1e-7, atol=1e-12)
     np.testing.assert_allclose(out.x_post, X, rtol=1e-7, atol=1e-12)

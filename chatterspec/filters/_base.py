@@ -87,7 +87,7 @@ class CovarianceFilterBase:
         self,
         state: FilterState,
         z: np.ndarray,
-        u: np.ndarray,
+        u: np.ndarray | None = None,
         *,
         store: Collection[str] | None = None,
         check: bool = True,
@@ -100,8 +100,8 @@ class CovarianceFilterBase:
             Posterior after sample k (from :meth:`initialize` or a previous ``update``).
         z : (runs, K, m) array
             Measurements ``z(k+1) .. z(k+K)`` (``(K, m)`` accepted for one run).
-        u : (K, p), (runs, K, p) or (K,) array
-            Inputs ``u(k) .. u(k+K-1)`` (``u(k)`` drives ``x(k) -> x(k+1)``).
+        u : (K, p), (runs, K, p) or (K,) array, optional
+            Inputs ``u(k) .. u(k+K-1)`` (``u(k)`` drives ``x(k) -> x(k+1)``); None: no input (zeros).
         store : collection of str, optional
             Output fields to keep (default :data:`~chatterspec.filters.protocol.DEFAULT_STORE`;
             add ``"P_prior"``/``"P_post"`` for the covariances).
@@ -271,7 +271,7 @@ class CovarianceFilterBase:
     def run(
         self,
         z: np.ndarray,
-        u: np.ndarray,
+        u: np.ndarray | None = None,
         *,
         x0: np.ndarray,
         P0: np.ndarray,
@@ -283,8 +283,8 @@ class CovarianceFilterBase:
         ----------
         z : (runs, T, m) array
             Measurements ``z(1) .. z(T)`` (``(T, m)`` for one run).
-        u : (T, p), (runs, T, p) or (T,) array
-            Inputs ``u(0) .. u(T-1)``.
+        u : (T, p), (runs, T, p) or (T,) array, optional
+            Inputs ``u(0) .. u(T-1)``; None: no input (zeros).
         x0 : (n,) or (runs, n) array
             ``x(0|0)``.
         P0 : (n, n) or (runs, n, n) array

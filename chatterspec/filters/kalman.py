@@ -13,7 +13,8 @@ sample for all realizations (``P`` stays ``(n, n)``, ``S`` is ``(K, m, m)``) and
 state recursion per realization. A per-run ``P`` (e.g. after a bank's mixing) takes the
 per-run path, and so does a single stream when the compiled kernels are on (its gain sequence
 in numpy would cost ~50 us per sample; the compiled per-run step, ~0.05 us): the same equations,
-equal to rounding, with the shared path's output shapes. :class:`ExtendedKalmanFilter` uses the
+equal to rounding. Outputs have a leading runs axis on every path (``S`` is ``(runs, K, m, m)``;
+on the shared path a read-only broadcast view of the one ``(K, m, m)`` sequence). :class:`ExtendedKalmanFilter` uses the
 model's own ``transition`` and batched
 ``jacobian`` and works with any model that provides them.
 """
@@ -89,8 +90,6 @@ class KalmanFilter(CovarianceFilterBase):
         if x.shape[0] == 1 and _jit.enabled() and _jit.fits(x.shape[1], z.shape[2]):
             # one stream: the per-run compiled loop, not the shared gain's Python loop over samples
             P1, res = super()._advance(x, P[None].copy(), ep, epp, z, u, keep)
-            for f in ("S", "P_prior", "P_post"):  # the shared path's shapes: (K, m, m), (K, n, n)
-                res[f] = None if res[f] is None else res[f][0]
             return P1[0], res
         model = self.model
         K = z.shape[1]
@@ -98,9 +97,10 @@ class KalmanFilter(CovarianceFilterBase):
         res = _kalman_shared.kf_shared_states(
             x, ep, epp, z, u, model.A, model.B, model.C, Kg, Sinv, logdet, keep
         )
-        res["S"] = S if "S" in keep else None
-        res["P_prior"] = Pp if "P_prior" in keep else None
-        res["P_post"] = Pq if "P_post" in keep else None
+        # one output shape rule: a leading runs axis on every path (read-only views of the shared arrays)
+        runs = x.shape[0]
+        for f, val in (("S", S), ("P_prior", Pp), ("P_post", Pq)):
+            res[f] = np.broadcast_to(val, (runs, *val.shape)) if f in keep else None
         return P, res
 
     def gain_sequence(self, P0: np.ndarray, K: int) -> tuple[np.ndarray, np.ndarray]:
