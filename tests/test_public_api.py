@@ -71,3 +71,11 @@ def test_each_public_name_has_a_numpydoc_docstring(name: str) -> None:
         assert section is not None, f"chatterspec.{name}: no numpydoc {' / '.join(titles)} section"
         missing = [p for p in params if not re.search(rf"(?<![\w]){re.escape(p)}(?![\w])", section)]
         assert not missing, f"chatterspec.{name}: its {titles[0]} section does not mention {missing}"
+
+
+def test_docs_api_lists_every_public_name() -> None:
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "api.md").read_text()
+    missing = [n for n in cs.__all__ if n != "__version__" and f"`{n}`" not in text]
+    assert not missing, f"docs/api.md does not list {missing}"
