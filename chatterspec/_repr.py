@@ -46,6 +46,10 @@ def value_repr(value: Any, depth: int = 0) -> str:
         return "{" + ", ".join(f"{k!r}: {value_repr(v, depth + 1)}" for k, v in value.items()) + "}"
     if dataclasses.is_dataclass(value) or hasattr(value, "__dataclass_fields__"):
         label = getattr(value, "name", None)
+        if not isinstance(label, str):
+            text = repr(value)
+            if len(text) <= _MAX_STR:
+                return text
         return (
             f"{type(value).__name__}({label!r})" if isinstance(label, str) else f"{type(value).__name__}(...)"
         )

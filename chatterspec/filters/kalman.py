@@ -14,9 +14,10 @@ state recursion per realization. A per-run ``P`` (e.g. after a bank's mixing) ta
 per-run path, and so does a single stream when the compiled kernels are on (its gain sequence
 in numpy would cost ~50 us per sample; the compiled per-run step, ~0.05 us): the same equations,
 equal to rounding. Outputs have a leading runs axis on every path (``S`` is ``(runs, K, m, m)``;
-on the shared path a read-only broadcast view of the one ``(K, m, m)`` sequence). :class:`ExtendedKalmanFilter` uses the
-model's own ``transition`` and batched
-``jacobian`` and works with any model that provides them.
+on the shared path a read-only broadcast view of the one ``(K, m, m)`` sequence).
+:class:`ExtendedKalmanFilter` uses the model's own ``transition`` and batched ``jacobian`` and works
+with any model that provides them; with a nonlinear measurement ``h`` it uses ``H = dh/dx`` at the
+prior in place of ``C`` (:mod:`chatterspec.filters._ekf_measurement`).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import _jit
+from .._repr import short_repr
 from ..plants.models import LinearModel
 from . import _engine, _engine_numpy, _kalman_shared
 from ._base import CovarianceFilterBase, check_model
@@ -68,6 +70,8 @@ class KalmanFilter(CovarianceFilterBase):
     TypeError
         If ``model`` is not a LinearModel (use :class:`ExtendedKalmanFilter`).
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     model: LinearModel
 
@@ -138,6 +142,8 @@ class ExtendedKalmanFilter(CovarianceFilterBase):
         ``Q``, ``R``, ``dt``, ``n_states``, ``n_outputs``, ``n_inputs`` (e.g. LinearModel or the
         nonlinear EHA). With a LinearModel the EKF equals the KF (tested).
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     model: object
 

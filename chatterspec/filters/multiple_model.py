@@ -510,6 +510,8 @@ class SMMSVSF(_RecordRunner):
         bad ``psi`` / ``gamma`` / ``reading``.
     """
 
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
+
     models: Sequence[object]
     psi: float | np.ndarray
     gamma: float | np.ndarray = 0.1
@@ -777,6 +779,8 @@ class IMM(_RecordRunner):
         Transition-matrix rows not summing to 1, negative probabilities, ``weight_floor`` outside
         ``[0, 1/r)``.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     filters: Sequence[object]
     transition_matrix: np.ndarray

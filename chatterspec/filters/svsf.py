@@ -139,6 +139,8 @@ class SVSF:
         full column rank, e.g. more unmeasured than measured states).
     """
 
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
+
     model: LinearModel
     psi: float | np.ndarray | None = None
     gamma: float = 0.1

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import _jit
+from .._repr import short_repr
 from .._validate import finite_array
 from ..errors import ParameterError
 from ..plants.measurement import require_linear_measurement
@@ -87,6 +88,8 @@ class SecondOrderSVSF(CovarianceFilterBase):
     SingularMatrixError
         ``mapping="full"`` with a non-square or singular H.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     model: object
     gamma: float | np.ndarray = 0.1

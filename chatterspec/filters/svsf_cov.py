@@ -37,6 +37,7 @@ from typing import Literal
 import numpy as np
 
 from .. import _jit
+from .._repr import short_repr
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.measurement import require_linear_measurement
@@ -152,6 +153,8 @@ class SVSFCov(CovarianceFilterBase):
     SingularMatrixError
         ``mapping="full"`` with a non-square or singular C.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     model: object
     psi: float | np.ndarray

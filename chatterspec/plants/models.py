@@ -21,6 +21,7 @@ from typing import Literal
 
 import numpy as np
 
+from .._repr import short_repr
 from .._validate import finite_array, nonnegative, positive, readonly
 from ..errors import ParameterError, ShapeError, SingularMatrixError, UnstableModelWarning
 from .parameters import ParameterMap, eha_parameter_map, second_order_parameter_map
@@ -144,6 +145,8 @@ class LinearModel:
     ShapeError, NonFiniteError, ParameterError
         On inconsistent shapes, non-finite entries, ``dt <= 0`` or invalid covariances.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     A: np.ndarray
     B: np.ndarray | None

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from .._repr import short_repr
 from .._validate import finite_array, positive, positive_int, readonly
 from ..errors import ModelKindError, NonFiniteError, ParameterError, ShapeError, SingularMatrixError
 from .measurement import Measurement, measure, measurement_jacobian, measurement_matrix
@@ -116,6 +117,8 @@ class NonlinearModel:
         On inconsistent shapes (including ``f`` or ``jac`` returning the wrong shape at the rest
         state), non-finite entries, ``dt <= 0`` or covariances that are not symmetric PSD.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     f: Transition
     jac: Transition
