@@ -140,7 +140,22 @@ class ExtendedKalmanFilter(CovarianceFilterBase):
     model : model object
         Anything with ``transition(x, u)`` (runs, n), ``jacobian(x, u)`` (runs, n, n), ``C``,
         ``Q``, ``R``, ``dt``, ``n_states``, ``n_outputs``, ``n_inputs`` (e.g. LinearModel or the
-        nonlinear EHA). With a LinearModel the EKF equals the KF (tested).
+        nonlinear EHA). With a LinearModel the EKF equals the KF (tested). A model with a
+        nonlinear measurement (``NonlinearModel(..., h=, h_jac=)``) is filtered with
+        ``e = z - h(x(k+1|k))`` and ``H = dh/dx`` at the prior in place of ``C``
+        (``docs/filters.md``; equal to filterpy's EKF, tested).
+
+    Examples
+    --------
+    >>> import numpy as np, chatterspec as cs
+    >>> A = np.array([[1.0, 0.01], [-0.04, 0.998]])
+    >>> m = cs.NonlinearModel(lambda x, u: x @ A.T, lambda x, u: np.broadcast_to(A, (*x.shape[:-1], 2, 2)),
+    ...                       None, np.diag([1e-8, 1e-6]), np.eye(1) * 1e-4, 0.01,
+    ...                       h=lambda x: np.sin(x[..., :1]),
+    ...                       h_jac=lambda x: np.stack([np.cos(x[..., 0]), 0 * x[..., 0]], -1)[..., None, :])
+    >>> out = cs.ExtendedKalmanFilter(m).run(np.zeros((50, 1)), x0=np.zeros(2), P0=np.eye(2))
+    >>> out.x_post.shape
+    (1, 50, 2)
     """
 
     __repr__ = short_repr  # shapes and key figures, never whole arrays
