@@ -9,7 +9,7 @@ Equations ([DETC] and [IMM] baselines)::
 
 For a :class:`~chatterspec.plants.models.LinearModel` started from one shared ``P0``, the
 covariance and gain do not depend on the data: :class:`KalmanFilter` computes them once per
-sample for all realizations (``P`` stays ``(n, n)``, ``S`` is ``(K, m, m)``) and runs only the
+sample for all realizations (``P`` stays ``(n, n)``, ``S`` is one ``(K, m, m)`` sequence) and runs only the
 state recursion per realization. A per-run ``P`` (e.g. after a bank's mixing) takes the
 per-run path, and so does a single stream when the compiled kernels are on (its gain sequence
 in numpy would cost ~50 us per sample; the compiled per-run step, ~0.05 us): the same equations,
