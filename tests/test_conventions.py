@@ -157,3 +157,13 @@ def test_imm_per_mode_start() -> None:
     )
     with pytest.raises(cs.ShapeError, match="mode_x0"):
         imm.initialize(np.zeros(2), np.eye(2), mode_x0=np.zeros((3, 2)))
+
+
+def test_chattering_needs_no_input_either() -> None:
+    lin = cs.LinearModel(A, None, np.eye(2), Q, np.diag([1e-6, 1e-4]), DT)
+    sc = cs.Scenario(name="free", nominal=lin, input=cs.Constant(0.0), duration=1.0, x0=np.array([0.01, 0.0]))
+    sim = cs.simulate(sc, runs=2, seed=5)
+    zero = np.zeros((sim.z.shape[1], 1))
+    np.testing.assert_array_equal(cs.chattering(lin, sim.z), cs.chattering(lin, sim.z, zero))
+    a, b = cs.chattering_record(lin, sim.z), cs.chattering_record(lin, sim.z, zero)
+    np.testing.assert_array_equal(a.values, b.values)

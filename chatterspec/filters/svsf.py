@@ -268,7 +268,7 @@ class SVSF:
         self,
         state: SVSFState,
         z: np.ndarray,
-        u: np.ndarray,
+        u: np.ndarray | None = None,
         *,
         store_states: bool = False,
         store_post_error: bool = False,
@@ -284,8 +284,8 @@ class SVSF:
             State after sample ``k``.
         z : (runs, K, m) array
             Measurements ``z(k+1) .. z(k+K)``; ``(K, m)`` is accepted for one run.
-        u : (K, p) or (runs, K, p) array
-            Inputs ``u(k) .. u(k+K-1)`` (the input that drives x(k) -> x(k+1)).
+        u : (K, p) or (runs, K, p) array, optional
+            Inputs ``u(k) .. u(k+K-1)`` (the input that drives x(k) -> x(k+1)); None: zeros.
         store_states, store_post_error, store_lower : bool
             Also return ``x(k|k)``, ``e(k|k)`` and (reduced-order) ``e_lower`` per sample.
         check : bool
@@ -321,6 +321,8 @@ class SVSF:
         scale, tests/test_kernels.py), since BLAS orders the sums of the
         numpy loop's matrix products differently.
         """
+        if u is None:  # no input (docs/filters.md)
+            u = np.zeros((np.shape(z)[-2], self.model.n_inputs))
         z, u = check_chunk(z, u, state.runs, self.model.n_outputs, self.model.n_inputs, check)
         Gu = _rows_times(u, self._GT)  # (K, n) or (runs, K, n): G u(k), element-wise
         return self._advance(state, z, Gu, store_states, store_post_error, store_lower, closed_form)
@@ -520,7 +522,7 @@ class SVSF:
     def run(
         self,
         z: np.ndarray,
-        u: np.ndarray,
+        u: np.ndarray | None = None,
         *,
         x0: np.ndarray | None = None,
         store_states: bool = False,
@@ -533,8 +535,8 @@ class SVSF:
         ----------
         z : (runs, T, m) or (T, m) array
             Measurements z(0) .. z(T-1).
-        u : (T, p), (runs, T, p) or (T,) array
-            Inputs u(0) .. u(T-1) (the last one is not used).
+        u : (T, p), (runs, T, p) or (T,) array, optional
+            Inputs u(0) .. u(T-1) (the last one is not used); None: no input (zeros).
         x0 : array, optional
             Initial estimate x(0|0); default ``C^-1 z(0)`` (see :meth:`initialize`).
 
@@ -549,7 +551,7 @@ class SVSF:
         single = z.ndim == 2
         if single:
             z = z[None]
-        u = finite_array("u", u, ndim=(1, 2, 3))
+        u = finite_array("u", np.zeros((z.shape[1], self.model.n_inputs)) if u is None else u, ndim=(1, 2, 3))
         if u.ndim == 1:
             u = u[:, None]
         T = z.shape[1]
@@ -667,7 +669,7 @@ def boundary_layer_chattering(e: np.ndarray, psi: float | np.ndarray) -> np.ndar
 def chattering(
     model: LinearModel | NonlinearModel,
     z: np.ndarray,
-    u: np.ndarray,
+    u: np.ndarray | None = None,
     *,
     gamma: float = 0.1,
     x0: np.ndarray | None = None,
@@ -683,8 +685,8 @@ def chattering(
         prediction), as :func:`chatterspec.simulate` accepts such models too.
     z : (runs, T, m) or (T, m) array
         Measurements.
-    u : (T, p), (runs, T, p) or (T,) array
-        Inputs.
+    u : (T, p), (runs, T, p) or (T,) array, optional
+        Inputs; None: no input (zeros).
     gamma : float
         Convergence rate in (0, 1); with the default initialization it has no
         effect after the first step (e(k|k) = 0).
@@ -706,6 +708,8 @@ def chattering(
     --------
     chatterspec.filters.nonlinear_svsf.nonlinear_chattering : the nonlinear model's chattering.
     """
+    if u is None:  # no input (docs/filters.md)
+        u = np.zeros((np.shape(z)[-2], model.n_inputs))
     if isinstance(model, NonlinearModel):
         from .nonlinear_svsf import nonlinear_chattering
 
