@@ -167,3 +167,15 @@ def test_chattering_needs_no_input_either() -> None:
     np.testing.assert_array_equal(cs.chattering(lin, sim.z), cs.chattering(lin, sim.z, zero))
     a, b = cs.chattering_record(lin, sim.z), cs.chattering_record(lin, sim.z, zero)
     np.testing.assert_array_equal(a.values, b.values)
+
+
+def test_imm_of_ekfs_with_h() -> None:
+    # two identical modes: mixing changes nothing, so the IMM's estimate is the single EKF's
+    m = model_h()
+    z = measurements(120)
+    kw = dict(x0=np.array([0.8, 0.0]), P0=0.1 * np.eye(2))
+    single = cs.ExtendedKalmanFilter(m).run(z, **kw, store={"x_post"})
+    imm = cs.IMM([cs.ExtendedKalmanFilter(m), cs.ExtendedKalmanFilter(m)], np.array([[0.9, 0.1], [0.2, 0.8]]))
+    out = imm.run(z, **kw)
+    np.testing.assert_allclose(out.x_post, single.x_post, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(out.mu.sum(axis=-1), 1.0, rtol=1e-12)
