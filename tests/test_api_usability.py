@@ -20,6 +20,11 @@ def test_simulate_takes_a_catalogue_name() -> None:
     np.testing.assert_array_equal(by_name.z, by_object.z)
     first = next(cs.iter_simulations("so-healthy-low", 2, seed=1))
     assert first.z.shape[0] == 2
+    # a model file too (the scenario of its [simulation] table, named after the file)
+    from pathlib import Path
+
+    toml = Path(__file__).resolve().parents[1] / "examples" / "eha_model.toml"
+    assert cs.simulate(str(toml), runs=1, seed=1).scenario.name == "eha_model"
 
 
 def test_simulate_refuses_what_is_not_a_scenario() -> None:

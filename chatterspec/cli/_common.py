@@ -150,14 +150,9 @@ def load_scenario(name: str) -> Any:
     A model file's scenario is its ``[simulation]`` table (input, initial state, duration; zero input
     and 4 s by default) with the file's model as nominal model and true plant.
     """
-    if str(name).endswith(".toml"):
-        from ..plants.modelfile import load_model
-        from ..plants.modelfile_nonlinear import file_scenario
+    from ..plants.simulate import as_scenario
 
-        return file_scenario(load_model(name), name=Path(name).stem)
-    from ..plants.scenarios import scenario
-
-    return scenario(name)
+    return as_scenario(name)
 
 
 def print_json(doc: Any) -> None:

@@ -8,8 +8,10 @@ All realizations advance together: the only Python loop is over time steps
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -86,13 +88,16 @@ def default_chunk_runs(scenario: Scenario) -> int:
     return max(64, int(CHUNK_BYTES // per_run) // 64 * 64)
 
 
-def as_scenario(scenario: Scenario | str) -> Scenario:
-    """``scenario`` itself, or the catalogue scenario of that name (a str).
+def as_scenario(scenario: Scenario | str | os.PathLike) -> Scenario:
+    """``scenario`` itself, the catalogue scenario of that name, or the scenario of a model file.
 
     Parameters
     ----------
-    scenario : Scenario or str
-        A scenario, or a name of :func:`~chatterspec.plants.scenarios.scenario_names`.
+    scenario : Scenario, str or path
+        A scenario; a name of :func:`~chatterspec.plants.scenarios.scenario_names`; or a model file
+        ``NAME.toml`` (linear or nonlinear), whose scenario is its ``[simulation]`` table (input,
+        initial state, duration; zero input and 4 s by default) with the file's model as nominal
+        model and true plant, named after the file stem.
 
     Returns
     -------
@@ -105,6 +110,11 @@ def as_scenario(scenario: Scenario | str) -> Scenario:
     ParameterError
         For anything else.
     """
+    if isinstance(scenario, str | os.PathLike) and str(scenario).endswith(".toml"):
+        from .modelfile import load_model
+        from .modelfile_nonlinear import file_scenario
+
+        return file_scenario(load_model(scenario), name=Path(scenario).stem)
     if isinstance(scenario, str):
         from .scenarios import scenario as by_name
 
@@ -129,7 +139,7 @@ def simulate(
     ----------
     scenario : Scenario or str
         Nominal model, time-segmented true plant, input and duration; or a catalogue name
-        (``"eha-healthy"``).
+        (``"eha-healthy"``) or a model file (``"my_model.toml"``, see :func:`as_scenario`).
     runs : int
         Number of Monte Carlo realizations (>= 1).
     seed : int, SeedSequence, Generator or None
@@ -183,7 +193,8 @@ def iter_simulations(
     Parameters
     ----------
     scenario : Scenario or str
-        Nominal model, time-segmented true plant, input and duration (seconds); or a catalogue name.
+        Nominal model, time-segmented true plant, input and duration (seconds); or a catalogue name
+        or model file (:func:`as_scenario`).
     runs : int
         Number of realizations to yield in total (>= 1).
     seed : int, SeedSequence, Generator or None
