@@ -34,7 +34,7 @@ remains with every call dropped (building the columns, closing the empty stream)
 times the live path: one hop (200 samples) per push to an in-memory stream, ms per hop.
 
 Usage: ``python benchmarks/bench_monitor.py [--minutes 1] [--chunk 1000] [--repeat 3] [--cases b,d]
-[--cpu] [--breakdown] [--live]``
+[--cpu] [--breakdown] [--live] [--rule cusum]``
 """
 
 from __future__ import annotations
@@ -118,6 +118,7 @@ GROUPS = {
     "spectrum/<c> (1 tensor/frame)": r"/spectrum/",
     "spectrogram/<c> (file block)": r"/spectrogram/",
     "per-frame series, psi, events, lanes": r"/(detection|frequency|events|state)|psi",
+    "alarm series (1 row/frame)": r"/alarm/",
 }
 
 
@@ -209,6 +210,12 @@ def main() -> None:
     ap.add_argument(
         "--no-baseline", action="store_true", help="skip the numpy-path runs of the cases with a file"
     )
+    ap.add_argument(
+        "--rule",
+        default=None,
+        help="alarm rule of every case (frame, persistence, cusum; threshold fixed at its 1-per-day value "
+        "for the EHA, no calibration); default: the per-frame rule at alpha 0.001",
+    )
     args = ap.parse_args()
     global CPU
     CPU = args.cpu
@@ -229,12 +236,17 @@ def main() -> None:
     raw = {"z": sim.z[0], "u": sim.u}
     rec = chattering_record(nominal, sim.z, sim.u)
     chat = {"chattering": rec.values[0]}
+    rule = None
+    if args.rule:
+        from chatterspec.detection.alarms import make_rule
+
+        rule = make_rule(args.rule, {"frame": 14.07, "persistence": 6.8, "cusum": 20.0}[args.rule])
     cases = [
-        ("(a) chattering given, no file", MonitorSettings(), chat, False),
-        ("(b) chattering given, .rrd file", MonitorSettings(), chat, True),
-        ("    aux SVSF, no file", MonitorSettings(), raw, False),
-        ("(c) raw z,u: aux SVSF, .rrd file", MonitorSettings(), raw, True),
-        ("(d) raw z,u: both SVSFs, .rrd file", MonitorSettings(psi=PSI), raw, True),
+        ("(a) chattering given, no file", MonitorSettings(rule=rule), chat, False),
+        ("(b) chattering given, .rrd file", MonitorSettings(rule=rule), chat, True),
+        ("    aux SVSF, no file", MonitorSettings(rule=rule), raw, False),
+        ("(c) raw z,u: aux SVSF, .rrd file", MonitorSettings(rule=rule), raw, True),
+        ("(d) raw z,u: both SVSFs, .rrd file", MonitorSettings(psi=PSI, rule=rule), raw, True),
     ]
     if args.cases:
         keep = {f"({c.strip()})" for c in args.cases.split(",")}

@@ -83,6 +83,24 @@ _GROUPS: dict[str, dict[str, str]] = {
             ".detection.identification",
         ),
     },
+    "alarms": {
+        **dict.fromkeys(
+            (
+                "AlarmEvent",
+                "AlarmStream",
+                "CusumRule",
+                "FrameRule",
+                "PersistenceRule",
+                "make_rule",
+                "run_rule",
+            ),
+            ".detection.alarms",
+        ),
+        **dict.fromkeys(("RuleCalibration", "calibrate_rule"), ".detection.alarm_calibration"),
+        **dict.fromkeys(("FrameScore", "frame_scores"), ".detection.frame_score"),
+        "calibrate_alarm": ".studies.alarm_budget",
+        "diagnose_at_budget": ".studies.budget_diagnosis",
+    },
     "output": {
         **dict.fromkeys(("dumps", "rounded"), ".jsonout"),
     },
@@ -90,7 +108,18 @@ _GROUPS: dict[str, dict[str, str]] = {
 _LAZY: dict[str, str] = {name: mod for group in _GROUPS.values() for name, mod in group.items()}
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
+    from .detection.alarm_calibration import RuleCalibration, calibrate_rule
+    from .detection.alarms import (
+        AlarmEvent,
+        AlarmStream,
+        CusumRule,
+        FrameRule,
+        PersistenceRule,
+        make_rule,
+        run_rule,
+    )
     from .detection.detect import DetectionReport, detect_chunks, detect_record, detect_scenario
+    from .detection.frame_score import FrameScore, frame_scores
     from .detection.identification import (
         Identification,
         IdentificationReport,
@@ -116,6 +145,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .plants.scenarios import Scenario, Segment, catalogue, scenario, scenario_names
     from .plants.signals import Chirp, Constant, SquareWave, Step
     from .plants.simulate import Simulation, iter_simulations, simulate
+    from .studies.alarm_budget import calibrate_alarm
+    from .studies.budget_diagnosis import diagnose_at_budget
     from .studies.calibration import Calibration, calibrate, load_calibration
     from .studies.chattering_diagnosis import ChatteringDiagnosis, diagnose_chattering
     from .studies.estimation import EstimationResult, build_filter, estimation_study
@@ -142,6 +173,8 @@ __all__ = [
     "IMM",
     "SMMSVSF",
     "SVSF",
+    "AlarmEvent",
+    "AlarmStream",
     "Calibration",
     "CalibrationMismatchError",
     "ChatteringDiagnosis",
@@ -149,6 +182,7 @@ __all__ = [
     "ChatterspecError",
     "Chirp",
     "Constant",
+    "CusumRule",
     "DataFileError",
     "DetectionReport",
     "DivergenceError",
@@ -156,6 +190,8 @@ __all__ = [
     "ExtendedKalmanFilter",
     "FilterOutput",
     "FilterState",
+    "FrameRule",
+    "FrameScore",
     "IdentifiabilityError",
     "Identification",
     "IdentificationReport",
@@ -168,6 +204,8 @@ __all__ = [
     "NonFiniteError",
     "NonlinearModel",
     "ParameterError",
+    "PersistenceRule",
+    "RuleCalibration",
     "STFTConfig",
     "SVSFCov",
     "SVSFOutput",
@@ -188,12 +226,15 @@ __all__ = [
     "boundary_layer_chattering",
     "build_filter",
     "calibrate",
+    "calibrate_alarm",
+    "calibrate_rule",
     "catalogue",
     "chattering",
     "chattering_record",
     "detect_chunks",
     "detect_record",
     "detect_scenario",
+    "diagnose_at_budget",
     "diagnose_chattering",
     "diagnose_modes",
     "discretize",
@@ -201,6 +242,7 @@ __all__ = [
     "eha4",
     "eha_linear",
     "estimation_study",
+    "frame_scores",
     "identification_setup",
     "identify",
     "identify_record",
@@ -208,8 +250,10 @@ __all__ = [
     "load_calibration",
     "load_data",
     "load_model",
+    "make_rule",
     "periodogram",
     "rounded",
+    "run_rule",
     "scenario",
     "scenario_names",
     "second_order",

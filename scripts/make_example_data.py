@@ -65,7 +65,7 @@ gamma = 0.1
 "leakage+friction" = ["leakage", "friction"]
 
 [detector]
-alpha = 0.001            # per-frame false-alarm probability
+alpha = 0.001            # per-frame level: the drawn verdict, and the rule of `monitor --rule frame --alpha`
 correction = "bonferroni"
 window_s = 1.0
 hop_s = 0.2

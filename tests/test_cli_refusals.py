@@ -28,7 +28,8 @@ def _error(capsys, argv: list[str]) -> str:
         (["detect", "eha-healthy", "--threshold", "paper"], "--threshold"),
         (["detect", "eha-healthy", "--correction", "sidak", "--alpha", "0.01"], "--alpha and --correction"),
         (["diagnose", "eha4-leak-onset", "--alpha", "0.01"], "--alpha"),
-        (["diagnose", "eha4-leak-onset", "--calibration-runs", "50"], "--calibration-runs"),
+        # (at a budget --calibration-runs also sets every route's healthy streams: allowed there)
+        (["diagnose", "eha4-leak-onset", "--per-record", "--calibration-runs", "50"], "--calibration-runs"),
         (
             ["monitor", "--model", str(EXAMPLE_MODEL), "--data", str(EXAMPLE_DATA), "--alpha", "0.01"],
             "--alpha",

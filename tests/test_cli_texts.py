@@ -12,10 +12,14 @@ from chatterspec.plants.modelfile import load_model
 
 def test_diagnose_a_scenario_faulty_from_the_start_prints_no_nan(capsys) -> None:
     argv = ["diagnose", "eha-leak-minor", "--runs", "2", "--calibration-runs", "40", "--no-progress"]
-    assert main(argv) == 0
+    assert main([*argv, "--per-record"]) == 0
     out = capsys.readouterr().out
     assert not re.search(r"\bnan\b", out, flags=re.IGNORECASE), out
     assert "n/a (no healthy part)" in out and "no healthy frames" in out
+    assert main(argv) == 0  # at a budget: no healthy time to measure the realized rate on
+    out = capsys.readouterr().out
+    assert not re.search(r"\bnan\b", out, flags=re.IGNORECASE), out
+    assert "n/a (no healthy part; --onset S gives one)" in out
 
 
 def test_model_toml_header_describes_the_nominal_model_in_the_file(tmp_path: Path, capsys) -> None:

@@ -43,6 +43,7 @@ def test_diagnose_with_workers_gives_the_serial_figures(capsys) -> None:
         "30",
         "--json",
         "--no-progress",
+        "--per-record",  # the former table (the budget comparison's workers test: test_budget_diagnosis.py)
     ]
     serial = _without_timings(_json(capsys, argv))
     parallel = _without_timings(_json(capsys, [*argv, "--workers", "2"]))

@@ -50,7 +50,7 @@ def test_chunked_json_and_table_equal_one_chunk(cal_path, capsys) -> None:  # ty
     # realization's numbers depend only on that realization, the counts are integers and the confusion
     # sums continue the whole-array summation order)
     base = ["diagnose", "eha4-leak-timeline", "--methods", "chattering,smm,imm", "--runs", "3", "--seed", "7"]
-    base += ["--calibration", str(cal_path), "--no-progress"]
+    base += ["--calibration", str(cal_path), "--no-progress", "--per-record"]
     docs, tables = [], []
     for chunk in ("3", "2", "1"):
         assert main([*base, "--chunk-runs", chunk, "--json"]) == 0
@@ -103,7 +103,16 @@ def test_record_of_realization_zero_with_chunks(cal_path, tmp_path) -> None:  # 
 
     path = tmp_path / "d.rrd"
     argv = ["diagnose", "eha4-leak-timeline", "--methods", "chattering,smm", "--runs", "3", "--seed", "6"]
-    argv += ["--chunk-runs", "2", "--calibration", str(cal_path), "--record", str(path), "--json"]
+    argv += [
+        "--chunk-runs",
+        "2",
+        "--calibration",
+        str(cal_path),
+        "--record",
+        str(path),
+        "--json",
+        "--per-record",
+    ]
     assert main(argv) == 0
     reader = RrdReader(path)
     summary = reader.store().summary()  # needs the footer: the file is complete
@@ -135,7 +144,7 @@ def test_scenario_faulty_from_the_start(capsys) -> None:  # type: ignore[no-unty
     timeline = cs.scenario("eha4-leak-timeline")
     assert healthy_version(timeline).plant is timeline.plant
     argv = ["diagnose", "eha-leak-minor", "--runs", "2", "--calibration-runs", "20", "--alpha", "0.01"]
-    assert main([*argv, "--json"]) == 0
+    assert main([*argv, "--json", "--per-record"]) == 0
     (doc,) = json.loads(capsys.readouterr().out)["methods"]
     assert doc["onsets_s"] == [0.0] and doc["healthy_frames_per_run"] == 0 and doc["in_alarm_at_onset"] == [0]
     # the fault is flagged from the first frame on its channel in both runs (seeded); no frame ends before

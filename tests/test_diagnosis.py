@@ -97,7 +97,17 @@ def test_diagnose_command_with_the_chattering_route(tmp_path, capsys, onset_cali
     from chatterspec.cli import main
 
     path = onset_calibration.save(tmp_path / "cal.npz")
-    argv = ["diagnose", "eha4-leak-onset", "--runs", "2", "--seed", "3", "--calibration", str(path)]
+    argv = [
+        "diagnose",
+        "eha4-leak-onset",
+        "--runs",
+        "2",
+        "--seed",
+        "3",
+        "--calibration",
+        str(path),
+        "--per-record",
+    ]
     assert main([*argv, "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert [m["method"] for m in doc["methods"]] == ["chattering"]
@@ -110,10 +120,12 @@ def test_diagnose_command_with_the_chattering_route(tmp_path, capsys, onset_cali
 
     other = calibrate("eha-healthy", alpha=0.01, runs=20, seed=0)
     bad = other.save(tmp_path / "other.npz")
-    assert main(["diagnose", "eha4-leak-onset", "--runs", "1", "--calibration", str(bad)]) == 2
+    assert (
+        main(["diagnose", "eha4-leak-onset", "--runs", "1", "--calibration", str(bad), "--per-record"]) == 2
+    )
     assert "recalibrate" in capsys.readouterr().err
     assert main(["diagnose", "eha4-leak-onset", "--methods", "chattering,foo"]) == 2
-    assert "subset of chattering,smm,imm" in capsys.readouterr().err
+    assert "subset of chattering,smm,imm,innovation" in capsys.readouterr().err
     assert main(["diagnose", "eha4-leak-onset", "--methods", "smm"]) == 2
     assert "does not support --methods smm" in capsys.readouterr().err
     # --record is checked before anything is computed

@@ -120,7 +120,18 @@ def test_diagnose_command_json_and_errors(capsys) -> None:  # type: ignore[no-un
 
     from chatterspec.cli import main
 
-    args = ["diagnose", "eha4-leak-timeline", "--methods", "smm", "--runs", "1", "--seed", "2", "--json"]
+    args = [
+        "diagnose",
+        "eha4-leak-timeline",
+        "--methods",
+        "smm",
+        "--runs",
+        "1",
+        "--seed",
+        "2",
+        "--json",
+        "--per-record",
+    ]
     assert main(args) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["scenario"] == "eha4-leak-timeline" and [m["method"] for m in doc["methods"]] == ["smm"]
@@ -128,4 +139,4 @@ def test_diagnose_command_json_and_errors(capsys) -> None:  # type: ignore[no-un
     assert main(["diagnose", "eha4-imm-analogue", "--methods", "chattering"]) == 2
     assert "does not support --methods chattering" in capsys.readouterr().err
     assert main(["diagnose", "eha-healthy"]) == 2
-    assert "supports no diagnosis method" in capsys.readouterr().err
+    assert "no fault onset to diagnose" in capsys.readouterr().err

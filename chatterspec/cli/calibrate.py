@@ -11,6 +11,7 @@ from typing import Any
 
 from ..errors import ParameterError
 from ..jsonout import dumps
+from ._alarm_args import add_alarm_args, alarm_choice
 from ._common import (
     Outputs,
     alpha_arg,
@@ -82,10 +83,20 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Analytic thresholds (paper, exact, family-wise) beside empirical ones (per-bin and "
         "per-frame quantiles, family-wise quantile of the maximum normalized bin) with order-statistic "
         "confidence intervals. NAME is a healthy catalogue scenario or a TOML model file. --out writes a "
-        "calibration file (.json or .npz) that detection can load instead of the analytic threshold.",
+        "calibration file (.json or .npz) that detection can load instead of the analytic threshold. With "
+        "--rule / --false-alarms-per-hour the file also holds the monitor's alarm threshold for that "
+        "budget (rule, budget and frames per hour recorded; the monitor refuses it for another rule).",
     )
     p.add_argument("name", metavar="NAME", help="healthy scenario name or model file (.toml)")
     add_common(p, alpha=1e-2, runs=1000)
+    add_alarm_args(p, what="the monitor using the file", hours=False)
+    p.add_argument(
+        "--hours",
+        default=None,
+        metavar="H",
+        help="with --rule / --false-alarms-per-hour: hours of healthy data simulated for the alarm "
+        "threshold (default 48; its interval shrinks like 1/sqrt(H))",
+    )
     p.add_argument("--out", metavar="FILE", help="write the calibration file (.json or .npz)")
     p.add_argument("--plot", metavar="FILE", help="save a figure of analytic vs empirical thresholds")
     p.add_argument(
@@ -117,12 +128,17 @@ def run(args: argparse.Namespace) -> int:
         check_output_file(args.plot, "--plot", suffixes=figure_suffixes())
     outputs = Outputs()
     supports = _check_support(args)  # also an unknown name or a bad model file, before the heavy imports
+    choice = alarm_choice(args)
+    wants_alarm = choice.explicit_rule or choice.explicit_budget or args.hours is not None
+    hours = _hours(args.hours)
     from ..studies.calibration import calibrate
 
     ex = execution(args)
     if args.tail_budget is not None:
         ex["tail_budget"] = args.tail_budget
     cal = calibrate(args.name, alpha=args.alpha, runs=args.runs, seed=args.seed, **ex)
+    if wants_alarm:
+        cal = _with_alarm(cal, args.name, choice, hours, args.seed)
     doc = cal.to_dict()
     doc["support"] = {use: s.to_dict() for use, s in supports.items()}
     if args.out:
@@ -137,6 +153,8 @@ def run(args: argparse.Namespace) -> int:
         print(dumps(doc, indent=2, allow_nan=True))
         outputs.finish()
         return 0
+    if cal.alarm is not None:
+        print(f"alarm rule for the monitor: {cal.alarm.describe()}")
     if cal.normalization == "empirical":
         _print_empirical(cal, doc)
         outputs.finish()
@@ -166,6 +184,40 @@ def run(args: argparse.Namespace) -> int:
         print(f"  calibration file: {doc['calibration_file']}")
     outputs.finish()
     return 0
+
+
+def _hours(text: str | None) -> float:
+    """``--hours H`` (default 48): a positive, finite number of hours."""
+    import math
+
+    if text is None:
+        return 48.0
+    try:
+        h = float(text)
+    except ValueError:
+        raise ParameterError(f"--hours must be a number of hours; got {text!r}") from None
+    if not (math.isfinite(h) and h > 0):
+        raise ParameterError(f"--hours must be positive and finite; got {h!r}")
+    return h
+
+
+def _with_alarm(cal: Any, name: str, choice: Any, hours: float, seed: int) -> Any:
+    """``cal`` with the monitor's alarm threshold for ``choice``, on the score the monitor computes with
+    this file (its empirical per-frame threshold's normalization)."""
+    import dataclasses
+
+    from ..detection.alarms import make_rule
+    from ..detection.spectral import STFTConfig
+    from ..online.monitor_types import MonitorSettings
+    from ..studies.alarm_budget import calibrate_alarm
+    from ..studies.healthy import resolve_scenario
+
+    sc = resolve_scenario(name)
+    stft = STFTConfig(**cal.stft)
+    settings = MonitorSettings(stft=stft, threshold=cal.threshold("frame-family-wise"))
+    rule = make_rule(choice.rule, **choice.parameters)
+    rc = calibrate_alarm(sc.nominal, settings, rule, choice.budget, hours=hours, seed=seed, scenario=sc)
+    return dataclasses.replace(cal, alarm=rc)
 
 
 def _check_support(args: argparse.Namespace) -> dict[str, Any]:

@@ -14,6 +14,7 @@ if TYPE_CHECKING:
 
 from ..errors import ParameterError
 from . import _identify
+from ._alarm_args import add_alarm_args, alarm_choice
 from ._common import (
     Outputs,
     add_detector_args,
@@ -47,6 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="use the empirical family-wise threshold of a calibration file written by "
         "'chatterspec calibrate --out FILE' (refused if it was made for another model or length)",
     )
+    add_alarm_args(p, what="the --record / --live monitor")
     add_execution_args(p)
     _identify.add_identification_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
@@ -78,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
             setattr(args, key, value)
     sc = load_scenario(args.name)  # an unknown name fails here, before the heavy imports
     band = band_from_args(args)
+    choice = alarm_choice(args, default_rule=_file_rule(args))  # bad options stop here, before simulating
     from ..detection.detect import detect_chunks
 
     threshold = args.threshold
@@ -144,6 +147,8 @@ def run(args: argparse.Namespace) -> int:
         settings = MonitorSettings(alpha=args.alpha, correction=args.correction, band=band)
         if args.calibration and not sc.is_linear:  # nonlinear: the calibrated per-frame threshold
             settings = MonitorSettings(threshold=cal.threshold("frame-family-wise"), band=band)
+        settings = _alarm_settings(args, choice, sc, settings, cal if args.calibration else None)
+        doc["alarm"] = None if settings.budget is None else settings.budget.to_dict()
         outputs = Outputs()
         summary = outputs.write(
             "--record", args.record, record_detection, sim, settings, path=args.record, live=args.live
@@ -160,6 +165,46 @@ def run(args: argparse.Namespace) -> int:
     if args.record or args.live:
         outputs.finish()  # a failed recording: the result above is printed first
     return 0
+
+
+def _file_rule(args: argparse.Namespace) -> str | None:
+    """The rule of ``--calibration``'s alarm calibration (the default of ``--rule``), if any."""
+    if not args.calibration:
+        return None
+    from ..studies.calibration import load_calibration
+
+    alarm = load_calibration(args.calibration).alarm
+    return None if alarm is None else alarm.rule.name
+
+
+def _alarm_settings(
+    args: argparse.Namespace, choice: object, sc: object, settings: object, cal: object
+) -> object:
+    """The recording monitor's alarm rule: the calibration file's, or set here for the budget (linear);
+    a nonlinear scenario whose file holds no alarm calibration keeps the per-frame rule."""
+    from ..studies.alarm_budget import alarm_settings
+    from ._alarm_args import check_file_alarm
+
+    file_alarm = getattr(cal, "alarm", None)
+    if file_alarm is not None:
+        rc = check_file_alarm(choice, file_alarm, args.calibration)  # type: ignore[arg-type]
+        return alarm_settings(sc.nominal, settings, calibration=rc)  # type: ignore[attr-defined]
+    if not sc.is_linear:  # type: ignore[attr-defined]
+        print(
+            "chatterspec detect: note: the recording's monitor uses the per-frame rule (calibrate "
+            f"{args.name}'s healthy scenario with --rule for a false-alarm budget)",
+            file=sys.stderr,
+        )
+        return settings
+    c = choice  # AlarmChoice
+    return alarm_settings(
+        sc.nominal,  # type: ignore[attr-defined]
+        settings,
+        c.rule,  # type: ignore[attr-defined]
+        c.budget,  # type: ignore[attr-defined]
+        hours=c.hours,  # type: ignore[attr-defined]
+        **c.parameters,  # type: ignore[attr-defined]
+    )
 
 
 #: Below this many realizations ``detect`` shows no progress bar (a few seconds at most).

@@ -1,111 +1,167 @@
-"""``chatterspec diagnose NAME [--methods chattering,smm,imm] [--runs N] [--seed S] [--chunk-runs K]
-[--json] [--record FILE.rrd] [--no-progress]``: fault diagnosis side by side, every method on the same
-realizations (``docs/design.md`` §2, the estimator routes).
+"""``chatterspec diagnose NAME [--false-alarms-per-hour X] [--rule R] [--methods ...] [--runs N] ...``:
+the diagnosis routes compared at one false-alarm budget, on the same realizations.
 
-* ``smm``, ``imm``: mode probabilities (:mod:`chatterspec.studies.mode_diagnosis`);
-* ``chattering``: the STFT of the auxiliary sgn-SVSF's chattering against a calibrated per-frame threshold
-  (:mod:`chatterspec.studies.chattering_diagnosis`). The threshold is calibrated once per call on healthy
-  runs of the scenario's healthy version (other seeds; ``--calibration-runs`` runs plus, for a nonlinear
-  model, 200 pilot runs), or read from ``--calibration FILE`` (``chatterspec calibrate ... --save``; it
-  must be for the same nominal model and STFT settings; the per-frame threshold does not depend on the
-  record length).
+Routes (:mod:`chatterspec.studies.routes`): ``chattering`` (``-log p`` of the STFT frames of the
+auxiliary SVSF's chattering), ``smm`` and ``imm`` (log posterior odds of the fault modes), ``innovation``
+(the Kalman filter's / EKF's normalized innovation squared, Mehra and Peschon 1971). Every route's
+score goes through the same alarm rule (``--rule``, default ``cusum``), whose threshold is calibrated
+per route on healthy runs of the scenario's healthy version (seeds disjoint from the diagnosed runs)
+to ``--false-alarms-per-hour`` alarm starts per hour (:mod:`chatterspec.studies.budget_diagnosis`).
 
-The runs are simulated and diagnosed in chunks of ``--chunk-runs`` (default 64): only per-run figures
-(delays, alarm flags, counts) are kept, so the memory does not grow with ``--runs``, and the output does
-not depend on the chunking (:class:`~chatterspec.studies.chattering_diagnosis.ChatteringTally`,
-:class:`~chatterspec.studies.mode_diagnosis.ModeTally`). A progress bar goes to stderr on a terminal
-(``--no-progress`` turns it off).
+Per route: the false alarms realized on the diagnosed runs' healthy time (before the first onset, after
+``--warmup``) per hour with their two-sided Poisson (Garwood) interval, the detection delay per onset
+(median, 90th percentile), missed onsets, isolation, the cost (realization-samples per second), and
+``--figure FILE.png``: the detection delay against the false alarms per hour with the thresholds
+swept on the same realizations. ``--per-record`` gives the former table instead (each route with its
+own rule: argmax of the modes, per-frame chattering at ``--alpha``), which cannot rank the routes.
 
-``--record FILE.rrd`` writes realization 0 to Rerun: the chattering spectrogram, frame verdicts and
-detection events of the online monitor, and the mode probabilities of smm / imm on the same timeline.
+``--onset S`` moves the fault of a scenario faulty from ``t = 0`` (``eha-leak-minor``) to ``S`` seconds,
+so that it has healthy time. ``--workers`` / ``--scheduler`` / ``--chunk-runs`` as for the other Monte
+Carlo commands: the numbers do not depend on them.
 """
 
 from __future__ import annotations
 
 import argparse
-import math
 import time
 
 from ..errors import ParameterError
 from . import _identify
-from ._common import Outputs, add_execution_args, alpha_arg, check_record_path, positive_int_arg, print_json
+from ._common import (
+    Outputs,
+    add_execution_args,
+    alpha_arg,
+    check_output_file,
+    check_record_path,
+    figure_suffixes,
+    nonnegative_int_arg,
+    positive_int_arg,
+    print_json,
+)
 
-#: Every method ``--methods`` accepts.
-ALL_METHODS = ("chattering", "smm", "imm")
+#: Healthy runs of the budget's calibration streams by default: on eha4-leak-timeline (9 s records) 500 runs
+#: (1.2 h) are too few for the alarm layer to extrapolate the chattering and innovation routes' CUSUM to one
+#: false alarm per hour (the fitted counts span less than a factor e); 1000 (2.3-2.5 h) are enough.
+DEFAULT_CALIBRATION_RUNS = 1000
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from ..detection.alarms import rule_names
+    from ..studies.route_sweep import DEFAULT_WARMUP_S
+    from ..studies.routes import ALL_METHODS
+
     p = sub.add_parser(
         "diagnose",
-        help="fault diagnosis side by side (chattering spectrum, SMM-SVSF, IMM) on the same realizations",
-        description="Runs each method on the same seeded realizations and reports false alarms on the "
-        "healthy segments (family-wise per run, 99%% Clopper-Pearson), detection delays per fault onset "
-        "(median, 90th percentile), isolation (confusion matrix; chattering: flagged channel and peak "
-        "frequency per segment) and the cost.",
+        help="fault diagnosis routes (chattering, SMM-SVSF, IMM, innovations) at one false-alarm budget",
+        description="Runs each route on the same seeded realizations through one alarm rule whose "
+        "threshold is calibrated per route on healthy runs to the same false alarms per hour, and reports "
+        "per route the realized false-alarm rate (Poisson interval), the detection delay per fault onset "
+        "(median, 90th percentile), missed onsets, isolation and the cost.",
     )
-    p.add_argument("name", metavar="NAME", help="scenario (e.g. eha4-leak-timeline, eha4-imm-analogue)")
+    p.add_argument(
+        "name", metavar="NAME", help="scenario (e.g. eha4-leak-timeline, eha-leak-minor --onset 2)"
+    )
     p.add_argument(
         "--methods",
         default=None,
-        help="comma-separated subset of chattering,smm,imm (default: every method the scenario supports)",
+        help=f"comma-separated subset of {','.join(ALL_METHODS)} (default: every one the scenario supports)",
     )
     p.add_argument("--runs", type=positive_int_arg, default=10, help="realizations (default 10)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=nonnegative_int_arg, default=0, help="random seed (default 0)")
+    p.add_argument(
+        "--false-alarms-per-hour",
+        dest="false_alarms_per_hour",
+        default="1",
+        metavar="X",
+        help="false-alarm budget of every route: alarm starts per hour of healthy time (default 1)",
+    )
+    p.add_argument(
+        "--rule", choices=rule_names(), default=None, help="alarm rule of every route (default cusum)"
+    )
+    p.add_argument(
+        "--persistence-k",
+        dest="persistence_k",
+        default=None,
+        metavar="K",
+        help="persistence rule: steps (frames or samples) over the threshold among the last N (default 2)",
+    )
+    p.add_argument(
+        "--persistence-n",
+        dest="persistence_n",
+        default=None,
+        metavar="N",
+        help="persistence rule: window in steps (default 3)",
+    )
+    p.add_argument(
+        "--warmup",
+        type=float,
+        default=DEFAULT_WARMUP_S,
+        metavar="S",
+        help=f"seconds of start-up not fed to the rules (default {DEFAULT_WARMUP_S:g})",
+    )
+    p.add_argument(
+        "--nis-inflation",
+        type=float,
+        default=None,
+        metavar="L",
+        help="innovation route: covariance inflation L > 1 of its CUSUM likelihood ratio (default 1.5)",
+    )
+    p.add_argument(
+        "--onset",
+        type=float,
+        default=None,
+        metavar="S",
+        help="a scenario faulty from t = 0: start its fault at S seconds instead (healthy before)",
+    )
     p.add_argument(
         "--calibration",
         metavar="FILE",
         default=None,
-        help="chattering: saved calibration of the nominal model (default: calibrate on healthy runs now)",
+        help="chattering on a nonlinear model: saved calibration of the nominal model (its expected "
+        "spectrum is the frame score's healthy law; default: calibrate on healthy runs now)",
     )
     p.add_argument(
         "--calibration-runs",
         type=positive_int_arg,
         default=None,
-        help="chattering: healthy runs of the in-call calibration (default 500; not with --calibration)",
+        help=f"healthy runs of the in-call calibrations (default {DEFAULT_CALIBRATION_RUNS}; "
+        "--per-record: 500, not with --calibration)",
     )
     p.add_argument(
         "--alpha",
         type=alpha_arg,
         default=None,
-        help="chattering: per-frame false-alarm probability of the in-call calibration (default 1e-3; not "
-        "with --calibration)",
+        help="chattering: per-frame level of the in-call calibration, the --per-record threshold and the "
+        "recording (default 1e-3; not with --calibration)",
     )
+    add_execution_args(p)
     p.add_argument(
         "--chunk-runs",
         type=positive_int_arg,
         default=None,
-        help=f"realizations simulated and diagnosed together (default {DEFAULT_CHUNK_RUNS}; memory grows "
-        "with it, not with --runs; the results do not depend on it)",
+        help="realizations simulated and diagnosed together (memory grows with it, not with --runs; "
+        "the results do not depend on it)",
     )
-    add_execution_args(p)
+    p.add_argument("--figure", metavar="FILE", default=None, help="write the delay-vs-false-alarms figure")
+    p.add_argument(
+        "--per-record", action="store_true", help="each route with its own rule (the former table)"
+    )
     _identify.add_identification_args(p)
     p.add_argument("--json", action="store_true", help="print one JSON document")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--record", metavar="FILE.rrd", default=None, help="write realization 0 to a Rerun file")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, cusum_drift=None)  # each route sets its own CUSUM drift
 
 
-def _supported(sc: object) -> tuple[str, ...]:
-    """The methods the scenario supports, in ALL_METHODS order."""
-    out = []
-    if getattr(sc.nominal, "full_measurement", False) and not sc.is_healthy:  # type: ignore[attr-defined]
-        out.append("chattering")
-    fs = sc.filter_settings  # type: ignore[attr-defined]
-    if fs is not None and fs.modes:
-        if fs.psi is not None:
-            out.append("smm")
-        if fs.transition_matrix is not None:
-            out.append("imm")
-    return tuple(out)
+def _methods(text: str | None, sc: object, per_record: bool) -> tuple[str, ...]:
+    from ..studies.routes import ALL_METHODS, supported_methods, unsupported_reason
 
-
-def _methods(text: str | None, sc: object) -> tuple[str, ...]:
-    supported = _supported(sc)
+    allowed = tuple(m for m in ALL_METHODS if not (per_record and m == "innovation"))
+    supported = tuple(m for m in supported_methods(sc) if m in allowed)
     if text is None:
         if not supported:
             raise ParameterError(
-                f"scenario {sc.name!r} supports no diagnosis method (it needs a fault and a full "  # type: ignore[attr-defined]
-                "measurement, or filter_settings modes); try eha4-leak-timeline or eha4-imm-analogue"
+                f"scenario {sc.name!r} supports no diagnosis method here; try eha4-leak-timeline"  # type: ignore[attr-defined]
             )
         return supported
     names = tuple(s.strip() for s in text.split(",") if s.strip())
@@ -116,12 +172,10 @@ def _methods(text: str | None, sc: object) -> tuple[str, ...]:
             raise ParameterError(
                 f"--methods takes a comma-separated subset of {','.join(ALL_METHODS)}; got {name!r}"
             )
-        if name not in supported:
-            why = {
-                "chattering": "a faulty scenario whose nominal model measures every state",
-                "smm": "filter_settings with modes and psi",
-                "imm": "filter_settings with modes and a transition matrix",
-            }[name]
+        if name not in allowed:
+            raise ParameterError("--methods innovation runs at a false-alarm budget only (drop --per-record)")
+        why = unsupported_reason(sc, name)
+        if why is not None:
             raise ParameterError(
                 f"scenario {sc.name!r} does not support --methods {name} (it needs {why}); "  # type: ignore[attr-defined]
                 f"supported here: {','.join(supported) or 'none'}"
@@ -129,193 +183,199 @@ def _methods(text: str | None, sc: object) -> tuple[str, ...]:
     return tuple(dict.fromkeys(names))
 
 
-def _threshold(args: argparse.Namespace, sc: object) -> tuple[object, dict]:
-    from ..detection.spectral import STFTConfig
+def _scenario(args: argparse.Namespace) -> object:
+    from ..plants.scenarios import scenario
+    from ..studies.route_sweep import onsets_of
 
-    config = STFTConfig()
-    if args.calibration is not None:
-        from ..studies.calibration import load_calibration
-        from ..studies.calibration_support import require_support
+    sc = scenario(args.name)
+    if args.onset is not None:
+        from ..studies.scenario_variants import with_onset
 
-        cal = load_calibration(args.calibration, sc.nominal, config=config)  # type: ignore[attr-defined]
-        require_support(cal, "monitor", args.calibration)  # the per-frame threshold needs enough runs
-        info = {"source": str(args.calibration), "runs": cal.runs, "alpha": cal.alpha, "seconds": 0.0}
-    else:
-        from ..studies.chattering_diagnosis import CALIBRATION_SALT, calibrate_for_diagnosis
-
-        t0 = time.perf_counter()
-        cal = calibrate_for_diagnosis(
-            sc,
-            args.seed,
-            runs=args.calibration_runs,
-            alpha=args.alpha,
-            progress=False if args.no_progress else None,
+        sc = with_onset(sc, args.onset)
+    if not onsets_of(sc):
+        raise ParameterError(
+            f"scenario {sc.name!r} has no fault onset to diagnose (it is healthy); for false alarms on "  # type: ignore[attr-defined]
+            "healthy data use `chatterspec far` or `chatterspec monitor`"
         )
-        info = {
-            "source": "calibrated now on healthy runs",
-            "runs": cal.runs,
-            "pilot_runs": cal.normalization_info.get("pilot_runs", 0),
-            "alpha": cal.alpha,
-            "seed": f"SeedSequence([{args.seed}, {CALIBRATION_SALT:#x}])",
-            "seconds": time.perf_counter() - t0,
-        }
-    q = cal.frame_family_wise
-    # per channel: the per-frame (1 - alpha)-quantile of max S / E_hat and its interval (inf: unbounded)
-    info["frame_quantile"] = [
-        [x if math.isfinite(x) else None for x in (v.value, v.ci_low, v.ci_high)] for v in q
-    ]
-    return cal.threshold("frame-family-wise"), info
+    return sc
 
 
-#: Realizations per chunk by default: the mode filters' outputs (runs, T, r) of a 9 s EHA record and the
-#: chattering spectrogram of a chunk stay well under 100 MB (the peak RSS does not grow with --runs).
-DEFAULT_CHUNK_RUNS = 64
+def _settings(args: argparse.Namespace) -> object:
+    from ..studies.budget_diagnosis import BudgetSettings
+    from ._alarm_args import alarm_choice
+
+    choice = alarm_choice(args)  # the monitor's checks: one line naming the option
+    if not (args.warmup >= 0 and args.warmup < float("inf")):
+        raise ParameterError(f"--warmup must be a finite number of seconds >= 0; got {args.warmup!r}")
+    params = tuple(sorted(choice.parameters.items()))
+    return BudgetSettings(choice.budget, choice.rule, params, args.warmup, args.calibration_runs)
+
+
+def _routes(args: argparse.Namespace, sc: object, methods: tuple[str, ...]) -> tuple[dict, object, dict]:
+    """The route objects, the per-frame threshold of the recording (chattering) and its provenance."""
+    from ..studies.routes import ChatteringRoute, InnovationRoute, ModeRoute
+
+    routes: dict = {}
+    threshold, info = None, {}
+    for m in methods:
+        if m == "chattering":
+            threshold, info = _chattering_law(args, sc)
+            routes[m] = ChatteringRoute(sc, threshold)
+        elif m == "innovation":
+            kw = {} if args.nis_inflation is None else {"inflation": args.nis_inflation}
+            routes[m] = InnovationRoute(sc, cap=(args.rule or "cusum") == "cusum", **kw)
+        else:
+            routes[m] = ModeRoute(sc, m)
+    return routes, threshold, info
+
+
+def _chattering_law(args: argparse.Namespace, sc: object) -> tuple[object, dict]:
+    """The healthy law of the chattering frame score: exact for a linear model, else calibrated."""
+    if sc.is_linear:  # type: ignore[attr-defined]
+        if args.calibration is not None:
+            raise ParameterError(
+                "--calibration: a linear model's frame score uses its exact law, not a calibration file; "
+                "drop --calibration (or give --per-record for the per-frame table)"
+            )
+        from ..detection.spectral import STFTConfig
+        from ..detection.thresholds import frame_threshold
+
+        model, config = sc.nominal, STFTConfig()  # type: ignore[attr-defined]
+        th = frame_threshold(model, config.freqs_hz(model.dt), config, model.dt, args.alpha)
+        return th, {"source": "exact law of the linear model", "alpha": args.alpha}
+    from ._diagnose_per_record import chattering_threshold
+
+    return chattering_threshold(args, sc)
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..plants.scenarios import scenario
     from .detect import refuse_with_calibration
 
     check_record_path(args.record)
-    refuse_with_calibration(args, ("alpha", "calibration_runs"))
+    # a calibration file fixes the chattering threshold and its alpha; at a budget, --calibration-runs
+    # also sets the healthy streams of every route, so it stays allowed there
+    refuse_with_calibration(args, ("alpha", "calibration_runs") if args.per_record else ("alpha",))
     args.alpha = 1e-3 if args.alpha is None else args.alpha
-    args.calibration_runs = 500 if args.calibration_runs is None else args.calibration_runs
-    sc = scenario(args.name)
-    methods = _methods(args.methods, sc)
-    from ..plants.simulate import Simulation, iter_simulations
+    if (
+        args.calibration_runs is None
+    ):  # at a budget, 500 runs (1.2 h of 9 s records) cannot calibrate every route
+        args.calibration_runs = 500 if args.per_record else DEFAULT_CALIBRATION_RUNS
+    if args.figure is not None:
+        check_output_file(args.figure, "--figure", suffixes=figure_suffixes())
+    sc = _scenario(args)
+    methods = _methods(args.methods, sc, args.per_record)
+    if args.per_record:
+        if args.figure is not None:
+            raise ParameterError("--figure draws the comparison at a budget; drop --per-record")
+        from ._diagnose_per_record import run_per_record
 
-    threshold, info = _threshold(args, sc) if "chattering" in methods else (None, {})
-    from ..studies.chattering_diagnosis import ChatteringTally
-    from ..studies.mode_diagnosis import ModeTally
+        return run_per_record(args, sc, methods)
+    settings = _settings(args)
+    from ..studies.budget_diagnosis import diagnose_at_budget
 
-    # the runs go through in chunks (realization r's numbers do not depend on the chunking); only per-run
-    # figures are kept, and realization 0 for --record
-    outputs: dict = {}
-    first: Simulation | None = None
-    sim_s: float | None = None  # seconds spent simulating (None: on workers, inside their chunks)
-    chunk = args.chunk_runs or DEFAULT_CHUNK_RUNS
-    # fault identification beside the routes: per segment, on the same realizations (test level --alpha)
-    setup, why_not = _identify.setup_or_reason(sc.nominal, args)
-    ident = None
-    parallel = args.workers > 1 or args.scheduler is not None
-    if setup is not None and not parallel:
-        from ..studies.identification_diagnosis import IdentificationTally
-
-        ident = IdentificationTally(sc, setup, alpha=args.alpha, confidence=args.confidence)
-    if parallel:  # simulation and filters on workers: same figures
-        from ..plants.simulate import simulate
-        from ..studies.diagnosis_parallel import diagnose_parallel
-
-        tallies, outputs = diagnose_parallel(
-            sc,
-            methods,
-            threshold,
-            args.runs,
-            args.seed,
-            workers=args.workers,
-            scheduler=args.scheduler,
-            chunk_runs=chunk,
-            progress=False if args.no_progress else None,
-            keep=args.record is not None,
-            identification=None if setup is None else (setup, args.alpha, args.confidence),
-        )
-        if setup is not None:
-            ident = tallies.pop()  # the identification tally comes last
-        if args.record is not None:
-            first = simulate(sc, 1, args.seed)
-    else:
-        chunks = iter_simulations(sc, args.runs, args.seed, chunk_runs=min(chunk, args.runs))
-        tallies = [ChatteringTally(sc, threshold) if m == "chattering" else ModeTally(sc, m) for m in methods]
-        first, sim_s = _serial(args, sc, [*tallies, *([ident] if ident is not None else [])], chunks, outputs)
-    results = [t.result(info) if isinstance(t, ChatteringTally) else t.result() for t in tallies]
-    ident_doc = (
-        {"reason": why_not}
-        if ident is None
-        else {
-            "alpha": args.alpha,
-            "confidence": args.confidence,
-            "segments": [r.to_dict() for r in ident.result()],
-        }
+    t0 = time.perf_counter()
+    routes, threshold, law_info = _routes(args, sc, methods)
+    results = diagnose_at_budget(
+        sc,
+        routes,
+        args.runs,
+        args.seed,
+        settings,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        chunk_runs=args.chunk_runs,
+        progress=False if args.no_progress else None,
     )
-    recording, written = None, Outputs()  # a recording that fails: the result first, then exit 2
-    if args.record is not None:
-        from ..online.diagnosis_log import record_diagnosis
+    ident_doc = identification_doc(args, sc)
+    wall = time.perf_counter() - t0
+    outputs = Outputs()
+    figure = recording = None
+    if args.figure is not None:
+        from ..figures.plot_diagnosis import delay_far_figure
+        from ..figures.plot_studies import save
 
-        recording = written.write(
-            "--record", args.record, record_diagnosis, args.record, first, threshold, outputs
+        at = f"{settings.rule} rule at {settings.budget_per_hour:g} false alarm(s)/h"  # type: ignore[attr-defined]
+        title = f"{sc.name}: {args.runs} runs, {at}"  # type: ignore[attr-defined]
+        figure = outputs.write("--figure", args.figure, save, delay_far_figure(results, title), args.figure)
+    if args.record is not None:
+        from ..online.diagnosis_log import record_budget_diagnosis
+
+        recording = outputs.write(
+            "--record",
+            args.record,
+            record_budget_diagnosis,
+            args.record,
+            sc,
+            args.seed,
+            routes,
+            results,
+            threshold,
         )
     if args.json:
         print_json(
             {
-                "scenario": sc.name,
+                "scenario": sc.name,  # type: ignore[attr-defined]
                 "runs": args.runs,
                 "seed": args.seed,
-                "simulation_s": sim_s,
+                "budget_per_hour": settings.budget_per_hour,
+                "rule": settings.rule,
+                "warmup_s": settings.warmup_s,
+                "chattering_law": law_info or None,
+                "wall_s": wall,
                 "methods": [r.describe() for r in results],
+                "figure": None if figure is None else str(figure),
                 "identification": ident_doc,
                 "recording": None if recording is None else str(recording),
             }
         )
-        written.finish()
+        outputs.finish()
         return 0
-    _print_table(sc, args, results)
+    _print_budget_table(sc, args, settings, results, wall)
     _identify.print_diagnosis(ident_doc)
+    if figure is not None:
+        print(f"figure: {figure}")
     if recording is not None:
         print(f"recording: {recording} (open with `chatterspec replay {recording}` or `rerun {recording}`)")
-    written.finish()
+    outputs.finish()
     return 0
 
 
-def _serial(
-    args: argparse.Namespace, sc: object, tallies: list, chunks: object, outputs: dict
-) -> tuple[object, float]:
-    """The in-process loop over chunks: realization 0 (for --record, else None) and the simulation time."""
-    from ..progress import Progress
-    from ..studies.mode_diagnosis import ModeTally
+def _print_budget_table(
+    sc: object, args: argparse.Namespace, settings: object, results: list, wall: float
+) -> None:
+    from ..figures.plot_diagnosis import budget_rows
 
-    first, sim_s = None, 0.0
-    with Progress(args.runs, "diagnose", enabled=False if args.no_progress else None) as bar:
-        while True:
-            t0 = time.perf_counter()
-            sim = next(chunks, None)  # type: ignore[call-overload]
-            sim_s += time.perf_counter() - t0
-            if sim is None:
-                break
-            if args.record is not None and first is None:
-                first = sim.take(slice(0, 1))
-            for tally in tallies:
-                if isinstance(tally, ModeTally):
-                    tally.add(sim, keep=outputs if args.record else None, keep_runs=1)
-                else:
-                    tally.add(sim)
-            bar.update(sim.runs)
-            del sim
-    return first, sim_s
-
-
-def _print_table(sc: object, args: argparse.Namespace, results: list) -> None:
-    from ..figures.plot_diagnosis import diagnosis_rows
-
-    print(f"diagnosis on {sc.name}: {args.runs} runs, seed {args.seed}")  # type: ignore[attr-defined]
-    header, rows = diagnosis_rows(results)
+    print(
+        f"diagnosis on {sc.name}: {args.runs} runs, seed {args.seed}; {settings.rule} rule, every route "  # type: ignore[attr-defined]
+        f"calibrated to {settings.budget_per_hour:g} false alarm(s) per hour on healthy streams "  # type: ignore[attr-defined]
+        f"({settings.calibration_runs} runs; how, per route, below); warm-up {settings.warmup_s:g} s; "  # type: ignore[attr-defined]
+        f"{wall:.1f} s"
+    )
+    header, rows = budget_rows(results)
     widths = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]
     for r in [header, *rows]:
         print("  ".join(str(c).ljust(w) for c, w in zip(r, widths, strict=True)).rstrip())
     for r in results:
-        if r.method == "chattering":
-            c = r.calibration
-            healthy = (
-                f"{r.healthy_frames_per_run} healthy frames per run, flag fraction there "
-                f"{r.healthy_alarm_fraction:.4f}"
-                if r.healthy_frames_per_run
-                else "no healthy frames (faulty from the start: no false-alarm figure)"
-            )
-            print(
-                f"chattering threshold: {c.get('source')} ({c.get('runs')} runs, alpha "
-                f"{c.get('alpha'):g} per frame, {c.get('seconds', 0.0):.1f} s); {healthy}; delays are "
-                f"frame-end times (hop quantized); runs already in alarm at each onset: "
-                f"{list(r.in_alarm_at_onset)}"
-            )
-        else:
-            diag = ", ".join(f"{m} {r.confusion[j, j]:.1f}%" for j, m in enumerate(r.modes))
-            print(f"{r.method} confusion diagonal (mean probability of the true mode): {diag}")
+        c = r.calibration
+        how = c.get("describe") or c.get("reason", "")
+        print(f"{r.method}: {how}" + (f"; {c['never_alarms']}" if "never_alarms" in c else ""))
+
+
+def identification_doc(args: argparse.Namespace, sc: object) -> dict:
+    """Fault identification per fault segment on the diagnosed realizations (seed ``--seed``, the
+    routes' runs), at test level ``--alpha``; ``{"reason": ...}`` where the model gives none."""
+    setup, why_not = _identify.setup_or_reason(sc.nominal, args)  # type: ignore[attr-defined]
+    if setup is None:
+        return {"reason": why_not}
+    from ..plants.simulate import iter_simulations
+    from ..studies.identification_diagnosis import IdentificationTally
+
+    tally = IdentificationTally(sc, setup, alpha=args.alpha, confidence=args.confidence)
+    chunk = min(args.chunk_runs or 64, args.runs)
+    for sim in iter_simulations(sc, args.runs, args.seed, chunk_runs=chunk):
+        tally.add(sim)
+    return {
+        "alpha": args.alpha,
+        "confidence": args.confidence,
+        "segments": [r.to_dict() for r in tally.result()],
+    }

@@ -26,6 +26,7 @@ from pathlib import Path
 from ..errors import ParameterError
 from ..jsonout import dumps
 from . import _identify
+from ._alarm_args import add_alarm_args, alarm_choice
 from ._common import (
     Outputs,
     alpha_arg,
@@ -109,8 +110,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="stream to a running viewer (rerun+http://host:port/proxy) or 'spawn' one",
     )
     p.add_argument(
-        "--alpha", type=alpha_arg, default=None, help="per-frame false-alarm probability (default 0.001)"
+        "--alpha",
+        type=alpha_arg,
+        default=None,
+        help="per-frame false-alarm probability: the frame rule at this level, every frame a test (the "
+        "rule before alarm budgets; ~42 false alarms per hour at 0.001 on 3 channels). Only with --rule "
+        "frame; default: the [detector] alpha of the model file (0.001), which then only sets the "
+        "per-frame verdict drawn in the recording",
     )
+    add_alarm_args(p)
     p.add_argument(
         "--band",
         nargs=2,
@@ -214,6 +222,7 @@ def run(args: argparse.Namespace) -> int:
         psi=None if spec.psi is None else tuple(spec.psi.tolist()),  # nonlinear: the sgn-SVSF only
         band=band_from_args(args) or det.get("band"),
     )
+    cal = None
     if args.calibration is not None:
         if args.alpha is not None:
             raise ParameterError(
@@ -225,12 +234,17 @@ def run(args: argparse.Namespace) -> int:
 
         cal = load_calibration(args.calibration, spec.model, config=stft)
         require_support(cal, "monitor", args.calibration)  # enough runs for its per-frame alpha
+    file_rule = None if cal is None or cal.alarm is None else cal.alarm.rule.name
+    choice = alarm_choice(args, alpha_given=args.alpha is not None, default_rule=file_rule)
+    if cal is not None:
         settings = dataclasses.replace(settings, threshold=cal.threshold("frame-family-wise"))
         print(
             f"chatterspec monitor: empirical per-frame threshold of {args.calibration} "
             f"(alpha {cal.alpha:g} per frame, {cal.runs} healthy runs)",
             file=sys.stderr,
         )
+    settings = _alarm_settings(args, choice, spec.model, settings, cal)
+    print(f"chatterspec monitor: {_alarm_line(settings)}", file=sys.stderr)
     setup, why_not = _identify.setup_or_reason(spec.model, args)
     if why_not is not None and not args.no_identify:
         print(f"chatterspec monitor: no fault identification: {why_not}", file=sys.stderr)
@@ -316,12 +330,12 @@ def run(args: argparse.Namespace) -> int:
         outputs.failures.append(
             f"--record {str(args.record)!r} could not be completed ({summary.write_error})"
         )
-    rc = _report_replay(args, spec, stft, summary, jsonl, human, ident, why_not)
+    rc = _report_replay(args, spec, stft, summary, jsonl, human, settings, ident, why_not)
     outputs.finish()
     return rc
 
 
-def _report_replay(args, spec, stft, summary, jsonl: bool, human, ident=None, why_not=None) -> int:  # type: ignore[no-untyped-def]
+def _report_replay(args, spec, stft, summary, jsonl: bool, human, settings, ident=None, why_not=None) -> int:  # type: ignore[no-untyped-def]
     """Print the summary of a file replay; 1 when the data gave no STFT frame."""
     no_frame = None
     if summary.n_frames == 0:
@@ -333,7 +347,12 @@ def _report_replay(args, spec, stft, summary, jsonl: bool, human, ident=None, wh
             f"shorter [detector] window_s in {args.model}"
         )
     if args.json:
-        doc = {"model": str(args.model), "data": str(args.data), **summary.to_dict()}
+        doc = {
+            "model": str(args.model),
+            "data": str(args.data),
+            "alarm": alarm_doc(settings),
+            **summary.to_dict(),
+        }
         doc["identification"] = {"reason": why_not} if ident is None else ident.to_dict()
         if no_frame is not None:
             doc["notes"] = [*doc["notes"], no_frame]
@@ -348,8 +367,8 @@ def _report_replay(args, spec, stft, summary, jsonl: bool, human, ident=None, wh
     else:
         n = sum(e.kind == "fault-start" for e in summary.events)
         print(
-            f"{summary.duration_s:.2f} s of data, {summary.n_frames} frames, {n} fault start(s); "
-            f"{summary.wall_s:.2f} s wall",
+            f"{summary.duration_s:.2f} s of data, {summary.n_frames} frames, {n} fault start(s) "
+            f"[{_alarm_short(settings)}]; {summary.wall_s:.2f} s wall",
             file=human,
         )
         if summary.path is not None and not summary.write_error:
@@ -476,7 +495,7 @@ def _run_stream(
             signal.signal(signal.SIGINT, signal.default_int_handler)
             signal.signal(signal.SIGTERM, previous)
     try:
-        _report(args, summary, jsonl, human, ident)
+        _report(args, summary, jsonl, human, settings, ident)
     except BrokenPipeError:
         _quiet_stdout()
     if error is not None:
@@ -497,11 +516,13 @@ def _report(
     summary: object,
     jsonl: bool,
     human: object,
+    settings: object,
     ident: _identify.MonitorIdentification | None = None,
 ) -> None:
     s = summary  # StreamSummary
     if args.json:
-        doc = {"model": str(args.model), "data": str(args.data), **s.to_dict()}  # type: ignore[attr-defined]
+        doc = {"model": str(args.model), "data": str(args.data), "alarm": alarm_doc(settings)}
+        doc.update(s.to_dict())  # type: ignore[attr-defined]
         if ident is not None:
             doc["identification"] = ident.to_dict()
         if jsonl:
@@ -518,10 +539,92 @@ def _report(
     )
     print(
         f"{s.duration_s:.2f} s of data ({s.n_rows} rows), {s.n_frames} frames, "  # type: ignore[attr-defined]
-        f"{c['fault-start']} fault start(s), {c['gap']} gap(s), {c['restart']} restart(s), "
+        f"{c['fault-start']} fault start(s) [{_alarm_short(settings)}], {c['gap']} gap(s), "
+        f"{c['restart']} restart(s), "
         f"{c['bad-row']} bad row(s) skipped; {latency}; {s.wall_s:.2f} s wall; "  # type: ignore[attr-defined]
         f"stopped by {s.stopped_by}",  # type: ignore[attr-defined]
         file=human,
     )
     for rec in s.recordings:  # type: ignore[attr-defined]
         print(f"recording: {rec['path']} (open with `chatterspec replay {rec['path']}`)", file=human)
+
+
+def _alarm_settings(
+    args: argparse.Namespace, choice: object, model: object, settings: object, cal: object
+) -> object:
+    """The monitor's alarm rule: ``--alpha`` (the per-frame rule), a calibration file's, or set here."""
+    from ..studies.alarm_budget import alarm_settings
+
+    c = choice  # AlarmChoice
+    if args.alpha is not None:
+        return dataclasses.replace(settings, alpha=float(args.alpha))  # type: ignore[type-var]
+    file_alarm = getattr(cal, "alarm", None)
+    if file_alarm is not None:
+        from ._alarm_args import check_file_alarm
+
+        rc = check_file_alarm(c, file_alarm, args.calibration)  # type: ignore[arg-type]
+        return alarm_settings(model, settings, calibration=rc)
+    from ..plants.nonlinear import is_linear
+
+    if not is_linear(model) and (c.explicit_rule or c.explicit_budget):  # type: ignore[attr-defined]
+        raise ParameterError(
+            f"{args.calibration} holds no alarm threshold, and a nonlinear model's needs simulated healthy "
+            f"records: `chatterspec calibrate {args.model} --rule {c.rule} --false-alarms-per-hour "  # type: ignore[attr-defined]
+            f"{c.budget:g} --out FILE`, then --calibration FILE"  # type: ignore[attr-defined]
+        )
+    if cal is not None and not (c.explicit_rule or c.explicit_budget):  # type: ignore[attr-defined]
+        print(
+            f"chatterspec monitor: note: {args.calibration} holds no alarm calibration (made without "
+            f"--rule): the per-frame rule at its alpha {cal.alpha:g}",  # type: ignore[attr-defined]
+            file=sys.stderr,
+        )
+        return settings
+    hours = c.hours  # type: ignore[attr-defined]  (None: the in-call default)
+    return alarm_settings(
+        model,
+        settings,
+        c.rule,
+        c.budget,
+        hours=hours,
+        **c.parameters,  # type: ignore[attr-defined]
+    )
+
+
+def alarm_doc(settings: object) -> dict:
+    """The ``alarm`` entry of the JSON summary: rule, threshold, budget and how it was set."""
+    import math
+
+    b = getattr(settings, "budget", None)
+    rule = getattr(settings, "rule", None)
+    if rule is None:
+        a = float(settings.alpha)  # type: ignore[attr-defined]
+        return {
+            "rule": {"rule": "frame", "threshold": -math.log(a)},
+            "alpha": a,
+            "false_alarms_per_hour": None,
+            "calibration": None,
+        }
+    return {
+        "rule": rule.to_dict(),
+        "alpha": None,
+        "false_alarms_per_hour": None if b is None else b.false_alarms_per_hour,
+        "calibration": None if b is None else b.to_dict(),
+    }
+
+
+def _alarm_short(settings: object) -> str:
+    from ..online.monitor_types import alarm_label
+
+    rule = getattr(settings, "rule", None)
+    if rule is None:
+        return f"frame rule, per-frame alpha {settings.alpha:g}"  # type: ignore[attr-defined]
+    return alarm_label(rule.name, settings.false_alarms_per_hour)  # type: ignore[attr-defined]
+
+
+def _alarm_line(settings: object) -> str:
+    """One stderr line on the rule in use and where its threshold comes from."""
+    rule = getattr(settings, "rule", None)
+    if rule is None:
+        return f"alarms: {_alarm_short(settings)} (every frame a test)"
+    b = settings.budget  # type: ignore[attr-defined]
+    return f"alarms: {b.describe()}" if b is not None else f"alarms: {rule.describe()}"

@@ -18,7 +18,14 @@ import numpy as np
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
-__all__ = ["DIAGNOSIS_HEADER", "diagnosis_rows", "diagnosis_table_figure"]
+__all__ = [
+    "BUDGET_HEADER",
+    "DIAGNOSIS_HEADER",
+    "budget_rows",
+    "delay_far_figure",
+    "diagnosis_rows",
+    "diagnosis_table_figure",
+]
 
 #: Column titles of :func:`diagnosis_rows`.
 DIAGNOSIS_HEADER = (
@@ -127,5 +134,152 @@ def diagnosis_table_figure(results: Sequence[object], title: str = "") -> Figure
             cell.set_facecolor("#e8e8e8")
     if title:
         ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+# --------------------------------------------------------------------------- at one false-alarm budget
+#: Column titles of :func:`budget_rows`.
+BUDGET_HEADER = (
+    "method",
+    "threshold",
+    "false alarms/h [99% CI] (count/hours)",
+    "onset [s]",
+    "delay med/p90 [ms]",
+    "missed",
+    "in alarm",
+    "isolation at detection",
+    "steps/s",
+)
+
+#: Line colour of each route in the budget figure.
+METHOD_COLORS = {"chattering": "#1f77b4", "smm": "#ff7f0e", "imm": "#2ca02c", "innovation": "#d62728"}
+
+
+def _rate(v: float) -> str:
+    if not np.isfinite(v):
+        return "-"
+    return f"{v:.3g}"
+
+
+def _budget_isolation(o: object) -> str:
+    iso = o.isolated  # type: ignore[attr-defined]
+    parts = ", ".join(f"{k} {v}" for k, v in sorted(iso.items(), key=lambda kv: -kv[1])) or "-"
+    if o.true_label is None:  # type: ignore[attr-defined]
+        return parts
+    return f"{parts}; {o.true_label} after {_ms(o.isolation_median_s)}/{_ms(o.isolation_p90_s)} ms"  # type: ignore[attr-defined]
+
+
+def budget_rows(results: Sequence[object]) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
+    """The comparison at one false-alarm budget as strings (one row per route and onset).
+
+    Parameters
+    ----------
+    results : sequence of RouteBudget
+        :func:`~chatterspec.studies.budget_diagnosis.diagnose_at_budget`.
+
+    Returns
+    -------
+    (header, rows)
+        :data:`BUDGET_HEADER` and the rows; the threshold, false-alarm and cost cells are filled on a
+        route's first row only.
+    """
+    rows = []
+    for r in results:
+        lo, hi = r.rate_ci  # type: ignore[attr-defined]
+        if r.healthy_hours > 0:  # type: ignore[attr-defined]
+            fa = (
+                f"{_rate(r.rate_per_hour)} [{_rate(lo)}, {_rate(hi)}] "  # type: ignore[attr-defined]
+                f"({r.false_alarms}/{r.healthy_hours:.3g})"  # type: ignore[attr-defined]
+            )
+            fa += "" if r.budget_inside else " <- budget outside"  # type: ignore[attr-defined]
+        else:
+            fa = "n/a (no healthy part; --onset S gives one)"
+        h = r.rule.get("threshold")  # type: ignore[attr-defined]
+        for i, o in enumerate(r.onsets):  # type: ignore[attr-defined]
+            rows.append(
+                (
+                    r.method if i == 0 else "",  # type: ignore[attr-defined]
+                    ("never (not calibrated)" if h is None else f"{h:.4g}") if i == 0 else "",
+                    fa if i == 0 else "",
+                    f"{o.onset_s:.2f}",
+                    f"{_ms(o.delay_median_s)}/{_ms(o.delay_p90_s)}",
+                    str(o.missed),
+                    str(o.in_alarm_at_onset),
+                    _budget_isolation(o),
+                    f"{r.steps_per_second:.3g}" if i == 0 else "",  # type: ignore[attr-defined]
+                )
+            )
+    return BUDGET_HEADER, rows
+
+
+def delay_far_figure(results: Sequence[object], title: str = "") -> Figure:
+    """Detection delay against false alarms per hour, thresholds swept on the same realizations.
+
+    One panel per fault onset; per route, the median delay (line) and its 90th percentile (shaded)
+    over the diagnosed runs that detect, at each threshold of the route's grid, against the alarm starts
+    per hour of the healthy calibration streams at that threshold (thresholds without a start there are
+    not drawn: their rate is below what the streams resolve, marked by the dotted line of one start
+    in the calibration hours). The star is the threshold calibrated to the budget (vertical line).
+    Delays are over the runs not in alarm before the onset; an onset whose delay no route defines at
+    the budget (every run meets it in alarm: a second fault) has no panel.
+
+    Parameters
+    ----------
+    results : sequence of RouteBudget
+    title : str
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    results = list(results)
+    n_on = max((len(r.onsets) for r in results), default=0)  # type: ignore[attr-defined]
+    # an onset that the runs meet already in alarm at the budget (a second fault) has no delay to draw
+    panels = [
+        i
+        for i in range(n_on)
+        if any(i < len(r.onsets) and np.isfinite(r.onsets[i].delay_median_s) for r in results)  # type: ignore[attr-defined]
+    ] or [0]
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.6 * len(panels), 4.4), squeeze=False, sharey=True)
+    budget = results[0].budget_per_hour if results else 1.0  # type: ignore[attr-defined]
+    for col, i in enumerate(panels):
+        ax = axes[0, col]
+        for r in results:
+            if i >= len(r.onsets):  # type: ignore[attr-defined]
+                continue
+            c = r.curve  # type: ignore[attr-defined]
+            color = METHOD_COLORS.get(r.method, None)  # type: ignore[attr-defined]
+            far = np.asarray(c["far_per_hour"][:-1], dtype=float)
+            med = np.asarray(c["delay_median_s"][i][:-1], dtype=float)
+            p90 = np.asarray(c["delay_p90_s"][i][:-1], dtype=float)
+            ok = (far > 0) & np.isfinite(med)
+            order = np.argsort(far[ok])
+            x, y, y90 = far[ok][order], np.maximum(med[ok][order], 1e-4), np.maximum(p90[ok][order], 1e-4)
+            ax.plot(x, y, "-o", ms=3, color=color, label=r.method)  # type: ignore[attr-defined]
+            ax.fill_between(x, y, y90, color=color, alpha=0.15, lw=0)
+            o = r.onsets[i]  # type: ignore[attr-defined]
+            if np.isfinite(o.delay_median_s):
+                ax.plot([budget], [max(o.delay_median_s, 1e-4)], "*", ms=13, color=color, mec="k", mew=0.6)
+            hours = c.get("calibration_hours", 0.0)
+            if hours:
+                ax.axvline(1.0 / hours, color=color, ls=":", lw=0.8)
+        ax.axvline(budget, color="k", lw=0.8, ls="--")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        onset = next((r.onsets[i].onset_s for r in results if i < len(r.onsets)), float("nan"))  # type: ignore[attr-defined]
+        ax.set_title(f"onset at {onset:g} s", fontsize=10)
+        ax.set_xlabel("false alarms per hour (healthy calibration streams)")
+        if col == 0:
+            ax.set_ylabel("detection delay [s] (median; shaded to p90)")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0, 0].legend(fontsize=8, loc="best")
+    if title:
+        fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig

@@ -29,7 +29,9 @@ layout. Each channel's view shows only its own series (blueprint overrides of
                                           bins: m per row, one row per frame
 ``/detection/threshold_db``               the decision level, 0 dB (one series)
 ``/detection/fault/<c>``                  the statistic at flagged frames only (red points)
-``/detection/verdict``                    per-frame verdict, 1 = fault, 0 = healthy: m per row (not drawn)
+``/detection/verdict``                    per-frame verdict, 1 = fault, 0 = healthy (m, not drawn), then
+                                          the alarm rule's statistic (m), the frame score ``-log p`` (m)
+                                          and the rule's threshold (1): 3 m + 1 per row
 ``/frequency/peak_hz``                    tested bin with the largest excess power ``S - E`` (Hz): m per row
 ``/frequency/most_significant_hz``        tested bin with the largest ``S / threshold`` (Hz): m per row
 ``/threshold/<c>``, ``/expected/<c>``     static frame threshold and expected healthy spectrum per bin

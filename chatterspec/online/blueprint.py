@@ -10,6 +10,7 @@ if TYPE_CHECKING:
     pass
 
 __all__ = [
+    "ALARM",
     "CHATTERING",
     "MOST_SIGNIFICANT_HZ",
     "PEAK_HZ",
@@ -44,12 +45,18 @@ PSI = "/chattering/psi"
 STATISTIC = "/detection/statistic_db"
 #: The decision level, 0 dB (one series shared by every channel's view).
 THRESHOLD = "/detection/threshold_db"
-#: Per-frame verdict per channel, 1 = fault (not drawn).
+#: Per frame ONE row of ``3 m + 1`` series: the per-frame verdict per channel (series ``0 .. m-1``,
+#: 1 = fault; not drawn), then the alarm rule's statistic per channel (``m .. 2m-1``: the frame
+#: score ``-log p`` in nats for the frame and persistence rules, the CUSUM ``g``), the frame score
+#: per channel (``2m .. 3m-1``; see chatterspec.detection.frame_score) and the rule's threshold ``h``
+#: (``3m``). The alarm series share the verdict's rows: Rerun's cost is per row.
 VERDICT = "/detection/verdict"
 #: Tested bin with the largest excess power ``S - E`` per channel (Hz), one row per frame.
 PEAK_HZ = "/frequency/peak_hz"
 #: Tested bin with the largest ``S / threshold`` per channel (Hz), one row per frame.
 MOST_SIGNIFICANT_HZ = "/frequency/most_significant_hz"
+#: The alarm series live in the rows of :data:`VERDICT` (series ``m .. 3m``).
+ALARM = VERDICT
 
 
 # --------------------------------------------------------------------------- blueprint
@@ -100,7 +107,11 @@ _GREY, _RED, _WHITE = [150, 150, 150], [230, 40, 40], [235, 235, 235]
 
 
 def series_styles(
-    channels: tuple[str, ...], units: tuple[str, ...], *, has_estimate: bool = False
+    channels: tuple[str, ...],
+    units: tuple[str, ...],
+    *,
+    has_estimate: bool = False,
+    alarm_statistic: str = "score -log p [nats]",
 ) -> list[tuple[str, Any]]:
     """Static styling of the time series: one ``SeriesLines`` / ``SeriesPoints`` per entity with one
     name and colour per series (series ``j`` = channel ``j``; ``/chattering/psi`` holds 2 series per
@@ -117,6 +128,8 @@ def series_styles(
         :data:`CHATTERING` holds the ``sat``-SVSF estimate after each measurement (``psi`` known).
         The names of the raw series are listed in either input mode; with the chattering given they
         name no series (the rows hold only the m chattering values).
+    alarm_statistic : str
+        Name of the rule's statistic in :data:`VERDICT` (series ``m .. 2m-1``), with its unit.
 
     Returns
     -------
@@ -151,7 +164,6 @@ def series_styles(
             ),
         ),
         (THRESHOLD, rr.SeriesLines(colors=[_GREY], widths=[1.0], names=["threshold (0 dB)"])),
-        (VERDICT, rr.SeriesPoints(colors=[_RED] * m, names=[f"{c}: verdict (1 = fault)" for c in channels])),
         (
             PEAK_HZ,
             rr.SeriesLines(
@@ -167,6 +179,19 @@ def series_styles(
             ),
         ),
     ]
+    out.append(
+        (
+            VERDICT,
+            rr.SeriesLines(
+                colors=[_RED] * m + cols + [_GREY] * m + [_RED],
+                widths=[1.0] * m + [1.5] * m + [1.0] * (m + 1),
+                names=[f"{c}: verdict (1 = fault)" for c in channels]
+                + [f"{c}: {alarm_statistic}" for c in channels]
+                + [f"{c}: score -log p [nats]" for c in channels]
+                + ["alarm threshold h"],
+            ),
+        )
+    )
     for c in channels:
         style = rr.SeriesPoints(colors=[_RED], marker_sizes=[2.5], names=[f"{c}: fault (flagged frame)"])
         out.append((fault_entity(c), style))
@@ -181,6 +206,9 @@ def blueprint(
     band_hz: tuple[float, float] | None = None,
     span_s: tuple[float, float] | None = None,
     db_range: tuple[float, float] = (-5.0, 30.0),
+    alarm: str | None = None,
+    alarm_score: bool = False,
+    alarm_range: tuple[float, float] | None = None,
     extra_row: Any = None,
 ) -> Any:
     """The default layout: per channel (columns) chattering, spectrogram, detection statistic and peak
@@ -205,6 +233,14 @@ def blueprint(
         opens paused on the whole record.
     db_range : (float, float)
         Colour range of the spectrogram (dB re the frame threshold), shown in its title.
+    alarm : str, optional
+        Title of the alarm view (the rule, its statistic and budget) below the detection statistic:
+        channel ``i``'s rule statistic against the threshold (:data:`VERDICT`); None: no alarm view.
+    alarm_score : bool
+        Also draw the frame score in the alarm view (when the statistic is not the score itself).
+    alarm_range : (float, float), optional
+        Fixed y range of the alarm view (a fault's score, thousands of nats, would otherwise hide the
+        threshold and the CUSUM ``g``, which is capped at it).
     extra_row : callable, optional
         ``extra_row(time_range)`` returns views added as a row below the lanes, with the time range
         of the other views (e.g. the identified parameters,
@@ -277,6 +313,28 @@ def blueprint(
                     plot_legend=no_legend,
                     overrides={STATISTIC: rr.SeriesLines.from_fields(visible_series=only(i))},
                 ),
+                *(
+                    []
+                    if alarm is None
+                    else [
+                        rrb.TimeSeriesView(
+                            origin="/alarm",
+                            contents=[f"+ {VERDICT}"],
+                            name=f"{name}: {alarm}",
+                            time_ranges=time_range,
+                            plot_legend=no_legend,
+                            axis_y=None if alarm_range is None else rrb.ScalarAxis(range=alarm_range),
+                            overrides={
+                                VERDICT: rr.SeriesLines.from_fields(
+                                    visible_series=[
+                                        j == m + i or (alarm_score and j == 2 * m + i) or j == 3 * m
+                                        for j in range(3 * m + 1)
+                                    ]
+                                )
+                            },
+                        )
+                    ]
+                ),
                 rrb.TimeSeriesView(
                     origin="/frequency",
                     contents=[f"+ {PEAK_HZ}", f"+ {MOST_SIGNIFICANT_HZ}"],
@@ -289,7 +347,7 @@ def blueprint(
                     },
                     axis_y=None if band_hz is None else rrb.ScalarAxis(range=(0.0, float(band_hz[1]))),
                 ),
-                row_shares=[1, 1.5, 1, 0.8],
+                row_shares=[1, 1.5, 1, 0.8] if alarm is None else [1, 1.5, 1, 0.9, 0.8],
             )
         )
     n_lanes = len(channels) + (1 if has_truth else 0)

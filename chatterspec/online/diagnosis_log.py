@@ -1,7 +1,9 @@
 """Rerun recording of ``chatterspec diagnose --record FILE.rrd``: realization 0 on one
 timeline -- the chattering spectrogram, frame verdicts and detection events of the online monitor
 (:class:`~chatterspec.online.rerun_log.RerunLogger`, unchanged) beside the mode probabilities of the
-SMM-SVSF / IMM (one scalar series per mode under ``/modes/<method>/<mode>``).
+SMM-SVSF / IMM (one scalar series per mode under ``/modes/<method>/<mode>``) and, at a false-alarm
+budget, every route's alarm statistic with its calibrated threshold (``/routes/<method>/statistic``
+and ``/routes/<method>/threshold``; :func:`record_budget_diagnosis`).
 
 Rerun is imported only when a recording is written.
 """
@@ -21,7 +23,7 @@ from .monitor import ChatteringMonitor, MonitorSettings
 from .rerun_log import DB_RANGE, RerunLogger, to_ns
 from .viewer import TIMELINE, open_sinks
 
-__all__ = ["record_diagnosis"]
+__all__ = ["record_budget_diagnosis", "record_diagnosis"]
 
 _MODE_COLORS = ([31, 119, 180], [255, 127, 14], [214, 39, 40], [44, 160, 44], [148, 103, 189])
 
@@ -45,6 +47,7 @@ def record_diagnosis(
     *,
     config: STFTConfig | None = None,
     chunk_samples: int = 10_000,
+    route_series: dict[str, tuple[np.ndarray, np.ndarray, float, str]] | None = None,
 ) -> Path:
     """Write realization 0 of ``sim`` to a Rerun file: chattering monitor and mode probabilities.
 
@@ -63,6 +66,9 @@ def record_diagnosis(
         STFT settings of the threshold (default 1 s Hamming, 0.2 s hop).
     chunk_samples : int
         Measurements per monitor push (the output does not depend on it).
+    route_series : dict, optional
+        ``method -> (t (K,) s, statistic (K,), threshold, name)``: a route's alarm statistic and its
+        threshold, drawn in one view per route.
 
     Returns
     -------
@@ -120,12 +126,18 @@ def record_diagnosis(
                     axis_y=rrb.ScalarAxis(range=(0.0, 1.0)),
                 )
             )
+        route_views = [
+            _log_route(sinks, rr, rrb, method, series, time_range)
+            for method, series in (route_series or {}).items()
+        ]
         parts: list[Any] = []
+        if route_views:
+            parts.append(rrb.Horizontal(*route_views))
         if views:
             parts.append(rrb.Horizontal(*views))
         if base is not None:
             parts.append(base.root_container)
-        shares = [1.2, 6.0] if len(parts) == 2 else [1.0]
+        shares = [1.2] * (len(parts) - (base is not None)) + ([6.0] if base is not None else [])
         root = rrb.Vertical(*parts, row_shares=shares)
         extra = [base.time_panel] if base is not None else []
         bp = rrb.Blueprint(root, *extra, collapse_panels=True)
@@ -138,3 +150,82 @@ def record_diagnosis(
         finally:
             sinks.close()
     return Path(path)
+
+
+def _log_route(sinks: Any, rr: Any, rrb: Any, method: str, series: tuple, time_range: Any) -> Any:
+    """Log one route's statistic and threshold as two series; return its view."""
+    t, stat, h, name = series
+    ns = to_ns(np.asarray(t, dtype=float)).astype("timedelta64[ns]")
+    stat = np.asarray(stat, dtype=float)
+    hline = np.full(stat.shape, float(h) if np.isfinite(h) else np.nan)
+    for s in sinks.streams:
+        for ent, vals, color, label in (
+            (f"/routes/{method}/statistic", stat, [31, 119, 180], name),
+            (f"/routes/{method}/threshold", hline, [214, 39, 40], "threshold"),
+        ):
+            s.log(ent, rr.SeriesLines(colors=[color], names=[label]), static=True)
+            s.send_columns(
+                ent, indexes=[rr.TimeColumn(TIMELINE, duration=ns)], columns=rr.Scalars.columns(scalars=vals)
+            )
+    return rrb.TimeSeriesView(
+        origin=f"/routes/{method}", name=f"{method}: {name} and threshold", time_ranges=time_range
+    )
+
+
+def record_budget_diagnosis(
+    path: str | Path,
+    scenario: Any,
+    seed: int,
+    routes: dict[str, Any],
+    results: list[Any],
+    threshold: Threshold | None,
+) -> Path:
+    """Write realization 0 of a diagnosis at one budget: monitor, mode probabilities, route statistics.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.rrd`` file to write.
+    scenario : Scenario
+        The diagnosed scenario.
+    seed : int
+        Seed of the diagnosed runs (realization 0 is simulated again, identical).
+    routes : dict
+        Method -> route (:mod:`chatterspec.studies.routes`); the results' own routes (as diagnosed,
+        e.g. with a healthy NIS scale) are used where they carry one.
+    results : list of RouteBudget
+        Their results (the calibrated rules).
+    threshold : Threshold or None
+        Per-frame threshold of the chattering monitor's spectrogram view (None: no chattering part).
+
+    Returns
+    -------
+    Path
+    """
+    from ..detection.alarms import rule_from_dict, run_rule
+    from ..detection.route_scores import mode_log_odds
+    from ..plants.simulate import iter_simulations
+
+    sim = next(iter_simulations(scenario, 1, seed, chunk_runs=1))
+    modes: dict = {}
+    series: dict = {}
+    by_method = {r.method: r for r in results}
+    for method, route in routes.items():
+        route = by_method[method].route or route
+        rule = rule_from_dict(by_method[method].rule)
+        if method in ("smm", "imm"):
+            x0, P0 = route._x0, route._P0
+            out = route.filter.run(sim.z[:, 1:], sim.u[..., :-1, :], x0=x0, P0=P0)
+            modes[method] = (sim.t[1:], out.mu, route.labels)
+            score = mode_log_odds(out.mu, route.floor)[..., None]
+            times = sim.t[1:]
+        else:
+            rs = route.scores(sim)
+            score, times = rs.score, rs.times
+        blk = run_rule(rule, score)
+        stat = blk.statistic[0].max(axis=-1)  # the largest over the channels (the route's alarm is any)
+        label = {"frame": "score", "persistence": "exceedances in window", "cusum": "CUSUM g"}[rule.name]
+        series[method] = (times, stat, rule.threshold, label)
+    return record_diagnosis(
+        path, sim, threshold if "chattering" in routes else None, modes, route_series=series
+    )

@@ -70,18 +70,7 @@ class RecordingSummary:
             "n_frames": self.n_frames,
             "duration_s": self.duration_s,
             "wall_s": self.wall_s,
-            "events": [
-                {
-                    "kind": e.kind,
-                    "channel": e.channel,
-                    "time_s": e.time_s,
-                    "estimate_s": e.estimate_s,
-                    "frame": e.frame,
-                    "peak_hz": e.peak_hz,
-                    "peak_ratio": e.peak_ratio,
-                }
-                for e in self.events
-            ],
+            "events": [e.to_dict() for e in self.events],
             "notes": list(self.notes),
         }
 

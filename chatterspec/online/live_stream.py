@@ -64,6 +64,7 @@ import numpy as np
 from ..errors import DataFileError
 from ..plants.models import LinearModel
 from .monitor import ChatteringMonitor, DetectionEvent, MonitorSettings, MonitorUpdate
+from .monitor_types import alarm_label
 from .stream import BadRow, CsvRows, Restart, RowBlock
 from .stream_checks import RATE_CHECK_ROWS, RATE_CHECK_ROWS_MIN, LatencyStats, merge_blocks, rate_mismatch
 
@@ -103,6 +104,10 @@ class StreamEvent:
         Why a gap or restart happened.
     open_faults : tuple of str
         Channels whose fault was open when a gap or restart reset the monitor.
+    rule : str or None
+        The alarm rule of a fault event; ``false_alarms_per_hour`` its budget (None: per-frame alpha).
+    score : float or None
+        The frame score ``-log p`` of a fault event's frame (nats).
     """
 
     kind: str
@@ -115,6 +120,9 @@ class StreamEvent:
     line: int | None = None
     reason: str = ""
     open_faults: tuple[str, ...] = ()
+    rule: str | None = None
+    false_alarms_per_hour: float | None = None
+    score: float | None = None
 
     @classmethod
     def from_detection(cls, ev: DetectionEvent, wall_time: float) -> StreamEvent:
@@ -127,7 +135,10 @@ class StreamEvent:
         wall_time : float
             Unix time (s) of emission.
         """
-        return cls(ev.kind, ev.time_s, wall_time, ev.channel, ev.peak_hz, ev.peak_ratio, ev.estimate_s)
+        return cls(
+            ev.kind, ev.time_s, wall_time, ev.channel, ev.peak_hz, ev.peak_ratio, ev.estimate_s,
+            rule=ev.rule, false_alarms_per_hour=ev.false_alarms_per_hour, score=ev.score,
+        )  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -150,7 +161,8 @@ class StreamEvent:
             what = "fault start" if self.kind == "fault-start" else "fault end"
             return (
                 f"{what} on {self.channel} at t = {self.sample_time_s:.2f} s (estimated "
-                f"{self.estimate_s:.2f} s) (peak {self.ratio:.2f} x threshold at {self.peak_hz:.1f} Hz)"
+                f"{self.estimate_s:.2f} s) (peak {self.ratio:.2f} x threshold at {self.peak_hz:.1f} Hz) "
+                f"[{alarm_label(self.rule or 'frame', self.false_alarms_per_hour)}]"
             )
         at = "" if self.sample_time_s is None else f" at t = {self.sample_time_s:.3f} s"
         opened = f"; open fault(s) on {', '.join(self.open_faults)} reset" if self.open_faults else ""

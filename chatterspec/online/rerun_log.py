@@ -291,6 +291,9 @@ class RerunLogger:
         self._fault = [fault_entity(c) for c in self.channels]
         self._origin_ns: int | None = None  # earliest time logged (truth start / initial state)
         self._started = False
+        rule = monitor.rule
+        self._cusum = rule.name == "cusum"  # the alarm view draws g; else the score itself
+        self._h = float(rule.threshold) if np.isfinite(rule.threshold) else np.nan
         if send_blueprint:
             for s in sinks.streams:
                 bp = blueprint(
@@ -299,10 +302,24 @@ class RerunLogger:
                     band_hz=self.band_hz,
                     span_s=None if s is sinks.live_stream else span_s,
                     db_range=DB_RANGE,
+                    alarm=self._alarm_title(),
+                    alarm_score=self._cusum,
+                    alarm_range=(0.0, 1.5 * self._h) if self._h > 0 else None,
                     extra_row=extra_row,
                 )
                 s.send_blueprint(bp, make_active=True, make_default=True)
         self._log_static(truth)
+
+    def _alarm_title(self) -> str:
+        """The alarm view's title: the rule's statistic against its threshold, and the budget."""
+        from .monitor_types import alarm_label
+
+        rule, budget = self.monitor.rule, self.monitor.settings.false_alarms_per_hour
+        what = {"cusum": "CUSUM g", "persistence": f"score ({rule.name} {getattr(rule, 'k', '')} of "
+                f"{getattr(rule, 'n', '')})"}.get(rule.name, "score")  # fmt: skip
+        label = alarm_label(rule.name, budget).split(", ", 1)[1]
+        grey = ", grey = score" if self._cusum else ""
+        return f"{what} vs h = {rule.threshold:.3g} [nats] ({label}){grey}"
 
     def _each(self, fn: Any) -> None:
         for s in self.sinks.streams:
@@ -317,7 +334,12 @@ class RerunLogger:
         units = self.monitor.model.output_units
         lo, hi = self.band_hz
 
-        styles = series_styles(self.channels, units, has_estimate=self.monitor.settings.psi is not None)
+        styles = series_styles(
+            self.channels,
+            units,
+            has_estimate=self.monitor.settings.psi is not None,
+            alarm_statistic="CUSUM g [nats]" if self._cusum else "score -log p [nats]",
+        )
 
         def static(s: Any) -> None:
             for path, style in styles:
@@ -496,9 +518,20 @@ class RerunLogger:
         peak_hz = self._peak_hz(frames)
         s.send_columns(STATISTIC, indexes=[fcol], columns=[cols.scalars_column(stat_db, own=True)])
         s.send_columns(THRESHOLD, indexes=[_TimeIndex(pa, fns[[0, -1]])], columns=[self._zero_rows])
-        s.send_columns(VERDICT, indexes=[fcol], columns=[cols.scalars_column(flags)])
+
         s.send_columns(PEAK_HZ, indexes=[fcol], columns=[cols.scalars_column(peak_hz, own=True)])
         s.send_columns(MOST_SIGNIFICANT_HZ, indexes=[fcol], columns=[cols.scalars_column(sig_hz)])
+        # one row per frame: verdict flags, rule statistic, score, threshold (blueprint.VERDICT)
+        rows = np.empty((F, 3 * m + 1))
+        rows[:, :m] = flags
+        a = 0
+        for f in frames:
+            b = a + f.n_frames
+            rows[a:b, m : 2 * m] = f.alarm_statistic if self._cusum else f.score
+            rows[a:b, 2 * m : 3 * m] = f.score
+            a = b
+        rows[:, 3 * m] = self._h
+        s.send_columns(VERDICT, indexes=[fcol], columns=[cols.scalars_column(rows, own=True)])
         for i, c in enumerate(self.keys):
             self._send_spectra(s, f"/spectrum/{c}", fcol, fns, spectra[i])
             hit = np.flatnonzero(flags[:, i])
@@ -540,13 +573,19 @@ class RerunLogger:
 
     @staticmethod
     def _event_text(ev: DetectionEvent) -> str:
+        from .monitor_types import alarm_label
+
         db = 10.0 * np.log10(max(ev.peak_ratio, 1e-30))
+        rule = alarm_label(ev.rule, ev.false_alarms_per_hour)
         if ev.kind == "fault-start":
             return (
                 f"{ev.channel}: FAULT from {ev.time_s:.2f} s (onset ~{ev.estimate_s:.2f} s), "
-                f"{db:+.1f} dB at {ev.peak_hz:.1f} Hz"
+                f"{db:+.1f} dB at {ev.peak_hz:.1f} Hz [{rule}]"
             )
-        return f"{ev.channel}: healthy again at {ev.time_s:.2f} s (worst {db:+.1f} dB at {ev.peak_hz:.1f} Hz)"
+        return (
+            f"{ev.channel}: healthy again at {ev.time_s:.2f} s (worst {db:+.1f} dB at {ev.peak_hz:.1f} Hz) "
+            f"[{rule}]"
+        )
 
     def _send_events(self, s: Any, events: list[DetectionEvent]) -> None:
         rr, pa = self.rr, self.pa

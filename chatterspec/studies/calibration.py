@@ -14,6 +14,7 @@ import scipy.stats
 
 from .._repr import short_repr
 from .._validate import open_unit, positive_int, readonly
+from ..detection.alarm_calibration import RuleCalibration
 from ..detection.spectral import STFTConfig
 from ..detection.thresholds import Threshold
 from ..errors import CalibrationMismatchError, DataFileError, ParameterError
@@ -91,6 +92,9 @@ class Calibration:
         kept top-k tails) or ``"histogram"`` (bounded memory, :mod:`~.tail_histogram`, with
         ``pilot_runs``, ``fine_rel_width``, ``outside_window``); ``budget_bytes`` and the
         ``exact_bytes`` the exact tails would need. Empty for files of older versions.
+    alarm : RuleCalibration or None
+        The monitor's alarm rule calibrated for a false-alarm budget (rule, threshold, budget,
+        frames per hour; :mod:`chatterspec.studies.alarm_budget`), when made with ``--rule``.
     """
 
     __repr__ = short_repr  # shapes and key figures, never whole arrays
@@ -126,6 +130,7 @@ class Calibration:
     normalization: str = "analytic"
     normalization_info: dict[str, Any] = field(default_factory=dict)
     tails: dict[str, Any] = field(default_factory=dict)
+    alarm: RuleCalibration | None = None
 
     # ---- derived
     @property
@@ -288,6 +293,7 @@ class Calibration:
             },
             "agreement": ag,
             "tails": self.tails,
+            "alarm": None if self.alarm is None else self.alarm.to_dict(),
         }
         if arrays:
             d["arrays"] = {k: np.where(np.isfinite(v), v, None).tolist() for k, v in self._arrays().items()}
@@ -312,6 +318,7 @@ class Calibration:
                 "frame_family_wise": [q.to_dict() for q in self.frame_family_wise],
             },
             "tails": self.tails,
+            "alarm": None if self.alarm is None else self.alarm.to_dict(),
         }
         if arrays:
             d["arrays"] = {k: np.where(np.isfinite(v), v, None).tolist() for k, v in self._arrays().items()}
@@ -518,6 +525,7 @@ def _load_calibration(
         normalization=str(meta.get("normalization", "analytic")),
         normalization_info=dict(meta.get("normalization_info", {})),
         tails=dict(meta.get("tails", {})),
+        alarm=None if meta.get("alarm") is None else RuleCalibration.from_dict(meta["alarm"]),
     )
     if model is not None:
         cal.check(model, n_samples, config)

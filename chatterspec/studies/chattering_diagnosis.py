@@ -97,6 +97,8 @@ def calibrate_for_diagnosis(
     alpha: float = 1e-3,
     config: STFTConfig | None = None,
     progress: bool | None = False,
+    workers: int = 1,
+    scheduler: str | None = None,
 ):
     """Calibrate the per-frame chattering threshold on healthy runs of ``sc`` (other seeds than ``sc``'s).
 
@@ -115,6 +117,9 @@ def calibrate_for_diagnosis(
         STFT settings (default 1 s Hamming, 0.2 s hop).
     progress : bool or None
         Progress bar (see :func:`~chatterspec.studies.montecarlo.run_study`).
+    workers, scheduler
+        Execution (see :func:`~chatterspec.studies.montecarlo.run_study`; the result does not depend on
+        them).
 
     Returns
     -------
@@ -123,7 +128,16 @@ def calibrate_for_diagnosis(
     from .calibration import calibrate
 
     root = np.random.SeedSequence([int(seed), CALIBRATION_SALT])
-    return calibrate(healthy_version(sc), alpha, runs, root, config=config, progress=progress)
+    return calibrate(
+        healthy_version(sc),
+        alpha,
+        runs,
+        root,
+        config=config,
+        progress=progress,
+        workers=workers,
+        scheduler=scheduler,
+    )
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,0 +1,198 @@
+"""The alarm-rule options shared by ``monitor``, ``detect --record`` and ``calibrate``.
+
+``--rule {frame,persistence,cusum}``, ``--false-alarms-per-hour X``, ``--persistence-k K``,
+``--persistence-n N``, ``--cusum-drift D``, ``--alarm-hours H``. Their values are checked after
+parsing (:func:`alarm_choice`), so that a bad one is one line naming the option (exit 2), not an
+argparse usage block.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from ..detection.alarms import RULES, rule_names
+from ..errors import ParameterError
+
+__all__ = ["AlarmChoice", "add_alarm_args", "alarm_choice", "check_file_alarm"]
+
+_DEFAULT_RULE = "cusum"
+_DEFAULT_BUDGET = 1.0 / 24.0
+
+
+def add_alarm_args(p: argparse.ArgumentParser, *, what: str = "the monitor", hours: bool = True) -> None:
+    """Add the alarm options to ``p`` (``what`` names the monitor in the help texts)."""
+    rules = "; ".join(f"{name}: {spec.summary}" for name, spec in RULES.items())
+    k, n = RULES["persistence"].parameters["k"], RULES["persistence"].parameters["n"]
+    drift = RULES["cusum"].parameters["drift"]
+    p.add_argument(
+        "--rule",
+        choices=rule_names(),
+        default=None,
+        help=f"alarm rule of {what} (default {_DEFAULT_RULE}): {rules}",
+    )
+    p.add_argument(
+        "--false-alarms-per-hour",
+        dest="false_alarms_per_hour",
+        default=None,
+        metavar="X",
+        help=f"false-alarm budget of {what}: alarm starts per hour of healthy data, all channels together "
+        f"(default {_DEFAULT_BUDGET:.4g} = one per day); the rule's threshold is set for it",
+    )
+    p.add_argument(
+        "--persistence-k",
+        dest="persistence_k",
+        default=None,
+        metavar="K",
+        help=f"persistence rule: frames over the threshold among the last N (default {k})",
+    )
+    p.add_argument(
+        "--persistence-n",
+        dest="persistence_n",
+        default=None,
+        metavar="N",
+        help=f"persistence rule: window in frames (default {n})",
+    )
+    p.add_argument(
+        "--cusum-drift",
+        dest="cusum_drift",
+        default=None,
+        metavar="D",
+        help=f"CUSUM rule: drift subtracted from each frame score, nats (default {drift:g})",
+    )
+    if hours:
+        p.add_argument(
+            "--alarm-hours",
+            dest="alarm_hours",
+            default=None,
+            metavar="H",
+            help="hours of healthy data simulated to set the threshold of the persistence and CUSUM rules "
+            "(default 12 / channels, 4 for the EHA: a few seconds; a calibration file from `chatterspec "
+            "calibrate --rule ...` (48 h) gives a tighter one)",
+        )
+
+
+@dataclass(frozen=True)
+class AlarmChoice:
+    """The parsed alarm options.
+
+    Attributes
+    ----------
+    rule : str
+        Rule name (the default when not given).
+    budget : float
+        False alarms per hour (the default when not given).
+    parameters : dict
+        The rule's parameters given on the command line (``k``, ``n``; ``drift``).
+    explicit_rule, explicit_budget : bool
+        Whether ``--rule`` / ``--false-alarms-per-hour`` were given.
+    hours : float or None
+        ``--alarm-hours``.
+    """
+
+    rule: str
+    budget: float
+    parameters: dict[str, Any]
+    explicit_rule: bool
+    explicit_budget: bool
+    hours: float | None = None
+
+    def describe(self) -> str:
+        return f"{self.rule} rule at {self.budget:g} false alarms per hour"
+
+
+def _int(value: Any, option: str) -> int:
+    try:
+        v = int(str(value))
+    except ValueError:
+        raise ParameterError(f"{option} must be an integer >= 1; got {value!r}") from None
+    if v < 1:
+        raise ParameterError(f"{option} must be an integer >= 1; got {v}")
+    return v
+
+
+def alarm_choice(
+    args: argparse.Namespace, *, alpha_given: bool = False, default_rule: str | None = None
+) -> AlarmChoice:
+    """Check the alarm options of ``args`` (one ``ParameterError`` line naming the option).
+
+    ``alpha_given``: an explicit per-frame ``--alpha`` (the frame rule at that level), which
+    only the frame rule takes and which excludes ``--false-alarms-per-hour``. ``default_rule``:
+    the rule when ``--rule`` is not given (a calibration file's; else cusum).
+    """
+    from ..detection.alarm_calibration import check_budget  # scipy: not at parser build time
+
+    rule = args.rule or default_rule or _DEFAULT_RULE
+    if alpha_given and args.rule not in (None, "frame"):
+        raise ParameterError(
+            f"--alpha sets the per-frame level of the frame rule; the {args.rule} rule takes "
+            "--false-alarms-per-hour instead"
+        )
+    if alpha_given and args.false_alarms_per_hour is not None:
+        raise ParameterError(
+            "--alpha and --false-alarms-per-hour both set the frame rule's threshold: give one of them"
+        )
+    budget = (
+        _DEFAULT_BUDGET
+        if args.false_alarms_per_hour is None
+        else check_budget(args.false_alarms_per_hour, "--false-alarms-per-hour")
+    )
+    params: dict[str, Any] = {}
+    k = None if args.persistence_k is None else _int(args.persistence_k, "--persistence-k")
+    n = None if args.persistence_n is None else _int(args.persistence_n, "--persistence-n")
+    if (k is not None or n is not None) and rule != "persistence":
+        raise ParameterError(f"--persistence-k / --persistence-n apply to --rule persistence (rule: {rule})")
+    if rule == "persistence":
+        kk = RULES["persistence"].parameters["k"] if k is None else k
+        nn = RULES["persistence"].parameters["n"] if n is None else n
+        if kk > nn:
+            raise ParameterError(
+                f"--persistence-k must be <= --persistence-n (k of the last n frames); got k = {kk}, n = {nn}"
+            )
+        if k is not None:
+            params["k"] = k
+        if n is not None:
+            params["n"] = n
+    if args.cusum_drift is not None:
+        if rule != "cusum":
+            raise ParameterError(f"--cusum-drift applies to --rule cusum (rule: {rule})")
+        try:
+            d = float(args.cusum_drift)
+        except ValueError:
+            raise ParameterError(f"--cusum-drift must be a number (nats); got {args.cusum_drift!r}") from None
+        if not (math.isfinite(d) and d > 0):
+            raise ParameterError(f"--cusum-drift must be positive and finite (nats); got {d!r}")
+        params["drift"] = d
+    hours = getattr(args, "alarm_hours", None)
+    if hours is not None:
+        try:
+            hours = float(hours)
+        except ValueError:
+            raise ParameterError(f"--alarm-hours must be a number of hours; got {hours!r}") from None
+        if not (math.isfinite(hours) and hours > 0):
+            raise ParameterError(f"--alarm-hours must be positive and finite; got {hours!r}")
+    return AlarmChoice(
+        rule=rule,
+        budget=budget,
+        parameters=params,
+        explicit_rule=args.rule is not None,
+        explicit_budget=args.false_alarms_per_hour is not None,
+        hours=hours,
+    )
+
+
+def check_file_alarm(choice: AlarmChoice, cal_alarm: Any, path: Any) -> Any:
+    """The calibration file's rule calibration if it fits ``choice`` (the options given on the command
+    line), else ``CalibrationMismatchError``
+    (:func:`chatterspec.studies.alarm_budget.check_alarm_calibration`)."""
+    from ..studies.alarm_budget import check_alarm_calibration
+
+    return check_alarm_calibration(
+        cal_alarm,
+        choice.rule if choice.explicit_rule else None,
+        choice.budget if choice.explicit_budget else None,
+        choice.parameters,
+        path,
+    )
