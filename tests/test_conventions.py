@@ -135,6 +135,9 @@ def test_banks_take_store_and_the_old_spelling_warns() -> None:
     np.testing.assert_array_equal(old.P_post, new.P_post)
     with pytest.raises(cs.ParameterError, match="unknown"):
         imm.run(z, x0=np.zeros(2), P0=np.eye(2), store={"covariance"})
+    for f in (imm, cs.KalmanFilter(lin)):  # a bare string is not read letter by letter
+        with pytest.raises(cs.ParameterError, match="collection of names"):
+            f.run(z, x0=np.zeros(2), P0=np.eye(2), store="P_post")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         imm.run(z, x0=np.zeros(2), P0=np.eye(2), store={"P_post"})  # the new spelling: no warning

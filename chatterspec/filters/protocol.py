@@ -224,6 +224,8 @@ def resolve_store(store: Collection[str] | None) -> frozenset[str]:
     """The set of output fields to keep (``None`` = :data:`DEFAULT_STORE`)."""
     if store is None:
         return DEFAULT_STORE
+    if isinstance(store, str):
+        raise ParameterError(f"store is a collection of names, e.g. {{{store!r}}}; got the string {store!r}")
     keep = frozenset(store)
     bad = keep - STORABLE
     if bad:
