@@ -182,3 +182,16 @@ def test_imm_of_ekfs_with_h() -> None:
     out = imm.run(z, **kw)
     np.testing.assert_allclose(out.x_post, single.x_post, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(out.mu.sum(axis=-1), 1.0, rtol=1e-12)
+
+
+def test_svsf_takes_store_and_the_old_booleans_warn() -> None:
+    lin = cs.LinearModel(A, None, np.eye(2), Q, np.diag([1e-6, 1e-4]), DT)
+    z = np.stack([measurements(60, s) for s in range(2)]).repeat(2, axis=-1)
+    f = cs.SVSF(lin, psi=0.05)
+    new = f.run(z, store={"x_post", "e_post"})
+    assert new.x_post.shape == (2, 60, 2) and new.e_post.shape == (2, 60, 2) and new.e_lower is None
+    with pytest.warns(DeprecationWarning, match=r"store_states=True is deprecated.*store=\{'x_post'\}"):
+        old = f.run(z, store_states=True)
+    np.testing.assert_array_equal(old.x_post, new.x_post)
+    with pytest.raises(cs.ParameterError, match="unknown"):
+        f.run(z, store={"P_post"})  # the SVSF carries no covariance

@@ -24,10 +24,101 @@ import numpy as np
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError
 
-__all__ = ["BANK_STORABLE", "bank_store", "default_input", "mode_initial"]
+__all__ = [
+    "BANK_STORABLE",
+    "SVSF_STORABLE",
+    "bank_store",
+    "default_input",
+    "legacy_store",
+    "mode_initial",
+    "svsf_store",
+]
 
 #: What ``store`` may name for SMM-SVSF and IMM (x_post, mu and loglik are always returned).
 BANK_STORABLE = frozenset({"P_post", "mode_x_post"})
+#: What ``store`` may name for the chattering SVSF (``e_prior``, the chattering, is always returned).
+SVSF_STORABLE = frozenset({"x_post", "e_post", "e_lower"})
+
+
+def legacy_store(
+    store: Collection[str] | None,
+    old: dict[str, bool | None],
+    names: dict[str, str],
+    allowed: frozenset[str],
+    who: str,
+    always: str,
+) -> tuple[bool, ...]:
+    """One flag per entry of ``names`` (old keyword -> output field) from ``store`` or the old booleans.
+
+    Parameters
+    ----------
+    store : collection of str or None
+        Field names among ``allowed`` (None: none).
+    old : dict of str to bool or None
+        The old keywords as given (None: not given); any given one warns (``DeprecationWarning``).
+    names : dict of str to str
+        Old keyword -> the field it stored, in the order of the returned flags.
+    allowed : frozenset of str
+        What ``store`` may name.
+    who : str
+        The filter's name, for messages.
+    always : str
+        What is always returned, for the error message.
+
+    Returns
+    -------
+    tuple of bool
+    """
+    given = {k: v for k, v in old.items() if v is not None}
+    if given and store is not None:
+        raise ParameterError(f"{who}: give store=... only ({', '.join(given)} is its old spelling)")
+    if given:
+        new = sorted(names[k] for k, v in given.items() if v)
+        warnings.warn(
+            f"{who}: {', '.join(f'{k}={v}' for k, v in given.items())} is deprecated and will be removed in "
+            f"the next release; use store={set(new) if new else 'None'}",
+            DeprecationWarning,
+            stacklevel=4,
+        )
+        return tuple(bool(old[k]) for k in names)
+    if store is None:
+        return tuple(False for _ in names)
+    if isinstance(store, str):
+        raise ParameterError(
+            f"{who}: store is a collection of names, e.g. {{{store!r}}}; got the string {store!r}"
+        )
+    keep = frozenset(store)
+    bad = keep - allowed
+    if bad:
+        raise ParameterError(f"{who}: store may name {sorted(allowed)} ({always}); got unknown {sorted(bad)}")
+    return tuple(names[k] in keep for k in names)
+
+
+def svsf_store(
+    store: Collection[str] | None,
+    store_states: bool | None,
+    store_post_error: bool | None,
+    store_lower: bool | None,
+    who: str,
+) -> tuple[bool, bool, bool]:
+    """``(x_post, e_post, e_lower)`` flags of the chattering SVSF from ``store`` or its old booleans.
+
+    Parameters
+    ----------
+    store : collection of str or None
+        Names among :data:`SVSF_STORABLE`.
+    store_states, store_post_error, store_lower : bool or None
+        The old spellings (None when not given; a given one warns).
+    who : str
+        The filter's name, for messages.
+
+    Returns
+    -------
+    (bool, bool, bool)
+    """
+    old = {"store_states": store_states, "store_post_error": store_post_error, "store_lower": store_lower}
+    names = {"store_states": "x_post", "store_post_error": "e_post", "store_lower": "e_lower"}
+    return legacy_store(store, old, names, SVSF_STORABLE, who, "e_prior is always returned")  # type: ignore[return-value]
 
 
 def bank_store(
@@ -52,35 +143,9 @@ def bank_store(
     (bool, bool)
     """
     old = {"store_covariance": store_covariance, "store_modes": store_modes}
-    given = {k: v for k, v in old.items() if v is not None}
-    if given and store is not None:
-        raise ParameterError(
-            f"{who}: give store=... only (store_covariance / store_modes are its old spelling)"
-        )
-    if given:
-        names = {"store_covariance": "P_post", "store_modes": "mode_x_post"}
-        new = sorted(names[k] for k, v in given.items() if v)
-        warnings.warn(
-            f"{who}: {', '.join(f'{k}={v}' for k, v in given.items())} is deprecated and will be removed in "
-            f"the next release; use store={set(new) if new else 'None'}",
-            DeprecationWarning,
-            stacklevel=3,
-        )
-        return bool(store_covariance), bool(store_modes)
-    if store is None:
-        return False, False
-    if isinstance(store, str):
-        raise ParameterError(
-            f"{who}: store is a collection of names, e.g. {{{store!r}}}; got the string {store!r}"
-        )
-    keep = frozenset(store)
-    bad = keep - BANK_STORABLE
-    if bad:
-        raise ParameterError(
-            f"{who}: store may name {sorted(BANK_STORABLE)} (x_post, mu and loglik are always kept); "
-            f"got unknown {sorted(bad)}"
-        )
-    return "P_post" in keep, "mode_x_post" in keep
+    names = {"store_covariance": "P_post", "store_modes": "mode_x_post"}
+    always = "x_post, mu and loglik are always kept"
+    return legacy_store(store, old, names, BANK_STORABLE, who, always)  # type: ignore[return-value]
 
 
 def default_input(u: object | None, K: int, p: int) -> object:

@@ -301,7 +301,7 @@ def estimate_boundary_layer(
     if sc.n_samples - 1 - discard < 2:
         raise ParameterError(f"duration {sc.duration} s leaves fewer than 2 samples after discard={discard}")
     sim = simulate(sc, runs, seed)
-    out = SVSF(model, gamma=gamma, switching="sgn").run(sim.z, sim.u, store_lower=True)
+    out = SVSF(model, gamma=gamma, switching="sgn").run(sim.z, sim.u, store={"e_lower"})
     e = out.e_prior[:, 1 + discard :]
     var, var_l = healthy_chattering_variance(model)
     z = float(scipy.stats.norm.isf(p / 2.0))
@@ -552,7 +552,7 @@ def boundary_layer_study(
     while sim is not None:
         rms_x = np.sqrt(np.mean(sim.x**2, axis=1, keepdims=True))  # (runs, 1, n)
         for i, filt in enumerate(filters):
-            out = filt.run(sim.z, sim.u, store_states=True)
+            out = filt.run(sim.z, sim.u, store={"x_post"})
             ch = boundary_layer_chattering(out.e_prior[..., 0], psi_values[i])  # (runs, T)
             on = ch != 0
             c_in[i] += int(on[:, inside].sum())

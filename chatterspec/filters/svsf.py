@@ -33,6 +33,7 @@ record for batch use); :meth:`SVSF.run` is a thin loop-free wrapper around it.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -44,6 +45,7 @@ from .._validate import finite_array, open_unit
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
+from ._conventions import svsf_store
 from ._svsf_kernels import _closed_form_kernel, _rows_times, _svsf_kernel, _switch
 
 __all__ = [
@@ -270,9 +272,10 @@ class SVSF:
         z: np.ndarray,
         u: np.ndarray | None = None,
         *,
-        store_states: bool = False,
-        store_post_error: bool = False,
-        store_lower: bool = False,
+        store: Collection[str] | None = None,
+        store_states: bool | None = None,
+        store_post_error: bool | None = None,
+        store_lower: bool | None = None,
         check: bool = True,
         closed_form: bool = True,
     ) -> tuple[SVSFState, SVSFOutput]:
@@ -286,8 +289,12 @@ class SVSF:
             Measurements ``z(k+1) .. z(k+K)``; ``(K, m)`` is accepted for one run.
         u : (K, p) or (runs, K, p) array, optional
             Inputs ``u(k) .. u(k+K-1)`` (the input that drives x(k) -> x(k+1)); None: zeros.
-        store_states, store_post_error, store_lower : bool
-            Also return ``x(k|k)``, ``e(k|k)`` and (reduced-order) ``e_lower`` per sample.
+        store : collection of str, optional
+            Also return ``"x_post"`` (``x(k|k)``), ``"e_post"`` (``e(k|k)``) and (reduced-order)
+            ``"e_lower"`` per sample; ``e_prior`` (the chattering) is always returned.
+        store_states, store_post_error, store_lower : bool, optional
+            Deprecated spellings of ``store={"x_post"}``, ``{"e_post"}``, ``{"e_lower"}``
+            (``DeprecationWarning``).
         check : bool
             Validate shapes and finiteness (turn off only in trusted hot loops).
         closed_form : bool
@@ -323,9 +330,10 @@ class SVSF:
         """
         if u is None:  # no input (docs/filters.md)
             u = np.zeros((np.shape(z)[-2], self.model.n_inputs))
+        keep = svsf_store(store, store_states, store_post_error, store_lower, "SVSF")
         z, u = check_chunk(z, u, state.runs, self.model.n_outputs, self.model.n_inputs, check)
         Gu = _rows_times(u, self._GT)  # (K, n) or (runs, K, n): G u(k), element-wise
-        return self._advance(state, z, Gu, store_states, store_post_error, store_lower, closed_form)
+        return self._advance(state, z, Gu, *keep, closed_form)
 
     def _advance(
         self,
@@ -525,9 +533,10 @@ class SVSF:
         u: np.ndarray | None = None,
         *,
         x0: np.ndarray | None = None,
-        store_states: bool = False,
-        store_post_error: bool = False,
-        store_lower: bool = False,
+        store: Collection[str] | None = None,
+        store_states: bool | None = None,
+        store_post_error: bool | None = None,
+        store_lower: bool | None = None,
     ) -> SVSFOutput:
         """Filter whole records (batch mode) with the same kernel as :meth:`update`.
 
@@ -539,6 +548,10 @@ class SVSF:
             Inputs u(0) .. u(T-1) (the last one is not used); None: no input (zeros).
         x0 : array, optional
             Initial estimate x(0|0); default ``C^-1 z(0)`` (see :meth:`initialize`).
+        store : collection of str, optional
+            ``"x_post"``, ``"e_post"``, ``"e_lower"`` (see :meth:`update`).
+        store_states, store_post_error, store_lower : bool, optional
+            Deprecated spellings of ``store`` (see :meth:`update`).
 
         Returns
         -------
@@ -559,16 +572,10 @@ class SVSF:
             raise ShapeError(f"u must have {T} samples (like z) along its time axis; got {u.shape}")
         if T < 2:
             raise ShapeError(f"z needs at least 2 samples; got {T}")
+        keep = svsf_store(store, store_states, store_post_error, store_lower, "SVSF")
         state = self.initialize(z[:, 0], x0)
-        _, out = self.update(
-            state,
-            z[:, 1:],
-            u[..., :-1, :],
-            store_states=store_states,
-            store_post_error=store_post_error,
-            store_lower=store_lower,
-            check=False,
-        )
+        wanted = {f for f, k in zip(("x_post", "e_post", "e_lower"), keep, strict=True) if k}
+        _, out = self.update(state, z[:, 1:], u[..., :-1, :], store=wanted, check=False)
         runs, m, n = z.shape[0], self.model.n_outputs, self.model.n_states
 
         def with_first(arr: np.ndarray | None, first: np.ndarray) -> np.ndarray | None:
