@@ -14,30 +14,143 @@ from .errors import (
     ChatterspecError,
     DataFileError,
     DivergenceError,
+    IdentifiabilityError,
     ModelFileError,
+    ModelKindError,
     NonFiniteError,
     ParameterError,
     ShapeError,
     SingularMatrixError,
     UnknownScenarioError,
+    UnstableLoopError,
+    UnstableModelWarning,
 )
 
-# The numeric names load on first use (PEP 562), so that ``import chatterspec`` -- and with
-# it every CLI command's argument and output-path checks -- does not wait for scipy.
-_LAZY: dict[str, str] = {
-    **dict.fromkeys(("SVSF", "auxiliary_svsf", "boundary_layer_chattering", "chattering"), ".filters.svsf"),
-    **dict.fromkeys(("LinearModel", "discretize", "eha_linear", "second_order"), ".plants.models"),
-    **dict.fromkeys(("Scenario", "Segment", "catalogue", "scenario", "scenario_names"), ".plants.scenarios"),
-    **dict.fromkeys(("Chirp", "Constant", "SquareWave", "Step"), ".plants.signals"),
-    **dict.fromkeys(("Simulation", "iter_simulations", "simulate"), ".plants.simulate"),
+# THE PUBLIC API: every name a user reaches as ``chatterspec.NAME``, grouped by topic, in this one
+# table (``docs/api.md`` lists them; ``tests/test_public_api.py`` checks that each resolves and has a
+# numpydoc docstring documenting its parameters). The names load on first use (PEP 562), so that
+# ``import chatterspec`` -- and with it every CLI command's argument and output-path checks -- does
+# not wait for scipy or numba.
+_GROUPS: dict[str, dict[str, str]] = {
+    "models": {
+        **dict.fromkeys(("LinearModel", "discretize", "eha_linear", "second_order"), ".plants.models"),
+        "NonlinearModel": ".plants.nonlinear",
+        "eha4": ".plants.eha4",
+        **dict.fromkeys(("load_model", "write_model_toml"), ".plants.modelfile"),
+        "load_data": ".plants.datafile",
+    },
+    "scenarios": {
+        **dict.fromkeys(
+            ("Scenario", "Segment", "catalogue", "scenario", "scenario_names"), ".plants.scenarios"
+        ),
+        **dict.fromkeys(("Chirp", "Constant", "SquareWave", "Step"), ".plants.signals"),
+    },
+    "simulation": {
+        **dict.fromkeys(("Simulation", "iter_simulations", "simulate"), ".plants.simulate"),
+    },
+    "filters": {
+        **dict.fromkeys(("KalmanFilter", "ExtendedKalmanFilter"), ".filters.kalman"),
+        "SVSFCov": ".filters.svsf_cov",
+        "SecondOrderSVSF": ".filters.svsf2",
+        **dict.fromkeys(("IMM", "SMMSVSF", "MultipleModelOutput"), ".filters.multiple_model"),
+        **dict.fromkeys(("FilterOutput", "FilterState"), ".filters.protocol"),
+        **dict.fromkeys(("SVSF", "SVSFOutput", "auxiliary_svsf"), ".filters.svsf"),
+    },
+    "chattering": {
+        **dict.fromkeys(("boundary_layer_chattering", "chattering"), ".filters.svsf"),
+        **dict.fromkeys(("ChatteringRecord", "chattering_record"), ".detection.pipeline"),
+        **dict.fromkeys(("periodogram", "spectrogram", "STFTConfig"), ".detection.spectral"),
+    },
+    "detection": {
+        **dict.fromkeys(
+            ("DetectionReport", "detect_chunks", "detect_record", "detect_scenario"), ".detection.detect"
+        ),
+        **dict.fromkeys(("Threshold", "threshold"), ".detection.thresholds"),
+    },
+    "calibration": {
+        **dict.fromkeys(("Calibration", "calibrate", "load_calibration"), ".studies.calibration"),
+    },
+    "estimation": {
+        **dict.fromkeys(("EstimationResult", "build_filter", "estimation_study"), ".studies.estimation"),
+    },
+    "diagnosis": {
+        **dict.fromkeys(("ChatteringDiagnosis", "diagnose_chattering"), ".studies.chattering_diagnosis"),
+        **dict.fromkeys(("ModeDiagnosis", "diagnose_modes"), ".studies.mode_diagnosis"),
+    },
+    "identification": {
+        **dict.fromkeys(
+            ("Identification", "IdentificationReport", "identification_setup", "identify", "identify_record"),
+            ".detection.identification",
+        ),
+    },
+    "alarms": {
+        **dict.fromkeys(
+            (
+                "AlarmEvent",
+                "AlarmStream",
+                "CusumRule",
+                "FrameRule",
+                "PersistenceRule",
+                "make_rule",
+                "run_rule",
+            ),
+            ".detection.alarms",
+        ),
+        **dict.fromkeys(("RuleCalibration", "calibrate_rule"), ".detection.alarm_calibration"),
+        **dict.fromkeys(("FrameScore", "frame_scores"), ".detection.frame_score"),
+        "calibrate_alarm": ".studies.alarm_budget",
+        "diagnose_at_budget": ".studies.budget_diagnosis",
+    },
+    "output": {
+        **dict.fromkeys(("dumps", "rounded"), ".jsonout"),
+    },
 }
+_LAZY: dict[str, str] = {name: mod for group in _GROUPS.values() for name, mod in group.items()}
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
-    from .filters.svsf import SVSF, auxiliary_svsf, boundary_layer_chattering, chattering
+    from .detection.alarm_calibration import RuleCalibration, calibrate_rule
+    from .detection.alarms import (
+        AlarmEvent,
+        AlarmStream,
+        CusumRule,
+        FrameRule,
+        PersistenceRule,
+        make_rule,
+        run_rule,
+    )
+    from .detection.detect import DetectionReport, detect_chunks, detect_record, detect_scenario
+    from .detection.frame_score import FrameScore, frame_scores
+    from .detection.identification import (
+        Identification,
+        IdentificationReport,
+        identification_setup,
+        identify,
+        identify_record,
+    )
+    from .detection.pipeline import ChatteringRecord, chattering_record
+    from .detection.spectral import STFTConfig, periodogram, spectrogram
+    from .detection.thresholds import Threshold, threshold
+    from .filters.kalman import ExtendedKalmanFilter, KalmanFilter
+    from .filters.multiple_model import IMM, SMMSVSF, MultipleModelOutput
+    from .filters.protocol import FilterOutput, FilterState
+    from .filters.svsf import SVSF, SVSFOutput, auxiliary_svsf, boundary_layer_chattering, chattering
+    from .filters.svsf2 import SecondOrderSVSF
+    from .filters.svsf_cov import SVSFCov
+    from .jsonout import dumps, rounded
+    from .plants.datafile import load_data
+    from .plants.eha4 import eha4
+    from .plants.modelfile import load_model, write_model_toml
     from .plants.models import LinearModel, discretize, eha_linear, second_order
+    from .plants.nonlinear import NonlinearModel
     from .plants.scenarios import Scenario, Segment, catalogue, scenario, scenario_names
     from .plants.signals import Chirp, Constant, SquareWave, Step
     from .plants.simulate import Simulation, iter_simulations, simulate
+    from .studies.alarm_budget import calibrate_alarm
+    from .studies.budget_diagnosis import diagnose_at_budget
+    from .studies.calibration import Calibration, calibrate, load_calibration
+    from .studies.chattering_diagnosis import ChatteringDiagnosis, diagnose_chattering
+    from .studies.estimation import EstimationResult, build_filter, estimation_study
+    from .studies.mode_diagnosis import ModeDiagnosis, diagnose_modes
 
 
 def __getattr__(name: str) -> Any:
@@ -55,36 +168,97 @@ def __dir__() -> list[str]:
 
 __version__ = "0.1.0"
 
+# The literal list (for linters); tests/test_public_api.py checks it equals the table above plus the errors.
 __all__ = [
+    "IMM",
+    "SMMSVSF",
     "SVSF",
+    "AlarmEvent",
+    "AlarmStream",
+    "Calibration",
     "CalibrationMismatchError",
+    "ChatteringDiagnosis",
+    "ChatteringRecord",
     "ChatterspecError",
     "Chirp",
     "Constant",
+    "CusumRule",
     "DataFileError",
+    "DetectionReport",
     "DivergenceError",
+    "EstimationResult",
+    "ExtendedKalmanFilter",
+    "FilterOutput",
+    "FilterState",
+    "FrameRule",
+    "FrameScore",
+    "IdentifiabilityError",
+    "Identification",
+    "IdentificationReport",
+    "KalmanFilter",
     "LinearModel",
+    "ModeDiagnosis",
     "ModelFileError",
+    "ModelKindError",
+    "MultipleModelOutput",
     "NonFiniteError",
+    "NonlinearModel",
     "ParameterError",
+    "PersistenceRule",
+    "RuleCalibration",
+    "STFTConfig",
+    "SVSFCov",
+    "SVSFOutput",
     "Scenario",
+    "SecondOrderSVSF",
     "Segment",
     "ShapeError",
     "Simulation",
     "SingularMatrixError",
     "SquareWave",
     "Step",
+    "Threshold",
     "UnknownScenarioError",
+    "UnstableLoopError",
+    "UnstableModelWarning",
     "__version__",
     "auxiliary_svsf",
     "boundary_layer_chattering",
+    "build_filter",
+    "calibrate",
+    "calibrate_alarm",
+    "calibrate_rule",
     "catalogue",
     "chattering",
+    "chattering_record",
+    "detect_chunks",
+    "detect_record",
+    "detect_scenario",
+    "diagnose_at_budget",
+    "diagnose_chattering",
+    "diagnose_modes",
     "discretize",
+    "dumps",
+    "eha4",
     "eha_linear",
+    "estimation_study",
+    "frame_scores",
+    "identification_setup",
+    "identify",
+    "identify_record",
     "iter_simulations",
+    "load_calibration",
+    "load_data",
+    "load_model",
+    "make_rule",
+    "periodogram",
+    "rounded",
+    "run_rule",
     "scenario",
     "scenario_names",
     "second_order",
     "simulate",
+    "spectrogram",
+    "threshold",
+    "write_model_toml",
 ]

@@ -16,6 +16,7 @@ from chatterspec.detection.frame_score import FrameScore
 from chatterspec.detection.pipeline import chattering_record
 from chatterspec.detection.spectral import chattering_autocovariance, frame_columns
 from chatterspec.errors import CalibrationMismatchError, ParameterError
+from chatterspec.jsonout import rounded
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
 from chatterspec.online.stream import simulate_blocks
 from chatterspec.plants.scenarios import scenario
@@ -253,7 +254,8 @@ def test_calibration_file_records_the_rule_and_is_refused_for_another(tmp_path: 
     rc, out, err = _run(capsys, *base, "--json")
     assert rc == 0
     doc = json.loads(out)
-    assert doc["alarm"]["rule"] == c.alarm.rule.to_dict()
+    # --json rounds floats to 12 significant digits (chatterspec.jsonout): the threshold as printed
+    assert doc["alarm"]["rule"] == rounded(c.alarm.rule.to_dict())
     assert doc["alarm"]["calibration"]["hours"] == pytest.approx(1.0, rel=1e-3)
 
 

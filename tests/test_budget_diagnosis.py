@@ -218,7 +218,9 @@ def test_command_json_figure_and_recording(tmp_path, capsys) -> None:  # type: i
         rb = chunk.to_record_batch()
         times.extend(rb.column("time").cast("int64").to_pylist())
         values.extend(v[0] for v in rb.column("Scalars:scalars").to_pylist())
-    np.testing.assert_array_equal(np.asarray(values)[np.argsort(times)], g)
+    # the JSON threshold has 12 significant digits (chatterspec.jsonout): each renewal of the CUSUM
+    # carries its rounding (|dh| <= 5e-12 h) into g, so the recorded g agrees to a few renewals of that
+    np.testing.assert_allclose(np.asarray(values)[np.argsort(times)], g, rtol=0, atol=1e-9 * h)
     # the table names the rule, the budget and every route
     assert main(argv[:-4]) == 0
     out = capsys.readouterr().out

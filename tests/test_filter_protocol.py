@@ -58,8 +58,9 @@ def test_every_filter_has_the_protocol_and_output_shapes(name: str) -> None:
     assert out.innovation.shape == out.e_post.shape == (4, 25, 2)
     assert out.loglik.shape == (4, 25)
     shared = name == "kf"
-    assert out.S.shape == ((25, 2, 2) if shared else (4, 25, 2, 2))
-    assert out.P_post.shape == ((25, 3, 3) if shared else (4, 25, 3, 3))
+    # one output shape rule: a leading runs axis on every path (the shared KF's are broadcast views)
+    assert out.S.shape == (4, 25, 2, 2)
+    assert out.P_post.shape == (4, 25, 3, 3)
     assert new.P.shape == ((3, 3) if shared else (4, 3, 3))
     # the state is the last sample of the output
     np.testing.assert_array_equal(new.x, out.x_post[:, -1])

@@ -50,7 +50,7 @@ def test_sat_svsf_full_measurement_is_eq_8_by_hand(jit: str, monkeypatch: pytest
     x0 = rng.normal(scale=0.1, size=(runs, 3))  # a non-zero e(0|0), so the gamma term acts from the start
     f = SVSF(m, psi=psi, gamma=gamma)
     state = f.initialize(z[:, 0], x0=x0)
-    _, out = f.update(state, z[:, 1:], u[:-1], store_states=True, store_post_error=True)
+    _, out = f.update(state, z[:, 1:], u[:-1], store={"x_post", "e_post"})
 
     Cinv = np.linalg.inv(m.C)
     x, ebar = x0.copy(), z[:, 0] - x0 @ m.C.T
@@ -86,7 +86,7 @@ def test_sat_svsf_reduced_order_is_eq_9_to_11_by_hand(jit: str, monkeypatch: pyt
     x0 = np.column_stack([z[:, 0, 0] + 1e-4, rng.normal(scale=0.05, size=runs)])
     f = SVSF(m, psi=[psi_u, psi_l], gamma=gamma)
     state = f.initialize(z[:, 0], x0=x0)
-    _, out = f.update(state, z[:, 1:], u[:-1], store_states=True, store_lower=True)
+    _, out = f.update(state, z[:, 1:], u[:-1], store={"x_post", "e_lower"})
 
     P = 1.0 / A[0, 1]  # Phi12^-1
     L = A[1, 1] * P  # Phi22 Phi12^-1
@@ -204,7 +204,7 @@ def test_imm_equals_an_independent_imm_with_distinct_modes(
     psi, gamma = 0.03, 0.4
     svsf = None if kind == "kf" else (psi, gamma)
     bank = [KalmanFilter(m) if kind == "kf" else SVSFCov(m, psi=psi, gamma=gamma) for m in models]
-    out = IMM(bank, PI3, mu0=MU0).run(z, u, x0=x0, P0=P0, store_covariance=True)
+    out = IMM(bank, PI3, mu0=MU0).run(z, u, x0=x0, P0=P0, store={"P_post"})
     X, MU, P, spread = _reference_imm(models, PI3, MU0, x0, P0, z, u, svsf)
     np.testing.assert_allclose(out.mu, MU, rtol=1e-7, atol=1e-12)
     np.testing.assert_allclose(out.x_post, X, rtol=1e-7, atol=1e-12)

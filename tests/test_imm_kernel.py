@@ -86,7 +86,7 @@ def test_fused_imm_matches_the_protocol_path_on_the_analogue(kind: str) -> None:
     fs, z, u = analogue(600, 3)
     f = IMM(make_bank(kind, fs), fs.transition_matrix, mu0=np.array(fs.mu0), modes=fs.modes)
     assert f._fused is not None
-    kw = dict(x0=fs.x0, P0=fs.P0, store_covariance=True, store_modes=True)
+    kw = dict(x0=fs.x0, P0=fs.P0, store={"P_post", "mode_x_post"})
     a = f.run(z, u, **kw)
     b = protocol(f).run(z, u, **kw)
     assert a.modes == b.modes
@@ -110,7 +110,7 @@ def test_fused_imm_matches_on_a_linear_bank_with_per_run_inputs() -> None:
     filters = [KalmanFilter(ms[0]), SVSFCov(ms[1], psi=0.3, gamma=0.3, mapping="pinv")]
     f = IMM(filters, np.array([[0.95, 0.05], [0.1, 0.9]]), weight_floor=1e-4)
     assert f._fused is not None
-    kw = dict(x0=np.zeros(3), P0=0.1 * np.eye(3), store_covariance=True, store_modes=True)
+    kw = dict(x0=np.zeros(3), P0=0.1 * np.eye(3), store={"P_post", "mode_x_post"})
     assert_close(f.run(z, u, **kw), protocol(f).run(z, u, **kw))
 
 
@@ -118,11 +118,11 @@ def test_fused_imm_matches_on_a_linear_bank_with_per_run_inputs() -> None:
 def test_fused_imm_is_chunk_invariant_bit_for_bit() -> None:
     fs, z, u = analogue(400, 3)
     f = IMM(make_bank("mixed", fs), fs.transition_matrix, mu0=np.array(fs.mu0), modes=fs.modes)
-    whole = f.run(z, u, x0=fs.x0, P0=fs.P0, store_covariance=True, store_modes=True)
+    whole = f.run(z, u, x0=fs.x0, P0=fs.P0, store={"P_post", "mode_x_post"})
     state = f.initialize(fs.x0, fs.P0, runs=3)
     parts = []
     for a, b in ((0, 1), (1, 137), (137, 138), (138, 400)):
-        state, out = f.update(state, z[:, a:b], u[a:b], store_covariance=True, store_modes=True)
+        state, out = f.update(state, z[:, a:b], u[a:b], store={"P_post", "mode_x_post"})
         parts.append(out)
     for name in ("x_post", "mu", "loglik", "P_post", "mode_x_post"):
         np.testing.assert_array_equal(
@@ -149,7 +149,7 @@ def test_kernel_python_function_matches_the_protocol_path(monkeypatch) -> None: 
     state = f.initialize(fs.x0, fs.P0, runs=2)
     zz, uu = z, u[None]
     _st, o = ik.run_fused(f._fused, f.transition_matrix, 0.0, state, zz, uu, True, True, python=True)
-    ref = protocol(f).run(z, u, x0=fs.x0, P0=fs.P0, store_covariance=True, store_modes=True)
+    ref = protocol(f).run(z, u, x0=fs.x0, P0=fs.P0, store={"P_post", "mode_x_post"})
     np.testing.assert_allclose(o["mu"], ref.mu, rtol=0, atol=1e-9)
     np.testing.assert_allclose(o["x"], ref.x_post, rtol=1e-9, atol=0)
     np.testing.assert_allclose(o["ll"], ref.loglik, rtol=1e-9)

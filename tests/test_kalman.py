@@ -82,8 +82,8 @@ def test_kf_equals_filterpy_step_by_step(make) -> None:
             # filterpy uses the same Joseph form; only the order of floating-point sums differs,
             # so agreement is to rounding relative to the magnitudes (states up to ~1e3 here).
             np.testing.assert_allclose(out.x_post[r, k], ref.x[:, 0], rtol=1e-10, atol=1e-10)
-            np.testing.assert_allclose(out.P_post[k], ref.P, rtol=1e-10, atol=1e-12)
-            np.testing.assert_allclose(out.S[k], ref.S, rtol=1e-12)
+            np.testing.assert_allclose(out.P_post[r, k], ref.P, rtol=1e-10, atol=1e-12)
+            np.testing.assert_allclose(out.S[r, k], ref.S, rtol=1e-12)
             np.testing.assert_allclose(out.loglik[r, k], ref.log_likelihood, rtol=1e-10)
 
 
@@ -92,7 +92,7 @@ def test_loglik_is_the_gaussian_log_density() -> None:
     z, u = data(model, 2, 10)
     out = KalmanFilter(model).run(z, u, x0=np.zeros(3), P0=model.Q * 5)
     for k in (0, 4, 9):
-        want = multivariate_normal(np.zeros(2), out.S[k]).logpdf(out.innovation[:, k])
+        want = multivariate_normal(np.zeros(2), out.S[0, k]).logpdf(out.innovation[:, k])
         np.testing.assert_allclose(out.loglik[:, k], want, rtol=1e-12)
 
 
@@ -108,8 +108,10 @@ def test_ekf_on_linear_model_equals_kf(make) -> None:
     # so they agree to rounding: relative 1e-9 on states that reach ~1e3 with P entries ~1e5.
     for f in ("x_prior", "x_post", "innovation", "e_post", "loglik"):
         np.testing.assert_allclose(getattr(ekf, f), getattr(kf, f), rtol=1e-9, atol=1e-9, err_msg=f)
-    np.testing.assert_allclose(ekf.S, np.broadcast_to(kf.S, ekf.S.shape), rtol=1e-10)
-    np.testing.assert_allclose(ekf.P_post, np.broadcast_to(kf.P_post, ekf.P_post.shape), rtol=1e-8, atol=1e-8)
+    # one output shape rule: (runs, K, ...) on the shared and the per-run path alike
+    assert kf.S.shape == ekf.S.shape and kf.P_post.shape == ekf.P_post.shape
+    np.testing.assert_allclose(ekf.S, kf.S, rtol=1e-10)
+    np.testing.assert_allclose(ekf.P_post, kf.P_post, rtol=1e-8, atol=1e-8)
 
 
 def test_shared_covariance_is_computed_once() -> None:
@@ -119,9 +121,11 @@ def test_shared_covariance_is_computed_once() -> None:
     state = kf.initialize(np.zeros(3), 20 * model.Q, runs=5)
     assert state.shared_covariance and state.P.shape == (3, 3)
     new, out = kf.update(state, z, u, store=["S", "P_post", "x_post"])
-    assert new.P.shape == (3, 3) and out.S.shape == (20, 1, 1) and out.P_post.shape == (20, 3, 3)
+    # the state keeps one (n, n) matrix; the outputs have the runs axis as views of one sequence
+    assert new.P.shape == (3, 3) and out.S.shape == (5, 20, 1, 1) and out.P_post.shape == (5, 20, 3, 3)
+    assert out.P_post.base is not None and not out.P_post.flags.writeable  # a view, not 5 copies
     gains, Ppost = kf.gain_sequence(20 * model.Q, 20)
-    np.testing.assert_array_equal(Ppost, out.P_post)
+    np.testing.assert_array_equal(Ppost, out.P_post[3])
     assert gains.shape == (20, 3, 1)
 
 

@@ -44,7 +44,7 @@ def _filters() -> dict[str, tuple[str, SVSF, np.ndarray | None]]:
 
 
 def _run(f: SVSF, z: np.ndarray, u: np.ndarray, x0: np.ndarray | None):
-    return f.run(z, u, x0=x0, store_states=True, store_post_error=True, store_lower=True)
+    return f.run(z, u, x0=x0, store={"x_post", "e_post", "e_lower"})
 
 
 @needs_numba
@@ -109,11 +109,11 @@ def test_online_single_samples_equal_batch_on_both_paths(jit: str, monkeypatch: 
     sim = simulate(sc, runs=1, seed=2)
     z, u = sim.z[0, :400], sim.u[:400]
     f = SVSF(sc.nominal, psi=3 * np.sqrt(np.diag(sc.nominal.R)))
-    batch = f.run(z, u, store_states=True)
+    batch = f.run(z, u, store={"x_post"})
     state = f.initialize(z[0])
     e, x = [], []
     for k in range(1, len(z)):
-        state, out = f.update(state, z[k : k + 1], u[k - 1 : k], store_states=True, check=False)
+        state, out = f.update(state, z[k : k + 1], u[k - 1 : k], store={"x_post"}, check=False)
         e.append(out.e_prior[0, 0])
         x.append(out.x_post[0, 0])
     np.testing.assert_array_equal(np.array(e), batch.e_prior[1:])

@@ -61,7 +61,7 @@ def test_one_mode_imm_equals_its_filter(make) -> None:  # type: ignore[no-untype
     z, u = data(m)
     f = make(m)
     ref = f.run(z, u, x0=np.zeros(3), P0=P0, store=["x_post", "P_post"])
-    out = IMM([f], np.ones((1, 1))).run(z, u, x0=np.zeros(3), P0=P0, store_covariance=True)
+    out = IMM([f], np.ones((1, 1))).run(z, u, x0=np.zeros(3), P0=P0, store={"P_post"})
     # mixing with one mode is the identity and e(k|k) of the mixed estimate is the filter's own residual
     np.testing.assert_allclose(out.x_post, ref.x_post, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(
@@ -75,7 +75,7 @@ def test_imm_of_identical_kalman_filters_equals_the_kalman_filter() -> None:
     z, u = data(m, seed=4)
     ref = KalmanFilter(m).run(z, u, x0=np.zeros(3), P0=P0, store=["x_post", "P_post"])
     imm = IMM([KalmanFilter(m), ExtendedKalmanFilter(m)], PI2, mu0=np.array([0.3, 0.7]))
-    out = imm.run(z, u, x0=np.zeros(3), P0=P0, store_covariance=True, store_modes=True)
+    out = imm.run(z, u, x0=np.zeros(3), P0=P0, store={"P_post", "mode_x_post"})
     np.testing.assert_allclose(out.x_post, ref.x_post, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(
         out.P_post, np.broadcast_to(ref.P_post, out.P_post.shape), rtol=1e-8, atol=1e-13
@@ -106,7 +106,7 @@ def test_smm_of_identical_modes_equals_the_svsf() -> None:
     ref = SVSFCov(m, psi=0.3, gamma=0.3).run(z, u, x0=np.zeros(3), P0=P0, store=["x_post", "P_post"])
     for reading in ("table1", "bank"):
         smm = SMMSVSF([m, m, m], psi=0.3, gamma=0.3, reading=reading)
-        out = smm.run(z, u, x0=np.zeros(3), P0=P0, store_covariance=True)
+        out = smm.run(z, u, x0=np.zeros(3), P0=P0, store={"P_post"})
         np.testing.assert_allclose(out.x_post, ref.x_post, rtol=1e-9, atol=1e-12, err_msg=reading)
         np.testing.assert_allclose(out.P_post, ref.P_post, rtol=1e-8, atol=1e-13, err_msg=reading)
         np.testing.assert_allclose(out.mu, 1.0 / 3.0, rtol=1e-12)

@@ -23,6 +23,7 @@ def test_notebooks_exist():
         "04_estimators.ipynb",
         "05_diagnosis.ipynb",
         "06_closed_loop.ipynb",
+        "07_own_model.ipynb",
         "08_identification.ipynb",
     } <= names
 

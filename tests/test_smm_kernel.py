@@ -46,7 +46,7 @@ def test_compiled_smm_matches_the_numpy_path() -> None:
     fs, z, u = timeline(1500, 2)
     f = smm(fs)
     assert f._compiled is not None
-    kw = dict(x0=fs.x0, P0=fs.P0, store_covariance=True, store_modes=True)
+    kw = dict(x0=fs.x0, P0=fs.P0, store={"P_post", "mode_x_post"})
     a, b = f.run(z, u, **kw), numpy_path(f).run(z, u, **kw)
     scale = np.max(np.abs(b.x_post), axis=(0, 1))
     assert np.all(np.max(np.abs(a.x_post - b.x_post), axis=(0, 1)) <= 1e-10 * scale)
@@ -60,11 +60,11 @@ def test_compiled_smm_matches_the_numpy_path() -> None:
 def test_compiled_smm_is_chunk_invariant_bit_for_bit() -> None:
     fs, z, u = timeline(300, 3)
     f = smm(fs)
-    whole = f.run(z, u, x0=fs.x0, P0=fs.P0, store_covariance=True)
+    whole = f.run(z, u, x0=fs.x0, P0=fs.P0, store={"P_post"})
     state = f.initialize(fs.x0, fs.P0, runs=3)
     parts = []
     for a, b in ((0, 1), (1, 120), (120, 121), (121, 300)):
-        state, out = f.update(state, z[:, a:b], u[a:b], store_covariance=True)
+        state, out = f.update(state, z[:, a:b], u[a:b], store={"P_post"})
         parts.append(out)
     for name in ("x_post", "mu", "loglik", "P_post"):
         np.testing.assert_array_equal(

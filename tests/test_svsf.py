@@ -88,7 +88,7 @@ def test_reduced_order_fig2_variance() -> None:
     sc = scenario("so-boundary-layer")
     healthy = Scenario("h", sc.nominal, sc.input, 4.0)
     sim = simulate(healthy, runs=10, seed=5)
-    out = auxiliary_svsf(sc.nominal).run(sim.z, sim.u, store_lower=True, store_post_error=True)
+    out = auxiliary_svsf(sc.nominal).run(sim.z, sim.u, store={"e_lower", "e_post"})
     e = out.e_prior[:, 5:, 0]
     A = sc.nominal.A
     Ts, A21, A22 = 1e-3, A[1, 0], A[1, 1]
@@ -115,7 +115,7 @@ def test_reduced_order_sat_filter_runs() -> None:
     sc = scenario("so-boundary-layer")
     sim = simulate(sc, runs=2, seed=1)
     f = SVSF(sc.nominal, psi=8e-4, psi_lower=0.8)
-    out = f.run(sim.z, sim.u, store_states=True)
+    out = f.run(sim.z, sim.u, store={"x_post"})
     assert out.e_prior.shape == (2, 5001, 1) and out.x_post.shape == (2, 5001, 2)
     err = sim.x - out.x_post
     assert np.sqrt(np.mean(err[..., 0] ** 2)) < 1e-3  # position within a few noise sd
@@ -128,7 +128,7 @@ def test_huge_psi_is_a_pure_model_predictor() -> None:
     m = sc.nominal
     sim = simulate(sc, runs=2, seed=3)
     x0 = np.array([0.001, -0.01])
-    out = SVSF(m, psi=1e12).run(sim.z, sim.u, x0=x0, store_states=True)
+    out = SVSF(m, psi=1e12).run(sim.z, sim.u, x0=x0, store={"x_post"})
     pred = np.empty((sim.z.shape[1], 2))
     pred[0] = x0
     for k in range(len(pred) - 1):
@@ -146,15 +146,13 @@ def test_online_chunks_equal_batch(name: str, switching: str) -> None:
     z, u = sim.z[:, :1200], sim.u[:1200]
     psi = None if switching == "sgn" else (np.sqrt(np.diag(m.R)) * 3 if m.full_measurement else 8e-4)
     f = SVSF(m, psi=psi, psi_lower=None if m.full_measurement else 0.8, switching=switching)
-    batch = f.run(z, u, store_states=True, store_post_error=True)
+    batch = f.run(z, u, store={"x_post", "e_post"})
     state = f.initialize(z[:, 0])
     rng = np.random.default_rng(0)
     k, pieces = 0, []
     while k < z.shape[1] - 1:
         K = min(int(rng.choice([1, 1, 2, 7, 50, 333])), z.shape[1] - 1 - k)
-        state, out = f.update(
-            state, z[:, k + 1 : k + 1 + K], u[k : k + K], store_states=True, store_post_error=True
-        )
+        state, out = f.update(state, z[:, k + 1 : k + 1 + K], u[k : k + K], store={"x_post", "e_post"})
         pieces.append(out)
         k += K
     assert state.k == z.shape[1] - 1
@@ -168,16 +166,16 @@ def test_vectorized_runs_equal_per_run_calls(name: str) -> None:
     sc = scenario(name)
     sim = simulate(sc, runs=4, seed=9)
     f = SVSF(sc.nominal, psi=1.0, psi_lower=1.0)
-    batch = f.run(sim.z, sim.u, store_states=True)
+    batch = f.run(sim.z, sim.u, store={"x_post"})
     # Per-run calls take one-row BLAS paths on the numpy path (the compiled path gives the same bits), so
     # the two differ by rounding, which the filter then carries on: on the undamped Euler plant of
     # so-boundary-layer a 1e-12 difference grows to ~1e-4 over the record. The bound is the filter's own
     # response to a one-ulp perturbation of every measurement (rounding of the same size as the BLAS
     # paths'), with a factor 4 of margin; a mix-up of realizations gives differences of the signal's size.
     signs = np.random.default_rng(1).choice([-1.0, 1.0], size=sim.z.shape)
-    nudged = f.run(sim.z * (1.0 + np.finfo(float).eps * signs), sim.u, store_states=True)
+    nudged = f.run(sim.z * (1.0 + np.finfo(float).eps * signs), sim.u, store={"x_post"})
     for r in range(sim.runs):
-        single = f.run(sim.z[r], sim.u, store_states=True)
+        single = f.run(sim.z[r], sim.u, store={"x_post"})
         assert single.e_prior.shape == sim.z.shape[1:]
         for attr in ("e_prior", "x_post"):
             ref = getattr(batch, attr)[r]
@@ -214,10 +212,8 @@ def test_closed_form_path_equals_recursion(name: str) -> None:
     sim = simulate(sc, runs=4, seed=21)
     f = auxiliary_svsf(sc.nominal)
     state = f.initialize(sim.z[:, 0])
-    s_fast, fast = f.update(state, sim.z[:, 1:], sim.u[:-1], store_states=True, store_post_error=True)
-    s_loop, loop = f.update(
-        state, sim.z[:, 1:], sim.u[:-1], store_states=True, store_post_error=True, closed_form=False
-    )
+    s_fast, fast = f.update(state, sim.z[:, 1:], sim.u[:-1], store={"x_post", "e_post"})
+    s_loop, loop = f.update(state, sim.z[:, 1:], sim.u[:-1], store={"x_post", "e_post"}, closed_form=False)
     scale = np.abs(loop.e_prior).max(axis=(0, 1))
     assert np.all(np.abs(fast.e_prior - loop.e_prior).max(axis=(0, 1)) <= 1e-12 * scale)
     # the recursion keeps e(k|k) exactly zero, as the closed form assumes (eq 21 with e(0|0) = 0)
@@ -250,7 +246,7 @@ def test_nonzero_initial_error_uses_recursion_and_converges() -> None:
     sc = scenario("so-healthy-low")
     sim = simulate(sc, runs=2, seed=3)
     f = auxiliary_svsf(sc.nominal, gamma=0.5)
-    out = f.run(sim.z, sim.u, x0=np.array([0.1, -0.2]), store_post_error=True)
+    out = f.run(sim.z, sim.u, x0=np.array([0.1, -0.2]), store={"e_post"})
     e_post = np.abs(out.e_post)
     # |e(k|k)| = gamma^k |e(0|0)| exactly in exact arithmetic (eq 21); compare the first 20 steps
     ratios = e_post[:, 1:21] / e_post[:, :20]

@@ -110,7 +110,7 @@ def test_state_path_equals_the_existing_svsf() -> None:
     model = model_with(SQUARE_C)
     z, u = data(model, T=80)
     psi = [0.2, 0.5, 1.0]
-    ref = SVSF(model, psi=psi, gamma=0.3).run(z, u, x0=np.zeros(3), store_states=True)
+    ref = SVSF(model, psi=psi, gamma=0.3).run(z, u, x0=np.zeros(3), store={"x_post"})
     filt = SVSFCov(model, psi=psi, gamma=0.3)
     state = filt.initialize(np.zeros(3), np.eye(3), runs=3, e0=z[:, 0])
     _, out = filt.update(state, z[:, 1:], u[:-1])
@@ -247,7 +247,7 @@ def test_luen_mapping_equals_the_existing_reduced_order_svsf() -> None:
     model = four_state_model()
     z, u = data(model, T=80)
     psi = np.array([0.2, 0.3, 0.5, 0.8])
-    ref = SVSF(model, psi=psi, gamma=0.3).run(z, u, x0=np.zeros(4), store_states=True)
+    ref = SVSF(model, psi=psi, gamma=0.3).run(z, u, x0=np.zeros(4), store={"x_post"})
     filt = SVSFCov(model, psi=psi, gamma=0.3, mapping="luen")
     state = filt.initialize(np.zeros(4), np.eye(4), runs=3, e0=z[:, 0])
     _, out = filt.update(state, z[:, 1:], u[:-1], store=STORE)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from pathlib import Path
@@ -151,29 +150,15 @@ def load_scenario(name: str) -> Any:
     A model file's scenario is its ``[simulation]`` table (input, initial state, duration; zero input
     and 4 s by default) with the file's model as nominal model and true plant.
     """
-    if str(name).endswith(".toml"):
-        from ..plants.modelfile import load_model
-        from ..plants.modelfile_nonlinear import file_scenario
+    from ..plants.simulate import as_scenario
 
-        return file_scenario(load_model(name), name=Path(name).stem)
-    from ..plants.scenarios import scenario
-
-    return scenario(name)
+    return as_scenario(name)
 
 
 def print_json(doc: Any) -> None:
-    json.dump(doc, sys.stdout, indent=2, allow_nan=False, default=_json_default)
-    sys.stdout.write("\n")
+    from ..jsonout import dumps
 
-
-def _json_default(obj: Any) -> Any:
-    import numpy as np
-
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    raise TypeError(f"not JSON serializable: {type(obj).__name__}")
+    sys.stdout.write(dumps(doc, indent=2) + "\n")
 
 
 def check_record_path(path: str | os.PathLike | None) -> None:

@@ -346,7 +346,7 @@ class MonitorIdentification:
 
     def handle(self, out: Any) -> None:
         """Report the windows of one push."""
-        import json
+        from ..jsonout import dumps
 
         for i in range(out.n_windows):
             rep = out.report(i)
@@ -356,7 +356,7 @@ class MonitorIdentification:
             doc.pop("method", None)
             changed = rep.selected != self.selected
             if self.emit is not None and (self.every_hop or changed):
-                self.emit(json.dumps({"event": "identification", **doc}, allow_nan=False))
+                self.emit(dumps({"event": "identification", **doc}))
             if changed:
                 self.selected = rep.selected
                 line = summary_line(rep.to_dict())

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 
 from ..errors import ParameterError
+from ..jsonout import dumps
 from ._common import Outputs
 from .calibrate import execution
 
@@ -103,7 +103,7 @@ def run_closed_loop(args: argparse.Namespace) -> int:
         saved = outputs.write("--plot", args.plot, save, excitation_figure(res), args.plot)
         doc["figure"] = None if saved is None else str(saved)
     if args.json:
-        print(json.dumps(doc, indent=2))
+        print(dumps(doc, indent=2, allow_nan=True))
         outputs.finish()
         return 0
     print(

@@ -6,11 +6,11 @@ Also holds the arguments shared by the Monte Carlo study commands (calibrate, fa
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any
 
 from ..errors import ParameterError
+from ..jsonout import dumps
 from ._alarm_args import add_alarm_args, alarm_choice
 from ._common import (
     Outputs,
@@ -150,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
         saved = outputs.write("--plot", args.plot, save, calibration_figure(cal), args.plot)
         doc["figure"] = None if saved is None else str(saved)
     if args.json:
-        print(json.dumps(doc, indent=2))
+        print(dumps(doc, indent=2, allow_nan=True))
         outputs.finish()
         return 0
     if cal.alarm is not None:

@@ -281,41 +281,9 @@ def stream_chunks(
 
 
 def print_report(doc: dict) -> None:
-    th = doc["threshold"]
-    runs = doc["runs"]
-    print(f"scenario {doc['scenario']}  runs {runs}  seed {doc['seed']}")
-    print(f"threshold: {th['description']}")
-    head = (
-        f"{'channel':<10} {'detected':<9} {'peak Hz':>8} {'signif Hz':>9} {'peak ratio':>11} "
-        f"{'excess power':>13}"
-    )
-    if runs > 1:
-        head += f" {'rate':>6}"
-    if runs > 1 and "averaged_threshold" in doc:  # none for an empirical (nonlinear) calibration
-        print(f"averaged spectrum: {doc['averaged_threshold']['description']}")
-        print(
-            "(detected, signif Hz and peak ratio: averaged spectrum vs the averaged threshold; "
-            "rate: fraction of single runs detected by the single-record threshold)"
-        )
-    elif runs > 1:
-        print("(detected, signif Hz and peak ratio: run 0; rate: fraction of runs detected)")
-    print("(peak Hz: largest excess power S - E[S]; signif Hz: largest S / threshold, ratio = peak ratio)")
-    print(head)
-    for c in doc["channels"]:
-        line = (
-            f"{c['channel']:<10} {'YES' if c['detected'] else 'no':<9} {c['peak_hz']:8.2f} "
-            f"{c['most_significant_hz']:9.2f} {c['peak_ratio']:11.3f} {c['excess_power']:13.4f}"
-        )
-        if runs > 1:
-            line += f" {c['detection_rate']:6.3f}"
-        print(line)
-    print(f"fault detected: {'YES' if doc['detected'] else 'no'}")
-    if "intervals" in doc:
-        ivs = [iv for iv in doc["intervals"] if iv["channel"] == "any"]
-        shown = ", ".join(f"[{iv['onset_s']:.1f}, {iv['offset_s']:.1f}] s" for iv in ivs) or "none"
-        print(f"STFT intervals (any channel): {shown}")
-        true = ", ".join(f"[{a:g}, {b:g}) s" for a, b in doc["fault_intervals_true"]) or "none"
-        print(f"true fault windows: {true}")
+    from ..detection.report_text import detection_table
+
+    print(detection_table(doc))
     if "recording" in doc and doc["recording"]["recording"]:
         rrd = doc["recording"]["recording"]
         print(f"recording: {rrd}  (open with: chatterspec replay {rrd})")

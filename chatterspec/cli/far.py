@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import json
 
+from ..jsonout import dumps
 from ._common import Outputs, check_output_file, figure_suffixes
 from .calibrate import add_common, execution
 
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         saved = outputs.write("--plot", args.plot, save, far_figure(res), args.plot)
         doc["figure"] = None if saved is None else str(saved)
     if args.json:
-        print(json.dumps(doc, indent=2))
+        print(dumps(doc, indent=2, allow_nan=True))
         outputs.finish()
         return 0
     print(

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import signal
 import sys
 import threading
@@ -25,6 +24,7 @@ import warnings
 from pathlib import Path
 
 from ..errors import ParameterError
+from ..jsonout import dumps
 from . import _identify
 from ._alarm_args import add_alarm_args, alarm_choice
 from ._common import (
@@ -357,9 +357,9 @@ def _report_replay(args, spec, stft, summary, jsonl: bool, human, settings, iden
         if no_frame is not None:
             doc["notes"] = [*doc["notes"], no_frame]
         if jsonl:
-            _emit_line(json.dumps({"event": "summary", **doc}))
+            _emit_line(dumps({"event": "summary", **doc}, allow_nan=True))
         else:
-            print(json.dumps(doc, indent=2))
+            print(dumps(doc, indent=2, allow_nan=True))
         return 0 if no_frame is None else 1
     if no_frame is not None:
         print(f"chatterspec monitor: error: {no_frame}", file=sys.stderr)
@@ -526,9 +526,9 @@ def _report(
         if ident is not None:
             doc["identification"] = ident.to_dict()
         if jsonl:
-            _emit_line(json.dumps({"event": "summary", **doc}, allow_nan=False))
+            _emit_line(dumps({"event": "summary", **doc}))
         else:
-            print(json.dumps(doc, indent=2, allow_nan=False))
+            print(dumps(doc, indent=2))
         return
     lat = s.latency  # type: ignore[attr-defined]
     c = s.counts  # type: ignore[attr-defined]

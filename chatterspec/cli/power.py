@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 
 from ..errors import ParameterError
+from ..jsonout import dumps
 from ._common import Outputs, check_output_file, figure_suffixes
 from ._power_closed_loop import add_closed_loop_args, run_closed_loop
 from .calibrate import add_common, execution
@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
         saved = outputs.write("--plot", args.plot, save, power_figure(res), args.plot)
         doc["figure"] = None if saved is None else str(saved)
     if args.json:
-        print(json.dumps(doc, indent=2))
+        print(dumps(doc, indent=2, allow_nan=True))
         outputs.finish()
         return 0
     print(

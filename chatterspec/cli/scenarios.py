@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from ..errors import ParameterError
+from ..jsonout import dumps
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
             raise ParameterError("--model-toml needs a scenario NAME (see `chatterspec scenarios`)")
         path = export_model_toml(args.name, args.model_toml)
         if args.json:
-            print(json.dumps({"scenario": args.name, "model_toml": str(path)}, indent=2))
+            print(dumps({"scenario": args.name, "model_toml": str(path)}, indent=2))
         else:
             print(f"wrote {path} (nominal model of {args.name}; use it with `chatterspec monitor --model`)")
         return 0
@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
     if args.name is not None:
         entries = [scenario(args.name).describe()]
     if args.json:
-        print(json.dumps({"scenarios": entries}, indent=2))
+        print(dumps({"scenarios": entries}, indent=2, allow_nan=True))
         return 0
     print(
         f"{'name':<24} {'kind':<9} {'fault':<18} {'level':<26} "

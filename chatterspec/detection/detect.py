@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import _jit
+from .._repr import short_repr
 from .._validate import positive_int
 from ..errors import ModelKindError, ParameterError, ShapeError
 from ..plants.models import LinearModel
@@ -135,6 +136,8 @@ class SpectrumDetection:
     channels : tuple of str
     threshold : Threshold
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     detected: np.ndarray
     peak_hz: np.ndarray
@@ -463,6 +466,8 @@ class FrameDetection:
         Per-frame statistic ``max S / threshold`` (:func:`frame_statistic`).
     """
 
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
+
     spectrogram: Spectrogram
     threshold: Threshold
     flags: np.ndarray
@@ -562,6 +567,9 @@ class DetectionReport:
         STFT detection of run 0 (multi-segment scenarios, or when requested).
     """
 
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
+    _repr_extra = ("detected",)
+
     scenario: str | None
     channels: tuple[str, ...]
     runs: int
@@ -585,6 +593,18 @@ class DetectionReport:
     def detection_rate(self) -> dict[str, float]:
         """Fraction of the runs detected, per channel (single-record threshold)."""
         return {c: float(r) for c, r in zip(self.channels, self.per_run.detection_rate, strict=True)}
+
+    def table(self) -> str:
+        """The report as the text table ``chatterspec detect`` prints (one row per channel).
+
+        Returns
+        -------
+        str
+            See :func:`chatterspec.detection.report_text.detection_table`.
+        """
+        from .report_text import detection_table
+
+        return detection_table(self.to_dict())
 
     def to_dict(self) -> dict[str, object]:
         """JSON-ready report.

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import _jit
+from .._repr import short_repr
 from .._validate import positive_int
 from ..filters._svsf_kernels import closed_form_step
 from ..filters.nonlinear_svsf import nonlinear_chattering
@@ -58,6 +59,8 @@ class ChatteringRecord:
         The inputs u(0) .. u(N), when kept.
     """
 
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
+
     t: np.ndarray
     values: np.ndarray
     model: LinearModel
@@ -86,7 +89,7 @@ class ChatteringRecord:
 def chattering_record(
     model: LinearModel,
     z: np.ndarray,
-    u: np.ndarray,
+    u: np.ndarray | None = None,
     *,
     t0: float = 0.0,
     gamma: float = 0.1,
@@ -106,8 +109,8 @@ def chattering_record(
         ``dt`` (s) sets the time axis.
     z : (runs, T, m) or (T, m) array
         Measurements z(0) .. z(T-1); a 2-D array is treated as one realization.
-    u : (T, p), (runs, T, p) or (T,) array
-        Inputs u(0) .. u(T-1).
+    u : (T, p), (runs, T, p) or (T,) array, optional
+        Inputs u(0) .. u(T-1); None: no input (zeros).
     t0 : float
         Time of ``z[..., 0, :]`` in seconds; the record's times are
         ``t0 + k dt`` for k = 1..T-1.
@@ -125,6 +128,8 @@ def chattering_record(
     ChatteringRecord
         ``values`` of shape (runs, T - 1, m).
     """
+    if u is None:  # no input (docs/filters.md)
+        u = np.zeros((np.shape(z)[-2], model.n_inputs))
     if not is_linear(model):  # nonlinear nominal model: filters/nonlinear_svsf (full measurement)
         e = nonlinear_chattering(model, z, u, gamma=gamma, x0=x0)
     else:

@@ -123,7 +123,8 @@ def normalized_innovation_squared(e: np.ndarray, S: np.ndarray) -> np.ndarray:
         Innovations ``z(k) - C x(k|k-1)``.
     S : (..., K, m, m) or (K, m, m) array
         Their covariances (symmetric positive definite); ``(K, m, m)`` when shared by every
-        realization (the linear Kalman filter from a shared ``P0``).
+        realization (the linear Kalman filter from a shared ``P0`` returns it as a broadcast view
+        ``(runs, K, m, m)``, factored once here).
 
     Returns
     -------
@@ -137,6 +138,8 @@ def normalized_innovation_squared(e: np.ndarray, S: np.ndarray) -> np.ndarray:
     """
     e = np.asarray(e, dtype=float)
     S = np.asarray(S, dtype=float)
+    while S.ndim > 3 and S.strides[0] == 0:  # the shared KF's runs axis is a broadcast view: factor once
+        S = S[0]
     if e.ndim < 2 or S.shape[-2:] != (e.shape[-1], e.shape[-1]) or S.shape[-3] != e.shape[-2]:
         raise ShapeError(f"S must be (..., K, m, m) matching e (..., K, m); got e {e.shape}, S {S.shape}")
     try:

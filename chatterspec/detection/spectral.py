@@ -36,6 +36,7 @@ from typing import Literal
 import numpy as np
 import scipy.fft
 
+from .._repr import short_repr
 from .._validate import finite_array, positive, positive_int, readonly
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
@@ -91,6 +92,8 @@ class Periodogram:
     dt : float
         Sampling time (s).
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     freqs_hz: np.ndarray
     power: np.ndarray
@@ -376,6 +379,8 @@ class Spectrogram:
     frame_starts : (frames,) int array
         Index (in the analysed sample stream) of each frame's first sample.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     times_s: np.ndarray
     freqs_hz: np.ndarray

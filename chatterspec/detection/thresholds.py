@@ -58,6 +58,7 @@ from typing import Literal
 import numpy as np
 import scipy.special
 
+from .._repr import short_repr
 from .._validate import finite_array, open_unit, positive, positive_int, readonly
 from ..errors import ParameterError, ShapeError
 from ..plants.models import LinearModel
@@ -153,6 +154,8 @@ class Threshold:
         ``(lo, hi)`` in Hz: only bins with ``lo <= f <= hi`` are tested (None: every bin
         but DC and Nyquist).
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     values: np.ndarray
     freqs_hz: np.ndarray

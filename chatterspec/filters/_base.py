@@ -9,9 +9,11 @@ import numpy as np
 from .. import _jit
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError, SingularMatrixError
+from ..plants.measurement import has_measurement_function
 from ..plants.models import LinearModel
 from ..plants.steps import PlantSteps, plant_steps
 from . import _engine, _engine_numpy
+from ._ekf_measurement import ekf_h_numpy
 from ._finite import require_finite
 from .protocol import FilterOutput, FilterState, check_chunk, initial_state, resolve_store
 from .svsf import _rows_times
@@ -85,7 +87,7 @@ class CovarianceFilterBase:
         self,
         state: FilterState,
         z: np.ndarray,
-        u: np.ndarray,
+        u: np.ndarray | None = None,
         *,
         store: Collection[str] | None = None,
         check: bool = True,
@@ -98,8 +100,8 @@ class CovarianceFilterBase:
             Posterior after sample k (from :meth:`initialize` or a previous ``update``).
         z : (runs, K, m) array
             Measurements ``z(k+1) .. z(k+K)`` (``(K, m)`` accepted for one run).
-        u : (K, p), (runs, K, p) or (K,) array
-            Inputs ``u(k) .. u(k+K-1)`` (``u(k)`` drives ``x(k) -> x(k+1)``).
+        u : (K, p), (runs, K, p) or (K,) array, optional
+            Inputs ``u(k) .. u(k+K-1)`` (``u(k)`` drives ``x(k) -> x(k+1)``); None: no input (zeros).
         store : collection of str, optional
             Output fields to keep (default :data:`~chatterspec.filters.protocol.DEFAULT_STORE`;
             add ``"P_prior"``/``"P_post"`` for the covariances).
@@ -156,6 +158,8 @@ class CovarianceFilterBase:
         R = np.asarray(model.R, dtype=float)  # type: ignore[attr-defined]
         if P.ndim == 2:  # shared covariance given to a per-run filter (e.g. replaced by a bank)
             P = np.array(np.broadcast_to(P, (x.shape[0], *P.shape)))
+        if has_measurement_function(model):  # EKF with h(x): H = dh/dx in place of C
+            return P, ekf_h_numpy(model, x, P, ep, epp, z, u, Q, R, keep)
         corr = self._correction_step()
         n, m = x.shape[1], z.shape[2]
         compiled = _jit.enabled() and corr.mapping != _engine.MAP_LUEN and _jit.fits(n, m)
@@ -253,7 +257,9 @@ class CovarianceFilterBase:
         # F = I and Q = 0 make the engine's prediction P(k+1|k) = I P I^T + 0 = P_prior exactly
         eye, Q0 = np.broadcast_to(np.eye(n), (runs, n, n)), np.zeros((n, n))
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # checked just below
-            if _jit.enabled() and _jit.fits(n, m):
+            if has_measurement_function(model):
+                res = ekf_h_numpy(model, x, P, ep, epp, zz, None, Q0, R, keep, xp_in=xp, F_in=eye)
+            elif _jit.enabled() and _jit.fits(n, m):
                 u0 = np.zeros((1, 1, 0))
                 res = _engine.cov_loop(corr, None, x, P, ep, epp, zz, u0, C, Q0, R, keep, xp_in=xp, F_in=eye)
             else:
@@ -265,7 +271,7 @@ class CovarianceFilterBase:
     def run(
         self,
         z: np.ndarray,
-        u: np.ndarray,
+        u: np.ndarray | None = None,
         *,
         x0: np.ndarray,
         P0: np.ndarray,
@@ -277,8 +283,8 @@ class CovarianceFilterBase:
         ----------
         z : (runs, T, m) array
             Measurements ``z(1) .. z(T)`` (``(T, m)`` for one run).
-        u : (T, p), (runs, T, p) or (T,) array
-            Inputs ``u(0) .. u(T-1)``.
+        u : (T, p), (runs, T, p) or (T,) array, optional
+            Inputs ``u(0) .. u(T-1)``; None: no input (zeros).
         x0 : (n,) or (runs, n) array
             ``x(0|0)``.
         P0 : (n, n) or (runs, n, n) array

@@ -228,7 +228,7 @@ def fused_spec(filters: tuple[object, ...]) -> dict[str, object] | None:
     for f in filters:
         get = getattr(f, "_correction_step", None)
         plant = plant_steps(f.model)  # type: ignore[attr-defined]
-        if get is None or plant is None:
+        if get is None or plant is None or getattr(f.model, "h", None) is not None:  # h(x): protocol path
             return None
         corr = get()
         if corr.name == "vbl":

@@ -45,6 +45,7 @@ import numpy as np
 import scipy.linalg
 import scipy.stats
 
+from .._repr import short_repr
 from .._validate import open_unit, positive, positive_int
 from ..errors import ParameterError
 from ..plants.models import LinearModel
@@ -148,6 +149,8 @@ class BoundaryLayerEstimate:
     note : str
         Human-readable statement of the confidence of the empirical quantile.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     psi: np.ndarray
     sigma: np.ndarray
@@ -298,7 +301,7 @@ def estimate_boundary_layer(
     if sc.n_samples - 1 - discard < 2:
         raise ParameterError(f"duration {sc.duration} s leaves fewer than 2 samples after discard={discard}")
     sim = simulate(sc, runs, seed)
-    out = SVSF(model, gamma=gamma, switching="sgn").run(sim.z, sim.u, store_lower=True)
+    out = SVSF(model, gamma=gamma, switching="sgn").run(sim.z, sim.u, store={"e_lower"})
     e = out.e_prior[:, 1 + discard :]
     var, var_l = healthy_chattering_variance(model)
     z = float(scipy.stats.norm.isf(p / 2.0))
@@ -549,7 +552,7 @@ def boundary_layer_study(
     while sim is not None:
         rms_x = np.sqrt(np.mean(sim.x**2, axis=1, keepdims=True))  # (runs, 1, n)
         for i, filt in enumerate(filters):
-            out = filt.run(sim.z, sim.u, store_states=True)
+            out = filt.run(sim.z, sim.u, store={"x_post"})
             ch = boundary_layer_chattering(out.e_prior[..., 0], psi_values[i])  # (runs, T)
             on = ch != 0
             c_in[i] += int(on[:, inside].sum())

@@ -9,13 +9,15 @@ Equations ([DETC] and [IMM] baselines)::
 
 For a :class:`~chatterspec.plants.models.LinearModel` started from one shared ``P0``, the
 covariance and gain do not depend on the data: :class:`KalmanFilter` computes them once per
-sample for all realizations (``P`` stays ``(n, n)``, ``S`` is ``(K, m, m)``) and runs only the
+sample for all realizations (``P`` stays ``(n, n)``, ``S`` is one ``(K, m, m)`` sequence) and runs only the
 state recursion per realization. A per-run ``P`` (e.g. after a bank's mixing) takes the
 per-run path, and so does a single stream when the compiled kernels are on (its gain sequence
 in numpy would cost ~50 us per sample; the compiled per-run step, ~0.05 us): the same equations,
-equal to rounding, with the shared path's output shapes. :class:`ExtendedKalmanFilter` uses the
-model's own ``transition`` and batched
-``jacobian`` and works with any model that provides them.
+equal to rounding. Outputs have a leading runs axis on every path (``S`` is ``(runs, K, m, m)``;
+on the shared path a read-only broadcast view of the one ``(K, m, m)`` sequence).
+:class:`ExtendedKalmanFilter` uses the model's own ``transition`` and batched ``jacobian`` and works
+with any model that provides them; with a nonlinear measurement ``h`` it uses ``H = dh/dx`` at the
+prior in place of ``C`` (:mod:`chatterspec.filters._ekf_measurement`).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import _jit
+from .._repr import short_repr
 from ..plants.models import LinearModel
 from . import _engine, _engine_numpy, _kalman_shared
 from ._base import CovarianceFilterBase, check_model
@@ -68,6 +71,8 @@ class KalmanFilter(CovarianceFilterBase):
         If ``model`` is not a LinearModel (use :class:`ExtendedKalmanFilter`).
     """
 
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
+
     model: LinearModel
 
     def __post_init__(self) -> None:
@@ -89,8 +94,6 @@ class KalmanFilter(CovarianceFilterBase):
         if x.shape[0] == 1 and _jit.enabled() and _jit.fits(x.shape[1], z.shape[2]):
             # one stream: the per-run compiled loop, not the shared gain's Python loop over samples
             P1, res = super()._advance(x, P[None].copy(), ep, epp, z, u, keep)
-            for f in ("S", "P_prior", "P_post"):  # the shared path's shapes: (K, m, m), (K, n, n)
-                res[f] = None if res[f] is None else res[f][0]
             return P1[0], res
         model = self.model
         K = z.shape[1]
@@ -98,9 +101,10 @@ class KalmanFilter(CovarianceFilterBase):
         res = _kalman_shared.kf_shared_states(
             x, ep, epp, z, u, model.A, model.B, model.C, Kg, Sinv, logdet, keep
         )
-        res["S"] = S if "S" in keep else None
-        res["P_prior"] = Pp if "P_prior" in keep else None
-        res["P_post"] = Pq if "P_post" in keep else None
+        # one output shape rule: a leading runs axis on every path (read-only views of the shared arrays)
+        runs = x.shape[0]
+        for f, val in (("S", S), ("P_prior", Pp), ("P_post", Pq)):
+            res[f] = np.broadcast_to(val, (runs, *val.shape)) if f in keep else None
         return P, res
 
     def gain_sequence(self, P0: np.ndarray, K: int) -> tuple[np.ndarray, np.ndarray]:
@@ -136,8 +140,25 @@ class ExtendedKalmanFilter(CovarianceFilterBase):
     model : model object
         Anything with ``transition(x, u)`` (runs, n), ``jacobian(x, u)`` (runs, n, n), ``C``,
         ``Q``, ``R``, ``dt``, ``n_states``, ``n_outputs``, ``n_inputs`` (e.g. LinearModel or the
-        nonlinear EHA). With a LinearModel the EKF equals the KF (tested).
+        nonlinear EHA). With a LinearModel the EKF equals the KF (tested). A model with a
+        nonlinear measurement (``NonlinearModel(..., h=, h_jac=)``) is filtered with
+        ``e = z - h(x(k+1|k))`` and ``H = dh/dx`` at the prior in place of ``C``
+        (``docs/filters.md``; equal to filterpy's EKF, tested).
+
+    Examples
+    --------
+    >>> import numpy as np, chatterspec as cs
+    >>> A = np.array([[1.0, 0.01], [-0.04, 0.998]])
+    >>> m = cs.NonlinearModel(lambda x, u: x @ A.T, lambda x, u: np.broadcast_to(A, (*x.shape[:-1], 2, 2)),
+    ...                       None, np.diag([1e-8, 1e-6]), np.eye(1) * 1e-4, 0.01,
+    ...                       h=lambda x: np.sin(x[..., :1]),
+    ...                       h_jac=lambda x: np.stack([np.cos(x[..., 0]), 0 * x[..., 0]], -1)[..., None, :])
+    >>> out = cs.ExtendedKalmanFilter(m).run(np.zeros((50, 1)), x0=np.zeros(2), P0=np.eye(2))
+    >>> out.x_post.shape
+    (1, 50, 2)
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     model: object
 

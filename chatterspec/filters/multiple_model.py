@@ -43,17 +43,20 @@ one sample at a time. The two agree to rounding (summation order; tolerances in
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 
 from .. import _jit
+from .._repr import short_repr
 from .._validate import finite_array, nonnegative
 from ..errors import ParameterError, ShapeError, SingularMatrixError
+from ..plants.measurement import require_linear_measurement
 from . import _imm_kernel, _smm_kernel
 from ._base import check_model
+from ._conventions import bank_store, default_input, mode_initial
 from .protocol import FilterState, check_spd
 from .svsf_cov import SVSFCov, check_gamma, default_mapping, mapping_matrix, per_channel
 
@@ -357,10 +360,12 @@ class MultipleModelOutput:
     modes : tuple of str
         Mode names in bank order.
     P_post : (runs, K, n, n) array or None
-        Combined posterior covariance (only with ``store_covariance=True``).
+        Combined posterior covariance (only with ``store={"P_post"}``).
     mode_x_post : (runs, K, r, n) array or None
-        Mode-conditioned posteriors (IMM / bank; only with ``store_modes=True``).
+        Mode-conditioned posteriors (IMM / bank; only with ``store={"mode_x_post"}``).
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     x_post: np.ndarray
     mu: np.ndarray
@@ -410,7 +415,7 @@ def _check_data(z: object, u: object, runs: int, m: int, p: int) -> tuple[np.nda
     if z.shape[0] != runs or z.shape[2] != m:
         raise ShapeError(f"z must have shape ({runs}, K, {m}) (runs, samples, outputs); got {z.shape}")
     K = z.shape[1]
-    u = finite_array("u", u, ndim=(1, 2, 3))
+    u = finite_array("u", default_input(u, K, p), ndim=(1, 2, 3))
     if u.ndim == 1:
         u = u[:, None] if p == 1 else u[None, :]
     if u.ndim == 2:
@@ -429,12 +434,14 @@ class _RecordRunner:
     def run(
         self,
         z: np.ndarray,
-        u: np.ndarray,
+        u: np.ndarray | None = None,
         *,
         x0: np.ndarray,
         P0: np.ndarray,
-        store_covariance: bool = False,
-        store_modes: bool = False,
+        store: Collection[str] | None = None,
+        store_covariance: bool | None = None,
+        store_modes: bool | None = None,
+        **initial: object,
     ) -> MultipleModelOutput:
         """Filter whole records: :meth:`initialize` then one :meth:`update`.
 
@@ -442,16 +449,18 @@ class _RecordRunner:
         ----------
         z : (runs, T, m) array
             Measurements ``z(1) .. z(T)``.
-        u : (T, p) or (runs, T, p) array
-            Inputs ``u(0) .. u(T-1)``.
+        u : (T, p) or (runs, T, p) array, optional
+            Inputs ``u(0) .. u(T-1)``; None: no input (zeros).
         x0 : (n,) or (runs, n) array
             ``x(0|0)``.
         P0 : (n, n) or (runs, n, n) array
             ``P(0|0)``.
-        store_covariance : bool
+        store : collection of str, optional
             See :meth:`update`.
-        store_modes : bool
-            See :meth:`update`.
+        store_covariance, store_modes : bool, optional
+            Deprecated; see :meth:`update`.
+        **initial
+            IMM: ``mode_x0``, ``mode_P0`` (per-mode starts, see :meth:`IMM.initialize`).
 
         Returns
         -------
@@ -459,8 +468,10 @@ class _RecordRunner:
         """
         zz = finite_array("z", z, ndim=(2, 3))
         runs = 1 if zz.ndim == 2 else zz.shape[0]
-        state = self.initialize(x0, P0, runs=runs)
-        return self.update(state, zz, u, store_covariance=store_covariance, store_modes=store_modes)[1]
+        state = self.initialize(x0, P0, runs=runs, **initial)  # type: ignore[attr-defined]
+        keep = bank_store(store, store_covariance, store_modes, type(self).__name__)
+        store = {n for n, k in zip(("P_post", "mode_x_post"), keep, strict=True) if k}
+        return self.update(state, zz, u, store=store)[1]  # type: ignore[attr-defined]
 
 
 @dataclass(frozen=True, eq=False)
@@ -499,6 +510,8 @@ class SMMSVSF(_RecordRunner):
         bad ``psi`` / ``gamma`` / ``reading``.
     """
 
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
+
     models: Sequence[object]
     psi: float | np.ndarray
     gamma: float | np.ndarray = 0.1
@@ -514,6 +527,8 @@ class SMMSVSF(_RecordRunner):
     def __post_init__(self) -> None:
         models = tuple(self.models)
         _n, m = _check_bank_models(models)
+        for mdl in models:
+            require_linear_measurement(mdl, "SMM-SVSF")
         r = len(models)
         C = np.asarray(models[0].C, dtype=float)  # type: ignore[attr-defined]
         R = np.asarray(models[0].R, dtype=float)  # type: ignore[attr-defined]
@@ -583,10 +598,11 @@ class SMMSVSF(_RecordRunner):
         self,
         state: MultipleModelState,
         z: np.ndarray,
-        u: np.ndarray,
+        u: np.ndarray | None = None,
         *,
-        store_covariance: bool = False,
-        store_modes: bool = False,
+        store: Collection[str] | None = None,
+        store_covariance: bool | None = None,
+        store_modes: bool | None = None,
     ) -> tuple[MultipleModelState, MultipleModelOutput]:
         """Advance every realization over K samples (``z(k+1..k+K)``, ``u(k..k+K-1)``).
 
@@ -596,12 +612,15 @@ class SMMSVSF(_RecordRunner):
             From :meth:`initialize` or a previous update.
         z : (runs, K, m) array
             Measurements.
-        u : (K, p) or (runs, K, p) array
-            Inputs (``u(k)`` drives ``x(k) -> x(k+1)``).
-        store_covariance : bool
-            Keep the combined posterior covariance per sample (memory ``runs K n^2``).
-        store_modes : bool
-            Keep the mode-conditioned posteriors (bank reading; Table 1 keeps the mode predictions).
+        u : (K, p) or (runs, K, p) array, optional
+            Inputs (``u(k)`` drives ``x(k) -> x(k+1)``); None: no input (zeros).
+        store : collection of str, optional
+            ``"P_post"``: keep the combined posterior covariance per sample (memory ``runs K n^2``);
+            ``"mode_x_post"``: the mode-conditioned posteriors (bank reading; Table 1 keeps the mode
+            predictions).
+        store_covariance, store_modes : bool, optional
+            Deprecated spellings of ``store={"P_post"}`` / ``store={"mode_x_post"}``
+            (``DeprecationWarning``).
 
         Returns
         -------
@@ -611,6 +630,7 @@ class SMMSVSF(_RecordRunner):
             raise TypeError(f"state must be a MultipleModelState; got {type(state).__name__}")
         mdl0 = self.models[0]
         m, p = int(mdl0.n_outputs), int(mdl0.n_inputs)  # type: ignore[attr-defined]
+        store_covariance, store_modes = bank_store(store, store_covariance, store_modes, "SMMSVSF")
         z, u = _check_data(z, u, state.x.shape[0], m, p)
         if self.reading == "bank":
             return self._update_bank(state, z, u, store_covariance, store_modes)
@@ -760,6 +780,8 @@ class IMM(_RecordRunner):
         ``[0, 1/r)``.
     """
 
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
+
     filters: Sequence[object]
     transition_matrix: np.ndarray
     mu0: np.ndarray | None = None
@@ -794,8 +816,16 @@ class IMM(_RecordRunner):
         """Number of modes r."""
         return len(self.filters)
 
-    def initialize(self, x0: np.ndarray, P0: np.ndarray, *, runs: int | None = None) -> MultipleModelState:
-        """State at k = 0: every mode filter at ``(x0, P0)``, probabilities ``mu0``.
+    def initialize(
+        self,
+        x0: np.ndarray,
+        P0: np.ndarray,
+        *,
+        runs: int | None = None,
+        mode_x0: np.ndarray | None = None,
+        mode_P0: np.ndarray | None = None,
+    ) -> MultipleModelState:
+        """State at k = 0: every mode filter at ``(x0, P0)`` (or its own start), probabilities ``mu0``.
 
         Parameters
         ----------
@@ -805,6 +835,11 @@ class IMM(_RecordRunner):
             Initial covariance (symmetric positive definite).
         runs : int, optional
             Number of realizations when ``x0`` is shared.
+        mode_x0 : (r, n) or (runs, r, n) array, optional
+            Initial estimate of each mode-matched filter (default ``x0`` for every mode).
+        mode_P0 : (r, n, n) or (runs, r, n, n) array, optional
+            Initial covariance of each mode-matched filter (default ``P0``). With either given, the
+            combined ``x(0|0)``, ``P(0|0)`` are their ``mu0``-weighted combination (eq 31-33).
 
         Returns
         -------
@@ -813,7 +848,8 @@ class IMM(_RecordRunner):
         mdl = self.filters[0].model  # type: ignore[attr-defined]
         n, m = int(mdl.n_states), int(mdl.n_outputs)
         runs, x, P, mu = _init_common(n, m, self.n_modes, x0, P0, runs, self.mu0)  # type: ignore[arg-type]
-        states = tuple(f.initialize(x, P, runs=runs) for f in self.filters)  # type: ignore[attr-defined]
+        xs, Ps, x, P = mode_initial(x, P, mu, mode_x0, mode_P0, self.n_modes)
+        states = tuple(f.initialize(xs[:, j], Ps[:, j], runs=runs) for j, f in enumerate(self.filters))  # type: ignore[attr-defined]
         zero = np.zeros((runs, m))
         return MultipleModelState(x=x, P=P, mu=mu, e_post=zero, z_last=zero.copy(), mode_states=states, k=0)
 
@@ -821,10 +857,11 @@ class IMM(_RecordRunner):
         self,
         state: MultipleModelState,
         z: np.ndarray,
-        u: np.ndarray,
+        u: np.ndarray | None = None,
         *,
-        store_covariance: bool = False,
-        store_modes: bool = False,
+        store: Collection[str] | None = None,
+        store_covariance: bool | None = None,
+        store_modes: bool | None = None,
     ) -> tuple[MultipleModelState, MultipleModelOutput]:
         """Advance every realization over K samples (``z(k+1..k+K)``, ``u(k..k+K-1)``).
 
@@ -834,12 +871,14 @@ class IMM(_RecordRunner):
             From :meth:`initialize` or a previous update.
         z : (runs, K, m) array
             Measurements.
-        u : (K, p) or (runs, K, p) array
-            Inputs.
-        store_covariance : bool
-            Keep the combined posterior covariance per sample.
-        store_modes : bool
-            Keep the mode-matched posteriors per sample.
+        u : (K, p) or (runs, K, p) array, optional
+            Inputs; None: no input (zeros).
+        store : collection of str, optional
+            ``"P_post"``: keep the combined posterior covariance per sample; ``"mode_x_post"``: the
+            mode-matched posteriors per sample.
+        store_covariance, store_modes : bool, optional
+            Deprecated spellings of ``store={"P_post"}`` / ``store={"mode_x_post"}``
+            (``DeprecationWarning``).
 
         Returns
         -------
@@ -850,6 +889,7 @@ class IMM(_RecordRunner):
         mdl0 = self.filters[0].model  # type: ignore[attr-defined]
         m, p = int(mdl0.n_outputs), int(mdl0.n_inputs)
         runs = state.x.shape[0]
+        store_covariance, store_modes = bank_store(store, store_covariance, store_modes, "IMM")
         z, u = _check_data(z, u, runs, m, p)
         K = z.shape[1]
         if K and self._fused is not None and len(state.mode_states) == self.n_modes and _jit.enabled():

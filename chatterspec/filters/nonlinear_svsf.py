@@ -32,14 +32,18 @@ Only full measurement (``C`` square and invertible) is supported: the reduced-or
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._repr import short_repr
 from .._validate import finite_array, open_unit
 from ..errors import ParameterError, ShapeError, SingularMatrixError
+from ..plants.measurement import require_linear_measurement
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel
+from ._conventions import legacy_store
 from ._finite import require_finite
 from ._svsf_kernels import _rows_times
 from .svsf import check_chunk
@@ -83,6 +87,8 @@ class NonlinearSVSFOutput:
         ``x(k|k)`` if requested.
     """
 
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
+
     e_prior: np.ndarray
     x_post: np.ndarray | None = None
 
@@ -112,6 +118,7 @@ class NonlinearSgnSVSF:
     _CinvT: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
+        require_linear_measurement(self.model, "the chattering SVSF")
         if not isinstance(self.model, NonlinearModel | LinearModel):
             raise ParameterError(
                 f"model must be a NonlinearModel or LinearModel; got {type(self.model).__name__}"
@@ -162,7 +169,8 @@ class NonlinearSgnSVSF:
         z: np.ndarray,
         u: np.ndarray,
         *,
-        store_states: bool = False,
+        store: Collection[str] | None = None,
+        store_states: bool | None = None,
         closed_form: bool = True,
         check: bool = True,
     ) -> tuple[NonlinearSVSFState, NonlinearSVSFOutput]:
@@ -176,8 +184,10 @@ class NonlinearSgnSVSF:
             Measurements ``z(k+1) .. z(k+K)``.
         u : (K, p) or (runs, K, p) array
             Inputs ``u(k) .. u(k+K-1)``.
-        store_states : bool
-            Also return ``x(k|k)`` per sample.
+        store : collection of str, optional
+            ``{"x_post"}``: also return ``x(k|k)`` per sample (``e_prior`` is always returned).
+        store_states : bool, optional
+            Deprecated spelling of ``store={"x_post"}`` (``DeprecationWarning``).
         closed_form : bool
             Allow the closed form (eq 23, nonlinear) when ``e(k|k) = 0``; ``False`` forces the
             sample-by-sample recursion (same numbers up to rounding).
@@ -190,6 +200,10 @@ class NonlinearSgnSVSF:
             The chattering of every sample depends only on ``z(k)``, ``z(k+1)`` and ``u(k)``,
             evaluated element-wise, so any chunking gives the same bits.
         """
+        (store_states,) = legacy_store(
+            store, {"store_states": store_states}, {"store_states": "x_post"}, frozenset({"x_post"}),
+            "NonlinearSgnSVSF", "e_prior is always returned",
+        )  # fmt: skip
         m = self.model.n_outputs
         runs = state.runs
         z, u = check_chunk(z, u, runs, m, self.model.n_inputs, check)

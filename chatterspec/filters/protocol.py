@@ -33,6 +33,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from .._repr import short_repr
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError
 
@@ -62,6 +63,8 @@ class FilterState:
     k : int
         Index of the last processed sample.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     x: np.ndarray
     P: np.ndarray
@@ -118,17 +121,19 @@ class FilterOutput:
         Posterior ``x(k+1|k+1)``.
     innovation : (runs, K, m) array or None
         ``e(k+1|k) = z(k+1) - C x(k+1|k)``.
-    S : (runs, K, m, m) or (K, m, m) array or None
-        Innovation covariance ``C P(k+1|k) C^T + R``; ``(K, m, m)`` when shared by all runs.
+    S : (runs, K, m, m) array or None
+        Innovation covariance ``C P(k+1|k) C^T + R`` (a read-only broadcast view when shared by all runs).
     loglik : (runs, K) array or None
         ``log N(e(k+1|k); 0, S)`` (natural log), the likelihood a multiple-model bank weighs.
     e_post : (runs, K, m) array or None
         A-posteriori residual ``e(k+1|k+1)``.
-    P_prior : (runs, K, n, n) or (K, n, n) array or None
-        ``P(k+1|k)`` (stored only when requested).
-    P_post : (runs, K, n, n) or (K, n, n) array or None
-        ``P(k+1|k+1)`` (stored only when requested).
+    P_prior : (runs, K, n, n) array or None
+        ``P(k+1|k)`` (stored only when requested; a broadcast view when shared).
+    P_post : (runs, K, n, n) array or None
+        ``P(k+1|k+1)`` (stored only when requested; a broadcast view when shared).
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     x_prior: np.ndarray | None = None
     x_post: np.ndarray | None = None
@@ -145,9 +150,9 @@ class Filter(Protocol):
     """What every covariance-carrying filter provides (see the module docstring).
 
     ``initialize(x0, P0, *, runs=None, e0=None, e_prev0=None) -> FilterState``;
-    ``update(state, z, u, *, store=None, check=True) -> (FilterState, FilterOutput)`` with
-    ``z`` of shape ``(runs, K, m)`` and ``u`` of shape ``(K, p)`` or ``(runs, K, p)``;
-    ``run(z, u, *, x0, P0, store=None) -> FilterOutput``;
+    ``update(state, z, u=None, *, store=None, check=True) -> (FilterState, FilterOutput)`` with
+    ``z`` of shape ``(runs, K, m)`` and ``u`` of shape ``(K, p)`` or ``(runs, K, p)`` (None: no input);
+    ``run(z, u=None, *, x0, P0, store=None) -> FilterOutput``;
     ``correct(state, x_prior, P_prior, z, *, store=None) -> (FilterState, FilterOutput)``, the
     measurement update from a caller's prior (banks that mix predictions, [SMM] Table 1).
     ``model`` is the filter's model
@@ -171,7 +176,7 @@ class Filter(Protocol):
         self,
         state: FilterState,
         z: np.ndarray,
-        u: np.ndarray,
+        u: np.ndarray | None = None,
         *,
         store: Collection[str] | None = None,
         check: bool = True,
@@ -180,7 +185,7 @@ class Filter(Protocol):
     def run(
         self,
         z: np.ndarray,
-        u: np.ndarray,
+        u: np.ndarray | None = None,
         *,
         x0: np.ndarray,
         P0: np.ndarray,
@@ -219,6 +224,8 @@ def resolve_store(store: Collection[str] | None) -> frozenset[str]:
     """The set of output fields to keep (``None`` = :data:`DEFAULT_STORE`)."""
     if store is None:
         return DEFAULT_STORE
+    if isinstance(store, str):
+        raise ParameterError(f"store is a collection of names, e.g. {{{store!r}}}; got the string {store!r}")
     keep = frozenset(store)
     bad = keep - STORABLE
     if bad:
@@ -270,14 +277,16 @@ def initial_state(
 
 
 def check_chunk(
-    model: object, state: FilterState, z: object, u: object, check: bool
+    model: object, state: FilterState, z: object, u: object | None, check: bool
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Validate ``z`` (runs, K, m) and ``u`` (K, p) / (runs, K, p); returns ``(z, u)`` as float arrays.
+    """Validate ``z`` (runs, K, m) and ``u`` (K, p) / (runs, K, p) / None; returns ``(z, u)`` as float arrays.
 
     ``u`` comes back 3-D, ``(1, K, p)`` when shared by all runs.
     """
     m, p = model.n_outputs, model.n_inputs  # type: ignore[attr-defined]
     runs = state.runs
+    if u is None:  # no input: zeros (an autonomous model needs no u)
+        u = np.zeros((np.shape(z)[-2] if np.ndim(z) >= 2 else 0, p))
     if check:
         z = finite_array("z", z, ndim=(2, 3))
         u = finite_array("u", u, ndim=(1, 2, 3))

@@ -33,16 +33,19 @@ record for batch use); :meth:`SVSF.run` is a thin loop-free wrapper around it.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 
 from .. import _jit
+from .._repr import short_repr
 from .._validate import finite_array, open_unit
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
+from ._conventions import svsf_store
 from ._svsf_kernels import _closed_form_kernel, _rows_times, _svsf_kernel, _switch
 
 __all__ = [
@@ -88,7 +91,20 @@ class SVSFOutput:
     ``x_post``, ``e_post`` and (reduced-order only) ``e_lower`` =
     ``Phi22 Phi12^-1 e(k|k-1)``, the argument of the unmeasured states' switching
     term (eq 10, 28), are filled only when requested.
+
+    Attributes
+    ----------
+    e_prior : (runs, K, m) array
+        A-priori output error ``e(k|k-1)`` (the chattering of the ``sgn`` filter, eq 17).
+    x_post : (runs, K, n) array or None
+        Posterior estimate ``x(k|k)`` (when requested).
+    e_post : (runs, K, m) array or None
+        A-posteriori output error ``e(k|k)`` (when requested).
+    e_lower : (runs, K, n - m) array or None
+        ``Phi22 Phi12^-1 e(k|k-1)`` of the reduced-order filter (when requested).
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     e_prior: np.ndarray
     x_post: np.ndarray | None = None
@@ -124,6 +140,8 @@ class SVSF:
         If the reduced-order transformation does not exist (``Phi12`` lacks
         full column rank, e.g. more unmeasured than measured states).
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     model: LinearModel
     psi: float | np.ndarray | None = None
@@ -252,11 +270,12 @@ class SVSF:
         self,
         state: SVSFState,
         z: np.ndarray,
-        u: np.ndarray,
+        u: np.ndarray | None = None,
         *,
-        store_states: bool = False,
-        store_post_error: bool = False,
-        store_lower: bool = False,
+        store: Collection[str] | None = None,
+        store_states: bool | None = None,
+        store_post_error: bool | None = None,
+        store_lower: bool | None = None,
         check: bool = True,
         closed_form: bool = True,
     ) -> tuple[SVSFState, SVSFOutput]:
@@ -268,10 +287,14 @@ class SVSF:
             State after sample ``k``.
         z : (runs, K, m) array
             Measurements ``z(k+1) .. z(k+K)``; ``(K, m)`` is accepted for one run.
-        u : (K, p) or (runs, K, p) array
-            Inputs ``u(k) .. u(k+K-1)`` (the input that drives x(k) -> x(k+1)).
-        store_states, store_post_error, store_lower : bool
-            Also return ``x(k|k)``, ``e(k|k)`` and (reduced-order) ``e_lower`` per sample.
+        u : (K, p) or (runs, K, p) array, optional
+            Inputs ``u(k) .. u(k+K-1)`` (the input that drives x(k) -> x(k+1)); None: zeros.
+        store : collection of str, optional
+            Also return ``"x_post"`` (``x(k|k)``), ``"e_post"`` (``e(k|k)``) and (reduced-order)
+            ``"e_lower"`` per sample; ``e_prior`` (the chattering) is always returned.
+        store_states, store_post_error, store_lower : bool, optional
+            Deprecated spellings of ``store={"x_post"}``, ``{"e_post"}``, ``{"e_lower"}``
+            (``DeprecationWarning``).
         check : bool
             Validate shapes and finiteness (turn off only in trusted hot loops).
         closed_form : bool
@@ -305,9 +328,12 @@ class SVSF:
         scale, tests/test_kernels.py), since BLAS orders the sums of the
         numpy loop's matrix products differently.
         """
+        if u is None:  # no input (docs/filters.md)
+            u = np.zeros((np.shape(z)[-2], self.model.n_inputs))
+        keep = svsf_store(store, store_states, store_post_error, store_lower, "SVSF")
         z, u = check_chunk(z, u, state.runs, self.model.n_outputs, self.model.n_inputs, check)
         Gu = _rows_times(u, self._GT)  # (K, n) or (runs, K, n): G u(k), element-wise
-        return self._advance(state, z, Gu, store_states, store_post_error, store_lower, closed_form)
+        return self._advance(state, z, Gu, *keep, closed_form)
 
     def _advance(
         self,
@@ -504,12 +530,13 @@ class SVSF:
     def run(
         self,
         z: np.ndarray,
-        u: np.ndarray,
+        u: np.ndarray | None = None,
         *,
         x0: np.ndarray | None = None,
-        store_states: bool = False,
-        store_post_error: bool = False,
-        store_lower: bool = False,
+        store: Collection[str] | None = None,
+        store_states: bool | None = None,
+        store_post_error: bool | None = None,
+        store_lower: bool | None = None,
     ) -> SVSFOutput:
         """Filter whole records (batch mode) with the same kernel as :meth:`update`.
 
@@ -517,10 +544,14 @@ class SVSF:
         ----------
         z : (runs, T, m) or (T, m) array
             Measurements z(0) .. z(T-1).
-        u : (T, p), (runs, T, p) or (T,) array
-            Inputs u(0) .. u(T-1) (the last one is not used).
+        u : (T, p), (runs, T, p) or (T,) array, optional
+            Inputs u(0) .. u(T-1) (the last one is not used); None: no input (zeros).
         x0 : array, optional
             Initial estimate x(0|0); default ``C^-1 z(0)`` (see :meth:`initialize`).
+        store : collection of str, optional
+            ``"x_post"``, ``"e_post"``, ``"e_lower"`` (see :meth:`update`).
+        store_states, store_post_error, store_lower : bool, optional
+            Deprecated spellings of ``store`` (see :meth:`update`).
 
         Returns
         -------
@@ -533,7 +564,7 @@ class SVSF:
         single = z.ndim == 2
         if single:
             z = z[None]
-        u = finite_array("u", u, ndim=(1, 2, 3))
+        u = finite_array("u", np.zeros((z.shape[1], self.model.n_inputs)) if u is None else u, ndim=(1, 2, 3))
         if u.ndim == 1:
             u = u[:, None]
         T = z.shape[1]
@@ -541,16 +572,10 @@ class SVSF:
             raise ShapeError(f"u must have {T} samples (like z) along its time axis; got {u.shape}")
         if T < 2:
             raise ShapeError(f"z needs at least 2 samples; got {T}")
+        keep = svsf_store(store, store_states, store_post_error, store_lower, "SVSF")
         state = self.initialize(z[:, 0], x0)
-        _, out = self.update(
-            state,
-            z[:, 1:],
-            u[..., :-1, :],
-            store_states=store_states,
-            store_post_error=store_post_error,
-            store_lower=store_lower,
-            check=False,
-        )
+        wanted = {f for f, k in zip(("x_post", "e_post", "e_lower"), keep, strict=True) if k}
+        _, out = self.update(state, z[:, 1:], u[..., :-1, :], store=wanted, check=False)
         runs, m, n = z.shape[0], self.model.n_outputs, self.model.n_states
 
         def with_first(arr: np.ndarray | None, first: np.ndarray) -> np.ndarray | None:
@@ -623,6 +648,22 @@ def boundary_layer_chattering(e: np.ndarray, psi: float | np.ndarray) -> np.ndar
 
     ``(|e| - psi) sgn(e)`` where ``|e| > psi`` and 0 elsewhere, per channel
     (``psi`` broadcasts along the last axis).
+
+    Parameters
+    ----------
+    e : array (..., m)
+        Output errors, in output units.
+    psi : float or (m,) array
+        Smoothing boundary layer (> 0), in output units.
+
+    Returns
+    -------
+    array like ``e``
+        The part of ``e`` outside the boundary layer.
+
+    See Also
+    --------
+    chattering : the auxiliary ``sgn`` filter's chattering (eq 17).
     """
     e = np.asarray(e, dtype=float)
     psi = np.asarray(psi, dtype=float)
@@ -635,7 +676,7 @@ def boundary_layer_chattering(e: np.ndarray, psi: float | np.ndarray) -> np.ndar
 def chattering(
     model: LinearModel | NonlinearModel,
     z: np.ndarray,
-    u: np.ndarray,
+    u: np.ndarray | None = None,
     *,
     gamma: float = 0.1,
     x0: np.ndarray | None = None,
@@ -651,8 +692,8 @@ def chattering(
         prediction), as :func:`chatterspec.simulate` accepts such models too.
     z : (runs, T, m) or (T, m) array
         Measurements.
-    u : (T, p), (runs, T, p) or (T,) array
-        Inputs.
+    u : (T, p), (runs, T, p) or (T,) array, optional
+        Inputs; None: no input (zeros).
     gamma : float
         Convergence rate in (0, 1); with the default initialization it has no
         effect after the first step (e(k|k) = 0).
@@ -674,6 +715,8 @@ def chattering(
     --------
     chatterspec.filters.nonlinear_svsf.nonlinear_chattering : the nonlinear model's chattering.
     """
+    if u is None:  # no input (docs/filters.md)
+        u = np.zeros((np.shape(z)[-2], model.n_inputs))
     if isinstance(model, NonlinearModel):
         from .nonlinear_svsf import nonlinear_chattering
 

@@ -34,8 +34,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import _jit
+from .._repr import short_repr
 from .._validate import finite_array
 from ..errors import ParameterError
+from ..plants.measurement import require_linear_measurement
 from . import _engine, _engine_numpy
 from ._base import CovarianceFilterBase, check_model, is_linear
 from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets
@@ -87,6 +89,8 @@ class SecondOrderSVSF(CovarianceFilterBase):
         ``mapping="full"`` with a non-square or singular H.
     """
 
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
+
     model: object
     gamma: float | np.ndarray = 0.1
     lam: float | np.ndarray | None = None
@@ -98,6 +102,7 @@ class SecondOrderSVSF(CovarianceFilterBase):
 
     def __post_init__(self) -> None:
         check_model(self.model)
+        require_linear_measurement(self.model, "SecondOrderSVSF")
         m = int(self.model.n_outputs)  # type: ignore[attr-defined]
         C = np.asarray(self.model.C, dtype=float)  # type: ignore[attr-defined]
         mapping = default_mapping(C) if self.mapping is None else self.mapping

@@ -37,8 +37,10 @@ from typing import Literal
 import numpy as np
 
 from .. import _jit
+from .._repr import short_repr
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError, SingularMatrixError
+from ..plants.measurement import require_linear_measurement
 from . import _engine, _engine_numpy
 from ._base import CovarianceFilterBase, check_model, is_linear
 from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets
@@ -152,6 +154,8 @@ class SVSFCov(CovarianceFilterBase):
         ``mapping="full"`` with a non-square or singular C.
     """
 
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
+
     model: object
     psi: float | np.ndarray
     gamma: float | np.ndarray = 0.1
@@ -162,6 +166,7 @@ class SVSFCov(CovarianceFilterBase):
 
     def __post_init__(self) -> None:
         check_model(self.model)
+        require_linear_measurement(self.model, "SVSFCov")
         m = int(self.model.n_outputs)  # type: ignore[attr-defined]
         C = np.asarray(self.model.C, dtype=float)  # type: ignore[attr-defined]
         if not isinstance(self.vbl, bool | np.bool_):

@@ -48,7 +48,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import json
 import math
 import threading
 import time
@@ -153,7 +152,9 @@ class StreamEvent:
             k: (None if isinstance(v, float) and not math.isfinite(v) else v)
             for k, v in self.to_dict().items()
         }
-        return json.dumps(d, allow_nan=False)
+        from ..jsonout import dumps
+
+        return dumps(d)
 
     def describe(self) -> str:
         if self.kind in ("fault-start", "fault-end"):

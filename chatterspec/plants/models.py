@@ -21,6 +21,7 @@ from typing import Literal
 
 import numpy as np
 
+from .._repr import short_repr
 from .._validate import finite_array, nonnegative, positive, readonly
 from ..errors import ParameterError, ShapeError, SingularMatrixError, UnstableModelWarning
 from .parameters import ParameterMap, eha_parameter_map, second_order_parameter_map
@@ -114,8 +115,9 @@ class LinearModel:
     ----------
     A : (n, n) array
         State transition matrix.
-    B : (n, p) array
-        Input matrix (a 1-D array of length n is taken as one input).
+    B : (n, p) array or None
+        Input matrix (a 1-D array of length n is taken as one input); None for a model without
+        input (one zero input column, so the filters' ``u`` may be omitted).
     C : (m, n) array
         Measurement matrix.
     Q : (n, n) array
@@ -144,8 +146,10 @@ class LinearModel:
         On inconsistent shapes, non-finite entries, ``dt <= 0`` or invalid covariances.
     """
 
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
+
     A: np.ndarray
-    B: np.ndarray
+    B: np.ndarray | None
     C: np.ndarray
     Q: np.ndarray
     R: np.ndarray
@@ -164,7 +168,7 @@ class LinearModel:
         n = A.shape[0]
         if A.shape != (n, n):
             raise ShapeError(f"A must be square; got shape {A.shape}")
-        B = finite_array("B", self.B, ndim=(1, 2))
+        B = np.zeros((n, 1)) if self.B is None else finite_array("B", self.B, ndim=(1, 2))
         if B.ndim == 1:
             B = B[:, None]
         if B.shape[0] != n:

@@ -6,8 +6,11 @@ nonlinear plants directly in discrete time, as the explicit Euler step of the co
 :meth:`NonlinearModel.from_continuous` builds both from continuous-time ``x' = g(x, u)`` by the same
 explicit Euler step (``f = x + dt g``, ``F = I + dt dg/dx``).
 
-The measurement stays linear (``C``), as in every paper: the filters of ``chatterspec.filters`` only
-need ``model.transition(x, u)``, ``model.jacobian(x, u)``, ``model.C``, ``model.Q``, ``model.R``,
+The measurement is linear (``C``) in every paper; a user model may give a nonlinear measurement
+``h(x)`` with its Jacobian ``h_jac`` instead, which :func:`~chatterspec.simulate` and the
+:class:`~chatterspec.filters.kalman.ExtendedKalmanFilter` use (the SVSF family, whose switching
+term needs a linear ``C``, refuses such a model: :mod:`chatterspec.plants.measurement`). The filters
+only need ``model.transition(x, u)``, ``model.jacobian(x, u)``, ``model.C``, ``model.Q``, ``model.R``,
 ``model.dt`` and the sizes, which :class:`~chatterspec.plants.models.LinearModel` offers under the
 same names. :meth:`NonlinearModel.linearize` returns the small-signal ``LinearModel`` about an
 operating point.
@@ -26,8 +29,10 @@ from typing import Any
 
 import numpy as np
 
+from .._repr import short_repr
 from .._validate import finite_array, positive, positive_int, readonly
 from ..errors import ModelKindError, NonFiniteError, ParameterError, ShapeError, SingularMatrixError
+from .measurement import Measurement, measure, measurement_jacobian, measurement_matrix
 from .models import LinearModel, OscillatoryMode, _check_covariance, oscillatory_mode
 
 __all__ = ["NonlinearModel", "is_linear", "require_linear", "same_dynamics"]
@@ -58,10 +63,11 @@ def _callable_id(fn: object) -> str:
 
 @dataclass(frozen=True, eq=False)
 class NonlinearModel:
-    """A validated nonlinear discrete-time model with linear measurement.
+    """A validated nonlinear discrete-time model, with a linear (``C``) or nonlinear (``h``) measurement.
 
-    ``x(k+1) = f(x(k), u(k)) + v(k)`` with ``v ~ N(0, Q)`` and ``z(k) = C x(k) + w(k)`` with
-    ``w ~ N(0, R)`` (the nonlinear counterpart of eq 1-2 of the chattering paper).
+    ``x(k+1) = f(x(k), u(k)) + v(k)`` with ``v ~ N(0, Q)`` and ``z(k) = C x(k) + w(k)`` (or
+    ``h(x(k)) + w(k)``) with ``w ~ N(0, R)`` (the nonlinear counterpart of eq 1-2 of the chattering
+    paper).
 
     Parameters
     ----------
@@ -70,8 +76,9 @@ class NonlinearModel:
         returns (..., n). Must not modify its arguments.
     jac : callable
         Jacobian ``jac(x, u) -> (..., n, n)``, ``F[..., i, j] = d f_i / d x_j``, batched like ``f``.
-    C : (m, n) array
+    C : (m, n) array or None
         Measurement matrix (a 1-D array is one measured channel); full row rank, ``m <= n``.
+        None with ``h``: then ``C`` becomes ``h_jac`` at ``rest_state`` (sizes, :meth:`linearize`).
     Q : (n, n) array
         Process-noise covariance per step (symmetric positive semi-definite).
     R : (m, m) array
@@ -98,6 +105,11 @@ class NonlinearModel:
         Physical parameters (SI units), part of :meth:`fingerprint` and :meth:`to_dict`.
     name : str
         Short human-readable description.
+    h : callable, optional
+        Nonlinear measurement ``h(x) -> (..., m)``, batched over leading axes (give ``C=None``).
+        Only the EKF and the simulation use it; ``m = R.shape[0]``.
+    h_jac : callable, optional
+        Its Jacobian ``h_jac(x) -> (..., m, n)``, ``H[..., i, j] = d h_i / d x_j`` (required with ``h``).
 
     Raises
     ------
@@ -105,6 +117,8 @@ class NonlinearModel:
         On inconsistent shapes (including ``f`` or ``jac`` returning the wrong shape at the rest
         state), non-finite entries, ``dt <= 0`` or covariances that are not symmetric PSD.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     f: Transition
     jac: Transition
@@ -123,17 +137,20 @@ class NonlinearModel:
     rest_state: np.ndarray | None = None
     parameters: Mapping[str, float] = field(default_factory=dict)
     name: str = "nonlinear model"
+    h: Measurement | None = None
+    h_jac: Measurement | None = None
 
     def __post_init__(self) -> None:
         if not callable(self.f) or not callable(self.jac):
             raise ModelKindError("f and jac must be callables f(x, u) -> (..., n), jac(x, u) -> (..., n, n)")
-        C = finite_array("C", self.C, ndim=(1, 2))
+        C = self.C if self.h is None else measurement_matrix(self)
+        C = finite_array("C", C, ndim=(1, 2))
         if C.ndim == 1:
             C = C[None, :]
         m, n = C.shape
         if m > n:
             raise ShapeError(f"C has more rows ({m}) than states ({n})")
-        if np.linalg.matrix_rank(C) < m:
+        if self.h is None and np.linalg.matrix_rank(C) < m:  # (h_jac may vanish at the rest state)
             raise SingularMatrixError(f"C must have full row rank {m}; its rows are dependent")
         Q = finite_array("Q", self.Q, shape=(n, n))
         R = finite_array("R", self.R, shape=(m, m))
@@ -172,6 +189,17 @@ class NonlinearModel:
         u = np.zeros((2, p))
         if not (np.all(np.isfinite(self.transition(x, u))) and np.all(np.isfinite(self.jacobian(x, u)))):
             raise NonFiniteError(f"{self.name}: f or its Jacobian is not finite at the rest state")
+        if self.h is not None and not np.all(np.isfinite(self.measure(x))):
+            raise NonFiniteError(f"{self.name}: h is not finite at the rest state")
+
+    # -- measurement (chatterspec.plants.measurement) ---------------------------
+    def measure(self, x: np.ndarray) -> np.ndarray:
+        """Noise-free measurement of states ``x`` (..., n): ``h(x)`` or ``x C^T``, (..., m)."""
+        return measure(self, x)
+
+    def measurement_jacobian(self, x: np.ndarray) -> np.ndarray:
+        """``H = dh/dx`` at states ``x`` (..., n) (``C`` for a linear measurement): (..., m, n)."""
+        return measurement_jacobian(self, x)
 
     # -- sizes ---------------------------------------------------------------
     @property
@@ -337,7 +365,7 @@ class NonlinearModel:
         return LinearModel(
             A=F,
             B=G,
-            C=self.C,
+            C=self.measurement_jacobian(x0),
             Q=self.Q,
             R=self.R,
             dt=self.dt,
@@ -413,6 +441,9 @@ class NonlinearModel:
         h = hashlib.sha256()
         h.update(_callable_id(self.f).encode())
         h.update(_callable_id(self.jac).encode())
+        for fn in (self.h, self.h_jac):
+            if fn is not None:
+                h.update(_callable_id(fn).encode())
         h.update(json.dumps(self.parameters, sort_keys=True).encode())
         for arr in (self.C, self.Q, self.R, np.array([self.dt])):
             h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())

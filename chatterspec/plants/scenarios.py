@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._repr import short_repr
 from .._validate import finite_array, positive, readonly
 from ..errors import ParameterError, UnknownScenarioError
 from .closed_loop import ClosedLoop
@@ -97,6 +98,8 @@ class Scenario:
         The estimator tuning the source paper prints for this scenario (filter Q, R, P0,
         gamma, psi, Lambda, modes, ...); ``None`` for the chattering-paper scenarios.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     name: str
     nominal: LinearModel | NonlinearModel
@@ -575,6 +578,15 @@ def scenario_names() -> tuple[str, ...]:
 
 def scenario(name: str) -> Scenario:
     """Build the catalogue scenario ``name``.
+
+    Parameters
+    ----------
+    name : str
+        One of :func:`scenario_names` (``chatterspec scenarios`` lists them with descriptions).
+
+    Returns
+    -------
+    Scenario
 
     Raises
     ------

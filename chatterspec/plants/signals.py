@@ -32,7 +32,13 @@ def _times(t: object) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Constant:
-    """u(t) = value for all t (the paper's "constant unit input", Fig 8a)."""
+    """u(t) = value for all t (the paper's "constant unit input", Fig 8a).
+
+    Attributes
+    ----------
+    value : float
+        The input level (input units; default 1).
+    """
 
     value: float = 1.0
 
@@ -48,6 +54,15 @@ class Step:
     """u(t) = initial for t < time, amplitude for t >= time (seconds).
 
     ``Step(0.0)`` is the paper's unit step applied at the start of the record.
+
+    Attributes
+    ----------
+    time : float
+        Switching time in seconds (>= 0).
+    amplitude : float
+        Level from ``time`` on (input units; default 1).
+    initial : float
+        Level before ``time`` (default 0).
     """
 
     time: float = 0.0

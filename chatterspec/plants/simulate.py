@@ -8,18 +8,22 @@ All realizations advance together: the only Python loop is over time steps
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from .. import _jit
+from .._repr import short_repr
 from .._validate import positive_int
+from ..errors import ParameterError
 from ..rng import BLOCK, SeedLike, block_generator, root_seed_sequence
 from .linear_steps import advance_step, measure_step
 from .scenarios import Scenario
 
-__all__ = ["Simulation", "covariance_sqrt", "iter_simulations", "simulate"]
+__all__ = ["Simulation", "as_scenario", "covariance_sqrt", "iter_simulations", "simulate"]
 
 #: Target size (bytes) of the arrays of one internal chunk of realizations.
 CHUNK_BYTES = 192 * 2**20
@@ -44,6 +48,9 @@ class Simulation:
     first_run : int
         Global index of the first realization held here (non-zero for chunks).
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
+    _repr_extra = ("runs",)
 
     t: np.ndarray
     x: np.ndarray
@@ -81,8 +88,46 @@ def default_chunk_runs(scenario: Scenario) -> int:
     return max(64, int(CHUNK_BYTES // per_run) // 64 * 64)
 
 
+def as_scenario(scenario: Scenario | str | os.PathLike) -> Scenario:
+    """``scenario`` itself, the catalogue scenario of that name, or the scenario of a model file.
+
+    Parameters
+    ----------
+    scenario : Scenario, str or path
+        A scenario; a name of :func:`~chatterspec.plants.scenarios.scenario_names`; or a model file
+        ``NAME.toml`` (linear or nonlinear), whose scenario is its ``[simulation]`` table (input,
+        initial state, duration; zero input and 4 s by default) with the file's model as nominal
+        model and true plant, named after the file stem.
+
+    Returns
+    -------
+    Scenario
+
+    Raises
+    ------
+    UnknownScenarioError
+        For a name that is not in the catalogue (the message lists the names).
+    ParameterError
+        For anything else.
+    """
+    if isinstance(scenario, str | os.PathLike) and str(scenario).endswith(".toml"):
+        from .modelfile import load_model
+        from .modelfile_nonlinear import file_scenario
+
+        return file_scenario(load_model(scenario), name=Path(scenario).stem)
+    if isinstance(scenario, str):
+        from .scenarios import scenario as by_name
+
+        return by_name(scenario)
+    if not hasattr(scenario, "nominal"):  # a Scenario (duck-typed, as the studies pass them)
+        raise ParameterError(
+            f"scenario must be a Scenario or a catalogue name (str); got {type(scenario).__name__}"
+        )
+    return scenario
+
+
 def simulate(
-    scenario: Scenario,
+    scenario: Scenario | str,
     runs: int = 1,
     seed: SeedLike = None,
     *,
@@ -92,8 +137,9 @@ def simulate(
 
     Parameters
     ----------
-    scenario : Scenario
-        Nominal model, time-segmented true plant, input and duration.
+    scenario : Scenario or str
+        Nominal model, time-segmented true plant, input and duration; or a catalogue name
+        (``"eha-healthy"``) or a model file (``"my_model.toml"``, see :func:`as_scenario`).
     runs : int
         Number of Monte Carlo realizations (>= 1).
     seed : int, SeedSequence, Generator or None
@@ -117,6 +163,7 @@ def simulate(
     (2, 4001, 3)
     """
     runs = positive_int("runs", runs)
+    scenario = as_scenario(scenario)
     chunks = list(iter_simulations(scenario, runs, seed, chunk_runs=chunk_runs))
     if len(chunks) == 1:
         return chunks[0]
@@ -130,7 +177,7 @@ def simulate(
 
 
 def iter_simulations(
-    scenario: Scenario,
+    scenario: Scenario | str,
     runs: int,
     seed: SeedLike = None,
     *,
@@ -145,8 +192,9 @@ def iter_simulations(
 
     Parameters
     ----------
-    scenario : Scenario
-        Nominal model, time-segmented true plant, input and duration (seconds).
+    scenario : Scenario or str
+        Nominal model, time-segmented true plant, input and duration (seconds); or a catalogue name
+        or model file (:func:`as_scenario`).
     runs : int
         Number of realizations to yield in total (>= 1).
     seed : int, SeedSequence, Generator or None
@@ -172,6 +220,7 @@ def iter_simulations(
         If the scenario's input has a different number of channels than the model.
     """
     runs = positive_int("runs", runs)
+    scenario = as_scenario(scenario)
     chunk = default_chunk_runs(scenario) if chunk_runs is None else positive_int("chunk_runs", chunk_runs)
     root = root_seed_sequence(seed)
     if getattr(scenario, "closed_loop", None) is not None:

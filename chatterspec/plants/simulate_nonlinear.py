@@ -102,7 +102,9 @@ def simulate_block_nonlinear(
         )
     for k0, k1, model in ranges:
         C = model.C
-        if C.shape[0] == C.shape[1] and np.array_equal(C, np.eye(C.shape[0])):
+        if getattr(model, "h", None) is not None:  # a nonlinear measurement h(x)
+            zt[k0:k1] += model.measure(xt[k0:k1])
+        elif C.shape[0] == C.shape[1] and np.array_equal(C, np.eye(C.shape[0])):
             zt[k0:k1] += xt[k0:k1]
         else:
             zt[k0:k1] += xt[k0:k1] @ C.T

@@ -12,6 +12,7 @@ from typing import Any, Literal
 import numpy as np
 import scipy.stats
 
+from .._repr import short_repr
 from .._validate import open_unit, positive_int, readonly
 from ..detection.alarm_calibration import RuleCalibration
 from ..detection.spectral import STFTConfig
@@ -95,6 +96,8 @@ class Calibration:
         The monitor's alarm rule calibrated for a false-alarm budget (rule, threshold, budget,
         frames per hour; :mod:`chatterspec.studies.alarm_budget`), when made with ``--rule``.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     scenario: str
     model_name: str

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._repr import short_repr
 from .._validate import open_unit
 from ..detection.pipeline import chattering_record
 from ..detection.spectral import STFTConfig, spectrogram
@@ -189,6 +190,8 @@ class ChatteringDiagnosis:
     calibration : dict
         Where the threshold came from (runs, alpha, seconds or file).
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     method: str
     channels: tuple[str, ...]

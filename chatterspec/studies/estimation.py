@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from .. import filter_registry
+from .._repr import short_repr
 from .._validate import positive_int
 from ..errors import ParameterError
 from ..plants.scenarios import Scenario
@@ -298,6 +299,8 @@ class EstimationResult:
     alpha : float
         Two-sided level of the NEES/NIS intervals.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     scenario: str
     runs: int

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._repr import short_repr
 from .._validate import finite_array
 from ..errors import ParameterError
 from ..filters import ExtendedKalmanFilter
@@ -70,6 +71,8 @@ class ModeDiagnosis:
     new_modes : tuple of int
         Index of the mode switched to at each onset.
     """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     method: str
     modes: tuple[str, ...]

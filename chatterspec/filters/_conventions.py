@@ -1,0 +1,208 @@
+"""The conventions every filter and bank shares (private): what to store, inputs, per-mode starts.
+
+Documented for users in ``docs/filters.md`` ("Conventions"). In short:
+
+* **One storage option.** Every filter and bank takes ``store``: a collection of output field names
+  (``FilterOutput`` fields for a filter; ``"P_post"`` and ``"mode_x_post"`` of
+  :class:`~chatterspec.filters.multiple_model.MultipleModelOutput` for SMM-SVSF and IMM, beside the
+  fields they always return). The banks' old ``store_covariance=True`` / ``store_modes=True`` still
+  work for one release with a :class:`DeprecationWarning` naming the new spelling.
+* **Optional input.** ``u=None`` means no input (zeros of the model's ``n_inputs`` channels), so an
+  autonomous model needs no ``u`` (and a ``LinearModel`` no ``B``: ``B=None``).
+* **Per-mode start of the IMM.** ``IMM.initialize(..., mode_x0=, mode_P0=)`` starts each mode-matched
+  filter from its own estimate and covariance; the combined ``x(0|0)``, ``P(0|0)`` are their
+  ``mu0``-weighted combination ([IMM] eq 31-33).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Collection
+
+import numpy as np
+
+from .._validate import finite_array
+from ..errors import ParameterError, ShapeError
+
+__all__ = [
+    "BANK_STORABLE",
+    "SVSF_STORABLE",
+    "bank_store",
+    "default_input",
+    "legacy_store",
+    "mode_initial",
+    "svsf_store",
+]
+
+#: What ``store`` may name for SMM-SVSF and IMM (x_post, mu and loglik are always returned).
+BANK_STORABLE = frozenset({"P_post", "mode_x_post"})
+#: What ``store`` may name for the chattering SVSF (``e_prior``, the chattering, is always returned).
+SVSF_STORABLE = frozenset({"x_post", "e_post", "e_lower"})
+
+
+def legacy_store(
+    store: Collection[str] | None,
+    old: dict[str, bool | None],
+    names: dict[str, str],
+    allowed: frozenset[str],
+    who: str,
+    always: str,
+) -> tuple[bool, ...]:
+    """One flag per entry of ``names`` (old keyword -> output field) from ``store`` or the old booleans.
+
+    Parameters
+    ----------
+    store : collection of str or None
+        Field names among ``allowed`` (None: none).
+    old : dict of str to bool or None
+        The old keywords as given (None: not given); any given one warns (``DeprecationWarning``).
+    names : dict of str to str
+        Old keyword -> the field it stored, in the order of the returned flags.
+    allowed : frozenset of str
+        What ``store`` may name.
+    who : str
+        The filter's name, for messages.
+    always : str
+        What is always returned, for the error message.
+
+    Returns
+    -------
+    tuple of bool
+    """
+    given = {k: v for k, v in old.items() if v is not None}
+    if given and store is not None:
+        raise ParameterError(f"{who}: give store=... only ({', '.join(given)} is its old spelling)")
+    if given:
+        new = sorted(names[k] for k, v in given.items() if v)
+        warnings.warn(
+            f"{who}: {', '.join(f'{k}={v}' for k, v in given.items())} is deprecated and will be removed in "
+            f"the next release; use store={set(new) if new else 'None'}",
+            DeprecationWarning,
+            stacklevel=4,
+        )
+        return tuple(bool(old[k]) for k in names)
+    if store is None:
+        return tuple(False for _ in names)
+    if isinstance(store, str):
+        raise ParameterError(
+            f"{who}: store is a collection of names, e.g. {{{store!r}}}; got the string {store!r}"
+        )
+    keep = frozenset(store)
+    bad = keep - allowed
+    if bad:
+        raise ParameterError(f"{who}: store may name {sorted(allowed)} ({always}); got unknown {sorted(bad)}")
+    return tuple(names[k] in keep for k in names)
+
+
+def svsf_store(
+    store: Collection[str] | None,
+    store_states: bool | None,
+    store_post_error: bool | None,
+    store_lower: bool | None,
+    who: str,
+) -> tuple[bool, bool, bool]:
+    """``(x_post, e_post, e_lower)`` flags of the chattering SVSF from ``store`` or its old booleans.
+
+    Parameters
+    ----------
+    store : collection of str or None
+        Names among :data:`SVSF_STORABLE`.
+    store_states, store_post_error, store_lower : bool or None
+        The old spellings (None when not given; a given one warns).
+    who : str
+        The filter's name, for messages.
+
+    Returns
+    -------
+    (bool, bool, bool)
+    """
+    old = {"store_states": store_states, "store_post_error": store_post_error, "store_lower": store_lower}
+    names = {"store_states": "x_post", "store_post_error": "e_post", "store_lower": "e_lower"}
+    return legacy_store(store, old, names, SVSF_STORABLE, who, "e_prior is always returned")  # type: ignore[return-value]
+
+
+def bank_store(
+    store: Collection[str] | None,
+    store_covariance: bool | None,
+    store_modes: bool | None,
+    who: str,
+) -> tuple[bool, bool]:
+    """``(keep P_post, keep mode_x_post)`` from ``store`` or the deprecated booleans.
+
+    Parameters
+    ----------
+    store : collection of str or None
+        Names among :data:`BANK_STORABLE` (None: neither).
+    store_covariance, store_modes : bool or None
+        The old spellings (None when not given); a :class:`DeprecationWarning` names ``store``.
+    who : str
+        The bank's name, for messages.
+
+    Returns
+    -------
+    (bool, bool)
+    """
+    old = {"store_covariance": store_covariance, "store_modes": store_modes}
+    names = {"store_covariance": "P_post", "store_modes": "mode_x_post"}
+    always = "x_post, mu and loglik are always kept"
+    return legacy_store(store, old, names, BANK_STORABLE, who, always)  # type: ignore[return-value]
+
+
+def default_input(u: object | None, K: int, p: int) -> object:
+    """``u``, or zeros ``(K, p)`` when it is None (a model without input)."""
+    return np.zeros((K, p)) if u is None else u
+
+
+def mode_initial(
+    x: np.ndarray,
+    P: np.ndarray,
+    mu: np.ndarray,
+    mode_x0: object | None,
+    mode_P0: object | None,
+    r: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-mode starts ``xs`` (runs, r, n), ``Ps`` (runs, r, n, n) and the combined ``x``, ``P``.
+
+    Parameters
+    ----------
+    x, P : (runs, n), (runs, n, n) arrays
+        The common ``x0``/``P0`` (used for the modes not given per mode).
+    mu : (runs, r) array
+        Initial mode probabilities.
+    mode_x0 : (r, n) or (runs, r, n) array or None
+        Per-mode initial estimates.
+    mode_P0 : (r, n, n) or (runs, r, n, n) array or None
+        Per-mode initial covariances (each symmetric positive definite).
+    r : int
+        Number of modes.
+
+    Returns
+    -------
+    (xs, Ps, x, P)
+        With both None: the common values for every mode and ``x``, ``P`` unchanged.
+    """
+    from .multiple_model import combine  # (module-level import would be circular)
+    from .protocol import check_spd
+
+    runs, n = x.shape
+    if mode_x0 is None:
+        xs = np.broadcast_to(x[:, None], (runs, r, n))
+    else:
+        xs = finite_array("mode_x0", mode_x0, ndim=(2, 3))
+        if xs.shape[-2:] != (r, n) or (xs.ndim == 3 and xs.shape[0] not in (1, runs)):
+            raise ShapeError(f"mode_x0 must have shape ({r}, {n}) or ({runs}, {r}, {n}); got {xs.shape}")
+        xs = np.broadcast_to(xs, (runs, r, n))
+    if mode_P0 is None:
+        Ps = np.broadcast_to(P[:, None], (runs, r, n, n))
+    else:
+        Ps = finite_array("mode_P0", mode_P0, ndim=(3, 4))
+        if Ps.shape[-3:] != (r, n, n) or (Ps.ndim == 4 and Ps.shape[0] not in (1, runs)):
+            raise ShapeError(
+                f"mode_P0 must have shape ({r}, {n}, {n}) or ({runs}, {r}, {n}, {n}); got {Ps.shape}"
+            )
+        check_spd("mode_P0", Ps)
+        Ps = np.broadcast_to(Ps, (runs, r, n, n))
+    if mode_x0 is None and mode_P0 is None:
+        return np.array(xs), np.array(Ps), x, P
+    xc, Pc = combine(mu, xs, Ps)
+    return np.array(xs), np.array(Ps), xc, Pc  # type: ignore[return-value]
