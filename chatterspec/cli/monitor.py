@@ -201,7 +201,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"chatterspec monitor: warning: {w.message}", file=sys.stderr)
     from ..detection.spectral import STFTConfig  # after the model file: its errors come at once
     from ..online.monitor import ChatteringMonitor, MonitorSettings
+    from ..plants.measurement import require_linear_measurement
 
+    require_linear_measurement(spec.model, "the chattering monitor")
     if not spec.is_linear and args.calibration is None:
         raise ParameterError(
             f"{args.model} is a nonlinear model: it has no closed-form chattering spectrum, so the monitor "
