@@ -97,3 +97,29 @@ def _finite_scalar(name: str, value: float) -> float:
 def check_no_unknown_kwargs(func_name: str, kwargs: dict) -> None:
     if kwargs:
         raise TypeError(f"{func_name}() got unexpected keyword argument(s): {', '.join(kwargs)}")
+
+
+def check_band(band: object) -> tuple[float, float]:
+    """Validate a frequency band ``(lo, hi)`` in Hz: finite, ``0 <= lo < hi``.
+
+    Re-exported as :func:`chatterspec.detection.thresholds.check_band` (its public home); it lives
+    here so that model files (:mod:`chatterspec.plants.modelfile`) check ``[detector] band`` without
+    importing the detection layer.
+
+    Parameters
+    ----------
+    band : pair of float
+        Lower and upper edge (Hz), both included.
+
+    Raises
+    ------
+    ParameterError
+        If it is not two finite numbers with ``0 <= lo < hi``.
+    """
+    try:
+        lo, hi = (float(v) for v in band)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        raise ParameterError(f"band must be two numbers (lo, hi) in Hz; got {band!r}") from None
+    if not (np.isfinite(lo) and np.isfinite(hi)) or lo < 0 or hi <= lo:
+        raise ParameterError(f"band must satisfy 0 <= lo < hi (Hz, finite); got ({lo:g}, {hi:g})")
+    return lo, hi

@@ -58,7 +58,7 @@ from typing import Literal
 import numpy as np
 import scipy.special
 
-from .._validate import finite_array, open_unit, positive, positive_int, readonly
+from .._validate import check_band, finite_array, open_unit, positive, positive_int, readonly
 from ..errors import ParameterError, ShapeError
 from ..plants.models import LinearModel
 from .spectral import (
@@ -261,28 +261,6 @@ def bin_layout(freqs_hz: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]
     is_dc = np.abs(f) <= 1e-9 * nyq
     is_nyq = np.abs(f - nyq) <= 1e-9 * nyq
     return is_dc, is_nyq
-
-
-def check_band(band: object) -> Band:
-    """Validate a frequency band ``(lo, hi)`` in Hz: finite, ``0 <= lo < hi``.
-
-    Parameters
-    ----------
-    band : pair of float
-        Lower and upper edge (Hz), both included.
-
-    Raises
-    ------
-    ParameterError
-        If it is not two finite numbers with ``0 <= lo < hi``.
-    """
-    try:
-        lo, hi = (float(v) for v in band)  # type: ignore[union-attr]
-    except (TypeError, ValueError):
-        raise ParameterError(f"band must be two numbers (lo, hi) in Hz; got {band!r}") from None
-    if not (np.isfinite(lo) and np.isfinite(hi)) or lo < 0 or hi <= lo:
-        raise ParameterError(f"band must satisfy 0 <= lo < hi (Hz, finite); got ({lo:g}, {hi:g})")
-    return lo, hi
 
 
 def band_mask(freqs_hz: np.ndarray, band: Band | None) -> np.ndarray:

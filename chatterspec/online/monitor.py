@@ -46,8 +46,8 @@ import numpy as np
 
 from .. import _jit
 from .._validate import finite_array, positive_int
-from ..detection._frame_engine import _FrameEngine
 from ..detection.alarms import AlarmStream, FrameRule
+from ..detection.frame_engine import FrameEngine
 from ..detection.frame_score import FrameScore
 from ..detection.thresholds import Threshold, frame_threshold
 from ..errors import ParameterError, ShapeError
@@ -185,7 +185,7 @@ class ChatteringMonitor:
         self._n_buf = 0
         self._verdicts = _Verdicts(self.threshold, compiled=_jit.enabled())
         # frame_columns with this monitor's scratch buffers (and compiled loops when enabled: same bits)
-        self._columns = _FrameEngine(s.stft, self.dt, compiled=_jit.enabled())
+        self._columns = FrameEngine(s.stft, self.dt, compiled=_jit.enabled())
         self._no_frames = self._empty_frames()
         self._n_frames = 0
         # the frame score and the alarm rule (None: the per-frame rule at alpha, i.e. events where the

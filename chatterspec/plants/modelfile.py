@@ -65,6 +65,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .._validate import check_band
 from ..errors import ChatterspecError, ModelFileError, UnstableModelWarning
 from .datafile import TIME_COLUMNS, DataSet, load_data
 from .models import LinearModel, discretize
@@ -296,8 +297,6 @@ def detector_table(doc: Mapping[str, Any], dt: float, where: str) -> dict[str, A
 
 def _detector_band(value: object, where: str) -> tuple[float, float]:
     """``[detector] band = [lo, hi]`` (Hz) validated into a tuple; errors name the file and field."""
-    from ..detection.thresholds import check_band
-
     if isinstance(value, (str, bytes)):
         raise ModelFileError(f"{where}: [detector] band must be [lo, hi] in Hz (two numbers); got {value!r}")
     try:
@@ -310,7 +309,7 @@ def _check_detector(detector: Mapping[str, Any], dt: float, where: str) -> None:
     """The STFT fields of ``[detector]`` (window_s, hop_s, window) make a valid STFT at ``dt``."""
     if not {"window_s", "hop_s", "window"} & set(detector):
         return
-    from ..detection.spectral import STFTConfig
+    from .._stft import STFTConfig  # the settings only: the spectra module stays unloaded
 
     field = "window"
     try:
