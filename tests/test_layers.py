@@ -41,7 +41,6 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("plants.simulate", "plants.simulate_nonlinear"): "circle: simulate dispatches",
     ("plants.modelfile", "plants.modelfile_nonlinear"): "circle: load_model dispatches",
     ("plants.modelfile", "plants.modelfile_writer"): "circle: re-export of the writer",
-    ("studies.calibration", "studies.empirical_calibration"): "circle",
     ("detection.detect", "detection._chunk_plan"): "circle: the plan returns reports",
     # -- upward imports --
     ("detection.detect_parallel", "studies.montecarlo"): "upward: run_study",

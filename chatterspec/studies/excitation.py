@@ -45,7 +45,7 @@ from ..plants.scenarios_closed_loop import (
 )
 from ..plants.simulate import iter_simulations
 from ..rng import SeedLike
-from .calibration import _ro
+from .calibration_result import _ro
 from .healthy import _analytic_thresholds, _reduce_dict
 from .intervals import RateEstimate
 from .montecarlo import run_study

@@ -17,7 +17,7 @@ from ..errors import ParameterError
 from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
-from .calibration import Calibration, _ro
+from .calibration_result import Calibration, _ro
 from .healthy import (
     HealthyStudy,
     _analytic_thresholds,

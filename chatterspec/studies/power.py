@@ -17,7 +17,7 @@ from ..plants.models import EHA_PARAMETERS, LinearModel, eha_linear, second_orde
 from ..plants.scenarios import Scenario
 from ..plants.signals import Chirp, Step
 from ..rng import SeedLike
-from .calibration import _ro
+from .calibration_result import _ro
 from .healthy import _analytic_thresholds, _reduce_dict
 from .intervals import RateEstimate
 from .montecarlo import run_study
