@@ -41,12 +41,10 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("plants.simulate", "plants.simulate_nonlinear"): "circle: simulate dispatches",
     ("plants.modelfile", "plants.modelfile_nonlinear"): "circle: load_model dispatches",
     ("plants.modelfile", "plants.modelfile_writer"): "circle: re-export of the writer",
-    ("detection.detect", "detection._chunk_plan"): "circle: the plan returns reports",
     # -- upward imports --
     ("detection.detect_parallel", "studies.montecarlo"): "upward: run_study",
     ("plants.modelfile_nonlinear", "studies.healthy"): "upward + private: _ZeroInput",
     ("studies.alarm_delays", "online.monitor_types"): "upward: MonitorSettings",
-    ("studies.chattering_diagnosis", "online.monitor"): "upward: frame_verdicts",
     ("studies.routes", "online.monitor"): "upward: MonitorSettings",
     # -- private names across folders --
     ("cli._identify", "detection.identification_results"): "private: _fmt",
@@ -55,7 +53,6 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("detection.pipeline", "filters._svsf_kernels"): "private: the SVSF step",
     ("detection.pipeline", "filters.svsf"): "private: _rows_times",
     ("detection.pipeline", "plants.simulate"): "private: the plant loop",
-    ("online._push_kernels", "detection._verdict"): "private: peak_kernel",
     ("online._push_kernels", "filters._svsf_kernels"): "private: the SVSF step",
     ("online.monitor", "filters.svsf"): "private: _rows_times",
     ("plants.controllers", "_validate"): "private: _finite_scalar",
