@@ -42,6 +42,7 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("plants.modelfile", "plants.modelfile_nonlinear"): "circle: load_model dispatches",
     ("plants.modelfile", "plants.modelfile_writer"): "circle: re-export of the writer",
     # -- upward imports --
+    ("filters.boundary_layer", "studies.boundary_layer"): "upward: old path of the moved Monte Carlo studies",
     ("detection.detect_parallel", "studies.montecarlo"): "upward: run_study",
     ("plants.modelfile_nonlinear", "studies.healthy"): "upward + private: _ZeroInput",
     ("studies.alarm_delays", "online.monitor_types"): "upward: MonitorSettings",
