@@ -44,7 +44,6 @@ ALLOWED: dict[tuple[str, str], str] = {
     # -- upward imports --
     ("filters.boundary_layer", "studies.boundary_layer"): "upward: old path of the moved Monte Carlo studies",
     ("detection.detect_parallel", "studies.montecarlo"): "upward: run_study",
-    ("plants.modelfile_nonlinear", "studies.healthy"): "upward + private: _ZeroInput",
     ("studies.alarm_delays", "online.monitor_types"): "upward: MonitorSettings",
     ("studies.routes", "online.monitor"): "upward: MonitorSettings",
     # -- private names across folders --

@@ -473,13 +473,13 @@ def file_scenario(spec: Any, default_duration: float = 4.0, name: str | None = N
         Family ``"user"``, healthy; zero input and the rest state (or zeros) unless ``[simulation]`` says
         otherwise.
     """
-    from ..studies.healthy import _ZeroInput
     from .scenarios import Scenario
+    from .signals import ZeroInput
 
     sim = spec.simulation or SimulationSpec()
     model = spec.model
     x0 = sim.x0 if sim.x0 is not None else getattr(model, "rest_state", None)
-    signal = sim.input if sim.input is not None else _ZeroInput(model.n_inputs)
+    signal = sim.input if sim.input is not None else ZeroInput(model.n_inputs)
     what = signal.describe() if sim.input is not None else "zero"
     return Scenario(
         name=name or Path(spec.path).stem,

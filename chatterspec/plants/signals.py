@@ -14,7 +14,7 @@ import numpy as np
 
 from .._validate import finite_array, nonnegative, positive
 
-__all__ = ["Chirp", "Constant", "HeldUniform", "Signal", "Sine", "SquareWave", "Step", "Sum"]
+__all__ = ["Chirp", "Constant", "HeldUniform", "Signal", "Sine", "SquareWave", "Step", "Sum", "ZeroInput"]
 
 
 @runtime_checkable
@@ -304,3 +304,30 @@ class Sum:
 
     def describe(self) -> str:
         return " + ".join(s.describe() for s in self.terms)
+
+
+@dataclass(frozen=True)
+class ZeroInput:
+    """u(t) = 0 on ``channels`` inputs: the input of healthy scenarios made for a user model.
+
+    The healthy chattering of a matched linear model does not depend on u.
+
+    Parameters
+    ----------
+    channels : int
+        Number of input channels (the model's ``n_inputs``).
+
+    See Also
+    --------
+    Constant : one constant value on a single input.
+    """
+
+    channels: int = 1
+
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        """``(len(t), channels)`` zeros (t in seconds)."""
+        return np.zeros((np.size(t), self.channels))
+
+    def describe(self) -> dict[str, object]:
+        """``{"kind": "zero", "channels": channels}``."""
+        return {"kind": "zero", "channels": self.channels}

@@ -18,6 +18,7 @@ from ..errors import ParameterError
 from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario
 from ..plants.scenarios import scenario as catalogue_scenario
+from ..plants.signals import ZeroInput
 from ._exceedance import exceedance_counts
 from .tail_histogram import bucket_counts
 
@@ -28,17 +29,7 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------- scenarios
-@dataclass(frozen=True)
-class _ZeroInput:
-    """u(t) = 0 on ``channels`` inputs (healthy chattering of a matched linear model does not depend on u)."""
-
-    channels: int = 1
-
-    def sample(self, t: np.ndarray) -> np.ndarray:
-        return np.zeros((np.size(t), self.channels))
-
-    def describe(self) -> dict[str, object]:
-        return {"kind": "zero", "channels": self.channels}
+_ZeroInput = ZeroInput  # its old private name
 
 
 def model_scenario(model: LinearModel, duration: float = 4.0, name: str | None = None) -> Scenario:
@@ -64,7 +55,7 @@ def model_scenario(model: LinearModel, duration: float = 4.0, name: str | None =
     return Scenario(
         name=name or model.name or "user-model",
         nominal=model,
-        input=_ZeroInput(model.n_inputs),
+        input=ZeroInput(model.n_inputs),
         duration=duration,
         description="user model, healthy, zero input",
         family="user",
