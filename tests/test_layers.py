@@ -43,7 +43,6 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("plants.modelfile", "plants.modelfile_writer"): "circle: re-export of the writer",
     # -- upward imports --
     ("filters.boundary_layer", "studies.boundary_layer"): "upward: old path of the moved Monte Carlo studies",
-    ("detection.detect_parallel", "studies.montecarlo"): "upward: run_study",
     ("studies.alarm_delays", "online.monitor_types"): "upward: MonitorSettings",
     ("studies.routes", "online.monitor"): "upward: MonitorSettings",
     # -- private names across folders --
