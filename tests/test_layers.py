@@ -43,8 +43,6 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("plants.modelfile", "plants.modelfile_writer"): "circle: re-export of the writer",
     # -- upward imports --
     ("filters.boundary_layer", "studies.boundary_layer"): "upward: old path of the moved Monte Carlo studies",
-    ("studies.alarm_delays", "online.monitor_types"): "upward: MonitorSettings",
-    ("studies.routes", "online.monitor"): "upward: MonitorSettings",
     # -- private names across folders --
     ("cli._identify", "detection.identification_results"): "private: _fmt",
     ("online.identification_log", "detection.identification_results"): "private: _fmt",

@@ -188,7 +188,7 @@ def alarm_delays(
     settings : MonitorSettings, optional
         The monitor's STFT, band and threshold (the score's law); default ``MonitorSettings()``.
     """
-    from ..online.monitor_types import MonitorSettings
+    from ..detection.monitor_settings import MonitorSettings
 
     settings = settings or MonitorSettings()
     cfg: STFTConfig = settings.stft

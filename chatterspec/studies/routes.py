@@ -371,7 +371,7 @@ class ChatteringRoute:
         model = self.scenario.nominal
         if not isinstance(model, LinearModel) or self.frame_score.law != "exact":
             return None
-        from ..online.monitor import MonitorSettings
+        from ..detection.monitor_settings import MonitorSettings
         from .alarm_budget import calibrate_alarm
 
         settings = MonitorSettings(stft=self.config, threshold=self.law)
