@@ -55,14 +55,14 @@ def readonly(a: np.ndarray) -> np.ndarray:
 
 def positive(name: str, value: float, *, unit: str = "") -> float:
     """Return ``float(value)`` after checking it is finite and > 0."""
-    v = _finite_scalar(name, value)
+    v = finite_scalar(name, value)
     if not v > 0:
         raise ParameterError(f"{name} must be > 0{(' ' + unit) if unit else ''}; got {v!r}")
     return v
 
 
 def nonnegative(name: str, value: float) -> float:
-    v = _finite_scalar(name, value)
+    v = finite_scalar(name, value)
     if v < 0:
         raise ParameterError(f"{name} must be >= 0; got {v!r}")
     return v
@@ -70,7 +70,7 @@ def nonnegative(name: str, value: float) -> float:
 
 def open_unit(name: str, value: float) -> float:
     """Check ``0 < value < 1`` (used for gamma and alpha)."""
-    v = _finite_scalar(name, value)
+    v = finite_scalar(name, value)
     if not 0.0 < v < 1.0:
         raise ParameterError(f"{name} must lie in the open interval (0, 1); got {v!r}")
     return v
@@ -84,7 +84,8 @@ def positive_int(name: str, value: int) -> int:
     return int(value)
 
 
-def _finite_scalar(name: str, value: float) -> float:
+def finite_scalar(name: str, value: float) -> float:
+    """``value`` as a finite float; a ParameterError naming ``name`` otherwise."""
     try:
         v = float(value)
     except (TypeError, ValueError) as exc:

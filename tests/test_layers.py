@@ -44,17 +44,11 @@ ALLOWED: dict[tuple[str, str], str] = {
     # -- upward imports --
     ("filters.boundary_layer", "studies.boundary_layer"): "upward: old path of the moved Monte Carlo studies",
     # -- private names across folders --
-    ("cli._identify", "detection.identification_results"): "private: _fmt",
     ("online.identification_log", "detection.identification_results"): "private: _fmt",
-    ("cli.detect", "detection.pipeline"): "private: _can_fuse",
     ("detection.pipeline", "filters._svsf_kernels"): "private: the SVSF step",
     ("detection.pipeline", "filters.svsf"): "private: _rows_times",
-    ("detection.pipeline", "plants.simulate"): "private: the plant loop",
     ("online._push_kernels", "filters._svsf_kernels"): "private: the SVSF step",
     ("online.monitor", "filters.svsf"): "private: _rows_times",
-    ("plants.controllers", "_validate"): "private: _finite_scalar",
-    ("plants.dither", "_validate"): "private: _finite_scalar",
-    ("plants.references", "_validate"): "private: _finite_scalar",
 }
 
 

@@ -156,9 +156,9 @@ def _num(x: float | None, se: float | None = None) -> str:
         return "-"
     if se is None:
         return f"{x:.6g}"
-    from ..detection.identification_results import _fmt
+    from ..detection.identification_results import format_with_error
 
-    return _fmt(x, se)
+    return format_with_error(x, se)
 
 
 def summary_line(doc: dict[str, Any]) -> str:

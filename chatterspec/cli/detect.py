@@ -259,10 +259,10 @@ def stream_chunks(
     (fault identification; on the fused path in one reused buffer).
     """
     from ..detection.detect import DETECT_CHUNK_RUNS
-    from ..detection.pipeline import _can_fuse, chattering_record, iter_chattering
+    from ..detection.pipeline import can_fuse, chattering_record, iter_chattering
     from ..plants.simulate import iter_simulations, simulate
 
-    if _can_fuse(sc):
+    if can_fuse(sc):
         first.append(simulate(sc, 1, seed))
         # identification consumes each chunk's z before the next: one buffer serves every chunk
         yield from iter_chattering(

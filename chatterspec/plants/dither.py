@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import _finite_scalar, finite_array, positive
+from .._validate import finite_array, finite_scalar, positive
 from ..errors import ParameterError
 
 __all__ = ["PRBS", "PRBS_TAPS", "Multisine"]
@@ -29,7 +29,7 @@ def _times(t: object) -> np.ndarray:
 
 
 def _amplitude(value: object) -> float:
-    a = _finite_scalar("amplitude", value)  # type: ignore[arg-type]
+    a = finite_scalar("amplitude", value)  # type: ignore[arg-type]
     if a < 0:
         raise ParameterError(f"amplitude must be >= 0 (input or reference units); got {a!r}")
     return a

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import _finite_scalar, finite_array, positive
+from .._validate import finite_array, finite_scalar, positive
 from ..errors import ParameterError
 
 __all__ = ["Hold", "SCurve", "StepSequence"]
@@ -47,7 +47,7 @@ class Hold:
     position: float = 0.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "position", _finite_scalar("position", self.position))
+        object.__setattr__(self, "position", finite_scalar("position", self.position))
 
     @property
     def peak(self) -> float:
@@ -83,7 +83,7 @@ def _init_levels(ref: StepSequence | SCurve) -> None:
     tt, ll = _levels(ref.times, ref.levels, type(ref).__name__)
     object.__setattr__(ref, "times", tt)
     object.__setattr__(ref, "levels", ll)
-    object.__setattr__(ref, "initial", _finite_scalar("initial", ref.initial))
+    object.__setattr__(ref, "initial", finite_scalar("initial", ref.initial))
 
 
 @dataclass(frozen=True)

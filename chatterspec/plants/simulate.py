@@ -251,7 +251,7 @@ def _linear_scale(noise: np.ndarray, M: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
-class _Tables:
+class KernelTables:
     """Per-segment arrays of a scenario for the compiled kernels (segment s active at sample k)."""
 
     seg_idx: np.ndarray  # (T,) int64
@@ -264,10 +264,15 @@ class _Tables:
     diag: np.ndarray  # (S, 2) bool: Lq, Lr diagonal (then only the diagonal terms are summed)
 
 
-def _tables(scenario: Scenario, t: np.ndarray, u: np.ndarray) -> _Tables:
+def kernel_tables(scenario: Scenario, t: np.ndarray, u: np.ndarray) -> KernelTables:
+    """The per-segment tables of ``scenario`` at times ``t`` (s) with inputs ``u`` ``(T, inputs)``.
+
+    The compiled plant loop (:func:`plant_loop`) reads them; so does the fused simulate-and-filter
+    loop of :mod:`chatterspec.detection.pipeline`.
+    """
     segs = scenario.segments
     c = np.ascontiguousarray
-    return _Tables(
+    return KernelTables(
         seg_idx=c(scenario.segment_index(t), dtype=np.int64),
         A=c(np.stack([sg.model.A for sg in segs]), dtype=float),
         C=c(np.stack([sg.model.C for sg in segs]), dtype=float),
@@ -279,7 +284,7 @@ def _tables(scenario: Scenario, t: np.ndarray, u: np.ndarray) -> _Tables:
     )
 
 
-def _same_shapes(scenario: Scenario) -> bool:
+def same_shapes(scenario: Scenario) -> bool:
     """Whether every segment's model has the nominal's dimensions (the kernels stack them)."""
     nom = scenario.nominal
     dims = (nom.n_states, nom.n_outputs, nom.n_inputs)
@@ -344,14 +349,14 @@ def store_sink(
         out_a[k, row, i] = x[i]
 
 
-#: Bindings of :func:`_plant_loop` (see :func:`chatterspec._jit.specialize`): sizes (0: from the arrays),
+#: Bindings of :func:`plant_loop` (see :func:`chatterspec._jit.specialize`): sizes (0: from the arrays),
 #: what consumes each sample, and the input step.
 NX = NZ = 0
 SINK = store_sink
 INPUT = open_loop_input
 
 
-def _plant_loop(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, out_a, out_b, PhiT, Gu, offset):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (Python form tested in tests/test_kernels.py)
+def plant_loop(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, out_a, out_b, PhiT, Gu, offset):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (Python form tested in tests/test_kernels.py)
     """Eq (1)-(2) for the runs of one random block, each sample handed to ``SINK`` (a template).
 
     Per run r and sample k, with the segment s active at k: ``z(k)`` by
@@ -360,7 +365,7 @@ def _plant_loop(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, out_a, out_b, P
     s, k, z, Bu, ctrl, bu, n)`` gives ``B_s u(k)`` (a table lookup, or a controller's output from
     ``z(k)``) and, before the last sample, :func:`~chatterspec.plants.linear_steps.advance_step`
     ``x(k+1)``. ``v``, ``w`` are raw standard normals ``(runs, T, n|m)``; tables from
-    :func:`_tables`. Sinks: :func:`store_sink` (:data:`_simulate_kernel`) and the auxiliary
+    :func:`kernel_tables`. Sinks: :func:`store_sink` (:data:`_simulate_kernel`) and the auxiliary
     SVSF's chattering (:mod:`chatterspec.detection.pipeline`). Every run starts from ``x0``
     and is independent of the others, so any chunking gives the same bits.
     """
@@ -392,9 +397,9 @@ def _plant_loop(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, out_a, out_b, P
 #: The simulation kernel: ``_simulate_kernel(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, xt, zt,
 #: PhiT, Gu, offset)`` writes run r to ``xt[:, offset + r]``, ``zt[:, offset + r]`` (time-major;
 #: ``ctrl``, ``PhiT``, ``Gu`` unused).
-_simulate_kernel = _jit.specialize(_plant_loop, "store")
+_simulate_kernel = _jit.specialize(plant_loop, "store")
 
-#: Empty float arrays for the unused arguments of :func:`_plant_loop`.
+#: Empty float arrays for the unused arguments of :func:`plant_loop`.
 NO_ARRAY = np.empty((0, 0))
 NO_CTRL = np.empty(0)
 
@@ -409,14 +414,14 @@ def _simulate_block(
         return simulate_block_nonlinear(scenario, root, lo, hi, t, u)
     n, m = scenario.nominal.n_states, scenario.nominal.n_outputs
     compiled = _jit.enabled() and _jit.fits(n, m, vectors_only=True)
-    if compiled and getattr(scenario, "is_linear", True) and _same_shapes(scenario):
+    if compiled and getattr(scenario, "is_linear", True) and same_shapes(scenario):
         # compiled path: per-run scalar arithmetic, so any chunking gives the same bits
         T = len(t)
         n, m = scenario.nominal.n_states, scenario.nominal.n_outputs
-        tb = _tables(scenario, t, u)
+        tb = kernel_tables(scenario, t, u)
         xt = np.empty((T, hi - lo, n))
         zt = np.empty((T, hi - lo, m))
-        kernel = _jit.specialize_sizes(_plant_loop, "store", {"NX": n, "NZ": m})
+        kernel = _jit.specialize_sizes(plant_loop, "store", {"NX": n, "NZ": m})
         for off, v, w in _noise_blocks(root, lo, hi, T, n, m):
             kernel(
                 v, w, tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, NO_CTRL, xt, zt, NO_ARRAY,
@@ -459,3 +464,7 @@ def _simulate_block(
         zt[k0:k1] += xt[k0:k1] @ model.C.T
     # (runs, T, channels) views of the time-major buffers (no copy)
     return np.swapaxes(xt, 0, 1), np.swapaxes(zt, 0, 1)
+
+
+# The old private names of the kernel interface (plant_loop, kernel_tables, same_shapes).
+_plant_loop, _tables, _Tables, _same_shapes = plant_loop, kernel_tables, KernelTables, same_shapes
