@@ -20,16 +20,8 @@ from ..filters.svsf import _rows_times, auxiliary_svsf
 from ..plants.models import LinearModel
 from ..plants.nonlinear import is_linear, require_linear
 from ..plants.scenarios import Scenario
-from ..plants.simulate import (
-    NO_CTRL,
-    Simulation,
-    default_chunk_runs,
-    iter_simulations,
-    kernel_tables,
-    plant_loop,
-    same_shapes,
-    scenario_input,
-)
+from ..plants.simulate import Simulation, default_chunk_runs, iter_simulations, scenario_input
+from ..plants.simulate_kernel import NO_CTRL, kernel_tables, plant_loop, same_shapes
 from ..rng import BLOCK, SeedLike, block_generator, root_seed_sequence
 
 __all__ = ["ChatteringRecord", "chattering_record", "iter_chattering", "scenario_chattering"]
