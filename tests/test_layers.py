@@ -36,8 +36,6 @@ ALLOWED: dict[tuple[str, str], str] = {
     # -- circles closed by a deferred import (the deferred edge is listed) --
     ("_jit", "_jit_numba"): "circle: the numba backend is loaded on first use",
     ("filters.svsf", "filters.nonlinear_svsf"): "circle: chattering() dispatches",
-    ("plants.modelfile", "plants.modelfile_nonlinear"): "circle: load_model dispatches",
-    ("plants.modelfile", "plants.modelfile_writer"): "circle: re-export of the writer",
     # -- upward imports --
     ("filters.boundary_layer", "studies.boundary_layer"): "upward: old path of the moved Monte Carlo studies",
     # -- private names across folders --

@@ -60,6 +60,17 @@ from typing import Any
 import numpy as np
 
 from ..errors import ChatterspecError, ModelFileError
+from .modelfile_fields import (
+    ModelSpec,
+    _array,
+    _covariance,
+    _matrix,
+    _names,
+    _scalar,
+    _table,
+    detector_table,
+    svsf_gamma,
+)
 
 __all__ = ["ModelFunction", "SimulationSpec", "file_scenario", "load_nonlinear", "parse_simulation"]
 
@@ -234,16 +245,6 @@ def load_nonlinear(doc: Mapping[str, Any], path: Path, where: str) -> Any:
         functions do not take, or a model that fails its checks (shapes, NaN at the rest state); the
         message names the file and the field.
     """
-    from .modelfile import (
-        ModelSpec,
-        _covariance,
-        _matrix,
-        _names,
-        _scalar,
-        _table,
-        detector_table,
-        svsf_gamma,
-    )
     from .nonlinear import NonlinearModel
 
     dt = _scalar(doc, "dt", where, positive=True)
@@ -420,7 +421,6 @@ def parse_simulation(doc: Mapping[str, Any], model: Any, where: str) -> Simulati
     SimulationSpec or None
         None when the file has no ``[simulation]`` table.
     """
-    from .modelfile import _array, _scalar
 
     sim = doc.get("simulation")
     if sim is None:

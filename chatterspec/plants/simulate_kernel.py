@@ -20,10 +20,8 @@ from .scenario_types import Scenario
 __all__ = [
     "NO_ARRAY",
     "NO_CTRL",
-    "KernelTables",
     "covariance_sqrt",
     "kernel_tables",
-    "plant_loop",
     "same_shapes",
     "scaled_noise",
     "segment_ranges",
@@ -39,7 +37,8 @@ def covariance_sqrt(M: np.ndarray) -> np.ndarray:
 
 
 def segment_ranges(scenario: Scenario, t: np.ndarray) -> list[tuple[int, int, object]]:
-    """``(k0, k1, model)`` per active segment: the true model of samples ``k0 .. k1 - 1``."""
+    """``(k0, k1, model)`` per active segment of ``scenario`` at times ``t`` (s): the true model of
+    samples ``k0 .. k1 - 1``."""
     seg_idx = scenario.segment_index(t)
     ranges = []
     for s, seg in enumerate(scenario.segments):
@@ -57,7 +56,9 @@ def scaled_noise(
     t: np.ndarray,
     scale: Callable[[np.ndarray, np.ndarray], np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Process and measurement noise of runs ``lo .. hi - 1``, time-major ``(T, runs, n|m)``.
+    """Process and measurement noise of runs ``lo .. hi - 1`` of ``scenario``, time-major ``(T, runs, n|m)``.
+
+    Drawn from the root seed ``root`` at the times ``t`` (s).
 
     The raw normals of :func:`_noise_blocks` scaled per segment by ``scale(noise, Q)`` and
     ``scale(noise, R)`` of the segment's true model (``noise @ L^T`` with ``L L^T`` the covariance).
@@ -114,7 +115,7 @@ def kernel_tables(scenario: Scenario, t: np.ndarray, u: np.ndarray) -> KernelTab
 
 
 def same_shapes(scenario: Scenario) -> bool:
-    """Whether every segment's model has the nominal's dimensions (the kernels stack them)."""
+    """Whether every segment's model of ``scenario`` has the nominal's dimensions (the kernels stack them)."""
     nom = scenario.nominal
     dims = (nom.n_states, nom.n_outputs, nom.n_inputs)
     return all((sg.model.n_states, sg.model.n_outputs, sg.model.n_inputs) == dims for sg in scenario.segments)
