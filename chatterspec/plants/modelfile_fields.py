@@ -224,7 +224,7 @@ def _covariance(table: Mapping[str, Any], key: str, size: int, where: str) -> np
         raise ModelFileError(f"{where}: [matrices] matrix {key} (or {diag_key}) is missing")
     M = _matrix(table, key, where, "matrices")
     _expect_shape(M, (size, size), key, where, "covariance")
-    from .models import _check_covariance
+    from .linear_model import _check_covariance
 
     try:
         _check_covariance(key, M)

@@ -35,7 +35,7 @@ from ..errors import ChatterspecError, ModelFileError, ParameterError
 from ._expressions import BUILTIN_CONSTANTS, FUNCTIONS, Formula, compile_formula
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .models import LinearModel
+    from .linear_model import LinearModel
 
 __all__ = [
     "NO_FAULT",
