@@ -62,6 +62,7 @@ def positive(name: str, value: float, *, unit: str = "") -> float:
 
 
 def nonnegative(name: str, value: float) -> float:
+    """``value`` as a finite float >= 0; a ParameterError naming ``name`` otherwise."""
     v = finite_scalar(name, value)
     if v < 0:
         raise ParameterError(f"{name} must be >= 0; got {v!r}")
@@ -77,6 +78,7 @@ def open_unit(name: str, value: float) -> float:
 
 
 def positive_int(name: str, value: int) -> int:
+    """``value`` as an int >= 1 (bools refused); a ParameterError naming ``name`` otherwise."""
     if isinstance(value, bool) or not isinstance(value, int | np.integer):
         raise ParameterError(f"{name} must be an integer >= 1; got {value!r}")
     if value < 1:
@@ -96,6 +98,7 @@ def finite_scalar(name: str, value: float) -> float:
 
 
 def check_no_unknown_kwargs(func_name: str, kwargs: dict) -> None:
+    """Raise TypeError naming ``func_name`` if ``kwargs`` holds any keyword (Python's own wording)."""
     if kwargs:
         raise TypeError(f"{func_name}() got unexpected keyword argument(s): {', '.join(kwargs)}")
 

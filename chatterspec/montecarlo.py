@@ -71,9 +71,13 @@ DASK_CONNECT_TIMEOUT_S = 5.0
 class Study(Protocol):
     """What :func:`run_study` needs from a study (see the module docstring)."""
 
-    def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> Any: ...
+    def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> Any:
+        """The small summary of realizations ``first_run .. first_run + runs - 1`` drawn from ``seed``."""
+        ...
 
-    def reduce(self, acc: Any, part: Any) -> Any: ...
+    def reduce(self, acc: Any, part: Any) -> Any:
+        """``acc`` with one chunk's summary ``part`` folded in (``acc`` is None for the first chunk)."""
+        ...
 
 
 @dataclass(frozen=True)

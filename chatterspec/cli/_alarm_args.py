@@ -101,6 +101,7 @@ class AlarmChoice:
     hours: float | None = None
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"{self.rule} rule at {self.budget:g} false alarms per hour"
 
 

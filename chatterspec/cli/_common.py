@@ -35,6 +35,7 @@ def positive_int_arg(text: str) -> int:
 
 
 def nonnegative_int_arg(text: str) -> int:
+    """argparse type: ``text`` as an int >= 0 (a usage error otherwise)."""
     try:
         value = int(text)
     except ValueError:
@@ -162,6 +163,7 @@ def load_scenario(name: str) -> Any:
 
 
 def print_json(doc: Any) -> None:
+    """Print ``doc`` as indented JSON on standard output (NaN refused: the JSON stays standard)."""
     json.dump(doc, sys.stdout, indent=2, allow_nan=False, default=_json_default)
     sys.stdout.write("\n")
 

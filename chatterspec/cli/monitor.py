@@ -39,6 +39,7 @@ from ._monitor_stream import _emit_line, _run_stream
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``chatterspec monitor`` and its options to the subcommand parsers ``sub``."""
     p = sub.add_parser(
         "monitor",
         help="run the online chattering monitor on your own model and data",
@@ -185,6 +186,7 @@ def _stream_mode(args: argparse.Namespace) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``chatterspec monitor`` with the parsed ``args``; returns the exit status."""
     from ..plants.modelfile import load_data, load_model
 
     if args.rate is not None and not args.rate > 0:

@@ -73,9 +73,11 @@ class FrameRule:
         return {}
 
     def to_dict(self) -> dict[str, Any]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {"rule": self.name, "threshold": _json_float(self.threshold), **self.parameters()}
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"frame rule: alarm while the score is >= {self.threshold:.4g}"
 
 
@@ -108,15 +110,19 @@ class PersistenceRule:
         object.__setattr__(self, "n", n)
 
     def with_threshold(self, threshold: float) -> PersistenceRule:
+        """The same rule with another threshold."""
         return replace(self, threshold=threshold)
 
     def parameters(self) -> dict[str, Any]:
+        """The rule's parameters besides its threshold (name -> value)."""
         return {"k": self.k, "n": self.n}
 
     def to_dict(self) -> dict[str, Any]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {"rule": self.name, "threshold": _json_float(self.threshold), **self.parameters()}
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return (
             f"persistence rule: alarm when {self.k} of the last {self.n} steps have a score >= "
             f"{self.threshold:.4g}; ends after {self.n} clean steps"
@@ -154,15 +160,19 @@ class CusumRule:
         object.__setattr__(self, "drift", d)
 
     def with_threshold(self, threshold: float) -> CusumRule:
+        """The same rule with another threshold."""
         return replace(self, threshold=threshold)
 
     def parameters(self) -> dict[str, Any]:
+        """The rule's parameters besides its threshold (name -> value)."""
         return {"drift": self.drift}
 
     def to_dict(self) -> dict[str, Any]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {"rule": self.name, "threshold": _json_float(self.threshold), **self.parameters()}
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return (
             f"CUSUM rule: g = max(0, g + score - {self.drift:g}), alarm when g >= {self.threshold:.4g} "
             "(g capped there while active), ends when g is back at 0"

@@ -138,6 +138,7 @@ class AlarmBlock:
 
     @property
     def n_steps(self) -> int:
+        """Number of steps."""
         return self.active.shape[-2]
 
     def events(self) -> list[AlarmEvent]:

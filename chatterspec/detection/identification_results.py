@@ -300,10 +300,12 @@ class Identification:
 
     @property
     def runs(self) -> int:
+        """Number of realizations (the leading axis)."""
         return self.moments.runs
 
     @property
     def hypothesis_names(self) -> tuple[str, ...]:
+        """Names of the tested hypotheses, in the setup's order."""
         return tuple(h.name for h in self.setup.hypotheses)
 
     @property

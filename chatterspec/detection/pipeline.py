@@ -60,18 +60,22 @@ class ChatteringRecord:
 
     @property
     def dt(self) -> float:
+        """Sampling time (s)."""
         return self.model.dt
 
     @property
     def runs(self) -> int:
+        """Number of realizations (the leading axis)."""
         return self.values.shape[0]
 
     @property
     def n_samples(self) -> int:
+        """Number of samples."""
         return self.values.shape[1]
 
     @property
     def channels(self) -> tuple[str, ...]:
+        """Output channel names."""
         return self.model.output_names
 
 

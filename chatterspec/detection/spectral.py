@@ -103,6 +103,7 @@ class Periodogram:
 
     @property
     def n_bins(self) -> int:
+        """Number of frequency bins."""
         return self.freqs_hz.shape[0]
 
     def mean(self) -> Periodogram:
@@ -322,6 +323,7 @@ class Spectrogram:
 
     @property
     def n_frames(self) -> int:
+        """Number of frames."""
         return self.times_s.shape[0]
 
 

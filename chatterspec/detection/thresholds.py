@@ -167,6 +167,7 @@ class Threshold:
 
     @property
     def n_channels(self) -> int:
+        """Number of channels."""
         return self.values.shape[1]
 
     def check_spectrum(self, power: np.ndarray) -> np.ndarray:

@@ -186,6 +186,7 @@ class ChatteringMonitor:
     # ------------------------------------------------------------- properties
     @property
     def channels(self) -> tuple[str, ...]:
+        """Output channel names of the monitored model."""
         return self.model.output_names
 
     @property

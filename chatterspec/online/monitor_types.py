@@ -73,6 +73,7 @@ class DetectionEvent:
     false_alarms_per_hour: float | None = None
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         what = "fault start" if self.kind == "fault-start" else "fault end"
         peak = "peak" if self.kind == "fault-start" else "largest peak during the fault"
         return (
@@ -148,6 +149,7 @@ class FrameBlock:
 
     @property
     def n_frames(self) -> int:
+        """Number of frames."""
         return self.index.shape[0]
 
 

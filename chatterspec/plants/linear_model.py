@@ -195,14 +195,17 @@ class LinearModel:
     # -- sizes ---------------------------------------------------------------
     @property
     def n_states(self) -> int:
+        """Number of states."""
         return self.A.shape[0]
 
     @property
     def n_outputs(self) -> int:
+        """Number of outputs."""
         return self.C.shape[0]
 
     @property
     def n_inputs(self) -> int:
+        """Number of inputs."""
         return self.B.shape[1]
 
     @property
@@ -231,6 +234,7 @@ class LinearModel:
     # -- dynamics ------------------------------------------------------------
     @property
     def spectral_radius(self) -> float:
+        """Largest ``|eigenvalue|`` of ``A`` (< 1: stable)."""
         return float(np.max(np.abs(np.linalg.eigvals(self.A))))
 
     @property
@@ -242,11 +246,13 @@ class LinearModel:
 
     @property
     def natural_frequency_hz(self) -> float | None:
+        """Natural frequency (Hz) of the oscillatory mode, or None (see :attr:`mode`)."""
         mode = self.mode
         return None if mode is None else mode.natural_frequency_hz
 
     @property
     def damping_ratio(self) -> float | None:
+        """Damping ratio of the oscillatory mode, or None (see :attr:`mode`)."""
         mode = self.mode
         return None if mode is None else mode.damping_ratio
 
@@ -308,6 +314,7 @@ class LinearModel:
         return h.hexdigest()
 
     def to_dict(self) -> dict[str, object]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {
             "name": self.name,
             "dt": self.dt,

@@ -123,6 +123,7 @@ class ModelFunction:
 
     @property
     def args(self) -> tuple[()]:
+        """Extra positional arguments of the function (none)."""
         return ()
 
     def __repr__(self) -> str:

@@ -176,10 +176,12 @@ class NonlinearModel:
     # -- sizes ---------------------------------------------------------------
     @property
     def n_states(self) -> int:
+        """Number of states."""
         return self.C.shape[1]
 
     @property
     def n_outputs(self) -> int:
+        """Number of outputs."""
         return self.C.shape[0]
 
     @property

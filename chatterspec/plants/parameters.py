@@ -204,6 +204,7 @@ class ParameterMap:
     # -- lookup ----------------------------------------------------------------
     @property
     def parameter_names(self) -> tuple[str, ...]:
+        """Names of the physical parameters, in table order."""
         return tuple(p.name for p in self.parameters)
 
     def parameter(self, name: str) -> PhysicalParameter:

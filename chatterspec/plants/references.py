@@ -60,9 +60,11 @@ class Hold:
         return 0
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         return np.full(_times(t).shape, self.position)
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"hold at {_mm(self.position)}"
 
 
@@ -118,6 +120,7 @@ class StepSequence:
         return len(self.times)
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         t = _times(t)
         # a tiny tolerance so that t = k dt hits the step on the intended sample (as signals.Step)
         j = np.searchsorted(np.asarray(self.times), t + 1e-12, side="right") - 1
@@ -125,6 +128,7 @@ class StepSequence:
         return values[j + 1]
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         steps = ", ".join(f"{_mm(x)} at {s:g} s" for s, x in zip(self.times, self.levels, strict=True))
         return f"steps from {_mm(self.initial)}: {steps}"
 
@@ -182,6 +186,7 @@ class SCurve:
         return float(1.875 * np.abs(steps).max() / self.move_time)
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         t = _times(t)
         starts = np.asarray(self.times)
         values = np.asarray((self.initial, *self.levels))
@@ -192,5 +197,6 @@ class SCurve:
         return np.where(j < 0, self.initial, r0 + (r1 - r0) * s)
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         moves = ", ".join(f"to {_mm(x)} at {s:g} s" for s, x in zip(self.times, self.levels, strict=True))
         return f"S-curve moves ({self.move_time:g} s each) from {_mm(self.initial)}: {moves}"

@@ -163,6 +163,7 @@ class Scenario:
 
     @property
     def dt(self) -> float:
+        """Sampling time (s) of the nominal model."""
         return self.nominal.dt
 
     @property
@@ -172,6 +173,7 @@ class Scenario:
 
     @property
     def time(self) -> np.ndarray:
+        """Sample times ``k dt`` (s), ``k = 0 .. n_samples - 1``."""
         return np.arange(self.n_samples) * self.dt
 
     @property
@@ -202,6 +204,7 @@ class Scenario:
 
     @property
     def is_healthy(self) -> bool:
+        """True when the scenario has no fault window."""
         return not self.fault_intervals
 
     @property

@@ -21,9 +21,13 @@ __all__ = ["Chirp", "Constant", "HeldUniform", "Signal", "Sine", "SquareWave", "
 class Signal(Protocol):
     """Anything with ``sample(t) -> ndarray`` and a ``describe()`` string."""
 
-    def sample(self, t: np.ndarray) -> np.ndarray: ...
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at times ``t`` (s), one row per time."""
+        ...
 
-    def describe(self) -> str: ...
+    def describe(self) -> str:
+        """A short description for reports and recordings."""
+        ...
 
 
 def _times(t: object) -> np.ndarray:
@@ -37,9 +41,11 @@ class Constant:
     value: float = 1.0
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         return np.full(_times(t).shape, float(self.value))
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"constant {self.value:g}"
 
 
@@ -58,11 +64,13 @@ class Step:
         nonnegative("time", self.time)
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         t = _times(t)
         # a tiny tolerance so that t = k*dt hits the step on the intended sample
         return np.where(t >= self.time - 1e-12, float(self.amplitude), float(self.initial))
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"step {self.initial:g} -> {self.amplitude:g} at t = {self.time:g} s"
 
 
@@ -124,6 +132,7 @@ class Chirp:
         return cls(f_start_hz, f_stop_hz, sweep_time, amplitude, phase_deg=-90.0)
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         import scipy.signal  # on demand: listing the catalogue must not wait for scipy.signal
 
         t = _times(t)
@@ -132,6 +141,7 @@ class Chirp:
         )
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         text = (
             f"linear chirp {self.f_start_hz:g}->{self.f_stop_hz:g} Hz over {self.sweep_time:g} s, "
             f"amplitude {self.amplitude:g}"
@@ -175,6 +185,7 @@ class SquareWave:
             raise ParameterError(f"duty must lie in (0, 1); got {self.duty!r}")
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         import scipy.signal
 
         t = _times(t)
@@ -183,6 +194,7 @@ class SquareWave:
         )
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"square wave {self.frequency_hz:g} Hz, amplitude {self.amplitude:g}"
 
 
@@ -214,10 +226,12 @@ class Sine:
         positive("frequency_hz", self.frequency_hz, unit="Hz")
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         t = _times(t)
         return self.offset + self.amplitude * np.sin(2 * np.pi * self.frequency_hz * t + self.phase)
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"sine {self.frequency_hz:g} Hz, amplitude {self.amplitude:g}"
 
 
@@ -257,6 +271,7 @@ class HeldUniform:
             raise ParameterError(f"seed must be a non-negative integer; got {self.seed!r}")
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         t = _nonnegative_times(t)
         j = np.floor(t / self.hold_time + 1e-9).astype(np.int64)
         if j.size == 0:
@@ -266,6 +281,7 @@ class HeldUniform:
         return values[j]
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"uniform({self.low:g}, {self.high:g}) held {self.hold_time:g} s, seed {self.seed}"
 
 
@@ -299,10 +315,12 @@ class Sum:
         object.__setattr__(self, "terms", tuple(self.terms))
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         t = _times(t)
         return np.sum([s.sample(t) for s in self.terms], axis=0)
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return " + ".join(s.describe() for s in self.terms)
 
 

@@ -67,6 +67,7 @@ class Simulation:
 
     @property
     def runs(self) -> int:
+        """Number of realizations (the leading axis)."""
         return self.z.shape[0]
 
     def take(self, runs: slice) -> Simulation:
@@ -81,6 +82,7 @@ class Simulation:
 
 
 def default_chunk_runs(scenario: Scenario) -> int:
+    """Realizations per chunk for ``scenario``: a multiple of 64 whose arrays fit :data:`CHUNK_BYTES`."""
     T = scenario.n_samples
     per_run = 8 * T * 2 * (scenario.nominal.n_states + scenario.nominal.n_outputs)
     return max(64, int(CHUNK_BYTES // per_run) // 64 * 64)

@@ -369,6 +369,7 @@ class ExcitationResult:
         return out
 
     def to_dict(self) -> dict[str, Any]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {
             "family": self.family,
             "size": self.size,

@@ -195,6 +195,7 @@ class HealthyStudy:
     frame_max_window: tuple[np.ndarray, np.ndarray] | None = None
 
     def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> dict[str, np.ndarray]:
+        """The summary of realizations ``first_run .. first_run + runs - 1`` (a Monte Carlo chunk)."""
         acc = None
         for rec in iter_chattering(self.scenario, runs, seed, chunk_runs=runs, first_run=first_run):
             acc = self.reduce(acc, self._summarize(rec.values, rec.dt))
@@ -263,6 +264,7 @@ class HealthyStudy:
         return out
 
     def reduce(self, acc: dict[str, np.ndarray] | None, part: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """``acc`` with one chunk's summary ``part`` folded in (``acc`` is None for the first chunk)."""
         return _reduce_dict(
             acc, part, {"top_bin": self.k_top, "top_frame": self.kf_top, "top_frame_max": self.kf_top}
         )

@@ -205,9 +205,11 @@ class RateEstimate:
         object.__setattr__(self, "effective_trials", n_eff)
 
     def contains(self, p: float) -> bool:
+        """Whether the rate ``p`` lies in the confidence interval."""
         return self.ci_low <= p <= self.ci_high
 
     def to_dict(self) -> dict[str, float | int]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {
             "rate": self.rate,
             "ci_low": self.ci_low,
@@ -249,6 +251,7 @@ class QuantileEstimate:
     confidence: float
 
     def contains(self, x: float) -> bool:
+        """Whether ``x`` lies in the confidence interval."""
         return self.ci_low <= x <= self.ci_high
 
     def to_dict(self) -> dict[str, float | int | None]:
