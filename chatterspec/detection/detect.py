@@ -5,34 +5,10 @@ This module runs a record or a study (:func:`detect_record`, :func:`detect_chunk
 (whole records), :mod:`~chatterspec.detection.frames` (STFT frames) and the report in
 :mod:`~chatterspec.detection.report`; their names are re-exported here.
 
-A channel is flagged when its spectrum exceeds the threshold at any **tested**
-bin (DC and Nyquist excluded; the DC ratio is reported separately because a
-step input puts a large DC term into any mismatch). The default detector is the
-``exact`` threshold with Bonferroni correction at family-wise alpha = 0.1 %.
-
-Where the fault is (two frequencies, both over the tested bins):
-
-``peak_hz``
-    Frequency (Hz) of the largest **excess power** ``S(f_n) - E[S(f_n)]``: the
-    spectrum's peak above the healthy expectation, the fault footprint the paper
-    reads off its figures (e.g. 34-36 Hz for EHA leakage). When some bins exceed
-    the threshold, the largest excess among those bins (on one noisy record the
-    largest excess overall often sits on a healthy high-frequency bin where
-    ``E[S]`` and its spread are largest).
-``most_significant_hz``
-    Frequency (Hz) of the largest ``S(f_n) / threshold(f_n)``: the bin that decides
-    the verdict (``peak_ratio`` is its ratio). Where the healthy spectrum is small
-    this can sit far from ``peak_hz`` (14-22 Hz for EHA leakage).
-
-Severity scores (both grow with fault size within a fault family):
-
-``peak_ratio``
-    ``max_n S(f_n) / threshold(f_n)`` over the tested bins (the paper's peak
-    height relative to its bound; > 1 means detected).
-``excess_power``
-    ``sum_n (S(f_n) - E[S(f_n)]) / sum_n E[S(f_n)]`` over the tested bins: the
-    fraction of power above the healthy expectation (about 0 when healthy,
-    with standard deviation ``1 / sqrt(n_tested)`` for a single record).
+A channel is flagged when its spectrum exceeds the threshold at any **tested** bin; where the fault
+is (``peak_hz``, ``most_significant_hz``) and how large (``peak_ratio``, ``excess_power``) are defined
+in :mod:`~chatterspec.detection.spectrum_verdicts`. The default detector is the ``exact`` threshold
+with Bonferroni correction at family-wise alpha = 0.1 %.
 """
 
 from __future__ import annotations

@@ -2,22 +2,16 @@
 
 from __future__ import annotations
 
-from ..montecarlo import (
-    DASK_CONNECT_TIMEOUT_S,
-    DEFAULT_CHUNK_RUNS,
-    Chunk,
-    Study,
-    plan_chunks,
-    run_chunk,
-    run_study,
+from .. import montecarlo as _runner
+
+DASK_CONNECT_TIMEOUT_S = _runner.DASK_CONNECT_TIMEOUT_S
+DEFAULT_CHUNK_RUNS = _runner.DEFAULT_CHUNK_RUNS
+Chunk, Study, plan_chunks, run_chunk, run_study = (
+    _runner.Chunk,
+    _runner.Study,
+    _runner.plan_chunks,
+    _runner.run_chunk,
+    _runner.run_study,
 )
 
-__all__ = [
-    "DASK_CONNECT_TIMEOUT_S",
-    "DEFAULT_CHUNK_RUNS",
-    "Chunk",
-    "Study",
-    "plan_chunks",
-    "run_chunk",
-    "run_study",
-]
+__all__ = ["DASK_CONNECT_TIMEOUT_S", *_runner.__all__]
