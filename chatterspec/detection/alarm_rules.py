@@ -56,6 +56,11 @@ class FrameRule:
     threshold : float
         ``h``: a step exceeds when ``s >= h``. With the chattering frame score
         (``-log p``), ``h = -log(alpha)`` is the per-frame rule at level ``alpha``.
+
+    See Also
+    --------
+    PersistenceRule : k of the last n steps.
+    CusumRule : accumulated excess over a drift.
     """
 
     threshold: float = float("inf")
@@ -93,6 +98,11 @@ class PersistenceRule:
         ``1 <= k <= n``. The alarm starts at the step where the window of the last ``n`` steps
         (this one included) holds ``k`` exceedances, and ends at the first step whose window
         holds none (``n`` clean steps in a row).
+
+    See Also
+    --------
+    FrameRule : one step at a time.
+    CusumRule : accumulated excess over a drift.
     """
 
     threshold: float = float("inf")
@@ -141,6 +151,11 @@ class CusumRule:
         Subtracted from every score (finite). It must exceed the healthy mean score so that
         ``g`` drifts back to 0 on healthy data (the frame score ``-log p`` has a healthy mean
         below 1); default 3.
+
+    See Also
+    --------
+    FrameRule : one step at a time.
+    PersistenceRule : k of the last n steps.
 
     Notes
     -----

@@ -91,6 +91,11 @@ def weighted_chi2_sf(t: object, l1: object, l2: object) -> np.ndarray:
         Thresholds (any real; ``sf = 1`` for ``t <= 0``).
     l1, l2 : array_like
         Non-negative weights (their order does not matter).
+
+    See Also
+    --------
+    weighted_chi2_pdf : its density.
+    weighted_chi2_isf : its inverse (the threshold at a level).
     """
     a, b = _eigen_pair(l1, l2)
     t = np.asarray(t, dtype=float)
@@ -103,7 +108,13 @@ def weighted_chi2_sf(t: object, l1: object, l2: object) -> np.ndarray:
 
 
 def weighted_chi2_pdf(t: object, l1: object, l2: object) -> np.ndarray:
-    """Density of ``l1 Z1^2 + l2 Z2^2`` at ``t > 0`` (0 for ``t <= 0``; requires ``max(l1, l2) > 0``)."""
+    """Density of ``l1 Z1^2 + l2 Z2^2`` at ``t > 0`` (0 for ``t <= 0``; requires ``max(l1, l2) > 0``).
+
+    See Also
+    --------
+    weighted_chi2_sf : the survival function.
+    weighted_chi2_isf : the inverse survival function.
+    """
     a, b = _eigen_pair(l1, l2)
     t = np.asarray(t, dtype=float)
     t, a, b = np.broadcast_arrays(t, a, b)
@@ -131,6 +142,11 @@ def weighted_chi2_isf(p: object, l1: object, l2: object, rtol: float = 1e-10) ->
         Non-negative weights (their order does not matter).
     rtol : float
         Relative tolerance on ``t``.
+
+    See Also
+    --------
+    weighted_chi2_sf : the survival function it inverts.
+    weighted_chi2_pdf : the density.
     """
     a, b = _eigen_pair(l1, l2)
     p = np.asarray(p, dtype=float)

@@ -149,6 +149,11 @@ def detect_frames(spec: Spectrogram, frame_threshold: Threshold) -> np.ndarray:
     ------
     ShapeError
         If the spectrogram's ``(bins, m)`` does not match the threshold.
+
+    See Also
+    --------
+    frame_statistic : the peak ratio of each frame (flagged when > 1).
+    frame_verdicts : flags, peak frequencies and ratios in one pass.
     """
     return frame_verdicts(spec.power, frame_threshold)[0]
 
@@ -164,6 +169,11 @@ def frame_statistic(spec: Spectrogram, frame_threshold: Threshold) -> np.ndarray
         Frame spectra ``(..., frames, bins, m)``.
     frame_threshold : Threshold
         Per-frame threshold on the same frequency grid.
+
+    See Also
+    --------
+    detect_frames : the flags.
+    frame_verdicts : flags, peak frequencies and ratios in one pass.
     """
     return frame_verdicts(spec.power, frame_threshold)[2]
 

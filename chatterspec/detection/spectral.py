@@ -145,6 +145,11 @@ def periodogram(x: np.ndarray, dt: float) -> Periodogram:
         ``1 .. ceil(N/2) - 1`` are chi2(2)/2 times their mean; DC (and the
         Nyquist bin for even N) are chi2(1) times their mean (``docs/design.md`` C8).
 
+    See Also
+    --------
+    spectrogram : frame spectra (STFT) of the same signal.
+    expected_spectrum : the healthy expectation of this periodogram.
+
     Examples
     --------
     >>> import numpy as np
@@ -392,6 +397,11 @@ def spectrogram(x: np.ndarray, dt: float, config: STFTConfig = DEFAULT_STFT, t0:
     ------
     ShapeError
         If the record is shorter than one window.
+
+    See Also
+    --------
+    periodogram : the whole-record spectrum.
+    frame_columns : the frames from a given sample on (online use).
     """
     x = _time_series("x", x)
     dt = positive("dt", dt, unit="s")

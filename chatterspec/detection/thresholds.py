@@ -413,6 +413,11 @@ def exact_threshold(
     -------
     Threshold
         ``kind="exact"``; bins ``1 .. ceil(N/2) - 1`` (within ``band``) tested.
+
+    See Also
+    --------
+    paper_threshold : the paper's flat bound (eq 58-62).
+    frame_threshold : the per-frame threshold of the STFT.
     """
     alpha = open_unit("alpha", alpha)
     averaged = positive_int("averaged", averaged)
@@ -462,6 +467,10 @@ def frame_threshold(
         Law of a healthy frame bin (see above).
     band : (float, float), optional
         ``(lo, hi)`` in Hz: test only these frame bins; the correction counts only them.
+
+    See Also
+    --------
+    exact_threshold : the whole-record threshold.
     """
     alpha = open_unit("alpha", alpha)
     law = _check_law(law)
@@ -511,6 +520,11 @@ def paper_threshold(
         Per-bin false-alarm probability in (0, 1).
     band : (float, float), optional
         ``(lo, hi)`` in Hz: test only these bins (beyond the paper; the per-bin level is unchanged).
+
+    See Also
+    --------
+    exact_threshold : each bin's own law (the default).
+    frame_threshold : the per-frame threshold of the STFT.
     """
     alpha = open_unit("alpha", alpha)
     freqs = finite_array("freqs_hz", freqs_hz, ndim=1)

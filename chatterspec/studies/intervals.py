@@ -177,6 +177,10 @@ class RateEstimate:
         Clopper-Pearson interval of the rate (computed).
     effective_trials : float
         Independent trials the interval is worth (``trials`` without clusters).
+
+    See Also
+    --------
+    QuantileEstimate : the interval of a quantile.
     """
 
     count: int
@@ -241,6 +245,10 @@ class QuantileEstimate:
         Number of samples the quantile was read from (records, or records x frames).
     confidence : float
         Coverage level in (0, 1) of the interval.
+
+    See Also
+    --------
+    RateEstimate : the interval of a rate.
     """
 
     q: float
