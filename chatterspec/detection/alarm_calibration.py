@@ -62,7 +62,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
-import scipy.stats
+import scipy.special  # not scipy.stats: the monitor imports this module at start-up
 
 from .. import _jit
 from .._validate import open_unit, positive
@@ -122,6 +122,13 @@ def check_budget(false_alarms_per_hour: object, option: str = "false_alarms_per_
     return x
 
 
+def _poisson_ppf(q: float, mu: float) -> int:
+    """The smallest count ``k`` with ``P(N <= k) >= q`` for ``N`` ~ Poisson(``mu``) (scipy.stats' rule)."""
+    k = math.ceil(scipy.special.pdtrik(q, mu))
+    below = max(k - 1, 0)
+    return below if scipy.special.pdtr(below, mu) >= q else k
+
+
 def poisson_interval(count: int, confidence: float = 0.99) -> tuple[float, float]:
     """Exact two-sided interval (Garwood) for the mean of a Poisson count.
 
@@ -139,8 +146,8 @@ def poisson_interval(count: int, confidence: float = 0.99) -> tuple[float, float
     if k < 0:
         raise ParameterError(f"count must be >= 0; got {count!r}")
     a = 1.0 - open_unit("confidence", confidence)
-    lo = 0.0 if k == 0 else float(scipy.stats.chi2.ppf(a / 2, 2 * k) / 2)
-    hi = float(scipy.stats.chi2.ppf(1 - a / 2, 2 * k + 2) / 2)
+    lo = 0.0 if k == 0 else float(scipy.special.gammaincinv(k, a / 2))
+    hi = float(scipy.special.gammaincinv(k + 1, 1 - a / 2))
     return lo, hi
 
 
@@ -152,10 +159,10 @@ def poisson_count_interval(mean: float, confidence: float = 0.99) -> tuple[int, 
     """
     mu = positive("mean", mean)
     a = 1.0 - open_unit("confidence", confidence)
-    lo = int(scipy.stats.poisson.ppf(a / 2, mu))
-    hi = int(scipy.stats.poisson.ppf(1 - a / 2, mu))
+    lo = _poisson_ppf(a / 2, mu)
+    hi = _poisson_ppf(1 - a / 2, mu)
     # ppf gives the smallest k with cdf >= q: keep P(K < lo) <= a/2 and P(K > hi) <= a/2
-    if lo > 0 and scipy.stats.poisson.cdf(lo - 1, mu) > a / 2:  # pragma: no cover - ppf's definition
+    if lo > 0 and scipy.special.pdtr(lo - 1, mu) > a / 2:  # pragma: no cover - ppf's definition
         lo -= 1
     return lo, hi
 
@@ -521,7 +528,7 @@ def calibrate_rule(
     else:  # pragma: no cover - every leave-one-out fit failed
         se = float("inf")
     # the jackknife over B batches: Student t with B - 1 degrees of freedom
-    z = float(scipy.stats.t.isf((1 - conf) / 2, max(1, len(hs) - 1)))
+    z = float(-scipy.special.stdtrit(max(1, len(hs) - 1), (1 - conf) / 2))
     th_int = (h - z * se, h + z * se)
     slope = fit.get("slope")
     if slope is None:  # counted: local slope of log(count) around h
