@@ -17,9 +17,11 @@ from ._engine import FIELDS, LOG2PI, MAP_CONST, _alloc, gain_update_step, residu
 from ._engine_numpy import chol_np as _chol_np
 from ._svsf_kernels import _rows_times
 
+#: Sizes of :func:`_kf_shared_loop`, bound per model by :func:`_kf_shared_kernel` (0: read from the arrays).
+NX = NZ = 0
 
-@_jit.njit
-def _kf_shared_kernel(prm, u, z, x, ep, epp, C, KgT, Sinv, logdet, flags, outs):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+
+def _kf_shared_loop(prm, u, z, x, ep, epp, C, KgT, Sinv, logdet, flags, outs):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     """State recursion of the Kalman filter with a precomputed, shared gain sequence ``KgT`` (K, m, n).
 
     Per run and sample: the linear plant's prediction (:func:`~chatterspec.plants.linear_steps.predict_step`,
@@ -41,19 +43,29 @@ def _kf_shared_kernel(prm, u, z, x, ep, epp, C, KgT, Sinv, logdet, flags, outs):
         b(Sinv),
         b(logdet),
     )
-    runs, K, m = z.shape
-    n = x.shape[1]
+    o0, o1, o2, o3, o4, o5, o6, o7 = outs
+    # borrowed: no reference counts per sample
+    outs = (b(o0), b(o1), b(o2), b(o3), b(o4), b(o5), b(o6), b(o7))
+    runs, K, _ = z.shape
+    n = NX if NX > 0 else x.shape[1]
+    m = NZ if NZ > 0 else z.shape[2]
     p = u.shape[2]
     shared_u = u.shape[0] == 1
     xp = _jit.scratch(n)
     e = _jit.scratch(m)
+    xr = _jit.scratch(n)  # run r's state and residual, on the stack for the run (written back after it)
+    epr = _jit.scratch(m)
     none2 = _jit.scratch2(0, 0)
     for r in range(runs):
         ur = 0 if shared_u else r
+        for i in range(n):
+            xr[i] = x[r, i]
+        for i in range(m):
+            epr[i] = ep[r, i]
         for k in range(K):
-            predict_step(prm, x[r], u[ur, k], xp, n, p)
+            predict_step(prm, xr, u[ur, k], xp, n, p)
             residual_step(z[r, k], C, xp, e, n, m)
-            gain_update_step(xp, KgT[k], e, x[r], n, m)
+            gain_update_step(xp, KgT[k], e, xr, n, m)
             quad = 0.0
             for i in range(m):
                 s = 0.0
@@ -61,11 +73,21 @@ def _kf_shared_kernel(prm, u, z, x, ep, epp, C, KgT, Sinv, logdet, flags, outs):
                     s += Sinv[k, i, j] * e[j]
                 quad += e[i] * s
             for i in range(m):
-                epp[r, i] = ep[r, i]
-            residual_step(z[r, k], C, x[r], ep[r], n, m)
+                epp[r, i] = epr[i]
+            residual_step(z[r, k], C, xr, epr, n, m)
             ll = -0.5 * (m * 1.8378770664093453 + logdet[k] + quad)
-            store_step(flags, outs, r, k, xp, x[r], e, none2, ll, ep[r], none2, none2, n, m)
+            store_step(flags, outs, r, k, xp, xr, e, none2, ll, epr, none2, none2, n, m)
+        for i in range(n):
+            x[r, i] = xr[i]
+        for i in range(m):
+            ep[r, i] = epr[i]
     return 0
+
+
+def _kf_shared_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
+    """:func:`_kf_shared_loop` compiled for n states and m outputs (literal sizes up to
+    :data:`chatterspec._jit.MAX_UNROLL`: the per-channel loops unrolled, as the per-run filters')."""
+    return _jit.specialize_sizes(_kf_shared_loop, "kfshared", {"NX": n, "NZ": m})
 
 
 def kf_shared_states(
@@ -104,7 +126,7 @@ def kf_shared_states(
     KgT = np.ascontiguousarray(np.swapaxes(Kg, -1, -2))
     if _jit.enabled() and _jit.fits(n, m, vectors_only=True):
         c = np.ascontiguousarray
-        _kf_shared_kernel(
+        _kf_shared_kernel(n, m)(
             parameters(A, B), c(u, dtype=float), c(z), x, ep, epp, c(C), KgT, c(Sinv), c(logdet), flags,
             tuple(out[f] for f in FIELDS),
         )  # fmt: skip
