@@ -63,6 +63,17 @@ from typing import Any
 import numpy as np
 
 from ..errors import ChatterspecError, ModelFileError
+from .modelfile_fields import (
+    ModelSpec,
+    _array,
+    _covariance,
+    _matrix,
+    _names,
+    _scalar,
+    _table,
+    detector_table,
+    svsf_gamma,
+)
 
 __all__ = [
     "MeasurementFunction",
@@ -132,6 +143,7 @@ class ModelFunction:
 
     @property
     def args(self) -> tuple[()]:
+        """Extra positional arguments of the function (none)."""
         return ()
 
     def __repr__(self) -> str:
@@ -276,16 +288,6 @@ def load_nonlinear(doc: Mapping[str, Any], path: Path, where: str) -> Any:
         functions do not take, or a model that fails its checks (shapes, NaN at the rest state); the
         message names the file and the field.
     """
-    from .modelfile import (
-        ModelSpec,
-        _covariance,
-        _matrix,
-        _names,
-        _scalar,
-        _table,
-        detector_table,
-        svsf_gamma,
-    )
     from .nonlinear import NonlinearModel
 
     dt = _scalar(doc, "dt", where, positive=True)
@@ -486,7 +488,6 @@ def parse_simulation(doc: Mapping[str, Any], model: Any, where: str) -> Simulati
     SimulationSpec or None
         None when the file has no ``[simulation]`` table.
     """
-    from .modelfile import _array, _scalar
 
     sim = doc.get("simulation")
     if sim is None:
@@ -539,13 +540,13 @@ def file_scenario(spec: Any, default_duration: float = 4.0, name: str | None = N
         Family ``"user"``, healthy; zero input and the rest state (or zeros) unless ``[simulation]`` says
         otherwise.
     """
-    from ..studies.healthy import _ZeroInput
     from .scenarios import Scenario
+    from .signals import ZeroInput
 
     sim = spec.simulation or SimulationSpec()
     model = spec.model
     x0 = sim.x0 if sim.x0 is not None else getattr(model, "rest_state", None)
-    signal = sim.input if sim.input is not None else _ZeroInput(model.n_inputs)
+    signal = sim.input if sim.input is not None else ZeroInput(model.n_inputs)
     what = signal.describe() if sim.input is not None else "zero"
     return Scenario(
         name=name or Path(spec.path).stem,
