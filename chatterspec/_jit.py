@@ -74,6 +74,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from ._jit_limits import BLOCK_CAPACITY, MAX_DIMENSION, STACK_CAPACITY  # noqa: F401  (re-exported)
+
 __all__ = [
     "HAVE_NUMBA",
     "STACK_CAPACITY",
@@ -90,12 +92,6 @@ __all__ = [
     "step",
 ]
 
-#: Room (floats) of a compiled :func:`scratch` / :func:`scratch2` whose size is known only at run time.
-STACK_CAPACITY = 256
-#: Largest number of states or outputs of a loop with matrix scratch (16 x 16 = STACK_CAPACITY).
-MAX_DIMENSION = 16
-#: Room (floats) of a compiled :func:`scratch_block` (a covariance filter's workspace up to MAX_DIMENSION).
-BLOCK_CAPACITY = 8192
 
 F = TypeVar("F", bound=Callable[..., Any])
 

@@ -17,7 +17,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from ._jit import BLOCK_CAPACITY, MAX_DIMENSION, STACK_CAPACITY
+from ._jit_limits import BLOCK_CAPACITY, MAX_DIMENSION, STACK_CAPACITY
 
 __all__ = [
     "BLOCK_CAPACITY",

@@ -55,14 +55,15 @@ def readonly(a: np.ndarray) -> np.ndarray:
 
 def positive(name: str, value: float, *, unit: str = "") -> float:
     """Return ``float(value)`` after checking it is finite and > 0."""
-    v = _finite_scalar(name, value)
+    v = finite_scalar(name, value)
     if not v > 0:
         raise ParameterError(f"{name} must be > 0{(' ' + unit) if unit else ''}; got {v!r}")
     return v
 
 
 def nonnegative(name: str, value: float) -> float:
-    v = _finite_scalar(name, value)
+    """``value`` as a finite float >= 0; a ParameterError naming ``name`` otherwise."""
+    v = finite_scalar(name, value)
     if v < 0:
         raise ParameterError(f"{name} must be >= 0; got {v!r}")
     return v
@@ -70,13 +71,14 @@ def nonnegative(name: str, value: float) -> float:
 
 def open_unit(name: str, value: float) -> float:
     """Check ``0 < value < 1`` (used for gamma and alpha)."""
-    v = _finite_scalar(name, value)
+    v = finite_scalar(name, value)
     if not 0.0 < v < 1.0:
         raise ParameterError(f"{name} must lie in the open interval (0, 1); got {v!r}")
     return v
 
 
 def positive_int(name: str, value: int) -> int:
+    """``value`` as an int >= 1 (bools refused); a ParameterError naming ``name`` otherwise."""
     if isinstance(value, bool) or not isinstance(value, int | np.integer):
         raise ParameterError(f"{name} must be an integer >= 1; got {value!r}")
     if value < 1:
@@ -84,7 +86,8 @@ def positive_int(name: str, value: int) -> int:
     return int(value)
 
 
-def _finite_scalar(name: str, value: float) -> float:
+def finite_scalar(name: str, value: float) -> float:
+    """``value`` as a finite float; a ParameterError naming ``name`` otherwise."""
     try:
         v = float(value)
     except (TypeError, ValueError) as exc:
@@ -95,5 +98,32 @@ def _finite_scalar(name: str, value: float) -> float:
 
 
 def check_no_unknown_kwargs(func_name: str, kwargs: dict) -> None:
+    """Raise TypeError naming ``func_name`` if ``kwargs`` holds any keyword (Python's own wording)."""
     if kwargs:
         raise TypeError(f"{func_name}() got unexpected keyword argument(s): {', '.join(kwargs)}")
+
+
+def check_band(band: object) -> tuple[float, float]:
+    """Validate a frequency band ``(lo, hi)`` in Hz: finite, ``0 <= lo < hi``.
+
+    Re-exported as :func:`chatterspec.detection.thresholds.check_band` (its public home); it lives
+    here so that model files (:mod:`chatterspec.plants.modelfile`) check ``[detector] band`` without
+    importing the detection layer.
+
+    Parameters
+    ----------
+    band : pair of float
+        Lower and upper edge (Hz), both included.
+
+    Raises
+    ------
+    ParameterError
+        If it is not two finite numbers with ``0 <= lo < hi``.
+    """
+    try:
+        lo, hi = (float(v) for v in band)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        raise ParameterError(f"band must be two numbers (lo, hi) in Hz; got {band!r}") from None
+    if not (np.isfinite(lo) and np.isfinite(hi)) or lo < 0 or hi <= lo:
+        raise ParameterError(f"band must satisfy 0 <= lo < hi (Hz, finite); got ({lo:g}, {hi:g})")
+    return lo, hi

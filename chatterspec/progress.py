@@ -30,6 +30,7 @@ class Progress:
         return self
 
     def update(self, n: int = 1, note: str = "") -> None:
+        """Advance by ``n`` steps and redraw, with an optional ``note``."""
         self.done = min(self.done + n, self.total)
         self._draw(note=note)
 

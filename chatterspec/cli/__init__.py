@@ -36,6 +36,7 @@ COMMANDS: tuple[str, ...] = (
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``chatterspec`` argument parser with every subcommand registered."""
     parser = argparse.ArgumentParser(
         prog="chatterspec",
         description="Fault detection from the spectral content of SVSF chattering.",
@@ -51,6 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line on ``argv`` (default ``sys.argv[1:]``); returns the exit status (2: bad input)."""
     from .._memory import fix_mmap_threshold
 
     fix_mmap_threshold()  # peak memory independent of --runs (see chatterspec._memory)

@@ -1,4 +1,5 @@
-"""The alarm-rule options shared by ``monitor``, ``detect --record`` and ``calibrate``.
+"""The alarm-rule options shared by ``monitor``, ``detect --record`` and ``calibrate``, and how the rule in
+use is reported (:func:`alarm_doc`, one stderr line).
 
 ``--rule {frame,persistence,cusum}``, ``--false-alarms-per-hour X``, ``--persistence-k K``,
 ``--persistence-n N``, ``--cusum-drift D``, ``--alarm-hours H``. Their values are checked after
@@ -16,7 +17,7 @@ from typing import Any
 from ..detection.alarms import RULES, rule_names
 from ..errors import ParameterError
 
-__all__ = ["AlarmChoice", "add_alarm_args", "alarm_choice", "check_file_alarm"]
+__all__ = ["AlarmChoice", "add_alarm_args", "alarm_choice", "alarm_doc", "check_file_alarm"]
 
 _DEFAULT_RULE = "cusum"
 _DEFAULT_BUDGET = 1.0 / 24.0
@@ -100,6 +101,7 @@ class AlarmChoice:
     hours: float | None = None
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"{self.rule} rule at {self.budget:g} false alarms per hour"
 
 
@@ -196,3 +198,43 @@ def check_file_alarm(choice: AlarmChoice, cal_alarm: Any, path: Any) -> Any:
         choice.parameters,
         path,
     )
+
+
+def alarm_doc(settings: object) -> dict:
+    """The ``alarm`` entry of the JSON summary: rule, threshold, budget and how it was set."""
+    import math
+
+    b = getattr(settings, "budget", None)
+    rule = getattr(settings, "rule", None)
+    if rule is None:
+        a = float(settings.alpha)  # type: ignore[attr-defined]
+        return {
+            "rule": {"rule": "frame", "threshold": -math.log(a)},
+            "alpha": a,
+            "false_alarms_per_hour": None,
+            "calibration": None,
+        }
+    return {
+        "rule": rule.to_dict(),
+        "alpha": None,
+        "false_alarms_per_hour": None if b is None else b.false_alarms_per_hour,
+        "calibration": None if b is None else b.to_dict(),
+    }
+
+
+def _alarm_short(settings: object) -> str:
+    from ..online.monitor_types import alarm_label
+
+    rule = getattr(settings, "rule", None)
+    if rule is None:
+        return f"frame rule, per-frame alpha {settings.alpha:g}"  # type: ignore[attr-defined]
+    return alarm_label(rule.name, settings.false_alarms_per_hour)  # type: ignore[attr-defined]
+
+
+def _alarm_line(settings: object) -> str:
+    """One stderr line on the rule in use and where its threshold comes from."""
+    rule = getattr(settings, "rule", None)
+    if rule is None:
+        return f"alarms: {_alarm_short(settings)} (every frame a test)"
+    b = settings.budget  # type: ignore[attr-defined]
+    return f"alarms: {b.describe()}" if b is not None else f"alarms: {rule.describe()}"

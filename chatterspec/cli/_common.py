@@ -34,6 +34,7 @@ def positive_int_arg(text: str) -> int:
 
 
 def nonnegative_int_arg(text: str) -> int:
+    """argparse type: ``text`` as an int >= 0 (a usage error otherwise)."""
     try:
         value = int(text)
     except ValueError:
@@ -156,6 +157,7 @@ def load_scenario(name: str) -> Any:
 
 
 def print_json(doc: Any) -> None:
+    """Print ``doc`` as indented JSON on standard output (NaN refused: the JSON stays standard)."""
     from ..jsonout import dumps
 
     sys.stdout.write(dumps(doc, indent=2) + "\n")

@@ -59,6 +59,7 @@ def setup_or_reason(
 
 
 def stream(setup: IdentificationSetup, args: argparse.Namespace) -> IdentificationStream:
+    """The identification stream of ``setup`` at the ``--alpha`` / ``--confidence`` of ``args``."""
     from ..detection.identification import IdentificationStream
 
     return IdentificationStream(setup, alpha=args.alpha, confidence=args.confidence)
@@ -156,9 +157,9 @@ def _num(x: float | None, se: float | None = None) -> str:
         return "-"
     if se is None:
         return f"{x:.6g}"
-    from ..detection.identification_results import _fmt
+    from ..detection.identification_results import format_with_error
 
-    return _fmt(x, se)
+    return format_with_error(x, se)
 
 
 def summary_line(doc: dict[str, Any]) -> str:
@@ -182,6 +183,7 @@ def summary_line(doc: dict[str, Any]) -> str:
 
 
 def true_text(doc: dict[str, Any]) -> str:
+    """The true fault of an identification JSON ``doc`` as text (empty when it has none)."""
     t = doc.get("true")
     if not t or t.get("hypothesis") is None:
         return ""
@@ -342,6 +344,7 @@ class MonitorIdentification:
         self.selected = None
 
     def push(self, z: Any, u: Any) -> None:
+        """Identify on one chunk of measurements ``z`` and inputs ``u`` and hand the results on."""
         self.handle(self.identifier.push(z, u))
 
     def handle(self, out: Any) -> None:

@@ -23,6 +23,8 @@ from ._common import (
 
 
 def add_common(p: argparse.ArgumentParser, *, alpha: float, runs: int, multi_alpha: bool = False) -> None:
+    """Add ``--alpha`` (default ``alpha``; several with ``multi_alpha``), ``--runs`` (default ``runs``)
+    and the execution options to ``p``."""
     if multi_alpha:
         p.add_argument(
             "--alpha",
@@ -57,6 +59,7 @@ def add_common(p: argparse.ArgumentParser, *, alpha: float, runs: int, multi_alp
 
 
 def execution(args: argparse.Namespace) -> dict[str, Any]:
+    """The execution keywords (workers, scheduler, chunk runs, progress) of ``args`` for the studies."""
     from ..rng import BLOCK
 
     if args.chunk_runs is not None and args.chunk_runs % BLOCK:
@@ -77,6 +80,7 @@ def execution(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``chatterspec calibrate`` and its options to the subcommand parsers ``sub``."""
     p = sub.add_parser(
         "calibrate",
         help="calibrate thresholds on healthy Monte Carlo runs",
@@ -123,6 +127,7 @@ def _megabytes(text: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``chatterspec calibrate`` with the parsed ``args``; returns the exit status."""
     check_output_file(args.out, "--out")
     if args.plot:
         check_output_file(args.plot, "--plot", suffixes=figure_suffixes())

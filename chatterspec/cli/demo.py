@@ -36,6 +36,7 @@ DEMO_FIGURES: tuple[str, ...] = ("fig8", "fig9", "fig10", "fig11", "fig12")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``chatterspec demo`` and its options to the subcommand parsers ``sub``."""
     p = sub.add_parser(
         "demo",
         help="run the EHA fault catalogue and the timeline scenario (the main job)",
@@ -58,6 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     # output folders first, before the (slow) imports: a bad path fails at once
+    """Run ``chatterspec demo`` with the parsed ``args``; returns the exit status."""
     check_output_dir(None if args.no_figures else args.figures_dir, "--figures-dir")
     check_output_dir(None if args.no_record else args.recordings_dir, "--recordings-dir")
     from ..detection.detect import detect_chunks
@@ -97,9 +99,9 @@ def run(args: argparse.Namespace) -> int:
             results.append(doc)
             bar.update(1, name)
             if not args.no_record:
-                from ..filters.boundary_layer import estimate_boundary_layer
                 from ..online.drivers import record_detection
                 from ..online.monitor import MonitorSettings
+                from ..studies.boundary_layer import estimate_boundary_layer
 
                 key = sc.nominal.fingerprint()
                 if key not in boundary_layers:  # smoothing boundary layer shown beside the chattering

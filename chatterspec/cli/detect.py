@@ -28,6 +28,7 @@ from ._common import (
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``chatterspec detect`` and its options to the subcommand parsers ``sub``."""
     p = sub.add_parser(
         "detect",
         help="detect a fault in a catalogue scenario from its chattering spectrum",
@@ -73,6 +74,7 @@ def refuse_with_calibration(args: argparse.Namespace, names: tuple[str, ...]) ->
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``chatterspec detect`` with the parsed ``args``; returns the exit status."""
     check_record_path(args.record)  # before the (slow) imports: a bad path fails at once
     refuse_with_calibration(args, tuple(DETECTOR_DEFAULTS))
     for key, value in DETECTOR_DEFAULTS.items():
@@ -259,10 +261,10 @@ def stream_chunks(
     (fault identification; on the fused path in one reused buffer).
     """
     from ..detection.detect import DETECT_CHUNK_RUNS
-    from ..detection.pipeline import _can_fuse, chattering_record, iter_chattering
+    from ..detection.pipeline import can_fuse, chattering_record, iter_chattering
     from ..plants.simulate import iter_simulations, simulate
 
-    if _can_fuse(sc):
+    if can_fuse(sc):
         first.append(simulate(sc, 1, seed))
         # identification consumes each chunk's z before the next: one buffer serves every chunk
         yield from iter_chattering(
@@ -281,6 +283,7 @@ def stream_chunks(
 
 
 def print_report(doc: dict) -> None:
+    """Print the detection report ``doc`` (the JSON document) as a table."""
     from ..detection.report_text import detection_table
 
     print(detection_table(doc))

@@ -46,6 +46,7 @@ DEFAULT_CALIBRATION_RUNS = 1000
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``chatterspec diagnose`` and its options to the subcommand parsers ``sub``."""
     from ..detection.alarms import rule_names
     from ..studies.route_sweep import DEFAULT_WARMUP_S
     from ..studies.routes import ALL_METHODS
@@ -249,6 +250,7 @@ def _chattering_law(args: argparse.Namespace, sc: object) -> tuple[object, dict]
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``chatterspec diagnose`` with the parsed ``args``; returns the exit status."""
     from .detect import refuse_with_calibration
 
     check_record_path(args.record)

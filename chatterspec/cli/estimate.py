@@ -11,6 +11,7 @@ from ._common import Outputs, alpha_arg, check_record_path, nonnegative_int_arg,
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``chatterspec estimate`` and its options to the subcommand parsers ``sub``."""
     p = sub.add_parser(
         "estimate",
         help="compare state estimators (KF/EKF, SVSF, 2nd-order SVSF) on Monte Carlo runs",
@@ -78,6 +79,7 @@ def _check_output(path: str | None) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``chatterspec estimate`` with the parsed ``args``; returns the exit status."""
     from ..studies.estimation import estimation_study, parse_filters
 
     names = parse_filters(args.filters)

@@ -10,6 +10,7 @@ from .calibrate import add_common, execution
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``chatterspec far`` and its options to the subcommand parsers ``sub``."""
     p = sub.add_parser(
         "far",
         help="false-alarm rates on healthy Monte Carlo runs",
@@ -26,6 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``chatterspec far`` with the parsed ``args``; returns the exit status."""
     if args.plot:
         check_output_file(args.plot, "--plot", suffixes=figure_suffixes())
     outputs = Outputs()

@@ -23,6 +23,7 @@ from ._common import Outputs, check_output_dir, nonnegative_int_arg, positive_in
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``chatterspec figures`` and its options to the subcommand parsers ``sub``."""
     p = sub.add_parser(
         "figures",
         help="regenerate the paper's figures (Figs 2, 4-12) as PNG files",
@@ -75,6 +76,7 @@ def selected_figures(only: str | None) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``chatterspec figures`` with the parsed ``args``; returns the exit status."""
     if not args.list:  # before the (slow) imports: a bad --out fails at once
         out = Path(args.out)
         if out.exists() and not out.is_dir():

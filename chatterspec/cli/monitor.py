@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import signal
 import sys
 import threading
 import time
@@ -26,7 +25,7 @@ from pathlib import Path
 from ..errors import ParameterError
 from ..jsonout import dumps
 from . import _identify
-from ._alarm_args import add_alarm_args, alarm_choice
+from ._alarm_args import _alarm_line, _alarm_short, add_alarm_args, alarm_choice, alarm_doc
 from ._common import (
     Outputs,
     alpha_arg,
@@ -36,9 +35,11 @@ from ._common import (
     live_arg,
     positive_int_arg,
 )
+from ._monitor_stream import _emit_line, _run_stream
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``chatterspec monitor`` and its options to the subcommand parsers ``sub``."""
     p = sub.add_parser(
         "monitor",
         help="run the online chattering monitor on your own model and data",
@@ -185,6 +186,7 @@ def _stream_mode(args: argparse.Namespace) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``chatterspec monitor`` with the parsed ``args``; returns the exit status."""
     from ..plants.modelfile import load_data, load_model
 
     if args.rate is not None and not args.rate > 0:
@@ -201,7 +203,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"chatterspec monitor: warning: {w.message}", file=sys.stderr)
     from ..detection.spectral import STFTConfig  # after the model file: its errors come at once
     from ..online.monitor import ChatteringMonitor, MonitorSettings
+    from ..plants.measurement import require_linear_measurement
 
+    require_linear_measurement(spec.model, "the chattering monitor")
     if not spec.is_linear and args.calibration is None:
         raise ParameterError(
             f"{args.model} is a nonlinear model: it has no closed-form chattering spectrum, so the monitor "
@@ -408,147 +412,6 @@ def _warm_up(monitor: object) -> None:
     warm.push(np.zeros((n, m.n_outputs)), np.zeros((n, m.n_inputs)))
 
 
-class _Terminated(Exception):
-    """SIGTERM arrived (raised from the signal handler to unwind the read loop)."""
-
-
-def _emit_line(text: str) -> None:
-    sys.stdout.write(text + "\n")
-    sys.stdout.flush()
-
-
-def _run_stream(
-    args: argparse.Namespace,
-    spec: object,
-    settings: object,
-    jsonl: bool,
-    human: object,
-    ident: _identify.MonitorIdentification | None = None,
-) -> int:
-    from ..errors import ChatterspecError
-    from ..online.live_stream import StreamMonitor, drive
-    from ..online.stream import CsvRows, follow_file, read_fd
-
-    stdin = str(args.data) == "-"
-    where = "standard input" if stdin else f"data file {str(args.data)!r}"
-    if args.follow and not args.data.is_file():
-        raise ParameterError(f"--follow: {where} does not exist (create it, header first, then follow it)")
-    model = spec.model  # type: ignore[attr-defined]
-
-    def on_event(ev: object) -> None:
-        if jsonl:
-            _emit_line(ev.to_json())  # type: ignore[attr-defined]
-        print(ev.describe(), file=human, flush=True)  # type: ignore[attr-defined]
-
-    def on_note(text: str) -> None:
-        print(f"chatterspec monitor: {text}", file=sys.stderr, flush=True)
-
-    try:
-        mon = StreamMonitor(
-            model,
-            settings,  # type: ignore[arg-type]
-            record=args.record,
-            record_every_s=None if args.record_every is None else 60.0 * args.record_every,
-            live=args.live,
-            recording_name="monitor stdin" if stdin else f"monitor {args.data.name}",
-            skip_bad_rows=args.skip_bad_rows,
-            on_event=on_event,
-            on_note=on_note,
-            on_push=None if ident is None else ident.push,
-            on_reset=None if ident is None else ident.reset,
-        )
-    except OSError as exc:  # e.g. disk full when the recording opens: before any row is read
-        from ._common import OutputPathError
-
-        raise OutputPathError(
-            f"--record {str(args.record)!r} cannot be written ({exc.strerror or exc}); nothing was monitored"
-        ) from None
-    rows = CsvRows(model, where)
-    if stdin:
-        chunks = read_fd(sys.stdin.fileno())
-    else:
-        chunks = follow_file(args.data, from_end=args.from_end, idle_timeout_s=args.idle_timeout)
-
-    def on_term(signum: int, frame: object) -> None:
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # finishing must not be interrupted again
-        raise _Terminated
-
-    previous = signal.signal(signal.SIGTERM, on_term)
-    stopped, error = "idle timeout" if args.follow else "end of input", None
-    try:
-        drive(chunks, rows, mon)
-    except KeyboardInterrupt:
-        stopped = "SIGINT"
-    except _Terminated:
-        stopped = "SIGTERM"
-    except BrokenPipeError:
-        stopped = "output closed"
-        _quiet_stdout()
-    except ChatterspecError as exc:
-        stopped, error = "error", exc
-    finally:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        try:
-            summary = mon.close(stopped)
-        finally:
-            signal.signal(signal.SIGINT, signal.default_int_handler)
-            signal.signal(signal.SIGTERM, previous)
-    try:
-        _report(args, summary, jsonl, human, settings, ident)
-    except BrokenPipeError:
-        _quiet_stdout()
-    if error is not None:
-        raise error
-    return 0
-
-
-def _quiet_stdout() -> None:
-    """The reader of stdout went away: send further output (and the exit flush) to /dev/null."""
-    import os
-
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, sys.stdout.fileno())
-
-
-def _report(
-    args: argparse.Namespace,
-    summary: object,
-    jsonl: bool,
-    human: object,
-    settings: object,
-    ident: _identify.MonitorIdentification | None = None,
-) -> None:
-    s = summary  # StreamSummary
-    if args.json:
-        doc = {"model": str(args.model), "data": str(args.data), "alarm": alarm_doc(settings)}
-        doc.update(s.to_dict())  # type: ignore[attr-defined]
-        if ident is not None:
-            doc["identification"] = ident.to_dict()
-        if jsonl:
-            _emit_line(dumps({"event": "summary", **doc}))
-        else:
-            print(dumps(doc, indent=2))
-        return
-    lat = s.latency  # type: ignore[attr-defined]
-    c = s.counts  # type: ignore[attr-defined]
-    latency = (
-        f"latency median {lat['median_ms']:.2f} ms, max {lat['max_ms']:.2f} ms"
-        if lat["frames"]
-        else "no frame completed"
-    )
-    print(
-        f"{s.duration_s:.2f} s of data ({s.n_rows} rows), {s.n_frames} frames, "  # type: ignore[attr-defined]
-        f"{c['fault-start']} fault start(s) [{_alarm_short(settings)}], {c['gap']} gap(s), "
-        f"{c['restart']} restart(s), "
-        f"{c['bad-row']} bad row(s) skipped; {latency}; {s.wall_s:.2f} s wall; "  # type: ignore[attr-defined]
-        f"stopped by {s.stopped_by}",  # type: ignore[attr-defined]
-        file=human,
-    )
-    for rec in s.recordings:  # type: ignore[attr-defined]
-        print(f"recording: {rec['path']} (open with `chatterspec replay {rec['path']}`)", file=human)
-
-
 def _alarm_settings(
     args: argparse.Namespace, choice: object, model: object, settings: object, cal: object
 ) -> object:
@@ -588,43 +451,3 @@ def _alarm_settings(
         hours=hours,
         **c.parameters,  # type: ignore[attr-defined]
     )
-
-
-def alarm_doc(settings: object) -> dict:
-    """The ``alarm`` entry of the JSON summary: rule, threshold, budget and how it was set."""
-    import math
-
-    b = getattr(settings, "budget", None)
-    rule = getattr(settings, "rule", None)
-    if rule is None:
-        a = float(settings.alpha)  # type: ignore[attr-defined]
-        return {
-            "rule": {"rule": "frame", "threshold": -math.log(a)},
-            "alpha": a,
-            "false_alarms_per_hour": None,
-            "calibration": None,
-        }
-    return {
-        "rule": rule.to_dict(),
-        "alpha": None,
-        "false_alarms_per_hour": None if b is None else b.false_alarms_per_hour,
-        "calibration": None if b is None else b.to_dict(),
-    }
-
-
-def _alarm_short(settings: object) -> str:
-    from ..online.monitor_types import alarm_label
-
-    rule = getattr(settings, "rule", None)
-    if rule is None:
-        return f"frame rule, per-frame alpha {settings.alpha:g}"  # type: ignore[attr-defined]
-    return alarm_label(rule.name, settings.false_alarms_per_hour)  # type: ignore[attr-defined]
-
-
-def _alarm_line(settings: object) -> str:
-    """One stderr line on the rule in use and where its threshold comes from."""
-    rule = getattr(settings, "rule", None)
-    if rule is None:
-        return f"alarms: {_alarm_short(settings)} (every frame a test)"
-    b = settings.budget  # type: ignore[attr-defined]
-    return f"alarms: {b.describe()}" if b is not None else f"alarms: {rule.describe()}"

@@ -16,6 +16,7 @@ FAMILY_NAMES: tuple[str, ...] = ("leakage", "bulk-modulus", "friction", "f0")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``chatterspec power`` and its options to the subcommand parsers ``sub``."""
     p = sub.add_parser(
         "power",
         help="detection power vs fault size and noise level",
@@ -33,6 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``chatterspec power`` with the parsed ``args``; returns the exit status."""
     if args.plot:
         check_output_file(args.plot, "--plot", suffixes=figure_suffixes())
     if args.closed_loop:

@@ -11,6 +11,7 @@ from ..errors import DataFileError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``chatterspec replay`` and its options to the subcommand parsers ``sub``."""
     p = sub.add_parser(
         "replay",
         help="open a .rrd recording in the Rerun viewer",
@@ -35,6 +36,7 @@ def _is_rrd(path: Path) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``chatterspec replay`` with the parsed ``args``; returns the exit status."""
     from ..online.viewer import find_viewer, has_display
 
     path: Path = args.file

@@ -10,6 +10,7 @@ from ..jsonout import dumps
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``chatterspec scenarios`` and its options to the subcommand parsers ``sub``."""
     p = sub.add_parser(
         "scenarios",
         help="list the scenario catalogue",
@@ -102,6 +103,7 @@ def _fmt(x: float | None, spec: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``chatterspec scenarios`` with the parsed ``args``; returns the exit status."""
     if args.model_toml is not None:
         if args.name is None:
             raise ParameterError("--model-toml needs a scenario NAME (see `chatterspec scenarios`)")

@@ -30,6 +30,7 @@ PACE_S = 0.005
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``chatterspec simulate`` and its options to the subcommand parsers ``sub``."""
     p = sub.add_parser(
         "simulate",
         help="write a scenario's measurements and inputs as a live CSV stream on stdout",
@@ -60,6 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``chatterspec simulate`` with the parsed ``args``; returns the exit status."""
     from ..online.stream import csv_header, csv_lines, simulate_blocks
 
     if not (args.rate >= 0 and args.rate < float("inf")):

@@ -29,6 +29,7 @@ DEFAULT_FOLDER = Path("figures")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``chatterspec spectrum`` and its options to the subcommand parsers ``sub``."""
     p = sub.add_parser(
         "spectrum",
         help="write a PNG of one scenario's chattering spectrum with expected value and thresholds",
@@ -71,6 +72,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``chatterspec spectrum`` with the parsed ``args``; returns the exit status."""
     out = Path(args.out) if args.out else DEFAULT_FOLDER / f"{args.name}-spectrum.png"
     if out.suffix.lower() != ".png":
         raise ParameterError(f"--out must name a .png file; got {str(out)!r}")

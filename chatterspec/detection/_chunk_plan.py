@@ -16,17 +16,11 @@ import numpy as np
 from .._validate import open_unit
 from ..errors import ParameterError, ShapeError
 from ..plants.nonlinear import is_linear
-from .detect import (
-    _VERDICT_FIELDS,
-    DetectionReport,
-    FrameDetection,
-    SpectrumDetection,
-    _require_empirical,
-    detect_spectrum,
-    stft_detect,
-)
+from .frames import FrameDetection, stft_detect
 from .pipeline import ChatteringRecord
+from .report import DetectionReport
 from .spectral import DEFAULT_STFT, STFTConfig, expected_spectrum, periodogram
+from .spectrum_verdicts import _VERDICT_FIELDS, SpectrumDetection, _require_empirical, detect_spectrum
 from .thresholds import Band, Correction, Threshold, check_band, exact_threshold, paper_threshold
 
 __all__ = ["ChunkPlan"]

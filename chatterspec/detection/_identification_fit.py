@@ -95,6 +95,7 @@ class IdentificationSetup:
 
     @property
     def n_entries(self) -> int:
+        """Number of entries."""
         return int(self.rows.size)
 
     @property
@@ -567,6 +568,7 @@ def true_hypothesis(setup: IdentificationSetup, true_model: LinearModel) -> str 
 
 
 def check_alpha(alpha: float, confidence: float) -> tuple[float, float]:
+    """``(alpha, confidence)`` as floats, each checked to lie in (0, 1)."""
     for name, v in (("alpha", alpha), ("confidence", confidence)):
         if not 0.0 < float(v) < 1.0:
             raise ParameterError(f"{name} must lie in (0, 1); got {v!r}")

@@ -58,6 +58,7 @@ class IdentificationMoments:
 
     @property
     def runs(self) -> int:
+        """Number of realizations (the leading axis)."""
         return self.swx.shape[0]
 
     def then(self, later: IdentificationMoments) -> IdentificationMoments:

@@ -214,9 +214,11 @@ class RuleCalibration:
 
     @property
     def threshold(self) -> float:
+        """The calibrated rule's threshold (score units)."""
         return self.rule.threshold
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         how = {
             "law": "from the healthy law (an upper bound on the rate)",
             "counted": f"counted on {self.hours:.3g} h of healthy streams",
@@ -247,6 +249,7 @@ class RuleCalibration:
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> RuleCalibration:
+        """Rebuild the object from the output of ``to_dict``."""
         try:
             return cls(
                 rule=rule_from_dict(d["rule"]),

@@ -120,8 +120,8 @@ def detect_parallel(
     --------
     chatterspec.detection.detect.detect_chunks : the serial path.
     """
+    from ..montecarlo import run_study
     from ..rng import root_seed_sequence
-    from ..studies.montecarlo import run_study
 
     runs = positive_int("runs", runs)
     root = root_seed_sequence(seed)

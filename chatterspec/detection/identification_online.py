@@ -54,6 +54,7 @@ class OnlineIdentification:
 
     @property
     def n_windows(self) -> int:
+        """Number of identification windows."""
         return int(self.frames.size)
 
     def report(self, i: int) -> IdentificationReport:

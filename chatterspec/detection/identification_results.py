@@ -97,13 +97,24 @@ def _sig(x: float, se: float) -> int:
     return int(min(12, max(2, np.floor(np.log10(abs(x))) - np.floor(np.log10(se)) + 2)))
 
 
-def _fmt(x: float, se: float) -> str:
-    """``x`` with the digits that keep two of the standard error (trailing zeros kept)."""
+def format_with_error(x: float, se: float) -> str:
+    """``x`` as text with the digits that keep two of the standard error ``se`` (trailing zeros kept).
+
+    Parameters
+    ----------
+    x : float
+        The value (any unit; ``"nan"`` when not finite).
+    se : float
+        Its standard error, same unit.
+    """
     if not np.isfinite(x):
         return "nan"
     text = f"{x:#.{_sig(x, se)}g}"
     mant, _, exp = text.partition("e")
     return mant.rstrip(".") + (f"e{exp}" if exp else "")
+
+
+_fmt = format_with_error  # the short name used below (and its old import name)
 
 
 def _round(x: float, se: float) -> float | None:
@@ -289,10 +300,12 @@ class Identification:
 
     @property
     def runs(self) -> int:
+        """Number of realizations (the leading axis)."""
         return self.moments.runs
 
     @property
     def hypothesis_names(self) -> tuple[str, ...]:
+        """Names of the tested hypotheses, in the setup's order."""
         return tuple(h.name for h in self.setup.hypotheses)
 
     @property

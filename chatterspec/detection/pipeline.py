@@ -21,16 +21,8 @@ from ..filters.svsf import _rows_times, auxiliary_svsf
 from ..plants.models import LinearModel
 from ..plants.nonlinear import is_linear, require_linear
 from ..plants.scenarios import Scenario
-from ..plants.simulate import (
-    NO_CTRL,
-    Simulation,
-    _plant_loop,
-    _same_shapes,
-    _tables,
-    default_chunk_runs,
-    iter_simulations,
-    scenario_input,
-)
+from ..plants.simulate import Simulation, default_chunk_runs, iter_simulations, scenario_input
+from ..plants.simulate_kernel import NO_CTRL, kernel_tables, plant_loop, same_shapes
 from ..rng import BLOCK, SeedLike, block_generator, root_seed_sequence
 
 __all__ = ["ChatteringRecord", "chattering_record", "iter_chattering", "scenario_chattering"]
@@ -71,18 +63,22 @@ class ChatteringRecord:
 
     @property
     def dt(self) -> float:
+        """Sampling time (s)."""
         return self.model.dt
 
     @property
     def runs(self) -> int:
+        """Number of realizations (the leading axis)."""
         return self.values.shape[0]
 
     @property
     def n_samples(self) -> int:
+        """Number of samples."""
         return self.values.shape[1]
 
     @property
     def channels(self) -> tuple[str, ...]:
+        """Output channel names."""
         return self.model.output_names
 
 
@@ -193,7 +189,7 @@ def chattering_sink(
 #: offset)``. The plant steps of :func:`chatterspec.plants.simulate.simulate` and the closed-form
 #: step of ``SVSF.update``, so the result is bit-identical to filtering the simulation; only x(k),
 #: z(k), z(k-1) of the current run are held (no ``(runs, T, n)`` arrays).
-_chattering_kernel = _jit.specialize(_plant_loop, "chattering", SINK=chattering_sink)
+_chattering_kernel = _jit.specialize(plant_loop, "chattering", SINK=chattering_sink)
 
 #: The plant loop :func:`_rng_loop` calls for each run (bound per size, see :func:`_rng_kernel`).
 RUN = _chattering_kernel
@@ -260,7 +256,7 @@ def _rng_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
     For the EHA's 3 x 3 this runs the arithmetic at the speed of the loop written out by hand
     (119 against 39 M steps/s for the loops over 3-element vectors), with the same steps.
     """
-    run = _jit.specialize_sizes(_plant_loop, "chattering", {"NX": n, "NZ": m}, SINK=chattering_sink)
+    run = _jit.specialize_sizes(plant_loop, "chattering", {"NX": n, "NZ": m}, SINK=chattering_sink)
     return _jit.specialize_sizes(_rng_loop, "rng", {"NX": n, "NZ": m}, RUN=run)
 
 
@@ -281,7 +277,7 @@ def _fused_chattering(
     root = root_seed_sequence(seed)
     t, u = scenario_input(scenario)
     T, m = len(t), model.n_outputs
-    tb = _tables(scenario, t, u)
+    tb = kernel_tables(scenario, t, u)
     Gu = np.ascontiguousarray(_rows_times(u[:-1], f._GT), dtype=float)  # as SVSF.update computes it
     PhiT = np.ascontiguousarray(f._PhiT, dtype=float)
     times = np.arange(1, T) * model.dt
@@ -331,8 +327,12 @@ def _fused_chattering(
         )
 
 
-def _can_fuse(scenario: Scenario) -> bool:
-    """The fused kernel covers the closed-form case: compiled kernels, full measurement, T >= 2, open loop."""
+def can_fuse(scenario: Scenario) -> bool:
+    """Whether the fused simulate-and-filter kernel covers ``scenario``.
+
+    It covers the closed-form case: compiled kernels, full measurement, T >= 2, open loop, every
+    segment with the nominal's dimensions. The command line uses it to choose its progress display.
+    """
     model = scenario.nominal
     return (
         _jit.enabled()
@@ -341,7 +341,7 @@ def _can_fuse(scenario: Scenario) -> bool:
         and getattr(scenario, "is_linear", True)
         and model.full_measurement
         and scenario.n_samples >= 2
-        and _same_shapes(scenario)
+        and same_shapes(scenario)
     )
 
 
@@ -392,7 +392,7 @@ def iter_chattering(
     ChatteringRecord
         One record per chunk, each with ``first_run`` set to its first realization.
     """
-    if _can_fuse(scenario):
+    if can_fuse(scenario):
         runs = positive_int("runs", runs)
         yield from _fused_chattering(
             scenario, runs, seed, chunk_runs, first_run, gamma, measurements, reuse_measurements
@@ -436,3 +436,6 @@ def scenario_chattering(
         model=scenario.nominal,
         scenario=scenario,
     )
+
+
+_can_fuse = can_fuse  # its old private name

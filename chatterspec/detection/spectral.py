@@ -37,11 +37,15 @@ import numpy as np
 import scipy.fft
 
 from .._repr import short_repr
+from .._stft import DEFAULT_STFT, STFTConfig, cached_taper
 from .._validate import finite_array, positive, positive_int, readonly
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
-from ._windows import NATIVE_WINDOWS, get_window
+
+# STFTConfig is defined in the package base (model files check it without importing this module);
+# this module is its public home (reprs, pickles and the API docs name it here).
+STFTConfig.__module__ = __name__
 
 __all__ = [
     "DEFAULT_STFT",
@@ -102,6 +106,7 @@ class Periodogram:
 
     @property
     def n_bins(self) -> int:
+        """Number of frequency bins."""
         return self.freqs_hz.shape[0]
 
     def mean(self) -> Periodogram:
@@ -142,6 +147,11 @@ def periodogram(x: np.ndarray, dt: float) -> Periodogram:
         chi-squared law of Lemma 2 (eq 43) holds for the raw DFT. Bins
         ``1 .. ceil(N/2) - 1`` are chi2(2)/2 times their mean; DC (and the
         Nyquist bin for even N) are chi2(1) times their mean (``docs/design.md`` C8).
+
+    See Also
+    --------
+    spectrogram : frame spectra (STFT) of the same signal.
+    expected_spectrum : the healthy expectation of this periodogram.
 
     Examples
     --------
@@ -262,79 +272,6 @@ def _ma1_spectrum(model: LinearModel, f: np.ndarray, rho: float) -> np.ndarray:
 # ---------------------------------------------------------------------------
 # STFT
 # ---------------------------------------------------------------------------
-@dataclass(frozen=True)
-class STFTConfig:
-    """Short-time Fourier transform settings (paper section IV-C: 1 s Hamming window, 0.2 s hop).
-
-    Parameters
-    ----------
-    window_s : float
-        Window length in seconds (> 0). ``n_window(dt) = round(window_s / dt)`` samples.
-    hop_s : float
-        Hop between frame starts in seconds (> 0, at most ``window_s``).
-    window : str
-        Window name for :func:`scipy.signal.get_window` (periodic / DFT-even form).
-
-    Raises
-    ------
-    ParameterError
-        If a length is not positive, the hop exceeds the window or the window name is unknown.
-    """
-
-    window_s: float = 1.0
-    hop_s: float = 0.2
-    window: str = "hamming"
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "window_s", positive("window_s", self.window_s, unit="s"))
-        object.__setattr__(self, "hop_s", positive("hop_s", self.hop_s, unit="s"))
-        if self.hop_s > self.window_s:
-            raise ParameterError(
-                f"hop_s ({self.hop_s} s) must not exceed window_s ({self.window_s} s): "
-                "frames would skip samples"
-            )
-        if self.window not in NATIVE_WINDOWS:  # hamming / hann need no scipy.signal (0.3-0.6 s to import)
-            import scipy.signal
-
-            try:
-                scipy.signal.get_window(self.window, 8)
-            except (ValueError, TypeError) as exc:
-                raise ParameterError(f"unknown window {self.window!r} for scipy.signal.get_window") from exc
-
-    def n_window(self, dt: float) -> int:
-        """Window length W in samples, ``round(window_s / dt)`` (at least 2)."""
-        dt = positive("dt", dt, unit="s")
-        w = round(self.window_s / dt)
-        if w < 2:
-            raise ParameterError(f"window_s = {self.window_s} s is shorter than 2 samples at dt = {dt} s")
-        return w
-
-    def n_hop(self, dt: float) -> int:
-        """Hop H in samples, ``round(hop_s / dt)`` (at least 1)."""
-        dt = positive("dt", dt, unit="s")
-        h = round(self.hop_s / dt)
-        if h < 1:
-            raise ParameterError(f"hop_s = {self.hop_s} s is shorter than one sample at dt = {dt} s")
-        return h
-
-    def taper(self, dt: float) -> np.ndarray:
-        """The window samples ``w_k``, ``k = 0 .. W-1`` (read-only)."""
-        return _taper(self.window, self.n_window(dt))
-
-    def freqs_hz(self, dt: float) -> np.ndarray:
-        """Frame frequencies ``n / (W dt)`` Hz, ``n = 0 .. W//2``."""
-        return scipy.fft.rfftfreq(self.n_window(dt), dt)
-
-
-#: The paper's STFT settings (1 s Hamming window, 0.2 s hop); the default of every STFT function.
-DEFAULT_STFT = STFTConfig()
-
-
-@lru_cache(maxsize=32)
-def _taper(window: str, n: int) -> np.ndarray:
-    return readonly(get_window(window, n))
-
-
 @lru_cache(maxsize=32)
 def _stft_engine(window: str, n_window: int, n_hop: int, dt: float) -> scipy.signal.ShortTimeFFT:
     # cached: the online monitor calls frame_columns once per push (never mutate the result)
@@ -342,7 +279,12 @@ def _stft_engine(window: str, n_window: int, n_hop: int, dt: float) -> scipy.sig
 
     # scale_to=None keeps the raw sum_k w_k x_k e^{-i w k}; we divide |.|^2 by sum w_k^2 ourselves.
     return scipy.signal.ShortTimeFFT(
-        _taper(window, n_window), n_hop, fs=1.0 / dt, fft_mode="onesided", mfft=n_window, phase_shift=None
+        cached_taper(window, n_window),
+        n_hop,
+        fs=1.0 / dt,
+        fft_mode="onesided",
+        mfft=n_window,
+        phase_shift=None,
     )
 
 
@@ -391,6 +333,7 @@ class Spectrogram:
 
     @property
     def n_frames(self) -> int:
+        """Number of frames."""
         return self.times_s.shape[0]
 
 
@@ -429,9 +372,9 @@ def frame_columns(
     dt = positive("dt", dt, unit="s")
     if isinstance(first_sample, bool) or not isinstance(first_sample, int | np.integer) or first_sample < 0:
         raise ParameterError(f"first_sample must be an integer >= 0; got {first_sample!r}")
-    from ._frame_engine import _FrameEngine  # (imports this module: not at the top)
+    from .frame_engine import FrameEngine  # deferred: the batch spectra do not need the engine
 
-    return _FrameEngine(config, dt)(x, int(first_sample))
+    return FrameEngine(config, dt)(x, int(first_sample))
 
 
 def spectrogram(x: np.ndarray, dt: float, config: STFTConfig = DEFAULT_STFT, t0: float = 0.0) -> Spectrogram:
@@ -459,6 +402,11 @@ def spectrogram(x: np.ndarray, dt: float, config: STFTConfig = DEFAULT_STFT, t0:
     ------
     ShapeError
         If the record is shorter than one window.
+
+    See Also
+    --------
+    periodogram : the whole-record spectrum.
+    frame_columns : the frames from a given sample on (online use).
     """
     x = _time_series("x", x)
     dt = positive("dt", dt, unit="s")

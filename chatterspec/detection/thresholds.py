@@ -52,16 +52,12 @@ Frequency band (beyond the paper)
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import Literal
-
 import numpy as np
-import scipy.special
 
-from .._repr import short_repr
-from .._validate import finite_array, open_unit, positive, positive_int, readonly
+from .._validate import check_band, finite_array, open_unit, positive, positive_int, readonly
 from ..errors import ParameterError, ShapeError
 from ..plants.models import LinearModel
+from .bin_law import _chi2_isf, weighted_chi2_isf, weighted_chi2_pdf, weighted_chi2_sf
 from .spectral import (
     STFTConfig,
     chattering_autocovariance,
@@ -70,16 +66,18 @@ from .spectral import (
     frame_eigenvalues,
     periodogram_eigenvalues,
 )
-
-
-def _chi2_isf(p: object, dof: object) -> np.ndarray:
-    """Inverse survival function of the chi-squared law: ``scipy.stats.chi2.isf(p, dof)``.
-
-    The same function underneath (``scipy.special.chdtri``), without importing :mod:`scipy.stats`
-    (a few hundred ms at every command start).
-    """
-    return scipy.special.chdtri(dof, p)
-
+from .threshold_type import (
+    _LAWS,
+    AlphaMeaning,
+    Band,
+    Correction,
+    Threshold,
+    ThresholdKind,
+    ThresholdLaw,
+    band_mask,
+    bin_layout,
+    per_test_alpha,
+)
 
 __all__ = [
     "AlphaMeaning",
@@ -101,380 +99,6 @@ __all__ = [
     "weighted_chi2_pdf",
     "weighted_chi2_sf",
 ]
-
-ThresholdKind = Literal["paper", "exact", "empirical"]
-AlphaMeaning = Literal["per-bin", "family-wise", "per-frame"]
-Correction = Literal["none", "bonferroni", "sidak"]
-ThresholdLaw = Literal["exact", "chi2"]
-Band = tuple[float, float]
-_CORRECTIONS = ("none", "bonferroni", "sidak")
-_LAWS = ("exact", "chi2")
-
-
-@dataclass(frozen=True, eq=False)
-class Threshold:
-    """A spectral threshold and the meaning of its false-alarm level.
-
-    Attributes
-    ----------
-    values : (bins, m) array
-        Threshold on the power of each bin and channel (units of the chattering squared).
-    freqs_hz : (bins,) array
-        Bin frequencies (Hz).
-    kind : {"paper", "exact", "empirical"}
-    alpha : float
-        The false-alarm probability the user asked for.
-    alpha_meaning : {"per-bin", "family-wise", "per-frame"}
-        ``per-bin``: each tested bin exceeds with probability alpha (healthy);
-        ``family-wise``: one record has any tested bin above with probability <= alpha;
-        ``per-frame``: one STFT frame has any tested bin above with probability <= alpha.
-    correction : {"none", "bonferroni", "sidak"}
-    tested : (bins,) bool array
-        Bins used for the verdict (DC and Nyquist excluded).
-    dof : (bins,) int array
-        Nominal chi-squared degrees of freedom of ``nu S / E[S]`` per bin (2K, or K at
-        DC/Nyquist): the law used by ``law="chi2"``; see ``effective_dof`` for the exact law.
-    averaged : int
-        Number K of independent spectra averaged (1 for a single record).
-    per_test_alpha : float
-        Level ``a`` applied to each tested bin after the correction.
-    expected : (bins, m) array or None
-        Expected healthy spectrum the threshold was built from (None for ``paper``).
-    law : {"exact", "chi2"} or None
-        Distribution the quantiles come from: ``"exact"`` (weighted sum
-        ``l1 Z1^2 + l2 Z2^2`` per bin), ``"chi2"`` (``E chi2(dof) / dof``), None
-        for ``empirical`` thresholds.
-    eigenvalues : (bins, m, 2) array or None
-        ``(l1, l2)`` per bin and channel for ``law="exact"`` (single-record law).
-    effective_dof : (bins, m) float array or None
-        ``K (l1 + l2)^2 / (l1^2 + l2^2)``: the Welch-Satterthwaite degrees of freedom
-        of the exact law (equals ``dof`` where ``l1 = l2`` or ``l2 = 0``); ``dof``
-        broadcast for ``law="chi2"``; None for ``empirical``.
-    band : (float, float) or None
-        ``(lo, hi)`` in Hz: only bins with ``lo <= f <= hi`` are tested (None: every bin
-        but DC and Nyquist).
-    """
-
-    __repr__ = short_repr  # shapes and key figures, never whole arrays
-
-    values: np.ndarray
-    freqs_hz: np.ndarray
-    kind: ThresholdKind
-    alpha: float
-    alpha_meaning: AlphaMeaning
-    correction: Correction
-    tested: np.ndarray
-    dof: np.ndarray
-    averaged: int = 1
-    per_test_alpha: float = float("nan")
-    expected: np.ndarray | None = None
-    law: ThresholdLaw | None = None
-    eigenvalues: np.ndarray | None = None
-    effective_dof: np.ndarray | None = None
-    band: Band | None = None
-
-    @property
-    def n_tested(self) -> int:
-        """Number of bins in the family (bins used for the verdict)."""
-        return int(np.count_nonzero(self.tested))
-
-    @property
-    def n_channels(self) -> int:
-        return self.values.shape[1]
-
-    def check_spectrum(self, power: np.ndarray) -> np.ndarray:
-        """Return ``power`` as an array after checking its last two axes are ``(bins, m)``.
-
-        Raises
-        ------
-        ShapeError
-            If the spectrum does not match the threshold's bins and channels.
-        """
-        power = np.asarray(power, dtype=float)
-        if power.ndim < 2 or power.shape[-2:] != self.values.shape:
-            raise ShapeError(
-                f"spectrum shape {power.shape} does not match the threshold "
-                f"(..., {self.values.shape[0]} bins, {self.values.shape[1]} channels); "
-                "build the threshold with the spectrum's freqs_hz and model"
-            )
-        return power
-
-    def restricted(self, band: Band | None) -> Threshold:
-        """This threshold with only the bins of ``band`` (Hz) tested; ``None`` returns it unchanged.
-
-        The values are not recomputed: for a family-wise threshold the level over the
-        narrower family is at most ``alpha`` (conservative). Builders that take
-        ``band=`` (:func:`exact_threshold`, ...) recompute the correction for the band.
-
-        Parameters
-        ----------
-        band : (float, float) or None
-            ``(lo, hi)`` in Hz.
-
-        Raises
-        ------
-        ParameterError
-            If the band is malformed or holds no tested bin.
-        """
-        if band is None:
-            return self
-        lo, hi = check_band(band)
-        tested = self.tested & band_mask(self.freqs_hz, (lo, hi))
-        if not tested.any():
-            raise ParameterError(
-                f"band [{lo:g}, {hi:g}] Hz holds none of this threshold's tested bins "
-                f"({self.freqs_hz[self.tested].min():g} .. {self.freqs_hz[self.tested].max():g} Hz)"
-            )
-        return replace(self, tested=readonly(tested), band=(lo, hi))
-
-    def describe(self) -> str:
-        """One sentence saying what ``alpha`` guarantees for this threshold."""
-        avg = f" for the average of {self.averaged} independent spectra" if self.averaged > 1 else ""
-        where = "" if self.band is None else f" in {self.band[0]:g}-{self.band[1]:g} Hz"
-        band = f"{self.n_tested} tested bins{where} (DC and Nyquist excluded)"
-        if self.alpha_meaning == "per-bin":
-            return (
-                f"{self.kind} threshold{avg}: each of the {band} exceeds it with probability "
-                f"{'at most ' if self.kind == 'paper' else ''}{self.alpha:g} under healthy conditions; "
-                f"no family-wise guarantee (the union bound of eq 64 gives {self.n_tested * self.alpha:g})"
-            )
-        unit = "one record" if self.alpha_meaning == "family-wise" else "one STFT frame"
-        corr = f" with {self.correction} correction" if self.correction != "none" else ""
-        level = f" (per-bin level {self.per_test_alpha:.3g})" if np.isfinite(self.per_test_alpha) else ""
-        return (
-            f"{self.kind} threshold{avg}{corr}: under healthy conditions "
-            f"{unit} has any of its {band} above the threshold with probability at most {self.alpha:g}"
-            f"{level}"
-        )
-
-
-def bin_layout(freqs_hz: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(is_dc, is_nyquist)`` boolean masks of a one-sided frequency grid (Hz).
-
-    Parameters
-    ----------
-    freqs_hz : (bins,) array
-        Frequencies (Hz).
-    dt : float
-        Sampling time (s); the Nyquist frequency is ``1 / (2 dt)``.
-    """
-    f = finite_array("freqs_hz", freqs_hz, ndim=1)
-    dt = positive("dt", dt, unit="s")
-    nyq = 0.5 / dt
-    is_dc = np.abs(f) <= 1e-9 * nyq
-    is_nyq = np.abs(f - nyq) <= 1e-9 * nyq
-    return is_dc, is_nyq
-
-
-def check_band(band: object) -> Band:
-    """Validate a frequency band ``(lo, hi)`` in Hz: finite, ``0 <= lo < hi``.
-
-    Parameters
-    ----------
-    band : pair of float
-        Lower and upper edge (Hz), both included.
-
-    Raises
-    ------
-    ParameterError
-        If it is not two finite numbers with ``0 <= lo < hi``.
-    """
-    try:
-        lo, hi = (float(v) for v in band)  # type: ignore[union-attr]
-    except (TypeError, ValueError):
-        raise ParameterError(f"band must be two numbers (lo, hi) in Hz; got {band!r}") from None
-    if not (np.isfinite(lo) and np.isfinite(hi)) or lo < 0 or hi <= lo:
-        raise ParameterError(f"band must satisfy 0 <= lo < hi (Hz, finite); got ({lo:g}, {hi:g})")
-    return lo, hi
-
-
-def band_mask(freqs_hz: np.ndarray, band: Band | None) -> np.ndarray:
-    """``(bins,)`` bool: bins with ``lo <= f <= hi`` (all True for ``band=None``).
-
-    Parameters
-    ----------
-    freqs_hz : (bins,) array
-        Frequencies (Hz).
-    band : (float, float) or None
-        ``(lo, hi)`` in Hz (validated by :func:`check_band`).
-    """
-    f = np.asarray(freqs_hz, dtype=float)
-    if band is None:
-        return np.ones(f.shape, dtype=bool)
-    lo, hi = check_band(band)
-    tol = 1e-9 * max(1.0, hi)
-    return (f >= lo - tol) & (f <= hi + tol)
-
-
-def per_test_alpha(alpha: float, n_tests: int, correction: Correction = "bonferroni") -> float:
-    """Per-bin level ``a`` giving family-wise level ``alpha`` over ``n_tests`` bins.
-
-    Parameters
-    ----------
-    alpha : float
-        Family-wise false-alarm probability in (0, 1).
-    n_tests : int
-        Number of bins in the family.
-    correction : {"bonferroni", "sidak", "none"}
-        ``none``: ``a = alpha``; ``bonferroni``: ``alpha / n``; ``sidak``: ``1 - (1 - alpha)^(1/n)``.
-    """
-    alpha = open_unit("alpha", alpha)
-    n = positive_int("n_tests", n_tests)
-    if correction == "none":
-        return alpha
-    if correction == "bonferroni":
-        return alpha / n
-    if correction == "sidak":
-        return float(-np.expm1(np.log1p(-alpha) / n))
-    raise ParameterError(f"correction must be one of {_CORRECTIONS}; got {correction!r}")
-
-
-# ---------------------------------------------------------------------------
-# Law of one bin: Y = l1 Z1^2 + l2 Z2^2 (weighted sum of two chi2(1))
-# ---------------------------------------------------------------------------
-_GL_X, _GL_W = np.polynomial.legendre.leggauss(64)
-_ERFC_CUT = 12.0  # erfc(12) ~ 1e-64: the integrand beyond is negligible
-
-
-def _eigen_pair(l1: object, l2: object) -> tuple[np.ndarray, np.ndarray]:
-    a = np.asarray(l1, dtype=float)
-    b = np.asarray(l2, dtype=float)
-    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))) or np.any(a < 0) or np.any(b < 0):
-        raise ParameterError("weights l1, l2 must be finite and >= 0")
-    return np.maximum(a, b), np.minimum(a, b)
-
-
-def _sf_unit(x: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """``P(Z1^2 + r Z2^2 > x)`` for ``0 <= r <= 1``, ``x >= 0`` (arrays of one shape).
-
-    Conditioning on ``Z1``: ``erfc(z1 / sqrt 2) + int_{|z| < z1} phi(z) erfc(sqrt((x - z^2) / (2 r))) dz``
-    with ``z1 = sqrt(x)``; the substitution ``z = z1 cos s`` gives
-    ``2 z1 int_0^{pi/2} phi(z1 cos s) erfc(K sin s) sin s ds``, ``K = sqrt(x / (2 r))``, an entire
-    integrand, cut where ``K sin s > 12`` and integrated by 64-point Gauss-Legendre (relative error
-    ~1e-15 against direct quadrature of the density, whatever ``r``).
-    """
-    z1 = np.sqrt(x)
-    first = scipy.special.erfc(z1 / np.sqrt(2.0))
-    pos = r > 0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        K = np.where(pos, np.sqrt(x / (2.0 * np.where(pos, r, 1.0))), np.inf)
-    Ks = np.where(np.isfinite(K) & (K > 0), K, 1.0)
-    smax = np.where(K > _ERFC_CUT, np.arcsin(np.minimum(1.0, _ERFC_CUT / Ks)), 0.5 * np.pi)
-    sn = smax[..., None] * (0.5 * (_GL_X + 1.0))
-    sin_s = np.sin(sn)
-    integrand = (
-        np.exp(-0.5 * (z1[..., None] * np.cos(sn)) ** 2)
-        * scipy.special.erfc(np.where(pos, Ks, 0.0)[..., None] * sin_s)
-        * sin_s
-    )
-    second = z1 * smax * (integrand @ _GL_W) / np.sqrt(2.0 * np.pi)
-    return first + np.where(pos & (x > 0), second, 0.0)
-
-
-def _pdf_unit(x: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Density of ``Z1^2 + r Z2^2`` at ``x > 0``: ``exp(-x/2) I0(x (1 - r) / (4 r)) e^{...} / (2 sqrt r)``."""
-    pos = r > 0
-    rs = np.where(pos, r, 1.0)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        gen = np.exp(-0.5 * x) * scipy.special.i0e(x * (1.0 - rs) / (4.0 * rs)) / (2.0 * np.sqrt(rs))
-        chi1 = np.exp(-0.5 * x) / np.sqrt(2.0 * np.pi * x)
-    return np.where(pos, gen, chi1)
-
-
-def weighted_chi2_sf(t: object, l1: object, l2: object) -> np.ndarray:
-    """Survival function ``P(l1 Z1^2 + l2 Z2^2 > t)``, ``Z1, Z2`` iid standard normal (broadcasting).
-
-    The exact law of a periodogram or frame bin of Gaussian data (see
-    :func:`chatterspec.detection.spectral.periodogram_eigenvalues`). ``l1 = l2 = l`` gives
-    ``exp(-t / (2 l))`` (``l chi2(2)``), ``l2 = 0`` gives ``l1 chi2(1)``. Computed by a
-    one-dimensional integral (Gauss-Legendre, relative error ~1e-15) of non-negative terms,
-    so it is accurate far in the tail.
-
-    Parameters
-    ----------
-    t : array_like
-        Thresholds (any real; ``sf = 1`` for ``t <= 0``).
-    l1, l2 : array_like
-        Non-negative weights (their order does not matter).
-    """
-    a, b = _eigen_pair(l1, l2)
-    t = np.asarray(t, dtype=float)
-    t, a, b = np.broadcast_arrays(t, a, b)
-    out = np.ones(t.shape)
-    ok = (t > 0) & (a > 0)
-    if np.any(ok):
-        out[ok] = _sf_unit(t[ok] / a[ok], b[ok] / a[ok])
-    return out
-
-
-def weighted_chi2_pdf(t: object, l1: object, l2: object) -> np.ndarray:
-    """Density of ``l1 Z1^2 + l2 Z2^2`` at ``t > 0`` (0 for ``t <= 0``; requires ``max(l1, l2) > 0``)."""
-    a, b = _eigen_pair(l1, l2)
-    t = np.asarray(t, dtype=float)
-    t, a, b = np.broadcast_arrays(t, a, b)
-    if np.any(a <= 0):
-        raise ParameterError("weighted_chi2_pdf needs max(l1, l2) > 0")
-    out = np.zeros(t.shape)
-    ok = t > 0
-    out[ok] = _pdf_unit(t[ok] / a[ok], b[ok] / a[ok]) / a[ok]
-    return out
-
-
-def weighted_chi2_isf(p: object, l1: object, l2: object, rtol: float = 1e-10) -> np.ndarray:
-    """Inverse survival function of ``l1 Z1^2 + l2 Z2^2``: ``t`` with ``P(Y > t) = p`` (broadcasting).
-
-    Safeguarded Newton iteration on ``log sf`` (vectorized over every bin and channel)
-    inside the bracket ``l1 chi2.isf(p, 1) <= t <= l1 chi2.isf(p, 2)`` (``l1 Z1^2 <= Y <=
-    l1 (Z1^2 + Z2^2)``), to relative accuracy ``rtol``. ``l2 = 0`` is exactly
-    ``l1 chi2.isf(p, 1)``; ``l1 = l2 = 0`` gives 0.
-
-    Parameters
-    ----------
-    p : array_like
-        Exceedance probabilities in (0, 1).
-    l1, l2 : array_like
-        Non-negative weights (their order does not matter).
-    rtol : float
-        Relative tolerance on ``t``.
-    """
-    a, b = _eigen_pair(l1, l2)
-    p = np.asarray(p, dtype=float)
-    if not np.all((p > 0) & (p < 1)):
-        raise ParameterError("p must lie in the open interval (0, 1)")
-    p, a, b = np.broadcast_arrays(p, a, b)
-    out = np.zeros(p.shape)
-    ok = a > 0
-    if not np.any(ok):
-        return out
-    pv, r = p[ok], b[ok] / a[ok]
-    lo = _chi2_isf(pv, 1)
-    hi = _chi2_isf(pv, 2)
-    # start from the Welch-Satterthwaite approximation, clipped into the bracket
-    c = (1.0 + r * r) / (1.0 + r)
-    x = np.clip(c * _chi2_isf(pv, (1.0 + r) ** 2 / (1.0 + r * r)), lo, hi)
-    x = np.where(r > 0, x, lo)
-    act = r > 0
-    logp = np.log(pv)
-    for _ in range(200):
-        if not np.any(act):
-            break
-        xa, ra = x[act], r[act]
-        sf = _sf_unit(xa, ra)
-        h = np.log(sf) - logp[act]
-        lo_a = np.where(h > 0, xa, lo[act])  # sf too large: the quantile is above x
-        hi_a = np.where(h > 0, hi[act], xa)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            step = h * sf / _pdf_unit(xa, ra)  # Newton: x - h / h', h' = -pdf / sf
-        xn = xa + step
-        conv = np.isfinite(step) & (np.abs(step) <= rtol * xa)  # converged (may sit on the bracket)
-        bad = ~np.isfinite(xn) | (xn <= lo_a) | (xn >= hi_a)
-        xn = np.where(conv | (h == 0), np.where(h == 0, xa, xn), np.where(bad, 0.5 * (lo_a + hi_a), xn))
-        done = conv | (h == 0) | (hi_a - lo_a <= rtol * xa)
-        lo[act], hi[act], x[act] = lo_a, hi_a, xn
-        idx = np.flatnonzero(act)
-        act[idx[done]] = False
-    out[ok] = x * a[ok]
-    return out
 
 
 def _check_law(law: str) -> ThresholdLaw:
@@ -595,6 +219,11 @@ def exact_threshold(
     -------
     Threshold
         ``kind="exact"``; bins ``1 .. ceil(N/2) - 1`` (within ``band``) tested.
+
+    See Also
+    --------
+    paper_threshold : the paper's flat bound (eq 58-62).
+    frame_threshold : the per-frame threshold of the STFT.
     """
     alpha = open_unit("alpha", alpha)
     averaged = positive_int("averaged", averaged)
@@ -644,6 +273,10 @@ def frame_threshold(
         Law of a healthy frame bin (see above).
     band : (float, float), optional
         ``(lo, hi)`` in Hz: test only these frame bins; the correction counts only them.
+
+    See Also
+    --------
+    exact_threshold : the whole-record threshold.
     """
     alpha = open_unit("alpha", alpha)
     law = _check_law(law)
@@ -693,6 +326,11 @@ def paper_threshold(
         Per-bin false-alarm probability in (0, 1).
     band : (float, float), optional
         ``(lo, hi)`` in Hz: test only these bins (beyond the paper; the per-bin level is unchanged).
+
+    See Also
+    --------
+    exact_threshold : each bin's own law (the default).
+    frame_threshold : the per-frame threshold of the STFT.
     """
     alpha = open_unit("alpha", alpha)
     freqs = finite_array("freqs_hz", freqs_hz, ndim=1)

@@ -23,6 +23,8 @@ import numpy as np
 
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError
+from .mixture import combine
+from .protocol import check_spd
 
 __all__ = [
     "BANK_STORABLE",
@@ -181,9 +183,6 @@ def mode_initial(
     (xs, Ps, x, P)
         With both None: the common values for every mode and ``x``, ``P`` unchanged.
     """
-    from .multiple_model import combine  # (module-level import would be circular)
-    from .protocol import check_spd
-
     runs, n = x.shape
     if mode_x0 is None:
         xs = np.broadcast_to(x[:, None], (runs, r, n))

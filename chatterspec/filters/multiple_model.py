@@ -57,6 +57,7 @@ from ..plants.measurement import require_linear_measurement
 from . import _imm_kernel, _smm_kernel
 from ._base import check_model
 from ._conventions import bank_store, default_input, mode_initial
+from .mixture import combine
 from .protocol import FilterState, check_spd
 from .svsf_cov import SVSFCov, check_gamma, default_mapping, mapping_matrix, per_channel
 
@@ -258,34 +259,6 @@ def normalize_log_weights(logw: np.ndarray, floor: float = 0.0) -> np.ndarray:
         mu = np.maximum(mu, floor)
         mu /= mu.sum(axis=-1, keepdims=True)
     return mu
-
-
-def combine(
-    mu: np.ndarray, xs: np.ndarray, Ps: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """Mode-weighted estimate and covariance ([SMM] eq 3.4-3.5, [IMM] eq 31-33 with the factor 1/2).
-
-    ``x = sum_j mu_j x_j``, ``P = sum_j mu_j [P_j + (x_j - x)(x_j - x)^T]``.
-
-    Parameters
-    ----------
-    mu : (..., r) array
-        Mode probabilities.
-    xs : (..., r, n) array
-        Mode-conditioned estimates.
-    Ps : (..., r, n, n) array, optional
-        Mode-conditioned covariances (None: return ``P = None``).
-
-    Returns
-    -------
-    (x (..., n), P (..., n, n) or None)
-    """
-    x = np.einsum("...j,...jn->...n", mu, xs)
-    if Ps is None:
-        return x, None
-    d = xs - x[..., None, :]
-    P = np.einsum("...j,...jab->...ab", mu, Ps + d[..., :, None] * d[..., None, :])
-    return x, P
 
 
 def pairwise_spread(mu: np.ndarray, xs: np.ndarray) -> np.ndarray:

@@ -10,11 +10,7 @@ bit for bit; the sat SVSF's numpy fallback is the one exception, equal to
 
 from __future__ import annotations
 
-import numpy as np
-
 from .. import _jit
-from ..detection._verdict import peak_kernel
-from ..detection.thresholds import Threshold
 from ..filters._svsf_kernels import closed_form_step, matvec_step, rows_times_step, svsf_step
 
 __all__: list[str] = []
@@ -22,55 +18,6 @@ __all__: list[str] = []
 #: Sizes of :func:`_filters_loop` (states, outputs, unmeasured states), bound by :func:`filters_kernel`;
 #: 0 reads them from the arrays.
 NX = NZ = NL = 0
-
-
-class _Verdicts:
-    """:func:`frame_verdicts` with the tested bins and their threshold precomputed (per-push cost)."""
-
-    def __init__(self, threshold: Threshold, compiled: bool = False) -> None:
-        tested = np.flatnonzero(threshold.tested)
-        contiguous = tested.size > 0 and bool(np.all(np.diff(tested) == 1))
-        # a slice is a view (no copy of the spectra); fancy indexing otherwise
-        self.sel: slice | np.ndarray = slice(int(tested[0]), int(tested[-1]) + 1) if contiguous else tested
-        self.values = np.ascontiguousarray(threshold.values[tested])
-        self.freqs = np.ascontiguousarray(threshold.freqs_hz[tested], dtype=float)
-        # the one-pass flag rule below needs finite normal thresholds > 0 (else: the direct comparison)
-        tiny = np.finfo(float).tiny
-        self.one_pass = bool(np.all((self.values >= tiny) & np.isfinite(self.values)))
-        # the monitor's case (contiguous tested bins, one-pass rule) in one compiled pass when enabled:
-        # the detection verdict's loop without the excess and the sum (detection._verdict.peak_kernel)
-        self.compiled = compiled and self.one_pass and isinstance(self.sel, slice)
-        self._positions = np.arange(tested.size, dtype=np.int64)
-        self._no_expected = np.empty((0, 0))
-
-    def __call__(self, power: np.ndarray, finite: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``finite``: ``power`` holds no NaN / inf (always so in the monitor: its input is checked)."""
-        if self.compiled and finite and power.ndim == 3:
-            F, m = power.shape[0], power.shape[2]
-            k, peak_ratio = np.empty((F, m), dtype=np.int64), np.empty((F, m))
-            peak_kernel(
-                power[:, self.sel],
-                self.values,
-                self._no_expected,
-                self._positions,
-                k,
-                peak_ratio,
-                k,
-                peak_ratio,
-            )
-            return peak_ratio > 1.0, self.freqs[k], peak_ratio
-        p = power[..., self.sel, :]
-        ratio = p / self.values
-        k = np.argmax(ratio, axis=-2)
-        peak_ratio = np.take_along_axis(ratio, k[..., None, :], axis=-2)[..., 0, :]
-        # flags = any(p > threshold) (detect_frames' rule) without a second pass over the bins: for
-        # a normal v > 0 and finite p >= 0, p > v means p >= v + ulp(v), so p / v >= 1 + ulp(v) / v
-        # > 1 + 2^-53 rounds to > 1; p <= v gives fl(p / v) <= 1. Hence fl(p / v) > 1 <=> p > v,
-        # and max_k fl(p / v) > 1 <=> any(p > v) (checked at exact ties in tests/test_monitor.py).
-        if not (self.one_pass and finite):
-            return np.any(p > self.values, axis=-2), self.freqs[k], peak_ratio
-        flags = peak_ratio > 1.0
-        return flags, self.freqs[k], peak_ratio
 
 
 def _filters_loop(

@@ -63,6 +63,7 @@ class RecordingSummary:
     write_error: str | None = None
 
     def to_dict(self) -> dict[str, object]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {
             "recording": None if self.path is None else str(self.path),
             "live_url": self.live_url,

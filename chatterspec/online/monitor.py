@@ -46,16 +46,17 @@ import numpy as np
 
 from .. import _jit
 from .._validate import finite_array, positive_int
-from ..detection._frame_engine import _FrameEngine
 from ..detection.alarms import AlarmStream, FrameRule
+from ..detection.frame_engine import FrameEngine
 from ..detection.frame_score import FrameScore
-from ..detection.thresholds import Threshold, frame_threshold
+from ..detection.frames import FrameVerdicts, frame_verdicts
+from ..detection.thresholds import frame_threshold
 from ..errors import ParameterError, ShapeError
 from ..filters.nonlinear_svsf import NonlinearSgnSVSF
 from ..filters.svsf import SVSF, SVSFState, _rows_times, auxiliary_svsf
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
-from ._push_kernels import _Verdicts, filters_kernel
+from ._push_kernels import filters_kernel
 from .monitor_types import DetectionEvent, EventKind, FrameBlock, MonitorSettings, MonitorUpdate
 
 __all__ = [
@@ -68,25 +69,7 @@ __all__ = [
 ]
 
 
-def frame_verdicts(power: np.ndarray, threshold: Threshold) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-frame verdicts from frame spectra.
-
-    Parameters
-    ----------
-    power : (..., F, bins, m) array
-        Frame spectra (see :func:`chatterspec.detection.spectral.frame_columns`).
-    threshold : Threshold
-        Per-frame threshold (:func:`chatterspec.detection.thresholds.frame_threshold`).
-
-    Returns
-    -------
-    (flags, peak_hz, peak_ratio)
-        Each ``(..., F, m)``: a frame is flagged on a channel when any tested bin
-        exceeds the threshold, i.e. when the largest ``S / threshold`` over the
-        tested bins is > 1; ``peak_hz`` is that bin's frequency (Hz).
-    """
-    power = threshold.check_spectrum(power)
-    return _Verdicts(threshold)(power, finite=bool(np.isfinite(power).all()))
+_Verdicts = FrameVerdicts  # the old private name (tests and old code)
 
 
 class ChatteringMonitor:
@@ -183,9 +166,9 @@ class ChatteringMonitor:
         # that small pushes append in place instead of re-concatenating the window every time
         self._buf = np.empty((self.n_window + self.n_hop, m))
         self._n_buf = 0
-        self._verdicts = _Verdicts(self.threshold, compiled=_jit.enabled())
+        self._verdicts = FrameVerdicts(self.threshold, compiled=_jit.enabled())
         # frame_columns with this monitor's scratch buffers (and compiled loops when enabled: same bits)
-        self._columns = _FrameEngine(s.stft, self.dt, compiled=_jit.enabled())
+        self._columns = FrameEngine(s.stft, self.dt, compiled=_jit.enabled())
         self._no_frames = self._empty_frames()
         self._n_frames = 0
         # the frame score and the alarm rule (None: the per-frame rule at alpha, i.e. events where the
@@ -203,6 +186,7 @@ class ChatteringMonitor:
     # ------------------------------------------------------------- properties
     @property
     def channels(self) -> tuple[str, ...]:
+        """Output channel names of the monitored model."""
         return self.model.output_names
 
     @property

@@ -1,5 +1,8 @@
 """The online monitor's settings and outputs (frozen dataclasses), re-exported by :mod:`.monitor`.
 
+:class:`MonitorSettings` is defined in :mod:`chatterspec.detection.monitor_settings` (the batch alarm
+studies use it too) and re-exported here.
+
 :class:`MonitorSettings` (what the monitor tests and how it raises alarms), :class:`DetectionEvent`
 (a fault start or end), :class:`FrameBlock` (the frames one push completed) and
 :class:`MonitorUpdate` (everything one push produced).
@@ -8,108 +11,16 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 
-from .._validate import finite_array, open_unit
-from ..detection.alarm_calibration import RuleCalibration
-from ..detection.alarms import AlarmRule, CusumRule, FrameRule, PersistenceRule
-from ..detection.spectral import STFTConfig
-from ..detection.thresholds import Threshold, check_band
-from ..errors import ParameterError
+from ..detection.monitor_settings import MonitorSettings
 
 __all__ = ["DetectionEvent", "EventKind", "FrameBlock", "MonitorSettings", "MonitorUpdate"]
 
 EventKind = Literal["fault-start", "fault-end"]
-
-
-@dataclass(frozen=True)
-class MonitorSettings:
-    """Detector settings of the online monitor.
-
-    Parameters
-    ----------
-    stft : STFTConfig
-        Window and hop (default 1 s Hamming, 0.2 s hop).
-    alpha : float
-        Per-frame false-alarm probability (0 < alpha < 1).
-    correction : {"bonferroni", "sidak", "none"}
-        Family-wise correction over the tested bins of a frame.
-    gamma : float
-        SVSF convergence rate (both filters).
-    psi : tuple of float, optional
-        Smoothing boundary layer per output. When given, the ``sat`` SVSF runs
-        too (its estimate is reported and the boundary drawn next to the
-        chattering); ``None`` runs only the auxiliary filter.
-    threshold : Threshold, optional
-        Per-frame threshold to use instead of the analytic
-        :func:`~chatterspec.detection.thresholds.frame_threshold`, e.g. the empirical one of
-        a saved calibration, ``load_calibration(...).threshold("frame-family-wise")``
-        (then ``alpha`` and ``correction`` are ignored). It must cover the STFT
-        frequencies of ``stft``.
-    band : (float, float), optional
-        ``(lo, hi)`` in Hz: test only the frame bins with ``lo <= f <= hi`` (beyond the
-        paper, see :mod:`chatterspec.detection.thresholds`); the correction counts only
-        them. With ``threshold`` given, that threshold is restricted to the band
-        (:meth:`~chatterspec.detection.thresholds.Threshold.restricted`: its level is then
-        conservative). ``None`` (default): every bin but DC and Nyquist.
-    rule : FrameRule, PersistenceRule or CusumRule, optional
-        The alarm rule (:mod:`chatterspec.detection.alarms`) that turns the frame score
-        (``-log`` of the frame's p-value, :mod:`chatterspec.detection.frame_score`) into
-        fault-start / fault-end events, with its threshold set (e.g. by
-        :func:`chatterspec.studies.alarm_budget.alarm_settings` for a false-alarm budget).
-        ``None`` (default): the per-frame rule at ``alpha``, events where the per-frame
-        verdict (``FrameBlock.flags``) changes, as before the alarm layer.
-    budget : RuleCalibration, optional
-        How ``rule``'s threshold was set for a budget in false alarms per hour (reported in
-        events, summaries and recordings); its ``rule`` must be ``rule``.
-    """
-
-    stft: STFTConfig = field(default_factory=STFTConfig)
-    alpha: float = 1e-3
-    correction: Literal["none", "bonferroni", "sidak"] = "bonferroni"
-    gamma: float = 0.1
-    psi: tuple[float, ...] | None = None
-    threshold: Threshold | None = None
-    band: tuple[float, float] | None = None
-    rule: AlarmRule | None = None
-    budget: RuleCalibration | None = None
-
-    def __post_init__(self) -> None:
-        if self.rule is not None and not isinstance(self.rule, FrameRule | PersistenceRule | CusumRule):
-            raise ParameterError(f"rule must be an alarm rule; got {type(self.rule).__name__}")
-        if self.budget is not None:
-            if not isinstance(self.budget, RuleCalibration):
-                raise ParameterError(f"budget must be a RuleCalibration; got {type(self.budget).__name__}")
-            if self.budget.rule != self.rule:
-                raise ParameterError(
-                    f"budget was calibrated for {self.budget.rule.to_dict()}; the rule is "
-                    f"{None if self.rule is None else self.rule.to_dict()}"
-                )
-        if self.band is not None:
-            object.__setattr__(self, "band", check_band(self.band))
-        if not isinstance(self.stft, STFTConfig):
-            raise ParameterError(f"stft must be an STFTConfig; got {type(self.stft).__name__}")
-        object.__setattr__(self, "alpha", open_unit("alpha", self.alpha))
-        object.__setattr__(self, "gamma", open_unit("gamma", self.gamma))
-        if self.correction not in ("none", "bonferroni", "sidak"):
-            raise ParameterError(
-                f"correction must be 'none', 'bonferroni' or 'sidak'; got {self.correction!r}"
-            )
-        if self.threshold is not None and not isinstance(self.threshold, Threshold):
-            raise ParameterError(f"threshold must be a Threshold; got {type(self.threshold).__name__}")
-        if self.psi is not None:
-            psi = tuple(float(p) for p in np.atleast_1d(finite_array("psi", self.psi, ndim=(0, 1))))
-            if any(p <= 0 for p in psi):
-                raise ParameterError(f"psi must be > 0; got {list(psi)}")
-            object.__setattr__(self, "psi", psi)
-
-    @property
-    def false_alarms_per_hour(self) -> float | None:
-        """The budget of :attr:`budget` (alarm starts per hour, all channels), or None."""
-        return None if self.budget is None else self.budget.false_alarms_per_hour
 
 
 @dataclass(frozen=True)
@@ -162,6 +73,7 @@ class DetectionEvent:
     false_alarms_per_hour: float | None = None
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         what = "fault start" if self.kind == "fault-start" else "fault end"
         peak = "peak" if self.kind == "fault-start" else "largest peak during the fault"
         return (
@@ -237,6 +149,7 @@ class FrameBlock:
 
     @property
     def n_frames(self) -> int:
+        """Number of frames."""
         return self.index.shape[0]
 
 

@@ -200,6 +200,7 @@ class RowBlock:
 
     @property
     def n_rows(self) -> int:
+        """Number of rows."""
         return self.z.shape[0]
 
 

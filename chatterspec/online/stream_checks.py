@@ -75,6 +75,7 @@ class LatencyStats:
         return min(max(centre, self.min_s), self.max_s)
 
     def to_dict(self) -> dict[str, float | int | None]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         med = self.median()
         return {
             "frames": self.n,

@@ -150,6 +150,7 @@ class ClosedLoop:
         )
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         text = f"closed loop: {self.controller.describe()}; reference {self.reference.describe()}"
         if self.dither is not None:
             where = "pump-speed command" if self.dither_at == "input" else "reference"

@@ -36,7 +36,7 @@ from typing import Literal, NamedTuple
 import numpy as np
 
 from .._jit import step
-from .._validate import _finite_scalar, nonnegative, positive
+from .._validate import finite_scalar, nonnegative, positive
 from ..errors import ParameterError
 
 __all__ = [
@@ -100,7 +100,7 @@ class PIDController:
         for name in ("kp", "ki", "kd"):
             object.__setattr__(self, name, nonnegative(name, getattr(self, name)))
         try:
-            sat = _finite_scalar("saturation", self.saturation)
+            sat = finite_scalar("saturation", self.saturation)
         except ParameterError:
             raise ParameterError(
                 f"saturation must be a finite pump speed > 0 rad/s; got {self.saturation!r}"
@@ -121,7 +121,7 @@ class PIDController:
             object.__setattr__(
                 self, "tracking_time_s", positive("tracking_time_s", self.tracking_time_s, unit="s")
             )
-        b = _finite_scalar("setpoint_weight", self.setpoint_weight)
+        b = finite_scalar("setpoint_weight", self.setpoint_weight)
         if not 0.0 <= b <= 1.0:
             raise ParameterError(f"setpoint_weight must lie in [0, 1]; got {b!r}")
         object.__setattr__(self, "setpoint_weight", b)

@@ -49,6 +49,7 @@ class DataSet:
 
     @property
     def n_samples(self) -> int:
+        """Number of samples."""
         return self.t.shape[0]
 
 

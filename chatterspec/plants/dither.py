@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import _finite_scalar, finite_array, positive
+from .._validate import finite_array, finite_scalar, positive
 from ..errors import ParameterError
 
 __all__ = ["PRBS", "PRBS_TAPS", "Multisine"]
@@ -29,7 +29,7 @@ def _times(t: object) -> np.ndarray:
 
 
 def _amplitude(value: object) -> float:
-    a = _finite_scalar("amplitude", value)  # type: ignore[arg-type]
+    a = finite_scalar("amplitude", value)  # type: ignore[arg-type]
     if a < 0:
         raise ParameterError(f"amplitude must be >= 0 (input or reference units); got {a!r}")
     return a
@@ -83,11 +83,13 @@ class Multisine:
         return float(self.amplitude * np.sqrt(len(self.frequencies_hz) / 2.0))
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         t = _times(t)
         f = np.asarray(self.frequencies_hz)
         return self.amplitude * np.cos(2 * np.pi * f[:, None] * t[None, :] + self.phases[:, None]).sum(axis=0)
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         tones = ", ".join(f"{x:g}" for x in self.frequencies_hz)
         return f"multisine {tones} Hz, {self.amplitude:g} per tone"
 
@@ -168,9 +170,11 @@ class PRBS:
         return out
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         t = _times(t)
         j = np.floor(t / self.clock_s + 1e-9).astype(np.int64) % self.period
         return self.amplitude * (2.0 * self.bits()[j] - 1.0)
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"PRBS +-{self.amplitude:g}, {self.clock_s * 1e3:g} ms clock, order {self.order}"

@@ -17,7 +17,7 @@ import numpy as np
 
 from .._validate import finite_array, nonnegative, open_unit, readonly
 from ..errors import ParameterError, ShapeError
-from .models import _check_covariance
+from .linear_model import _check_covariance
 from .nonlinear import same_dynamics
 
 __all__ = ["MAPPINGS", "FilterSettings"]

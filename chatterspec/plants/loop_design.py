@@ -341,6 +341,7 @@ class LoopMode:
     spectral_radius: float
 
     def to_dict(self) -> dict[str, float]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {
             "natural_frequency_hz": self.natural_frequency_hz,
             "damping_ratio": self.damping_ratio,

@@ -52,6 +52,7 @@ class MoveMetrics:
     saturated: bool
 
     def to_dict(self) -> dict[str, float | bool]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {
             "start_s": self.start_s,
             "end_s": self.end_s,

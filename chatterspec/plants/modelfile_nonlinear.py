@@ -17,6 +17,8 @@ A model file with a ``[dynamics]`` table describes a :class:`~chatterspec.plants
     jacobian = "duffing.py:g_jacobian"          # or an importable module: "package.module:function"
     input_jacobian = "duffing.py:g_input"       # optional: d f / d u (continuous: d g / d u; default:
                                                 # central differences)
+    # h = "duffing.py:h"                        # optional nonlinear measurement z = h(x) + w, with
+    # h_jacobian = "duffing.py:h_jacobian"      # its Jacobian (then no [matrices] C; EKF and simulation)
 
     [dynamics.parameters]                       # optional: keyword arguments of every function above
     stiffness = 3948.0
@@ -31,8 +33,9 @@ A model file with a ``[dynamics]`` table describes a :class:`~chatterspec.plants
     x0 = [0, 0]
     input = { kind = "sine", amplitude = 1.0, frequency_hz = 2.0 }
 
-The functions are called as ``f(x, u, **parameters)``, batched (``x`` ``(..., n)``, ``u`` ``(..., p)`` or
-``(p,)``), and receive ``dt=`` (s) too when their signature names a ``dt`` argument.
+The functions are called as ``f(x, u, **parameters)`` (``h`` and ``h_jacobian`` as
+``h(x, **parameters)``), batched (``x`` ``(..., n)``, ``u`` ``(..., p)`` or ``(p,)``), and receive
+``dt=`` (s) too when their signature names a ``dt`` argument.
 
 **Security.** The TOML holds no code and nothing in it is evaluated: the loader imports exactly the module
 (or runs exactly the ``.py`` file) that the file names, as ``python`` would run a script. A model file is
@@ -60,11 +63,39 @@ from typing import Any
 import numpy as np
 
 from ..errors import ChatterspecError, ModelFileError
+from .modelfile_fields import (
+    ModelSpec,
+    _array,
+    _covariance,
+    _matrix,
+    _names,
+    _scalar,
+    _table,
+    detector_table,
+    svsf_gamma,
+)
 
-__all__ = ["ModelFunction", "SimulationSpec", "file_scenario", "load_nonlinear", "parse_simulation"]
+__all__ = [
+    "MeasurementFunction",
+    "ModelFunction",
+    "SimulationSpec",
+    "file_scenario",
+    "load_nonlinear",
+    "parse_simulation",
+]
 
 #: Keys of ``[dynamics]``.
-_DYNAMICS_KEYS = {"form", "f", "jacobian", "input_jacobian", "parameters", "rest_state", "oscillatory_states"}
+_DYNAMICS_KEYS = {
+    "form",
+    "f",
+    "jacobian",
+    "input_jacobian",
+    "h",
+    "h_jacobian",
+    "parameters",
+    "rest_state",
+    "oscillatory_states",
+}
 
 #: The loaded functions, by (module name, function name).
 _LOADED: dict[tuple[str, str], Callable[..., Any]] = {}
@@ -112,6 +143,7 @@ class ModelFunction:
 
     @property
     def args(self) -> tuple[()]:
+        """Extra positional arguments of the function (none)."""
         return ()
 
     def __repr__(self) -> str:
@@ -120,6 +152,21 @@ class ModelFunction:
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         return self.func(x, u, **self.keywords)
+
+
+@dataclass(frozen=True, eq=False)
+class MeasurementFunction(ModelFunction):
+    """A measurement function named by a model file, called as ``function(x, **keywords)``
+    (``h(x) -> (..., m)`` or its Jacobian ``(..., m, n)``).
+
+    Attributes
+    ----------
+    module, name, keywords, source, filename, ref
+        As :class:`ModelFunction`'s.
+    """
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:  # type: ignore[override]
+        return self.func(x, **self.keywords)
 
 
 @dataclass(frozen=True)
@@ -177,7 +224,13 @@ def _function(ref: object, base: Path, where: str, key: str) -> tuple[str, str, 
 
 
 def _resolve(
-    ref: object, base: Path, where: str, key: str, parameters: Mapping[str, float], dt: float
+    ref: object,
+    base: Path,
+    where: str,
+    key: str,
+    parameters: Mapping[str, float],
+    dt: float,
+    measurement: bool = False,
 ) -> ModelFunction:
     module, name, source, filename = _function(ref, base, where, key)
     try:
@@ -202,15 +255,16 @@ def _resolve(
         var_kw = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in names.values())
         unknown = [k for k in parameters if k not in names and not var_kw]
         if unknown:
-            accepted = [k for k, p in names.items() if p.kind is not inspect.Parameter.VAR_POSITIONAL][2:]
+            skip = 1 if measurement else 2
+            accepted = [k for k, p in names.items() if p.kind is not inspect.Parameter.VAR_POSITIONAL][skip:]
             raise ModelFileError(
                 f"{where}: [dynamics.parameters] {unknown} are not arguments of {key} = {ref!r} "
-                f"(it takes {accepted or 'no parameters'} after x, u)"
+                f"(it takes {accepted or 'no parameters'} after {'x' if measurement else 'x, u'})"
             )
         if "dt" in names:
             keywords["dt"] = dt
     _LOADED[(module, name)] = fn
-    return ModelFunction(
+    return (MeasurementFunction if measurement else ModelFunction)(
         module=module, name=name, keywords=keywords, source=source, filename=filename, ref=ref
     )
 
@@ -234,16 +288,6 @@ def load_nonlinear(doc: Mapping[str, Any], path: Path, where: str) -> Any:
         functions do not take, or a model that fails its checks (shapes, NaN at the rest state); the
         message names the file and the field.
     """
-    from .modelfile import (
-        ModelSpec,
-        _covariance,
-        _matrix,
-        _names,
-        _scalar,
-        _table,
-        detector_table,
-        svsf_gamma,
-    )
     from .nonlinear import NonlinearModel
 
     dt = _scalar(doc, "dt", where, positive=True)
@@ -276,6 +320,12 @@ def load_nonlinear(doc: Mapping[str, Any], path: Path, where: str) -> Any:
     input_jac = None
     if "input_jacobian" in dyn:
         input_jac = _resolve(dyn["input_jacobian"], base, where, "input_jacobian", parameters, dt)
+    h = h_jac = None
+    if ("h" in dyn) != ("h_jacobian" in dyn):
+        raise ModelFileError(f"{where}: [dynamics] h and h_jacobian go together (a nonlinear measurement)")
+    if "h" in dyn:
+        h = _resolve(dyn["h"], base, where, "h", parameters, dt, measurement=True)
+        h_jac = _resolve(dyn["h_jacobian"], base, where, "h_jacobian", parameters, dt, measurement=True)
     mats = _table(doc, "matrices", where)
     extra = set(mats) - {"C", "Q", "Q_diag", "R", "R_diag"}
     if extra:
@@ -283,15 +333,33 @@ def load_nonlinear(doc: Mapping[str, Any], path: Path, where: str) -> Any:
             f"{where}: [matrices] of a nonlinear model holds only C, Q (or Q_diag), R (or R_diag); "
             f"{sorted(extra)} belong to a linear model (drop [dynamics] for one)"
         )
-    C = _matrix(mats, "C", where, "matrices", vector_ok=True)
-    C = C[None, :] if C.ndim == 1 else C
-    m, n = C.shape
+    if h is None:
+        C = _matrix(mats, "C", where, "matrices", vector_ok=True)
+        C = C[None, :] if C.ndim == 1 else C
+        m, n = C.shape
+    else:
+        if "C" in mats:
+            raise ModelFileError(
+                f"{where}: give either [matrices] C (a linear measurement) or [dynamics] h, not both"
+            )
+        C, m = None, len(outputs)
+        if states:
+            n = len(states)
+        elif "rest_state" in dyn:
+            n = int(np.size(dyn["rest_state"]))
+        else:
+            raise ModelFileError(
+                f"{where}: with [dynamics] h, name the states ([channels] states) or give "
+                "[dynamics] rest_state, so that the number of states is known"
+            )
     if m != len(outputs):
         raise ModelFileError(
             f"{where}: [matrices] C has {m} rows; [channels] outputs has {len(outputs)} names"
         )
     kwargs: dict[str, Any] = {
         "C": C,
+        "h": h,
+        "h_jac": h_jac,
         "Q": _covariance(mats, "Q", n, where),
         "R": _covariance(mats, "R", m, where),
         "dt": dt,
@@ -420,7 +488,6 @@ def parse_simulation(doc: Mapping[str, Any], model: Any, where: str) -> Simulati
     SimulationSpec or None
         None when the file has no ``[simulation]`` table.
     """
-    from .modelfile import _array, _scalar
 
     sim = doc.get("simulation")
     if sim is None:
@@ -473,13 +540,13 @@ def file_scenario(spec: Any, default_duration: float = 4.0, name: str | None = N
         Family ``"user"``, healthy; zero input and the rest state (or zeros) unless ``[simulation]`` says
         otherwise.
     """
-    from ..studies.healthy import _ZeroInput
     from .scenarios import Scenario
+    from .signals import ZeroInput
 
     sim = spec.simulation or SimulationSpec()
     model = spec.model
     x0 = sim.x0 if sim.x0 is not None else getattr(model, "rest_state", None)
-    signal = sim.input if sim.input is not None else _ZeroInput(model.n_inputs)
+    signal = sim.input if sim.input is not None else ZeroInput(model.n_inputs)
     what = signal.describe() if sim.input is not None else "zero"
     return Scenario(
         name=name or Path(spec.path).stem,

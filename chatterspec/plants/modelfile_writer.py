@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ModelFileError
-from .modelfile import _DETECTOR_KEYS, _detector_band
+from .modelfile_fields import _DETECTOR_KEYS, _detector_band
 from .models import LinearModel
 
 __all__ = ["signal_table", "write_model_toml", "write_nonlinear_model_toml"]

@@ -13,9 +13,7 @@ term needs a linear ``C``, refuses such a model: :mod:`chatterspec.plants.measur
 only need ``model.transition(x, u)``, ``model.jacobian(x, u)``, ``model.C``, ``model.Q``, ``model.R``,
 ``model.dt`` and the sizes, which :class:`~chatterspec.plants.models.LinearModel` offers under the
 same names. :meth:`NonlinearModel.linearize` returns the small-signal ``LinearModel`` about an
-operating point.
-
-Callables must be picklable for local workers and Dask (module-level functions or
+operating point. Callables must be picklable for local workers and Dask (module-level functions or
 :func:`functools.partial` of them, as :mod:`chatterspec.plants.eha4` does).
 """
 
@@ -204,10 +202,12 @@ class NonlinearModel:
     # -- sizes ---------------------------------------------------------------
     @property
     def n_states(self) -> int:
+        """Number of states."""
         return self.C.shape[1]
 
     @property
     def n_outputs(self) -> int:
+        """Number of outputs."""
         return self.C.shape[0]
 
     @property

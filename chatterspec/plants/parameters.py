@@ -35,7 +35,7 @@ from ..errors import ChatterspecError, ModelFileError, ParameterError
 from ._expressions import BUILTIN_CONSTANTS, FUNCTIONS, Formula, compile_formula
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .models import LinearModel
+    from .linear_model import LinearModel
 
 __all__ = [
     "NO_FAULT",
@@ -204,6 +204,7 @@ class ParameterMap:
     # -- lookup ----------------------------------------------------------------
     @property
     def parameter_names(self) -> tuple[str, ...]:
+        """Names of the physical parameters, in table order."""
         return tuple(p.name for p in self.parameters)
 
     def parameter(self, name: str) -> PhysicalParameter:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import _finite_scalar, finite_array, positive
+from .._validate import finite_array, finite_scalar, positive
 from ..errors import ParameterError
 
 __all__ = ["Hold", "SCurve", "StepSequence"]
@@ -47,7 +47,7 @@ class Hold:
     position: float = 0.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "position", _finite_scalar("position", self.position))
+        object.__setattr__(self, "position", finite_scalar("position", self.position))
 
     @property
     def peak(self) -> float:
@@ -60,9 +60,11 @@ class Hold:
         return 0
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         return np.full(_times(t).shape, self.position)
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"hold at {_mm(self.position)}"
 
 
@@ -83,7 +85,7 @@ def _init_levels(ref: StepSequence | SCurve) -> None:
     tt, ll = _levels(ref.times, ref.levels, type(ref).__name__)
     object.__setattr__(ref, "times", tt)
     object.__setattr__(ref, "levels", ll)
-    object.__setattr__(ref, "initial", _finite_scalar("initial", ref.initial))
+    object.__setattr__(ref, "initial", finite_scalar("initial", ref.initial))
 
 
 @dataclass(frozen=True)
@@ -118,6 +120,7 @@ class StepSequence:
         return len(self.times)
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         t = _times(t)
         # a tiny tolerance so that t = k dt hits the step on the intended sample (as signals.Step)
         j = np.searchsorted(np.asarray(self.times), t + 1e-12, side="right") - 1
@@ -125,6 +128,7 @@ class StepSequence:
         return values[j + 1]
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         steps = ", ".join(f"{_mm(x)} at {s:g} s" for s, x in zip(self.times, self.levels, strict=True))
         return f"steps from {_mm(self.initial)}: {steps}"
 
@@ -182,6 +186,7 @@ class SCurve:
         return float(1.875 * np.abs(steps).max() / self.move_time)
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         t = _times(t)
         starts = np.asarray(self.times)
         values = np.asarray((self.initial, *self.levels))
@@ -192,5 +197,6 @@ class SCurve:
         return np.where(j < 0, self.initial, r0 + (r1 - r0) * s)
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         moves = ", ".join(f"to {_mm(x)} at {s:g} s" for s, x in zip(self.times, self.levels, strict=True))
         return f"S-curve moves ({self.move_time:g} s each) from {_mm(self.initial)}: {moves}"

@@ -35,7 +35,6 @@ Nonlinear 4-state EHA (SMM eq 4.1-4.5, C = I4, Q = 1e-9 I4, R = 1e-6 I4, 1 ms):
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -45,9 +44,8 @@ from .eha4 import eha4
 from .loop_design import design_pi
 from .models import EHA_PARAMETERS, eha_linear
 from .references import Hold, SCurve
-
-if TYPE_CHECKING:
-    from .scenarios import Scenario
+from .scenario_types import Scenario, Segment
+from .scenarios_estimators import _eha4_leak_timeline
 
 __all__ = [
     "CLOSED_LOOP_NAMES",
@@ -140,8 +138,6 @@ def eha_closed_loop_scenario(
         :func:`~chatterspec.plants.models.eha_linear` parameters of the true plant (``leakage``,
         ``friction``, ``bulk_modulus``).
     """
-    from .scenarios import Scenario, Segment
-
     R = noise * np.diag([position_noise**2, 1e-6, 1e6])
     nominal = eha_linear(R=R)
     windows: tuple[Segment, ...] = ()
@@ -174,8 +170,6 @@ def _eha(name: str, hold: bool = False, **kw: object) -> Scenario:
 
 
 def _eha4(name: str, leak_timeline: bool) -> Scenario:
-    from .scenarios import Scenario, Segment, scenario
-
     models = {
         mode: eha4(mode, dt=1e-3, Q=_EHA4_Q, R=_EHA4_R) for mode in ("normal", "leak-minor", "leak-major")
     }
@@ -205,7 +199,7 @@ def _eha4(name: str, leak_timeline: bool) -> Scenario:
         fault="leakage",
         level="minor at 3 s, major at 6 s",
         fault_channel="acceleration",
-        filter_settings=scenario("eha4-leak-timeline").filter_settings,
+        filter_settings=_eha4_leak_timeline().filter_settings,
     )
 
 

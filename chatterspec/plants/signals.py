@@ -14,16 +14,20 @@ import numpy as np
 
 from .._validate import finite_array, nonnegative, positive
 
-__all__ = ["Chirp", "Constant", "HeldUniform", "Signal", "Sine", "SquareWave", "Step", "Sum"]
+__all__ = ["Chirp", "Constant", "HeldUniform", "Signal", "Sine", "SquareWave", "Step", "Sum", "ZeroInput"]
 
 
 @runtime_checkable
 class Signal(Protocol):
     """Anything with ``sample(t) -> ndarray`` and a ``describe()`` string."""
 
-    def sample(self, t: np.ndarray) -> np.ndarray: ...
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at times ``t`` (s), one row per time."""
+        ...
 
-    def describe(self) -> str: ...
+    def describe(self) -> str:
+        """A short description for reports and recordings."""
+        ...
 
 
 def _times(t: object) -> np.ndarray:
@@ -43,9 +47,11 @@ class Constant:
     value: float = 1.0
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         return np.full(_times(t).shape, float(self.value))
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"constant {self.value:g}"
 
 
@@ -73,11 +79,13 @@ class Step:
         nonnegative("time", self.time)
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         t = _times(t)
         # a tiny tolerance so that t = k*dt hits the step on the intended sample
         return np.where(t >= self.time - 1e-12, float(self.amplitude), float(self.initial))
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"step {self.initial:g} -> {self.amplitude:g} at t = {self.time:g} s"
 
 
@@ -139,6 +147,7 @@ class Chirp:
         return cls(f_start_hz, f_stop_hz, sweep_time, amplitude, phase_deg=-90.0)
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         import scipy.signal  # on demand: listing the catalogue must not wait for scipy.signal
 
         t = _times(t)
@@ -147,6 +156,7 @@ class Chirp:
         )
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         text = (
             f"linear chirp {self.f_start_hz:g}->{self.f_stop_hz:g} Hz over {self.sweep_time:g} s, "
             f"amplitude {self.amplitude:g}"
@@ -190,6 +200,7 @@ class SquareWave:
             raise ParameterError(f"duty must lie in (0, 1); got {self.duty!r}")
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         import scipy.signal
 
         t = _times(t)
@@ -198,6 +209,7 @@ class SquareWave:
         )
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"square wave {self.frequency_hz:g} Hz, amplitude {self.amplitude:g}"
 
 
@@ -229,10 +241,12 @@ class Sine:
         positive("frequency_hz", self.frequency_hz, unit="Hz")
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         t = _times(t)
         return self.offset + self.amplitude * np.sin(2 * np.pi * self.frequency_hz * t + self.phase)
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"sine {self.frequency_hz:g} Hz, amplitude {self.amplitude:g}"
 
 
@@ -272,6 +286,7 @@ class HeldUniform:
             raise ParameterError(f"seed must be a non-negative integer; got {self.seed!r}")
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         t = _nonnegative_times(t)
         j = np.floor(t / self.hold_time + 1e-9).astype(np.int64)
         if j.size == 0:
@@ -281,6 +296,7 @@ class HeldUniform:
         return values[j]
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"uniform({self.low:g}, {self.high:g}) held {self.hold_time:g} s, seed {self.seed}"
 
 
@@ -314,8 +330,37 @@ class Sum:
         object.__setattr__(self, "terms", tuple(self.terms))
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         t = _times(t)
         return np.sum([s.sample(t) for s in self.terms], axis=0)
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return " + ".join(s.describe() for s in self.terms)
+
+
+@dataclass(frozen=True)
+class ZeroInput:
+    """u(t) = 0 on ``channels`` inputs: the input of healthy scenarios made for a user model.
+
+    The healthy chattering of a matched linear model does not depend on u.
+
+    Parameters
+    ----------
+    channels : int
+        Number of input channels (the model's ``n_inputs``).
+
+    See Also
+    --------
+    Constant : one constant value on a single input.
+    """
+
+    channels: int = 1
+
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        """``(len(t), channels)`` zeros (t in seconds)."""
+        return np.zeros((np.size(t), self.channels))
+
+    def describe(self) -> dict[str, object]:
+        """``{"kind": "zero", "channels": channels}``."""
+        return {"kind": "zero", "channels": self.channels}

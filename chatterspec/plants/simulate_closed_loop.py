@@ -39,7 +39,10 @@ from ..rng import SeedLike
 from .closed_loop import ClosedLoop
 from .controllers import pid_coefficients, pid_step
 from .linear_steps import advance_step, measure_step
-from .simulate import NO_ARRAY, _noise_blocks, _plant_loop, _same_shapes, _tables, covariance_sqrt
+from .simulate_kernel import NO_ARRAY, _noise_blocks, covariance_sqrt
+from .simulate_kernel import kernel_tables as _tables
+from .simulate_kernel import plant_loop as _plant_loop
+from .simulate_kernel import same_shapes as _same_shapes
 from .simulate_nonlinear import _scale
 
 __all__ = ["LoopState", "closed_loop_blocks", "is_closed_loop", "loop_response", "simulate_block_closed_loop"]

@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import NonFiniteError
+from .simulate_kernel import scaled_noise, segment_ranges
 
 __all__ = ["simulate_block_nonlinear"]
 
@@ -72,7 +73,6 @@ def simulate_block_nonlinear(
         If the state leaves the finite numbers (e.g. explicit Euler beyond its stability limit);
         the message gives the first time and realization.
     """
-    from .simulate import scaled_noise, segment_ranges  # simulate imports this module when it needs it
 
     T = len(t)
     runs = hi - lo

@@ -49,7 +49,6 @@ from typing import Any
 import numpy as np
 
 from .._validate import positive
-from ..detection._frame_engine import _FrameEngine
 from ..detection.alarm_calibration import (
     RuleCalibration,
     calibrate_rule,
@@ -57,6 +56,7 @@ from ..detection.alarm_calibration import (
     law_frame_rule,
 )
 from ..detection.alarms import AlarmRule, make_rule
+from ..detection.frame_engine import FrameEngine
 from ..detection.frame_score import FrameScore
 from ..detection.thresholds import frame_threshold
 from ..errors import CalibrationMismatchError, ParameterError
@@ -191,7 +191,7 @@ def healthy_frame_scores(
         def frames(x: np.ndarray, first: int) -> np.ndarray:
             eng = getattr(local, "engine", None)  # an engine's scratch buffers are per thread
             if eng is None:
-                eng = local.engine = _FrameEngine(settings.stft, dt, compiled=True)
+                eng = local.engine = FrameEngine(settings.stft, dt, compiled=True)
             idx, P = eng(x, first)
             return score(P) if idx.size else np.zeros((0, model.n_outputs))
 
@@ -222,7 +222,7 @@ def healthy_frame_scores(
     runs = max(1, math.ceil(hours * 3600.0 / (per * H * dt)))
     parts = []
     root = np.random.SeedSequence([int(seed), ALARM_SALT])
-    engine = _FrameEngine(settings.stft, dt, compiled=True)
+    engine = FrameEngine(settings.stft, dt, compiled=True)
     for rec in iter_chattering(scenario, runs, root):
         _, P = engine(rec.values, 0)
         parts.append(score(P))

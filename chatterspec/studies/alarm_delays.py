@@ -50,12 +50,14 @@ class Shifted:
     period: float | None = None
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         x = np.asarray(t, dtype=float) - self.shift
         if self.period:
             x = np.mod(x, self.period)
         return self.signal.sample(x)
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         wrap = f", repeated every {self.period:g} s" if self.period else ""
         return f"{self.signal.describe()} from t = {self.shift:g} s{wrap}"
 
@@ -142,6 +144,7 @@ class DelayResult:
 
     @property
     def detected(self) -> float:
+        """Fraction of runs whose fault was detected (finite delay)."""
         return float(np.mean(np.isfinite(self.delays_s)))
 
     def quantile(self, q: float) -> float:
@@ -151,6 +154,7 @@ class DelayResult:
         return float(d[k])
 
     def to_dict(self) -> dict[str, Any]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         med, p90, mx = self.quantile(0.5), self.quantile(0.9), self.quantile(1.0)
         return {
             "runs": int(self.delays_s.size),
@@ -188,7 +192,7 @@ def alarm_delays(
     settings : MonitorSettings, optional
         The monitor's STFT, band and threshold (the score's law); default ``MonitorSettings()``.
     """
-    from ..online.monitor_types import MonitorSettings
+    from ..detection.monitor_settings import MonitorSettings
 
     settings = settings or MonitorSettings()
     cfg: STFTConfig = settings.stft

@@ -167,6 +167,7 @@ class BudgetStudy:
         self.geometries = geometries
 
     def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> dict[str, Any]:
+        """The summary of realizations ``first_run .. first_run + runs - 1`` (a Monte Carlo chunk)."""
         from ..plants.simulate import iter_simulations
 
         sim = next(iter_simulations(self.scenario, runs, seed, chunk_runs=runs, first_run=first_run))
@@ -181,6 +182,7 @@ class BudgetStudy:
         return out
 
     def reduce(self, acc: dict | None, part: dict) -> dict:
+        """``acc`` with one chunk's summary ``part`` folded in (``acc`` is None for the first chunk)."""
         if acc is None:
             return part
         out = {}

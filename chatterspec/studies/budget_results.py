@@ -97,6 +97,7 @@ class OnsetFigures:
     isolation_p90_s: float
 
     def describe(self) -> dict[str, Any]:
+        """A short description for reports and recordings."""
         return {
             "onset_s": self.onset_s,
             "detected": self.detected,

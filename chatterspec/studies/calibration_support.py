@@ -85,6 +85,7 @@ class Support:
 
     @property
     def supported(self) -> bool:
+        """Whether the runs reach the minimum the calibration needs."""
         return self.runs >= self.min_runs
 
     @property
@@ -104,6 +105,7 @@ class Support:
         )
 
     def to_dict(self) -> dict[str, object]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {
             "supported": self.supported,
             "runs": self.runs,

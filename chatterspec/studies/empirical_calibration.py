@@ -27,6 +27,7 @@ from ..detection.spectral import STFTConfig, periodogram_freqs
 from ..errors import ParameterError
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
+from .calibration_result import Calibration, _ro, _stft_dict
 from .calibration_tails import study_quantiles
 from .healthy import HealthyStudy, _n_frames
 from .intervals import QuantileEstimate
@@ -84,8 +85,6 @@ def calibrate_empirical(
     Calibration
         ``normalization="empirical"``.
     """
-    from .calibration import Calibration, _ro, _stft_dict
-
     if int(pilot_runs) < 2:
         raise ParameterError(f"pilot_runs must be >= 2; got {pilot_runs}")
     model = sc.nominal

@@ -45,7 +45,7 @@ from ..plants.scenarios_closed_loop import (
 )
 from ..plants.simulate import iter_simulations
 from ..rng import SeedLike
-from .calibration import _ro
+from .calibration_result import _ro
 from .healthy import _analytic_thresholds, _reduce_dict
 from .intervals import RateEstimate
 from .montecarlo import run_study
@@ -369,6 +369,7 @@ class ExcitationResult:
         return out
 
     def to_dict(self) -> dict[str, Any]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {
             "family": self.family,
             "size": self.size,

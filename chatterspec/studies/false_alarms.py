@@ -17,7 +17,7 @@ from ..errors import ParameterError
 from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
-from .calibration import Calibration, _ro
+from .calibration_result import Calibration, _ro
 from .healthy import (
     HealthyStudy,
     _analytic_thresholds,
@@ -94,6 +94,7 @@ class KindRates:
     freqs_hz: np.ndarray = field(repr=False, compare=False)
 
     def to_dict(self) -> dict[str, Any]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         d: dict[str, Any] = {
             "kind": self.kind,
             "alpha": self.alpha,
@@ -153,9 +154,11 @@ class FalseAlarmResult:
 
     @property
     def kinds(self) -> tuple[str, ...]:
+        """Threshold kinds of the rates, in first-seen order."""
         return tuple(dict.fromkeys(r.kind for r in self.rates))
 
     def to_dict(self) -> dict[str, Any]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {
             "scenario": self.scenario,
             "runs": self.runs,

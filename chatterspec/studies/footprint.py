@@ -58,12 +58,14 @@ class Replay:
     label: str = "recorded command"
 
     def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
         k = np.clip(
             np.floor(np.asarray(t, dtype=float) / self.dt + 1e-9).astype(np.int64), 0, len(self.values) - 1
         )
         return np.asarray(self.values)[k]
 
     def describe(self) -> str:
+        """A short description for reports and recordings."""
         return f"{self.label}, replayed open loop"
 
 
@@ -139,6 +141,7 @@ class Footprint:
     delta_u_rms: float
 
     def to_dict(self) -> dict[str, Any]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {
             "scenario": self.scenario,
             "closed_loop": self.closed_loop,

@@ -18,6 +18,7 @@ from ..errors import ParameterError
 from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario
 from ..plants.scenarios import scenario as catalogue_scenario
+from ..plants.signals import ZeroInput
 from ._exceedance import exceedance_counts
 from .tail_histogram import bucket_counts
 
@@ -28,17 +29,7 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------- scenarios
-@dataclass(frozen=True)
-class _ZeroInput:
-    """u(t) = 0 on ``channels`` inputs (healthy chattering of a matched linear model does not depend on u)."""
-
-    channels: int = 1
-
-    def sample(self, t: np.ndarray) -> np.ndarray:
-        return np.zeros((np.size(t), self.channels))
-
-    def describe(self) -> dict[str, object]:
-        return {"kind": "zero", "channels": self.channels}
+_ZeroInput = ZeroInput  # its old private name
 
 
 def model_scenario(model: LinearModel, duration: float = 4.0, name: str | None = None) -> Scenario:
@@ -64,7 +55,7 @@ def model_scenario(model: LinearModel, duration: float = 4.0, name: str | None =
     return Scenario(
         name=name or model.name or "user-model",
         nominal=model,
-        input=_ZeroInput(model.n_inputs),
+        input=ZeroInput(model.n_inputs),
         duration=duration,
         description="user model, healthy, zero input",
         family="user",
@@ -204,6 +195,7 @@ class HealthyStudy:
     frame_max_window: tuple[np.ndarray, np.ndarray] | None = None
 
     def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> dict[str, np.ndarray]:
+        """The summary of realizations ``first_run .. first_run + runs - 1`` (a Monte Carlo chunk)."""
         acc = None
         for rec in iter_chattering(self.scenario, runs, seed, chunk_runs=runs, first_run=first_run):
             acc = self.reduce(acc, self._summarize(rec.values, rec.dt))
@@ -272,6 +264,7 @@ class HealthyStudy:
         return out
 
     def reduce(self, acc: dict[str, np.ndarray] | None, part: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """``acc`` with one chunk's summary ``part`` folded in (``acc`` is None for the first chunk)."""
         return _reduce_dict(
             acc, part, {"top_bin": self.k_top, "top_frame": self.kf_top, "top_frame_max": self.kf_top}
         )

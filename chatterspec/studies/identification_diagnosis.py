@@ -85,6 +85,8 @@ class SegmentIdentification:
     coverage: dict[str, tuple[float, float, float]] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
+
         def r(x: float) -> float | None:
             return None if not np.isfinite(x) else float(f"{x:.6g}")
 

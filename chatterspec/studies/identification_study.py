@@ -95,6 +95,7 @@ class IdentificationValidation:
 
     @property
     def median_relative_error(self) -> float:
+        """Median of ``|estimate - true| / |true|`` (NaN when the true value is 0 or unknown)."""
         if not np.isfinite(self.true_value) or self.true_value == 0:
             return float("nan")
         return float(np.nanmedian(np.abs(self.estimates - self.true_value) / abs(self.true_value)))

@@ -177,6 +177,10 @@ class RateEstimate:
         Clopper-Pearson interval of the rate (computed).
     effective_trials : float
         Independent trials the interval is worth (``trials`` without clusters).
+
+    See Also
+    --------
+    QuantileEstimate : the interval of a quantile.
     """
 
     count: int
@@ -205,9 +209,11 @@ class RateEstimate:
         object.__setattr__(self, "effective_trials", n_eff)
 
     def contains(self, p: float) -> bool:
+        """Whether the rate ``p`` lies in the confidence interval."""
         return self.ci_low <= p <= self.ci_high
 
     def to_dict(self) -> dict[str, float | int]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {
             "rate": self.rate,
             "ci_low": self.ci_low,
@@ -239,6 +245,10 @@ class QuantileEstimate:
         Number of samples the quantile was read from (records, or records x frames).
     confidence : float
         Coverage level in (0, 1) of the interval.
+
+    See Also
+    --------
+    RateEstimate : the interval of a rate.
     """
 
     q: float
@@ -249,6 +259,7 @@ class QuantileEstimate:
     confidence: float
 
     def contains(self, x: float) -> bool:
+        """Whether ``x`` lies in the confidence interval."""
         return self.ci_low <= x <= self.ci_high
 
     def to_dict(self) -> dict[str, float | int | None]:

@@ -102,6 +102,7 @@ class StateErrorMetrics:
 
     @property
     def runs(self) -> int:
+        """Number of realizations (the leading axis)."""
         return self.rmse.shape[0]
 
     def summary(self) -> dict[str, MonteCarloMean]:

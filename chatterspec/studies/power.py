@@ -17,7 +17,7 @@ from ..plants.models import EHA_PARAMETERS, LinearModel, eha_linear, second_orde
 from ..plants.scenarios import Scenario
 from ..plants.signals import Chirp, Step
 from ..rng import SeedLike
-from .calibration import _ro
+from .calibration_result import _ro
 from .healthy import _analytic_thresholds, _reduce_dict
 from .intervals import RateEstimate
 from .montecarlo import run_study
@@ -168,6 +168,7 @@ class PowerStudyChunks:
     thr_tested: np.ndarray  # (K, bins)
 
     def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> dict[str, np.ndarray]:
+        """The summary of realizations ``first_run .. first_run + runs - 1`` (a Monte Carlo chunk)."""
         det, det_any = [], []
         for sc, thr in zip(self.scenarios, self.thr_values, strict=True):
             rec = next(iter_chattering(sc, runs, seed, chunk_runs=runs, first_run=first_run))
@@ -181,6 +182,7 @@ class PowerStudyChunks:
         return {"det": np.stack(det), "det_any": np.stack(det_any)}
 
     def reduce(self, acc: dict[str, np.ndarray] | None, part: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """``acc`` with one chunk's summary ``part`` folded in (``acc`` is None for the first chunk)."""
         return _reduce_dict(acc, part, {})
 
 
@@ -237,6 +239,7 @@ class PowerResult:
         return self.counts[:, :, self.kinds.index(kind), self._ia(alpha), c] / self.runs
 
     def estimate(self, i_noise: int, i_size: int, kind: str, alpha: float | None = None) -> RateEstimate:
+        """Detection rate at noise level ``i_noise``, fault size ``i_size``, threshold ``kind``, ``alpha``."""
         c = self.channels.index(self.channel)
         k = int(self.counts[i_noise, i_size, self.kinds.index(kind), self._ia(alpha), c])
         return RateEstimate(k, self.runs, self.confidence)
@@ -250,6 +253,7 @@ class PowerResult:
         return far, det
 
     def to_dict(self) -> dict[str, Any]:
+        """The fields as a JSON-ready dict (what the JSON outputs print)."""
         points = []
         for i, nz in enumerate(self.noise):
             for j, sz in enumerate(self.sizes):

@@ -94,6 +94,7 @@ class RouteGeometry:
 
     @property
     def healthy_steps(self) -> int:
+        """Number of healthy steps."""
         return int(np.count_nonzero(self.healthy))
 
 

@@ -168,6 +168,7 @@ class ModeRoute:
         return {"drift": 0.0} if rule == "cusum" else {}
 
     def describe(self) -> dict[str, Any]:
+        """A short description for reports and recordings."""
         return {"score": "log posterior odds of the fault modes against normal", "floor": self.floor}
 
     def scores(self, sim: Any) -> RouteScores:
@@ -263,6 +264,7 @@ class InnovationRoute:
         return {"drift": self.drift} if rule == "cusum" else {}
 
     def describe(self) -> dict[str, Any]:
+        """A short description for reports and recordings."""
         return {
             "score": f"(1 - 1/L) min(NIS / scale, cap) / 2 of the {self.kind}",
             "inflation_L": self.inflation,
@@ -371,7 +373,7 @@ class ChatteringRoute:
         model = self.scenario.nominal
         if not isinstance(model, LinearModel) or self.frame_score.law != "exact":
             return None
-        from ..online.monitor import MonitorSettings
+        from ..detection.monitor_settings import MonitorSettings
         from .alarm_budget import calibrate_alarm
 
         settings = MonitorSettings(stft=self.config, threshold=self.law)
@@ -382,6 +384,7 @@ class ChatteringRoute:
         return {}
 
     def describe(self) -> dict[str, Any]:
+        """A short description for reports and recordings."""
         return {"score": "-log p of the STFT frame (Bonferroni over bins)", "law": self.frame_score.law}
 
     def scores(self, sim: Any) -> RouteScores:

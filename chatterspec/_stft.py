@@ -1,0 +1,96 @@
+"""Short-time Fourier transform settings, :class:`STFTConfig` (public home:
+:mod:`chatterspec.detection.spectral`, which re-exports it).
+
+It lives in the package's base so that a model file's ``[detector]`` table
+(:mod:`chatterspec.plants.modelfile`) and the frame engine
+(:mod:`chatterspec.detection.frame_engine`) can check and use the settings without importing the
+spectra module (private module).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import scipy.fft
+
+from ._validate import positive, readonly
+from ._windows import NATIVE_WINDOWS, get_window
+from .errors import ParameterError
+
+__all__ = ["DEFAULT_STFT", "STFTConfig", "cached_taper"]
+
+
+@dataclass(frozen=True)
+class STFTConfig:
+    """Short-time Fourier transform settings (paper section IV-C: 1 s Hamming window, 0.2 s hop).
+
+    Parameters
+    ----------
+    window_s : float
+        Window length in seconds (> 0). ``n_window(dt) = round(window_s / dt)`` samples.
+    hop_s : float
+        Hop between frame starts in seconds (> 0, at most ``window_s``).
+    window : str
+        Window name for :func:`scipy.signal.get_window` (periodic / DFT-even form).
+
+    Raises
+    ------
+    ParameterError
+        If a length is not positive, the hop exceeds the window or the window name is unknown.
+    """
+
+    window_s: float = 1.0
+    hop_s: float = 0.2
+    window: str = "hamming"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "window_s", positive("window_s", self.window_s, unit="s"))
+        object.__setattr__(self, "hop_s", positive("hop_s", self.hop_s, unit="s"))
+        if self.hop_s > self.window_s:
+            raise ParameterError(
+                f"hop_s ({self.hop_s} s) must not exceed window_s ({self.window_s} s): "
+                "frames would skip samples"
+            )
+        if self.window not in NATIVE_WINDOWS:  # hamming / hann need no scipy.signal (0.3-0.6 s to import)
+            import scipy.signal
+
+            try:
+                scipy.signal.get_window(self.window, 8)
+            except (ValueError, TypeError) as exc:
+                raise ParameterError(f"unknown window {self.window!r} for scipy.signal.get_window") from exc
+
+    def n_window(self, dt: float) -> int:
+        """Window length W in samples, ``round(window_s / dt)`` (at least 2)."""
+        dt = positive("dt", dt, unit="s")
+        w = round(self.window_s / dt)
+        if w < 2:
+            raise ParameterError(f"window_s = {self.window_s} s is shorter than 2 samples at dt = {dt} s")
+        return w
+
+    def n_hop(self, dt: float) -> int:
+        """Hop H in samples, ``round(hop_s / dt)`` (at least 1)."""
+        dt = positive("dt", dt, unit="s")
+        h = round(self.hop_s / dt)
+        if h < 1:
+            raise ParameterError(f"hop_s = {self.hop_s} s is shorter than one sample at dt = {dt} s")
+        return h
+
+    def taper(self, dt: float) -> np.ndarray:
+        """The window samples ``w_k``, ``k = 0 .. W-1`` (read-only)."""
+        return cached_taper(self.window, self.n_window(dt))
+
+    def freqs_hz(self, dt: float) -> np.ndarray:
+        """Frame frequencies ``n / (W dt)`` Hz, ``n = 0 .. W//2``."""
+        return scipy.fft.rfftfreq(self.n_window(dt), dt)
+
+
+#: The paper's STFT settings (1 s Hamming window, 0.2 s hop); the default of every STFT function.
+DEFAULT_STFT = STFTConfig()
+
+
+@lru_cache(maxsize=32)
+def cached_taper(window: str, n: int) -> np.ndarray:
+    """The read-only taper ``w_k`` of ``window`` at ``n`` samples (cached: never mutate it)."""
+    return readonly(get_window(window, n))

@@ -1,0 +1,347 @@
+"""Chunked Monte Carlo execution: serial, local processes or Dask, with identical results.
+
+In the package base so that detection (:mod:`chatterspec.detection.detect_parallel`) and the
+studies both run on it; :mod:`chatterspec.studies.montecarlo` re-exports every name (its old home).
+
+A *study* is a picklable object with two methods:
+
+``run_chunk(first_run, runs, seed) -> summary``
+    A pure function of the realizations ``first_run .. first_run + runs - 1``
+    and the root :class:`numpy.random.SeedSequence`; it returns small summary
+    arrays (sums, counts, histograms, per-run scalars), never per-run spectra.
+``reduce(acc, part) -> summary``
+    Folds one chunk's summary into the accumulator (``acc`` is ``None`` for
+    the first chunk).
+
+The realization axis is cut into chunks whose boundaries are multiples of
+:data:`chatterspec.rng.BLOCK` and do not depend on the executor or on the
+number of workers; realization ``r`` always draws from random block
+``r // BLOCK`` (see :mod:`chatterspec.rng`), and chunk summaries are folded in
+chunk order whatever order they complete in. The same seed therefore gives
+bit-identical results with 1 worker, N local processes or a Dask cluster.
+Memory stays constant: at most ``2 * workers`` chunks are in flight and
+out-of-order results wait in a buffer of the same bound.
+
+Examples
+--------
+>>> from chatterspec.studies.montecarlo import run_study
+>>> class Count:
+...     def run_chunk(self, first_run, runs, seed):
+...         return runs
+...     def reduce(self, acc, part):
+...         return part if acc is None else acc + part
+>>> run_study(Count(), runs=1000, seed=0)
+1000
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from ._memory import fix_mmap_threshold
+from ._validate import positive_int
+from .errors import ChatterspecError, ParameterError
+from .progress import Progress
+from .rng import BLOCK, SeedLike, root_seed_sequence
+
+__all__ = [
+    "DEFAULT_CHUNK_RUNS",
+    "Chunk",
+    "Study",
+    "plan_chunks",
+    "run_chunk",
+    "run_study",
+]
+
+#: Default realizations per chunk (a multiple of :data:`chatterspec.rng.BLOCK`).
+DEFAULT_CHUNK_RUNS = 2 * BLOCK
+
+#: Seconds allowed to connect to a Dask scheduler before giving up.
+DASK_CONNECT_TIMEOUT_S = 5.0
+
+
+@runtime_checkable
+class Study(Protocol):
+    """What :func:`run_study` needs from a study (see the module docstring)."""
+
+    def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> Any:
+        """The small summary of realizations ``first_run .. first_run + runs - 1`` drawn from ``seed``."""
+        ...
+
+    def reduce(self, acc: Any, part: Any) -> Any:
+        """``acc`` with one chunk's summary ``part`` folded in (``acc`` is None for the first chunk)."""
+        ...
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """Realizations ``[first_run, first_run + runs)``, the ``index``-th chunk of a study."""
+
+    index: int
+    first_run: int
+    runs: int
+
+
+def plan_chunks(runs: int, chunk_runs: int | None = None) -> tuple[Chunk, ...]:
+    """Cut ``runs`` realizations into chunks aligned to :data:`~chatterspec.rng.BLOCK`.
+
+    Parameters
+    ----------
+    runs : int
+        Total realizations (>= 1).
+    chunk_runs : int, optional
+        Realizations per chunk, rounded up to a multiple of ``BLOCK``
+        (default :data:`DEFAULT_CHUNK_RUNS`). Only the last chunk may be shorter.
+
+    Returns
+    -------
+    tuple of Chunk
+    """
+    runs = positive_int("runs", runs)
+    size = DEFAULT_CHUNK_RUNS if chunk_runs is None else positive_int("chunk_runs", chunk_runs)
+    size = -(-size // BLOCK) * BLOCK
+    return tuple(Chunk(i, lo, min(size, runs - lo)) for i, lo in enumerate(range(0, runs, size)))
+
+
+def run_chunk(study: Study, chunk: Chunk, seed: np.random.SeedSequence) -> tuple[int, int, Any]:
+    """Worker entry point: ``(chunk.index, chunk.runs, study.run_chunk(...))`` (module level, picklable).
+
+    :func:`run_study` submits this function to the serial loop, the process pool
+    or the Dask client alike, and reorders the returned tuples by ``chunk.index``.
+
+    Parameters
+    ----------
+    study : Study
+        Object whose ``run_chunk(first_run, runs, seed)`` computes the chunk's summary.
+    chunk : Chunk
+        The realizations ``[chunk.first_run, chunk.first_run + chunk.runs)`` to run.
+    seed : numpy.random.SeedSequence
+        The study's root seed sequence (the same for every chunk); realization r
+        draws from block ``r // BLOCK`` under it, so results do not depend on chunking.
+
+    Returns
+    -------
+    tuple of (int, int, Any)
+        ``(chunk.index, chunk.runs, summary)``.
+    """
+    return chunk.index, chunk.runs, study.run_chunk(chunk.first_run, chunk.runs, seed)
+
+
+def run_study(
+    study: Study,
+    runs: int,
+    seed: SeedLike = 0,
+    *,
+    workers: int = 1,
+    scheduler: str | None = None,
+    chunk_runs: int | None = None,
+    progress: bool | None = None,
+    label: str = "monte carlo",
+) -> Any:
+    """Run ``study`` over ``runs`` realizations and return the reduced summary.
+
+    Parameters
+    ----------
+    study : Study
+        Picklable object with ``run_chunk`` and ``reduce``.
+    runs : int
+        Number of realizations (>= 1).
+    seed : int, SeedSequence, Generator or None
+        Root of the random streams; the result depends on it and on ``runs``
+        (and on ``chunk_runs`` only through floating-point summation order),
+        never on ``workers`` or ``scheduler``.
+    workers : int
+        Local worker processes (1 = in-process, serial). With a Dask
+        ``scheduler`` it is the number of workers of ``local-dask``.
+    scheduler : str, optional
+        ``None`` (local), ``"local-dask"`` (a Dask ``LocalCluster`` of
+        processes on loopback, started and closed here) or the address of a
+        running Dask scheduler (``tcp://host:8786``). Needs the
+        ``chatterspec[distributed]`` extra.
+    chunk_runs : int, optional
+        Realizations per chunk (see :func:`plan_chunks`).
+    progress : bool, optional
+        Show a progress bar on stderr (default: only when stderr is a terminal).
+    label : str
+        Progress bar label.
+
+    Returns
+    -------
+    object
+        ``study.reduce`` folded over the chunk summaries in chunk order.
+
+    Raises
+    ------
+    ParameterError
+        ``runs`` or ``workers`` < 1.
+    ChatterspecError
+        The Dask scheduler does not answer within a few seconds, or
+        ``dask.distributed`` is not installed.
+    """
+    runs = positive_int("runs", runs)
+    workers = positive_int("workers", workers)
+    if not (callable(getattr(study, "run_chunk", None)) and callable(getattr(study, "reduce", None))):
+        raise ParameterError(f"study must define run_chunk() and reduce(); got {type(study).__name__}")
+    root = root_seed_sequence(seed)
+    chunks = plan_chunks(runs, chunk_runs)
+    with Progress(runs, label, enabled=progress) as bar:
+        if scheduler is not None:
+            results = _dask_results(study, chunks, root, scheduler, workers)
+        elif workers == 1 or len(chunks) == 1:
+            results = (run_chunk(study, c, root) for c in chunks)
+        else:
+            results = _process_results(study, chunks, root, workers)
+        return _fold_in_order(study, results, len(chunks), bar)
+
+
+def _fold_in_order(
+    study: Study, results: Iterator[tuple[int, int, Any]], n_chunks: int, bar: Progress
+) -> Any:
+    """Fold results arriving in any order into ``study.reduce`` in chunk-index order."""
+    acc: Any = None
+    pending: dict[int, Any] = {}
+    nxt = 0
+    for index, n, part in results:
+        pending[index] = part
+        bar.update(n)
+        while nxt in pending:
+            acc = study.reduce(acc, pending.pop(nxt))
+            nxt += 1
+    if nxt != n_chunks:  # pragma: no cover - executors always deliver every chunk
+        raise ChatterspecError(f"Monte Carlo run lost chunks: got {nxt} of {n_chunks}")
+    return acc
+
+
+def _bounded_submit(
+    submit: Callable[[Chunk], Any],
+    chunks: tuple[Chunk, ...],
+    in_flight: int,
+    wait_some: Callable[[set], tuple[set, set]],
+    result_of: Callable[[Any], tuple[int, int, Any]],
+) -> Iterator[tuple[int, int, Any]]:
+    todo = iter(chunks)
+    running: set = set()
+    for c in todo:
+        running.add(submit(c))
+        if len(running) >= in_flight:
+            break
+    while running:
+        done, running = wait_some(running)
+        for fut in done:
+            yield result_of(fut)
+            nxt = next(todo, None)
+            if nxt is not None:
+                running.add(submit(nxt))
+
+
+def _process_results(
+    study: Study, chunks: tuple[Chunk, ...], root: np.random.SeedSequence, workers: int
+) -> Iterator[tuple[int, int, Any]]:
+    ctx = multiprocessing.get_context("spawn")
+    n = min(workers, len(chunks))
+    # one BLAS thread per worker: the cores are shared out by processes
+    env_keys = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+    saved = {k: os.environ.get(k) for k in env_keys}
+    for k in env_keys:
+        os.environ[k] = "1"
+    try:
+        with ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=fix_mmap_threshold) as pool:
+
+            def wait_some(running: set[Future]) -> tuple[set, set]:
+                done, rest = wait(running, return_when=FIRST_COMPLETED)
+                return set(done), set(rest)
+
+            yield from _bounded_submit(
+                lambda c: pool.submit(run_chunk, study, c, root),
+                chunks,
+                2 * n,
+                wait_some,
+                lambda f: f.result(),
+            )
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _import_dask() -> Any:
+    try:
+        import dask.distributed as dd
+    except ImportError as exc:
+        raise ChatterspecError(
+            "--scheduler needs dask.distributed; install the extra: pip install 'chatterspec[distributed]'"
+        ) from exc
+    return dd
+
+
+def dask_client(scheduler: str, workers: int = 2) -> tuple[Any, Any]:
+    """Connect to ``scheduler`` (or start ``local-dask``); return ``(client, cluster_or_None)``.
+
+    An address that does not answer raises :class:`ChatterspecError` after
+    :data:`DASK_CONNECT_TIMEOUT_S` seconds.
+    """
+    dd = _import_dask()
+    if scheduler == "local-dask":
+        cluster = dd.LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+        )
+        try:
+            return dd.Client(cluster, timeout=f"{DASK_CONNECT_TIMEOUT_S}s"), cluster
+        except Exception:
+            cluster.close()
+            raise
+    if not isinstance(scheduler, str) or not scheduler.strip():
+        raise ParameterError(f"scheduler must be 'local-dask' or an address; got {scheduler!r}")
+    address = scheduler if "://" in scheduler else f"tcp://{scheduler}"
+    try:
+        client = dd.Client(address, timeout=f"{DASK_CONNECT_TIMEOUT_S}s")
+    except Exception as exc:  # OSError, TimeoutError, or garbage from a non-Dask service
+        raise ChatterspecError(
+            f"cannot reach the Dask scheduler at {address!r} within {DASK_CONNECT_TIMEOUT_S:g} s "
+            f"({type(exc).__name__}: {exc}); start one with `dask scheduler` or use --scheduler local-dask"
+        ) from None
+    return client, None
+
+
+def _dask_results(
+    study: Study, chunks: tuple[Chunk, ...], root: np.random.SeedSequence, scheduler: str, workers: int
+) -> Iterator[tuple[int, int, Any]]:
+    dd = _import_dask()
+    client, cluster = dask_client(scheduler, workers)
+    try:
+        n_workers = max(1, len(client.scheduler_info(n_workers=-1).get("workers", {})) or workers)
+        study_f = client.scatter(study, broadcast=True)
+
+        def wait_some(running: set) -> tuple[set, set]:
+            res = dd.wait(list(running), return_when="FIRST_COMPLETED")
+            return set(res.done), set(res.not_done)
+
+        def result_of(fut: Any) -> tuple[int, int, Any]:
+            out = fut.result()
+            fut.release()
+            return out
+
+        yield from _bounded_submit(
+            lambda c: client.submit(run_chunk, study_f, c, root, pure=False),
+            chunks,
+            2 * n_workers,
+            wait_some,
+            result_of,
+        )
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
