@@ -42,6 +42,7 @@ from .style import (
     FrequencyLine,
     _wrap,
     format_alpha,
+    frequency_lines,
     plt,
     power_unit,
     save_figure,
@@ -411,47 +412,13 @@ def draw_spectrum(
             over = shown & np.isfinite(values[j]) & (p > values[j])
             if np.any(over):
                 any_over = True
-                ax.plot(
-                    f[over],
-                    np.full(int(over.sum()), y),
-                    ls="none",
-                    marker="|",
-                    ms=5,
-                    mew=1.0,
-                    color=styles[j]["color"],
-                    zorder=4,
-                    transform=ax.get_xaxis_transform(),
-                )
+                tick = {"ls": "none", "marker": "|", "ms": 5, "mew": 1.0, "zorder": 4}
+                ax.plot(f[over], np.full(int(over.sum()), y), color=styles[j]["color"], **tick)
+                ax.lines[-1].set_transform(ax.get_xaxis_transform())
     if any_over:
-        artists.append(
-            Line2D(
-                [],
-                [],
-                ls="none",
-                marker="|",
-                ms=6,
-                color="0.3",
-                label="bins above a threshold: ticks at the bottom in its colour, one row per curve",
-            )
-        )
-    # frequency lines: the nominal one over the whole height; lines of one style (the true natural
-    # frequencies of several curves) only at the top, in one legend entry
-    by_style: dict[str, list] = {}
-    for fl in panel.lines:
-        by_style.setdefault(fl.linestyle, []).append(fl)
-    for group in by_style.values():
-        if len(group) == 1:
-            fl = group[0]
-            artists.append(
-                ax.axvline(fl.hz, color=fl.color, ls=fl.linestyle, lw=1.1, zorder=2, label=fl.label)
-            )
-            continue
-        for fl in group:
-            ax.axvline(fl.hz, ymin=0.88, color=fl.color, ls="-", lw=2.0, zorder=2, label=fl.label)
-        hz = " / ".join(f"{fl.hz:.1f}" for fl in group)
-        head = group[0].label.split(" ")[:3]
-        label = f"{' '.join(head)} {hz} Hz (marks at the top, curve colours)"
-        artists.append(Line2D([], [], color=group[0].color, lw=2.0, label=label))
+        label = "bins above a threshold: ticks at the bottom in its colour, one row per curve"
+        artists.append(Line2D([], [], ls="none", marker="|", ms=6, color="0.3", label=label))
+    artists.extend(frequency_lines(ax, panel.lines))
     ax.set_yscale("log")
     ax.set_xlim(lo, hi)
     _fit_log_y(ax, y_data)

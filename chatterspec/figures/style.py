@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import textwrap
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,7 @@ from matplotlib.figure import Figure
 
 from ..errors import ParameterError
 
-__all__ = ["DEFAULT_DPI", "FrequencyLine", "format_alpha", "power_unit", "save_figure"]
+__all__ = ["DEFAULT_DPI", "FrequencyLine", "format_alpha", "frequency_lines", "power_unit", "save_figure"]
 
 #: Resolution of saved PNGs (dots per inch); keeps a 12 x 7 inch figure well under 300 kB.
 DEFAULT_DPI: int = 110
@@ -158,3 +159,46 @@ def save_figure(fig: Figure, path: str | Path, *, dpi: int = DEFAULT_DPI, close:
     if close:
         plt.close(fig)
     return path
+
+
+def frequency_lines(ax: Any, lines: Sequence[FrequencyLine]) -> list[Any]:
+    """Draw frequency lines on ``ax`` and return one legend artist per entry.
+
+    A line alone in its style (the nominal natural frequency) spans the whole height; lines sharing a
+    style (the true natural frequencies of several curves) are short marks at the top in their own
+    colours, under one legend entry, so that they cover no curve.
+
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+    lines : sequence of FrequencyLine
+
+    Returns
+    -------
+    list of matplotlib.artist.Artist
+    """
+    from matplotlib.lines import Line2D
+
+    by_style: dict[str, list[FrequencyLine]] = {}
+    for fl in lines:
+        by_style.setdefault(fl.linestyle, []).append(fl)
+    out: list[Any] = []
+    for group in by_style.values():
+        if len(group) == 1:
+            fl = group[0]
+            out.append(ax.axvline(fl.hz, color=fl.color, ls=fl.linestyle, lw=1.1, zorder=2, label=fl.label))
+            continue
+        for fl in group:
+            ax.axvline(fl.hz, ymin=0.88, color=fl.color, ls="-", lw=2.0, zorder=2, label=fl.label)
+        hz = " / ".join(f"{fl.hz:.1f}" for fl in group)
+        head = " ".join(group[0].label.split(" ")[:3])
+        out.append(
+            Line2D(
+                [],
+                [],
+                color=group[0].color,
+                lw=2.0,
+                label=f"{head} {hz} Hz (marks at the top, curve colours)",
+            )
+        )
+    return out
