@@ -14,10 +14,11 @@ import numpy as np
 
 from .._jit import enabled as _jit_enabled
 from .._jit import njit
-from ..errors import NonFiniteError, ParameterError
+from ..errors import NonFiniteError
 from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario
 from ..plants.simulate import covariance_sqrt
+from ..plants.simulate_closed_loop import stream_geometry
 
 __all__ = ["csv_header", "csv_lines", "simulate_blocks"]
 
@@ -91,13 +92,7 @@ def simulate_blocks(
         yield from closed_loop_blocks(scenario, seed, duration_s, block_s=block_s)
         return
     dt = scenario.dt
-    D = scenario.duration
-    duration = D if duration_s is None else float(duration_s)
-    if not (np.isfinite(duration) and duration > 0):
-        raise ParameterError(f"duration must be > 0 s; got {duration_s!r}")
-    total = round(duration / dt) + 1
-    period = round(D / dt)
-    K = max(1, round(block_s / dt))
+    total, period, K = stream_geometry(scenario, duration_s, block_s)
     segs = scenario.segments
     n, m = scenario.nominal.n_states, scenario.nominal.n_outputs
     LQ = [covariance_sqrt(s.model.Q) for s in segs]

@@ -370,6 +370,37 @@ def simulate_block_closed_loop(
     return np.swapaxes(xt, 0, 1), np.swapaxes(zt, 0, 1), np.swapaxes(ut, 0, 1)[..., None]
 
 
+def stream_geometry(scenario: object, duration_s: float | None, block_s: float) -> tuple[int, int, int]:
+    """Sample counts of a stream of ``scenario`` block by block: ``(total, period, block)``.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Its ``dt`` and ``duration`` (s).
+    duration_s : float or None
+        Seconds of data (None: the scenario's duration); samples at ``0, dt, ..., duration_s``.
+    block_s : float
+        Seconds of data per block.
+
+    Returns
+    -------
+    (int, int, int)
+        Samples in the stream, samples of one scenario period (the timeline repeats beyond it),
+        samples per block (at least 1).
+
+    Raises
+    ------
+    ParameterError
+        A duration that is not a positive finite number of seconds.
+    """
+    dt = scenario.dt  # type: ignore[attr-defined]
+    D = scenario.duration  # type: ignore[attr-defined]
+    duration = D if duration_s is None else float(duration_s)
+    if not (np.isfinite(duration) and duration > 0):
+        raise ParameterError(f"duration must be > 0 s; got {duration_s!r}")
+    return round(duration / dt) + 1, round(D / dt), max(1, round(block_s / dt))
+
+
 def closed_loop_blocks(
     scenario: object, seed: SeedLike, duration_s: float | None = None, *, block_s: float = 1.0
 ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -399,13 +430,7 @@ def closed_loop_blocks(
     """
     loop = _loop_of(scenario)
     dt = scenario.dt  # type: ignore[attr-defined]
-    D = scenario.duration  # type: ignore[attr-defined]
-    duration = D if duration_s is None else float(duration_s)
-    if not (np.isfinite(duration) and duration > 0):
-        raise ParameterError(f"duration must be > 0 s; got {duration_s!r}")
-    total = round(duration / dt) + 1
-    period = round(D / dt)
-    K = max(1, round(block_s / dt))
+    total, period, K = stream_geometry(scenario, duration_s, block_s)
     nom = scenario.nominal  # type: ignore[attr-defined]
     n, m = nom.n_states, nom.n_outputs
     state = _initial_state(scenario.x0, 1)  # type: ignore[attr-defined]
