@@ -41,7 +41,7 @@ import os
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, TypedDict, runtime_checkable
 
 import numpy as np
 
@@ -51,9 +51,14 @@ from .errors import ChatterspecError, ParameterError
 from .progress import Progress
 from .rng import BLOCK, SeedLike, root_seed_sequence
 
+if TYPE_CHECKING:
+    pass
+
 __all__ = [
     "DEFAULT_CHUNK_RUNS",
     "Chunk",
+    "Execution",
+    "ExecutionOptions",
     "Study",
     "plan_chunks",
     "run_chunk",
@@ -199,6 +204,90 @@ def run_study(
         else:
             results = _process_results(study, chunks, root, workers)
         return _fold_in_order(study, results, len(chunks), bar)
+
+
+class ExecutionOptions(TypedDict, total=False):
+    """The keywords ``workers``, ``scheduler``, ``chunk_runs``, ``progress`` of a study function.
+
+    Every Monte Carlo study (``calibrate``, ``false_alarm_study``, ``power_study``, ...) takes them as
+    ``**execution`` and runs with ``Execution(**execution)``; :class:`Execution` documents them.
+    """
+
+    workers: int
+    scheduler: str | None
+    chunk_runs: int | None
+    progress: bool | None
+
+
+@dataclass(frozen=True)
+class Execution:
+    """How a Monte Carlo study runs: where, in what chunks, with or without a progress bar.
+
+    The settings never change a study's numbers (chunk boundaries aside, which move only the
+    floating-point summation order of some sums); they are what every study function accepts as its
+    ``workers``, ``scheduler``, ``chunk_runs`` and ``progress`` keywords.
+
+    Parameters
+    ----------
+    workers : int
+        Local worker processes (1 = in-process, serial). With a Dask ``scheduler`` it is the number
+        of workers of ``local-dask``.
+    scheduler : str, optional
+        ``None`` (local processes), ``"local-dask"`` (a Dask ``LocalCluster`` on loopback, started
+        and closed per run) or the address of a running Dask scheduler (``tcp://host:8786``).
+        Needs the ``chatterspec[distributed]`` extra.
+    chunk_runs : int, optional
+        Realizations per chunk, rounded up to a multiple of :data:`~chatterspec.rng.BLOCK`
+        (default :data:`DEFAULT_CHUNK_RUNS`; see :func:`plan_chunks`).
+    progress : bool, optional
+        Show a progress bar on stderr (default: only when stderr is a terminal).
+
+    See Also
+    --------
+    run_study : the runner these settings are passed to.
+    ExecutionOptions : the same settings as the ``**execution`` keywords of the study functions.
+
+    Examples
+    --------
+    >>> from chatterspec.montecarlo import Execution
+    >>> Execution(workers=2).chunk_runs is None
+    True
+    """
+
+    workers: int = 1
+    scheduler: str | None = None
+    chunk_runs: int | None = None
+    progress: bool | None = None
+
+    def run(self, study: Study, runs: int, seed: SeedLike, label: str = "monte carlo") -> Any:
+        """:func:`run_study` of ``study`` with these settings.
+
+        Parameters
+        ----------
+        study : Study
+            Picklable object with ``run_chunk`` and ``reduce``.
+        runs : int
+            Number of realizations (>= 1).
+        seed : int, SeedSequence, Generator or None
+            Root of the random streams.
+        label : str
+            Progress bar label.
+
+        Returns
+        -------
+        object
+            ``study.reduce`` folded over the chunk summaries in chunk order.
+        """
+        return run_study(
+            study,
+            runs,
+            seed,
+            workers=self.workers,
+            scheduler=self.scheduler,
+            chunk_runs=self.chunk_runs,
+            progress=self.progress,
+            label=label,
+        )
 
 
 def _fold_in_order(

@@ -29,13 +29,18 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..errors import ParameterError
+from ..montecarlo import Execution, ExecutionOptions
 from .budget_results import RouteBudget, summarize_route
 from .route_sweep import DEFAULT_WARMUP_S, merge_sweeps, route_geometry, sweep_chunk
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
 
 __all__ = [
     "BUDGET_SALT",
@@ -268,11 +273,7 @@ def diagnose_at_budget(
     runs: int,
     seed: int,
     settings: BudgetSettings,
-    *,
-    workers: int = 1,
-    scheduler: str | None = None,
-    chunk_runs: int | None = None,
-    progress: bool | None = None,
+    **execution: Unpack[ExecutionOptions],
 ) -> list[RouteBudget]:
     """Calibrate every route to ``settings.budget_per_hour`` on healthy runs, then diagnose ``runs``.
 
@@ -287,8 +288,9 @@ def diagnose_at_budget(
     seed : int
         Root seed of the diagnosed runs; the calibration streams use ``[seed, BUDGET_SALT]``.
     settings : BudgetSettings
-    workers, scheduler, chunk_runs, progress
-        Execution (:func:`~chatterspec.studies.montecarlo.run_study`).
+    **execution
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
+        (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------
@@ -296,19 +298,16 @@ def diagnose_at_budget(
         One per route, in the order of ``routes``.
     """
     from .chattering_diagnosis import healthy_version
-    from .montecarlo import run_study
 
+    ex = Execution(**execution)
     if not routes:
         raise ParameterError("no route to diagnose")
     warm = settings.warmup_s
-    ex = {"workers": workers, "scheduler": scheduler, "chunk_runs": chunk_runs, "progress": progress}
     healthy_sc = healthy_version(scenario)
     routes = _scaled(routes, healthy_sc, seed)
     root = np.random.SeedSequence([int(seed), BUDGET_SALT])
-    healthy = run_study(
-        HealthyScoresStudy(healthy_sc, routes, warm), settings.calibration_runs, root,
-        label="diagnose: healthy streams", **ex,
-    )  # fmt: skip
+    healthy_study = HealthyScoresStudy(healthy_sc, routes, warm)
+    healthy = ex.run(healthy_study, settings.calibration_runs, root, "diagnose: healthy streams")
     rules, grids, geos, far, cal_info, cal_hours, timings = {}, {}, {}, {}, {}, {}, {}
     for m, route in routes.items():
         parts, healthy_s = healthy.pop(m)
@@ -361,7 +360,7 @@ def diagnose_at_budget(
             warm,
             getattr(route, "labels", None) if m in ("smm", "imm") else None,
         )
-    merged = run_study(BudgetStudy(scenario, routes, rules, grids, geos), runs, seed, label="diagnose", **ex)
+    merged = ex.run(BudgetStudy(scenario, routes, rules, grids, geos), runs, seed, "diagnose")
     samples = runs * (scenario.n_samples - 1)
     return [
         summarize_route(

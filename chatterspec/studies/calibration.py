@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.stats
@@ -10,6 +11,7 @@ import scipy.stats
 from .._validate import open_unit, positive_int
 from ..detection.spectral import STFTConfig
 from ..errors import ParameterError
+from ..montecarlo import Execution, ExecutionOptions
 from ..plants.models import LinearModel
 from ..plants.nonlinear import is_linear
 from ..plants.scenarios import Scenario
@@ -19,6 +21,10 @@ from .calibration_tails import study_quantiles
 from .healthy import HealthyStudy, _analytic_thresholds, _frame_thresholds, _n_frames, resolve_scenario
 from .intervals import QuantileEstimate
 from .tail_histogram import DEFAULT_TAIL_BUDGET
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
 
 __all__ = [
     "CALIBRATION_FORMAT",
@@ -36,11 +42,8 @@ def calibrate(
     *,
     config: STFTConfig | None = None,
     confidence: float = 0.99,
-    workers: int = 1,
-    scheduler: str | None = None,
-    chunk_runs: int | None = None,
-    progress: bool | None = None,
     tail_budget: int = DEFAULT_TAIL_BUDGET,
+    **execution: Unpack[ExecutionOptions],
 ) -> Calibration:
     """Calibrate thresholds on healthy Monte Carlo runs and compare them with the analytic ones.
 
@@ -59,8 +62,6 @@ def calibrate(
         STFT settings of the per-frame calibration (default 1 s Hamming, 0.2 s hop).
     confidence : float
         Level of the order-statistic intervals.
-    workers, scheduler, chunk_runs, progress
-        Execution (see :func:`chatterspec.studies.montecarlo.run_study`).
     tail_budget : int
         Memory budget in bytes (default :data:`~.tail_histogram.DEFAULT_TAIL_BUDGET`, 128 MiB)
         of the exact order-statistic tails, which grow like ``runs x alpha``. At or below it
@@ -68,6 +69,9 @@ def calibrate(
         histograms of fixed size (:mod:`~.tail_histogram`: point at most one fine bucket above
         the exact value, intervals widened outward to bucket edges); ``0`` forces the histograms.
         ``Calibration.tails`` records which path ran.
+    **execution
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
+        (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------
@@ -78,6 +82,7 @@ def calibrate(
     ParameterError
         alpha outside (0, 1), runs < 1, or a scenario that is not healthy.
     """
+    ex = Execution(**execution)
     alpha = open_unit("alpha", alpha)
     runs = positive_int("runs", runs)
     confidence = open_unit("confidence", confidence)
@@ -90,8 +95,9 @@ def calibrate(
     if not is_linear(sc.nominal):  # no closed-form spectrum: empirical normalization (docs/design.md §6)
         from .empirical_calibration import calibrate_empirical
 
-        ex = {"workers": workers, "scheduler": scheduler, "chunk_runs": chunk_runs, "progress": progress}
-        return calibrate_empirical(sc, alpha, runs, seed, config, confidence, tail_budget=tail_budget, **ex)
+        return calibrate_empirical(
+            sc, alpha, runs, seed, config, confidence, tail_budget=tail_budget, **execution
+        )
     model = sc.nominal
     N = sc.n_samples - 1
     freqs, thr = _analytic_thresholds(model, N, alpha)
@@ -116,7 +122,6 @@ def calibrate(
         keep_max=True,
     )
     q = 1 - alpha
-    ex = {"workers": workers, "scheduler": scheduler, "chunk_runs": chunk_runs, "progress": progress}
     res, tails = study_quantiles(
         study, runs, seed, n_frames, frames_eff, q, confidence, tail_budget, ex, f"calibrate {sc.name}"
     )

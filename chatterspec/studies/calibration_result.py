@@ -1,16 +1,15 @@
-"""The result of a threshold calibration, :class:`Calibration`, and its file format.
+"""The result of a threshold calibration, :class:`Calibration`.
 
 :func:`chatterspec.studies.calibration.calibrate` computes it (analytic thresholds; empirical ones in
-:mod:`~chatterspec.studies.empirical_calibration`); :meth:`Calibration.save` and
-:func:`load_calibration` write and read it (``.npz`` arrays with a JSON header). Both names are
-re-exported by :mod:`chatterspec.studies.calibration`, their documented home.
+:mod:`~chatterspec.studies.empirical_calibration`). Its file format (``.npz`` arrays with a JSON
+header, or JSON) is :mod:`~chatterspec.studies.calibration_file`: :meth:`Calibration.save` writes it,
+:func:`load_calibration` reads it. Both names are re-exported by :mod:`chatterspec.studies.calibration`,
+their documented home.
 """
 
 from __future__ import annotations
 
-import json
 import math
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -23,18 +22,16 @@ from .._validate import readonly
 from ..detection.alarm_calibration import RuleCalibration
 from ..detection.spectral import STFTConfig
 from ..detection.thresholds import Threshold
-from ..errors import CalibrationMismatchError, DataFileError, ParameterError
+from ..errors import CalibrationMismatchError, ParameterError
 from ..plants.models import LinearModel
-from .intervals import QuantileEstimate, _none_to_inf
+from .calibration_file import CALIBRATION_FORMAT, calibration_dict, load_calibration, save_calibration
+from .intervals import QuantileEstimate
 
 __all__ = [
     "CALIBRATION_FORMAT",
     "Calibration",
     "load_calibration",
 ]
-
-CALIBRATION_FORMAT = "chatterspec-calibration"
-CALIBRATION_VERSION = 1
 
 
 # --------------------------------------------------------------------------- calibration
@@ -252,115 +249,24 @@ class Calibration:
             expected=_ro(E),
         )
 
-    # ---- serialization
+    # ---- the file format (chatterspec.studies.calibration_file)
     def to_dict(self, arrays: bool = False) -> dict[str, Any]:
-        """JSON-ready summary; ``arrays=True`` adds every array (the calibration file content)."""
-        if self.normalization == "empirical":
-            return self._empirical_dict(arrays)
-        ag = self.agreement()
-        t = self.tested
-        d: dict[str, Any] = {
-            "format": CALIBRATION_FORMAT,
-            "version": CALIBRATION_VERSION,
-            "scenario": self.scenario,
-            "model_name": self.model_name,
-            "model_fingerprint": self.model_fingerprint,
-            "dt": self.dt,
-            "n_samples": self.n_samples,
-            "stft": self.stft,
-            "alpha": self.alpha,
-            "runs": self.runs,
-            "seed": self.seed,
-            "confidence": self.confidence,
-            "channels": list(self.channels),
-            "analytic_factor": {
-                "exact_per_bin": float(np.median(self.exact_factor[t])),
-                "family_wise_bonferroni": self.family_wise_analytic["bonferroni"],
-                "family_wise_sidak": self.family_wise_analytic["sidak"],
-                "paper_over_expected_min_max": [
-                    float(np.min(self.analytic["paper"][t] / self.expected[t])),
-                    float(np.max(self.analytic["paper"][t] / self.expected[t])),
-                ],
-            },
-            "empirical": {
-                "per_bin_factor_median": [float(v) for v in np.median(self.per_bin[t], axis=0)],
-                "per_frame_factor_median": [
-                    float(v) for v in np.median(self.per_frame[self.frame_tested], axis=0)
-                ],
-                "family_wise": [q.to_dict() for q in self.family_wise],
-                "frame_family_wise": [q.to_dict() for q in self.frame_family_wise],
-            },
-            "agreement": ag,
-            "tails": self.tails,
-            "alarm": None if self.alarm is None else self.alarm.to_dict(),
-        }
-        if arrays:
-            d["arrays"] = {k: np.where(np.isfinite(v), v, None).tolist() for k, v in self._arrays().items()}
-        return d
+        """JSON-ready summary; ``arrays=True`` adds every array (the calibration file content).
 
-    def _empirical_dict(self, arrays: bool) -> dict[str, Any]:
-        """:meth:`to_dict` of an empirically normalized calibration (no analytic keys)."""
-        d: dict[str, Any] = {
-            "format": CALIBRATION_FORMAT,
-            "version": CALIBRATION_VERSION,
-            "normalization": self.normalization,
-            "normalization_info": self.normalization_info,
-            **{k: getattr(self, k) for k in ("scenario", "model_name", "model_fingerprint", "dt")},
-            **{k: getattr(self, k) for k in ("n_samples", "stft", "alpha", "runs", "seed", "confidence")},
-            "channels": list(self.channels),
-            "empirical": {
-                "per_bin_factor_median": [float(v) for v in np.median(self.per_bin[self.tested], axis=0)],
-                "per_frame_factor_median": [
-                    float(v) for v in np.median(self.per_frame[self.frame_tested], axis=0)
-                ],
-                "family_wise": [q.to_dict() for q in self.family_wise],
-                "frame_family_wise": [q.to_dict() for q in self.frame_family_wise],
-            },
-            "tails": self.tails,
-            "alarm": None if self.alarm is None else self.alarm.to_dict(),
-        }
-        if arrays:
-            d["arrays"] = {k: np.where(np.isfinite(v), v, None).tolist() for k, v in self._arrays().items()}
-        return d
-
-    def _arrays(self) -> dict[str, np.ndarray]:
-        a = {
-            "freqs_hz": self.freqs_hz,
-            "tested": self.tested.astype(np.int8),
-            "expected": self.expected,
-            "per_bin": self.per_bin,
-            "per_bin_low": self.per_bin_low,
-            "per_bin_high": self.per_bin_high,
-            "frame_freqs_hz": self.frame_freqs_hz,
-            "frame_tested": self.frame_tested.astype(np.int8),
-            "frame_expected": self.frame_expected,
-            "per_frame": self.per_frame,
-            "per_frame_low": self.per_frame_low,
-            "per_frame_high": self.per_frame_high,
-        }
-        a.update({f"analytic:{k}": v for k, v in self.analytic.items()})
-        a.update({f"frame_analytic:{k}": v for k, v in self.frame_analytic.items()})
-        return a
+        See Also
+        --------
+        chatterspec.studies.calibration_file.calibration_dict : the same as a function.
+        """
+        return calibration_dict(self, arrays)
 
     def save(self, path: str | Path) -> Path:
-        """Write the calibration file: ``.npz`` (arrays + JSON metadata) or JSON otherwise."""
-        path = Path(path)
-        meta = self.to_dict(arrays=False)
-        meta.pop("agreement", None)
-        meta["family_wise"] = [q.to_dict() for q in self.family_wise]
-        meta["frame_family_wise"] = [q.to_dict() for q in self.frame_family_wise]
-        meta["family_wise_analytic"] = self.family_wise_analytic
-        meta["normalization"] = self.normalization
-        meta["normalization_info"] = self.normalization_info
-        meta["tails"] = self.tails
-        if path.suffix == ".npz":
-            np.savez(path, _meta=np.array(json.dumps(meta)), **self._arrays())
-        else:
-            meta["arrays"] = {
-                k: np.where(np.isfinite(v), v, None).tolist() for k, v in self._arrays().items()
-            }
-            path.write_text(json.dumps(meta))
-        return path
+        """Write the calibration file: ``.npz`` (arrays + JSON metadata) or JSON otherwise.
+
+        See Also
+        --------
+        load_calibration : reads it back.
+        """
+        return save_calibration(self, path)
 
 
 def _ro(a: np.ndarray) -> np.ndarray:
@@ -369,163 +275,3 @@ def _ro(a: np.ndarray) -> np.ndarray:
 
 def _stft_dict(config: STFTConfig) -> dict[str, Any]:
     return {"window_s": float(config.window_s), "hop_s": float(config.hop_s), "window": str(config.window)}
-
-
-def _json_array(key: str, value: object) -> np.ndarray:
-    a = np.asarray(value, dtype=object)
-    sign = -1.0 if key.endswith("_low") else 1.0
-    return np.where(a == None, sign * np.inf, a).astype(float)  # noqa: E711
-
-
-def load_calibration(
-    path: str | Path,
-    model: LinearModel | None = None,
-    n_samples: int | None = None,
-    config: STFTConfig | None = None,
-) -> Calibration:
-    """Read a calibration file written by :meth:`Calibration.save`.
-
-    With ``model`` (and optionally ``n_samples``, ``config``) the calibration
-    is checked against them (:meth:`Calibration.check`).
-
-    Parameters
-    ----------
-    path : str or Path
-        Calibration file: ``.npz`` (arrays plus JSON metadata), otherwise JSON.
-    model : LinearModel, optional
-        Model the calibration will be used with; its fingerprint must match.
-    n_samples : int, optional
-        Periodogram record length N (samples) it will be used with.
-    config : STFTConfig, optional
-        STFT settings (window and hop in seconds, taper) of the per-frame detector.
-
-    Returns
-    -------
-    Calibration
-
-    Raises
-    ------
-    DataFileError
-        The file is missing or is not a chatterspec calibration.
-    CalibrationMismatchError
-        It was made for another model, record length or STFT setting.
-    """
-    path = Path(path)
-    try:
-        return _load_calibration(path, model, n_samples, config)
-    except KeyError as exc:  # an incomplete file: name what is missing in words, not KeyError: 'arrays'
-        key = str(exc.args[0]) if exc.args else "?"
-        what = _CALIBRATION_KEY_WORDS.get(key, f"the entry {key!r}")
-        raise DataFileError(
-            f"{path}: incomplete calibration file: it has no {what}; write it again with "
-            "'chatterspec calibrate NAME --out FILE'"
-        ) from None
-
-
-#: Words for the entries of a calibration file (messages of :func:`load_calibration`).
-_CALIBRATION_KEY_WORDS = {
-    "arrays": "threshold arrays ('arrays')",
-    "_meta": "metadata ('_meta')",
-    "confidence": "confidence level ('confidence')",
-    "scenario": "scenario name ('scenario')",
-    "model_fingerprint": "model fingerprint ('model_fingerprint')",
-    "n_samples": "record length ('n_samples')",
-    "stft": "STFT settings ('stft')",
-    "alpha": "alpha ('alpha')",
-    "per_bin": "per-bin quantiles ('per_bin')",
-    "per_frame": "per-frame quantiles ('per_frame')",
-    "family_wise_analytic": "analytic family-wise factors ('family_wise_analytic')",
-}
-
-
-def _load_calibration(
-    path: Path, model: LinearModel | None, n_samples: int | None, config: STFTConfig | None
-) -> Calibration:
-    try:
-        if path.suffix == ".npz":
-            with np.load(path, allow_pickle=False) as z:
-                if "_meta" not in z.files:  # e.g. a data file: say what it is, not a KeyError's text
-                    held = ", ".join(sorted(z.files)[:6]) + (", ..." if len(z.files) > 6 else "")
-                    raise DataFileError(
-                        f"{path}: not a chatterspec calibration file: the .npz archive holds "
-                        f"[{held or 'nothing'}] but no calibration metadata ('_meta'); write one with "
-                        "'chatterspec calibrate NAME --out FILE'"
-                    )
-                meta = json.loads(str(z["_meta"]))
-                arrays = {k: np.array(z[k]) for k in z.files if k != "_meta"}
-        else:
-            meta = json.loads(path.read_text())
-            if not isinstance(meta, dict) or meta.get("format") != CALIBRATION_FORMAT:
-                fmt = meta.get("format") if isinstance(meta, dict) else None
-                raise DataFileError(f"{path}: not a chatterspec calibration file (format {fmt!r})")
-            arrays = {k: _json_array(k, v) for k, v in meta.pop("arrays").items()}
-    except KeyError:
-        raise
-    except (OSError, ValueError, TypeError, EOFError, zipfile.BadZipFile) as exc:
-        if isinstance(exc, DataFileError):
-            raise
-        if isinstance(exc, json.JSONDecodeError):
-            raise DataFileError(
-                f"{path}: not a chatterspec calibration file (neither an .npz archive nor JSON; write one "
-                "with 'chatterspec calibrate NAME --out FILE')"
-            ) from None
-        reason = "not a zip of .npy arrays" if "pickle" in str(exc) else f"{type(exc).__name__}: {exc}"
-        raise DataFileError(f"{path}: cannot read calibration file ({reason})") from None
-    if meta.get("format") != CALIBRATION_FORMAT:
-        raise DataFileError(f"{path}: not a chatterspec calibration file (format {meta.get('format')!r})")
-    if meta.get("version") != CALIBRATION_VERSION:
-        raise DataFileError(f"{path}: calibration file version {meta.get('version')} is not supported")
-    conf = float(meta["confidence"])
-
-    def quantiles(key: str) -> tuple[QuantileEstimate, ...]:
-        return tuple(
-            QuantileEstimate(
-                q["q"], q["value"], _none_to_inf(q["ci_low"], -1), _none_to_inf(q["ci_high"], 1), q["n"], conf
-            )
-            for q in meta.get(key, ())
-        )
-
-    fw = quantiles("family_wise")
-    cal = Calibration(
-        scenario=meta["scenario"],
-        model_name=meta["model_name"],
-        model_fingerprint=meta["model_fingerprint"],
-        dt=float(meta["dt"]),
-        n_samples=int(meta["n_samples"]),
-        stft=dict(meta["stft"]),
-        alpha=float(meta["alpha"]),
-        runs=int(meta["runs"]),
-        seed=meta["seed"],
-        confidence=conf,
-        channels=tuple(meta["channels"]),
-        freqs_hz=_ro(arrays["freqs_hz"].astype(float)),
-        tested=_ro(arrays["tested"].astype(bool)),
-        expected=_ro(arrays["expected"].astype(float)),
-        analytic={
-            k.split(":", 1)[1]: _ro(v.astype(float)) for k, v in arrays.items() if k.startswith("analytic:")
-        },
-        per_bin=_ro(arrays["per_bin"].astype(float)),
-        per_bin_low=_ro(arrays["per_bin_low"].astype(float)),
-        per_bin_high=_ro(arrays["per_bin_high"].astype(float)),
-        family_wise=fw,
-        family_wise_analytic={k: float(v) for k, v in meta["family_wise_analytic"].items()},
-        frame_freqs_hz=_ro(arrays["frame_freqs_hz"].astype(float)),
-        frame_tested=_ro(arrays["frame_tested"].astype(bool)),
-        frame_expected=_ro(arrays["frame_expected"].astype(float)),
-        frame_analytic={
-            k.split(":", 1)[1]: _ro(v.astype(float))
-            for k, v in arrays.items()
-            if k.startswith("frame_analytic:")
-        },
-        per_frame=_ro(arrays["per_frame"].astype(float)),
-        per_frame_low=_ro(arrays["per_frame_low"].astype(float)),
-        per_frame_high=_ro(arrays["per_frame_high"].astype(float)),
-        frame_family_wise=quantiles("frame_family_wise"),
-        normalization=str(meta.get("normalization", "analytic")),
-        normalization_info=dict(meta.get("normalization_info", {})),
-        tails=dict(meta.get("tails", {})),
-        alarm=None if meta.get("alarm") is None else RuleCalibration.from_dict(meta["alarm"]),
-    )
-    if model is not None:
-        cal.check(model, n_samples, config)
-    return cal

@@ -14,11 +14,11 @@ from typing import Any
 
 import numpy as np
 
+from ..montecarlo import Execution
 from ..rng import BLOCK, SeedLike
 from . import tail_histogram as th
 from .healthy import HealthyStudy
 from .intervals import _quantile_from_top, _top_needed
-from .montecarlo import run_study
 
 __all__: list[str] = []
 
@@ -34,7 +34,7 @@ def study_quantiles(
     q: float,
     confidence: float,
     budget: int,
-    run_kw: dict[str, Any],
+    execution: Execution,
     label: str,
 ) -> tuple[dict[str, Triple], dict[str, Any]]:
     """Run ``study`` and return the four empirical quantiles and how they were read.
@@ -50,9 +50,7 @@ def study_quantiles(
     kf_top = _top_needed(nf, q, confidence, nf_eff)
     need = th.tail_bytes(k_top, kf_top, bins, fbins, m)
     if need <= budget:
-        out = run_study(
-            dataclasses.replace(study, k_top=k_top, kf_top=kf_top), runs, seed, label=label, **run_kw
-        )
+        out = execution.run(dataclasses.replace(study, k_top=k_top, kf_top=kf_top), runs, seed, label)
         res = {
             "bin": _quantile_from_top(_desc(out["top_bin"]), runs, q, confidence),
             "frame": _quantile_from_top(_desc(out["top_frame"]), nf, q, confidence, nf_eff),
@@ -64,7 +62,7 @@ def study_quantiles(
     # ---- bounded path: a pilot histogram places each cell's fine window, then counts over every run
     P = th.pilot_runs(runs, 1 - q, BLOCK)
     pw_bin, pw_frame = th.pilot_window((bins, m)), th.pilot_window((fbins, m))
-    pilot = run_study(
+    pilot = execution.run(
         dataclasses.replace(
             study,
             k_top=0,
@@ -75,8 +73,7 @@ def study_quantiles(
         ),
         P,
         seed,
-        label=f"{label} (pilot)",
-        **run_kw,
+        f"{label} (pilot)",
     )
     pf, pfe = P * n_frames, P * frames_eff
     win = {
@@ -93,7 +90,7 @@ def study_quantiles(
         frame_window=win["frame"],
         frame_max_window=win["frame_max"],
     )
-    out = run_study(main, runs, seed, label=label, **run_kw)
+    out = execution.run(main, runs, seed, label)
     res: dict[str, Triple] = {}
     outside = 0
     for key, n, n_eff in (("bin", runs, runs), ("frame", nf, nf_eff), ("frame_max", nf, nf_eff)):

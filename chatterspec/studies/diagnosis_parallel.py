@@ -13,13 +13,18 @@ sending back its mode probabilities (``runs x T x modes`` floats, ~14 MB for 64 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..montecarlo import Execution, ExecutionOptions
 from ..plants.simulate import iter_simulations
 from .chattering_diagnosis import ChatteringTally
 from .mode_diagnosis import ModeTally
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
 
 __all__ = ["diagnose_parallel"]
 
@@ -75,12 +80,9 @@ def diagnose_parallel(
     runs: int,
     seed: int,
     *,
-    workers: int = 1,
-    scheduler: str | None = None,
-    chunk_runs: int | None = None,
-    progress: bool | None = None,
     keep: bool = False,
     identification: Any = None,
+    **execution: Unpack[ExecutionOptions],
 ) -> tuple[list[Any], dict]:
     """The tallies of ``methods`` over ``runs`` realizations, computed on workers (same figures as serial).
 
@@ -94,30 +96,22 @@ def diagnose_parallel(
         The chattering route's per-frame threshold (None without that route).
     runs, seed : int
         Realizations and root seed.
-    workers, scheduler, chunk_runs, progress
-        As in :func:`~chatterspec.studies.montecarlo.run_study` (chunks are multiples of 64 runs).
     keep : bool
         Keep realization 0's mode probabilities per mode method (for ``--record``).
     identification : (IdentificationSetup, float, float), optional
         ``(setup, alpha, confidence)``: fault identification per segment too
         (:class:`~chatterspec.studies.identification_diagnosis.IdentificationTally`), returned last.
+    **execution
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
+        (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------
     (list of tallies, dict)
         The tallies in ``methods`` order (call ``result()``), and the kept mode probabilities.
     """
-    from .montecarlo import run_study
 
+    ex = Execution(**execution)
     study = _DiagnoseStudy(scenario, tuple(methods), threshold, keep, identification)
-    acc = run_study(
-        study,
-        runs,
-        seed,
-        workers=workers,
-        scheduler=scheduler,
-        chunk_runs=chunk_runs,
-        progress=progress,
-        label="diagnose",
-    )
+    acc = ex.run(study, runs, seed, "diagnose")
     return acc["tallies"], acc["keep"]

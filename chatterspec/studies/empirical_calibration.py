@@ -19,12 +19,15 @@ has ``normalization="empirical"``, no analytic thresholds, and ``expected`` = ``
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..detection.empirical import NORMALIZATION_SMOOTH_BINS, frame_normalization, normalization_spectrum
 from ..detection.pipeline import iter_chattering
 from ..detection.spectral import STFTConfig, periodogram_freqs
 from ..errors import ParameterError
+from ..montecarlo import Execution, ExecutionOptions
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
 from .calibration_result import Calibration, _ro, _stft_dict
@@ -32,6 +35,10 @@ from .calibration_tails import study_quantiles
 from .healthy import HealthyStudy, _n_frames
 from .intervals import QuantileEstimate
 from .tail_histogram import DEFAULT_TAIL_BUDGET
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
 
 __all__ = ["DEFAULT_PILOT_RUNS", "calibrate_empirical"]
 
@@ -48,11 +55,8 @@ def calibrate_empirical(
     *,
     pilot_runs: int = DEFAULT_PILOT_RUNS,
     half_width: int = NORMALIZATION_SMOOTH_BINS,
-    workers: int = 1,
-    scheduler: str | None = None,
-    chunk_runs: int | None = None,
-    progress: bool | None = None,
     tail_budget: int = DEFAULT_TAIL_BUDGET,
+    **execution: Unpack[ExecutionOptions],
 ):
     """Empirical calibration of a healthy scenario (any nominal model the pipeline can filter).
 
@@ -74,17 +78,19 @@ def calibrate_empirical(
         Realizations for the normalization spectrum (>= 2).
     half_width : int
         Smoothing half-width of the normalization in bins.
-    workers, scheduler, chunk_runs, progress
-        Execution (see :func:`chatterspec.studies.montecarlo.run_study`).
     tail_budget : int
         Memory budget in bytes of the exact quantile tails; above it the bounded tail
         histograms are used (see :func:`~.calibration.calibrate`).
+    **execution
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
+        (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------
     Calibration
         ``normalization="empirical"``.
     """
+    ex = Execution(**execution)
     if int(pilot_runs) < 2:
         raise ParameterError(f"pilot_runs must be >= 2; got {pilot_runs}")
     model = sc.nominal
@@ -123,7 +129,6 @@ def calibrate_empirical(
     )
     q = 1 - alpha
     nf = runs * n_frames
-    ex = {"workers": workers, "scheduler": scheduler, "chunk_runs": chunk_runs, "progress": progress}
     label = f"calibrate {sc.name} (empirical)"
     res, tails = study_quantiles(
         study, runs, seed, n_frames, frames_eff, q, confidence, tail_budget, ex, label

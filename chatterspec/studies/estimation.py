@@ -26,9 +26,10 @@ well that bookkeeping matches the errors, not whether the filter is optimal.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -36,6 +37,7 @@ from .. import filter_registry
 from .._repr import short_repr
 from .._validate import positive_int
 from ..errors import ParameterError
+from ..montecarlo import Execution, ExecutionOptions
 from ..plants.scenarios import Scenario
 from ..plants.scenarios import scenario as _catalogue_scenario
 from ..plants.simulate import iter_simulations
@@ -49,7 +51,10 @@ from .metrics import (
     nis,
     state_error_metrics,
 )
-from .montecarlo import run_study
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
 
 __all__ = [
     "FILTERS",
@@ -482,10 +487,7 @@ def estimation_study(
     seed: SeedLike = 0,
     *,
     alpha: float = 0.05,
-    workers: int = 1,
-    scheduler: str | None = None,
-    chunk_runs: int | None = None,
-    progress: bool | None = None,
+    **execution: Unpack[ExecutionOptions],
 ) -> EstimationResult:
     """Monte Carlo comparison of estimators on a scenario (the DETC2015 Tables 1-3 and consistency).
 
@@ -502,8 +504,9 @@ def estimation_study(
         Root seed; the result does not depend on ``workers`` or ``scheduler``.
     alpha : float
         Two-sided level of the NEES/NIS chi-squared intervals, in (0, 1).
-    workers, scheduler, chunk_runs, progress
-        Execution (see :func:`chatterspec.studies.montecarlo.run_study`).
+    **execution
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
+        (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------
@@ -516,6 +519,7 @@ def estimation_study(
     NonFiniteError
         A filter diverged (its estimates are not finite).
     """
+    ex = Execution(**execution)
     names = parse_filters(filters)
     runs = positive_int("runs", runs)
     sc = _resolve(source)
@@ -524,19 +528,11 @@ def estimation_study(
     from .._validate import open_unit
 
     alpha = open_unit("alpha", alpha)
-    if chunk_runs is None and sc.n_samples * sc.nominal.n_states**2 > 50_000:
-        chunk_runs = 64  # long records (e.g. eha4: 9001 x 4x4 covariances per run): keep chunks ~100 MB
+    if ex.chunk_runs is None and sc.n_samples * sc.nominal.n_states**2 > 50_000:
+        # long records (e.g. eha4: 9001 x 4x4 covariances per run): keep chunks ~100 MB
+        ex = dataclasses.replace(ex, chunk_runs=64)
     study = EstimationStudy(scenario=sc, filters=names)
-    out = run_study(
-        study,
-        runs,
-        seed,
-        workers=workers,
-        scheduler=scheduler,
-        chunk_runs=chunk_runs,
-        progress=progress,
-        label=f"estimate {sc.name}",
-    )
+    out = ex.run(study, runs, seed, f"estimate {sc.name}")
     steps = sc.n_samples - 1
     n, m = sc.nominal.n_states, sc.nominal.n_outputs
     blocks = []

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,6 +32,7 @@ from .._validate import open_unit, positive, positive_int
 from ..detection.pipeline import chattering_record
 from ..detection.spectral import periodogram
 from ..errors import ParameterError
+from ..montecarlo import Execution, ExecutionOptions
 from ..plants.closed_loop import ClosedLoop
 from ..plants.dither import PRBS, Multisine
 from ..plants.models import EHA_PARAMETERS
@@ -48,7 +49,10 @@ from ..rng import SeedLike
 from .calibration_result import _ro
 from .healthy import _analytic_thresholds, _reduce_dict
 from .intervals import RateEstimate
-from .montecarlo import run_study
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
 
 __all__ = [
     "CLOSED_LOOP_FAMILIES",
@@ -434,10 +438,7 @@ def excitation_study(
     runs: int = 200,
     seed: SeedLike = 0,
     confidence: float = 0.99,
-    workers: int = 1,
-    scheduler: str | None = None,
-    chunk_runs: int | None = None,
-    progress: bool | None = None,
+    **execution: Unpack[ExecutionOptions],
 ) -> ExcitationResult:
     """Detection power and tracking cost of the closed-loop EHA over references and dither levels.
 
@@ -466,8 +467,9 @@ def excitation_study(
     seed : int
     confidence : float
         Level of the Clopper-Pearson intervals.
-    workers, scheduler, chunk_runs, progress
-        Execution (see :func:`chatterspec.studies.montecarlo.run_study`).
+    **execution
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
+        (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------
@@ -479,6 +481,7 @@ def excitation_study(
         On an unknown family or reference, a dither level < 0 or whose peak reaches the
         controller's saturation (300 rad/s), or a non-positive sensor noise.
     """
+    ex = Execution(**execution)
     if family not in CLOSED_LOOP_FAMILIES:
         raise ParameterError(
             f"the closed-loop study covers the EHA families {', '.join(CLOSED_LOOP_FAMILIES)}; got {family!r}"
@@ -505,16 +508,7 @@ def excitation_study(
         thresholds.append(thr["exact-bonferroni"].values)
         tested = thr["exact-bonferroni"].tested
     study = _ExcitationChunks(tuple(pairs), tuple(thresholds), np.asarray(tested), tuple(noise_index))
-    out = run_study(
-        study,
-        runs,
-        seed,
-        workers=workers,
-        scheduler=scheduler,
-        chunk_runs=chunk_runs,
-        progress=progress,
-        label=f"closed-loop power {family}",
-    )
+    out = ex.run(study, runs, seed, f"closed-loop power {family}")
     shape = (len(noises), len(pts))
     mean = out["track"] / runs
     var = np.maximum(out["track_sq"] / runs - mean**2, 0.0) / max(runs - 1, 1)

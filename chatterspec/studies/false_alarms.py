@@ -6,7 +6,7 @@ import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -14,6 +14,7 @@ from .._validate import open_unit, positive_int
 from ..detection.spectral import STFTConfig, expected_spectrum, periodogram_freqs
 from ..detection.thresholds import Threshold
 from ..errors import ParameterError
+from ..montecarlo import Execution, ExecutionOptions
 from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
@@ -27,7 +28,10 @@ from .healthy import (
     resolve_scenario,
 )
 from .intervals import RateEstimate
-from .montecarlo import run_study
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
 
 __all__ = [
     "FalseAlarmResult",
@@ -191,10 +195,7 @@ def false_alarm_study(
     config: STFTConfig | None = None,
     frames: bool = True,
     confidence: float = 0.99,
-    workers: int = 1,
-    scheduler: str | None = None,
-    chunk_runs: int | None = None,
-    progress: bool | None = None,
+    **execution: Unpack[ExecutionOptions],
 ) -> FalseAlarmResult:
     """False-alarm rates of every threshold kind on healthy runs, with Clopper-Pearson intervals.
 
@@ -218,13 +219,15 @@ def false_alarm_study(
         Also test the STFT detector (per-frame rates).
     confidence : float
         Level of the Clopper-Pearson intervals.
-    workers, scheduler, chunk_runs, progress
-        Execution (see :func:`chatterspec.studies.montecarlo.run_study`).
+    **execution
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
+        (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------
     FalseAlarmResult
     """
+    ex = Execution(**execution)
     alphas = _check_alphas(alpha)
     runs = positive_int("runs", runs)
     confidence = open_unit("confidence", confidence)
@@ -264,16 +267,7 @@ def false_alarm_study(
         fthr_tested=np.stack([t.tested for _, _, t in fkinds]) if frames else None,
         fexpected=None,
     )
-    out = run_study(
-        study,
-        runs,
-        seed,
-        workers=workers,
-        scheduler=scheduler,
-        chunk_runs=chunk_runs,
-        progress=progress,
-        label=f"far {sc.name}",
-    )
+    out = ex.run(study, runs, seed, f"far {sc.name}")
     m = model.n_outputs
     rates: list[KindRates] = []
     for i, (name, a, t) in enumerate(kinds):

@@ -6,8 +6,10 @@ from .. import montecarlo as _runner
 
 DASK_CONNECT_TIMEOUT_S = _runner.DASK_CONNECT_TIMEOUT_S
 DEFAULT_CHUNK_RUNS = _runner.DEFAULT_CHUNK_RUNS
-Chunk, Study, plan_chunks, run_chunk, run_study = (
+Chunk, Execution, ExecutionOptions, Study, plan_chunks, run_chunk, run_study = (
     _runner.Chunk,
+    _runner.Execution,
+    _runner.ExecutionOptions,
     _runner.Study,
     _runner.plan_chunks,
     _runner.run_chunk,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -13,6 +13,7 @@ from .._validate import open_unit, positive_int
 from ..detection.pipeline import iter_chattering
 from ..detection.spectral import periodogram
 from ..errors import ParameterError
+from ..montecarlo import Execution, ExecutionOptions
 from ..plants.models import EHA_PARAMETERS, LinearModel, eha_linear, second_order
 from ..plants.scenarios import Scenario
 from ..plants.signals import Chirp, Step
@@ -20,7 +21,10 @@ from ..rng import SeedLike
 from .calibration_result import _ro
 from .healthy import _analytic_thresholds, _reduce_dict
 from .intervals import RateEstimate
-from .montecarlo import run_study
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
 
 __all__ = [
     "POWER_FAMILIES",
@@ -300,10 +304,7 @@ def power_study(
     *,
     alphas: Sequence[float] | None = None,
     confidence: float = 0.99,
-    workers: int = 1,
-    scheduler: str | None = None,
-    chunk_runs: int | None = None,
-    progress: bool | None = None,
+    **execution: Unpack[ExecutionOptions],
 ) -> PowerResult:
     """Detection power vs fault size and noise level, and ROC curves.
 
@@ -324,13 +325,15 @@ def power_study(
         ROC alpha grid (default 1e-5 .. 0.5 log-spaced, plus ``alpha``).
     confidence : float
         Level of the Clopper-Pearson intervals.
-    workers, scheduler, chunk_runs, progress
-        Execution (see :func:`chatterspec.studies.montecarlo.run_study`).
+    **execution
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
+        (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------
     PowerResult
     """
+    ex = Execution(**execution)
     if family not in POWER_FAMILIES:
         raise ParameterError(f"unknown fault family {family!r}; valid: {', '.join(POWER_FAMILIES)}")
     alpha = open_unit("alpha", alpha)
@@ -356,16 +359,7 @@ def power_study(
             tested = np.stack([per_alpha[0][k].tested for k in kinds])
             scenarios.append(sc)
     study = PowerStudyChunks(tuple(scenarios), tuple(thr_values), tested)
-    out = run_study(
-        study,
-        runs,
-        seed,
-        workers=workers,
-        scheduler=scheduler,
-        chunk_runs=chunk_runs,
-        progress=progress,
-        label=f"power {family}",
-    )
+    out = ex.run(study, runs, seed, f"power {family}")
     shape = (len(noise_t), len(sizes_t))
     return PowerResult(
         family=family,
