@@ -16,10 +16,9 @@ from ..plants.models import LinearModel
 from ..plants.nonlinear import is_linear
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
-from .calibration_result import CALIBRATION_FORMAT, Calibration, _ro, _stft_dict, load_calibration
-from .calibration_tails import study_quantiles
-from .healthy import HealthyStudy, _analytic_thresholds, _frame_thresholds, _n_frames, resolve_scenario
-from .intervals import QuantileEstimate
+from .calibration_result import CALIBRATION_FORMAT, Calibration, _ro, load_calibration
+from .calibration_tails import calibration_fields, frame_counts
+from .healthy import HealthyStudy, _analytic_thresholds, _frame_thresholds, resolve_scenario
 from .tail_histogram import DEFAULT_TAIL_BUDGET
 
 if TYPE_CHECKING:
@@ -104,11 +103,7 @@ def calibrate(
     ffreqs, fthr = _frame_thresholds(model, config, alpha)
     E = thr["exact"].expected
     Ef = fthr["frame"].expected
-    n_frames = _n_frames(N, config, model.dt)
-    if n_frames < 1:
-        raise ParameterError(f"records of {N} samples are shorter than one STFT window")
-    # overlapping frames are dependent: count only non-overlapping ones as independent samples
-    frames_eff = max(1, (N - config.n_window(model.dt)) // config.n_window(model.dt) + 1)
+    frames = frame_counts(N, config, model.dt)
     study = HealthyStudy(
         scenario=sc,
         thr_values=np.stack([t.values for t in thr.values()]),
@@ -121,54 +116,21 @@ def calibrate(
         fexpected=Ef,
         keep_max=True,
     )
-    q = 1 - alpha
-    res, tails = study_quantiles(
-        study, runs, seed, n_frames, frames_eff, q, confidence, tail_budget, ex, f"calibrate {sc.name}"
-    )
-    pb, pb_lo, pb_hi = res["bin"]
-    pf, pf_lo, pf_hi = res["frame"]
-    mv, mlo, mhi = res["max"]
-    fv, flo, fhi = res["frame_max"]
-    n_tested = thr["exact"].n_tested
-    fw = tuple(
-        QuantileEstimate(q, float(mv[c]), float(mlo[c]), float(mhi[c]), runs, confidence)
-        for c in range(E.shape[1])
-    )
+    label = f"calibrate {sc.name}"
+    shared = calibration_fields(study, sc, alpha, runs, seed, confidence, frames, tail_budget, ex, label)
     return Calibration(
-        scenario=sc.name,
-        model_name=model.name,
-        model_fingerprint=model.fingerprint(),
-        dt=model.dt,
-        n_samples=N,
-        stft=_stft_dict(config),
-        alpha=alpha,
-        runs=runs,
-        seed=int(seed) if isinstance(seed, int | np.integer) else None,
-        confidence=confidence,
-        channels=tuple(model.output_names),
+        **shared,
         freqs_hz=_ro(freqs),
         tested=_ro(thr["exact"].tested),
         expected=_ro(E),
         analytic={k: _ro(t.values) for k, t in thr.items()},
-        per_bin=_ro(pb),
-        per_bin_low=_ro(pb_lo),
-        per_bin_high=_ro(pb_hi),
-        family_wise=fw,
         family_wise_analytic={
             "bonferroni": float(scipy.stats.chi2.isf(thr["exact-bonferroni"].per_test_alpha, 2) / 2),
             "sidak": float(scipy.stats.chi2.isf(thr["exact-sidak"].per_test_alpha, 2) / 2),
-            "n_tested": n_tested,
+            "n_tested": thr["exact"].n_tested,
         },
         frame_freqs_hz=_ro(ffreqs),
         frame_tested=_ro(fthr["frame"].tested),
         frame_expected=_ro(Ef),
         frame_analytic={k: _ro(t.values) for k, t in fthr.items()},
-        per_frame=_ro(pf),
-        per_frame_low=_ro(pf_lo),
-        per_frame_high=_ro(pf_hi),
-        frame_family_wise=tuple(
-            QuantileEstimate(q, float(fv[c]), float(flo[c]), float(fhi[c]), runs * n_frames, confidence)
-            for c in range(E.shape[1])
-        ),
-        tails=tails,
     )

@@ -5,6 +5,8 @@ Shared by :func:`~chatterspec.studies.calibration.calibrate` (linear models) and
 the memory budget the exact path keeps the largest normalized values (exact order statistics,
 the numbers of every earlier chatterspec); above it the bounded path of
 :mod:`~chatterspec.studies.tail_histogram` is used (pilot windows + per-cell bucket counts).
+:func:`calibration_fields` turns them into the fields of a
+:class:`~chatterspec.studies.calibration_result.Calibration` that both normalizations share.
 """
 
 from __future__ import annotations
@@ -14,15 +16,84 @@ from typing import Any
 
 import numpy as np
 
+from ..detection.spectral import STFTConfig
+from ..errors import ParameterError
 from ..montecarlo import Execution
+from ..plants.scenarios import Scenario
 from ..rng import BLOCK, SeedLike
 from . import tail_histogram as th
-from .healthy import HealthyStudy
-from .intervals import _quantile_from_top, _top_needed
+from .calibration_result import _ro, _stft_dict
+from .healthy import HealthyStudy, _n_frames
+from .intervals import QuantileEstimate, _quantile_from_top, _top_needed
 
 __all__: list[str] = []
 
 Triple = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def frame_counts(n_samples: int, config: STFTConfig, dt: float) -> tuple[int, int]:
+    """STFT frames per record, and how many of them do not overlap (the independent ones).
+
+    Raises :class:`~chatterspec.errors.ParameterError` for records shorter than one window.
+    """
+    n_frames = _n_frames(n_samples, config, dt)
+    if n_frames < 1:
+        raise ParameterError(f"records of {n_samples} samples are shorter than one STFT window")
+    # overlapping frames are dependent: count only non-overlapping ones as independent samples
+    return n_frames, max(1, (n_samples - config.n_window(dt)) // config.n_window(dt) + 1)
+
+
+def calibration_fields(
+    study: HealthyStudy,
+    sc: Scenario,
+    alpha: float,
+    runs: int,
+    seed: SeedLike,
+    confidence: float,
+    frames: tuple[int, int],
+    tail_budget: int,
+    execution: Execution,
+    label: str,
+) -> dict[str, Any]:
+    """Run ``study`` (:func:`study_quantiles`) and return the fields of its ``Calibration`` that do
+    not depend on the normalization: what was calibrated, the empirical quantiles and their tails.
+
+    ``study.config`` is the per-frame STFT and ``frames`` its :func:`frame_counts`; the caller adds
+    the normalization's own fields (frequencies, tested bins, expected spectra, analytic thresholds).
+    """
+    model, config = sc.nominal, study.config
+    N = sc.n_samples - 1
+    n_frames, frames_eff = frames
+    q = 1 - alpha
+    res, tails = study_quantiles(
+        study, runs, seed, n_frames, frames_eff, q, confidence, tail_budget, execution, label
+    )
+
+    def per_channel(key: str, n: int) -> tuple[QuantileEstimate, ...]:
+        v, lo, hi = res[key]
+        return tuple(
+            QuantileEstimate(q, float(v[c]), float(lo[c]), float(hi[c]), n, confidence)
+            for c in range(v.shape[0])
+        )
+
+    return {
+        "scenario": sc.name,
+        "model_name": model.name,
+        "model_fingerprint": model.fingerprint(),
+        "dt": model.dt,
+        "n_samples": N,
+        "stft": _stft_dict(config),
+        "alpha": alpha,
+        "runs": runs,
+        "seed": int(seed) if isinstance(seed, int | np.integer) else None,
+        "confidence": confidence,
+        "channels": tuple(model.output_names),
+        **dict(zip(("per_bin", "per_bin_low", "per_bin_high"), map(_ro, res["bin"]), strict=True)),
+        "family_wise": per_channel("max", runs),
+        **dict(zip(("per_frame", "per_frame_low", "per_frame_high"), map(_ro, res["frame"]), strict=True)),
+        "frame_family_wise": per_channel("frame_max", runs * n_frames),
+        "tails": tails,
+    }
 
 
 def study_quantiles(

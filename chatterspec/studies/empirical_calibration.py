@@ -30,10 +30,9 @@ from ..errors import ParameterError
 from ..montecarlo import Execution, ExecutionOptions
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
-from .calibration_result import Calibration, _ro, _stft_dict
-from .calibration_tails import study_quantiles
-from .healthy import HealthyStudy, _n_frames
-from .intervals import QuantileEstimate
+from .calibration_result import Calibration, _ro
+from .calibration_tails import calibration_fields, frame_counts
+from .healthy import HealthyStudy
 from .tail_histogram import DEFAULT_TAIL_BUDGET
 
 if TYPE_CHECKING:
@@ -96,25 +95,15 @@ def calibrate_empirical(
     model = sc.nominal
     N = sc.n_samples - 1
     dt = model.dt
-    n_frames = _n_frames(N, config, dt)
-    if n_frames < 1:
-        raise ParameterError(f"records of {N} samples are shorter than one STFT window")
+    frames = frame_counts(N, config, dt)
     pilot = [rec.values for rec in iter_chattering(sc, int(pilot_runs), seed, first_run=runs)]
     E, _ = normalization_spectrum(pilot, dt, half_width)
     Ef = frame_normalization(pilot, dt, config, half_width)
     del pilot
     freqs = periodogram_freqs(N, dt)
     ffreqs = config.freqs_hz(dt)
-    tested = np.ones(freqs.size, dtype=bool)
-    tested[0] = False
-    if N % 2 == 0:
-        tested[-1] = False
-    ftested = np.ones(ffreqs.size, dtype=bool)
-    ftested[0] = False
-    if config.n_window(dt) % 2 == 0:
-        ftested[-1] = False
+    tested, ftested = _tested(freqs.size, N), _tested(ffreqs.size, config.n_window(dt))
     m = E.shape[1]
-    frames_eff = max(1, (N - config.n_window(dt)) // config.n_window(dt) + 1)
     study = HealthyStudy(
         scenario=sc,
         thr_values=np.zeros((0, freqs.size, m)),  # no fixed threshold to count: quantiles only
@@ -127,50 +116,19 @@ def calibrate_empirical(
         fexpected=Ef,
         keep_max=True,
     )
-    q = 1 - alpha
-    nf = runs * n_frames
     label = f"calibrate {sc.name} (empirical)"
-    res, tails = study_quantiles(
-        study, runs, seed, n_frames, frames_eff, q, confidence, tail_budget, ex, label
-    )
-    pb, pb_lo, pb_hi = res["bin"]
-    pf, pf_lo, pf_hi = res["frame"]
-    mv, mlo, mhi = res["max"]
-    fv, flo, fhi = res["frame_max"]
+    shared = calibration_fields(study, sc, alpha, runs, seed, confidence, frames, tail_budget, ex, label)
     return Calibration(
-        scenario=sc.name,
-        model_name=model.name,
-        model_fingerprint=model.fingerprint(),
-        dt=dt,
-        n_samples=N,
-        stft=_stft_dict(config),
-        alpha=alpha,
-        runs=runs,
-        seed=int(seed) if isinstance(seed, int | np.integer) else None,
-        confidence=confidence,
-        channels=tuple(model.output_names),
+        **shared,
         freqs_hz=_ro(freqs),
         tested=_ro(tested),
         expected=_ro(E),
         analytic={},
-        per_bin=_ro(pb),
-        per_bin_low=_ro(pb_lo),
-        per_bin_high=_ro(pb_hi),
-        family_wise=tuple(
-            QuantileEstimate(q, float(mv[c]), float(mlo[c]), float(mhi[c]), runs, confidence)
-            for c in range(m)
-        ),
         family_wise_analytic={},
         frame_freqs_hz=_ro(ffreqs),
         frame_tested=_ro(ftested),
         frame_expected=_ro(Ef),
         frame_analytic={},
-        per_frame=_ro(pf),
-        per_frame_low=_ro(pf_lo),
-        per_frame_high=_ro(pf_hi),
-        frame_family_wise=tuple(
-            QuantileEstimate(q, float(fv[c]), float(flo[c]), float(fhi[c]), nf, confidence) for c in range(m)
-        ),
         normalization="empirical",
         normalization_info={
             "pilot_runs": int(pilot_runs),
@@ -178,5 +136,13 @@ def calibrate_empirical(
             "smooth_half_width_bins": int(half_width),
             "estimator": "mean healthy periodogram of the pilot runs, moving average over 2h+1 bins",
         },
-        tails=tails,
     )
+
+
+def _tested(n_bins: int, n: int) -> np.ndarray:
+    """Tested ones of the ``n_bins`` one-sided bins of an ``n``-point DFT: DC and even-``n`` Nyquist out."""
+    tested = np.ones(n_bins, dtype=bool)
+    tested[0] = False
+    if n % 2 == 0:
+        tested[-1] = False
+    return tested
