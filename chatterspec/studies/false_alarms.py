@@ -270,83 +270,51 @@ def false_alarm_study(
     out = ex.run(study, runs, seed, f"far {sc.name}")
     m = model.n_outputs
     rates: list[KindRates] = []
+    # the bins (and channels) of one record are dependent trials, the records are independent:
+    # intervals from run-level counts (cluster_clopper_pearson), not from bins as if independent
     for i, (name, a, t) in enumerate(kinds):
-        tested = t.tested
-        nt = int(np.count_nonzero(tested))
-        counts = out["bin_exceed"][i]  # (bins, m)
-        # the bins (and channels) of one record are dependent trials, the records are independent:
-        # intervals from run-level counts (cluster_clopper_pearson), not from bins as if independent
-        sq = out["false_bins_sq"][i]
-        per_ch = tuple(
-            RateEstimate(int(counts[tested, c].sum()), runs * nt, confidence, runs, float(sq[c]))
-            for c in range(m)
-        )
-        pooled = RateEstimate(
-            int(counts[tested].sum()), runs * nt * m, confidence, runs, float(out["false_total_sq"][i])
-        )
-        meaning = t.alpha_meaning
-        nominal = t.per_test_alpha if np.isfinite(t.per_test_alpha) else a
         fw = tuple(RateEstimate(int(out["fw"][i, c]), runs, confidence) for c in range(m))
-        fw_any = RateEstimate(int(out["fw_any"][i]), runs, confidence)
-        ref = pooled if meaning == "per-bin" else _worst(fw)
         rates.append(
-            KindRates(
-                kind=name,
-                alpha=a,
-                alpha_meaning=meaning,
-                nominal_per_bin=float(nominal),
-                per_bin=pooled,
-                per_bin_by_channel=per_ch,
+            _kind_rates(
+                name,
+                a,
+                t,
+                (out["bin_exceed"][i], out["false_bins_sq"][i], out["false_total_sq"][i]),
+                runs,
+                runs,
+                confidence,
+                fw,
                 family_wise=fw,
-                family_wise_any=fw_any,
+                family_wise_any=RateEstimate(int(out["fw_any"][i]), runs, confidence),
                 per_frame=None,
                 per_frame_any=None,
                 mean_false_bins=tuple(float(v) / runs for v in out["false_bins"][i]),
-                verdict=_verdict(meaning, nominal, a, ref),
-                rate_vs_freq=_ro(counts / runs),
-                freqs_hz=_ro(t.freqs_hz),
             )
         )
     n_fr = runs * n_frames
-    for i, (name, a, t) in enumerate(fkinds):
-        tested = t.tested
-        nt = int(np.count_nonzero(tested))
-        counts = out["frame_bin_exceed"][i]
-        # overlapping frames of one record are dependent: intervals from run-level counts
-        fsq, flsq = out["frame_false_sq"][i], out["frame_flag_sq"][i]
-        per_ch = tuple(
-            RateEstimate(int(counts[tested, c].sum()), n_fr * nt, confidence, runs, float(fsq[c]))
-            for c in range(m)
-        )
-        pooled = RateEstimate(
-            int(counts[tested].sum()), n_fr * nt * m, confidence, runs, float(out["frame_false_total_sq"][i])
-        )
+    for i, (name, a, t) in enumerate(fkinds):  # overlapping frames are dependent too: the same intervals
+        counts, flsq = out["frame_bin_exceed"][i], out["frame_flag_sq"][i]
         pf = tuple(
             RateEstimate(int(out["frame_flag"][i, c]), n_fr, confidence, runs, float(flsq[c]))
             for c in range(m)
         )
-        pf_any = RateEstimate(
-            int(out["frame_flag_any"][i]), n_fr, confidence, runs, float(out["frame_flag_any_sq"][i])
-        )
-        meaning = t.alpha_meaning
-        nominal = t.per_test_alpha if np.isfinite(t.per_test_alpha) else a
-        ref = pooled if meaning == "per-bin" else _worst(pf)
         rates.append(
-            KindRates(
-                kind=name,
-                alpha=a,
-                alpha_meaning=meaning,
-                nominal_per_bin=float(nominal),
-                per_bin=pooled,
-                per_bin_by_channel=per_ch,
+            _kind_rates(
+                name,
+                a,
+                t,
+                (counts, out["frame_false_sq"][i], out["frame_false_total_sq"][i]),
+                n_fr,
+                runs,
+                confidence,
+                pf,
                 family_wise=None,
                 family_wise_any=None,
                 per_frame=pf,
-                per_frame_any=pf_any,
-                mean_false_bins=tuple(float(counts[tested, c].sum()) / n_fr for c in range(m)),
-                verdict=_verdict(meaning, nominal, a, ref),
-                rate_vs_freq=_ro(counts / n_fr),
-                freqs_hz=_ro(t.freqs_hz),
+                per_frame_any=RateEstimate(
+                    int(out["frame_flag_any"][i]), n_fr, confidence, runs, float(out["frame_flag_any_sq"][i])
+                ),
+                mean_false_bins=tuple(float(counts[t.tested, c].sum()) / n_fr for c in range(m)),
             )
         )
     return FalseAlarmResult(
@@ -357,6 +325,50 @@ def false_alarm_study(
         channels=tuple(model.output_names),
         n_frames=n_frames,
         rates=tuple(rates),
+    )
+
+
+def _kind_rates(
+    name: str,
+    alpha: float,
+    t: Threshold,
+    exceed: tuple[np.ndarray, np.ndarray, float],
+    trials: int,
+    runs: int,
+    confidence: float,
+    family: tuple[RateEstimate, ...],
+    **rates: Any,
+) -> KindRates:
+    """The :class:`KindRates` of threshold ``t`` (kind ``name`` at level ``alpha``).
+
+    ``exceed`` = ``(counts, sq, total_sq)``: exceedances per (bin, channel) over ``trials`` records
+    or frames, and the run-level sums of squares of the per-channel and pooled counts (the intervals
+    count the ``runs`` records as the independent clusters); ``family``: the family-wise (or
+    per-frame) rates judged against ``alpha`` when ``t`` is not a per-bin threshold; ``rates``: the
+    remaining fields of :class:`KindRates`.
+    """
+    counts, sq, total_sq = exceed
+    tested, m = t.tested, counts.shape[1]
+    nt = int(np.count_nonzero(tested))
+    per_ch = tuple(
+        RateEstimate(int(counts[tested, c].sum()), trials * nt, confidence, runs, float(sq[c]))
+        for c in range(m)
+    )
+    pooled = RateEstimate(int(counts[tested].sum()), trials * nt * m, confidence, runs, float(total_sq))
+    meaning = t.alpha_meaning
+    nominal = t.per_test_alpha if np.isfinite(t.per_test_alpha) else alpha
+    ref = pooled if meaning == "per-bin" else _worst(family)
+    return KindRates(
+        kind=name,
+        alpha=alpha,
+        alpha_meaning=meaning,
+        nominal_per_bin=float(nominal),
+        per_bin=pooled,
+        per_bin_by_channel=per_ch,
+        verdict=_verdict(meaning, nominal, alpha, ref),
+        rate_vs_freq=_ro(counts / trials),
+        freqs_hz=_ro(t.freqs_hz),
+        **rates,
     )
 
 
