@@ -3,9 +3,10 @@ or as ``.npz`` arrays with a JSON header.
 
 :meth:`Calibration.to_dict <chatterspec.studies.calibration_result.Calibration.to_dict>` and
 :meth:`~chatterspec.studies.calibration_result.Calibration.save` call :func:`calibration_dict` and
-:func:`save_calibration`; :func:`load_calibration` reads a file back (re-exported by
-:mod:`chatterspec.studies.calibration`, its documented home). Version :data:`CALIBRATION_VERSION` of
-format :data:`CALIBRATION_FORMAT`.
+:func:`save_calibration`; :func:`read_calibration` reads a file back into the fields that
+:func:`~chatterspec.studies.calibration_result.load_calibration` (documented home
+:mod:`chatterspec.studies.calibration`) turns into a checked ``Calibration``. Version
+:data:`CALIBRATION_VERSION` of format :data:`CALIBRATION_FORMAT`.
 """
 
 from __future__ import annotations
@@ -17,10 +18,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .._validate import readonly
 from ..detection.alarm_calibration import RuleCalibration
-from ..detection.spectral import STFTConfig
 from ..errors import DataFileError
-from ..plants.models import LinearModel
 from .intervals import QuantileEstimate, _none_to_inf
 
 if TYPE_CHECKING:
@@ -30,7 +30,7 @@ __all__ = [
     "CALIBRATION_FORMAT",
     "CALIBRATION_VERSION",
     "calibration_dict",
-    "load_calibration",
+    "read_calibration",
     "save_calibration",
 ]
 
@@ -155,42 +155,33 @@ def _json_array(key: str, value: object) -> np.ndarray:
     return np.where(a == None, sign * np.inf, a).astype(float)  # noqa: E711
 
 
-def load_calibration(
-    path: str | Path,
-    model: LinearModel | None = None,
-    n_samples: int | None = None,
-    config: STFTConfig | None = None,
-) -> Calibration:
-    """Read a calibration file written by :meth:`Calibration.save`.
-
-    With ``model`` (and optionally ``n_samples``, ``config``) the calibration
-    is checked against them (:meth:`Calibration.check`).
+def read_calibration(path: str | Path) -> dict[str, Any]:
+    """The fields of the :class:`~chatterspec.studies.calibration_result.Calibration` in file ``path``.
 
     Parameters
     ----------
     path : str or Path
-        Calibration file: ``.npz`` (arrays plus JSON metadata), otherwise JSON.
-    model : LinearModel, optional
-        Model the calibration will be used with; its fingerprint must match.
-    n_samples : int, optional
-        Periodogram record length N (samples) it will be used with.
-    config : STFTConfig, optional
-        STFT settings (window and hop in seconds, taper) of the per-frame detector.
+        Calibration file written by :func:`save_calibration`: ``.npz`` (arrays plus JSON metadata),
+        otherwise JSON.
 
     Returns
     -------
-    Calibration
+    dict
+        ``Calibration(**fields)`` is the calibration (read-only arrays).
 
     Raises
     ------
     DataFileError
-        The file is missing or is not a chatterspec calibration.
-    CalibrationMismatchError
-        It was made for another model, record length or STFT setting.
+        The file is missing, incomplete (the message names what it lacks) or not a chatterspec
+        calibration.
+
+    See Also
+    --------
+    chatterspec.studies.calibration.load_calibration : the calibration itself, checked against a model.
     """
     path = Path(path)
     try:
-        return _load_calibration(path, model, n_samples, config)
+        return _read_fields(path)
     except KeyError as exc:  # an incomplete file: name what is missing in words, not KeyError: 'arrays'
         key = str(exc.args[0]) if exc.args else "?"
         what = _CALIBRATION_KEY_WORDS.get(key, f"the entry {key!r}")
@@ -200,7 +191,7 @@ def load_calibration(
         ) from None
 
 
-#: Words for the entries of a calibration file (messages of :func:`load_calibration`).
+#: Words for the entries of a calibration file (messages of :func:`read_calibration`).
 _CALIBRATION_KEY_WORDS = {
     "arrays": "threshold arrays ('arrays')",
     "_meta": "metadata ('_meta')",
@@ -216,9 +207,7 @@ _CALIBRATION_KEY_WORDS = {
 }
 
 
-def _load_calibration(
-    path: Path, model: LinearModel | None, n_samples: int | None, config: STFTConfig | None
-) -> Calibration:
+def _read_fields(path: Path) -> dict[str, Any]:
     try:
         if path.suffix == ".npz":
             with np.load(path, allow_pickle=False) as z:
@@ -253,8 +242,6 @@ def _load_calibration(
         raise DataFileError(f"{path}: not a chatterspec calibration file (format {meta.get('format')!r})")
     if meta.get("version") != CALIBRATION_VERSION:
         raise DataFileError(f"{path}: calibration file version {meta.get('version')} is not supported")
-    from .calibration_result import Calibration, _ro
-
     conf = float(meta["confidence"])
 
     def quantiles(key: str) -> tuple[QuantileEstimate, ...]:
@@ -266,7 +253,7 @@ def _load_calibration(
         )
 
     fw = quantiles("family_wise")
-    cal = Calibration(
+    return dict(
         scenario=meta["scenario"],
         model_name=meta["model_name"],
         model_fingerprint=meta["model_fingerprint"],
@@ -306,6 +293,7 @@ def _load_calibration(
         tails=dict(meta.get("tails", {})),
         alarm=None if meta.get("alarm") is None else RuleCalibration.from_dict(meta["alarm"]),
     )
-    if model is not None:
-        cal.check(model, n_samples, config)
-    return cal
+
+
+def _ro(a: np.ndarray) -> np.ndarray:
+    return readonly(np.array(a))  # a copy: the caller's arrays stay writable

@@ -18,13 +18,12 @@ import numpy as np
 import scipy.stats
 
 from .._repr import short_repr
-from .._validate import readonly
 from ..detection.alarm_calibration import RuleCalibration
 from ..detection.spectral import STFTConfig
 from ..detection.thresholds import Threshold
 from ..errors import CalibrationMismatchError, ParameterError
 from ..plants.models import LinearModel
-from .calibration_file import CALIBRATION_FORMAT, calibration_dict, load_calibration, save_calibration
+from .calibration_file import CALIBRATION_FORMAT, _ro, calibration_dict, read_calibration, save_calibration
 from .intervals import QuantileEstimate
 
 __all__ = [
@@ -269,9 +268,44 @@ class Calibration:
         return save_calibration(self, path)
 
 
-def _ro(a: np.ndarray) -> np.ndarray:
-    return readonly(np.array(a))  # a copy: the caller's arrays stay writable
-
-
 def _stft_dict(config: STFTConfig) -> dict[str, Any]:
     return {"window_s": float(config.window_s), "hop_s": float(config.hop_s), "window": str(config.window)}
+
+
+def load_calibration(
+    path: str | Path,
+    model: LinearModel | None = None,
+    n_samples: int | None = None,
+    config: STFTConfig | None = None,
+) -> Calibration:
+    """Read a calibration file written by :meth:`Calibration.save`.
+
+    With ``model`` (and optionally ``n_samples``, ``config``) the calibration
+    is checked against them (:meth:`Calibration.check`).
+
+    Parameters
+    ----------
+    path : str or Path
+        Calibration file: ``.npz`` (arrays plus JSON metadata), otherwise JSON.
+    model : LinearModel, optional
+        Model the calibration will be used with; its fingerprint must match.
+    n_samples : int, optional
+        Periodogram record length N (samples) it will be used with.
+    config : STFTConfig, optional
+        STFT settings (window and hop in seconds, taper) of the per-frame detector.
+
+    Returns
+    -------
+    Calibration
+
+    Raises
+    ------
+    DataFileError
+        The file is missing or is not a chatterspec calibration.
+    CalibrationMismatchError
+        It was made for another model, record length or STFT setting.
+    """
+    cal = Calibration(**read_calibration(path))
+    if model is not None:
+        cal.check(model, n_samples, config)
+    return cal
