@@ -38,6 +38,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -48,8 +49,12 @@ from ..detection.pipeline import chattering_record
 from ..detection.spectral import STFTConfig, spectrogram
 from ..detection.thresholds import Threshold
 from ..errors import ParameterError
+from ..montecarlo import ExecutionOptions
 from ..plants.scenarios import Scenario
 from .intervals import clopper_pearson
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
 
 __all__ = [
     "CALIBRATION_SALT",
@@ -96,9 +101,7 @@ def calibrate_for_diagnosis(
     runs: int = 500,
     alpha: float = 1e-3,
     config: STFTConfig | None = None,
-    progress: bool | None = False,
-    workers: int = 1,
-    scheduler: str | None = None,
+    **execution: Unpack[ExecutionOptions],
 ):
     """Calibrate the per-frame chattering threshold on healthy runs of ``sc`` (other seeds than ``sc``'s).
 
@@ -115,11 +118,9 @@ def calibrate_for_diagnosis(
         Per-frame false-alarm probability of the threshold.
     config : STFTConfig, optional
         STFT settings (default 1 s Hamming, 0.2 s hop).
-    progress : bool or None
-        Progress bar (see :func:`~chatterspec.studies.montecarlo.run_study`).
-    workers, scheduler
-        Execution (see :func:`~chatterspec.studies.montecarlo.run_study`; the result does not depend on
-        them).
+    **execution
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
+        (:class:`~chatterspec.montecarlo.Execution`; here ``progress`` defaults to False).
 
     Returns
     -------
@@ -128,16 +129,8 @@ def calibrate_for_diagnosis(
     from .calibration import calibrate
 
     root = np.random.SeedSequence([int(seed), CALIBRATION_SALT])
-    return calibrate(
-        healthy_version(sc),
-        alpha,
-        runs,
-        root,
-        config=config,
-        progress=progress,
-        workers=workers,
-        scheduler=scheduler,
-    )
+    execution = {"progress": False, **execution}
+    return calibrate(healthy_version(sc), alpha, runs, root, config=config, **execution)
 
 
 @dataclass(frozen=True, eq=False)
