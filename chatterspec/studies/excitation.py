@@ -47,7 +47,7 @@ from ..plants.scenarios_closed_loop import (
 from ..plants.simulate import iter_simulations
 from ..rng import SeedLike
 from .calibration_result import _ro
-from .healthy import _analytic_thresholds, _reduce_dict
+from .healthy import _analytic_thresholds, _SummedChunks
 from .intervals import RateEstimate
 
 if TYPE_CHECKING:
@@ -189,7 +189,7 @@ def excitation_scenario(
 
 
 @dataclass(frozen=True, eq=False)
-class _ExcitationChunks:
+class _ExcitationChunks(_SummedChunks):
     """Chunk function of :func:`excitation_study`: per point, detections and tracking sums."""
 
     scenarios: tuple[tuple[Scenario, Scenario], ...]  # per point: (healthy, faulty)
@@ -220,9 +220,6 @@ class _ExcitationChunks:
                 track_sq[p, h] += (rms**2).sum()
                 u_rms[p, h] += np.sqrt(np.mean(sim.u[..., 0] ** 2, axis=1)).sum()
         return {"det": det, "det_any": det_any, "track": track, "track_sq": track_sq, "u_rms": u_rms}
-
-    def reduce(self, acc: dict[str, np.ndarray] | None, part: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        return _reduce_dict(acc, part, {})
 
 
 @dataclass(frozen=True, eq=False)

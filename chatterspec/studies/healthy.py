@@ -124,6 +124,14 @@ def _reduce_dict(acc: dict[str, np.ndarray] | None, part: dict[str, np.ndarray],
     return out
 
 
+class _SummedChunks:
+    """Base of a study whose chunk summaries are dicts of counts and sums, added chunk by chunk."""
+
+    def reduce(self, acc: dict[str, np.ndarray] | None, part: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """``acc`` with one chunk's summary ``part`` folded in (``acc`` is None for the first chunk)."""
+        return _reduce_dict(acc, part, {})
+
+
 def _keep_top(x: np.ndarray, k: int) -> np.ndarray:
     """The ``k`` largest values along axis 0 (unsorted)."""
     if k <= 0:

@@ -19,7 +19,7 @@ from ..plants.scenarios import Scenario
 from ..plants.signals import Chirp, Step
 from ..rng import SeedLike
 from .calibration_result import _ro
-from .healthy import _analytic_thresholds, _reduce_dict
+from .healthy import _analytic_thresholds, _SummedChunks
 from .intervals import RateEstimate
 
 if TYPE_CHECKING:
@@ -164,7 +164,7 @@ def _check_stable(family: str, size: float, plant: Any) -> None:
 
 
 @dataclass(frozen=True, eq=False)
-class PowerStudyChunks:
+class PowerStudyChunks(_SummedChunks):
     """Chunk function of :func:`power_study`: detection counts per (point, kind, alpha, channel)."""
 
     scenarios: tuple[Scenario, ...]
@@ -184,10 +184,6 @@ class PowerStudyChunks:
             det.append(d.sum(axis=2))
             det_any.append(d.any(axis=-1).sum(axis=2))
         return {"det": np.stack(det), "det_any": np.stack(det_any)}
-
-    def reduce(self, acc: dict[str, np.ndarray] | None, part: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """``acc`` with one chunk's summary ``part`` folded in (``acc`` is None for the first chunk)."""
-        return _reduce_dict(acc, part, {})
 
 
 @dataclass(frozen=True, eq=False)
