@@ -162,18 +162,9 @@ def run_study(
         Root of the random streams; the result depends on it and on ``runs``
         (and on ``chunk_runs`` only through floating-point summation order),
         never on ``workers`` or ``scheduler``.
-    workers : int
-        Local worker processes (1 = in-process, serial). With a Dask
-        ``scheduler`` it is the number of workers of ``local-dask``.
-    scheduler : str, optional
-        ``None`` (local), ``"local-dask"`` (a Dask ``LocalCluster`` of
-        processes on loopback, started and closed here) or the address of a
-        running Dask scheduler (``tcp://host:8786``). Needs the
-        ``chatterspec[distributed]`` extra.
-    chunk_runs : int, optional
-        Realizations per chunk (see :func:`plan_chunks`).
-    progress : bool, optional
-        Show a progress bar on stderr (default: only when stderr is a terminal).
+    workers, scheduler, chunk_runs, progress
+        Where and in what chunks the study runs, and whether a progress bar shows: see
+        :class:`Execution` (whose :meth:`~Execution.run` calls this function with them).
     label : str
         Progress bar label.
 
