@@ -255,14 +255,8 @@ class Execution:
 
         Parameters
         ----------
-        study : Study
-            Picklable object with ``run_chunk`` and ``reduce``.
-        runs : int
-            Number of realizations (>= 1).
-        seed : int, SeedSequence, Generator or None
-            Root of the random streams.
-        label : str
-            Progress bar label.
+        study, runs, seed, label
+            As in :func:`run_study`.
 
         Returns
         -------
