@@ -71,12 +71,13 @@ def test_unstable_power_sizes_are_rejected_with_the_stable_range() -> None:
 def test_cli_power_unstable_size_fails_before_any_simulation(capsys, monkeypatch) -> None:
     """An unstable size is rejected while the grid is built: no realization is simulated or filtered
     (it used to run the whole Monte Carlo study, ~20 s, before an internal NaN message)."""
+    import chatterspec.montecarlo as montecarlo
     import chatterspec.studies.power as power
 
     def never(*args, **kwargs):
         pytest.fail("the Monte Carlo study or a simulation ran for an unstable fault size")
 
-    monkeypatch.setattr(power, "run_study", never)
+    monkeypatch.setattr(montecarlo, "run_study", never)
     monkeypatch.setattr(power, "iter_chattering", never)
     assert cli_main(["power", "leakage", "--sizes", "0.5", "--runs", "8"]) == 2
     err = capsys.readouterr().err

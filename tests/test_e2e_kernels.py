@@ -235,18 +235,19 @@ def _captured_study(module, call, monkeypatch: pytest.MonkeyPatch):
 @pytest.mark.parametrize("which", ["far", "far-no-frames", "calibrate"])
 def test_healthy_study_counts_equal_numpy_path(which: str, monkeypatch: pytest.MonkeyPatch) -> None:
     """The compiled exceedance counts (integers) give the numpy path's summary exactly, with its dtypes."""
-    from chatterspec.studies import _exceedance, calibration, calibration_tails, false_alarms
+    from chatterspec import montecarlo
+    from chatterspec.studies import _exceedance, calibration, false_alarms
 
     sc = scenario("eha-healthy")
     if which == "calibrate":
         # calibrate runs its study through calibration_tails (exact tails at 64 runs: one study)
         study = _captured_study(
-            calibration_tails, lambda: calibration.calibrate(sc, 1e-2, runs=64, seed=1), monkeypatch
+            montecarlo, lambda: calibration.calibrate(sc, 1e-2, runs=64, seed=1), monkeypatch
         )
     else:
         frames = which == "far"
         study = _captured_study(
-            false_alarms,
+            montecarlo,
             lambda: false_alarms.false_alarm_study(sc, [1e-2, 0.2], runs=64, seed=1, frames=frames),
             monkeypatch,
         )
