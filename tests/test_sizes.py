@@ -32,8 +32,6 @@ LONG_UNITS = {
     "filters/multiple_model.py:SMMSVSF": "filters/ branch",
     "filters/_base.py:CovarianceFilterBase": "filters/ branch",
     "online/monitor.py:ChatteringMonitor": "online/ modules stay whole this round",
-    "plants/nonlinear.py:NonlinearModel": "to split: model, its Euler discretization, its checks",
-    "plants/linear_model.py:LinearModel": "to split: the modal properties (258 lines)",
     "studies/calibration_result.py:Calibration": "to split: the result and its file format",
 }
 
