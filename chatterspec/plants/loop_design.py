@@ -108,11 +108,8 @@ def spectral_radius(model: LinearModel | NonlinearModel, controller: PIDControll
 
     Parameters
     ----------
-    model : LinearModel or NonlinearModel
-        The plant (linearized at rest if nonlinear).
-    controller : PIDController
-    output : int
-        Index of the measured position among the model's outputs.
+    model, controller, output
+        As in :func:`closed_loop_matrix`.
     """
     return float(np.abs(np.linalg.eigvals(closed_loop_matrix(model, controller, output))).max())
 
@@ -357,11 +354,8 @@ def loop_mode(model: LinearModel | NonlinearModel, controller: PIDController, ou
 
     Parameters
     ----------
-    model : LinearModel or NonlinearModel
-        The plant (linearized at rest if nonlinear).
-    controller : PIDController
-    output : int
-        Index of the measured position among the model's outputs.
+    model, controller, output
+        As in :func:`closed_loop_matrix`.
 
     Returns
     -------
