@@ -16,7 +16,7 @@ actuator's rigid-body approximation (an integrator, ``y' = Kv u``) for a damping
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -339,12 +339,7 @@ class LoopMode:
 
     def to_dict(self) -> dict[str, float]:
         """The fields as a JSON-ready dict (what the JSON outputs print)."""
-        return {
-            "natural_frequency_hz": self.natural_frequency_hz,
-            "damping_ratio": self.damping_ratio,
-            "time_constant_s": self.time_constant_s,
-            "spectral_radius": self.spectral_radius,
-        }
+        return asdict(self)
 
 
 def loop_mode(model: LinearModel | NonlinearModel, controller: PIDController, output: int = 0) -> LoopMode:

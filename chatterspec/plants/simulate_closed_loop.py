@@ -329,12 +329,8 @@ def simulate_block_closed_loop(
     ----------
     scenario : Scenario
         Its ``input`` is a :class:`~chatterspec.plants.closed_loop.ClosedLoop`.
-    root : numpy.random.SeedSequence
-        Root of the random streams (:mod:`chatterspec.rng`).
-    lo, hi : int
-        Global indices of the first and one-past-the-last realization.
-    t : (T,) array
-        Sample times in s.
+    root, lo, hi, t
+        As in :func:`~chatterspec.plants.simulate_nonlinear.simulate_block_nonlinear`.
 
     Returns
     -------
