@@ -25,11 +25,11 @@ from .model_base import (
     ModelBase,
     check_covariance,
     check_measurement_matrix,
-    check_names,
     check_noise,
     check_units,
     frozen,
     hash_arrays,
+    set_channel_names,
 )
 from .parameters import ParameterMap
 
@@ -154,9 +154,7 @@ class LinearModel(ModelBase):
         Q, R = check_noise(self.Q, self.R, n, m)
         dt = positive("dt", self.dt, unit="s")
         p = B.shape[1]
-        object.__setattr__(self, "state_names", check_names("state_names", self.state_names, n, "x"))
-        object.__setattr__(self, "output_names", check_names("output_names", self.output_names, m, "z"))
-        object.__setattr__(self, "input_names", check_names("input_names", self.input_names, p, "u"))
+        set_channel_names(self, n, m, p)
         units = check_units("output_units", self.output_units, m)
         block = self.oscillatory_block
         if block is not None:

@@ -122,10 +122,8 @@ class Linearization:
 
         Parameters
         ----------
-        x0 : (n,) array, optional
-            Operating state (default :attr:`rest_state`).
-        u0 : (p,) array, optional
-            Operating input (default zeros).
+        x0, u0 : arrays, optional
+            The operating point, as in :meth:`linearize`.
 
         Returns
         -------

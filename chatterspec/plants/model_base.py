@@ -29,6 +29,7 @@ __all__ = [
     "check_units",
     "frozen",
     "hash_arrays",
+    "set_channel_names",
 ]
 
 
@@ -105,6 +106,12 @@ def check_names(attr: str, given: Iterable[object], size: int, prefix: str) -> t
     if len(names) != size:
         raise ShapeError(f"{attr} must have {size} entries; got {len(names)}")
     return names
+
+
+def set_channel_names(model: object, n: int, m: int, p: int) -> None:
+    """Set the checked ``state_names``, ``output_names``, ``input_names`` of a frozen model in place."""
+    for attr, size, prefix in (("state_names", n, "x"), ("output_names", m, "z"), ("input_names", p, "u")):
+        object.__setattr__(model, attr, check_names(attr, getattr(model, attr), size, prefix))
 
 
 def check_units(attr: str, given: Iterable[object], size: int) -> tuple[str, ...]:

@@ -37,11 +37,11 @@ from .measurement import Measurement, measure, measurement_jacobian, measurement
 from .model_base import (
     ModelBase,
     check_measurement_matrix,
-    check_names,
     check_noise,
     check_units,
     frozen,
     hash_arrays,
+    set_channel_names,
 )
 
 __all__ = ["NonlinearModel", "is_linear", "require_linear", "same_dynamics"]
@@ -150,9 +150,7 @@ class NonlinearModel(ModelBase, Linearization, ContinuousEuler):
         object.__setattr__(self, "dt", positive("dt", self.dt, unit="s"))
         p = positive_int("n_inputs", self.n_inputs)
         object.__setattr__(self, "n_inputs", p)
-        object.__setattr__(self, "state_names", check_names("state_names", self.state_names, n, "x"))
-        object.__setattr__(self, "output_names", check_names("output_names", self.output_names, m, "z"))
-        object.__setattr__(self, "input_names", check_names("input_names", self.input_names, p, "u"))
+        set_channel_names(self, n, m, p)
         object.__setattr__(self, "state_units", check_units("state_units", self.state_units, n))
         object.__setattr__(self, "output_units", check_units("output_units", self.output_units, m))
         rest = np.zeros(n) if self.rest_state is None else self.rest_state

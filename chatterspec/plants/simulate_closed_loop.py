@@ -334,10 +334,8 @@ def simulate_block_closed_loop(
 
     Returns
     -------
-    x : (hi - lo, T, n) ndarray
-        True states.
-    z : (hi - lo, T, m) ndarray
-        Measurements.
+    x, z : ndarrays
+        True states and measurements, as in ``simulate_block_nonlinear``.
     u : (hi - lo, T, 1) ndarray
         Applied (saturated) pump speed in rad/s.
     """
