@@ -181,10 +181,8 @@ class ModelBase:
 
         Parameters
         ----------
-        x : (..., n) array
-            States.
-        u : (..., p) or (p,) array
-            Inputs.
+        x, u : arrays
+            As in :meth:`transition`.
 
         Returns
         -------
