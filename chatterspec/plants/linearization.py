@@ -10,16 +10,13 @@ zero input).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Callable
 
 import numpy as np
 
 from .._validate import finite_array
 from ..errors import NonFiniteError, ShapeError
 from .linear_model import LinearModel, OscillatoryMode, oscillatory_mode
-
-if TYPE_CHECKING:
-    pass
 
 __all__ = ["Linearization"]
 
@@ -30,6 +27,14 @@ class Linearization:
     Uses the model's ``transition``, ``jacobian``, ``measurement_jacobian``, ``input_jacobian``,
     sizes, names, ``rest_state``, ``oscillatory_states`` and ``dt``.
     """
+
+    # what it reads from the model (fields and properties of NonlinearModel; annotations only)
+    dt: float
+    n_states: int
+    n_inputs: int
+    rest_state: np.ndarray
+    oscillatory_states: tuple[int, int] | None
+    input_jacobian: Callable[[np.ndarray, np.ndarray], np.ndarray] | None
 
     def _operating_point(self, x0: np.ndarray | None, u0: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """``(x0, u0)`` checked, or the rest state and zero input."""
