@@ -24,7 +24,15 @@ Transition = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 @dataclass(frozen=True)
 class EulerStep:
-    """``f(x, u) = x + dt g(x, u)``: the explicit Euler step of ``x' = g(x, u)`` (picklable)."""
+    """``f(x, u) = x + dt g(x, u)``: the explicit Euler step of ``x' = g(x, u)`` (picklable).
+
+    Attributes
+    ----------
+    g : callable
+        Continuous dynamics ``g(x, u) -> (..., n)`` (units of the state per second).
+    dt : float
+        Sampling time in seconds.
+    """
 
     g: Transition
     dt: float
@@ -33,13 +41,22 @@ class EulerStep:
         return x + self.dt * np.asarray(self.g(x, u))
 
     @property
-    def func(self) -> Transition:  # for _callable_id
+    def func(self) -> Transition:
+        """``g`` (named as :func:`functools.partial` names its function: the model's fingerprint reads it)."""
         return self.g
 
 
 @dataclass(frozen=True)
 class EulerJacobian:
-    """``F(x, u) = I + dt dg/dx``: the Jacobian of :class:`EulerStep` (picklable)."""
+    """``F(x, u) = I + dt dg/dx``: the Jacobian of :class:`EulerStep` (picklable).
+
+    Attributes
+    ----------
+    g_jac : callable
+        Jacobian of the continuous dynamics, ``dg/dx -> (..., n, n)`` (1/s).
+    dt : float
+        Sampling time in seconds.
+    """
 
     g_jac: Transition
     dt: float
@@ -49,7 +66,8 @@ class EulerJacobian:
         return J + np.eye(J.shape[-1])
 
     @property
-    def func(self) -> Transition:  # for _callable_id
+    def func(self) -> Transition:
+        """``g_jac`` (as :attr:`EulerStep.func`)."""
         return self.g_jac
 
 

@@ -99,7 +99,24 @@ def check_noise(Q: object, R: object, n: int, m: int) -> tuple[np.ndarray, np.nd
 
 
 def check_names(attr: str, given: Iterable[object], size: int, prefix: str) -> tuple[str, ...]:
-    """Channel names: ``given`` as strings, or ``prefix1..prefixN`` when empty; ``size`` entries."""
+    """Channel names: ``given`` as strings, or ``prefix1..prefixN`` when empty; ``size`` entries.
+
+    Parameters
+    ----------
+    attr : str
+        The field's name, for the message (``"state_names"``).
+    given : iterable
+        The names given (empty: the defaults).
+    size : int
+        How many channels there are.
+    prefix : str
+        Prefix of the default names (``"x"``, ``"z"``, ``"u"``).
+
+    Raises
+    ------
+    ShapeError
+        If ``given`` has another number of entries.
+    """
     names = tuple(str(s) for s in given)
     if not names:
         names = tuple(f"{prefix}{i + 1}" for i in range(size))
@@ -109,13 +126,31 @@ def check_names(attr: str, given: Iterable[object], size: int, prefix: str) -> t
 
 
 def set_channel_names(model: object, n: int, m: int, p: int) -> None:
-    """Set the checked ``state_names``, ``output_names``, ``input_names`` of a frozen model in place."""
+    """Set the checked ``state_names``, ``output_names``, ``input_names`` of a frozen model in place.
+
+    Parameters
+    ----------
+    model : frozen dataclass
+        The model being built (its ``__post_init__``).
+    n, m, p : int
+        Numbers of states, outputs and inputs.
+    """
     for attr, size, prefix in (("state_names", n, "x"), ("output_names", m, "z"), ("input_names", p, "u")):
         object.__setattr__(model, attr, check_names(attr, getattr(model, attr), size, prefix))
 
 
 def check_units(attr: str, given: Iterable[object], size: int) -> tuple[str, ...]:
-    """Channel units: ``given`` as strings, or ``size`` empty strings when empty."""
+    """Channel units: ``given`` as strings, or ``size`` empty strings when empty.
+
+    Parameters
+    ----------
+    attr : str
+        The field's name, for the message (``"output_units"``).
+    given : iterable
+        The units given (empty: no units).
+    size : int
+        How many channels there are.
+    """
     units = tuple(str(u) for u in given) or ("",) * size
     if len(units) != size:
         raise ShapeError(f"{attr} must have {size} entries; got {len(units)}")
@@ -128,7 +163,15 @@ def frozen(value: object) -> np.ndarray:
 
 
 def hash_arrays(h: hashlib._Hash, arrays: Iterable[np.ndarray]) -> None:
-    """Feed arrays to a hash as little-endian float64 bytes, each followed by its shape."""
+    """Feed arrays to a hash as little-endian float64 bytes, each followed by its shape.
+
+    Parameters
+    ----------
+    h : hashlib hash object
+        Updated in place (e.g. ``hashlib.sha256()``).
+    arrays : iterable of ndarray
+        The arrays, in a fixed order.
+    """
     for arr in arrays:
         h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())
         h.update(str(arr.shape).encode())

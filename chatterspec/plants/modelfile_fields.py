@@ -30,13 +30,25 @@ __all__ = ["Channels", "ModelSpec", "detector_table", "read_channels", "svsf_gam
 
 
 class Channels(NamedTuple):
-    """The sampling time and the ``[channels]`` table of a model file (linear and nonlinear alike)."""
+    """The sampling time and the ``[channels]`` table of a model file (linear and nonlinear alike).
 
-    dt: float  # sampling time, s (> 0)
-    outputs: list[str]  # measured channels (required)
-    inputs: list[str]  # input channels (required)
-    units: list[str]  # one per output (optional: empty)
-    states: list[str]  # state names (optional: empty)
+    Attributes
+    ----------
+    dt : float
+        Sampling time in seconds (> 0).
+    outputs, inputs : list of str
+        Measured channels and inputs (required).
+    units : list of str
+        One per output (optional: empty).
+    states : list of str
+        State names (optional: empty).
+    """
+
+    dt: float
+    outputs: list[str]
+    inputs: list[str]
+    units: list[str]
+    states: list[str]
 
     def model_names(self) -> dict[str, tuple[str, ...]]:
         """The channel names and units as the model dataclasses' keyword arguments."""
@@ -49,7 +61,20 @@ class Channels(NamedTuple):
 
 
 def read_channels(doc: Mapping[str, Any], where: str) -> Channels:
-    """The top-level ``dt`` and the ``[channels]`` table of a model file, checked (``ModelFileError``)."""
+    """The top-level ``dt`` and the ``[channels]`` table of a model file, checked.
+
+    Parameters
+    ----------
+    doc : mapping
+        The parsed TOML document.
+    where : str
+        The file, for the messages.
+
+    Raises
+    ------
+    ModelFileError
+        If ``dt`` is missing or not > 0, or ``[channels]`` lacks ``outputs``/``inputs`` or is malformed.
+    """
     dt = _scalar(doc, "dt", where, positive=True)
     channels = _table(doc, "channels", where)
     return Channels(
