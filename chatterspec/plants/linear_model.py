@@ -26,10 +26,9 @@ from .model_base import (
     check_covariance,
     check_measurement_matrix,
     check_noise,
-    check_units,
     frozen,
     hash_arrays,
-    set_channel_names,
+    set_channel_labels,
 )
 from .parameters import ParameterMap
 
@@ -154,12 +153,10 @@ class LinearModel(ModelBase):
         Q, R = check_noise(self.Q, self.R, n, m)
         dt = positive("dt", self.dt, unit="s")
         p = B.shape[1]
-        set_channel_names(self, n, m, p)
-        units = check_units("output_units", self.output_units, m)
+        set_channel_labels(self, n, m, p)
         block = self.oscillatory_block
         if block is not None:
             block = frozen(finite_array("oscillatory_block", block, shape=(2, 2)))
-        object.__setattr__(self, "output_units", units)
         object.__setattr__(self, "oscillatory_block", block)
         object.__setattr__(self, "dt", dt)
         for attr, val in (("A", A), ("B", B), ("C", C), ("Q", Q), ("R", R)):

@@ -23,13 +23,12 @@ from ..errors import ParameterError, ShapeError, SingularMatrixError
 __all__ = [
     "ModelBase",
     "check_covariance",
+    "check_labels",
     "check_measurement_matrix",
-    "check_names",
     "check_noise",
-    "check_units",
     "frozen",
     "hash_arrays",
-    "set_channel_names",
+    "set_channel_labels",
 ]
 
 
@@ -98,35 +97,39 @@ def check_noise(Q: object, R: object, n: int, m: int) -> tuple[np.ndarray, np.nd
     return Q, R
 
 
-def check_names(attr: str, given: Iterable[object], size: int, prefix: str) -> tuple[str, ...]:
-    """Channel names: ``given`` as strings, or ``prefix1..prefixN`` when empty; ``size`` entries.
+def check_labels(attr: str, given: Iterable[object], size: int, prefix: str | None) -> tuple[str, ...]:
+    """Channel names or units: ``given`` as strings, ``size`` entries; defaults when ``given`` is empty.
 
     Parameters
     ----------
     attr : str
-        The field's name, for the message (``"state_names"``).
+        The field's name, for the message (``"state_names"``, ``"output_units"``).
     given : iterable
-        The names given (empty: the defaults).
+        The labels given (empty: the defaults).
     size : int
         How many channels there are.
-    prefix : str
-        Prefix of the default names (``"x"``, ``"z"``, ``"u"``).
+    prefix : str or None
+        Prefix of the default names ``prefix1..prefixN`` (``"x"``, ``"z"``, ``"u"``); None for units,
+        whose default is the empty string.
 
     Raises
     ------
     ShapeError
         If ``given`` has another number of entries.
     """
-    names = tuple(str(s) for s in given)
-    if not names:
-        names = tuple(f"{prefix}{i + 1}" for i in range(size))
-    if len(names) != size:
-        raise ShapeError(f"{attr} must have {size} entries; got {len(names)}")
-    return names
+    labels = tuple(str(s) for s in given)
+    if not labels:
+        labels = ("",) * size if prefix is None else tuple(f"{prefix}{i + 1}" for i in range(size))
+    if len(labels) != size:
+        raise ShapeError(f"{attr} must have {size} entries; got {len(labels)}")
+    return labels
 
 
-def set_channel_names(model: object, n: int, m: int, p: int) -> None:
-    """Set the checked ``state_names``, ``output_names``, ``input_names`` of a frozen model in place.
+def set_channel_labels(model: object, n: int, m: int, p: int) -> None:
+    """Set the checked channel names and units of a frozen model in place.
+
+    ``state_names``, ``output_names``, ``input_names`` (default ``x1..xn``, ``z1..zm``, ``u1..up``),
+    then ``state_units`` (if the model has that field) and ``output_units`` (default empty).
 
     Parameters
     ----------
@@ -135,26 +138,11 @@ def set_channel_names(model: object, n: int, m: int, p: int) -> None:
     n, m, p : int
         Numbers of states, outputs and inputs.
     """
-    for attr, size, prefix in (("state_names", n, "x"), ("output_names", m, "z"), ("input_names", p, "u")):
-        object.__setattr__(model, attr, check_names(attr, getattr(model, attr), size, prefix))
-
-
-def check_units(attr: str, given: Iterable[object], size: int) -> tuple[str, ...]:
-    """Channel units: ``given`` as strings, or ``size`` empty strings when empty.
-
-    Parameters
-    ----------
-    attr : str
-        The field's name, for the message (``"output_units"``).
-    given : iterable
-        The units given (empty: no units).
-    size : int
-        How many channels there are.
-    """
-    units = tuple(str(u) for u in given) or ("",) * size
-    if len(units) != size:
-        raise ShapeError(f"{attr} must have {size} entries; got {len(units)}")
-    return units
+    names = (("state_names", n, "x"), ("output_names", m, "z"), ("input_names", p, "u"))
+    units = (("state_units", n, None), ("output_units", m, None))
+    for attr, size, prefix in (*names, *units):
+        if hasattr(model, attr):
+            object.__setattr__(model, attr, check_labels(attr, getattr(model, attr), size, prefix))
 
 
 def frozen(value: object) -> np.ndarray:

@@ -38,10 +38,9 @@ from .model_base import (
     ModelBase,
     check_measurement_matrix,
     check_noise,
-    check_units,
     frozen,
     hash_arrays,
-    set_channel_names,
+    set_channel_labels,
 )
 
 __all__ = ["NonlinearModel", "is_linear", "require_linear", "same_dynamics"]
@@ -150,9 +149,7 @@ class NonlinearModel(ModelBase, Linearization, ContinuousEuler):
         object.__setattr__(self, "dt", positive("dt", self.dt, unit="s"))
         p = positive_int("n_inputs", self.n_inputs)
         object.__setattr__(self, "n_inputs", p)
-        set_channel_names(self, n, m, p)
-        object.__setattr__(self, "state_units", check_units("state_units", self.state_units, n))
-        object.__setattr__(self, "output_units", check_units("output_units", self.output_units, m))
+        set_channel_labels(self, n, m, p)
         rest = np.zeros(n) if self.rest_state is None else self.rest_state
         rest = readonly(np.array(finite_array("rest_state", rest, shape=(n,))))
         object.__setattr__(self, "rest_state", rest)
