@@ -75,7 +75,8 @@ def main() -> None:
         excitation_scenario("leakage", 9e-11, "4-steps"),
         excitation_scenario("friction", 7000.0, "4-steps"),
     ]
-    for sc, label in zip(step_scenarios, ("healthy", "leak 9e-11", "friction 7000"), strict=True):
+    labels = ("healthy", "leak L = 9e-11 m³/(s·Pa)", "friction a = 7000 N·s/m")
+    for sc, label in zip(step_scenarios, labels, strict=True):
         object.__setattr__(sc, "name", f"4 steps, {label}")
     print("wrote", save(step_response_figure(step_scenarios), out / "closed_loop_step_response.png"))
 

@@ -56,9 +56,7 @@ def estimation_error_figure(records: Any, *, run: int = 0, title: str | None = N
     model = records.scenario.nominal
     names = list(records.outputs)
     states = tuple(model.state_names)
-    # a state's unit where an output of the same name has one (models list output units only)
-    by_output = dict(zip(model.output_names, model.output_units, strict=True))
-    units = tuple(by_output.get(s, "") for s in states)
+    units = _state_units(model)
     t = records.t[1:]
     fig, axes = plt.subplots(len(states), 2, figsize=(12, 2.6 * len(states)), sharex=True, squeeze=False)
     for k, name in enumerate(names):
@@ -76,9 +74,9 @@ def estimation_error_figure(records: Any, *, run: int = 0, title: str | None = N
             axes[i, 0].plot(t, err[run, :, i], **kw)
             axes[i, 1].semilogy(t, rms[:, i], **kw)
     for i, s in enumerate(states):
-        unit = f" [{units[i]}]" if units[i] else ""
-        axes[i, 0].set_ylabel(f"{s} error{unit}")
-        axes[i, 1].set_ylabel(f"{s} RMS error{unit}")
+        unit = f"[{units[i] or 'model units'}]"  # "model units": the model declares none for this state
+        axes[i, 0].set_ylabel(f"{s} error\n{unit}")
+        axes[i, 1].set_ylabel(f"{s} RMS error\n{unit}")
         for ax in axes[i]:
             ax.grid(True, alpha=0.3)
             for seg in records.scenario.windows:
@@ -94,3 +92,13 @@ def estimation_error_figure(records: Any, *, run: int = 0, title: str | None = N
     fig.legend(handles, labels, loc="lower center", ncol=len(names), fontsize=9, frameon=False)
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     return fig
+
+
+def _state_units(model: Any) -> tuple[str, ...]:
+    """Units of the states: the model's ``state_units`` where it declares them (nonlinear models), else
+    the unit of the output of the same name (a measured state); ``""`` where neither says."""
+    declared = tuple(getattr(model, "state_units", ()) or ())
+    if any(declared):
+        return declared
+    by_output = dict(zip(model.output_names, model.output_units, strict=True))
+    return tuple(by_output.get(s, "") for s in model.state_names)
