@@ -72,14 +72,19 @@ def excitation_figure(res: ExcitationResult, target: float = 0.95) -> Figure:
             ests = [res.detection(i, still[k]) for k in order]
             _errorbar(axes[0], speed[order], ests, ls=ls, color=_color(0), label=tag)
             if i == 0:
-                for n_lab, k in enumerate(order):  # labels alternately above and below the points
-                    below = n_lab % 2 == 1
+                for n_lab, k in enumerate(order):
+                    # inside the axes, on three staggered rows (below points near 1, above points near 0),
+                    # so that the names of references with close speeds do not run into each other
+                    rate = ests[n_lab].rate
+                    dy = (10 + 10 * (n_lab % 3)) * (-1 if rate > 0.5 else 1)
                     axes[0].annotate(
                         res.points[still[k]][0],
-                        (speed[k], ests[n_lab].rate),
+                        (speed[k], rate),
                         fontsize=7,
-                        xytext=(-8, -14 if below else 8),
+                        xytext=(0, dy),
                         textcoords="offset points",
+                        ha="center",
+                        va="top" if dy < 0 else "bottom",
                     )
         for c, ref in enumerate(swept):
             ps = res.levels(ref)
@@ -274,7 +279,7 @@ def closed_loop_spectra_figure(
         f"black: healthy E[S] (eq 56) and threshold (family-wise alpha {alpha:g}) of each nominal model",
         fontsize=10,
     )
-    fig.tight_layout(rect=(0, 0.03 + 0.025 * ((len(labels) + 1) // 2), 1, 1))
+    fig.tight_layout(rect=(0, 0.02 + 0.018 * ((len(labels) + 1) // 2), 1, 1))
     return fig
 
 
