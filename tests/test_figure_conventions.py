@@ -50,7 +50,7 @@ def test_overlay_builders_come_from_the_table():
     for name, spec in OVERLAYS.items():
         builder = pf.FIGURES[name].builder
         assert builder.__name__ == name
-        assert builder.__doc__.startswith(spec.summary)
+        assert builder.__doc__.startswith(spec.title.replace(" — ", ": "))
         assert "Parameters" in builder.__doc__
     # a new entry needs no new code: a two-level friction overlay on the same seed
     spec = OVERLAYS["fig11"]

@@ -36,17 +36,15 @@ class OverlaySpec:
     ----------
     name : str
         Registry key and output file stem (``"fig10"``).
-    summary : str
-        One line on what the paper's figure shows (first line of the builder's docstring).
     title : str
         First part of the figure title: figure number, scenario family, fault sizes
-        (with units) and channel.
+        (with units) and channel; also the first line of the builder's docstring.
     levels : tuple of (str, str, str)
         ``(scenario, legend label, colour)`` per fault level, drawn in this order.
     channel : str
         Output channel shown (``"velocity"``, ``"pressure"``).
     healthy : str
-        Healthy scenario drawn in grey; its nominal model gives the thresholds.
+        Healthy scenario drawn in grey; its nominal model gives the thresholds (default ``eha-healthy``).
     title_tail : str
         Second part of the title, after a comma (default: one realization each, range shown).
     inset : (float, float), optional
@@ -54,11 +52,10 @@ class OverlaySpec:
     """
 
     name: str
-    summary: str
     title: str
     levels: tuple[tuple[str, str, str], ...]
     channel: str
-    healthy: str
+    healthy: str = "eha-healthy"
     title_tail: str = _NYQUIST_NOTE
     inset: tuple[float, float] | None = None
 
@@ -68,7 +65,6 @@ OVERLAYS: dict[str, OverlaySpec] = {
     for s in (
         OverlaySpec(
             "fig7",
-            "Fig 7: velocity spectra for true f0 = 9, 12 and 15 Hz (nominal 10 Hz), low noise, alpha 0.1 %.",
             "Fig 7 — mismatch levels f0 = 9 / 12 / 15 Hz (nominal 10 Hz), low noise, velocity chattering",
             (
                 ("so-f9-low", "f0 9 Hz", "tab:blue"),
@@ -76,13 +72,12 @@ OVERLAYS: dict[str, OverlaySpec] = {
                 ("so-f15-low", "f0 15 Hz", "tab:red"),
             ),
             "velocity",
-            "so-healthy-low",
+            healthy="so-healthy-low",
             title_tail="one realization each (same seed); the footprint moves with the true f0",
             inset=SO_INSET_HZ,
         ),
         OverlaySpec(
             "fig10",
-            "Fig 10: EHA pressure spectra for minor, medium and major leakage, alpha 0.1 %.",
             "Fig 10 — EHA leakage (L = 3e-11 / 6e-11 / 9e-11 m³/(s·Pa)), pressure chattering",
             (
                 ("eha-leak-minor", "minor", "gold"),
@@ -90,19 +85,15 @@ OVERLAYS: dict[str, OverlaySpec] = {
                 ("eha-leak-major", "major", "tab:red"),
             ),
             "pressure",
-            "eha-healthy",
         ),
         OverlaySpec(
             "fig11",
-            "Fig 11: EHA velocity spectra for minor and major friction, alpha 0.1 %.",
             "Fig 11 — EHA friction (a = 4000 / 7000 N·s/m), velocity chattering",
             (("eha-friction-minor", "minor", "darkorange"), ("eha-friction-major", "major", "tab:red")),
             "velocity",
-            "eha-healthy",
         ),
         OverlaySpec(
             "fig12",
-            "Fig 12: EHA pressure spectra for bulk modulus x0.5, x0.75, x1.25 and x1.5, alpha 0.1 %.",
             "Fig 12 — EHA bulk-modulus mismatch (βe × 0.5 / 0.75 / 1.25 / 1.5), pressure chattering",
             (
                 ("eha-bulk-50down", "βe × 0.5", "navy"),
@@ -111,12 +102,11 @@ OVERLAYS: dict[str, OverlaySpec] = {
                 ("eha-bulk-50up", "βe × 1.5", "darkred"),
             ),
             "pressure",
-            "eha-healthy",
         ),
     )
 }
 
-_BUILDER_DOC = """{summary}
+_BUILDER_DOC = """{title}: one realization per level, alpha 0.1 %.
 
 Parameters
 ----------
@@ -179,12 +169,12 @@ def overlay_builder(spec: OverlaySpec) -> Callable[[int | None, SeedLike], Paper
     Returns
     -------
     callable
-        Named after ``spec.name``, with a docstring made from ``spec.summary``.
+        Named after ``spec.name``, with a docstring made from ``spec.title``.
     """
 
     def builder(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
         return overlay_figure(spec, seed)
 
     builder.__name__ = builder.__qualname__ = spec.name
-    builder.__doc__ = _BUILDER_DOC.format(summary=spec.summary)
+    builder.__doc__ = _BUILDER_DOC.format(title=spec.title.replace(" — ", ": ", 1))
     return builder

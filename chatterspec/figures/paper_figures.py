@@ -24,7 +24,7 @@ and Nyquist excluded, for each threshold).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -47,6 +47,7 @@ from .figure_data import (
     PaperFigure,
     _channel_index,
     _panel,
+    _Spectrum,
     _spectrum,
     _thresholds,
     _timeline_lines,
@@ -200,20 +201,42 @@ def fig2(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     return PaperFigure("fig2", fig, notes)
 
 
+def _paper_alpha_panels(
+    figure: str,
+    cells: Sequence[tuple[str, str, int]],
+    seed: SeedLike,
+    *,
+    inset: tuple[float, float] | None = None,
+) -> tuple[list[pl.SpectrumPanel], list[str]]:
+    """One spectrum panel per ``(tag, scenario, channel)`` cell: realization 0, the paper's two alphas.
+
+    Each scenario is simulated once (its spectrum and thresholds serve all its cells); panel
+    titles read ``"{figure}{tag}: {scenario}, {channel name}"``. Shared by Figs 4, 5 and 9.
+    """
+    spectra: dict[str, tuple[_Spectrum, list[Threshold]]] = {}
+    panels, notes = [], []
+    for tag, name, ch in cells:
+        if name not in spectra:
+            sp = _spectrum(name, 1, seed)
+            spectra[name] = (sp, _thresholds(sp, PAPER_ALPHAS))
+        sp, ths = spectra[name]
+        title = f"{figure}{tag}: {name}, {sp.scenario.nominal.output_names[ch]}"
+        p, n = _panel(sp, ch, ths, title, inset=inset)
+        panels.append(p)
+        notes.append(n)
+    return panels, notes
+
+
 @_single_realization()
 def fig4(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     """Fig 4: healthy spectra of both channels at (a) low and (b) high measurement noise.
 
     Thresholds at alpha = 1 % and 0.1 % (paper per-bin, exact family-wise).
     """
-    panels, notes = [], []
-    for tag, name in (("a", "so-healthy-low"), ("b", "so-healthy-high")):
-        sp = _spectrum(name, 1, seed)
-        ths = _thresholds(sp, PAPER_ALPHAS)
-        for ch, chname in enumerate(sp.scenario.nominal.output_names):
-            p, n = _panel(sp, ch, ths, f"Fig 4{tag}: {name}, {chname}")
-            panels.append(p)
-            notes.append(n)
+    cells = [
+        (tag, name, ch) for tag, name in (("a", "so-healthy-low"), ("b", "so-healthy-high")) for ch in (0, 1)
+    ]
+    panels, notes = _paper_alpha_panels("Fig 4", cells, seed)
     fig = pl.spectrum_figure(
         panels,
         ncols=2,
@@ -230,13 +253,8 @@ def fig5(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     At high noise the 11 Hz peak stays below the paper's flat threshold while the
     exact family-wise threshold, much lower at low frequency, can still find it.
     """
-    panels, notes = [], []
-    for tag, name in (("a", "so-f11-low"), ("b", "so-f11-high")):
-        sp = _spectrum(name, 1, seed)
-        ths = _thresholds(sp, PAPER_ALPHAS)
-        p, n = _panel(sp, 1, ths, f"Fig 5{tag}: {name}, velocity", inset=SO_INSET_HZ)
-        panels.append(p)
-        notes.append(n)
+    cells = (("a", "so-f11-low", 1), ("b", "so-f11-high", 1))  # channel 1: velocity
+    panels, notes = _paper_alpha_panels("Fig 5", cells, seed, inset=SO_INSET_HZ)
     fig = pl.spectrum_figure(
         panels,
         ncols=1,
@@ -349,13 +367,9 @@ def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
 @_single_realization()
 def fig9(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     """Fig 9: healthy EHA spectra of position, velocity and pressure, alpha 1 % and 0.1 %."""
-    sp = _spectrum("eha-healthy", 1, seed)
-    ths = _thresholds(sp, PAPER_ALPHAS)
-    panels, notes = [], []
-    for ch, chname in enumerate(sp.scenario.nominal.output_names):
-        p, n = _panel(sp, ch, ths, f"Fig 9{'abc'[ch]}: eha-healthy, {chname}")
-        panels.append(p)
-        notes.append(n)
+    panels, notes = _paper_alpha_panels(
+        "Fig 9", [(tag, "eha-healthy", ch) for ch, tag in enumerate("abc")], seed
+    )
     fig = pl.spectrum_figure(
         panels,
         ncols=3,
