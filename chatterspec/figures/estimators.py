@@ -77,10 +77,12 @@ def estimation_error_figure(records: Any, *, run: int = 0, title: str | None = N
         unit = f"[{units[i] or 'model units'}]"  # "model units": the model declares none for this state
         axes[i, 0].set_ylabel(f"{s} error\n{unit}")
         axes[i, 1].set_ylabel(f"{s} RMS error\n{unit}")
-        for ax in axes[i]:
+        for j, ax in enumerate(axes[i]):
             ax.grid(True, alpha=0.3)
             for seg in records.scenario.windows:
-                ax.axvline(seg.start, color="k", ls=":", lw=0.8)
+                # labelled once: the legend is taken from the top-left axes
+                label = f"true plant {seg.label} from {seg.start:g} s" if i == j == 0 else None
+                ax.axvline(seg.start, color="k", ls=":", lw=0.8, label=label)
     axes[0, 0].set_title(f"estimation error x - x_hat, realization {records.first_run + run}")
     axes[0, 1].set_title(f"RMS over {runs} realizations at each time")
     axes[-1, 0].set_xlabel("time [s]")
@@ -89,7 +91,7 @@ def estimation_error_figure(records: Any, *, run: int = 0, title: str | None = N
     who = ", ".join(LABELS.get(n, n) for n in names)
     default = f"{records.scenario.name}: {who}; {runs} realizations\n{records.scenario.description}"
     fig.suptitle(title or default, fontsize=10)
-    fig.legend(handles, labels, loc="lower center", ncol=len(names), fontsize=9, frameon=False)
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=9, frameon=False)
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     return fig
 
