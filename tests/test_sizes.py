@@ -21,7 +21,6 @@ LONG_MODULES = {
     "filters/svsf.py": "the SVSF class (filters/ branch)",
     "online/live_stream.py": "the live stream monitor (viewer branch)",
     "online/rerun_log.py": "the Rerun logger (viewer branch)",
-    "figures/paper_figures.py": "Figs 10-12 share one copied template (viewer branch)",
 }
 
 # Units still over the limit ("path:qualified name"), with the reason.
