@@ -21,7 +21,6 @@ LONG_MODULES = {
     "filters/svsf.py": "the SVSF class (filters/ branch)",
     "online/live_stream.py": "the live stream monitor (viewer branch)",
     "online/rerun_log.py": "the Rerun logger (viewer branch)",
-    "figures/paper_figures.py": "Figs 10-12 share one copied template (viewer branch)",
 }
 
 # Units still over the limit ("path:qualified name"), with the reason.
@@ -32,8 +31,6 @@ LONG_UNITS = {
     "filters/multiple_model.py:SMMSVSF": "filters/ branch",
     "filters/_base.py:CovarianceFilterBase": "filters/ branch",
     "online/monitor.py:ChatteringMonitor": "online/ modules stay whole this round",
-    "plants/nonlinear.py:NonlinearModel": "to split: model, its Euler discretization, its checks",
-    "plants/linear_model.py:LinearModel": "to split: the modal properties (258 lines)",
 }
 
 
