@@ -322,6 +322,14 @@ def layout_geometry(
     return [_ROW_PX] * rows_above + [cols, lanes] + [_ROW_PX] * rows_below, float(width)
 
 
+def _symmetric_axis(ranges: Any, i: int) -> Any:
+    """``ScalarAxis`` ``[-r, r]`` for channel ``i`` of ``ranges`` (None: auto range)."""
+    import rerun.blueprint as rrb
+
+    r = None if ranges is None else ranges[i]
+    return None if r is None else rrb.ScalarAxis(range=(-float(r), float(r)))
+
+
 def blueprint(
     channels: tuple[str, ...],
     *,
@@ -339,6 +347,7 @@ def blueprint(
     extra_lanes: int = 0,
     lanes_name: str | None = None,
     peak_view: bool = True,
+    chattering_range: Any = None,
 ) -> Any:
     """The default layout: per channel (columns) chattering, spectrogram, detection statistic and peak
     frequency; below, the state lanes (true fault first, then one verdict lane per channel in channel
@@ -387,6 +396,11 @@ def blueprint(
     peak_view : bool
         Show the peak-frequency view in each column (the viewer keeps a minimum height per view: a
         layout with many lanes leaves it out so that every lane stays visible).
+    chattering_range : sequence of (float or None), optional
+        Per channel ``r``: the chattering view shows ``[-r, r]`` (output units), so that the viewer
+        labels its ticks (auto-ranged, a small amplitude can leave a single "0" tick); None (or a None
+        entry): auto range. A file's final blueprint gives it
+        (:class:`~chatterspec.online.chattering_extent.ChatteringExtent`).
 
     Returns
     -------
@@ -431,6 +445,7 @@ def blueprint(
                     time_ranges=time_range,
                     axis_x=axis,
                     plot_legend=no_legend,
+                    axis_y=_symmetric_axis(chattering_range, i),
                     # hidden series do not enter the auto-scaled y range (checked in the viewer)
                     overrides={
                         # the chattering of channel i only, not the raw series after it

@@ -111,7 +111,9 @@ def record_diagnosis(
         ]
         lanes_name = "true fault (top), most probable mode per method, verdict per channel"
         if logger is not None:
-            bp = logger.layout(span_s=span, has_truth=True, above=route_views or None, lanes_name=lanes_name)
+            # sent again on close with the chattering views' y ranges (RerunLogger.close)
+            logger.file_layout = {"has_truth": True, "above": route_views or None, "lanes_name": lanes_name}
+            bp = logger.layout(span_s=span, **logger.file_layout)
         else:  # no chattering route: the route statistics above the truth and mode lanes
             _log_truth_lane(sinks, rr, truth, lane_colors)
             lanes = rrb.StateTimelineView(

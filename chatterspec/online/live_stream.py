@@ -588,7 +588,9 @@ class StreamMonitor:
 
         logger = RerunLogger(sinks, self._proto, send_blueprint=False)
         for st in sinks.streams:
-            _send_blueprint_released(st, logger)
+            _send_blueprint_released(st, logger.layout(span_s=None))
+        # on close: paused on the file's whole record, sent without leaking either
+        logger.file_layout, logger.send_file_blueprint = {}, _send_blueprint_released
         return sinks, logger
 
     def _open_file(self, t_start: float) -> None:
@@ -718,8 +720,9 @@ class StreamMonitor:
         )
 
 
-def _send_blueprint_released(stream: Any, logger: Any) -> None:
-    """Send the logger's default blueprint to ``stream`` (as :class:`RerunLogger` does) without leaking.
+def _send_blueprint_released(stream: Any, bp: Any) -> None:
+    """Send the blueprint ``bp`` to ``stream`` (active and default, as :class:`RerunLogger` does) without
+    leaking.
 
     ``RecordingStream.send_blueprint`` builds the blueprint in a temporary blueprint
     stream whose memory sink refers back to it; rerun-sdk 0.41 never frees that stream
@@ -729,7 +732,6 @@ def _send_blueprint_released(stream: Any, logger: Any) -> None:
     """
     import rerun as rr
 
-    bp = logger.layout(span_s=None)
     native = getattr(rr.bindings, "new_blueprint", None)
     from_native = getattr(rr.RecordingStream, "_from_native", None)
     full = bp.to_blueprint()

@@ -36,6 +36,7 @@ from .blueprint import (
     layout_geometry,
     series_styles,
 )
+from .chattering_extent import ChatteringExtent
 from .frame_peaks import peak_bins
 from .interval_lanes import IntervalCollector, lane_changes
 from .monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
@@ -170,6 +171,11 @@ def default_band_hz(monitor: ChatteringMonitor, factor: float = 3.0) -> tuple[fl
         inside = f[f <= cap]
         hi = float(inside.max()) if inside.size else hi
     return lo, hi
+
+
+def _send_blueprint(stream: Any, bp: Any) -> None:
+    """Send ``bp`` as the active and default blueprint of ``stream``."""
+    stream.send_blueprint(bp, make_active=True, make_default=True)
 
 
 def _joined(items: list[Any], name: str) -> np.ndarray:
@@ -349,6 +355,7 @@ class RerunLogger:
         self._file_n = 0
         self._file_block_start: int | None = None
         self._file_t: tuple[float, float] | None = None
+        self._cols_span: tuple[float, float] | None = None  # centres (s) of the file's first / last column
         self.batch_samples = int(batch_samples)
         self.batch_frames = int(batch_frames)
         if self.batch_samples < 1 or self.batch_frames < 1:
@@ -375,7 +382,13 @@ class RerunLogger:
         rule = monitor.rule
         self._cusum = rule.name == "cusum"  # the alarm view draws g; else the score itself
         self._h = float(rule.threshold) if np.isfinite(rule.threshold) else np.nan
+        # the file's blueprint is sent again on close, with the record's span and amplitudes (the keyword
+        # arguments of its layout; None: the caller sends the file's blueprint itself)
+        self.file_layout: dict[str, Any] | None = None
+        self.send_file_blueprint: Any = _send_blueprint
+        self._extent = ChatteringExtent(m)
         if send_blueprint:
+            self.file_layout = {"has_truth": bool(truth), "extra_row": extra_row}
             for s in sinks.streams:
                 bp = self.layout(
                     span_s=None if s is sinks.live_stream else span_s,
@@ -393,6 +406,7 @@ class RerunLogger:
         extra_row: Any = None,
         above: list[Any] | None = None,
         lanes_name: str | None = None,
+        chattering_range: Any = None,
     ) -> Any:
         """This logger's default :func:`~chatterspec.online.blueprint.blueprint` (band, alarm view, units,
         and the geometry given to the constructor).
@@ -409,6 +423,8 @@ class RerunLogger:
             A row above the channel columns (the constructor's ``rows_above`` must be 1).
         lanes_name : str, optional
             Title of the lanes view.
+        chattering_range : sequence of float, optional
+            Per channel the half-height of the chattering view's symmetric y range (output units).
         """
         return blueprint(
             self.channels,
@@ -425,6 +441,7 @@ class RerunLogger:
             extra_lanes=self._extra_lanes,
             lanes_name=lanes_name,
             peak_view=self._peak_view,
+            chattering_range=chattering_range,
         )
 
     def _alarm_title(self) -> str:
@@ -591,8 +608,30 @@ class RerunLogger:
                 np.full((last.shape[0], self._pad, last.shape[2]), DB_RANGE[0], last.dtype)
             )
             self._file_t = (self._file_t[0], self._file_t[1] + self._pad * self.hop_s)
+            self._cols_span = (self._cols_span[0], self._file_t[1])
         self._flush_file_block()
         self._send_intervals()
+        self._send_final_blueprint()
+
+    def covered_span(self) -> tuple[float, float] | None:
+        """The time span (s) the file's spectrogram covers so far: from the left edge of its first column
+        (padding included) to the right edge of its last; after :meth:`close`, the whole record, equal
+        to :func:`record_span` of the record. None before the first frame."""
+        if self._cols_span is None:
+            return None
+        half = self.hop_s / 2.0
+        return (self._cols_span[0] - half, self._cols_span[1] + half)
+
+    def _send_final_blueprint(self) -> None:
+        """A file's final blueprint: paused on the whole record (the span given in advance, else the
+        span its spectrogram covers: a streamed or rotated file), with each chattering view's y range
+        from the record's amplitudes. The viewer opens a file on the last blueprint it holds."""
+        file = self.sinks.file_stream
+        span = self.span_s if self.span_s is not None else self.covered_span()
+        if file is None or self.file_layout is None or span is None:
+            return
+        bp = self.layout(span_s=span, chattering_range=self._extent.ranges(self.psi), **self.file_layout)
+        self.send_file_blueprint(file, bp)
 
     def _send_intervals(self) -> None:
         """The file's verdict lanes and interval events: the window-extent onset/offset estimates of the
@@ -611,11 +650,7 @@ class RerunLogger:
         self._mark_outside_band(file)
         if ivs:
             order = sorted(range(len(ivs)), key=lambda k: ivs[k].onset_s)
-            text = [
-                f"{self.channels[ivs[k].channel_index]} {ivs[k].peak_hz:.1f} Hz {ivs[k].peak_db:+.0f} dB: "
-                f"fault {ivs[k].onset_s:.2f}-{ivs[k].offset_s:.2f} s (estimate)"
-                for k in order
-            ]
+            text = [ivs[k].describe(self.channels[ivs[k].channel_index]) for k in order]
             ns = to_ns([ivs[k].onset_s for k in order])
             file.send_columns(
                 "/events",
@@ -678,6 +713,8 @@ class RerunLogger:
         else:
             row = ups[0].chattering
         own = row is not ups[0].chattering  # a fresh array here; else the update's own (copied)
+        if not box.live:
+            self._extent.add(row[:, :m])
         s.send_columns(CHATTERING, indexes=[tcol], columns=[cols.scalars_column(row, own=own)])
         if self._psi_rows is not None:  # the batch's first and last sample: +psi_0, -psi_0, +psi_1, ...
             s.send_columns(PSI, indexes=[_TimeIndex(pa, ns[[0, -1]])], columns=[self._psi_rows])
@@ -703,7 +740,7 @@ class RerunLogger:
             b = a + f.n_frames
             spectra[:, a:b] = f.power.transpose(2, 0, 1)  # (m, n, bins), cast on the fly
             a = b
-        peak_hz = self._peak_hz(frames)
+        peak_hz, peak_ratio = self._peak_hz(frames)
         s.send_columns(STATISTIC, indexes=[fcol], columns=[cols.scalars_column(stat_db, own=True)])
         s.send_columns(THRESHOLD, indexes=[_TimeIndex(pa, fns[[0, -1]])], columns=[self._zero_rows])
 
@@ -734,22 +771,30 @@ class RerunLogger:
         if not box.live:  # the file's spectrogram: dB columns of the whole batch at once
             self._file_spectrogram(times, spectra)
             if self._collector is not None:  # the file's intervals, drawn on close
-                self._collector.add(times, flags, ratio, sig_hz)
+                self._collector.add(times, flags, ratio, sig_hz, peak_hz, peak_ratio)
         if events:
             self._send_events(s, events, lanes=box.live)
 
-    def _peak_hz(self, frames: list[Any]) -> np.ndarray:
+    def _peak_hz(self, frames: list[Any]) -> tuple[np.ndarray, np.ndarray]:
         """(F, m) tested bin (Hz) with the largest excess power ``S - E`` among the bins over the threshold
         when a frame has any (as the batch report's ``peak_hz``: a frame's overall largest excess sits on
-        noise once a fault fades), else among all tested bins (:func:`peak_bins`)."""
+        noise once a fault fades), else among all tested bins (:func:`peak_bins`); and (F, m) its
+        ``S / threshold``."""
+        m = len(self.channels)
         F = sum(f.n_frames for f in frames)
-        k = np.empty((F, len(self.channels)), dtype=np.int64)
+        k = np.empty((F, m), dtype=np.int64)
+        ratio = np.empty((F, m))
+        cols = np.arange(m)
         a = 0
         for f in frames:
             b = a + f.n_frames
             peak_bins(f.power, self._tested_idx, self._tested_expected, self._tested_thr, out=k[a:b])
+            kb = k[a:b]
+            ratio[a:b] = (
+                f.power[np.arange(b - a)[:, None], self._tested_idx[kb], cols] / self._tested_thr[kb, cols]
+            )
             a = b
-        return self._tested_hz[k]
+        return self._tested_hz[k], ratio
 
     def _send_spectra(self, s: Any, path: str, tcol: _TimeIndex, ns: np.ndarray, power: np.ndarray) -> None:
         """One ``Tensor`` row per frame: ``power`` is (frames, bins) in ``spectrum_dtype``."""
@@ -866,6 +911,9 @@ class RerunLogger:
             self._file_cols.append(db[:, lo : lo + take])
             self._file_n += take
             self._file_t = (self._file_t[0], float(times[lo + take - 1]))
+            if self._cols_span is None:
+                self._cols_span = self._file_t
+            self._cols_span = (self._cols_span[0], self._file_t[1])
             lo += take
 
     def _flush_file_block(self) -> None:

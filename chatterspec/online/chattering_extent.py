@@ -1,0 +1,68 @@
+"""The y range of a recording's chattering views: a robust, symmetric extent of the record's chattering.
+
+Rerun auto-ranges a time-series view from the data it shows; at 1600x1000 a small amplitude (the
+chattering of a position in metres is ~1e-4) can leave a single "0" tick on the axis, with no amplitude
+to read. A file's final blueprint therefore gives each chattering view a fixed symmetric range
+``[-r, r]`` with ``r`` from :class:`ChatteringExtent`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+__all__ = ["QUANTILE", "ChatteringExtent"]
+
+#: Quantile of ``|e(k|k-1)|`` taken per batch: a handful of samples (the filters' start, a glitch)
+#: cannot set the range, a fault that lasts a fraction of a batch (20 s of 1 kHz data) still does.
+QUANTILE = 0.999
+#: Headroom above the extent, so that the largest values and the ±psi lines are not drawn on the frame.
+MARGIN = 1.15
+
+
+class ChatteringExtent:
+    """Running robust extent of the chattering per channel, in bounded memory.
+
+    Each batch of samples contributes its :data:`QUANTILE` of ``|e|`` per channel; the extent is the
+    largest of these over the record (so a fault late in a long record widens it).
+
+    Parameters
+    ----------
+    n_channels : int
+    """
+
+    def __init__(self, n_channels: int) -> None:
+        self._max = np.zeros(int(n_channels))
+        self.n_samples = 0
+
+    def add(self, chattering: np.ndarray) -> None:
+        """Take one batch ``(samples, channels)`` of chattering ``e(k|k-1)`` (output units)."""
+        e = np.asarray(chattering, dtype=float)
+        if e.shape[0] == 0:
+            return
+        with np.errstate(invalid="ignore"):
+            q = np.nanquantile(np.abs(e), QUANTILE, axis=0) if e.shape[0] > 1 else np.abs(e[0])
+        np.fmax(self._max, q, out=self._max)
+        self.n_samples += e.shape[0]
+
+    def ranges(self, psi: Sequence[float] | None = None) -> list[float] | None:
+        """Per channel the half-height ``r`` of the symmetric range ``[-r, r]``: :data:`MARGIN` times the
+        larger of the extent and the boundary layer ``psi`` (so that the ±psi lines are in view); a
+        channel without any finite non-zero value gets None (auto range). None before any sample.
+
+        Parameters
+        ----------
+        psi : sequence of float, optional
+            The SVSF boundary layer per channel (output units).
+
+        Returns
+        -------
+        list of (float or None), or None
+        """
+        if self.n_samples == 0:
+            return None
+        r = self._max.copy()
+        if psi is not None:
+            r = np.fmax(r, np.abs(np.asarray(psi, dtype=float)))
+        return [float(MARGIN * x) if np.isfinite(x) and x > 0 else None for x in r]
