@@ -21,7 +21,12 @@ rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
 from chatterspec.online import blueprint, drivers, rerun_log  # noqa: E402
-from chatterspec.online.chattering_extent import MARGIN, QUANTILE, ChatteringExtent  # noqa: E402
+from chatterspec.online.chattering_extent import (  # noqa: E402
+    MARGIN,
+    QUANTILE,
+    ChatteringExtent,
+    labelled_half_range,
+)
 from chatterspec.online.live_stream import StreamMonitor  # noqa: E402
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings  # noqa: E402
 from chatterspec.online.stream import RowBlock  # noqa: E402
@@ -108,15 +113,15 @@ def test_chattering_extent_is_a_robust_symmetric_range() -> None:
     e = rng.normal(0.0, [1e-4, 2.0], size=(20_000, 2))
     e[5, 0] = 1.0  # one glitch (a filter's start) cannot set the range
     ext.add(e)
-    ext.add(e[:1000] * 3)  # a later, louder batch widens it
+    ext.add(e[1000:2000] * 3)  # a later, louder batch widens it
     got = ext.ranges()
     want = MARGIN * np.fmax(
-        np.quantile(np.abs(e), QUANTILE, axis=0), np.quantile(np.abs(3 * e[:1000]), QUANTILE, axis=0)
+        np.quantile(np.abs(e), QUANTILE, axis=0), np.quantile(np.abs(3 * e[1000:2000]), QUANTILE, axis=0)
     )
-    np.testing.assert_allclose(got, want)
+    np.testing.assert_allclose(got, [labelled_half_range(w) for w in want])
     assert got[0] < 1e-2  # the glitch of 1.0 is not the extent
     # the boundary layer stays in view; an all-zero channel keeps the auto range
-    assert ext.ranges(psi=[1.0, 0.0])[0] == pytest.approx(MARGIN * 1.0)
+    assert ext.ranges(psi=[1.0, 0.0])[0] == pytest.approx(labelled_half_range(MARGIN * 1.0))
     zero = ChatteringExtent(1)
     zero.add(np.zeros((10, 1)))
     assert zero.ranges() == [None]
@@ -154,7 +159,18 @@ def test_file_blueprint_has_the_record_chattering_range(tmp_path: Path) -> None:
     # one batch (the record is shorter than 20 000 samples): MARGIN x the 99.9 % quantile of |e| (or psi)
     psi = np.zeros(m) if sc.psi is None else np.asarray(sc.psi, dtype=float)  # record_detection's psi
     want = MARGIN * np.fmax(np.quantile(np.abs(e), QUANTILE, axis=0), np.abs(psi))
-    np.testing.assert_allclose(halves, np.sort(want), rtol=1e-6)
+    np.testing.assert_allclose(halves, np.sort([labelled_half_range(w) for w in want]), rtol=1e-6)
+
+
+def test_labelled_half_range_holds_a_labelled_power_of_ten() -> None:
+    # the viewer labels powers of ten only: +-p inside the range, at least 1 / 2.2 of the half-height
+    for a in (1e-4, 1.0, 1.1, 1.2, 2.0, 2.2, 2.3, 9.9, 0.00615, 7572.0):
+        r = labelled_half_range(a)
+        p = 10.0 ** np.floor(np.log10(r))
+        assert a <= r <= 11.0 * a / 2.2 + 1e-12 * a, (a, r)  # the data fill at least a fifth
+        assert p <= r <= 2.2 * p * (1 + 1e-12), (a, r)
+    assert labelled_half_range(0.00615) == pytest.approx(0.011)
+    assert labelled_half_range(2.0) == pytest.approx(2.2)
 
 
 def _time_panels_one(reader: RrdReader, store) -> int:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from .. import palette
-from .spectrogram_view import KEY_FRACTION, spectrogram_view
+from .spectrogram_view import KEY_PX, key_width, spectrogram_view
 from .viewer import TIMELINE
 
 if TYPE_CHECKING:
@@ -28,6 +28,7 @@ __all__ = [
     "layout_geometry",
     "series_styles",
     "time_axis",
+    "view_px",
 ]
 
 #: Entity of the true-fault lane: sorts before every channel lane (the viewer orders lanes by path).
@@ -278,6 +279,11 @@ def _column_shares(alarm: bool, peak: bool = True) -> list[float]:
     return [float(x) for x in shares]
 
 
+def view_px(n_channels: int) -> float:
+    """Width (logical px at 1600x1000) of one channel column's views in the default layout."""
+    return _WINDOW[0] / max(int(n_channels), 1) - 8.0
+
+
 def layout_geometry(
     n_channels: int,
     n_lanes: int,
@@ -311,14 +317,14 @@ def layout_geometry(
     -------
     (row_shares, image_width)
         Shares (px) of: the rows above, the columns, the lanes, the rows below; the image width
-        (its height is 1).
+        (its height is 1): the view's width less the colour key (:data:`~chatterspec.online.
+        spectrogram_view.KEY_PX`), over the view's height.
     """
     lanes = 45.0 + _LANE_PX * n_lanes
     cols = max(_WINDOW[1] - lanes - _ROW_PX * (rows_above + rows_below), 200.0)
     shares = _column_shares(alarm, peak)
     spec_h = max(cols * shares[1] / sum(shares) - _TITLE_PX, 20.0)
-    view_w = _WINDOW[0] / max(n_channels, 1) - 8.0
-    width = view_w / spec_h / (1.0 + KEY_FRACTION)
+    width = (view_px(n_channels) - KEY_PX) / spec_h
     return [_ROW_PX] * rows_above + [cols, lanes] + [_ROW_PX] * rows_below, float(width)
 
 
@@ -459,6 +465,7 @@ def blueprint(
                     f"/spectrogram/{c}",
                     f"{name}: spectrogram{band}, dB re threshold (colour key left)",
                     width,
+                    key_width(width, view_px(m)),
                 ),
                 rrb.TimeSeriesView(
                     origin="/detection",

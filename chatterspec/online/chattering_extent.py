@@ -4,21 +4,50 @@ Rerun auto-ranges a time-series view from the data it shows; at 1600x1000 a smal
 chattering of a position in metres is ~1e-4) can leave a single "0" tick on the axis, with no amplitude
 to read. A file's final blueprint therefore gives each chattering view a fixed symmetric range
 ``[-r, r]`` with ``r`` from :class:`ChatteringExtent`.
+
+Which ticks the viewer labels: its plots (egui_plot, Rerun 0.41) put grid lines at powers of ten only
+(``10^k``, no 2 or 5 steps) and label a step only when its lines are far enough apart on screen (seen at
+1600x1000: ``±0.005`` in ``±0.00615`` on an ~90 px high view is NOT labelled, its ``0.001`` lines are
+~8 px apart and ``0.01`` is out of range; ``±0.01`` in ``±0.011`` is). So ``r`` is not the extent itself
+but the smallest of ``1.1 p`` and ``2.2 p`` (``p`` a power of ten) that holds it
+(:func:`labelled_half_range`): the lines at ``±p`` are then inside the range and at least ``1 / 2.2``
+of the half-height from 0, and the data fill at least a fifth of the view.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["QUANTILE", "ChatteringExtent"]
+__all__ = ["QUANTILE", "ChatteringExtent", "labelled_half_range"]
 
 #: Quantile of ``|e(k|k-1)|`` taken per batch: a handful of samples (the filters' start, a glitch)
 #: cannot set the range, a fault that lasts a fraction of a batch (20 s of 1 kHz data) still does.
 QUANTILE = 0.999
 #: Headroom above the extent, so that the largest values and the ±psi lines are not drawn on the frame.
 MARGIN = 1.15
+
+
+def labelled_half_range(a: float) -> float:
+    """The smallest ``1.1 p`` or ``2.2 p`` (``p`` a power of ten) at or above ``a > 0``: a symmetric range
+    whose ``±p`` grid lines the viewer labels (see the module docstring).
+
+    Parameters
+    ----------
+    a : float
+        Half-height the range must hold (> 0, output units).
+
+    Returns
+    -------
+    float
+    """
+    p = 10.0 ** math.floor(math.log10(a / 1.1))
+    for r in (1.1 * p, 2.2 * p, 11.0 * p):
+        if r >= a * (1 - 1e-12):
+            return r
+    return 11.0 * p  # pragma: no cover - a / 1.1 < 10 p always
 
 
 class ChatteringExtent:
@@ -47,9 +76,10 @@ class ChatteringExtent:
         self.n_samples += e.shape[0]
 
     def ranges(self, psi: Sequence[float] | None = None) -> list[float] | None:
-        """Per channel the half-height ``r`` of the symmetric range ``[-r, r]``: :data:`MARGIN` times the
-        larger of the extent and the boundary layer ``psi`` (so that the ±psi lines are in view); a
-        channel without any finite non-zero value gets None (auto range). None before any sample.
+        """Per channel the half-height ``r`` of the symmetric range ``[-r, r]``: :func:`labelled_half_range`
+        of :data:`MARGIN` times the larger of the extent and the boundary layer ``psi`` (so that the ±psi
+        lines are in view); a channel without any finite non-zero value gets None (auto range). None before
+        any sample.
 
         Parameters
         ----------
@@ -65,4 +95,4 @@ class ChatteringExtent:
         r = self._max.copy()
         if psi is not None:
             r = np.fmax(r, np.abs(np.asarray(psi, dtype=float)))
-        return [float(MARGIN * x) if np.isfinite(x) and x > 0 else None for x in r]
+        return [labelled_half_range(MARGIN * float(x)) if np.isfinite(x) and x > 0 else None for x in r]

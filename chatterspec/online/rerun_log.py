@@ -35,12 +35,13 @@ from .blueprint import (
     lane_entity,
     layout_geometry,
     series_styles,
+    view_px,
 )
 from .chattering_extent import ChatteringExtent
 from .frame_peaks import peak_bins
 from .interval_lanes import IntervalCollector, lane_changes
 from .monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
-from .spectrogram_view import log_axes, log_image
+from .spectrogram_view import key_width, log_axes, log_image
 from .viewer import TIMELINE, Sinks
 
 if TYPE_CHECKING:
@@ -352,6 +353,7 @@ class RerunLogger:
             rows_below=1 if extra_row else 0,
             peak=self._peak_view,
         )[1]
+        self._key = key_width(self._width, view_px(m))  # the colour key: as wide as a time view's labels
         self._file_n = 0
         self._file_block_start: int | None = None
         self._file_t: tuple[float, float] | None = None
@@ -480,7 +482,7 @@ class RerunLogger:
                 s.log(path, style, static=True)
             df = float(self.monitor.freqs_hz[1] - self.monitor.freqs_hz[0])
             for i, (name, c) in enumerate(zip(self.channels, self.keys, strict=True)):
-                log_axes(s, f"/spectrogram/{c}", self.band_hz, df, DB_RANGE, self._width)
+                log_axes(s, f"/spectrogram/{c}", self.band_hz, df, DB_RANGE, self._width, self._key)
                 s.log(f"/threshold/{c}", rr.Tensor(thr.values[:, i], dim_names=["freq"]), static=True)
                 s.log(f"/expected/{c}", rr.Tensor(self._expected[:, i], dim_names=["freq"]), static=True)
                 s.log(
