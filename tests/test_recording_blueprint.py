@@ -20,16 +20,16 @@ from chatterspec.plants.scenarios import scenario
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
-from chatterspec.online import blueprint, drivers, rerun_log  # noqa: E402
-from chatterspec.online.chattering_extent import (  # noqa: E402
+from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings  # noqa: E402
+from chatterspec.online.stream import RowBlock  # noqa: E402
+from chatterspec.viewer import blueprint, drivers, rerun_log  # noqa: E402
+from chatterspec.viewer.chattering_extent import (  # noqa: E402
     MARGIN,
     QUANTILE,
     ChatteringExtent,
     labelled_half_range,
 )
-from chatterspec.online.live_stream import StreamMonitor  # noqa: E402
-from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings  # noqa: E402
-from chatterspec.online.stream import RowBlock  # noqa: E402
+from chatterspec.viewer.live_stream import StreamMonitor  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE_MODEL = ROOT / "examples" / "eha_model.toml"

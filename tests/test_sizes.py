@@ -19,15 +19,15 @@ MAX_UNIT_LINES = 250
 LONG_MODULES = {
     "filters/multiple_model.py": "SMM-SVSF and IMM banks in one module (filters/ branch)",
     "filters/svsf.py": "the SVSF class (filters/ branch)",
-    "online/live_stream.py": "the live stream monitor (viewer branch)",
-    "online/rerun_log.py": "the Rerun logger (viewer branch)",
+    "viewer/live_stream.py": "the live stream monitor (viewer branch)",
+    "viewer/rerun_log.py": "the Rerun logger (viewer branch)",
     "figures/paper_figures.py": "Figs 10-12 share one copied template (viewer branch)",
 }
 
 # Units still over the limit ("path:qualified name"), with the reason.
 LONG_UNITS = {
-    "online/rerun_log.py:RerunLogger": "viewer branch",
-    "online/live_stream.py:StreamMonitor": "viewer branch",
+    "viewer/rerun_log.py:RerunLogger": "viewer branch",
+    "viewer/live_stream.py:StreamMonitor": "viewer branch",
     "filters/svsf.py:SVSF": "filters/ branch",
     "filters/multiple_model.py:SMMSVSF": "filters/ branch",
     "filters/_base.py:CovarianceFilterBase": "filters/ branch",

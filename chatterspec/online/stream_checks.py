@@ -1,7 +1,7 @@
 """Bookkeeping of the live stream monitor: latency statistics and the sampling-rate check of a stream.
 
 :class:`LatencyStats` keeps the median and max latency in bounded memory; :func:`rate_mismatch` compares
-the first rows' time steps with the model's ``dt`` (:class:`~chatterspec.online.live_stream.StreamMonitor`
+the first rows' time steps with the model's ``dt`` (:class:`~chatterspec.viewer.live_stream.StreamMonitor`
 holds the first :data:`RATE_CHECK_ROWS` rows for it, so a stream sampled at another rate is an error
 naming both rates, not a gap at every row).
 """

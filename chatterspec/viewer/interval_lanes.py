@@ -6,7 +6,7 @@ estimator of :func:`chatterspec.detection.detect.frame_intervals` applied to the
 statistic ``max S / threshold`` of each channel, with the healthy median
 :func:`chatterspec.detection.detect.healthy_frame_level` of the frame threshold. A live viewer instead
 sees each alarm when the detector knew it (the end of the deciding frame), see
-:class:`~chatterspec.online.rerun_log.RerunLogger`.
+:class:`~chatterspec.viewer.rerun_log.RerunLogger`.
 """
 
 from __future__ import annotations

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..detection.spectral import expected_frame_spectrum
 from ..errors import ParameterError
+from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
 from ..palette import FAULT, HEALTHY, NEUTRAL, fault_level_color, rgba32
 from ..plants.nonlinear import is_linear
 from .arrow_columns import _MAX_TENSOR_ROWS, _Columns, _TimeIndex
@@ -40,9 +41,8 @@ from .blueprint import (
 from .chattering_extent import ChatteringExtent
 from .frame_peaks import peak_bins
 from .interval_lanes import IntervalCollector, lane_changes
-from .monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
+from .sinks import TIMELINE, Sinks
 from .spectrogram_view import key_width, log_axes, log_image
-from .viewer import TIMELINE, Sinks
 
 if TYPE_CHECKING:
     pass
@@ -257,7 +257,7 @@ class RerunLogger:
     truth : list of (start_s, label, is_fault), optional
         True fault timeline, drawn as the top lane.
     send_blueprint : bool
-        Send the default :func:`~chatterspec.online.blueprint.blueprint` to the sinks (default True).
+        Send the default :func:`~chatterspec.viewer.blueprint.blueprint` to the sinks (default True).
     spectrum_dtype : {"float32", "float64"}
         Precision of the logged frame spectra ``/spectrum/<c>``. float32 (default) keeps 7
         significant digits (relative rounding <= 6e-8, far below the chi-squared scatter of a
@@ -265,12 +265,12 @@ class RerunLogger:
         (~3.6 -> 1.8 MB per minute for 3 channels x 501 bins); the monitor's verdicts are computed
         in float64 before logging either way. "float64" logs the monitor's values bit-exactly.
     extra_row : callable, optional
-        Views below the default layout (see :func:`~chatterspec.online.blueprint.blueprint`).
+        Views below the default layout (see :func:`~chatterspec.viewer.blueprint.blueprint`).
     extra_lanes, rows_above : int
         Lanes under ``/state`` and rows above the columns that the caller's layout adds (its
         :meth:`layout` ``above=``): they set the spectrogram image's aspect ratio.
     peak_view : bool
-        The layout shows the peak-frequency views (see :func:`~chatterspec.online.blueprint.blueprint`).
+        The layout shows the peak-frequency views (see :func:`~chatterspec.viewer.blueprint.blueprint`).
     """
 
     def __init__(
@@ -410,7 +410,7 @@ class RerunLogger:
         lanes_name: str | None = None,
         chattering_range: Any = None,
     ) -> Any:
-        """This logger's default :func:`~chatterspec.online.blueprint.blueprint` (band, alarm view, units,
+        """This logger's default :func:`~chatterspec.viewer.blueprint.blueprint` (band, alarm view, units,
         and the geometry given to the constructor).
 
         Parameters
@@ -420,7 +420,7 @@ class RerunLogger:
         has_truth : bool, optional
             Draw the true fault lane (default: a truth was given).
         extra_row : callable, optional
-            See :func:`~chatterspec.online.blueprint.blueprint` (default: the constructor's).
+            See :func:`~chatterspec.viewer.blueprint.blueprint` (default: the constructor's).
         above : list of views, optional
             A row above the channel columns (the constructor's ``rows_above`` must be 1).
         lanes_name : str, optional
@@ -448,7 +448,7 @@ class RerunLogger:
 
     def _alarm_title(self) -> str:
         """The alarm view's title: the rule's statistic against its threshold, and the budget."""
-        from .monitor_types import alarm_label
+        from ..online.monitor_types import alarm_label
 
         rule, budget = self.monitor.rule, self.monitor.settings.false_alarms_per_hour
         what = {"cusum": "CUSUM g", "persistence": f"score ({rule.name} {getattr(rule, 'k', '')} of "
@@ -602,7 +602,7 @@ class RerunLogger:
 
     def close(self) -> None:
         """Send what is buffered, the file's spectrogram (the whole record, or its last block) and the
-        file's lanes: the record's fault intervals (:mod:`chatterspec.online.interval_lanes`)."""
+        file's lanes: the record's fault intervals (:mod:`chatterspec.viewer.interval_lanes`)."""
         self.flush()
         if self._pad and self._file_n:  # the last block ends with the record, padded
             last = self._file_cols[-1]

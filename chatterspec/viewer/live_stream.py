@@ -62,11 +62,17 @@ from typing import Any
 import numpy as np
 
 from ..errors import DataFileError
+from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorSettings, MonitorUpdate
+from ..online.monitor_types import alarm_label
+from ..online.stream import BadRow, CsvRows, Restart, RowBlock
+from ..online.stream_checks import (
+    RATE_CHECK_ROWS,
+    RATE_CHECK_ROWS_MIN,
+    LatencyStats,
+    merge_blocks,
+    rate_mismatch,
+)
 from ..plants.models import LinearModel
-from .monitor import ChatteringMonitor, DetectionEvent, MonitorSettings, MonitorUpdate
-from .monitor_types import alarm_label
-from .stream import BadRow, CsvRows, Restart, RowBlock
-from .stream_checks import RATE_CHECK_ROWS, RATE_CHECK_ROWS_MIN, LatencyStats, merge_blocks, rate_mismatch
 
 __all__ = ["MAX_EVENTS", "LatencyStats", "StreamEvent", "StreamMonitor", "StreamSummary", "drive"]
 
@@ -246,7 +252,7 @@ class StreamMonitor:
     record_every_s : float, optional
         Data seconds per recording (rotation).
     live : str, optional
-        ``"spawn"`` or a viewer URL (see :func:`chatterspec.online.viewer.open_sinks`).
+        ``"spawn"`` or a viewer URL (see :func:`chatterspec.viewer.sinks.open_sinks`).
     recording_name : str
         Name shown in the viewer.
     skip_bad_rows : bool
@@ -327,7 +333,7 @@ class StreamMonitor:
         if self.live is not None or (self.record is not None and self.record_every is None):
             self._open_live()
         if self.record_every is not None:  # the first file is opened now (errors surface here)
-            from .viewer import default_recording_path
+            from .sinks import default_recording_path
 
             self._base = self.record or default_recording_path(self.recording_name)
             self._spare = Future()
@@ -548,7 +554,7 @@ class StreamMonitor:
         return RerunLogger(sinks, self._proto) if sinks.streams else None
 
     def _open_live(self) -> None:
-        from .viewer import default_recording_path, open_sinks
+        from .sinks import default_recording_path, open_sinks
 
         if self.record_every is None:  # a viewer that cannot be used falls back to a file, as for replays
             sinks = open_sinks(
@@ -579,7 +585,7 @@ class StreamMonitor:
 
     def _make_file(self) -> tuple[Any, Any]:
         """Open the next recording under a temporary name (rotation thread, or the constructor)."""
-        from .viewer import open_sinks
+        from .sinks import open_sinks
 
         base = self._base
         tmp = base.parent / f".{base.stem}-{uuid.uuid4().hex[:12]}.rrd.part"
@@ -656,7 +662,7 @@ class StreamMonitor:
             return
         import rerun as rr
 
-        from .viewer import TIMELINE
+        from .sinks import TIMELINE
 
         for s in streams:
             s.set_time(TIMELINE, duration=float(ev.sample_time_s))

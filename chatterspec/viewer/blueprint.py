@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from .. import palette
+from .sinks import TIMELINE
 from .spectrogram_view import KEY_PX, key_width, spectrogram_view
-from .viewer import TIMELINE
 
 if TYPE_CHECKING:
     pass
@@ -280,7 +280,17 @@ def _column_shares(alarm: bool, peak: bool = True) -> list[float]:
 
 
 def view_px(n_channels: int) -> float:
-    """Width (logical px at 1600x1000) of one channel column's views in the default layout."""
+    """Width (logical px at 1600x1000) of one channel column's views in the default layout.
+
+    Parameters
+    ----------
+    n_channels : int
+        Channel columns.
+
+    Returns
+    -------
+    float
+    """
     return _WINDOW[0] / max(int(n_channels), 1) - 8.0
 
 
@@ -297,7 +307,7 @@ def layout_geometry(
 
     The lanes row gets ``45 + 42`` px per lane (a lane and its name; every lane visible), each extra
     row 100 px, the channel
-    columns the rest; the spectrogram image's width (:func:`~chatterspec.online.spectrogram_view`) is
+    columns the rest; the spectrogram image's width (:func:`~chatterspec.viewer.spectrogram_view`) is
     its view's aspect ratio there, so that it fills the view.
 
     Parameters
@@ -388,7 +398,7 @@ def blueprint(
     extra_row : callable, optional
         ``extra_row(time_range, axis)`` returns views added as a row below the lanes, with the time range
         and the (linked) time axis of the other views (:func:`time_axis`) (e.g. the identified parameters,
-        :func:`chatterspec.online.identification_log.identification_views`).
+        :func:`chatterspec.viewer.identification_log.identification_views`).
 
     units : tuple of str, optional
         The channels' units, shown in the chattering views' titles.
@@ -406,7 +416,7 @@ def blueprint(
         Per channel ``r``: the chattering view shows ``[-r, r]`` (output units), so that the viewer
         labels its ticks (auto-ranged, a small amplitude can leave a single "0" tick); None (or a None
         entry): auto range. A file's final blueprint gives it
-        (:class:`~chatterspec.online.chattering_extent.ChatteringExtent`).
+        (:class:`~chatterspec.viewer.chattering_extent.ChatteringExtent`).
 
     Returns
     -------

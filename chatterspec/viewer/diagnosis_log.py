@@ -1,6 +1,6 @@
 """Rerun recording of ``chatterspec diagnose --record FILE.rrd``: realization 0 on one
 timeline -- the chattering spectrogram, frame verdicts and detection events of the online monitor
-(:class:`~chatterspec.online.rerun_log.RerunLogger`, unchanged) beside the mode probabilities of the
+(:class:`~chatterspec.viewer.rerun_log.RerunLogger`, unchanged) beside the mode probabilities of the
 SMM-SVSF / IMM (one scalar series per mode under ``/modes/<method>/<mode>``) and, at a false-alarm
 budget, every route's alarm statistic with its calibrated threshold (``/routes/<method>/statistic``
 and ``/routes/<method>/threshold``; :func:`record_budget_diagnosis`).
@@ -17,12 +17,12 @@ import numpy as np
 
 from ..detection.spectral import STFTConfig
 from ..detection.thresholds import Threshold
+from ..online.monitor import ChatteringMonitor, MonitorSettings
 from ..palette import NEUTRAL, fault_level_color, filter_color, mode_color, rgba32
 from .blueprint import _entity, time_axis
 from .drivers import scenario_truth
-from .monitor import ChatteringMonitor, MonitorSettings
 from .rerun_log import RerunLogger, record_span, to_ns
-from .viewer import TIMELINE, open_sinks
+from .sinks import TIMELINE, open_sinks
 
 __all__ = ["mode_lane_entity", "record_budget_diagnosis", "record_diagnosis"]
 
