@@ -19,7 +19,7 @@ import numpy as np
 from ..detection.bin_labels import db_over_threshold, two_bins_text
 from ..detection.detect import frame_intervals, healthy_frame_level
 
-__all__ = ["FaultInterval", "IntervalCollector", "lane_changes"]
+__all__ = ["FaultInterval", "IntervalCollector", "lane_changes", "send_intervals"]
 
 
 @dataclass(frozen=True)
@@ -168,3 +168,41 @@ def lane_changes(
         times += [iv.onset_s, iv.offset_s]
         states += ["fault", "healthy"]
     return times, states
+
+
+def send_intervals(
+    file: Any, intervals: list[FaultInterval], lanes: list[str], channels: tuple[str, ...], start_s: float
+) -> None:
+    """Send a file's verdict lanes (:func:`lane_changes`) and one interval event per interval at its
+    onset (:meth:`FaultInterval.describe`: both bins named), in time order.
+
+    Parameters
+    ----------
+    file : rerun.RecordingStream
+    intervals : list of FaultInterval
+        :meth:`IntervalCollector.intervals`.
+    lanes : list of str
+        The channels' lane entities (:func:`~chatterspec.viewer.blueprint.lane_entity`).
+    channels : tuple of str
+    start_s : float
+        Start of the record's first STFT window (s).
+    """
+    import pyarrow as pa
+    import rerun as rr
+
+    from .arrow_columns import _TimeIndex
+    from .record_geometry import to_ns
+
+    for i, lane in enumerate(lanes):
+        times, states = lane_changes(intervals, i, start_s)
+        file.send_columns(
+            lane, indexes=[_TimeIndex(pa, to_ns(times))], columns=rr.StateChange.columns(state=states)
+        )
+    if intervals:
+        order = sorted(intervals, key=lambda iv: iv.onset_s)
+        text = [iv.describe(channels[iv.channel_index]) for iv in order]
+        file.send_columns(
+            "/events",
+            indexes=[_TimeIndex(pa, to_ns([iv.onset_s for iv in order]))],
+            columns=rr.TextLog.columns(text=text, level=["ERROR"] * len(text)),
+        )

@@ -186,6 +186,7 @@ class StreamRecordings:
         self._note(f"recording {rec['path']} closed ({size})")
 
     def collect_closed(self, *, block: bool) -> None:
+        """List the closed files (``block``: wait for every pending close)."""
         while self._closing and (block or self._closing[0].done()):
             self._collect_one()
 
@@ -194,12 +195,14 @@ class StreamRecordings:
         self.collect_closed(block=True)
 
     def log(self, upd: MonitorUpdate) -> None:
+        """Log one monitor update to every open logger (live viewer, file, current rotated file)."""
         for logger in self._loggers:
             logger.log_update(upd)
         if self.file_logger is not None:
             self.file_logger.log_update(upd)
 
     def log_text(self, ev: Any) -> None:
+        """Log a gap or restart event to the open streams' event log at its sample time."""
         sinks = [x for x in (self._live_sinks, self._file_sinks) if x is not None]
         streams = [s for x in sinks for s in x.streams]
         if not streams or ev.sample_time_s is None:
