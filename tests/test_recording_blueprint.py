@@ -26,6 +26,7 @@ from chatterspec.viewer import blueprint, drivers, rerun_log  # noqa: E402
 from chatterspec.viewer.chattering_extent import (  # noqa: E402
     MARGIN,
     QUANTILE,
+    STRIDE,
     ChatteringExtent,
     labelled_half_range,
 )
@@ -111,12 +112,13 @@ def test_chattering_extent_is_a_robust_symmetric_range() -> None:
     ext = ChatteringExtent(2)
     assert ext.ranges() is None  # nothing seen: auto range
     e = rng.normal(0.0, [1e-4, 2.0], size=(20_000, 2))
-    e[5, 0] = 1.0  # one glitch (a filter's start) cannot set the range
+    e[8, 0] = 1.0  # one glitch, on a sample that enters the quantile (a filter's start) cannot set the range
     ext.add(e)
     ext.add(e[1000:2000] * 3)  # a later, louder batch widens it
     got = ext.ranges()
     want = MARGIN * np.fmax(
-        np.quantile(np.abs(e), QUANTILE, axis=0), np.quantile(np.abs(3 * e[1000:2000]), QUANTILE, axis=0)
+        np.quantile(np.abs(e[::STRIDE]), QUANTILE, axis=0),
+        np.quantile(np.abs(3 * e[1000:2000:STRIDE]), QUANTILE, axis=0),
     )
     np.testing.assert_allclose(got, [labelled_half_range(w) for w in want])
     assert got[0] < 1e-2  # the glitch of 1.0 is not the extent
@@ -156,9 +158,10 @@ def test_file_blueprint_has_the_record_chattering_range(tmp_path: Path) -> None:
             ranges.extend(r[0] for r in rb.column("ScalarAxis:range").to_pylist() if r)
     halves = sorted(r[1] for r in ranges if r[0] == -r[1])  # the symmetric ones: the chattering views
     assert len(halves) == m
-    # one batch (the record is shorter than 20 000 samples): MARGIN x the 99.9 % quantile of |e| (or psi)
+    # one batch (the record is shorter than 20 000 samples): MARGIN x the 99.9 % quantile of |e| over every
+    # STRIDE-th sample (or psi)
     psi = np.zeros(m) if sc.psi is None else np.asarray(sc.psi, dtype=float)  # record_detection's psi
-    want = MARGIN * np.fmax(np.quantile(np.abs(e), QUANTILE, axis=0), np.abs(psi))
+    want = MARGIN * np.fmax(np.quantile(np.abs(e[::STRIDE]), QUANTILE, axis=0), np.abs(psi))
     np.testing.assert_allclose(halves, np.sort([labelled_half_range(w) for w in want]), rtol=1e-6)
 
 
