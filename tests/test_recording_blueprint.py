@@ -121,7 +121,7 @@ def test_chattering_extent_is_a_robust_symmetric_range() -> None:
         np.quantile(np.abs(3 * e[1000:2000:STRIDE]), QUANTILE, axis=0),
     )
     np.testing.assert_allclose(got, [labelled_half_range(w) for w in want])
-    assert got[0] < 1e-2  # the glitch of 1.0 is not the extent
+    assert got[0] < labelled_half_range(MARGIN * 1.0) / 100  # the glitch of 1.0 is not the extent
     # the boundary layer stays in view; an all-zero channel keeps the auto range
     assert ext.ranges(psi=[1.0, 0.0])[0] == pytest.approx(labelled_half_range(MARGIN * 1.0))
     zero = ChatteringExtent(1)
@@ -166,14 +166,15 @@ def test_file_blueprint_has_the_record_chattering_range(tmp_path: Path) -> None:
 
 
 def test_labelled_half_range_holds_a_labelled_power_of_ten() -> None:
-    # the viewer labels powers of ten only: +-p inside the range, at least 1 / 2.2 of the half-height
+    # the viewer labels powers of ten only, and only lines far enough apart: +-p at 91 % of the half-height
     for a in (1e-4, 1.0, 1.1, 1.2, 2.0, 2.2, 2.3, 9.9, 0.00615, 7572.0):
         r = labelled_half_range(a)
-        p = 10.0 ** np.floor(np.log10(r))
-        assert a <= r <= 11.0 * a / 2.2 + 1e-12 * a, (a, r)  # the data fill at least a fifth
-        assert p <= r <= 2.2 * p * (1 + 1e-12), (a, r)
+        p = 10.0 ** np.round(np.log10(r / 1.1))
+        assert r == pytest.approx(1.1 * p)
+        assert a <= r * (1 + 1e-12) and r <= 10.0 * a * (1 + 1e-12), (a, r)  # the data fill >= a tenth
     assert labelled_half_range(0.00615) == pytest.approx(0.011)
-    assert labelled_half_range(2.0) == pytest.approx(2.2)
+    assert labelled_half_range(1.1) == pytest.approx(1.1)
+    assert labelled_half_range(2.0) == pytest.approx(11.0)
 
 
 def _time_panels_one(reader: RrdReader, store) -> int:
