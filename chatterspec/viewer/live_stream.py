@@ -63,11 +63,9 @@ from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorSettings,
 from ..online.monitor_types import alarm_label
 from ..online.stream import BadRow, CsvRows, Restart, RowBlock
 from ..online.stream_checks import (
-    RATE_CHECK_ROWS,
-    RATE_CHECK_ROWS_MIN,
     LatencyStats,
-    merge_blocks,
-    rate_mismatch,
+    RateGate,
+    time_gaps,
 )
 from ..plants.models import LinearModel
 
@@ -75,8 +73,6 @@ __all__ = ["MAX_EVENTS", "LatencyStats", "StreamEvent", "StreamMonitor", "Stream
 
 #: Events (and recordings) kept for the summary (older ones are counted, not kept).
 MAX_EVENTS = 1000
-#: A time step outside ``(GAP_LOW dt, GAP_HIGH dt]`` is a gap.
-GAP_LOW, GAP_HIGH = 0.5, 1.5
 
 
 @dataclass(frozen=True)
@@ -304,8 +300,7 @@ class StreamMonitor:
         self._pending: list[str] = []  # reasons of a gap to emit at the next sample
         self._pending_line: int | None = None
         self._reset_next = False
-        self._held: list[RowBlock] = []  # first rows, held until the sampling-rate check
-        self._rate_checked = False
+        self._gate = RateGate(self.dt)  # the first rows, held until the sampling-rate check
         self.n_rows = 0
         self._frames_done = 0  # frames of monitors already replaced
         self.events: deque[StreamEvent] = deque(maxlen=MAX_EVENTS)
@@ -340,7 +335,8 @@ class StreamMonitor:
             A bad row without ``skip_bad_rows``.
         """
         if isinstance(item, RowBlock):
-            self._rate_gate(item)
+            for b in self._gate.feed(item):
+                self._rows(b)
             return
         self._release_held()  # rows held for the rate check go first, in input order
         if isinstance(item, BadRow):
@@ -368,7 +364,7 @@ class StreamMonitor:
             self._reset_next = True
             self._pending, self._pending_line = [], None
             self._last_t = None  # the new data's time base is not compared with the old one
-            self._rate_checked = False  # the new data's sampling is checked again
+            self._gate.recheck()  # the new data's sampling is checked again
 
     def end_of_input(self) -> None:
         """The source ended: rows still held for the rate check are checked (if >= 3) and monitored.
@@ -378,41 +374,12 @@ class StreamMonitor:
         DataFileError
             The held rows show a sampling interval other than the model's ``dt``.
         """
-        held = self._held_rows()
-        if held >= RATE_CHECK_ROWS_MIN:
-            self._check_rate(merge_blocks(self._held))
-        self._release_held()
-
-    # ------------------------------------------------------- sampling-rate check
-    def _held_rows(self) -> int:
-        return sum(b.n_rows for b in self._held)
-
-    def _rate_gate(self, b: RowBlock) -> None:
-        """Hold the first rows with a time column until :data:`RATE_CHECK_ROWS` arrived, check their
-        sampling interval against ``dt``, then monitor them (a mismatch would otherwise make every
-        step a gap: nothing monitored, exit 0)."""
-        if self._rate_checked or b.t is None:
-            self._release_held()
+        for b in self._gate.end():
             self._rows(b)
-            return
-        self._held.append(b)
-        if self._held_rows() >= RATE_CHECK_ROWS:
-            self._check_rate(merge_blocks(self._held))
-            self._release_held()
 
     def _release_held(self) -> None:
-        held, self._held = self._held, []
-        if held:
-            self._rate_checked = True
-            self._rows(merge_blocks(held))
-
-    def _check_rate(self, b: RowBlock) -> None:
-        """Raise :class:`DataFileError` when the first steps agree with each other but not with ``dt``."""
-        self._rate_checked = True
-        message = rate_mismatch(b, self.dt)
-        if message is not None:
-            self._held = []  # not monitored: the run stops here
-            raise DataFileError(message)
+        for b in self._gate.release():
+            self._rows(b)
 
     def _rows(self, b: RowBlock) -> None:
         K = b.n_rows
@@ -425,22 +392,7 @@ class StreamMonitor:
             t = self._t_next + dt * np.arange(K)
         self._t_next = float(t[-1]) + dt
         # split points: gaps by time step, a pending gap / restart at the first row
-        starts: dict[int, list[str]] = {}
-        if b.t is not None:
-            prev = np.r_[self._last_t if self._last_t is not None else t[0] - dt, t]
-            step = np.diff(prev)
-            bad = np.flatnonzero((step <= GAP_LOW * dt) | (step > GAP_HIGH * dt))
-            if self._last_t is None:
-                bad = bad[bad > 0]
-            for i in bad.tolist():
-                a, s = float(prev[i]), float(step[i])
-                if s <= 0:
-                    why = f"time went from {a:.6g} s to {t[i]:.6g} s (not increasing)"
-                elif s > GAP_HIGH * dt:
-                    why = f"time jumped from {a:.6g} s to {t[i]:.6g} s ({s / dt:.3g} dt > {GAP_HIGH:g} dt)"
-                else:
-                    why = f"time step {s:.3g} s is below {GAP_LOW:g} dt"
-                starts.setdefault(i, []).append(why)
+        starts = time_gaps(t, self._last_t, dt) if b.t is not None else {}
         if self._pending and self.monitor is not None:
             starts.setdefault(0, [])[:0] = self._pending
         elif self.monitor is None:
