@@ -19,7 +19,6 @@ MAX_UNIT_LINES = 250
 LONG_MODULES = {
     "filters/multiple_model.py": "SMM-SVSF and IMM banks in one module (filters/ branch)",
     "filters/svsf.py": "the SVSF class (filters/ branch)",
-    "figures/paper_figures.py": "Figs 10-12 share one copied template (viewer branch)",
 }
 
 # Units still over the limit ("path:qualified name"), with the reason.
