@@ -1,16 +1,19 @@
 """Naming the bins behind a fault verdict: the most significant bin and the bin of largest excess.
 
-A flagged frame has two bins worth naming, and they can differ by far:
+A flagged frame has two bins worth naming, and they can differ:
 
 - the **most significant** bin, the largest ``S / threshold`` (the detector's own peak: the bin whose
   test fails hardest);
 - the bin of **largest excess**, the largest excess power ``S - E`` over the expected healthy spectrum
   ``E`` among the bins over the threshold (the batch report's ``peak_hz``): where the added power is.
 
-On a nonlinear EHA leak (``eha4-leak-timeline``) the most significant bin is 1 Hz, the bottom row of the
-spectrogram, where the expected spectrum is tiny, while the eye goes to the bright band near 76 Hz,
-the largest excess. Reports name both, each with its level in dB over the threshold
-(``10 log10(S / threshold)``), with :func:`two_bins_text`.
+They differ where the expected spectrum ``E`` is not flat (a linear model's closed-form chattering
+spectrum rises towards its resonance). Where ``E`` is nearly flat they coincide: on the nonlinear EHA
+leak (``eha4-leak-timeline``) the expected spectrum is within 2 % between 1 and 76 Hz, so the strongest
+frame names 1.0 Hz both ways (the spectrogram's bright bottom row, in every fault frame), while the
+wide band near 76 Hz, brighter to the eye because it spans ~28 bins, is weaker bin for bin (S = 38
+against 230 at 1 Hz). Reports name both bins, each with its level in dB over the threshold
+(``10 log10(S / threshold)``), with :func:`two_bins_text`, and say when they are one bin.
 """
 
 from __future__ import annotations
