@@ -359,7 +359,7 @@ def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     fig = pl.spectrogram_figure(
         panels,
         suptitle="Fig 8 — spectrogram of the velocity chattering (1 s Hamming window, 0.2 s hop); "
-        "red: true fault windows, white: detected",
+        "amber: true fault windows, white: detected",
     )
     return PaperFigure("fig8", fig, tuple(notes))
 

@@ -17,6 +17,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from ..errors import ParameterError, ShapeError
+from ..palette import fault_level_color, mpl
 from .style import _WINDOW_SHADES, FrequencyLine, _wrap, plt, power_unit
 
 __all__ = ["BoundaryLayerPanel", "SpectrogramPanel", "boundary_layer_figure", "spectrogram_figure"]
@@ -105,9 +106,13 @@ class BoundaryLayerPanel:
 
 
 # --------------------------------------------------------------------------- spectrograms
-def _interval_bar(ax: Axes, intervals: Sequence[tuple[float, float]], y: float, color: str) -> None:
-    for a, b in intervals:
-        ax.plot([a, b], [y, y], color=color, lw=6, solid_capstyle="butt", transform=ax.get_xaxis_transform())
+def _interval_bar(
+    ax: Axes, intervals: Sequence[tuple[float, float]], y: float, color: str | Sequence[object]
+) -> None:
+    """One bar per interval at height ``y`` (axes fraction); ``color`` one colour or one per interval."""
+    colors = [color] * len(intervals) if isinstance(color, str) else list(color)
+    for (a, b), c in zip(intervals, colors, strict=True):
+        ax.plot([a, b], [y, y], color=c, lw=6, solid_capstyle="butt", transform=ax.get_xaxis_transform())
 
 
 def spectrogram_figure(
@@ -121,9 +126,9 @@ def spectrogram_figure(
 
     Each panel shows ``10 log10(power)`` over time (s) and frequency (Hz), clipped
     to ``db_range`` dB below the largest value of all panels (one colour scale for the
-    figure). Above the image two bars mark the true
-    fault windows (red) and the detected intervals (white, with flagged frames as
-    ticks).
+    figure). Above the image two bars mark the true fault windows (one amber per fault,
+    as the recordings' truth lane) and the detected intervals (white, with flagged frames
+    as ticks).
 
     Parameters
     ----------
@@ -164,6 +169,9 @@ def spectrogram_figure(
                 f"spectrogram power must have shape (frames, bins) = {(t.size, f.size)}; got {s.shape}"
             )
         db = 10.0 * np.log10(np.maximum(s, tiny))
+        # dark grey where no frame covers the time (before the first frame centre): the white
+        # detected bar stays visible there (a detected onset at 0 s is drawn from 0 s)
+        ax.set_facecolor("0.3")
         mesh = ax.pcolormesh(t, f, db.T, shading="nearest", cmap="viridis", vmin=top - db_range, vmax=top)
         cb = fig.colorbar(mesh, ax=ax, pad=0.01)
         ref = f"dB re 1 {power_unit(p.unit)}" if p.unit else "dB; S dimensionless"
@@ -173,7 +181,9 @@ def spectrogram_figure(
         ax.set_ylabel(f"frequency [Hz] ({p.channel} chattering)" if p.channel else "frequency [Hz]")
         if p.title:
             ax.set_title(p.title, fontsize=10)
-        _interval_bar(ax, p.fault_intervals, 0.97, "tab:red")
+        # true windows in the fault-level ambers of the recordings' truth lane (red is a verdict)
+        levels = [mpl(fault_level_color(j)) for j in range(len(p.fault_intervals))]
+        _interval_bar(ax, p.fault_intervals, 0.97, levels)
         _interval_bar(ax, p.detected_intervals, 0.92, "white")
         if p.flags is not None:
             flags = np.asarray(p.flags, dtype=bool)
@@ -191,7 +201,12 @@ def spectrogram_figure(
             else:
                 ax.hlines(fl.hz, *fl.span_s, color=fl.color, ls=fl.linestyle, lw=1.6, label=fl.label)
         handles.setdefault(
-            "true fault window (bar)", Patch(fc="tab:red", ec="none", label="true fault window (bar)")
+            "true fault window (bar)",
+            Patch(
+                fc=levels[0] if levels else mpl(fault_level_color(0)),
+                ec="none",
+                label="true fault window (bar)",
+            ),
         )
         det = f"{p.detector_label} (bar; ticks = flagged frames)"
         handles.setdefault(det, Patch(fc="white", ec="none", label=det))
