@@ -6,6 +6,7 @@ path check before the computation passes and the failure comes from the write it
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import sys
@@ -36,6 +37,14 @@ def _one_error_line(err: str) -> None:
     assert lines[0].startswith("chatterspec ") and ": error: --record " in lines[0]
 
 
+def _quiet_start(capsys) -> None:
+    # Objects left by earlier tests (e.g. a notebook kernel's sockets) may print a ResourceWarning on
+    # stderr when they are collected; collect them now and drop that text, so the assertions below read
+    # only what the command wrote.
+    gc.collect()
+    capsys.readouterr()
+
+
 @pytest.mark.parametrize(
     ("argv", "result"),
     [
@@ -49,6 +58,7 @@ def _one_error_line(err: str) -> None:
     ],
 )
 def test_result_first_then_one_line_exit_2(argv: list[str], result: str, full: Path, capsys) -> None:
+    _quiet_start(capsys)
     assert main([*argv, "--record", str(full)]) == 2
     out, err = capsys.readouterr()
     assert result in out
@@ -56,6 +66,7 @@ def test_result_first_then_one_line_exit_2(argv: list[str], result: str, full: P
 
 
 def test_json_stays_one_document(full: Path, capsys) -> None:
+    _quiet_start(capsys)
     assert main(["detect", "eha-leak-major", "--json", "--record", str(full)]) == 2
     out, err = capsys.readouterr()
     assert json.loads(out)["detected"] is True
@@ -65,6 +76,7 @@ def test_json_stays_one_document(full: Path, capsys) -> None:
 def test_stream_stops_before_reading_when_the_recording_cannot_open(
     full: Path, tmp_path: Path, capsys, monkeypatch
 ) -> None:
+    _quiet_start(capsys)
     with EXAMPLE_DATA.open() as fh:
         monkeypatch.setattr(sys, "stdin", fh)
         rc = main(["monitor", "--model", str(EXAMPLE_MODEL), "--data", "-", "--record", str(full)])
