@@ -18,7 +18,6 @@ MAX_UNIT_LINES = 250
 # round (filters/ on the public-API branch; online/ Rerun side and figures/ on the viewer branch).
 LONG_MODULES = {
     "filters/multiple_model.py": "SMM-SVSF and IMM banks in one module (filters/ branch)",
-    "filters/svsf.py": "the SVSF class (filters/ branch)",
     "online/live_stream.py": "the live stream monitor (viewer branch)",
     "online/rerun_log.py": "the Rerun logger (viewer branch)",
     "figures/paper_figures.py": "Figs 10-12 share one copied template (viewer branch)",
@@ -28,7 +27,6 @@ LONG_MODULES = {
 LONG_UNITS = {
     "online/rerun_log.py:RerunLogger": "viewer branch",
     "online/live_stream.py:StreamMonitor": "viewer branch",
-    "filters/svsf.py:SVSF": "filters/ branch",
     "filters/multiple_model.py:SMMSVSF": "filters/ branch",
     "filters/_base.py:CovarianceFilterBase": "filters/ branch",
     "online/monitor.py:ChatteringMonitor": "online/ modules stay whole this round",

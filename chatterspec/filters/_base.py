@@ -16,7 +16,7 @@ from . import _engine, _engine_numpy
 from ._ekf_measurement import ekf_h_numpy
 from ._finite import require_finite
 from .protocol import FilterOutput, FilterState, check_chunk, initial_state, resolve_store
-from .svsf import _rows_times
+from .svsf_steps import rows_times as _rows_times
 
 _MODEL_ATTRS = ("transition", "jacobian", "C", "Q", "R", "dt", "n_states", "n_outputs", "n_inputs")
 

@@ -46,7 +46,7 @@ from ._base import CovarianceFilterBase, check_model, is_linear
 from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets
 from ._luen import luen_correction, luen_first_order
 from .kalman import kalman_correct
-from .svsf import _reduced_order_transform
+from .svsf_coordinates import reduced_order_transform
 
 __all__ = ["Mapping", "SVSFCov", "mapping_matrix"]
 
@@ -100,7 +100,7 @@ def luen_transform(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             f"mapping='luen' needs n = 2m (Phi12 square and invertible, eq 10); C is {m}x{n}: "
             "use mapping='cov' or 'pinv'"
         )
-    return _reduced_order_transform(np.asarray(C, dtype=float))
+    return reduced_order_transform(np.asarray(C, dtype=float))
 
 
 def default_mapping(C: np.ndarray) -> str:
