@@ -33,6 +33,7 @@ __all__ = [
     "check_transition_matrix",
     "check_weight_floor",
     "initial_bank_state",
+    "initial_mode_probabilities",
     "mode_names",
 ]
 
@@ -68,6 +69,20 @@ def check_mode_probabilities(name: str, mu: object, r: int) -> np.ndarray:
     if not np.allclose(arr.sum(axis=-1), 1.0, rtol=0, atol=1e-9):
         raise ParameterError(f"{name} must sum to 1 over the modes; got sum {arr.sum(axis=-1)}")
     return np.array(arr, dtype=float)
+
+
+def initial_mode_probabilities(mu0: object | None, r: int) -> np.ndarray:
+    """A bank's ``mu0``: ``r`` probabilities (:func:`check_mode_probabilities`), uniform when None.
+
+    Raises
+    ------
+    ShapeError
+        Not of shape (r,) (one set for every realization).
+    """
+    mu = np.full(r, 1.0 / r) if mu0 is None else check_mode_probabilities("mu0", mu0, r)
+    if mu.ndim != 1:
+        raise ShapeError(f"mu0 must have shape ({r},); got {mu.shape}")
+    return mu
 
 
 def check_transition_matrix(pi: object, r: int) -> np.ndarray:

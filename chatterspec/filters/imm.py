@@ -19,7 +19,6 @@ import numpy as np
 
 from .. import _jit
 from .._repr import short_repr
-from ..errors import ShapeError
 from . import _imm_kernel
 from ._conventions import mode_initial
 from .bank_common import (
@@ -27,10 +26,10 @@ from .bank_common import (
     MultipleModelOutput,
     MultipleModelState,
     check_bank_models,
-    check_mode_probabilities,
     check_transition_matrix,
     check_weight_floor,
     initial_bank_state,
+    initial_mode_probabilities,
     mode_names,
 )
 from .bank_math import log_gaussian, normalize_log_weights
@@ -93,10 +92,7 @@ class IMM(BankFilter):
         r = len(filters)
         object.__setattr__(self, "filters", filters)
         object.__setattr__(self, "transition_matrix", check_transition_matrix(self.transition_matrix, r))
-        mu0 = np.full(r, 1.0 / r) if self.mu0 is None else check_mode_probabilities("mu0", self.mu0, r)
-        if mu0.ndim != 1:
-            raise ShapeError(f"mu0 must have shape ({r},); got {mu0.shape}")
-        object.__setattr__(self, "mu0", mu0)
+        object.__setattr__(self, "mu0", initial_mode_probabilities(self.mu0, r))
         object.__setattr__(self, "weight_floor", check_weight_floor(self.weight_floor, r))
         object.__setattr__(self, "modes", mode_names(self.modes, r))
         # arrays of the compiled fused step when every mode is supported (else the protocol path)

@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import _jit
 from .._repr import short_repr
-from ..errors import ParameterError, ShapeError
+from ..errors import ParameterError
 from ..plants.measurement import require_linear_measurement
 from . import _smm_kernel
 from .bank_common import (
@@ -28,15 +28,15 @@ from .bank_common import (
     MultipleModelOutput,
     MultipleModelState,
     check_bank_models,
-    check_mode_probabilities,
     check_weight_floor,
     initial_bank_state,
+    initial_mode_probabilities,
     mode_names,
 )
 from .bank_math import log_gaussian, normalize_log_weights
 from .mixture import combine
 from .protocol import FilterState
-from .svsf_cov import SVSFCov, check_gamma, default_mapping, mapping_matrix, per_channel
+from .svsf_cov import SVSFCov, check_gamma, check_psi, default_mapping, mapping_matrix
 
 __all__ = ["DEFAULT_WEIGHT_FLOOR", "SMMSVSF"]
 
@@ -113,18 +113,11 @@ class SMMSVSF(BankFilter):
         mapping = default_mapping(C) if self.mapping is None else self.mapping
         mapping_matrix(C, mapping)  # named error for an unusable mapping
         object.__setattr__(self, "mapping", mapping)
-        psi = per_channel("psi", self.psi, m, rule="the boundary layer")
-        if np.any(psi <= 0):
-            raise ParameterError(
-                f"psi must be > 0 (smoothing boundary layer, output units); got {psi.tolist()}"
-            )
+        psi = check_psi(self.psi, m)
         object.__setattr__(self, "psi", psi)
         object.__setattr__(self, "gamma", check_gamma(self.gamma, m))
         object.__setattr__(self, "weight_floor", check_weight_floor(self.weight_floor, r))
-        mu0 = np.full(r, 1.0 / r) if self.mu0 is None else check_mode_probabilities("mu0", self.mu0, r)
-        if mu0.ndim != 1:
-            raise ShapeError(f"mu0 must have shape ({r},); got {mu0.shape}")
-        object.__setattr__(self, "mu0", mu0)
+        object.__setattr__(self, "mu0", initial_mode_probabilities(self.mu0, r))
         object.__setattr__(self, "modes", mode_names(self.modes, r))
         # Table 1 steps 6-7b: one SVSF-cov (the modes share C and R) corrects the mixed prediction
         object.__setattr__(self, "_svsf", SVSFCov(models[0], psi=psi, gamma=self.gamma, mapping=mapping))
