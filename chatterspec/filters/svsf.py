@@ -50,6 +50,7 @@ from ._svsf_kernels import _closed_form_kernel, _svsf_kernel  # noqa: F401 - old
 from .svsf_coordinates import boundary_layer_inverse, svsf_coordinates
 from .svsf_coordinates import reduced_order_transform as _reduced_order_transform  # noqa: F401 - old path
 from .svsf_recursion import (
+    SVSFConstants,
     SVSFOutput,
     SVSFState,
     closed_form_errors,
@@ -116,7 +117,8 @@ class SVSF:
     _L: np.ndarray | None = field(init=False, repr=False)  # Phi22 Phi12^-1, (n-m, m)
     _P: np.ndarray | None = field(init=False, repr=False)  # Phi12^-1, (n-m, m)
     _inv_psi: np.ndarray | None = field(init=False, repr=False)
-    _kernel_consts: tuple = field(
+    _consts: SVSFConstants = field(init=False, repr=False)
+    _kernel_consts: SVSFConstants = field(
         init=False, repr=False
     )  # (PhiT, L, P, inv_psi, gamma, S_inv) for the kernel
 
@@ -139,7 +141,9 @@ class SVSF:
         n, m = self.model.n_states, self.model.n_outputs
         inv_psi = boundary_layer_inverse(self.switching, self.psi, self.psi_lower, n, m)
         object.__setattr__(self, "_inv_psi", inv_psi)
-        consts = kernel_constants(self._PhiT, L, P, inv_psi, self.gamma, S_inv)
+        consts = SVSFConstants(self._PhiT, L, P, inv_psi, self.gamma, S_inv)
+        object.__setattr__(self, "_consts", consts)
+        consts = kernel_constants(consts)
         object.__setattr__(self, "_kernel_consts", consts)
 
     # ------------------------------------------------------------------ API
@@ -264,10 +268,7 @@ class SVSF:
             return compiled_recursion(
                 self._kernel_consts, state, z, Gu, store_states, store_post_error, store_lower
             )
-        PhiT, L, P, inv_psi, S_inv = self._PhiT, self._L, self._P, self._inv_psi, self._S_inv
-        return numpy_recursion(
-            PhiT, L, P, inv_psi, self.gamma, S_inv, state, z, Gu, store_states, store_post_error, store_lower
-        )
+        return numpy_recursion(self._consts, state, z, Gu, store_states, store_post_error, store_lower)
 
     def run(
         self,

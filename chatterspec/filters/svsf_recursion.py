@@ -10,9 +10,8 @@ gives the same bits for any chunking:
   (the fallback without numba; BLAS orders the sums of its matrix products differently, so it
   agrees with the compiled kernel to rounding, 1e-12 of the measurement scale).
 
-The filter's constants are in measurement-aligned coordinates ``y = S x`` (see
-:mod:`chatterspec.filters.svsf_coordinates`): ``PhiT`` = Phi^T, ``L`` = Phi22 Phi12^-1 and ``P`` =
-Phi12^-1 (None for full measurement), ``inv_psi`` = 1/psi (None for ``sgn``).
+The filter's constants (:class:`SVSFConstants`) are in measurement-aligned coordinates ``y = S x``
+(see :mod:`chatterspec.filters.svsf_coordinates`).
 
 See Also
 --------
@@ -22,6 +21,7 @@ chatterspec.filters.svsf_steps : the per-sample steps the compiled paths are bui
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -31,6 +31,7 @@ from ._svsf_kernels import _closed_form_kernel, _svsf_kernel
 from .svsf_steps import rows_times, switch
 
 __all__ = [
+    "SVSFConstants",
     "SVSFOutput",
     "SVSFState",
     "closed_form_errors",
@@ -94,13 +95,35 @@ class SVSFOutput:
     e_lower: np.ndarray | None = None
 
 
+class SVSFConstants(NamedTuple):
+    """The SVSF's constants in measurement-aligned coordinates ``y = S x`` (eq 4-12).
+
+    Attributes
+    ----------
+    PhiT : (n, n) array
+        ``Phi^T``, ``Phi = S A S^-1``.
+    L : (n - m, m) array or None
+        ``Phi22 Phi12^-1`` (eq 10); None for full measurement.
+    P : (n - m, m) array or None
+        ``Phi12^-1``; None for full measurement.
+    inv_psi : (m,) or (n,) array or None
+        ``1 / psi`` (measured first); None for ``sgn``.
+    gamma : float
+        Convergence rate (eq 8).
+    S_inv : (n, n) array
+        Maps ``y`` to ``x``.
+    """
+
+    PhiT: np.ndarray
+    L: np.ndarray | None
+    P: np.ndarray | None
+    inv_psi: np.ndarray | None
+    gamma: float
+    S_inv: np.ndarray
+
+
 def numpy_recursion(
-    PhiT: np.ndarray,
-    L: np.ndarray | None,
-    P: np.ndarray | None,
-    inv_psi: np.ndarray | None,
-    gamma: float,
-    S_inv: np.ndarray,
+    consts: SVSFConstants,
     state: SVSFState,
     z: np.ndarray,
     Gu: np.ndarray,
@@ -112,8 +135,8 @@ def numpy_recursion(
 
     Parameters
     ----------
-    PhiT, L, P, inv_psi, gamma, S_inv
-        The filter's constants (see the module docstring); ``S_inv`` (n, n) maps ``y`` to ``x``.
+    consts : SVSFConstants
+        The filter's constants.
     state : SVSFState
         State after sample ``k``.
     z : (runs, K, m) float array
@@ -131,6 +154,7 @@ def numpy_recursion(
     --------
     compiled_recursion : the same recursion in the compiled kernel.
     """
+    PhiT, L, P, inv_psi, gamma, S_inv = consts
     runs, K, m = z.shape
     n = PhiT.shape[0]
     # time-major working copies
@@ -208,7 +232,7 @@ def numpy_recursion(
 
 
 def compiled_recursion(
-    consts: tuple,
+    consts: SVSFConstants,
     state: SVSFState,
     z: np.ndarray,
     Gu: np.ndarray,
@@ -220,9 +244,8 @@ def compiled_recursion(
 
     Parameters
     ----------
-    consts : tuple
-        ``(PhiT, L, P, inv_psi, gamma, S_inv)`` as C-contiguous float arrays, empty arrays standing
-        for None (the filter's kernel constants; see :mod:`chatterspec._jit`).
+    consts : SVSFConstants
+        As :func:`kernel_constants` returns them (C-contiguous float arrays, empty for None).
     state, z, Gu, store_states, store_post_error, store_lower
         As :func:`numpy_recursion`.
 
@@ -345,31 +368,25 @@ def closed_form_errors(
     return new_state, SVSFOutput(e_prior=e, x_post=x_post, e_post=e_post)
 
 
-def kernel_constants(
-    PhiT: np.ndarray,
-    L: np.ndarray | None,
-    P: np.ndarray | None,
-    inv_psi: np.ndarray | None,
-    gamma: float,
-    S_inv: np.ndarray,
-) -> tuple:
-    """``(PhiT, L, P, inv_psi, gamma, S_inv)`` as the compiled kernel takes them.
+def kernel_constants(consts: SVSFConstants) -> SVSFConstants:
+    """The constants as the compiled kernel takes them.
 
     C-contiguous float arrays (one compiled specialization serves every call), empty arrays for
     None (:mod:`chatterspec._jit` kernels take no None).
 
     Parameters
     ----------
-    PhiT, L, P, inv_psi, gamma, S_inv
-        The filter's constants (see the module docstring).
+    consts : SVSFConstants
+        The filter's constants.
 
     Returns
     -------
-    tuple
-        What :func:`compiled_recursion` takes as ``consts``.
+    SVSFConstants
+        What :func:`compiled_recursion` takes.
     """
+    PhiT, L, P, inv_psi, gamma, S_inv = consts
     c, empty2 = np.ascontiguousarray, np.empty((0, 0))
-    return (
+    return SVSFConstants(
         c(PhiT, dtype=float),
         empty2 if L is None else c(L, dtype=float),
         empty2 if P is None else c(P, dtype=float),
