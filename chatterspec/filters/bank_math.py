@@ -18,10 +18,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import SingularMatrixError
+from ._engine import LOG2PI
 
 __all__ = ["EIG_FLOOR", "LOG2PI", "log_gaussian", "normalize_log_weights", "pairwise_spread"]
 
-LOG2PI = float(np.log(2.0 * np.pi))
 #: Eigenvalue floor of the correlation-scaled innovation covariance (``docs/design.md`` S3).
 EIG_FLOOR = 1e-12
 
