@@ -153,12 +153,12 @@ def test_unknown_keyword_raises_type_error(label: str, call: Callable[[], object
 
 # Public names still without a docstring, in modules edited on other branches this round.
 UNDOCUMENTED = {
-    "chatterspec.online.live_stream.StreamEvent.to_dict",
-    "chatterspec.online.live_stream.StreamEvent.describe",
-    "chatterspec.online.live_stream.StreamSummary.to_dict",
-    "chatterspec.online.viewer.Sinks.streams",
-    "chatterspec.online.viewer.Sinks.live",
-    "chatterspec.online.viewer.Sinks.send_blueprint",
+    "chatterspec.viewer.live_stream.StreamEvent.to_dict",
+    "chatterspec.viewer.live_stream.StreamEvent.describe",
+    "chatterspec.viewer.live_stream.StreamSummary.to_dict",
+    "chatterspec.viewer.sinks.Sinks.streams",
+    "chatterspec.viewer.sinks.Sinks.live",
+    "chatterspec.viewer.sinks.Sinks.send_blueprint",
 }
 
 
