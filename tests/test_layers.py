@@ -33,15 +33,6 @@ FACADE = {"chatterspec", "chatterspec.__main__"}
 # (importer, imported module), both without the leading ``chatterspec.`` -> why the edge is still
 # there. Each entry breaks one rule (named first); fix the code and delete the entry.
 ALLOWED: dict[tuple[str, str], str] = {
-    # filters/ and the Rerun loggers are edited on other branches this round; these wait for them:
-    # svsf.chattering() defers to nonlinear_svsf, which takes check_chunk from svsf (a circle).
-    ("filters.svsf", "filters.nonlinear_svsf"): "circle",
-    # The SVSF's compiled steps and _rows_times need public names in filters/ (the fused chattering
-    # loop and the monitor's push kernels call them).
-    ("detection.pipeline", "filters._svsf_kernels"): "private: closed_form_step",
-    ("detection.pipeline", "filters.svsf"): "private: _rows_times",
-    ("online._push_kernels", "filters._svsf_kernels"): "private: svsf_step and its helpers",
-    ("online.monitor", "filters.svsf"): "private: _rows_times",
     # The old import path of the Monte Carlo studies moved to studies/ (resolved on first access).
     ("filters.boundary_layer", "studies.boundary_layer"): "upward: compatibility",
 }

@@ -15,9 +15,10 @@ import numpy as np
 from .. import _jit
 from .._repr import short_repr
 from .._validate import positive_int
-from ..filters._svsf_kernels import closed_form_step
 from ..filters.nonlinear_svsf import nonlinear_chattering
-from ..filters.svsf import _rows_times, auxiliary_svsf
+from ..filters.svsf import auxiliary_svsf
+from ..filters.svsf_steps import closed_form_step
+from ..filters.svsf_steps import rows_times as _rows_times
 from ..plants.models import LinearModel
 from ..plants.nonlinear import is_linear, require_linear
 from ..plants.scenarios import Scenario

@@ -1,10 +1,13 @@
 """State estimators.
 
-``svsf`` holds the SVSF of eq 4-12 and its auxiliary sgn variant. ``protocol`` defines the
-one interface of the covariance-carrying filters (state, per-sample output, ``initialize /
-update / run``); ``kalman`` (KF, EKF), ``svsf_cov`` (SVSF with covariance, [SMM] eq 2.1-2.10)
-and ``svsf2`` (dynamic second-order SVSF, [DETC] eq 5-24) implement it; ``multiple_model``
-builds SMM-SVSF ([SMM] eq 3.1-3.5) and IMM ([IMM] eq 15-33) banks from them.
+``svsf`` holds the SVSF of eq 4-12 and its auxiliary sgn variant (its per-sample steps in
+``svsf_steps``, its coordinates and boundary layer in ``svsf_coordinates``, its update paths in
+``svsf_recursion``). ``protocol`` defines the one interface of the covariance-carrying filters
+(state, per-sample output, ``initialize / update / run``); ``kalman`` (KF, EKF), ``svsf_cov`` (SVSF
+with covariance, [SMM] eq 2.1-2.10) and ``svsf2`` (dynamic second-order SVSF, [DETC] eq 5-24)
+implement it; ``smm_svsf`` (SMM-SVSF, [SMM] eq 3.1-3.5) and ``imm`` (IMM, [IMM] eq 15-33) build
+banks from them (``multiple_model`` gathers both; ``bank_common`` and ``bank_math`` hold what they
+share).
 """
 
 import importlib
@@ -14,7 +17,8 @@ from typing import TYPE_CHECKING, Any
 # ``filters.svsf``) does not import the Kalman family and the multiple-model banks.
 _LAZY: dict[str, str] = {
     **dict.fromkeys(("ExtendedKalmanFilter", "KalmanFilter"), ".kalman"),
-    **dict.fromkeys(("IMM", "SMMSVSF"), ".multiple_model"),
+    "IMM": ".imm",
+    "SMMSVSF": ".smm_svsf",
     **dict.fromkeys(("Filter", "FilterOutput", "FilterState"), ".protocol"),
     **dict.fromkeys(
         ("SVSF", "SVSFOutput", "SVSFState", "auxiliary_svsf", "boundary_layer_chattering", "chattering"),
@@ -25,9 +29,10 @@ _LAZY: dict[str, str] = {
 }
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
+    from .imm import IMM
     from .kalman import ExtendedKalmanFilter, KalmanFilter
-    from .multiple_model import IMM, SMMSVSF
     from .protocol import Filter, FilterOutput, FilterState
+    from .smm_svsf import SMMSVSF
     from .svsf import SVSF, SVSFOutput, SVSFState, auxiliary_svsf, boundary_layer_chattering, chattering
     from .svsf2 import SecondOrderSVSF
     from .svsf_cov import SVSFCov

@@ -12,13 +12,12 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _jit
-from ._engine import chol_solve_step, chol_step, given_jacobian, given_predict
+from ._engine import LOG2PI, chol_solve_step, chol_step, given_jacobian, given_predict
+from .bank_math import EIG_FLOOR
 
 #: Lower bound of the smallest eigenvalue of Sc above which the Cholesky likelihood is used.
 CHOL_SAFE = 1e-10
-EIG_FLOOR = 1e-12
 _TINY = float(np.finfo(float).tiny)
-_LOG2PI = 1.8378770664093453
 
 
 @_jit.step
@@ -84,7 +83,7 @@ def _log_gaussian(e, S, m, Sc, L, ec, col, tmp):  # type: ignore[no-untyped-def]
                 p += V[i, j] * ec[i]
             quad += p * p / wj
             logdet += np.log(wj)
-    return -0.5 * (quad + logdet + 2.0 * logd + m * _LOG2PI)
+    return -0.5 * (quad + logdet + 2.0 * logd + m * LOG2PI)
 
 
 #: :func:`_log_gaussian` as a compiled function (not inlined).

@@ -14,9 +14,10 @@ from ..plants.models import LinearModel
 from ..plants.steps import PlantSteps, plant_steps
 from . import _engine, _engine_numpy
 from ._ekf_measurement import ekf_h_numpy
+from ._engine_numpy import model_call_loop
 from ._finite import require_finite
 from .protocol import FilterOutput, FilterState, check_chunk, initial_state, resolve_store
-from .svsf import _rows_times
+from .svsf_steps import rows_times as _rows_times
 
 _MODEL_ATTRS = ("transition", "jacobian", "C", "Q", "R", "dt", "n_states", "n_outputs", "n_inputs")
 
@@ -169,31 +170,7 @@ class CovarianceFilterBase:
         if self._linear:
             Bu = _rows_times(u, np.ascontiguousarray(model.B.T))  # type: ignore[attr-defined]
             return P, _engine_numpy.cov_numpy(corr, x, P, ep, epp, z, C, Q, R, keep, A=model.A, Bu=Bu)  # type: ignore[attr-defined]
-        steps = []
-        shared_u = u.shape[0] == 1
-        for k in range(z.shape[1]):
-            # one input for every run as (p,), so a model's compiled batched kernel applies (eha4)
-            uk = u[0, k] if shared_u else u[:, k]
-            xp = np.asarray(model.transition(x, uk), dtype=float)  # type: ignore[attr-defined]
-            F = np.asarray(model.jacobian(x, uk), dtype=float)  # type: ignore[attr-defined]
-            if xp.shape != x.shape or F.shape != (*x.shape, x.shape[1]):
-                raise ShapeError(
-                    f"model.transition/jacobian must return {x.shape} and {(*x.shape, x.shape[1])}; "
-                    f"got {xp.shape} and {F.shape}"
-                )
-            F = np.broadcast_to(F, (*x.shape, x.shape[1]))
-            zk, given = z[:, k : k + 1], {"xp_in": xp, "F_in": F}
-            if compiled:
-                steps.append(
-                    _engine.cov_loop(corr, None, x, P, ep, epp, zk, u[:, k : k + 1], C, Q, R, keep, **given)
-                )
-            else:
-                steps.append(_engine_numpy.cov_numpy(corr, x, P, ep, epp, zk, C, Q, R, keep, **given))
-        res = {
-            f: (None if steps[0][f] is None else np.concatenate([s[f] for s in steps], axis=1))
-            for f in steps[0]
-        }
-        return P, res
+        return P, model_call_loop(model, corr, compiled, x, P, ep, epp, z, u, C, Q, R, keep)
 
     def correct(
         self,

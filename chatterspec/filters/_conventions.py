@@ -30,6 +30,7 @@ __all__ = [
     "BANK_STORABLE",
     "SVSF_STORABLE",
     "bank_store",
+    "check_chunk",
     "default_input",
     "legacy_store",
     "mode_initial",
@@ -205,3 +206,34 @@ def mode_initial(
         return np.array(xs), np.array(Ps), x, P
     xc, Pc = combine(mu, xs, Ps)
     return np.array(xs), np.array(Ps), xc, Pc  # type: ignore[return-value]
+
+
+def check_chunk(
+    z: np.ndarray, u: np.ndarray, runs: int, m: int, p: int, check: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Measurements ``z`` as (runs, K, m) and inputs ``u`` as (K, p) or (runs, K, p) of an SVSF update.
+
+    Shared by the linear and the nonlinear chattering SVSF (their ``update`` takes the same chunk).
+
+    Validates finiteness when ``check``; a 2-D ``z`` is one run, a 1-D ``u`` one input channel.
+
+    Raises
+    ------
+    ShapeError
+        Shapes that do not match the filter.
+    NonFiniteError
+        NaN or inf (with ``check``).
+    """
+    if check:
+        z = finite_array("z", z, ndim=(2, 3))
+        u = finite_array("u", u, ndim=(1, 2, 3))
+    if z.ndim == 2:
+        z = z[None]
+    if z.shape[0] != runs or z.shape[2] != m:
+        raise ShapeError(f"z must have shape ({runs}, K, {m}); got {z.shape}")
+    K = z.shape[1]
+    if u.ndim == 1:
+        u = u[:, None]
+    if u.shape[-2] != K or u.shape[-1] != p or (u.ndim == 3 and u.shape[0] not in (1, runs)):
+        raise ShapeError(f"u must have shape ({K}, {p}) or ({runs}, {K}, {p}); got {u.shape}")
+    return z, u

@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import SingularMatrixError
+from ..errors import ShapeError, SingularMatrixError
+from . import _engine
 from ._engine import FIELDS, LOG2PI, MAP_COV, CorrectionStep, _alloc, _not_pd_message, _shapes
 
-__all__ = ["chol_np", "cov_numpy", "kalman_gain_numpy", "map_numpy"]
+__all__ = ["chol_np", "cov_numpy", "kalman_gain_numpy", "map_numpy", "model_call_loop"]
 
 
 def chol_np(M: np.ndarray, mapping: int) -> np.ndarray:
@@ -91,3 +92,55 @@ def cov_numpy(
             if flag:
                 out[f][:, k] = val
     return {f: (out[f] if f in keep else None) for f in FIELDS}
+
+
+def model_call_loop(
+    model: object,
+    corr: CorrectionStep,
+    compiled: bool,
+    x: np.ndarray,
+    P: np.ndarray,
+    ep: np.ndarray,
+    epp: np.ndarray,
+    z: np.ndarray,
+    u: np.ndarray,
+    C: np.ndarray,
+    Q: np.ndarray,
+    R: np.ndarray,
+    keep: frozenset[str],
+) -> dict[str, np.ndarray | None]:
+    """The step for a model without compiled plant steps: its ``transition``/``jacobian`` per sample.
+
+    Each sample's prediction comes from the model's Python methods; the rest of the step is the
+    compiled loop (``compiled``, one sample at a time) or :func:`cov_numpy`. ``x``, ``P``, ``ep``,
+    ``epp`` are updated in place; the outputs of every sample are concatenated along axis 1.
+
+    Raises
+    ------
+    ShapeError
+        ``transition`` or ``jacobian`` returned the wrong shape.
+    """
+    steps = []
+    shared_u = u.shape[0] == 1
+    for k in range(z.shape[1]):
+        # one input for every run as (p,), so a model's compiled batched kernel applies (eha4)
+        uk = u[0, k] if shared_u else u[:, k]
+        xp = np.asarray(model.transition(x, uk), dtype=float)  # type: ignore[attr-defined]
+        F = np.asarray(model.jacobian(x, uk), dtype=float)  # type: ignore[attr-defined]
+        if xp.shape != x.shape or F.shape != (*x.shape, x.shape[1]):
+            raise ShapeError(
+                f"model.transition/jacobian must return {x.shape} and {(*x.shape, x.shape[1])}; "
+                f"got {xp.shape} and {F.shape}"
+            )
+        F = np.broadcast_to(F, (*x.shape, x.shape[1]))
+        zk, given = z[:, k : k + 1], {"xp_in": xp, "F_in": F}
+        if compiled:
+            steps.append(
+                _engine.cov_loop(corr, None, x, P, ep, epp, zk, u[:, k : k + 1], C, Q, R, keep, **given)
+            )
+        else:
+            steps.append(cov_numpy(corr, x, P, ep, epp, zk, C, Q, R, keep, **given))
+    res = {
+        f: (None if steps[0][f] is None else np.concatenate([s[f] for s in steps], axis=1)) for f in steps[0]
+    }
+    return res

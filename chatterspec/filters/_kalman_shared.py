@@ -15,7 +15,7 @@ from .. import _jit
 from ..plants.linear_steps import parameters, predict_step
 from ._engine import FIELDS, LOG2PI, MAP_CONST, _alloc, gain_update_step, residual_step, store_step
 from ._engine_numpy import chol_np as _chol_np
-from ._svsf_kernels import _rows_times
+from .svsf_steps import rows_times as _rows_times
 
 #: Sizes of :func:`_kf_shared_loop`, bound per model by :func:`_kf_shared_kernel` (0: read from the arrays).
 NX = NZ = 0

@@ -43,10 +43,9 @@ from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.measurement import require_linear_measurement
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel
-from ._conventions import legacy_store
+from ._conventions import check_chunk, legacy_store
 from ._finite import require_finite
-from ._svsf_kernels import _rows_times
-from .svsf import check_chunk
+from .svsf_steps import rows_times as _rows_times
 
 __all__ = ["NonlinearSVSFOutput", "NonlinearSVSFState", "NonlinearSgnSVSF", "nonlinear_chattering"]
 

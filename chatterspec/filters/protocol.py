@@ -170,7 +170,13 @@ class Filter(Protocol):
         runs: int | None = None,
         e0: np.ndarray | None = None,
         e_prev0: np.ndarray | None = None,
-    ) -> FilterState: ...
+    ) -> FilterState:
+        """State at k = 0: ``x(0|0) = x0``, ``P(0|0) = P0`` (SPD), residuals ``e0``, ``e_prev0`` (default 0).
+
+        ``x0`` is (n,) or (runs, n), ``P0`` (n, n) or (runs, n, n); ``runs`` gives the number of
+        realizations when ``x0`` is shared.
+        """
+        ...
 
     def update(
         self,
@@ -180,7 +186,14 @@ class Filter(Protocol):
         *,
         store: Collection[str] | None = None,
         check: bool = True,
-    ) -> tuple[FilterState, FilterOutput]: ...
+    ) -> tuple[FilterState, FilterOutput]:
+        """Advance every realization over K samples: ``z`` (runs, K, m) = ``z(k+1) .. z(k+K)``.
+
+        ``state`` is the posterior after sample k; ``u`` (K, p) or (runs, K, p) drives
+        ``x(k) -> x(k+1)`` (None: no input); ``store`` names the output fields to keep; ``check``
+        validates finiteness. K = 1 (online) and K = T (batch) give the same numbers.
+        """
+        ...
 
     def run(
         self,
@@ -190,7 +203,12 @@ class Filter(Protocol):
         x0: np.ndarray,
         P0: np.ndarray,
         store: Collection[str] | None = None,
-    ) -> FilterOutput: ...
+    ) -> FilterOutput:
+        """Filter whole records: :meth:`initialize` at ``(x0, P0)`` then one :meth:`update` over ``z``, ``u``.
+
+        ``store`` as in :meth:`update`; sample j of the output belongs to time j + 1.
+        """
+        ...
 
     def correct(
         self,
@@ -200,7 +218,13 @@ class Filter(Protocol):
         z: np.ndarray,
         *,
         store: Collection[str] | None = None,
-    ) -> tuple[FilterState, FilterOutput]: ...
+    ) -> tuple[FilterState, FilterOutput]:
+        """Measurement update only, from the caller's prior ``x_prior`` (runs, n), ``P_prior`` and ``z(k+1)``.
+
+        The residual memory and ``k`` come from ``state``; ``store`` as in :meth:`update`. For
+        banks that mix predictions ([SMM] Table 1).
+        """
+        ...
 
 
 # ---------------------------------------------------------------------- shared validation helpers
@@ -233,18 +257,30 @@ def resolve_store(store: Collection[str] | None) -> frozenset[str]:
     return keep
 
 
-def initial_state(
-    model: object,
-    x0: object,
-    P0: object,
-    *,
-    runs: int | None,
-    e0: object | None,
-    e_prev0: object | None,
-    shared_ok: bool,
-) -> FilterState:
-    """Validated :class:`FilterState` at k = 0 (initial residuals default to 0, ``docs/design.md`` §7.2)."""
-    n, m = model.n_states, model.n_outputs  # type: ignore[attr-defined]
+def initial_estimate(n: int, x0: object, P0: object, runs: int | None) -> tuple[int, np.ndarray, np.ndarray]:
+    """``(runs, x, P0)`` from a filter's or bank's ``initialize`` arguments, checked.
+
+    Parameters
+    ----------
+    n : int
+        Number of states.
+    x0 : (n,) or (runs, n) array_like
+        Initial estimate.
+    P0 : (n, n) or (runs, n, n) array_like
+        Initial covariance, symmetric positive definite.
+    runs : int or None
+        Number of realizations (None: rows of ``x0``, or 1).
+
+    Returns
+    -------
+    (int, (runs, n) array, (n, n) or (runs, n, n) array)
+        ``x`` broadcast to every run; ``P0`` as given (float), not yet broadcast.
+
+    Raises
+    ------
+    ShapeError, ParameterError, NonFiniteError
+        Wrong shapes, ``runs`` not an integer >= 1, ``P0`` not SPD, NaN or inf.
+    """
     x0 = finite_array("x0", x0, ndim=(1, 2))
     if x0.shape[-1] != n:
         raise ShapeError(f"x0 must have {n} entries per run; got shape {x0.shape}")
@@ -260,6 +296,22 @@ def initial_state(
     if P0.shape[-2:] != (n, n) or (P0.ndim == 3 and P0.shape[0] not in (1, runs)):
         raise ShapeError(f"P0 must have shape ({n}, {n}) or ({runs}, {n}, {n}); got {P0.shape}")
     check_spd("P0", P0)
+    return runs, x, P0
+
+
+def initial_state(
+    model: object,
+    x0: object,
+    P0: object,
+    *,
+    runs: int | None,
+    e0: object | None,
+    e_prev0: object | None,
+    shared_ok: bool,
+) -> FilterState:
+    """Validated :class:`FilterState` at k = 0 (initial residuals default to 0, ``docs/design.md`` §7.2)."""
+    n, m = model.n_states, model.n_outputs  # type: ignore[attr-defined]
+    runs, x, P0 = initial_estimate(n, x0, P0, runs)
     if P0.ndim == 2 and shared_ok:
         P = np.array(P0, dtype=float)
     else:

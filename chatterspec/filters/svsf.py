@@ -42,11 +42,25 @@ import numpy as np
 from .. import _jit
 from .._repr import short_repr
 from .._validate import finite_array, open_unit
-from ..errors import ParameterError, ShapeError, SingularMatrixError
+from ..errors import ParameterError, ShapeError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
-from ._conventions import svsf_store
-from ._svsf_kernels import _closed_form_kernel, _rows_times, _svsf_kernel, _switch
+from ._conventions import check_chunk, svsf_store
+from ._svsf_kernels import _closed_form_kernel, _svsf_kernel  # noqa: F401 - old import path (tests)
+from .svsf_coordinates import boundary_layer_inverse, svsf_coordinates
+from .svsf_coordinates import reduced_order_transform as _reduced_order_transform  # noqa: F401 - old path
+from .svsf_recursion import (
+    SVSFConstants,
+    SVSFOutput,
+    SVSFState,
+    closed_form_errors,
+    compiled_recursion,
+    kernel_constants,
+    numpy_recursion,
+    with_initial,
+)
+from .svsf_steps import rows_times as _rows_times
+from .svsf_steps import switch as _switch  # noqa: F401 - old import path
 
 __all__ = [
     "SVSF",
@@ -58,58 +72,6 @@ __all__ = [
 ]
 
 Switching = Literal["sat", "sgn"]
-
-
-@dataclass(frozen=True, eq=False)
-class SVSFState:
-    """Filter state between chunks.
-
-    Attributes
-    ----------
-    y : (runs, n) array
-        A-posteriori estimate in measurement-aligned coordinates (``x = S^-1 y``).
-    e_post : (runs, m) array
-        A-posteriori output error ``e(k|k)``.
-    k : int
-        Index of the last processed sample.
-    """
-
-    y: np.ndarray
-    e_post: np.ndarray
-    k: int
-
-    @property
-    def runs(self) -> int:
-        return self.y.shape[0]
-
-
-@dataclass(frozen=True, eq=False)
-class SVSFOutput:
-    """Per-sample outputs of one :meth:`SVSF.update` call, shapes ``(runs, K, .)``.
-
-    ``e_prior`` is ``e(k|k-1)`` (the auxiliary filter's chattering, eq 17);
-    ``x_post``, ``e_post`` and (reduced-order only) ``e_lower`` =
-    ``Phi22 Phi12^-1 e(k|k-1)``, the argument of the unmeasured states' switching
-    term (eq 10, 28), are filled only when requested.
-
-    Attributes
-    ----------
-    e_prior : (runs, K, m) array
-        A-priori output error ``e(k|k-1)`` (the chattering of the ``sgn`` filter, eq 17).
-    x_post : (runs, K, n) array or None
-        Posterior estimate ``x(k|k)`` (when requested).
-    e_post : (runs, K, m) array or None
-        A-posteriori output error ``e(k|k)`` (when requested).
-    e_lower : (runs, K, n - m) array or None
-        ``Phi22 Phi12^-1 e(k|k-1)`` of the reduced-order filter (when requested).
-    """
-
-    __repr__ = short_repr  # shapes and key figures, never whole arrays
-
-    e_prior: np.ndarray
-    x_post: np.ndarray | None = None
-    e_post: np.ndarray | None = None
-    e_lower: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -155,7 +117,8 @@ class SVSF:
     _L: np.ndarray | None = field(init=False, repr=False)  # Phi22 Phi12^-1, (n-m, m)
     _P: np.ndarray | None = field(init=False, repr=False)  # Phi12^-1, (n-m, m)
     _inv_psi: np.ndarray | None = field(init=False, repr=False)
-    _kernel_consts: tuple = field(
+    _consts: SVSFConstants = field(init=False, repr=False)
+    _kernel_consts: SVSFConstants = field(
         init=False, repr=False
     )  # (PhiT, L, P, inv_psi, gamma, S_inv) for the kernel
 
@@ -167,73 +130,21 @@ class SVSF:
         object.__setattr__(self, "gamma", open_unit("gamma", self.gamma))
         if self.switching not in ("sat", "sgn"):
             raise ParameterError(f"switching must be 'sat' or 'sgn'; got {self.switching!r}")
-        model = self.model
-        n, m = model.n_states, model.n_outputs
-        if model.full_measurement:
-            S = model.C.copy()
-            S_inv = model.C_inv
-        elif m == n:
-            raise SingularMatrixError("C is square but singular: the SVSF needs C^-1 (eq 8)")
-        else:
-            S, S_inv = _reduced_order_transform(model.C)
-        Phi = S @ model.A @ S_inv
-        G = S @ model.B
-        L = P = None
-        if m < n:
-            Phi12, Phi22 = Phi[:m, m:], Phi[m:, m:]
-            if np.linalg.matrix_rank(Phi12) < n - m:
-                raise SingularMatrixError(
-                    f"reduced-order SVSF needs Phi12 ({m}x{n - m}) of full column rank "
-                    f"{n - m} (eq 10): the unmeasured states must drive the measured ones "
-                    "(and n - m <= m)"
-                )
-            P = np.linalg.pinv(Phi12)
-            L = Phi22 @ P
+        coords = svsf_coordinates(self.model)
+        S, S_inv, L, P = coords.S, coords.S_inv, coords.L, coords.P
         object.__setattr__(self, "_S", S)
         object.__setattr__(self, "_S_inv", S_inv)
-        object.__setattr__(self, "_PhiT", np.ascontiguousarray(Phi.T))
-        object.__setattr__(self, "_GT", np.ascontiguousarray(G.T))
+        object.__setattr__(self, "_PhiT", np.ascontiguousarray(coords.Phi.T))
+        object.__setattr__(self, "_GT", np.ascontiguousarray(coords.G.T))
         object.__setattr__(self, "_L", L)
         object.__setattr__(self, "_P", P)
-        object.__setattr__(self, "_inv_psi", self._boundary_layer_inverse())
-        # C-contiguous float constants of the compiled kernel (one specialization serves every call)
-        c, empty2 = np.ascontiguousarray, np.empty((0, 0))
-        consts = (
-            c(self._PhiT, dtype=float),
-            empty2 if L is None else c(L, dtype=float),
-            empty2 if P is None else c(P, dtype=float),
-            np.empty(0) if self._inv_psi is None else c(self._inv_psi, dtype=float),
-            float(self.gamma),
-            c(S_inv, dtype=float),
-        )
-        object.__setattr__(self, "_kernel_consts", consts)
-
-    def _boundary_layer_inverse(self) -> np.ndarray | None:
-        if self.switching == "sgn":
-            return None
         n, m = self.model.n_states, self.model.n_outputs
-        if self.psi is None:
-            raise ParameterError("psi (smoothing boundary layer) is required for switching='sat'")
-        psi = np.atleast_1d(finite_array("psi", self.psi, ndim=(0, 1)))
-        if psi.size == 1:
-            psi = np.full(m, psi[0])
-        if m < n:
-            if psi.size == m:
-                lower = self.psi_lower
-                if lower is None:
-                    raise ParameterError(
-                        "the reduced-order SVSF needs psi for all n states, or psi_lower for "
-                        "the unmeasured ones"
-                    )
-                lower = np.atleast_1d(finite_array("psi_lower", lower, ndim=(0, 1)))
-                psi = np.concatenate([psi, np.broadcast_to(lower, (n - m,))])
-            if psi.size != n:
-                raise ShapeError(f"psi must have 1, {m} or {n} entries; got {psi.size}")
-        elif psi.size != m:
-            raise ShapeError(f"psi must have 1 or {m} entries; got {psi.size}")
-        if np.any(psi <= 0):
-            raise ParameterError(f"psi must be > 0 (smoothing boundary layer); got {psi.tolist()}")
-        return 1.0 / psi
+        inv_psi = boundary_layer_inverse(self.switching, self.psi, self.psi_lower, n, m)
+        object.__setattr__(self, "_inv_psi", inv_psi)
+        consts = SVSFConstants(self._PhiT, L, P, inv_psi, self.gamma, S_inv)
+        object.__setattr__(self, "_consts", consts)
+        consts = kernel_constants(consts)
+        object.__setattr__(self, "_kernel_consts", consts)
 
     # ------------------------------------------------------------------ API
     @property
@@ -351,181 +262,13 @@ class SVSF:
         for both its filters (same model, same G): the numbers are those of :meth:`update`.
         """
         m, n = self.model.n_outputs, self.model.n_states
-        runs, K = z.shape[0], z.shape[1]
         if closed_form and self._inv_psi is None and self._L is None and not state.e_post.any():
-            return self._update_closed_form(state, z, Gu, store_states, store_post_error)
+            return closed_form_errors(self._PhiT, self._S_inv, state, z, Gu, store_states, store_post_error)
         if _jit.enabled() and _jit.fits(n, m, vectors_only=True):
-            return self._update_compiled(state, z, Gu, store_states, store_post_error, store_lower)
-        # time-major working copies
-        zt = np.ascontiguousarray(np.swapaxes(z, 0, 1))  # (K, runs, m)
-        if Gu.ndim == 3:
-            Gu = np.ascontiguousarray(np.swapaxes(np.broadcast_to(Gu, (runs, K, n)), 0, 1))
-        e_out = np.empty((K, runs, m))
-        x_out = np.empty((K, runs, n)) if store_states else None
-        ep_out = np.empty((K, runs, m)) if store_post_error else None
-        lower_out = np.empty((K, runs, n - m)) if (store_lower and n > m) else None
-
-        PhiT, gamma = self._PhiT, self.gamma
-        inv_psi = self._inv_psi
-        inv_psi_u = None if inv_psi is None else inv_psi[:m]
-        inv_psi_l = None if inv_psi is None else inv_psi[m:]
-        reduced = self._L is not None
-        LT = None if self._L is None else np.ascontiguousarray(self._L.T)
-        PT = None if self._P is None else np.ascontiguousarray(self._P.T)
-        S_invT = np.ascontiguousarray(self._S_inv.T)
-        shared_input = Gu.ndim == 2
-        # y_aug = [y, 1] and W = [[Phi^T], [G u(k)]] fold the input into one matmul
-        # (a broadcast add over a 3-wide inner axis costs ~3x a small matmul).
-        y_aug = np.empty((runs, n + 1))
-        y_aug[:, n] = 1.0
-        y_aug[:, :n] = state.y
-        y = y_aug[:, :n]
-        W = np.empty((n + 1, n))
-        W[:n] = PhiT
-        W[n] = 0.0
-        ep = state.e_post.copy()  # e(k|k), signed
-        yp = np.empty((runs, n))
-        mag = np.empty((runs, m))
-        tmp = np.empty((runs, m))
-        Ku = np.empty((runs, m))
-        for k in range(K):
-            if shared_input:
-                W[n] = Gu[k]
-                np.matmul(y_aug, W, out=yp)  # eq (4), y coordinates
-            else:
-                np.matmul(y, PhiT, out=yp)
-                yp += Gu[k]
-            e = e_out[k]
-            np.subtract(zt[k], yp[:, :m], out=e)  # eq (6)
-            # eq (8)/(9): K_u = (|e(k+1|k)| + gamma |e(k|k)|) o sat(e(k+1|k), psi)
-            np.abs(e, out=mag)
-            np.abs(ep, out=tmp)
-            tmp *= gamma
-            mag += tmp
-            _switch(e, inv_psi_u, out=Ku)
-            Ku *= mag
-            if reduced:
-                # eq (10): K_l = (|Phi22 Phi12^-1 e(k+1|k)| + gamma |Phi12^-1 e(k|k)|)
-                #                o sat(Phi22 Phi12^-1 e(k+1|k), psi_l)
-                Le = e @ LT
-                mag_l = np.abs(Le)
-                mag_l += gamma * np.abs(ep @ PT)
-                if lower_out is not None:
-                    lower_out[k] = Le
-                Kl = _switch(Le, inv_psi_l)
-                Kl *= mag_l
-                np.add(yp[:, m:], Kl, out=y[:, m:])  # eq (12), unmeasured part
-            # eq (12) for the measured coordinates, written as y_u = z - e(k+1|k+1)
-            # with e(k+1|k+1) = e(k+1|k) - K_u (see Notes)
-            np.subtract(e, Ku, out=ep)
-            np.subtract(zt[k], ep, out=y[:, :m])
-            if ep_out is not None:
-                ep_out[k] = ep
-            if x_out is not None:
-                np.matmul(y, S_invT, out=x_out[k])
-        new_state = SVSFState(y=y.copy(), e_post=ep, k=state.k + K)
-        return new_state, SVSFOutput(
-            e_prior=np.swapaxes(e_out, 0, 1),
-            x_post=None if x_out is None else np.swapaxes(x_out, 0, 1),
-            e_post=None if ep_out is None else np.swapaxes(ep_out, 0, 1),
-            e_lower=None if lower_out is None else np.swapaxes(lower_out, 0, 1),
-        )
-
-    def _update_compiled(
-        self,
-        state: SVSFState,
-        z: np.ndarray,
-        Gu: np.ndarray,
-        store_states: bool,
-        store_post_error: bool,
-        store_lower: bool,
-    ) -> tuple[SVSFState, SVSFOutput]:
-        """The recursion of eq (4)-(12) in the compiled kernel :func:`_svsf_kernel` (see :mod:`.._jit`)."""
-        runs, K, m = z.shape
-        n = self.model.n_states
-        # C-contiguous float arrays only, so that one compiled specialization serves every call
-        c = np.ascontiguousarray
-        z = c(z, dtype=float)
-        Gu = c(Gu[None] if Gu.ndim == 2 else Gu, dtype=float)
-        none = np.empty((0, 0, 0))
-        e_out = np.empty((runs, K, m))
-        x_out = np.empty((runs, K, n)) if store_states else none
-        ep_out = np.empty((runs, K, m)) if store_post_error else none
-        lower_out = np.empty((runs, K, n - m)) if (store_lower and n > m) else none
-        PhiT, L, P, inv_psi, gamma, S_inv = self._kernel_consts
-        y = np.array(state.y, dtype=float, order="C", copy=True)
-        ep = np.array(state.e_post, dtype=float, order="C", copy=True)
-        _svsf_kernel(z, Gu, PhiT, L, P, inv_psi, gamma, S_inv, y, ep, e_out, x_out, ep_out, lower_out)
-        return SVSFState(y=y, e_post=ep, k=state.k + K), SVSFOutput(
-            e_prior=e_out,
-            x_post=x_out if store_states else None,
-            e_post=ep_out if store_post_error else None,
-            e_lower=lower_out if lower_out.shape[0] else None,
-        )
-
-    def _update_closed_form(
-        self, state: SVSFState, z: np.ndarray, Gu: np.ndarray, store_states: bool, store_post_error: bool
-    ) -> tuple[SVSFState, SVSFOutput]:
-        """Eq (23) for the sgn filter with e(k|k) = 0: vectorized over time (see :meth:`update`)."""
-        runs, K, m = z.shape
-        n = m
-        PhiT = self._PhiT
-        shared_input = Gu.ndim == 2
-        if not shared_input:
-            Gu = np.broadcast_to(Gu, (runs, K, n))  # u given as (1, K, p) for every run
-        # Element-wise, in a fixed order per element: (z_i - G_i u) - sum_j Phi_ij y_j, so the
-        # bits do not depend on the chunking or on which memory layout is used below.
-        time_major = z.strides[1] >= z.strides[0]
-        if _jit.enabled():
-            # the same operations, in the same order, in one compiled pass (no FMA contraction
-            # without fastmath: bit-identical to the numpy branches below, tests/test_kernels.py);
-            # the output has the numpy branch's memory layout, so later steps see the same strides
-            store = np.empty((K, runs, m)) if time_major else np.empty((m, runs, K))
-            e = np.swapaxes(store, 0, 1) if time_major else np.moveaxis(store, 0, 2)
-            _closed_form_kernel(z, Gu if not shared_input else Gu[None], PhiT, state.y, e, time_major)
-        elif time_major:
-            # time-major storage (e.g. simulate() output): blocks of time steps, all runs
-            zt = np.swapaxes(z, 0, 1)  # (K, runs, m)
-            gt = Gu[:, None, :] if shared_input else np.swapaxes(Gu, 0, 1)  # (K, 1|runs, n)
-            et = np.empty((K, runs, m))
-            block = max(2, 65536 // max(runs * m, 1))
-            for k0 in range(0, K, block):
-                k1 = min(k0 + block, K)
-                zb = zt[k0:k1]
-                for i in range(m):
-                    acc = et[k0:k1, :, i]
-                    # e_i(k+1|k) = z_i(k+1) - G_i u(k) - sum_j Phi_ij y_j(k|k),  y(k|k) = z(k)
-                    np.subtract(zb[:, :, i], gt[k0:k1, :, i], out=acc)
-                    for j in range(n):
-                        if k0 == 0:
-                            acc[1:] -= PhiT[j, i] * zb[:-1, :, j]
-                            acc[0] -= PhiT[j, i] * state.y[:, j]
-                        else:
-                            acc -= PhiT[j, i] * zt[k0 - 1 : k1 - 1, :, j]
-            e = np.swapaxes(et, 0, 1)
-        else:
-            # realization-major storage: cache-sized blocks of runs, channel-major inside
-            ec = np.empty((m, runs, K))
-            block = max(1, 32768 // max(K, 1))
-            for r0 in range(0, runs, block):
-                r1 = min(r0 + block, runs)
-                zc = np.ascontiguousarray(np.moveaxis(z[r0:r1], 2, 0))  # (m, b, K)
-                gu = Gu.T if shared_input else np.moveaxis(Gu[r0:r1], 2, 0)  # (n, K) or (n, b, K)
-                y0 = state.y[r0:r1]
-                for i in range(m):
-                    acc = ec[i, r0:r1]
-                    np.subtract(zc[i], gu[i], out=acc)
-                    for j in range(n):
-                        acc[:, 1:] -= PhiT[j, i] * zc[j, :, :-1]
-                        acc[:, 0] -= PhiT[j, i] * y0[:, j]
-            e = np.moveaxis(ec, 0, 2)
-        x_post = None
-        if store_states:
-            x_post = _rows_times(z, np.ascontiguousarray(self._S_inv.T))
-        y_last = np.array(z[:, -1, :], dtype=float, copy=True)
-        new_state = SVSFState(y=y_last, e_post=np.zeros((runs, m)), k=state.k + K)
-        e_post = np.zeros((runs, K, m)) if store_post_error else None  # exactly zero (see update)
-        return new_state, SVSFOutput(e_prior=e, x_post=x_post, e_post=e_post)
+            return compiled_recursion(
+                self._kernel_consts, state, z, Gu, store_states, store_post_error, store_lower
+            )
+        return numpy_recursion(self._consts, state, z, Gu, store_states, store_post_error, store_lower)
 
     def run(
         self,
@@ -576,52 +319,7 @@ class SVSF:
         state = self.initialize(z[:, 0], x0)
         wanted = {f for f, k in zip(("x_post", "e_post", "e_lower"), keep, strict=True) if k}
         _, out = self.update(state, z[:, 1:], u[..., :-1, :], store=wanted, check=False)
-        runs, m, n = z.shape[0], self.model.n_outputs, self.model.n_states
-
-        def with_first(arr: np.ndarray | None, first: np.ndarray) -> np.ndarray | None:
-            if arr is None:
-                return None
-            full = np.empty((runs, T, arr.shape[2]))
-            full[:, 0] = first
-            full[:, 1:] = arr
-            return full[0] if single else full
-
-        zeros_m = np.zeros((runs, m))
-        return SVSFOutput(
-            e_prior=with_first(out.e_prior, zeros_m),
-            x_post=with_first(out.x_post, state.y @ self._S_inv.T),
-            e_post=with_first(out.e_post, state.e_post),
-            e_lower=with_first(out.e_lower, np.zeros((runs, n - m))),
-        )
-
-
-def check_chunk(
-    z: np.ndarray, u: np.ndarray, runs: int, m: int, p: int, check: bool
-) -> tuple[np.ndarray, np.ndarray]:
-    """Measurements ``z`` as (runs, K, m) and inputs ``u`` as (K, p) or (runs, K, p) of an SVSF update.
-
-    Validates finiteness when ``check``; a 2-D ``z`` is one run, a 1-D ``u`` one input channel.
-
-    Raises
-    ------
-    ShapeError
-        Shapes that do not match the filter.
-    NonFiniteError
-        NaN or inf (with ``check``).
-    """
-    if check:
-        z = finite_array("z", z, ndim=(2, 3))
-        u = finite_array("u", u, ndim=(1, 2, 3))
-    if z.ndim == 2:
-        z = z[None]
-    if z.shape[0] != runs or z.shape[2] != m:
-        raise ShapeError(f"z must have shape ({runs}, K, {m}); got {z.shape}")
-    K = z.shape[1]
-    if u.ndim == 1:
-        u = u[:, None]
-    if u.shape[-2] != K or u.shape[-1] != p or (u.ndim == 3 and u.shape[0] not in (1, runs)):
-        raise ShapeError(f"u must have shape ({K}, {p}) or ({runs}, {K}, {p}); got {u.shape}")
-    return z, u
+        return with_initial(out, state, self._S_inv, single)
 
 
 def auxiliary_svsf(model: LinearModel, gamma: float = 0.1) -> SVSF:
@@ -722,24 +420,3 @@ def chattering(
 
         return nonlinear_chattering(model, z, u, gamma=gamma, x0=x0)
     return auxiliary_svsf(model, gamma).run(z, u, x0=x0).e_prior
-
-
-def _reduced_order_transform(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Luenberger transformation ``S = [[C], [E_l]]`` for eq (9)-(11).
-
-    ``E_l`` selects the states left out of ``C1`` (the m columns of C chosen
-    by pivoted QR, i.e. the best-conditioned square sub-block). Measured
-    coordinates come first. Returns ``(S, S^-1)``.
-    """
-    import scipy.linalg
-
-    m, n = C.shape
-    _, _, piv = scipy.linalg.qr(C, pivoting=True, mode="economic")
-    measured = sorted(piv[:m].tolist())
-    lower = [j for j in range(n) if j not in measured]
-    E = np.zeros((n - m, n))
-    E[np.arange(n - m), lower] = 1.0
-    S = np.vstack([C, E])
-    if np.linalg.cond(S) > 1e12:
-        raise SingularMatrixError("no square invertible C1 block exists in C (eq 9)")
-    return S, np.linalg.inv(S)

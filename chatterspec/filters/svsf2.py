@@ -46,10 +46,8 @@ from .svsf_cov import (
     Mapping,
     _mapping_code,
     check_gamma,
-    default_mapping,
-    luen_transform,
-    mapping_matrix,
     per_channel,
+    resolve_mapping,
 )
 
 __all__ = ["SecondOrderSVSF"]
@@ -105,9 +103,9 @@ class SecondOrderSVSF(CovarianceFilterBase):
         require_linear_measurement(self.model, "SecondOrderSVSF")
         m = int(self.model.n_outputs)  # type: ignore[attr-defined]
         C = np.asarray(self.model.C, dtype=float)  # type: ignore[attr-defined]
-        mapping = default_mapping(C) if self.mapping is None else self.mapping
-        object.__setattr__(self, "_M", mapping_matrix(C, mapping))
-        object.__setattr__(self, "_luen", luen_transform(C) if mapping == "luen" else None)
+        mapping, M, luen = resolve_mapping(C, self.mapping)
+        object.__setattr__(self, "_M", M)
+        object.__setattr__(self, "_luen", luen)
         object.__setattr__(self, "mapping", mapping)
         object.__setattr__(self, "gamma", check_gamma(self.gamma, m))
         if self.lam is not None and self.cutoff is not None:

@@ -46,7 +46,7 @@ from ._base import CovarianceFilterBase, check_model, is_linear
 from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets
 from ._luen import luen_correction, luen_first_order
 from .kalman import kalman_correct
-from .svsf import _reduced_order_transform
+from .svsf_coordinates import reduced_order_transform
 
 __all__ = ["Mapping", "SVSFCov", "mapping_matrix"]
 
@@ -100,7 +100,7 @@ def luen_transform(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             f"mapping='luen' needs n = 2m (Phi12 square and invertible, eq 10); C is {m}x{n}: "
             "use mapping='cov' or 'pinv'"
         )
-    return _reduced_order_transform(np.asarray(C, dtype=float))
+    return reduced_order_transform(np.asarray(C, dtype=float))
 
 
 def default_mapping(C: np.ndarray) -> str:
@@ -171,20 +171,14 @@ class SVSFCov(CovarianceFilterBase):
         C = np.asarray(self.model.C, dtype=float)  # type: ignore[attr-defined]
         if not isinstance(self.vbl, bool | np.bool_):
             raise ParameterError(f"vbl must be True or False; got {self.vbl!r}")
-        mapping = default_mapping(C) if self.mapping is None else self.mapping
-        object.__setattr__(self, "_M", mapping_matrix(C, mapping))
+        mapping, M, luen = resolve_mapping(C, self.mapping)
+        object.__setattr__(self, "_M", M)
         object.__setattr__(self, "mapping", mapping)
-        luen = luen_transform(C) if mapping == "luen" else None
         object.__setattr__(self, "_luen", luen)
         if luen is not None and self.vbl:
             raise ParameterError("vbl=True is not available with mapping='luen'")
         n_psi = int(self.model.n_states) if luen is not None else m  # type: ignore[attr-defined]
-        psi = per_channel("psi", self.psi, n_psi, rule="the boundary layer")
-        if np.any(psi <= 0):
-            raise ParameterError(
-                f"psi must be > 0 (smoothing boundary layer, output units); got {psi.tolist()}"
-            )
-        object.__setattr__(self, "psi", psi)
+        object.__setattr__(self, "psi", check_psi(self.psi, n_psi))
         object.__setattr__(self, "gamma", check_gamma(self.gamma, m))
 
     @property
@@ -291,6 +285,22 @@ def from_settings(model: object, settings: object, source: str) -> SVSFCov:
         psi = fs.psi + fs.psi_lower  # type: ignore[attr-defined]
     gamma = 0.1 if fs.gamma is None else fs.gamma  # type: ignore[attr-defined]
     return SVSFCov(model, psi=np.asarray(psi, dtype=float), gamma=gamma, mapping=fs.mapping)  # type: ignore[attr-defined]
+
+
+def check_psi(psi: object, n_psi: int) -> np.ndarray:
+    """The smoothing boundary layer per channel (scalar or ``n_psi`` values), all > 0, else ParameterError."""
+    psi = per_channel("psi", psi, n_psi, rule="the boundary layer")
+    if np.any(psi <= 0):
+        raise ParameterError(f"psi must be > 0 (smoothing boundary layer, output units); got {psi.tolist()}")
+    return psi
+
+
+def resolve_mapping(C: np.ndarray, mapping: str | None) -> tuple[str, np.ndarray | None, tuple | None]:
+    """``(mapping, M, luen)``: the mapping (default :func:`default_mapping`), its constant matrix
+    (:func:`mapping_matrix`) and, for ``"luen"``, the reduced-order transform (:func:`luen_transform`)."""
+    mapping = default_mapping(C) if mapping is None else mapping
+    M = mapping_matrix(C, mapping)
+    return mapping, M, luen_transform(C) if mapping == "luen" else None
 
 
 def check_gamma(gamma: object, m: int) -> np.ndarray:

@@ -11,7 +11,7 @@ bit for bit; the sat SVSF's numpy fallback is the one exception, equal to
 from __future__ import annotations
 
 from .. import _jit
-from ..filters._svsf_kernels import closed_form_step, matvec_step, rows_times_step, svsf_step
+from ..filters.svsf_steps import closed_form_step, matvec_step, rows_times_step, svsf_step
 
 __all__: list[str] = []
 

@@ -53,7 +53,8 @@ from ..detection.frames import FrameVerdicts, frame_verdicts
 from ..detection.thresholds import frame_threshold
 from ..errors import ParameterError, ShapeError
 from ..filters.nonlinear_svsf import NonlinearSgnSVSF
-from ..filters.svsf import SVSF, SVSFState, _rows_times, auxiliary_svsf
+from ..filters.svsf import SVSF, SVSFState, auxiliary_svsf
+from ..filters.svsf_steps import rows_times as _rows_times
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
 from ._push_kernels import filters_kernel

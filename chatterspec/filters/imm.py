@@ -1,0 +1,247 @@
+"""Interacting multiple-model estimator ([IMM] eq 15-33, corrected), batched over realizations.
+
+The cycle and its corrections are in :mod:`chatterspec.filters.multiple_model`. When
+:func:`chatterspec._jit.enabled` and every mode is supported (:mod:`chatterspec.filters._imm_kernel`),
+:meth:`IMM.update` runs the whole recursion in one compiled loop; otherwise it drives the mode
+filters through the protocol, one sample at a time. The two agree to rounding (summation order).
+
+See Also
+--------
+chatterspec.filters.smm_svsf.SMMSVSF : the static multiple-model SVSF.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import _jit
+from .._repr import short_repr
+from . import _imm_kernel
+from ._conventions import mode_initial
+from .bank_common import (
+    BankFilter,
+    MultipleModelOutput,
+    MultipleModelState,
+    check_bank_models,
+    check_transition_matrix,
+    check_weight_floor,
+    initial_bank_state,
+    initial_mode_probabilities,
+    mode_names,
+)
+from .bank_math import log_gaussian, normalize_log_weights
+from .mixture import combine
+from .protocol import FilterState
+
+__all__ = ["IMM"]
+
+
+@dataclass(frozen=True, eq=False)
+class IMM(BankFilter):
+    """Interacting multiple model estimator ([IMM] eq 15-33, corrected per ``docs/design.md`` §7.6), batched.
+
+    Parameters
+    ----------
+    filters : sequence of Filter
+        One mode-matched filter per mode, each satisfying
+        :class:`~chatterspec.filters.protocol.Filter` (KF/EKF, SVSF-cov, second-order SVSF; a
+        heterogeneous bank is allowed). All must measure the same outputs (same ``n_outputs``) and
+        estimate the same states.
+    transition_matrix : (r, r) array
+        ``pi[i, j] = P(mode j at sample k | mode i at k-1)``, applied at every sample (per step).
+    mu0 : (r,) array, optional
+        Initial mode probabilities (default uniform).
+    weight_floor : float
+        Optional floor of the mode probabilities in ``[0, 1/r)`` (default 0: the IMM paper has
+        none; the transition matrix already keeps every mode alive).
+    modes : sequence of str, optional
+        Mode names (default ``mode0, mode1, ...``).
+
+    Raises
+    ------
+    ShapeError
+        Filters with different measurement, state or input sizes; wrong-sized ``mu0`` or
+        ``transition_matrix``.
+    ParameterError
+        Transition-matrix rows not summing to 1, negative probabilities, ``weight_floor`` outside
+        ``[0, 1/r)``.
+    """
+
+    __repr__ = short_repr  # shapes and key figures, never whole arrays
+
+    filters: Sequence[object]
+    transition_matrix: np.ndarray
+    mu0: np.ndarray | None = None
+    weight_floor: float = 0.0
+    modes: Sequence[str] | None = None
+    _fused: dict[str, np.ndarray] | None = field(init=False, repr=False, default=None)
+
+    def __post_init__(self) -> None:
+        filters = tuple(self.filters)
+        for j, f in enumerate(filters):
+            if not all(hasattr(f, a) for a in ("initialize", "update", "model")):
+                raise TypeError(
+                    f"IMM filter {j} ({type(f).__name__}) does not satisfy the Filter protocol "
+                    "(initialize, update, model)"
+                )
+        models = [f.model for f in filters]  # type: ignore[attr-defined]
+        check_bank_models(models)
+        r = len(filters)
+        object.__setattr__(self, "filters", filters)
+        object.__setattr__(self, "transition_matrix", check_transition_matrix(self.transition_matrix, r))
+        object.__setattr__(self, "mu0", initial_mode_probabilities(self.mu0, r))
+        object.__setattr__(self, "weight_floor", check_weight_floor(self.weight_floor, r))
+        object.__setattr__(self, "modes", mode_names(self.modes, r))
+        # arrays of the compiled fused step when every mode is supported (else the protocol path)
+        object.__setattr__(self, "_fused", _imm_kernel.fused_spec(filters))
+
+    @property
+    def n_modes(self) -> int:
+        """Number of modes r."""
+        return len(self.filters)
+
+    def initialize(
+        self,
+        x0: np.ndarray,
+        P0: np.ndarray,
+        *,
+        runs: int | None = None,
+        mode_x0: np.ndarray | None = None,
+        mode_P0: np.ndarray | None = None,
+    ) -> MultipleModelState:
+        """State at k = 0: every mode filter at ``(x0, P0)`` (or its own start), probabilities ``mu0``.
+
+        Parameters
+        ----------
+        x0 : (n,) or (runs, n) array
+            Initial estimate.
+        P0 : (n, n) or (runs, n, n) array
+            Initial covariance (symmetric positive definite).
+        runs : int, optional
+            Number of realizations when ``x0`` is shared.
+        mode_x0 : (r, n) or (runs, r, n) array, optional
+            Initial estimate of each mode-matched filter (default ``x0`` for every mode).
+        mode_P0 : (r, n, n) or (runs, r, n, n) array, optional
+            Initial covariance of each mode-matched filter (default ``P0``). With either given, the
+            combined ``x(0|0)``, ``P(0|0)`` are their ``mu0``-weighted combination (eq 31-33).
+
+        Returns
+        -------
+        MultipleModelState
+        """
+        mdl = self.filters[0].model  # type: ignore[attr-defined]
+        n, m = int(mdl.n_states), int(mdl.n_outputs)
+        runs, x, P, mu = initial_bank_state(n, self.n_modes, x0, P0, runs, self.mu0)  # type: ignore[arg-type]
+        xs, Ps, x, P = mode_initial(x, P, mu, mode_x0, mode_P0, self.n_modes)
+        states = tuple(f.initialize(xs[:, j], Ps[:, j], runs=runs) for j, f in enumerate(self.filters))  # type: ignore[attr-defined]
+        zero = np.zeros((runs, m))
+        return MultipleModelState(x=x, P=P, mu=mu, e_post=zero, z_last=zero.copy(), mode_states=states, k=0)
+
+    def _sensor_model(self) -> object:
+        return self.filters[0].model  # type: ignore[attr-defined]
+
+    def _advance(self, state, z, u, store_covariance, store_modes):  # type: ignore[no-untyped-def]
+        """[IMM] eq (18)-(33) over the checked chunk (compiled when every mode is supported)."""
+        runs = state.x.shape[0]
+        K = z.shape[1]
+        if K and self._fused is not None and len(state.mode_states) == self.n_modes and _jit.enabled():
+            return self._update_fused(state, z, u, store_covariance, store_modes)
+        n = state.x.shape[1]
+        r = self.n_modes
+        C = np.asarray(self._sensor_model().C, dtype=float)  # type: ignore[attr-defined]
+        pi = self.transition_matrix
+        keep = ("x_post", "innovation", "S")
+        mu = state.mu.copy()
+        sts = list(state.mode_states)
+        zl = state.z_last
+        o_x = np.empty((runs, K, n))
+        o_mu = np.empty((runs, K, r))
+        o_ll = np.empty((runs, K, r))
+        o_P = np.empty((runs, K, n, n)) if store_covariance else None
+        o_mx = np.empty((runs, K, r, n)) if store_modes else None
+        ll = np.empty((runs, r))
+        m = C.shape[0]
+        es = np.empty((runs, r, m))
+        Ss = np.empty((runs, r, m, m))
+        first = state.k == 0
+        x = state.x
+        P = state.P
+        for k in range(K):
+            xs = np.stack([s.x for s in sts], axis=1)  # (runs, r, n)
+            Ps = np.stack([np.broadcast_to(s.P, (runs, n, n)) for s in sts], axis=1)
+            c = mu @ pi  # (19)
+            c = np.maximum(c, 1e-300)
+            w = mu[:, :, None] * pi[None] / c[:, None, :]  # (18) mu_{i|j}
+            x0s = np.einsum("rij,rin->rjn", w, xs)  # (20)
+            d = xs[:, :, None, :] - x0s[:, None, :, :]  # (runs, i, j, n)
+            P0s = np.einsum("rij,rijab->rjab", w, Ps[:, :, None] + d[..., :, None] * d[..., None, :])  # (21)
+            zk = z[:, k : k + 1]
+            uk = u[:, k : k + 1]
+            for j, f in enumerate(self.filters):
+                s = sts[j]
+                # design.md I4: e(k|k) of mode j is the residual of its mixed estimate (0 before any data)
+                e_mix = s.e_post if first else zl - x0s[:, j] @ C.T
+                s = FilterState(x=x0s[:, j], P=P0s[:, j], e_post=e_mix, e_prev=s.e_prev, k=s.k)
+                s, out = f.update(s, zk, uk, store=keep, check=False)  # type: ignore[attr-defined]
+                sts[j] = s
+                es[:, j] = out.innovation[:, 0]
+                Ss[:, j] = out.S[:, 0] if out.S.ndim == 4 else out.S[0]
+            ll = log_gaussian(es, Ss)  # (29), all modes at once
+            mu = normalize_log_weights(np.log(c) + ll, self.weight_floor)  # (30)
+            xs = np.stack([s.x for s in sts], axis=1)
+            if o_P is not None or k == K - 1:
+                Ps = np.stack([np.broadcast_to(s.P, (runs, n, n)) for s in sts], axis=1)
+                x, P = combine(mu, xs, Ps)  # (31)-(33) with the factor 1/2
+            else:
+                x, _ = combine(mu, xs)
+            o_x[:, k], o_mu[:, k], o_ll[:, k] = x, mu, ll
+            if o_P is not None:
+                o_P[:, k] = P
+            if o_mx is not None:
+                o_mx[:, k] = xs
+            zl = z[:, k]
+            first = False
+        if K == 0:
+            return state, MultipleModelOutput(o_x, o_mu, o_ll, tuple(self.modes), o_P, o_mx)  # type: ignore[arg-type]
+        new = MultipleModelState(
+            x=x,
+            P=np.broadcast_to(P, (runs, n, n)).copy(),
+            mu=mu,
+            e_post=zl - x @ C.T,
+            z_last=zl.copy(),
+            mode_states=tuple(sts),
+            k=state.k + K,
+        )
+        return new, MultipleModelOutput(o_x, o_mu, o_ll, tuple(self.modes), o_P, o_mx)  # type: ignore[arg-type]
+
+    def _update_fused(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
+        # the same recursion as update()'s loop, compiled (chatterspec.filters._imm_kernel)
+        st, o = _imm_kernel.run_fused(
+            self._fused, self.transition_matrix, self.weight_floor, state, z, u, store_cov, store_modes
+        )
+        K = z.shape[1]
+        sts = tuple(
+            FilterState(
+                x=st["xs"][:, j].copy(),
+                P=st["Ps"][:, j].copy(),
+                e_post=st["eps"][:, j].copy(),
+                e_prev=st["epps"][:, j].copy(),
+                k=s.k + K,
+            )
+            for j, s in enumerate(state.mode_states)
+        )
+        C = np.asarray(self.filters[0].model.C, dtype=float)  # type: ignore[attr-defined]
+        new = MultipleModelState(
+            x=st["x"],
+            P=st["P"],
+            mu=st["mu"],
+            e_post=st["zl"] - st["x"] @ C.T,
+            z_last=st["zl"],
+            mode_states=sts,
+            k=state.k + K,
+        )
+        out = MultipleModelOutput(o["x"], o["mu"], o["ll"], tuple(self.modes), o["P"], o["mx"])  # type: ignore[arg-type]
+        return new, out
