@@ -16,6 +16,7 @@ from typing import Any
 
 from ..detection.alarms import RULES, rule_names
 from ..errors import ParameterError
+from ._options import add
 
 __all__ = ["AlarmChoice", "add_alarm_args", "alarm_choice", "alarm_doc", "check_file_alarm"]
 
@@ -28,47 +29,28 @@ def add_alarm_args(p: argparse.ArgumentParser, *, what: str = "the monitor", hou
     rules = "; ".join(f"{name}: {spec.summary}" for name, spec in RULES.items())
     k, n = RULES["persistence"].parameters["k"], RULES["persistence"].parameters["n"]
     drift = RULES["cusum"].parameters["drift"]
-    p.add_argument(
-        "--rule",
-        choices=rule_names(),
-        default=None,
-        help=f"alarm rule of {what} (default {_DEFAULT_RULE}): {rules}",
-    )
-    p.add_argument(
+    add(p, "--rule", choices=rule_names(), help=f"alarm rule of {what} (default {_DEFAULT_RULE}): {rules}")
+    add(
+        p,
         "--false-alarms-per-hour",
-        dest="false_alarms_per_hour",
-        default=None,
-        metavar="X",
         help=f"false-alarm budget of {what}: alarm starts per hour of healthy data, all channels together "
         f"(default {_DEFAULT_BUDGET:.4g} = one per day); the rule's threshold is set for it",
     )
-    p.add_argument(
+    add(
+        p,
         "--persistence-k",
-        dest="persistence_k",
-        default=None,
-        metavar="K",
         help=f"persistence rule: frames over the threshold among the last N (default {k})",
     )
-    p.add_argument(
-        "--persistence-n",
-        dest="persistence_n",
-        default=None,
-        metavar="N",
-        help=f"persistence rule: window in frames (default {n})",
-    )
-    p.add_argument(
+    add(p, "--persistence-n", help=f"persistence rule: window in frames (default {n})")
+    add(
+        p,
         "--cusum-drift",
-        dest="cusum_drift",
-        default=None,
-        metavar="D",
         help=f"CUSUM rule: drift subtracted from each frame score, nats (default {drift:g})",
     )
     if hours:
-        p.add_argument(
+        add(
+            p,
             "--alarm-hours",
-            dest="alarm_hours",
-            default=None,
-            metavar="H",
             help="hours of healthy data simulated to set the threshold of the persistence and CUSUM rules "
             "(default 12 / channels, 4 for the EHA: a few seconds; a calibration file from `chatterspec "
             "calibrate --rule ...` (48 h) gives a tighter one)",

@@ -71,67 +71,6 @@ def band_from_args(args: argparse.Namespace) -> tuple[float, float] | None:
     return check_band(band)
 
 
-def add_detector_args(p: argparse.ArgumentParser) -> None:
-    """--alpha, --threshold, --correction, --band, --runs, --seed."""
-    p.add_argument(
-        "--alpha",
-        type=alpha_arg,
-        default=1e-3,
-        help="false-alarm probability: family-wise for 'exact' (default 0.001), per bin for 'paper'",
-    )
-    p.add_argument(
-        "--threshold",
-        choices=("exact", "paper"),
-        default="exact",
-        help="'exact': per-bin chi-squared thresholds from the expected spectrum with family-wise "
-        "control (default); 'paper': the paper's flat bound (eq 58-62) at per-bin alpha",
-    )
-    p.add_argument(
-        "--correction",
-        choices=("bonferroni", "sidak", "none"),
-        default="bonferroni",
-        help="family-wise correction over the tested bins for 'exact' and for the averaged verdict "
-        "of every threshold with --runs > 1 (default bonferroni)",
-    )
-    p.add_argument(
-        "--band",
-        nargs=2,
-        type=band_edge_arg,
-        metavar=("LO", "HI"),
-        help="test only the bins with LO <= f <= HI (Hz), for every threshold (single, averaged, STFT "
-        "frames); the correction counts only these bins; DC and Nyquist stay excluded",
-    )
-    p.add_argument("--runs", type=positive_int_arg, default=1, help="Monte Carlo realizations (default 1)")
-    p.add_argument("--seed", type=nonnegative_int_arg, default=0, help="random seed (default 0)")
-
-
-def add_execution_args(p: argparse.ArgumentParser) -> None:
-    """--workers N and --scheduler ADDRESS (the Monte Carlo commands; the numbers do not depend on them)."""
-    p.add_argument(
-        "--workers",
-        type=positive_int_arg,
-        default=1,
-        help="local worker processes (default 1; the results do not depend on it)",
-    )
-    p.add_argument(
-        "--scheduler",
-        metavar="ADDRESS",
-        help="run on Dask: 'local-dask' or a scheduler address (needs chatterspec[distributed])",
-    )
-
-
-def add_live_args(p: argparse.ArgumentParser) -> None:
-    """--record FILE.rrd and --live URL|spawn."""
-    p.add_argument("--record", metavar="FILE.rrd", help="write a Rerun recording of the run to FILE.rrd")
-    p.add_argument(
-        "--live",
-        type=live_arg,
-        metavar="URL|spawn",
-        help="stream to a running Rerun viewer (gRPC URL such as rerun+http://127.0.0.1:9876/proxy) "
-        "or 'spawn' one (needs a display)",
-    )
-
-
 def live_arg(text: str) -> str:
     """argparse type of ``--live``: ``spawn``, a port, ``host:port`` or a viewer URL (not a bare word)."""
     if text == "spawn":
@@ -156,11 +95,12 @@ def load_scenario(name: str) -> Any:
     return as_scenario(name)
 
 
-def print_json(doc: Any) -> None:
-    """Print ``doc`` as indented JSON on standard output (NaN refused: the JSON stays standard)."""
+def print_json(doc: Any, *, allow_nan: bool = False) -> None:
+    """Print ``doc`` as indented JSON on standard output (NaN refused unless ``allow_nan``: the JSON stays
+    standard; the Monte Carlo studies write NaN where a rate has no trials)."""
     from ..jsonout import dumps
 
-    sys.stdout.write(dumps(doc, indent=2) + "\n")
+    sys.stdout.write(dumps(doc, indent=2, allow_nan=allow_nan) + "\n")
 
 
 def check_record_path(path: str | os.PathLike | None) -> None:
@@ -319,3 +259,41 @@ class Outputs:
         if self.failures:
             done = " -- the result above was computed but not saved"
             raise OutputPathError("; ".join(self.failures) + done)
+
+
+# --- the end of a command: figure, document or table, failed writes ------------------------------------
+def check_figure_path(path: str | os.PathLike | None, option: str = "--plot") -> None:
+    """Check, before any computation, that the figure file ``path`` can be written (a matplotlib suffix)."""
+    if path:
+        check_output_file(path, option, suffixes=figure_suffixes())
+
+
+def write_plot(outputs: Outputs, args: Any, doc: dict, make_figure: Any) -> None:
+    """With ``--plot FILE``: save ``make_figure()`` there, noted as ``doc["figure"]`` (None: not saved)."""
+    if not args.plot:
+        return
+    from ..figures.plot_studies import save
+
+    saved = outputs.write("--plot", args.plot, save, make_figure(), args.plot)
+    doc["figure"] = None if saved is None else str(saved)
+
+
+def report(
+    args: Any,
+    doc: dict,
+    outputs: Outputs,
+    print_text: Any,
+    *,
+    allow_nan: bool = True,
+    figure_line: bool = True,
+) -> int:
+    """Print the result and end the command: ``doc`` as JSON with ``--json``, else ``print_text()``
+    (and, with ``figure_line``, the saved figure's path); then :meth:`Outputs.finish`. Returns 0."""
+    if args.json:
+        print_json(doc, allow_nan=allow_nan)
+    else:
+        print_text()
+        if figure_line and doc.get("figure"):
+            print(f"figure: {doc['figure']}")
+    outputs.finish()
+    return 0
