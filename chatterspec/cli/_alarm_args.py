@@ -18,7 +18,14 @@ from ..detection.alarms import RULES, rule_names
 from ..errors import ParameterError
 from ._options import add
 
-__all__ = ["AlarmChoice", "add_alarm_args", "alarm_choice", "alarm_doc", "check_file_alarm"]
+__all__ = [
+    "AlarmChoice",
+    "add_alarm_args",
+    "alarm_choice",
+    "alarm_doc",
+    "check_file_alarm",
+    "positive_number",
+]
 
 _DEFAULT_RULE = "cusum"
 _DEFAULT_BUDGET = 1.0 / 24.0
@@ -97,6 +104,18 @@ def _int(value: Any, option: str) -> int:
     return v
 
 
+def positive_number(value: Any, option: str, what: str, unit: str = "") -> float:
+    """``value`` as a positive, finite float, else one ``ParameterError`` line naming ``option``
+    (``what``: the number it must be, e.g. ``"a number of hours"``; ``unit`` follows "finite")."""
+    try:
+        x = float(value)
+    except ValueError:
+        raise ParameterError(f"{option} must be {what}; got {value!r}") from None
+    if not (math.isfinite(x) and x > 0):
+        raise ParameterError(f"{option} must be positive and finite{unit}; got {x!r}")
+    return x
+
+
 def alarm_choice(
     args: argparse.Namespace, *, alpha_given: bool = False, default_rule: str | None = None
 ) -> AlarmChoice:
@@ -142,21 +161,10 @@ def alarm_choice(
     if args.cusum_drift is not None:
         if rule != "cusum":
             raise ParameterError(f"--cusum-drift applies to --rule cusum (rule: {rule})")
-        try:
-            d = float(args.cusum_drift)
-        except ValueError:
-            raise ParameterError(f"--cusum-drift must be a number (nats); got {args.cusum_drift!r}") from None
-        if not (math.isfinite(d) and d > 0):
-            raise ParameterError(f"--cusum-drift must be positive and finite (nats); got {d!r}")
-        params["drift"] = d
+        params["drift"] = positive_number(args.cusum_drift, "--cusum-drift", "a number (nats)", " (nats)")
     hours = getattr(args, "alarm_hours", None)
     if hours is not None:
-        try:
-            hours = float(hours)
-        except ValueError:
-            raise ParameterError(f"--alarm-hours must be a number of hours; got {hours!r}") from None
-        if not (math.isfinite(hours) and hours > 0):
-            raise ParameterError(f"--alarm-hours must be positive and finite; got {hours!r}")
+        hours = positive_number(hours, "--alarm-hours", "a number of hours")
     return AlarmChoice(
         rule=rule,
         budget=budget,

@@ -11,48 +11,56 @@ from typing import Any
 from ..errors import ParameterError
 
 
+def parsed_arg(text: str, convert: Any, ok: Any, not_a_number: str, out_of_range: str) -> Any:
+    """``convert(text)`` if it works and ``ok`` accepts it, else ``argparse.ArgumentTypeError``.
+
+    The messages are templates: ``{text}`` is the text given, ``{value}`` the converted value.
+    """
+    try:
+        value = convert(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(not_a_number.format(text=text, value=None)) from None
+    if not ok(value):
+        raise argparse.ArgumentTypeError(out_of_range.format(text=text, value=value))
+    return value
+
+
 def alpha_arg(text: str) -> float:
     """argparse type: a probability in the open interval (0, 1)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"alpha must be a number in (0, 1); got {text!r}") from None
-    if not 0.0 < value < 1.0:
-        raise argparse.ArgumentTypeError(f"alpha must lie in the open interval (0, 1); got {value}")
-    return value
+    return parsed_arg(
+        text,
+        float,
+        lambda v: 0.0 < v < 1.0,
+        "alpha must be a number in (0, 1); got {text!r}",
+        "alpha must lie in the open interval (0, 1); got {value}",
+    )
 
 
-def positive_int_arg(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1; got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1; got {value}")
-    return value
+def _integer_arg(minimum: int, name: str) -> Any:
+    """argparse type ``name``: an integer >= ``minimum``."""
+
+    def parse(text: str) -> int:
+        expected = f"expected an integer >= {minimum}; got "
+        return parsed_arg(text, int, lambda v: v >= minimum, expected + "{text!r}", expected + "{value}")
+
+    parse.__name__ = parse.__qualname__ = name
+    parse.__doc__ = f"argparse type: an integer >= {minimum}."
+    return parse
 
 
-def nonnegative_int_arg(text: str) -> int:
-    """argparse type: ``text`` as an int >= 0 (a usage error otherwise)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0; got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0; got {value}")
-    return value
+positive_int_arg = _integer_arg(1, "positive_int_arg")
+nonnegative_int_arg = _integer_arg(0, "nonnegative_int_arg")
 
 
 def band_edge_arg(text: str) -> float:
     """argparse type: one edge of ``--band LO HI``, a finite frequency >= 0 in Hz."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--band edges are frequencies in Hz; got {text!r}") from None
-    if not (value >= 0.0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"--band edges must be finite and >= 0 Hz; got {text!r}")
-    return value
+    return parsed_arg(
+        text,
+        float,
+        lambda v: v >= 0.0 and v < float("inf"),
+        "--band edges are frequencies in Hz; got {text!r}",
+        "--band edges must be finite and >= 0 Hz; got {text!r}",
+    )
 
 
 def band_from_args(args: argparse.Namespace) -> tuple[float, float] | None:
@@ -268,13 +276,22 @@ def check_figure_path(path: str | os.PathLike | None, option: str = "--plot") ->
         check_output_file(path, option, suffixes=figure_suffixes())
 
 
-def write_plot(outputs: Outputs, args: Any, doc: dict, make_figure: Any) -> None:
-    """With ``--plot FILE``: save ``make_figure()`` there, noted as ``doc["figure"]`` (None: not saved)."""
+def write_plot(outputs: Outputs, args: Any, doc: dict, figure: str, *figure_args: Any) -> None:
+    """With ``--plot FILE``: save the figure there, noted as ``doc["figure"]`` (None: not saved).
+
+    ``figure`` names the drawing function in :mod:`chatterspec.figures` as ``"module.function"``
+    (e.g. ``"plot_studies.far_figure"``), called with ``figure_args``; it is imported only here, so
+    a command without ``--plot`` never loads matplotlib.
+    """
     if not args.plot:
         return
+    import importlib
+
     from ..figures.plot_studies import save
 
-    saved = outputs.write("--plot", args.plot, save, make_figure(), args.plot)
+    module, name = figure.rsplit(".", 1)
+    draw = getattr(importlib.import_module(f"..figures.{module}", __package__), name)
+    saved = outputs.write("--plot", args.plot, save, draw(*figure_args), args.plot)
     doc["figure"] = None if saved is None else str(saved)
 
 

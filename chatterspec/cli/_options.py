@@ -13,7 +13,7 @@ order ``--help`` lists them:
   ``--band`` with the runs group (``detect``, ``demo``);
 * :func:`add_live_args`: ``--record FILE.rrd`` and ``--live URL|spawn``;
 * :func:`add_study_args`: the Monte Carlo study commands' ``--alpha``, runs, execution, ``--confidence``
-  and report groups (``calibrate``, ``far``, ``power``), read back by :func:`study_execution`.
+  and report groups (``calibrate``, ``far``, ``power``), read back by :func:`study_keywords`.
 
 Building the parser imports nothing heavy (no scipy, matplotlib or scenario catalogue): a bad
 option or output path fails before the slow imports.
@@ -216,3 +216,9 @@ def study_execution(args: argparse.Namespace) -> dict[str, Any]:
         )
         args.chunk_runs = rounded
     return {**execution(args), "confidence": args.confidence}
+
+
+def study_keywords(args: argparse.Namespace) -> dict[str, Any]:
+    """Everything :func:`add_study_args` reads, as the studies take it: ``alpha``, ``runs``, ``seed`` and
+    :func:`study_execution`."""
+    return {"alpha": args.alpha, "runs": args.runs, "seed": args.seed, **study_execution(args)}

@@ -6,7 +6,7 @@ import argparse
 
 from ..errors import ParameterError
 from ._common import Outputs, report, write_plot
-from ._options import study_execution
+from ._options import study_keywords
 
 
 def add_closed_loop_args(p: argparse.ArgumentParser) -> None:
@@ -88,20 +88,11 @@ def run_closed_loop(args: argparse.Namespace) -> int:
         dither_at=args.dither_at,
         tones_hz=DITHER_TONES_HZ if args.dither_hz is None else tuple(args.dither_hz),
         position_noise=noise,
-        alpha=args.alpha,
-        runs=args.runs,
-        seed=args.seed,
-        **study_execution(args),
+        **study_keywords(args),
     )
     outputs = Outputs()
     doc = res.to_dict()
-
-    def figure():  # type: ignore[no-untyped-def]
-        from ..figures.plot_closed_loop import excitation_figure
-
-        return excitation_figure(res)
-
-    write_plot(outputs, args, doc, figure)
+    write_plot(outputs, args, doc, "plot_closed_loop.excitation_figure", res)
     return report(args, doc, outputs, lambda: _print_excitation(res, doc, args.dither_at))
 
 

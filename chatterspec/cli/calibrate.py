@@ -11,9 +11,9 @@ import sys
 from typing import Any
 
 from ..errors import ParameterError
-from ._alarm_args import add_alarm_args, alarm_choice
-from ._common import Outputs, check_figure_path, check_output_file, report, write_plot
-from ._options import add, add_name, add_study_args, command, study_execution
+from ._alarm_args import add_alarm_args, alarm_choice, positive_number
+from ._common import Outputs, check_figure_path, check_output_file, parsed_arg, report, write_plot
+from ._options import add, add_name, add_study_args, command, study_execution, study_keywords
 
 #: The former names of the study options and their execution keywords (now in :mod:`._options`).
 add_common = add_study_args
@@ -59,12 +59,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _megabytes(text: str) -> int:
     """``--tail-budget MB`` -> bytes (MB = 2^20 bytes)."""
-    try:
-        mb = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of MB; got {text!r}") from None
-    if not mb >= 0 or mb == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a finite number of MB >= 0; got {text!r}")
+    mb = parsed_arg(
+        text,
+        float,
+        lambda v: v >= 0 and v != float("inf"),
+        "expected a number of MB; got {text!r}",
+        "expected a finite number of MB >= 0; got {text!r}",
+    )
     return int(mb * 2**20)
 
 
@@ -79,10 +80,8 @@ def run(args: argparse.Namespace) -> int:
     hours = _hours(args.hours)
     from ..studies.calibration import calibrate
 
-    ex = study_execution(args)
-    if args.tail_budget is not None:
-        ex["tail_budget"] = args.tail_budget
-    cal = calibrate(args.name, alpha=args.alpha, runs=args.runs, seed=args.seed, **ex)
+    tails = {} if args.tail_budget is None else {"tail_budget": args.tail_budget}
+    cal = calibrate(args.name, **study_keywords(args), **tails)
     if wants_alarm:
         cal = _with_alarm(cal, args.name, choice, hours, args.seed)
     doc = cal.to_dict()
@@ -90,13 +89,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         saved = outputs.write("--out", args.out, _save_calibration, cal, args.out)
         doc["calibration_file"] = None if saved is None else str(saved)
-
-    def figure():  # type: ignore[no-untyped-def]
-        from ..figures.plot_studies import calibration_figure
-
-        return calibration_figure(cal)
-
-    write_plot(outputs, args, doc, figure)
+    write_plot(outputs, args, doc, "plot_studies.calibration_figure", cal)
     return report(args, doc, outputs, lambda: _print_calibration(cal, doc), figure_line=False)
 
 
@@ -134,17 +127,7 @@ def _print_calibration(cal: Any, doc: dict) -> None:
 
 def _hours(text: str | None) -> float:
     """``--hours H`` (default 48): a positive, finite number of hours."""
-    import math
-
-    if text is None:
-        return 48.0
-    try:
-        h = float(text)
-    except ValueError:
-        raise ParameterError(f"--hours must be a number of hours; got {text!r}") from None
-    if not (math.isfinite(h) and h > 0):
-        raise ParameterError(f"--hours must be positive and finite; got {h!r}")
-    return h
+    return 48.0 if text is None else positive_number(text, "--hours", "a number of hours")
 
 
 def _with_alarm(cal: Any, name: str, choice: Any, hours: float, seed: int) -> Any:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from ._common import Outputs, check_figure_path, report, write_plot
-from ._options import add, add_name, add_study_args, command, study_execution
+from ._options import add, add_name, add_study_args, command, study_keywords
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,21 +36,12 @@ def run(args: argparse.Namespace) -> int:
     cal = load_calibration(args.calibration) if args.calibration else None
     res = false_alarm_study(
         args.name,
-        alpha=args.alpha,
-        runs=args.runs,
-        seed=args.seed,
         calibration=cal,
         frames=not args.no_frames,
-        **study_execution(args),
+        **study_keywords(args),
     )
     doc = res.to_dict()
-
-    def figure():  # type: ignore[no-untyped-def]
-        from ..figures.plot_studies import far_figure
-
-        return far_figure(res)
-
-    write_plot(outputs, args, doc, figure)
+    write_plot(outputs, args, doc, "plot_studies.far_figure", res)
     return report(args, doc, outputs, lambda: _print_rates(res))
 
 

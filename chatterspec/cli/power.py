@@ -6,7 +6,7 @@ import argparse
 
 from ..errors import ParameterError
 from ._common import Outputs, check_figure_path, report, write_plot
-from ._options import add, add_study_args, command, study_execution
+from ._options import add, add_study_args, command, study_keywords
 from ._power_closed_loop import add_closed_loop_args, run_closed_loop
 
 #: The fault families of :data:`chatterspec.studies.power.POWER_FAMILIES` (listed here so that parsing the
@@ -48,19 +48,10 @@ def run(args: argparse.Namespace) -> int:
         args.family,
         sizes=args.sizes,
         noise=args.noise,
-        alpha=args.alpha,
-        runs=args.runs,
-        seed=args.seed,
-        **study_execution(args),
+        **study_keywords(args),
     )
     doc = res.to_dict()
-
-    def figure():  # type: ignore[no-untyped-def]
-        from ..figures.plot_studies import power_figure
-
-        return power_figure(res)
-
-    write_plot(outputs, args, doc, figure)
+    write_plot(outputs, args, doc, "plot_studies.power_figure", res)
     return report(args, doc, outputs, lambda: _print_power(res))
 
 
