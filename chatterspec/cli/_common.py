@@ -314,3 +314,13 @@ def report(
             print(f"figure: {doc['figure']}")
     outputs.finish()
     return 0
+
+
+def report_study(args: Any, res: Any, figure: str, print_text: Any) -> int:
+    """The end of a Monte Carlo study command (``far``, ``power``, ``power --closed-loop``): the result
+    ``res``'s document, its ``--plot`` figure (:func:`write_plot`, ``figure`` called with ``res``),
+    then :func:`report` with ``print_text(doc)`` as the text."""
+    outputs = Outputs()
+    doc = res.to_dict()
+    write_plot(outputs, args, doc, figure, res)
+    return report(args, doc, outputs, lambda: print_text(doc))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from ..errors import ParameterError
-from ._common import Outputs, report, write_plot
+from ._common import report_study
 from ._options import study_keywords
 
 
@@ -90,10 +90,12 @@ def run_closed_loop(args: argparse.Namespace) -> int:
         position_noise=noise,
         **study_keywords(args),
     )
-    outputs = Outputs()
-    doc = res.to_dict()
-    write_plot(outputs, args, doc, "plot_closed_loop.excitation_figure", res)
-    return report(args, doc, outputs, lambda: _print_excitation(res, doc, args.dither_at))
+    return report_study(
+        args,
+        res,
+        "plot_closed_loop.excitation_figure",
+        lambda doc: _print_excitation(res, doc, args.dither_at),
+    )
 
 
 def _print_excitation(res, doc: dict, dither_at: str) -> None:  # type: ignore[no-untyped-def]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import Outputs, check_figure_path, report, write_plot
+from ._common import check_figure_path, report_study
 from ._options import add, add_name, add_study_args, command, study_keywords
 
 
@@ -29,7 +29,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec far`` with the parsed ``args``; returns the exit status."""
     check_figure_path(args.plot)
-    outputs = Outputs()
     from ..studies.calibration import load_calibration
     from ..studies.false_alarms import false_alarm_study
 
@@ -40,9 +39,7 @@ def run(args: argparse.Namespace) -> int:
         frames=not args.no_frames,
         **study_keywords(args),
     )
-    doc = res.to_dict()
-    write_plot(outputs, args, doc, "plot_studies.far_figure", res)
-    return report(args, doc, outputs, lambda: _print_rates(res))
+    return report_study(args, res, "plot_studies.far_figure", lambda doc: _print_rates(res))
 
 
 def _print_rates(res) -> None:  # type: ignore[no-untyped-def]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from ..errors import ParameterError
-from ._common import Outputs, check_figure_path, report, write_plot
+from ._common import check_figure_path, report_study
 from ._options import add, add_study_args, command, study_keywords
 from ._power_closed_loop import add_closed_loop_args, run_closed_loop
 
@@ -43,16 +43,13 @@ def run(args: argparse.Namespace) -> int:
             raise ParameterError(f"--{opt.replace('_', '-')} needs --closed-loop")
     from ..studies.power import power_study
 
-    outputs = Outputs()
     res = power_study(
         args.family,
         sizes=args.sizes,
         noise=args.noise,
         **study_keywords(args),
     )
-    doc = res.to_dict()
-    write_plot(outputs, args, doc, "plot_studies.power_figure", res)
-    return report(args, doc, outputs, lambda: _print_power(res))
+    return report_study(args, res, "plot_studies.power_figure", lambda doc: _print_power(res))
 
 
 def _print_power(res) -> None:  # type: ignore[no-untyped-def]
