@@ -295,23 +295,13 @@ def write_plot(outputs: Outputs, args: Any, doc: dict, figure: str, *figure_args
     doc["figure"] = None if saved is None else str(saved)
 
 
-def report(
-    args: Any,
-    doc: dict,
-    outputs: Outputs,
-    print_text: Any,
-    *,
-    allow_nan: bool = True,
-    figure_line: bool = True,
-) -> int:
-    """Print the result and end the command: ``doc`` as JSON with ``--json``, else ``print_text()``
-    (and, with ``figure_line``, the saved figure's path); then :meth:`Outputs.finish`. Returns 0."""
+def report(args: Any, doc: dict, outputs: Outputs, print_text: Any, *, allow_nan: bool = False) -> int:
+    """Print the result and end the command: ``doc`` as JSON with ``--json`` (NaN written only with
+    ``allow_nan``), else ``print_text()``; then :meth:`Outputs.finish`. Returns 0."""
     if args.json:
         print_json(doc, allow_nan=allow_nan)
     else:
         print_text()
-        if figure_line and doc.get("figure"):
-            print(f"figure: {doc['figure']}")
     outputs.finish()
     return 0
 
@@ -319,8 +309,15 @@ def report(
 def report_study(args: Any, res: Any, figure: str, print_text: Any) -> int:
     """The end of a Monte Carlo study command (``far``, ``power``, ``power --closed-loop``): the result
     ``res``'s document, its ``--plot`` figure (:func:`write_plot`, ``figure`` called with ``res``),
-    then :func:`report` with ``print_text(doc)`` as the text."""
+    then :func:`report` with ``print_text(doc)`` and the figure's path as the text (NaN kept in the JSON:
+    a rate without trials)."""
     outputs = Outputs()
     doc = res.to_dict()
     write_plot(outputs, args, doc, figure, res)
-    return report(args, doc, outputs, lambda: print_text(doc))
+
+    def text() -> None:
+        print_text(doc)
+        if doc.get("figure"):
+            print(f"figure: {doc['figure']}")
+
+    return report(args, doc, outputs, text, allow_nan=True)

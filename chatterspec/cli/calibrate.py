@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
         saved = outputs.write("--out", args.out, _save_calibration, cal, args.out)
         doc["calibration_file"] = None if saved is None else str(saved)
     write_plot(outputs, args, doc, "plot_studies.calibration_figure", cal)
-    return report(args, doc, outputs, lambda: _print_calibration(cal, doc), figure_line=False)
+    return report(args, doc, outputs, lambda: _print_calibration(cal, doc), allow_nan=True)
 
 
 def _print_calibration(cal: Any, doc: dict) -> None:

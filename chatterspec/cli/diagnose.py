@@ -309,7 +309,7 @@ def run(args: argparse.Namespace) -> int:
                 f"recording: {recording} (open with `chatterspec replay {recording}` or `rerun {recording}`)"
             )
 
-    return report(args, doc, outputs, text, allow_nan=False, figure_line=False)
+    return report(args, doc, outputs, text)
 
 
 def _print_budget_table(

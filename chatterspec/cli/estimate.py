@@ -91,4 +91,4 @@ def run(args: argparse.Namespace) -> int:
         if args.record and doc["recording"] is not None:
             print(f"recording (realization 0): {doc['recording']}")
 
-    return report(args, doc, outputs, text, allow_nan=False)
+    return report(args, doc, outputs, text)

@@ -117,4 +117,4 @@ def run(args: argparse.Namespace) -> int:
         for note in fig.notes:
             print(f"  {note}")
 
-    return report(args, doc, outputs, text, allow_nan=False, figure_line=False)
+    return report(args, doc, outputs, text)
