@@ -50,12 +50,12 @@ import numpy as np
 
 from chatterspec.detection.pipeline import chattering_record
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
-from chatterspec.online.rerun_log import RerunLogger
-from chatterspec.online.viewer import open_sinks
 from chatterspec.plants.models import eha_linear
 from chatterspec.plants.scenarios import Scenario, Segment
 from chatterspec.plants.signals import Chirp
 from chatterspec.plants.simulate import simulate
+from chatterspec.viewer.rerun_log import RerunLogger
+from chatterspec.viewer.sinks import open_sinks
 
 PSI = (4.2e-3, 4.8e-3, 4.3e3)
 
@@ -171,7 +171,7 @@ def _breakdown(cases: list, chunk: int, repeat: int, path: Path, T: float) -> No
 def _live(nominal, raw: dict, repeat: int) -> None:
     import rerun as rr
 
-    from chatterspec.online.viewer import Sinks
+    from chatterspec.viewer.sinks import Sinks
 
     mon = ChatteringMonitor(nominal, MonitorSettings(psi=PSI), t0=0.0)
     ups = [mon.push(raw["z"][lo : lo + 200], raw["u"][lo : lo + 200]) for lo in range(0, 20_000, 200)]

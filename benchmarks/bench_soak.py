@@ -21,7 +21,7 @@ last minute within 10 % of RSS at minute 5.
 ``--stamped`` measures latency *including the time rows wait in the pipe*
 (what the monitor itself cannot see: its own figure starts when a read returns).
 The monitor runs in this process (the CLI's loop: :func:`~chatterspec.online.stream.read_fd`,
-:class:`~chatterspec.online.stream.CsvRows`, :class:`~chatterspec.online.live_stream.StreamMonitor`),
+:class:`~chatterspec.online.stream.CsvRows`, :class:`~chatterspec.viewer.live_stream.StreamMonitor`),
 reading an ``os.pipe`` that a producer thread writes paced rows into; the producer
 notes ``time.perf_counter()`` just before each write and the line numbers it
 holds, and every parsed block is split at write boundaries and handed to the
@@ -69,9 +69,9 @@ def _threads() -> int:
 
 
 def _in_process_monitor(sc_name: str, out: Path, record_every_s: float | None) -> tuple[object, object]:
-    from chatterspec.online.live_stream import StreamMonitor
     from chatterspec.online.monitor import MonitorSettings
     from chatterspec.plants.modelfile import load_model
+    from chatterspec.viewer.live_stream import StreamMonitor
 
     spec = load_model(export_model_toml(sc_name, out / "model.toml"))
     settings = MonitorSettings(psi=tuple(spec.psi), gamma=spec.gamma)

@@ -2,6 +2,7 @@
 
     python scripts/make_closed_loop_figures.py            # 2000-run hold study, 500-run figure
     python scripts/make_closed_loop_figures.py --quick    # small run counts (a smoke test)
+    python scripts/make_closed_loop_figures.py --figures-only  # the four figures at full size only
 
 Writes ``figures/closed_loop_step_response.png`` (healthy vs leaky vs high-friction actuator on the
 saturating step reference), ``figures/closed_loop_spectra.png`` (mean chattering periodograms:
@@ -51,6 +52,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small run counts")
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument(
+        "--figures-only",
+        action="store_true",
+        help="skip what only prints (footprint table, 2000-run hold study): the figures in minutes",
+    )
     args = ap.parse_args()
     q = args.quick
     out = args.out
@@ -75,7 +81,8 @@ def main() -> None:
         excitation_scenario("leakage", 9e-11, "4-steps"),
         excitation_scenario("friction", 7000.0, "4-steps"),
     ]
-    for sc, label in zip(step_scenarios, ("healthy", "leak 9e-11", "friction 7000"), strict=True):
+    labels = ("healthy", "leak L = 9e-11 m³/(s·Pa)", "friction a = 7000 N·s/m")
+    for sc, label in zip(step_scenarios, labels, strict=True):
         object.__setattr__(sc, "name", f"4 steps, {label}")
     print("wrote", save(step_response_figure(step_scenarios), out / "closed_loop_step_response.png"))
 
@@ -86,16 +93,16 @@ def main() -> None:
     print("wrote", save(fig, out / "closed_loop_spectra.png"))
 
     print("wrote", save(footprint_figure(scenario("eha-cl-leak-medium")), out / "closed_loop_footprint.png"))
-    _, table = footprint_table(runs=10 if q else 200, seed=0)
-    print(table)
-
-    hold = excitation_study(
-        points=excitation_points(["hold"], [0, 3, 4, 5, 5.5, 6, 6.5, 7, 8, 10]),
-        runs=64 if q else 2000,
-        seed=20,
-        progress=not q,
-    )
-    print(json.dumps(hold.answers(0.95), indent=1))
+    if not args.figures_only:
+        _, table = footprint_table(runs=10 if q else 200, seed=0)
+        print(table)
+        hold = excitation_study(
+            points=excitation_points(["hold"], [0, 3, 4, 5, 5.5, 6, 6.5, 7, 8, 10]),
+            runs=64 if q else 2000,
+            seed=20,
+            progress=not q,
+        )
+        print(json.dumps(hold.answers(0.95), indent=1))
     res = excitation_study(position_noise=(1e-5, 1e-3), runs=32 if q else 500, seed=0, progress=not q)
     print("wrote", save(excitation_figure(res), out / "closed_loop_power_dither.png"))
     for row in res.rows():

@@ -158,12 +158,12 @@ UNDOCUMENTED = {
     "chatterspec.filters.protocol.Filter.run",
     "chatterspec.filters.protocol.Filter.correct",
     "chatterspec.filters.svsf.SVSFState.runs",
-    "chatterspec.online.live_stream.StreamEvent.to_dict",
-    "chatterspec.online.live_stream.StreamEvent.describe",
-    "chatterspec.online.live_stream.StreamSummary.to_dict",
-    "chatterspec.online.viewer.Sinks.streams",
-    "chatterspec.online.viewer.Sinks.live",
-    "chatterspec.online.viewer.Sinks.send_blueprint",
+    "chatterspec.viewer.live_stream.StreamEvent.to_dict",
+    "chatterspec.viewer.live_stream.StreamEvent.describe",
+    "chatterspec.viewer.live_stream.StreamSummary.to_dict",
+    "chatterspec.viewer.sinks.Sinks.streams",
+    "chatterspec.viewer.sinks.Sinks.live",
+    "chatterspec.viewer.sinks.Sinks.send_blueprint",
 }
 
 

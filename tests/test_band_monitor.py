@@ -96,7 +96,7 @@ def test_cli_monitor_band_and_model_file_band(tmp_path: Path, capsys) -> None:
 
 
 def test_detect_record_passes_band_to_the_monitor(tmp_path: Path, capsys, monkeypatch) -> None:
-    import chatterspec.online.drivers as drivers
+    import chatterspec.viewer.drivers as drivers
 
     seen = []
     real = drivers.record_detection

@@ -21,7 +21,7 @@ import pytest
 
 from chatterspec.cli import main
 from chatterspec.errors import ParameterError
-from chatterspec.online.viewer import viewer_url
+from chatterspec.viewer.sinks import viewer_url
 
 HAS_PROC = Path("/proc").is_dir()  # the reproductions use /proc (not writable, even for root)
 
@@ -131,7 +131,7 @@ def test_calibrate_prints_result_when_the_final_write_fails(tmp_path: Path, monk
 
 
 def test_detect_json_printed_when_the_recording_fails(tmp_path: Path, monkeypatch, capsys) -> None:
-    import chatterspec.online.drivers as drivers
+    import chatterspec.viewer.drivers as drivers
 
     def sink_fails(*_a, **_k):  # what rerun raises when its file sink cannot be created
         raise RuntimeError("Failed to create file: No space left on device (os error 28), path: x.rrd")
@@ -242,7 +242,7 @@ def test_monitor_on_data_shorter_than_one_window(tmp_path: Path, capsys) -> None
 
 
 def test_monitor_ctrl_c_names_the_partial_recording(tmp_path: Path, monkeypatch, capsys) -> None:
-    import chatterspec.online.drivers as drivers
+    import chatterspec.viewer.drivers as drivers
 
     real = drivers.run_monitor
 

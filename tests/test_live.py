@@ -22,7 +22,8 @@ from chatterspec.plants.scenarios import Scenario, Segment
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
-from chatterspec.online import arrow_columns, blueprint, drivers, frame_peaks, rerun_log, viewer  # noqa: E402
+from chatterspec.viewer import arrow_columns, blueprint, drivers, frame_peaks, rerun_log  # noqa: E402
+from chatterspec.viewer import sinks as viewer  # noqa: E402
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

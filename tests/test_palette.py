@@ -48,9 +48,9 @@ def test_recordings_use_the_palette(tmp_path: Path) -> None:
     rr = pytest.importorskip("rerun")
     from rerun.chunk import RrdReader
 
-    from chatterspec.online import blueprint
-    from chatterspec.online.estimates_log import record_estimates
     from chatterspec.studies.estimation import estimate_records
+    from chatterspec.viewer import blueprint
+    from chatterspec.viewer.estimates_log import record_estimates
 
     styles = dict(blueprint.series_styles(("a", "b", "c", "d"), ("", "", "", "")))
     assert styles[blueprint.STATISTIC] is not None

@@ -26,7 +26,7 @@ from chatterspec.plants.scenarios import scenario
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
-from chatterspec.online import blueprint, drivers, rerun_log  # noqa: E402
+from chatterspec.viewer import blueprint, drivers, rerun_log  # noqa: E402
 
 
 @pytest.fixture(autouse=True)

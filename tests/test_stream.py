@@ -17,8 +17,6 @@ import pytest
 import chatterspec as cs
 from chatterspec.cli.scenarios import export_model_toml
 from chatterspec.errors import DataFileError
-from chatterspec.online import live_stream, viewer
-from chatterspec.online.live_stream import LatencyStats, StreamMonitor
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
 from chatterspec.online.stream import (
     RESTART,
@@ -32,6 +30,9 @@ from chatterspec.online.stream import (
     simulate_blocks,
 )
 from chatterspec.plants.modelfile import load_data, load_model
+from chatterspec.viewer import sinks as viewer
+from chatterspec.viewer import stream_recordings as live_stream  # the live stream monitor's rotation
+from chatterspec.viewer.live_stream import LatencyStats, StreamMonitor
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE_MODEL = ROOT / "examples" / "eha_model.toml"

@@ -106,10 +106,10 @@ def _flush_stdout() -> None:
 def _one_line_warnings(command: str) -> None:
     """Show warnings as one ``chatterspec CMD: warning: ...`` line (no source path, no code line).
 
-    :class:`~chatterspec.online.viewer.LiveViewerWarning` is not shown: its text is
+    :class:`~chatterspec.viewer.sinks.LiveViewerWarning` is not shown: its text is
     also in the sinks' notes, which every command prints.
     """
-    from ..online.viewer import LiveViewerWarning
+    from ..viewer.sinks import LiveViewerWarning
 
     def show(message, category, filename, lineno, file=None, line=None):
         print(f"chatterspec {command}: warning: {message}", file=sys.stderr)

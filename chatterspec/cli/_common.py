@@ -83,7 +83,7 @@ def live_arg(text: str) -> str:
     """argparse type of ``--live``: ``spawn``, a port, ``host:port`` or a viewer URL (not a bare word)."""
     if text == "spawn":
         return text
-    from ..online.viewer import viewer_url
+    from ..viewer.sinks import viewer_url
 
     try:
         viewer_url(text)
@@ -249,7 +249,7 @@ class Outputs:
         try:
             result = fn(*args, **kwargs)
         except (OSError, RuntimeError) as exc:
-            from ..online.viewer import file_error  # Rerun reports a full disk as a RuntimeError
+            from ..viewer.sinks import file_error  # Rerun reports a full disk as a RuntimeError
 
             err = file_error(exc, target) if isinstance(exc, RuntimeError) else exc
             if err is None:

@@ -136,7 +136,7 @@ def run_per_record(args: argparse.Namespace, sc: object, methods: tuple[str, ...
     )
     recording, written = None, Outputs()  # a recording that fails: the result first, then exit 2
     if args.record is not None:
-        from ..online.diagnosis_log import record_diagnosis
+        from ..viewer.diagnosis_log import record_diagnosis
 
         recording = written.write(
             "--record", args.record, record_diagnosis, args.record, first, threshold, outputs

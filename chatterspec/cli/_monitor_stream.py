@@ -33,8 +33,8 @@ def _run_stream(
     ident: _identify.MonitorIdentification | None = None,
 ) -> int:
     from ..errors import ChatterspecError
-    from ..online.live_stream import StreamMonitor, drive
     from ..online.stream import CsvRows, follow_file, read_fd
+    from ..viewer.live_stream import StreamMonitor, drive
 
     stdin = str(args.data) == "-"
     where = "standard input" if stdin else f"data file {str(args.data)!r}"

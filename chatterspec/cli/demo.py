@@ -101,9 +101,9 @@ def run(args: argparse.Namespace) -> int:
             results.append(doc)
             bar.update(1, name)
             if not args.no_record:
-                from ..online.drivers import record_detection
                 from ..online.monitor import MonitorSettings
                 from ..studies.boundary_layer import estimate_boundary_layer
+                from ..viewer.drivers import record_detection
 
                 key = sc.nominal.fingerprint()
                 if key not in boundary_layers:  # smoothing boundary layer shown beside the chattering

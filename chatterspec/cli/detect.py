@@ -136,8 +136,8 @@ def run(args: argparse.Namespace) -> int:
     doc["fault_intervals_true"] = [list(iv) for iv in sc.fault_intervals]
     add_identification(doc, report, setup, why_not, ident, sim, sc, args)
     if args.record or args.live:
-        from ..online.drivers import record_detection
         from ..online.monitor import MonitorSettings
+        from ..viewer.drivers import record_detection
 
         settings = MonitorSettings(alpha=args.alpha, correction=args.correction, band=band)
         if args.calibration and not sc.is_linear:  # nonlinear: the calibrated per-frame threshold

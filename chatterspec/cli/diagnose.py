@@ -271,7 +271,7 @@ def run(args: argparse.Namespace) -> int:
         title = f"{sc.name}: {args.runs} runs, {at}"  # type: ignore[attr-defined]
         figure = outputs.write("--figure", args.figure, save, delay_far_figure(results, title), args.figure)
     if args.record is not None:
-        from ..online.diagnosis_log import record_budget_diagnosis
+        from ..viewer.diagnosis_log import record_budget_diagnosis
 
         recording = outputs.write(
             "--record",

@@ -79,8 +79,8 @@ def run(args: argparse.Namespace) -> int:
     doc = res.to_dict()
     outputs = Outputs()  # a recording that cannot be written: the table first, then one line, exit 2
     if args.record:
-        from ..online.estimates_log import record_estimates
         from ..studies.estimation import estimate_records
+        from ..viewer.estimates_log import record_estimates
 
         recs = estimate_records(args.name, names, runs=1, seed=args.seed)
         saved = outputs.write("--record", args.record, record_estimates, recs, args.record)

@@ -4,7 +4,7 @@ The model file and data format are documented in ``examples/README.md`` and
 :mod:`chatterspec.plants.modelfile`. A finished file is replayed through the online monitor
 (as fast as possible, or paced with ``--rate``); ``--data -`` reads CSV rows from
 standard input as they arrive and ``--follow`` reads a file another process is
-still writing (see :mod:`chatterspec.online.live_stream`: gaps, restarts, bad rows,
+still writing (see :mod:`chatterspec.viewer.live_stream`: gaps, restarts, bad rows,
 latency, rotating recordings). Detection events are printed (``--events jsonl``:
 one JSON object per line on stdout, human lines on stderr), and the run is
 recorded (``--record``, rotated with ``--record-every``) and/or streamed to a
@@ -264,9 +264,9 @@ def run(args: argparse.Namespace) -> int:
     if stream:
         return _run_stream(args, spec, settings, jsonl, human, identification(0.0))
 
-    from ..online.drivers import run_monitor
-    from ..online.live_stream import StreamEvent
-    from ..online.viewer import default_recording_path, open_sinks
+    from ..viewer.drivers import run_monitor
+    from ..viewer.live_stream import StreamEvent
+    from ..viewer.sinks import default_recording_path, open_sinks
 
     preload = _preload_rerun() if (args.record is not None or args.live is not None) else None
     data = load_data(args.data, spec.model)

@@ -39,7 +39,7 @@ def _is_rrd(path: Path) -> bool:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec replay`` with the parsed ``args``; returns the exit status."""
-    from ..online.viewer import find_viewer, has_display
+    from ..viewer.sinks import find_viewer, has_display
 
     path: Path = args.file
     if not path.is_file():

@@ -23,7 +23,26 @@ from .spectral import DEFAULT_STFT, STFTConfig, expected_spectrum, periodogram
 from .spectrum_verdicts import _VERDICT_FIELDS, SpectrumDetection, _require_empirical, detect_spectrum
 from .thresholds import Band, Correction, Threshold, check_band, exact_threshold, paper_threshold
 
-__all__ = ["ChunkPlan"]
+__all__ = ["ChunkPlan", "DetectorOptions"]
+
+
+@dataclass(frozen=True)
+class DetectorOptions:
+    """The detector's settings: the keywords :func:`~chatterspec.detection.detect.detect_record`,
+    :func:`~chatterspec.detection.detect.detect_chunks`, :func:`~chatterspec.detection.detect.detect_scenario`
+    and :func:`~chatterspec.detection.detect_parallel.detect_parallel` share (documented there).
+
+    The defaults are theirs: the exact threshold with Bonferroni correction at family-wise
+    ``alpha`` = 0.1 %, the STFT intervals when the scenario has several segments, every bin tested.
+    """
+
+    alpha: float = 1e-3
+    threshold: str | Threshold = "exact"
+    correction: Correction = "bonferroni"
+    stft: bool | None = None
+    config: STFTConfig = DEFAULT_STFT
+    band: Band | None = None
+    frame_threshold: Threshold | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,19 +69,11 @@ class ChunkPlan:
     frames: FrameDetection | None
 
     @classmethod
-    def build(
-        cls,
-        first: ChatteringRecord,
-        alpha: float = 1e-3,
-        threshold: str | Threshold = "exact",
-        correction: Correction = "bonferroni",
-        stft: bool | None = None,
-        config: STFTConfig = DEFAULT_STFT,
-        band: Band | None = None,
-        frame_threshold: Threshold | None = None,
-    ) -> ChunkPlan:
+    def build(cls, first: ChatteringRecord, options: DetectorOptions = DetectorOptions()) -> ChunkPlan:
         """The thresholds (and run 0's STFT intervals) from the first record of a study."""
-        alpha = open_unit("alpha", alpha)
+        threshold, correction, stft = options.threshold, options.correction, options.stft
+        config, band, frame_threshold = options.config, options.band, options.frame_threshold
+        alpha = open_unit("alpha", options.alpha)
         if band is not None:
             band = check_band(band)
         model, channels, dt = first.model, first.channels, first.dt

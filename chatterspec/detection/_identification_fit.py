@@ -193,24 +193,10 @@ def _reduced_order_message(model: LinearModel, pm: ParameterMap | None) -> str:
 def build_setup(
     model: LinearModel, hypotheses: Sequence[Hypothesis | str | Sequence[str]] | None = None
 ) -> IdentificationSetup:
-    """The :class:`IdentificationSetup` of ``model`` (full measurement, with a parameter map).
+    """The :class:`IdentificationSetup` of ``model`` for ``hypotheses`` (default: the map's).
 
-    Parameters
-    ----------
-    model : LinearModel
-        Nominal model; ``model.parameter_map`` says how the physical parameters enter A and B.
-    hypotheses : sequence, optional
-        Names of declared hypotheses, parameter names (one-parameter hypotheses), lists of
-        parameter names (combinations) or :class:`Hypothesis` objects; default: the map's.
-
-    Raises
-    ------
-    IdentifiabilityError
-        Nonlinear model, reduced-order measurement, no parameter map, or a hypothesis whose
-        parameters cannot be told apart from the entries.
-    ParameterError
-        A hypothesis naming a parameter the model does not have; a map that does not
-        reproduce the model's A and B.
+    The public entry point, documented there (parameters, errors), is
+    :func:`chatterspec.detection.identification.identification_setup`.
     """
     if not is_linear(model):
         raise IdentifiabilityError(

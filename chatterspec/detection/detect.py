@@ -19,7 +19,7 @@ from .._validate import positive_int
 from ..errors import ParameterError
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
-from ._chunk_plan import ChunkPlan
+from ._chunk_plan import ChunkPlan, DetectorOptions
 from .frames import (
     FrameDetection,
     detect_frames,
@@ -114,7 +114,7 @@ def detect_record(
     """
     if not isinstance(record, ChatteringRecord):
         raise ParameterError(f"record must be a ChatteringRecord; got {type(record).__name__}")
-    return detect_chunks([record], alpha, threshold, correction, stft=stft, config=config, band=band)
+    return _detect([record], DetectorOptions(alpha, threshold, correction, stft, config, band))
 
 
 def detect_chunks(
@@ -154,11 +154,17 @@ def detect_chunks(
     --------
     chatterspec.detection.detect_parallel.detect_parallel : the same numbers from worker processes.
     """
+    options = DetectorOptions(alpha, threshold, correction, stft, config, band, frame_threshold)
+    return _detect(chunks, options)
+
+
+def _detect(chunks: Iterable[ChatteringRecord], options: DetectorOptions) -> DetectionReport:
+    """:func:`detect_chunks` with its settings in one object."""
     it = iter(chunks)
     first = next(it, None)
     if first is None:
         raise ParameterError("no chattering record to detect (empty chunk stream)")
-    plan = ChunkPlan.build(first, alpha, threshold, correction, stft, config, band, frame_threshold)
+    plan = ChunkPlan.build(first, options)
     acc = None
     record: ChatteringRecord | None = first
     while record is not None:
@@ -206,4 +212,4 @@ def detect_scenario(
         SVSF convergence rate in (0, 1) (eq 8-10).
     """
     chunks = iter_chattering(scenario, positive_int("runs", runs), seed, chunk_runs=chunk_runs, gamma=gamma)
-    return detect_chunks(chunks, alpha, threshold, correction, stft=stft, config=config, band=band)
+    return _detect(chunks, DetectorOptions(alpha, threshold, correction, stft, config, band))

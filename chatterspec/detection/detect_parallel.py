@@ -20,7 +20,7 @@ import numpy as np
 from .._validate import positive_int
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
-from ._chunk_plan import ChunkPlan
+from ._chunk_plan import ChunkPlan, DetectorOptions
 from .detect import DETECT_CHUNK_RUNS, DetectionReport
 from .pipeline import iter_chattering
 from .spectral import DEFAULT_STFT, STFTConfig
@@ -126,7 +126,8 @@ def detect_parallel(
     runs = positive_int("runs", runs)
     root = root_seed_sequence(seed)
     first = next(iter_chattering(scenario, 1, root, chunk_runs=1, gamma=gamma))  # realization 0
-    plan = ChunkPlan.build(first, alpha, threshold, correction, stft, config, band, frame_threshold)
+    options = DetectorOptions(alpha, threshold, correction, stft, config, band, frame_threshold)
+    plan = ChunkPlan.build(first, options)
     ident = (
         None
         if identification is None

@@ -120,7 +120,8 @@ def identification_setup(
         Nonlinear model, reduced-order measurement (the message says which entries involve
         unmeasured states), no parameter map, or parameters that cannot be told apart.
     ParameterError
-        A hypothesis naming a parameter the model does not have.
+        A hypothesis naming a parameter the model does not have; a map that does not
+        reproduce the model's A and B.
     """
     return build_setup(model, hypotheses)
 

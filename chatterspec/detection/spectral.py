@@ -549,14 +549,8 @@ def frame_eigenvalues(
 
     Parameters
     ----------
-    model : LinearModel
-        Nominal (full-measurement) model.
-    freqs_hz : (bins,) array
-        Frame frequencies (Hz), usually :attr:`Spectrogram.freqs_hz`.
-    config : STFTConfig
-        Window settings.
-    dt : float, optional
-        Sampling time (s); defaults to ``model.dt``.
+    model, freqs_hz, config, dt
+        As in :func:`expected_frame_spectrum`.
 
     Returns
     -------

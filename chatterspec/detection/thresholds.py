@@ -78,22 +78,15 @@ from .threshold_type import (
     bin_layout,
     per_test_alpha,
 )
+from .threshold_type import __all__ as _TYPE_NAMES
 
-__all__ = [
-    "AlphaMeaning",
-    "Band",
-    "Correction",
-    "Threshold",
-    "ThresholdKind",
-    "ThresholdLaw",
-    "band_mask",
-    "bin_layout",
+__all__ = [  # the threshold type's names (re-exported: their documented home) and the constructors
+    *_TYPE_NAMES,
     "check_band",
     "exact_threshold",
     "frame_threshold",
     "paper_gamma_matrix",
     "paper_threshold",
-    "per_test_alpha",
     "threshold",
     "weighted_chi2_isf",
     "weighted_chi2_pdf",

@@ -56,9 +56,7 @@ def estimation_error_figure(records: Any, *, run: int = 0, title: str | None = N
     model = records.scenario.nominal
     names = list(records.outputs)
     states = tuple(model.state_names)
-    # a state's unit where an output of the same name has one (models list output units only)
-    by_output = dict(zip(model.output_names, model.output_units, strict=True))
-    units = tuple(by_output.get(s, "") for s in states)
+    units = _state_units(model)
     t = records.t[1:]
     fig, axes = plt.subplots(len(states), 2, figsize=(12, 2.6 * len(states)), sharex=True, squeeze=False)
     for k, name in enumerate(names):
@@ -76,13 +74,15 @@ def estimation_error_figure(records: Any, *, run: int = 0, title: str | None = N
             axes[i, 0].plot(t, err[run, :, i], **kw)
             axes[i, 1].semilogy(t, rms[:, i], **kw)
     for i, s in enumerate(states):
-        unit = f" [{units[i]}]" if units[i] else ""
-        axes[i, 0].set_ylabel(f"{s} error{unit}")
-        axes[i, 1].set_ylabel(f"{s} RMS error{unit}")
-        for ax in axes[i]:
+        unit = f"[{units[i] or 'model units'}]"  # "model units": the model declares none for this state
+        axes[i, 0].set_ylabel(f"{s} error\n{unit}")
+        axes[i, 1].set_ylabel(f"{s} RMS error\n{unit}")
+        for j, ax in enumerate(axes[i]):
             ax.grid(True, alpha=0.3)
             for seg in records.scenario.windows:
-                ax.axvline(seg.start, color="k", ls=":", lw=0.8)
+                # labelled once: the legend is taken from the top-left axes
+                label = f"true plant {seg.label} from {seg.start:g} s" if i == j == 0 else None
+                ax.axvline(seg.start, color="k", ls=":", lw=0.8, label=label)
     axes[0, 0].set_title(f"estimation error x - x_hat, realization {records.first_run + run}")
     axes[0, 1].set_title(f"RMS over {runs} realizations at each time")
     axes[-1, 0].set_xlabel("time [s]")
@@ -91,6 +91,16 @@ def estimation_error_figure(records: Any, *, run: int = 0, title: str | None = N
     who = ", ".join(LABELS.get(n, n) for n in names)
     default = f"{records.scenario.name}: {who}; {runs} realizations\n{records.scenario.description}"
     fig.suptitle(title or default, fontsize=10)
-    fig.legend(handles, labels, loc="lower center", ncol=len(names), fontsize=9, frameon=False)
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=9, frameon=False)
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     return fig
+
+
+def _state_units(model: Any) -> tuple[str, ...]:
+    """Units of the states: the model's ``state_units`` where it declares them (nonlinear models), else
+    the unit of the output of the same name (a measured state); ``""`` where neither says."""
+    declared = tuple(getattr(model, "state_units", ()) or ())
+    if any(declared):
+        return declared
+    by_output = dict(zip(model.output_names, model.output_units, strict=True))
+    return tuple(by_output.get(s, "") for s in model.state_names)

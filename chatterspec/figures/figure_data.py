@@ -306,11 +306,14 @@ def _overlay(
     notes = [f"{name} {healthy}: {_note(base.power, ths, ch)[1]}"]
     lines, band, band_label = _context(base.scenario)
     lines = list(lines)
-    for sc_name, label, color in levels:
+    for i, (sc_name, label, color) in enumerate(levels):
         sp = _spectrum(sc_name, 1, seed)
         if sp.scenario.nominal.fingerprint() != base.scenario.nominal.fingerprint():
             raise ParameterError(f"{sc_name} and {healthy} must share the nominal model to share thresholds")
-        curves.append(pl.SpectrumCurve(sp.power[:, ch], f"{sc_name} ({label})", color=color, linewidth=0.8))
+        # earlier levels wider underneath, later ones thinner on top: where the levels coincide (outside the
+        # excited band) every colour stays visible
+        width = 0.8 + 0.35 * (len(levels) - 1 - i)
+        curves.append(pl.SpectrumCurve(sp.power[:, ch], f"{sc_name} ({label})", color=color, linewidth=width))
         t, line = _note(sp.power, ths, ch, prefix=f"{label[:10]:<10}")
         text += t
         notes.append(f"{name} {sc_name}: {line}")

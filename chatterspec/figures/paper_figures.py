@@ -24,7 +24,7 @@ and Nyquist excluded, for each threshold).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -46,17 +46,19 @@ from .figure_data import (
     SO_INSET_HZ,
     PaperFigure,
     _channel_index,
-    _overlay,
     _panel,
+    _Spectrum,
     _spectrum,
     _thresholds,
     _timeline_lines,
     averaged_paper_threshold,
     peak_summary,
 )
+from .overlay_figures import OVERLAYS, overlay_builder
 
 __all__ = [
     "FIGURES",
+    "OVERLAY_FMAX_HZ",
     "FigureSpec",
     "PaperFigure",
     "averaged_paper_threshold",
@@ -100,6 +102,37 @@ class FigureSpec:
 
 
 # --------------------------------------------------------------------------- figures
+_SINGLE_REALIZATION_DOC = """
+    Parameters
+    ----------
+    runs : int, optional
+        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
+        :data:`FIGURES`; the figure shows a single realization, as in the paper.
+    seed : int, SeedSequence, Generator or None
+        Root seed of the simulation; realization 0 of this seed is shown in every panel.
+
+    Returns
+    -------
+    PaperFigure
+        The matplotlib figure and {returns}.
+"""
+
+_Builder = Callable[[int | None, SeedLike], PaperFigure]
+
+
+def _single_realization(
+    returns: str = "one note line per panel (peak ratios ``S / threshold``)",
+) -> Callable[[_Builder], _Builder]:
+    """Decorator: append the Parameters/Returns shared by the single-realization figures to the docstring."""
+
+    def decorate(builder: _Builder) -> _Builder:
+        doc = _SINGLE_REALIZATION_DOC.format(returns=returns)
+        builder.__doc__ = (builder.__doc__ or "").rstrip() + "\n" + doc
+        return builder
+
+    return decorate
+
+
 def fig2(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     """Fig 2: boundary-layer study on ``so-boundary-layer`` (reduced-order SVSF, x1 measured).
 
@@ -168,32 +201,42 @@ def fig2(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     return PaperFigure("fig2", fig, notes)
 
 
+def _paper_alpha_panels(
+    figure: str,
+    cells: Sequence[tuple[str, str, int]],
+    seed: SeedLike,
+    *,
+    inset: tuple[float, float] | None = None,
+) -> tuple[list[pl.SpectrumPanel], list[str]]:
+    """One spectrum panel per ``(tag, scenario, channel)`` cell: realization 0, the paper's two alphas.
+
+    Each scenario is simulated once (its spectrum and thresholds serve all its cells); panel
+    titles read ``"{figure}{tag}: {scenario}, {channel name}"``. Shared by Figs 4, 5 and 9.
+    """
+    spectra: dict[str, tuple[_Spectrum, list[Threshold]]] = {}
+    panels, notes = [], []
+    for tag, name, ch in cells:
+        if name not in spectra:
+            sp = _spectrum(name, 1, seed)
+            spectra[name] = (sp, _thresholds(sp, PAPER_ALPHAS))
+        sp, ths = spectra[name]
+        title = f"{figure}{tag}: {name}, {sp.scenario.nominal.output_names[ch]}"
+        p, n = _panel(sp, ch, ths, title, inset=inset)
+        panels.append(p)
+        notes.append(n)
+    return panels, notes
+
+
+@_single_realization()
 def fig4(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     """Fig 4: healthy spectra of both channels at (a) low and (b) high measurement noise.
 
     Thresholds at alpha = 1 % and 0.1 % (paper per-bin, exact family-wise).
-
-    Parameters
-    ----------
-    runs : int, optional
-        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
-        :data:`FIGURES`; the figure shows a single realization, as in the paper.
-    seed : int, SeedSequence, Generator or None
-        Root seed of the simulation; realization 0 of this seed is shown in every panel.
-
-    Returns
-    -------
-    PaperFigure
-        The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
     """
-    panels, notes = [], []
-    for tag, name in (("a", "so-healthy-low"), ("b", "so-healthy-high")):
-        sp = _spectrum(name, 1, seed)
-        ths = _thresholds(sp, PAPER_ALPHAS)
-        for ch, chname in enumerate(sp.scenario.nominal.output_names):
-            p, n = _panel(sp, ch, ths, f"Fig 4{tag}: {name}, {chname}")
-            panels.append(p)
-            notes.append(n)
+    cells = [
+        (tag, name, ch) for tag, name in (("a", "so-healthy-low"), ("b", "so-healthy-high")) for ch in (0, 1)
+    ]
+    panels, notes = _paper_alpha_panels("Fig 4", cells, seed)
     fig = pl.spectrum_figure(
         panels,
         ncols=2,
@@ -203,32 +246,15 @@ def fig4(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     return PaperFigure("fig4", fig, tuple(notes))
 
 
+@_single_realization()
 def fig5(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     """Fig 5: velocity spectrum with a true f0 of 11 Hz (nominal 10 Hz) at (a) low and (b) high noise.
 
     At high noise the 11 Hz peak stays below the paper's flat threshold while the
     exact family-wise threshold, much lower at low frequency, can still find it.
-
-    Parameters
-    ----------
-    runs : int, optional
-        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
-        :data:`FIGURES`; the figure shows a single realization, as in the paper.
-    seed : int, SeedSequence, Generator or None
-        Root seed of the simulation; realization 0 of this seed is shown in every panel.
-
-    Returns
-    -------
-    PaperFigure
-        The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
     """
-    panels, notes = [], []
-    for tag, name in (("a", "so-f11-low"), ("b", "so-f11-high")):
-        sp = _spectrum(name, 1, seed)
-        ths = _thresholds(sp, PAPER_ALPHAS)
-        p, n = _panel(sp, 1, ths, f"Fig 5{tag}: {name}, velocity", inset=SO_INSET_HZ)
-        panels.append(p)
-        notes.append(n)
+    cells = (("a", "so-f11-low", 1), ("b", "so-f11-high", 1))  # channel 1: velocity
+    panels, notes = _paper_alpha_panels("Fig 5", cells, seed, inset=SO_INSET_HZ)
     fig = pl.spectrum_figure(
         panels,
         ncols=1,
@@ -283,40 +309,9 @@ def fig6(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     return PaperFigure("fig6", fig, (n,))
 
 
-def fig7(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
-    """Fig 7: velocity spectra for true f0 = 9, 12 and 15 Hz (nominal 10 Hz), low noise, alpha 0.1 %.
-
-    Parameters
-    ----------
-    runs : int, optional
-        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
-        :data:`FIGURES`; the figure shows a single realization, as in the paper.
-    seed : int, SeedSequence, Generator or None
-        Root seed of the simulation; realization 0 of this seed is shown in
-        every panel (common random numbers across the three mismatch levels).
-
-    Returns
-    -------
-    PaperFigure
-        The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
-    """
-    return _overlay(
-        "fig7",
-        "Fig 7 — mismatch levels f0 = 9 / 12 / 15 Hz (nominal 10 Hz), low noise, velocity chattering, "
-        "one realization each (same seed); the footprint moves with the true f0",
-        (
-            ("so-f9-low", "f0 9 Hz", "tab:blue"),
-            ("so-f12-low", "f0 12 Hz", "tab:purple"),
-            ("so-f15-low", "f0 15 Hz", "tab:red"),
-        ),
-        "velocity",
-        seed,
-        healthy="so-healthy-low",
-        fmax_hz=OVERLAY_FMAX_HZ,
-        inset=SO_INSET_HZ,
-    )
-
-
+@_single_realization(
+    "one note per panel with the detected and true fault intervals (s) and the number of flagged frames"
+)
 def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     """Fig 8: STFT spectrograms (1 s Hamming, 0.2 s hop) of the velocity chattering.
 
@@ -324,20 +319,6 @@ def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     5 s). True fault windows (f0 8 Hz on [0, 2) s, zeta 0.1 on [4, 6) s) and the
     intervals detected by the per-frame exact threshold (alpha 0.1 % per frame,
     Bonferroni over the frame's bins) are marked above each spectrogram.
-
-    Parameters
-    ----------
-    runs : int, optional
-        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
-        :data:`FIGURES`; the figure shows a single realization, as in the paper.
-    seed : int, SeedSequence, Generator or None
-        Root seed of the simulation; realization 0 of this seed is shown for both inputs.
-
-    Returns
-    -------
-    PaperFigure
-        The matplotlib figure and one note per panel with the detected and true fault intervals (s) and the
-        number of flagged frames.
     """
     from ..detection.detect import detect_frames, frame_intervals, frame_statistic, healthy_frame_level
 
@@ -383,29 +364,12 @@ def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     return PaperFigure("fig8", fig, tuple(notes))
 
 
+@_single_realization()
 def fig9(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
-    """Fig 9: healthy EHA spectra of position, velocity and pressure, alpha 1 % and 0.1 %.
-
-    Parameters
-    ----------
-    runs : int, optional
-        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
-        :data:`FIGURES`; the figure shows a single realization, as in the paper.
-    seed : int, SeedSequence, Generator or None
-        Root seed of the simulation; realization 0 of this seed is shown in every panel.
-
-    Returns
-    -------
-    PaperFigure
-        The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
-    """
-    sp = _spectrum("eha-healthy", 1, seed)
-    ths = _thresholds(sp, PAPER_ALPHAS)
-    panels, notes = [], []
-    for ch, chname in enumerate(sp.scenario.nominal.output_names):
-        p, n = _panel(sp, ch, ths, f"Fig 9{'abc'[ch]}: eha-healthy, {chname}")
-        panels.append(p)
-        notes.append(n)
+    """Fig 9: healthy EHA spectra of position, velocity and pressure, alpha 1 % and 0.1 %."""
+    panels, notes = _paper_alpha_panels(
+        "Fig 9", [(tag, "eha-healthy", ch) for ch, tag in enumerate("abc")], seed
+    )
     fig = pl.spectrum_figure(
         panels,
         ncols=3,
@@ -414,101 +378,11 @@ def fig9(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     return PaperFigure("fig9", fig, tuple(notes))
 
 
-def fig10(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
-    """Fig 10: EHA pressure spectra for minor, medium and major leakage, alpha 0.1 %.
-
-    Parameters
-    ----------
-    runs : int, optional
-        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
-        :data:`FIGURES`; the figure shows a single realization, as in the paper.
-    seed : int, SeedSequence, Generator or None
-        Root seed of the simulation; realization 0 of this seed is shown in
-        every panel (each fault level is a separate scenario with the same seed).
-
-    Returns
-    -------
-    PaperFigure
-        The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
-    """
-    return _overlay(
-        "fig10",
-        "Fig 10 — EHA leakage (L = 3e-11 / 6e-11 / 9e-11 m³/(s·Pa)), pressure chattering, one realization "
-        f"each (same seed), 0-{OVERLAY_FMAX_HZ:g} Hz shown (all bins up to Nyquist are tested)",
-        (
-            ("eha-leak-minor", "minor", "gold"),
-            ("eha-leak-medium", "medium", "darkorange"),
-            ("eha-leak-major", "major", "tab:red"),
-        ),
-        "pressure",
-        seed,
-        healthy="eha-healthy",
-        fmax_hz=OVERLAY_FMAX_HZ,
-    )
-
-
-def fig11(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
-    """Fig 11: EHA velocity spectra for minor and major friction, alpha 0.1 %.
-
-    Parameters
-    ----------
-    runs : int, optional
-        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
-        :data:`FIGURES`; the figure shows a single realization, as in the paper.
-    seed : int, SeedSequence, Generator or None
-        Root seed of the simulation; realization 0 of this seed is shown in
-        every panel (each fault level is a separate scenario with the same seed).
-
-    Returns
-    -------
-    PaperFigure
-        The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
-    """
-    return _overlay(
-        "fig11",
-        "Fig 11 — EHA friction (a = 4000 / 7000 N·s/m), velocity chattering, one realization each "
-        f"(same seed), 0-{OVERLAY_FMAX_HZ:g} Hz shown (all bins up to Nyquist are tested)",
-        (("eha-friction-minor", "minor", "darkorange"), ("eha-friction-major", "major", "tab:red")),
-        "velocity",
-        seed,
-        healthy="eha-healthy",
-        fmax_hz=OVERLAY_FMAX_HZ,
-    )
-
-
-def fig12(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
-    """Fig 12: EHA pressure spectra for bulk modulus x0.5, x0.75, x1.25 and x1.5, alpha 0.1 %.
-
-    Parameters
-    ----------
-    runs : int, optional
-        Ignored: accepted for the uniform ``builder(runs, seed)`` signature of
-        :data:`FIGURES`; the figure shows a single realization, as in the paper.
-    seed : int, SeedSequence, Generator or None
-        Root seed of the simulation; realization 0 of this seed is shown in
-        every panel (each fault level is a separate scenario with the same seed).
-
-    Returns
-    -------
-    PaperFigure
-        The matplotlib figure and one note line per panel (peak ratios ``S / threshold``).
-    """
-    return _overlay(
-        "fig12",
-        "Fig 12 — EHA bulk-modulus mismatch (βe × 0.5 / 0.75 / 1.25 / 1.5), pressure chattering, one "
-        f"realization each (same seed), 0-{OVERLAY_FMAX_HZ:g} Hz shown (all bins up to Nyquist are tested)",
-        (
-            ("eha-bulk-50down", "βe × 0.5", "navy"),
-            ("eha-bulk-25down", "βe × 0.75", "cornflowerblue"),
-            ("eha-bulk-25up", "βe × 1.25", "salmon"),
-            ("eha-bulk-50up", "βe × 1.5", "darkred"),
-        ),
-        "pressure",
-        seed,
-        healthy="eha-healthy",
-        fmax_hz=OVERLAY_FMAX_HZ,
-    )
-
+# Figs 7 and 10-12 differ only in data: one builder per entry of the overlay table.
+fig7 = overlay_builder(OVERLAYS["fig7"])
+fig10 = overlay_builder(OVERLAYS["fig10"])
+fig11 = overlay_builder(OVERLAYS["fig11"])
+fig12 = overlay_builder(OVERLAYS["fig12"])
 
 FIGURES: dict[str, FigureSpec] = {
     s.name: s

@@ -5,6 +5,7 @@ Imported on demand only (the numeric core never imports matplotlib).
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -14,6 +15,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from ..palette import NEUTRAL, channel_color, mpl
+from .style import power_unit
+
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
@@ -21,6 +25,11 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..studies.excitation import ExcitationResult
 
 __all__ = ["closed_loop_spectra_figure", "excitation_figure", "footprint_figure", "step_response_figure"]
+
+
+def _color(index: int) -> tuple[float, float, float]:
+    """Curve colour ``index`` from the shared palette (no red: red means a fault verdict)."""
+    return mpl(channel_color(index))
 
 
 def _errorbar(ax: plt.Axes, x: np.ndarray, ests: list, **kw: object) -> None:
@@ -61,32 +70,42 @@ def excitation_figure(res: ExcitationResult, target: float = 0.95) -> Figure:
             speed = np.array([max(res.response_speed[res.points[p][0]] * 1e3, 0.1) for p in still])
             order = np.argsort(speed)
             ests = [res.detection(i, still[k]) for k in order]
-            _errorbar(axes[0], speed[order], ests, ls=ls, color="C0", label=tag)
+            _errorbar(axes[0], speed[order], ests, ls=ls, color=_color(0), label=tag)
             if i == 0:
-                for n_lab, k in enumerate(order):  # labels alternately above and below the points
-                    below = n_lab % 2 == 1
+                for n_lab, k in enumerate(order):
+                    # inside the axes, on three staggered rows (below points near 1, above points near 0),
+                    # so that the names of references with close speeds do not run into each other
+                    rate = ests[n_lab].rate
+                    dy = (10 + 10 * (n_lab % 3)) * (-1 if rate > 0.5 else 1)
                     axes[0].annotate(
                         res.points[still[k]][0],
-                        (speed[k], ests[n_lab].rate),
+                        (speed[k], rate),
                         fontsize=7,
-                        xytext=(-8, -14 if below else 8),
+                        xytext=(0, dy),
                         textcoords="offset points",
+                        ha="center",
+                        va="top" if dy < 0 else "bottom",
                     )
         for c, ref in enumerate(swept):
             ps = res.levels(ref)
             x = np.array([res.points[p][1] for p in ps])
             _errorbar(
-                axes[1], x, [res.detection(i, p) for p in ps], ls=ls, color=f"C{c + 1}", label=f"{ref}, {tag}"
+                axes[1],
+                x,
+                [res.detection(i, p) for p in ps],
+                ls=ls,
+                color=_color(c + 1),
+                label=f"{ref}, {tag}",
             )
             axes[1].plot(
-                x, [res.false_alarm(i, p).rate for p in ps], ls=ls, color=f"C{c + 1}", alpha=0.35, lw=1
+                x, [res.false_alarm(i, p).rate for p in ps], ls=ls, color=_color(c + 1), alpha=0.35, lw=1
             )
             axes[2].errorbar(
                 x,
                 res.tracking_mm[i, ps, 0],
                 yerr=res.tracking_se_mm[i, ps, 0],
                 ls=ls,
-                color=f"C{c + 1}",
+                color=_color(c + 1),
                 marker="o",
                 ms=4,
                 capsize=3,
@@ -95,25 +114,26 @@ def excitation_figure(res: ExcitationResult, target: float = 0.95) -> Figure:
     axes[0].set_xscale("log")
     axes[0].set_xlabel("RMS velocity of the response (mm/s; hold drawn at 0.1)")
     axes[0].set_ylabel(f"detection rate on {res.channel}")
-    axes[0].set_title("(a) richness of the reference, no dither", fontsize=10)
+    axes[0].set_title("(a) richness of the reference, no dither", fontsize=9)
     axes[1].axhline(target, color="k", lw=0.8, ls=":", label=f"{target:.0%}")
     axes[1].axhline(res.alpha, color="grey", lw=0.8, ls="--", label=f"alpha = {res.alpha:g}")
     unit = "mm" if "reference" in res.dither_description else "rad/s"
     unit += " per tone" if "multisine" in res.dither_description else ""
     axes[1].set_xlabel(f"dither amplitude ({unit})")
     axes[1].set_ylabel("detection rate (faint: false alarms)")
-    axes[1].set_title(f"(b) dither: {res.dither_description}", fontsize=10)
+    axes[1].set_title(textwrap.fill(f"(b) dither: {res.dither_description}", 60), fontsize=9)
     axes[2].set_xlabel(axes[1].get_xlabel())
     axes[2].set_ylabel("tracking RMS, healthy loop (mm)")
-    axes[2].set_title("(c) the price in tracking", fontsize=10)
+    axes[2].set_title("(c) the price in tracking", fontsize=9)
     for ax in axes:
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7)
     for ax in axes[:2]:
         ax.set_ylim(-0.03, 1.05)
+    size = f"{res.size:g} {res.unit.replace('^3', '³')}"
     fig.suptitle(
-        f"closed-loop EHA (PI position loop), {res.family} {res.size:g} {res.unit}: detection at family-wise "
+        f"closed-loop EHA (PI position loop), {res.family} {size}: detection at family-wise "
         f"alpha = {res.alpha:g}, {res.runs} runs per point, {res.confidence:.0%} Clopper-Pearson",
         fontsize=11,
     )
@@ -144,24 +164,30 @@ def step_response_figure(scenarios: Sequence[Scenario], runs: int = 1, seed: int
     for s, sc in enumerate(scenarios):
         t, r, x, u = loop_response(sc)
         sim = simulate(sc, runs, seed)
+        color = _color(s)
         if s == 0:
             axes[0].plot(t, r * 1e3, color="k", lw=1, ls="--", label="reference")
-        axes[0].plot(t, x[:, 0] * 1e3, color=f"C{s}", lw=1.2, label=f"{sc.name} (noise-free)")
-        axes[0].plot(t, sim.x[0, :, 0] * 1e3, color=f"C{s}", lw=0.5, alpha=0.6)
-        axes[1].plot(t, sim.u[0, :, 0], color=f"C{s}", lw=0.5, alpha=0.6)
-        axes[1].plot(t, u, color=f"C{s}", lw=1.2, label=sc.name)
-        axes[2].plot(t, x[:, 2] * 1e-3, color=f"C{s}", lw=1.2, label=sc.name)
+        axes[0].plot(t, x[:, 0] * 1e3, color=color, lw=1.2, label=sc.name)
+        axes[0].plot(t, sim.x[0, :, 0] * 1e3, color=color, lw=0.5, alpha=0.6)
+        axes[1].plot(t, sim.u[0, :, 0], color=color, lw=0.5, alpha=0.6)
+        axes[1].plot(t, u, color=color, lw=1.2)
+        axes[2].plot(t, x[:, 2] * 1e-3, color=color, lw=1.2)
     sat = scenarios[0].closed_loop.controller.saturation  # type: ignore[union-attr]
     for v in (-sat, sat):
-        axes[1].axhline(v, color="grey", lw=0.8, ls=":")
+        axes[1].axhline(v, color=mpl(NEUTRAL), lw=0.8, ls=":", label="saturation" if v > 0 else None)
     axes[0].set_ylabel("position (mm)")
     axes[1].set_ylabel("pump speed u (rad/s)")
     axes[2].set_ylabel("pressure (kPa), noise-free")
     axes[2].set_xlabel("time (s)")
-    axes[0].set_title("closed-loop response: noise-free (thick) and realization 0 (thin)", fontsize=10)
+    axes[0].set_title(
+        f"closed-loop EHA (PI position loop), {len(scenarios)} plants on one reference: noise-free "
+        f"response (thick), realization 0 of seed {seed} (thin)",
+        fontsize=10,
+    )
     for ax in axes:
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="upper right")
+    axes[0].legend(fontsize=7, loc="upper right")  # one legend: the colours are the same in every row
+    axes[1].legend(fontsize=7, loc="upper right")
     fig.tight_layout()
     return fig
 
@@ -217,7 +243,10 @@ def closed_loop_spectra_figure(
             thr = exact_threshold(nom, f, N, alpha)
         for c in range(m):
             ax = axes[c, 0]
-            ax.semilogy(f[1:], mean[1:, c], lw=0.8, color=f"C{k}", label=sc.name)
+            # earlier scenarios wider underneath, later ones thinner on top: coinciding curves stay visible
+            width = 0.7 + 0.6 * (len(scenarios) - 1 - k)
+            kw = {"lw": width, "color": _color(k), "alpha": 0.85, "zorder": 2 + k}
+            ax.semilogy(f[1:], mean[1:, c], label=sc.name, **kw)
             if drawn[key] == sc.name:
                 ax.semilogy(
                     f[1:],
@@ -226,6 +255,7 @@ def closed_loop_spectra_figure(
                     lw=1,
                     ls="-" if k == 0 else "-.",
                     label=f"E[S] healthy ({sc.name}'s model)",
+                    zorder=10,
                 )
                 ax.semilogy(
                     f[1:],
@@ -234,15 +264,22 @@ def closed_loop_spectra_figure(
                     lw=0.8,
                     ls="--" if k == 0 else ":",
                     label=f"threshold, alpha {alpha:g} ({sc.name}'s model)",
+                    zorder=10,
                 )
+    nominal = scenarios[0].nominal
     for c in range(m):
-        axes[c, 0].set_ylabel(f"{scenarios[0].nominal.output_names[c]}")
+        axes[c, 0].set_ylabel(f"{nominal.output_names[c]}\n[{power_unit(nominal.output_units[c])}]")
         axes[c, 0].set_xscale("log")
         axes[c, 0].grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=7, ncol=2)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=2, fontsize=7, frameon=False)
     axes[-1, 0].set_xlabel("frequency (Hz)")
-    axes[0, 0].set_title(f"mean chattering periodogram over {runs} runs", fontsize=10)
-    fig.tight_layout()
+    fig.suptitle(
+        f"EHA chattering, open vs closed loop: mean periodogram over {runs} runs per scenario (seed {seed})\n"
+        f"black: healthy E[S] (eq 56) and threshold (family-wise alpha {alpha:g}) of each nominal model",
+        fontsize=10,
+    )
+    fig.tight_layout(rect=(0, 0.02 + 0.018 * ((len(labels) + 1) // 2), 1, 1))
     return fig
 
 
@@ -285,22 +322,26 @@ def footprint_figure(scenario: Scenario, seed: int = 0) -> Figure:
     t = sims["closed"].t
     fig, axes = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
     for key, color, label in (
-        ("replay", "C3", "command replayed open loop"),
-        ("closed", "C0", "closed loop"),
+        ("replay", _color(1), "command replayed open loop"),
+        ("closed", _color(0), "closed loop"),
     ):
         d = (sims[key].z[0, :, 0] - sims[f"{key}-healthy"].z[0, :, 0]) * 1e3
         axes[0].plot(t, d, color=color, lw=1, label=f"{label}: RMS {np.sqrt(np.mean(d**2)):.3f} mm")
     du = sims["closed"].u[0, :, 0] - sims["closed-healthy"].u[0, :, 0]
-    axes[1].plot(t, du, color="C0", lw=0.8, label=f"closed loop: RMS {np.sqrt(np.mean(du**2)):.2f} rad/s")
+    axes[1].plot(
+        t, du, color=_color(0), lw=0.8, label=f"closed loop: RMS {np.sqrt(np.mean(du**2)):.2f} rad/s"
+    )
     model = scenario.nominal
     p = model.output_names.index("pressure") if "pressure" in model.output_names else model.n_outputs - 1
     e = chattering_record(model, sims["closed"].z, sims["closed"].u).values[0, :, p]
     sd = np.sqrt(chattering_autocovariance(model)[0][p])
     axes[2].plot(
-        t[1:], e, color="C0", lw=0.4, label=f"{model.output_names[p]} chattering, faulty closed loop"
+        t[1:], e, color=_color(0), lw=0.4, label=f"{model.output_names[p]} chattering, faulty closed loop"
     )
     smooth = np.convolve(e, np.full(100, 0.01), mode="same")
-    axes[2].plot(t[1:], smooth, color="C1", lw=1.2, label="its 100 ms moving average (the leak's slow term)")
+    axes[2].plot(
+        t[1:], smooth, color=_color(2), lw=1.2, label="its 100 ms moving average (the leak's slow term)"
+    )
     for v in (-3 * sd, 3 * sd):
         axes[2].axhline(v, color="k", lw=0.8, ls="--")
     axes[0].set_ylabel("position change (mm)")
@@ -308,7 +349,7 @@ def footprint_figure(scenario: Scenario, seed: int = 0) -> Figure:
     axes[2].set_ylabel(f"chattering ({model.output_units[p]})")
     axes[2].set_xlabel("time (s)")
     axes[0].set_title(
-        f"{scenario.name}: fault minus healthy on the same noise (realization 0); dashed: +-3 sd healthy",
+        f"{scenario.name}: fault minus healthy on the same noise (realization 0); dashed: ±3 sd healthy",
         fontsize=10,
     )
     for ax in axes:

@@ -14,6 +14,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from ..palette import NEUTRAL, channel_color, mpl
+
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
@@ -21,13 +23,15 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["identification_sweep_figure"]
 
-#: Axis labels of the catalogue parameters (unit in brackets).
+#: Names and units of the catalogue parameters: (axis label, unit).
 LABELS = {
-    "leakage": "leakage L [m^3/(s Pa)]",
-    "friction": "friction a [N s/m]",
-    "bulk_modulus": "bulk modulus be [Pa]",
-    "natural_frequency": "natural frequency f0 [Hz]",
+    "leakage": ("leakage L", "m³/(s·Pa)"),
+    "friction": ("friction a", "N·s/m"),
+    "bulk_modulus": ("bulk modulus βe", "Pa"),
+    "natural_frequency": ("natural frequency f0", "Hz"),
 }
+#: Colour of the interval half-width lines (neutral: red is kept for fault verdicts).
+CI_COLOR = mpl(NEUTRAL)
 
 
 def identification_sweep_figure(
@@ -56,35 +60,39 @@ def identification_sweep_figure(
         q05 = np.array([np.nanquantile(r.estimates, 0.05) for r in rows])
         q95 = np.array([np.nanquantile(r.estimates, 0.95) for r in rows])
         half = np.array([np.nanmean(r.ci_high - r.ci_low) / 2 for r in rows])
+        name, unit = LABELS.get(rows[0].parameter or "", ("parameter", ""))
+        unit = f" [{unit}]" if unit else ""
+        color = mpl(channel_color(0))
         top.plot(true, true, color="0.6", lw=1, label="estimate = true")
-        top.errorbar(true, med, yerr=[med - q05, q95 - med], fmt="o", ms=4, capsize=3, label="median, 5-95 %")
-        top.set_title(f"{family} ({rows[0].runs} records of 4 s per size)", fontsize=9)
-        top.set_ylabel("estimate")
-        top.set_xlabel("true value")
+        bars = [med - q05, q95 - med]
+        top.errorbar(true, med, yerr=bars, fmt="o", ms=4, capsize=3, color=color, label="median, 5-95 %")
+        top.set_title(f"{family} ({rows[0].runs} records of 4 s per size)", fontsize=9, pad=14)
+        top.set_ylabel(f"estimated {name}{unit}")
+        top.set_xlabel(f"true {name}{unit}")
         rel = 100 * (med - true) / true
         rlo, rhi = 100 * (q05 - true) / true, 100 * (q95 - true) / true
         bot.axhline(0, color="0.6", lw=1)
-        bot.fill_between(true, rlo, rhi, alpha=0.25, label="5-95 % of records")
-        bot.plot(true, rel, "o-", ms=4, label="median")
+        bot.fill_between(true, rlo, rhi, alpha=0.25, color=color, label="5-95 % of records")
+        bot.plot(true, rel, "o-", ms=4, color=color, label="median")
         bot.plot(
             true,
             100 * half / true,
             "--",
-            color="C3",
+            color=CI_COLOR,
             lw=1,
             label=f"mean {rows[0].confidence:.0%} CI half-width",
         )
-        bot.plot(true, -100 * half / true, "--", color="C3", lw=1)
-        for x, r in zip(true, rows, strict=True):
-            bot.annotate(
+        bot.plot(true, -100 * half / true, "--", color=CI_COLOR, lw=1)
+        for k, (x, r) in enumerate(zip(true, rows, strict=True)):
+            bot.annotate(  # alternately above and below the zero line: close sizes stay readable
                 f"{r.isolation()[0]:.0%}",
                 (x, 0),
                 textcoords="offset points",
-                xytext=(0, 4),
+                xytext=(0, 4 if k % 2 == 0 else -11),
                 ha="center",
                 fontsize=7,
             )
-        bot.set_xlabel(LABELS.get(rows[0].parameter or "", "true value"))
+        bot.set_xlabel(f"true {name}{unit}")
         bot.set_ylabel("relative error [%]")
         if j == 0:
             top.legend(fontsize=7, loc="upper left")

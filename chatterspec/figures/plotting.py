@@ -64,6 +64,7 @@ __all__ = [
     "power_unit",
     "save_figure",
     "spectrogram_figure",
+    "spectrum_axes",
     "spectrum_figure",
     "threshold_curve",
     "threshold_label",
@@ -482,8 +483,8 @@ def _grid(n: int, ncols: int | None) -> tuple[int, int]:
     return -(-n // ncols), ncols
 
 
-def zoom_axes(fig: Figure) -> list[Axes]:
-    """The zoom axes of a :func:`spectrum_figure` (one per panel with ``inset_hz``), in panel order.
+def spectrum_axes(fig: Figure) -> tuple[list[Axes], list[Axes]]:
+    """The axes of a :func:`spectrum_figure`: main spectrum axes and zoom axes, each in panel order.
 
     Parameters
     ----------
@@ -492,24 +493,25 @@ def zoom_axes(fig: Figure) -> list[Axes]:
 
     Returns
     -------
-    list of matplotlib.axes.Axes
+    main, zoom : list of matplotlib.axes.Axes
+        One main axes per panel; one zoom axes per panel with ``inset_hz``.
+
+    See Also
+    --------
+    main_axes, zoom_axes : each list alone.
     """
-    return [ax for ax in fig.axes if ax.get_label() == "zoom"]
+    zoom = [ax for ax in fig.axes if ax.get_label() == "zoom"]
+    return [ax for ax in fig.axes if ax.get_label() != "zoom"], zoom
+
+
+def zoom_axes(fig: Figure) -> list[Axes]:
+    """The zoom axes of ``fig``, made by :func:`spectrum_figure` (second list of :func:`spectrum_axes`)."""
+    return spectrum_axes(fig)[1]
 
 
 def main_axes(fig: Figure) -> list[Axes]:
-    """The main spectrum axes of a :func:`spectrum_figure`, in panel order (zoom axes excluded).
-
-    Parameters
-    ----------
-    fig : matplotlib.figure.Figure
-        A figure made by :func:`spectrum_figure`.
-
-    Returns
-    -------
-    list of matplotlib.axes.Axes
-    """
-    return [ax for ax in fig.axes if ax.get_label() != "zoom"]
+    """The main axes of ``fig``, made by :func:`spectrum_figure` (first list of :func:`spectrum_axes`)."""
+    return spectrum_axes(fig)[0]
 
 
 def spectrum_figure(

@@ -88,7 +88,7 @@ class BoundaryLayerPanel:
         Y-axis text of the normalized errors (how they were normalized).
     colors : tuple of str
         Matplotlib colours of the psi rows, reused cyclically (default black,
-        blue, green, red).
+        blue, green, purple).
     """
 
     t: np.ndarray
@@ -100,7 +100,8 @@ class BoundaryLayerPanel:
     fault_intervals: tuple[tuple[float, float], ...] = ()
     fault_labels: tuple[str, ...] = ()
     error_label: str = "normalized error"
-    colors: tuple[str, ...] = field(default=("black", "tab:blue", "tab:green", "tab:red"))
+    # no red: red means a fault verdict (chatterspec.palette), and a boundary layer is not one
+    colors: tuple[str, ...] = field(default=("black", "tab:blue", "tab:green", "tab:purple"))
 
 
 # --------------------------------------------------------------------------- spectrograms

@@ -1,7 +1,7 @@
 """Bookkeeping of the live stream monitor: latency statistics and the sampling-rate check of a stream.
 
 :class:`LatencyStats` keeps the median and max latency in bounded memory; :func:`rate_mismatch` compares
-the first rows' time steps with the model's ``dt`` (:class:`~chatterspec.online.live_stream.StreamMonitor`
+the first rows' time steps with the model's ``dt`` (:class:`~chatterspec.viewer.live_stream.StreamMonitor`
 holds the first :data:`RATE_CHECK_ROWS` rows for it, so a stream sampled at another rate is an error
 naming both rates, not a gap at every row).
 """
@@ -12,15 +12,20 @@ import math
 
 import numpy as np
 
+from ..errors import DataFileError
 from .stream import RowBlock
 
 __all__ = [
+    "GAP_HIGH",
+    "GAP_LOW",
     "RATE_CHECK_ROWS",
     "RATE_CHECK_ROWS_MIN",
     "RATE_TOLERANCE",
     "LatencyStats",
+    "RateGate",
     "merge_blocks",
     "rate_mismatch",
+    "time_gaps",
 ]
 
 #: The first rows of a stream (with a time column) are held until this many arrived and their time
@@ -28,6 +33,8 @@ __all__ = [
 RATE_CHECK_ROWS, RATE_CHECK_ROWS_MIN = 5, 3
 #: Relative tolerance of that comparison (the data file's: every step within 1 % of dt).
 RATE_TOLERANCE = 0.01
+#: A time step outside ``(GAP_LOW dt, GAP_HIGH dt]`` is a gap.
+GAP_LOW, GAP_HIGH = 0.5, 1.5
 
 
 class LatencyStats:
@@ -124,3 +131,105 @@ def merge_blocks(blocks: list[RowBlock]) -> RowBlock:
         np.concatenate([b.lines for b in blocks]),
         blocks[-1].arrival,
     )
+
+
+class RateGate:
+    """Holds the first rows with a time column until :data:`RATE_CHECK_ROWS` arrived, checks their
+    sampling interval against ``dt`` (:func:`rate_mismatch`), then lets every row through (a mismatch
+    would otherwise make every step a gap: nothing monitored, exit 0). Rows without a time column pass
+    at once; after a restart (:meth:`recheck`) the new data is checked again.
+
+    Parameters
+    ----------
+    dt : float
+        The model's sampling interval (s).
+    """
+
+    def __init__(self, dt: float) -> None:
+        self.dt = float(dt)
+        self._held: list[RowBlock] = []
+        self._checked = False
+
+    def feed(self, b: RowBlock) -> list[RowBlock]:
+        """The blocks to monitor now, in input order (the held rows merged into one block first).
+
+        Raises
+        ------
+        DataFileError
+            The held rows show a sampling interval other than ``dt``.
+        """
+        if self._checked or b.t is None:
+            return [*self.release(), b]
+        self._held.append(b)
+        if sum(h.n_rows for h in self._held) >= RATE_CHECK_ROWS:
+            self._check(merge_blocks(self._held))
+            return self.release()
+        return []
+
+    def release(self) -> list[RowBlock]:
+        """The held rows (as one block, or none), unchecked: something else came first (a bad row, a
+        restart, the end of the input)."""
+        held, self._held = self._held, []
+        if not held:
+            return []
+        self._checked = True
+        return [merge_blocks(held)]
+
+    def end(self) -> list[RowBlock]:
+        """The input ended: the held rows, checked first if there are at least :data:`RATE_CHECK_ROWS_MIN`.
+
+        Raises
+        ------
+        DataFileError
+            As :meth:`feed`.
+        """
+        if sum(h.n_rows for h in self._held) >= RATE_CHECK_ROWS_MIN:
+            self._check(merge_blocks(self._held))
+        return self.release()
+
+    def recheck(self) -> None:
+        """A restart: the new data's sampling is checked again."""
+        self._checked = False
+
+    def _check(self, b: RowBlock) -> None:
+        self._checked = True
+        message = rate_mismatch(b, self.dt)
+        if message is not None:
+            self._held = []  # not monitored: the run stops here
+            raise DataFileError(message)
+
+
+def time_gaps(t: np.ndarray, last_t: float | None, dt: float) -> dict[int, list[str]]:
+    """Rows of a block at which a gap starts, with the reason: a time step outside
+    ``(GAP_LOW dt, GAP_HIGH dt]`` (a jump, a repeated or a backwards time).
+
+    Parameters
+    ----------
+    t : (K,) float array
+        The block's times (s).
+    last_t : float or None
+        The previous row's time (None: the first row of new data is not a gap).
+    dt : float
+        Sampling interval (s).
+
+    Returns
+    -------
+    dict of int to list of str
+        Row index -> reasons.
+    """
+    prev = np.r_[last_t if last_t is not None else t[0] - dt, t]
+    step = np.diff(prev)
+    bad = np.flatnonzero((step <= GAP_LOW * dt) | (step > GAP_HIGH * dt))
+    if last_t is None:
+        bad = bad[bad > 0]
+    starts: dict[int, list[str]] = {}
+    for i in bad.tolist():
+        a, s = float(prev[i]), float(step[i])
+        if s <= 0:
+            why = f"time went from {a:.6g} s to {t[i]:.6g} s (not increasing)"
+        elif s > GAP_HIGH * dt:
+            why = f"time jumped from {a:.6g} s to {t[i]:.6g} s ({s / dt:.3g} dt > {GAP_HIGH:g} dt)"
+        else:
+            why = f"time step {s:.3g} s is below {GAP_LOW:g} dt"
+        starts.setdefault(i, []).append(why)
+    return starts

@@ -19,9 +19,20 @@ from typing import Literal
 import numpy as np
 
 from .._repr import short_repr
-from .._validate import finite_array, positive, readonly
+from .._validate import finite_array, positive
 from ..errors import ParameterError, ShapeError, SingularMatrixError, UnstableModelWarning
+from .model_base import (
+    ModelBase,
+    check_covariance,
+    check_measurement_matrix,
+    check_noise,
+    frozen,
+    hash_arrays,
+    set_channel_labels,
+)
 from .parameters import ParameterMap
+
+_check_covariance = check_covariance  # its old name (imported by plants.models)
 
 __all__ = ["Discretization", "LinearModel", "OscillatoryMode", "discretize", "oscillatory_mode"]
 
@@ -71,20 +82,8 @@ def oscillatory_mode(block: np.ndarray) -> OscillatoryMode:
     return OscillatoryMode(float(wn / (2 * np.pi)), float(-np.trace(block) / (2 * wn)) + 0.0)
 
 
-def _check_covariance(name: str, M: np.ndarray) -> None:
-    d = np.diag(M)
-    if np.any(d < 0):  # a variance: never negative (the relative eigenvalue tolerance would let it pass)
-        i = int(np.flatnonzero(d < 0)[0])
-        raise ParameterError(f"{name} must be positive semi-definite: diagonal entry {i} is {d[i]:g} < 0")
-    if not np.allclose(M, M.T, rtol=1e-10, atol=0.0):
-        raise ParameterError(f"{name} must be symmetric")
-    eig = np.linalg.eigvalsh(M)
-    if eig.min() < -1e-12 * max(1.0, abs(eig.max())):
-        raise ParameterError(f"{name} must be positive semi-definite; smallest eigenvalue {eig.min():g}")
-
-
 @dataclass(frozen=True, eq=False)
-class LinearModel:
+class LinearModel(ModelBase):
     """A validated linear discrete-time state-space model (eq 1-2).
 
     Parameters
@@ -149,51 +148,22 @@ class LinearModel:
             B = B[:, None]
         if B.shape[0] != n:
             raise ShapeError(f"B must have {n} rows (one per state); got shape {B.shape}")
-        C = finite_array("C", self.C, ndim=(1, 2))
-        if C.ndim == 1:
-            C = C[None, :]
-        if C.shape[1] != n:
-            raise ShapeError(f"C must have {n} columns (one per state); got shape {C.shape}")
+        C = check_measurement_matrix(self.C, n)
         m = C.shape[0]
-        if m > n:
-            raise ShapeError(f"C has more rows ({m}) than states ({n})")
-        if np.linalg.matrix_rank(C) < m:
-            raise SingularMatrixError(f"C must have full row rank {m}; its rows are dependent")
-        Q = finite_array("Q", self.Q, shape=(n, n))
-        R = finite_array("R", self.R, shape=(m, m))
-        _check_covariance("Q", Q)
-        _check_covariance("R", R)
+        Q, R = check_noise(self.Q, self.R, n, m)
         dt = positive("dt", self.dt, unit="s")
         p = B.shape[1]
-        names = {
-            "state_names": (self.state_names, n, "x"),
-            "output_names": (self.output_names, m, "z"),
-            "input_names": (self.input_names, p, "u"),
-        }
-        for attr, (given, size, prefix) in names.items():
-            given = tuple(str(s) for s in given)
-            if not given:
-                given = tuple(f"{prefix}{i + 1}" for i in range(size))
-            if len(given) != size:
-                raise ShapeError(f"{attr} must have {size} entries; got {len(given)}")
-            object.__setattr__(self, attr, given)
-        units = tuple(str(u) for u in self.output_units) or ("",) * m
-        if len(units) != m:
-            raise ShapeError(f"output_units must have {m} entries; got {len(units)}")
+        set_channel_labels(self, n, m, p)
         block = self.oscillatory_block
         if block is not None:
-            block = readonly(np.array(finite_array("oscillatory_block", block, shape=(2, 2)), dtype=float))
-        object.__setattr__(self, "output_units", units)
+            block = frozen(finite_array("oscillatory_block", block, shape=(2, 2)))
         object.__setattr__(self, "oscillatory_block", block)
         object.__setattr__(self, "dt", dt)
         for attr, val in (("A", A), ("B", B), ("C", C), ("Q", Q), ("R", R)):
-            object.__setattr__(self, attr, readonly(np.array(val, dtype=float)))
+            object.__setattr__(self, attr, frozen(val))
         cinv = None
-        if m == n:
-            if np.linalg.cond(C) > 1e12:
-                cinv = None
-            else:
-                cinv = readonly(np.array(np.linalg.inv(C), dtype=float))
+        if m == n and np.linalg.cond(C) <= 1e12:
+            cinv = frozen(np.linalg.inv(C))
         object.__setattr__(self, "_cinv", cinv)
 
     # -- sizes ---------------------------------------------------------------
@@ -201,11 +171,6 @@ class LinearModel:
     def n_states(self) -> int:
         """Number of states."""
         return self.A.shape[0]
-
-    @property
-    def n_outputs(self) -> int:
-        """Number of outputs."""
-        return self.C.shape[0]
 
     @property
     def n_inputs(self) -> int:
@@ -248,18 +213,6 @@ class LinearModel:
             return None
         return oscillatory_mode(self.oscillatory_block)
 
-    @property
-    def natural_frequency_hz(self) -> float | None:
-        """Natural frequency (Hz) of the oscillatory mode, or None (see :attr:`mode`)."""
-        mode = self.mode
-        return None if mode is None else mode.natural_frequency_hz
-
-    @property
-    def damping_ratio(self) -> float | None:
-        """Damping ratio of the oscillatory mode, or None (see :attr:`mode`)."""
-        mode = self.mode
-        return None if mode is None else mode.damping_ratio
-
     def warn_if_unstable(self, tolerance: float = 1e-3) -> bool:
         """Warn (``UnstableModelWarning``) if the spectral radius exceeds ``1 + tolerance``."""
         rho = self.spectral_radius
@@ -273,36 +226,11 @@ class LinearModel:
         return False
 
     def transition(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """One step of the noise-free dynamics, ``A x + B u`` (eq 1), batched.
-
-        Parameters
-        ----------
-        x : (..., n) array
-            States.
-        u : (..., p) or (p,) array
-            Inputs (broadcast against ``x``'s leading axes).
-
-        Returns
-        -------
-        (..., n) array
-        """
+        """``A x + B u`` (eq 1), batched: see :meth:`ModelBase.transition`."""
         return x @ self.A.T + np.asarray(u, dtype=float) @ self.B.T
 
     def jacobian(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Jacobian of :meth:`transition` with respect to ``x``: ``A`` broadcast to ``(..., n, n)``.
-
-        Parameters
-        ----------
-        x : (..., n) array
-            States (only the leading shape is used).
-        u : (..., p) or (p,) array
-            Inputs (unused: the model is linear).
-
-        Returns
-        -------
-        (..., n, n) array
-            A read-only broadcast view of ``A``.
-        """
+        """``A``, a read-only view broadcast to ``(..., n, n)`` (``u`` unused): :meth:`ModelBase.jacobian`."""
         return np.broadcast_to(self.A, np.shape(x)[:-1] + self.A.shape)
 
     def replace(self, **changes: object) -> LinearModel:
@@ -312,9 +240,7 @@ class LinearModel:
     def fingerprint(self) -> str:
         """SHA-256 of the matrices and dt: identifies the model in saved calibrations."""
         h = hashlib.sha256()
-        for arr in (self.A, self.B, self.C, self.Q, self.R, np.array([self.dt])):
-            h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())
-            h.update(str(arr.shape).encode())
+        hash_arrays(h, (self.A, self.B, self.C, self.Q, self.R, np.array([self.dt])))
         return h.hexdigest()
 
     def to_dict(self) -> dict[str, object]:

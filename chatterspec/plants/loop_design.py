@@ -16,7 +16,7 @@ actuator's rigid-body approximation (an integrator, ``y' = Kv u``) for a damping
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -108,11 +108,8 @@ def spectral_radius(model: LinearModel | NonlinearModel, controller: PIDControll
 
     Parameters
     ----------
-    model : LinearModel or NonlinearModel
-        The plant (linearized at rest if nonlinear).
-    controller : PIDController
-    output : int
-        Index of the measured position among the model's outputs.
+    model, controller, output
+        As in :func:`closed_loop_matrix`.
     """
     return float(np.abs(np.linalg.eigvals(closed_loop_matrix(model, controller, output))).max())
 
@@ -342,12 +339,7 @@ class LoopMode:
 
     def to_dict(self) -> dict[str, float]:
         """The fields as a JSON-ready dict (what the JSON outputs print)."""
-        return {
-            "natural_frequency_hz": self.natural_frequency_hz,
-            "damping_ratio": self.damping_ratio,
-            "time_constant_s": self.time_constant_s,
-            "spectral_radius": self.spectral_radius,
-        }
+        return asdict(self)
 
 
 def loop_mode(model: LinearModel | NonlinearModel, controller: PIDController, output: int = 0) -> LoopMode:
@@ -357,11 +349,8 @@ def loop_mode(model: LinearModel | NonlinearModel, controller: PIDController, ou
 
     Parameters
     ----------
-    model : LinearModel or NonlinearModel
-        The plant (linearized at rest if nonlinear).
-    controller : PIDController
-    output : int
-        Index of the measured position among the model's outputs.
+    model, controller, output
+        As in :func:`closed_loop_matrix`.
 
     Returns
     -------

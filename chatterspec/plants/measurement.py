@@ -116,10 +116,8 @@ def measurement_jacobian(model: object, x: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    model : model object
-        With ``C`` and optionally ``h_jac``.
-    x : (..., n) array
-        States.
+    model, x
+        As in :func:`measure` (``h_jac`` in place of ``h``).
 
     Returns
     -------

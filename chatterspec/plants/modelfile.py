@@ -69,10 +69,9 @@ from .modelfile_fields import (
     _covariance,
     _expect_shape,
     _matrix,
-    _names,
-    _scalar,
     _table,
     detector_table,
+    read_channels,
     svsf_gamma,
 )
 from .modelfile_nonlinear import load_nonlinear, parse_simulation
@@ -127,12 +126,8 @@ def load_model(path: str | Path) -> ModelSpec:
 
     if "dynamics" in doc:  # a nonlinear model: f and its Jacobian named as Python functions
         return load_nonlinear(doc, path, where)
-    dt = _scalar(doc, "dt", where, positive=True)
-    channels = _table(doc, "channels", where)
-    outputs = _names(channels, "outputs", where, required=True)
-    inputs = _names(channels, "inputs", where, required=True)
-    units = _names(channels, "units", where, required=False)
-    states = _names(channels, "states", where, required=False)
+    channels = read_channels(doc, where)
+    dt, outputs, inputs, units, states = channels
     mats = _table(doc, "matrices", where)
     form = str(mats.get("form", "discrete"))
     if form not in ("discrete", "continuous"):
@@ -185,10 +180,7 @@ def load_model(path: str | Path) -> ModelSpec:
             Q=Q,
             R=R,
             dt=dt,
-            state_names=tuple(states),
-            output_names=tuple(outputs),
-            input_names=tuple(inputs),
-            output_units=tuple(units),
+            **channels.model_names(),
             name=str(doc.get("name", path.stem)),
             parameter_map=pmap,
         )

@@ -13,7 +13,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -26,7 +26,64 @@ if TYPE_CHECKING:  # pragma: no cover
     from .nonlinear import NonlinearModel
 
 
-__all__ = ["ModelSpec", "detector_table", "svsf_gamma"]
+__all__ = ["Channels", "ModelSpec", "detector_table", "read_channels", "svsf_gamma"]
+
+
+class Channels(NamedTuple):
+    """The sampling time and the ``[channels]`` table of a model file (linear and nonlinear alike).
+
+    Attributes
+    ----------
+    dt : float
+        Sampling time in seconds (> 0).
+    outputs, inputs : list of str
+        Measured channels and inputs (required).
+    units : list of str
+        One per output (optional: empty).
+    states : list of str
+        State names (optional: empty).
+    """
+
+    dt: float
+    outputs: list[str]
+    inputs: list[str]
+    units: list[str]
+    states: list[str]
+
+    def model_names(self) -> dict[str, tuple[str, ...]]:
+        """The channel names and units as the model dataclasses' keyword arguments."""
+        return {
+            "state_names": tuple(self.states),
+            "output_names": tuple(self.outputs),
+            "input_names": tuple(self.inputs),
+            "output_units": tuple(self.units),
+        }
+
+
+def read_channels(doc: Mapping[str, Any], where: str) -> Channels:
+    """The top-level ``dt`` and the ``[channels]`` table of a model file, checked.
+
+    Parameters
+    ----------
+    doc : mapping
+        The parsed TOML document.
+    where : str
+        The file, for the messages.
+
+    Raises
+    ------
+    ModelFileError
+        If ``dt`` is missing or not > 0, or ``[channels]`` lacks ``outputs``/``inputs`` or is malformed.
+    """
+    dt = _scalar(doc, "dt", where, positive=True)
+    channels = _table(doc, "channels", where)
+    return Channels(
+        dt,
+        _names(channels, "outputs", where, required=True),
+        _names(channels, "inputs", where, required=True),
+        _names(channels, "units", where, required=False),
+        _names(channels, "states", where, required=False),
+    )
 
 
 @dataclass(frozen=True, eq=False)

@@ -68,10 +68,10 @@ from .modelfile_fields import (
     _array,
     _covariance,
     _matrix,
-    _names,
     _scalar,
     _table,
     detector_table,
+    read_channels,
     svsf_gamma,
 )
 
@@ -290,12 +290,8 @@ def load_nonlinear(doc: Mapping[str, Any], path: Path, where: str) -> Any:
     """
     from .nonlinear import NonlinearModel
 
-    dt = _scalar(doc, "dt", where, positive=True)
-    channels = _table(doc, "channels", where)
-    outputs = _names(channels, "outputs", where, required=True)
-    inputs = _names(channels, "inputs", where, required=True)
-    units = _names(channels, "units", where, required=False)
-    states = _names(channels, "states", where, required=False)
+    channels = read_channels(doc, where)
+    dt, outputs, inputs, _, states = channels
     dyn = _table(doc, "dynamics", where)
     unknown = set(dyn) - _DYNAMICS_KEYS
     if unknown:
@@ -365,10 +361,7 @@ def load_nonlinear(doc: Mapping[str, Any], path: Path, where: str) -> Any:
         "dt": dt,
         "n_inputs": len(inputs),
         "input_jacobian": input_jac,
-        "state_names": tuple(states),
-        "output_names": tuple(outputs),
-        "input_names": tuple(inputs),
-        "output_units": tuple(units),
+        **channels.model_names(),
         "parameters": parameters,
         "name": str(doc.get("name", path.stem)),
     }

@@ -44,6 +44,13 @@ def _toml_covariance(key: str, M: np.ndarray) -> str:
     return f"{key} = {_toml_matrix(M)}"
 
 
+def _matrices_and_svsf(model: object, matrices: tuple[str, ...], svsf: tuple[str, ...]) -> list[str]:
+    """The ``[matrices]`` table (``matrices`` lines, then C, Q, R) and the ``[svsf]`` table of a file."""
+    C, Q, R = model.C, model.Q, model.R  # type: ignore[attr-defined]
+    matrix_lines = [*matrices, f"C = {_toml_matrix(C)}", _toml_covariance("Q", Q), _toml_covariance("R", R)]
+    return ["", "[matrices]", *matrix_lines, "", "[svsf]", *svsf]
+
+
 def write_model_toml(
     path: str | Path,
     model: LinearModel,
@@ -110,20 +117,11 @@ def write_model_toml(
     lines.append(f"inputs = {_toml_strings(model.input_names)}")
     if model.state_names:
         lines.append(f"states = {_toml_strings(model.state_names)}")
-    lines += [
-        "",
-        "[matrices]",
-        'form = "discrete"',
-        f"A = {_toml_matrix(model.A)}",
-        f"B = {_toml_matrix(model.B)}",
-        f"C = {_toml_matrix(model.C)}",
-        _toml_covariance("Q", model.Q),
-        _toml_covariance("R", model.R),
-        "",
-        "[svsf]",
-        f"psi = {_toml_vector(psi_arr)}",
-        f"gamma = {_toml_number(gamma)}",
-    ]
+    lines += _matrices_and_svsf(
+        model,
+        ('form = "discrete"', f"A = {_toml_matrix(model.A)}", f"B = {_toml_matrix(model.B)}"),
+        (f"psi = {_toml_vector(psi_arr)}", f"gamma = {_toml_number(gamma)}"),
+    )
     if model.parameter_map is not None:  # fault identification: how physical parameters enter A and B
         lines += ["", model.parameter_map.to_toml()]
     if detector:
@@ -270,16 +268,7 @@ def write_nonlinear_model_toml(
         lines.append(f"rest_state = {_toml_vector(model.rest_state)}")
     if params:
         lines += ["", "[dynamics.parameters]", *(f"{k} = {_toml_number(v)}" for k, v in params.items())]
-    lines += [
-        "",
-        "[matrices]",
-        f"C = {_toml_matrix(model.C)}",
-        _toml_covariance("Q", model.Q),
-        _toml_covariance("R", model.R),
-        "",
-        "[svsf]",
-        f"gamma = {_toml_number(gamma)}",
-    ]
+    lines += _matrices_and_svsf(model, (), (f"gamma = {_toml_number(gamma)}",))
     if simulation:
         lines += ["", "[simulation]"]
         for key, value in simulation.items():

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -30,21 +30,22 @@ import numpy as np
 from .._repr import short_repr
 from .._validate import finite_array, positive, positive_int, readonly
 from ..errors import ModelKindError, NonFiniteError, ParameterError, ShapeError, SingularMatrixError
+from .euler import ContinuousEuler, EulerJacobian, EulerStep, Transition
+from .linear_model import LinearModel
+from .linearization import Linearization
 from .measurement import Measurement, measure, measurement_jacobian, measurement_matrix
-from .models import LinearModel, OscillatoryMode, _check_covariance, oscillatory_mode
+from .model_base import (
+    ModelBase,
+    check_measurement_matrix,
+    check_noise,
+    frozen,
+    hash_arrays,
+    set_channel_labels,
+)
 
 __all__ = ["NonlinearModel", "is_linear", "require_linear", "same_dynamics"]
 
-Transition = Callable[[np.ndarray, np.ndarray], np.ndarray]
-
-
-def _names(attr: str, given: tuple[str, ...], size: int, prefix: str) -> tuple[str, ...]:
-    given = tuple(str(s) for s in given)
-    if not given:
-        given = tuple(f"{prefix}{i + 1}" for i in range(size))
-    if len(given) != size:
-        raise ShapeError(f"{attr} must have {size} entries; got {len(given)}")
-    return given
+_EulerStep, _EulerJacobian = EulerStep, EulerJacobian  # their old names (models pickled before)
 
 
 def _callable_id(fn: object) -> str:
@@ -60,7 +61,7 @@ def _callable_id(fn: object) -> str:
 
 
 @dataclass(frozen=True, eq=False)
-class NonlinearModel:
+class NonlinearModel(ModelBase, Linearization, ContinuousEuler):
     """A validated nonlinear discrete-time model, with a linear (``C``) or nonlinear (``h``) measurement.
 
     ``x(k+1) = f(x(k), u(k)) + v(k)`` with ``v ~ N(0, Q)`` and ``z(k) = C x(k) + w(k)`` (or
@@ -142,32 +143,13 @@ class NonlinearModel:
         if not callable(self.f) or not callable(self.jac):
             raise ModelKindError("f and jac must be callables f(x, u) -> (..., n), jac(x, u) -> (..., n, n)")
         C = self.C if self.h is None else measurement_matrix(self)
-        C = finite_array("C", C, ndim=(1, 2))
-        if C.ndim == 1:
-            C = C[None, :]
+        C = check_measurement_matrix(C, full_rank=self.h is None)  # (h_jac may vanish at the rest state)
         m, n = C.shape
-        if m > n:
-            raise ShapeError(f"C has more rows ({m}) than states ({n})")
-        if self.h is None and np.linalg.matrix_rank(C) < m:  # (h_jac may vanish at the rest state)
-            raise SingularMatrixError(f"C must have full row rank {m}; its rows are dependent")
-        Q = finite_array("Q", self.Q, shape=(n, n))
-        R = finite_array("R", self.R, shape=(m, m))
-        _check_covariance("Q", Q)
-        _check_covariance("R", R)
+        Q, R = check_noise(self.Q, self.R, n, m)
         object.__setattr__(self, "dt", positive("dt", self.dt, unit="s"))
         p = positive_int("n_inputs", self.n_inputs)
         object.__setattr__(self, "n_inputs", p)
-        object.__setattr__(self, "state_names", _names("state_names", self.state_names, n, "x"))
-        object.__setattr__(self, "output_names", _names("output_names", self.output_names, m, "z"))
-        object.__setattr__(self, "input_names", _names("input_names", self.input_names, p, "u"))
-        su = tuple(str(u) for u in self.state_units) or ("",) * n
-        ou = tuple(str(u) for u in self.output_units) or ("",) * m
-        if len(su) != n:
-            raise ShapeError(f"state_units must have {n} entries; got {len(su)}")
-        if len(ou) != m:
-            raise ShapeError(f"output_units must have {m} entries; got {len(ou)}")
-        object.__setattr__(self, "state_units", su)
-        object.__setattr__(self, "output_units", ou)
+        set_channel_labels(self, n, m, p)
         rest = np.zeros(n) if self.rest_state is None else self.rest_state
         rest = readonly(np.array(finite_array("rest_state", rest, shape=(n,))))
         object.__setattr__(self, "rest_state", rest)
@@ -181,7 +163,7 @@ class NonlinearModel:
         params = {str(k): float(v) for k, v in dict(self.parameters).items()}
         object.__setattr__(self, "parameters", params)
         for attr, val in (("C", C), ("Q", Q), ("R", R)):
-            object.__setattr__(self, attr, readonly(np.array(val, dtype=float)))
+            object.__setattr__(self, attr, frozen(val))
         # probe f and jac at the rest state (batched shape (2, n)) so that a wrong model fails here
         x = np.broadcast_to(self.rest_state, (2, n)).copy()
         u = np.zeros((2, p))
@@ -204,11 +186,6 @@ class NonlinearModel:
     def n_states(self) -> int:
         """Number of states."""
         return self.C.shape[1]
-
-    @property
-    def n_outputs(self) -> int:
-        """Number of outputs."""
-        return self.C.shape[0]
 
     @property
     def is_linear(self) -> bool:
@@ -248,18 +225,7 @@ class NonlinearModel:
         return x, u, lead
 
     def transition(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """One step of the noise-free dynamics ``f(x, u)``, batched.
-
-        Parameters
-        ----------
-        x : (..., n) array
-            States.
-        u : (..., p) or (p,) array
-            Inputs (broadcast against ``x``'s leading axes).
-
-        Returns
-        -------
-        (..., n) array
+        """``f(x, u)``, batched (see :meth:`ModelBase.transition`).
 
         Raises
         ------
@@ -274,18 +240,7 @@ class NonlinearModel:
         return out
 
     def jacobian(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Jacobian ``F = df/dx`` at ``(x, u)``, batched: ``(..., n, n)``.
-
-        Parameters
-        ----------
-        x : (..., n) array
-            States.
-        u : (..., p) or (p,) array
-            Inputs.
-
-        Returns
-        -------
-        (..., n, n) array
+        """``jac(x, u)``, batched (see :meth:`ModelBase.jacobian`).
 
         Raises
         ------
@@ -301,127 +256,6 @@ class NonlinearModel:
                 f"{self.name}: the Jacobian jac(x, u) returned shape {out.shape}; expected {want}"
             )
         return out
-
-    def input_matrix(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """``df/du`` at one point ``(x, u)``: the supplied ``input_jacobian`` or central differences.
-
-        Parameters
-        ----------
-        x : (n,) array
-            State.
-        u : (p,) array
-            Input.
-
-        Returns
-        -------
-        (n, p) ndarray
-            Central differences use the step ``h = 1e-6 max(1, |u_j|)`` per input (error
-            O(h^2) times the third derivative; exact for inputs that enter affinely, as in the EHA).
-        """
-        x = finite_array("x", x, shape=(self.n_states,))
-        u = finite_array("u", u, shape=(self.n_inputs,))
-        if self.input_jacobian is not None:
-            B = np.asarray(self.input_jacobian(x, u), dtype=float)
-            if B.shape != (self.n_states, self.n_inputs):
-                raise ShapeError(
-                    f"input_jacobian returned shape {B.shape}; expected ({self.n_states}, {self.n_inputs})"
-                )
-            return B
-        B = np.empty((self.n_states, self.n_inputs))
-        for j in range(self.n_inputs):
-            h = 1e-6 * max(1.0, abs(u[j]))
-            up, um = u.copy(), u.copy()
-            up[j] += h
-            um[j] -= h
-            B[:, j] = (self.transition(x, up) - self.transition(x, um)) / (2 * h)
-        return B
-
-    def linearize(self, x0: np.ndarray | None = None, u0: np.ndarray | None = None) -> LinearModel:
-        """Small-signal linear model about ``(x0, u0)``: ``dx(k+1) = F dx(k) + G du(k)``.
-
-        ``F = jac(x0, u0)`` and ``G = df/du`` (see :meth:`input_matrix`); ``C``, ``Q``, ``R``, ``dt``
-        and the names are kept. The returned model acts on *deviations* from the operating point:
-        the offset ``f(x0, u0) - x0`` is not represented (it is zero at an equilibrium such as the
-        EHA at rest). Its ``oscillatory_block`` is the continuous-equivalent block of
-        ``oscillatory_states``, ``(F - I) / dt`` (the inverse of explicit Euler).
-
-        Parameters
-        ----------
-        x0 : (n,) array, optional
-            Operating state (default :attr:`rest_state`).
-        u0 : (p,) array, optional
-            Operating input (default zeros).
-
-        Returns
-        -------
-        LinearModel
-        """
-        x0 = self.rest_state if x0 is None else finite_array("x0", x0, shape=(self.n_states,))
-        u0 = np.zeros(self.n_inputs) if u0 is None else finite_array("u0", u0, shape=(self.n_inputs,))
-        F = self.jacobian(x0, u0)
-        if not np.all(np.isfinite(F)):
-            raise NonFiniteError(f"{self.name}: the Jacobian at the operating point is not finite")
-        G = self.input_matrix(x0, u0)
-        return LinearModel(
-            A=F,
-            B=G,
-            C=self.measurement_jacobian(x0),
-            Q=self.Q,
-            R=self.R,
-            dt=self.dt,
-            state_names=self.state_names,
-            output_names=self.output_names,
-            input_names=self.input_names,
-            output_units=self.output_units,
-            oscillatory_block=self._block(F),
-            name=f"{self.name} linearized",
-        )
-
-    def _block(self, F: np.ndarray) -> np.ndarray | None:
-        if self.oscillatory_states is None:
-            return None
-        idx = list(self.oscillatory_states)
-        return (F[np.ix_(idx, idx)] - np.eye(2)) / self.dt
-
-    def mode_at(self, x0: np.ndarray | None = None, u0: np.ndarray | None = None) -> OscillatoryMode | None:
-        """Natural frequency (Hz) and damping of the linearization at ``(x0, u0)``.
-
-        Parameters
-        ----------
-        x0 : (n,) array, optional
-            Operating state (default :attr:`rest_state`).
-        u0 : (p,) array, optional
-            Operating input (default zeros).
-
-        Returns
-        -------
-        OscillatoryMode or None
-            None without ``oscillatory_states`` or when the block has no oscillatory mode
-            (non-positive determinant).
-        """
-        x0 = self.rest_state if x0 is None else finite_array("x0", x0, shape=(self.n_states,))
-        u0 = np.zeros(self.n_inputs) if u0 is None else finite_array("u0", u0, shape=(self.n_inputs,))
-        block = self._block(self.jacobian(x0, u0))
-        if block is None or not np.all(np.isfinite(block)) or np.linalg.det(block) <= 0:
-            return None
-        return oscillatory_mode(block)
-
-    @property
-    def mode(self) -> OscillatoryMode | None:
-        """:meth:`mode_at` the rest state with zero input (a linearized value)."""
-        return self.mode_at()
-
-    @property
-    def natural_frequency_hz(self) -> float | None:
-        """Linearized natural frequency (Hz) at the rest state, or None."""
-        mode = self.mode
-        return None if mode is None else mode.natural_frequency_hz
-
-    @property
-    def damping_ratio(self) -> float | None:
-        """Linearized damping ratio at the rest state, or None."""
-        mode = self.mode
-        return None if mode is None else mode.damping_ratio
 
     def replace(self, **changes: Any) -> NonlinearModel:
         """Return a copy with fields replaced (validated again).
@@ -445,9 +279,7 @@ class NonlinearModel:
             if fn is not None:
                 h.update(_callable_id(fn).encode())
         h.update(json.dumps(self.parameters, sort_keys=True).encode())
-        for arr in (self.C, self.Q, self.R, np.array([self.dt])):
-            h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())
-            h.update(str(arr.shape).encode())
+        hash_arrays(h, (self.C, self.Q, self.R, np.array([self.dt])))
         return h.hexdigest()
 
     def to_dict(self) -> dict[str, object]:
@@ -467,74 +299,6 @@ class NonlinearModel:
             "input_names": list(self.input_names),
             "output_units": list(self.output_units),
         }
-
-    @classmethod
-    def from_continuous(
-        cls,
-        g: Transition,
-        g_jac: Transition,
-        C: np.ndarray,
-        Q: np.ndarray,
-        R: np.ndarray,
-        dt: float,
-        **kwargs: Any,
-    ) -> NonlinearModel:
-        """Explicit Euler discretization of ``x' = g(x, u)``: ``f = x + dt g``, ``F = I + dt dg/dx``.
-
-        The papers discretize this way (e.g. eq 4.1-4.3 of the SMM paper). ``Q`` and ``R`` are
-        the *discrete* covariances. Euler is only stable while ``dt`` is small against the local
-        time constants (for the EHA's quadratic friction: ``2 dt a1 |v| / M < 1``).
-
-        Parameters
-        ----------
-        g : callable
-            Continuous dynamics ``g(x, u) -> (..., n)`` (units of the state per second).
-        g_jac : callable
-            Its Jacobian ``dg/dx`` ``-> (..., n, n)``.
-        C, Q, R : arrays
-            As in :class:`NonlinearModel`.
-        dt : float
-            Sampling time in seconds (> 0).
-        **kwargs
-            The other :class:`NonlinearModel` fields (names, units, ``n_inputs``, ...).
-        """
-        dt = positive("dt", dt, unit="s")
-        return cls(
-            f=_EulerStep(g, dt),
-            jac=_EulerJacobian(g_jac, dt),
-            C=C,
-            Q=Q,
-            R=R,
-            dt=dt,
-            **kwargs,
-        )
-
-
-@dataclass(frozen=True)
-class _EulerStep:
-    g: Transition
-    dt: float
-
-    def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        return x + self.dt * np.asarray(self.g(x, u))
-
-    @property
-    def func(self) -> Transition:  # for _callable_id
-        return self.g
-
-
-@dataclass(frozen=True)
-class _EulerJacobian:
-    g_jac: Transition
-    dt: float
-
-    def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        J = self.dt * np.asarray(self.g_jac(x, u))
-        return J + np.eye(J.shape[-1])
-
-    @property
-    def func(self) -> Transition:
-        return self.g_jac
 
 
 def is_linear(model: object) -> bool:

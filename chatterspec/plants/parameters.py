@@ -27,7 +27,7 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import numpy as np
 
@@ -114,6 +114,17 @@ class MatrixEntry:
     def label(self) -> str:
         """``"A[3,3]"``: the entry, 1-based as in files and messages."""
         return f"{self.matrix}[{self.row + 1},{self.col + 1}]"
+
+
+_Named = TypeVar("_Named", bound="PhysicalParameter | Hypothesis")
+
+
+def _named(items: Sequence[_Named], name: str, missing: str) -> _Named:
+    """The item of ``items`` called ``name``; :class:`ParameterError` with ``missing`` otherwise."""
+    for item in items:
+        if item.name == name:
+            return item
+    raise ParameterError(missing)
 
 
 @dataclass(frozen=True, eq=False)
@@ -209,21 +220,13 @@ class ParameterMap:
 
     def parameter(self, name: str) -> PhysicalParameter:
         """The parameter called ``name`` (:class:`ParameterError` listing the names otherwise)."""
-        for p in self.parameters:
-            if p.name == name:
-                return p
-        raise ParameterError(
-            f"the model has no parameter {name!r}; its parameters: {', '.join(self.parameter_names)}"
-        )
+        names = ", ".join(self.parameter_names)
+        return _named(self.parameters, name, f"the model has no parameter {name!r}; its parameters: {names}")
 
     def hypothesis(self, name: str) -> Hypothesis:
         """The hypothesis called ``name`` (:class:`ParameterError` listing the names otherwise)."""
-        for h in self.hypotheses:
-            if h.name == name:
-                return h
-        raise ParameterError(
-            f"no hypothesis {name!r}; declared: {', '.join(h.name for h in self.hypotheses)}"
-        )
+        names = ", ".join(h.name for h in self.hypotheses)
+        return _named(self.hypotheses, name, f"no hypothesis {name!r}; declared: {names}")
 
     def with_hypotheses(self, hypotheses: Sequence[Hypothesis | str | Sequence[str]]) -> ParameterMap:
         """A copy with other hypotheses: ``Hypothesis`` objects, parameter names, or lists of names.

@@ -80,16 +80,33 @@ def _levels(times: object, levels: object, name: str) -> tuple[tuple[float, ...]
     return tuple(float(x) for x in tt), tuple(float(x) for x in ll)
 
 
-def _init_levels(ref: StepSequence | SCurve) -> None:
-    """Validate and normalize the ``times``, ``levels`` and ``initial`` of a frozen reference in place."""
-    tt, ll = _levels(ref.times, ref.levels, type(ref).__name__)
-    object.__setattr__(ref, "times", tt)
-    object.__setattr__(ref, "levels", ll)
-    object.__setattr__(ref, "initial", finite_scalar("initial", ref.initial))
+class _Moves:
+    """What :class:`StepSequence` and :class:`SCurve` share: moves at ``times`` (s) to ``levels`` (m)
+    from ``initial`` (m), checked and normalized in place when the frozen dataclass is built."""
+
+    times: tuple[float, ...]
+    levels: tuple[float, ...]
+    initial: float
+
+    def __post_init__(self) -> None:
+        tt, ll = _levels(self.times, self.levels, type(self).__name__)
+        object.__setattr__(self, "times", tt)
+        object.__setattr__(self, "levels", ll)
+        object.__setattr__(self, "initial", finite_scalar("initial", self.initial))
+
+    @property
+    def peak(self) -> float:
+        """Largest ``|r|`` in m (a step or a minimum-jerk move does not overshoot its end points)."""
+        return max(abs(self.initial), *(abs(x) for x in self.levels))
+
+    @property
+    def moves(self) -> int:
+        """Number of steps or moves."""
+        return len(self.times)
 
 
 @dataclass(frozen=True)
-class StepSequence:
+class StepSequence(_Moves):
     """r(t) = levels[j] from times[j] on (``initial`` before the first time).
 
     Attributes
@@ -106,19 +123,6 @@ class StepSequence:
     levels: tuple[float, ...]
     initial: float = 0.0
 
-    def __post_init__(self) -> None:
-        _init_levels(self)
-
-    @property
-    def peak(self) -> float:
-        """Largest ``|r|`` in m."""
-        return max(abs(self.initial), *(abs(x) for x in self.levels))
-
-    @property
-    def moves(self) -> int:
-        """Number of steps."""
-        return len(self.times)
-
     def sample(self, t: np.ndarray) -> np.ndarray:
         """The values at the given times (s), one row per time."""
         t = _times(t)
@@ -134,7 +138,7 @@ class StepSequence:
 
 
 @dataclass(frozen=True)
-class SCurve:
+class SCurve(_Moves):
     """Minimum-jerk moves: from ``times[j]`` the position goes to ``levels[j]`` in ``move_time`` s.
 
     ``r = r0 + (r1 - r0) s(tau)``, ``s(tau) = 10 tau^3 - 15 tau^4 + 6 tau^5``, ``tau = (t - t_j) /
@@ -159,7 +163,7 @@ class SCurve:
     initial: float = 0.0
 
     def __post_init__(self) -> None:
-        _init_levels(self)
+        super().__post_init__()
         mt = positive("move_time", self.move_time, unit="s")
         object.__setattr__(self, "move_time", mt)
         gaps = np.diff(self.times)
@@ -168,16 +172,6 @@ class SCurve:
                 f"SCurve moves overlap: move_time {mt:g} s is longer than the shortest gap between "
                 f"move starts ({gaps.min():g} s)"
             )
-
-    @property
-    def peak(self) -> float:
-        """Largest ``|r|`` in m (a minimum-jerk move does not overshoot its end points)."""
-        return max(abs(self.initial), *(abs(x) for x in self.levels))
-
-    @property
-    def moves(self) -> int:
-        """Number of moves."""
-        return len(self.times)
 
     @property
     def peak_velocity(self) -> float:

@@ -51,7 +51,7 @@ def _detc_model(F: np.ndarray, Q: np.ndarray, R: np.ndarray, name: str) -> Linea
         state_names=("position", "velocity", "acceleration"),
         output_names=("position",),
         input_names=("u",),
-        output_units=("",),
+        output_units=("cm",),  # the paper gives R = 0.1 cm^2 (section "Comparative analysis")
         oscillatory_block=_complex_pair_block(F, 1e-3),
         name=name,
     )

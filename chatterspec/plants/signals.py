@@ -137,12 +137,8 @@ class Chirp:
 
         Parameters
         ----------
-        f_start_hz, f_stop_hz : float
-            Start and stop frequency in Hz (> 0).
-        sweep_time : float
-            Time in s at which ``f_stop_hz`` is reached (> 0).
-        amplitude : float
-            Peak value (input units).
+        f_start_hz, f_stop_hz, sweep_time, amplitude : float
+            As the attributes of the same name (Hz, Hz, s, input units).
         """
         return cls(f_start_hz, f_stop_hz, sweep_time, amplitude, phase_deg=-90.0)
 

@@ -69,6 +69,16 @@ class LoopState(NamedTuple):
     y_prev: np.ndarray
 
 
+class _Block(NamedTuple):
+    """The exogenous signals of ``K`` samples of the loop: noise, plant segment, reference, dither."""
+
+    v: np.ndarray  # (runs, K, n) standard normals of the process noise
+    w: np.ndarray  # (runs, K, m) standard normals of the measurement noise
+    seg_idx: np.ndarray  # (K,) index of the segment active at each sample
+    ref: np.ndarray  # (K,) reference (m)
+    dith: np.ndarray  # (K,) dither added to the pump speed (rad/s)
+
+
 def _initial_state(x0: np.ndarray, runs: int) -> LoopState:
     return LoopState(
         x=np.repeat(np.asarray(x0, dtype=float)[None], runs, axis=0),
@@ -235,26 +245,19 @@ def _loop_of(scenario: object) -> ClosedLoop:
 
 
 def _step_linear(
-    scenario: object,
-    v: np.ndarray,
-    w: np.ndarray,
-    seg_idx: np.ndarray,
-    ref: np.ndarray,
-    dith: np.ndarray,
-    state: LoopState,
-    tb: _LinearTables,
+    scenario: object, block: _Block, state: LoopState, tb: _LinearTables
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, LoopState]:
     """K samples of the linear loop for ``runs`` realizations from ``state`` (numpy path)."""
     loop = _loop_of(scenario)
     coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)  # type: ignore[attr-defined]
+    v, w, seg_idx, ref, dith = block
     return _loop_numpy(v, w, np.asarray(seg_idx), tb, ref, dith, coef, loop.output, state)
 
 
-def _block_linear_compiled(
-    scenario: object, v: np.ndarray, w: np.ndarray, seg_idx: np.ndarray, ref: np.ndarray, dith: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _block_linear_compiled(scenario: object, block: _Block) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Runs of one random block from rest through the compiled loop: ``(x, z, u)`` time-major."""
     loop = _loop_of(scenario)
+    v, w, seg_idx, ref, dith = block
     runs, T, n = v.shape
     m = w.shape[2]
     tb = _linear_tables(scenario)
@@ -271,16 +274,11 @@ def _block_linear_compiled(
 
 
 def _step_nonlinear(
-    scenario: object,
-    v: np.ndarray,
-    w: np.ndarray,
-    seg_idx: np.ndarray,
-    ref: np.ndarray,
-    dith: np.ndarray,
-    state: LoopState,
+    scenario: object, block: _Block, state: LoopState
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, LoopState]:
     """K samples of the loop around a nonlinear plant (numpy path, vectorized ``f``)."""
     loop = _loop_of(scenario)
+    v, w, seg_idx, ref, dith = block
     coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)  # type: ignore[attr-defined]
     segs = scenario.segments  # type: ignore[attr-defined]
     runs, K, n = v.shape
@@ -314,17 +312,12 @@ def _step_nonlinear(
 
 
 def _run(
-    scenario: object,
-    v: np.ndarray,
-    w: np.ndarray,
-    seg_idx: np.ndarray,
-    ref: np.ndarray,
-    dith: np.ndarray,
-    state: LoopState,
+    scenario: object, block: _Block, state: LoopState, tables: _LinearTables | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, LoopState]:
+    """K samples of the loop on the numpy path, linear (``tables``: the scenario's, if at hand) or not."""
     if getattr(scenario, "is_linear", True):
-        return _step_linear(scenario, v, w, seg_idx, ref, dith, state, _linear_tables(scenario))
-    return _step_nonlinear(scenario, v, w, seg_idx, ref, dith, state)
+        return _step_linear(scenario, block, state, _linear_tables(scenario) if tables is None else tables)
+    return _step_nonlinear(scenario, block, state)
 
 
 def simulate_block_closed_loop(
@@ -336,19 +329,13 @@ def simulate_block_closed_loop(
     ----------
     scenario : Scenario
         Its ``input`` is a :class:`~chatterspec.plants.closed_loop.ClosedLoop`.
-    root : numpy.random.SeedSequence
-        Root of the random streams (:mod:`chatterspec.rng`).
-    lo, hi : int
-        Global indices of the first and one-past-the-last realization.
-    t : (T,) array
-        Sample times in s.
+    root, lo, hi, t
+        As in :func:`~chatterspec.plants.simulate_nonlinear.simulate_block_nonlinear`.
 
     Returns
     -------
-    x : (hi - lo, T, n) ndarray
-        True states.
-    z : (hi - lo, T, m) ndarray
-        Measurements.
+    x, z : ndarrays
+        True states and measurements, as in ``simulate_block_nonlinear``.
     u : (hi - lo, T, 1) ndarray
         Applied (saturated) pump speed in rad/s.
     """
@@ -362,10 +349,11 @@ def simulate_block_closed_loop(
     compiled = _jit.enabled() and getattr(scenario, "is_linear", True) and _same_shapes(scenario)
     for off, v, w in _noise_blocks(root, lo, hi, T, n, m):
         b = v.shape[0]
+        block = _Block(v, w, seg_idx, ref, dith)
         if compiled:
-            x, z, u = _block_linear_compiled(scenario, v, w, seg_idx, ref, dith)
+            x, z, u = _block_linear_compiled(scenario, block)
         else:
-            x, z, u, _ = _run(scenario, v, w, seg_idx, ref, dith, _initial_state(scenario.x0, b))  # type: ignore[attr-defined]
+            x, z, u, _ = _run(scenario, block, _initial_state(scenario.x0, b))  # type: ignore[attr-defined]
         xt[:, off : off + b], zt[:, off : off + b], ut[:, off : off + b] = x, z, u
     return np.swapaxes(xt, 0, 1), np.swapaxes(zt, 0, 1), np.swapaxes(ut, 0, 1)[..., None]
 
@@ -445,10 +433,7 @@ def closed_loop_blocks(
         noise = rng.standard_normal((hi - lo, n + m))  # per sample: n process, m measurement normals
         v, w = noise[None, :, :n], noise[None, :, n:]
         seg = scenario.segment_index(tp)  # type: ignore[attr-defined]
-        if tables is not None:
-            _, z, u, state = _step_linear(scenario, v, w, seg, ref, dith, state, tables)
-        else:
-            _, z, u, state = _step_nonlinear(scenario, v, w, seg, ref, dith, state)
+        _, z, u, state = _run(scenario, _Block(v, w, seg, ref, dith), state, tables)
         yield k * dt, z[:, 0], u[:, 0, None]
 
 
@@ -481,7 +466,8 @@ def loop_response(
     zeros_v = np.zeros((1, len(t), nom.n_states))
     zeros_w = np.zeros((1, len(t), nom.n_outputs))
     state = _initial_state(scenario.x0, 1)  # type: ignore[attr-defined]
-    x, _, u, _ = _run(scenario, zeros_v, zeros_w, scenario.segment_index(t), ref, dith, state)  # type: ignore[attr-defined]
+    block = _Block(zeros_v, zeros_w, scenario.segment_index(t), ref, dith)  # type: ignore[attr-defined]
+    x, _, u, _ = _run(scenario, block, state)
     return t, ref, x[:, 0], u[:, 0]
 
 

@@ -22,17 +22,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import NonFiniteError
-from .simulate_kernel import scaled_noise, segment_ranges
+from .simulate_kernel import covariance_sqrt, scaled_noise, segment_ranges
 
 __all__ = ["simulate_block_nonlinear"]
-
-
-def _sqrt_cov(M: np.ndarray) -> np.ndarray:
-    """L with L L^T = M (diagonal fast path, else eigh), as the linear simulation's ``covariance_sqrt``."""
-    if np.count_nonzero(M - np.diag(np.diag(M))) == 0:
-        return np.diag(np.sqrt(np.clip(np.diag(M), 0.0, None)))
-    w, V = np.linalg.eigh(M)
-    return V * np.sqrt(np.clip(w, 0.0, None))
 
 
 def _scale(noise: np.ndarray, L: np.ndarray) -> np.ndarray:
@@ -80,7 +72,7 @@ def simulate_block_nonlinear(
     seg_idx = scenario.segment_index(t)
     segments = scenario.segments
     ranges = segment_ranges(scenario, t)
-    vt, zt = scaled_noise(scenario, root, lo, hi, t, lambda noise, M: _scale(noise, _sqrt_cov(M)))
+    vt, zt = scaled_noise(scenario, root, lo, hi, t, lambda noise, M: _scale(noise, covariance_sqrt(M)))
     xt = np.empty((T, runs, n))
     xt[0] = scenario.x0
     # NonlinearModel.f was shape-checked when the model was built: call it directly in the loop

@@ -1,6 +1,6 @@
 """Per-frame peak frequency of the Rerun ``peak_hz`` series (:func:`peak_bins`), compiled when numba is on.
 
-Private helper of :mod:`chatterspec.online.rerun_log`: the same rule as the batch report's
+Private helper of :mod:`chatterspec.viewer.rerun_log`: the same rule as the batch report's
 ``peak_hz`` (:mod:`chatterspec.detection.detect`), applied to every frame of a batch in one pass.
 """
 

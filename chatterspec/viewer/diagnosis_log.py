@@ -1,6 +1,6 @@
 """Rerun recording of ``chatterspec diagnose --record FILE.rrd``: realization 0 on one
 timeline -- the chattering spectrogram, frame verdicts and detection events of the online monitor
-(:class:`~chatterspec.online.rerun_log.RerunLogger`, unchanged) beside the mode probabilities of the
+(:class:`~chatterspec.viewer.rerun_log.RerunLogger`, unchanged) beside the mode probabilities of the
 SMM-SVSF / IMM (one scalar series per mode under ``/modes/<method>/<mode>``) and, at a false-alarm
 budget, every route's alarm statistic with its calibrated threshold (``/routes/<method>/statistic``
 and ``/routes/<method>/threshold``; :func:`record_budget_diagnosis`).
@@ -17,12 +17,13 @@ import numpy as np
 
 from ..detection.spectral import STFTConfig
 from ..detection.thresholds import Threshold
-from ..palette import NEUTRAL, fault_level_color, filter_color, mode_color, rgba32
+from ..online.monitor import ChatteringMonitor, MonitorSettings
+from ..palette import NEUTRAL, filter_color, mode_color, rgba32
 from .blueprint import _entity, time_axis
 from .drivers import scenario_truth
-from .monitor import ChatteringMonitor, MonitorSettings
 from .rerun_log import RerunLogger, record_span, to_ns
-from .viewer import TIMELINE, open_sinks
+from .sinks import TIMELINE, open_sinks
+from .truth_lane import log_truth_lane, truth_colors
 
 __all__ = ["mode_lane_entity", "record_budget_diagnosis", "record_diagnosis"]
 
@@ -93,7 +94,7 @@ def record_diagnosis(
             span = (float(sim.t[0]), float(sim.t[-1]))
         time_range, axis = time_axis(span)
         truth = scenario_truth(sc)
-        lane_colors = _label_colors(truth)
+        lane_colors = truth_colors(truth)
         for method, (t, mu, modes) in mode_outputs.items():
             mu = np.asarray(mu, dtype=float)
             _log_modes(
@@ -111,9 +112,11 @@ def record_diagnosis(
         ]
         lanes_name = "true fault (top), most probable mode per method, verdict per channel"
         if logger is not None:
-            bp = logger.layout(span_s=span, has_truth=True, above=route_views or None, lanes_name=lanes_name)
+            # sent again on close with the chattering views' y ranges (RerunLogger.close)
+            logger.file_layout = {"has_truth": True, "above": route_views or None, "lanes_name": lanes_name}
+            bp = logger.layout(span_s=span, **logger.file_layout)
         else:  # no chattering route: the route statistics above the truth and mode lanes
-            _log_truth_lane(sinks, rr, truth, lane_colors)
+            log_truth_lane(sinks.streams, truth)
             lanes = rrb.StateTimelineView(
                 origin="/state", name=lanes_name, time_ranges=time_range, time_view=axis
             )
@@ -132,44 +135,6 @@ def record_diagnosis(
         finally:
             sinks.close()
     return Path(path)
-
-
-def _label_colors(truth: list[tuple[float, str, bool]]) -> dict[str, int]:
-    """Lane colours by label (``0xRRGGBBAA``): each true fault level its own amber, healthy grey (as the
-    monitor's truth lane), so that a mode lane whose label names a true segment reads like the truth."""
-    out: dict[str, int] = {}
-    k = 0
-    for _, label, fault in truth:
-        if label not in out:
-            out[label] = rgba32(fault_level_color(k) if fault else NEUTRAL)
-            k += bool(fault)
-    return out
-
-
-def _log_truth_lane(
-    sinks: Any, rr: Any, truth: list[tuple[float, str, bool]], colors: dict[str, int]
-) -> None:
-    """The true fault lane (without a chattering monitor, which draws it otherwise)."""
-    from .blueprint import TRUTH_LANE
-
-    labels = list(dict.fromkeys(lab for _, lab, _ in truth))
-    for s in sinks.streams:
-        s.log(
-            TRUTH_LANE,
-            rr.StateConfiguration(
-                values=labels,
-                labels=[f"true plant: {lab}" for lab in labels],
-                colors=np.array([colors[lab] for lab in labels], dtype=np.uint32),
-            ),
-            static=True,
-        )
-        s.send_columns(
-            TRUTH_LANE,
-            indexes=[
-                rr.TimeColumn(TIMELINE, duration=to_ns([a for a, _, _ in truth]).astype("timedelta64[ns]"))
-            ],
-            columns=rr.StateChange.columns(state=[lab for _, lab, _ in truth]),
-        )
 
 
 def mode_lane_entity(method: str) -> str:

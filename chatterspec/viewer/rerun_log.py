@@ -1,23 +1,23 @@
 """Column-wise Rerun logging of monitor updates (:class:`RerunLogger`).
 
-One time rule for everything logged: seconds are converted once to integer
-nanoseconds by :func:`to_ns` (rounded to the nearest ns) and only integers reach
-Rerun, whether through ``send_columns`` or ``set_time``. (Rerun's own float paths
-differ: ``TimeColumn(duration=seconds)`` truncates, ``set_time(duration=seconds)``
-rounds, which put a state logged "before" a frame 1 ns after it.)
+Times follow the one rule of :func:`~chatterspec.viewer.record_geometry.to_ns` (integer ns); the
+recording's span, band and colour range are in :mod:`chatterspec.viewer.record_geometry` (and
+importable from here, as before).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ..detection.spectral import expected_frame_spectrum
 from ..errors import ParameterError
-from ..palette import FAULT, HEALTHY, NEUTRAL, fault_level_color, rgba32
+from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
+from ..palette import FAULT, HEALTHY, rgba32
 from ..plants.nonlinear import is_linear
+from .alarm_events import send_alarm_events
 from .arrow_columns import _MAX_TENSOR_ROWS, _Columns, _TimeIndex
 from .blueprint import (
     CHATTERING,
@@ -26,7 +26,6 @@ from .blueprint import (
     PSI,
     STATISTIC,
     THRESHOLD,
-    TRUTH_LANE,
     VERDICT,
     _entity,
     blueprint,
@@ -35,15 +34,16 @@ from .blueprint import (
     lane_entity,
     layout_geometry,
     series_styles,
+    view_px,
 )
+from .chattering_extent import ChatteringExtent
 from .frame_peaks import peak_bins
-from .interval_lanes import IntervalCollector, lane_changes
-from .monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
-from .spectrogram_view import log_axes, log_image
-from .viewer import TIMELINE, Sinks
-
-if TYPE_CHECKING:
-    pass
+from .interval_lanes import IntervalCollector, send_intervals
+from .record_geometry import DB_RANGE, default_band_hz, pad_columns, record_span, to_ns
+from .sinks import TIMELINE, Sinks
+from .spectrogram_images import SpectrogramImages
+from .spectrogram_view import key_width, log_axes
+from .truth_lane import log_truth_lane
 
 __all__ = [
     "DB_RANGE",
@@ -54,122 +54,10 @@ __all__ = [
     "to_ns",
 ]
 
-#: Colour range of the spectrogram, dB re the per-frame threshold (0 dB = threshold): healthy
-#: frames (about -11 dB on average at alpha = 1e-3, Bonferroni over 499 bins) stay near black,
-#: only excess lights up; fixed so that colours mean the same in every recording.
-DB_RANGE = (-5.0, 30.0)
 
-
-def to_ns(seconds: Any) -> np.ndarray:
-    """Seconds -> integer nanoseconds, rounded to the nearest ns: the one time rule of a recording.
-
-    Parameters
-    ----------
-    seconds : float or array of float
-        Times (s).
-
-    Returns
-    -------
-    int64 array
-        ``round(seconds * 1e9)`` (same shape; 0-d for a scalar).
-    """
-    return np.rint(np.asarray(seconds, dtype=float) * 1e9).astype(np.int64)
-
-
-def pad_columns(monitor: ChatteringMonitor) -> int:
-    """Blank columns added on each side of a file's spectrogram so that it covers the whole record: the
-    first frame's window starts about ``(W - H) / 2`` samples before the first column's left edge
-    (2 columns for a 1 s window at a 0.2 s hop).
-
-    Parameters
-    ----------
-    monitor : ChatteringMonitor
-
-    Returns
-    -------
-    int
-        ``round((W - 1 - H) / (2 H))`` (>= 0) for window ``W`` and hop ``H`` in samples.
-    """
-    return max(0, round((monitor.n_window - 1 - monitor.n_hop) / (2.0 * monitor.n_hop)))
-
-
-def record_span(monitor: ChatteringMonitor, total: int, *, raw: bool) -> tuple[float, float] | None:
-    """The time span (s) of a file recording: the columns of its spectrogram, padded by
-    :func:`pad_columns` on each side, which covers the whole record; every time view shows exactly it.
-
-    Parameters
-    ----------
-    monitor : ChatteringMonitor
-        A fresh monitor (no sample pushed yet).
-    total : int
-        Samples that will be pushed.
-    raw : bool
-        Raw measurements (``z(0)`` initializes the filters) rather than chattering.
-
-    Returns
-    -------
-    (start_s, stop_s) or None
-        None if no frame fits or the monitor is not fresh.
-    """
-    if monitor.n_samples or monitor.n_frames:
-        return None  # not a fresh monitor: the record's extent is not known
-    n_chat = total - 1 if raw else total
-    if n_chat < monitor.n_window:
-        return None
-    last = (n_chat - monitor.n_window) // monitor.n_hop
-    t_chat0 = monitor.t0 + (monitor.dt if raw else 0.0)
-    hop = monitor.n_hop * monitor.dt
-    edge = hop / 2.0 + pad_columns(monitor) * hop
-    centre = (monitor.n_window - 1) / 2.0
-    first_c = t_chat0 + centre * monitor.dt
-    last_c = t_chat0 + (last * monitor.n_hop + centre) * monitor.dt
-    return (first_c - edge, last_c + edge)
-
-
-def _nice_ceil(x: float) -> float:
-    """Smallest multiple of half a decade's unit >= x (125 -> 150, 15 -> 15, 12.5 -> 15)."""
-    step = 10.0 ** np.floor(np.log10(x)) / 2.0
-    return float(np.ceil(x / step - 1e-9) * step)
-
-
-def default_band_hz(monitor: ChatteringMonitor, factor: float = 3.0) -> tuple[float, float]:
-    """Default spectrogram band: the bins the detector tests, capped where the model has no content.
-
-    The cap is ``factor`` times the model's highest natural frequency ``|ln(lambda)| / (2 pi dt)``
-    over the eigenvalues ``lambda`` of ``A`` (Hz), rounded up to a multiple of half a decade's unit
-    (EHA: 3 x 41.8 Hz -> 150 Hz; second-order 5 Hz plant -> 15 Hz). Without an oscillatory or
-    decaying mode (all eigenvalues 1) the band is the whole tested band.
-
-    Parameters
-    ----------
-    monitor : ChatteringMonitor
-        Gives the model, the STFT frequencies and the tested bins of the threshold.
-    factor : float
-        Multiple of the highest natural frequency kept (> 0).
-
-    Returns
-    -------
-    (lo_hz, hi_hz) : tuple of float
-        Lowest and highest tested bin frequency inside the band (Hz).
-    """
-    if not factor > 0:
-        raise ParameterError(f"factor must be > 0; got {factor!r}")
-    f = monitor.threshold.freqs_hz[monitor.threshold.tested]
-    if f.size == 0:
-        f = monitor.freqs_hz
-    lo, hi = float(f.min()), float(f.max())
-    A = getattr(monitor.model, "A", None)
-    if A is None:  # nonlinear model: the natural frequency of its linearization at rest (Hz)
-        fn = float(getattr(monitor.model, "natural_frequency_hz", None) or 0.0)
-    else:
-        with np.errstate(divide="ignore"):
-            s = np.log(np.linalg.eigvals(np.asarray(A, dtype=float)).astype(complex))
-        fn = float(np.max(np.abs(s[np.isfinite(s)]), initial=0.0)) / (2 * np.pi * monitor.dt)
-    if fn > 0:
-        cap = _nice_ceil(factor * fn)
-        inside = f[f <= cap]
-        hi = float(inside.max()) if inside.size else hi
-    return lo, hi
+def _send_blueprint(stream: Any, bp: Any) -> None:
+    """Send ``bp`` as the active and default blueprint of ``stream``."""
+    stream.send_blueprint(bp, make_active=True, make_default=True)
 
 
 def _joined(items: list[Any], name: str) -> np.ndarray:
@@ -250,7 +138,7 @@ class RerunLogger:
     truth : list of (start_s, label, is_fault), optional
         True fault timeline, drawn as the top lane.
     send_blueprint : bool
-        Send the default :func:`~chatterspec.online.blueprint.blueprint` to the sinks (default True).
+        Send the default :func:`~chatterspec.viewer.blueprint.blueprint` to the sinks (default True).
     spectrum_dtype : {"float32", "float64"}
         Precision of the logged frame spectra ``/spectrum/<c>``. float32 (default) keeps 7
         significant digits (relative rounding <= 6e-8, far below the chi-squared scatter of a
@@ -258,12 +146,12 @@ class RerunLogger:
         (~3.6 -> 1.8 MB per minute for 3 channels x 501 bins); the monitor's verdicts are computed
         in float64 before logging either way. "float64" logs the monitor's values bit-exactly.
     extra_row : callable, optional
-        Views below the default layout (see :func:`~chatterspec.online.blueprint.blueprint`).
+        Views below the default layout (see :func:`~chatterspec.viewer.blueprint.blueprint`).
     extra_lanes, rows_above : int
         Lanes under ``/state`` and rows above the columns that the caller's layout adds (its
         :meth:`layout` ``above=``): they set the spectrogram image's aspect ratio.
     peak_view : bool
-        The layout shows the peak-frequency views (see :func:`~chatterspec.online.blueprint.blueprint`).
+        The layout shows the peak-frequency views (see :func:`~chatterspec.viewer.blueprint.blueprint`).
     """
 
     def __init__(
@@ -297,10 +185,6 @@ class RerunLogger:
         self.channels = monitor.channels
         self.keys = [_entity(c) for c in self.channels]
         self.lanes = [lane_entity(i, c) for i, c in enumerate(self.channels)]
-        self.scroll_frames = int(scroll_frames)
-        self.file_block_frames = int(file_block_frames)
-        if self.scroll_frames < 1 or self.file_block_frames < 1:
-            raise ParameterError("scroll_frames and file_block_frames must be >= 1")
         m = len(self.channels)
         freqs = monitor.freqs_hz
         thr = monitor.threshold
@@ -314,26 +198,7 @@ class RerunLogger:
         self._tested_hz = freqs[tested]
         self._tested_expected = np.ascontiguousarray(self._expected[tested])  # (k, m)
         self._tested_thr = np.ascontiguousarray(thr.values[tested])  # (k, m)
-        lo, hi = default_band_hz(monitor) if band_hz is None else (float(band_hz[0]), float(band_hz[1]))
-        inside = np.flatnonzero((freqs >= lo - 1e-9) & (freqs <= hi + 1e-9))
-        if inside.size == 0:
-            raise ParameterError(
-                f"band_hz {band_hz} holds no STFT bin "
-                f"({freqs[0]:g} .. {freqs[-1]:g} Hz, step {freqs[1]:g} Hz)"
-            )
-        self.band = slice(int(inside[0]), int(inside[-1]) + 1)
-        self.band_hz = (float(freqs[self.band][0]), float(freqs[self.band][-1]))
-        self._band_thr_db = (10.0 * np.log10(np.maximum(thr.values[self.band], 1e-300))).astype(np.float32)
-        self.hop_s = monitor.n_hop * monitor.dt
         self.span_s = span_s
-        # live: ring of the last scroll_frames dB columns (slot j % S holds frame j)
-        nb = self.band.stop - self.band.start
-        self._ring = np.zeros((self.scroll_frames, nb, m), dtype=np.float16)
-        self._ring_n = 0
-        # file: the dB columns of the current block, frame times (ns) of its first / last column
-        self._file_cols: list[np.ndarray] = []
-        self._pad = pad_columns(monitor)  # blank columns before the first and after the last frame
-        self._n_blocks = 0  # spectrogram blocks logged to the file
         # the layout's geometry: the spectrogram image fills its view at 1600x1000 (blueprint.layout_geometry)
         self._has_truth, self._extra_lanes, self._rows_above = bool(truth), int(extra_lanes), int(rows_above)
         self._extra_row, self._peak_view = extra_row, bool(peak_view)
@@ -346,9 +211,16 @@ class RerunLogger:
             rows_below=1 if extra_row else 0,
             peak=self._peak_view,
         )[1]
-        self._file_n = 0
-        self._file_block_start: int | None = None
-        self._file_t: tuple[float, float] | None = None
+        self._key = key_width(self._width, view_px(m))  # the colour key: as wide as a time view's labels
+        self.images = SpectrogramImages(
+            monitor,
+            self.keys,
+            self._width,
+            band_hz=band_hz,
+            scroll_frames=scroll_frames,
+            file_block_frames=file_block_frames,
+        )
+        self.band_hz, self.hop_s = self.images.band_hz, self.images.hop_s
         self.batch_samples = int(batch_samples)
         self.batch_frames = int(batch_frames)
         if self.batch_samples < 1 or self.batch_frames < 1:
@@ -375,7 +247,13 @@ class RerunLogger:
         rule = monitor.rule
         self._cusum = rule.name == "cusum"  # the alarm view draws g; else the score itself
         self._h = float(rule.threshold) if np.isfinite(rule.threshold) else np.nan
+        # the file's blueprint is sent again on close, with the record's span and amplitudes (the keyword
+        # arguments of its layout; None: the caller sends the file's blueprint itself)
+        self.file_layout: dict[str, Any] | None = None
+        self.send_file_blueprint: Any = _send_blueprint
+        self._extent = ChatteringExtent(m)
         if send_blueprint:
+            self.file_layout = {"has_truth": bool(truth), "extra_row": extra_row}
             for s in sinks.streams:
                 bp = self.layout(
                     span_s=None if s is sinks.live_stream else span_s,
@@ -393,8 +271,9 @@ class RerunLogger:
         extra_row: Any = None,
         above: list[Any] | None = None,
         lanes_name: str | None = None,
+        chattering_range: Any = None,
     ) -> Any:
-        """This logger's default :func:`~chatterspec.online.blueprint.blueprint` (band, alarm view, units,
+        """This logger's default :func:`~chatterspec.viewer.blueprint.blueprint` (band, alarm view, units,
         and the geometry given to the constructor).
 
         Parameters
@@ -404,11 +283,13 @@ class RerunLogger:
         has_truth : bool, optional
             Draw the true fault lane (default: a truth was given).
         extra_row : callable, optional
-            See :func:`~chatterspec.online.blueprint.blueprint` (default: the constructor's).
+            See :func:`~chatterspec.viewer.blueprint.blueprint` (default: the constructor's).
         above : list of views, optional
             A row above the channel columns (the constructor's ``rows_above`` must be 1).
         lanes_name : str, optional
             Title of the lanes view.
+        chattering_range : sequence of float, optional
+            Per channel the half-height of the chattering view's symmetric y range (output units).
         """
         return blueprint(
             self.channels,
@@ -425,11 +306,12 @@ class RerunLogger:
             extra_lanes=self._extra_lanes,
             lanes_name=lanes_name,
             peak_view=self._peak_view,
+            chattering_range=chattering_range,
         )
 
     def _alarm_title(self) -> str:
         """The alarm view's title: the rule's statistic against its threshold, and the budget."""
-        from .monitor_types import alarm_label
+        from ..online.monitor_types import alarm_label
 
         rule, budget = self.monitor.rule, self.monitor.settings.false_alarms_per_hour
         what = {"cusum": "CUSUM g", "persistence": f"score ({rule.name} {getattr(rule, 'k', '')} of "
@@ -463,7 +345,7 @@ class RerunLogger:
                 s.log(path, style, static=True)
             df = float(self.monitor.freqs_hz[1] - self.monitor.freqs_hz[0])
             for i, (name, c) in enumerate(zip(self.channels, self.keys, strict=True)):
-                log_axes(s, f"/spectrogram/{c}", self.band_hz, df, DB_RANGE, self._width)
+                log_axes(s, f"/spectrogram/{c}", self.band_hz, df, DB_RANGE, self._width, self._key)
                 s.log(f"/threshold/{c}", rr.Tensor(thr.values[:, i], dim_names=["freq"]), static=True)
                 s.log(f"/expected/{c}", rr.Tensor(self._expected[:, i], dim_names=["freq"]), static=True)
                 s.log(
@@ -491,34 +373,7 @@ class RerunLogger:
             t_first = truth[0][0]
             self._origin_ns = int(to_ns(t_first))
 
-            def log_truth(s: Any) -> None:
-                labels = list(dict.fromkeys(lab for _, lab, _ in truth))
-                fault = {lab: f for _, lab, f in truth}
-                level = {lab: k for k, lab in enumerate(lab for lab in labels if fault[lab])}
-                s.log(
-                    TRUTH_LANE,
-                    rr.StateConfiguration(
-                        values=labels,
-                        labels=[f"true plant: {lab}" for lab in labels],
-                        # each fault level its own amber (never red: red is a verdict), healthy grey
-                        colors=np.array(
-                            [
-                                rgba32(fault_level_color(level[lab]) if fault[lab] else NEUTRAL)
-                                for lab in labels
-                            ],
-                            dtype=np.uint32,
-                        ),
-                    ),
-                    static=True,
-                )
-                ns = to_ns([max(start, t_first) for start, _, _ in truth])
-                s.send_columns(
-                    TRUTH_LANE,
-                    indexes=[_TimeIndex(self.pa, ns)],
-                    columns=rr.StateChange.columns(state=[lab for _, lab, _ in truth]),
-                )
-
-            self._each(log_truth)
+            log_truth_lane(self.sinks.streams, truth)
 
     def _initial_state(self, upd: MonitorUpdate) -> None:
         """The live lanes' state before ``upd``, logged 1 ns before the end of its first frame (when the
@@ -573,7 +428,7 @@ class RerunLogger:
                     if box.live or box.n_frames >= self.batch_frames:
                         self._send_frames(box)
         if fr.n_frames and self.sinks.live_stream is not None:
-            self._spectrogram(fr)
+            self.images.live(self.sinks.live_stream, fr)
 
     def flush(self) -> None:
         """Send everything buffered (bulk ``send_columns``)."""
@@ -583,16 +438,23 @@ class RerunLogger:
 
     def close(self) -> None:
         """Send what is buffered, the file's spectrogram (the whole record, or its last block) and the
-        file's lanes: the record's fault intervals (:mod:`chatterspec.online.interval_lanes`)."""
+        file's lanes: the record's fault intervals (:mod:`chatterspec.viewer.interval_lanes`)."""
         self.flush()
-        if self._pad and self._file_n:  # the last block ends with the record, padded
-            last = self._file_cols[-1]
-            self._file_cols.append(
-                np.full((last.shape[0], self._pad, last.shape[2]), DB_RANGE[0], last.dtype)
-            )
-            self._file_t = (self._file_t[0], self._file_t[1] + self._pad * self.hop_s)
-        self._flush_file_block()
+        if self.sinks.file_stream is not None:  # its last block, padded: the record's span
+            self.images.close_file(self.sinks.file_stream)
         self._send_intervals()
+        self._send_final_blueprint()
+
+    def _send_final_blueprint(self) -> None:
+        """A file's final blueprint: paused on the whole record (the span given in advance, else the
+        span its spectrogram covers: a streamed or rotated file), with each chattering view's y range
+        from the record's amplitudes. The viewer opens a file on the last blueprint it holds."""
+        file = self.sinks.file_stream
+        span = self.span_s if self.span_s is not None else self.images.covered_span()
+        if file is None or self.file_layout is None or span is None:
+            return
+        bp = self.layout(span_s=span, chattering_range=self._extent.ranges(self.psi), **self.file_layout)
+        self.send_file_blueprint(file, bp)
 
     def _send_intervals(self) -> None:
         """The file's verdict lanes and interval events: the window-extent onset/offset estimates of the
@@ -600,55 +462,8 @@ class RerunLogger:
         file = self.sinks.file_stream
         if file is None or self._collector is None or self._start_s is None:
             return
-        rr, pa = self.rr, self.pa
-        ivs = self._collector.intervals()
-        for i, lane in enumerate(self.lanes):
-            times, states = lane_changes(ivs, i, self._start_s)
-            ns = to_ns(times)
-            file.send_columns(
-                lane, indexes=[_TimeIndex(pa, ns)], columns=rr.StateChange.columns(state=states)
-            )
-        self._mark_outside_band(file)
-        if ivs:
-            order = sorted(range(len(ivs)), key=lambda k: ivs[k].onset_s)
-            text = [
-                f"{self.channels[ivs[k].channel_index]} {ivs[k].peak_hz:.1f} Hz {ivs[k].peak_db:+.0f} dB: "
-                f"fault {ivs[k].onset_s:.2f}-{ivs[k].offset_s:.2f} s (estimate)"
-                for k in order
-            ]
-            ns = to_ns([ivs[k].onset_s for k in order])
-            file.send_columns(
-                "/events",
-                indexes=[_TimeIndex(pa, ns)],
-                columns=rr.TextLog.columns(text=text, level=["ERROR"] * len(text)),
-            )
-
-    def _mark_outside_band(self, file: Any) -> None:
-        """Flagged frames whose peak frequency lies outside the spectrogram's band get a labelled mark at
-        the image's top (above the band) or bottom edge, so that a fault verdict always has a visible
-        cause; one mark per run of such frames (a record that fits one spectrogram block)."""
-        times, flags, hz = self._collector.frames()
-        if not times.size or self._n_blocks > 1:
-            return
-        lo, hi = self.band_hz
-        cols = times.size + 2 * self._pad
-        for i, c in enumerate(self.keys):
-            out = flags[:, i] & ((hz[:, i] > hi) | (hz[:, i] < lo))
-            if not out.any():
-                continue
-            pts, labels = [], []
-            padded = np.concatenate(([False], out, [False]))
-            edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
-            for a, b in zip(edges[::2], edges[1::2], strict=True):
-                f = float(np.median(hz[a:b, i]))
-                x = (self._pad + (a + b) / 2.0) * self._width / cols
-                pts.append([x, 0.07 if f > hi else 0.93])  # y grows downwards: 0 = the band's top
-                labels.append(f"{'^' if f > hi else 'v'} {f:.0f} Hz (outside the band)")
-            file.log(
-                f"/spectrogram/{c}/outside",
-                self.rr.Points2D(pts, labels=labels, colors=[list(FAULT)], radii=0.02, show_labels=True),
-                static=True,
-            )
+        send_intervals(file, self._collector.intervals(), self.lanes, self.channels, self._start_s)
+        self.images.mark_outside_band(file, self._collector)
 
     def _send_samples(self, box: _Outbox) -> None:
         """Send the per-sample part of the updates in ``box`` (one ``send_columns`` per entity)."""
@@ -678,6 +493,8 @@ class RerunLogger:
         else:
             row = ups[0].chattering
         own = row is not ups[0].chattering  # a fresh array here; else the update's own (copied)
+        if not box.live:
+            self._extent.add(row[:, :m])
         s.send_columns(CHATTERING, indexes=[tcol], columns=[cols.scalars_column(row, own=own)])
         if self._psi_rows is not None:  # the batch's first and last sample: +psi_0, -psi_0, +psi_1, ...
             s.send_columns(PSI, indexes=[_TimeIndex(pa, ns[[0, -1]])], columns=[self._psi_rows])
@@ -703,7 +520,7 @@ class RerunLogger:
             b = a + f.n_frames
             spectra[:, a:b] = f.power.transpose(2, 0, 1)  # (m, n, bins), cast on the fly
             a = b
-        peak_hz = self._peak_hz(frames)
+        peak_hz, peak_ratio = self._peak_hz(frames)
         s.send_columns(STATISTIC, indexes=[fcol], columns=[cols.scalars_column(stat_db, own=True)])
         s.send_columns(THRESHOLD, indexes=[_TimeIndex(pa, fns[[0, -1]])], columns=[self._zero_rows])
 
@@ -732,24 +549,32 @@ class RerunLogger:
                     self._fault_hz[i], indexes=[hit_t], columns=[cols.scalars_column(sig_hz[hit, i])]
                 )
         if not box.live:  # the file's spectrogram: dB columns of the whole batch at once
-            self._file_spectrogram(times, spectra)
+            self.images.add_file(self.sinks.file_stream, times, spectra, self._origin_ns)
             if self._collector is not None:  # the file's intervals, drawn on close
-                self._collector.add(times, flags, ratio, sig_hz)
+                self._collector.add(times, flags, ratio, sig_hz, peak_hz, peak_ratio)
         if events:
-            self._send_events(s, events, lanes=box.live)
+            send_alarm_events(s, events, self._half_win, self.lanes if box.live else None)
 
-    def _peak_hz(self, frames: list[Any]) -> np.ndarray:
+    def _peak_hz(self, frames: list[Any]) -> tuple[np.ndarray, np.ndarray]:
         """(F, m) tested bin (Hz) with the largest excess power ``S - E`` among the bins over the threshold
         when a frame has any (as the batch report's ``peak_hz``: a frame's overall largest excess sits on
-        noise once a fault fades), else among all tested bins (:func:`peak_bins`)."""
+        noise once a fault fades), else among all tested bins (:func:`peak_bins`); and (F, m) its
+        ``S / threshold``."""
+        m = len(self.channels)
         F = sum(f.n_frames for f in frames)
-        k = np.empty((F, len(self.channels)), dtype=np.int64)
+        k = np.empty((F, m), dtype=np.int64)
+        ratio = np.empty((F, m))
+        cols = np.arange(m)
         a = 0
         for f in frames:
             b = a + f.n_frames
             peak_bins(f.power, self._tested_idx, self._tested_expected, self._tested_thr, out=k[a:b])
+            kb = k[a:b]
+            ratio[a:b] = (
+                f.power[np.arange(b - a)[:, None], self._tested_idx[kb], cols] / self._tested_thr[kb, cols]
+            )
             a = b
-        return self._tested_hz[k]
+        return self._tested_hz[k], ratio
 
     def _send_spectra(self, s: Any, path: str, tcol: _TimeIndex, ns: np.ndarray, power: np.ndarray) -> None:
         """One ``Tensor`` row per frame: ``power`` is (frames, bins) in ``spectrum_dtype``."""
@@ -763,39 +588,6 @@ class RerunLogger:
             cols = self._cols.tensor_columns(power[lo:hi], ("freq",))
             s.send_columns(path, indexes=[tcol[lo:hi]], columns=cols)
 
-    def _event_text(self, ev: DetectionEvent) -> str:
-        """Short: channel, frequency and level first (the log view cuts long bodies)."""
-        db = 10.0 * np.log10(max(ev.peak_ratio, 1e-30))
-        end = ev.time_s + self._half_win
-        if ev.kind == "fault-start":
-            return (
-                f"{ev.channel} {ev.peak_hz:.1f} Hz {db:+.0f} dB: ALARM ({ev.rule}) at {end:.2f} s "
-                "(end of the deciding frame: when the detector knew)"
-            )
-        return f"{ev.channel} {ev.peak_hz:.1f} Hz {db:+.0f} dB: alarm ({ev.rule}) cleared at {end:.2f} s"
-
-    def _send_events(self, s: Any, events: list[DetectionEvent], *, lanes: bool) -> None:
-        """The alarm events at the end of their deciding frame (when the detector knew); with ``lanes``
-        (a live viewer) also the lanes' changes there."""
-        rr, pa = self.rr, self.pa
-        ns = to_ns([ev.time_s + self._half_win for ev in events])
-        text = [self._event_text(ev) for ev in events]
-        level = ["WARN" if ev.kind == "fault-start" else "INFO" for ev in events]
-        s.send_columns(
-            "/events", indexes=[_TimeIndex(pa, ns)], columns=rr.TextLog.columns(text=text, level=level)
-        )
-        if not lanes:
-            return
-        for i in range(len(self.keys)):
-            mine = [k for k, ev in enumerate(events) if ev.channel_index == i]
-            if mine:
-                state = ["fault" if events[k].kind == "fault-start" else "healthy" for k in mine]
-                s.send_columns(
-                    self.lanes[i],
-                    indexes=[_TimeIndex(pa, ns[mine])],
-                    columns=rr.StateChange.columns(state=state),
-                )
-
     def log_event(self, ev: DetectionEvent) -> None:
         """Log one detection event at once (text log, and the lane of a live viewer) to every stream.
 
@@ -805,78 +597,4 @@ class RerunLogger:
             The event (logged at the end of its frame, converted by :func:`to_ns`).
         """
         for s in self.sinks.streams:
-            self._send_events(s, [ev], lanes=s is self.sinks.live_stream)
-
-    # ------------------------------------------------------------------ spectrogram
-    def _db(self, power: np.ndarray) -> np.ndarray:
-        """(F, bins, m) power -> (F, band, m) float16 ``10 log10(S / threshold)`` clipped to DB_RANGE."""
-        with np.errstate(divide="ignore", invalid="ignore"):  # 0 -> -inf -> clipped
-            db = np.log10(power[:, self.band, :].astype(np.float32))
-        db *= 10.0
-        db -= self._band_thr_db
-        np.clip(db, DB_RANGE[0], DB_RANGE[1], out=db)
-        return db.astype(np.float16)
-
-    def _spectrogram(self, fr: Any) -> None:
-        """The live viewer's scrolling spectrogram after every frame of ``fr``."""
-        live = self.sinks.live_stream
-        if live is None:
-            return
-        db = self._db(fr.power)
-        S = self.scroll_frames
-        for f in range(db.shape[0]):
-            self._ring[self._ring_n % S] = db[f]
-            self._ring_n += 1
-            # always S columns, oldest first (blank before the S-th frame): a fixed scale in the view
-            img = self._ring[(self._ring_n + np.arange(S)) % S]
-            if self._ring_n < S:
-                img = img.copy()
-                img[: S - self._ring_n] = DB_RANGE[0]
-            ns = int(to_ns(float(fr.times_s[f])))
-            for i, c in enumerate(self.keys):
-                log_image(live, f"/spectrogram/{c}", ns, img[:, :, i].T, self._width, DB_RANGE)
-
-    def _file_spectrogram(self, times: np.ndarray, spectra: np.ndarray) -> None:
-        """Append a file batch's frames (``times`` (F,) s, channel-major ``spectra`` (m, F, bins)) to
-        the file's spectrogram blocks as float16 dB columns (:meth:`_db`'s values, per batch)."""
-        if self.sinks.file_stream is None:
-            return
-        with np.errstate(divide="ignore", invalid="ignore"):  # 0 -> -inf -> clipped
-            db = np.log10(spectra[:, :, self.band], dtype=np.float32)  # (m, F, band), one pass
-        db *= 10.0
-        db -= self._band_thr_db.T[:, None, :]
-        np.clip(db, DB_RANGE[0], DB_RANGE[1], out=db)
-        db = db.astype(np.float16)
-        lo = 0
-        while lo < db.shape[1]:
-            if self._file_n >= self.file_block_frames:  # full: sent once more frames come (the last
-                self._flush_file_block()  # block waits for close, which pads it)
-            take = min(db.shape[1] - lo, self.file_block_frames - self._file_n)
-            if self._file_n == 0:
-                self._file_t = (float(times[lo]), float(times[lo]))
-                if self._file_block_start is None:  # the first block starts with the record, padded
-                    self._file_block_start = self._origin_ns
-                    if self._pad:
-                        self._file_cols.append(
-                            np.full((db.shape[0], self._pad, db.shape[2]), DB_RANGE[0], db.dtype)
-                        )
-                        self._file_t = (self._file_t[0] - self._pad * self.hop_s, self._file_t[1])
-                else:
-                    self._file_block_start = int(to_ns(times[lo] - self.hop_s / 2))
-            self._file_cols.append(db[:, lo : lo + take])
-            self._file_n += take
-            self._file_t = (self._file_t[0], float(times[lo + take - 1]))
-            lo += take
-
-    def _flush_file_block(self) -> None:
-        file = self.sinks.file_stream
-        if file is None or not self._file_n:
-            return
-        # (m, frames, band)
-        block = np.concatenate(self._file_cols, axis=1) if len(self._file_cols) > 1 else self._file_cols[0]
-        self._file_cols, self._file_n = [], 0
-        ta = self._file_t[0]
-        self._n_blocks += 1
-        ns = self._file_block_start if self._file_block_start is not None else int(to_ns(ta))
-        for i, c in enumerate(self.keys):  # (band, frames): freq rows, time columns
-            log_image(file, f"/spectrogram/{c}", ns, block[i].T, self._width, DB_RANGE)
+            send_alarm_events(s, [ev], self._half_win, self.lanes if s is self.sinks.live_stream else None)

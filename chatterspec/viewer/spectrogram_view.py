@@ -2,12 +2,21 @@
 
 Rerun draws tensors without axis ticks (its tensor view names the dimensions only), so
 a recording's spectrogram is a ``DepthImage`` of ``10 log10(S / threshold)`` (dB, colour
-map ``magma`` over :data:`~chatterspec.online.rerun_log.DB_RANGE`) in a 2-D view, beside
+map ``magma`` over :data:`~chatterspec.viewer.rerun_log.DB_RANGE`) in a 2-D view, beside
 labelled points that carry the scale:
 
 - frequency labels ("50 Hz", ...) at the image's left edge, at their rows;
-- a colour key (a small gradient image) left of the spectrogram with its dB values, so that
-  the image starts where the time series' plot areas start (after their y tick labels).
+- a colour key (a small gradient image) left of the spectrogram with its dB values, :data:`KEY_PX`
+  wide, so that the image starts where the time series' plot areas start (after their y tick labels).
+
+Lining up with the time axes. The image spans the same time as the time views (a file's record span,
+:func:`~chatterspec.viewer.rerun_log.record_span`: one column per frame, padded), and its right edge is
+the view's right edge, as theirs (seen in the viewer: within 1 px). Its left edge cannot follow every
+time view exactly: a time view's plot area starts after its y tick labels, whose width the viewer sets
+from the label text (``0`` ~15 px, ``20`` / ``-10`` / ``100`` ~30 px, ``-0.01`` ~40 px at 1600x1000),
+so the time views do not line up with each other either, and a blueprint cannot set that margin. The
+key is therefore :data:`KEY_PX` = 30 logical px wide, the margin of two- and three-character labels
+(the statistic, alarm and frequency views), whatever the number of channels (:func:`key_width`).
 
 World coordinates: the image spans ``x`` in ``[0, width]`` and ``y`` in ``[0, 1]`` (top =
 highest frequency); ``width`` (:func:`image_width`) is the view's aspect ratio at 1600x1000 in
@@ -23,11 +32,34 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["KEY_FRACTION", "image_width", "log_axes", "log_image", "spectrogram_view"]
+__all__ = ["KEY_FRACTION", "KEY_PX", "image_width", "key_width", "log_axes", "log_image", "spectrogram_view"]
 
-#: Width of the colour key (and its labels) in world units, as a fraction of the image width.
+#: Width of the colour key (and its labels) in world units, as a fraction of the image width, when no
+#: ``key`` width is given (the layout of a single view, e.g. a notebook).
 KEY_FRACTION = 0.07
 _KEY = KEY_FRACTION
+#: Width (logical px at 1600x1000) of the colour key: the left margin of a time view whose y tick labels
+#: have two or three characters (measured in the Rerun 0.41 viewer), so that the image starts where their
+#: plot areas start.
+KEY_PX = 30.0
+
+
+def key_width(width: float, view_px: float) -> float:
+    """World width of the colour key: :data:`KEY_PX` of a view ``view_px`` wide whose image is ``width``.
+
+    Parameters
+    ----------
+    width : float
+        World width of the image (its height is 1), filling the view right of the key.
+    view_px : float
+        Width of the spectrogram view (logical px at 1600x1000).
+
+    Returns
+    -------
+    float
+        ``width * KEY_PX / (view_px - KEY_PX)``.
+    """
+    return float(width) * KEY_PX / max(float(view_px) - KEY_PX, 1.0)
 
 
 def image_width(n_channels: int) -> float:
@@ -69,6 +101,7 @@ def log_axes(
     df: float,
     db_range: tuple[float, float],
     width: float,
+    key: float | None = None,
 ) -> None:
     """Log the static frequency labels and the dB colour key of the spectrogram at ``path``.
 
@@ -85,6 +118,8 @@ def log_axes(
         Colour range (dB).
     width : float
         World width of the image (:func:`image_width`).
+    key : float, optional
+        World width of the colour key (:func:`key_width`); default :data:`KEY_FRACTION` of ``width``.
     """
     import rerun as rr
 
@@ -102,7 +137,7 @@ def log_axes(
         static=True,
     )
     n = 64
-    kw = _KEY * width
+    kw = _KEY * width if key is None else float(key)
     key = np.linspace(db_range[1], db_range[0], n, dtype=np.float32)[:, None].repeat(2, axis=1)
     stream.log(
         f"{path}/key",
@@ -150,7 +185,7 @@ def log_image(
     """
     import rerun as rr
 
-    from .viewer import TIMELINE
+    from .sinks import TIMELINE
 
     stream.set_time(TIMELINE, duration=np.timedelta64(int(ns), "ns"))
     nb, nc = img.shape
@@ -163,7 +198,7 @@ def log_image(
     )
 
 
-def spectrogram_view(path: str, name: str, width: float) -> Any:
+def spectrogram_view(path: str, name: str, width: float, key: float | None = None) -> Any:
     """The 2-D view of the spectrogram at ``path``: the image, its frequency labels and the colour key.
 
     Parameters
@@ -174,6 +209,9 @@ def spectrogram_view(path: str, name: str, width: float) -> Any:
         View title.
     width : float
         World width of the image (:func:`image_width`).
+    key : float, optional
+        World width of the colour key left of it (:func:`key_width`); default :data:`KEY_FRACTION` of
+        ``width``.
 
     Returns
     -------
@@ -181,9 +219,11 @@ def spectrogram_view(path: str, name: str, width: float) -> Any:
     """
     import rerun.blueprint as rrb
 
+    kw = _KEY * width if key is None else float(key)
+
     return rrb.Spatial2DView(
         origin=path,
         name=name,
         background=[0, 0, 0],
-        visual_bounds=rrb.VisualBounds2D(x_range=(-_KEY * width, width), y_range=(0.0, 1.0)),
+        visual_bounds=rrb.VisualBounds2D(x_range=(-kw, width), y_range=(0.0, 1.0)),
     )

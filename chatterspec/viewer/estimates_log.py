@@ -71,14 +71,14 @@ def record_estimates(records: Any, path: str | Path, *, run: int = 0) -> Path:
     try:
         rec.save(str(path))
     except RuntimeError as exc:  # rerun reports file errors (e.g. disk full) as RuntimeError
-        from .viewer import file_error
+        from .sinks import file_error
 
         err = file_error(exc, path)
         if err is None:
             raise ParameterError(f"cannot write the recording {str(path)!r}: {exc}") from None
         raise err from None
     try:
-        from .viewer import TIMELINE
+        from .sinks import TIMELINE
 
         rec.send_recording_name(f"estimate {sc.name} run {records.first_run + run}")
         t_all = rr.TimeColumn("time", duration=_ns(records.t))
@@ -202,7 +202,7 @@ def estimate_blueprint(
     from rerun.encodings import AbsoluteTimeRange, TimeInt
 
     from .blueprint import time_axis
-    from .viewer import TIMELINE
+    from .sinks import TIMELINE
 
     time_range, axis = time_axis(span_s)
     legend = rrb.PlotLegend(corner="LeftTop", visible=True)

@@ -11,9 +11,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .monitor import ChatteringMonitor, DetectionEvent, MonitorSettings
+from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorSettings
 from .rerun_log import RerunLogger, record_span
-from .viewer import Sinks, default_recording_path, file_error, open_sinks
+from .sinks import Sinks, default_recording_path, file_error, open_sinks
 
 if TYPE_CHECKING:
     from ..detection.pipeline import ChatteringRecord
@@ -130,11 +130,11 @@ def run_monitor(
     on_event : callable, optional
         Called with each :class:`~chatterspec.online.monitor.DetectionEvent` (e.g. to print it).
     band_hz : (float, float), optional
-        Spectrogram band (Hz); default :func:`~chatterspec.online.rerun_log.default_band_hz`.
+        Spectrogram band (Hz); default :func:`~chatterspec.viewer.rerun_log.default_band_hz`.
     identifier : OnlineIdentifier, optional
         Fault identification per hop on the same raw pushes
         (:class:`~chatterspec.detection.identification_online.OnlineIdentifier`), logged to the
-        sinks (:mod:`chatterspec.online.identification_log`); raw data only.
+        sinks (:mod:`chatterspec.viewer.identification_log`); raw data only.
     on_identification : callable, optional
         Called with each push's :class:`~chatterspec.detection.identification_online.OnlineIdentification`.
 

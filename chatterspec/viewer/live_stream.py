@@ -49,12 +49,9 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
-import threading
 import time
-import uuid
 from collections import deque
 from collections.abc import Callable, Iterable
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -62,20 +59,20 @@ from typing import Any
 import numpy as np
 
 from ..errors import DataFileError
+from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorSettings, MonitorUpdate
+from ..online.monitor_types import alarm_label
+from ..online.stream import BadRow, CsvRows, Restart, RowBlock
+from ..online.stream_checks import (
+    LatencyStats,
+    RateGate,
+    time_gaps,
+)
 from ..plants.models import LinearModel
-from .monitor import ChatteringMonitor, DetectionEvent, MonitorSettings, MonitorUpdate
-from .monitor_types import alarm_label
-from .stream import BadRow, CsvRows, Restart, RowBlock
-from .stream_checks import RATE_CHECK_ROWS, RATE_CHECK_ROWS_MIN, LatencyStats, merge_blocks, rate_mismatch
 
 __all__ = ["MAX_EVENTS", "LatencyStats", "StreamEvent", "StreamMonitor", "StreamSummary", "drive"]
 
 #: Events (and recordings) kept for the summary (older ones are counted, not kept).
 MAX_EVENTS = 1000
-#: Closed-file jobs the rotation thread may fall behind by before the loop waits for it.
-MAX_PENDING_CLOSES = 2
-#: A time step outside ``(GAP_LOW dt, GAP_HIGH dt]`` is a gap.
-GAP_LOW, GAP_HIGH = 0.5, 1.5
 
 
 @dataclass(frozen=True)
@@ -246,7 +243,7 @@ class StreamMonitor:
     record_every_s : float, optional
         Data seconds per recording (rotation).
     live : str, optional
-        ``"spawn"`` or a viewer URL (see :func:`chatterspec.online.viewer.open_sinks`).
+        ``"spawn"`` or a viewer URL (see :func:`chatterspec.viewer.sinks.open_sinks`).
     recording_name : str
         Name shown in the viewer.
     skip_bad_rows : bool
@@ -303,35 +300,25 @@ class StreamMonitor:
         self._pending: list[str] = []  # reasons of a gap to emit at the next sample
         self._pending_line: int | None = None
         self._reset_next = False
-        self._held: list[RowBlock] = []  # first rows, held until the sampling-rate check
-        self._rate_checked = False
+        self._gate = RateGate(self.dt)  # the first rows, held until the sampling-rate check
         self.n_rows = 0
         self._frames_done = 0  # frames of monitors already replaced
         self.events: deque[StreamEvent] = deque(maxlen=MAX_EVENTS)
         self.counts = {"fault-start": 0, "fault-end": 0, "gap": 0, "restart": 0, "bad-row": 0}
         self.latency = LatencyStats()
         self.notes: list[str] = []
-        self.recordings: deque[dict[str, Any]] = deque(maxlen=MAX_EVENTS)
-        self.n_recordings = 0  # recordings completed (all of them)
-        self._loggers: list[Any] = []
-        self._live_sinks: Any = None
-        self._file_sinks: Any = None
-        self._file_logger: Any = None
-        self._file_rows = 0
-        self._file_start: float | None = None
-        self._live_url: str | None = None
-        self._rotation_max_s = 0.0
-        self._rotator: ThreadPoolExecutor | None = None  # opens the next file, closes the old ones
-        self._spare: Future | None = None  # the next file, opened ahead: (sinks, logger)
-        self._closing: deque[Future] = deque()  # files being closed, oldest first
-        if self.live is not None or (self.record is not None and self.record_every is None):
-            self._open_live()
-        if self.record_every is not None:  # the first file is opened now (errors surface here)
-            from .viewer import default_recording_path
+        from .stream_recordings import StreamRecordings
 
-            self._base = self.record or default_recording_path(self.recording_name)
-            self._spare = Future()
-            self._spare.set_result(self._make_file())
+        self._rec = StreamRecordings(
+            self._proto,
+            record=self.record,
+            record_every=self.record_every,
+            live=self.live,
+            recording_name=self.recording_name,
+            notes=self.notes,
+            on_note=self.on_note,
+            max_kept=MAX_EVENTS,
+        )
 
     # ------------------------------------------------------------------ input
     def process(self, item: RowBlock | BadRow | Restart) -> None:
@@ -348,7 +335,8 @@ class StreamMonitor:
             A bad row without ``skip_bad_rows``.
         """
         if isinstance(item, RowBlock):
-            self._rate_gate(item)
+            for b in self._gate.feed(item):
+                self._rows(b)
             return
         self._release_held()  # rows held for the rate check go first, in input order
         if isinstance(item, BadRow):
@@ -376,7 +364,7 @@ class StreamMonitor:
             self._reset_next = True
             self._pending, self._pending_line = [], None
             self._last_t = None  # the new data's time base is not compared with the old one
-            self._rate_checked = False  # the new data's sampling is checked again
+            self._gate.recheck()  # the new data's sampling is checked again
 
     def end_of_input(self) -> None:
         """The source ended: rows still held for the rate check are checked (if >= 3) and monitored.
@@ -386,41 +374,12 @@ class StreamMonitor:
         DataFileError
             The held rows show a sampling interval other than the model's ``dt``.
         """
-        held = self._held_rows()
-        if held >= RATE_CHECK_ROWS_MIN:
-            self._check_rate(merge_blocks(self._held))
-        self._release_held()
-
-    # ------------------------------------------------------- sampling-rate check
-    def _held_rows(self) -> int:
-        return sum(b.n_rows for b in self._held)
-
-    def _rate_gate(self, b: RowBlock) -> None:
-        """Hold the first rows with a time column until :data:`RATE_CHECK_ROWS` arrived, check their
-        sampling interval against ``dt``, then monitor them (a mismatch would otherwise make every
-        step a gap: nothing monitored, exit 0)."""
-        if self._rate_checked or b.t is None:
-            self._release_held()
+        for b in self._gate.end():
             self._rows(b)
-            return
-        self._held.append(b)
-        if self._held_rows() >= RATE_CHECK_ROWS:
-            self._check_rate(merge_blocks(self._held))
-            self._release_held()
 
     def _release_held(self) -> None:
-        held, self._held = self._held, []
-        if held:
-            self._rate_checked = True
-            self._rows(merge_blocks(held))
-
-    def _check_rate(self, b: RowBlock) -> None:
-        """Raise :class:`DataFileError` when the first steps agree with each other but not with ``dt``."""
-        self._rate_checked = True
-        message = rate_mismatch(b, self.dt)
-        if message is not None:
-            self._held = []  # not monitored: the run stops here
-            raise DataFileError(message)
+        for b in self._gate.release():
+            self._rows(b)
 
     def _rows(self, b: RowBlock) -> None:
         K = b.n_rows
@@ -433,22 +392,7 @@ class StreamMonitor:
             t = self._t_next + dt * np.arange(K)
         self._t_next = float(t[-1]) + dt
         # split points: gaps by time step, a pending gap / restart at the first row
-        starts: dict[int, list[str]] = {}
-        if b.t is not None:
-            prev = np.r_[self._last_t if self._last_t is not None else t[0] - dt, t]
-            step = np.diff(prev)
-            bad = np.flatnonzero((step <= GAP_LOW * dt) | (step > GAP_HIGH * dt))
-            if self._last_t is None:
-                bad = bad[bad > 0]
-            for i in bad.tolist():
-                a, s = float(prev[i]), float(step[i])
-                if s <= 0:
-                    why = f"time went from {a:.6g} s to {t[i]:.6g} s (not increasing)"
-                elif s > GAP_HIGH * dt:
-                    why = f"time jumped from {a:.6g} s to {t[i]:.6g} s ({s / dt:.3g} dt > {GAP_HIGH:g} dt)"
-                else:
-                    why = f"time step {s:.3g} s is below {GAP_LOW:g} dt"
-                starts.setdefault(i, []).append(why)
+        starts = time_gaps(t, self._last_t, dt) if b.t is not None else {}
         if self._pending and self.monitor is not None:
             starts.setdefault(0, [])[:0] = self._pending
         elif self.monitor is None:
@@ -502,7 +446,8 @@ class StreamMonitor:
         # neither Rerun nor opening / closing a file delays a verdict of rows already read
         K = z.shape[0]
         parts: list[tuple[MonitorUpdate, int, int]] = []
-        lo, in_file = 0, self._file_rows
+        rec = self._rec
+        lo, in_file = 0, rec.file_rows
         while lo < K:
             hi = K if self.record_every is None else min(K, lo + self.record_every - in_file)
             upd = self.monitor.push(z[lo:hi], u[lo:hi])
@@ -518,16 +463,16 @@ class StreamMonitor:
         if self.on_push is not None:
             self.on_push(z, u)
         for upd, lo, hi in parts:
-            if self.record_every is not None and self._file_logger is None:
-                self._open_file(float(t[lo]))
-            self._log(upd)
+            if self.record_every is not None and rec.file_logger is None:
+                rec.open_file(float(t[lo]))
+            rec.log(upd)
             if self.record_every is not None:
-                self._file_rows += hi - lo
-                if self._file_rows >= self.record_every:
+                rec.file_rows += hi - lo
+                if rec.file_rows >= self.record_every:
                     t_rot = time.perf_counter()
-                    self._close_file(float(t[hi - 1]) + self.dt, wait=False)
-                    self._rotation_max_s = max(self._rotation_max_s, time.perf_counter() - t_rot)
-        self._collect_closed(block=False)
+                    rec.close_file(float(t[hi - 1]) + self.dt, wait=False)
+                    rec.rotation_max_s = max(rec.rotation_max_s, time.perf_counter() - t_rot)
+        rec.collect_closed(block=False)
 
     def _emit(self, ev: StreamEvent) -> None:
         self.events.append(ev)
@@ -535,145 +480,26 @@ class StreamMonitor:
         if self.on_event is not None:
             self.on_event(ev)
         if ev.kind in ("gap", "restart"):
-            self._log_text(ev)
+            self._rec.log_text(ev)
 
     def _note(self, text: str) -> None:
         if self.on_note is not None:
             self.on_note(text)
 
     # ------------------------------------------------------------------ Rerun
-    def _logger(self, sinks: Any) -> Any:
-        from .rerun_log import RerunLogger
+    @property
+    def recordings(self) -> deque[dict[str, Any]]:
+        """The recordings written so far (path, data span, bytes), the last :data:`MAX_EVENTS`."""
+        return self._rec.recordings
 
-        return RerunLogger(sinks, self._proto) if sinks.streams else None
-
-    def _open_live(self) -> None:
-        from .viewer import default_recording_path, open_sinks
-
-        if self.record_every is None:  # a viewer that cannot be used falls back to a file, as for replays
-            sinks = open_sinks(
-                record=self.record,
-                live=self.live,
-                recording_name=self.recording_name,
-                default_record=default_recording_path(self.recording_name),
-            )
-        elif self.live is not None:
-            sinks = open_sinks(live=self.live, recording_name=self.recording_name)
-        else:
-            return
-        self._live_sinks = sinks
-        self._live_url = sinks.live_url
-        for note in sinks.notes:
-            self.notes.append(note)
-            self._note(note)
-        logger = self._logger(sinks)
-        if logger is not None:
-            self._loggers.append(logger)
-        if sinks.path is not None:
-            self.recordings.append({"path": str(sinks.path), "start_s": None, "stop_s": None, "bytes": None})
-
-    def _pool(self) -> ThreadPoolExecutor:
-        if self._rotator is None:
-            self._rotator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="chatterspec-rotation")
-        return self._rotator
-
-    def _make_file(self) -> tuple[Any, Any]:
-        """Open the next recording under a temporary name (rotation thread, or the constructor)."""
-        from .viewer import open_sinks
-
-        base = self._base
-        tmp = base.parent / f".{base.stem}-{uuid.uuid4().hex[:12]}.rrd.part"
-        sinks = open_sinks(record=tmp, recording_name=self.recording_name)
-        from .rerun_log import RerunLogger
-
-        logger = RerunLogger(sinks, self._proto, send_blueprint=False)
-        for st in sinks.streams:
-            _send_blueprint_released(st, logger)
-        return sinks, logger
-
-    def _open_file(self, t_start: float) -> None:
-        """Take over the file opened ahead: rename it after this moment, and open the next one."""
-        t_open = time.perf_counter()
-        sinks, logger = self._spare.result()  # ready unless the rotation thread is far behind
-        self._spare = None
-        base = self._base
-        now = time.time()
-        stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime(now)) + f".{int(now % 1 * 1000):03d}"
-        stem = base.stem
-        path = base.parent / f"{stem}-{stamp}.rrd"
-        k = 1
-        while path.exists():
-            path = base.parent / f"{stem}-{stamp}-{k}.rrd"
-            k += 1
-        Path(sinks.path).rename(path)  # the sink keeps writing to the open file
-        sinks.path = path
-        for st in sinks.streams:
-            st.send_recording_name(f"{self.recording_name} {stamp}")
-        self._file_sinks, self._file_logger = sinks, logger
-        self._file_rows = 0
-        self._file_start = t_start
-        self._spare = self._pool().submit(self._make_file)
-        self._rotation_max_s = max(self._rotation_max_s, time.perf_counter() - t_open)
-
-    def _close_file(self, t_stop: float | None, *, wait: bool = True) -> None:
-        """Hand the current file to the rotation thread (``wait``: and wait until every file is done)."""
-        if self._file_sinks is not None:
-            held = [self._file_sinks, self._file_logger]  # the job empties it: no reference outlives it
-            self._file_logger = self._file_sinks = None
-            self._closing.append(self._pool().submit(_finish_file, held, self._file_start, t_stop))
-        while len(self._closing) > MAX_PENDING_CLOSES:
-            self._collect_one()
-        if wait:
-            self.wait_closed()
-
-    def _collect_one(self) -> None:
-        rec = self._closing.popleft().result()  # an error while closing is raised here
-        self.recordings.append(rec)
-        self.n_recordings += 1
-        size = "file gone" if rec["bytes"] is None else f"{rec['bytes'] / 1e6:.1f} MB"
-        self._note(f"recording {rec['path']} closed ({size})")
-
-    def _collect_closed(self, *, block: bool) -> None:
-        while self._closing and (block or self._closing[0].done()):
-            self._collect_one()
+    @property
+    def n_recordings(self) -> int:
+        """Recordings completed (all of them)."""
+        return self._rec.n_recordings
 
     def wait_closed(self) -> None:
         """Wait until every rotated-out recording is complete (footer written) and listed."""
-        self._collect_closed(block=True)
-
-    def _log(self, upd: MonitorUpdate) -> None:
-        for logger in self._loggers:
-            logger.log_update(upd)
-        if self._file_logger is not None:
-            self._file_logger.log_update(upd)
-
-    def _log_text(self, ev: StreamEvent) -> None:
-        sinks = [x for x in (self._live_sinks, self._file_sinks) if x is not None]
-        streams = [s for x in sinks for s in x.streams]
-        if not streams or ev.sample_time_s is None:
-            return
-        import rerun as rr
-
-        from .viewer import TIMELINE
-
-        for s in streams:
-            s.set_time(TIMELINE, duration=float(ev.sample_time_s))
-            s.log("/events", rr.TextLog(f"{ev.kind}: {ev.describe()}", level="WARN"))
-
-    # ------------------------------------------------------------------ end
-    def _discard_spare(self) -> None:
-        """Close and delete the file opened ahead for a period that never came; stop the thread."""
-        spare, self._spare = self._spare, None
-        try:
-            if spare is not None:
-                held = list(spare.result())
-                path = held[0].path
-                self._pool().submit(_finish_file, held, None, None).result()
-                Path(path).unlink(missing_ok=True)
-        finally:
-            if self._rotator is not None:
-                self._rotator.shutdown(wait=True)
-                self._rotator = None
+        self._rec.wait_closed()
 
     def close(self, stopped_by: str = "end of input") -> StreamSummary:
         """Flush and close every recording (footer written) and return the summary.
@@ -685,23 +511,7 @@ class StreamMonitor:
         """
         self._release_held()  # rows held for the rate check when the input stopped early
         t_stop = self._t_next if self.monitor is not None else None
-        try:
-            self._close_file(t_stop)
-        finally:
-            try:
-                self._discard_spare()
-            finally:
-                try:
-                    for logger in self._loggers:
-                        logger.close()
-                finally:
-                    if self._live_sinks is not None:
-                        self._live_sinks.close()
-        for rec in self.recordings:
-            if rec["bytes"] is None and Path(rec["path"]).exists():
-                rec["bytes"] = Path(rec["path"]).stat().st_size
-        if self.record_every is None:
-            self.n_recordings = len(self.recordings)
+        self._rec.close(t_stop)
         frames = self._frames_done + (self.monitor.n_frames if self.monitor is not None else 0)
         return StreamSummary(
             n_rows=self.n_rows,
@@ -710,90 +520,12 @@ class StreamMonitor:
             wall_s=time.perf_counter() - self._t_wall0,
             events=tuple(self.events),
             counts=dict(self.counts),
-            latency={**self.latency.to_dict(), "rotation_max_ms": 1e3 * self._rotation_max_s},
+            latency={**self.latency.to_dict(), "rotation_max_ms": 1e3 * self._rec.rotation_max_s},
             recordings=tuple(self.recordings),
-            live_url=self._live_url,
+            live_url=self._rec.live_url,
             stopped_by=stopped_by,
             notes=tuple(self.notes),
         )
-
-
-def _send_blueprint_released(stream: Any, logger: Any) -> None:
-    """Send the logger's default blueprint to ``stream`` (as :class:`RerunLogger` does) without leaking.
-
-    ``RecordingStream.send_blueprint`` builds the blueprint in a temporary blueprint
-    stream whose memory sink refers back to it; rerun-sdk 0.41 never frees that stream
-    (measured: +2 OS threads per call, also after the orphan sweep). Here it is built the
-    same way and disconnected once sent, which frees it. Falls back to the public call
-    if those internals are not there (another rerun-sdk version).
-    """
-    import rerun as rr
-
-    bp = logger.layout(span_s=None)
-    native = getattr(rr.bindings, "new_blueprint", None)
-    from_native = getattr(rr.RecordingStream, "_from_native", None)
-    full = bp.to_blueprint()
-    if native is None or from_native is None or not hasattr(full, "_log_to_stream"):  # pragma: no cover
-        stream.send_blueprint(bp, make_active=True, make_default=True)
-        return
-    app_id = stream.get_application_id()
-    bp_stream = from_native(native(application_id=app_id, make_default=False, make_thread_default=False))
-    try:
-        bp_stream.set_time("blueprint", sequence=0)
-        full._log_to_stream(bp_stream)
-        storage = bp_stream.memory_recording().storage
-        rr.bindings.send_blueprint(storage, True, True, recording=stream.to_native())
-        del storage
-    finally:
-        bp_stream.disconnect()
-
-
-def _finish_file(held: list[Any], t_start: float | None, t_stop: float | None) -> dict[str, Any]:
-    """Close one recording (rotation thread): last batch and spectrogram block, footer; then let
-    rerun-sdk free it. ``held`` is ``[sinks, logger]`` and is emptied, so that when the streams are
-    closed nothing refers to them any more and the orphan sweep releases them (and their threads)."""
-    sinks, logger = held
-    held.clear()
-    try:
-        if logger is not None:
-            logger.close()
-    finally:
-        sinks.close()
-    path = sinks.path
-    size = path.stat().st_size if path.exists() else None  # None: removed by someone else meanwhile
-    rec = {"path": str(path), "start_s": t_start, "stop_s": t_stop, "bytes": size}
-    del sinks, logger
-    _sweep_orphaned_recordings()
-    return rec
-
-
-_sweep_lock = threading.Lock()
-
-
-def _sweep_orphaned_recordings() -> None:
-    """Free the recordings nothing refers to any more.
-
-    rerun-sdk 0.41 moves a dropped ``RecordingStream`` into a list of orphaned
-    recordings, where it keeps its batcher and sink threads and buffers (measured:
-    +2 threads and ~1-2 MB per rotated file), until ``rr.init`` calls
-    ``flush_and_cleanup_orphaned_recordings``; we call it after each closed file.
-    That function also clears Rerun's *global* recording (this module never
-    uses it), so a global recording set by the caller is put back.
-    """
-    import rerun as rr
-
-    sweep = getattr(rr.bindings, "flush_and_cleanup_orphaned_recordings", None)
-    if sweep is None:  # pragma: no cover  (another rerun-sdk version)
-        return
-    with _sweep_lock:
-        previous = rr.bindings.get_global_data_recording()
-        try:
-            sweep()
-        except RuntimeError:  # pragma: no cover  (a flush of some live stream timed out: sweep next time)
-            pass
-        finally:
-            if previous is not None:
-                rr.bindings.set_global_data_recording(previous)
 
 
 def drive(chunks: Iterable[tuple[bytes, float]], rows: CsvRows, monitor: StreamMonitor) -> None:

@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from .. import palette
-from .spectrogram_view import KEY_FRACTION, spectrogram_view
-from .viewer import TIMELINE
+from .sinks import TIMELINE
+from .spectrogram_view import KEY_PX, key_width, spectrogram_view
 
 if TYPE_CHECKING:
     pass
@@ -28,6 +28,7 @@ __all__ = [
     "layout_geometry",
     "series_styles",
     "time_axis",
+    "view_px",
 ]
 
 #: Entity of the true-fault lane: sorts before every channel lane (the viewer orders lanes by path).
@@ -278,6 +279,21 @@ def _column_shares(alarm: bool, peak: bool = True) -> list[float]:
     return [float(x) for x in shares]
 
 
+def view_px(n_channels: int) -> float:
+    """Width (logical px at 1600x1000) of one channel column's views in the default layout.
+
+    Parameters
+    ----------
+    n_channels : int
+        Channel columns.
+
+    Returns
+    -------
+    float
+    """
+    return _WINDOW[0] / max(int(n_channels), 1) - 8.0
+
+
 def layout_geometry(
     n_channels: int,
     n_lanes: int,
@@ -291,7 +307,7 @@ def layout_geometry(
 
     The lanes row gets ``45 + 42`` px per lane (a lane and its name; every lane visible), each extra
     row 100 px, the channel
-    columns the rest; the spectrogram image's width (:func:`~chatterspec.online.spectrogram_view`) is
+    columns the rest; the spectrogram image's width (:func:`~chatterspec.viewer.spectrogram_view`) is
     its view's aspect ratio there, so that it fills the view.
 
     Parameters
@@ -311,15 +327,23 @@ def layout_geometry(
     -------
     (row_shares, image_width)
         Shares (px) of: the rows above, the columns, the lanes, the rows below; the image width
-        (its height is 1).
+        (its height is 1): the view's width less the colour key (:data:`~chatterspec.online.
+        spectrogram_view.KEY_PX`), over the view's height.
     """
     lanes = 45.0 + _LANE_PX * n_lanes
     cols = max(_WINDOW[1] - lanes - _ROW_PX * (rows_above + rows_below), 200.0)
     shares = _column_shares(alarm, peak)
     spec_h = max(cols * shares[1] / sum(shares) - _TITLE_PX, 20.0)
-    view_w = _WINDOW[0] / max(n_channels, 1) - 8.0
-    width = view_w / spec_h / (1.0 + KEY_FRACTION)
+    width = (view_px(n_channels) - KEY_PX) / spec_h
     return [_ROW_PX] * rows_above + [cols, lanes] + [_ROW_PX] * rows_below, float(width)
+
+
+def _symmetric_axis(ranges: Any, i: int) -> Any:
+    """``ScalarAxis`` ``[-r, r]`` for channel ``i`` of ``ranges`` (None: auto range)."""
+    import rerun.blueprint as rrb
+
+    r = None if ranges is None else ranges[i]
+    return None if r is None else rrb.ScalarAxis(range=(-float(r), float(r)))
 
 
 def blueprint(
@@ -339,6 +363,7 @@ def blueprint(
     extra_lanes: int = 0,
     lanes_name: str | None = None,
     peak_view: bool = True,
+    chattering_range: Any = None,
 ) -> Any:
     """The default layout: per channel (columns) chattering, spectrogram, detection statistic and peak
     frequency; below, the state lanes (true fault first, then one verdict lane per channel in channel
@@ -373,7 +398,7 @@ def blueprint(
     extra_row : callable, optional
         ``extra_row(time_range, axis)`` returns views added as a row below the lanes, with the time range
         and the (linked) time axis of the other views (:func:`time_axis`) (e.g. the identified parameters,
-        :func:`chatterspec.online.identification_log.identification_views`).
+        :func:`chatterspec.viewer.identification_log.identification_views`).
 
     units : tuple of str, optional
         The channels' units, shown in the chattering views' titles.
@@ -387,6 +412,11 @@ def blueprint(
     peak_view : bool
         Show the peak-frequency view in each column (the viewer keeps a minimum height per view: a
         layout with many lanes leaves it out so that every lane stays visible).
+    chattering_range : sequence of (float or None), optional
+        Per channel ``r``: the chattering view shows ``[-r, r]`` (output units), so that the viewer
+        labels its ticks (auto-ranged, a small amplitude can leave a single "0" tick); None (or a None
+        entry): auto range. A file's final blueprint gives it
+        (:class:`~chatterspec.viewer.chattering_extent.ChatteringExtent`).
 
     Returns
     -------
@@ -431,6 +461,7 @@ def blueprint(
                     time_ranges=time_range,
                     axis_x=axis,
                     plot_legend=no_legend,
+                    axis_y=_symmetric_axis(chattering_range, i),
                     # hidden series do not enter the auto-scaled y range (checked in the viewer)
                     overrides={
                         # the chattering of channel i only, not the raw series after it
@@ -444,6 +475,7 @@ def blueprint(
                     f"/spectrogram/{c}",
                     f"{name}: spectrogram{band}, dB re threshold (colour key left)",
                     width,
+                    key_width(width, view_px(m)),
                 ),
                 rrb.TimeSeriesView(
                     origin="/detection",

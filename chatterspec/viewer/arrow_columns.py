@@ -1,6 +1,6 @@
 """Rerun ``send_columns`` columns built straight from numpy arrays (zero-copy arrow views).
 
-Private helpers of :mod:`chatterspec.online.rerun_log`: time indexes in integer
+Private helpers of :mod:`chatterspec.viewer.rerun_log`: time indexes in integer
 nanoseconds, float64 scalar columns and batches of ``Tensor`` rows (which
 ``rr.Tensor`` cannot build itself).
 """
@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from .viewer import TIMELINE
+from .sinks import TIMELINE
 
 __all__: list[str] = []
 

@@ -1,7 +1,7 @@
 """Fault identification in a Rerun recording: estimate and interval per hop, selected hypothesis.
 
 Entities (time on the monitor's ``time`` timeline, one row per hop, integer nanoseconds as in
-:mod:`chatterspec.online.rerun_log`):
+:mod:`chatterspec.viewer.rerun_log`):
 
 ``/identification/<parameter>``
     three series per row: the estimate (the plant's value) and the interval's low and high end,
@@ -21,11 +21,11 @@ from typing import Any
 import numpy as np
 
 from ..detection.identification_online import OnlineIdentification
-from ..detection.identification_results import _fmt
+from ..detection.identification_results import format_with_error
 from ..plants.parameters import NO_FAULT
 from .arrow_columns import _TimeIndex
 from .rerun_log import to_ns
-from .viewer import Sinks
+from .sinks import Sinks
 
 __all__ = ["IDENTIFICATION", "IdentificationLog", "identification_views"]
 
@@ -40,7 +40,7 @@ def _path(parameter: str) -> str:
 def identification_views(setup: Any, confidence: float) -> Any:
     """``make(time_range, axis) -> views``: one time-series view per identified parameter (estimate and
     interval of the selected hypothesis) and the log of the selected hypothesis, for
-    :func:`chatterspec.online.blueprint.blueprint`'s ``extra_row``.
+    :func:`chatterspec.viewer.blueprint.blueprint`'s ``extra_row``.
 
     Parameters
     ----------
@@ -122,9 +122,10 @@ class IdentificationLog:
             if name != self._selected:
                 self._selected = name
                 rep = out.report(j)
+                fmt = format_with_error
                 what = "; ".join(
-                    f"{e.parameter} = {_fmt(e.estimate, e.std_error)} [{_fmt(e.ci_low, e.std_error)}, "
-                    f"{_fmt(e.ci_high, e.std_error)}]" + (f" {e.unit}" if e.unit else "")
+                    f"{e.parameter} = {fmt(e.estimate, e.std_error)} [{fmt(e.ci_low, e.std_error)}, "
+                    f"{fmt(e.ci_high, e.std_error)}]" + (f" {e.unit}" if e.unit else "")
                     for e in rep.estimate()
                 )
                 texts.append(f"identified: {name}" + (f": {what}" if what else ""))
