@@ -16,8 +16,16 @@ from typing import Any
 
 from ..detection.alarms import RULES, rule_names
 from ..errors import ParameterError
+from ._options import add
 
-__all__ = ["AlarmChoice", "add_alarm_args", "alarm_choice", "alarm_doc", "check_file_alarm"]
+__all__ = [
+    "AlarmChoice",
+    "add_alarm_args",
+    "alarm_choice",
+    "alarm_doc",
+    "check_file_alarm",
+    "positive_number",
+]
 
 _DEFAULT_RULE = "cusum"
 _DEFAULT_BUDGET = 1.0 / 24.0
@@ -28,47 +36,28 @@ def add_alarm_args(p: argparse.ArgumentParser, *, what: str = "the monitor", hou
     rules = "; ".join(f"{name}: {spec.summary}" for name, spec in RULES.items())
     k, n = RULES["persistence"].parameters["k"], RULES["persistence"].parameters["n"]
     drift = RULES["cusum"].parameters["drift"]
-    p.add_argument(
-        "--rule",
-        choices=rule_names(),
-        default=None,
-        help=f"alarm rule of {what} (default {_DEFAULT_RULE}): {rules}",
-    )
-    p.add_argument(
+    add(p, "--rule", choices=rule_names(), help=f"alarm rule of {what} (default {_DEFAULT_RULE}): {rules}")
+    add(
+        p,
         "--false-alarms-per-hour",
-        dest="false_alarms_per_hour",
-        default=None,
-        metavar="X",
         help=f"false-alarm budget of {what}: alarm starts per hour of healthy data, all channels together "
         f"(default {_DEFAULT_BUDGET:.4g} = one per day); the rule's threshold is set for it",
     )
-    p.add_argument(
+    add(
+        p,
         "--persistence-k",
-        dest="persistence_k",
-        default=None,
-        metavar="K",
         help=f"persistence rule: frames over the threshold among the last N (default {k})",
     )
-    p.add_argument(
-        "--persistence-n",
-        dest="persistence_n",
-        default=None,
-        metavar="N",
-        help=f"persistence rule: window in frames (default {n})",
-    )
-    p.add_argument(
+    add(p, "--persistence-n", help=f"persistence rule: window in frames (default {n})")
+    add(
+        p,
         "--cusum-drift",
-        dest="cusum_drift",
-        default=None,
-        metavar="D",
         help=f"CUSUM rule: drift subtracted from each frame score, nats (default {drift:g})",
     )
     if hours:
-        p.add_argument(
+        add(
+            p,
             "--alarm-hours",
-            dest="alarm_hours",
-            default=None,
-            metavar="H",
             help="hours of healthy data simulated to set the threshold of the persistence and CUSUM rules "
             "(default 12 / channels, 4 for the EHA: a few seconds; a calibration file from `chatterspec "
             "calibrate --rule ...` (48 h) gives a tighter one)",
@@ -113,6 +102,18 @@ def _int(value: Any, option: str) -> int:
     if v < 1:
         raise ParameterError(f"{option} must be an integer >= 1; got {v}")
     return v
+
+
+def positive_number(value: Any, option: str, what: str, unit: str = "") -> float:
+    """``value`` as a positive, finite float, else one ``ParameterError`` line naming ``option``
+    (``what``: the number it must be, e.g. ``"a number of hours"``; ``unit`` follows "finite")."""
+    try:
+        x = float(value)
+    except ValueError:
+        raise ParameterError(f"{option} must be {what}; got {value!r}") from None
+    if not (math.isfinite(x) and x > 0):
+        raise ParameterError(f"{option} must be positive and finite{unit}; got {x!r}")
+    return x
 
 
 def alarm_choice(
@@ -160,21 +161,10 @@ def alarm_choice(
     if args.cusum_drift is not None:
         if rule != "cusum":
             raise ParameterError(f"--cusum-drift applies to --rule cusum (rule: {rule})")
-        try:
-            d = float(args.cusum_drift)
-        except ValueError:
-            raise ParameterError(f"--cusum-drift must be a number (nats); got {args.cusum_drift!r}") from None
-        if not (math.isfinite(d) and d > 0):
-            raise ParameterError(f"--cusum-drift must be positive and finite (nats); got {d!r}")
-        params["drift"] = d
+        params["drift"] = positive_number(args.cusum_drift, "--cusum-drift", "a number (nats)", " (nats)")
     hours = getattr(args, "alarm_hours", None)
     if hours is not None:
-        try:
-            hours = float(hours)
-        except ValueError:
-            raise ParameterError(f"--alarm-hours must be a number of hours; got {hours!r}") from None
-        if not (math.isfinite(hours) and hours > 0):
-            raise ParameterError(f"--alarm-hours must be positive and finite; got {hours!r}")
+        hours = positive_number(hours, "--alarm-hours", "a number of hours")
     return AlarmChoice(
         rule=rule,
         budget=budget,

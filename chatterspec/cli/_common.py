@@ -11,48 +11,56 @@ from typing import Any
 from ..errors import ParameterError
 
 
+def parsed_arg(text: str, convert: Any, ok: Any, not_a_number: str, out_of_range: str) -> Any:
+    """``convert(text)`` if it works and ``ok`` accepts it, else ``argparse.ArgumentTypeError``.
+
+    The messages are templates: ``{text}`` is the text given, ``{value}`` the converted value.
+    """
+    try:
+        value = convert(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(not_a_number.format(text=text, value=None)) from None
+    if not ok(value):
+        raise argparse.ArgumentTypeError(out_of_range.format(text=text, value=value))
+    return value
+
+
 def alpha_arg(text: str) -> float:
     """argparse type: a probability in the open interval (0, 1)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"alpha must be a number in (0, 1); got {text!r}") from None
-    if not 0.0 < value < 1.0:
-        raise argparse.ArgumentTypeError(f"alpha must lie in the open interval (0, 1); got {value}")
-    return value
+    return parsed_arg(
+        text,
+        float,
+        lambda v: 0.0 < v < 1.0,
+        "alpha must be a number in (0, 1); got {text!r}",
+        "alpha must lie in the open interval (0, 1); got {value}",
+    )
 
 
-def positive_int_arg(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1; got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1; got {value}")
-    return value
+def _integer_arg(minimum: int, name: str) -> Any:
+    """argparse type ``name``: an integer >= ``minimum``."""
+
+    def parse(text: str) -> int:
+        expected = f"expected an integer >= {minimum}; got "
+        return parsed_arg(text, int, lambda v: v >= minimum, expected + "{text!r}", expected + "{value}")
+
+    parse.__name__ = parse.__qualname__ = name
+    parse.__doc__ = f"argparse type: an integer >= {minimum}."
+    return parse
 
 
-def nonnegative_int_arg(text: str) -> int:
-    """argparse type: ``text`` as an int >= 0 (a usage error otherwise)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0; got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0; got {value}")
-    return value
+positive_int_arg = _integer_arg(1, "positive_int_arg")
+nonnegative_int_arg = _integer_arg(0, "nonnegative_int_arg")
 
 
 def band_edge_arg(text: str) -> float:
     """argparse type: one edge of ``--band LO HI``, a finite frequency >= 0 in Hz."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--band edges are frequencies in Hz; got {text!r}") from None
-    if not (value >= 0.0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"--band edges must be finite and >= 0 Hz; got {text!r}")
-    return value
+    return parsed_arg(
+        text,
+        float,
+        lambda v: v >= 0.0 and v < float("inf"),
+        "--band edges are frequencies in Hz; got {text!r}",
+        "--band edges must be finite and >= 0 Hz; got {text!r}",
+    )
 
 
 def band_from_args(args: argparse.Namespace) -> tuple[float, float] | None:
@@ -69,67 +77,6 @@ def band_from_args(args: argparse.Namespace) -> tuple[float, float] | None:
     from ..detection.thresholds import check_band
 
     return check_band(band)
-
-
-def add_detector_args(p: argparse.ArgumentParser) -> None:
-    """--alpha, --threshold, --correction, --band, --runs, --seed."""
-    p.add_argument(
-        "--alpha",
-        type=alpha_arg,
-        default=1e-3,
-        help="false-alarm probability: family-wise for 'exact' (default 0.001), per bin for 'paper'",
-    )
-    p.add_argument(
-        "--threshold",
-        choices=("exact", "paper"),
-        default="exact",
-        help="'exact': per-bin chi-squared thresholds from the expected spectrum with family-wise "
-        "control (default); 'paper': the paper's flat bound (eq 58-62) at per-bin alpha",
-    )
-    p.add_argument(
-        "--correction",
-        choices=("bonferroni", "sidak", "none"),
-        default="bonferroni",
-        help="family-wise correction over the tested bins for 'exact' and for the averaged verdict "
-        "of every threshold with --runs > 1 (default bonferroni)",
-    )
-    p.add_argument(
-        "--band",
-        nargs=2,
-        type=band_edge_arg,
-        metavar=("LO", "HI"),
-        help="test only the bins with LO <= f <= HI (Hz), for every threshold (single, averaged, STFT "
-        "frames); the correction counts only these bins; DC and Nyquist stay excluded",
-    )
-    p.add_argument("--runs", type=positive_int_arg, default=1, help="Monte Carlo realizations (default 1)")
-    p.add_argument("--seed", type=nonnegative_int_arg, default=0, help="random seed (default 0)")
-
-
-def add_execution_args(p: argparse.ArgumentParser) -> None:
-    """--workers N and --scheduler ADDRESS (the Monte Carlo commands; the numbers do not depend on them)."""
-    p.add_argument(
-        "--workers",
-        type=positive_int_arg,
-        default=1,
-        help="local worker processes (default 1; the results do not depend on it)",
-    )
-    p.add_argument(
-        "--scheduler",
-        metavar="ADDRESS",
-        help="run on Dask: 'local-dask' or a scheduler address (needs chatterspec[distributed])",
-    )
-
-
-def add_live_args(p: argparse.ArgumentParser) -> None:
-    """--record FILE.rrd and --live URL|spawn."""
-    p.add_argument("--record", metavar="FILE.rrd", help="write a Rerun recording of the run to FILE.rrd")
-    p.add_argument(
-        "--live",
-        type=live_arg,
-        metavar="URL|spawn",
-        help="stream to a running Rerun viewer (gRPC URL such as rerun+http://127.0.0.1:9876/proxy) "
-        "or 'spawn' one (needs a display)",
-    )
 
 
 def live_arg(text: str) -> str:
@@ -156,11 +103,12 @@ def load_scenario(name: str) -> Any:
     return as_scenario(name)
 
 
-def print_json(doc: Any) -> None:
-    """Print ``doc`` as indented JSON on standard output (NaN refused: the JSON stays standard)."""
+def print_json(doc: Any, *, allow_nan: bool = False) -> None:
+    """Print ``doc`` as indented JSON on standard output (NaN refused unless ``allow_nan``: the JSON stays
+    standard; the Monte Carlo studies write NaN where a rate has no trials)."""
     from ..jsonout import dumps
 
-    sys.stdout.write(dumps(doc, indent=2) + "\n")
+    sys.stdout.write(dumps(doc, indent=2, allow_nan=allow_nan) + "\n")
 
 
 def check_record_path(path: str | os.PathLike | None) -> None:
@@ -319,3 +267,57 @@ class Outputs:
         if self.failures:
             done = " -- the result above was computed but not saved"
             raise OutputPathError("; ".join(self.failures) + done)
+
+
+# --- the end of a command: figure, document or table, failed writes ------------------------------------
+def check_figure_path(path: str | os.PathLike | None, option: str = "--plot") -> None:
+    """Check, before any computation, that the figure file ``path`` can be written (a matplotlib suffix)."""
+    if path:
+        check_output_file(path, option, suffixes=figure_suffixes())
+
+
+def write_plot(outputs: Outputs, args: Any, doc: dict, figure: str, *figure_args: Any) -> None:
+    """With ``--plot FILE``: save the figure there, noted as ``doc["figure"]`` (None: not saved).
+
+    ``figure`` names the drawing function in :mod:`chatterspec.figures` as ``"module.function"``
+    (e.g. ``"plot_studies.far_figure"``), called with ``figure_args``; it is imported only here, so
+    a command without ``--plot`` never loads matplotlib.
+    """
+    if not args.plot:
+        return
+    import importlib
+
+    from ..figures.plot_studies import save
+
+    module, name = figure.rsplit(".", 1)
+    draw = getattr(importlib.import_module(f"..figures.{module}", __package__), name)
+    saved = outputs.write("--plot", args.plot, save, draw(*figure_args), args.plot)
+    doc["figure"] = None if saved is None else str(saved)
+
+
+def report(args: Any, doc: dict, outputs: Outputs, print_text: Any, *, allow_nan: bool = False) -> int:
+    """Print the result and end the command: ``doc`` as JSON with ``--json`` (NaN written only with
+    ``allow_nan``), else ``print_text()``; then :meth:`Outputs.finish`. Returns 0."""
+    if args.json:
+        print_json(doc, allow_nan=allow_nan)
+    else:
+        print_text()
+    outputs.finish()
+    return 0
+
+
+def report_study(args: Any, res: Any, figure: str, print_text: Any) -> int:
+    """The end of a Monte Carlo study command (``far``, ``power``, ``power --closed-loop``): the result
+    ``res``'s document, its ``--plot`` figure (:func:`write_plot`, ``figure`` called with ``res``),
+    then :func:`report` with ``print_text(doc)`` and the figure's path as the text (NaN kept in the JSON:
+    a rate without trials)."""
+    outputs = Outputs()
+    doc = res.to_dict()
+    write_plot(outputs, args, doc, figure, res)
+
+    def text() -> None:
+        print_text(doc)
+        if doc.get("figure"):
+            print(f"figure: {doc['figure']}")
+
+    return report(args, doc, outputs, text, allow_nan=True)

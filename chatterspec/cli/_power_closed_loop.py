@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 
 from ..errors import ParameterError
-from ..jsonout import dumps
-from ._common import Outputs
-from .calibrate import execution
+from ._common import report_study
+from ._options import study_keywords
 
 
 def add_closed_loop_args(p: argparse.ArgumentParser) -> None:
@@ -89,23 +88,18 @@ def run_closed_loop(args: argparse.Namespace) -> int:
         dither_at=args.dither_at,
         tones_hz=DITHER_TONES_HZ if args.dither_hz is None else tuple(args.dither_hz),
         position_noise=noise,
-        alpha=args.alpha,
-        runs=args.runs,
-        seed=args.seed,
-        **execution(args),
+        **study_keywords(args),
     )
-    outputs = Outputs()
-    doc = res.to_dict()
-    if args.plot:
-        from ..figures.plot_closed_loop import excitation_figure
-        from ..figures.plot_studies import save
+    return report_study(
+        args,
+        res,
+        "plot_closed_loop.excitation_figure",
+        lambda doc: _print_excitation(res, doc, args.dither_at),
+    )
 
-        saved = outputs.write("--plot", args.plot, save, excitation_figure(res), args.plot)
-        doc["figure"] = None if saved is None else str(saved)
-    if args.json:
-        print(dumps(doc, indent=2, allow_nan=True))
-        outputs.finish()
-        return 0
+
+def _print_excitation(res, doc: dict, dither_at: str) -> None:  # type: ignore[no-untyped-def]
+    """The text report of an excitation study ``res`` (``doc``: its JSON document): table and answers."""
     print(
         f"closed-loop detection power, {res.family} {res.size:g} {res.unit} on {res.channel}: linear EHA "
         f"under its PI position loop; family-wise alpha = {res.alpha:g} (exact threshold, Bonferroni); "
@@ -141,14 +135,10 @@ def run_closed_loop(args: argparse.Namespace) -> int:
             cost = a["tracking_cost_mm"]
             print(
                 f"{where}: smallest dither with >= 95 % detection: {a['dither']:g} "
-                f"{'mm' if args.dither_at == 'reference' else 'rad/s'} "
+                f"{'mm' if dither_at == 'reference' else 'rad/s'} "
                 f"(detection {_rate(a['detection'])}); tracking RMS {a['tracking_rms_mm']:.4f} mm"
                 + ("" if cost is None else f", +{cost:.4f} mm over no dither")
             )
-    if args.plot and doc.get("figure"):
-        print(f"figure: {doc['figure']}")
-    outputs.finish()
-    return 0
 
 
 def _rate(e: dict) -> str:

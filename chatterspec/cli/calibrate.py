@@ -1,6 +1,7 @@
 """``chatterspec calibrate NAME --alpha A --runs R``: analytic vs empirical thresholds from healthy runs.
 
-Also holds the arguments shared by the Monte Carlo study commands (calibrate, far, power).
+The options it shares with the other Monte Carlo study commands (far, power) are
+:func:`chatterspec.cli._options.add_study_args`.
 """
 
 from __future__ import annotations
@@ -10,79 +11,21 @@ import sys
 from typing import Any
 
 from ..errors import ParameterError
-from ..jsonout import dumps
-from ._alarm_args import add_alarm_args, alarm_choice
-from ._common import (
-    Outputs,
-    alpha_arg,
-    check_output_file,
-    figure_suffixes,
-    nonnegative_int_arg,
-    positive_int_arg,
-)
+from ._alarm_args import add_alarm_args, alarm_choice, positive_number
+from ._common import Outputs, check_figure_path, check_output_file, parsed_arg, report, write_plot
+from ._options import add, add_name, add_study_args, command, study_execution, study_keywords
 
-
-def add_common(p: argparse.ArgumentParser, *, alpha: float, runs: int, multi_alpha: bool = False) -> None:
-    """Add ``--alpha`` (default ``alpha``; several with ``multi_alpha``), ``--runs`` (default ``runs``)
-    and the execution options to ``p``."""
-    if multi_alpha:
-        p.add_argument(
-            "--alpha",
-            type=alpha_arg,
-            nargs="+",
-            default=[alpha],
-            help=f"nominal level(s) (default {alpha:g})",
-        )
-    else:
-        p.add_argument(
-            "--alpha", type=alpha_arg, default=alpha, help=f"false-alarm probability (default {alpha:g})"
-        )
-    p.add_argument(
-        "--runs", type=positive_int_arg, default=runs, help=f"Monte Carlo realizations (default {runs})"
-    )
-    p.add_argument("--seed", type=nonnegative_int_arg, default=0, help="root seed (default 0)")
-    p.add_argument("--workers", type=positive_int_arg, default=1, help="local worker processes (default 1)")
-    p.add_argument(
-        "--scheduler",
-        metavar="ADDRESS",
-        help="run on Dask: 'local-dask' or a scheduler address (needs chatterspec[distributed])",
-    )
-    p.add_argument(
-        "--chunk-runs",
-        type=positive_int_arg,
-        default=None,
-        help="realizations per chunk (rounded up to a multiple of 64, with a note)",
-    )
-    p.add_argument("--confidence", type=float, default=0.99, help="interval level (default 0.99)")
-    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-
-
-def execution(args: argparse.Namespace) -> dict[str, Any]:
-    """The execution keywords (workers, scheduler, chunk runs, progress) of ``args`` for the studies."""
-    from ..rng import BLOCK
-
-    if args.chunk_runs is not None and args.chunk_runs % BLOCK:
-        rounded = -(-args.chunk_runs // BLOCK) * BLOCK
-        print(
-            f"chatterspec: note: --chunk-runs {args.chunk_runs} rounded up to {rounded} (chunks are whole "
-            f"blocks of {BLOCK} realizations, so results do not depend on the chunking)",
-            file=sys.stderr,
-        )
-        args.chunk_runs = rounded
-    return {
-        "workers": args.workers,
-        "scheduler": args.scheduler,
-        "chunk_runs": args.chunk_runs,
-        "progress": False if args.no_progress else None,
-        "confidence": args.confidence,
-    }
+#: The former names of the study options and their execution keywords (now in :mod:`._options`).
+add_common = add_study_args
+execution = study_execution
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``chatterspec calibrate`` and its options to the subcommand parsers ``sub``."""
-    p = sub.add_parser(
+    p = command(
+        sub,
         "calibrate",
+        run,
         help="calibrate thresholds on healthy Monte Carlo runs",
         description="Analytic thresholds (paper, exact, family-wise) beside empirical ones (per-bin and "
         "per-frame quantiles, family-wise quantile of the maximum normalized bin) with order-statistic "
@@ -91,8 +34,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--rule / --false-alarms-per-hour the file also holds the monitor's alarm threshold for that "
         "budget (rule, budget and frames per hour recorded; the monitor refuses it for another rule).",
     )
-    p.add_argument("name", metavar="NAME", help="healthy scenario name or model file (.toml)")
-    add_common(p, alpha=1e-2, runs=1000)
+    add_name(p)
+    add_study_args(p, alpha=1e-2, runs=1000)
     add_alarm_args(p, what="the monitor using the file", hours=False)
     p.add_argument(
         "--hours",
@@ -102,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "threshold (default 48; its interval shrinks like 1/sqrt(H))",
     )
     p.add_argument("--out", metavar="FILE", help="write the calibration file (.json or .npz)")
-    p.add_argument("--plot", metavar="FILE", help="save a figure of analytic vs empirical thresholds")
+    add(p, "--plot", help="save a figure of analytic vs empirical thresholds")
     p.add_argument(
         "--tail-budget",
         type=_megabytes,
@@ -112,25 +55,24 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(default 128); above it the quantiles come from fixed-size tail histograms (point at most one "
         "fine bucket above the exact one, intervals widened outward); 0 forces the histograms",
     )
-    p.set_defaults(func=run)
 
 
 def _megabytes(text: str) -> int:
     """``--tail-budget MB`` -> bytes (MB = 2^20 bytes)."""
-    try:
-        mb = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of MB; got {text!r}") from None
-    if not mb >= 0 or mb == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a finite number of MB >= 0; got {text!r}")
+    mb = parsed_arg(
+        text,
+        float,
+        lambda v: v >= 0 and v != float("inf"),
+        "expected a number of MB; got {text!r}",
+        "expected a finite number of MB >= 0; got {text!r}",
+    )
     return int(mb * 2**20)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec calibrate`` with the parsed ``args``; returns the exit status."""
     check_output_file(args.out, "--out")
-    if args.plot:
-        check_output_file(args.plot, "--plot", suffixes=figure_suffixes())
+    check_figure_path(args.plot)
     outputs = Outputs()
     supports = _check_support(args)  # also an unknown name or a bad model file, before the heavy imports
     choice = alarm_choice(args)
@@ -138,10 +80,8 @@ def run(args: argparse.Namespace) -> int:
     hours = _hours(args.hours)
     from ..studies.calibration import calibrate
 
-    ex = execution(args)
-    if args.tail_budget is not None:
-        ex["tail_budget"] = args.tail_budget
-    cal = calibrate(args.name, alpha=args.alpha, runs=args.runs, seed=args.seed, **ex)
+    tails = {} if args.tail_budget is None else {"tail_budget": args.tail_budget}
+    cal = calibrate(args.name, **study_keywords(args), **tails)
     if wants_alarm:
         cal = _with_alarm(cal, args.name, choice, hours, args.seed)
     doc = cal.to_dict()
@@ -149,21 +89,17 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         saved = outputs.write("--out", args.out, _save_calibration, cal, args.out)
         doc["calibration_file"] = None if saved is None else str(saved)
-    if args.plot:
-        from ..figures.plot_studies import calibration_figure, save
+    write_plot(outputs, args, doc, "plot_studies.calibration_figure", cal)
+    return report(args, doc, outputs, lambda: _print_calibration(cal, doc), allow_nan=True)
 
-        saved = outputs.write("--plot", args.plot, save, calibration_figure(cal), args.plot)
-        doc["figure"] = None if saved is None else str(saved)
-    if args.json:
-        print(dumps(doc, indent=2, allow_nan=True))
-        outputs.finish()
-        return 0
+
+def _print_calibration(cal: Any, doc: dict) -> None:
+    """The text report of a calibration ``cal`` (``doc``: its JSON document)."""
     if cal.alarm is not None:
         print(f"alarm rule for the monitor: {cal.alarm.describe()}")
     if cal.normalization == "empirical":
         _print_empirical(cal, doc)
-        outputs.finish()
-        return 0
+        return
     a, ag = doc["analytic_factor"], doc["agreement"]
     print(f"calibration of {cal.scenario}: alpha = {cal.alpha:g}, {cal.runs} healthy runs, seed {cal.seed}")
     print(f"  normalized thresholds S/E[S] ({cal.confidence:.0%} intervals):")
@@ -185,25 +121,13 @@ def run(args: argparse.Namespace) -> int:
         )
     print(f"  per-frame median ratio empirical/analytic {ag['per_frame_median_ratio']:.3f}")
     _print_tails(cal.tails)
-    if args.out and doc["calibration_file"] is not None:
+    if doc.get("calibration_file") is not None:
         print(f"  calibration file: {doc['calibration_file']}")
-    outputs.finish()
-    return 0
 
 
 def _hours(text: str | None) -> float:
     """``--hours H`` (default 48): a positive, finite number of hours."""
-    import math
-
-    if text is None:
-        return 48.0
-    try:
-        h = float(text)
-    except ValueError:
-        raise ParameterError(f"--hours must be a number of hours; got {text!r}") from None
-    if not (math.isfinite(h) and h > 0):
-        raise ParameterError(f"--hours must be positive and finite; got {h!r}")
-    return h
+    return 48.0 if text is None else positive_number(text, "--hours", "a number of hours")
 
 
 def _with_alarm(cal: Any, name: str, choice: Any, hours: float, seed: int) -> Any:

@@ -14,7 +14,8 @@ import time
 from pathlib import Path
 
 from . import _identify
-from ._common import Outputs, add_detector_args, band_from_args, check_output_dir, print_json
+from ._common import Outputs, band_from_args, check_output_dir, print_json
+from ._options import add_detector_args, add_report_args, command
 
 #: Scenarios of the demo, in table order.
 DEMO_SCENARIOS: tuple[str, ...] = (
@@ -37,8 +38,10 @@ DEMO_FIGURES: tuple[str, ...] = ("fig8", "fig9", "fig10", "fig11", "fig12")
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``chatterspec demo`` and its options to the subcommand parsers ``sub``."""
-    p = sub.add_parser(
+    p = command(
+        sub,
         "demo",
+        run,
         help="run the EHA fault catalogue and the timeline scenario (the main job)",
         description="Detect every EHA fault level and localize the second-order timeline faults; "
         "print a table, write figures (figures/demo/) and Rerun recordings (recordings/demo/).",
@@ -53,8 +56,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     p.add_argument("--no-record", action="store_true", help="skip the Rerun recordings")
     _identify.add_identification_args(p)
-    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
-    p.set_defaults(func=run)
+    add_report_args(p, progress=False)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -15,22 +15,16 @@ if TYPE_CHECKING:
 from ..errors import ParameterError
 from . import _identify
 from ._alarm_args import add_alarm_args, alarm_choice
-from ._common import (
-    Outputs,
-    add_detector_args,
-    add_execution_args,
-    add_live_args,
-    band_from_args,
-    check_record_path,
-    load_scenario,
-    print_json,
-)
+from ._common import Outputs, band_from_args, check_record_path, load_scenario, print_json
+from ._options import add, add_detector_args, add_execution_args, add_live_args, add_report_args, command
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``chatterspec detect`` and its options to the subcommand parsers ``sub``."""
-    p = sub.add_parser(
+    p = command(
+        sub,
         "detect",
+        run,
         help="detect a fault in a catalogue scenario from its chattering spectrum",
         description="Simulate NAME, run the auxiliary SVSF, compare the chattering periodogram with "
         "chi-squared thresholds and, for multi-segment scenarios, localize the fault with the STFT.",
@@ -43,20 +37,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_detector_args(p)
     add_live_args(p)
-    p.add_argument(
+    add(
+        p,
         "--calibration",
-        metavar="FILE",
         help="use the empirical family-wise threshold of a calibration file written by "
         "'chatterspec calibrate --out FILE' (refused if it was made for another model or length)",
     )
     add_alarm_args(p, what="the --record / --live monitor")
     add_execution_args(p)
     _identify.add_identification_args(p)
-    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    add_report_args(p)
     # None = not given (the defaults of add_detector_args are filled in by run): a calibration fixes
     # the threshold, so an explicit --alpha / --threshold / --correction next to it is refused
-    p.set_defaults(func=run, alpha=None, threshold=None, correction=None)
+    p.set_defaults(alpha=None, threshold=None, correction=None)
 
 
 #: Defaults of the detector options when no calibration file is given.

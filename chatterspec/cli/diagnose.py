@@ -27,17 +27,8 @@ import time
 
 from ..errors import ParameterError
 from . import _identify
-from ._common import (
-    Outputs,
-    add_execution_args,
-    alpha_arg,
-    check_output_file,
-    check_record_path,
-    figure_suffixes,
-    nonnegative_int_arg,
-    positive_int_arg,
-    print_json,
-)
+from ._common import Outputs, check_figure_path, check_record_path, positive_int_arg, report
+from ._options import add, add_execution_args, add_name, add_report_args, add_runs_args, command, execution
 
 #: Healthy runs of the budget's calibration streams by default: on eha4-leak-timeline (9 s records) 500 runs
 #: (1.2 h) are too few for the alarm layer to extrapolate the chattering and innovation routes' CUSUM to one
@@ -51,48 +42,36 @@ def register(sub: argparse._SubParsersAction) -> None:
     from ..studies.route_sweep import DEFAULT_WARMUP_S
     from ..studies.routes import ALL_METHODS
 
-    p = sub.add_parser(
+    p = command(
+        sub,
         "diagnose",
+        run,
         help="fault diagnosis routes (chattering, SMM-SVSF, IMM, innovations) at one false-alarm budget",
         description="Runs each route on the same seeded realizations through one alarm rule whose "
         "threshold is calibrated per route on healthy runs to the same false alarms per hour, and reports "
         "per route the realized false-alarm rate (Poisson interval), the detection delay per fault onset "
         "(median, 90th percentile), missed onsets, isolation and the cost.",
     )
-    p.add_argument(
-        "name", metavar="NAME", help="scenario (e.g. eha4-leak-timeline, eha-leak-minor --onset 2)"
-    )
+    add_name(p, "scenario (e.g. eha4-leak-timeline, eha-leak-minor --onset 2)")
     p.add_argument(
         "--methods",
         default=None,
         help=f"comma-separated subset of {','.join(ALL_METHODS)} (default: every one the scenario supports)",
     )
-    p.add_argument("--runs", type=positive_int_arg, default=10, help="realizations (default 10)")
-    p.add_argument("--seed", type=nonnegative_int_arg, default=0, help="random seed (default 0)")
-    p.add_argument(
+    add_runs_args(p, 10, runs_help="realizations (default 10)")
+    add(
+        p,
         "--false-alarms-per-hour",
-        dest="false_alarms_per_hour",
         default="1",
-        metavar="X",
         help="false-alarm budget of every route: alarm starts per hour of healthy time (default 1)",
     )
-    p.add_argument(
-        "--rule", choices=rule_names(), default=None, help="alarm rule of every route (default cusum)"
-    )
-    p.add_argument(
+    add(p, "--rule", choices=rule_names(), help="alarm rule of every route (default cusum)")
+    add(
+        p,
         "--persistence-k",
-        dest="persistence_k",
-        default=None,
-        metavar="K",
         help="persistence rule: steps (frames or samples) over the threshold among the last N (default 2)",
     )
-    p.add_argument(
-        "--persistence-n",
-        dest="persistence_n",
-        default=None,
-        metavar="N",
-        help="persistence rule: window in steps (default 3)",
-    )
+    add(p, "--persistence-n", help="persistence rule: window in steps (default 3)")
     p.add_argument(
         "--warmup",
         type=float,
@@ -114,9 +93,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="S",
         help="a scenario faulty from t = 0: start its fault at S seconds instead (healthy before)",
     )
-    p.add_argument(
+    add(
+        p,
         "--calibration",
-        metavar="FILE",
         default=None,
         help="chattering on a nonlinear model: saved calibration of the nominal model (its expected "
         "spectrum is the frame score's healthy law; default: calibrate on healthy runs now)",
@@ -128,30 +107,26 @@ def register(sub: argparse._SubParsersAction) -> None:
         help=f"healthy runs of the in-call calibrations (default {DEFAULT_CALIBRATION_RUNS}; "
         "--per-record: 500, not with --calibration)",
     )
-    p.add_argument(
+    add(
+        p,
         "--alpha",
-        type=alpha_arg,
         default=None,
         help="chattering: per-frame level of the in-call calibration, the --per-record threshold and the "
         "recording (default 1e-3; not with --calibration)",
     )
-    add_execution_args(p)
-    p.add_argument(
-        "--chunk-runs",
-        type=positive_int_arg,
-        default=None,
-        help="realizations simulated and diagnosed together (memory grows with it, not with --runs; "
-        "the results do not depend on it)",
+    add_execution_args(
+        p,
+        chunk_runs_help="realizations simulated and diagnosed together (memory grows with it, not with "
+        "--runs; the results do not depend on it)",
     )
     p.add_argument("--figure", metavar="FILE", default=None, help="write the delay-vs-false-alarms figure")
     p.add_argument(
         "--per-record", action="store_true", help="each route with its own rule (the former table)"
     )
     _identify.add_identification_args(p)
-    p.add_argument("--json", action="store_true", help="print one JSON document")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    p.add_argument("--record", metavar="FILE.rrd", default=None, help="write realization 0 to a Rerun file")
-    p.set_defaults(func=run, cusum_drift=None)  # each route sets its own CUSUM drift
+    add_report_args(p, json_help="print one JSON document")
+    add(p, "--record", default=None, help="write realization 0 to a Rerun file")
+    p.set_defaults(cusum_drift=None)  # each route sets its own CUSUM drift
 
 
 def _methods(text: str | None, sc: object, per_record: bool) -> tuple[str, ...]:
@@ -262,8 +237,7 @@ def run(args: argparse.Namespace) -> int:
         args.calibration_runs is None
     ):  # at a budget, 500 runs (1.2 h of 9 s records) cannot calibrate every route
         args.calibration_runs = 500 if args.per_record else DEFAULT_CALIBRATION_RUNS
-    if args.figure is not None:
-        check_output_file(args.figure, "--figure", suffixes=figure_suffixes())
+    check_figure_path(args.figure, "--figure")
     sc = _scenario(args)
     methods = _methods(args.methods, sc, args.per_record)
     if args.per_record:
@@ -283,10 +257,7 @@ def run(args: argparse.Namespace) -> int:
         args.runs,
         args.seed,
         settings,
-        workers=args.workers,
-        scheduler=args.scheduler,
-        chunk_runs=args.chunk_runs,
-        progress=False if args.no_progress else None,
+        **execution(args),
     )
     ident_doc = identification_doc(args, sc)
     wall = time.perf_counter() - t0
@@ -313,33 +284,32 @@ def run(args: argparse.Namespace) -> int:
             results,
             threshold,
         )
-    if args.json:
-        print_json(
-            {
-                "scenario": sc.name,  # type: ignore[attr-defined]
-                "runs": args.runs,
-                "seed": args.seed,
-                "budget_per_hour": settings.budget_per_hour,
-                "rule": settings.rule,
-                "warmup_s": settings.warmup_s,
-                "chattering_law": law_info or None,
-                "wall_s": wall,
-                "methods": [r.describe() for r in results],
-                "figure": None if figure is None else str(figure),
-                "identification": ident_doc,
-                "recording": None if recording is None else str(recording),
-            }
-        )
-        outputs.finish()
-        return 0
-    _print_budget_table(sc, args, settings, results, wall)
-    _identify.print_diagnosis(ident_doc)
-    if figure is not None:
-        print(f"figure: {figure}")
-    if recording is not None:
-        print(f"recording: {recording} (open with `chatterspec replay {recording}` or `rerun {recording}`)")
-    outputs.finish()
-    return 0
+    doc = {
+        "scenario": sc.name,  # type: ignore[attr-defined]
+        "runs": args.runs,
+        "seed": args.seed,
+        "budget_per_hour": settings.budget_per_hour,  # type: ignore[attr-defined]
+        "rule": settings.rule,  # type: ignore[attr-defined]
+        "warmup_s": settings.warmup_s,  # type: ignore[attr-defined]
+        "chattering_law": law_info or None,
+        "wall_s": wall,
+        "methods": [r.describe() for r in results],
+        "figure": None if figure is None else str(figure),
+        "identification": ident_doc,
+        "recording": None if recording is None else str(recording),
+    }
+
+    def text() -> None:
+        _print_budget_table(sc, args, settings, results, wall)
+        _identify.print_diagnosis(ident_doc)
+        if figure is not None:
+            print(f"figure: {figure}")
+        if recording is not None:
+            print(
+                f"recording: {recording} (open with `chatterspec replay {recording}` or `rerun {recording}`)"
+            )
+
+    return report(args, doc, outputs, text)
 
 
 def _print_budget_table(

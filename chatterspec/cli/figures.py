@@ -19,37 +19,37 @@ import time
 from pathlib import Path
 
 from ..errors import ParameterError
-from ._common import Outputs, check_output_dir, nonnegative_int_arg, positive_int_arg, print_json
+from ._common import Outputs, check_output_dir, print_json
+from ._options import add, add_report_args, add_runs_args, command
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``chatterspec figures`` and its options to the subcommand parsers ``sub``."""
-    p = sub.add_parser(
+    p = command(
+        sub,
         "figures",
+        run,
         help="regenerate the paper's figures (Figs 2, 4-12) as PNG files",
         description="Recompute the core paper's Figs 2 and 4-12 with chatterspec and write them as "
         "PNG files. Spectrum figures draw the paper's flat threshold (eq 58-62, alpha per bin) and the "
         "exact chi-squared threshold (eq 56, alpha family-wise, Bonferroni).",
     )
     p.add_argument("--out", default="figures", metavar="DIR", help="output folder (default: figures/)")
-    p.add_argument(
-        "--runs",
-        type=positive_int_arg,
-        default=None,
-        help="Monte Carlo realizations for the averaging figures (Fig 2 study, Fig 6 average); "
+    add_runs_args(
+        p,
+        None,  # each figure's own
+        runs_help="Monte Carlo realizations for the averaging figures (Fig 2 study, Fig 6 average); "
         "default 20 for Fig 2 and 100 for Fig 6",
     )
-    p.add_argument("--seed", type=nonnegative_int_arg, default=0, help="random seed (default 0)")
     p.add_argument(
         "--only",
         default=None,
         metavar="NAMES",
         help="comma-separated subset, e.g. fig4,fig5 (default: all; see --list)",
     )
-    p.add_argument("--dpi", type=positive_int_arg, default=None, help="PNG resolution (default 110)")
+    add(p, "--dpi")
     p.add_argument("--list", action="store_true", help="list the figure names and exit")
-    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
-    p.set_defaults(func=run)
+    add_report_args(p, progress=False)
 
 
 def selected_figures(only: str | None) -> list[str]:

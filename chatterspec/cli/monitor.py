@@ -26,22 +26,17 @@ from ..errors import ParameterError
 from ..jsonout import dumps
 from . import _identify
 from ._alarm_args import _alarm_line, _alarm_short, add_alarm_args, alarm_choice, alarm_doc
-from ._common import (
-    Outputs,
-    alpha_arg,
-    band_edge_arg,
-    band_from_args,
-    check_record_path,
-    live_arg,
-    positive_int_arg,
-)
+from ._common import Outputs, band_from_args, check_record_path, positive_int_arg
 from ._monitor_stream import _emit_line, _run_stream
+from ._options import add, add_report_args, command
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``chatterspec monitor`` and its options to the subcommand parsers ``sub``."""
-    p = sub.add_parser(
+    p = command(
+        sub,
         "monitor",
+        run,
         help="run the online chattering monitor on your own model and data",
         description="Replay measurement data through the SVSF chattering monitor of a user model and "
         "report fault start/end events per channel. Model: TOML (A, B, C, Q, R, dt, psi, gamma, channel "
@@ -102,17 +97,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="replay speed, 1.0 = real time (default: as fast as possible)",
     )
-    p.add_argument("--record", type=Path, default=None, metavar="FILE.rrd", help="write a Rerun recording")
-    p.add_argument(
+    add(p, "--record", type=Path, default=None, help="write a Rerun recording")
+    add(
+        p,
         "--live",
-        type=live_arg,
         default=None,
-        metavar="URL|spawn",
         help="stream to a running viewer (rerun+http://host:port/proxy) or 'spawn' one",
     )
-    p.add_argument(
+    add(
+        p,
         "--alpha",
-        type=alpha_arg,
         default=None,
         help="per-frame false-alarm probability: the frame rule at this level, every frame a test (the "
         "rule before alarm budgets; ~42 false alarms per hour at 0.001 on 3 channels). Only with --rule "
@@ -120,20 +114,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         "per-frame verdict drawn in the recording",
     )
     add_alarm_args(p)
-    p.add_argument(
+    add(
+        p,
         "--band",
-        nargs=2,
-        type=band_edge_arg,
         default=None,
-        metavar=("LO", "HI"),
         help="test only the frame bins with LO <= f <= HI (Hz); the correction counts only these bins "
         "(default: [detector] band of the model file, else every bin but DC and Nyquist)",
     )
-    p.add_argument(
+    add(
+        p,
         "--calibration",
         type=Path,
         default=None,
-        metavar="FILE",
         help="use the empirical per-frame threshold of a calibration file ('chatterspec calibrate "
         "MODEL.toml --out FILE'); refused if it was made for another model or STFT setting",
     )
@@ -152,8 +144,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "ending at that hop) whenever the identified hypothesis changes, or at every hop; emitted after "
         "the monitor's events of the same push (order by sample_time_s). Default none",
     )
-    p.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
-    p.set_defaults(func=run)
+    add_report_args(p, progress=False, json_help="print one JSON summary on stdout")
 
 
 #: Smallest ``--record-every`` (minutes): 0.0001 min would write 667 files for 4 s of data.

@@ -5,10 +5,9 @@ from __future__ import annotations
 import argparse
 
 from ..errors import ParameterError
-from ..jsonout import dumps
-from ._common import Outputs, check_output_file, figure_suffixes
+from ._common import check_figure_path, report_study
+from ._options import add, add_study_args, command, study_keywords
 from ._power_closed_loop import add_closed_loop_args, run_closed_loop
-from .calibrate import add_common, execution
 
 #: The fault families of :data:`chatterspec.studies.power.POWER_FAMILIES` (listed here so that parsing the
 #: command line does not import the studies; a test keeps the two equal).
@@ -17,53 +16,46 @@ FAMILY_NAMES: tuple[str, ...] = ("leakage", "bulk-modulus", "friction", "f0")
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``chatterspec power`` and its options to the subcommand parsers ``sub``."""
-    p = sub.add_parser(
+    p = command(
+        sub,
         "power",
+        run,
         help="detection power vs fault size and noise level",
         description="Sweep a fault family's size and the measurement-noise level; report detection "
         "probability with Clopper-Pearson intervals for the paper, exact per-bin and exact family-wise "
         "thresholds, and ROC curves (false-alarm vs detection rate as alpha varies).",
     )
     p.add_argument("family", metavar="FAMILY", choices=FAMILY_NAMES, help=", ".join(FAMILY_NAMES))
-    add_common(p, alpha=1e-3, runs=200)
+    add_study_args(p, alpha=1e-3, runs=200)
     p.add_argument("--sizes", type=float, nargs="+", help="fault sizes (default: the family's grid)")
     p.add_argument("--noise", type=float, nargs="+", help="measurement-noise multipliers of R")
-    p.add_argument("--plot", metavar="FILE", help="save power and ROC curves")
+    add(p, "--plot", help="save power and ROC curves")
     add_closed_loop_args(p)
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec power`` with the parsed ``args``; returns the exit status."""
-    if args.plot:
-        check_output_file(args.plot, "--plot", suffixes=figure_suffixes())
+    check_figure_path(args.plot)
     if args.closed_loop:
         return run_closed_loop(args)
     for opt in ("dither", "references", "dither_hz", "position_noise_mm"):
         if getattr(args, opt) is not None:
             raise ParameterError(f"--{opt.replace('_', '-')} needs --closed-loop")
-    from ..studies.power import POWER_FAMILIES, power_study
+    from ..studies.power import power_study
 
-    outputs = Outputs()
     res = power_study(
         args.family,
         sizes=args.sizes,
         noise=args.noise,
-        alpha=args.alpha,
-        runs=args.runs,
-        seed=args.seed,
-        **execution(args),
+        **study_keywords(args),
     )
-    doc = res.to_dict()
-    if args.plot:
-        from ..figures.plot_studies import power_figure, save
+    return report_study(args, res, "plot_studies.power_figure", lambda doc: _print_power(res))
 
-        saved = outputs.write("--plot", args.plot, save, power_figure(res), args.plot)
-        doc["figure"] = None if saved is None else str(saved)
-    if args.json:
-        print(dumps(doc, indent=2, allow_nan=True))
-        outputs.finish()
-        return 0
+
+def _print_power(res) -> None:  # type: ignore[no-untyped-def]
+    """The text table of a power study ``res``: detection rate per noise level, size and threshold kind."""
+    from ..studies.power import POWER_FAMILIES
+
     print(
         f"detection power, {res.family} ({POWER_FAMILIES[res.family]['unit']}), channel {res.channel}, "
         f"alpha = {res.alpha:g}, {res.runs} runs per point"
@@ -76,7 +68,3 @@ def run(args: argparse.Namespace) -> int:
                 e = res.estimate(i, j, k)
                 cells.append(f"{e.rate:.3f} [{e.ci_low:.3f}, {e.ci_high:.3f}]".ljust(26))
             print(f"{nz:>6g} {sz:>10.3g}  " + "  ".join(cells) + ("  (healthy)" if j == 0 else ""))
-    if args.plot and doc["figure"] is not None:
-        print(f"figure: {doc['figure']}")
-    outputs.finish()
-    return 0

@@ -8,19 +8,21 @@ import sys
 from pathlib import Path
 
 from ..errors import DataFileError
+from ._options import command
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``chatterspec replay`` and its options to the subcommand parsers ``sub``."""
-    p = sub.add_parser(
+    p = command(
+        sub,
         "replay",
+        run,
         help="open a .rrd recording in the Rerun viewer",
         description="Open a recording written by `chatterspec detect/demo/monitor --record` in the Rerun "
         "viewer. Without a display, prints how to open it elsewhere.",
     )
     p.add_argument("file", type=Path, help="the .rrd recording")
     p.add_argument("--wait", action="store_true", help="block until the viewer window is closed")
-    p.set_defaults(func=run)
 
 
 #: First bytes of every Rerun (>= 0.x, RRF2 encoding) recording file.

@@ -7,18 +7,21 @@ from pathlib import Path
 
 from ..errors import ParameterError
 from ..jsonout import dumps
+from ._options import add_report_args, command
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``chatterspec scenarios`` and its options to the subcommand parsers ``sub``."""
-    p = sub.add_parser(
+    p = command(
+        sub,
         "scenarios",
+        run,
         help="list the scenario catalogue",
         description="List every catalogue scenario with its plant kind (linear / nonlinear) and, per "
         "segment, the true plant's natural frequency (Hz) and damping ratio (for a nonlinear plant: "
         "of its linearization at rest, marked ~).",
     )
-    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    add_report_args(p, progress=False)
     p.add_argument(
         "name", nargs="?", default=None, metavar="NAME", help="one scenario (needed by --model-toml)"
     )
@@ -29,7 +32,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="FILE",
         help="write NAME's nominal model as a TOML model file for `chatterspec monitor --model FILE`",
     )
-    p.set_defaults(func=run)
 
 
 def export_model_toml(name: str, path: Path) -> Path:

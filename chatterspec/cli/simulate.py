@@ -23,7 +23,8 @@ import sys
 import time
 
 from ..errors import ParameterError
-from ._common import load_scenario, nonnegative_int_arg
+from ._common import load_scenario
+from ._options import add, add_name, command
 
 #: Most seconds of wall time between two writes when paced (rows are written when due).
 PACE_S = 0.005
@@ -31,16 +32,17 @@ PACE_S = 0.005
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``chatterspec simulate`` and its options to the subcommand parsers ``sub``."""
-    p = sub.add_parser(
+    p = command(
+        sub,
         "simulate",
+        run,
         help="write a scenario's measurements and inputs as a live CSV stream on stdout",
         description="Simulate a catalogue scenario and write time, measurements and inputs as CSV rows "
         "to standard output, paced in real time (the input of `chatterspec monitor --data -`).",
     )
-    p.add_argument(
-        "name",
-        metavar="NAME",
-        help="catalogue scenario (see `chatterspec scenarios`) or model file MODEL.toml (its [simulation] "
+    add_name(
+        p,
+        "catalogue scenario (see `chatterspec scenarios`) or model file MODEL.toml (its [simulation] "
         "table: input, initial state, duration)",
     )
     p.add_argument(
@@ -49,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=1.0,
         help="data seconds per wall second (default 1.0 = real time; 0 = as fast as possible)",
     )
-    p.add_argument("--seed", type=nonnegative_int_arg, default=0, help="random seed (default 0)")
+    add(p, "--seed")
     p.add_argument(
         "--duration",
         type=float,
@@ -57,7 +59,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="S",
         help="seconds of data (default: the scenario's duration; longer runs repeat the scenario)",
     )
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:

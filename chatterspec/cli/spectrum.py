@@ -22,7 +22,8 @@ import argparse
 from pathlib import Path
 
 from ..errors import ParameterError
-from ._common import Outputs, alpha_arg, check_output_file, nonnegative_int_arg, positive_int_arg, print_json
+from ._common import Outputs, check_output_file, report
+from ._options import add, add_name, add_report_args, add_runs_args, command
 
 #: Folder of ``spectrum``'s PNG when ``--out`` is not given (like ``demo``'s ``figures/demo``).
 DEFAULT_FOLDER = Path("figures")
@@ -30,13 +31,15 @@ DEFAULT_FOLDER = Path("figures")
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``chatterspec spectrum`` and its options to the subcommand parsers ``sub``."""
-    p = sub.add_parser(
+    p = command(
+        sub,
         "spectrum",
+        run,
         help="write a PNG of one scenario's chattering spectrum with expected value and thresholds",
         description="Simulate NAME, compute the chattering periodogram (eq 49) and draw it with the "
         "expected healthy spectrum (eq 56) and the paper's and/or the exact threshold.",
     )
-    p.add_argument("name", metavar="NAME", help="scenario name (see 'chatterspec scenarios')")
+    add_name(p, "scenario name (see 'chatterspec scenarios')")
     p.add_argument(
         "--out", default=None, metavar="FILE.png", help="output PNG (default: figures/NAME-spectrum.png)"
     )
@@ -46,29 +49,27 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="output channel (e.g. velocity, pressure) or 'all' (default: the scenario's fault channel, "
         "all channels for healthy scenarios)",
     )
-    p.add_argument(
+    add(
+        p,
         "--alpha",
-        type=alpha_arg,
         default=1e-3,
         help="false-alarm probability (default 0.001): per bin for 'paper', family-wise for 'exact'",
     )
-    p.add_argument(
+    add(
+        p,
         "--threshold",
         choices=("exact", "paper", "both"),
         default="both",
         help="threshold(s) to draw (default both)",
     )
-    p.add_argument(
+    add(
+        p,
         "--correction",
-        choices=("bonferroni", "sidak", "none"),
-        default="bonferroni",
         help="family-wise correction of the exact threshold (default bonferroni; none = per-bin alpha)",
     )
-    p.add_argument("--runs", type=positive_int_arg, default=1, help="realizations averaged (default 1)")
-    p.add_argument("--seed", type=nonnegative_int_arg, default=0, help="random seed (default 0)")
-    p.add_argument("--dpi", type=positive_int_arg, default=None, help="PNG resolution (default 110)")
-    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
-    p.set_defaults(func=run)
+    add_runs_args(p, 1, runs_help="realizations averaged (default 1)")
+    add(p, "--dpi")
+    add_report_args(p, progress=False)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -109,13 +110,11 @@ def run(args: argparse.Namespace) -> int:
         "seed": args.seed,
         "notes": list(fig.notes),
     }
-    if args.json:
-        print_json(doc)
-        outputs.finish()
-        return 0
-    if path is not None:
-        print(f"wrote {path} ({doc['bytes'] / 1024:.0f} kB)")
-    for note in fig.notes:
-        print(f"  {note}")
-    outputs.finish()
-    return 0
+
+    def text() -> None:
+        if path is not None:
+            print(f"wrote {path} ({doc['bytes'] / 1024:.0f} kB)")
+        for note in fig.notes:
+            print(f"  {note}")
+
+    return report(args, doc, outputs, text)
