@@ -7,7 +7,6 @@ importable from here, as before).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -15,34 +14,24 @@ import numpy as np
 from ..detection.spectral import expected_frame_spectrum
 from ..errors import ParameterError
 from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
-from ..palette import FAULT, HEALTHY, rgba32
 from ..plants.nonlinear import is_linear
 from .alarm_events import send_alarm_events
-from .arrow_columns import _MAX_TENSOR_ROWS, _Columns, _TimeIndex
 from .blueprint import (
-    CHATTERING,
-    MOST_SIGNIFICANT_HZ,
-    PEAK_HZ,
-    PSI,
-    STATISTIC,
-    THRESHOLD,
-    VERDICT,
     _entity,
     blueprint,
     fault_entity,
     fault_hz_entity,
     lane_entity,
     layout_geometry,
-    series_styles,
     view_px,
 )
-from .chattering_extent import ChatteringExtent
-from .frame_peaks import peak_bins
+from .column_batches import ColumnBatches
 from .interval_lanes import IntervalCollector, send_intervals
 from .record_geometry import DB_RANGE, default_band_hz, pad_columns, record_span, to_ns
-from .sinks import TIMELINE, Sinks
+from .sinks import Sinks
 from .spectrogram_images import SpectrogramImages
-from .spectrogram_view import key_width, log_axes
+from .spectrogram_view import key_width
+from .static_entities import log_static
 from .truth_lane import log_truth_lane
 
 __all__ = [
@@ -58,27 +47,6 @@ __all__ = [
 def _send_blueprint(stream: Any, bp: Any) -> None:
     """Send ``bp`` as the active and default blueprint of ``stream``."""
     stream.send_blueprint(bp, make_active=True, make_default=True)
-
-
-def _joined(items: list[Any], name: str) -> np.ndarray:
-    """Attribute ``name`` of every item, concatenated along axis 0 (the item's own array for one item)."""
-    if len(items) == 1:
-        return getattr(items[0], name)
-    return np.concatenate([getattr(it, name) for it in items])
-
-
-@dataclass
-class _Outbox:
-    """What waits to be sent to one stream: the per-sample part of the updates and, separately, their
-    frames and events (each part has its own batch size, see :class:`RerunLogger`)."""
-
-    stream: Any
-    live: bool
-    updates: list[MonitorUpdate] = field(default_factory=list)  # with samples
-    frames: list[Any] = field(default_factory=list)  # FrameBlocks with frames
-    events: list[DetectionEvent] = field(default_factory=list)
-    n_samples: int = 0
-    n_frames: int = 0
 
 
 class RerunLogger:
@@ -192,12 +160,6 @@ class RerunLogger:
             self._expected = np.asarray(thr.expected)
         else:
             self._expected = expected_frame_spectrum(monitor.model, freqs, monitor.settings.stft, monitor.dt)
-        # the bins tested by the detector
-        tested = np.flatnonzero(thr.tested)
-        self._tested_idx = tested.astype(np.int64)
-        self._tested_hz = freqs[tested]
-        self._tested_expected = np.ascontiguousarray(self._expected[tested])  # (k, m)
-        self._tested_thr = np.ascontiguousarray(thr.values[tested])  # (k, m)
         self.span_s = span_s
         # the layout's geometry: the spectrogram image fills its view at 1600x1000 (blueprint.layout_geometry)
         self._has_truth, self._extra_lanes, self._rows_above = bool(truth), int(extra_lanes), int(rows_above)
@@ -227,23 +189,28 @@ class RerunLogger:
             raise ParameterError(
                 f"batch_samples and batch_frames must be >= 1; got {batch_samples!r}, {batch_frames!r}"
             )
-        self._cols = _Columns(rr, DB_RANGE)
-        self._boxes = [_Outbox(s, live=s is sinks.live_stream) for s in sinks.streams]
         self.psi = monitor.settings.psi
-        # two-row columns reused by every batch: the ±psi lines (+psi_0, -psi_0, +psi_1, ...) and 0 dB
-        self._psi_rows = None
-        if self.psi is not None:
-            pm = np.repeat(np.asarray(self.psi, dtype=float), 2) * np.tile([1.0, -1.0], m)
-            self._psi_rows = self._cols.scalars_column(np.tile(pm, (2, 1)), own=True)
-        self._zero_rows = self._cols.scalars_column(np.zeros(2), own=True)
-        self._fault = [fault_entity(c) for c in self.channels]
-        self._fault_hz = [fault_hz_entity(c) for c in self.channels]
         # a file's lanes: the record's interval estimates, drawn on close (interval_lanes)
         self._collector = IntervalCollector(monitor) if sinks.file_stream is not None else None
         self._half_win = (monitor.n_window - 1) / 2.0 * monitor.dt  # frame centre -> its last sample
-        self._origin_ns: int | None = None  # earliest time logged (truth start / record start)
+        # the per-stream batches of everything time-indexed (column_batches)
+        self._batches = ColumnBatches(
+            rr,
+            pa,
+            sinks,
+            monitor,
+            keys=self.keys,
+            lanes=self.lanes,
+            fault=[fault_entity(c) for c in self.channels],
+            fault_hz=[fault_hz_entity(c) for c in self.channels],
+            expected=self._expected,
+            images=self.images,
+            collector=self._collector,
+            batch_samples=self.batch_samples,
+            batch_frames=self.batch_frames,
+            spectrum_dtype=self.spectrum_dtype,
+        )
         self._start_s: float | None = None  # start of the record's first STFT window (s)
-        self._started = False
         rule = monitor.rule
         self._cusum = rule.name == "cusum"  # the alarm view draws g; else the score itself
         self._h = float(rule.threshold) if np.isfinite(rule.threshold) else np.nan
@@ -251,7 +218,6 @@ class RerunLogger:
         # arguments of its layout; None: the caller sends the file's blueprint itself)
         self.file_layout: dict[str, Any] | None = None
         self.send_file_blueprint: Any = _send_blueprint
-        self._extent = ChatteringExtent(m)
         if send_blueprint:
             self.file_layout = {"has_truth": bool(truth), "extra_row": extra_row}
             for s in sinks.streams:
@@ -320,87 +286,24 @@ class RerunLogger:
         grey = ", grey = score" if self._cusum else ""
         return f"{what} vs h = {rule.threshold:.3g} [nats] ({label}){grey}"
 
-    def _each(self, fn: Any) -> None:
-        for s in self.sinks.streams:
-            fn(s)
-
-    def _set_time(self, s: Any, ns: int) -> None:
-        s.set_time(TIMELINE, duration=np.timedelta64(int(ns), "ns"))
-
     def _log_static(self, truth: list[tuple[float, str, bool]] | None) -> None:
-        rr = self.rr
-        thr = self.monitor.threshold
-        units = self.monitor.model.output_units
-        lo, hi = self.band_hz
-
-        styles = series_styles(
-            self.channels,
-            units,
-            has_estimate=self.monitor.settings.psi is not None,
-            alarm_statistic="CUSUM g [nats]" if self._cusum else "score -log p [nats]",
+        """The static entities (:func:`~chatterspec.viewer.static_entities.log_static`) and the truth lane."""
+        log_static(
+            self.sinks.streams,
+            self.monitor,
+            channels=self.channels,
+            keys=self.keys,
+            lanes=self.lanes,
+            expected=self._expected,
+            band_hz=self.band_hz,
+            hop_s=self.hop_s,
+            width=self._width,
+            key=self._key,
+            cusum=self._cusum,
         )
-
-        def static(s: Any) -> None:
-            for path, style in styles:
-                s.log(path, style, static=True)
-            df = float(self.monitor.freqs_hz[1] - self.monitor.freqs_hz[0])
-            for i, (name, c) in enumerate(zip(self.channels, self.keys, strict=True)):
-                log_axes(s, f"/spectrogram/{c}", self.band_hz, df, DB_RANGE, self._width, self._key)
-                s.log(f"/threshold/{c}", rr.Tensor(thr.values[:, i], dim_names=["freq"]), static=True)
-                s.log(f"/expected/{c}", rr.Tensor(self._expected[:, i], dim_names=["freq"]), static=True)
-                s.log(
-                    self.lanes[i],
-                    rr.StateConfiguration(
-                        values=["healthy", "fault"],
-                        labels=[f"{name}: healthy", f"{name}: FAULT"],
-                        colors=np.array([rgba32(HEALTHY), rgba32(FAULT)], dtype=np.uint32),
-                    ),
-                    static=True,
-                )
-            s.log(
-                "/frequencies",
-                rr.TextDocument(
-                    f"Spectra: {len(self.monitor.freqs_hz)} bins, 0 .. {self.monitor.freqs_hz[-1]:g} Hz "
-                    f"(step {self.monitor.freqs_hz[1]:g} Hz); spectrogram {lo:g}-{hi:g} Hz, hop "
-                    f"{self.hop_s:g} s, dB re threshold in [{DB_RANGE[0]:g}, {DB_RANGE[1]:g}]. "
-                    f"{thr.describe()}"
-                ),
-                static=True,
-            )
-
-        self._each(static)
         if truth:
-            t_first = truth[0][0]
-            self._origin_ns = int(to_ns(t_first))
-
+            self._batches.origin_ns = int(to_ns(truth[0][0]))
             log_truth_lane(self.sinks.streams, truth)
-
-    def _initial_state(self, upd: MonitorUpdate) -> None:
-        """The live lanes' state before ``upd``, logged 1 ns before the end of its first frame (when the
-        detector first knows anything; nothing is painted before). A file's lanes are drawn on
-        :meth:`close` from the record's interval estimates."""
-        live = self.sinks.live_stream
-        mon, fr = self.monitor, upd.frames
-        m = len(self.channels)
-        state = mon.active  # after upd: undo its first event per channel
-        seen = np.zeros(m, dtype=bool)
-        for ev in upd.events:
-            if not seen[ev.channel_index]:
-                seen[ev.channel_index] = True
-                state[ev.channel_index] = ev.kind == "fault-end"
-        n_before = mon.n_frames - fr.n_frames
-        t_first = mon.frame_time(0) if n_before == 0 else (fr.times_s[0] if fr.n_frames else upd.t[0])
-        # the start of this record's first STFT window (the first chattering sample of a fresh monitor)
-        self._start_s = float(t_first - self._half_win) if n_before == 0 or fr.n_frames else float(upd.t[0])
-        ns0 = int(to_ns(self._start_s))
-        self._origin_ns = ns0 if self._origin_ns is None else min(ns0, self._origin_ns)
-        if live is None:
-            return
-        ns = int(to_ns(t_first + self._half_win)) - 1
-        t = _TimeIndex(self.pa, np.array([ns], dtype=np.int64))
-        for i in range(m):
-            state_col = self.rr.StateChange.columns(state=["fault" if state[i] else "healthy"])
-            live.send_columns(self.lanes[i], indexes=[t], columns=state_col)
 
     def log_update(self, upd: MonitorUpdate) -> None:
         """Queue one update; send it at once to a live viewer, in batches to a file.
@@ -412,29 +315,15 @@ class RerunLogger:
         """
         fr = upd.frames
         if upd.t.shape[0] or fr.n_frames:
-            if not self._started:
-                self._started = True
-                self._initial_state(upd)
-            for box in self._boxes:
-                if upd.t.shape[0]:
-                    box.updates.append(upd)
-                    box.n_samples += upd.t.shape[0]
-                    if box.live or box.n_samples >= self.batch_samples:
-                        self._send_samples(box)
-                if fr.n_frames:
-                    box.frames.append(fr)
-                    box.events.extend(upd.events)
-                    box.n_frames += fr.n_frames
-                    if box.live or box.n_frames >= self.batch_frames:
-                        self._send_frames(box)
+            if self._start_s is None:  # the record starts here
+                self._start_s = self._batches.start(upd)
+            self._batches.queue(upd)
         if fr.n_frames and self.sinks.live_stream is not None:
             self.images.live(self.sinks.live_stream, fr)
 
     def flush(self) -> None:
         """Send everything buffered (bulk ``send_columns``)."""
-        for box in self._boxes:
-            self._send_samples(box)
-            self._send_frames(box)
+        self._batches.flush()
 
     def close(self) -> None:
         """Send what is buffered, the file's spectrogram (the whole record, or its last block) and the
@@ -453,7 +342,8 @@ class RerunLogger:
         span = self.span_s if self.span_s is not None else self.images.covered_span()
         if file is None or self.file_layout is None or span is None:
             return
-        bp = self.layout(span_s=span, chattering_range=self._extent.ranges(self.psi), **self.file_layout)
+        ranges = self._batches.extent.ranges(self.psi)
+        bp = self.layout(span_s=span, chattering_range=ranges, **self.file_layout)
         self.send_file_blueprint(file, bp)
 
     def _send_intervals(self) -> None:
@@ -464,129 +354,6 @@ class RerunLogger:
             return
         send_intervals(file, self._collector.intervals(), self.lanes, self.channels, self._start_s)
         self.images.mark_outside_band(file, self._collector)
-
-    def _send_samples(self, box: _Outbox) -> None:
-        """Send the per-sample part of the updates in ``box`` (one ``send_columns`` per entity)."""
-        if not box.updates:
-            return
-        ups, box.updates, box.n_samples = box.updates, [], 0
-        s, cols, pa = box.stream, self._cols, self.pa
-        m = len(self.keys)
-        one = len(ups) == 1
-        t = _joined(ups, "t")
-        ns = to_ns(t)
-        tcol = _TimeIndex(pa, ns)
-        # ONE row per sample for all channels and quantities (Rerun's cost is per row: a row id and
-        # a time each, encoded again by the file writer): /chattering/e holds e(k|k-1) of each channel,
-        # then for raw data per channel the measurement [and the sat-SVSF estimate]
-        keys = [k for k in ("measured", "estimate") if all(getattr(u, k) is not None for u in ups)]
-        if keys or not one:
-            row = np.empty((t.size, m * (1 + len(keys))))
-            sig = row[:, m:].reshape(t.size, m, len(keys))  # view: channel-major (measured, estimate)
-            a = 0
-            for u in ups:
-                b = a + u.t.shape[0]
-                row[a:b, :m] = u.chattering
-                for j, k in enumerate(keys):
-                    sig[a:b, :, j] = getattr(u, k)
-                a = b
-        else:
-            row = ups[0].chattering
-        own = row is not ups[0].chattering  # a fresh array here; else the update's own (copied)
-        if not box.live:
-            self._extent.add(row[:, :m])
-        s.send_columns(CHATTERING, indexes=[tcol], columns=[cols.scalars_column(row, own=own)])
-        if self._psi_rows is not None:  # the batch's first and last sample: +psi_0, -psi_0, +psi_1, ...
-            s.send_columns(PSI, indexes=[_TimeIndex(pa, ns[[0, -1]])], columns=[self._psi_rows])
-
-    def _send_frames(self, box: _Outbox) -> None:
-        """Send the frames and events in ``box``: spectra, per-frame series, fault points, events and
-        lanes, and (file) append the frames to the file's spectrogram block."""
-        if not box.frames:
-            return
-        frames, events, box.frames, box.events, box.n_frames = box.frames, box.events, [], [], 0
-        s, cols, pa = box.stream, self._cols, self.pa
-        m = len(self.keys)
-        times, ratio = _joined(frames, "times_s"), _joined(frames, "peak_ratio")
-        flags, sig_hz = _joined(frames, "flags"), _joined(frames, "peak_hz")
-        fns = to_ns(times)
-        fcol = _TimeIndex(pa, fns)
-        stat_db = 10.0 * np.log10(np.maximum(ratio, 1e-30))
-        # channel-major spectra (m, F, bins) in spectrum_dtype, converted while transposing (one pass)
-        F = times.shape[0]
-        spectra = np.empty((m, F, frames[0].power.shape[1]), dtype=self.spectrum_dtype)
-        a = 0
-        for f in frames:
-            b = a + f.n_frames
-            spectra[:, a:b] = f.power.transpose(2, 0, 1)  # (m, n, bins), cast on the fly
-            a = b
-        peak_hz, peak_ratio = self._peak_hz(frames)
-        s.send_columns(STATISTIC, indexes=[fcol], columns=[cols.scalars_column(stat_db, own=True)])
-        s.send_columns(THRESHOLD, indexes=[_TimeIndex(pa, fns[[0, -1]])], columns=[self._zero_rows])
-
-        s.send_columns(PEAK_HZ, indexes=[fcol], columns=[cols.scalars_column(peak_hz, own=True)])
-        s.send_columns(MOST_SIGNIFICANT_HZ, indexes=[fcol], columns=[cols.scalars_column(sig_hz)])
-        # one row per frame: verdict flags, rule statistic, score, threshold (blueprint.VERDICT)
-        rows = np.empty((F, 3 * m + 1))
-        rows[:, :m] = flags
-        a = 0
-        for f in frames:
-            b = a + f.n_frames
-            rows[a:b, m : 2 * m] = f.alarm_statistic if self._cusum else f.score
-            rows[a:b, 2 * m : 3 * m] = f.score
-            a = b
-        rows[:, 3 * m] = self._h
-        s.send_columns(VERDICT, indexes=[fcol], columns=[cols.scalars_column(rows, own=True)])
-        for i, c in enumerate(self.keys):
-            self._send_spectra(s, f"/spectrum/{c}", fcol, fns, spectra[i])
-            hit = np.flatnonzero(flags[:, i])
-            if hit.size:  # sparse: one entity per channel, rows at its flagged frames only
-                hit_t = _TimeIndex(pa, fns[hit])
-                s.send_columns(
-                    self._fault[i], indexes=[hit_t], columns=[cols.scalars_column(stat_db[hit, i])]
-                )
-                s.send_columns(
-                    self._fault_hz[i], indexes=[hit_t], columns=[cols.scalars_column(sig_hz[hit, i])]
-                )
-        if not box.live:  # the file's spectrogram: dB columns of the whole batch at once
-            self.images.add_file(self.sinks.file_stream, times, spectra, self._origin_ns)
-            if self._collector is not None:  # the file's intervals, drawn on close
-                self._collector.add(times, flags, ratio, sig_hz, peak_hz, peak_ratio)
-        if events:
-            send_alarm_events(s, events, self._half_win, self.lanes if box.live else None)
-
-    def _peak_hz(self, frames: list[Any]) -> tuple[np.ndarray, np.ndarray]:
-        """(F, m) tested bin (Hz) with the largest excess power ``S - E`` among the bins over the threshold
-        when a frame has any (as the batch report's ``peak_hz``: a frame's overall largest excess sits on
-        noise once a fault fades), else among all tested bins (:func:`peak_bins`); and (F, m) its
-        ``S / threshold``."""
-        m = len(self.channels)
-        F = sum(f.n_frames for f in frames)
-        k = np.empty((F, m), dtype=np.int64)
-        ratio = np.empty((F, m))
-        cols = np.arange(m)
-        a = 0
-        for f in frames:
-            b = a + f.n_frames
-            peak_bins(f.power, self._tested_idx, self._tested_expected, self._tested_thr, out=k[a:b])
-            kb = k[a:b]
-            ratio[a:b] = (
-                f.power[np.arange(b - a)[:, None], self._tested_idx[kb], cols] / self._tested_thr[kb, cols]
-            )
-            a = b
-        return self._tested_hz[k], ratio
-
-    def _send_spectra(self, s: Any, path: str, tcol: _TimeIndex, ns: np.ndarray, power: np.ndarray) -> None:
-        """One ``Tensor`` row per frame: ``power`` is (frames, bins) in ``spectrum_dtype``."""
-        if not self._cols.tensors_ok:
-            for f in range(power.shape[0]):
-                self._set_time(s, ns[f])
-                s.log(path, self.rr.Tensor(power[f], dim_names=["freq"]))
-            return
-        for lo in range(0, power.shape[0], _MAX_TENSOR_ROWS):
-            hi = lo + _MAX_TENSOR_ROWS
-            cols = self._cols.tensor_columns(power[lo:hi], ("freq",))
-            s.send_columns(path, indexes=[tcol[lo:hi]], columns=cols)
 
     def log_event(self, ev: DetectionEvent) -> None:
         """Log one detection event at once (text log, and the lane of a live viewer) to every stream.

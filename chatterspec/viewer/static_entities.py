@@ -1,0 +1,91 @@
+"""The static entities of a monitor recording (:func:`log_static`): series styles, spectrogram axes,
+threshold and expected spectra, the lanes' state configuration and the frequency note.
+
+Logged once per stream by :class:`~chatterspec.viewer.rerun_log.RerunLogger` when it opens.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..online.monitor import ChatteringMonitor
+from ..palette import FAULT, HEALTHY, rgba32
+from .blueprint import series_styles
+from .record_geometry import DB_RANGE
+from .spectrogram_view import log_axes
+
+__all__ = ["log_static"]
+
+
+def log_static(
+    streams: list[Any],
+    monitor: ChatteringMonitor,
+    *,
+    channels: list[str],
+    keys: list[str],
+    lanes: list[str],
+    expected: np.ndarray,
+    band_hz: tuple[float, float],
+    hop_s: float,
+    width: int,
+    key: int,
+    cusum: bool,
+) -> None:
+    """Log the static entities of a monitor recording to every stream of ``streams``.
+
+    Parameters
+    ----------
+    streams : list of RecordingStream
+    monitor : ChatteringMonitor
+        Gives frequencies (Hz), threshold, units and the boundary layer.
+    channels, keys, lanes : list of str
+        Per channel: name, entity key and verdict lane entity.
+    expected : ndarray, shape (bins, m)
+        Expected frame spectrum, logged as ``/expected/<c>``.
+    band_hz : (float, float)
+        The spectrogram's band (Hz).
+    hop_s : float
+        Hop between frames (s).
+    width, key : int
+        The spectrogram image's width and its colour key's width (pixels,
+        :func:`~chatterspec.viewer.spectrogram_view.log_axes`).
+    cusum : bool
+        The alarm rule is CUSUM (its view draws g; else the score).
+    """
+    import rerun as rr
+
+    thr = monitor.threshold
+    freqs = monitor.freqs_hz
+    lo, hi = band_hz
+    styles = series_styles(
+        channels,
+        monitor.model.output_units,
+        has_estimate=monitor.settings.psi is not None,
+        alarm_statistic="CUSUM g [nats]" if cusum else "score -log p [nats]",
+    )
+    df = float(freqs[1] - freqs[0])
+    note = rr.TextDocument(
+        f"Spectra: {len(freqs)} bins, 0 .. {freqs[-1]:g} Hz "
+        f"(step {freqs[1]:g} Hz); spectrogram {lo:g}-{hi:g} Hz, hop "
+        f"{hop_s:g} s, dB re threshold in [{DB_RANGE[0]:g}, {DB_RANGE[1]:g}]. "
+        f"{thr.describe()}"
+    )
+    for s in streams:
+        for path, style in styles:
+            s.log(path, style, static=True)
+        for i, (name, c) in enumerate(zip(channels, keys, strict=True)):
+            log_axes(s, f"/spectrogram/{c}", band_hz, df, DB_RANGE, width, key)
+            s.log(f"/threshold/{c}", rr.Tensor(thr.values[:, i], dim_names=["freq"]), static=True)
+            s.log(f"/expected/{c}", rr.Tensor(expected[:, i], dim_names=["freq"]), static=True)
+            s.log(
+                lanes[i],
+                rr.StateConfiguration(
+                    values=["healthy", "fault"],
+                    labels=[f"{name}: healthy", f"{name}: FAULT"],
+                    colors=np.array([rgba32(HEALTHY), rgba32(FAULT)], dtype=np.uint32),
+                ),
+                static=True,
+            )
+        s.log("/frequencies", note, static=True)
