@@ -15,12 +15,23 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import ParameterError
 from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
 from .alarm_events import send_alarm_events
 from .arrow_columns import _MAX_TENSOR_ROWS, _Columns, _TimeIndex
-from .blueprint import CHATTERING, MOST_SIGNIFICANT_HZ, PEAK_HZ, PSI, STATISTIC, THRESHOLD, VERDICT
+from .blueprint import (
+    CHATTERING,
+    MOST_SIGNIFICANT_HZ,
+    PEAK_HZ,
+    PSI,
+    STATISTIC,
+    THRESHOLD,
+    VERDICT,
+    fault_entity,
+    fault_hz_entity,
+)
 from .chattering_extent import ChatteringExtent
-from .frame_peaks import peak_bins
+from .frame_peaks import FramePeaks
 from .interval_lanes import IntervalCollector
 from .record_geometry import DB_RANGE, to_ns
 from .sinks import TIMELINE, Sinks
@@ -72,8 +83,8 @@ class ColumnBatches:
         The streams (one outbox each) and which is live / the file.
     monitor : ChatteringMonitor
         Gives channels, frequencies, threshold, rule and the boundary layer.
-    keys, lanes, fault, fault_hz : list of str
-        Per channel: entity key, verdict lane, flagged-frame points and their frequencies.
+    keys, lanes : list of str
+        Per channel: entity key and verdict lane.
     expected : ndarray, shape (bins, m)
         Expected frame spectrum (the ``peak_hz`` excess is over it).
     images : SpectrogramImages
@@ -81,9 +92,20 @@ class ColumnBatches:
     collector : IntervalCollector or None
         The file's interval estimates (None without a file).
     batch_samples, batch_frames : int
-        A file's batch sizes (>= 1; see :class:`~chatterspec.viewer.rerun_log.RerunLogger`).
+        A file's batches (>= 1): the per-sample series are sent once this many samples are buffered,
+        the frames once this many frames are. The logger's defaults (measured on the 3-channel EHA
+        monitor, ``benchmarks/bench_monitor.py``): 20 000 samples, so that Rerun's file writer encodes
+        one batch on the second core while the monitor computes the next (one batch per minute left all
+        of the encoding to the end: 1860x against 2630x real time, best of 60), and 300 frames (one
+        minute at a 0.2 s hop: every ``send_columns`` call is a chunk with its own schema, ~0.15 ms of
+        CPU for a small one, and the per-frame series are small). At most ~2 MB of samples and ~2 MB of
+        spectra are buffered for 3 channels.
     spectrum_dtype : numpy.dtype
-        Precision of the logged frame spectra.
+        Precision of the logged frame spectra. float32 (the logger's default) keeps 7 significant
+        digits (relative rounding <= 6e-8, far below the chi-squared scatter of a frame's bins and below
+        any display resolution) and halves the largest payload of the file (~3.6 -> 1.8 MB per minute
+        for 3 channels x 501 bins); the monitor's verdicts are computed in float64 before logging either
+        way. float64 logs the monitor's values bit-exactly.
     """
 
     def __init__(
@@ -95,8 +117,6 @@ class ColumnBatches:
         *,
         keys: list[str],
         lanes: list[str],
-        fault: list[str],
-        fault_hz: list[str],
         expected: np.ndarray,
         images: SpectrogramImages,
         collector: IntervalCollector | None,
@@ -106,16 +126,17 @@ class ColumnBatches:
     ) -> None:
         self.rr, self.pa = rr, pa
         self.sinks, self.images, self._collector = sinks, images, collector
-        self.keys, self.lanes, self._fault, self._fault_hz = keys, lanes, fault, fault_hz
-        self.batch_samples, self.batch_frames = batch_samples, batch_frames
+        self.keys, self.lanes = keys, lanes
+        self._fault = [fault_entity(c) for c in monitor.channels]
+        self._fault_hz = [fault_hz_entity(c) for c in monitor.channels]
+        self.batch_samples, self.batch_frames = int(batch_samples), int(batch_frames)
+        if self.batch_samples < 1 or self.batch_frames < 1:
+            raise ParameterError(
+                f"batch_samples and batch_frames must be >= 1; got {batch_samples!r}, {batch_frames!r}"
+            )
         self.spectrum_dtype = spectrum_dtype
         m = len(keys)
-        thr = monitor.threshold
-        tested = np.flatnonzero(thr.tested)  # the bins tested by the detector
-        self._tested_idx = tested.astype(np.int64)
-        self._tested_hz = monitor.freqs_hz[tested]
-        self._tested_expected = np.ascontiguousarray(expected[tested])  # (k, m)
-        self._tested_thr = np.ascontiguousarray(thr.values[tested])  # (k, m)
+        self._peaks = FramePeaks(monitor, expected)
         self._cols = _Columns(rr, DB_RANGE)
         self._boxes = [_Outbox(s, live=s is sinks.live_stream) for s in sinks.streams]
         psi = monitor.settings.psi
@@ -184,6 +205,11 @@ class ColumnBatches:
             self._send_samples(box)
             self._send_frames(box)
 
+    def send_event(self, ev: DetectionEvent) -> None:
+        """Send one detection event at once (text log, and the lane of a live viewer) to every stream."""
+        for s in self.sinks.streams:
+            send_alarm_events(s, [ev], self._half_win, self.lanes if s is self.sinks.live_stream else None)
+
     def _send_samples(self, box: _Outbox) -> None:
         """Send the per-sample part of the updates in ``box`` (one ``send_columns`` per entity)."""
         if not box.updates:
@@ -239,7 +265,7 @@ class ColumnBatches:
             b = a + f.n_frames
             spectra[:, a:b] = f.power.transpose(2, 0, 1)  # (m, n, bins), cast on the fly
             a = b
-        peak_hz, peak_ratio = self._peak_hz(frames)
+        peak_hz, peak_ratio = self._peaks(frames)
         s.send_columns(STATISTIC, indexes=[fcol], columns=[cols.scalars_column(stat_db, own=True)])
         s.send_columns(THRESHOLD, indexes=[_TimeIndex(pa, fns[[0, -1]])], columns=[self._zero_rows])
 
@@ -273,27 +299,6 @@ class ColumnBatches:
                 self._collector.add(times, flags, ratio, sig_hz, peak_hz, peak_ratio)
         if events:
             send_alarm_events(s, events, self._half_win, self.lanes if box.live else None)
-
-    def _peak_hz(self, frames: list[Any]) -> tuple[np.ndarray, np.ndarray]:
-        """(F, m) tested bin (Hz) with the largest excess power ``S - E`` among the bins over the threshold
-        when a frame has any (as the batch report's ``peak_hz``: a frame's overall largest excess sits on
-        noise once a fault fades), else among all tested bins (:func:`peak_bins`); and (F, m) its
-        ``S / threshold``."""
-        m = len(self.keys)
-        F = sum(f.n_frames for f in frames)
-        k = np.empty((F, m), dtype=np.int64)
-        ratio = np.empty((F, m))
-        cols = np.arange(m)
-        a = 0
-        for f in frames:
-            b = a + f.n_frames
-            peak_bins(f.power, self._tested_idx, self._tested_expected, self._tested_thr, out=k[a:b])
-            kb = k[a:b]
-            ratio[a:b] = (
-                f.power[np.arange(b - a)[:, None], self._tested_idx[kb], cols] / self._tested_thr[kb, cols]
-            )
-            a = b
-        return self._tested_hz[k], ratio
 
     def _send_spectra(self, s: Any, path: str, tcol: _TimeIndex, ns: np.ndarray, power: np.ndarray) -> None:
         """One ``Tensor`` row per frame: ``power`` is (frames, bins) in ``spectrum_dtype``."""

@@ -1,16 +1,20 @@
 """Per-frame peak frequency of the Rerun ``peak_hz`` series (:func:`peak_bins`), compiled when numba is on.
 
-Private helper of :mod:`chatterspec.viewer.rerun_log`: the same rule as the batch report's
-``peak_hz`` (:mod:`chatterspec.detection.detect`), applied to every frame of a batch in one pass.
+Private helper of :mod:`chatterspec.viewer.column_batches` (:class:`FramePeaks`): the same rule as
+the batch report's ``peak_hz`` (:mod:`chatterspec.detection.detect`), applied to every frame of a batch
+in one pass.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from .._jit import enabled, njit
+from ..online.monitor import ChatteringMonitor
 
-__all__ = ["peak_bins"]
+__all__ = ["FramePeaks", "peak_bins"]
 
 
 @njit
@@ -88,3 +92,44 @@ def peak_bins(
         out = np.empty((power.shape[0], power.shape[2]), dtype=np.int64)
     _peak_bins_kernel(power, tested, expected, thr, out)
     return out
+
+
+class FramePeaks:
+    """Peak frequency (Hz) of every frame of a batch among a monitor's tested bins (:func:`peak_bins`).
+
+    Parameters
+    ----------
+    monitor : ChatteringMonitor
+        Gives the frequencies (Hz), the tested bins and the frame threshold.
+    expected : (bins, m) float array
+        Expected healthy frame spectrum ``E``.
+    """
+
+    def __init__(self, monitor: ChatteringMonitor, expected: np.ndarray) -> None:
+        thr = monitor.threshold
+        tested = np.flatnonzero(thr.tested)  # the bins tested by the detector
+        self._tested_idx = tested.astype(np.int64)
+        self._tested_hz = monitor.freqs_hz[tested]
+        self._tested_expected = np.ascontiguousarray(expected[tested])  # (k, m)
+        self._tested_thr = np.ascontiguousarray(thr.values[tested])  # (k, m)
+
+    def __call__(self, frames: list[Any]) -> tuple[np.ndarray, np.ndarray]:
+        """(F, m) tested bin (Hz) with the largest excess power ``S - E`` among the bins over the threshold
+        when a frame has any (as the batch report's ``peak_hz``: a frame's overall largest excess sits on
+        noise once a fault fades), else among all tested bins (:func:`peak_bins`); and (F, m) its
+        ``S / threshold``, for the frame blocks ``frames`` (each with ``power`` (n, bins, m)) in order."""
+        m = self._tested_thr.shape[1]
+        F = sum(f.n_frames for f in frames)
+        k = np.empty((F, m), dtype=np.int64)
+        ratio = np.empty((F, m))
+        cols = np.arange(m)
+        a = 0
+        for f in frames:
+            b = a + f.n_frames
+            peak_bins(f.power, self._tested_idx, self._tested_expected, self._tested_thr, out=k[a:b])
+            kb = k[a:b]
+            ratio[a:b] = (
+                f.power[np.arange(b - a)[:, None], self._tested_idx[kb], cols] / self._tested_thr[kb, cols]
+            )
+            a = b
+        return self._tested_hz[k], ratio

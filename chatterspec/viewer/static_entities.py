@@ -10,13 +10,25 @@ from typing import Any
 
 import numpy as np
 
+from ..detection.spectral import expected_frame_spectrum
 from ..online.monitor import ChatteringMonitor
 from ..palette import FAULT, HEALTHY, rgba32
+from ..plants.nonlinear import is_linear
 from .blueprint import series_styles
 from .record_geometry import DB_RANGE
 from .spectrogram_view import log_axes
 
-__all__ = ["log_static"]
+__all__ = ["expected_spectrum", "log_static"]
+
+
+def expected_spectrum(monitor: ChatteringMonitor) -> np.ndarray:
+    """(bins, m) expected frame spectrum of ``monitor``'s healthy chattering: the model's
+    (:func:`~chatterspec.detection.spectral.expected_frame_spectrum`), or for a nonlinear model the
+    calibrated threshold's empirical normalization."""
+    thr = monitor.threshold
+    if not is_linear(monitor.model):
+        return np.asarray(thr.expected)
+    return expected_frame_spectrum(monitor.model, monitor.freqs_hz, monitor.settings.stft, monitor.dt)
 
 
 def log_static(
