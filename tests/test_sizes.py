@@ -19,8 +19,6 @@ LONG_MODULES: dict[str, str] = {}
 
 # Units still over the limit ("path:qualified name"), with the reason.
 LONG_UNITS = {
-    "viewer/live_stream.py:StreamMonitor": "298 lines: recordings (viewer.stream_recordings), rate gate "
-    "and gap detection (online.stream_checks) are out; next: the gap/restart segmenting of process/_rows",
     "online/monitor.py:ChatteringMonitor": "to split: the fused push loop vs the frame analysis and events",
 }
 

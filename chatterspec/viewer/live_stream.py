@@ -47,7 +47,6 @@ threads stay flat over any number of rotations.
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import math
 import time
 from collections import deque
@@ -64,10 +63,10 @@ from ..online.monitor_types import alarm_label
 from ..online.stream import BadRow, CsvRows, Restart, RowBlock
 from ..online.stream_checks import (
     LatencyStats,
-    RateGate,
-    time_gaps,
 )
 from ..plants.models import LinearModel
+from .stream_recordings import StreamRecordings, period_bounds
+from .stream_segments import Segment, StreamSegments
 
 __all__ = ["MAX_EVENTS", "LatencyStats", "StreamEvent", "StreamMonitor", "StreamSummary", "drive"]
 
@@ -295,19 +294,14 @@ class StreamMonitor:
         if self.record is not None or self.live is not None:
             import rerun  # noqa: F401  (loaded now, not when the first rows are waiting)
         self._t_wall0 = time.perf_counter()
-        self._last_t: float | None = None
-        self._t_next = 0.0  # synthesized time (no time column)
-        self._pending: list[str] = []  # reasons of a gap to emit at the next sample
-        self._pending_line: int | None = None
-        self._reset_next = False
-        self._gate = RateGate(self.dt)  # the first rows, held until the sampling-rate check
+        # rate check, time base and the gap / restart segmenting of the rows (stream_segments)
+        self._segments = StreamSegments(self.dt)
         self.n_rows = 0
         self._frames_done = 0  # frames of monitors already replaced
         self.events: deque[StreamEvent] = deque(maxlen=MAX_EVENTS)
         self.counts = {"fault-start": 0, "fault-end": 0, "gap": 0, "restart": 0, "bad-row": 0}
         self.latency = LatencyStats()
         self.notes: list[str] = []
-        from .stream_recordings import StreamRecordings
 
         self._rec = StreamRecordings(
             self._proto,
@@ -335,10 +329,9 @@ class StreamMonitor:
             A bad row without ``skip_bad_rows``.
         """
         if isinstance(item, RowBlock):
-            for b in self._gate.feed(item):
-                self._rows(b)
+            self._run(self._segments.rows(item))
             return
-        self._release_held()  # rows held for the rate check go first, in input order
+        self._run(self._segments.release())  # rows held for the rate check go first, in input order
         if isinstance(item, BadRow):
             if not self.skip_bad_rows:
                 raise DataFileError(
@@ -346,25 +339,19 @@ class StreamMonitor:
                 )
             self.counts["bad-row"] += 1
             self._note(f"skipped {item.message}")
-            self._pending.append(f"bad row at line {item.line} skipped")
-            self._pending_line = self._pending_line or item.line
-            if self.monitor is not None:
-                self._t_next += self.dt  # a sample is missing
+            self._segments.bad_row(item.line)
         elif isinstance(item, Restart):
             self._emit(
                 StreamEvent(
                     "restart",
-                    self._last_t,
+                    self._segments.last_t,
                     time.time(),
                     line=item.line,
                     reason=item.reason,
                     open_faults=self._open_faults(),
                 )
             )
-            self._reset_next = True
-            self._pending, self._pending_line = [], None
-            self._last_t = None  # the new data's time base is not compared with the old one
-            self._gate.recheck()  # the new data's sampling is checked again
+            self._segments.restart()
 
     def end_of_input(self) -> None:
         """The source ended: rows still held for the rate check are checked (if >= 3) and monitored.
@@ -374,50 +361,26 @@ class StreamMonitor:
         DataFileError
             The held rows show a sampling interval other than the model's ``dt``.
         """
-        for b in self._gate.end():
-            self._rows(b)
+        self._run(self._segments.end())
 
-    def _release_held(self) -> None:
-        for b in self._gate.release():
-            self._rows(b)
-
-    def _rows(self, b: RowBlock) -> None:
-        K = b.n_rows
-        if K == 0:
-            return
-        dt = self.dt
-        if b.t is not None:
-            t = b.t
-        else:
-            t = self._t_next + dt * np.arange(K)
-        self._t_next = float(t[-1]) + dt
-        # split points: gaps by time step, a pending gap / restart at the first row
-        starts = time_gaps(t, self._last_t, dt) if b.t is not None else {}
-        if self._pending and self.monitor is not None:
-            starts.setdefault(0, [])[:0] = self._pending
-        elif self.monitor is None:
-            self._pending_line = None  # nothing to reset yet
-        self._pending = []
-        bounds = sorted({0, *starts, K})
-        for lo, hi in itertools.pairwise(bounds):
-            reasons = starts.get(lo)
-            if reasons and self.monitor is not None:
+    def _run(self, segments: Iterable[Segment]) -> None:
+        """Monitor ``segments`` in order: a gap event and a fresh monitor where one starts."""
+        for seg in segments:
+            if seg.gap is not None:
+                reason, line = seg.gap
                 self._emit(
                     StreamEvent(
                         "gap",
-                        float(t[lo]),
+                        float(seg.t[0]),
                         time.time(),
-                        line=int(b.lines[lo]) if self._pending_line is None else self._pending_line,
-                        reason="; ".join(reasons),
+                        line=line,
+                        reason=reason,
                         open_faults=self._open_faults(),
                     )
                 )
-                self._pending_line = None
-                self._new_monitor(float(t[lo]))
-            elif self.monitor is None or self._reset_next:
-                self._new_monitor(float(t[lo]))
-            self._push(b.z[lo:hi], b.u[lo:hi], t[lo:hi], b.arrival)
-        self._last_t = float(t[-1])
+            if seg.fresh:
+                self._new_monitor(float(seg.t[0]))
+            self._push(seg.z, seg.u, seg.t, seg.arrival)
 
     # --------------------------------------------------------------- internals
     def _warm_up(self) -> None:
@@ -437,7 +400,6 @@ class StreamMonitor:
             self._frames_done += self.monitor.n_frames
         # every monitor shares the first one's threshold (no recomputation at a reset)
         self.monitor = ChatteringMonitor(self.model, self._threshold_settings, t0=t0)
-        self._reset_next = False
         if self.on_reset is not None:
             self.on_reset(t0)
 
@@ -447,9 +409,7 @@ class StreamMonitor:
         K = z.shape[0]
         parts: list[tuple[MonitorUpdate, int, int]] = []
         rec = self._rec
-        lo, in_file = 0, rec.file_rows
-        while lo < K:
-            hi = K if self.record_every is None else min(K, lo + self.record_every - in_file)
+        for lo, hi in period_bounds(K, self.record_every, rec.file_rows):
             upd = self.monitor.push(z[lo:hi], u[lo:hi])
             self.n_rows += hi - lo
             for ev in upd.events:
@@ -457,21 +417,10 @@ class StreamMonitor:
             if upd.frames.n_frames:
                 self.latency.add(time.perf_counter() - arrival, upd.frames.n_frames)
             parts.append((upd, lo, hi))
-            if self.record_every is not None:
-                in_file = (in_file + hi - lo) % self.record_every
-            lo = hi
         if self.on_push is not None:
             self.on_push(z, u)
-        for upd, lo, hi in parts:
-            if self.record_every is not None and rec.file_logger is None:
-                rec.open_file(float(t[lo]))
-            rec.log(upd)
-            if self.record_every is not None:
-                rec.file_rows += hi - lo
-                if rec.file_rows >= self.record_every:
-                    t_rot = time.perf_counter()
-                    rec.close_file(float(t[hi - 1]) + self.dt, wait=False)
-                    rec.rotation_max_s = max(rec.rotation_max_s, time.perf_counter() - t_rot)
+        for upd, lo, hi in parts:  # recordings: the period's file opened / closed around its rows
+            rec.log_rows(upd, float(t[lo]), float(t[hi - 1]) + self.dt, hi - lo)
         rec.collect_closed(block=False)
 
     def _emit(self, ev: StreamEvent) -> None:
@@ -509,8 +458,8 @@ class StreamMonitor:
         stopped_by : str
             Why the run ended (reported in the summary).
         """
-        self._release_held()  # rows held for the rate check when the input stopped early
-        t_stop = self._t_next if self.monitor is not None else None
+        self._run(self._segments.release())  # rows held for the rate check when the input stopped early
+        t_stop = self._segments.t_next if self.monitor is not None else None
         self._rec.close(t_stop)
         frames = self._frames_done + (self.monitor.n_frames if self.monitor is not None else 0)
         return StreamSummary(

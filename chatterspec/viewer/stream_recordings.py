@@ -20,7 +20,7 @@ from typing import Any
 
 from ..online.monitor import ChatteringMonitor, MonitorUpdate
 
-__all__ = ["MAX_PENDING_CLOSES", "StreamRecordings"]
+__all__ = ["MAX_PENDING_CLOSES", "StreamRecordings", "period_bounds"]
 
 #: Closed-file jobs the rotation thread may fall behind by before the loop waits for it.
 MAX_PENDING_CLOSES = 2
@@ -201,6 +201,21 @@ class StreamRecordings:
         if self.file_logger is not None:
             self.file_logger.log_update(upd)
 
+    def log_rows(self, upd: MonitorUpdate, t_first: float, t_after: float, n: int) -> None:
+        """Log ``upd`` (``n`` rows, the first at ``t_first`` s); when rotating, open the period's file
+        before and close it (off the loop) once it holds ``record_every`` rows, ``t_after`` (s) being one
+        ``dt`` after its last row (cut the rows with :func:`period_bounds` first)."""
+        rotating = self.record_every is not None
+        if rotating and self.file_logger is None:
+            self.open_file(t_first)
+        self.log(upd)
+        if rotating:
+            self.file_rows += n
+            if self.file_rows >= self.record_every:
+                t_rot = time.perf_counter()
+                self.close_file(t_after, wait=False)
+                self.rotation_max_s = max(self.rotation_max_s, time.perf_counter() - t_rot)
+
     def log_text(self, ev: Any) -> None:
         """Log a gap or restart event to the open streams' event log at its sample time."""
         sinks = [x for x in (self._live_sinks, self._file_sinks) if x is not None]
@@ -255,6 +270,19 @@ class StreamRecordings:
                 rec["bytes"] = Path(rec["path"]).stat().st_size
         if self.record_every is None:
             self.n_recordings = len(self.recordings)
+
+
+def period_bounds(n: int, every: int | None, in_file: int) -> list[tuple[int, int]]:
+    """``(lo, hi)`` pieces of ``n`` new rows cut where the recording periods of ``every`` rows end, the
+    current file holding ``in_file`` rows already (one piece without rotation, ``every`` None)."""
+    if every is None:
+        return [(0, n)]
+    bounds, lo = [], 0
+    while lo < n:
+        hi = min(n, lo + every - in_file)
+        bounds.append((lo, hi))
+        in_file, lo = (in_file + hi - lo) % every, hi
+    return bounds
 
 
 def _send_blueprint_released(stream: Any, bp: Any) -> None:
