@@ -23,7 +23,6 @@ LONG_UNITS = {
     "the truth lane are out; next: the per-batch senders (_send_samples, _send_frames) into their own type",
     "viewer/live_stream.py:StreamMonitor": "298 lines: recordings (viewer.stream_recordings), rate gate "
     "and gap detection (online.stream_checks) are out; next: the gap/restart segmenting of process/_rows",
-    "online/monitor.py:ChatteringMonitor": "to split: the fused push loop vs the frame analysis and events",
 }
 
 
