@@ -241,7 +241,9 @@ class ChatteringMonitor:
         # float arange of integers (exact below 2^53): the bits of t0 + (n + arange(K)) * dt, one pass fewer
         n = self._filters.n_meas - K
         t = self.t0 + np.arange(n, n + K, dtype=float) * self.dt
-        return self._analyse(e, t, measured=z, estimate=estimate)
+        self._n_chat += K
+        frames, events = self._frames.push(e)
+        return MonitorUpdate(t, e, z, estimate, frames, events)
 
     def push_chattering(self, e: np.ndarray) -> MonitorUpdate:
         """Feed precomputed chattering samples ``e`` (K, m) (e.g. a :class:`ChatteringRecord`'s values).
@@ -258,7 +260,9 @@ class ChatteringMonitor:
         if e.shape[0] == 0:
             return self._empty_update(raw=False)
         t = self._chatter_time0() + np.arange(self._n_chat, self._n_chat + e.shape[0], dtype=float) * self.dt
-        return self._analyse(e, t, measured=None, estimate=None)
+        self._n_chat += e.shape[0]
+        frames, events = self._frames.push(e)
+        return MonitorUpdate(t, e, None, None, frames, events)
 
     def stream(
         self, z: np.ndarray, u: np.ndarray, chunk_samples: int | np.ndarray = 1000
@@ -286,6 +290,7 @@ class ChatteringMonitor:
                 self._t_chat0 = self.t0
             else:
                 self._t_chat0 = self.t0 + self.dt
+            self._frames.t_first = self._t_chat0  # frames are time-stamped from chattering sample 0
         elif self._mode != mode:
             raise ParameterError(
                 "this monitor was fed with "
@@ -306,11 +311,3 @@ class ChatteringMonitor:
             frames=self._empty_frames(),
             events=(),
         )
-
-    def _analyse(
-        self, e: np.ndarray, t: np.ndarray, *, measured: np.ndarray | None, estimate: np.ndarray | None
-    ) -> MonitorUpdate:
-        """The update of one push: its chattering ``e`` (K, m) at times ``t`` (s) through the frames."""
-        self._n_chat += e.shape[0]
-        frames, events = self._frames.push(e, self._chatter_time0())
-        return MonitorUpdate(t, e, measured, estimate, frames, events)

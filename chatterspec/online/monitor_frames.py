@@ -58,6 +58,9 @@ class FrameAnalysis:
         Chattering samples held between pushes (always < one window).
     n_events : int
         Events raised so far.
+    t_first : float
+        Time (s) of chattering sample 0 (the monitor sets it at its first push; frames are
+        time-stamped at their centre from it).
     """
 
     def __init__(
@@ -91,6 +94,7 @@ class FrameAnalysis:
         self._fault_peak = np.zeros(m)
         self._fault_peak_hz = np.zeros(m)
         self.n_events = 0
+        self.t_first = 0.0
 
     @property
     def active(self) -> np.ndarray:
@@ -113,11 +117,8 @@ class FrameAnalysis:
             peak_ratio=np.zeros((0, m)),
         )
 
-    def push(self, e: np.ndarray, t_first: float) -> tuple[FrameBlock, tuple[DetectionEvent, ...]]:
-        """Analyse the next chattering samples ``e`` (K, m); the frames they complete and their events.
-
-        ``t_first`` is the time (s) of chattering sample 0 (frames are time-stamped at their centre).
-        """
+    def push(self, e: np.ndarray) -> tuple[FrameBlock, tuple[DetectionEvent, ...]]:
+        """Analyse the next chattering samples ``e`` (K, m); the frames they complete and their events."""
         W, H = self.n_window, self.n_hop
         K, nb = e.shape[0], self.n_buffered
         buf_start = self.n_frames * H  # global index of self._buf[0]
@@ -142,7 +143,7 @@ class FrameAnalysis:
         score = self._score._unchecked(power)
         blk = self._alarm._advance(flags.astype(float) if self._legacy else score)
         stat = score if self._legacy else blk.statistic
-        times = self.frame_time(idx, t_first)
+        times = self.frame_time(idx, self.t_first)
         frames = FrameBlock(idx, times, power, flags, peak_hz, peak_ratio, score, blk.active, stat)
         return frames, self._events(frames, blk.starts, blk.ends)
 
