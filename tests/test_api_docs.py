@@ -124,8 +124,8 @@ def test_docstring_mentions_every_parameter(modname: str, name: str, obj: object
 
 def _sample_calls() -> list[tuple[str, Callable[[], object]]]:
     from chatterspec import SVSF, boundary_layer_chattering, chattering, scenario, second_order, simulate
-    from chatterspec.filters.boundary_layer import boundary_layer_study, estimate_boundary_layer
     from chatterspec.plants.models import LinearModel, eha_linear
+    from chatterspec.studies.boundary_layer import boundary_layer_study, estimate_boundary_layer
 
     m = second_order(10.0, 0.1)
     z = np.zeros((1, 5, 2))

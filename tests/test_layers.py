@@ -32,10 +32,7 @@ FACADE = {"chatterspec", "chatterspec.__main__"}
 
 # (importer, imported module), both without the leading ``chatterspec.`` -> why the edge is still
 # there. Each entry breaks one rule (named first); fix the code and delete the entry.
-ALLOWED: dict[tuple[str, str], str] = {
-    # The old import path of the Monte Carlo studies moved to studies/ (resolved on first access).
-    ("filters.boundary_layer", "studies.boundary_layer"): "upward: compatibility",
-}
+ALLOWED: dict[tuple[str, str], str] = {}
 
 
 class Import(NamedTuple):

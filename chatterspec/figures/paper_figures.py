@@ -3,7 +3,7 @@
 One function per figure computes its data through the public API
 (:func:`chatterspec.detection.pipeline.scenario_chattering`, :mod:`chatterspec.detection.spectral`,
 :mod:`chatterspec.detection.thresholds`, :mod:`chatterspec.detection.detect`,
-:func:`chatterspec.filters.boundary_layer.boundary_layer_study`) and draws it with
+:func:`chatterspec.studies.boundary_layer.boundary_layer_study`) and draws it with
 :mod:`chatterspec.figures.plotting`. :data:`FIGURES` maps ``"fig2" .. "fig12"`` to a
 :class:`FigureSpec`; ``chatterspec figures`` renders them all.
 
@@ -141,7 +141,7 @@ def fig2(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     chattering of x1 for realization 0 (c), for the paper's three boundary layers
     psi1 = 1e-4 (too small), 5e-4 (the paper's choice) and 2e-3 (too large), plus
     chatterspec's proposal ``sigma Phi^-1(1 - p/2)`` at p = 0.1 % from the measured
-    healthy chattering (:func:`chatterspec.filters.boundary_layer.estimate_boundary_layer`;
+    healthy chattering (:func:`chatterspec.studies.boundary_layer.estimate_boundary_layer`;
     sigma = 2.45e-4, not the 1.42e-4 of eq 34, ``docs/design.md`` C7).
 
     Parameters
@@ -159,7 +159,7 @@ def fig2(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
         inside/outside the mismatch windows (Fisher exact test p-value) and the
         rms normalized error of x2.
     """
-    from ..filters.boundary_layer import boundary_layer_study
+    from ..studies.boundary_layer import boundary_layer_study
 
     runs = 20 if runs is None else runs
     st = boundary_layer_study(FIG2_PSIS, runs=runs, seed=seed, probability=FIG2_PROBABILITY)

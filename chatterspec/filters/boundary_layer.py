@@ -1,8 +1,8 @@
 """Smoothing-boundary-layer selection from healthy chattering statistics (section II-III, Fig 2).
 
 This module holds the analytic part (:func:`healthy_chattering_variance`); the Monte Carlo
-estimate and the Fig 2 study are in :mod:`chatterspec.studies.boundary_layer` (still importable
-from here).
+estimate and the Fig 2 study are in :mod:`chatterspec.studies.boundary_layer` (they lived here in
+earlier releases; the old path now raises an ``AttributeError`` that names the new one).
 
 The SVSF chatters (eq 13) whenever ``|e_i(k|k-1)| > psi_i``. Under healthy
 conditions the auxiliary (``sgn``) filter started at ``x(0|0) = C^-1 z(0)``
@@ -54,7 +54,8 @@ from .svsf import auxiliary_svsf
 __all__ = ["healthy_chattering_variance"]
 
 #: Names that moved to :mod:`chatterspec.studies.boundary_layer` (Monte Carlo studies are not the
-#: filter layer's job); the old import path still finds them, on first access (PEP 562).
+#: filter layer's job, and the filter layer imports nothing above it): asking this module for one
+#: raises an error that names the new path (PEP 562).
 _MOVED = ("BoundaryLayerEstimate", "BoundaryLayerStudy", "boundary_layer_study", "estimate_boundary_layer")
 
 
@@ -103,6 +104,7 @@ def healthy_chattering_variance(model: LinearModel) -> tuple[np.ndarray, np.ndar
 def __getattr__(name: str) -> Any:
     if name not in _MOVED:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    from ..studies import boundary_layer as _studies  # old import path of the Monte Carlo studies
-
-    return getattr(_studies, name)
+    raise AttributeError(
+        f"{name} moved to chatterspec.studies.boundary_layer (Monte Carlo studies live in studies/): "
+        f"use `from chatterspec.studies.boundary_layer import {name}`"
+    )

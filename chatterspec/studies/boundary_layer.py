@@ -214,7 +214,7 @@ def estimate_boundary_layer(
     Examples
     --------
     >>> import chatterspec as cs
-    >>> from chatterspec.filters.boundary_layer import estimate_boundary_layer
+    >>> from chatterspec.studies.boundary_layer import estimate_boundary_layer
     >>> est = estimate_boundary_layer("so-boundary-layer", 1e-3, runs=8, seed=0)
     >>> round(float(est.sigma[0]) * 1e4, 1)  # sqrt(6.02e-8) = 2.45e-4
     2.5
