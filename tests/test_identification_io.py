@@ -139,3 +139,43 @@ def test_monitor_identifies_the_example_per_hop_and_records_it(
     events = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     kinds = [e["event"] for e in events]
     assert kinds.count("identification") == 3 and kinds.count("fault-start") == 1
+
+
+def test_monitor_identification_lines_follow_the_alarm() -> None:
+    # The per-hop identification tests at the per-frame alpha; its human lines must follow the alarm
+    # rule: nothing said on healthy data without an alarm, a fault said once the alarm is active
+    # (even if it was selected earlier), "no fault" only after a fault was said. JSON keeps every change.
+    from types import SimpleNamespace
+
+    from chatterspec.cli._identify import MonitorIdentification
+
+    class Out:
+        def __init__(self, selected: str) -> None:
+            self.n_windows, self.times_s = 1, np.array([1.0])
+            self.selected = selected
+
+        def report(self, i: int) -> object:
+            d = {"selected": self.selected, "hypotheses": [], "window_s": [0.0, 1.0]}
+            return SimpleNamespace(selected=self.selected, window_s=(0.0, 1.0), to_dict=lambda: dict(d))
+
+    said: list[str] = []
+    ident = MonitorIdentification.__new__(MonitorIdentification)
+    ident.emit, ident.say, ident.every_hop = None, said.append, False
+    ident.selected = ident.said = ident.last = None
+    ident.changes, ident.windows = [], 0
+    alarm = [False]
+    ident.alarm_active = lambda: alarm[0]
+    for sel, active in [
+        ("no fault", False),
+        ("unexplained", False),  # a per-frame rejection with no alarm: not said
+        ("no fault", False),
+        ("leakage", False),  # selected before the alarm ...
+        ("leakage", True),  # ... said when the alarm starts
+        ("leakage", True),
+        ("no fault", False),  # said: a fault was said before
+    ]:
+        alarm[0] = active
+        ident.handle(Out(sel))
+    assert [s.split(": ", 1)[1].split(":")[0] for s in said] == ["leakage", "no fault"]
+    changes = [c["selected"] for c in ident.changes]
+    assert changes == ["no fault", "unexplained", "no fault", "leakage", "no fault"]

@@ -298,6 +298,12 @@ class MonitorIdentification:
     """Online identification for ``chatterspec monitor``: per hop an ``identification`` event (JSON
     lines), a human line when the selected hypothesis changes, and a summary for ``--json``.
 
+    The identification tests every hop at the monitor's per-frame alpha, which the alarm rule does not
+    (it holds false alarms to a budget per hour). So that the human lines follow the alarms, with
+    ``alarm_active`` set (a callable: is an alarm active now?) a fault or "unexplained" selection is
+    said only while an alarm is active (at the first hop of the alarm if it was selected before), and
+    "no fault" only after one was said; the JSON events and the summary's ``changes`` keep every change.
+
     Parameters
     ----------
     setup : IdentificationSetup
@@ -333,7 +339,9 @@ class MonitorIdentification:
             setup, hop_samples=hop_samples, window_hops=window_hops, t0=t0, alpha=alpha, confidence=confidence
         )
         self.emit, self.say, self.every_hop = emit, say, every_hop
+        self.alarm_active: Any = None  # callable () -> bool, set once the monitor exists
         self.selected: str | None = None
+        self.said: str | None = None  # the last selection said on the human line
         self.changes: list[dict[str, Any]] = []
         self.last: dict[str, Any] | None = None
         self.windows = 0
@@ -360,15 +368,28 @@ class MonitorIdentification:
             changed = rep.selected != self.selected
             if self.emit is not None and (self.every_hop or changed):
                 self.emit(dumps({"event": "identification", **doc}))
+            line = summary_line(rep.to_dict()) if changed or rep.selected != self.said else ""
             if changed:
                 self.selected = rep.selected
-                line = summary_line(rep.to_dict())
+                self.changes.append({"time_s": doc["sample_time_s"], "selected": rep.selected, "line": line})
+            if rep.selected != self.said and self._worth_saying(rep.selected):
+                # said when it changes, or later when the alarm that makes it worth saying starts
+                self.said = rep.selected
                 self.say(
                     f"identified at t = {float(out.times_s[i]):.2f} s (window {rep.window_s[0]:.2f}-"
                     f"{rep.window_s[1]:.2f} s): {line}"
                 )
-                self.changes.append({"time_s": doc["sample_time_s"], "selected": rep.selected, "line": line})
             self.last = doc
+
+    def _worth_saying(self, selected: str) -> bool:
+        """Whether a change to ``selected`` gets a human line (see the class notes)."""
+        from ..detection.identification import NO_FAULT
+
+        if self.alarm_active is None:  # no alarm state known: every change
+            return True
+        if selected == NO_FAULT:
+            return self.said not in (None, NO_FAULT)
+        return bool(self.alarm_active())
 
     def to_dict(self) -> dict[str, Any]:
         """``windows`` identified, the ``changes`` of the selected hypothesis and the ``last`` window."""

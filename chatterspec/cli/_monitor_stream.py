@@ -70,6 +70,8 @@ def _run_stream(
         raise OutputPathError(
             f"--record {str(args.record)!r} cannot be written ({exc.strerror or exc}); nothing was monitored"
         ) from None
+    if ident is not None:  # the human identification lines follow the alarms
+        ident.alarm_active = lambda: mon.monitor is not None and bool(mon.monitor.active.any())
     rows = CsvRows(model, where)
     if stdin:
         chunks = read_fd(sys.stdin.fileno())

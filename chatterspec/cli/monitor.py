@@ -299,6 +299,8 @@ def run(args: argparse.Namespace) -> int:
             print(sev.describe(), file=human, flush=True)
 
     ident = identification(float(data.t[0]))
+    if ident is not None:
+        ident.alarm_active = lambda: bool(monitor.active.any())
     try:
         summary = run_monitor(
             monitor,
