@@ -34,31 +34,30 @@ rule, the frame's score, the rule's statistic and threshold and the budget. With
 at ``alpha``, as before the alarm layer: a start at the first flagged frame after an unflagged
 one, an end at the first unflagged frame, every frame a test at level ``alpha`` (at 0.001 and
 3 channels about 42 false alarms per hour of healthy data).
+
+The work is split between two collaborators: :class:`~chatterspec.online.monitor_filters.MonitorFilters`
+(both SVSFs, measurements to chattering and estimate, the fused compiled push) and
+:class:`~chatterspec.online.monitor_frames.FrameAnalysis` (the bounded buffer, STFT columns,
+verdicts, scores, alarm stream and events); the monitor checks the input, keeps the clock and
+assembles each push's :class:`~chatterspec.online.monitor_types.MonitorUpdate`.
 """
 
 from __future__ import annotations
 
 import itertools
-import math
 from collections.abc import Iterator
 
 import numpy as np
 
-from .. import _jit
 from .._validate import finite_array, positive_int
-from ..detection.alarms import AlarmStream, FrameRule
-from ..detection.frame_engine import FrameEngine
-from ..detection.frame_score import FrameScore
 from ..detection.frames import FrameVerdicts, frame_verdicts
 from ..detection.thresholds import frame_threshold
 from ..errors import ParameterError, ShapeError
-from ..filters.nonlinear_svsf import NonlinearSgnSVSF
-from ..filters.svsf import SVSF, SVSFState, auxiliary_svsf
-from ..filters.svsf_steps import rows_times as _rows_times
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
-from ._push_kernels import filters_kernel
-from .monitor_types import DetectionEvent, EventKind, FrameBlock, MonitorSettings, MonitorUpdate
+from .monitor_filters import MonitorFilters
+from .monitor_frames import FrameAnalysis
+from .monitor_types import DetectionEvent, FrameBlock, MonitorSettings, MonitorUpdate
 
 __all__ = [
     "ChatteringMonitor",
@@ -71,6 +70,18 @@ __all__ = [
 
 
 _Verdicts = FrameVerdicts  # the old private name (tests and old code)
+
+
+def _filters_attr(name: str, *, settable: bool = False) -> property:
+    """A monitor attribute that is its filters' ``name`` (the names the fused-kernel tests use)."""
+
+    def get(self: ChatteringMonitor) -> object:
+        return getattr(self._filters, name)
+
+    def put(self: ChatteringMonitor, value: object) -> None:
+        setattr(self._filters, name, value)
+
+    return property(get, put if settable else None, doc=f"The filters' ``{name}``.")
 
 
 class ChatteringMonitor:
@@ -133,56 +144,23 @@ class ChatteringMonitor:
                     "was made for another STFT window or model"
                 )
             self.threshold = th.restricted(s.band)
-        self._aux = NonlinearSgnSVSF(model, s.gamma) if nonlinear else auxiliary_svsf(model, s.gamma)
-        self._sat = None if s.psi is None else SVSF(model, psi=np.asarray(s.psi), gamma=s.gamma)
-        self._aux_state: SVSFState | None = None
-        # one compiled call per push for both filters (full measurement: the closed form of eq 23;
-        # at least one input; numba installed, and enabled at push time)
-        self._fused = (
-            isinstance(self._aux, SVSF)
-            and self._aux._L is None
-            and model.n_inputs >= 1
-            and _jit.HAVE_NUMBA
-            and _jit.fits(model.n_states, model.n_outputs, vectors_only=True)
-        )
-        if self._fused:
-            self._GT = np.ascontiguousarray(self._aux._GT, dtype=float)
-            self._aux_PhiT = np.ascontiguousarray(self._aux._PhiT, dtype=float)
-            self._none3 = np.empty((0, 0, 0))
-            e2 = np.empty((0, 0))
-            self._no_sat = (e2, e2, e2, np.empty(0), 0.0, e2, e2, e2, self._none3, self._none3, self._none3)
-            # the push loop, unrolled for small models (the EHA's 3 states): same steps, same bits
-            self._kernel = filters_kernel(model.n_states, model.n_outputs)
-        self._sat_state: SVSFState | None = None
-        # C = I (every state measured in its own units, the EHA): the estimate C x is x itself
-        C = getattr(model, "C", None)
-        self._C_identity = C is not None and C.shape[0] == C.shape[1] and np.array_equal(C, np.eye(len(C)))
-        self._pending_u: np.ndarray | None = None
+        # the two collaborators: the SVSFs (measurements -> chattering, estimate) and the frame
+        # analysis (chattering -> STFT columns, verdicts, alarm states, events)
+        self._filters = MonitorFilters(model, s)
+        self._frames = FrameAnalysis(s, self.threshold, self.dt, model.output_names)
+        self.rule = self._frames.rule
         self._mode: str | None = None  # "raw" or "chattering"
-        self._n_meas = 0  # measurements pushed (raw mode)
         self._n_chat = 0  # chattering samples produced / pushed
         self._t_chat0: float | None = None  # time of chattering sample 0
-        m = model.n_outputs
-        # chattering samples from the next frame's start on (< W rows); room for one more hop so
-        # that small pushes append in place instead of re-concatenating the window every time
-        self._buf = np.empty((self.n_window + self.n_hop, m))
-        self._n_buf = 0
-        self._verdicts = FrameVerdicts(self.threshold, compiled=_jit.enabled())
-        # frame_columns with this monitor's scratch buffers (and compiled loops when enabled: same bits)
-        self._columns = FrameEngine(s.stft, self.dt, compiled=_jit.enabled())
-        self._no_frames = self._empty_frames()
-        self._n_frames = 0
-        # the frame score and the alarm rule (None: the per-frame rule at alpha, i.e. events where the
-        # verdict flags change, fed to the layer as 0/1 against 0.5: the same events as before it)
-        self._score = FrameScore(self.threshold, compiled=_jit.enabled())
-        self._legacy = s.rule is None
-        self.rule = FrameRule(-math.log(self.threshold.alpha)) if s.rule is None else s.rule
-        self._alarm = AlarmStream(
-            FrameRule(0.5) if self._legacy else self.rule, (m,), compiled=_jit.enabled()
-        )
-        self._fault_peak = np.zeros(m)
-        self._fault_peak_hz = np.zeros(m)
-        self.n_events = 0
+
+    # the filters' internals under the names the fused-kernel tests use
+    _fused = _filters_attr("fused", settable=True)
+    _kernel = _filters_attr("_kernel")
+    _sat = _filters_attr("_sat")
+    _sat_state = _filters_attr("_sat_state")
+    _GT = _filters_attr("_GT")
+    _aux_PhiT = _filters_attr("_aux_PhiT")
+    _none3 = _filters_attr("_none3")
 
     # ------------------------------------------------------------- properties
     @property
@@ -193,7 +171,7 @@ class ChatteringMonitor:
     @property
     def n_frames(self) -> int:
         """Frames emitted so far."""
-        return self._n_frames
+        return self._frames.n_frames
 
     @property
     def n_samples(self) -> int:
@@ -201,19 +179,23 @@ class ChatteringMonitor:
         return self._n_chat
 
     @property
+    def n_events(self) -> int:
+        """Detection events raised so far."""
+        return self._frames.n_events
+
+    @property
     def active(self) -> np.ndarray:
         """Per channel, whether an alarm (fault) is currently active (copy)."""
-        return self._alarm.active
+        return self._frames.active
 
     @property
     def buffered_samples(self) -> int:
         """Chattering samples held between pushes (always < one window)."""
-        return self._n_buf
+        return self._frames.n_buffered
 
     def frame_time(self, index: np.ndarray | int) -> np.ndarray:
         """Centre time (s) of global frame(s) ``index``."""
-        t_first = self._chatter_time0()
-        return t_first + (np.asarray(index) * self.n_hop + (self.n_window - 1) / 2.0) * self.dt
+        return self._frames.frame_time(index, self._chatter_time0())
 
     def _chatter_time0(self) -> float:
         if self._t_chat0 is not None:
@@ -232,6 +214,10 @@ class ChatteringMonitor:
         ------
         ShapeError, NonFiniteError
             On wrong shapes or NaN/inf samples (nothing is consumed then).
+
+        See Also
+        --------
+        chatterspec.online.monitor_filters.MonitorFilters.advance : the filters' step.
         """
         self._set_mode("raw")
         m, p = self.model.n_outputs, self.model.n_inputs
@@ -248,74 +234,16 @@ class ChatteringMonitor:
             raise ShapeError(f"u must have shape ({K}, {p}) to match z; got {u.shape}")
         if K == 0:
             return self._empty_update(raw=True)
-        if self._aux_state is None:
-            self._aux_state = self._aux.initialize(z[:1])
-            if self._sat is not None:
-                self._sat_state = self._sat.initialize(z[:1])
-            self._pending_u = u[0].copy()  # not a view of the caller's array
-            self._n_meas = 1
-            z, u = z[1:], u[1:]
-            K -= 1
-            if K == 0:
-                return self._empty_update(raw=True)
-        u_used = np.empty((K, p))
-        u_used[0] = self._pending_u
-        u_used[1:] = u[:-1]
-        self._pending_u = u[-1].copy()
-        if self._fused and _jit.enabled():
-            e, estimate = self._advance_fused(z, u_used)
-        elif isinstance(self._aux, SVSF):
-            # the checks of SVSF.update are done above; both filters share the model, hence G u(k)
-            Gu = _rows_times(u_used, self._aux._GT, channel_major=True)
-            self._aux_state, out = self._aux._advance(self._aux_state, z[None], Gu)
-            e, estimate = out.e_prior[0], None
-            if self._sat is not None:
-                self._sat_state, sat_out = self._sat._advance(self._sat_state, z[None], Gu, store_states=True)
-                estimate = self._output(sat_out.x_post[0])
-        else:  # nonlinear auxiliary filter (no sat SVSF)
-            self._aux_state, out = self._aux.update(self._aux_state, z[None], u_used, check=False)
-            e, estimate = out.e_prior[0], None
+        z, e, estimate = self._filters.advance(z, u)
+        K = z.shape[0]
+        if K == 0:  # the first push's first measurement only initializes the filters
+            return self._empty_update(raw=True)
         # float arange of integers (exact below 2^53): the bits of t0 + (n + arange(K)) * dt, one pass fewer
-        t = self.t0 + np.arange(self._n_meas, self._n_meas + K, dtype=float) * self.dt
-        self._n_meas += K
-        return self._analyse(e, t, measured=z, estimate=estimate)
-
-    def _advance_fused(self, z: np.ndarray, u_used: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """Both filters over one push in one compiled call (:func:`._push_kernels.filters_kernel`).
-
-        The same steps and sums as :meth:`SVSF.update` with compiled kernels on (closed form of
-        eq 23 for the aux filter, whose a-posteriori error stays exactly 0; the recursion for
-        the sat SVSF), without its per-call Python work; returns ``(e, estimate)``.
-        """
-        K, m = z.shape
-        z3 = np.ascontiguousarray(z)[None]  # one compiled specialization (no copy when contiguous)
-        aux = self._aux_state
-        e = np.empty((1, K, m))
-        sat = self._sat
-        none = self._none3
-        if sat is None:
-            self._kernel(z3, u_used, self._GT, self._aux_PhiT, aux.y, e, none, False, *self._no_sat)
-            estimate = None
-        else:
-            PhiT, L, P, inv_psi, gamma, S_inv = sat._kernel_consts
-            st = self._sat_state
-            y, ep = st.y.copy(), st.e_post.copy()
-            x_out = np.empty((1, K, self.model.n_states))
-            self._kernel(
-                z3, u_used, self._GT, self._aux_PhiT, aux.y, e, none, True,
-                PhiT, L, P, inv_psi, gamma, S_inv, y, ep, none, x_out, none,
-            )  # fmt: skip
-            self._sat_state = SVSFState(y=y, e_post=ep, k=st.k + K)
-            estimate = self._output(x_out[0])
-        # the closed form's state: y(k|k) = z(k) exactly, e(k|k) = 0 (see SVSF.update, Notes)
-        self._aux_state = SVSFState(y=z[-1:].copy(), e_post=aux.e_post, k=aux.k + K)
-        return e[0], estimate
-
-    def _output(self, x: np.ndarray) -> np.ndarray:
-        """The sat-SVSF's output estimate ``C x(k|k)`` (K, m) of its states ``x`` (K, n): ``x`` itself
-        when ``C`` is the identity (the same values as the product, which only adds exact zeros:
-        the BLAS call cost 8 us of a push's ~150 us)."""
-        return x if self._C_identity else x @ self.model.C.T
+        n = self._filters.n_meas - K
+        t = self.t0 + np.arange(n, n + K, dtype=float) * self.dt
+        self._n_chat += K
+        frames, events = self._frames.push(e)
+        return MonitorUpdate(t, e, z, estimate, frames, events)
 
     def push_chattering(self, e: np.ndarray) -> MonitorUpdate:
         """Feed precomputed chattering samples ``e`` (K, m) (e.g. a :class:`ChatteringRecord`'s values).
@@ -332,7 +260,9 @@ class ChatteringMonitor:
         if e.shape[0] == 0:
             return self._empty_update(raw=False)
         t = self._chatter_time0() + np.arange(self._n_chat, self._n_chat + e.shape[0], dtype=float) * self.dt
-        return self._analyse(e, t, measured=None, estimate=None)
+        self._n_chat += e.shape[0]
+        frames, events = self._frames.push(e)
+        return MonitorUpdate(t, e, None, None, frames, events)
 
     def stream(
         self, z: np.ndarray, u: np.ndarray, chunk_samples: int | np.ndarray = 1000
@@ -360,6 +290,7 @@ class ChatteringMonitor:
                 self._t_chat0 = self.t0
             else:
                 self._t_chat0 = self.t0 + self.dt
+            self._frames.t_first = self._t_chat0  # frames are time-stamped from chattering sample 0
         elif self._mode != mode:
             raise ParameterError(
                 "this monitor was fed with "
@@ -368,15 +299,7 @@ class ChatteringMonitor:
             )
 
     def _empty_frames(self) -> FrameBlock:
-        m, bins = self.model.n_outputs, self.freqs_hz.shape[0]
-        return FrameBlock(
-            index=np.zeros(0, dtype=int),
-            times_s=np.zeros(0),
-            power=np.zeros((0, bins, m)),
-            flags=np.zeros((0, m), dtype=bool),
-            peak_hz=np.zeros((0, m)),
-            peak_ratio=np.zeros((0, m)),
-        )
+        return self._frames.empty_frames()
 
     def _empty_update(self, raw: bool) -> MonitorUpdate:
         m = self.model.n_outputs
@@ -384,83 +307,7 @@ class ChatteringMonitor:
             t=np.zeros(0),
             chattering=np.zeros((0, m)),
             measured=np.zeros((0, m)) if raw else None,
-            estimate=np.zeros((0, m)) if (raw and self._sat is not None) else None,
+            estimate=np.zeros((0, m)) if (raw and self._filters.has_estimate) else None,
             frames=self._empty_frames(),
             events=(),
         )
-
-    def _analyse(
-        self, e: np.ndarray, t: np.ndarray, *, measured: np.ndarray | None, estimate: np.ndarray | None
-    ) -> MonitorUpdate:
-        W, H = self.n_window, self.n_hop
-        K, nb = e.shape[0], self._n_buf
-        self._n_chat += K
-        buf_start = self._n_frames * H  # global index of self._buf[0]
-        n = nb + K
-        if n < W:  # the next frame (samples buf_start .. buf_start + W) is not complete yet
-            self._buf[nb:n] = e
-            self._n_buf = n
-            return MonitorUpdate(t, e, measured, estimate, self._no_frames, ())
-        if nb == 0:
-            data = e
-        elif n <= self._buf.shape[0]:
-            self._buf[nb:n] = e
-            data = self._buf[:n]
-        else:
-            data = np.concatenate([self._buf[:nb], e])
-        idx, power = self._columns(data, buf_start)
-        self._n_frames = int(idx[-1]) + 1
-        keep = data[self._n_frames * H - buf_start :]  # < W samples: the next frame's start on
-        self._buf[: keep.shape[0]] = keep  # numpy copes with the overlap when data is self._buf
-        self._n_buf = keep.shape[0]
-        flags, peak_hz, peak_ratio = self._verdicts(power)
-        score = self._score._unchecked(power)
-        blk = self._alarm._advance(flags.astype(float) if self._legacy else score)
-        stat = score if self._legacy else blk.statistic
-        times = self.frame_time(idx)
-        frames = FrameBlock(idx, times, power, flags, peak_hz, peak_ratio, score, blk.active, stat)
-        events = self._events(frames, blk.starts, blk.ends)
-        return MonitorUpdate(t, e, measured, estimate, frames, events)
-
-    def _events(self, fr: FrameBlock, starts: np.ndarray, ends: np.ndarray) -> tuple[DetectionEvent, ...]:
-        """Events from the alarm layer's starts / ends (F, m); tracks each fault's largest peak."""
-        active = fr.alarm
-        on = active[0]  # active at the first frame and unchanged: active throughout
-        if not (starts.any() or ends.any() or on.any()):  # no change and nothing active: no event
-            return ()
-        changed = (starts | ends).any(axis=0)  # (m,)
-        events: list[DetectionEvent] = []
-        for c in np.flatnonzero(changed | on).tolist():
-            s_c, e_c = starts[:, c], ends[:, c]
-            if not changed[c]:  # the fault goes on: only its largest peak may change
-                f = int(np.argmax(fr.peak_ratio[:, c]))  # the first largest, as the loop's strict '>'
-                if fr.peak_ratio[f, c] > self._fault_peak[c]:
-                    self._fault_peak[c], self._fault_peak_hz[c] = fr.peak_ratio[f, c], fr.peak_hz[f, c]
-                continue
-            for f in range(s_c.shape[0]):
-                ratio = float(fr.peak_ratio[f, c])
-                if s_c[f]:
-                    self._fault_peak[c], self._fault_peak_hz[c] = ratio, float(fr.peak_hz[f, c])
-                    events.append(self._event("fault-start", c, fr, f, fr.peak_hz[f, c], ratio))
-                elif e_c[f]:
-                    events.append(
-                        self._event("fault-end", c, fr, f, self._fault_peak_hz[c], self._fault_peak[c])
-                    )
-                elif active[f, c] and ratio > self._fault_peak[c]:
-                    self._fault_peak[c], self._fault_peak_hz[c] = ratio, float(fr.peak_hz[f, c])
-        events.sort(key=lambda ev: (ev.frame, ev.channel_index))
-        self.n_events += len(events)
-        return tuple(events)
-
-    def _event(
-        self, kind: EventKind, c: int, fr: FrameBlock, f: int, peak_hz: float, peak_ratio: float
-    ) -> DetectionEvent:
-        t = float(fr.times_s[f])
-        j = int(fr.index[f])
-        back = (self.n_window - 1) / 2.0 if j == 0 else self.n_hop / 2.0
-        rule = self.rule
-        return DetectionEvent(
-            kind, self.channels[c], c, t, j, float(peak_hz), float(peak_ratio), t - back * self.dt,
-            rule=rule.name, score=float(fr.score[f, c]), statistic=float(fr.alarm_statistic[f, c]),
-            threshold=float(rule.threshold), false_alarms_per_hour=self.settings.false_alarms_per_hour,
-        )  # fmt: skip

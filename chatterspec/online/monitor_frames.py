@@ -1,0 +1,191 @@
+"""The monitor's frame analysis: chattering in, STFT columns, verdicts, alarm states and events out.
+
+:class:`FrameAnalysis` holds the bounded chattering buffer (at most one STFT window of ``W``
+samples plus the chunk being analysed), turns every complete frame into one column with
+:class:`chatterspec.detection.frame_engine.FrameEngine` on the global frame grid (frame ``j``
+covers chattering samples ``[j H, j H + W)``), gives each frame its verdicts
+(:class:`chatterspec.detection.frames.FrameVerdicts`) and score ``-log p``
+(:class:`chatterspec.detection.frame_score.FrameScore`), runs the alarm rule across pushes
+(:class:`chatterspec.detection.alarms.AlarmStream`) and turns the alarm's starts and ends into
+:class:`~chatterspec.online.monitor_types.DetectionEvent` s. Any chunking of the chattering gives
+the same columns, alarms and events as the whole record at once.
+
+See Also
+--------
+chatterspec.online.monitor.ChatteringMonitor : the monitor that owns one of these.
+chatterspec.online.monitor_filters.MonitorFilters : where the chattering comes from.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .. import _jit
+from ..detection.alarms import AlarmStream, FrameRule
+from ..detection.frame_engine import FrameEngine
+from ..detection.frame_score import FrameScore
+from ..detection.frames import FrameVerdicts
+from ..detection.thresholds import Threshold
+from .monitor_types import DetectionEvent, EventKind, FrameBlock, MonitorSettings
+
+__all__ = ["FrameAnalysis"]
+
+
+class FrameAnalysis:
+    """Frames, verdicts, alarms and events of a chattering stream, pushed chunk by chunk.
+
+    Parameters
+    ----------
+    settings : MonitorSettings
+        STFT (window ``W``, hop ``H``), alarm ``rule`` (None: the per-frame verdict at ``alpha``)
+        and the false-alarm budget the events report.
+    threshold : Threshold
+        The per-frame threshold (already restricted to the tested band).
+    dt : float
+        Sample period (s).
+    channels : tuple of str
+        Output channel names (the events carry them).
+
+    Attributes
+    ----------
+    rule : AlarmRule
+        The alarm rule the events report (the per-frame rule at ``-log alpha`` without one).
+    n_frames : int
+        Frames emitted so far.
+    n_buffered : int
+        Chattering samples held between pushes (always < one window).
+    n_events : int
+        Events raised so far.
+    t_first : float
+        Time (s) of chattering sample 0 (the monitor sets it at its first push; frames are
+        time-stamped at their centre from it).
+    """
+
+    def __init__(
+        self, settings: MonitorSettings, threshold: Threshold, dt: float, channels: tuple[str, ...]
+    ) -> None:
+        s = settings
+        self.settings = s
+        self.dt = dt
+        self.channels = channels
+        self.n_window = s.stft.n_window(dt)
+        self.n_hop = s.stft.n_hop(dt)
+        self.n_bins = s.stft.freqs_hz(dt).shape[0]
+        m = len(channels)
+        # chattering samples from the next frame's start on (< W rows); room for one more hop so
+        # that small pushes append in place instead of re-concatenating the window every time
+        self._buf = np.empty((self.n_window + self.n_hop, m))
+        self.n_buffered = 0
+        self._verdicts = FrameVerdicts(threshold, compiled=_jit.enabled())
+        # frame_columns with this monitor's scratch buffers (and compiled loops when enabled: same bits)
+        self._columns = FrameEngine(s.stft, dt, compiled=_jit.enabled())
+        self.no_frames = self.empty_frames()
+        self.n_frames = 0
+        # the frame score and the alarm rule (None: the per-frame rule at alpha, i.e. events where the
+        # verdict flags change, fed to the layer as 0/1 against 0.5: the same events as before it)
+        self._score = FrameScore(threshold, compiled=_jit.enabled())
+        self._legacy = s.rule is None
+        self.rule = FrameRule(-math.log(threshold.alpha)) if s.rule is None else s.rule
+        self._alarm = AlarmStream(
+            FrameRule(0.5) if self._legacy else self.rule, (m,), compiled=_jit.enabled()
+        )
+        self._fault_peak = np.zeros(m)
+        self._fault_peak_hz = np.zeros(m)
+        self.n_events = 0
+        self.t_first = 0.0
+
+    @property
+    def active(self) -> np.ndarray:
+        """Per channel, whether an alarm (fault) is currently active (copy)."""
+        return self._alarm.active
+
+    def frame_time(self, index: np.ndarray | int, t_first: float) -> np.ndarray:
+        """Centre time (s) of global frame(s) ``index`` when chattering sample 0 is at ``t_first`` (s)."""
+        return t_first + (np.asarray(index) * self.n_hop + (self.n_window - 1) / 2.0) * self.dt
+
+    def empty_frames(self) -> FrameBlock:
+        """A block of no frames (the shapes of this stream's frames)."""
+        m = len(self.channels)
+        return FrameBlock(
+            index=np.zeros(0, dtype=int),
+            times_s=np.zeros(0),
+            power=np.zeros((0, self.n_bins, m)),
+            flags=np.zeros((0, m), dtype=bool),
+            peak_hz=np.zeros((0, m)),
+            peak_ratio=np.zeros((0, m)),
+        )
+
+    def push(self, e: np.ndarray) -> tuple[FrameBlock, tuple[DetectionEvent, ...]]:
+        """Analyse the next chattering samples ``e`` (K, m); the frames they complete and their events."""
+        W, H = self.n_window, self.n_hop
+        K, nb = e.shape[0], self.n_buffered
+        buf_start = self.n_frames * H  # global index of self._buf[0]
+        n = nb + K
+        if n < W:  # the next frame (samples buf_start .. buf_start + W) is not complete yet
+            self._buf[nb:n] = e
+            self.n_buffered = n
+            return self.no_frames, ()
+        if nb == 0:
+            data = e
+        elif n <= self._buf.shape[0]:
+            self._buf[nb:n] = e
+            data = self._buf[:n]
+        else:
+            data = np.concatenate([self._buf[:nb], e])
+        idx, power = self._columns(data, buf_start)
+        self.n_frames = int(idx[-1]) + 1
+        keep = data[self.n_frames * H - buf_start :]  # < W samples: the next frame's start on
+        self._buf[: keep.shape[0]] = keep  # numpy copes with the overlap when data is self._buf
+        self.n_buffered = keep.shape[0]
+        flags, peak_hz, peak_ratio = self._verdicts(power)
+        score = self._score._unchecked(power)
+        blk = self._alarm._advance(flags.astype(float) if self._legacy else score)
+        stat = score if self._legacy else blk.statistic
+        times = self.frame_time(idx, self.t_first)
+        frames = FrameBlock(idx, times, power, flags, peak_hz, peak_ratio, score, blk.active, stat)
+        return frames, self._events(frames, blk.starts, blk.ends)
+
+    def _events(self, fr: FrameBlock, starts: np.ndarray, ends: np.ndarray) -> tuple[DetectionEvent, ...]:
+        """Events from the alarm layer's starts / ends (F, m); tracks each fault's largest peak."""
+        active = fr.alarm
+        on = active[0]  # active at the first frame and unchanged: active throughout
+        if not (starts.any() or ends.any() or on.any()):  # no change and nothing active: no event
+            return ()
+        changed = (starts | ends).any(axis=0)  # (m,)
+        events: list[DetectionEvent] = []
+        for c in np.flatnonzero(changed | on).tolist():
+            s_c, e_c = starts[:, c], ends[:, c]
+            if not changed[c]:  # the fault goes on: only its largest peak may change
+                f = int(np.argmax(fr.peak_ratio[:, c]))  # the first largest, as the loop's strict '>'
+                if fr.peak_ratio[f, c] > self._fault_peak[c]:
+                    self._fault_peak[c], self._fault_peak_hz[c] = fr.peak_ratio[f, c], fr.peak_hz[f, c]
+                continue
+            for f in range(s_c.shape[0]):
+                ratio = float(fr.peak_ratio[f, c])
+                if s_c[f]:
+                    self._fault_peak[c], self._fault_peak_hz[c] = ratio, float(fr.peak_hz[f, c])
+                    events.append(self._event("fault-start", c, fr, f, fr.peak_hz[f, c], ratio))
+                elif e_c[f]:
+                    events.append(
+                        self._event("fault-end", c, fr, f, self._fault_peak_hz[c], self._fault_peak[c])
+                    )
+                elif active[f, c] and ratio > self._fault_peak[c]:
+                    self._fault_peak[c], self._fault_peak_hz[c] = ratio, float(fr.peak_hz[f, c])
+        events.sort(key=lambda ev: (ev.frame, ev.channel_index))
+        self.n_events += len(events)
+        return tuple(events)
+
+    def _event(
+        self, kind: EventKind, c: int, fr: FrameBlock, f: int, peak_hz: float, peak_ratio: float
+    ) -> DetectionEvent:
+        t = float(fr.times_s[f])
+        j = int(fr.index[f])
+        back = (self.n_window - 1) / 2.0 if j == 0 else self.n_hop / 2.0
+        rule = self.rule
+        return DetectionEvent(
+            kind, self.channels[c], c, t, j, float(peak_hz), float(peak_ratio), t - back * self.dt,
+            rule=rule.name, score=float(fr.score[f, c]), statistic=float(fr.alarm_statistic[f, c]),
+            threshold=float(rule.threshold), false_alarms_per_hour=self.settings.false_alarms_per_hour,
+        )  # fmt: skip
