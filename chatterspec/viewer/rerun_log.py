@@ -169,7 +169,12 @@ class RerunLogger:
         self.send_file_blueprint: Any = _send_blueprint
         if send_blueprint:
             self.file_layout = {"has_truth": bool(truth), "extra_row": extra_row}
+            # a file whose span is known in advance gets its one blueprint on close (with the chattering
+            # ranges: building and sending one costs ~15 ms of CPU, so not twice per file); a streamed file
+            # gets a following one now as well (kept if the process dies before close), a live viewer too
             for s in sinks.streams:
+                if s is sinks.file_stream and span_s is not None:
+                    continue
                 bp = self.layout(
                     span_s=None if s is sinks.live_stream else span_s,
                     has_truth=bool(truth),
@@ -255,10 +260,11 @@ class RerunLogger:
         span its spectrogram covers: a streamed or rotated file), with each chattering view's y range
         from the record's amplitudes. The viewer opens a file on the last blueprint it holds."""
         file = self.sinks.file_stream
-        span = self.span_s if self.span_s is not None else self.images.covered_span()
-        if file is None or self.file_layout is None or span is None:
+        if file is None or self.file_layout is None:
             return
-        ranges = self._batches.extent.ranges(self.psi)
+        span = self.span_s if self.span_s is not None else self.images.covered_span()
+        # no frame yet (a record shorter than one window): the layout without span and ranges
+        ranges = None if span is None else self._batches.extent.ranges(self.psi)
         bp = self.layout(span_s=span, chattering_range=ranges, **self.file_layout)
         self.send_file_blueprint(file, bp)
 
