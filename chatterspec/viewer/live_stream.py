@@ -137,6 +137,13 @@ class StreamEvent:
         )  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:
+        """The event as a JSON-ready dict: ``"event"`` (its kind) first, then every field (times in s,
+        frequencies in Hz); ``open_faults`` as a list.
+
+        See Also
+        --------
+        to_json : the same as one JSON line (non-finite numbers as null).
+        """
         d = dataclasses.asdict(self)
         d["event"] = d.pop("kind")
         d["open_faults"] = list(self.open_faults)
@@ -153,6 +160,9 @@ class StreamEvent:
         return dumps(d)
 
     def describe(self) -> str:
+        """One human line: a fault start/end with its channel, sample time and estimated time (s), peak
+        ratio and frequency (Hz) and the alarm rule; a gap, restart or bad row with its line number and
+        what was reset."""
         if self.kind in ("fault-start", "fault-end"):
             what = "fault start" if self.kind == "fault-start" else "fault end"
             return (
@@ -212,6 +222,8 @@ class StreamSummary:
     notes: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
+        """The run as a JSON-ready dict (the ``monitor --json`` summary of a stream): counts, durations
+        (s), latency, recordings, the live viewer's URL and every event (:meth:`StreamEvent.to_dict`)."""
         return {
             "n_rows": self.n_rows,
             "n_frames": self.n_frames,

@@ -169,10 +169,12 @@ class Sinks:
 
     @property
     def streams(self) -> list[Any]:
+        """The open recording streams: the file's, then the live viewer's (each when present)."""
         return [s for s in (self.file_stream, self.live_stream) if s is not None]
 
     @property
     def live(self) -> bool:
+        """Whether a live viewer is connected."""
         return self.live_stream is not None
 
     def __enter__(self) -> Sinks:
@@ -182,6 +184,7 @@ class Sinks:
         self.close()
 
     def send_blueprint(self, bp: Any) -> None:
+        """Send ``bp`` (a ``rerun.blueprint.Blueprint``) to every stream as the active and default one."""
         for s in self.streams:
             s.send_blueprint(bp, make_active=True, make_default=True)
 
