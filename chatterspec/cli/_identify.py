@@ -368,13 +368,15 @@ class MonitorIdentification:
             changed = rep.selected != self.selected
             if self.emit is not None and (self.every_hop or changed):
                 self.emit(dumps({"event": "identification", **doc}))
-            line = summary_line(rep.to_dict()) if changed or rep.selected != self.said else ""
+            line = summary_line(rep.to_dict()) if changed else None
             if changed:
                 self.selected = rep.selected
                 self.changes.append({"time_s": doc["sample_time_s"], "selected": rep.selected, "line": line})
             if rep.selected != self.said and self._worth_saying(rep.selected):
                 # said when it changes, or later when the alarm that makes it worth saying starts
                 self.said = rep.selected
+                if line is None:
+                    line = summary_line(rep.to_dict())
                 self.say(
                     f"identified at t = {float(out.times_s[i]):.2f} s (window {rep.window_s[0]:.2f}-"
                     f"{rep.window_s[1]:.2f} s): {line}"
