@@ -241,31 +241,15 @@ def bank_results(out: dict, store_covariance: bool, store_modes: bool) -> dict[s
 def run_bank_loop(
     spec: dict[str, object],
     args: tuple[object, ...],
-    shape: tuple[int, int, int, int],
-    store_covariance: bool,
-    store_modes: bool,
+    out: dict[str, np.ndarray],
     *,
     python: bool = False,
-) -> dict[str, np.ndarray | None]:
-    """Call a bank's compiled loop (IMM or SMM) with its outputs appended to ``args``; check its status.
+) -> None:
+    """Run a bank's compiled loop (IMM or SMM) into ``out`` (:func:`bank_outputs`); raise on its status.
 
-    Parameters
-    ----------
-    spec : dict
-        The bank's spec: ``kernel`` (the loop) and ``mapping`` (of its corrections, for the message).
-    args : tuple
-        The loop's arguments before its outputs ``o_x, o_mu, o_ll, o_P, o_mx``.
-    shape : (runs, K, n, r)
-        Realizations, samples, states, modes.
-    store_covariance, store_modes : bool
-        Outputs wanted (``P``, ``mx``).
-    python : bool
-        Run the loop's Python form (tests: the meaning does not depend on the compiler).
-
-    Returns
-    -------
-    dict
-        ``x, mu, ll, P, mx`` per sample (:func:`bank_results`).
+    ``spec`` holds the loop (``kernel``) and the mapping of its corrections (``mapping``, for the
+    message); ``args`` are the loop's arguments before its outputs ``o_x, o_mu, o_ll, o_P, o_mx``;
+    ``python`` runs the loop's Python form (tests: the meaning does not depend on the compiler).
 
     Raises
     ------
@@ -274,8 +258,7 @@ def run_bank_loop(
         likelihood zero or non-finite) or ``-(1 + runs + run)`` (the ``luen`` form's ``Phi12``
         singular).
     """
-    runs = shape[0]
-    out = bank_outputs(*shape, store_covariance, store_modes)
+    runs = out["x"].shape[0]
     kernel = spec["kernel"]
     if python:
         kernel = getattr(kernel, "py_func", kernel)
@@ -289,4 +272,3 @@ def run_bank_loop(
             "every mode likelihood is zero or non-finite in some realization; check R and Q of the mode "
             "models (the innovation covariance) and the measurement units"
         )
-    return bank_results(out, store_covariance, store_modes)

@@ -34,7 +34,9 @@ import numpy as np
 from .. import _jit
 from ._bank_steps import (
     _bank_plant,
+    bank_outputs,
     bank_plants,
+    bank_results,
     bank_store_step,
     combine_step,
     log_gaussian_step,
@@ -335,4 +337,6 @@ def run_fused(
         st["mu"], st["xs"], st["Ps"], st["eps"], st["epps"], st["zl"], st["x"], st["P"],
         np.empty((r, n)), np.empty((r, n, n)),
     )  # fmt: skip
-    return st, run_bank_loop(spec, args, (runs, K, n, r), store_covariance, store_modes, python=python)
+    out = bank_outputs(runs, K, n, r, store_covariance, store_modes)
+    run_bank_loop(spec, args, out, python=python)
+    return st, bank_results(out, store_covariance, store_modes)

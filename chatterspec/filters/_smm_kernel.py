@@ -24,7 +24,9 @@ import numpy as np
 from .. import _jit
 from ._bank_steps import (
     _bank_plant,
+    bank_outputs,
     bank_plants,
+    bank_results,
     bank_store_step,
     combine_step,
     log_gaussian_inline,
@@ -190,4 +192,6 @@ def run_smm(
         spec["prm"], spec["plant_slot"], spec["Qs"], spec["C"], spec["R"], spec["fp"], float(floor),
         c(z, dtype=float), c(u, dtype=float), x, P, mu, ep, epp, np.empty((r, n)), np.empty((r, n, n)),
     )  # fmt: skip
-    return run_bank_loop(spec, args, (runs, K, n, r), store_covariance, store_modes, python=python)
+    out = bank_outputs(runs, K, n, r, store_covariance, store_modes)
+    run_bank_loop(spec, args, out, python=python)
+    return bank_results(out, store_covariance, store_modes)
