@@ -320,14 +320,23 @@ class BankFilter:
 
     A subclass provides ``initialize``, ``_sensor_model()`` (the model whose sizes the data must
     match) and ``_advance(state, z, u, store_covariance, store_modes)`` (the recursion on checked data),
-    and has the fields ``mu0``, ``weight_floor`` and ``modes`` (checked by :meth:`_check_options`).
+    and has the fields ``mu0``, ``weight_floor`` and ``modes`` (checked by :meth:`_check_bank`).
     """
 
-    def _check_options(self, r: int) -> None:
-        """Check and set ``mu0``, ``weight_floor`` and ``modes`` of a bank of ``r`` modes."""
+    def _check_bank(self, models: Sequence[object]) -> tuple[int, int]:
+        """Check the mode models (:func:`check_bank_models`) and set ``mu0``, ``weight_floor``, ``modes``.
+
+        Returns
+        -------
+        (int, int)
+            States ``n`` and outputs ``m`` of every mode.
+        """
+        n, m = check_bank_models(models)
+        r = len(models)
         object.__setattr__(self, "mu0", initial_mode_probabilities(self.mu0, r))  # type: ignore[attr-defined]
         object.__setattr__(self, "weight_floor", check_weight_floor(self.weight_floor, r))  # type: ignore[attr-defined]
         object.__setattr__(self, "modes", mode_names(self.modes, r))  # type: ignore[attr-defined]
+        return n, m
 
     def _initial_estimate(
         self, x0: object, P0: object, runs: int | None

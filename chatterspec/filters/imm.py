@@ -25,7 +25,6 @@ from ._conventions import mode_initial
 from .bank_common import (
     BankFilter,
     MultipleModelState,
-    check_bank_models,
     check_transition_matrix,
 )
 from .bank_math import log_gaussian, normalize_log_weights
@@ -83,12 +82,11 @@ class IMM(BankFilter):
                     f"IMM filter {j} ({type(f).__name__}) does not satisfy the Filter protocol "
                     "(initialize, update, model)"
                 )
-        models = [f.model for f in filters]  # type: ignore[attr-defined]
-        check_bank_models(models)
-        r = len(filters)
+        self._check_bank([f.model for f in filters])  # type: ignore[attr-defined]
         object.__setattr__(self, "filters", filters)
-        object.__setattr__(self, "transition_matrix", check_transition_matrix(self.transition_matrix, r))
-        self._check_options(r)
+        object.__setattr__(
+            self, "transition_matrix", check_transition_matrix(self.transition_matrix, len(filters))
+        )
         # arrays of the compiled fused step when every mode is supported (else the protocol path)
         object.__setattr__(self, "_fused", _imm_kernel.fused_spec(filters))
 

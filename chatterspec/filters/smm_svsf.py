@@ -28,7 +28,6 @@ from .bank_common import (
     BankFilter,
     MultipleModelOutput,
     MultipleModelState,
-    check_bank_models,
 )
 from .bank_math import log_gaussian, normalize_log_weights
 from .mixture import combine
@@ -93,10 +92,9 @@ class SMMSVSF(BankFilter):
 
     def __post_init__(self) -> None:
         models = tuple(self.models)
-        _n, m = check_bank_models(models)
+        _n, m = self._check_bank(models)
         for mdl in models:
             require_linear_measurement(mdl, "SMM-SVSF")
-        r = len(models)
         C = np.asarray(models[0].C, dtype=float)  # type: ignore[attr-defined]
         R = np.asarray(models[0].R, dtype=float)  # type: ignore[attr-defined]
         for j, mdl in enumerate(models[1:], start=1):
@@ -113,7 +111,6 @@ class SMMSVSF(BankFilter):
         psi = check_psi(self.psi, m)
         object.__setattr__(self, "psi", psi)
         object.__setattr__(self, "gamma", check_gamma(self.gamma, m))
-        self._check_options(r)
         # Table 1 steps 6-7b: one SVSF-cov (the modes share C and R) corrects the mixed prediction
         object.__setattr__(self, "_svsf", SVSFCov(models[0], psi=psi, gamma=self.gamma, mapping=mapping))
         if self.reading == "bank":
