@@ -240,6 +240,7 @@ class DetectStudy:
     identification: Any = None  # an IdentificationStream's (setup, alpha, confidence), or None
 
     def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> Any:
+        """Realizations ``first_run ..`` of ``seed`` tested by the plan: ``(accumulator, identifications)``."""
         acc, parts = None, []
         keep = self.identification is not None
         for rec in iter_chattering(
@@ -261,6 +262,7 @@ class DetectStudy:
         return acc, parts
 
     def reduce(self, acc: Any, part: Any) -> Any:
+        """``acc`` with one chunk's :meth:`run_chunk` folded in (chunk order, as :meth:`ChunkPlan.reduce`)."""
         if acc is None:
             return part
         acc[0][0].extend(part[0][0])
