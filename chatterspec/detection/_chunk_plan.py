@@ -240,7 +240,7 @@ class DetectStudy:
     identification: Any = None  # an IdentificationStream's (setup, alpha, confidence), or None
 
     def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> Any:
-        """Realizations ``first_run ..`` of ``seed`` tested by the plan: ``(accumulator, identifications)``."""
+        """Realizations ``first_run ..`` of ``seed`` tested: ``(accumulator, identifications)``."""
         acc, parts = None, []
         keep = self.identification is not None
         for rec in iter_chattering(
