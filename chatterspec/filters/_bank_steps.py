@@ -12,7 +12,16 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _jit
-from ._engine import LOG2PI, chol_solve_step, chol_step, given_jacobian, given_predict
+from ..errors import SingularMatrixError
+from ._engine import (
+    LOG2PI,
+    _luen_message,
+    _not_pd_message,
+    chol_solve_step,
+    chol_step,
+    given_jacobian,
+    given_predict,
+)
 from .bank_math import EIG_FLOOR
 
 #: Lower bound of the smallest eigenvalue of Sc above which the Cholesky likelihood is used.
@@ -158,6 +167,15 @@ def bank_store_step(r, k, x, mu, ll, P, xs, o_x, o_mu, o_ll, o_P, o_mx, nm, n): 
                 o_mx[r, k, j, a] = xs[j, a]
 
 
+def bank_store_numpy(out, k, x, mu, ll, P, xs):  # type: ignore[no-untyped-def]
+    """:func:`bank_store_step` for every run at once (the banks' numpy paths): sample ``k`` into ``out``."""
+    out["x"][:, k], out["mu"][:, k], out["ll"][:, k] = x, mu, ll
+    if out["P"].shape[0] > 0:
+        out["P"][:, k] = P
+    if out["mx"].shape[0] > 0:
+        out["mx"][:, k] = xs
+
+
 #: Bindings of :func:`_bank_plant`: the two plant kinds a bank may mix.
 PREDICT_A = PREDICT_B = given_predict
 JACOBIAN_A = JACOBIAN_B = given_jacobian
@@ -194,7 +212,11 @@ def bank_plants(plants: list) -> tuple[object, np.ndarray, np.ndarray]:  # type:
 
 
 def bank_outputs(runs: int, K: int, n: int, r: int, store_covariance: bool, store_modes: bool) -> dict:  # type: ignore[type-arg]
-    """The per-sample output arrays of a bank's loop (empty 4-D arrays for the ones not stored)."""
+    """The per-sample output arrays of a bank (empty 4-D arrays for the ones not stored).
+
+    ``x`` (runs, K, n), ``mu`` and ``ll`` (runs, K, r), ``P`` (runs, K, n, n), ``mx`` (runs, K, r, n):
+    what :func:`bank_store_step` writes and :func:`bank_results` returns.
+    """
     none = np.empty((0, 0, 0, 0))
     return {
         "x": np.empty((runs, K, n)),
@@ -203,3 +225,50 @@ def bank_outputs(runs: int, K: int, n: int, r: int, store_covariance: bool, stor
         "P": np.empty((runs, K, n, n)) if store_covariance else none,
         "mx": np.empty((runs, K, r, n)) if store_modes else none,
     }
+
+
+def bank_results(out: dict, store_covariance: bool, store_modes: bool) -> dict[str, np.ndarray | None]:  # type: ignore[type-arg]
+    """The outputs of :func:`bank_outputs` as a bank returns them: None for the ones not stored."""
+    return {
+        "x": out["x"],
+        "mu": out["mu"],
+        "ll": out["ll"],
+        "P": out["P"] if store_covariance else None,
+        "mx": out["mx"] if store_modes else None,
+    }
+
+
+def run_bank_loop(
+    spec: dict[str, object],
+    args: tuple[object, ...],
+    out: dict[str, np.ndarray],
+    *,
+    python: bool = False,
+) -> None:
+    """Run a bank's compiled loop (IMM or SMM) into ``out`` (:func:`bank_outputs`); raise on its status.
+
+    ``spec`` holds the loop (``kernel``) and the mapping of its corrections (``mapping``, for the
+    message); ``args`` are the loop's arguments before its outputs ``o_x, o_mu, o_ll, o_P, o_mx``;
+    ``python`` runs the loop's Python form (tests: the meaning does not depend on the compiler).
+
+    Raises
+    ------
+    SingularMatrixError
+        The loop returned ``1 + run`` (a matrix not positive definite), ``-(1 + run)`` (every mode
+        likelihood zero or non-finite) or ``-(1 + runs + run)`` (the ``luen`` form's ``Phi12``
+        singular).
+    """
+    runs = out["x"].shape[0]
+    kernel = spec["kernel"]
+    if python:
+        kernel = getattr(kernel, "py_func", kernel)
+    status = kernel(*args, out["x"], out["mu"], out["ll"], out["P"], out["mx"])  # type: ignore[operator]
+    if status > 0:
+        raise SingularMatrixError(_not_pd_message(int(spec["mapping"]), status - 1))  # type: ignore[call-overload]
+    if status < -runs:
+        raise SingularMatrixError(_luen_message())
+    if status < 0:
+        raise SingularMatrixError(
+            "every mode likelihood is zero or non-finite in some realization; check R and Q of the mode "
+            "models (the innovation covariance) and the measurement units"
+        )

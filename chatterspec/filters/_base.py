@@ -13,8 +13,7 @@ from ..plants.measurement import has_measurement_function
 from ..plants.models import LinearModel
 from ..plants.steps import PlantSteps, plant_steps
 from . import _engine, _engine_numpy
-from ._ekf_measurement import ekf_h_numpy
-from ._engine_numpy import model_call_loop
+from ._engine_numpy import given_prediction, linear_prediction, model_call_loop, model_prediction
 from ._finite import require_finite
 from .protocol import FilterOutput, FilterState, check_chunk, initial_state, resolve_store
 from .svsf_steps import rows_times as _rows_times
@@ -159,9 +158,10 @@ class CovarianceFilterBase:
         R = np.asarray(model.R, dtype=float)  # type: ignore[attr-defined]
         if P.ndim == 2:  # shared covariance given to a per-run filter (e.g. replaced by a bank)
             P = np.array(np.broadcast_to(P, (x.shape[0], *P.shape)))
-        if has_measurement_function(model):  # EKF with h(x): H = dh/dx in place of C
-            return P, ekf_h_numpy(model, x, P, ep, epp, z, u, Q, R, keep)
         corr = self._correction_step()
+        if has_measurement_function(model):  # EKF with h(x): H = dh/dx in place of C
+            predict = model_prediction(model, u)
+            return P, _engine_numpy.cov_numpy(corr, predict, x, P, ep, epp, z, C, Q, R, keep, h_model=model)
         n, m = x.shape[1], z.shape[2]
         compiled = _jit.enabled() and corr.mapping != _engine.MAP_LUEN and _jit.fits(n, m)
         plant = self._plant()
@@ -169,7 +169,8 @@ class CovarianceFilterBase:
             return P, _engine.cov_loop(corr, plant, x, P, ep, epp, z, u, C, Q, R, keep)
         if self._linear:
             Bu = _rows_times(u, np.ascontiguousarray(model.B.T))  # type: ignore[attr-defined]
-            return P, _engine_numpy.cov_numpy(corr, x, P, ep, epp, z, C, Q, R, keep, A=model.A, Bu=Bu)  # type: ignore[attr-defined]
+            predict = linear_prediction(model.A, Bu)  # type: ignore[attr-defined]
+            return P, _engine_numpy.cov_numpy(corr, predict, x, P, ep, epp, z, C, Q, R, keep)
         return P, model_call_loop(model, corr, compiled, x, P, ep, epp, z, u, C, Q, R, keep)
 
     def correct(
@@ -234,13 +235,13 @@ class CovarianceFilterBase:
         # F = I and Q = 0 make the engine's prediction P(k+1|k) = I P I^T + 0 = P_prior exactly
         eye, Q0 = np.broadcast_to(np.eye(n), (runs, n, n)), np.zeros((n, n))
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # checked just below
-            if has_measurement_function(model):
-                res = ekf_h_numpy(model, x, P, ep, epp, zz, None, Q0, R, keep, xp_in=xp, F_in=eye)
-            elif _jit.enabled() and _jit.fits(n, m):
+            h_model = model if has_measurement_function(model) else None
+            if h_model is None and _jit.enabled() and _jit.fits(n, m):
                 u0 = np.zeros((1, 1, 0))
                 res = _engine.cov_loop(corr, None, x, P, ep, epp, zz, u0, C, Q0, R, keep, xp_in=xp, F_in=eye)
             else:
-                res = _engine_numpy.cov_numpy(corr, x, P, ep, epp, zz, C, Q0, R, keep, xp_in=xp, F_in=eye)
+                prior = given_prediction(xp, eye)
+                res = _engine_numpy.cov_numpy(corr, prior, x, P, ep, epp, zz, C, Q0, R, keep, h_model=h_model)
         require_finite(type(self).__name__, (x, P), res, state.k, 1)
         new = FilterState(x=x, P=P, e_post=ep, e_prev=epp, k=state.k + 1)
         return new, FilterOutput(**res)

@@ -31,6 +31,8 @@ __all__ = [
     "SVSF_STORABLE",
     "bank_store",
     "check_chunk",
+    "check_initial_rows",
+    "check_record",
     "default_input",
     "legacy_store",
     "mode_initial",
@@ -237,3 +239,48 @@ def check_chunk(
     if u.shape[-2] != K or u.shape[-1] != p or (u.ndim == 3 and u.shape[0] not in (1, runs)):
         raise ShapeError(f"u must have shape ({K}, {p}) or ({runs}, {K}, {p}); got {u.shape}")
     return z, u
+
+
+def check_initial_rows(x0: object, width: int, runs: int) -> np.ndarray:
+    """An SVSF's ``x0``: (width,) or (runs | 1, width) float, finite (not yet broadcast).
+
+    Raises
+    ------
+    ShapeError
+        Another shape.
+    NonFiniteError
+        NaN or inf.
+    """
+    x0 = finite_array("x0", x0, ndim=(1, 2))
+    if x0.shape[-1] != width or (x0.ndim == 2 and x0.shape[0] not in (1, runs)):
+        raise ShapeError(f"x0 must have shape ({width},) or ({runs}, {width}); got {x0.shape}")
+    return x0
+
+
+def check_record(z: object, u: object) -> tuple[np.ndarray, np.ndarray, bool]:
+    """A whole record of an SVSF's ``run``: ``(z (runs, T, m), u (T | runs, T, p), single)``.
+
+    ``single``: ``z`` was 2-D (one run, whose outputs are returned 2-D); a 1-D ``u`` is one input
+    channel. Only the samples are checked here (``T`` >= 2, ``u`` like ``z``); the channels are
+    checked by the filter's ``initialize``/``update``.
+
+    Raises
+    ------
+    ShapeError
+        ``u`` with another number of samples than ``z``, or fewer than 2 samples.
+    NonFiniteError
+        NaN or inf.
+    """
+    z = finite_array("z", z, ndim=(2, 3))
+    single = z.ndim == 2
+    if single:
+        z = z[None]
+    u = finite_array("u", u, ndim=(1, 2, 3))
+    if u.ndim == 1:
+        u = u[:, None]
+    T = z.shape[1]
+    if u.shape[-2] != T:
+        raise ShapeError(f"u must have {T} samples (like z) along its time axis; got {u.shape}")
+    if T < 2:
+        raise ShapeError(f"z needs at least 2 samples; got {T}")
+    return z, u, single

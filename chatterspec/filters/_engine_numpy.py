@@ -3,18 +3,47 @@
 :func:`cov_numpy` is :func:`chatterspec.filters._engine.cov_loop`'s arithmetic with numpy: the same
 step with the filter's numpy correction (``CorrectionStep.numpy``). It runs when
 :func:`chatterspec._jit.enabled` is false, and for the ``luen`` mapping of a single filter. The two
-agree to rounding (summation order; LAPACK vs the hand-written Cholesky).
+agree to rounding (summation order; LAPACK vs the hand-written Cholesky). The prediction is given as
+a function of the sample (:data:`Prediction`): a linear model's ``A x + B u``, a model's Python
+``transition``/``jacobian``, or one sample's prior computed by the caller.
+
+For a model that measures through ``h`` (``NonlinearModel(..., h=..., h_jac=...)``; only the EKF
+accepts one), the same step runs with ``C`` replaced by ``H = dh/dx`` at the prior::
+
+    e = z(k+1) - h(x(k+1|k)),     H = dh/dx at x(k+1|k),         S = H P(k+1|k) H^T + R
+    K = P(k+1|k) H^T S^-1,        x(k+1|k+1) = x(k+1|k) + K e
+    P(k+1|k+1) = (I - K H) P(k+1|k) (I - K H)^T + K R K^T                    (Joseph form)
+    e(k+1|k+1) = z(k+1) - h(x(k+1|k+1))
+
+The model's ``transition``/``jacobian``/``h`` are Python callables, so that loop over samples is in
+Python; realizations are vectorized.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from ..errors import ShapeError, SingularMatrixError
+from ..plants.measurement import measure, measurement_jacobian
 from . import _engine
 from ._engine import FIELDS, LOG2PI, MAP_COV, CorrectionStep, _alloc, _not_pd_message, _shapes
 
-__all__ = ["chol_np", "cov_numpy", "kalman_gain_numpy", "map_numpy", "model_call_loop"]
+__all__ = [
+    "chol_np",
+    "cov_numpy",
+    "given_prediction",
+    "kalman_gain_numpy",
+    "linear_prediction",
+    "map_numpy",
+    "model_call_loop",
+    "model_prediction",
+]
+
+#: ``predict(k, x) -> (x(k+1|k), F)``: the prediction of sample k from ``x(k|k)`` (runs, n), with
+#: ``F`` (n, n) or (runs, n, n) the Jacobian of the transition.
+Prediction = Callable[[int, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
 def chol_np(M: np.ndarray, mapping: int) -> np.ndarray:
@@ -39,8 +68,49 @@ def kalman_gain_numpy(S: np.ndarray, PCt: np.ndarray) -> np.ndarray:
     return np.swapaxes(np.linalg.solve(S, np.swapaxes(PCt, -1, -2)), -1, -2)
 
 
+def linear_prediction(A: np.ndarray, Bu: np.ndarray) -> Prediction:
+    """The prediction of a linear model: ``x(k+1|k) = A x(k|k) + B u(k)``, ``F = A``.
+
+    ``Bu`` (1|runs, K, n) holds ``B u(k)`` for every sample of the chunk.
+    """
+    return lambda k, x: (x @ A.T + Bu[:, k], A)
+
+
+def given_prediction(xp_in: np.ndarray, F_in: np.ndarray) -> Prediction:
+    """A prediction the caller computed for one sample: ``x(k+1|k) = xp_in`` (runs, n), ``F = F_in``."""
+    return lambda k, x: (np.array(xp_in, dtype=float), F_in)
+
+
+def model_prediction(model: object, u: np.ndarray) -> Prediction:
+    """The prediction from a model's Python ``transition`` and ``jacobian`` at ``x(k|k)``, ``u(k)``.
+
+    ``u`` is (1|runs, K, p); one input for every run is passed as (p,), so a model's compiled
+    batched kernel applies (eha4). The Jacobian may be (n, n) (shared) or (runs, n, n).
+
+    Raises
+    ------
+    ShapeError
+        ``transition`` or ``jacobian`` returned the wrong shape (when the prediction is called).
+    """
+    shared_u = u.shape[0] == 1
+
+    def predict(k: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        uk = u[0, k] if shared_u else u[:, k]
+        xp = np.asarray(model.transition(x, uk), dtype=float)  # type: ignore[attr-defined]
+        F = np.asarray(model.jacobian(x, uk), dtype=float)  # type: ignore[attr-defined]
+        want_F = (*x.shape, x.shape[1])
+        if xp.shape != x.shape or F.shape not in (want_F, want_F[1:]):
+            raise ShapeError(
+                f"model.transition/jacobian must return {x.shape} and {want_F}; got {xp.shape} and {F.shape}"
+            )
+        return xp, np.broadcast_to(F, want_F)
+
+    return predict
+
+
 def cov_numpy(
     correct: CorrectionStep,
+    predict: Prediction,
     x: np.ndarray,
     P: np.ndarray,
     ep: np.ndarray,
@@ -51,15 +121,13 @@ def cov_numpy(
     R: np.ndarray,
     keep: frozenset[str],
     *,
-    A: np.ndarray | None = None,
-    Bu: np.ndarray | None = None,
-    xp_in: np.ndarray | None = None,
-    F_in: np.ndarray | None = None,
+    h_model: object | None = None,
 ) -> dict[str, np.ndarray | None]:
     """numpy twin of :func:`cov_loop`: vectorized over runs, a loop over samples; in place.
 
-    Linear when ``A`` and ``Bu`` (1|runs, K, n) = B u(k) are given; otherwise ``xp_in`` (runs, n)
-    and ``F_in`` (runs, n, n) are the prediction and Jacobian of the single sample (K = 1).
+    ``predict(k, x)`` gives ``(x(k+1|k), F)`` (:func:`linear_prediction`, :func:`given_prediction`,
+    :func:`model_prediction`). With ``h_model`` (a model measuring through ``h``, the EKF only),
+    ``C`` is replaced by ``H = dh/dx`` at ``x(k+1|k)`` and ``C x`` by ``h(x)``, sample by sample.
     """
     runs, K, m = z.shape
     n = x.shape[1]
@@ -67,27 +135,28 @@ def cov_numpy(
     CT = C.T
     eye = np.eye(n)
     for k in range(K):
-        if A is not None:
-            F = A
-            xp = x @ A.T + Bu[:, k]  # type: ignore[index]
+        xp, F = predict(k, x)
+        Pp = F @ P @ np.swapaxes(F, -1, -2) + Q
+        if h_model is None:
+            Ck = C
+            e = z[:, k] - xp @ CT
+            PCt = Pp @ CT
         else:
-            F = F_in
-            xp = np.array(xp_in, dtype=float)
-        Pp = F @ P @ np.swapaxes(F, -1, -2) + Q  # type: ignore[operator]
-        e = z[:, k] - xp @ CT
-        PCt = Pp @ CT
-        D = C @ PCt
+            Ck = measurement_jacobian(h_model, xp)
+            e = z[:, k] - measure(h_model, xp)
+            PCt = Pp @ np.swapaxes(Ck, -1, -2)
+        D = Ck @ PCt
         S = D + R
         L = chol_np(S, correct.mapping)
         w = np.linalg.solve(S, e[..., None])[..., 0]
         ll = -0.5 * (m * LOG2PI + 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1))
         ll = ll - 0.5 * np.einsum("ri,ri->r", e, w)
-        Kg, x_new = correct.numpy(e, ep, epp, xp, PCt, D, S, C, F)
+        Kg, x_new = correct.numpy(e, ep, epp, xp, PCt, D, S, Ck, F)
         x[...] = x_new
-        IKC = eye - Kg @ C
+        IKC = eye - Kg @ Ck
         P[...] = IKC @ Pp @ np.swapaxes(IKC, -1, -2) + Kg @ R @ np.swapaxes(Kg, -1, -2)
         epp[...] = ep
-        ep[...] = z[:, k] - x @ CT
+        ep[...] = z[:, k] - (x @ CT if h_model is None else measure(h_model, x))
         for f, flag, val in zip(FIELDS, flags, (xp, x, e, S, ll, ep, Pp, P), strict=True):
             if flag:
                 out[f][:, k] = val
@@ -111,35 +180,24 @@ def model_call_loop(
 ) -> dict[str, np.ndarray | None]:
     """The step for a model without compiled plant steps: its ``transition``/``jacobian`` per sample.
 
-    Each sample's prediction comes from the model's Python methods; the rest of the step is the
-    compiled loop (``compiled``, one sample at a time) or :func:`cov_numpy`. ``x``, ``P``, ``ep``,
-    ``epp`` are updated in place; the outputs of every sample are concatenated along axis 1.
+    Each sample's prediction comes from the model's Python methods (:func:`model_prediction`); the
+    rest of the step is the compiled loop (``compiled``, one sample at a time, the outputs of every
+    sample concatenated along axis 1) or :func:`cov_numpy`. ``x``, ``P``, ``ep``, ``epp`` are
+    updated in place.
 
     Raises
     ------
     ShapeError
         ``transition`` or ``jacobian`` returned the wrong shape.
     """
+    predict = model_prediction(model, u)
+    if not compiled:
+        return cov_numpy(corr, predict, x, P, ep, epp, z, C, Q, R, keep)
     steps = []
-    shared_u = u.shape[0] == 1
     for k in range(z.shape[1]):
-        # one input for every run as (p,), so a model's compiled batched kernel applies (eha4)
-        uk = u[0, k] if shared_u else u[:, k]
-        xp = np.asarray(model.transition(x, uk), dtype=float)  # type: ignore[attr-defined]
-        F = np.asarray(model.jacobian(x, uk), dtype=float)  # type: ignore[attr-defined]
-        if xp.shape != x.shape or F.shape != (*x.shape, x.shape[1]):
-            raise ShapeError(
-                f"model.transition/jacobian must return {x.shape} and {(*x.shape, x.shape[1])}; "
-                f"got {xp.shape} and {F.shape}"
-            )
-        F = np.broadcast_to(F, (*x.shape, x.shape[1]))
+        xp, F = predict(k, x)
         zk, given = z[:, k : k + 1], {"xp_in": xp, "F_in": F}
-        if compiled:
-            steps.append(
-                _engine.cov_loop(corr, None, x, P, ep, epp, zk, u[:, k : k + 1], C, Q, R, keep, **given)
-            )
-        else:
-            steps.append(cov_numpy(corr, x, P, ep, epp, zk, C, Q, R, keep, **given))
+        steps.append(_engine.cov_loop(corr, None, x, P, ep, epp, zk, u[:, k : k + 1], C, Q, R, keep, **given))
     res = {
         f: (None if steps[0][f] is None else np.concatenate([s[f] for s in steps], axis=1)) for f in steps[0]
     }

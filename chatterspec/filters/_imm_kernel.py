@@ -36,10 +36,12 @@ from ._bank_steps import (
     _bank_plant,
     bank_outputs,
     bank_plants,
+    bank_results,
     bank_store_step,
     combine_step,
     log_gaussian_step,
     mode_probabilities_step,
+    run_bank_loop,
 )
 from ._engine import NOT_PD, SINGULAR_PHI12, _no_sample, sample_step, workspace
 
@@ -311,9 +313,6 @@ def run_fused(
     SingularMatrixError
         An innovation covariance that is not positive definite, or every mode likelihood zero.
     """
-    from ..errors import SingularMatrixError
-    from ._engine import _luen_message, _not_pd_message
-
     runs, K, _m = z.shape
     n = state.x.shape[1]  # type: ignore[attr-defined]
     sts = state.mode_states  # type: ignore[attr-defined]
@@ -330,31 +329,14 @@ def run_fused(
         "x": np.array(state.x, dtype=float, order="C"),  # type: ignore[attr-defined]
         "P": np.array(np.broadcast_to(state.P, (runs, n, n)), dtype=float, order="C"),  # type: ignore[attr-defined]
     }
-    out = bank_outputs(runs, K, n, r, store_covariance, store_modes)
-    kernel = spec["kernel"]
-    if python:
-        kernel = getattr(kernel, "py_func", kernel)
-    status = kernel(  # type: ignore[operator]
+    c = np.ascontiguousarray
+    args = (
         spec["prm"], spec["plant_slot"], spec["fp"], spec["corr_slot"], spec["Q"], spec["C"], spec["R"],
-        np.ascontiguousarray(pi, dtype=float), float(floor),
-        np.ascontiguousarray(z, dtype=float), np.ascontiguousarray(u, dtype=float),
+        c(pi, dtype=float), float(floor), c(z, dtype=float), c(u, dtype=float),
         bool(state.k == 0),  # type: ignore[attr-defined]
         st["mu"], st["xs"], st["Ps"], st["eps"], st["epps"], st["zl"], st["x"], st["P"],
-        np.empty((r, n)), np.empty((r, n, n)), out["x"], out["mu"], out["ll"], out["P"], out["mx"],
+        np.empty((r, n)), np.empty((r, n, n)),
     )  # fmt: skip
-    if status > 0:
-        raise SingularMatrixError(_not_pd_message(int(spec["mapping"]), status - 1))  # type: ignore[call-overload]
-    if status < -runs:
-        raise SingularMatrixError(_luen_message())
-    if status < 0:
-        raise SingularMatrixError(
-            "every mode likelihood is zero or non-finite in some realization; check R and Q of the mode "
-            "models (the innovation covariance) and the measurement units"
-        )
-    return st, {
-        "x": out["x"],
-        "mu": out["mu"],
-        "ll": out["ll"],
-        "P": out["P"] if store_covariance else None,
-        "mx": out["mx"] if store_modes else None,
-    }
+    out = bank_outputs(runs, K, n, r, store_covariance, store_modes)
+    run_bank_loop(spec, args, out, python=python)
+    return st, bank_results(out, store_covariance, store_modes)

@@ -22,24 +22,18 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _jit
-from ..errors import SingularMatrixError
 from ._bank_steps import (
     _bank_plant,
     bank_outputs,
     bank_plants,
+    bank_results,
     bank_store_step,
     combine_step,
     log_gaussian_inline,
     mode_probabilities_step,
+    run_bank_loop,
 )
-from ._engine import (
-    _no_sample,
-    _not_pd_message,
-    innovation_step,
-    predict_cov_step,
-    sample_step,
-    workspace,
-)
+from ._engine import _no_sample, innovation_step, predict_cov_step, sample_step, workspace
 
 #: Bindings of :func:`_smm_loop`: the modes' plant step (:func:`._bank_steps.bank_plants`), the
 #: SVSF-cov sample step, sizes (0: from the arrays).
@@ -193,27 +187,11 @@ def run_smm(
     """
     runs, K, _ = z.shape
     n, r = x.shape[1], mu.shape[1]
-    out = bank_outputs(runs, K, n, r, store_covariance, store_modes)
-    kernel = spec["kernel"]
-    if python:
-        kernel = getattr(kernel, "py_func", kernel)
     c = np.ascontiguousarray
-    status = kernel(  # type: ignore[operator]
+    args = (
         spec["prm"], spec["plant_slot"], spec["Qs"], spec["C"], spec["R"], spec["fp"], float(floor),
         c(z, dtype=float), c(u, dtype=float), x, P, mu, ep, epp, np.empty((r, n)), np.empty((r, n, n)),
-        out["x"], out["mu"], out["ll"], out["P"], out["mx"],
     )  # fmt: skip
-    if status > 0:
-        raise SingularMatrixError(_not_pd_message(int(spec["mapping"]), status - 1))  # type: ignore[call-overload]
-    if status < 0:
-        raise SingularMatrixError(
-            "every mode likelihood is zero or non-finite in some realization; check R and Q of the mode "
-            "models (the innovation covariance) and the measurement units"
-        )
-    return {
-        "x": out["x"],
-        "mu": out["mu"],
-        "ll": out["ll"],
-        "P": out["P"] if store_covariance else None,
-        "mx": out["mx"] if store_modes else None,
-    }
+    out = bank_outputs(runs, K, n, r, store_covariance, store_modes)
+    run_bank_loop(spec, args, out, python=python)
+    return bank_results(out, store_covariance, store_modes)

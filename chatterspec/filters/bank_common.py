@@ -316,11 +316,47 @@ def check_bank_data(z: object, u: object, runs: int, m: int, p: int) -> tuple[np
 
 
 class BankFilter:
-    """What SMM-SVSF and IMM share: the checks of :meth:`update` and :meth:`run` over whole records.
+    """What SMM-SVSF and IMM share: their options, start, outputs and the checks of :meth:`update`.
 
     A subclass provides ``initialize``, ``_sensor_model()`` (the model whose sizes the data must
-    match) and ``_advance(state, z, u, store_covariance, store_modes)`` (the recursion on checked data).
+    match) and ``_advance(state, z, u, store_covariance, store_modes)`` (the recursion on checked data),
+    and has the fields ``mu0``, ``weight_floor`` and ``modes`` (checked by :meth:`_check_bank`).
     """
+
+    def _check_bank(self, models: Sequence[object]) -> tuple[int, int]:
+        """Check the mode models (:func:`check_bank_models`) and set ``mu0``, ``weight_floor``, ``modes``.
+
+        Returns
+        -------
+        (int, int)
+            States ``n`` and outputs ``m`` of every mode.
+        """
+        n, m = check_bank_models(models)
+        r = len(models)
+        object.__setattr__(self, "mu0", initial_mode_probabilities(self.mu0, r))  # type: ignore[attr-defined]
+        object.__setattr__(self, "weight_floor", check_weight_floor(self.weight_floor, r))  # type: ignore[attr-defined]
+        object.__setattr__(self, "modes", mode_names(self.modes, r))  # type: ignore[attr-defined]
+        return n, m
+
+    def _initial_estimate(
+        self, x0: object, P0: object, runs: int | None
+    ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+        """``(runs, x, P, mu)`` at k = 0 (:func:`initial_bank_state` with the bank's sizes and ``mu0``)."""
+        n = int(self._sensor_model().n_states)  # type: ignore[attr-defined]
+        return initial_bank_state(n, len(self.modes), x0, P0, runs, self.mu0)  # type: ignore[attr-defined]
+
+    def _initial_state(
+        self, x: np.ndarray, P: np.ndarray, mu: np.ndarray, mode_states: tuple[FilterState, ...]
+    ) -> MultipleModelState:
+        """The state at k = 0: ``e(0|0) = 0`` and ``z(0) = 0`` (no measurement yet)."""
+        zero = np.zeros((x.shape[0], int(self._sensor_model().n_outputs)))  # type: ignore[attr-defined]
+        return MultipleModelState(
+            x=x, P=P, mu=mu, e_post=zero, z_last=zero.copy(), mode_states=mode_states, k=0
+        )
+
+    def _output(self, res: dict[str, np.ndarray | None]) -> MultipleModelOutput:
+        """The bank's output from the per-sample arrays ``x, mu, ll, P, mx`` (None: not kept)."""
+        return MultipleModelOutput(res["x"], res["mu"], res["ll"], tuple(self.modes), res["P"], res["mx"])  # type: ignore[arg-type, attr-defined]
 
     def update(
         self,

@@ -20,17 +20,12 @@ import numpy as np
 from .. import _jit
 from .._repr import short_repr
 from . import _imm_kernel
+from ._bank_steps import bank_outputs, bank_results, bank_store_numpy
 from ._conventions import mode_initial
 from .bank_common import (
     BankFilter,
-    MultipleModelOutput,
     MultipleModelState,
-    check_bank_models,
     check_transition_matrix,
-    check_weight_floor,
-    initial_bank_state,
-    initial_mode_probabilities,
-    mode_names,
 )
 from .bank_math import log_gaussian, normalize_log_weights
 from .mixture import combine
@@ -87,14 +82,11 @@ class IMM(BankFilter):
                     f"IMM filter {j} ({type(f).__name__}) does not satisfy the Filter protocol "
                     "(initialize, update, model)"
                 )
-        models = [f.model for f in filters]  # type: ignore[attr-defined]
-        check_bank_models(models)
-        r = len(filters)
+        self._check_bank([f.model for f in filters])  # type: ignore[attr-defined]
         object.__setattr__(self, "filters", filters)
-        object.__setattr__(self, "transition_matrix", check_transition_matrix(self.transition_matrix, r))
-        object.__setattr__(self, "mu0", initial_mode_probabilities(self.mu0, r))
-        object.__setattr__(self, "weight_floor", check_weight_floor(self.weight_floor, r))
-        object.__setattr__(self, "modes", mode_names(self.modes, r))
+        object.__setattr__(
+            self, "transition_matrix", check_transition_matrix(self.transition_matrix, len(filters))
+        )
         # arrays of the compiled fused step when every mode is supported (else the protocol path)
         object.__setattr__(self, "_fused", _imm_kernel.fused_spec(filters))
 
@@ -132,13 +124,10 @@ class IMM(BankFilter):
         -------
         MultipleModelState
         """
-        mdl = self.filters[0].model  # type: ignore[attr-defined]
-        n, m = int(mdl.n_states), int(mdl.n_outputs)
-        runs, x, P, mu = initial_bank_state(n, self.n_modes, x0, P0, runs, self.mu0)  # type: ignore[arg-type]
+        runs, x, P, mu = self._initial_estimate(x0, P0, runs)
         xs, Ps, x, P = mode_initial(x, P, mu, mode_x0, mode_P0, self.n_modes)
         states = tuple(f.initialize(xs[:, j], Ps[:, j], runs=runs) for j, f in enumerate(self.filters))  # type: ignore[attr-defined]
-        zero = np.zeros((runs, m))
-        return MultipleModelState(x=x, P=P, mu=mu, e_post=zero, z_last=zero.copy(), mode_states=states, k=0)
+        return self._initial_state(x, P, mu, states)
 
     def _sensor_model(self) -> object:
         return self.filters[0].model  # type: ignore[attr-defined]
@@ -157,11 +146,7 @@ class IMM(BankFilter):
         mu = state.mu.copy()
         sts = list(state.mode_states)
         zl = state.z_last
-        o_x = np.empty((runs, K, n))
-        o_mu = np.empty((runs, K, r))
-        o_ll = np.empty((runs, K, r))
-        o_P = np.empty((runs, K, n, n)) if store_covariance else None
-        o_mx = np.empty((runs, K, r, n)) if store_modes else None
+        rec = bank_outputs(runs, K, n, r, store_covariance, store_modes)
         ll = np.empty((runs, r))
         m = C.shape[0]
         es = np.empty((runs, r, m))
@@ -192,20 +177,16 @@ class IMM(BankFilter):
             ll = log_gaussian(es, Ss)  # (29), all modes at once
             mu = normalize_log_weights(np.log(c) + ll, self.weight_floor)  # (30)
             xs = np.stack([s.x for s in sts], axis=1)
-            if o_P is not None or k == K - 1:
+            if store_covariance or k == K - 1:
                 Ps = np.stack([np.broadcast_to(s.P, (runs, n, n)) for s in sts], axis=1)
                 x, P = combine(mu, xs, Ps)  # (31)-(33) with the factor 1/2
             else:
                 x, _ = combine(mu, xs)
-            o_x[:, k], o_mu[:, k], o_ll[:, k] = x, mu, ll
-            if o_P is not None:
-                o_P[:, k] = P
-            if o_mx is not None:
-                o_mx[:, k] = xs
+            bank_store_numpy(rec, k, x, mu, ll, P, xs)
             zl = z[:, k]
             first = False
         if K == 0:
-            return state, MultipleModelOutput(o_x, o_mu, o_ll, tuple(self.modes), o_P, o_mx)  # type: ignore[arg-type]
+            return state, self._output(bank_results(rec, store_covariance, store_modes))
         new = MultipleModelState(
             x=x,
             P=np.broadcast_to(P, (runs, n, n)).copy(),
@@ -215,7 +196,7 @@ class IMM(BankFilter):
             mode_states=tuple(sts),
             k=state.k + K,
         )
-        return new, MultipleModelOutput(o_x, o_mu, o_ll, tuple(self.modes), o_P, o_mx)  # type: ignore[arg-type]
+        return new, self._output(bank_results(rec, store_covariance, store_modes))
 
     def _update_fused(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
         # the same recursion as update()'s loop, compiled (chatterspec.filters._imm_kernel)
@@ -243,5 +224,4 @@ class IMM(BankFilter):
             mode_states=sts,
             k=state.k + K,
         )
-        out = MultipleModelOutput(o["x"], o["mu"], o["ll"], tuple(self.modes), o["P"], o["mx"])  # type: ignore[arg-type]
-        return new, out
+        return new, self._output(o)

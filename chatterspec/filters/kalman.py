@@ -17,7 +17,7 @@ equal to rounding. Outputs have a leading runs axis on every path (``S`` is ``(r
 on the shared path a read-only broadcast view of the one ``(K, m, m)`` sequence).
 :class:`ExtendedKalmanFilter` uses the model's own ``transition`` and batched ``jacobian`` and works
 with any model that provides them; with a nonlinear measurement ``h`` it uses ``H = dh/dx`` at the
-prior in place of ``C`` (:mod:`chatterspec.filters._ekf_measurement`).
+prior in place of ``C`` (:func:`chatterspec.filters._engine_numpy.cov_numpy` with ``h_model``).
 """
 
 from __future__ import annotations

@@ -38,13 +38,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._repr import short_repr
-from .._validate import finite_array, open_unit
-from ..errors import ParameterError, ShapeError, SingularMatrixError
+from .._validate import open_unit
+from ..errors import ParameterError, SingularMatrixError
 from ..plants.measurement import require_linear_measurement
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel
-from ._conventions import check_chunk, legacy_store
+from ._conventions import check_chunk, check_initial_rows, check_record, legacy_store
 from ._finite import require_finite
+from .protocol import channel_rows
 from .svsf_steps import rows_times as _rows_times
 
 __all__ = ["NonlinearSVSFOutput", "NonlinearSVSFState", "NonlinearSgnSVSF", "nonlinear_chattering"]
@@ -147,18 +148,12 @@ class NonlinearSgnSVSF:
         NonlinearSVSFState
         """
         m = self.model.n_outputs
-        z0 = finite_array("z0", z0, ndim=(1, 2))
-        if z0.ndim == 1:
-            z0 = z0[None, :]
-        if z0.shape[1] != m:
-            raise ShapeError(f"z0 must have {m} channel(s); got shape {z0.shape}")
+        z0 = channel_rows("z0", z0, m)
         runs = z0.shape[0]
         if x0 is None:
             y = z0.copy()
         else:
-            x0 = finite_array("x0", x0, ndim=(1, 2))
-            if x0.shape[-1] != m or (x0.ndim == 2 and x0.shape[0] not in (1, runs)):
-                raise ShapeError(f"x0 must have shape ({m},) or ({runs}, {m}); got {x0.shape}")
+            x0 = check_initial_rows(x0, m, runs)
             y = np.broadcast_to(_rows_times(x0, self._CT), (runs, m)).copy()
         return NonlinearSVSFState(y=y, e_post=z0 - y, k=0)
 
@@ -251,18 +246,7 @@ class NonlinearSgnSVSF:
         NonlinearSVSFOutput
             ``e_prior`` with T samples (2-D for a 2-D ``z``).
         """
-        z = finite_array("z", z, ndim=(2, 3))
-        single = z.ndim == 2
-        if single:
-            z = z[None]
-        u = finite_array("u", u, ndim=(1, 2, 3))
-        if u.ndim == 1:
-            u = u[:, None]
-        T = z.shape[1]
-        if u.shape[-2] != T:
-            raise ShapeError(f"u must have {T} samples (like z) along its time axis; got {u.shape}")
-        if T < 2:
-            raise ShapeError(f"z needs at least 2 samples; got {T}")
+        z, u, single = check_record(z, u)
         state = self.initialize(z[:, 0], x0)
         _, out = self.update(state, z[:, 1:], u[..., :-1, :])
         e = np.zeros(z.shape)

@@ -244,6 +244,44 @@ def check_spd(name: str, M: np.ndarray) -> None:
         ) from None
 
 
+def channel_rows(
+    name: str, value: object, m: int, *, label: str | None = None, channels: Collection[str] = ()
+) -> np.ndarray:
+    """``value`` as (K, m) float rows of the ``m`` output channels; a 1-D array is one row (sample).
+
+    Parameters
+    ----------
+    name : str
+        Name of the argument (in the NaN/inf message).
+    value : (K, m) or (m,) array_like
+        Samples of the m channels (e.g. ``z(0)`` of a filter, a monitor's measurements).
+    m : int
+        Number of channels.
+    label : str, optional
+        What the shape message calls it (default ``name``).
+    channels : collection of str
+        Channel names the shape message lists (default: none).
+
+    Returns
+    -------
+    (K, m) ndarray of float
+
+    Raises
+    ------
+    ShapeError
+        Not m channels per row.
+    NonFiniteError
+        NaN or inf.
+    """
+    arr = finite_array(name, value, ndim=(1, 2))
+    if arr.ndim == 1:
+        arr = arr[None, :]
+    if arr.shape[1] != m:
+        names = f" {list(channels)}" if channels else ""
+        raise ShapeError(f"{label or name} must have {m} channel(s){names}; got shape {arr.shape}")
+    return arr
+
+
 def resolve_store(store: Collection[str] | None) -> frozenset[str]:
     """The set of output fields to keep (``None`` = :data:`DEFAULT_STORE`)."""
     if store is None:

@@ -23,15 +23,11 @@ from .._repr import short_repr
 from ..errors import ParameterError
 from ..plants.measurement import require_linear_measurement
 from . import _smm_kernel
+from ._bank_steps import bank_outputs, bank_results, bank_store_numpy
 from .bank_common import (
     BankFilter,
     MultipleModelOutput,
     MultipleModelState,
-    check_bank_models,
-    check_weight_floor,
-    initial_bank_state,
-    initial_mode_probabilities,
-    mode_names,
 )
 from .bank_math import log_gaussian, normalize_log_weights
 from .mixture import combine
@@ -96,10 +92,9 @@ class SMMSVSF(BankFilter):
 
     def __post_init__(self) -> None:
         models = tuple(self.models)
-        _n, m = check_bank_models(models)
+        _n, m = self._check_bank(models)
         for mdl in models:
             require_linear_measurement(mdl, "SMM-SVSF")
-        r = len(models)
         C = np.asarray(models[0].C, dtype=float)  # type: ignore[attr-defined]
         R = np.asarray(models[0].R, dtype=float)  # type: ignore[attr-defined]
         for j, mdl in enumerate(models[1:], start=1):
@@ -116,9 +111,6 @@ class SMMSVSF(BankFilter):
         psi = check_psi(self.psi, m)
         object.__setattr__(self, "psi", psi)
         object.__setattr__(self, "gamma", check_gamma(self.gamma, m))
-        object.__setattr__(self, "weight_floor", check_weight_floor(self.weight_floor, r))
-        object.__setattr__(self, "mu0", initial_mode_probabilities(self.mu0, r))
-        object.__setattr__(self, "modes", mode_names(self.modes, r))
         # Table 1 steps 6-7b: one SVSF-cov (the modes share C and R) corrects the mixed prediction
         object.__setattr__(self, "_svsf", SVSFCov(models[0], psi=psi, gamma=self.gamma, mapping=mapping))
         if self.reading == "bank":
@@ -148,14 +140,11 @@ class SMMSVSF(BankFilter):
         -------
         MultipleModelState
         """
-        mdl = self.models[0]
-        n, m = int(mdl.n_states), int(mdl.n_outputs)  # type: ignore[attr-defined]
-        runs, x, P, mu = initial_bank_state(n, self.n_modes, x0, P0, runs, self.mu0)  # type: ignore[arg-type]
+        runs, x, P, mu = self._initial_estimate(x0, P0, runs)
         states: tuple[FilterState, ...] = ()
         if self.reading == "bank":
             states = tuple(f.initialize(x, P, runs=runs) for f in self._bank)
-        zero = np.zeros((runs, m))
-        return MultipleModelState(x=x, P=P, mu=mu, e_post=zero, z_last=zero.copy(), mode_states=states, k=0)
+        return self._initial_state(x, P, mu, states)
 
     def _sensor_model(self) -> object:
         return self.models[0]
@@ -179,11 +168,7 @@ class SMMSVSF(BankFilter):
         svsf = self._svsf
         x, P, mu, ep = state.x.copy(), state.P.copy(), state.mu.copy(), state.e_post.copy()
         epp = np.zeros_like(ep) if state.e_prev is None else state.e_prev.copy()
-        o_x = np.empty((runs, K, n))
-        o_mu = np.empty((runs, K, r))
-        o_ll = np.empty((runs, K, r))
-        o_P = np.empty((runs, K, n, n)) if store_cov else None
-        o_mx = np.empty((runs, K, r, n)) if store_modes else None
+        rec = bank_outputs(runs, K, n, r, store_cov, store_modes)
         shared_u = u.shape[0] == 1
         xs = np.empty((runs, r, n))
         Fs = np.empty((runs, r, n, n))
@@ -203,11 +188,7 @@ class SMMSVSF(BankFilter):
             fstate = FilterState(x=x, P=P, e_post=ep, e_prev=epp, k=state.k + k)
             fstate, _ = svsf.correct(fstate, xp, Pp, zk, store=())
             x, P, ep, epp = fstate.x, fstate.P, fstate.e_post, fstate.e_prev
-            o_x[:, k], o_mu[:, k], o_ll[:, k] = x, mu, ll
-            if o_P is not None:
-                o_P[:, k] = P
-            if o_mx is not None:
-                o_mx[:, k] = xs
+            bank_store_numpy(rec, k, x, mu, ll, P, xs)
         new = MultipleModelState(
             x=x,
             P=P,
@@ -217,7 +198,7 @@ class SMMSVSF(BankFilter):
             k=state.k + K,
             e_prev=epp,
         )
-        return new, MultipleModelOutput(o_x, o_mu, o_ll, tuple(self.modes), o_P, o_mx)  # type: ignore[arg-type]
+        return new, self._output(bank_results(rec, store_cov, store_modes))
 
     def _update_table1_compiled(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
         # the same recursion as _update_table1's loop, compiled (chatterspec.filters._smm_kernel)
@@ -237,8 +218,7 @@ class SMMSVSF(BankFilter):
         new = MultipleModelState(
             x=x, P=P, mu=mu, e_post=ep, z_last=z[:, -1].copy(), k=state.k + K, e_prev=epp
         )
-        out = MultipleModelOutput(o["x"], o["mu"], o["ll"], tuple(self.modes), o["P"], o["mx"])  # type: ignore[arg-type]
-        return new, out
+        return new, self._output(o)
 
     def _update_bank(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
         runs, K, _m = z.shape

@@ -41,12 +41,13 @@ import numpy as np
 
 from .. import _jit
 from .._repr import short_repr
-from .._validate import finite_array, open_unit
-from ..errors import ParameterError, ShapeError
+from .._validate import open_unit
+from ..errors import ParameterError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
-from ._conventions import check_chunk, svsf_store
+from ._conventions import check_chunk, check_initial_rows, check_record, svsf_store
 from ._svsf_kernels import _closed_form_kernel, _svsf_kernel  # noqa: F401 - old import path (tests)
+from .protocol import channel_rows
 from .svsf_coordinates import boundary_layer_inverse, svsf_coordinates
 from .svsf_coordinates import reduced_order_transform as _reduced_order_transform  # noqa: F401 - old path
 from .svsf_recursion import (
@@ -161,19 +162,13 @@ class SVSF:
         ``x0`` of shape (n,) or (runs, n) overrides this.
         """
         m, n = self.model.n_outputs, self.model.n_states
-        z0 = finite_array("z0", z0, ndim=(1, 2))
-        if z0.ndim == 1:
-            z0 = z0[None, :]
-        if z0.shape[1] != m:
-            raise ShapeError(f"z0 must have {m} channel(s); got shape {z0.shape}")
+        z0 = channel_rows("z0", z0, m)
         runs = z0.shape[0]
         if x0 is None:
             y = np.zeros((runs, n))
             y[:, :m] = z0
         else:
-            x0 = finite_array("x0", x0, ndim=(1, 2))
-            if x0.shape[-1] != n or (x0.ndim == 2 and x0.shape[0] not in (1, runs)):
-                raise ShapeError(f"x0 must have shape ({n},) or ({runs}, {n}); got {x0.shape}")
+            x0 = check_initial_rows(x0, n, runs)
             y = np.broadcast_to(x0 @ self._S.T, (runs, n)).copy()
         return SVSFState(y=y, e_post=z0 - y[:, :m], k=0)
 
@@ -303,18 +298,9 @@ class SVSF:
             convention (there is no prediction of z(0)); ``x_post[:, 0]`` is
             x(0|0) and ``e_post[:, 0]`` is e(0|0). A 2-D ``z`` gives 2-D outputs.
         """
-        z = finite_array("z", z, ndim=(2, 3))
-        single = z.ndim == 2
-        if single:
-            z = z[None]
-        u = finite_array("u", np.zeros((z.shape[1], self.model.n_inputs)) if u is None else u, ndim=(1, 2, 3))
-        if u.ndim == 1:
-            u = u[:, None]
-        T = z.shape[1]
-        if u.shape[-2] != T:
-            raise ShapeError(f"u must have {T} samples (like z) along its time axis; got {u.shape}")
-        if T < 2:
-            raise ShapeError(f"z needs at least 2 samples; got {T}")
+        if u is None:  # no input: zeros
+            u = np.zeros((np.shape(z)[-2] if np.ndim(z) >= 2 else 0, self.model.n_inputs))
+        z, u, single = check_record(z, u)
         keep = svsf_store(store, store_states, store_post_error, store_lower, "SVSF")
         state = self.initialize(z[:, 0], x0)
         wanted = {f for f, k in zip(("x_post", "e_post", "e_lower"), keep, strict=True) if k}

@@ -37,24 +37,16 @@ from .. import _jit
 from .._repr import short_repr
 from .._validate import finite_array
 from ..errors import ParameterError
-from ..plants.measurement import require_linear_measurement
 from . import _engine, _engine_numpy
-from ._base import CovarianceFilterBase, check_model, is_linear
 from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets
 from ._luen import luen_correction, luen_second_order
-from .svsf_cov import (
-    Mapping,
-    _mapping_code,
-    check_gamma,
-    per_channel,
-    resolve_mapping,
-)
+from .svsf_cov import Mapping, SVSFCovarianceBase, check_gamma, per_channel
 
 __all__ = ["SecondOrderSVSF"]
 
 
 @dataclass(frozen=True, eq=False)
-class SecondOrderSVSF(CovarianceFilterBase):
+class SecondOrderSVSF(SVSFCovarianceBase):
     """Dynamic second-order SVSF with covariance, batched over realizations.
 
     Implements the :class:`~chatterspec.filters.protocol.Filter` protocol. Give ``lam`` (Lambda)
@@ -99,14 +91,7 @@ class SecondOrderSVSF(CovarianceFilterBase):
     _luen: tuple[np.ndarray, np.ndarray] | None = field(init=False, repr=False, default=None)
 
     def __post_init__(self) -> None:
-        check_model(self.model)
-        require_linear_measurement(self.model, "SecondOrderSVSF")
-        m = int(self.model.n_outputs)  # type: ignore[attr-defined]
-        C = np.asarray(self.model.C, dtype=float)  # type: ignore[attr-defined]
-        mapping, M, luen = resolve_mapping(C, self.mapping)
-        object.__setattr__(self, "_M", M)
-        object.__setattr__(self, "_luen", luen)
-        object.__setattr__(self, "mapping", mapping)
+        m = self._check_mapping("SecondOrderSVSF")
         object.__setattr__(self, "gamma", check_gamma(self.gamma, m))
         if self.lam is not None and self.cutoff is not None:
             raise ParameterError("give lam (Lambda) or cutoff (c, lambda = 1/(1+c)), not both")
@@ -135,13 +120,8 @@ class SecondOrderSVSF(CovarianceFilterBase):
             raise ParameterError(f"ratio_clip must be (low, high) with low < high; got {tuple(clip)}")
         object.__setattr__(self, "ratio_clip", (float(clip[0]), float(clip[1])))
 
-    @property
-    def _linear(self) -> bool:  # type: ignore[override]
-        return is_linear(self.model)
-
     def _correction_step(self) -> _engine.CorrectionStep:
-        mapping = _mapping_code(self._M, self._luen)
-        n, m = int(self.model.n_states), int(self.model.n_outputs)  # type: ignore[attr-defined]
+        mapping, n, m = self._sizes()
         fp = _engine.svsf_parameters(
             mapping, n, m, self.gamma, lam=self.lam, clip=self.ratio_clip, M=self._M, luen=self._luen
         )

@@ -121,8 +121,42 @@ def per_channel(name: str, value: object, m: int, *, rule: str) -> np.ndarray:
     return np.ascontiguousarray(arr, dtype=float)
 
 
+class SVSFCovarianceBase(CovarianceFilterBase):
+    """What the SVSF-type covariance filters share (:class:`SVSFCov`, the second-order SVSF).
+
+    A subclass is a frozen dataclass with the fields ``model``, ``gamma``, ``mapping``, ``_M`` and
+    ``_luen``; :meth:`_check_mapping` checks the model and resolves the mapping in its
+    ``__post_init__``, and :meth:`_sizes` gives what its ``_correction_step`` starts from.
+    """
+
+    mapping: Mapping | None
+    _M: np.ndarray | None
+    _luen: tuple[np.ndarray, np.ndarray] | None
+
+    def _check_mapping(self, who: str) -> int:
+        """Check the model (linear measurement ``C``, named ``who`` in errors), set ``mapping``, ``_M``,
+        ``_luen`` (:func:`resolve_mapping`); return the number of outputs m."""
+        check_model(self.model)
+        require_linear_measurement(self.model, who)
+        C = np.asarray(self.model.C, dtype=float)  # type: ignore[attr-defined]
+        mapping, M, luen = resolve_mapping(C, self.mapping)
+        object.__setattr__(self, "_M", M)
+        object.__setattr__(self, "mapping", mapping)
+        object.__setattr__(self, "_luen", luen)
+        return int(self.model.n_outputs)  # type: ignore[attr-defined]
+
+    @property
+    def _linear(self) -> bool:  # type: ignore[override]
+        return is_linear(self.model)
+
+    def _sizes(self) -> tuple[int, int, int]:
+        """``(mapping, n, m)`` of the correction step (``mapping``: the code of ``_M``/``_luen``)."""
+        n, m = int(self.model.n_states), int(self.model.n_outputs)  # type: ignore[attr-defined]
+        return _mapping_code(self._M, self._luen), n, m
+
+
 @dataclass(frozen=True, eq=False)
-class SVSFCov(CovarianceFilterBase):
+class SVSFCov(SVSFCovarianceBase):
     """SVSF with covariance ([SMM] eq 2.1-2.10), batched over realizations.
 
     Implements the :class:`~chatterspec.filters.protocol.Filter` protocol. Covariances are per
@@ -165,29 +199,17 @@ class SVSFCov(CovarianceFilterBase):
     _luen: tuple[np.ndarray, np.ndarray] | None = field(init=False, repr=False, default=None)
 
     def __post_init__(self) -> None:
-        check_model(self.model)
-        require_linear_measurement(self.model, "SVSFCov")
-        m = int(self.model.n_outputs)  # type: ignore[attr-defined]
-        C = np.asarray(self.model.C, dtype=float)  # type: ignore[attr-defined]
         if not isinstance(self.vbl, bool | np.bool_):
             raise ParameterError(f"vbl must be True or False; got {self.vbl!r}")
-        mapping, M, luen = resolve_mapping(C, self.mapping)
-        object.__setattr__(self, "_M", M)
-        object.__setattr__(self, "mapping", mapping)
-        object.__setattr__(self, "_luen", luen)
-        if luen is not None and self.vbl:
+        m = self._check_mapping("SVSFCov")
+        if self._luen is not None and self.vbl:
             raise ParameterError("vbl=True is not available with mapping='luen'")
-        n_psi = int(self.model.n_states) if luen is not None else m  # type: ignore[attr-defined]
+        n_psi = int(self.model.n_states) if self._luen is not None else m  # type: ignore[attr-defined]
         object.__setattr__(self, "psi", check_psi(self.psi, n_psi))
         object.__setattr__(self, "gamma", check_gamma(self.gamma, m))
 
-    @property
-    def _linear(self) -> bool:  # type: ignore[override]
-        return is_linear(self.model)
-
     def _correction_step(self) -> _engine.CorrectionStep:
-        mapping = _mapping_code(self._M, self._luen)
-        n, m = int(self.model.n_states), int(self.model.n_outputs)  # type: ignore[attr-defined]
+        mapping, n, m = self._sizes()
         fp = _engine.svsf_parameters(mapping, n, m, self.gamma, psi=self.psi, M=self._M, luen=self._luen)
         gamma, psi, M, luen = self.gamma, self.psi, self._M, self._luen
 

@@ -53,6 +53,7 @@ from .._validate import finite_array, positive_int
 from ..detection.frames import FrameVerdicts, frame_verdicts
 from ..detection.thresholds import frame_threshold
 from ..errors import ParameterError, ShapeError
+from ..filters.protocol import channel_rows
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
 from .monitor_filters import MonitorFilters
@@ -221,11 +222,7 @@ class ChatteringMonitor:
         """
         self._set_mode("raw")
         m, p = self.model.n_outputs, self.model.n_inputs
-        z = finite_array("z", z, ndim=(1, 2))
-        if z.ndim == 1:
-            z = z[None, :]
-        if z.shape[1] != m:
-            raise ShapeError(f"z must have {m} channel(s) {list(self.channels)}; got shape {z.shape}")
+        z = channel_rows("z", z, m, channels=self.channels)
         K = z.shape[0]
         u = finite_array("u", u, ndim=(1, 2))
         if u.ndim == 1:
@@ -252,11 +249,7 @@ class ChatteringMonitor:
         """
         self._set_mode("chattering")
         m = self.model.n_outputs
-        e = finite_array("e", e, ndim=(1, 2))
-        if e.ndim == 1:
-            e = e[None, :]
-        if e.shape[1] != m:
-            raise ShapeError(f"chattering must have {m} channel(s); got shape {e.shape}")
+        e = channel_rows("e", e, m, label="chattering")
         if e.shape[0] == 0:
             return self._empty_update(raw=False)
         t = self._chatter_time0() + np.arange(self._n_chat, self._n_chat + e.shape[0], dtype=float) * self.dt

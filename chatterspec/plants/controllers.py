@@ -38,6 +38,7 @@ import numpy as np
 from .._jit import step
 from .._validate import finite_scalar, nonnegative, positive
 from ..errors import ParameterError
+from ..jsonout import fields_dict
 
 __all__ = [
     "AntiWindup",
@@ -155,17 +156,8 @@ class PIDController:
         return text
 
     def to_dict(self) -> dict[str, object]:
-        """The constructor's arguments (SI units), JSON-ready."""
-        return {
-            "kp": self.kp,
-            "ki": self.ki,
-            "saturation": self.saturation,
-            "kd": self.kd,
-            "derivative_filter_s": self.derivative_filter_s,
-            "anti_windup": self.anti_windup,
-            "tracking_time_s": self.tracking_time_s,
-            "setpoint_weight": self.setpoint_weight,
-        }
+        """The constructor's arguments (SI units), JSON-ready: every field, in declaration order."""
+        return fields_dict(self)
 
 
 class PIDCoefficients(NamedTuple):

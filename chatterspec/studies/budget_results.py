@@ -16,13 +16,10 @@ from typing import Any
 import numpy as np
 
 from ..detection.alarm_calibration import poisson_interval
+from ..jsonout import finite_or_none
 from .intervals import clopper_pearson
 
 __all__ = ["OnsetFigures", "RouteBudget", "summarize_route"]
-
-
-def _f(v: float) -> float | None:
-    return float(v) if np.isfinite(v) else None
 
 
 def _clean(x: Any) -> Any:
@@ -32,7 +29,7 @@ def _clean(x: Any) -> Any:
     if isinstance(x, list | tuple | np.ndarray):
         return [_clean(v) for v in x]
     if isinstance(x, float | np.floating):
-        return _f(float(x))
+        return finite_or_none(float(x))
     if isinstance(x, np.integer):
         return int(x)
     return x
@@ -103,14 +100,14 @@ class OnsetFigures:
             "detected": self.detected,
             "missed": self.missed,
             "in_alarm_at_onset": self.in_alarm_at_onset,
-            "delay_median_s": _f(self.delay_median_s),
-            "delay_p90_s": _f(self.delay_p90_s),
+            "delay_median_s": finite_or_none(self.delay_median_s),
+            "delay_p90_s": finite_or_none(self.delay_p90_s),
             "true_label": self.true_label,
             "isolated": dict(self.isolated),
             "correct_isolation": self.correct,
             "correct_isolation_ci99": None if self.correct_ci is None else list(self.correct_ci),
-            "isolation_delay_median_s": _f(self.isolation_median_s),
-            "isolation_delay_p90_s": _f(self.isolation_p90_s),
+            "isolation_delay_median_s": finite_or_none(self.isolation_median_s),
+            "isolation_delay_p90_s": finite_or_none(self.isolation_p90_s),
         }
 
 

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
 from ..errors import CalibrationMismatchError
+from ..jsonout import fields_dict
 
 if TYPE_CHECKING:  # pragma: no cover
     from .calibration import Calibration
@@ -106,12 +107,7 @@ class Support:
 
     def to_dict(self) -> dict[str, object]:
         """The fields as a JSON-ready dict (what the JSON outputs print)."""
-        return {
-            "supported": self.supported,
-            "runs": self.runs,
-            "min_runs": self.min_runs,
-            "min_runs_bounded": self.min_runs_bounded,
-        }
+        return fields_dict(self, ("supported", "runs", "min_runs", "min_runs_bounded"))
 
 
 def support_for(use: Use, runs: int, alpha: float, confidence: float, per_run: int = 1) -> Support:

@@ -49,8 +49,10 @@ from ..detection.pipeline import chattering_record
 from ..detection.spectral import STFTConfig, spectrogram
 from ..detection.thresholds import Threshold
 from ..errors import ParameterError
+from ..jsonout import finite_or_none
 from ..montecarlo import ExecutionOptions
 from ..plants.scenarios import Scenario
+from .diagnosis_figures import DiagnosisFigures
 from .intervals import clopper_pearson
 
 if TYPE_CHECKING:
@@ -134,8 +136,12 @@ def calibrate_for_diagnosis(
 
 
 @dataclass(frozen=True, eq=False)
-class ChatteringDiagnosis:
+class ChatteringDiagnosis(DiagnosisFigures):
     """Diagnosis figures of the chattering route.
+
+    The false-alarm and detection-delay figures (and ``method``, ``runs``, ``steps_per_second``) are
+    those every route reports (:class:`~chatterspec.studies.diagnosis_figures.DiagnosisFigures`); here
+    a verdict is one STFT frame on one channel.
 
     Attributes
     ----------
@@ -186,19 +192,11 @@ class ChatteringDiagnosis:
 
     __repr__ = short_repr  # shapes and key figures, never whole arrays
 
-    method: str
+    # method, runs, the false-alarm and detection-delay figures, steps_per_second: DiagnosisFigures
     channels: tuple[str, ...]
-    runs: int
     frames_per_run: int
     healthy_frames_per_run: int
     alpha_per_frame: float
-    false_alarm_runs: int
-    false_alarm_rate: float
-    false_alarm_ci: tuple[float, float]
-    healthy_alarm_fraction: float
-    onsets: tuple[float, ...]
-    detection_median: tuple[float, ...]
-    detection_p90: tuple[float, ...]
     missed: tuple[int, ...]
     in_alarm_at_onset: tuple[int, ...]
     segments: tuple[str, ...]
@@ -206,15 +204,10 @@ class ChatteringDiagnosis:
     flag_fraction: np.ndarray
     flagged_channel: tuple[str | None, ...]
     peak_hz: tuple[float, ...]
-    steps_per_second: float
     calibration: dict
 
     def describe(self) -> dict[str, object]:
         """JSON-ready summary (NaN -> None)."""
-
-        def f(v: float) -> float | None:
-            return None if not np.isfinite(v) else float(v)
-
         return {
             "method": self.method,
             "channels": list(self.channels),
@@ -222,13 +215,7 @@ class ChatteringDiagnosis:
             "frames_per_run": self.frames_per_run,
             "healthy_frames_per_run": self.healthy_frames_per_run,
             "alpha_per_frame": self.alpha_per_frame,
-            "false_alarm_runs": self.false_alarm_runs,
-            "false_alarm_rate": self.false_alarm_rate,
-            "false_alarm_ci99": list(self.false_alarm_ci),
-            "healthy_alarm_fraction": f(self.healthy_alarm_fraction),
-            "onsets_s": list(self.onsets),
-            "detection_delay_median_s": [f(v) for v in self.detection_median],
-            "detection_delay_p90_s": [f(v) for v in self.detection_p90],
+            **self.alarm_figures(),
             "missed": list(self.missed),
             "in_alarm_at_onset": list(self.in_alarm_at_onset),
             "isolation": [
@@ -237,7 +224,7 @@ class ChatteringDiagnosis:
                     "span_s": list(span),
                     "flag_fraction": dict(zip(self.channels, (float(v) for v in frac), strict=True)),
                     "flagged_channel": ch,
-                    "peak_hz": f(pk),
+                    "peak_hz": finite_or_none(pk),
                 }
                 for name, span, frac, ch, pk in zip(
                     self.segments,

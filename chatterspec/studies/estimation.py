@@ -37,6 +37,7 @@ from .. import filter_registry
 from .._repr import short_repr
 from .._validate import positive_int
 from ..errors import ParameterError
+from ..jsonout import fields_dict, finite_or_none
 from ..montecarlo import Execution, ExecutionOptions
 from ..plants.scenarios import Scenario
 from ..plants.scenarios import scenario as _catalogue_scenario
@@ -250,20 +251,8 @@ class FilterMetrics:
 
         def per_state(mc: MonteCarloMean) -> dict[str, dict[str, float]]:
             return {
-                s: {"mean": float(mc.mean[i]), "stderr": _num(mc.stderr[i])}
+                s: {"mean": float(mc.mean[i]), "stderr": finite_or_none(mc.stderr[i])}
                 for i, s in enumerate(state_names)
-            }
-
-        def cons(c: ConsistencyTest) -> dict[str, Any]:
-            return {
-                "statistic": c.statistic,
-                "lower": c.lower,
-                "upper": c.upper,
-                "dof": c.dof,
-                "alpha": c.alpha,
-                "consistent": c.consistent,
-                "fraction_inside": c.fraction_inside,
-                "note": c.note,
             }
 
         return {
@@ -272,13 +261,9 @@ class FilterMetrics:
             "rmse": per_state(self.rmse),
             "bias": per_state(self.bias),
             "std": per_state(self.std),
-            "nees": cons(self.nees),
-            "nis": cons(self.nis),
+            "nees": fields_dict(self.nees),  # every ConsistencyTest field
+            "nis": fields_dict(self.nis),
         }
-
-
-def _num(v: float) -> float | None:
-    return None if not np.isfinite(v) else float(v)
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,7 @@ import scipy.stats
 
 from .._validate import open_unit, positive_int
 from ..errors import ParameterError
+from ..jsonout import fields_dict
 
 __all__ = [
     "QuantileEstimate",
@@ -214,14 +215,7 @@ class RateEstimate:
 
     def to_dict(self) -> dict[str, float | int]:
         """The fields as a JSON-ready dict (what the JSON outputs print)."""
-        return {
-            "rate": self.rate,
-            "ci_low": self.ci_low,
-            "ci_high": self.ci_high,
-            "count": self.count,
-            "trials": self.trials,
-            "effective_trials": self.effective_trials,
-        }
+        return fields_dict(self, ("rate", "ci_low", "ci_high", "count", "trials", "effective_trials"))
 
 
 @dataclass(frozen=True)

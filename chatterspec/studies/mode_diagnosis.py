@@ -28,6 +28,8 @@ from .._validate import finite_array
 from ..errors import ParameterError
 from ..filters import ExtendedKalmanFilter
 from ..filters.multiple_model import IMM, SMMSVSF
+from ..jsonout import finite_or_none
+from .diagnosis_figures import DiagnosisFigures
 from .intervals import clopper_pearson
 
 __all__ = ["METHODS", "ModeDiagnosis", "ModeTally", "diagnose_modes"]
@@ -37,8 +39,12 @@ METHODS = ("smm", "imm")
 
 
 @dataclass(frozen=True, eq=False)
-class ModeDiagnosis:
+class ModeDiagnosis(DiagnosisFigures):
     """Diagnosis figures of one mode-based method.
+
+    The false-alarm and detection-delay figures (and ``method``, ``runs``, ``steps_per_second``) are
+    those every route reports (:class:`~chatterspec.studies.diagnosis_figures.DiagnosisFigures`); here
+    a verdict is one sample's most probable mode.
 
     Attributes
     ----------
@@ -74,44 +80,25 @@ class ModeDiagnosis:
 
     __repr__ = short_repr  # shapes and key figures, never whole arrays
 
-    method: str
+    # method, runs, the false-alarm and detection-delay figures, steps_per_second: DiagnosisFigures
     modes: tuple[str, ...]
-    runs: int
-    false_alarm_runs: int
-    false_alarm_rate: float
-    false_alarm_ci: tuple[float, float]
-    healthy_alarm_fraction: float
-    onsets: tuple[float, ...]
-    detection_median: tuple[float, ...]
-    detection_p90: tuple[float, ...]
     isolation_median: tuple[float, ...]
     isolation_p90: tuple[float, ...]
     missed: tuple[int, ...]
     confusion: np.ndarray
-    steps_per_second: float
     new_modes: tuple[int, ...] = ()
 
     def describe(self) -> dict[str, object]:
         """JSON-ready summary (NaN -> None)."""
-
-        def f(v: float) -> float | None:
-            return None if not np.isfinite(v) else float(v)
-
         return {
             "method": self.method,
             "modes": list(self.modes),
             "runs": self.runs,
-            "false_alarm_runs": self.false_alarm_runs,
-            "false_alarm_rate": self.false_alarm_rate,
-            "false_alarm_ci99": list(self.false_alarm_ci),
-            "healthy_alarm_fraction": self.healthy_alarm_fraction,
-            "onsets_s": list(self.onsets),
-            "detection_delay_median_s": [f(v) for v in self.detection_median],
-            "detection_delay_p90_s": [f(v) for v in self.detection_p90],
-            "isolation_delay_median_s": [f(v) for v in self.isolation_median],
-            "isolation_delay_p90_s": [f(v) for v in self.isolation_p90],
+            **self.alarm_figures(),
+            "isolation_delay_median_s": [finite_or_none(v) for v in self.isolation_median],
+            "isolation_delay_p90_s": [finite_or_none(v) for v in self.isolation_p90],
             "missed": list(self.missed),
-            "confusion_percent": [[f(v) for v in row] for row in self.confusion],
+            "confusion_percent": [[finite_or_none(v) for v in row] for row in self.confusion],
             "steps_per_second": self.steps_per_second,
             "new_modes": [self.modes[i] for i in self.new_modes],
         }
