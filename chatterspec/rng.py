@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["BLOCK", "SeedLike", "block_generator", "root_seed_sequence"]
+__all__ = ["BLOCK", "SeedLike", "block_generator", "root_seed_sequence", "seed_label"]
 
 #: Realizations per random block (the unit of chunk-invariant seeding).
 BLOCK = 64
@@ -52,6 +52,29 @@ def root_seed_sequence(seed: SeedLike) -> np.random.SeedSequence:
 
         raise ParameterError(f"seed must be a non-negative integer, SeedSequence or Generator; got {seed!r}")
     return np.random.SeedSequence(int(seed))
+
+
+def seed_label(seed: SeedLike) -> int | None:
+    """The JSON-ready label of a study's root seed: the integer for an int or numpy integer seed.
+
+    Results record it in their ``seed`` field; a SeedSequence, Generator or None has no short
+    reproducible label and gives None.
+
+    Parameters
+    ----------
+    seed : int, SeedSequence, Generator or None
+        The seed the study was given (validated by :func:`root_seed_sequence`).
+
+    Returns
+    -------
+    int or None
+        ``int(seed)`` for a Python or numpy integer, otherwise None.
+
+    See Also
+    --------
+    root_seed_sequence : the root of the random streams built from the same seed.
+    """
+    return int(seed) if isinstance(seed, int | np.integer) else None
 
 
 def block_generator(root: np.random.SeedSequence, block: int, stream: int = 0) -> np.random.Generator:

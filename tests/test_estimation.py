@@ -45,6 +45,14 @@ def test_consistency_from_sums_equals_consistency():
     assert a == b
 
 
+def test_a_numpy_integer_seed_is_reported_like_the_python_int():
+    # a numpy integer is a valid seed everywhere (chatterspec.rng); the result must label it, not say None
+    a = estimation_study("detc-normal", "kf", runs=2, seed=np.int64(3), progress=False)
+    b = estimation_study("detc-normal", "kf", runs=2, seed=3, progress=False)
+    assert a.seed == 3 and type(a.to_dict()["seed"]) is int
+    assert a.to_dict() == b.to_dict()
+
+
 def test_kf_is_reported_inconsistent_under_the_printed_tuning():
     # on detc-normal the printed filter Q, R are 100-10^4 x the truth's (Q = diag(1, 10, 100) against
     # w_std^2 = (0.0025, 0.01, 0.01); R = 0.1 against 0.0025), so the innovations are far smaller than

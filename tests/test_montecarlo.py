@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from chatterspec.errors import ChatterspecError, ParameterError
-from chatterspec.rng import BLOCK, block_generator
+from chatterspec.rng import BLOCK, block_generator, seed_label
 from chatterspec.studies.false_alarms import false_alarm_study
 from chatterspec.studies.montecarlo import plan_chunks, run_study
 
@@ -37,6 +37,12 @@ def test_same_seed_same_draws_whatever_chunking():
     b = run_study(_Draws(), 300, seed=7, chunk_runs=256, progress=False)
     np.testing.assert_array_equal(a, b)
     assert a.shape == (300,)
+
+
+def test_seed_label_is_the_int_of_an_integer_seed_and_none_otherwise():
+    assert [seed_label(s) for s in (7, np.int64(7), np.uint32(7))] == [7, 7, 7]
+    assert all(type(seed_label(s)) is int for s in (7, np.int64(7)))
+    assert [seed_label(s) for s in (None, np.random.SeedSequence(7), np.random.default_rng(7))] == [None] * 3
 
 
 @pytest.mark.parametrize("bad", [0, -3])

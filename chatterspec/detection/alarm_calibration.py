@@ -67,6 +67,7 @@ import scipy.special  # not scipy.stats: the monitor imports this module at star
 from .. import _jit
 from .._validate import open_unit, positive
 from ..errors import ParameterError, ShapeError
+from ..jsonout import finite_or_none
 from .alarms import (
     _CUSUM,
     _FRAME,
@@ -240,8 +241,8 @@ class RuleCalibration:
             "channels": self.channels,
             "method": self.method,
             "hours": self.hours,
-            "threshold_interval": [_num(v) for v in self.threshold_interval],
-            "rate_interval": [_num(v) for v in self.rate_interval],
+            "threshold_interval": [finite_or_none(v) for v in self.threshold_interval],
+            "rate_interval": [finite_or_none(v) for v in self.rate_interval],
             "confidence": self.confidence,
             "seed": self.seed,
             "fit": _jsonable(dict(self.fit)),
@@ -266,10 +267,6 @@ class RuleCalibration:
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ParameterError(f"not a rule calibration ({type(exc).__name__}: {exc})") from None
-
-
-def _num(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
 
 
 def _den(x: object) -> float:

@@ -16,6 +16,7 @@ from typing import Any, ClassVar, Literal
 
 from .._validate import positive_int
 from ..errors import ParameterError
+from ..jsonout import finite_or_none
 
 __all__ = [
     "RULES",
@@ -79,7 +80,7 @@ class FrameRule:
 
     def to_dict(self) -> dict[str, Any]:
         """The fields as a JSON-ready dict (what the JSON outputs print)."""
-        return {"rule": self.name, "threshold": _json_float(self.threshold), **self.parameters()}
+        return {"rule": self.name, "threshold": finite_or_none(self.threshold), **self.parameters()}
 
     def describe(self) -> str:
         """A short description for reports and recordings."""
@@ -129,7 +130,7 @@ class PersistenceRule:
 
     def to_dict(self) -> dict[str, Any]:
         """The fields as a JSON-ready dict (what the JSON outputs print)."""
-        return {"rule": self.name, "threshold": _json_float(self.threshold), **self.parameters()}
+        return {"rule": self.name, "threshold": finite_or_none(self.threshold), **self.parameters()}
 
     def describe(self) -> str:
         """A short description for reports and recordings."""
@@ -184,7 +185,7 @@ class CusumRule:
 
     def to_dict(self) -> dict[str, Any]:
         """The fields as a JSON-ready dict (what the JSON outputs print)."""
-        return {"rule": self.name, "threshold": _json_float(self.threshold), **self.parameters()}
+        return {"rule": self.name, "threshold": finite_or_none(self.threshold), **self.parameters()}
 
     def describe(self) -> str:
         """A short description for reports and recordings."""
@@ -305,7 +306,3 @@ def rule_from_dict(d: Mapping[str, Any]) -> AlarmRule:
         raise ParameterError(f"an alarm rule needs a 'rule' name; got {name!r}")
     th = d.pop("threshold", None)
     return make_rule(name, float("inf") if th is None else float(th), **d)
-
-
-def _json_float(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None

@@ -10,13 +10,13 @@ studies use it too) and re-exported here.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 
 from ..detection.monitor_settings import MonitorSettings
+from ..jsonout import finite_or_none
 
 __all__ = ["DetectionEvent", "EventKind", "FrameBlock", "MonitorSettings", "MonitorUpdate"]
 
@@ -88,20 +88,16 @@ class DetectionEvent:
             "kind": self.kind,
             "channel": self.channel,
             "time_s": self.time_s,
-            "estimate_s": _finite(self.estimate_s),
+            "estimate_s": finite_or_none(self.estimate_s),
             "frame": self.frame,
             "peak_hz": self.peak_hz,
             "peak_ratio": self.peak_ratio,
             "rule": self.rule,
-            "score": _finite(self.score),
-            "statistic": _finite(self.statistic),
-            "threshold": _finite(self.threshold),
+            "score": finite_or_none(self.score),
+            "statistic": finite_or_none(self.statistic),
+            "threshold": finite_or_none(self.threshold),
             "false_alarms_per_hour": self.false_alarms_per_hour,
         }
-
-
-def _finite(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
 
 
 def alarm_label(rule: str, false_alarms_per_hour: float | None) -> str:

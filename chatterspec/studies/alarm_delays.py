@@ -31,6 +31,7 @@ from ..detection.alarms import AlarmRule, run_rule
 from ..detection.pipeline import iter_chattering
 from ..detection.spectral import STFTConfig, frame_columns
 from ..errors import ParameterError
+from ..jsonout import finite_or_none
 from ..plants.scenarios import Scenario, Segment, scenario
 from ..rng import SeedLike
 from .alarm_budget import _score_of
@@ -155,13 +156,13 @@ class DelayResult:
 
     def to_dict(self) -> dict[str, Any]:
         """The fields as a JSON-ready dict (what the JSON outputs print)."""
-        med, p90, mx = self.quantile(0.5), self.quantile(0.9), self.quantile(1.0)
+        med, p90, mx = (finite_or_none(self.quantile(q)) for q in (0.5, 0.9, 1.0))
         return {
             "runs": int(self.delays_s.size),
             "detected": self.detected,
-            "median_s": med if math.isfinite(med) else None,
-            "p90_s": p90 if math.isfinite(p90) else None,
-            "max_s": mx if math.isfinite(mx) else None,
+            "median_s": med,
+            "p90_s": p90,
+            "max_s": mx,
             "on_fault_channel": float(np.mean(self.on_fault_channel)),
             "false_starts_before_onset": self.false_starts,
             "healthy_hours": self.healthy_hours,

@@ -20,7 +20,7 @@ from ..detection.spectral import STFTConfig
 from ..errors import ParameterError
 from ..montecarlo import Execution
 from ..plants.scenarios import Scenario
-from ..rng import BLOCK, SeedLike
+from ..rng import BLOCK, SeedLike, seed_label
 from . import tail_histogram as th
 from .calibration_result import _ro, _stft_dict
 from .healthy import HealthyStudy, _n_frames
@@ -85,7 +85,7 @@ def calibration_fields(
         "stft": _stft_dict(config),
         "alpha": alpha,
         "runs": runs,
-        "seed": int(seed) if isinstance(seed, int | np.integer) else None,
+        "seed": seed_label(seed),
         "confidence": confidence,
         "channels": tuple(model.output_names),
         **dict(zip(("per_bin", "per_bin_low", "per_bin_high"), map(_ro, res["bin"]), strict=True)),

@@ -42,7 +42,7 @@ from ..montecarlo import Execution, ExecutionOptions
 from ..plants.scenarios import Scenario
 from ..plants.scenarios import scenario as _catalogue_scenario
 from ..plants.simulate import iter_simulations
-from ..rng import SeedLike
+from ..rng import SeedLike, seed_label
 from .metrics import (
     ConsistencyTest,
     MonteCarloMean,
@@ -539,7 +539,7 @@ def estimation_study(
     return EstimationResult(
         scenario=sc.name,
         runs=runs,
-        seed=seed if isinstance(seed, int) else None,
+        seed=seed_label(seed),
         steps=steps,
         state_names=tuple(sc.nominal.state_names),
         filters=tuple(blocks),

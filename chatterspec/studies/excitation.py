@@ -45,7 +45,7 @@ from ..plants.scenarios_closed_loop import (
     eha_closed_loop_scenario,
 )
 from ..plants.simulate import iter_simulations
-from ..rng import SeedLike
+from ..rng import SeedLike, seed_label
 from .calibration_result import _ro
 from .healthy import _analytic_thresholds, _SummedChunks
 from .intervals import RateEstimate
@@ -525,7 +525,7 @@ def excitation_study(
         position_noise=noises,
         alpha=alpha,
         runs=runs,
-        seed=int(seed) if isinstance(seed, int | np.integer) else None,
+        seed=seed_label(seed),
         confidence=confidence,
         channels=tuple(pairs[0][0].nominal.output_names),
         detections=_ro(out["det"].reshape(*shape, *out["det"].shape[1:])),

@@ -17,7 +17,7 @@ from ..errors import ParameterError
 from ..montecarlo import Execution, ExecutionOptions
 from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario
-from ..rng import SeedLike
+from ..rng import SeedLike, seed_label
 from .calibration_result import Calibration, _ro
 from .healthy import (
     HealthyStudy,
@@ -320,7 +320,7 @@ def false_alarm_study(
     return FalseAlarmResult(
         scenario=sc.name,
         runs=runs,
-        seed=int(seed) if isinstance(seed, int | np.integer) else None,
+        seed=seed_label(seed),
         confidence=confidence,
         channels=tuple(model.output_names),
         n_frames=n_frames,

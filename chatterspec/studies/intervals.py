@@ -11,7 +11,7 @@ import scipy.stats
 
 from .._validate import open_unit, positive_int
 from ..errors import ParameterError
-from ..jsonout import fields_dict
+from ..jsonout import fields_dict, finite_or_none
 
 __all__ = [
     "QuantileEstimate",
@@ -261,14 +261,10 @@ class QuantileEstimate:
         return {
             "q": self.q,
             "value": self.value,
-            "ci_low": _finite_or_none(self.ci_low),
-            "ci_high": _finite_or_none(self.ci_high),
+            "ci_low": finite_or_none(self.ci_low),
+            "ci_high": finite_or_none(self.ci_high),
             "n": self.n,
         }
-
-
-def _finite_or_none(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None
 
 
 def _none_to_inf(x: float | None, sign: float) -> float:

@@ -17,7 +17,7 @@ from ..montecarlo import Execution, ExecutionOptions
 from ..plants.models import EHA_PARAMETERS, LinearModel, eha_linear, second_order
 from ..plants.scenarios import Scenario
 from ..plants.signals import Chirp, Step
-from ..rng import SeedLike
+from ..rng import SeedLike, seed_label
 from .calibration_result import _ro
 from .healthy import _analytic_thresholds, _SummedChunks
 from .intervals import RateEstimate
@@ -365,7 +365,7 @@ def power_study(
         alphas=_ro(grid),
         alpha=alpha,
         runs=runs,
-        seed=int(seed) if isinstance(seed, int | np.integer) else None,
+        seed=seed_label(seed),
         confidence=confidence,
         channel=spec["channel"],
         channels=tuple(scenarios[0].nominal.output_names),
