@@ -28,6 +28,7 @@ __all__ = [
     "layout_geometry",
     "series_styles",
     "time_axis",
+    "time_panel",
     "view_px",
 ]
 
@@ -268,6 +269,29 @@ def time_axis(span_s: tuple[float, float] | None, history_s: float = 10.0) -> tu
     )
 
 
+def time_panel(span_s: tuple[float, float] | None) -> Any:
+    """The time panel of a recording's blueprint (collapsed): a live viewer follows the data, a file opens
+    paused with its whole record selected.
+
+    Parameters
+    ----------
+    span_s : (float, float) or None
+        A file's whole record (s); None: a live viewer.
+
+    Returns
+    -------
+    rerun.blueprint.TimePanel
+    """
+    import rerun.blueprint as rrb
+    from rerun.encodings import AbsoluteTimeRange, TimeInt
+
+    if span_s is None:
+        return rrb.TimePanel(state="collapsed", timeline=TIMELINE, play_state="following")
+    ns = [TimeInt(nanos=round(float(t) * 1e9)) for t in span_s]
+    selection = AbsoluteTimeRange(min=ns[0], max=ns[1])
+    return rrb.TimePanel(state="collapsed", timeline=TIMELINE, play_state="paused", time_selection=selection)
+
+
 #: Logical pixels of the window the layouts are designed for (1600x1000, menu and time panel excluded).
 _WINDOW = (1600.0, 840.0)
 #: Pixels of one state lane, of a view's title bar, of an extra row above or below the columns.
@@ -424,7 +448,6 @@ def blueprint(
     """
     import rerun as rr
     import rerun.blueprint as rrb
-    from rerun.encodings import AbsoluteTimeRange, TimeInt
 
     time_range, axis = time_axis(span_s, history_s)
     no_legend = rrb.PlotLegend(visible=False)
@@ -538,19 +561,6 @@ def blueprint(
                 row_shares=_column_shares(alarm is not None, peak_view),
             )
         )
-    time_panel = (
-        rrb.TimePanel(state="collapsed", timeline=TIMELINE, play_state="following")
-        if span_s is None
-        else rrb.TimePanel(
-            state="collapsed",
-            timeline=TIMELINE,
-            play_state="paused",
-            time_selection=AbsoluteTimeRange(
-                min=TimeInt(nanos=round(float(span_s[0]) * 1e9)),
-                max=TimeInt(nanos=round(float(span_s[1]) * 1e9)),
-            ),
-        )
-    )
     extra = [] if extra_row is None else [rrb.Horizontal(*extra_row(time_range, axis))]
     top = [rrb.Horizontal(*above)] if above else []
     if span_s is None:  # live: the alarm state, changed when the detector knew
@@ -576,6 +586,6 @@ def blueprint(
             # pixels at 1600x1000 (layout_geometry): every lane visible
             row_shares=row_px,
         ),
-        time_panel,
+        time_panel(span_s),
         collapse_panels=True,
     )

@@ -199,12 +199,18 @@ def estimate_blueprint(
     rerun.blueprint.Blueprint
     """
     import rerun.blueprint as rrb
-    from rerun.encodings import AbsoluteTimeRange, TimeInt
 
-    from .blueprint import time_axis
-    from .sinks import TIMELINE
+    from .blueprint import time_axis, time_panel
 
     time_range, axis = time_axis(span_s)
+    hidden = rrb.PlotLegend(visible=False)
+
+    def view(origin: str, name: str, legend: Any = hidden) -> Any:
+        """A time view of the whole record, on the linked time axis."""
+        return rrb.TimeSeriesView(
+            origin=origin, name=name, time_ranges=time_range, axis_x=axis, plot_legend=legend
+        )
+
     legend = rrb.PlotLegend(corner="LeftTop", visible=True)
     who = ", ".join(filters)
     columns = []
@@ -212,42 +218,15 @@ def estimate_blueprint(
         unit = f" [{u}]" if u else ""
         columns.append(
             rrb.Vertical(
-                rrb.TimeSeriesView(
-                    origin=f"/states/{s}",
-                    name=f"{s}{unit}: truth (thin, light) and {who}",
-                    time_ranges=time_range,
-                    axis_x=axis,
-                    plot_legend=legend,
-                ),
-                rrb.TimeSeriesView(
-                    origin=f"/errors/{s}",
-                    name=f"{s} error: truth - estimate{unit}",
-                    time_ranges=time_range,
-                    axis_x=axis,
-                    plot_legend=rrb.PlotLegend(visible=False),
-                ),
+                view(f"/states/{s}", f"{s}{unit}: truth (thin, light) and {who}", legend),
+                view(f"/errors/{s}", f"{s} error: truth - estimate{unit}"),
                 row_shares=[1.4, 1.0],
             )
         )
-    bottom = [
-        rrb.TimeSeriesView(
-            origin=f"/innovations/{o}",
-            name=f"{o}: innovation z - C x(k|k-1) per filter",
-            time_ranges=time_range,
-            axis_x=axis,
-            plot_legend=rrb.PlotLegend(visible=False),
-        )
-        for o in outputs
-    ]
+    bottom = [view(f"/innovations/{o}", f"{o}: innovation z - C x(k|k-1) per filter") for o in outputs]
     bottom.append(rrb.TextLogView(origin="/info", name=f"estimate {title}"))
-    ns = (round(span_s[0] * 1e9), round(span_s[1] * 1e9))
     return rrb.Blueprint(
         rrb.Vertical(rrb.Horizontal(*columns), rrb.Horizontal(*bottom), row_shares=[4.0, 1.0]),
-        rrb.TimePanel(
-            state="collapsed",
-            timeline=TIMELINE,
-            play_state="paused",
-            time_selection=AbsoluteTimeRange(min=TimeInt(nanos=ns[0]), max=TimeInt(nanos=ns[1])),
-        ),
+        time_panel(span_s),
         collapse_panels=True,
     )

@@ -19,10 +19,16 @@ __all__ = ["FramePeaks", "peak_bins"]
 
 @njit
 def _peak_bins_kernel(
-    power: np.ndarray, tested: np.ndarray, expected: np.ndarray, thr: np.ndarray, out: np.ndarray
+    power: np.ndarray,
+    tested: np.ndarray,
+    expected: np.ndarray,
+    thr: np.ndarray,
+    out: np.ndarray,
+    ratio: np.ndarray | None = None,
 ) -> None:  # pragma: no cover - compiled; its py_func is tested
     """:func:`peak_bins` in one pass over the tested bins of each frame and channel (first maximum
-    wins, as ``np.argmax``; only subtractions and comparisons: the same bits as the numpy path)."""
+    wins, as ``np.argmax``; only subtractions and comparisons: the same bits as the numpy path), and
+    the peak bin's ``S / threshold`` into ``ratio`` when given (one division, as the numpy path)."""
     n_frames, m, n_tested = power.shape[0], power.shape[2], tested.shape[0]
     for f in range(n_frames):
         for c in range(m):
@@ -34,7 +40,10 @@ def _peak_bins_kernel(
                     best, v_best = j, ex
                 if p > thr[j, c] and (over < 0 or ex > v_over):
                     over, v_over = j, ex
-            out[f, c] = over if over >= 0 else best
+            k = over if over >= 0 else best
+            out[f, c] = k
+            if ratio is not None:
+                ratio[f, c] = power[f, tested[k], c] / thr[k, c]
 
 
 def _peak_bins_numpy(
@@ -59,6 +68,7 @@ def peak_bins(
     expected: np.ndarray,
     thr: np.ndarray,
     out: np.ndarray | None = None,
+    ratio: np.ndarray | None = None,
 ) -> np.ndarray:
     """Index (into ``tested``) of each frame's largest excess power ``S - E`` among the bins over the
     threshold, or among all tested bins when none is over: the rule of the batch report's ``peak_hz``.
@@ -75,6 +85,8 @@ def peak_bins(
         Frame threshold at the tested bins (a bin is over when ``S > thr``).
     out : (F, m) int64 array, optional
         Written in place and returned (the logger fills one batch array block by block).
+    ratio : (F, m) float array, optional
+        Filled in place with ``S / threshold`` at each peak bin.
 
     Returns
     -------
@@ -84,13 +96,19 @@ def peak_bins(
     power = np.asarray(power, dtype=float)
     if not enabled():
         k = _peak_bins_numpy(power, tested, expected, thr)
+        if ratio is not None:
+            cols = np.arange(k.shape[1])
+            ratio[...] = power[np.arange(k.shape[0])[:, None], tested[k], cols] / thr[k, cols]
         if out is None:
             return k
         out[...] = k
         return out
     if out is None:
         out = np.empty((power.shape[0], power.shape[2]), dtype=np.int64)
-    _peak_bins_kernel(power, tested, expected, thr, out)
+    if ratio is None:
+        _peak_bins_kernel(power, tested, expected, thr, out)
+    else:
+        _peak_bins_kernel(power, tested, expected, thr, out, ratio)
     return out
 
 
@@ -122,14 +140,10 @@ class FramePeaks:
         F = sum(f.n_frames for f in frames)
         k = np.empty((F, m), dtype=np.int64)
         ratio = np.empty((F, m))
-        cols = np.arange(m)
         a = 0
         for f in frames:
             b = a + f.n_frames
-            peak_bins(f.power, self._tested_idx, self._tested_expected, self._tested_thr, out=k[a:b])
-            kb = k[a:b]
-            ratio[a:b] = (
-                f.power[np.arange(b - a)[:, None], self._tested_idx[kb], cols] / self._tested_thr[kb, cols]
-            )
+            idx, ex, thr = self._tested_idx, self._tested_expected, self._tested_thr
+            peak_bins(f.power, idx, ex, thr, out=k[a:b], ratio=ratio[a:b])
             a = b
         return self._tested_hz[k], ratio

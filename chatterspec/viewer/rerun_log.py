@@ -183,29 +183,25 @@ class RerunLogger:
                 s.send_blueprint(bp, make_active=True, make_default=True)
         self._log_static(truth)
 
-    def layout(
-        self,
-        *,
-        span_s: tuple[float, float] | None,
-        has_truth: bool | None = None,
-        extra_row: Any = None,
-        above: list[Any] | None = None,
-        lanes_name: str | None = None,
-        chattering_range: Any = None,
-    ) -> Any:
+    def layout(self, *, span_s: tuple[float, float] | None, **options: Any) -> Any:
         """This logger's default :func:`~chatterspec.viewer.blueprint.blueprint` (band, alarm view, units,
         and the geometry given to the constructor): :meth:`MonitorLayout.blueprint
-        <chatterspec.viewer.monitor_layout.MonitorLayout.blueprint>` over this logger's band, which
-        documents the parameters."""
-        return self._layout.blueprint(
-            band_hz=self.band_hz,
-            span_s=span_s,
-            has_truth=has_truth,
-            extra_row=extra_row,
-            above=above,
-            lanes_name=lanes_name,
-            chattering_range=chattering_range,
-        )
+        <chatterspec.viewer.monitor_layout.MonitorLayout.blueprint>` over this logger's band.
+
+        Parameters
+        ----------
+        span_s : (float, float) or None
+            A file's whole record (s); None for a live viewer (follows the data).
+        **options
+            The other keyword arguments of :meth:`MonitorLayout.blueprint
+            <chatterspec.viewer.monitor_layout.MonitorLayout.blueprint>` (``has_truth``, ``extra_row``,
+            ``above``, ``lanes_name``, ``chattering_range``), which documents them.
+
+        Returns
+        -------
+        rerun.blueprint.Blueprint
+        """
+        return self._layout.blueprint(band_hz=self.band_hz, span_s=span_s, **options)
 
     def _log_static(self, truth: list[tuple[float, str, bool]] | None) -> None:
         """The static entities (:func:`~chatterspec.viewer.static_entities.log_static`) and the truth lane."""
