@@ -63,19 +63,11 @@ class STFTConfig:
 
     def n_window(self, dt: float) -> int:
         """Window length W in samples, ``round(window_s / dt)`` (at least 2)."""
-        dt = positive("dt", dt, unit="s")
-        w = round(self.window_s / dt)
-        if w < 2:
-            raise ParameterError(f"window_s = {self.window_s} s is shorter than 2 samples at dt = {dt} s")
-        return w
+        return _samples("window_s", self.window_s, dt, 2)
 
     def n_hop(self, dt: float) -> int:
         """Hop H in samples, ``round(hop_s / dt)`` (at least 1)."""
-        dt = positive("dt", dt, unit="s")
-        h = round(self.hop_s / dt)
-        if h < 1:
-            raise ParameterError(f"hop_s = {self.hop_s} s is shorter than one sample at dt = {dt} s")
-        return h
+        return _samples("hop_s", self.hop_s, dt, 1)
 
     def taper(self, dt: float) -> np.ndarray:
         """The window samples ``w_k``, ``k = 0 .. W-1`` (read-only)."""
@@ -94,3 +86,19 @@ DEFAULT_STFT = STFTConfig()
 def cached_taper(window: str, n: int) -> np.ndarray:
     """The read-only taper ``w_k`` of ``window`` at ``n`` samples (cached: never mutate it)."""
     return readonly(get_window(window, n))
+
+
+def _samples(name: str, seconds: float, dt: float, least: int) -> int:
+    """``round(seconds / dt)`` samples of the length ``name`` (s) at the sampling time ``dt`` (s).
+
+    Raises
+    ------
+    ParameterError
+        ``dt`` is not positive, or the length is shorter than ``least`` samples.
+    """
+    dt = positive("dt", dt, unit="s")
+    n = round(seconds / dt)
+    if n < least:
+        what = "one sample" if least == 1 else f"{least} samples"
+        raise ParameterError(f"{name} = {seconds} s is shorter than {what} at dt = {dt} s")
+    return n

@@ -19,6 +19,7 @@ __all__ = [
     "HEALTHY",
     "MODE_COLORS",
     "NEUTRAL",
+    "TAB10",
     "TRUTH",
     "channel_color",
     "fault_level_color",
@@ -39,41 +40,41 @@ NEUTRAL: RGB = (140, 140, 140)
 #: The true state (drawn under the estimates): light grey on Rerun's dark background; figures use black.
 TRUTH: RGB = (235, 235, 235)
 
-#: Output channels, in model order (matplotlib's tab10 without its red and grey): blue, orange, green,
-#: purple, brown, pink, olive, cyan.
-CHANNEL_COLORS: tuple[RGB, ...] = (
-    (31, 119, 180),
-    (255, 127, 14),
-    (44, 160, 44),
-    (148, 103, 189),
-    (140, 86, 75),
-    (227, 119, 194),
-    (188, 189, 34),
-    (23, 190, 207),
+#: matplotlib's ``tab10`` colours by name (its red and grey are not used: red only means fault).
+TAB10: dict[str, RGB] = {
+    "blue": (31, 119, 180),
+    "orange": (255, 127, 14),
+    "green": (44, 160, 44),
+    "purple": (148, 103, 189),
+    "brown": (140, 86, 75),
+    "pink": (227, 119, 194),
+    "olive": (188, 189, 34),
+    "cyan": (23, 190, 207),
+}
+
+#: Output channels, in model order (tab10 without its red and grey).
+CHANNEL_COLORS: tuple[RGB, ...] = tuple(
+    TAB10[n] for n in ("blue", "orange", "green", "purple", "brown", "pink", "olive", "cyan")
 )
 
 #: Estimators and diagnosis methods by name (the KF and EKF share a colour: one runs per plant).
 FILTER_COLORS: dict[str, RGB] = {
-    "kf": (31, 119, 180),
-    "ekf": (31, 119, 180),
-    "svsf": (255, 127, 14),
-    "svsf2": (44, 160, 44),
-    "smm": (148, 103, 189),
-    "imm": (23, 190, 207),
-    "chattering": (255, 127, 14),
-    "innovation": (140, 86, 75),
+    name: TAB10[tab]
+    for name, tab in (
+        ("kf", "blue"),
+        ("ekf", "blue"),
+        ("svsf", "orange"),
+        ("svsf2", "green"),
+        ("smm", "purple"),
+        ("imm", "cyan"),
+        ("chattering", "orange"),
+        ("innovation", "brown"),
+    )
 }
 
 #: Modes of a multiple-model diagnosis, in mode order (no red).
-MODE_COLORS: tuple[RGB, ...] = (
-    (31, 119, 180),
-    (255, 127, 14),
-    (44, 160, 44),
-    (148, 103, 189),
-    (23, 190, 207),
-    (188, 189, 34),
-    (227, 119, 194),
-    (140, 86, 75),
+MODE_COLORS: tuple[RGB, ...] = tuple(
+    TAB10[n] for n in ("blue", "orange", "green", "purple", "cyan", "olive", "pink", "brown")
 )
 
 #: True fault levels in order of appearance: light to dark amber (distinct, never red).

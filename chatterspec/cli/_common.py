@@ -112,10 +112,10 @@ def print_json(doc: Any, *, allow_nan: bool = False) -> None:
 
 
 def check_record_path(path: str | os.PathLike | None) -> None:
-    """``--record FILE.rrd``: a ``.rrd`` name whose file can be created (see :func:`check_output_file`)."""
+    """``--record FILE.rrd``: a ``.rrd`` name whose file can be created (see :func:`check_output_path`)."""
     if path is not None and not str(path).endswith(".rrd"):
         raise ParameterError(f"--record expects a path ending in .rrd; got {str(path)!r}")
-    check_output_file(path, "--record")
+    check_output_path(path, "--record")
 
 
 # --- output paths --------------------------------------------------------------------------------------
@@ -148,19 +148,26 @@ def _probe_writable(folder: Path) -> str | None:
     return None
 
 
-def check_output_file(
-    path: str | os.PathLike | None, option: str, *, suffixes: tuple[str, ...] | None = None
+def check_output_path(
+    path: str | os.PathLike | None,
+    option: str,
+    *,
+    folder: bool = False,
+    suffixes: tuple[str, ...] | None = None,
 ) -> Path | None:
-    """Check, before any computation, that ``path`` can be written as a file.
+    """Check, before any computation, that ``path`` can be written as a file (or used as a folder).
 
     Parameters
     ----------
     path : str or path-like or None
-        The file the command will write (None: nothing to check).
+        The file the command will write, or with ``folder`` the folder it will write into (None:
+        nothing to check).
     option : str
         The option that named it (e.g. ``"--plot"``), for the message.
+    folder : bool
+        ``path`` is a folder, existing or created at write time (default: a file).
     suffixes : tuple of str, optional
-        Accepted lower-case suffixes (e.g. ``(".png",)``); None accepts any.
+        Accepted lower-case suffixes of a file (e.g. ``(".png",)``); None accepts any.
 
     Returns
     -------
@@ -170,53 +177,26 @@ def check_output_file(
     Raises
     ------
     OutputPathError
-        ``path`` is an existing folder, an existing read-only file, has a refused
-        suffix, or its nearest existing parent is not a writable folder (missing
-        parent folders are created at write time).
+        A file ``path`` is an existing folder, an existing read-only file or has a refused suffix;
+        a folder ``path`` is an existing file; or the nearest existing folder (``path`` itself, or
+        its parent for a file) is not writable (missing parent folders are created at write time).
     """
     if path is None:
         return None
     p = Path(path)
-    if suffixes is not None and p.suffix.lower() not in suffixes:
-        raise OutputPathError(f"{option} {str(p)!r}: the file name must end in {' or '.join(suffixes)}")
-    if p.is_dir():
-        raise OutputPathError(f"{option} {str(p)!r} is an existing folder; give a file name")
-    if p.exists() and not os.access(p, os.W_OK):
-        raise OutputPathError(f"{option} {str(p)!r}: the file exists and is not writable")
-    base = _nearest_existing(p.parent if str(p.parent) else Path("."))
-    why = _probe_writable(base)
-    if why is not None:
-        raise OutputPathError(f"{option} {str(p)!r} cannot be written: {why}")
-    return p
-
-
-def check_output_dir(path: str | os.PathLike | None, option: str) -> Path | None:
-    """Check, before any computation, that ``path`` is (or can be created as) a writable folder.
-
-    Parameters
-    ----------
-    path : str or path-like or None
-        The folder the command will write into (None: nothing to check).
-    option : str
-        The option that named it (e.g. ``"--out"``), for the message.
-
-    Returns
-    -------
-    Path or None
-        ``path`` as a :class:`~pathlib.Path`.
-
-    Raises
-    ------
-    OutputPathError
-        ``path`` is an existing file, or neither it nor its nearest existing
-        parent is a writable folder.
-    """
-    if path is None:
-        return None
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise OutputPathError(f"{option} {str(p)!r} is an existing file; give a folder")
-    why = _probe_writable(_nearest_existing(p))
+    if folder:
+        if p.exists() and not p.is_dir():
+            raise OutputPathError(f"{option} {str(p)!r} is an existing file; give a folder")
+        base = p
+    else:
+        if suffixes is not None and p.suffix.lower() not in suffixes:
+            raise OutputPathError(f"{option} {str(p)!r}: the file name must end in {' or '.join(suffixes)}")
+        if p.is_dir():
+            raise OutputPathError(f"{option} {str(p)!r} is an existing folder; give a file name")
+        if p.exists() and not os.access(p, os.W_OK):
+            raise OutputPathError(f"{option} {str(p)!r}: the file exists and is not writable")
+        base = p.parent if str(p.parent) else Path(".")
+    why = _probe_writable(_nearest_existing(base))
     if why is not None:
         raise OutputPathError(f"{option} {str(p)!r} cannot be written: {why}")
     return p
@@ -273,7 +253,7 @@ class Outputs:
 def check_figure_path(path: str | os.PathLike | None, option: str = "--plot") -> None:
     """Check, before any computation, that the figure file ``path`` can be written (a matplotlib suffix)."""
     if path:
-        check_output_file(path, option, suffixes=figure_suffixes())
+        check_output_path(path, option, suffixes=figure_suffixes())
 
 
 def write_plot(outputs: Outputs, args: Any, doc: dict, figure: str, *figure_args: Any) -> None:

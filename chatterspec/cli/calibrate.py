@@ -12,7 +12,7 @@ from typing import Any
 
 from ..errors import ParameterError
 from ._alarm_args import add_alarm_args, alarm_choice, positive_number
-from ._common import Outputs, check_figure_path, check_output_file, parsed_arg, report, write_plot
+from ._common import Outputs, check_figure_path, check_output_path, parsed_arg, report, write_plot
 from ._options import add, add_name, add_study_args, command, study_execution, study_keywords
 
 #: The former names of the study options and their execution keywords (now in :mod:`._options`).
@@ -71,7 +71,7 @@ def _megabytes(text: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec calibrate`` with the parsed ``args``; returns the exit status."""
-    check_output_file(args.out, "--out")
+    check_output_path(args.out, "--out")
     check_figure_path(args.plot)
     outputs = Outputs()
     supports = _check_support(args)  # also an unknown name or a bad model file, before the heavy imports

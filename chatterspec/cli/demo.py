@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from . import _identify
-from ._common import Outputs, band_from_args, check_output_dir, print_json
+from ._common import Outputs, band_from_args, check_output_path, print_json
 from ._options import add_detector_args, add_report_args, command
 
 #: Scenarios of the demo, in table order.
@@ -62,8 +62,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     # output folders first, before the (slow) imports: a bad path fails at once
     """Run ``chatterspec demo`` with the parsed ``args``; returns the exit status."""
-    check_output_dir(None if args.no_figures else args.figures_dir, "--figures-dir")
-    check_output_dir(None if args.no_record else args.recordings_dir, "--recordings-dir")
+    check_output_path(None if args.no_figures else args.figures_dir, "--figures-dir", folder=True)
+    check_output_path(None if args.no_record else args.recordings_dir, "--recordings-dir", folder=True)
     from ..detection.detect import detect_chunks
     from ..plants.scenarios import scenario
     from ..progress import Progress

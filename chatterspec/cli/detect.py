@@ -96,10 +96,10 @@ def run(args: argparse.Namespace) -> int:
     ident = None
     parallel = args.workers > 1 or args.scheduler is not None
     if parallel:  # the same numbers from worker processes / Dask
-        from ..detection.detect_parallel import detect_parallel
+        from ..detection.detect import detect_scenario
 
         ident = None if setup is None else _identify.stream(setup, args)
-        report = detect_parallel(
+        report = detect_scenario(
             sc,
             args.runs,
             args.seed,

@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 from ..errors import ParameterError
-from ._common import Outputs, check_output_dir, print_json
+from ._common import Outputs, check_output_path, print_json
 from ._options import add, add_report_args, add_runs_args, command
 
 
@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         out = Path(args.out)
         if out.exists() and not out.is_dir():
             raise ParameterError(f"--out must be a folder; {str(out)!r} is a file")
-        check_output_dir(out, "--out")
+        check_output_path(out, "--out", folder=True)
     from ..figures import plotting
     from ..figures.paper_figures import FIGURES, render
     from ..progress import Progress

@@ -22,7 +22,7 @@ import argparse
 from pathlib import Path
 
 from ..errors import ParameterError
-from ._common import Outputs, check_output_file, report
+from ._common import Outputs, check_output_path, report
 from ._options import add, add_name, add_report_args, add_runs_args, command
 
 #: Folder of ``spectrum``'s PNG when ``--out`` is not given (like ``demo``'s ``figures/demo``).
@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else DEFAULT_FOLDER / f"{args.name}-spectrum.png"
     if out.suffix.lower() != ".png":
         raise ParameterError(f"--out must name a .png file; got {str(out)!r}")
-    check_output_file(out, "--out")  # before the (slow) imports: a bad path fails at once
+    check_output_path(out, "--out")  # before the (slow) imports: a bad path fails at once
 
     from ..figures import plotting
     from ..figures.paper_figures import scenario_spectrum

@@ -1,39 +1,88 @@
-"""The plan :func:`~chatterspec.detection.detect.detect_chunks` tests every chunk of a study against.
+"""The detector's settings and the plan every chunk of a study is tested against, here or on workers.
 
-Split from :mod:`chatterspec.detection.detect` so that worker processes
-(:mod:`chatterspec.detection.detect_parallel`) run the same code: :meth:`ChunkPlan.build` makes the
+Split from :mod:`chatterspec.detection.detect` so that worker processes run the same code:
+:class:`DetectorOptions` holds the settings of every entry point, :meth:`ChunkPlan.build` makes the
 thresholds (and run 0's STFT intervals) from the first record, :meth:`ChunkPlan.test` one chunk's
 verdicts and summed spectrum, :meth:`ChunkPlan.reduce` folds them in chunk order and
-:meth:`ChunkPlan.report` gives the :class:`~chatterspec.detection.detect.DetectionReport`.
+:meth:`ChunkPlan.report` gives the :class:`~chatterspec.detection.detect.DetectionReport`;
+:func:`detect_on_workers` runs the chunks as a :class:`DetectStudy` through
+:func:`~chatterspec.montecarlo.run_study` (``detect_scenario(..., workers=N)``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, TypedDict
 
 import numpy as np
 
 from .._validate import open_unit
 from ..errors import ParameterError, ShapeError
+from ..montecarlo import Execution
 from ..plants.nonlinear import is_linear
+from ..plants.scenarios import Scenario
+from ..rng import SeedLike
 from .frames import FrameDetection, stft_detect
-from .pipeline import ChatteringRecord
+from .pipeline import ChatteringRecord, iter_chattering
 from .report import DetectionReport
 from .spectral import DEFAULT_STFT, STFTConfig, expected_spectrum, periodogram
 from .spectrum_verdicts import _VERDICT_FIELDS, SpectrumDetection, _require_empirical, detect_spectrum
 from .thresholds import Band, Correction, Threshold, check_band, exact_threshold, paper_threshold
 
-__all__ = ["ChunkPlan", "DetectorOptions"]
+__all__ = ["ChunkPlan", "DetectStudy", "DetectorKeywords", "DetectorOptions", "detect_on_workers"]
+
+
+class DetectorKeywords(TypedDict, total=False):
+    """The keyword-only settings ``stft``, ``config``, ``band``, ``frame_threshold`` of the detectors.
+
+    :func:`~chatterspec.detection.detect.detect_record`, :func:`~chatterspec.detection.detect.detect_chunks`
+    and :func:`~chatterspec.detection.detect.detect_scenario` take them as ``**detector`` and run with
+    ``DetectorOptions(alpha, threshold, correction, **detector)``; :class:`DetectorOptions` documents them.
+    """
+
+    stft: bool | None
+    config: STFTConfig
+    band: Band | None
+    frame_threshold: Threshold | None
 
 
 @dataclass(frozen=True)
 class DetectorOptions:
-    """The detector's settings: the keywords :func:`~chatterspec.detection.detect.detect_record`,
-    :func:`~chatterspec.detection.detect.detect_chunks`, :func:`~chatterspec.detection.detect.detect_scenario`
-    and :func:`~chatterspec.detection.detect_parallel.detect_parallel` share (documented there).
+    """The detector's settings, shared by every detection entry point.
 
     The defaults are theirs: the exact threshold with Bonferroni correction at family-wise
     ``alpha`` = 0.1 %, the STFT intervals when the scenario has several segments, every bin tested.
+
+    Parameters
+    ----------
+    alpha : float
+        False-alarm probability in (0, 1); family-wise for ``"exact"`` with a
+        correction, per-bin for ``"paper"`` (the paper's rule, eq 57).
+    threshold : {"exact", "paper"} or Threshold
+        Threshold kind, or a ready :class:`~chatterspec.detection.thresholds.Threshold`
+        (e.g. the empirical one of a saved calibration,
+        ``Calibration.threshold("family-wise")``), used as is: its ``alpha``
+        replaces ``alpha`` and it must cover the record's periodogram bins.
+    correction : {"bonferroni", "sidak", "none"}
+        Used by ``"exact"`` and by the averaged verdict of every kind (``"paper"``
+        itself is per-bin).
+    stft : bool, optional
+        Also run the STFT detector on run 0 (intervals). Default: when the record's
+        scenario has more than one segment and the record holds one window.
+    config : STFTConfig
+        STFT settings of those intervals (default 1 s Hamming window, 0.2 s hop).
+    band : (float, float), optional
+        ``(lo, hi)`` in Hz: only these bins are tested, by every threshold (single,
+        averaged, STFT frames); the correction counts only them; DC and Nyquist stay
+        excluded. A ready threshold is narrowed with :meth:`Threshold.restricted`.
+    frame_threshold : Threshold, optional
+        Per-frame threshold of the STFT intervals instead of the analytic one (see
+        :func:`~chatterspec.detection.frames.stft_detect`); with a nonlinear model the STFT runs
+        only when it is given.
+
+    See Also
+    --------
+    DetectorKeywords : the keyword-only settings as the ``**detector`` keywords of the entry points.
     """
 
     alpha: float = 1e-3
@@ -179,3 +228,89 @@ class ChunkPlan:
             averaged=averaged,
             frames=self.frames,
         )
+
+
+@dataclass(frozen=True, eq=False)
+class DetectStudy:
+    """A :class:`~chatterspec.studies.montecarlo.Study`: one chunk's verdicts and summed spectrum."""
+
+    scenario: Scenario
+    plan: ChunkPlan
+    gamma: float
+    identification: Any = None  # an IdentificationStream's (setup, alpha, confidence), or None
+
+    def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> Any:
+        """Realizations ``first_run ..`` of ``seed`` tested: ``(accumulator, identifications)``."""
+        acc, parts = None, []
+        keep = self.identification is not None
+        for rec in iter_chattering(
+            self.scenario,
+            runs,
+            seed,
+            chunk_runs=runs,
+            first_run=first_run,
+            gamma=self.gamma,
+            measurements=keep,
+            reuse_measurements=keep,
+        ):
+            acc = self.plan.reduce(acc, self.plan.test(rec.values))
+            if keep:
+                from .identification import identify_record
+
+                setup, alpha, confidence = self.identification
+                parts.append(identify_record(rec, alpha=alpha, confidence=confidence, setup=setup))
+        return acc, parts
+
+    def reduce(self, acc: Any, part: Any) -> Any:
+        """``acc`` with one chunk's :meth:`run_chunk` folded in (chunk order, as :meth:`ChunkPlan.reduce`)."""
+        if acc is None:
+            return part
+        acc[0][0].extend(part[0][0])
+        acc[0][1] += part[0][1]
+        acc[0][2] += part[0][2]
+        acc[1].extend(part[1])
+        return acc
+
+
+def detect_on_workers(
+    scenario: Scenario,
+    runs: int,
+    seed: SeedLike,
+    options: DetectorOptions,
+    execution: Execution,
+    *,
+    gamma: float = 0.1,
+    identification: Any = None,
+) -> DetectionReport:
+    """The worker path of :func:`~chatterspec.detection.detect.detect_scenario` (see there).
+
+    Parameters
+    ----------
+    scenario, runs, seed, gamma, identification
+        As in :func:`~chatterspec.detection.detect.detect_scenario` (``runs`` already checked).
+    options : DetectorOptions
+        The detector's settings.
+    execution : Execution
+        Where and in what chunks the realizations run.
+
+    Returns
+    -------
+    DetectionReport
+        Equal to ``detect_chunks(iter_chattering(scenario, runs, seed, chunk_runs=...), ...)``.
+    """
+    from ..rng import root_seed_sequence
+
+    root = root_seed_sequence(seed)
+    first = next(iter_chattering(scenario, 1, root, chunk_runs=1, gamma=gamma))  # realization 0
+    plan = ChunkPlan.build(first, options)
+    ident = (
+        None
+        if identification is None
+        else (identification.setup, identification.alpha, identification.confidence)
+    )
+    acc, parts = execution.run(
+        DetectStudy(scenario, plan, gamma, ident), runs, root, f"detect {scenario.name}"
+    )
+    for part in parts:
+        identification.add(part)
+    return plan.report(acc)

@@ -396,57 +396,57 @@ def _alarm_kernel(
     for r in range(R):
         for c in range(C):
             a = act[r, c]
-            if code == 0:
+            if code == 0:  # frame: active while the score is over the threshold
                 for j in range(K):
                     x = s[r, j, c]
-                    now = x >= h
-                    starts[r, j, c] = now and not a
-                    ends[r, j, c] = a and not now
-                    a = now
-                    active[r, j, c] = a
-                    stat[r, j, c] = x
-            elif code == 2:
+                    on = x >= h
+                    a = _alarm_step(active, stat, starts, ends, r, j, c, a, on, not on, x)
+            elif code == 2:  # CUSUM, held at h from the start and while active
                 x = g[r, c]
                 for j in range(K):
                     x = max((x + s[r, j, c]) - drift, 0.0)
-                    st = False
-                    en = False
-                    if a:
-                        x = min(x, h)
-                        if x <= 0.0:
-                            en = True
-                            a = False
-                    elif x >= h:
-                        st = True
-                        a = True
-                        x = min(x, h)
-                    active[r, j, c] = a
-                    stat[r, j, c] = x
-                    starts[r, j, c] = st
-                    ends[r, j, c] = en
+                    on = x >= h
+                    x = min(x, h)  # x < h stays x: only a start or an active alarm is held at h
+                    a = _alarm_step(active, stat, starts, ends, r, j, c, a, on, x <= 0.0, x)
                 g[r, c] = x
-            else:
+            else:  # persistence: count of the last n steps over the threshold
                 cnt = count[r, c]
                 for j in range(K):
                     p = (step0 + j) % n
                     ex = s[r, j, c] >= h
                     cnt = cnt - ring[r, c, p] + ex
                     ring[r, c, p] = ex
-                    st = False
-                    en = False
-                    if a:
-                        if cnt <= 0:
-                            en = True
-                            a = False
-                    elif cnt >= k:
-                        st = True
-                        a = True
-                    active[r, j, c] = a
-                    stat[r, j, c] = cnt
-                    starts[r, j, c] = st
-                    ends[r, j, c] = en
+                    a = _alarm_step(active, stat, starts, ends, r, j, c, a, cnt >= k, cnt <= 0, cnt)
                 count[r, c] = cnt
             act[r, c] = a
+
+
+@_jit.step
+def _alarm_step(
+    active: np.ndarray,
+    stat: np.ndarray,
+    starts: np.ndarray,
+    ends: np.ndarray,
+    r: int,
+    j: int,
+    c: int,
+    a: bool,
+    on: bool,
+    off: bool,
+    value: float,
+) -> bool:  # pragma: no cover - compiled (inlined into _alarm_kernel)
+    """One step of every rule's alarm at ``[r, j, c]``: an inactive alarm starts when ``on``, an
+    active one ends when ``off`` (``start``/``end`` of :func:`_alarm_numpy`); writes the outputs and
+    returns the new state."""
+    if a:
+        st, en, a = False, off, not off
+    else:
+        st, en, a = on, False, on
+    active[r, j, c] = a
+    stat[r, j, c] = value
+    starts[r, j, c] = st
+    ends[r, j, c] = en
+    return a
 
 
 # --------------------------------------------------------------------------- one-shot helpers

@@ -14,12 +14,13 @@ with Bonferroni correction at family-wise alpha = 0.1 %.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import TYPE_CHECKING, Any
 
 from .._validate import positive_int
 from ..errors import ParameterError
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
-from ._chunk_plan import ChunkPlan, DetectorOptions
+from ._chunk_plan import ChunkPlan, DetectorKeywords, DetectorOptions, detect_on_workers
 from .frames import (
     FrameDetection,
     detect_frames,
@@ -30,7 +31,6 @@ from .frames import (
 )
 from .pipeline import ChatteringRecord, iter_chattering
 from .report import DetectionReport
-from .spectral import DEFAULT_STFT, STFTConfig
 from .spectrum_verdicts import (  # noqa: F401  (old private imports)
     _VERDICT_FIELDS,
     ChannelVerdict,
@@ -38,16 +38,17 @@ from .spectrum_verdicts import (  # noqa: F401  (old private imports)
     _require_empirical,
     detect_spectrum,
 )
-from .thresholds import (
-    Band,
-    Correction,
-    Threshold,
-)
+from .thresholds import Correction, Threshold
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
 
 __all__ = [
     "DETECT_CHUNK_RUNS",
     "ChannelVerdict",
     "DetectionReport",
+    "DetectorKeywords",
+    "DetectorOptions",
     "FrameDetection",
     "SpectrumDetection",
     "detect_chunks",
@@ -71,10 +72,7 @@ def detect_record(
     alpha: float = 1e-3,
     threshold: str | Threshold = "exact",
     correction: Correction = "bonferroni",
-    *,
-    stft: bool | None = None,
-    config: STFTConfig = DEFAULT_STFT,
-    band: Band | None = None,
+    **detector: Unpack[DetectorKeywords],
 ) -> DetectionReport:
     """Detect model mismatch in a chattering record (default: exact + Bonferroni, family-wise 0.1 %).
 
@@ -82,25 +80,14 @@ def detect_record(
     ----------
     record : ChatteringRecord
         ``values`` (runs, N, m) and the nominal model.
-    alpha : float
-        False-alarm probability in (0, 1); family-wise for ``"exact"`` with a
-        correction, per-bin for ``"paper"`` (the paper's rule, eq 57).
-    threshold : {"exact", "paper"} or Threshold
-        Threshold kind, or a ready :class:`~chatterspec.detection.thresholds.Threshold`
-        (e.g. the empirical one of a saved calibration,
-        ``Calibration.threshold("family-wise")``), used as is: its ``alpha``
-        replaces ``alpha`` and it must cover this record's periodogram bins.
-    correction : {"bonferroni", "sidak", "none"}
-        Used by ``"exact"`` and by the averaged verdict of every kind (``"paper"``
-        itself is per-bin).
-    stft : bool, optional
-        Also run the STFT detector on run 0 (intervals). Default: when the record's
-        scenario has more than one segment and the record holds one window.
-    config : STFTConfig
-    band : (float, float), optional
-        ``(lo, hi)`` in Hz: only these bins are tested, by every threshold (single,
-        averaged, STFT frames); the correction counts only them; DC and Nyquist stay
-        excluded. A ready threshold is narrowed with :meth:`Threshold.restricted`.
+    alpha, threshold, correction
+        False-alarm probability in (0, 1), threshold kind (``"exact"``, ``"paper"`` or a ready
+        :class:`~chatterspec.detection.thresholds.Threshold`) and multiple-test correction
+        (``"bonferroni"``, ``"sidak"``, ``"none"``), as documented in :class:`DetectorOptions`.
+    **detector
+        ``stft``, ``config``, ``band``, ``frame_threshold``: the STFT intervals on run 0 (by default
+        when the record's scenario has more than one segment), their settings, the band in Hz of the
+        tested bins and a per-frame threshold (:class:`DetectorOptions`).
 
     Notes
     -----
@@ -114,7 +101,7 @@ def detect_record(
     """
     if not isinstance(record, ChatteringRecord):
         raise ParameterError(f"record must be a ChatteringRecord; got {type(record).__name__}")
-    return _detect([record], DetectorOptions(alpha, threshold, correction, stft, config, band))
+    return _detect([record], DetectorOptions(alpha, threshold, correction, **detector))
 
 
 def detect_chunks(
@@ -122,11 +109,7 @@ def detect_chunks(
     alpha: float = 1e-3,
     threshold: str | Threshold = "exact",
     correction: Correction = "bonferroni",
-    *,
-    stft: bool | None = None,
-    config: STFTConfig = DEFAULT_STFT,
-    band: Band | None = None,
-    frame_threshold: Threshold | None = None,
+    **detector: Unpack[DetectorKeywords],
 ) -> DetectionReport:
     """:func:`detect_record` over a stream of chunks of realizations, in memory bounded by one chunk.
 
@@ -139,11 +122,8 @@ def detect_chunks(
     chunks : iterable of ChatteringRecord
         Chunks of one study (same model, length and scenario), e.g.
         :func:`chatterspec.detection.pipeline.iter_chattering`.
-    alpha, threshold, correction, stft, config, band
-        As in :func:`detect_record`.
-    frame_threshold : Threshold, optional
-        Per-frame threshold of the STFT intervals instead of the analytic one (see
-        :func:`stft_detect`); with a nonlinear model the STFT runs only when it is given.
+    alpha, threshold, correction, **detector
+        As in :func:`detect_record` (:class:`DetectorOptions`).
 
     Raises
     ------
@@ -152,10 +132,9 @@ def detect_chunks(
 
     See Also
     --------
-    chatterspec.detection.detect_parallel.detect_parallel : the same numbers from worker processes.
+    detect_scenario : the chunks of a scenario, simulated here or on worker processes.
     """
-    options = DetectorOptions(alpha, threshold, correction, stft, config, band, frame_threshold)
-    return _detect(chunks, options)
+    return _detect(chunks, DetectorOptions(alpha, threshold, correction, **detector))
 
 
 def _detect(chunks: Iterable[ChatteringRecord], options: DetectorOptions) -> DetectionReport:
@@ -184,17 +163,20 @@ def detect_scenario(
     threshold: str | Threshold = "exact",
     correction: Correction = "bonferroni",
     *,
-    stft: bool | None = None,
-    config: STFTConfig = DEFAULT_STFT,
-    band: Band | None = None,
     chunk_runs: int | None = DETECT_CHUNK_RUNS,
     gamma: float = 0.1,
+    identification: Any = None,
+    workers: int = 1,
+    scheduler: str | None = None,
+    progress: bool | None = None,
+    **detector: Unpack[DetectorKeywords],
 ) -> DetectionReport:
     """Simulate, filter and detect ``runs`` realizations of ``scenario`` chunk by chunk (bounded memory).
 
     Same numbers as ``detect_record(scenario_chattering(scenario, runs, seed), ...)``
     (verdicts identical; the averaged spectrum summed chunk by chunk, equal to
-    rounding), with peak memory set by ``chunk_runs``, not by ``runs``.
+    rounding), with peak memory set by ``chunk_runs``, not by ``runs``; the same report, bit for
+    bit, whatever ``workers`` or ``scheduler`` (``chatterspec detect --workers N``).
 
     Parameters
     ----------
@@ -204,12 +186,30 @@ def detect_scenario(
         Monte Carlo realizations (>= 1).
     seed : int, SeedSequence, Generator or None
         Root of the random streams (realization r is the same whatever the chunking).
-    alpha, threshold, correction, stft, config, band
-        As in :func:`detect_record`.
+    alpha, threshold, correction, **detector
+        As in :func:`detect_record` (:class:`DetectorOptions`).
     chunk_runs : int, optional
-        Realizations per chunk (default 256; None: the simulator's memory-sized default).
+        Realizations per chunk (default 256; None: the simulator's memory-sized default in this
+        process, :data:`~chatterspec.montecarlo.DEFAULT_CHUNK_RUNS` on workers).
     gamma : float
         SVSF convergence rate in (0, 1) (eq 8-10).
+    identification : IdentificationStream, optional
+        Fault identification of every chunk too, added to this stream in chunk order (the
+        serial ``IdentificationStream.tap`` numbers); the chunks then run through
+        :func:`~chatterspec.montecarlo.run_study` even with one worker.
+    workers, scheduler, progress
+        Local worker processes, Dask scheduler and progress bar of
+        :class:`~chatterspec.montecarlo.Execution`. With one worker, no scheduler and no
+        ``identification`` the chunks stream through this process (no progress bar); otherwise
+        the thresholds and run 0's STFT intervals come from a one-run record here and every chunk
+        is simulated, filtered and tested by :func:`~chatterspec.montecarlo.run_study`.
     """
-    chunks = iter_chattering(scenario, positive_int("runs", runs), seed, chunk_runs=chunk_runs, gamma=gamma)
-    return _detect(chunks, DetectorOptions(alpha, threshold, correction, stft, config, band))
+    runs = positive_int("runs", runs)
+    options = DetectorOptions(alpha, threshold, correction, **detector)
+    if workers == 1 and scheduler is None and identification is None:
+        chunks = iter_chattering(scenario, runs, seed, chunk_runs=chunk_runs, gamma=gamma)
+        return _detect(chunks, options)
+    from ..montecarlo import Execution
+
+    ex = Execution(workers=workers, scheduler=scheduler, chunk_runs=chunk_runs, progress=progress)
+    return detect_on_workers(scenario, runs, seed, options, ex, gamma=gamma, identification=identification)

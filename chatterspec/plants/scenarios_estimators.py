@@ -8,10 +8,11 @@ scenarios; :mod:`chatterspec.plants.scenarios` lists them in its catalogue.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
-from .eha4 import eha4
+from .eha4 import Measure, eha4
 from .filter_settings import FilterSettings
 from .models import LinearModel
 from .scenario_types import Scenario, Segment
@@ -106,90 +107,105 @@ def _detc(name: str, uncertain: bool) -> Scenario:
 EHA4_SMM_INPUT = Sine(94.25, 0.5)
 
 
-def _eha4_leak_timeline() -> Scenario:
-    """SMM paper ([SMM]) section 5: normal / minor / major leakage, 9 s at 1 ms."""
-    Q, R = 1e-9 * np.eye(4), 1e-6 * np.eye(4)
-    modes = ("normal", "leak-minor", "leak-major")
-    models = tuple(eha4(mode, dt=1e-3, Q=Q, R=R) for mode in modes)
+def _eha4_mode_timeline(
+    name: str,
+    modes: tuple[str, str, str],
+    segment_s: float,
+    dt: float,
+    Q: np.ndarray,
+    R: np.ndarray,
+    *,
+    measure: Measure = "full",
+    scenario: dict[str, Any],
+    filters: dict[str, Any],
+) -> Scenario:
+    """The EHA4 in ``modes[0]`` (the nominal model), then ``modes[1]``, then ``modes[2]``, ``segment_s`` each.
+
+    The estimator papers' fault timelines: the filters get the plant's ``Q``, ``R``, ``P0 = 10 Q``,
+    ``x0 = 0``, ``gamma = 0.1`` and the three modes' models (multiple-model filters), plus ``filters``
+    (:class:`FilterSettings` fields); ``scenario`` holds the :class:`Scenario` fields left (input,
+    description, fault labels).
+    """
+    models = tuple(eha4(mode, dt=dt, measure=measure, Q=Q, R=R) for mode in modes)
     settings = FilterSettings(
-        Q=Q,
-        R=R,
-        P0=10.0 * Q,
-        x0=np.zeros(4),
-        gamma=0.1,
-        psi=(0.02, 0.5, 2.0, 0.01),
-        mapping="full",
-        modes=modes,
-        mode_models=models,
-        mu0=(1 / 3, 1 / 3, 1 / 3),
-        weight_floor=1e-3,
-        # for the IMM route of `chatterspec diagnose` on the same plant (the SMM paper has no IMM):
-        # stay 0.999 per 1 ms step, i.e. a mean dwell of 1 s in each mode, leave uniformly
-        transition_matrix=np.full((3, 3), 0.0005) + np.eye(3) * (0.999 - 0.0005),
-        source="SMM paper section 5: Q = 1e-9 I4, R = 1e-6 I4, P0 = 10 Q, x0 = 0, uniform mu0 (section 3), "
-        "modes of Table 3; gamma = 0.1 from the IMM paper; psi and the weight floor are chatterspec's "
-        "choices (docs/design.md S6), not printed; the transition matrix "
-        "(0.999 on the diagonal per 1 ms step) is chatterspec's, for the IMM route of `diagnose`",
+        Q=Q, R=R, P0=10.0 * Q, x0=np.zeros(4), gamma=0.1, modes=modes, mode_models=models, **filters
     )
     return Scenario(
-        name="eha4-leak-timeline",
+        name=name,
         nominal=models[0],
-        windows=(Segment(3.0, 6.0, models[1], "leak-minor"), Segment(6.0, 9.0, models[2], "leak-major")),
-        input=EHA4_SMM_INPUT,
-        duration=9.0,
-        description="nonlinear EHA4 (SMM eq 4.1-4.5), C = I4; minor leakage at 3 s, major at 6 s; "
-        "pump 94.25 sin(2 pi 0.5 t) rad/s",
+        windows=tuple(Segment(i * segment_s, (i + 1) * segment_s, models[i], modes[i]) for i in (1, 2)),
+        duration=3 * segment_s,
         family="eha4",
-        fault="leakage",
-        level="minor at 3 s, major at 6 s",
-        fault_channel="acceleration",
         filter_settings=settings,
+        **scenario,
+    )
+
+
+def _eha4_leak_timeline() -> Scenario:
+    """SMM paper ([SMM]) section 5: normal / minor / major leakage, 9 s at 1 ms."""
+    return _eha4_mode_timeline(
+        "eha4-leak-timeline",
+        ("normal", "leak-minor", "leak-major"),
+        3.0,
+        1e-3,
+        1e-9 * np.eye(4),
+        1e-6 * np.eye(4),
+        filters=dict(
+            psi=(0.02, 0.5, 2.0, 0.01),
+            mapping="full",
+            mu0=(1 / 3, 1 / 3, 1 / 3),
+            weight_floor=1e-3,
+            # for the IMM route of `chatterspec diagnose` on the same plant (the SMM paper has no IMM):
+            # stay 0.999 per 1 ms step, i.e. a mean dwell of 1 s in each mode, leave uniformly
+            transition_matrix=np.full((3, 3), 0.0005) + np.eye(3) * (0.999 - 0.0005),
+            source="SMM paper section 5: Q = 1e-9 I4, R = 1e-6 I4, P0 = 10 Q, x0 = 0, "
+            "uniform mu0 (section 3), modes of Table 3; gamma = 0.1 from the IMM paper; psi and the weight "
+            "floor are chatterspec's choices (docs/design.md S6), not printed; the transition matrix "
+            "(0.999 on the diagonal per 1 ms step) is chatterspec's, for the IMM route of `diagnose`",
+        ),
+        scenario=dict(
+            input=EHA4_SMM_INPUT,
+            description="nonlinear EHA4 (SMM eq 4.1-4.5), C = I4; minor leakage at 3 s, major at 6 s; "
+            "pump 94.25 sin(2 pi 0.5 t) rad/s",
+            fault="leakage",
+            level="minor at 3 s, major at 6 s",
+            fault_channel="acceleration",
+        ),
     )
 
 
 def _eha4_imm_analogue() -> Scenario:
     """Simulation analogue of the IMM paper's rig experiment (``docs/design.md`` I10), 6 s at 0.1 ms."""
-    Q = np.diag([1e-9, 1e-7, 1e-2, 1e2]) ** 2
-    R = np.diag([1e-7, 200.0]) ** 2
-    modes = ("normal", "leak-minor", "friction-imm-major")
-    models = tuple(eha4(mode, dt=1e-4, measure="position-pressure", Q=Q, R=R) for mode in modes)
     pi = np.full((3, 3), 0.05)
     np.fill_diagonal(pi, 0.90)
-    settings = FilterSettings(
-        Q=Q,
-        R=R,
-        P0=10.0 * Q,
-        x0=np.zeros(4),
-        gamma=0.1,
-        psi=(5e-7, 1e3),
-        psi_lower=(4.7e-3, 3.07),
-        cutoff_lambda=(0.5, 0.5),
-        mapping="cov",
-        modes=modes,
-        mode_models=models,
-        mu0=(0.90, 0.05, 0.05),
-        transition_matrix=pi,
-        source="IMM paper section 6 (T, segments, H, mu0, Pi per step, gamma = 0.1) with chatterspec's "
-        "simulation analogue (docs/design.md I10): noise, Q, P0 = 10 Q, psi, Lambda = 0.5 I; the printed "
-        "+-5 rad/s input, Q, R and psi cannot be simulated literally",
-    )
-    return Scenario(
-        name="eha4-imm-analogue",
-        nominal=models[0],
-        windows=(
-            Segment(2.0, 4.0, models[1], "leak-minor"),
-            Segment(4.0, 6.0, models[2], "friction-imm-major"),
+    return _eha4_mode_timeline(
+        "eha4-imm-analogue",
+        ("normal", "leak-minor", "friction-imm-major"),
+        2.0,
+        1e-4,
+        np.diag([1e-9, 1e-7, 1e-2, 1e2]) ** 2,
+        np.diag([1e-7, 200.0]) ** 2,
+        measure="position-pressure",
+        filters=dict(
+            psi=(5e-7, 1e3),
+            psi_lower=(4.7e-3, 3.07),
+            cutoff_lambda=(0.5, 0.5),
+            mapping="cov",
+            mu0=(0.90, 0.05, 0.05),
+            transition_matrix=pi,
+            source="IMM paper section 6 (T, segments, H, mu0, Pi per step, gamma = 0.1) with chatterspec's "
+            "simulation analogue (docs/design.md I10): noise, Q, P0 = 10 Q, psi, Lambda = 0.5 I; the printed "
+            "+-5 rad/s input, Q, R and psi cannot be simulated literally",
         ),
-        input=SquareWave(1.0, 60.0),
-        duration=6.0,
-        description="ANALOGUE of the IMM paper's rig experiment: nonlinear EHA4 at 0.1 ms, position and "
-        "pressure measured; normal / leakage (IMM 'Major' = SMM minor) / friction (IMM 'Major friction') "
-        "for 2 s each; square wave +-60 rad/s at 1 Hz",
-        family="eha4",
-        fault="leakage+friction",
-        level="leak 2 s, friction 4 s",
-        fault_channel=None,
-        filter_settings=settings,
+        scenario=dict(
+            input=SquareWave(1.0, 60.0),
+            description="ANALOGUE of the IMM paper's rig experiment: nonlinear EHA4 at 0.1 ms, position and "
+            "pressure measured; normal / leakage (IMM 'Major' = SMM minor) / friction (IMM 'Major friction') "
+            "for 2 s each; square wave +-60 rad/s at 1 Hz",
+            fault="leakage+friction",
+            level="leak 2 s, friction 4 s",
+            fault_channel=None,
+        ),
     )
 
 
