@@ -170,6 +170,7 @@ def test_alarm_settings_cache_and_methods():
     model = scenario("eha-healthy").nominal
     a = calibrate_alarm(model, MonitorSettings(), "cusum", 1.0)
     assert calibrate_alarm(model, MonitorSettings(), "cusum", 1.0, hours=4.0) is a  # cached; 12 / 3 channels
+    assert calibrate_alarm(model, MonitorSettings(), "cusum", 1.0, seed=np.int64(0)) is a  # same seed, cached
     assert a.method in ("counted", "extrapolated") and a.hours == pytest.approx(4.0, rel=1e-3)
     s = alarm_settings(model, MonitorSettings(), "cusum", 1.0)
     assert s.rule == a.rule and s.budget is a and s.alpha == 1e-3

@@ -253,7 +253,7 @@ def _key(model: Any, settings: Any, rule: AlarmRule, X: float, hours: float, see
         "rule": rule.to_dict(),
         "X": X,
         "hours": hours,
-        "seed": seed,
+        "seed": int(seed) if isinstance(seed, np.integer) else seed,  # np.int64(3) is the seed 3
         "scenario": None if sc is None else sc.name,
     }
     return json.dumps(parts, sort_keys=True, default=str)
