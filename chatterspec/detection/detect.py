@@ -14,7 +14,7 @@ with Bonferroni correction at family-wise alpha = 0.1 %.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import TYPE_CHECKING, Any
+from typing import Any, Unpack
 
 from .._validate import positive_int
 from ..errors import ParameterError
@@ -39,9 +39,6 @@ from .spectrum_verdicts import (  # noqa: F401  (old private imports)
     detect_spectrum,
 )
 from .thresholds import Correction, Threshold
-
-if TYPE_CHECKING:
-    from typing_extensions import Unpack
 
 __all__ = [
     "DETECT_CHUNK_RUNS",

@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any, Unpack
 
 import numpy as np
 
@@ -37,10 +37,6 @@ from ..errors import ParameterError
 from ..montecarlo import Execution, ExecutionOptions
 from .budget_results import RouteBudget, summarize_route
 from .route_sweep import DEFAULT_WARMUP_S, merge_sweeps, route_geometry, sweep_chunk
-
-if TYPE_CHECKING:
-    from typing_extensions import Unpack
-
 
 __all__ = [
     "BUDGET_SALT",

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Unpack
 
 import numpy as np
 import scipy.stats
@@ -20,10 +20,6 @@ from .calibration_result import CALIBRATION_FORMAT, Calibration, _ro, load_calib
 from .calibration_tails import calibration_fields, frame_counts
 from .healthy import HealthyStudy, _analytic_thresholds, _frame_thresholds, resolve_scenario
 from .tail_histogram import DEFAULT_TAIL_BUDGET
-
-if TYPE_CHECKING:
-    from typing_extensions import Unpack
-
 
 __all__ = [
     "CALIBRATION_FORMAT",

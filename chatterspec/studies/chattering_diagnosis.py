@@ -38,7 +38,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Unpack
 
 import numpy as np
 
@@ -54,9 +54,6 @@ from ..montecarlo import ExecutionOptions
 from ..plants.scenarios import Scenario
 from .diagnosis_figures import DiagnosisFigures
 from .intervals import clopper_pearson
-
-if TYPE_CHECKING:
-    from typing_extensions import Unpack
 
 __all__ = [
     "CALIBRATION_SALT",

@@ -13,7 +13,7 @@ sending back its mode probabilities (``runs x T x modes`` floats, ~14 MB for 64 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any, Unpack
 
 import numpy as np
 
@@ -21,10 +21,6 @@ from ..montecarlo import Execution, ExecutionOptions
 from ..plants.simulate import iter_simulations
 from .chattering_diagnosis import ChatteringTally
 from .mode_diagnosis import ModeTally
-
-if TYPE_CHECKING:
-    from typing_extensions import Unpack
-
 
 __all__ = ["diagnose_parallel"]
 

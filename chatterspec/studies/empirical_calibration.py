@@ -19,7 +19,7 @@ has ``normalization="empirical"``, no analytic thresholds, and ``expected`` = ``
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Unpack
 
 import numpy as np
 
@@ -34,10 +34,6 @@ from .calibration_result import Calibration, _ro
 from .calibration_tails import calibration_fields, frame_counts
 from .healthy import HealthyStudy
 from .tail_histogram import DEFAULT_TAIL_BUDGET
-
-if TYPE_CHECKING:
-    from typing_extensions import Unpack
-
 
 __all__ = ["DEFAULT_PILOT_RUNS", "calibrate_empirical"]
 

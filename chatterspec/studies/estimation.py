@@ -29,7 +29,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any, Unpack
 
 import numpy as np
 
@@ -52,10 +52,6 @@ from .metrics import (
     nis,
     state_error_metrics,
 )
-
-if TYPE_CHECKING:
-    from typing_extensions import Unpack
-
 
 __all__ = [
     "FILTERS",

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any, Unpack
 
 import numpy as np
 
@@ -49,10 +49,6 @@ from ..rng import SeedLike, seed_label
 from .calibration_result import _ro
 from .healthy import _analytic_thresholds, _SummedChunks
 from .intervals import RateEstimate
-
-if TYPE_CHECKING:
-    from typing_extensions import Unpack
-
 
 __all__ = [
     "CLOSED_LOOP_FAMILIES",

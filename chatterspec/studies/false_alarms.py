@@ -6,7 +6,7 @@ import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Unpack
 
 import numpy as np
 
@@ -28,10 +28,6 @@ from .healthy import (
     resolve_scenario,
 )
 from .intervals import RateEstimate
-
-if TYPE_CHECKING:
-    from typing_extensions import Unpack
-
 
 __all__ = [
     "FalseAlarmResult",
