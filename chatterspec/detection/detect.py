@@ -18,6 +18,7 @@ from typing import Any, Unpack
 
 from .._validate import positive_int
 from ..errors import ParameterError
+from ..montecarlo import Execution
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
 from ._chunk_plan import ChunkPlan, DetectorKeywords, DetectorOptions, detect_on_workers
@@ -206,7 +207,5 @@ def detect_scenario(
     if workers == 1 and scheduler is None and identification is None:
         chunks = iter_chattering(scenario, runs, seed, chunk_runs=chunk_runs, gamma=gamma)
         return _detect(chunks, options)
-    from ..montecarlo import Execution
-
     ex = Execution(workers=workers, scheduler=scheduler, chunk_runs=chunk_runs, progress=progress)
     return detect_on_workers(scenario, runs, seed, options, ex, gamma=gamma, identification=identification)
