@@ -143,10 +143,7 @@ class FrameAnalysis:
         score = self._score._unchecked(power)
         blk = self._alarm._advance(flags.astype(float) if self._legacy else score)
         stat = score if self._legacy else blk.statistic
-        # frame_time's centres j H + (W - 1) / 2 as one float arange: integers and halves far below
-        # 2^52, so exactly the same doubles as idx * H + (W - 1) / 2, with two array operations fewer
-        centre0 = int(idx[0]) * H + (W - 1) / 2.0
-        times = self.t_first + np.arange(centre0, centre0 + idx.shape[0] * H, H) * self.dt
+        times = self.frame_time(idx, self.t_first)
         frames = FrameBlock(idx, times, power, flags, peak_hz, peak_ratio, score, blk.active, stat)
         return frames, self._events(frames, blk.starts, blk.ends)
 
