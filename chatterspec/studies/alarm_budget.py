@@ -48,6 +48,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import _jit
 from .._validate import positive
 from ..detection.alarm_calibration import (
     RuleCalibration,
@@ -184,6 +185,7 @@ def healthy_frame_scores(
     score, _ = _score_of(model, settings)
     dt = model.dt
     W, H = settings.stft.n_window(dt), settings.stft.n_hop(dt)
+    compiled = _jit.enabled()  # the compiled taper/power loops, or their numpy form (same bits)
     if is_linear(model):
         n = round(hours * 3600.0 / dt)
         local = threading.local()
@@ -191,7 +193,7 @@ def healthy_frame_scores(
         def frames(x: np.ndarray, first: int) -> np.ndarray:
             eng = getattr(local, "engine", None)  # an engine's scratch buffers are per thread
             if eng is None:
-                eng = local.engine = FrameEngine(settings.stft, dt, compiled=True)
+                eng = local.engine = FrameEngine(settings.stft, dt, compiled=compiled)
             idx, P = eng(x, first)
             return score(P) if idx.size else np.zeros((0, model.n_outputs))
 
@@ -222,7 +224,7 @@ def healthy_frame_scores(
     runs = max(1, math.ceil(hours * 3600.0 / (per * H * dt)))
     parts = []
     root = np.random.SeedSequence([int(seed), ALARM_SALT])
-    engine = FrameEngine(settings.stft, dt, compiled=True)
+    engine = FrameEngine(settings.stft, dt, compiled=compiled)
     for rec in iter_chattering(scenario, runs, root):
         _, P = engine(rec.values, 0)
         parts.append(score(P))
