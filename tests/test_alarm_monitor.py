@@ -255,7 +255,7 @@ def test_calibration_file_records_the_rule_and_is_refused_for_another(tmp_path: 
     cal = tmp_path / "cal.npz"
     rc, out, err = _run(
         capsys, "calibrate", str(MODEL), "--runs", "99", "--no-progress", "--rule", "persistence",
-        "--persistence-k", "2", "--persistence-n", "4", "--false-alarms-per-hour", "60", "--hours", "1",
+        "--persistence-k", "2", "--persistence-n", "4", "--false-alarms-per-hour", "60", "--alarm-hours", "1",
         "--out", str(cal),
     )  # fmt: skip
     assert rc == 0, err

@@ -79,6 +79,15 @@ def band_from_args(args: argparse.Namespace) -> tuple[float, float] | None:
     return check_band(band)
 
 
+def stderr_note(command: str) -> Any:
+    """A function that prints one ``chatterspec COMMAND: TEXT`` line on stderr (library notes)."""
+
+    def note(text: str) -> None:
+        print(f"chatterspec {command}: {text}", file=sys.stderr, flush=True)
+
+    return note
+
+
 def live_arg(text: str) -> str:
     """argparse type of ``--live``: ``spawn``, a port, ``host:port`` or a viewer URL (not a bare word)."""
     if text == "spawn":

@@ -26,7 +26,7 @@ from ..errors import ParameterError
 from ..jsonout import dumps
 from . import _identify
 from ._alarm_args import _alarm_line, _alarm_short, add_alarm_args, alarm_choice, alarm_doc
-from ._common import Outputs, band_from_args, check_record_path, positive_int_arg
+from ._common import Outputs, band_from_args, check_record_path, positive_int_arg, stderr_note
 from ._monitor_stream import _emit_line, _run_stream
 from ._options import add, add_report_args, command
 
@@ -442,5 +442,6 @@ def _alarm_settings(
         c.rule,
         c.budget,
         hours=hours,
+        note=stderr_note("monitor"),
         **c.parameters,  # type: ignore[attr-defined]
     )
