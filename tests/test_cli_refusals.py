@@ -12,6 +12,7 @@ from chatterspec.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE_MODEL = ROOT / "examples" / "eha_model.toml"
 EXAMPLE_DATA = ROOT / "examples" / "eha_data.csv"
+MONITOR = ["monitor", "--model", str(EXAMPLE_MODEL), "--data", str(EXAMPLE_DATA)]
 
 
 def _error(capsys, argv: list[str]) -> str:
@@ -78,3 +79,43 @@ def test_record_every_below_the_minimum_is_refused(capsys) -> None:
     argv = ["monitor", "--model", str(EXAMPLE_MODEL), "--data", "-", "--record", "x.rrd"]
     err = _error(capsys, [*argv, "--record-every", "0.0001"])
     assert "--record-every must be >= 0.05 minutes" in err
+
+
+# Each case once hung, wrote a traceback or was accepted silently; now one line and exit 2, before
+# any simulation (the hours and budget bounds are checked from the model and STFT alone).
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        ([*MONITOR, "--alarm-hours", "1e9"], "give at most 621.4 h for this model (--alarm-hours)"),
+        (
+            ["calibrate", str(EXAMPLE_MODEL), "--rule", "cusum", "--alarm-hours", "1e12"],
+            "more than the alarm calibration can hold",
+        ),
+        (
+            ["calibrate", str(EXAMPLE_MODEL), "--rule", "frame", "--alarm-hours", "0.0001"],
+            "give 0 STFT frame(s) of 1 s (hop 0.2 s); the alarm calibration needs at least 2",
+        ),
+        (
+            [*MONITOR, "--rule", "frame", "--false-alarms-per-hour", "1e9"],
+            "raise at most 27000 alarm starts per hour (one per two steps per channel)",
+        ),
+        (
+            ["power", "leakage", "--closed-loop", "--dither", "5", "--dither-hz", "600", "--runs", "2"],
+            "multisine tones must lie below the Nyquist frequency 500 Hz",
+        ),
+        (
+            ["power", "leakage", "--closed-loop", "--dither-signal", "prbs", "--dither-hz", "20"],
+            "--dither-signal prbs has none",
+        ),
+    ],
+)
+def test_the_boundary_closes(argv: list[str], message: str, capsys, monkeypatch) -> None:
+    from chatterspec.studies import alarm_budget, calibration, excitation
+
+    def forbid(*_a, **_k):
+        raise AssertionError("simulated before refusing")
+
+    monkeypatch.setattr(alarm_budget, "healthy_chattering", forbid)
+    monkeypatch.setattr(calibration, "calibrate", forbid)
+    monkeypatch.setattr(excitation, "_ExcitationChunks", forbid)
+    assert message in _error(capsys, argv)
