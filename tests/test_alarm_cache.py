@@ -150,7 +150,7 @@ def test_a_second_monitor_run_reads_the_threshold_back(tmp_path: Path, monkeypat
     examples = Path(__file__).resolve().parents[1] / "examples"
     monkeypatch.setenv(_cache.CACHE_DIR_ENV, str(tmp_path))
     monkeypatch.setattr(alarm_budget, "_CACHE", {})
-    argv = ["monitor", "--model", str(examples / "eha_model.toml"), "--data", str(examples / "eha_data.csv")]
+    argv = ["monitor", str(examples / "eha_model.toml"), "--data", str(examples / "eha_data.csv")]
     argv += ["--alarm-hours", "0.25", "--false-alarms-per-hour", "200", "--no-identify"]
     assert main(argv) == 0
     first = capsys.readouterr()

@@ -228,13 +228,13 @@ def _run(capsys, *argv: str) -> tuple[int, str, str]:
     ],
 )
 def test_cli_bad_alarm_options(capsys, extra, needle):
-    rc, out, err = _run(capsys, "monitor", "--model", str(MODEL), "--data", str(DATA), *extra)
+    rc, out, err = _run(capsys, "monitor", str(MODEL), "--data", str(DATA), *extra)
     assert rc == 2 and needle in err, err
     assert len(err.strip().splitlines()) == 1 and out == ""
 
 
 def test_cli_monitor_reports_rule_and_budget(capsys):
-    rc, out, err = _run(capsys, "monitor", "--model", str(MODEL), "--data", str(DATA), "--json")
+    rc, out, err = _run(capsys, "monitor", str(MODEL), "--data", str(DATA), "--json")
     assert rc == 0
     doc = json.loads(out)
     assert doc["alarm"]["rule"]["rule"] == "cusum" and doc["alarm"]["false_alarms_per_hour"] == pytest.approx(
@@ -243,11 +243,11 @@ def test_cli_monitor_reports_rule_and_budget(capsys):
     assert doc["alarm"]["calibration"]["method"] == "extrapolated"
     assert doc["events"] and all(e["rule"] == "cusum" for e in doc["events"])
     assert "alarms: cusum rule" in err
-    rc, out, err = _run(capsys, "monitor", "--model", str(MODEL), "--data", str(DATA), "--events", "jsonl")
+    rc, out, err = _run(capsys, "monitor", str(MODEL), "--data", str(DATA), "--events", "jsonl")
     first = json.loads(out.splitlines()[0])
     assert first["rule"] == "cusum" and first["false_alarms_per_hour"] == pytest.approx(1 / 24)
     assert "[cusum rule, 1 false alarm per 24 h]" in err
-    rc, out, err = _run(capsys, "monitor", "--model", str(MODEL), "--data", str(DATA), "--alpha", "0.001")
+    rc, out, err = _run(capsys, "monitor", str(MODEL), "--data", str(DATA), "--alpha", "0.001")
     assert rc == 0 and "fault start(s) [frame rule, per-frame alpha 0.001]" in out
 
 
@@ -266,7 +266,7 @@ def test_calibration_file_records_the_rule_and_is_refused_for_another(tmp_path: 
     assert c.alarm.rule == PersistenceRule(c.alarm.threshold, k=2, n=4)
     assert c.alarm.false_alarms_per_hour == 60.0 and c.alarm.steps_per_hour == pytest.approx(18000.0)
     assert c.alarm.method == "counted"
-    base = ["monitor", "--model", str(MODEL), "--data", str(DATA), "--calibration", str(cal)]
+    base = ["monitor", str(MODEL), "--data", str(DATA), "--calibration", str(cal)]
     for extra, needle in (
         (["--rule", "cusum"], "was calibrated for the persistence rule; got --rule cusum"),
         (["--false-alarms-per-hour", "1"], "was calibrated for 60 false alarms per hour"),

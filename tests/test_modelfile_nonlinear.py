@@ -130,10 +130,10 @@ def test_calibrate_detect_simulate_and_monitor_take_the_model_file(
     worn = tmp_path / "worn.csv"
     assert main(["simulate", str(WORN), "--rate", "0", "--duration", "8", "--seed", "1"]) == 0
     worn.write_text(capsys.readouterr().out)
-    assert main(["monitor", "--model", str(DUFFING), "--data", str(worn)]) == 2
+    assert main(["monitor", str(DUFFING), "--data", str(worn)]) == 2
     err = capsys.readouterr().err
     assert "is a nonlinear model" in err and "chatterspec calibrate" in err and "--calibration" in err
-    assert main(["monitor", "--model", str(DUFFING), "--data", str(worn), "--calibration", str(cal)]) == 0
+    assert main(["monitor", str(DUFFING), "--data", str(worn), "--calibration", str(cal)]) == 0
     out = capsys.readouterr().out
     # the 20 % weaker spring shows at the 3 Hz drive from the first frame on (a 75x ratio in the
     # example's 60 s run): far beyond the threshold, so one short record suffices

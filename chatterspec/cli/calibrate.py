@@ -196,8 +196,8 @@ def _check_support(args: argparse.Namespace) -> dict[str, Any]:
     sc = load_scenario(args.name)
     per_frame = frames_per_run(sc.n_samples - 1, 1.0, sc.dt)  # the calibration's STFT: 1 s windows
     supports = {
-        "detect": support_for("detect", args.runs, args.alpha, args.confidence),
-        "monitor": support_for("monitor", args.runs, args.alpha, args.confidence, per_frame),
+        "detect": support_for("detect", args.runs, args.alpha, args.mc_confidence),
+        "monitor": support_for("monitor", args.runs, args.alpha, args.mc_confidence, per_frame),
     }
     bad = [s for s in supports.values() if not s.supported]
     if len(bad) == len(supports):
