@@ -25,26 +25,25 @@ def parsed_arg(text: str, convert: Any, ok: Any, not_a_number: str, out_of_range
     return value
 
 
-def alpha_arg(text: str) -> float:
-    """argparse type: a probability in the open interval (0, 1)."""
-    return parsed_arg(
-        text,
-        float,
-        lambda v: 0.0 < v < 1.0,
-        "alpha must be a number in (0, 1); got {text!r}",
-        "alpha must lie in the open interval (0, 1); got {value}",
-    )
+def _open_unit_arg(what: str, name: str) -> Any:
+    """argparse type ``name``: a number in the open interval (0, 1), named ``what`` in messages."""
+
+    def parse(text: str) -> float:
+        return parsed_arg(
+            text,
+            float,
+            lambda v: 0.0 < v < 1.0,
+            f"{what} must be a number in (0, 1); got {{text!r}}",
+            f"{what} must lie in the open interval (0, 1); got {{value}}",
+        )
+
+    parse.__name__ = parse.__qualname__ = name
+    parse.__doc__ = f"argparse type: {what}, a number in the open interval (0, 1)."
+    return parse
 
 
-def confidence_arg(text: str) -> float:
-    """argparse type: a confidence level in the open interval (0, 1)."""
-    return parsed_arg(
-        text,
-        float,
-        lambda v: 0.0 < v < 1.0,
-        "confidence must be a number in (0, 1); got {text!r}",
-        "confidence must lie in the open interval (0, 1); got {value}",
-    )
+alpha_arg = _open_unit_arg("alpha", "alpha_arg")
+confidence_arg = _open_unit_arg("confidence", "confidence_arg")
 
 
 def rate_arg(text: str) -> float:
