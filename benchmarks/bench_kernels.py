@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     print(f"cores: {os.cpu_count()}, numba: {_jit.HAVE_NUMBA}, stream: {args.seconds:g} s at 1 kHz")
     if not _jit.HAVE_NUMBA:
-        print("numba is not importable: nothing to compare (it is a core dependency: pip install numba)")
+        print("numba is not installed: nothing to compare (pip install '.[fast]')")
         return 1
     eha = scenario("eha-healthy").nominal
     cases = [

@@ -35,7 +35,7 @@ from chatterspec.plants.scenarios import scenario
 from chatterspec.plants.simulate import _noise_blocks, _tables
 from chatterspec.rng import BLOCK, block_generator, root_seed_sequence
 
-needs_numba = pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not importable (a core dependency)")
+needs_numba = pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed (pip install '.[fast]')")
 
 
 @needs_numba

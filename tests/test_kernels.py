@@ -26,7 +26,7 @@ from chatterspec.filters.svsf import SVSF, auxiliary_svsf
 from chatterspec.plants.scenarios import scenario
 from chatterspec.plants.simulate import _simulate_kernel, _tables, simulate
 
-needs_numba = pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not importable (a core dependency)")
+needs_numba = pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed (pip install '.[fast]')")
 
 REL_TOL = 1e-12  # see the module docstring
 

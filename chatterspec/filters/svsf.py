@@ -228,7 +228,7 @@ class SVSF:
         (``sat``, reduced order, non-zero a-posteriori error) runs the
         recursion of eq (4)-(12) sample by sample: in the compiled kernel
         ``_svsf_kernel`` when :func:`chatterspec._jit.enabled` (numba
-        importable: a core dependency), else in a numpy loop over samples,
+        installed, the ``fast`` extra), else in a numpy loop over samples,
         vectorized over realizations. Each path gives the same bits for any
         chunking; the two paths agree to rounding (1e-12 of the measurement
         scale, tests/test_kernels.py), since BLAS orders the sums of the
