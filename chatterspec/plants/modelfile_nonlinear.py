@@ -182,7 +182,7 @@ class MeasurementFunction(ModelFunction):
 
     Attributes
     ----------
-    module, name, keywords, source, filename, ref
+    module, name, keywords, source, filename, ref, key
         As :class:`ModelFunction`'s.
     """
 
