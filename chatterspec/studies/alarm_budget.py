@@ -26,7 +26,11 @@ Cost and caching
     machine (the frames are cut on up to 4 threads); :func:`in_call_hours` (12 channel-hours: 4 h
     of the EHA) is what the monitor simulates when it is not given a calibration file, so it
     starts in a few seconds. Results are cached in the process (a ``StreamMonitor`` that resets
-    after a gap, or ``detect --record`` on several scenarios, pay once). The same seed gives the
+    after a gap, or ``detect --record`` on several scenarios, pay once) and, for a linear model, on
+    disk in the user cache (:mod:`chatterspec._cache`, keyed by everything that sets the threshold:
+    :func:`calibrate_alarm`), so the next process on the same model and settings reads it back.
+    The hours are bounded (:func:`check_hours`): at least two frames, at most :data:`MAX_SCORES`
+    frame scores. The same seed gives the
     same threshold every time. Precision at one false alarm per day (CUSUM, EHA): the threshold
     from 4 h has a standard deviation of 1.6 (the realized rate within a factor of about 2), from
     24 h of 1.1, from 48 h about 0.8: for all-day use make a calibration file once,
