@@ -10,7 +10,7 @@ Not a test (the default suite runs a one-hour version, tests/test_alarm_monitor.
     push, through one :class:`~chatterspec.online.monitor.ChatteringMonitor` per rule, each with
     its threshold for the budget (``--budget``, default one false alarm per day, all channels
     together; from :func:`chatterspec.studies.alarm_budget.calibrate_alarm`, ``--calibration-hours``
-    of other healthy data, as ``chatterspec calibrate --hours`` does). Counted: the monitors'
+    of other healthy data, as ``chatterspec calibrate --alarm-hours`` does). Counted: the monitors'
     fault-start events. Reported per plant and rule: the count, the two-sided 99 % Poisson interval
     of the count the budget predicts, whether the count lies inside, and the CPU time (process
     time of that rule's monitor plus its share of the simulation). The monitors' frame scores are

@@ -209,7 +209,7 @@ def main() -> None:
         tmp.cleanup()
         return
     model = export_model_toml(args.scenario, out / "model.toml")
-    cmd = [sys.executable, "-m", "chatterspec", "monitor", "--model", str(model), "--data", "-", "--json"]
+    cmd = [sys.executable, "-m", "chatterspec", "monitor", str(model), "--data", "-", "--json"]
     if args.record_every > 0:
         cmd += ["--record", str(out / "soak.rrd"), "--record-every", str(args.record_every)]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}

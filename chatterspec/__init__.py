@@ -24,6 +24,7 @@ from .errors import (
     UnknownScenarioError,
     UnstableLoopError,
     UnstableModelWarning,
+    ViewerUnavailableError,
 )
 
 # THE PUBLIC API: every name a user reaches as ``chatterspec.NAME``, grouped by topic, in this one
@@ -221,6 +222,7 @@ __all__ = [
     "UnknownScenarioError",
     "UnstableLoopError",
     "UnstableModelWarning",
+    "ViewerUnavailableError",
     "__version__",
     "auxiliary_svsf",
     "boundary_layer_chattering",

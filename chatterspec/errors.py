@@ -23,6 +23,7 @@ __all__ = [
     "UnknownScenarioError",
     "UnstableLoopError",
     "UnstableModelWarning",
+    "ViewerUnavailableError",
 ]
 
 
@@ -81,6 +82,10 @@ class ModelKindError(ParameterError):
 class IdentifiabilityError(ParameterError):
     """A physical parameter cannot be identified from this model's chattering (reduced-order
     measurement, a nonlinear model, no declared parameters, or parameters that cannot be told apart)."""
+
+
+class ViewerUnavailableError(ChatterspecError):
+    """The Rerun viewer cannot be started here (not installed, no display) or ended with an error."""
 
 
 class UnstableLoopError(ParameterError):

@@ -243,6 +243,26 @@ def test_formulas_refuse_anything_but_arithmetic(text: str) -> None:
         _formula(text)
 
 
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("0*10**10**10", "overflows"),  # a big-integer power ran for ever (no output, no end)
+        ("9**9**9**9", "overflows"),
+        ("x + " * 300 + "1", "at most 1000 characters"),
+        ("(" * 500 + "x" + ")" * 500, "at most 1000 characters"),
+    ],
+)
+def test_formulas_are_bounded_in_time_and_size(text: str, message: str) -> None:
+    with pytest.raises(ParameterError, match=message):
+        _formula(text)({"x": 1.0})
+
+
+def test_integer_literals_evaluate_as_the_same_floats() -> None:
+    values = {"dt": 1e-3, "friction": 2144.0, "mass": 7.38}
+    assert _formula("1 - dt*friction/mass")(values) == 1 - 1e-3 * 2144.0 / 7.38
+    assert _formula("2**3 - 7/2")({}) == 4.5 and _formula("mass**2")(values) == 7.38**2
+
+
 def test_second_order_map_reproduces_the_factory() -> None:
     for zeta in (0.0, 0.1):
         m = second_order(10.0, zeta)

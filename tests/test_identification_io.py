@@ -116,7 +116,7 @@ def test_monitor_identifies_the_example_per_hop_and_records_it(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     rec = tmp_path / "m.rrd"
-    argv = ["monitor", "--model", str(EXAMPLES / "eha_model.toml"), "--data", str(EXAMPLES / "eha_data.csv")]
+    argv = ["monitor", str(EXAMPLES / "eha_model.toml"), "--data", str(EXAMPLES / "eha_data.csv")]
     assert main([*argv, "--json", "--record", str(rec)]) == 0
     doc = json.loads(capsys.readouterr().out)
     ident = doc["identification"]

@@ -337,7 +337,6 @@ def test_monitor_command_on_example(tmp_path: Path, capsys) -> None:
     out = tmp_path / "m.rrd"
     rc = _cli(
         "monitor",
-        "--model",
         str(EXAMPLES / "eha_model.toml"),
         "--data",
         str(EXAMPLES / "eha_data.csv"),
@@ -359,9 +358,12 @@ def test_replay_without_display(tmp_path: Path, monkeypatch, capsys) -> None:
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     f = tmp_path / "x.rrd"
     f.write_bytes(b"")
-    assert _cli("replay", str(f)) == 1
-    assert "no display" in capsys.readouterr().err
+    from chatterspec.cli import main
     from chatterspec.errors import DataFileError
+
+    assert main(["replay", str(f)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("chatterspec replay: error: no display") and err.count("\n") == 1
 
     with pytest.raises(DataFileError, match="no such file"):
         _cli("replay", str(tmp_path / "missing.rrd"))

@@ -50,7 +50,7 @@ def _quiet_start(capsys) -> None:
     [
         (["detect", "eha-leak-major"], "fault detected: YES"),
         (
-            ["monitor", "--model", str(EXAMPLE_MODEL), "--data", str(EXAMPLE_DATA)],
+            ["monitor", str(EXAMPLE_MODEL), "--data", str(EXAMPLE_DATA)],
             "8.00 s of data, 36 frames",
         ),
         (["estimate", "detc-normal", "--runs", "2", "--filters", "kf", "--no-progress"], "NEES"),
@@ -79,7 +79,7 @@ def test_stream_stops_before_reading_when_the_recording_cannot_open(
     _quiet_start(capsys)
     with EXAMPLE_DATA.open() as fh:
         monkeypatch.setattr(sys, "stdin", fh)
-        rc = main(["monitor", "--model", str(EXAMPLE_MODEL), "--data", "-", "--record", str(full)])
+        rc = main(["monitor", str(EXAMPLE_MODEL), "--data", "-", "--record", str(full)])
     out, err = capsys.readouterr()
     assert rc == 2 and out == ""
     _one_error_line(err)

@@ -50,7 +50,7 @@ def _cli(argv: list[str]) -> str:
         ["scenarios", "eha4-leak-onset"],
         ["detect", "no-such-scenario"],
         ["simulate", "eha-healthy", "--rate", "-1"],
-        ["monitor", "--model", "no-such.toml", "--data", "x.csv"],
+        ["monitor", "no-such.toml", "--data", "x.csv"],
         ["calibrate", "no-such-scenario"],
     ],
 )
@@ -62,7 +62,7 @@ def test_listing_and_argument_errors_import_no_heavy_module(argv: list[str]) -> 
 def test_the_monitor_replay_needs_neither_scipy_signal_nor_scipy_stats() -> None:
     model = ROOT / "examples" / "eha_model.toml"
     data = ROOT / "examples" / "eha_data.csv"
-    loaded = _loaded_after(_cli(["monitor", "--model", str(model), "--data", str(data)]))
+    loaded = _loaded_after(_cli(["monitor", str(model), "--data", str(data)]))
     assert not loaded["scipy.signal"] and not loaded["scipy.stats"]
 
 

@@ -70,10 +70,10 @@ def test_cli_stream_and_file_at_another_rate_exit_2(tmp_path: Path, capsys, monk
     path.write_text(text)
     with path.open() as fh:
         monkeypatch.setattr(sys, "stdin", fh)
-        rc = main(["monitor", "--model", str(EXAMPLE_MODEL), "--data", "-"])
+        rc = main(["monitor", str(EXAMPLE_MODEL), "--data", "-"])
     err = capsys.readouterr().err
     assert rc == 2 and "sampled every 2 ms (500 Hz)" in err and "gap" not in err.replace("a gap", "")
-    assert main(["monitor", "--model", str(EXAMPLE_MODEL), "--data", str(path)]) == 2
+    assert main(["monitor", str(EXAMPLE_MODEL), "--data", str(path)]) == 2
     assert "the data is sampled every 2 ms (500 Hz), but the model's dt is 1 ms" in capsys.readouterr().err
 
 

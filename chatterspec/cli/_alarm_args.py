@@ -31,8 +31,25 @@ _DEFAULT_RULE = "cusum"
 _DEFAULT_BUDGET = 1.0 / 24.0
 
 
-def add_alarm_args(p: argparse.ArgumentParser, *, what: str = "the monitor", hours: bool = True) -> None:
-    """Add the alarm options to ``p`` (``what`` names the monitor in the help texts)."""
+#: ``--alarm-hours``'s help; ``{default}``: what the command simulates when it is not given.
+ALARM_HOURS_HELP = (
+    "hours of healthy data simulated to set the threshold of the persistence and CUSUM rules (default "
+    "{default}; the threshold is cached per model and settings in the user cache, see "
+    "CHATTERSPEC_CACHE_DIR); at least two STFT frames, at most what fits in 256 MiB of frame scores "
+    "(621 h for the EHA)"
+)
+#: The in-call default of ``--alarm-hours`` (monitor, detect --record), as ``--help`` says it.
+IN_CALL_HOURS_DEFAULT = (
+    "12 / channels, 4 for the EHA: a few seconds; a calibration file from `chatterspec calibrate --rule "
+    "...` (48 h) gives a tighter one"
+)
+
+
+def add_alarm_args(
+    p: argparse.ArgumentParser, *, what: str = "the monitor", hours_default: str = IN_CALL_HOURS_DEFAULT
+) -> None:
+    """Add the alarm options to ``p`` (``what`` names the monitor in the help texts; ``hours_default``
+    says the default of ``--alarm-hours``)."""
     rules = "; ".join(f"{name}: {spec.summary}" for name, spec in RULES.items())
     k, n = RULES["persistence"].parameters["k"], RULES["persistence"].parameters["n"]
     drift = RULES["cusum"].parameters["drift"]
@@ -54,14 +71,7 @@ def add_alarm_args(p: argparse.ArgumentParser, *, what: str = "the monitor", hou
         "--cusum-drift",
         help=f"CUSUM rule: drift subtracted from each frame score, nats (default {drift:g})",
     )
-    if hours:
-        add(
-            p,
-            "--alarm-hours",
-            help="hours of healthy data simulated to set the threshold of the persistence and CUSUM rules "
-            "(default 12 / channels, 4 for the EHA: a few seconds; a calibration file from `chatterspec "
-            "calibrate --rule ...` (48 h) gives a tighter one)",
-        )
+    add(p, "--alarm-hours", help=ALARM_HOURS_HELP.format(default=hours_default))
 
 
 @dataclass(frozen=True)

@@ -25,14 +25,35 @@ def parsed_arg(text: str, convert: Any, ok: Any, not_a_number: str, out_of_range
     return value
 
 
-def alpha_arg(text: str) -> float:
-    """argparse type: a probability in the open interval (0, 1)."""
+def _open_unit_arg(what: str, name: str) -> Any:
+    """argparse type ``name``: a number in the open interval (0, 1), named ``what`` in messages."""
+
+    def parse(text: str) -> float:
+        return parsed_arg(
+            text,
+            float,
+            lambda v: 0.0 < v < 1.0,
+            f"{what} must be a number in (0, 1); got {{text!r}}",
+            f"{what} must lie in the open interval (0, 1); got {{value}}",
+        )
+
+    parse.__name__ = parse.__qualname__ = name
+    parse.__doc__ = f"argparse type: {what}, a number in the open interval (0, 1)."
+    return parse
+
+
+alpha_arg = _open_unit_arg("alpha", "alpha_arg")
+confidence_arg = _open_unit_arg("confidence", "confidence_arg")
+
+
+def rate_arg(text: str) -> float:
+    """argparse type of ``--rate``: data seconds per wall second, finite and >= 0 (0: as fast as possible)."""
     return parsed_arg(
         text,
         float,
-        lambda v: 0.0 < v < 1.0,
-        "alpha must be a number in (0, 1); got {text!r}",
-        "alpha must lie in the open interval (0, 1); got {value}",
+        lambda v: 0.0 <= v < float("inf"),
+        "--rate must be a number (1.0 = real time, 0 = as fast as possible); got {text!r}",
+        "--rate must be finite and >= 0 (1.0 = real time, 0 = as fast as possible); got {value}",
     )
 
 
@@ -77,6 +98,15 @@ def band_from_args(args: argparse.Namespace) -> tuple[float, float] | None:
     from ..detection.thresholds import check_band
 
     return check_band(band)
+
+
+def stderr_note(command: str) -> Any:
+    """A function that prints one ``chatterspec COMMAND: note: TEXT`` line on stderr (library notes)."""
+
+    def note(text: str) -> None:
+        print(f"chatterspec {command}: note: {text}", file=sys.stderr, flush=True)
+
+    return note
 
 
 def live_arg(text: str) -> str:
@@ -165,7 +195,8 @@ def check_output_path(
     option : str
         The option that named it (e.g. ``"--plot"``), for the message.
     folder : bool
-        ``path`` is a folder, existing or created at write time (default: a file).
+        ``path`` is a folder, existing or created at write time with any missing parents (default:
+        a file, whose folder must exist: a mistyped folder is refused rather than created).
     suffixes : tuple of str, optional
         Accepted lower-case suffixes of a file (e.g. ``(".png",)``); None accepts any.
 
@@ -177,9 +208,10 @@ def check_output_path(
     Raises
     ------
     OutputPathError
-        A file ``path`` is an existing folder, an existing read-only file or has a refused suffix;
-        a folder ``path`` is an existing file; or the nearest existing folder (``path`` itself, or
-        its parent for a file) is not writable (missing parent folders are created at write time).
+        A file ``path`` is an existing folder, an existing read-only file, has a refused suffix or a
+        folder that does not exist; a folder ``path`` is an existing file; or the folder written
+        into (``path`` itself or its nearest existing parent for a folder, the file's folder for a
+        file) is not writable.
     """
     if path is None:
         return None
@@ -187,7 +219,7 @@ def check_output_path(
     if folder:
         if p.exists() and not p.is_dir():
             raise OutputPathError(f"{option} {str(p)!r} is an existing file; give a folder")
-        base = p
+        base = _nearest_existing(p)
     else:
         if suffixes is not None and p.suffix.lower() not in suffixes:
             raise OutputPathError(f"{option} {str(p)!r}: the file name must end in {' or '.join(suffixes)}")
@@ -196,7 +228,12 @@ def check_output_path(
         if p.exists() and not os.access(p, os.W_OK):
             raise OutputPathError(f"{option} {str(p)!r}: the file exists and is not writable")
         base = p.parent if str(p.parent) else Path(".")
-    why = _probe_writable(_nearest_existing(base))
+        if not base.exists():
+            raise OutputPathError(
+                f"{option} {str(p)!r} cannot be written: the folder {str(base)!r} does not exist (create it "
+                "first)"
+            )
+    why = _probe_writable(base)
     if why is not None:
         raise OutputPathError(f"{option} {str(p)!r} cannot be written: {why}")
     return p

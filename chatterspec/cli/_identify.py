@@ -17,16 +17,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..plants.scenarios import Scenario
 
 
-def confidence_arg(text: str) -> float:
-    """argparse type: a confidence level in (0, 1)."""
-    from ._common import alpha_arg
-
-    try:
-        return alpha_arg(text)  # the same open interval
-    except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(f"confidence must be a number in (0, 1); got {text!r}") from None
-
-
 def add_identification_args(p: argparse.ArgumentParser) -> None:
     """``--no-identify`` and ``--confidence``."""
     p.add_argument(
@@ -34,13 +24,9 @@ def add_identification_args(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="skip fault identification (which parameter changed, in physical units)",
     )
-    p.add_argument(
-        "--confidence",
-        type=confidence_arg,
-        default=0.95,
-        help="confidence level of the identified parameters' intervals (default 0.95); the hypothesis "
-        "tests use --alpha",
-    )
+    from ._options import add
+
+    add(p, "--confidence")
 
 
 def setup_or_reason(

@@ -7,12 +7,17 @@ import argparse
 import signal
 import sys
 
-from ..errors import ParameterError
 from ..jsonout import dumps
 from . import _identify
 from ._alarm_args import _alarm_short, alarm_doc
 
 __all__: list[str] = []
+
+
+#: The exit status of a stream by what stopped it (the summary is printed and the recordings closed in
+#: every case): Ctrl-C 130 and SIGTERM 143 (128 + the signal number, as a shell reports a process the
+#: signal ended), as for a file replay; end of input, --idle-timeout and a reader that went away 0.
+EXIT_STATUS = {"SIGINT": 128 + signal.SIGINT, "SIGTERM": 128 + signal.SIGTERM}
 
 
 class _Terminated(Exception):
@@ -38,8 +43,6 @@ def _run_stream(
 
     stdin = str(args.data) == "-"
     where = "standard input" if stdin else f"data file {str(args.data)!r}"
-    if args.follow and not args.data.is_file():
-        raise ParameterError(f"--follow: {where} does not exist (create it, header first, then follow it)")
     model = spec.model  # type: ignore[attr-defined]
 
     def on_event(ev: object) -> None:
@@ -109,7 +112,7 @@ def _run_stream(
         _quiet_stdout()
     if error is not None:
         raise error
-    return 0
+    return EXIT_STATUS.get(stopped, 0)
 
 
 def _quiet_stdout() -> None:

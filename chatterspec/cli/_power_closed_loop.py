@@ -78,6 +78,11 @@ def run_closed_loop(args: argparse.Namespace) -> int:
         raise ParameterError(f"--closed-loop takes one fault size (--sizes S); got {len(args.sizes)}")
     if args.noise is not None:
         raise ParameterError("--closed-loop varies the position sensor: use --position-noise-mm, not --noise")
+    if args.dither_hz is not None and args.dither_signal != "multisine":
+        raise ParameterError(
+            f"--dither-hz sets the tones of the multisine dither; --dither-signal {args.dither_signal} has "
+            "none"
+        )
     points = excitation_points(args.references, args.dither)
     noise = (1e-5,) if args.position_noise_mm is None else tuple(x * 1e-3 for x in args.position_noise_mm)
     res = excitation_study(

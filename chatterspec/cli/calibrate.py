@@ -11,8 +11,16 @@ import sys
 from typing import Any
 
 from ..errors import ParameterError
-from ._alarm_args import add_alarm_args, alarm_choice, positive_number
-from ._common import Outputs, check_figure_path, check_output_path, parsed_arg, report, write_plot
+from ._alarm_args import add_alarm_args, alarm_choice
+from ._common import (
+    Outputs,
+    check_figure_path,
+    check_output_path,
+    parsed_arg,
+    report,
+    stderr_note,
+    write_plot,
+)
 from ._options import add, add_name, add_study_args, command, study_execution, study_keywords
 
 #: The former names of the study options and their execution keywords (now in :mod:`._options`).
@@ -36,13 +44,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_name(p)
     add_study_args(p, alpha=1e-2, runs=1000)
-    add_alarm_args(p, what="the monitor using the file", hours=False)
-    p.add_argument(
-        "--hours",
-        default=None,
-        metavar="H",
-        help="with --rule / --false-alarms-per-hour: hours of healthy data simulated for the alarm "
-        "threshold (default 48; its interval shrinks like 1/sqrt(H))",
+    add_alarm_args(
+        p,
+        what="the monitor using the file",
+        hours_default=f"{ALARM_HOURS:g}, with --rule / --false-alarms-per-hour: the file's threshold for "
+        "all-day use; its interval shrinks like 1/sqrt(H)",
     )
     p.add_argument("--out", metavar="FILE", help="write the calibration file (.json or .npz)")
     add(p, "--plot", help="save a figure of analytic vs empirical thresholds")
@@ -55,6 +61,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(default 128); above it the quantiles come from fixed-size tail histograms (point at most one "
         "fine bucket above the exact one, intervals widened outward); 0 forces the histograms",
     )
+
+
+#: Hours of healthy data simulated for the file's alarm threshold by default (``--alarm-hours``).
+ALARM_HOURS = 48.0
 
 
 def _megabytes(text: str) -> int:
@@ -76,14 +86,18 @@ def run(args: argparse.Namespace) -> int:
     outputs = Outputs()
     supports = _check_support(args)  # also an unknown name or a bad model file, before the heavy imports
     choice = alarm_choice(args)
-    wants_alarm = choice.explicit_rule or choice.explicit_budget or args.hours is not None
-    hours = _hours(args.hours)
+    wants_alarm = choice.explicit_rule or choice.explicit_budget or choice.hours is not None
+    hours = ALARM_HOURS if choice.hours is None else choice.hours
+    if wants_alarm:  # the budget and the hours can be computed: checked before the healthy runs
+        _check_alarm_plan(args.name, choice, hours)
     from ..studies.calibration import calibrate
 
     tails = {} if args.tail_budget is None else {"tail_budget": args.tail_budget}
     cal = calibrate(args.name, **study_keywords(args), **tails)
     if wants_alarm:
-        cal = _with_alarm(cal, args.name, choice, hours, args.seed)
+        cal = _with_alarm(
+            cal, args.name, choice, hours, args.seed, progress=False if args.no_progress else None
+        )
     doc = cal.to_dict()
     doc["support"] = {use: s.to_dict() for use, s in supports.items()}
     if args.out:
@@ -125,12 +139,22 @@ def _print_calibration(cal: Any, doc: dict) -> None:
         print(f"  calibration file: {doc['calibration_file']}")
 
 
-def _hours(text: str | None) -> float:
-    """``--hours H`` (default 48): a positive, finite number of hours."""
-    return 48.0 if text is None else positive_number(text, "--hours", "a number of hours")
+def _check_alarm_plan(name: str, choice: Any, hours: float) -> None:
+    """The budget has a threshold and ``hours`` can be simulated, for the STFT of the calibration
+    (:func:`chatterspec.studies.alarm_budget.check_hours`): one line before any healthy run."""
+    from ..detection.alarm_calibration import check_budget
+    from ..online.monitor_types import MonitorSettings
+    from ..studies.alarm_budget import check_hours, frames_per_hour
+    from ..studies.healthy import resolve_scenario
+
+    sc = resolve_scenario(name)
+    settings = MonitorSettings()  # the STFT of `calibrate` (chatterspec.studies.calibration)
+    F = frames_per_hour(settings, sc.dt)
+    check_budget(choice.budget, "--false-alarms-per-hour", steps_per_hour=F, channels=sc.nominal.n_outputs)
+    check_hours(sc.nominal, settings, hours, sc)
 
 
-def _with_alarm(cal: Any, name: str, choice: Any, hours: float, seed: int) -> Any:
+def _with_alarm(cal: Any, name: str, choice: Any, hours: float, seed: int, progress: bool | None) -> Any:
     """``cal`` with the monitor's alarm threshold for ``choice``, on the score the monitor computes with
     this file (its empirical per-frame threshold's normalization)."""
     import dataclasses
@@ -145,7 +169,17 @@ def _with_alarm(cal: Any, name: str, choice: Any, hours: float, seed: int) -> An
     stft = STFTConfig(**cal.stft)
     settings = MonitorSettings(stft=stft, threshold=cal.threshold("frame-family-wise"))
     rule = make_rule(choice.rule, **choice.parameters)
-    rc = calibrate_alarm(sc.nominal, settings, rule, choice.budget, hours=hours, seed=seed, scenario=sc)
+    rc = calibrate_alarm(
+        sc.nominal,
+        settings,
+        rule,
+        choice.budget,
+        hours=hours,
+        seed=seed,
+        scenario=sc,
+        note=stderr_note("calibrate"),
+        progress=progress,
+    )
     return dataclasses.replace(cal, alarm=rc)
 
 
@@ -162,8 +196,8 @@ def _check_support(args: argparse.Namespace) -> dict[str, Any]:
     sc = load_scenario(args.name)
     per_frame = frames_per_run(sc.n_samples - 1, 1.0, sc.dt)  # the calibration's STFT: 1 s windows
     supports = {
-        "detect": support_for("detect", args.runs, args.alpha, args.confidence),
-        "monitor": support_for("monitor", args.runs, args.alpha, args.confidence, per_frame),
+        "detect": support_for("detect", args.runs, args.alpha, args.mc_confidence),
+        "monitor": support_for("monitor", args.runs, args.alpha, args.mc_confidence, per_frame),
     }
     bad = [s for s in supports.values() if not s.supported]
     if len(bad) == len(supports):

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from . import _identify
 from ._common import Outputs, band_from_args, check_output_path, print_json
-from ._options import add_detector_args, add_report_args, command
+from ._options import add, add_detector_args, add_report_args, command
 
 #: Scenarios of the demo, in table order.
 DEMO_SCENARIOS: tuple[str, ...] = (
@@ -47,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "print a table, write figures (figures/demo/) and Rerun recordings (recordings/demo/).",
     )
     add_detector_args(p)
-    p.add_argument("--figures-dir", default="figures/demo", help="where to write PNGs (default figures/demo)")
+    add(p, "--figures-dir", default="figures/demo")
     p.add_argument(
         "--recordings-dir",
         default="recordings/demo",

@@ -15,7 +15,7 @@ if TYPE_CHECKING:
 from ..errors import ParameterError
 from . import _identify
 from ._alarm_args import add_alarm_args, alarm_choice
-from ._common import Outputs, band_from_args, check_record_path, load_scenario, print_json
+from ._common import Outputs, band_from_args, check_record_path, load_scenario, print_json, stderr_note
 from ._options import add, add_detector_args, add_execution_args, add_live_args, add_report_args, command
 
 
@@ -198,6 +198,7 @@ def _alarm_settings(
         c.rule,  # type: ignore[attr-defined]
         c.budget,  # type: ignore[attr-defined]
         hours=c.hours,  # type: ignore[attr-defined]
+        note=stderr_note("detect"),
         **c.parameters,  # type: ignore[attr-defined]
     )
 

@@ -11,7 +11,7 @@ to ``--false-alarms-per-hour`` alarm starts per hour (:mod:`chatterspec.studies.
 Per route: the false alarms realized on the diagnosed runs' healthy time (before the first onset, after
 ``--warmup``) per hour with their two-sided Poisson (Garwood) interval, the detection delay per onset
 (median, 90th percentile), missed onsets, isolation, the cost (realization-samples per second), and
-``--figure FILE.png``: the detection delay against the false alarms per hour with the thresholds
+``--plot FILE.png``: the detection delay against the false alarms per hour with the thresholds
 swept on the same realizations. ``--per-record`` gives the former table instead (each route with its
 own rule: argmax of the modes, per-frame chattering at ``--alpha``), which cannot rank the routes.
 
@@ -38,7 +38,7 @@ DEFAULT_CALIBRATION_RUNS = 1000
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``chatterspec diagnose`` and its options to the subcommand parsers ``sub``."""
-    from ..detection.alarms import rule_names
+    from ..detection.alarms import RULES, rule_names
     from ..studies.route_sweep import DEFAULT_WARMUP_S
     from ..studies.routes import ALL_METHODS
 
@@ -66,12 +66,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="false-alarm budget of every route: alarm starts per hour of healthy time (default 1)",
     )
     add(p, "--rule", choices=rule_names(), help="alarm rule of every route (default cusum)")
+    k, n = RULES["persistence"].parameters["k"], RULES["persistence"].parameters["n"]
     add(
         p,
         "--persistence-k",
-        help="persistence rule: steps (frames or samples) over the threshold among the last N (default 2)",
+        help=f"persistence rule: steps (frames or samples) over the threshold among the last N (default {k})",
     )
-    add(p, "--persistence-n", help="persistence rule: window in steps (default 3)")
+    add(p, "--persistence-n", help=f"persistence rule: window in steps (default {n})")
     p.add_argument(
         "--warmup",
         type=float,
@@ -112,14 +113,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--alpha",
         default=None,
         help="chattering: per-frame level of the in-call calibration, the --per-record threshold and the "
-        "recording (default 1e-3; not with --calibration)",
+        "recording (default 0.001; not with --calibration)",
     )
     add_execution_args(
         p,
         chunk_runs_help="realizations simulated and diagnosed together (memory grows with it, not with "
         "--runs; the results do not depend on it)",
     )
-    p.add_argument("--figure", metavar="FILE", default=None, help="write the delay-vs-false-alarms figure")
+    add(p, "--plot", help="save the delay-vs-false-alarms figure")
     p.add_argument(
         "--per-record", action="store_true", help="each route with its own rule (the former table)"
     )
@@ -237,12 +238,12 @@ def run(args: argparse.Namespace) -> int:
         args.calibration_runs is None
     ):  # at a budget, 500 runs (1.2 h of 9 s records) cannot calibrate every route
         args.calibration_runs = 500 if args.per_record else DEFAULT_CALIBRATION_RUNS
-    check_figure_path(args.figure, "--figure")
+    check_figure_path(args.plot)
     sc = _scenario(args)
     methods = _methods(args.methods, sc, args.per_record)
     if args.per_record:
-        if args.figure is not None:
-            raise ParameterError("--figure draws the comparison at a budget; drop --per-record")
+        if args.plot is not None:
+            raise ParameterError("--plot draws the comparison at a budget; drop --per-record")
         from ._diagnose_per_record import run_per_record
 
         return run_per_record(args, sc, methods)
@@ -263,13 +264,13 @@ def run(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t0
     outputs = Outputs()
     figure = recording = None
-    if args.figure is not None:
+    if args.plot is not None:
         from ..figures.plot_diagnosis import delay_far_figure
         from ..figures.plot_studies import save
 
         at = f"{settings.rule} rule at {settings.budget_per_hour:g} false alarm(s)/h"  # type: ignore[attr-defined]
         title = f"{sc.name}: {args.runs} runs, {at}"  # type: ignore[attr-defined]
-        figure = outputs.write("--figure", args.figure, save, delay_far_figure(results, title), args.figure)
+        figure = outputs.write("--plot", args.plot, save, delay_far_figure(results, title), args.plot)
     if args.record is not None:
         from ..viewer.diagnosis_log import record_budget_diagnosis
 

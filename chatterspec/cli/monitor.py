@@ -1,4 +1,4 @@
-"""``chatterspec monitor --model MODEL.toml --data DATA.csv|DATA.npz|-``: monitor a user's own plant.
+"""``chatterspec monitor MODEL.toml --data DATA.csv|DATA.npz|-``: monitor a user's own plant.
 
 The model file and data format are documented in ``examples/README.md`` and
 :mod:`chatterspec.plants.modelfile`. A finished file is replayed through the online monitor
@@ -26,7 +26,7 @@ from ..errors import ParameterError
 from ..jsonout import dumps
 from . import _identify
 from ._alarm_args import _alarm_line, _alarm_short, add_alarm_args, alarm_choice, alarm_doc
-from ._common import Outputs, band_from_args, check_record_path, positive_int_arg
+from ._common import Outputs, band_from_args, check_record_path, positive_int_arg, stderr_note
 from ._monitor_stream import _emit_line, _run_stream
 from ._options import add, add_report_args, command
 
@@ -44,8 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "data: CSV or NPZ with columns named after the model's outputs and inputs.",
     )
     p.add_argument(
-        "--model",
-        required=True,
+        "model",
+        metavar="MODEL",
         type=Path,
         help="model file (.toml; linear, or nonlinear with --calibration)",
     )
@@ -91,11 +91,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="streams: start a new .rrd every MINUTES of data (>= 0.05; each complete on its own, named "
         "<record stem>-<UTC start time>.rrd)",
     )
-    p.add_argument(
+    add(
+        p,
         "--rate",
-        type=float,
-        default=None,
-        help="replay speed, 1.0 = real time (default: as fast as possible)",
+        default=0.0,
+        help="replay speed of a file: data seconds per wall second (default 0 = as "
+        "fast as possible; 1.0 = real time)",
     )
     add(p, "--record", type=Path, default=None, help="write a Rerun recording")
     add(
@@ -133,7 +134,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--chunk",
         type=positive_int_arg,
         default=None,
-        help="samples per push (default: one STFT hop with --rate, five otherwise)",
+        help="samples per push (default: one STFT hop with --rate > 0, five otherwise)",
     )
     _identify.add_identification_args(p)
     p.add_argument(
@@ -158,7 +159,7 @@ def _stream_mode(args: argparse.Namespace) -> bool:
     stream = stdin or args.follow
     if not args.follow and (args.from_end or args.idle_timeout is not None):
         raise ParameterError("--from-end and --idle-timeout apply to --follow")
-    if stream and args.rate is not None:
+    if stream and args.rate:
         raise ParameterError("--rate paces a file replay; a stream is monitored as it arrives")
     if not stream and (args.skip_bad_rows or args.record_every is not None):
         raise ParameterError(
@@ -173,15 +174,18 @@ def _stream_mode(args: argparse.Namespace) -> bool:
         )
     if args.idle_timeout is not None and not args.idle_timeout > 0:
         raise ParameterError(f"--idle-timeout must be > 0 s; got {args.idle_timeout}")
+    if args.identification_events != "none" and args.events != "jsonl":
+        raise ParameterError(
+            "--identification-events writes JSON lines: it needs --events jsonl (the text lines always say "
+            "what was identified)"
+        )
     return stream
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec monitor`` with the parsed ``args``; returns the exit status."""
-    from ..plants.modelfile import load_data, load_model
+    from ..plants.modelfile import load_model
 
-    if args.rate is not None and not args.rate > 0:
-        raise ParameterError(f"--rate must be > 0 (1.0 = real time); got {args.rate}")
     check_record_path(args.record)
     stream = _stream_mode(args)
     jsonl = args.events == "jsonl"
@@ -208,6 +212,14 @@ def run(args: argparse.Namespace) -> int:
         window_s=float(det.get("window_s", 1.0)),
         hop_s=float(det.get("hop_s", 0.2)),
         window=str(det.get("window", "hamming")),
+    )
+    # a bad file fails before any simulation (a followed file: its header, when it has one)
+    data = (
+        _follow_header(args, spec.model)
+        if args.follow
+        else None
+        if stream
+        else _replay_data(args, spec, stft)
     )
     settings = MonitorSettings(
         stft=stft,
@@ -269,7 +281,6 @@ def run(args: argparse.Namespace) -> int:
     from ..viewer.sinks import default_recording_path, open_sinks
 
     preload = _preload_rerun() if (args.record is not None or args.live is not None) else None
-    data = load_data(args.data, spec.model)
     monitor = ChatteringMonitor(spec.model, settings, t0=float(data.t[0]))
     _warm_up(monitor)  # kernels and FFT plans load here (while Rerun loads on its thread), not in the loop
     if preload is not None:
@@ -308,7 +319,7 @@ def run(args: argparse.Namespace) -> int:
             z=data.z,
             u=data.u,
             chunk_samples=args.chunk,
-            rate=args.rate,
+            rate=args.rate or None,  # 0: as fast as possible
             on_event=show,
             identifier=None if ident is None else ident.identifier,
             on_identification=None if ident is None else ident.handle,
@@ -327,22 +338,61 @@ def run(args: argparse.Namespace) -> int:
         outputs.failures.append(
             f"--record {str(args.record)!r} could not be completed ({summary.write_error})"
         )
-    rc = _report_replay(args, spec, stft, summary, jsonl, human, settings, ident, why_not)
+    _report_replay(args, summary, jsonl, human, settings, ident, why_not)
     outputs.finish()
-    return rc
+    return 0
 
 
-def _report_replay(args, spec, stft, summary, jsonl: bool, human, settings, ident=None, why_not=None) -> int:  # type: ignore[no-untyped-def]
-    """Print the summary of a file replay; 1 when the data gave no STFT frame."""
-    no_frame = None
-    if summary.n_frames == 0:
-        n_window = stft.n_window(spec.model.dt)
-        no_frame = (
-            f"no STFT frame could be analysed: the data give {summary.n_samples} chattering samples "
-            f"({summary.duration_s:.3g} s), fewer than one window of {n_window} samples "
-            f"(window_s = {stft.window_s:g} s at dt = {spec.model.dt:g} s); give longer data or a "
+def _follow_header(args: argparse.Namespace, model: object) -> None:
+    """``--follow FILE``: the file exists and, once it has a header line, that header fits the model.
+
+    Raises
+    ------
+    ParameterError
+        The file does not exist.
+    DataFileError
+        Its header lacks a column of the model (or repeats one).
+    """
+    import time
+
+    from ..online.stream import CsvRows
+
+    where = f"data file {str(args.data)!r}"
+    if not args.data.is_file():
+        raise ParameterError(f"--follow: {where} does not exist (create it, header first, then follow it)")
+    with open(args.data, "rb") as f:
+        head = f.read(1 << 16)
+    CsvRows(model, where).feed(head[: head.rfind(b"\n") + 1], time.perf_counter())  # complete lines only
+
+
+def _replay_data(args: argparse.Namespace, spec: object, stft: object) -> object:
+    """The data file of a replay, read and checked whole: at least one STFT window of chattering.
+
+    Raises
+    ------
+    DataFileError
+        The file cannot be read, does not fit the model, or is shorter than one window (the chattering
+        starts at the second sample: ``rows - 1`` samples).
+    """
+    from ..errors import DataFileError
+    from ..plants.modelfile import load_data
+
+    model = spec.model  # type: ignore[attr-defined]
+    data = load_data(args.data, model)
+    n_window = stft.n_window(model.dt)  # type: ignore[attr-defined]
+    rows = data.z.shape[0]  # type: ignore[attr-defined]
+    if rows - 1 < n_window:
+        raise DataFileError(
+            f"data file {str(args.data)!r}: {rows} rows give {rows - 1} chattering samples "
+            f"({(rows - 1) * model.dt:.3g} s), fewer than one STFT window of {n_window} samples "
+            f"(window_s = {stft.window_s:g} s at dt = {model.dt:g} s); give longer data or a "  # type: ignore[attr-defined]
             f"shorter [detector] window_s in {args.model}"
         )
+    return data
+
+
+def _report_replay(args, summary, jsonl: bool, human, settings, ident=None, why_not=None) -> None:  # type: ignore[no-untyped-def]
+    """Print the summary of a file replay (the data held at least one STFT frame: :func:`_replay_data`)."""
     if args.json:
         doc = {
             "model": str(args.model),
@@ -351,26 +401,19 @@ def _report_replay(args, spec, stft, summary, jsonl: bool, human, settings, iden
             **summary.to_dict(),
         }
         doc["identification"] = {"reason": why_not} if ident is None else ident.to_dict()
-        if no_frame is not None:
-            doc["notes"] = [*doc["notes"], no_frame]
         if jsonl:
             _emit_line(dumps({"event": "summary", **doc}, allow_nan=True))
         else:
             print(dumps(doc, indent=2, allow_nan=True))
-        return 0 if no_frame is None else 1
-    if no_frame is not None:
-        print(f"chatterspec monitor: error: {no_frame}", file=sys.stderr)
-        return 1
-    else:
-        n = sum(e.kind == "fault-start" for e in summary.events)
-        print(
-            f"{summary.duration_s:.2f} s of data, {summary.n_frames} frames, {n} fault start(s) "
-            f"[{_alarm_short(settings)}]; {summary.wall_s:.2f} s wall",
-            file=human,
-        )
-        if summary.path is not None and not summary.write_error:
-            print(f"recording: {summary.path} (open with `chatterspec replay {summary.path}`)", file=human)
-    return 0
+        return
+    n = sum(e.kind == "fault-start" for e in summary.events)
+    print(
+        f"{summary.duration_s:.2f} s of data, {summary.n_frames} frames, {n} fault start(s) "
+        f"[{_alarm_short(settings)}]; {summary.wall_s:.2f} s wall",
+        file=human,
+    )
+    if summary.path is not None and not summary.write_error:
+        print(f"recording: {summary.path} (open with `chatterspec replay {summary.path}`)", file=human)
 
 
 def _preload_rerun() -> threading.Thread:
@@ -442,5 +485,6 @@ def _alarm_settings(
         c.rule,
         c.budget,
         hours=hours,
+        note=stderr_note("monitor"),
         **c.parameters,  # type: ignore[attr-defined]
     )

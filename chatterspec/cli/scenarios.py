@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=Path,
         default=None,
         metavar="FILE",
-        help="write NAME's nominal model as a TOML model file for `chatterspec monitor --model FILE`",
+        help="write NAME's nominal model as a TOML model file for `chatterspec monitor FILE`",
     )
 
 
@@ -63,7 +63,7 @@ def export_model_toml(name: str, path: Path) -> Path:
             else ""
         )
         + f"Written by `chatterspec scenarios {name} --model-toml`; psi = {why}.\n"
-        f"Stream it: chatterspec simulate {name} | chatterspec monitor --model {path.name} --data -"
+        f"Stream it: chatterspec simulate {name} | chatterspec monitor {path.name} --data -"
     )
     return write_model_toml(path, sc.nominal, psi, gamma=0.1, comment=comment)
 
@@ -87,7 +87,7 @@ def _export_nonlinear(sc: object, name: str, path: Path) -> Path:
         )
         + f"Written by `chatterspec scenarios {name} --model-toml`. A nonlinear model: calibrate it\n"
         f"first (chatterspec calibrate {path.name} --out cal.npz), then\n"
-        f"chatterspec monitor --model {path.name} --calibration cal.npz"
+        f"chatterspec monitor {path.name} --calibration cal.npz"
     )
     return write_nonlinear_model_toml(path, sc.nominal, simulation=simulation, comment=comment)  # type: ignore[attr-defined]
 
@@ -109,11 +109,14 @@ def run(args: argparse.Namespace) -> int:
     if args.model_toml is not None:
         if args.name is None:
             raise ParameterError("--model-toml needs a scenario NAME (see `chatterspec scenarios`)")
+        from ._common import check_output_path
+
+        check_output_path(args.model_toml, "--model-toml", suffixes=(".toml",))
         path = export_model_toml(args.name, args.model_toml)
         if args.json:
             print(dumps({"scenario": args.name, "model_toml": str(path)}, indent=2))
         else:
-            print(f"wrote {path} (nominal model of {args.name}; use it with `chatterspec monitor --model`)")
+            print(f"wrote {path} (nominal model of {args.name}; use it with `chatterspec monitor {path}`)")
         return 0
     from ..plants.scenarios import catalogue, scenario
 

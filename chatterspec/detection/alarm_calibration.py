@@ -104,8 +104,19 @@ GRID_POINTS = 48
 Method = Literal["law", "counted", "extrapolated"]
 
 
-def check_budget(false_alarms_per_hour: object, option: str = "false_alarms_per_hour") -> float:
+def check_budget(
+    false_alarms_per_hour: object,
+    option: str = "false_alarms_per_hour",
+    *,
+    steps_per_hour: float | None = None,
+    channels: int | None = None,
+) -> float:
     """A budget in false alarms per hour: a finite number > 0 (``ParameterError`` naming ``option``).
+
+    With ``steps_per_hour`` and ``channels``, also one that some threshold can meet: an alarm
+    starts on a step over the threshold after a step that was not in alarm, so no rule raises more
+    than ``steps_per_hour * channels / 2`` starts per hour; a larger budget has no threshold (it
+    would be set at or below the lowest score, one alarm that never ends).
 
     Parameters
     ----------
@@ -113,6 +124,10 @@ def check_budget(false_alarms_per_hour: object, option: str = "false_alarms_per_
         The budget (alarm starts per hour).
     option : str
         How the caller names it in the error message (e.g. ``--false-alarms-per-hour``).
+    steps_per_hour : float, optional
+        Steps (frames) per hour of one channel.
+    channels : int, optional
+        Channels sharing the budget.
     """
     try:
         x = float(false_alarms_per_hour)  # type: ignore[arg-type]
@@ -120,6 +135,14 @@ def check_budget(false_alarms_per_hour: object, option: str = "false_alarms_per_
         raise ParameterError(f"{option} must be a number > 0; got {false_alarms_per_hour!r}") from None
     if not (math.isfinite(x) and x > 0):
         raise ParameterError(f"{option} must be positive and finite (alarm starts per hour); got {x!r}")
+    if steps_per_hour is not None and channels is not None:
+        most = steps_per_hour * channels / 2.0
+        if x > most:
+            raise ParameterError(
+                f"no alarm threshold meets {x:g} false alarms per hour: {channels} channel(s) at "
+                f"{steps_per_hour:g} steps per hour raise at most {most:g} alarm starts per hour (one per "
+                "two steps per channel); give a smaller budget"
+            )
     return x
 
 
@@ -303,11 +326,11 @@ def law_frame_rule(
     confidence : float
         Recorded level (the bound holds surely).
     """
-    X = check_budget(false_alarms_per_hour)
     F = positive("steps_per_hour", steps_per_hour)
     m = int(channels)
     if m < 1:
         raise ParameterError(f"channels must be >= 1; got {channels!r}")
+    X = check_budget(false_alarms_per_hour, steps_per_hour=F, channels=m)
     h = math.log(F * m / X)
     return RuleCalibration(
         rule=FrameRule(threshold=max(h, 0.0)),
@@ -449,7 +472,6 @@ def calibrate_rule(
         Bad budget, or streams too short to resolve even the frequent alarms (fewer than
         :data:`MIN_COUNT` starts at two grid points in the rare-alarm regime).
     """
-    X = check_budget(false_alarms_per_hour)
     F = positive("steps_per_hour", steps_per_hour)
     conf = open_unit("confidence", confidence)
     s = np.asarray(scores, dtype=float)
@@ -458,6 +480,7 @@ def calibrate_rule(
     if np.isnan(s).any():
         raise ParameterError("healthy scores contain NaN")
     C = s.shape[-1]
+    X = check_budget(false_alarms_per_hour, steps_per_hour=F, channels=C)
     s3 = s.reshape(-1, s.shape[-2], C)
     K = s3.shape[1]
     B = max(2, min(int(batches), K // 2))
@@ -468,6 +491,13 @@ def calibrate_rule(
     hours = float(steps.sum() / F)
     coarse = _grid(rule, s3, GRID_POINTS)
     total = starts_on_grid(rule, s3, coarse).reshape(coarse.size, -1).sum(axis=1)
+    if X * hours > total.max():  # the budget is above every rate the rule reaches: no threshold meets it
+        i = int(np.argmax(total))
+        raise ParameterError(
+            f"no threshold of the {rule.name} rule meets {X:g} false alarms per hour: on {hours:.3g} h of "
+            f"healthy streams it raises at most {total[i] / hours:.4g} alarm starts per hour (at threshold "
+            f"{coarse[i]:.4g}; lower thresholds merge the alarms); give a smaller budget"
+        )
     # a finer grid where it matters: from the last threshold still above the rare-alarm rate (or the
     # budget) to the first one with too few starts to count
     top = min(MAX_RATE_PER_STEP * steps.sum() * C, max(X * hours, MIN_COUNT))

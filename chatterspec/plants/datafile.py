@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DataFileError
+from ..errors import DataFileError, ParameterError
 
 __all__ = ["TIME_COLUMNS", "DataSet", "load_data"]
 
@@ -54,6 +54,20 @@ class DataSet:
 
 
 # --------------------------------------------------------------------------- data files
+def _the_model(model: Any) -> Any:
+    """``model``, or the model of a :class:`~chatterspec.plants.modelfile_fields.ModelSpec`."""
+    from .modelfile_fields import ModelSpec
+
+    if isinstance(model, ModelSpec):
+        return model.model
+    if not all(hasattr(model, a) for a in ("output_names", "input_names", "dt")):
+        raise ParameterError(
+            f"load_data needs the model the data belong to: a LinearModel or NonlinearModel, or what "
+            f"load_model(MODEL.toml) returns; got {type(model).__name__}"
+        )
+    return model
+
+
 def load_data(path: str | Path, model: Any, *, dt_tolerance: float = 0.01) -> DataSet:
     """Read measurements and inputs for ``model`` from a CSV or NPZ file (columns matched by name).
 
@@ -61,8 +75,9 @@ def load_data(path: str | Path, model: Any, *, dt_tolerance: float = 0.01) -> Da
     ----------
     path : str or Path
         ``.csv`` (header row, comma separated) or ``.npz`` (one 1-D array per name).
-    model : LinearModel or NonlinearModel
-        Gives the column names (``output_names``, ``input_names``) and ``dt``.
+    model : LinearModel, NonlinearModel or ModelSpec
+        Gives the column names (``output_names``, ``input_names``) and ``dt``; the ``ModelSpec``
+        that :func:`~chatterspec.plants.modelfile.load_model` returns stands for its ``model``.
     dt_tolerance : float
         Allowed relative deviation of every time step from ``model.dt``.
 
@@ -72,7 +87,10 @@ def load_data(path: str | Path, model: Any, *, dt_tolerance: float = 0.01) -> Da
         Missing file or column, unparsable value, NaN/inf sample (see the NaN
         policy in the module docstring), non-monotonic or irregular timestamps,
         or fewer than two samples. The message names the file and the column.
+    ParameterError
+        ``model`` is not a model (nor a model file's ``ModelSpec``).
     """
+    model = _the_model(model)
     path = Path(path)
     where = f"data file {str(path)!r}"
     if not path.exists():

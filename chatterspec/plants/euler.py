@@ -16,10 +16,17 @@ from typing import Any, Self
 import numpy as np
 
 from .._validate import positive
+from ..errors import ShapeError
 
 __all__ = ["ContinuousEuler", "EulerJacobian", "EulerStep", "Transition"]
 
 Transition = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def _name(fn: object, default: str) -> str:
+    """How messages name ``fn``: a model file's ``[dynamics] KEY = 'file.py:function'``, else ``default``."""
+    ref = getattr(fn, "ref", "")
+    return f"[dynamics] {getattr(fn, 'key', 'f')} = {ref!r}" if ref else default
 
 
 @dataclass(frozen=True)
@@ -38,7 +45,13 @@ class EulerStep:
     dt: float
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        return x + self.dt * np.asarray(self.g(x, u))
+        g = np.asarray(self.g(x, u))
+        if g.shape[-1:] != np.shape(x)[-1:]:  # x + dt g would broadcast a wrong shape silently
+            raise ShapeError(
+                f"{_name(self.g, 'the continuous dynamics g(x, u)')} returned shape {g.shape} for x of shape "
+                f"{np.shape(x)}; expected (..., {np.shape(x)[-1]})"
+            )
+        return x + self.dt * g
 
     @property
     def func(self) -> Transition:
@@ -63,7 +76,13 @@ class EulerJacobian:
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         J = self.dt * np.asarray(self.g_jac(x, u))
-        return J + np.eye(J.shape[-1])
+        n = np.shape(x)[-1]
+        if J.shape[-2:] != (n, n):
+            raise ShapeError(
+                f"{_name(self.g_jac, 'the Jacobian dg/dx')} returned shape {J.shape} for x of shape "
+                f"{np.shape(x)}; expected (..., {n}, {n})"
+            )
+        return J + np.eye(n)
 
     @property
     def func(self) -> Transition:

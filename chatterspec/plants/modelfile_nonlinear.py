@@ -121,6 +121,14 @@ class ModelFunction:
         The ``.py`` file (for tracebacks).
     ref : str
         The reference as written in the model file (e.g. ``"duffing.py:g"``).
+    key : str
+        The ``[dynamics]`` key that names it (``f``, ``jacobian``, ...), for messages.
+
+    Raises
+    ------
+    ModelFileError
+        When called, if the function raises: its exception, named with the file's key and
+        reference, replaces the traceback (a user's code failing mid-run is a model-file error).
     """
 
     module: str
@@ -129,6 +137,7 @@ class ModelFunction:
     source: str | None = None
     filename: str | None = None
     ref: str = ""
+    key: str = "f"
 
     @property
     def func(self) -> Callable[..., Any]:
@@ -151,7 +160,19 @@ class ModelFunction:
         return f"ModelFunction({self.ref or f'{self.module}:{self.name}'!r}{kw})"
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        return self.func(x, u, **self.keywords)
+        try:
+            return self.func(x, u, **self.keywords)
+        except ChatterspecError:
+            raise
+        except Exception as exc:
+            raise self._failed(exc, x) from exc
+
+    def _failed(self, exc: Exception, x: np.ndarray) -> ModelFileError:
+        where = self.ref or f"{self.module}:{self.name}"
+        return ModelFileError(
+            f"[dynamics] {self.key} = {where!r} raised {type(exc).__name__}: {exc} (called with x of "
+            f"shape {np.shape(x)})"
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -161,12 +182,17 @@ class MeasurementFunction(ModelFunction):
 
     Attributes
     ----------
-    module, name, keywords, source, filename, ref
+    module, name, keywords, source, filename, ref, key
         As :class:`ModelFunction`'s.
     """
 
     def __call__(self, x: np.ndarray) -> np.ndarray:  # type: ignore[override]
-        return self.func(x, **self.keywords)
+        try:
+            return self.func(x, **self.keywords)
+        except ChatterspecError:
+            raise
+        except Exception as exc:
+            raise self._failed(exc, x) from exc
 
 
 @dataclass(frozen=True)
@@ -265,7 +291,7 @@ def _resolve(
             keywords["dt"] = dt
     _LOADED[(module, name)] = fn
     return (MeasurementFunction if measurement else ModelFunction)(
-        module=module, name=name, keywords=keywords, source=source, filename=filename, ref=ref
+        module=module, name=name, keywords=keywords, source=source, filename=filename, ref=ref, key=key
     )
 
 
@@ -376,13 +402,13 @@ def load_nonlinear(doc: Mapping[str, Any], path: Path, where: str) -> Any:
             model = NonlinearModel.from_continuous(f, jac, **kwargs)
         else:
             model = NonlinearModel(f=f, jac=jac, **kwargs)
-    except ChatterspecError as exc:
-        raise ModelFileError(f"{where}: invalid model: {exc}") from None
-    except Exception as exc:  # the user's f or Jacobian failed on the probe at the rest state
+    except ModelFileError as exc:  # the user's f or Jacobian raised on the probe at the rest state
         raise ModelFileError(
             f"{where}: [dynamics] calling f = {f.ref!r} / jacobian = {jac.ref!r} at the rest state (x "
-            f"batched as (2, {n}), u as (2, {len(inputs)})) failed: {type(exc).__name__}: {exc}"
+            f"batched as (2, {n}), u as (2, {len(inputs)})) failed: {exc}"
         ) from None
+    except ChatterspecError as exc:
+        raise ModelFileError(f"{where}: invalid model: {exc}") from None
     svsf = doc.get("svsf", {})
     if not isinstance(svsf, dict):
         raise ModelFileError(f"{where}: [svsf] must be a table")

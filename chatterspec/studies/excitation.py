@@ -472,7 +472,8 @@ def excitation_study(
     ------
     ParameterError
         On an unknown family or reference, a dither level < 0 or whose peak reaches the
-        controller's saturation (300 rad/s), or a non-positive sensor noise.
+        controller's saturation (300 rad/s), a multisine tone at or above the Nyquist frequency,
+        or a non-positive sensor noise.
     """
     ex = Execution(**execution)
     if family not in CLOSED_LOOP_FAMILIES:
@@ -500,6 +501,13 @@ def excitation_study(
         _, thr = _analytic_thresholds(healthy.nominal, healthy.n_samples - 1, alpha)
         thresholds.append(thr["exact-bonferroni"].values)
         tested = thr["exact-bonferroni"].tested
+    nyquist = 0.5 / pairs[0][0].dt
+    if dither_kind == "multisine" and max(tones_hz) >= nyquist:
+        raise ParameterError(
+            f"multisine tones must lie below the Nyquist frequency {nyquist:g} Hz (dt = "
+            f"{pairs[0][0].dt:g} s): sampled, a {max(tones_hz):g} Hz tone is another frequency; got "
+            f"{list(tones_hz)}"
+        )
     study = _ExcitationChunks(tuple(pairs), tuple(thresholds), np.asarray(tested), tuple(noise_index))
     out = ex.run(study, runs, seed, f"closed-loop power {family}")
     shape = (len(noises), len(pts))
