@@ -1,0 +1,527 @@
+"""Thresholds from a recorded healthy run of the user's own plant (``chatterspec calibrate --data``).
+
+:func:`chatterspec.studies.calibration.calibrate` simulates healthy runs of the nominal model. On a
+real actuator the healthy chattering is what the plant and its sensors give, which the model never
+matches exactly; :func:`calibrate_recorded` reads the thresholds from a healthy recording instead
+and returns the same :class:`~chatterspec.studies.calibration_result.Calibration` (the same file,
+accepted by ``monitor --calibration`` and ``detect --calibration`` exactly like a simulated one), with
+:attr:`~chatterspec.studies.calibration_result.Calibration.source` saying where the data came from
+(file name, SHA-256, time span, samples, frames, records).
+
+How the recording is read
+    The measurements are pushed, in chunks of :data:`CHUNK_S` seconds, through the monitor itself
+    (:class:`~chatterspec.online.monitor.ChatteringMonitor` with the monitor's STFT, band and
+    ``gamma``): its auxiliary SVSF gives the chattering, its frame engine cuts the frames on its
+    global grid and its :class:`~chatterspec.detection.frame_score.FrameScore` scores them, so the
+    scores are the ones the monitor computes with the file (the score under a calibration file uses
+    the exponential law of the file's normalization, which does not depend on the per-frame factor;
+    ``tests/test_recorded_calibration.py`` checks the identity). Memory is bounded by the chunk, the
+    kept tails and one score row per frame.
+
+Normalization (``normalization``)
+    ``"model"`` (linear models; default): the closed-form healthy spectrum of the nominal model (eq 56;
+    the frame spectrum of :func:`~chatterspec.detection.thresholds.frame_threshold`), as a simulated
+    calibration uses, so the two can be compared (``Calibration.agreement``). ``"data"`` (beyond the
+    paper): the mean frame spectrum and mean record periodogram of the recording itself, smoothed
+    over ``2 h + 1`` bins (:func:`chatterspec.detection.empirical.smooth_spectrum`; one extra pass
+    over the data): the score then measures departures from the *recorded* spectrum, so a healthy
+    spectrum whose shape the model does not have (coloured sensor noise, mains hum, an unmodelled
+    resonance) is not taken for a fault; a nonlinear model has only this one. The normalization is
+    estimated from the same data as the quantiles (relative standard error about
+    ``1 / sqrt(frames_eff (2 h + 1))``, 1.3 % per bin from 10 minutes of 1 s windows), an in-sample
+    effect below that error.
+
+Per-frame threshold
+    Per channel, the ``(1 - alpha)``-quantile over frames of the largest normalized tested bin (the
+    monitor's per-frame family-wise threshold), with the distribution-free order-statistic interval
+    that counts only non-overlapping frames as independent
+    (:func:`~chatterspec.studies.intervals._quantile_from_top`): the same estimator and interval as
+    the simulated calibration, applied to the recording's frames. The record thresholds of ``detect``
+    are read the same way from consecutive records of ``record_s`` seconds (``runs`` = records).
+
+Alarm threshold at a budget
+    The recording's frame scores, as one stream, are given to
+    :func:`chatterspec.detection.alarm_calibration.calibrate_rule`: alarm starts counted on a grid of
+    thresholds, ``log(starts per hour)`` fitted linearly in ``h`` where alarms are rare and solved
+    for the budget, with a jackknife over :data:`~chatterspec.detection.alarm_calibration.BATCHES`
+    batches of consecutive time (Student ``t``) for the intervals of the threshold and of the
+    realized rate. Why this method: a budget of one per day is far rarer than a recording of hours
+    can count (an order-statistic or Poisson interval of a *counted* rate needs about 20 alarms, 20
+    days of data), while the exponential decay of the start rate in ``h`` (Siegmund's law for the
+    CUSUM, the score's exponential tail for the single-frame rules) lets the rare-alarm part of a few
+    hours predict it; the jackknife over consecutive batches keeps the dependence between
+    overlapping frames and neighbouring thresholds (the same alarms) in the interval, which a
+    Poisson interval of one count would not.
+
+How long a recording a budget needs (:func:`min_hours`)
+    The fit needs two thresholds with at least ``MIN_COUNT`` (20) starts each, a factor ``e``
+    apart in starts, at rates no higher than ``MAX_RATE_PER_STEP`` (5e-4) starts per channel frame
+    (the regime where the slope is constant; above it the 1-per-day threshold came out 0.5-1 nats
+    low), and every leave-one-out batch fit of the jackknife must hold them too. The most starts the
+    data can hold in that regime is ``MAX_RATE_PER_STEP x frames x channels``, so with ``F`` frames
+    per hour, ``m`` channels and ``B`` batches::
+
+        T_fit = e MIN_COUNT B / ((B - 1) MAX_RATE_PER_STEP m F)   hours
+
+    (2.3 h for the EHA: 3 channels, 18 000 frames per hour), whatever the budget; a budget frequent
+    enough to be *counted*, ``X T (B - 1) / B >= MIN_COUNT``, needs ``T_count = MIN_COUNT B /
+    ((B - 1) X)`` instead. A recording shorter than ``min(T_fit, T_count)`` is refused with that
+    length; a longer one can still fail when its grid of thresholds does not land two points in the
+    regime (then the message asks for more data). These are the method's necessary conditions, not a
+    precision target: the threshold's interval says how precise it is (from 4 h of EHA data the
+    CUSUM threshold's jackknife standard error is about 1.6 nats, the realized rate within a factor of
+    about 2; it shrinks with the length).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import scipy.stats
+
+from .._validate import open_unit, positive
+from ..detection.alarm_calibration import (
+    BATCHES,
+    MAX_RATE_PER_STEP,
+    MIN_COUNT,
+    RuleCalibration,
+    calibrate_rule,
+    check_budget,
+)
+from ..detection.alarms import AlarmRule, make_rule
+from ..detection.empirical import NORMALIZATION_SMOOTH_BINS, empirical_family_wise_threshold, smooth_spectrum
+from ..detection.monitor_settings import MonitorSettings
+from ..detection.spectral import periodogram, periodogram_freqs
+from ..errors import ParameterError
+from ..plants.nonlinear import is_linear
+from .calibration_result import Calibration, _ro, _stft_dict
+from .calibration_support import min_runs
+from .empirical_calibration import _tested
+from .healthy import _analytic_thresholds, _frame_thresholds, _keep_top, _merge_top
+from .intervals import QuantileEstimate, _quantile_from_top, _top_needed
+
+__all__ = [
+    "CHUNK_S",
+    "MAX_TAIL_BYTES",
+    "HealthyRecording",
+    "array_chunks",
+    "calibrate_recorded",
+    "min_hours",
+    "recording_of_file",
+]
+
+#: Seconds of data pushed through the monitor at a time (bounded memory).
+CHUNK_S = 60.0
+#: Largest memory (bytes) of the kept per-bin frame tails; above it the call is refused.
+MAX_TAIL_BYTES = 256 * 2**20
+
+Normalization = Literal["model", "data"]
+Chunks = Callable[[], Iterable[tuple[np.ndarray, np.ndarray]]]
+
+
+@dataclass(frozen=True)
+class HealthyRecording:
+    """Where a healthy recording came from (recorded in the calibration file).
+
+    Attributes
+    ----------
+    name : str
+        The data file's name (no folder), or ``"standard input"``.
+    sha256 : str
+        SHA-256 of the file's bytes (hex).
+    """
+
+    name: str
+    sha256: str
+
+
+def recording_of_file(path: str | Path) -> HealthyRecording:
+    """The :class:`HealthyRecording` of a data file (its name and the SHA-256 of its bytes)."""
+    path = Path(path)
+    h = hashlib.sha256()
+    with path.open("rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return HealthyRecording(path.name, h.hexdigest())
+
+
+def array_chunks(z: np.ndarray, u: np.ndarray, samples: int) -> Chunks:
+    """A re-iterable source of ``(z, u)`` chunks of ``samples`` rows from whole arrays (views, no copy)."""
+
+    def chunks() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        for lo in range(0, z.shape[0], samples):
+            yield z[lo : lo + samples], u[lo : lo + samples]
+
+    return chunks
+
+
+def min_hours(
+    channels: int, frames_per_hour: float, false_alarms_per_hour: float, batches: int = BATCHES
+) -> float:
+    """Shortest healthy recording (h) from which an alarm threshold for the budget can be read.
+
+    ``min(T_fit, T_count)`` of the module docstring: the extrapolating fit's regime, or a count.
+
+    Parameters
+    ----------
+    channels : int
+        Channels sharing the budget.
+    frames_per_hour : float
+        Frames (rule steps) per hour of one channel: ``3600 / hop_s``.
+    false_alarms_per_hour : float
+        The budget (> 0).
+    batches : int
+        Jackknife batches (every leave-one-out fit must be possible too).
+    """
+    X = check_budget(false_alarms_per_hour)
+    keep = (batches - 1) / batches
+    t_fit = math.e * MIN_COUNT / (keep * MAX_RATE_PER_STEP * int(channels) * float(frames_per_hour))
+    t_count = MIN_COUNT / (keep * X)
+    return min(t_fit, t_count)
+
+
+def _per_day(x: float) -> str:
+    return f"1 false alarm per {1 / x:.3g} h" if x < 1 else f"{x:g} false alarms per hour"
+
+
+def _score_threshold(E_frame: np.ndarray, freqs: np.ndarray, tested: np.ndarray, alpha: float) -> Any:
+    """The per-frame threshold whose law the monitor's score uses with a calibration of normalization
+    ``E_frame`` (the factor does not enter the score; 1 here)."""
+    return empirical_family_wise_threshold(
+        E_frame, freqs, tested, np.ones(E_frame.shape[1]), alpha, meaning="per-frame"
+    )
+
+
+class _Pass:
+    """One pass of the recording through the monitor; what each frame and record leaves behind."""
+
+    def __init__(
+        self,
+        model: Any,
+        settings: MonitorSettings,
+        N: int,
+        E_rec: np.ndarray | None,
+        E_frame: np.ndarray | None,
+        k_bin: int,
+        k_frame: int,
+        tested: np.ndarray,
+        ftested: np.ndarray,
+    ) -> None:
+        from ..online.monitor import ChatteringMonitor
+
+        self.monitor = ChatteringMonitor(model, settings)
+        self.dt = model.dt
+        self.N, self.E_rec, self.E_frame = N, E_rec, E_frame
+        self.k_bin, self.k_frame = k_bin, k_frame
+        self.tested, self.ftested = tested, ftested
+        m = model.n_outputs
+        self._buf = np.empty((0, m))
+        self.records = 0
+        self.frames = 0
+        self.sum_rec: np.ndarray | None = None
+        self.sum_frame: np.ndarray | None = None
+        self.top_bin: np.ndarray | None = None
+        self.top_frame: np.ndarray | None = None
+        self.rec_max: list[np.ndarray] = []
+        self.frame_max: list[np.ndarray] = []
+        self.scores: list[np.ndarray] = []
+        self.t_first: float | None = None
+        self.t_last = 0.0
+
+    def push(self, z: np.ndarray, u: np.ndarray) -> None:
+        upd = self.monitor.push(z, u)
+        if upd.t.size:
+            self.t_first = float(upd.t[0]) - self.dt if self.t_first is None else self.t_first
+            self.t_last = float(upd.t[-1])
+        fr = upd.frames
+        if fr.n_frames:
+            self.frames += fr.n_frames
+            P = fr.power
+            if self.E_frame is None:
+                s = P.sum(axis=0)
+                self.sum_frame = s if self.sum_frame is None else self.sum_frame + s
+            else:
+                Y = P / self.E_frame
+                self.frame_max.append(Y[:, self.ftested].max(axis=1))
+                self.scores.append(fr.score)  # type: ignore[arg-type]
+                top = _keep_top(Y, self.k_frame)
+                self.top_frame = (
+                    top.copy() if self.top_frame is None else _merge_top(self.top_frame, top, self.k_frame)
+                )
+        e = np.concatenate([self._buf, upd.chattering]) if self._buf.shape[0] else upd.chattering
+        n_rec = e.shape[0] // self.N
+        if n_rec:
+            S = periodogram(e[: n_rec * self.N].reshape(n_rec, self.N, -1), self.dt).power
+            self.records += n_rec
+            if self.E_rec is None:
+                s = S.sum(axis=0)
+                self.sum_rec = s if self.sum_rec is None else self.sum_rec + s
+            else:
+                Y = S / self.E_rec
+                self.rec_max.append(Y[:, self.tested].max(axis=1))
+                top = _keep_top(Y, self.k_bin)
+                self.top_bin = (
+                    top.copy() if self.top_bin is None else _merge_top(self.top_bin, top, self.k_bin)
+                )
+        self._buf = e[n_rec * self.N :].copy()
+
+
+def _desc(a: np.ndarray) -> np.ndarray:
+    return -np.sort(-a, axis=0)
+
+
+def calibrate_recorded(
+    model: Any,
+    chunks: Chunks,
+    n_samples: int,
+    *,
+    settings: MonitorSettings | None = None,
+    alpha: float = 1e-2,
+    confidence: float = 0.99,
+    normalization: Normalization | None = None,
+    record_s: float = 4.0,
+    rule: AlarmRule | str | None = None,
+    false_alarms_per_hour: float | None = None,
+    alarm_confidence: float = 0.95,
+    recording: HealthyRecording | None = None,
+    smooth_half_width: int = NORMALIZATION_SMOOTH_BINS,
+) -> Calibration:
+    """Per-frame, record and (optionally) alarm thresholds from a healthy recording (module docstring).
+
+    Parameters
+    ----------
+    model : LinearModel or NonlinearModel
+        The monitor's nominal model (full measurement).
+    chunks : callable
+        Returns a fresh iterable of consecutive ``(z (K, m), u (K, p))`` chunks of the recording
+        (called once per pass: twice with ``normalization="data"``), e.g. :func:`array_chunks`.
+    n_samples : int
+        Samples in the recording (the sum of the chunks' ``K``).
+    settings : MonitorSettings, optional
+        The monitor's STFT, band and ``gamma`` (default ``MonitorSettings()``; a model file's are
+        those of its ``[detector]`` and ``[svsf]`` tables, as ``chatterspec monitor`` builds them).
+        Its threshold, rule and budget are ignored.
+    alpha : float
+        Per-frame (and per-record) false-alarm probability of the thresholds, in (0, 1).
+    confidence : float
+        Level of the order-statistic intervals.
+    normalization : {"model", "data"}, optional
+        Default ``"model"`` for a linear model, ``"data"`` (the only one) for a nonlinear one.
+    record_s : float
+        Record length (s) of the ``detect`` thresholds (a model file's ``[simulation]`` duration, 4 s
+        by default, is what ``detect MODEL.toml`` uses).
+    rule, false_alarms_per_hour
+        With either, the alarm threshold too: rule (name or rule; default cusum) and budget in
+        alarm starts per hour, all channels together (default one per day).
+    alarm_confidence : float
+        Level of the alarm threshold's and rate's intervals (0.95 as the simulated calibration).
+    recording : HealthyRecording, optional
+        Where the data came from (file name and SHA-256), recorded in ``Calibration.source``.
+    smooth_half_width : int
+        ``h`` of the ``"data"`` normalization's moving average (bins).
+
+    Returns
+    -------
+    Calibration
+        ``runs`` = records of ``record_s``; ``seed`` None; ``source`` the provenance.
+
+    Raises
+    ------
+    ParameterError
+        Bad parameters; a recording too short for one record or for the per-frame alpha (the
+        message gives the length that would do); a budget the recording cannot support (the
+        message gives the hours it needs, :func:`min_hours`).
+    """
+    settings = MonitorSettings() if settings is None else settings
+    alpha = open_unit("alpha", alpha)
+    confidence = open_unit("confidence", confidence)
+    record_s = positive("record_s", record_s, unit="s")
+    linear = is_linear(model)
+    norm = normalization or ("model" if linear else "data")
+    if norm not in ("model", "data"):
+        raise ParameterError(f"normalization must be 'model' or 'data'; got {norm!r}")
+    if norm == "model" and not linear:
+        raise ParameterError(
+            "a nonlinear model has no closed-form healthy spectrum: use normalization 'data'"
+        )
+    wants_alarm = rule is not None or false_alarms_per_hour is not None
+    X = check_budget(1.0 / 24.0 if false_alarms_per_hour is None else false_alarms_per_hour)
+    alarm_rule = make_rule(rule or "cusum") if isinstance(rule, str) or rule is None else rule
+    dt = model.dt
+    stft = settings.stft
+    W, H = stft.n_window(dt), stft.n_hop(dt)
+    N = max(1, round(record_s / dt))
+    n_chat = int(n_samples) - 1  # the first measurement initializes the filters
+    hours = n_chat * dt / 3600.0
+    nf = (n_chat - W) // H + 1 if n_chat >= W else 0
+    nf_eff = (n_chat - W) // W + 1 if n_chat >= W else 0
+    runs = n_chat // N
+    m = model.n_outputs
+    F_hour = 3600.0 / (H * dt)
+    # ---- what the recording can support, before any work
+    if runs < 1 or nf < 1:
+        need_s = max(record_s, stft.window_s) + dt
+        raise ParameterError(
+            f"the recording holds {n_chat * dt:.3g} s of chattering, shorter than "
+            + (f"one record of {record_s:g} s" if runs < 1 else f"one STFT window of {stft.window_s:g} s")
+            + f"; record at least {need_s:g} s"
+        )
+    need_frames = min_runs(alpha)  # non-overlapping frames for the per-frame alpha
+    if nf_eff < need_frames:
+        raise ParameterError(
+            f"alpha = {alpha:g} per frame needs at least {need_frames} non-overlapping frames "
+            f"({need_frames * stft.window_s / 60:.3g} min of healthy data); the recording has {nf_eff} "
+            f"({hours * 60:.3g} min): record longer or use a larger --alpha"
+        )
+    if wants_alarm:
+        need = min_hours(m, F_hour, X)
+        if hours < need:
+            raise ParameterError(
+                f"{_per_day(X)} needs at least {need:.3g} h of healthy data at the {alarm_rule.name} rule "
+                f"({m} channels, {F_hour:.0f} frames per hour); you gave {hours:.3g} h"
+            )
+    q = 1.0 - alpha
+    k_bin = _top_needed(runs, q, confidence)
+    k_frame = _top_needed(nf, q, confidence, nf_eff)
+    freqs, ffreqs = periodogram_freqs(N, dt), stft.freqs_hz(dt)
+    tested, ftested = _tested(freqs.size, N), _tested(ffreqs.size, W)
+    tail_bytes = 8 * m * (2 * k_frame * ffreqs.size + k_bin * freqs.size)
+    if tail_bytes > MAX_TAIL_BYTES:
+        raise ParameterError(
+            f"alpha = {alpha:g} on {nf} frames keeps {k_frame} tail values per frequency bin "
+            f"({tail_bytes / 2**20:.0f} MB > {MAX_TAIL_BYTES / 2**20:.0f} MB): use a smaller alpha or a "
+            "shorter recording"
+        )
+    base = replace(settings, threshold=None, rule=None, budget=None, psi=None)
+    analytic: dict[str, Any] = {}
+    if norm == "model":
+        _, thr = _analytic_thresholds(model, N, alpha)
+        _, fthr = _frame_thresholds(model, stft, alpha)
+        E_rec, E_frame = thr["exact"].expected, fthr["frame"].expected
+        analytic = {
+            "analytic": {k: _ro(t.values) for k, t in thr.items()},
+            "family_wise_analytic": {
+                "bonferroni": float(scipy.stats.chi2.isf(thr["exact-bonferroni"].per_test_alpha, 2) / 2),
+                "sidak": float(scipy.stats.chi2.isf(thr["exact-sidak"].per_test_alpha, 2) / 2),
+                "n_tested": thr["exact"].n_tested,
+            },
+            "frame_analytic": {k: _ro(t.values) for k, t in fthr.items()},
+        }
+        info: dict[str, Any] = {}
+    else:
+        pilot = _Pass(
+            model, _pilot_settings(base, ffreqs, ftested, m, linear), N, None, None, 0, 0, tested, ftested
+        )
+        for z, u in chunks():
+            pilot.push(z, u)
+        E_rec = smooth_spectrum(pilot.sum_rec / pilot.records, smooth_half_width)  # type: ignore[operator]
+        E_frame = smooth_spectrum(pilot.sum_frame / pilot.frames, smooth_half_width)  # type: ignore[operator]
+        analytic = {"analytic": {}, "family_wise_analytic": {}, "frame_analytic": {}}
+        info = {
+            "estimator": "mean periodogram and mean frame spectrum of the healthy recording, moving average "
+            "over 2h+1 bins",
+            "smooth_half_width_bins": int(smooth_half_width),
+            "records": int(pilot.records),
+            "frames": int(pilot.frames),
+        }
+    scored = replace(base, threshold=_score_threshold(E_frame, ffreqs, ftested, alpha))
+    p = _Pass(model, scored, N, E_rec, E_frame, k_bin, k_frame, tested, ftested)
+    for z, u in chunks():
+        p.push(z, u)
+    if p.records != runs or p.frames != nf:
+        raise ParameterError(
+            f"the chunks held {p.records} records and {p.frames} frames; n_samples = {n_samples} promises "
+            f"{runs} and {nf}: pass the recording's length"
+        )
+    frame_max = np.concatenate(p.frame_max)
+    rec_max = np.concatenate(p.rec_max)
+
+    def per_channel(v: np.ndarray, n: int, n_eff: int | None) -> tuple[QuantileEstimate, ...]:
+        val, lo, hi = _quantile_from_top(_desc(v), n, q, confidence, n_eff)
+        return tuple(
+            QuantileEstimate(q, float(val[c]), float(lo[c]), float(hi[c]), n, confidence) for c in range(m)
+        )
+
+    bin_q = _quantile_from_top(_desc(p.top_bin), runs, q, confidence)  # type: ignore[arg-type]
+    frame_q = _quantile_from_top(_desc(p.top_frame), nf, q, confidence, nf_eff)  # type: ignore[arg-type]
+    alarm = None
+    if wants_alarm:
+        alarm = _alarm(alarm_rule, np.concatenate(p.scores), F_hour, X, alarm_confidence, hours)
+    name = "recording" if recording is None else recording.name
+    source = {
+        "kind": "recorded healthy data",
+        "data": name,
+        "sha256": None if recording is None else recording.sha256,
+        "span_s": [p.t_first, p.t_last],
+        "samples": int(n_samples),
+        "hours": hours,
+        "frames": int(nf),
+        "non_overlapping_frames": int(nf_eff),
+        "records": int(runs),
+        "record_s": N * dt,
+        "band_hz": None if settings.band is None else list(settings.band),
+        "gamma": settings.gamma,
+    }
+    return Calibration(
+        scenario=f"recorded {name}",
+        model_name=model.name,
+        model_fingerprint=model.fingerprint(),
+        dt=dt,
+        n_samples=N,
+        stft=_stft_dict(stft),
+        alpha=alpha,
+        runs=runs,
+        seed=None,
+        confidence=confidence,
+        channels=tuple(model.output_names),
+        freqs_hz=_ro(freqs),
+        tested=_ro(tested),
+        expected=_ro(E_rec),
+        per_bin=_ro(bin_q[0]),
+        per_bin_low=_ro(bin_q[1]),
+        per_bin_high=_ro(bin_q[2]),
+        family_wise=per_channel(rec_max, runs, None),
+        frame_freqs_hz=_ro(ffreqs),
+        frame_tested=_ro(ftested),
+        frame_expected=_ro(E_frame),
+        per_frame=_ro(frame_q[0]),
+        per_frame_low=_ro(frame_q[1]),
+        per_frame_high=_ro(frame_q[2]),
+        frame_family_wise=per_channel(frame_max, nf, nf_eff),
+        normalization="analytic" if norm == "model" else "empirical",
+        normalization_info=info,
+        tails={"method": "exact", "budget_bytes": MAX_TAIL_BYTES, "exact_bytes": int(tail_bytes)},
+        alarm=alarm,
+        source=source,
+        **analytic,
+    )
+
+
+def _pilot_settings(
+    base: MonitorSettings, ffreqs: np.ndarray, ftested: np.ndarray, m: int, linear: bool
+) -> MonitorSettings:
+    """The first pass's monitor (only its frame spectra are used): the analytic threshold of a linear
+    model, a flat one for a nonlinear model (which needs some threshold to run)."""
+    if linear:
+        return base
+    return replace(base, threshold=_score_threshold(np.ones((ffreqs.size, m)), ffreqs, ftested, 0.5))
+
+
+def _alarm(
+    rule: AlarmRule, scores: np.ndarray, F_hour: float, X: float, confidence: float, hours: float
+) -> RuleCalibration:
+    """:func:`calibrate_rule` on the recording's scores as one stream; a failed fit says what to record."""
+    try:
+        return calibrate_rule(rule, scores[None], F_hour, X, confidence=confidence)
+    except ParameterError as exc:
+        raise ParameterError(
+            f"{_per_day(X)} at the {rule.name} rule: the {hours:.3g} h of healthy data hold too few alarm "
+            f"starts in the rare-alarm regime to fit ({exc}); record more healthy data (e.g. "
+            f"{2 * hours:.3g} h)"
+        ) from None
