@@ -19,18 +19,14 @@ from chatterspec.cli import main
 from chatterspec.detection.alarm_calibration import BATCHES, MAX_RATE_PER_STEP, MIN_COUNT, starts_on_grid
 from chatterspec.errors import ParameterError
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
+from chatterspec.online.recorded_calibration import calibrate_recorded
 from chatterspec.online.stream import csv_header, csv_lines, simulate_blocks
 from chatterspec.plants.modelfile import write_model_toml
 from chatterspec.plants.models import second_order
 from chatterspec.studies.alarm_budget import calibrate_alarm, frames_per_hour
 from chatterspec.studies.calibration import calibrate, load_calibration
 from chatterspec.studies.healthy import model_scenario
-from chatterspec.studies.recorded_calibration import (
-    HealthyRecording,
-    array_chunks,
-    calibrate_recorded,
-    min_hours,
-)
+from chatterspec.studies.recorded_calibration import HealthyRecording, array_chunks, min_hours
 
 DT = 0.01
 #: Hours of healthy data: above min_hours for two channels (3.45 h at one per day).

@@ -1,6 +1,6 @@
 """``chatterspec calibrate NAME --data HEALTHY.csv|.npz|-``: thresholds from a recorded healthy run.
 
-The computation is :func:`chatterspec.studies.recorded_calibration.calibrate_recorded`; this module
+The computation is :func:`chatterspec.online.recorded_calibration.calibrate_recorded`; this module
 reads the data (a file, or CSV rows on standard input), builds the monitor's settings from the model
 file exactly as ``chatterspec monitor`` does, and prints the report.
 """
@@ -50,8 +50,9 @@ def run_recorded(args: argparse.Namespace) -> int:
     settings = monitor_settings(spec)
     data, recording = read_healthy_data(args.data, model)
     from ..detection.alarms import make_rule
+    from ..online.recorded_calibration import calibrate_recorded
     from ..studies.calibration_support import calibration_support
-    from ..studies.recorded_calibration import array_chunks, calibrate_recorded
+    from ..studies.recorded_calibration import array_chunks
 
     rule = make_rule(choice.rule, **choice.parameters) if wants_alarm else None
     cal = calibrate_recorded(
@@ -79,11 +80,14 @@ def run_recorded(args: argparse.Namespace) -> int:
     doc = cal.to_dict()
     doc["support"] = {use: s.to_dict() for use, s in supports.items()}
     if args.out:
-        from .calibrate import _save_calibration
-
-        saved = outputs.write("--out", args.out, _save_calibration, cal, args.out)
+        saved = outputs.write("--out", args.out, _save, cal, args.out)
         doc["calibration_file"] = None if saved is None else str(saved)
     return report(args, doc, outputs, lambda: _print(cal, doc), allow_nan=True)
+
+
+def _save(cal: Any, path: str) -> Path:
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    return cal.save(path)
 
 
 def monitor_settings(spec: Any) -> Any:

@@ -2,13 +2,18 @@
 
 :func:`chatterspec.studies.calibration.calibrate` simulates healthy runs of the nominal model. On a
 real actuator the healthy chattering is what the plant and its sensors give, which the model never
-matches exactly; :func:`calibrate_recorded` reads the thresholds from a healthy recording instead
-and returns the same :class:`~chatterspec.studies.calibration_result.Calibration` (the same file,
-accepted by ``monitor --calibration`` and ``detect --calibration`` exactly like a simulated one), with
-:attr:`~chatterspec.studies.calibration_result.Calibration.source` saying where the data came from
-(file name, SHA-256, time span, samples, frames, records).
+matches exactly; :func:`chatterspec.online.recorded_calibration.calibrate_recorded` reads the
+thresholds from a healthy recording instead and returns the same
+:class:`~chatterspec.studies.calibration_result.Calibration` (the same file, accepted by
+``monitor --calibration`` and ``detect --calibration`` exactly like a simulated one), with
+``Calibration.source`` saying where the data came from (file name, SHA-256, time span, samples,
+frames, records).
 
 How the recording is read
+    The computation is split by layer: this module plans what a recording of a given length can
+    support (:func:`plan_recording`, every refusal before any work), tallies what its frames and
+    records leave behind (:class:`RecordedTally`) and turns the tally into the calibration
+    (:func:`recorded_calibration`); :mod:`chatterspec.online.recorded_calibration` drives the monitor.
     The measurements are pushed, in chunks of :data:`CHUNK_S` seconds, through the monitor itself
     (:class:`~chatterspec.online.monitor.ChatteringMonitor` with the monitor's STFT, band and
     ``gamma``): its auxiliary SVSF gives the chattering, its frame engine cuts the frames on its
@@ -101,6 +106,7 @@ from ..detection.alarms import AlarmRule, make_rule
 from ..detection.empirical import NORMALIZATION_SMOOTH_BINS, empirical_family_wise_threshold, smooth_spectrum
 from ..detection.monitor_settings import MonitorSettings
 from ..detection.spectral import periodogram, periodogram_freqs
+from ..detection.threshold_type import Threshold
 from ..errors import ParameterError
 from ..plants.nonlinear import is_linear
 from .calibration_result import Calibration, _ro, _stft_dict
@@ -113,9 +119,12 @@ __all__ = [
     "CHUNK_S",
     "MAX_TAIL_BYTES",
     "HealthyRecording",
+    "RecordedTally",
+    "RecordingPlan",
     "array_chunks",
-    "calibrate_recorded",
     "min_hours",
+    "plan_recording",
+    "recorded_calibration",
     "recording_of_file",
 ]
 
@@ -145,7 +154,13 @@ class HealthyRecording:
 
 
 def recording_of_file(path: str | Path) -> HealthyRecording:
-    """The :class:`HealthyRecording` of a data file (its name and the SHA-256 of its bytes)."""
+    """The :class:`HealthyRecording` of a data file: its name and the SHA-256 of its bytes.
+
+    Parameters
+    ----------
+    path : str or Path
+        The data file.
+    """
     path = Path(path)
     h = hashlib.sha256()
     with path.open("rb") as fh:
@@ -155,7 +170,17 @@ def recording_of_file(path: str | Path) -> HealthyRecording:
 
 
 def array_chunks(z: np.ndarray, u: np.ndarray, samples: int) -> Chunks:
-    """A re-iterable source of ``(z, u)`` chunks of ``samples`` rows from whole arrays (views, no copy)."""
+    """A re-iterable source of ``(z, u)`` chunks of ``samples`` rows from whole arrays (views, no copy).
+
+    Parameters
+    ----------
+    z : (T, m) array
+        Measurements.
+    u : (T, p) array
+        Inputs.
+    samples : int
+        Rows per chunk.
+    """
 
     def chunks() -> Iterator[tuple[np.ndarray, np.ndarray]]:
         for lo in range(0, z.shape[0], samples):
@@ -193,95 +218,100 @@ def _per_day(x: float) -> str:
     return f"1 false alarm per {1 / x:.3g} h" if x < 1 else f"{x:g} false alarms per hour"
 
 
-def _score_threshold(E_frame: np.ndarray, freqs: np.ndarray, tested: np.ndarray, alpha: float) -> Any:
-    """The per-frame threshold whose law the monitor's score uses with a calibration of normalization
-    ``E_frame`` (the factor does not enter the score; 1 here)."""
-    return empirical_family_wise_threshold(
-        E_frame, freqs, tested, np.ones(E_frame.shape[1]), alpha, meaning="per-frame"
-    )
+@dataclass(frozen=True, eq=False)
+class RecordingPlan:
+    """What a healthy recording of a given length supports, checked before any work (:func:`plan_recording`).
+
+    Attributes
+    ----------
+    model : LinearModel or NonlinearModel
+        The monitor's nominal model.
+    settings : MonitorSettings
+        The monitor's STFT, band and ``gamma`` (no threshold, rule, budget or ``psi``).
+    n_samples : int
+        Samples of the recording.
+    alpha, confidence : float
+        Per-frame / per-record level and the order-statistic intervals' level.
+    normalization : {"model", "data"}
+        See the module docstring.
+    N : int
+        Record length of the ``detect`` thresholds (samples).
+    runs, frames, frames_eff : int
+        Records, frames and non-overlapping frames the recording holds.
+    k_bin, k_frame : int
+        Tail values kept per bin (records, frames) for the per-bin quantile intervals.
+    frames_per_hour : float
+        Frames per hour of one channel.
+    rule : AlarmRule or None
+        The alarm rule to calibrate (None: no alarm threshold).
+    false_alarms_per_hour : float
+        Its budget.
+    alarm_confidence : float
+        Level of the alarm intervals.
+    smooth_half_width : int
+        Moving-average half-width of a ``"data"`` record normalization (bins).
+    """
+
+    model: Any
+    settings: MonitorSettings
+    n_samples: int
+    alpha: float
+    confidence: float
+    normalization: Normalization
+    N: int
+    runs: int
+    frames: int
+    frames_eff: int
+    k_bin: int
+    k_frame: int
+    frames_per_hour: float
+    rule: AlarmRule | None
+    false_alarms_per_hour: float
+    alarm_confidence: float
+    smooth_half_width: int
+
+    @property
+    def hours(self) -> float:
+        """Hours of chattering in the recording (the first measurement initializes the filters)."""
+        return (self.n_samples - 1) * self.model.dt / 3600.0
+
+    @property
+    def freqs_hz(self) -> np.ndarray:
+        """Record periodogram frequencies (Hz)."""
+        return periodogram_freqs(self.N, self.model.dt)
+
+    @property
+    def frame_freqs_hz(self) -> np.ndarray:
+        """Frame frequencies (Hz)."""
+        return self.settings.stft.freqs_hz(self.model.dt)
+
+    @property
+    def tested(self) -> np.ndarray:
+        """Tested record bins (DC and Nyquist excluded)."""
+        return _tested(self.freqs_hz.size, self.N)
+
+    @property
+    def frame_tested(self) -> np.ndarray:
+        """Tested frame bins (DC and Nyquist excluded; the family-wise maximum runs over them)."""
+        return _tested(self.frame_freqs_hz.size, self.settings.stft.n_window(self.model.dt))
+
+    def score_threshold(self, E_frame: np.ndarray) -> Threshold:
+        """The per-frame threshold whose law the monitor's score uses with a calibration of normalization
+        ``E_frame`` (the factor does not enter the score: 1 here)."""
+        m = E_frame.shape[1]
+        return empirical_family_wise_threshold(
+            E_frame, self.frame_freqs_hz, self.frame_tested, np.ones(m), self.alpha, meaning="per-frame"
+        )
+
+    def model_spectra(self) -> tuple[np.ndarray, np.ndarray]:
+        """The model's closed-form healthy record and frame spectra (``"model"`` normalization)."""
+        _, thr = _analytic_thresholds(self.model, self.N, self.alpha)
+        _, fthr = _frame_thresholds(self.model, self.settings.stft, self.alpha)
+        return thr["exact"].expected, fthr["frame"].expected
 
 
-class _Pass:
-    """One pass of the recording through the monitor; what each frame and record leaves behind."""
-
-    def __init__(
-        self,
-        model: Any,
-        settings: MonitorSettings,
-        N: int,
-        E_rec: np.ndarray | None,
-        E_frame: np.ndarray | None,
-        k_bin: int,
-        k_frame: int,
-        tested: np.ndarray,
-        ftested: np.ndarray,
-    ) -> None:
-        from ..online.monitor import ChatteringMonitor
-
-        self.monitor = ChatteringMonitor(model, settings)
-        self.dt = model.dt
-        self.N, self.E_rec, self.E_frame = N, E_rec, E_frame
-        self.k_bin, self.k_frame = k_bin, k_frame
-        self.tested, self.ftested = tested, ftested
-        m = model.n_outputs
-        self._buf = np.empty((0, m))
-        self.records = 0
-        self.frames = 0
-        self.sum_rec: np.ndarray | None = None
-        self.sum_frame: np.ndarray | None = None
-        self.top_bin: np.ndarray | None = None
-        self.top_frame: np.ndarray | None = None
-        self.rec_max: list[np.ndarray] = []
-        self.frame_max: list[np.ndarray] = []
-        self.scores: list[np.ndarray] = []
-        self.t_first: float | None = None
-        self.t_last = 0.0
-
-    def push(self, z: np.ndarray, u: np.ndarray) -> None:
-        upd = self.monitor.push(z, u)
-        if upd.t.size:
-            self.t_first = float(upd.t[0]) - self.dt if self.t_first is None else self.t_first
-            self.t_last = float(upd.t[-1])
-        fr = upd.frames
-        if fr.n_frames:
-            self.frames += fr.n_frames
-            P = fr.power
-            if self.E_frame is None:
-                s = P.sum(axis=0)
-                self.sum_frame = s if self.sum_frame is None else self.sum_frame + s
-            else:
-                Y = P / self.E_frame
-                self.frame_max.append(Y[:, self.ftested].max(axis=1))
-                self.scores.append(fr.score)  # type: ignore[arg-type]
-                top = _keep_top(Y, self.k_frame)
-                self.top_frame = (
-                    top.copy() if self.top_frame is None else _merge_top(self.top_frame, top, self.k_frame)
-                )
-        e = np.concatenate([self._buf, upd.chattering]) if self._buf.shape[0] else upd.chattering
-        n_rec = e.shape[0] // self.N
-        if n_rec:
-            S = periodogram(e[: n_rec * self.N].reshape(n_rec, self.N, -1), self.dt).power
-            self.records += n_rec
-            if self.E_rec is None:
-                s = S.sum(axis=0)
-                self.sum_rec = s if self.sum_rec is None else self.sum_rec + s
-            else:
-                Y = S / self.E_rec
-                self.rec_max.append(Y[:, self.tested].max(axis=1))
-                top = _keep_top(Y, self.k_bin)
-                self.top_bin = (
-                    top.copy() if self.top_bin is None else _merge_top(self.top_bin, top, self.k_bin)
-                )
-        self._buf = e[n_rec * self.N :].copy()
-
-
-def _desc(a: np.ndarray) -> np.ndarray:
-    return -np.sort(-a, axis=0)
-
-
-def calibrate_recorded(
+def plan_recording(
     model: Any,
-    chunks: Chunks,
     n_samples: int,
     *,
     settings: MonitorSettings | None = None,
@@ -292,24 +322,20 @@ def calibrate_recorded(
     rule: AlarmRule | str | None = None,
     false_alarms_per_hour: float | None = None,
     alarm_confidence: float = 0.95,
-    recording: HealthyRecording | None = None,
     smooth_half_width: int = NORMALIZATION_SMOOTH_BINS,
-) -> Calibration:
-    """Per-frame, record and (optionally) alarm thresholds from a healthy recording (module docstring).
+) -> RecordingPlan:
+    """Check what a recording of ``n_samples`` supports and plan its calibration (every refusal here).
 
     Parameters
     ----------
     model : LinearModel or NonlinearModel
         The monitor's nominal model (full measurement).
-    chunks : callable
-        Returns a fresh iterable of consecutive ``(z (K, m), u (K, p))`` chunks of the recording
-        (called once per pass: twice with ``normalization="data"``), e.g. :func:`array_chunks`.
     n_samples : int
-        Samples in the recording (the sum of the chunks' ``K``).
+        Samples in the recording.
     settings : MonitorSettings, optional
         The monitor's STFT, band and ``gamma`` (default ``MonitorSettings()``; a model file's are
         those of its ``[detector]`` and ``[svsf]`` tables, as ``chatterspec monitor`` builds them).
-        Its threshold, rule and budget are ignored.
+        Its threshold, rule, budget and ``psi`` are ignored.
     alpha : float
         Per-frame (and per-record) false-alarm probability of the thresholds, in (0, 1).
     confidence : float
@@ -324,26 +350,20 @@ def calibrate_recorded(
         alarm starts per hour, all channels together (default one per day).
     alarm_confidence : float
         Level of the alarm threshold's and rate's intervals (0.95 as the simulated calibration).
-    recording : HealthyRecording, optional
-        Where the data came from (file name and SHA-256), recorded in ``Calibration.source``.
     smooth_half_width : int
         ``h`` of the ``"data"`` normalization's moving average over record periodogram bins.
-
-    Returns
-    -------
-    Calibration
-        ``runs`` = records of ``record_s``; ``seed`` None; ``source`` the provenance.
 
     Raises
     ------
     ParameterError
         Bad parameters; a recording too short for one record or for the per-frame alpha (the
         message gives the length that would do); a budget the recording cannot support (the
-        message gives the hours it needs, :func:`min_hours`).
+        message gives the hours it needs, :func:`min_hours`); tails above :data:`MAX_TAIL_BYTES`.
     """
     settings = MonitorSettings() if settings is None else settings
     alpha = open_unit("alpha", alpha)
     confidence = open_unit("confidence", confidence)
+    alarm_confidence = open_unit("alarm_confidence", alarm_confidence)
     record_s = positive("record_s", record_s, unit="s")
     linear = is_linear(model)
     norm = normalization or ("model" if linear else "data")
@@ -355,7 +375,11 @@ def calibrate_recorded(
         )
     wants_alarm = rule is not None or false_alarms_per_hour is not None
     X = check_budget(1.0 / 24.0 if false_alarms_per_hour is None else false_alarms_per_hour)
-    alarm_rule = make_rule(rule or "cusum") if isinstance(rule, str) or rule is None else rule
+    alarm_rule = (
+        (make_rule(rule or "cusum") if isinstance(rule, str) or rule is None else rule)
+        if wants_alarm
+        else None
+    )
     dt = model.dt
     stft = settings.stft
     W, H = stft.n_window(dt), stft.n_hop(dt)
@@ -367,7 +391,6 @@ def calibrate_recorded(
     runs = n_chat // N
     m = model.n_outputs
     F_hour = 3600.0 / (H * dt)
-    # ---- what the recording can support, before any work
     if runs < 1 or nf < 1:
         need_s = max(record_s, stft.window_s) + dt
         raise ParameterError(
@@ -382,7 +405,7 @@ def calibrate_recorded(
             f"({need_frames * stft.window_s / 60:.3g} min of healthy data); the recording has {nf_eff} "
             f"({hours * 60:.3g} min): record longer or use a larger --alpha"
         )
-    if wants_alarm:
+    if alarm_rule is not None:
         need = min_hours(m, F_hour, X)
         if hours < need:
             raise ParameterError(
@@ -392,22 +415,161 @@ def calibrate_recorded(
     q = 1.0 - alpha
     k_bin = _top_needed(runs, q, confidence)
     k_frame = _top_needed(nf, q, confidence, nf_eff)
-    freqs, ffreqs = periodogram_freqs(N, dt), stft.freqs_hz(dt)
-    tested, ftested = _tested(freqs.size, N), _tested(ffreqs.size, W)
-    tail_bytes = 8 * m * (2 * k_frame * ffreqs.size + k_bin * freqs.size)
+    n_bins, n_fbins = N // 2 + 1, stft.freqs_hz(dt).size
+    tail_bytes = 8 * m * (2 * k_frame * n_fbins + k_bin * n_bins)
     if tail_bytes > MAX_TAIL_BYTES:
         raise ParameterError(
             f"alpha = {alpha:g} on {nf} frames keeps {k_frame} tail values per frequency bin "
             f"({tail_bytes / 2**20:.0f} MB > {MAX_TAIL_BYTES / 2**20:.0f} MB): use a smaller alpha or a "
             "shorter recording"
         )
-    base = replace(settings, threshold=None, rule=None, budget=None, psi=None)
-    analytic: dict[str, Any] = {}
-    if norm == "model":
-        _, thr = _analytic_thresholds(model, N, alpha)
-        _, fthr = _frame_thresholds(model, stft, alpha)
-        E_rec, E_frame = thr["exact"].expected, fthr["frame"].expected
-        analytic = {
+    return RecordingPlan(
+        model=model,
+        settings=replace(settings, threshold=None, rule=None, budget=None, psi=None),
+        n_samples=int(n_samples),
+        alpha=alpha,
+        confidence=confidence,
+        normalization=norm,  # type: ignore[arg-type]
+        N=N,
+        runs=runs,
+        frames=nf,
+        frames_eff=nf_eff,
+        k_bin=k_bin,
+        k_frame=k_frame,
+        frames_per_hour=F_hour,
+        rule=alarm_rule,
+        false_alarms_per_hour=X,
+        alarm_confidence=alarm_confidence,
+        smooth_half_width=int(smooth_half_width),
+    )
+
+
+class RecordedTally:
+    """What the frames and records of one pass over a recording leave behind.
+
+    Without normalization spectra (the first pass of a ``"data"`` normalization) it sums the frame
+    spectra and record periodograms; with them it keeps each frame's score and largest normalized
+    tested bin, each record's largest normalized tested bin, and the per-bin tails.
+
+    Parameters
+    ----------
+    plan : RecordingPlan
+    E_rec, E_frame : (bins, m) arrays, optional
+        The normalization spectra (record periodogram, frame spectrum); None: sum the spectra.
+    """
+
+    def __init__(
+        self, plan: RecordingPlan, E_rec: np.ndarray | None = None, E_frame: np.ndarray | None = None
+    ) -> None:
+        self.plan = plan
+        self.E_rec, self.E_frame = E_rec, E_frame
+        self._tested, self._ftested = plan.tested, plan.frame_tested
+        self._buf = np.empty((0, plan.model.n_outputs))
+        self.records = 0
+        self.frames = 0
+        self.sum_rec: np.ndarray | None = None
+        self.sum_frame: np.ndarray | None = None
+        self.top_bin: np.ndarray | None = None
+        self.top_frame: np.ndarray | None = None
+        self.rec_max: list[np.ndarray] = []
+        self.frame_max: list[np.ndarray] = []
+        self.scores: list[np.ndarray] = []
+        self.t_first: float | None = None
+        self.t_last = 0.0
+
+    def add(self, t: np.ndarray, chattering: np.ndarray, power: np.ndarray, score: np.ndarray | None) -> None:
+        """One push's output: chattering times ``t`` (K,) and values (K, m), frame spectra (F, bins, m)
+        and the monitor's frame scores (F, m)."""
+        if t.size:
+            self.t_first = float(t[0]) - self.plan.model.dt if self.t_first is None else self.t_first
+            self.t_last = float(t[-1])
+        if power.shape[0]:
+            self.frames += power.shape[0]
+            if self.E_frame is None:
+                s = power.sum(axis=0)
+                self.sum_frame = s if self.sum_frame is None else self.sum_frame + s
+            else:
+                Y = power / self.E_frame
+                self.frame_max.append(Y[:, self._ftested].max(axis=1))
+                if score is not None:
+                    self.scores.append(score)
+                k = self.plan.k_frame
+                top = _keep_top(Y, k)
+                self.top_frame = top.copy() if self.top_frame is None else _merge_top(self.top_frame, top, k)
+        N = self.plan.N
+        e = np.concatenate([self._buf, chattering]) if self._buf.shape[0] else chattering
+        n_rec = e.shape[0] // N
+        if n_rec:
+            S = periodogram(e[: n_rec * N].reshape(n_rec, N, -1), self.plan.model.dt).power
+            self.records += n_rec
+            if self.E_rec is None:
+                s = S.sum(axis=0)
+                self.sum_rec = s if self.sum_rec is None else self.sum_rec + s
+            else:
+                Y = S / self.E_rec
+                self.rec_max.append(Y[:, self._tested].max(axis=1))
+                k = self.plan.k_bin
+                top = _keep_top(Y, k)
+                self.top_bin = top.copy() if self.top_bin is None else _merge_top(self.top_bin, top, k)
+        self._buf = e[n_rec * N :].copy()
+
+    def normalization(self) -> tuple[np.ndarray, np.ndarray]:
+        """The ``"data"`` normalization from a first pass: mean record periodogram (smoothed) and mean
+        frame spectrum (module docstring)."""
+        self._check()
+        E_rec = smooth_spectrum(self.sum_rec / self.records, self.plan.smooth_half_width)  # type: ignore[operator]
+        E_frame = smooth_spectrum(self.sum_frame / self.frames, 0)  # type: ignore[operator]
+        return E_rec, E_frame
+
+    def _check(self) -> None:
+        p = self.plan
+        if self.records != p.runs or self.frames != p.frames:
+            raise ParameterError(
+                f"the chunks held {self.records} records and {self.frames} frames; n_samples = "
+                f"{p.n_samples} promises {p.runs} and {p.frames}: pass the recording's length"
+            )
+
+
+def _desc(a: np.ndarray) -> np.ndarray:
+    return -np.sort(-a, axis=0)
+
+
+def recorded_calibration(tally: RecordedTally, recording: HealthyRecording | None = None) -> Calibration:
+    """The :class:`~chatterspec.studies.calibration_result.Calibration` of a finished tally.
+
+    Parameters
+    ----------
+    tally : RecordedTally
+        A pass with the normalization spectra over the whole recording.
+    recording : HealthyRecording, optional
+        Where the data came from, recorded in ``Calibration.source``.
+
+    Raises
+    ------
+    ParameterError
+        The tally does not hold the frames and records its plan promised, or the alarm fit fails.
+    """
+    tally._check()
+    p = tally.plan
+    model, dt, m = p.model, p.model.dt, p.model.n_outputs
+    q = 1.0 - p.alpha
+    E_rec, E_frame = tally.E_rec, tally.E_frame
+    if E_rec is None or E_frame is None:
+        raise ParameterError("the tally has no normalization spectra: it is a first (summing) pass")
+
+    def per_channel(v: np.ndarray, n: int, n_eff: int | None) -> tuple[QuantileEstimate, ...]:
+        val, lo, hi = _quantile_from_top(_desc(v), n, q, p.confidence, n_eff)
+        return tuple(
+            QuantileEstimate(q, float(val[c]), float(lo[c]), float(hi[c]), n, p.confidence) for c in range(m)
+        )
+
+    bin_q = _quantile_from_top(_desc(tally.top_bin), p.runs, q, p.confidence)  # type: ignore[arg-type]
+    frame_q = _quantile_from_top(_desc(tally.top_frame), p.frames, q, p.confidence, p.frames_eff)  # type: ignore[arg-type]
+    alarm = None if p.rule is None else _alarm(p, np.concatenate(tally.scores))
+    if p.normalization == "model":
+        _, thr = _analytic_thresholds(model, p.N, p.alpha)
+        _, fthr = _frame_thresholds(model, p.settings.stft, p.alpha)
+        analytic: dict[str, Any] = {
             "analytic": {k: _ro(t.values) for k, t in thr.items()},
             "family_wise_analytic": {
                 "bonferroni": float(scipy.stats.chi2.isf(thr["exact-bonferroni"].per_test_alpha, 2) / 2),
@@ -418,86 +580,58 @@ def calibrate_recorded(
         }
         info: dict[str, Any] = {}
     else:
-        pilot = _Pass(
-            model, _pilot_settings(base, ffreqs, ftested, m, linear), N, None, None, 0, 0, tested, ftested
-        )
-        for z, u in chunks():
-            pilot.push(z, u)
-        E_rec = smooth_spectrum(pilot.sum_rec / pilot.records, smooth_half_width)  # type: ignore[operator]
-        E_frame = smooth_spectrum(pilot.sum_frame / pilot.frames, 0)  # type: ignore[operator]
         analytic = {"analytic": {}, "family_wise_analytic": {}, "frame_analytic": {}}
         info = {
             "estimator": "mean frame spectrum of the healthy recording (not smoothed); mean record "
             "periodogram, moving average over 2h+1 bins",
-            "smooth_half_width_bins": int(smooth_half_width),
-            "records": int(pilot.records),
-            "frames": int(pilot.frames),
+            "smooth_half_width_bins": p.smooth_half_width,
+            "records": p.runs,
+            "frames": p.frames,
         }
-    scored = replace(base, threshold=_score_threshold(E_frame, ffreqs, ftested, alpha))
-    p = _Pass(model, scored, N, E_rec, E_frame, k_bin, k_frame, tested, ftested)
-    for z, u in chunks():
-        p.push(z, u)
-    if p.records != runs or p.frames != nf:
-        raise ParameterError(
-            f"the chunks held {p.records} records and {p.frames} frames; n_samples = {n_samples} promises "
-            f"{runs} and {nf}: pass the recording's length"
-        )
-    frame_max = np.concatenate(p.frame_max)
-    rec_max = np.concatenate(p.rec_max)
-
-    def per_channel(v: np.ndarray, n: int, n_eff: int | None) -> tuple[QuantileEstimate, ...]:
-        val, lo, hi = _quantile_from_top(_desc(v), n, q, confidence, n_eff)
-        return tuple(
-            QuantileEstimate(q, float(val[c]), float(lo[c]), float(hi[c]), n, confidence) for c in range(m)
-        )
-
-    bin_q = _quantile_from_top(_desc(p.top_bin), runs, q, confidence)  # type: ignore[arg-type]
-    frame_q = _quantile_from_top(_desc(p.top_frame), nf, q, confidence, nf_eff)  # type: ignore[arg-type]
-    alarm = None
-    if wants_alarm:
-        alarm = _alarm(alarm_rule, np.concatenate(p.scores), F_hour, X, alarm_confidence, hours)
     name = "recording" if recording is None else recording.name
+    s = p.settings
     source = {
         "kind": "recorded healthy data",
         "data": name,
         "sha256": None if recording is None else recording.sha256,
-        "span_s": [p.t_first, p.t_last],
-        "samples": int(n_samples),
-        "hours": hours,
-        "frames": int(nf),
-        "non_overlapping_frames": int(nf_eff),
-        "records": int(runs),
-        "record_s": N * dt,
-        "band_hz": None if settings.band is None else list(settings.band),
-        "gamma": settings.gamma,
+        "span_s": [tally.t_first, tally.t_last],
+        "samples": p.n_samples,
+        "hours": p.hours,
+        "frames": p.frames,
+        "non_overlapping_frames": p.frames_eff,
+        "records": p.runs,
+        "record_s": p.N * dt,
+        "band_hz": None if s.band is None else list(s.band),
+        "gamma": s.gamma,
     }
+    tail_bytes = 8 * m * (2 * p.k_frame * p.frame_freqs_hz.size + p.k_bin * p.freqs_hz.size)
     return Calibration(
         scenario=f"recorded {name}",
         model_name=model.name,
         model_fingerprint=model.fingerprint(),
         dt=dt,
-        n_samples=N,
-        stft=_stft_dict(stft),
-        alpha=alpha,
-        runs=runs,
+        n_samples=p.N,
+        stft=_stft_dict(s.stft),
+        alpha=p.alpha,
+        runs=p.runs,
         seed=None,
-        confidence=confidence,
+        confidence=p.confidence,
         channels=tuple(model.output_names),
-        freqs_hz=_ro(freqs),
-        tested=_ro(tested),
+        freqs_hz=_ro(p.freqs_hz),
+        tested=_ro(p.tested),
         expected=_ro(E_rec),
         per_bin=_ro(bin_q[0]),
         per_bin_low=_ro(bin_q[1]),
         per_bin_high=_ro(bin_q[2]),
-        family_wise=per_channel(rec_max, runs, None),
-        frame_freqs_hz=_ro(ffreqs),
-        frame_tested=_ro(ftested),
+        family_wise=per_channel(np.concatenate(tally.rec_max), p.runs, None),
+        frame_freqs_hz=_ro(p.frame_freqs_hz),
+        frame_tested=_ro(p.frame_tested),
         frame_expected=_ro(E_frame),
         per_frame=_ro(frame_q[0]),
         per_frame_low=_ro(frame_q[1]),
         per_frame_high=_ro(frame_q[2]),
-        frame_family_wise=per_channel(frame_max, nf, nf_eff),
-        normalization="analytic" if norm == "model" else "empirical",
+        frame_family_wise=per_channel(np.concatenate(tally.frame_max), p.frames, p.frames_eff),
+        normalization="analytic" if p.normalization == "model" else "empirical",
         normalization_info=info,
         tails={"method": "exact", "budget_bytes": MAX_TAIL_BYTES, "exact_bytes": int(tail_bytes)},
         alarm=alarm,
@@ -506,25 +640,15 @@ def calibrate_recorded(
     )
 
 
-def _pilot_settings(
-    base: MonitorSettings, ffreqs: np.ndarray, ftested: np.ndarray, m: int, linear: bool
-) -> MonitorSettings:
-    """The first pass's monitor (only its frame spectra are used): the analytic threshold of a linear
-    model, a flat one for a nonlinear model (which needs some threshold to run)."""
-    if linear:
-        return base
-    return replace(base, threshold=_score_threshold(np.ones((ffreqs.size, m)), ffreqs, ftested, 0.5))
-
-
-def _alarm(
-    rule: AlarmRule, scores: np.ndarray, F_hour: float, X: float, confidence: float, hours: float
-) -> RuleCalibration:
+def _alarm(p: RecordingPlan, scores: np.ndarray) -> RuleCalibration:
     """:func:`calibrate_rule` on the recording's scores as one stream; a failed fit says what to record."""
+    X, rule = p.false_alarms_per_hour, p.rule
+    assert rule is not None
     try:
-        return calibrate_rule(rule, scores[None], F_hour, X, confidence=confidence)
+        return calibrate_rule(rule, scores[None], p.frames_per_hour, X, confidence=p.alarm_confidence)
     except ParameterError as exc:
         raise ParameterError(
-            f"{_per_day(X)} at the {rule.name} rule: the {hours:.3g} h of healthy data hold too few alarm "
+            f"{_per_day(X)} at the {rule.name} rule: the {p.hours:.3g} h of healthy data hold too few alarm "
             f"starts in the rare-alarm regime to fit ({exc}); record more healthy data (e.g. "
-            f"{2 * hours:.3g} h)"
+            f"{2 * p.hours:.3g} h)"
         ) from None
