@@ -134,7 +134,7 @@ def test_hum_frequency_and_amplitude() -> None:
 
 def test_bias_drift_is_slow_and_stationary() -> None:
     rng = np.random.default_rng(7)
-    d = BiasDrift([0.1, 3.0], tau_s=1.0)
+    d = BiasDrift([0.1, 3.0], tau_s=1.0, dt_s=DT)
     y, t = _zeros(64, 5_000)
     z, _ = d.apply(y, t, rng, d.init(64, rng))
     x = z / np.array([0.1, 3.0])
@@ -148,7 +148,7 @@ def test_bias_drift_is_slow_and_stationary() -> None:
 
 def test_jitter_first_order_error() -> None:
     rng = np.random.default_rng(8)
-    jit = SampleJitter(std_s=2e-5)
+    jit = SampleJitter(std_s=2e-5, dt_s=DT)
     t = np.arange(50_000) * DT
     y = np.sin(2 * np.pi * 5.0 * t)[None, :, None] * np.ones((RUNS, 1, 1))
     z, last = jit.apply(y, t, rng, None)
@@ -175,8 +175,9 @@ def test_chain_applies_in_order_and_validates() -> None:
         (lambda: Quantization(12, [1.0], [1.0]), "low < high"),
         (lambda: Quantization(0, [0.0], [1.0]), "bits must be"),
         (lambda: MainsHum([1.0], -50.0), "frequency_hz must be > 0 Hz"),
-        (lambda: BiasDrift([1.0], 0.0), "tau_s must be > 0 s"),
-        (lambda: SampleJitter(-1e-6), "std_s must be >= 0 s"),
+        (lambda: BiasDrift([1.0], 0.0, DT), "tau_s must be > 0 s"),
+        (lambda: BiasDrift([1.0], 1.0, 0.0), "dt_s must be > 0 s"),
+        (lambda: SampleJitter(-1e-6, DT), "std_s must be >= 0 s"),
         (lambda: WhiteNoise(np.array([[1.0, 2.0], [0.0, 1.0]])), "symmetric"),
         (lambda: MainsHum([-1.0]), "amplitude must be >= 0"),
     ]:

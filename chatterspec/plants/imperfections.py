@@ -39,7 +39,7 @@ Effects (units: seconds, Hz, the channel's own units)
         uniform per realization and channel.
     :class:`BiasDrift`
         A first-order Gauss-Markov offset ``b(k) = g b(k-1) + sqrt(1 - g^2) sigma_c e(k)``,
-        ``g = exp(-dt / tau)``: a slowly wandering bias of stationary standard deviation ``sigma_c``
+        ``g = exp(-dt_s / tau)``: a slowly wandering bias of stationary standard deviation ``sigma_c``
         (channel units) and correlation time ``tau`` (s), started stationary.
     :class:`Quantization`
         An ADC of ``bits`` bits over ``[low_c, high_c]`` per channel (the sensor range, channel
@@ -48,7 +48,7 @@ Effects (units: seconds, Hz, the channel's own units)
         variance ``q^2 / 12`` (Widrow).
     :class:`SampleJitter`
         Sampling instants ``t_k + d_k``, ``d_k ~ N(0, sigma_t^2)`` (s), the same for every channel
-        of a sample (one ADC trigger): first order, ``y(t_k + d_k) = y_k + d_k (y_k - y_{k-1}) / dt``
+        of a sample (one ADC trigger): first order, ``y(t_k + d_k) = y_k + d_k (y_k - y_{k-1}) / dt_s``
         (the slope of the sampled trajectory over the last interval; exact for a signal linear
         between samples). The first sample of a record uses the slope of its first interval.
 """
@@ -119,6 +119,13 @@ def _per_channel(value: Any, name: str, unit: str, *, positive: bool = False) ->
         raise ParameterError(
             f"{name} must be {'> 0' if positive else '>= 0'} {unit} per channel; got {v.tolist()}"
         )
+    return v
+
+
+def _seconds(value: Any, name: str, what: str) -> float:
+    v = float(value)
+    if not (math.isfinite(v) and v > 0):
+        raise ParameterError(f"{name} must be > 0 s ({what}); got {value!r}")
     return v
 
 
@@ -265,10 +272,12 @@ class MainsHum:
 
 @dataclass(frozen=True, eq=False)
 class BiasDrift:
-    """A first-order Gauss-Markov offset: stationary std ``sigma`` per channel, correlation time ``tau_s``."""
+    """A first-order Gauss-Markov offset: stationary std ``sigma`` per channel, correlation time ``tau_s``
+    (s), sampled every ``dt_s`` (s)."""
 
     sigma: np.ndarray
     tau_s: float
+    dt_s: float
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "sigma", _per_channel(self.sigma, "sigma", "(channel units)"))
@@ -276,6 +285,7 @@ class BiasDrift:
         if not (math.isfinite(tau) and tau > 0):
             raise ParameterError(f"tau_s must be > 0 s (the drift's correlation time); got {self.tau_s!r}")
         object.__setattr__(self, "tau_s", tau)
+        object.__setattr__(self, "dt_s", _seconds(self.dt_s, "dt_s", "the sampling interval"))
 
     def init(self, runs: int, rng: np.random.Generator) -> np.ndarray:
         """``b(-1) / sigma`` drawn from the stationary law ``N(0, 1)``."""
@@ -284,13 +294,11 @@ class BiasDrift:
     def apply(
         self, y: np.ndarray, t: np.ndarray, rng: np.random.Generator, state: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """``y + sigma b`` with ``b`` the unit recursion at the sampling interval of ``t``."""
+        """``y + sigma b`` with ``b`` the unit recursion, ``g = exp(-dt_s / tau_s)``."""
         y, t = _check_y(y, t, None)
-        if t.size < 2:
-            raise ShapeError("BiasDrift needs at least 2 samples per call (it reads dt from t)")
-        g = math.exp(-float(t[1] - t[0]) / self.tau_s)
+        g = math.exp(-self.dt_s / self.tau_s)
         b = _ar1(rng.standard_normal((y.shape[0], y.shape[1], self.sigma.size)), g, state)
-        return y + b * self.sigma, b[:, -1].copy()
+        return y + b * self.sigma, b[:, -1].copy() if b.shape[1] else state
 
     def describe(self) -> str:
         """A short description."""
@@ -345,9 +353,11 @@ class Quantization:
 
 @dataclass(frozen=True, eq=False)
 class SampleJitter:
-    """Sampling instants jittered by ``N(0, std_s^2)`` seconds (first order in the jitter)."""
+    """Sampling instants jittered by ``N(0, std_s^2)`` seconds (first order in the jitter), nominal
+    sampling interval ``dt_s`` (s)."""
 
     std_s: float
+    dt_s: float
 
     def __post_init__(self) -> None:
         s = float(self.std_s)
@@ -356,6 +366,7 @@ class SampleJitter:
                 f"std_s must be >= 0 s (the jitter's standard deviation); got {self.std_s!r}"
             )
         object.__setattr__(self, "std_s", s)
+        object.__setattr__(self, "dt_s", _seconds(self.dt_s, "dt_s", "the sampling interval"))
 
     def init(self, runs: int, rng: np.random.Generator) -> None:
         """The previous sample (None before the first)."""
@@ -366,11 +377,13 @@ class SampleJitter:
     ) -> tuple[np.ndarray, np.ndarray]:
         """``y_k + d_k (y_k - y_{k-1}) / dt``; ``state`` is ``y_{-1}`` (runs, m) or None."""
         y, t = _check_y(y, t, None)
-        if t.size < 2:
-            raise ShapeError("SampleJitter needs at least 2 samples per call (it reads dt from t)")
-        dt = float(t[1] - t[0])
-        prev = y[:, :1] - (y[:, 1:2] - y[:, :1]) if state is None else state[:, None, :]
-        slope = np.diff(np.concatenate([prev, y], axis=1), axis=1) / dt
+        if y.shape[1] == 0:
+            return y, state
+        if state is None:  # the first sample: the slope of the first interval (zero for one sample)
+            prev = y[:, :1] - (y[:, 1:2] - y[:, :1]) if y.shape[1] > 1 else y[:, :1]
+        else:
+            prev = state[:, None, :]
+        slope = np.diff(np.concatenate([prev, y], axis=1), axis=1) / self.dt_s
         d = rng.standard_normal((y.shape[0], y.shape[1], 1)) * self.std_s
         return y + d * slope, y[:, -1].copy()
 

@@ -76,6 +76,7 @@ __all__ = [
     "healthy_chattering",
     "healthy_frame_scores",
     "in_call_hours",
+    "monitor_score",
 ]
 
 #: The monitor's default rule and budget (one false alarm per day, all channels together).
@@ -149,8 +150,17 @@ def healthy_chattering(model: Any, n_samples: int, seed: int) -> Iterator[np.nda
         yield np.ascontiguousarray(e.T)
 
 
-def _score_of(model: Any, settings: Any) -> tuple[FrameScore, Any]:
-    """The monitor's frame score for ``settings`` (its threshold: analytic, or the given one)."""
+def monitor_score(model: Any, settings: Any) -> tuple[FrameScore, Any]:
+    """The monitor's frame score for ``settings`` and the per-frame threshold it carries the law of.
+
+    Parameters
+    ----------
+    model : LinearModel or NonlinearModel
+        The monitor's model.
+    settings : MonitorSettings
+        Without a threshold: the model's analytic per-frame threshold (exact law); with one: that
+        threshold restricted to the band (a calibration's normalization, exponential law).
+    """
     dt = model.dt
     th = settings.threshold
     if th is None:
@@ -181,7 +191,7 @@ def healthy_frame_scores(
         simulated, one stream each; ignored for a linear one).
     """
     hours = positive("hours", hours, unit="h")
-    score, _ = _score_of(model, settings)
+    score, _ = monitor_score(model, settings)
     dt = model.dt
     W, H = settings.stft.n_window(dt), settings.stft.n_hop(dt)
     if is_linear(model):
@@ -291,7 +301,7 @@ def calibrate_alarm(
     rule = make_rule(rule) if isinstance(rule, str) else rule
     dt = model.dt
     F = frames_per_hour(settings, dt)
-    score, _ = _score_of(model, settings)
+    score, _ = monitor_score(model, settings)
     if rule.name == "frame" and score.law == "exact":
         return law_frame_rule(F, model.n_outputs, X, confidence)
     hours = in_call_hours(model.n_outputs) if hours is None else float(hours)

@@ -34,7 +34,7 @@ from ..errors import ParameterError
 from ..jsonout import finite_or_none
 from ..plants.scenarios import Scenario, Segment, scenario
 from ..rng import SeedLike
-from .alarm_budget import _score_of
+from .alarm_budget import monitor_score
 
 __all__ = ["DelayResult", "Shifted", "alarm_delays", "onset_scenarios", "score_delays"]
 
@@ -259,7 +259,7 @@ def alarm_delays(
             raise ParameterError(f"{sc.name}: an onset scenario has exactly one fault window")
         ((on, off),) = sc.fault_intervals
         model = sc.nominal
-        score, _ = _score_of(model, settings)
+        score, _ = monitor_score(model, settings)
         fault_c = list(model.output_names).index(sc.fault_channel) if sc.fault_channel else -1
         for rec in iter_chattering(sc, runs, np.random.SeedSequence([int(seed), i])):
             _, P = frame_columns(rec.values, model.dt, cfg)
