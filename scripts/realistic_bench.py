@@ -62,6 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--cases", default=None, help="comma-separated case names (default: all)")
     p.add_argument("--commission", action="store_true", help="add route (b), the commissioned model")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=1, help="cases in this many processes (same numbers)")
     p.add_argument("--json", type=Path, default=ROOT / "figures" / "realistic_bench.json")
     p.add_argument("--figure", type=Path, default=ROOT / "figures" / "realistic_bench.png")
     args = p.parse_args(argv)
@@ -85,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     if cfg.recorded_hours > 0:
         routes.append(recorded_route())
     t0 = time.perf_counter()
-    res = run_bench(routes, cases, cfg, progress=True)
+    res = run_bench(routes, cases, cfg, progress=True, workers=args.workers)
     wall = time.perf_counter() - t0
     doc = res.to_dict() | {"wall_s": wall, "date": time.strftime("%Y-%m-%d")}
     args.json.parent.mkdir(parents=True, exist_ok=True)

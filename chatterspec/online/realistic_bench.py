@@ -32,9 +32,10 @@ to ``commission_s`` seconds of the plant's healthy data (the seam: any ``(nomina
 the recording's own normalization).
 
 Measured per case and route
-    **False alarms**: ``hours`` (default 24) of fresh healthy data of the plant, simulated in blocks
-    of ``block_s`` seconds (the state carried from block to block, bounded memory) and pushed through
-    the online monitor (:class:`~chatterspec.online.monitor.ChatteringMonitor`, one push per block);
+    **False alarms**: ``hours`` (default 24; ``nonlinear_hours`` for the nonlinear plant, whose
+    Python-stepped stream costs about 20 us per sample) of fresh healthy data of the plant, simulated
+    in blocks of ``block_s`` seconds (the state carried from block to block, bounded memory) and pushed
+    through the online monitor (:class:`~chatterspec.online.monitor.ChatteringMonitor`, one push per block);
     the fault starts counted, against the two-sided 99 % Poisson interval of the count the budget
     predicts (:func:`~chatterspec.detection.alarm_calibration.poisson_count_interval`): the budget
     *holds* when the count lies inside it.
@@ -88,6 +89,7 @@ from ..studies.intervals import clopper_pearson
 from ..studies.recorded_calibration import HealthyRecording
 from .monitor import ChatteringMonitor
 from .recorded_calibration import calibrate_recorded
+from .simulated_stream import simulate_blocks
 
 __all__ = [
     "FAULTS",
@@ -122,6 +124,8 @@ class BenchConfig:
     ----------
     hours : float
         Fresh healthy data per case (h), streamed through every route's monitor.
+    nonlinear_hours : float
+        The same for the nonlinear plant (its stream steps ``f`` in Python).
     block_s : float
         Seconds per simulated block and per monitor push.
     commission_s : float
@@ -145,6 +149,7 @@ class BenchConfig:
     """
 
     hours: float = 24.0
+    nonlinear_hours: float = 4.0
     block_s: float = 60.0
     commission_s: float = 600.0
     recorded_hours: float = 4.0
@@ -158,7 +163,16 @@ class BenchConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        for name in ("hours", "block_s", "commission_s", "calibration_hours", "healthy_s", "fault_s"):
+        names = (
+            "hours",
+            "nonlinear_hours",
+            "block_s",
+            "commission_s",
+            "calibration_hours",
+            "healthy_s",
+            "fault_s",
+        )
+        for name in names:
             object.__setattr__(self, name, positive(name, getattr(self, name)))
         if not (math.isfinite(self.recorded_hours) and self.recorded_hours >= 0):
             raise ParameterError(f"recorded_hours must be >= 0 h; got {self.recorded_hours!r}")
@@ -338,9 +352,9 @@ def healthy_blocks(
 ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """One continuous healthy stream of the case's plant through its sensors, block by block.
 
-    Each block is :func:`chatterspec.plants.simulate.simulate` of ``block_s`` seconds started from
-    the previous block's last state, the input continued (its phase carried), and the sensor chain's
-    state carried too: bounded memory for any duration.
+    The plant is :func:`chatterspec.online.simulated_stream.simulate_blocks` (the state carried from
+    block to block, the input repeating with its 4 s period, bounded memory for any duration); the
+    sensor chain's state is carried too.
 
     Yields
     ------
@@ -348,35 +362,13 @@ def healthy_blocks(
         Times (K,) s, measurements (K, m) in the nominal model's output order, inputs (K, p).
     """
     plant = case.plant(nominal)
-    signal = case.input()
-    period = 4.0
+    sc = Scenario(name=f"{case.name} healthy", nominal=plant, input=case.input(), duration=4.0)
     chain = case.sensor(nominal)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 1]))
     state = chain.init(1, rng)
-    dt = nominal.dt
-    n_total = max(2, round(duration_s / dt))
-    K = max(2, round(block_s / dt))
-    x0 = np.zeros(plant.n_states)
-    done, b = 0, 0
-    while done < n_total:
-        k = min(K, n_total - done)
-        t0 = done * dt
-        sc = Scenario(
-            name=f"{case.name} block {b}",
-            nominal=plant,
-            input=Shifted(signal, -t0, period),
-            duration=k * dt,
-            x0=x0,
-        )
-        sim = simulate(sc, 1, np.random.SeedSequence([int(seed), 0, b]))
-        # samples 0 .. k - 1 of this block; sample k is the next block's first (its x0)
-        t = t0 + sim.t[:k]
-        y = _outputs(case, sim.z[:, :k])
-        z, state = chain.apply(y, t, rng, state)
-        x0 = sim.x[0, k].copy()
-        done += k
-        b += 1
-        yield t, z[0], sim.u[:k]
+    for t, y, u in simulate_blocks(sc, int(seed), duration_s, block_s=block_s):
+        z, state = chain.apply(_outputs(case, y[None]), t, rng, state)
+        yield t, z[0], u
 
 
 def _stack(blocks: Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
@@ -656,7 +648,8 @@ def _false_alarms(
     case: BenchCase, nominal: LinearModel, monitors: Sequence[ChatteringMonitor], cfg: BenchConfig
 ) -> list[int]:
     starts = [0] * len(monitors)
-    for _, z, u in healthy_blocks(case, nominal, cfg.hours * 3600.0, cfg.block_s, cfg.seed):
+    hours = cfg.nonlinear_hours if case.nonlinear else cfg.hours
+    for _, z, u in healthy_blocks(case, nominal, hours * 3600.0, cfg.block_s, cfg.seed):
         for i, mon in enumerate(monitors):
             upd = mon.push(z, u)
             starts[i] += sum(e.kind == "fault-start" for e in upd.events)
@@ -741,6 +734,70 @@ def _detection(
     return out
 
 
+def _run_case(
+    case: BenchCase, routes: Sequence[Route], cfg: BenchConfig, nominal: LinearModel
+) -> tuple[CaseOutcome, float]:
+    """Every route on one case; its outcome and CPU time (s)."""
+    t_case = time.process_time()
+
+    def healthy(duration_s: float, seed: int) -> Iterator[Any]:
+        return healthy_blocks(case, nominal, duration_s, cfg.block_s, 1000 * cfg.seed + seed)
+
+    inputs = RouteInputs(nominal, case, cfg, healthy)
+    prepared: list[tuple[Any, MonitorSettings] | None] = []
+    notes, cpu = [], []
+    for route in routes:
+        t0 = time.process_time()
+        try:
+            prepared.append(route.prepare(inputs))
+            notes.append("")
+        except ParameterError as exc:
+            prepared.append(None)
+            notes.append(f"not run: {exc}")
+        cpu.append(time.process_time() - t0)
+    ready = [i for i, p in enumerate(prepared) if p is not None]
+    runs = [p for p in prepared if p is not None]
+    t0 = time.process_time()
+    monitors = [ChatteringMonitor(model, settings) for model, settings in runs]
+    starts = _false_alarms(case, nominal, monitors, cfg)
+    detection = _detection(case, nominal, runs, cfg)
+    shared = (time.process_time() - t0) / max(1, len(ready))
+    hours = cfg.nonlinear_hours if case.nonlinear else cfg.hours
+    ci = poisson_count_interval(cfg.budget * hours, 0.99)
+    rows = []
+    for i, route in enumerate(routes):
+        if i not in ready:
+            rows.append(RouteOutcome(route.label, 0.0, 0, ci, (0.0, 0.0), (), float("nan"), notes[i], cpu[i]))
+            continue
+        j = ready.index(i)
+        lo, hi = poisson_interval(starts[j], 0.99)
+        rule = runs[j][1].rule
+        rows.append(
+            RouteOutcome(
+                route.label,
+                hours,
+                starts[j],
+                ci,
+                (lo / hours, hi / hours),
+                tuple(detection[j]),
+                float("nan") if rule is None else float(rule.threshold),
+                "",
+                cpu[i] + shared,
+            )
+        )
+    return CaseOutcome(case.name, case.group, case.description, tuple(rows)), time.process_time() - t_case
+
+
+#: The job of the worker processes (set before they fork; only case indices travel to them).
+_JOB: tuple[Sequence[BenchCase], Sequence[Route], BenchConfig, LinearModel] | None = None
+
+
+def _worker(i: int) -> tuple[CaseOutcome, float]:
+    assert _JOB is not None
+    cases, routes, cfg, nominal = _JOB
+    return _run_case(cases[i], routes, cfg, nominal)
+
+
 def run_bench(
     routes: Sequence[Route] | None = None,
     cases: Sequence[BenchCase] | None = None,
@@ -748,6 +805,7 @@ def run_bench(
     *,
     nominal: LinearModel | None = None,
     progress: bool | None = None,
+    workers: int = 1,
 ) -> BenchResult:
     """Run the bench (module docstring).
 
@@ -762,61 +820,38 @@ def run_bench(
         The nominal model (default the linear EHA of the catalogue, the model file's).
     progress : bool, optional
         Progress bar on stderr (default: when it is a terminal).
+    workers : int
+        Cases run in this many forked processes (the numbers do not depend on it: every case's
+        seeds are its own). ``BenchResult.cpu_s`` adds the workers' CPU time.
     """
+    global _JOB
     cfg = config or BenchConfig()
     nominal = nominal or eha_linear()
     if routes is None:
         routes = [nominal_route()] + ([recorded_route()] if cfg.recorded_hours > 0 else [])
     cases = tuple(bench_cases() if cases is None else cases)
-    t_all = time.process_time()
-    outcomes = []
+    cpu = time.process_time()
+    results: list[tuple[CaseOutcome, float] | None] = [None] * len(cases)
     with Progress(len(cases), "realistic bench", enabled=progress) as bar:
-        for case in cases:
+        if int(workers) <= 1:
+            for i, case in enumerate(cases):
+                results[i] = _run_case(case, routes, cfg, nominal)
+                bar.update(1, case.name)
+            worker_cpu = 0.0
+        else:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor, as_completed
 
-            def healthy(duration_s: float, seed: int, case: BenchCase = case) -> Iterator[Any]:
-                return healthy_blocks(case, nominal, duration_s, cfg.block_s, 1000 * cfg.seed + seed)
-
-            inputs = RouteInputs(nominal, case, cfg, healthy)
-            prepared, notes, cpu = [], [], []
-            for route in routes:
-                t0 = time.process_time()
-                try:
-                    prepared.append(route.prepare(inputs))
-                    notes.append("")
-                except ParameterError as exc:
-                    prepared.append(None)
-                    notes.append(f"not run: {exc}")
-                cpu.append(time.process_time() - t0)
-            ready = [i for i, p in enumerate(prepared) if p is not None]
-            t0 = time.process_time()
-            monitors = [ChatteringMonitor(prepared[i][0], prepared[i][1]) for i in ready]
-            starts = _false_alarms(case, nominal, monitors, cfg)
-            detection = _detection(case, nominal, [prepared[i] for i in ready], cfg)
-            shared = (time.process_time() - t0) / max(1, len(ready))
-            expected = cfg.budget * cfg.hours
-            ci = poisson_count_interval(expected, 0.99)
-            rows = []
-            for i, route in enumerate(routes):
-                if i not in ready:
-                    rows.append(
-                        RouteOutcome(route.label, 0.0, 0, ci, (0.0, 0.0), (), float("nan"), notes[i], cpu[i])
-                    )
-                    continue
-                j = ready.index(i)
-                lo, hi = poisson_interval(starts[j], 0.99)
-                rows.append(
-                    RouteOutcome(
-                        route.label,
-                        cfg.hours,
-                        starts[j],
-                        ci,
-                        (lo / cfg.hours, hi / cfg.hours),
-                        tuple(detection[j]),
-                        float(prepared[i][1].rule.threshold),
-                        "",
-                        cpu[i] + shared,
-                    )
-                )
-            outcomes.append(CaseOutcome(case.name, case.group, case.description, tuple(rows)))
-            bar.update(1, case.name)
-    return BenchResult(cfg, tuple(outcomes), time.process_time() - t_all)
+            _JOB = (cases, routes, cfg, nominal)
+            try:
+                ctx = multiprocessing.get_context("fork")
+                with ProcessPoolExecutor(int(workers), mp_context=ctx) as pool:
+                    futures = {pool.submit(_worker, i): i for i in range(len(cases))}
+                    for fut in as_completed(futures):
+                        results[futures[fut]] = fut.result()
+                        bar.update(1, cases[futures[fut]].name)
+            finally:
+                _JOB = None
+            worker_cpu = sum(r[1] for r in results if r is not None)
+    done = [r for r in results if r is not None]
+    return BenchResult(cfg, tuple(r[0] for r in done), time.process_time() - cpu + worker_cpu)
