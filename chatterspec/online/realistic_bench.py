@@ -584,7 +584,19 @@ class RouteOutcome:
 
 @dataclass(frozen=True)
 class CaseOutcome:
-    """Every route on one case."""
+    """Every route on one case.
+
+    Attributes
+    ----------
+    case : str
+        The case's name.
+    group : str
+        Its group (exact, parametric, noise, sensor, nonlinear).
+    description : str
+        What differs from the nominal model.
+    routes : tuple of RouteOutcome
+        One per route, in the routes' order.
+    """
 
     case: str
     group: str
@@ -603,7 +615,15 @@ class CaseOutcome:
 
 @dataclass(frozen=True)
 class BenchResult:
-    """The whole bench."""
+    """The whole bench.
+
+    Attributes
+    ----------
+    config : BenchConfig
+    cases : tuple of CaseOutcome
+    cpu_s : float
+        CPU time of the whole bench (s; the worker processes' included).
+    """
 
     config: BenchConfig
     cases: tuple[CaseOutcome, ...]

@@ -11,20 +11,17 @@ numbers the monitor computes with the resulting file.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
-from ..detection.alarms import AlarmRule
-from ..detection.empirical import NORMALIZATION_SMOOTH_BINS
-from ..detection.monitor_settings import MonitorSettings
 from ..plants.nonlinear import is_linear
 from ..studies.calibration_result import Calibration
 from ..studies.recorded_calibration import (
     Chunks,
     HealthyRecording,
-    Normalization,
     RecordedTally,
+    RecordingOptions,
     RecordingPlan,
     plan_recording,
     recorded_calibration,
@@ -59,16 +56,8 @@ def calibrate_recorded(
     chunks: Chunks,
     n_samples: int,
     *,
-    settings: MonitorSettings | None = None,
-    alpha: float = 1e-2,
-    confidence: float = 0.99,
-    normalization: Normalization | None = None,
-    record_s: float = 4.0,
-    rule: AlarmRule | str | None = None,
-    false_alarms_per_hour: float | None = None,
-    alarm_confidence: float = 0.95,
     recording: HealthyRecording | None = None,
-    smooth_half_width: int = NORMALIZATION_SMOOTH_BINS,
+    **options: Unpack[RecordingOptions],
 ) -> Calibration:
     """Per-frame, record and (optionally) alarm thresholds from a healthy recording.
 
@@ -82,24 +71,13 @@ def calibrate_recorded(
         :func:`~chatterspec.studies.recorded_calibration.array_chunks`.
     n_samples : int
         Samples in the recording (the sum of the chunks' ``K``).
-    settings : MonitorSettings, optional
-        The monitor's STFT, band and ``gamma`` (default ``MonitorSettings()``).
-    alpha : float
-        Per-frame (and per-record) false-alarm probability of the thresholds, in (0, 1).
-    confidence : float
-        Level of the order-statistic intervals.
-    normalization : {"model", "data"}, optional
-        Default ``"model"`` for a linear model, ``"data"`` for a nonlinear one.
-    record_s : float
-        Record length (s) of the ``detect`` thresholds.
-    rule, false_alarms_per_hour
-        With either, the alarm threshold too (default cusum at one false alarm per day).
-    alarm_confidence : float
-        Level of the alarm intervals.
     recording : HealthyRecording, optional
         Where the data came from, recorded in ``Calibration.source``.
-    smooth_half_width : int
-        Moving-average half-width of a ``"data"`` record normalization (bins).
+    **options
+        The keywords of :func:`~chatterspec.studies.recorded_calibration.plan_recording`: the
+        monitor's ``settings`` (STFT, band, gamma), ``alpha``, ``confidence``, ``normalization``
+        (``"model"`` or ``"data"``), ``record_s``, ``rule`` and ``false_alarms_per_hour`` (either
+        asks for the alarm threshold), ``alarm_confidence``, ``smooth_half_width``.
 
     Returns
     -------
@@ -112,19 +90,7 @@ def calibrate_recorded(
         See :func:`~chatterspec.studies.recorded_calibration.plan_recording` (too short a recording
         for a record, the alpha or the budget, with the length that would do).
     """
-    plan = plan_recording(
-        model,
-        n_samples,
-        settings=settings,
-        alpha=alpha,
-        confidence=confidence,
-        normalization=normalization,
-        record_s=record_s,
-        rule=rule,
-        false_alarms_per_hour=false_alarms_per_hour,
-        alarm_confidence=alarm_confidence,
-        smooth_half_width=smooth_half_width,
-    )
+    plan = plan_recording(model, n_samples, **options)
     if plan.normalization == "model":
         E_rec, E_frame = plan.model_spectra()
     else:

@@ -395,7 +395,13 @@ class SampleJitter:
 # --------------------------------------------------------------------------- chains
 @dataclass(frozen=True, eq=False)
 class SensorChain:
-    """Effects applied in order to a noise-free output (e.g. jitter, noise, hum, drift, ADC)."""
+    """Effects applied in order to a noise-free output.
+
+    Attributes
+    ----------
+    effects : tuple
+        The effects, first applied first (e.g. jitter, noise, hum, drift, then the ADC).
+    """
 
     effects: tuple[Any, ...] = ()
 

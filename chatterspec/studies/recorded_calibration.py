@@ -88,7 +88,7 @@ import math
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypedDict
 
 import numpy as np
 import scipy.stats
@@ -120,6 +120,7 @@ __all__ = [
     "MAX_TAIL_BYTES",
     "HealthyRecording",
     "RecordedTally",
+    "RecordingOptions",
     "RecordingPlan",
     "array_chunks",
     "min_hours",
@@ -135,6 +136,20 @@ MAX_TAIL_BYTES = 256 * 2**20
 
 Normalization = Literal["model", "data"]
 Chunks = Callable[[], Iterable[tuple[np.ndarray, np.ndarray]]]
+
+
+class RecordingOptions(TypedDict, total=False):
+    """The keywords of :func:`plan_recording` (and of the calls that plan one)."""
+
+    settings: MonitorSettings | None
+    alpha: float
+    confidence: float
+    normalization: Normalization | None
+    record_s: float
+    rule: AlarmRule | str | None
+    false_alarms_per_hour: float | None
+    alarm_confidence: float
+    smooth_half_width: int
 
 
 @dataclass(frozen=True)
@@ -485,33 +500,31 @@ class RecordedTally:
             self.t_last = float(t[-1])
         if power.shape[0]:
             self.frames += power.shape[0]
-            if self.E_frame is None:
-                s = power.sum(axis=0)
-                self.sum_frame = s if self.sum_frame is None else self.sum_frame + s
-            else:
-                Y = power / self.E_frame
-                self.frame_max.append(Y[:, self._ftested].max(axis=1))
-                if score is not None:
-                    self.scores.append(score)
-                k = self.plan.k_frame
-                top = _keep_top(Y, k)
-                self.top_frame = top.copy() if self.top_frame is None else _merge_top(self.top_frame, top, k)
+            if score is not None and self.E_frame is not None:
+                self.scores.append(score)
+            self._fold("frame", power, self.E_frame, self._ftested, self.plan.k_frame)
         N = self.plan.N
         e = np.concatenate([self._buf, chattering]) if self._buf.shape[0] else chattering
         n_rec = e.shape[0] // N
         if n_rec:
             S = periodogram(e[: n_rec * N].reshape(n_rec, N, -1), self.plan.model.dt).power
             self.records += n_rec
-            if self.E_rec is None:
-                s = S.sum(axis=0)
-                self.sum_rec = s if self.sum_rec is None else self.sum_rec + s
-            else:
-                Y = S / self.E_rec
-                self.rec_max.append(Y[:, self._tested].max(axis=1))
-                k = self.plan.k_bin
-                top = _keep_top(Y, k)
-                self.top_bin = top.copy() if self.top_bin is None else _merge_top(self.top_bin, top, k)
+            self._fold("rec", S, self.E_rec, self._tested, self.plan.k_bin)
         self._buf = e[n_rec * N :].copy()
+
+    def _fold(self, kind: str, P: np.ndarray, E: np.ndarray | None, tested: np.ndarray, k: int) -> None:
+        """Spectra ``P`` (n, bins, m) of frames (``kind="frame"``) or records (``"rec"``): summed without
+        a normalization ``E``; else the largest normalized tested bin of each and the per-bin tails."""
+        if E is None:
+            s = P.sum(axis=0)
+            total = getattr(self, f"sum_{kind}")
+            setattr(self, f"sum_{kind}", s if total is None else total + s)
+            return
+        Y = P / E
+        getattr(self, f"{kind}_max").append(Y[:, tested].max(axis=1))
+        name = "top_frame" if kind == "frame" else "top_bin"
+        top, kept = _keep_top(Y, k), getattr(self, name)
+        setattr(self, name, top.copy() if kept is None else _merge_top(kept, top, k))
 
     def normalization(self) -> tuple[np.ndarray, np.ndarray]:
         """The ``"data"`` normalization from a first pass: mean record periodogram (smoothed) and mean
