@@ -86,7 +86,7 @@ from ..progress import Progress
 from ..studies.alarm_budget import alarm_settings, monitor_score
 from ..studies.alarm_delays import Shifted, score_delays
 from ..studies.intervals import clopper_pearson
-from ..studies.recorded_calibration import HealthyRecording
+from ..studies.recorded_calibration import HealthyRecording, array_chunks
 from .monitor import ChatteringMonitor
 from .recorded_calibration import calibrate_recorded
 from .simulated_stream import simulate_blocks
@@ -455,11 +455,10 @@ def recorded_route() -> Route:
 
     def prepare(r: RouteInputs) -> tuple[Any, MonitorSettings]:
         cfg = r.config
-        n = round(cfg.recorded_hours * 3600.0 / r.nominal.dt) + 1
-
-        def chunks() -> Iterator[tuple[np.ndarray, np.ndarray]]:
-            for _, z, u in r.healthy(cfg.recorded_hours * 3600.0, 3):
-                yield z, u
+        # held once (the "data" normalization reads it twice): hours x 1 kHz x 4 columns of float64
+        z, u = _stack(r.healthy(cfg.recorded_hours * 3600.0, 3))
+        n = z.shape[0]
+        chunks = array_chunks(z, u, max(1, round(60.0 / r.nominal.dt)))
 
         cal = calibrate_recorded(
             r.nominal,
