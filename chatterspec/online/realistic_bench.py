@@ -103,6 +103,7 @@ __all__ = [
     "RouteInputs",
     "RouteOutcome",
     "bench_cases",
+    "bench_table",
     "commissioned_route",
     "nominal_route",
     "recorded_route",
@@ -637,29 +638,39 @@ class BenchResult:
         }
 
     def table(self) -> str:
-        """A Markdown table: per case and route, false alarms and the faults' detection."""
-        faults = [f.label for f in FAULTS]
-        head = (
-            "| plant | monitor | false alarms in h (99 % interval at the budget) | "
-            + " | ".join(f"{f}: detected, median s" for f in faults)
-            + " |"
-        )
-        lines = [head, "|---|---|---:|" + "---:|" * len(faults)]
-        for c in self.cases:
-            for i, r in enumerate(c.routes):
-                name = c.description if i == 0 else ""
-                if r.note:
-                    lines.append(f"| {name} | {r.route} | {r.note} |" + " |" * len(faults))
-                    continue
-                lo, hi = r.count_interval
-                fa = f"{r.starts} in {r.hours:.3g} h ([{lo}, {hi}])" + ("" if r.holds else " **not held**")
-                cells = []
-                for f in r.faults:
-                    med = "-" if not math.isfinite(f.median_s) else f"{f.median_s:.2f}"
-                    pre = f", {f.onsets_preceded} pre-alarmed" if f.onsets_preceded else ""
-                    cells.append(f"{f.detected}/{f.runs}, {med}{pre}")
-                lines.append(f"| {name} | {r.route} | {fa} | " + " | ".join(cells) + " |")
-        return "\n".join(lines)
+        """A Markdown table: per case and route, false alarms and detection (:func:`bench_table`)."""
+        return bench_table(self.to_dict())
+
+
+def bench_table(doc: Mapping[str, Any]) -> str:
+    """The Markdown table of a bench document (``BenchResult.to_dict()``, or its JSON read back).
+
+    Parameters
+    ----------
+    doc : mapping
+        The bench document.
+    """
+    cases = doc["cases"]
+    faults = [f.label for f in FAULTS]
+    head = "| plant | monitor | false alarms (99 % interval of the count at the budget) | "
+    head += " | ".join(f"{f}: detected, median delay s" for f in faults) + " |"
+    lines = [head, "|---|---|---:|" + "---:|" * len(faults)]
+    for c in cases:
+        for i, r in enumerate(c["routes"]):
+            name = c["description"] if i == 0 else ""
+            if r["note"]:
+                lines.append(f"| {name} | {r['route']} | {r['note']} |" + " |" * len(faults))
+                continue
+            lo, hi = r["count_interval_99"]
+            fa = f"{r['starts']} in {r['hours']:.3g} h ([{lo}, {hi}])"
+            fa += "" if r["holds"] else " **not held**"
+            cells = []
+            for f in r["faults"]:
+                med = "-" if f["median_s"] is None else f"{f['median_s']:.2f}"
+                pre = f", {f['onsets_preceded']} pre-alarmed" if f["onsets_preceded"] else ""
+                cells.append(f"{f['detected']}/{f['runs']}, {med}{pre}")
+            lines.append(f"| {name} | {r['route']} | {fa} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 # --------------------------------------------------------------------------- running
