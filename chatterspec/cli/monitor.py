@@ -234,7 +234,9 @@ def run(args: argparse.Namespace) -> int:
     if cal is not None:
         settings = dataclasses.replace(settings, threshold=cal.threshold("frame-family-wise"))
         src = cal.source  # recorded healthy data, or simulated runs
-        made = f"{src['hours']:.3g} h of recorded healthy data {src['data']}" if src else f"{cal.runs} healthy runs"
+        made = f"{cal.runs} healthy runs"
+        if src:
+            made = f"{src['hours']:.3g} h of recorded healthy data {src['data']}"
         print(
             f"chatterspec monitor: empirical per-frame threshold of {args.calibration} "
             f"(alpha {cal.alpha:g} per frame, {made})",
