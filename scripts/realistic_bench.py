@@ -86,7 +86,16 @@ def main(argv: list[str] | None = None) -> int:
     if cfg.recorded_hours > 0:
         routes.append(recorded_route())
     t0 = time.perf_counter()
-    res = run_bench(routes, cases, cfg, progress=True, workers=args.workers)
+    partial = args.json.with_suffix(".partial.jsonl")  # each case as it finishes (a run cut short keeps them)
+    partial.parent.mkdir(parents=True, exist_ok=True)
+    partial.write_text("")
+
+    def keep(case) -> None:  # type: ignore[no-untyped-def]
+        with partial.open("a") as fh:
+            fh.write(json.dumps(case.to_dict(), allow_nan=False) + "\n")
+
+    res = run_bench(routes, cases, cfg, progress=True, workers=args.workers, on_case=keep)
+    partial.unlink()
     wall = time.perf_counter() - t0
     doc = res.to_dict() | {"wall_s": wall, "date": time.strftime("%Y-%m-%d")}
     args.json.parent.mkdir(parents=True, exist_ok=True)

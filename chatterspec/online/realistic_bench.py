@@ -836,6 +836,7 @@ def run_bench(
     nominal: LinearModel | None = None,
     progress: bool | None = None,
     workers: int = 1,
+    on_case: Callable[[CaseOutcome], None] | None = None,
 ) -> BenchResult:
     """Run the bench (module docstring).
 
@@ -853,6 +854,8 @@ def run_bench(
     workers : int
         Cases run in this many forked processes (the numbers do not depend on it: every case's
         seeds are its own). ``BenchResult.cpu_s`` adds the workers' CPU time.
+    on_case : callable, optional
+        Called with each case's outcome as it finishes (e.g. to save partial results).
     """
     global _JOB
     cfg = config or BenchConfig()
@@ -866,6 +869,8 @@ def run_bench(
         if int(workers) <= 1:
             for i, case in enumerate(cases):
                 results[i] = _run_case(case, routes, cfg, nominal)
+                if on_case is not None:
+                    on_case(results[i][0])
                 bar.update(1, case.name)
             worker_cpu = 0.0
         else:
@@ -878,7 +883,9 @@ def run_bench(
                 with ProcessPoolExecutor(int(workers), mp_context=ctx) as pool:
                     futures = {pool.submit(_worker, i): i for i in range(len(cases))}
                     for fut in as_completed(futures):
-                        results[futures[fut]] = fut.result()
+                        res = results[futures[fut]] = fut.result()
+                        if on_case is not None:
+                            on_case(res[0])
                         bar.update(1, cases[futures[fut]].name)
             finally:
                 _JOB = None
