@@ -63,6 +63,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--commission", action="store_true", help="add route (b), the commissioned model")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=1, help="cases in this many processes (same numbers)")
+    p.add_argument(
+        "--from-partial",
+        nargs="+",
+        type=Path,
+        default=None,
+        metavar="JSONL",
+        help="assemble the JSON, table and figure from the per-case files of runs made in pieces (each "
+        "run's FILE.partial.jsonl, with the same options; the CPU seconds are the cases' own)",
+    )
     p.add_argument("--json", type=Path, default=ROOT / "figures" / "realistic_bench.json")
     p.add_argument("--figure", type=Path, default=ROOT / "figures" / "realistic_bench.png")
     args = p.parse_args(argv)
@@ -80,6 +89,8 @@ def main(argv: list[str] | None = None) -> int:
         if unknown:
             p.error(f"unknown case(s) {sorted(unknown)}; known: {', '.join(c.name for c in cases)}")
         cases = tuple(c for c in cases if c.name in names)
+    if args.from_partial:
+        return _assemble(args, cfg, cases)
     routes = [nominal_route()]
     if args.commission and (route := _commission_route()) is not None:
         routes.append(route)
@@ -102,6 +113,33 @@ def main(argv: list[str] | None = None) -> int:
     args.json.write_text(json.dumps(doc, indent=1, allow_nan=False))
     print(res.table())
     print(f"\nCPU {res.cpu_s:.0f} s, wall {wall:.0f} s; JSON {args.json}")
+    from chatterspec.figures.plot_bench import bench_figure, save
+
+    save(bench_figure(doc), args.figure)
+    print(f"figure {args.figure}")
+    return 0
+
+
+def _assemble(args: argparse.Namespace, cfg: BenchConfig, cases: tuple) -> int:  # type: ignore[type-arg]
+    """The bench document from per-case outcomes of several runs (the first of each case wins)."""
+    import dataclasses
+
+    from chatterspec.online.realistic_bench import bench_table
+
+    got: dict[str, dict] = {}
+    for f in args.from_partial:
+        for line in f.read_text().splitlines():
+            c = json.loads(line)
+            got.setdefault(c["case"], c)
+    missing = [c.name for c in cases if c.name not in got]
+    if missing:
+        print(f"note: no outcome for {', '.join(missing)}", file=sys.stderr)
+    done = [got[c.name] for c in cases if c.name in got]
+    cpu = sum(r["cpu_s"] for c in done for r in c["routes"])
+    doc = {"config": dataclasses.asdict(cfg), "cases": done, "cpu_s": cpu, "date": time.strftime("%Y-%m-%d")}
+    args.json.write_text(json.dumps(doc, indent=1, allow_nan=False))
+    print(bench_table(doc))
+    print(f"\nCPU {cpu:.0f} s (the routes' own); JSON {args.json}")
     from chatterspec.figures.plot_bench import bench_figure, save
 
     save(bench_figure(doc), args.figure)
