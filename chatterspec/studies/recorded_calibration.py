@@ -661,7 +661,8 @@ def _alarm(p: RecordingPlan, scores: np.ndarray) -> RuleCalibration:
         return calibrate_rule(rule, scores[None], p.frames_per_hour, X, confidence=p.alarm_confidence)
     except ParameterError as exc:
         raise ParameterError(
-            f"{_per_day(X)} at the {rule.name} rule: the {p.hours:.3g} h of healthy data hold too few alarm "
-            f"starts in the rare-alarm regime to fit ({exc}); record more healthy data (e.g. "
-            f"{2 * p.hours:.3g} h)"
+            f"{_per_day(X)} at the {rule.name} rule: the {p.hours:.3g} h of healthy data give no fit of the "
+            f"start rate where alarms are rare ({exc}); either the recording is too short for its alarm "
+            f"rate (record more, e.g. {2 * p.hours:.3g} h) or the scores are not stationary noise (a "
+            "mismatch the input drives, as a wrong model parameter: commission the model first)"
         ) from None
