@@ -51,11 +51,16 @@ def bench_figure(doc: Mapping[str, Any]) -> Figure:
         label="99 % interval at the budget",
     )
     ax.axvline(budget * 24, color="k", lw=0.8, ls="--", label=f"budget ({budget * 24:g} per day)")
+    standing = 1e3  # per day: where a standing alarm (in alarm most of the time) is drawn
     for k, route in enumerate(routes):
         col = mpl(MODE_COLORS[k % len(MODE_COLORS)])
         for i, c in enumerate(cases):
             r = c["routes"][k]
             if r["note"]:
+                ax.plot(floor, y[i] + off[k], "x", color=col, ms=4)  # not run
+                continue
+            if r.get("alarm_fraction", 0.0) > 0.01:
+                ax.plot(standing, y[i] + off[k], ">", color=col, ms=5)
                 continue
             per_day = 24 / r["hours"]
             v = max(r["starts"] * per_day, floor)
@@ -63,11 +68,19 @@ def bench_figure(doc: Mapping[str, Any]) -> Figure:
             ax.plot([a, b], [y[i] + off[k]] * 2, color=col, lw=1.2)
             ax.plot(v, y[i] + off[k], "o", color=col, ms=4, mfc=col if r["holds"] else "white",
                     label=route if i == 0 else None)  # fmt: skip
+    for k, route in enumerate(routes):  # legend entries even when the first case has no point
+        ax.plot([], [], "o", color=mpl(MODE_COLORS[k % len(MODE_COLORS)]), label=route)
+    ax.plot([], [], ">", color="k", label="in alarm > 1 % of the time")
+    ax.plot([], [], "x", color="k", label="not run (no threshold)")
     ax.set_xscale("log")
-    ax.set_xlim(left=floor / 2)
-    ax.set_xlabel("false alarms per day (hollow: budget not held; 0 drawn at 0.05)")
+    ax.set_xlim(floor / 2, 2 * standing)
+    ax.set_xlabel("false alarms per day, 99 % interval (0 drawn at 0.05)")
     ax.set_yticks(y, [c["description"] for c in cases], fontsize=8)
-    ax.legend(fontsize=7, loc="lower right")
+    handles, labels = ax.get_legend_handles_labels()
+    keep = dict(zip(labels, handles, strict=True))
+    fig.legend(
+        keep.values(), keep.keys(), fontsize=7, loc="lower center", ncol=3, bbox_to_anchor=(0.5, -0.02)
+    )
     ax.grid(axis="x", alpha=0.3)
     faults = (
         [f["fault"] for f in cases[0]["routes"][0]["faults"]] if not cases[0]["routes"][0]["note"] else []
@@ -80,8 +93,10 @@ def bench_figure(doc: Mapping[str, Any]) -> Figure:
             r = c["routes"][k]
             for j, f in enumerate(r["faults"]):
                 ax.plot(100 * f["detected"] / f["runs"], y[i] + off[k], markers[j % len(markers)], color=col,
-                        ms=3.5, mfc="none", label=f["fault"] if (i == 0 and k == 0) else None)  # fmt: skip
-    ax.set_xlabel("onsets detected (%)")
+                        ms=3.5, mfc="none", alpha=1.0 if r["holds"] else 0.3)  # fmt: skip
+    for j, f in enumerate(faults):
+        ax.plot([], [], markers[j % len(markers)], color="k", mfc="none", label=f)
+    ax.set_xlabel("onsets detected (%; faint: budget not held)")
     ax.set_xlim(-3, 103)
     ax.grid(axis="x", alpha=0.3)
     if faults:
@@ -95,8 +110,8 @@ def bench_figure(doc: Mapping[str, Any]) -> Figure:
                 continue
             med = r["faults"][0]["median_s"]
             if med is not None and math.isfinite(med):
-                ax.plot(med, y[i] + off[k], "o", color=col, ms=4)
-    ax.set_xlabel(f"{faults[0] if faults else 'fault'}: median delay (s)")
+                ax.plot(med, y[i] + off[k], "o", color=col, ms=4, alpha=1.0 if r["holds"] else 0.3)
+    ax.set_xlabel(f"{faults[0] if faults else 'fault'}: median delay (s; faint: budget not held)")
     ax.grid(axis="x", alpha=0.3)
     ax.set_xlim(left=0)
     fig.suptitle(
@@ -104,5 +119,5 @@ def bench_figure(doc: Mapping[str, Any]) -> Figure:
         f"{doc['config']['rule']} rule at {budget * 24:g} false alarm per day",
         fontsize=10,
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
     return fig
