@@ -107,6 +107,7 @@ __all__ = [
     "bench_cases",
     "bench_table",
     "commissioned_route",
+    "holds",
     "nominal_route",
     "recorded_route",
     "run_bench",
@@ -525,6 +526,12 @@ class FaultOutcome:
         return d
 
 
+def holds(note: str, starts: int, most: int, alarm_fraction: float) -> bool:
+    """Whether a route that ran (no ``note``) held the budget: at most ``most`` starts (the upper end of
+    the budget's 99 % count interval) and no standing alarm (:data:`STANDING_ALARM`)."""
+    return not note and starts <= most and alarm_fraction <= STANDING_ALARM
+
+
 @dataclass(frozen=True)
 class RouteOutcome:
     """One route on one case.
@@ -567,7 +574,7 @@ class RouteOutcome:
         """The false-alarm count lies in the budget's 99 % Poisson interval (or below it) and no alarm
         stands: the monitor is in alarm for at most :data:`STANDING_ALARM` of the healthy frames (a
         start that never ends counts once, yet the monitor says "fault" all day)."""
-        return self.starts <= self.count_interval[1] and self.alarm_fraction <= STANDING_ALARM
+        return holds(self.note, self.starts, self.count_interval[1], self.alarm_fraction)
 
     @property
     def rate(self) -> float:
