@@ -69,7 +69,7 @@ def test_tiny_bench_nominal_and_a_seam() -> None:
         600_001,
     ]  # 10 minutes at 1 kHz per case (samples at 0, dt, ..., 600 s)
     assert c.note == "not run: no tolerances in this model file" and c.faults == ()
-    # a 30 % bulk-modulus error: the nominal model alarms before the first onset (the finding)
+    # a 30 % bulk-modulus error: the nominal model alarms before the first onset, and for good
     assert bulk.routes[0].starts >= 1 and not bulk.routes[0].holds
     assert all(f.onsets_preceded == f.runs for f in bulk.routes[0].faults)
     doc = res.to_dict()
