@@ -70,6 +70,7 @@ _GROUPS: dict[str, dict[str, str]] = {
     },
     "calibration": {
         **dict.fromkeys(("Calibration", "calibrate", "load_calibration"), ".studies.calibration"),
+        "calibrate_recorded": ".online.recorded_calibration",
     },
     "estimation": {
         **dict.fromkeys(("EstimationResult", "build_filter", "estimation_study"), ".studies.estimation"),
@@ -138,6 +139,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .filters.svsf2 import SecondOrderSVSF
     from .filters.svsf_cov import SVSFCov
     from .jsonout import dumps, rounded
+    from .online.recorded_calibration import calibrate_recorded
     from .plants.datafile import load_data
     from .plants.eha4 import eha4
     from .plants.modelfile import load_model, write_model_toml
@@ -229,6 +231,7 @@ __all__ = [
     "build_filter",
     "calibrate",
     "calibrate_alarm",
+    "calibrate_recorded",
     "calibrate_rule",
     "catalogue",
     "chattering",

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
 from ..errors import ParameterError
@@ -40,7 +41,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "confidence intervals. NAME is a healthy catalogue scenario or a TOML model file. --out writes a "
         "calibration file (.json or .npz) that detection can load instead of the analytic threshold. With "
         "--rule / --false-alarms-per-hour the file also holds the monitor's alarm threshold for that "
-        "budget (rule, budget and frames per hour recorded; the monitor refuses it for another rule).",
+        "budget (rule, budget and frames per hour recorded; the monitor refuses it for another rule). "
+        "With --data the thresholds come from a recorded healthy run of your plant instead of simulated "
+        "runs (the same file; it records the data file's name, SHA-256 and span).",
     )
     add_name(p)
     add_study_args(p, alpha=1e-2, runs=1000)
@@ -51,6 +54,24 @@ def register(sub: argparse._SubParsersAction) -> None:
         "all-day use; its interval shrinks like 1/sqrt(H)",
     )
     p.add_argument("--out", metavar="FILE", help="write the calibration file (.json or .npz)")
+    p.add_argument(
+        "--data",
+        type=Path,
+        default=None,
+        help="read the thresholds from a recorded healthy run (.csv or .npz with the model's columns, or "
+        "'-' for CSV rows on standard input) instead of simulating: per-frame and record thresholds with "
+        "order-statistic intervals, and with --rule / --false-alarms-per-hour the alarm threshold with "
+        "its jackknife interval; a budget the recording is too short for is refused with the hours it needs",
+    )
+    p.add_argument(
+        "--normalization",
+        choices=("model", "data"),
+        default=None,
+        help="with --data: normalize the spectra by the model's healthy spectrum ('model', the default for a "
+        "linear model) or by the recording's own mean spectrum ('data': a healthy spectrum of another shape, "
+        "e.g. coloured sensor noise or mains hum, is not taken for a fault; the only one for a nonlinear "
+        "model)",
+    )
     add(p, "--plot", help="save a figure of analytic vs empirical thresholds")
     p.add_argument(
         "--tail-budget",
@@ -81,6 +102,15 @@ def _megabytes(text: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec calibrate`` with the parsed ``args``; returns the exit status."""
+    if args.data is not None:  # thresholds from a recorded healthy run
+        from ._calibrate_recorded import run_recorded
+
+        return run_recorded(args)
+    if args.normalization is not None:
+        raise ParameterError(
+            "--normalization applies to --data (a simulated calibration of a linear model "
+            "uses the model's spectrum, of a nonlinear one the pilot runs' mean)"
+        )
     check_output_path(args.out, "--out")
     check_figure_path(args.plot)
     outputs = Outputs()

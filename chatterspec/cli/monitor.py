@@ -245,9 +245,13 @@ def run(args: argparse.Namespace) -> int:
     choice = alarm_choice(args, alpha_given=args.alpha is not None, default_rule=file_rule)
     if cal is not None:
         settings = dataclasses.replace(settings, threshold=cal.threshold("frame-family-wise"))
+        src = cal.source  # recorded healthy data, or simulated runs
+        made = f"{cal.runs} healthy runs"
+        if src:
+            made = f"{src['hours']:.3g} h of recorded healthy data {src['data']}"
         print(
             f"chatterspec monitor: empirical per-frame threshold of {args.calibration} "
-            f"(alpha {cal.alpha:g} per frame, {cal.runs} healthy runs)",
+            f"(alpha {cal.alpha:g} per frame, {made})",
             file=sys.stderr,
         )
     settings = _alarm_settings(args, choice, spec.model, settings, cal)

@@ -297,6 +297,52 @@ class ParameterMap:
                     "this model (wrong nominal value, constant or formula)"
                 )
 
+    def model_with(
+        self, model: LinearModel, overrides: Mapping[str, float], name: str | None = None
+    ) -> LinearModel:
+        """``model`` with its declared entries of A and B evaluated at the parameters ``overrides``.
+
+        The way a model file's ``[parameters]`` and ``[entries]`` build A and B, at other parameter
+        values (e.g. a true plant whose bulk modulus is 10 % low); every other entry, C, Q, R and
+        ``dt`` are ``model``'s. The result carries this map with the new values as its nominal ones.
+
+        Parameters
+        ----------
+        model : LinearModel
+            The model the map describes (:meth:`check` holds for it).
+        overrides : mapping of str to float
+            Parameter name -> value, in the parameter's unit.
+        name : str, optional
+            The new model's name (default: ``model.name`` with the changed values).
+
+        Raises
+        ------
+        ParameterError
+            An unknown parameter name, or a value that is not finite.
+        """
+        import dataclasses
+
+        vals = {k: float(v) for k, v in overrides.items()}
+        for k, v in vals.items():
+            self.parameter(k)
+            if not np.isfinite(v):
+                raise ParameterError(f"parameter {k!r} must be finite; got {v!r}")
+        entries = np.atleast_1d(self.evaluate(model.dt, vals))
+        A, B = np.array(model.A), np.array(model.B)
+        for e, v in zip(self.entries, entries, strict=True):
+            (A if e.matrix == "A" else B)[e.row, e.col] = v
+        params = tuple(dataclasses.replace(p, value=vals.get(p.name, p.value)) for p in self.parameters)
+        pmap = ParameterMap(params, self.entries, self.constants, self.hypotheses)
+        label = ", ".join(f"{k} = {v:.4g}" for k, v in vals.items())
+        return dataclasses.replace(
+            model,
+            A=A,
+            B=B,
+            parameter_map=pmap,
+            oscillatory_block=None,
+            name=name or (f"{model.name} ({label})" if label else model.name),
+        )
+
     def to_toml(self) -> str:
         """The ``[parameters]``, ``[constants]``, ``[entries]`` and ``[hypotheses]`` tables as TOML text."""
         import json

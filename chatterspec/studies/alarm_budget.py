@@ -80,6 +80,7 @@ __all__ = [
     "healthy_chattering",
     "healthy_frame_scores",
     "in_call_hours",
+    "monitor_score",
 ]
 
 #: The monitor's default rule and budget (one false alarm per day, all channels together).
@@ -153,8 +154,17 @@ def healthy_chattering(model: Any, n_samples: int, seed: int) -> Iterator[np.nda
         yield np.ascontiguousarray(e.T)
 
 
-def _score_of(model: Any, settings: Any) -> tuple[FrameScore, Any]:
-    """The monitor's frame score for ``settings`` (its threshold: analytic, or the given one)."""
+def monitor_score(model: Any, settings: Any) -> tuple[FrameScore, Any]:
+    """The monitor's frame score for ``settings`` and the per-frame threshold it carries the law of.
+
+    Parameters
+    ----------
+    model : LinearModel or NonlinearModel
+        The monitor's model.
+    settings : MonitorSettings
+        Without a threshold: the model's analytic per-frame threshold (exact law); with one: that
+        threshold restricted to the band (a calibration's normalization, exponential law).
+    """
     dt = model.dt
     th = settings.threshold
     if th is None:
@@ -252,7 +262,7 @@ def healthy_frame_scores(
     from ..progress import Progress
 
     hours = check_hours(model, settings, hours, scenario)
-    score, _ = _score_of(model, settings)
+    score, _ = monitor_score(model, settings)
     dt = model.dt
     W, H = settings.stft.n_window(dt), settings.stft.n_hop(dt)
     compiled = _jit.enabled()  # the compiled taper/power loops, or their numpy form (same bits)
@@ -393,7 +403,7 @@ def calibrate_alarm(
     F = frames_per_hour(settings, dt)
     X = check_budget(false_alarms_per_hour, steps_per_hour=F, channels=model.n_outputs)
     rule = make_rule(rule) if isinstance(rule, str) else rule
-    score, _ = _score_of(model, settings)
+    score, _ = monitor_score(model, settings)
     if rule.name == "frame" and score.law == "exact":
         return law_frame_rule(F, model.n_outputs, X, confidence)
     hours = check_hours(model, settings, in_call_hours(model.n_outputs) if hours is None else hours, scenario)

@@ -66,6 +66,8 @@ def calibration_dict(cal: Calibration, arrays: bool = False) -> dict[str, Any]:
         "frame_family_wise": [q.to_dict() for q in cal.frame_family_wise],
     }
     tail = {"tails": cal.tails, "alarm": None if cal.alarm is None else cal.alarm.to_dict()}
+    if cal.source:  # recorded healthy data (a simulated calibration's document is unchanged)
+        tail["source"] = dict(cal.source)
     if cal.normalization == "empirical":
         norm = {"normalization": cal.normalization, "normalization_info": cal.normalization_info}
         d: dict[str, Any] = {**head, **norm, **what, "empirical": empirical, **tail}
@@ -292,6 +294,7 @@ def _read_fields(path: Path) -> dict[str, Any]:
         normalization_info=dict(meta.get("normalization_info", {})),
         tails=dict(meta.get("tails", {})),
         alarm=None if meta.get("alarm") is None else RuleCalibration.from_dict(meta["alarm"]),
+        source=dict(meta.get("source", {})),
     )
 
 

@@ -90,6 +90,10 @@ class Calibration:
     alarm : RuleCalibration or None
         The monitor's alarm rule calibrated for a false-alarm budget (rule, threshold, budget,
         frames per hour; :mod:`chatterspec.studies.alarm_budget`), when made with ``--rule``.
+    source : dict
+        Where the healthy data came from when they were recorded, not simulated
+        (:mod:`~chatterspec.studies.recorded_calibration`: data file name and SHA-256, time span,
+        samples, frames, records); empty for a simulated calibration.
     """
 
     __repr__ = short_repr  # shapes and key figures, never whole arrays
@@ -126,6 +130,7 @@ class Calibration:
     normalization_info: dict[str, Any] = field(default_factory=dict)
     tails: dict[str, Any] = field(default_factory=dict)
     alarm: RuleCalibration | None = None
+    source: dict[str, Any] = field(default_factory=dict)
 
     # ---- derived
     @property
