@@ -197,7 +197,7 @@ def alarm_doc(settings: object) -> dict:
     b = getattr(settings, "budget", None)
     rule = getattr(settings, "rule", None)
     if rule is None:
-        a = float(settings.alpha)  # type: ignore[attr-defined]
+        a = float(settings.alpha)
         return {
             "rule": {"rule": "frame", "threshold": -math.log(a)},
             "alpha": a,
@@ -217,8 +217,8 @@ def _alarm_short(settings: object) -> str:
 
     rule = getattr(settings, "rule", None)
     if rule is None:
-        return f"frame rule, per-frame alpha {settings.alpha:g}"  # type: ignore[attr-defined]
-    return alarm_label(rule.name, settings.false_alarms_per_hour)  # type: ignore[attr-defined]
+        return f"frame rule, per-frame alpha {settings.alpha:g}"
+    return alarm_label(rule.name, settings.false_alarms_per_hour)
 
 
 def _alarm_line(settings: object) -> str:
@@ -226,5 +226,5 @@ def _alarm_line(settings: object) -> str:
     rule = getattr(settings, "rule", None)
     if rule is None:
         return f"alarms: {_alarm_short(settings)} (every frame a test)"
-    b = settings.budget  # type: ignore[attr-defined]
+    b = settings.budget
     return f"alarms: {b.describe()}" if b is not None else f"alarms: {rule.describe()}"

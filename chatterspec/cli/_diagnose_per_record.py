@@ -40,7 +40,7 @@ def chattering_threshold(args: argparse.Namespace, sc: object) -> tuple[object, 
         from ..studies.calibration import load_calibration
         from ..studies.calibration_support import require_support
 
-        cal = load_calibration(args.calibration, sc.nominal, config=config)  # type: ignore[attr-defined]
+        cal = load_calibration(args.calibration, sc.nominal, config=config)
         require_support(cal, "monitor", args.calibration)  # the per-frame threshold needs enough runs
         info = {"source": str(args.calibration), "runs": cal.runs, "alpha": cal.alpha, "seconds": 0.0}
     else:
@@ -92,7 +92,7 @@ def run_per_record(args: argparse.Namespace, sc: object, methods: tuple[str, ...
     sim_s: float | None = None  # seconds spent simulating (None: on workers, inside their chunks)
     chunk = args.chunk_runs or DEFAULT_CHUNK_RUNS
     # fault identification beside the routes: per segment, on the same realizations (test level --alpha)
-    setup, why_not = _identify.setup_or_reason(sc.nominal, args)  # type: ignore[attr-defined]
+    setup, why_not = _identify.setup_or_reason(sc.nominal, args)
     ident = None
     parallel = args.workers > 1 or args.scheduler is not None
     if setup is not None and not parallel:
@@ -174,7 +174,7 @@ def _serial(
     with Progress(args.runs, "diagnose", enabled=False if args.no_progress else None) as bar:
         while True:
             t0 = time.perf_counter()
-            sim = next(chunks, None)  # type: ignore[call-overload]
+            sim = next(chunks, None)
             sim_s += time.perf_counter() - t0
             if sim is None:
                 break
@@ -193,7 +193,7 @@ def _serial(
 def _print_table(sc: object, args: argparse.Namespace, results: list) -> None:
     from ..figures.plot_diagnosis import diagnosis_rows
 
-    print(f"diagnosis on {sc.name}: {args.runs} runs, seed {args.seed} (per record: each route's own rule)")  # type: ignore[attr-defined]
+    print(f"diagnosis on {sc.name}: {args.runs} runs, seed {args.seed} (per record: each route's own rule)")
     header, rows = diagnosis_rows(results)
     widths = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]
     for r in [header, *rows]:

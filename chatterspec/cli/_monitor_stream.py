@@ -40,12 +40,12 @@ def _run_stream(
     where = "standard input" if stdin else f"data file {str(args.data)!r}"
     if args.follow and not args.data.is_file():
         raise ParameterError(f"--follow: {where} does not exist (create it, header first, then follow it)")
-    model = spec.model  # type: ignore[attr-defined]
+    model = spec.model
 
     def on_event(ev: object) -> None:
         if jsonl:
-            _emit_line(ev.to_json())  # type: ignore[attr-defined]
-        print(ev.describe(), file=human, flush=True)  # type: ignore[attr-defined]
+            _emit_line(ev.to_json())
+        print(ev.describe(), file=human, flush=True)
 
     def on_note(text: str) -> None:
         print(f"chatterspec monitor: {text}", file=sys.stderr, flush=True)
@@ -53,7 +53,7 @@ def _run_stream(
     try:
         mon = StreamMonitor(
             model,
-            settings,  # type: ignore[arg-type]
+            settings,
             record=args.record,
             record_every_s=None if args.record_every is None else 60.0 * args.record_every,
             live=args.live,
@@ -131,7 +131,7 @@ def _report(
     s = summary  # StreamSummary
     if args.json:
         doc = {"model": str(args.model), "data": str(args.data), "alarm": alarm_doc(settings)}
-        doc.update(s.to_dict())  # type: ignore[attr-defined]
+        doc.update(s.to_dict())
         if ident is not None:
             doc["identification"] = ident.to_dict()
         if jsonl:
@@ -139,20 +139,20 @@ def _report(
         else:
             print(dumps(doc, indent=2))
         return
-    lat = s.latency  # type: ignore[attr-defined]
-    c = s.counts  # type: ignore[attr-defined]
+    lat = s.latency
+    c = s.counts
     latency = (
         f"latency median {lat['median_ms']:.2f} ms, max {lat['max_ms']:.2f} ms"
         if lat["frames"]
         else "no frame completed"
     )
     print(
-        f"{s.duration_s:.2f} s of data ({s.n_rows} rows), {s.n_frames} frames, "  # type: ignore[attr-defined]
+        f"{s.duration_s:.2f} s of data ({s.n_rows} rows), {s.n_frames} frames, "
         f"{c['fault-start']} fault start(s) [{_alarm_short(settings)}], {c['gap']} gap(s), "
         f"{c['restart']} restart(s), "
-        f"{c['bad-row']} bad row(s) skipped; {latency}; {s.wall_s:.2f} s wall; "  # type: ignore[attr-defined]
-        f"stopped by {s.stopped_by}",  # type: ignore[attr-defined]
+        f"{c['bad-row']} bad row(s) skipped; {latency}; {s.wall_s:.2f} s wall; "
+        f"stopped by {s.stopped_by}",
         file=human,
     )
-    for rec in s.recordings:  # type: ignore[attr-defined]
+    for rec in s.recordings:
         print(f"recording: {rec['path']} (open with `chatterspec replay {rec['path']}`)", file=human)

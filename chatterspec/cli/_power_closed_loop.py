@@ -98,7 +98,7 @@ def run_closed_loop(args: argparse.Namespace) -> int:
     )
 
 
-def _print_excitation(res, doc: dict, dither_at: str) -> None:  # type: ignore[no-untyped-def]
+def _print_excitation(res, doc: dict, dither_at: str) -> None:
     """The text report of an excitation study ``res`` (``doc``: its JSON document): table and answers."""
     print(
         f"closed-loop detection power, {res.family} {res.size:g} {res.unit} on {res.channel}: linear EHA "

@@ -182,9 +182,9 @@ def _alarm_settings(
 
     file_alarm = getattr(cal, "alarm", None)
     if file_alarm is not None:
-        rc = check_file_alarm(choice, file_alarm, args.calibration)  # type: ignore[arg-type]
-        return alarm_settings(sc.nominal, settings, calibration=rc)  # type: ignore[attr-defined]
-    if not sc.is_linear:  # type: ignore[attr-defined]
+        rc = check_file_alarm(choice, file_alarm, args.calibration)
+        return alarm_settings(sc.nominal, settings, calibration=rc)
+    if not sc.is_linear:
         print(
             "chatterspec detect: note: the recording's monitor uses the per-frame rule (calibrate "
             f"{args.name}'s healthy scenario with --rule for a false-alarm budget)",
@@ -193,12 +193,12 @@ def _alarm_settings(
         return settings
     c = choice  # AlarmChoice
     return alarm_settings(
-        sc.nominal,  # type: ignore[attr-defined]
+        sc.nominal,
         settings,
-        c.rule,  # type: ignore[attr-defined]
-        c.budget,  # type: ignore[attr-defined]
-        hours=c.hours,  # type: ignore[attr-defined]
-        **c.parameters,  # type: ignore[attr-defined]
+        c.rule,
+        c.budget,
+        hours=c.hours,
+        **c.parameters,
     )
 
 

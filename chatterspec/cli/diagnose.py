@@ -137,7 +137,7 @@ def _methods(text: str | None, sc: object, per_record: bool) -> tuple[str, ...]:
     if text is None:
         if not supported:
             raise ParameterError(
-                f"scenario {sc.name!r} supports no diagnosis method here; try eha4-leak-timeline"  # type: ignore[attr-defined]
+                f"scenario {sc.name!r} supports no diagnosis method here; try eha4-leak-timeline"
             )
         return supported
     names = tuple(s.strip() for s in text.split(",") if s.strip())
@@ -153,7 +153,7 @@ def _methods(text: str | None, sc: object, per_record: bool) -> tuple[str, ...]:
         why = unsupported_reason(sc, name)
         if why is not None:
             raise ParameterError(
-                f"scenario {sc.name!r} does not support --methods {name} (it needs {why}); "  # type: ignore[attr-defined]
+                f"scenario {sc.name!r} does not support --methods {name} (it needs {why}); "
                 f"supported here: {','.join(supported) or 'none'}"
             )
     return tuple(dict.fromkeys(names))
@@ -170,7 +170,7 @@ def _scenario(args: argparse.Namespace) -> object:
         sc = with_onset(sc, args.onset)
     if not onsets_of(sc):
         raise ParameterError(
-            f"scenario {sc.name!r} has no fault onset to diagnose (it is healthy); for false alarms on "  # type: ignore[attr-defined]
+            f"scenario {sc.name!r} has no fault onset to diagnose (it is healthy); for false alarms on "
             "healthy data use `chatterspec far` or `chatterspec monitor`"
         )
     return sc
@@ -207,7 +207,7 @@ def _routes(args: argparse.Namespace, sc: object, methods: tuple[str, ...]) -> t
 
 def _chattering_law(args: argparse.Namespace, sc: object) -> tuple[object, dict]:
     """The healthy law of the chattering frame score: exact for a linear model, else calibrated."""
-    if sc.is_linear:  # type: ignore[attr-defined]
+    if sc.is_linear:
         if args.calibration is not None:
             raise ParameterError(
                 "--calibration: a linear model's frame score uses its exact law, not a calibration file; "
@@ -216,7 +216,7 @@ def _chattering_law(args: argparse.Namespace, sc: object) -> tuple[object, dict]
         from ..detection.spectral import STFTConfig
         from ..detection.thresholds import frame_threshold
 
-        model, config = sc.nominal, STFTConfig()  # type: ignore[attr-defined]
+        model, config = sc.nominal, STFTConfig()
         th = frame_threshold(model, config.freqs_hz(model.dt), config, model.dt, args.alpha)
         return th, {"source": "exact law of the linear model", "alpha": args.alpha}
     from ._diagnose_per_record import chattering_threshold
@@ -267,8 +267,8 @@ def run(args: argparse.Namespace) -> int:
         from ..figures.plot_diagnosis import delay_far_figure
         from ..figures.plot_studies import save
 
-        at = f"{settings.rule} rule at {settings.budget_per_hour:g} false alarm(s)/h"  # type: ignore[attr-defined]
-        title = f"{sc.name}: {args.runs} runs, {at}"  # type: ignore[attr-defined]
+        at = f"{settings.rule} rule at {settings.budget_per_hour:g} false alarm(s)/h"
+        title = f"{sc.name}: {args.runs} runs, {at}"
         figure = outputs.write("--figure", args.figure, save, delay_far_figure(results, title), args.figure)
     if args.record is not None:
         from ..viewer.diagnosis_log import record_budget_diagnosis
@@ -285,12 +285,12 @@ def run(args: argparse.Namespace) -> int:
             threshold,
         )
     doc = {
-        "scenario": sc.name,  # type: ignore[attr-defined]
+        "scenario": sc.name,
         "runs": args.runs,
         "seed": args.seed,
-        "budget_per_hour": settings.budget_per_hour,  # type: ignore[attr-defined]
-        "rule": settings.rule,  # type: ignore[attr-defined]
-        "warmup_s": settings.warmup_s,  # type: ignore[attr-defined]
+        "budget_per_hour": settings.budget_per_hour,
+        "rule": settings.rule,
+        "warmup_s": settings.warmup_s,
         "chattering_law": law_info or None,
         "wall_s": wall,
         "methods": [r.describe() for r in results],
@@ -318,9 +318,9 @@ def _print_budget_table(
     from ..figures.plot_diagnosis import budget_rows
 
     print(
-        f"diagnosis on {sc.name}: {args.runs} runs, seed {args.seed}; {settings.rule} rule, every route "  # type: ignore[attr-defined]
-        f"calibrated to {settings.budget_per_hour:g} false alarm(s) per hour on healthy streams "  # type: ignore[attr-defined]
-        f"({settings.calibration_runs} runs; how, per route, below); warm-up {settings.warmup_s:g} s; "  # type: ignore[attr-defined]
+        f"diagnosis on {sc.name}: {args.runs} runs, seed {args.seed}; {settings.rule} rule, every route "
+        f"calibrated to {settings.budget_per_hour:g} false alarm(s) per hour on healthy streams "
+        f"({settings.calibration_runs} runs; how, per route, below); warm-up {settings.warmup_s:g} s; "
         f"{wall:.1f} s"
     )
     header, rows = budget_rows(results)
@@ -336,7 +336,7 @@ def _print_budget_table(
 def identification_doc(args: argparse.Namespace, sc: object) -> dict:
     """Fault identification per fault segment on the diagnosed realizations (seed ``--seed``, the
     routes' runs), at test level ``--alpha``; ``{"reason": ...}`` where the model gives none."""
-    setup, why_not = _identify.setup_or_reason(sc.nominal, args)  # type: ignore[attr-defined]
+    setup, why_not = _identify.setup_or_reason(sc.nominal, args)
     if setup is None:
         return {"reason": why_not}
     from ..plants.simulate import iter_simulations

@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     return report_study(args, res, "plot_studies.far_figure", lambda doc: _print_rates(res))
 
 
-def _print_rates(res) -> None:  # type: ignore[no-untyped-def]
+def _print_rates(res) -> None:
     """The text table of a false-alarm study ``res``."""
     print(
         f"false alarms on {res.scenario}: {res.runs} healthy runs, seed {res.seed}, "

@@ -212,7 +212,7 @@ def run(args: argparse.Namespace) -> int:
     settings = MonitorSettings(
         stft=stft,
         alpha=float(args.alpha if args.alpha is not None else det.get("alpha", 1e-3)),
-        correction=str(det.get("correction", "bonferroni")),  # type: ignore[arg-type]
+        correction=str(det.get("correction", "bonferroni")),
         gamma=spec.gamma,
         psi=None if spec.psi is None else tuple(spec.psi.tolist()),  # nonlinear: the sgn-SVSF only
         band=band_from_args(args) or det.get("band"),
@@ -292,7 +292,7 @@ def run(args: argparse.Namespace) -> int:
     shown = len(sinks.notes)
 
     def show(ev: object) -> None:
-        sev = StreamEvent.from_detection(ev, time.time())  # type: ignore[arg-type]
+        sev = StreamEvent.from_detection(ev, time.time())
         if jsonl:
             _emit_line(sev.to_json())
         if not args.json or jsonl:
@@ -332,7 +332,7 @@ def run(args: argparse.Namespace) -> int:
     return rc
 
 
-def _report_replay(args, spec, stft, summary, jsonl: bool, human, settings, ident=None, why_not=None) -> int:  # type: ignore[no-untyped-def]
+def _report_replay(args, spec, stft, summary, jsonl: bool, human, settings, ident=None, why_not=None) -> int:
     """Print the summary of a file replay; 1 when the data gave no STFT frame."""
     no_frame = None
     if summary.n_frames == 0:
@@ -398,8 +398,8 @@ def _warm_up(monitor: object) -> None:
 
     from ..online.monitor import ChatteringMonitor
 
-    m = monitor.model  # type: ignore[attr-defined]
-    settings = dataclasses.replace(monitor.settings, threshold=monitor.threshold)  # type: ignore[attr-defined]
+    m = monitor.model
+    settings = dataclasses.replace(monitor.settings, threshold=monitor.threshold)
     warm = ChatteringMonitor(m, settings)
     n = warm.n_window + 2
     warm.push(np.zeros((n, m.n_outputs)), np.zeros((n, m.n_inputs)))
@@ -413,34 +413,34 @@ def _alarm_settings(
 
     c = choice  # AlarmChoice
     if args.alpha is not None:
-        return dataclasses.replace(settings, alpha=float(args.alpha))  # type: ignore[type-var]
+        return dataclasses.replace(settings, alpha=float(args.alpha))
     file_alarm = getattr(cal, "alarm", None)
     if file_alarm is not None:
         from ._alarm_args import check_file_alarm
 
-        rc = check_file_alarm(c, file_alarm, args.calibration)  # type: ignore[arg-type]
+        rc = check_file_alarm(c, file_alarm, args.calibration)
         return alarm_settings(model, settings, calibration=rc)
     from ..plants.nonlinear import is_linear
 
-    if not is_linear(model) and (c.explicit_rule or c.explicit_budget):  # type: ignore[attr-defined]
+    if not is_linear(model) and (c.explicit_rule or c.explicit_budget):
         raise ParameterError(
             f"{args.calibration} holds no alarm threshold, and a nonlinear model's needs simulated healthy "
-            f"records: `chatterspec calibrate {args.model} --rule {c.rule} --false-alarms-per-hour "  # type: ignore[attr-defined]
-            f"{c.budget:g} --out FILE`, then --calibration FILE"  # type: ignore[attr-defined]
+            f"records: `chatterspec calibrate {args.model} --rule {c.rule} --false-alarms-per-hour "
+            f"{c.budget:g} --out FILE`, then --calibration FILE"
         )
-    if cal is not None and not (c.explicit_rule or c.explicit_budget):  # type: ignore[attr-defined]
+    if cal is not None and not (c.explicit_rule or c.explicit_budget):
         print(
             f"chatterspec monitor: note: {args.calibration} holds no alarm calibration (made without "
-            f"--rule): the per-frame rule at its alpha {cal.alpha:g}",  # type: ignore[attr-defined]
+            f"--rule): the per-frame rule at its alpha {cal.alpha:g}",
             file=sys.stderr,
         )
         return settings
-    hours = c.hours  # type: ignore[attr-defined]  (None: the in-call default)
+    hours = c.hours  # (None: the in-call default)
     return alarm_settings(
         model,
         settings,
         c.rule,
         c.budget,
         hours=hours,
-        **c.parameters,  # type: ignore[attr-defined]
+        **c.parameters,
     )

@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     return report_study(args, res, "plot_studies.power_figure", lambda doc: _print_power(res))
 
 
-def _print_power(res) -> None:  # type: ignore[no-untyped-def]
+def _print_power(res) -> None:
     """The text table of a power study ``res``: detection rate per noise level, size and threshold kind."""
     from ..studies.power import POWER_FAMILIES
 

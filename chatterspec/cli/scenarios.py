@@ -72,29 +72,29 @@ def _export_nonlinear(sc: object, name: str, path: Path) -> Path:
     """A nonlinear nominal model as a model file naming its functions, with the scenario's input."""
     from ..plants.modelfile_writer import signal_table, write_nonlinear_model_toml
 
-    simulation: dict = {"duration_s": sc.duration}  # type: ignore[attr-defined]
-    if sc.x0 is not None and sc.x0.any():  # type: ignore[attr-defined]
-        simulation["x0"] = sc.x0  # type: ignore[attr-defined]
-    table = signal_table(sc.input)  # type: ignore[attr-defined]
+    simulation: dict = {"duration_s": sc.duration}
+    if sc.x0 is not None and sc.x0.any():
+        simulation["x0"] = sc.x0
+    table = signal_table(sc.input)
     if table is not None:
         simulation["input"] = table
     comment = (
         f"Nominal (healthy) model of the chatterspec catalogue scenario {name!r}: {_nominal_text(sc)}.\n"
         + (
-            f"The scenario's true plant differs from it (the fault to find): {sc.description}.\n"  # type: ignore[attr-defined]
-            if not sc.is_healthy  # type: ignore[attr-defined]
+            f"The scenario's true plant differs from it (the fault to find): {sc.description}.\n"
+            if not sc.is_healthy
             else ""
         )
         + f"Written by `chatterspec scenarios {name} --model-toml`. A nonlinear model: calibrate it\n"
         f"first (chatterspec calibrate {path.name} --out cal.npz), then\n"
         f"chatterspec monitor --model {path.name} --calibration cal.npz"
     )
-    return write_nonlinear_model_toml(path, sc.nominal, simulation=simulation, comment=comment)  # type: ignore[attr-defined]
+    return write_nonlinear_model_toml(path, sc.nominal, simulation=simulation, comment=comment)
 
 
 def _nominal_text(sc: object) -> str:
     """One line on the nominal model itself (name, natural frequency, damping), not the scenario's plant."""
-    nominal = sc.nominal  # type: ignore[attr-defined]
+    nominal = sc.nominal
     f0, zeta = nominal.natural_frequency_hz, nominal.damping_ratio
     mode = "" if f0 is None else f", natural frequency {f0:.4g} Hz, damping {zeta:.4g}"
     return f"{nominal.name}{mode}, dt = {nominal.dt:g} s"

@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     outputs = Outputs()
     channel: str | None = args.channel
     if channel is not None and channel.isdigit():
-        channel = int(channel)  # type: ignore[assignment]
+        channel = int(channel)
     fig = scenario_spectrum(
         args.name,
         channel=channel,

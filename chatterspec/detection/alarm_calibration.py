@@ -115,7 +115,7 @@ def check_budget(false_alarms_per_hour: object, option: str = "false_alarms_per_
         How the caller names it in the error message (e.g. ``--false-alarms-per-hour``).
     """
     try:
-        x = float(false_alarms_per_hour)  # type: ignore[arg-type]
+        x = float(false_alarms_per_hour)
     except (TypeError, ValueError):
         raise ParameterError(f"{option} must be a number > 0; got {false_alarms_per_hour!r}") from None
     if not (math.isfinite(x) and x > 0):
@@ -257,10 +257,10 @@ class RuleCalibration:
                 false_alarms_per_hour=float(d["false_alarms_per_hour"]),
                 steps_per_hour=float(d["steps_per_hour"]),
                 channels=int(d["channels"]),
-                method=str(d["method"]),  # type: ignore[arg-type]
+                method=str(d["method"]),
                 hours=float(d["hours"]),
-                threshold_interval=tuple(_den(v) for v in d["threshold_interval"]),  # type: ignore[arg-type]
-                rate_interval=tuple(_den(v) for v in d["rate_interval"]),  # type: ignore[arg-type]
+                threshold_interval=tuple(_den(v) for v in d["threshold_interval"]),
+                rate_interval=tuple(_den(v) for v in d["rate_interval"]),
                 confidence=float(d.get("confidence", 0.95)),
                 seed=d.get("seed"),
                 fit=dict(d.get("fit", {})),
@@ -270,7 +270,7 @@ class RuleCalibration:
 
 
 def _den(x: object) -> float:
-    return float("inf") if x is None else float(x)  # type: ignore[arg-type]
+    return float("inf") if x is None else float(x)
 
 
 def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
@@ -541,7 +541,7 @@ def calibrate_rule(
         false_alarms_per_hour=X,
         steps_per_hour=F,
         channels=C,
-        method=method,  # type: ignore[arg-type]
+        method=method,
         hours=hours,
         threshold_interval=th_int,
         rate_interval=(min(rate_int), max(rate_int)),

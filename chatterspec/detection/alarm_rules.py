@@ -40,7 +40,7 @@ _FRAME, _PERSISTENCE, _CUSUM = 0, 1, 2
 def _threshold(value: object, name: str = "threshold") -> float:
     """A rule threshold: a real number, not NaN (``+inf`` = never alarm, ``-inf`` = always)."""
     try:
-        v = float(value)  # type: ignore[arg-type]
+        v = float(value)
     except (TypeError, ValueError):
         raise ParameterError(f"{name} must be a real number; got {value!r}") from None
     if math.isnan(v):
@@ -289,7 +289,7 @@ def make_rule(name: str, threshold: float = float("inf"), **parameters: Any) -> 
         raise ParameterError(
             f"rule {name!r} has no parameter(s) {', '.join(sorted(unknown))} (parameters: {allowed})"
         )
-    return spec.cls(threshold=threshold, **{**spec.parameters, **parameters})  # type: ignore[no-any-return]
+    return spec.cls(threshold=threshold, **{**spec.parameters, **parameters})
 
 
 def rule_from_dict(d: Mapping[str, Any]) -> AlarmRule:

@@ -328,8 +328,8 @@ class FrameScore:
         """The exact-law score of a linear model's STFT frames (``config``: an ``STFTConfig``)."""
         from .thresholds import frame_threshold
 
-        dt = model.dt  # type: ignore[attr-defined]
-        th = frame_threshold(model, config.freqs_hz(dt), config, dt, 0.5, band=band)  # type: ignore[arg-type, attr-defined]
+        dt = model.dt
+        th = frame_threshold(model, config.freqs_hz(dt), config, dt, 0.5, band=band)
         return cls(th)
 
     def bin_scores(self, power: np.ndarray) -> np.ndarray:

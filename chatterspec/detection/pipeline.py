@@ -251,7 +251,7 @@ def _rng_loop(
 _chattering_rng_kernel = _jit.specialize(_rng_loop, "any")
 
 
-def _rng_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
+def _rng_kernel(n: int, m: int):
     """The drawing loop whose fused loop has this model's sizes as constants when small (unrolled).
 
     For the EHA's 3 x 3 this runs the arithmetic at the speed of the loop written out by hand

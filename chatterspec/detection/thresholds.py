@@ -97,7 +97,7 @@ __all__ = [  # the threshold type's names (re-exported: their documented home) a
 def _check_law(law: str) -> ThresholdLaw:
     if law not in _LAWS:
         raise ParameterError(f"law must be one of {_LAWS}; got {law!r}")
-    return law  # type: ignore[return-value]
+    return law
 
 
 def _chi2_threshold(

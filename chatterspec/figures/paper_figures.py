@@ -487,7 +487,7 @@ def scenario_spectrum(
     if threshold in ("both", "paper"):
         ths.append(averaged_paper_threshold(paper_threshold(model, f, alpha), sp.averaged))
     if threshold in ("both", "exact"):
-        ths.append(exact_threshold(model, f, n, alpha, correction, averaged=sp.averaged))  # type: ignore[arg-type]
+        ths.append(exact_threshold(model, f, n, alpha, correction, averaged=sp.averaged))
     panels, notes = [], []
     inset = SO_INSET_HZ if sc.family == "second-order" and not sc.is_healthy else None
     for ch in channels:

@@ -172,7 +172,7 @@ def step_response_figure(scenarios: Sequence[Scenario], runs: int = 1, seed: int
         axes[1].plot(t, sim.u[0, :, 0], color=color, lw=0.5, alpha=0.6)
         axes[1].plot(t, u, color=color, lw=1.2)
         axes[2].plot(t, x[:, 2] * 1e-3, color=color, lw=1.2)
-    sat = scenarios[0].closed_loop.controller.saturation  # type: ignore[union-attr]
+    sat = scenarios[0].closed_loop.controller.saturation
     for v in (-sat, sat):
         axes[1].axhline(v, color=mpl(NEUTRAL), lw=0.8, ls=":", label="saturation" if v > 0 else None)
     axes[0].set_ylabel("position (mm)")

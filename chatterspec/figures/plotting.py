@@ -464,7 +464,7 @@ def _fit_log_y(ax: Axes, y_data: Sequence[np.ndarray]) -> None:
 
 def _draw_zoom(ax: Axes, panel: SpectrumPanel) -> Axes:
     """Draw ``panel`` again into ``ax`` on the band ``panel.inset_hz`` (no note, no legend)."""
-    lo, hi = panel.inset_hz  # type: ignore[misc]
+    lo, hi = panel.inset_hz
     if not hi > lo:
         raise ParameterError(f"inset_hz must be (f_lo, f_hi) with f_lo < f_hi; got {panel.inset_hz}")
     draw_spectrum(ax, replace(panel, title=""), legend=False, xlim_hz=(lo, hi), note=False)
@@ -573,7 +573,7 @@ def spectrum_figure(
             handles.setdefault(str(a.get_label()), a)
     if sharey:  # each panel fitted its own range; the shared axis needs their union
         lims = np.array([ax.get_ylim() for ax in main_axes(fig)])
-        first.set_ylim(float(lims[:, 0].min()), float(lims[:, 1].max()))  # type: ignore[union-attr]
+        first.set_ylim(float(lims[:, 0].min()), float(lims[:, 1].max()))
     # one legend for the whole figure: every panel uses the same conventions
     fig.legend(
         handles=list(handles.values()),

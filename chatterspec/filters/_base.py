@@ -29,7 +29,7 @@ def check_model(model: object) -> None:
             f"model must provide {', '.join(_MODEL_ATTRS)} (like LinearModel); "
             f"{type(model).__name__} lacks {', '.join(missing)}"
         )
-    n, m = int(model.n_states), int(model.n_outputs)  # type: ignore[attr-defined]
+    n, m = int(model.n_states), int(model.n_outputs)
     for name, shape in (("C", (m, n)), ("Q", (n, n)), ("R", (m, m))):
         M = finite_array(f"model.{name}", getattr(model, name), shape=shape)
         if name != "C":
@@ -151,11 +151,11 @@ class CovarianceFilterBase:
             return None
         return plant_steps(self.model)
 
-    def _advance(self, x, P, ep, epp, z, u, keep):  # type: ignore[no-untyped-def]
+    def _advance(self, x, P, ep, epp, z, u, keep):
         model = self.model
-        C = np.asarray(model.C, dtype=float)  # type: ignore[attr-defined]
-        Q = np.asarray(model.Q, dtype=float)  # type: ignore[attr-defined]
-        R = np.asarray(model.R, dtype=float)  # type: ignore[attr-defined]
+        C = np.asarray(model.C, dtype=float)
+        Q = np.asarray(model.Q, dtype=float)
+        R = np.asarray(model.R, dtype=float)
         if P.ndim == 2:  # shared covariance given to a per-run filter (e.g. replaced by a bank)
             P = np.array(np.broadcast_to(P, (x.shape[0], *P.shape)))
         corr = self._correction_step()
@@ -168,8 +168,8 @@ class CovarianceFilterBase:
         if compiled and plant is not None:  # every sample in one compiled loop
             return P, _engine.cov_loop(corr, plant, x, P, ep, epp, z, u, C, Q, R, keep)
         if self._linear:
-            Bu = _rows_times(u, np.ascontiguousarray(model.B.T))  # type: ignore[attr-defined]
-            predict = linear_prediction(model.A, Bu)  # type: ignore[attr-defined]
+            Bu = _rows_times(u, np.ascontiguousarray(model.B.T))
+            predict = linear_prediction(model.A, Bu)
             return P, _engine_numpy.cov_numpy(corr, predict, x, P, ep, epp, z, C, Q, R, keep)
         return P, model_call_loop(model, corr, compiled, x, P, ep, epp, z, u, C, Q, R, keep)
 
@@ -223,8 +223,8 @@ class CovarianceFilterBase:
         if zz.shape != (runs, 1, m):
             raise ShapeError(f"z must have shape ({runs}, {m}) (one sample); got {zz.shape}")
         model = self.model
-        C = np.asarray(model.C, dtype=float)  # type: ignore[attr-defined]
-        R = np.asarray(model.R, dtype=float)  # type: ignore[attr-defined]
+        C = np.asarray(model.C, dtype=float)
+        R = np.asarray(model.R, dtype=float)
         P = np.array(np.broadcast_to(Pp, (runs, n, n)), dtype=float)
         x, ep, epp = np.array(xp, dtype=float), state.e_post.copy(), state.e_prev.copy()
         corr = self._correction_step()

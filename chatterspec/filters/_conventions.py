@@ -123,7 +123,7 @@ def svsf_store(
     """
     old = {"store_states": store_states, "store_post_error": store_post_error, "store_lower": store_lower}
     names = {"store_states": "x_post", "store_post_error": "e_post", "store_lower": "e_lower"}
-    return legacy_store(store, old, names, SVSF_STORABLE, who, "e_prior is always returned")  # type: ignore[return-value]
+    return legacy_store(store, old, names, SVSF_STORABLE, who, "e_prior is always returned")
 
 
 def bank_store(
@@ -150,7 +150,7 @@ def bank_store(
     old = {"store_covariance": store_covariance, "store_modes": store_modes}
     names = {"store_covariance": "P_post", "store_modes": "mode_x_post"}
     always = "x_post, mu and loglik are always kept"
-    return legacy_store(store, old, names, BANK_STORABLE, who, always)  # type: ignore[return-value]
+    return legacy_store(store, old, names, BANK_STORABLE, who, always)
 
 
 def default_input(u: object | None, K: int, p: int) -> object:
@@ -207,7 +207,7 @@ def mode_initial(
     if mode_x0 is None and mode_P0 is None:
         return np.array(xs), np.array(Ps), x, P
     xc, Pc = combine(mu, xs, Ps)
-    return np.array(xs), np.array(Ps), xc, Pc  # type: ignore[return-value]
+    return np.array(xs), np.array(Ps), xc, Pc
 
 
 def check_chunk(

@@ -266,7 +266,7 @@ def _sample(
 
 
 @_jit.step
-def _no_correction(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def _no_correction(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):
     """Placeholder binding of :func:`_sample` (never called)."""
     return NOT_PD
 
@@ -276,7 +276,7 @@ CORRECT = _no_correction
 WANT_LL = True
 
 
-def sample_step(correct: CorrectionStep, want_ll: bool = True):  # type: ignore[no-untyped-def]
+def sample_step(correct: CorrectionStep, want_ll: bool = True):
     """:func:`_sample` with ``correct``'s step bound: an inlined step for the loops."""
     return _jit.specialize_sizes(
         _sample, f"{correct.name}_ll{int(want_ll)}", {}, inline=True, CORRECT=correct.step, WANT_LL=want_ll
@@ -284,7 +284,7 @@ def sample_step(correct: CorrectionStep, want_ll: bool = True):  # type: ignore[
 
 
 @_jit.step
-def _no_sample(fp, x, P, ep, epp, zk, xp, F, C, Q, R, ws, n, m):  # type: ignore[no-untyped-def]
+def _no_sample(fp, x, P, ep, epp, zk, xp, F, C, Q, R, ws, n, m):
     """Placeholder binding of the loops (never called)."""
     return NOT_PD
 
@@ -358,7 +358,7 @@ def workspace(n: int, m: int) -> tuple:  # pragma: no cover - compiled (inlined 
 
 
 @_jit.step
-def store_step(flags, outs, r, k, xp, x, e, S, ll, ep, Pp, P, n, m):  # type: ignore[no-untyped-def]
+def store_step(flags, outs, r, k, xp, x, e, S, ll, ep, Pp, P, n, m):
     """Write sample k of run r into the outputs of :data:`FIELDS` whose ``flags`` entry is set.
 
     One test of each flag per call, outside the element loops (tested inside them, the flags were
@@ -566,13 +566,13 @@ def cov_loop(
         bind = {"PREDICT": given_predict, "JACOBIAN": given_jacobian, "CONST_F": False}
         tag = f"given_{correct.name}"
     else:
-        prm = c(plant.parameters, dtype=float)[None]  # type: ignore[attr-defined]
+        prm = c(plant.parameters, dtype=float)[None]
         bind = {
-            "PREDICT": plant.predict,  # type: ignore[attr-defined]
-            "JACOBIAN": plant.jacobian,  # type: ignore[attr-defined]
-            "CONST_F": bool(plant.constant_jacobian),  # type: ignore[attr-defined]
+            "PREDICT": plant.predict,
+            "JACOBIAN": plant.jacobian,
+            "CONST_F": bool(plant.constant_jacobian),
         }
-        tag = f"{plant.name}_{correct.name}"  # type: ignore[attr-defined]
+        tag = f"{plant.name}_{correct.name}"
     kernel = _jit.specialize_sizes(_cov_loop, tag, {"NX": n, "NZ": m}, SAMPLE=sample_step(correct), **bind)
     status = kernel(
         prm, c(u, dtype=float), c(z, dtype=float), x, P, ep, epp, c(C, dtype=float), c(Q, dtype=float),

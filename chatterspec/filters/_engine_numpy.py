@@ -60,7 +60,7 @@ def map_numpy(mapping: int, D: np.ndarray, PCt: np.ndarray, M: np.ndarray | None
     if mapping == MAP_COV:
         chol_np(D, mapping)
         return np.swapaxes(np.linalg.solve(D, np.swapaxes(PCt, -1, -2)), -1, -2)
-    return np.broadcast_to(M, (runs, *M.shape))  # type: ignore[union-attr]
+    return np.broadcast_to(M, (runs, *M.shape))
 
 
 def kalman_gain_numpy(S: np.ndarray, PCt: np.ndarray) -> np.ndarray:
@@ -96,8 +96,8 @@ def model_prediction(model: object, u: np.ndarray) -> Prediction:
 
     def predict(k: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         uk = u[0, k] if shared_u else u[:, k]
-        xp = np.asarray(model.transition(x, uk), dtype=float)  # type: ignore[attr-defined]
-        F = np.asarray(model.jacobian(x, uk), dtype=float)  # type: ignore[attr-defined]
+        xp = np.asarray(model.transition(x, uk), dtype=float)
+        F = np.asarray(model.jacobian(x, uk), dtype=float)
         want_F = (*x.shape, x.shape[1])
         if xp.shape != x.shape or F.shape not in (want_F, want_F[1:]):
             raise ShapeError(

@@ -83,7 +83,7 @@ def _imm_loop(
     o_ll,
     o_P,
     o_mx,
-):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (a template: see run_fused)
+):  # pragma: no cover - compiled (a template: see run_fused)
     """The IMM recursion of the module docstring; state arrays updated in place.
 
     Per mode j: ``prm[j]`` (its plant's parameters, plant kind ``plant_slot[j]`` of ``PLANT``),
@@ -229,7 +229,7 @@ def fused_spec(filters: tuple[object, ...]) -> dict[str, object] | None:
     plants, corrections = [], []
     for f in filters:
         get = getattr(f, "_correction_step", None)
-        plant = plant_steps(f.model)  # type: ignore[attr-defined]
+        plant = plant_steps(f.model)
         if get is None or plant is None or getattr(f.model, "h", None) is not None:  # h(x): protocol path
             return None
         corr = get()
@@ -239,7 +239,7 @@ def fused_spec(filters: tuple[object, ...]) -> dict[str, object] | None:
         corrections.append(corr)
     plant, plant_slot, prm = bank_plants(plants)
     corr_kinds = list(dict.fromkeys(c.name for c in corrections))
-    mdl = filters[0].model  # type: ignore[attr-defined]
+    mdl = filters[0].model
     sizes_fit = _jit.fits(int(mdl.n_states), int(mdl.n_outputs)) and _jit.fits(len(filters))
     if plant is None or len(corr_kinds) > 4 or not sizes_fit:
         return None
@@ -250,7 +250,7 @@ def fused_spec(filters: tuple[object, ...]) -> dict[str, object] | None:
             out[j, : len(v)] = v
         return out
 
-    models = [f.model for f in filters]  # type: ignore[attr-defined]
+    models = [f.model for f in filters]
     samples = {c.name: c for c in corrections}
     bind: dict[str, object] = {"PLANT": plant}
     for i, name in enumerate(corr_kinds):
@@ -314,26 +314,26 @@ def run_fused(
         An innovation covariance that is not positive definite, or every mode likelihood zero.
     """
     runs, K, _m = z.shape
-    n = state.x.shape[1]  # type: ignore[attr-defined]
-    sts = state.mode_states  # type: ignore[attr-defined]
+    n = state.x.shape[1]
+    sts = state.mode_states
     r = len(sts)
     st = {
-        "mu": np.array(state.mu, dtype=float, order="C"),  # type: ignore[attr-defined]
+        "mu": np.array(state.mu, dtype=float, order="C"),
         "xs": np.ascontiguousarray(np.stack([s.x for s in sts], axis=1), dtype=float),
         "Ps": np.ascontiguousarray(
             np.stack([np.broadcast_to(s.P, (runs, n, n)) for s in sts], axis=1), dtype=float
         ),
         "eps": np.ascontiguousarray(np.stack([s.e_post for s in sts], axis=1), dtype=float),
         "epps": np.ascontiguousarray(np.stack([s.e_prev for s in sts], axis=1), dtype=float),
-        "zl": np.array(state.z_last, dtype=float, order="C"),  # type: ignore[attr-defined]
-        "x": np.array(state.x, dtype=float, order="C"),  # type: ignore[attr-defined]
-        "P": np.array(np.broadcast_to(state.P, (runs, n, n)), dtype=float, order="C"),  # type: ignore[attr-defined]
+        "zl": np.array(state.z_last, dtype=float, order="C"),
+        "x": np.array(state.x, dtype=float, order="C"),
+        "P": np.array(np.broadcast_to(state.P, (runs, n, n)), dtype=float, order="C"),
     }
     c = np.ascontiguousarray
     args = (
         spec["prm"], spec["plant_slot"], spec["fp"], spec["corr_slot"], spec["Q"], spec["C"], spec["R"],
         c(pi, dtype=float), float(floor), c(z, dtype=float), c(u, dtype=float),
-        bool(state.k == 0),  # type: ignore[attr-defined]
+        bool(state.k == 0),
         st["mu"], st["xs"], st["Ps"], st["eps"], st["epps"], st["zl"], st["x"], st["P"],
         np.empty((r, n)), np.empty((r, n, n)),
     )  # fmt: skip

@@ -21,7 +21,7 @@ from .svsf_steps import rows_times as _rows_times
 NX = NZ = 0
 
 
-def _kf_shared_loop(prm, u, z, x, ep, epp, C, KgT, Sinv, logdet, flags, outs):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+def _kf_shared_loop(prm, u, z, x, ep, epp, C, KgT, Sinv, logdet, flags, outs):  # pragma: no cover - compiled
     """State recursion of the Kalman filter with a precomputed, shared gain sequence ``KgT`` (K, m, n).
 
     Per run and sample: the linear plant's prediction (:func:`~chatterspec.plants.linear_steps.predict_step`,
@@ -84,7 +84,7 @@ def _kf_shared_loop(prm, u, z, x, ep, epp, C, KgT, Sinv, logdet, flags, outs):  
     return 0
 
 
-def _kf_shared_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
+def _kf_shared_kernel(n: int, m: int):
     """:func:`_kf_shared_loop` compiled for n states and m outputs (literal sizes up to
     :data:`chatterspec._jit.MAX_UNROLL`: the per-channel loops unrolled, as the per-run filters')."""
     return _jit.specialize_sizes(_kf_shared_loop, "kfshared", {"NX": n, "NZ": m})

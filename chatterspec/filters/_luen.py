@@ -138,7 +138,7 @@ def _luen_update(
 
 
 @_jit.step
-def luen_first_order(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def luen_first_order(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):
     """The first-order correction of the module docstring (the correction-step signature of
     :mod:`chatterspec.filters._engine`); returns 0 or ``SINGULAR_PHI12``."""
     if not _phi_blocks(fp, F, e, ws, n, m):
@@ -165,7 +165,7 @@ def luen_first_order(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  #
 
 
 @_jit.step
-def luen_second_order(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def luen_second_order(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):
     """The second-order correction of the module docstring (the correction-step signature of
     :mod:`chatterspec.filters._engine`); returns 0 or ``SINGULAR_PHI12``."""
     if not _phi_blocks(fp, F, e, ws, n, m):

@@ -44,7 +44,7 @@ NX = NZ = 0
 
 def _smm_loop(
     prm, plant_slot, Qs, C, R, fp, floor, z, u, x, P, mu, ep, epp, xs, Ps, o_x, o_mu, o_ll, o_P, o_mx
-):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (a template: see run_smm)
+):  # pragma: no cover - compiled (a template: see run_smm)
     """The recursion of the module docstring; ``x``, ``P``, ``mu``, ``ep``, ``epp`` updated in place.
 
     ``xs`` (nm, n) and ``Ps`` (nm, n, n) are scratch. Returns 0, ``1 + run`` (a matrix not
@@ -115,28 +115,28 @@ def smm_spec(models: tuple[object, ...], correct: object) -> dict[str, object] |
     from ..plants.steps import plant_steps
 
     plants = [plant_steps(mdl) for mdl in models]
-    n, m = int(models[0].n_states), int(models[0].n_outputs)  # type: ignore[attr-defined]
+    n, m = int(models[0].n_states), int(models[0].n_outputs)
     if any(pl is None for pl in plants) or not (_jit.fits(n, m) and _jit.fits(len(models))):
         return None
     plant, plant_slot, prm = bank_plants(plants)
     if plant is None:
         return None
-    tag = "_".join(["smm", *dict.fromkeys(pl.name for pl in plants)])  # type: ignore[union-attr]
+    tag = "_".join(["smm", *dict.fromkeys(pl.name for pl in plants)])
     kernel = _jit.specialize_sizes(
         _smm_loop,
         tag,
         {"NX": n, "NZ": m},
         PLANT=plant,
-        SAMPLE=sample_step(correct, want_ll=False),  # type: ignore[arg-type]
+        SAMPLE=sample_step(correct, want_ll=False),
     )
     return {
         "prm": prm,
         "plant_slot": plant_slot,
-        "Qs": np.ascontiguousarray(np.stack([np.asarray(mdl.Q, dtype=float) for mdl in models])),  # type: ignore[attr-defined]
-        "C": np.ascontiguousarray(models[0].C, dtype=float),  # type: ignore[attr-defined]
-        "R": np.ascontiguousarray(models[0].R, dtype=float),  # type: ignore[attr-defined]
-        "fp": correct.parameters,  # type: ignore[attr-defined]
-        "mapping": correct.mapping,  # type: ignore[attr-defined]
+        "Qs": np.ascontiguousarray(np.stack([np.asarray(mdl.Q, dtype=float) for mdl in models])),
+        "C": np.ascontiguousarray(models[0].C, dtype=float),
+        "R": np.ascontiguousarray(models[0].R, dtype=float),
+        "fp": correct.parameters,
+        "mapping": correct.mapping,
         "kernel": kernel,
     }
 

@@ -142,7 +142,7 @@ def check_weight_floor(floor: object, r: int) -> float:
     ParameterError
         Outside ``[0, 1/r)`` (at ``1/r`` every weight would be pinned to uniform).
     """
-    value = nonnegative("weight_floor", floor)  # type: ignore[arg-type]
+    value = nonnegative("weight_floor", floor)
     if not value < 1.0 / r:
         raise ParameterError(
             f"weight_floor must lie in [0, 1/{r}) = [0, {1.0 / r:.4g}) for {r} modes (at 1/r every "
@@ -175,7 +175,7 @@ def check_bank_models(models: Sequence[object]) -> tuple[int, int]:
         raise ParameterError("a multiple-model filter needs at least one mode")
     for mdl in models:
         check_model(mdl)
-    dims = [(int(mdl.n_states), int(mdl.n_outputs), int(mdl.n_inputs)) for mdl in models]  # type: ignore[attr-defined]
+    dims = [(int(mdl.n_states), int(mdl.n_outputs), int(mdl.n_inputs)) for mdl in models]
     if len(set(dims)) != 1:
         raise ShapeError(
             "every mode must have the same numbers of states, measurements and inputs (they filter the "
@@ -333,30 +333,30 @@ class BankFilter:
         """
         n, m = check_bank_models(models)
         r = len(models)
-        object.__setattr__(self, "mu0", initial_mode_probabilities(self.mu0, r))  # type: ignore[attr-defined]
-        object.__setattr__(self, "weight_floor", check_weight_floor(self.weight_floor, r))  # type: ignore[attr-defined]
-        object.__setattr__(self, "modes", mode_names(self.modes, r))  # type: ignore[attr-defined]
+        object.__setattr__(self, "mu0", initial_mode_probabilities(self.mu0, r))
+        object.__setattr__(self, "weight_floor", check_weight_floor(self.weight_floor, r))
+        object.__setattr__(self, "modes", mode_names(self.modes, r))
         return n, m
 
     def _initial_estimate(
         self, x0: object, P0: object, runs: int | None
     ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
         """``(runs, x, P, mu)`` at k = 0 (:func:`initial_bank_state` with the bank's sizes and ``mu0``)."""
-        n = int(self._sensor_model().n_states)  # type: ignore[attr-defined]
-        return initial_bank_state(n, len(self.modes), x0, P0, runs, self.mu0)  # type: ignore[attr-defined]
+        n = int(self._sensor_model().n_states)
+        return initial_bank_state(n, len(self.modes), x0, P0, runs, self.mu0)
 
     def _initial_state(
         self, x: np.ndarray, P: np.ndarray, mu: np.ndarray, mode_states: tuple[FilterState, ...]
     ) -> MultipleModelState:
         """The state at k = 0: ``e(0|0) = 0`` and ``z(0) = 0`` (no measurement yet)."""
-        zero = np.zeros((x.shape[0], int(self._sensor_model().n_outputs)))  # type: ignore[attr-defined]
+        zero = np.zeros((x.shape[0], int(self._sensor_model().n_outputs)))
         return MultipleModelState(
             x=x, P=P, mu=mu, e_post=zero, z_last=zero.copy(), mode_states=mode_states, k=0
         )
 
     def _output(self, res: dict[str, np.ndarray | None]) -> MultipleModelOutput:
         """The bank's output from the per-sample arrays ``x, mu, ll, P, mx`` (None: not kept)."""
-        return MultipleModelOutput(res["x"], res["mu"], res["ll"], tuple(self.modes), res["P"], res["mx"])  # type: ignore[arg-type, attr-defined]
+        return MultipleModelOutput(res["x"], res["mu"], res["ll"], tuple(self.modes), res["P"], res["mx"])
 
     def update(
         self,
@@ -392,11 +392,11 @@ class BankFilter:
         """
         if not isinstance(state, MultipleModelState):
             raise TypeError(f"state must be a MultipleModelState; got {type(state).__name__}")
-        mdl0 = self._sensor_model()  # type: ignore[attr-defined]
+        mdl0 = self._sensor_model()
         m, p = int(mdl0.n_outputs), int(mdl0.n_inputs)
         store_covariance, store_modes = bank_store(store, store_covariance, store_modes, type(self).__name__)
         z, u = check_bank_data(z, u, state.x.shape[0], m, p)
-        return self._advance(state, z, u, store_covariance, store_modes)  # type: ignore[attr-defined]
+        return self._advance(state, z, u, store_covariance, store_modes)
 
     def run(
         self,
@@ -435,7 +435,7 @@ class BankFilter:
         """
         zz = finite_array("z", z, ndim=(2, 3))
         runs = 1 if zz.ndim == 2 else zz.shape[0]
-        state = self.initialize(x0, P0, runs=runs, **initial)  # type: ignore[attr-defined]
+        state = self.initialize(x0, P0, runs=runs, **initial)
         keep = bank_store(store, store_covariance, store_modes, type(self).__name__)
         store = {n for n, k in zip(("P_post", "mode_x_post"), keep, strict=True) if k}
-        return self.update(state, zz, u, store=store)[1]  # type: ignore[attr-defined]
+        return self.update(state, zz, u, store=store)[1]

@@ -35,7 +35,7 @@ from ._engine import chol_solve_step, gain_update_step
 
 
 @_jit.step
-def kalman_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def kalman_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):
     """The Kalman correction (compiled step): ``K^T = S^-1 (P C^T)^T`` from the factor ``L`` of ``S``,
     ``x(k+1|k+1) = x(k+1|k) + K e``. Signature of :mod:`chatterspec.filters._engine`; returns 0."""
     chol_solve_step(L, PCtT, KgT, m, n)
@@ -43,7 +43,7 @@ def kalman_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # t
     return 0
 
 
-def kalman_correct_numpy(e, ep, epp, xp, PCt, D, S, C, F):  # type: ignore[no-untyped-def]
+def kalman_correct_numpy(e, ep, epp, xp, PCt, D, S, C, F):
     """:func:`kalman_correct` vectorized over realizations: ``(K, x(k+1|k+1))``."""
     Kg = _engine_numpy.kalman_gain_numpy(S, PCt)
     return Kg, xp + np.einsum("rij,rj->ri", Kg, e)
@@ -88,7 +88,7 @@ class KalmanFilter(CovarianceFilterBase):
     def _correction_step(self) -> _engine.CorrectionStep:
         return _KF_STEP
 
-    def _advance(self, x, P, ep, epp, z, u, keep):  # type: ignore[no-untyped-def]
+    def _advance(self, x, P, ep, epp, z, u, keep):
         if P.ndim == 3:
             return super()._advance(x, P, ep, epp, z, u, keep)
         if x.shape[0] == 1 and _jit.enabled() and _jit.fits(x.shape[1], z.shape[2]):
@@ -175,7 +175,7 @@ class ExtendedKalmanFilter(CovarianceFilterBase):
 
 def kf_from_settings(model: object, settings: object, source: str) -> KalmanFilter | ExtendedKalmanFilter:
     """Registry builder of ``kf``: the Kalman filter on a linear model, the EKF otherwise (no tuning)."""
-    return KalmanFilter(model) if isinstance(model, LinearModel) else ExtendedKalmanFilter(model)  # type: ignore[arg-type]
+    return KalmanFilter(model) if isinstance(model, LinearModel) else ExtendedKalmanFilter(model)
 
 
 def ekf_from_settings(model: object, settings: object, source: str) -> ExtendedKalmanFilter:

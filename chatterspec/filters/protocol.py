@@ -348,7 +348,7 @@ def initial_state(
     shared_ok: bool,
 ) -> FilterState:
     """Validated :class:`FilterState` at k = 0 (initial residuals default to 0, ``docs/design.md`` §7.2)."""
-    n, m = model.n_states, model.n_outputs  # type: ignore[attr-defined]
+    n, m = model.n_states, model.n_outputs
     runs, x, P0 = initial_estimate(n, x0, P0, runs)
     if P0.ndim == 2 and shared_ok:
         P = np.array(P0, dtype=float)
@@ -373,7 +373,7 @@ def check_chunk(
 
     ``u`` comes back 3-D, ``(1, K, p)`` when shared by all runs.
     """
-    m, p = model.n_outputs, model.n_inputs  # type: ignore[attr-defined]
+    m, p = model.n_outputs, model.n_inputs
     runs = state.runs
     if u is None:  # no input: zeros (an autonomous model needs no u)
         u = np.zeros((np.shape(z)[-2] if np.ndim(z) >= 2 else 0, p))

@@ -95,10 +95,10 @@ class SMMSVSF(BankFilter):
         _n, m = self._check_bank(models)
         for mdl in models:
             require_linear_measurement(mdl, "SMM-SVSF")
-        C = np.asarray(models[0].C, dtype=float)  # type: ignore[attr-defined]
-        R = np.asarray(models[0].R, dtype=float)  # type: ignore[attr-defined]
+        C = np.asarray(models[0].C, dtype=float)
+        R = np.asarray(models[0].R, dtype=float)
         for j, mdl in enumerate(models[1:], start=1):
-            if not (np.array_equal(mdl.C, C) and np.array_equal(mdl.R, R)):  # type: ignore[attr-defined]
+            if not (np.array_equal(mdl.C, C) and np.array_equal(mdl.R, R)):
                 raise ParameterError(
                     f"SMM-SVSF modes share one sensor: mode {j} has a different C or R from mode 0"
                 )
@@ -149,21 +149,21 @@ class SMMSVSF(BankFilter):
     def _sensor_model(self) -> object:
         return self.models[0]
 
-    def _advance(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
+    def _advance(self, state, z, u, store_cov, store_modes):
         if self.reading == "bank":
             return self._update_bank(state, z, u, store_cov, store_modes)
         return self._update_table1(state, z, u, store_cov, store_modes)
 
-    def _update_table1(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
+    def _update_table1(self, state, z, u, store_cov, store_modes):
         if self._compiled is not None and _jit.enabled() and z.shape[1]:
             return self._update_table1_compiled(state, z, u, store_cov, store_modes)
         models = self.models
         r = len(models)
         runs, K, _m = z.shape
         n = state.x.shape[1]
-        C = np.asarray(models[0].C, dtype=float)  # type: ignore[attr-defined]
-        R = np.asarray(models[0].R, dtype=float)  # type: ignore[attr-defined]
-        Qs = np.stack([np.asarray(mdl.Q, dtype=float) for mdl in models])  # type: ignore[attr-defined]
+        C = np.asarray(models[0].C, dtype=float)
+        R = np.asarray(models[0].R, dtype=float)
+        Qs = np.stack([np.asarray(mdl.Q, dtype=float) for mdl in models])
         floor = self.weight_floor
         svsf = self._svsf
         x, P, mu, ep = state.x.copy(), state.P.copy(), state.mu.copy(), state.e_post.copy()
@@ -176,8 +176,8 @@ class SMMSVSF(BankFilter):
             uk = u[0, k] if shared_u else u[:, k]
             zk = z[:, k]
             for j, mdl in enumerate(models):  # Table 1 steps 1-2: every mode from the common posterior
-                xs[:, j] = mdl.transition(x, uk)  # type: ignore[attr-defined]
-                Fs[:, j] = mdl.jacobian(x, uk)  # type: ignore[attr-defined]
+                xs[:, j] = mdl.transition(x, uk)
+                Fs[:, j] = mdl.jacobian(x, uk)
             Ps = Fs @ P[:, None] @ np.swapaxes(Fs, -1, -2) + Qs  # (runs, r, n, n)
             Ss = C @ Ps @ C.T + R
             ll = log_gaussian(zk[:, None, :] - xs @ C.T, Ss)  # eq 3.2-3.3
@@ -200,7 +200,7 @@ class SMMSVSF(BankFilter):
         )
         return new, self._output(bank_results(rec, store_cov, store_modes))
 
-    def _update_table1_compiled(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
+    def _update_table1_compiled(self, state, z, u, store_cov, store_modes):
         # the same recursion as _update_table1's loop, compiled (chatterspec.filters._smm_kernel)
         c = lambda a: np.array(a, dtype=float, order="C")  # noqa: E731
         runs = state.x.shape[0]
@@ -220,7 +220,7 @@ class SMMSVSF(BankFilter):
         )
         return new, self._output(o)
 
-    def _update_bank(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
+    def _update_bank(self, state, z, u, store_cov, store_modes):
         runs, K, _m = z.shape
         keep = {"x_post", "innovation", "S"} | ({"P_post"} if store_cov else set())
         new_states, outs = [], []
@@ -254,4 +254,4 @@ class SMMSVSF(BankFilter):
             )
         else:
             new = state
-        return new, MultipleModelOutput(x, o_mu, ll, tuple(self.modes), P, xs if store_modes else None)  # type: ignore[arg-type]
+        return new, MultipleModelOutput(x, o_mu, ll, tuple(self.modes), P, xs if store_modes else None)

@@ -127,7 +127,7 @@ class SecondOrderSVSF(SVSFCovarianceBase):
         )
         gamma, lam, (lo, hi), M, luen = self.gamma, self.lam, self.ratio_clip, self._M, self._luen
 
-        def numpy(e, ep, epp, xp, PCt, D, S, C, F):  # type: ignore[no-untyped-def]
+        def numpy(e, ep, epp, xp, PCt, D, S, C, F):
             if luen is not None:
                 Kg, dx = luen_correction(_engine.SVSF2, F, e, ep, epp, *luen, gamma, lam, np.ones(n), lo, hi)
                 return Kg, xp + dx
@@ -145,13 +145,13 @@ class SecondOrderSVSF(SVSFCovarianceBase):
 def from_settings(model: object, settings: object, source: str) -> SecondOrderSVSF:
     """Registry builder of ``svsf2``: gamma (default 0.1), Lambda (``cutoff_lambda``), mapping."""
     fs = settings
-    gamma = 0.1 if fs.gamma is None else fs.gamma  # type: ignore[attr-defined]
-    lam = None if fs.cutoff_lambda is None else np.asarray(fs.cutoff_lambda, dtype=float)  # type: ignore[attr-defined]
-    return SecondOrderSVSF(model, gamma=gamma, lam=lam, mapping=fs.mapping)  # type: ignore[attr-defined]
+    gamma = 0.1 if fs.gamma is None else fs.gamma
+    lam = None if fs.cutoff_lambda is None else np.asarray(fs.cutoff_lambda, dtype=float)
+    return SecondOrderSVSF(model, gamma=gamma, lam=lam, mapping=fs.mapping)
 
 
 @_jit.step
-def svsf2_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def svsf2_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):
     """The second-order SVSF's correction (compiled step, signature of :mod:`chatterspec.filters._engine`).
 
     [DETC] eq (9): ``dz = e - (gamma + Lambda) e(k|k) + gamma Lambda e(k-1|k-1)``; the covariance

@@ -138,20 +138,20 @@ class SVSFCovarianceBase(CovarianceFilterBase):
         ``_luen`` (:func:`resolve_mapping`); return the number of outputs m."""
         check_model(self.model)
         require_linear_measurement(self.model, who)
-        C = np.asarray(self.model.C, dtype=float)  # type: ignore[attr-defined]
+        C = np.asarray(self.model.C, dtype=float)
         mapping, M, luen = resolve_mapping(C, self.mapping)
         object.__setattr__(self, "_M", M)
         object.__setattr__(self, "mapping", mapping)
         object.__setattr__(self, "_luen", luen)
-        return int(self.model.n_outputs)  # type: ignore[attr-defined]
+        return int(self.model.n_outputs)
 
     @property
-    def _linear(self) -> bool:  # type: ignore[override]
+    def _linear(self) -> bool:
         return is_linear(self.model)
 
     def _sizes(self) -> tuple[int, int, int]:
         """``(mapping, n, m)`` of the correction step (``mapping``: the code of ``_M``/``_luen``)."""
-        n, m = int(self.model.n_states), int(self.model.n_outputs)  # type: ignore[attr-defined]
+        n, m = int(self.model.n_states), int(self.model.n_outputs)
         return _mapping_code(self._M, self._luen), n, m
 
 
@@ -204,7 +204,7 @@ class SVSFCov(SVSFCovarianceBase):
         m = self._check_mapping("SVSFCov")
         if self._luen is not None and self.vbl:
             raise ParameterError("vbl=True is not available with mapping='luen'")
-        n_psi = int(self.model.n_states) if self._luen is not None else m  # type: ignore[attr-defined]
+        n_psi = int(self.model.n_states) if self._luen is not None else m
         object.__setattr__(self, "psi", check_psi(self.psi, n_psi))
         object.__setattr__(self, "gamma", check_gamma(self.gamma, m))
 
@@ -213,7 +213,7 @@ class SVSFCov(SVSFCovarianceBase):
         fp = _engine.svsf_parameters(mapping, n, m, self.gamma, psi=self.psi, M=self._M, luen=self._luen)
         gamma, psi, M, luen = self.gamma, self.psi, self._M, self._luen
 
-        def numpy(e, ep, epp, xp, PCt, D, S, C, F):  # type: ignore[no-untyped-def]
+        def numpy(e, ep, epp, xp, PCt, D, S, C, F):
             if luen is not None:
                 Kg, dx = luen_correction(_engine.SVSF1, F, e, ep, epp, *luen, gamma, 0 * gamma, psi, 0.0, 2.0)
                 return Kg, xp + dx
@@ -237,7 +237,7 @@ class SVSFCov(SVSFCovarianceBase):
 
 
 @_jit.step
-def _svsf_gain(fp, e, ep, xp, PCtT, D, L, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def _svsf_gain(fp, e, ep, xp, PCtT, D, L, x, KgT, ws, n, m):
     """[SMM] eq (2.5), (2.8) for the constant and ``cov`` maps: ``g_i = (|e_i| + gamma_i |e_i(k|k)|) /
     max(|e_i|, psi_i)``, ``dz = g o e``, ``K = M diag(g)``, ``x = x(k+1|k) + M dz``; False if ``C P C^T``
     is not positive definite (``cov``)."""
@@ -255,7 +255,7 @@ def _svsf_gain(fp, e, ep, xp, PCtT, D, L, x, KgT, ws, n, m):  # type: ignore[no-
 
 
 @_jit.step
-def svsf_cov_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def svsf_cov_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):
     """The SVSF-with-covariance correction (compiled step, signature of :mod:`chatterspec.filters._engine`).
 
     ``fp`` from :func:`~chatterspec.filters._engine.svsf_parameters`; constant or ``cov`` map.
@@ -266,7 +266,7 @@ def svsf_cov_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  #
 
 
 @_jit.step
-def vbl_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def vbl_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):
     """The variable boundary layer (compiled step): the Kalman gain when every channel has
     ``psi_vbl,i = (|e_i| + gamma_i |e_i(k|k)|) / (C K_KF)_ii <= psi_i``, else :func:`svsf_cov_correct`."""
     kalman_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m)
@@ -298,15 +298,15 @@ def from_settings(model: object, settings: object, source: str) -> SVSFCov:
         ``settings`` gives no ``psi`` (or no ``psi_lower`` with ``luen``).
     """
     fs = settings
-    if fs.psi is None:  # type: ignore[attr-defined]
+    if fs.psi is None:
         raise ParameterError(f"scenario {source!r} gives no boundary layer psi for the first-order SVSF")
-    psi = fs.psi  # type: ignore[attr-defined]
-    if fs.mapping == "luen":  # type: ignore[attr-defined]
-        if fs.psi_lower is None:  # type: ignore[attr-defined]
+    psi = fs.psi
+    if fs.mapping == "luen":
+        if fs.psi_lower is None:
             raise ParameterError(f"scenario {source!r}: mapping 'luen' needs psi_lower in its settings")
-        psi = fs.psi + fs.psi_lower  # type: ignore[attr-defined]
-    gamma = 0.1 if fs.gamma is None else fs.gamma  # type: ignore[attr-defined]
-    return SVSFCov(model, psi=np.asarray(psi, dtype=float), gamma=gamma, mapping=fs.mapping)  # type: ignore[attr-defined]
+        psi = fs.psi + fs.psi_lower
+    gamma = 0.1 if fs.gamma is None else fs.gamma
+    return SVSFCov(model, psi=np.asarray(psi, dtype=float), gamma=gamma, mapping=fs.mapping)
 
 
 def check_psi(psi: object, n_psi: int) -> np.ndarray:

@@ -40,7 +40,7 @@ def _filters_loop(
     sat_e,
     x_out,
     none,
-):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (Python form tested in tests/test_monitor.py)
+):  # pragma: no cover - compiled (Python form tested in tests/test_monitor.py)
     """One push of the monitor's two filters in one call: G u(k), the aux chattering, the sat SVSF.
 
     ``z`` (1, K, m) = z(k+1); ``u`` (K, p), p >= 1, = u(k); ``GT`` = G^T (p, n). Per sample:
@@ -107,7 +107,7 @@ def _filters_loop(
 _filters_kernel = _jit.specialize(_filters_loop, "any", NX=0, NZ=0, NL=0)
 
 
-def filters_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
+def filters_kernel(n: int, m: int):
     """The push loop for n states and m outputs (full measurement: n = m); small sizes unrolled.
 
     The same template and steps as :data:`_filters_kernel`, hence the same bits; literal sizes let

@@ -12,6 +12,7 @@ import numpy as np
 from ..errors import ModelFileError
 from .modelfile_fields import _DETECTOR_KEYS, _detector_band
 from .models import LinearModel
+from .nonlinear import Model
 
 __all__ = ["signal_table", "write_model_toml", "write_nonlinear_model_toml"]
 
@@ -44,9 +45,9 @@ def _toml_covariance(key: str, M: np.ndarray) -> str:
     return f"{key} = {_toml_matrix(M)}"
 
 
-def _matrices_and_svsf(model: object, matrices: tuple[str, ...], svsf: tuple[str, ...]) -> list[str]:
+def _matrices_and_svsf(model: Model, matrices: tuple[str, ...], svsf: tuple[str, ...]) -> list[str]:
     """The ``[matrices]`` table (``matrices`` lines, then C, Q, R) and the ``[svsf]`` table of a file."""
-    C, Q, R = model.C, model.Q, model.R  # type: ignore[attr-defined]
+    C, Q, R = model.C, model.Q, model.R
     matrix_lines = [*matrices, f"C = {_toml_matrix(C)}", _toml_covariance("Q", Q), _toml_covariance("R", R)]
     return ["", "[matrices]", *matrix_lines, "", "[svsf]", *svsf]
 

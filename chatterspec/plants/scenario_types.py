@@ -105,7 +105,7 @@ class Scenario:
     fault: str = "healthy"
     level: str = ""
     fault_channel: str | None = None
-    x0: np.ndarray | None = None
+    x0: np.ndarray = None  # type: ignore[assignment]  # None: zeros (set by __post_init__)
     psi: tuple[float, ...] | None = None
     filter_settings: FilterSettings | None = None
     _segments: tuple[Segment, ...] = field(default=(), init=False, repr=False)

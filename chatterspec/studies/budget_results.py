@@ -47,7 +47,7 @@ def _quantiles(delays: np.ndarray) -> tuple[float, float]:
     if not d.size:
         return float("nan"), float("nan")
     q = np.quantile(np.where(np.isfinite(d), d, _BIG), [0.5, 0.9])
-    return tuple(float(v) if v < _BIG / 2 else float("inf") for v in q)  # type: ignore[return-value]
+    return tuple(float(v) if v < _BIG / 2 else float("inf") for v in q)
 
 
 @dataclass(frozen=True, eq=False)

@@ -276,7 +276,7 @@ def diagnose_chattering(
     -----
     Same as one :meth:`ChatteringTally.add` of ``sim`` (use the tally to feed the runs in chunks).
     """
-    tally = ChatteringTally(sim.scenario, threshold, config=config, gamma=gamma)  # type: ignore[attr-defined]
+    tally = ChatteringTally(sim.scenario, threshold, config=config, gamma=gamma)
     tally.add(sim)
     return tally.result(calibration_info)
 
@@ -379,7 +379,7 @@ class ChatteringTally:
             Realizations (k, T, m) of the tally's scenario (e.g. one chunk of
             :func:`~chatterspec.plants.simulate.iter_simulations`).
         """
-        self.absorb(sim.t, self.compute(sim))  # type: ignore[attr-defined]
+        self.absorb(sim.t, self.compute(sim))
 
     def compute(self, sim: object) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """The heavy part of :meth:`add` (auxiliary SVSF, STFT, frame verdicts), without changing the tally.
@@ -389,7 +389,7 @@ class ChatteringTally:
         """
         model = self.scenario.nominal
         t0 = time.perf_counter()
-        rec = chattering_record(model, sim.z, sim.u, gamma=self.gamma)  # type: ignore[attr-defined]
+        rec = chattering_record(model, sim.z, sim.u, gamma=self.gamma)
         spec = spectrogram(rec.values, model.dt, self.config)
         flags, peak_hz, _ = frame_verdicts(spec.power, self.threshold)  # (k, F, m)
         return flags, peak_hz, spec.frame_starts, time.perf_counter() - t0

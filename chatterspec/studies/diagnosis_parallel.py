@@ -30,12 +30,12 @@ def _tallies(
 ) -> list[Any]:
     out = [
         ChatteringTally(scenario, threshold) if m == "chattering" else ModeTally(scenario, m) for m in methods
-    ]  # type: ignore[arg-type]
+    ]
     if identification is not None:  # (setup, alpha, confidence): fault identification per segment, last
         from .identification_diagnosis import IdentificationTally
 
         setup, alpha, confidence = identification
-        out.append(IdentificationTally(scenario, setup, alpha=alpha, confidence=confidence))  # type: ignore[arg-type]
+        out.append(IdentificationTally(scenario, setup, alpha=alpha, confidence=confidence))
     return out
 
 
@@ -50,7 +50,7 @@ class _DiagnoseStudy:
     identification: Any = None
 
     def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> Any:
-        (sim,) = iter_simulations(self.scenario, runs, seed, chunk_runs=runs, first_run=first_run)  # type: ignore[arg-type]
+        (sim,) = iter_simulations(self.scenario, runs, seed, chunk_runs=runs, first_run=first_run)
         tallies = _tallies(self.scenario, self.methods, self.threshold, self.identification)
         return sim.t, [tally.compute(sim) for tally in tallies]
 

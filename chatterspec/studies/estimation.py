@@ -234,7 +234,7 @@ class FilterMetrics:
     std: MonteCarloMean
     nees: ConsistencyTest
     nis: ConsistencyTest
-    per_run: StateErrorMetrics = field(repr=False, default=None)  # type: ignore[assignment]
+    per_run: StateErrorMetrics = field(repr=False, default=None)
 
     def to_dict(self, state_names: Sequence[str]) -> dict[str, Any]:
         """JSON-ready dict.

@@ -106,29 +106,29 @@ class ModeDiagnosis(DiagnosisFigures):
 
 def _filter_for(method: str, settings: object) -> SMMSVSF | IMM:
     fs = settings
-    if not fs.modes:  # type: ignore[attr-defined]
+    if not fs.modes:
         raise ParameterError("the scenario's filter_settings name no modes: mode-based diagnosis needs them")
-    models = fs.mode_models  # type: ignore[attr-defined]
+    models = fs.mode_models
     if method == "smm":
-        if fs.psi is None:  # type: ignore[attr-defined]
+        if fs.psi is None:
             raise ParameterError("SMM-SVSF needs filter_settings.psi (the boundary layer)")
         return SMMSVSF(
             models,
-            psi=np.array(fs.psi),  # type: ignore[attr-defined]
-            gamma=0.1 if fs.gamma is None else fs.gamma,  # type: ignore[attr-defined]
-            mapping=fs.mapping if fs.mapping in ("full", "pinv", "cov") else None,  # type: ignore[attr-defined]
-            weight_floor=1e-3 if fs.weight_floor is None else fs.weight_floor,  # type: ignore[attr-defined]
-            mu0=None if fs.mu0 is None else np.array(fs.mu0),  # type: ignore[attr-defined]
-            modes=fs.modes,  # type: ignore[attr-defined]
+            psi=np.array(fs.psi),
+            gamma=0.1 if fs.gamma is None else fs.gamma,
+            mapping=fs.mapping if fs.mapping in ("full", "pinv", "cov") else None,
+            weight_floor=1e-3 if fs.weight_floor is None else fs.weight_floor,
+            mu0=None if fs.mu0 is None else np.array(fs.mu0),
+            modes=fs.modes,
         )
     if method == "imm":
-        if fs.transition_matrix is None:  # type: ignore[attr-defined]
+        if fs.transition_matrix is None:
             raise ParameterError("IMM needs filter_settings.transition_matrix (the scenario prints none)")
         return IMM(
             [ExtendedKalmanFilter(mdl) for mdl in models],
-            fs.transition_matrix,  # type: ignore[attr-defined]
-            mu0=None if fs.mu0 is None else np.array(fs.mu0),  # type: ignore[attr-defined]
-            modes=fs.modes,  # type: ignore[attr-defined]
+            fs.transition_matrix,
+            mu0=None if fs.mu0 is None else np.array(fs.mu0),
+            modes=fs.modes,
         )
     raise ParameterError(f"method must be one of {', '.join(METHODS)}; got {method!r}")
 
@@ -162,7 +162,7 @@ def diagnose_modes(
     -----
     Same as one :meth:`ModeTally.add` of ``sim`` per method (use the tallies to feed runs in chunks).
     """
-    sc = sim.scenario  # type: ignore[attr-defined]
+    sc = sim.scenario
     results = []
     for method in methods:
         tally = ModeTally(sc, method)
@@ -192,19 +192,19 @@ class ModeTally:
 
     def __init__(self, scenario: object, method: str) -> None:
         sc = scenario
-        fs = sc.filter_settings  # type: ignore[attr-defined]
+        fs = sc.filter_settings
         if fs is None:
-            raise ParameterError(f"scenario {sc.name!r} has no filter_settings (no modes to diagnose)")  # type: ignore[attr-defined]
+            raise ParameterError(f"scenario {sc.name!r} has no filter_settings (no modes to diagnose)")
         self.scenario = sc
         self.method = method
         self._filter = _filter_for(method, fs)
         self._fs = fs
-        t = sc.time[1:]  # type: ignore[attr-defined]
+        t = sc.time[1:]
         T = t.size
         true = np.asarray(fs.mode_index(sc))[1:]
         self._t, self._true = t, true
-        self._x0 = np.zeros(sc.nominal.n_states) if fs.x0 is None else fs.x0  # type: ignore[attr-defined]
-        self._P0 = fs.P0 if fs.P0 is not None else np.asarray(sc.nominal.Q) * 10.0  # type: ignore[attr-defined]
+        self._x0 = np.zeros(sc.nominal.n_states) if fs.x0 is None else fs.x0
+        self._P0 = fs.P0 if fs.P0 is not None else np.asarray(sc.nominal.Q) * 10.0
         change = np.flatnonzero((true[1:] != true[:-1]) & (true[1:] > 0)) + 1
         if true[0] > 0:  # faulty from the start: an onset at the first sample
             change = np.insert(change, 0, 0)
@@ -242,7 +242,7 @@ class ModeTally:
         Returns ``(mu (k, T, r), argmax mode (k, T), seconds)`` for :meth:`absorb`: worker processes
         compute, the tally absorbs in chunk order (the same figures, bit for bit, as :meth:`add`).
         """
-        z, u = sim.z[:, 1:], sim.u[..., :-1, :]  # type: ignore[attr-defined]  # u per run in closed loop
+        z, u = sim.z[:, 1:], sim.u[..., :-1, :]  # u per run in closed loop
         if z.shape[1] != self._t.size:
             raise ParameterError(
                 f"every chunk must have the scenario's {self._t.size + 1} samples; got {z.shape[1] + 1}"
