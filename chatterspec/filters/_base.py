@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Collection
+from typing import TYPE_CHECKING, TypeGuard, cast
 
 import numpy as np
 
@@ -11,6 +12,7 @@ from .._validate import finite_array
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.measurement import has_measurement_function
 from ..plants.models import LinearModel
+from ..plants.nonlinear import Model
 from ..plants.steps import PlantSteps, plant_steps
 from . import _engine, _engine_numpy
 from ._engine_numpy import given_prediction, linear_prediction, model_call_loop, model_prediction
@@ -21,7 +23,7 @@ from .svsf_steps import rows_times as _rows_times
 _MODEL_ATTRS = ("transition", "jacobian", "C", "Q", "R", "dt", "n_states", "n_outputs", "n_inputs")
 
 
-def check_model(model: object) -> None:
+def check_model(model: Model) -> None:
     """Duck-type check of the model interface the filters use."""
     missing = [a for a in _MODEL_ATTRS if not hasattr(model, a)]
     if missing:
@@ -48,8 +50,14 @@ class CovarianceFilterBase:
     its class and its correction step, plus its entry in :mod:`chatterspec.filters.registry`.
     """
 
-    model: object
-    _linear: bool = False
+    model: Model
+    if TYPE_CHECKING:  # a class attribute or a property of the subclass
+
+        @property
+        def _linear(self) -> bool: ...
+
+    else:
+        _linear = False
     _shared_ok: bool = False
 
     def _correction_step(self) -> _engine.CorrectionStep:  # pragma: no cover - abstract
@@ -151,7 +159,16 @@ class CovarianceFilterBase:
             return None
         return plant_steps(self.model)
 
-    def _advance(self, x, P, ep, epp, z, u, keep):
+    def _advance(
+        self,
+        x: np.ndarray,
+        P: np.ndarray,
+        ep: np.ndarray,
+        epp: np.ndarray,
+        z: np.ndarray,
+        u: np.ndarray,
+        keep: frozenset[str],
+    ) -> tuple[np.ndarray, dict[str, np.ndarray | None]]:
         model = self.model
         C = np.asarray(model.C, dtype=float)
         Q = np.asarray(model.Q, dtype=float)
@@ -168,8 +185,9 @@ class CovarianceFilterBase:
         if compiled and plant is not None:  # every sample in one compiled loop
             return P, _engine.cov_loop(corr, plant, x, P, ep, epp, z, u, C, Q, R, keep)
         if self._linear:
-            Bu = _rows_times(u, np.ascontiguousarray(model.B.T))
-            predict = linear_prediction(model.A, Bu)
+            lin = cast(LinearModel, model)  # (``_linear``: a LinearModel)
+            Bu = _rows_times(u, np.ascontiguousarray(lin.B.T))
+            predict = linear_prediction(lin.A, Bu)
             return P, _engine_numpy.cov_numpy(corr, predict, x, P, ep, epp, z, C, Q, R, keep)
         return P, model_call_loop(model, corr, compiled, x, P, ep, epp, z, u, C, Q, R, keep)
 
@@ -281,6 +299,6 @@ class CovarianceFilterBase:
         return self.update(state, zz, u, store=store)[1]
 
 
-def is_linear(model: object) -> bool:
+def is_linear(model: Model) -> TypeGuard[LinearModel]:
     """True for :class:`LinearModel` (the compiled path loops over time inside the kernel)."""
     return isinstance(model, LinearModel)

@@ -34,11 +34,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from .. import _jit
 from ..errors import SingularMatrixError
+from ..plants.steps import PlantSteps
 from ._linalg import (
     chol_solve_step,
     chol_step,
@@ -266,7 +268,23 @@ def _sample(
 
 
 @_jit.step
-def _no_correction(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):
+def _no_correction(
+    fp: np.ndarray,
+    e: np.ndarray,
+    ep: np.ndarray,
+    epp: np.ndarray,
+    xp: np.ndarray,
+    PCtT: np.ndarray,
+    D: np.ndarray,
+    L: np.ndarray,
+    C: np.ndarray,
+    F: np.ndarray,
+    x: np.ndarray,
+    KgT: np.ndarray,
+    ws: tuple[np.ndarray, ...],
+    n: int,
+    m: int,
+) -> int:
     """Placeholder binding of :func:`_sample` (never called)."""
     return NOT_PD
 
@@ -276,7 +294,7 @@ CORRECT = _no_correction
 WANT_LL = True
 
 
-def sample_step(correct: CorrectionStep, want_ll: bool = True):
+def sample_step(correct: CorrectionStep, want_ll: bool = True) -> Callable[..., int]:
     """:func:`_sample` with ``correct``'s step bound: an inlined step for the loops."""
     return _jit.specialize_sizes(
         _sample, f"{correct.name}_ll{int(want_ll)}", {}, inline=True, CORRECT=correct.step, WANT_LL=want_ll
@@ -284,13 +302,30 @@ def sample_step(correct: CorrectionStep, want_ll: bool = True):
 
 
 @_jit.step
-def _no_sample(fp, x, P, ep, epp, zk, xp, F, C, Q, R, ws, n, m):
+def _no_sample(
+    fp: np.ndarray,
+    x: np.ndarray,
+    P: np.ndarray,
+    ep: np.ndarray,
+    epp: np.ndarray,
+    zk: np.ndarray,
+    xp: np.ndarray,
+    F: np.ndarray,
+    C: np.ndarray,
+    Q: np.ndarray,
+    R: np.ndarray,
+    ws: tuple[np.ndarray, ...],
+    n: int,
+    m: int,
+) -> int:
     """Placeholder binding of the loops (never called)."""
     return NOT_PD
 
 
 @_jit.step
-def workspace(n: int, m: int) -> tuple:  # pragma: no cover - compiled (inlined into the loops)
+def workspace(
+    n: int, m: int
+) -> tuple[np.ndarray, ...]:  # pragma: no cover - compiled (inlined into the loops)
     """Scratch of :func:`_sample` and the correction steps: views of one stack block of the loop.
 
     ``(T1, Pp, PCt, PCtT, S, D, L, e, eb, wv, KgT, IKC, KR, ll, MpT, g, dz, Phi, G12, P12i, Al,
@@ -358,7 +393,22 @@ def workspace(n: int, m: int) -> tuple:  # pragma: no cover - compiled (inlined 
 
 
 @_jit.step
-def store_step(flags, outs, r, k, xp, x, e, S, ll, ep, Pp, P, n, m):
+def store_step(
+    flags: np.ndarray,
+    outs: tuple[np.ndarray, ...],
+    r: int,
+    k: int,
+    xp: np.ndarray,
+    x: np.ndarray,
+    e: np.ndarray,
+    S: np.ndarray,
+    ll: np.ndarray,
+    ep: np.ndarray,
+    Pp: np.ndarray,
+    P: np.ndarray,
+    n: int,
+    m: int,
+) -> None:
     """Write sample k of run r into the outputs of :data:`FIELDS` whose ``flags`` entry is set.
 
     One test of each flag per call, outside the element loops (tested inside them, the flags were
@@ -518,7 +568,7 @@ def _shapes(runs: int, K: int, n: int, m: int) -> dict[str, tuple[int, ...]]:
 
 def cov_loop(
     correct: CorrectionStep,
-    plant: object | None,
+    plant: PlantSteps | None,
     x: np.ndarray,
     P: np.ndarray,
     ep: np.ndarray,
@@ -561,7 +611,9 @@ def cov_loop(
     n = x.shape[1]
     flags, out = _alloc(keep, _shapes(runs, K, n, m))
     c = np.ascontiguousarray
+    bind: dict[str, Any]  # steps and flags bound into the loop
     if plant is None:
+        assert xp_in is not None and F_in is not None  # (no plant steps: the caller's prediction)
         prm = c(np.concatenate([xp_in, np.reshape(F_in, (runs, n * n))], axis=1), dtype=float)
         bind = {"PREDICT": given_predict, "JACOBIAN": given_jacobian, "CONST_F": False}
         tag = f"given_{correct.name}"

@@ -19,17 +19,19 @@ import numpy as np
 
 from .. import _jit
 from .._repr import short_repr
+from ..plants.nonlinear import Model
 from . import _imm_kernel
 from ._bank_steps import bank_outputs, bank_results, bank_store_numpy
 from ._conventions import mode_initial
 from .bank_common import (
     BankFilter,
+    MultipleModelOutput,
     MultipleModelState,
     check_transition_matrix,
 )
 from .bank_math import log_gaussian, normalize_log_weights
 from .mixture import combine
-from .protocol import FilterState
+from .protocol import Filter, FilterState
 
 __all__ = ["IMM"]
 
@@ -67,12 +69,12 @@ class IMM(BankFilter):
 
     __repr__ = short_repr  # shapes and key figures, never whole arrays
 
-    filters: Sequence[object]
+    filters: Sequence[Filter]
     transition_matrix: np.ndarray
     mu0: np.ndarray | None = None
     weight_floor: float = 0.0
     modes: Sequence[str] | None = None
-    _fused: dict[str, np.ndarray] | None = field(init=False, repr=False, default=None)
+    _fused: _imm_kernel.IMMSpec | None = field(init=False, repr=False, default=None)
 
     def __post_init__(self) -> None:
         filters = tuple(self.filters)
@@ -129,10 +131,17 @@ class IMM(BankFilter):
         states = tuple(f.initialize(xs[:, j], Ps[:, j], runs=runs) for j, f in enumerate(self.filters))
         return self._initial_state(x, P, mu, states)
 
-    def _sensor_model(self) -> object:
+    def _sensor_model(self) -> Model:
         return self.filters[0].model
 
-    def _advance(self, state, z, u, store_covariance, store_modes):
+    def _advance(
+        self,
+        state: MultipleModelState,
+        z: np.ndarray,
+        u: np.ndarray,
+        store_covariance: bool,
+        store_modes: bool,
+    ) -> tuple[MultipleModelState, MultipleModelOutput]:
         """[IMM] eq (18)-(33) over the checked chunk (compiled when every mode is supported)."""
         runs = state.x.shape[0]
         K = z.shape[1]
@@ -172,8 +181,10 @@ class IMM(BankFilter):
                 s = FilterState(x=x0s[:, j], P=P0s[:, j], e_post=e_mix, e_prev=s.e_prev, k=s.k)
                 s, out = f.update(s, zk, uk, store=keep, check=False)
                 sts[j] = s
-                es[:, j] = out.innovation[:, 0]
-                Ss[:, j] = out.S[:, 0] if out.S.ndim == 4 else out.S[0]
+                innovation, S = out.innovation, out.S
+                assert innovation is not None and S is not None  # in ``keep``
+                es[:, j] = innovation[:, 0]
+                Ss[:, j] = S[:, 0] if S.ndim == 4 else S[0]
             ll = log_gaussian(es, Ss)  # (29), all modes at once
             mu = normalize_log_weights(np.log(c) + ll, self.weight_floor)  # (30)
             xs = np.stack([s.x for s in sts], axis=1)
@@ -198,8 +209,11 @@ class IMM(BankFilter):
         )
         return new, self._output(bank_results(rec, store_covariance, store_modes))
 
-    def _update_fused(self, state, z, u, store_cov, store_modes):
+    def _update_fused(
+        self, state: MultipleModelState, z: np.ndarray, u: np.ndarray, store_cov: bool, store_modes: bool
+    ) -> tuple[MultipleModelState, MultipleModelOutput]:
         # the same recursion as update()'s loop, compiled (chatterspec.filters._imm_kernel)
+        assert self._fused is not None  # (the caller checked)
         st, o = _imm_kernel.run_fused(
             self._fused, self.transition_matrix, self.weight_floor, state, z, u, store_cov, store_modes
         )

@@ -23,7 +23,7 @@ import hashlib
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from typing import TypeAlias, TypedDict, Unpack
+from typing import TypeAlias, TypedDict, TypeGuard, Unpack
 
 import numpy as np
 
@@ -334,7 +334,7 @@ class NonlinearModel(ModelBase, Linearization, ContinuousEuler):
 Model: TypeAlias = LinearModel | NonlinearModel
 
 
-def is_linear(model: object) -> bool:  # a predicate: any value
+def is_linear(model: object) -> TypeGuard[LinearModel]:
     """True for a :class:`~chatterspec.plants.models.LinearModel` (A, B matrices available).
 
     Parameters
