@@ -59,7 +59,7 @@ import itertools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 import scipy.special  # not scipy.stats: the monitor imports this module at start-up
@@ -104,7 +104,7 @@ GRID_POINTS = 48
 Method = Literal["law", "counted", "extrapolated"]
 
 
-def check_budget(false_alarms_per_hour: object, option: str = "false_alarms_per_hour") -> float:
+def check_budget(false_alarms_per_hour: float | str, option: str = "false_alarms_per_hour") -> float:
     """A budget in false alarms per hour: a finite number > 0 (``ParameterError`` naming ``option``).
 
     Parameters
@@ -257,10 +257,10 @@ class RuleCalibration:
                 false_alarms_per_hour=float(d["false_alarms_per_hour"]),
                 steps_per_hour=float(d["steps_per_hour"]),
                 channels=int(d["channels"]),
-                method=str(d["method"]),
+                method=cast(Method, str(d["method"])),  # (as to_dict wrote it)
                 hours=float(d["hours"]),
-                threshold_interval=tuple(_den(v) for v in d["threshold_interval"]),
-                rate_interval=tuple(_den(v) for v in d["rate_interval"]),
+                threshold_interval=cast(tuple[float, float], tuple(_den(v) for v in d["threshold_interval"])),
+                rate_interval=cast(tuple[float, float], tuple(_den(v) for v in d["rate_interval"])),
                 confidence=float(d.get("confidence", 0.95)),
                 seed=d.get("seed"),
                 fit=dict(d.get("fit", {})),
@@ -269,7 +269,7 @@ class RuleCalibration:
             raise ParameterError(f"not a rule calibration ({type(exc).__name__}: {exc})") from None
 
 
-def _den(x: object) -> float:
+def _den(x: float | None) -> float:
     return float("inf") if x is None else float(x)
 
 
@@ -477,7 +477,7 @@ def calibrate_rule(
     grid = np.unique(np.concatenate([coarse, fine]))
     counts = np.stack([starts_on_grid(rule, p, grid).reshape(grid.size, -1).sum(axis=1) for p in parts])
 
-    def solve(cnt: np.ndarray, n_steps: float) -> tuple[float, str, dict[str, Any]]:
+    def solve(cnt: np.ndarray, n_steps: float) -> tuple[float, Method, dict[str, Any]]:
         T = n_steps / F
         target = X * T
         rate = cnt / (n_steps * C)
@@ -520,8 +520,8 @@ def calibrate_rule(
             continue
         hs.append(hj)
     if len(hs) >= 2:
-        hj = np.array(hs)
-        se = float(math.sqrt((len(hj) - 1) / len(hj) * np.sum((hj - hj.mean()) ** 2)))
+        hjs = np.array(hs)
+        se = float(math.sqrt((len(hjs) - 1) / len(hjs) * np.sum((hjs - hjs.mean()) ** 2)))
     else:  # pragma: no cover - every leave-one-out fit failed
         se = float("inf")
     # the jackknife over B batches: Student t with B - 1 degrees of freedom

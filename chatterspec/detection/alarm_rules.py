@@ -37,7 +37,7 @@ RuleName = Literal["frame", "persistence", "cusum"]
 _FRAME, _PERSISTENCE, _CUSUM = 0, 1, 2
 
 
-def _threshold(value: object, name: str = "threshold") -> float:
+def _threshold(value: float, name: str = "threshold") -> float:
     """A rule threshold: a real number, not NaN (``+inf`` = never alarm, ``-inf`` = always)."""
     try:
         v = float(value)

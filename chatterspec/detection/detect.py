@@ -150,6 +150,7 @@ def _detect(chunks: Iterable[ChatteringRecord], options: DetectorOptions) -> Det
                 raise ParameterError("all chunks must share the nominal model of the first chunk")
         acc = plan.reduce(acc, plan.test(record.values))
         record = next(it, None)
+    assert acc is not None  # (the first chunk was folded)
     return plan.report(acc)
 
 

@@ -34,6 +34,7 @@ from functools import lru_cache
 from typing import Literal
 
 import numpy as np
+import numpy.typing as npt
 import scipy.fft
 
 from .._repr import short_repr
@@ -68,7 +69,7 @@ __all__ = [
 SpectrumForm = Literal["exact", "asymptotic"]
 
 
-def _time_series(name: str, x: object) -> np.ndarray:
+def _time_series(name: str, x: npt.ArrayLike) -> np.ndarray:
     arr = finite_array(name, x)
     if arr.ndim < 2:
         raise ShapeError(
@@ -220,7 +221,7 @@ def chattering_autocovariance(model: LinearModel) -> tuple[np.ndarray, np.ndarra
     return gamma0, gamma1
 
 
-def _freqs(freqs_hz: object) -> np.ndarray:
+def _freqs(freqs_hz: npt.ArrayLike) -> np.ndarray:
     return finite_array("freqs_hz", freqs_hz, ndim=1)
 
 
