@@ -17,9 +17,9 @@ import numpy as np
 
 from .._repr import short_repr
 from ..errors import ParameterError, ShapeError
-from ..plants.nonlinear import Model, require_linear
+from ..plants.nonlinear import Model
 from ._verdict import peak_kernel
-from .spectral import DEFAULT_STFT, Spectrogram, STFTConfig, spectrogram
+from .spectral import DEFAULT_STFT, Spectrogram, STFTConfig, spectrogram, spectrum_model
 from .spectrum_verdicts import _channel_names
 from .thresholds import (
     Band,
@@ -381,9 +381,10 @@ def stft_detect(
                 f"the per-frame threshold covers {th.values.shape} (bins, channels); these frames have "
                 f"{spec.power.shape[-2:]}: it was made for another STFT window or model"
             )
-    else:  # (the message of expected_spectrum's own check)
-        linear = require_linear(model, "the expected chattering spectrum (eq 56-58)")
-        th = frame_threshold(linear, spec.freqs_hz, config, model.dt, alpha, correction, band=band)
+    else:
+        th = frame_threshold(
+            spectrum_model(model), spec.freqs_hz, config, model.dt, alpha, correction, band=band
+        )
     flags, _, stat = frame_verdicts(spec.power, th)
     level = healthy_frame_level(th)
     names = _channel_names(channels or model.output_names, flags.shape[-1])

@@ -42,7 +42,7 @@ from .._stft import DEFAULT_STFT, STFTConfig, cached_taper
 from .._validate import finite_array, positive, positive_int, readonly
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
-from ..plants.nonlinear import NonlinearModel, require_linear
+from ..plants.nonlinear import Model, NonlinearModel, require_linear
 
 # STFTConfig is defined in the package base (model files check it without importing this module);
 # this module is its public home (reprs, pickles and the API docs name it here).
@@ -190,6 +190,17 @@ def mean_periodogram(x: np.ndarray, dt: float) -> Periodogram:
 # ---------------------------------------------------------------------------
 # Expected healthy spectrum (eq 56, exact finite-N form)
 # ---------------------------------------------------------------------------
+def spectrum_model(model: Model) -> LinearModel:
+    """``model`` itself when linear: the closed-form chattering spectrum (eq 56-58) needs A and B.
+
+    Raises
+    ------
+    ModelKindError
+        For a nonlinear model (the message says to calibrate a threshold on healthy runs instead).
+    """
+    return require_linear(model, "the expected chattering spectrum (eq 56-58)")
+
+
 def chattering_autocovariance(model: LinearModel) -> tuple[np.ndarray, np.ndarray]:
     """Lag-0 and lag-1 autocovariances ``(gamma0, gamma1)``, each ``(m,)``, of the healthy chattering.
 
@@ -204,7 +215,7 @@ def chattering_autocovariance(model: LinearModel) -> tuple[np.ndarray, np.ndarra
         reduced-order chattering (eq 26-28) is not an MA(1) of this form.
     """
     if isinstance(model, NonlinearModel):
-        require_linear(model, "the expected chattering spectrum (eq 56-58)")
+        spectrum_model(model)
     if not isinstance(model, LinearModel):
         raise ParameterError(
             f"model must be a chatterspec.plants.models.LinearModel; got {type(model).__name__}"

@@ -172,7 +172,10 @@ class Filter(Protocol):
     ``n_inputs``).
     """
 
-    model: Model
+    @property
+    def model(self) -> Model:
+        """The filter's model (read-only)."""
+        ...
 
     def initialize(
         self,
