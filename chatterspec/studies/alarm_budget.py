@@ -44,7 +44,7 @@ import threading
 from collections.abc import Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -58,10 +58,16 @@ from ..detection.alarm_calibration import (
 from ..detection.alarms import AlarmRule, make_rule
 from ..detection.frame_engine import FrameEngine
 from ..detection.frame_score import FrameScore
+from ..detection.spectral import spectrum_model
 from ..detection.thresholds import frame_threshold
 from ..errors import CalibrationMismatchError, ParameterError
 from ..plants.nonlinear import is_linear
 from ..plants.simulate import covariance_sqrt
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.monitor_settings import MonitorSettings
+    from ..plants.nonlinear import Model
+    from ..plants.scenario_types import Scenario
 
 __all__ = [
     "DEFAULT_BUDGET",
@@ -102,7 +108,7 @@ ALARM_SALT = 0xA1A3
 _CACHE: dict[str, RuleCalibration] = {}
 
 
-def frames_per_hour(settings: Any, dt: float) -> float:
+def frames_per_hour(settings: MonitorSettings, dt: float) -> float:
     """STFT frames per hour of data: ``3600 / (hop samples * dt)``.
 
     Parameters
@@ -115,7 +121,7 @@ def frames_per_hour(settings: Any, dt: float) -> float:
     return 3600.0 / (settings.stft.n_hop(dt) * dt)
 
 
-def healthy_chattering(model: Any, n_samples: int, seed: int) -> Iterator[np.ndarray]:
+def healthy_chattering(model: Model, n_samples: int, seed: int) -> Iterator[np.ndarray]:
     """Healthy chattering of a linear full-measurement ``model``, ``(K, m)`` blocks, ``n_samples`` in all.
 
     The exact MA(1) law of the module docstring; block ``b`` (``BLOCK_S`` seconds) draws its noise
@@ -124,7 +130,8 @@ def healthy_chattering(model: Any, n_samples: int, seed: int) -> Iterator[np.nda
     """
     from ..detection.spectral import chattering_autocovariance
 
-    chattering_autocovariance(model)  # full measurement, linear (clear errors otherwise)
+    model = spectrum_model(model)
+    chattering_autocovariance(model)  # full measurement (clear errors otherwise)
     C = model.C
     M = C @ model.A @ model.C_inv
     LQ = C @ covariance_sqrt(model.Q)
@@ -149,12 +156,13 @@ def healthy_chattering(model: Any, n_samples: int, seed: int) -> Iterator[np.nda
         yield np.ascontiguousarray(e.T)
 
 
-def _score_of(model: Any, settings: Any) -> tuple[FrameScore, Any]:
+def _score_of(model: Model, settings: MonitorSettings) -> tuple[FrameScore, Any]:
     """The monitor's frame score for ``settings`` (its threshold: analytic, or the given one)."""
     dt = model.dt
     th = settings.threshold
     if th is None:
-        th = frame_threshold(model, settings.stft.freqs_hz(dt), settings.stft, dt, settings.alpha,
+        linear = spectrum_model(model)
+        th = frame_threshold(linear, settings.stft.freqs_hz(dt), settings.stft, dt, settings.alpha,
                              settings.correction, band=settings.band)  # fmt: skip
     else:
         th = th.restricted(settings.band)
@@ -162,7 +170,7 @@ def _score_of(model: Any, settings: Any) -> tuple[FrameScore, Any]:
 
 
 def healthy_frame_scores(
-    model: Any, settings: Any, hours: float, seed: int = 0, *, scenario: Any = None
+    model: Model, settings: MonitorSettings, hours: float, seed: int = 0, *, scenario: Scenario | None = None
 ) -> np.ndarray:
     """Frame scores of healthy data as the monitor computes them: ``(streams, frames, m)``.
 
@@ -239,7 +247,15 @@ def display_alpha(rule: AlarmRule, default: float) -> float:
     return default
 
 
-def _key(model: Any, settings: Any, rule: AlarmRule, X: float, hours: float, seed: int, sc: Any) -> str:
+def _key(
+    model: Model,
+    settings: MonitorSettings,
+    rule: AlarmRule,
+    X: float,
+    hours: float,
+    seed: int,
+    sc: Scenario | None,
+) -> str:
     th = settings.threshold
     parts = {
         "model": model.fingerprint(),
@@ -260,14 +276,14 @@ def _key(model: Any, settings: Any, rule: AlarmRule, X: float, hours: float, see
 
 
 def calibrate_alarm(
-    model: Any,
-    settings: Any,
+    model: Model,
+    settings: MonitorSettings,
     rule: AlarmRule | str,
     false_alarms_per_hour: float,
     *,
     hours: float | None = None,
     seed: int = 0,
-    scenario: Any = None,
+    scenario: Scenario | None = None,
     confidence: float = 0.95,
 ) -> RuleCalibration:
     """Threshold of ``rule`` for the monitor of ``model`` at ``false_alarms_per_hour`` (module docstring).
@@ -359,14 +375,14 @@ def check_alarm_calibration(
 
 
 def alarm_settings(
-    model: Any,
-    settings: Any,
+    model: Model,
+    settings: MonitorSettings,
     rule: str | None = None,
     false_alarms_per_hour: float | None = None,
     *,
     hours: float | None = None,
     seed: int = 0,
-    scenario: Any = None,
+    scenario: Scenario | None = None,
     calibration: RuleCalibration | None = None,
     **parameters: Any,
 ) -> Any:

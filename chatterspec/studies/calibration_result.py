@@ -20,6 +20,7 @@ import scipy.stats
 from .._repr import short_repr
 from ..detection.alarm_calibration import RuleCalibration
 from ..detection.spectral import STFTConfig
+from ..detection.threshold_type import Correction
 from ..detection.thresholds import Threshold
 from ..errors import CalibrationMismatchError, ParameterError
 from ..plants.models import LinearModel
@@ -208,6 +209,7 @@ class Calibration:
             ``frame-family-wise``: ``E_frame * q_frame_max`` per channel, the
             live monitor's per-frame detector (``alpha_meaning="per-frame"``).
         """
+        correction: Correction
         if meaning == "family-wise":
             factor = np.array([q.value for q in self.family_wise])
             values, freqs, tested, E = self.expected * factor, self.freqs_hz, self.tested, self.expected

@@ -20,6 +20,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,6 +32,11 @@ from ..filters.multiple_model import IMM, SMMSVSF
 from ..jsonout import finite_or_none
 from .diagnosis_figures import DiagnosisFigures
 from .intervals import clopper_pearson
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..plants.filter_settings import FilterSettings
+    from ..plants.scenario_types import Scenario
+    from ..plants.simulate import Simulation
 
 __all__ = ["METHODS", "ModeDiagnosis", "ModeTally", "diagnose_modes"]
 
@@ -104,7 +110,7 @@ class ModeDiagnosis(DiagnosisFigures):
         }
 
 
-def _filter_for(method: str, settings: object) -> SMMSVSF | IMM:
+def _filter_for(method: str, settings: FilterSettings) -> SMMSVSF | IMM:
     fs = settings
     if not fs.modes:
         raise ParameterError("the scenario's filter_settings name no modes: mode-based diagnosis needs them")
@@ -138,7 +144,7 @@ def _delays(first: np.ndarray, t: np.ndarray, k0: int) -> np.ndarray:
 
 
 def diagnose_modes(
-    sim: object, methods: Sequence[str] = METHODS, *, keep: dict | None = None
+    sim: Simulation, methods: Sequence[str] = METHODS, *, keep: dict | None = None
 ) -> list[ModeDiagnosis]:
     """Run each mode-based method on the same realizations and measure its diagnosis figures.
 
@@ -190,7 +196,7 @@ class ModeTally:
         One of :data:`METHODS`.
     """
 
-    def __init__(self, scenario: object, method: str) -> None:
+    def __init__(self, scenario: Scenario, method: str) -> None:
         sc = scenario
         fs = sc.filter_settings
         if fs is None:
@@ -220,7 +226,7 @@ class ModeTally:
         self._dd: list[list[np.ndarray]] = [[] for _ in self._change]
         self._di: list[list[np.ndarray]] = [[] for _ in self._change]
 
-    def add(self, sim: object, *, keep: dict | None = None, keep_runs: int | None = 1) -> None:
+    def add(self, sim: Simulation, *, keep: dict | None = None, keep_runs: int | None = 1) -> None:
         """Run the filter on one chunk of realizations and keep its per-run figures.
 
         Parameters
@@ -236,7 +242,7 @@ class ModeTally:
         """
         self.absorb(self.compute(sim), keep=keep, keep_runs=keep_runs)
 
-    def compute(self, sim: object) -> tuple[np.ndarray, np.ndarray, float]:
+    def compute(self, sim: Simulation) -> tuple[np.ndarray, np.ndarray, float]:
         """The heavy part of :meth:`add` (the mode filter), without changing the tally.
 
         Returns ``(mu (k, T, r), argmax mode (k, T), seconds)`` for :meth:`absorb`: worker processes
@@ -279,8 +285,8 @@ class ModeTally:
             hit_i = am[:, seg] == true[k0]
             first_d = np.where(hit_d.any(axis=1), np.argmax(hit_d, axis=1), -1)
             first_i = np.where(hit_i.any(axis=1), np.argmax(hit_i, axis=1), -1)
-            self._dd[i].append(_delays(first_d, self._t, k0))
-            self._di[i].append(_delays(first_i, self._t, k0))
+            self._dd[i].append(_delays(first_d, self._t, int(k0)))
+            self._di[i].append(_delays(first_i, self._t, int(k0)))
         # confusion sums per actual mode a: numpy sums the (run, sample) rows of mu[true == a] one after
         # the other (axis-0 reduction); prepending the running sum continues that same sequence, so the
         # result is the whole-array mean of confusion_matrix bit for bit, whatever the chunking
@@ -302,7 +308,11 @@ class ModeTally:
             raise ParameterError("no realization was added to the tally: call add(sim) first")
         runs, T = self.runs, self._t.size
         fs, true, healthy = self._fs, self._true, self._healthy
-        det_med, det_p90, iso_med, iso_p90, missed = [], [], [], [], []
+        det_med: list[float] = []
+        det_p90: list[float] = []
+        iso_med: list[float] = []
+        iso_p90: list[float] = []
+        missed = []
         for dparts, iparts in zip(self._dd, self._di, strict=True):
             dd, di = np.concatenate(dparts), np.concatenate(iparts)
             for arr, med, p90 in ((dd, det_med, det_p90), (di, iso_med, iso_p90)):
