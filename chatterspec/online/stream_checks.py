@@ -105,6 +105,7 @@ def rate_mismatch(b: RowBlock, dt: float) -> str | None:
     dt : float
         The model's sampling time (s).
     """
+    assert b.t is not None  # (a stream with a time column)
     steps = np.diff(b.t[:RATE_CHECK_ROWS])
     step = float(np.median(steps))
     consistent = step > 0 and np.all(np.abs(steps - step) <= RATE_TOLERANCE * step)
