@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from .. import palette
@@ -137,8 +138,8 @@ _GREY, _RED, _WHITE, _DIM = list(palette.NEUTRAL), list(palette.FAULT), list(pal
 
 
 def series_styles(
-    channels: tuple[str, ...],
-    units: tuple[str, ...],
+    channels: Sequence[str],
+    units: Sequence[str],
     *,
     has_estimate: bool = False,
     alarm_statistic: str = "score -log p [nats]",
@@ -283,12 +284,12 @@ def time_panel(span_s: tuple[float, float] | None) -> Any:
     rerun.blueprint.TimePanel
     """
     import rerun.blueprint as rrb
-    from rerun.encodings import AbsoluteTimeRange, TimeInt
+    from rerun.encodings import TimeInt
 
     if span_s is None:
         return rrb.TimePanel(state="collapsed", timeline=TIMELINE, play_state="following")
     ns = [TimeInt(nanos=round(float(t) * 1e9)) for t in span_s]
-    selection = AbsoluteTimeRange(min=ns[0], max=ns[1])
+    selection = rrb.components.AbsoluteTimeRange(min=ns[0], max=ns[1])
     return rrb.TimePanel(state="collapsed", timeline=TIMELINE, play_state="paused", time_selection=selection)
 
 

@@ -151,10 +151,12 @@ def run_monitor(
     logger = None  # a RerunLogger that fails to build must not hide its error behind this name
     done = False
     try:
-        data = chattering if chattering is not None else z
-        if data is None:
+        if chattering is not None:
+            total = chattering.shape[0]
+        elif z is not None and u is not None:
+            total = z.shape[0]
+        else:
             raise ValueError("give z and u, or chattering")
-        total = data.shape[0]
         if chattering is not None:
             identifier = None  # identification regresses on the raw measurements
         views = None
@@ -180,6 +182,7 @@ def run_monitor(
             if chattering is not None:
                 upd = monitor.push_chattering(chattering[lo:hi])
             else:
+                assert z is not None and u is not None  # (checked above)
                 upd = monitor.push(z[lo:hi], u[lo:hi])
             if logger is not None:
                 logger.log_update(upd)
@@ -188,6 +191,7 @@ def run_monitor(
                 if on_event is not None:
                     on_event(ev)
             if identifier is not None:
+                assert z is not None and u is not None  # (no identifier on precomputed chattering)
                 found = identifier.push(z[lo:hi], u[lo:hi])
                 if ident_log is not None:
                     ident_log.log(found)

@@ -55,7 +55,7 @@ def identification_views(setup: Any, confidence: float) -> Any:
     def make(time_range: Any, axis: Any = None) -> list[Any]:
         import rerun.blueprint as rrb
 
-        views = []
+        views: list[Any] = []  # rerun blueprint views
         for p in used:
             unit = pm.parameter(p).unit
             views.append(
@@ -110,6 +110,7 @@ class IdentificationLog:
         rr, pa = self.rr, self.pa
         ns = to_ns(out.times_s)
         res = out.result
+        assert res is not None  # (n_windows > 0)
         sel = res.fit["selected"]
         names = [h.name for h in self.setup.hypotheses]
         theta, lo_hi = res.fit["theta"], {}

@@ -106,10 +106,10 @@ def viewer_url(live: str) -> str:
     if parsed.scheme not in ("rerun+http", "rerun+https", "rerun") or not parsed.hostname:
         raise ParameterError(f"--live {live!r} is not a Rerun viewer URL; {hint}")
     try:
-        port = parsed.port
+        number = parsed.port
     except ValueError:
-        port = -1
-    if port is not None and not 0 < port < 65536:
+        number = -1
+    if number is not None and not 0 < number < 65536:
         raise ParameterError(f"--live {live!r}: the port must lie in 1-65535; {hint}")
     return url
 

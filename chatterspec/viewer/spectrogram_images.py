@@ -9,7 +9,7 @@ so that it covers the record's span (:meth:`SpectrogramImages.covered_span`). Dr
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -76,7 +76,7 @@ class SpectrogramImages:
         self.n_blocks = 0  # blocks logged to the file
         self._file_n = 0
         self._file_block_start: int | None = None
-        self._file_t: tuple[float, float] | None = None
+        self._file_t: tuple[float, float] = (0.0, 0.0)  # (set when the file's first block opens)
         self._cols_span: tuple[float, float] | None = None  # centres (s) of the file's first / last column
 
     def covered_span(self) -> tuple[float, float] | None:
@@ -97,7 +97,7 @@ class SpectrogramImages:
                 np.full((last.shape[0], self._pad, last.shape[2]), DB_RANGE[0], last.dtype)
             )
             self._file_t = (self._file_t[0], self._file_t[1] + self._pad * self.hop_s)
-            self._cols_span = (self._cols_span[0], self._file_t[1])
+            self._cols_span = (cast(tuple[float, float], self._cols_span)[0], self._file_t[1])
         self._flush(file)
 
     def db(self, power: np.ndarray) -> np.ndarray:

@@ -138,7 +138,7 @@ def log_axes(
     )
     n = 64
     kw = _KEY * width if key is None else float(key)
-    key = np.linspace(db_range[1], db_range[0], n, dtype=np.float32)[:, None].repeat(2, axis=1)
+    key_image = np.linspace(db_range[1], db_range[0], n, dtype=np.float32)[:, None].repeat(2, axis=1)
     stream.log(
         f"{path}/key",
         rr.Transform3D(translation=[-kw, 0.0, 0.0], scale=[0.3 * kw / 2, 1.0 / n, 1.0]),
@@ -146,7 +146,7 @@ def log_axes(
     )
     stream.log(
         f"{path}/key",
-        rr.DepthImage(key, meter=1.0, colormap="magma", depth_range=list(db_range)),
+        rr.DepthImage(key_image, meter=1.0, colormap="magma", depth_range=list(db_range)),
         static=True,
     )
     mid = 0.5 * (db_range[0] + db_range[1])

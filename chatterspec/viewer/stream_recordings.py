@@ -146,7 +146,9 @@ class StreamRecordings:
     def open_file(self, t_start: float) -> None:
         """Take over the file opened ahead: rename it after this moment, and open the next one."""
         t_open = time.perf_counter()
-        sinks, logger = self._spare.result()  # ready unless the rotation thread is far behind
+        spare = self._spare
+        assert spare is not None  # (opened ahead: __init__, then each rotation)
+        sinks, logger = spare.result()  # ready unless the rotation thread is far behind
         self._spare = None
         base = self._base
         now = time.time()
@@ -209,7 +211,7 @@ class StreamRecordings:
         if rotating and self.file_logger is None:
             self.open_file(t_first)
         self.log(upd)
-        if rotating:
+        if self.record_every is not None:  # (rotating)
             self.file_rows += n
             if self.file_rows >= self.record_every:
                 t_rot = time.perf_counter()
