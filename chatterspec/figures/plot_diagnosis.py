@@ -11,7 +11,7 @@ backend; imported on demand only.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -19,6 +19,10 @@ from ..palette import filter_color, mpl
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
+
+    from ..studies.budget_results import OnsetFigures, RouteBudget
+    from ..studies.chattering_diagnosis import ChatteringDiagnosis
+    from ..studies.mode_diagnosis import ModeDiagnosis
 
 __all__ = [
     "BUDGET_HEADER",
@@ -31,7 +35,7 @@ __all__ = [
 ]
 
 #: Column titles of :func:`diagnosis_rows`.
-DIAGNOSIS_HEADER = (
+DIAGNOSIS_HEADER: tuple[str, ...] = (
     "method",
     "false alarms (runs) [99% CI]",
     "onset [s]",
@@ -48,8 +52,9 @@ def _ms(v: float) -> str:
     return f"{1e3 * v:.0f}" if abs(v) >= 0.0995 else f"{1e3 * v:.1f}"
 
 
-def _isolation(r: object, i: int) -> str:
-    if r.method == "chattering":
+def _isolation(result: ModeDiagnosis | ChatteringDiagnosis, i: int) -> str:
+    if result.method == "chattering":
+        r = cast("ChatteringDiagnosis", result)
         onset = r.onsets[i]
         s = next(
             (j for j, span in enumerate(r.segment_span_s) if abs(span[0] - onset) < 1e-9),
@@ -60,15 +65,18 @@ def _isolation(r: object, i: int) -> str:
         c = r.channels.index(r.flagged_channel[s])
         frac = r.flag_fraction[s, c]
         return f"{r.flagged_channel[s]} @ {r.peak_hz[s]:.1f} Hz ({100 * frac:.0f}% frames)"
-    k = r.new_modes[i]
-    mode = r.modes[k]
+    m = cast("ModeDiagnosis", result)
+    k = m.new_modes[i]
+    mode = m.modes[k]
     return (
-        f"{mode} {r.confusion[k, k]:.1f}%, argmax after "
-        f"{_ms(r.isolation_median[i])}/{_ms(r.isolation_p90[i])} ms"
+        f"{mode} {m.confusion[k, k]:.1f}%, argmax after "
+        f"{_ms(m.isolation_median[i])}/{_ms(m.isolation_p90[i])} ms"
     )
 
 
-def diagnosis_rows(results: Sequence[object]) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
+def diagnosis_rows(
+    results: Sequence[ModeDiagnosis | ChatteringDiagnosis],
+) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
     """The comparison table as strings.
 
     Parameters
@@ -83,7 +91,7 @@ def diagnosis_rows(results: Sequence[object]) -> tuple[tuple[str, ...], list[tup
         :data:`DIAGNOSIS_HEADER` and one row per (method, onset); the false-alarm and cost cells are
         filled on a method's first row only.
     """
-    rows = []
+    rows: list[tuple[str, ...]] = []
     for r in results:
         lo, hi = r.false_alarm_ci
         fa = f"{r.false_alarm_runs}/{r.runs} [{lo:.3f}, {hi:.3f}]"
@@ -116,7 +124,9 @@ DIAGNOSIS_NOTES = (
 
 
 def diagnosis_table_figure(
-    results: Sequence[object], title: str = "", notes: Sequence[str] = DIAGNOSIS_NOTES
+    results: Sequence[ModeDiagnosis | ChatteringDiagnosis],
+    title: str = "",
+    notes: Sequence[str] = DIAGNOSIS_NOTES,
 ) -> Figure:
     """The comparison table drawn as a compact matplotlib table, with footnotes.
 
@@ -173,7 +183,7 @@ def diagnosis_table_figure(
 
 # --------------------------------------------------------------------------- at one false-alarm budget
 #: Column titles of :func:`budget_rows`.
-BUDGET_HEADER = (
+BUDGET_HEADER: tuple[str, ...] = (
     "method",
     "threshold",
     "false alarms/h [99% CI] (count/hours)",
@@ -195,7 +205,7 @@ def _rate(v: float) -> str:
     return f"{v:.3g}"
 
 
-def _budget_isolation(o: object) -> str:
+def _budget_isolation(o: OnsetFigures) -> str:
     iso = o.isolated
     parts = ", ".join(f"{k} {v}" for k, v in sorted(iso.items(), key=lambda kv: -kv[1])) or "-"
     if o.true_label is None:
@@ -203,7 +213,7 @@ def _budget_isolation(o: object) -> str:
     return f"{parts}; {o.true_label} after {_ms(o.isolation_median_s)}/{_ms(o.isolation_p90_s)} ms"
 
 
-def budget_rows(results: Sequence[object]) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
+def budget_rows(results: Sequence[RouteBudget]) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
     """The comparison at one false-alarm budget as strings (one row per route and onset).
 
     Parameters
@@ -217,7 +227,7 @@ def budget_rows(results: Sequence[object]) -> tuple[tuple[str, ...], list[tuple[
         :data:`BUDGET_HEADER` and the rows; the threshold, false-alarm and cost cells are filled on a
         route's first row only.
     """
-    rows = []
+    rows: list[tuple[str, ...]] = []
     for r in results:
         lo, hi = r.rate_ci
         if r.healthy_hours > 0:
@@ -246,7 +256,7 @@ def budget_rows(results: Sequence[object]) -> tuple[tuple[str, ...], list[tuple[
     return BUDGET_HEADER, rows
 
 
-def delay_far_figure(results: Sequence[object], title: str = "") -> Figure:
+def delay_far_figure(results: Sequence[RouteBudget], title: str = "") -> Figure:
     """Detection delay against false alarms per hour, thresholds swept on the same realizations.
 
     One panel per fault onset; per route, the median delay (line) and its 90th percentile (shaded)

@@ -413,7 +413,7 @@ def draw_spectrum(
             over = shown & np.isfinite(values[j]) & (p > values[j])
             if np.any(over):
                 any_over = True
-                tick = {"ls": "none", "marker": "|", "ms": 5, "mew": 1.0, "zorder": 4}
+                tick: dict[str, Any] = {"ls": "none", "marker": "|", "ms": 5, "mew": 1.0, "zorder": 4}
                 ax.plot(f[over], np.full(int(over.sum()), y), color=styles[j]["color"], **tick)
                 ax.lines[-1].set_transform(ax.get_xaxis_transform())
     if any_over:
@@ -464,6 +464,7 @@ def _fit_log_y(ax: Axes, y_data: Sequence[np.ndarray]) -> None:
 
 def _draw_zoom(ax: Axes, panel: SpectrumPanel) -> Axes:
     """Draw ``panel`` again into ``ax`` on the band ``panel.inset_hz`` (no note, no legend)."""
+    assert panel.inset_hz is not None  # (drawn for a panel with an inset)
     lo, hi = panel.inset_hz
     if not hi > lo:
         raise ParameterError(f"inset_hz must be (f_lo, f_hi) with f_lo < f_hi; got {panel.inset_hz}")
@@ -573,6 +574,7 @@ def spectrum_figure(
             handles.setdefault(str(a.get_label()), a)
     if sharey:  # each panel fitted its own range; the shared axis needs their union
         lims = np.array([ax.get_ylim() for ax in main_axes(fig)])
+        assert first is not None  # (one panel at least)
         first.set_ylim(float(lims[:, 0].min()), float(lims[:, 1].max()))
     # one legend for the whole figure: every panel uses the same conventions
     fig.legend(
