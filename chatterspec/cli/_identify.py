@@ -12,8 +12,10 @@ import argparse
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # pragma: no cover
+    import numpy as np
+
     from ..detection.identification import IdentificationSetup, IdentificationStream
-    from ..plants.models import LinearModel
+    from ..plants.nonlinear import Model
     from ..plants.scenarios import Scenario
 
 
@@ -43,9 +45,7 @@ def add_identification_args(p: argparse.ArgumentParser) -> None:
     )
 
 
-def setup_or_reason(
-    model: LinearModel, args: argparse.Namespace
-) -> tuple[IdentificationSetup | None, str | None]:
+def setup_or_reason(model: Model, args: argparse.Namespace) -> tuple[IdentificationSetup | None, str | None]:
     """The identification setup of ``model``, or why there is none (``--no-identify``, reduced order, ...)."""
     if getattr(args, "no_identify", False):
         return None, "skipped (--no-identify)"
@@ -102,8 +102,8 @@ def record_doc(
 
 def interval_docs(
     setup: IdentificationSetup,
-    z: Any,
-    u: Any,
+    z: np.ndarray,
+    u: np.ndarray,
     intervals: list[tuple[float, float]],
     duration: float,
     hop_s: float,
@@ -351,7 +351,7 @@ class MonitorIdentification:
         self.identifier.reset(t0)
         self.selected = None
 
-    def push(self, z: Any, u: Any) -> None:
+    def push(self, z: np.ndarray, u: np.ndarray) -> None:
         """Identify on one chunk of measurements ``z`` and inputs ``u`` and hand the results on."""
         self.handle(self.identifier.push(z, u))
 

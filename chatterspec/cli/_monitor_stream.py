@@ -6,11 +6,20 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+from typing import TYPE_CHECKING
 
 from ..errors import ParameterError
 from ..jsonout import dumps
 from . import _identify
 from ._alarm_args import _alarm_short, alarm_doc
+
+if TYPE_CHECKING:  # pragma: no cover
+    from types import FrameType
+    from typing import TextIO
+
+    from ..detection.monitor_settings import MonitorSettings
+    from ..plants.modelfile_fields import ModelSpec
+    from ..viewer.live_stream import StreamEvent, StreamSummary
 
 __all__: list[str] = []
 
@@ -26,10 +35,10 @@ def _emit_line(text: str) -> None:
 
 def _run_stream(
     args: argparse.Namespace,
-    spec: object,
-    settings: object,
+    spec: ModelSpec,
+    settings: MonitorSettings,
     jsonl: bool,
-    human: object,
+    human: TextIO,
     ident: _identify.MonitorIdentification | None = None,
 ) -> int:
     from ..errors import ChatterspecError
@@ -42,7 +51,7 @@ def _run_stream(
         raise ParameterError(f"--follow: {where} does not exist (create it, header first, then follow it)")
     model = spec.model
 
-    def on_event(ev: object) -> None:
+    def on_event(ev: StreamEvent) -> None:
         if jsonl:
             _emit_line(ev.to_json())
         print(ev.describe(), file=human, flush=True)
@@ -78,7 +87,7 @@ def _run_stream(
     else:
         chunks = follow_file(args.data, from_end=args.from_end, idle_timeout_s=args.idle_timeout)
 
-    def on_term(signum: int, frame: object) -> None:
+    def on_term(signum: int, frame: FrameType | None) -> None:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)  # finishing must not be interrupted again
         raise _Terminated
 
@@ -122,10 +131,10 @@ def _quiet_stdout() -> None:
 
 def _report(
     args: argparse.Namespace,
-    summary: object,
+    summary: StreamSummary,
     jsonl: bool,
-    human: object,
-    settings: object,
+    human: TextIO,
+    settings: MonitorSettings,
     ident: _identify.MonitorIdentification | None = None,
 ) -> None:
     s = summary  # StreamSummary

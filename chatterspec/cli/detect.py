@@ -8,9 +8,14 @@ from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from ..detection.identification import IdentificationSetup, IdentificationStream
+    from ..detection.monitor_settings import MonitorSettings
     from ..detection.pipeline import ChatteringRecord
+    from ..detection.report import DetectionReport
     from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
+    from ..studies.calibration_result import Calibration
+    from ._alarm_args import AlarmChoice
 
 from ..errors import ParameterError
 from . import _identify
@@ -145,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
         settings = _alarm_settings(args, choice, sc, settings, cal if args.calibration else None)
         doc["alarm"] = None if settings.budget is None else settings.budget.to_dict()
         outputs = Outputs()
+        assert sim is not None  # (simulated above for --record / --live)
         summary = outputs.write(
             "--record", args.record, record_detection, sim, settings, path=args.record, live=args.live
         )
@@ -173,8 +179,12 @@ def _file_rule(args: argparse.Namespace) -> str | None:
 
 
 def _alarm_settings(
-    args: argparse.Namespace, choice: object, sc: object, settings: object, cal: object
-) -> object:
+    args: argparse.Namespace,
+    choice: AlarmChoice,
+    sc: Scenario,
+    settings: MonitorSettings,
+    cal: Calibration | None,
+) -> MonitorSettings:
     """The recording monitor's alarm rule: the calibration file's, or set here for the budget (linear);
     a nonlinear scenario whose file holds no alarm calibration keeps the per-frame rule."""
     from ..studies.alarm_budget import alarm_settings
@@ -220,10 +230,10 @@ def with_progress(
 
 def add_identification(
     doc: dict,
-    report: object,
-    setup: object,
+    report: DetectionReport,
+    setup: IdentificationSetup | None,
     why_not: str | None,
-    ident: object,
+    ident: IdentificationStream | None,
     sim: Simulation | None,
     sc: Scenario,
     args: argparse.Namespace,
@@ -233,6 +243,7 @@ def add_identification(
     if setup is None:
         doc["identification"] = {"reason": why_not}
         return
+    assert ident is not None  # (made with the setup)
     doc["identification"] = _identify.record_doc(ident, args.runs, setup, sc)
     frames = getattr(report, "frames", None)
     if sim is not None and frames is not None and frames.intervals.get("any"):

@@ -21,6 +21,7 @@ import threading
 import time
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING, TextIO, cast
 
 from ..errors import ParameterError
 from ..jsonout import dumps
@@ -29,6 +30,17 @@ from ._alarm_args import _alarm_line, _alarm_short, add_alarm_args, alarm_choice
 from ._common import Outputs, band_from_args, check_record_path, positive_int_arg
 from ._monitor_stream import _emit_line, _run_stream
 from ._options import add, add_report_args, command
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.monitor_settings import MonitorSettings
+    from ..detection.spectral import STFTConfig
+    from ..detection.threshold_type import Correction
+    from ..online.monitor import ChatteringMonitor, DetectionEvent
+    from ..plants.modelfile_fields import ModelSpec
+    from ..plants.nonlinear import Model
+    from ..studies.calibration_result import Calibration
+    from ..viewer.drivers import RecordingSummary
+    from ._alarm_args import AlarmChoice
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -212,7 +224,7 @@ def run(args: argparse.Namespace) -> int:
     settings = MonitorSettings(
         stft=stft,
         alpha=float(args.alpha if args.alpha is not None else det.get("alpha", 1e-3)),
-        correction=str(det.get("correction", "bonferroni")),
+        correction=cast(Correction, str(det.get("correction", "bonferroni"))),  # (MonitorSettings checks it)
         gamma=spec.gamma,
         psi=None if spec.psi is None else tuple(spec.psi.tolist()),  # nonlinear: the sgn-SVSF only
         band=band_from_args(args) or det.get("band"),
@@ -291,7 +303,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"chatterspec monitor: {note}", file=sys.stderr)
     shown = len(sinks.notes)
 
-    def show(ev: object) -> None:
+    def show(ev: DetectionEvent) -> None:
         sev = StreamEvent.from_detection(ev, time.time())
         if jsonl:
             _emit_line(sev.to_json())
@@ -332,7 +344,17 @@ def run(args: argparse.Namespace) -> int:
     return rc
 
 
-def _report_replay(args, spec, stft, summary, jsonl: bool, human, settings, ident=None, why_not=None) -> int:
+def _report_replay(
+    args: argparse.Namespace,
+    spec: ModelSpec,
+    stft: STFTConfig,
+    summary: RecordingSummary,
+    jsonl: bool,
+    human: TextIO,
+    settings: MonitorSettings,
+    ident: _identify.MonitorIdentification | None = None,
+    why_not: str | None = None,
+) -> int:
     """Print the summary of a file replay; 1 when the data gave no STFT frame."""
     no_frame = None
     if summary.n_frames == 0:
@@ -390,7 +412,7 @@ def _preload_rerun() -> threading.Thread:
     return thread
 
 
-def _warm_up(monitor: object) -> None:
+def _warm_up(monitor: ChatteringMonitor) -> None:
     """One window of zeros through a throw-away copy of ``monitor`` (same model, settings, threshold):
     the compiled kernels (numba cache) and FFT plans load before the replay's clock starts, as in the
     stream monitor and the in-process benchmark."""
@@ -406,8 +428,12 @@ def _warm_up(monitor: object) -> None:
 
 
 def _alarm_settings(
-    args: argparse.Namespace, choice: object, model: object, settings: object, cal: object
-) -> object:
+    args: argparse.Namespace,
+    choice: AlarmChoice,
+    model: Model,
+    settings: MonitorSettings,
+    cal: Calibration | None,
+) -> MonitorSettings:
     """The monitor's alarm rule: ``--alpha`` (the per-frame rule), a calibration file's, or set here."""
     from ..studies.alarm_budget import alarm_settings
 

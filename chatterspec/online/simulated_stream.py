@@ -152,7 +152,7 @@ def _step_nonlinear(model: Model, xs: np.ndarray, u: np.ndarray, v: np.ndarray, 
             xs[k + 1] = np.asarray(f(xs[k : k + 1], u[k]))[0] + v[k - a]
 
 
-def csv_header(model: LinearModel) -> str:
+def csv_header(model: Model) -> str:
     """The CSV header line (no newline) of a stream for ``model``: ``time``, outputs, inputs.
 
     Parameters

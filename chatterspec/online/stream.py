@@ -36,7 +36,7 @@ import numpy as np
 
 from ..errors import DataFileError
 from ..plants.modelfile import TIME_COLUMNS
-from ..plants.models import LinearModel
+from ..plants.nonlinear import Model
 
 __all__ = [
     "BadRow",
@@ -248,7 +248,7 @@ class CsvRows:
         Name of the input used in messages (e.g. ``"standard input"``).
     """
 
-    def __init__(self, model: LinearModel, where: str = "standard input") -> None:
+    def __init__(self, model: Model, where: str = "standard input") -> None:
         self.model = model
         self.where = where
         self.needed = (*model.output_names, *model.input_names)

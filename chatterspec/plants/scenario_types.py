@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -222,7 +223,7 @@ class Scenario:
         """``"linear"`` or ``"nonlinear"`` (nonlinear if any model of the scenario is)."""
         return "linear" if self.is_linear else "nonlinear"
 
-    def describe(self) -> dict[str, object]:
+    def describe(self) -> dict[str, Any]:
         """JSON-ready summary (used by ``chatterspec scenarios --json``)."""
         return {
             "name": self.name,

@@ -23,7 +23,7 @@ from ..detection.spectral import STFTConfig
 from ..detection.threshold_type import Correction
 from ..detection.thresholds import Threshold
 from ..errors import CalibrationMismatchError, ParameterError
-from ..plants.models import LinearModel
+from ..plants.nonlinear import Model
 from .calibration_file import CALIBRATION_FORMAT, _ro, calibration_dict, read_calibration, save_calibration
 from .intervals import QuantileEstimate
 
@@ -170,9 +170,7 @@ class Calibration:
         }
 
     # ---- use as a threshold
-    def check(
-        self, model: LinearModel, n_samples: int | None = None, config: STFTConfig | None = None
-    ) -> None:
+    def check(self, model: Model, n_samples: int | None = None, config: STFTConfig | None = None) -> None:
         """Raise :class:`CalibrationMismatchError` (with the reason) unless this calibration fits.
 
         Checks the model fingerprint (matrices, noise covariances, dt), the
@@ -276,7 +274,7 @@ def _stft_dict(config: STFTConfig) -> dict[str, Any]:
 
 def load_calibration(
     path: str | Path,
-    model: LinearModel | None = None,
+    model: Model | None = None,
     n_samples: int | None = None,
     config: STFTConfig | None = None,
 ) -> Calibration:

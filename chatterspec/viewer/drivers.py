@@ -62,7 +62,7 @@ class RecordingSummary:
     notes: tuple[str, ...] = ()
     write_error: str | None = None
 
-    def to_dict(self) -> dict[str, object]:
+    def to_dict(self) -> dict[str, Any]:
         """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {
             "recording": None if self.path is None else str(self.path),

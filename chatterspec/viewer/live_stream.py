@@ -64,7 +64,7 @@ from ..online.stream import BadRow, CsvRows, Restart, RowBlock
 from ..online.stream_checks import (
     LatencyStats,
 )
-from ..plants.models import LinearModel
+from ..plants.nonlinear import Model
 from .stream_recordings import StreamRecordings, period_bounds
 from .stream_segments import Segment, StreamSegments
 
@@ -272,7 +272,7 @@ class StreamMonitor:
 
     def __init__(
         self,
-        model: LinearModel,
+        model: Model,
         settings: MonitorSettings,
         *,
         record: str | Path | None = None,

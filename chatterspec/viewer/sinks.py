@@ -324,7 +324,7 @@ def open_sinks(
     return sinks
 
 
-def file_error(exc: BaseException, path: str | Path) -> OSError | None:
+def file_error(exc: BaseException, path: str | os.PathLike[str]) -> OSError | None:
     """The :class:`OSError` behind a Rerun file-sink ``RuntimeError`` (None if it is not about a file).
 
     Rerun reports I/O failures as ``RuntimeError("Failed to encode LogMsg: Failed to write: No space
