@@ -135,7 +135,7 @@ def run_per_record(args: argparse.Namespace, sc: Scenario, methods: tuple[str, .
     else:
         chunks = iter_simulations(sc, args.runs, args.seed, chunk_runs=min(chunk, args.runs))
         tallies = [
-            ChatteringTally(sc, cast(Threshold, threshold)) if m == "chattering" else ModeTally(sc, m)
+            ChatteringTally(sc, cast("Threshold", threshold)) if m == "chattering" else ModeTally(sc, m)
             for m in methods
         ]  # (threshold: given with the chattering route)
         first, sim_s = _serial(args, sc, [*tallies, *([ident] if ident is not None else [])], chunks, outputs)
@@ -155,6 +155,7 @@ def run_per_record(args: argparse.Namespace, sc: Scenario, methods: tuple[str, .
     if args.record is not None:
         from ..viewer.diagnosis_log import record_diagnosis
 
+        assert first is not None  # (realization 0, kept for --record)
         recording = written.write(
             "--record", args.record, record_diagnosis, args.record, first, threshold, outputs
         )

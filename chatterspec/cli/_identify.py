@@ -12,9 +12,12 @@ import argparse
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # pragma: no cover
+    from collections.abc import Callable
+
     import numpy as np
 
     from ..detection.identification import IdentificationSetup, IdentificationStream
+    from ..detection.identification_online import OnlineIdentification
     from ..plants.nonlinear import Model
     from ..plants.scenarios import Scenario
 
@@ -329,8 +332,8 @@ class MonitorIdentification:
         t0: float,
         alpha: float,
         confidence: float,
-        emit: Any,
-        say: Any,
+        emit: Callable[[str], None] | None,
+        say: Callable[[str], None],
         every_hop: bool = False,
     ) -> None:
         from ..detection.identification_online import OnlineIdentifier
@@ -355,7 +358,7 @@ class MonitorIdentification:
         """Identify on one chunk of measurements ``z`` and inputs ``u`` and hand the results on."""
         self.handle(self.identifier.push(z, u))
 
-    def handle(self, out: Any) -> None:
+    def handle(self, out: OnlineIdentification) -> None:
         """Report the windows of one push."""
         from ..jsonout import dumps
 

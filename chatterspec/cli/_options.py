@@ -23,9 +23,12 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ._common import alpha_arg, band_edge_arg, live_arg, nonnegative_int_arg, positive_int_arg
+
+if TYPE_CHECKING:  # pragma: no cover
+    from collections.abc import Callable
 
 #: The positional NAME of the commands that study a healthy scenario (calibrate, far).
 HEALTHY_NAME_HELP = "healthy scenario name or model file (.toml)"
@@ -104,7 +107,12 @@ def add(p: argparse.ArgumentParser, flag: str, **changes: Any) -> argparse.Actio
 
 
 def command(
-    sub: argparse._SubParsersAction, name: str, run: Any, *, help: str, description: str
+    sub: argparse._SubParsersAction,
+    name: str,
+    run: Callable[[argparse.Namespace], int],
+    *,
+    help: str,
+    description: str,
 ) -> argparse.ArgumentParser:
     """Add the subcommand ``name`` to ``sub``, run by ``run(args) -> int`` (its ``func``)."""
     p = sub.add_parser(name, help=help, description=description)

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 from ..errors import ParameterError
 from ..jsonout import dumps
 from ._options import add_report_args, command
 
 if TYPE_CHECKING:  # pragma: no cover
+    from ..plants.nonlinear import NonlinearModel
     from ..plants.scenario_types import Scenario
 
 
@@ -94,7 +95,8 @@ def _export_nonlinear(sc: Scenario, name: str, path: Path) -> Path:
         f"first (chatterspec calibrate {path.name} --out cal.npz), then\n"
         f"chatterspec monitor --model {path.name} --calibration cal.npz"
     )
-    return write_nonlinear_model_toml(path, sc.nominal, simulation=simulation, comment=comment)
+    model = cast("NonlinearModel", sc.nominal)  # (the caller's branch for a nonlinear scenario)
+    return write_nonlinear_model_toml(path, model, simulation=simulation, comment=comment)
 
 
 def _nominal_text(sc: Scenario) -> str:

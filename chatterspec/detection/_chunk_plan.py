@@ -12,7 +12,7 @@ verdicts and summed spectrum, :meth:`ChunkPlan.reduce` folds them in chunk order
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, TypedDict, cast
+from typing import TYPE_CHECKING, Any, TypedDict, cast
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from .report import DetectionReport
 from .spectral import DEFAULT_STFT, STFTConfig, expected_spectrum, periodogram
 from .spectrum_verdicts import _VERDICT_FIELDS, SpectrumDetection, _require_empirical, detect_spectrum
 from .thresholds import Band, Correction, Threshold, check_band, exact_threshold, paper_threshold
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .identification import IdentificationStream
 
 __all__ = ["ChunkPlan", "DetectStudy", "DetectorKeywords", "DetectorOptions", "detect_on_workers"]
 
@@ -285,7 +288,7 @@ def detect_on_workers(
     execution: Execution,
     *,
     gamma: float = 0.1,
-    identification: Any = None,
+    identification: IdentificationStream | None = None,
 ) -> DetectionReport:
     """The worker path of :func:`~chatterspec.detection.detect.detect_scenario` (see there).
 
@@ -316,6 +319,7 @@ def detect_on_workers(
     acc, parts = execution.run(
         DetectStudy(scenario, plan, gamma, ident), runs, root, f"detect {scenario.name}"
     )
-    for part in parts:
-        identification.add(part)
+    if identification is not None:  # (parts: one per chunk with identification, else none)
+        for part in parts:
+            identification.add(part)
     return plan.report(acc)

@@ -262,7 +262,7 @@ def rule_names() -> tuple[str, ...]:
     return tuple(RULES)
 
 
-def make_rule(name: str, threshold: float = float("inf"), **parameters: Any) -> AlarmRule:
+def make_rule(name: str, threshold: float = float("inf"), **parameters: float) -> AlarmRule:
     """Build a rule by name: ``make_rule("cusum", 12.0, drift=3.0)``.
 
     Parameters

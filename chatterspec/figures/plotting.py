@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from matplotlib.artist import Artist
@@ -48,6 +48,9 @@ from .style import (
     save_figure,
 )
 from .time_plots import BoundaryLayerPanel, SpectrogramPanel, boundary_layer_figure, spectrogram_figure
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.thresholds import Threshold
 
 __all__ = [
     "DEFAULT_DPI",
@@ -245,7 +248,7 @@ class SpectrumPanel:
 
 
 # --------------------------------------------------------------------------- thresholds
-def threshold_curve(threshold: Any, channel: int, *, label: str | None = None) -> ThresholdCurve:
+def threshold_curve(threshold: Threshold, channel: int, *, label: str | None = None) -> ThresholdCurve:
     """A :class:`ThresholdCurve` for one channel of a :class:`chatterspec.detection.thresholds.Threshold`.
 
     Bins the threshold does not test (``threshold.tested`` False) are set to NaN

@@ -12,11 +12,14 @@ import csv
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import DataFileError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .nonlinear import Model
 
 __all__ = ["TIME_COLUMNS", "DataSet", "load_data"]
 
@@ -54,7 +57,7 @@ class DataSet:
 
 
 # --------------------------------------------------------------------------- data files
-def load_data(path: str | Path, model: Any, *, dt_tolerance: float = 0.01) -> DataSet:
+def load_data(path: str | Path, model: Model, *, dt_tolerance: float = 0.01) -> DataSet:
     """Read measurements and inputs for ``model`` from a CSV or NPZ file (columns matched by name).
 
     Parameters

@@ -11,7 +11,7 @@ default or the nominal model's value". Sources and resolutions are in
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -19,6 +19,9 @@ from .._validate import finite_array, nonnegative, open_unit, readonly
 from ..errors import ParameterError, ShapeError
 from .linear_model import _check_covariance
 from .nonlinear import same_dynamics
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .scenario_types import Scenario
 
 __all__ = ["MAPPINGS", "FilterSettings", "StateMapping"]
 
@@ -177,7 +180,7 @@ class FilterSettings:
             if (model.n_states, model.n_outputs) != (n, m):
                 raise ShapeError(f"mode {name!r}: its model must have {n} states and {m} outputs")
 
-    def mode_index(self, scenario: Any, t: np.ndarray | None = None) -> np.ndarray:
+    def mode_index(self, scenario: Scenario, t: np.ndarray | None = None) -> np.ndarray:
         """Index into :attr:`modes` of the true plant at each sample time (-1 where none matches).
 
         A segment's true model matches a mode when they have the same dynamics and measurement

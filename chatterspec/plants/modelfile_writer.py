@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -13,6 +13,10 @@ from ..errors import ModelFileError
 from .modelfile_fields import _DETECTOR_KEYS, _detector_band
 from .models import LinearModel
 from .nonlinear import Model
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .nonlinear import NonlinearModel
+    from .signals import Signal
 
 __all__ = ["signal_table", "write_model_toml", "write_nonlinear_model_toml"]
 
@@ -153,7 +157,7 @@ def _inline_table(d: Mapping[str, Any]) -> str:
     return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in d.items()) + " }"
 
 
-def signal_table(signal: Any) -> dict[str, Any] | None:
+def signal_table(signal: Signal) -> dict[str, Any] | None:
     """A :mod:`chatterspec.plants.signals` input as a ``[simulation] input`` table (None if it has none).
 
     Parameters
@@ -173,12 +177,12 @@ def signal_table(signal: Any) -> dict[str, Any] | None:
         signals.Chirp: "chirp",
     }
     kind = kinds.get(type(signal))
-    if kind is None:
+    if kind is None or not dataclasses.is_dataclass(signal):  # (every kind above is a dataclass)
         return None
     return {"kind": kind, **{f.name: getattr(signal, f.name) for f in dataclasses.fields(signal)}}
 
 
-def _function_refs(model: Any) -> tuple[str, str, str | None, str, dict[str, float]]:
+def _function_refs(model: NonlinearModel) -> tuple[str, str, str | None, str, dict[str, float]]:
     """``(f, jacobian, input_jacobian, form, parameters)`` naming a nonlinear model's functions."""
     from functools import partial
 
@@ -215,7 +219,7 @@ def _function_refs(model: Any) -> tuple[str, str, str | None, str, dict[str, flo
 
 def write_nonlinear_model_toml(
     path: str | Path,
-    model: Any,
+    model: NonlinearModel,
     *,
     gamma: float = 0.1,
     simulation: Mapping[str, Any] | None = None,

@@ -384,7 +384,7 @@ def alarm_settings(
     seed: int = 0,
     scenario: Scenario | None = None,
     calibration: RuleCalibration | None = None,
-    **parameters: Any,
+    **parameters: float,
 ) -> Any:
     """``settings`` with an alarm rule whose threshold meets ``false_alarms_per_hour``.
 

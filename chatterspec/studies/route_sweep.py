@@ -41,6 +41,7 @@ from ..errors import ParameterError
 if TYPE_CHECKING:  # pragma: no cover
     from ..detection.alarm_rules import AlarmRule
     from ..plants.scenario_types import Scenario
+    from .routes import RouteScores
 
 __all__ = ["DEFAULT_WARMUP_S", "RouteGeometry", "merge_sweeps", "onsets_of", "route_geometry", "sweep_chunk"]
 
@@ -151,7 +152,7 @@ def route_geometry(
 
 
 def sweep_chunk(
-    route_scores: Any,
+    route_scores: RouteScores,
     geometry: RouteGeometry,
     rule: AlarmRule,
     thresholds: np.ndarray,

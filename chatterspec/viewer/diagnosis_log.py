@@ -11,7 +11,7 @@ Rerun is imported only when a recording is written.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -25,12 +25,16 @@ from .rerun_log import RerunLogger, record_span, to_ns
 from .sinks import TIMELINE, open_sinks
 from .truth_lane import log_truth_lane, truth_colors
 
+if TYPE_CHECKING:  # pragma: no cover
+    from ..plants.scenario_types import Scenario
+    from ..plants.simulate import Simulation
+
 __all__ = ["mode_lane_entity", "record_budget_diagnosis", "record_diagnosis"]
 
 
 def record_diagnosis(
     path: str | Path,
-    sim: Any,
+    sim: Simulation,
     threshold: Threshold | None,
     mode_outputs: dict[str, tuple[np.ndarray, np.ndarray, tuple[str, ...]]],
     *,
@@ -222,7 +226,7 @@ def _log_route(
 
 def record_budget_diagnosis(
     path: str | Path,
-    scenario: Any,
+    scenario: Scenario,
     seed: int,
     routes: dict[str, Any],
     results: list[Any],

@@ -16,7 +16,11 @@ from .rerun_log import RerunLogger, record_span
 from .sinks import Sinks, default_recording_path, file_error, open_sinks
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from ..detection.identification_online import OnlineIdentification, OnlineIdentifier
     from ..detection.pipeline import ChatteringRecord
+    from ..plants.scenario_types import Scenario
     from ..plants.simulate import Simulation
 
 __all__ = [
@@ -100,10 +104,10 @@ def run_monitor(
     rate: float | None = None,
     truth: list[tuple[float, str, bool]] | None = None,
     scroll_frames: int = 50,
-    on_event: Any = None,
+    on_event: Callable[[DetectionEvent], None] | None = None,
     band_hz: tuple[float, float] | None = None,
-    identifier: Any = None,
-    on_identification: Any = None,
+    identifier: OnlineIdentifier | None = None,
+    on_identification: Callable[[OnlineIdentification], None] | None = None,
 ) -> RecordingSummary:
     """Drive ``monitor`` over raw data (``z`` (T, m), ``u`` (T, p)) or precomputed ``chattering`` (N, m)
     and log everything to ``sinks``; closes the sinks at the end (also on Ctrl-C).
@@ -177,7 +181,10 @@ def run_monitor(
             if sinks.streams
             else None
         )
-        ident_log = IdentificationLog(sinks, identifier.setup) if views is not None else None
+        ident_log = None
+        if views is not None:
+            assert identifier is not None  # (views: made for it)
+            ident_log = IdentificationLog(sinks, identifier.setup)
         for lo, hi in _chunks(total, size):
             if chattering is not None:
                 upd = monitor.push_chattering(chattering[lo:hi])
@@ -230,7 +237,7 @@ def _close(logger: Any, sinks: Sinks, *, keep_going: bool) -> str | None:
     return None
 
 
-def scenario_truth(scenario: Any) -> list[tuple[float, str, bool]]:
+def scenario_truth(scenario: Scenario) -> list[tuple[float, str, bool]]:
     """The true fault timeline of a scenario, as the viewer's truth lane takes it.
 
     Parameters
@@ -264,7 +271,7 @@ def record_detection(
     rate: float | None = None,
     recording_name: str | None = None,
     application_id: str = "chatterspec",
-    on_event: Any = None,
+    on_event: Callable[[DetectionEvent], None] | None = None,
     band_hz: tuple[float, float] | None = None,
 ) -> RecordingSummary:
     """Run the online monitor over one realization of a simulation or chattering record and record it.

@@ -16,7 +16,7 @@ parameter).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -26,6 +26,9 @@ from ..plants.parameters import NO_FAULT
 from .arrow_columns import _TimeIndex
 from .rerun_log import to_ns
 from .sinks import Sinks
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.identification import IdentificationSetup
 
 __all__ = ["IDENTIFICATION", "IdentificationLog", "identification_views"]
 
@@ -37,7 +40,7 @@ def _path(parameter: str) -> str:
     return f"{IDENTIFICATION}/{parameter}"
 
 
-def identification_views(setup: Any, confidence: float) -> Any:
+def identification_views(setup: IdentificationSetup, confidence: float) -> Any:
     """``make(time_range, axis) -> views``: one time-series view per identified parameter (estimate and
     interval of the selected hypothesis) and the log of the selected hypothesis, for
     :func:`chatterspec.viewer.blueprint.blueprint`'s ``extra_row``.
@@ -83,7 +86,7 @@ class IdentificationLog:
     setup : IdentificationSetup
     """
 
-    def __init__(self, sinks: Sinks, setup: Any) -> None:
+    def __init__(self, sinks: Sinks, setup: IdentificationSetup) -> None:
         import pyarrow as pa
         import rerun as rr
 
