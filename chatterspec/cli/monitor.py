@@ -224,7 +224,9 @@ def run(args: argparse.Namespace) -> int:
     settings = MonitorSettings(
         stft=stft,
         alpha=float(args.alpha if args.alpha is not None else det.get("alpha", 1e-3)),
-        correction=cast("Correction", str(det.get("correction", "bonferroni"))),  # (MonitorSettings checks it)
+        correction=cast(
+            "Correction", str(det.get("correction", "bonferroni"))
+        ),  # (MonitorSettings checks it)
         gamma=spec.gamma,
         psi=None if spec.psi is None else tuple(spec.psi.tolist()),  # nonlinear: the sgn-SVSF only
         band=band_from_args(args) or det.get("band"),

@@ -10,6 +10,14 @@ from .sinks import TIMELINE
 from .spectrogram_view import KEY_PX, key_width, spectrogram_view
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from rerun.blueprint import VisibleTimeRange
+    from rerun.blueprint.api import View
+    from rerun.blueprint.archetypes import TimeAxis
+
+    #: Views for a row below the lanes, given the recording's time range and axis.
+    ExtraRow = Callable[[VisibleTimeRange, TimeAxis | None], list[View]]
     pass
 
 __all__ = [
@@ -235,7 +243,9 @@ def series_styles(
     return out
 
 
-def time_axis(span_s: tuple[float, float] | None, history_s: float = 10.0) -> tuple[Any, Any]:
+def time_axis(
+    span_s: tuple[float, float] | None, history_s: float = 10.0
+) -> tuple[VisibleTimeRange, TimeAxis]:
     """The one time axis of a recording's views: the data range every time view queries and the x axis
     it shows, linked across views (zooming one zooms all).
 
@@ -363,7 +373,7 @@ def layout_geometry(
     return [_ROW_PX] * rows_above + [cols, lanes] + [_ROW_PX] * rows_below, float(width)
 
 
-def _symmetric_axis(ranges: Any, i: int) -> Any:
+def _symmetric_axis(ranges: list[float | None] | None, i: int) -> Any:
     """``ScalarAxis`` ``[-r, r]`` for channel ``i`` of ``ranges`` (None: auto range)."""
     import rerun.blueprint as rrb
 
@@ -382,13 +392,13 @@ def blueprint(
     alarm: str | None = None,
     alarm_score: bool = False,
     alarm_range: tuple[float, float] | None = None,
-    extra_row: Any = None,
+    extra_row: ExtraRow | None = None,
     units: tuple[str, ...] | None = None,
     above: list[Any] | None = None,
     extra_lanes: int = 0,
     lanes_name: str | None = None,
     peak_view: bool = True,
-    chattering_range: Any = None,
+    chattering_range: list[float | None] | None = None,
 ) -> Any:
     """The default layout: per channel (columns) chattering, spectrogram, detection statistic and peak
     frequency; below, the state lanes (true fault first, then one verdict lane per channel in channel

@@ -26,8 +26,14 @@ from .sinks import TIMELINE, open_sinks
 from .truth_lane import log_truth_lane, truth_colors
 
 if TYPE_CHECKING:  # pragma: no cover
+    from types import ModuleType
+
+    from rerun.blueprint import VisibleTimeRange
+    from rerun.blueprint.archetypes import TimeAxis
+
     from ..plants.scenario_types import Scenario
     from ..plants.simulate import Simulation
+    from .sinks import Sinks
 
 __all__ = ["mode_lane_entity", "record_budget_diagnosis", "record_diagnosis"]
 
@@ -157,8 +163,8 @@ def mode_lane_entity(method: str) -> str:
 
 
 def _log_modes(
-    sinks: Any,
-    rr: Any,
+    sinks: Sinks,
+    rr: ModuleType,
     method: str,
     t: np.ndarray,
     mu: np.ndarray,
@@ -195,7 +201,13 @@ def _log_modes(
 
 
 def _log_route(
-    sinks: Any, rr: Any, rrb: Any, method: str, series: tuple, time_range: Any, axis: Any = None
+    sinks: Sinks,
+    rr: ModuleType,
+    rrb: ModuleType,
+    method: str,
+    series: tuple,
+    time_range: VisibleTimeRange,
+    axis: TimeAxis | None = None,
 ) -> Any:
     """Log one route's statistic and threshold as two series; return its view (no legend over the data:
     the title names them; y range up to 1.5 h, so that the threshold shows even when a fault's statistic

@@ -221,7 +221,7 @@ def run_monitor(
     )
 
 
-def _close(logger: Any, sinks: Sinks, *, keep_going: bool) -> str | None:
+def _close(logger: RerunLogger | None, sinks: Sinks, *, keep_going: bool) -> str | None:
     """Close the logger and the sinks; after a finished run, a write failure is returned, not raised."""
     try:
         try:

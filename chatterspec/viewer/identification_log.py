@@ -28,6 +28,9 @@ from .rerun_log import to_ns
 from .sinks import Sinks
 
 if TYPE_CHECKING:  # pragma: no cover
+    from rerun.blueprint import VisibleTimeRange
+    from rerun.blueprint.archetypes import TimeAxis
+
     from ..detection.identification import IdentificationSetup
 
 __all__ = ["IDENTIFICATION", "IdentificationLog", "identification_views"]
@@ -55,7 +58,7 @@ def identification_views(setup: IdentificationSetup, confidence: float) -> Any:
     pm = setup.parameter_map
     used = [p for p in pm.parameter_names if any(p in h.parameters for h in setup.hypotheses)]
 
-    def make(time_range: Any, axis: Any = None) -> list[Any]:
+    def make(time_range: VisibleTimeRange, axis: TimeAxis | None = None) -> list[Any]:
         import rerun.blueprint as rrb
 
         views: list[Any] = []  # rerun blueprint views

@@ -18,6 +18,8 @@ from typing import TYPE_CHECKING, Any
 from urllib.parse import urlparse
 
 if TYPE_CHECKING:
+    from rerun.blueprint import Blueprint
+
     pass
 
 __all__ = [
@@ -183,7 +185,7 @@ class Sinks:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def send_blueprint(self, bp: Any) -> None:
+    def send_blueprint(self, bp: Blueprint) -> None:
         """Send ``bp`` (a ``rerun.blueprint.Blueprint``) to every stream as the active and default one."""
         for s in self.streams:
             s.send_blueprint(bp, make_active=True, make_default=True)

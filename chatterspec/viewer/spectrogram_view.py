@@ -28,9 +28,12 @@ Entities under ``/spectrogram/<channel>``: ``image`` (the dB image and its scale
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from rerun import RecordingStream
 
 __all__ = ["KEY_FRACTION", "KEY_PX", "image_width", "key_width", "log_axes", "log_image", "spectrogram_view"]
 
@@ -95,7 +98,7 @@ def _y(f: float, band_hz: tuple[float, float], df: float) -> float:
 
 
 def log_axes(
-    stream: Any,
+    stream: RecordingStream,
     path: str,
     band_hz: tuple[float, float],
     df: float,
@@ -164,7 +167,7 @@ def log_axes(
 
 
 def log_image(
-    stream: Any, path: str, ns: int, img: np.ndarray, width: float, db_range: tuple[float, float]
+    stream: RecordingStream, path: str, ns: int, img: np.ndarray, width: float, db_range: tuple[float, float]
 ) -> None:
     """Log one spectrogram image at time ``ns`` (integer nanoseconds).
 
