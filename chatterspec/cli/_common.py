@@ -22,7 +22,9 @@ P = ParamSpec("P")
 class StudyResult(Protocol):
     """A Monte Carlo study's result as :func:`report_study` takes it: its JSON document."""
 
-    def to_dict(self) -> dict[str, Any]: ...
+    def to_dict(self) -> dict[str, Any]:
+        """The result as a JSON-ready dict."""
+        ...
 
 
 def parsed_arg(

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Collection
-from typing import TYPE_CHECKING, TypeGuard, cast
+from typing import TypeGuard, cast
 
 import numpy as np
 
@@ -19,6 +19,9 @@ from ._engine_numpy import given_prediction, linear_prediction, model_call_loop,
 from ._finite import require_finite
 from .protocol import FilterOutput, FilterState, check_chunk, initial_state, resolve_store
 from .svsf_steps import rows_times as _rows_times
+
+#: What ``_advance`` returns: the covariance after the chunk and the stored outputs.
+Advanced = tuple[np.ndarray, dict[str, np.ndarray | None]]
 
 _MODEL_ATTRS = ("transition", "jacobian", "C", "Q", "R", "dt", "n_states", "n_outputs", "n_inputs")
 
@@ -51,13 +54,11 @@ class CovarianceFilterBase:
     """
 
     model: Model
-    if TYPE_CHECKING:  # a class attribute or a property of the subclass
 
-        @property
-        def _linear(self) -> bool: ...
+    @property
+    def _linear(self) -> bool:  # (subclasses: a class attribute or a property)
+        return False
 
-    else:
-        _linear = False
     _shared_ok: bool = False
 
     def _correction_step(self) -> _engine.CorrectionStep:  # pragma: no cover - abstract
@@ -159,16 +160,8 @@ class CovarianceFilterBase:
             return None
         return plant_steps(self.model)
 
-    def _advance(
-        self,
-        x: np.ndarray,
-        P: np.ndarray,
-        ep: np.ndarray,
-        epp: np.ndarray,
-        z: np.ndarray,
-        u: np.ndarray,
-        keep: frozenset[str],
-    ) -> tuple[np.ndarray, dict[str, np.ndarray | None]]:
+    def _advance(self, x: np.ndarray, P: np.ndarray, ep: np.ndarray, epp: np.ndarray, z: np.ndarray,
+                 u: np.ndarray, keep: frozenset[str]) -> Advanced:  # fmt: skip
         model = self.model
         C = np.asarray(model.C, dtype=float)
         Q = np.asarray(model.Q, dtype=float)

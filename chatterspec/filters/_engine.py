@@ -268,23 +268,7 @@ def _sample(
 
 
 @_jit.step
-def _no_correction(
-    fp: np.ndarray,
-    e: np.ndarray,
-    ep: np.ndarray,
-    epp: np.ndarray,
-    xp: np.ndarray,
-    PCtT: np.ndarray,
-    D: np.ndarray,
-    L: np.ndarray,
-    C: np.ndarray,
-    F: np.ndarray,
-    x: np.ndarray,
-    KgT: np.ndarray,
-    ws: tuple[np.ndarray, ...],
-    n: int,
-    m: int,
-) -> int:
+def _no_correction(*args: object) -> int:  # (bound by sample_step before any compilation)
     """Placeholder binding of :func:`_sample` (never called)."""
     return NOT_PD
 
@@ -302,30 +286,15 @@ def sample_step(correct: CorrectionStep, want_ll: bool = True) -> Callable[..., 
 
 
 @_jit.step
-def _no_sample(
-    fp: np.ndarray,
-    x: np.ndarray,
-    P: np.ndarray,
-    ep: np.ndarray,
-    epp: np.ndarray,
-    zk: np.ndarray,
-    xp: np.ndarray,
-    F: np.ndarray,
-    C: np.ndarray,
-    Q: np.ndarray,
-    R: np.ndarray,
-    ws: tuple[np.ndarray, ...],
-    n: int,
-    m: int,
-) -> int:
+def _no_sample(fp: np.ndarray, x: np.ndarray, P: np.ndarray, ep: np.ndarray, epp: np.ndarray, zk: np.ndarray,
+    xp: np.ndarray, F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray, ws: tuple[np.ndarray, ...],
+    n: int, m: int) -> int:  # fmt: skip
     """Placeholder binding of the loops (never called)."""
     return NOT_PD
 
 
 @_jit.step
-def workspace(
-    n: int, m: int
-) -> tuple[np.ndarray, ...]:  # pragma: no cover - compiled (inlined into the loops)
+def workspace(n: int, m: int) -> tuple[np.ndarray, ...]:  # pragma: no cover - compiled (inlined in loops)
     """Scratch of :func:`_sample` and the correction steps: views of one stack block of the loop.
 
     ``(T1, Pp, PCt, PCtT, S, D, L, e, eb, wv, KgT, IKC, KR, ll, MpT, g, dz, Phi, G12, P12i, Al,
@@ -393,22 +362,9 @@ def workspace(
 
 
 @_jit.step
-def store_step(
-    flags: np.ndarray,
-    outs: tuple[np.ndarray, ...],
-    r: int,
-    k: int,
-    xp: np.ndarray,
-    x: np.ndarray,
-    e: np.ndarray,
-    S: np.ndarray,
-    ll: np.ndarray,
-    ep: np.ndarray,
-    Pp: np.ndarray,
-    P: np.ndarray,
-    n: int,
-    m: int,
-) -> None:
+def store_step(flags: np.ndarray, outs: tuple[np.ndarray, ...], r: int, k: int, xp: np.ndarray, x: np.ndarray,
+    e: np.ndarray, S: np.ndarray, ll: np.ndarray, ep: np.ndarray, Pp: np.ndarray, P: np.ndarray, n: int,
+    m: int) -> None:  # fmt: skip
     """Write sample k of run r into the outputs of :data:`FIELDS` whose ``flags`` entry is set.
 
     One test of each flag per call, outside the element loops (tested inside them, the flags were
@@ -611,11 +567,10 @@ def cov_loop(
     n = x.shape[1]
     flags, out = _alloc(keep, _shapes(runs, K, n, m))
     c = np.ascontiguousarray
-    bind: dict[str, Any]  # steps and flags bound into the loop
     if plant is None:
         assert xp_in is not None and F_in is not None  # (no plant steps: the caller's prediction)
         prm = c(np.concatenate([xp_in, np.reshape(F_in, (runs, n * n))], axis=1), dtype=float)
-        bind = {"PREDICT": given_predict, "JACOBIAN": given_jacobian, "CONST_F": False}
+        bind: dict[str, Any] = {"PREDICT": given_predict, "JACOBIAN": given_jacobian, "CONST_F": False}
         tag = f"given_{correct.name}"
     else:
         prm = c(plant.parameters, dtype=float)[None]

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 from .. import palette
@@ -10,15 +10,12 @@ from .sinks import TIMELINE
 from .spectrogram_view import KEY_PX, key_width, spectrogram_view
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
-
     from rerun.blueprint import VisibleTimeRange
     from rerun.blueprint.api import View
     from rerun.blueprint.archetypes import TimeAxis
 
     #: Views for a row below the lanes, given the recording's time range and axis.
     ExtraRow = Callable[[VisibleTimeRange, TimeAxis | None], list[View]]
-    pass
 
 __all__ = [
     "ALARM",

@@ -40,7 +40,6 @@ from .spectrogram_images import SpectrogramImages
 if TYPE_CHECKING:  # pragma: no cover
     from types import ModuleType
 
-    from rerun import RecordingStream
 
 __all__ = ["ColumnBatches"]
 
@@ -299,17 +298,13 @@ class ColumnBatches:
                     self._fault_hz[i], indexes=[hit_t], columns=[cols.scalars_column(sig_hz[hit, i])]
                 )
         if not box.live:  # the file's spectrogram: dB columns of the whole batch at once
-            file = self.sinks.file_stream
-            assert file is not None  # (a batch for the file)
-            self.images.add_file(file, times, spectra, self.origin_ns)
+            self.images.add_file(self.sinks.file_stream, times, spectra, self.origin_ns)
             if self._collector is not None:  # the file's intervals, drawn on close
                 self._collector.add(times, flags, ratio, sig_hz, peak_hz, peak_ratio)
         if events:
             send_alarm_events(s, events, self._half_win, self.lanes if box.live else None)
 
-    def _send_spectra(
-        self, s: RecordingStream, path: str, tcol: _TimeIndex, ns: np.ndarray, power: np.ndarray
-    ) -> None:
+    def _send_spectra(self, s: Any, path: str, tcol: _TimeIndex, ns: np.ndarray, power: np.ndarray) -> None:
         """One ``Tensor`` row per frame: ``power`` is (frames, bins) in ``spectrum_dtype``."""
         if not self._cols.tensors_ok:
             for f in range(power.shape[0]):

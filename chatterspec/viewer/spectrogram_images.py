@@ -9,7 +9,7 @@ so that it covers the record's span (:meth:`SpectrogramImages.covered_span`). Dr
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -132,7 +132,11 @@ class SpectrogramImages:
                 log_image(live, f"/spectrogram/{c}", ns, img[:, :, i].T, self.width, DB_RANGE)
 
     def add_file(
-        self, file: RecordingStream, times: np.ndarray, spectra: np.ndarray, origin_ns: int | None
+        self,
+        file: Any,
+        times: np.ndarray,
+        spectra: np.ndarray,
+        origin_ns: int | None,  # file: a RecordingStream
     ) -> None:
         """Append a file batch's frames (``times`` (F,) s, channel-major ``spectra`` (m, F, bins)) to
         the file's spectrogram blocks as float16 dB columns (:meth:`db`'s values, per batch); a full
