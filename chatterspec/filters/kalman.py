@@ -37,23 +37,9 @@ from ._engine import chol_solve_step, gain_update_step
 
 
 @_jit.step
-def kalman_correct(
-    fp: np.ndarray,
-    e: np.ndarray,
-    ep: np.ndarray,
-    epp: np.ndarray,
-    xp: np.ndarray,
-    PCtT: np.ndarray,
-    D: np.ndarray,
-    L: np.ndarray,
-    C: np.ndarray,
-    F: np.ndarray,
-    x: np.ndarray,
-    KgT: np.ndarray,
-    ws: tuple[np.ndarray, ...],
-    n: int,
-    m: int,
-) -> int:
+def kalman_correct(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarray, xp: np.ndarray,
+    PCtT: np.ndarray, D: np.ndarray, L: np.ndarray, C: np.ndarray, F: np.ndarray, x: np.ndarray,
+    KgT: np.ndarray, ws: tuple[np.ndarray, ...], n: int, m: int) -> int:  # fmt: skip
     """The Kalman correction (compiled step): ``K^T = S^-1 (P C^T)^T`` from the factor ``L`` of ``S``,
     ``x(k+1|k+1) = x(k+1|k) + K e``. Signature of :mod:`chatterspec.filters._engine`; returns 0."""
     chol_solve_step(L, PCtT, KgT, m, n)

@@ -165,23 +165,9 @@ def from_settings(model: Model, settings: FilterSettings, source: str) -> Second
 
 
 @_jit.step
-def svsf2_correct(
-    fp: np.ndarray,
-    e: np.ndarray,
-    ep: np.ndarray,
-    epp: np.ndarray,
-    xp: np.ndarray,
-    PCtT: np.ndarray,
-    D: np.ndarray,
-    L: np.ndarray,
-    C: np.ndarray,
-    F: np.ndarray,
-    x: np.ndarray,
-    KgT: np.ndarray,
-    ws: tuple[np.ndarray, ...],
-    n: int,
-    m: int,
-) -> int:
+def svsf2_correct(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarray, xp: np.ndarray,
+    PCtT: np.ndarray, D: np.ndarray, L: np.ndarray, C: np.ndarray, F: np.ndarray, x: np.ndarray,
+    KgT: np.ndarray, ws: tuple[np.ndarray, ...], n: int, m: int) -> int:  # fmt: skip
     """The second-order SVSF's correction (compiled step, signature of :mod:`chatterspec.filters._engine`).
 
     [DETC] eq (9): ``dz = e - (gamma + Lambda) e(k|k) + gamma Lambda e(k-1|k-1)``; the covariance

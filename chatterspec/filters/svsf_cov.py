@@ -251,20 +251,9 @@ class SVSFCov(SVSFCovarianceBase):
 
 
 @_jit.step
-def _svsf_gain(
-    fp: np.ndarray,
-    e: np.ndarray,
-    ep: np.ndarray,
-    xp: np.ndarray,
-    PCtT: np.ndarray,
-    D: np.ndarray,
-    L: np.ndarray,
-    x: np.ndarray,
-    KgT: np.ndarray,
-    ws: tuple[np.ndarray, ...],
-    n: int,
-    m: int,
-) -> bool:
+def _svsf_gain(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, xp: np.ndarray, PCtT: np.ndarray, D: np.ndarray,
+    L: np.ndarray, x: np.ndarray, KgT: np.ndarray, ws: tuple[np.ndarray, ...], n: int,
+    m: int) -> bool:  # fmt: skip
     """[SMM] eq (2.5), (2.8) for the constant and ``cov`` maps: ``g_i = (|e_i| + gamma_i |e_i(k|k)|) /
     max(|e_i|, psi_i)``, ``dz = g o e``, ``K = M diag(g)``, ``x = x(k+1|k) + M dz``; False if ``C P C^T``
     is not positive definite (``cov``)."""
@@ -282,23 +271,9 @@ def _svsf_gain(
 
 
 @_jit.step
-def svsf_cov_correct(
-    fp: np.ndarray,
-    e: np.ndarray,
-    ep: np.ndarray,
-    epp: np.ndarray,
-    xp: np.ndarray,
-    PCtT: np.ndarray,
-    D: np.ndarray,
-    L: np.ndarray,
-    C: np.ndarray,
-    F: np.ndarray,
-    x: np.ndarray,
-    KgT: np.ndarray,
-    ws: tuple[np.ndarray, ...],
-    n: int,
-    m: int,
-) -> int:
+def svsf_cov_correct(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarray, xp: np.ndarray,
+    PCtT: np.ndarray, D: np.ndarray, L: np.ndarray, C: np.ndarray, F: np.ndarray, x: np.ndarray,
+    KgT: np.ndarray, ws: tuple[np.ndarray, ...], n: int, m: int) -> int:  # fmt: skip
     """The SVSF-with-covariance correction (compiled step, signature of :mod:`chatterspec.filters._engine`).
 
     ``fp`` from :func:`~chatterspec.filters._engine.svsf_parameters`; constant or ``cov`` map.
@@ -309,23 +284,9 @@ def svsf_cov_correct(
 
 
 @_jit.step
-def vbl_correct(
-    fp: np.ndarray,
-    e: np.ndarray,
-    ep: np.ndarray,
-    epp: np.ndarray,
-    xp: np.ndarray,
-    PCtT: np.ndarray,
-    D: np.ndarray,
-    L: np.ndarray,
-    C: np.ndarray,
-    F: np.ndarray,
-    x: np.ndarray,
-    KgT: np.ndarray,
-    ws: tuple[np.ndarray, ...],
-    n: int,
-    m: int,
-) -> int:
+def vbl_correct(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarray, xp: np.ndarray,
+    PCtT: np.ndarray, D: np.ndarray, L: np.ndarray, C: np.ndarray, F: np.ndarray, x: np.ndarray,
+    KgT: np.ndarray, ws: tuple[np.ndarray, ...], n: int, m: int) -> int:  # fmt: skip
     """The variable boundary layer (compiled step): the Kalman gain when every channel has
     ``psi_vbl,i = (|e_i| + gamma_i |e_i(k|k)|) / (C K_KF)_ii <= psi_i``, else :func:`svsf_cov_correct`."""
     kalman_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m)
