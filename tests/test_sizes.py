@@ -14,8 +14,11 @@ PACKAGE = Path(__file__).resolve().parent.parent / "chatterspec"
 MAX_MODULE_LINES = 600
 MAX_UNIT_LINES = 250
 
-# Modules still over the limit (path below chatterspec/), with the reason: none now.
-LONG_MODULES: dict[str, str] = {}
+# Modules still over the limit (path below chatterspec/), with the reason.
+LONG_MODULES: dict[str, str] = {
+    "filters/_engine.py": "605 lines: the compiled steps' signatures annotated for the type checker (15 "
+    "parameters each); goes when the line caps are retired",
+}
 
 # Units still over the limit ("path:qualified name"), with the reason.
 LONG_UNITS: dict[str, str] = {}

@@ -12,11 +12,17 @@ from __future__ import annotations
 import argparse
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..detection.alarms import RULES, rule_names
 from ..errors import ParameterError
 from ._options import add
+
+if TYPE_CHECKING:  # pragma: no cover
+    from pathlib import Path
+
+    from ..detection.alarm_calibration import RuleCalibration
+    from ..detection.monitor_settings import MonitorSettings
 
 __all__ = [
     "AlarmChoice",
@@ -185,7 +191,7 @@ def alarm_choice(
     )
 
 
-def check_file_alarm(choice: AlarmChoice, cal_alarm: Any, path: Any) -> Any:
+def check_file_alarm(choice: AlarmChoice, cal_alarm: RuleCalibration, path: str | Path) -> RuleCalibration:
     """The calibration file's rule calibration if it fits ``choice`` (the options given on the command
     line), else ``CalibrationMismatchError``
     (:func:`chatterspec.studies.alarm_budget.check_alarm_calibration`)."""
@@ -200,14 +206,14 @@ def check_file_alarm(choice: AlarmChoice, cal_alarm: Any, path: Any) -> Any:
     )
 
 
-def alarm_doc(settings: object) -> dict:
+def alarm_doc(settings: MonitorSettings) -> dict:
     """The ``alarm`` entry of the JSON summary: rule, threshold, budget and how it was set."""
     import math
 
     b = getattr(settings, "budget", None)
     rule = getattr(settings, "rule", None)
     if rule is None:
-        a = float(settings.alpha)  # type: ignore[attr-defined]
+        a = float(settings.alpha)
         return {
             "rule": {"rule": "frame", "threshold": -math.log(a)},
             "alpha": a,
@@ -222,19 +228,19 @@ def alarm_doc(settings: object) -> dict:
     }
 
 
-def _alarm_short(settings: object) -> str:
+def _alarm_short(settings: MonitorSettings) -> str:
     from ..online.monitor_types import alarm_label
 
     rule = getattr(settings, "rule", None)
     if rule is None:
-        return f"frame rule, per-frame alpha {settings.alpha:g}"  # type: ignore[attr-defined]
-    return alarm_label(rule.name, settings.false_alarms_per_hour)  # type: ignore[attr-defined]
+        return f"frame rule, per-frame alpha {settings.alpha:g}"
+    return alarm_label(rule.name, settings.false_alarms_per_hour)
 
 
-def _alarm_line(settings: object) -> str:
+def _alarm_line(settings: MonitorSettings) -> str:
     """One stderr line on the rule in use and where its threshold comes from."""
     rule = getattr(settings, "rule", None)
     if rule is None:
         return f"alarms: {_alarm_short(settings)} (every frame a test)"
-    b = settings.budget  # type: ignore[attr-defined]
+    b = settings.budget
     return f"alarms: {b.describe()}" if b is not None else f"alarms: {rule.describe()}"

@@ -5,13 +5,31 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, ParamSpec, Protocol, TypeVar, overload
 
 from ..errors import ParameterError
 
+if TYPE_CHECKING:  # pragma: no cover
+    from ..plants.scenario_types import Scenario
 
-def parsed_arg(text: str, convert: Any, ok: Any, not_a_number: str, out_of_range: str) -> Any:
+T = TypeVar("T")
+R = TypeVar("R")
+P = ParamSpec("P")
+
+
+class StudyResult(Protocol):
+    """A Monte Carlo study's result as :func:`report_study` takes it: its JSON document."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """The result as a JSON-ready dict."""
+        ...
+
+
+def parsed_arg(
+    text: str, convert: Callable[[str], T], ok: Callable[[T], bool], not_a_number: str, out_of_range: str
+) -> T:
     """``convert(text)`` if it works and ``ok`` accepts it, else ``argparse.ArgumentTypeError``.
 
     The messages are templates: ``{text}`` is the text given, ``{value}`` the converted value.
@@ -57,7 +75,7 @@ def rate_arg(text: str) -> float:
     )
 
 
-def _integer_arg(minimum: int, name: str) -> Any:
+def _integer_arg(minimum: int, name: str) -> Callable[[str], int]:
     """argparse type ``name``: an integer >= ``minimum``."""
 
     def parse(text: str) -> int:
@@ -122,7 +140,7 @@ def live_arg(text: str) -> str:
     return text
 
 
-def load_scenario(name: str) -> Any:
+def load_scenario(name: str) -> Scenario:
     """A catalogue scenario, or the healthy scenario of a model file (``NAME.toml``, linear or nonlinear).
 
     A model file's scenario is its ``[simulation]`` table (input, initial state, duration; zero input
@@ -178,6 +196,22 @@ def _probe_writable(folder: Path) -> str | None:
     return None
 
 
+@overload
+def check_output_path(
+    path: str | os.PathLike, option: str, *, folder: bool = False, suffixes: tuple[str, ...] | None = None
+) -> Path: ...
+@overload
+def check_output_path(
+    path: None, option: str, *, folder: bool = False, suffixes: tuple[str, ...] | None = None
+) -> None: ...
+@overload
+def check_output_path(
+    path: str | os.PathLike | None,
+    option: str,
+    *,
+    folder: bool = False,
+    suffixes: tuple[str, ...] | None = None,
+) -> Path | None: ...
 def check_output_path(
     path: str | os.PathLike | None,
     option: str,
@@ -258,7 +292,15 @@ class Outputs:
     def __init__(self) -> None:
         self.failures: list[str] = []
 
-    def write(self, option: str, target: str | os.PathLike, fn: Any, /, *args: Any, **kwargs: Any) -> Any:
+    def write(
+        self,
+        option: str,
+        target: str | os.PathLike[str],
+        fn: Callable[P, R],
+        /,
+        *args: P.args,
+        **kwargs: P.kwargs,
+    ) -> R | None:
         """Call ``fn(*args, **kwargs)``; on ``OSError`` (or Rerun's file-sink ``RuntimeError``) note it.
 
         Returns ``fn``'s result, or None when the write failed.
@@ -293,7 +335,9 @@ def check_figure_path(path: str | os.PathLike | None, option: str = "--plot") ->
         check_output_path(path, option, suffixes=figure_suffixes())
 
 
-def write_plot(outputs: Outputs, args: Any, doc: dict, figure: str, *figure_args: Any) -> None:
+def write_plot(
+    outputs: Outputs, args: argparse.Namespace, doc: dict[str, Any], figure: str, *figure_args: object
+) -> None:  # (figure_args: whatever the named drawing function takes)
     """With ``--plot FILE``: save the figure there, noted as ``doc["figure"]`` (None: not saved).
 
     ``figure`` names the drawing function in :mod:`chatterspec.figures` as ``"module.function"``
@@ -312,7 +356,14 @@ def write_plot(outputs: Outputs, args: Any, doc: dict, figure: str, *figure_args
     doc["figure"] = None if saved is None else str(saved)
 
 
-def report(args: Any, doc: dict, outputs: Outputs, print_text: Any, *, allow_nan: bool = False) -> int:
+def report(
+    args: argparse.Namespace,
+    doc: dict[str, Any],
+    outputs: Outputs,
+    print_text: Callable[[], None],
+    *,
+    allow_nan: bool = False,
+) -> int:
     """Print the result and end the command: ``doc`` as JSON with ``--json`` (NaN written only with
     ``allow_nan``), else ``print_text()``; then :meth:`Outputs.finish`. Returns 0."""
     if args.json:
@@ -323,7 +374,9 @@ def report(args: Any, doc: dict, outputs: Outputs, print_text: Any, *, allow_nan
     return 0
 
 
-def report_study(args: Any, res: Any, figure: str, print_text: Any) -> int:
+def report_study(
+    args: argparse.Namespace, res: StudyResult, figure: str, print_text: Callable[[dict[str, Any]], None]
+) -> int:
     """The end of a Monte Carlo study command (``far``, ``power``, ``power --closed-loop``): the result
     ``res``'s document, its ``--plot`` figure (:func:`write_plot`, ``figure`` called with ``res``),
     then :func:`report` with ``print_text(doc)`` and the figure's path as the text (NaN kept in the JSON:

@@ -12,8 +12,13 @@ import argparse
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # pragma: no cover
+    from collections.abc import Callable
+
+    import numpy as np
+
     from ..detection.identification import IdentificationSetup, IdentificationStream
-    from ..plants.models import LinearModel
+    from ..detection.identification_online import OnlineIdentification
+    from ..plants.nonlinear import Model
     from ..plants.scenarios import Scenario
 
 
@@ -29,9 +34,7 @@ def add_identification_args(p: argparse.ArgumentParser) -> None:
     add(p, "--confidence")
 
 
-def setup_or_reason(
-    model: LinearModel, args: argparse.Namespace
-) -> tuple[IdentificationSetup | None, str | None]:
+def setup_or_reason(model: Model, args: argparse.Namespace) -> tuple[IdentificationSetup | None, str | None]:
     """The identification setup of ``model``, or why there is none (``--no-identify``, reduced order, ...)."""
     if getattr(args, "no_identify", False):
         return None, "skipped (--no-identify)"
@@ -88,8 +91,8 @@ def record_doc(
 
 def interval_docs(
     setup: IdentificationSetup,
-    z: Any,
-    u: Any,
+    z: np.ndarray,
+    u: np.ndarray,
     intervals: list[tuple[float, float]],
     duration: float,
     hop_s: float,
@@ -315,8 +318,8 @@ class MonitorIdentification:
         t0: float,
         alpha: float,
         confidence: float,
-        emit: Any,
-        say: Any,
+        emit: Callable[[str], None] | None,
+        say: Callable[[str], None],
         every_hop: bool = False,
     ) -> None:
         from ..detection.identification_online import OnlineIdentifier
@@ -337,11 +340,11 @@ class MonitorIdentification:
         self.identifier.reset(t0)
         self.selected = None
 
-    def push(self, z: Any, u: Any) -> None:
+    def push(self, z: np.ndarray, u: np.ndarray) -> None:
         """Identify on one chunk of measurements ``z`` and inputs ``u`` and hand the results on."""
         self.handle(self.identifier.push(z, u))
 
-    def handle(self, out: Any) -> None:
+    def handle(self, out: OnlineIdentification) -> None:
         """Report the windows of one push."""
         from ..jsonout import dumps
 

@@ -6,10 +6,19 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+from typing import TYPE_CHECKING
 
 from ..jsonout import dumps
 from . import _identify
 from ._alarm_args import _alarm_short, alarm_doc
+
+if TYPE_CHECKING:  # pragma: no cover
+    from types import FrameType
+    from typing import TextIO
+
+    from ..detection.monitor_settings import MonitorSettings
+    from ..plants.modelfile_fields import ModelSpec
+    from ..viewer.live_stream import StreamEvent, StreamSummary
 
 __all__: list[str] = []
 
@@ -31,10 +40,10 @@ def _emit_line(text: str) -> None:
 
 def _run_stream(
     args: argparse.Namespace,
-    spec: object,
-    settings: object,
+    spec: ModelSpec,
+    settings: MonitorSettings,
     jsonl: bool,
-    human: object,
+    human: TextIO,
     ident: _identify.MonitorIdentification | None = None,
 ) -> int:
     from ..errors import ChatterspecError
@@ -43,12 +52,12 @@ def _run_stream(
 
     stdin = str(args.data) == "-"
     where = "standard input" if stdin else f"data file {str(args.data)!r}"
-    model = spec.model  # type: ignore[attr-defined]
+    model = spec.model
 
-    def on_event(ev: object) -> None:
+    def on_event(ev: StreamEvent) -> None:
         if jsonl:
-            _emit_line(ev.to_json())  # type: ignore[attr-defined]
-        print(ev.describe(), file=human, flush=True)  # type: ignore[attr-defined]
+            _emit_line(ev.to_json())
+        print(ev.describe(), file=human, flush=True)
 
     def on_note(text: str) -> None:
         print(f"chatterspec monitor: {text}", file=sys.stderr, flush=True)
@@ -56,7 +65,7 @@ def _run_stream(
     try:
         mon = StreamMonitor(
             model,
-            settings,  # type: ignore[arg-type]
+            settings,
             record=args.record,
             record_every_s=None if args.record_every is None else 60.0 * args.record_every,
             live=args.live,
@@ -81,7 +90,7 @@ def _run_stream(
     else:
         chunks = follow_file(args.data, from_end=args.from_end, idle_timeout_s=args.idle_timeout)
 
-    def on_term(signum: int, frame: object) -> None:
+    def on_term(signum: int, frame: FrameType | None) -> None:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)  # finishing must not be interrupted again
         raise _Terminated
 
@@ -125,16 +134,16 @@ def _quiet_stdout() -> None:
 
 def _report(
     args: argparse.Namespace,
-    summary: object,
+    summary: StreamSummary,
     jsonl: bool,
-    human: object,
-    settings: object,
+    human: TextIO,
+    settings: MonitorSettings,
     ident: _identify.MonitorIdentification | None = None,
 ) -> None:
     s = summary  # StreamSummary
     if args.json:
         doc = {"model": str(args.model), "data": str(args.data), "alarm": alarm_doc(settings)}
-        doc.update(s.to_dict())  # type: ignore[attr-defined]
+        doc.update(s.to_dict())
         if ident is not None:
             doc["identification"] = ident.to_dict()
         if jsonl:
@@ -142,20 +151,20 @@ def _report(
         else:
             print(dumps(doc, indent=2))
         return
-    lat = s.latency  # type: ignore[attr-defined]
-    c = s.counts  # type: ignore[attr-defined]
+    lat = s.latency
+    c = s.counts
     latency = (
         f"latency median {lat['median_ms']:.2f} ms, max {lat['max_ms']:.2f} ms"
         if lat["frames"]
         else "no frame completed"
     )
     print(
-        f"{s.duration_s:.2f} s of data ({s.n_rows} rows), {s.n_frames} frames, "  # type: ignore[attr-defined]
+        f"{s.duration_s:.2f} s of data ({s.n_rows} rows), {s.n_frames} frames, "
         f"{c['fault-start']} fault start(s) [{_alarm_short(settings)}], {c['gap']} gap(s), "
         f"{c['restart']} restart(s), "
-        f"{c['bad-row']} bad row(s) skipped; {latency}; {s.wall_s:.2f} s wall; "  # type: ignore[attr-defined]
-        f"stopped by {s.stopped_by}",  # type: ignore[attr-defined]
+        f"{c['bad-row']} bad row(s) skipped; {latency}; {s.wall_s:.2f} s wall; "
+        f"stopped by {s.stopped_by}",
         file=human,
     )
-    for rec in s.recordings:  # type: ignore[attr-defined]
+    for rec in s.recordings:
         print(f"recording: {rec['path']} (open with `chatterspec replay {rec['path']}`)", file=human)

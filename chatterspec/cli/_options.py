@@ -24,7 +24,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ._common import (
     alpha_arg,
@@ -35,6 +35,9 @@ from ._common import (
     positive_int_arg,
     rate_arg,
 )
+
+if TYPE_CHECKING:  # pragma: no cover
+    from collections.abc import Callable
 
 #: The positional NAME of the commands that study a healthy scenario (calibrate, far).
 HEALTHY_NAME_HELP = "healthy scenario name or model file (.toml)"
@@ -135,7 +138,12 @@ def add(p: argparse.ArgumentParser, flag: str, **changes: Any) -> argparse.Actio
 
 
 def command(
-    sub: argparse._SubParsersAction, name: str, run: Any, *, help: str, description: str
+    sub: argparse._SubParsersAction,
+    name: str,
+    run: Callable[[argparse.Namespace], int],
+    *,
+    help: str,
+    description: str,
 ) -> argparse.ArgumentParser:
     """Add the subcommand ``name`` to ``sub``, run by ``run(args) -> int`` (its ``func``)."""
     p = sub.add_parser(name, help=help, description=description)

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING, Any
 
 from ..errors import ParameterError
 from ._common import report_study
 from ._options import study_keywords
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..studies.excitation import ExcitationResult
 
 
 def add_closed_loop_args(p: argparse.ArgumentParser) -> None:
@@ -103,7 +107,7 @@ def run_closed_loop(args: argparse.Namespace) -> int:
     )
 
 
-def _print_excitation(res, doc: dict, dither_at: str) -> None:  # type: ignore[no-untyped-def]
+def _print_excitation(res: ExcitationResult, doc: dict[str, Any], dither_at: str) -> None:
     """The text report of an excitation study ``res`` (``doc``: its JSON document): table and answers."""
     print(
         f"closed-loop detection power, {res.family} {res.size:g} {res.unit} on {res.channel}: linear EHA "

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import ParameterError
 from ._alarm_args import add_alarm_args, alarm_choice
@@ -23,6 +23,10 @@ from ._common import (
     write_plot,
 )
 from ._options import add, add_name, add_study_args, command, study_execution, study_keywords
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..studies.calibration_result import Calibration
+    from ._alarm_args import AlarmChoice
 
 #: The former names of the study options and their execution keywords (now in :mod:`._options`).
 add_common = add_study_args
@@ -137,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
     return report(args, doc, outputs, lambda: _print_calibration(cal, doc), allow_nan=True)
 
 
-def _print_calibration(cal: Any, doc: dict) -> None:
+def _print_calibration(cal: Calibration, doc: dict) -> None:
     """The text report of a calibration ``cal`` (``doc``: its JSON document)."""
     if cal.alarm is not None:
         print(f"alarm rule for the monitor: {cal.alarm.describe()}")
@@ -184,7 +188,9 @@ def _check_alarm_plan(name: str, choice: Any, hours: float) -> None:
     check_hours(sc.nominal, settings, hours, sc)
 
 
-def _with_alarm(cal: Any, name: str, choice: Any, hours: float, seed: int, progress: bool | None) -> Any:
+def _with_alarm(
+    cal: Calibration, name: str, choice: AlarmChoice, hours: float, seed: int, progress: bool | None
+) -> Calibration:
     """``cal`` with the monitor's alarm threshold for ``choice``, on the score the monitor computes with
     this file (its empirical per-frame threshold's normalization)."""
     import dataclasses
@@ -244,14 +250,12 @@ def _check_support(args: argparse.Namespace) -> dict[str, Any]:
     return supports
 
 
-def _save_calibration(cal: Any, path: str) -> Any:
-    from pathlib import Path
-
+def _save_calibration(cal: Calibration, path: str) -> Path:
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     return cal.save(path)
 
 
-def _print_empirical(cal, doc: dict) -> int:
+def _print_empirical(cal: Calibration, doc: dict[str, Any]) -> int:
     """Text report of a calibration with an empirical normalization (nonlinear model)."""
     info = cal.normalization_info
     print(f"calibration of {cal.scenario}: alpha = {cal.alpha:g}, {cal.runs} healthy runs, seed {cal.seed}")

@@ -129,9 +129,9 @@ def run(args: argparse.Namespace) -> int:
             for fig_name in DEMO_FIGURES:
                 rendered = render(fig_name, seed=args.seed)
                 target = Path(args.figures_dir) / f"{fig_name}.png"
-                path = outputs.write("--figures-dir", target, save_figure, rendered.figure, target)
-                if path is not None:
-                    figures.append(str(path))
+                saved = outputs.write("--figures-dir", target, save_figure, rendered.figure, target)
+                if saved is not None:
+                    figures.append(str(saved))
                 bar.update(1, fig_name)
             figures.append(str(demo_summary(results, Path(args.figures_dir) / "summary.png")))
     wall = time.perf_counter() - t_start
@@ -201,7 +201,7 @@ def _print_table(results: list[dict], args: argparse.Namespace) -> None:
     print(head)
     print("-" * len(head))
     for r in results:
-        intervals = {}
+        intervals: dict[str, list[str]] = {}
         for iv in r.get("intervals", []):
             intervals.setdefault(iv["channel"], []).append(f"[{iv['onset_s']:.1f}, {iv['offset_s']:.1f}]")
         for i, c in enumerate(r["channels"]):

@@ -8,9 +8,14 @@ from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from ..detection.identification import IdentificationSetup, IdentificationStream
+    from ..detection.monitor_settings import MonitorSettings
     from ..detection.pipeline import ChatteringRecord
+    from ..detection.report import DetectionReport
     from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
+    from ..studies.calibration_result import Calibration
+    from ._alarm_args import AlarmChoice
 
 from ..errors import ParameterError
 from . import _identify
@@ -145,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
         settings = _alarm_settings(args, choice, sc, settings, cal if args.calibration else None)
         doc["alarm"] = None if settings.budget is None else settings.budget.to_dict()
         outputs = Outputs()
+        assert sim is not None  # (simulated above for --record / --live)
         summary = outputs.write(
             "--record", args.record, record_detection, sim, settings, path=args.record, live=args.live
         )
@@ -173,8 +179,12 @@ def _file_rule(args: argparse.Namespace) -> str | None:
 
 
 def _alarm_settings(
-    args: argparse.Namespace, choice: object, sc: object, settings: object, cal: object
-) -> object:
+    args: argparse.Namespace,
+    choice: AlarmChoice,
+    sc: Scenario,
+    settings: MonitorSettings,
+    cal: Calibration | None,
+) -> MonitorSettings:
     """The recording monitor's alarm rule: the calibration file's, or set here for the budget (linear);
     a nonlinear scenario whose file holds no alarm calibration keeps the per-frame rule."""
     from ..studies.alarm_budget import alarm_settings
@@ -182,9 +192,9 @@ def _alarm_settings(
 
     file_alarm = getattr(cal, "alarm", None)
     if file_alarm is not None:
-        rc = check_file_alarm(choice, file_alarm, args.calibration)  # type: ignore[arg-type]
-        return alarm_settings(sc.nominal, settings, calibration=rc)  # type: ignore[attr-defined]
-    if not sc.is_linear:  # type: ignore[attr-defined]
+        rc = check_file_alarm(choice, file_alarm, args.calibration)
+        return alarm_settings(sc.nominal, settings, calibration=rc)
+    if not sc.is_linear:
         print(
             "chatterspec detect: note: the recording's monitor uses the per-frame rule (calibrate "
             f"{args.name}'s healthy scenario with --rule for a false-alarm budget)",
@@ -193,13 +203,13 @@ def _alarm_settings(
         return settings
     c = choice  # AlarmChoice
     return alarm_settings(
-        sc.nominal,  # type: ignore[attr-defined]
+        sc.nominal,
         settings,
-        c.rule,  # type: ignore[attr-defined]
-        c.budget,  # type: ignore[attr-defined]
-        hours=c.hours,  # type: ignore[attr-defined]
+        c.rule,
+        c.budget,
+        hours=c.hours,
         note=stderr_note("detect"),
-        **c.parameters,  # type: ignore[attr-defined]
+        **c.parameters,
     )
 
 
@@ -221,10 +231,10 @@ def with_progress(
 
 def add_identification(
     doc: dict,
-    report: object,
-    setup: object,
+    report: DetectionReport,
+    setup: IdentificationSetup | None,
     why_not: str | None,
-    ident: object,
+    ident: IdentificationStream | None,
     sim: Simulation | None,
     sc: Scenario,
     args: argparse.Namespace,
@@ -234,6 +244,7 @@ def add_identification(
     if setup is None:
         doc["identification"] = {"reason": why_not}
         return
+    assert ident is not None  # (made with the setup)
     doc["identification"] = _identify.record_doc(ident, args.runs, setup, sc)
     frames = getattr(report, "frames", None)
     if sim is not None and frames is not None and frames.intervals.get("any"):

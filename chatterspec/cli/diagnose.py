@@ -24,11 +24,18 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import TYPE_CHECKING, Any
 
 from ..errors import ParameterError
 from . import _identify
 from ._common import Outputs, check_figure_path, check_record_path, positive_int_arg, report
 from ._options import add, add_execution_args, add_name, add_report_args, add_runs_args, command, execution
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.thresholds import Threshold
+    from ..plants.scenario_types import Scenario
+    from ..studies.budget_diagnosis import BudgetSettings
+    from ..studies.routes import Route
 
 #: Healthy runs of the budget's calibration streams by default: on eha4-leak-timeline (9 s records) 500 runs
 #: (1.2 h) are too few for the alarm layer to extrapolate the chattering and innovation routes' CUSUM to one
@@ -130,7 +137,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(cusum_drift=None)  # each route sets its own CUSUM drift
 
 
-def _methods(text: str | None, sc: object, per_record: bool) -> tuple[str, ...]:
+def _methods(text: str | None, sc: Scenario, per_record: bool) -> tuple[str, ...]:
     from ..studies.routes import ALL_METHODS, supported_methods, unsupported_reason
 
     allowed = tuple(m for m in ALL_METHODS if not (per_record and m == "innovation"))
@@ -138,7 +145,7 @@ def _methods(text: str | None, sc: object, per_record: bool) -> tuple[str, ...]:
     if text is None:
         if not supported:
             raise ParameterError(
-                f"scenario {sc.name!r} supports no diagnosis method here; try eha4-leak-timeline"  # type: ignore[attr-defined]
+                f"scenario {sc.name!r} supports no diagnosis method here; try eha4-leak-timeline"
             )
         return supported
     names = tuple(s.strip() for s in text.split(",") if s.strip())
@@ -154,13 +161,13 @@ def _methods(text: str | None, sc: object, per_record: bool) -> tuple[str, ...]:
         why = unsupported_reason(sc, name)
         if why is not None:
             raise ParameterError(
-                f"scenario {sc.name!r} does not support --methods {name} (it needs {why}); "  # type: ignore[attr-defined]
+                f"scenario {sc.name!r} does not support --methods {name} (it needs {why}); "
                 f"supported here: {','.join(supported) or 'none'}"
             )
     return tuple(dict.fromkeys(names))
 
 
-def _scenario(args: argparse.Namespace) -> object:
+def _scenario(args: argparse.Namespace) -> Scenario:
     from ..plants.scenarios import scenario
     from ..studies.route_sweep import onsets_of
 
@@ -171,13 +178,13 @@ def _scenario(args: argparse.Namespace) -> object:
         sc = with_onset(sc, args.onset)
     if not onsets_of(sc):
         raise ParameterError(
-            f"scenario {sc.name!r} has no fault onset to diagnose (it is healthy); for false alarms on "  # type: ignore[attr-defined]
+            f"scenario {sc.name!r} has no fault onset to diagnose (it is healthy); for false alarms on "
             "healthy data use `chatterspec far` or `chatterspec monitor`"
         )
     return sc
 
 
-def _settings(args: argparse.Namespace) -> object:
+def _settings(args: argparse.Namespace) -> BudgetSettings:
     from ..studies.budget_diagnosis import BudgetSettings
     from ._alarm_args import alarm_choice
 
@@ -188,12 +195,15 @@ def _settings(args: argparse.Namespace) -> object:
     return BudgetSettings(choice.budget, choice.rule, params, args.warmup, args.calibration_runs)
 
 
-def _routes(args: argparse.Namespace, sc: object, methods: tuple[str, ...]) -> tuple[dict, object, dict]:
+def _routes(
+    args: argparse.Namespace, sc: Scenario, methods: tuple[str, ...]
+) -> tuple[dict[str, Route], Threshold | None, dict[str, Any]]:
     """The route objects, the per-frame threshold of the recording (chattering) and its provenance."""
     from ..studies.routes import ChatteringRoute, InnovationRoute, ModeRoute
 
-    routes: dict = {}
-    threshold, info = None, {}
+    routes: dict[str, Route] = {}
+    threshold: Threshold | None = None
+    info: dict[str, Any] = {}
     for m in methods:
         if m == "chattering":
             threshold, info = _chattering_law(args, sc)
@@ -206,18 +216,18 @@ def _routes(args: argparse.Namespace, sc: object, methods: tuple[str, ...]) -> t
     return routes, threshold, info
 
 
-def _chattering_law(args: argparse.Namespace, sc: object) -> tuple[object, dict]:
+def _chattering_law(args: argparse.Namespace, sc: Scenario) -> tuple[Threshold, dict[str, Any]]:
     """The healthy law of the chattering frame score: exact for a linear model, else calibrated."""
-    if sc.is_linear:  # type: ignore[attr-defined]
+    if sc.is_linear:
         if args.calibration is not None:
             raise ParameterError(
                 "--calibration: a linear model's frame score uses its exact law, not a calibration file; "
                 "drop --calibration (or give --per-record for the per-frame table)"
             )
-        from ..detection.spectral import STFTConfig
+        from ..detection.spectral import STFTConfig, spectrum_model
         from ..detection.thresholds import frame_threshold
 
-        model, config = sc.nominal, STFTConfig()  # type: ignore[attr-defined]
+        model, config = spectrum_model(sc.nominal), STFTConfig()
         th = frame_threshold(model, config.freqs_hz(model.dt), config, model.dt, args.alpha)
         return th, {"source": "exact law of the linear model", "alpha": args.alpha}
     from ._diagnose_per_record import chattering_threshold
@@ -268,8 +278,8 @@ def run(args: argparse.Namespace) -> int:
         from ..figures.plot_diagnosis import delay_far_figure
         from ..figures.plot_studies import save
 
-        at = f"{settings.rule} rule at {settings.budget_per_hour:g} false alarm(s)/h"  # type: ignore[attr-defined]
-        title = f"{sc.name}: {args.runs} runs, {at}"  # type: ignore[attr-defined]
+        at = f"{settings.rule} rule at {settings.budget_per_hour:g} false alarm(s)/h"
+        title = f"{sc.name}: {args.runs} runs, {at}"
         figure = outputs.write("--plot", args.plot, save, delay_far_figure(results, title), args.plot)
     if args.record is not None:
         from ..viewer.diagnosis_log import record_budget_diagnosis
@@ -286,12 +296,12 @@ def run(args: argparse.Namespace) -> int:
             threshold,
         )
     doc = {
-        "scenario": sc.name,  # type: ignore[attr-defined]
+        "scenario": sc.name,
         "runs": args.runs,
         "seed": args.seed,
-        "budget_per_hour": settings.budget_per_hour,  # type: ignore[attr-defined]
-        "rule": settings.rule,  # type: ignore[attr-defined]
-        "warmup_s": settings.warmup_s,  # type: ignore[attr-defined]
+        "budget_per_hour": settings.budget_per_hour,
+        "rule": settings.rule,
+        "warmup_s": settings.warmup_s,
         "chattering_law": law_info or None,
         "wall_s": wall,
         "methods": [r.describe() for r in results],
@@ -314,14 +324,14 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _print_budget_table(
-    sc: object, args: argparse.Namespace, settings: object, results: list, wall: float
+    sc: Scenario, args: argparse.Namespace, settings: BudgetSettings, results: list, wall: float
 ) -> None:
     from ..figures.plot_diagnosis import budget_rows
 
     print(
-        f"diagnosis on {sc.name}: {args.runs} runs, seed {args.seed}; {settings.rule} rule, every route "  # type: ignore[attr-defined]
-        f"calibrated to {settings.budget_per_hour:g} false alarm(s) per hour on healthy streams "  # type: ignore[attr-defined]
-        f"({settings.calibration_runs} runs; how, per route, below); warm-up {settings.warmup_s:g} s; "  # type: ignore[attr-defined]
+        f"diagnosis on {sc.name}: {args.runs} runs, seed {args.seed}; {settings.rule} rule, every route "
+        f"calibrated to {settings.budget_per_hour:g} false alarm(s) per hour on healthy streams "
+        f"({settings.calibration_runs} runs; how, per route, below); warm-up {settings.warmup_s:g} s; "
         f"{wall:.1f} s"
     )
     header, rows = budget_rows(results)
@@ -334,10 +344,10 @@ def _print_budget_table(
         print(f"{r.method}: {how}" + (f"; {c['never_alarms']}" if "never_alarms" in c else ""))
 
 
-def identification_doc(args: argparse.Namespace, sc: object) -> dict:
+def identification_doc(args: argparse.Namespace, sc: Scenario) -> dict:
     """Fault identification per fault segment on the diagnosed realizations (seed ``--seed``, the
     routes' runs), at test level ``--alpha``; ``{"reason": ...}`` where the model gives none."""
-    setup, why_not = _identify.setup_or_reason(sc.nominal, args)  # type: ignore[attr-defined]
+    setup, why_not = _identify.setup_or_reason(sc.nominal, args)
     if setup is None:
         return {"reason": why_not}
     from ..plants.simulate import iter_simulations

@@ -21,6 +21,7 @@ import threading
 import time
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING, TextIO, cast
 
 from ..errors import ParameterError
 from ..jsonout import dumps
@@ -29,6 +30,18 @@ from ._alarm_args import _alarm_line, _alarm_short, add_alarm_args, alarm_choice
 from ._common import Outputs, band_from_args, check_record_path, positive_int_arg, stderr_note
 from ._monitor_stream import _emit_line, _run_stream
 from ._options import add, add_report_args, command
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.monitor_settings import MonitorSettings
+    from ..detection.spectral import STFTConfig
+    from ..detection.threshold_type import Correction
+    from ..online.monitor import ChatteringMonitor, DetectionEvent
+    from ..plants.datafile import DataSet
+    from ..plants.modelfile_fields import ModelSpec
+    from ..plants.nonlinear import Model
+    from ..studies.calibration_result import Calibration
+    from ..viewer.drivers import RecordingSummary
+    from ._alarm_args import AlarmChoice
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -214,17 +227,17 @@ def run(args: argparse.Namespace) -> int:
         window=str(det.get("window", "hamming")),
     )
     # a bad file fails before any simulation (a followed file: its header, when it has one)
-    data = (
+    data: DataSet | None = None
+    if args.follow:
         _follow_header(args, spec.model)
-        if args.follow
-        else None
-        if stream
-        else _replay_data(args, spec, stft)
-    )
+    elif not stream:
+        data = _replay_data(args, spec, stft)
     settings = MonitorSettings(
         stft=stft,
         alpha=float(args.alpha if args.alpha is not None else det.get("alpha", 1e-3)),
-        correction=str(det.get("correction", "bonferroni")),  # type: ignore[arg-type]
+        correction=cast(
+            "Correction", str(det.get("correction", "bonferroni"))
+        ),  # (MonitorSettings checks it)
         gamma=spec.gamma,
         psi=None if spec.psi is None else tuple(spec.psi.tolist()),  # nonlinear: the sgn-SVSF only
         band=band_from_args(args) or det.get("band"),
@@ -279,6 +292,7 @@ def run(args: argparse.Namespace) -> int:
 
     if stream:
         return _run_stream(args, spec, settings, jsonl, human, identification(0.0))
+    assert data is not None  # a file replay read its data above
 
     from ..viewer.drivers import run_monitor
     from ..viewer.live_stream import StreamEvent
@@ -306,8 +320,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"chatterspec monitor: {note}", file=sys.stderr)
     shown = len(sinks.notes)
 
-    def show(ev: object) -> None:
-        sev = StreamEvent.from_detection(ev, time.time())  # type: ignore[arg-type]
+    def show(ev: DetectionEvent) -> None:
+        sev = StreamEvent.from_detection(ev, time.time())
         if jsonl:
             _emit_line(sev.to_json())
         if not args.json or jsonl:
@@ -347,7 +361,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _follow_header(args: argparse.Namespace, model: object) -> None:
+def _follow_header(args: argparse.Namespace, model: Model) -> None:
     """``--follow FILE``: the file exists and, once it has a header line, that header fits the model.
 
     Raises
@@ -369,7 +383,7 @@ def _follow_header(args: argparse.Namespace, model: object) -> None:
     CsvRows(model, where).feed(head[: head.rfind(b"\n") + 1], time.perf_counter())  # complete lines only
 
 
-def _replay_data(args: argparse.Namespace, spec: object, stft: object) -> object:
+def _replay_data(args: argparse.Namespace, spec: ModelSpec, stft: STFTConfig) -> DataSet:
     """The data file of a replay, read and checked whole: at least one STFT window of chattering.
 
     Raises
@@ -381,21 +395,29 @@ def _replay_data(args: argparse.Namespace, spec: object, stft: object) -> object
     from ..errors import DataFileError
     from ..plants.modelfile import load_data
 
-    model = spec.model  # type: ignore[attr-defined]
+    model = spec.model
     data = load_data(args.data, model)
-    n_window = stft.n_window(model.dt)  # type: ignore[attr-defined]
-    rows = data.z.shape[0]  # type: ignore[attr-defined]
+    n_window = stft.n_window(model.dt)
+    rows = data.z.shape[0]
     if rows - 1 < n_window:
         raise DataFileError(
             f"data file {str(args.data)!r}: {rows} rows give {rows - 1} chattering samples "
             f"({(rows - 1) * model.dt:.3g} s), fewer than one STFT window of {n_window} samples "
-            f"(window_s = {stft.window_s:g} s at dt = {model.dt:g} s); give longer data or a "  # type: ignore[attr-defined]
+            f"(window_s = {stft.window_s:g} s at dt = {model.dt:g} s); give longer data or a "
             f"shorter [detector] window_s in {args.model}"
         )
     return data
 
 
-def _report_replay(args, summary, jsonl: bool, human, settings, ident=None, why_not=None) -> None:  # type: ignore[no-untyped-def]
+def _report_replay(
+    args: argparse.Namespace,
+    summary: RecordingSummary,
+    jsonl: bool,
+    human: TextIO,
+    settings: MonitorSettings,
+    ident: _identify.MonitorIdentification | None = None,
+    why_not: str | None = None,
+) -> None:
     """Print the summary of a file replay (the data held at least one STFT frame: :func:`_replay_data`)."""
     if args.json:
         doc = {
@@ -437,7 +459,7 @@ def _preload_rerun() -> threading.Thread:
     return thread
 
 
-def _warm_up(monitor: object) -> None:
+def _warm_up(monitor: ChatteringMonitor) -> None:
     """One window of zeros through a throw-away copy of ``monitor`` (same model, settings, threshold):
     the compiled kernels (numba cache) and FFT plans load before the replay's clock starts, as in the
     stream monitor and the in-process benchmark."""
@@ -445,44 +467,48 @@ def _warm_up(monitor: object) -> None:
 
     from ..online.monitor import ChatteringMonitor
 
-    m = monitor.model  # type: ignore[attr-defined]
-    settings = dataclasses.replace(monitor.settings, threshold=monitor.threshold)  # type: ignore[attr-defined]
+    m = monitor.model
+    settings = dataclasses.replace(monitor.settings, threshold=monitor.threshold)
     warm = ChatteringMonitor(m, settings)
     n = warm.n_window + 2
     warm.push(np.zeros((n, m.n_outputs)), np.zeros((n, m.n_inputs)))
 
 
 def _alarm_settings(
-    args: argparse.Namespace, choice: object, model: object, settings: object, cal: object
-) -> object:
+    args: argparse.Namespace,
+    choice: AlarmChoice,
+    model: Model,
+    settings: MonitorSettings,
+    cal: Calibration | None,
+) -> MonitorSettings:
     """The monitor's alarm rule: ``--alpha`` (the per-frame rule), a calibration file's, or set here."""
     from ..studies.alarm_budget import alarm_settings
 
     c = choice  # AlarmChoice
     if args.alpha is not None:
-        return dataclasses.replace(settings, alpha=float(args.alpha))  # type: ignore[type-var]
+        return dataclasses.replace(settings, alpha=float(args.alpha))
     file_alarm = getattr(cal, "alarm", None)
     if file_alarm is not None:
         from ._alarm_args import check_file_alarm
 
-        rc = check_file_alarm(c, file_alarm, args.calibration)  # type: ignore[arg-type]
+        rc = check_file_alarm(c, file_alarm, args.calibration)
         return alarm_settings(model, settings, calibration=rc)
     from ..plants.nonlinear import is_linear
 
-    if not is_linear(model) and (c.explicit_rule or c.explicit_budget):  # type: ignore[attr-defined]
+    if not is_linear(model) and (c.explicit_rule or c.explicit_budget):
         raise ParameterError(
             f"{args.calibration} holds no alarm threshold, and a nonlinear model's needs simulated healthy "
-            f"records: `chatterspec calibrate {args.model} --rule {c.rule} --false-alarms-per-hour "  # type: ignore[attr-defined]
-            f"{c.budget:g} --out FILE`, then --calibration FILE"  # type: ignore[attr-defined]
+            f"records: `chatterspec calibrate {args.model} --rule {c.rule} --false-alarms-per-hour "
+            f"{c.budget:g} --out FILE`, then --calibration FILE"
         )
-    if cal is not None and not (c.explicit_rule or c.explicit_budget):  # type: ignore[attr-defined]
+    if cal is not None and not (c.explicit_rule or c.explicit_budget):
         print(
             f"chatterspec monitor: note: {args.calibration} holds no alarm calibration (made without "
-            f"--rule): the per-frame rule at its alpha {cal.alpha:g}",  # type: ignore[attr-defined]
+            f"--rule): the per-frame rule at its alpha {cal.alpha:g}",
             file=sys.stderr,
         )
         return settings
-    hours = c.hours  # type: ignore[attr-defined]  (None: the in-call default)
+    hours = c.hours  # (None: the in-call default)
     return alarm_settings(
         model,
         settings,
@@ -490,5 +516,5 @@ def _alarm_settings(
         c.budget,
         hours=hours,
         note=stderr_note("monitor"),
-        **c.parameters,  # type: ignore[attr-defined]
+        **c.parameters,
     )

@@ -83,9 +83,8 @@ def run(args: argparse.Namespace) -> int:
 
     scenario(args.name)  # UnknownScenarioError (listing the valid names) before any work
     outputs = Outputs()
-    channel: str | None = args.channel
-    if channel is not None and channel.isdigit():
-        channel = int(channel)  # type: ignore[assignment]
+    raw: str | None = args.channel
+    channel: str | int | None = int(raw) if raw is not None and raw.isdigit() else raw
     fig = scenario_spectrum(
         args.name,
         channel=channel,

@@ -9,14 +9,14 @@ minimum-distance fit of each hypothesis and the selection), vectorized over real
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.special
 
 from ..errors import IdentifiabilityError, ParameterError
 from ..plants.models import LinearModel
-from ..plants.nonlinear import is_linear
+from ..plants.nonlinear import Model, is_linear
 from ..plants.parameters import NO_FAULT, UNEXPLAINED, Hypothesis, ParameterMap
 from ._identification_moments import IdentificationMoments
 
@@ -62,6 +62,10 @@ class IdentificationSetup:
     L: np.ndarray
     R: np.ndarray
     labels: tuple[str, ...]
+    # set by __post_init__
+    _nominal_entries: np.ndarray = field(init=False, repr=False, compare=False)
+    affine: tuple[bool, ...] = field(init=False, repr=False, compare=False)
+    slopes: tuple[np.ndarray, ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_nominal_entries", self.parameter_map.evaluate(self.model.dt))
@@ -191,7 +195,7 @@ def _reduced_order_message(model: LinearModel, pm: ParameterMap | None) -> str:
 
 
 def build_setup(
-    model: LinearModel, hypotheses: Sequence[Hypothesis | str | Sequence[str]] | None = None
+    model: Model, hypotheses: Sequence[Hypothesis | str | Sequence[str]] | None = None
 ) -> IdentificationSetup:
     """The :class:`IdentificationSetup` of ``model`` for ``hypotheses`` (default: the map's).
 
@@ -214,9 +218,9 @@ def build_setup(
     pm.check(model)
     if hypotheses is not None:
         resolved: list[Hypothesis | str | Sequence[str]] = []
-        declared = {h.name for h in pm.hypotheses}
-        for h in hypotheses:
-            resolved.append(pm.hypothesis(h) if isinstance(h, str) and h in declared else h)
+        declared = {d.name for d in pm.hypotheses}
+        for given in hypotheses:
+            resolved.append(pm.hypothesis(given) if isinstance(given, str) and given in declared else given)
         pm = pm.with_hypotheses(resolved)
     hyps = pm.hypotheses
     used = sorted({p for h in hyps for p in h.parameters})
@@ -236,11 +240,13 @@ def build_setup(
     for ri, i in enumerate(R):
         for cj, j in enumerate(J):
             if phi_mask[i, j]:
-                rows.append(ri), cols.append(cj)
+                rows.append(ri)
+                cols.append(cj)
                 labels.append(f"{'A' if eye else 'Phi'}[{i + 1},{j + 1}]")
         for cl, l_ in enumerate(L):
             if g_mask[i, l_]:
-                rows.append(ri), cols.append(J.size + cl)
+                rows.append(ri)
+                cols.append(J.size + cl)
                 labels.append(f"{'B' if eye else 'G'}[{i + 1},{l_ + 1}]")
     setup = IdentificationSetup(
         model=model,
@@ -339,7 +345,8 @@ def fit_moments(
     # --- covariance: lag-1 sandwich with the MA(1) autocovariances at the fitted true plant
     Phi_t = np.broadcast_to(model.C @ model.A @ model.C_inv, (runs, *model.A.shape)).copy()
     zc = cols < qj
-    np.add.at(Phi_t, (slice(None), setup.R[rows[zc]], setup.J[cols[zc]]), d[:, zc])
+    idx = (slice(None), setup.R[rows[zc]], setup.J[cols[zc]])
+    np.add.at(Phi_t, idx, d[:, zc])  # type: ignore[arg-type]  # numpy's stubs: no tuple index (ufunc.at takes one)
     Rm = model.R
     CQC = model.C @ model.Q @ model.C.T
     G0 = CQC + Rm + Phi_t @ Rm @ Phi_t.transpose(0, 2, 1)

@@ -59,7 +59,7 @@ import itertools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 import scipy.special  # not scipy.stats: the monitor imports this module at start-up
@@ -105,7 +105,7 @@ Method = Literal["law", "counted", "extrapolated"]
 
 
 def check_budget(
-    false_alarms_per_hour: object,
+    false_alarms_per_hour: float | str,
     option: str = "false_alarms_per_hour",
     *,
     steps_per_hour: float | None = None,
@@ -130,7 +130,7 @@ def check_budget(
         Channels sharing the budget.
     """
     try:
-        x = float(false_alarms_per_hour)  # type: ignore[arg-type]
+        x = float(false_alarms_per_hour)
     except (TypeError, ValueError):
         raise ParameterError(f"{option} must be a number > 0; got {false_alarms_per_hour!r}") from None
     if not (math.isfinite(x) and x > 0):
@@ -280,10 +280,10 @@ class RuleCalibration:
                 false_alarms_per_hour=float(d["false_alarms_per_hour"]),
                 steps_per_hour=float(d["steps_per_hour"]),
                 channels=int(d["channels"]),
-                method=str(d["method"]),  # type: ignore[arg-type]
+                method=cast(Method, str(d["method"])),  # (as to_dict wrote it)
                 hours=float(d["hours"]),
-                threshold_interval=tuple(_den(v) for v in d["threshold_interval"]),  # type: ignore[arg-type]
-                rate_interval=tuple(_den(v) for v in d["rate_interval"]),  # type: ignore[arg-type]
+                threshold_interval=cast(tuple[float, float], tuple(_den(v) for v in d["threshold_interval"])),
+                rate_interval=cast(tuple[float, float], tuple(_den(v) for v in d["rate_interval"])),
                 confidence=float(d.get("confidence", 0.95)),
                 seed=d.get("seed"),
                 fit=dict(d.get("fit", {})),
@@ -292,8 +292,8 @@ class RuleCalibration:
             raise ParameterError(f"not a rule calibration ({type(exc).__name__}: {exc})") from None
 
 
-def _den(x: object) -> float:
-    return float("inf") if x is None else float(x)  # type: ignore[arg-type]
+def _den(x: float | None) -> float:
+    return float("inf") if x is None else float(x)
 
 
 def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
@@ -507,7 +507,7 @@ def calibrate_rule(
     grid = np.unique(np.concatenate([coarse, fine]))
     counts = np.stack([starts_on_grid(rule, p, grid).reshape(grid.size, -1).sum(axis=1) for p in parts])
 
-    def solve(cnt: np.ndarray, n_steps: float) -> tuple[float, str, dict[str, Any]]:
+    def solve(cnt: np.ndarray, n_steps: float) -> tuple[float, Method, dict[str, Any]]:
         T = n_steps / F
         target = X * T
         rate = cnt / (n_steps * C)
@@ -550,8 +550,8 @@ def calibrate_rule(
             continue
         hs.append(hj)
     if len(hs) >= 2:
-        hj = np.array(hs)
-        se = float(math.sqrt((len(hj) - 1) / len(hj) * np.sum((hj - hj.mean()) ** 2)))
+        hjs = np.array(hs)
+        se = float(math.sqrt((len(hjs) - 1) / len(hjs) * np.sum((hjs - hjs.mean()) ** 2)))
     else:  # pragma: no cover - every leave-one-out fit failed
         se = float("inf")
     # the jackknife over B batches: Student t with B - 1 degrees of freedom
@@ -571,7 +571,7 @@ def calibrate_rule(
         false_alarms_per_hour=X,
         steps_per_hour=F,
         channels=C,
-        method=method,  # type: ignore[arg-type]
+        method=method,
         hours=hours,
         threshold_interval=th_int,
         rate_interval=(min(rate_int), max(rate_int)),

@@ -37,10 +37,10 @@ RuleName = Literal["frame", "persistence", "cusum"]
 _FRAME, _PERSISTENCE, _CUSUM = 0, 1, 2
 
 
-def _threshold(value: object, name: str = "threshold") -> float:
+def _threshold(value: float, name: str = "threshold") -> float:
     """A rule threshold: a real number, not NaN (``+inf`` = never alarm, ``-inf`` = always)."""
     try:
-        v = float(value)  # type: ignore[arg-type]
+        v = float(value)
     except (TypeError, ValueError):
         raise ParameterError(f"{name} must be a real number; got {value!r}") from None
     if math.isnan(v):
@@ -262,7 +262,7 @@ def rule_names() -> tuple[str, ...]:
     return tuple(RULES)
 
 
-def make_rule(name: str, threshold: float = float("inf"), **parameters: Any) -> AlarmRule:
+def make_rule(name: str, threshold: float = float("inf"), **parameters: float) -> AlarmRule:
     """Build a rule by name: ``make_rule("cusum", 12.0, drift=3.0)``.
 
     Parameters
@@ -289,7 +289,7 @@ def make_rule(name: str, threshold: float = float("inf"), **parameters: Any) -> 
         raise ParameterError(
             f"rule {name!r} has no parameter(s) {', '.join(sorted(unknown))} (parameters: {allowed})"
         )
-    return spec.cls(threshold=threshold, **{**spec.parameters, **parameters})  # type: ignore[no-any-return]
+    return spec.cls(threshold=threshold, **{**spec.parameters, **parameters})
 
 
 def rule_from_dict(d: Mapping[str, Any]) -> AlarmRule:

@@ -14,7 +14,7 @@ with Bonferroni correction at family-wise alpha = 0.1 %.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import Any, Unpack
+from typing import TYPE_CHECKING, Unpack
 
 from .._validate import positive_int
 from ..errors import ParameterError
@@ -40,6 +40,9 @@ from .spectrum_verdicts import (  # noqa: F401  (old private imports)
     detect_spectrum,
 )
 from .thresholds import Correction, Threshold
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .identification import IdentificationStream
 
 __all__ = [
     "DETECT_CHUNK_RUNS",
@@ -150,6 +153,7 @@ def _detect(chunks: Iterable[ChatteringRecord], options: DetectorOptions) -> Det
                 raise ParameterError("all chunks must share the nominal model of the first chunk")
         acc = plan.reduce(acc, plan.test(record.values))
         record = next(it, None)
+    assert acc is not None  # (the first chunk was folded)
     return plan.report(acc)
 
 
@@ -163,7 +167,7 @@ def detect_scenario(
     *,
     chunk_runs: int | None = DETECT_CHUNK_RUNS,
     gamma: float = 0.1,
-    identification: Any = None,
+    identification: IdentificationStream | None = None,
     workers: int = 1,
     scheduler: str | None = None,
     progress: bool | None = None,

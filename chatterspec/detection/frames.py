@@ -17,9 +17,9 @@ import numpy as np
 
 from .._repr import short_repr
 from ..errors import ParameterError, ShapeError
-from ..plants.models import LinearModel
+from ..plants.nonlinear import Model
 from ._verdict import peak_kernel
-from .spectral import DEFAULT_STFT, Spectrogram, STFTConfig, spectrogram
+from .spectral import DEFAULT_STFT, Spectrogram, STFTConfig, spectrogram, spectrum_model
 from .spectrum_verdicts import _channel_names
 from .thresholds import (
     Band,
@@ -333,7 +333,7 @@ class FrameDetection:
 
 def stft_detect(
     x: np.ndarray,
-    model: LinearModel,
+    model: Model,
     *,
     t0: float = 0.0,
     config: STFTConfig = DEFAULT_STFT,
@@ -382,7 +382,9 @@ def stft_detect(
                 f"{spec.power.shape[-2:]}: it was made for another STFT window or model"
             )
     else:
-        th = frame_threshold(model, spec.freqs_hz, config, model.dt, alpha, correction, band=band)
+        th = frame_threshold(
+            spectrum_model(model), spec.freqs_hz, config, model.dt, alpha, correction, band=band
+        )
     flags, _, stat = frame_verdicts(spec.power, th)
     level = healthy_frame_level(th)
     names = _channel_names(channels or model.output_names, flags.shape[-1])

@@ -187,8 +187,17 @@ class OnlineIdentifier:
 
 def _stack(parts: list[IdentificationMoments]) -> IdentificationMoments:
     a = parts[0]
+
+    def cat(k: str) -> np.ndarray:
+        return np.concatenate([getattr(p, k) for p in parts])
+
     return IdentificationMoments(
-        **{k: np.concatenate([getattr(p, k) for p in parts]) for k in (*_FIELDS, "w_first", "w_last")},
+        swx=cat("swx"),
+        swe=cat("swe"),
+        s0=cat("s0"),
+        s1=cat("s1"),
+        w_first=cat("w_first"),
+        w_last=cat("w_last"),
         n_samples=a.n_samples,
         t_start=a.t_start,
         t_stop=a.t_stop,
@@ -197,7 +206,12 @@ def _stack(parts: list[IdentificationMoments]) -> IdentificationMoments:
 
 def _take(mom: IdentificationMoments, sl: slice) -> IdentificationMoments:
     return IdentificationMoments(
-        **{k: getattr(mom, k)[sl] for k in (*_FIELDS, "w_first", "w_last")},
+        swx=mom.swx[sl],
+        swe=mom.swe[sl],
+        s0=mom.s0[sl],
+        s1=mom.s1[sl],
+        w_first=mom.w_first[sl],
+        w_last=mom.w_last[sl],
         n_samples=mom.n_samples,
         t_start=mom.t_start,
         t_stop=mom.t_stop,

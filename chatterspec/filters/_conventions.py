@@ -20,6 +20,7 @@ import warnings
 from collections.abc import Collection
 
 import numpy as np
+import numpy.typing as npt
 
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError
@@ -123,7 +124,10 @@ def svsf_store(
     """
     old = {"store_states": store_states, "store_post_error": store_post_error, "store_lower": store_lower}
     names = {"store_states": "x_post", "store_post_error": "e_post", "store_lower": "e_lower"}
-    return legacy_store(store, old, names, SVSF_STORABLE, who, "e_prior is always returned")  # type: ignore[return-value]
+    states, post_error, lower = legacy_store(
+        store, old, names, SVSF_STORABLE, who, "e_prior is always returned"
+    )
+    return states, post_error, lower
 
 
 def bank_store(
@@ -150,10 +154,11 @@ def bank_store(
     old = {"store_covariance": store_covariance, "store_modes": store_modes}
     names = {"store_covariance": "P_post", "store_modes": "mode_x_post"}
     always = "x_post, mu and loglik are always kept"
-    return legacy_store(store, old, names, BANK_STORABLE, who, always)  # type: ignore[return-value]
+    covariance, modes = legacy_store(store, old, names, BANK_STORABLE, who, always)
+    return covariance, modes
 
 
-def default_input(u: object | None, K: int, p: int) -> object:
+def default_input(u: npt.ArrayLike | None, K: int, p: int) -> npt.ArrayLike:
     """``u``, or zeros ``(K, p)`` when it is None (a model without input)."""
     return np.zeros((K, p)) if u is None else u
 
@@ -162,8 +167,8 @@ def mode_initial(
     x: np.ndarray,
     P: np.ndarray,
     mu: np.ndarray,
-    mode_x0: object | None,
-    mode_P0: object | None,
+    mode_x0: npt.ArrayLike | None,
+    mode_P0: npt.ArrayLike | None,
     r: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per-mode starts ``xs`` (runs, r, n), ``Ps`` (runs, r, n, n) and the combined ``x``, ``P``.
@@ -207,7 +212,7 @@ def mode_initial(
     if mode_x0 is None and mode_P0 is None:
         return np.array(xs), np.array(Ps), x, P
     xc, Pc = combine(mu, xs, Ps)
-    return np.array(xs), np.array(Ps), xc, Pc  # type: ignore[return-value]
+    return np.array(xs), np.array(Ps), xc, Pc
 
 
 def check_chunk(
@@ -241,7 +246,7 @@ def check_chunk(
     return z, u
 
 
-def check_initial_rows(x0: object, width: int, runs: int) -> np.ndarray:
+def check_initial_rows(x0: npt.ArrayLike, width: int, runs: int) -> np.ndarray:
     """An SVSF's ``x0``: (width,) or (runs | 1, width) float, finite (not yet broadcast).
 
     Raises
@@ -257,7 +262,7 @@ def check_initial_rows(x0: object, width: int, runs: int) -> np.ndarray:
     return x0
 
 
-def check_record(z: object, u: object) -> tuple[np.ndarray, np.ndarray, bool]:
+def check_record(z: npt.ArrayLike, u: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, bool]:
     """A whole record of an SVSF's ``run``: ``(z (runs, T, m), u (T | runs, T, p), single)``.
 
     ``single``: ``z`` was 2-D (one run, whose outputs are returned 2-D); a 1-D ``u`` is one input

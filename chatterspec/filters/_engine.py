@@ -34,11 +34,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from .. import _jit
 from ..errors import SingularMatrixError
+from ..plants.steps import PlantSteps
 from ._linalg import (
     chol_solve_step,
     chol_step,
@@ -266,7 +268,7 @@ def _sample(
 
 
 @_jit.step
-def _no_correction(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def _no_correction(*args: object) -> int:  # (bound by sample_step before any compilation)
     """Placeholder binding of :func:`_sample` (never called)."""
     return NOT_PD
 
@@ -276,7 +278,7 @@ CORRECT = _no_correction
 WANT_LL = True
 
 
-def sample_step(correct: CorrectionStep, want_ll: bool = True):  # type: ignore[no-untyped-def]
+def sample_step(correct: CorrectionStep, want_ll: bool = True) -> Callable[..., int]:
     """:func:`_sample` with ``correct``'s step bound: an inlined step for the loops."""
     return _jit.specialize_sizes(
         _sample, f"{correct.name}_ll{int(want_ll)}", {}, inline=True, CORRECT=correct.step, WANT_LL=want_ll
@@ -284,13 +286,15 @@ def sample_step(correct: CorrectionStep, want_ll: bool = True):  # type: ignore[
 
 
 @_jit.step
-def _no_sample(fp, x, P, ep, epp, zk, xp, F, C, Q, R, ws, n, m):  # type: ignore[no-untyped-def]
+def _no_sample(fp: np.ndarray, x: np.ndarray, P: np.ndarray, ep: np.ndarray, epp: np.ndarray, zk: np.ndarray,
+    xp: np.ndarray, F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray, ws: tuple[np.ndarray, ...],
+    n: int, m: int) -> int:  # fmt: skip
     """Placeholder binding of the loops (never called)."""
     return NOT_PD
 
 
 @_jit.step
-def workspace(n: int, m: int) -> tuple:  # pragma: no cover - compiled (inlined into the loops)
+def workspace(n: int, m: int) -> tuple[np.ndarray, ...]:  # pragma: no cover - compiled (inlined in loops)
     """Scratch of :func:`_sample` and the correction steps: views of one stack block of the loop.
 
     ``(T1, Pp, PCt, PCtT, S, D, L, e, eb, wv, KgT, IKC, KR, ll, MpT, g, dz, Phi, G12, P12i, Al,
@@ -358,7 +362,9 @@ def workspace(n: int, m: int) -> tuple:  # pragma: no cover - compiled (inlined 
 
 
 @_jit.step
-def store_step(flags, outs, r, k, xp, x, e, S, ll, ep, Pp, P, n, m):  # type: ignore[no-untyped-def]
+def store_step(flags: np.ndarray, outs: tuple[np.ndarray, ...], r: int, k: int, xp: np.ndarray, x: np.ndarray,
+    e: np.ndarray, S: np.ndarray, ll: np.ndarray, ep: np.ndarray, Pp: np.ndarray, P: np.ndarray, n: int,
+    m: int) -> None:  # fmt: skip
     """Write sample k of run r into the outputs of :data:`FIELDS` whose ``flags`` entry is set.
 
     One test of each flag per call, outside the element loops (tested inside them, the flags were
@@ -518,7 +524,7 @@ def _shapes(runs: int, K: int, n: int, m: int) -> dict[str, tuple[int, ...]]:
 
 def cov_loop(
     correct: CorrectionStep,
-    plant: object | None,
+    plant: PlantSteps | None,
     x: np.ndarray,
     P: np.ndarray,
     ep: np.ndarray,
@@ -562,17 +568,18 @@ def cov_loop(
     flags, out = _alloc(keep, _shapes(runs, K, n, m))
     c = np.ascontiguousarray
     if plant is None:
+        assert xp_in is not None and F_in is not None  # (no plant steps: the caller's prediction)
         prm = c(np.concatenate([xp_in, np.reshape(F_in, (runs, n * n))], axis=1), dtype=float)
-        bind = {"PREDICT": given_predict, "JACOBIAN": given_jacobian, "CONST_F": False}
+        bind: dict[str, Any] = {"PREDICT": given_predict, "JACOBIAN": given_jacobian, "CONST_F": False}
         tag = f"given_{correct.name}"
     else:
-        prm = c(plant.parameters, dtype=float)[None]  # type: ignore[attr-defined]
+        prm = c(plant.parameters, dtype=float)[None]
         bind = {
-            "PREDICT": plant.predict,  # type: ignore[attr-defined]
-            "JACOBIAN": plant.jacobian,  # type: ignore[attr-defined]
-            "CONST_F": bool(plant.constant_jacobian),  # type: ignore[attr-defined]
+            "PREDICT": plant.predict,
+            "JACOBIAN": plant.jacobian,
+            "CONST_F": bool(plant.constant_jacobian),
         }
-        tag = f"{plant.name}_{correct.name}"  # type: ignore[attr-defined]
+        tag = f"{plant.name}_{correct.name}"
     kernel = _jit.specialize_sizes(_cov_loop, tag, {"NX": n, "NZ": m}, SAMPLE=sample_step(correct), **bind)
     status = kernel(
         prm, c(u, dtype=float), c(z, dtype=float), x, P, ep, epp, c(C, dtype=float), c(Q, dtype=float),

@@ -9,6 +9,8 @@ realizations (numpy), and :func:`kf_shared_states` runs the state recursion per 
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from .. import _jit
@@ -21,7 +23,20 @@ from .svsf_steps import rows_times as _rows_times
 NX = NZ = 0
 
 
-def _kf_shared_loop(prm, u, z, x, ep, epp, C, KgT, Sinv, logdet, flags, outs):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+def _kf_shared_loop(
+    prm: np.ndarray,
+    u: np.ndarray,
+    z: np.ndarray,
+    x: np.ndarray,
+    ep: np.ndarray,
+    epp: np.ndarray,
+    C: np.ndarray,
+    KgT: np.ndarray,
+    Sinv: np.ndarray,
+    logdet: np.ndarray,
+    flags: np.ndarray,
+    outs: tuple[np.ndarray, ...],
+) -> int:  # pragma: no cover - compiled
     """State recursion of the Kalman filter with a precomputed, shared gain sequence ``KgT`` (K, m, n).
 
     Per run and sample: the linear plant's prediction (:func:`~chatterspec.plants.linear_steps.predict_step`,
@@ -84,7 +99,7 @@ def _kf_shared_loop(prm, u, z, x, ep, epp, C, KgT, Sinv, logdet, flags, outs):  
     return 0
 
 
-def _kf_shared_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
+def _kf_shared_kernel(n: int, m: int) -> Callable[..., int]:
     """:func:`_kf_shared_loop` compiled for n states and m outputs (literal sizes up to
     :data:`chatterspec._jit.MAX_UNROLL`: the per-channel loops unrolled, as the per-run filters')."""
     return _jit.specialize_sizes(_kf_shared_loop, "kfshared", {"NX": n, "NZ": m})

@@ -22,7 +22,9 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _jit
+from ..plants.nonlinear import Model
 from ._bank_steps import (
+    BankLoop,
     _bank_plant,
     bank_outputs,
     bank_plants,
@@ -33,7 +35,7 @@ from ._bank_steps import (
     mode_probabilities_step,
     run_bank_loop,
 )
-from ._engine import _no_sample, innovation_step, predict_cov_step, sample_step, workspace
+from ._engine import CorrectionStep, _no_sample, innovation_step, predict_cov_step, sample_step, workspace
 
 #: Bindings of :func:`_smm_loop`: the modes' plant step (:func:`._bank_steps.bank_plants`), the
 #: SVSF-cov sample step, sizes (0: from the arrays).
@@ -43,8 +45,28 @@ NX = NZ = 0
 
 
 def _smm_loop(
-    prm, plant_slot, Qs, C, R, fp, floor, z, u, x, P, mu, ep, epp, xs, Ps, o_x, o_mu, o_ll, o_P, o_mx
-):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (a template: see run_smm)
+    prm: np.ndarray,
+    plant_slot: np.ndarray,
+    Qs: np.ndarray,
+    C: np.ndarray,
+    R: np.ndarray,
+    fp: np.ndarray,
+    floor: float,
+    z: np.ndarray,
+    u: np.ndarray,
+    x: np.ndarray,
+    P: np.ndarray,
+    mu: np.ndarray,
+    ep: np.ndarray,
+    epp: np.ndarray,
+    xs: np.ndarray,
+    Ps: np.ndarray,
+    o_x: np.ndarray,
+    o_mu: np.ndarray,
+    o_ll: np.ndarray,
+    o_P: np.ndarray,
+    o_mx: np.ndarray,
+) -> int:  # pragma: no cover - compiled (a template: see run_smm)
     """The recursion of the module docstring; ``x``, ``P``, ``mu``, ``ep``, ``epp`` updated in place.
 
     ``xs`` (nm, n) and ``Ps`` (nm, n, n) are scratch. Returns 0, ``1 + run`` (a matrix not
@@ -98,7 +120,18 @@ def _smm_loop(
     return 0
 
 
-def smm_spec(models: tuple[object, ...], correct: object) -> dict[str, object] | None:
+class SMMSpec(BankLoop):
+    """The arrays and the loop of a compiled SMM-SVSF (:func:`smm_spec`)."""
+
+    prm: np.ndarray  # plant parameters, one row per plant kind
+    plant_slot: np.ndarray  # (r,) plant row of each mode
+    Qs: np.ndarray  # (r, n, n)
+    C: np.ndarray  # (m, n), shared
+    R: np.ndarray  # (m, m), shared
+    fp: np.ndarray  # the shared correction's parameters
+
+
+def smm_spec(models: tuple[Model, ...], correct: CorrectionStep) -> SMMSpec | None:
     """Arrays and the kernel of the compiled SMM loop, or None (numpy path) when a mode has no plant steps.
 
     Parameters
@@ -114,35 +147,36 @@ def smm_spec(models: tuple[object, ...], correct: object) -> dict[str, object] |
     """
     from ..plants.steps import plant_steps
 
-    plants = [plant_steps(mdl) for mdl in models]
-    n, m = int(models[0].n_states), int(models[0].n_outputs)  # type: ignore[attr-defined]
-    if any(pl is None for pl in plants) or not (_jit.fits(n, m) and _jit.fits(len(models))):
+    found = [plant_steps(mdl) for mdl in models]
+    plants = [pl for pl in found if pl is not None]
+    n, m = int(models[0].n_states), int(models[0].n_outputs)
+    if len(plants) < len(found) or not (_jit.fits(n, m) and _jit.fits(len(models))):
         return None
     plant, plant_slot, prm = bank_plants(plants)
     if plant is None:
         return None
-    tag = "_".join(["smm", *dict.fromkeys(pl.name for pl in plants)])  # type: ignore[union-attr]
+    tag = "_".join(["smm", *dict.fromkeys(pl.name for pl in plants)])
     kernel = _jit.specialize_sizes(
         _smm_loop,
         tag,
         {"NX": n, "NZ": m},
         PLANT=plant,
-        SAMPLE=sample_step(correct, want_ll=False),  # type: ignore[arg-type]
+        SAMPLE=sample_step(correct, want_ll=False),
     )
     return {
         "prm": prm,
         "plant_slot": plant_slot,
-        "Qs": np.ascontiguousarray(np.stack([np.asarray(mdl.Q, dtype=float) for mdl in models])),  # type: ignore[attr-defined]
-        "C": np.ascontiguousarray(models[0].C, dtype=float),  # type: ignore[attr-defined]
-        "R": np.ascontiguousarray(models[0].R, dtype=float),  # type: ignore[attr-defined]
-        "fp": correct.parameters,  # type: ignore[attr-defined]
-        "mapping": correct.mapping,  # type: ignore[attr-defined]
+        "Qs": np.ascontiguousarray(np.stack([np.asarray(mdl.Q, dtype=float) for mdl in models])),
+        "C": np.ascontiguousarray(models[0].C, dtype=float),
+        "R": np.ascontiguousarray(models[0].R, dtype=float),
+        "fp": correct.parameters,
+        "mapping": correct.mapping,
         "kernel": kernel,
     }
 
 
 def run_smm(
-    spec: dict[str, object],
+    spec: SMMSpec,
     floor: float,
     x: np.ndarray,
     P: np.ndarray,

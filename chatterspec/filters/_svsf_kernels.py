@@ -25,7 +25,22 @@ __all__: list[str] = []
 
 
 @_jit.njit
-def _svsf_kernel(z, Gu, PhiT, L, P, inv_psi, gamma, S_inv, y, ep, e_out, x_out, ep_out, lower_out):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (Python form tested in tests/test_kernels.py)
+def _svsf_kernel(
+    z: np.ndarray,
+    Gu: np.ndarray,
+    PhiT: np.ndarray,
+    L: np.ndarray,
+    P: np.ndarray,
+    inv_psi: np.ndarray,
+    gamma: float,
+    S_inv: np.ndarray,
+    y: np.ndarray,
+    ep: np.ndarray,
+    e_out: np.ndarray,
+    x_out: np.ndarray,
+    ep_out: np.ndarray,
+    lower_out: np.ndarray,
+) -> None:  # pragma: no cover - compiled (Python form tested in tests/test_kernels.py)
     """:func:`svsf_step` for ``runs`` realizations and K samples (the batch loop of :meth:`SVSF.update`).
 
     Inputs: ``z`` (runs, K, m); ``Gu`` (1 or runs, K, n) = G u(k); constants as :func:`svsf_step`;

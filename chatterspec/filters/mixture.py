@@ -6,9 +6,21 @@ Kept apart from :mod:`chatterspec.filters.multiple_model` so that the filters' c
 
 from __future__ import annotations
 
+from typing import overload
+
 import numpy as np
 
 __all__ = ["combine"]
+
+
+@overload
+def combine(mu: np.ndarray, xs: np.ndarray, Ps: None = None) -> tuple[np.ndarray, None]: ...
+@overload
+def combine(mu: np.ndarray, xs: np.ndarray, Ps: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def combine(
+    mu: np.ndarray, xs: np.ndarray, Ps: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray | None]: ...
 
 
 def combine(

@@ -44,7 +44,7 @@ from .._repr import short_repr
 from .._validate import open_unit
 from ..errors import ParameterError
 from ..plants.models import LinearModel
-from ..plants.nonlinear import NonlinearModel, require_linear
+from ..plants.nonlinear import Model, NonlinearModel, require_linear
 from ._conventions import check_chunk, check_initial_rows, check_record, svsf_store
 from ._svsf_kernels import _closed_form_kernel, _svsf_kernel  # noqa: F401 - old import path (tests)
 from .protocol import channel_rows
@@ -106,7 +106,7 @@ class SVSF:
 
     __repr__ = short_repr  # shapes and key figures, never whole arrays
 
-    model: LinearModel
+    model: Model
     psi: float | np.ndarray | None = None
     gamma: float = 0.1
     switching: Switching = "sat"
@@ -308,7 +308,7 @@ class SVSF:
         return with_initial(out, state, self._S_inv, single)
 
 
-def auxiliary_svsf(model: LinearModel, gamma: float = 0.1) -> SVSF:
+def auxiliary_svsf(model: Model, gamma: float = 0.1) -> SVSF:
     """The auxiliary filter of section III: the SVSF with ``sgn`` instead of ``sat`` (eq 17).
 
     Parameters

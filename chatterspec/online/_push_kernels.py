@@ -10,6 +10,10 @@ bit for bit; the sat SVSF's numpy fallback is the one exception, equal to
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
+import numpy as np
+
 from .. import _jit
 from ..filters.svsf_steps import closed_form_step, matvec_step, rows_times_step, svsf_step
 
@@ -21,26 +25,26 @@ NX = NZ = NL = 0
 
 
 def _filters_loop(
-    z,
-    u,
-    GT,
-    aux_PhiT,
-    aux_y,
-    e_out,
-    Gu,
-    run_sat,
-    PhiT,
-    L,
-    P,
-    inv_psi,
-    gamma,
-    S_inv,
-    y,
-    ep,
-    sat_e,
-    x_out,
-    none,
-):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (Python form tested in tests/test_monitor.py)
+    z: np.ndarray,
+    u: np.ndarray,
+    GT: np.ndarray,
+    aux_PhiT: np.ndarray,
+    aux_y: np.ndarray,
+    e_out: np.ndarray,
+    Gu: np.ndarray,
+    run_sat: bool,
+    PhiT: np.ndarray,
+    L: np.ndarray,
+    P: np.ndarray,
+    inv_psi: np.ndarray,
+    gamma: float,
+    S_inv: np.ndarray,
+    y: np.ndarray,
+    ep: np.ndarray,
+    sat_e: np.ndarray,
+    x_out: np.ndarray,
+    none: np.ndarray,
+) -> None:  # pragma: no cover - compiled (Python form tested in tests/test_monitor.py)
     """One push of the monitor's two filters in one call: G u(k), the aux chattering, the sat SVSF.
 
     ``z`` (1, K, m) = z(k+1); ``u`` (K, p), p >= 1, = u(k); ``GT`` = G^T (p, n). Per sample:
@@ -107,7 +111,7 @@ def _filters_loop(
 _filters_kernel = _jit.specialize(_filters_loop, "any", NX=0, NZ=0, NL=0)
 
 
-def filters_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
+def filters_kernel(n: int, m: int) -> Callable[..., None]:
     """The push loop for n states and m outputs (full measurement: n = m); small sizes unrolled.
 
     The same template and steps as :data:`_filters_kernel`, hence the same bits; literal sizes let

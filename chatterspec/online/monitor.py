@@ -51,6 +51,7 @@ import numpy as np
 
 from .._validate import finite_array, positive_int
 from ..detection.frames import FrameVerdicts, frame_verdicts
+from ..detection.spectral import spectrum_model
 from ..detection.thresholds import frame_threshold
 from ..errors import ParameterError, ShapeError
 from ..filters.protocol import channel_rows
@@ -110,7 +111,7 @@ class ChatteringMonitor:
     """
 
     def __init__(
-        self, model: LinearModel, settings: MonitorSettings | None = None, *, t0: float = 0.0
+        self, model: LinearModel | NonlinearModel, settings: MonitorSettings | None = None, *, t0: float = 0.0
     ) -> None:
         nonlinear = isinstance(model, NonlinearModel)
         if nonlinear and (settings is None or settings.threshold is None or settings.psi is not None):
@@ -132,7 +133,7 @@ class ChatteringMonitor:
         self.freqs_hz = s.stft.freqs_hz(self.dt)
         if s.threshold is None:
             self.threshold = frame_threshold(
-                model, self.freqs_hz, s.stft, self.dt, s.alpha, s.correction, band=s.band
+                spectrum_model(model), self.freqs_hz, s.stft, self.dt, s.alpha, s.correction, band=s.band
             )
         else:
             th = s.threshold

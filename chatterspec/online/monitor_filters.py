@@ -15,10 +15,12 @@ chatterspec.online.monitor_frames.FrameAnalysis : what the chattering goes to ne
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from .. import _jit
-from ..filters.nonlinear_svsf import NonlinearSgnSVSF
+from ..filters.nonlinear_svsf import NonlinearSgnSVSF, NonlinearSVSFState
 from ..filters.svsf import SVSF, SVSFState, auxiliary_svsf
 from ..filters.svsf_steps import rows_times as _rows_times
 from ..plants.models import LinearModel
@@ -54,7 +56,7 @@ class MonitorFilters:
         nonlinear = isinstance(model, NonlinearModel)
         self._aux = NonlinearSgnSVSF(model, s.gamma) if nonlinear else auxiliary_svsf(model, s.gamma)
         self._sat = None if s.psi is None else SVSF(model, psi=np.asarray(s.psi), gamma=s.gamma)
-        self._aux_state: SVSFState | None = None
+        self._aux_state: SVSFState | NonlinearSVSFState | None = None
         self._sat_state: SVSFState | None = None
         # one compiled call per push for both filters (full measurement: the closed form of eq 23;
         # at least one input; numba installed, and enabled at push time)
@@ -66,8 +68,9 @@ class MonitorFilters:
             and _jit.fits(model.n_states, model.n_outputs, vectors_only=True)
         )
         if self.fused:
-            self._GT = np.ascontiguousarray(self._aux._GT, dtype=float)
-            self._aux_PhiT = np.ascontiguousarray(self._aux._PhiT, dtype=float)
+            aux = cast(SVSF, self._aux)  # (fused: the linear auxiliary SVSF)
+            self._GT = np.ascontiguousarray(aux._GT, dtype=float)
+            self._aux_PhiT = np.ascontiguousarray(aux._PhiT, dtype=float)
             self._none3 = np.empty((0, 0, 0))
             e2 = np.empty((0, 0))
             self._no_sat = (e2, e2, e2, np.empty(0), 0.0, e2, e2, e2, self._none3, self._none3, self._none3)
@@ -118,14 +121,16 @@ class MonitorFilters:
         elif isinstance(self._aux, SVSF):
             # the checks of SVSF.update are done by the monitor; both filters share the model, hence G u(k)
             Gu = _rows_times(u_used, self._aux._GT, channel_major=True)
-            self._aux_state, out = self._aux._advance(self._aux_state, z[None], Gu)
+            self._aux_state, out = self._aux._advance(cast(SVSFState, self._aux_state), z[None], Gu)
             e, estimate = out.e_prior[0], None
             if self._sat is not None:
-                self._sat_state, sat_out = self._sat._advance(self._sat_state, z[None], Gu, store_states=True)
-                estimate = self._output(sat_out.x_post[0])
+                sat_state = cast(SVSFState, self._sat_state)  # (initialized with the aux state)
+                self._sat_state, sat_out = self._sat._advance(sat_state, z[None], Gu, store_states=True)
+                estimate = self._output(cast(np.ndarray, sat_out.x_post)[0])  # (store_states)
         else:  # nonlinear auxiliary filter (no sat SVSF)
-            self._aux_state, out = self._aux.update(self._aux_state, z[None], u_used, check=False)
-            e, estimate = out.e_prior[0], None
+            aux_state = cast(NonlinearSVSFState, self._aux_state)
+            self._aux_state, nl_out = self._aux.update(aux_state, z[None], u_used, check=False)
+            e, estimate = nl_out.e_prior[0], None
         self.n_meas += K
         return z, e, estimate
 
@@ -138,7 +143,7 @@ class MonitorFilters:
         """
         K, m = z.shape
         z3 = np.ascontiguousarray(z)[None]  # one compiled specialization (no copy when contiguous)
-        aux = self._aux_state
+        aux = cast(SVSFState, self._aux_state)  # (fused: the linear auxiliary SVSF, initialized)
         e = np.empty((1, K, m))
         sat = self._sat
         none = self._none3
@@ -147,7 +152,7 @@ class MonitorFilters:
             estimate = None
         else:
             PhiT, L, P, inv_psi, gamma, S_inv = sat._kernel_consts
-            st = self._sat_state
+            st = cast(SVSFState, self._sat_state)  # (initialized with the aux state)
             y, ep = st.y.copy(), st.e_post.copy()
             x_out = np.empty((1, K, self.model.n_states))
             self._kernel(

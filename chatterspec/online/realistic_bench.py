@@ -58,7 +58,7 @@ import math
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -270,7 +270,8 @@ class BenchCase:
     def faulty(self, nominal: LinearModel, fault: Fault) -> Any:
         """The true plant with ``fault`` (no measurement noise)."""
         if self.nonlinear:
-            return eha4(Q=1e-9 * np.eye(4), R=np.zeros((4, 4)), **fault.eha4)
+            overrides = cast("dict[str, Any]", fault.eha4)  # physical parameters: keys of EHA4_PARAMETERS
+            return eha4(Q=1e-9 * np.eye(4), R=np.zeros((4, 4)), **overrides)
         healthy = self.plant(nominal)
         pm = healthy.parameter_map
         values = {k: pm.parameter(k).value * f for k, f in fault.scale.items()} | dict(fault.set_to)
@@ -320,7 +321,9 @@ def bench_cases() -> tuple[BenchCase, ...]:
             "adc12",
             "sensor",
             "12-bit ADC (+-0.1 m, +-1 m/s, +-2e7 Pa)",
-            lambda m: SensorChain((WhiteNoise(m.R), Quantization(12, [-0.1, -1.0, -2e7], [0.1, 1.0, 2e7]))),
+            lambda m: SensorChain(
+                (WhiteNoise(m.R), Quantization(12, np.array([-0.1, -1.0, -2e7]), np.array([0.1, 1.0, 2e7])))
+            ),
         ),
         BenchCase(
             "hum50",
@@ -527,8 +530,19 @@ class FaultOutcome:
 
 
 def holds(note: str, starts: int, most: int, alarm_fraction: float) -> bool:
-    """Whether a route that ran (no ``note``) held the budget: at most ``most`` starts (the upper end of
-    the budget's 99 % count interval) and no standing alarm (:data:`STANDING_ALARM`)."""
+    """Whether a route that ran held the budget.
+
+    Parameters
+    ----------
+    note : str
+        Why the route did not run (empty when it ran: a route that did not run holds nothing).
+    starts : int
+        Alarm starts counted on the healthy hours.
+    most : int
+        The upper end of the budget's 99 % Poisson count interval.
+    alarm_fraction : float
+        Fraction of the healthy frames in alarm; above :data:`STANDING_ALARM` an alarm stands.
+    """
     return not note and starts <= most and alarm_fraction <= STANDING_ALARM
 
 
@@ -751,6 +765,7 @@ def _detection(
             ((on, off),) = sc.fault_intervals
             fault_c = list(nominal.output_names).index(fault.channel)
             for r, (model, settings) in enumerate(prepared):
+                assert settings.rule is not None  # prepared routes carry their calibrated rule
                 rec = chattering_record(model, z, sim.u, gamma=settings.gamma)
                 _, P = frame_columns(rec.values, model.dt, settings.stft)
                 S = scores[r](P)
@@ -896,9 +911,9 @@ def run_bench(
     with Progress(len(cases), "realistic bench", enabled=progress) as bar:
         if int(workers) <= 1:
             for i, case in enumerate(cases):
-                results[i] = _run_case(case, routes, cfg, nominal)
+                outcome = results[i] = _run_case(case, routes, cfg, nominal)
                 if on_case is not None:
-                    on_case(results[i][0])
+                    on_case(outcome[0])
                 bar.update(1, case.name)
             worker_cpu = 0.0
         else:

@@ -30,12 +30,13 @@ import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
 from ..errors import DataFileError
 from ..plants.modelfile import TIME_COLUMNS
-from ..plants.models import LinearModel
+from ..plants.nonlinear import Model
 
 __all__ = [
     "BadRow",
@@ -247,7 +248,7 @@ class CsvRows:
         Name of the input used in messages (e.g. ``"standard input"``).
     """
 
-    def __init__(self, model: LinearModel, where: str = "standard input") -> None:
+    def __init__(self, model: Model, where: str = "standard input") -> None:
         self.model = model
         self.where = where
         self.needed = (*model.output_names, *model.input_names)
@@ -374,7 +375,8 @@ class CsvRows:
         out: list[RowBlock | BadRow | Restart] = []
         rows: list[np.ndarray] = []
         nums: list[int] = []
-        names = [self.header[j] for j in self._cols] if self.header else []
+        cols = cast(np.ndarray, self._cols)  # (set with the header, before any data row)
+        names = [self.header[j] for j in cols] if self.header else []
 
         def flush() -> None:
             if rows:
@@ -403,9 +405,9 @@ class CsvRows:
                     BadRow(no, f"{where}: {len(fields)} field(s); the header has {self._ncol} columns")
                 )
                 continue
-            vals = np.empty(len(self._cols))
+            vals = np.empty(len(cols))
             bad = None
-            for k, j in enumerate(self._cols):
+            for k, j in enumerate(cols):
                 try:
                     vals[k] = float(fields[j]) if fields[j] else np.nan
                 except ValueError:

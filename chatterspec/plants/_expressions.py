@@ -15,6 +15,7 @@ overflows at once and is reported. Formulas are at most :data:`MAX_FORMULA_CHARS
 from __future__ import annotations
 
 import ast
+import types
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
@@ -63,7 +64,7 @@ class Formula:
 
     text: str
     names: frozenset[str]
-    _code: object = field(repr=False, compare=False)
+    _code: types.CodeType = field(repr=False, compare=False)
 
     def __reduce__(self) -> tuple[object, tuple[str]]:
         # code objects do not pickle (models travel to worker processes): rebuild from the text

@@ -12,11 +12,15 @@ import csv
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import DataFileError, ParameterError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .modelfile_fields import ModelSpec
+    from .nonlinear import Model
 
 __all__ = ["TIME_COLUMNS", "DataSet", "load_data"]
 
@@ -54,7 +58,7 @@ class DataSet:
 
 
 # --------------------------------------------------------------------------- data files
-def _the_model(model: Any) -> Any:
+def _the_model(model: Model | ModelSpec) -> Model:
     """``model``, or the model of a :class:`~chatterspec.plants.modelfile_fields.ModelSpec`."""
     from .modelfile_fields import ModelSpec
 
@@ -68,7 +72,7 @@ def _the_model(model: Any) -> Any:
     return model
 
 
-def load_data(path: str | Path, model: Any, *, dt_tolerance: float = 0.01) -> DataSet:
+def load_data(path: str | Path, model: Model | ModelSpec, *, dt_tolerance: float = 0.01) -> DataSet:
     """Read measurements and inputs for ``model`` from a CSV or NPZ file (columns matched by name).
 
     Parameters

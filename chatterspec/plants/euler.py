@@ -11,12 +11,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Self
+from typing import TYPE_CHECKING, Self, Unpack
 
 import numpy as np
 
 from .._validate import positive
 from ..errors import ShapeError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .nonlinear import NonlinearModelOptions
 
 __all__ = ["ContinuousEuler", "EulerJacobian", "EulerStep", "Transition"]
 
@@ -93,6 +96,20 @@ class EulerJacobian:
 class ContinuousEuler:
     """``from_continuous``, mixed into :class:`~chatterspec.plants.nonlinear.NonlinearModel`."""
 
+    if TYPE_CHECKING:  # the constructor of the model it is mixed into
+
+        def __init__(
+            self,
+            *,
+            f: Transition,
+            jac: Transition,
+            C: np.ndarray,
+            Q: np.ndarray,
+            R: np.ndarray,
+            dt: float,
+            **kwargs: Unpack[NonlinearModelOptions],
+        ) -> None: ...
+
     @classmethod
     def from_continuous(
         cls,
@@ -102,7 +119,7 @@ class ContinuousEuler:
         Q: np.ndarray,
         R: np.ndarray,
         dt: float,
-        **kwargs: Any,
+        **kwargs: Unpack[NonlinearModelOptions],
     ) -> Self:
         """Explicit Euler discretization of ``x' = g(x, u)``: ``f = x + dt g``, ``F = I + dt dg/dx``.
 

@@ -374,7 +374,7 @@ class SampleJitter:
 
     def apply(
         self, y: np.ndarray, t: np.ndarray, rng: np.random.Generator, state: np.ndarray | None
-    ) -> tuple[np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray | None]:
         """``y_k + d_k (y_k - y_{k-1}) / dt``; ``state`` is ``y_{-1}`` (runs, m) or None."""
         y, t = _check_y(y, t, None)
         if y.shape[1] == 0:

@@ -55,14 +55,17 @@ sample puts a step into the chattering that itself shows up as broadband power
 
 from __future__ import annotations
 
+import os
 import tomllib
 import warnings
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
 from ..errors import ChatterspecError, ModelFileError, UnstableModelWarning
 from .datafile import TIME_COLUMNS, DataSet, load_data
+from .linear_model import Discretization
 from .modelfile_fields import (
     ModelSpec,
     _array,
@@ -83,7 +86,7 @@ __all__ = ["TIME_COLUMNS", "DataSet", "ModelSpec", "load_data", "load_model", "w
 
 
 # --------------------------------------------------------------------------- model files
-def load_model(path: str | Path) -> ModelSpec:
+def load_model(path: str | os.PathLike[str]) -> ModelSpec:
     """Read a TOML model file (format in the module docstring).
 
     Parameters
@@ -170,7 +173,7 @@ def load_model(path: str | Path) -> ModelSpec:
             raise ModelFileError(
                 f"{where}: [matrices] discretization must be 'euler' or 'zoh'; got {method!r}"
             )
-        A, B = discretize(A, B, dt, method)  # type: ignore[arg-type]
+        A, B = discretize(A, B, dt, cast(Discretization, method))  # one of the two (checked above)
     pmap = model_file_parameter_map(doc, where, form, method)  # fault identification (optional)
     try:
         model = LinearModel(

@@ -22,6 +22,7 @@ from ..errors import ChatterspecError, ModelFileError
 from .models import LinearModel
 
 if TYPE_CHECKING:  # pragma: no cover
+    from .linear_model import ChannelLabels
     from .modelfile_nonlinear import SimulationSpec
     from .nonlinear import NonlinearModel
 
@@ -50,7 +51,7 @@ class Channels(NamedTuple):
     units: list[str]
     states: list[str]
 
-    def model_names(self) -> dict[str, tuple[str, ...]]:
+    def model_names(self) -> ChannelLabels:
         """The channel names and units as the model dataclasses' keyword arguments."""
         return {
             "state_names": tuple(self.states),

@@ -58,7 +58,7 @@ import types
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -74,6 +74,11 @@ from .modelfile_fields import (
     read_channels,
     svsf_gamma,
 )
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .nonlinear import Model
+    from .scenario_types import Scenario
+    from .signals import Signal
 
 __all__ = [
     "MeasurementFunction",
@@ -186,7 +191,7 @@ class MeasurementFunction(ModelFunction):
         As :class:`ModelFunction`'s.
     """
 
-    def __call__(self, x: np.ndarray) -> np.ndarray:  # type: ignore[override]
+    def __call__(self, x: np.ndarray) -> np.ndarray:  # type: ignore[override]  # h(x): no input u
         try:
             return self.func(x, **self.keywords)
         except ChatterspecError:
@@ -291,7 +296,7 @@ def _resolve(
             keywords["dt"] = dt
     _LOADED[(module, name)] = fn
     return (MeasurementFunction if measurement else ModelFunction)(
-        module=module, name=name, keywords=keywords, source=source, filename=filename, ref=ref, key=key
+        module=module, name=name, keywords=keywords, source=source, filename=filename, ref=str(ref), key=key
     )
 
 
@@ -437,7 +442,7 @@ class SimulationSpec:
         Record length in seconds (None: the command's default, 4 s).
     """
 
-    input: Any = None
+    input: Signal | None = None
     x0: np.ndarray | None = None
     duration_s: float | None = None
 
@@ -449,7 +454,7 @@ _SIGNALS = ("constant", "step", "sine", "square", "chirp")
 class _Stacked:
     """One signal per input channel, sampled side by side ``(T, p)``."""
 
-    signals: tuple[Any, ...]
+    signals: tuple[Signal, ...]
 
     def sample(self, t: np.ndarray) -> np.ndarray:
         return np.column_stack([np.asarray(s.sample(t), dtype=float).reshape(-1) for s in self.signals])
@@ -458,7 +463,7 @@ class _Stacked:
         return "; ".join(s.describe() for s in self.signals)
 
 
-def _signal(table: object, where: str) -> Any:
+def _signal(table: object, where: str) -> Signal:
     from . import signals
 
     if not isinstance(table, dict) or "kind" not in table:
@@ -486,7 +491,7 @@ def _signal(table: object, where: str) -> Any:
         raise ModelFileError(f"{where}: [simulation] input of kind {kind!r}: {exc}") from None
 
 
-def parse_simulation(doc: Mapping[str, Any], model: Any, where: str) -> SimulationSpec | None:
+def parse_simulation(doc: Mapping[str, Any], model: Model, where: str) -> SimulationSpec | None:
     """The optional ``[simulation]`` table (keys ``duration_s``, ``x0``, ``input``), validated.
 
     ``input`` is one table for a one-input model, or a list of tables (one per input); each has a
@@ -541,7 +546,7 @@ def parse_simulation(doc: Mapping[str, Any], model: Any, where: str) -> Simulati
     return SimulationSpec(input=signal, x0=x0, duration_s=duration)
 
 
-def file_scenario(spec: Any, default_duration: float = 4.0, name: str | None = None) -> Any:
+def file_scenario(spec: ModelSpec, default_duration: float = 4.0, name: str | None = None) -> Scenario:
     """A healthy scenario for a model file: its model as nominal and true plant, its ``[simulation]``.
 
     Parameters
@@ -564,7 +569,7 @@ def file_scenario(spec: Any, default_duration: float = 4.0, name: str | None = N
 
     sim = spec.simulation or SimulationSpec()
     model = spec.model
-    x0 = sim.x0 if sim.x0 is not None else getattr(model, "rest_state", None)
+    x0 = sim.x0 if sim.x0 is not None else getattr(model, "rest_state", np.zeros(model.n_states))
     signal = sim.input if sim.input is not None else ZeroInput(model.n_inputs)
     what = signal.describe() if sim.input is not None else "zero"
     return Scenario(

@@ -5,13 +5,18 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..errors import ModelFileError
 from .modelfile_fields import _DETECTOR_KEYS, _detector_band
 from .models import LinearModel
+from .nonlinear import Model
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .nonlinear import NonlinearModel
+    from .signals import Signal
 
 __all__ = ["signal_table", "write_model_toml", "write_nonlinear_model_toml"]
 
@@ -44,9 +49,9 @@ def _toml_covariance(key: str, M: np.ndarray) -> str:
     return f"{key} = {_toml_matrix(M)}"
 
 
-def _matrices_and_svsf(model: object, matrices: tuple[str, ...], svsf: tuple[str, ...]) -> list[str]:
+def _matrices_and_svsf(model: Model, matrices: tuple[str, ...], svsf: tuple[str, ...]) -> list[str]:
     """The ``[matrices]`` table (``matrices`` lines, then C, Q, R) and the ``[svsf]`` table of a file."""
-    C, Q, R = model.C, model.Q, model.R  # type: ignore[attr-defined]
+    C, Q, R = model.C, model.Q, model.R
     matrix_lines = [*matrices, f"C = {_toml_matrix(C)}", _toml_covariance("Q", Q), _toml_covariance("R", R)]
     return ["", "[matrices]", *matrix_lines, "", "[svsf]", *svsf]
 
@@ -152,7 +157,7 @@ def _inline_table(d: Mapping[str, Any]) -> str:
     return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in d.items()) + " }"
 
 
-def signal_table(signal: Any) -> dict[str, Any] | None:
+def signal_table(signal: Signal) -> dict[str, Any] | None:
     """A :mod:`chatterspec.plants.signals` input as a ``[simulation] input`` table (None if it has none).
 
     Parameters
@@ -172,12 +177,12 @@ def signal_table(signal: Any) -> dict[str, Any] | None:
         signals.Chirp: "chirp",
     }
     kind = kinds.get(type(signal))
-    if kind is None:
+    if kind is None or not dataclasses.is_dataclass(signal):  # (every kind above is a dataclass)
         return None
     return {"kind": kind, **{f.name: getattr(signal, f.name) for f in dataclasses.fields(signal)}}
 
 
-def _function_refs(model: Any) -> tuple[str, str, str | None, str, dict[str, float]]:
+def _function_refs(model: NonlinearModel) -> tuple[str, str, str | None, str, dict[str, float]]:
     """``(f, jacobian, input_jacobian, form, parameters)`` naming a nonlinear model's functions."""
     from functools import partial
 
@@ -214,7 +219,7 @@ def _function_refs(model: Any) -> tuple[str, str, str | None, str, dict[str, flo
 
 def write_nonlinear_model_toml(
     path: str | Path,
-    model: Any,
+    model: NonlinearModel,
     *,
     gamma: float = 0.1,
     simulation: Mapping[str, Any] | None = None,

@@ -27,7 +27,7 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal, TypeVar
+from typing import TYPE_CHECKING, Any, Literal, TypeVar, cast
 
 import numpy as np
 
@@ -185,10 +185,10 @@ class ParameterMap:
                     f"({', '.join(names) or 'none'}) nor constants ({', '.join(['dt', *consts])})"
                 )
             used |= e.formula.names
-        for p in names:
-            if p not in used:
+        for name in names:
+            if name not in used:
                 raise ParameterError(
-                    f"parameter {p!r} enters no entry of A or B: declare the entries it enters"
+                    f"parameter {name!r} enters no entry of A or B: declare the entries it enters"
                 )
         hyps = tuple(self.hypotheses) or tuple(Hypothesis(p, (p,)) for p in names)
         hnames = [h.name for h in hyps]
@@ -369,7 +369,7 @@ def parse_entry_key(key: str, where: str) -> tuple[Literal["A", "B"], int, int]:
     m = _ENTRY.match(str(key))
     if not m or int(m.group(2)) < 1 or int(m.group(3)) < 1:
         raise ParameterError(f'{where}: entry key {key!r} must look like "A[3,3]" or "B[3,1]" (1-based)')
-    return m.group(1), int(m.group(2)) - 1, int(m.group(3)) - 1  # type: ignore[return-value]
+    return cast(Literal["A", "B"], m.group(1)), int(m.group(2)) - 1, int(m.group(3)) - 1  # (the regex)
 
 
 def parameter_map_from_tables(

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+import numpy.typing as npt
 
 from .._validate import finite_array, nonnegative, positive
 
@@ -30,7 +31,7 @@ class Signal(Protocol):
         ...
 
 
-def _times(t: object) -> np.ndarray:
+def _times(t: npt.ArrayLike) -> np.ndarray:
     return finite_array("t", t, ndim=1)
 
 
@@ -296,7 +297,7 @@ class HeldUniform:
         return f"uniform({self.low:g}, {self.high:g}) held {self.hold_time:g} s, seed {self.seed}"
 
 
-def _nonnegative_times(t: object) -> np.ndarray:
+def _nonnegative_times(t: npt.ArrayLike) -> np.ndarray:
     """Finite 1-D sample times that are all >= 0 (seconds)."""
     t = _times(t)
     if t.size and t.min() < 0:
@@ -357,6 +358,6 @@ class ZeroInput:
         """``(len(t), channels)`` zeros (t in seconds)."""
         return np.zeros((np.size(t), self.channels))
 
-    def describe(self) -> dict[str, object]:
-        """``{"kind": "zero", "channels": channels}``."""
-        return {"kind": "zero", "channels": self.channels}
+    def describe(self) -> str:
+        """``"zero"`` (on every input)."""
+        return "zero"

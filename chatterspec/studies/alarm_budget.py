@@ -47,7 +47,7 @@ import threading
 from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -62,10 +62,16 @@ from ..detection.alarm_calibration import (
 from ..detection.alarms import AlarmRule, make_rule
 from ..detection.frame_engine import FrameEngine
 from ..detection.frame_score import FrameScore
+from ..detection.spectral import spectrum_model
 from ..detection.thresholds import frame_threshold
 from ..errors import CalibrationMismatchError, ParameterError
 from ..plants.nonlinear import is_linear
 from ..plants.simulate import covariance_sqrt
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.monitor_settings import MonitorSettings
+    from ..plants.nonlinear import Model
+    from ..plants.scenario_types import Scenario
 
 __all__ = [
     "DEFAULT_BUDGET",
@@ -107,7 +113,7 @@ ALARM_SALT = 0xA1A3
 _CACHE: dict[str, RuleCalibration] = {}
 
 
-def frames_per_hour(settings: Any, dt: float) -> float:
+def frames_per_hour(settings: MonitorSettings, dt: float) -> float:
     """STFT frames per hour of data: ``3600 / (hop samples * dt)``.
 
     Parameters
@@ -120,7 +126,7 @@ def frames_per_hour(settings: Any, dt: float) -> float:
     return 3600.0 / (settings.stft.n_hop(dt) * dt)
 
 
-def healthy_chattering(model: Any, n_samples: int, seed: int) -> Iterator[np.ndarray]:
+def healthy_chattering(model: Model, n_samples: int, seed: int) -> Iterator[np.ndarray]:
     """Healthy chattering of a linear full-measurement ``model``, ``(K, m)`` blocks, ``n_samples`` in all.
 
     The exact MA(1) law of the module docstring; block ``b`` (``BLOCK_S`` seconds) draws its noise
@@ -129,7 +135,8 @@ def healthy_chattering(model: Any, n_samples: int, seed: int) -> Iterator[np.nda
     """
     from ..detection.spectral import chattering_autocovariance
 
-    chattering_autocovariance(model)  # full measurement, linear (clear errors otherwise)
+    model = spectrum_model(model)
+    chattering_autocovariance(model)  # full measurement (clear errors otherwise)
     C = model.C
     M = C @ model.A @ model.C_inv
     LQ = C @ covariance_sqrt(model.Q)
@@ -154,7 +161,7 @@ def healthy_chattering(model: Any, n_samples: int, seed: int) -> Iterator[np.nda
         yield np.ascontiguousarray(e.T)
 
 
-def monitor_score(model: Any, settings: Any) -> tuple[FrameScore, Any]:
+def monitor_score(model: Model, settings: MonitorSettings) -> tuple[FrameScore, Any]:
     """The monitor's frame score for ``settings`` and the per-frame threshold it carries the law of.
 
     Parameters
@@ -168,7 +175,8 @@ def monitor_score(model: Any, settings: Any) -> tuple[FrameScore, Any]:
     dt = model.dt
     th = settings.threshold
     if th is None:
-        th = frame_threshold(model, settings.stft.freqs_hz(dt), settings.stft, dt, settings.alpha,
+        linear = spectrum_model(model)
+        th = frame_threshold(linear, settings.stft.freqs_hz(dt), settings.stft, dt, settings.alpha,
                              settings.correction, band=settings.band)  # fmt: skip
     else:
         th = th.restricted(settings.band)
@@ -183,7 +191,9 @@ MAX_SCORES = 1 << 25
 MIN_FRAMES = 2
 
 
-def _stream_frames(model: Any, settings: Any, hours: float, scenario: Any) -> tuple[int, int]:
+def _stream_frames(
+    model: Model, settings: MonitorSettings, hours: float, scenario: Scenario | None
+) -> tuple[int, int]:
     """``(streams, frames per stream)`` of ``hours`` of healthy data (module docstring)."""
     dt = model.dt
     W, H = settings.stft.n_window(dt), settings.stft.n_hop(dt)
@@ -201,7 +211,9 @@ def _stream_frames(model: Any, settings: Any, hours: float, scenario: Any) -> tu
     return max(1, math.ceil(hours * 3600.0 / (per * H * dt))), per
 
 
-def check_hours(model: Any, settings: Any, hours: float, scenario: Any = None) -> float:
+def check_hours(
+    model: Model, settings: MonitorSettings, hours: float, scenario: Scenario | None = None
+) -> float:
     """``hours`` of healthy data if the alarm calibration can compute them, else one clear error.
 
     At least :data:`MIN_FRAMES` STFT frames per stream, and at most :data:`MAX_SCORES` frame scores
@@ -233,12 +245,12 @@ def check_hours(model: Any, settings: Any, hours: float, scenario: Any = None) -
 
 
 def healthy_frame_scores(
-    model: Any,
-    settings: Any,
+    model: Model,
+    settings: MonitorSettings,
     hours: float,
     seed: int = 0,
     *,
-    scenario: Any = None,
+    scenario: Scenario | None = None,
     progress: bool | None = None,
 ) -> np.ndarray:
     """Frame scores of healthy data as the monitor computes them: ``(streams, frames, m)``.
@@ -299,6 +311,7 @@ def healthy_frame_scores(
     from ..detection.pipeline import iter_chattering
 
     runs, _ = _stream_frames(model, settings, hours, scenario)
+    assert scenario is not None  # _stream_frames refuses a nonlinear model without its scenario
     parts = []
     root = np.random.SeedSequence([int(seed), ALARM_SALT])
     engine = FrameEngine(settings.stft, dt, compiled=compiled)
@@ -325,7 +338,14 @@ CACHE_KIND = "alarm-calibrations"
 
 
 def _key(
-    model: Any, settings: Any, rule: AlarmRule, X: float, hours: float, seed: int, sc: Any, confidence: float
+    model: Model,
+    settings: MonitorSettings,
+    rule: AlarmRule,
+    X: float,
+    hours: float,
+    seed: int,
+    sc: Scenario | None,
+    confidence: float,
 ) -> dict[str, Any]:
     """Everything that determines :func:`calibrate_alarm`'s result, JSON-ready (the cache key)."""
     import scipy
@@ -355,14 +375,14 @@ def _key(
 
 
 def calibrate_alarm(
-    model: Any,
-    settings: Any,
+    model: Model,
+    settings: MonitorSettings,
     rule: AlarmRule | str,
     false_alarms_per_hour: float,
     *,
     hours: float | None = None,
     seed: int = 0,
-    scenario: Any = None,
+    scenario: Scenario | None = None,
     confidence: float = 0.95,
     note: Callable[[str], None] | None = None,
     progress: bool | None = None,
@@ -512,18 +532,18 @@ def check_alarm_calibration(
 
 
 def alarm_settings(
-    model: Any,
-    settings: Any,
+    model: Model,
+    settings: MonitorSettings,
     rule: str | None = None,
     false_alarms_per_hour: float | None = None,
     *,
     hours: float | None = None,
     seed: int = 0,
-    scenario: Any = None,
+    scenario: Scenario | None = None,
     calibration: RuleCalibration | None = None,
     note: Callable[[str], None] | None = None,
     progress: bool | None = None,
-    **parameters: Any,
+    **parameters: float,
 ) -> Any:
     """``settings`` with an alarm rule whose threshold meets ``false_alarms_per_hour``.
 

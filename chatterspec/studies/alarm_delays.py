@@ -23,17 +23,18 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from ..detection.alarms import AlarmRule, run_rule
+from ..detection.monitor_settings import MonitorSettings
 from ..detection.pipeline import iter_chattering
 from ..detection.spectral import STFTConfig, frame_columns
 from ..errors import ParameterError
 from ..jsonout import finite_or_none
+from ..plants.nonlinear import Model
 from ..plants.scenarios import Scenario, Segment, scenario
-from ..rng import SeedLike
 from .alarm_budget import monitor_score
 
 __all__ = ["DelayResult", "Shifted", "alarm_delays", "onset_scenarios", "score_delays"]
@@ -113,7 +114,9 @@ def onset_scenarios(
                 nominal=base.nominal,
                 input=Shifted(base.input, healthy_s - float(ph), base.duration),
                 duration=healthy_s + fault_s,
-                windows=(Segment(healthy_s, healthy_s + fault_s, base.plant, base.level),),
+                windows=(
+                    Segment(healthy_s, healthy_s + fault_s, cast(Model, base.plant), base.level),
+                ),  # (set)
                 fault=base.fault,
                 level=base.level,
                 fault_channel=base.fault_channel,
@@ -228,9 +231,9 @@ def alarm_delays(
     scenarios: Sequence[Scenario],
     rules: Mapping[str, AlarmRule],
     runs: int,
-    seed: SeedLike = 0,
+    seed: int = 0,
     *,
-    settings: Any = None,
+    settings: MonitorSettings | None = None,
 ) -> dict[str, DelayResult]:
     """Delays of each rule of ``rules`` on ``runs`` realizations of every onset scenario.
 

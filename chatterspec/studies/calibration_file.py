@@ -112,7 +112,7 @@ def _arrays(cal: Calibration) -> dict[str, np.ndarray]:
 
 def _json_arrays(cal: Calibration) -> dict[str, list]:
     """:func:`_arrays` as JSON lists, non-finite values as ``null`` (read back by :func:`_json_array`)."""
-    return {k: np.where(np.isfinite(v), v, None).tolist() for k, v in _arrays(cal).items()}
+    return {k: np.where(np.isfinite(v), v, None).tolist() for k, v in _arrays(cal).items()}  # type: ignore[call-overload]  # numpy's stubs: no None in where (an object array)
 
 
 def save_calibration(cal: Calibration, path: str | Path) -> Path:
@@ -144,7 +144,11 @@ def save_calibration(cal: Calibration, path: str | Path) -> Path:
     meta["normalization_info"] = cal.normalization_info
     meta["tails"] = cal.tails
     if path.suffix == ".npz":
-        np.savez(path, _meta=np.array(json.dumps(meta)), **_arrays(cal))
+        arrays: dict[str, Any] = {
+            "_meta": np.array(json.dumps(meta)),
+            **_arrays(cal),
+        }  # (savez's keywords: any arrays)
+        np.savez(path, **arrays)
     else:
         meta["arrays"] = _json_arrays(cal)
         path.write_text(json.dumps(meta))

@@ -322,7 +322,9 @@ class RecordingPlan:
         """The model's closed-form healthy record and frame spectra (``"model"`` normalization)."""
         _, thr = _analytic_thresholds(self.model, self.N, self.alpha)
         _, fthr = _frame_thresholds(self.model, self.settings.stft, self.alpha)
-        return thr["exact"].expected, fthr["frame"].expected
+        E_rec, E_frame = thr["exact"].expected, fthr["frame"].expected
+        assert E_rec is not None and E_frame is not None  # analytic thresholds carry their expectation
+        return E_rec, E_frame
 
 
 def plan_recording(
@@ -381,7 +383,7 @@ def plan_recording(
     alarm_confidence = open_unit("alarm_confidence", alarm_confidence)
     record_s = positive("record_s", record_s, unit="s")
     linear = is_linear(model)
-    norm = normalization or ("model" if linear else "data")
+    norm: Normalization = normalization or ("model" if linear else "data")
     if norm not in ("model", "data"):
         raise ParameterError(f"normalization must be 'model' or 'data'; got {norm!r}")
     if norm == "model" and not linear:
@@ -444,7 +446,7 @@ def plan_recording(
         n_samples=int(n_samples),
         alpha=alpha,
         confidence=confidence,
-        normalization=norm,  # type: ignore[arg-type]
+        normalization=norm,
         N=N,
         runs=runs,
         frames=nf,
@@ -530,8 +532,9 @@ class RecordedTally:
         """The ``"data"`` normalization from a first pass: mean record periodogram (smoothed) and mean
         frame spectrum (module docstring)."""
         self._check()
-        E_rec = smooth_spectrum(self.sum_rec / self.records, self.plan.smooth_half_width)  # type: ignore[operator]
-        E_frame = smooth_spectrum(self.sum_frame / self.frames, 0)  # type: ignore[operator]
+        assert self.sum_rec is not None and self.sum_frame is not None  # _check: records and frames seen
+        E_rec = smooth_spectrum(self.sum_rec / self.records, self.plan.smooth_half_width)
+        E_frame = smooth_spectrum(self.sum_frame / self.frames, 0)
         return E_rec, E_frame
 
     def _check(self) -> None:
@@ -576,8 +579,9 @@ def recorded_calibration(tally: RecordedTally, recording: HealthyRecording | Non
             QuantileEstimate(q, float(val[c]), float(lo[c]), float(hi[c]), n, p.confidence) for c in range(m)
         )
 
-    bin_q = _quantile_from_top(_desc(tally.top_bin), p.runs, q, p.confidence)  # type: ignore[arg-type]
-    frame_q = _quantile_from_top(_desc(tally.top_frame), p.frames, q, p.confidence, p.frames_eff)  # type: ignore[arg-type]
+    assert tally.top_bin is not None and tally.top_frame is not None  # the plan promised records and frames
+    bin_q = _quantile_from_top(_desc(tally.top_bin), p.runs, q, p.confidence)
+    frame_q = _quantile_from_top(_desc(tally.top_frame), p.frames, q, p.confidence, p.frames_eff)
     alarm = None if p.rule is None else _alarm(p, np.concatenate(tally.scores))
     if p.normalization == "model":
         _, thr = _analytic_thresholds(model, p.N, p.alpha)

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 
@@ -51,11 +51,19 @@ from ..detection.route_scores import (
 )
 from ..errors import ParameterError
 
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.alarm_rules import AlarmRule
+    from ..detection.spectral import STFTConfig
+    from ..detection.thresholds import Threshold
+    from ..plants.scenario_types import Scenario
+    from ..plants.simulate import Simulation
+
 __all__ = [
     "ALL_METHODS",
     "ChatteringRoute",
     "InnovationRoute",
     "ModeRoute",
+    "Route",
     "RouteScores",
     "supported_methods",
     "unsupported_reason",
@@ -93,7 +101,7 @@ class RouteScores:
     seconds: float
 
 
-def unsupported_reason(sc: Any, method: str) -> str | None:
+def unsupported_reason(sc: Scenario, method: str) -> str | None:
     """Why ``method`` cannot run on scenario ``sc`` (None when it can)."""
     fs = sc.filter_settings
     if method == "chattering":
@@ -113,12 +121,12 @@ def unsupported_reason(sc: Any, method: str) -> str | None:
     raise ParameterError(f"method must be one of {', '.join(ALL_METHODS)}; got {method!r}")
 
 
-def supported_methods(sc: Any) -> tuple[str, ...]:
+def supported_methods(sc: Scenario) -> tuple[str, ...]:
     """The methods scenario ``sc`` supports, in :data:`ALL_METHODS` order."""
     return tuple(m for m in ALL_METHODS if unsupported_reason(sc, m) is None)
 
 
-def _initial(sc: Any) -> tuple[np.ndarray, np.ndarray]:
+def _initial(sc: Scenario) -> tuple[np.ndarray, np.ndarray]:
     """``x(0|0)`` and ``P(0|0)`` of the scenario's filters (settings, else zeros and 10 Q)."""
     fs = sc.filter_settings
     x0 = np.zeros(sc.nominal.n_states) if fs is None or fs.x0 is None else np.asarray(fs.x0, dtype=float)
@@ -139,13 +147,14 @@ class ModeRoute:
         :data:`~chatterspec.detection.route_scores.DEFAULT_MODE_FLOOR`).
     """
 
-    def __init__(self, scenario: Any, method: str, floor: float | None = None) -> None:
+    def __init__(self, scenario: Scenario, method: str, floor: float | None = None) -> None:
         from .mode_diagnosis import _filter_for
 
         why = unsupported_reason(scenario, method) if method in ("smm", "imm") else "smm or imm"
         if why is not None:
             raise ParameterError(f"scenario {scenario.name!r} does not support {method!r} (it needs {why})")
         fs = scenario.filter_settings
+        assert fs is not None  # (unsupported_reason: a mode route needs the settings)
         self.scenario = scenario
         self.method = method
         self.filter = _filter_for(method, fs)
@@ -171,7 +180,7 @@ class ModeRoute:
         """A short description for reports and recordings."""
         return {"score": "log posterior odds of the fault modes against normal", "floor": self.floor}
 
-    def scores(self, sim: Any) -> RouteScores:
+    def scores(self, sim: Simulation) -> RouteScores:
         """Score stream of one chunk: times ``t[1:]``, score ``(runs, T - 1, 1)``, label = fault mode."""
         z, u = sim.z[:, 1:], sim.u[..., :-1, :]  # u per run in closed loop
         t0 = time.perf_counter()
@@ -213,7 +222,7 @@ class InnovationRoute:
     method = "innovation"
 
     def __init__(
-        self, scenario: Any, inflation: float = DEFAULT_INFLATION, cap: bool = True, scale: float = 1.0
+        self, scenario: Scenario, inflation: float = DEFAULT_INFLATION, cap: bool = True, scale: float = 1.0
     ) -> None:
         from ..filters import ExtendedKalmanFilter, KalmanFilter
         from ..plants.models import LinearModel
@@ -241,7 +250,7 @@ class InnovationRoute:
             and np.allclose(plant.A, model.A, rtol=1e-12, atol=0.0)
         )
 
-    def with_healthy_scale(self, sim: Any) -> InnovationRoute:
+    def with_healthy_scale(self, sim: Simulation) -> InnovationRoute:
         """This route with NIS divided by its healthy scale, measured on the healthy runs ``sim``.
 
         The scale is ``median(NIS) / median(chi2_m)`` over the samples after the first 10 % of the
@@ -275,7 +284,7 @@ class InnovationRoute:
             "degrees_of_freedom": self.m,
         }
 
-    def nis(self, sim: Any) -> tuple[np.ndarray, np.ndarray]:
+    def nis(self, sim: Simulation) -> tuple[np.ndarray, np.ndarray]:
         """NIS ``(runs, T - 1)`` and the channel of the largest ``e_i^2 / S_ii`` (runs, T - 1)."""
         z, u = sim.z[:, 1:], sim.u[..., :-1, :]  # u per run in closed loop
         runs, K = z.shape[:2]
@@ -285,11 +294,13 @@ class InnovationRoute:
         for lo in range(0, K, INNOVATION_BLOCK):
             hi = min(lo + INNOVATION_BLOCK, K)
             state, out = self.filter.update(state, z[:, lo:hi], u[..., lo:hi, :], store=("innovation", "S"))
-            nis[:, lo:hi] = normalized_innovation_squared(out.innovation, out.S)
-            chan[:, lo:hi] = innovation_channel(out.innovation, out.S)
+            e, S = out.innovation, out.S
+            assert e is not None and S is not None  # (stored)
+            nis[:, lo:hi] = normalized_innovation_squared(e, S)
+            chan[:, lo:hi] = innovation_channel(e, S)
         return nis, chan
 
-    def scores(self, sim: Any) -> RouteScores:
+    def scores(self, sim: Simulation) -> RouteScores:
         """Score stream of one chunk: times ``t[1:]``, ``(1 - 1/L) min(NIS, cap) / 2`` (runs, T - 1, 1)."""
         t0 = time.perf_counter()
         nis, chan = self.nis(sim)
@@ -318,7 +329,9 @@ class ChatteringRoute:
 
     method = "chattering"
 
-    def __init__(self, scenario: Any, law: Any, config: Any = None, gamma: float = 0.1) -> None:
+    def __init__(
+        self, scenario: Scenario, law: Threshold, config: STFTConfig | None = None, gamma: float = 0.1
+    ) -> None:
         from ..detection.frame_score import FrameScore
         from ..detection.spectral import STFTConfig
 
@@ -358,7 +371,7 @@ class ChatteringRoute:
         # worker process; the law it is built from can
         return {**self.__dict__, "_score": None}
 
-    def own_calibration(self, rule: Any, budget: float, seed: int, confidence: float) -> Any:
+    def own_calibration(self, rule: AlarmRule, budget: float, seed: int, confidence: float) -> Any:
         """On a linear model, the monitor's threshold for ``rule`` at ``budget`` (else None).
 
         The healthy chattering of a linear model is an exact MA(1) process, so the alarm layer's monitor
@@ -387,7 +400,7 @@ class ChatteringRoute:
         """A short description for reports and recordings."""
         return {"score": "-log p of the STFT frame (Bonferroni over bins)", "law": self.frame_score.law}
 
-    def scores(self, sim: Any) -> RouteScores:
+    def scores(self, sim: Simulation) -> RouteScores:
         """Score stream of one chunk: frame end times, ``-log p`` ``(runs, frames, m)``, label None."""
         from ..detection.pipeline import chattering_record
         from ..detection.spectral import spectrogram
@@ -400,3 +413,7 @@ class ChatteringRoute:
         # frame j covers chattering samples [jH, jH + W) = simulation samples [jH + 1, jH + W]
         times = sim.t[np.asarray(spec.frame_starts) + self._W]
         return RouteScores(self.method, times, score, None, time.perf_counter() - t0)
+
+
+#: A diagnosis route: the per-frame score of one method.
+Route: TypeAlias = ModeRoute | InnovationRoute | ChatteringRoute

@@ -16,7 +16,11 @@ from .rerun_log import RerunLogger, record_span
 from .sinks import Sinks, default_recording_path, file_error, open_sinks
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from ..detection.identification_online import OnlineIdentification, OnlineIdentifier
     from ..detection.pipeline import ChatteringRecord
+    from ..plants.scenario_types import Scenario
     from ..plants.simulate import Simulation
 
 __all__ = [
@@ -62,7 +66,7 @@ class RecordingSummary:
     notes: tuple[str, ...] = ()
     write_error: str | None = None
 
-    def to_dict(self) -> dict[str, object]:
+    def to_dict(self) -> dict[str, Any]:
         """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {
             "recording": None if self.path is None else str(self.path),
@@ -100,10 +104,10 @@ def run_monitor(
     rate: float | None = None,
     truth: list[tuple[float, str, bool]] | None = None,
     scroll_frames: int = 50,
-    on_event: Any = None,
+    on_event: Callable[[DetectionEvent], None] | None = None,
     band_hz: tuple[float, float] | None = None,
-    identifier: Any = None,
-    on_identification: Any = None,
+    identifier: OnlineIdentifier | None = None,
+    on_identification: Callable[[OnlineIdentification], None] | None = None,
 ) -> RecordingSummary:
     """Drive ``monitor`` over raw data (``z`` (T, m), ``u`` (T, p)) or precomputed ``chattering`` (N, m)
     and log everything to ``sinks``; closes the sinks at the end (also on Ctrl-C).
@@ -151,10 +155,12 @@ def run_monitor(
     logger = None  # a RerunLogger that fails to build must not hide its error behind this name
     done = False
     try:
-        data = chattering if chattering is not None else z
-        if data is None:
+        if chattering is not None:
+            total = chattering.shape[0]
+        elif z is not None and u is not None:
+            total = z.shape[0]
+        else:
             raise ValueError("give z and u, or chattering")
-        total = data.shape[0]
         if chattering is not None:
             identifier = None  # identification regresses on the raw measurements
         views = None
@@ -175,11 +181,15 @@ def run_monitor(
             if sinks.streams
             else None
         )
-        ident_log = IdentificationLog(sinks, identifier.setup) if views is not None else None
+        ident_log = None
+        if views is not None:
+            assert identifier is not None  # (views: made for it)
+            ident_log = IdentificationLog(sinks, identifier.setup)
         for lo, hi in _chunks(total, size):
             if chattering is not None:
                 upd = monitor.push_chattering(chattering[lo:hi])
             else:
+                assert z is not None and u is not None  # (checked above)
                 upd = monitor.push(z[lo:hi], u[lo:hi])
             if logger is not None:
                 logger.log_update(upd)
@@ -188,6 +198,7 @@ def run_monitor(
                 if on_event is not None:
                     on_event(ev)
             if identifier is not None:
+                assert z is not None and u is not None  # (no identifier on precomputed chattering)
                 found = identifier.push(z[lo:hi], u[lo:hi])
                 if ident_log is not None:
                     ident_log.log(found)
@@ -210,7 +221,7 @@ def run_monitor(
     )
 
 
-def _close(logger: Any, sinks: Sinks, *, keep_going: bool) -> str | None:
+def _close(logger: RerunLogger | None, sinks: Sinks, *, keep_going: bool) -> str | None:
     """Close the logger and the sinks; after a finished run, a write failure is returned, not raised."""
     try:
         try:
@@ -226,7 +237,7 @@ def _close(logger: Any, sinks: Sinks, *, keep_going: bool) -> str | None:
     return None
 
 
-def scenario_truth(scenario: Any) -> list[tuple[float, str, bool]]:
+def scenario_truth(scenario: Scenario) -> list[tuple[float, str, bool]]:
     """The true fault timeline of a scenario, as the viewer's truth lane takes it.
 
     Parameters
@@ -260,7 +271,7 @@ def record_detection(
     rate: float | None = None,
     recording_name: str | None = None,
     application_id: str = "chatterspec",
-    on_event: Any = None,
+    on_event: Callable[[DetectionEvent], None] | None = None,
     band_hz: tuple[float, float] | None = None,
 ) -> RecordingSummary:
     """Run the online monitor over one realization of a simulation or chattering record and record it.

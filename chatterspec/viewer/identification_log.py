@@ -16,7 +16,7 @@ parameter).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -26,6 +26,12 @@ from ..plants.parameters import NO_FAULT
 from .arrow_columns import _TimeIndex
 from .rerun_log import to_ns
 from .sinks import Sinks
+
+if TYPE_CHECKING:  # pragma: no cover
+    from rerun.blueprint import VisibleTimeRange
+    from rerun.blueprint.archetypes import TimeAxis
+
+    from ..detection.identification import IdentificationSetup
 
 __all__ = ["IDENTIFICATION", "IdentificationLog", "identification_views"]
 
@@ -37,7 +43,7 @@ def _path(parameter: str) -> str:
     return f"{IDENTIFICATION}/{parameter}"
 
 
-def identification_views(setup: Any, confidence: float) -> Any:
+def identification_views(setup: IdentificationSetup, confidence: float) -> Any:
     """``make(time_range, axis) -> views``: one time-series view per identified parameter (estimate and
     interval of the selected hypothesis) and the log of the selected hypothesis, for
     :func:`chatterspec.viewer.blueprint.blueprint`'s ``extra_row``.
@@ -52,10 +58,10 @@ def identification_views(setup: Any, confidence: float) -> Any:
     pm = setup.parameter_map
     used = [p for p in pm.parameter_names if any(p in h.parameters for h in setup.hypotheses)]
 
-    def make(time_range: Any, axis: Any = None) -> list[Any]:
+    def make(time_range: VisibleTimeRange, axis: TimeAxis | None = None) -> list[Any]:
         import rerun.blueprint as rrb
 
-        views = []
+        views: list[Any] = []  # rerun blueprint views
         for p in used:
             unit = pm.parameter(p).unit
             views.append(
@@ -83,7 +89,7 @@ class IdentificationLog:
     setup : IdentificationSetup
     """
 
-    def __init__(self, sinks: Sinks, setup: Any) -> None:
+    def __init__(self, sinks: Sinks, setup: IdentificationSetup) -> None:
         import pyarrow as pa
         import rerun as rr
 
@@ -110,6 +116,7 @@ class IdentificationLog:
         rr, pa = self.rr, self.pa
         ns = to_ns(out.times_s)
         res = out.result
+        assert res is not None  # (n_windows > 0)
         sel = res.fit["selected"]
         names = [h.name for h in self.setup.hypotheses]
         theta, lo_hi = res.fit["theta"], {}

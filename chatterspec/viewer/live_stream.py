@@ -64,7 +64,7 @@ from ..online.stream import BadRow, CsvRows, Restart, RowBlock
 from ..online.stream_checks import (
     LatencyStats,
 )
-from ..plants.models import LinearModel
+from ..plants.nonlinear import Model
 from .stream_recordings import StreamRecordings, period_bounds
 from .stream_segments import Segment, StreamSegments
 
@@ -272,7 +272,7 @@ class StreamMonitor:
 
     def __init__(
         self,
-        model: LinearModel,
+        model: Model,
         settings: MonitorSettings,
         *,
         record: str | Path | None = None,
@@ -421,8 +421,10 @@ class StreamMonitor:
         K = z.shape[0]
         parts: list[tuple[MonitorUpdate, int, int]] = []
         rec = self._rec
+        monitor = self.monitor
+        assert monitor is not None  # (made by the first push, before this)
         for lo, hi in period_bounds(K, self.record_every, rec.file_rows):
-            upd = self.monitor.push(z[lo:hi], u[lo:hi])
+            upd = monitor.push(z[lo:hi], u[lo:hi])
             self.n_rows += hi - lo
             for ev in upd.events:
                 self._emit(StreamEvent.from_detection(ev, time.time()))

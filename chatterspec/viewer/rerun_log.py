@@ -7,7 +7,7 @@ importable from here, as before).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -26,6 +26,12 @@ from .spectrogram_images import SpectrogramImages
 from .static_entities import expected_spectrum, log_static
 from .truth_lane import log_truth_lane
 
+if TYPE_CHECKING:  # pragma: no cover
+    from rerun import RecordingStream
+    from rerun.blueprint import Blueprint
+
+    from .blueprint import ExtraRow
+
 __all__ = [
     "DB_RANGE",
     "RerunLogger",
@@ -36,7 +42,7 @@ __all__ = [
 ]
 
 
-def _send_blueprint(stream: Any, bp: Any) -> None:
+def _send_blueprint(stream: RecordingStream, bp: Blueprint) -> None:
     """Send ``bp`` as the active and default blueprint of ``stream``."""
     stream.send_blueprint(bp, make_active=True, make_default=True)
 
@@ -106,7 +112,7 @@ class RerunLogger:
         truth: list[tuple[float, str, bool]] | None = None,
         send_blueprint: bool = True,
         spectrum_dtype: str = "float32",
-        extra_row: Any = None,
+        extra_row: ExtraRow | None = None,
         extra_lanes: int = 0,
         rows_above: int = 0,
         peak_view: bool = True,

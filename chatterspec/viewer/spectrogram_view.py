@@ -28,9 +28,12 @@ Entities under ``/spectrogram/<channel>``: ``image`` (the dB image and its scale
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from rerun import RecordingStream
 
 __all__ = ["KEY_FRACTION", "KEY_PX", "image_width", "key_width", "log_axes", "log_image", "spectrogram_view"]
 
@@ -95,7 +98,7 @@ def _y(f: float, band_hz: tuple[float, float], df: float) -> float:
 
 
 def log_axes(
-    stream: Any,
+    stream: RecordingStream,
     path: str,
     band_hz: tuple[float, float],
     df: float,
@@ -138,7 +141,7 @@ def log_axes(
     )
     n = 64
     kw = _KEY * width if key is None else float(key)
-    key = np.linspace(db_range[1], db_range[0], n, dtype=np.float32)[:, None].repeat(2, axis=1)
+    key_image = np.linspace(db_range[1], db_range[0], n, dtype=np.float32)[:, None].repeat(2, axis=1)
     stream.log(
         f"{path}/key",
         rr.Transform3D(translation=[-kw, 0.0, 0.0], scale=[0.3 * kw / 2, 1.0 / n, 1.0]),
@@ -146,7 +149,7 @@ def log_axes(
     )
     stream.log(
         f"{path}/key",
-        rr.DepthImage(key, meter=1.0, colormap="magma", depth_range=list(db_range)),
+        rr.DepthImage(key_image, meter=1.0, colormap="magma", depth_range=list(db_range)),
         static=True,
     )
     mid = 0.5 * (db_range[0] + db_range[1])
@@ -164,7 +167,7 @@ def log_axes(
 
 
 def log_image(
-    stream: Any, path: str, ns: int, img: np.ndarray, width: float, db_range: tuple[float, float]
+    stream: RecordingStream, path: str, ns: int, img: np.ndarray, width: float, db_range: tuple[float, float]
 ) -> None:
     """Log one spectrogram image at time ``ns`` (integer nanoseconds).
 

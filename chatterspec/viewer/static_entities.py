@@ -6,6 +6,7 @@ Logged once per stream by :class:`~chatterspec.viewer.rerun_log.RerunLogger` whe
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -35,14 +36,14 @@ def log_static(
     streams: list[Any],
     monitor: ChatteringMonitor,
     *,
-    channels: list[str],
-    keys: list[str],
+    channels: Sequence[str],
+    keys: Sequence[str],
     lanes: list[str],
     expected: np.ndarray,
     band_hz: tuple[float, float],
     hop_s: float,
-    width: int,
-    key: int,
+    width: float,
+    key: float,
     cusum: bool,
 ) -> None:
     """Log the static entities of a monitor recording to every stream of ``streams``.
