@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import DataFileError
 
-__all__ = ["TIME_COLUMNS", "DataSet", "load_data"]
+__all__ = ["TIME_COLUMNS", "DataSet", "load_data", "load_data_text"]
 
 #: Accepted names of the time column (seconds), in order of preference.
 TIME_COLUMNS: tuple[str, ...] = ("time", "t")
@@ -84,6 +84,39 @@ def load_data(path: str | Path, model: Any, *, dt_tolerance: float = 0.01) -> Da
         columns = _read_csv(path, where)
     else:
         raise DataFileError(f"{where}: unknown format {suffix!r}; use .csv or .npz")
+    return _dataset(columns, model, path, where, dt_tolerance)
+
+
+def load_data_text(text: str, model: Any, *, name: str = "-", dt_tolerance: float = 0.01) -> DataSet:
+    """:func:`load_data` on CSV text, e.g. standard input read to its end (the same checks and messages).
+
+    Parameters
+    ----------
+    text : str
+        The CSV content: a header row, then one row per sample.
+    model : LinearModel or NonlinearModel
+        Gives the column names (``output_names``, ``input_names``) and ``dt``.
+    name : str
+        What the messages call the data (``"-"``: standard input); also ``DataSet.path``.
+    dt_tolerance : float
+        Allowed relative deviation of every time step from ``model.dt``.
+
+    Raises
+    ------
+    DataFileError
+        As :func:`load_data`.
+    """
+    import io
+
+    where = "data on standard input" if name == "-" else f"data {name!r}"
+    columns = _parse_csv(io.StringIO(text, newline=""), where)
+    return _dataset(columns, model, Path(name), where, dt_tolerance)
+
+
+def _dataset(
+    columns: dict[str, np.ndarray], model: Any, path: Path, where: str, dt_tolerance: float
+) -> DataSet:
+    """The columns of a data file checked against ``model`` (names, lengths, times, finiteness)."""
     lines = columns.pop(_LINES, None)
     needed = [*model.output_names, *model.input_names]
     missing = [c for c in needed if c not in columns]
@@ -118,14 +151,19 @@ def load_data(path: str | Path, model: Any, *, dt_tolerance: float = 0.01) -> Da
 def _read_csv(path: Path, where: str) -> dict[str, np.ndarray]:
     try:
         with path.open(newline="") as fh:
-            reader = csv.reader(fh)
-            rows, lines = [], []
-            for r in reader:
-                if r and not r[0].lstrip().startswith("#"):
-                    rows.append(r)
-                    lines.append(reader.line_num)  # 1-based line of the file (comments counted)
+            return _parse_csv(fh, where)
     except (OSError, UnicodeDecodeError) as exc:
         raise DataFileError(f"{where}: cannot be read ({exc})") from None
+
+
+def _parse_csv(fh: Any, where: str) -> dict[str, np.ndarray]:
+    """The columns of CSV text read from the open text stream ``fh`` (header first, ``#`` comment lines)."""
+    reader = csv.reader(fh)
+    rows, lines = [], []
+    for r in reader:
+        if r and not r[0].lstrip().startswith("#"):
+            rows.append(r)
+            lines.append(reader.line_num)  # 1-based line of the file (comments counted)
     if not rows:
         raise DataFileError(f"{where}: empty file (a header row with column names is required)")
     header = [h.strip() for h in rows[0]]

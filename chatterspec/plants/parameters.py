@@ -297,6 +297,39 @@ class ParameterMap:
                     "this model (wrong nominal value, constant or formula)"
                 )
 
+    def apply(self, model: LinearModel, values: Mapping[str, float]) -> LinearModel:
+        """``model`` with parameters set to ``values``: the declared entries of A and B recomputed.
+
+        The returned model carries this map with those values as its nominal values (so that
+        :meth:`check` passes on it); entries the map does not declare, C, Q, R and ``dt`` are
+        ``model``'s.
+
+        Parameters
+        ----------
+        model : LinearModel
+            A model this map describes (:meth:`check` passes on it).
+        values : mapping of str to float
+            New values of some parameters, in their units (the others keep their value).
+
+        Raises
+        ------
+        ParameterError
+            An unknown parameter name, or a value that makes an entry non-finite.
+        """
+        import dataclasses
+
+        vals = {k: float(v) for k, v in values.items()}
+        for name in vals:
+            self.parameter(name)
+        params = tuple(dataclasses.replace(p, value=vals.get(p.name, p.value)) for p in self.parameters)
+        new_map = ParameterMap(params, self.entries, self.constants, self.hypotheses)
+        A, B = np.array(model.A), np.array(model.B)
+        for e, v in zip(self.entries, np.atleast_1d(new_map.evaluate(model.dt)), strict=True):
+            if not np.isfinite(v):
+                raise ParameterError(f"entry {e.label} = {e.formula.text!r} is not finite at {vals}")
+            (A if e.matrix == "A" else B)[e.row, e.col] = float(v)
+        return dataclasses.replace(model, A=A, B=B, parameter_map=new_map)
+
     def to_toml(self) -> str:
         """The ``[parameters]``, ``[constants]``, ``[entries]`` and ``[hypotheses]`` tables as TOML text."""
         import json
