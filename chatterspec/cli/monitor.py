@@ -192,8 +192,7 @@ def run(args: argparse.Namespace) -> int:
         spec = load_model(args.model)
     for w in caught:
         print(f"chatterspec monitor: warning: {w.message}", file=sys.stderr)
-    from ..detection.spectral import STFTConfig  # after the model file: its errors come at once
-    from ..online.monitor import ChatteringMonitor, MonitorSettings
+    from ..online.monitor import ChatteringMonitor, MonitorSettings  # after the model file: its errors first
     from ..plants.measurement import require_linear_measurement
 
     require_linear_measurement(spec.model, "the chattering monitor")
@@ -203,20 +202,14 @@ def run(args: argparse.Namespace) -> int:
             f"needs a threshold calibrated on healthy runs: `chatterspec calibrate {args.model} --out "
             "CAL.npz`, then --calibration CAL.npz"
         )
-    det = spec.detector
-    stft = STFTConfig(
-        window_s=float(det.get("window_s", 1.0)),
-        hop_s=float(det.get("hop_s", 0.2)),
-        window=str(det.get("window", "hamming")),
-    )
-    settings = MonitorSettings(
-        stft=stft,
-        alpha=float(args.alpha if args.alpha is not None else det.get("alpha", 1e-3)),
-        correction=str(det.get("correction", "bonferroni")),  # type: ignore[arg-type]
+    settings = MonitorSettings.from_detector(
+        spec.detector,
         gamma=spec.gamma,
-        psi=None if spec.psi is None else tuple(spec.psi.tolist()),  # nonlinear: the sgn-SVSF only
-        band=band_from_args(args) or det.get("band"),
+        psi=None if spec.psi is None else spec.psi.tolist(),  # nonlinear: the sgn-SVSF only
+        alpha=args.alpha,
+        band=band_from_args(args),
     )
+    stft = settings.stft
     cal = None
     if args.calibration is not None:
         if args.alpha is not None:
