@@ -28,6 +28,7 @@ COMMANDS: tuple[str, ...] = (
     "simulate",
     "replay",
     "calibrate",
+    "commission",
     "far",
     "power",
     "estimate",

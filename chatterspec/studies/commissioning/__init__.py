@@ -36,7 +36,7 @@ Examples
 from .adequacy import AdequacyCheck, ChannelCheck, check_model
 from .noise_fit import NoiseFit, fit_noise
 from .parameter_fit import FittedParameter, ParameterFit, fit_parameters
-from .procedure import chattering, commission
+from .procedure import chattering, commission, nominal_spec
 from .provenance import DataSource, read_recording
 from .result import Commissioning
 
@@ -53,5 +53,6 @@ __all__ = [
     "commission",
     "fit_noise",
     "fit_parameters",
+    "nominal_spec",
     "read_recording",
 ]

@@ -41,9 +41,13 @@ Identifiability
     position and pressure process noises are of this kind (``q = 1e-12`` m^2 under ``2e-6`` m^2 of
     measurement-noise contribution). Such an entry keeps its nominal value when the data allow it
     (nominal at most the bound), else the bound, and the identified entries are fitted again with it
-    held there: Gamma0 and Gamma1, which the detector needs, stay matched. An entry whose interval
-    lies below 0 means the data contradict the law (e.g. a positive lag-1 autocovariance where
-    measurement noise makes it negative): :class:`~chatterspec.errors.CommissioningError`.
+    held there: Gamma0 and Gamma1, which the detector needs, stay matched; a Q entry the data put
+    below 0 is set to 0 (a valid covariance: nothing needs Q positive definite, and an unidentified
+    entry of true value ~0 falls below 0 by chance). R must be positive definite (every sensor has
+    noise; eq 23's law and the identification's weights rest on it): an R entry whose whole interval
+    lies below 0 means the data contradict the law (a positive lag-1 autocovariance where white
+    measurement noise makes it negative: a coloured sensor) and raises
+    :class:`~chatterspec.errors.CommissioningError`.
 """
 
 from __future__ import annotations
@@ -275,9 +279,9 @@ def fit_noise(
     hi_u, lo_u = theta_u + z * se_u, theta_u - z * se_u
     ref = model if nominal is None else nominal
     nominal_qr = np.concatenate([np.diag(ref.Q), np.diag(ref.R)])
-    _refuse_negative(model, theta_u, se_u, hi_u, g, confidence)
+    _refuse_negative_r(model, theta_u, hi_u, g)
     ident = lo_u > 0
-    value = np.where(ident, 0.0, np.clip(nominal_qr, 0.0, hi_u))
+    value = np.where(ident, 0.0, np.clip(nominal_qr, 0.0, np.maximum(hi_u, 0.0)))
     if np.any(~ident[n:] & (value[n:] <= 0)):
         c = int(np.flatnonzero(~ident[n:] & (value[n:] <= 0))[0])
         raise CommissioningError(
@@ -329,38 +333,20 @@ def fit_noise(
     )
 
 
-def _refuse_negative(
-    model: LinearModel,
-    theta: np.ndarray,
-    se: np.ndarray,
-    hi: np.ndarray,
-    g: np.ndarray,
-    confidence: float,
-) -> None:
-    """:class:`CommissioningError` naming the entries whose whole interval lies below 0."""
+def _refuse_negative_r(model: LinearModel, theta: np.ndarray, hi: np.ndarray, g: np.ndarray) -> None:
+    """:class:`CommissioningError` naming the R entries whose whole interval (upper end ``hi``) is below 0."""
     n, m = model.n_states, model.n_outputs
-    bad = np.flatnonzero(hi < 0)
+    bad = np.flatnonzero(hi[n:] < 0)
     if not bad.size:
         return
     i0, _, _, _ = _pairs(m)
     parts = []
-    for k in bad:
-        lo = theta[k] - (hi[k] - theta[k])
-        ci = f"{confidence:.0%} interval [{lo:.3g}, {hi[k]:.3g}]"
-        if k >= n:
-            c = k - n
-            name = model.output_names[c]
-            g1 = g[i0.size + c * (m + 1)]
-            parts.append(
-                f"R on {name} = {theta[k]:.3g} ({ci}): the {name} chattering's lag-1 autocovariance is "
-                f"{g1:+.3g}, where white measurement noise makes it -Phi R (eq 23): the sensor noise is "
-                "coloured (filtered, AR) or the recording holds a disturbance the model lacks"
-            )
-        else:
-            name = model.state_names[k]
-            parts.append(
-                f"Q on {name} = {theta[k]:.3g} ({ci}): the chattering varies less than the measurement "
-                "noise alone explains (eq 23): the noise is not the model's (coloured or quantized sensor)"
-            )
-    which = "R is not positive definite" if any(k >= n for k in bad) else "Q is not positive semi-definite"
-    raise CommissioningError(f"the fitted {which}: " + "; ".join(parts))
+    for c in bad:
+        name = model.output_names[c]
+        g1 = g[i0.size + c * (m + 1)]
+        parts.append(
+            f"R on {name} = {theta[n + c]:.3g} (interval below 0): the {name} chattering's lag-1 "
+            f"autocovariance is {g1:+.3g}, where white measurement noise makes it -Phi R (eq 23): the sensor "
+            "noise is coloured (filtered, AR) or the recording holds a disturbance the model lacks"
+        )
+    raise CommissioningError("the fitted R is not positive definite: " + "; ".join(parts))

@@ -18,7 +18,7 @@ from .parameter_fit import ParameterFit, fit_parameters
 from .provenance import DataSource
 from .result import PSI_SIGMAS, Commissioning
 
-__all__ = ["MIN_CHECK_WINDOWS", "REIDENTIFY_TOLERANCE", "chattering", "commission"]
+__all__ = ["MIN_CHECK_WINDOWS", "REIDENTIFY_TOLERANCE", "chattering", "commission", "nominal_spec"]
 
 #: The held-out span must hold at least this many STFT windows (spectrum segments, alarm frames).
 MIN_CHECK_WINDOWS = 10
@@ -44,12 +44,45 @@ def chattering(model: LinearModel, z: np.ndarray, u: np.ndarray) -> np.ndarray:
     return z[1:] - z[:-1] @ Phi.T - u[:-1] @ G.T
 
 
+def nominal_spec(model: Any) -> Any:
+    """The nominal model as commissioning takes it, or the error that says why it cannot.
+
+    Parameters
+    ----------
+    model : ModelSpec, str, Path or LinearModel
+        A loaded model file, its path, or a model (then psi is 3 x its chattering's standard deviation,
+        gamma 0.1, the detector's defaults).
+
+    Returns
+    -------
+    ModelSpec
+
+    Raises
+    ------
+    IdentifiabilityError
+        A nonlinear model, or reduced measurement (C not square and invertible).
+    ModelFileError
+        A model file that cannot be read.
+    """
+    spec = _spec(model)
+    _refuse_reduced(spec.model)
+    return spec
+
+
 def _spec(model: Any) -> Any:
-    """A :class:`~chatterspec.plants.modelfile.ModelSpec` from a spec, a model file path or a LinearModel."""
     from ...plants.modelfile import ModelSpec, load_model
+    from ...plants.nonlinear import NonlinearModel
 
     if isinstance(model, (str, Path)):
         model = load_model(model)
+    inner = model.model if isinstance(model, ModelSpec) else model
+    if isinstance(inner, NonlinearModel):
+        where = model.path if isinstance(model, ModelSpec) else inner.name
+        raise IdentifiabilityError(
+            f"{str(where)!r} is a nonlinear model: commissioning fits the linear model's parameters and "
+            "noise from the chattering's regression and MA(1) law (eq 23), which a nonlinear model does not "
+            "have; commission a linear model of the plant (its linearization at the operating point)"
+        )
     if isinstance(model, LinearModel):
         from ...detection.spectral import chattering_autocovariance
 
@@ -58,12 +91,6 @@ def _spec(model: Any) -> Any:
     if not isinstance(model, ModelSpec):
         raise ParameterError(
             f"model must be a model file path, a ModelSpec or a LinearModel; got {type(model).__name__}"
-        )
-    if not model.is_linear:
-        raise IdentifiabilityError(
-            f"{str(model.path)!r} is a nonlinear model: commissioning fits the linear model's parameters and "
-            "noise from the chattering's regression and MA(1) law (eq 23), which a nonlinear model does not "
-            "have; commission a linear model of the plant (its linearization at the operating point)"
         )
     return model
 
@@ -212,9 +239,8 @@ def commission(
     """
     from ...detection.monitor_settings import MonitorSettings
 
-    spec = _spec(model)
+    spec = nominal_spec(model)
     nominal = spec.model
-    _refuse_reduced(nominal)
     holdout = open_unit("holdout", holdout)
     confidence, alpha = open_unit("confidence", confidence), open_unit("alpha", alpha)
     lags = positive_int("lags", lags)

@@ -152,7 +152,7 @@ def provenance_tables(result: Any, *, forced: bool = False) -> dict[str, dict[st
             "adequate": ch.adequate,
             "forced": bool(forced),
             "alpha": ch.alpha,
-            "ljung_box": [c.ljung_box for c in ch.channels],
+            "whiteness": [c.whiteness for c in ch.channels],
             "lags": ch.channels[0].lags,
             "whiteness_p": [c.whiteness_p for c in ch.channels],
             "spectrum_peak_ratio": [c.peak_ratio for c in ch.channels],

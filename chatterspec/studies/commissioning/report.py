@@ -90,11 +90,11 @@ def _check(res: Any) -> list[str]:
         "",
         f"held-out check ({ch.span_s[0]:.1f}-{ch.span_s[1]:.1f} s; at most {ch.alpha:g} to fail on a "
         "plant the model describes)",
-        f"{'channel':<12} {'whiteness (Ljung-Box, ' + str(ch.channels[0].lags) + ' lags)':<34} "
+        f"{'channel':<12} {'whiteness (lags 2-' + str(ch.channels[0].lags + 1) + ')':<34} "
         f"{'spectrum (' + str(ch.segments) + ' x ' + _g(ch.segment_s) + ' s averaged)':<44} alarm starts",
     ]
     for c in ch.channels:
-        white = f"{c.ljung_box:.4g}, p = {c.whiteness_p:.2g} {'ok' if c.white else 'NOT WHITE'}"
+        white = f"{c.whiteness:.4g}, p = {c.whiteness_p:.2g} {'ok' if c.white else 'CORRELATED'}"
         where = ", ".join(f"{lo:.4g}-{hi:.4g} Hz" for lo, hi in c.bands_hz)
         spec = f"{c.peak_ratio:.3g} x threshold at {c.peak_hz:.4g} Hz " + (
             "ok" if c.spectrum_ok else f"OVER {where}"
