@@ -1,4 +1,4 @@
-"""Before / after commissioning: the monitor on plants that differ from their nominal model, as a user runs it.
+"""Before / after commissioning: the monitor on plants that differ from their nominal model, from the CLI.
 
 The nominal model is ``chatterspec scenarios eha-healthy --model-toml eha.toml``. Each plant is a copy
 of it with the catalogue chirp (10-100 Hz over 4 s, 300 rad/s, repeating) in its ``[simulation]`` table
@@ -7,7 +7,8 @@ friction 10 % high, sensor noise 1.5 x R. For each plant, with the command line 
 
     chatterspec simulate PLANT.toml --duration 600 --rate 0 --seed 1 \\
         | chatterspec commission --model eha.toml --data - --out PLANT-fitted.toml
-    chatterspec simulate PLANT.toml --duration 120 --rate 0 | chatterspec monitor --model X --data - --events jsonl
+    chatterspec simulate PLANT.toml --duration 120 --rate 0 \\
+        | chatterspec monitor --model X --data - --events jsonl
 
 with X the nominal ``eha.toml`` (before) and the commissioned ``PLANT-fitted.toml`` (after); the
 commissioning recording (seed 1) and the monitored stream (seed 0) are different noise. The table
@@ -88,7 +89,7 @@ def commission(nominal: Path, plant: Path, out: Path, seconds: float) -> tuple[d
 
 
 def monitor(model: Path, plant: Path, seconds: float) -> list[dict]:
-    """``simulate PLANT --duration S --rate 0 | monitor --model MODEL --data - --events jsonl``: fault starts."""
+    """Fault starts of ``simulate PLANT --duration S --rate 0 | monitor --model MODEL --data - ...``."""
     sim = subprocess.Popen(
         _cli("simulate", str(plant), "--duration", f"{seconds:g}", "--rate", "0"), stdout=subprocess.PIPE
     )

@@ -43,9 +43,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seed", type=int, default=2029)
     args = ap.parse_args(argv)
     if args.model is None:
-        from chatterspec.cli.scenarios import export_model_toml
         import tempfile
         from pathlib import Path
+
+        from chatterspec.cli.scenarios import export_model_toml
 
         args.model = str(export_model_toml("eha-healthy", Path(tempfile.mkdtemp()) / "eha.toml"))
     spec = cs.load_model(args.model)
@@ -70,8 +71,8 @@ def main(argv: list[str] | None = None) -> None:
         r_hit[i] = (nf.r_ci_low <= r_true) & (r_true <= nf.r_ci_high)
     cpu = time.process_time() - t0
     print(
-        f"{args.plants} plants, parameters x U(1 - {args.spread:g}, 1 + {args.spread:g}), {args.duration:g} s "
-        f"each (fit on the first two thirds), seed {args.seed}; {cpu:.0f} s CPU"
+        f"{args.plants} plants, parameters x U(1 - {args.spread:g}, 1 + {args.spread:g}), "
+        f"{args.duration:g} s each (fit on the first two thirds), seed {args.seed}; {cpu:.0f} s CPU"
     )
     print(f"{'quantity':<16} {'in 95% interval':>16} {'fraction':>9}  99% Clopper-Pearson   contains 0.95")
     rows = [(n, hit[:, j]) for j, n in enumerate(names)] + [("all parameters", hit.ravel())]

@@ -6,17 +6,18 @@ two among the channels, so that data of a plant the fitted model describes fail 
 probability at most ``alpha`` (union bound):
 
 1. **Whiteness beyond lag 1.** Under the model each channel's chattering is a scalar MA(1): its
-   autocorrelations vanish beyond lag 1. The portmanteau statistic over lags ``2 .. h + 1``,
-   ``Q = n sum_l r_l^2 (n + 2) / (n - l)`` (Ljung-Box's finite-sample weights), has under an MA(1)
-   the Bartlett covariance ``n Cov(r_i, r_j) = c(j - i)`` with ``c(0) = 1 + 2 rho^2``,
-   ``c(+-1) = 2 rho``, ``c(+-2) = rho^2`` (``rho`` the lag-1 autocorrelation, taken from these data),
-   so ``Q`` is a weighted sum of chi-squared(1) variables; it is referred to Satterthwaite's scaled
-   chi-squared ``a chi2(nu)`` with the weighted sum's mean and variance (``nu`` is reported; ``h``
-   when ``rho = 0``). Lag 1 is not tested: its level is the MA(1) coefficient, which the noise fit
-   estimated on other data (whitening with that coefficient makes the test reject sound models:
-   a 1 % error in the pressure channel's ``gamma0``, inside the fit's interval, moves the statistic
-   by tens). Neither is the innovations filter usable near a unit root (the EHA position channel is
-   almost a first difference, ``rho ~ -0.49999``); the Bartlett form needs no inversion.
+   autocorrelations vanish beyond lag 1. With ``r`` the sample autocorrelations at lags ``2 .. h + 1``
+   (Ljung-Box's finite-sample weights ``(n + 2) / (n - l)``), Bartlett's formula gives under an
+   MA(1) ``n Cov(r_i, r_j) = c(j - i)``, ``c(0) = 1 + 2 rho^2``, ``c(+-1) = 2 rho``, ``c(+-2) = rho^2``
+   (``rho`` the lag-1 autocorrelation, taken from these data), and ``Q = n r' C^-1 r`` is
+   chi-squared with ``h`` degrees of freedom: the portmanteau test after removing the MA(1)
+   structure. Weighting by ``C^-1`` puts the power where the MA(1) spectrum is quiet (a pressure
+   chattering that is nearly a first difference shows a low-frequency mismatch clearly). Lag 1 is not
+   tested: its level is the MA(1) coefficient, which the noise fit estimated on other data
+   (whitening with that coefficient makes the test reject sound models: a 1 % error in the pressure
+   channel's ``gamma0``, inside the fit's interval, moves a whitened Ljung-Box statistic by tens).
+   Checked: at ``rho`` from 0 to -0.4999995 (the EHA position channel, almost a first difference)
+   the statistic's null mean is ``h`` and its level holds (``tests/test_commissioning.py``).
 2. **Spectrum.** The held-out chattering is cut into ``K`` non-overlapping segments of one STFT
    window; their raw periodograms (eq 49) are averaged and compared bin by bin with the exact
    threshold of an average of ``K`` records (:func:`~chatterspec.detection.thresholds.exact_threshold`
@@ -62,9 +63,7 @@ class ChannelCheck:
     whiteness : float
         Portmanteau statistic of the chattering's autocorrelations at lags 2 .. ``lags`` + 1.
     lags : int
-        Lags tested.
-    whiteness_dof : float
-        Satterthwaite's degrees of freedom of its null law.
+        Lags tested: the statistic's chi-squared degrees of freedom.
     whiteness_p : float
         Its p-value.
     white : bool
@@ -86,7 +85,6 @@ class ChannelCheck:
     channel: str
     whiteness: float
     lags: int
-    whiteness_dof: float
     whiteness_p: float
     white: bool
     peak_ratio: float
@@ -193,7 +191,7 @@ class AdequacyCheck:
         return out
 
 
-def ma1_portmanteau(e: np.ndarray, lags: int) -> tuple[float, float, float]:
+def ma1_portmanteau(e: np.ndarray, lags: int) -> tuple[float, float]:
     """Portmanteau test that ``e`` has no autocorrelation beyond lag 1 (an MA(1); module docstring).
 
     Parameters
@@ -201,12 +199,11 @@ def ma1_portmanteau(e: np.ndarray, lags: int) -> tuple[float, float, float]:
     e : (n,) array
         A series (here a channel's chattering).
     lags : int
-        Number ``h`` of lags tested, ``2 .. h + 1`` (``h + 1 < n``).
+        Number ``h`` of lags tested, ``2 .. h + 1`` (``h + 1 < n``): the chi-squared degrees of freedom.
 
     Returns
     -------
-    (statistic, dof, p_value)
-        ``Q``, Satterthwaite's degrees of freedom ``nu`` and the p-value of ``Q / a`` under chi2(``nu``).
+    (statistic, p_value)
     """
     import scipy.fft
     import scipy.linalg
@@ -218,15 +215,11 @@ def ma1_portmanteau(e: np.ndarray, lags: int) -> tuple[float, float, float]:
     acov = scipy.fft.irfft(X.real**2 + X.imag**2, n=size)[: lags + 2]
     r = acov[1:] / acov[0]
     rho = float(np.clip(r[0], -0.5, 0.5))
-    lag = np.arange(2, lags + 2)
-    w = (n + 2.0) / (n - lag)
-    stat = float(n * np.sum(w * r[1:] ** 2))
     col = np.zeros(lags)
     col[: min(3, lags)] = [1 + 2 * rho * rho, 2 * rho, rho * rho][: min(3, lags)]
-    S = scipy.linalg.toeplitz(col) * np.sqrt(np.outer(w, w))  # covariance of sqrt(n w_l) r_l
-    t1, t2 = float(np.trace(S)), float(np.sum(S * S))
-    scale, dof = t2 / t1, t1 * t1 / t2
-    return stat, dof, float(scipy.special.chdtrc(dof, stat / scale))
+    rr = r[1:] * np.sqrt((n + 2.0) / (n - np.arange(2, lags + 2)))
+    stat = float(n * rr @ scipy.linalg.solve(scipy.linalg.toeplitz(col), rr, assume_a="pos"))
+    return stat, float(scipy.special.chdtrc(lags, stat))
 
 
 def _bands(freqs: np.ndarray, over: np.ndarray, gap_bins: int = 2) -> tuple[tuple[float, float], ...]:
@@ -319,13 +312,13 @@ def check_model(
     starts, times, settings = _alarms(model, e, settings, t0 + dt)
     channels = []
     for c in range(m):
-        stat, dof, p = ma1_portmanteau(e[:, c], lags)
+        stat, p = ma1_portmanteau(e[:, c], lags)
         ratio, peak_hz, bands, ok = spectra[c]
         when = tuple(float(times[j]) for j in np.flatnonzero(starts[:, c]))
         white = p > a_test / m
         name = model.output_names[c]
         channels.append(
-            ChannelCheck(name, stat, int(lags), dof, p, white, ratio, peak_hz, bands, ok, len(when), when)
+            ChannelCheck(name, stat, int(lags), p, white, ratio, peak_hz, bands, ok, len(when), when)
         )
     hours = e.shape[0] * dt / 3600.0
     budget = float(settings.false_alarms_per_hour)
