@@ -361,3 +361,28 @@ def test_toml_tables_round_trip(tmp_path: Path) -> None:
     path = tmp_path / "t.toml"
     path.write_text(toml_table("top.sub", table) + "\n")
     assert tomllib.loads(path.read_text()) == {"top": {"sub": table}}
+
+
+def test_cli_unusable_out_fails_before_reading(nominal_file: Path, tmp_path: Path, capsys) -> None:
+    blocker = tmp_path / "plain-file"
+    blocker.write_text("x")
+    argv = ["commission", "--model", str(nominal_file), "--data", str(tmp_path / "none.csv")]
+    assert main([*argv, "--out", str(blocker / "fitted.toml")]) == 2
+    err = capsys.readouterr().err
+    assert "--out" in err and "cannot be written" in err and "none.csv" not in err  # before the data
+
+
+def test_a_failed_rename_leaves_the_target_and_no_temporary(
+    healthy_and_leaky: tuple, tmp_path: Path, monkeypatch
+) -> None:
+    import os
+
+    def fail(src, dst):
+        raise OSError(28, "No space left on device")
+
+    target = tmp_path / "fitted.toml"
+    target.write_text("# before\n")
+    monkeypatch.setattr(os, "replace", fail)
+    with pytest.raises(OSError, match="No space"):
+        healthy_and_leaky[0][0].write(target)
+    assert target.read_text() == "# before\n" and [p.name for p in tmp_path.iterdir()] == ["fitted.toml"]
