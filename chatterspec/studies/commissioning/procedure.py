@@ -131,7 +131,7 @@ def _split(model: LinearModel, settings: Any, T: int, holdout: float, check: boo
         raise ParameterError(
             f"the recording is too short: {T * model.dt:.4g} s; the held-out check needs {MIN_CHECK_WINDOWS} "
             f"STFT windows ({need * model.dt:.4g} s) in the held-out {holdout:.3g} of it: record at least "
-            f"{total * model.dt:.4g} s (or commission without the check)"
+            f"{total * model.dt:.4g} s"
         )
     if T - n_check < 4:
         raise ParameterError(f"the fit span holds {T - n_check} samples; it needs at least 4")
