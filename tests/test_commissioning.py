@@ -260,6 +260,7 @@ def test_written_file_reads_back_with_its_provenance(healthy_and_leaky: tuple, t
     np.testing.assert_array_equal(spec.model.A, res.model.A)
     np.testing.assert_array_equal(spec.model.R, res.model.R)
     np.testing.assert_array_equal(spec.psi, res.psi)
+    np.testing.assert_array_equal(res.spec.model.B, spec.model.B)  # the in-memory spec is the file's
     prov = spec.commissioning
     assert prov["chatterspec_version"] == cs.__version__ and prov["fit_span_s"][0] == 0.0
     bm = prov["parameters"]["bulk_modulus"]

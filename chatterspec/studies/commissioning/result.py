@@ -95,6 +95,15 @@ class Commissioning:
         """The held-out verdict (None without a check)."""
         return None if self.check is None else self.check.adequate
 
+    @property
+    def spec(self) -> Any:
+        """The fitted model as a :class:`~chatterspec.plants.modelfile.ModelSpec` (what :func:`load_model`
+        gives for the written file, without its provenance): for a monitor without a file."""
+        from ...plants.modelfile import ModelSpec
+
+        nom = self.nominal
+        return ModelSpec(self.model, self.psi, self.gamma, dict(self.detector), nom.path, nom.simulation)
+
     def estimate(self, name: str) -> float:
         """The fitted value of parameter ``name`` (its unit).
 
