@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 from .errors import (
     CalibrationMismatchError,
     ChatterspecError,
+    CommissioningError,
     DataFileError,
     DivergenceError,
     IdentifiabilityError,
@@ -85,6 +86,9 @@ _GROUPS: dict[str, dict[str, str]] = {
             ".detection.identification",
         ),
     },
+    "commissioning": {
+        **dict.fromkeys(("Commissioning", "commission"), ".studies.commissioning"),
+    },
     "alarms": {
         **dict.fromkeys(
             (
@@ -152,6 +156,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .studies.budget_diagnosis import diagnose_at_budget
     from .studies.calibration import Calibration, calibrate, load_calibration
     from .studies.chattering_diagnosis import ChatteringDiagnosis, diagnose_chattering
+    from .studies.commissioning import Commissioning, commission
     from .studies.estimation import EstimationResult, build_filter, estimation_study
     from .studies.mode_diagnosis import ModeDiagnosis, diagnose_modes
 
@@ -184,6 +189,8 @@ __all__ = [
     "ChatteringRecord",
     "ChatterspecError",
     "Chirp",
+    "Commissioning",
+    "CommissioningError",
     "Constant",
     "CusumRule",
     "DataFileError",
@@ -236,6 +243,7 @@ __all__ = [
     "catalogue",
     "chattering",
     "chattering_record",
+    "commission",
     "detect_chunks",
     "detect_record",
     "detect_scenario",

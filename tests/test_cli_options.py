@@ -124,12 +124,14 @@ def test_each_concept_has_one_name() -> None:
     assert "--confidence" in table and "--mc-confidence" in table
     for retired in ("--figure", "--hours", "--model", "--out"):
         owners = set(table.get(retired, {}))
-        assert owners <= {"calibrate"} if retired == "--out" else not owners, (retired, owners)
+        # --out: a data file the command computes (a calibration, a fitted model), never a figure
+        assert owners <= {"calibrate", "commission"} if retired == "--out" else not owners, (retired, owners)
     # --confidence: the identified parameters' interval level; --mc-confidence: the Monte Carlo
     # intervals' (rates, quantiles); --alpha: a detector's false-alarm probability, never a test of
     # estimator consistency (that is estimate's --consistency-alpha)
-    assert set(table["--confidence"]) == {"demo", "detect", "monitor", "diagnose"}
+    assert set(table["--confidence"]) == {"demo", "detect", "monitor", "diagnose", "commission"}
     assert set(table["--mc-confidence"]) == {"calibrate", "far", "power"}
     assert "estimate" not in table["--alpha"] and "estimate" in table["--consistency-alpha"]
     assert set(table["--plot"]) == {"calibrate", "far", "power", "spectrum", "diagnose"}
-    assert set(table["<model>"]) == {"monitor"}  # a model file, positional like every command's NAME
+    # a model file, positional like every command's NAME
+    assert set(table["<model>"]) == {"monitor", "commission"}

@@ -177,10 +177,7 @@ def test_calibration_file_round_trip_into_monitor_and_detect(recorded, tmp_path:
     t2, z2, u2 = _healthy(model, 0.05, seed=99)
     fresh = tmp_path / "fresh.npz"
     _write_npz(fresh, model, t2, z2, u2)
-    assert (
-        main(["monitor", str(toml), "--data", str(fresh), "--calibration", str(out), "--json"])
-        == 0
-    )
+    assert main(["monitor", str(toml), "--data", str(fresh), "--calibration", str(out), "--json"]) == 0
     mon = json.loads(capsys.readouterr().out)
     assert mon["alarm"]["rule"]["threshold"] == pytest.approx(cal.alarm.threshold)
     # detect --record takes it as a simulated file (record thresholds, the recording's alarm rule)

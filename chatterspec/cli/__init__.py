@@ -29,6 +29,7 @@ COMMANDS: tuple[str, ...] = (
     "simulate",
     "replay",
     "calibrate",
+    "commission",
     "far",
     "power",
     "estimate",

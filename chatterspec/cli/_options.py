@@ -110,6 +110,8 @@ OPTIONS: dict[str, dict[str, Any]] = {
         "or 'spawn' one (needs a display)",
     },
     "--plot": {"metavar": "FILE"},
+    # a data file the command computes (a calibration, a fitted model file); figures are --plot
+    "--out": {"type": Path, "metavar": "FILE"},
     "--figures-dir": {"metavar": "DIR", "help": "where to write the PNGs (default {default})"},
     "--rate": {
         "type": rate_arg,

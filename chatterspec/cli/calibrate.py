@@ -57,7 +57,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         hours_default=f"{ALARM_HOURS:g}, with --rule / --false-alarms-per-hour: the file's threshold for "
         "all-day use; its interval shrinks like 1/sqrt(H)",
     )
-    p.add_argument("--out", metavar="FILE", help="write the calibration file (.json or .npz)")
+    add(p, "--out", help="write the calibration file (.json or .npz)")
     p.add_argument(
         "--data",
         type=Path,

@@ -21,7 +21,7 @@ import threading
 import time
 import warnings
 from pathlib import Path
-from typing import TYPE_CHECKING, TextIO, cast
+from typing import TYPE_CHECKING, TextIO
 
 from ..errors import ParameterError
 from ..jsonout import dumps
@@ -34,7 +34,6 @@ from ._options import add, add_report_args, command
 if TYPE_CHECKING:  # pragma: no cover
     from ..detection.monitor_settings import MonitorSettings
     from ..detection.spectral import STFTConfig
-    from ..detection.threshold_type import Correction
     from ..online.monitor import ChatteringMonitor, DetectionEvent
     from ..plants.datafile import DataSet
     from ..plants.modelfile_fields import ModelSpec
@@ -209,8 +208,7 @@ def run(args: argparse.Namespace) -> int:
         spec = load_model(args.model)
     for w in caught:
         print(f"chatterspec monitor: warning: {w.message}", file=sys.stderr)
-    from ..detection.spectral import STFTConfig  # after the model file: its errors come at once
-    from ..online.monitor import ChatteringMonitor, MonitorSettings
+    from ..online.monitor import ChatteringMonitor, MonitorSettings  # after the model file: its errors first
     from ..plants.measurement import require_linear_measurement
 
     require_linear_measurement(spec.model, "the chattering monitor")
@@ -220,28 +218,20 @@ def run(args: argparse.Namespace) -> int:
             f"needs a threshold calibrated on healthy runs: `chatterspec calibrate {args.model} --out "
             "CAL.npz`, then --calibration CAL.npz"
         )
-    det = spec.detector
-    stft = STFTConfig(
-        window_s=float(det.get("window_s", 1.0)),
-        hop_s=float(det.get("hop_s", 0.2)),
-        window=str(det.get("window", "hamming")),
+    settings = MonitorSettings.from_detector(
+        spec.detector,
+        gamma=spec.gamma,
+        psi=None if spec.psi is None else spec.psi.tolist(),  # nonlinear: the sgn-SVSF only
+        alpha=args.alpha,
+        band=band_from_args(args),
     )
+    stft = settings.stft
     # a bad file fails before any simulation (a followed file: its header, when it has one)
     data: DataSet | None = None
     if args.follow:
         _follow_header(args, spec.model)
     elif not stream:
         data = _replay_data(args, spec, stft)
-    settings = MonitorSettings(
-        stft=stft,
-        alpha=float(args.alpha if args.alpha is not None else det.get("alpha", 1e-3)),
-        correction=cast(
-            "Correction", str(det.get("correction", "bonferroni"))
-        ),  # (MonitorSettings checks it)
-        gamma=spec.gamma,
-        psi=None if spec.psi is None else tuple(spec.psi.tolist()),  # nonlinear: the sgn-SVSF only
-        band=band_from_args(args) or det.get("band"),
-    )
     cal = None
     if args.calibration is not None:
         if args.alpha is not None:

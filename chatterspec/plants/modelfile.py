@@ -74,6 +74,7 @@ from .modelfile_fields import (
     _matrix,
     _table,
     detector_table,
+    provenance_table,
     read_channels,
     svsf_gamma,
 )
@@ -221,4 +222,5 @@ def load_model(path: str | os.PathLike[str]) -> ModelSpec:
         detector=detector_table(doc, model.dt, where),
         path=path,
         simulation=parse_simulation(doc, model, where),
+        commissioning=provenance_table(doc, where),
     )

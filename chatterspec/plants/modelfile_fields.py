@@ -27,7 +27,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from .nonlinear import NonlinearModel
 
 
-__all__ = ["Channels", "ModelSpec", "detector_table", "read_channels", "svsf_gamma"]
+__all__ = ["Channels", "ModelSpec", "detector_table", "provenance_table", "read_channels", "svsf_gamma"]
 
 
 class Channels(NamedTuple):
@@ -111,6 +111,10 @@ class ModelSpec:
     simulation : SimulationSpec or None
         The optional ``[simulation]`` table (input, initial state, duration) used by ``calibrate``,
         ``detect`` and ``simulate`` on the file.
+    commissioning : dict or None
+        The ``[commissioning]`` table of a file written by ``chatterspec commission``: where the
+        fitted values came from (data file and hash, spans, each estimate with its interval and the
+        nominal it replaced); read as written, used by nothing else.
     """
 
     model: LinearModel | NonlinearModel
@@ -119,6 +123,7 @@ class ModelSpec:
     detector: Mapping[str, Any]
     path: Path
     simulation: SimulationSpec | None = None
+    commissioning: Mapping[str, Any] | None = None
 
     @property
     def is_linear(self) -> bool:
@@ -153,6 +158,24 @@ def detector_table(doc: Mapping[str, Any], dt: float, where: str) -> dict[str, A
     if "band" in detector:
         detector["band"] = _detector_band(detector["band"], where)
     return detector
+
+
+def provenance_table(doc: Mapping[str, Any], where: str) -> dict[str, Any] | None:
+    """The optional ``[commissioning]`` table of ``doc`` (None without one); errors name ``where``.
+
+    Raises
+    ------
+    ModelFileError
+        If ``commissioning`` is not a table.
+    """
+    table = doc.get("commissioning")
+    if table is None:
+        return None
+    if not isinstance(table, dict):
+        raise ModelFileError(
+            f"{where}: [commissioning] must be a table (the provenance a commissioned file records)"
+        )
+    return table
 
 
 def _detector_band(value: object, where: str) -> tuple[float, float]:

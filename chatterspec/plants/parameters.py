@@ -318,7 +318,8 @@ class ParameterMap:
         Raises
         ------
         ParameterError
-            An unknown parameter name, or a value that is not finite.
+            An unknown parameter name, a value that is not finite, or one that makes an entry
+            non-finite.
         """
         import dataclasses
 
@@ -330,7 +331,9 @@ class ParameterMap:
         entries = np.atleast_1d(self.evaluate(model.dt, vals))
         A, B = np.array(model.A), np.array(model.B)
         for e, v in zip(self.entries, entries, strict=True):
-            (A if e.matrix == "A" else B)[e.row, e.col] = v
+            if not np.isfinite(v):
+                raise ParameterError(f"entry {e.label} = {e.formula.text!r} is not finite at {vals}")
+            (A if e.matrix == "A" else B)[e.row, e.col] = float(v)
         params = tuple(dataclasses.replace(p, value=vals.get(p.name, p.value)) for p in self.parameters)
         pmap = ParameterMap(params, self.entries, self.constants, self.hypotheses)
         label = ", ".join(f"{k} = {v:.4g}" for k, v in vals.items())
