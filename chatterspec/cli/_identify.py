@@ -43,6 +43,37 @@ def add_identification_args(p: argparse.ArgumentParser) -> None:
     )
 
 
+def add_tolerance_args(p: argparse.ArgumentParser) -> None:
+    """``--tolerance NAME=SPEC`` (repeatable): a parameter's operating tolerance."""
+    p.add_argument(
+        "--tolerance",
+        action="append",
+        default=[],
+        metavar="NAME=SPEC",
+        help="operating tolerance of the declared parameter NAME (repeat per parameter; beside or instead "
+        "of the model file's): 15%% (relative), 3e7 (absolute, the parameter's unit), -10%%,+20%% or "
+        "1.8e8,2.3e8 (a band). With tolerances the fault decision is taken on the identified parameters: "
+        "inside its band a parameter raises no alarm",
+    )
+
+
+def with_tolerance_args(model: LinearModel, args: argparse.Namespace) -> LinearModel:
+    """``model`` with the ``--tolerance NAME=SPEC`` of ``args`` (unchanged without any)."""
+    given = getattr(args, "tolerance", None) or []
+    if not given:
+        return model
+    from ..errors import ParameterError
+    from ..plants.tolerances import with_tolerances
+
+    spec = {}
+    for item in given:
+        name, sep, value = str(item).partition("=")
+        if not sep or not name.strip() or not value.strip():
+            raise ParameterError(f"--tolerance expects NAME=SPEC (e.g. bulk_modulus=15%); got {item!r}")
+        spec[name.strip()] = value.strip()
+    return with_tolerances(model, spec)  # type: ignore[no-any-return]
+
+
 def setup_or_reason(
     model: LinearModel, args: argparse.Namespace
 ) -> tuple[IdentificationSetup | None, str | None]:
@@ -292,115 +323,6 @@ def print_demo_table(results: list[dict[str, Any]]) -> None:
                 f"{r['scenario']:<22} {win:<10} {sel:<18} {est:>12} {ci:>27} {h['unit'] or '-':<11} "
                 f"{'-' if t is None else f'{t:.6g}':>10}"
             )
-
-
-class MonitorIdentification:
-    """Online identification for ``chatterspec monitor``: per hop an ``identification`` event (JSON
-    lines), a human line when the selected hypothesis changes, and a summary for ``--json``.
-
-    The identification tests every hop at the monitor's per-frame alpha, which the alarm rule does not
-    (it holds false alarms to a budget per hour). So that the human lines follow the alarms, with
-    ``alarm_active`` set (a callable: is an alarm active now?) a fault or "unexplained" selection is
-    said only while an alarm is active (at the first hop of the alarm if it was selected before), and
-    "no fault" only after one was said; the JSON events and the summary's ``changes`` keep every change.
-
-    Parameters
-    ----------
-    setup : IdentificationSetup
-    hop_samples, window_hops : int
-        The monitor's hop and the window in hops (default: the STFT window).
-    t0 : float
-        Time (s) of the first row.
-    args : argparse.Namespace
-        ``alpha`` (the monitor's per-frame alpha) and ``confidence``.
-    emit : callable or None
-        Writes one JSON line (``--events jsonl`` with ``--identification-events``); None: no events.
-    say : callable
-        Writes one human line.
-    every_hop : bool
-        An event per hop (``every-hop``), or only when the selected hypothesis changes (``changes``).
-    """
-
-    def __init__(
-        self,
-        setup: IdentificationSetup,
-        hop_samples: int,
-        window_hops: int,
-        t0: float,
-        alpha: float,
-        confidence: float,
-        emit: Any,
-        say: Any,
-        every_hop: bool = False,
-    ) -> None:
-        from ..detection.identification_online import OnlineIdentifier
-
-        self.identifier = OnlineIdentifier(
-            setup, hop_samples=hop_samples, window_hops=window_hops, t0=t0, alpha=alpha, confidence=confidence
-        )
-        self.emit, self.say, self.every_hop = emit, say, every_hop
-        self.alarm_active: Any = None  # callable () -> bool, set once the monitor exists
-        self.selected: str | None = None
-        self.said: str | None = None  # the last selection said on the human line
-        self.changes: list[dict[str, Any]] = []
-        self.last: dict[str, Any] | None = None
-        self.windows = 0
-
-    def reset(self, t0: float) -> None:
-        """A gap or restart: start over at ``t0``."""
-        self.identifier.reset(t0)
-        self.selected = None
-
-    def push(self, z: Any, u: Any) -> None:
-        """Identify on one chunk of measurements ``z`` and inputs ``u`` and hand the results on."""
-        self.handle(self.identifier.push(z, u))
-
-    def handle(self, out: Any) -> None:
-        """Report the windows of one push."""
-        from ..jsonout import dumps
-
-        for i in range(out.n_windows):
-            rep = out.report(i)
-            self.windows += 1
-            doc = {"sample_time_s": round(float(out.times_s[i]), 9), **rep.to_dict()}
-            doc.pop("entries", None)
-            doc.pop("method", None)
-            changed = rep.selected != self.selected
-            if self.emit is not None and (self.every_hop or changed):
-                self.emit(dumps({"event": "identification", **doc}))
-            line = summary_line(rep.to_dict()) if changed else None
-            if changed:
-                self.selected = rep.selected
-                self.changes.append({"time_s": doc["sample_time_s"], "selected": rep.selected, "line": line})
-            if rep.selected != self.said and self._worth_saying(rep.selected):
-                # said when it changes, or later when the alarm that makes it worth saying starts
-                self.said = rep.selected
-                if line is None:
-                    line = summary_line(rep.to_dict())
-                self.say(
-                    f"identified at t = {float(out.times_s[i]):.2f} s (window {rep.window_s[0]:.2f}-"
-                    f"{rep.window_s[1]:.2f} s): {line}"
-                )
-            self.last = doc
-
-    def _worth_saying(self, selected: str) -> bool:
-        """Whether a change to ``selected`` gets a human line (see the class notes)."""
-        from ..detection.identification import NO_FAULT
-
-        if self.alarm_active is None:  # no alarm state known: every change
-            return True
-        if selected == NO_FAULT:
-            return self.said not in (None, NO_FAULT)
-        return bool(self.alarm_active())
-
-    def to_dict(self) -> dict[str, Any]:
-        """``windows`` identified, the ``changes`` of the selected hypothesis and the ``last`` window."""
-        return {
-            "window_s": self.identifier.window_s,
-            "windows": self.windows,
-            "changes": self.changes,
-            "last": self.last,
-        }
 
 
 def print_diagnosis(doc: dict[str, Any]) -> None:

@@ -131,12 +131,12 @@ def run_monitor(
         Called with each :class:`~chatterspec.online.monitor.DetectionEvent` (e.g. to print it).
     band_hz : (float, float), optional
         Spectrogram band (Hz); default :func:`~chatterspec.viewer.rerun_log.default_band_hz`.
-    identifier : OnlineIdentifier, optional
-        Fault identification per hop on the same raw pushes
-        (:class:`~chatterspec.detection.identification_online.OnlineIdentifier`), logged to the
-        sinks (:mod:`chatterspec.viewer.identification_log`); raw data only.
+    identifier : IdentificationMonitor, optional
+        Fault identification and the decisions on the identified parameters per hop on the same raw
+        pushes (:class:`~chatterspec.online.identification_monitor.IdentificationMonitor`), logged to
+        the sinks (:mod:`chatterspec.viewer.identification_log`); raw data only.
     on_identification : callable, optional
-        Called with each push's :class:`~chatterspec.detection.identification_online.OnlineIdentification`.
+        Called with each push's :class:`~chatterspec.online.identification_monitor.IdentificationUpdate`.
 
     Returns
     -------
@@ -161,7 +161,7 @@ def run_monitor(
         if identifier is not None and sinks.streams:
             from .identification_log import IdentificationLog, identification_views
 
-            views = identification_views(identifier.setup, identifier.confidence)
+            views = identification_views(identifier)
         logger = (
             RerunLogger(
                 sinks,
@@ -171,11 +171,12 @@ def run_monitor(
                 band_hz=band_hz,
                 span_s=record_span(monitor, total, raw=chattering is None),
                 extra_row=views,
+                extra_lanes=0 if views is None else len(identifier.parameters),
             )
             if sinks.streams
             else None
         )
-        ident_log = IdentificationLog(sinks, identifier.setup) if views is not None else None
+        ident_log = IdentificationLog(sinks, identifier) if views is not None else None
         for lo, hi in _chunks(total, size):
             if chattering is not None:
                 upd = monitor.push_chattering(chattering[lo:hi])
