@@ -131,6 +131,85 @@ def record_doc(
     return doc
 
 
+def tolerance_doc(ident: IdentificationStream, runs: int, args: argparse.Namespace) -> dict[str, Any] | None:
+    """Whole-record decisions on the identified parameters when the model declares tolerances (None
+    otherwise): per parameter run 0's estimate against its band and the fraction of records outside
+    (99 % Clopper-Pearson interval); the fault verdict of run 0 and the detection rate."""
+    import scipy.special
+
+    from ..detection.parameter_decision import ParameterBands, band_position, record_decisions
+    from ..studies.intervals import clopper_pearson
+
+    res = ident.result()
+    pm = res.setup.parameter_map
+    if not pm.has_tolerances:
+        return None
+    dec = record_decisions(res, args.alpha)
+    bands = ParameterBands.from_map(pm)
+    zq = float(scipy.special.ndtri(0.5 + args.confidence / 2))
+    rows = []
+    for i, p in enumerate(bands.names):
+        th, se = float(dec["estimate"][0, i]), float(dec["std_error"][0, i])
+        k = int(dec["outside"][:, i].sum())
+        rows.append(
+            {
+                "parameter": p,
+                "unit": bands.units[i],
+                "nominal": float(bands.nominal[i]),
+                "tolerance": bands.tolerances[i] or None,
+                "band": [float(bands.low[i]), float(bands.high[i])],
+                "estimate": th,
+                "std_error": se,
+                "ci_low": th - zq * se,
+                "ci_high": th + zq * se,
+                "p_value": float(dec["p_value"][0, i]),
+                "position": band_position(th - zq * se, th + zq * se, bands.low[i], bands.high[i]),
+                "outside": bool(dec["outside"][0, i]),
+                "outside_records": k,
+                "outside_interval": list(clopper_pearson(k, runs)),
+            }
+        )
+    det = dec["outside"].any(axis=1)
+    return {
+        "decision": "parameters (tolerances)",
+        "test": "joint estimate of the whole record against each band, at alpha / parameters",
+        "alpha": args.alpha,
+        "confidence": args.confidence,
+        "parameters": rows,
+        "fault": bool(det[0]),
+        "detected_records": int(det.sum()),
+        "runs": runs,
+        "detection_interval": list(clopper_pearson(int(det.sum()), runs)),
+    }
+
+
+def print_tolerance(doc: dict[str, Any]) -> None:
+    """The ``detect`` block of the decision on the identified parameters (tolerances)."""
+    t = doc.get("tolerance")
+    if not t:
+        return
+    from ..detection.parameter_decision import status_text
+
+    n = len(t["parameters"])
+    print(
+        f"decision on the identified parameters (tolerances; the spectral verdicts above report the model "
+        f"mismatch): each whole-record joint estimate against its band at alpha/{n} = {t['alpha'] / n:.3g}"
+    )
+    for r in t["parameters"]:
+        ci = (r["ci_low"], r["ci_high"])
+        text = status_text(
+            r["parameter"], r["estimate"], r["std_error"], ci, r["nominal"], r["unit"], r["tolerance"] or "",
+            r["position"],
+        )  # fmt: skip
+        lo, hi = r["outside_interval"]
+        print(f"  {text}; outside in {r['outside_records']} of {t['runs']} records [{lo:.3f}, {hi:.3f}]")
+    lo, hi = t["detection_interval"]
+    print(
+        f"fault (run 0): {'YES' if t['fault'] else 'no'}; detected in {t['detected_records']} of {t['runs']} "
+        f"records [{lo:.3f}, {hi:.3f}] (99 % Clopper-Pearson)"
+    )
+
+
 def interval_docs(
     setup: IdentificationSetup,
     z: Any,

@@ -46,6 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_alarm_args(p, what="the --record / --live monitor")
     add_execution_args(p)
     _identify.add_identification_args(p)
+    _identify.add_tolerance_args(p)
     add_report_args(p)
     # None = not given (the defaults of add_detector_args are filled in by run): a calibration fixes
     # the threshold, so an explicit --alpha / --threshold / --correction next to it is refused
@@ -74,6 +75,10 @@ def run(args: argparse.Namespace) -> int:
         if getattr(args, key) is None:
             setattr(args, key, value)
     sc = load_scenario(args.name)  # an unknown name fails here, before the heavy imports
+    if args.tolerance:
+        import dataclasses
+
+        sc = dataclasses.replace(sc, nominal=_identify.with_tolerance_args(sc.nominal, args))
     band = band_from_args(args)
     choice = alarm_choice(args, default_rule=_file_rule(args))  # bad options stop here, before simulating
     from ..detection.detect import detect_chunks
@@ -157,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         print_report(doc)
         _identify.print_identification(doc)
+        _identify.print_tolerance(doc)
     if args.record or args.live:
         outputs.finish()  # a failed recording: the result above is printed first
     return 0
@@ -234,6 +240,9 @@ def add_identification(
         doc["identification"] = {"reason": why_not}
         return
     doc["identification"] = _identify.record_doc(ident, args.runs, setup, sc)
+    tol = _identify.tolerance_doc(ident, args.runs, args)
+    if tol is not None:
+        doc["tolerance"] = tol
     frames = getattr(report, "frames", None)
     if sim is not None and frames is not None and frames.intervals.get("any"):
         hop = frames.spectrogram.config.hop_s

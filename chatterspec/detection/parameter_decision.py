@@ -94,6 +94,7 @@ __all__ = [
     "joint_hypothesis",
     "parameter_alarm_settings",
     "parameter_null_scores",
+    "record_decisions",
     "status_text",
 ]
 
@@ -447,9 +448,12 @@ def parameter_alarm_settings(
 
 
 def band_position(ci_low: float, ci_high: float, low: float, high: float) -> str:
-    """Where an interval lies against a band: ``"inside"``, ``"outside"`` or ``"at the edge of"``."""
+    """Where an interval lies against a band: ``"inside"``, ``"outside"`` or ``"at the edge of"``; against
+    a zero-width band (no tolerance) ``"at"`` or ``"off"`` (its nominal value)."""
     if not (np.isfinite(ci_low) and np.isfinite(ci_high)):
         return "unknown against"
+    if low == high:
+        return "at" if ci_low <= low <= ci_high else "off"
     if low <= ci_low and ci_high <= high:
         return "inside"
     if ci_high < low or ci_low > high:
@@ -496,6 +500,8 @@ def status_text(
             text += f", {ratio:.3g} times nominal"
     if tolerance:
         text += f", {position} its {tolerance}"
+    elif position in ("at", "off"):
+        text += f", {position} its nominal (no tolerance)"
     return text
 
 
@@ -554,7 +560,7 @@ class ParameterEvent:
         what = "fault start" if self.kind == "fault-start" else "fault end"
         pos = band_position(self.ci_low, self.ci_high, *self.band)
         st = status_text(self.parameter, self.estimate, self.std_error, (self.ci_low, self.ci_high),
-                         self.nominal, self.unit, self.tolerance or "band", pos)  # fmt: skip
+                         self.nominal, self.unit, self.tolerance, pos)  # fmt: skip
         label = alarm_label(self.rule, self.false_alarms_per_hour)
         return f"{what} on {self.parameter} at t = {self.time_s:.2f} s: {st} [{label}]"
 
@@ -893,3 +899,30 @@ def monitor_parameters(
         parts.append(decide(theta, se, settings, confidence, stream, _Horizon(settings.horizon_hops)))
     arrays = [np.concatenate([p[k] for p in parts]) for k in range(10)]
     return ParameterRecord(settings, times, *arrays)
+
+
+def record_decisions(identification: Any, alpha: float) -> dict[str, np.ndarray]:
+    """Whole-record decisions on the identified parameters, one per realization.
+
+    Each parameter's joint estimate is tested against its band (the p-value of :func:`band_scores`)
+    at ``alpha / P`` (Bonferroni over the ``P`` parameters: a healthy record, every parameter inside
+    its band, is declared faulty with probability at most ``alpha``, the detector's per-record level).
+
+    Parameters
+    ----------
+    identification : Identification
+        Whole-record identification (the default setup: it tests the joint hypothesis).
+    alpha : float
+        Per-record level.
+
+    Returns
+    -------
+    dict
+        ``estimate``, ``std_error``, ``p_value`` and ``outside`` (bool), arrays ``(runs, P)`` in table order.
+    """
+    setup = identification.setup
+    theta, se = _joint(identification, setup)
+    bands = ParameterBands.from_map(setup.parameter_map)
+    p = np.exp(-band_scores(theta, se, bands.low, bands.high))
+    a = open_unit("alpha", alpha) / bands.size
+    return {"estimate": theta, "std_error": se, "p_value": p, "outside": np.isfinite(se) & (p <= a)}

@@ -244,7 +244,7 @@ class IdentificationMonitor:
                     "unit": b.units[i],
                     "nominal": float(b.nominal[i]),
                     "tolerance": b.tolerances[i] or None,
-                    "position": pos if b.tolerances[i] else None,
+                    "position": pos if self.tolerances else None,
                     "score": finite_or_none(float(block.score[j, i])),
                     "state": window.states[i],
                     "detectable": finite_or_none(float(block.detectable[j, i])),
