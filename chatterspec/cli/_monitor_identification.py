@@ -11,7 +11,8 @@ JSON lines (``--events jsonl``):
   the summary's ``spectral_mismatch``;
 * ``--identification-events changes``: an ``identification`` event whenever the fault named (only
   under an alarm) or a parameter's or channel's state changes; ``every-hop``: every window. Fields:
-  ``sample_time_s``, ``window_s``, ``alarm``, ``fault`` (the name, null between alarms),
+  ``sample_time_s``, ``window_s``, ``alarm``, ``fault`` (the name, null between alarms), ``fits`` (false:
+  the window is not described by constant parameters, e.g. it straddles a change; no evidence),
   ``parameters`` (joint estimate, interval, band, ``inside``, ``score``, ``state``, ``detectable``),
   ``channels`` (state per output channel), and under a spectral alarm the full report of the window
   (``selected``, ``hypotheses``, ``alpha``).
@@ -111,6 +112,7 @@ class MonitorIdentification:
                 "window_s": [round(w.window_s[0], 9), round(w.window_s[1], 9)],
                 "alarm": w.alarm,
                 "fault": w.label,
+                "fits": bool(blk.fits[w.index]),
                 "parameters": mon.parameter_summary(blk, w),
                 "channels": dict(zip(mon.channels, w.channel_states, strict=True)),
             }

@@ -22,6 +22,14 @@ taken at the worst case (the parameter on a band edge): uniform there, larger in
 ``2 Phi_c(|theta - nominal| / sigma)`` for a zero-width band. A window without an estimate (no
 excitation, collinear regressors) scores 0: no evidence.
 
+**Windows the parameters do not describe.** A window that straddles a change of the plant mixes two
+regressions, which no constant parameter set reproduces: its joint fit is rejected by its own
+minimum-distance test (a bulk modulus dropping 25 % gives ``p < 1e-300`` in the windows across the
+change) and the other parameters' estimates absorb the misfit (the leakage reads 2.4 to 5.3 times its
+nominal value there). A window whose joint fit is rejected at :data:`MISFIT_LEVEL` gives no evidence
+(score 0, no information for the detectability); its estimates are reported with ``fits`` false. So
+a change is decided on the first windows entirely after it (about one window after the onset).
+
 **Alarm.** The scores (one channel per parameter) go through the monitor's alarm rule
 (:mod:`chatterspec.detection.alarms`: frame, persistence or CUSUM, with renewal), whose threshold
 is set for the run's budget in false alarms per hour like the spectral scores'
@@ -80,6 +88,7 @@ from .alarms import AlarmRule, AlarmStream, make_rule
 __all__ = [
     "DEFAULT_POWER",
     "DETECTABILITY_HORIZON_S",
+    "MISFIT_LEVEL",
     "NOT_EXCITED_MULTIPLE",
     "STATES",
     "ParameterAlarmSettings",
@@ -91,6 +100,7 @@ __all__ = [
     "band_scores",
     "calibrate_parameter_rule",
     "detectable_change",
+    "joint_estimates",
     "joint_hypothesis",
     "parameter_alarm_settings",
     "parameter_null_scores",
@@ -105,6 +115,8 @@ DEFAULT_POWER = 0.95
 #: A parameter without a tolerance is not excited when the detectable change exceeds this multiple of
 #: its nominal value (a change of 100 % would go unseen).
 NOT_EXCITED_MULTIPLE = 1.0
+#: Level of the joint fit's minimum-distance test below which a window gives no evidence (module docstring).
+MISFIT_LEVEL = 1e-3
 #: Seconds of data the detectable change is computed from (see the module docstring).
 DETECTABILITY_HORIZON_S = 5.0
 #: Hours of worst-case streams a persistence or CUSUM threshold is calibrated on (drawn, not simulated
@@ -599,6 +611,8 @@ class ParameterBlock:
     times_s : (W,) array
     estimate, std_error, ci_low, ci_high : (W, P) arrays
         The joint estimate (the plant's value), NaN without one.
+    fits : (W,) bool array
+        The joint fit is not rejected (False: the window gives no evidence, e.g. it straddles a change).
     score : (W, P) array
     alarm : (W, P) bool array
         The parameter's alarm after each window (all False without tolerances).
@@ -619,6 +633,7 @@ class ParameterBlock:
     std_error: np.ndarray
     ci_low: np.ndarray
     ci_high: np.ndarray
+    fits: np.ndarray
     score: np.ndarray
     alarm: np.ndarray
     statistic: np.ndarray
@@ -633,10 +648,13 @@ class ParameterBlock:
         return int(self.frames.size)
 
 
-def _joint(result: Any, setup: IdentificationSetup) -> tuple[np.ndarray, np.ndarray]:
-    """``(theta, se)`` of the joint hypothesis, ``(W, P)`` in table order."""
-    h, idx = joint_hypothesis(setup)
-    return result.fit["theta"][:, h, idx], result.fit["se"][:, h, idx]
+def joint_estimates(identification: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(theta, se, fits)`` of the joint hypothesis of an :class:`~chatterspec.detection.
+    identification_results.Identification`: ``(R, P)`` in table order, ``fits`` ``(R,)`` False where
+    its minimum-distance test rejects at :data:`MISFIT_LEVEL` (a window the parameters do not describe)."""
+    h, idx = joint_hypothesis(identification.setup)
+    f = identification.fit
+    return f["theta"][:, h, idx], f["se"][:, h, idx], ~(f["p"][:, h] <= MISFIT_LEVEL)
 
 
 class ParameterDecision:
@@ -679,17 +697,17 @@ class ParameterDecision:
         W = found.n_windows
         if W == 0 or found.result is None:
             e = np.zeros((0, P))
-            return ParameterBlock(np.zeros(0, int), np.zeros(0), e, e, e, e, e, e.astype(bool), e, e,
-                                  e.astype(bool), e.astype(int))  # fmt: skip
-        theta, se = _joint(found.result, self.setup)
-        block = decide(theta, se, self.settings, found.result.confidence, self._stream, self._horizon)
+            return ParameterBlock(np.zeros(0, int), np.zeros(0), e, e, e, e, np.zeros(0, bool), e,
+                                  e.astype(bool), e, e, e.astype(bool), e.astype(int))  # fmt: skip
+        theta, se, fits = joint_estimates(found.result)
+        block = decide(theta, se, fits, self.settings, found.result.confidence, self._stream, self._horizon)
         events = self._events(block, found)
         return ParameterBlock(np.asarray(found.frames), np.asarray(found.times_s), *block, events=events)
 
     def _events(self, block: tuple[np.ndarray, ...], found: Any) -> tuple[ParameterEvent, ...]:
         if self._stream is None:
             return ()
-        theta, se, lo, hi, score, alarm, stat, det, _, _ = block
+        theta, se, lo, hi, _, score, alarm, stat, det, _, _ = block
         prev = np.concatenate([self._last, alarm[:-1]])
         self._last = alarm[-1:].copy()
         cal, b = self.settings.calibration, self.bands
@@ -747,6 +765,7 @@ class _Horizon:
 def decide(
     theta: np.ndarray,
     se: np.ndarray,
+    fits: np.ndarray,
     settings: ParameterAlarmSettings,
     confidence: float,
     stream: AlarmStream | None,
@@ -754,25 +773,27 @@ def decide(
 ) -> tuple[np.ndarray, ...]:
     """Scores, alarms, detectability and states of joint estimates ``theta``, ``se`` ``(..., W, P)``.
 
+    ``fits`` ``(..., W)``: windows whose joint fit is not rejected (the others give no evidence).
     ``stream`` (shape ``(..., P)``; None: no alarms) and ``horizon`` carry the alarm state and the
-    horizon's information across calls. Returns ``(theta, se, ci_low, ci_high, score, alarm,
+    horizon's information across calls. Returns ``(theta, se, ci_low, ci_high, fits, score, alarm,
     statistic, detectable, excited, state)``.
     """
     b = settings.bands
     zq = float(scipy.special.ndtri(0.5 + confidence / 2))
-    score = band_scores(theta, se, b.low, b.high)
+    used = np.where(fits[..., None], se, np.nan)  # a window the parameters do not describe: no evidence
+    score = band_scores(theta, used, b.low, b.high)
     if stream is not None:
         blk = stream.update(score)
         alarm, stat = blk.active, blk.statistic
     else:
         alarm, stat = np.zeros(score.shape, bool), np.full(score.shape, np.nan)
-    ok = np.isfinite(se) & (se > 0)
-    info = horizon.sums(np.where(ok, 1.0 / np.where(ok, se, 1.0) ** 2, 0.0)) / settings.window_hops
+    ok = np.isfinite(used) & (used > 0)
+    info = horizon.sums(np.where(ok, 1.0 / np.where(ok, used, 1.0) ** 2, 0.0)) / settings.window_hops
     se_h = np.where(info > 0, 1.0 / np.sqrt(np.where(info > 0, info, 1.0)), np.nan)
     det = detectable_change(se_h, settings.level, settings.power)
     excited = det <= b.limit
     state = np.where(alarm, 1, np.where(excited, 0, 2))
-    return theta, se, theta - zq * se, theta + zq * se, score, alarm, stat, det, excited, state
+    return theta, se, theta - zq * se, theta + zq * se, fits, score, alarm, stat, det, excited, state
 
 
 @dataclass(frozen=True, eq=False)
@@ -785,6 +806,8 @@ class ParameterRecord:
     times_s : (W,) array
         Window centre times (s).
     estimate, std_error, ci_low, ci_high, score, statistic, detectable : (runs, W, P) arrays
+    fits : (runs, W) bool array
+        The window's joint fit is not rejected (False: no evidence).
     alarm, excited : (runs, W, P) bool arrays
     state : (runs, W, P) int array
         Index into :data:`STATES`.
@@ -796,6 +819,7 @@ class ParameterRecord:
     std_error: np.ndarray
     ci_low: np.ndarray
     ci_high: np.ndarray
+    fits: np.ndarray
     score: np.ndarray
     alarm: np.ndarray
     statistic: np.ndarray
@@ -892,12 +916,12 @@ def monitor_parameters(
             full, z[lo:hi], uc, hop_samples=H, window_hops=settings.window_hops, t0=t0
         )
         res = identify_moments(full, mom, confidence=confidence)
-        theta, se = _joint(res, full)
+        theta, se, fits = joint_estimates(res)
         W = times.size
-        theta, se = theta.reshape(hi - lo, W, -1), se.reshape(hi - lo, W, -1)
+        theta, se, fits = theta.reshape(hi - lo, W, -1), se.reshape(hi - lo, W, -1), fits.reshape(hi - lo, W)
         stream = None if cal is None else AlarmStream(cal.rule, (hi - lo, settings.bands.size))
-        parts.append(decide(theta, se, settings, confidence, stream, _Horizon(settings.horizon_hops)))
-    arrays = [np.concatenate([p[k] for p in parts]) for k in range(10)]
+        parts.append(decide(theta, se, fits, settings, confidence, stream, _Horizon(settings.horizon_hops)))
+    arrays = [np.concatenate([p[k] for p in parts]) for k in range(11)]
     return ParameterRecord(settings, times, *arrays)
 
 
@@ -918,11 +942,14 @@ def record_decisions(identification: Any, alpha: float) -> dict[str, np.ndarray]
     Returns
     -------
     dict
-        ``estimate``, ``std_error``, ``p_value`` and ``outside`` (bool), arrays ``(runs, P)`` in table order.
+        ``estimate``, ``std_error``, ``p_value`` and ``outside`` (bool), arrays ``(runs, P)`` in table
+        order, and ``fits`` ``(runs,)``: False where the record is not described by constant parameters
+        (a change within it: no decision, ``p_value`` NaN).
     """
     setup = identification.setup
-    theta, se = _joint(identification, setup)
+    theta, se, fits = joint_estimates(identification)
     bands = ParameterBands.from_map(setup.parameter_map)
-    p = np.exp(-band_scores(theta, se, bands.low, bands.high))
+    ok = np.isfinite(se) & fits[:, None]
+    p = np.where(ok, np.exp(-band_scores(theta, se, bands.low, bands.high)), np.nan)
     a = open_unit("alpha", alpha) / bands.size
-    return {"estimate": theta, "std_error": se, "p_value": p, "outside": np.isfinite(se) & (p <= a)}
+    return {"estimate": theta, "std_error": se, "p_value": p, "outside": ok & (p <= a), "fits": fits}
