@@ -213,7 +213,7 @@ def alarm_doc(settings: object) -> dict:
 
 
 def _alarm_short(settings: object) -> str:
-    from ..online.monitor_types import alarm_label
+    from ..detection.alarm_rules import alarm_label
 
     rule = getattr(settings, "rule", None)
     if rule is None:

@@ -137,7 +137,8 @@ def tolerance_doc(ident: IdentificationStream, runs: int, args: argparse.Namespa
     (99 % Clopper-Pearson interval); the fault verdict of run 0 and the detection rate."""
     import scipy.special
 
-    from ..detection.parameter_decision import ParameterBands, band_position, record_decisions
+    from ..detection.parameter_records import record_decisions
+    from ..detection.parameter_scores import ParameterBands, band_position
     from ..studies.intervals import clopper_pearson
 
     res = ident.result()
@@ -188,7 +189,7 @@ def print_tolerance(doc: dict[str, Any]) -> None:
     t = doc.get("tolerance")
     if not t:
         return
-    from ..detection.parameter_decision import status_text
+    from ..detection.parameter_scores import status_text
 
     n = len(t["parameters"])
     print(

@@ -25,8 +25,6 @@ from typing import Any
 
 import numpy as np
 
-from ..detection.parameter_decision import status_text
-
 __all__ = ["MonitorIdentification"]
 
 
@@ -180,6 +178,8 @@ class MonitorIdentification:
 
     def status_lines(self, doc: dict[str, Any] | None = None) -> list[str]:
         """``"bulk_modulus 1.86e8 Pa, 10 % below nominal, inside its +-15 %"`` per parameter (last window)."""
+        from ..detection.parameter_scores import status_text
+
         doc = self.last if doc is None else doc
         if doc is None:
             return []
@@ -208,7 +208,7 @@ class MonitorIdentification:
 
     def rule_short(self) -> str:
         """``"cusum rule, 1 false alarm per 24 h, on the parameters"``."""
-        from ..online.monitor_types import alarm_label
+        from ..detection.alarm_rules import alarm_label
 
         cal = self.monitor.settings.calibration
         if cal is None:

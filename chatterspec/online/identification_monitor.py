@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from ..detection._identification_fit import IdentificationSetup
+from ..detection.identification import IdentificationSetup
 from ..detection.identification_online import OnlineIdentification, OnlineIdentifier
 from ..detection.identification_results import IdentificationReport
 from ..detection.parameter_decision import (
@@ -40,9 +40,8 @@ from ..detection.parameter_decision import (
     ParameterBlock,
     ParameterDecision,
     ParameterEvent,
-    band_position,
-    joint_hypothesis,
 )
+from ..detection.parameter_scores import band_position, joint_hypothesis
 from ..plants.parameters import NO_FAULT
 
 __all__ = ["IdentificationMonitor", "IdentificationUpdate", "WindowDecision"]

@@ -16,11 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from ..detection.parameter_decision import (
-    ParameterAlarmSettings,
-    monitor_parameters,
-    parameter_alarm_settings,
-)
+from ..detection.parameter_decision import ParameterAlarmSettings, parameter_alarm_settings
+from ..detection.parameter_records import monitor_parameters
 from ..plants.models import eha_linear
 from ..plants.scenario_types import Scenario, Segment
 from ..plants.signals import Chirp, Repeat
@@ -93,7 +90,17 @@ def chirp_scenario(
 def study_settings(
     model: Any, false_alarms_per_hour: float = 1.0 / 24.0, **kw: Any
 ) -> ParameterAlarmSettings:
-    """The monitor's parameter decision for ``model``: 0.2 s hop, 1 s window, CUSUM at the budget."""
+    """The monitor's parameter decision for ``model``: 0.2 s hop, 1 s window, CUSUM at the budget.
+
+    Parameters
+    ----------
+    model : LinearModel
+        With tolerances on its parameters.
+    false_alarms_per_hour : float
+        The budget (default one per day).
+    **kw
+        Other keyword arguments of :func:`~chatterspec.detection.parameter_decision.parameter_alarm_settings`.
+    """
     from ..detection.identification import identification_setup
 
     setup = identification_setup(model, [list(model.parameter_map.parameter_names)])
@@ -178,6 +185,23 @@ def onset_study(
 
     The delay of a record is the time from the onset to the end of the window of its first alarm start
     at or after the onset (when the monitor knew); an alarm before the onset counts as a false alarm.
+
+    Parameters
+    ----------
+    model : LinearModel
+        Nominal model with tolerances.
+    fault : mapping
+        The parameters changed at ``onset_s`` (:func:`chirp_scenario`).
+    runs : int
+        Records (one onset each).
+    onset_s, record_s : float
+        Onset and record length (s).
+    plant : mapping, optional
+        The true plant before the onset (default nominal).
+    seed, chunk_runs
+        Root seed and records per vectorized block.
+    settings : ParameterAlarmSettings, optional
+        Default :func:`study_settings`.
 
     Returns
     -------
@@ -278,6 +302,13 @@ def drift_record(seed: int = 0, duration_s: float = 60.0, step_s: float = 2.0) -
     """A plant drifting in steps: the bulk modulus from nominal to 25 % below it (its +-15 % band is left
     at about 60 % of the way) and the friction from nominal to 20 % above it (inside its +-30 %), under
     the repeated chirp; one record through the parameter decision.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the record.
+    duration_s, step_s : float
+        Record length and the length of each step of the drift (s).
 
     Returns
     -------
