@@ -53,6 +53,7 @@ class MonitorIdentification:
         self._key: tuple[Any, ...] | None = None
         self._label: str | None = None
         self._states: tuple[str, ...] | None = None
+        self._since_reset = 0  # windows since the start or a reset: the detectability's horizon fills
         P = len(monitor.parameters)
         self._not_excited = np.zeros(P)
         self._hop_s = monitor.settings.hop_s
@@ -71,6 +72,7 @@ class MonitorIdentification:
         """A gap or restart at ``t0``: start over (the label and states too)."""
         self.monitor.reset(t0)
         self._key = self._label = self._states = None
+        self._since_reset = 0
 
     def note(self, kind: str, channel: str | None, time_s: float | None) -> None:
         """A spectral event of the monitor: the alarm state of the label (no tolerances), or a mismatch
@@ -96,6 +98,7 @@ class MonitorIdentification:
             events[int(ev.frame)].append(ev)
         for w in upd.windows:
             self.windows += 1
+            self._since_reset += 1
             for ev in events.get(int(blk.frames[w.index]), ()):
                 doc = ev.to_dict()
                 kind, t = doc.pop("kind"), doc.pop("time_s")
@@ -123,7 +126,8 @@ class MonitorIdentification:
                 self.emit(dumps({"event": "identification", **doc}))
             if w.label != self._label:
                 self._say_label(w, doc)
-            if self._states is not None and w.states != self._states:
+            warm = self._since_reset > mon.settings.horizon_hops  # the horizon holds data only after it
+            if warm and self._states is not None and w.states != self._states:
                 self._say_states(w, doc)
             if changed:
                 self.changes.append(
