@@ -83,14 +83,14 @@ __all__ = [
     "DETECTABILITY_HORIZON_S",
     "STATES",
     "ParameterAlarmSettings",
-    "ParameterBlock",
     "ParameterDecision",
+    "ParameterDecisions",
     "ParameterEvent",
     "decide",
     "parameter_alarm_settings",
 ]
 
-#: The three states of a parameter (and of a channel): index = the code in ``ParameterBlock.state``.
+#: The three states of a parameter (and of a channel): index = the code in ``ParameterDecisions.state``.
 STATES = ("healthy", "fault", "not-excited")
 #: Seconds of data the detectable change is computed from (see the module docstring).
 DETECTABILITY_HORIZON_S = 5.0
@@ -304,33 +304,40 @@ class ParameterEvent:
 
 
 @dataclass(frozen=True, eq=False)
-class ParameterBlock:
-    """The parameter decisions of the windows one push completed (arrays ``(W, P)``, table order).
+class ParameterDecisions:
+    """Decisions on the identified parameters, one per window: arrays ``(..., W, P)`` (parameters in table
+    order; no leading axis for the windows of one push, ``(runs,)`` for whole records).
 
     Attributes
     ----------
-    frames : (W,) int array
     times_s : (W,) array
-    estimate, std_error, ci_low, ci_high : (W, P) arrays
-        The joint estimate (the plant's value), NaN without one.
-    fits : (W,) bool array
+        Window centre times (s).
+    frames : (W,) int array
+        Window (hop) numbers: the monitor's frame numbers.
+    estimate, std_error, ci_low, ci_high : (..., W, P) arrays
+        The joint estimate (the plant's value) and its interval, NaN without one.
+    fits : (..., W) bool array
         The joint fit is not rejected (False: the window gives no evidence, e.g. it straddles a change).
-    score : (W, P) array
-    alarm : (W, P) bool array
+    score : (..., W, P) array
+        ``-log p`` of "inside its band" (0: no evidence).
+    alarm : (..., W, P) bool array
         The parameter's alarm after each window (all False without tolerances).
-    statistic : (W, P) array
+    statistic : (..., W, P) array
         The rule's statistic (NaN without tolerances).
-    detectable : (W, P) array
+    detectable : (..., W, P) array
         The detectable change (``inf`` without an estimate).
-    excited : (W, P) bool array
+    excited : (..., W, P) bool array
         ``detectable <= bands.limit``.
-    state : (W, P) int array
+    state : (..., W, P) int array
         Index into :data:`STATES`: fault (alarm), else not excited, else healthy.
     events : tuple of ParameterEvent
+        The alarm starts and ends of one push (online decisions; empty for whole records).
+    settings : ParameterAlarmSettings or None
+        The settings of whole records.
     """
 
-    frames: np.ndarray
     times_s: np.ndarray
+    frames: np.ndarray
     estimate: np.ndarray
     std_error: np.ndarray
     ci_low: np.ndarray
@@ -343,11 +350,24 @@ class ParameterBlock:
     excited: np.ndarray
     state: np.ndarray
     events: tuple[ParameterEvent, ...] = field(default=())
+    settings: ParameterAlarmSettings | None = None
 
     @property
     def n_windows(self) -> int:
         """Number of windows."""
         return int(self.frames.size)
+
+    @property
+    def starts(self) -> np.ndarray:
+        """``(..., W, P)`` bool: windows where a parameter's alarm starts (from no alarm before the first)."""
+        prev = np.concatenate([np.zeros_like(self.alarm[..., :1, :]), self.alarm[..., :-1, :]], axis=-2)
+        return self.alarm & ~prev
+
+    def first_start(self, after_s: float = -np.inf) -> np.ndarray:
+        """``(...)``: time (s) of the first alarm start (any parameter) from ``after_s`` on; NaN: none."""
+        s = self.starts.any(axis=-1) & (self.times_s >= after_s)
+        first = np.argmax(s, axis=-1)
+        return np.where(s.any(axis=-1), self.times_s[first], np.nan)
 
 
 class ParameterDecision:
@@ -383,19 +403,19 @@ class ParameterDecision:
             return np.zeros(self.bands.size, dtype=bool)
         return self._stream.active
 
-    def update(self, found: Any) -> ParameterBlock:
+    def update(self, found: Any) -> ParameterDecisions:
         """Decide on the windows of one push (:class:`~chatterspec.detection.identification_online.
         OnlineIdentification`)."""
         P = self.bands.size
         W = found.n_windows
         if W == 0 or found.result is None:
             e = np.zeros((0, P))
-            return ParameterBlock(np.zeros(0, int), np.zeros(0), e, e, e, e, np.zeros(0, bool), e,
-                                  e.astype(bool), e, e, e.astype(bool), e.astype(int))  # fmt: skip
+            return ParameterDecisions(np.zeros(0), np.zeros(0, int), e, e, e, e, np.zeros(0, bool), e,
+                                      e.astype(bool), e, e, e.astype(bool), e.astype(int))  # fmt: skip
         theta, se, fits = joint_estimates(found.result)
         block = decide(theta, se, fits, self.settings, found.result.confidence, self._stream, self._horizon)
         events = self._events(block, found)
-        return ParameterBlock(np.asarray(found.frames), np.asarray(found.times_s), *block, events=events)
+        return ParameterDecisions(np.asarray(found.times_s), np.asarray(found.frames), *block, events=events)
 
     def _events(self, block: tuple[np.ndarray, ...], found: Any) -> tuple[ParameterEvent, ...]:
         if self._stream is None:

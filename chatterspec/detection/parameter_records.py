@@ -9,61 +9,22 @@ with tolerances. :func:`record_decisions` decides once per record on its whole-r
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from .._validate import open_unit, positive, positive_int
 from .alarms import AlarmRule, AlarmStream
-from .parameter_decision import ParameterAlarmSettings, _Horizon, decide, parameter_alarm_settings
+from .parameter_decision import (
+    ParameterAlarmSettings,
+    ParameterDecisions,
+    _Horizon,
+    decide,
+    parameter_alarm_settings,
+)
 from .parameter_scores import ParameterBands, band_scores, joint_estimates
 
-__all__ = ["ParameterRecord", "monitor_parameters", "record_decisions"]
-
-
-@dataclass(frozen=True, eq=False)
-class ParameterRecord:
-    """Parameter decisions over whole records (arrays ``(runs, W, P)``, parameters in table order).
-
-    Attributes
-    ----------
-    settings : ParameterAlarmSettings
-    times_s : (W,) array
-        Window centre times (s).
-    estimate, std_error, ci_low, ci_high, score, statistic, detectable : (runs, W, P) arrays
-    fits : (runs, W) bool array
-        The window's joint fit is not rejected (False: no evidence).
-    alarm, excited : (runs, W, P) bool arrays
-    state : (runs, W, P) int array
-        Index into :data:`STATES`.
-    """
-
-    settings: ParameterAlarmSettings
-    times_s: np.ndarray
-    estimate: np.ndarray
-    std_error: np.ndarray
-    ci_low: np.ndarray
-    ci_high: np.ndarray
-    fits: np.ndarray
-    score: np.ndarray
-    alarm: np.ndarray
-    statistic: np.ndarray
-    detectable: np.ndarray
-    excited: np.ndarray
-    state: np.ndarray
-
-    @property
-    def starts(self) -> np.ndarray:
-        """``(runs, W, P)`` bool: windows where a parameter's alarm starts (each record from no alarm)."""
-        prev = np.concatenate([np.zeros_like(self.alarm[:, :1]), self.alarm[:, :-1]], axis=1)
-        return self.alarm & ~prev
-
-    def first_start(self, after_s: float = -np.inf) -> np.ndarray:
-        """``(runs,)``: time (s) of the first alarm start (any parameter) from ``after_s`` on; NaN: none."""
-        s = self.starts.any(axis=2) & (self.times_s >= after_s)[None, :]
-        first = np.argmax(s, axis=1)
-        return np.where(s.any(axis=1), self.times_s[first], np.nan)
+__all__ = ["monitor_parameters", "record_decisions"]
 
 
 def monitor_parameters(
@@ -79,7 +40,7 @@ def monitor_parameters(
     t0: float = 0.0,
     confidence: float = 0.95,
     chunk_runs: int = 64,
-) -> ParameterRecord:
+) -> ParameterDecisions:
     """The monitor's decisions on the identified parameters over whole records, every record at once.
 
     What ``chatterspec monitor`` decides per hop with tolerances (the module docstring), on many
@@ -112,7 +73,7 @@ def monitor_parameters(
 
     Returns
     -------
-    ParameterRecord
+    ParameterDecisions
     """
     from .._validate import finite_array
     from .identification import identification_setup, identify_moments
@@ -148,7 +109,8 @@ def monitor_parameters(
         stream = None if cal is None else AlarmStream(cal.rule, (hi - lo, settings.bands.size))
         parts.append(decide(theta, se, fits, settings, confidence, stream, _Horizon(settings.horizon_hops)))
     arrays = [np.concatenate([p[k] for p in parts]) for k in range(11)]
-    return ParameterRecord(settings, times, *arrays)
+    frames = np.arange(times.size)
+    return ParameterDecisions(times, frames, *arrays, settings=settings)
 
 
 def record_decisions(identification: Any, alpha: float) -> dict[str, np.ndarray]:

@@ -45,7 +45,7 @@ def tolerance_band_figure(
 
     Parameters
     ----------
-    record : ParameterRecord
+    record : ParameterDecisions
         One record's decisions (run 0 is drawn).
     truth : mapping
         ``times_s`` and the true value of each parameter from each time on (a staircase).
@@ -107,7 +107,7 @@ def excitation_figure(
 
     Parameters
     ----------
-    records : mapping of str -> ParameterRecord
+    records : mapping of str -> ParameterDecisions
         Label -> decisions (same times).
     parameter : str
     reference : mapping of str -> float

@@ -37,8 +37,8 @@ from ..detection.identification_results import IdentificationReport
 from ..detection.parameter_decision import (
     STATES,
     ParameterAlarmSettings,
-    ParameterBlock,
     ParameterDecision,
+    ParameterDecisions,
     ParameterEvent,
 )
 from ..detection.parameter_scores import band_position, joint_hypothesis
@@ -86,14 +86,14 @@ class IdentificationUpdate:
     Attributes
     ----------
     found : OnlineIdentification
-    block : ParameterBlock
+    block : ParameterDecisions
     windows : tuple of WindowDecision
     events : tuple of ParameterEvent
         The parameters' alarm starts and ends (tolerances declared).
     """
 
     found: OnlineIdentification
-    block: ParameterBlock
+    block: ParameterDecisions
     windows: tuple[WindowDecision, ...]
     events: tuple[ParameterEvent, ...] = field(default=())
 
@@ -223,7 +223,7 @@ class IdentificationMonitor:
             self._closed = [c for c in self._closed if c[2] > last]
         return IdentificationUpdate(found, block, tuple(out), block.events)
 
-    def parameter_summary(self, block: ParameterBlock, window: WindowDecision) -> list[dict[str, Any]]:
+    def parameter_summary(self, block: ParameterDecisions, window: WindowDecision) -> list[dict[str, Any]]:
         """One window of ``block`` per parameter: estimate, interval, band, state, detectable change."""
         from ..jsonout import finite_or_none
 

@@ -275,7 +275,7 @@ def excitation_cycle(
 
     Returns
     -------
-    ParameterRecord
+    ParameterDecisions
         Of the ``runs`` records (35 s each).
     """
     from ..plants.closed_loop import ClosedLoop
@@ -312,7 +312,7 @@ def drift_record(seed: int = 0, duration_s: float = 60.0, step_s: float = 2.0) -
 
     Returns
     -------
-    (ParameterRecord, dict)
+    (ParameterDecisions, dict)
         The decisions and the true values ``{"times_s", "bulk_modulus", "friction"}`` per step.
     """
     from ..plants.simulate import simulate
