@@ -82,6 +82,9 @@ _GROUPS: dict[str, dict[str, str]] = {
             ("Identification", "IdentificationReport", "identification_setup", "identify", "identify_record"),
             ".detection.identification",
         ),
+        **dict.fromkeys(("Tolerance", "with_tolerances"), ".plants.tolerances"),
+        **dict.fromkeys(("ParameterDecisions", "parameter_alarm_settings"), ".detection.parameter_decision"),
+        "monitor_parameters": ".detection.parameter_records",
     },
     "alarms": {
         **dict.fromkeys(
@@ -127,6 +130,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
         identify,
         identify_record,
     )
+    from .detection.parameter_decision import ParameterDecisions, parameter_alarm_settings
+    from .detection.parameter_records import monitor_parameters
     from .detection.pipeline import ChatteringRecord, chattering_record
     from .detection.spectral import STFTConfig, periodogram, spectrogram
     from .detection.thresholds import Threshold, threshold
@@ -145,6 +150,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .plants.scenarios import Scenario, Segment, catalogue, scenario, scenario_names
     from .plants.signals import Chirp, Constant, SquareWave, Step
     from .plants.simulate import Simulation, iter_simulations, simulate
+    from .plants.tolerances import Tolerance, with_tolerances
     from .studies.alarm_budget import calibrate_alarm
     from .studies.budget_diagnosis import diagnose_at_budget
     from .studies.calibration import Calibration, calibrate, load_calibration
@@ -203,6 +209,7 @@ __all__ = [
     "MultipleModelOutput",
     "NonFiniteError",
     "NonlinearModel",
+    "ParameterDecisions",
     "ParameterError",
     "PersistenceRule",
     "RuleCalibration",
@@ -218,6 +225,7 @@ __all__ = [
     "SquareWave",
     "Step",
     "Threshold",
+    "Tolerance",
     "UnknownScenarioError",
     "UnstableLoopError",
     "UnstableModelWarning",
@@ -251,6 +259,8 @@ __all__ = [
     "load_data",
     "load_model",
     "make_rule",
+    "monitor_parameters",
+    "parameter_alarm_settings",
     "periodogram",
     "rounded",
     "run_rule",
@@ -260,5 +270,6 @@ __all__ = [
     "simulate",
     "spectrogram",
     "threshold",
+    "with_tolerances",
     "write_model_toml",
 ]
