@@ -172,6 +172,7 @@ def run_monitor(
                 span_s=record_span(monitor, total, raw=chattering is None),
                 extra_row=views,
                 extra_lanes=0 if views is None else len(identifier.parameters),
+                verdict="mismatch" if identifier is not None and identifier.tolerances else "FAULT",
             )
             if sinks.streams
             else None
