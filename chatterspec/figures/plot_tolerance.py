@@ -19,7 +19,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from ..palette import FAULT, NEUTRAL, NOT_EXCITED, TAB10, TRUTH, mpl
+from ..palette import FAULT, NEUTRAL, NOT_EXCITED, TAB10, TRUTH, fault_level_color, mpl
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
@@ -144,7 +144,7 @@ def excitation_figure(
         label=f"tolerance {b.tolerances[i]}: not excited above",
     )
     for k, (label, size) in enumerate(reference.items()):
-        ax.axhline(size, color=mpl(FAULT), ls=":" if k else "-.", lw=1.0, label=label)
+        ax.axhline(size, color=mpl(fault_level_color(k)), ls=":" if k else "-.", lw=1.2, label=label)
     unit = f" ({b.units[i]})" if b.units[i] else ""
     horizon = first.settings.horizon_hops * first.settings.hop_s
     ax.set_ylabel(f"smallest detectable {parameter} change{unit}")
