@@ -208,6 +208,8 @@ def test_detect_and_diagnose_decide_on_the_parameters(capsys: pytest.CaptureFixt
     rows = {r["parameter"]: r for r in t["parameters"]}
     assert rows["bulk_modulus"]["position"] == "outside" and rows["bulk_modulus"]["outside_records"] == 8
     assert rows["friction"]["outside_records"] == 0 and rows["leakage"]["outside_records"] == 0
+    assert main(["detect", "eha-bulk-25down", "--no-identify", *tol]) == 2  # nothing to decide on
+    assert "identified parameters" in capsys.readouterr().err
     argv = [
         "diagnose",
         "eha-bulk-25down",

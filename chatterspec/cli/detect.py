@@ -98,6 +98,11 @@ def run(args: argparse.Namespace) -> int:
     first: list = []
     progress = False if args.no_progress or args.runs < PROGRESS_MIN_RUNS else None
     setup, why_not = _identify.setup_or_reason(sc.nominal, args)
+    pmap = getattr(sc.nominal, "parameter_map", None)
+    if setup is None and pmap is not None and pmap.has_tolerances:
+        raise ParameterError(
+            f"the tolerances are decided on the identified parameters, and there are none: {why_not}"
+        )
     ident = None
     parallel = args.workers > 1 or args.scheduler is not None
     if parallel:  # the same numbers from worker processes / Dask
