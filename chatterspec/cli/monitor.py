@@ -263,16 +263,22 @@ def run(args: argparse.Namespace) -> int:
     if setup is not None:
         from ..detection.alarms import make_rule
         from ..detection.parameter_decision import parameter_alarm_settings
+        from ..errors import IdentifiabilityError
 
         hop = stft.n_hop(spec.model.dt)
         X = settings.false_alarms_per_hour or choice.budget
-        decision = parameter_alarm_settings(
-            setup,
-            hop_s=hop * spec.model.dt,
-            window_hops=max(1, round(stft.n_window(spec.model.dt) / hop)),
-            rule=make_rule(choice.rule, **choice.parameters),
-            false_alarms_per_hour=X,
-        )
+        try:
+            decision = parameter_alarm_settings(
+                setup,
+                hop_s=hop * spec.model.dt,
+                window_hops=max(1, round(stft.n_window(spec.model.dt) / hop)),
+                rule=make_rule(choice.rule, **choice.parameters),
+                false_alarms_per_hour=X,
+            )
+        except IdentifiabilityError as exc:  # the parameters cannot all be fitted at once
+            if tolerances:
+                raise
+            setup, why_not = None, str(exc)
     if tolerances and decision is not None and decision.calibration is not None:
         print(
             "chatterspec monitor: decision on the identified parameters (tolerances; the spectral detector "
