@@ -85,6 +85,9 @@ _GROUPS: dict[str, dict[str, str]] = {
             ("Identification", "IdentificationReport", "identification_setup", "identify", "identify_record"),
             ".detection.identification",
         ),
+        **dict.fromkeys(("Tolerance", "with_tolerances"), ".plants.tolerances"),
+        **dict.fromkeys(("ParameterDecisions", "parameter_alarm_settings"), ".detection.parameter_decision"),
+        "monitor_parameters": ".detection.parameter_records",
     },
     "commissioning": {
         **dict.fromkeys(("Commissioning", "commission"), ".studies.commissioning"),
@@ -133,6 +136,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
         identify,
         identify_record,
     )
+    from .detection.parameter_decision import ParameterDecisions, parameter_alarm_settings
+    from .detection.parameter_records import monitor_parameters
     from .detection.pipeline import ChatteringRecord, chattering_record
     from .detection.spectral import STFTConfig, periodogram, spectrogram
     from .detection.thresholds import Threshold, threshold
@@ -152,6 +157,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .plants.scenarios import Scenario, Segment, catalogue, scenario, scenario_names
     from .plants.signals import Chirp, Constant, SquareWave, Step
     from .plants.simulate import Simulation, iter_simulations, simulate
+    from .plants.tolerances import Tolerance, with_tolerances
     from .studies.alarm_budget import calibrate_alarm
     from .studies.budget_diagnosis import diagnose_at_budget
     from .studies.calibration import Calibration, calibrate, load_calibration
@@ -213,6 +219,7 @@ __all__ = [
     "MultipleModelOutput",
     "NonFiniteError",
     "NonlinearModel",
+    "ParameterDecisions",
     "ParameterError",
     "PersistenceRule",
     "RuleCalibration",
@@ -228,6 +235,7 @@ __all__ = [
     "SquareWave",
     "Step",
     "Threshold",
+    "Tolerance",
     "UnknownScenarioError",
     "UnstableLoopError",
     "UnstableModelWarning",
@@ -264,6 +272,8 @@ __all__ = [
     "load_data",
     "load_model",
     "make_rule",
+    "monitor_parameters",
+    "parameter_alarm_settings",
     "periodogram",
     "rounded",
     "run_rule",
@@ -273,5 +283,6 @@ __all__ = [
     "simulate",
     "spectrogram",
     "threshold",
+    "with_tolerances",
     "write_model_toml",
 ]

@@ -295,3 +295,33 @@ def test_models_with_parameter_maps_pickle() -> None:
     assert np.array_equal(
         m.parameter_map.evaluate(1e-3), eha_linear(leakage=9e-11).parameter_map.evaluate(1e-3)
     )
+
+
+def test_every_combination_is_a_hypothesis_and_declared_names_are_kept() -> None:
+    from pathlib import Path
+
+    from chatterspec.plants.modelfile import load_model
+
+    model = load_model(Path(__file__).resolve().parents[1] / "examples" / "eha_model.toml").model
+    names = [h.name for h in identification_setup(model).hypotheses]
+    assert names == [
+        "leakage",
+        "friction",
+        "bulk_modulus",
+        "leakage+friction",  # declared in the file (same name as the generated one)
+        "leakage+bulk_modulus",
+        "friction+bulk_modulus",
+        "leakage+friction+bulk_modulus",
+    ]
+    assert [h.name for h in identification_setup(model, ["leakage"]).hypotheses] == ["leakage"]
+    # two parameters entering only as a product cannot be told apart: their combination is left out of
+    # the default hypotheses, and refused when declared
+    from chatterspec.plants._expressions import compile_formula
+
+    so = second_order(10.0, 0.1)
+    entry = MatrixEntry("A", 1, 1, compile_formula("1 - 2*dt*zeta*w", "test"))
+    pm = ParameterMap((PhysicalParameter("zeta", 0.1), PhysicalParameter("w", 2 * np.pi * 10.0)), (entry,))
+    model = so.replace(parameter_map=pm)
+    assert [h.name for h in identification_setup(model).hypotheses] == ["zeta", "w"]
+    with pytest.raises(IdentifiabilityError, match="cannot be told apart"):
+        identification_setup(model, [["zeta", "w"]])

@@ -229,7 +229,7 @@ def alarm_doc(settings: MonitorSettings) -> dict:
 
 
 def _alarm_short(settings: MonitorSettings) -> str:
-    from ..online.monitor_types import alarm_label
+    from ..detection.alarm_rules import alarm_label
 
     rule = getattr(settings, "rule", None)
     if rule is None:

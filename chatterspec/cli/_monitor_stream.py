@@ -9,8 +9,8 @@ import sys
 from typing import TYPE_CHECKING
 
 from ..jsonout import dumps
-from . import _identify
 from ._alarm_args import _alarm_short, alarm_doc
+from ._monitor_identification import MonitorIdentification
 
 if TYPE_CHECKING:  # pragma: no cover
     from types import FrameType
@@ -44,7 +44,7 @@ def _run_stream(
     settings: MonitorSettings,
     jsonl: bool,
     human: TextIO,
-    ident: _identify.MonitorIdentification | None = None,
+    ident: MonitorIdentification | None = None,
 ) -> int:
     from ..errors import ChatterspecError
     from ..online.stream import CsvRows, follow_file, read_fd
@@ -55,6 +55,10 @@ def _run_stream(
     model = spec.model
 
     def on_event(ev: StreamEvent) -> None:
+        if ident is not None:  # the alarm of the fault named; with tolerances a mismatch only
+            ident.note(ev.kind, ev.channel, ev.sample_time_s)
+            if ident.tolerances and ev.kind in ("fault-start", "fault-end"):
+                return
         if jsonl:
             _emit_line(ev.to_json())
         print(ev.describe(), file=human, flush=True)
@@ -82,8 +86,6 @@ def _run_stream(
         raise OutputPathError(
             f"--record {str(args.record)!r} cannot be written ({exc.strerror or exc}); nothing was monitored"
         ) from None
-    if ident is not None:  # the human identification lines follow the alarms
-        ident.alarm_active = lambda: mon.monitor is not None and bool(mon.monitor.active.any())
     rows = CsvRows(model, where)
     if stdin:
         chunks = read_fd(sys.stdin.fileno())
@@ -138,14 +140,14 @@ def _report(
     jsonl: bool,
     human: TextIO,
     settings: MonitorSettings,
-    ident: _identify.MonitorIdentification | None = None,
+    ident: MonitorIdentification | None = None,
 ) -> None:
     s = summary  # StreamSummary
     if args.json:
         doc = {"model": str(args.model), "data": str(args.data), "alarm": alarm_doc(settings)}
         doc.update(s.to_dict())
         if ident is not None:
-            doc["identification"] = ident.to_dict()
+            ident.into_summary(doc)
         if jsonl:
             _emit_line(dumps({"event": "summary", **doc}))
         else:
@@ -158,13 +160,19 @@ def _report(
         if lat["frames"]
         else "no frame completed"
     )
+    starts, rule = c["fault-start"], _alarm_short(settings)
+    if ident is not None and ident.tolerances:
+        starts, rule = ident.starts, ident.rule_short()
     print(
         f"{s.duration_s:.2f} s of data ({s.n_rows} rows), {s.n_frames} frames, "
-        f"{c['fault-start']} fault start(s) [{_alarm_short(settings)}], {c['gap']} gap(s), "
+        f"{starts} fault start(s) [{rule}], {c['gap']} gap(s), "
         f"{c['restart']} restart(s), "
         f"{c['bad-row']} bad row(s) skipped; {latency}; {s.wall_s:.2f} s wall; "
         f"stopped by {s.stopped_by}",
         file=human,
     )
+    if ident is not None:
+        for line in ident.status_lines():
+            print(f"  {line}", file=human)
     for rec in s.recordings:
         print(f"recording: {rec['path']} (open with `chatterspec replay {rec['path']}`)", file=human)

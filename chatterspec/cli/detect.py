@@ -51,6 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_alarm_args(p, what="the --record / --live monitor")
     add_execution_args(p)
     _identify.add_identification_args(p)
+    _identify.add_tolerance_args(p)
     add_report_args(p)
     # None = not given (the defaults of add_detector_args are filled in by run): a calibration fixes
     # the threshold, so an explicit --alpha / --threshold / --correction next to it is refused
@@ -79,6 +80,10 @@ def run(args: argparse.Namespace) -> int:
         if getattr(args, key) is None:
             setattr(args, key, value)
     sc = load_scenario(args.name)  # an unknown name fails here, before the heavy imports
+    if args.tolerance:
+        import dataclasses
+
+        sc = dataclasses.replace(sc, nominal=_identify.with_tolerance_args(sc.nominal, args))
     band = band_from_args(args)
     choice = alarm_choice(args, default_rule=_file_rule(args))  # bad options stop here, before simulating
     from ..detection.detect import detect_chunks
@@ -98,6 +103,11 @@ def run(args: argparse.Namespace) -> int:
     first: list = []
     progress = False if args.no_progress or args.runs < PROGRESS_MIN_RUNS else None
     setup, why_not = _identify.setup_or_reason(sc.nominal, args)
+    pmap = getattr(sc.nominal, "parameter_map", None)
+    if setup is None and pmap is not None and pmap.has_tolerances:
+        raise ParameterError(
+            f"the tolerances are decided on the identified parameters, and there are none: {why_not}"
+        )
     ident = None
     parallel = args.workers > 1 or args.scheduler is not None
     if parallel:  # the same numbers from worker processes / Dask
@@ -163,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         print_report(doc)
         _identify.print_identification(doc)
+        _identify.print_tolerance(doc)
     if args.record or args.live:
         outputs.finish()  # a failed recording: the result above is printed first
     return 0
@@ -246,6 +257,9 @@ def add_identification(
         return
     assert ident is not None  # (made with the setup)
     doc["identification"] = _identify.record_doc(ident, args.runs, setup, sc)
+    tol = _identify.tolerance_doc(ident, args.runs, args)
+    if tol is not None:
+        doc["tolerance"] = tol
     frames = getattr(report, "frames", None)
     if sim is not None and frames is not None and frames.intervals.get("any"):
         hop = frames.spectrogram.config.hop_s

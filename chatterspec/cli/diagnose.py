@@ -132,6 +132,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--per-record", action="store_true", help="each route with its own rule (the former table)"
     )
     _identify.add_identification_args(p)
+    _identify.add_tolerance_args(p)
     add_report_args(p, json_help="print one JSON document")
     add(p, "--record", default=None, help="write realization 0 to a Rerun file")
     p.set_defaults(cusum_drift=None)  # each route sets its own CUSUM drift
@@ -172,6 +173,10 @@ def _scenario(args: argparse.Namespace) -> Scenario:
     from ..studies.route_sweep import onsets_of
 
     sc = scenario(args.name)
+    if args.tolerance:
+        import dataclasses
+
+        sc = dataclasses.replace(sc, nominal=_identify.with_tolerance_args(sc.nominal, args))
     if args.onset is not None:
         from ..studies.scenario_variants import with_onset
 
@@ -199,7 +204,7 @@ def _routes(
     args: argparse.Namespace, sc: Scenario, methods: tuple[str, ...]
 ) -> tuple[dict[str, Route], Threshold | None, dict[str, Any]]:
     """The route objects, the per-frame threshold of the recording (chattering) and its provenance."""
-    from ..studies.routes import ChatteringRoute, InnovationRoute, ModeRoute
+    from ..studies.routes import ChatteringRoute, InnovationRoute, ModeRoute, ParameterRoute
 
     routes: dict[str, Route] = {}
     threshold: Threshold | None = None
@@ -208,6 +213,8 @@ def _routes(
         if m == "chattering":
             threshold, info = _chattering_law(args, sc)
             routes[m] = ChatteringRoute(sc, threshold)
+        elif m == "parameters":
+            routes[m] = ParameterRoute(sc)
         elif m == "innovation":
             kw = {} if args.nis_inflation is None else {"inflation": args.nis_inflation}
             routes[m] = InnovationRoute(sc, cap=(args.rule or "cusum") == "cusum", **kw)

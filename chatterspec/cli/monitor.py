@@ -28,6 +28,7 @@ from ..jsonout import dumps
 from . import _identify
 from ._alarm_args import _alarm_line, _alarm_short, add_alarm_args, alarm_choice, alarm_doc
 from ._common import Outputs, band_from_args, check_record_path, positive_int_arg, stderr_note
+from ._monitor_identification import MonitorIdentification
 from ._monitor_stream import _emit_line, _run_stream
 from ._options import add, add_report_args, command
 
@@ -149,13 +150,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="samples per push (default: one STFT hop with --rate > 0, five otherwise)",
     )
     _identify.add_identification_args(p)
+    _identify.add_tolerance_args(p)
     p.add_argument(
         "--identification-events",
         choices=("none", "changes", "every-hop"),
         default="none",
-        help="with --events jsonl: an 'identification' event (estimates, intervals, tests of the window "
-        "ending at that hop) whenever the identified hypothesis changes, or at every hop; emitted after "
-        "the monitor's events of the same push (order by sample_time_s). Default none",
+        help="with --events jsonl: an 'identification' event (every parameter's estimate, interval, "
+        "detectable change and state; the fault named, only while an alarm is active) whenever the fault "
+        "named or a state (healthy, fault, not excited) changes, or at every hop; emitted after the "
+        "monitor's events of the same push (order by sample_time_s). Default none",
     )
     add_report_args(p, progress=False, json_help="print one JSON summary on stdout")
 
@@ -208,6 +211,10 @@ def run(args: argparse.Namespace) -> int:
         spec = load_model(args.model)
     for w in caught:
         print(f"chatterspec monitor: warning: {w.message}", file=sys.stderr)
+    if args.tolerance:
+        spec = dataclasses.replace(spec, model=_identify.with_tolerance_args(spec.model, args))
+    pmap = getattr(spec.model, "parameter_map", None)
+    tolerances = pmap is not None and pmap.has_tolerances
     from ..online.monitor import ChatteringMonitor, MonitorSettings  # after the model file: its errors first
     from ..plants.measurement import require_linear_measurement
 
@@ -257,27 +264,64 @@ def run(args: argparse.Namespace) -> int:
             f"(alpha {cal.alpha:g} per frame, {made})",
             file=sys.stderr,
         )
-    settings = _alarm_settings(args, choice, spec.model, settings, cal)
-    print(f"chatterspec monitor: {_alarm_line(settings)}", file=sys.stderr)
     setup, why_not = _identify.setup_or_reason(spec.model, args)
+    if tolerances:
+        if setup is None:
+            raise ParameterError(
+                f"the tolerances of {args.model} are decided on the identified parameters, and this model's "
+                f"cannot be identified: {why_not}"
+            )
+        if args.alpha is not None:
+            raise ParameterError(
+                "--alpha sets the spectral frame rule's per-frame level; with tolerances the decision is "
+                "taken on the identified parameters at a false-alarm budget: give --false-alarms-per-hour"
+            )
+    else:  # with tolerances the spectral detector only reports mismatch: no alarm rule to calibrate
+        settings = _alarm_settings(args, choice, spec.model, settings, cal)
+    decision = None
+    if setup is not None:
+        from ..detection.alarms import make_rule
+        from ..detection.parameter_decision import parameter_alarm_settings
+        from ..errors import IdentifiabilityError
+
+        hop = stft.n_hop(spec.model.dt)
+        X = settings.false_alarms_per_hour or choice.budget
+        try:
+            decision = parameter_alarm_settings(
+                setup,
+                hop_s=hop * spec.model.dt,
+                window_hops=max(1, round(stft.n_window(spec.model.dt) / hop)),
+                rule=make_rule(choice.rule, **choice.parameters),
+                false_alarms_per_hour=X,
+            )
+        except IdentifiabilityError as exc:  # the parameters cannot all be fitted at once
+            if tolerances:
+                raise
+            setup, why_not = None, str(exc)
+    if tolerances and decision is not None and decision.calibration is not None:
+        print(
+            "chatterspec monitor: decision on the identified parameters (tolerances; the spectral detector "
+            f"reports mismatch only): {decision.calibration.describe()}",
+            file=sys.stderr,
+        )
+    else:
+        print(f"chatterspec monitor: {_alarm_line(settings)}", file=sys.stderr)
     if why_not is not None and not args.no_identify:
         print(f"chatterspec monitor: no fault identification: {why_not}", file=sys.stderr)
 
-    def identification(t0: float) -> _identify.MonitorIdentification | None:
-        """Per-hop identification over the STFT window, at the monitor's per-frame alpha."""
-        if setup is None:
+    def identification(t0: float) -> MonitorIdentification | None:
+        """Per-hop identification over the STFT window and the decisions on the parameters."""
+        if setup is None or decision is None:
             return None
-        hop = stft.n_hop(spec.model.dt)
-        return _identify.MonitorIdentification(
-            setup,
-            hop,
-            max(1, round(stft.n_window(spec.model.dt) / hop)),
-            t0,
-            settings.alpha,
-            args.confidence,
-            _emit_line if jsonl and args.identification_events != "none" else None,
+        from ..online.identification_monitor import IdentificationMonitor
+
+        mon = IdentificationMonitor(setup, decision, t0=t0, alpha=settings.alpha, confidence=args.confidence)
+        events = {"none": None, "changes": False, "every-hop": True}[args.identification_events]
+        return MonitorIdentification(
+            mon,
+            _emit_line if jsonl else None,
             lambda text: print(text, file=human, flush=True) if not args.json or jsonl else None,
-            every_hop=args.identification_events == "every-hop",
+            every_hop=events,
         )
 
     if stream:
@@ -310,16 +354,19 @@ def run(args: argparse.Namespace) -> int:
         print(f"chatterspec monitor: {note}", file=sys.stderr)
     shown = len(sinks.notes)
 
+    ident = identification(float(data.t[0]))
+
     def show(ev: DetectionEvent) -> None:
+        if ident is not None:  # the alarm of the fault named; with tolerances a mismatch only
+            ident.note(ev.kind, ev.channel, ev.time_s)
+            if ident.tolerances:
+                return
         sev = StreamEvent.from_detection(ev, time.time())
         if jsonl:
             _emit_line(sev.to_json())
         if not args.json or jsonl:
             print(sev.describe(), file=human, flush=True)
 
-    ident = identification(float(data.t[0]))
-    if ident is not None:
-        ident.alarm_active = lambda: bool(monitor.active.any())
     try:
         summary = run_monitor(
             monitor,
@@ -329,7 +376,7 @@ def run(args: argparse.Namespace) -> int:
             chunk_samples=args.chunk,
             rate=args.rate or None,  # 0: as fast as possible
             on_event=show,
-            identifier=None if ident is None else ident.identifier,
+            identifier=None if ident is None else ident.monitor,
             on_identification=None if ident is None else ident.handle,
         )
     except KeyboardInterrupt:
@@ -405,7 +452,7 @@ def _report_replay(
     jsonl: bool,
     human: TextIO,
     settings: MonitorSettings,
-    ident: _identify.MonitorIdentification | None = None,
+    ident: MonitorIdentification | None = None,
     why_not: str | None = None,
 ) -> None:
     """Print the summary of a file replay (the data held at least one STFT frame: :func:`_replay_data`)."""
@@ -416,18 +463,27 @@ def _report_replay(
             "alarm": alarm_doc(settings),
             **summary.to_dict(),
         }
-        doc["identification"] = {"reason": why_not} if ident is None else ident.to_dict()
+        if ident is None:
+            doc["identification"] = {"reason": why_not}
+        else:
+            ident.into_summary(doc)
         if jsonl:
             _emit_line(dumps({"event": "summary", **doc}, allow_nan=True))
         else:
             print(dumps(doc, indent=2, allow_nan=True))
         return
     n = sum(e.kind == "fault-start" for e in summary.events)
+    rule = _alarm_short(settings)
+    if ident is not None and ident.tolerances:
+        n, rule = ident.starts, ident.rule_short()
     print(
         f"{summary.duration_s:.2f} s of data, {summary.n_frames} frames, {n} fault start(s) "
-        f"[{_alarm_short(settings)}]; {summary.wall_s:.2f} s wall",
+        f"[{rule}]; {summary.wall_s:.2f} s wall",
         file=human,
     )
+    if ident is not None:
+        for line in ident.status_lines():
+            print(f"  {line}", file=human)
     if summary.path is not None and not summary.write_error:
         print(f"recording: {summary.path} (open with `chatterspec replay {summary.path}`)", file=human)
 

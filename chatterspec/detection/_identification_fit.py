@@ -216,12 +216,16 @@ def build_setup(
             "(a model file's [parameters] and [entries] tables, see examples/README.md)"
         )
     pm.check(model)
+    n_declared = len(pm.hypotheses)
     if hypotheses is not None:
         resolved: list[Hypothesis | str | Sequence[str]] = []
         declared = {d.name for d in pm.hypotheses}
         for given in hypotheses:
             resolved.append(pm.hypothesis(given) if isinstance(given, str) and given in declared else given)
         pm = pm.with_hypotheses(resolved)
+        n_declared = len(pm.hypotheses)
+    else:  # the declared hypotheses and every other combination (joint faults named without declaring them)
+        pm = pm.with_hypotheses(pm.combinations())
     hyps = pm.hypotheses
     used = sorted({p for h in hyps for p in h.parameters})
     n, p = model.n_states, model.n_inputs
@@ -259,15 +263,21 @@ def build_setup(
         R=R,
         labels=tuple(labels),
     )
+    keep = []
     for h, hyp in enumerate(hyps):
         G = setup.jacobian(h, setup.nominal(h))
         Gs = G / np.maximum(np.linalg.norm(G, axis=0), 1e-300)
-        if np.linalg.matrix_rank(Gs, tol=1e-8) < len(hyp.parameters):
+        if np.linalg.matrix_rank(Gs, tol=1e-8) == len(hyp.parameters):
+            keep.append(hyp)
+        elif h < n_declared:
             raise IdentifiabilityError(
                 f"hypothesis {hyp.name!r}: parameters {list(hyp.parameters)} change the entries "
                 f"{', '.join(setup.labels)} only through fewer combinations than parameters; they "
                 "cannot be told apart (declare them as separate hypotheses or fix one)"
             )
+        # an added combination that cannot be told apart is not tested
+    if len(keep) < len(hyps):
+        return build_setup(model, keep)
     return setup
 
 
@@ -446,25 +456,36 @@ def _fit_hypothesis(
     scale = np.maximum(np.abs(theta0), 1.0 * (theta0 == 0))
     ok = np.ones(runs, dtype=bool)
     why = np.zeros(runs, dtype=int)
+    # each realization iterates until its own step is below the tolerance (then it is left alone), so
+    # its result does not depend on the others in the batch (a stream cut into other pushes)
+    live = np.arange(runs)
+    step = np.zeros_like(theta)
     for _ in range(60):
-        G = setup.jacobian(h, theta)  # (runs, D, p)
-        g = setup.deviations(h, theta)
-        r = np.einsum("rab,rb->ra", W, dn - np.where(active, g / T, 0.0))
-        Gt = np.einsum("rab,rbk->rak", W, np.where(active[:, :, None], G / T[:, :, None], 0.0))
-        cn = np.linalg.norm(Gt, axis=1)  # (runs, p)
-        lost = ~(cn > 1e-12 * np.maximum(np.linalg.norm(G / T[:, :, None], axis=1), 1e-300))
-        why = np.where(lost.any(axis=1) & ok, 1, why)
-        ok &= ~lost.any(axis=1)
+        th, Wl, Tl, al = theta[live], W[live], T[live], active[live]
+        G = setup.jacobian(h, th)  # (live, D, p)
+        g = setup.deviations(h, th)
+        r = np.einsum("rab,rb->ra", Wl, dn[live] - np.where(al, g / Tl, 0.0))
+        Gt = np.einsum("rab,rbk->rak", Wl, np.where(al[:, :, None], G / Tl[:, :, None], 0.0))
+        cn = np.linalg.norm(Gt, axis=1)  # (live, p)
+        lost = ~(cn > 1e-12 * np.maximum(np.linalg.norm(G / Tl[:, :, None], axis=1), 1e-300))
+        lost_any = lost.any(axis=1)
+        why[live] = np.where(lost_any & ok[live], 1, why[live])
+        ok[live] &= ~lost_any
+        okl = ok[live]
         cn = np.where(cn > 0, cn, 1.0)
         Gs = Gt / cn[:, None, :]
-        N = Gs.transpose(0, 2, 1) @ Gs + np.where(ok, 0.0, 1.0)[:, None, None] * np.eye(theta.shape[1])
-        step = np.linalg.solve(N, np.einsum("rak,ra->rk", Gs, r)[..., None])[..., 0] / cn
-        step = np.where(ok[:, None], step, 0.0)
-        theta = theta + step
-        if np.all(np.abs(step) <= 1e-10 * (np.abs(theta) + 1e-6 * scale)):
+        N = Gs.transpose(0, 2, 1) @ Gs + np.where(okl, 0.0, 1.0)[:, None, None] * np.eye(theta.shape[1])
+        st = np.linalg.solve(N, np.einsum("rak,ra->rk", Gs, r)[..., None])[..., 0] / cn
+        st = np.where(okl[:, None], st, 0.0)
+        theta[live] = th + st
+        step[live] = st
+        done = np.all(np.abs(st) <= 1e-10 * (np.abs(theta[live]) + 1e-6 * scale), axis=1)
+        live = live[~done]
+        if live.size == 0:
             break
     else:
-        bad = np.any(np.abs(step) > 1e-6 * (np.abs(theta) + 1e-6 * scale), axis=1)
+        bad = np.zeros(runs, dtype=bool)
+        bad[live] = np.any(np.abs(step[live]) > 1e-6 * (np.abs(theta[live]) + 1e-6 * scale), axis=1)
         why = np.where(bad & ok, 2, why)
         ok &= ~bad
     G = setup.jacobian(h, theta)

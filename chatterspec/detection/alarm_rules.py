@@ -26,6 +26,7 @@ __all__ = [
     "PersistenceRule",
     "RuleName",
     "RuleSpec",
+    "alarm_label",
     "make_rule",
     "rule_from_dict",
     "rule_names",
@@ -255,6 +256,23 @@ RULES: Mapping[str, RuleSpec] = MappingProxyType(
         ),
     }
 )
+
+
+def alarm_label(rule: str, false_alarms_per_hour: float | None) -> str:
+    """``"cusum rule, 1 false alarm per 24 h"``: the rule and its budget in words.
+
+    Parameters
+    ----------
+    rule : str
+        The rule's name.
+    false_alarms_per_hour : float or None
+        Its budget (alarm starts per hour); None: a per-frame alpha.
+    """
+    if false_alarms_per_hour is None:
+        return f"{rule} rule, per-frame alpha"
+    x = float(false_alarms_per_hour)
+    per = f"1 false alarm per {1 / x:.3g} h" if x < 1 else f"{x:.3g} false alarms per hour"
+    return f"{rule} rule, {per}"
 
 
 def rule_names() -> tuple[str, ...]:

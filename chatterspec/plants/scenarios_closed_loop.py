@@ -128,6 +128,7 @@ def eha_closed_loop_scenario(
     onset_s: float = 0.0,
     position_noise: float = EHA_CL_POSITION_NOISE,
     noise: float = 1.0,
+    duration_s: float = EHA_CL_DURATION,
     **params: Unpack[EHAFault],
 ) -> Scenario:
     """A linear-EHA scenario under ``loop``, with the true plant's parameters ``params`` from ``onset_s``.
@@ -147,6 +148,8 @@ def eha_closed_loop_scenario(
     noise : float
         Multiplier of the measurement-noise covariance ``R = diag(position_noise^2, 1e-6, 1e6)``
         (nominal and true plant).
+    duration_s : float
+        Record length (s; default 4, the catalogue's).
     **params : float
         :func:`~chatterspec.plants.models.eha_linear` parameters of the true plant (``leakage``,
         ``friction``, ``bulk_modulus``).
@@ -157,7 +160,7 @@ def eha_closed_loop_scenario(
     plant = None
     what = ", ".join(f"{k} = {v:.3g}" for k, v in params.items()) or "healthy"
     if params and onset_s > 0:
-        windows = (Segment(onset_s, EHA_CL_DURATION, eha_linear(R=R, **params), what),)
+        windows = (Segment(onset_s, duration_s, eha_linear(R=R, **params), what),)
         what += f" from {onset_s:g} s"
     elif params:
         plant = eha_linear(R=R, **params)
@@ -167,7 +170,7 @@ def eha_closed_loop_scenario(
         plant=plant,
         windows=windows,
         input=loop,
-        duration=EHA_CL_DURATION,
+        duration=duration_s,
         description=f"linear EHA, {what}; PI position loop, reference {loop.reference.describe()}"
         + ("" if loop.dither is None else f", dither {loop.dither.describe()}"),
         family="eha-closed-loop",

@@ -15,7 +15,18 @@ import numpy.typing as npt
 
 from .._validate import finite_array, nonnegative, positive
 
-__all__ = ["Chirp", "Constant", "HeldUniform", "Signal", "Sine", "SquareWave", "Step", "Sum", "ZeroInput"]
+__all__ = [
+    "Chirp",
+    "Constant",
+    "HeldUniform",
+    "Repeat",
+    "Signal",
+    "Sine",
+    "SquareWave",
+    "Step",
+    "Sum",
+    "ZeroInput",
+]
 
 
 @runtime_checkable
@@ -334,6 +345,33 @@ class Sum:
     def describe(self) -> str:
         """A short description for reports and recordings."""
         return " + ".join(s.describe() for s in self.terms)
+
+
+@dataclass(frozen=True)
+class Repeat:
+    """A signal repeated with a period: ``signal.sample(t mod period_s)`` (e.g. the 4 s EHA chirp for hours).
+
+    Attributes
+    ----------
+    signal : Signal
+        The signal over one period.
+    period_s : float
+        The period in s (> 0).
+    """
+
+    signal: Signal
+    period_s: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "period_s", positive("period_s", self.period_s, unit="s"))
+
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
+        return self.signal.sample(np.mod(_nonnegative_times(t), self.period_s))
+
+    def describe(self) -> str:
+        """A short description for reports and recordings."""
+        return f"{self.signal.describe()}, repeated every {self.period_s:g} s"
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,10 @@ method     score (per step)                             step                    
 chattering ``-log p`` of the STFT frame of the auxiliary  one frame (hop, 0.2 s),   the channel
            sgn-SVSF's chattering, per measured channel  known at the frame's end  in alarm
            (:mod:`chatterspec.detection.frame_score`)
+parameters ``-log p`` of "inside its tolerance" of each     one identification        the parameter
+           declared parameter's joint estimate          window (hop), known at    in alarm
+           (:mod:`chatterspec.detection.                its last sample
+           parameter_decision`; tolerances declared)
 smm, imm   log posterior odds of the fault modes         one sample                most probable
            (:func:`~chatterspec.detection.route_scores.  (``dt``)                  fault mode
            mode_log_odds`)
@@ -63,6 +67,7 @@ __all__ = [
     "ChatteringRoute",
     "InnovationRoute",
     "ModeRoute",
+    "ParameterRoute",
     "Route",
     "RouteScores",
     "supported_methods",
@@ -70,7 +75,7 @@ __all__ = [
 ]
 
 #: Every diagnosis method, in table order.
-ALL_METHODS = ("chattering", "smm", "imm", "innovation")
+ALL_METHODS = ("chattering", "smm", "imm", "innovation", "parameters")
 
 #: Samples per filter call of the innovation route (bounds the memory of the EKF's per-run S).
 INNOVATION_BLOCK = 2048
@@ -109,6 +114,13 @@ def unsupported_reason(sc: Scenario, method: str) -> str | None:
             return "a nominal model that measures every state"
         return None
     if method == "innovation":
+        return None
+    if method == "parameters":
+        pm = getattr(sc.nominal, "parameter_map", None)
+        if not getattr(sc.nominal, "full_measurement", False) or pm is None or not sc.is_linear:
+            return "a linear nominal model that measures every state and declares its parameters"
+        if not pm.has_tolerances:
+            return "operating tolerances on its declared parameters (--tolerance NAME=SPEC)"
         return None
     if method in ("smm", "imm"):
         if fs is None or not fs.modes:
@@ -415,5 +427,83 @@ class ChatteringRoute:
         return RouteScores(self.method, times, score, None, time.perf_counter() - t0)
 
 
+class ParameterRoute:
+    """The identified parameters against their tolerances: per hop and parameter ``-log p`` of "the
+    parameter lies inside its band" (:mod:`chatterspec.detection.parameter_decision`).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Its nominal model declares tolerances on its parameters (and measures every state).
+    config : STFTConfig, optional
+        Hop and window of the identification (default 1 s window, 0.2 s hop: the monitor's).
+    """
+
+    method = "parameters"
+
+    def __init__(self, scenario: Any, config: Any = None) -> None:
+        from ..detection.identification import identification_setup
+        from ..detection.parameter_scores import ParameterBands
+        from ..detection.spectral import STFTConfig
+
+        why = unsupported_reason(scenario, "parameters")
+        if why is not None:
+            raise ParameterError(f"scenario {scenario.name!r} does not support 'parameters' (it needs {why})")
+        self.scenario = scenario
+        self.config = STFTConfig() if config is None else config
+        model = scenario.nominal
+        self.setup = identification_setup(model, [list(model.parameter_map.parameter_names)])
+        self.bands = ParameterBands.from_map(model.parameter_map)
+        self.labels = self.channels = self.bands.names
+        self.H = self.config.n_hop(model.dt)
+        self.n = max(1, round(self.config.n_window(model.dt) / self.H))
+        self.step_s = float(self.H * model.dt)
+
+    def _known(self, t: np.ndarray) -> np.ndarray:
+        """When each window's score is known (s): its last chattering sample ``e(k+1)``, ``k = j H + n H``."""
+        W = (t.size - 2) // self.H - self.n + 1
+        return t[np.arange(max(W, 0)) * self.H + self.n * self.H + 1]
+
+    def step_times(self) -> np.ndarray:
+        """When each window's score is known (s)."""
+        return self._known(self.scenario.time)
+
+    def own_calibration(self, rule: Any, budget: float, seed: int, confidence: float) -> Any:
+        """The monitor's threshold: the rule on worst-case streams (parameters on their band edges), not
+        on healthy runs, whose parameters sit at the nominal values inside the bands (a threshold set on
+        them would alarm on a plant that moved within its tolerance)."""
+        from ..detection.parameter_scores import calibrate_parameter_rule
+
+        per_hour = 3600.0 / self.step_s
+        return calibrate_parameter_rule(rule, self.bands, self.n, per_hour, budget, seed=int(seed))
+
+    def rule_parameters(self, rule: str) -> dict[str, float]:
+        """The layer's defaults (its CUSUM drift is set for ``-log p``)."""
+        return {}
+
+    def describe(self) -> dict[str, Any]:
+        """A short description for reports and recordings."""
+        b = self.bands
+        return {
+            "score": "-log p of each parameter's joint estimate inside its tolerance band",
+            "tolerances": {p: (t or None) for p, t in zip(b.names, b.tolerances, strict=True)},
+            "window_s": self.n * self.step_s,
+        }
+
+    def scores(self, sim: Any) -> RouteScores:
+        """Score stream of one chunk: window end times, ``(runs, windows, P)``, label None (the parameter)."""
+        from ..detection.identification import identify_moments
+        from ..detection.identification_online import hop_windows
+        from ..detection.parameter_scores import band_scores, joint_estimates
+
+        t0 = time.perf_counter()
+        runs = sim.z.shape[0]
+        _, _, mom = hop_windows(self.setup, sim.z, sim.u, hop_samples=self.H, window_hops=self.n, t0=sim.t[0])
+        theta, se, fits = joint_estimates(identify_moments(self.setup, mom))
+        se = np.where(fits[:, None], se, np.nan)  # a window the parameters do not describe: no evidence
+        score = band_scores(theta, se, self.bands.low, self.bands.high).reshape(runs, -1, self.bands.size)
+        return RouteScores(self.method, self._known(sim.t), score, None, time.perf_counter() - t0)
+
+
 #: A diagnosis route: the per-frame score of one method.
-Route: TypeAlias = ModeRoute | InnovationRoute | ChatteringRoute
+Route: TypeAlias = ModeRoute | InnovationRoute | ChatteringRoute | ParameterRoute

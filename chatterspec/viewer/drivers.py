@@ -18,8 +18,8 @@ from .sinks import Sinks, default_recording_path, file_error, open_sinks
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from ..detection.identification_online import OnlineIdentification, OnlineIdentifier
     from ..detection.pipeline import ChatteringRecord
+    from ..online.identification_monitor import IdentificationMonitor, IdentificationUpdate
     from ..plants.scenario_types import Scenario
     from ..plants.simulate import Simulation
 
@@ -106,8 +106,8 @@ def run_monitor(
     scroll_frames: int = 50,
     on_event: Callable[[DetectionEvent], None] | None = None,
     band_hz: tuple[float, float] | None = None,
-    identifier: OnlineIdentifier | None = None,
-    on_identification: Callable[[OnlineIdentification], None] | None = None,
+    identifier: IdentificationMonitor | None = None,
+    on_identification: Callable[[IdentificationUpdate], None] | None = None,
 ) -> RecordingSummary:
     """Drive ``monitor`` over raw data (``z`` (T, m), ``u`` (T, p)) or precomputed ``chattering`` (N, m)
     and log everything to ``sinks``; closes the sinks at the end (also on Ctrl-C).
@@ -135,12 +135,12 @@ def run_monitor(
         Called with each :class:`~chatterspec.online.monitor.DetectionEvent` (e.g. to print it).
     band_hz : (float, float), optional
         Spectrogram band (Hz); default :func:`~chatterspec.viewer.rerun_log.default_band_hz`.
-    identifier : OnlineIdentifier, optional
-        Fault identification per hop on the same raw pushes
-        (:class:`~chatterspec.detection.identification_online.OnlineIdentifier`), logged to the
-        sinks (:mod:`chatterspec.viewer.identification_log`); raw data only.
+    identifier : IdentificationMonitor, optional
+        Fault identification and the decisions on the identified parameters per hop on the same raw
+        pushes (:class:`~chatterspec.online.identification_monitor.IdentificationMonitor`), logged to
+        the sinks (:mod:`chatterspec.viewer.identification_log`); raw data only.
     on_identification : callable, optional
-        Called with each push's :class:`~chatterspec.detection.identification_online.OnlineIdentification`.
+        Called with each push's :class:`~chatterspec.online.identification_monitor.IdentificationUpdate`.
 
     Returns
     -------
@@ -167,7 +167,7 @@ def run_monitor(
         if identifier is not None and sinks.streams:
             from .identification_log import IdentificationLog, identification_views
 
-            views = identification_views(identifier.setup, identifier.confidence)
+            views = identification_views(identifier)
         logger = (
             RerunLogger(
                 sinks,
@@ -177,6 +177,8 @@ def run_monitor(
                 band_hz=band_hz,
                 span_s=record_span(monitor, total, raw=chattering is None),
                 extra_row=views,
+                extra_lanes=0 if identifier is None or views is None else len(identifier.parameters),
+                verdict="mismatch" if identifier is not None and identifier.tolerances else "FAULT",
             )
             if sinks.streams
             else None
@@ -184,7 +186,7 @@ def run_monitor(
         ident_log = None
         if views is not None:
             assert identifier is not None  # (views: made for it)
-            ident_log = IdentificationLog(sinks, identifier.setup)
+            ident_log = IdentificationLog(sinks, identifier)
         for lo, hi in _chunks(total, size):
             if chattering is not None:
                 upd = monitor.push_chattering(chattering[lo:hi])

@@ -57,9 +57,9 @@ from typing import Any
 
 import numpy as np
 
+from ..detection.alarm_rules import alarm_label
 from ..errors import DataFileError
 from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorSettings, MonitorUpdate
-from ..online.monitor_types import alarm_label
 from ..online.stream import BadRow, CsvRows, Restart, RowBlock
 from ..online.stream_checks import (
     LatencyStats,

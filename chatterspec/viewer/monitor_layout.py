@@ -125,7 +125,7 @@ class MonitorLayout:
 
     def alarm_title(self) -> str:
         """The alarm view's title: the rule's statistic against its threshold, and the budget."""
-        from ..online.monitor_types import alarm_label
+        from ..detection.alarm_rules import alarm_label
 
         rule, budget = self.monitor.rule, self.monitor.settings.false_alarms_per_hour
         what = {"cusum": "CUSUM g", "persistence": f"score ({rule.name} {getattr(rule, 'k', '')} of "

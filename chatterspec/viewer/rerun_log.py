@@ -96,6 +96,9 @@ class RerunLogger:
         :meth:`layout` ``above=``): they set the spectrogram image's aspect ratio.
     peak_view : bool
         The layout shows the peak-frequency views (see :func:`~chatterspec.viewer.blueprint.blueprint`).
+    verdict : str
+        Label of a channel lane's flagged state: ``"FAULT"``, or ``"mismatch"`` when the fault decision is
+        taken on the identified parameters (tolerances; their own lanes say fault).
     """
 
     def __init__(
@@ -116,6 +119,7 @@ class RerunLogger:
         extra_lanes: int = 0,
         rows_above: int = 0,
         peak_view: bool = True,
+        verdict: str = "FAULT",
     ) -> None:
         import pyarrow as pa
         import rerun as rr
@@ -150,6 +154,7 @@ class RerunLogger:
         )
         self.band_hz, self.hop_s = self.images.band_hz, self.images.hop_s
         self.psi = monitor.settings.psi
+        self._verdict = verdict
         # a file's lanes: the record's interval estimates, drawn on close (interval_lanes)
         self._collector = IntervalCollector(monitor) if sinks.file_stream is not None else None
         # the per-stream batches of everything time-indexed (column_batches)
@@ -223,6 +228,7 @@ class RerunLogger:
             width=self._layout.width,
             key=self._layout.key,
             cusum=self._layout.cusum,
+            verdict=self._verdict,
         )
         if truth:
             self._batches.origin_ns = int(to_ns(truth[0][0]))

@@ -25,11 +25,15 @@ Identifiability (goes beyond the papers)
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ...errors import IdentifiabilityError
 from ...plants.models import LinearModel
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ...detection.identification import IdentificationMoments, IdentificationSetup
 
 __all__ = ["MAX_RELATIVE_SE", "FittedParameter", "ParameterFit", "excitation_band", "fit_parameters"]
 
@@ -245,27 +249,35 @@ def _information(G: np.ndarray, V: np.ndarray, active: np.ndarray) -> np.ndarray
     return W.T @ W
 
 
-def _regressor_names(setup: object, model: LinearModel) -> list[str]:
-    J, L = setup.J, setup.L  # type: ignore[attr-defined]
+def _regressor_names(setup: IdentificationSetup, model: LinearModel) -> list[str]:
+    J, L = setup.J, setup.L
     return [model.output_names[j] for j in J] + [f"input {model.input_names[l_]}" for l_ in L]
 
 
-def _signal_to_noise(setup: object, mom: object, model: LinearModel) -> np.ndarray:
+def _signal_to_noise(
+    setup: IdentificationSetup, mom: IdentificationMoments, model: LinearModel
+) -> np.ndarray:
     """Per regressor: its mean square over the span divided by its measurement noise's (inf for inputs)."""
-    n = mom.n_samples  # type: ignore[attr-defined]
-    ms = np.diag(mom.s0[0]) / max(n, 1)  # type: ignore[attr-defined]
-    r = np.concatenate([np.diag(model.R)[setup.J], np.zeros(setup.L.size)])  # type: ignore[attr-defined]
+    n = mom.n_samples
+    ms = np.diag(mom.s0[0]) / max(n, 1)
+    r = np.concatenate([np.diag(model.R)[setup.J], np.zeros(setup.L.size)])
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(r > 0, ms / np.where(r > 0, r, 1.0), np.where(ms > 0, np.inf, 0.0))
 
 
-def _parameter_regressors(setup: object, names: list[str], which: int) -> np.ndarray:
+def _parameter_regressors(setup: IdentificationSetup, names: list[str], which: int) -> np.ndarray:
     """Regressor columns of the entries parameter ``names[which]`` moves."""
-    touched = np.abs(setup.slopes[0][:, which]) > 0  # type: ignore[attr-defined]
-    return np.unique(setup.cols[touched])  # type: ignore[attr-defined]
+    touched = np.abs(setup.slopes[0][:, which]) > 0
+    return np.unique(setup.cols[touched])
 
 
-def _unexcited(setup: object, fit: dict, mom: object, names: list[str], model: LinearModel) -> str:
+def _unexcited(
+    setup: IdentificationSetup,
+    fit: dict[str, Any],
+    mom: IdentificationMoments,
+    names: list[str],
+    model: LinearModel,
+) -> str:
     """The message of a joint fit that has no estimate: which parameter, which regressor, what to do."""
     reasons = fit["entry_reason"][0]
     regs = _regressor_names(setup, model)
@@ -273,15 +285,15 @@ def _unexcited(setup: object, fit: dict, mom: object, names: list[str], model: L
     parts = []
     for i, name in enumerate(names):
         cols = _parameter_regressors(setup, names, i)
-        bad = [c for c in cols if np.any(reasons[setup.cols == c] != 0)]  # type: ignore[attr-defined]
+        bad = [c for c in cols if np.any(reasons[setup.cols == c] != 0)]
         if not bad or len(bad) < len(cols):
             continue
         why = []
         for c in bad:
-            code = int(np.max(reasons[setup.cols == c]))  # type: ignore[attr-defined]
+            code = int(np.max(reasons[setup.cols == c]))
             if code == 2:
                 why.append(f"{regs[c]} moves only together with the other regressors (collinear)")
-            elif c >= setup.J.size:  # type: ignore[attr-defined]
+            elif c >= setup.J.size:
                 why.append(f"the {regs[c]} is zero over the fit span")
             else:
                 why.append(
@@ -295,8 +307,8 @@ def _unexcited(setup: object, fit: dict, mom: object, names: list[str], model: L
 
 def _too_weak(
     model: LinearModel,
-    setup: object,
-    mom: object,
+    setup: IdentificationSetup,
+    mom: IdentificationMoments,
     names: list[str],
     v: np.ndarray,
     worst: float,
