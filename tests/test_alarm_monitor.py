@@ -18,7 +18,7 @@ from chatterspec.detection.spectral import chattering_autocovariance, frame_colu
 from chatterspec.errors import CalibrationMismatchError, ParameterError
 from chatterspec.jsonout import rounded
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
-from chatterspec.online.stream import simulate_blocks
+from chatterspec.online.simulated_stream import simulate_blocks
 from chatterspec.plants.scenarios import scenario
 from chatterspec.plants.simulate import simulate
 from chatterspec.studies.alarm_budget import alarm_settings, calibrate_alarm, healthy_chattering

@@ -7,7 +7,7 @@ frame by frame with the independent batch path (``stft_detect`` on the whole rec
 and the lanes' changes with its window-extent intervals (the numbers of ``detect
 --json`` and Fig 8). Exact comparisons: the online frames equal the batch frames by
 construction (same kernel, same frame grid), and every time in the file is the
-rounded integer ns of :func:`rerun_log.to_ns`.
+rounded integer ns of :func:`record_geometry.to_ns`.
 """
 
 from __future__ import annotations
@@ -19,14 +19,14 @@ import pytest
 
 import chatterspec as cs
 from chatterspec.cli.demo import DEMO_SCENARIOS
-from chatterspec.detection.detect import stft_detect
+from chatterspec.detection.frames import stft_detect
 from chatterspec.detection.pipeline import chattering_record
 from chatterspec.plants.scenarios import scenario
 
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
-from chatterspec.viewer import blueprint, drivers, rerun_log  # noqa: E402
+from chatterspec.viewer import blueprint, drivers, record_geometry  # noqa: E402
 
 
 @pytest.fixture(autouse=True)
@@ -49,8 +49,8 @@ def _read(reader: RrdReader, entity: str, column: str) -> tuple[np.ndarray, list
 
 def test_to_ns_rounds() -> None:
     # the truncating float path gives 500499999 for 0.5005 s; the recording's rule rounds
-    assert int(rerun_log.to_ns(0.5005)) == 500_500_000
-    np.testing.assert_array_equal(rerun_log.to_ns([0.0, 2.5005, 1e-9 * 0.6]), [0, 2_500_500_000, 1])
+    assert int(record_geometry.to_ns(0.5005)) == 500_500_000
+    np.testing.assert_array_equal(record_geometry.to_ns([0.0, 2.5005, 1e-9 * 0.6]), [0, 2_500_500_000, 1])
 
 
 @pytest.mark.parametrize("name", DEMO_SCENARIOS)
@@ -65,9 +65,9 @@ def test_lanes_match_events_and_batch_verdicts(tmp_path: Path, name: str) -> Non
     rec = chattering_record(sc.nominal, sim.z, sim.u, scenario=sc)
     found = stft_detect(rec.values[:1], rec.model, t0=float(rec.t[0]))
     spec, flags = found.spectrogram, found.flags[0]
-    frame_ns = rerun_log.to_ns(spec.times_s)
+    frame_ns = record_geometry.to_ns(spec.times_s)
     half_win = (spec.config.n_window(rec.dt) - 1) * rec.dt / 2.0
-    start_ns = int(rerun_log.to_ns(spec.times_s[0] - half_win))  # the first window's first sample
+    start_ns = int(record_geometry.to_ns(spec.times_s[0] - half_win))  # the first window's first sample
 
     reader = RrdReader(path)
     assert "/spectrum/" in reader.store().summary()  # footer written: the file is complete
@@ -87,9 +87,9 @@ def test_lanes_match_events_and_batch_verdicts(tmp_path: Path, name: str) -> Non
         ivs = [iv for iv in found.intervals[channel] if iv[1] > iv[0]]
         want_t = [t for iv in ivs for t in iv]
         want_s = ["fault", "healthy"] * len(ivs)
-        if not ivs or rerun_log.to_ns(ivs[0][0]) > start_ns:
+        if not ivs or record_geometry.to_ns(ivs[0][0]) > start_ns:
             want_t, want_s = [spec.times_s[0] - half_win, *want_t], ["healthy", *want_s]
-        np.testing.assert_array_equal(t_lane, rerun_log.to_ns(want_t), err_msg=f"{name}: {channel}")
+        np.testing.assert_array_equal(t_lane, record_geometry.to_ns(want_t), err_msg=f"{name}: {channel}")
         assert states == want_s, (name, channel)
         # nothing is painted before the record's first window; no two changes at one time
         assert t_lane[0] == start_ns
@@ -100,14 +100,14 @@ def test_lanes_match_events_and_batch_verdicts(tmp_path: Path, name: str) -> Non
     t_ev, texts = _read(reader, "/events", "TextLog:text")
     n_iv = sum(len(v) for k, v in found.intervals.items() if k != "any")
     assert len(texts) == len(summary.events) + n_iv
-    alarm_ns = rerun_log.to_ns([ev.time_s + half_win for ev in summary.events])
+    alarm_ns = record_geometry.to_ns([ev.time_s + half_win for ev in summary.events])
     assert set(alarm_ns) <= set(t_ev.tolist())
     assert n_drawn <= n_iv
     # the truth lane: one change per segment of the scenario, at its start
     t_truth, truth = _read(reader, blueprint.TRUTH_LANE, "StateChange:state")
     expected = drivers.scenario_truth(sc)
     assert [s[0] for s in truth] == [lab for _, lab, _ in expected]
-    np.testing.assert_array_equal(t_truth, rerun_log.to_ns([start for start, _, _ in expected]))
+    np.testing.assert_array_equal(t_truth, record_geometry.to_ns([start for start, _, _ in expected]))
 
 
 def test_cli_lanes_equal_json_intervals(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -125,8 +125,8 @@ def test_cli_lanes_equal_json_intervals(tmp_path: Path, capsys: pytest.CaptureFi
     reader = RrdReader(path)
     t_lane, raw = _read(reader, blueprint.lane_entity(1, "velocity"), "StateChange:state")
     assert [s[0] for s in raw] == ["fault", "healthy", "fault", "healthy"]
-    np.testing.assert_array_equal(t_lane, rerun_log.to_ns([t for iv in ivs for t in iv]))
+    np.testing.assert_array_equal(t_lane, record_geometry.to_ns([t for iv in ivs for t in iv]))
     t_ev, texts = _read(reader, "/events", "TextLog:text")
     for a, b in ivs:  # one interval event at each onset, with the same numbers
-        k = int(np.flatnonzero(t_ev == rerun_log.to_ns(a))[0])
+        k = int(np.flatnonzero(t_ev == record_geometry.to_ns(a))[0])
         assert f"fault {a:.2f}-{b:.2f} s" in texts[k][0]

@@ -13,11 +13,7 @@ from typing import Any
 from ..errors import ParameterError
 from ._alarm_args import add_alarm_args, alarm_choice, positive_number
 from ._common import Outputs, check_figure_path, check_output_path, parsed_arg, report, write_plot
-from ._options import add, add_name, add_study_args, command, study_execution, study_keywords
-
-#: The former names of the study options and their execution keywords (now in :mod:`._options`).
-add_common = add_study_args
-execution = study_execution
+from ._options import add, add_name, add_study_args, command, study_keywords
 
 
 def register(sub: argparse._SubParsersAction) -> None:

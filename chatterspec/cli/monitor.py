@@ -178,7 +178,8 @@ def _stream_mode(args: argparse.Namespace) -> bool:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec monitor`` with the parsed ``args``; returns the exit status."""
-    from ..plants.modelfile import load_data, load_model
+    from ..plants.datafile import load_data
+    from ..plants.modelfile import load_model
 
     if args.rate is not None and not args.rate > 0:
         raise ParameterError(f"--rate must be > 0 (1.0 = real time); got {args.rate}")

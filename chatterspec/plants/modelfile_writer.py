@@ -182,8 +182,8 @@ def _function_refs(model: Any) -> tuple[str, str, str | None, str, dict[str, flo
     from functools import partial
 
     from .eha4 import eha4_transition
+    from .euler import EulerJacobian, EulerStep
     from .modelfile_nonlinear import ModelFunction
-    from .nonlinear import _EulerJacobian, _EulerStep
 
     f, jac = model.f, model.jac
     if isinstance(f, partial) and f.func is eha4_transition:
@@ -196,7 +196,7 @@ def _function_refs(model: Any) -> tuple[str, str, str | None, str, dict[str, flo
             dict(model.parameters),
         )
     form = "discrete"
-    if isinstance(f, _EulerStep) and isinstance(jac, _EulerJacobian):
+    if isinstance(f, EulerStep) and isinstance(jac, EulerJacobian):
         f, jac, form = f.g, jac.g_jac, "continuous"
     if isinstance(f, ModelFunction) and isinstance(jac, ModelFunction):
 

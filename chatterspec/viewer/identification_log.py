@@ -24,7 +24,7 @@ from ..detection.identification_online import OnlineIdentification
 from ..detection.identification_results import format_with_error
 from ..plants.parameters import NO_FAULT
 from .arrow_columns import _TimeIndex
-from .rerun_log import to_ns
+from .record_geometry import to_ns
 from .sinks import Sinks
 
 __all__ = ["IDENTIFICATION", "IdentificationLog", "identification_views"]
