@@ -26,12 +26,15 @@ SOURCE = Path(chatterspec.__file__).resolve().parents[1]
 HEAVY = ("scipy.signal", "scipy.stats", "scipy.linalg", "numba", "rerun", "matplotlib")
 
 
-def _loaded_after(code: str) -> dict[str, bool]:
-    """Which HEAVY modules a fresh interpreter has imported after running ``code``."""
+def _loaded_after(code: str, stdin: Path | None = None) -> dict[str, bool]:
+    """Which HEAVY modules a fresh interpreter has imported after running ``code`` (``stdin``: its input)."""
     probe = f"import sys, json\n{code}\nprint(json.dumps({{m: m in sys.modules for m in {HEAVY!r}}}))"
     env = {**os.environ, "PYTHONPATH": str(SOURCE)}
     cmd = [sys.executable, "-c", probe]
-    out = subprocess.run(cmd, capture_output=True, text=True, cwd=tempfile.gettempdir(), env=env, check=True)
+    with open(stdin if stdin is not None else os.devnull, "rb") as source:
+        out = subprocess.run(
+            cmd, stdin=source, capture_output=True, text=True, cwd=tempfile.gettempdir(), env=env, check=True
+        )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -59,16 +62,59 @@ def test_listing_and_argument_errors_import_no_heavy_module(argv: list[str]) -> 
     assert not any(loaded.values()), {m: v for m, v in loaded.items() if v}
 
 
-def test_the_monitor_replay_needs_neither_scipy_signal_nor_scipy_stats() -> None:
+def test_help_imports_no_numpy() -> None:
+    """``chatterspec --help`` and every ``chatterspec COMMAND --help`` build the parser only: no numpy.
+
+    One interpreter runs them all in turn and names the first whose help loaded numpy (or anything
+    heavier), so a failure says which command's parser imports too much.
+    """
+    from chatterspec.cli import COMMANDS
+
+    calls = [["--help"], *([name, "--help"] for name in COMMANDS)]
+    code = (
+        "import contextlib, io\nfrom chatterspec.cli import main\nfirst = None\n"
+        f"for argv in {calls!r}:\n"
+        "    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):\n"
+        "        try:\n            main(argv)\n        except SystemExit:\n            pass\n"
+        f"    if first is None and any(m in sys.modules for m in ('numpy', *{HEAVY!r})):\n"
+        "        first = argv\n"
+        "print(first)"
+    )
+    probe = f"import sys\n{code}"
+    env = {**os.environ, "PYTHONPATH": str(SOURCE)}
+    out = subprocess.run(
+        [sys.executable, "-c", probe],
+        capture_output=True,
+        text=True,
+        cwd=tempfile.gettempdir(),
+        env=env,
+        check=True,
+    )
+    assert out.stdout.strip().splitlines()[-1] == "None", f"numpy loaded by chatterspec {out.stdout.strip()}"
+
+
+def test_the_monitor_replay_needs_neither_scipy_signal_nor_scipy_stats_nor_rerun() -> None:
+    """A replay without ``--record`` / ``--live`` opens no recording: Rerun is not imported either."""
     model = ROOT / "examples" / "eha_model.toml"
     data = ROOT / "examples" / "eha_data.csv"
     loaded = _loaded_after(_cli(["monitor", "--model", str(model), "--data", str(data)]))
     assert not loaded["scipy.signal"] and not loaded["scipy.stats"]
+    assert not loaded["rerun"]
+
+
+def test_a_monitored_stream_without_record_or_live_does_not_import_rerun() -> None:
+    # the stream path (--data -, rows from standard input) opens its sinks elsewhere than the file path
+    model = ROOT / "examples" / "eha_model.toml"
+    data = ROOT / "examples" / "eha_data.csv"
+    loaded = _loaded_after(
+        _cli(["monitor", "--model", str(model), "--data", "-", "--rule", "frame"]), stdin=data
+    )
+    assert not loaded["rerun"]
 
 
 @pytest.mark.parametrize("name", ["hamming", "hann"])
 def test_native_tapers_equal_scipy_bit_for_bit(name: str) -> None:
-    from chatterspec.detection._windows import get_window
+    from chatterspec._windows import get_window
 
     for n in [*range(1, 130), 250, 999, 1000, 1001, 2000, 4096, 10_000]:
         np.testing.assert_array_equal(get_window(name, n), scipy.signal.get_window(name, n), err_msg=str(n))
