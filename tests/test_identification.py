@@ -179,6 +179,26 @@ def test_report_table_and_json() -> None:
     assert "<- selected" in rep.table() and "leakage" in repr(rep)
 
 
+@pytest.mark.parametrize("confidence", [0.95, 0.8])
+def test_report_intervals_are_the_wald_intervals_at_the_confidence(confidence: float) -> None:
+    """The report (``detect --json``, the monitor's lines) gives each estimate +- the two-sided normal
+    quantile times its standard error, the same numbers as :meth:`Identification.interval` (a 90 %
+    quantile, 1.645, under a 95 % label would be a narrower interval than promised)."""
+    sc = scenario("eha-leak-major")
+    sim = simulate(sc, 1, 0)
+    idn = identify(sc.nominal, sim.z, sim.u, confidence=confidence)
+    rep = idn.report(0)
+    z = stats.norm.ppf(0.5 + confidence / 2)
+    finite = [e for e in rep.estimates if np.isfinite(e.estimate)]
+    assert finite
+    for e in finite:
+        assert e.confidence == confidence
+        assert e.ci_low == pytest.approx(e.estimate - z * e.std_error, rel=1e-12)
+        assert e.ci_high == pytest.approx(e.estimate + z * e.std_error, rel=1e-12)
+        lo, hi = idn.interval(e.hypothesis, e.parameter)
+        assert (e.ci_low, e.ci_high) == pytest.approx((lo[0], hi[0]), rel=1e-12)
+
+
 # --------------------------------------------------------------------------- bad input
 def test_reduced_order_measurement_says_what_cannot_be_identified() -> None:
     model = scenario("so-boundary-layer").nominal
