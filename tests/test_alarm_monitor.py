@@ -87,6 +87,25 @@ def test_frame_rule_at_minus_log_alpha_is_the_per_frame_rule(onset):
     assert [e[:3] for e in legacy] == [e[:3] for e in new] and legacy
 
 
+def test_alpha_only_events_report_the_per_frame_threshold(onset):
+    """Without a rule (the API default) the events come from the per-frame verdict at ``alpha``; they and
+    the monitor report its threshold on the score ``-ln p`` (nats): ``h = -ln(alpha)``, the level at
+    which the flags are exactly the frames with ``score >= h`` (frame_score; up to 1e-10 relative)."""
+    model = onset.scenario.nominal
+    alpha = 1e-3
+    mon = ChatteringMonitor(model, MonitorSettings(alpha=alpha))
+    upd = mon.push(onset.z[0], onset.u)
+    h = -math.log(alpha)
+    assert mon.rule.threshold == pytest.approx(h, rel=1e-15)
+    assert upd.events and all(e.threshold == mon.rule.threshold for e in upd.events)
+    score, flags = upd.frames.score, upd.frames.flags
+    clear = ~np.isclose(score, h, rtol=1e-10, atol=0.0)
+    np.testing.assert_array_equal(flags[clear], score[clear] >= h)
+    # frames between -log10(alpha) and -ln(alpha) are there and unflagged: the threshold is in nats
+    between = (score > -math.log10(alpha)) & (score < h)
+    assert between.any() and not flags[between].any()
+
+
 def test_paths_give_the_same_alarms(onset, monkeypatch):
     model = onset.scenario.nominal
     settings = MonitorSettings(rule=PersistenceRule(5.0, k=2, n=4), psi=(4.2e-3, 4.8e-3, 4.3e3))
