@@ -38,7 +38,8 @@ _GROUPS: dict[str, dict[str, str]] = {
         **dict.fromkeys(("LinearModel", "discretize", "eha_linear", "second_order"), ".plants.models"),
         "NonlinearModel": ".plants.nonlinear",
         "eha4": ".plants.eha4",
-        **dict.fromkeys(("load_model", "write_model_toml"), ".plants.modelfile"),
+        "load_model": ".plants.modelfile",
+        "write_model_toml": ".plants.modelfile_writer",
         "load_data": ".plants.datafile",
     },
     "scenarios": {
@@ -54,7 +55,9 @@ _GROUPS: dict[str, dict[str, str]] = {
         **dict.fromkeys(("KalmanFilter", "ExtendedKalmanFilter"), ".filters.kalman"),
         "SVSFCov": ".filters.svsf_cov",
         "SecondOrderSVSF": ".filters.svsf2",
-        **dict.fromkeys(("IMM", "SMMSVSF", "MultipleModelOutput"), ".filters.multiple_model"),
+        "IMM": ".filters.imm",
+        "SMMSVSF": ".filters.smm_svsf",
+        "MultipleModelOutput": ".filters.bank_common",
         **dict.fromkeys(("FilterOutput", "FilterState"), ".filters.protocol"),
         **dict.fromkeys(("SVSF", "SVSFOutput", "auxiliary_svsf"), ".filters.svsf"),
     },
@@ -141,9 +144,11 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .detection.pipeline import ChatteringRecord, chattering_record
     from .detection.spectral import STFTConfig, periodogram, spectrogram
     from .detection.thresholds import Threshold, threshold
+    from .filters.bank_common import MultipleModelOutput
+    from .filters.imm import IMM
     from .filters.kalman import ExtendedKalmanFilter, KalmanFilter
-    from .filters.multiple_model import IMM, SMMSVSF, MultipleModelOutput
     from .filters.protocol import FilterOutput, FilterState
+    from .filters.smm_svsf import SMMSVSF
     from .filters.svsf import SVSF, SVSFOutput, auxiliary_svsf, boundary_layer_chattering, chattering
     from .filters.svsf2 import SecondOrderSVSF
     from .filters.svsf_cov import SVSFCov
@@ -151,7 +156,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .online.recorded_calibration import calibrate_recorded
     from .plants.datafile import load_data
     from .plants.eha4 import eha4
-    from .plants.modelfile import load_model, write_model_toml
+    from .plants.modelfile import load_model
+    from .plants.modelfile_writer import write_model_toml
     from .plants.models import LinearModel, discretize, eha_linear, second_order
     from .plants.nonlinear import NonlinearModel
     from .plants.scenarios import Scenario, Segment, catalogue, scenario, scenario_names

@@ -18,7 +18,7 @@ from chatterspec.detection.spectral import chattering_autocovariance, frame_colu
 from chatterspec.errors import CalibrationMismatchError, ParameterError
 from chatterspec.jsonout import rounded
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
-from chatterspec.online.stream import simulate_blocks
+from chatterspec.online.simulated_stream import simulate_blocks
 from chatterspec.plants.scenarios import scenario
 from chatterspec.plants.simulate import simulate
 from chatterspec.studies.alarm_budget import alarm_settings, calibrate_alarm, healthy_chattering
@@ -85,6 +85,25 @@ def test_frame_rule_at_minus_log_alpha_is_the_per_frame_rule(onset):
     rule = FrameRule(-math.log(1e-3))
     new = _events(ChatteringMonitor(model, MonitorSettings(rule=rule)), onset, [onset.z.shape[1]])
     assert [e[:3] for e in legacy] == [e[:3] for e in new] and legacy
+
+
+def test_alpha_only_events_report_the_per_frame_threshold(onset):
+    """Without a rule (the API default) the events come from the per-frame verdict at ``alpha``; they and
+    the monitor report its threshold on the score ``-ln p`` (nats): ``h = -ln(alpha)``, the level at
+    which the flags are exactly the frames with ``score >= h`` (frame_score; up to 1e-10 relative)."""
+    model = onset.scenario.nominal
+    alpha = 1e-3
+    mon = ChatteringMonitor(model, MonitorSettings(alpha=alpha))
+    upd = mon.push(onset.z[0], onset.u)
+    h = -math.log(alpha)
+    assert mon.rule.threshold == pytest.approx(h, rel=1e-15)
+    assert upd.events and all(e.threshold == mon.rule.threshold for e in upd.events)
+    score, flags = upd.frames.score, upd.frames.flags
+    clear = ~np.isclose(score, h, rtol=1e-10, atol=0.0)
+    np.testing.assert_array_equal(flags[clear], score[clear] >= h)
+    # frames between -log10(alpha) and -ln(alpha) are there and unflagged: the threshold is in nats
+    between = (score > -math.log10(alpha)) & (score < h)
+    assert between.any() and not flags[between].any()
 
 
 def test_paths_give_the_same_alarms(onset, monkeypatch):

@@ -72,7 +72,7 @@ def _record(plant: cs.LinearModel, seconds: float, seed: int, windows: tuple = (
 
 
 def _csv(path: Path, t: np.ndarray, z: np.ndarray, u: np.ndarray) -> Path:
-    from chatterspec.online.stream import csv_header, csv_lines
+    from chatterspec.online.simulated_stream import csv_header, csv_lines
 
     model = cs.scenario("eha-healthy").nominal
     path.write_text(csv_header(model) + "\n" + csv_lines(t, z, u))

@@ -179,6 +179,26 @@ def test_report_table_and_json() -> None:
     assert "<- selected" in rep.table() and "leakage" in repr(rep)
 
 
+@pytest.mark.parametrize("confidence", [0.95, 0.8])
+def test_report_intervals_are_the_wald_intervals_at_the_confidence(confidence: float) -> None:
+    """The report (``detect --json``, the monitor's lines) gives each estimate +- the two-sided normal
+    quantile times its standard error, the same numbers as :meth:`Identification.interval` (a 90 %
+    quantile, 1.645, under a 95 % label would be a narrower interval than promised)."""
+    sc = scenario("eha-leak-major")
+    sim = simulate(sc, 1, 0)
+    idn = identify(sc.nominal, sim.z, sim.u, confidence=confidence)
+    rep = idn.report(0)
+    z = stats.norm.ppf(0.5 + confidence / 2)
+    finite = [e for e in rep.estimates if np.isfinite(e.estimate)]
+    assert finite
+    for e in finite:
+        assert e.confidence == confidence
+        assert e.ci_low == pytest.approx(e.estimate - z * e.std_error, rel=1e-12)
+        assert e.ci_high == pytest.approx(e.estimate + z * e.std_error, rel=1e-12)
+        lo, hi = idn.interval(e.hypothesis, e.parameter)
+        assert (e.ci_low, e.ci_high) == pytest.approx((lo[0], hi[0]), rel=1e-12)
+
+
 # --------------------------------------------------------------------------- bad input
 def test_reduced_order_measurement_says_what_cannot_be_identified() -> None:
     model = scenario("so-boundary-layer").nominal
@@ -325,3 +345,16 @@ def test_every_combination_is_a_hypothesis_and_declared_names_are_kept() -> None
     assert [h.name for h in identification_setup(model).hypotheses] == ["zeta", "w"]
     with pytest.raises(IdentifiabilityError, match="cannot be told apart"):
         identification_setup(model, [["zeta", "w"]])
+
+
+def test_parameters_with_parallel_effects_are_refused_not_inverted() -> None:
+    """Two parameters that move the active entries alike leave the normal matrix singular: the fit
+    refuses that realization (reason 4) instead of raising LinAlgError or returning an arbitrary split."""
+    from chatterspec.detection._identification_fit import REASONS, _separable
+
+    parallel = np.array([[1.0, 1.0], [1.0, 1.0]])  # unit-normalized columns, identical
+    apart = np.array([[1.0, 0.3], [0.3, 1.0]])
+    N = np.stack([parallel, apart, parallel])
+    ok = np.array([True, True, False])  # a refused row stays as it was (identity in its place)
+    assert _separable(N, ok).tolist() == [False, True, True]
+    assert "cannot be told apart" in REASONS[4]

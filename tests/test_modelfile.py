@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from chatterspec.errors import DataFileError, ModelFileError, ParameterError, UnstableModelWarning
-from chatterspec.plants.modelfile import load_data, load_model
+from chatterspec.plants.datafile import load_data
+from chatterspec.plants.modelfile import load_model
 from chatterspec.plants.models import eha_linear
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"

@@ -18,21 +18,21 @@ import chatterspec as cs
 from chatterspec.cli.scenarios import export_model_toml
 from chatterspec.errors import DataFileError
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
+from chatterspec.online.simulated_stream import csv_header, csv_lines, simulate_blocks
 from chatterspec.online.stream import (
     RESTART,
     BadRow,
     CsvRows,
     Restart,
     RowBlock,
-    csv_header,
-    csv_lines,
     follow_file,
-    simulate_blocks,
 )
-from chatterspec.plants.modelfile import load_data, load_model
+from chatterspec.online.stream_checks import LatencyStats
+from chatterspec.plants.datafile import load_data
+from chatterspec.plants.modelfile import load_model
 from chatterspec.viewer import sinks as viewer
 from chatterspec.viewer import stream_recordings as live_stream  # the live stream monitor's rotation
-from chatterspec.viewer.live_stream import LatencyStats, StreamMonitor
+from chatterspec.viewer.live_stream import StreamMonitor
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE_MODEL = ROOT / "examples" / "eha_model.toml"

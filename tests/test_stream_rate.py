@@ -12,8 +12,9 @@ from chatterspec.cli import main
 from chatterspec.errors import DataFileError
 from chatterspec.online.monitor import MonitorSettings
 from chatterspec.online.stream import CsvRows
+from chatterspec.online.stream_checks import LatencyStats
 from chatterspec.plants.modelfile import load_model
-from chatterspec.viewer.live_stream import LatencyStats, StreamMonitor, drive
+from chatterspec.viewer.live_stream import StreamMonitor, drive
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE_MODEL = ROOT / "examples" / "eha_model.toml"

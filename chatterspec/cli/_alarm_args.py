@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from ..detection.alarms import RULES, rule_names
+from ..detection.alarm_rules import RULES, rule_names  # no numpy: the parser is built for --help
 from ..errors import ParameterError
 from ._options import add
 

@@ -23,8 +23,6 @@ from __future__ import annotations
 import time
 from typing import Any
 
-import numpy as np
-
 __all__ = ["MonitorIdentification"]
 
 
@@ -43,6 +41,8 @@ class MonitorIdentification:
     """
 
     def __init__(self, monitor: Any, emit: Any, say: Any, every_hop: bool | None = None) -> None:
+        import numpy as np  # lazily: building the parser does not import numpy
+
         self.monitor = monitor
         self.emit, self.say, self.every_hop = emit, say, every_hop
         self.windows = 0
@@ -90,6 +90,8 @@ class MonitorIdentification:
 
     def handle(self, upd: Any) -> None:
         """Report one push's :class:`~chatterspec.online.identification_monitor.IdentificationUpdate`."""
+        import numpy as np  # lazily: building the parser does not import numpy
+
         from ..jsonout import dumps
 
         mon, blk = self.monitor, upd.block
@@ -182,6 +184,8 @@ class MonitorIdentification:
 
     def status_lines(self, doc: dict[str, Any] | None = None) -> list[str]:
         """``"bulk_modulus 1.86e8 Pa, 10 % below nominal, inside its +-15 %"`` per parameter (last window)."""
+        import numpy as np  # lazily: building the parser does not import numpy
+
         from ..detection.parameter_scores import status_text
 
         doc = self.last if doc is None else doc

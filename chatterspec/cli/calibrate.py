@@ -22,15 +22,11 @@ from ._common import (
     stderr_note,
     write_plot,
 )
-from ._options import add, add_name, add_study_args, command, study_execution, study_keywords
+from ._options import add, add_name, add_study_args, command, study_keywords
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..studies.calibration_result import Calibration
     from ._alarm_args import AlarmChoice
-
-#: The former names of the study options and their execution keywords (now in :mod:`._options`).
-add_common = add_study_args
-execution = study_execution
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -42,12 +42,16 @@ if TYPE_CHECKING:  # pragma: no cover
 #: false alarm per hour (the fitted counts span less than a factor e); 1000 (2.3-2.5 h) are enough.
 DEFAULT_CALIBRATION_RUNS = 1000
 
+#: The routes of :data:`chatterspec.studies.routes.ALL_METHODS` and the start-up default
+#: :data:`chatterspec.studies.route_sweep.DEFAULT_WARMUP_S` (s), listed here so that building the parser
+#: (``chatterspec --help``) does not import numpy; a test keeps them equal.
+METHOD_NAMES: tuple[str, ...] = ("chattering", "smm", "imm", "innovation", "parameters")
+WARMUP_S = 0.1
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``chatterspec diagnose`` and its options to the subcommand parsers ``sub``."""
-    from ..detection.alarms import RULES, rule_names
-    from ..studies.route_sweep import DEFAULT_WARMUP_S
-    from ..studies.routes import ALL_METHODS
+    from ..detection.alarm_rules import RULES, rule_names
 
     p = command(
         sub,
@@ -63,7 +67,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--methods",
         default=None,
-        help=f"comma-separated subset of {','.join(ALL_METHODS)} (default: every one the scenario supports)",
+        help=f"comma-separated subset of {','.join(METHOD_NAMES)} (default: every one the scenario supports)",
     )
     add_runs_args(p, 10, runs_help="realizations (default 10)")
     add(
@@ -83,9 +87,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--warmup",
         type=float,
-        default=DEFAULT_WARMUP_S,
+        default=WARMUP_S,
         metavar="S",
-        help=f"seconds of start-up not fed to the rules (default {DEFAULT_WARMUP_S:g})",
+        help=f"seconds of start-up not fed to the rules (default {WARMUP_S:g})",
     )
     p.add_argument(
         "--nis-inflation",

@@ -430,7 +430,7 @@ def _replay_data(args: argparse.Namespace, spec: ModelSpec, stft: STFTConfig) ->
         starts at the second sample: ``rows - 1`` samples).
     """
     from ..errors import DataFileError
-    from ..plants.modelfile import load_data
+    from ..plants.datafile import load_data
 
     model = spec.model
     data = load_data(args.data, model)

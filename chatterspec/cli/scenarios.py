@@ -50,7 +50,7 @@ def export_model_toml(name: str, path: Path) -> Path:
     import numpy as np
 
     from ..detection.spectral import chattering_autocovariance, spectrum_model
-    from ..plants.modelfile import write_model_toml
+    from ..plants.modelfile_writer import write_model_toml
     from ..plants.scenarios import scenario
 
     sc = scenario(name)

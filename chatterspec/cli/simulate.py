@@ -10,7 +10,7 @@ wall time (``--rate 0``: as fast as the reader takes it). The columns are those
 
 monitors the scenario live. A model file (linear or nonlinear) streams its healthy plant under its
 ``[simulation]`` table (input, initial state, duration). The scenario is simulated block by block in time
-(:func:`chatterspec.online.stream.simulate_blocks`: constant memory, the
+(:func:`chatterspec.online.simulated_stream.simulate_blocks`: constant memory, the
 scenario repeats beyond its own duration; the same ``--seed`` gives the same rows at any
 ``--rate``). A reader that goes away (a closed pipe) ends the program quietly with status 0.
 """
@@ -58,7 +58,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec simulate`` with the parsed ``args``; returns the exit status."""
-    from ..online.stream import csv_header, csv_lines, simulate_blocks
+    from ..online.simulated_stream import csv_header, csv_lines, simulate_blocks
 
     if args.duration is not None and not (args.duration > 0 and args.duration < float("inf")):
         raise ParameterError(f"--duration must be > 0 s; got {args.duration}")

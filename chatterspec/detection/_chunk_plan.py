@@ -240,7 +240,7 @@ class ChunkPlan:
 
 @dataclass(frozen=True, eq=False)
 class DetectStudy:
-    """A :class:`~chatterspec.studies.montecarlo.Study`: one chunk's verdicts and summed spectrum."""
+    """A :class:`~chatterspec.montecarlo.Study`: one chunk's verdicts and summed spectrum."""
 
     scenario: Scenario
     plan: ChunkPlan

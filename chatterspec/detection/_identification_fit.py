@@ -427,7 +427,21 @@ REASONS = {
     1: "not identifiable on this window: the regressors of the entries it enters carry no excitation",
     2: "the fit did not converge",
     3: "not identifiable on this window: the regressors of the entries it enters are collinear",
+    4: "not identifiable on this window: its parameters move the entries alike (their effects cannot be told "
+    "apart)",
 }
+
+
+def _separable(N: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Which realizations' normal matrices ``N`` (unit diagonal, ``(runs, p, p)``) are of full rank.
+
+    Two parameters whose whitened Jacobian columns are parallel leave ``N`` singular: their sum is
+    identified, each one is not. ``ok`` rows already refused are passed through unchanged (True).
+    """
+    if N.shape[-1] < 2:
+        return np.ones(N.shape[0], dtype=bool)
+    lam = np.linalg.eigvalsh(np.where(ok[:, None, None], N, np.eye(N.shape[-1])))
+    return lam[:, 0] > 1e-10 * lam[:, -1]
 
 
 def _fit_hypothesis(
@@ -446,12 +460,17 @@ def _fit_hypothesis(
         ok = np.all(cn > 1e-12 * np.maximum(np.linalg.norm(G, axis=1), 1e-300), axis=1)
         cs = np.where(cn > 0, cn, 1.0)
         Gs = Gt / cs[:, None, :]
-        N = Gs.transpose(0, 2, 1) @ Gs + np.where(ok, 0.0, 1.0)[:, None, None] * np.eye(theta0.size)
+        N = Gs.transpose(0, 2, 1) @ Gs
+        apart = _separable(N, ok)
+        why = np.where(ok, np.where(apart, 0, 4), 1)
+        ok = ok & apart
+        N = N + np.where(ok, 0.0, 1.0)[:, None, None] * np.eye(theta0.size)
         Ninv = np.linalg.inv(N)
         step = np.einsum("rkl,ral,ra->rk", Ninv, Gs, r0) / cs
+        step = np.where(ok[:, None], step, 0.0)
         res = r0 - np.einsum("rak,rk->ra", Gt, step)
         cov = Ninv / (cs[:, :, None] * cs[:, None, :])
-        return theta0 + step, cov, (res**2).sum(axis=1), ok, np.where(ok, 0, 1)
+        return theta0 + step, cov, (res**2).sum(axis=1), ok, why
     theta = np.broadcast_to(theta0, (runs, theta0.size)).copy()
     scale = np.maximum(np.abs(theta0), 1.0 * (theta0 == 0))
     ok = np.ones(runs, dtype=bool)
@@ -471,10 +490,14 @@ def _fit_hypothesis(
         lost_any = lost.any(axis=1)
         why[live] = np.where(lost_any & ok[live], 1, why[live])
         ok[live] &= ~lost_any
-        okl = ok[live]
         cn = np.where(cn > 0, cn, 1.0)
         Gs = Gt / cn[:, None, :]
-        N = Gs.transpose(0, 2, 1) @ Gs + np.where(okl, 0.0, 1.0)[:, None, None] * np.eye(theta.shape[1])
+        N = Gs.transpose(0, 2, 1) @ Gs
+        apart = _separable(N, ok[live])
+        why[live] = np.where(~apart & ok[live], 4, why[live])
+        ok[live] &= apart
+        okl = ok[live]
+        N = N + np.where(okl, 0.0, 1.0)[:, None, None] * np.eye(theta.shape[1])
         st = np.linalg.solve(N, np.einsum("rak,ra->rk", Gs, r)[..., None])[..., 0] / cn
         st = np.where(okl[:, None], st, 0.0)
         theta[live] = th + st

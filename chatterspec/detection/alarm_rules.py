@@ -14,7 +14,6 @@ from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any, ClassVar, Literal
 
-from .._validate import positive_int
 from ..errors import ParameterError
 from ..jsonout import finite_or_none
 
@@ -113,6 +112,8 @@ class PersistenceRule:
     name: ClassVar[str] = "persistence"
 
     def __post_init__(self) -> None:
+        from .._validate import positive_int  # numpy: not when the CLI only builds its parser
+
         object.__setattr__(self, "threshold", _threshold(self.threshold))
         k = positive_int("persistence k", self.k)
         n = positive_int("persistence n", self.n)

@@ -3,7 +3,7 @@
 This module runs a record or a study (:func:`detect_record`, :func:`detect_chunks`,
 :func:`detect_scenario`); the verdicts live in :mod:`~chatterspec.detection.spectrum_verdicts`
 (whole records), :mod:`~chatterspec.detection.frames` (STFT frames) and the report in
-:mod:`~chatterspec.detection.report`; their names are re-exported here.
+:mod:`~chatterspec.detection.report`.
 
 A channel is flagged when its spectrum exceeds the threshold at any **tested** bin; where the fault
 is (``peak_hz``, ``most_significant_hz``) and how large (``peak_ratio``, ``excess_power``) are defined
@@ -22,23 +22,8 @@ from ..montecarlo import Execution
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
 from ._chunk_plan import ChunkPlan, DetectorKeywords, DetectorOptions, detect_on_workers
-from .frames import (
-    FrameDetection,
-    detect_frames,
-    frame_intervals,
-    frame_statistic,
-    healthy_frame_level,
-    stft_detect,
-)
 from .pipeline import ChatteringRecord, iter_chattering
 from .report import DetectionReport
-from .spectrum_verdicts import (  # noqa: F401  (old private imports)
-    _VERDICT_FIELDS,
-    ChannelVerdict,
-    SpectrumDetection,
-    _require_empirical,
-    detect_spectrum,
-)
 from .thresholds import Correction, Threshold
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -46,21 +31,12 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = [
     "DETECT_CHUNK_RUNS",
-    "ChannelVerdict",
     "DetectionReport",
     "DetectorKeywords",
     "DetectorOptions",
-    "FrameDetection",
-    "SpectrumDetection",
     "detect_chunks",
-    "detect_frames",
     "detect_record",
     "detect_scenario",
-    "detect_spectrum",
-    "frame_intervals",
-    "frame_statistic",
-    "healthy_frame_level",
-    "stft_detect",
 ]
 
 

@@ -4,8 +4,7 @@
 keeps between pushes) flags a frame on a channel when its spectrum exceeds the per-frame threshold
 at any tested bin; :func:`detect_frames` and :func:`frame_statistic` are its flags and peak ratios
 for a :class:`~chatterspec.detection.spectral.Spectrogram`. :func:`frame_intervals` turns flags
-into onset/offset times, :func:`stft_detect` does all of it for one record. Re-exported by
-:mod:`chatterspec.detection.detect` (their old home).
+into onset/offset times, :func:`stft_detect` does all of it for one record.
 """
 
 from __future__ import annotations

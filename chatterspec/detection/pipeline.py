@@ -168,7 +168,7 @@ def chattering_sink(
 ) -> None:  # pragma: no cover - compiled
     """The auxiliary SVSF's chattering of each simulated sample: the sink of the fused loop.
 
-    ``e_out[row, i, k - 1] = e_i(k|k-1)`` by :func:`~chatterspec.filters._svsf_kernels.closed_form_step`
+    ``e_out[row, i, k - 1] = e_i(k|k-1)`` by :func:`~chatterspec.filters.svsf_steps.closed_form_step`
     (eq 23) from ``z(k)``, ``zp = z(k-1)`` and ``Gu[k - 1]`` = G u(k-1), for k >= 1; then ``zp = z(k)``.
     Channel-major output, so that each channel's record is contiguous for the periodogram's FFT.
     With a non-empty ``z_out`` (``(runs * m, T)``: the ``(runs, m, T)`` channel-major measurements)
@@ -436,6 +436,3 @@ def scenario_chattering(
         model=scenario.nominal,
         scenario=scenario,
     )
-
-
-_can_fuse = can_fuse  # its old private name

@@ -1,7 +1,6 @@
 """Verdicts and severity scores of whole-record spectra (``docs/design.md`` §6).
 
-Re-exported by :mod:`chatterspec.detection.detect` (their old home); STFT frames are in
-:mod:`chatterspec.detection.frames`.
+STFT frames are in :mod:`chatterspec.detection.frames`.
 
 A channel is flagged when its spectrum exceeds the threshold at any **tested**
 bin (DC and Nyquist excluded; the DC ratio is reported separately because a

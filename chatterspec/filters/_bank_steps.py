@@ -1,6 +1,6 @@
 """Compiled steps shared by the multiple-model banks (IMM, SMM-SVSF): likelihood, probabilities, combination.
 
-:func:`log_gaussian_step` is :func:`chatterspec.filters.multiple_model.log_gaussian` for one
+:func:`log_gaussian_step` is :func:`chatterspec.filters.bank_math.log_gaussian` for one
 innovation; :func:`mode_probabilities_step` is ``normalize_log_weights`` for one realization;
 :func:`combine_step` is ``combine`` for one realization. Each does its numpy twin's arithmetic in
 loop order, so the banks' compiled loops agree with their numpy paths to a few ulps per sample
@@ -49,7 +49,7 @@ def _log_gaussian(
     col: np.ndarray,
     tmp: np.ndarray,
 ) -> float:  # pragma: no cover
-    """``log N(e; 0, S)`` of one innovation, as :func:`~chatterspec.filters.multiple_model.log_gaussian`.
+    """``log N(e; 0, S)`` of one innovation, as :func:`~chatterspec.filters.bank_math.log_gaussian`.
 
     ``S`` is scaled to its correlation matrix ``Sc`` (``D = sqrt(diag S)``); with the Cholesky
     factor of ``Sc`` when ``1 / trace(Sc^-1)`` -- a lower bound of its smallest eigenvalue, with

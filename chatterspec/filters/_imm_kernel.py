@@ -1,6 +1,6 @@
 """Compiled IMM bank loop: mixing, the mode-matched filters' steps, likelihoods, combination (private).
 
-One call of :meth:`chatterspec.filters.multiple_model.IMM.update` for every realization, in one
+One call of :meth:`chatterspec.filters.imm.IMM.update` for every realization, in one
 compiled loop over runs (outer) and time (inner), instead of three protocol ``update`` calls and a
 dozen numpy calls on (runs, 3, 4) arrays per sample. The arithmetic is that of the protocol path
 ([IMM] eq 15-33 as corrected in ``docs/design.md`` §7.6)::
@@ -51,9 +51,6 @@ from ._engine import NOT_PD, SINGULAR_PHI12, _no_sample, sample_step, workspace
 if TYPE_CHECKING:  # pragma: no cover
     from .bank_common import MultipleModelState
     from .protocol import Filter
-
-#: The per-innovation likelihood of eq (29) (kept under its former name).
-_log_gaussian_1 = log_gaussian_step
 
 #: Bindings of :func:`_imm_loop`: the modes' plant step (:func:`._bank_steps.bank_plants`), four
 #: correction kinds (sample steps), sizes.

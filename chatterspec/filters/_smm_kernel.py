@@ -1,6 +1,6 @@
 """Compiled SMM-SVSF loop, Table 1 reading ([SMM] eq 3.1-3.5 with eq 2.1-2.10) (private).
 
-:meth:`chatterspec.filters.multiple_model.SMMSVSF.update` (``reading="table1"``) in one compiled
+:meth:`chatterspec.filters.smm_svsf.SMMSVSF.update` (``reading="table1"``) in one compiled
 loop over runs (outer) and samples (inner), built from the same steps as the other loops::
 
     x_j = f_j(x(k|k), u(k)),  P_j = F_j P(k|k) F_j^T + Q_j      plant steps, predict_cov_step

@@ -5,8 +5,7 @@ Private. :func:`_svsf_kernel` runs :func:`~chatterspec.filters.svsf_steps.svsf_s
 over runs and samples: the batch path of :meth:`SVSF.update`. Compiled by numba when it is
 installed, called as plain Python otherwise (tests compare both with the numpy formulation of
 :meth:`SVSF.update`). The steps live in :mod:`chatterspec.filters.svsf_steps` (public: the online
-monitor's push and the fused simulate-and-chatter loop call them too); they are also importable
-from here under their old names.
+monitor's push and the fused simulate-and-chatter loop call them too).
 """
 
 from __future__ import annotations
@@ -14,12 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _jit
-from .svsf_steps import (
-    closed_form_step,
-    matvec_step,
-    rows_times_step,  # noqa: F401 - the old import path of the steps
-    svsf_step,
-)
+from .svsf_steps import closed_form_step, matvec_step, svsf_step
 
 __all__: list[str] = []
 

@@ -6,7 +6,8 @@ same data, keep the same state (:class:`MultipleModelState`) and return the same
 
 See Also
 --------
-chatterspec.filters.multiple_model : the overview of both banks and their equations.
+chatterspec.filters.smm_svsf : SMM-SVSF, its equations and readings.
+chatterspec.filters.imm : IMM, its cycle and the corrections to the printed equations.
 """
 
 from __future__ import annotations
@@ -393,8 +394,6 @@ class BankFilter:
         u: np.ndarray | None = None,
         *,
         store: Collection[str] | None = None,
-        store_covariance: bool | None = None,
-        store_modes: bool | None = None,
     ) -> tuple[MultipleModelState, MultipleModelOutput]:
         """Advance every realization over K samples (``z(k+1..k+K)``, ``u(k..k+K-1)``).
 
@@ -410,9 +409,6 @@ class BankFilter:
             ``"P_post"``: keep the combined posterior covariance per sample (memory ``runs K n^2``);
             ``"mode_x_post"``: the mode-conditioned posteriors per sample (IMM and the SMM bank
             reading; SMM's Table 1 reading keeps the mode predictions).
-        store_covariance, store_modes : bool, optional
-            Deprecated spellings of ``store={"P_post"}`` / ``store={"mode_x_post"}``
-            (``DeprecationWarning``).
 
         Returns
         -------
@@ -422,7 +418,7 @@ class BankFilter:
             raise TypeError(f"state must be a MultipleModelState; got {type(state).__name__}")
         mdl0 = self._sensor_model()
         m, p = int(mdl0.n_outputs), int(mdl0.n_inputs)
-        store_covariance, store_modes = bank_store(store, store_covariance, store_modes, type(self).__name__)
+        store_covariance, store_modes = bank_store(store, type(self).__name__)
         z, u = check_bank_data(z, u, state.x.shape[0], m, p)
         return self._advance(state, z, u, store_covariance, store_modes)
 
@@ -434,8 +430,6 @@ class BankFilter:
         x0: np.ndarray,
         P0: np.ndarray,
         store: Collection[str] | None = None,
-        store_covariance: bool | None = None,
-        store_modes: bool | None = None,
         **initial: object,
     ) -> MultipleModelOutput:
         """Filter whole records: :meth:`initialize` then one :meth:`update`.
@@ -452,8 +446,6 @@ class BankFilter:
             ``P(0|0)``.
         store : collection of str, optional
             See :meth:`update`.
-        store_covariance, store_modes : bool, optional
-            Deprecated; see :meth:`update`.
         **initial
             IMM: ``mode_x0``, ``mode_P0`` (per-mode starts, see :meth:`IMM.initialize`).
 
@@ -464,6 +456,6 @@ class BankFilter:
         zz = finite_array("z", z, ndim=(2, 3))
         runs = 1 if zz.ndim == 2 else zz.shape[0]
         state = self.initialize(x0, P0, runs=runs, **initial)
-        keep = bank_store(store, store_covariance, store_modes, type(self).__name__)
+        keep = bank_store(store, type(self).__name__)
         store = {n for n, k in zip(("P_post", "mode_x_post"), keep, strict=True) if k}
         return self.update(state, zz, u, store=store)[1]

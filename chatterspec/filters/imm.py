@@ -1,9 +1,26 @@
 """Interacting multiple-model estimator ([IMM] eq 15-33, corrected), batched over realizations.
 
-The cycle and its corrections are in :mod:`chatterspec.filters.multiple_model`. When
-:func:`chatterspec._jit.enabled` and every mode is supported (:mod:`chatterspec.filters._imm_kernel`),
-:meth:`IMM.update` runs the whole recursion in one compiled loop; otherwise it drives the mode
-filters through the protocol, one sample at a time. The two agree to rounding (summation order).
+Notation and corrections of ``docs/design.md`` §7.5-§7.6. Per sample, with the transition matrix
+``pi[i, j] = P(j at k | i at k-1)``::
+
+    (19) c_j = sum_i pi_ij mu_i(k-1)          (18) mu_{i|j} = pi_ij mu_i(k-1) / c_j  (printed 1/mu_j)
+    (20) x_0j = sum_i mu_{i|j} x_i            (21) P_0j = sum_i mu_{i|j} [P_i + (x_i - x_0j)(.)^T]
+    (22)-(28) mode-matched filter j (any :class:`~chatterspec.filters.protocol.Filter`) from (x_0j, P_0j)
+    (29) Lambda_j = N(e_j; 0, S_j)            (30) mu_j(k) ∝ c_j Lambda_j   (log domain)
+    (31) x = sum_j mu_j x_j                   (32)-(33) P = sum_j mu_j [P_j + (x_j - x)(x_j - x)^T]
+
+The printed (32)-(33) sum ``mu_i mu_j (x_i - x_j)(x_i - x_j)^T`` over all ``i, j``; that is exactly twice
+the spread of (33) here (:func:`~chatterspec.filters.bank_math.pairwise_spread`, tested), so it is read
+with a factor 1/2. For the SVSF-type mode filters, ``e(k|k)`` of mode j is the residual of its mixed
+estimate ``z(k) - C x_0j`` (``docs/design.md`` I4); ``e(k-1|k-1)`` stays the value that mode stored.
+Likelihoods are :func:`~chatterspec.filters.bank_math.log_gaussian`.
+
+**Compiled step.** When :func:`chatterspec._jit.enabled` and every mode is supported (EKF/KF,
+SVSF-cov without ``vbl``, second-order SVSF, on nonlinear-EHA or linear models; see
+:mod:`chatterspec.filters._imm_kernel`), :meth:`IMM.update` runs the whole recursion in one compiled
+loop over runs and samples; otherwise it drives the mode filters through the protocol, one sample at
+a time. The two agree to rounding (summation order; tolerances in ``tests/test_imm_kernel.py``), and
+each is chunk-invariant bit for bit.
 
 See Also
 --------

@@ -1,7 +1,8 @@
 """The mode-weighted mixture of a multiple-model bank's estimates (one function, no state).
 
-Kept apart from :mod:`chatterspec.filters.multiple_model` so that the filters' conventions
-(:mod:`chatterspec.filters._conventions`, the banks' per-mode start) use it without an import circle.
+Kept apart from the banks (:mod:`chatterspec.filters.smm_svsf`, :mod:`chatterspec.filters.imm`) so
+that the filters' conventions (:mod:`chatterspec.filters._conventions`, the banks' per-mode start)
+use it without an import circle.
 """
 
 from __future__ import annotations

@@ -1,9 +1,22 @@
 """SMM-SVSF: static multiple models inside the SVSF with covariance ([SMM] eq 3.1-3.5, Table 1).
 
-Two readings of the paper (see :mod:`chatterspec.filters.multiple_model` for the equations): Table 1
-(default), one SVSF whose prediction is the mode-weighted prediction, compiled when every mode has
-compiled plant steps (:mod:`chatterspec.filters._smm_kernel`); and the bank of eq (3.4)-(3.5), r
-independent SVSFs weighted by their innovation likelihoods.
+Two readings of the paper (notation and corrections of ``docs/design.md`` §7.5), batched over a
+leading realization axis ``runs``:
+
+**Table 1 reading** (default, ``reading="table1"``): one SVSF whose prediction is the mode-weighted
+prediction, compiled when every mode has compiled plant steps (:mod:`chatterspec.filters._smm_kernel`).
+Per sample, from the common posterior ``x(k|k), P(k|k)``::
+
+    x_j = f_j(x(k|k), u(k)),  P_j = F_j P(k|k) F_j^T + Q_j,  S_j = C P_j C^T + R       (Table 1 steps 1-2)
+    log p_j = log N(z(k+1) - C x_j; 0, S_j)                                           (eq 3.2-3.3, vector)
+    mu_j(k+1) ∝ p_j mu_j(k)  (log domain), then mu_j >= floor and renormalize          (eq 3.1, step 3)
+    x(k+1|k) = sum_j mu_j x_j,  P(k+1|k) = sum_j mu_j [P_j + (x_j - x)(x_j - x)^T]      (steps 4a-5)
+    SVSF gain and update (eq 2.5-2.10) on x(k+1|k), P(k+1|k)                           (steps 6-7b)
+
+**Bank reading** (``reading="bank"``): eq (3.4)-(3.5) taken literally, r independent SVSFs
+(:class:`~chatterspec.filters.svsf_cov.SVSFCov`, one per mode) each weighted by its own innovation
+likelihoods (:func:`~chatterspec.filters.bank_math.log_gaussian`); the output is the mu-weighted
+posterior.
 
 See Also
 --------

@@ -50,7 +50,6 @@ from collections.abc import Iterator
 import numpy as np
 
 from .._validate import finite_array, positive_int
-from ..detection.frames import FrameVerdicts, frame_verdicts
 from ..detection.spectral import spectrum_model
 from ..detection.thresholds import frame_threshold
 from ..errors import ParameterError, ShapeError
@@ -67,23 +66,7 @@ __all__ = [
     "FrameBlock",
     "MonitorSettings",
     "MonitorUpdate",
-    "frame_verdicts",
 ]
-
-
-_Verdicts = FrameVerdicts  # the old private name (tests and old code)
-
-
-def _filters_attr(name: str, *, settable: bool = False) -> property:
-    """A monitor attribute that is its filters' ``name`` (the names the fused-kernel tests use)."""
-
-    def get(self: ChatteringMonitor) -> object:
-        return getattr(self._filters, name)
-
-    def put(self: ChatteringMonitor, value: object) -> None:
-        setattr(self._filters, name, value)
-
-    return property(get, put if settable else None, doc=f"The filters' ``{name}``.")
 
 
 class ChatteringMonitor:
@@ -154,15 +137,6 @@ class ChatteringMonitor:
         self._mode: str | None = None  # "raw" or "chattering"
         self._n_chat = 0  # chattering samples produced / pushed
         self._t_chat0: float | None = None  # time of chattering sample 0
-
-    # the filters' internals under the names the fused-kernel tests use
-    _fused = _filters_attr("fused", settable=True)
-    _kernel = _filters_attr("_kernel")
-    _sat = _filters_attr("_sat")
-    _sat_state = _filters_attr("_sat_state")
-    _GT = _filters_attr("_GT")
-    _aux_PhiT = _filters_attr("_aux_PhiT")
-    _none3 = _filters_attr("_none3")
 
     # ------------------------------------------------------------- properties
     @property

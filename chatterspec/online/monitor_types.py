@@ -43,7 +43,7 @@ class DetectionEvent:
     peak_ratio : float
         The corresponding ``S / threshold`` (> 1 means above threshold).
     estimate_s : float
-        Onset / offset estimate of :func:`chatterspec.detection.detect.frame_intervals`:
+        Onset / offset estimate of :func:`chatterspec.detection.frames.frame_intervals`:
         half a hop before ``time_s`` (the start of frame 0's window when the
         very first frame is flagged).
     rule : str

@@ -1,6 +1,7 @@
-"""Live CSV sources for ``chatterspec monitor``: standard input, a growing file, a simulated stream.
+"""Live CSV sources for ``chatterspec monitor``: standard input and a growing file.
 
-Pure Python + numpy (no Rerun). Three pieces:
+Pure Python + numpy (no Rerun). Two pieces (a simulated stream, the source of ``chatterspec
+simulate``, is :mod:`chatterspec.online.simulated_stream`):
 
 * **Byte sources** yield ``(bytes, arrival)`` as data arrives: :func:`read_fd`
   (a pipe or standard input: one ``os.read`` returns whatever is available, so
@@ -17,9 +18,6 @@ Pure Python + numpy (no Rerun). Three pieces:
   name the first bad line. A row that does not parse, has the wrong number of
   fields, or holds NaN/inf in a needed column is a *bad row*; a second header
   line is a *restart* (a producer that started over).
-* :func:`simulate_blocks` / :func:`csv_lines`: a catalogue scenario simulated
-  block by block in time with the state carried over (bounded memory whatever
-  the duration) and written as CSV text, the source of ``chatterspec simulate``.
 """
 
 from __future__ import annotations
@@ -35,7 +33,7 @@ from typing import cast
 import numpy as np
 
 from ..errors import DataFileError
-from ..plants.modelfile import TIME_COLUMNS
+from ..plants.datafile import TIME_COLUMNS
 from ..plants.nonlinear import Model
 
 __all__ = [
@@ -43,11 +41,8 @@ __all__ = [
     "CsvRows",
     "Restart",
     "RowBlock",
-    "csv_header",
-    "csv_lines",
     "follow_file",
     "read_fd",
-    "simulate_blocks",
 ]
 
 #: Bytes asked for per read (a pipe hands over at most what it holds, 64 KiB on Linux).
@@ -438,6 +433,3 @@ def _is_number(s: str) -> bool:
     except ValueError:
         return False
     return True
-
-
-from .simulated_stream import csv_header, csv_lines, simulate_blocks  # noqa: E402  (re-exported)

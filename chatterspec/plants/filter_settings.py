@@ -17,7 +17,7 @@ import numpy as np
 
 from .._validate import finite_array, nonnegative, open_unit, readonly
 from ..errors import ParameterError, ShapeError
-from .linear_model import _check_covariance
+from .model_base import check_covariance
 from .nonlinear import same_dynamics
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -107,7 +107,7 @@ class FilterSettings:
             if val is not None:
                 if val.shape[0] != val.shape[1]:
                     raise ShapeError(f"filter {name} must be square; got {val.shape}")
-                _check_covariance(f"filter {name}", val)
+                check_covariance(f"filter {name}", val)
             object.__setattr__(self, name, val)
         object.__setattr__(self, "x0", _opt_array("x0", self.x0, 1))
         if self.gamma is not None:

@@ -23,7 +23,6 @@ from .._validate import finite_array, positive
 from ..errors import ParameterError, ShapeError, SingularMatrixError, UnstableModelWarning
 from .model_base import (
     ModelBase,
-    check_covariance,
     check_measurement_matrix,
     check_noise,
     frozen,
@@ -31,8 +30,6 @@ from .model_base import (
     set_channel_labels,
 )
 from .parameters import ParameterMap
-
-_check_covariance = check_covariance  # its old name (imported by plants.models)
 
 __all__ = ["Discretization", "LinearModel", "OscillatoryMode", "discretize", "oscillatory_mode"]
 

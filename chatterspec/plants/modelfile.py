@@ -36,8 +36,7 @@ A file with a ``[dynamics]`` table instead of ``A`` and ``B`` describes a nonlin
 Jacobian are Python functions it names (:mod:`chatterspec.plants.modelfile_nonlinear`); an optional
 ``[simulation]`` table (input, initial state, duration) sets the healthy operating condition that
 ``calibrate``, ``detect`` and ``simulate`` use for either kind. The writer is
-:mod:`chatterspec.plants.modelfile_writer`, the data-file reader :mod:`chatterspec.plants.datafile`
-(both re-exported here).
+:mod:`chatterspec.plants.modelfile_writer`, the data-file reader :mod:`chatterspec.plants.datafile`.
 
 Data file: CSV with a header row, or NPZ with one 1-D array per name. Columns are
 matched **by name** to the model's outputs and inputs; an optional time column
@@ -64,7 +63,6 @@ from typing import cast
 import numpy as np
 
 from ..errors import ChatterspecError, ModelFileError, UnstableModelWarning
-from .datafile import TIME_COLUMNS, DataSet, load_data
 from .linear_model import Discretization
 from .modelfile_fields import (
     ModelSpec,
@@ -79,11 +77,10 @@ from .modelfile_fields import (
     svsf_gamma,
 )
 from .modelfile_nonlinear import load_nonlinear, parse_simulation
-from .modelfile_writer import write_model_toml
 from .models import LinearModel, discretize
 from .parameters import model_file_parameter_map
 
-__all__ = ["TIME_COLUMNS", "DataSet", "ModelSpec", "load_data", "load_model", "write_model_toml"]
+__all__ = ["ModelSpec", "load_model"]
 
 
 # --------------------------------------------------------------------------- model files

@@ -305,10 +305,10 @@ def _covariance(table: Mapping[str, Any], key: str, size: int, where: str) -> np
         raise ModelFileError(f"{where}: [matrices] matrix {key} (or {diag_key}) is missing")
     M = _matrix(table, key, where, "matrices")
     _expect_shape(M, (size, size), key, where, "covariance")
-    from .linear_model import _check_covariance
+    from .model_base import check_covariance
 
     try:
-        _check_covariance(key, M)
+        check_covariance(key, M)
     except ChatterspecError as exc:
         raise ModelFileError(f"{where}: [matrices] {exc} (a covariance)") from None
     return M

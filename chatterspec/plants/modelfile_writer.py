@@ -233,8 +233,8 @@ def _function_refs(model: NonlinearModel) -> tuple[str, str, str | None, str, di
     from functools import partial
 
     from .eha4 import eha4_transition
+    from .euler import EulerJacobian, EulerStep
     from .modelfile_nonlinear import ModelFunction
-    from .nonlinear import _EulerJacobian, _EulerStep
 
     f, jac = model.f, model.jac
     if isinstance(f, partial) and f.func is eha4_transition:
@@ -247,7 +247,7 @@ def _function_refs(model: NonlinearModel) -> tuple[str, str, str | None, str, di
             dict(model.parameters),
         )
     form = "discrete"
-    if isinstance(f, _EulerStep) and isinstance(jac, _EulerJacobian):
+    if isinstance(f, EulerStep) and isinstance(jac, EulerJacobian):
         f, jac, form = f.g, jac.g_jac, "continuous"
     if isinstance(f, ModelFunction) and isinstance(jac, ModelFunction):
 

@@ -24,7 +24,6 @@ from .linear_model import (
     Discretization,
     LinearModel,
     OscillatoryMode,
-    _check_covariance,  # noqa: F401  (its old import path)
     discretize,
     oscillatory_mode,
 )

@@ -30,7 +30,7 @@ import numpy as np
 from .._repr import short_repr
 from .._validate import finite_array, positive, positive_int, readonly
 from ..errors import ModelKindError, NonFiniteError, ParameterError, ShapeError, SingularMatrixError
-from .euler import ContinuousEuler, EulerJacobian, EulerStep, Transition
+from .euler import ContinuousEuler, Transition
 from .linear_model import LinearModel
 from .linearization import Linearization
 from .measurement import Measurement, measure, measurement_jacobian, measurement_matrix
@@ -44,8 +44,6 @@ from .model_base import (
 )
 
 __all__ = ["Model", "NonlinearModel", "is_linear", "require_linear", "same_dynamics"]
-
-_EulerStep, _EulerJacobian = EulerStep, EulerJacobian  # their old names (models pickled before)
 
 
 def _callable_id(fn: object) -> str:

@@ -26,10 +26,8 @@ from .scenarios import Scenario
 from .simulate_kernel import (
     NO_ARRAY,
     NO_CTRL,
-    KernelTables,
     _linear_scale,
     _noise_blocks,
-    _simulate_kernel,
     covariance_sqrt,
     kernel_tables,
     plant_loop,
@@ -328,8 +326,3 @@ def _simulate_block(
         zt[k0:k1] += xt[k0:k1] @ model.C.T
     # (runs, T, channels) views of the time-major buffers (no copy)
     return np.swapaxes(xt, 0, 1), np.swapaxes(zt, 0, 1)
-
-
-# Old names (the kernel interface lived here; private names kept for old imports).
-_plant_loop, _tables, _Tables, _same_shapes = plant_loop, kernel_tables, KernelTables, same_shapes
-_OLD_NAMES = (NO_ARRAY, NO_CTRL, _noise_blocks, _simulate_kernel, scaled_noise, segment_ranges)

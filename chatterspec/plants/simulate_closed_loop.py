@@ -17,7 +17,7 @@ The per-sample arithmetic is written once, as steps: the linear plant's
 :func:`~chatterspec.plants.linear_steps.measure_step` (eq 2) and
 :func:`~chatterspec.plants.linear_steps.advance_step` (eq 1), and the controller's
 :func:`~chatterspec.plants.controllers.pid_step`. The compiled path is the open-loop simulation's
-loop (``plants.simulate._plant_loop``) with :func:`controller_input` as its input step, in place
+loop (``plants.simulate_kernel.plant_loop``) with :func:`controller_input` as its input step, in place
 of the input table; the numpy path (:func:`_loop_numpy`) calls the same steps' Python functions on
 rows of realizations (channel-major ``(n, runs)`` state), doing the same correctly rounded
 operations in the same order, so both paths give the same bits. A nonlinear plant (the 4-state
@@ -173,7 +173,7 @@ class _LinearTables:
 
 
 def _linear_tables(scenario: Scenario) -> _LinearTables:
-    """The open-loop simulation's per-segment tables (``plants.simulate._tables``) and each segment's B."""
+    """The open-loop per-segment tables (``plants.simulate_kernel.kernel_tables``) and each segment's B."""
     tb = _tables(scenario, np.zeros(1), np.zeros((1, 1)))  # no input table needed
     segs = scenario.segments
     B = np.ascontiguousarray(np.stack([cast("LinearModel", sg.model).B[:, 0] for sg in segs]), dtype=float)
@@ -397,7 +397,7 @@ def closed_loop_blocks(
 ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """One realization of a closed-loop scenario block by block in time (bounded memory).
 
-    The closed-loop counterpart of :func:`chatterspec.online.stream.simulate_blocks`: plant and
+    The closed-loop counterpart of :func:`chatterspec.online.simulated_stream.simulate_blocks`: plant and
     controller state run on from block to block, the noise comes from one generator
     (``SeedSequence(seed)``, ``n + m`` normals per sample in time order, so the rows for a seed do not
     depend on ``block_s``), and beyond the scenario's duration ``D`` the reference,

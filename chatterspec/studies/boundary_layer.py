@@ -3,8 +3,7 @@
 :func:`estimate_boundary_layer` proposes ``psi`` from healthy Monte Carlo chattering and
 :func:`boundary_layer_study` reproduces Fig 2; the analytic healthy variance they are checked
 against is :func:`chatterspec.filters.boundary_layer.healthy_chattering_variance` (the derivation
-and the corrected eq 34 are in that module's docstring). Old import path:
-:mod:`chatterspec.filters.boundary_layer`.
+and the corrected eq 34 are in that module's docstring).
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ compared as they stand):
    calibrated one (:func:`~chatterspec.studies.route_sweep.sweep_chunk`). The realized false-alarm
    rate on their healthy time is an out-of-sample check of the calibration.
 
-Both studies run through :func:`~chatterspec.studies.montecarlo.run_study` (serial, worker
+Both studies run through :func:`~chatterspec.montecarlo.run_study` (serial, worker
 processes or Dask) and give the same numbers whatever the workers and the chunking: each
 realization's scores depend only on that realization, and the per-run integers are folded in chunk
 order.
@@ -120,7 +120,7 @@ def _scores_after_warmup(route: Route, sim: Simulation, warmup: float) -> tuple[
 
 
 class HealthyScoresStudy:
-    """Scores of every route on healthy realizations (a :class:`~.montecarlo.Study`).
+    """Scores of every route on healthy realizations (a :class:`~chatterspec.montecarlo.Study`).
 
     Parameters
     ----------
@@ -152,7 +152,7 @@ class HealthyScoresStudy:
 
 
 class BudgetStudy:
-    """Every route and threshold on the diagnosed realizations (a :class:`~.montecarlo.Study`).
+    """Every route and threshold on the diagnosed realizations (a :class:`~chatterspec.montecarlo.Study`).
 
     Parameters
     ----------

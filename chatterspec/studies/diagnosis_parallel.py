@@ -54,7 +54,7 @@ def _tallies(
 
 @dataclass(frozen=True, eq=False)
 class _DiagnoseStudy:
-    """A :class:`~chatterspec.studies.montecarlo.Study` whose accumulator is the tallies themselves."""
+    """A :class:`~chatterspec.montecarlo.Study` whose accumulator is the tallies themselves."""
 
     scenario: Scenario
     methods: tuple[str, ...]

@@ -3,7 +3,7 @@
 :func:`estimation_study` simulates a catalogue scenario's true plant, runs every requested filter
 (``kf``, ``ekf``, ``svsf``, ``svsf2``) with the tuning of ``scenario.filter_settings`` on the same
 measurements, and reduces the estimation errors chunk by chunk through
-:func:`chatterspec.studies.montecarlo.run_study` (constant memory, local workers or Dask, the same
+:func:`chatterspec.montecarlo.run_study` (constant memory, local workers or Dask, the same
 numbers for any chunking or worker count).
 
 Time convention (``chatterspec.filters.protocol``): the filters start from ``x(0|0) = x0`` and
@@ -387,7 +387,7 @@ def _fmt(mean: float, se: float) -> str:
 
 @dataclass(frozen=True, eq=False)
 class EstimationStudy:
-    """Chunk function of :func:`estimation_study` (picklable; see :mod:`~.montecarlo`).
+    """Chunk function of :func:`estimation_study` (picklable; see :mod:`chatterspec.montecarlo`).
 
     Attributes
     ----------

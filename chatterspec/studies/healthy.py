@@ -30,7 +30,6 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------- scenarios
-_ZeroInput = ZeroInput  # its old private name
 
 
 def model_scenario(model: LinearModel, duration: float = 4.0, name: str | None = None) -> Scenario:
@@ -146,7 +145,7 @@ def _keep_top(x: np.ndarray, k: int) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class HealthyStudy:
-    """Chunk function of calibration and false-alarm studies (picklable; see :mod:`~.montecarlo`).
+    """Chunk function of calibration and false-alarm studies (picklable; see :mod:`chatterspec.montecarlo`).
 
     Thresholds are passed as stacked arrays so that workers do not rebuild them.
     Each chunk simulates healthy chattering, takes its periodogram (and STFT

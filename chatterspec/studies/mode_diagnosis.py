@@ -28,7 +28,8 @@ from .._repr import short_repr
 from .._validate import finite_array
 from ..errors import ParameterError
 from ..filters import ExtendedKalmanFilter
-from ..filters.multiple_model import IMM, SMMSVSF
+from ..filters.imm import IMM
+from ..filters.smm_svsf import SMMSVSF
 from ..jsonout import finite_or_none
 from .diagnosis_figures import DiagnosisFigures
 from .intervals import clopper_pearson

@@ -21,7 +21,8 @@ from ..online.monitor import ChatteringMonitor, MonitorSettings
 from ..palette import NEUTRAL, filter_color, mode_color, rgba32
 from .blueprint import _entity, time_axis
 from .drivers import scenario_truth
-from .rerun_log import RerunLogger, record_span, to_ns
+from .record_geometry import record_span, to_ns
+from .rerun_log import RerunLogger
 from .sinks import TIMELINE, open_sinks
 from .truth_lane import log_truth_lane, truth_colors
 

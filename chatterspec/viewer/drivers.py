@@ -12,7 +12,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorSettings
-from .rerun_log import RerunLogger, record_span
+from .record_geometry import record_span
+from .rerun_log import RerunLogger
 from .sinks import Sinks, default_recording_path, file_error, open_sinks
 
 if TYPE_CHECKING:
@@ -134,7 +135,7 @@ def run_monitor(
     on_event : callable, optional
         Called with each :class:`~chatterspec.online.monitor.DetectionEvent` (e.g. to print it).
     band_hz : (float, float), optional
-        Spectrogram band (Hz); default :func:`~chatterspec.viewer.rerun_log.default_band_hz`.
+        Spectrogram band (Hz); default :func:`~chatterspec.viewer.record_geometry.default_band_hz`.
     identifier : IdentificationMonitor, optional
         Fault identification and the decisions on the identified parameters per hop on the same raw
         pushes (:class:`~chatterspec.online.identification_monitor.IdentificationMonitor`), logged to

@@ -31,7 +31,7 @@ from ..detection.parameter_decision import STATES
 from ..palette import FAULT, HEALTHY, NOT_EXCITED, rgba32
 from .arrow_columns import _TimeIndex
 from .blueprint import _entity
-from .rerun_log import to_ns
+from .record_geometry import to_ns
 from .sinks import Sinks
 
 if TYPE_CHECKING:  # pragma: no cover

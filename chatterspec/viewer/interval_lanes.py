@@ -2,9 +2,9 @@
 
 A file recording (``detect --record``, ``demo``, ``diagnose --record``) is drawn after the fact, so its
 verdict lanes show the same interval estimates as ``detect --json`` and Fig 8: the window-extent
-estimator of :func:`chatterspec.detection.detect.frame_intervals` applied to the per-frame flags and
+estimator of :func:`chatterspec.detection.frames.frame_intervals` applied to the per-frame flags and
 statistic ``max S / threshold`` of each channel, with the healthy median
-:func:`chatterspec.detection.detect.healthy_frame_level` of the frame threshold. A live viewer instead
+:func:`chatterspec.detection.frames.healthy_frame_level` of the frame threshold. A live viewer instead
 sees each alarm when the detector knew it (the end of the deciding frame), see
 :class:`~chatterspec.viewer.rerun_log.RerunLogger`.
 """
@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..detection.bin_labels import db_over_threshold, two_bins_text
-from ..detection.detect import frame_intervals, healthy_frame_level
+from ..detection.frames import frame_intervals, healthy_frame_level
 
 if TYPE_CHECKING:  # pragma: no cover
     from rerun import RecordingStream

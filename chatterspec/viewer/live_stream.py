@@ -68,7 +68,7 @@ from ..plants.nonlinear import Model
 from .stream_recordings import StreamRecordings, period_bounds
 from .stream_segments import Segment, StreamSegments
 
-__all__ = ["MAX_EVENTS", "LatencyStats", "StreamEvent", "StreamMonitor", "StreamSummary", "drive"]
+__all__ = ["MAX_EVENTS", "StreamEvent", "StreamMonitor", "StreamSummary", "drive"]
 
 #: Events (and recordings) kept for the summary (older ones are counted, not kept).
 MAX_EVENTS = 1000

@@ -1,8 +1,7 @@
 """Column-wise Rerun logging of monitor updates (:class:`RerunLogger`).
 
 Times follow the one rule of :func:`~chatterspec.viewer.record_geometry.to_ns` (integer ns); the
-recording's span, band and colour range are in :mod:`chatterspec.viewer.record_geometry` (and
-importable from here, as before).
+recording's span, band and colour range are in :mod:`chatterspec.viewer.record_geometry`.
 """
 
 from __future__ import annotations
@@ -20,7 +19,7 @@ from .blueprint import (
 from .column_batches import ColumnBatches
 from .interval_lanes import IntervalCollector, send_intervals
 from .monitor_layout import MonitorLayout
-from .record_geometry import DB_RANGE, default_band_hz, pad_columns, record_span, to_ns
+from .record_geometry import to_ns
 from .sinks import Sinks
 from .spectrogram_images import SpectrogramImages
 from .static_entities import expected_spectrum, log_static
@@ -32,14 +31,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from .blueprint import ExtraRow
 
-__all__ = [
-    "DB_RANGE",
-    "RerunLogger",
-    "default_band_hz",
-    "pad_columns",
-    "record_span",
-    "to_ns",
-]
+__all__ = ["RerunLogger"]
 
 
 def _send_blueprint(stream: RecordingStream, bp: Blueprint) -> None:

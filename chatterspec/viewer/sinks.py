@@ -260,6 +260,8 @@ def open_sinks(
         Possibly with no stream at all (nothing requested, or viewer unusable
         and no fallback file); ``notes`` holds what the user should be told.
     """
+    if record is None and live is None:
+        return Sinks()  # nothing to open: Rerun is not even imported
     import rerun as rr
 
     rid = recording_id or str(uuid.uuid4())

@@ -2,7 +2,7 @@
 
 Rerun draws tensors without axis ticks (its tensor view names the dimensions only), so
 a recording's spectrogram is a ``DepthImage`` of ``10 log10(S / threshold)`` (dB, colour
-map ``magma`` over :data:`~chatterspec.viewer.rerun_log.DB_RANGE`) in a 2-D view, beside
+map ``magma`` over :data:`~chatterspec.viewer.record_geometry.DB_RANGE`) in a 2-D view, beside
 labelled points that carry the scale:
 
 - frequency labels ("50 Hz", ...) at the image's left edge, at their rows;
@@ -10,7 +10,7 @@ labelled points that carry the scale:
   wide, so that the image starts where the time series' plot areas start (after their y tick labels).
 
 Lining up with the time axes. The image spans the same time as the time views (a file's record span,
-:func:`~chatterspec.viewer.rerun_log.record_span`: one column per frame, padded), and its right edge is
+:func:`~chatterspec.viewer.record_geometry.record_span`: one column per frame, padded), and its right edge is
 the view's right edge, as theirs (seen in the viewer: within 1 px). Its left edge cannot follow every
 time view exactly: a time view's plot area starts after its y tick labels, whose width the viewer sets
 from the label text (``0`` ~15 px, ``20`` / ``-10`` / ``100`` ~30 px, ``-0.01`` ~40 px at 1600x1000),

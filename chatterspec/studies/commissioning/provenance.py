@@ -193,7 +193,8 @@ def write_model_file(result: Any, path: str | Path, *, force: bool = False) -> P
     CommissioningError
         The held-out check failed and ``force`` is False: nothing is written.
     """
-    from ...plants.modelfile import load_model, write_model_toml
+    from ...plants.modelfile import load_model
+    from ...plants.modelfile_writer import write_model_toml
 
     check = result.check
     if check is not None and not check.adequate and not force:
