@@ -19,6 +19,7 @@ __all__ = [
     "HEALTHY",
     "MODE_COLORS",
     "NEUTRAL",
+    "NO_EVIDENCE",
     "TAB10",
     "TRUTH",
     "channel_color",
@@ -35,6 +36,9 @@ RGB = tuple[int, int, int]
 FAULT: RGB = (229, 57, 53)
 #: A healthy verdict (lanes).
 HEALTHY: RGB = (46, 125, 50)
+#: No evidence either way (a lane before its first verdict, or a channel not excited): neither healthy
+#: nor fault, darker than the truth lane's healthy grey.
+NO_EVIDENCE: RGB = (84, 88, 110)
 #: Reference lines and healthy truth segments.
 NEUTRAL: RGB = (140, 140, 140)
 #: The true state (drawn under the estimates): light grey on Rerun's dark background; figures use black.

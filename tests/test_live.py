@@ -115,8 +115,10 @@ def _check_recording(path: Path, rec, spec, flags, summary) -> None:
     half_win = (spec.config.n_window(rec.dt) - 1) * rec.dt / 2.0  # logged when the detector knew
     for ev in summary.events:
         word = "ALARM" if ev.kind == "fault-start" else "cleared"
+        assert ev.alarm_time_s == pytest.approx(ev.time_s + half_win, abs=1e-12)
         hit = [k for k in alarms if texts[k][0].startswith(f"{ev.channel} ") and word in texts[k][0]]
-        assert any(abs(t_ev[k] - (ev.time_s + half_win)) < 1e-9 for k in hit), ev
+        assert any(abs(t_ev[k] - ev.alarm_time_s) < 1e-9 for k in hit), ev
+        assert any(f" {ev.alarm_time_s:.2f} s (" in texts[k][0] for k in hit), ev  # the same time in the text
         assert flags[ev.frame, ev.channel_index] == (ev.kind == "fault-start")
     _, truth = _column(reader, blueprint.TRUTH_LANE, "StateChange:state")
     assert [s[0] for s in truth] == ["healthy", "leakage 9e-11"]

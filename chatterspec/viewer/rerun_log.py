@@ -18,7 +18,7 @@ from .blueprint import (
     lane_entity,
 )
 from .column_batches import ColumnBatches
-from .interval_lanes import IntervalCollector, send_intervals
+from .interval_events import IntervalCollector, send_interval_events
 from .monitor_layout import MonitorLayout
 from .record_geometry import DB_RANGE, default_band_hz, pad_columns, record_span, to_ns
 from .sinks import Sinks
@@ -144,7 +144,7 @@ class RerunLogger:
         )
         self.band_hz, self.hop_s = self.images.band_hz, self.images.hop_s
         self.psi = monitor.settings.psi
-        # a file's lanes: the record's interval estimates, drawn on close (interval_lanes)
+        # a file's interval events: the record's window-extent estimates, sent on close (interval_events)
         self._collector = IntervalCollector(monitor) if sinks.file_stream is not None else None
         # the per-stream batches of everything time-indexed (column_batches)
         self._batches = ColumnBatches(
@@ -211,6 +211,7 @@ class RerunLogger:
             channels=self.channels,
             keys=self.keys,
             lanes=self.lanes,
+            lane_configs=[self._batches.fault_lanes.configuration(i) for i in range(len(self.lanes))],
             expected=self._expected,
             band_hz=self.band_hz,
             hop_s=self.hop_s,
@@ -244,7 +245,8 @@ class RerunLogger:
 
     def close(self) -> None:
         """Send what is buffered, the file's spectrogram (the whole record, or its last block) and the
-        file's lanes: the record's fault intervals (:mod:`chatterspec.viewer.interval_lanes`)."""
+        file's interval events: the record's fault interval estimates
+        (:mod:`chatterspec.viewer.interval_events`)."""
         self.flush()
         if self.sinks.file_stream is not None:  # its last block, padded: the record's span
             self.images.close_file(self.sinks.file_stream)
@@ -265,20 +267,21 @@ class RerunLogger:
         self.send_file_blueprint(file, bp)
 
     def _send_intervals(self) -> None:
-        """The file's verdict lanes and interval events: the window-extent onset/offset estimates of the
-        record's flagged frames, as ``detect --json`` and Fig 8 report them."""
+        """The file's interval events: the window-extent onset/offset estimates of the record's flagged
+        frames, as ``detect --json`` and Fig 8 report them, and the marks of flagged frames outside the
+        band."""
         file = self.sinks.file_stream
         if file is None or self._collector is None or self._start_s is None:
             return
-        send_intervals(file, self._collector.intervals(), self.lanes, self.channels, self._start_s)
+        send_interval_events(file, self._collector.intervals(), self.channels)
         self.images.mark_outside_band(file, self._collector)
 
     def log_event(self, ev: DetectionEvent) -> None:
-        """Log one detection event at once (text log, and the lane of a live viewer) to every stream.
+        """Log one detection event at once (the event log) to every stream.
 
         Parameters
         ----------
         ev : DetectionEvent
-            The event (logged at the end of its frame, converted by :func:`to_ns`).
+            The event (logged at its alarm time, converted by :func:`to_ns`).
         """
         self._batches.send_event(ev)

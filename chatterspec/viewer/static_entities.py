@@ -12,7 +12,6 @@ import numpy as np
 
 from ..detection.spectral import expected_frame_spectrum
 from ..online.monitor import ChatteringMonitor
-from ..palette import FAULT, HEALTHY, rgba32
 from ..plants.nonlinear import is_linear
 from .blueprint import series_styles
 from .record_geometry import DB_RANGE
@@ -38,6 +37,7 @@ def log_static(
     channels: list[str],
     keys: list[str],
     lanes: list[str],
+    lane_configs: list[Any],
     expected: np.ndarray,
     band_hz: tuple[float, float],
     hop_s: float,
@@ -53,7 +53,10 @@ def log_static(
     monitor : ChatteringMonitor
         Gives frequencies (Hz), threshold, units and the boundary layer.
     channels, keys, lanes : list of str
-        Per channel: name, entity key and verdict lane entity.
+        Per channel: name, entity key and fault-state lane entity.
+    lane_configs : list of rerun.StateConfiguration
+        Per channel: the lane's states and labels (:meth:`~chatterspec.viewer.fault_lanes.FaultLanes.
+        configuration`).
     expected : ndarray, shape (bins, m)
         Expected frame spectrum, logged as ``/expected/<c>``.
     band_hz : (float, float)
@@ -87,17 +90,9 @@ def log_static(
     for s in streams:
         for path, style in styles:
             s.log(path, style, static=True)
-        for i, (name, c) in enumerate(zip(channels, keys, strict=True)):
+        for i, c in enumerate(keys):
             log_axes(s, f"/spectrogram/{c}", band_hz, df, DB_RANGE, width, key)
             s.log(f"/threshold/{c}", rr.Tensor(thr.values[:, i], dim_names=["freq"]), static=True)
             s.log(f"/expected/{c}", rr.Tensor(expected[:, i], dim_names=["freq"]), static=True)
-            s.log(
-                lanes[i],
-                rr.StateConfiguration(
-                    values=["healthy", "fault"],
-                    labels=[f"{name}: healthy", f"{name}: FAULT"],
-                    colors=np.array([rgba32(HEALTHY), rgba32(FAULT)], dtype=np.uint32),
-                ),
-                static=True,
-            )
+            s.log(lanes[i], lane_configs[i], static=True)
         s.log("/frequencies", note, static=True)

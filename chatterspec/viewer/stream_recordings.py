@@ -222,13 +222,10 @@ class StreamRecordings:
         streams = [s for x in sinks for s in x.streams]
         if not streams or ev.sample_time_s is None:
             return
-        import rerun as rr
-
-        from .sinks import TIMELINE
+        from .alarm_events import EVENTS, log_text_rows
 
         for s in streams:
-            s.set_time(TIMELINE, duration=float(ev.sample_time_s))
-            s.log("/events", rr.TextLog(f"{ev.kind}: {ev.describe()}", level="WARN"))
+            log_text_rows(s, EVENTS, [ev.sample_time_s], [f"{ev.kind}: {ev.describe()}"], ["WARN"])
 
     # ------------------------------------------------------------------ end
     def discard_spare(self) -> None:
