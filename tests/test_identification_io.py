@@ -130,9 +130,12 @@ def test_monitor_identifies_the_example_per_hop_and_records_it(
     reader = RrdReader(str(rec))
     chunks = reader.stream().filter(content="/identification/leakage", is_static=False).to_chunks()
     rows = [v for c in chunks for v in c.to_record_batch().column("Scalars:scalars").to_pylist()]
-    assert len(rows) == 35 and all(len(r) == 3 for r in rows)
+    # estimate, interval ends and nominal, drawn in 1e-12 m^3/(s Pa) (the nominal 4.8e-12's engineering
+    # exponent: the viewer's axis then reads 4.8 and 90, not 0.000 000 000 09)
+    assert len(rows) == 35 and all(len(r) == 4 for r in rows)
     est = np.array([r[0] for r in rows], dtype=float)
-    assert np.all(np.isnan(est[:15])) and np.nanmedian(est[-10:]) == pytest.approx(9e-11, rel=0.05)
+    assert np.all(np.isnan(est[:15])) and np.nanmedian(est[-10:]) == pytest.approx(90.0, rel=0.05)
+    assert all(r[3] == pytest.approx(4.8) for r in rows)
     data = load_data(EXAMPLES / "eha_data.csv", load_model(EXAMPLES / "eha_model.toml").model)
     assert data.n_samples == 8001
     assert main([*argv, "--events", "jsonl", "--identification-events", "changes"]) == 0

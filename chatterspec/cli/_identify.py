@@ -340,6 +340,7 @@ class MonitorIdentification:
         )
         self.emit, self.say, self.every_hop = emit, say, every_hop
         self.alarm_active: Any = None  # callable () -> bool, set once the monitor exists
+        self.on_output: Any = None  # callable (OnlineIdentification) -> None: e.g. the recordings
         self.selected: str | None = None
         self.said: str | None = None  # the last selection said on the human line
         self.changes: list[dict[str, Any]] = []
@@ -353,7 +354,10 @@ class MonitorIdentification:
 
     def push(self, z: Any, u: Any) -> None:
         """Identify on one chunk of measurements ``z`` and inputs ``u`` and hand the results on."""
-        self.handle(self.identifier.push(z, u))
+        out = self.identifier.push(z, u)
+        if self.on_output is not None:
+            self.on_output(out)
+        self.handle(out)
 
     def handle(self, out: Any) -> None:
         """Report the windows of one push."""

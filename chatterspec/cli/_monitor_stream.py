@@ -63,6 +63,7 @@ def _run_stream(
             on_note=on_note,
             on_push=None if ident is None else ident.push,
             on_reset=None if ident is None else ident.reset,
+            identification=None if ident is None else (ident.identifier.setup, ident.identifier.confidence),
         )
     except OSError as exc:  # e.g. disk full when the recording opens: before any row is read
         from ._common import OutputPathError
@@ -70,8 +71,9 @@ def _run_stream(
         raise OutputPathError(
             f"--record {str(args.record)!r} cannot be written ({exc.strerror or exc}); nothing was monitored"
         ) from None
-    if ident is not None:  # the human identification lines follow the alarms
+    if ident is not None:  # the human identification lines follow the alarms; the recordings draw it
         ident.alarm_active = lambda: mon.monitor is not None and bool(mon.monitor.active.any())
+        ident.on_output = mon.log_identification
     rows = CsvRows(model, where)
     if stdin:
         chunks = read_fd(sys.stdin.fileno())

@@ -145,9 +145,14 @@ def run(args: argparse.Namespace) -> int:
         settings = _alarm_settings(args, choice, sc, settings, cal if args.calibration else None)
         doc["alarm"] = None if settings.budget is None else settings.budget.to_dict()
         outputs = Outputs()
+        ivs = doc.get("identification_intervals")  # drawn below the lanes, as the JSON reports them
+        identified = None if setup is None or not ivs else {
+            "setup": setup, "confidence": args.confidence, "intervals": ivs
+        }  # fmt: skip
         summary = outputs.write(
-            "--record", args.record, record_detection, sim, settings, path=args.record, live=args.live
-        )
+            "--record", args.record, record_detection, sim, settings, path=args.record, live=args.live,
+            identified=identified,
+        )  # fmt: skip
         if summary is not None:
             doc["recording"] = summary.to_dict()
             for note in summary.notes:

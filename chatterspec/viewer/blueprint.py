@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from .. import palette
 from .sinks import TIMELINE
@@ -58,16 +62,46 @@ THRESHOLD = "/detection/threshold_db"
 #: per channel (``2m .. 3m-1``; see chatterspec.detection.frame_score) and the rule's threshold ``h``
 #: (``3m``). The alarm series share the verdict's rows: Rerun's cost is per row.
 VERDICT = "/detection/verdict"
-#: Fixed y range of the statistic views (dB): healthy frames sit near -3 dB, the threshold at 0 dB; a
-#: fixed range keeps the viewer's tick labels (it labels powers of ten only when they are far enough
-#: apart: an auto range of -5..60 dB showed the "0" tick alone at 1600x1000). Larger values run off the top.
-STATISTIC_RANGE_DB = (-10.0, 30.0)
+#: Default y range of the statistic views (dB): healthy frames sit near -3 dB, the threshold at 0 dB. The
+#: viewer labels powers of ten only, and only when their grid lines are far enough apart (an auto range of
+#: -5..60 dB showed the "0" tick alone at 1600x1000), so ranges are set, not automatic: a file's final
+#: blueprint widens the top to hold the record's largest value (:func:`statistic_range`). The bottom is not
+#: a multiple of ten, so that no tick label sits on the time axis's labels.
+STATISTIC_RANGE_DB = (-19.0, 30.0)
 #: Tested bin with the largest excess power ``S - E`` per channel (Hz), one row per frame.
 PEAK_HZ = "/frequency/peak_hz"
 #: Tested bin with the largest ``S / threshold`` per channel (Hz), one row per frame.
 MOST_SIGNIFICANT_HZ = "/frequency/most_significant_hz"
 #: The alarm series live in the rows of :data:`VERDICT` (series ``m .. 3m``).
 ALARM = VERDICT
+
+
+def labelled_top(x: float) -> float:
+    """``1.1 p`` for the smallest power of ten ``p`` with ``1.1 p >= x > 0``: a range top whose ``p`` grid
+    line the viewer labels (see :mod:`chatterspec.viewer.chattering_extent`), with room above ``x``."""
+    return 1.1 * 10.0 ** math.ceil(math.log10(max(float(x), 1e-300) / 1.1) - 1e-12)
+
+
+def statistic_range(largest_db: float) -> tuple[float, float]:
+    """The statistic view's y range (dB) for a record whose largest ``max S/threshold`` is ``largest_db``:
+    :data:`STATISTIC_RANGE_DB`, its top raised to :func:`labelled_top` when the record goes higher (e.g. a
+    62 dB fault -> up to 110 dB, ticks 0 and 100)."""
+    lo, hi = STATISTIC_RANGE_DB
+    if not np.isfinite(largest_db) or largest_db <= 0.9 * hi:
+        return (lo, hi)
+    return (lo, labelled_top(1.05 * largest_db))
+
+
+def alarm_range(h: float, largest: float) -> tuple[float, float] | None:
+    """The alarm view's y range: ``[0, 1.5 h]``, its top raised to :func:`labelled_top` when the drawn
+    statistic goes higher (the frame score of a fault reaches hundreds of nats); None without a finite
+    positive ``h`` (auto range)."""
+    if not (np.isfinite(h) and h > 0):
+        return None
+    top = 1.5 * float(h)
+    if np.isfinite(largest) and largest > top / 1.05:
+        top = labelled_top(1.05 * float(largest))
+    return (0.0, top)
 
 
 # --------------------------------------------------------------------------- blueprint
@@ -216,7 +250,8 @@ def series_styles(
             VERDICT,
             rr.SeriesLines(
                 colors=[_RED] * m + cols + [_GREY] * m + [_RED],
-                widths=[1.0] * m + [1.5] * m + [1.0] * (m + 1),
+                # the rule's statistic wider than the threshold line: a CUSUM g held at h stays visible
+                widths=[1.0] * m + [2.5] * m + [1.0] * (m + 1),
                 names=[f"{c}: verdict (1 = fault)" for c in channels]
                 + [f"{c}: {alarm_statistic}" for c in channels]
                 + [f"{c}: score -log p [nats]" for c in channels]
@@ -380,7 +415,8 @@ def blueprint(
     db_range: tuple[float, float] = (-5.0, 30.0),
     alarm: str | None = None,
     alarm_score: bool = False,
-    alarm_range: tuple[float, float] | None = None,
+    alarm_range: tuple[float, float] | Sequence[tuple[float, float] | None] | None = None,
+    statistic_ranges: Sequence[tuple[float, float]] | None = None,
     extra_row: Any = None,
     units: tuple[str, ...] | None = None,
     above: list[Any] | None = None,
@@ -388,6 +424,7 @@ def blueprint(
     lanes_name: str | None = None,
     peak_view: bool = True,
     chattering_range: Any = None,
+    psi: bool = True,
 ) -> Any:
     """The default layout: per channel (columns) chattering, spectrogram, detection statistic and peak
     frequency; below, the state lanes (true fault first, then one verdict lane per channel in channel
@@ -416,12 +453,16 @@ def blueprint(
         channel ``i``'s rule statistic against the threshold (:data:`VERDICT`); None: no alarm view.
     alarm_score : bool
         Also draw the frame score in the alarm view (when the statistic is not the score itself).
-    alarm_range : (float, float), optional
-        Fixed y range of the alarm view (a fault's score, thousands of nats, would otherwise hide the
-        threshold and the CUSUM ``g``, which is capped at it).
+    alarm_range : (float, float) or sequence of them (one per channel), optional
+        Fixed y range of the alarm view (:func:`alarm_range`: from ``h`` and, in a file's final blueprint,
+        the record's largest value, so that neither the threshold nor the statistic leaves the chart).
+    statistic_ranges : sequence of (float, float), optional
+        Per channel the statistic view's y range (:func:`statistic_range`); default
+        :data:`STATISTIC_RANGE_DB`.
     extra_row : callable, optional
-        ``extra_row(time_range, axis)`` returns views added as a row below the lanes, with the time range
-        and the (linked) time axis of the other views (:func:`time_axis`) (e.g. the identified parameters,
+        ``extra_row(time_range, axis, live=...)`` returns views added as a row below the lanes, with the
+        time range and the (linked) time axis of the other views (:func:`time_axis`) and whether the
+        blueprint is a live viewer's (e.g. the identified parameters,
         :func:`chatterspec.viewer.identification_log.identification_views`).
 
     units : tuple of str, optional
@@ -441,6 +482,8 @@ def blueprint(
         labels its ticks (auto-ranged, a small amplitude can leave a single "0" tick); None (or a None
         entry): auto range. A file's final blueprint gives it
         (:class:`~chatterspec.viewer.chattering_extent.ChatteringExtent`).
+    psi : bool
+        The boundary layer ±psi is drawn (known): the chattering views' titles name it.
 
     Returns
     -------
@@ -472,6 +515,10 @@ def blueprint(
     def unit(i: int) -> str:
         return f" [{units[i]}]" if units and units[i] else ""
 
+    if alarm_range is None or isinstance(alarm_range[0], (int, float)):
+        alarm_axes = [alarm_range] * m
+    else:
+        alarm_axes = list(alarm_range)
     columns = []
     for i, name in enumerate(channels):
         c = _entity(name)
@@ -480,7 +527,7 @@ def blueprint(
                 rrb.TimeSeriesView(
                     origin="/chattering",
                     contents=[f"+ {CHATTERING}", f"+ {PSI}"],
-                    name=f"{name}: chattering e(k|k-1){unit(i)}, grey ±psi",
+                    name=f"{name}: chattering e(k|k-1){unit(i)}" + (", grey ±psi" if psi else ""),
                     time_ranges=time_range,
                     axis_x=axis,
                     plot_legend=no_legend,
@@ -496,17 +543,19 @@ def blueprint(
                 ),
                 spectrogram_view(
                     f"/spectrogram/{c}",
-                    f"{name}: spectrogram{band}, dB re threshold (colour key left)",
+                    f"{name}: spectrogram{band}, dB re threshold",
                     width,
                     key_width(width, view_px(m)),
                 ),
                 rrb.TimeSeriesView(
                     origin="/detection",
                     contents=[f"+ {STATISTIC}", f"+ {THRESHOLD}", f"+ {fault_entity(name)}"],
-                    name=f"{name}: max S/threshold [dB], 0 dB = threshold, red = fault",
+                    name=f"{name}: max S/threshold [dB], red = flagged",
                     time_ranges=time_range,
                     axis_x=axis,
-                    axis_y=rrb.ScalarAxis(range=STATISTIC_RANGE_DB),
+                    axis_y=rrb.ScalarAxis(
+                        range=STATISTIC_RANGE_DB if statistic_ranges is None else statistic_ranges[i]
+                    ),
                     plot_legend=no_legend,
                     overrides={STATISTIC: rr.SeriesLines.from_fields(visible_series=only(i))},
                 ),
@@ -521,7 +570,7 @@ def blueprint(
                             time_ranges=time_range,
                             axis_x=axis,
                             plot_legend=no_legend,
-                            axis_y=None if alarm_range is None else rrb.ScalarAxis(range=alarm_range),
+                            axis_y=None if alarm_axes[i] is None else rrb.ScalarAxis(range=alarm_axes[i]),
                             overrides={
                                 VERDICT: rr.SeriesLines.from_fields(
                                     visible_series=[
@@ -544,7 +593,7 @@ def blueprint(
                                 f"+ {MOST_SIGNIFICANT_HZ}",
                                 f"+ {fault_hz_entity(name)}",
                             ],
-                            name=f"{name}: frequency [Hz] of max S/thr, red = flagged (grey: largest S-E)",
+                            name=f"{name}: frequency of max S/thr [Hz], red = flagged",
                             time_ranges=time_range,
                             axis_x=axis,
                             plot_legend=no_legend,
@@ -561,7 +610,7 @@ def blueprint(
                 row_shares=_column_shares(alarm is not None, peak_view),
             )
         )
-    extra = [] if extra_row is None else [rrb.Horizontal(*extra_row(time_range, axis))]
+    extra = [] if extra_row is None else [rrb.Horizontal(*extra_row(time_range, axis, live=span_s is None))]
     top = [rrb.Horizontal(*above)] if above else []
     if span_s is None:  # live: the alarm state, changed when the detector knew
         what = "alarm per channel, set at the end of the deciding frame (when the detector knew)"

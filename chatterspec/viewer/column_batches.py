@@ -156,6 +156,9 @@ class ColumnBatches:
         self._cusum = rule.name == "cusum"  # the alarm view draws g; else the score itself
         self._h = float(rule.threshold) if np.isfinite(rule.threshold) else np.nan
         self.extent = ChatteringExtent(m)  # the file's chattering amplitudes
+        # the file's largest statistic (dB) and alarm-view value per channel: its views' y ranges
+        self.largest_db = np.full(m, -np.inf)
+        self.largest_alarm = np.full(m, -np.inf)
         self.monitor = monitor
         self.origin_ns: int | None = None  # earliest time logged: the file's spectrogram starts there
 
@@ -278,6 +281,9 @@ class ColumnBatches:
             rows[a:b, 2 * m : 3 * m] = f.score
             a = b
         rows[:, 3 * m] = self._h
+        if not box.live:
+            np.maximum(self.largest_db, stat_db.max(axis=0), out=self.largest_db)
+            np.maximum(self.largest_alarm, rows[:, m : 2 * m].max(axis=0), out=self.largest_alarm)
         s.send_columns(VERDICT, indexes=[fcol], columns=[cols.scalars_column(rows, own=True)])
         for i, c in enumerate(self.keys):
             self._send_spectra(s, f"/spectrum/{c}", fcol, fns, spectra[i])

@@ -104,6 +104,7 @@ def run_monitor(
     band_hz: tuple[float, float] | None = None,
     identifier: Any = None,
     on_identification: Any = None,
+    identified: dict[str, Any] | None = None,
 ) -> RecordingSummary:
     """Drive ``monitor`` over raw data (``z`` (T, m), ``u`` (T, p)) or precomputed ``chattering`` (N, m)
     and log everything to ``sinks``; closes the sinks at the end (also on Ctrl-C).
@@ -137,6 +138,10 @@ def run_monitor(
         sinks (:mod:`chatterspec.viewer.identification_log`); raw data only.
     on_identification : callable, optional
         Called with each push's :class:`~chatterspec.detection.identification_online.OnlineIdentification`.
+    identified : dict, optional
+        Identification done elsewhere, drawn instead of ``identifier``'s: ``setup`` (IdentificationSetup),
+        ``confidence`` and ``intervals`` (``detect --json``'s ``identification_intervals``;
+        :meth:`~chatterspec.viewer.identification_log.IdentificationLog.log_intervals`).
 
     Returns
     -------
@@ -157,11 +162,15 @@ def run_monitor(
         total = data.shape[0]
         if chattering is not None:
             identifier = None  # identification regresses on the raw measurements
-        views = None
-        if identifier is not None and sinks.streams:
+        views = ident_log = None
+        setup = identifier.setup if identifier is not None else (identified or {}).get("setup")
+        if setup is not None and sinks.streams:
             from .identification_log import IdentificationLog, identification_views
 
-            views = identification_views(identifier.setup, identifier.confidence)
+            confidence = identifier.confidence if identifier is not None else identified["confidence"]
+            ident_log = IdentificationLog(sinks, setup, confidence)
+            views = identification_views(ident_log)
+        span = record_span(monitor, total, raw=chattering is None)
         logger = (
             RerunLogger(
                 sinks,
@@ -169,13 +178,12 @@ def run_monitor(
                 scroll_frames=scroll_frames,
                 truth=truth,
                 band_hz=band_hz,
-                span_s=record_span(monitor, total, raw=chattering is None),
+                span_s=span,
                 extra_row=views,
             )
             if sinks.streams
             else None
         )
-        ident_log = IdentificationLog(sinks, identifier.setup) if views is not None else None
         for lo, hi in _chunks(total, size):
             if chattering is not None:
                 upd = monitor.push_chattering(chattering[lo:hi])
@@ -194,6 +202,8 @@ def run_monitor(
                 if on_identification is not None:
                     on_identification(found)
             _pace(t_start, hi * monitor.dt, rate)
+        if ident_log is not None and identifier is None and span is not None:
+            ident_log.log_intervals(identified["intervals"], span)
         done = True
     finally:
         write_error = _close(logger, sinks, keep_going=done)
@@ -262,6 +272,7 @@ def record_detection(
     application_id: str = "chatterspec",
     on_event: Any = None,
     band_hz: tuple[float, float] | None = None,
+    identified: dict[str, Any] | None = None,
 ) -> RecordingSummary:
     """Run the online monitor over one realization of a simulation or chattering record and record it.
 
@@ -290,6 +301,8 @@ def record_detection(
         Called with each detection event.
     band_hz : (float, float), optional
         Spectrogram band (Hz); see :func:`run_monitor`.
+    identified : dict, optional
+        The record's fault identification, drawn below the lanes (see :func:`run_monitor`).
 
     Returns
     -------
@@ -330,5 +343,6 @@ def record_detection(
         truth=truth,
         on_event=on_event,
         band_hz=band_hz,
+        identified=identified,
         **kw,
     )

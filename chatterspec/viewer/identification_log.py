@@ -1,113 +1,148 @@
-"""Fault identification in a Rerun recording: estimate and interval per hop, selected hypothesis.
+"""Fault identification in a Rerun recording: estimate, interval and nominal value of each parameter.
 
-Entities (time on the monitor's ``time`` timeline, one row per hop, integer nanoseconds as in
+Entities (time on the monitor's ``time`` timeline, integer nanoseconds as in
 :mod:`chatterspec.viewer.rerun_log`):
 
 ``/identification/<parameter>``
-    three series per row: the estimate (the plant's value) and the interval's low and high end,
-    of the hypothesis selected in that window when it contains the parameter (NaN otherwise, a
-    gap in the plot);
+    four series per row: the estimate (the plant's value), the interval's low and high end and the
+    nominal value, in the parameter's unit times a power of ten (:func:`display_scale`: the viewer
+    writes ``0.000 000 000 03`` for a leakage in m^3/(s Pa); scaled, it reads ``3``). The estimate and
+    interval are NaN (a gap) where the selected hypothesis does not hold the parameter;
 ``/identification/selected``
     a text log line whenever the selected hypothesis changes (with the estimate).
 
-:func:`identification_views` gives the views shown below the monitor's default layout (one per
-parameter).
+Two sources: the per-hop identification of a monitored stream (:meth:`IdentificationLog.log`, one row per
+hop) and the per-interval identification of ``detect`` (:meth:`IdentificationLog.log_intervals`: the
+numbers of ``detect --json``'s ``identification_intervals``, a constant over each interval).
+
+:meth:`IdentificationLog.views` gives the views below the monitor's default layout: one per parameter
+that was identified (selected) somewhere in the record; a live viewer, which cannot know in advance,
+gets one per declared parameter.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 
 from ..detection.identification_online import OnlineIdentification
 from ..detection.identification_results import format_with_error
+from ..palette import NEUTRAL
 from ..plants.parameters import NO_FAULT
+from .alarm_events import INFO_LEVEL, log_text_rows
 from .arrow_columns import _TimeIndex
 from .rerun_log import to_ns
 from .sinks import Sinks
 
-__all__ = ["IDENTIFICATION", "IdentificationLog", "identification_views"]
+__all__ = ["IDENTIFICATION", "IdentificationLog", "display_scale", "identification_views"]
 
 #: Root entity of the identification series.
 IDENTIFICATION = "/identification"
+#: Colours of the four series: estimate (amber), interval ends (grey), nominal (light, thin).
+_STYLE = {
+    "names": ["estimate", "interval low", "interval high", "nominal"],
+    "colors": [[255, 200, 60], list(NEUTRAL), list(NEUTRAL), [220, 220, 220]],
+    "widths": [2.5, 1.0, 1.0, 1.0],
+}
 
 
 def _path(parameter: str) -> str:
     return f"{IDENTIFICATION}/{parameter}"
 
 
-def identification_views(setup: Any, confidence: float) -> Any:
-    """``make(time_range, axis) -> views``: one time-series view per identified parameter (estimate and
-    interval of the selected hypothesis) and the log of the selected hypothesis, for
-    :func:`chatterspec.viewer.blueprint.blueprint`'s ``extra_row``.
+def display_scale(nominal: float) -> int:
+    """The power of ten ``k`` a parameter is drawn in (values divided by ``10**k``): the nominal value's
+    engineering exponent (a multiple of 3), 0 for a zero nominal or one between 0.01 and 1000.
 
     Parameters
     ----------
-    setup : IdentificationSetup
-        Gives the parameters (and their units) of the hypotheses tested.
-    confidence : float
-        Level of the logged intervals (shown in the view titles).
+    nominal : float
+        Nominal value (in the parameter's unit).
+
+    Returns
+    -------
+    int
     """
-    pm = setup.parameter_map
-    used = [p for p in pm.parameter_names if any(p in h.parameters for h in setup.hypotheses)]
+    a = abs(float(nominal))
+    if a == 0.0 or not math.isfinite(a) or 1e-2 <= a < 1e3:
+        return 0
+    return 3 * math.floor(math.log10(a) / 3)
 
-    def make(time_range: Any, axis: Any = None) -> list[Any]:
-        import rerun.blueprint as rrb
 
-        views = []
-        for p in used:
-            unit = pm.parameter(p).unit
-            views.append(
-                rrb.TimeSeriesView(
-                    origin=_path(p),
-                    name=f"identified {p}" + (f" [{unit}]" if unit else "") + f", {confidence:.0%} interval",
-                    time_ranges=time_range,
-                    axis_x=axis,
-                    plot_legend=rrb.PlotLegend(visible=False),
-                )
-            )
-        views.append(rrb.TextLogView(origin=f"{IDENTIFICATION}/selected", name="identified fault (changes)"))
-        return views
-
-    return make
+def _unit_label(unit: str, k: int) -> str:
+    """``"[1e-12 m^3/(s Pa)]"``, ``"[Hz]"``, ``""``."""
+    scale = f"1e{k} " if k else ""
+    text = f"{scale}{unit}".strip()
+    return f" [{text}]" if text else ""
 
 
 class IdentificationLog:
-    """Sends :class:`~chatterspec.detection.identification_online.OnlineIdentification` results to the sinks.
+    """Sends identification results to the sinks and gives their views.
 
     Parameters
     ----------
     sinks : Sinks
         The monitor's open sinks (file and / or live viewer).
     setup : IdentificationSetup
+    confidence : float
+        Level of the intervals (shown in the view titles).
     """
 
-    def __init__(self, sinks: Sinks, setup: Any) -> None:
+    def __init__(self, sinks: Sinks, setup: Any, confidence: float) -> None:
         import pyarrow as pa
         import rerun as rr
 
         self.rr, self.pa, self.sinks, self.setup = rr, pa, sinks, setup
+        self.confidence = float(confidence)
         pm = setup.parameter_map
         self.parameters = [p for p in pm.parameter_names if any(p in h.parameters for h in setup.hypotheses)]
+        self.nominal = {p: float(pm.parameter(p).value) for p in self.parameters}
+        self.scale = {p: display_scale(self.nominal[p]) for p in self.parameters}
+        self.identified: set[str] = set()  # parameters selected somewhere in the record
         self._selected: str | None = None
         for s in sinks.streams:
             for p in self.parameters:
-                s.log(
-                    _path(p),
-                    rr.SeriesLines(
-                        names=["estimate", "interval low", "interval high"],
-                        colors=[[255, 200, 60], [150, 150, 150], [150, 150, 150]],
-                        widths=[2.0, 1.0, 1.0],
-                    ),
-                    static=True,
+                s.log(_path(p), rr.SeriesLines(**_STYLE), static=True)
+
+    def views(self, time_range: Any, axis: Any = None, *, live: bool = False) -> list[Any]:
+        """One time view per identified parameter (``live``: per declared parameter) and the log of the
+        selected hypothesis; with none identified, the log alone (its title says so)."""
+        import rerun.blueprint as rrb
+
+        shown = self.parameters if live else [p for p in self.parameters if p in self.identified]
+        views = []
+        for p in shown:
+            unit = self.setup.parameter_map.parameter(p).unit
+            views.append(
+                rrb.TimeSeriesView(
+                    origin=_path(p),
+                    name=f"{p}{_unit_label(unit, self.scale[p])}: {self.confidence:.0%} interval, nominal",
+                    time_ranges=time_range,
+                    axis_x=axis,
+                    plot_legend=rrb.PlotLegend(visible=False),
                 )
+            )
+        name = "identified fault (changes)" if shown or live else "identification: no parameter selected"
+        views.append(rrb.TextLogView(origin=f"{IDENTIFICATION}/selected", name=name))
+        return views
+
+    def _send(self, p: str, ns: np.ndarray, rows: np.ndarray) -> None:
+        """Rows (n, 4) of parameter ``p`` (its unit) at ``ns``, scaled for display."""
+        rows = rows / 10.0 ** self.scale[p]
+        col = self.rr.Scalars.columns(scalars=rows.ravel()).partition([4] * rows.shape[0])
+        for s in self.sinks.streams:
+            s.send_columns(_path(p), indexes=[_TimeIndex(self.pa, ns)], columns=col)
+
+    def _texts(self, times_s: list[float], texts: list[str]) -> None:
+        for s in self.sinks.streams:
+            log_text_rows(s, f"{IDENTIFICATION}/selected", times_s, texts, [INFO_LEVEL] * len(texts))
 
     def log(self, out: OnlineIdentification) -> None:
-        """Log the windows of one push."""
+        """Log the windows of one push (per-hop identification of a monitored stream)."""
         if out.n_windows == 0 or not self.sinks.streams:
             return
-        rr, pa = self.rr, self.pa
         ns = to_ns(out.times_s)
         res = out.result
         sel = res.fit["selected"]
@@ -129,21 +164,63 @@ class IdentificationLog:
                     for e in rep.estimate()
                 )
                 texts.append(f"identified: {name}" + (f": {what}" if what else ""))
-                t_text.append(ns[j])
+                t_text.append(float(out.times_s[j]))
         for p in self.parameters:
-            rows = np.full((out.n_windows, 3), np.nan)
+            rows = np.full((out.n_windows, 4), np.nan)
+            rows[:, 3] = self.nominal[p]
             for h, hyp in enumerate(self.setup.hypotheses):
                 if p in hyp.parameters:
                     mine = sel == h
+                    if mine.any():
+                        self.identified.add(p)
                     est, lo, hi = lo_hi[(h, p)]
-                    rows[mine] = np.stack([est, lo, hi], axis=1)[mine]
-            for s in self.sinks.streams:
-                col = rr.Scalars.columns(scalars=rows.ravel()).partition([3] * out.n_windows)
-                s.send_columns(_path(p), indexes=[_TimeIndex(pa, ns)], columns=col)
+                    rows[mine, :3] = np.stack([est, lo, hi], axis=1)[mine]
+            self._send(p, ns, rows)
         if texts:
-            for s in self.sinks.streams:
-                s.send_columns(
-                    f"{IDENTIFICATION}/selected",
-                    indexes=[_TimeIndex(pa, np.asarray(t_text, dtype=np.int64))],
-                    columns=rr.TextLog.columns(text=texts, level=["INFO"] * len(texts)),
-                )
+            self._texts(t_text, texts)
+
+    def log_intervals(self, docs: list[dict[str, Any]], span_s: tuple[float, float]) -> None:
+        """Log ``detect --json``'s ``identification_intervals``: over each interval the selected
+        hypothesis's estimates and intervals (a constant from onset to offset, a gap between intervals),
+        the nominal value over the whole record ``span_s``, and one log line per interval."""
+        if not self.sinks.streams:
+            return
+        texts, t_text = [], []
+        per: dict[str, list[tuple[float, list[float]]]] = {p: [] for p in self.parameters}
+        for doc in docs:
+            on, off = (float(x) for x in doc["interval_s"])
+            sel = doc.get("selected")
+            hyps = doc.get("hypotheses", [])
+            picked = [h for h in hyps if h.get("hypothesis") == sel and h.get("parameter")]
+            what = "; ".join(
+                f"{h['parameter']} = {h['estimate']:.4g} [{h['ci_low']:.4g}, {h['ci_high']:.4g}]"
+                + (f" {h['unit']}" if h.get("unit") else "")
+                for h in picked
+                if h.get("estimate") is not None
+            )
+            texts.append(f"{on:.2f}-{off:.2f} s identified: {sel}" + (f": {what}" if what else ""))
+            t_text.append(on)
+            for h in picked:
+                p = h.get("parameter")
+                if p in per and h.get("estimate") is not None:
+                    self.identified.add(p)
+                    row = [float(h["estimate"]), float(h["ci_low"]), float(h["ci_high"])]
+                    per[p] += [(on, row), (off, row), (off + 1e-9, [np.nan] * 3)]
+        for p in self.parameters:
+            pts = sorted([(span_s[0], [np.nan] * 3), *per[p], (span_s[1], [np.nan] * 3)], key=lambda x: x[0])
+            times = np.array([t for t, _ in pts])
+            rows = np.array([[*r, self.nominal[p]] for _, r in pts])
+            self._send(p, to_ns(times), rows)
+        if texts:
+            self._texts(t_text, texts)
+
+
+def identification_views(log: IdentificationLog) -> Any:
+    """``make(time_range, axis, live=False) -> views`` of ``log`` (:meth:`IdentificationLog.views`), for
+    :func:`chatterspec.viewer.blueprint.blueprint`'s ``extra_row``; evaluated when a blueprint is built,
+    so a file's final blueprint shows the parameters identified in its record."""
+
+    def make(time_range: Any, axis: Any = None, live: bool = False) -> list[Any]:
+        return log.views(time_range, axis, live=live)
+
+    return make

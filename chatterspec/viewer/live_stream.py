@@ -272,6 +272,9 @@ class StreamMonitor:
         (the CLI feeds online fault identification with it).
     on_reset : callable, optional
         Called with the new ``t0`` (s) when a gap or restart starts the filters over.
+    identification : (IdentificationSetup, float), optional
+        Setup and confidence of the run's fault identification, drawn in every recording: give each
+        push's result to :meth:`log_identification`.
     """
 
     def __init__(
@@ -288,6 +291,7 @@ class StreamMonitor:
         on_note: Callable[[str], None] | None = None,
         on_push: Callable[[np.ndarray, np.ndarray], None] | None = None,
         on_reset: Callable[[float], None] | None = None,
+        identification: tuple[Any, float] | None = None,
     ) -> None:
         self.on_push = on_push  # e.g. online fault identification, fed the same raw rows
         self.on_reset = on_reset  # called with t0 when a gap or restart starts the filters over
@@ -328,7 +332,13 @@ class StreamMonitor:
             notes=self.notes,
             on_note=self.on_note,
             max_kept=MAX_EVENTS,
+            identification=identification,
         )
+
+    def log_identification(self, out: Any) -> None:
+        """Draw one push's fault identification (:class:`~chatterspec.detection.identification_online.
+        OnlineIdentification`) in the recordings."""
+        self._rec.log_identification(out)
 
     # ------------------------------------------------------------------ input
     def process(self, item: RowBlock | BadRow | Restart) -> None:

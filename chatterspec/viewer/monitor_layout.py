@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..online.monitor import ChatteringMonitor
-from .blueprint import blueprint, layout_geometry, view_px
+from .blueprint import alarm_range, blueprint, layout_geometry, statistic_range, view_px
 from .record_geometry import DB_RANGE
 from .spectrogram_view import key_width
 
@@ -81,6 +81,7 @@ class MonitorLayout:
         above: list[Any] | None = None,
         lanes_name: str | None = None,
         chattering_range: Any = None,
+        largest: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> Any:
         """The default :func:`~chatterspec.viewer.blueprint.blueprint` of the recording (band, alarm view,
         units, and the geometry given to the constructor).
@@ -101,7 +102,18 @@ class MonitorLayout:
             Title of the lanes view.
         chattering_range : sequence of float, optional
             Per channel the half-height of the chattering view's symmetric y range (output units).
+        largest : (ndarray, ndarray), optional
+            Per channel the record's largest statistic (dB) and alarm-view value: the statistic and alarm
+            views' y ranges hold them (:func:`~chatterspec.viewer.blueprint.statistic_range`,
+            :func:`~chatterspec.viewer.blueprint.alarm_range`); None: the default ranges (a live viewer).
         """
+        m = len(self.monitor.channels)
+        if largest is None:
+            stat_ranges, alarm_ranges = None, alarm_range(self.h, -np.inf)
+        else:
+            stat_ranges = [statistic_range(float(x)) for x in largest[0]]
+            alarm_ranges = [alarm_range(self.h, float(x)) for x in largest[1]]
+        assert stat_ranges is None or len(stat_ranges) == m
         return blueprint(
             self.monitor.channels,
             has_truth=self.has_truth if has_truth is None else has_truth,
@@ -109,8 +121,9 @@ class MonitorLayout:
             span_s=span_s,
             db_range=DB_RANGE,
             alarm=self.alarm_title(),
-            alarm_score=self.cusum,
-            alarm_range=(0.0, 1.5 * self.h) if self.h > 0 else None,
+            alarm_score=False,  # CUSUM: g and h only (the frame score, up to thousands of nats, hid them)
+            alarm_range=alarm_ranges,
+            statistic_ranges=stat_ranges,
             extra_row=extra_row if extra_row is not None else self.extra_row,
             units=tuple(self.monitor.model.output_units),
             above=above,
@@ -118,15 +131,18 @@ class MonitorLayout:
             lanes_name=lanes_name,
             peak_view=self.peak_view,
             chattering_range=chattering_range,
+            psi=self.monitor.settings.psi is not None,
         )
 
     def alarm_title(self) -> str:
-        """The alarm view's title: the rule's statistic against its threshold, and the budget."""
-        from ..online.monitor_types import alarm_label
-
+        """The alarm view's title, short enough for a third of the window: the rule's statistic against
+        its threshold (nats) and the budget."""
         rule, budget = self.monitor.rule, self.monitor.settings.false_alarms_per_hour
-        what = {"cusum": "CUSUM g", "persistence": f"score ({rule.name} {getattr(rule, 'k', '')} of "
+        what = {"cusum": "CUSUM g", "persistence": f"score ({getattr(rule, 'k', '')} of "
                 f"{getattr(rule, 'n', '')})"}.get(rule.name, "score")  # fmt: skip
-        label = alarm_label(rule.name, budget).split(", ", 1)[1]
-        grey = ", grey = score" if self.cusum else ""
-        return f"{what} vs h = {rule.threshold:.3g} [nats] ({label}){grey}"
+        if budget is None:
+            per = "per-frame alpha"
+        else:
+            x = float(budget)
+            per = f"1 false alarm/{1 / x:.3g} h" if x < 1 else f"{x:.3g} false alarms/h"
+        return f"{what} vs h = {rule.threshold:.3g} nats, {per}"

@@ -163,6 +163,9 @@ class RerunLogger:
         )
         self.batch_samples, self.batch_frames = self._batches.batch_samples, self._batches.batch_frames
         self._start_s: float | None = None  # start of the record's first STFT window (s)
+        #: The recording's fault identification log, when a stream draws one (set by its owner,
+        #: :class:`~chatterspec.viewer.stream_recordings.StreamRecordings`).
+        self.identification: Any = None
         # the file's blueprint is sent again on close, with the record's span and amplitudes (the keyword
         # arguments of its layout; None: the caller sends the file's blueprint itself)
         self.file_layout: dict[str, Any] | None = None
@@ -195,7 +198,7 @@ class RerunLogger:
         **options
             The other keyword arguments of :meth:`MonitorLayout.blueprint
             <chatterspec.viewer.monitor_layout.MonitorLayout.blueprint>` (``has_truth``, ``extra_row``,
-            ``above``, ``lanes_name``, ``chattering_range``), which documents them.
+            ``above``, ``lanes_name``, ``chattering_range``, ``largest``), which documents them.
 
         Returns
         -------
@@ -263,7 +266,8 @@ class RerunLogger:
         span = self.span_s if self.span_s is not None else self.images.covered_span()
         # no frame yet (a record shorter than one window): the layout without span and ranges
         ranges = None if span is None else self._batches.extent.ranges(self.psi)
-        bp = self.layout(span_s=span, chattering_range=ranges, **self.file_layout)
+        largest = None if span is None else (self._batches.largest_db, self._batches.largest_alarm)
+        bp = self.layout(span_s=span, chattering_range=ranges, largest=largest, **self.file_layout)
         self.send_file_blueprint(file, bp)
 
     def _send_intervals(self) -> None:

@@ -48,6 +48,9 @@ class StreamRecordings:
         Called with human-readable notes (recordings closed).
     max_kept : int
         Recordings kept for the summary (older ones are counted).
+    identification : (IdentificationSetup, float), optional
+        Setup and confidence of the run's fault identification: every recording draws it
+        (:meth:`log_identification`, :mod:`~chatterspec.viewer.identification_log`).
     """
 
     def __init__(
@@ -61,8 +64,10 @@ class StreamRecordings:
         notes: list[str],
         on_note: Callable[[str], None] | None,
         max_kept: int,
+        identification: tuple[Any, float] | None = None,
     ) -> None:
         self._proto = proto
+        self.identification = identification
         self.record, self.record_every, self.live = record, record_every, live
         self.recording_name = recording_name
         self.notes, self.on_note = notes, on_note
@@ -92,10 +97,24 @@ class StreamRecordings:
         if self.on_note is not None:
             self.on_note(text)
 
+    def _identification_log(self, sinks: Any) -> Any:
+        """The identification log of ``sinks`` (None without identification) and its views."""
+        if self.identification is None or not sinks.streams:
+            return None, None
+        from .identification_log import IdentificationLog, identification_views
+
+        log = IdentificationLog(sinks, *self.identification)
+        return log, identification_views(log)
+
     def _logger(self, sinks: Any) -> Any:
         from .rerun_log import RerunLogger
 
-        return RerunLogger(sinks, self._proto) if sinks.streams else None
+        if not sinks.streams:
+            return None
+        ident, views = self._identification_log(sinks)
+        logger = RerunLogger(sinks, self._proto, extra_row=views)
+        logger.identification = ident
+        return logger
 
     def _open_live(self) -> None:
         from .sinks import default_recording_path, open_sinks
@@ -136,11 +155,13 @@ class StreamRecordings:
         sinks = open_sinks(record=tmp, recording_name=self.recording_name)
         from .rerun_log import RerunLogger
 
-        logger = RerunLogger(sinks, self._proto, send_blueprint=False)
+        ident, views = self._identification_log(sinks)
+        logger = RerunLogger(sinks, self._proto, send_blueprint=False, extra_row=views)
+        logger.identification = ident
         for st in sinks.streams:
             _send_blueprint_released(st, logger.layout(span_s=None))
         # on close: paused on the file's whole record, sent without leaking either
-        logger.file_layout, logger.send_file_blueprint = {}, _send_blueprint_released
+        logger.file_layout, logger.send_file_blueprint = {"extra_row": views}, _send_blueprint_released
         return sinks, logger
 
     def open_file(self, t_start: float) -> None:
@@ -215,6 +236,13 @@ class StreamRecordings:
                 t_rot = time.perf_counter()
                 self.close_file(t_after, wait=False)
                 self.rotation_max_s = max(self.rotation_max_s, time.perf_counter() - t_rot)
+
+    def log_identification(self, out: Any) -> None:
+        """Log one push's identification windows to every open recording that draws identification."""
+        for logger in [*self._loggers, self.file_logger]:
+            ident = getattr(logger, "identification", None)
+            if ident is not None:
+                ident.log(out)
 
     def log_text(self, ev: Any) -> None:
         """Log a gap or restart event to the open streams' event log at its sample time."""
