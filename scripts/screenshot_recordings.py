@@ -119,7 +119,7 @@ def make_recordings(work: Path) -> list[Path]:
     return sorted(work.rglob("*.rrd"))
 
 
-def screenshot(rrd: Path, png: Path, timeout_s: float = 180.0) -> None:
+def screenshot(rrd: Path, png: Path, timeout_s: float = 180.0, *, retry: bool = True) -> None:
     """Open ``rrd`` in the Rerun viewer under Xvfb and save what it shows as ``png`` (1600x1000)."""
     viewer = shutil.which(
         "rerun", path=os.pathsep.join([str(Path(sys.executable).parent), os.environ["PATH"]])
@@ -137,7 +137,6 @@ def screenshot(rrd: Path, png: Path, timeout_s: float = 180.0) -> None:
             "XDG_CONFIG_HOME": str(Path(home) / ".config"),
             "XDG_DATA_HOME": str(Path(home) / ".local" / "share"),
             "XDG_CACHE_HOME": str(Path(home) / ".cache"),
-            "WINIT_X11_SCALE_FACTOR": "1",  # one image pixel per logical pixel
             "RERUN_ANALYTICS": "0",
         }
         cmd = [
@@ -146,6 +145,7 @@ def screenshot(rrd: Path, png: Path, timeout_s: float = 180.0) -> None:
             "-s",
             f"-screen 0 {SCREEN}",
             viewer,
+            "--new",  # a viewer of its own: a viewer already on the default port would take the file
             "--window-size",
             WINDOW,
             "--screenshot-to",
@@ -156,7 +156,10 @@ def screenshot(rrd: Path, png: Path, timeout_s: float = 180.0) -> None:
         subprocess.run(
             cmd, env=env, check=True, timeout=timeout_s, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
         )
-    if not png.exists():
+    if not png.exists():  # e.g. two xvfb-run -a took the same display number: once more
+        if retry:
+            screenshot(rrd, png, timeout_s, retry=False)
+            return
         raise SystemExit(f"the viewer wrote no screenshot for {rrd}")
 
 

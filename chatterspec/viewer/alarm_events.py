@@ -26,8 +26,8 @@ ALARM_LEVEL, INFO_LEVEL = "ERROR", "INFO"
 
 
 def alarm_event_text(ev: DetectionEvent) -> str:
-    """Short, most important first (the log view cuts long bodies): channel, what happened and when (the
-    alarm time, end of the deciding frame), the onset / offset estimate, then the bin and the rule.
+    """Short, most important first (the log view cuts long bodies): when (the alarm time, end of the
+    deciding frame), channel and what happened, the onset / offset estimate, then the bin and the rule.
 
     Parameters
     ----------
@@ -43,7 +43,7 @@ def alarm_event_text(ev: DetectionEvent) -> str:
     else:
         what, est = "alarm cleared", "offset"
     return (
-        f"{ev.channel} {what} {ev.alarm_time_s:.2f} s ({est} est. {ev.estimate_s:.2f} s), "
+        f"{ev.alarm_time_s:.2f} s {ev.channel} {what} ({est} est. {ev.estimate_s:.2f} s), "
         f"{ev.peak_hz:.1f} Hz {db:+.0f} dB, {ev.rule}"
     )
 

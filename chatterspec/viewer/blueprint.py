@@ -67,7 +67,7 @@ VERDICT = "/detection/verdict"
 #: -5..60 dB showed the "0" tick alone at 1600x1000), so ranges are set, not automatic: a file's final
 #: blueprint widens the top to hold the record's largest value (:func:`statistic_range`). The bottom is not
 #: a multiple of ten, so that no tick label sits on the time axis's labels.
-STATISTIC_RANGE_DB = (-19.0, 30.0)
+STATISTIC_RANGE_DB = (-15.0, 25.0)
 #: Tested bin with the largest excess power ``S - E`` per channel (Hz), one row per frame.
 PEAK_HZ = "/frequency/peak_hz"
 #: Tested bin with the largest ``S / threshold`` per channel (Hz), one row per frame.
@@ -101,7 +101,32 @@ def alarm_range(h: float, largest: float) -> tuple[float, float] | None:
     top = 1.5 * float(h)
     if np.isfinite(largest) and largest > top / 1.05:
         top = labelled_top(1.05 * float(largest))
-    return (0.0, top)
+    return (-0.1 * top, top)  # 0 above the bottom edge: its label clear of the time axis's
+
+
+def event_log_view(name: str = "events (alarm times; estimates; identification)") -> Any:
+    """The event log (``/events`` and below): level and text (each text starts with its time in s; the
+    timeline and entity-path columns cut the text short at 1600x1000)."""
+    import rerun.blueprint as rrb
+
+    return rrb.TextLogView(
+        origin="/events",
+        name=name,
+        columns=rrb.TextLogColumns(timeline_columns=[], text_log_columns=["loglevel", "body"]),
+    )
+
+
+def title_chars(n_columns: int) -> int:
+    """Characters a view title can hold, uncut, in one of ``n_columns`` columns at 1600x1000: the view's
+    width less its icons (~140 px), at ~6.6 px per character (measured in Rerun 0.41: 65 characters fit
+    a third of the window, 42 a quarter)."""
+    return int((_WINDOW[0] / max(int(n_columns), 1) - 140.0) / 6.6)
+
+
+def fit(variants: Sequence[str], chars: int) -> str:
+    """The first (longest) of ``variants`` with at most ``chars`` characters, else the last: a title is
+    shortened by dropping words, never cut (the viewer's cut can hide a number)."""
+    return next((v for v in variants if len(v) <= chars), variants[-1])
 
 
 # --------------------------------------------------------------------------- blueprint
@@ -331,6 +356,8 @@ def time_panel(span_s: tuple[float, float] | None) -> Any:
 _WINDOW = (1600.0, 840.0)
 #: Pixels of one state lane, of a view's title bar, of an extra row above or below the columns.
 _LANE_PX, _TITLE_PX, _ROW_PX = 42.0, 26.0, 100.0
+#: The event log's title bar and table header, and one table row (logical px, measured in Rerun 0.41).
+_LOG_TOP_PX, _LOG_ROW_PX = 56.0, 20.2
 
 
 def _column_shares(alarm: bool, peak: bool = True) -> list[float]:
@@ -390,6 +417,9 @@ def layout_geometry(
         spectrogram_view.KEY_PX`), over the view's height.
     """
     lanes = 45.0 + _LANE_PX * n_lanes
+    # the event log beside the lanes: its title, header and whole rows (no half-hidden last row)
+    rows = math.ceil((lanes - _LOG_TOP_PX) / _LOG_ROW_PX)
+    lanes = _LOG_TOP_PX + rows * _LOG_ROW_PX + 2.0
     cols = max(_WINDOW[1] - lanes - _ROW_PX * (rows_above + rows_below), 200.0)
     shares = _column_shares(alarm, peak)
     spec_h = max(cols * shares[1] / sum(shares) - _TITLE_PX, 20.0)
@@ -413,7 +443,7 @@ def blueprint(
     band_hz: tuple[float, float] | None = None,
     span_s: tuple[float, float] | None = None,
     db_range: tuple[float, float] = (-5.0, 30.0),
-    alarm: str | None = None,
+    alarm: str | Sequence[str] | None = None,
     alarm_score: bool = False,
     alarm_range: tuple[float, float] | Sequence[tuple[float, float] | None] | None = None,
     statistic_ranges: Sequence[tuple[float, float]] | None = None,
@@ -425,6 +455,7 @@ def blueprint(
     peak_view: bool = True,
     chattering_range: Any = None,
     psi: bool = True,
+    alarm_rule: str | None = None,
 ) -> Any:
     """The default layout: per channel (columns) chattering, spectrogram, detection statistic and peak
     frequency; below, the state lanes (true fault first, then one verdict lane per channel in channel
@@ -448,9 +479,10 @@ def blueprint(
         opens paused on the whole record.
     db_range : (float, float)
         Colour range of the spectrogram (dB re the frame threshold), shown in its title.
-    alarm : str, optional
+    alarm : str or sequence of str, optional
         Title of the alarm view (the rule, its statistic and budget) below the detection statistic:
-        channel ``i``'s rule statistic against the threshold (:data:`VERDICT`); None: no alarm view.
+        channel ``i``'s rule statistic against the threshold (:data:`VERDICT`); several: from the longest
+        to the shortest, the longest that fits is used (:func:`fit`); None: no alarm view.
     alarm_score : bool
         Also draw the frame score in the alarm view (when the statistic is not the score itself).
     alarm_range : (float, float) or sequence of them (one per channel), optional
@@ -484,6 +516,8 @@ def blueprint(
         (:class:`~chatterspec.viewer.chattering_extent.ChatteringExtent`).
     psi : bool
         The boundary layer ±psi is drawn (known): the chattering views' titles name it.
+    alarm_rule : str, optional
+        The alarm rule and budget in a few words (``"cusum, 1 false alarm/24 h"``), for the lanes' title.
 
     Returns
     -------
@@ -515,6 +549,9 @@ def blueprint(
     def unit(i: int) -> str:
         return f" [{units[i]}]" if units and units[i] else ""
 
+    budget = title_chars(m)
+    grey = ", grey ±psi" if psi else ""
+    alarms = [alarm] if isinstance(alarm, str) else list(alarm or [])
     if alarm_range is None or isinstance(alarm_range[0], (int, float)):
         alarm_axes = [alarm_range] * m
     else:
@@ -522,12 +559,29 @@ def blueprint(
     columns = []
     for i, name in enumerate(channels):
         c = _entity(name)
+        u = unit(i)
+        variants = {  # longest first: fit() keeps the longest that the column's width holds
+            "chattering": [f"chattering e(k|k-1){u}{grey}", f"chattering{u}{grey}", f"chattering{u}"],
+            "spectrogram": [f"spectrogram{band}, dB re threshold", f"spectrogram{band}, dB", "spectrogram"],
+            "statistic": [
+                "max S/threshold [dB], red = flagged",
+                "max S/thr [dB], red = flagged",
+                "max S/thr [dB]",
+            ],
+            "alarm": alarms or ["alarm"],
+            "frequency": [
+                "frequency of max S/thr [Hz], red = flagged",
+                "peak frequency [Hz], red = flagged",
+                "peak frequency [Hz]",
+            ],
+        }
+        title = {k: fit([f"{name}: {v}" for v in vs], budget) for k, vs in variants.items()}
         columns.append(
             rrb.Vertical(
                 rrb.TimeSeriesView(
                     origin="/chattering",
                     contents=[f"+ {CHATTERING}", f"+ {PSI}"],
-                    name=f"{name}: chattering e(k|k-1){unit(i)}" + (", grey ±psi" if psi else ""),
+                    name=title["chattering"],
                     time_ranges=time_range,
                     axis_x=axis,
                     plot_legend=no_legend,
@@ -543,14 +597,14 @@ def blueprint(
                 ),
                 spectrogram_view(
                     f"/spectrogram/{c}",
-                    f"{name}: spectrogram{band}, dB re threshold",
+                    title["spectrogram"],
                     width,
                     key_width(width, view_px(m)),
                 ),
                 rrb.TimeSeriesView(
                     origin="/detection",
                     contents=[f"+ {STATISTIC}", f"+ {THRESHOLD}", f"+ {fault_entity(name)}"],
-                    name=f"{name}: max S/threshold [dB], red = flagged",
+                    name=title["statistic"],
                     time_ranges=time_range,
                     axis_x=axis,
                     axis_y=rrb.ScalarAxis(
@@ -566,7 +620,7 @@ def blueprint(
                         rrb.TimeSeriesView(
                             origin="/alarm",
                             contents=[f"+ {VERDICT}"],
-                            name=f"{name}: {alarm}",
+                            name=title["alarm"],
                             time_ranges=time_range,
                             axis_x=axis,
                             plot_legend=no_legend,
@@ -593,7 +647,7 @@ def blueprint(
                                 f"+ {MOST_SIGNIFICANT_HZ}",
                                 f"+ {fault_hz_entity(name)}",
                             ],
-                            name=f"{name}: frequency of max S/thr [Hz], red = flagged",
+                            name=title["frequency"],
                             time_ranges=time_range,
                             axis_x=axis,
                             plot_legend=no_legend,
@@ -603,7 +657,7 @@ def blueprint(
                             },
                             axis_y=None
                             if band_hz is None
-                            else rrb.ScalarAxis(range=(0.0, float(band_hz[1]))),
+                            else rrb.ScalarAxis(range=(-0.1 * float(band_hz[1]), 1.05 * float(band_hz[1]))),
                         ),
                     ]
                 ),
@@ -612,10 +666,7 @@ def blueprint(
         )
     extra = [] if extra_row is None else [rrb.Horizontal(*extra_row(time_range, axis, live=span_s is None))]
     top = [rrb.Horizontal(*above)] if above else []
-    if span_s is None:  # live: the alarm state, changed when the detector knew
-        what = "alarm per channel, set at the end of the deciding frame (when the detector knew)"
-    else:  # a file: the record's interval estimates
-        what = "fault intervals per channel (onset/offset estimates, as detect --json)"
+    what = f"fault state per channel ({alarm_rule or 'alarm rule'}; grey = no evidence)"
     default_name = f"true fault (top); {what}" if has_truth else what
     return rrb.Blueprint(
         rrb.Vertical(
@@ -628,8 +679,8 @@ def blueprint(
                     time_ranges=time_range,
                     time_view=axis,
                 ),
-                rrb.TextLogView(origin="/events", name="detection events"),
-                column_shares=[2, 1],
+                event_log_view(),
+                column_shares=[1.4, 1],
             ),
             *extra,
             # pixels at 1600x1000 (layout_geometry): every lane visible

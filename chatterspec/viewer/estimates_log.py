@@ -7,7 +7,8 @@ Entity layout (one ``time`` timeline, durations in integer nanoseconds, rounded 
     /errors/<state>/<filter>              estimation error x_i - x_i(k|k)
     /measurements/<output>                z_j(k)
     /innovations/<output>/<filter>        e_j(k|k-1) = z_j(k) - C x(k|k-1)
-    /info                                 a text log line naming the scenario, run and filters
+    /state/0_truth                        the true plant's segments (a lane: where the fault starts)
+    /info                                 what the colours are, the scenario, run and filters
 
 Everything time-indexed goes through ``RecordingStream.send_columns`` (bulk, millions of samples
 per second); ``rerun`` is imported only when a recording is written.
@@ -21,7 +22,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import ParameterError
-from ..palette import TRUTH, filter_color
+from ..palette import TAB10, TRUTH, filter_color
+from ..plants.model_base import state_units
 
 __all__ = ["estimate_blueprint", "record_estimates"]
 
@@ -78,20 +80,15 @@ def record_estimates(records: Any, path: str | Path, *, run: int = 0) -> Path:
             raise ParameterError(f"cannot write the recording {str(path)!r}: {exc}") from None
         raise err from None
     try:
-        from .sinks import TIMELINE
-
         rec.send_recording_name(f"estimate {sc.name} run {records.first_run + run}")
         t_all = rr.TimeColumn("time", duration=_ns(records.t))
         t_post = rr.TimeColumn("time", duration=_ns(records.t[1:]))
         names = list(records.outputs)
-        rec.set_time(TIMELINE, duration=np.timedelta64(int(_ns(records.t[:1])[0].astype(np.int64)), "ns"))
-        rec.log(
-            "/info",
-            rr.TextLog(
-                f"scenario {sc.name}, realization {records.first_run + run}, filters {', '.join(names)}",
-                level="INFO",
-            ),
-        )
+        rec.log("/info", rr.TextDocument(_legend(sc.name, records.first_run + run, names)), static=True)
+        from .drivers import scenario_truth
+        from .truth_lane import log_truth_lane
+
+        log_truth_lane([rec], scenario_truth(sc))
         x = records.x[run]
         _log_styles(rec, states, outputs, names)
         for i, s in enumerate(states):
@@ -123,7 +120,7 @@ def record_estimates(records: Any, path: str | Path, *, run: int = 0) -> Path:
                         columns=rr.Scalars.columns(scalars=out.innovation[run, :, j]),
                     )
         span = (float(records.t[0]), float(records.t[-1]))
-        units = _state_units(model, states)
+        units = state_units(model)
         rec.send_blueprint(
             estimate_blueprint(
                 states, outputs, names, span, units, title=f"{sc.name}, run {records.first_run + run}"
@@ -135,12 +132,6 @@ def record_estimates(records: Any, path: str | Path, *, run: int = 0) -> Path:
     finally:
         rec.disconnect()
     return path
-
-
-def _state_units(model: Any, states: tuple[str, ...]) -> tuple[str, ...]:
-    """A state's unit where it is measured under its own name (the model lists output units only)."""
-    by_output = dict(zip(model.output_names, model.output_units, strict=True))
-    return tuple(by_output.get(s, "") for s in states)
 
 
 def _log_styles(rec: Any, states: tuple[str, ...], outputs: tuple[str, ...], names: list[str]) -> None:
@@ -155,16 +146,34 @@ def _log_styles(rec: Any, states: tuple[str, ...], outputs: tuple[str, ...], nam
             static=True,
         )
         for k, name in enumerate(names):
-            # drawn in name order: the first filter widest, so that a later one does not hide it
-            width = 1.0 + 0.8 * (len(names) - 1 - k)
-            style = rr.SeriesLines(colors=[list(filter_color(name, k))], widths=[width], names=[name])
+            style = _filter_style(rr, name, k, len(names))
             rec.log(f"/states/{s}/{name}", style, static=True)
             rec.log(f"/errors/{s}/{name}", style, static=True)
     for o in outputs:
         for k, name in enumerate(names):
-            width = 1.0 + 0.8 * (len(names) - 1 - k)
-            style = rr.SeriesLines(colors=[list(filter_color(name, k))], widths=[width], names=[name])
-            rec.log(f"/innovations/{o}/{name}", style, static=True)
+            rec.log(f"/innovations/{o}/{name}", _filter_style(rr, name, k, len(names)), static=True)
+
+
+def _width(k: int, n: int) -> float:
+    """Line width of filter ``k`` of ``n``: the first widest (3.5 px down to 1 px), so that a later one
+    drawn over it (the estimates nearly coincide) leaves its edges visible."""
+    return 1.0 + 2.5 * (n - 1 - k) / max(n - 1, 1)
+
+
+def _filter_style(rr: Any, name: str, k: int, n: int) -> Any:
+    """Filter ``k`` of ``n``: its palette colour and :func:`_width`."""
+    return rr.SeriesLines(colors=[list(filter_color(name, k))], widths=[_width(k, n)], names=[name])
+
+
+def _legend(scenario: str, run: int, names: list[str]) -> str:
+    """The recording's legend (a text beside the views, not over the data): the colour of every filter."""
+    by_rgb = {rgb: word for word, rgb in TAB10.items()}
+    n = len(names)
+    parts = [
+        f"{name} {by_rgb.get(filter_color(name, k), f'colour {k}')} ({_width(k, n):.1f} px)"
+        for k, name in enumerate(names)
+    ]
+    return f"Scenario {scenario}, realization {run}. Truth: light grey, thin. Estimates: {', '.join(parts)}."
 
 
 def estimate_blueprint(
@@ -176,10 +185,11 @@ def estimate_blueprint(
     *,
     title: str = "",
 ) -> Any:
-    """The layout of an estimate recording: one column per state with the truth and every filter's
-    estimate on shared axes above the estimation errors; below, the innovations per output and the
-    run's description. Every time view shows ``span_s`` (linked time axis); legends sit in a corner
-    out of the data; playback opens paused on the whole record.
+    """The layout of an estimate recording: one row per state with the truth and every filter's
+    estimate on shared axes beside the estimation errors; below, the innovations per output and the
+    run's description with the colours (no legend over the data); at the bottom the true plant's lane,
+    which marks where the fault starts. Every time view shows ``span_s`` (linked time axis); playback
+    opens paused on the whole record.
 
     Parameters
     ----------
@@ -211,22 +221,22 @@ def estimate_blueprint(
             origin=origin, name=name, time_ranges=time_range, axis_x=axis, plot_legend=legend
         )
 
-    legend = rrb.PlotLegend(corner="LeftTop", visible=True)
-    who = ", ".join(filters)
-    columns = []
+    rows = []  # one row per state, each view half the window wide: the time axis labels its ms ticks
     for s, u in zip(states, units, strict=True):
         unit = f" [{u}]" if u else ""
-        columns.append(
-            rrb.Vertical(
-                view(f"/states/{s}", f"{s}{unit}: truth (thin, light) and {who}", legend),
+        rows.append(
+            rrb.Horizontal(
+                view(f"/states/{s}", f"{s}{unit}: truth and estimates"),
                 view(f"/errors/{s}", f"{s} error: truth - estimate{unit}"),
-                row_shares=[1.4, 1.0],
             )
         )
-    bottom = [view(f"/innovations/{o}", f"{o}: innovation z - C x(k|k-1) per filter") for o in outputs]
-    bottom.append(rrb.TextLogView(origin="/info", name=f"estimate {title}"))
+    bottom = [view(f"/innovations/{o}", f"{o}: innovation z - C x(k|k-1)") for o in outputs]
+    bottom.append(rrb.TextDocumentView(origin="/info", name=f"estimate {title}: colours"))
+    lane = rrb.StateTimelineView(
+        origin="/state", name="true plant (the fault's start)", time_ranges=time_range, time_view=axis
+    )
     return rrb.Blueprint(
-        rrb.Vertical(rrb.Horizontal(*columns), rrb.Horizontal(*bottom), row_shares=[4.0, 1.0]),
+        rrb.Vertical(*rows, rrb.Horizontal(*bottom), lane, row_shares=[1.0] * len(rows) + [0.9, 0.5]),
         time_panel(span_s),
         collapse_panels=True,
     )

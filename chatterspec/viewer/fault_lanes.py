@@ -5,8 +5,9 @@ A lane changes only where the alarm layer's state changes (or the channel's evid
 deciding frame: ``no-evidence`` (grey) from the record's first sample until the first frame is complete,
 then ``healthy`` (green) or ``FAULT`` (red). The onset / offset estimate of each alarm (the event's
 ``estimate_s``) is an annotation of its segment, not a state of its own: a fault segment reads
-``"<channel>: FAULT at <alarm> s, onset est. <onset> s"``, the healthy segment after it
-``"<channel>: healthy at <alarm> s, offset est. <offset> s"``. Labels belong to state values, so each
+``"FAULT at <alarm> s, onset est. <onset> s"``, the healthy segment after it
+``"healthy at <alarm> s, offset est. <offset> s"`` (labels without the channel, which the viewer writes
+above each lane: short segments keep more of their text). Labels belong to state values, so each
 alarm episode has its own values (``fault#<k>``, ``healthy#<k>``; :func:`state_of` reads the state back),
 in :data:`SLOTS` slots per channel reused in turn: a record with more alarms than that on one channel
 shows the labels of the last :data:`SLOTS` (colours stay right).
@@ -63,9 +64,8 @@ class FaultLanes:
         """The lane's ``StateConfiguration`` of channel ``c``: its three states and the labelled episodes."""
         import rerun as rr
 
-        name = self.channels[c]
         values = [HEALTHY, FAULT, NO_EVIDENCE]
-        labels = [f"{name}: healthy", f"{name}: FAULT", f"{name}: no evidence"]
+        labels = ["healthy", "FAULT", "no evidence"]
         colors = [_COLOR[v] for v in values]
         for k, pair in enumerate(self._labels[c]):
             if pair is not None:
@@ -105,13 +105,12 @@ class FaultLanes:
         values = []
         for t, c, k in zip(ch.times_s.tolist(), ch.channel.tolist(), ch.code.tolist(), strict=True):
             state = STATES[k]
-            name = self.channels[c]
             if state == FAULT:
                 ev = by_key.get((c, "fault-start", t))
                 slot = self.n_episodes[c] % SLOTS
                 self.n_episodes[c] += 1
                 onset = "" if ev is None else f", onset est. {ev.estimate_s:.2f} s"
-                self._labels[c][slot] = (f"{name}: FAULT at {t:.2f} s{onset}", f"{name}: healthy")
+                self._labels[c][slot] = (f"FAULT at {t:.2f} s{onset}", "healthy")
                 self.version[c] += 1
                 values.append(f"{FAULT}#{slot}")
             elif state == HEALTHY and self.n_episodes[c]:
@@ -121,7 +120,7 @@ class FaultLanes:
                 if ev is None or pair is None or not np.isfinite(ev.estimate_s):
                     values.append(HEALTHY)
                     continue
-                offset = f"{name}: healthy at {t:.2f} s, offset est. {ev.estimate_s:.2f} s"
+                offset = f"healthy at {t:.2f} s, offset est. {ev.estimate_s:.2f} s"
                 self._labels[c][slot] = (pair[0], offset)
                 self.version[c] += 1
                 values.append(f"{HEALTHY}#{slot}")

@@ -8,16 +8,18 @@ Entities (time on the monitor's ``time`` timeline, integer nanoseconds as in
     nominal value, in the parameter's unit times a power of ten (:func:`display_scale`: the viewer
     writes ``0.000 000 000 03`` for a leakage in m^3/(s Pa); scaled, it reads ``3``). The estimate and
     interval are NaN (a gap) where the selected hypothesis does not hold the parameter;
-``/identification/selected``
-    a text log line whenever the selected hypothesis changes (with the estimate).
+``/events/identification``
+    a line in the recording's event log whenever the selected hypothesis changes (with the estimate);
+``/identification/summary``
+    what the identification row says when no parameter was selected in the record (static).
 
 Two sources: the per-hop identification of a monitored stream (:meth:`IdentificationLog.log`, one row per
 hop) and the per-interval identification of ``detect`` (:meth:`IdentificationLog.log_intervals`: the
 numbers of ``detect --json``'s ``identification_intervals``, a constant over each interval).
 
 :meth:`IdentificationLog.views` gives the views below the monitor's default layout: one per parameter
-that was identified (selected) somewhere in the record; a live viewer, which cannot know in advance,
-gets one per declared parameter.
+that was identified (selected) somewhere in the record, or a sentence saying that none was; a live
+viewer, which cannot know in advance, gets one per declared parameter.
 """
 
 from __future__ import annotations
@@ -40,6 +42,8 @@ __all__ = ["IDENTIFICATION", "IdentificationLog", "display_scale", "identificati
 
 #: Root entity of the identification series.
 IDENTIFICATION = "/identification"
+#: Entity of the identification lines in the recording's event log.
+IDENTIFICATION_EVENTS = "/events/identification"
 #: Colours of the four series: estimate (amber), interval ends (grey), nominal (light, thin).
 _STYLE = {
     "names": ["estimate", "interval low", "interval high", "nominal"],
@@ -102,13 +106,18 @@ class IdentificationLog:
         self.scale = {p: display_scale(self.nominal[p]) for p in self.parameters}
         self.identified: set[str] = set()  # parameters selected somewhere in the record
         self._selected: str | None = None
+        note = rr.TextDocument(
+            f"Fault identification (hypotheses {', '.join(h.name for h in setup.hypotheses)}): no parameter "
+            "was selected in this record (the tests kept the nominal model, or no hypothesis fits)."
+        )
         for s in sinks.streams:
             for p in self.parameters:
                 s.log(_path(p), rr.SeriesLines(**_STYLE), static=True)
+            s.log(f"{IDENTIFICATION}/summary", note, static=True)
 
     def views(self, time_range: Any, axis: Any = None, *, live: bool = False) -> list[Any]:
-        """One time view per identified parameter (``live``: per declared parameter) and the log of the
-        selected hypothesis; with none identified, the log alone (its title says so)."""
+        """One time view per identified parameter (``live``: per declared parameter); with none identified,
+        the sentence that says so."""
         import rerun.blueprint as rrb
 
         shown = self.parameters if live else [p for p in self.parameters if p in self.identified]
@@ -124,8 +133,9 @@ class IdentificationLog:
                     plot_legend=rrb.PlotLegend(visible=False),
                 )
             )
-        name = "identified fault (changes)" if shown or live else "identification: no parameter selected"
-        views.append(rrb.TextLogView(origin=f"{IDENTIFICATION}/selected", name=name))
+        if not views:
+            summary = f"{IDENTIFICATION}/summary"
+            views.append(rrb.TextDocumentView(origin=summary, name="fault identification"))
         return views
 
     def _send(self, p: str, ns: np.ndarray, rows: np.ndarray) -> None:
@@ -137,7 +147,7 @@ class IdentificationLog:
 
     def _texts(self, times_s: list[float], texts: list[str]) -> None:
         for s in self.sinks.streams:
-            log_text_rows(s, f"{IDENTIFICATION}/selected", times_s, texts, [INFO_LEVEL] * len(texts))
+            log_text_rows(s, IDENTIFICATION_EVENTS, times_s, texts, [INFO_LEVEL] * len(texts))
 
     def log(self, out: OnlineIdentification) -> None:
         """Log the windows of one push (per-hop identification of a monitored stream)."""
@@ -163,7 +173,7 @@ class IdentificationLog:
                     f"{fmt(e.ci_high, e.std_error)}]" + (f" {e.unit}" if e.unit else "")
                     for e in rep.estimate()
                 )
-                texts.append(f"identified: {name}" + (f": {what}" if what else ""))
+                texts.append(f"{out.times_s[j]:.2f} s identified " + (what or name))
                 t_text.append(float(out.times_s[j]))
         for p in self.parameters:
             rows = np.full((out.n_windows, 4), np.nan)
@@ -198,7 +208,10 @@ class IdentificationLog:
                 for h in picked
                 if h.get("estimate") is not None
             )
-            texts.append(f"{on:.2f}-{off:.2f} s identified: {sel}" + (f": {what}" if what else ""))
+            if sel is None:
+                texts.append(f"{on:.2f}-{off:.2f} s: not identified ({doc.get('reason', 'no result')})")
+            else:
+                texts.append(f"{on:.2f}-{off:.2f} s identified " + (what or str(sel)))
             t_text.append(on)
             for h in picked:
                 p = h.get("parameter")

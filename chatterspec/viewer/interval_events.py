@@ -51,11 +51,15 @@ class FaultInterval:
     excess_db: float = float("nan")
 
     def describe(self, channel: str) -> str:
-        """``"<channel> flagged frames <onset>-<offset> s (estimate), <two bins>"``: channel and times first
+        """``"<onset>-<offset> s <channel> flagged frames (estimate), <two bins>"`` (``<onset> s`` for an
+        estimate of zero length): times and channel first
         (the viewer's log view cuts long lines), both bins labelled (:func:`~chatterspec.detection.
         bin_labels.two_bins_text`)."""
         bins = two_bins_text(self.peak_hz, self.peak_db, self.excess_hz, self.excess_db)
-        return f"{channel} flagged frames {self.onset_s:.2f}-{self.offset_s:.2f} s (estimate), {bins}"
+        when = f"{self.onset_s:.2f}-{self.offset_s:.2f} s"
+        if f"{self.offset_s:.2f}" == f"{self.onset_s:.2f}":  # an estimate of zero length: one time
+            when = f"{self.onset_s:.2f} s"
+        return f"{when} {channel} flagged frames (estimate), {bins}"
 
 
 @dataclass

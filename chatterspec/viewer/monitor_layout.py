@@ -33,7 +33,10 @@ class MonitorLayout:
     extra_lanes, rows_above : int
         Lanes under ``/state`` and rows above the columns that the caller's layout adds.
     peak_view : bool
-        The layout shows the peak-frequency views.
+        The layout shows the peak-frequency views (unless there is an extra row).
+    budget_per_hour : float, optional
+        The budget the rule's threshold was set for when the settings do not carry it (a diagnosis
+        calibrates its routes itself), alarm starts per hour; None: the settings'.
 
     Attributes
     ----------
@@ -52,10 +55,12 @@ class MonitorLayout:
         extra_lanes: int,
         rows_above: int,
         peak_view: bool,
+        budget_per_hour: float | None = None,
     ) -> None:
         self.monitor = monitor
         self.has_truth, self.extra_lanes, self.rows_above = bool(has_truth), int(extra_lanes), int(rows_above)
-        self.extra_row, self.peak_view = extra_row, bool(peak_view)
+        # the peak-frequency views give way to an extra row (the viewer keeps a minimum height per view)
+        self.extra_row, self.peak_view = extra_row, bool(peak_view) and extra_row is None
         m = len(monitor.channels)
         n_lanes = m + self.has_truth + self.extra_lanes
         self.width = layout_geometry(
@@ -68,6 +73,7 @@ class MonitorLayout:
         )[1]
         self.key = key_width(self.width, view_px(m))  # the colour key: as wide as a time view's labels
         rule = monitor.rule
+        self.budget_per_hour = budget_per_hour
         self.cusum = rule.name == "cusum"
         self.h = float(rule.threshold) if np.isfinite(rule.threshold) else np.nan
 
@@ -132,17 +138,31 @@ class MonitorLayout:
             peak_view=self.peak_view,
             chattering_range=chattering_range,
             psi=self.monitor.settings.psi is not None,
+            alarm_rule=self.budget_words(),
         )
 
-    def alarm_title(self) -> str:
-        """The alarm view's title, short enough for a third of the window: the rule's statistic against
-        its threshold (nats) and the budget."""
-        rule, budget = self.monitor.rule, self.monitor.settings.false_alarms_per_hour
+    def alarm_title(self) -> list[str]:
+        """The alarm view's title, longest first (:func:`~chatterspec.viewer.blueprint.fit` picks the one
+        that fits): the rule's statistic against its threshold (nats) and the budget."""
+        rule = self.monitor.rule
         what = {"cusum": "CUSUM g", "persistence": f"score ({getattr(rule, 'k', '')} of "
                 f"{getattr(rule, 'n', '')})"}.get(rule.name, "score")  # fmt: skip
+        h = f"{rule.threshold:.3g}"
+        return [
+            f"{what} vs h = {h} nats, {self.budget_words(rule=False)}",
+            f"{what} vs h = {h} nats",
+            f"{what}, h = {h}",
+        ]
+
+    def budget_words(self, *, rule: bool = True) -> str:
+        """``"cusum, 1 false alarm/24 h"`` (``rule`` False: the budget only; ``per-frame alpha`` without
+        one)."""
+        budget = self.monitor.settings.false_alarms_per_hour
+        if budget is None:
+            budget = self.budget_per_hour
         if budget is None:
             per = "per-frame alpha"
         else:
             x = float(budget)
             per = f"1 false alarm/{1 / x:.3g} h" if x < 1 else f"{x:.3g} false alarms/h"
-        return f"{what} vs h = {rule.threshold:.3g} nats, {per}"
+        return f"{self.monitor.rule.name}, {per}" if rule else per

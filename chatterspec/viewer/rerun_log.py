@@ -90,6 +90,9 @@ class RerunLogger:
         :meth:`layout` ``above=``): they set the spectrogram image's aspect ratio.
     peak_view : bool
         The layout shows the peak-frequency views (see :func:`~chatterspec.viewer.blueprint.blueprint`).
+    budget_per_hour : float, optional
+        The false-alarm budget of the monitor's rule when its settings do not carry it (alarm starts per
+        hour; shown in the titles).
     """
 
     def __init__(
@@ -110,6 +113,7 @@ class RerunLogger:
         extra_lanes: int = 0,
         rows_above: int = 0,
         peak_view: bool = True,
+        budget_per_hour: float | None = None,
     ) -> None:
         import pyarrow as pa
         import rerun as rr
@@ -133,6 +137,7 @@ class RerunLogger:
             extra_lanes=extra_lanes,
             rows_above=rows_above,
             peak_view=peak_view,
+            budget_per_hour=budget_per_hour,
         )
         self.images = SpectrogramImages(
             monitor,
@@ -272,13 +277,13 @@ class RerunLogger:
 
     def _send_intervals(self) -> None:
         """The file's interval events: the window-extent onset/offset estimates of the record's flagged
-        frames, as ``detect --json`` and Fig 8 report them, and the marks of flagged frames outside the
-        band."""
+        frames, as ``detect --json`` and Fig 8 report them, and the spectrogram's annotations
+        (:meth:`~chatterspec.viewer.spectrogram_images.SpectrogramImages.annotate_file`)."""
         file = self.sinks.file_stream
         if file is None or self._collector is None or self._start_s is None:
             return
         send_interval_events(file, self._collector.intervals(), self.channels)
-        self.images.mark_outside_band(file, self._collector)
+        self.images.annotate_file(file, self._collector)
 
     def log_event(self, ev: DetectionEvent) -> None:
         """Log one detection event at once (the event log) to every stream.

@@ -253,7 +253,8 @@ class StreamRecordings:
         from .alarm_events import EVENTS, log_text_rows
 
         for s in streams:
-            log_text_rows(s, EVENTS, [ev.sample_time_s], [f"{ev.kind}: {ev.describe()}"], ["WARN"])
+            text = f"{ev.sample_time_s:.2f} s {ev.kind}: {ev.describe()}"
+            log_text_rows(s, EVENTS, [ev.sample_time_s], [text], ["WARN"])
 
     # ------------------------------------------------------------------ end
     def discard_spare(self) -> None:
