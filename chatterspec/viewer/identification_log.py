@@ -105,6 +105,8 @@ class IdentificationLog:
         self.nominal = {p: float(pm.parameter(p).value) for p in self.parameters}
         self.scale = {p: display_scale(self.nominal[p]) for p in self.parameters}
         self.identified: set[str] = set()  # parameters selected somewhere in the record
+        # per parameter the smallest and largest value drawn (display units): the views' y ranges
+        self.extent = {p: [self.nominal[p] / 10.0 ** self.scale[p]] * 2 for p in self.parameters}
         self._selected: str | None = None
         note = rr.TextDocument(
             f"Fault identification (hypotheses {', '.join(h.name for h in setup.hypotheses)}): no parameter "
@@ -131,6 +133,7 @@ class IdentificationLog:
                     time_ranges=time_range,
                     axis_x=axis,
                     plot_legend=rrb.PlotLegend(visible=False),
+                    axis_y=None if live else rrb.ScalarAxis(range=self.y_range(p)),
                 )
             )
         if not views:
@@ -138,9 +141,23 @@ class IdentificationLog:
             views.append(rrb.TextDocumentView(origin=summary, name="fault identification"))
         return views
 
+    def y_range(self, p: str) -> tuple[float, float]:
+        """The y range of parameter ``p``'s view (display units): from 0 (or the smallest value drawn, if
+        negative) to a labelled top above the largest (:func:`~chatterspec.viewer.blueprint.labelled_top`),
+        so that the viewer labels its ticks and the nominal line and every estimate are on the chart."""
+        from .blueprint import labelled_top
+
+        lo, hi = self.extent[p]
+        top = labelled_top(1.05 * hi) if hi > 0 else 0.1 * abs(lo) or 1.0
+        bottom = 0.0 if lo >= 0 else -labelled_top(1.05 * -lo)
+        return (bottom - 0.05 * (top - bottom), top)
+
     def _send(self, p: str, ns: np.ndarray, rows: np.ndarray) -> None:
         """Rows (n, 4) of parameter ``p`` (its unit) at ``ns``, scaled for display."""
         rows = rows / 10.0 ** self.scale[p]
+        if np.isfinite(rows).any():
+            ext = self.extent[p]
+            ext[0], ext[1] = min(ext[0], float(np.nanmin(rows))), max(ext[1], float(np.nanmax(rows)))
         col = self.rr.Scalars.columns(scalars=rows.ravel()).partition([4] * rows.shape[0])
         for s in self.sinks.streams:
             s.send_columns(_path(p), indexes=[_TimeIndex(self.pa, ns)], columns=col)
