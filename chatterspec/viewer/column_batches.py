@@ -192,7 +192,8 @@ class ColumnBatches:
                 if box.live or box.n_samples >= self.batch_samples:
                     self._send_samples(box)
             if fr.n_frames:
-                box.lane_changes.append(changes)
+                if changes[2]:
+                    box.lane_changes.append(changes)
                 box.frames.append(fr)
                 box.events.extend(upd.events)
                 box.n_frames += fr.n_frames

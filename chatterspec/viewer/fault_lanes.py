@@ -33,6 +33,9 @@ SLOTS = 64
 _COLOR = {HEALTHY: rgba32(HEALTHY_RGB), FAULT: rgba32(FAULT_RGB), NO_EVIDENCE: rgba32(NO_EVIDENCE_RGB)}
 
 
+_NO_CHANGE: tuple[np.ndarray, np.ndarray, list[str]] = (np.zeros(0), np.zeros(0, dtype=np.intp), [])
+
+
 def state_of(value: str) -> str:
     """The state (``healthy``, ``fault``, ``no-evidence``) of a lane's value (``fault#3`` -> ``fault``)."""
     return value.split("#", 1)[0]
@@ -59,6 +62,7 @@ class FaultLanes:
         # per channel and slot: the labels of the fault segment and of the healthy segment after it
         self._labels: list[list[tuple[str, str] | None]] = [[None] * SLOTS for _ in range(m)]
         self.version = [0] * m  # bumped when a channel's labels change (its configuration is re-sent)
+        self.decided = False  # a first frame was decided (no lane is "no evidence" for want of a frame)
 
     def configuration(self, c: int) -> Any:
         """The lane's ``StateConfiguration`` of channel ``c``: its three states and the labelled episodes."""
@@ -77,6 +81,7 @@ class FaultLanes:
     def start(self, start_s: float) -> tuple[np.ndarray, np.ndarray, list[str]]:
         """Every lane's first state (``no-evidence``) at ``start_s``: (times s, channels, values)."""
         ch = self.states.start(start_s)
+        self.decided = False
         return ch.times_s, ch.channel, [STATES[k] for k in ch.code.tolist()]
 
     def update(
@@ -99,7 +104,12 @@ class FaultLanes:
         excited : (F, m) bool array, optional
             The channels' evidence per frame (:func:`chatterspec.online.fault_state.frame_states`).
         """
+        if excited is None and not events and self.decided:
+            # without an excitation measure the state changes only where the alarm does, and every alarm
+            # change is an event: nothing to compute (the common case, every push of a long stream)
+            return _NO_CHANGE
         ch: StateChanges = self.states.update(times_s, alarm, excited)
+        self.decided = True
         # the event of a change: same channel, kind and alarm time (both from fault_state.alarm_time)
         by_key = {(ev.channel_index, ev.kind, ev.alarm_time_s): ev for ev in events}
         values = []
