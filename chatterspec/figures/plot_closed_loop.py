@@ -36,7 +36,8 @@ def _errorbar(ax: plt.Axes, x: np.ndarray, ests: list, **kw: object) -> None:
     rate = np.array([e.rate for e in ests])
     lo = np.array([e.ci_low for e in ests])
     hi = np.array([e.ci_high for e in ests])
-    ax.errorbar(x, rate, yerr=[rate - lo, hi - rate], capsize=3, marker="o", ms=4, **kw)
+    kw.setdefault("marker", "o")
+    ax.errorbar(x, rate, yerr=[rate - lo, hi - rate], capsize=3, ms=4, **kw)
 
 
 def excitation_figure(res: ExcitationResult, target: float = 0.95) -> Figure:
