@@ -27,6 +27,7 @@ Setup (Debian, as root): ``apt-get install -y xvfb mesa-vulkan-drivers``. Usage:
     python scripts/screenshot_recordings.py --out shots                 # standard set, all of it
     python scripts/screenshot_recordings.py --out shots a.rrd b.rrd     # given files only
     python scripts/screenshot_recordings.py --out shots --readme        # and refresh docs/screenshots/
+    python scripts/screenshot_recordings.py --out shots --work rec --reuse --readme  # resume: missing PNGs only
 
 One screenshot costs ~15 s of CPU (llvmpipe) and up to a minute of wall time on a loaded machine;
 they run one after the other.
@@ -37,6 +38,7 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -119,7 +121,7 @@ def make_recordings(work: Path) -> list[Path]:
     return sorted(work.rglob("*.rrd"))
 
 
-def screenshot(rrd: Path, png: Path, timeout_s: float = 180.0, *, retry: bool = True) -> None:
+def screenshot(rrd: Path, png: Path, timeout_s: float = 600.0, *, retry: bool = True) -> None:
     """Open ``rrd`` in the Rerun viewer under Xvfb and save what it shows as ``png`` (1600x1000)."""
     viewer = shutil.which(
         "rerun", path=os.pathsep.join([str(Path(sys.executable).parent), os.environ["PATH"]])
@@ -153,9 +155,16 @@ def screenshot(rrd: Path, png: Path, timeout_s: float = 180.0, *, retry: bool = 
             str(rrd.resolve()),
         ]
         print("$", " ".join(cmd[-4:]), file=sys.stderr, flush=True)
-        subprocess.run(
-            cmd, env=env, check=True, timeout=timeout_s, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+        # its own process group: on a timeout the viewer and Xvfb are ended with xvfb-run
+        proc = subprocess.Popen(
+            cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
         )
+        try:
+            proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGTERM)
+            proc.wait()
+            print(f"  timed out after {timeout_s:g} s", file=sys.stderr)
     if not png.exists():  # e.g. two xvfb-run -a took the same display number: once more
         if retry:
             screenshot(rrd, png, timeout_s, retry=False)
@@ -184,16 +193,25 @@ def main() -> None:
     p.add_argument(
         "--readme", action="store_true", help="also refresh docs/screenshots/ from the standard set"
     )
+    p.add_argument(
+        "--reuse", action="store_true", help="with --work: take its recordings, shoot only the missing PNGs"
+    )
     args = p.parse_args()
     with tempfile.TemporaryDirectory(prefix="chatterspec-shots-") as tmp:
         work = args.work or Path(tmp)
         if args.files:
             files, base = args.files, None
+        elif args.reuse and args.work is not None and any(work.rglob("*.rrd")):
+            first = set(README_SHOTS.values())  # the README's pictures first
+            files = sorted(work.rglob("*.rrd"), key=lambda f: (str(f.relative_to(work)) not in first, str(f)))
+            base = work
         else:
             files, base = make_recordings(work), work
         for rrd in files:
             name = str(rrd.relative_to(base)) if base else rrd.name
-            screenshot(rrd, args.out / (name.replace("/", "-").removesuffix(".rrd") + ".png"))
+            png = args.out / (name.replace("/", "-").removesuffix(".rrd") + ".png")
+            if not (args.reuse and png.exists()):
+                screenshot(rrd, png)
         if args.readme:
             if base is None:
                 raise SystemExit("--readme shoots the standard set: give no files")

@@ -108,11 +108,13 @@ def event_log_view(name: str = "events (alarm times; estimates; identification)"
     """The event log (``/events`` and below): level and text (each text starts with its time in s; the
     timeline and entity-path columns cut the text short at 1600x1000)."""
     import rerun.blueprint as rrb
+    from rerun.blueprint.encodings import TimelineColumn
 
+    hidden_time = [TimelineColumn(TIMELINE, visible=False)]  # an empty list means "the active timeline"
     return rrb.TextLogView(
         origin="/events",
         name=name,
-        columns=rrb.TextLogColumns(timeline_columns=[], text_log_columns=["loglevel", "body"]),
+        columns=rrb.TextLogColumns(timeline_columns=hidden_time, text_log_columns=["loglevel", "body"]),
     )
 
 

@@ -226,7 +226,10 @@ class IdentificationLog:
                 if h.get("estimate") is not None
             )
             if sel is None:
-                texts.append(f"{on:.2f}-{off:.2f} s: not identified ({doc.get('reason', 'no result')})")
+                why = str(doc.get("reason", "no result")).split(";")[
+                    0
+                ]  # its first clause: the log cuts long text
+                texts.append(f"{on:.2f}-{off:.2f} s not identified: {why}")
             else:
                 texts.append(f"{on:.2f}-{off:.2f} s identified " + (what or str(sel)))
             t_text.append(on)

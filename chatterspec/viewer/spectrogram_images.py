@@ -216,13 +216,19 @@ class SpectrogramImages:
             pts, labels = [], []
             padded = np.concatenate(([False], out, [False]))
             edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
+            last_x = {True: -np.inf, False: -np.inf}  # per edge, the last labelled mark
             for a, b in zip(edges[::2], edges[1::2], strict=True):
                 f = float(np.median(hz[a:b, i]))
                 x = (self._pad + (a + b) / 2.0) * self.width / cols
                 top = f > 0.5 * (lo + hi)
                 pts.append([x, 0.07 if top else 0.8])  # y grows downwards: 0 = the band's top
                 where = "outside the band" if (f > hi or f < lo) else "band edge"
-                labels.append(f"{'^' if top else 'v'} {f:.1f} Hz ({where})")
+                # a label only where it does not run into the one before it on the same edge (~a third
+                # of the image): the other runs get the mark alone
+                far = x - last_x[top] > 0.35 * self.width
+                labels.append(f"{'^' if top else 'v'} {f:.1f} Hz ({where})" if far else "")
+                if far:
+                    last_x[top] = x
             file.log(
                 f"/spectrogram/{c}/outside",
                 rr.Points2D(pts, labels=labels, colors=[list(FAULT)], radii=0.02, show_labels=True),
