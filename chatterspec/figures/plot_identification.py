@@ -84,16 +84,16 @@ def identification_sweep_figure(
         )
         bot.plot(true, -100 * half / true, "--", color=CI_COLOR, lw=1)
         iso = [r.isolation()[0] for r in rows]
-        if all(v >= 0.9995 for v in iso):  # one line instead of a row of overlapping "100 %"
-            bot.text(0.5, 0.97, "100 % select the true hypothesis at every size", transform=bot.transAxes,
-                     ha="center", va="top", fontsize=7)  # fmt: skip
-        else:  # only the sizes below 100 %, on a row at the top (clear of the band and of each other)
-            for k, (x, v) in enumerate(zip(true, iso, strict=True)):
-                if v < 0.9995:
-                    at = {"xycoords": ("data", "axes fraction"), "textcoords": "offset points"}
-                    bot.annotate(
-                        f"{v:.0%}", (x, 1.0), xytext=(0, -9 - 8 * (k % 2)), ha="center", fontsize=7, **at
-                    )
+        # one line at the top instead of a label per size (close sizes' labels ran into each other)
+        below = [f"{v:.1%} at {x:.4g}" for x, v in zip(true, iso, strict=True) if v < 0.9995]
+        note = "100 % select the true hypothesis at every size"
+        if below:
+            note = (
+                "true hypothesis: "
+                + "; ".join(below)
+                + ("; 100 % elsewhere" if len(below) < len(iso) else "")
+            )
+        bot.text(0.5, 0.97, note, transform=bot.transAxes, ha="center", va="top", fontsize=7)
         bot.set_xlabel(f"true {name}{unit}")
         bot.set_ylabel("relative error [%]")
         if j == 0:  # legends below the panels, out of the data and the band

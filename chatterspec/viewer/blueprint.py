@@ -101,6 +101,8 @@ def alarm_range(h: float, largest: float) -> tuple[float, float] | None:
     top = 1.5 * float(h)
     if np.isfinite(largest) and largest > top / 1.05:
         top = labelled_top(1.05 * float(largest))
+    p = 10.0 ** math.floor(math.log10(top))
+    top = max(top, 1.1 * p)  # a power of ten just below the top: room for its label (h = 6.91: 0..11)
     return (-0.1 * top, top)  # 0 above the bottom edge: its label clear of the time axis's
 
 
