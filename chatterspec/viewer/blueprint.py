@@ -82,20 +82,38 @@ def labelled_top(x: float) -> float:
     return 1.1 * 10.0 ** math.ceil(math.log10(max(float(x), 1e-300) / 1.1) - 1e-12)
 
 
-def statistic_range(largest_db: float) -> tuple[float, float]:
-    """The statistic view's y range (dB) for a record whose largest ``max S/threshold`` is ``largest_db``:
-    :data:`STATISTIC_RANGE_DB`, its top raised to :func:`labelled_top` when the record goes higher (e.g. a
-    62 dB fault -> up to 110 dB, ticks 0 and 100)."""
+#: Smallest distance (logical px) between the grid lines of a power of ten that the viewer labels
+#: (measured in Rerun 0.41 at 1600x1000: 10 dB steps 16 px apart are labelled, 11 px apart are not).
+LABEL_GAP_PX = 14.0
+
+
+def _labelled(lo: float, hi: float, plot_px: float) -> bool:
+    """Whether the viewer labels a power-of-ten grid inside ``[lo, hi]`` on a plot ``plot_px`` high: the
+    largest power of ten that fits, its lines at least :data:`LABEL_GAP_PX` apart."""
+    p = 10.0 ** math.floor(math.log10(max(hi, -lo, 1e-300)))
+    return plot_px * p / (hi - lo) >= LABEL_GAP_PX
+
+
+def statistic_range(largest_db: float, plot_px: float = 60.0) -> tuple[float, float]:
+    """The statistic view's y range (dB) for a record whose largest ``max S/threshold`` is ``largest_db``
+    (-inf: unknown, a live viewer) in a plot ``plot_px`` high: :data:`STATISTIC_RANGE_DB`, or -12..12 dB
+    where the plot is too low for its 10 dB ticks to be labelled; the top raised to :func:`labelled_top`
+    when the record goes higher (a 62 dB fault -> up to 110 dB, ticks 0 and 100)."""
     lo, hi = STATISTIC_RANGE_DB
-    if not np.isfinite(largest_db) or largest_db <= 0.9 * hi:
-        return (lo, hi)
-    return (lo, labelled_top(1.05 * largest_db))
+    if not _labelled(lo, hi, plot_px):
+        lo, hi = -12.0, 12.0
+    if np.isfinite(largest_db) and largest_db > 0.9 * hi:
+        hi = labelled_top(1.05 * largest_db)
+    if not _labelled(lo, hi, plot_px):
+        hi = labelled_top(10.0 * hi)  # one decade more: its lines far enough apart
+    return (lo, hi)
 
 
-def alarm_range(h: float, largest: float) -> tuple[float, float] | None:
-    """The alarm view's y range: ``[0, 1.5 h]``, its top raised to :func:`labelled_top` when the drawn
-    statistic goes higher (the frame score of a fault reaches hundreds of nats); None without a finite
-    positive ``h`` (auto range)."""
+def alarm_range(h: float, largest: float, plot_px: float = 60.0) -> tuple[float, float] | None:
+    """The alarm view's y range in a plot ``plot_px`` high: ``[0, 1.5 h]``, its top raised to
+    :func:`labelled_top` when the drawn statistic goes higher (the frame score of a fault reaches hundreds
+    of nats) or when no power-of-ten tick would be labelled (h = 41 on a 40 px plot: up to 110, ticks 0 and
+    100); None without a finite positive ``h`` (auto range)."""
     if not (np.isfinite(h) and h > 0):
         return None
     top = 1.5 * float(h)
@@ -103,6 +121,8 @@ def alarm_range(h: float, largest: float) -> tuple[float, float] | None:
         top = labelled_top(1.05 * float(largest))
     p = 10.0 ** math.floor(math.log10(top))
     top = max(top, 1.1 * p)  # a power of ten just below the top: room for its label (h = 6.91: 0..11)
+    if not _labelled(-0.1 * top, top, plot_px):
+        top = labelled_top(1.05 * top)
     return (-0.1 * top, top)  # 0 above the bottom edge: its label clear of the time axis's
 
 
@@ -360,13 +380,23 @@ def time_panel(span_s: tuple[float, float] | None) -> Any:
 _WINDOW = (1600.0, 840.0)
 #: Pixels of one state lane, of a view's title bar, of an extra row above or below the columns.
 _LANE_PX, _TITLE_PX, _ROW_PX = 42.0, 26.0, 100.0
-#: The event log's title bar and table header, and one table row (logical px, measured in Rerun 0.41).
-_LOG_TOP_PX, _LOG_ROW_PX = 56.0, 20.2
+#: The event log's top (title bar, header, padding: from the view's top to its first row) and one table
+#: row, and the height the viewer spreads the row shares over (logical px, measured in Rerun 0.41 at
+#: 1600x1000: the shares of _WINDOW[1] come out 12 % taller).
+_LOG_TOP_PX, _LOG_ROW_PX, _REAL_PX = 67.0, 20.3, 941.0
 
 
 def _column_shares(alarm: bool, peak: bool = True) -> list[float]:
     shares = [1, 1.5, 1] + ([0.9] if alarm else []) + ([0.8] if peak else [])
     return [float(x) for x in shares]
+
+
+def plot_heights(columns_px: float, peak: bool) -> tuple[float, float]:
+    """Plot heights (logical px at 1600x1000) of the statistic and alarm views in a columns row
+    ``columns_px`` high: the view's share less its title bar and the time axis's labels (~16 px)."""
+    shares = _column_shares(True, peak)
+    each = [columns_px * s / sum(shares) - _TITLE_PX - 16.0 for s in shares]
+    return each[2], each[3]
 
 
 def view_px(n_channels: int) -> float:
@@ -421,9 +451,10 @@ def layout_geometry(
         spectrogram_view.KEY_PX`), over the view's height.
     """
     lanes = 45.0 + _LANE_PX * n_lanes
-    # the event log beside the lanes: its title, header and whole rows (no half-hidden last row)
-    rows = math.ceil((lanes - _LOG_TOP_PX) / _LOG_ROW_PX)
-    lanes = _LOG_TOP_PX + rows * _LOG_ROW_PX + 2.0
+    # the event log beside the lanes: its title, header and whole rows (no half-hidden last row), in the
+    # viewer's pixels (the shares are spread over _REAL_PX) and back
+    rows = math.ceil((lanes * _REAL_PX / _WINDOW[1] - _LOG_TOP_PX) / _LOG_ROW_PX)
+    lanes = (_LOG_TOP_PX + rows * _LOG_ROW_PX + 3.0) * _WINDOW[1] / _REAL_PX
     cols = max(_WINDOW[1] - lanes - _ROW_PX * (rows_above + rows_below), 200.0)
     shares = _column_shares(alarm, peak)
     spec_h = max(cols * shares[1] / sum(shares) - _TITLE_PX, 20.0)

@@ -16,6 +16,7 @@ per second); ``rerun`` is imported only when a recording is written.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -90,11 +91,13 @@ def record_estimates(records: Any, path: str | Path, *, run: int = 0) -> Path:
 
         log_truth_lane([rec], scenario_truth(sc))
         x = records.x[run]
+        extents: dict[str, list[np.ndarray]] = {}  # per view, the values it draws: its y range
         _log_styles(rec, states, outputs, names)
         for i, s in enumerate(states):
             rec.send_columns(
                 f"/states/{s}/truth", indexes=[t_all], columns=rr.Scalars.columns(scalars=x[:, i])
             )
+            extents.setdefault(f"/states/{s}", []).append(x[:, i])
         for j, o in enumerate(outputs):
             rec.send_columns(
                 f"/measurements/{o}",
@@ -112,6 +115,8 @@ def record_estimates(records: Any, path: str | Path, *, run: int = 0) -> Path:
                 rec.send_columns(
                     f"/errors/{s}/{name}", indexes=[t_post], columns=rr.Scalars.columns(scalars=err[:, i])
                 )
+                extents.setdefault(f"/states/{s}", []).append(est[:, i])
+                extents.setdefault(f"/errors/{s}", []).append(err[:, i])
             if out.innovation is not None:
                 for j, o in enumerate(outputs):
                     rec.send_columns(
@@ -119,11 +124,18 @@ def record_estimates(records: Any, path: str | Path, *, run: int = 0) -> Path:
                         indexes=[t_post],
                         columns=rr.Scalars.columns(scalars=out.innovation[run, :, j]),
                     )
+                    extents.setdefault(f"/innovations/{o}", []).append(out.innovation[run, :, j])
         span = (float(records.t[0]), float(records.t[-1]))
         units = state_units(model)
         rec.send_blueprint(
             estimate_blueprint(
-                states, outputs, names, span, units, title=f"{sc.name}, run {records.first_run + run}"
+                states,
+                outputs,
+                names,
+                span,
+                units,
+                title=f"{sc.name}, run {records.first_run + run}",
+                y_ranges={k: labelled_range(np.concatenate(v)) for k, v in extents.items()},
             ),
             make_active=True,
             make_default=True,
@@ -152,6 +164,34 @@ def _log_styles(rec: Any, states: tuple[str, ...], outputs: tuple[str, ...], nam
     for o in outputs:
         for k, name in enumerate(names):
             rec.log(f"/innovations/{o}/{name}", _filter_style(rr, name, k, len(names)), static=True)
+
+
+def labelled_range(values: np.ndarray, plot_px: float = 140.0) -> tuple[float, float]:
+    """A y range holding ``values`` whose power-of-ten ticks the viewer labels on a plot ``plot_px`` high
+    (an automatic range of a velocity in cm/s labelled "0" alone): the values' own range (5 % margins)
+    when it holds two such ticks far enough apart, else symmetric ``+-1.1 p`` when the values change sign
+    (:func:`~chatterspec.viewer.chattering_extent.labelled_half_range`), else from 0 to a labelled top
+    (:func:`~chatterspec.viewer.blueprint.labelled_top`)."""
+    from .blueprint import LABEL_GAP_PX, labelled_top
+    from .chattering_extent import labelled_half_range
+
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    lo, hi = (float(v.min()), float(v.max())) if v.size else (-1.0, 1.0)
+    pad = 0.05 * max(hi - lo, 1e-300)
+    tight = (lo - pad, hi + pad)
+    p = 10.0 ** math.floor(math.log10(tight[1] - tight[0]))
+    ticks = np.floor(tight[1] / p) - np.ceil(tight[0] / p) + 1
+    if plot_px * p / (tight[1] - tight[0]) >= LABEL_GAP_PX and ticks >= 2:
+        return tight  # the data's own range: at least two power-of-ten ticks, far enough apart
+    if lo >= 0.0 and hi > 0.0:
+        top = labelled_top(1.05 * hi)
+        return (-0.05 * top, top)
+    if hi <= 0.0 and lo < 0.0:
+        bottom = labelled_top(-1.05 * lo)
+        return (-bottom, 0.05 * bottom)
+    r = labelled_half_range(max(abs(lo), abs(hi), 1e-300))
+    return (-r, r)
 
 
 def _width(k: int, n: int) -> float:
@@ -184,6 +224,7 @@ def estimate_blueprint(
     units: tuple[str, ...],
     *,
     title: str = "",
+    y_ranges: dict[str, tuple[float, float]] | None = None,
 ) -> Any:
     """The layout of an estimate recording: one row per state with the truth and every filter's
     estimate on shared axes beside the estimation errors; below, the innovations per output and the
@@ -203,6 +244,9 @@ def estimate_blueprint(
         Unit per state ("" where unknown).
     title : str
         Scenario and run, shown in the view titles.
+    y_ranges : dict, optional
+        Per view origin (``/states/<s>``, ``/errors/<s>``, ``/innovations/<o>``) its y range
+        (:func:`labelled_range`: the viewer then labels its ticks); default auto range.
 
     Returns
     -------
@@ -217,8 +261,14 @@ def estimate_blueprint(
 
     def view(origin: str, name: str, legend: Any = hidden) -> Any:
         """A time view of the whole record, on the linked time axis."""
+        rng = (y_ranges or {}).get(origin)
         return rrb.TimeSeriesView(
-            origin=origin, name=name, time_ranges=time_range, axis_x=axis, plot_legend=legend
+            origin=origin,
+            name=name,
+            time_ranges=time_range,
+            axis_x=axis,
+            plot_legend=legend,
+            axis_y=None if rng is None else rrb.ScalarAxis(range=rng),
         )
 
     rows = []  # one row per state, each view half the window wide: the time axis labels its ms ticks

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..online.monitor import ChatteringMonitor
-from .blueprint import alarm_range, blueprint, layout_geometry, statistic_range, view_px
+from .blueprint import alarm_range, blueprint, layout_geometry, plot_heights, statistic_range, view_px
 from .record_geometry import DB_RANGE
 from .spectrogram_view import key_width
 
@@ -63,14 +63,16 @@ class MonitorLayout:
         self.extra_row, self.peak_view = extra_row, bool(peak_view) and extra_row is None
         m = len(monitor.channels)
         n_lanes = m + self.has_truth + self.extra_lanes
-        self.width = layout_geometry(
+        rows, self.width = layout_geometry(
             m,
             n_lanes,
             alarm=True,
             rows_above=self.rows_above,
             rows_below=1 if extra_row else 0,
             peak=self.peak_view,
-        )[1]
+        )
+        # the plot heights (logical px) of the statistic and alarm views: their ranges keep labelled ticks
+        self.statistic_px, self.alarm_px = plot_heights(rows[self.rows_above], self.peak_view)
         self.key = key_width(self.width, view_px(m))  # the colour key: as wide as a time view's labels
         rule = monitor.rule
         self.budget_per_hour = budget_per_hour
@@ -115,10 +117,9 @@ class MonitorLayout:
         """
         m = len(self.monitor.channels)
         if largest is None:
-            stat_ranges, alarm_ranges = None, alarm_range(self.h, -np.inf)
-        else:
-            stat_ranges = [statistic_range(float(x)) for x in largest[0]]
-            alarm_ranges = [alarm_range(self.h, float(x)) for x in largest[1]]
+            largest = (np.full(m, -np.inf), np.full(m, -np.inf))
+        stat_ranges = [statistic_range(float(x), self.statistic_px) for x in largest[0]]
+        alarm_ranges = [alarm_range(self.h, float(x), self.alarm_px) for x in largest[1]]
         assert stat_ranges is None or len(stat_ranges) == m
         return blueprint(
             self.monitor.channels,

@@ -195,7 +195,7 @@ class SpectrogramImages:
             file.log(
                 f"/spectrogram/{c}/time_ticks",
                 rr.Points2D(
-                    [[x, 0.92] for x in x_t], labels=[f"{t:g} s" for t in ticks], radii=0.004,
+                    [[x, 0.85] for x in x_t], labels=[f"{t:g} s" for t in ticks], radii=0.004,
                     colors=[[220, 220, 220]], show_labels=True,
                 ),
                 static=True,
@@ -221,7 +221,7 @@ class SpectrogramImages:
                 f = float(np.median(hz[a:b, i]))
                 x = (self._pad + (a + b) / 2.0) * self.width / cols
                 top = f > 0.5 * (lo + hi)
-                pts.append([x, 0.07 if top else 0.8])  # y grows downwards: 0 = the band's top
+                pts.append([x, 0.07 if top else 0.72])  # y grows downwards: 0 = the band's top
                 where = "outside the band" if (f > hi or f < lo) else "band edge"
                 # a label only where it does not run into the one before it on the same edge (~a third
                 # of the image): the other runs get the mark alone
