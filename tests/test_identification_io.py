@@ -144,6 +144,33 @@ def test_monitor_identifies_the_example_per_hop_and_records_it(
     assert kinds.count("identification") == 3 and kinds.count("fault-start") == 1
 
 
+def test_streamed_monitor_records_its_identification(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the example's rows through standard input (a streamed file): the same per-hop identification as
+    # from the file, drawn in the recording with the nominal value (1e-12 m^3/(s Pa): 4.8)
+    import sys
+
+    rec = tmp_path / "s.rrd"
+    with (EXAMPLES / "eha_data.csv").open() as fh:
+        monkeypatch.setattr(sys, "stdin", fh)
+        assert (
+            main(
+                ["monitor", "--model", str(EXAMPLES / "eha_model.toml"), "--data", "-", "--record", str(rec)]
+            )
+            == 0
+        )
+    capsys.readouterr()
+    from rerun.chunk import RrdReader
+
+    chunks = (
+        RrdReader(str(rec)).stream().filter(content="/identification/leakage", is_static=False).to_chunks()
+    )
+    rows = [v for c in chunks for v in c.to_record_batch().column("Scalars:scalars").to_pylist()]
+    assert len(rows) == 35 and all(len(r) == 4 and r[3] == pytest.approx(4.8) for r in rows)
+    assert np.nanmedian([r[0] for r in rows[-10:]]) == pytest.approx(90.0, rel=0.05)  # the 9e-11 leak
+
+
 def test_monitor_identification_lines_follow_the_alarm() -> None:
     # The per-hop identification tests at the per-frame alpha; its human lines must follow the alarm
     # rule: nothing said on healthy data without an alarm, a fault said once the alarm is active

@@ -174,8 +174,8 @@ def test_streamed_leak_lanes_equal_jsonl_events(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A 30 s streamed leak (``simulate | monitor --record --events jsonl``, CUSUM at one false alarm per
-    day): the lanes change at the ``sample_time_s`` of the printed events (the alarm times), and the
-    alarm that never clears leaves the lane in FAULT to the end."""
+    day): the lanes change at the ``sample_time_s`` of the printed events (the alarm times), the alarm
+    that never clears leaves the lane in FAULT to the end."""
     import json
     import sys
 
