@@ -5,6 +5,7 @@ Imported on demand only (the numeric core never imports matplotlib).
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
@@ -93,7 +94,10 @@ def identification_sweep_figure(
                 + "; ".join(below)
                 + ("; 100 % elsewhere" if len(below) < len(iso) else "")
             )
-        bot.text(0.5, 0.97, note, transform=bot.transAxes, ha="center", va="top", fontsize=7)
+        bot.text(
+            0.5, 0.97, textwrap.fill(note, 46), transform=bot.transAxes, ha="center", va="top", fontsize=7,
+            bbox={"facecolor": "white", "alpha": 0.85, "lw": 0, "pad": 1.5},
+        )  # fmt: skip
         bot.set_xlabel(f"true {name}{unit}")
         bot.set_ylabel("relative error [%]")
         if j == 0:  # legends below the panels, out of the data and the band
