@@ -178,7 +178,8 @@ class SpectrogramImages:
         """Annotate a file's spectrogram (a record that fits one block) so that nothing is dark without a
         word: flagged frames whose peak frequency lies outside the band, or in its lowest or highest 4 %
         (a thin line at the image's edge), get a labelled mark at the top or bottom edge (one per run of
-        such frames); a channel whose image stayed dark gets a sentence saying why; and the image gets
+        such frames); a channel where no bin reached its threshold gets a sentence saying so (its image
+        is dark); and the image gets
         time labels along its bottom (s, the time views' times)."""
         import rerun as rr
 
@@ -200,12 +201,12 @@ class SpectrogramImages:
                 ),
                 static=True,
             )  # fmt: skip
-            if self._file_max_db[i] <= DB_RANGE[0]:
+            if self._file_max_db[i] < 0.0:  # no bin reached its threshold: say why the image is dark
                 file.log(
                     f"/spectrogram/{c}/note",
                     rr.Points2D(
                         [[0.5 * self.width, 0.45]],
-                        labels=[f"dark: every bin {-DB_RANGE[0]:g} dB or more below its threshold"],
+                        labels=["no bin over its threshold in this record (dark: below it)"],
                         radii=0.001, colors=[[160, 160, 160]], show_labels=True,
                     ),
                     static=True,
