@@ -27,9 +27,9 @@ Setup (Debian, as root): ``apt-get install -y xvfb mesa-vulkan-drivers``. Usage:
     python scripts/screenshot_recordings.py --out shots                 # standard set, all of it
     python scripts/screenshot_recordings.py --out shots a.rrd b.rrd     # given files only
     python scripts/screenshot_recordings.py --out shots --readme        # and refresh docs/screenshots/
-    python scripts/screenshot_recordings.py --out shots --work rec --reuse --readme  # resume: missing PNGs only
+    python scripts/screenshot_recordings.py --out shots --work rec --reuse --readme  # resume: missing PNGs
 
-One screenshot costs ~15 s of CPU (llvmpipe) and up to a minute of wall time on a loaded machine;
+One screenshot costs ~15 s of CPU (llvmpipe) and one to three minutes of wall time on a loaded machine;
 they run one after the other.
 """
 
