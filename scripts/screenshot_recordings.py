@@ -19,8 +19,8 @@ Without file arguments it first makes the standard set of recordings (into ``--w
 * ``closed-loop.rrd``: ``chatterspec detect eha-cl-bulk-25down --record``.
 
 With ``--readme`` it also writes the README's pictures under ``docs/screenshots/`` (the demo's
-``eha-leak-minor``, the streamed monitor, ``estimate`` and ``diagnose``), reduced to a 256-colour
-palette so each stays far below 1 MB.
+``eha-leak-minor``, the streamed monitor, ``estimate`` and ``diagnose``), scaled to 1600x1000 (the
+viewer writes twice that) and reduced to a 256-colour palette, so each stays far below 1 MB.
 
 Setup (Debian, as root): ``apt-get install -y xvfb mesa-vulkan-drivers``. Usage::
 
@@ -173,12 +173,14 @@ def screenshot(rrd: Path, png: Path, timeout_s: float = 600.0, *, retry: bool = 
 
 
 def palette_png(src: Path, dst: Path) -> None:
-    """Copy ``src`` to ``dst`` reduced to 256 colours (the views are flat colours and text)."""
+    """Copy ``src`` to ``dst`` at 1600x1000 (the viewer renders at twice the window's logical size)
+    reduced to 256 colours (the views are flat colours and text)."""
     from PIL import Image
 
     dst.parent.mkdir(parents=True, exist_ok=True)
     with Image.open(src) as im:
-        im.convert("RGB").quantize(
+        size = tuple(int(v) for v in WINDOW.split("x"))
+        im.convert("RGB").resize(size, Image.Resampling.LANCZOS).quantize(
             colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE
         ).save(dst, optimize=True)
 
