@@ -82,16 +82,28 @@ def labelled_top(x: float) -> float:
     return 1.1 * 10.0 ** math.ceil(math.log10(max(float(x), 1e-300) / 1.1) - 1e-12)
 
 
-#: Smallest distance (logical px) between the grid lines of a power of ten that the viewer labels
-#: (measured in Rerun 0.41 at 1600x1000: 10 dB steps 16 px apart are labelled, 11 px apart are not).
+#: When the viewer labels a power-of-ten grid (Rerun 0.41 at 1600x1000, seen on its views): at most about
+#: five lines of that step in the range (-15..25 dB in 10 dB steps is labelled on a 63 px plot, -54..34
+#: cm/s in 10 cm/s steps is not on a 170 px one) and at least LABEL_GAP_PX apart (10 dB steps 11 px apart
+#: are not labelled).
 LABEL_GAP_PX = 14.0
+MAX_LABELLED_LINES = 5.5
+
+
+def labelled_step(lo: float, hi: float, plot_px: float) -> float | None:
+    """The power-of-ten step whose ticks the viewer labels in ``[lo, hi]`` on a plot ``plot_px`` high, or
+    None when no step both fits (at least two ticks in range) and has its lines far enough apart."""
+    span = hi - lo
+    if not span > 0:
+        return None
+    p = 10.0 ** math.ceil(math.log10(span / MAX_LABELLED_LINES))
+    ticks = math.floor(hi / p + 1e-9) - math.ceil(lo / p - 1e-9) + 1
+    return p if ticks >= 2 and plot_px * p / span >= LABEL_GAP_PX else None
 
 
 def _labelled(lo: float, hi: float, plot_px: float) -> bool:
-    """Whether the viewer labels a power-of-ten grid inside ``[lo, hi]`` on a plot ``plot_px`` high: the
-    largest power of ten that fits, its lines at least :data:`LABEL_GAP_PX` apart."""
-    p = 10.0 ** math.floor(math.log10(max(hi, -lo, 1e-300)))
-    return plot_px * p / (hi - lo) >= LABEL_GAP_PX
+    """Whether the viewer labels a power-of-ten grid inside ``[lo, hi]`` (:func:`labelled_step`)."""
+    return labelled_step(lo, hi, plot_px) is not None
 
 
 def statistic_range(largest_db: float, plot_px: float = 60.0) -> tuple[float, float]:

@@ -16,7 +16,6 @@ per second); ``rerun`` is imported only when a recording is written.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
@@ -172,7 +171,7 @@ def labelled_range(values: np.ndarray, plot_px: float = 140.0) -> tuple[float, f
     when it holds two such ticks far enough apart, else symmetric ``+-1.1 p`` when the values change sign
     (:func:`~chatterspec.viewer.chattering_extent.labelled_half_range`), else from 0 to a labelled top
     (:func:`~chatterspec.viewer.blueprint.labelled_top`)."""
-    from .blueprint import LABEL_GAP_PX, labelled_top
+    from .blueprint import labelled_step, labelled_top
     from .chattering_extent import labelled_half_range
 
     v = np.asarray(values, dtype=float)
@@ -180,10 +179,8 @@ def labelled_range(values: np.ndarray, plot_px: float = 140.0) -> tuple[float, f
     lo, hi = (float(v.min()), float(v.max())) if v.size else (-1.0, 1.0)
     pad = 0.05 * max(hi - lo, 1e-300)
     tight = (lo - pad, hi + pad)
-    p = 10.0 ** math.floor(math.log10(tight[1] - tight[0]))
-    ticks = np.floor(tight[1] / p) - np.ceil(tight[0] / p) + 1
-    if plot_px * p / (tight[1] - tight[0]) >= LABEL_GAP_PX and ticks >= 2:
-        return tight  # the data's own range: at least two power-of-ten ticks, far enough apart
+    if labelled_step(*tight, plot_px) is not None:
+        return tight  # the data's own range: the viewer labels its ticks
     if lo >= 0.0 and hi > 0.0:
         top = labelled_top(1.05 * hi)
         return (-0.05 * top, top)
