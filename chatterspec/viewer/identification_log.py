@@ -35,6 +35,7 @@ from ..palette import NEUTRAL
 from ..plants.parameters import NO_FAULT
 from .alarm_events import INFO_LEVEL, log_text_rows
 from .arrow_columns import _TimeIndex
+from .interval_events import interval_text
 from .rerun_log import to_ns
 from .sinks import Sinks
 
@@ -229,9 +230,9 @@ class IdentificationLog:
                 why = str(doc.get("reason", "no result")).split(";")[
                     0
                 ]  # its first clause: the log cuts long text
-                texts.append(f"{on:.2f}-{off:.2f} s not identified: {why}")
+                texts.append(f"{interval_text(on, off)} not identified: {why}")
             else:
-                texts.append(f"{on:.2f}-{off:.2f} s identified " + (what or str(sel)))
+                texts.append(f"{interval_text(on, off)} identified " + (what or str(sel)))
             t_text.append(on)
             for h in picked:
                 p = h.get("parameter")

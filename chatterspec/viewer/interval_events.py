@@ -18,7 +18,19 @@ import numpy as np
 from ..detection.bin_labels import db_over_threshold, two_bins_text
 from ..detection.detect import frame_intervals, healthy_frame_level
 
-__all__ = ["FaultInterval", "IntervalCollector", "send_interval_events"]
+__all__ = ["FaultInterval", "IntervalCollector", "interval_text", "send_interval_events"]
+
+
+def interval_text(onset_s: float, offset_s: float) -> str:
+    """``"0.00-2.00 s"``, or ``"2.60 s"`` for an interval of zero length at two decimals.
+
+    Parameters
+    ----------
+    onset_s, offset_s : float
+        The interval (s).
+    """
+    on, off = f"{onset_s:.2f}", f"{offset_s:.2f}"
+    return f"{on} s" if on == off else f"{on}-{off} s"
 
 
 @dataclass(frozen=True)
@@ -56,10 +68,7 @@ class FaultInterval:
         (the viewer's log view cuts long lines), both bins labelled (:func:`~chatterspec.detection.
         bin_labels.two_bins_text`)."""
         bins = two_bins_text(self.peak_hz, self.peak_db, self.excess_hz, self.excess_db)
-        when = f"{self.onset_s:.2f}-{self.offset_s:.2f} s"
-        if f"{self.offset_s:.2f}" == f"{self.onset_s:.2f}":  # an estimate of zero length: one time
-            when = f"{self.onset_s:.2f} s"
-        return f"{when} {channel} flagged frames (estimate), {bins}"
+        return f"{interval_text(self.onset_s, self.offset_s)} {channel} flagged frames (estimate), {bins}"
 
 
 @dataclass
