@@ -178,8 +178,8 @@ class SpectrogramImages:
         """Annotate a file's spectrogram (a record that fits one block) so that nothing is dark without a
         word: flagged frames whose peak frequency lies outside the band, or in its lowest or highest 4 %
         (a thin line at the image's edge), get a labelled mark at the top or bottom edge (one per run of
-        such frames); a channel where no bin reached its threshold gets a sentence saying so (its image
-        is dark); and the image gets
+        such frames); a channel with no flagged frame and no bin of the band at its threshold gets a
+        sentence saying so (its image is dark); and the image gets
         time labels along its bottom (s, the time views' times)."""
         import rerun as rr
 
@@ -201,7 +201,7 @@ class SpectrogramImages:
                 ),
                 static=True,
             )  # fmt: skip
-            if self._file_max_db[i] < 0.0:  # no bin reached its threshold: say why the image is dark
+            if self._file_max_db[i] < 0.0 and not flags[:, i].any():  # nothing flagged: why it is dark
                 file.log(
                     f"/spectrogram/{c}/note",
                     rr.Points2D(
