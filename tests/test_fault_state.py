@@ -4,11 +4,20 @@ labelled episodes, the diagnosis mode lanes' minimum run, fitted titles and iden
 from __future__ import annotations
 
 import itertools
+from typing import Any
 
 import numpy as np
 import pytest
 
-from chatterspec.online.fault_state import FAULT, HEALTHY, NO_EVIDENCE, FaultStates, alarm_time, frame_states
+from chatterspec.online.fault_state import (
+    FAULT,
+    HEALTHY,
+    NO_EVIDENCE,
+    STATES,
+    FaultStates,
+    alarm_time,
+    frame_states,
+)
 
 
 def test_frame_states_three_values() -> None:
@@ -78,6 +87,69 @@ def test_lane_episodes_are_labelled_with_their_estimates() -> None:
     assert labels[values[1]] == "FAULT at 1.20 s, onset est. 0.60 s"
     assert labels[values[2]] == "healthy at 1.60 s, offset est. 1.10 s"
     assert SLOTS >= 1 and lanes.n_episodes == [1]
+
+
+def _update(states: list[tuple[str, ...]], alarm_times: list[float], not_excited: list[list[bool]]) -> Any:
+    """An identification push of one parameter over two channels (the second carries it) with the given
+    per-window channel states: only what the lanes read (no identification is run)."""
+    from chatterspec.online.identification_monitor import IdentificationUpdate, WindowDecision
+
+    windows = tuple(
+        WindowDecision(
+            index=j, time_s=t - 0.4995, window_s=(t - 0.998, t + 0.001), alarm_time_s=t,
+            alarm=ch[1] == "fault", label="leakage" if ch[1] == "fault" else None,
+            states=(ch[1],), channel_states=ch,
+        )
+        for j, (t, ch) in enumerate(zip(alarm_times, states, strict=True))
+    )  # fmt: skip
+    return IdentificationUpdate(found=None, block=None, windows=windows, not_excited=np.array(not_excited))
+
+
+def test_not_excited_is_no_evidence_on_the_lanes() -> None:
+    # The identification's "not excited" (the data cannot see a change of the parameter's tolerance) is
+    # the lanes' "no evidence", never "healthy": with tolerances (the parameters' windows decide) and
+    # without (the spectral alarm decides, the windows give the excitation; an alarm still wins).
+    pytest.importorskip("rerun")
+    from chatterspec.viewer.fault_lanes import NOT_EXCITED, FaultLanes, state_of
+
+    t = [1.001, 1.201, 1.401, 1.601]
+    seq = [
+        ("healthy", "healthy"),
+        ("healthy", "not-excited"),
+        ("healthy", "fault"),
+        ("healthy", "not-excited"),
+    ]
+    blind = [[False, False], [False, True], [False, True], [False, True]]
+    upd = _update(seq, t, blind)
+    times, codes = upd.channel_codes()  # the seam: the identification's state codes are fault_state's
+    np.testing.assert_array_equal(times, t)
+    assert [STATES[k] for k in codes[:, 1]] == [HEALTHY, NO_EVIDENCE, FAULT, NO_EVIDENCE]
+
+    tol = FaultLanes(("position", "pressure"), 1000, 200, 1e-3)
+    tol.start(0.001)
+    tol.follow_identification(tolerances=True, parameters=("leakage",), carried=np.array([[False], [True]]))
+    at, ch, values = tol.follow(upd)
+    pressure = [
+        (x, state_of(v), v) for x, c, v in zip(at.tolist(), ch.tolist(), values, strict=True) if c == 1
+    ]
+    assert [s for _, s, _ in pressure] == [HEALTHY, NO_EVIDENCE, FAULT, NO_EVIDENCE]
+    assert [x for x, _, _ in pressure] == t  # at the windows' alarm times
+    assert [v for _, s, v in pressure if s == NO_EVIDENCE] == [NOT_EXCITED, NOT_EXCITED]
+    assert [state_of(v) for x, c, v in zip(at, ch, values, strict=True) if c == 0] == [HEALTHY]
+
+    spec = FaultLanes(("position", "pressure"), 1000, 200, 1e-3)
+    spec.start(0.001)
+    spec.follow_identification(tolerances=False, parameters=("leakage",), carried=np.array([[False], [True]]))
+    frames = 0.5005 + 0.2 * np.arange(4)  # frames ending 1.0 .. 1.6 s, one sample before each window
+    alarm = np.array([[False, False], [False, False], [False, True], [False, False]])
+    got = [spec.update(frames, alarm, []), spec.follow(upd), spec.finish()]
+    at = np.concatenate([g[0] for g in got])
+    ch = np.concatenate([g[1] for g in got])
+    values = [v for g in got for v in g[2]]
+    pressure = [state_of(v) for c, v in zip(ch.tolist(), values, strict=True) if c == 1]
+    # healthy; not excited from the second window; the frame's alarm wins; no evidence again after it
+    assert pressure == [HEALTHY, NO_EVIDENCE, FAULT, NO_EVIDENCE]
+    assert HEALTHY not in pressure[1:]
 
 
 def test_mode_lane_keeps_runs_of_at_least_the_hold() -> None:
