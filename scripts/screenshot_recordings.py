@@ -12,7 +12,7 @@ Without file arguments it first makes the standard set of recordings (into ``--w
 * ``demo/<scenario>.rrd``: ``chatterspec demo`` (11 scenarios);
 * ``detect-timeline.rrd``: ``chatterspec detect so-timeline-constant --record``;
 * ``stream-leak.rrd``: ``chatterspec simulate eha-leak-minor --duration 30 --rate 0 | chatterspec monitor
-  --model <eha-healthy model> --data - --record`` (a streamed file: its final blueprint);
+  <eha-healthy model> --data - --record`` (a streamed file: its final blueprint);
 * ``monitor-file.rrd``: ``chatterspec monitor --data <the same 30 s as a file> --record``;
 * ``estimate.rrd``: ``chatterspec estimate detc-uncertain --runs 1 --record``;
 * ``diagnose.rrd``: ``chatterspec diagnose eha4-leak-timeline --runs 2 --record``;
@@ -74,7 +74,7 @@ def make_recordings(work: Path) -> list[Path]:
         _run([*cs, "simulate", "eha-leak-minor", "--duration", "30", "--rate", "0"], stdout=fh)
     with data.open() as fh:  # the same rows through standard input: a streamed file
         _run(
-            [*cs, "monitor", "--model", str(model), "--data", "-", "--record", str(work / "stream-leak.rrd")],
+            [*cs, "monitor", str(model), "--data", "-", "--record", str(work / "stream-leak.rrd")],
             stdin=fh,
             stdout=out,
         )
@@ -82,7 +82,6 @@ def make_recordings(work: Path) -> list[Path]:
         [
             *cs,
             "monitor",
-            "--model",
             str(model),
             "--data",
             str(data),
