@@ -407,10 +407,16 @@ def time_panel(span_s: tuple[float, float] | None) -> Any:
 _WINDOW = (1600.0, 840.0)
 #: Pixels of one state lane, of a view's title bar, of an extra row above or below the columns.
 _LANE_PX, _TITLE_PX, _ROW_PX = 42.0, 26.0, 100.0
-#: The event log's top (title bar, header, padding: from the view's top to its first row) and one table
-#: row, and the height the viewer spreads the row shares over (logical px, measured in Rerun 0.41 at
-#: 1600x1000: the shares of _WINDOW[1] come out 12 % taller).
-_LOG_TOP_PX, _LOG_ROW_PX, _REAL_PX = 67.0, 20.3, 941.0
+#: The event log's table in Rerun 0.41 at 1600x1000 (logical px, measured on screenshots): from the view's
+#: top to its first row (title bar, header), one row, and from the end of the table's visible area to the
+#: next view's top (its scroll area's margin and the separator).
+_LOG_TOP_PX, _LOG_ROW_PX, _LOG_BOTTOM_PX = 70.0, 20.0, 14.0
+#: The height the viewer spreads the row shares over (the shares of _WINDOW[1] come out 11 % taller;
+#: measured from view top to view top, the same for the layout's last row down to the time panel).
+_REAL_PX = 935.0
+#: What the event log's visible area may hold beyond its whole rows: less than the ~6 px from a row's top
+#: to its text, so no row shows half of its text (an empty sliver at most).
+_LOG_SLACK_PX = 3.0
 
 
 def _column_shares(alarm: bool, peak: bool = True) -> list[float]:
@@ -480,8 +486,9 @@ def layout_geometry(
     lanes = 45.0 + _LANE_PX * n_lanes
     # the event log beside the lanes: its title, header and whole rows (no half-hidden last row), in the
     # viewer's pixels (the shares are spread over _REAL_PX) and back
-    rows = math.ceil((lanes * _REAL_PX / _WINDOW[1] - _LOG_TOP_PX) / _LOG_ROW_PX)
-    lanes = (_LOG_TOP_PX + rows * _LOG_ROW_PX + 3.0) * _WINDOW[1] / _REAL_PX
+    fixed = _LOG_TOP_PX + _LOG_BOTTOM_PX + _LOG_SLACK_PX
+    rows = max(math.ceil((lanes * _REAL_PX / _WINDOW[1] - fixed) / _LOG_ROW_PX), 1)
+    lanes = (fixed + rows * _LOG_ROW_PX) * _WINDOW[1] / _REAL_PX
     cols = max(_WINDOW[1] - lanes - _ROW_PX * (rows_above + rows_below), 200.0)
     shares = _column_shares(alarm, peak)
     spec_h = max(cols * shares[1] / sum(shares) - _TITLE_PX, 20.0)
