@@ -177,8 +177,11 @@ class FaultStates:
             One entry per channel and frame whose state differs from the one before, at that frame's
             alarm time.
         """
-        t = np.asarray(times_s, dtype=float) + (self.n_window - 1) / 2.0 * self.dt
-        return self.follow(t, frame_states(alarm, excited))
+        return self.follow(self.frame_ends(times_s), frame_states(alarm, excited))
+
+    def frame_ends(self, times_s: np.ndarray) -> np.ndarray:
+        """The alarm times (last samples, s) of the frames centred at ``times_s`` (:func:`alarm_time`)."""
+        return np.asarray(times_s, dtype=float) + (self.n_window - 1) / 2.0 * self.dt
 
     def follow(self, decided_s: np.ndarray, codes: np.ndarray) -> StateChanges:
         """The changes after decisions taken at ``decided_s`` (W,) with state codes (W, m).

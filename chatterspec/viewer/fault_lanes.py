@@ -152,10 +152,9 @@ class FaultLanes:
 
         Parameters
         ----------
-        times_s : (F,) array
-            Frame centres (s).
-        alarm : (F, m) bool array
-            The alarm layer's state after each frame.
+        times_s, alarm : arrays
+            Frame centres (F,) and alarm states (F, m), as in
+            :meth:`~chatterspec.online.fault_state.FaultStates.update`.
         events : list of DetectionEvent
             The block's events (their onset / offset estimates label the episodes).
         excited : (F, m) bool array, optional
@@ -166,8 +165,7 @@ class FaultLanes:
             return _NO_CHANGE
         if self.mode == "excitation":
             self._note_events(events)
-            t = np.asarray(times_s, dtype=float) + (self.states.n_window - 1) / 2.0 * self.dt
-            self._frames.append((t, np.asarray(alarm, dtype=bool)))
+            self._frames.append((self.states.frame_ends(times_s), np.asarray(alarm, dtype=bool)))
             return self._drain(final=False)
         if excited is None and not events and self.decided:
             # without an excitation measure the state changes only where the alarm does, and every alarm
