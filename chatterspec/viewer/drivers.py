@@ -58,7 +58,8 @@ class RecordingSummary:
         itself finished and its events are here.
     parameter_events : tuple of ParameterEvent
         With tolerances, the identified parameters' alarms: the run's fault events (``events`` are then
-        the spectral detector's mismatches).
+        the spectral detector's mismatches). Not in :meth:`to_dict`: ``monitor --json`` puts them into
+        its summary itself (``MonitorIdentification.into_summary``).
     """
 
     path: Path | None
@@ -73,10 +74,9 @@ class RecordingSummary:
     parameter_events: tuple[ParameterEvent, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
-        """The fields as a JSON-ready dict (what the JSON outputs print): ``events`` are the run's fault
-        events, each with its ``alarm_time_s`` (where the lanes change); with tolerances the parameters'
-        (``spectral_events`` the mismatches)."""
-        doc: dict[str, Any] = {
+        """The fields as a JSON-ready dict (what the JSON outputs print): ``events`` are the spectral
+        detector's events, each with its ``alarm_time_s`` (where the lanes change without tolerances)."""
+        return {
             "recording": None if self.path is None else str(self.path),
             "live_url": self.live_url,
             "n_samples": self.n_samples,
@@ -86,10 +86,6 @@ class RecordingSummary:
             "events": [e.to_dict() for e in self.events],
             "notes": list(self.notes),
         }
-        if self.parameter_events:
-            doc["spectral_events"] = doc["events"]
-            doc["events"] = [e.to_dict() for e in self.parameter_events]
-        return doc
 
 
 def _pace(start_wall: float, data_elapsed: float, rate: float | None) -> None:
