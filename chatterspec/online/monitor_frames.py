@@ -28,6 +28,7 @@ from ..detection.frame_engine import FrameEngine
 from ..detection.frame_score import FrameScore
 from ..detection.frames import FrameVerdicts
 from ..detection.thresholds import Threshold
+from .fault_state import alarm_time
 from .monitor_types import DetectionEvent, EventKind, FrameBlock, MonitorSettings
 
 __all__ = ["FrameAnalysis"]
@@ -196,4 +197,5 @@ class FrameAnalysis:
             kind, self.channels[c], c, t, j, float(peak_hz), float(peak_ratio), t - back * self.dt,
             rule=rule.name, score=float(score[f, c]), statistic=float(statistic[f, c]),
             threshold=float(rule.threshold), false_alarms_per_hour=self.settings.false_alarms_per_hour,
+            alarm_time_s=alarm_time(t, self.n_window, self.dt),
         )  # fmt: skip
