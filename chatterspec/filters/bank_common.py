@@ -21,6 +21,7 @@ from .._validate import finite_array, nonnegative
 from ..errors import ParameterError, ShapeError
 from ._base import check_model
 from ._conventions import bank_store, default_input
+from .one_sample import OnlineBank
 from .protocol import FilterState, initial_estimate
 
 __all__ = [
@@ -357,6 +358,25 @@ class BankFilter:
     def _output(self, res: dict[str, np.ndarray | None]) -> MultipleModelOutput:
         """The bank's output from the per-sample arrays ``x, mu, ll, P, mx`` (None: not kept)."""
         return MultipleModelOutput(res["x"], res["mu"], res["ll"], tuple(self.modes), res["P"], res["mx"])  # type: ignore[arg-type, attr-defined]
+
+    def online(self, x0: np.ndarray, P0: np.ndarray, **initial: object) -> OnlineBank:
+        """One realization advanced one sample per call: ``f = bank.online(x0, P0)``, ``x = f.step(z, u)``.
+
+        Parameters
+        ----------
+        x0 : (n,) array
+            ``x(0|0)``.
+        P0 : (n, n) array
+            ``P(0|0)``.
+        **initial
+            IMM: ``mode_x0``, ``mode_P0`` (see :meth:`IMM.initialize`).
+
+        Returns
+        -------
+        OnlineBank
+            Each step gives the numbers of :meth:`update` on that sample (``docs/filters.md``).
+        """
+        return OnlineBank(self, self.initialize(x0, P0, runs=1, **initial))  # type: ignore[attr-defined]
 
     def update(
         self,
