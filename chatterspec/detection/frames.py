@@ -18,7 +18,7 @@ import numpy as np
 from .._repr import short_repr
 from ..errors import ParameterError, ShapeError
 from ..plants.models import LinearModel
-from ._verdict import peak_kernel
+from ._verdict import peak_channel, peak_kernel
 from .spectral import DEFAULT_STFT, Spectrogram, STFTConfig, spectrogram
 from .spectrum_verdicts import _channel_names
 from .thresholds import (
@@ -36,6 +36,7 @@ __all__ = [
     "frame_statistic",
     "frame_verdicts",
     "healthy_frame_level",
+    "peak_channel",
     "stft_detect",
 ]
 
