@@ -28,7 +28,6 @@ from ._engine import (
     gain_update_step,
     residual_step,
     store_step,
-    workspace,
 )
 from ._engine_numpy import chol_np as _chol_np
 from ._linalg import chol_solve_step, chol_step, innovation_step, joseph_step, loglik_step, predict_cov_step
@@ -53,10 +52,9 @@ def _riccati_loop(A, C, Q, R, P, Pp_all, Pq_all, S_all, KgT_all, L_all):  # type
     K = Pp_all.shape[0]
     n = NX if NX > 0 else A.shape[0]
     m = NZ if NZ > 0 else C.shape[0]
-    ws = workspace(n, m)
-    T1, Pp, PCt, PCtT, S, D, L, e, KgT, IKC, KR = (
-        ws[0], ws[1], ws[2], ws[3], ws[4], ws[5], ws[6], ws[7], ws[10], ws[11], ws[12],
-    )  # fmt: skip
+    T1, Pp, IKC = _jit.scratch2(n, n), _jit.scratch2(n, n), _jit.scratch2(n, n)
+    PCt, PCtT, KgT, KR = _jit.scratch2(n, m), _jit.scratch2(m, n), _jit.scratch2(m, n), _jit.scratch2(n, m)
+    S, D, L, e = _jit.scratch2(m, m), _jit.scratch2(m, m), _jit.scratch2(m, m), _jit.scratch(m)
     zero = _jit.scratch(n + m)  # z = 0 and x(k+1|k) = 0: the innovation itself is not needed
     for i in range(n + m):
         zero[i] = 0.0
