@@ -30,25 +30,35 @@ from ._engine import (
     store_step,
 )
 from ._engine_numpy import chol_np as _chol_np
-from ._linalg import chol_solve_step, chol_step, innovation_step, joseph_step, loglik_step, predict_cov_step
+from ._linalg import (
+    chol_solve_step,
+    chol_step,
+    half_logdet_step,
+    innovation_step,
+    joseph_step,
+    loglik_given_step,
+    predict_cov_step,
+)
 from .svsf_steps import rows_times as _rows_times
 
 #: Sizes of :func:`_kf_shared_loop`, bound per model by :func:`_kf_shared_kernel` (0: read from the arrays).
 NX = NZ = 0
 
 
-def _riccati_loop(A, C, Q, R, P, Pp_all, Pq_all, S_all, KgT_all, L_all):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+def _riccati_loop(A, C, Q, R, P, Pp_all, Pq_all, S_all, KgT_all, L_all, hld_all):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     """The shared covariance sequence: the covariance half of the per-run step, K times from ``P`` (in place).
 
     Per sample: ``Pp = A P A^T + Q``, ``S = C Pp C^T + R`` and its Cholesky factor ``L``, the Kalman
     gain ``K^T = S^-1 (Pp C^T)^T`` (:func:`~chatterspec.filters.kalman.kalman_correct`'s solve), the
     Joseph form: the steps of :func:`chatterspec.filters._engine._sample` in its order, hence its bits.
-    Outputs (K, ...): ``Pp_all``, ``Pq_all`` (P(k+1|k+1)), ``S_all``, ``KgT_all`` (K, m, n), ``L_all``.
-    Returns 0, or ``1 + k`` when ``S`` of sample k is not positive definite.
+    Outputs (K, ...): ``Pp_all``, ``Pq_all`` (P(k+1|k+1)), ``S_all``, ``KgT_all`` (K, m, n), ``L_all``,
+    ``hld_all`` (K,) = ``sum log L_ii`` (:func:`~chatterspec.filters._linalg.half_logdet_step`). Returns
+    0, or ``1 + k`` when ``S`` of sample k is not positive definite.
     """
     b = _jit.borrow
     A, C, Q, R, P = b(A), b(C), b(Q), b(R), b(P)
     Pp_all, Pq_all, S_all, KgT_all, L_all = b(Pp_all), b(Pq_all), b(S_all), b(KgT_all), b(L_all)
+    hld_all = b(hld_all)
     K = Pp_all.shape[0]
     n = NX if NX > 0 else A.shape[0]
     m = NZ if NZ > 0 else C.shape[0]
@@ -63,6 +73,7 @@ def _riccati_loop(A, C, Q, R, P, Pp_all, Pq_all, S_all, KgT_all, L_all):  # type
         innovation_step(zero, zero, Pp, C, R, e, PCt, PCtT, D, S, n, m)
         if not chol_step(S, L, m):
             return 1 + k
+        hld_all[k] = half_logdet_step(L, m)
         chol_solve_step(L, PCtT, KgT, m, n)
         joseph_step(KgT, C, Pp, R, T1, IKC, KR, P, n, m)
         for i in range(n):
@@ -78,18 +89,20 @@ def _riccati_loop(A, C, Q, R, P, Pp_all, Pq_all, S_all, KgT_all, L_all):  # type
     return 0
 
 
-def _kf_shared_loop(prm, u, z, x, ep, epp, C, KgT, L, flags, outs):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+def _kf_shared_loop(prm, u, z, x, ep, epp, C, KgT, L, half_logdet, flags, outs):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
     """State recursion of the Kalman filter with a precomputed, shared gain sequence ``KgT`` (K, m, n).
 
     Per run and sample: the linear plant's prediction (:func:`~chatterspec.plants.linear_steps.predict_step`,
     ``prm`` of :func:`~chatterspec.plants.linear_steps.parameters`), the innovation, ``x = x(k+1|k)
-    + K e``, the log-likelihood from the Cholesky factor ``L`` (K, m, m) of ``S``, the residuals: the
-    steps of the per-run filter (:mod:`chatterspec.filters._engine`), hence its bits. ``outs``: the
+    + K e``, the log-likelihood (when stored) from the Cholesky factor ``L`` (K, m, m) of ``S`` and its
+    ``half_logdet`` (K,) = ``sum log L_ii``, the residuals: the steps of the per-run filter
+    (:mod:`chatterspec.filters._engine`), hence its bits. ``outs``: the
     eight outputs of ``FIELDS`` (S and the covariances, which the shared path returns itself, empty
     and not flagged).
     """
     b = _jit.borrow
     prm, u, z, x, ep, epp, C, KgT, L = b(prm), b(u), b(z), b(x), b(ep), b(epp), b(C), b(KgT), b(L)
+    half_logdet = b(half_logdet)
     o0, o1, o2, o3, o4, o5, o6, o7 = outs
     # borrowed: no reference counts per sample
     outs = (b(o0), b(o1), b(o2), b(o3), b(o4), b(o5), b(o6), b(o7))
@@ -98,6 +111,7 @@ def _kf_shared_loop(prm, u, z, x, ep, epp, C, KgT, L, flags, outs):  # type: ign
     m = NZ if NZ > 0 else z.shape[2]
     p = u.shape[2]
     shared_u = u.shape[0] == 1
+    want_ll = flags[4]
     xp = _jit.scratch(n)
     e = _jit.scratch(m)
     eb = _jit.scratch2(m, 1)
@@ -114,7 +128,7 @@ def _kf_shared_loop(prm, u, z, x, ep, epp, C, KgT, L, flags, outs):  # type: ign
         for k in range(K):
             predict_step(prm, xr, u[ur, k], xp, n, p)
             residual_step(z[r, k], C, xp, e, n, m)
-            ll = loglik_step(L[k], e, eb, wv, m)
+            ll = loglik_given_step(L[k], e, eb, wv, half_logdet[k], m) if want_ll else 0.0
             gain_update_step(xp, KgT[k], e, xr, n, m)
             for i in range(m):
                 epp[r, i] = epr[i]
@@ -141,7 +155,7 @@ def _riccati_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
 def riccati_compiled(
     P: np.ndarray, A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray, K: int
 ) -> tuple[np.ndarray, ...]:
-    """:func:`riccati` by :func:`_riccati_loop`: ``(P_end, P_prior, P_post, S, KgT (K, m, n), L)``.
+    """:func:`riccati` by :func:`_riccati_loop`: ``(P_end, P_prior, P_post, S, KgT (K, m, n), L, hld)``.
 
     Raises
     ------
@@ -157,6 +171,7 @@ def riccati_compiled(
         np.empty((K, m, m)),
         np.empty((K, m, n)),
         np.empty((K, m, m)),
+        np.empty(K),
     )
     status = _riccati_kernel(n, m)(
         c(A, dtype=float), c(C, dtype=float), c(Q, dtype=float), c(R, dtype=float), P, *out
@@ -189,8 +204,8 @@ def shared_gain(
     runs, K, m = z.shape
     n = x.shape[1]
     if _jit.enabled() and _jit.fits(n, m):
-        P, Pp, Pq, S, KgT, L = riccati_compiled(P, A, C, Q, R, K)
-        res = kf_shared_states(x, ep, epp, z, u, A, B, C, KgT, keep, L=L)
+        P, Pp, Pq, S, KgT, L, hld = riccati_compiled(P, A, C, Q, R, K)
+        res = kf_shared_states(x, ep, epp, z, u, A, B, C, KgT, keep, L=L, half_logdet=hld)
     else:
         P, Pp, Pq, S, Kg, Sinv, logdet = riccati(P, A, C, Q, R, K)
         res = kf_shared_states(
@@ -206,7 +221,7 @@ def gain_sequence(
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(gains (K, n, m), P_post (K, n, n))`` from a shared ``P``, on the path :func:`shared_gain` takes."""
     if _jit.enabled() and _jit.fits(A.shape[0], C.shape[0]):
-        _, _, Pq, _, KgT, _ = riccati_compiled(P, A, C, Q, R, K)
+        _, _, Pq, _, KgT, _, _ = riccati_compiled(P, A, C, Q, R, K)
         return np.swapaxes(KgT, -1, -2), Pq
     _, _, Pq, _, Kg, _, _ = riccati(P, A, C, Q, R, K)
     return Kg, Pq
@@ -225,14 +240,15 @@ def kf_shared_states(
     keep: frozenset[str],
     *,
     L: np.ndarray | None = None,
+    half_logdet: np.ndarray | None = None,
     Sinv: np.ndarray | None = None,
     logdet: np.ndarray | None = None,
 ) -> dict[str, np.ndarray | None]:
     """State recursion of the linear KF with a shared gain sequence ``KgT`` (K, m, n); in place.
 
-    ``u`` is (1 | runs, K, p). With ``L`` (the Cholesky factors of ``S``, from :func:`riccati_compiled`)
-    the compiled loop; with ``Sinv`` and ``logdet`` (:func:`riccati`) numpy, which sums ``B u`` as
-    ``_rows_times`` does.
+    ``u`` is (1 | runs, K, p). With ``L`` and ``half_logdet`` (the Cholesky factors of ``S`` and their
+    ``sum log L_ii``, from :func:`riccati_compiled`) the compiled loop; with ``Sinv`` and ``logdet``
+    (:func:`riccati`) numpy, which sums ``B u`` as ``_rows_times`` does.
     """
     runs, K, m = z.shape
     n = x.shape[1]
@@ -253,7 +269,7 @@ def kf_shared_states(
     if L is not None:
         c = np.ascontiguousarray
         _kf_shared_kernel(n, m)(
-            parameters(A, B), c(u, dtype=float), c(z), x, ep, epp, c(C), KgT, c(L), flags,
+            parameters(A, B), c(u, dtype=float), c(z), x, ep, epp, c(C), KgT, c(L), c(half_logdet), flags,
             tuple(out[f] for f in FIELDS),
         )  # fmt: skip
     else:

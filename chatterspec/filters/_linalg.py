@@ -16,8 +16,10 @@ __all__ = [
     "chol_solve_step",
     "chol_step",
     "gain_update_step",
+    "half_logdet_step",
     "innovation_step",
     "joseph_step",
+    "loglik_given_step",
     "loglik_step",
     "predict_cov_step",
     "product_step",
@@ -140,16 +142,32 @@ def loglik_step(
     L: np.ndarray, e: np.ndarray, eb: np.ndarray, wv: np.ndarray, m: int
 ) -> float:  # pragma: no cover
     """``log N(e; 0, S)`` from the Cholesky factor ``L`` of ``S``: ``S^-1 e`` by :func:`chol_solve_step`
-    (``e`` copied into the column ``eb`` (m, 1), solution in ``wv``), ``log det S = 2 sum log L_ii``."""
+    (``e`` copied into the column ``eb`` (m, 1), solution in ``wv``), ``log det S = 2 sum log L_ii``
+    (:func:`half_logdet_step`)."""
+    return loglik_given_step(L, e, eb, wv, half_logdet_step(L, m), m)
+
+
+@_jit.step
+def half_logdet_step(L: np.ndarray, m: int) -> float:  # pragma: no cover - compiled
+    """``sum_i log L_ii`` (half of ``log det S`` for the Cholesky factor ``L`` of ``S``), i = 0, 1, ..."""
+    logdet = 0.0
+    for i in range(m):
+        logdet += np.log(L[i, i])
+    return logdet
+
+
+@_jit.step
+def loglik_given_step(
+    L: np.ndarray, e: np.ndarray, eb: np.ndarray, wv: np.ndarray, half_logdet: float, m: int
+) -> float:  # pragma: no cover - compiled
+    """:func:`loglik_step` with ``sum log L_ii`` given (the shared Kalman filter has it once per sample)."""
     for i in range(m):
         eb[i, 0] = e[i]
     chol_solve_step(L, eb, wv, m, 1)
     quad = 0.0
-    logdet = 0.0
     for i in range(m):
         quad += e[i] * wv[i, 0]
-        logdet += np.log(L[i, i])
-    return -0.5 * (m * 1.8378770664093453 + 2.0 * logdet + quad)
+    return -0.5 * (m * 1.8378770664093453 + 2.0 * half_logdet + quad)
 
 
 @_jit.step
