@@ -52,30 +52,33 @@ NX = NZ = 0
 NO_LIKELIHOOD = 5
 
 
-def _smm_sample(prm, plant_slot, Qs, C, R, fp, floor, zk, uk, x, P, mu, ep, epp, xs, Ps, ll, n, m, p):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (a template)
-    """The recursion of the module docstring for one sample of one realization; state rows in place.
-
-    ``zk`` (m,), ``uk`` (p,); ``x`` (n,), ``P`` (n, n), ``mu`` (nm,), ``ep``, ``epp`` (m,); ``xs``
-    (nm, n) and ``Ps`` (nm, n, n) receive the mode predictions, ``ll`` (nm,) their log-likelihoods.
-    Returns 0, the sample step's code, or :data:`NO_LIKELIHOOD`.
-    """
-    nm = mu.shape[0]
-    ws = workspace(n, m)
-    T1, PCt, PCtT, S, D, e = ws[0], ws[2], ws[3], ws[4], ws[5], ws[7]
-    F = _jit.scratch2(n, n)
+@_jit.step
+def smm_scratch(nm: int, n: int, m: int) -> tuple:  # type: ignore[type-arg]  # pragma: no cover - compiled
+    """The scratch of :func:`_smm_sample`, made once by the loop that calls it (inlined into it):
+    ``(ws, F, eye, Q0, xp, lw, Sc, Lc, ec, col, tmp)`` with ``eye`` = I and ``Q0`` = 0 filled in."""
     eye = _jit.scratch2(n, n)
     Q0 = _jit.scratch2(n, n)
-    xp = _jit.scratch(n)
-    lw = _jit.scratch(nm)
-    Sc = _jit.scratch2(m, m)
-    Lc = _jit.scratch2(m, m)
-    ec = _jit.scratch(m)
-    col = _jit.scratch(m)
-    tmp = _jit.scratch(2 * m)
     for i in range(n):
         for j in range(n):
             eye[i, j] = 1.0 if i == j else 0.0
             Q0[i, j] = 0.0
+    return (
+        workspace(n, m), _jit.scratch2(n, n), eye, Q0, _jit.scratch(n), _jit.scratch(nm), _jit.scratch2(m, m),
+        _jit.scratch2(m, m), _jit.scratch(m), _jit.scratch(m), _jit.scratch(2 * m),
+    )  # fmt: skip
+
+
+def _smm_sample(prm, plant_slot, Qs, C, R, fp, floor, zk, uk, x, P, mu, ep, epp, xs, Ps, ll, scr, n, m, p):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (a template)
+    """The recursion of the module docstring for one sample of one realization; state rows in place.
+
+    ``zk`` (m,), ``uk`` (p,); ``x`` (n,), ``P`` (n, n), ``mu`` (nm,), ``ep``, ``epp`` (m,); ``xs``
+    (nm, n) and ``Ps`` (nm, n, n) receive the mode predictions, ``ll`` (nm,) their log-likelihoods;
+    ``scr``: :func:`smm_scratch` (made once by the calling loop). Returns 0, the sample step's code,
+    or :data:`NO_LIKELIHOOD`.
+    """
+    nm = mu.shape[0]
+    ws, F, eye, Q0, xp, lw, Sc, Lc, ec, col, tmp = scr
+    T1, PCt, PCtT, S, D, e = ws[0], ws[2], ws[3], ws[4], ws[5], ws[7]
     for j in range(nm):  # Table 1 steps 1-2: every mode from the common posterior
         PLANT(plant_slot[j], prm[j], x, uk, xs[j], F, n, p)
         predict_cov_step(F, P, Qs[j], T1, Ps[j], n)
@@ -118,12 +121,13 @@ def _smm_loop(
     p = u.shape[2]
     shared_u = u.shape[0] == 1
     ll = _jit.scratch(nm)
+    scr = smm_scratch(nm, n, m)
     for r in range(runs):
         ur = 0 if shared_u else r
         for k in range(K):
             status = SMM_SAMPLE(
                 prm, plant_slot, Qs, C, R, fp, floor, z[r, k], u[ur, k], x[r], P[r], mu[r], ep[r], epp[r],
-                xs, Ps, ll, n, m, p,
+                xs, Ps, ll, scr, n, m, p,
             )  # fmt: skip
             if status == NO_LIKELIHOOD:
                 return -(1 + r)
@@ -178,7 +182,8 @@ def _smm_one(buf, cst, slots, z, u):  # type: ignore[no-untyped-def]  # pragma: 
     xs = work[offs[4] : offs[5]].reshape((nm, n))
     Ps = work[offs[5] : offs[6]].reshape((nm, n, n))
     ll = work[offs[6] : offs[7]]
-    status = SMM_SAMPLE(prm, slots, Qs, C, R, fp, floor, z, u, x, P, mu, ep, epp, xs, Ps, ll, n, m, p)
+    scr = smm_scratch(nm, n, m)
+    status = SMM_SAMPLE(prm, slots, Qs, C, R, fp, floor, z, u, x, P, mu, ep, epp, xs, Ps, ll, scr, n, m, p)
     if status != 0:
         return status
     for i in range(n):
