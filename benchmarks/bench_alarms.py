@@ -6,11 +6,11 @@ Not a test (the default suite runs a one-hour version, tests/test_alarm_monitor.
     Healthy streams (``--streams`` of ``--days * 24 / streams`` hours each, seeds 1, 2, ...) of the
     linear EHA (``eha-healthy``: 1 kHz, 3 channels) and of the second-order plant
     (``so-healthy-high``: 10 Hz, zeta 0.1, 2 channels; see :func:`plant`) are simulated block by block
-    (:func:`chatterspec.online.stream.simulate_blocks`, constant memory) and pushed, one minute per
+    (:func:`chatterspec.online.simulated_stream.simulate_blocks`, constant memory) and pushed, one minute per
     push, through one :class:`~chatterspec.online.monitor.ChatteringMonitor` per rule, each with
     its threshold for the budget (``--budget``, default one false alarm per day, all channels
     together; from :func:`chatterspec.studies.alarm_budget.calibrate_alarm`, ``--calibration-hours``
-    of other healthy data, as ``chatterspec calibrate --hours`` does). Counted: the monitors'
+    of other healthy data, as ``chatterspec calibrate --alarm-hours`` does). Counted: the monitors'
     fault-start events. Reported per plant and rule: the count, the two-sided 99 % Poisson interval
     of the count the budget predicts, whether the count lies inside, and the CPU time (process
     time of that rule's monitor plus its share of the simulation). The monitors' frame scores are
@@ -46,7 +46,7 @@ import numpy as np
 from chatterspec.detection.alarm_calibration import poisson_count_interval
 from chatterspec.detection.alarms import FrameRule, make_rule, run_rule
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
-from chatterspec.online.stream import simulate_blocks
+from chatterspec.online.simulated_stream import simulate_blocks
 from chatterspec.plants.scenarios import Scenario, scenario
 from chatterspec.studies.alarm_budget import alarm_settings, calibrate_alarm, in_call_hours
 

@@ -7,7 +7,7 @@ per command, the best and median wall time and the process CPU time (user + syst
 * start-up: ``chatterspec --help``, ``chatterspec scenarios``, argument errors (``detect NO-SUCH``,
   ``simulate eha-healthy --rate -1``, ``monitor`` with a missing model file), which should not wait for
   the heavy modules (scipy.signal, scipy.stats, numba, rerun);
-* the monitor path: ``chatterspec monitor --model examples/eha_model.toml --data FILE.npz --record X.rrd
+* the monitor path: ``chatterspec monitor examples/eha_model.toml --data FILE.npz --record X.rrd
   --json`` on 300 s of 1 kHz, 3-channel EHA data (written once to a temporary folder), with the loop time
   the command reports (``wall_s``: pushes, logging, closing the file) as x real time; beside it the same
   run in-process after a warm-up run (``--in-process``), i.e. the figure ``bench_monitor.py`` measures.
@@ -47,7 +47,7 @@ STARTUP = {
     "scenarios": ["scenarios"],
     "detect NO-SUCH": ["detect", "no-such-scenario"],
     "simulate --rate -1": ["simulate", "eha-healthy", "--rate", "-1"],
-    "monitor, no model": ["monitor", "--model", "no-such.toml", "--data", "x.csv"],
+    "monitor, no model": ["monitor", "no-such.toml", "--data", "x.csv"],
 }
 
 
@@ -111,7 +111,7 @@ def _in_process(data: Path, rrd: Path, repeat: int) -> list[float]:
     """Loop time (the command's ``wall_s``) of the same command in this process, after a warm-up run."""
     from chatterspec.cli import main
 
-    argv = ["monitor", "--model", str(MODEL), "--data", str(data), "--record", str(rrd), "--json"]
+    argv = ["monitor", str(MODEL), "--data", str(data), "--record", str(rrd), "--json"]
     out = []
     for i in range(repeat + 1):
         buf = io.StringIO()
@@ -126,7 +126,7 @@ def _monitor(repeat: int, seconds: float, versions: dict[str, str | None], in_pr
     with tempfile.TemporaryDirectory() as tmp:
         data, rrd = Path(tmp) / "eha.npz", Path(tmp) / "x.rrd"
         _data(data, seconds)
-        argv = ["monitor", "--model", str(MODEL), "--data", str(data), "--record", str(rrd), "--json"]
+        argv = ["monitor", str(MODEL), "--data", str(data), "--record", str(rrd), "--json"]
         what = f"{seconds:g} s of 1 kHz 3-channel data, --record"
         print(f"\nchatterspec monitor, {what} (best / median of {repeat})")
         head = ("version", "process wall s", "process cpu s", "loop s", "loop x real time")

@@ -32,7 +32,8 @@ import numpy as np
 import chatterspec as cs
 from chatterspec import _jit
 from chatterspec.filters import ExtendedKalmanFilter, SecondOrderSVSF, SVSFCov
-from chatterspec.filters.multiple_model import IMM, SMMSVSF
+from chatterspec.filters.imm import IMM
+from chatterspec.filters.smm_svsf import SMMSVSF
 from chatterspec.studies.modes import argmax_accuracy, confusion_matrix, rmse_table, switch_delays
 
 

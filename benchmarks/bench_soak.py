@@ -8,7 +8,7 @@
     python benchmarks/bench_soak.py --rotations 30 --record-every 0.05          # RSS per rotation
 
 This process plays the producer: it simulates ``eha-healthy`` block by block
-(:func:`chatterspec.online.stream.simulate_blocks`, the source of ``chatterspec
+(:func:`chatterspec.online.simulated_stream.simulate_blocks`, the source of ``chatterspec
 simulate``) and writes the CSV rows into the standard input of a
 ``chatterspec monitor --data - --record ... --record-every ...`` subprocess with
 both SVSFs (the model file has ``psi``). After each minute of data has been
@@ -52,7 +52,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from chatterspec.cli.scenarios import export_model_toml  # noqa: E402
-from chatterspec.online.stream import csv_header, csv_lines, simulate_blocks  # noqa: E402
+from chatterspec.online.simulated_stream import csv_header, csv_lines, simulate_blocks  # noqa: E402
 from chatterspec.plants.scenarios import scenario  # noqa: E402
 
 
@@ -209,7 +209,7 @@ def main() -> None:
         tmp.cleanup()
         return
     model = export_model_toml(args.scenario, out / "model.toml")
-    cmd = [sys.executable, "-m", "chatterspec", "monitor", "--model", str(model), "--data", "-", "--json"]
+    cmd = [sys.executable, "-m", "chatterspec", "monitor", str(model), "--data", "-", "--json"]
     if args.record_every > 0:
         cmd += ["--record", str(out / "soak.rrd"), "--record-every", str(args.record_every)]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 from .errors import (
     CalibrationMismatchError,
     ChatterspecError,
+    CommissioningError,
     DataFileError,
     DivergenceError,
     IdentifiabilityError,
@@ -24,6 +25,7 @@ from .errors import (
     UnknownScenarioError,
     UnstableLoopError,
     UnstableModelWarning,
+    ViewerUnavailableError,
 )
 
 # THE PUBLIC API: every name a user reaches as ``chatterspec.NAME``, grouped by topic, in this one
@@ -36,7 +38,8 @@ _GROUPS: dict[str, dict[str, str]] = {
         **dict.fromkeys(("LinearModel", "discretize", "eha_linear", "second_order"), ".plants.models"),
         "NonlinearModel": ".plants.nonlinear",
         "eha4": ".plants.eha4",
-        **dict.fromkeys(("load_model", "write_model_toml"), ".plants.modelfile"),
+        "load_model": ".plants.modelfile",
+        "write_model_toml": ".plants.modelfile_writer",
         "load_data": ".plants.datafile",
     },
     "scenarios": {
@@ -52,7 +55,9 @@ _GROUPS: dict[str, dict[str, str]] = {
         **dict.fromkeys(("KalmanFilter", "ExtendedKalmanFilter"), ".filters.kalman"),
         "SVSFCov": ".filters.svsf_cov",
         "SecondOrderSVSF": ".filters.svsf2",
-        **dict.fromkeys(("IMM", "SMMSVSF", "MultipleModelOutput"), ".filters.multiple_model"),
+        "IMM": ".filters.imm",
+        "SMMSVSF": ".filters.smm_svsf",
+        "MultipleModelOutput": ".filters.bank_common",
         **dict.fromkeys(("FilterOutput", "FilterState"), ".filters.protocol"),
         **dict.fromkeys(("SVSF", "SVSFOutput", "auxiliary_svsf"), ".filters.svsf"),
     },
@@ -69,6 +74,7 @@ _GROUPS: dict[str, dict[str, str]] = {
     },
     "calibration": {
         **dict.fromkeys(("Calibration", "calibrate", "load_calibration"), ".studies.calibration"),
+        "calibrate_recorded": ".online.recorded_calibration",
     },
     "estimation": {
         **dict.fromkeys(("EstimationResult", "build_filter", "estimation_study"), ".studies.estimation"),
@@ -82,6 +88,12 @@ _GROUPS: dict[str, dict[str, str]] = {
             ("Identification", "IdentificationReport", "identification_setup", "identify", "identify_record"),
             ".detection.identification",
         ),
+        **dict.fromkeys(("Tolerance", "with_tolerances"), ".plants.tolerances"),
+        **dict.fromkeys(("ParameterDecisions", "parameter_alarm_settings"), ".detection.parameter_decision"),
+        "monitor_parameters": ".detection.parameter_records",
+    },
+    "commissioning": {
+        **dict.fromkeys(("Commissioning", "commission"), ".studies.commissioning"),
     },
     "alarms": {
         **dict.fromkeys(
@@ -127,28 +139,36 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
         identify,
         identify_record,
     )
+    from .detection.parameter_decision import ParameterDecisions, parameter_alarm_settings
+    from .detection.parameter_records import monitor_parameters
     from .detection.pipeline import ChatteringRecord, chattering_record
     from .detection.spectral import STFTConfig, periodogram, spectrogram
     from .detection.thresholds import Threshold, threshold
+    from .filters.bank_common import MultipleModelOutput
+    from .filters.imm import IMM
     from .filters.kalman import ExtendedKalmanFilter, KalmanFilter
-    from .filters.multiple_model import IMM, SMMSVSF, MultipleModelOutput
     from .filters.protocol import FilterOutput, FilterState
+    from .filters.smm_svsf import SMMSVSF
     from .filters.svsf import SVSF, SVSFOutput, auxiliary_svsf, boundary_layer_chattering, chattering
     from .filters.svsf2 import SecondOrderSVSF
     from .filters.svsf_cov import SVSFCov
     from .jsonout import dumps, rounded
+    from .online.recorded_calibration import calibrate_recorded
     from .plants.datafile import load_data
     from .plants.eha4 import eha4
-    from .plants.modelfile import load_model, write_model_toml
+    from .plants.modelfile import load_model
+    from .plants.modelfile_writer import write_model_toml
     from .plants.models import LinearModel, discretize, eha_linear, second_order
     from .plants.nonlinear import NonlinearModel
     from .plants.scenarios import Scenario, Segment, catalogue, scenario, scenario_names
     from .plants.signals import Chirp, Constant, SquareWave, Step
     from .plants.simulate import Simulation, iter_simulations, simulate
+    from .plants.tolerances import Tolerance, with_tolerances
     from .studies.alarm_budget import calibrate_alarm
     from .studies.budget_diagnosis import diagnose_at_budget
     from .studies.calibration import Calibration, calibrate, load_calibration
     from .studies.chattering_diagnosis import ChatteringDiagnosis, diagnose_chattering
+    from .studies.commissioning import Commissioning, commission
     from .studies.estimation import EstimationResult, build_filter, estimation_study
     from .studies.mode_diagnosis import ModeDiagnosis, diagnose_modes
 
@@ -181,6 +201,8 @@ __all__ = [
     "ChatteringRecord",
     "ChatterspecError",
     "Chirp",
+    "Commissioning",
+    "CommissioningError",
     "Constant",
     "CusumRule",
     "DataFileError",
@@ -203,6 +225,7 @@ __all__ = [
     "MultipleModelOutput",
     "NonFiniteError",
     "NonlinearModel",
+    "ParameterDecisions",
     "ParameterError",
     "PersistenceRule",
     "RuleCalibration",
@@ -218,19 +241,23 @@ __all__ = [
     "SquareWave",
     "Step",
     "Threshold",
+    "Tolerance",
     "UnknownScenarioError",
     "UnstableLoopError",
     "UnstableModelWarning",
+    "ViewerUnavailableError",
     "__version__",
     "auxiliary_svsf",
     "boundary_layer_chattering",
     "build_filter",
     "calibrate",
     "calibrate_alarm",
+    "calibrate_recorded",
     "calibrate_rule",
     "catalogue",
     "chattering",
     "chattering_record",
+    "commission",
     "detect_chunks",
     "detect_record",
     "detect_scenario",
@@ -251,6 +278,8 @@ __all__ = [
     "load_data",
     "load_model",
     "make_rule",
+    "monitor_parameters",
+    "parameter_alarm_settings",
     "periodogram",
     "rounded",
     "run_rule",
@@ -260,5 +289,6 @@ __all__ = [
     "simulate",
     "spectrogram",
     "threshold",
+    "with_tolerances",
     "write_model_toml",
 ]

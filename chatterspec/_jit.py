@@ -70,7 +70,7 @@ import types
 import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import numpy as np
 
@@ -356,7 +356,7 @@ def njit(func: F) -> F:
     """
     if not HAVE_NUMBA:
         return func
-    return _LazyKernel(func)  # type: ignore[return-value]
+    return cast(F, _LazyKernel(func))  # called like ``func`` (``__call__`` forwards the arguments)
 
 
 def step(func: F) -> F:
@@ -385,7 +385,7 @@ def step(func: F) -> F:
     """
     if not HAVE_NUMBA:
         return func
-    return _LazyKernel(func, inline=True)  # type: ignore[return-value]
+    return cast(F, _LazyKernel(func, inline=True))  # called like ``func``
 
 
 def specialize(

@@ -13,6 +13,9 @@ it) and is valid until that function returns: never return it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
@@ -32,7 +35,7 @@ __all__ = [
 _F8 = types.float64
 
 
-def _array(context, builder, ptr, shape, ndim):  # type: ignore[no-untyped-def]
+def _array(context, builder, ptr, shape, ndim):
     """A C-order float64 array of ``shape`` (intp values) at ``ptr``, without a meminfo."""
     arrty = types.Array(_F8, ndim, "C")
     ary = context.make_array(arrty)(context, builder)
@@ -51,10 +54,10 @@ def _array(context, builder, ptr, shape, ndim):  # type: ignore[no-untyped-def]
     return ary._getvalue()
 
 
-def _stack(capacity: int, ndim: int):  # type: ignore[no-untyped-def]
+def _stack(capacity: int, ndim: int) -> Callable[..., Any]:
     """Codegen of a stack array: ``capacity`` floats when a size is not literal, else their product."""
 
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+    def codegen(context, builder, signature, args):
         sizes = signature.args
         if all(isinstance(t, types.IntegerLiteral) for t in sizes):
             room = 1
@@ -70,7 +73,7 @@ def _stack(capacity: int, ndim: int):  # type: ignore[no-untyped-def]
 
 
 @intrinsic
-def scratch(typingctx, n):  # type: ignore[no-untyped-def]
+def scratch(typingctx, n):
     """Stack vector of ``n`` floats (see the module docstring)."""
     if not isinstance(n, types.Integer):
         return None
@@ -78,7 +81,7 @@ def scratch(typingctx, n):  # type: ignore[no-untyped-def]
 
 
 @intrinsic
-def scratch2(typingctx, n, m):  # type: ignore[no-untyped-def]
+def scratch2(typingctx, n, m):
     """Stack ``(n, m)`` C-order matrix (see the module docstring)."""
     if not (isinstance(n, types.Integer) and isinstance(m, types.Integer)):
         return None
@@ -86,12 +89,12 @@ def scratch2(typingctx, n, m):  # type: ignore[no-untyped-def]
 
 
 @intrinsic
-def scratch_block(typingctx, n):  # type: ignore[no-untyped-def]
+def scratch_block(typingctx, n):
     """Stack vector with the room of ``BLOCK_CAPACITY`` floats (a workspace carved into pieces)."""
     if not isinstance(n, types.Integer):
         return None
 
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+    def codegen(context, builder, signature, args):
         ptr = cgutils.alloca_once(builder, context.get_value_type(_F8), size=BLOCK_CAPACITY)
         shape = [context.cast(builder, args[0], signature.args[0], types.intp)]
         return _array(context, builder, ptr, shape, 1)
@@ -100,16 +103,16 @@ def scratch_block(typingctx, n):  # type: ignore[no-untyped-def]
 
 
 @intrinsic
-def borrow(typingctx, a):  # type: ignore[no-untyped-def]
+def borrow(typingctx, a):
     """The same array without its meminfo (no reference counting); anything else unchanged."""
     if not isinstance(a, types.Array):
 
-        def identity(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        def identity(context, builder, signature, args):
             return args[0]
 
         return a(a), identity
 
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+    def codegen(context, builder, signature, args):
         src = context.make_array(a)(context, builder, value=args[0])
         dst = context.make_array(a)(context, builder)
         context.populate_array(

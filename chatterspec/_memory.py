@@ -13,7 +13,7 @@ RSS) and ``far eha-healthy --runs 3000`` (system CPU time of the page faults, de
 32 MiB 438 / 438 MB, 1.0 s. 8 MiB keeps the peak flat at ~10 % more CPU time on ``far``.
 
 Only the command-line interface and the worker processes of
-:func:`chatterspec.studies.montecarlo.run_study` call :func:`fix_mmap_threshold`; importing
+:func:`chatterspec.montecarlo.run_study` call :func:`fix_mmap_threshold`; importing
 chatterspec as a library leaves the host process's allocator alone.
 """
 

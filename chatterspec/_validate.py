@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
+from typing import cast
 
 import numpy as np
+import numpy.typing as npt
 
 from .errors import NonFiniteError, ParameterError, ShapeError
 
 
 def finite_array(
     name: str,
-    value: object,
+    value: npt.ArrayLike,
     *,
     ndim: int | Sequence[int] | None = None,
     shape: tuple[int | None, ...] | None = None,
@@ -22,7 +24,7 @@ def finite_array(
     ``shape`` entries that are ``None`` match any size.
     """
     try:
-        arr = np.asarray(value, dtype=dtype)
+        arr: np.ndarray = np.asarray(value, dtype=dtype)
     except (TypeError, ValueError) as exc:
         raise ShapeError(f"{name} must be numeric array-like; got {type(value).__name__}") from exc
     if ndim is not None:
@@ -97,13 +99,13 @@ def finite_scalar(name: str, value: float) -> float:
     return v
 
 
-def check_no_unknown_kwargs(func_name: str, kwargs: dict) -> None:
+def check_no_unknown_kwargs(func_name: str, kwargs: dict[str, object]) -> None:
     """Raise TypeError naming ``func_name`` if ``kwargs`` holds any keyword (Python's own wording)."""
     if kwargs:
         raise TypeError(f"{func_name}() got unexpected keyword argument(s): {', '.join(kwargs)}")
 
 
-def check_band(band: object) -> tuple[float, float]:
+def check_band(band: object) -> tuple[float, float]:  # a validator: any value
     """Validate a frequency band ``(lo, hi)`` in Hz: finite, ``0 <= lo < hi``.
 
     Re-exported as :func:`chatterspec.detection.thresholds.check_band` (its public home); it lives
@@ -121,7 +123,7 @@ def check_band(band: object) -> tuple[float, float]:
         If it is not two finite numbers with ``0 <= lo < hi``.
     """
     try:
-        lo, hi = (float(v) for v in band)  # type: ignore[union-attr]
+        lo, hi = (float(v) for v in cast("Iterable[float]", band))  # anything else raises TypeError here
     except (TypeError, ValueError):
         raise ParameterError(f"band must be two numbers (lo, hi) in Hz; got {band!r}") from None
     if not (np.isfinite(lo) and np.isfinite(hi)) or lo < 0 or hi <= lo:

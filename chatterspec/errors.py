@@ -11,6 +11,7 @@ from __future__ import annotations
 __all__ = [
     "CalibrationMismatchError",
     "ChatterspecError",
+    "CommissioningError",
     "DataFileError",
     "DivergenceError",
     "IdentifiabilityError",
@@ -23,6 +24,7 @@ __all__ = [
     "UnknownScenarioError",
     "UnstableLoopError",
     "UnstableModelWarning",
+    "ViewerUnavailableError",
 ]
 
 
@@ -81,6 +83,16 @@ class ModelKindError(ParameterError):
 class IdentifiabilityError(ParameterError):
     """A physical parameter cannot be identified from this model's chattering (reduced-order
     measurement, a nonlinear model, no declared parameters, or parameters that cannot be told apart)."""
+
+
+class ViewerUnavailableError(ChatterspecError):
+    """The Rerun viewer cannot be started here (not installed, no display) or ended with an error."""
+
+
+class CommissioningError(ChatterspecError):
+    """Commissioning cannot give a trustworthy model from this recording: a fitted noise covariance that
+    the data make negative (coloured noise, a disturbance the model lacks), or a fitted model that fails
+    its held-out check (then nothing is written unless forced). The message says which channel and why."""
 
 
 class UnstableLoopError(ParameterError):

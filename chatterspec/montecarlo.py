@@ -1,7 +1,7 @@
 """Chunked Monte Carlo execution: serial, local processes or Dask, with identical results.
 
-In the package base so that detection (:mod:`chatterspec.detection.detect_parallel`) and the
-studies both run on it; :mod:`chatterspec.studies.montecarlo` re-exports every name (its old home).
+In the package base so that detection (:func:`chatterspec.detection.detect.detect_scenario` with
+``workers``) and the studies both run on it.
 
 A *study* is a picklable object with two methods:
 
@@ -24,7 +24,7 @@ out-of-order results wait in a buffer of the same bound.
 
 Examples
 --------
->>> from chatterspec.studies.montecarlo import run_study
+>>> from chatterspec.montecarlo import run_study
 >>> class Count:
 ...     def run_chunk(self, first_run, runs, seed):
 ...         return runs

@@ -19,6 +19,7 @@ __all__ = [
     "HEALTHY",
     "MODE_COLORS",
     "NEUTRAL",
+    "NOT_EXCITED",
     "TAB10",
     "TRUTH",
     "channel_color",
@@ -35,6 +36,9 @@ RGB = tuple[int, int, int]
 FAULT: RGB = (229, 57, 53)
 #: A healthy verdict (lanes).
 HEALTHY: RGB = (46, 125, 50)
+#: Not excited: the data cannot see a change of the size a parameter's tolerance allows (lanes), neither
+#: healthy nor fault.
+NOT_EXCITED: RGB = (96, 125, 139)
 #: Reference lines and healthy truth segments.
 NEUTRAL: RGB = (140, 140, 140)
 #: The true state (drawn under the estimates): light grey on Rerun's dark background; figures use black.

@@ -2,7 +2,7 @@
 
 * ``diagnosis_table_eha4.png``: the ``chatterspec diagnose eha4-leak-timeline --per-record`` table
   (chattering, SMM-SVSF and IMM-EKF on the same ``--runs`` realizations, each with its own rule; the
-  comparison at one false-alarm budget is ``diagnose ... --figure``, ``figures/diagnosis_budget_*.png``);
+  comparison at one false-alarm budget is ``diagnose ... --plot``, ``figures/diagnosis_budget_*.png``);
 * ``smm_mode_weights.png``: SMM-SVSF mode weights over time, mean over the runs (the SMM paper's Fig 5),
   with the true mode shaded;
 * ``imm_confusion.png``: the IMM-EKF confusion matrix on ``eha4-imm-analogue`` (``--imm-runs`` runs;

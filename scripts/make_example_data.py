@@ -1,9 +1,12 @@
-"""Regenerate ``examples/eha_model.toml`` and ``examples/eha_data.csv``.
+"""Regenerate ``examples/eha_model.toml``, ``examples/eha_data.csv`` and ``examples/eha_rig.toml``.
 
 An 8 s run of the linear EHA (Table 1, eq 65-67) at 1 kHz driven by a
 10-100 Hz chirp: healthy for 4 s, then an internal leakage of 9e-11 m^3/(s Pa)
 (the catalogue's ``eha-leak-major`` level). Values are written with 7
-significant digits so the CSV stays below 500 kB.
+significant digits so the CSV stays below 500 kB. ``eha_rig.toml`` stands for a
+real actuator in the commissioning walk-through: the Table 1 EHA with its bulk
+modulus 10 % low and its friction 10 % high, the catalogue chirp in its
+``[simulation]`` table.
 
 Usage: ``python scripts/make_example_data.py [--seed 7]``
 """
@@ -98,6 +101,27 @@ def write_data(path: Path, seed: int) -> None:
         np.savetxt(fh, cols, delimiter=",", fmt=["%.4f", "%.7g", "%.7g", "%.7g", "%.7g"])
 
 
+def write_rig(path: Path) -> None:
+    """The stand-in actuator: Table 1 with bulk modulus 10 % low and friction 10 % high."""
+    import dataclasses
+
+    from chatterspec.plants.modelfile_writer import signal_table, write_model_toml
+
+    nominal = eha_linear()
+    pm = nominal.parameter_map
+    rig = pm.apply(nominal, {"bulk_modulus": 0.9 * pm.parameter("bulk_modulus").value,
+                             "friction": 1.1 * pm.parameter("friction").value})  # fmt: skip
+    rig = dataclasses.replace(rig, name="EHA rig (bulk modulus 10 % low, friction 10 % high)")
+    psi = 3.0 * np.sqrt(chattering_autocovariance(rig)[0])
+    comment = (
+        "A stand-in for a real actuator (commissioning walk-through in the README): the linear EHA of\n"
+        "Table 1 with its bulk modulus 10 % low and its friction 10 % high, driven by the catalogue chirp.\n"
+        "Regenerate with scripts/make_example_data.py."
+    )
+    sim = {"duration_s": 4.0, "input": signal_table(Chirp(10.0, 100.0, 4.0, 300.0))}
+    write_model_toml(path, rig, psi, comment=comment, tables={"simulation": sim})
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=7)
@@ -105,7 +129,8 @@ def main() -> None:
     ROOT.mkdir(exist_ok=True)
     write_model(ROOT / "eha_model.toml")
     write_data(ROOT / "eha_data.csv", args.seed)
-    for name in ("eha_model.toml", "eha_data.csv"):
+    write_rig(ROOT / "eha_rig.toml")
+    for name in ("eha_model.toml", "eha_data.csv", "eha_rig.toml"):
         print(f"wrote {ROOT / name} ({(ROOT / name).stat().st_size / 1e3:.0f} kB)")
 
 

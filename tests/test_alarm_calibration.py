@@ -47,6 +47,11 @@ def test_grid_counts_equal_the_layer_on_both_paths(rule, monkeypatch):
     rng = np.random.default_rng(3)
     s = rng.exponential(size=(2, 3000, 2))
     grid = np.array([1.0, 2.5, 4.0, 6.0])
+    # ties: scores exactly at grid thresholds, after a step below them (s >= h counts them, s > h would not)
+    s[:, 100:140:4, :] = 0.0
+    s[:, 101:140:4, :] = np.resize(grid, (10, 1))
+    s[:, 102:140:4, :] = 0.0
+    s[:, 103:140:4, :] = np.resize(grid[::-1], (10, 1))
     want = np.stack([count_starts(rule.with_threshold(h), s) for h in grid])
     assert np.array_equal(starts_on_grid(rule, s, grid), want)
     monkeypatch.setenv("CHATTERSPEC_JIT", "0")
@@ -88,6 +93,40 @@ def test_counted_and_extrapolated_thresholds_match_the_exact_answer():
     n = int(count_starts(c.rule, s).sum())
     lo, hi = poisson_interval(n, 0.99)
     assert lo <= 60.0 * c.hours <= hi
+
+
+@pytest.mark.parametrize("confidence", [0.95, 0.8])
+def test_threshold_interval_is_the_two_sided_student_t_interval(confidence):
+    """``threshold_interval`` is ``h +- t SE`` with Student's t at B - 1 degrees of freedom, leaving
+    (1 - confidence) / 2 on each side: its half-width over the jackknife SE is that t quantile (taken
+    here from scipy.stats.t; the one-sided quantile, a 90 % interval labelled 95 %, is 1.89, not 2.36)."""
+    s = np.random.default_rng(11).exponential(size=(1, 50_000, 2))  # 13.9 h per channel
+    B = 8
+    c = calibrate_rule(FrameRule(), s, 3600.0, 60.0, confidence=confidence, batches=B)
+    assert c.method == "counted" and c.confidence == confidence
+    lo, hi = c.threshold_interval
+    se = c.fit["jackknife_se"]
+    assert 0.0 < se < math.inf
+    assert (hi - lo) / 2 == pytest.approx(scipy.stats.t.ppf(0.5 + confidence / 2, B - 1) * se, rel=1e-9)
+    assert (lo + hi) / 2 == pytest.approx(c.threshold, rel=1e-12)
+
+
+def test_counted_threshold_is_linear_in_the_log_count():
+    """Module docstring: a counted ``h`` is where log(count), linear between grid points, crosses
+    log(X T), with the grid and the counts the result reports (``fit["h"]``, ``fit["starts"]``)."""
+    s = np.random.default_rng(11).exponential(size=(1, 50_000, 2))
+    X = 60.0
+    c = calibrate_rule(FrameRule(), s, 3600.0, X)
+    assert c.method == "counted"
+    grid, starts = np.asarray(c.fit["h"]), np.asarray(c.fit["starts"], dtype=float)
+    target = X * c.hours
+    i = int(np.flatnonzero(starts >= target)[-1])  # the last grid point still at or above the target
+    assert grid[i] <= c.threshold < grid[i + 1] and starts[i + 1] > 0
+    frac = (c.threshold - grid[i]) / (grid[i + 1] - grid[i])
+    log_frac = math.log(starts[i] / target) / math.log(starts[i] / starts[i + 1])
+    assert frac == pytest.approx(log_frac, rel=1e-9)
+    # the data tell the two readings apart: linear in the count itself would land elsewhere
+    assert abs(log_frac - (starts[i] - target) / (starts[i] - starts[i + 1])) > 1e-4
 
 
 def test_extrapolated_cusum_meets_the_budget_on_longer_streams():

@@ -18,7 +18,7 @@ from chatterspec.detection.spectral import chattering_autocovariance, frame_colu
 from chatterspec.errors import CalibrationMismatchError, ParameterError
 from chatterspec.jsonout import rounded
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
-from chatterspec.online.stream import simulate_blocks
+from chatterspec.online.simulated_stream import simulate_blocks
 from chatterspec.plants.scenarios import scenario
 from chatterspec.plants.simulate import simulate
 from chatterspec.studies.alarm_budget import alarm_settings, calibrate_alarm, healthy_chattering
@@ -85,6 +85,25 @@ def test_frame_rule_at_minus_log_alpha_is_the_per_frame_rule(onset):
     rule = FrameRule(-math.log(1e-3))
     new = _events(ChatteringMonitor(model, MonitorSettings(rule=rule)), onset, [onset.z.shape[1]])
     assert [e[:3] for e in legacy] == [e[:3] for e in new] and legacy
+
+
+def test_alpha_only_events_report_the_per_frame_threshold(onset):
+    """Without a rule (the API default) the events come from the per-frame verdict at ``alpha``; they and
+    the monitor report its threshold on the score ``-ln p`` (nats): ``h = -ln(alpha)``, the level at
+    which the flags are exactly the frames with ``score >= h`` (frame_score; up to 1e-10 relative)."""
+    model = onset.scenario.nominal
+    alpha = 1e-3
+    mon = ChatteringMonitor(model, MonitorSettings(alpha=alpha))
+    upd = mon.push(onset.z[0], onset.u)
+    h = -math.log(alpha)
+    assert mon.rule.threshold == pytest.approx(h, rel=1e-15)
+    assert upd.events and all(e.threshold == mon.rule.threshold for e in upd.events)
+    score, flags = upd.frames.score, upd.frames.flags
+    clear = ~np.isclose(score, h, rtol=1e-10, atol=0.0)
+    np.testing.assert_array_equal(flags[clear], score[clear] >= h)
+    # frames between -log10(alpha) and -ln(alpha) are there and unflagged: the threshold is in nats
+    between = (score > -math.log10(alpha)) & (score < h)
+    assert between.any() and not flags[between].any()
 
 
 def test_paths_give_the_same_alarms(onset, monkeypatch):
@@ -177,6 +196,28 @@ def test_alarm_settings_cache_and_methods():
     assert RuleCalibration.from_dict(json.loads(json.dumps(a.to_dict()))) == a
 
 
+def test_healthy_scores_take_the_numpy_frames_without_the_compiled_path(monkeypatch):
+    """Without numba (or with CHATTERSPEC_JIT=0) the frames are cut by the numpy form, never by the
+    compiled loops run as Python (20x the CPU of the whole in-call calibration); same bits."""
+    import chatterspec.detection.frame_engine as fe
+    from chatterspec import _jit
+    from chatterspec.studies.alarm_budget import healthy_frame_scores
+
+    model = scenario("eha-healthy").nominal
+    compiled = healthy_frame_scores(model, MonitorSettings(), 0.02) if _jit.enabled() else None
+
+    def forbid(*_a):
+        raise AssertionError("a compiled frame loop ran on the numpy path")
+
+    monkeypatch.setenv("CHATTERSPEC_JIT", "0")
+    monkeypatch.setattr(fe, "_taper_kernel", forbid)
+    monkeypatch.setattr(fe, "_power_kernel", forbid)
+    numpy_scores = healthy_frame_scores(model, MonitorSettings(), 0.02)
+    assert numpy_scores.shape == (1, 356, 3)  # 72 s at a 0.2 s hop, 1 s window: (72 - 1) / 0.2 + 1
+    if compiled is not None:
+        assert np.array_equal(compiled, numpy_scores)
+
+
 # --------------------------------------------------------------------------- CLI
 def _run(capsys, *argv: str) -> tuple[int, str, str]:
     rc = cli_main(list(argv))
@@ -206,13 +247,13 @@ def _run(capsys, *argv: str) -> tuple[int, str, str]:
     ],
 )
 def test_cli_bad_alarm_options(capsys, extra, needle):
-    rc, out, err = _run(capsys, "monitor", "--model", str(MODEL), "--data", str(DATA), *extra)
+    rc, out, err = _run(capsys, "monitor", str(MODEL), "--data", str(DATA), *extra)
     assert rc == 2 and needle in err, err
     assert len(err.strip().splitlines()) == 1 and out == ""
 
 
 def test_cli_monitor_reports_rule_and_budget(capsys):
-    rc, out, err = _run(capsys, "monitor", "--model", str(MODEL), "--data", str(DATA), "--json")
+    rc, out, err = _run(capsys, "monitor", str(MODEL), "--data", str(DATA), "--json")
     assert rc == 0
     doc = json.loads(out)
     assert doc["alarm"]["rule"]["rule"] == "cusum" and doc["alarm"]["false_alarms_per_hour"] == pytest.approx(
@@ -221,11 +262,11 @@ def test_cli_monitor_reports_rule_and_budget(capsys):
     assert doc["alarm"]["calibration"]["method"] == "extrapolated"
     assert doc["events"] and all(e["rule"] == "cusum" for e in doc["events"])
     assert "alarms: cusum rule" in err
-    rc, out, err = _run(capsys, "monitor", "--model", str(MODEL), "--data", str(DATA), "--events", "jsonl")
+    rc, out, err = _run(capsys, "monitor", str(MODEL), "--data", str(DATA), "--events", "jsonl")
     first = json.loads(out.splitlines()[0])
     assert first["rule"] == "cusum" and first["false_alarms_per_hour"] == pytest.approx(1 / 24)
     assert "[cusum rule, 1 false alarm per 24 h]" in err
-    rc, out, err = _run(capsys, "monitor", "--model", str(MODEL), "--data", str(DATA), "--alpha", "0.001")
+    rc, out, err = _run(capsys, "monitor", str(MODEL), "--data", str(DATA), "--alpha", "0.001")
     assert rc == 0 and "fault start(s) [frame rule, per-frame alpha 0.001]" in out
 
 
@@ -233,7 +274,7 @@ def test_calibration_file_records_the_rule_and_is_refused_for_another(tmp_path: 
     cal = tmp_path / "cal.npz"
     rc, out, err = _run(
         capsys, "calibrate", str(MODEL), "--runs", "99", "--no-progress", "--rule", "persistence",
-        "--persistence-k", "2", "--persistence-n", "4", "--false-alarms-per-hour", "60", "--hours", "1",
+        "--persistence-k", "2", "--persistence-n", "4", "--false-alarms-per-hour", "60", "--alarm-hours", "1",
         "--out", str(cal),
     )  # fmt: skip
     assert rc == 0, err
@@ -244,7 +285,7 @@ def test_calibration_file_records_the_rule_and_is_refused_for_another(tmp_path: 
     assert c.alarm.rule == PersistenceRule(c.alarm.threshold, k=2, n=4)
     assert c.alarm.false_alarms_per_hour == 60.0 and c.alarm.steps_per_hour == pytest.approx(18000.0)
     assert c.alarm.method == "counted"
-    base = ["monitor", "--model", str(MODEL), "--data", str(DATA), "--calibration", str(cal)]
+    base = ["monitor", str(MODEL), "--data", str(DATA), "--calibration", str(cal)]
     for extra, needle in (
         (["--rule", "cusum"], "was calibrated for the persistence rule; got --rule cusum"),
         (["--false-alarms-per-hour", "1"], "was calibrated for 60 false alarms per hour"),

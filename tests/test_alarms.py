@@ -31,6 +31,17 @@ def _scores(seed: int = 1, shape: tuple[int, ...] = (3, 2000, 2)) -> np.ndarray:
     rng = np.random.default_rng(seed)
     s = rng.exponential(size=shape)
     s[..., 700:760, :] += 4.0  # a fault-like stretch: long alarms with ends
+    # ties with the thresholds of RULE_CASES (within the first 300 steps, which the kernel's Python form
+    # sees too), each after quiet steps so that only ">=" raises the alarm: a frame score of exactly 3,
+    # two scores of exactly 2 in a window of 4 (persistence k = 2), and a CUSUM step from g = 0 to
+    # exactly 7.5 - 1.5 = 6
+    s[..., 200:210, :] = 0.0
+    s[..., 210, :] = 3.0
+    s[..., 211:230, :] = 0.0
+    s[..., 230, :] = s[..., 232, :] = 2.0
+    s[..., 233:250, :] = 0.0
+    s[..., 250, :] = 7.5
+    s[..., 251:260, :] = 0.0
     return s
 
 

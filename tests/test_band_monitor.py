@@ -15,7 +15,9 @@ from chatterspec.cli import main as cli_main
 from chatterspec.detection.thresholds import frame_threshold
 from chatterspec.errors import ModelFileError, ParameterError
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
-from chatterspec.plants.modelfile import load_data, load_model, write_model_toml
+from chatterspec.plants.datafile import load_data
+from chatterspec.plants.modelfile import load_model
+from chatterspec.plants.modelfile_writer import write_model_toml
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 MODEL = EXAMPLES / "eha_model.toml"
@@ -74,7 +76,7 @@ def test_detector_table_band(tmp_path: Path) -> None:
 
 
 def _monitor_json(capsys, *extra: str, model: Path = MODEL) -> dict:
-    rc = cli_main(["monitor", "--model", str(model), "--data", str(DATA), "--json", *extra])
+    rc = cli_main(["monitor", str(model), "--data", str(DATA), "--json", *extra])
     assert rc == 0
     return json.loads(capsys.readouterr().out)
 
@@ -91,7 +93,7 @@ def test_cli_monitor_band_and_model_file_band(tmp_path: Path, capsys) -> None:
     doc = _monitor_json(capsys, "--band", "20", "60", model=path)
     starts = [e for e in doc["events"] if e["kind"] == "fault-start"]
     assert [e["channel"] for e in starts] == ["pressure"]
-    rc = cli_main(["monitor", "--model", str(MODEL), "--data", str(DATA), "--band", "60", "20"])
+    rc = cli_main(["monitor", str(MODEL), "--data", str(DATA), "--band", "60", "20"])
     assert rc == 2 and "band" in capsys.readouterr().err
 
 

@@ -204,12 +204,3 @@ def test_sgn_proposal_equals_closed_form_for_full_measurement() -> None:
     z = scipy.stats.norm.isf(p / 2)
     N = est.runs * est.n_samples
     np.testing.assert_allclose(est.psi**2 / (gamma0 * z**2), 1.0, atol=4 * np.sqrt(6 / N))
-
-
-def test_old_import_path_of_the_studies_names_the_new_one() -> None:
-    # the Monte Carlo studies left the filter layer; the old path must say where they are, not
-    # import upwards
-    import chatterspec.filters.boundary_layer as old
-
-    with pytest.raises(AttributeError, match=r"chatterspec\.studies\.boundary_layer"):
-        old.boundary_layer_study  # noqa: B018

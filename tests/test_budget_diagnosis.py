@@ -182,7 +182,7 @@ def test_command_json_figure_and_recording(tmp_path, capsys) -> None:  # type: i
         "--seed",
         "2",
     ]
-    argv += ["--false-alarms-per-hour", "30", "--no-progress", "--figure", str(fig), "--record", str(rrd)]
+    argv += ["--false-alarms-per-hour", "30", "--no-progress", "--plot", str(fig), "--record", str(rrd)]
     rr.set_strict_mode(True)
     try:
         assert main([*argv, "--json"]) == 0

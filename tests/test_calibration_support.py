@@ -60,7 +60,7 @@ def test_detect_refuses_a_calibration_with_too_few_runs(small_calibration: Path,
 def test_monitor_refuses_a_calibration_with_too_few_runs(tmp_path: Path, capsys) -> None:
     small = tmp_path / "small.npz"
     calibrate(EXAMPLE_MODEL, alpha=0.01, runs=20, seed=0, progress=False).save(small)
-    argv = ["monitor", "--model", str(EXAMPLE_MODEL), "--data", str(EXAMPLE_DATA), "--calibration"]
+    argv = ["monitor", str(EXAMPLE_MODEL), "--data", str(EXAMPLE_DATA), "--calibration"]
     assert main([*argv, str(small)]) == 2
     err = capsys.readouterr().err
     assert "per frame" in err and "--runs >= 25" in err  # 99 values / 4 independent frames per 4 s run

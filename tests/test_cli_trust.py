@@ -87,8 +87,8 @@ def test_cli_power_unstable_size_fails_before_any_simulation(capsys, monkeypatch
 @pytest.mark.parametrize(
     "argv",
     [
-        ["spectrum", "eha-healthy", "--out", "/proc/nope/x.png"],
-        ["figures", "--out", "/proc/figs"],
+        ["spectrum", "eha-healthy", "--plot", "/proc/nope/x.png"],
+        ["figures", "--figures-dir", "/proc/figs"],
         ["detect", "eha-healthy", "--record", "/proc/x.rrd"],
         ["demo", "--recordings-dir", "/proc/rec"],
     ],

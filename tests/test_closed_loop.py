@@ -68,6 +68,34 @@ def test_pid_step_is_the_documented_law(anti_windup: str) -> None:
     assert np.abs(u).max() == 50.0  # the limit was reached
 
 
+@pytest.mark.parametrize("anti_windup", ["back-calculation", "clamping"])
+def test_pid_setpoint_weight_away_from_saturation(anti_windup: str) -> None:
+    """The law in its linear range (the limit never reached, so the reference weight ``b`` is not masked
+    by the saturation): the command equals the hand-written law for every ``b``, and at the first sample
+    of a reference step, where the integrator and derivative histories do not depend on ``b`` yet, two
+    weights differ by the proportional term ``kp (b - b') r`` alone."""
+    dt, n = 1e-3, 300
+    rng = np.random.default_rng(1)
+    r = np.where(np.arange(n) > 20, 2e-3, 0.0)  # kp r = 4 rad/s, far below the 1000 rad/s limit
+    y = 1e-3 * np.sin(np.arange(n) * 0.05) + 1e-6 * rng.standard_normal(n)
+    d = 0.3 * np.sin(np.arange(n) * 0.9)
+    u = {}
+    for b in (0.0, 0.4, 1.0):
+        c = PIDController(kp=2e3, ki=1e4, kd=3.0, saturation=1e3, anti_windup=anti_windup, setpoint_weight=b)
+        coef = pid_coefficients(c, dt)
+        integ = deriv = 0.0
+        y_prev = y[0]
+        u[b] = np.empty(n)
+        for k in range(n):
+            u[b][k], integ, deriv = STEP(*coef, integ, deriv, y_prev, r[k], y[k], d[k])
+            y_prev = y[k]
+        assert np.abs(u[b]).max() < 0.1 * c.saturation  # never saturated
+        np.testing.assert_allclose(u[b], _pid_by_hand(c, dt, r, y, d), rtol=1e-12, atol=1e-9)
+    np.testing.assert_array_equal(u[0.0][:21], u[1.0][:21])  # r = 0 before the step: b does not enter
+    for b in (0.0, 0.4):
+        assert u[b][21] - u[1.0][21] == pytest.approx(2e3 * (b - 1.0) * 2e-3, rel=1e-9)
+
+
 def test_clamping_and_back_calculation_both_stop_windup() -> None:
     """A long saturation: without anti-windup the integrator would grow to ki * e * t."""
     dt = 1e-3

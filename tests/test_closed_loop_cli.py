@@ -49,7 +49,7 @@ def test_simulate_stream_feeds_the_monitor(capsys: pytest.CaptureFixture[str], t
     assert abs(data[k, 1] - 0.01) < 1e-3
     csv = tmp_path / "stream.csv"
     csv.write_text(text)
-    assert main(["monitor", "--model", str(toml), "--data", str(csv), "--events", "jsonl"]) == 0
+    assert main(["monitor", str(toml), "--data", str(csv), "--events", "jsonl"]) == 0
     events = [json.loads(ln) for ln in capsys.readouterr().out.splitlines() if ln.startswith("{")]
     assert any(e["event"] == "fault-start" and e["channel"] == "pressure" for e in events)
 

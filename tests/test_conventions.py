@@ -1,10 +1,8 @@
 """The conventions shared by every filter (docs/filters.md, "Conventions"), each against the pre-round code:
 a nonlinear measurement h(x) in the EKF, optional input, one storage option with one name, one output
-shape rule, per-mode starts of the IMM, and the old spellings still working with a DeprecationWarning."""
+shape rule, per-mode starts of the IMM."""
 
 from __future__ import annotations
-
-import warnings
 
 import numpy as np
 import pytest
@@ -124,23 +122,17 @@ def test_one_output_shape_rule() -> None:
     assert one.S.shape == (1, 40, 1, 1) and one.P_post.shape == (1, 40, 2, 2)
 
 
-def test_banks_take_store_and_the_old_spelling_warns() -> None:
+def test_banks_take_store() -> None:
     lin = cs.LinearModel(A, None, np.array([[1.0, 0.0]]), Q, R, DT)
     z = measurements(30)
     imm = cs.IMM([cs.KalmanFilter(lin), cs.ExtendedKalmanFilter(lin)], np.array([[0.9, 0.1], [0.1, 0.9]]))
     new = imm.run(z, x0=np.zeros(2), P0=np.eye(2), store={"P_post", "mode_x_post"})
     assert new.P_post.shape == (1, 30, 2, 2) and new.mode_x_post.shape == (1, 30, 2, 2)
-    with pytest.warns(DeprecationWarning, match=r"store_covariance=True is deprecated.*store=\{'P_post'\}"):
-        old = imm.run(z, x0=np.zeros(2), P0=np.eye(2), store_covariance=True)
-    np.testing.assert_array_equal(old.P_post, new.P_post)
     with pytest.raises(cs.ParameterError, match="unknown"):
         imm.run(z, x0=np.zeros(2), P0=np.eye(2), store={"covariance"})
     for f in (imm, cs.KalmanFilter(lin)):  # a bare string is not read letter by letter
         with pytest.raises(cs.ParameterError, match="collection of names"):
             f.run(z, x0=np.zeros(2), P0=np.eye(2), store="P_post")
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        imm.run(z, x0=np.zeros(2), P0=np.eye(2), store={"P_post"})  # the new spelling: no warning
 
 
 def test_imm_per_mode_start() -> None:
@@ -184,14 +176,11 @@ def test_imm_of_ekfs_with_h() -> None:
     np.testing.assert_allclose(out.mu.sum(axis=-1), 1.0, rtol=1e-12)
 
 
-def test_svsf_takes_store_and_the_old_booleans_warn() -> None:
+def test_svsf_takes_store() -> None:
     lin = cs.LinearModel(A, None, np.eye(2), Q, np.diag([1e-6, 1e-4]), DT)
     z = np.stack([measurements(60, s) for s in range(2)]).repeat(2, axis=-1)
     f = cs.SVSF(lin, psi=0.05)
     new = f.run(z, store={"x_post", "e_post"})
     assert new.x_post.shape == (2, 60, 2) and new.e_post.shape == (2, 60, 2) and new.e_lower is None
-    with pytest.warns(DeprecationWarning, match=r"store_states=True is deprecated.*store=\{'x_post'\}"):
-        old = f.run(z, store_states=True)
-    np.testing.assert_array_equal(old.x_post, new.x_post)
     with pytest.raises(cs.ParameterError, match="unknown"):
         f.run(z, store={"P_post"})  # the SVSF carries no covariance

@@ -9,13 +9,9 @@ import pytest
 import scipy.stats
 
 from chatterspec.cli import main as cli_main
-from chatterspec.detection.detect import (
-    ChannelVerdict,
-    detect_chunks,
+from chatterspec.detection.detect import detect_chunks, detect_record, detect_scenario
+from chatterspec.detection.frames import (
     detect_frames,
-    detect_record,
-    detect_scenario,
-    detect_spectrum,
     frame_intervals,
     frame_statistic,
     healthy_frame_level,
@@ -23,6 +19,7 @@ from chatterspec.detection.detect import (
 )
 from chatterspec.detection.pipeline import ChatteringRecord, iter_chattering, scenario_chattering
 from chatterspec.detection.spectral import STFTConfig, expected_spectrum, periodogram, spectrogram
+from chatterspec.detection.spectrum_verdicts import ChannelVerdict, detect_spectrum
 from chatterspec.detection.thresholds import exact_threshold, frame_threshold, paper_threshold
 from chatterspec.errors import ParameterError, ShapeError
 from chatterspec.plants.scenarios import scenario

@@ -20,7 +20,6 @@ import pytest
 
 from chatterspec import _jit
 from chatterspec.detection import _verdict
-from chatterspec.detection.detect import _VERDICT_FIELDS, detect_spectrum
 from chatterspec.detection.pipeline import (
     _chattering_kernel,
     _chattering_rng_kernel,
@@ -28,11 +27,12 @@ from chatterspec.detection.pipeline import (
     iter_chattering,
 )
 from chatterspec.detection.spectral import periodogram_freqs
+from chatterspec.detection.spectrum_verdicts import _VERDICT_FIELDS, detect_spectrum
 from chatterspec.detection.thresholds import exact_threshold
 from chatterspec.filters import svsf as svsf_mod
 from chatterspec.filters.svsf import auxiliary_svsf
 from chatterspec.plants.scenarios import scenario
-from chatterspec.plants.simulate import _noise_blocks, _tables
+from chatterspec.plants.simulate_kernel import _noise_blocks, kernel_tables
 from chatterspec.rng import BLOCK, block_generator, root_seed_sequence
 
 needs_numba = pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed (pip install '.[fast]')")
@@ -63,7 +63,7 @@ def _rng_kernel_inputs(name: str, T: int):
     u = sc.input.sample(t).reshape(len(t), -1)
     f = auxiliary_svsf(sc.nominal)
     Gu = np.ascontiguousarray(svsf_mod._rows_times(u[:-1], f._GT))
-    tb = _tables(sc, t, u)
+    tb = kernel_tables(sc, t, u)
     return (tb.seg_idx, tb.A, tb.C, tb.Lq, tb.Lr, tb.Bu, tb.x0, tb.diag, np.ascontiguousarray(f._PhiT), Gu)
 
 

@@ -138,8 +138,10 @@ def test_cli_refuses_unwritable_record_path_before_computing(tmp_path, capsys):
 
 def test_cli_record_writes_truth_estimates_and_innovations(tmp_path, capsys):
     rr = pytest.importorskip("rerun")
-    path = tmp_path / "sub" / "est.rrd"
+    path = tmp_path / "est.rrd"
     argv = ["estimate", "detc-uncertain", "--filters", "kf,svsf2", "--runs", "2", "--no-progress"]
+    assert main([*argv, "--record", str(tmp_path / "sub" / "est.rrd")]) == 2  # a missing folder: refused
+    assert not (tmp_path / "sub").exists() and "does not exist (create it first)" in capsys.readouterr().err
     assert main([*argv, "--record", str(path)]) == 0
     assert path.exists()
     from rerun.chunk import RrdReader  # noqa: F401  (API of rerun 0.41)

@@ -13,10 +13,10 @@ import scipy.stats
 from chatterspec import _jit
 from chatterspec.detection import frame_score
 from chatterspec.detection.frame_score import FrameScore, frame_scores
+from chatterspec.detection.frames import frame_verdicts
 from chatterspec.detection.spectral import STFTConfig, frame_columns
 from chatterspec.detection.thresholds import frame_threshold, weighted_chi2_sf
 from chatterspec.errors import ParameterError
-from chatterspec.online.monitor import frame_verdicts
 from chatterspec.plants.models import eha_linear
 from chatterspec.plants.simulate import covariance_sqrt
 

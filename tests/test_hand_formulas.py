@@ -13,7 +13,8 @@ import pytest
 
 from chatterspec import _jit
 from chatterspec.filters import KalmanFilter
-from chatterspec.filters.multiple_model import IMM, SMMSVSF
+from chatterspec.filters.imm import IMM
+from chatterspec.filters.smm_svsf import SMMSVSF
 from chatterspec.filters.svsf import SVSF
 from chatterspec.plants.models import LinearModel
 
@@ -248,8 +249,8 @@ def test_detect_spectrum_verdict_and_severity_by_hand(jit: str, monkeypatch: pyt
     sum (S - E[S]) / sum E[S]`` and ``peak_hz`` = the largest excess among the bins over the threshold
     (over all tested bins when none is over), all over the tested bins only."""
     monkeypatch.setenv("CHATTERSPEC_JIT", jit)
-    from chatterspec.detection.detect import detect_spectrum
     from chatterspec.detection.spectral import periodogram_freqs
+    from chatterspec.detection.spectrum_verdicts import detect_spectrum
     from chatterspec.detection.thresholds import exact_threshold
     from chatterspec.plants.models import second_order
 

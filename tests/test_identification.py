@@ -179,6 +179,26 @@ def test_report_table_and_json() -> None:
     assert "<- selected" in rep.table() and "leakage" in repr(rep)
 
 
+@pytest.mark.parametrize("confidence", [0.95, 0.8])
+def test_report_intervals_are_the_wald_intervals_at_the_confidence(confidence: float) -> None:
+    """The report (``detect --json``, the monitor's lines) gives each estimate +- the two-sided normal
+    quantile times its standard error, the same numbers as :meth:`Identification.interval` (a 90 %
+    quantile, 1.645, under a 95 % label would be a narrower interval than promised)."""
+    sc = scenario("eha-leak-major")
+    sim = simulate(sc, 1, 0)
+    idn = identify(sc.nominal, sim.z, sim.u, confidence=confidence)
+    rep = idn.report(0)
+    z = stats.norm.ppf(0.5 + confidence / 2)
+    finite = [e for e in rep.estimates if np.isfinite(e.estimate)]
+    assert finite
+    for e in finite:
+        assert e.confidence == confidence
+        assert e.ci_low == pytest.approx(e.estimate - z * e.std_error, rel=1e-12)
+        assert e.ci_high == pytest.approx(e.estimate + z * e.std_error, rel=1e-12)
+        lo, hi = idn.interval(e.hypothesis, e.parameter)
+        assert (e.ci_low, e.ci_high) == pytest.approx((lo[0], hi[0]), rel=1e-12)
+
+
 # --------------------------------------------------------------------------- bad input
 def test_reduced_order_measurement_says_what_cannot_be_identified() -> None:
     model = scenario("so-boundary-layer").nominal
@@ -243,6 +263,26 @@ def test_formulas_refuse_anything_but_arithmetic(text: str) -> None:
         _formula(text)
 
 
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("0*10**10**10", "overflows"),  # a big-integer power ran for ever (no output, no end)
+        ("9**9**9**9", "overflows"),
+        ("x + " * 300 + "1", "at most 1000 characters"),
+        ("(" * 500 + "x" + ")" * 500, "at most 1000 characters"),
+    ],
+)
+def test_formulas_are_bounded_in_time_and_size(text: str, message: str) -> None:
+    with pytest.raises(ParameterError, match=message):
+        _formula(text)({"x": 1.0})
+
+
+def test_integer_literals_evaluate_as_the_same_floats() -> None:
+    values = {"dt": 1e-3, "friction": 2144.0, "mass": 7.38}
+    assert _formula("1 - dt*friction/mass")(values) == 1 - 1e-3 * 2144.0 / 7.38
+    assert _formula("2**3 - 7/2")({}) == 4.5 and _formula("mass**2")(values) == 7.38**2
+
+
 def test_second_order_map_reproduces_the_factory() -> None:
     for zeta in (0.0, 0.1):
         m = second_order(10.0, zeta)
@@ -275,3 +315,46 @@ def test_models_with_parameter_maps_pickle() -> None:
     assert np.array_equal(
         m.parameter_map.evaluate(1e-3), eha_linear(leakage=9e-11).parameter_map.evaluate(1e-3)
     )
+
+
+def test_every_combination_is_a_hypothesis_and_declared_names_are_kept() -> None:
+    from pathlib import Path
+
+    from chatterspec.plants.modelfile import load_model
+
+    model = load_model(Path(__file__).resolve().parents[1] / "examples" / "eha_model.toml").model
+    names = [h.name for h in identification_setup(model).hypotheses]
+    assert names == [
+        "leakage",
+        "friction",
+        "bulk_modulus",
+        "leakage+friction",  # declared in the file (same name as the generated one)
+        "leakage+bulk_modulus",
+        "friction+bulk_modulus",
+        "leakage+friction+bulk_modulus",
+    ]
+    assert [h.name for h in identification_setup(model, ["leakage"]).hypotheses] == ["leakage"]
+    # two parameters entering only as a product cannot be told apart: their combination is left out of
+    # the default hypotheses, and refused when declared
+    from chatterspec.plants._expressions import compile_formula
+
+    so = second_order(10.0, 0.1)
+    entry = MatrixEntry("A", 1, 1, compile_formula("1 - 2*dt*zeta*w", "test"))
+    pm = ParameterMap((PhysicalParameter("zeta", 0.1), PhysicalParameter("w", 2 * np.pi * 10.0)), (entry,))
+    model = so.replace(parameter_map=pm)
+    assert [h.name for h in identification_setup(model).hypotheses] == ["zeta", "w"]
+    with pytest.raises(IdentifiabilityError, match="cannot be told apart"):
+        identification_setup(model, [["zeta", "w"]])
+
+
+def test_parameters_with_parallel_effects_are_refused_not_inverted() -> None:
+    """Two parameters that move the active entries alike leave the normal matrix singular: the fit
+    refuses that realization (reason 4) instead of raising LinAlgError or returning an arbitrary split."""
+    from chatterspec.detection._identification_fit import REASONS, _separable
+
+    parallel = np.array([[1.0, 1.0], [1.0, 1.0]])  # unit-normalized columns, identical
+    apart = np.array([[1.0, 0.3], [0.3, 1.0]])
+    N = np.stack([parallel, apart, parallel])
+    ok = np.array([True, True, False])  # a refused row stays as it was (identity in its place)
+    assert _separable(N, ok).tolist() == [False, True, True]
+    assert "cannot be told apart" in REASONS[4]

@@ -10,7 +10,9 @@ import pytest
 
 from chatterspec.cli import main
 from chatterspec.errors import ModelFileError
-from chatterspec.plants.modelfile import load_data, load_model, write_model_toml
+from chatterspec.plants.datafile import load_data
+from chatterspec.plants.modelfile import load_model
+from chatterspec.plants.modelfile_writer import write_model_toml
 from chatterspec.plants.models import eha_linear, second_order
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -116,66 +118,59 @@ def test_monitor_identifies_the_example_per_hop_and_records_it(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     rec = tmp_path / "m.rrd"
-    argv = ["monitor", "--model", str(EXAMPLES / "eha_model.toml"), "--data", str(EXAMPLES / "eha_data.csv")]
+    argv = ["monitor", str(EXAMPLES / "eha_model.toml"), "--data", str(EXAMPLES / "eha_data.csv")]
     assert main([*argv, "--json", "--record", str(rec)]) == 0
     doc = json.loads(capsys.readouterr().out)
     ident = doc["identification"]
     assert ident["windows"] == 35 and ident["window_s"] == pytest.approx(1.0)
-    assert ident["changes"][0]["selected"] == "no fault"
-    assert ident["last"]["selected"] == "leakage"  # the example's leakage of 9e-11 from 4 s on
-    row = next(h for h in ident["last"]["hypotheses"] if h["hypothesis"] == "leakage")
-    assert row["ci_low"] < 9e-11 < row["ci_high"]
+    # a fault is named only while the spectral alarm is active (from 3.7 s): before it, no label
+    named = [c for c in ident["changes"] if c["fault"] is not None]
+    assert named and named[0]["time_s"] >= 3.7 and ident["changes"][0]["fault"] is None
+    last = ident["last"]
+    assert last["fault"] == "leakage" and last["channels"]["pressure"] == "fault"  # 9e-11 from 4 s on
+    leak = next(r for r in last["parameters"] if r["parameter"] == "leakage")
+    assert leak["ci_low"] < 9e-11 < leak["ci_high"] and leak["state"] == "fault"
     from rerun.chunk import RrdReader
 
     reader = RrdReader(str(rec))
     chunks = reader.stream().filter(content="/identification/leakage", is_static=False).to_chunks()
     rows = [v for c in chunks for v in c.to_record_batch().column("Scalars:scalars").to_pylist()]
-    assert len(rows) == 35 and all(len(r) == 3 for r in rows)
+    assert len(rows) == 35 and all(len(r) == 5 for r in rows)  # estimate, interval, band
     est = np.array([r[0] for r in rows], dtype=float)
-    assert np.all(np.isnan(est[:15])) and np.nanmedian(est[-10:]) == pytest.approx(9e-11, rel=0.05)
+    assert np.all(np.isfinite(est)) and np.median(est[-10:]) == pytest.approx(9e-11, rel=0.05)
     data = load_data(EXAMPLES / "eha_data.csv", load_model(EXAMPLES / "eha_model.toml").model)
     assert data.n_samples == 8001
     assert main([*argv, "--events", "jsonl", "--identification-events", "changes"]) == 0
     events = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     kinds = [e["event"] for e in events]
-    assert kinds.count("identification") == 3 and kinds.count("fault-start") == 1
+    assert kinds.count("fault-start") == 1
+    idents = [e for e in events if e["event"] == "identification"]
+    assert len(idents) == len(ident["changes"])  # one per change of the fault named or of a state
+    assert all((e["fault"] is None) == (not e["alarm"]) for e in idents)
+    assert all("selected" not in e for e in idents if not e["alarm"])  # no label between alarms
 
 
-def test_monitor_identification_lines_follow_the_alarm() -> None:
-    # The per-hop identification tests at the per-frame alpha; its human lines must follow the alarm
-    # rule: nothing said on healthy data without an alarm, a fault said once the alarm is active
-    # (even if it was selected earlier), "no fault" only after a fault was said. JSON keeps every change.
-    from types import SimpleNamespace
+def test_monitor_names_a_fault_only_under_an_alarm() -> None:
+    # The per-window tests run at the per-frame alpha; a fault is named only while the monitor's alarm
+    # is active (the spectral alarm reported with note_alarm), and the states follow the decisions.
+    import chatterspec as cs
+    from chatterspec.detection.identification import identification_setup
+    from chatterspec.detection.parameter_decision import parameter_alarm_settings
+    from chatterspec.online.identification_monitor import IdentificationMonitor
 
-    from chatterspec.cli._identify import MonitorIdentification
-
-    class Out:
-        def __init__(self, selected: str) -> None:
-            self.n_windows, self.times_s = 1, np.array([1.0])
-            self.selected = selected
-
-        def report(self, i: int) -> object:
-            d = {"selected": self.selected, "hypotheses": [], "window_s": [0.0, 1.0]}
-            return SimpleNamespace(selected=self.selected, window_s=(0.0, 1.0), to_dict=lambda: dict(d))
-
-    said: list[str] = []
-    ident = MonitorIdentification.__new__(MonitorIdentification)
-    ident.emit, ident.say, ident.every_hop = None, said.append, False
-    ident.selected = ident.said = ident.last = None
-    ident.changes, ident.windows = [], 0
-    alarm = [False]
-    ident.alarm_active = lambda: alarm[0]
-    for sel, active in [
-        ("no fault", False),
-        ("unexplained", False),  # a per-frame rejection with no alarm: not said
-        ("no fault", False),
-        ("leakage", False),  # selected before the alarm ...
-        ("leakage", True),  # ... said when the alarm starts
-        ("leakage", True),
-        ("no fault", False),  # said: a fault was said before
-    ]:
-        alarm[0] = active
-        ident.handle(Out(sel))
-    assert [s.split(": ", 1)[1].split(":")[0] for s in said] == ["leakage", "no fault"]
-    changes = [c["selected"] for c in ident.changes]
-    assert changes == ["no fault", "unexplained", "no fault", "leakage", "no fault"]
+    sc = cs.scenario("eha-leak-major")  # leaky from t = 0: every window selects "leakage"
+    sim = cs.simulate(sc, runs=1, seed=2)
+    setup = identification_setup(sc.nominal)
+    settings = parameter_alarm_settings(setup, hop_s=0.2, window_hops=5)
+    assert settings.calibration is None  # no tolerance: the spectral alarm decides
+    mon = IdentificationMonitor(setup, settings)
+    mon.note_alarm("fault-start", "pressure", 2.0)  # an alarm from the frame centred at 2.0 s ...
+    mon.note_alarm("fault-end", "pressure", 3.0)  # ... to the one centred at 3.0 s
+    upd = mon.push(sim.z[0], sim.u)
+    frame_t = {w: w.time_s - sc.dt for w in upd.windows}  # a window is its frame shifted by one sample
+    assert all(w.label is None for w, t in frame_t.items() if t < 2.0 - 1e-9 or t >= 3.0 - 1e-9)
+    inside = [w for w, t in frame_t.items() if 2.0 - 1e-9 <= t < 3.0 - 1e-9]
+    assert len(inside) == 5 and all(w.label == "leakage" for w in inside)
+    assert all(w.channel_states[2] == "fault" and w.states[0] == "fault" for w in inside)
+    outside = [w for w in upd.windows if w.label is None and w.time_s > 1.0]
+    assert outside and all(w.channel_states == ("healthy",) * 3 for w in outside)

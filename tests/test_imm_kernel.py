@@ -15,9 +15,10 @@ import pytest
 
 import chatterspec as cs
 from chatterspec import _jit
-from chatterspec.filters import ExtendedKalmanFilter, KalmanFilter, SecondOrderSVSF, SVSFCov
+from chatterspec.filters import ExtendedKalmanFilter, KalmanFilter, SecondOrderSVSF, SVSFCov, _bank_steps
 from chatterspec.filters import _imm_kernel as ik
-from chatterspec.filters.multiple_model import IMM, log_gaussian
+from chatterspec.filters.bank_math import log_gaussian
+from chatterspec.filters.imm import IMM
 from chatterspec.plants.models import LinearModel
 
 needs_numba = pytest.mark.skipif(not _jit.enabled(), reason="numba not installed or CHATTERSPEC_JIT=0")
@@ -159,7 +160,8 @@ def test_kernel_python_function_matches_the_protocol_path(monkeypatch) -> None: 
 def test_kernel_likelihood_equals_log_gaussian_including_the_eigenvalue_floor(compiled: bool) -> None:
     if compiled and not _jit.enabled():
         pytest.skip("numba not installed")
-    fn = ik._log_gaussian_1 if compiled else getattr(ik._log_gaussian_1, "py_func", ik._log_gaussian_1)
+    step = _bank_steps.log_gaussian_step
+    fn = step if compiled else getattr(step, "py_func", step)
     rng = np.random.default_rng(2)
     cases = []
     for _ in range(20):  # well conditioned: the Cholesky branch

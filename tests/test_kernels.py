@@ -21,10 +21,12 @@ from chatterspec.detection.pipeline import (
     scenario_chattering,
 )
 from chatterspec.detection.spectral import periodogram
+from chatterspec.filters import _svsf_kernels
 from chatterspec.filters import svsf as svsf_mod
 from chatterspec.filters.svsf import SVSF, auxiliary_svsf
 from chatterspec.plants.scenarios import scenario
-from chatterspec.plants.simulate import _simulate_kernel, _tables, simulate
+from chatterspec.plants.simulate import simulate
+from chatterspec.plants.simulate_kernel import _simulate_kernel, kernel_tables
 
 needs_numba = pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed (pip install '.[fast]')")
 
@@ -95,7 +97,7 @@ def test_compiled_kernel_equals_its_python_form_bitwise() -> None:
         assert all(np.isfinite(o).all() for o in outs)
         return [y, ep, *outs]
 
-    for a, b in zip(call(svsf_mod._svsf_kernel), call(svsf_mod._svsf_kernel.py_func), strict=True):
+    for a, b in zip(call(_svsf_kernels._svsf_kernel), call(_svsf_kernels._svsf_kernel.py_func), strict=True):
         np.testing.assert_array_equal(a, b)
 
 
@@ -174,7 +176,7 @@ def test_simulation_kernels_equal_their_python_form_bitwise() -> None:
     sc = scenario("eha-leak-major")
     t = sc.time[:40]
     u = sc.input.sample(t).reshape(len(t), -1)
-    tb = _tables(sc, t, u)
+    tb = kernel_tables(sc, t, u)
     rng = np.random.default_rng(0)
     v, w = rng.standard_normal((2, 40, 3)), rng.standard_normal((2, 40, 3))
     f = auxiliary_svsf(sc.nominal)
@@ -275,7 +277,7 @@ def test_closed_form_kernel_equals_its_python_form() -> None:
     Gu = svsf_mod._rows_times(u[:-1], f._GT)[None]
     y0 = z[:, 0].copy()
     outs = []
-    for kernel in (svsf_mod._closed_form_kernel, svsf_mod._closed_form_kernel.py_func):
+    for kernel in (_svsf_kernels._closed_form_kernel, _svsf_kernels._closed_form_kernel.py_func):
         for time_major in (True, False):
             e = np.full((2, 30, 3), np.nan)
             kernel(z[:, 1:], Gu, f._PhiT, y0, e, time_major)

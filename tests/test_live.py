@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import chatterspec as cs
-from chatterspec.detection.detect import detect_frames
+from chatterspec.detection.frames import detect_frames
 from chatterspec.detection.pipeline import chattering_record
 from chatterspec.detection.spectral import spectrogram
 from chatterspec.detection.thresholds import frame_threshold
@@ -22,7 +22,7 @@ from chatterspec.plants.scenarios import Scenario, Segment
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
-from chatterspec.viewer import arrow_columns, blueprint, drivers, frame_peaks, rerun_log  # noqa: E402
+from chatterspec.viewer import arrow_columns, blueprint, drivers, frame_peaks, record_geometry, rerun_log  # noqa: E402
 from chatterspec.viewer import sinks as viewer  # noqa: E402
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -141,24 +141,26 @@ def test_record_chattering_record(tmp_path: Path, batch) -> None:
     reader = RrdReader(tmp_path / "c.rrd")
     t, blocks, rng = _images(reader, "pressure")
     assert len(blocks) == 1 and t[0] <= rec.t[0] + 1e-12
-    lo, hi = rerun_log.default_band_hz(_monitor(rec))
+    lo, hi = record_geometry.default_band_hz(_monitor(rec))
     assert (lo, hi) == (1.0, 150.0)  # EHA: tested band from 1 Hz, capped at 3 x 41.8 Hz -> 150 Hz
     band = (spec.freqs_hz >= lo) & (spec.freqs_hz <= hi)
-    p = rerun_log.pad_columns(_monitor(rec))
+    p = record_geometry.pad_columns(_monitor(rec))
     assert p == 2  # 1 s window, 0.2 s hop: the first window starts 0.4 s before the first column's edge
     img = blocks[0]
     assert img.shape == (int(band.sum()), spec.n_frames + 2 * p)
-    assert np.all(img[:, :p] == rerun_log.DB_RANGE[0]) and np.all(img[:, -p:] == rerun_log.DB_RANGE[0])
+    assert np.all(img[:, :p] == record_geometry.DB_RANGE[0]) and np.all(
+        img[:, -p:] == record_geometry.DB_RANGE[0]
+    )
     img = img[:, p:-p]
     thr = frame_threshold(rec.model, spec.freqs_hz, spec.config, rec.dt)
-    db = np.clip(10 * np.log10(spec.power[:, band, 2] / thr.values[band, 2]), *rerun_log.DB_RANGE)
+    db = np.clip(10 * np.log10(spec.power[:, band, 2] / thr.values[band, 2]), *record_geometry.DB_RANGE)
     np.testing.assert_allclose(img, db.T, atol=0.02)  # float16 dB (resolution 0.016 dB at 30 dB)
-    np.testing.assert_array_equal(np.asarray(rng[0]).ravel(), rerun_log.DB_RANGE)  # fixed colour range
+    np.testing.assert_array_equal(np.asarray(rng[0]).ravel(), record_geometry.DB_RANGE)  # fixed colour range
     # the scale: frequency labels inside the band and a colour key with the dB range
     _, labels = _column_static(reader, "/spectrogram/pressure/freq_ticks", "Points2D:labels")
     assert labels[0][0] == "50 Hz" and labels[0][-1] == "150 Hz"
     _, key = _column_static(reader, "/spectrogram/pressure/key_ticks", "Points2D:labels")
-    assert key[0][0] == f"{rerun_log.DB_RANGE[1]:g} dB"
+    assert key[0][0] == f"{record_geometry.DB_RANGE[1]:g} dB"
 
 
 def _monitor(rec):
@@ -168,7 +170,7 @@ def _monitor(rec):
 
 
 def test_bulk_tensor_columns_match_rerun_encoding() -> None:
-    cols = arrow_columns._Columns(rr, rerun_log.DB_RANGE)
+    cols = arrow_columns._Columns(rr, record_geometry.DB_RANGE)
     assert cols.tensors_ok  # else every tensor falls back to one rr.log call (slow)
     x = np.random.default_rng(0).random((7, 11))
     ref = rr.Tensor(x[3], dim_names=["freq"]).data.as_arrow_array()
@@ -176,7 +178,7 @@ def test_bulk_tensor_columns_match_rerun_encoding() -> None:
     # the layout parts are cached per process: a second batch (other values) and another logger's
     # columns reuse them and still encode exactly like rr.Tensor
     y = x[::-1].copy()
-    again = arrow_columns._Columns(rr, rerun_log.DB_RANGE)._tensor_array(y, ("freq",))
+    again = arrow_columns._Columns(rr, record_geometry.DB_RANGE)._tensor_array(y, ("freq",))
     assert again[3:4].equals(rr.Tensor(y[3], dim_names=["freq"]).data.as_arrow_array())
     assert again.equals(cols._tensor_array(y, ("freq",), cache=False))
 
@@ -275,8 +277,8 @@ def test_live_viewer_receives_data(tmp_path: Path, sim, batch) -> None:
     _, views, rng = _images(reader, "pressure")
     # always 50 columns (a fixed scale in the view), blank before the 50th frame, newest on the right
     assert all(v.shape[1] == 50 for v in views)
-    assert np.all(views[0][:, :49] == rerun_log.DB_RANGE[0])
-    assert len(rng) == spec.n_frames and np.array_equal(np.asarray(rng[-1]).ravel(), rerun_log.DB_RANGE)
+    assert np.all(views[0][:, :49] == record_geometry.DB_RANGE[0])
+    assert len(rng) == spec.n_frames and np.array_equal(np.asarray(rng[-1]).ravel(), record_geometry.DB_RANGE)
 
 
 def _visible(view, entity: str) -> list[bool]:
@@ -319,7 +321,7 @@ def test_default_band_second_order() -> None:
     from chatterspec.plants.scenarios import scenario
 
     mon = ChatteringMonitor(scenario("so-timeline-constant").nominal)
-    assert rerun_log.default_band_hz(mon) == (1.0, 15.0)  # 3 x 5 Hz natural frequency
+    assert record_geometry.default_band_hz(mon) == (1.0, 15.0)  # 3 x 5 Hz natural frequency
 
 
 def _cli(*argv: str) -> int:
@@ -337,7 +339,6 @@ def test_monitor_command_on_example(tmp_path: Path, capsys) -> None:
     out = tmp_path / "m.rrd"
     rc = _cli(
         "monitor",
-        "--model",
         str(EXAMPLES / "eha_model.toml"),
         "--data",
         str(EXAMPLES / "eha_data.csv"),
@@ -359,9 +360,12 @@ def test_replay_without_display(tmp_path: Path, monkeypatch, capsys) -> None:
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     f = tmp_path / "x.rrd"
     f.write_bytes(b"")
-    assert _cli("replay", str(f)) == 1
-    assert "no display" in capsys.readouterr().err
+    from chatterspec.cli import main
     from chatterspec.errors import DataFileError
+
+    assert main(["replay", str(f)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("chatterspec replay: error: no display") and err.count("\n") == 1
 
     with pytest.raises(DataFileError, match="no such file"):
         _cli("replay", str(tmp_path / "missing.rrd"))
@@ -380,7 +384,7 @@ def test_file_spectrogram_blocks_tile_long_records(tmp_path: Path, batch) -> Non
         logger.close()
     t, blocks, _ = _images(RrdReader(tmp_path / "b.rrd"), "velocity")
     widths = [b.shape[1] for b in blocks]
-    p = rerun_log.pad_columns(mon)  # blank columns before the first frame and after the last one
+    p = record_geometry.pad_columns(mon)  # blank columns before the first frame and after the last one
     want = [7] * (spec.n_frames // 7) + ([spec.n_frames % 7] if spec.n_frames % 7 else [])
     want[0] += p
     want[-1] += p

@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from chatterspec.errors import DataFileError, ModelFileError, UnstableModelWarning
-from chatterspec.plants.modelfile import load_data, load_model
+from chatterspec.errors import DataFileError, ModelFileError, ParameterError, UnstableModelWarning
+from chatterspec.plants.datafile import load_data
+from chatterspec.plants.modelfile import load_model
 from chatterspec.plants.models import eha_linear
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -48,6 +49,10 @@ def test_example_model_and_data_load() -> None:
     data = load_data(EXAMPLES / "eha_data.csv", spec.model)
     assert data.z.shape == (8001, 3) and data.u.shape == (8001, 1)
     assert data.time_column == "time"
+    # what load_model returns stands for its model (it raised a bare AttributeError)
+    assert np.array_equal(load_data(EXAMPLES / "eha_data.csv", spec).z, data.z)
+    with pytest.raises(ParameterError, match="load_data needs the model the data belong to"):
+        load_data(EXAMPLES / "eha_data.csv", str(EXAMPLES / "eha_model.toml"))
     assert (EXAMPLES / "eha_data.csv").stat().st_size < 500_000
 
 

@@ -71,6 +71,6 @@ def test_cli_simulates_it_and_the_chattering_monitor_refuses_it(tmp_path: Path, 
     assert rows[0].startswith("time,position,velocity") and len(rows) > 150
     data = tmp_path / "data.csv"
     data.write_text("\n".join(rows) + "\n")
-    code = main(["monitor", "--model", str(path), "--data", str(data)])
+    code = main(["monitor", str(path), "--data", str(data)])
     err = capsys.readouterr().err
     assert code == 2 and "Traceback" not in err and "linear measurement" in err, err

@@ -130,10 +130,10 @@ def test_calibrate_detect_simulate_and_monitor_take_the_model_file(
     worn = tmp_path / "worn.csv"
     assert main(["simulate", str(WORN), "--rate", "0", "--duration", "8", "--seed", "1"]) == 0
     worn.write_text(capsys.readouterr().out)
-    assert main(["monitor", "--model", str(DUFFING), "--data", str(worn)]) == 2
+    assert main(["monitor", str(DUFFING), "--data", str(worn)]) == 2
     err = capsys.readouterr().err
     assert "is a nonlinear model" in err and "chatterspec calibrate" in err and "--calibration" in err
-    assert main(["monitor", "--model", str(DUFFING), "--data", str(worn), "--calibration", str(cal)]) == 0
+    assert main(["monitor", str(DUFFING), "--data", str(worn), "--calibration", str(cal)]) == 0
     out = capsys.readouterr().out
     # the 20 % weaker spring shows at the 3 Hz drive from the first frame on (a 75x ratio in the
     # example's 60 s run): far beyond the threshold, so one short record suffices
@@ -144,3 +144,33 @@ def json_doc(capsys) -> dict:
     import json
 
     return json.loads(capsys.readouterr().out)
+
+
+def _user_module(tmp_path: Path, tail: str) -> Path:
+    """A model file whose f is the Duffing g changed by ``tail`` (Python appended to duffing.py)."""
+    source = (ROOT / "examples" / "duffing.py").read_text() + "\n_g = g\n" + tail
+    (tmp_path / "user.py").write_text(source)
+    dynamics = '[dynamics]\nform = "continuous"\nf = "user.py:g"\njacobian = "user.py:g_jacobian"\n'
+    return _write(tmp_path, dynamics + PARAMS)
+
+
+def test_a_user_f_of_the_wrong_shape_is_refused_at_load(tmp_path: Path) -> None:
+    # (..., 1) for (..., 2) broadcast silently into x + dt g: 4001 wrong rows were written
+    path = _user_module(tmp_path, "def g(x, u, **kw):\n    return _g(x, u, **kw)[..., :1]\n")
+    with pytest.raises(
+        ModelFileError, match=r"f = 'user.py:g' returned shape \(2, 1\) for x of shape \(2, 2\)"
+    ):
+        load_model(path)
+
+
+def test_a_user_f_that_raises_mid_run_is_one_line(tmp_path: Path, capsys) -> None:
+    tail = (
+        "calls = [0]\n\ndef g(x, u, **kw):\n    calls[0] += 1\n    if calls[0] > 50:\n"
+        "        raise ValueError('sensor model exploded')\n    return _g(x, u, **kw)\n"
+    )
+    path = _user_module(tmp_path, tail)
+    assert main(["simulate", str(path), "--rate", "0", "--duration", "1"]) == 2
+    out, err = capsys.readouterr()
+    assert out.startswith("time,position,velocity,force\n")  # the rows before the failure were written
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert "[dynamics] f = 'user.py:g' raised ValueError: sensor model exploded" in err

@@ -11,7 +11,7 @@ import pytest
 
 import chatterspec as cs
 from chatterspec import _jit
-from chatterspec.detection.detect import detect_frames, frame_intervals
+from chatterspec.detection.frames import detect_frames, frame_intervals
 from chatterspec.detection.pipeline import chattering_record
 from chatterspec.detection.spectral import spectrogram
 from chatterspec.detection.thresholds import frame_threshold
@@ -167,7 +167,7 @@ def test_frame_verdict_flags_equal_direct_comparison_at_ties() -> None:
     """The one-pass flags (from max S / threshold) equal detect_frames' any(S > threshold) also at
     exact ties: S == threshold (ratio 1, not flagged) and S one ulp above it (ratio may round to 1,
     flagged), placed on random tested bins of random frames and channels."""
-    from chatterspec.online.monitor import frame_verdicts
+    from chatterspec.detection.frames import frame_verdicts
 
     model = cs.eha_linear()
     cfg = MonitorSettings().stft
@@ -204,7 +204,7 @@ def test_compiled_frame_verdicts_equal_the_numpy_ones(ties: bool) -> None:
     """
     from chatterspec import _jit
     from chatterspec.detection._verdict import peak_kernel
-    from chatterspec.online.monitor import _Verdicts
+    from chatterspec.detection.frames import FrameVerdicts
 
     model = cs.eha_linear()
     cfg = MonitorSettings().stft
@@ -222,8 +222,8 @@ def test_compiled_frame_verdicts_equal_the_numpy_ones(ties: bool) -> None:
         power[np.arange(40), b, 0] = thr.values[b, 0] * 2.0
         power[np.arange(20), b[:20], 2] = thr.values[b[:20], 2]
         power[np.arange(20, 40), b[20:], 2] = np.nextafter(thr.values[b[20:], 2], np.inf)
-    ref = _Verdicts(thr)(power)
-    fast = _Verdicts(thr, compiled=True)
+    ref = FrameVerdicts(thr)(power)
+    fast = FrameVerdicts(thr, compiled=True)
     assert fast.compiled  # the EHA threshold: contiguous tested bins, finite normal values
     outs = [fast(power)]
     if _jit.HAVE_NUMBA:  # the kernel's Python form too
@@ -260,8 +260,9 @@ def test_fused_filter_kernel_gives_the_bits_of_the_svsf_update_path(sim, psi) ->
     model = sim.scenario.nominal
     fused = ChatteringMonitor(model, MonitorSettings(psi=psi))
     plain = ChatteringMonitor(model, MonitorSettings(psi=psi))
-    assert fused._fused and fused._kernel is filters_kernel(3, 3)  # the EHA: the unrolled 3-state loop
-    plain._fused = False
+    ff = fused._filters  # both filters and the fused push of the monitor
+    assert ff.fused and ff._kernel is filters_kernel(3, 3)  # the EHA: the unrolled 3-state loop
+    plain._filters.fused = False
     z, u = sim.z[0, :4000], sim.u[:4000]
     bounds = [0, 1, 2, 3, 250, 251, 1950, 2000, 3700, 4000]
     for lo, hi in itertools.pairwise(bounds):
@@ -273,29 +274,29 @@ def test_fused_filter_kernel_gives_the_bits_of_the_svsf_update_path(sim, psi) ->
     assert fused.n_frames == plain.n_frames > 10
     # the kernel's Python form (it calls the compiled SVSF kernels) on a 40-sample push
     if psi is not None:
-        sat = fused._sat
+        sat = ff._sat
         outs = []
         # samples 4000 .. 4039 of the stream (z above stops at 4000; an empty push would compare
         # the uninitialized outputs), with u(k) and y(k|k) = z(k) of the sample before each
         zk, uk, y_aux = sim.z[0, None, 4000:4040], sim.u[3999:4039], sim.z[0, 3999:4000]
         assert zk.shape == (1, 40, 3) and uk.shape[0] == 40
         for kernel in (_filters_kernel, _filters_kernel.py_func):
-            y, ep = fused._sat_state.y.copy(), fused._sat_state.e_post.copy()
+            y, ep = ff._sat_state.y.copy(), ff._sat_state.e_post.copy()
             e, Gu, x_out = (np.full((1, 40, 3), np.nan) for _ in range(3))
             PhiT, L, P, inv_psi, gamma, S_inv = sat._kernel_consts
             kernel(
-                zk, uk, fused._GT, fused._aux_PhiT, y_aux, e, Gu, True,
-                PhiT, L, P, inv_psi, gamma, S_inv, y, ep, np.empty((1, 40, 3)), x_out, fused._none3,
+                zk, uk, ff._GT, ff._aux_PhiT, y_aux, e, Gu, True,
+                PhiT, L, P, inv_psi, gamma, S_inv, y, ep, np.empty((1, 40, 3)), x_out, ff._none3,
             )  # fmt: skip
             outs.append((e, x_out, y, ep))
         # the unrolled 3-state loop (the EHA's path in push), compiled and in its Python form
         run3 = filters_kernel(3, 3)
         for kernel in (run3, run3.py_func):
-            y, ep = fused._sat_state.y.copy(), fused._sat_state.e_post.copy()
+            y, ep = ff._sat_state.y.copy(), ff._sat_state.e_post.copy()
             e, x_out = np.full((1, 40, 3), np.nan), np.full((1, 40, 3), np.nan)
             kernel(
-                zk, uk, fused._GT, fused._aux_PhiT, y_aux, e, fused._none3, True,
-                PhiT, L, P, inv_psi, gamma, S_inv, y, ep, fused._none3, x_out, fused._none3,
+                zk, uk, ff._GT, ff._aux_PhiT, y_aux, e, ff._none3, True,
+                PhiT, L, P, inv_psi, gamma, S_inv, y, ep, ff._none3, x_out, ff._none3,
             )  # fmt: skip
             outs.append((e, x_out, y, ep))
         assert all(np.isfinite(a).all() for out in outs for a in out)  # every output written

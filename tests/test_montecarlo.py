@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from chatterspec.errors import ChatterspecError, ParameterError
+from chatterspec.montecarlo import plan_chunks, run_study
 from chatterspec.rng import BLOCK, block_generator, seed_label
 from chatterspec.studies.false_alarms import false_alarm_study
-from chatterspec.studies.montecarlo import plan_chunks, run_study
 
 
 class _Draws:
@@ -77,7 +77,7 @@ def test_unreachable_scheduler_fails_with_a_bounded_wait_and_runs_nothing(monkey
     """No scheduler listens: one connection attempt with chatterspec's short timeout (not dask's
     default), no chunk computed (no silent local fallback), a ChatterspecError naming the address."""
     dd = pytest.importorskip("dask.distributed")
-    from chatterspec.studies import montecarlo
+    from chatterspec import montecarlo
 
     calls = []
     real_client = dd.Client

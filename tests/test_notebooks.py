@@ -25,6 +25,7 @@ def test_notebooks_exist():
         "06_closed_loop.ipynb",
         "07_own_model.ipynb",
         "08_identification.ipynb",
+        "09_commissioning.ipynb",
     } <= names
 
 

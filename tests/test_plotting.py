@@ -380,7 +380,7 @@ def _run(module, argv):
 
 def test_figures_command_writes_png(tmp_path, capsys):
     out = tmp_path / "figs"
-    assert _run(figures_cmd, ["figures", "--out", str(out), "--only", "fig5,11", "--json"]) == 0
+    assert _run(figures_cmd, ["figures", "--figures-dir", str(out), "--only", "fig5,11", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert [e["name"] for e in doc["figures"]] == ["fig5", "fig11"]
     for name in ("fig5", "fig11"):
@@ -390,7 +390,7 @@ def test_figures_command_writes_png(tmp_path, capsys):
 
 def test_figures_command_unknown_name(tmp_path):
     with pytest.raises(ChatterspecError, match="valid figures: fig2, fig4, fig5"):
-        _run(figures_cmd, ["figures", "--out", str(tmp_path), "--only", "fig5,fig99"])
+        _run(figures_cmd, ["figures", "--figures-dir", str(tmp_path), "--only", "fig5,fig99"])
 
 
 def test_figures_command_list(capsys):
@@ -400,7 +400,7 @@ def test_figures_command_list(capsys):
 
 def test_spectrum_command_writes_png(tmp_path, capsys):
     out = tmp_path / "s.png"
-    argv = ["spectrum", "so-f11-high", "--out", str(out), "--channel", "velocity", "--threshold", "paper"]
+    argv = ["spectrum", "so-f11-high", "--plot", str(out), "--channel", "velocity", "--threshold", "paper"]
     assert _run(spectrum_cmd, argv) == 0
     assert "wrote" in capsys.readouterr().out
     data = out.read_bytes()
@@ -409,9 +409,9 @@ def test_spectrum_command_writes_png(tmp_path, capsys):
 
 def test_spectrum_command_errors(tmp_path):
     with pytest.raises(UnknownScenarioError, match="valid names"):
-        _run(spectrum_cmd, ["spectrum", "nope", "--out", str(tmp_path / "x.png")])
+        _run(spectrum_cmd, ["spectrum", "nope", "--plot", str(tmp_path / "x.png")])
     with pytest.raises(ParameterError, match=r"\.png"):
-        _run(spectrum_cmd, ["spectrum", "so-f11-low", "--out", str(tmp_path / "x.jpg")])
+        _run(spectrum_cmd, ["spectrum", "so-f11-low", "--plot", str(tmp_path / "x.jpg")])
     with pytest.raises(SystemExit):
         _run(spectrum_cmd, ["spectrum", "so-f11-low", "--alpha", "5"])
 

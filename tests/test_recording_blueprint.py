@@ -14,7 +14,8 @@ import pytest
 
 import chatterspec as cs
 from chatterspec.detection.bin_labels import db_over_threshold, two_bins_text
-from chatterspec.plants.modelfile import load_data, load_model
+from chatterspec.plants.datafile import load_data
+from chatterspec.plants.modelfile import load_model
 from chatterspec.plants.scenarios import scenario
 
 rr = pytest.importorskip("rerun")
@@ -22,7 +23,7 @@ from rerun.chunk import RrdReader  # noqa: E402
 
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings  # noqa: E402
 from chatterspec.online.stream import RowBlock  # noqa: E402
-from chatterspec.viewer import blueprint, drivers, rerun_log  # noqa: E402
+from chatterspec.viewer import blueprint, drivers, record_geometry  # noqa: E402
 from chatterspec.viewer.chattering_extent import (  # noqa: E402
     MARGIN,
     QUANTILE,
@@ -72,7 +73,7 @@ def test_streamed_file_opens_paused_on_the_whole_record(tmp_path: Path) -> None:
         sm.process(RowBlock(ds.t[lo:hi], ds.z[lo:hi], ds.u[lo:hi], np.arange(lo, hi) + 2, 0.0))
     sm.close()
     fresh = ChatteringMonitor(spec.model, settings, t0=float(ds.t[0]))
-    span = rerun_log.record_span(fresh, ds.n_samples, raw=True)
+    span = record_geometry.record_span(fresh, ds.n_samples, raw=True)
     panels = _time_panels(path)
     assert len(panels) == 2
     assert panels[0][1] == FOLLOWING  # sent when the file opened
@@ -82,7 +83,8 @@ def test_streamed_file_opens_paused_on_the_whole_record(tmp_path: Path) -> None:
     # the float sums of frame centres)
     assert sel is not None
     assert (
-        abs(sel[0] - int(rerun_log.to_ns(span[0]))) <= 1 and abs(sel[1] - int(rerun_log.to_ns(span[1]))) <= 1
+        abs(sel[0] - int(record_geometry.to_ns(span[0]))) <= 1
+        and abs(sel[1] - int(record_geometry.to_ns(span[1]))) <= 1
     )
 
 

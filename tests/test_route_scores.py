@@ -44,6 +44,21 @@ def test_mode_log_odds_is_bounded_by_the_floor() -> None:
         mode_log_odds(mu, floor=0.0)
 
 
+@pytest.mark.parametrize("name", ["eha4-leak-timeline", "eha4-imm-analogue"])
+@pytest.mark.parametrize("method", ["smm", "imm"])
+def test_mode_routes_floor_the_weights_at_1e_3(name: str, method: str) -> None:
+    """``diagnose``'s mode routes as documented (README, ``docs/design.md`` S4/S6): the SMM-SVSF floors
+    its weights at 1e-3 (the scenario's setting, or the default where the scenario sets none) and both
+    mode routes raise every probability to 1e-3 first, so their scores lie in [-6.9, 6.9]."""
+    from chatterspec.studies.routes import ModeRoute
+
+    route = ModeRoute(cs.scenario(name), method)
+    assert route.floor == 1e-3
+    assert route.score_max == pytest.approx(-math.log(1e-3))
+    if method == "smm":
+        assert route.filter.weight_floor == 1e-3
+
+
 def test_nis_equals_the_quadratic_form_shared_or_per_run() -> None:
     rng = np.random.default_rng(0)
     A = rng.normal(size=(3, 7, 4, 4))

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from chatterspec.errors import NonFiniteError
+from chatterspec.errors import NonFiniteError, ParameterError
 from chatterspec.plants.scenarios import scenario
 from chatterspec.plants.signals import Chirp
 
@@ -48,3 +48,15 @@ def test_eha_scenarios_keep_the_cosine_and_accept_a_sine() -> None:
     alt = dataclasses.replace(sc, input=Chirp.sine())
     u = alt.input.sample(np.arange(3) * sc.dt)
     assert u[0] == pytest.approx(0.0, abs=1e-9) and u[1] > 0
+
+
+def test_repeat_repeats_the_signal_with_its_period() -> None:
+    from chatterspec.plants.signals import Chirp, Repeat
+
+    chirp = Chirp(10.0, 100.0, 4.0, 300.0)
+    rep = Repeat(chirp, 4.0)
+    t = np.arange(0.0, 12.0, 1e-3)
+    np.testing.assert_array_equal(rep.sample(t), chirp.sample(np.mod(t, 4.0)))
+    assert "repeated every 4 s" in rep.describe()
+    with pytest.raises(ParameterError):
+        Repeat(chirp, 0.0)

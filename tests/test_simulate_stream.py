@@ -9,7 +9,7 @@ import pytest
 
 import chatterspec as cs
 from chatterspec.cli import main
-from chatterspec.online.stream import simulate_blocks
+from chatterspec.online.simulated_stream import simulate_blocks
 from chatterspec.plants.scenarios import Segment
 
 

@@ -15,7 +15,7 @@ import pytest
 import chatterspec as cs
 from chatterspec import _jit
 from chatterspec.filters import _smm_kernel
-from chatterspec.filters.multiple_model import SMMSVSF
+from chatterspec.filters.smm_svsf import SMMSVSF
 
 needs_numba = pytest.mark.skipif(not _jit.enabled(), reason="numba not installed or CHATTERSPEC_JIT=0")
 

@@ -376,13 +376,13 @@ def test_frame_engine_compiled_loops_give_the_numpy_bits(window, window_s, hop_s
     the last bit of some bins; the Python form of each kernel is checked too.)
     """
     from chatterspec import _jit
-    from chatterspec.detection import _frame_engine as fe
+    from chatterspec.detection import frame_engine as fe
 
     cfg = STFTConfig(window_s=window_s, hop_s=hop_s, window=window)
     x = np.random.default_rng(12).standard_normal(shape) * 3e-3
-    j_ref, ref = fe._FrameEngine(cfg, DT)(x, first)
+    j_ref, ref = fe.FrameEngine(cfg, DT)(x, first)
     np.testing.assert_array_equal(ref, frame_columns(x, DT, cfg, first_sample=first)[1])
-    engine = fe._FrameEngine(cfg, DT, compiled=True)
+    engine = fe.FrameEngine(cfg, DT, compiled=True)
     for _ in range(2):  # the second call reuses the scratch buffers
         j, power = engine(x, first)
         np.testing.assert_array_equal(j, j_ref)

@@ -50,7 +50,7 @@ def _cli(argv: list[str]) -> str:
         ["scenarios", "eha4-leak-onset"],
         ["detect", "no-such-scenario"],
         ["simulate", "eha-healthy", "--rate", "-1"],
-        ["monitor", "--model", "no-such.toml", "--data", "x.csv"],
+        ["monitor", "no-such.toml", "--data", "x.csv"],
         ["calibrate", "no-such-scenario"],
     ],
 )
@@ -59,16 +59,54 @@ def test_listing_and_argument_errors_import_no_heavy_module(argv: list[str]) -> 
     assert not any(loaded.values()), {m: v for m, v in loaded.items() if v}
 
 
-def test_the_monitor_replay_needs_neither_scipy_signal_nor_scipy_stats() -> None:
+def test_help_imports_no_numpy() -> None:
+    """``chatterspec --help`` and every ``chatterspec COMMAND --help`` build the parser only: no numpy.
+
+    One interpreter runs them all in turn and names the first whose help loaded numpy (or anything
+    heavier), so a failure says which command's parser imports too much.
+    """
+    from chatterspec.cli import COMMANDS
+
+    calls = [["--help"], *([name, "--help"] for name in COMMANDS)]
+    code = (
+        "import contextlib, io\nfrom chatterspec.cli import main\nfirst = None\n"
+        f"for argv in {calls!r}:\n"
+        "    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):\n"
+        "        try:\n            main(argv)\n        except SystemExit:\n            pass\n"
+        f"    if first is None and any(m in sys.modules for m in ('numpy', *{HEAVY!r})):\n"
+        "        first = argv\n"
+        "print(first)"
+    )
+    probe = f"import sys\n{code}"
+    env = {**os.environ, "PYTHONPATH": str(SOURCE)}
+    out = subprocess.run(
+        [sys.executable, "-c", probe],
+        capture_output=True,
+        text=True,
+        cwd=tempfile.gettempdir(),
+        env=env,
+        check=True,
+    )
+    assert out.stdout.strip().splitlines()[-1] == "None", f"numpy loaded by chatterspec {out.stdout.strip()}"
+
+
+def test_the_monitor_replay_needs_neither_scipy_signal_nor_scipy_stats_nor_rerun() -> None:
+    """A replay without ``--record`` / ``--live`` opens no recording: Rerun is not imported either, from
+    a data file nor from a stream (``--data -``, rows on standard input, then in the same interpreter)."""
     model = ROOT / "examples" / "eha_model.toml"
     data = ROOT / "examples" / "eha_data.csv"
-    loaded = _loaded_after(_cli(["monitor", "--model", str(model), "--data", str(data)]))
+    code = _cli(["monitor", str(model), "--data", str(data)])
+    code += f"\nsys.stdin = open({str(data)!r})\n" + _cli(
+        ["monitor", str(model), "--data", "-", "--rule", "frame"]
+    ).replace("from chatterspec.cli import main\n", "")
+    loaded = _loaded_after(code)
     assert not loaded["scipy.signal"] and not loaded["scipy.stats"]
+    assert not loaded["rerun"]
 
 
 @pytest.mark.parametrize("name", ["hamming", "hann"])
 def test_native_tapers_equal_scipy_bit_for_bit(name: str) -> None:
-    from chatterspec.detection._windows import get_window
+    from chatterspec._windows import get_window
 
     for n in [*range(1, 130), 250, 999, 1000, 1001, 2000, 4096, 10_000]:
         np.testing.assert_array_equal(get_window(name, n), scipy.signal.get_window(name, n), err_msg=str(n))

@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 
 from chatterspec.filters import _bank_steps, _engine
-from chatterspec.filters._svsf_kernels import closed_form_step, matvec_step, rows_times_step, svsf_step
+from chatterspec.filters.bank_math import log_gaussian, normalize_log_weights
 from chatterspec.filters.kalman import _KF_STEP
-from chatterspec.filters.multiple_model import combine, log_gaussian, normalize_log_weights
+from chatterspec.filters.mixture import combine
+from chatterspec.filters.svsf_steps import closed_form_step, matvec_step, rows_times_step, svsf_step
 from chatterspec.plants import eha4 as eha4_mod
 from chatterspec.plants import linear_steps
 

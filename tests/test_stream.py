@@ -18,21 +18,21 @@ import chatterspec as cs
 from chatterspec.cli.scenarios import export_model_toml
 from chatterspec.errors import DataFileError
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
+from chatterspec.online.simulated_stream import csv_header, csv_lines, simulate_blocks
 from chatterspec.online.stream import (
     RESTART,
     BadRow,
     CsvRows,
     Restart,
     RowBlock,
-    csv_header,
-    csv_lines,
     follow_file,
-    simulate_blocks,
 )
-from chatterspec.plants.modelfile import load_data, load_model
+from chatterspec.online.stream_checks import LatencyStats
+from chatterspec.plants.datafile import load_data
+from chatterspec.plants.modelfile import load_model
 from chatterspec.viewer import sinks as viewer
 from chatterspec.viewer import stream_recordings as live_stream  # the live stream monitor's rotation
-from chatterspec.viewer.live_stream import LatencyStats, StreamMonitor
+from chatterspec.viewer.live_stream import StreamMonitor
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE_MODEL = ROOT / "examples" / "eha_model.toml"
@@ -298,7 +298,7 @@ def test_pipe_simulate_into_monitor_reads_fault_start_while_producer_runs(tmp_pa
         env=ENV,
     )
     mon = subprocess.Popen(
-        _cli("monitor", "--model", str(model), "--data", "-", "--events", "jsonl"),
+        _cli("monitor", str(model), "--data", "-", "--events", "jsonl"),
         stdin=prod.stdout,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -328,7 +328,6 @@ def test_follow_growing_file_equals_finished_file(tmp_path, example_text, capsys
     mon = subprocess.Popen(
         _cli(
             "monitor",
-            "--model",
             str(EXAMPLE_MODEL),
             "--data",
             str(path),
@@ -366,7 +365,7 @@ def test_follow_growing_file_equals_finished_file(tmp_path, example_text, capsys
     summary = followed.pop()
     assert summary["event"] == "summary" and summary["n_rows"] == 8001
     assert summary["stopped_by"] == "idle timeout"
-    argv = ["monitor", "--model", str(EXAMPLE_MODEL), "--data", str(EXAMPLE_DATA), "--events", "jsonl"]
+    argv = ["monitor", str(EXAMPLE_MODEL), "--data", str(EXAMPLE_DATA), "--events", "jsonl"]
     rc, out, _ = _main(argv, None, tmp_path, capsys, monkeypatch)
     assert rc == 0
     expected = _events(out)
@@ -385,7 +384,7 @@ def _stream_text(t0: float, n: int, skip: int | None = None, bad: int | None = N
 
 
 def test_cli_gap_and_bad_rows(tmp_path, capsys, monkeypatch) -> None:
-    base = ["monitor", "--model", str(EXAMPLE_MODEL), "--data", "-", "--events", "jsonl"]
+    base = ["monitor", str(EXAMPLE_MODEL), "--data", "-", "--events", "jsonl"]
     # a time gap: one gap event at the resuming sample, run goes on
     rc, out, err = _main(base, _stream_text(0, 3000, skip=1500), tmp_path, capsys, monkeypatch)
     assert rc == 0, err
@@ -410,7 +409,6 @@ def test_sigterm_finalizes_recording_and_summary(tmp_path) -> None:
     mon = subprocess.Popen(
         _cli(
             "monitor",
-            "--model",
             str(EXAMPLE_MODEL),
             "--data",
             "-",
@@ -431,7 +429,7 @@ def test_sigterm_finalizes_recording_and_summary(tmp_path) -> None:
     mon.send_signal(signal.SIGTERM)
     _, err = mon.communicate(timeout=120)
     err = err.decode()
-    assert mon.returncode == 0, err
+    assert mon.returncode == 143, err  # 128 + SIGTERM, after the summary and the recording's footer
     _no_traceback(err)
     assert "stopped by SIGTERM" in err
     rows = int(err.split(" rows)")[0].rsplit("(", 1)[1])
@@ -441,7 +439,7 @@ def test_sigterm_finalizes_recording_and_summary(tmp_path) -> None:
 
 def test_rotated_recordings_each_verify(tmp_path, capsys, monkeypatch) -> None:
     base = tmp_path / "rot.rrd"
-    argv = ["monitor", "--model", str(EXAMPLE_MODEL), "--data", "-", "--json", "--record", str(base)]
+    argv = ["monitor", str(EXAMPLE_MODEL), "--data", "-", "--json", "--record", str(base)]
     argv += ["--record-every", "0.05"]  # 3 s of data per file: 3 files for 8 s
     rc, stdout, stderr = _main(argv, EXAMPLE_DATA.read_text(), tmp_path, capsys, monkeypatch)
     assert rc == 0, stderr
@@ -478,14 +476,10 @@ def test_stream_option_errors_are_reported_without_traceback(tmp_path, capsys, m
         (["--data", str(tmp_path / "none.csv"), "--follow"], "does not exist"),
         (["--data", "-", "--record-every", "0"], "must be >= 0.05 minutes"),
     ):
-        rc, _, err = _main(
-            ["monitor", "--model", str(EXAMPLE_MODEL), *argv], None, tmp_path, capsys, monkeypatch
-        )
+        rc, _, err = _main(["monitor", str(EXAMPLE_MODEL), *argv], None, tmp_path, capsys, monkeypatch)
         assert rc == 2 and what in err, (argv, err)
         _no_traceback(err)
-    rc, _, err = _main(
-        ["monitor", "--model", str(EXAMPLE_MODEL), "--data", "-"], "", tmp_path, capsys, monkeypatch
-    )
+    rc, _, err = _main(["monitor", str(EXAMPLE_MODEL), "--data", "-"], "", tmp_path, capsys, monkeypatch)
     assert rc == 2 and "no header line" in err
 
 

@@ -12,8 +12,9 @@ from chatterspec.cli import main
 from chatterspec.errors import DataFileError
 from chatterspec.online.monitor import MonitorSettings
 from chatterspec.online.stream import CsvRows
+from chatterspec.online.stream_checks import LatencyStats
 from chatterspec.plants.modelfile import load_model
-from chatterspec.viewer.live_stream import LatencyStats, StreamMonitor, drive
+from chatterspec.viewer.live_stream import StreamMonitor, drive
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE_MODEL = ROOT / "examples" / "eha_model.toml"
@@ -70,10 +71,10 @@ def test_cli_stream_and_file_at_another_rate_exit_2(tmp_path: Path, capsys, monk
     path.write_text(text)
     with path.open() as fh:
         monkeypatch.setattr(sys, "stdin", fh)
-        rc = main(["monitor", "--model", str(EXAMPLE_MODEL), "--data", "-"])
+        rc = main(["monitor", str(EXAMPLE_MODEL), "--data", "-"])
     err = capsys.readouterr().err
     assert rc == 2 and "sampled every 2 ms (500 Hz)" in err and "gap" not in err.replace("a gap", "")
-    assert main(["monitor", "--model", str(EXAMPLE_MODEL), "--data", str(path)]) == 2
+    assert main(["monitor", str(EXAMPLE_MODEL), "--data", str(path)]) == 2
     assert "the data is sampled every 2 ms (500 Hz), but the model's dt is 1 ms" in capsys.readouterr().err
 
 

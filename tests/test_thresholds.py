@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from chatterspec.detection.detect import detect_spectrum
 from chatterspec.detection.pipeline import scenario_chattering
 from chatterspec.detection.spectral import STFTConfig, expected_spectrum, periodogram, spectrogram
+from chatterspec.detection.spectrum_verdicts import detect_spectrum
 from chatterspec.detection.thresholds import (
     exact_threshold,
     frame_threshold,

@@ -14,6 +14,7 @@ import importlib
 import sys
 import warnings
 from collections.abc import Sequence
+from typing import TextIO
 
 from ..errors import ChatterspecError
 
@@ -28,6 +29,7 @@ COMMANDS: tuple[str, ...] = (
     "simulate",
     "replay",
     "calibrate",
+    "commission",
     "far",
     "power",
     "estimate",
@@ -111,7 +113,14 @@ def _one_line_warnings(command: str) -> None:
     """
     from ..viewer.sinks import LiveViewerWarning
 
-    def show(message, category, filename, lineno, file=None, line=None):
+    def show(
+        message: Warning | str,
+        category: type[Warning],
+        filename: str,
+        lineno: int,
+        file: TextIO | None = None,
+        line: str | None = None,
+    ) -> None:
         print(f"chatterspec {command}: warning: {message}", file=sys.stderr)
 
     warnings.showwarning = show

@@ -12,11 +12,17 @@ from __future__ import annotations
 import argparse
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ..detection.alarms import RULES, rule_names
+from ..detection.alarm_rules import RULES, rule_names  # no numpy: the parser is built for --help
 from ..errors import ParameterError
 from ._options import add
+
+if TYPE_CHECKING:  # pragma: no cover
+    from pathlib import Path
+
+    from ..detection.alarm_calibration import RuleCalibration
+    from ..detection.monitor_settings import MonitorSettings
 
 __all__ = [
     "AlarmChoice",
@@ -31,8 +37,25 @@ _DEFAULT_RULE = "cusum"
 _DEFAULT_BUDGET = 1.0 / 24.0
 
 
-def add_alarm_args(p: argparse.ArgumentParser, *, what: str = "the monitor", hours: bool = True) -> None:
-    """Add the alarm options to ``p`` (``what`` names the monitor in the help texts)."""
+#: ``--alarm-hours``'s help; ``{default}``: what the command simulates when it is not given.
+ALARM_HOURS_HELP = (
+    "hours of healthy data simulated to set the threshold of the persistence and CUSUM rules (default "
+    "{default}; the threshold is cached per model and settings in the user cache, see "
+    "CHATTERSPEC_CACHE_DIR); at least two STFT frames, at most what fits in 256 MiB of frame scores "
+    "(621 h for the EHA)"
+)
+#: The in-call default of ``--alarm-hours`` (monitor, detect --record), as ``--help`` says it.
+IN_CALL_HOURS_DEFAULT = (
+    "12 / channels, 4 for the EHA: a few seconds; a calibration file from `chatterspec calibrate --rule "
+    "...` (48 h) gives a tighter one"
+)
+
+
+def add_alarm_args(
+    p: argparse.ArgumentParser, *, what: str = "the monitor", hours_default: str = IN_CALL_HOURS_DEFAULT
+) -> None:
+    """Add the alarm options to ``p`` (``what`` names the monitor in the help texts; ``hours_default``
+    says the default of ``--alarm-hours``)."""
     rules = "; ".join(f"{name}: {spec.summary}" for name, spec in RULES.items())
     k, n = RULES["persistence"].parameters["k"], RULES["persistence"].parameters["n"]
     drift = RULES["cusum"].parameters["drift"]
@@ -54,14 +77,7 @@ def add_alarm_args(p: argparse.ArgumentParser, *, what: str = "the monitor", hou
         "--cusum-drift",
         help=f"CUSUM rule: drift subtracted from each frame score, nats (default {drift:g})",
     )
-    if hours:
-        add(
-            p,
-            "--alarm-hours",
-            help="hours of healthy data simulated to set the threshold of the persistence and CUSUM rules "
-            "(default 12 / channels, 4 for the EHA: a few seconds; a calibration file from `chatterspec "
-            "calibrate --rule ...` (48 h) gives a tighter one)",
-        )
+    add(p, "--alarm-hours", help=ALARM_HOURS_HELP.format(default=hours_default))
 
 
 @dataclass(frozen=True)
@@ -175,7 +191,7 @@ def alarm_choice(
     )
 
 
-def check_file_alarm(choice: AlarmChoice, cal_alarm: Any, path: Any) -> Any:
+def check_file_alarm(choice: AlarmChoice, cal_alarm: RuleCalibration, path: str | Path) -> RuleCalibration:
     """The calibration file's rule calibration if it fits ``choice`` (the options given on the command
     line), else ``CalibrationMismatchError``
     (:func:`chatterspec.studies.alarm_budget.check_alarm_calibration`)."""
@@ -190,14 +206,14 @@ def check_file_alarm(choice: AlarmChoice, cal_alarm: Any, path: Any) -> Any:
     )
 
 
-def alarm_doc(settings: object) -> dict:
+def alarm_doc(settings: MonitorSettings) -> dict:
     """The ``alarm`` entry of the JSON summary: rule, threshold, budget and how it was set."""
     import math
 
     b = getattr(settings, "budget", None)
     rule = getattr(settings, "rule", None)
     if rule is None:
-        a = float(settings.alpha)  # type: ignore[attr-defined]
+        a = float(settings.alpha)
         return {
             "rule": {"rule": "frame", "threshold": -math.log(a)},
             "alpha": a,
@@ -212,19 +228,19 @@ def alarm_doc(settings: object) -> dict:
     }
 
 
-def _alarm_short(settings: object) -> str:
-    from ..online.monitor_types import alarm_label
+def _alarm_short(settings: MonitorSettings) -> str:
+    from ..detection.alarm_rules import alarm_label
 
     rule = getattr(settings, "rule", None)
     if rule is None:
-        return f"frame rule, per-frame alpha {settings.alpha:g}"  # type: ignore[attr-defined]
-    return alarm_label(rule.name, settings.false_alarms_per_hour)  # type: ignore[attr-defined]
+        return f"frame rule, per-frame alpha {settings.alpha:g}"
+    return alarm_label(rule.name, settings.false_alarms_per_hour)
 
 
-def _alarm_line(settings: object) -> str:
+def _alarm_line(settings: MonitorSettings) -> str:
     """One stderr line on the rule in use and where its threshold comes from."""
     rule = getattr(settings, "rule", None)
     if rule is None:
         return f"alarms: {_alarm_short(settings)} (every frame a test)"
-    b = settings.budget  # type: ignore[attr-defined]
+    b = settings.budget
     return f"alarms: {b.describe()}" if b is not None else f"alarms: {rule.describe()}"

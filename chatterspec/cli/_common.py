@@ -5,13 +5,31 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, ParamSpec, Protocol, TypeVar, overload
 
 from ..errors import ParameterError
 
+if TYPE_CHECKING:  # pragma: no cover
+    from ..plants.scenario_types import Scenario
 
-def parsed_arg(text: str, convert: Any, ok: Any, not_a_number: str, out_of_range: str) -> Any:
+T = TypeVar("T")
+R = TypeVar("R")
+P = ParamSpec("P")
+
+
+class StudyResult(Protocol):
+    """A Monte Carlo study's result as :func:`report_study` takes it: its JSON document."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """The result as a JSON-ready dict."""
+        ...
+
+
+def parsed_arg(
+    text: str, convert: Callable[[str], T], ok: Callable[[T], bool], not_a_number: str, out_of_range: str
+) -> T:
     """``convert(text)`` if it works and ``ok`` accepts it, else ``argparse.ArgumentTypeError``.
 
     The messages are templates: ``{text}`` is the text given, ``{value}`` the converted value.
@@ -25,18 +43,39 @@ def parsed_arg(text: str, convert: Any, ok: Any, not_a_number: str, out_of_range
     return value
 
 
-def alpha_arg(text: str) -> float:
-    """argparse type: a probability in the open interval (0, 1)."""
+def _open_unit_arg(what: str, name: str) -> Any:
+    """argparse type ``name``: a number in the open interval (0, 1), named ``what`` in messages."""
+
+    def parse(text: str) -> float:
+        return parsed_arg(
+            text,
+            float,
+            lambda v: 0.0 < v < 1.0,
+            f"{what} must be a number in (0, 1); got {{text!r}}",
+            f"{what} must lie in the open interval (0, 1); got {{value}}",
+        )
+
+    parse.__name__ = parse.__qualname__ = name
+    parse.__doc__ = f"argparse type: {what}, a number in the open interval (0, 1)."
+    return parse
+
+
+alpha_arg = _open_unit_arg("alpha", "alpha_arg")
+confidence_arg = _open_unit_arg("confidence", "confidence_arg")
+
+
+def rate_arg(text: str) -> float:
+    """argparse type of ``--rate``: data seconds per wall second, finite and >= 0 (0: as fast as possible)."""
     return parsed_arg(
         text,
         float,
-        lambda v: 0.0 < v < 1.0,
-        "alpha must be a number in (0, 1); got {text!r}",
-        "alpha must lie in the open interval (0, 1); got {value}",
+        lambda v: 0.0 <= v < float("inf"),
+        "--rate must be a number (1.0 = real time, 0 = as fast as possible); got {text!r}",
+        "--rate must be finite and >= 0 (1.0 = real time, 0 = as fast as possible); got {value}",
     )
 
 
-def _integer_arg(minimum: int, name: str) -> Any:
+def _integer_arg(minimum: int, name: str) -> Callable[[str], int]:
     """argparse type ``name``: an integer >= ``minimum``."""
 
     def parse(text: str) -> int:
@@ -79,6 +118,15 @@ def band_from_args(args: argparse.Namespace) -> tuple[float, float] | None:
     return check_band(band)
 
 
+def stderr_note(command: str) -> Any:
+    """A function that prints one ``chatterspec COMMAND: note: TEXT`` line on stderr (library notes)."""
+
+    def note(text: str) -> None:
+        print(f"chatterspec {command}: note: {text}", file=sys.stderr, flush=True)
+
+    return note
+
+
 def live_arg(text: str) -> str:
     """argparse type of ``--live``: ``spawn``, a port, ``host:port`` or a viewer URL (not a bare word)."""
     if text == "spawn":
@@ -92,7 +140,7 @@ def live_arg(text: str) -> str:
     return text
 
 
-def load_scenario(name: str) -> Any:
+def load_scenario(name: str) -> Scenario:
     """A catalogue scenario, or the healthy scenario of a model file (``NAME.toml``, linear or nonlinear).
 
     A model file's scenario is its ``[simulation]`` table (input, initial state, duration; zero input
@@ -148,6 +196,22 @@ def _probe_writable(folder: Path) -> str | None:
     return None
 
 
+@overload
+def check_output_path(
+    path: str | os.PathLike, option: str, *, folder: bool = False, suffixes: tuple[str, ...] | None = None
+) -> Path: ...
+@overload
+def check_output_path(
+    path: None, option: str, *, folder: bool = False, suffixes: tuple[str, ...] | None = None
+) -> None: ...
+@overload
+def check_output_path(
+    path: str | os.PathLike | None,
+    option: str,
+    *,
+    folder: bool = False,
+    suffixes: tuple[str, ...] | None = None,
+) -> Path | None: ...
 def check_output_path(
     path: str | os.PathLike | None,
     option: str,
@@ -165,7 +229,8 @@ def check_output_path(
     option : str
         The option that named it (e.g. ``"--plot"``), for the message.
     folder : bool
-        ``path`` is a folder, existing or created at write time (default: a file).
+        ``path`` is a folder, existing or created at write time with any missing parents (default:
+        a file, whose folder must exist: a mistyped folder is refused rather than created).
     suffixes : tuple of str, optional
         Accepted lower-case suffixes of a file (e.g. ``(".png",)``); None accepts any.
 
@@ -177,9 +242,10 @@ def check_output_path(
     Raises
     ------
     OutputPathError
-        A file ``path`` is an existing folder, an existing read-only file or has a refused suffix;
-        a folder ``path`` is an existing file; or the nearest existing folder (``path`` itself, or
-        its parent for a file) is not writable (missing parent folders are created at write time).
+        A file ``path`` is an existing folder, an existing read-only file, has a refused suffix or a
+        folder that does not exist; a folder ``path`` is an existing file; or the folder written
+        into (``path`` itself or its nearest existing parent for a folder, the file's folder for a
+        file) is not writable.
     """
     if path is None:
         return None
@@ -187,7 +253,7 @@ def check_output_path(
     if folder:
         if p.exists() and not p.is_dir():
             raise OutputPathError(f"{option} {str(p)!r} is an existing file; give a folder")
-        base = p
+        base = _nearest_existing(p)
     else:
         if suffixes is not None and p.suffix.lower() not in suffixes:
             raise OutputPathError(f"{option} {str(p)!r}: the file name must end in {' or '.join(suffixes)}")
@@ -196,7 +262,12 @@ def check_output_path(
         if p.exists() and not os.access(p, os.W_OK):
             raise OutputPathError(f"{option} {str(p)!r}: the file exists and is not writable")
         base = p.parent if str(p.parent) else Path(".")
-    why = _probe_writable(_nearest_existing(base))
+        if not base.exists():
+            raise OutputPathError(
+                f"{option} {str(p)!r} cannot be written: the folder {str(base)!r} does not exist (create it "
+                "first)"
+            )
+    why = _probe_writable(base)
     if why is not None:
         raise OutputPathError(f"{option} {str(p)!r} cannot be written: {why}")
     return p
@@ -221,7 +292,15 @@ class Outputs:
     def __init__(self) -> None:
         self.failures: list[str] = []
 
-    def write(self, option: str, target: str | os.PathLike, fn: Any, /, *args: Any, **kwargs: Any) -> Any:
+    def write(
+        self,
+        option: str,
+        target: str | os.PathLike[str],
+        fn: Callable[P, R],
+        /,
+        *args: P.args,
+        **kwargs: P.kwargs,
+    ) -> R | None:
         """Call ``fn(*args, **kwargs)``; on ``OSError`` (or Rerun's file-sink ``RuntimeError``) note it.
 
         Returns ``fn``'s result, or None when the write failed.
@@ -256,7 +335,9 @@ def check_figure_path(path: str | os.PathLike | None, option: str = "--plot") ->
         check_output_path(path, option, suffixes=figure_suffixes())
 
 
-def write_plot(outputs: Outputs, args: Any, doc: dict, figure: str, *figure_args: Any) -> None:
+def write_plot(
+    outputs: Outputs, args: argparse.Namespace, doc: dict[str, Any], figure: str, *figure_args: object
+) -> None:  # (figure_args: whatever the named drawing function takes)
     """With ``--plot FILE``: save the figure there, noted as ``doc["figure"]`` (None: not saved).
 
     ``figure`` names the drawing function in :mod:`chatterspec.figures` as ``"module.function"``
@@ -275,7 +356,14 @@ def write_plot(outputs: Outputs, args: Any, doc: dict, figure: str, *figure_args
     doc["figure"] = None if saved is None else str(saved)
 
 
-def report(args: Any, doc: dict, outputs: Outputs, print_text: Any, *, allow_nan: bool = False) -> int:
+def report(
+    args: argparse.Namespace,
+    doc: dict[str, Any],
+    outputs: Outputs,
+    print_text: Callable[[], None],
+    *,
+    allow_nan: bool = False,
+) -> int:
     """Print the result and end the command: ``doc`` as JSON with ``--json`` (NaN written only with
     ``allow_nan``), else ``print_text()``; then :meth:`Outputs.finish`. Returns 0."""
     if args.json:
@@ -286,7 +374,9 @@ def report(args: Any, doc: dict, outputs: Outputs, print_text: Any, *, allow_nan
     return 0
 
 
-def report_study(args: Any, res: Any, figure: str, print_text: Any) -> int:
+def report_study(
+    args: argparse.Namespace, res: StudyResult, figure: str, print_text: Callable[[dict[str, Any]], None]
+) -> int:
     """The end of a Monte Carlo study command (``far``, ``power``, ``power --closed-loop``): the result
     ``res``'s document, its ``--plot`` figure (:func:`write_plot`, ``figure`` called with ``res``),
     then :func:`report` with ``print_text(doc)`` and the figure's path as the text (NaN kept in the JSON:

@@ -19,12 +19,20 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from typing import TYPE_CHECKING, Any, cast
 
 from . import _identify
 from ._common import Outputs, print_json
 
+if TYPE_CHECKING:  # pragma: no cover
+    from collections.abc import Iterator
 
-def chattering_threshold(args: argparse.Namespace, sc: object) -> tuple[object, dict]:
+    from ..detection.thresholds import Threshold
+    from ..plants.scenario_types import Scenario
+    from ..plants.simulate import Simulation
+
+
+def chattering_threshold(args: argparse.Namespace, sc: Scenario) -> tuple[Threshold, dict[str, Any]]:
     """The chattering route's per-frame threshold at ``--alpha`` and its provenance.
 
     From ``--calibration FILE`` (refused without enough runs for the per-frame threshold), or
@@ -40,7 +48,7 @@ def chattering_threshold(args: argparse.Namespace, sc: object) -> tuple[object, 
         from ..studies.calibration import load_calibration
         from ..studies.calibration_support import require_support
 
-        cal = load_calibration(args.calibration, sc.nominal, config=config)  # type: ignore[attr-defined]
+        cal = load_calibration(args.calibration, sc.nominal, config=config)
         require_support(cal, "monitor", args.calibration)  # the per-frame threshold needs enough runs
         info = {"source": str(args.calibration), "runs": cal.runs, "alpha": cal.alpha, "seconds": 0.0}
     else:
@@ -77,9 +85,9 @@ def chattering_threshold(args: argparse.Namespace, sc: object) -> tuple[object, 
 DEFAULT_CHUNK_RUNS = 64
 
 
-def run_per_record(args: argparse.Namespace, sc: object, methods: tuple[str, ...]) -> int:
+def run_per_record(args: argparse.Namespace, sc: Scenario, methods: tuple[str, ...]) -> int:
     """``diagnose --per-record``: each route with its own rule (argmax; per-frame at ``--alpha``)."""
-    from ..plants.simulate import Simulation, iter_simulations
+    from ..plants.simulate import iter_simulations
 
     threshold, info = chattering_threshold(args, sc) if "chattering" in methods else (None, {})
     from ..studies.chattering_diagnosis import ChatteringTally
@@ -92,7 +100,7 @@ def run_per_record(args: argparse.Namespace, sc: object, methods: tuple[str, ...
     sim_s: float | None = None  # seconds spent simulating (None: on workers, inside their chunks)
     chunk = args.chunk_runs or DEFAULT_CHUNK_RUNS
     # fault identification beside the routes: per segment, on the same realizations (test level --alpha)
-    setup, why_not = _identify.setup_or_reason(sc.nominal, args)  # type: ignore[attr-defined]
+    setup, why_not = _identify.setup_or_reason(sc.nominal, args)
     ident = None
     parallel = args.workers > 1 or args.scheduler is not None
     if setup is not None and not parallel:
@@ -117,14 +125,23 @@ def run_per_record(args: argparse.Namespace, sc: object, methods: tuple[str, ...
             identification=None if setup is None else (setup, args.alpha, args.confidence),
         )
         if setup is not None:
-            ident = tallies.pop()  # the identification tally comes last
+            from ..studies.identification_diagnosis import IdentificationTally
+
+            last = tallies.pop()  # the identification tally comes last
+            assert isinstance(last, IdentificationTally)
+            ident = last
         if args.record is not None:
             first = simulate(sc, 1, args.seed)
     else:
         chunks = iter_simulations(sc, args.runs, args.seed, chunk_runs=min(chunk, args.runs))
-        tallies = [ChatteringTally(sc, threshold) if m == "chattering" else ModeTally(sc, m) for m in methods]
+        tallies = [
+            ChatteringTally(sc, cast("Threshold", threshold)) if m == "chattering" else ModeTally(sc, m)
+            for m in methods
+        ]  # (threshold: given with the chattering route)
         first, sim_s = _serial(args, sc, [*tallies, *([ident] if ident is not None else [])], chunks, outputs)
-    results = [t.result(info) if isinstance(t, ChatteringTally) else t.result() for t in tallies]
+    results = [
+        t.result(info) if isinstance(t, ChatteringTally) else cast(ModeTally, t).result() for t in tallies
+    ]
     ident_doc = (
         {"reason": why_not}
         if ident is None
@@ -138,6 +155,7 @@ def run_per_record(args: argparse.Namespace, sc: object, methods: tuple[str, ...
     if args.record is not None:
         from ..viewer.diagnosis_log import record_diagnosis
 
+        assert first is not None  # (realization 0, kept for --record)
         recording = written.write(
             "--record", args.record, record_diagnosis, args.record, first, threshold, outputs
         )
@@ -164,8 +182,8 @@ def run_per_record(args: argparse.Namespace, sc: object, methods: tuple[str, ...
 
 
 def _serial(
-    args: argparse.Namespace, sc: object, tallies: list, chunks: object, outputs: dict
-) -> tuple[object, float]:
+    args: argparse.Namespace, sc: Scenario, tallies: list, chunks: Iterator[Simulation], outputs: dict
+) -> tuple[Simulation | None, float]:
     """The in-process loop over chunks: realization 0 (for --record, else None) and the simulation time."""
     from ..progress import Progress
     from ..studies.mode_diagnosis import ModeTally
@@ -174,7 +192,7 @@ def _serial(
     with Progress(args.runs, "diagnose", enabled=False if args.no_progress else None) as bar:
         while True:
             t0 = time.perf_counter()
-            sim = next(chunks, None)  # type: ignore[call-overload]
+            sim = next(chunks, None)
             sim_s += time.perf_counter() - t0
             if sim is None:
                 break
@@ -190,10 +208,10 @@ def _serial(
     return first, sim_s
 
 
-def _print_table(sc: object, args: argparse.Namespace, results: list) -> None:
+def _print_table(sc: Scenario, args: argparse.Namespace, results: list) -> None:
     from ..figures.plot_diagnosis import diagnosis_rows
 
-    print(f"diagnosis on {sc.name}: {args.runs} runs, seed {args.seed} (per record: each route's own rule)")  # type: ignore[attr-defined]
+    print(f"diagnosis on {sc.name}: {args.runs} runs, seed {args.seed} (per record: each route's own rule)")
     header, rows = diagnosis_rows(results)
     widths = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]
     for r in [header, *rows]:

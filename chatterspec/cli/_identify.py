@@ -12,19 +12,11 @@ import argparse
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # pragma: no cover
+    import numpy as np
+
     from ..detection.identification import IdentificationSetup, IdentificationStream
-    from ..plants.models import LinearModel
+    from ..plants.nonlinear import Model
     from ..plants.scenarios import Scenario
-
-
-def confidence_arg(text: str) -> float:
-    """argparse type: a confidence level in (0, 1)."""
-    from ._common import alpha_arg
-
-    try:
-        return alpha_arg(text)  # the same open interval
-    except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(f"confidence must be a number in (0, 1); got {text!r}") from None
 
 
 def add_identification_args(p: argparse.ArgumentParser) -> None:
@@ -34,18 +26,43 @@ def add_identification_args(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="skip fault identification (which parameter changed, in physical units)",
     )
+    from ._options import add
+
+    add(p, "--confidence")
+
+
+def add_tolerance_args(p: argparse.ArgumentParser) -> None:
+    """``--tolerance NAME=SPEC`` (repeatable): a parameter's operating tolerance."""
     p.add_argument(
-        "--confidence",
-        type=confidence_arg,
-        default=0.95,
-        help="confidence level of the identified parameters' intervals (default 0.95); the hypothesis "
-        "tests use --alpha",
+        "--tolerance",
+        action="append",
+        default=[],
+        metavar="NAME=SPEC",
+        help="operating tolerance of the declared parameter NAME (repeat per parameter; beside or instead "
+        "of the model file's): 15%% (relative), 3e7 (absolute, the parameter's unit), -10%%,+20%% or "
+        "1.8e8,2.3e8 (a band). With tolerances the fault decision is taken on the identified parameters: "
+        "inside its band a parameter raises no alarm",
     )
 
 
-def setup_or_reason(
-    model: LinearModel, args: argparse.Namespace
-) -> tuple[IdentificationSetup | None, str | None]:
+def with_tolerance_args(model: Model, args: argparse.Namespace) -> Model:
+    """``model`` with the ``--tolerance NAME=SPEC`` of ``args`` (unchanged without any)."""
+    given = getattr(args, "tolerance", None) or []
+    if not given:
+        return model
+    from ..errors import ParameterError
+    from ..plants.tolerances import with_tolerances
+
+    spec = {}
+    for item in given:
+        name, sep, value = str(item).partition("=")
+        if not sep or not name.strip() or not value.strip():
+            raise ParameterError(f"--tolerance expects NAME=SPEC (e.g. bulk_modulus=15%); got {item!r}")
+        spec[name.strip()] = value.strip()
+    return with_tolerances(model, spec)
+
+
+def setup_or_reason(model: Model, args: argparse.Namespace) -> tuple[IdentificationSetup | None, str | None]:
     """The identification setup of ``model``, or why there is none (``--no-identify``, reduced order, ...)."""
     if getattr(args, "no_identify", False):
         return None, "skipped (--no-identify)"
@@ -100,10 +117,91 @@ def record_doc(
     return doc
 
 
+def tolerance_doc(ident: IdentificationStream, runs: int, args: argparse.Namespace) -> dict[str, Any] | None:
+    """Whole-record decisions on the identified parameters when the model declares tolerances (None
+    otherwise): per parameter run 0's estimate against its band and the fraction of records outside
+    (99 % Clopper-Pearson interval); the fault verdict of run 0 and the detection rate."""
+    import numpy as np
+    import scipy.special
+
+    from ..detection.parameter_records import record_decisions
+    from ..detection.parameter_scores import ParameterBands, band_position
+    from ..studies.intervals import clopper_pearson
+
+    res = ident.result()
+    pm = res.setup.parameter_map
+    if not pm.has_tolerances:
+        return None
+    dec = record_decisions(res, args.alpha)
+    bands = ParameterBands.from_map(pm)
+    zq = float(scipy.special.ndtri(0.5 + args.confidence / 2))
+    rows = []
+    for i, p in enumerate(bands.names):
+        th, se = float(dec["estimate"][0, i]), float(dec["std_error"][0, i])
+        k = int(dec["outside"][:, i].sum())
+        rows.append(
+            {
+                "parameter": p,
+                "unit": bands.units[i],
+                "nominal": float(bands.nominal[i]),
+                "tolerance": bands.tolerances[i] or None,
+                "band": [float(bands.low[i]), float(bands.high[i])],
+                "estimate": th,
+                "std_error": se,
+                "ci_low": th - zq * se,
+                "ci_high": th + zq * se,
+                "p_value": float(dec["p_value"][0, i]),
+                "position": band_position(th - zq * se, th + zq * se, bands.low[i], bands.high[i]),
+                "outside": bool(dec["outside"][0, i]),
+                "outside_records": k,
+                "outside_interval": list(clopper_pearson(k, runs)),
+            }
+        )
+    det = np.any(dec["outside"], axis=1)
+    return {
+        "decision": "parameters (tolerances)",
+        "test": "joint estimate of the whole record against each band, at alpha / parameters",
+        "alpha": args.alpha,
+        "confidence": args.confidence,
+        "parameters": rows,
+        "fault": bool(det[0]),
+        "detected_records": int(det.sum()),
+        "runs": runs,
+        "detection_interval": list(clopper_pearson(int(det.sum()), runs)),
+    }
+
+
+def print_tolerance(doc: dict[str, Any]) -> None:
+    """The ``detect`` block of the decision on the identified parameters (tolerances)."""
+    t = doc.get("tolerance")
+    if not t:
+        return
+    from ..detection.parameter_scores import status_text
+
+    n = len(t["parameters"])
+    print(
+        f"decision on the identified parameters (tolerances; the spectral verdicts above report the model "
+        f"mismatch): each whole-record joint estimate against its band at alpha/{n} = {t['alpha'] / n:.3g}"
+    )
+    for r in t["parameters"]:
+        ci = (r["ci_low"], r["ci_high"])
+        text = status_text(
+            r["parameter"], r["estimate"], r["std_error"], ci, r["nominal"], r["unit"], r["tolerance"] or "",
+            r["position"],
+        )  # fmt: skip
+        lo, hi = r["outside_interval"]
+        print(f"  {text}; outside in {r['outside_records']} of {t['runs']} records [{lo:.3f}, {hi:.3f}]")
+    lo, hi = t["detection_interval"]
+    print(
+        f"fault (run 0): {'YES' if t['fault'] else 'no'}; detected in {t['detected_records']} of {t['runs']} "
+        f"records [{lo:.3f}, {hi:.3f}] (99 % Clopper-Pearson)"
+    )
+
+
 def interval_docs(
     setup: IdentificationSetup,
-    z: Any,
-    u: Any,
+    z: np.ndarray,
+    u: np.ndarray,
     intervals: list[tuple[float, float]],
     duration: float,
     hop_s: float,
@@ -292,115 +390,6 @@ def print_demo_table(results: list[dict[str, Any]]) -> None:
                 f"{r['scenario']:<22} {win:<10} {sel:<18} {est:>12} {ci:>27} {h['unit'] or '-':<11} "
                 f"{'-' if t is None else f'{t:.6g}':>10}"
             )
-
-
-class MonitorIdentification:
-    """Online identification for ``chatterspec monitor``: per hop an ``identification`` event (JSON
-    lines), a human line when the selected hypothesis changes, and a summary for ``--json``.
-
-    The identification tests every hop at the monitor's per-frame alpha, which the alarm rule does not
-    (it holds false alarms to a budget per hour). So that the human lines follow the alarms, with
-    ``alarm_active`` set (a callable: is an alarm active now?) a fault or "unexplained" selection is
-    said only while an alarm is active (at the first hop of the alarm if it was selected before), and
-    "no fault" only after one was said; the JSON events and the summary's ``changes`` keep every change.
-
-    Parameters
-    ----------
-    setup : IdentificationSetup
-    hop_samples, window_hops : int
-        The monitor's hop and the window in hops (default: the STFT window).
-    t0 : float
-        Time (s) of the first row.
-    args : argparse.Namespace
-        ``alpha`` (the monitor's per-frame alpha) and ``confidence``.
-    emit : callable or None
-        Writes one JSON line (``--events jsonl`` with ``--identification-events``); None: no events.
-    say : callable
-        Writes one human line.
-    every_hop : bool
-        An event per hop (``every-hop``), or only when the selected hypothesis changes (``changes``).
-    """
-
-    def __init__(
-        self,
-        setup: IdentificationSetup,
-        hop_samples: int,
-        window_hops: int,
-        t0: float,
-        alpha: float,
-        confidence: float,
-        emit: Any,
-        say: Any,
-        every_hop: bool = False,
-    ) -> None:
-        from ..detection.identification_online import OnlineIdentifier
-
-        self.identifier = OnlineIdentifier(
-            setup, hop_samples=hop_samples, window_hops=window_hops, t0=t0, alpha=alpha, confidence=confidence
-        )
-        self.emit, self.say, self.every_hop = emit, say, every_hop
-        self.alarm_active: Any = None  # callable () -> bool, set once the monitor exists
-        self.selected: str | None = None
-        self.said: str | None = None  # the last selection said on the human line
-        self.changes: list[dict[str, Any]] = []
-        self.last: dict[str, Any] | None = None
-        self.windows = 0
-
-    def reset(self, t0: float) -> None:
-        """A gap or restart: start over at ``t0``."""
-        self.identifier.reset(t0)
-        self.selected = None
-
-    def push(self, z: Any, u: Any) -> None:
-        """Identify on one chunk of measurements ``z`` and inputs ``u`` and hand the results on."""
-        self.handle(self.identifier.push(z, u))
-
-    def handle(self, out: Any) -> None:
-        """Report the windows of one push."""
-        from ..jsonout import dumps
-
-        for i in range(out.n_windows):
-            rep = out.report(i)
-            self.windows += 1
-            doc = {"sample_time_s": round(float(out.times_s[i]), 9), **rep.to_dict()}
-            doc.pop("entries", None)
-            doc.pop("method", None)
-            changed = rep.selected != self.selected
-            if self.emit is not None and (self.every_hop or changed):
-                self.emit(dumps({"event": "identification", **doc}))
-            line = summary_line(rep.to_dict()) if changed else None
-            if changed:
-                self.selected = rep.selected
-                self.changes.append({"time_s": doc["sample_time_s"], "selected": rep.selected, "line": line})
-            if rep.selected != self.said and self._worth_saying(rep.selected):
-                # said when it changes, or later when the alarm that makes it worth saying starts
-                self.said = rep.selected
-                if line is None:
-                    line = summary_line(rep.to_dict())
-                self.say(
-                    f"identified at t = {float(out.times_s[i]):.2f} s (window {rep.window_s[0]:.2f}-"
-                    f"{rep.window_s[1]:.2f} s): {line}"
-                )
-            self.last = doc
-
-    def _worth_saying(self, selected: str) -> bool:
-        """Whether a change to ``selected`` gets a human line (see the class notes)."""
-        from ..detection.identification import NO_FAULT
-
-        if self.alarm_active is None:  # no alarm state known: every change
-            return True
-        if selected == NO_FAULT:
-            return self.said not in (None, NO_FAULT)
-        return bool(self.alarm_active())
-
-    def to_dict(self) -> dict[str, Any]:
-        """``windows`` identified, the ``changes`` of the selected hypothesis and the ``last`` window."""
-        return {
-            "window_s": self.identifier.window_s,
-            "windows": self.windows,
-            "changes": self.changes,
-            "last": self.last,
-        }
 
 
 def print_diagnosis(doc: dict[str, Any]) -> None:

@@ -6,13 +6,27 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+from typing import TYPE_CHECKING
 
-from ..errors import ParameterError
 from ..jsonout import dumps
-from . import _identify
 from ._alarm_args import _alarm_short, alarm_doc
+from ._monitor_identification import MonitorIdentification
+
+if TYPE_CHECKING:  # pragma: no cover
+    from types import FrameType
+    from typing import TextIO
+
+    from ..detection.monitor_settings import MonitorSettings
+    from ..plants.modelfile_fields import ModelSpec
+    from ..viewer.live_stream import StreamEvent, StreamSummary
 
 __all__: list[str] = []
+
+
+#: The exit status of a stream by what stopped it (the summary is printed and the recordings closed in
+#: every case): Ctrl-C 130 and SIGTERM 143 (128 + the signal number, as a shell reports a process the
+#: signal ended), as for a file replay; end of input, --idle-timeout and a reader that went away 0.
+EXIT_STATUS = {"SIGINT": 128 + signal.SIGINT, "SIGTERM": 128 + signal.SIGTERM}
 
 
 class _Terminated(Exception):
@@ -26,11 +40,11 @@ def _emit_line(text: str) -> None:
 
 def _run_stream(
     args: argparse.Namespace,
-    spec: object,
-    settings: object,
+    spec: ModelSpec,
+    settings: MonitorSettings,
     jsonl: bool,
-    human: object,
-    ident: _identify.MonitorIdentification | None = None,
+    human: TextIO,
+    ident: MonitorIdentification | None = None,
 ) -> int:
     from ..errors import ChatterspecError
     from ..online.stream import CsvRows, follow_file, read_fd
@@ -38,14 +52,16 @@ def _run_stream(
 
     stdin = str(args.data) == "-"
     where = "standard input" if stdin else f"data file {str(args.data)!r}"
-    if args.follow and not args.data.is_file():
-        raise ParameterError(f"--follow: {where} does not exist (create it, header first, then follow it)")
-    model = spec.model  # type: ignore[attr-defined]
+    model = spec.model
 
-    def on_event(ev: object) -> None:
+    def on_event(ev: StreamEvent) -> None:
+        if ident is not None:  # the alarm of the fault named; with tolerances a mismatch only
+            ident.note(ev.kind, ev.channel, ev.sample_time_s)
+            if ident.tolerances and ev.kind in ("fault-start", "fault-end"):
+                return
         if jsonl:
-            _emit_line(ev.to_json())  # type: ignore[attr-defined]
-        print(ev.describe(), file=human, flush=True)  # type: ignore[attr-defined]
+            _emit_line(ev.to_json())
+        print(ev.describe(), file=human, flush=True)
 
     def on_note(text: str) -> None:
         print(f"chatterspec monitor: {text}", file=sys.stderr, flush=True)
@@ -53,7 +69,7 @@ def _run_stream(
     try:
         mon = StreamMonitor(
             model,
-            settings,  # type: ignore[arg-type]
+            settings,
             record=args.record,
             record_every_s=None if args.record_every is None else 60.0 * args.record_every,
             live=args.live,
@@ -70,15 +86,13 @@ def _run_stream(
         raise OutputPathError(
             f"--record {str(args.record)!r} cannot be written ({exc.strerror or exc}); nothing was monitored"
         ) from None
-    if ident is not None:  # the human identification lines follow the alarms
-        ident.alarm_active = lambda: mon.monitor is not None and bool(mon.monitor.active.any())
     rows = CsvRows(model, where)
     if stdin:
         chunks = read_fd(sys.stdin.fileno())
     else:
         chunks = follow_file(args.data, from_end=args.from_end, idle_timeout_s=args.idle_timeout)
 
-    def on_term(signum: int, frame: object) -> None:
+    def on_term(signum: int, frame: FrameType | None) -> None:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)  # finishing must not be interrupted again
         raise _Terminated
 
@@ -109,7 +123,7 @@ def _run_stream(
         _quiet_stdout()
     if error is not None:
         raise error
-    return 0
+    return EXIT_STATUS.get(stopped, 0)
 
 
 def _quiet_stdout() -> None:
@@ -122,37 +136,43 @@ def _quiet_stdout() -> None:
 
 def _report(
     args: argparse.Namespace,
-    summary: object,
+    summary: StreamSummary,
     jsonl: bool,
-    human: object,
-    settings: object,
-    ident: _identify.MonitorIdentification | None = None,
+    human: TextIO,
+    settings: MonitorSettings,
+    ident: MonitorIdentification | None = None,
 ) -> None:
     s = summary  # StreamSummary
     if args.json:
         doc = {"model": str(args.model), "data": str(args.data), "alarm": alarm_doc(settings)}
-        doc.update(s.to_dict())  # type: ignore[attr-defined]
+        doc.update(s.to_dict())
         if ident is not None:
-            doc["identification"] = ident.to_dict()
+            ident.into_summary(doc)
         if jsonl:
             _emit_line(dumps({"event": "summary", **doc}))
         else:
             print(dumps(doc, indent=2))
         return
-    lat = s.latency  # type: ignore[attr-defined]
-    c = s.counts  # type: ignore[attr-defined]
+    lat = s.latency
+    c = s.counts
     latency = (
         f"latency median {lat['median_ms']:.2f} ms, max {lat['max_ms']:.2f} ms"
         if lat["frames"]
         else "no frame completed"
     )
+    starts, rule = c["fault-start"], _alarm_short(settings)
+    if ident is not None and ident.tolerances:
+        starts, rule = ident.starts, ident.rule_short()
     print(
-        f"{s.duration_s:.2f} s of data ({s.n_rows} rows), {s.n_frames} frames, "  # type: ignore[attr-defined]
-        f"{c['fault-start']} fault start(s) [{_alarm_short(settings)}], {c['gap']} gap(s), "
+        f"{s.duration_s:.2f} s of data ({s.n_rows} rows), {s.n_frames} frames, "
+        f"{starts} fault start(s) [{rule}], {c['gap']} gap(s), "
         f"{c['restart']} restart(s), "
-        f"{c['bad-row']} bad row(s) skipped; {latency}; {s.wall_s:.2f} s wall; "  # type: ignore[attr-defined]
-        f"stopped by {s.stopped_by}",  # type: ignore[attr-defined]
+        f"{c['bad-row']} bad row(s) skipped; {latency}; {s.wall_s:.2f} s wall; "
+        f"stopped by {s.stopped_by}",
         file=human,
     )
-    for rec in s.recordings:  # type: ignore[attr-defined]
+    if ident is not None:
+        for line in ident.status_lines():
+            print(f"  {line}", file=human)
+    for rec in s.recordings:
         print(f"recording: {rec['path']} (open with `chatterspec replay {rec['path']}`)", file=human)

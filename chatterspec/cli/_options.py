@@ -12,7 +12,7 @@ order ``--help`` lists them:
 * :func:`add_detector_args`: the spectral detector's ``--alpha``, ``--threshold``, ``--correction``,
   ``--band`` with the runs group (``detect``, ``demo``);
 * :func:`add_live_args`: ``--record FILE.rrd`` and ``--live URL|spawn``;
-* :func:`add_study_args`: the Monte Carlo study commands' ``--alpha``, runs, execution, ``--confidence``
+* :func:`add_study_args`: the Monte Carlo study commands' ``--alpha``, runs, execution, ``--mc-confidence``
   and report groups (``calibrate``, ``far``, ``power``), read back by :func:`study_keywords`.
 
 Building the parser imports nothing heavy (no scipy, matplotlib or scenario catalogue): a bad
@@ -23,9 +23,21 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-from ._common import alpha_arg, band_edge_arg, live_arg, nonnegative_int_arg, positive_int_arg
+from ._common import (
+    alpha_arg,
+    band_edge_arg,
+    confidence_arg,
+    live_arg,
+    nonnegative_int_arg,
+    positive_int_arg,
+    rate_arg,
+)
+
+if TYPE_CHECKING:  # pragma: no cover
+    from collections.abc import Callable
 
 #: The positional NAME of the commands that study a healthy scenario (calibrate, far).
 HEALTHY_NAME_HELP = "healthy scenario name or model file (.toml)"
@@ -49,7 +61,20 @@ OPTIONS: dict[str, dict[str, Any]] = {
         "default": None,
         "help": "realizations per chunk (rounded up to a multiple of 64, with a note)",
     },
-    "--confidence": {"type": float, "default": 0.99, "help": "interval level (default 0.99)"},
+    # the identified parameters' interval level (the identification's, a physical parameter's spread) ...
+    "--confidence": {
+        "type": confidence_arg,
+        "default": 0.95,
+        "help": "confidence level of the identified parameters' intervals (default 0.95); the hypothesis "
+        "tests use --alpha",
+    },
+    # ... is not the Monte Carlo intervals' (a rate or quantile estimated from --runs realizations)
+    "--mc-confidence": {
+        "type": confidence_arg,
+        "default": 0.99,
+        "help": "confidence level of the Monte Carlo intervals (rates: Clopper-Pearson, quantiles: order "
+        "statistics) (default 0.99)",
+    },
     "--json": {"action": "store_true", "help": "print one JSON document on stdout"},
     "--no-progress": {"action": "store_true", "help": "no progress bar on stderr"},
     "--alpha": {"type": alpha_arg},
@@ -57,7 +82,7 @@ OPTIONS: dict[str, dict[str, Any]] = {
         "choices": ("exact", "paper"),
         "default": "exact",
         "help": "'exact': per-bin chi-squared thresholds from the expected spectrum with family-wise "
-        "control (default); 'paper': the paper's flat bound (eq 58-62) at per-bin alpha",
+        "control; 'paper': the paper's flat bound (eq 58-62) at per-bin alpha (default exact)",
     },
     "--correction": {
         "choices": ("bonferroni", "sidak", "none"),
@@ -72,8 +97,12 @@ OPTIONS: dict[str, dict[str, Any]] = {
         "help": "test only the bins with LO <= f <= HI (Hz), for every threshold (single, averaged, STFT "
         "frames); the correction counts only these bins; DC and Nyquist stay excluded",
     },
-    "--calibration": {"metavar": "FILE"},
-    "--record": {"metavar": "FILE.rrd", "help": "write a Rerun recording of the run to FILE.rrd"},
+    "--calibration": {"type": Path, "metavar": "FILE"},
+    "--record": {
+        "type": Path,
+        "metavar": "FILE.rrd",
+        "help": "write a Rerun recording of the run to FILE.rrd",
+    },
     "--live": {
         "type": live_arg,
         "metavar": "URL|spawn",
@@ -81,6 +110,13 @@ OPTIONS: dict[str, dict[str, Any]] = {
         "or 'spawn' one (needs a display)",
     },
     "--plot": {"metavar": "FILE"},
+    # a data file the command computes (a calibration, a fitted model file); figures are --plot
+    "--out": {"type": Path, "metavar": "FILE"},
+    "--figures-dir": {"metavar": "DIR", "help": "where to write the PNGs (default {default})"},
+    "--rate": {
+        "type": rate_arg,
+        "help": "data seconds per wall second (default {default}; 1.0 = real time, 0 = as fast as possible)",
+    },
     "--dpi": {"type": positive_int_arg, "default": None, "help": "PNG resolution (default 110)"},
     # the alarm options: checked after parsing (``_alarm_args.alarm_choice``), so strings here
     "--rule": {"default": None},
@@ -104,7 +140,12 @@ def add(p: argparse.ArgumentParser, flag: str, **changes: Any) -> argparse.Actio
 
 
 def command(
-    sub: argparse._SubParsersAction, name: str, run: Any, *, help: str, description: str
+    sub: argparse._SubParsersAction,
+    name: str,
+    run: Callable[[argparse.Namespace], int],
+    *,
+    help: str,
+    description: str,
 ) -> argparse.ArgumentParser:
     """Add the subcommand ``name`` to ``sub``, run by ``run(args) -> int`` (its ``func``)."""
     p = sub.add_parser(name, help=help, description=description)
@@ -175,7 +216,7 @@ def add_study_args(p: argparse.ArgumentParser, *, alpha: float, runs: int, multi
     """The options of the Monte Carlo study commands (``calibrate``, ``far``, ``power``).
 
     ``--alpha`` (default ``alpha``; several with ``multi_alpha``), ``--runs`` (default ``runs``),
-    ``--seed``, the execution options with ``--chunk-runs``, ``--confidence``, ``--json`` and
+    ``--seed``, the execution options with ``--chunk-runs``, ``--mc-confidence``, ``--json`` and
     ``--no-progress``.
     """
     if multi_alpha:
@@ -188,7 +229,7 @@ def add_study_args(p: argparse.ArgumentParser, *, alpha: float, runs: int, multi
         workers_help="local worker processes (default 1)",
         chunk_runs_help=OPTIONS["--chunk-runs"]["help"],
     )
-    add(p, "--confidence")
+    add(p, "--mc-confidence")
     add_report_args(p)
 
 
@@ -203,8 +244,15 @@ def execution(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def study_execution(args: argparse.Namespace) -> dict[str, Any]:
-    """:func:`execution` of a study command, with ``confidence``; ``--chunk-runs`` rounded up to whole
-    blocks of realizations (with a note on stderr), so that the results do not depend on the chunking."""
+    """:func:`execution` of a study command, with ``confidence`` (``--mc-confidence``) and
+    :func:`round_chunk_runs`."""
+    round_chunk_runs(args)
+    return {**execution(args), "confidence": args.mc_confidence}
+
+
+def round_chunk_runs(args: argparse.Namespace) -> None:
+    """``--chunk-runs`` rounded up to whole blocks of realizations (with a note on stderr), so that the
+    results do not depend on the chunking."""
     from ..rng import BLOCK
 
     if args.chunk_runs is not None and args.chunk_runs % BLOCK:
@@ -215,7 +263,6 @@ def study_execution(args: argparse.Namespace) -> dict[str, Any]:
             file=sys.stderr,
         )
         args.chunk_runs = rounded
-    return {**execution(args), "confidence": args.confidence}
 
 
 def study_keywords(args: argparse.Namespace) -> dict[str, Any]:

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING, Any
 
 from ..errors import ParameterError
 from ._common import report_study
 from ._options import study_keywords
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..studies.excitation import ExcitationResult
 
 
 def add_closed_loop_args(p: argparse.ArgumentParser) -> None:
@@ -78,6 +82,11 @@ def run_closed_loop(args: argparse.Namespace) -> int:
         raise ParameterError(f"--closed-loop takes one fault size (--sizes S); got {len(args.sizes)}")
     if args.noise is not None:
         raise ParameterError("--closed-loop varies the position sensor: use --position-noise-mm, not --noise")
+    if args.dither_hz is not None and args.dither_signal != "multisine":
+        raise ParameterError(
+            f"--dither-hz sets the tones of the multisine dither; --dither-signal {args.dither_signal} has "
+            "none"
+        )
     points = excitation_points(args.references, args.dither)
     noise = (1e-5,) if args.position_noise_mm is None else tuple(x * 1e-3 for x in args.position_noise_mm)
     res = excitation_study(
@@ -98,7 +107,7 @@ def run_closed_loop(args: argparse.Namespace) -> int:
     )
 
 
-def _print_excitation(res, doc: dict, dither_at: str) -> None:  # type: ignore[no-untyped-def]
+def _print_excitation(res: ExcitationResult, doc: dict[str, Any], dither_at: str) -> None:
     """The text report of an excitation study ``res`` (``doc``: its JSON document): table and answers."""
     print(
         f"closed-loop detection power, {res.family} {res.size:g} {res.unit} on {res.channel}: linear EHA "

@@ -8,16 +8,25 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from ..errors import ParameterError
-from ._alarm_args import add_alarm_args, alarm_choice, positive_number
-from ._common import Outputs, check_figure_path, check_output_path, parsed_arg, report, write_plot
-from ._options import add, add_name, add_study_args, command, study_execution, study_keywords
+from ._alarm_args import add_alarm_args, alarm_choice
+from ._common import (
+    Outputs,
+    check_figure_path,
+    check_output_path,
+    parsed_arg,
+    report,
+    stderr_note,
+    write_plot,
+)
+from ._options import add, add_name, add_study_args, command, study_keywords
 
-#: The former names of the study options and their execution keywords (now in :mod:`._options`).
-add_common = add_study_args
-execution = study_execution
+if TYPE_CHECKING:  # pragma: no cover
+    from ..studies.calibration_result import Calibration
+    from ._alarm_args import AlarmChoice
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,19 +41,37 @@ def register(sub: argparse._SubParsersAction) -> None:
         "confidence intervals. NAME is a healthy catalogue scenario or a TOML model file. --out writes a "
         "calibration file (.json or .npz) that detection can load instead of the analytic threshold. With "
         "--rule / --false-alarms-per-hour the file also holds the monitor's alarm threshold for that "
-        "budget (rule, budget and frames per hour recorded; the monitor refuses it for another rule).",
+        "budget (rule, budget and frames per hour recorded; the monitor refuses it for another rule). "
+        "With --data the thresholds come from a recorded healthy run of your plant instead of simulated "
+        "runs (the same file; it records the data file's name, SHA-256 and span).",
     )
     add_name(p)
     add_study_args(p, alpha=1e-2, runs=1000)
-    add_alarm_args(p, what="the monitor using the file", hours=False)
-    p.add_argument(
-        "--hours",
-        default=None,
-        metavar="H",
-        help="with --rule / --false-alarms-per-hour: hours of healthy data simulated for the alarm "
-        "threshold (default 48; its interval shrinks like 1/sqrt(H))",
+    add_alarm_args(
+        p,
+        what="the monitor using the file",
+        hours_default=f"{ALARM_HOURS:g}, with --rule / --false-alarms-per-hour: the file's threshold for "
+        "all-day use; its interval shrinks like 1/sqrt(H)",
     )
-    p.add_argument("--out", metavar="FILE", help="write the calibration file (.json or .npz)")
+    add(p, "--out", help="write the calibration file (.json or .npz)")
+    p.add_argument(
+        "--data",
+        type=Path,
+        default=None,
+        help="read the thresholds from a recorded healthy run (.csv or .npz with the model's columns, or "
+        "'-' for CSV rows on standard input) instead of simulating: per-frame and record thresholds with "
+        "order-statistic intervals, and with --rule / --false-alarms-per-hour the alarm threshold with "
+        "its jackknife interval; a budget the recording is too short for is refused with the hours it needs",
+    )
+    p.add_argument(
+        "--normalization",
+        choices=("model", "data"),
+        default=None,
+        help="with --data: normalize the spectra by the model's healthy spectrum ('model', the default for a "
+        "linear model) or by the recording's own mean spectrum ('data': a healthy spectrum of another shape, "
+        "e.g. coloured sensor noise or mains hum, is not taken for a fault; the only one for a nonlinear "
+        "model)",
+    )
     add(p, "--plot", help="save a figure of analytic vs empirical thresholds")
     p.add_argument(
         "--tail-budget",
@@ -55,6 +82,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(default 128); above it the quantiles come from fixed-size tail histograms (point at most one "
         "fine bucket above the exact one, intervals widened outward); 0 forces the histograms",
     )
+
+
+#: Hours of healthy data simulated for the file's alarm threshold by default (``--alarm-hours``).
+ALARM_HOURS = 48.0
 
 
 def _megabytes(text: str) -> int:
@@ -71,19 +102,32 @@ def _megabytes(text: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec calibrate`` with the parsed ``args``; returns the exit status."""
+    if args.data is not None:  # thresholds from a recorded healthy run
+        from ._calibrate_recorded import run_recorded
+
+        return run_recorded(args)
+    if args.normalization is not None:
+        raise ParameterError(
+            "--normalization applies to --data (a simulated calibration of a linear model "
+            "uses the model's spectrum, of a nonlinear one the pilot runs' mean)"
+        )
     check_output_path(args.out, "--out")
     check_figure_path(args.plot)
     outputs = Outputs()
     supports = _check_support(args)  # also an unknown name or a bad model file, before the heavy imports
     choice = alarm_choice(args)
-    wants_alarm = choice.explicit_rule or choice.explicit_budget or args.hours is not None
-    hours = _hours(args.hours)
+    wants_alarm = choice.explicit_rule or choice.explicit_budget or choice.hours is not None
+    hours = ALARM_HOURS if choice.hours is None else choice.hours
+    if wants_alarm:  # the budget and the hours can be computed: checked before the healthy runs
+        _check_alarm_plan(args.name, choice, hours)
     from ..studies.calibration import calibrate
 
     tails = {} if args.tail_budget is None else {"tail_budget": args.tail_budget}
     cal = calibrate(args.name, **study_keywords(args), **tails)
     if wants_alarm:
-        cal = _with_alarm(cal, args.name, choice, hours, args.seed)
+        cal = _with_alarm(
+            cal, args.name, choice, hours, args.seed, progress=False if args.no_progress else None
+        )
     doc = cal.to_dict()
     doc["support"] = {use: s.to_dict() for use, s in supports.items()}
     if args.out:
@@ -93,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
     return report(args, doc, outputs, lambda: _print_calibration(cal, doc), allow_nan=True)
 
 
-def _print_calibration(cal: Any, doc: dict) -> None:
+def _print_calibration(cal: Calibration, doc: dict) -> None:
     """The text report of a calibration ``cal`` (``doc``: its JSON document)."""
     if cal.alarm is not None:
         print(f"alarm rule for the monitor: {cal.alarm.describe()}")
@@ -125,12 +169,24 @@ def _print_calibration(cal: Any, doc: dict) -> None:
         print(f"  calibration file: {doc['calibration_file']}")
 
 
-def _hours(text: str | None) -> float:
-    """``--hours H`` (default 48): a positive, finite number of hours."""
-    return 48.0 if text is None else positive_number(text, "--hours", "a number of hours")
+def _check_alarm_plan(name: str, choice: Any, hours: float) -> None:
+    """The budget has a threshold and ``hours`` can be simulated, for the STFT of the calibration
+    (:func:`chatterspec.studies.alarm_budget.check_hours`): one line before any healthy run."""
+    from ..detection.alarm_calibration import check_budget
+    from ..online.monitor_types import MonitorSettings
+    from ..studies.alarm_budget import check_hours, frames_per_hour
+    from ..studies.healthy import resolve_scenario
+
+    sc = resolve_scenario(name)
+    settings = MonitorSettings()  # the STFT of `calibrate` (chatterspec.studies.calibration)
+    F = frames_per_hour(settings, sc.dt)
+    check_budget(choice.budget, "--false-alarms-per-hour", steps_per_hour=F, channels=sc.nominal.n_outputs)
+    check_hours(sc.nominal, settings, hours, sc)
 
 
-def _with_alarm(cal: Any, name: str, choice: Any, hours: float, seed: int) -> Any:
+def _with_alarm(
+    cal: Calibration, name: str, choice: AlarmChoice, hours: float, seed: int, progress: bool | None
+) -> Calibration:
     """``cal`` with the monitor's alarm threshold for ``choice``, on the score the monitor computes with
     this file (its empirical per-frame threshold's normalization)."""
     import dataclasses
@@ -145,7 +201,17 @@ def _with_alarm(cal: Any, name: str, choice: Any, hours: float, seed: int) -> An
     stft = STFTConfig(**cal.stft)
     settings = MonitorSettings(stft=stft, threshold=cal.threshold("frame-family-wise"))
     rule = make_rule(choice.rule, **choice.parameters)
-    rc = calibrate_alarm(sc.nominal, settings, rule, choice.budget, hours=hours, seed=seed, scenario=sc)
+    rc = calibrate_alarm(
+        sc.nominal,
+        settings,
+        rule,
+        choice.budget,
+        hours=hours,
+        seed=seed,
+        scenario=sc,
+        note=stderr_note("calibrate"),
+        progress=progress,
+    )
     return dataclasses.replace(cal, alarm=rc)
 
 
@@ -162,8 +228,8 @@ def _check_support(args: argparse.Namespace) -> dict[str, Any]:
     sc = load_scenario(args.name)
     per_frame = frames_per_run(sc.n_samples - 1, 1.0, sc.dt)  # the calibration's STFT: 1 s windows
     supports = {
-        "detect": support_for("detect", args.runs, args.alpha, args.confidence),
-        "monitor": support_for("monitor", args.runs, args.alpha, args.confidence, per_frame),
+        "detect": support_for("detect", args.runs, args.alpha, args.mc_confidence),
+        "monitor": support_for("monitor", args.runs, args.alpha, args.mc_confidence, per_frame),
     }
     bad = [s for s in supports.values() if not s.supported]
     if len(bad) == len(supports):
@@ -180,14 +246,12 @@ def _check_support(args: argparse.Namespace) -> dict[str, Any]:
     return supports
 
 
-def _save_calibration(cal: Any, path: str) -> Any:
-    from pathlib import Path
-
+def _save_calibration(cal: Calibration, path: str) -> Path:
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     return cal.save(path)
 
 
-def _print_empirical(cal, doc: dict) -> int:
+def _print_empirical(cal: Calibration, doc: dict[str, Any]) -> int:
     """Text report of a calibration with an empirical normalization (nonlinear model)."""
     info = cal.normalization_info
     print(f"calibration of {cal.scenario}: alpha = {cal.alpha:g}, {cal.runs} healthy runs, seed {cal.seed}")

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from . import _identify
 from ._common import Outputs, band_from_args, check_output_path, print_json
-from ._options import add_detector_args, add_report_args, command
+from ._options import add, add_detector_args, add_report_args, command
 
 #: Scenarios of the demo, in table order.
 DEMO_SCENARIOS: tuple[str, ...] = (
@@ -47,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "print a table, write figures (figures/demo/) and Rerun recordings (recordings/demo/).",
     )
     add_detector_args(p)
-    p.add_argument("--figures-dir", default="figures/demo", help="where to write PNGs (default figures/demo)")
+    add(p, "--figures-dir", default="figures/demo")
     p.add_argument(
         "--recordings-dir",
         default="recordings/demo",
@@ -129,9 +129,9 @@ def run(args: argparse.Namespace) -> int:
             for fig_name in DEMO_FIGURES:
                 rendered = render(fig_name, seed=args.seed)
                 target = Path(args.figures_dir) / f"{fig_name}.png"
-                path = outputs.write("--figures-dir", target, save_figure, rendered.figure, target)
-                if path is not None:
-                    figures.append(str(path))
+                saved = outputs.write("--figures-dir", target, save_figure, rendered.figure, target)
+                if saved is not None:
+                    figures.append(str(saved))
                 bar.update(1, fig_name)
             figures.append(str(demo_summary(results, Path(args.figures_dir) / "summary.png")))
     wall = time.perf_counter() - t_start
@@ -201,7 +201,7 @@ def _print_table(results: list[dict], args: argparse.Namespace) -> None:
     print(head)
     print("-" * len(head))
     for r in results:
-        intervals = {}
+        intervals: dict[str, list[str]] = {}
         for iv in r.get("intervals", []):
             intervals.setdefault(iv["channel"], []).append(f"[{iv['onset_s']:.1f}, {iv['offset_s']:.1f}]")
         for i, c in enumerate(r["channels"]):

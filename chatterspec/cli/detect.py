@@ -8,14 +8,19 @@ from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from ..detection.identification import IdentificationSetup, IdentificationStream
+    from ..detection.monitor_settings import MonitorSettings
     from ..detection.pipeline import ChatteringRecord
+    from ..detection.report import DetectionReport
     from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
+    from ..studies.calibration_result import Calibration
+    from ._alarm_args import AlarmChoice
 
 from ..errors import ParameterError
 from . import _identify
 from ._alarm_args import add_alarm_args, alarm_choice
-from ._common import Outputs, band_from_args, check_record_path, load_scenario, print_json
+from ._common import Outputs, band_from_args, check_record_path, load_scenario, print_json, stderr_note
 from ._options import add, add_detector_args, add_execution_args, add_live_args, add_report_args, command
 
 
@@ -46,6 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_alarm_args(p, what="the --record / --live monitor")
     add_execution_args(p)
     _identify.add_identification_args(p)
+    _identify.add_tolerance_args(p)
     add_report_args(p)
     # None = not given (the defaults of add_detector_args are filled in by run): a calibration fixes
     # the threshold, so an explicit --alpha / --threshold / --correction next to it is refused
@@ -74,6 +80,10 @@ def run(args: argparse.Namespace) -> int:
         if getattr(args, key) is None:
             setattr(args, key, value)
     sc = load_scenario(args.name)  # an unknown name fails here, before the heavy imports
+    if args.tolerance:
+        import dataclasses
+
+        sc = dataclasses.replace(sc, nominal=_identify.with_tolerance_args(sc.nominal, args))
     band = band_from_args(args)
     choice = alarm_choice(args, default_rule=_file_rule(args))  # bad options stop here, before simulating
     from ..detection.detect import detect_chunks
@@ -93,6 +103,11 @@ def run(args: argparse.Namespace) -> int:
     first: list = []
     progress = False if args.no_progress or args.runs < PROGRESS_MIN_RUNS else None
     setup, why_not = _identify.setup_or_reason(sc.nominal, args)
+    pmap = getattr(sc.nominal, "parameter_map", None)
+    if setup is None and pmap is not None and pmap.has_tolerances:
+        raise ParameterError(
+            f"the tolerances are decided on the identified parameters, and there are none: {why_not}"
+        )
     ident = None
     parallel = args.workers > 1 or args.scheduler is not None
     if parallel:  # the same numbers from worker processes / Dask
@@ -145,6 +160,7 @@ def run(args: argparse.Namespace) -> int:
         settings = _alarm_settings(args, choice, sc, settings, cal if args.calibration else None)
         doc["alarm"] = None if settings.budget is None else settings.budget.to_dict()
         outputs = Outputs()
+        assert sim is not None  # (simulated above for --record / --live)
         summary = outputs.write(
             "--record", args.record, record_detection, sim, settings, path=args.record, live=args.live
         )
@@ -157,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         print_report(doc)
         _identify.print_identification(doc)
+        _identify.print_tolerance(doc)
     if args.record or args.live:
         outputs.finish()  # a failed recording: the result above is printed first
     return 0
@@ -173,8 +190,12 @@ def _file_rule(args: argparse.Namespace) -> str | None:
 
 
 def _alarm_settings(
-    args: argparse.Namespace, choice: object, sc: object, settings: object, cal: object
-) -> object:
+    args: argparse.Namespace,
+    choice: AlarmChoice,
+    sc: Scenario,
+    settings: MonitorSettings,
+    cal: Calibration | None,
+) -> MonitorSettings:
     """The recording monitor's alarm rule: the calibration file's, or set here for the budget (linear);
     a nonlinear scenario whose file holds no alarm calibration keeps the per-frame rule."""
     from ..studies.alarm_budget import alarm_settings
@@ -182,9 +203,9 @@ def _alarm_settings(
 
     file_alarm = getattr(cal, "alarm", None)
     if file_alarm is not None:
-        rc = check_file_alarm(choice, file_alarm, args.calibration)  # type: ignore[arg-type]
-        return alarm_settings(sc.nominal, settings, calibration=rc)  # type: ignore[attr-defined]
-    if not sc.is_linear:  # type: ignore[attr-defined]
+        rc = check_file_alarm(choice, file_alarm, args.calibration)
+        return alarm_settings(sc.nominal, settings, calibration=rc)
+    if not sc.is_linear:
         print(
             "chatterspec detect: note: the recording's monitor uses the per-frame rule (calibrate "
             f"{args.name}'s healthy scenario with --rule for a false-alarm budget)",
@@ -193,12 +214,13 @@ def _alarm_settings(
         return settings
     c = choice  # AlarmChoice
     return alarm_settings(
-        sc.nominal,  # type: ignore[attr-defined]
+        sc.nominal,
         settings,
-        c.rule,  # type: ignore[attr-defined]
-        c.budget,  # type: ignore[attr-defined]
-        hours=c.hours,  # type: ignore[attr-defined]
-        **c.parameters,  # type: ignore[attr-defined]
+        c.rule,
+        c.budget,
+        hours=c.hours,
+        note=stderr_note("detect"),
+        **c.parameters,
     )
 
 
@@ -220,10 +242,10 @@ def with_progress(
 
 def add_identification(
     doc: dict,
-    report: object,
-    setup: object,
+    report: DetectionReport,
+    setup: IdentificationSetup | None,
     why_not: str | None,
-    ident: object,
+    ident: IdentificationStream | None,
     sim: Simulation | None,
     sc: Scenario,
     args: argparse.Namespace,
@@ -233,7 +255,11 @@ def add_identification(
     if setup is None:
         doc["identification"] = {"reason": why_not}
         return
+    assert ident is not None  # (made with the setup)
     doc["identification"] = _identify.record_doc(ident, args.runs, setup, sc)
+    tol = _identify.tolerance_doc(ident, args.runs, args)
+    if tol is not None:
+        doc["tolerance"] = tol
     frames = getattr(report, "frames", None)
     if sim is not None and frames is not None and frames.intervals.get("any"):
         hop = frames.spectrogram.config.hop_s

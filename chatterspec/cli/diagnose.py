@@ -11,7 +11,7 @@ to ``--false-alarms-per-hour`` alarm starts per hour (:mod:`chatterspec.studies.
 Per route: the false alarms realized on the diagnosed runs' healthy time (before the first onset, after
 ``--warmup``) per hour with their two-sided Poisson (Garwood) interval, the detection delay per onset
 (median, 90th percentile), missed onsets, isolation, the cost (realization-samples per second), and
-``--figure FILE.png``: the detection delay against the false alarms per hour with the thresholds
+``--plot FILE.png``: the detection delay against the false alarms per hour with the thresholds
 swept on the same realizations. ``--per-record`` gives the former table instead (each route with its
 own rule: argmax of the modes, per-frame chattering at ``--alpha``), which cannot rank the routes.
 
@@ -24,23 +24,34 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import TYPE_CHECKING, Any
 
 from ..errors import ParameterError
 from . import _identify
 from ._common import Outputs, check_figure_path, check_record_path, positive_int_arg, report
 from ._options import add, add_execution_args, add_name, add_report_args, add_runs_args, command, execution
 
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.thresholds import Threshold
+    from ..plants.scenario_types import Scenario
+    from ..studies.budget_diagnosis import BudgetSettings
+    from ..studies.routes import Route
+
 #: Healthy runs of the budget's calibration streams by default: on eha4-leak-timeline (9 s records) 500 runs
 #: (1.2 h) are too few for the alarm layer to extrapolate the chattering and innovation routes' CUSUM to one
 #: false alarm per hour (the fitted counts span less than a factor e); 1000 (2.3-2.5 h) are enough.
 DEFAULT_CALIBRATION_RUNS = 1000
 
+#: The routes of :data:`chatterspec.studies.routes.ALL_METHODS` and the start-up default
+#: :data:`chatterspec.studies.route_sweep.DEFAULT_WARMUP_S` (s), listed here so that building the parser
+#: (``chatterspec --help``) does not import numpy; a test keeps them equal.
+METHOD_NAMES: tuple[str, ...] = ("chattering", "smm", "imm", "innovation", "parameters")
+WARMUP_S = 0.1
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``chatterspec diagnose`` and its options to the subcommand parsers ``sub``."""
-    from ..detection.alarms import rule_names
-    from ..studies.route_sweep import DEFAULT_WARMUP_S
-    from ..studies.routes import ALL_METHODS
+    from ..detection.alarm_rules import RULES, rule_names
 
     p = command(
         sub,
@@ -56,7 +67,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--methods",
         default=None,
-        help=f"comma-separated subset of {','.join(ALL_METHODS)} (default: every one the scenario supports)",
+        help=f"comma-separated subset of {','.join(METHOD_NAMES)} (default: every one the scenario supports)",
     )
     add_runs_args(p, 10, runs_help="realizations (default 10)")
     add(
@@ -66,18 +77,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="false-alarm budget of every route: alarm starts per hour of healthy time (default 1)",
     )
     add(p, "--rule", choices=rule_names(), help="alarm rule of every route (default cusum)")
+    k, n = RULES["persistence"].parameters["k"], RULES["persistence"].parameters["n"]
     add(
         p,
         "--persistence-k",
-        help="persistence rule: steps (frames or samples) over the threshold among the last N (default 2)",
+        help=f"persistence rule: steps (frames or samples) over the threshold among the last N (default {k})",
     )
-    add(p, "--persistence-n", help="persistence rule: window in steps (default 3)")
+    add(p, "--persistence-n", help=f"persistence rule: window in steps (default {n})")
     p.add_argument(
         "--warmup",
         type=float,
-        default=DEFAULT_WARMUP_S,
+        default=WARMUP_S,
         metavar="S",
-        help=f"seconds of start-up not fed to the rules (default {DEFAULT_WARMUP_S:g})",
+        help=f"seconds of start-up not fed to the rules (default {WARMUP_S:g})",
     )
     p.add_argument(
         "--nis-inflation",
@@ -112,24 +124,25 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--alpha",
         default=None,
         help="chattering: per-frame level of the in-call calibration, the --per-record threshold and the "
-        "recording (default 1e-3; not with --calibration)",
+        "recording (default 0.001; not with --calibration)",
     )
     add_execution_args(
         p,
         chunk_runs_help="realizations simulated and diagnosed together (memory grows with it, not with "
         "--runs; the results do not depend on it)",
     )
-    p.add_argument("--figure", metavar="FILE", default=None, help="write the delay-vs-false-alarms figure")
+    add(p, "--plot", help="save the delay-vs-false-alarms figure")
     p.add_argument(
         "--per-record", action="store_true", help="each route with its own rule (the former table)"
     )
     _identify.add_identification_args(p)
+    _identify.add_tolerance_args(p)
     add_report_args(p, json_help="print one JSON document")
     add(p, "--record", default=None, help="write realization 0 to a Rerun file")
     p.set_defaults(cusum_drift=None)  # each route sets its own CUSUM drift
 
 
-def _methods(text: str | None, sc: object, per_record: bool) -> tuple[str, ...]:
+def _methods(text: str | None, sc: Scenario, per_record: bool) -> tuple[str, ...]:
     from ..studies.routes import ALL_METHODS, supported_methods, unsupported_reason
 
     allowed = tuple(m for m in ALL_METHODS if not (per_record and m == "innovation"))
@@ -137,7 +150,7 @@ def _methods(text: str | None, sc: object, per_record: bool) -> tuple[str, ...]:
     if text is None:
         if not supported:
             raise ParameterError(
-                f"scenario {sc.name!r} supports no diagnosis method here; try eha4-leak-timeline"  # type: ignore[attr-defined]
+                f"scenario {sc.name!r} supports no diagnosis method here; try eha4-leak-timeline"
             )
         return supported
     names = tuple(s.strip() for s in text.split(",") if s.strip())
@@ -153,30 +166,34 @@ def _methods(text: str | None, sc: object, per_record: bool) -> tuple[str, ...]:
         why = unsupported_reason(sc, name)
         if why is not None:
             raise ParameterError(
-                f"scenario {sc.name!r} does not support --methods {name} (it needs {why}); "  # type: ignore[attr-defined]
+                f"scenario {sc.name!r} does not support --methods {name} (it needs {why}); "
                 f"supported here: {','.join(supported) or 'none'}"
             )
     return tuple(dict.fromkeys(names))
 
 
-def _scenario(args: argparse.Namespace) -> object:
+def _scenario(args: argparse.Namespace) -> Scenario:
     from ..plants.scenarios import scenario
     from ..studies.route_sweep import onsets_of
 
     sc = scenario(args.name)
+    if args.tolerance:
+        import dataclasses
+
+        sc = dataclasses.replace(sc, nominal=_identify.with_tolerance_args(sc.nominal, args))
     if args.onset is not None:
         from ..studies.scenario_variants import with_onset
 
         sc = with_onset(sc, args.onset)
     if not onsets_of(sc):
         raise ParameterError(
-            f"scenario {sc.name!r} has no fault onset to diagnose (it is healthy); for false alarms on "  # type: ignore[attr-defined]
+            f"scenario {sc.name!r} has no fault onset to diagnose (it is healthy); for false alarms on "
             "healthy data use `chatterspec far` or `chatterspec monitor`"
         )
     return sc
 
 
-def _settings(args: argparse.Namespace) -> object:
+def _settings(args: argparse.Namespace) -> BudgetSettings:
     from ..studies.budget_diagnosis import BudgetSettings
     from ._alarm_args import alarm_choice
 
@@ -187,16 +204,21 @@ def _settings(args: argparse.Namespace) -> object:
     return BudgetSettings(choice.budget, choice.rule, params, args.warmup, args.calibration_runs)
 
 
-def _routes(args: argparse.Namespace, sc: object, methods: tuple[str, ...]) -> tuple[dict, object, dict]:
+def _routes(
+    args: argparse.Namespace, sc: Scenario, methods: tuple[str, ...]
+) -> tuple[dict[str, Route], Threshold | None, dict[str, Any]]:
     """The route objects, the per-frame threshold of the recording (chattering) and its provenance."""
-    from ..studies.routes import ChatteringRoute, InnovationRoute, ModeRoute
+    from ..studies.routes import ChatteringRoute, InnovationRoute, ModeRoute, ParameterRoute
 
-    routes: dict = {}
-    threshold, info = None, {}
+    routes: dict[str, Route] = {}
+    threshold: Threshold | None = None
+    info: dict[str, Any] = {}
     for m in methods:
         if m == "chattering":
             threshold, info = _chattering_law(args, sc)
             routes[m] = ChatteringRoute(sc, threshold)
+        elif m == "parameters":
+            routes[m] = ParameterRoute(sc)
         elif m == "innovation":
             kw = {} if args.nis_inflation is None else {"inflation": args.nis_inflation}
             routes[m] = InnovationRoute(sc, cap=(args.rule or "cusum") == "cusum", **kw)
@@ -205,18 +227,18 @@ def _routes(args: argparse.Namespace, sc: object, methods: tuple[str, ...]) -> t
     return routes, threshold, info
 
 
-def _chattering_law(args: argparse.Namespace, sc: object) -> tuple[object, dict]:
+def _chattering_law(args: argparse.Namespace, sc: Scenario) -> tuple[Threshold, dict[str, Any]]:
     """The healthy law of the chattering frame score: exact for a linear model, else calibrated."""
-    if sc.is_linear:  # type: ignore[attr-defined]
+    if sc.is_linear:
         if args.calibration is not None:
             raise ParameterError(
                 "--calibration: a linear model's frame score uses its exact law, not a calibration file; "
                 "drop --calibration (or give --per-record for the per-frame table)"
             )
-        from ..detection.spectral import STFTConfig
+        from ..detection.spectral import STFTConfig, spectrum_model
         from ..detection.thresholds import frame_threshold
 
-        model, config = sc.nominal, STFTConfig()  # type: ignore[attr-defined]
+        model, config = spectrum_model(sc.nominal), STFTConfig()
         th = frame_threshold(model, config.freqs_hz(model.dt), config, model.dt, args.alpha)
         return th, {"source": "exact law of the linear model", "alpha": args.alpha}
     from ._diagnose_per_record import chattering_threshold
@@ -237,12 +259,12 @@ def run(args: argparse.Namespace) -> int:
         args.calibration_runs is None
     ):  # at a budget, 500 runs (1.2 h of 9 s records) cannot calibrate every route
         args.calibration_runs = 500 if args.per_record else DEFAULT_CALIBRATION_RUNS
-    check_figure_path(args.figure, "--figure")
+    check_figure_path(args.plot)
     sc = _scenario(args)
     methods = _methods(args.methods, sc, args.per_record)
     if args.per_record:
-        if args.figure is not None:
-            raise ParameterError("--figure draws the comparison at a budget; drop --per-record")
+        if args.plot is not None:
+            raise ParameterError("--plot draws the comparison at a budget; drop --per-record")
         from ._diagnose_per_record import run_per_record
 
         return run_per_record(args, sc, methods)
@@ -263,13 +285,13 @@ def run(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t0
     outputs = Outputs()
     figure = recording = None
-    if args.figure is not None:
+    if args.plot is not None:
         from ..figures.plot_diagnosis import delay_far_figure
         from ..figures.plot_studies import save
 
-        at = f"{settings.rule} rule at {settings.budget_per_hour:g} false alarm(s)/h"  # type: ignore[attr-defined]
-        title = f"{sc.name}: {args.runs} runs, {at}"  # type: ignore[attr-defined]
-        figure = outputs.write("--figure", args.figure, save, delay_far_figure(results, title), args.figure)
+        at = f"{settings.rule} rule at {settings.budget_per_hour:g} false alarm(s)/h"
+        title = f"{sc.name}: {args.runs} runs, {at}"
+        figure = outputs.write("--plot", args.plot, save, delay_far_figure(results, title), args.plot)
     if args.record is not None:
         from ..viewer.diagnosis_log import record_budget_diagnosis
 
@@ -285,12 +307,12 @@ def run(args: argparse.Namespace) -> int:
             threshold,
         )
     doc = {
-        "scenario": sc.name,  # type: ignore[attr-defined]
+        "scenario": sc.name,
         "runs": args.runs,
         "seed": args.seed,
-        "budget_per_hour": settings.budget_per_hour,  # type: ignore[attr-defined]
-        "rule": settings.rule,  # type: ignore[attr-defined]
-        "warmup_s": settings.warmup_s,  # type: ignore[attr-defined]
+        "budget_per_hour": settings.budget_per_hour,
+        "rule": settings.rule,
+        "warmup_s": settings.warmup_s,
         "chattering_law": law_info or None,
         "wall_s": wall,
         "methods": [r.describe() for r in results],
@@ -313,14 +335,14 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _print_budget_table(
-    sc: object, args: argparse.Namespace, settings: object, results: list, wall: float
+    sc: Scenario, args: argparse.Namespace, settings: BudgetSettings, results: list, wall: float
 ) -> None:
     from ..figures.plot_diagnosis import budget_rows
 
     print(
-        f"diagnosis on {sc.name}: {args.runs} runs, seed {args.seed}; {settings.rule} rule, every route "  # type: ignore[attr-defined]
-        f"calibrated to {settings.budget_per_hour:g} false alarm(s) per hour on healthy streams "  # type: ignore[attr-defined]
-        f"({settings.calibration_runs} runs; how, per route, below); warm-up {settings.warmup_s:g} s; "  # type: ignore[attr-defined]
+        f"diagnosis on {sc.name}: {args.runs} runs, seed {args.seed}; {settings.rule} rule, every route "
+        f"calibrated to {settings.budget_per_hour:g} false alarm(s) per hour on healthy streams "
+        f"({settings.calibration_runs} runs; how, per route, below); warm-up {settings.warmup_s:g} s; "
         f"{wall:.1f} s"
     )
     header, rows = budget_rows(results)
@@ -333,10 +355,10 @@ def _print_budget_table(
         print(f"{r.method}: {how}" + (f"; {c['never_alarms']}" if "never_alarms" in c else ""))
 
 
-def identification_doc(args: argparse.Namespace, sc: object) -> dict:
+def identification_doc(args: argparse.Namespace, sc: Scenario) -> dict:
     """Fault identification per fault segment on the diagnosed realizations (seed ``--seed``, the
     routes' runs), at test level ``--alpha``; ``{"reason": ...}`` where the model gives none."""
-    setup, why_not = _identify.setup_or_reason(sc.nominal, args)  # type: ignore[attr-defined]
+    setup, why_not = _identify.setup_or_reason(sc.nominal, args)
     if setup is None:
         return {"reason": why_not}
     from ..plants.simulate import iter_simulations

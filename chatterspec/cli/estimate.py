@@ -3,12 +3,20 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from ..errors import ParameterError
 from ..filter_registry import FILTERS
-from ._common import Outputs, check_record_path, report
-from ._options import add, add_execution_args, add_name, add_report_args, add_runs_args, command, execution
+from ._common import Outputs, alpha_arg, check_record_path, report
+from ._options import (
+    OPTIONS,
+    add,
+    add_execution_args,
+    add_name,
+    add_report_args,
+    add_runs_args,
+    command,
+    execution,
+    round_chunk_runs,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,9 +42,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_execution_args(
         p,
         workers_help="local worker processes (default 1)",
-        chunk_runs_help="realizations per chunk (multiple of 64)",
+        chunk_runs_help=OPTIONS["--chunk-runs"]["help"],
     )
-    add(p, "--alpha", default=0.05, help="two-sided level of the NEES/NIS intervals (default 0.05)")
+    p.add_argument(
+        "--consistency-alpha",
+        type=alpha_arg,
+        default=0.05,
+        metavar="A",
+        help="two-sided level of the NEES/NIS chi-squared consistency intervals (default 0.05)",
+    )
     add_report_args(p)
     add(
         p,
@@ -45,36 +59,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
 
 
-def _check_output(path: str | None) -> None:
-    """Fail before any computation if the recording cannot be written."""
-    check_record_path(path)
-    if path is None:
-        return
-    target = Path(path)
-    if target.is_dir():
-        raise ParameterError(f"--record {path!r} is a directory; give a file name ending in .rrd")
-    parent = target.parent if str(target.parent) else Path(".")
-    if parent.exists() and not parent.is_dir():
-        raise ParameterError(f"--record: {str(parent)!r} is not a directory")
-    existed = target.exists()
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-        with open(target, "ab"):
-            pass
-    except OSError as exc:
-        raise ParameterError(f"--record: cannot write {path!r}: {exc.strerror or exc}") from None
-    if not existed:
-        target.unlink()
-
-
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec estimate`` with the parsed ``args``; returns the exit status."""
     from ..studies.estimation import estimation_study, parse_filters
 
     names = parse_filters(args.filters)
-    _check_output(args.record)
+    round_chunk_runs(args)  # whole blocks of 64 realizations (with a note), as the other studies
+    check_record_path(args.record)  # before the (slow) study: a bad path fails at once
     res = estimation_study(
-        args.name, names, runs=args.runs, seed=args.seed, alpha=args.alpha, **execution(args)
+        args.name, names, runs=args.runs, seed=args.seed, alpha=args.consistency_alpha, **execution(args)
     )
     doc = res.to_dict()
     outputs = Outputs()  # a recording that cannot be written: the table first, then one line, exit 2

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from ._common import check_figure_path, report_study
 from ._options import add, add_name, add_study_args, command, study_keywords
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..studies.false_alarms import FalseAlarmResult
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -42,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     return report_study(args, res, "plot_studies.far_figure", lambda doc: _print_rates(res))
 
 
-def _print_rates(res) -> None:  # type: ignore[no-untyped-def]
+def _print_rates(res: FalseAlarmResult) -> None:
     """The text table of a false-alarm study ``res``."""
     print(
         f"false alarms on {res.scenario}: {res.runs} healthy runs, seed {res.seed}, "
@@ -56,6 +60,7 @@ def _print_rates(res) -> None:  # type: ignore[no-untyped-def]
     for r in res.rates:
         pb = r.per_bin
         grp = r.family_wise if r.family_wise is not None else r.per_frame
+        assert grp is not None  # (a record or a frame rate: one of the two)
         w = max(grp, key=lambda e: e.rate)
         print(
             f"{r.kind:<22} {r.alpha:>7.2g} {r.alpha_meaning:<12} "

@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "PNG files. Spectrum figures draw the paper's flat threshold (eq 58-62, alpha per bin) and the "
         "exact chi-squared threshold (eq 56, alpha family-wise, Bonferroni).",
     )
-    p.add_argument("--out", default="figures", metavar="DIR", help="output folder (default: figures/)")
+    add(p, "--figures-dir", default="figures")
     add_runs_args(
         p,
         None,  # each figure's own
@@ -77,11 +77,9 @@ def selected_figures(only: str | None) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec figures`` with the parsed ``args``; returns the exit status."""
-    if not args.list:  # before the (slow) imports: a bad --out fails at once
-        out = Path(args.out)
-        if out.exists() and not out.is_dir():
-            raise ParameterError(f"--out must be a folder; {str(out)!r} is a file")
-        check_output_path(out, "--out", folder=True)
+    if not args.list:  # before the (slow) imports: a bad --figures-dir fails at once
+        out = Path(args.figures_dir)
+        check_output_path(out, "--figures-dir", folder=True)
     from ..figures import plotting
     from ..figures.paper_figures import FIGURES, render
     from ..progress import Progress
@@ -103,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
             t0 = time.perf_counter()
             fig = render(name, runs=args.runs, seed=args.seed)
             target = out / f"{name}.png"
-            path = outputs.write("--out", target, plotting.save_figure, fig.figure, target, dpi=dpi)
+            path = outputs.write("--figures-dir", target, plotting.save_figure, fig.figure, target, dpi=dpi)
             seconds = time.perf_counter() - t0
             if path is None:
                 bar.update(1, note=f"{name} not written")
@@ -127,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(
             {
-                "out": str(out),
+                "figures_dir": str(out),
                 "seed": args.seed,
                 "runs": args.runs,
                 "seconds": round(total, 3),

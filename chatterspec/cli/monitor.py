@@ -1,4 +1,4 @@
-"""``chatterspec monitor --model MODEL.toml --data DATA.csv|DATA.npz|-``: monitor a user's own plant.
+"""``chatterspec monitor MODEL.toml --data DATA.csv|DATA.npz|-``: monitor a user's own plant.
 
 The model file and data format are documented in ``examples/README.md`` and
 :mod:`chatterspec.plants.modelfile`. A finished file is replayed through the online monitor
@@ -21,14 +21,27 @@ import threading
 import time
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING, TextIO
 
 from ..errors import ParameterError
 from ..jsonout import dumps
 from . import _identify
 from ._alarm_args import _alarm_line, _alarm_short, add_alarm_args, alarm_choice, alarm_doc
-from ._common import Outputs, band_from_args, check_record_path, positive_int_arg
+from ._common import Outputs, band_from_args, check_record_path, positive_int_arg, stderr_note
+from ._monitor_identification import MonitorIdentification
 from ._monitor_stream import _emit_line, _run_stream
 from ._options import add, add_report_args, command
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.monitor_settings import MonitorSettings
+    from ..detection.spectral import STFTConfig
+    from ..online.monitor import ChatteringMonitor, DetectionEvent
+    from ..plants.datafile import DataSet
+    from ..plants.modelfile_fields import ModelSpec
+    from ..plants.nonlinear import Model
+    from ..studies.calibration_result import Calibration
+    from ..viewer.drivers import RecordingSummary
+    from ._alarm_args import AlarmChoice
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -44,8 +57,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "data: CSV or NPZ with columns named after the model's outputs and inputs.",
     )
     p.add_argument(
-        "--model",
-        required=True,
+        "model",
+        metavar="MODEL",
         type=Path,
         help="model file (.toml; linear, or nonlinear with --calibration)",
     )
@@ -91,11 +104,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="streams: start a new .rrd every MINUTES of data (>= 0.05; each complete on its own, named "
         "<record stem>-<UTC start time>.rrd)",
     )
-    p.add_argument(
+    add(
+        p,
         "--rate",
-        type=float,
-        default=None,
-        help="replay speed, 1.0 = real time (default: as fast as possible)",
+        default=0.0,
+        help="replay speed of a file: data seconds per wall second (default 0 = as "
+        "fast as possible; 1.0 = real time)",
     )
     add(p, "--record", type=Path, default=None, help="write a Rerun recording")
     add(
@@ -133,16 +147,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--chunk",
         type=positive_int_arg,
         default=None,
-        help="samples per push (default: one STFT hop with --rate, five otherwise)",
+        help="samples per push (default: one STFT hop with --rate > 0, five otherwise)",
     )
     _identify.add_identification_args(p)
+    _identify.add_tolerance_args(p)
     p.add_argument(
         "--identification-events",
         choices=("none", "changes", "every-hop"),
         default="none",
-        help="with --events jsonl: an 'identification' event (estimates, intervals, tests of the window "
-        "ending at that hop) whenever the identified hypothesis changes, or at every hop; emitted after "
-        "the monitor's events of the same push (order by sample_time_s). Default none",
+        help="with --events jsonl: an 'identification' event (every parameter's estimate, interval, "
+        "detectable change and state; the fault named, only while an alarm is active) whenever the fault "
+        "named or a state (healthy, fault, not excited) changes, or at every hop; emitted after the "
+        "monitor's events of the same push (order by sample_time_s). Default none",
     )
     add_report_args(p, progress=False, json_help="print one JSON summary on stdout")
 
@@ -158,7 +174,7 @@ def _stream_mode(args: argparse.Namespace) -> bool:
     stream = stdin or args.follow
     if not args.follow and (args.from_end or args.idle_timeout is not None):
         raise ParameterError("--from-end and --idle-timeout apply to --follow")
-    if stream and args.rate is not None:
+    if stream and args.rate:
         raise ParameterError("--rate paces a file replay; a stream is monitored as it arrives")
     if not stream and (args.skip_bad_rows or args.record_every is not None):
         raise ParameterError(
@@ -173,15 +189,18 @@ def _stream_mode(args: argparse.Namespace) -> bool:
         )
     if args.idle_timeout is not None and not args.idle_timeout > 0:
         raise ParameterError(f"--idle-timeout must be > 0 s; got {args.idle_timeout}")
+    if args.identification_events != "none" and args.events != "jsonl":
+        raise ParameterError(
+            "--identification-events writes JSON lines: it needs --events jsonl (the text lines always say "
+            "what was identified)"
+        )
     return stream
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec monitor`` with the parsed ``args``; returns the exit status."""
-    from ..plants.modelfile import load_data, load_model
+    from ..plants.modelfile import load_model
 
-    if args.rate is not None and not args.rate > 0:
-        raise ParameterError(f"--rate must be > 0 (1.0 = real time); got {args.rate}")
     check_record_path(args.record)
     stream = _stream_mode(args)
     jsonl = args.events == "jsonl"
@@ -192,8 +211,11 @@ def run(args: argparse.Namespace) -> int:
         spec = load_model(args.model)
     for w in caught:
         print(f"chatterspec monitor: warning: {w.message}", file=sys.stderr)
-    from ..detection.spectral import STFTConfig  # after the model file: its errors come at once
-    from ..online.monitor import ChatteringMonitor, MonitorSettings
+    if args.tolerance:
+        spec = dataclasses.replace(spec, model=_identify.with_tolerance_args(spec.model, args))
+    pmap = getattr(spec.model, "parameter_map", None)
+    tolerances = pmap is not None and pmap.has_tolerances
+    from ..online.monitor import ChatteringMonitor, MonitorSettings  # after the model file: its errors first
     from ..plants.measurement import require_linear_measurement
 
     require_linear_measurement(spec.model, "the chattering monitor")
@@ -203,20 +225,20 @@ def run(args: argparse.Namespace) -> int:
             f"needs a threshold calibrated on healthy runs: `chatterspec calibrate {args.model} --out "
             "CAL.npz`, then --calibration CAL.npz"
         )
-    det = spec.detector
-    stft = STFTConfig(
-        window_s=float(det.get("window_s", 1.0)),
-        hop_s=float(det.get("hop_s", 0.2)),
-        window=str(det.get("window", "hamming")),
-    )
-    settings = MonitorSettings(
-        stft=stft,
-        alpha=float(args.alpha if args.alpha is not None else det.get("alpha", 1e-3)),
-        correction=str(det.get("correction", "bonferroni")),  # type: ignore[arg-type]
+    settings = MonitorSettings.from_detector(
+        spec.detector,
         gamma=spec.gamma,
-        psi=None if spec.psi is None else tuple(spec.psi.tolist()),  # nonlinear: the sgn-SVSF only
-        band=band_from_args(args) or det.get("band"),
+        psi=None if spec.psi is None else spec.psi.tolist(),  # nonlinear: the sgn-SVSF only
+        alpha=args.alpha,
+        band=band_from_args(args),
     )
+    stft = settings.stft
+    # a bad file fails before any simulation (a followed file: its header, when it has one)
+    data: DataSet | None = None
+    if args.follow:
+        _follow_header(args, spec.model)
+    elif not stream:
+        data = _replay_data(args, spec, stft)
     cal = None
     if args.calibration is not None:
         if args.alpha is not None:
@@ -233,43 +255,84 @@ def run(args: argparse.Namespace) -> int:
     choice = alarm_choice(args, alpha_given=args.alpha is not None, default_rule=file_rule)
     if cal is not None:
         settings = dataclasses.replace(settings, threshold=cal.threshold("frame-family-wise"))
+        src = cal.source  # recorded healthy data, or simulated runs
+        made = f"{cal.runs} healthy runs"
+        if src:
+            made = f"{src['hours']:.3g} h of recorded healthy data {src['data']}"
         print(
             f"chatterspec monitor: empirical per-frame threshold of {args.calibration} "
-            f"(alpha {cal.alpha:g} per frame, {cal.runs} healthy runs)",
+            f"(alpha {cal.alpha:g} per frame, {made})",
             file=sys.stderr,
         )
-    settings = _alarm_settings(args, choice, spec.model, settings, cal)
-    print(f"chatterspec monitor: {_alarm_line(settings)}", file=sys.stderr)
     setup, why_not = _identify.setup_or_reason(spec.model, args)
+    if tolerances:
+        if setup is None:
+            raise ParameterError(
+                f"the tolerances of {args.model} are decided on the identified parameters, and this model's "
+                f"cannot be identified: {why_not}"
+            )
+        if args.alpha is not None:
+            raise ParameterError(
+                "--alpha sets the spectral frame rule's per-frame level; with tolerances the decision is "
+                "taken on the identified parameters at a false-alarm budget: give --false-alarms-per-hour"
+            )
+    else:  # with tolerances the spectral detector only reports mismatch: no alarm rule to calibrate
+        settings = _alarm_settings(args, choice, spec.model, settings, cal)
+    decision = None
+    if setup is not None:
+        from ..detection.alarms import make_rule
+        from ..detection.parameter_decision import parameter_alarm_settings
+        from ..errors import IdentifiabilityError
+
+        hop = stft.n_hop(spec.model.dt)
+        X = settings.false_alarms_per_hour or choice.budget
+        try:
+            decision = parameter_alarm_settings(
+                setup,
+                hop_s=hop * spec.model.dt,
+                window_hops=max(1, round(stft.n_window(spec.model.dt) / hop)),
+                rule=make_rule(choice.rule, **choice.parameters),
+                false_alarms_per_hour=X,
+            )
+        except IdentifiabilityError as exc:  # the parameters cannot all be fitted at once
+            if tolerances:
+                raise
+            setup, why_not = None, str(exc)
+    if tolerances and decision is not None and decision.calibration is not None:
+        print(
+            "chatterspec monitor: decision on the identified parameters (tolerances; the spectral detector "
+            f"reports mismatch only): {decision.calibration.describe()}",
+            file=sys.stderr,
+        )
+    else:
+        print(f"chatterspec monitor: {_alarm_line(settings)}", file=sys.stderr)
     if why_not is not None and not args.no_identify:
         print(f"chatterspec monitor: no fault identification: {why_not}", file=sys.stderr)
 
-    def identification(t0: float) -> _identify.MonitorIdentification | None:
-        """Per-hop identification over the STFT window, at the monitor's per-frame alpha."""
-        if setup is None:
+    def identification(t0: float) -> MonitorIdentification | None:
+        """Per-hop identification over the STFT window and the decisions on the parameters."""
+        if setup is None or decision is None:
             return None
-        hop = stft.n_hop(spec.model.dt)
-        return _identify.MonitorIdentification(
-            setup,
-            hop,
-            max(1, round(stft.n_window(spec.model.dt) / hop)),
-            t0,
-            settings.alpha,
-            args.confidence,
-            _emit_line if jsonl and args.identification_events != "none" else None,
+        from ..online.identification_monitor import IdentificationMonitor
+
+        mon = IdentificationMonitor(setup, decision, t0=t0, alpha=settings.alpha, confidence=args.confidence)
+        events = {"none": None, "changes": False, "every-hop": True}[args.identification_events]
+        return MonitorIdentification(
+            mon,
+            _emit_line if jsonl else None,
             lambda text: print(text, file=human, flush=True) if not args.json or jsonl else None,
-            every_hop=args.identification_events == "every-hop",
+            every_hop=events,
         )
 
     if stream:
         return _run_stream(args, spec, settings, jsonl, human, identification(0.0))
+    assert data is not None  # a file replay read its data above
 
     from ..viewer.drivers import run_monitor
     from ..viewer.live_stream import StreamEvent
     from ..viewer.sinks import default_recording_path, open_sinks
 
     preload = _preload_rerun() if (args.record is not None or args.live is not None) else None
-    data = load_data(args.data, spec.model)
     monitor = ChatteringMonitor(spec.model, settings, t0=float(data.t[0]))
     _warm_up(monitor)  # kernels and FFT plans load here (while Rerun loads on its thread), not in the loop
     if preload is not None:
@@ -291,16 +354,19 @@ def run(args: argparse.Namespace) -> int:
         print(f"chatterspec monitor: {note}", file=sys.stderr)
     shown = len(sinks.notes)
 
-    def show(ev: object) -> None:
-        sev = StreamEvent.from_detection(ev, time.time())  # type: ignore[arg-type]
+    ident = identification(float(data.t[0]))
+
+    def show(ev: DetectionEvent) -> None:
+        if ident is not None:  # the alarm of the fault named; with tolerances a mismatch only
+            ident.note(ev.kind, ev.channel, ev.time_s)
+            if ident.tolerances:
+                return
+        sev = StreamEvent.from_detection(ev, time.time())
         if jsonl:
             _emit_line(sev.to_json())
         if not args.json or jsonl:
             print(sev.describe(), file=human, flush=True)
 
-    ident = identification(float(data.t[0]))
-    if ident is not None:
-        ident.alarm_active = lambda: bool(monitor.active.any())
     try:
         summary = run_monitor(
             monitor,
@@ -308,9 +374,9 @@ def run(args: argparse.Namespace) -> int:
             z=data.z,
             u=data.u,
             chunk_samples=args.chunk,
-            rate=args.rate,
+            rate=args.rate or None,  # 0: as fast as possible
             on_event=show,
-            identifier=None if ident is None else ident.identifier,
+            identifier=None if ident is None else ident.monitor,
             on_identification=None if ident is None else ident.handle,
         )
     except KeyboardInterrupt:
@@ -327,22 +393,69 @@ def run(args: argparse.Namespace) -> int:
         outputs.failures.append(
             f"--record {str(args.record)!r} could not be completed ({summary.write_error})"
         )
-    rc = _report_replay(args, spec, stft, summary, jsonl, human, settings, ident, why_not)
+    _report_replay(args, summary, jsonl, human, settings, ident, why_not)
     outputs.finish()
-    return rc
+    return 0
 
 
-def _report_replay(args, spec, stft, summary, jsonl: bool, human, settings, ident=None, why_not=None) -> int:  # type: ignore[no-untyped-def]
-    """Print the summary of a file replay; 1 when the data gave no STFT frame."""
-    no_frame = None
-    if summary.n_frames == 0:
-        n_window = stft.n_window(spec.model.dt)
-        no_frame = (
-            f"no STFT frame could be analysed: the data give {summary.n_samples} chattering samples "
-            f"({summary.duration_s:.3g} s), fewer than one window of {n_window} samples "
-            f"(window_s = {stft.window_s:g} s at dt = {spec.model.dt:g} s); give longer data or a "
+def _follow_header(args: argparse.Namespace, model: Model) -> None:
+    """``--follow FILE``: the file exists and, once it has a header line, that header fits the model.
+
+    Raises
+    ------
+    ParameterError
+        The file does not exist.
+    DataFileError
+        Its header lacks a column of the model (or repeats one).
+    """
+    import time
+
+    from ..online.stream import CsvRows
+
+    where = f"data file {str(args.data)!r}"
+    if not args.data.is_file():
+        raise ParameterError(f"--follow: {where} does not exist (create it, header first, then follow it)")
+    with open(args.data, "rb") as f:
+        head = f.read(1 << 16)
+    CsvRows(model, where).feed(head[: head.rfind(b"\n") + 1], time.perf_counter())  # complete lines only
+
+
+def _replay_data(args: argparse.Namespace, spec: ModelSpec, stft: STFTConfig) -> DataSet:
+    """The data file of a replay, read and checked whole: at least one STFT window of chattering.
+
+    Raises
+    ------
+    DataFileError
+        The file cannot be read, does not fit the model, or is shorter than one window (the chattering
+        starts at the second sample: ``rows - 1`` samples).
+    """
+    from ..errors import DataFileError
+    from ..plants.datafile import load_data
+
+    model = spec.model
+    data = load_data(args.data, model)
+    n_window = stft.n_window(model.dt)
+    rows = data.z.shape[0]
+    if rows - 1 < n_window:
+        raise DataFileError(
+            f"data file {str(args.data)!r}: {rows} rows give {rows - 1} chattering samples "
+            f"({(rows - 1) * model.dt:.3g} s), fewer than one STFT window of {n_window} samples "
+            f"(window_s = {stft.window_s:g} s at dt = {model.dt:g} s); give longer data or a "
             f"shorter [detector] window_s in {args.model}"
         )
+    return data
+
+
+def _report_replay(
+    args: argparse.Namespace,
+    summary: RecordingSummary,
+    jsonl: bool,
+    human: TextIO,
+    settings: MonitorSettings,
+    ident: MonitorIdentification | None = None,
+    why_not: str | None = None,
+) -> None:
+    """Print the summary of a file replay (the data held at least one STFT frame: :func:`_replay_data`)."""
     if args.json:
         doc = {
             "model": str(args.model),
@@ -350,27 +463,29 @@ def _report_replay(args, spec, stft, summary, jsonl: bool, human, settings, iden
             "alarm": alarm_doc(settings),
             **summary.to_dict(),
         }
-        doc["identification"] = {"reason": why_not} if ident is None else ident.to_dict()
-        if no_frame is not None:
-            doc["notes"] = [*doc["notes"], no_frame]
+        if ident is None:
+            doc["identification"] = {"reason": why_not}
+        else:
+            ident.into_summary(doc)
         if jsonl:
             _emit_line(dumps({"event": "summary", **doc}, allow_nan=True))
         else:
             print(dumps(doc, indent=2, allow_nan=True))
-        return 0 if no_frame is None else 1
-    if no_frame is not None:
-        print(f"chatterspec monitor: error: {no_frame}", file=sys.stderr)
-        return 1
-    else:
-        n = sum(e.kind == "fault-start" for e in summary.events)
-        print(
-            f"{summary.duration_s:.2f} s of data, {summary.n_frames} frames, {n} fault start(s) "
-            f"[{_alarm_short(settings)}]; {summary.wall_s:.2f} s wall",
-            file=human,
-        )
-        if summary.path is not None and not summary.write_error:
-            print(f"recording: {summary.path} (open with `chatterspec replay {summary.path}`)", file=human)
-    return 0
+        return
+    n = sum(e.kind == "fault-start" for e in summary.events)
+    rule = _alarm_short(settings)
+    if ident is not None and ident.tolerances:
+        n, rule = ident.starts, ident.rule_short()
+    print(
+        f"{summary.duration_s:.2f} s of data, {summary.n_frames} frames, {n} fault start(s) "
+        f"[{rule}]; {summary.wall_s:.2f} s wall",
+        file=human,
+    )
+    if ident is not None:
+        for line in ident.status_lines():
+            print(f"  {line}", file=human)
+    if summary.path is not None and not summary.write_error:
+        print(f"recording: {summary.path} (open with `chatterspec replay {summary.path}`)", file=human)
 
 
 def _preload_rerun() -> threading.Thread:
@@ -390,7 +505,7 @@ def _preload_rerun() -> threading.Thread:
     return thread
 
 
-def _warm_up(monitor: object) -> None:
+def _warm_up(monitor: ChatteringMonitor) -> None:
     """One window of zeros through a throw-away copy of ``monitor`` (same model, settings, threshold):
     the compiled kernels (numba cache) and FFT plans load before the replay's clock starts, as in the
     stream monitor and the in-process benchmark."""
@@ -398,49 +513,54 @@ def _warm_up(monitor: object) -> None:
 
     from ..online.monitor import ChatteringMonitor
 
-    m = monitor.model  # type: ignore[attr-defined]
-    settings = dataclasses.replace(monitor.settings, threshold=monitor.threshold)  # type: ignore[attr-defined]
+    m = monitor.model
+    settings = dataclasses.replace(monitor.settings, threshold=monitor.threshold)
     warm = ChatteringMonitor(m, settings)
     n = warm.n_window + 2
     warm.push(np.zeros((n, m.n_outputs)), np.zeros((n, m.n_inputs)))
 
 
 def _alarm_settings(
-    args: argparse.Namespace, choice: object, model: object, settings: object, cal: object
-) -> object:
+    args: argparse.Namespace,
+    choice: AlarmChoice,
+    model: Model,
+    settings: MonitorSettings,
+    cal: Calibration | None,
+) -> MonitorSettings:
     """The monitor's alarm rule: ``--alpha`` (the per-frame rule), a calibration file's, or set here."""
     from ..studies.alarm_budget import alarm_settings
 
     c = choice  # AlarmChoice
     if args.alpha is not None:
-        return dataclasses.replace(settings, alpha=float(args.alpha))  # type: ignore[type-var]
+        return dataclasses.replace(settings, alpha=float(args.alpha))
     file_alarm = getattr(cal, "alarm", None)
     if file_alarm is not None:
         from ._alarm_args import check_file_alarm
 
-        rc = check_file_alarm(c, file_alarm, args.calibration)  # type: ignore[arg-type]
+        rc = check_file_alarm(c, file_alarm, args.calibration)
         return alarm_settings(model, settings, calibration=rc)
     from ..plants.nonlinear import is_linear
 
-    if not is_linear(model) and (c.explicit_rule or c.explicit_budget):  # type: ignore[attr-defined]
+    if not is_linear(model) and (c.explicit_rule or c.explicit_budget):
         raise ParameterError(
             f"{args.calibration} holds no alarm threshold, and a nonlinear model's needs simulated healthy "
-            f"records: `chatterspec calibrate {args.model} --rule {c.rule} --false-alarms-per-hour "  # type: ignore[attr-defined]
-            f"{c.budget:g} --out FILE`, then --calibration FILE"  # type: ignore[attr-defined]
+            f"records: `chatterspec calibrate {args.model} --rule {c.rule} --false-alarms-per-hour "
+            f"{c.budget:g} --out FILE`, then --calibration FILE"
         )
-    if cal is not None and not (c.explicit_rule or c.explicit_budget):  # type: ignore[attr-defined]
+    if cal is not None and not (c.explicit_rule or c.explicit_budget):
         print(
             f"chatterspec monitor: note: {args.calibration} holds no alarm calibration (made without "
-            f"--rule): the per-frame rule at its alpha {cal.alpha:g}",  # type: ignore[attr-defined]
+            f"--rule): the per-frame rule at its alpha {cal.alpha:g}",
             file=sys.stderr,
         )
         return settings
-    hours = c.hours  # type: ignore[attr-defined]  (None: the in-call default)
+    hours = c.hours  # (None: the in-call default)
     return alarm_settings(
         model,
         settings,
         c.rule,
         c.budget,
         hours=hours,
-        **c.parameters,  # type: ignore[attr-defined]
+        note=stderr_note("monitor"),
+        **c.parameters,
     )

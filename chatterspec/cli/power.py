@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from ..errors import ParameterError
 from ._common import check_figure_path, report_study
 from ._options import add, add_study_args, command, study_keywords
 from ._power_closed_loop import add_closed_loop_args, run_closed_loop
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..studies.power import PowerResult
 
 #: The fault families of :data:`chatterspec.studies.power.POWER_FAMILIES` (listed here so that parsing the
 #: command line does not import the studies; a test keeps the two equal).
@@ -52,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     return report_study(args, res, "plot_studies.power_figure", lambda doc: _print_power(res))
 
 
-def _print_power(res) -> None:  # type: ignore[no-untyped-def]
+def _print_power(res: PowerResult) -> None:
     """The text table of a power study ``res``: detection rate per noise level, size and threshold kind."""
     from ..studies.power import POWER_FAMILIES
 

@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from ..errors import DataFileError
+from ..errors import DataFileError, ViewerUnavailableError
 from ._options import command
 
 
@@ -51,21 +51,18 @@ def run(args: argparse.Namespace) -> int:
         )
     exe = find_viewer()
     if exe is None:
-        print(
-            "chatterspec replay: the `rerun` viewer was not found; install rerun-sdk>=0.41,<0.42",
-            file=sys.stderr,
-        )
-        return 1
+        raise ViewerUnavailableError("the `rerun` viewer was not found; install rerun-sdk>=0.41,<0.42")
     if not has_display():
-        print(
-            f"chatterspec replay: no display (DISPLAY / WAYLAND_DISPLAY unset). Copy {path} to a machine "
-            f"with a display and run `chatterspec replay {path.name}` or `rerun {path.name}` there; "
-            f"or serve it to a browser with `{exe} --serve-web {path}` and open the printed URL.",
-            file=sys.stderr,
+        raise ViewerUnavailableError(
+            f"no display (DISPLAY / WAYLAND_DISPLAY unset). Copy {path} to a machine with a display and "
+            f"run `chatterspec replay {path.name}` or `rerun {path.name}` there; or serve it to a browser "
+            f"with `{exe} --serve-web {path}` and open the printed URL."
         )
-        return 1
     proc = subprocess.Popen([exe, str(path)], start_new_session=not args.wait)
     if args.wait:
-        return proc.wait()
+        status = proc.wait()
+        if status != 0:  # one exit status per outcome: the viewer's own is reported, not passed on
+            raise ViewerUnavailableError(f"the viewer ended with status {status}")
+        return 0
     print(f"opened {path} in the Rerun viewer (pid {proc.pid})", file=sys.stderr)
     return 0

@@ -4,10 +4,15 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 from ..errors import ParameterError
 from ..jsonout import dumps
 from ._options import add_report_args, command
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..plants.nonlinear import NonlinearModel
+    from ..plants.scenario_types import Scenario
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -30,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=Path,
         default=None,
         metavar="FILE",
-        help="write NAME's nominal model as a TOML model file for `chatterspec monitor --model FILE`",
+        help="write NAME's nominal model as a TOML model file for `chatterspec monitor FILE`",
     )
 
 
@@ -44,17 +49,18 @@ def export_model_toml(name: str, path: Path) -> Path:
     """
     import numpy as np
 
-    from ..detection.spectral import chattering_autocovariance
-    from ..plants.modelfile import write_model_toml
+    from ..detection.spectral import chattering_autocovariance, spectrum_model
+    from ..plants.modelfile_writer import write_model_toml
     from ..plants.scenarios import scenario
 
     sc = scenario(name)
     if not sc.is_linear:
         return _export_nonlinear(sc, name, path)
+    model = spectrum_model(sc.nominal)  # (linear: the nonlinear export returned above)
     if sc.psi is not None:
         psi, why = np.asarray(sc.psi, dtype=float), "the scenario's boundary layer"
     else:
-        psi, why = 3.0 * np.sqrt(chattering_autocovariance(sc.nominal)[0]), "3 x healthy chattering std"
+        psi, why = 3.0 * np.sqrt(chattering_autocovariance(model)[0]), "3 x healthy chattering std"
     comment = (
         f"Nominal (healthy) model of the chatterspec catalogue scenario {name!r}: {_nominal_text(sc)}.\n"
         + (
@@ -63,38 +69,39 @@ def export_model_toml(name: str, path: Path) -> Path:
             else ""
         )
         + f"Written by `chatterspec scenarios {name} --model-toml`; psi = {why}.\n"
-        f"Stream it: chatterspec simulate {name} | chatterspec monitor --model {path.name} --data -"
+        f"Stream it: chatterspec simulate {name} | chatterspec monitor {path.name} --data -"
     )
-    return write_model_toml(path, sc.nominal, psi, gamma=0.1, comment=comment)
+    return write_model_toml(path, model, psi, gamma=0.1, comment=comment)
 
 
-def _export_nonlinear(sc: object, name: str, path: Path) -> Path:
+def _export_nonlinear(sc: Scenario, name: str, path: Path) -> Path:
     """A nonlinear nominal model as a model file naming its functions, with the scenario's input."""
     from ..plants.modelfile_writer import signal_table, write_nonlinear_model_toml
 
-    simulation: dict = {"duration_s": sc.duration}  # type: ignore[attr-defined]
-    if sc.x0 is not None and sc.x0.any():  # type: ignore[attr-defined]
-        simulation["x0"] = sc.x0  # type: ignore[attr-defined]
-    table = signal_table(sc.input)  # type: ignore[attr-defined]
+    simulation: dict = {"duration_s": sc.duration}
+    if sc.x0 is not None and sc.x0.any():
+        simulation["x0"] = sc.x0
+    table = signal_table(sc.input)
     if table is not None:
         simulation["input"] = table
     comment = (
         f"Nominal (healthy) model of the chatterspec catalogue scenario {name!r}: {_nominal_text(sc)}.\n"
         + (
-            f"The scenario's true plant differs from it (the fault to find): {sc.description}.\n"  # type: ignore[attr-defined]
-            if not sc.is_healthy  # type: ignore[attr-defined]
+            f"The scenario's true plant differs from it (the fault to find): {sc.description}.\n"
+            if not sc.is_healthy
             else ""
         )
         + f"Written by `chatterspec scenarios {name} --model-toml`. A nonlinear model: calibrate it\n"
         f"first (chatterspec calibrate {path.name} --out cal.npz), then\n"
-        f"chatterspec monitor --model {path.name} --calibration cal.npz"
+        f"chatterspec monitor {path.name} --calibration cal.npz"
     )
-    return write_nonlinear_model_toml(path, sc.nominal, simulation=simulation, comment=comment)  # type: ignore[attr-defined]
+    model = cast("NonlinearModel", sc.nominal)  # (the caller's branch for a nonlinear scenario)
+    return write_nonlinear_model_toml(path, model, simulation=simulation, comment=comment)
 
 
-def _nominal_text(sc: object) -> str:
+def _nominal_text(sc: Scenario) -> str:
     """One line on the nominal model itself (name, natural frequency, damping), not the scenario's plant."""
-    nominal = sc.nominal  # type: ignore[attr-defined]
+    nominal = sc.nominal
     f0, zeta = nominal.natural_frequency_hz, nominal.damping_ratio
     mode = "" if f0 is None else f", natural frequency {f0:.4g} Hz, damping {zeta:.4g}"
     return f"{nominal.name}{mode}, dt = {nominal.dt:g} s"
@@ -109,11 +116,14 @@ def run(args: argparse.Namespace) -> int:
     if args.model_toml is not None:
         if args.name is None:
             raise ParameterError("--model-toml needs a scenario NAME (see `chatterspec scenarios`)")
+        from ._common import check_output_path
+
+        check_output_path(args.model_toml, "--model-toml", suffixes=(".toml",))
         path = export_model_toml(args.name, args.model_toml)
         if args.json:
             print(dumps({"scenario": args.name, "model_toml": str(path)}, indent=2))
         else:
-            print(f"wrote {path} (nominal model of {args.name}; use it with `chatterspec monitor --model`)")
+            print(f"wrote {path} (nominal model of {args.name}; use it with `chatterspec monitor {path}`)")
         return 0
     from ..plants.scenarios import catalogue, scenario
 

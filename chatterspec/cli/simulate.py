@@ -6,11 +6,11 @@ wall time (``--rate 0``: as fast as the reader takes it). The columns are those
 ``chatterspec monitor`` expects, so
 
     chatterspec scenarios eha-leak-major --model-toml eha.toml
-    chatterspec simulate eha-leak-major | chatterspec monitor --model eha.toml --data -
+    chatterspec simulate eha-leak-major | chatterspec monitor eha.toml --data -
 
 monitors the scenario live. A model file (linear or nonlinear) streams its healthy plant under its
 ``[simulation]`` table (input, initial state, duration). The scenario is simulated block by block in time
-(:func:`chatterspec.online.stream.simulate_blocks`: constant memory, the
+(:func:`chatterspec.online.simulated_stream.simulate_blocks`: constant memory, the
 scenario repeats beyond its own duration; the same ``--seed`` gives the same rows at any
 ``--rate``). A reader that goes away (a closed pipe) ends the program quietly with status 0.
 """
@@ -45,12 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "catalogue scenario (see `chatterspec scenarios`) or model file MODEL.toml (its [simulation] "
         "table: input, initial state, duration)",
     )
-    p.add_argument(
-        "--rate",
-        type=float,
-        default=1.0,
-        help="data seconds per wall second (default 1.0 = real time; 0 = as fast as possible)",
-    )
+    add(p, "--rate", default=1.0)
     add(p, "--seed")
     p.add_argument(
         "--duration",
@@ -63,10 +58,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec simulate`` with the parsed ``args``; returns the exit status."""
-    from ..online.stream import csv_header, csv_lines, simulate_blocks
+    from ..online.simulated_stream import csv_header, csv_lines, simulate_blocks
 
-    if not (args.rate >= 0 and args.rate < float("inf")):
-        raise ParameterError(f"--rate must be >= 0 (1.0 = real time, 0 = unpaced); got {args.rate}")
     if args.duration is not None and not (args.duration > 0 and args.duration < float("inf")):
         raise ParameterError(f"--duration must be > 0 s; got {args.duration}")
     sc = load_scenario(args.name)

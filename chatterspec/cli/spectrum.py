@@ -2,7 +2,7 @@
 
 Usage::
 
-    chatterspec spectrum NAME [--out FILE.png] [--channel C|all] [--alpha A]
+    chatterspec spectrum NAME [--plot FILE.png] [--channel C|all] [--alpha A]
                               [--threshold exact|paper|both] [--correction bonferroni|sidak|none]
                               [--seed S] [--runs R] [--dpi N] [--json]
 
@@ -13,7 +13,7 @@ spectrum (eq 56) and the chosen thresholds: the paper's flat bound (eq 58-62,
 and/or the exact chi-squared bound (``alpha`` family-wise over the tested bins
 with the chosen correction, per bin with ``--correction none``; chi2 with 2R
 degrees of freedom for an R-run average).
-Without ``--out`` the PNG goes to ``figures/NAME-spectrum.png``.
+Without ``--plot`` the PNG goes to ``figures/NAME-spectrum.png``.
 """
 
 from __future__ import annotations
@@ -21,11 +21,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..errors import ParameterError
 from ._common import Outputs, check_output_path, report
 from ._options import add, add_name, add_report_args, add_runs_args, command
 
-#: Folder of ``spectrum``'s PNG when ``--out`` is not given (like ``demo``'s ``figures/demo``).
+#: Folder of ``spectrum``'s PNG when ``--plot`` is not given (like ``demo``'s ``figures/demo``; created).
 DEFAULT_FOLDER = Path("figures")
 
 
@@ -40,9 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "expected healthy spectrum (eq 56) and the paper's and/or the exact threshold.",
     )
     add_name(p, "scenario name (see 'chatterspec scenarios')")
-    p.add_argument(
-        "--out", default=None, metavar="FILE.png", help="output PNG (default: figures/NAME-spectrum.png)"
-    )
+    add(p, "--plot", help="the PNG to write (default figures/NAME-spectrum.png)")
     p.add_argument(
         "--channel",
         default=None,
@@ -74,10 +71,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec spectrum`` with the parsed ``args``; returns the exit status."""
-    out = Path(args.out) if args.out else DEFAULT_FOLDER / f"{args.name}-spectrum.png"
-    if out.suffix.lower() != ".png":
-        raise ParameterError(f"--out must name a .png file; got {str(out)!r}")
-    check_output_path(out, "--out")  # before the (slow) imports: a bad path fails at once
+    # before the (slow) imports: a bad path fails at once; the default folder is created
+    if args.plot:
+        out = check_output_path(args.plot, "--plot", suffixes=(".png",))
+    else:
+        out = check_output_path(DEFAULT_FOLDER, "--plot", folder=True) / f"{args.name}-spectrum.png"
 
     from ..figures import plotting
     from ..figures.paper_figures import scenario_spectrum
@@ -85,9 +83,8 @@ def run(args: argparse.Namespace) -> int:
 
     scenario(args.name)  # UnknownScenarioError (listing the valid names) before any work
     outputs = Outputs()
-    channel: str | None = args.channel
-    if channel is not None and channel.isdigit():
-        channel = int(channel)  # type: ignore[assignment]
+    raw: str | None = args.channel
+    channel: str | int | None = int(raw) if raw is not None and raw.isdigit() else raw
     fig = scenario_spectrum(
         args.name,
         channel=channel,
@@ -98,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
     )
     dpi = plotting.DEFAULT_DPI if args.dpi is None else args.dpi
-    path = outputs.write("--out", out, plotting.save_figure, fig.figure, out, dpi=dpi)
+    path = outputs.write("--plot", out, plotting.save_figure, fig.figure, out, dpi=dpi)
     doc = {
         "scenario": args.name,
         "path": None if path is None else str(path),

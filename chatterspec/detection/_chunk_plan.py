@@ -12,14 +12,15 @@ verdicts and summed spectrum, :meth:`ChunkPlan.reduce` folds them in chunk order
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, TypedDict
+from typing import TYPE_CHECKING, Any, TypedDict, cast
 
 import numpy as np
 
 from .._validate import open_unit
 from ..errors import ParameterError, ShapeError
 from ..montecarlo import Execution
-from ..plants.nonlinear import is_linear
+from ..plants.models import LinearModel
+from ..plants.nonlinear import Model, is_linear
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
 from .frames import FrameDetection, stft_detect
@@ -28,6 +29,9 @@ from .report import DetectionReport
 from .spectral import DEFAULT_STFT, STFTConfig, expected_spectrum, periodogram
 from .spectrum_verdicts import _VERDICT_FIELDS, SpectrumDetection, _require_empirical, detect_spectrum
 from .thresholds import Band, Correction, Threshold, check_band, exact_threshold, paper_threshold
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .identification import IdentificationStream
 
 __all__ = ["ChunkPlan", "DetectStudy", "DetectorKeywords", "DetectorOptions", "detect_on_workers"]
 
@@ -104,7 +108,7 @@ class ChunkPlan:
     the same bits however they were computed.
     """
 
-    model: object
+    model: Model
     channels: tuple[str, ...]
     dt: float
     n_samples: int
@@ -133,7 +137,11 @@ class ChunkPlan:
             _require_empirical(model, threshold)
             if frame_threshold is None:
                 stft = False  # no closed-form frame spectrum either
-        E = expected_spectrum(model, freqs, n_samples) if linear else threshold.expected
+        E = (
+            expected_spectrum(model, freqs, n_samples)
+            if is_linear(model)
+            else _require_empirical(model, threshold)
+        )
         if isinstance(threshold, Threshold):
             th = threshold
             if th.values.shape != pg.power.shape[-2:] or not np.allclose(th.freqs_hz, freqs):
@@ -144,10 +152,10 @@ class ChunkPlan:
                 )
             th = th.restricted(band)
             alpha = th.alpha
-        elif threshold == "exact":
-            th = exact_threshold(model, freqs, n_samples, alpha, correction, band=band)
+        elif threshold == "exact":  # (a nonlinear model needed a Threshold: _require_empirical above)
+            th = exact_threshold(cast(LinearModel, model), freqs, n_samples, alpha, correction, band=band)
         elif threshold == "paper":
-            th = paper_threshold(model, freqs, alpha, band=band)
+            th = paper_threshold(cast(LinearModel, model), freqs, alpha, band=band)
         else:
             raise ParameterError(f"unknown threshold kind {threshold!r}; choose 'exact' or 'paper'")
         sc = first.scenario
@@ -232,7 +240,7 @@ class ChunkPlan:
 
 @dataclass(frozen=True, eq=False)
 class DetectStudy:
-    """A :class:`~chatterspec.studies.montecarlo.Study`: one chunk's verdicts and summed spectrum."""
+    """A :class:`~chatterspec.montecarlo.Study`: one chunk's verdicts and summed spectrum."""
 
     scenario: Scenario
     plan: ChunkPlan
@@ -280,7 +288,7 @@ def detect_on_workers(
     execution: Execution,
     *,
     gamma: float = 0.1,
-    identification: Any = None,
+    identification: IdentificationStream | None = None,
 ) -> DetectionReport:
     """The worker path of :func:`~chatterspec.detection.detect.detect_scenario` (see there).
 
@@ -311,6 +319,7 @@ def detect_on_workers(
     acc, parts = execution.run(
         DetectStudy(scenario, plan, gamma, ident), runs, root, f"detect {scenario.name}"
     )
-    for part in parts:
-        identification.add(part)
+    if identification is not None:  # (parts: one per chunk with identification, else none)
+        for part in parts:
+            identification.add(part)
     return plan.report(acc)

@@ -9,14 +9,14 @@ minimum-distance fit of each hypothesis and the selection), vectorized over real
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.special
 
 from ..errors import IdentifiabilityError, ParameterError
 from ..plants.models import LinearModel
-from ..plants.nonlinear import is_linear
+from ..plants.nonlinear import Model, is_linear
 from ..plants.parameters import NO_FAULT, UNEXPLAINED, Hypothesis, ParameterMap
 from ._identification_moments import IdentificationMoments
 
@@ -62,6 +62,10 @@ class IdentificationSetup:
     L: np.ndarray
     R: np.ndarray
     labels: tuple[str, ...]
+    # set by __post_init__
+    _nominal_entries: np.ndarray = field(init=False, repr=False, compare=False)
+    affine: tuple[bool, ...] = field(init=False, repr=False, compare=False)
+    slopes: tuple[np.ndarray, ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_nominal_entries", self.parameter_map.evaluate(self.model.dt))
@@ -191,7 +195,7 @@ def _reduced_order_message(model: LinearModel, pm: ParameterMap | None) -> str:
 
 
 def build_setup(
-    model: LinearModel, hypotheses: Sequence[Hypothesis | str | Sequence[str]] | None = None
+    model: Model, hypotheses: Sequence[Hypothesis | str | Sequence[str]] | None = None
 ) -> IdentificationSetup:
     """The :class:`IdentificationSetup` of ``model`` for ``hypotheses`` (default: the map's).
 
@@ -212,12 +216,16 @@ def build_setup(
             "(a model file's [parameters] and [entries] tables, see examples/README.md)"
         )
     pm.check(model)
+    n_declared = len(pm.hypotheses)
     if hypotheses is not None:
         resolved: list[Hypothesis | str | Sequence[str]] = []
-        declared = {h.name for h in pm.hypotheses}
-        for h in hypotheses:
-            resolved.append(pm.hypothesis(h) if isinstance(h, str) and h in declared else h)
+        declared = {d.name for d in pm.hypotheses}
+        for given in hypotheses:
+            resolved.append(pm.hypothesis(given) if isinstance(given, str) and given in declared else given)
         pm = pm.with_hypotheses(resolved)
+        n_declared = len(pm.hypotheses)
+    else:  # the declared hypotheses and every other combination (joint faults named without declaring them)
+        pm = pm.with_hypotheses(pm.combinations())
     hyps = pm.hypotheses
     used = sorted({p for h in hyps for p in h.parameters})
     n, p = model.n_states, model.n_inputs
@@ -236,11 +244,13 @@ def build_setup(
     for ri, i in enumerate(R):
         for cj, j in enumerate(J):
             if phi_mask[i, j]:
-                rows.append(ri), cols.append(cj)
+                rows.append(ri)
+                cols.append(cj)
                 labels.append(f"{'A' if eye else 'Phi'}[{i + 1},{j + 1}]")
         for cl, l_ in enumerate(L):
             if g_mask[i, l_]:
-                rows.append(ri), cols.append(J.size + cl)
+                rows.append(ri)
+                cols.append(J.size + cl)
                 labels.append(f"{'B' if eye else 'G'}[{i + 1},{l_ + 1}]")
     setup = IdentificationSetup(
         model=model,
@@ -253,15 +263,21 @@ def build_setup(
         R=R,
         labels=tuple(labels),
     )
+    keep = []
     for h, hyp in enumerate(hyps):
         G = setup.jacobian(h, setup.nominal(h))
         Gs = G / np.maximum(np.linalg.norm(G, axis=0), 1e-300)
-        if np.linalg.matrix_rank(Gs, tol=1e-8) < len(hyp.parameters):
+        if np.linalg.matrix_rank(Gs, tol=1e-8) == len(hyp.parameters):
+            keep.append(hyp)
+        elif h < n_declared:
             raise IdentifiabilityError(
                 f"hypothesis {hyp.name!r}: parameters {list(hyp.parameters)} change the entries "
                 f"{', '.join(setup.labels)} only through fewer combinations than parameters; they "
                 "cannot be told apart (declare them as separate hypotheses or fix one)"
             )
+        # an added combination that cannot be told apart is not tested
+    if len(keep) < len(hyps):
+        return build_setup(model, keep)
     return setup
 
 
@@ -339,7 +355,8 @@ def fit_moments(
     # --- covariance: lag-1 sandwich with the MA(1) autocovariances at the fitted true plant
     Phi_t = np.broadcast_to(model.C @ model.A @ model.C_inv, (runs, *model.A.shape)).copy()
     zc = cols < qj
-    np.add.at(Phi_t, (slice(None), setup.R[rows[zc]], setup.J[cols[zc]]), d[:, zc])
+    idx = (slice(None), setup.R[rows[zc]], setup.J[cols[zc]])
+    np.add.at(Phi_t, idx, d[:, zc])  # type: ignore[arg-type]  # numpy's stubs: no tuple index (ufunc.at takes one)
     Rm = model.R
     CQC = model.C @ model.Q @ model.C.T
     G0 = CQC + Rm + Phi_t @ Rm @ Phi_t.transpose(0, 2, 1)
@@ -410,7 +427,21 @@ REASONS = {
     1: "not identifiable on this window: the regressors of the entries it enters carry no excitation",
     2: "the fit did not converge",
     3: "not identifiable on this window: the regressors of the entries it enters are collinear",
+    4: "not identifiable on this window: its parameters move the entries alike (their effects cannot be told "
+    "apart)",
 }
+
+
+def _separable(N: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Which realizations' normal matrices ``N`` (unit diagonal, ``(runs, p, p)``) are of full rank.
+
+    Two parameters whose whitened Jacobian columns are parallel leave ``N`` singular: their sum is
+    identified, each one is not. ``ok`` rows already refused are passed through unchanged (True).
+    """
+    if N.shape[-1] < 2:
+        return np.ones(N.shape[0], dtype=bool)
+    lam = np.linalg.eigvalsh(np.where(ok[:, None, None], N, np.eye(N.shape[-1])))
+    return lam[:, 0] > 1e-10 * lam[:, -1]
 
 
 def _fit_hypothesis(
@@ -429,35 +460,55 @@ def _fit_hypothesis(
         ok = np.all(cn > 1e-12 * np.maximum(np.linalg.norm(G, axis=1), 1e-300), axis=1)
         cs = np.where(cn > 0, cn, 1.0)
         Gs = Gt / cs[:, None, :]
-        N = Gs.transpose(0, 2, 1) @ Gs + np.where(ok, 0.0, 1.0)[:, None, None] * np.eye(theta0.size)
+        N = Gs.transpose(0, 2, 1) @ Gs
+        apart = _separable(N, ok)
+        why = np.where(ok, np.where(apart, 0, 4), 1)
+        ok = ok & apart
+        N = N + np.where(ok, 0.0, 1.0)[:, None, None] * np.eye(theta0.size)
         Ninv = np.linalg.inv(N)
         step = np.einsum("rkl,ral,ra->rk", Ninv, Gs, r0) / cs
+        step = np.where(ok[:, None], step, 0.0)
         res = r0 - np.einsum("rak,rk->ra", Gt, step)
         cov = Ninv / (cs[:, :, None] * cs[:, None, :])
-        return theta0 + step, cov, (res**2).sum(axis=1), ok, np.where(ok, 0, 1)
+        return theta0 + step, cov, (res**2).sum(axis=1), ok, why
     theta = np.broadcast_to(theta0, (runs, theta0.size)).copy()
     scale = np.maximum(np.abs(theta0), 1.0 * (theta0 == 0))
     ok = np.ones(runs, dtype=bool)
     why = np.zeros(runs, dtype=int)
+    # each realization iterates until its own step is below the tolerance (then it is left alone), so
+    # its result does not depend on the others in the batch (a stream cut into other pushes)
+    live = np.arange(runs)
+    step = np.zeros_like(theta)
     for _ in range(60):
-        G = setup.jacobian(h, theta)  # (runs, D, p)
-        g = setup.deviations(h, theta)
-        r = np.einsum("rab,rb->ra", W, dn - np.where(active, g / T, 0.0))
-        Gt = np.einsum("rab,rbk->rak", W, np.where(active[:, :, None], G / T[:, :, None], 0.0))
-        cn = np.linalg.norm(Gt, axis=1)  # (runs, p)
-        lost = ~(cn > 1e-12 * np.maximum(np.linalg.norm(G / T[:, :, None], axis=1), 1e-300))
-        why = np.where(lost.any(axis=1) & ok, 1, why)
-        ok &= ~lost.any(axis=1)
+        th, Wl, Tl, al = theta[live], W[live], T[live], active[live]
+        G = setup.jacobian(h, th)  # (live, D, p)
+        g = setup.deviations(h, th)
+        r = np.einsum("rab,rb->ra", Wl, dn[live] - np.where(al, g / Tl, 0.0))
+        Gt = np.einsum("rab,rbk->rak", Wl, np.where(al[:, :, None], G / Tl[:, :, None], 0.0))
+        cn = np.linalg.norm(Gt, axis=1)  # (live, p)
+        lost = ~(cn > 1e-12 * np.maximum(np.linalg.norm(G / Tl[:, :, None], axis=1), 1e-300))
+        lost_any = lost.any(axis=1)
+        why[live] = np.where(lost_any & ok[live], 1, why[live])
+        ok[live] &= ~lost_any
         cn = np.where(cn > 0, cn, 1.0)
         Gs = Gt / cn[:, None, :]
-        N = Gs.transpose(0, 2, 1) @ Gs + np.where(ok, 0.0, 1.0)[:, None, None] * np.eye(theta.shape[1])
-        step = np.linalg.solve(N, np.einsum("rak,ra->rk", Gs, r)[..., None])[..., 0] / cn
-        step = np.where(ok[:, None], step, 0.0)
-        theta = theta + step
-        if np.all(np.abs(step) <= 1e-10 * (np.abs(theta) + 1e-6 * scale)):
+        N = Gs.transpose(0, 2, 1) @ Gs
+        apart = _separable(N, ok[live])
+        why[live] = np.where(~apart & ok[live], 4, why[live])
+        ok[live] &= apart
+        okl = ok[live]
+        N = N + np.where(okl, 0.0, 1.0)[:, None, None] * np.eye(theta.shape[1])
+        st = np.linalg.solve(N, np.einsum("rak,ra->rk", Gs, r)[..., None])[..., 0] / cn
+        st = np.where(okl[:, None], st, 0.0)
+        theta[live] = th + st
+        step[live] = st
+        done = np.all(np.abs(st) <= 1e-10 * (np.abs(theta[live]) + 1e-6 * scale), axis=1)
+        live = live[~done]
+        if live.size == 0:
             break
     else:
-        bad = np.any(np.abs(step) > 1e-6 * (np.abs(theta) + 1e-6 * scale), axis=1)
+        bad = np.zeros(runs, dtype=bool)
+        bad[live] = np.any(np.abs(step[live]) > 1e-6 * (np.abs(theta[live]) + 1e-6 * scale), axis=1)
         why = np.where(bad & ok, 2, why)
         ok &= ~bad
     G = setup.jacobian(h, theta)

@@ -1,4 +1,4 @@
-"""Compiled one-pass verdict of :func:`chatterspec.detection.detect.detect_spectrum`.
+"""Compiled one-pass verdict of :func:`chatterspec.detection.spectrum_verdicts.detect_spectrum`.
 
 The numpy path of ``detect_spectrum`` makes eight passes over the ``(runs, bins, m)``
 spectra (a masked copy, the ratio, three ``argmax`` along the strided bin axis, ...);
@@ -59,7 +59,7 @@ def _verdict_loop(
 ) -> None:  # pragma: no cover - compiled (a template: verdict_kernel, peak_kernel)
     """Per spectrum r and channel c, over the tested bins ``idx`` (positions j = 0 .. len(idx) - 1).
 
-    With ``FULL`` (:data:`verdict_kernel`, :func:`~chatterspec.detection.detect.detect_spectrum`)
+    With ``FULL`` (:data:`verdict_kernel`, :func:`~chatterspec.detection.spectrum_verdicts.detect_spectrum`)
     all four outputs; without (:data:`peak_kernel`, the online monitor's frames) only ``k_ratio``
     and ``peak_ratio`` (``expected``, ``k_excess``, ``p_sum`` unused).
 
@@ -145,7 +145,7 @@ peak_channel = _jit.specialize(_verdict_channel, "peak", inline=True, FULL=False
 CHANNEL = verdict_channel
 
 
-#: The one-pass verdict of :func:`~chatterspec.detection.detect.detect_spectrum`.
+#: The one-pass verdict of :func:`~chatterspec.detection.spectrum_verdicts.detect_spectrum`.
 verdict_kernel = _jit.specialize(_verdict_loop, "full", CHANNEL=verdict_channel)
 #: The same pass for the online monitor's frames: the bin of the largest ``S / threshold`` only.
 peak_kernel = _jit.specialize(_verdict_loop, "peak", CHANNEL=peak_channel)

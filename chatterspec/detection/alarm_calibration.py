@@ -59,7 +59,7 @@ import itertools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 import scipy.special  # not scipy.stats: the monitor imports this module at start-up
@@ -104,8 +104,19 @@ GRID_POINTS = 48
 Method = Literal["law", "counted", "extrapolated"]
 
 
-def check_budget(false_alarms_per_hour: object, option: str = "false_alarms_per_hour") -> float:
+def check_budget(
+    false_alarms_per_hour: float | str,
+    option: str = "false_alarms_per_hour",
+    *,
+    steps_per_hour: float | None = None,
+    channels: int | None = None,
+) -> float:
     """A budget in false alarms per hour: a finite number > 0 (``ParameterError`` naming ``option``).
+
+    With ``steps_per_hour`` and ``channels``, also one that some threshold can meet: an alarm
+    starts on a step over the threshold after a step that was not in alarm, so no rule raises more
+    than ``steps_per_hour * channels / 2`` starts per hour; a larger budget has no threshold (it
+    would be set at or below the lowest score, one alarm that never ends).
 
     Parameters
     ----------
@@ -113,13 +124,25 @@ def check_budget(false_alarms_per_hour: object, option: str = "false_alarms_per_
         The budget (alarm starts per hour).
     option : str
         How the caller names it in the error message (e.g. ``--false-alarms-per-hour``).
+    steps_per_hour : float, optional
+        Steps (frames) per hour of one channel.
+    channels : int, optional
+        Channels sharing the budget.
     """
     try:
-        x = float(false_alarms_per_hour)  # type: ignore[arg-type]
+        x = float(false_alarms_per_hour)
     except (TypeError, ValueError):
         raise ParameterError(f"{option} must be a number > 0; got {false_alarms_per_hour!r}") from None
     if not (math.isfinite(x) and x > 0):
         raise ParameterError(f"{option} must be positive and finite (alarm starts per hour); got {x!r}")
+    if steps_per_hour is not None and channels is not None:
+        most = steps_per_hour * channels / 2.0
+        if x > most:
+            raise ParameterError(
+                f"no alarm threshold meets {x:g} false alarms per hour: {channels} channel(s) at "
+                f"{steps_per_hour:g} steps per hour raise at most {most:g} alarm starts per hour (one per "
+                "two steps per channel); give a smaller budget"
+            )
     return x
 
 
@@ -257,10 +280,10 @@ class RuleCalibration:
                 false_alarms_per_hour=float(d["false_alarms_per_hour"]),
                 steps_per_hour=float(d["steps_per_hour"]),
                 channels=int(d["channels"]),
-                method=str(d["method"]),  # type: ignore[arg-type]
+                method=cast(Method, str(d["method"])),  # (as to_dict wrote it)
                 hours=float(d["hours"]),
-                threshold_interval=tuple(_den(v) for v in d["threshold_interval"]),  # type: ignore[arg-type]
-                rate_interval=tuple(_den(v) for v in d["rate_interval"]),  # type: ignore[arg-type]
+                threshold_interval=cast(tuple[float, float], tuple(_den(v) for v in d["threshold_interval"])),
+                rate_interval=cast(tuple[float, float], tuple(_den(v) for v in d["rate_interval"])),
                 confidence=float(d.get("confidence", 0.95)),
                 seed=d.get("seed"),
                 fit=dict(d.get("fit", {})),
@@ -269,8 +292,8 @@ class RuleCalibration:
             raise ParameterError(f"not a rule calibration ({type(exc).__name__}: {exc})") from None
 
 
-def _den(x: object) -> float:
-    return float("inf") if x is None else float(x)  # type: ignore[arg-type]
+def _den(x: float | None) -> float:
+    return float("inf") if x is None else float(x)
 
 
 def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
@@ -303,11 +326,11 @@ def law_frame_rule(
     confidence : float
         Recorded level (the bound holds surely).
     """
-    X = check_budget(false_alarms_per_hour)
     F = positive("steps_per_hour", steps_per_hour)
     m = int(channels)
     if m < 1:
         raise ParameterError(f"channels must be >= 1; got {channels!r}")
+    X = check_budget(false_alarms_per_hour, steps_per_hour=F, channels=m)
     h = math.log(F * m / X)
     return RuleCalibration(
         rule=FrameRule(threshold=max(h, 0.0)),
@@ -449,7 +472,6 @@ def calibrate_rule(
         Bad budget, or streams too short to resolve even the frequent alarms (fewer than
         :data:`MIN_COUNT` starts at two grid points in the rare-alarm regime).
     """
-    X = check_budget(false_alarms_per_hour)
     F = positive("steps_per_hour", steps_per_hour)
     conf = open_unit("confidence", confidence)
     s = np.asarray(scores, dtype=float)
@@ -458,6 +480,7 @@ def calibrate_rule(
     if np.isnan(s).any():
         raise ParameterError("healthy scores contain NaN")
     C = s.shape[-1]
+    X = check_budget(false_alarms_per_hour, steps_per_hour=F, channels=C)
     s3 = s.reshape(-1, s.shape[-2], C)
     K = s3.shape[1]
     B = max(2, min(int(batches), K // 2))
@@ -468,6 +491,13 @@ def calibrate_rule(
     hours = float(steps.sum() / F)
     coarse = _grid(rule, s3, GRID_POINTS)
     total = starts_on_grid(rule, s3, coarse).reshape(coarse.size, -1).sum(axis=1)
+    if X * hours > total.max():  # the budget is above every rate the rule reaches: no threshold meets it
+        i = int(np.argmax(total))
+        raise ParameterError(
+            f"no threshold of the {rule.name} rule meets {X:g} false alarms per hour: on {hours:.3g} h of "
+            f"healthy streams it raises at most {total[i] / hours:.4g} alarm starts per hour (at threshold "
+            f"{coarse[i]:.4g}; lower thresholds merge the alarms); give a smaller budget"
+        )
     # a finer grid where it matters: from the last threshold still above the rare-alarm rate (or the
     # budget) to the first one with too few starts to count
     top = min(MAX_RATE_PER_STEP * steps.sum() * C, max(X * hours, MIN_COUNT))
@@ -477,7 +507,7 @@ def calibrate_rule(
     grid = np.unique(np.concatenate([coarse, fine]))
     counts = np.stack([starts_on_grid(rule, p, grid).reshape(grid.size, -1).sum(axis=1) for p in parts])
 
-    def solve(cnt: np.ndarray, n_steps: float) -> tuple[float, str, dict[str, Any]]:
+    def solve(cnt: np.ndarray, n_steps: float) -> tuple[float, Method, dict[str, Any]]:
         T = n_steps / F
         target = X * T
         rate = cnt / (n_steps * C)
@@ -520,8 +550,8 @@ def calibrate_rule(
             continue
         hs.append(hj)
     if len(hs) >= 2:
-        hj = np.array(hs)
-        se = float(math.sqrt((len(hj) - 1) / len(hj) * np.sum((hj - hj.mean()) ** 2)))
+        hjs = np.array(hs)
+        se = float(math.sqrt((len(hjs) - 1) / len(hjs) * np.sum((hjs - hjs.mean()) ** 2)))
     else:  # pragma: no cover - every leave-one-out fit failed
         se = float("inf")
     # the jackknife over B batches: Student t with B - 1 degrees of freedom
@@ -541,7 +571,7 @@ def calibrate_rule(
         false_alarms_per_hour=X,
         steps_per_hour=F,
         channels=C,
-        method=method,  # type: ignore[arg-type]
+        method=method,
         hours=hours,
         threshold_interval=th_int,
         rate_interval=(min(rate_int), max(rate_int)),

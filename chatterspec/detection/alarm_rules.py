@@ -14,7 +14,6 @@ from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Any, ClassVar, Literal
 
-from .._validate import positive_int
 from ..errors import ParameterError
 from ..jsonout import finite_or_none
 
@@ -26,6 +25,7 @@ __all__ = [
     "PersistenceRule",
     "RuleName",
     "RuleSpec",
+    "alarm_label",
     "make_rule",
     "rule_from_dict",
     "rule_names",
@@ -37,10 +37,10 @@ RuleName = Literal["frame", "persistence", "cusum"]
 _FRAME, _PERSISTENCE, _CUSUM = 0, 1, 2
 
 
-def _threshold(value: object, name: str = "threshold") -> float:
+def _threshold(value: float, name: str = "threshold") -> float:
     """A rule threshold: a real number, not NaN (``+inf`` = never alarm, ``-inf`` = always)."""
     try:
-        v = float(value)  # type: ignore[arg-type]
+        v = float(value)
     except (TypeError, ValueError):
         raise ParameterError(f"{name} must be a real number; got {value!r}") from None
     if math.isnan(v):
@@ -112,6 +112,8 @@ class PersistenceRule:
     name: ClassVar[str] = "persistence"
 
     def __post_init__(self) -> None:
+        from .._validate import positive_int  # numpy: not when the CLI only builds its parser
+
         object.__setattr__(self, "threshold", _threshold(self.threshold))
         k = positive_int("persistence k", self.k)
         n = positive_int("persistence n", self.n)
@@ -257,12 +259,29 @@ RULES: Mapping[str, RuleSpec] = MappingProxyType(
 )
 
 
+def alarm_label(rule: str, false_alarms_per_hour: float | None) -> str:
+    """``"cusum rule, 1 false alarm per 24 h"``: the rule and its budget in words.
+
+    Parameters
+    ----------
+    rule : str
+        The rule's name.
+    false_alarms_per_hour : float or None
+        Its budget (alarm starts per hour); None: a per-frame alpha.
+    """
+    if false_alarms_per_hour is None:
+        return f"{rule} rule, per-frame alpha"
+    x = float(false_alarms_per_hour)
+    per = f"1 false alarm per {1 / x:.3g} h" if x < 1 else f"{x:.3g} false alarms per hour"
+    return f"{rule} rule, {per}"
+
+
 def rule_names() -> tuple[str, ...]:
     """Names of the rules, in table order (the CLI's ``--rule`` choices)."""
     return tuple(RULES)
 
 
-def make_rule(name: str, threshold: float = float("inf"), **parameters: Any) -> AlarmRule:
+def make_rule(name: str, threshold: float = float("inf"), **parameters: float) -> AlarmRule:
     """Build a rule by name: ``make_rule("cusum", 12.0, drift=3.0)``.
 
     Parameters
@@ -289,7 +308,7 @@ def make_rule(name: str, threshold: float = float("inf"), **parameters: Any) -> 
         raise ParameterError(
             f"rule {name!r} has no parameter(s) {', '.join(sorted(unknown))} (parameters: {allowed})"
         )
-    return spec.cls(threshold=threshold, **{**spec.parameters, **parameters})  # type: ignore[no-any-return]
+    return spec.cls(threshold=threshold, **{**spec.parameters, **parameters})
 
 
 def rule_from_dict(d: Mapping[str, Any]) -> AlarmRule:

@@ -8,6 +8,7 @@ Its survival function, density and inverse (:func:`weighted_chi2_sf`, :func:`wei
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 import scipy.special
 
 from ..errors import ParameterError
@@ -15,7 +16,7 @@ from ..errors import ParameterError
 __all__ = ["weighted_chi2_isf", "weighted_chi2_pdf", "weighted_chi2_sf"]
 
 
-def _chi2_isf(p: object, dof: object) -> np.ndarray:
+def _chi2_isf(p: npt.ArrayLike, dof: npt.ArrayLike) -> np.ndarray:
     """Inverse survival function of the chi-squared law: ``scipy.stats.chi2.isf(p, dof)``.
 
     The same function underneath (``scipy.special.chdtri``), without importing :mod:`scipy.stats`
@@ -31,7 +32,7 @@ _GL_X, _GL_W = np.polynomial.legendre.leggauss(64)
 _ERFC_CUT = 12.0  # erfc(12) ~ 1e-64: the integrand beyond is negligible
 
 
-def _eigen_pair(l1: object, l2: object) -> tuple[np.ndarray, np.ndarray]:
+def _eigen_pair(l1: npt.ArrayLike, l2: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     a = np.asarray(l1, dtype=float)
     b = np.asarray(l2, dtype=float)
     if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))) or np.any(a < 0) or np.any(b < 0):
@@ -76,7 +77,7 @@ def _pdf_unit(x: np.ndarray, r: np.ndarray) -> np.ndarray:
     return np.where(pos, gen, chi1)
 
 
-def weighted_chi2_sf(t: object, l1: object, l2: object) -> np.ndarray:
+def weighted_chi2_sf(t: npt.ArrayLike, l1: npt.ArrayLike, l2: npt.ArrayLike) -> np.ndarray:
     """Survival function ``P(l1 Z1^2 + l2 Z2^2 > t)``, ``Z1, Z2`` iid standard normal (broadcasting).
 
     The exact law of a periodogram or frame bin of Gaussian data (see
@@ -107,7 +108,7 @@ def weighted_chi2_sf(t: object, l1: object, l2: object) -> np.ndarray:
     return out
 
 
-def weighted_chi2_pdf(t: object, l1: object, l2: object) -> np.ndarray:
+def weighted_chi2_pdf(t: npt.ArrayLike, l1: npt.ArrayLike, l2: npt.ArrayLike) -> np.ndarray:
     """Density of ``l1 Z1^2 + l2 Z2^2`` at ``t > 0`` (0 for ``t <= 0``; requires ``max(l1, l2) > 0``).
 
     See Also
@@ -126,7 +127,9 @@ def weighted_chi2_pdf(t: object, l1: object, l2: object) -> np.ndarray:
     return out
 
 
-def weighted_chi2_isf(p: object, l1: object, l2: object, rtol: float = 1e-10) -> np.ndarray:
+def weighted_chi2_isf(
+    p: npt.ArrayLike, l1: npt.ArrayLike, l2: npt.ArrayLike, rtol: float = 1e-10
+) -> np.ndarray:
     """Inverse survival function of ``l1 Z1^2 + l2 Z2^2``: ``t`` with ``P(Y > t) = p`` (broadcasting).
 
     Safeguarded Newton iteration on ``log sf`` (vectorized over every bin and channel)

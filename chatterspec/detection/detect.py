@@ -3,7 +3,7 @@
 This module runs a record or a study (:func:`detect_record`, :func:`detect_chunks`,
 :func:`detect_scenario`); the verdicts live in :mod:`~chatterspec.detection.spectrum_verdicts`
 (whole records), :mod:`~chatterspec.detection.frames` (STFT frames) and the report in
-:mod:`~chatterspec.detection.report`; their names are re-exported here.
+:mod:`~chatterspec.detection.report`.
 
 A channel is flagged when its spectrum exceeds the threshold at any **tested** bin; where the fault
 is (``peak_hz``, ``most_significant_hz``) and how large (``peak_ratio``, ``excess_power``) are defined
@@ -14,7 +14,7 @@ with Bonferroni correction at family-wise alpha = 0.1 %.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import Any, Unpack
+from typing import TYPE_CHECKING, Unpack
 
 from .._validate import positive_int
 from ..errors import ParameterError
@@ -22,42 +22,21 @@ from ..montecarlo import Execution
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
 from ._chunk_plan import ChunkPlan, DetectorKeywords, DetectorOptions, detect_on_workers
-from .frames import (
-    FrameDetection,
-    detect_frames,
-    frame_intervals,
-    frame_statistic,
-    healthy_frame_level,
-    stft_detect,
-)
 from .pipeline import ChatteringRecord, iter_chattering
 from .report import DetectionReport
-from .spectrum_verdicts import (  # noqa: F401  (old private imports)
-    _VERDICT_FIELDS,
-    ChannelVerdict,
-    SpectrumDetection,
-    _require_empirical,
-    detect_spectrum,
-)
 from .thresholds import Correction, Threshold
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .identification import IdentificationStream
 
 __all__ = [
     "DETECT_CHUNK_RUNS",
-    "ChannelVerdict",
     "DetectionReport",
     "DetectorKeywords",
     "DetectorOptions",
-    "FrameDetection",
-    "SpectrumDetection",
     "detect_chunks",
-    "detect_frames",
     "detect_record",
     "detect_scenario",
-    "detect_spectrum",
-    "frame_intervals",
-    "frame_statistic",
-    "healthy_frame_level",
-    "stft_detect",
 ]
 
 
@@ -150,6 +129,7 @@ def _detect(chunks: Iterable[ChatteringRecord], options: DetectorOptions) -> Det
                 raise ParameterError("all chunks must share the nominal model of the first chunk")
         acc = plan.reduce(acc, plan.test(record.values))
         record = next(it, None)
+    assert acc is not None  # (the first chunk was folded)
     return plan.report(acc)
 
 
@@ -163,7 +143,7 @@ def detect_scenario(
     *,
     chunk_runs: int | None = DETECT_CHUNK_RUNS,
     gamma: float = 0.1,
-    identification: Any = None,
+    identification: IdentificationStream | None = None,
     workers: int = 1,
     scheduler: str | None = None,
     progress: bool | None = None,

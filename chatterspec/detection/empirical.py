@@ -30,6 +30,7 @@ from .._validate import finite_array, open_unit
 from ..errors import ParameterError, ShapeError
 from .spectral import STFTConfig, periodogram
 from .spectral import spectrogram as stft_spectrogram
+from .threshold_type import AlphaMeaning
 from .thresholds import Threshold
 
 __all__ = [
@@ -141,7 +142,7 @@ def empirical_family_wise_threshold(
     tested: np.ndarray,
     factor: np.ndarray,
     alpha: float,
-    meaning: str = "family-wise",
+    meaning: AlphaMeaning = "family-wise",
 ) -> Threshold:
     """Threshold ``E_hat * q`` per channel (``kind="empirical"``).
 

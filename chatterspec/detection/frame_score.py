@@ -62,6 +62,8 @@ import numpy as np
 
 from .. import _jit
 from ..errors import ParameterError
+from ..plants.models import LinearModel
+from .spectral import STFTConfig
 from .thresholds import Threshold
 
 __all__ = ["FrameScore", "frame_scores"]
@@ -113,14 +115,14 @@ def _node_tables(r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
     prev = _log_j(U_CONVERGED, prev_c, prev_w)
     while todo.size:
         if N > _MAX_NODES:  # pragma: no cover - r -> 0 only (a bin with one degree of freedom)
-            for i, t in enumerate(todo):
-                tables[t] = (prev_c[i], prev_w)
+            for i, row in enumerate(todo):
+                tables[row] = (prev_c[i], prev_w)
             break
         c2, w2 = _half_nodes(r[todo], 2 * N)
         cur = _log_j(U_CONVERGED, c2, w2)
         done = np.abs(cur - prev) <= _TOL * np.maximum(1.0, np.abs(cur))
-        for i in np.flatnonzero(done):
-            tables[todo[i]] = (prev_c[i], prev_w)  # N nodes already agree with 2N
+        for j in np.flatnonzero(done):
+            tables[todo[j]] = (prev_c[j], prev_w)  # N nodes already agree with 2N
         keep = ~done
         todo, prev_c, prev, prev_w = todo[keep], c2[keep], cur[keep], w2
         N *= 2
@@ -128,13 +130,13 @@ def _node_tables(r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
     cs: list[np.ndarray] = []
     ws: list[np.ndarray] = []
     pos = 0
-    for i, t in enumerate(tables):
+    for i, table in enumerate(tables):
         offset[i] = pos
-        if t is not None:
-            count[i] = t[0].size
-            cs.append(t[0])
-            ws.append(t[1])
-            pos += t[0].size
+        if table is not None:
+            count[i] = table[0].size
+            cs.append(table[0])
+            ws.append(table[1])
+            pos += table[0].size
     cvals = np.concatenate(cs) if cs else np.zeros(0)
     wvals = np.concatenate(ws) if ws else np.zeros(0)
     return offset, count, np.ascontiguousarray(cvals), np.ascontiguousarray(wvals)
@@ -346,15 +348,15 @@ class FrameScore:
     @classmethod
     def from_model(
         cls,
-        model: object,
-        config: object,
+        model: LinearModel,
+        config: STFTConfig,
         band: tuple[float, float] | None = None,
     ) -> FrameScore:
         """The exact-law score of a linear model's STFT frames (``config``: an ``STFTConfig``)."""
         from .thresholds import frame_threshold
 
-        dt = model.dt  # type: ignore[attr-defined]
-        th = frame_threshold(model, config.freqs_hz(dt), config, dt, 0.5, band=band)  # type: ignore[arg-type, attr-defined]
+        dt = model.dt
+        th = frame_threshold(model, config.freqs_hz(dt), config, dt, 0.5, band=band)
         return cls(th)
 
     def bin_scores(self, power: np.ndarray) -> np.ndarray:
@@ -363,10 +365,10 @@ class FrameScore:
         u = p * self._inv1
         out = np.empty(u.shape)
         it = np.nditer(u, flags=["multi_index"])
-        for x in it:
+        for _ in it:
             j, c = it.multi_index[-2], it.multi_index[-1]
             out[it.multi_index] = self._exact_py(
-                float(x), int(self._off[j, c]), int(self._cnt[j, c]), self._cvals, self._wvals
+                float(u[it.multi_index]), int(self._off[j, c]), int(self._cnt[j, c]), self._cvals, self._wvals
             )
         return out
 

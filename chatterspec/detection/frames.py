@@ -4,8 +4,7 @@
 keeps between pushes) flags a frame on a channel when its spectrum exceeds the per-frame threshold
 at any tested bin; :func:`detect_frames` and :func:`frame_statistic` are its flags and peak ratios
 for a :class:`~chatterspec.detection.spectral.Spectrogram`. :func:`frame_intervals` turns flags
-into onset/offset times, :func:`stft_detect` does all of it for one record. Re-exported by
-:mod:`chatterspec.detection.detect` (their old home).
+into onset/offset times, :func:`stft_detect` does all of it for one record.
 """
 
 from __future__ import annotations
@@ -17,9 +16,9 @@ import numpy as np
 
 from .._repr import short_repr
 from ..errors import ParameterError, ShapeError
-from ..plants.models import LinearModel
+from ..plants.nonlinear import Model
 from ._verdict import peak_channel, peak_kernel
-from .spectral import DEFAULT_STFT, Spectrogram, STFTConfig, spectrogram
+from .spectral import DEFAULT_STFT, Spectrogram, STFTConfig, spectrogram, spectrum_model
 from .spectrum_verdicts import _channel_names
 from .thresholds import (
     Band,
@@ -334,7 +333,7 @@ class FrameDetection:
 
 def stft_detect(
     x: np.ndarray,
-    model: LinearModel,
+    model: Model,
     *,
     t0: float = 0.0,
     config: STFTConfig = DEFAULT_STFT,
@@ -383,7 +382,9 @@ def stft_detect(
                 f"{spec.power.shape[-2:]}: it was made for another STFT window or model"
             )
     else:
-        th = frame_threshold(model, spec.freqs_hz, config, model.dt, alpha, correction, band=band)
+        th = frame_threshold(
+            spectrum_model(model), spec.freqs_hz, config, model.dt, alpha, correction, band=band
+        )
     flags, _, stat = frame_verdicts(spec.power, th)
     level = healthy_frame_level(th)
     names = _channel_names(channels or model.output_names, flags.shape[-1])

@@ -62,6 +62,7 @@ import numpy as np
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError
 from ..plants.models import LinearModel
+from ..plants.nonlinear import Model
 from ..plants.parameters import NO_FAULT, UNEXPLAINED, Hypothesis
 from ._identification_fit import (
     IdentificationSetup,
@@ -101,7 +102,7 @@ __all__ = [
 
 
 def identification_setup(
-    model: LinearModel, hypotheses: Sequence[Hypothesis | str | Sequence[str]] | None = None
+    model: Model, hypotheses: Sequence[Hypothesis | str | Sequence[str]] | None = None
 ) -> IdentificationSetup:
     """What identification estimates for ``model``: entries, regressors and hypotheses.
 
@@ -201,6 +202,7 @@ def _moments(
         times_e = t0 + np.arange(1, T) * model.dt
         ka, kb = _window(times_e, window_s, T)
         times = (times_e[ka], times_e[kb - 1] + model.dt)
+        assert e is not None  # (the pipeline passes its chattering)
         return compute_moments(z, u, e, setup.J, setup.L, setup.R, ka, kb, times, setup.swe_pairs)
     z = finite_array("z", z, ndim=(2, 3))
     z = z[None] if z.ndim == 2 else z

@@ -28,7 +28,7 @@ from ._identification_moments import IdentificationMoments, compute_moments
 from .identification import identify_moments
 from .identification_results import Identification, IdentificationReport
 
-__all__ = ["OnlineIdentification", "OnlineIdentifier"]
+__all__ = ["OnlineIdentification", "OnlineIdentifier", "hop_windows"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -187,8 +187,17 @@ class OnlineIdentifier:
 
 def _stack(parts: list[IdentificationMoments]) -> IdentificationMoments:
     a = parts[0]
+
+    def cat(k: str) -> np.ndarray:
+        return np.concatenate([getattr(p, k) for p in parts])
+
     return IdentificationMoments(
-        **{k: np.concatenate([getattr(p, k) for p in parts]) for k in (*_FIELDS, "w_first", "w_last")},
+        swx=cat("swx"),
+        swe=cat("swe"),
+        s0=cat("s0"),
+        s1=cat("s1"),
+        w_first=cat("w_first"),
+        w_last=cat("w_last"),
         n_samples=a.n_samples,
         t_start=a.t_start,
         t_stop=a.t_stop,
@@ -197,7 +206,12 @@ def _stack(parts: list[IdentificationMoments]) -> IdentificationMoments:
 
 def _take(mom: IdentificationMoments, sl: slice) -> IdentificationMoments:
     return IdentificationMoments(
-        **{k: getattr(mom, k)[sl] for k in (*_FIELDS, "w_first", "w_last")},
+        swx=mom.swx[sl],
+        swe=mom.swe[sl],
+        s0=mom.s0[sl],
+        s1=mom.s1[sl],
+        w_first=mom.w_first[sl],
+        w_last=mom.w_last[sl],
         n_samples=mom.n_samples,
         t_start=mom.t_start,
         t_stop=mom.t_stop,
@@ -223,3 +237,65 @@ def _windows(blocks: IdentificationMoments, ends: np.ndarray, n: int) -> Identif
         t_start=float("nan"),  # per window: OnlineIdentification.window_s
         t_stop=float("nan"),
     )
+
+
+def hop_windows(
+    setup: IdentificationSetup,
+    z: np.ndarray,
+    u: np.ndarray,
+    *,
+    hop_samples: int,
+    window_hops: int,
+    t0: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray, IdentificationMoments]:
+    """The sums of every hop's window of whole records at once: :class:`OnlineIdentifier`'s windows of
+    each realization, vectorized over realizations and hops.
+
+    Parameters
+    ----------
+    setup : IdentificationSetup
+    z : (runs, T, m) array
+        Measurements (finite: simulated or checked data).
+    u : (T, p) or (runs, T, p) array
+        Inputs.
+    hop_samples, window_hops : int
+        As :class:`OnlineIdentifier`.
+    t0 : float
+        Time (s) of ``z[:, 0]``.
+
+    Returns
+    -------
+    frames : (W,) int array
+        Window (hop) numbers (the monitor's frame numbers).
+    times_s : (W,) array
+        Window centre times (s).
+    moments : IdentificationMoments
+        ``runs * W`` realizations, run-major (window ``j`` of run ``r`` at ``r * W + j``).
+    """
+    H, n = positive_int("hop_samples", hop_samples), positive_int("window_hops", window_hops)
+    z = z[None] if z.ndim == 2 else z
+    runs, T, m = z.shape
+    u = u.reshape(T, -1) if u.ndim == 1 else u
+    count = max(0, (T - 2) // H)  # blocks: raw samples b H .. (b + 1) H + 1
+    W = count - n + 1
+    if W < 1:
+        raise ShapeError(
+            f"records of {T} samples hold {count} hop(s) of {H} samples; a window needs {n} (give longer "
+            "records)"
+        )
+    model = setup.model
+    Phi_T, G_T = (model.C @ model.A @ model.C_inv).T, (model.C @ model.B).T
+    idx = np.arange(count)[:, None] * H + np.arange(H + 2)[None, :]
+    zb = z[:, idx].reshape(runs * count, H + 2, m)
+    p = u.shape[-1]
+    ub = np.broadcast_to(u[idx] if u.ndim == 2 else u[:, idx], (runs, count, H + 2, p)).reshape(-1, H + 2, p)
+    e = zb[:, 1:] - zb[:, :-1] @ Phi_T - ub[:, :-1] @ G_T  # closed form, eq (23)
+    st = setup
+    blocks = compute_moments(
+        zb, ub, e, st.J, st.L, st.R, 1, H + 1, (float("nan"), float("nan")), st.swe_pairs
+    )
+    ends = (np.arange(runs)[:, None] * count + np.arange(n - 1, count)[None, :]).ravel()
+    frames = np.arange(W)
+    dt = model.dt
+    times = t0 + (frames * H + 2) * dt + (n * H - 1) / 2.0 * dt
+    return frames, times, _windows(blocks, ends, n)

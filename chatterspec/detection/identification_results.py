@@ -60,9 +60,10 @@ class ParameterEstimate:
         if not np.isfinite(self.estimate):
             return f"ParameterEstimate({self.parameter}: no estimate, {self.reason})"
         u, se = (f" {self.unit}" if self.unit else ""), self.std_error
+        lo, hi = format_with_error(self.ci_low, se), format_with_error(self.ci_high, se)
         return (
-            f"ParameterEstimate({self.parameter} = {_fmt(self.estimate, se)}{u}, "
-            f"{self.confidence:.0%} [{_fmt(self.ci_low, se)}, {_fmt(self.ci_high, se)}])"
+            f"ParameterEstimate({self.parameter} = {format_with_error(self.estimate, se)}{u}, "
+            f"{self.confidence:.0%} [{lo}, {hi}])"
         )
 
 
@@ -112,9 +113,6 @@ def format_with_error(x: float, se: float) -> str:
     text = f"{x:#.{_sig(x, se)}g}"
     mant, _, exp = text.partition("e")
     return mant.rstrip(".") + (f"e{exp}" if exp else "")
-
-
-_fmt = format_with_error  # the short name used below (and its old import name)
 
 
 def _round(x: float, se: float) -> float | None:
@@ -169,8 +167,9 @@ class IdentificationReport:
     def __repr__(self) -> str:
         sel = self.estimate()
         what = ", ".join(
-            f"{e.parameter} = {_fmt(e.estimate, e.std_error)} [{_fmt(e.ci_low, e.std_error)}, "
-            f"{_fmt(e.ci_high, e.std_error)}]{(' ' + e.unit) if e.unit else ''}"
+            f"{e.parameter} = {format_with_error(e.estimate, e.std_error)} "
+            f"[{format_with_error(e.ci_low, e.std_error)}, "
+            f"{format_with_error(e.ci_high, e.std_error)}]{(' ' + e.unit) if e.unit else ''}"
             for e in sel
         )
         return f"IdentificationReport(selected={self.selected!r}{', ' + what if what else ''})"
@@ -257,8 +256,9 @@ class IdentificationReport:
         for e in self.estimates:
             t = tests[e.hypothesis]
             if np.isfinite(e.estimate):
-                est = _fmt(e.estimate, e.std_error)
-                ci = f"[{_fmt(e.ci_low, e.std_error)}, {_fmt(e.ci_high, e.std_error)}]"
+                est = format_with_error(e.estimate, e.std_error)
+                lo, hi = format_with_error(e.ci_low, e.std_error), format_with_error(e.ci_high, e.std_error)
+                ci = f"[{lo}, {hi}]"
             else:
                 est, ci = "none", "-"
             lines.append(

@@ -7,8 +7,9 @@ without the online monitor; :mod:`chatterspec.online.monitor` re-exports it (its
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 
@@ -102,6 +103,48 @@ class MonitorSettings:
             if any(p <= 0 for p in psi):
                 raise ParameterError(f"psi must be > 0; got {list(psi)}")
             object.__setattr__(self, "psi", psi)
+
+    @classmethod
+    def from_detector(
+        cls,
+        detector: Mapping[str, Any],
+        *,
+        gamma: float = 0.1,
+        psi: Sequence[float] | None = None,
+        alpha: float | None = None,
+        band: tuple[float, float] | None = None,
+    ) -> MonitorSettings:
+        """The settings a model file's ``[detector]`` table gives the monitor (no alarm rule yet).
+
+        Parameters
+        ----------
+        detector : mapping
+            ``ModelSpec.detector``: ``window_s``, ``hop_s`` (s), ``window``, ``alpha``, ``correction``,
+            ``band`` (Hz); missing keys take the defaults (1 s Hamming, 0.2 s hop, 0.001, Bonferroni).
+        gamma : float
+            SVSF convergence rate (the file's ``[svsf] gamma``).
+        psi : sequence of float, optional
+            Boundary layer per output (None: the auxiliary filter only).
+        alpha : float, optional
+            Per-frame level overriding the table's.
+        band : (float, float), optional
+            Tested band (Hz) overriding the table's.
+        """
+        stft = STFTConfig(
+            window_s=float(detector.get("window_s", 1.0)),
+            hop_s=float(detector.get("hop_s", 0.2)),
+            window=str(detector.get("window", "hamming")),
+        )
+        return cls(
+            stft=stft,
+            alpha=float(alpha if alpha is not None else detector.get("alpha", 1e-3)),
+            correction=cast(
+                Literal["none", "bonferroni", "sidak"], str(detector.get("correction", "bonferroni"))
+            ),  # checked by __post_init__
+            gamma=gamma,
+            psi=None if psi is None else tuple(float(x) for x in psi),
+            band=band or detector.get("band"),
+        )
 
     @property
     def false_alarms_per_hour(self) -> float | None:

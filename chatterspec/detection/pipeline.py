@@ -7,7 +7,7 @@ exactly the sequence of eq (49).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,8 +19,7 @@ from ..filters.nonlinear_svsf import nonlinear_chattering
 from ..filters.svsf import auxiliary_svsf
 from ..filters.svsf_steps import closed_form_step
 from ..filters.svsf_steps import rows_times as _rows_times
-from ..plants.models import LinearModel
-from ..plants.nonlinear import is_linear, require_linear
+from ..plants.nonlinear import Model, is_linear, require_linear
 from ..plants.scenarios import Scenario
 from ..plants.simulate import Simulation, default_chunk_runs, iter_simulations, scenario_input
 from ..plants.simulate_kernel import NO_CTRL, kernel_tables, plant_loop, same_shapes
@@ -56,7 +55,7 @@ class ChatteringRecord:
 
     t: np.ndarray
     values: np.ndarray
-    model: LinearModel
+    model: Model
     scenario: Scenario | None = None
     first_run: int = 0
     z: np.ndarray | None = None
@@ -84,7 +83,7 @@ class ChatteringRecord:
 
 
 def chattering_record(
-    model: LinearModel,
+    model: Model,
     z: np.ndarray,
     u: np.ndarray | None = None,
     *,
@@ -169,7 +168,7 @@ def chattering_sink(
 ) -> None:  # pragma: no cover - compiled
     """The auxiliary SVSF's chattering of each simulated sample: the sink of the fused loop.
 
-    ``e_out[row, i, k - 1] = e_i(k|k-1)`` by :func:`~chatterspec.filters._svsf_kernels.closed_form_step`
+    ``e_out[row, i, k - 1] = e_i(k|k-1)`` by :func:`~chatterspec.filters.svsf_steps.closed_form_step`
     (eq 23) from ``z(k)``, ``zp = z(k-1)`` and ``Gu[k - 1]`` = G u(k-1), for k >= 1; then ``zp = z(k)``.
     Channel-major output, so that each channel's record is contiguous for the periodogram's FFT.
     With a non-empty ``z_out`` (``(runs * m, T)``: the ``(runs, m, T)`` channel-major measurements)
@@ -251,7 +250,7 @@ def _rng_loop(
 _chattering_rng_kernel = _jit.specialize(_rng_loop, "any")
 
 
-def _rng_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
+def _rng_kernel(n: int, m: int) -> Callable[..., None]:
     """The drawing loop whose fused loop has this model's sizes as constants when small (unrolled).
 
     For the EHA's 3 x 3 this runs the arithmetic at the speed of the loop written out by hand
@@ -437,6 +436,3 @@ def scenario_chattering(
         model=scenario.nominal,
         scenario=scenario,
     )
-
-
-_can_fuse = can_fuse  # its old private name

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from .._repr import short_repr
 from .frames import FrameDetection
@@ -75,7 +76,7 @@ class DetectionReport:
 
         return detection_table(self.to_dict())
 
-    def to_dict(self) -> dict[str, object]:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready report.
 
         Keys: ``scenario``, ``runs``, ``detected``, ``threshold`` (the single-record

@@ -34,6 +34,7 @@ from functools import lru_cache
 from typing import Literal
 
 import numpy as np
+import numpy.typing as npt
 import scipy.fft
 
 from .._repr import short_repr
@@ -41,7 +42,7 @@ from .._stft import DEFAULT_STFT, STFTConfig, cached_taper
 from .._validate import finite_array, positive, positive_int, readonly
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
-from ..plants.nonlinear import NonlinearModel, require_linear
+from ..plants.nonlinear import Model, NonlinearModel, require_linear
 
 # STFTConfig is defined in the package base (model files check it without importing this module);
 # this module is its public home (reprs, pickles and the API docs name it here).
@@ -68,7 +69,7 @@ __all__ = [
 SpectrumForm = Literal["exact", "asymptotic"]
 
 
-def _time_series(name: str, x: object) -> np.ndarray:
+def _time_series(name: str, x: npt.ArrayLike) -> np.ndarray:
     arr = finite_array(name, x)
     if arr.ndim < 2:
         raise ShapeError(
@@ -189,6 +190,17 @@ def mean_periodogram(x: np.ndarray, dt: float) -> Periodogram:
 # ---------------------------------------------------------------------------
 # Expected healthy spectrum (eq 56, exact finite-N form)
 # ---------------------------------------------------------------------------
+def spectrum_model(model: Model) -> LinearModel:
+    """``model`` itself when linear: the closed-form chattering spectrum (eq 56-58) needs A and B.
+
+    Raises
+    ------
+    ModelKindError
+        For a nonlinear model (the message says to calibrate a threshold on healthy runs instead).
+    """
+    return require_linear(model, "the expected chattering spectrum (eq 56-58)")
+
+
 def chattering_autocovariance(model: LinearModel) -> tuple[np.ndarray, np.ndarray]:
     """Lag-0 and lag-1 autocovariances ``(gamma0, gamma1)``, each ``(m,)``, of the healthy chattering.
 
@@ -203,7 +215,7 @@ def chattering_autocovariance(model: LinearModel) -> tuple[np.ndarray, np.ndarra
         reduced-order chattering (eq 26-28) is not an MA(1) of this form.
     """
     if isinstance(model, NonlinearModel):
-        require_linear(model, "the expected chattering spectrum (eq 56-58)")
+        spectrum_model(model)
     if not isinstance(model, LinearModel):
         raise ParameterError(
             f"model must be a chatterspec.plants.models.LinearModel; got {type(model).__name__}"
@@ -220,7 +232,7 @@ def chattering_autocovariance(model: LinearModel) -> tuple[np.ndarray, np.ndarra
     return gamma0, gamma1
 
 
-def _freqs(freqs_hz: object) -> np.ndarray:
+def _freqs(freqs_hz: npt.ArrayLike) -> np.ndarray:
     return finite_array("freqs_hz", freqs_hz, ndim=1)
 
 

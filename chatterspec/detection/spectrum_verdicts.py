@@ -1,7 +1,6 @@
 """Verdicts and severity scores of whole-record spectra (``docs/design.md`` §6).
 
-Re-exported by :mod:`chatterspec.detection.detect` (their old home); STFT frames are in
-:mod:`chatterspec.detection.frames`.
+STFT frames are in :mod:`chatterspec.detection.frames`.
 
 A channel is flagged when its spectrum exceeds the threshold at any **tested**
 bin (DC and Nyquist excluded; the DC ratio is reported separately because a
@@ -43,6 +42,7 @@ import numpy as np
 from .. import _jit
 from .._repr import short_repr
 from ..errors import ModelKindError, ParameterError, ShapeError
+from ..plants.nonlinear import Model
 from ._verdict import verdict_kernel
 from .thresholds import (
     Threshold,
@@ -124,7 +124,7 @@ class SpectrumDetection:
     threshold: Threshold
 
     @property
-    def any_channel(self) -> np.ndarray:
+    def any_channel(self) -> np.ndarray | np.bool_:
         """``(...)`` bool: any channel detected."""
         return self.detected.any(axis=-1)
 
@@ -173,7 +173,12 @@ def _compiled_verdict(
     k_excess = np.empty((p3.shape[0], m), dtype=np.intp)
     p_sum = np.empty((p3.shape[0], m))
     verdict_kernel(p3, values, expected, idx, k, peak_ratio, k_excess, p_sum)
-    return tuple(a.reshape(*lead, m) for a in (k, peak_ratio, k_excess, p_sum))
+    return (
+        k.reshape(*lead, m),
+        peak_ratio.reshape(*lead, m),
+        k_excess.reshape(*lead, m),
+        p_sum.reshape(*lead, m),
+    )
 
 
 def detect_spectrum(
@@ -255,8 +260,8 @@ def detect_spectrum(
     )
 
 
-def _require_empirical(model: object, threshold: object) -> None:
-    """A nonlinear nominal model needs a calibrated threshold carrying its normalization."""
+def _require_empirical(model: Model, threshold: Threshold | str) -> np.ndarray:
+    """A nonlinear nominal model needs a calibrated threshold carrying its normalization (returned)."""
     if not (isinstance(threshold, Threshold) and threshold.expected is not None):
         raise ModelKindError(
             "the 'exact'/'paper' thresholds: detection needs a linear model (closed-form chattering "
@@ -264,6 +269,7 @@ def _require_empirical(model: object, threshold: object) -> None:
             f"{getattr(model, 'name', 'the model')!r} is nonlinear. Calibrate a threshold on healthy runs "
             "(chatterspec calibrate <healthy scenario> --out FILE, then detect --calibration FILE)"
         )
+    return threshold.expected
 
 
 _VERDICT_FIELDS = ("detected", "peak_hz", "most_significant_hz", "peak_ratio", "excess_power", "dc_ratio")

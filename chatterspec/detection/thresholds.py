@@ -52,6 +52,8 @@ Frequency band (beyond the paper)
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from .._validate import check_band, finite_array, open_unit, positive, positive_int, readonly
@@ -97,7 +99,7 @@ __all__ = [  # the threshold type's names (re-exported: their documented home) a
 def _check_law(law: str) -> ThresholdLaw:
     if law not in _LAWS:
         raise ParameterError(f"law must be one of {_LAWS}; got {law!r}")
-    return law  # type: ignore[return-value]
+    return cast(ThresholdLaw, law)
 
 
 def _chi2_threshold(

@@ -8,7 +8,7 @@ wins and when (e.g. after the plant switches to F2 at 0.5 s in ``detc-uncertain`
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import matplotlib
 
@@ -22,6 +22,9 @@ from ..palette import filter_color, mpl
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
+    from ..plants.nonlinear import Model
+    from ..studies.estimation import EstimateRecords
+
 __all__ = ["estimation_error_figure"]
 
 #: Line colours per filter name: the shared palette (chatterspec.palette, also used by the recordings).
@@ -34,7 +37,7 @@ ALPHAS = {"kf": 0.45, "ekf": 0.45, "svsf": 0.85, "svsf2": 1.0}
 LABELS = {"kf": "Kalman filter", "ekf": "EKF", "svsf": "1st-order SVSF", "svsf2": "dynamic 2nd-order SVSF"}
 
 
-def estimation_error_figure(records: Any, *, run: int = 0, title: str | None = None) -> Figure:
+def estimation_error_figure(records: EstimateRecords, *, run: int = 0, title: str | None = None) -> Figure:
     """Per-state estimation error of one realization and the RMS error over realizations vs time.
 
     Parameters
@@ -96,7 +99,7 @@ def estimation_error_figure(records: Any, *, run: int = 0, title: str | None = N
     return fig
 
 
-def _state_units(model: Any) -> tuple[str, ...]:
+def _state_units(model: Model) -> tuple[str, ...]:
     """Units of the states: the model's ``state_units`` where it declares them (nonlinear models), else
     the unit of the output of the same name (a measured state); ``""`` where neither says."""
     declared = tuple(getattr(model, "state_units", ()) or ())

@@ -16,9 +16,10 @@ import scipy.stats
 from matplotlib.figure import Figure
 
 from ..detection.pipeline import ChatteringRecord, iter_chattering
-from ..detection.spectral import periodogram
+from ..detection.spectral import periodogram, spectrum_model
 from ..detection.thresholds import Threshold, exact_threshold, paper_threshold
 from ..errors import ParameterError
+from ..plants.nonlinear import Model
 from ..plants.scenarios import Scenario, scenario
 from ..rng import SeedLike
 from . import plotting as pl
@@ -91,8 +92,9 @@ def _spectrum(name: str, runs: int = 1, seed: SeedLike = 0, *, average: bool = F
         if rec is None:
             rec = replace(chunk, values=np.array(chunk.values[:1]))  # a copy: frees the chunk
             single = np.array(pg.power[0])
+    assert total is not None and rec is not None and pg is not None  # (runs >= 1 records)
     power = total / runs if average else single
-    th = exact_threshold(sc.nominal, pg.freqs_hz, pg.n_samples, 0.5, "none")
+    th = exact_threshold(spectrum_model(sc.nominal), pg.freqs_hz, pg.n_samples, 0.5, "none")
     return _Spectrum(
         scenario=sc,
         record=rec,
@@ -108,7 +110,7 @@ def _thresholds(
     sp: _Spectrum, alphas: Sequence[float], kinds: Sequence[str] = ("paper", "exact")
 ) -> list[Threshold]:
     """Thresholds for ``sp``: for each kind, one per alpha (paper per-bin, exact Bonferroni family-wise)."""
-    model, f, n = sp.scenario.nominal, sp.freqs_hz, sp.record.n_samples
+    model, f, n = spectrum_model(sp.scenario.nominal), sp.freqs_hz, sp.record.n_samples
     out: list[Threshold] = []
     for kind in kinds:
         for a in alphas:
@@ -189,7 +191,7 @@ def _note(
     return lines, "; ".join(summary)
 
 
-def _true_model(sc: Scenario):
+def _true_model(sc: Scenario) -> Model:
     """The true plant of a whole-record scenario (the nominal model when healthy)."""
     return sc.plant if sc.plant is not None else sc.nominal
 
@@ -209,9 +211,10 @@ def _context(
         lines.append(pl.FrequencyLine(f_nom, label, "black", ":"))
     true = _true_model(sc)
     f_true, z_true = true.natural_frequency_hz, true.damping_ratio
-    if f_true is not None and (f_nom is None or abs(f_true - f_nom) > 0.05 or abs(z_true - z_nom) > 0.01):
-        label = true_label or f"true natural frequency {f_true:.1f} Hz (ζ = {z_true:.2f})"
-        lines.append(pl.FrequencyLine(f_true, label, true_color, (0, (4, 2))))
+    if f_true is not None and z_true is not None:  # (a natural frequency comes with its damping)
+        if f_nom is None or z_nom is None or abs(f_true - f_nom) > 0.05 or abs(z_true - z_nom) > 0.01:
+            label = true_label or f"true natural frequency {f_true:.1f} Hz (ζ = {z_true:.2f})"
+            lines.append(pl.FrequencyLine(f_true, label, true_color, (0, (4, 2))))
     lo, hi = getattr(sc.input, "f_start_hz", None), getattr(sc.input, "f_stop_hz", None)
     if lo is not None and hi is not None:
         return tuple(lines), (float(lo), float(hi)), f"chirp input band {lo:g}-{hi:g} Hz"
@@ -304,8 +307,8 @@ def _overlay(
     curves = [pl.SpectrumCurve(base.power[:, ch], f"{healthy} (healthy)", color="0.6", linewidth=0.7)]
     text, _ = _note(base.power, ths, ch, prefix=f"{'healthy':<10}")
     notes = [f"{name} {healthy}: {_note(base.power, ths, ch)[1]}"]
-    lines, band, band_label = _context(base.scenario)
-    lines = list(lines)
+    context, band, band_label = _context(base.scenario)
+    lines = list(context)
     for i, (sc_name, label, color) in enumerate(levels):
         sp = _spectrum(sc_name, 1, seed)
         if sp.scenario.nominal.fingerprint() != base.scenario.nominal.fingerprint():

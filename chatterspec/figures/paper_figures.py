@@ -30,7 +30,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..detection.pipeline import scenario_chattering
-from ..detection.spectral import STFTConfig, spectrogram
+from ..detection.spectral import STFTConfig, spectrogram, spectrum_model
+from ..detection.threshold_type import Correction
 from ..detection.thresholds import Threshold, exact_threshold, frame_threshold, paper_threshold
 from ..errors import ParameterError
 from ..plants.scenarios import scenario
@@ -289,10 +290,15 @@ def fig6(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     """
     K = 100 if runs is None else runs
     sp = _spectrum("so-f11-high", K, seed, average=True)
+    model = spectrum_model(sp.scenario.nominal)
     ths = [
-        averaged_paper_threshold(paper_threshold(sp.scenario.nominal, sp.freqs_hz, FAULT_ALPHA), sp.averaged),
+        averaged_paper_threshold(paper_threshold(model, sp.freqs_hz, FAULT_ALPHA), sp.averaged),
         exact_threshold(
-            sp.scenario.nominal, sp.freqs_hz, sp.record.n_samples, FAULT_ALPHA, averaged=sp.averaged
+            model,
+            sp.freqs_hz,
+            sp.record.n_samples,
+            FAULT_ALPHA,
+            averaged=sp.averaged,
         ),
     ]
     p, n = _panel(
@@ -320,7 +326,7 @@ def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     intervals detected by the per-frame exact threshold (alpha 0.1 % per frame,
     Bonferroni over the frame's bins) are marked above each spectrogram.
     """
-    from ..detection.detect import detect_frames, frame_intervals, frame_statistic, healthy_frame_level
+    from ..detection.frames import detect_frames, frame_intervals, frame_statistic, healthy_frame_level
 
     config = STFTConfig(1.0, 0.2, "hamming")
     panels, notes = [], []
@@ -328,13 +334,15 @@ def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
         sc = scenario(name)
         rec = scenario_chattering(sc, 1, seed)
         sg = spectrogram(rec.values[0], rec.dt, config, t0=float(rec.t[0]))
-        th = frame_threshold(sc.nominal, sg.freqs_hz, config, rec.dt, FAULT_ALPHA, "bonferroni")
+        th = frame_threshold(
+            spectrum_model(sc.nominal), sg.freqs_hz, config, rec.dt, FAULT_ALPHA, "bonferroni"
+        )
         ch = _channel_index(sc, "velocity")
         flags = np.asarray(detect_frames(sg, th))[:, ch]
         # the window-extent estimates of `detect --json` and of the recording's lanes
         stat = np.asarray(frame_statistic(sg, th))[:, ch]
-        intervals = frame_intervals(flags, sg.times_s, config, rec.dt, stat, healthy_frame_level(th))
-        intervals = tuple((float(a), float(b)) for a, b in intervals)
+        found = frame_intervals(flags, sg.times_s, config, rec.dt, stat, healthy_frame_level(th))
+        intervals = tuple((float(a), float(b)) for a, b in found)
         panels.append(
             pl.SpectrogramPanel(
                 times_s=sg.times_s,
@@ -439,7 +447,7 @@ def scenario_spectrum(
     channel: str | int | None = None,
     alpha: float = FAULT_ALPHA,
     threshold: str = "both",
-    correction: str = "bonferroni",
+    correction: Correction = "bonferroni",
     runs: int = 1,
     seed: SeedLike = 0,
 ) -> PaperFigure:
@@ -482,12 +490,12 @@ def scenario_spectrum(
     else:
         channels = [_channel_index(sc, channel)]
     sp = _spectrum(name, runs, seed, average=runs > 1)
-    model, f, n = sc.nominal, sp.freqs_hz, sp.record.n_samples
+    model, f, n = spectrum_model(sc.nominal), sp.freqs_hz, sp.record.n_samples
     ths: list[Threshold] = []
     if threshold in ("both", "paper"):
         ths.append(averaged_paper_threshold(paper_threshold(model, f, alpha), sp.averaged))
     if threshold in ("both", "exact"):
-        ths.append(exact_threshold(model, f, n, alpha, correction, averaged=sp.averaged))  # type: ignore[arg-type]
+        ths.append(exact_threshold(model, f, n, alpha, correction, averaged=sp.averaged))
     panels, notes = [], []
     inset = SO_INSET_HZ if sc.family == "second-order" and not sc.is_healthy else None
     for ch in channels:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import textwrap
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypedDict, Unpack
 
 import matplotlib
 
@@ -23,6 +23,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from ..plants.scenarios import Scenario
     from ..studies.excitation import ExcitationResult
+    from ..studies.intervals import RateEstimate
 
 __all__ = ["closed_loop_spectra_figure", "excitation_figure", "footprint_figure", "step_response_figure"]
 
@@ -32,7 +33,15 @@ def _color(index: int) -> tuple[float, float, float]:
     return mpl(channel_color(index))
 
 
-def _errorbar(ax: plt.Axes, x: np.ndarray, ests: list, **kw: object) -> None:
+class _Style(TypedDict):
+    """The line style of one series of :func:`_errorbar`."""
+
+    ls: str
+    color: tuple[float, float, float]
+    label: str
+
+
+def _errorbar(ax: plt.Axes, x: np.ndarray, ests: list[RateEstimate], **kw: Unpack[_Style]) -> None:
     rate = np.array([e.rate for e in ests])
     lo = np.array([e.ci_low for e in ests])
     hi = np.array([e.ci_high for e in ests])
@@ -172,7 +181,9 @@ def step_response_figure(scenarios: Sequence[Scenario], runs: int = 1, seed: int
         axes[1].plot(t, sim.u[0, :, 0], color=color, lw=0.5, alpha=0.6)
         axes[1].plot(t, u, color=color, lw=1.2)
         axes[2].plot(t, x[:, 2] * 1e-3, color=color, lw=1.2)
-    sat = scenarios[0].closed_loop.controller.saturation  # type: ignore[union-attr]
+    loop = scenarios[0].closed_loop
+    assert loop is not None  # (closed-loop scenarios)
+    sat = loop.controller.saturation
     for v in (-sat, sat):
         axes[1].axhline(v, color=mpl(NEUTRAL), lw=0.8, ls=":", label="saturation" if v > 0 else None)
     axes[0].set_ylabel("position (mm)")
@@ -221,7 +232,7 @@ def closed_loop_spectra_figure(
     matplotlib.figure.Figure
     """
     from ..detection.pipeline import iter_chattering
-    from ..detection.spectral import expected_spectrum, periodogram
+    from ..detection.spectral import expected_spectrum, periodogram, spectrum_model
     from ..detection.thresholds import exact_threshold
 
     m = scenarios[0].nominal.n_outputs
@@ -233,9 +244,10 @@ def closed_loop_spectra_figure(
             P = periodogram(rec.values, rec.dt)
             part = P.power.sum(axis=0)
             total = part if total is None else total + part
+        assert total is not None and P is not None  # (runs >= 1 records)
         mean = total / runs
         f = P.freqs_hz
-        nom, N = sc.nominal, sc.n_samples - 1
+        nom, N = spectrum_model(sc.nominal), sc.n_samples - 1
         key = nom.fingerprint()
         if key not in drawn:
             drawn[key] = sc.name
@@ -304,7 +316,7 @@ def footprint_figure(scenario: Scenario, seed: int = 0) -> Figure:
     matplotlib.figure.Figure
     """
     from ..detection.pipeline import chattering_record
-    from ..detection.spectral import chattering_autocovariance
+    from ..detection.spectral import chattering_autocovariance, spectrum_model
     from ..plants.simulate import simulate
     from ..studies.chattering_diagnosis import healthy_version
     from ..studies.footprint import replayed_open_loop
@@ -331,7 +343,7 @@ def footprint_figure(scenario: Scenario, seed: int = 0) -> Figure:
     axes[1].plot(
         t, du, color=_color(0), lw=0.8, label=f"closed loop: RMS {np.sqrt(np.mean(du**2)):.2f} rad/s"
     )
-    model = scenario.nominal
+    model = spectrum_model(scenario.nominal)
     p = model.output_names.index("pressure") if "pressure" in model.output_names else model.n_outputs - 1
     e = chattering_record(model, sims["closed"].z, sims["closed"].u).values[0, :, p]
     sd = np.sqrt(chattering_autocovariance(model)[0][p])

@@ -11,7 +11,7 @@ backend; imported on demand only.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -19,6 +19,10 @@ from ..palette import filter_color, mpl
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
+
+    from ..studies.budget_results import OnsetFigures, RouteBudget
+    from ..studies.chattering_diagnosis import ChatteringDiagnosis
+    from ..studies.mode_diagnosis import ModeDiagnosis
 
 __all__ = [
     "BUDGET_HEADER",
@@ -31,7 +35,7 @@ __all__ = [
 ]
 
 #: Column titles of :func:`diagnosis_rows`.
-DIAGNOSIS_HEADER = (
+DIAGNOSIS_HEADER: tuple[str, ...] = (
     "method",
     "false alarms (runs) [99% CI]",
     "onset [s]",
@@ -48,27 +52,31 @@ def _ms(v: float) -> str:
     return f"{1e3 * v:.0f}" if abs(v) >= 0.0995 else f"{1e3 * v:.1f}"
 
 
-def _isolation(r: object, i: int) -> str:
-    if r.method == "chattering":  # type: ignore[attr-defined]
-        onset = r.onsets[i]  # type: ignore[attr-defined]
+def _isolation(result: ModeDiagnosis | ChatteringDiagnosis, i: int) -> str:
+    if result.method == "chattering":
+        r = cast("ChatteringDiagnosis", result)
+        onset = r.onsets[i]
         s = next(
-            (j for j, span in enumerate(r.segment_span_s) if abs(span[0] - onset) < 1e-9),  # type: ignore[attr-defined]
+            (j for j, span in enumerate(r.segment_span_s) if abs(span[0] - onset) < 1e-9),
             None,
         )
-        if s is None or r.flagged_channel[s] is None:  # type: ignore[attr-defined]
+        if s is None or r.flagged_channel[s] is None:
             return "nothing flagged"
-        c = r.channels.index(r.flagged_channel[s])  # type: ignore[attr-defined]
-        frac = r.flag_fraction[s, c]  # type: ignore[attr-defined]
-        return f"{r.flagged_channel[s]} @ {r.peak_hz[s]:.1f} Hz ({100 * frac:.0f}% frames)"  # type: ignore[attr-defined]
-    k = r.new_modes[i]  # type: ignore[attr-defined]
-    mode = r.modes[k]  # type: ignore[attr-defined]
+        c = r.channels.index(r.flagged_channel[s])
+        frac = r.flag_fraction[s, c]
+        return f"{r.flagged_channel[s]} @ {r.peak_hz[s]:.1f} Hz ({100 * frac:.0f}% frames)"
+    m = cast("ModeDiagnosis", result)
+    k = m.new_modes[i]
+    mode = m.modes[k]
     return (
-        f"{mode} {r.confusion[k, k]:.1f}%, argmax after "  # type: ignore[attr-defined]
-        f"{_ms(r.isolation_median[i])}/{_ms(r.isolation_p90[i])} ms"  # type: ignore[attr-defined]
+        f"{mode} {m.confusion[k, k]:.1f}%, argmax after "
+        f"{_ms(m.isolation_median[i])}/{_ms(m.isolation_p90[i])} ms"
     )
 
 
-def diagnosis_rows(results: Sequence[object]) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
+def diagnosis_rows(
+    results: Sequence[ModeDiagnosis | ChatteringDiagnosis],
+) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
     """The comparison table as strings.
 
     Parameters
@@ -83,22 +91,22 @@ def diagnosis_rows(results: Sequence[object]) -> tuple[tuple[str, ...], list[tup
         :data:`DIAGNOSIS_HEADER` and one row per (method, onset); the false-alarm and cost cells are
         filled on a method's first row only.
     """
-    rows = []
+    rows: list[tuple[str, ...]] = []
     for r in results:
-        lo, hi = r.false_alarm_ci  # type: ignore[attr-defined]
-        fa = f"{r.false_alarm_runs}/{r.runs} [{lo:.3f}, {hi:.3f}]"  # type: ignore[attr-defined]
-        if not np.isfinite(r.healthy_alarm_fraction):  # type: ignore[attr-defined]
+        lo, hi = r.false_alarm_ci
+        fa = f"{r.false_alarm_runs}/{r.runs} [{lo:.3f}, {hi:.3f}]"
+        if not np.isfinite(r.healthy_alarm_fraction):
             fa = "n/a (no healthy part)"  # faulty from the start: no false alarm can be counted
-        for i, onset in enumerate(r.onsets):  # type: ignore[attr-defined]
+        for i, onset in enumerate(r.onsets):
             rows.append(
                 (
-                    r.method if i == 0 else "",  # type: ignore[attr-defined]
+                    r.method if i == 0 else "",
                     fa if i == 0 else "",
                     f"{onset:.2f}",
-                    f"{_ms(r.detection_median[i])}/{_ms(r.detection_p90[i])}",  # type: ignore[attr-defined]
+                    f"{_ms(r.detection_median[i])}/{_ms(r.detection_p90[i])}",
                     _isolation(r, i),
-                    str(r.missed[i]),  # type: ignore[attr-defined]
-                    f"{r.steps_per_second:.3g}" if i == 0 else "",  # type: ignore[attr-defined]
+                    str(r.missed[i]),
+                    f"{r.steps_per_second:.3g}" if i == 0 else "",
                 )
             )
     return DIAGNOSIS_HEADER, rows
@@ -116,7 +124,9 @@ DIAGNOSIS_NOTES = (
 
 
 def diagnosis_table_figure(
-    results: Sequence[object], title: str = "", notes: Sequence[str] = DIAGNOSIS_NOTES
+    results: Sequence[ModeDiagnosis | ChatteringDiagnosis],
+    title: str = "",
+    notes: Sequence[str] = DIAGNOSIS_NOTES,
 ) -> Figure:
     """The comparison table drawn as a compact matplotlib table, with footnotes.
 
@@ -173,7 +183,7 @@ def diagnosis_table_figure(
 
 # --------------------------------------------------------------------------- at one false-alarm budget
 #: Column titles of :func:`budget_rows`.
-BUDGET_HEADER = (
+BUDGET_HEADER: tuple[str, ...] = (
     "method",
     "threshold",
     "false alarms/h [99% CI] (count/hours)",
@@ -195,15 +205,15 @@ def _rate(v: float) -> str:
     return f"{v:.3g}"
 
 
-def _budget_isolation(o: object) -> str:
-    iso = o.isolated  # type: ignore[attr-defined]
+def _budget_isolation(o: OnsetFigures) -> str:
+    iso = o.isolated
     parts = ", ".join(f"{k} {v}" for k, v in sorted(iso.items(), key=lambda kv: -kv[1])) or "-"
-    if o.true_label is None:  # type: ignore[attr-defined]
+    if o.true_label is None:
         return parts
-    return f"{parts}; {o.true_label} after {_ms(o.isolation_median_s)}/{_ms(o.isolation_p90_s)} ms"  # type: ignore[attr-defined]
+    return f"{parts}; {o.true_label} after {_ms(o.isolation_median_s)}/{_ms(o.isolation_p90_s)} ms"
 
 
-def budget_rows(results: Sequence[object]) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
+def budget_rows(results: Sequence[RouteBudget]) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
     """The comparison at one false-alarm budget as strings (one row per route and onset).
 
     Parameters
@@ -217,22 +227,22 @@ def budget_rows(results: Sequence[object]) -> tuple[tuple[str, ...], list[tuple[
         :data:`BUDGET_HEADER` and the rows; the threshold, false-alarm and cost cells are filled on a
         route's first row only.
     """
-    rows = []
+    rows: list[tuple[str, ...]] = []
     for r in results:
-        lo, hi = r.rate_ci  # type: ignore[attr-defined]
-        if r.healthy_hours > 0:  # type: ignore[attr-defined]
+        lo, hi = r.rate_ci
+        if r.healthy_hours > 0:
             fa = (
-                f"{_rate(r.rate_per_hour)} [{_rate(lo)}, {_rate(hi)}] "  # type: ignore[attr-defined]
-                f"({r.false_alarms}/{r.healthy_hours:.3g})"  # type: ignore[attr-defined]
+                f"{_rate(r.rate_per_hour)} [{_rate(lo)}, {_rate(hi)}] "
+                f"({r.false_alarms}/{r.healthy_hours:.3g})"
             )
-            fa += "" if r.budget_inside else " <- budget outside"  # type: ignore[attr-defined]
+            fa += "" if r.budget_inside else " <- budget outside"
         else:
             fa = "n/a (no healthy part; --onset S gives one)"
-        h = r.rule.get("threshold")  # type: ignore[attr-defined]
-        for i, o in enumerate(r.onsets):  # type: ignore[attr-defined]
+        h = r.rule.get("threshold")
+        for i, o in enumerate(r.onsets):
             rows.append(
                 (
-                    r.method if i == 0 else "",  # type: ignore[attr-defined]
+                    r.method if i == 0 else "",
                     ("never (not calibrated)" if h is None else f"{h:.4g}") if i == 0 else "",
                     fa if i == 0 else "",
                     f"{o.onset_s:.2f}",
@@ -240,13 +250,13 @@ def budget_rows(results: Sequence[object]) -> tuple[tuple[str, ...], list[tuple[
                     str(o.missed),
                     str(o.in_alarm_at_onset),
                     _budget_isolation(o),
-                    f"{r.steps_per_second:.3g}" if i == 0 else "",  # type: ignore[attr-defined]
+                    f"{r.steps_per_second:.3g}" if i == 0 else "",
                 )
             )
     return BUDGET_HEADER, rows
 
 
-def delay_far_figure(results: Sequence[object], title: str = "") -> Figure:
+def delay_far_figure(results: Sequence[RouteBudget], title: str = "") -> Figure:
     """Detection delay against false alarms per hour, thresholds swept on the same realizations.
 
     One panel per fault onset; per route, the median delay (line) and its 90th percentile (shaded)
@@ -272,31 +282,31 @@ def delay_far_figure(results: Sequence[object], title: str = "") -> Figure:
     import matplotlib.pyplot as plt
 
     results = list(results)
-    n_on = max((len(r.onsets) for r in results), default=0)  # type: ignore[attr-defined]
+    n_on = max((len(r.onsets) for r in results), default=0)
     # an onset that the runs meet already in alarm at the budget (a second fault) has no delay to draw
     panels = [
         i
         for i in range(n_on)
-        if any(i < len(r.onsets) and np.isfinite(r.onsets[i].delay_median_s) for r in results)  # type: ignore[attr-defined]
+        if any(i < len(r.onsets) and np.isfinite(r.onsets[i].delay_median_s) for r in results)
     ] or [0]
     fig, axes = plt.subplots(1, len(panels), figsize=(5.6 * len(panels), 4.4), squeeze=False, sharey=True)
-    budget = results[0].budget_per_hour if results else 1.0  # type: ignore[attr-defined]
+    budget = results[0].budget_per_hour if results else 1.0
     for col, i in enumerate(panels):
         ax = axes[0, col]
         for r in results:
-            if i >= len(r.onsets):  # type: ignore[attr-defined]
+            if i >= len(r.onsets):
                 continue
-            c = r.curve  # type: ignore[attr-defined]
-            color = METHOD_COLORS.get(r.method, None)  # type: ignore[attr-defined]
+            c = r.curve
+            color = METHOD_COLORS.get(r.method, None)
             far = np.asarray(c["far_per_hour"][:-1], dtype=float)
             med = np.asarray(c["delay_median_s"][i][:-1], dtype=float)
             p90 = np.asarray(c["delay_p90_s"][i][:-1], dtype=float)
             ok = (far > 0) & np.isfinite(med)
             order = np.argsort(far[ok])
             x, y, y90 = far[ok][order], np.maximum(med[ok][order], 1e-4), np.maximum(p90[ok][order], 1e-4)
-            ax.plot(x, y, "-o", ms=3, color=color, label=r.method)  # type: ignore[attr-defined]
+            ax.plot(x, y, "-o", ms=3, color=color, label=r.method)
             ax.fill_between(x, y, y90, color=color, alpha=0.15, lw=0)
-            o = r.onsets[i]  # type: ignore[attr-defined]
+            o = r.onsets[i]
             if np.isfinite(o.delay_median_s):
                 ax.plot([budget], [max(o.delay_median_s, 1e-4)], "*", ms=13, color=color, mec="k", mew=0.6)
             hours = c.get("calibration_hours", 0.0)
@@ -305,7 +315,7 @@ def delay_far_figure(results: Sequence[object], title: str = "") -> Figure:
         ax.axvline(budget, color="k", lw=0.8, ls="--")
         ax.set_xscale("log")
         ax.set_yscale("log")
-        onset = next((r.onsets[i].onset_s for r in results if i < len(r.onsets)), float("nan"))  # type: ignore[attr-defined]
+        onset = next((r.onsets[i].onset_s for r in results if i < len(r.onsets)), float("nan"))
         ax.set_title(f"onset at {onset:g} s", fontsize=10)
         ax.set_xlabel("false alarms per hour (healthy calibration streams)")
         if col == 0:

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from matplotlib.artist import Artist
@@ -48,6 +48,9 @@ from .style import (
     save_figure,
 )
 from .time_plots import BoundaryLayerPanel, SpectrogramPanel, boundary_layer_figure, spectrogram_figure
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.thresholds import Threshold
 
 __all__ = [
     "DEFAULT_DPI",
@@ -245,7 +248,7 @@ class SpectrumPanel:
 
 
 # --------------------------------------------------------------------------- thresholds
-def threshold_curve(threshold: Any, channel: int, *, label: str | None = None) -> ThresholdCurve:
+def threshold_curve(threshold: Threshold, channel: int, *, label: str | None = None) -> ThresholdCurve:
     """A :class:`ThresholdCurve` for one channel of a :class:`chatterspec.detection.thresholds.Threshold`.
 
     Bins the threshold does not test (``threshold.tested`` False) are set to NaN
@@ -413,7 +416,7 @@ def draw_spectrum(
             over = shown & np.isfinite(values[j]) & (p > values[j])
             if np.any(over):
                 any_over = True
-                tick = {"ls": "none", "marker": "|", "ms": 5, "mew": 1.0, "zorder": 4}
+                tick: dict[str, Any] = {"ls": "none", "marker": "|", "ms": 5, "mew": 1.0, "zorder": 4}
                 ax.plot(f[over], np.full(int(over.sum()), y), color=styles[j]["color"], **tick)
                 ax.lines[-1].set_transform(ax.get_xaxis_transform())
     if any_over:
@@ -464,7 +467,8 @@ def _fit_log_y(ax: Axes, y_data: Sequence[np.ndarray]) -> None:
 
 def _draw_zoom(ax: Axes, panel: SpectrumPanel) -> Axes:
     """Draw ``panel`` again into ``ax`` on the band ``panel.inset_hz`` (no note, no legend)."""
-    lo, hi = panel.inset_hz  # type: ignore[misc]
+    assert panel.inset_hz is not None  # (drawn for a panel with an inset)
+    lo, hi = panel.inset_hz
     if not hi > lo:
         raise ParameterError(f"inset_hz must be (f_lo, f_hi) with f_lo < f_hi; got {panel.inset_hz}")
     draw_spectrum(ax, replace(panel, title=""), legend=False, xlim_hz=(lo, hi), note=False)
@@ -573,7 +577,8 @@ def spectrum_figure(
             handles.setdefault(str(a.get_label()), a)
     if sharey:  # each panel fitted its own range; the shared axis needs their union
         lims = np.array([ax.get_ylim() for ax in main_axes(fig)])
-        first.set_ylim(float(lims[:, 0].min()), float(lims[:, 1].max()))  # type: ignore[union-attr]
+        assert first is not None  # (one panel at least)
+        first.set_ylim(float(lims[:, 0].min()), float(lims[:, 1].max()))
     # one legend for the whole figure: every panel uses the same conventions
     fig.legend(
         handles=list(handles.values()),

@@ -12,7 +12,7 @@ import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -22,6 +22,9 @@ import matplotlib.pyplot as plt
 from matplotlib.figure import Figure
 
 from ..errors import ParameterError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from matplotlib.axes import Axes
 
 __all__ = ["DEFAULT_DPI", "FrequencyLine", "format_alpha", "frequency_lines", "power_unit", "save_figure"]
 
@@ -161,7 +164,7 @@ def save_figure(fig: Figure, path: str | Path, *, dpi: int = DEFAULT_DPI, close:
     return path
 
 
-def frequency_lines(ax: Any, lines: Sequence[FrequencyLine]) -> list[Any]:
+def frequency_lines(ax: Axes, lines: Sequence[FrequencyLine]) -> list[Any]:
     """Draw frequency lines on ``ax`` and return one legend artist per entry.
 
     A line alone in its style (the nominal natural frequency) spans the whole height; lines sharing a

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib.artist import Artist
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
@@ -124,7 +125,7 @@ def summary_figure(rows: Sequence[RatioRow], *, title: str = "", threshold_label
     ax.set_ylim(-0.6, n - 0.4)
     ax.set_xlabel("peak ratio max S(f) / threshold(f) over the tested bins (log; > 1 = detected)")
     ax.grid(True, axis="x", which="major", alpha=0.3)
-    handles = [
+    handles: list[Artist] = [
         Line2D([], [], ls="none", marker=markers[c], ms=7, mec=cmap[c], mfc="white", mew=1.4, label=c)
         for c in channels
     ]

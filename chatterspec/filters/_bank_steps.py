@@ -1,6 +1,6 @@
 """Compiled steps shared by the multiple-model banks (IMM, SMM-SVSF): likelihood, probabilities, combination.
 
-:func:`log_gaussian_step` is :func:`chatterspec.filters.multiple_model.log_gaussian` for one
+:func:`log_gaussian_step` is :func:`chatterspec.filters.bank_math.log_gaussian` for one
 innovation; :func:`mode_probabilities_step` is ``normalize_log_weights`` for one realization;
 :func:`combine_step` is ``combine`` for one realization. Each does its numpy twin's arithmetic in
 loop order, so the banks' compiled loops agree with their numpy paths to a few ulps per sample
@@ -9,10 +9,14 @@ loop order, so the banks' compiled loops agree with their numpy paths to a few u
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import TypedDict
+
 import numpy as np
 
 from .. import _jit
 from ..errors import SingularMatrixError
+from ..plants.steps import PlantSteps
 from ._engine import (
     LOG2PI,
     _luen_message,
@@ -35,8 +39,17 @@ def _solve_col(L: np.ndarray, b: np.ndarray, out: np.ndarray, m: int) -> None:  
     chol_solve_step(L, b.reshape((m, 1)), out.reshape((m, 1)), m, 1)
 
 
-def _log_gaussian(e, S, m, Sc, L, ec, col, tmp):  # type: ignore[no-untyped-def]  # pragma: no cover
-    """``log N(e; 0, S)`` of one innovation, as :func:`~chatterspec.filters.multiple_model.log_gaussian`.
+def _log_gaussian(
+    e: np.ndarray,
+    S: np.ndarray,
+    m: int,
+    Sc: np.ndarray,
+    L: np.ndarray,
+    ec: np.ndarray,
+    col: np.ndarray,
+    tmp: np.ndarray,
+) -> float:  # pragma: no cover
+    """``log N(e; 0, S)`` of one innovation, as :func:`~chatterspec.filters.bank_math.log_gaussian`.
 
     ``S`` is scaled to its correlation matrix ``Sc`` (``D = sqrt(diag S)``); with the Cholesky
     factor of ``Sc`` when ``1 / trace(Sc^-1)`` -- a lower bound of its smallest eigenvalue, with
@@ -133,7 +146,9 @@ def mode_probabilities_step(
 
 
 @_jit.step
-def combine_step(mu, xs, Ps, x, P, nm, n):  # type: ignore[no-untyped-def]  # pragma: no cover
+def combine_step(
+    mu: np.ndarray, xs: np.ndarray, Ps: np.ndarray, x: np.ndarray, P: np.ndarray, nm: int, n: int
+) -> None:  # pragma: no cover
     """``x = sum_j mu_j x_j``, ``P = sum_j mu_j [P_j + (x_j - x)(x_j - x)^T]`` for one realization."""
     for a in range(n):
         s = 0.0
@@ -150,7 +165,22 @@ def combine_step(mu, xs, Ps, x, P, nm, n):  # type: ignore[no-untyped-def]  # pr
 
 
 @_jit.step
-def bank_store_step(r, k, x, mu, ll, P, xs, o_x, o_mu, o_ll, o_P, o_mx, nm, n):  # type: ignore[no-untyped-def]
+def bank_store_step(
+    r: int,
+    k: int,
+    x: np.ndarray,
+    mu: np.ndarray,
+    ll: np.ndarray,
+    P: np.ndarray,
+    xs: np.ndarray,
+    o_x: np.ndarray,
+    o_mu: np.ndarray,
+    o_ll: np.ndarray,
+    o_P: np.ndarray,
+    o_mx: np.ndarray,
+    nm: int,
+    n: int,
+) -> None:
     """Write sample k of run r of a bank: ``x``, ``mu``, ``ll``; ``P`` and the modes' ``xs`` if wanted."""
     for a in range(n):
         o_x[r, k, a] = x[a]
@@ -167,7 +197,15 @@ def bank_store_step(r, k, x, mu, ll, P, xs, o_x, o_mu, o_ll, o_P, o_mx, nm, n): 
                 o_mx[r, k, j, a] = xs[j, a]
 
 
-def bank_store_numpy(out, k, x, mu, ll, P, xs):  # type: ignore[no-untyped-def]
+def bank_store_numpy(
+    out: dict[str, np.ndarray],
+    k: int,
+    x: np.ndarray,
+    mu: np.ndarray,
+    ll: np.ndarray,
+    P: np.ndarray | None,
+    xs: np.ndarray,
+) -> None:
     """:func:`bank_store_step` for every run at once (the banks' numpy paths): sample ``k`` into ``out``."""
     out["x"][:, k], out["mu"][:, k], out["ll"][:, k] = x, mu, ll
     if out["P"].shape[0] > 0:
@@ -181,7 +219,9 @@ PREDICT_A = PREDICT_B = given_predict
 JACOBIAN_A = JACOBIAN_B = given_jacobian
 
 
-def _bank_plant(slot, prm, x, u, xp, F, n, p):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+def _bank_plant(
+    slot: int, prm: np.ndarray, x: np.ndarray, u: np.ndarray, xp: np.ndarray, F: np.ndarray, n: int, p: int
+) -> None:  # pragma: no cover - compiled
     """A mode's prediction and Jacobian by its plant kind: ``slot`` 0 = ``PREDICT_A``, 1 = ``PREDICT_B``."""
     if slot == 0:
         PREDICT_A(prm, x, u, xp, n, p)
@@ -191,7 +231,7 @@ def _bank_plant(slot, prm, x, u, xp, F, n, p):  # type: ignore[no-untyped-def]  
         JACOBIAN_B(prm, x, u, F, n, p)
 
 
-def bank_plants(plants: list) -> tuple[object, np.ndarray, np.ndarray]:  # type: ignore[type-arg]
+def bank_plants(plants: list[PlantSteps]) -> tuple[Callable[..., None] | None, np.ndarray, np.ndarray]:
     """``(step, slot per mode, prm rows)`` for the modes' :class:`~chatterspec.plants.steps.PlantSteps`.
 
     ``step`` is :func:`_bank_plant` with the (at most two) plant kinds bound; None when there are more.
@@ -211,7 +251,7 @@ def bank_plants(plants: list) -> tuple[object, np.ndarray, np.ndarray]:  # type:
     return step, np.array([kinds.index(pl.name) for pl in plants], dtype=np.int64), prm
 
 
-def bank_outputs(runs: int, K: int, n: int, r: int, store_covariance: bool, store_modes: bool) -> dict:  # type: ignore[type-arg]
+def bank_outputs(runs: int, K: int, n: int, r: int, store_covariance: bool, store_modes: bool) -> dict:
     """The per-sample output arrays of a bank (empty 4-D arrays for the ones not stored).
 
     ``x`` (runs, K, n), ``mu`` and ``ll`` (runs, K, r), ``P`` (runs, K, n, n), ``mx`` (runs, K, r, n):
@@ -227,7 +267,16 @@ def bank_outputs(runs: int, K: int, n: int, r: int, store_covariance: bool, stor
     }
 
 
-def bank_results(out: dict, store_covariance: bool, store_modes: bool) -> dict[str, np.ndarray | None]:  # type: ignore[type-arg]
+class BankLoop(TypedDict):
+    """What :func:`run_bank_loop` reads of a bank's compiled-loop specification."""
+
+    kernel: Callable[..., int]  # the compiled loop; returns its status
+    mapping: int  # the state-correction mapping of its corrections (for the error message)
+
+
+def bank_results(
+    out: dict[str, np.ndarray], store_covariance: bool, store_modes: bool
+) -> dict[str, np.ndarray | None]:
     """The outputs of :func:`bank_outputs` as a bank returns them: None for the ones not stored."""
     return {
         "x": out["x"],
@@ -239,7 +288,7 @@ def bank_results(out: dict, store_covariance: bool, store_modes: bool) -> dict[s
 
 
 def run_bank_loop(
-    spec: dict[str, object],
+    spec: BankLoop,
     args: tuple[object, ...],
     out: dict[str, np.ndarray],
     *,
@@ -262,9 +311,9 @@ def run_bank_loop(
     kernel = spec["kernel"]
     if python:
         kernel = getattr(kernel, "py_func", kernel)
-    status = kernel(*args, out["x"], out["mu"], out["ll"], out["P"], out["mx"])  # type: ignore[operator]
+    status = kernel(*args, out["x"], out["mu"], out["ll"], out["P"], out["mx"])
     if status > 0:
-        raise SingularMatrixError(_not_pd_message(int(spec["mapping"]), status - 1))  # type: ignore[call-overload]
+        raise SingularMatrixError(_not_pd_message(int(spec["mapping"]), status - 1))
     if status < -runs:
         raise SingularMatrixError(_luen_message())
     if status < 0:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Collection
+from typing import TypeGuard, cast
 
 import numpy as np
 
@@ -11,6 +12,7 @@ from .._validate import finite_array
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.measurement import has_measurement_function
 from ..plants.models import LinearModel
+from ..plants.nonlinear import Model
 from ..plants.steps import PlantSteps, measurement_steps, plant_steps
 from . import _engine, _engine_numpy
 from ._engine_numpy import given_prediction, linear_prediction, model_call_loop, model_prediction
@@ -19,10 +21,13 @@ from .one_sample import OnlineFilter
 from .protocol import FilterOutput, FilterState, check_chunk, initial_state, resolve_store
 from .svsf_steps import rows_times as _rows_times
 
+#: What ``_advance`` returns: the covariance after the chunk and the stored outputs.
+Advanced = tuple[np.ndarray, dict[str, np.ndarray | None]]
+
 _MODEL_ATTRS = ("transition", "jacobian", "C", "Q", "R", "dt", "n_states", "n_outputs", "n_inputs")
 
 
-def check_model(model: object) -> None:
+def check_model(model: Model) -> None:
     """Duck-type check of the model interface the filters use."""
     missing = [a for a in _MODEL_ATTRS if not hasattr(model, a)]
     if missing:
@@ -30,7 +35,7 @@ def check_model(model: object) -> None:
             f"model must provide {', '.join(_MODEL_ATTRS)} (like LinearModel); "
             f"{type(model).__name__} lacks {', '.join(missing)}"
         )
-    n, m = int(model.n_states), int(model.n_outputs)  # type: ignore[attr-defined]
+    n, m = int(model.n_states), int(model.n_outputs)
     for name, shape in (("C", (m, n)), ("Q", (n, n)), ("R", (m, m))):
         M = finite_array(f"model.{name}", getattr(model, name), shape=shape)
         if name != "C":
@@ -49,8 +54,12 @@ class CovarianceFilterBase:
     its class and its correction step, plus its entry in :mod:`chatterspec.filters.registry`.
     """
 
-    model: object
-    _linear: bool = False
+    model: Model
+
+    @property
+    def _linear(self) -> bool:  # (subclasses: a class attribute or a property)
+        return False
+
     _shared_ok: bool = False
 
     def _correction_step(self) -> _engine.CorrectionStep:  # pragma: no cover - abstract
@@ -179,11 +188,12 @@ class CovarianceFilterBase:
             return None
         return plant_steps(self.model)
 
-    def _advance(self, x, P, ep, epp, z, u, keep):  # type: ignore[no-untyped-def]
+    def _advance(self, x: np.ndarray, P: np.ndarray, ep: np.ndarray, epp: np.ndarray, z: np.ndarray,
+                 u: np.ndarray, keep: frozenset[str]) -> Advanced:  # fmt: skip
         model = self.model
-        C = np.asarray(model.C, dtype=float)  # type: ignore[attr-defined]
-        Q = np.asarray(model.Q, dtype=float)  # type: ignore[attr-defined]
-        R = np.asarray(model.R, dtype=float)  # type: ignore[attr-defined]
+        C = np.asarray(model.C, dtype=float)
+        Q = np.asarray(model.Q, dtype=float)
+        R = np.asarray(model.R, dtype=float)
         if P.ndim == 2:  # shared covariance given to a per-run filter (e.g. replaced by a bank)
             P = np.array(np.broadcast_to(P, (x.shape[0], *P.shape)))
         corr = self._correction_step()
@@ -198,8 +208,9 @@ class CovarianceFilterBase:
         if compiled and plant is not None:  # every sample in one compiled loop (h(x) compiled too)
             return P, _engine.cov_loop(corr, plant, x, P, ep, epp, z, u, C, Q, R, keep, measurement=hx)
         if self._linear:
-            Bu = _rows_times(u, np.ascontiguousarray(model.B.T))  # type: ignore[attr-defined]
-            predict = linear_prediction(model.A, Bu)  # type: ignore[attr-defined]
+            lin = cast(LinearModel, model)  # (``_linear``: a LinearModel)
+            Bu = _rows_times(u, np.ascontiguousarray(lin.B.T))
+            predict = linear_prediction(lin.A, Bu)
             return P, _engine_numpy.cov_numpy(corr, predict, x, P, ep, epp, z, C, Q, R, keep)
         return P, model_call_loop(model, corr, compiled, x, P, ep, epp, z, u, C, Q, R, keep)
 
@@ -253,8 +264,8 @@ class CovarianceFilterBase:
         if zz.shape != (runs, 1, m):
             raise ShapeError(f"z must have shape ({runs}, {m}) (one sample); got {zz.shape}")
         model = self.model
-        C = np.asarray(model.C, dtype=float)  # type: ignore[attr-defined]
-        R = np.asarray(model.R, dtype=float)  # type: ignore[attr-defined]
+        C = np.asarray(model.C, dtype=float)
+        R = np.asarray(model.R, dtype=float)
         P = np.array(np.broadcast_to(Pp, (runs, n, n)), dtype=float)
         x, ep, epp = np.array(xp, dtype=float), state.e_post.copy(), state.e_prev.copy()
         corr = self._correction_step()
@@ -311,6 +322,6 @@ class CovarianceFilterBase:
         return self.update(state, zz, u, store=store)[1]
 
 
-def is_linear(model: object) -> bool:
+def is_linear(model: Model) -> TypeGuard[LinearModel]:
     """True for :class:`LinearModel` (the compiled path loops over time inside the kernel)."""
     return isinstance(model, LinearModel)

@@ -4,9 +4,8 @@ Documented for users in ``docs/filters.md`` ("Conventions"). In short:
 
 * **One storage option.** Every filter and bank takes ``store``: a collection of output field names
   (``FilterOutput`` fields for a filter; ``"P_post"`` and ``"mode_x_post"`` of
-  :class:`~chatterspec.filters.multiple_model.MultipleModelOutput` for SMM-SVSF and IMM, beside the
-  fields they always return). The banks' old ``store_covariance=True`` / ``store_modes=True`` still
-  work for one release with a :class:`DeprecationWarning` naming the new spelling.
+  :class:`~chatterspec.filters.bank_common.MultipleModelOutput` for SMM-SVSF and IMM, beside the
+  fields they always return).
 * **Optional input.** ``u=None`` means no input (zeros of the model's ``n_inputs`` channels), so an
   autonomous model needs no ``u`` (and a ``LinearModel`` no ``B``: ``B=None``).
 * **Per-mode start of the IMM.** ``IMM.initialize(..., mode_x0=, mode_P0=)`` starts each mode-matched
@@ -16,10 +15,10 @@ Documented for users in ``docs/filters.md`` ("Conventions"). In short:
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Collection
 
 import numpy as np
+import numpy.typing as npt
 
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError
@@ -34,8 +33,8 @@ __all__ = [
     "check_initial_rows",
     "check_record",
     "default_input",
-    "legacy_store",
     "mode_initial",
+    "store_flags",
     "svsf_store",
 ]
 
@@ -45,24 +44,21 @@ BANK_STORABLE = frozenset({"P_post", "mode_x_post"})
 SVSF_STORABLE = frozenset({"x_post", "e_post", "e_lower"})
 
 
-def legacy_store(
+def store_flags(
     store: Collection[str] | None,
-    old: dict[str, bool | None],
-    names: dict[str, str],
+    fields: tuple[str, ...],
     allowed: frozenset[str],
     who: str,
     always: str,
 ) -> tuple[bool, ...]:
-    """One flag per entry of ``names`` (old keyword -> output field) from ``store`` or the old booleans.
+    """One flag per entry of ``fields``: is that output field named in ``store``.
 
     Parameters
     ----------
     store : collection of str or None
         Field names among ``allowed`` (None: none).
-    old : dict of str to bool or None
-        The old keywords as given (None: not given); any given one warns (``DeprecationWarning``).
-    names : dict of str to str
-        Old keyword -> the field it stored, in the order of the returned flags.
+    fields : tuple of str
+        The output fields, in the order of the returned flags.
     allowed : frozenset of str
         What ``store`` may name.
     who : str
@@ -74,20 +70,8 @@ def legacy_store(
     -------
     tuple of bool
     """
-    given = {k: v for k, v in old.items() if v is not None}
-    if given and store is not None:
-        raise ParameterError(f"{who}: give store=... only ({', '.join(given)} is its old spelling)")
-    if given:
-        new = sorted(names[k] for k, v in given.items() if v)
-        warnings.warn(
-            f"{who}: {', '.join(f'{k}={v}' for k, v in given.items())} is deprecated and will be removed in "
-            f"the next release; use store={set(new) if new else 'None'}",
-            DeprecationWarning,
-            stacklevel=4,
-        )
-        return tuple(bool(old[k]) for k in names)
     if store is None:
-        return tuple(False for _ in names)
+        return tuple(False for _ in fields)
     if isinstance(store, str):
         raise ParameterError(
             f"{who}: store is a collection of names, e.g. {{{store!r}}}; got the string {store!r}"
@@ -96,24 +80,16 @@ def legacy_store(
     bad = keep - allowed
     if bad:
         raise ParameterError(f"{who}: store may name {sorted(allowed)} ({always}); got unknown {sorted(bad)}")
-    return tuple(names[k] in keep for k in names)
+    return tuple(f in keep for f in fields)
 
 
-def svsf_store(
-    store: Collection[str] | None,
-    store_states: bool | None,
-    store_post_error: bool | None,
-    store_lower: bool | None,
-    who: str,
-) -> tuple[bool, bool, bool]:
-    """``(x_post, e_post, e_lower)`` flags of the chattering SVSF from ``store`` or its old booleans.
+def svsf_store(store: Collection[str] | None, who: str) -> tuple[bool, bool, bool]:
+    """``(x_post, e_post, e_lower)`` flags of the chattering SVSF from ``store``.
 
     Parameters
     ----------
     store : collection of str or None
         Names among :data:`SVSF_STORABLE`.
-    store_states, store_post_error, store_lower : bool or None
-        The old spellings (None when not given; a given one warns).
     who : str
         The filter's name, for messages.
 
@@ -121,25 +97,18 @@ def svsf_store(
     -------
     (bool, bool, bool)
     """
-    old = {"store_states": store_states, "store_post_error": store_post_error, "store_lower": store_lower}
-    names = {"store_states": "x_post", "store_post_error": "e_post", "store_lower": "e_lower"}
-    return legacy_store(store, old, names, SVSF_STORABLE, who, "e_prior is always returned")  # type: ignore[return-value]
+    fields = ("x_post", "e_post", "e_lower")
+    states, post_error, lower = store_flags(store, fields, SVSF_STORABLE, who, "e_prior is always returned")
+    return states, post_error, lower
 
 
-def bank_store(
-    store: Collection[str] | None,
-    store_covariance: bool | None,
-    store_modes: bool | None,
-    who: str,
-) -> tuple[bool, bool]:
-    """``(keep P_post, keep mode_x_post)`` from ``store`` or the deprecated booleans.
+def bank_store(store: Collection[str] | None, who: str) -> tuple[bool, bool]:
+    """``(keep P_post, keep mode_x_post)`` from ``store``.
 
     Parameters
     ----------
     store : collection of str or None
         Names among :data:`BANK_STORABLE` (None: neither).
-    store_covariance, store_modes : bool or None
-        The old spellings (None when not given); a :class:`DeprecationWarning` names ``store``.
     who : str
         The bank's name, for messages.
 
@@ -147,13 +116,12 @@ def bank_store(
     -------
     (bool, bool)
     """
-    old = {"store_covariance": store_covariance, "store_modes": store_modes}
-    names = {"store_covariance": "P_post", "store_modes": "mode_x_post"}
     always = "x_post, mu and loglik are always kept"
-    return legacy_store(store, old, names, BANK_STORABLE, who, always)  # type: ignore[return-value]
+    covariance, modes = store_flags(store, ("P_post", "mode_x_post"), BANK_STORABLE, who, always)
+    return covariance, modes
 
 
-def default_input(u: object | None, K: int, p: int) -> object:
+def default_input(u: npt.ArrayLike | None, K: int, p: int) -> npt.ArrayLike:
     """``u``, or zeros ``(K, p)`` when it is None (a model without input)."""
     return np.zeros((K, p)) if u is None else u
 
@@ -162,8 +130,8 @@ def mode_initial(
     x: np.ndarray,
     P: np.ndarray,
     mu: np.ndarray,
-    mode_x0: object | None,
-    mode_P0: object | None,
+    mode_x0: npt.ArrayLike | None,
+    mode_P0: npt.ArrayLike | None,
     r: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per-mode starts ``xs`` (runs, r, n), ``Ps`` (runs, r, n, n) and the combined ``x``, ``P``.
@@ -207,7 +175,7 @@ def mode_initial(
     if mode_x0 is None and mode_P0 is None:
         return np.array(xs), np.array(Ps), x, P
     xc, Pc = combine(mu, xs, Ps)
-    return np.array(xs), np.array(Ps), xc, Pc  # type: ignore[return-value]
+    return np.array(xs), np.array(Ps), xc, Pc
 
 
 def check_chunk(
@@ -241,7 +209,7 @@ def check_chunk(
     return z, u
 
 
-def check_initial_rows(x0: object, width: int, runs: int) -> np.ndarray:
+def check_initial_rows(x0: npt.ArrayLike, width: int, runs: int) -> np.ndarray:
     """An SVSF's ``x0``: (width,) or (runs | 1, width) float, finite (not yet broadcast).
 
     Raises
@@ -257,7 +225,7 @@ def check_initial_rows(x0: object, width: int, runs: int) -> np.ndarray:
     return x0
 
 
-def check_record(z: object, u: object) -> tuple[np.ndarray, np.ndarray, bool]:
+def check_record(z: npt.ArrayLike, u: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, bool]:
     """A whole record of an SVSF's ``run``: ``(z (runs, T, m), u (T | runs, T, p), single)``.
 
     ``single``: ``z`` was 2-D (one run, whose outputs are returned 2-D); a 1-D ``u`` is one input

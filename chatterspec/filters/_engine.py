@@ -34,11 +34,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from .. import _jit
 from ..errors import SingularMatrixError
+from ..plants.sample_functions import MeasurementSteps
+from ..plants.steps import PlantSteps
 from ._linalg import (
     chol_solve_step,
     chol_step,
@@ -269,7 +272,7 @@ def _sample(
 
 
 @_jit.step
-def _no_correction(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def _no_correction(*args: object) -> int:  # (bound by sample_step before any compilation)
     """Placeholder binding of :func:`_sample` (never called)."""
     return NOT_PD
 
@@ -287,7 +290,9 @@ HX = False
 HFUN = HJAC = _no_measurement
 
 
-def sample_step(correct: CorrectionStep, want_ll: bool = True, measurement: tuple | None = None):  # type: ignore[no-untyped-def, type-arg]
+def sample_step(
+    correct: CorrectionStep, want_ll: bool = True, measurement: MeasurementSteps | None = None
+) -> Callable[..., int]:
     """:func:`_sample` with ``correct``'s step bound: an inlined step for the loops.
 
     ``measurement``: the ``(h, h_jac)`` steps of a model measuring through ``h``
@@ -310,13 +315,15 @@ def sample_step(correct: CorrectionStep, want_ll: bool = True, measurement: tupl
 
 
 @_jit.step
-def _no_sample(fp, x, P, ep, epp, zk, xp, F, C, Q, R, ws, n, m):  # type: ignore[no-untyped-def]
+def _no_sample(fp: np.ndarray, x: np.ndarray, P: np.ndarray, ep: np.ndarray, epp: np.ndarray, zk: np.ndarray,
+    xp: np.ndarray, F: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray, ws: tuple[np.ndarray, ...],
+    n: int, m: int) -> int:  # fmt: skip
     """Placeholder binding of the loops (never called)."""
     return NOT_PD
 
 
 @_jit.step
-def workspace(n: int, m: int) -> tuple:  # pragma: no cover - compiled (inlined into the loops)
+def workspace(n: int, m: int) -> tuple[np.ndarray, ...]:  # pragma: no cover - compiled (inlined in loops)
     """Scratch of :func:`_sample` and the correction steps: views of one stack block of the loop.
 
     ``(T1, Pp, PCt, PCtT, S, D, L, e, eb, wv, KgT, IKC, KR, ll, MpT, g, dz, Phi, G12, P12i, Al,
@@ -389,7 +396,9 @@ def workspace(n: int, m: int) -> tuple:  # pragma: no cover - compiled (inlined 
 
 
 @_jit.step
-def store_step(flags, outs, r, k, xp, x, e, S, ll, ep, Pp, P, n, m):  # type: ignore[no-untyped-def]
+def store_step(flags: np.ndarray, outs: tuple[np.ndarray, ...], r: int, k: int, xp: np.ndarray, x: np.ndarray,
+    e: np.ndarray, S: np.ndarray, ll: float, ep: np.ndarray, Pp: np.ndarray, P: np.ndarray, n: int,
+    m: int) -> None:  # fmt: skip
     """Write sample k of run r into the outputs of :data:`FIELDS` whose ``flags`` entry is set.
 
     One test of each flag per call, outside the element loops (tested inside them, the flags were
@@ -636,7 +645,7 @@ def one_sample_kernel(
     plant: object,
     n: int,
     m: int,
-    measurement: tuple | None = None,  # type: ignore[type-arg]
+    measurement: MeasurementSteps | None = None,
 ) -> Callable[..., int]:
     """:func:`_cov_one` with the plant's steps and ``correct``'s sample step bound (sizes up to 4 literal).
 
@@ -649,7 +658,7 @@ def one_sample_kernel(
         "SAMPLE": sample_step(correct, measurement=measurement),
     }
     tag = f"one_{plant.name}_{correct.name}" + ("_hx" if measurement is not None else "")  # type: ignore[attr-defined]
-    return _jit.specialize_sizes(_cov_one, tag, {"NX": n, "NZ": m}, **bind)  # type: ignore[no-any-return]
+    return _jit.specialize_sizes(_cov_one, tag, {"NX": n, "NZ": m}, **bind)
 
 
 # ----------------------------------------------------------------------------- drivers
@@ -678,7 +687,7 @@ def _shapes(runs: int, K: int, n: int, m: int) -> dict[str, tuple[int, ...]]:
 
 def cov_loop(
     correct: CorrectionStep,
-    plant: object | None,
+    plant: PlantSteps | None,
     x: np.ndarray,
     P: np.ndarray,
     ep: np.ndarray,
@@ -692,7 +701,7 @@ def cov_loop(
     *,
     xp_in: np.ndarray | None = None,
     F_in: np.ndarray | None = None,
-    measurement: tuple | None = None,  # type: ignore[type-arg]
+    measurement: MeasurementSteps | None = None,
 ) -> dict[str, np.ndarray | None]:
     """Advance ``x, P, ep, epp`` (in place) over ``z`` (runs, K, m) with the compiled loop.
 
@@ -726,17 +735,18 @@ def cov_loop(
     flags, out = _alloc(keep, _shapes(runs, K, n, m))
     c = np.ascontiguousarray
     if plant is None:
+        assert xp_in is not None and F_in is not None  # (no plant steps: the caller's prediction)
         prm = c(np.concatenate([xp_in, np.reshape(F_in, (runs, n * n))], axis=1), dtype=float)
-        bind = {"PREDICT": given_predict, "JACOBIAN": given_jacobian, "CONST_F": False}
+        bind: dict[str, Any] = {"PREDICT": given_predict, "JACOBIAN": given_jacobian, "CONST_F": False}
         tag = f"given_{correct.name}"
     else:
-        prm = c(plant.parameters, dtype=float)[None]  # type: ignore[attr-defined]
+        prm = c(plant.parameters, dtype=float)[None]
         bind = {
-            "PREDICT": plant.predict,  # type: ignore[attr-defined]
-            "JACOBIAN": plant.jacobian,  # type: ignore[attr-defined]
-            "CONST_F": bool(plant.constant_jacobian),  # type: ignore[attr-defined]
+            "PREDICT": plant.predict,
+            "JACOBIAN": plant.jacobian,
+            "CONST_F": bool(plant.constant_jacobian),
         }
-        tag = f"{plant.name}_{correct.name}"  # type: ignore[attr-defined]
+        tag = f"{plant.name}_{correct.name}"
     # the log-likelihood only when stored (its Cholesky solve and log are a third of a step)
     sample = sample_step(correct, want_ll="loglik" in keep, measurement=measurement)
     tag += ("_hx" if measurement is not None else "") + ("" if "loglik" in keep else "_noll")

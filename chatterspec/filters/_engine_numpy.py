@@ -27,6 +27,7 @@ import numpy as np
 
 from ..errors import ShapeError, SingularMatrixError
 from ..plants.measurement import measure, measurement_jacobian
+from ..plants.nonlinear import Model
 from . import _engine
 from ._engine import FIELDS, LOG2PI, MAP_COV, CorrectionStep, _alloc, _not_pd_message, _shapes
 
@@ -60,7 +61,8 @@ def map_numpy(mapping: int, D: np.ndarray, PCt: np.ndarray, M: np.ndarray | None
     if mapping == MAP_COV:
         chol_np(D, mapping)
         return np.swapaxes(np.linalg.solve(D, np.swapaxes(PCt, -1, -2)), -1, -2)
-    return np.broadcast_to(M, (runs, *M.shape))  # type: ignore[union-attr]
+    assert M is not None  # a fixed mapping matrix for every mapping but ``cov``
+    return np.broadcast_to(M, (runs, *M.shape))
 
 
 def kalman_gain_numpy(S: np.ndarray, PCt: np.ndarray) -> np.ndarray:
@@ -81,7 +83,7 @@ def given_prediction(xp_in: np.ndarray, F_in: np.ndarray) -> Prediction:
     return lambda k, x: (np.array(xp_in, dtype=float), F_in)
 
 
-def model_prediction(model: object, u: np.ndarray) -> Prediction:
+def model_prediction(model: Model, u: np.ndarray) -> Prediction:
     """The prediction from a model's Python ``transition`` and ``jacobian`` at ``x(k|k)``, ``u(k)``.
 
     ``u`` is (1|runs, K, p); one input for every run is passed as (p,), so a model's compiled
@@ -96,8 +98,8 @@ def model_prediction(model: object, u: np.ndarray) -> Prediction:
 
     def predict(k: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         uk = u[0, k] if shared_u else u[:, k]
-        xp = np.asarray(model.transition(x, uk), dtype=float)  # type: ignore[attr-defined]
-        F = np.asarray(model.jacobian(x, uk), dtype=float)  # type: ignore[attr-defined]
+        xp = np.asarray(model.transition(x, uk), dtype=float)
+        F = np.asarray(model.jacobian(x, uk), dtype=float)
         want_F = (*x.shape, x.shape[1])
         if xp.shape != x.shape or F.shape not in (want_F, want_F[1:]):
             raise ShapeError(
@@ -121,7 +123,7 @@ def cov_numpy(
     R: np.ndarray,
     keep: frozenset[str],
     *,
-    h_model: object | None = None,
+    h_model: Model | None = None,
 ) -> dict[str, np.ndarray | None]:
     """numpy twin of :func:`cov_loop`: vectorized over runs, a loop over samples; in place.
 
@@ -164,7 +166,7 @@ def cov_numpy(
 
 
 def model_call_loop(
-    model: object,
+    model: Model,
     corr: CorrectionStep,
     compiled: bool,
     x: np.ndarray,
@@ -196,8 +198,10 @@ def model_call_loop(
     steps = []
     for k in range(z.shape[1]):
         xp, F = predict(k, x)
-        zk, given = z[:, k : k + 1], {"xp_in": xp, "F_in": F}
-        steps.append(_engine.cov_loop(corr, None, x, P, ep, epp, zk, u[:, k : k + 1], C, Q, R, keep, **given))
+        zk = z[:, k : k + 1]
+        steps.append(
+            _engine.cov_loop(corr, None, x, P, ep, epp, zk, u[:, k : k + 1], C, Q, R, keep, xp_in=xp, F_in=F)
+        )
     res = {
         f: (None if steps[0][f] is None else np.concatenate([s[f] for s in steps], axis=1)) for f in steps[0]
     }

@@ -1,6 +1,6 @@
 """Compiled IMM bank loop: mixing, the mode-matched filters' steps, likelihoods, combination (private).
 
-One call of :meth:`chatterspec.filters.multiple_model.IMM.update` for every realization, in one
+One call of :meth:`chatterspec.filters.imm.IMM.update` for every realization, in one
 compiled loop over runs (outer) and time (inner), instead of three protocol ``update`` calls and a
 dozen numpy calls on (runs, 3, 4) arrays per sample. The arithmetic is that of the protocol path
 ([IMM] eq 15-33 as corrected in ``docs/design.md`` §7.6)::
@@ -29,10 +29,14 @@ or samples gives the same bits as one call.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
 
 from .. import _jit
 from ._bank_steps import (
+    BankLoop,
     _bank_plant,
     bank_outputs,
     bank_plants,
@@ -45,8 +49,9 @@ from ._bank_steps import (
 )
 from ._engine import BAD_INPUT, DIVERGED, NOT_PD, SINGULAR_PHI12, _no_sample, sample_step, workspace
 
-#: The per-innovation likelihood of eq (29) (kept under its former name).
-_log_gaussian_1 = log_gaussian_step
+if TYPE_CHECKING:  # pragma: no cover
+    from .bank_common import MultipleModelState
+    from .protocol import Filter
 
 #: Bindings of :func:`_imm_sample`: the modes' plant step (:func:`._bank_steps.bank_plants`), four
 #: correction kinds (sample steps), sizes; of the loops: ``IMM_SAMPLE`` (:func:`_imm_sample` bound).
@@ -58,7 +63,7 @@ NO_LIKELIHOOD = 5
 
 
 @_jit.step
-def imm_scratch(nm: int, n: int, m: int) -> tuple:  # type: ignore[type-arg]  # pragma: no cover - compiled
+def imm_scratch(nm: int, n: int, m: int) -> tuple:  # pragma: no cover - compiled
     """The scratch of :func:`_imm_sample`, made once by the loop that calls it (inlined into it):
     ``(c, w, lw, xp, F, em, Sc, Lc, ec, col, tmp, ws)`` (``ws``: :func:`._engine.workspace`)."""
     return (
@@ -68,7 +73,7 @@ def imm_scratch(nm: int, n: int, m: int) -> tuple:  # type: ignore[type-arg]  # 
     )  # fmt: skip
 
 
-def _imm_sample(
+def _imm_sample(  # type: ignore[no-untyped-def]  # (a template: the bank loops' arguments)
     prm,
     plant_slot,
     fp,
@@ -96,7 +101,7 @@ def _imm_sample(
     n,
     m,
     p,
-):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (a template: see imm_sample_step)
+):  # pragma: no cover - compiled (a template: see imm_sample_step)
     """[IMM] eq (18)-(33) for one sample of one realization (the module docstring); state in place.
 
     ``zk`` (m,) = z(k+1), ``uk`` (p,) = u(k); ``first``: no measurement before (the stored
@@ -183,34 +188,34 @@ IMM_SAMPLE = _no_imm_sample
 
 
 def _imm_loop(
-    prm,
-    plant_slot,
-    fp,
-    corr_slot,
-    Q,
-    C,
-    R,
-    pi,
-    floor,
-    z,
-    u,
-    first,
-    mu,
-    xs,
-    Ps,
-    eps,
-    epps,
-    zl,
-    x,
-    P,
-    x0,
-    P0,
-    o_x,
-    o_mu,
-    o_ll,
-    o_P,
-    o_mx,
-):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (a template: see run_fused)
+    prm: np.ndarray,
+    plant_slot: np.ndarray,
+    fp: np.ndarray,
+    corr_slot: np.ndarray,
+    Q: np.ndarray,
+    C: np.ndarray,
+    R: np.ndarray,
+    pi: np.ndarray,
+    floor: float,
+    z: np.ndarray,
+    u: np.ndarray,
+    first: bool,
+    mu: np.ndarray,
+    xs: np.ndarray,
+    Ps: np.ndarray,
+    eps: np.ndarray,
+    epps: np.ndarray,
+    zl: np.ndarray,
+    x: np.ndarray,
+    P: np.ndarray,
+    x0: np.ndarray,
+    P0: np.ndarray,
+    o_x: np.ndarray,
+    o_mu: np.ndarray,
+    o_ll: np.ndarray,
+    o_P: np.ndarray,
+    o_mx: np.ndarray,
+) -> int:  # pragma: no cover - compiled (a template: see run_fused)
     """The IMM recursion of the module docstring (:func:`_imm_sample` per run and sample); in place.
 
     Per mode j: ``prm[j]`` (its plant's parameters, plant kind ``plant_slot[j]`` of ``PLANT``),
@@ -357,7 +362,20 @@ def one_layout(nm: int, n: int, m: int) -> tuple[int, int, int, int, int, int, i
 
 
 # ----------------------------------------------------------------------------- Python side
-def fused_spec(filters: tuple[object, ...]) -> dict[str, object] | None:
+class IMMSpec(BankLoop):
+    """The arrays and the loop of a compiled IMM (:func:`fused_spec`): per-mode rows, stacked."""
+
+    prm: np.ndarray  # plant parameters, one row per plant kind
+    plant_slot: np.ndarray  # (r,) plant row of each mode
+    fp: np.ndarray  # correction parameters, one row per mode
+    corr_slot: np.ndarray  # (r,) correction kind of each mode
+    Q: np.ndarray  # (r, n, n)
+    C: np.ndarray  # (r, m, n)
+    R: np.ndarray  # (r, m, m)
+    one: Callable[..., int]  # one sample of one realization (:func:`_imm_one`)
+
+
+def fused_spec(filters: tuple[Filter, ...]) -> IMMSpec | None:
     """Per-mode arrays and steps of the compiled IMM loop, or None when a mode is not supported.
 
     Supported: a filter with a compiled correction (``_correction_step()``; not the variable
@@ -378,17 +396,17 @@ def fused_spec(filters: tuple[object, ...]) -> dict[str, object] | None:
     plants, corrections = [], []
     for f in filters:
         get = getattr(f, "_correction_step", None)
-        plant = plant_steps(f.model)  # type: ignore[attr-defined]
-        if get is None or plant is None or getattr(f.model, "h", None) is not None:  # h(x): protocol path
+        steps = plant_steps(f.model)
+        if get is None or steps is None or getattr(f.model, "h", None) is not None:  # h(x): protocol path
             return None
         corr = get()
         if corr.name == "vbl":
             return None
-        plants.append(plant)
+        plants.append(steps)
         corrections.append(corr)
     plant, plant_slot, prm = bank_plants(plants)
     corr_kinds = list(dict.fromkeys(c.name for c in corrections))
-    mdl = filters[0].model  # type: ignore[attr-defined]
+    mdl = filters[0].model
     sizes_fit = _jit.fits(int(mdl.n_states), int(mdl.n_outputs)) and _jit.fits(len(filters))
     if plant is None or len(corr_kinds) > 4 or not sizes_fit:
         return None
@@ -399,9 +417,9 @@ def fused_spec(filters: tuple[object, ...]) -> dict[str, object] | None:
             out[j, : len(v)] = v
         return out
 
-    models = [f.model for f in filters]  # type: ignore[attr-defined]
+    models = [f.model for f in filters]
     samples = {c.name: c for c in corrections}
-    bind: dict[str, object] = {"PLANT": plant}
+    bind: dict[str, Any] = {"PLANT": plant}  # steps and flags bound into the loop
     for i, name in enumerate(corr_kinds):
         bind[f"SAMPLE_{i}"] = sample_step(samples[name], want_ll=False)
     tag = "_".join(["imm", *dict.fromkeys(p.name for p in plants), *corr_kinds])
@@ -423,10 +441,10 @@ def fused_spec(filters: tuple[object, ...]) -> dict[str, object] | None:
 
 
 def run_fused(
-    spec: dict[str, object],
+    spec: IMMSpec,
     pi: np.ndarray,
     floor: float,
-    state: object,
+    state: MultipleModelState,
     z: np.ndarray,
     u: np.ndarray,
     store_covariance: bool,
@@ -466,26 +484,26 @@ def run_fused(
         An innovation covariance that is not positive definite, or every mode likelihood zero.
     """
     runs, K, _m = z.shape
-    n = state.x.shape[1]  # type: ignore[attr-defined]
-    sts = state.mode_states  # type: ignore[attr-defined]
+    n = state.x.shape[1]
+    sts = state.mode_states
     r = len(sts)
     st = {
-        "mu": np.array(state.mu, dtype=float, order="C"),  # type: ignore[attr-defined]
+        "mu": np.array(state.mu, dtype=float, order="C"),
         "xs": np.ascontiguousarray(np.stack([s.x for s in sts], axis=1), dtype=float),
         "Ps": np.ascontiguousarray(
             np.stack([np.broadcast_to(s.P, (runs, n, n)) for s in sts], axis=1), dtype=float
         ),
         "eps": np.ascontiguousarray(np.stack([s.e_post for s in sts], axis=1), dtype=float),
         "epps": np.ascontiguousarray(np.stack([s.e_prev for s in sts], axis=1), dtype=float),
-        "zl": np.array(state.z_last, dtype=float, order="C"),  # type: ignore[attr-defined]
-        "x": np.array(state.x, dtype=float, order="C"),  # type: ignore[attr-defined]
-        "P": np.array(np.broadcast_to(state.P, (runs, n, n)), dtype=float, order="C"),  # type: ignore[attr-defined]
+        "zl": np.array(state.z_last, dtype=float, order="C"),
+        "x": np.array(state.x, dtype=float, order="C"),
+        "P": np.array(np.broadcast_to(state.P, (runs, n, n)), dtype=float, order="C"),
     }
     c = np.ascontiguousarray
     args = (
         spec["prm"], spec["plant_slot"], spec["fp"], spec["corr_slot"], spec["Q"], spec["C"], spec["R"],
         c(pi, dtype=float), float(floor), c(z, dtype=float), c(u, dtype=float),
-        bool(state.k == 0),  # type: ignore[attr-defined]
+        bool(state.k == 0),
         st["mu"], st["xs"], st["Ps"], st["eps"], st["epps"], st["zl"], st["x"], st["P"],
         np.empty((r, n)), np.empty((r, n, n)),
     )  # fmt: skip

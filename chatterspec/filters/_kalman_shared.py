@@ -14,6 +14,8 @@ and the state recursion runs per realization. :func:`shared_gain` does both:
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from .. import _jit
@@ -45,7 +47,19 @@ from .svsf_steps import rows_times as _rows_times
 NX = NZ = 0
 
 
-def _riccati_loop(A, C, Q, R, P, Pp_all, Pq_all, S_all, KgT_all, L_all, hld_all):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+def _riccati_loop(
+    A: np.ndarray,
+    C: np.ndarray,
+    Q: np.ndarray,
+    R: np.ndarray,
+    P: np.ndarray,
+    Pp_all: np.ndarray,
+    Pq_all: np.ndarray,
+    S_all: np.ndarray,
+    KgT_all: np.ndarray,
+    L_all: np.ndarray,
+    hld_all: np.ndarray,
+) -> int:  # pragma: no cover - compiled
     """The shared covariance sequence: the covariance half of the per-run step, K times from ``P`` (in place).
 
     Per sample: ``Pp = A P A^T + Q``, ``S = C Pp C^T + R`` and its Cholesky factor ``L``, the Kalman
@@ -89,7 +103,20 @@ def _riccati_loop(A, C, Q, R, P, Pp_all, Pq_all, S_all, KgT_all, L_all, hld_all)
     return 0
 
 
-def _kf_shared_loop(prm, u, z, x, ep, epp, C, KgT, L, half_logdet, flags, outs):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+def _kf_shared_loop(
+    prm: np.ndarray,
+    u: np.ndarray,
+    z: np.ndarray,
+    x: np.ndarray,
+    ep: np.ndarray,
+    epp: np.ndarray,
+    C: np.ndarray,
+    KgT: np.ndarray,
+    L: np.ndarray,
+    half_logdet: np.ndarray,
+    flags: np.ndarray,
+    outs: tuple[np.ndarray, ...],
+) -> int:  # pragma: no cover - compiled
     """State recursion of the Kalman filter with a precomputed, shared gain sequence ``KgT`` (K, m, n).
 
     Per run and sample: the linear plant's prediction (:func:`~chatterspec.plants.linear_steps.predict_step`,
@@ -141,13 +168,13 @@ def _kf_shared_loop(prm, u, z, x, ep, epp, C, KgT, L, half_logdet, flags, outs):
     return 0
 
 
-def _kf_shared_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
+def _kf_shared_kernel(n: int, m: int) -> Callable[..., int]:
     """:func:`_kf_shared_loop` compiled for n states and m outputs (literal sizes up to
     :data:`chatterspec._jit.MAX_UNROLL`: the per-channel loops unrolled, as the per-run filters')."""
     return _jit.specialize_sizes(_kf_shared_loop, "kfshared", {"NX": n, "NZ": m})
 
 
-def _riccati_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
+def _riccati_kernel(n: int, m: int) -> Callable[..., int]:
     """:func:`_riccati_loop` compiled for n states and m outputs (literal sizes up to 4)."""
     return _jit.specialize_sizes(_riccati_loop, "riccati", {"NX": n, "NZ": m})
 
@@ -273,6 +300,7 @@ def kf_shared_states(
             tuple(out[f] for f in FIELDS),
         )  # fmt: skip
     else:
+        assert Sinv is not None and logdet is not None  # (numpy: the caller passes riccati's)
         AT, CT = A.T, C.T
         Bu = _rows_times(u, np.ascontiguousarray(B.T))
         for k in range(K):

@@ -138,7 +138,9 @@ def _luen_update(
 
 
 @_jit.step
-def luen_first_order(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def luen_first_order(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarray, xp: np.ndarray,
+    PCtT: np.ndarray, D: np.ndarray, L: np.ndarray, C: np.ndarray, F: np.ndarray, x: np.ndarray,
+    KgT: np.ndarray, ws: tuple[np.ndarray, ...], n: int, m: int) -> int:  # fmt: skip
     """The first-order correction of the module docstring (the correction-step signature of
     :mod:`chatterspec.filters._engine`); returns 0 or ``SINGULAR_PHI12``."""
     if not _phi_blocks(fp, F, e, ws, n, m):
@@ -165,7 +167,9 @@ def luen_first_order(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  #
 
 
 @_jit.step
-def luen_second_order(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def luen_second_order(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarray, xp: np.ndarray,
+    PCtT: np.ndarray, D: np.ndarray, L: np.ndarray, C: np.ndarray, F: np.ndarray, x: np.ndarray,
+    KgT: np.ndarray, ws: tuple[np.ndarray, ...], n: int, m: int) -> int:  # fmt: skip
     """The second-order correction of the module docstring (the correction-step signature of
     :mod:`chatterspec.filters._engine`); returns 0 or ``SINGULAR_PHI12``."""
     if not _phi_blocks(fp, F, e, ws, n, m):

@@ -1,6 +1,6 @@
 """Compiled SMM-SVSF loop, Table 1 reading ([SMM] eq 3.1-3.5 with eq 2.1-2.10) (private).
 
-:meth:`chatterspec.filters.multiple_model.SMMSVSF.update` (``reading="table1"``) in one compiled
+:meth:`chatterspec.filters.smm_svsf.SMMSVSF.update` (``reading="table1"``) in one compiled
 loop over runs (outer) and samples (inner), built from the same steps as the other loops::
 
     x_j = f_j(x(k|k), u(k)),  P_j = F_j P(k|k) F_j^T + Q_j      plant steps, predict_cov_step
@@ -19,10 +19,14 @@ and each is bit-for-bit invariant to the chunking of runs and samples.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from .. import _jit
+from ..plants.nonlinear import Model
 from ._bank_steps import (
+    BankLoop,
     _bank_plant,
     bank_outputs,
     bank_plants,
@@ -36,6 +40,7 @@ from ._bank_steps import (
 from ._engine import (
     BAD_INPUT,
     DIVERGED,
+    CorrectionStep,
     _no_sample,
     innovation_step,
     predict_cov_step,
@@ -53,7 +58,7 @@ NO_LIKELIHOOD = 5
 
 
 @_jit.step
-def smm_scratch(nm: int, n: int, m: int) -> tuple:  # type: ignore[type-arg]  # pragma: no cover - compiled
+def smm_scratch(nm: int, n: int, m: int) -> tuple:  # pragma: no cover - compiled
     """The scratch of :func:`_smm_sample`, made once by the loop that calls it (inlined into it):
     ``(ws, F, eye, Q0, xp, lw, Sc, Lc, ec, col, tmp)`` with ``eye`` = I and ``Q0`` = 0 filled in."""
     eye = _jit.scratch2(n, n)
@@ -103,8 +108,28 @@ SMM_SAMPLE = _no_smm_sample
 
 
 def _smm_loop(
-    prm, plant_slot, Qs, C, R, fp, floor, z, u, x, P, mu, ep, epp, xs, Ps, o_x, o_mu, o_ll, o_P, o_mx
-):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (a template: see run_smm)
+    prm: np.ndarray,
+    plant_slot: np.ndarray,
+    Qs: np.ndarray,
+    C: np.ndarray,
+    R: np.ndarray,
+    fp: np.ndarray,
+    floor: float,
+    z: np.ndarray,
+    u: np.ndarray,
+    x: np.ndarray,
+    P: np.ndarray,
+    mu: np.ndarray,
+    ep: np.ndarray,
+    epp: np.ndarray,
+    xs: np.ndarray,
+    Ps: np.ndarray,
+    o_x: np.ndarray,
+    o_mu: np.ndarray,
+    o_ll: np.ndarray,
+    o_P: np.ndarray,
+    o_mx: np.ndarray,
+) -> int:  # pragma: no cover - compiled (a template: see run_smm)
     """The recursion of the module docstring (:func:`_smm_sample` per run and sample); in place.
 
     ``xs`` (nm, n) and ``Ps`` (nm, n, n) are scratch. Returns 0, ``1 + run`` (a matrix not
@@ -137,7 +162,9 @@ def _smm_loop(
     return 0
 
 
-def _smm_one(buf, cst, slots, z, u):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+def _smm_one(
+    buf: np.ndarray, cst: np.ndarray, slots: np.ndarray, z: np.ndarray, u: np.ndarray
+) -> int:  # pragma: no cover - compiled
     """One sample of one realization: :func:`_smm_sample` on packed arrays (:func:`one_layout`).
 
     ``buf`` holds ``x``, ``P``, ``mu``, ``e(k|k)``, ``e(k-1|k-1)``, the scratch ``xs``, ``Ps`` and
@@ -214,7 +241,19 @@ def one_layout(nm: int, n: int, m: int) -> tuple[int, int, int, int, int, int, i
     return o_P, o_mu, o_ep, o_epp, o_xs, o_Ps, o_ll, o_zl, o_zl + m
 
 
-def smm_spec(models: tuple[object, ...], correct: object) -> dict[str, object] | None:
+class SMMSpec(BankLoop):
+    """The arrays and the loop of a compiled SMM-SVSF (:func:`smm_spec`)."""
+
+    prm: np.ndarray  # plant parameters, one row per plant kind
+    plant_slot: np.ndarray  # (r,) plant row of each mode
+    Qs: np.ndarray  # (r, n, n)
+    C: np.ndarray  # (m, n), shared
+    R: np.ndarray  # (m, m), shared
+    fp: np.ndarray  # the shared correction's parameters
+    one: Callable[..., int]  # one sample of one realization (:func:`_smm_one`)
+
+
+def smm_spec(models: tuple[Model, ...], correct: CorrectionStep) -> SMMSpec | None:
     """Arrays and the kernel of the compiled SMM loop, or None (numpy path) when a mode has no plant steps.
 
     Parameters
@@ -230,38 +269,39 @@ def smm_spec(models: tuple[object, ...], correct: object) -> dict[str, object] |
     """
     from ..plants.steps import plant_steps
 
-    plants = [plant_steps(mdl) for mdl in models]
-    n, m = int(models[0].n_states), int(models[0].n_outputs)  # type: ignore[attr-defined]
-    if any(pl is None for pl in plants) or not (_jit.fits(n, m) and _jit.fits(len(models))):
+    found = [plant_steps(mdl) for mdl in models]
+    plants = [pl for pl in found if pl is not None]
+    n, m = int(models[0].n_states), int(models[0].n_outputs)
+    if len(plants) < len(found) or not (_jit.fits(n, m) and _jit.fits(len(models))):
         return None
     plant, plant_slot, prm = bank_plants(plants)
     if plant is None:
         return None
-    tag = "_".join(["smm", *dict.fromkeys(pl.name for pl in plants)])  # type: ignore[union-attr]
+    tag = "_".join(["smm", *dict.fromkeys(pl.name for pl in plants)])
     step = _jit.specialize_sizes(
         _smm_sample,
         tag,
         {},
         inline=True,
         PLANT=plant,
-        SAMPLE=sample_step(correct, want_ll=False),  # type: ignore[arg-type]
+        SAMPLE=sample_step(correct, want_ll=False),
     )
     sizes = {"NX": n, "NZ": m}
     return {
         "prm": prm,
         "plant_slot": plant_slot,
-        "Qs": np.ascontiguousarray(np.stack([np.asarray(mdl.Q, dtype=float) for mdl in models])),  # type: ignore[attr-defined]
-        "C": np.ascontiguousarray(models[0].C, dtype=float),  # type: ignore[attr-defined]
-        "R": np.ascontiguousarray(models[0].R, dtype=float),  # type: ignore[attr-defined]
-        "fp": correct.parameters,  # type: ignore[attr-defined]
-        "mapping": correct.mapping,  # type: ignore[attr-defined]
+        "Qs": np.ascontiguousarray(np.stack([np.asarray(mdl.Q, dtype=float) for mdl in models])),
+        "C": np.ascontiguousarray(models[0].C, dtype=float),
+        "R": np.ascontiguousarray(models[0].R, dtype=float),
+        "fp": correct.parameters,
+        "mapping": correct.mapping,
         "kernel": _jit.specialize_sizes(_smm_loop, tag, sizes, SMM_SAMPLE=step),
         "one": _jit.specialize_sizes(_smm_one, tag, sizes, SMM_SAMPLE=step),
     }
 
 
 def run_smm(
-    spec: dict[str, object],
+    spec: SMMSpec,
     floor: float,
     x: np.ndarray,
     P: np.ndarray,

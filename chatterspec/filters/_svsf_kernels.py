@@ -5,8 +5,7 @@ Private. :func:`_svsf_kernel` runs :func:`~chatterspec.filters.svsf_steps.svsf_s
 over runs and samples: the batch path of :meth:`SVSF.update`. Compiled by numba when it is
 installed, called as plain Python otherwise (tests compare both with the numpy formulation of
 :meth:`SVSF.update`). The steps live in :mod:`chatterspec.filters.svsf_steps` (public: the online
-monitor's push and the fused simulate-and-chatter loop call them too); they are also importable
-from here under their old names.
+monitor's push and the fused simulate-and-chatter loop call them too).
 """
 
 from __future__ import annotations
@@ -14,18 +13,28 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _jit
-from .svsf_steps import (
-    closed_form_step,
-    matvec_step,
-    rows_times_step,
-    svsf_step,
-)
+from .svsf_steps import closed_form_step, matvec_step, rows_times_step, svsf_step
 
 __all__ = ["svsf_one_kernel", "svsf_one_offsets"]
 
 
 @_jit.njit
-def _svsf_kernel(z, Gu, PhiT, L, P, inv_psi, gamma, S_inv, y, ep, e_out, x_out, ep_out, lower_out):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (Python form tested in tests/test_kernels.py)
+def _svsf_kernel(
+    z: np.ndarray,
+    Gu: np.ndarray,
+    PhiT: np.ndarray,
+    L: np.ndarray,
+    P: np.ndarray,
+    inv_psi: np.ndarray,
+    gamma: float,
+    S_inv: np.ndarray,
+    y: np.ndarray,
+    ep: np.ndarray,
+    e_out: np.ndarray,
+    x_out: np.ndarray,
+    ep_out: np.ndarray,
+    lower_out: np.ndarray,
+) -> None:  # pragma: no cover - compiled (Python form tested in tests/test_kernels.py)
     """:func:`svsf_step` for ``runs`` realizations and K samples (the batch loop of :meth:`SVSF.update`).
 
     Inputs: ``z`` (runs, K, m); ``Gu`` (1 or runs, K, n) = G u(k); constants as :func:`svsf_step`;

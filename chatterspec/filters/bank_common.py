@@ -6,19 +6,23 @@ same data, keep the same state (:class:`MultipleModelState`) and return the same
 
 See Also
 --------
-chatterspec.filters.multiple_model : the overview of both banks and their equations.
+chatterspec.filters.smm_svsf : SMM-SVSF, its equations and readings.
+chatterspec.filters.imm : IMM, its cycle and the corrections to the printed equations.
 """
 
 from __future__ import annotations
 
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
+import numpy.typing as npt
 
 from .._repr import short_repr
 from .._validate import finite_array, nonnegative
 from ..errors import ParameterError, ShapeError
+from ..plants.nonlinear import Model
 from ._base import check_model
 from ._conventions import bank_store, default_input
 from .one_sample import OnlineBank
@@ -39,7 +43,7 @@ __all__ = [
 ]
 
 
-def check_mode_probabilities(name: str, mu: object, r: int) -> np.ndarray:
+def check_mode_probabilities(name: str, mu: npt.ArrayLike, r: int) -> np.ndarray:
     """Mode probabilities: ``r`` non-negative entries summing to 1 (within 1e-9).
 
     Parameters
@@ -72,7 +76,7 @@ def check_mode_probabilities(name: str, mu: object, r: int) -> np.ndarray:
     return np.array(arr, dtype=float)
 
 
-def initial_mode_probabilities(mu0: object | None, r: int) -> np.ndarray:
+def initial_mode_probabilities(mu0: npt.ArrayLike | None, r: int) -> np.ndarray:
     """A bank's ``mu0``: ``r`` probabilities (:func:`check_mode_probabilities`), uniform when None.
 
     Raises
@@ -86,7 +90,7 @@ def initial_mode_probabilities(mu0: object | None, r: int) -> np.ndarray:
     return mu
 
 
-def check_transition_matrix(pi: object, r: int) -> np.ndarray:
+def check_transition_matrix(pi: npt.ArrayLike, r: int) -> np.ndarray:
     """Mode transition matrix per step, ``pi[i, j] = P(mode j at k | mode i at k-1)``.
 
     Parameters
@@ -124,7 +128,7 @@ def check_transition_matrix(pi: object, r: int) -> np.ndarray:
     return np.array(arr, dtype=float)
 
 
-def check_weight_floor(floor: object, r: int) -> float:
+def check_weight_floor(floor: float, r: int) -> float:
     """SMM weight floor in ``[0, 1/r)`` ([SMM] Table 1 step 3, ``docs/design.md`` S4).
 
     Parameters
@@ -143,7 +147,7 @@ def check_weight_floor(floor: object, r: int) -> float:
     ParameterError
         Outside ``[0, 1/r)`` (at ``1/r`` every weight would be pinned to uniform).
     """
-    value = nonnegative("weight_floor", floor)  # type: ignore[arg-type]
+    value = nonnegative("weight_floor", floor)
     if not value < 1.0 / r:
         raise ParameterError(
             f"weight_floor must lie in [0, 1/{r}) = [0, {1.0 / r:.4g}) for {r} modes (at 1/r every "
@@ -152,7 +156,7 @@ def check_weight_floor(floor: object, r: int) -> float:
     return value
 
 
-def check_bank_models(models: Sequence[object]) -> tuple[int, int]:
+def check_bank_models(models: Sequence[Model]) -> tuple[int, int]:
     """``(n, m)`` of a bank's mode models, which must all have the same state, output and input sizes.
 
     Parameters
@@ -176,7 +180,7 @@ def check_bank_models(models: Sequence[object]) -> tuple[int, int]:
         raise ParameterError("a multiple-model filter needs at least one mode")
     for mdl in models:
         check_model(mdl)
-    dims = [(int(mdl.n_states), int(mdl.n_outputs), int(mdl.n_inputs)) for mdl in models]  # type: ignore[attr-defined]
+    dims = [(int(mdl.n_states), int(mdl.n_outputs), int(mdl.n_inputs)) for mdl in models]
     if len(set(dims)) != 1:
         raise ShapeError(
             "every mode must have the same numbers of states, measurements and inputs (they filter the "
@@ -265,7 +269,7 @@ def mode_names(modes: Sequence[str] | None, r: int) -> tuple[str, ...]:
 
 
 def initial_bank_state(
-    n: int, r: int, x0: object, P0: object, runs: int | None, mu0: np.ndarray
+    n: int, r: int, x0: npt.ArrayLike, P0: npt.ArrayLike, runs: int | None, mu0: np.ndarray
 ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
     """``(runs, x, P, mu)`` at k = 0 from a bank's ``initialize`` arguments (checked as any filter's).
 
@@ -288,7 +292,9 @@ def initial_bank_state(
     return runs, x, P, mu
 
 
-def check_bank_data(z: object, u: object, runs: int, m: int, p: int) -> tuple[np.ndarray, np.ndarray]:
+def check_bank_data(
+    z: npt.ArrayLike, u: npt.ArrayLike | None, runs: int, m: int, p: int
+) -> tuple[np.ndarray, np.ndarray]:
     """``z`` as (runs, K, m) and ``u`` as (1 | runs, K, p) float arrays of a bank's update (None: no input).
 
     Raises
@@ -324,7 +330,27 @@ class BankFilter:
     and has the fields ``mu0``, ``weight_floor`` and ``modes`` (checked by :meth:`_check_bank`).
     """
 
-    def _check_bank(self, models: Sequence[object]) -> tuple[int, int]:
+    if TYPE_CHECKING:  # what the subclasses define (fields, then methods)
+        mu0: np.ndarray | None
+        weight_floor: float
+        modes: Sequence[str] | None
+
+        def initialize(
+            self, x0: np.ndarray, P0: np.ndarray, *, runs: int | None = None
+        ) -> MultipleModelState: ...
+
+        def _sensor_model(self) -> Model: ...
+
+        def _advance(
+            self,
+            state: MultipleModelState,
+            z: np.ndarray,
+            u: np.ndarray,
+            store_covariance: bool,
+            store_modes: bool,
+        ) -> tuple[MultipleModelState, MultipleModelOutput]: ...
+
+    def _check_bank(self, models: Sequence[Model]) -> tuple[int, int]:
         """Check the mode models (:func:`check_bank_models`) and set ``mu0``, ``weight_floor``, ``modes``.
 
         Returns
@@ -334,30 +360,33 @@ class BankFilter:
         """
         n, m = check_bank_models(models)
         r = len(models)
-        object.__setattr__(self, "mu0", initial_mode_probabilities(self.mu0, r))  # type: ignore[attr-defined]
-        object.__setattr__(self, "weight_floor", check_weight_floor(self.weight_floor, r))  # type: ignore[attr-defined]
-        object.__setattr__(self, "modes", mode_names(self.modes, r))  # type: ignore[attr-defined]
+        object.__setattr__(self, "mu0", initial_mode_probabilities(self.mu0, r))
+        object.__setattr__(self, "weight_floor", check_weight_floor(self.weight_floor, r))
+        object.__setattr__(self, "modes", mode_names(self.modes, r))
         return n, m
 
     def _initial_estimate(
-        self, x0: object, P0: object, runs: int | None
+        self, x0: npt.ArrayLike, P0: npt.ArrayLike, runs: int | None
     ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
         """``(runs, x, P, mu)`` at k = 0 (:func:`initial_bank_state` with the bank's sizes and ``mu0``)."""
-        n = int(self._sensor_model().n_states)  # type: ignore[attr-defined]
-        return initial_bank_state(n, len(self.modes), x0, P0, runs, self.mu0)  # type: ignore[attr-defined]
+        n = int(self._sensor_model().n_states)
+        modes, mu0 = cast(tuple[str, ...], self.modes), cast(np.ndarray, self.mu0)  # set by _check_bank
+        return initial_bank_state(n, len(modes), x0, P0, runs, mu0)
 
     def _initial_state(
         self, x: np.ndarray, P: np.ndarray, mu: np.ndarray, mode_states: tuple[FilterState, ...]
     ) -> MultipleModelState:
         """The state at k = 0: ``e(0|0) = 0`` and ``z(0) = 0`` (no measurement yet)."""
-        zero = np.zeros((x.shape[0], int(self._sensor_model().n_outputs)))  # type: ignore[attr-defined]
+        zero = np.zeros((x.shape[0], int(self._sensor_model().n_outputs)))
         return MultipleModelState(
             x=x, P=P, mu=mu, e_post=zero, z_last=zero.copy(), mode_states=mode_states, k=0
         )
 
     def _output(self, res: dict[str, np.ndarray | None]) -> MultipleModelOutput:
         """The bank's output from the per-sample arrays ``x, mu, ll, P, mx`` (None: not kept)."""
-        return MultipleModelOutput(res["x"], res["mu"], res["ll"], tuple(self.modes), res["P"], res["mx"])  # type: ignore[arg-type, attr-defined]
+        x, mu, ll = res["x"], res["mu"], res["ll"]
+        assert x is not None and mu is not None and ll is not None  # always kept
+        return MultipleModelOutput(x, mu, ll, tuple(cast(tuple[str, ...], self.modes)), res["P"], res["mx"])
 
     def online(self, x0: np.ndarray, P0: np.ndarray, **initial: object) -> OnlineBank:
         """One realization advanced one sample per call: ``f = bank.online(x0, P0)``, ``x = f.step(z, u)``.
@@ -376,7 +405,7 @@ class BankFilter:
         OnlineBank
             Each step gives the numbers of :meth:`update` on that sample (``docs/filters.md``).
         """
-        return OnlineBank(self, self.initialize(x0, P0, runs=1, **initial))  # type: ignore[attr-defined]
+        return OnlineBank(self, self.initialize(x0, P0, runs=1, **initial))
 
     def update(
         self,
@@ -385,8 +414,6 @@ class BankFilter:
         u: np.ndarray | None = None,
         *,
         store: Collection[str] | None = None,
-        store_covariance: bool | None = None,
-        store_modes: bool | None = None,
     ) -> tuple[MultipleModelState, MultipleModelOutput]:
         """Advance every realization over K samples (``z(k+1..k+K)``, ``u(k..k+K-1)``).
 
@@ -402,9 +429,6 @@ class BankFilter:
             ``"P_post"``: keep the combined posterior covariance per sample (memory ``runs K n^2``);
             ``"mode_x_post"``: the mode-conditioned posteriors per sample (IMM and the SMM bank
             reading; SMM's Table 1 reading keeps the mode predictions).
-        store_covariance, store_modes : bool, optional
-            Deprecated spellings of ``store={"P_post"}`` / ``store={"mode_x_post"}``
-            (``DeprecationWarning``).
 
         Returns
         -------
@@ -412,11 +436,11 @@ class BankFilter:
         """
         if not isinstance(state, MultipleModelState):
             raise TypeError(f"state must be a MultipleModelState; got {type(state).__name__}")
-        mdl0 = self._sensor_model()  # type: ignore[attr-defined]
+        mdl0 = self._sensor_model()
         m, p = int(mdl0.n_outputs), int(mdl0.n_inputs)
-        store_covariance, store_modes = bank_store(store, store_covariance, store_modes, type(self).__name__)
+        store_covariance, store_modes = bank_store(store, type(self).__name__)
         z, u = check_bank_data(z, u, state.x.shape[0], m, p)
-        return self._advance(state, z, u, store_covariance, store_modes)  # type: ignore[attr-defined]
+        return self._advance(state, z, u, store_covariance, store_modes)
 
     def run(
         self,
@@ -426,8 +450,6 @@ class BankFilter:
         x0: np.ndarray,
         P0: np.ndarray,
         store: Collection[str] | None = None,
-        store_covariance: bool | None = None,
-        store_modes: bool | None = None,
         **initial: object,
     ) -> MultipleModelOutput:
         """Filter whole records: :meth:`initialize` then one :meth:`update`.
@@ -444,8 +466,6 @@ class BankFilter:
             ``P(0|0)``.
         store : collection of str, optional
             See :meth:`update`.
-        store_covariance, store_modes : bool, optional
-            Deprecated; see :meth:`update`.
         **initial
             IMM: ``mode_x0``, ``mode_P0`` (per-mode starts, see :meth:`IMM.initialize`).
 
@@ -455,7 +475,7 @@ class BankFilter:
         """
         zz = finite_array("z", z, ndim=(2, 3))
         runs = 1 if zz.ndim == 2 else zz.shape[0]
-        state = self.initialize(x0, P0, runs=runs, **initial)  # type: ignore[attr-defined]
-        keep = bank_store(store, store_covariance, store_modes, type(self).__name__)
+        state = self.initialize(x0, P0, runs=runs, **initial)
+        keep = bank_store(store, type(self).__name__)
         store = {n for n, k in zip(("P_post", "mode_x_post"), keep, strict=True) if k}
-        return self.update(state, zz, u, store=store)[1]  # type: ignore[attr-defined]
+        return self.update(state, zz, u, store=store)[1]

@@ -1,7 +1,8 @@
 """The arithmetic of the multiple-model banks: mode likelihoods, normalized weights, the spread term.
 
 Shared by SMM-SVSF ([SMM] eq 3.1-3.3) and IMM ([IMM] eq 29-33); see
-:mod:`chatterspec.filters.multiple_model` for the banks and the corrections to the printed equations.
+:mod:`chatterspec.filters.smm_svsf` and :mod:`chatterspec.filters.imm` for the banks and the corrections
+to the printed equations.
 
 Likelihoods (:func:`log_gaussian`) use the correlation-scaled ``S`` with eigenvalues floored at
 :data:`EIG_FLOOR` (the EHA states span about 20 decades, ``docs/design.md`` S3), so a near-singular

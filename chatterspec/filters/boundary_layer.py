@@ -1,8 +1,7 @@
 """Smoothing-boundary-layer selection from healthy chattering statistics (section II-III, Fig 2).
 
 This module holds the analytic part (:func:`healthy_chattering_variance`); the Monte Carlo
-estimate and the Fig 2 study are in :mod:`chatterspec.studies.boundary_layer` (they lived here in
-earlier releases; the old path now raises an ``AttributeError`` that names the new one).
+estimate and the Fig 2 study are in :mod:`chatterspec.studies.boundary_layer`.
 
 The SVSF chatters (eq 13) whenever ``|e_i(k|k-1)| > psi_i``. Under healthy
 conditions the auxiliary (``sgn``) filter started at ``x(0|0) = C^-1 z(0)``
@@ -42,8 +41,6 @@ reproduces the Fig 2 study. No plotting here (see :mod:`chatterspec.figures.plot
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import scipy.linalg
 import scipy.stats
@@ -52,11 +49,6 @@ from ..plants.models import LinearModel
 from .svsf import auxiliary_svsf
 
 __all__ = ["healthy_chattering_variance"]
-
-#: Names that moved to :mod:`chatterspec.studies.boundary_layer` (Monte Carlo studies are not the
-#: filter layer's job, and the filter layer imports nothing above it): asking this module for one
-#: raises an error that names the new path (PEP 562).
-_MOVED = ("BoundaryLayerEstimate", "BoundaryLayerStudy", "boundary_layer_study", "estimate_boundary_layer")
 
 
 def _filter_matrices(model: LinearModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -99,12 +91,3 @@ def healthy_chattering_variance(model: LinearModel) -> tuple[np.ndarray, np.ndar
     HPhi = H @ Phi
     cov = HPhi @ P @ HPhi.T + H @ SQS @ H.T + model.R
     return np.diag(cov).copy(), np.diag(L @ cov @ L.T).copy()
-
-
-def __getattr__(name: str) -> Any:
-    if name not in _MOVED:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    raise AttributeError(
-        f"{name} moved to chatterspec.studies.boundary_layer (Monte Carlo studies live in studies/): "
-        f"use `from chatterspec.studies.boundary_layer import {name}`"
-    )

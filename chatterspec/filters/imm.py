@@ -1,9 +1,26 @@
 """Interacting multiple-model estimator ([IMM] eq 15-33, corrected), batched over realizations.
 
-The cycle and its corrections are in :mod:`chatterspec.filters.multiple_model`. When
-:func:`chatterspec._jit.enabled` and every mode is supported (:mod:`chatterspec.filters._imm_kernel`),
-:meth:`IMM.update` runs the whole recursion in one compiled loop; otherwise it drives the mode
-filters through the protocol, one sample at a time. The two agree to rounding (summation order).
+Notation and corrections of ``docs/design.md`` §7.5-§7.6. Per sample, with the transition matrix
+``pi[i, j] = P(j at k | i at k-1)``::
+
+    (19) c_j = sum_i pi_ij mu_i(k-1)          (18) mu_{i|j} = pi_ij mu_i(k-1) / c_j  (printed 1/mu_j)
+    (20) x_0j = sum_i mu_{i|j} x_i            (21) P_0j = sum_i mu_{i|j} [P_i + (x_i - x_0j)(.)^T]
+    (22)-(28) mode-matched filter j (any :class:`~chatterspec.filters.protocol.Filter`) from (x_0j, P_0j)
+    (29) Lambda_j = N(e_j; 0, S_j)            (30) mu_j(k) ∝ c_j Lambda_j   (log domain)
+    (31) x = sum_j mu_j x_j                   (32)-(33) P = sum_j mu_j [P_j + (x_j - x)(x_j - x)^T]
+
+The printed (32)-(33) sum ``mu_i mu_j (x_i - x_j)(x_i - x_j)^T`` over all ``i, j``; that is exactly twice
+the spread of (33) here (:func:`~chatterspec.filters.bank_math.pairwise_spread`, tested), so it is read
+with a factor 1/2. For the SVSF-type mode filters, ``e(k|k)`` of mode j is the residual of its mixed
+estimate ``z(k) - C x_0j`` (``docs/design.md`` I4); ``e(k-1|k-1)`` stays the value that mode stored.
+Likelihoods are :func:`~chatterspec.filters.bank_math.log_gaussian`.
+
+**Compiled step.** When :func:`chatterspec._jit.enabled` and every mode is supported (EKF/KF,
+SVSF-cov without ``vbl``, second-order SVSF, on nonlinear-EHA or linear models; see
+:mod:`chatterspec.filters._imm_kernel`), :meth:`IMM.update` runs the whole recursion in one compiled
+loop over runs and samples; otherwise it drives the mode filters through the protocol, one sample at
+a time. The two agree to rounding (summation order; tolerances in ``tests/test_imm_kernel.py``), and
+each is chunk-invariant bit for bit.
 
 See Also
 --------
@@ -19,17 +36,19 @@ import numpy as np
 
 from .. import _jit
 from .._repr import short_repr
+from ..plants.nonlinear import Model
 from . import _imm_kernel
 from ._bank_steps import bank_outputs, bank_results, bank_store_numpy
 from ._conventions import mode_initial
 from .bank_common import (
     BankFilter,
+    MultipleModelOutput,
     MultipleModelState,
     check_transition_matrix,
 )
 from .bank_math import log_gaussian, normalize_log_weights
 from .mixture import combine
-from .protocol import FilterState
+from .protocol import Filter, FilterState
 
 __all__ = ["IMM"]
 
@@ -67,12 +86,12 @@ class IMM(BankFilter):
 
     __repr__ = short_repr  # shapes and key figures, never whole arrays
 
-    filters: Sequence[object]
+    filters: Sequence[Filter]
     transition_matrix: np.ndarray
     mu0: np.ndarray | None = None
     weight_floor: float = 0.0
     modes: Sequence[str] | None = None
-    _fused: dict[str, np.ndarray] | None = field(init=False, repr=False, default=None)
+    _fused: _imm_kernel.IMMSpec | None = field(init=False, repr=False, default=None)
 
     def __post_init__(self) -> None:
         filters = tuple(self.filters)
@@ -82,7 +101,7 @@ class IMM(BankFilter):
                     f"IMM filter {j} ({type(f).__name__}) does not satisfy the Filter protocol "
                     "(initialize, update, model)"
                 )
-        self._check_bank([f.model for f in filters])  # type: ignore[attr-defined]
+        self._check_bank([f.model for f in filters])
         object.__setattr__(self, "filters", filters)
         object.__setattr__(
             self, "transition_matrix", check_transition_matrix(self.transition_matrix, len(filters))
@@ -126,13 +145,20 @@ class IMM(BankFilter):
         """
         runs, x, P, mu = self._initial_estimate(x0, P0, runs)
         xs, Ps, x, P = mode_initial(x, P, mu, mode_x0, mode_P0, self.n_modes)
-        states = tuple(f.initialize(xs[:, j], Ps[:, j], runs=runs) for j, f in enumerate(self.filters))  # type: ignore[attr-defined]
+        states = tuple(f.initialize(xs[:, j], Ps[:, j], runs=runs) for j, f in enumerate(self.filters))
         return self._initial_state(x, P, mu, states)
 
-    def _sensor_model(self) -> object:
-        return self.filters[0].model  # type: ignore[attr-defined]
+    def _sensor_model(self) -> Model:
+        return self.filters[0].model
 
-    def _advance(self, state, z, u, store_covariance, store_modes):  # type: ignore[no-untyped-def]
+    def _advance(
+        self,
+        state: MultipleModelState,
+        z: np.ndarray,
+        u: np.ndarray,
+        store_covariance: bool,
+        store_modes: bool,
+    ) -> tuple[MultipleModelState, MultipleModelOutput]:
         """[IMM] eq (18)-(33) over the checked chunk (compiled when every mode is supported)."""
         runs = state.x.shape[0]
         K = z.shape[1]
@@ -140,7 +166,7 @@ class IMM(BankFilter):
             return self._update_fused(state, z, u, store_covariance, store_modes)
         n = state.x.shape[1]
         r = self.n_modes
-        C = np.asarray(self._sensor_model().C, dtype=float)  # type: ignore[attr-defined]
+        C = np.asarray(self._sensor_model().C, dtype=float)
         pi = self.transition_matrix
         keep = ("x_post", "innovation", "S")
         mu = state.mu.copy()
@@ -170,10 +196,12 @@ class IMM(BankFilter):
                 # design.md I4: e(k|k) of mode j is the residual of its mixed estimate (0 before any data)
                 e_mix = s.e_post if first else zl - x0s[:, j] @ C.T
                 s = FilterState(x=x0s[:, j], P=P0s[:, j], e_post=e_mix, e_prev=s.e_prev, k=s.k)
-                s, out = f.update(s, zk, uk, store=keep, check=False)  # type: ignore[attr-defined]
+                s, out = f.update(s, zk, uk, store=keep, check=False)
                 sts[j] = s
-                es[:, j] = out.innovation[:, 0]
-                Ss[:, j] = out.S[:, 0] if out.S.ndim == 4 else out.S[0]
+                innovation, S = out.innovation, out.S
+                assert innovation is not None and S is not None  # in ``keep``
+                es[:, j] = innovation[:, 0]
+                Ss[:, j] = S[:, 0] if S.ndim == 4 else S[0]
             ll = log_gaussian(es, Ss)  # (29), all modes at once
             mu = normalize_log_weights(np.log(c) + ll, self.weight_floor)  # (30)
             xs = np.stack([s.x for s in sts], axis=1)
@@ -198,8 +226,11 @@ class IMM(BankFilter):
         )
         return new, self._output(bank_results(rec, store_covariance, store_modes))
 
-    def _update_fused(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
+    def _update_fused(
+        self, state: MultipleModelState, z: np.ndarray, u: np.ndarray, store_cov: bool, store_modes: bool
+    ) -> tuple[MultipleModelState, MultipleModelOutput]:
         # the same recursion as update()'s loop, compiled (chatterspec.filters._imm_kernel)
+        assert self._fused is not None  # (the caller checked)
         st, o = _imm_kernel.run_fused(
             self._fused, self.transition_matrix, self.weight_floor, state, z, u, store_cov, store_modes
         )
@@ -214,7 +245,7 @@ class IMM(BankFilter):
             )
             for j, s in enumerate(state.mode_states)
         )
-        C = np.asarray(self.filters[0].model.C, dtype=float)  # type: ignore[attr-defined]
+        C = np.asarray(self.filters[0].model.C, dtype=float)
         new = MultipleModelState(
             x=st["x"],
             P=st["P"],

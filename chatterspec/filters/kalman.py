@@ -29,14 +29,18 @@ import numpy as np
 
 from .. import _jit
 from .._repr import short_repr
+from ..plants.filter_settings import FilterSettings
 from ..plants.models import LinearModel
+from ..plants.nonlinear import Model
 from . import _engine, _engine_numpy, _kalman_shared
 from ._base import CovarianceFilterBase, check_model
 from ._engine import chol_solve_step, gain_update_step
 
 
 @_jit.step
-def kalman_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def kalman_correct(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarray, xp: np.ndarray,
+    PCtT: np.ndarray, D: np.ndarray, L: np.ndarray, C: np.ndarray, F: np.ndarray, x: np.ndarray,
+    KgT: np.ndarray, ws: tuple[np.ndarray, ...], n: int, m: int) -> int:  # fmt: skip
     """The Kalman correction (compiled step): ``K^T = S^-1 (P C^T)^T`` from the factor ``L`` of ``S``,
     ``x(k+1|k+1) = x(k+1|k) + K e``. Signature of :mod:`chatterspec.filters._engine`; returns 0."""
     chol_solve_step(L, PCtT, KgT, m, n)
@@ -44,7 +48,17 @@ def kalman_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # t
     return 0
 
 
-def kalman_correct_numpy(e, ep, epp, xp, PCt, D, S, C, F):  # type: ignore[no-untyped-def]
+def kalman_correct_numpy(
+    e: np.ndarray,
+    ep: np.ndarray,
+    epp: np.ndarray,
+    xp: np.ndarray,
+    PCt: np.ndarray,
+    D: np.ndarray,
+    S: np.ndarray,
+    C: np.ndarray,
+    F: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
     """:func:`kalman_correct` vectorized over realizations: ``(K, x(k+1|k+1))``."""
     Kg = _engine_numpy.kalman_gain_numpy(S, PCt)
     return Kg, xp + np.einsum("rij,rj->ri", Kg, e)
@@ -89,7 +103,16 @@ class KalmanFilter(CovarianceFilterBase):
     def _correction_step(self) -> _engine.CorrectionStep:
         return _KF_STEP
 
-    def _advance(self, x, P, ep, epp, z, u, keep):  # type: ignore[no-untyped-def]
+    def _advance(
+        self,
+        x: np.ndarray,
+        P: np.ndarray,
+        ep: np.ndarray,
+        epp: np.ndarray,
+        z: np.ndarray,
+        u: np.ndarray,
+        keep: frozenset[str],
+    ) -> tuple[np.ndarray, dict[str, np.ndarray | None]]:
         if P.ndim == 3:
             return super()._advance(x, P, ep, epp, z, u, keep)
         if x.shape[0] == 1 and _jit.enabled() and _jit.fits(x.shape[1], z.shape[2]):
@@ -150,7 +173,7 @@ class ExtendedKalmanFilter(CovarianceFilterBase):
 
     __repr__ = short_repr  # shapes and key figures, never whole arrays
 
-    model: object
+    model: Model
 
     def __post_init__(self) -> None:
         check_model(self.model)
@@ -163,11 +186,13 @@ class ExtendedKalmanFilter(CovarianceFilterBase):
     _shared_ok = False
 
 
-def kf_from_settings(model: object, settings: object, source: str) -> KalmanFilter | ExtendedKalmanFilter:
+def kf_from_settings(
+    model: Model, settings: FilterSettings, source: str
+) -> KalmanFilter | ExtendedKalmanFilter:
     """Registry builder of ``kf``: the Kalman filter on a linear model, the EKF otherwise (no tuning)."""
-    return KalmanFilter(model) if isinstance(model, LinearModel) else ExtendedKalmanFilter(model)  # type: ignore[arg-type]
+    return KalmanFilter(model) if isinstance(model, LinearModel) else ExtendedKalmanFilter(model)
 
 
-def ekf_from_settings(model: object, settings: object, source: str) -> ExtendedKalmanFilter:
+def ekf_from_settings(model: Model, settings: FilterSettings, source: str) -> ExtendedKalmanFilter:
     """Registry builder of ``ekf``: the extended Kalman filter (no tuning)."""
     return ExtendedKalmanFilter(model)

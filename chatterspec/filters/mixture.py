@@ -1,14 +1,27 @@
 """The mode-weighted mixture of a multiple-model bank's estimates (one function, no state).
 
-Kept apart from :mod:`chatterspec.filters.multiple_model` so that the filters' conventions
-(:mod:`chatterspec.filters._conventions`, the banks' per-mode start) use it without an import circle.
+Kept apart from the banks (:mod:`chatterspec.filters.smm_svsf`, :mod:`chatterspec.filters.imm`) so
+that the filters' conventions (:mod:`chatterspec.filters._conventions`, the banks' per-mode start)
+use it without an import circle.
 """
 
 from __future__ import annotations
 
+from typing import overload
+
 import numpy as np
 
 __all__ = ["combine"]
+
+
+@overload
+def combine(mu: np.ndarray, xs: np.ndarray, Ps: None = None) -> tuple[np.ndarray, None]: ...
+@overload
+def combine(mu: np.ndarray, xs: np.ndarray, Ps: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def combine(
+    mu: np.ndarray, xs: np.ndarray, Ps: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray | None]: ...
 
 
 def combine(

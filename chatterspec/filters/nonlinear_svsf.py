@@ -43,7 +43,7 @@ from ..errors import ParameterError, SingularMatrixError
 from ..plants.measurement import require_linear_measurement
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel
-from ._conventions import check_chunk, check_initial_rows, check_record, legacy_store
+from ._conventions import check_chunk, check_initial_rows, check_record, store_flags
 from ._finite import require_finite
 from .protocol import channel_rows
 from .svsf_steps import rows_times as _rows_times
@@ -164,7 +164,6 @@ class NonlinearSgnSVSF:
         u: np.ndarray,
         *,
         store: Collection[str] | None = None,
-        store_states: bool | None = None,
         closed_form: bool = True,
         check: bool = True,
     ) -> tuple[NonlinearSVSFState, NonlinearSVSFOutput]:
@@ -180,8 +179,6 @@ class NonlinearSgnSVSF:
             Inputs ``u(k) .. u(k+K-1)``.
         store : collection of str, optional
             ``{"x_post"}``: also return ``x(k|k)`` per sample (``e_prior`` is always returned).
-        store_states : bool, optional
-            Deprecated spelling of ``store={"x_post"}`` (``DeprecationWarning``).
         closed_form : bool
             Allow the closed form (eq 23, nonlinear) when ``e(k|k) = 0``; ``False`` forces the
             sample-by-sample recursion (same numbers up to rounding).
@@ -194,10 +191,9 @@ class NonlinearSgnSVSF:
             The chattering of every sample depends only on ``z(k)``, ``z(k+1)`` and ``u(k)``,
             evaluated element-wise, so any chunking gives the same bits.
         """
-        (store_states,) = legacy_store(
-            store, {"store_states": store_states}, {"store_states": "x_post"}, frozenset({"x_post"}),
-            "NonlinearSgnSVSF", "e_prior is always returned",
-        )  # fmt: skip
+        (store_states,) = store_flags(
+            store, ("x_post",), frozenset({"x_post"}), "NonlinearSgnSVSF", "e_prior is always returned"
+        )
         m = self.model.n_outputs
         runs = state.runs
         z, u = check_chunk(z, u, runs, m, self.model.n_inputs, check)

@@ -139,7 +139,7 @@ class OnlineFilter:
                 model.Q,
                 model.R,
                 corr.parameters,
-                p,  # type: ignore[union-attr]
+                p,
             )
             self._call = _engine.one_sample_kernel(corr, plant, n, m, hx)
         else:
@@ -191,7 +191,7 @@ class OnlineFilter:
         self._k = state.k
         self._last = {f: getattr(out, f) for f in keep}
         self._stepped = True
-        return out.x_post[0, 0].copy()  # type: ignore[no-any-return]
+        return out.x_post[0, 0].copy()
 
     def _fail(self, status: int, z: np.ndarray, u: np.ndarray) -> None:
         who = type(self.filter).__name__
@@ -348,7 +348,7 @@ class OnlineBank:
             and (not is_imm or len(state.mode_states) == self._nm)
         )
         if self.compiled:
-            self._call = spec["one"]  # type: ignore[index]
+            self._call = spec["one"]
             self._pack(spec, state)
 
     def _pack(self, spec: dict[str, Any], state: Any) -> None:
@@ -381,9 +381,9 @@ class OnlineBank:
             parts = [prm, spec["Qs"], spec["C"], spec["R"], fp]
             self._slots = np.ascontiguousarray(spec["plant_slot"], dtype=np.int64)
             epp = np.zeros(m) if state.e_prev is None else state.e_prev[0]
-            rows = (state.x[0], np.broadcast_to(state.P, (1, n, n))[0], state.mu[0], state.e_post[0], epp)
+            smm_rows = (state.x[0], np.broadcast_to(state.P, (1, n, n))[0], state.mu[0], state.e_post[0], epp)
             starts = (0, *lay[:4])
-            for o, v in zip(starts, rows, strict=True):
+            for o, v in zip(starts, smm_rows, strict=True):
                 buf[o : o + np.size(v)] = np.ravel(v)
             buf[lay[7] : lay[7] + m] = state.z_last[0]
         self._buf = buf
@@ -418,7 +418,7 @@ class OnlineBank:
             self._ll = out.loglik[0, 0].copy()
             self._k = state.k
             self._stepped = True
-            return out.x_post[0, 0].copy()  # type: ignore[no-any-return]
+            return out.x_post[0, 0].copy()
         status = self._call(self._buf, self._cst, self._slots, z, u)
         if status:
             self._fail(status, z, u)
@@ -459,7 +459,7 @@ class OnlineBank:
     def x(self) -> np.ndarray:
         """The combined ``x(k|k)`` (n,) (copy)."""
         if not self.compiled:
-            return self._state.x[0].copy()  # type: ignore[no-any-return]
+            return self._state.x[0].copy()
         return self._slice(self._x_offset(), (self._n,))
 
     @property
@@ -475,7 +475,7 @@ class OnlineBank:
     def mu(self) -> np.ndarray:
         """Mode probabilities / weights after sample ``k`` (r,) (copy)."""
         if not self.compiled:
-            return self._state.mu[0].copy()  # type: ignore[no-any-return]
+            return self._state.mu[0].copy()
         o = self._layout[0] if self._kind == "imm" else self._layout[1]
         return self._slice(o, (self._nm,))
 
@@ -617,7 +617,7 @@ class OnlineSVSF:
             )
             self._state, self._k = state, state.k
             self._last = out.e_prior[0, 0].copy()
-            return out.x_post[0, 0].copy()  # type: ignore[no-any-return]
+            return out.x_post[0, 0].copy()
         status = self._call(self._buf, self._cst, z, u)
         if status == _engine.BAD_INPUT:
             raise _bad_input("SVSF", self._k + 1, z, u)

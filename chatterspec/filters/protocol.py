@@ -29,13 +29,15 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Collection
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Protocol, TypedDict, Unpack, runtime_checkable
 
 import numpy as np
+import numpy.typing as npt
 
 from .._repr import short_repr
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError
+from ..plants.nonlinear import Model
 
 __all__ = ["DEFAULT_STORE", "STORABLE", "Filter", "FilterOutput", "FilterState"]
 
@@ -43,6 +45,16 @@ __all__ = ["DEFAULT_STORE", "STORABLE", "Filter", "FilterOutput", "FilterState"]
 DEFAULT_STORE: frozenset[str] = frozenset({"x_prior", "x_post", "innovation", "S", "loglik", "e_post"})
 #: Every field that ``store`` may name (covariances are stored only on request).
 STORABLE: frozenset[str] = DEFAULT_STORE | {"P_prior", "P_post"}
+
+
+class FilterStateFields(TypedDict, total=False):
+    """Fields of :class:`FilterState`, as :meth:`FilterState.replace` takes them."""
+
+    x: np.ndarray
+    P: np.ndarray
+    e_post: np.ndarray
+    e_prev: np.ndarray
+    k: int
 
 
 @dataclass(frozen=True, eq=False)
@@ -82,7 +94,7 @@ class FilterState:
         """True when ``P`` is one ``(n, n)`` matrix shared by every realization."""
         return self.P.ndim == 2
 
-    def replace(self, **changes: object) -> FilterState:
+    def replace(self, **changes: Unpack[FilterStateFields]) -> FilterState:
         """Copy with fields replaced (e.g. a bank's mixed ``x`` and ``P``), shapes checked.
 
         Parameters
@@ -160,7 +172,10 @@ class Filter(Protocol):
     ``n_inputs``).
     """
 
-    model: object
+    @property
+    def model(self) -> Model:
+        """The filter's model (read-only)."""
+        ...
 
     def initialize(
         self,
@@ -245,7 +260,7 @@ def check_spd(name: str, M: np.ndarray) -> None:
 
 
 def channel_rows(
-    name: str, value: object, m: int, *, label: str | None = None, channels: Collection[str] = ()
+    name: str, value: npt.ArrayLike, m: int, *, label: str | None = None, channels: Collection[str] = ()
 ) -> np.ndarray:
     """``value`` as (K, m) float rows of the ``m`` output channels; a 1-D array is one row (sample).
 
@@ -292,7 +307,7 @@ def sample_rows(name: str, value: object, size: int) -> np.ndarray:
     except (TypeError, ValueError) as exc:
         raise ShapeError(f"{name} must be numeric; got {type(value).__name__}") from exc
     if arr.shape != (size,):
-        raise ShapeError(f"{name} must have shape ({size},) (one sample); got {np.shape(value)}")
+        raise ShapeError(f"{name} must have shape ({size},) (one sample); got {arr.shape}")
     return arr
 
 
@@ -309,7 +324,9 @@ def resolve_store(store: Collection[str] | None) -> frozenset[str]:
     return keep
 
 
-def initial_estimate(n: int, x0: object, P0: object, runs: int | None) -> tuple[int, np.ndarray, np.ndarray]:
+def initial_estimate(
+    n: int, x0: npt.ArrayLike, P0: npt.ArrayLike, runs: int | None
+) -> tuple[int, np.ndarray, np.ndarray]:
     """``(runs, x, P0)`` from a filter's or bank's ``initialize`` arguments, checked.
 
     Parameters
@@ -352,24 +369,24 @@ def initial_estimate(n: int, x0: object, P0: object, runs: int | None) -> tuple[
 
 
 def initial_state(
-    model: object,
-    x0: object,
-    P0: object,
+    model: Model,
+    x0: npt.ArrayLike,
+    P0: npt.ArrayLike,
     *,
     runs: int | None,
-    e0: object | None,
-    e_prev0: object | None,
+    e0: npt.ArrayLike | None,
+    e_prev0: npt.ArrayLike | None,
     shared_ok: bool,
 ) -> FilterState:
     """Validated :class:`FilterState` at k = 0 (initial residuals default to 0, ``docs/design.md`` §7.2)."""
-    n, m = model.n_states, model.n_outputs  # type: ignore[attr-defined]
+    n, m = model.n_states, model.n_outputs
     runs, x, P0 = initial_estimate(n, x0, P0, runs)
     if P0.ndim == 2 and shared_ok:
         P = np.array(P0, dtype=float)
     else:
         P = np.array(np.broadcast_to(P0, (runs, n, n)), dtype=float)
 
-    def residual(name: str, val: object | None) -> np.ndarray:
+    def residual(name: str, val: npt.ArrayLike | None) -> np.ndarray:
         if val is None:
             return np.zeros((runs, m))
         arr = finite_array(name, val, ndim=(1, 2))
@@ -381,13 +398,13 @@ def initial_state(
 
 
 def check_chunk(
-    model: object, state: FilterState, z: object, u: object | None, check: bool
+    model: Model, state: FilterState, z: npt.ArrayLike, u: npt.ArrayLike | None, check: bool
 ) -> tuple[np.ndarray, np.ndarray]:
     """Validate ``z`` (runs, K, m) and ``u`` (K, p) / (runs, K, p) / None; returns ``(z, u)`` as float arrays.
 
     ``u`` comes back 3-D, ``(1, K, p)`` when shared by all runs.
     """
-    m, p = model.n_outputs, model.n_inputs  # type: ignore[attr-defined]
+    m, p = model.n_outputs, model.n_inputs
     runs = state.runs
     if u is None:  # no input: zeros (an autonomous model needs no u)
         u = np.zeros((np.shape(z)[-2] if np.ndim(z) >= 2 else 0, p))

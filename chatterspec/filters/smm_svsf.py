@@ -1,9 +1,22 @@
 """SMM-SVSF: static multiple models inside the SVSF with covariance ([SMM] eq 3.1-3.5, Table 1).
 
-Two readings of the paper (see :mod:`chatterspec.filters.multiple_model` for the equations): Table 1
-(default), one SVSF whose prediction is the mode-weighted prediction, compiled when every mode has
-compiled plant steps (:mod:`chatterspec.filters._smm_kernel`); and the bank of eq (3.4)-(3.5), r
-independent SVSFs weighted by their innovation likelihoods.
+Two readings of the paper (notation and corrections of ``docs/design.md`` §7.5), batched over a
+leading realization axis ``runs``:
+
+**Table 1 reading** (default, ``reading="table1"``): one SVSF whose prediction is the mode-weighted
+prediction, compiled when every mode has compiled plant steps (:mod:`chatterspec.filters._smm_kernel`).
+Per sample, from the common posterior ``x(k|k), P(k|k)``::
+
+    x_j = f_j(x(k|k), u(k)),  P_j = F_j P(k|k) F_j^T + Q_j,  S_j = C P_j C^T + R       (Table 1 steps 1-2)
+    log p_j = log N(z(k+1) - C x_j; 0, S_j)                                           (eq 3.2-3.3, vector)
+    mu_j(k+1) ∝ p_j mu_j(k)  (log domain), then mu_j >= floor and renormalize          (eq 3.1, step 3)
+    x(k+1|k) = sum_j mu_j x_j,  P(k+1|k) = sum_j mu_j [P_j + (x_j - x)(x_j - x)^T]      (steps 4a-5)
+    SVSF gain and update (eq 2.5-2.10) on x(k+1|k), P(k+1|k)                           (steps 6-7b)
+
+**Bank reading** (``reading="bank"``): eq (3.4)-(3.5) taken literally, r independent SVSFs
+(:class:`~chatterspec.filters.svsf_cov.SVSFCov`, one per mode) each weighted by its own innovation
+likelihoods (:func:`~chatterspec.filters.bank_math.log_gaussian`); the output is the mu-weighted
+posterior.
 
 See Also
 --------
@@ -14,7 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 
@@ -22,6 +35,7 @@ from .. import _jit
 from .._repr import short_repr
 from ..errors import ParameterError
 from ..plants.measurement import require_linear_measurement
+from ..plants.nonlinear import Model
 from . import _smm_kernel
 from ._bank_steps import bank_outputs, bank_results, bank_store_numpy
 from .bank_common import (
@@ -78,7 +92,7 @@ class SMMSVSF(BankFilter):
 
     __repr__ = short_repr  # shapes and key figures, never whole arrays
 
-    models: Sequence[object]
+    models: Sequence[Model]
     psi: float | np.ndarray
     gamma: float | np.ndarray = 0.1
     mapping: Literal["full", "pinv", "cov"] | None = None
@@ -88,17 +102,17 @@ class SMMSVSF(BankFilter):
     modes: Sequence[str] | None = None
     _svsf: SVSFCov | None = field(init=False, repr=False, default=None)
     _bank: tuple[SVSFCov, ...] = field(init=False, repr=False, default=())
-    _compiled: dict[str, object] | None = field(init=False, repr=False, default=None)
+    _compiled: _smm_kernel.SMMSpec | None = field(init=False, repr=False, default=None)
 
     def __post_init__(self) -> None:
         models = tuple(self.models)
         _n, m = self._check_bank(models)
         for mdl in models:
             require_linear_measurement(mdl, "SMM-SVSF")
-        C = np.asarray(models[0].C, dtype=float)  # type: ignore[attr-defined]
-        R = np.asarray(models[0].R, dtype=float)  # type: ignore[attr-defined]
+        C = np.asarray(models[0].C, dtype=float)
+        R = np.asarray(models[0].R, dtype=float)
         for j, mdl in enumerate(models[1:], start=1):
-            if not (np.array_equal(mdl.C, C) and np.array_equal(mdl.R, R)):  # type: ignore[attr-defined]
+            if not (np.array_equal(mdl.C, C) and np.array_equal(mdl.R, R)):
                 raise ParameterError(
                     f"SMM-SVSF modes share one sensor: mode {j} has a different C or R from mode 0"
                 )
@@ -112,12 +126,13 @@ class SMMSVSF(BankFilter):
         object.__setattr__(self, "psi", psi)
         object.__setattr__(self, "gamma", check_gamma(self.gamma, m))
         # Table 1 steps 6-7b: one SVSF-cov (the modes share C and R) corrects the mixed prediction
-        object.__setattr__(self, "_svsf", SVSFCov(models[0], psi=psi, gamma=self.gamma, mapping=mapping))
+        svsf = SVSFCov(models[0], psi=psi, gamma=self.gamma, mapping=mapping)
+        object.__setattr__(self, "_svsf", svsf)
         if self.reading == "bank":
             bank = tuple(SVSFCov(mdl, psi=psi, gamma=self.gamma, mapping=mapping) for mdl in models)
             object.__setattr__(self, "_bank", bank)
         else:  # the compiled Table 1 loop when every mode has compiled plant steps (else numpy)
-            object.__setattr__(self, "_compiled", _smm_kernel.smm_spec(models, self._svsf._correction_step()))
+            object.__setattr__(self, "_compiled", _smm_kernel.smm_spec(models, svsf._correction_step()))
 
     @property
     def n_modes(self) -> int:
@@ -146,26 +161,31 @@ class SMMSVSF(BankFilter):
             states = tuple(f.initialize(x, P, runs=runs) for f in self._bank)
         return self._initial_state(x, P, mu, states)
 
-    def _sensor_model(self) -> object:
+    def _sensor_model(self) -> Model:
         return self.models[0]
 
-    def _advance(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
+    def _advance(
+        self, state: MultipleModelState, z: np.ndarray, u: np.ndarray, store_cov: bool, store_modes: bool
+    ) -> tuple[MultipleModelState, MultipleModelOutput]:
         if self.reading == "bank":
             return self._update_bank(state, z, u, store_cov, store_modes)
         return self._update_table1(state, z, u, store_cov, store_modes)
 
-    def _update_table1(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
+    def _update_table1(
+        self, state: MultipleModelState, z: np.ndarray, u: np.ndarray, store_cov: bool, store_modes: bool
+    ) -> tuple[MultipleModelState, MultipleModelOutput]:
         if self._compiled is not None and _jit.enabled() and z.shape[1]:
             return self._update_table1_compiled(state, z, u, store_cov, store_modes)
         models = self.models
         r = len(models)
         runs, K, _m = z.shape
         n = state.x.shape[1]
-        C = np.asarray(models[0].C, dtype=float)  # type: ignore[attr-defined]
-        R = np.asarray(models[0].R, dtype=float)  # type: ignore[attr-defined]
-        Qs = np.stack([np.asarray(mdl.Q, dtype=float) for mdl in models])  # type: ignore[attr-defined]
+        C = np.asarray(models[0].C, dtype=float)
+        R = np.asarray(models[0].R, dtype=float)
+        Qs = np.stack([np.asarray(mdl.Q, dtype=float) for mdl in models])
         floor = self.weight_floor
         svsf = self._svsf
+        assert svsf is not None  # set by __post_init__
         x, P, mu, ep = state.x.copy(), state.P.copy(), state.mu.copy(), state.e_post.copy()
         epp = np.zeros_like(ep) if state.e_prev is None else state.e_prev.copy()
         rec = bank_outputs(runs, K, n, r, store_cov, store_modes)
@@ -176,8 +196,8 @@ class SMMSVSF(BankFilter):
             uk = u[0, k] if shared_u else u[:, k]
             zk = z[:, k]
             for j, mdl in enumerate(models):  # Table 1 steps 1-2: every mode from the common posterior
-                xs[:, j] = mdl.transition(x, uk)  # type: ignore[attr-defined]
-                Fs[:, j] = mdl.jacobian(x, uk)  # type: ignore[attr-defined]
+                xs[:, j] = mdl.transition(x, uk)
+                Fs[:, j] = mdl.jacobian(x, uk)
             Ps = Fs @ P[:, None] @ np.swapaxes(Fs, -1, -2) + Qs  # (runs, r, n, n)
             Ss = C @ Ps @ C.T + R
             ll = log_gaussian(zk[:, None, :] - xs @ C.T, Ss)  # eq 3.2-3.3
@@ -200,7 +220,9 @@ class SMMSVSF(BankFilter):
         )
         return new, self._output(bank_results(rec, store_cov, store_modes))
 
-    def _update_table1_compiled(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
+    def _update_table1_compiled(
+        self, state: MultipleModelState, z: np.ndarray, u: np.ndarray, store_cov: bool, store_modes: bool
+    ) -> tuple[MultipleModelState, MultipleModelOutput]:
         # the same recursion as _update_table1's loop, compiled (chatterspec.filters._smm_kernel)
         c = lambda a: np.array(a, dtype=float, order="C")  # noqa: E731
         runs = state.x.shape[0]
@@ -211,6 +233,7 @@ class SMMSVSF(BankFilter):
             c(state.e_post),
         )
         epp = np.zeros_like(ep) if state.e_prev is None else c(state.e_prev)
+        assert self._compiled is not None  # (the caller checked)
         o = _smm_kernel.run_smm(
             self._compiled, self.weight_floor, x, P, mu, ep, epp, z, u, store_cov, store_modes
         )
@@ -220,7 +243,9 @@ class SMMSVSF(BankFilter):
         )
         return new, self._output(o)
 
-    def _update_bank(self, state, z, u, store_cov, store_modes):  # type: ignore[no-untyped-def]
+    def _update_bank(
+        self, state: MultipleModelState, z: np.ndarray, u: np.ndarray, store_cov: bool, store_modes: bool
+    ) -> tuple[MultipleModelState, MultipleModelOutput]:
         runs, K, _m = z.shape
         keep = {"x_post", "innovation", "S"} | ({"P_post"} if store_cov else set())
         new_states, outs = [], []
@@ -228,8 +253,10 @@ class SMMSVSF(BankFilter):
             s2, out = f.update(s, z, u, store=keep)
             new_states.append(s2)
             outs.append(out)
-        ll = np.stack([log_gaussian(o.innovation, o.S) for o in outs], axis=-1)  # (runs, K, r)
-        xs = np.stack([o.x_post for o in outs], axis=2)  # (runs, K, r, n)
+        ll = np.stack(
+            [log_gaussian(cast(np.ndarray, o.innovation), cast(np.ndarray, o.S)) for o in outs], axis=-1
+        )  # (runs, K, r)
+        xs = np.stack([cast(np.ndarray, o.x_post) for o in outs], axis=2)  # (runs, K, r, n)
         mu = state.mu.copy()
         o_mu = np.empty((runs, K, self.n_modes))
         logmu = np.log(np.maximum(mu, 1e-300))
@@ -237,7 +264,7 @@ class SMMSVSF(BankFilter):
             mu = normalize_log_weights(logmu + ll[:, k], self.weight_floor)
             logmu = np.log(mu)
             o_mu[:, k] = mu
-        Ps = np.stack([o.P_post for o in outs], axis=2) if store_cov else None
+        Ps = np.stack([cast(np.ndarray, o.P_post) for o in outs], axis=2) if store_cov else None
         x, P = combine(o_mu, xs, Ps)  # eq 3.4-3.5
         if K:
             last_P = combine(
@@ -254,4 +281,5 @@ class SMMSVSF(BankFilter):
             )
         else:
             new = state
-        return new, MultipleModelOutput(x, o_mu, ll, tuple(self.modes), P, xs if store_modes else None)  # type: ignore[arg-type]
+        modes = cast(tuple[str, ...], self.modes)  # set by _check_bank
+        return new, MultipleModelOutput(x, o_mu, ll, modes, P, xs if store_modes else None)

@@ -44,13 +44,11 @@ from .._repr import short_repr
 from .._validate import open_unit
 from ..errors import ParameterError
 from ..plants.models import LinearModel
-from ..plants.nonlinear import NonlinearModel, require_linear
+from ..plants.nonlinear import Model, NonlinearModel, require_linear
 from ._conventions import check_chunk, check_initial_rows, check_record, svsf_store
-from ._svsf_kernels import _closed_form_kernel, _svsf_kernel  # noqa: F401 - old import path (tests)
 from .one_sample import OnlineSVSF
 from .protocol import channel_rows
 from .svsf_coordinates import boundary_layer_inverse, svsf_coordinates
-from .svsf_coordinates import reduced_order_transform as _reduced_order_transform  # noqa: F401 - old path
 from .svsf_recursion import (
     SVSFConstants,
     SVSFOutput,
@@ -62,7 +60,6 @@ from .svsf_recursion import (
     with_initial,
 )
 from .svsf_steps import rows_times as _rows_times
-from .svsf_steps import switch as _switch  # noqa: F401 - old import path
 
 __all__ = [
     "SVSF",
@@ -107,7 +104,7 @@ class SVSF:
 
     __repr__ = short_repr  # shapes and key figures, never whole arrays
 
-    model: LinearModel
+    model: Model
     psi: float | np.ndarray | None = None
     gamma: float = 0.1
     switching: Switching = "sat"
@@ -198,9 +195,6 @@ class SVSF:
         u: np.ndarray | None = None,
         *,
         store: Collection[str] | None = None,
-        store_states: bool | None = None,
-        store_post_error: bool | None = None,
-        store_lower: bool | None = None,
         check: bool = True,
         closed_form: bool = True,
     ) -> tuple[SVSFState, SVSFOutput]:
@@ -217,9 +211,6 @@ class SVSF:
         store : collection of str, optional
             Also return ``"x_post"`` (``x(k|k)``), ``"e_post"`` (``e(k|k)``) and (reduced-order)
             ``"e_lower"`` per sample; ``e_prior`` (the chattering) is always returned.
-        store_states, store_post_error, store_lower : bool, optional
-            Deprecated spellings of ``store={"x_post"}``, ``{"e_post"}``, ``{"e_lower"}``
-            (``DeprecationWarning``).
         check : bool
             Validate shapes and finiteness (turn off only in trusted hot loops).
         closed_form : bool
@@ -246,7 +237,7 @@ class SVSF:
         sizes, so batch and online processing agree bit for bit. Any other case
         (``sat``, reduced order, non-zero a-posteriori error) runs the
         recursion of eq (4)-(12) sample by sample: in the compiled kernel
-        ``_svsf_kernel`` when :func:`chatterspec._jit.enabled` (numba
+        ``filters._svsf_kernels._svsf_kernel`` when :func:`chatterspec._jit.enabled` (numba
         installed, the ``fast`` extra), else in a numpy loop over samples,
         vectorized over realizations. Each path gives the same bits for any
         chunking; the two paths agree to rounding (1e-12 of the measurement
@@ -255,7 +246,7 @@ class SVSF:
         """
         if u is None:  # no input (docs/filters.md)
             u = np.zeros((np.shape(z)[-2], self.model.n_inputs))
-        keep = svsf_store(store, store_states, store_post_error, store_lower, "SVSF")
+        keep = svsf_store(store, "SVSF")
         z, u = check_chunk(z, u, state.runs, self.model.n_outputs, self.model.n_inputs, check)
         Gu = _rows_times(u, self._GT)  # (K, n) or (runs, K, n): G u(k), element-wise
         return self._advance(state, z, Gu, *keep, closed_form)
@@ -291,9 +282,6 @@ class SVSF:
         *,
         x0: np.ndarray | None = None,
         store: Collection[str] | None = None,
-        store_states: bool | None = None,
-        store_post_error: bool | None = None,
-        store_lower: bool | None = None,
     ) -> SVSFOutput:
         """Filter whole records (batch mode) with the same kernel as :meth:`update`.
 
@@ -307,8 +295,6 @@ class SVSF:
             Initial estimate x(0|0); default ``C^-1 z(0)`` (see :meth:`initialize`).
         store : collection of str, optional
             ``"x_post"``, ``"e_post"``, ``"e_lower"`` (see :meth:`update`).
-        store_states, store_post_error, store_lower : bool, optional
-            Deprecated spellings of ``store`` (see :meth:`update`).
 
         Returns
         -------
@@ -320,14 +306,14 @@ class SVSF:
         if u is None:  # no input: zeros
             u = np.zeros((np.shape(z)[-2] if np.ndim(z) >= 2 else 0, self.model.n_inputs))
         z, u, single = check_record(z, u)
-        keep = svsf_store(store, store_states, store_post_error, store_lower, "SVSF")
+        keep = svsf_store(store, "SVSF")
         state = self.initialize(z[:, 0], x0)
         wanted = {f for f, k in zip(("x_post", "e_post", "e_lower"), keep, strict=True) if k}
         _, out = self.update(state, z[:, 1:], u[..., :-1, :], store=wanted, check=False)
         return with_initial(out, state, self._S_inv, single)
 
 
-def auxiliary_svsf(model: LinearModel, gamma: float = 0.1) -> SVSF:
+def auxiliary_svsf(model: Model, gamma: float = 0.1) -> SVSF:
     """The auxiliary filter of section III: the SVSF with ``sgn`` instead of ``sat`` (eq 17).
 
     Parameters

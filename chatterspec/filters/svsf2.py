@@ -30,6 +30,7 @@ initial residuals keep ``e(k|k) = 0``, i.e. ``x_measured = H^-1 z``, for every k
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
@@ -37,6 +38,8 @@ from .. import _jit
 from .._repr import short_repr
 from .._validate import finite_array
 from ..errors import ParameterError
+from ..plants.filter_settings import FilterSettings
+from ..plants.nonlinear import Model
 from . import _engine, _engine_numpy
 from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets
 from ._luen import luen_correction, luen_second_order
@@ -81,7 +84,7 @@ class SecondOrderSVSF(SVSFCovarianceBase):
 
     __repr__ = short_repr  # shapes and key figures, never whole arrays
 
-    model: object
+    model: Model
     gamma: float | np.ndarray = 0.1
     lam: float | np.ndarray | None = None
     cutoff: float | np.ndarray | None = None
@@ -122,12 +125,23 @@ class SecondOrderSVSF(SVSFCovarianceBase):
 
     def _correction_step(self) -> _engine.CorrectionStep:
         mapping, n, m = self._sizes()
+        gamma, lam = cast(np.ndarray, self.gamma), cast(np.ndarray, self.lam)  # arrays after __post_init__
         fp = _engine.svsf_parameters(
-            mapping, n, m, self.gamma, lam=self.lam, clip=self.ratio_clip, M=self._M, luen=self._luen
+            mapping, n, m, gamma, lam=lam, clip=self.ratio_clip, M=self._M, luen=self._luen
         )
-        gamma, lam, (lo, hi), M, luen = self.gamma, self.lam, self.ratio_clip, self._M, self._luen
+        (lo, hi), M, luen = self.ratio_clip, self._M, self._luen
 
-        def numpy(e, ep, epp, xp, PCt, D, S, C, F):  # type: ignore[no-untyped-def]
+        def numpy(
+            e: np.ndarray,
+            ep: np.ndarray,
+            epp: np.ndarray,
+            xp: np.ndarray,
+            PCt: np.ndarray,
+            D: np.ndarray,
+            S: np.ndarray,
+            C: np.ndarray,
+            F: np.ndarray,
+        ) -> tuple[np.ndarray, np.ndarray]:
             if luen is not None:
                 Kg, dx = luen_correction(_engine.SVSF2, F, e, ep, epp, *luen, gamma, lam, np.ones(n), lo, hi)
                 return Kg, xp + dx
@@ -142,16 +156,18 @@ class SecondOrderSVSF(SVSFCovarianceBase):
         return _engine.CorrectionStep("svsf2", svsf2_correct, fp, numpy, mapping)
 
 
-def from_settings(model: object, settings: object, source: str) -> SecondOrderSVSF:
+def from_settings(model: Model, settings: FilterSettings, source: str) -> SecondOrderSVSF:
     """Registry builder of ``svsf2``: gamma (default 0.1), Lambda (``cutoff_lambda``), mapping."""
     fs = settings
-    gamma = 0.1 if fs.gamma is None else fs.gamma  # type: ignore[attr-defined]
-    lam = None if fs.cutoff_lambda is None else np.asarray(fs.cutoff_lambda, dtype=float)  # type: ignore[attr-defined]
-    return SecondOrderSVSF(model, gamma=gamma, lam=lam, mapping=fs.mapping)  # type: ignore[attr-defined]
+    gamma = 0.1 if fs.gamma is None else fs.gamma
+    lam = None if fs.cutoff_lambda is None else np.asarray(fs.cutoff_lambda, dtype=float)
+    return SecondOrderSVSF(model, gamma=gamma, lam=lam, mapping=fs.mapping)
 
 
 @_jit.step
-def svsf2_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def svsf2_correct(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarray, xp: np.ndarray,
+    PCtT: np.ndarray, D: np.ndarray, L: np.ndarray, C: np.ndarray, F: np.ndarray, x: np.ndarray,
+    KgT: np.ndarray, ws: tuple[np.ndarray, ...], n: int, m: int) -> int:  # fmt: skip
     """The second-order SVSF's correction (compiled step, signature of :mod:`chatterspec.filters._engine`).
 
     [DETC] eq (9): ``dz = e - (gamma + Lambda) e(k|k) + gamma Lambda e(k-1|k-1)``; the covariance

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from .._repr import short_repr
 from .._validate import finite_array
@@ -96,7 +97,7 @@ def svsf_coordinates(model: LinearModel) -> SVSFCoordinates:
 
 
 def boundary_layer_inverse(
-    switching: str, psi: object, psi_lower: object, n: int, m: int
+    switching: str, psi: npt.ArrayLike | None, psi_lower: npt.ArrayLike | None, n: int, m: int
 ) -> np.ndarray | None:
     """``1 / psi`` per switching channel (measured first), or None for ``sgn`` (eq 8-10).
 

@@ -32,15 +32,18 @@ log-likelihood a multiple-model bank weighs ([SMM] eq 3.3).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import cast
 
 import numpy as np
+import numpy.typing as npt
 
 from .. import _jit
 from .._repr import short_repr
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError, SingularMatrixError
+from ..plants.filter_settings import FilterSettings, StateMapping
 from ..plants.measurement import require_linear_measurement
+from ..plants.nonlinear import Model
 from . import _engine, _engine_numpy
 from ._base import CovarianceFilterBase, check_model, is_linear
 from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets
@@ -50,7 +53,7 @@ from .svsf_coordinates import reduced_order_transform
 
 __all__ = ["Mapping", "SVSFCov", "mapping_matrix"]
 
-Mapping = Literal["full", "pinv", "cov", "luen"]
+Mapping = StateMapping
 
 
 def mapping_matrix(C: np.ndarray, mapping: str) -> np.ndarray | None:
@@ -103,13 +106,13 @@ def luen_transform(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return reduced_order_transform(np.asarray(C, dtype=float))
 
 
-def default_mapping(C: np.ndarray) -> str:
+def default_mapping(C: np.ndarray) -> StateMapping:
     """``"full"`` when C is square and well conditioned, else ``"cov"`` (``docs/design.md`` §7.4)."""
     m, n = np.shape(C)
     return "full" if m == n and np.linalg.cond(C) <= 1e12 else "cov"
 
 
-def per_channel(name: str, value: object, m: int, *, rule: str) -> np.ndarray:
+def per_channel(name: str, value: npt.ArrayLike, m: int, *, rule: str) -> np.ndarray:
     """Scalar or (m,) parameter as a float (m,) array (finite)."""
     arr = np.atleast_1d(finite_array(name, value, ndim=(0, 1)))
     if arr.size == 1:
@@ -138,20 +141,20 @@ class SVSFCovarianceBase(CovarianceFilterBase):
         ``_luen`` (:func:`resolve_mapping`); return the number of outputs m."""
         check_model(self.model)
         require_linear_measurement(self.model, who)
-        C = np.asarray(self.model.C, dtype=float)  # type: ignore[attr-defined]
+        C = np.asarray(self.model.C, dtype=float)
         mapping, M, luen = resolve_mapping(C, self.mapping)
         object.__setattr__(self, "_M", M)
         object.__setattr__(self, "mapping", mapping)
         object.__setattr__(self, "_luen", luen)
-        return int(self.model.n_outputs)  # type: ignore[attr-defined]
+        return int(self.model.n_outputs)
 
     @property
-    def _linear(self) -> bool:  # type: ignore[override]
+    def _linear(self) -> bool:
         return is_linear(self.model)
 
     def _sizes(self) -> tuple[int, int, int]:
         """``(mapping, n, m)`` of the correction step (``mapping``: the code of ``_M``/``_luen``)."""
-        n, m = int(self.model.n_states), int(self.model.n_outputs)  # type: ignore[attr-defined]
+        n, m = int(self.model.n_states), int(self.model.n_outputs)
         return _mapping_code(self._M, self._luen), n, m
 
 
@@ -190,7 +193,7 @@ class SVSFCov(SVSFCovarianceBase):
 
     __repr__ = short_repr  # shapes and key figures, never whole arrays
 
-    model: object
+    model: Model
     psi: float | np.ndarray
     gamma: float | np.ndarray = 0.1
     mapping: Mapping | None = None
@@ -204,16 +207,27 @@ class SVSFCov(SVSFCovarianceBase):
         m = self._check_mapping("SVSFCov")
         if self._luen is not None and self.vbl:
             raise ParameterError("vbl=True is not available with mapping='luen'")
-        n_psi = int(self.model.n_states) if self._luen is not None else m  # type: ignore[attr-defined]
+        n_psi = int(self.model.n_states) if self._luen is not None else m
         object.__setattr__(self, "psi", check_psi(self.psi, n_psi))
         object.__setattr__(self, "gamma", check_gamma(self.gamma, m))
 
     def _correction_step(self) -> _engine.CorrectionStep:
         mapping, n, m = self._sizes()
-        fp = _engine.svsf_parameters(mapping, n, m, self.gamma, psi=self.psi, M=self._M, luen=self._luen)
-        gamma, psi, M, luen = self.gamma, self.psi, self._M, self._luen
+        gamma_, psi_ = cast(np.ndarray, self.gamma), cast(np.ndarray, self.psi)  # arrays after __post_init__
+        fp = _engine.svsf_parameters(mapping, n, m, gamma_, psi=psi_, M=self._M, luen=self._luen)
+        gamma, psi, M, luen = cast(np.ndarray, self.gamma), cast(np.ndarray, self.psi), self._M, self._luen
 
-        def numpy(e, ep, epp, xp, PCt, D, S, C, F):  # type: ignore[no-untyped-def]
+        def numpy(
+            e: np.ndarray,
+            ep: np.ndarray,
+            epp: np.ndarray,
+            xp: np.ndarray,
+            PCt: np.ndarray,
+            D: np.ndarray,
+            S: np.ndarray,
+            C: np.ndarray,
+            F: np.ndarray,
+        ) -> tuple[np.ndarray, np.ndarray]:
             if luen is not None:
                 Kg, dx = luen_correction(_engine.SVSF1, F, e, ep, epp, *luen, gamma, 0 * gamma, psi, 0.0, 2.0)
                 return Kg, xp + dx
@@ -223,7 +237,7 @@ class SVSFCov(SVSFCovarianceBase):
             g = (a + gamma * np.abs(ep)) / np.maximum(a, psi)
             Kg = Mp * g[:, None, :]
             x = xp + np.einsum("rij,rj->ri", Mp, g * e)
-            if self.vbl:
+            if Kkf is not None:  # (self.vbl)
                 ck = np.einsum("iq,rqi->ri", C, Kkf)
                 use_kf = np.all((ck > 0.0) & (np.abs(e) + gamma * np.abs(ep) <= psi * ck), axis=1)
                 Kg = np.where(use_kf[:, None, None], Kkf, Kg)
@@ -237,7 +251,9 @@ class SVSFCov(SVSFCovarianceBase):
 
 
 @_jit.step
-def _svsf_gain(fp, e, ep, xp, PCtT, D, L, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def _svsf_gain(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, xp: np.ndarray, PCtT: np.ndarray, D: np.ndarray,
+    L: np.ndarray, x: np.ndarray, KgT: np.ndarray, ws: tuple[np.ndarray, ...], n: int,
+    m: int) -> bool:  # fmt: skip
     """[SMM] eq (2.5), (2.8) for the constant and ``cov`` maps: ``g_i = (|e_i| + gamma_i |e_i(k|k)|) /
     max(|e_i|, psi_i)``, ``dz = g o e``, ``K = M diag(g)``, ``x = x(k+1|k) + M dz``; False if ``C P C^T``
     is not positive definite (``cov``)."""
@@ -255,7 +271,9 @@ def _svsf_gain(fp, e, ep, xp, PCtT, D, L, x, KgT, ws, n, m):  # type: ignore[no-
 
 
 @_jit.step
-def svsf_cov_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def svsf_cov_correct(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarray, xp: np.ndarray,
+    PCtT: np.ndarray, D: np.ndarray, L: np.ndarray, C: np.ndarray, F: np.ndarray, x: np.ndarray,
+    KgT: np.ndarray, ws: tuple[np.ndarray, ...], n: int, m: int) -> int:  # fmt: skip
     """The SVSF-with-covariance correction (compiled step, signature of :mod:`chatterspec.filters._engine`).
 
     ``fp`` from :func:`~chatterspec.filters._engine.svsf_parameters`; constant or ``cov`` map.
@@ -266,7 +284,9 @@ def svsf_cov_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  #
 
 
 @_jit.step
-def vbl_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]
+def vbl_correct(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarray, xp: np.ndarray,
+    PCtT: np.ndarray, D: np.ndarray, L: np.ndarray, C: np.ndarray, F: np.ndarray, x: np.ndarray,
+    KgT: np.ndarray, ws: tuple[np.ndarray, ...], n: int, m: int) -> int:  # fmt: skip
     """The variable boundary layer (compiled step): the Kalman gain when every channel has
     ``psi_vbl,i = (|e_i| + gamma_i |e_i(k|k)|) / (C K_KF)_ii <= psi_i``, else :func:`svsf_cov_correct`."""
     kalman_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m)
@@ -286,7 +306,7 @@ def vbl_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type
     return 0
 
 
-def from_settings(model: object, settings: object, source: str) -> SVSFCov:
+def from_settings(model: Model, settings: FilterSettings, source: str) -> SVSFCov:
     """Registry builder of ``svsf``: psi, gamma (default 0.1) and mapping of ``settings``.
 
     With the ``luen`` mapping the boundary layer is ``psi`` of the measured then ``psi_lower`` of
@@ -298,18 +318,18 @@ def from_settings(model: object, settings: object, source: str) -> SVSFCov:
         ``settings`` gives no ``psi`` (or no ``psi_lower`` with ``luen``).
     """
     fs = settings
-    if fs.psi is None:  # type: ignore[attr-defined]
+    if fs.psi is None:
         raise ParameterError(f"scenario {source!r} gives no boundary layer psi for the first-order SVSF")
-    psi = fs.psi  # type: ignore[attr-defined]
-    if fs.mapping == "luen":  # type: ignore[attr-defined]
-        if fs.psi_lower is None:  # type: ignore[attr-defined]
+    psi = fs.psi
+    if fs.mapping == "luen":
+        if fs.psi_lower is None:
             raise ParameterError(f"scenario {source!r}: mapping 'luen' needs psi_lower in its settings")
-        psi = fs.psi + fs.psi_lower  # type: ignore[attr-defined]
-    gamma = 0.1 if fs.gamma is None else fs.gamma  # type: ignore[attr-defined]
-    return SVSFCov(model, psi=np.asarray(psi, dtype=float), gamma=gamma, mapping=fs.mapping)  # type: ignore[attr-defined]
+        psi = fs.psi + fs.psi_lower
+    gamma = 0.1 if fs.gamma is None else fs.gamma
+    return SVSFCov(model, psi=np.asarray(psi, dtype=float), gamma=gamma, mapping=fs.mapping)
 
 
-def check_psi(psi: object, n_psi: int) -> np.ndarray:
+def check_psi(psi: npt.ArrayLike, n_psi: int) -> np.ndarray:
     """The smoothing boundary layer per channel (scalar or ``n_psi`` values), all > 0, else ParameterError."""
     psi = per_channel("psi", psi, n_psi, rule="the boundary layer")
     if np.any(psi <= 0):
@@ -325,7 +345,7 @@ def resolve_mapping(C: np.ndarray, mapping: str | None) -> tuple[str, np.ndarray
     return mapping, M, luen_transform(C) if mapping == "luen" else None
 
 
-def check_gamma(gamma: object, m: int) -> np.ndarray:
+def check_gamma(gamma: npt.ArrayLike, m: int) -> np.ndarray:
     """``gamma`` per channel in the open interval (0, 1), else ParameterError."""
     g = per_channel("gamma", gamma, m, rule="the convergence rate")
     if np.any((g <= 0) | (g >= 1)):

@@ -21,7 +21,7 @@ chatterspec.filters.svsf_steps : the per-sample steps the compiled paths are bui
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import numpy as np
 
@@ -259,6 +259,7 @@ def compiled_recursion(
     """
     runs, K, m = z.shape
     PhiT, L, P, inv_psi, gamma, S_inv = consts
+    assert L is not None and P is not None and inv_psi is not None  # (kernel_constants: empty arrays)
     n = PhiT.shape[0]
     # C-contiguous float arrays only, so that one compiled specialization serves every call
     c = np.ascontiguousarray
@@ -430,7 +431,7 @@ def with_initial(out: SVSFOutput, state: SVSFState, S_inv: np.ndarray, single: b
 
     zeros_m = np.zeros((runs, m))
     return SVSFOutput(
-        e_prior=with_first(out.e_prior, zeros_m),
+        e_prior=cast(np.ndarray, with_first(out.e_prior, zeros_m)),  # (always kept)
         x_post=with_first(out.x_post, state.y @ S_inv.T),
         e_post=with_first(out.e_post, state.e_post),
         e_lower=with_first(out.e_lower, np.zeros((runs, n - m))),

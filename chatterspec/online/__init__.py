@@ -9,6 +9,5 @@ as the batch path whatever the chunking), its compiled push kernels, its types
 :mod:`~chatterspec.online.simulated_stream`).
 
 Nothing here imports ``rerun``: the recordings and the live viewer are the layer above,
-:mod:`chatterspec.viewer` (where the Rerun modules of earlier releases, ``chatterspec.online.rerun_log``,
-``chatterspec.online.blueprint``, ``chatterspec.online.live_stream``, ... now live).
+:mod:`chatterspec.viewer`.
 """

@@ -10,6 +10,8 @@ bit for bit; the sat SVSF's numpy fallback is the one exception, equal to
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from .. import _jit
@@ -27,34 +29,34 @@ NX = NZ = NL = 0
 
 
 def _filters_loop(
-    z,
-    u,
-    GT,
-    aux_PhiT,
-    aux_y,
-    e_out,
-    Gu,
-    run_sat,
-    PhiT,
-    L,
-    P,
-    inv_psi,
-    gamma,
-    S_inv,
-    y,
-    ep,
-    sat_e,
-    x_out,
-    none,
-):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (Python form tested in tests/test_monitor.py)
+    z: np.ndarray,
+    u: np.ndarray,
+    GT: np.ndarray,
+    aux_PhiT: np.ndarray,
+    aux_y: np.ndarray,
+    e_out: np.ndarray,
+    Gu: np.ndarray,
+    run_sat: bool,
+    PhiT: np.ndarray,
+    L: np.ndarray,
+    P: np.ndarray,
+    inv_psi: np.ndarray,
+    gamma: float,
+    S_inv: np.ndarray,
+    y: np.ndarray,
+    ep: np.ndarray,
+    sat_e: np.ndarray,
+    x_out: np.ndarray,
+    none: np.ndarray,
+) -> None:  # pragma: no cover - compiled (Python form tested in tests/test_monitor.py)
     """One push of the monitor's two filters in one call: G u(k), the aux chattering, the sat SVSF.
 
     ``z`` (1, K, m) = z(k+1); ``u`` (K, p), p >= 1, = u(k); ``GT`` = G^T (p, n). Per sample:
-    ``G u(k)`` by :func:`~chatterspec.filters._svsf_kernels.rows_times_step` (the sums of
+    ``G u(k)`` by :func:`~chatterspec.filters.svsf_steps.rows_times_step` (the sums of
     ``_rows_times``; written to ``Gu`` (1, K, n) unless it is empty), the chattering (eq 23) by
-    :func:`~chatterspec.filters._svsf_kernels.closed_form_step` into ``e_out`` (1, K, m) from
+    :func:`~chatterspec.filters.svsf_steps.closed_form_step` into ``e_out`` (1, K, m) from
     ``aux_y`` = y(k|k) = z(k) before the push, and, when ``run_sat``, the sat SVSF by
-    :func:`~chatterspec.filters._svsf_kernels.svsf_step` (``y``, ``ep`` (1, n), (1, m) in place;
+    :func:`~chatterspec.filters.svsf_steps.svsf_step` (``y``, ``ep`` (1, n), (1, m) in place;
     ``sat_e`` (1, K, m) unless empty, ``x_out`` (1, K, n) = S^-1 y). ``none`` is unused (kept for
     the call signature). The steps of ``SVSF.update``, so the same bits (tests/test_monitor.py).
     A template: :func:`filters_kernel` binds ``NX``, ``NZ`` (0: sizes read from the arrays).
@@ -113,7 +115,7 @@ def _filters_loop(
 _filters_kernel = _jit.specialize(_filters_loop, "any", NX=0, NZ=0, NL=0)
 
 
-def filters_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
+def filters_kernel(n: int, m: int) -> Callable[..., None]:
     """The push loop for n states and m outputs (full measurement: n = m); small sizes unrolled.
 
     The same template and steps as :data:`_filters_kernel`, hence the same bits; literal sizes let
@@ -204,12 +206,12 @@ def _filters_one(cst, st, z, u, ebuf, row):  # type: ignore[no-untyped-def]  # p
     return 0
 
 
-def filters_one_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
+def filters_one_kernel(n: int, m: int) -> Callable[..., int]:
     """:func:`_filters_one` for n states and m outputs (full measurement: n = m; small sizes unrolled)."""
     return _jit.specialize_sizes(_filters_one, "push_one", {"NX": n, "NZ": m, "NL": n - m})
 
 
-def _hop_loop(
+def _hop_loop(  # type: ignore[no-untyped-def]  # (39 arrays and scalars: see the docstring)
     Y,
     scale,
     power,
@@ -248,7 +250,7 @@ def _hop_loop(
     stat,
     starts,
     ends,
-):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (Python form tested in tests/test_monitor.py)
+):  # pragma: no cover - compiled (Python form tested in tests/test_monitor.py)
     """A block of the monitor's frames in one call: power, verdicts, scores and the alarm rule.
 
     ``Y`` (1, m, F, bins) is the ``rfft`` of the tapered frames; the loops' steps, in their order

@@ -51,7 +51,7 @@ import numpy as np
 
 from .. import _jit
 from .._validate import finite_array, positive_int
-from ..detection.frames import FrameVerdicts, frame_verdicts
+from ..detection.spectral import spectrum_model
 from ..detection.thresholds import frame_threshold
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..filters.protocol import channel_rows, sample_rows
@@ -67,23 +67,7 @@ __all__ = [
     "FrameBlock",
     "MonitorSettings",
     "MonitorUpdate",
-    "frame_verdicts",
 ]
-
-
-_Verdicts = FrameVerdicts  # the old private name (tests and old code)
-
-
-def _filters_attr(name: str, *, settable: bool = False) -> property:
-    """A monitor attribute that is its filters' ``name`` (the names the fused-kernel tests use)."""
-
-    def get(self: ChatteringMonitor) -> object:
-        return getattr(self._filters, name)
-
-    def put(self: ChatteringMonitor, value: object) -> None:
-        setattr(self._filters, name, value)
-
-    return property(get, put if settable else None, doc=f"The filters' ``{name}``.")
 
 
 class ChatteringMonitor:
@@ -111,7 +95,7 @@ class ChatteringMonitor:
     """
 
     def __init__(
-        self, model: LinearModel, settings: MonitorSettings | None = None, *, t0: float = 0.0
+        self, model: LinearModel | NonlinearModel, settings: MonitorSettings | None = None, *, t0: float = 0.0
     ) -> None:
         nonlinear = isinstance(model, NonlinearModel)
         if nonlinear and (settings is None or settings.threshold is None or settings.psi is not None):
@@ -133,7 +117,7 @@ class ChatteringMonitor:
         self.freqs_hz = s.stft.freqs_hz(self.dt)
         if s.threshold is None:
             self.threshold = frame_threshold(
-                model, self.freqs_hz, s.stft, self.dt, s.alpha, s.correction, band=s.band
+                spectrum_model(model), self.freqs_hz, s.stft, self.dt, s.alpha, s.correction, band=s.band
             )
         else:
             th = s.threshold
@@ -155,15 +139,6 @@ class ChatteringMonitor:
         self._n_chat = 0  # chattering samples produced / pushed
         self._t_chat0: float | None = None  # time of chattering sample 0
         self._last: MonitorUpdate | None = None  # the last push (None after a compiled step)
-
-    # the filters' internals under the names the fused-kernel tests use
-    _fused = _filters_attr("fused", settable=True)
-    _kernel = _filters_attr("_kernel")
-    _sat = _filters_attr("_sat")
-    _sat_state = _filters_attr("_sat_state")
-    _GT = _filters_attr("_GT")
-    _aux_PhiT = _filters_attr("_aux_PhiT")
-    _none3 = _filters_attr("_none3")
 
     # ------------------------------------------------------------- properties
     @property

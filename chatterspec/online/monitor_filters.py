@@ -15,10 +15,12 @@ chatterspec.online.monitor_frames.FrameAnalysis : what the chattering goes to ne
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from .. import _jit
-from ..filters.nonlinear_svsf import NonlinearSgnSVSF
+from ..filters.nonlinear_svsf import NonlinearSgnSVSF, NonlinearSVSFState
 from ..filters.svsf import SVSF, SVSFState, auxiliary_svsf
 from ..filters.svsf_steps import rows_times as _rows_times
 from ..plants.models import LinearModel
@@ -54,7 +56,7 @@ class MonitorFilters:
         nonlinear = isinstance(model, NonlinearModel)
         self._aux = NonlinearSgnSVSF(model, s.gamma) if nonlinear else auxiliary_svsf(model, s.gamma)
         self._sat = None if s.psi is None else SVSF(model, psi=np.asarray(s.psi), gamma=s.gamma)
-        self._aux_state_obj: SVSFState | None = None
+        self._aux_state_obj: SVSFState | NonlinearSVSFState | None = None
         self._sat_state_obj: SVSFState | None = None
         # one compiled call per push for both filters (full measurement: the closed form of eq 23;
         # at least one input; numba installed, and enabled at push time)
@@ -66,8 +68,9 @@ class MonitorFilters:
             and _jit.fits(model.n_states, model.n_outputs, vectors_only=True)
         )
         if self.fused:
-            self._GT = np.ascontiguousarray(self._aux._GT, dtype=float)
-            self._aux_PhiT = np.ascontiguousarray(self._aux._PhiT, dtype=float)
+            aux = cast(SVSF, self._aux)  # (fused: the linear auxiliary SVSF)
+            self._GT = np.ascontiguousarray(aux._GT, dtype=float)
+            self._aux_PhiT = np.ascontiguousarray(aux._PhiT, dtype=float)
             self._none3 = np.empty((0, 0, 0))
             e2 = np.empty((0, 0))
             self._no_sat = (e2, e2, e2, np.empty(0), 0.0, e2, e2, e2, self._none3, self._none3, self._none3)
@@ -92,7 +95,9 @@ class MonitorFilters:
             head = [n, m, p, 0, 0.0, 0.0, 0.0, 0.0]
             sat_parts: list[np.ndarray] = [np.zeros(n * n), np.zeros(n), np.zeros(n * n)]
         else:
-            PhiT, L, P, inv_psi, gamma, S_inv = sat._kernel_consts
+            PhiT, L_, P_, inv_psi_, gamma, S_inv = sat._kernel_consts
+            # (the kernel's constants: empty arrays, never None)
+            L, P, inv_psi = cast(np.ndarray, L_), cast(np.ndarray, P_), cast(np.ndarray, inv_psi_)
             psi_n = np.zeros(n)
             psi_n[: inv_psi.size] = inv_psi
             head = [n, m, p, L.shape[0], 1.0, gamma, 0.0, 0.0]
@@ -104,13 +109,13 @@ class MonitorFilters:
         """Move the states into the fused path's array (after the first push, whichever path made them)."""
         n, m, p = self.model.n_states, self.model.n_outputs, self.model.n_inputs
         st = np.zeros(p + m + n + m + n + m)
-        st[:p] = self._pending_obj  # type: ignore[index]
-        st[p : p + m] = self._aux_state_obj.y[0]  # type: ignore[union-attr]
+        st[:p] = cast(np.ndarray, self._pending_obj)  # (the first push set them all)
+        st[p : p + m] = cast(SVSFState, self._aux_state_obj).y[0]
         if self._sat is not None:
-            sat = self._sat_state_obj
-            st[p + m : p + m + n] = sat.y[0]  # type: ignore[union-attr]
-            st[p + m + n : p + 2 * m + n] = sat.e_post[0]  # type: ignore[union-attr]
-            st[p + 2 * m + n : p + 2 * m + 2 * n] = (sat.y @ self._sat._S_inv.T)[0]  # type: ignore[union-attr]
+            sat = cast(SVSFState, self._sat_state_obj)
+            st[p + m : p + m + n] = sat.y[0]
+            st[p + m + n : p + 2 * m + n] = sat.e_post[0]
+            st[p + 2 * m + n : p + 2 * m + 2 * n] = (sat.y @ self._sat._S_inv.T)[0]
         self._st = st
 
     @property
@@ -126,14 +131,14 @@ class MonitorFilters:
 
     # the states as SVSFState objects (views of the fused path's array when it holds them)
     @property
-    def _aux_state(self) -> SVSFState | None:
+    def _aux_state(self) -> SVSFState | NonlinearSVSFState | None:
         if self._st is None:
             return self._aux_state_obj
         p, m = self.model.n_inputs, self.model.n_outputs
         return SVSFState(y=self._st[None, p : p + m], e_post=np.zeros((1, m)), k=self.n_meas - 1)
 
     @_aux_state.setter
-    def _aux_state(self, value: SVSFState | None) -> None:
+    def _aux_state(self, value: SVSFState | NonlinearSVSFState | None) -> None:
         self._aux_state_obj = value
         if self._st is not None and value is not None:
             p, m = self.model.n_inputs, self.model.n_outputs
@@ -199,14 +204,16 @@ class MonitorFilters:
         elif isinstance(self._aux, SVSF):
             # the checks of SVSF.update are done by the monitor; both filters share the model, hence G u(k)
             Gu = _rows_times(u_used, self._aux._GT, channel_major=True)
-            self._aux_state, out = self._aux._advance(self._aux_state, z[None], Gu)
+            self._aux_state, out = self._aux._advance(cast(SVSFState, self._aux_state), z[None], Gu)
             e, estimate = out.e_prior[0], None
             if self._sat is not None:
-                self._sat_state, sat_out = self._sat._advance(self._sat_state, z[None], Gu, store_states=True)
-                estimate = self._output(sat_out.x_post[0])
+                sat_state = cast(SVSFState, self._sat_state)  # (initialized with the aux state)
+                self._sat_state, sat_out = self._sat._advance(sat_state, z[None], Gu, store_states=True)
+                estimate = self._output(cast(np.ndarray, sat_out.x_post)[0])  # (store_states)
         else:  # nonlinear auxiliary filter (no sat SVSF)
-            self._aux_state, out = self._aux.update(self._aux_state, z[None], u_used, check=False)
-            e, estimate = out.e_prior[0], None
+            aux_state = cast(NonlinearSVSFState, self._aux_state)
+            self._aux_state, nl_out = self._aux.update(aux_state, z[None], u_used, check=False)
+            e, estimate = nl_out.e_prior[0], None
         self.n_meas += K
         return z, e, estimate
 
@@ -220,8 +227,8 @@ class MonitorFilters:
         K, m = z.shape
         n, p = self.model.n_states, self.model.n_inputs
         z3 = np.ascontiguousarray(z)[None]  # one compiled specialization (no copy when contiguous)
-        st = self._st  # views of the state array: the kernel updates y, e(k|k) in place
-        aux_y = st[None, p : p + m]  # type: ignore[index]
+        st = cast(np.ndarray, self._st)  # views of the state array: the kernel updates y, e(k|k) in place
+        aux_y = st[None, p : p + m]
         e = np.empty((1, K, m))
         sat = self._sat
         none = self._none3
@@ -231,17 +238,17 @@ class MonitorFilters:
         else:
             PhiT, L, P, inv_psi, gamma, S_inv = sat._kernel_consts
             o = p + m
-            y, ep = st[None, o : o + n], st[None, o + n : o + n + m]  # type: ignore[index]
+            y, ep = st[None, o : o + n], st[None, o + n : o + n + m]
             x_out = np.empty((1, K, n))
             self._kernel(
                 z3, u_used, self._GT, self._aux_PhiT, aux_y, e, none, True,
                 PhiT, L, P, inv_psi, gamma, S_inv, y, ep, none, x_out, none,
             )  # fmt: skip
-            st[o + n + m : o + n + m + n] = x_out[0, -1]  # type: ignore[index]
+            st[o + n + m : o + n + m + n] = x_out[0, -1]
             estimate = self._output(x_out[0])
         # the closed form's state: y(k|k) = z(k) exactly, e(k|k) = 0 (see SVSF.update, Notes)
         aux_y[0] = z[-1]
-        st[-m:] = e[0, -1]  # type: ignore[index]
+        st[-m:] = e[0, -1]
         return e[0], estimate
 
     def step(self, z: np.ndarray, u: np.ndarray, ebuf: np.ndarray, row: int) -> int:

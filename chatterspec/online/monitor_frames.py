@@ -212,7 +212,9 @@ class FrameAnalysis:
         A block is a few frames, read as Python lists (the same float values): numpy reductions and
         element indexing on (F, m) arrays cost ~5.8 us per push while a fault is active, the lists ~2.5 us.
         """
-        on = fr.alarm[0].tolist()  # active at the first frame and unchanged: active throughout
+        alarm = fr.alarm
+        assert alarm is not None  # (a block the alarm layer scored)
+        on = alarm[0].tolist()  # active at the first frame and unchanged: active throughout
         changed = (starts | ends).any(axis=0).tolist()  # (m,)
         if not (any(changed) or any(on)):  # no change and nothing active: no event
             return ()
@@ -227,7 +229,7 @@ class FrameAnalysis:
                     if best > peak[c]:  # the first largest, as the loop's strict '>'
                         peak[c], peak_hz[c] = best, hzs[c][r_c.index(best)]
                 continue
-            s_c, e_c, a_c = starts[:, c].tolist(), ends[:, c].tolist(), fr.alarm[:, c].tolist()
+            s_c, e_c, a_c = starts[:, c].tolist(), ends[:, c].tolist(), alarm[:, c].tolist()
             for f, ratio in enumerate(r_c):
                 if s_c[f]:
                     peak[c], peak_hz[c] = ratio, hzs[c][f]
@@ -247,8 +249,10 @@ class FrameAnalysis:
         j = int(fr.index[f])
         back = (self.n_window - 1) / 2.0 if j == 0 else self.n_hop / 2.0
         rule = self.rule
+        score, statistic = fr.score, fr.alarm_statistic
+        assert score is not None and statistic is not None  # (a block the alarm layer scored)
         return DetectionEvent(
             kind, self.channels[c], c, t, j, float(peak_hz), float(peak_ratio), t - back * self.dt,
-            rule=rule.name, score=float(fr.score[f, c]), statistic=float(fr.alarm_statistic[f, c]),
+            rule=rule.name, score=float(score[f, c]), statistic=float(statistic[f, c]),
             threshold=float(rule.threshold), false_alarms_per_hour=self.settings.false_alarms_per_hour,
         )  # fmt: skip

@@ -15,6 +15,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from ..detection.alarm_rules import alarm_label
 from ..detection.monitor_settings import MonitorSettings
 from ..jsonout import finite_or_none
 
@@ -42,7 +43,7 @@ class DetectionEvent:
     peak_ratio : float
         The corresponding ``S / threshold`` (> 1 means above threshold).
     estimate_s : float
-        Onset / offset estimate of :func:`chatterspec.detection.detect.frame_intervals`:
+        Onset / offset estimate of :func:`chatterspec.detection.frames.frame_intervals`:
         half a hop before ``time_s`` (the start of frame 0's window when the
         very first frame is flagged).
     rule : str
@@ -98,15 +99,6 @@ class DetectionEvent:
             "threshold": finite_or_none(self.threshold),
             "false_alarms_per_hour": self.false_alarms_per_hour,
         }
-
-
-def alarm_label(rule: str, false_alarms_per_hour: float | None) -> str:
-    """``"cusum rule, 1 false alarm per 24 h"``: the rule and its budget in words."""
-    if false_alarms_per_hour is None:
-        return f"{rule} rule, per-frame alpha"
-    x = float(false_alarms_per_hour)
-    per = f"1 false alarm per {1 / x:.3g} h" if x < 1 else f"{x:.3g} false alarms per hour"
-    return f"{rule} rule, {per}"
 
 
 @dataclass(frozen=True, eq=False)

@@ -16,6 +16,7 @@ from .._jit import enabled as _jit_enabled
 from .._jit import njit
 from ..errors import NonFiniteError
 from ..plants.models import LinearModel
+from ..plants.nonlinear import Model
 from ..plants.scenarios import Scenario
 from ..plants.simulate import covariance_sqrt
 from ..plants.simulate_closed_loop import stream_geometry
@@ -142,16 +143,16 @@ def _times_transposed(rows: np.ndarray, M: np.ndarray) -> np.ndarray:
     return out
 
 
-def _step_nonlinear(model: object, xs: np.ndarray, u: np.ndarray, v: np.ndarray, a: int, e: int) -> None:
+def _step_nonlinear(model: Model, xs: np.ndarray, u: np.ndarray, v: np.ndarray, a: int, e: int) -> None:
     """``xs[k + 1] = f(xs[k], u[k]) + v[k - a]`` for ``k = a .. e - 1`` (one realization, in place)."""
-    f = getattr(model, "f", None) or model.transition  # type: ignore[attr-defined]
-    model.transition(xs[a : a + 1], u[a])  # type: ignore[attr-defined]  # shape check once
+    f = getattr(model, "f", None) or model.transition
+    model.transition(xs[a : a + 1], u[a])  # shape check once
     with np.errstate(over="ignore", invalid="ignore"):  # a diverging state is reported by the caller
         for k in range(a, e):
             xs[k + 1] = np.asarray(f(xs[k : k + 1], u[k]))[0] + v[k - a]
 
 
-def csv_header(model: LinearModel) -> str:
+def csv_header(model: Model) -> str:
     """The CSV header line (no newline) of a stream for ``model``: ``time``, outputs, inputs.
 
     Parameters

@@ -1,6 +1,7 @@
-"""Live CSV sources for ``chatterspec monitor``: standard input, a growing file, a simulated stream.
+"""Live CSV sources for ``chatterspec monitor``: standard input and a growing file.
 
-Pure Python + numpy (no Rerun). Three pieces:
+Pure Python + numpy (no Rerun). Two pieces (a simulated stream, the source of ``chatterspec
+simulate``, is :mod:`chatterspec.online.simulated_stream`):
 
 * **Byte sources** yield ``(bytes, arrival)`` as data arrives: :func:`read_fd`
   (a pipe or standard input: one ``os.read`` returns whatever is available, so
@@ -17,9 +18,6 @@ Pure Python + numpy (no Rerun). Three pieces:
   name the first bad line. A row that does not parse, has the wrong number of
   fields, or holds NaN/inf in a needed column is a *bad row*; a second header
   line is a *restart* (a producer that started over).
-* :func:`simulate_blocks` / :func:`csv_lines`: a catalogue scenario simulated
-  block by block in time with the state carried over (bounded memory whatever
-  the duration) and written as CSV text, the source of ``chatterspec simulate``.
 """
 
 from __future__ import annotations
@@ -30,23 +28,21 @@ import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
 from ..errors import DataFileError
-from ..plants.modelfile import TIME_COLUMNS
-from ..plants.models import LinearModel
+from ..plants.datafile import TIME_COLUMNS
+from ..plants.nonlinear import Model
 
 __all__ = [
     "BadRow",
     "CsvRows",
     "Restart",
     "RowBlock",
-    "csv_header",
-    "csv_lines",
     "follow_file",
     "read_fd",
-    "simulate_blocks",
 ]
 
 #: Bytes asked for per read (a pipe hands over at most what it holds, 64 KiB on Linux).
@@ -247,7 +243,7 @@ class CsvRows:
         Name of the input used in messages (e.g. ``"standard input"``).
     """
 
-    def __init__(self, model: LinearModel, where: str = "standard input") -> None:
+    def __init__(self, model: Model, where: str = "standard input") -> None:
         self.model = model
         self.where = where
         self.needed = (*model.output_names, *model.input_names)
@@ -374,7 +370,8 @@ class CsvRows:
         out: list[RowBlock | BadRow | Restart] = []
         rows: list[np.ndarray] = []
         nums: list[int] = []
-        names = [self.header[j] for j in self._cols] if self.header else []
+        cols = cast(np.ndarray, self._cols)  # (set with the header, before any data row)
+        names = [self.header[j] for j in cols] if self.header else []
 
         def flush() -> None:
             if rows:
@@ -403,9 +400,9 @@ class CsvRows:
                     BadRow(no, f"{where}: {len(fields)} field(s); the header has {self._ncol} columns")
                 )
                 continue
-            vals = np.empty(len(self._cols))
+            vals = np.empty(len(cols))
             bad = None
-            for k, j in enumerate(self._cols):
+            for k, j in enumerate(cols):
                 try:
                     vals[k] = float(fields[j]) if fields[j] else np.nan
                 except ValueError:
@@ -436,6 +433,3 @@ def _is_number(s: str) -> bool:
     except ValueError:
         return False
     return True
-
-
-from .simulated_stream import csv_header, csv_lines, simulate_blocks  # noqa: E402  (re-exported)

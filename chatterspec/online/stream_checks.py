@@ -105,7 +105,8 @@ def rate_mismatch(b: RowBlock, dt: float) -> str | None:
     dt : float
         The model's sampling time (s).
     """
-    steps = np.diff(b.t[:RATE_CHECK_ROWS])  # type: ignore[index]
+    assert b.t is not None  # (a stream with a time column)
+    steps = np.diff(b.t[:RATE_CHECK_ROWS])
     step = float(np.median(steps))
     consistent = step > 0 and np.all(np.abs(steps - step) <= RATE_TOLERANCE * step)
     if not (consistent and abs(step - dt) > RATE_TOLERANCE * dt):
@@ -123,7 +124,7 @@ def merge_blocks(blocks: list[RowBlock]) -> RowBlock:
     """Consecutive row blocks as one (the last arrival time)."""
     if len(blocks) == 1:
         return blocks[0]
-    t = None if blocks[0].t is None else np.concatenate([b.t for b in blocks])  # type: ignore[misc]
+    t = None if blocks[0].t is None else np.concatenate([b.t for b in blocks])
     return RowBlock(
         t,
         np.concatenate([b.z for b in blocks]),

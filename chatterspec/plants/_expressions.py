@@ -6,11 +6,16 @@ A model file writes how a physical parameter enters a matrix entry as text, e.g.
 the functions of :data:`FUNCTIONS`; anything else (attribute access, calls of other
 names, subscripts, comparisons, ...) is refused. The result evaluates on numpy arrays, so
 one call covers every Monte Carlo realization.
+
+Every number is evaluated as a float (``2**3`` is ``8.0``): Python's integers have no size limit,
+so ``10**10**10`` between literals would run (and fill memory) for ever, where the float
+overflows at once and is reported. Formulas are at most :data:`MAX_FORMULA_CHARS` characters.
 """
 
 from __future__ import annotations
 
 import ast
+import types
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
@@ -32,6 +37,17 @@ FUNCTIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
 BUILTIN_CONSTANTS: dict[str, float] = {"pi": float(np.pi)}
 
 _BINARY = (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow)
+#: Longest formula text accepted (a matrix entry's formula is a line, not a program).
+MAX_FORMULA_CHARS = 1000
+
+
+class _FloatConstants(ast.NodeTransformer):
+    """Integer literals as floats: float arithmetic is bounded in time and memory, big-integer is not."""
+
+    def visit_Constant(self, node: ast.Constant) -> ast.Constant:
+        if isinstance(node.value, int) and not isinstance(node.value, bool):
+            return ast.copy_location(ast.Constant(value=float(node.value)), node)
+        return node
 
 
 @dataclass(frozen=True)
@@ -48,7 +64,7 @@ class Formula:
 
     text: str
     names: frozenset[str]
-    _code: object = field(repr=False, compare=False)
+    _code: types.CodeType = field(repr=False, compare=False)
 
     def __reduce__(self) -> tuple[object, tuple[str]]:
         # code objects do not pickle (models travel to worker processes): rebuild from the text
@@ -71,6 +87,10 @@ class Formula:
             with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
                 # the tree holds only the whitelisted nodes (compile_formula): no builtins are reachable
                 return np.asarray(eval(self._code, {"__builtins__": {}}, scope), dtype=float)
+        except OverflowError:  # e.g. 10**10**10 between literal numbers
+            raise ParameterError(
+                f"formula {self.text!r} cannot be evaluated: a number overflows (beyond 1.8e308)"
+            ) from None
         except ArithmeticError as exc:  # e.g. 1/0 between two literal numbers
             raise ParameterError(f"formula {self.text!r} cannot be evaluated: {exc}") from None
 
@@ -93,10 +113,16 @@ def compile_formula(text: str, where: str = "formula") -> Formula:
     """
     if not isinstance(text, str) or not text.strip():
         raise ParameterError(f"{where}: a formula must be a non-empty string; got {text!r}")
+    if len(text) > MAX_FORMULA_CHARS:
+        raise ParameterError(
+            f"{where}: a formula has at most {MAX_FORMULA_CHARS} characters; got {len(text)} "
+            f"({text[:40]!r}...)"
+        )
     try:
         tree = ast.parse(text.strip(), mode="eval")
-    except SyntaxError as exc:
-        raise ParameterError(f"{where}: {text!r} is not a valid formula ({exc.msg})") from None
+    except (SyntaxError, MemoryError, RecursionError) as exc:  # e.g. too deeply nested
+        why = exc.msg if isinstance(exc, SyntaxError) else "too deeply nested"
+        raise ParameterError(f"{where}: {text!r} is not a valid formula ({why})") from None
     names: set[str] = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Call):
@@ -120,5 +146,6 @@ def compile_formula(text: str, where: str = "formula") -> Formula:
                 raise ParameterError(f"{where}: {text!r}: only unary + and - are allowed")
         elif not isinstance(node, ast.Expression | ast.Load | ast.operator | ast.unaryop):
             raise ParameterError(f"{where}: {text!r}: {type(node).__name__} is not allowed in a formula")
+    tree = ast.fix_missing_locations(_FloatConstants().visit(tree))
     code = compile(tree, "<formula>", "eval")
     return Formula(text=text.strip(), names=frozenset(names), _code=code)

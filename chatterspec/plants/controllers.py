@@ -30,8 +30,8 @@ same order (the two paths give the same bits).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Literal, NamedTuple
+from dataclasses import dataclass, replace
+from typing import Literal, NamedTuple, TypedDict
 
 import numpy as np
 
@@ -44,11 +44,24 @@ __all__ = [
     "AntiWindup",
     "PIDCoefficients",
     "PIDController",
+    "PIDOptions",
     "pid_coefficients",
     "pid_step",
 ]
 
 AntiWindup = Literal["back-calculation", "clamping"]
+
+
+class PIDOptions(TypedDict, total=False):
+    """The optional arguments of :class:`PIDController` (what ``design_pi`` passes on)."""
+
+    kd: float
+    derivative_filter_s: float
+    anti_windup: AntiWindup
+    tracking_time_s: float | None
+    setpoint_weight: float
+
+
 _ANTI_WINDUP: tuple[str, ...] = ("back-calculation", "clamping")
 
 
@@ -141,7 +154,8 @@ class PIDController:
         unknown = set(gains) - {"kp", "ki", "kd"}
         if unknown:
             raise ParameterError(f"unknown gain(s) {', '.join(sorted(unknown))}; the gains are kp, ki, kd")
-        return PIDController(**{**self.to_dict(), **gains})
+        kp, ki, kd = (gains.get(g, getattr(self, g)) for g in ("kp", "ki", "kd"))
+        return replace(self, kp=kp, ki=ki, kd=kd)
 
     def describe(self) -> str:
         """One line with the gains in engineering units (rad/s per mm, ...)."""

@@ -9,16 +9,21 @@ NaN policy (a NaN or infinite sample stops the run) is explained in :mod:`chatte
 from __future__ import annotations
 
 import csv
+import io
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
 
-from ..errors import DataFileError
+from ..errors import DataFileError, ParameterError
 
-__all__ = ["TIME_COLUMNS", "DataSet", "load_data"]
+if TYPE_CHECKING:  # pragma: no cover
+    from .modelfile_fields import ModelSpec
+    from .nonlinear import Model
+
+__all__ = ["TIME_COLUMNS", "DataSet", "load_data", "load_data_text"]
 
 #: Accepted names of the time column (seconds), in order of preference.
 TIME_COLUMNS: tuple[str, ...] = ("time", "t")
@@ -54,15 +59,30 @@ class DataSet:
 
 
 # --------------------------------------------------------------------------- data files
-def load_data(path: str | Path, model: Any, *, dt_tolerance: float = 0.01) -> DataSet:
+def _the_model(model: Model | ModelSpec) -> Model:
+    """``model``, or the model of a :class:`~chatterspec.plants.modelfile_fields.ModelSpec`."""
+    from .modelfile_fields import ModelSpec
+
+    if isinstance(model, ModelSpec):
+        return model.model
+    if not all(hasattr(model, a) for a in ("output_names", "input_names", "dt")):
+        raise ParameterError(
+            f"load_data needs the model the data belong to: a LinearModel or NonlinearModel, or what "
+            f"load_model(MODEL.toml) returns; got {type(model).__name__}"
+        )
+    return model
+
+
+def load_data(path: str | Path, model: Model | ModelSpec, *, dt_tolerance: float = 0.01) -> DataSet:
     """Read measurements and inputs for ``model`` from a CSV or NPZ file (columns matched by name).
 
     Parameters
     ----------
     path : str or Path
         ``.csv`` (header row, comma separated) or ``.npz`` (one 1-D array per name).
-    model : LinearModel or NonlinearModel
-        Gives the column names (``output_names``, ``input_names``) and ``dt``.
+    model : LinearModel, NonlinearModel or ModelSpec
+        Gives the column names (``output_names``, ``input_names``) and ``dt``; the ``ModelSpec``
+        that :func:`~chatterspec.plants.modelfile.load_model` returns stands for its ``model``.
     dt_tolerance : float
         Allowed relative deviation of every time step from ``model.dt``.
 
@@ -72,7 +92,10 @@ def load_data(path: str | Path, model: Any, *, dt_tolerance: float = 0.01) -> Da
         Missing file or column, unparsable value, NaN/inf sample (see the NaN
         policy in the module docstring), non-monotonic or irregular timestamps,
         or fewer than two samples. The message names the file and the column.
+    ParameterError
+        ``model`` is not a model (nor a model file's ``ModelSpec``).
     """
+    model = _the_model(model)
     path = Path(path)
     where = f"data file {str(path)!r}"
     if not path.exists():
@@ -84,6 +107,40 @@ def load_data(path: str | Path, model: Any, *, dt_tolerance: float = 0.01) -> Da
         columns = _read_csv(path, where)
     else:
         raise DataFileError(f"{where}: unknown format {suffix!r}; use .csv or .npz")
+    return _dataset(columns, model, path, where, dt_tolerance)
+
+
+def load_data_text(
+    text: str, model: Model | ModelSpec, *, name: str = "-", dt_tolerance: float = 0.01
+) -> DataSet:
+    """:func:`load_data` on CSV text, e.g. standard input read to its end (the same checks and messages).
+
+    Parameters
+    ----------
+    text : str
+        The CSV content: a header row, then one row per sample.
+    model : LinearModel, NonlinearModel or ModelSpec
+        Gives the column names (``output_names``, ``input_names``) and ``dt`` (as in :func:`load_data`).
+    name : str
+        What the messages call the data (``"-"``: standard input); also ``DataSet.path``.
+    dt_tolerance : float
+        Allowed relative deviation of every time step from ``model.dt``.
+
+    Raises
+    ------
+    DataFileError
+        As :func:`load_data`.
+    """
+    model = _the_model(model)
+    where = "data on standard input" if name == "-" else f"data {name!r}"
+    columns = _parse_csv(io.StringIO(text, newline=""), where)
+    return _dataset(columns, model, Path(name), where, dt_tolerance)
+
+
+def _dataset(
+    columns: dict[str, np.ndarray], model: Model, path: Path, where: str, dt_tolerance: float
+) -> DataSet:
+    """The columns of a data file checked against ``model`` (names, lengths, times, finiteness)."""
     lines = columns.pop(_LINES, None)
     needed = [*model.output_names, *model.input_names]
     missing = [c for c in needed if c not in columns]
@@ -118,14 +175,48 @@ def load_data(path: str | Path, model: Any, *, dt_tolerance: float = 0.01) -> Da
 def _read_csv(path: Path, where: str) -> dict[str, np.ndarray]:
     try:
         with path.open(newline="") as fh:
-            reader = csv.reader(fh)
-            rows, lines = [], []
-            for r in reader:
-                if r and not r[0].lstrip().startswith("#"):
-                    rows.append(r)
-                    lines.append(reader.line_num)  # 1-based line of the file (comments counted)
+            return _parse_csv(fh, where)
     except (OSError, UnicodeDecodeError) as exc:
         raise DataFileError(f"{where}: cannot be read ({exc})") from None
+
+
+def _parse_csv(fh: TextIO, where: str) -> dict[str, np.ndarray]:
+    """The columns of CSV text read from the open text stream ``fh`` (header first, ``#`` comment lines)."""
+    text = fh.read()
+    fast = _plain_csv(text)
+    return fast if fast is not None else _parse_rows(io.StringIO(text, newline=""), where)
+
+
+def _plain_csv(text: str) -> dict[str, np.ndarray] | None:
+    """The columns of a plain CSV (a header, then rows of numbers: no quotes, comments, blank lines or CR)
+    parsed by :func:`numpy.loadtxt` (a third of the CPU of the row-by-row reader on a 10-minute 1 kHz
+    file, the same correctly rounded values); None for anything else, which the row-by-row reader
+    takes, with its messages."""
+    if any(c in text for c in '"#\r') or "\n\n" in text:
+        return None
+    head, sep, body = text.partition("\n")
+    header = [h.strip() for h in head.split(",")]
+    if not sep or not body.strip() or len(set(header)) != len(header):
+        return None
+    try:
+        data = np.loadtxt(io.StringIO(body), delimiter=",", ndmin=2, dtype=float)
+    except ValueError:
+        return None
+    if data.shape[1] != len(header):
+        return None
+    out = {h: data[:, j] for j, h in enumerate(header)}
+    out[_LINES] = np.arange(2, data.shape[0] + 2, dtype=float)
+    return out
+
+
+def _parse_rows(fh: TextIO, where: str) -> dict[str, np.ndarray]:
+    """:func:`_parse_csv` row by row (``csv`` module): comments, quotes and per-cell messages."""
+    reader = csv.reader(fh)
+    rows, lines = [], []
+    for r in reader:
+        if r and not r[0].lstrip().startswith("#"):
+            rows.append(r)
+            lines.append(reader.line_num)  # 1-based line of the file (comments counted)
     if not rows:
         raise DataFileError(f"{where}: empty file (a header row with column names is required)")
     header = [h.strip() for h in rows[0]]

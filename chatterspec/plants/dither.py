@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from .._validate import finite_array, finite_scalar, positive
 from ..errors import ParameterError
@@ -24,12 +25,12 @@ from ..errors import ParameterError
 __all__ = ["PRBS", "PRBS_TAPS", "Multisine"]
 
 
-def _times(t: object) -> np.ndarray:
+def _times(t: npt.ArrayLike) -> np.ndarray:
     return finite_array("t", t, ndim=1)
 
 
-def _amplitude(value: object) -> float:
-    a = finite_scalar("amplitude", value)  # type: ignore[arg-type]
+def _amplitude(value: float) -> float:
+    a = finite_scalar("amplitude", value)
     if a < 0:
         raise ParameterError(f"amplitude must be >= 0 (input or reference units); got {a!r}")
     return a

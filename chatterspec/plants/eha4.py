@@ -35,6 +35,7 @@ printed as "Major friction", a1 = 1.162e6, a2 = -7440, a3 = 500).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import lru_cache, partial
 from typing import Literal, NamedTuple
 
@@ -43,7 +44,7 @@ import numpy as np
 from .._jit import borrow, enabled, njit, step
 from .._validate import finite_array, nonnegative, positive
 from ..errors import ParameterError
-from .nonlinear import NonlinearModel
+from .nonlinear import Model, NonlinearModel
 
 __all__ = [
     "EHA4_MODES",
@@ -342,7 +343,7 @@ def coefficient_vector(c: EHA4Coefficients) -> np.ndarray:
     return np.asarray(tuple(c), dtype=float)
 
 
-def plant_steps(model: object) -> tuple[object, object, bool, np.ndarray] | None:
+def plant_steps(model: Model) -> tuple[Callable[..., None], Callable[..., None], bool, np.ndarray] | None:
     """``(predict, jacobian, constant_jacobian, prm)`` of a model built by :func:`eha4`, else None.
 
     A :class:`~chatterspec.plants.nonlinear.NonlinearModel` is recognized as the EHA4 when its ``f``

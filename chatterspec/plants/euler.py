@@ -11,15 +11,25 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Self
+from typing import TYPE_CHECKING, Self, Unpack
 
 import numpy as np
 
 from .._validate import positive
+from ..errors import ShapeError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .nonlinear import NonlinearModelOptions
 
 __all__ = ["ContinuousEuler", "EulerJacobian", "EulerStep", "Transition"]
 
 Transition = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def _name(fn: object, default: str) -> str:
+    """How messages name ``fn``: a model file's ``[dynamics] KEY = 'file.py:function'``, else ``default``."""
+    ref = getattr(fn, "ref", "")
+    return f"[dynamics] {getattr(fn, 'key', 'f')} = {ref!r}" if ref else default
 
 
 @dataclass(frozen=True)
@@ -38,7 +48,13 @@ class EulerStep:
     dt: float
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        return x + self.dt * np.asarray(self.g(x, u))
+        g = np.asarray(self.g(x, u))
+        if g.shape[-1:] != np.shape(x)[-1:]:  # x + dt g would broadcast a wrong shape silently
+            raise ShapeError(
+                f"{_name(self.g, 'the continuous dynamics g(x, u)')} returned shape {g.shape} for x of shape "
+                f"{np.shape(x)}; expected (..., {np.shape(x)[-1]})"
+            )
+        return x + self.dt * g
 
     @property
     def func(self) -> Transition:
@@ -63,7 +79,13 @@ class EulerJacobian:
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         J = self.dt * np.asarray(self.g_jac(x, u))
-        return J + np.eye(J.shape[-1])
+        n = np.shape(x)[-1]
+        if J.shape[-2:] != (n, n):
+            raise ShapeError(
+                f"{_name(self.g_jac, 'the Jacobian dg/dx')} returned shape {J.shape} for x of shape "
+                f"{np.shape(x)}; expected (..., {n}, {n})"
+            )
+        return J + np.eye(n)
 
     @property
     def func(self) -> Transition:
@@ -74,6 +96,20 @@ class EulerJacobian:
 class ContinuousEuler:
     """``from_continuous``, mixed into :class:`~chatterspec.plants.nonlinear.NonlinearModel`."""
 
+    if TYPE_CHECKING:  # the constructor of the model it is mixed into
+
+        def __init__(
+            self,
+            *,
+            f: Transition,
+            jac: Transition,
+            C: np.ndarray,
+            Q: np.ndarray,
+            R: np.ndarray,
+            dt: float,
+            **kwargs: Unpack[NonlinearModelOptions],
+        ) -> None: ...
+
     @classmethod
     def from_continuous(
         cls,
@@ -83,7 +119,7 @@ class ContinuousEuler:
         Q: np.ndarray,
         R: np.ndarray,
         dt: float,
-        **kwargs: Any,
+        **kwargs: Unpack[NonlinearModelOptions],
     ) -> Self:
         """Explicit Euler discretization of ``x' = g(x, u)``: ``f = x + dt g``, ``F = I + dt dg/dx``.
 

@@ -11,19 +11,23 @@ default or the nominal model's value". Sources and resolutions are in
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
 from .._validate import finite_array, nonnegative, open_unit, readonly
 from ..errors import ParameterError, ShapeError
-from .linear_model import _check_covariance
+from .model_base import check_covariance
 from .nonlinear import same_dynamics
 
-__all__ = ["MAPPINGS", "FilterSettings"]
+if TYPE_CHECKING:  # pragma: no cover
+    from .scenario_types import Scenario
+
+__all__ = ["MAPPINGS", "FilterSettings", "StateMapping"]
 
 #: State-correction mappings for fewer measurements than states (``docs/design.md`` §7.4).
-MAPPINGS = ("full", "pinv", "cov", "luen")
+StateMapping = Literal["full", "pinv", "cov", "luen"]
+MAPPINGS: tuple[StateMapping, ...] = ("full", "pinv", "cov", "luen")
 
 
 def _opt_array(name: str, value: Any, ndim: int) -> np.ndarray | None:
@@ -89,7 +93,7 @@ class FilterSettings:
     psi: tuple[float, ...] | None = None
     psi_lower: tuple[float, ...] | None = None
     cutoff_lambda: tuple[float, ...] | None = None
-    mapping: str | None = None
+    mapping: StateMapping | None = None
     modes: tuple[str, ...] = ()
     mode_models: tuple[Any, ...] = ()
     mu0: tuple[float, ...] | None = None
@@ -103,7 +107,7 @@ class FilterSettings:
             if val is not None:
                 if val.shape[0] != val.shape[1]:
                     raise ShapeError(f"filter {name} must be square; got {val.shape}")
-                _check_covariance(f"filter {name}", val)
+                check_covariance(f"filter {name}", val)
             object.__setattr__(self, name, val)
         object.__setattr__(self, "x0", _opt_array("x0", self.x0, 1))
         if self.gamma is not None:
@@ -176,7 +180,7 @@ class FilterSettings:
             if (model.n_states, model.n_outputs) != (n, m):
                 raise ShapeError(f"mode {name!r}: its model must have {n} states and {m} outputs")
 
-    def mode_index(self, scenario: Any, t: np.ndarray | None = None) -> np.ndarray:
+    def mode_index(self, scenario: Scenario, t: np.ndarray | None = None) -> np.ndarray:
         """Index into :attr:`modes` of the true plant at each sample time (-1 where none matches).
 
         A segment's true model matches a mode when they have the same dynamics and measurement

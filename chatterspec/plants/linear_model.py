@@ -14,7 +14,7 @@ from __future__ import annotations
 import hashlib
 import warnings
 from dataclasses import dataclass, field, replace
-from typing import Literal
+from typing import Literal, TypedDict, Unpack
 
 import numpy as np
 
@@ -23,7 +23,6 @@ from .._validate import finite_array, positive
 from ..errors import ParameterError, ShapeError, SingularMatrixError, UnstableModelWarning
 from .model_base import (
     ModelBase,
-    check_covariance,
     check_measurement_matrix,
     check_noise,
     frozen,
@@ -31,8 +30,6 @@ from .model_base import (
     set_channel_labels,
 )
 from .parameters import ParameterMap
-
-_check_covariance = check_covariance  # its old name (imported by plants.models)
 
 __all__ = ["Discretization", "LinearModel", "OscillatoryMode", "discretize", "oscillatory_mode"]
 
@@ -82,6 +79,34 @@ def oscillatory_mode(block: np.ndarray) -> OscillatoryMode:
     return OscillatoryMode(float(wn / (2 * np.pi)), float(-np.trace(block) / (2 * wn)) + 0.0)
 
 
+class ChannelLabels(TypedDict, total=False):
+    """Channel names and output units, as keyword arguments of the model classes."""
+
+    state_names: tuple[str, ...]
+    output_names: tuple[str, ...]
+    input_names: tuple[str, ...]
+    output_units: tuple[str, ...]
+
+
+class LinearModelLabels(ChannelLabels, total=False):
+    """The optional keyword fields of :class:`LinearModel` (names, units, mode block, parameter map)."""
+
+    oscillatory_block: np.ndarray | None
+    name: str
+    parameter_map: ParameterMap | None
+
+
+class LinearModelFields(LinearModelLabels, total=False):
+    """Any fields of :class:`LinearModel` (what :meth:`LinearModel.replace` takes)."""
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    Q: np.ndarray
+    R: np.ndarray
+    dt: float
+
+
 @dataclass(frozen=True, eq=False)
 class LinearModel(ModelBase):
     """A validated linear discrete-time state-space model (eq 1-2).
@@ -124,7 +149,7 @@ class LinearModel(ModelBase):
     __repr__ = short_repr  # shapes and key figures, never whole arrays
 
     A: np.ndarray
-    B: np.ndarray | None
+    B: np.ndarray  # None accepted (no input): a zero column
     C: np.ndarray
     Q: np.ndarray
     R: np.ndarray
@@ -233,7 +258,7 @@ class LinearModel(ModelBase):
         """``A``, a read-only view broadcast to ``(..., n, n)`` (``u`` unused): :meth:`ModelBase.jacobian`."""
         return np.broadcast_to(self.A, np.shape(x)[:-1] + self.A.shape)
 
-    def replace(self, **changes: object) -> LinearModel:
+    def replace(self, **changes: Unpack[LinearModelFields]) -> LinearModel:
         """Return a copy with fields replaced (validated again)."""
         return replace(self, **changes)
 
@@ -270,7 +295,7 @@ class LinearModel(ModelBase):
         dt: float,
         *,
         discretization: Discretization = "euler",
-        **kwargs: object,
+        **kwargs: Unpack[LinearModelLabels],
     ) -> LinearModel:
         """Discretize continuous matrices (see :func:`discretize`) and build a model.
 

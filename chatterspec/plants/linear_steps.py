@@ -41,7 +41,17 @@ def noise_step(L: np.ndarray, s: int, i: int, v: np.ndarray, diag: bool, k: int)
 
 
 @_jit.step
-def measure_step(s, x, wk, C, Lr, diag, z, n, m):  # type: ignore[no-untyped-def]  # pragma: no cover
+def measure_step(
+    s: int,
+    x: np.ndarray,
+    wk: np.ndarray,
+    C: np.ndarray,
+    Lr: np.ndarray,
+    diag: np.ndarray,
+    z: np.ndarray,
+    n: int,
+    m: int,
+) -> None:  # pragma: no cover
     """Eq (2): ``z = C_s x + Lr_s w(k)`` into ``z`` (m,); ``C_s x`` summed from 0.0 over j = 0, 1, ...
     (``diag[s, 1]``: ``Lr_s`` diagonal)."""
     for i in range(m):
@@ -52,7 +62,17 @@ def measure_step(s, x, wk, C, Lr, diag, z, n, m):  # type: ignore[no-untyped-def
 
 
 @_jit.step
-def advance_step(s, x, bu, vk, A, Lq, diag, xn, n):  # type: ignore[no-untyped-def]  # pragma: no cover
+def advance_step(
+    s: int,
+    x: np.ndarray,
+    bu: np.ndarray,
+    vk: np.ndarray,
+    A: np.ndarray,
+    Lq: np.ndarray,
+    diag: np.ndarray,
+    xn: np.ndarray,
+    n: int,
+) -> None:  # pragma: no cover
     """Eq (1): ``x(k+1) = (A_s x(k) + B_s u(k)) + Lq_s v(k)`` into ``xn`` (n,), given ``bu`` = B_s u(k).
 
     ``A_s x`` is summed from 0.0 over j = 0, 1, ...; ``diag[s, 0]`` says ``Lq_s`` is diagonal.

@@ -11,6 +11,7 @@ zero input).
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -28,13 +29,28 @@ class Linearization:
     sizes, names, ``rest_state``, ``oscillatory_states`` and ``dt``.
     """
 
-    # what it reads from the model (fields and properties of NonlinearModel; annotations only)
-    dt: float
-    n_states: int
-    n_inputs: int
-    rest_state: np.ndarray
-    oscillatory_states: tuple[int, int] | None
-    input_jacobian: Callable[[np.ndarray, np.ndarray], np.ndarray] | None
+    if TYPE_CHECKING:  # what it reads from the model (fields, properties and methods of NonlinearModel)
+        dt: float
+        n_inputs: int
+        rest_state: np.ndarray
+        oscillatory_states: tuple[int, int] | None
+        input_jacobian: Callable[[np.ndarray, np.ndarray], np.ndarray] | None
+        name: str
+        Q: np.ndarray
+        R: np.ndarray
+        state_names: tuple[str, ...]
+        output_names: tuple[str, ...]
+        input_names: tuple[str, ...]
+        output_units: tuple[str, ...]
+
+        @property
+        def n_states(self) -> int: ...
+
+        def transition(self, x: np.ndarray, u: np.ndarray) -> np.ndarray: ...
+
+        def jacobian(self, x: np.ndarray, u: np.ndarray) -> np.ndarray: ...
+
+        def measurement_jacobian(self, x: np.ndarray) -> np.ndarray: ...
 
     def _operating_point(self, x0: np.ndarray | None, u0: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """``(x0, u0)`` checked, or the rest state and zero input."""

@@ -17,14 +17,15 @@ actuator's rigid-body approximation (an integrator, ``y' = Kv u``) for a damping
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Unpack
 
 import numpy as np
 
 from .._validate import positive
 from ..errors import ParameterError, UnstableLoopError
-from .controllers import PIDController, pid_coefficients
+from .controllers import PIDController, PIDOptions, pid_coefficients
 from .models import LinearModel
-from .nonlinear import NonlinearModel, is_linear
+from .nonlinear import NonlinearModel
 
 __all__ = [
     "GAINS",
@@ -49,7 +50,7 @@ _RHO_STABLE = 1.0 - 1e-12
 
 def linear_part(model: LinearModel | NonlinearModel) -> LinearModel:
     """``model`` itself if linear, else its linearization at rest (``NonlinearModel.linearize()``)."""
-    return model if is_linear(model) else model.linearize()  # type: ignore[return-value,union-attr]
+    return model if isinstance(model, LinearModel) else model.linearize()
 
 
 def _output_row(model: LinearModel, output: int) -> np.ndarray:
@@ -277,7 +278,7 @@ def design_pi(
     *,
     damping: float = 1.0,
     output: int = 0,
-    **options: object,
+    **options: Unpack[PIDOptions],
 ) -> PIDController:
     """PI gains by pole placement on the rigid-body approximation, checked on the full model.
 
@@ -309,7 +310,7 @@ def design_pi(
     wc = 2 * np.pi * positive("bandwidth_hz", bandwidth_hz, unit="Hz")
     zeta = positive("damping", damping)
     kv = rigid_body_gain(model, output)
-    ctrl = PIDController(kp=2 * zeta * wc / kv, ki=wc * wc / kv, saturation=saturation, **options)  # type: ignore[arg-type]
+    ctrl = PIDController(kp=2 * zeta * wc / kv, ki=wc * wc / kv, saturation=saturation, **options)
     check_closed_loop(
         model, ctrl, output, what=f"{linear_part(model).name} (designed at {bandwidth_hz:g} Hz)"
     )

@@ -13,12 +13,16 @@ For each move of a :class:`~chatterspec.plants.references.StepSequence` or
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import ParameterError
 from .references import SCurve, StepSequence
 from .simulate_closed_loop import loop_response
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .scenario_types import Scenario
 
 __all__ = ["MoveMetrics", "move_metrics"]
 
@@ -64,7 +68,7 @@ class MoveMetrics:
         }
 
 
-def move_metrics(scenario: object, band: float = 0.02) -> list[MoveMetrics]:
+def move_metrics(scenario: Scenario, band: float = 0.02) -> list[MoveMetrics]:
     """Overshoot and settling time of every move of a closed-loop scenario's reference (no noise).
 
     Parameters
@@ -97,7 +101,7 @@ def move_metrics(scenario: object, band: float = 0.02) -> list[MoveMetrics]:
         r0, r1 = levels[j], levels[j + 1]
         step = r1 - r0
         end = start + move_time
-        nxt = ref.times[j + 1] if j + 1 < len(ref.times) else t[-1] + scenario.dt  # type: ignore[attr-defined]
+        nxt = ref.times[j + 1] if j + 1 < len(ref.times) else t[-1] + scenario.dt
         after = (t >= end - 1e-9) & (t < nxt - 1e-9)
         during = (t >= start - 1e-9) & (t < nxt - 1e-9)
         if step == 0 or not after.any():  # no move, or it ends after the record

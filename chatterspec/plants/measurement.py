@@ -9,11 +9,15 @@ the SVSF family needs a linear ``C`` and refuses such a model (:func:`require_li
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .._validate import finite_array
 from ..errors import ModelKindError, ParameterError, ShapeError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .nonlinear import Model, NonlinearModel
 
 __all__ = [
     "Measurement",
@@ -27,7 +31,7 @@ __all__ = [
 Measurement = Callable[[np.ndarray], np.ndarray]
 
 
-def has_measurement_function(model: object) -> bool:
+def has_measurement_function(model: object) -> bool:  # a predicate: any value
     """True when ``model`` measures through a function ``h(x)`` rather than a matrix ``C``.
 
     Parameters
@@ -38,7 +42,7 @@ def has_measurement_function(model: object) -> bool:
     return getattr(model, "h", None) is not None
 
 
-def require_linear_measurement(model: object, who: str) -> None:
+def require_linear_measurement(model: Model, who: str) -> None:
     """Raise :class:`~chatterspec.errors.ModelKindError` when ``model`` has a nonlinear measurement.
 
     Parameters
@@ -55,7 +59,7 @@ def require_linear_measurement(model: object, who: str) -> None:
         )
 
 
-def measurement_matrix(model: object) -> np.ndarray:
+def measurement_matrix(model: NonlinearModel) -> np.ndarray:
     """``h_jac`` at the rest state: the ``C`` of a model with a nonlinear measurement ``h``.
 
     Parameters
@@ -67,14 +71,14 @@ def measurement_matrix(model: object) -> np.ndarray:
     -------
     (m, n) array
     """
-    h, h_jac, C = model.h, model.h_jac, model.C  # type: ignore[attr-defined]
+    h, h_jac, C = model.h, model.h_jac, model.C
     if not callable(h) or not callable(h_jac):
         raise ModelKindError("h and h_jac must be callables h(x) -> (..., m), h_jac(x) -> (..., m, n)")
-    n = finite_array("Q", model.Q, ndim=2).shape[0]  # type: ignore[attr-defined]
-    rest = model.rest_state  # type: ignore[attr-defined]
+    n = finite_array("Q", model.Q, ndim=2).shape[0]
+    rest = model.rest_state
     rest = np.zeros(n) if rest is None else np.asarray(rest, dtype=float)
     H = np.asarray(h_jac(rest), dtype=float)
-    m = np.shape(model.R)[0] if np.ndim(model.R) == 2 else 1  # type: ignore[attr-defined]
+    m = np.shape(model.R)[0] if np.ndim(model.R) == 2 else 1
     if H.shape != (m, n):
         raise ShapeError(
             f"h_jac(x) must return ({m}, {n}) for one state (m = R's size, n = Q's); got {H.shape}"
@@ -85,7 +89,7 @@ def measurement_matrix(model: object) -> np.ndarray:
     return H
 
 
-def measure(model: object, x: np.ndarray) -> np.ndarray:
+def measure(model: Model, x: np.ndarray) -> np.ndarray:
     """Noise-free measurement ``h(x)`` (or ``x C^T``), batched ``(..., n) -> (..., m)``.
 
     Parameters
@@ -100,7 +104,7 @@ def measure(model: object, x: np.ndarray) -> np.ndarray:
     (..., m) array
     """
     x = np.asarray(x, dtype=float)
-    C = np.asarray(model.C)  # type: ignore[attr-defined]
+    C = np.asarray(model.C)
     h = getattr(model, "h", None)
     if h is None:
         return x @ C.T
@@ -111,7 +115,7 @@ def measure(model: object, x: np.ndarray) -> np.ndarray:
     return out
 
 
-def measurement_jacobian(model: object, x: np.ndarray) -> np.ndarray:
+def measurement_jacobian(model: Model, x: np.ndarray) -> np.ndarray:
     """``H = dh/dx`` at ``x`` (``C`` for a linear measurement), batched ``(..., m, n)``.
 
     Parameters
@@ -124,11 +128,12 @@ def measurement_jacobian(model: object, x: np.ndarray) -> np.ndarray:
     (..., m, n) array
     """
     x = np.asarray(x, dtype=float)
-    C = np.asarray(model.C)  # type: ignore[attr-defined]
+    C = np.asarray(model.C)
     want = (*x.shape[:-1], *C.shape)
-    if getattr(model, "h", None) is None:
+    h_jac: Measurement | None = getattr(model, "h_jac", None)  # (a LinearModel has no h, h_jac)
+    if getattr(model, "h", None) is None or h_jac is None:  # (h_jac comes with h: measurement_matrix)
         return np.broadcast_to(C, want)
-    out = np.asarray(model.h_jac(x), dtype=float)  # type: ignore[attr-defined]
+    out = np.asarray(h_jac(x), dtype=float)
     if out.shape != want:
         raise ShapeError(f"h_jac(x) returned shape {out.shape}; expected {want}")
     return out

@@ -14,11 +14,16 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
 
 from .._validate import finite_array, readonly
 from ..errors import ParameterError, ShapeError, SingularMatrixError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .linear_model import OscillatoryMode
 
 __all__ = [
     "ModelBase",
@@ -53,7 +58,7 @@ def check_covariance(name: str, M: np.ndarray) -> None:
         raise ParameterError(f"{name} must be positive semi-definite; smallest eigenvalue {eig.min():g}")
 
 
-def check_measurement_matrix(C: object, n: int | None = None, *, full_rank: bool = True) -> np.ndarray:
+def check_measurement_matrix(C: npt.ArrayLike, n: int | None = None, *, full_rank: bool = True) -> np.ndarray:
     """``C`` as a finite (m, n) array with ``m <= n`` (a 1-D array is one measured channel).
 
     Parameters
@@ -82,7 +87,7 @@ def check_measurement_matrix(C: object, n: int | None = None, *, full_rank: bool
     return C
 
 
-def check_noise(Q: object, R: object, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+def check_noise(Q: npt.ArrayLike, R: npt.ArrayLike, n: int, m: int) -> tuple[np.ndarray, np.ndarray]:
     """The process- and measurement-noise covariances ``Q`` (n, n) and ``R`` (m, m), checked.
 
     Raises
@@ -125,7 +130,7 @@ def check_labels(attr: str, given: Iterable[object], size: int, prefix: str | No
     return labels
 
 
-def set_channel_labels(model: object, n: int, m: int, p: int) -> None:
+def set_channel_labels(model: ModelBase, n: int, m: int, p: int) -> None:
     """Set the checked channel names and units of a frozen model in place.
 
     ``state_names``, ``output_names``, ``input_names`` (default ``x1..xn``, ``z1..zm``, ``u1..up``),
@@ -145,7 +150,7 @@ def set_channel_labels(model: object, n: int, m: int, p: int) -> None:
             object.__setattr__(model, attr, check_labels(attr, getattr(model, attr), size, prefix))
 
 
-def frozen(value: object) -> np.ndarray:
+def frozen(value: npt.ArrayLike) -> np.ndarray:
     """A read-only float copy of ``value`` (what the model dataclasses store)."""
     return readonly(np.array(value, dtype=float))
 
@@ -174,6 +179,11 @@ class ModelBase:
 
     C: np.ndarray
 
+    if TYPE_CHECKING:  # each model defines it (a property)
+
+        @property
+        def mode(self) -> OscillatoryMode | None: ...
+
     @property
     def n_outputs(self) -> int:
         """Number of outputs."""
@@ -182,13 +192,13 @@ class ModelBase:
     @property
     def natural_frequency_hz(self) -> float | None:
         """Natural frequency (Hz) of the oscillatory mode, or None (see ``mode``)."""
-        mode = self.mode  # type: ignore[attr-defined]
+        mode = self.mode
         return None if mode is None else mode.natural_frequency_hz
 
     @property
     def damping_ratio(self) -> float | None:
         """Damping ratio of the oscillatory mode, or None (see ``mode``)."""
-        mode = self.mode  # type: ignore[attr-defined]
+        mode = self.mode
         return None if mode is None else mode.damping_ratio
 
     def transition(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:

@@ -36,8 +36,7 @@ A file with a ``[dynamics]`` table instead of ``A`` and ``B`` describes a nonlin
 Jacobian are Python functions it names (:mod:`chatterspec.plants.modelfile_nonlinear`); an optional
 ``[simulation]`` table (input, initial state, duration) sets the healthy operating condition that
 ``calibrate``, ``detect`` and ``simulate`` use for either kind. The writer is
-:mod:`chatterspec.plants.modelfile_writer`, the data-file reader :mod:`chatterspec.plants.datafile`
-(both re-exported here).
+:mod:`chatterspec.plants.modelfile_writer`, the data-file reader :mod:`chatterspec.plants.datafile`.
 
 Data file: CSV with a header row, or NPZ with one 1-D array per name. Columns are
 matched **by name** to the model's outputs and inputs; an optional time column
@@ -55,14 +54,16 @@ sample puts a step into the chattering that itself shows up as broadband power
 
 from __future__ import annotations
 
+import os
 import tomllib
 import warnings
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
 from ..errors import ChatterspecError, ModelFileError, UnstableModelWarning
-from .datafile import TIME_COLUMNS, DataSet, load_data
+from .linear_model import Discretization
 from .modelfile_fields import (
     ModelSpec,
     _array,
@@ -71,19 +72,19 @@ from .modelfile_fields import (
     _matrix,
     _table,
     detector_table,
+    provenance_table,
     read_channels,
     svsf_gamma,
 )
 from .modelfile_nonlinear import load_nonlinear, parse_simulation
-from .modelfile_writer import write_model_toml
 from .models import LinearModel, discretize
 from .parameters import model_file_parameter_map
 
-__all__ = ["TIME_COLUMNS", "DataSet", "ModelSpec", "load_data", "load_model", "write_model_toml"]
+__all__ = ["ModelSpec", "load_model"]
 
 
 # --------------------------------------------------------------------------- model files
-def load_model(path: str | Path) -> ModelSpec:
+def load_model(path: str | os.PathLike[str]) -> ModelSpec:
     """Read a TOML model file (format in the module docstring).
 
     Parameters
@@ -170,7 +171,7 @@ def load_model(path: str | Path) -> ModelSpec:
             raise ModelFileError(
                 f"{where}: [matrices] discretization must be 'euler' or 'zoh'; got {method!r}"
             )
-        A, B = discretize(A, B, dt, method)  # type: ignore[arg-type]
+        A, B = discretize(A, B, dt, cast(Discretization, method))  # one of the two (checked above)
     pmap = model_file_parameter_map(doc, where, form, method)  # fault identification (optional)
     try:
         model = LinearModel(
@@ -218,4 +219,5 @@ def load_model(path: str | Path) -> ModelSpec:
         detector=detector_table(doc, model.dt, where),
         path=path,
         simulation=parse_simulation(doc, model, where),
+        commissioning=provenance_table(doc, where),
     )

@@ -22,11 +22,12 @@ from ..errors import ChatterspecError, ModelFileError
 from .models import LinearModel
 
 if TYPE_CHECKING:  # pragma: no cover
+    from .linear_model import ChannelLabels
     from .modelfile_nonlinear import SimulationSpec
     from .nonlinear import NonlinearModel
 
 
-__all__ = ["Channels", "ModelSpec", "detector_table", "read_channels", "svsf_gamma"]
+__all__ = ["Channels", "ModelSpec", "detector_table", "provenance_table", "read_channels", "svsf_gamma"]
 
 
 class Channels(NamedTuple):
@@ -50,7 +51,7 @@ class Channels(NamedTuple):
     units: list[str]
     states: list[str]
 
-    def model_names(self) -> dict[str, tuple[str, ...]]:
+    def model_names(self) -> ChannelLabels:
         """The channel names and units as the model dataclasses' keyword arguments."""
         return {
             "state_names": tuple(self.states),
@@ -110,6 +111,10 @@ class ModelSpec:
     simulation : SimulationSpec or None
         The optional ``[simulation]`` table (input, initial state, duration) used by ``calibrate``,
         ``detect`` and ``simulate`` on the file.
+    commissioning : dict or None
+        The ``[commissioning]`` table of a file written by ``chatterspec commission``: where the
+        fitted values came from (data file and hash, spans, each estimate with its interval and the
+        nominal it replaced); read as written, used by nothing else.
     """
 
     model: LinearModel | NonlinearModel
@@ -118,6 +123,7 @@ class ModelSpec:
     detector: Mapping[str, Any]
     path: Path
     simulation: SimulationSpec | None = None
+    commissioning: Mapping[str, Any] | None = None
 
     @property
     def is_linear(self) -> bool:
@@ -152,6 +158,24 @@ def detector_table(doc: Mapping[str, Any], dt: float, where: str) -> dict[str, A
     if "band" in detector:
         detector["band"] = _detector_band(detector["band"], where)
     return detector
+
+
+def provenance_table(doc: Mapping[str, Any], where: str) -> dict[str, Any] | None:
+    """The optional ``[commissioning]`` table of ``doc`` (None without one); errors name ``where``.
+
+    Raises
+    ------
+    ModelFileError
+        If ``commissioning`` is not a table.
+    """
+    table = doc.get("commissioning")
+    if table is None:
+        return None
+    if not isinstance(table, dict):
+        raise ModelFileError(
+            f"{where}: [commissioning] must be a table (the provenance a commissioned file records)"
+        )
+    return table
 
 
 def _detector_band(value: object, where: str) -> tuple[float, float]:
@@ -281,10 +305,10 @@ def _covariance(table: Mapping[str, Any], key: str, size: int, where: str) -> np
         raise ModelFileError(f"{where}: [matrices] matrix {key} (or {diag_key}) is missing")
     M = _matrix(table, key, where, "matrices")
     _expect_shape(M, (size, size), key, where, "covariance")
-    from .linear_model import _check_covariance
+    from .model_base import check_covariance
 
     try:
-        _check_covariance(key, M)
+        check_covariance(key, M)
     except ChatterspecError as exc:
         raise ModelFileError(f"{where}: [matrices] {exc} (a covariance)") from None
     return M

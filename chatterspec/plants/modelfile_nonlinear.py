@@ -58,7 +58,7 @@ import types
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -74,6 +74,11 @@ from .modelfile_fields import (
     read_channels,
     svsf_gamma,
 )
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .nonlinear import Model
+    from .scenario_types import Scenario
+    from .signals import Signal
 
 __all__ = [
     "MeasurementFunction",
@@ -121,6 +126,14 @@ class ModelFunction:
         The ``.py`` file (for tracebacks).
     ref : str
         The reference as written in the model file (e.g. ``"duffing.py:g"``).
+    key : str
+        The ``[dynamics]`` key that names it (``f``, ``jacobian``, ...), for messages.
+
+    Raises
+    ------
+    ModelFileError
+        When called, if the function raises: its exception, named with the file's key and
+        reference, replaces the traceback (a user's code failing mid-run is a model-file error).
     """
 
     module: str
@@ -129,6 +142,7 @@ class ModelFunction:
     source: str | None = None
     filename: str | None = None
     ref: str = ""
+    key: str = "f"
 
     @property
     def func(self) -> Callable[..., Any]:
@@ -151,7 +165,19 @@ class ModelFunction:
         return f"ModelFunction({self.ref or f'{self.module}:{self.name}'!r}{kw})"
 
     def __call__(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        return self.func(x, u, **self.keywords)
+        try:
+            return self.func(x, u, **self.keywords)
+        except ChatterspecError:
+            raise
+        except Exception as exc:
+            raise self._failed(exc, x) from exc
+
+    def _failed(self, exc: Exception, x: np.ndarray) -> ModelFileError:
+        where = self.ref or f"{self.module}:{self.name}"
+        return ModelFileError(
+            f"[dynamics] {self.key} = {where!r} raised {type(exc).__name__}: {exc} (called with x of "
+            f"shape {np.shape(x)})"
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -161,12 +187,17 @@ class MeasurementFunction(ModelFunction):
 
     Attributes
     ----------
-    module, name, keywords, source, filename, ref
+    module, name, keywords, source, filename, ref, key
         As :class:`ModelFunction`'s.
     """
 
-    def __call__(self, x: np.ndarray) -> np.ndarray:  # type: ignore[override]
-        return self.func(x, **self.keywords)
+    def __call__(self, x: np.ndarray) -> np.ndarray:  # type: ignore[override]  # h(x): no input u
+        try:
+            return self.func(x, **self.keywords)
+        except ChatterspecError:
+            raise
+        except Exception as exc:
+            raise self._failed(exc, x) from exc
 
 
 @dataclass(frozen=True)
@@ -265,7 +296,7 @@ def _resolve(
             keywords["dt"] = dt
     _LOADED[(module, name)] = fn
     return (MeasurementFunction if measurement else ModelFunction)(
-        module=module, name=name, keywords=keywords, source=source, filename=filename, ref=ref
+        module=module, name=name, keywords=keywords, source=source, filename=filename, ref=str(ref), key=key
     )
 
 
@@ -376,13 +407,13 @@ def load_nonlinear(doc: Mapping[str, Any], path: Path, where: str) -> Any:
             model = NonlinearModel.from_continuous(f, jac, **kwargs)
         else:
             model = NonlinearModel(f=f, jac=jac, **kwargs)
-    except ChatterspecError as exc:
-        raise ModelFileError(f"{where}: invalid model: {exc}") from None
-    except Exception as exc:  # the user's f or Jacobian failed on the probe at the rest state
+    except ModelFileError as exc:  # the user's f or Jacobian raised on the probe at the rest state
         raise ModelFileError(
             f"{where}: [dynamics] calling f = {f.ref!r} / jacobian = {jac.ref!r} at the rest state (x "
-            f"batched as (2, {n}), u as (2, {len(inputs)})) failed: {type(exc).__name__}: {exc}"
+            f"batched as (2, {n}), u as (2, {len(inputs)})) failed: {exc}"
         ) from None
+    except ChatterspecError as exc:
+        raise ModelFileError(f"{where}: invalid model: {exc}") from None
     svsf = doc.get("svsf", {})
     if not isinstance(svsf, dict):
         raise ModelFileError(f"{where}: [svsf] must be a table")
@@ -411,7 +442,7 @@ class SimulationSpec:
         Record length in seconds (None: the command's default, 4 s).
     """
 
-    input: Any = None
+    input: Signal | None = None
     x0: np.ndarray | None = None
     duration_s: float | None = None
 
@@ -423,7 +454,7 @@ _SIGNALS = ("constant", "step", "sine", "square", "chirp")
 class _Stacked:
     """One signal per input channel, sampled side by side ``(T, p)``."""
 
-    signals: tuple[Any, ...]
+    signals: tuple[Signal, ...]
 
     def sample(self, t: np.ndarray) -> np.ndarray:
         return np.column_stack([np.asarray(s.sample(t), dtype=float).reshape(-1) for s in self.signals])
@@ -432,7 +463,7 @@ class _Stacked:
         return "; ".join(s.describe() for s in self.signals)
 
 
-def _signal(table: object, where: str) -> Any:
+def _signal(table: object, where: str) -> Signal:
     from . import signals
 
     if not isinstance(table, dict) or "kind" not in table:
@@ -460,7 +491,7 @@ def _signal(table: object, where: str) -> Any:
         raise ModelFileError(f"{where}: [simulation] input of kind {kind!r}: {exc}") from None
 
 
-def parse_simulation(doc: Mapping[str, Any], model: Any, where: str) -> SimulationSpec | None:
+def parse_simulation(doc: Mapping[str, Any], model: Model, where: str) -> SimulationSpec | None:
     """The optional ``[simulation]`` table (keys ``duration_s``, ``x0``, ``input``), validated.
 
     ``input`` is one table for a one-input model, or a list of tables (one per input); each has a
@@ -515,7 +546,7 @@ def parse_simulation(doc: Mapping[str, Any], model: Any, where: str) -> Simulati
     return SimulationSpec(input=signal, x0=x0, duration_s=duration)
 
 
-def file_scenario(spec: Any, default_duration: float = 4.0, name: str | None = None) -> Any:
+def file_scenario(spec: ModelSpec, default_duration: float = 4.0, name: str | None = None) -> Scenario:
     """A healthy scenario for a model file: its model as nominal and true plant, its ``[simulation]``.
 
     Parameters
@@ -538,7 +569,7 @@ def file_scenario(spec: Any, default_duration: float = 4.0, name: str | None = N
 
     sim = spec.simulation or SimulationSpec()
     model = spec.model
-    x0 = sim.x0 if sim.x0 is not None else getattr(model, "rest_state", None)
+    x0 = sim.x0 if sim.x0 is not None else getattr(model, "rest_state", np.zeros(model.n_states))
     signal = sim.input if sim.input is not None else ZeroInput(model.n_inputs)
     what = signal.describe() if sim.input is not None else "zero"
     return Scenario(

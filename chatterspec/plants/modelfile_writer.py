@@ -5,15 +5,20 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..errors import ModelFileError
 from .modelfile_fields import _DETECTOR_KEYS, _detector_band
 from .models import LinearModel
+from .nonlinear import Model
 
-__all__ = ["signal_table", "write_model_toml", "write_nonlinear_model_toml"]
+if TYPE_CHECKING:  # pragma: no cover
+    from .nonlinear import NonlinearModel
+    from .signals import Signal
+
+__all__ = ["signal_table", "toml_table", "write_model_toml", "write_nonlinear_model_toml"]
 
 
 def _toml_number(v: float) -> str:
@@ -44,9 +49,9 @@ def _toml_covariance(key: str, M: np.ndarray) -> str:
     return f"{key} = {_toml_matrix(M)}"
 
 
-def _matrices_and_svsf(model: object, matrices: tuple[str, ...], svsf: tuple[str, ...]) -> list[str]:
+def _matrices_and_svsf(model: Model, matrices: tuple[str, ...], svsf: tuple[str, ...]) -> list[str]:
     """The ``[matrices]`` table (``matrices`` lines, then C, Q, R) and the ``[svsf]`` table of a file."""
-    C, Q, R = model.C, model.Q, model.R  # type: ignore[attr-defined]
+    C, Q, R = model.C, model.Q, model.R
     matrix_lines = [*matrices, f"C = {_toml_matrix(C)}", _toml_covariance("Q", Q), _toml_covariance("R", R)]
     return ["", "[matrices]", *matrix_lines, "", "[svsf]", *svsf]
 
@@ -59,6 +64,7 @@ def write_model_toml(
     gamma: float = 0.1,
     detector: Mapping[str, Any] | None = None,
     comment: str = "",
+    tables: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> Path:
     """Write ``model`` as a TOML model file that :func:`load_model` reads back exactly.
 
@@ -83,6 +89,10 @@ def write_model_toml(
         loader's defaults apply).
     comment : str
         Text written as ``#`` comment lines at the top of the file.
+    tables : mapping of str to mapping, optional
+        Further tables written last, in order, each with :func:`toml_table` (e.g.
+        ``{"simulation": {...}}``; a dotted name such as ``"commissioning.parameters"`` is a
+        sub-table).
 
     Returns
     -------
@@ -134,25 +144,66 @@ def write_model_toml(
             else:
                 text = _toml_number(value)
             lines.append(f"{key} = {text}")
+    for name, table in (tables or {}).items():
+        lines += ["", toml_table(name, table)]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n")
     return path
 
 
-# --------------------------------------------------------------------------- nonlinear models
+# --------------------------------------------------------------------------- generic tables
 def _toml_value(v: Any) -> str:
+    """A TOML value: string, boolean, integer, float (shortest round trip), array or inline table."""
     if isinstance(v, str):
         return _toml_strings([v])[1:-1]
+    if isinstance(v, (bool, np.bool_)):
+        return "true" if v else "false"
+    if isinstance(v, Mapping):
+        return _inline_table(v)
     if isinstance(v, (list, tuple, np.ndarray)):
-        return _toml_vector(np.asarray(v, dtype=float))
+        items = list(v.tolist() if isinstance(v, np.ndarray) else v)
+        return "[" + ", ".join(_toml_value(x) for x in items) + "]"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
     return _toml_number(v)
 
 
+def _toml_key(key: str) -> str:
+    """A bare key when it is one (letters, digits, ``_``, ``-``), else a quoted one."""
+    import re
+
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else _toml_strings([key])[1:-1]
+
+
 def _inline_table(d: Mapping[str, Any]) -> str:
-    return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in d.items()) + " }"
+    return "{ " + ", ".join(f"{_toml_key(str(k))} = {_toml_value(v)}" for k, v in d.items()) + " }"
 
 
-def signal_table(signal: Any) -> dict[str, Any] | None:
+def toml_table(name: str, table: Mapping[str, Any]) -> str:
+    """The TOML text of table ``[name]`` holding ``table`` (no trailing newline).
+
+    Parameters
+    ----------
+    name : str
+        Table name; a dotted name (``"commissioning.parameters"``) is a sub-table.
+    table : mapping
+        Key -> value: strings, booleans, integers, floats (written as their shortest round-trip
+        decimal, so they read back bit-identically), sequences of these (arrays) and mappings
+        (inline tables).
+
+    Raises
+    ------
+    ModelFileError
+        A float that is not finite (TOML has no NaN a model file may hold).
+    """
+    head = ".".join(_toml_key(part) for part in name.split("."))
+    return "\n".join([f"[{head}]", *(f"{_toml_key(str(k))} = {_toml_value(v)}" for k, v in table.items())])
+
+
+# --------------------------------------------------------------------------- nonlinear models
+
+
+def signal_table(signal: Signal) -> dict[str, Any] | None:
     """A :mod:`chatterspec.plants.signals` input as a ``[simulation] input`` table (None if it has none).
 
     Parameters
@@ -172,18 +223,18 @@ def signal_table(signal: Any) -> dict[str, Any] | None:
         signals.Chirp: "chirp",
     }
     kind = kinds.get(type(signal))
-    if kind is None:
+    if kind is None or not dataclasses.is_dataclass(signal):  # (every kind above is a dataclass)
         return None
     return {"kind": kind, **{f.name: getattr(signal, f.name) for f in dataclasses.fields(signal)}}
 
 
-def _function_refs(model: Any) -> tuple[str, str, str | None, str, dict[str, float]]:
+def _function_refs(model: NonlinearModel) -> tuple[str, str, str | None, str, dict[str, float]]:
     """``(f, jacobian, input_jacobian, form, parameters)`` naming a nonlinear model's functions."""
     from functools import partial
 
     from .eha4 import eha4_transition
+    from .euler import EulerJacobian, EulerStep
     from .modelfile_nonlinear import ModelFunction
-    from .nonlinear import _EulerJacobian, _EulerStep
 
     f, jac = model.f, model.jac
     if isinstance(f, partial) and f.func is eha4_transition:
@@ -196,7 +247,7 @@ def _function_refs(model: Any) -> tuple[str, str, str | None, str, dict[str, flo
             dict(model.parameters),
         )
     form = "discrete"
-    if isinstance(f, _EulerStep) and isinstance(jac, _EulerJacobian):
+    if isinstance(f, EulerStep) and isinstance(jac, EulerJacobian):
         f, jac, form = f.g, jac.g_jac, "continuous"
     if isinstance(f, ModelFunction) and isinstance(jac, ModelFunction):
 
@@ -214,7 +265,7 @@ def _function_refs(model: Any) -> tuple[str, str, str | None, str, dict[str, flo
 
 def write_nonlinear_model_toml(
     path: str | Path,
-    model: Any,
+    model: NonlinearModel,
     *,
     gamma: float = 0.1,
     simulation: Mapping[str, Any] | None = None,
@@ -270,11 +321,7 @@ def write_nonlinear_model_toml(
         lines += ["", "[dynamics.parameters]", *(f"{k} = {_toml_number(v)}" for k, v in params.items())]
     lines += _matrices_and_svsf(model, (), (f"gamma = {_toml_number(gamma)}",))
     if simulation:
-        lines += ["", "[simulation]"]
-        for key, value in simulation.items():
-            lines.append(
-                f"{key} = {_inline_table(value) if isinstance(value, Mapping) else _toml_value(value)}"
-            )
+        lines += ["", toml_table("simulation", simulation)]
     if detector:
         lines += ["", "[detector]", *(f"{k} = {_toml_value(v)}" for k, v in detector.items())]
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -14,7 +14,7 @@ Frequencies are given in **Hz** and converted to rad/s inside the factories
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, TypedDict
 
 import numpy as np
 
@@ -24,7 +24,6 @@ from .linear_model import (
     Discretization,
     LinearModel,
     OscillatoryMode,
-    _check_covariance,  # noqa: F401  (its old import path)
     discretize,
     oscillatory_mode,
 )
@@ -33,6 +32,7 @@ from .parameters import eha_parameter_map, second_order_parameter_map
 __all__ = [
     "EHA_PARAMETERS",
     "Discretization",
+    "EHAFault",
     "LinearModel",
     "OscillatoryMode",
     "discretize",
@@ -44,6 +44,14 @@ __all__ = [
 
 
 #: Table 1 of the core paper (SI units).
+class EHAFault(TypedDict, total=False):
+    """Physical parameters of the linear EHA that a fault changes (:func:`eha_linear`'s first three)."""
+
+    leakage: float
+    friction: float
+    bulk_modulus: float
+
+
 EHA_PARAMETERS: dict[str, float] = {
     "piston_area": 1.52e-3,  # Ac, m^2
     "pump_displacement": 5.57e-7,  # Dp, m^3/rad

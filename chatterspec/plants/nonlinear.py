@@ -25,14 +25,14 @@ import hashlib
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TypeAlias, TypedDict, TypeGuard, Unpack
 
 import numpy as np
 
 from .._repr import short_repr
 from .._validate import finite_array, positive, positive_int, readonly
 from ..errors import ModelKindError, NonFiniteError, ParameterError, ShapeError, SingularMatrixError
-from .euler import ContinuousEuler, EulerJacobian, EulerStep, Transition
+from .euler import ContinuousEuler, Transition
 from .linear_model import LinearModel
 from .linearization import Linearization
 from .measurement import Measurement, measure, measurement_jacobian, measurement_matrix
@@ -46,9 +46,7 @@ from .model_base import (
 )
 from .sample_functions import FromSteps
 
-__all__ = ["NonlinearModel", "is_linear", "require_linear", "same_dynamics"]
-
-_EulerStep, _EulerJacobian = EulerStep, EulerJacobian  # their old names (models pickled before)
+__all__ = ["Model", "NonlinearModel", "is_linear", "require_linear", "same_dynamics"]
 
 
 def _callable_id(fn: object) -> str:
@@ -61,6 +59,35 @@ def _callable_id(fn: object) -> str:
         fn = fn.func
     parts.append(f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', repr(fn))}")
     return "|".join(reversed(parts))
+
+
+class NonlinearModelOptions(TypedDict, total=False):
+    """The optional keyword fields of :class:`NonlinearModel` (what ``from_continuous`` passes on)."""
+
+    n_inputs: int
+    input_jacobian: Transition | None
+    state_names: tuple[str, ...]
+    output_names: tuple[str, ...]
+    input_names: tuple[str, ...]
+    state_units: tuple[str, ...]
+    output_units: tuple[str, ...]
+    oscillatory_states: tuple[int, int] | None
+    rest_state: np.ndarray
+    parameters: Mapping[str, float]
+    name: str
+    h: Measurement | None
+    h_jac: Measurement | None
+
+
+class NonlinearModelFields(NonlinearModelOptions, total=False):
+    """Any fields of :class:`NonlinearModel` (what :meth:`NonlinearModel.replace` takes)."""
+
+    f: Transition
+    jac: Transition
+    C: np.ndarray
+    Q: np.ndarray
+    R: np.ndarray
+    dt: float
 
 
 @dataclass(frozen=True, eq=False)
@@ -136,7 +163,7 @@ class NonlinearModel(ModelBase, Linearization, ContinuousEuler, FromSteps):
     state_units: tuple[str, ...] = ()
     output_units: tuple[str, ...] = ()
     oscillatory_states: tuple[int, int] | None = None
-    rest_state: np.ndarray | None = None
+    rest_state: np.ndarray = None  # type: ignore[assignment]  # None: zeros (set by __post_init__)
     parameters: Mapping[str, float] = field(default_factory=dict)
     name: str = "nonlinear model"
     h: Measurement | None = None
@@ -168,7 +195,7 @@ class NonlinearModel(ModelBase, Linearization, ContinuousEuler, FromSteps):
         for attr, val in (("C", C), ("Q", Q), ("R", R)):
             object.__setattr__(self, attr, frozen(val))
         # probe f and jac at the rest state (batched shape (2, n)) so that a wrong model fails here
-        x = np.broadcast_to(self.rest_state, (2, n)).copy()
+        x = np.broadcast_to(rest, (2, n)).copy()
         u = np.zeros((2, p))
         if not (np.all(np.isfinite(self.transition(x, u))) and np.all(np.isfinite(self.jacobian(x, u)))):
             raise NonFiniteError(f"{self.name}: f or its Jacobian is not finite at the rest state")
@@ -260,7 +287,7 @@ class NonlinearModel(ModelBase, Linearization, ContinuousEuler, FromSteps):
             )
         return out
 
-    def replace(self, **changes: Any) -> NonlinearModel:
+    def replace(self, **changes: Unpack[NonlinearModelFields]) -> NonlinearModel:
         """Return a copy with fields replaced (validated again).
 
         The sampling time is part of the discrete transition, so changing ``dt`` without passing a
@@ -304,7 +331,11 @@ class NonlinearModel(ModelBase, Linearization, ContinuousEuler, FromSteps):
         }
 
 
-def is_linear(model: object) -> bool:
+#: A plant model: what scenarios, filters and detectors take.
+Model: TypeAlias = LinearModel | NonlinearModel
+
+
+def is_linear(model: object) -> TypeGuard[LinearModel]:
     """True for a :class:`~chatterspec.plants.models.LinearModel` (A, B matrices available).
 
     Parameters
@@ -341,7 +372,7 @@ def require_linear(model: object, what: str) -> LinearModel:
     raise ModelKindError(f"{what} needs a LinearModel; got {type(model).__name__}")
 
 
-def same_dynamics(a: object, b: object) -> bool:
+def same_dynamics(a: Model, b: Model) -> bool:
     """True when two models have the same dynamics and measurement (noise covariances ignored).
 
     ``LinearModel``: equal ``A``, ``B``, ``C``. ``NonlinearModel``: the same transition (function and

@@ -24,15 +24,17 @@ model's own A and B at the nominal values.
 
 from __future__ import annotations
 
+import itertools
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal, TypeVar
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any, Literal, TypeVar, cast
 
 import numpy as np
 
 from ..errors import ChatterspecError, ModelFileError, ParameterError
 from ._expressions import BUILTIN_CONSTANTS, FUNCTIONS, Formula, compile_formula
+from .tolerances import Tolerance, parse_tolerance, tolerance_from_text
 
 if TYPE_CHECKING:  # pragma: no cover
     from .linear_model import LinearModel
@@ -53,6 +55,9 @@ NO_FAULT = "no fault"
 #: Name selected when the model's data reject "no fault" and every declared hypothesis (reserved).
 UNEXPLAINED = "unexplained"
 
+#: Up to this many parameters every combination is a hypothesis (:meth:`ParameterMap.combinations`).
+MAX_ALL_COMBINATIONS = 6
+
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _ENTRY = re.compile(r"^\s*([AB])\s*\[\s*(\d+)\s*,\s*(\d+)\s*\]\s*$")
 
@@ -71,12 +76,21 @@ class PhysicalParameter:
         Unit of ``value`` and of every estimate (e.g. ``"m^3/(s Pa)"``, ``"Hz"``).
     description : str
         Human-readable meaning.
+    tolerance : Tolerance or None
+        The band the parameter may take in normal operation
+        (:mod:`chatterspec.plants.tolerances`); None: none declared.
     """
 
     name: str
     value: float
     unit: str = ""
     description: str = ""
+    tolerance: Tolerance | None = None
+
+    @property
+    def band(self) -> tuple[float, float] | None:
+        """``(low, high)`` of :attr:`tolerance` around :attr:`value` (None without a tolerance)."""
+        return None if self.tolerance is None else self.tolerance.band(self.value)
 
 
 @dataclass(frozen=True)
@@ -170,6 +184,11 @@ class ParameterMap:
         for p in params:
             if not np.isfinite(p.value):
                 raise ParameterError(f"parameter {p.name!r} needs a finite nominal value; got {p.value!r}")
+            if p.tolerance is not None:
+                try:
+                    p.tolerance.band(p.value)
+                except ParameterError as exc:
+                    raise ParameterError(f"parameter {p.name!r}: {exc}") from None
         known = set(names) | set(consts) | {"dt"} | set(BUILTIN_CONSTANTS)
         seen: set[tuple[str, int, int]] = set()
         used: set[str] = set()
@@ -185,10 +204,10 @@ class ParameterMap:
                     f"({', '.join(names) or 'none'}) nor constants ({', '.join(['dt', *consts])})"
                 )
             used |= e.formula.names
-        for p in names:
-            if p not in used:
+        for name in names:
+            if name not in used:
                 raise ParameterError(
-                    f"parameter {p!r} enters no entry of A or B: declare the entries it enters"
+                    f"parameter {name!r} enters no entry of A or B: declare the entries it enters"
                 )
         hyps = tuple(self.hypotheses) or tuple(Hypothesis(p, (p,)) for p in names)
         hnames = [h.name for h in hyps]
@@ -228,6 +247,37 @@ class ParameterMap:
         names = ", ".join(h.name for h in self.hypotheses)
         return _named(self.hypotheses, name, f"no hypothesis {name!r}; declared: {names}")
 
+    @property
+    def has_tolerances(self) -> bool:
+        """Whether any parameter declares an operating tolerance."""
+        return any(p.tolerance is not None for p in self.parameters)
+
+    def with_tolerances(self, tolerances: Mapping[str, Tolerance | str]) -> ParameterMap:
+        """A copy whose parameters named in ``tolerances`` get that tolerance (the others keep theirs).
+
+        Parameters
+        ----------
+        tolerances : mapping of str to Tolerance or str
+            Parameter name -> a :class:`~chatterspec.plants.tolerances.Tolerance` or its command-line
+            text (``"15%"``, ``"3e7"``, ``"-10%,+20%"``, ``"1.8e8,2.3e8"``).
+
+        Raises
+        ------
+        ParameterError
+            An unknown parameter (the message lists the model's), an unreadable tolerance, or one
+            that excludes the nominal value.
+        """
+        new = dict(tolerances)
+        for name in new:
+            self.parameter(name)
+        params = []
+        for p in self.parameters:
+            tol = new.get(p.name, p.tolerance)
+            if isinstance(tol, str):
+                tol = tolerance_from_text(tol, p.value, f"tolerance of {p.name}")
+            params.append(replace(p, tolerance=tol))
+        return ParameterMap(tuple(params), self.entries, self.constants, self.hypotheses)
+
     def with_hypotheses(self, hypotheses: Sequence[Hypothesis | str | Sequence[str]]) -> ParameterMap:
         """A copy with other hypotheses: ``Hypothesis`` objects, parameter names, or lists of names.
 
@@ -244,6 +294,28 @@ class ParameterMap:
                 names = tuple(str(x) for x in h)
                 hyps.append(Hypothesis("+".join(names), names))
         return ParameterMap(self.parameters, self.entries, self.constants, tuple(hyps))
+
+    def combinations(self) -> tuple[Hypothesis, ...]:
+        """The declared hypotheses, then every other combination of the parameters (joint faults).
+
+        A combination is named ``"a+b"`` (table order) unless a declared hypothesis has the same
+        parameters (its name is kept). With more than :data:`MAX_ALL_COMBINATIONS` parameters only the
+        single parameters, the pairs and the set of all are added (``2^P - 1`` would grow too fast).
+        Sorted by size, then in table order, after the declared ones.
+        """
+        names = self.parameter_names
+        declared = {frozenset(h.parameters) for h in self.hypotheses}
+        if len(names) <= MAX_ALL_COMBINATIONS:
+            sizes: Sequence[int] = range(1, len(names) + 1)
+        else:
+            sizes = sorted({1, 2, len(names)})
+        extra = [
+            Hypothesis("+".join(c), c)
+            for k in sizes
+            for c in itertools.combinations(names, k)
+            if frozenset(c) not in declared
+        ]
+        return (*self.hypotheses, *extra)
 
     # -- evaluation --------------------------------------------------------------
     def values(self, dt: float, overrides: Mapping[str, object] | None = None) -> dict[str, object]:
@@ -297,6 +369,55 @@ class ParameterMap:
                     "this model (wrong nominal value, constant or formula)"
                 )
 
+    def model_with(
+        self, model: LinearModel, overrides: Mapping[str, float], name: str | None = None
+    ) -> LinearModel:
+        """``model`` with its declared entries of A and B evaluated at the parameters ``overrides``.
+
+        The way a model file's ``[parameters]`` and ``[entries]`` build A and B, at other parameter
+        values (e.g. a true plant whose bulk modulus is 10 % low); every other entry, C, Q, R and
+        ``dt`` are ``model``'s. The result carries this map with the new values as its nominal ones.
+
+        Parameters
+        ----------
+        model : LinearModel
+            The model the map describes (:meth:`check` holds for it).
+        overrides : mapping of str to float
+            Parameter name -> value, in the parameter's unit.
+        name : str, optional
+            The new model's name (default: ``model.name`` with the changed values).
+
+        Raises
+        ------
+        ParameterError
+            An unknown parameter name, a value that is not finite, or one that makes an entry
+            non-finite.
+        """
+        import dataclasses
+
+        vals = {k: float(v) for k, v in overrides.items()}
+        for k, v in vals.items():
+            self.parameter(k)
+            if not np.isfinite(v):
+                raise ParameterError(f"parameter {k!r} must be finite; got {v!r}")
+        entries = np.atleast_1d(self.evaluate(model.dt, vals))
+        A, B = np.array(model.A), np.array(model.B)
+        for e, v in zip(self.entries, entries, strict=True):
+            if not np.isfinite(v):
+                raise ParameterError(f"entry {e.label} = {e.formula.text!r} is not finite at {vals}")
+            (A if e.matrix == "A" else B)[e.row, e.col] = float(v)
+        params = tuple(dataclasses.replace(p, value=vals.get(p.name, p.value)) for p in self.parameters)
+        pmap = ParameterMap(params, self.entries, self.constants, self.hypotheses)
+        label = ", ".join(f"{k} = {v:.4g}" for k, v in vals.items())
+        return dataclasses.replace(
+            model,
+            A=A,
+            B=B,
+            parameter_map=pmap,
+            oscillatory_block=None,
+            name=name or (f"{model.name} ({label})" if label else model.name),
+        )
+
     def to_toml(self) -> str:
         """The ``[parameters]``, ``[constants]``, ``[entries]`` and ``[hypotheses]`` tables as TOML text."""
         import json
@@ -309,6 +430,8 @@ class ParameterMap:
             fields = [f"value = {num(p.value)}", f"unit = {json.dumps(p.unit)}"]
             if p.description:
                 fields.append(f"description = {json.dumps(p.description)}")
+            if p.tolerance is not None:
+                fields.append(f"tolerance = {p.tolerance.text()}")
             lines.append(f"{p.name} = {{ {', '.join(fields)} }}")
         if self.constants:
             lines += ["", "[constants]"] + [f"{k} = {num(v)}" for k, v in self.constants.items()]
@@ -323,7 +446,7 @@ def parse_entry_key(key: str, where: str) -> tuple[Literal["A", "B"], int, int]:
     m = _ENTRY.match(str(key))
     if not m or int(m.group(2)) < 1 or int(m.group(3)) < 1:
         raise ParameterError(f'{where}: entry key {key!r} must look like "A[3,3]" or "B[3,1]" (1-based)')
-    return m.group(1), int(m.group(2)) - 1, int(m.group(3)) - 1  # type: ignore[return-value]
+    return cast(Literal["A", "B"], m.group(1)), int(m.group(2)) - 1, int(m.group(3)) - 1  # (the regex)
 
 
 def parameter_map_from_tables(
@@ -355,9 +478,12 @@ def parameter_map_from_tables(
     params = []
     for name, spec in tables["parameters"].items():
         if isinstance(spec, dict):
-            unknown = set(spec) - {"value", "unit", "description"}
+            unknown = set(spec) - {"value", "unit", "description", "tolerance"}
             if unknown:
-                raise ParameterError(f"{where}: [parameters] {name}: unknown key(s) {sorted(unknown)}")
+                raise ParameterError(
+                    f"{where}: [parameters] {name}: unknown key(s) {sorted(unknown)} (keys: value, unit, "
+                    "description, tolerance)"
+                )
             value, unit, desc = spec.get("value"), spec.get("unit", ""), spec.get("description", "")
         else:
             value, unit, desc = spec, "", ""
@@ -366,7 +492,10 @@ def parameter_map_from_tables(
                 f"{where}: [parameters] {name} needs a numeric value, e.g. "
                 f'{name} = {{ value = 1.0, unit = "..." }}; got {value!r}'
             )
-        params.append(PhysicalParameter(str(name), float(value), str(unit), str(desc)))
+        tol = None
+        if isinstance(spec, dict) and "tolerance" in spec:
+            tol = parse_tolerance(spec["tolerance"], float(value), f"{where}: [parameters] {name}")
+        params.append(PhysicalParameter(str(name), float(value), str(unit), str(desc), tol))
     consts = {}
     for name, value in tables["constants"].items():
         if isinstance(value, bool) or not isinstance(value, int | float):

@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from .._validate import finite_array, finite_scalar, positive
 from ..errors import ParameterError
@@ -26,7 +27,7 @@ from ..errors import ParameterError
 __all__ = ["Hold", "SCurve", "StepSequence"]
 
 
-def _times(t: object) -> np.ndarray:
+def _times(t: npt.ArrayLike) -> np.ndarray:
     return finite_array("t", t, ndim=1)
 
 
@@ -68,7 +69,9 @@ class Hold:
         return f"hold at {_mm(self.position)}"
 
 
-def _levels(times: object, levels: object, name: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
+def _levels(
+    times: npt.ArrayLike, levels: npt.ArrayLike, name: str
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
     tt = finite_array(f"{name} times", times, ndim=1)
     ll = finite_array(f"{name} levels", levels, ndim=1)
     if tt.size == 0 or tt.shape != ll.shape:

@@ -32,9 +32,18 @@ import numpy as np
 
 from .. import _jit
 
-__all__ = ["FromSteps", "SampleFunction", "SampleKind", "measurement_steps", "transition_steps"]
+__all__ = [
+    "FromSteps",
+    "MeasurementSteps",
+    "SampleFunction",
+    "SampleKind",
+    "measurement_steps",
+    "transition_steps",
+]
 
 SampleKind = Literal["f", "jac", "h", "h_jac"]
+#: The compiled ``(h, h_jac)`` steps of a model measuring through ``h`` (:func:`measurement_steps`).
+MeasurementSteps = tuple[Callable[..., None], Callable[..., None]]
 
 
 @cache
@@ -126,7 +135,7 @@ def transition_steps(model: object) -> tuple[str, Callable[..., None], Callable[
     return f"user_{name}", predict, jacobian
 
 
-def measurement_steps(model: object) -> tuple[Callable[..., None], Callable[..., None]] | None:
+def measurement_steps(model: object) -> MeasurementSteps | None:
     """``(h, h_jac)`` steps (``h(x, out)``, ``h_jac(x, out)``) of a model whose measurement functions are
     :class:`SampleFunction` s, None for any other (a linear ``C``, or Python ``h``)."""
     h, h_jac = getattr(model, "h", None), getattr(model, "h_jac", None)

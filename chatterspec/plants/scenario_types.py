@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -105,7 +106,7 @@ class Scenario:
     fault: str = "healthy"
     level: str = ""
     fault_channel: str | None = None
-    x0: np.ndarray | None = None
+    x0: np.ndarray = None  # type: ignore[assignment]  # None: zeros (set by __post_init__)
     psi: tuple[float, ...] | None = None
     filter_settings: FilterSettings | None = None
     _segments: tuple[Segment, ...] = field(default=(), init=False, repr=False)
@@ -222,7 +223,7 @@ class Scenario:
         """``"linear"`` or ``"nonlinear"`` (nonlinear if any model of the scenario is)."""
         return "linear" if self.is_linear else "nonlinear"
 
-    def describe(self) -> dict[str, object]:
+    def describe(self) -> dict[str, Any]:
         """JSON-ready summary (used by ``chatterspec scenarios --json``)."""
         return {
             "name": self.name,

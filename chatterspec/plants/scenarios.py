@@ -14,11 +14,13 @@ Their printed (or resolved) filter tuning rides on ``Scenario.filter_settings``.
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
+from typing import Unpack
 
 import numpy as np
 
 from ..errors import UnknownScenarioError
-from .models import EHA_PARAMETERS, eha_linear, second_order
+from .models import EHA_PARAMETERS, EHAFault, eha_linear, second_order
 from .scenario_types import Scenario, Segment
 from .scenarios_closed_loop import closed_loop_entries
 from .scenarios_estimators import (
@@ -91,16 +93,16 @@ def _so_timeline(name: str, signal: Signal) -> Scenario:
 def _so_boundary_layer() -> Scenario:
     Q = np.diag([1e-10, 1e-8])
     R = np.array([[1e-8]])
-    kw = {"measure": "position", "Q": Q, "R": R}
-    nominal = second_order(2.0, 0.0, **kw)
+    position_measured = partial(second_order, measure="position", Q=Q, R=R)
+    nominal = position_measured(2.0, 0.0)
     return Scenario(
         name="so-boundary-layer",
         nominal=nominal,
         input=Step(0.0),
         duration=5.0,
         windows=(
-            Segment(1.0, 2.0, second_order(3.0, 0.0, **kw), "f0 = 3 Hz"),
-            Segment(3.0, 4.0, second_order(2.0, 0.1, **kw), "zeta = 0.1"),
+            Segment(1.0, 2.0, position_measured(3.0, 0.0), "f0 = 3 Hz"),
+            Segment(3.0, 4.0, position_measured(2.0, 0.1), "zeta = 0.1"),
         ),
         description="2nd-order f0 2 Hz zeta 0, x1 measured; f0 3 Hz on [1,2) s, zeta 0.1 on [3,4) s (Fig 2)",
         family="second-order",
@@ -110,7 +112,7 @@ def _so_boundary_layer() -> Scenario:
     )
 
 
-def _eha(name: str, fault: str, level: str, channel: str | None, **params: float) -> Scenario:
+def _eha(name: str, fault: str, level: str, channel: str | None, **params: Unpack[EHAFault]) -> Scenario:
     nominal = eha_linear()
     plant = eha_linear(**params) if params else None
     what = ", ".join(f"{k} = {v:.3g}" for k, v in params.items()) or "healthy"
@@ -131,26 +133,24 @@ def _eha(name: str, fault: str, level: str, channel: str | None, **params: float
 def _build_catalogue() -> dict[str, Callable[[], Scenario]]:
     cat: dict[str, Callable[[], Scenario]] = {}
     for noise in ("low", "high"):
-        cat[f"so-healthy-{noise}"] = lambda n=noise: _so_spectral(f"so-healthy-{n}", None, n)
+        cat[f"so-healthy-{noise}"] = partial(_so_spectral, f"so-healthy-{noise}", None, noise)
     for noise in ("low", "high"):
         for f in (9, 11, 12, 15):
-            cat[f"so-f{f}-{noise}"] = lambda f=f, n=noise: _so_spectral(f"so-f{f}-{n}", float(f), n)
+            cat[f"so-f{f}-{noise}"] = partial(_so_spectral, f"so-f{f}-{noise}", float(f), noise)
     cat["so-timeline-constant"] = lambda: _so_timeline("so-timeline-constant", Constant(1.0))
     cat["so-timeline-step"] = lambda: _so_timeline("so-timeline-step", Step(5.0))
     cat["so-boundary-layer"] = _so_boundary_layer
     cat["eha-healthy"] = lambda: _eha("eha-healthy", "healthy", "", None)
     for level, L in (("minor", 3e-11), ("medium", 6e-11), ("major", 9e-11)):
-        cat[f"eha-leak-{level}"] = lambda lv=level, L=L: _eha(
-            f"eha-leak-{lv}", "leakage", lv, "pressure", leakage=L
-        )
+        cat[f"eha-leak-{level}"] = partial(_eha, f"eha-leak-{level}", "leakage", level, "pressure", leakage=L)
     for level, a in (("minor", 4000.0), ("major", 7000.0)):
-        cat[f"eha-friction-{level}"] = lambda lv=level, a=a: _eha(
-            f"eha-friction-{lv}", "friction", lv, "velocity", friction=a
+        cat[f"eha-friction-{level}"] = partial(
+            _eha, f"eha-friction-{level}", "friction", level, "velocity", friction=a
         )
     be = EHA_PARAMETERS["bulk_modulus"]
     for level, factor in (("50down", 0.5), ("25down", 0.75), ("25up", 1.25), ("50up", 1.5)):
-        cat[f"eha-bulk-{level}"] = lambda lv=level, fac=factor: _eha(
-            f"eha-bulk-{lv}", "bulk-modulus", lv, "pressure", bulk_modulus=be * fac
+        cat[f"eha-bulk-{level}"] = partial(
+            _eha, f"eha-bulk-{level}", "bulk-modulus", level, "pressure", bulk_modulus=be * factor
         )
     cat["detc-normal"] = lambda: _detc("detc-normal", False)
     cat["detc-uncertain"] = lambda: _detc("detc-uncertain", True)

@@ -35,6 +35,8 @@ Nonlinear 4-state EHA (SMM eq 4.1-4.5, C = I4, Q = 1e-9 I4, R = 1e-6 I4, 1 ms):
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
+from typing import Unpack
 
 import numpy as np
 
@@ -42,7 +44,7 @@ from .closed_loop import ClosedLoop
 from .controllers import PIDController
 from .eha4 import eha4
 from .loop_design import design_pi
-from .models import EHA_PARAMETERS, eha_linear
+from .models import EHA_PARAMETERS, EHAFault, eha_linear
 from .references import Hold, SCurve
 from .scenario_types import Scenario, Segment
 from .scenarios_estimators import _eha4_leak_timeline
@@ -105,6 +107,17 @@ CLOSED_LOOP_NAMES: tuple[str, ...] = (
 _LEAKAGE = {"minor": 3e-11, "medium": 6e-11, "major": 9e-11}  # Table 2, m^3/(s Pa)
 
 
+class _EHAOptions(EHAFault, total=False):
+    """The keyword arguments of :func:`eha_closed_loop_scenario` after the loop."""
+
+    fault: str
+    level: str
+    channel: str | None
+    onset_s: float
+    position_noise: float
+    noise: float
+
+
 def eha_closed_loop_scenario(
     name: str,
     loop: ClosedLoop,
@@ -115,7 +128,8 @@ def eha_closed_loop_scenario(
     onset_s: float = 0.0,
     position_noise: float = EHA_CL_POSITION_NOISE,
     noise: float = 1.0,
-    **params: float,
+    duration_s: float = EHA_CL_DURATION,
+    **params: Unpack[EHAFault],
 ) -> Scenario:
     """A linear-EHA scenario under ``loop``, with the true plant's parameters ``params`` from ``onset_s``.
 
@@ -134,6 +148,8 @@ def eha_closed_loop_scenario(
     noise : float
         Multiplier of the measurement-noise covariance ``R = diag(position_noise^2, 1e-6, 1e6)``
         (nominal and true plant).
+    duration_s : float
+        Record length (s; default 4, the catalogue's).
     **params : float
         :func:`~chatterspec.plants.models.eha_linear` parameters of the true plant (``leakage``,
         ``friction``, ``bulk_modulus``).
@@ -144,7 +160,7 @@ def eha_closed_loop_scenario(
     plant = None
     what = ", ".join(f"{k} = {v:.3g}" for k, v in params.items()) or "healthy"
     if params and onset_s > 0:
-        windows = (Segment(onset_s, EHA_CL_DURATION, eha_linear(R=R, **params), what),)
+        windows = (Segment(onset_s, duration_s, eha_linear(R=R, **params), what),)
         what += f" from {onset_s:g} s"
     elif params:
         plant = eha_linear(R=R, **params)
@@ -154,7 +170,7 @@ def eha_closed_loop_scenario(
         plant=plant,
         windows=windows,
         input=loop,
-        duration=EHA_CL_DURATION,
+        duration=duration_s,
         description=f"linear EHA, {what}; PI position loop, reference {loop.reference.describe()}"
         + ("" if loop.dither is None else f", dither {loop.dither.describe()}"),
         family="eha-closed-loop",
@@ -164,9 +180,9 @@ def eha_closed_loop_scenario(
     )
 
 
-def _eha(name: str, hold: bool = False, **kw: object) -> Scenario:
+def _eha(name: str, hold: bool = False, **kw: Unpack[_EHAOptions]) -> Scenario:
     ref = Hold(0.0) if hold else EHA_CL_REFERENCE
-    return eha_closed_loop_scenario(name, ClosedLoop(EHA_CL_CONTROLLER, ref), **kw)  # type: ignore[arg-type]
+    return eha_closed_loop_scenario(name, ClosedLoop(EHA_CL_CONTROLLER, ref), **kw)
 
 
 def _eha4(name: str, leak_timeline: bool) -> Scenario:
@@ -208,8 +224,8 @@ def closed_loop_entries() -> dict[str, Callable[[], Scenario]]:
     be = EHA_PARAMETERS["bulk_modulus"]
     cat: dict[str, Callable[[], Scenario]] = {"eha-cl-healthy": lambda: _eha("eha-cl-healthy")}
     for lv, L in _LEAKAGE.items():
-        cat[f"eha-cl-leak-{lv}"] = lambda lv=lv, L=L: _eha(
-            f"eha-cl-leak-{lv}", fault="leakage", level=lv, channel="pressure", leakage=L
+        cat[f"eha-cl-leak-{lv}"] = partial(
+            _eha, f"eha-cl-leak-{lv}", fault="leakage", level=lv, channel="pressure", leakage=L
         )
     cat["eha-cl-friction-major"] = lambda: _eha(
         "eha-cl-friction-major", fault="friction", level="major", channel="velocity", friction=7000.0

@@ -11,10 +11,22 @@ from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+import numpy.typing as npt
 
 from .._validate import finite_array, nonnegative, positive
 
-__all__ = ["Chirp", "Constant", "HeldUniform", "Signal", "Sine", "SquareWave", "Step", "Sum", "ZeroInput"]
+__all__ = [
+    "Chirp",
+    "Constant",
+    "HeldUniform",
+    "Repeat",
+    "Signal",
+    "Sine",
+    "SquareWave",
+    "Step",
+    "Sum",
+    "ZeroInput",
+]
 
 
 @runtime_checkable
@@ -30,7 +42,7 @@ class Signal(Protocol):
         ...
 
 
-def _times(t: object) -> np.ndarray:
+def _times(t: npt.ArrayLike) -> np.ndarray:
     return finite_array("t", t, ndim=1)
 
 
@@ -296,7 +308,7 @@ class HeldUniform:
         return f"uniform({self.low:g}, {self.high:g}) held {self.hold_time:g} s, seed {self.seed}"
 
 
-def _nonnegative_times(t: object) -> np.ndarray:
+def _nonnegative_times(t: npt.ArrayLike) -> np.ndarray:
     """Finite 1-D sample times that are all >= 0 (seconds)."""
     t = _times(t)
     if t.size and t.min() < 0:
@@ -336,6 +348,33 @@ class Sum:
 
 
 @dataclass(frozen=True)
+class Repeat:
+    """A signal repeated with a period: ``signal.sample(t mod period_s)`` (e.g. the 4 s EHA chirp for hours).
+
+    Attributes
+    ----------
+    signal : Signal
+        The signal over one period.
+    period_s : float
+        The period in s (> 0).
+    """
+
+    signal: Signal
+    period_s: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "period_s", positive("period_s", self.period_s, unit="s"))
+
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        """The values at the given times (s), one row per time."""
+        return self.signal.sample(np.mod(_nonnegative_times(t), self.period_s))
+
+    def describe(self) -> str:
+        """A short description for reports and recordings."""
+        return f"{self.signal.describe()}, repeated every {self.period_s:g} s"
+
+
+@dataclass(frozen=True)
 class ZeroInput:
     """u(t) = 0 on ``channels`` inputs: the input of healthy scenarios made for a user model.
 
@@ -357,6 +396,6 @@ class ZeroInput:
         """``(len(t), channels)`` zeros (t in seconds)."""
         return np.zeros((np.size(t), self.channels))
 
-    def describe(self) -> dict[str, object]:
-        """``{"kind": "zero", "channels": channels}``."""
-        return {"kind": "zero", "channels": self.channels}
+    def describe(self) -> str:
+        """``"zero"`` (on every input)."""
+        return "zero"

@@ -12,6 +12,7 @@ import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -20,14 +21,13 @@ from .._repr import short_repr
 from .._validate import positive_int
 from ..errors import ParameterError
 from ..rng import SeedLike, root_seed_sequence
+from .linear_model import LinearModel
 from .scenarios import Scenario
 from .simulate_kernel import (
     NO_ARRAY,
     NO_CTRL,
-    KernelTables,
     _linear_scale,
     _noise_blocks,
-    _simulate_kernel,
     covariance_sqrt,
     kernel_tables,
     plant_loop,
@@ -95,7 +95,7 @@ def default_chunk_runs(scenario: Scenario) -> int:
     return max(64, int(CHUNK_BYTES // per_run) // 64 * 64)
 
 
-def as_scenario(scenario: Scenario | str | os.PathLike) -> Scenario:
+def as_scenario(scenario: Scenario | str | os.PathLike[str]) -> Scenario:
     """``scenario`` itself, the catalogue scenario of that name, or the scenario of a model file.
 
     Parameters
@@ -130,7 +130,7 @@ def as_scenario(scenario: Scenario | str | os.PathLike) -> Scenario:
         raise ParameterError(
             f"scenario must be a Scenario or a catalogue name (str); got {type(scenario).__name__}"
         )
-    return scenario
+    return cast(Scenario, scenario)  # a Scenario (or a duck-typed one), by the check above
 
 
 def simulate(
@@ -309,8 +309,9 @@ def _simulate_block(
     # x_aug = [x, 1] and W = [[A^T], [(B u(k))^T]] fold the input into one matmul
     x_aug = np.ones((hi - lo, n + 1))
     x_aug[:, :n] = scenario.x0
-    W = [np.vstack([seg.model.A.T, np.zeros((1, n))]) for seg in segments]
-    Bu = [u @ seg.model.B.T for seg in segments]
+    linear = [cast(LinearModel, seg.model) for seg in segments]  # (the caller took the linear path)
+    W = [np.vstack([lm.A.T, np.zeros((1, n))]) for lm in linear]
+    Bu = [u @ lm.B.T for lm in linear]
     for k in range(T - 1):
         s = seg_idx[k]
         Ws = W[s]
@@ -325,8 +326,3 @@ def _simulate_block(
         zt[k0:k1] += xt[k0:k1] @ model.C.T
     # (runs, T, channels) views of the time-major buffers (no copy)
     return np.swapaxes(xt, 0, 1), np.swapaxes(zt, 0, 1)
-
-
-# Old names (the kernel interface lived here; private names kept for old imports).
-_plant_loop, _tables, _Tables, _same_shapes = plant_loop, kernel_tables, KernelTables, same_shapes
-_OLD_NAMES = (NO_ARRAY, NO_CTRL, _noise_blocks, _simulate_kernel, scaled_noise, segment_ranges)

@@ -17,7 +17,7 @@ The per-sample arithmetic is written once, as steps: the linear plant's
 :func:`~chatterspec.plants.linear_steps.measure_step` (eq 2) and
 :func:`~chatterspec.plants.linear_steps.advance_step` (eq 1), and the controller's
 :func:`~chatterspec.plants.controllers.pid_step`. The compiled path is the open-loop simulation's
-loop (``plants.simulate._plant_loop``) with :func:`controller_input` as its input step, in place
+loop (``plants.simulate_kernel.plant_loop``) with :func:`controller_input` as its input step, in place
 of the input table; the numpy path (:func:`_loop_numpy`) calls the same steps' Python functions on
 rows of realizations (channel-major ``(n, runs)`` state), doing the same correctly rounded
 operations in the same order, so both paths give the same bits. A nonlinear plant (the 4-state
@@ -28,15 +28,14 @@ linear plant in one compiled call (:func:`_stream_kernel`, the same steps), else
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
 import numpy as np
 
 from .. import _jit
 from ..errors import NonFiniteError, ParameterError
-from ..rng import SeedLike
 from .closed_loop import ClosedLoop
 from .controllers import pid_coefficients, pid_step
 from .linear_steps import advance_step, measure_step
@@ -45,6 +44,10 @@ from .simulate_kernel import kernel_tables as _tables
 from .simulate_kernel import plant_loop as _plant_loop
 from .simulate_kernel import same_shapes as _same_shapes
 from .simulate_nonlinear import _scale
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .linear_model import LinearModel
+    from .scenario_types import Scenario
 
 __all__ = ["LoopState", "closed_loop_blocks", "is_closed_loop", "loop_response", "simulate_block_closed_loop"]
 
@@ -148,14 +151,14 @@ def _unpack_u(ctrl: np.ndarray, B: np.ndarray, T: int, rows: int) -> np.ndarray:
 _closed_loop_kernel = _jit.specialize(_plant_loop, "closed_loop", INPUT=controller_input)
 
 
-def _closed_loop_sized(n: int, m: int):  # type: ignore[no-untyped-def]
+def _closed_loop_sized(n: int, m: int) -> Callable[..., Any]:
     """:data:`_closed_loop_kernel` with the model's sizes as constants when small (as the open loop's)."""
     return _jit.specialize_sizes(_plant_loop, "closed_loop", {"NX": n, "NZ": m}, INPUT=controller_input)
 
 
-def _py(fn: object) -> object:
+def _py(fn: Callable[..., Any]) -> Callable[..., Any]:
     """The Python form of a compiled kernel or step, its steps included (numpy path on rows)."""
-    return _jit.python_form(fn)  # type: ignore[arg-type]
+    return _jit.python_form(fn)
 
 
 @dataclass(frozen=True, eq=False)
@@ -170,11 +173,11 @@ class _LinearTables:
     diag: np.ndarray  # (S, 2) bool: Lq, Lr diagonal
 
 
-def _linear_tables(scenario: object) -> _LinearTables:
-    """The open-loop simulation's per-segment tables (``plants.simulate._tables``) and each segment's B."""
-    tb = _tables(scenario, np.zeros(1), np.zeros((1, 1)))  # type: ignore[arg-type]  # no input table needed
-    segs = scenario.segments  # type: ignore[attr-defined]
-    B = np.ascontiguousarray(np.stack([sg.model.B[:, 0] for sg in segs]), dtype=float)
+def _linear_tables(scenario: Scenario) -> _LinearTables:
+    """The open-loop per-segment tables (``plants.simulate_kernel.kernel_tables``) and each segment's B."""
+    tb = _tables(scenario, np.zeros(1), np.zeros((1, 1)))  # no input table needed
+    segs = scenario.segments
+    B = np.ascontiguousarray(np.stack([cast("LinearModel", sg.model).B[:, 0] for sg in segs]), dtype=float)
     return _LinearTables(A=tb.A, B=B, C=tb.C, Lq=tb.Lq, Lr=tb.Lr, diag=tb.diag)
 
 
@@ -273,11 +276,11 @@ def _stream_kernel(
     z = np.empty(m)
     for i in range(n):
         x[i] = st[i]
-    integ, deriv, y_prev = st[n], st[n + 1], st[n + 2]
+    integ, deriv, y_prev = float(st[n]), float(st[n + 1]), float(st[n + 2])
     for k in range(K):
         s = seg_idx[k]
         measure_step(s, x, w[k], C, Lr, diag, z, n, m)
-        y = z[out_idx]
+        y = float(z[out_idx])
         if y_prev != y_prev:  # no earlier sample: no derivative kick
             y_prev = y
         u, integ, deriv = pid_step(
@@ -299,14 +302,14 @@ def _stream_kernel(
 
 
 def _stream_linear(
-    scenario: object, block: _Block, state: LoopState, tb: _LinearTables
+    scenario: Scenario, block: _Block, state: LoopState, tb: _LinearTables
 ) -> tuple[np.ndarray, np.ndarray, LoopState]:
     """K samples of one realization of the linear loop from ``state`` in one compiled call: ``(z, u)``.
 
     ``z`` (K, m), ``u`` (K,) and the state after the block; the numbers of :func:`_step_linear`.
     """
     loop = _loop_of(scenario)
-    coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)  # type: ignore[attr-defined]
+    coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)
     v, w, seg_idx, ref, dith = block
     K, n = v.shape[1], v.shape[2]
     st = np.concatenate([state.x[0], [state.integ[0], state.deriv[0], state.y_prev[0]]])
@@ -322,7 +325,7 @@ def _stream_linear(
     return zt, ut, new
 
 
-def _loop_of(scenario: object) -> ClosedLoop:
+def _loop_of(scenario: Scenario) -> ClosedLoop:
     loop = getattr(scenario, "input", None)
     if not isinstance(loop, ClosedLoop):
         raise ParameterError(f"scenario {getattr(scenario, 'name', '?')!r} is not a closed-loop scenario")
@@ -330,26 +333,26 @@ def _loop_of(scenario: object) -> ClosedLoop:
 
 
 def _step_linear(
-    scenario: object, block: _Block, state: LoopState, tb: _LinearTables
+    scenario: Scenario, block: _Block, state: LoopState, tb: _LinearTables
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, LoopState]:
     """K samples of the linear loop for ``runs`` realizations from ``state`` (numpy path)."""
     loop = _loop_of(scenario)
-    coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)  # type: ignore[attr-defined]
+    coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)
     v, w, seg_idx, ref, dith = block
     return _loop_numpy(v, w, np.asarray(seg_idx), tb, ref, dith, coef, loop.output, state)
 
 
-def _block_linear_compiled(scenario: object, block: _Block) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _block_linear_compiled(scenario: Scenario, block: _Block) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Runs of one random block from rest through the compiled loop: ``(x, z, u)`` time-major."""
     loop = _loop_of(scenario)
     v, w, seg_idx, ref, dith = block
     runs, T, n = v.shape
     m = w.shape[2]
     tb = _linear_tables(scenario)
-    coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)  # type: ignore[attr-defined]
+    coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)
     ctrl = _pack(coef, loop.output, tb.B, ref, dith, runs)
     xt, zt = np.empty((T, runs, n)), np.empty((T, runs, m))
-    x0 = np.ascontiguousarray(scenario.x0, dtype=float)  # type: ignore[attr-defined]
+    x0 = np.ascontiguousarray(scenario.x0, dtype=float)
     seg = np.ascontiguousarray(seg_idx, dtype=np.int64)
     no_table = np.empty((0, 0, 0))  # the open-loop input table: unused by the controller step
     _closed_loop_sized(n, m)(
@@ -359,13 +362,13 @@ def _block_linear_compiled(scenario: object, block: _Block) -> tuple[np.ndarray,
 
 
 def _step_nonlinear(
-    scenario: object, block: _Block, state: LoopState
+    scenario: Scenario, block: _Block, state: LoopState
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, LoopState]:
     """K samples of the loop around a nonlinear plant (numpy path, vectorized ``f``)."""
     loop = _loop_of(scenario)
     v, w, seg_idx, ref, dith = block
-    coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)  # type: ignore[attr-defined]
-    segs = scenario.segments  # type: ignore[attr-defined]
+    coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)
+    segs = scenario.segments
     runs, K, n = v.shape
     m = w.shape[2]
     Lq = [covariance_sqrt(sg.model.Q) for sg in segs]
@@ -389,7 +392,7 @@ def _step_nonlinear(
     if bad.any():
         k, r, _ = np.argwhere(bad)[0]
         raise NonFiniteError(
-            f"scenario {scenario.name!r}: the true state is not finite from sample {k} (realization {r} of "  # type: ignore[attr-defined]
+            f"scenario {scenario.name!r}: the true state is not finite from sample {k} (realization {r} of "
             "this chunk): the closed loop diverged -- lower the controller gains or the saturation (EHA4: "
             "2 dt a1 |v| / M must stay below 1)"
         )
@@ -397,7 +400,7 @@ def _step_nonlinear(
 
 
 def _run(
-    scenario: object, block: _Block, state: LoopState, tables: _LinearTables | None = None
+    scenario: Scenario, block: _Block, state: LoopState, tables: _LinearTables | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, LoopState]:
     """K samples of the loop on the numpy path, linear (``tables``: the scenario's, if at hand) or not."""
     if getattr(scenario, "is_linear", True):
@@ -406,7 +409,7 @@ def _run(
 
 
 def simulate_block_closed_loop(
-    scenario: object, root: np.random.SeedSequence, lo: int, hi: int, t: np.ndarray
+    scenario: Scenario, root: np.random.SeedSequence, lo: int, hi: int, t: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Simulate realizations ``lo .. hi - 1`` of a closed-loop scenario.
 
@@ -426,10 +429,10 @@ def simulate_block_closed_loop(
     """
     loop = _loop_of(scenario)
     T = len(t)
-    nom = scenario.nominal  # type: ignore[attr-defined]
+    nom = scenario.nominal
     n, m = nom.n_states, nom.n_outputs
     ref, dith = loop.signals(t)
-    seg_idx = scenario.segment_index(t)  # type: ignore[attr-defined]
+    seg_idx = scenario.segment_index(t)
     xt, zt, ut = np.empty((T, hi - lo, n)), np.empty((T, hi - lo, m)), np.empty((T, hi - lo))
     compiled = _jit.enabled() and getattr(scenario, "is_linear", True) and _same_shapes(scenario)
     for off, v, w in _noise_blocks(root, lo, hi, T, n, m):
@@ -438,12 +441,12 @@ def simulate_block_closed_loop(
         if compiled:
             x, z, u = _block_linear_compiled(scenario, block)
         else:
-            x, z, u, _ = _run(scenario, block, _initial_state(scenario.x0, b))  # type: ignore[attr-defined]
+            x, z, u, _ = _run(scenario, block, _initial_state(scenario.x0, b))
         xt[:, off : off + b], zt[:, off : off + b], ut[:, off : off + b] = x, z, u
     return np.swapaxes(xt, 0, 1), np.swapaxes(zt, 0, 1), np.swapaxes(ut, 0, 1)[..., None]
 
 
-def stream_geometry(scenario: object, duration_s: float | None, block_s: float) -> tuple[int, int, int]:
+def stream_geometry(scenario: Scenario, duration_s: float | None, block_s: float) -> tuple[int, int, int]:
     """Sample counts of a stream of ``scenario`` block by block: ``(total, period, block)``.
 
     Parameters
@@ -466,8 +469,8 @@ def stream_geometry(scenario: object, duration_s: float | None, block_s: float) 
     ParameterError
         A duration that is not a positive finite number of seconds.
     """
-    dt = scenario.dt  # type: ignore[attr-defined]
-    D = scenario.duration  # type: ignore[attr-defined]
+    dt = scenario.dt
+    D = scenario.duration
     duration = D if duration_s is None else float(duration_s)
     if not (np.isfinite(duration) and duration > 0):
         raise ParameterError(f"duration must be > 0 s; got {duration_s!r}")
@@ -475,11 +478,11 @@ def stream_geometry(scenario: object, duration_s: float | None, block_s: float) 
 
 
 def closed_loop_blocks(
-    scenario: object, seed: SeedLike, duration_s: float | None = None, *, block_s: float = 1.0
+    scenario: Scenario, seed: int, duration_s: float | None = None, *, block_s: float = 1.0
 ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """One realization of a closed-loop scenario block by block in time (bounded memory).
 
-    The closed-loop counterpart of :func:`chatterspec.online.stream.simulate_blocks`: plant and
+    The closed-loop counterpart of :func:`chatterspec.online.simulated_stream.simulate_blocks`: plant and
     controller state run on from block to block, the noise comes from one generator
     (``SeedSequence(seed)``, ``n + m`` normals per sample in time order, so the rows for a seed do not
     depend on ``block_s``), and beyond the scenario's duration ``D`` the reference,
@@ -502,14 +505,14 @@ def closed_loop_blocks(
         Times (K,) in s, measurements (K, m), applied pump speed (K, 1) in rad/s.
     """
     loop = _loop_of(scenario)
-    dt = scenario.dt  # type: ignore[attr-defined]
+    dt = scenario.dt
     total, period, K = stream_geometry(scenario, duration_s, block_s)
-    nom = scenario.nominal  # type: ignore[attr-defined]
+    nom = scenario.nominal
     n, m = nom.n_states, nom.n_outputs
-    state = _initial_state(scenario.x0, 1)  # type: ignore[attr-defined]
+    state = _initial_state(scenario.x0, 1)
     tables = _linear_tables(scenario) if getattr(scenario, "is_linear", True) else None
     # one generator drawn sample by sample: the rows of a seed do not depend on block_s (the --rate pacing)
-    rng = np.random.default_rng(np.random.SeedSequence(int(seed)))  # type: ignore[arg-type]
+    rng = np.random.default_rng(np.random.SeedSequence(int(seed)))
     for lo in range(0, total, K):
         hi = min(lo + K, total)
         k = np.arange(lo, hi)
@@ -517,7 +520,7 @@ def closed_loop_blocks(
         ref, dith = loop.signals(tp)
         noise = rng.standard_normal((hi - lo, n + m))  # per sample: n process, m measurement normals
         v, w = noise[None, :, :n], noise[None, :, n:]
-        seg = scenario.segment_index(tp)  # type: ignore[attr-defined]
+        seg = scenario.segment_index(tp)
         if tables is not None and _jit.enabled():  # one compiled call per block (the same numbers)
             z1, u1, state = _stream_linear(scenario, _Block(v, w, seg, ref, dith), state, tables)
             yield k * dt, z1, u1[:, None]
@@ -527,7 +530,7 @@ def closed_loop_blocks(
 
 
 def loop_response(
-    scenario: object, t: np.ndarray | None = None
+    scenario: Scenario, t: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The noise-free response of a closed-loop scenario (its plant segments, no v or w).
 
@@ -549,17 +552,17 @@ def loop_response(
         Applied pump speed (rad/s).
     """
     loop = _loop_of(scenario)
-    t = scenario.time if t is None else np.asarray(t, dtype=float)  # type: ignore[attr-defined]
-    nom = scenario.nominal  # type: ignore[attr-defined]
+    t = scenario.time if t is None else np.asarray(t, dtype=float)
+    nom = scenario.nominal
     ref, dith = loop.signals(t)
     zeros_v = np.zeros((1, len(t), nom.n_states))
     zeros_w = np.zeros((1, len(t), nom.n_outputs))
-    state = _initial_state(scenario.x0, 1)  # type: ignore[attr-defined]
-    block = _Block(zeros_v, zeros_w, scenario.segment_index(t), ref, dith)  # type: ignore[attr-defined]
+    state = _initial_state(scenario.x0, 1)
+    block = _Block(zeros_v, zeros_w, scenario.segment_index(t), ref, dith)
     x, _, u, _ = _run(scenario, block, state)
     return t, ref, x[:, 0], u[:, 0]
 
 
-def is_closed_loop(scenario: object) -> bool:
+def is_closed_loop(scenario: Scenario) -> bool:
     """Whether ``scenario``'s input is a :class:`~chatterspec.plants.closed_loop.ClosedLoop`."""
     return isinstance(getattr(scenario, "input", None), ClosedLoop)

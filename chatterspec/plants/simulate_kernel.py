@@ -7,8 +7,11 @@ chattering loop (:mod:`chatterspec.detection.pipeline`). :func:`kernel_tables` s
 segment models for it; :func:`scaled_noise` and :func:`segment_ranges` are the numpy path's pieces.
 """
 
+from __future__ import annotations
+
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -16,6 +19,9 @@ from .. import _jit
 from ..rng import BLOCK, block_generator
 from .linear_steps import advance_step, measure_step
 from .scenario_types import Scenario
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .nonlinear import LinearModel, Model
 
 __all__ = [
     "NO_ARRAY",
@@ -36,7 +42,7 @@ def covariance_sqrt(M: np.ndarray) -> np.ndarray:
     return V * np.sqrt(np.clip(w, 0.0, None))
 
 
-def segment_ranges(scenario: Scenario, t: np.ndarray) -> list[tuple[int, int, object]]:
+def segment_ranges(scenario: Scenario, t: np.ndarray) -> list[tuple[int, int, Model]]:
     """``(k0, k1, model)`` per active segment of ``scenario`` at times ``t`` (s): the true model of
     samples ``k0 .. k1 - 1``."""
     seg_idx = scenario.segment_index(t)
@@ -71,8 +77,8 @@ def scaled_noise(
     for off, v, w in _noise_blocks(root, lo, hi, T, n, m):
         rows = slice(off, off + v.shape[0])
         for k0, k1, model in ranges:
-            vt[k0:k1, rows] = np.swapaxes(scale(v[:, k0:k1], model.Q), 0, 1)  # type: ignore[attr-defined]
-            zt[k0:k1, rows] = np.swapaxes(scale(w[:, k0:k1], model.R), 0, 1)  # type: ignore[attr-defined]
+            vt[k0:k1, rows] = np.swapaxes(scale(v[:, k0:k1], model.Q), 0, 1)
+            zt[k0:k1, rows] = np.swapaxes(scale(w[:, k0:k1], model.R), 0, 1)
     return vt, zt
 
 
@@ -104,11 +110,11 @@ def kernel_tables(scenario: Scenario, t: np.ndarray, u: np.ndarray) -> KernelTab
     c = np.ascontiguousarray
     return KernelTables(
         seg_idx=c(scenario.segment_index(t), dtype=np.int64),
-        A=c(np.stack([sg.model.A for sg in segs]), dtype=float),
+        A=c(np.stack([cast("LinearModel", sg.model).A for sg in segs]), dtype=float),  # a linear scenario
         C=c(np.stack([sg.model.C for sg in segs]), dtype=float),
         Lq=c(np.stack([covariance_sqrt(sg.model.Q) for sg in segs]), dtype=float),
         Lr=c(np.stack([covariance_sqrt(sg.model.R) for sg in segs]), dtype=float),
-        Bu=c(np.stack([u @ sg.model.B.T for sg in segs]), dtype=float),
+        Bu=c(np.stack([u @ cast("LinearModel", sg.model).B.T for sg in segs]), dtype=float),
         x0=c(scenario.x0, dtype=float),
         diag=np.array([[_is_diagonal(sg.model.Q), _is_diagonal(sg.model.R)] for sg in segs], dtype=np.bool_),
     )
@@ -186,7 +192,24 @@ SINK = store_sink
 INPUT = open_loop_input
 
 
-def plant_loop(v, w, seg_idx, A, C, Lq, Lr, Bu, x0, diag, ctrl, out_a, out_b, PhiT, Gu, offset):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (Python form tested in tests/test_kernels.py)
+def plant_loop(
+    v: np.ndarray,
+    w: np.ndarray,
+    seg_idx: np.ndarray,
+    A: np.ndarray,
+    C: np.ndarray,
+    Lq: np.ndarray,
+    Lr: np.ndarray,
+    Bu: np.ndarray,
+    x0: np.ndarray,
+    diag: np.ndarray,
+    ctrl: np.ndarray,
+    out_a: np.ndarray,
+    out_b: np.ndarray,
+    PhiT: np.ndarray,
+    Gu: np.ndarray,
+    offset: int,
+) -> None:  # pragma: no cover - compiled (Python form tested in tests/test_kernels.py)
     """Eq (1)-(2) for the runs of one random block, each sample handed to ``SINK`` (a template).
 
     Per run r and sample k, with the segment s active at k: ``z(k)`` by

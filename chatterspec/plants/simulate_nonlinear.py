@@ -19,10 +19,16 @@ The true plant is time-segmented like the linear one: the segment active at ``t_
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..errors import NonFiniteError
+from .measurement import measure
 from .simulate_kernel import covariance_sqrt, scaled_noise, segment_ranges
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .scenario_types import Scenario
 
 __all__ = ["simulate_block_nonlinear"]
 
@@ -35,7 +41,7 @@ def _scale(noise: np.ndarray, L: np.ndarray) -> np.ndarray:
 
 
 def simulate_block_nonlinear(
-    scenario: object, root: np.random.SeedSequence, lo: int, hi: int, t: np.ndarray, u: np.ndarray
+    scenario: Scenario, root: np.random.SeedSequence, lo: int, hi: int, t: np.ndarray, u: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Simulate realizations ``lo .. hi - 1`` of a scenario with a nonlinear true plant.
 
@@ -95,7 +101,7 @@ def simulate_block_nonlinear(
     for k0, k1, model in ranges:
         C = model.C
         if getattr(model, "h", None) is not None:  # a nonlinear measurement h(x)
-            zt[k0:k1] += model.measure(xt[k0:k1])
+            zt[k0:k1] += measure(model, xt[k0:k1])
         elif C.shape[0] == C.shape[1] and np.array_equal(C, np.eye(C.shape[0])):
             zt[k0:k1] += xt[k0:k1]
         else:

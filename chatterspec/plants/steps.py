@@ -21,6 +21,7 @@ import numpy as np
 
 from . import eha4, linear_steps
 from .models import LinearModel
+from .nonlinear import Model
 from .sample_functions import measurement_steps, transition_steps
 
 __all__ = ["RECOGNIZERS", "PlantSteps", "measurement_steps", "plant_steps"]
@@ -51,22 +52,22 @@ class PlantSteps:
     parameters: np.ndarray
 
 
-def _linear(model: object) -> PlantSteps | None:
+def _linear(model: Model) -> PlantSteps | None:
     if not isinstance(model, LinearModel):
         return None
     prm = linear_steps.parameters(model.A, model.B)
     return PlantSteps("linear", linear_steps.predict_step, linear_steps.jacobian_step, True, prm)
 
 
-def _eha4(model: object) -> PlantSteps | None:
+def _eha4(model: Model) -> PlantSteps | None:
     found = eha4.plant_steps(model)
     if found is None:
         return None
     predict, jacobian, constant, prm = found
-    return PlantSteps("eha4", predict, jacobian, constant, prm)  # type: ignore[arg-type]
+    return PlantSteps("eha4", predict, jacobian, constant, prm)
 
 
-def _sample_functions(model: object) -> PlantSteps | None:
+def _sample_functions(model: Model) -> PlantSteps | None:
     found = transition_steps(model)
     if found is None:
         return None
@@ -75,10 +76,10 @@ def _sample_functions(model: object) -> PlantSteps | None:
 
 
 #: Functions that return a model's :class:`PlantSteps`, or None when it is not theirs.
-RECOGNIZERS: tuple[Callable[[object], PlantSteps | None], ...] = (_linear, _eha4, _sample_functions)
+RECOGNIZERS: tuple[Callable[[Model], PlantSteps | None], ...] = (_linear, _eha4, _sample_functions)
 
 
-def plant_steps(model: object) -> PlantSteps | None:
+def plant_steps(model: Model) -> PlantSteps | None:
     """The compiled steps of ``model``, or None when it has none (its Python methods are used).
 
     Parameters

@@ -2,7 +2,7 @@
 
 Threshold calibration, false-alarm statistics and detection power at Monte Carlo scale.
 
-Three studies run on :mod:`chatterspec.studies.montecarlo` (serial, local processes or
+Three studies run on :mod:`chatterspec.montecarlo` (serial, local processes or
 Dask, identical results for the same seed):
 
 * :func:`calibrate` -- analytic thresholds (``paper``, ``exact`` per-bin,

@@ -26,7 +26,11 @@ Cost and caching
     machine (the frames are cut on up to 4 threads); :func:`in_call_hours` (12 channel-hours: 4 h
     of the EHA) is what the monitor simulates when it is not given a calibration file, so it
     starts in a few seconds. Results are cached in the process (a ``StreamMonitor`` that resets
-    after a gap, or ``detect --record`` on several scenarios, pay once). The same seed gives the
+    after a gap, or ``detect --record`` on several scenarios, pay once) and, for a linear model, on
+    disk in the user cache (:mod:`chatterspec._cache`, keyed by everything that sets the threshold:
+    :func:`calibrate_alarm`), so the next process on the same model and settings reads it back.
+    The hours are bounded (:func:`check_hours`): at least two frames, at most :data:`MAX_SCORES`
+    frame scores. The same seed gives the
     same threshold every time. Precision at one false alarm per day (CUSUM, EHA): the threshold
     from 4 h has a standard deviation of 1.6 (the realized rate within a factor of about 2), from
     24 h of 1.1, from 48 h about 0.8: for all-day use make a calibration file once,
@@ -37,17 +41,17 @@ Cost and caching
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import os
 import threading
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .. import _jit
 from .._validate import positive
 from ..detection.alarm_calibration import (
     RuleCalibration,
@@ -58,10 +62,16 @@ from ..detection.alarm_calibration import (
 from ..detection.alarms import AlarmRule, make_rule
 from ..detection.frame_engine import FrameEngine
 from ..detection.frame_score import FrameScore
+from ..detection.spectral import spectrum_model
 from ..detection.thresholds import frame_threshold
 from ..errors import CalibrationMismatchError, ParameterError
 from ..plants.nonlinear import is_linear
 from ..plants.simulate import covariance_sqrt
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.monitor_settings import MonitorSettings
+    from ..plants.nonlinear import Model
+    from ..plants.scenario_types import Scenario
 
 __all__ = [
     "DEFAULT_BUDGET",
@@ -76,6 +86,7 @@ __all__ = [
     "healthy_chattering",
     "healthy_frame_scores",
     "in_call_hours",
+    "monitor_score",
 ]
 
 #: The monitor's default rule and budget (one false alarm per day, all channels together).
@@ -102,7 +113,7 @@ ALARM_SALT = 0xA1A3
 _CACHE: dict[str, RuleCalibration] = {}
 
 
-def frames_per_hour(settings: Any, dt: float) -> float:
+def frames_per_hour(settings: MonitorSettings, dt: float) -> float:
     """STFT frames per hour of data: ``3600 / (hop samples * dt)``.
 
     Parameters
@@ -115,7 +126,7 @@ def frames_per_hour(settings: Any, dt: float) -> float:
     return 3600.0 / (settings.stft.n_hop(dt) * dt)
 
 
-def healthy_chattering(model: Any, n_samples: int, seed: int) -> Iterator[np.ndarray]:
+def healthy_chattering(model: Model, n_samples: int, seed: int) -> Iterator[np.ndarray]:
     """Healthy chattering of a linear full-measurement ``model``, ``(K, m)`` blocks, ``n_samples`` in all.
 
     The exact MA(1) law of the module docstring; block ``b`` (``BLOCK_S`` seconds) draws its noise
@@ -124,7 +135,8 @@ def healthy_chattering(model: Any, n_samples: int, seed: int) -> Iterator[np.nda
     """
     from ..detection.spectral import chattering_autocovariance
 
-    chattering_autocovariance(model)  # full measurement, linear (clear errors otherwise)
+    model = spectrum_model(model)
+    chattering_autocovariance(model)  # full measurement (clear errors otherwise)
     C = model.C
     M = C @ model.A @ model.C_inv
     LQ = C @ covariance_sqrt(model.Q)
@@ -149,20 +161,97 @@ def healthy_chattering(model: Any, n_samples: int, seed: int) -> Iterator[np.nda
         yield np.ascontiguousarray(e.T)
 
 
-def _score_of(model: Any, settings: Any) -> tuple[FrameScore, Any]:
-    """The monitor's frame score for ``settings`` (its threshold: analytic, or the given one)."""
+def monitor_score(model: Model, settings: MonitorSettings) -> tuple[FrameScore, Any]:
+    """The monitor's frame score for ``settings`` and the per-frame threshold it carries the law of.
+
+    Parameters
+    ----------
+    model : LinearModel or NonlinearModel
+        The monitor's model.
+    settings : MonitorSettings
+        Without a threshold: the model's analytic per-frame threshold (exact law); with one: that
+        threshold restricted to the band (a calibration's normalization, exponential law).
+    """
     dt = model.dt
     th = settings.threshold
     if th is None:
-        th = frame_threshold(model, settings.stft.freqs_hz(dt), settings.stft, dt, settings.alpha,
+        linear = spectrum_model(model)
+        th = frame_threshold(linear, settings.stft.freqs_hz(dt), settings.stft, dt, settings.alpha,
                              settings.correction, band=settings.band)  # fmt: skip
     else:
         th = th.restricted(settings.band)
     return FrameScore(th), th
 
 
+#: Most frame scores (frames x channels) one calibration holds in memory (float64: 256 MiB; the
+#: concatenation briefly doubles it): the upper bound of its hours (621 h for the 3-channel EHA at a
+#: 0.2 s hop; about 20 minutes of CPU on the numpy path).
+MAX_SCORES = 1 << 25
+#: Fewest frames per healthy stream: a rule's calibration counts its alarms over at least two steps.
+MIN_FRAMES = 2
+
+
+def _stream_frames(
+    model: Model, settings: MonitorSettings, hours: float, scenario: Scenario | None
+) -> tuple[int, int]:
+    """``(streams, frames per stream)`` of ``hours`` of healthy data (module docstring)."""
+    dt = model.dt
+    W, H = settings.stft.n_window(dt), settings.stft.n_hop(dt)
+    if is_linear(model):
+        n = round(hours * 3600.0 / dt)
+        return 1, (n - W) // H + 1 if n >= W else 0
+    if scenario is None or not scenario.is_healthy:
+        raise ParameterError(
+            "the healthy frame scores of a nonlinear model come from simulated records: pass its "
+            "healthy scenario (e.g. eha4-healthy)"
+        )
+    per = (scenario.n_samples - 1 - W) // H + 1
+    if per < 1:
+        raise ParameterError(f"records of {scenario.name!r} are shorter than one STFT window")
+    return max(1, math.ceil(hours * 3600.0 / (per * H * dt))), per
+
+
+def check_hours(
+    model: Model, settings: MonitorSettings, hours: float, scenario: Scenario | None = None
+) -> float:
+    """``hours`` of healthy data if the alarm calibration can compute them, else one clear error.
+
+    At least :data:`MIN_FRAMES` STFT frames per stream, and at most :data:`MAX_SCORES` frame scores
+    in all (memory and time: the bound is said in hours of this model).
+
+    Raises
+    ------
+    ParameterError
+        ``hours`` not positive and finite, too short for two frames, or beyond the bound.
+    """
+    hours = positive("hours", hours, unit="h")
+    streams, per = _stream_frames(model, settings, hours, scenario)
+    stft, m = settings.stft, model.n_outputs
+    if per < MIN_FRAMES:
+        need_s = stft.window_s + (MIN_FRAMES - 1) * stft.hop_s
+        raise ParameterError(
+            f"{hours:g} h ({3600 * hours:.3g} s) of healthy data give {max(per, 0)} STFT frame(s) of "
+            f"{stft.window_s:g} s (hop {stft.hop_s:g} s); the alarm calibration needs at least {MIN_FRAMES}: "
+            f"give at least {need_s / 3600:.2g} h (--alarm-hours)"
+        )
+    if streams * per * m > MAX_SCORES:
+        max_h = hours * MAX_SCORES / (streams * per * m)
+        raise ParameterError(
+            f"{hours:g} h of healthy data are more than the alarm calibration can hold: "
+            f"{streams * per:.3g} frames x {m} channel(s) of scores, at most {MAX_SCORES:.3g} "
+            f"({MAX_SCORES * 8 >> 20} MiB); give at most {max_h:.4g} h for this model (--alarm-hours)"
+        )
+    return hours
+
+
 def healthy_frame_scores(
-    model: Any, settings: Any, hours: float, seed: int = 0, *, scenario: Any = None
+    model: Model,
+    settings: MonitorSettings,
+    hours: float,
+    seed: int = 0,
+    *,
+    scenario: Scenario | None = None,
+    progress: bool | None = None,
 ) -> np.ndarray:
     """Frame scores of healthy data as the monitor computes them: ``(streams, frames, m)``.
 
@@ -173,17 +262,23 @@ def healthy_frame_scores(
     settings : MonitorSettings
         STFT, band and threshold (which carries the law of the score).
     hours : float
-        Hours of healthy data (> 0).
+        Hours of healthy data (> 0, within :func:`check_hours`).
     seed : int
         Root seed.
     scenario : Scenario, optional
         A healthy scenario of ``model`` (required for a nonlinear model: its records are
         simulated, one stream each; ignored for a linear one).
+    progress : bool, optional
+        A progress bar on stderr (None: when stderr is a terminal).
     """
-    hours = positive("hours", hours, unit="h")
-    score, _ = _score_of(model, settings)
+    from ..progress import Progress
+
+    hours = check_hours(model, settings, hours, scenario)
+    score, _ = monitor_score(model, settings)
     dt = model.dt
     W, H = settings.stft.n_window(dt), settings.stft.n_hop(dt)
+    compiled = _jit.enabled()  # the compiled taper/power loops, or their numpy form (same bits)
+    label = "healthy data for the alarm threshold"
     if is_linear(model):
         n = round(hours * 3600.0 / dt)
         local = threading.local()
@@ -191,14 +286,18 @@ def healthy_frame_scores(
         def frames(x: np.ndarray, first: int) -> np.ndarray:
             eng = getattr(local, "engine", None)  # an engine's scratch buffers are per thread
             if eng is None:
-                eng = local.engine = FrameEngine(settings.stft, dt, compiled=True)
+                eng = local.engine = FrameEngine(settings.stft, dt, compiled=compiled)
             idx, P = eng(x, first)
             return score(P) if idx.size else np.zeros((0, model.n_outputs))
 
         # the chattering is drawn in order (its noise carries over blocks); the frames of each block
         # (with the previous block's last W - H samples) are cut and scored on worker threads
         jobs = []
-        with ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1))) as pool:
+        blocks = -(-n // max(1, round(BLOCK_S / dt)))
+        with (
+            Progress(blocks, label, enabled=progress) as bar,
+            ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1))) as pool,
+        ):
             tail, start = np.zeros((0, model.n_outputs)), 0
             for e in healthy_chattering(model, n, seed):
                 x = np.concatenate([tail, e]) if tail.shape[0] else e
@@ -206,26 +305,21 @@ def healthy_frame_scores(
                 n_frames = (start + x.shape[0] - W) // H + 1 if start + x.shape[0] >= W else 0
                 nxt = max(start, n_frames * H)
                 tail, start = x[nxt - start :], nxt
+                bar.update(1)
             out = [j.result() for j in jobs]
         return np.concatenate(out)[None]
-    if scenario is None or not scenario.is_healthy:
-        raise ParameterError(
-            "the healthy frame scores of a nonlinear model come from simulated records: pass its "
-            "healthy scenario (e.g. eha4-healthy)"
-        )
     from ..detection.pipeline import iter_chattering
 
-    n_rec = scenario.n_samples - 1
-    per = (n_rec - W) // H + 1
-    if per < 1:
-        raise ParameterError(f"records of {scenario.name!r} are shorter than one STFT window")
-    runs = max(1, math.ceil(hours * 3600.0 / (per * H * dt)))
+    runs, _ = _stream_frames(model, settings, hours, scenario)
+    assert scenario is not None  # _stream_frames refuses a nonlinear model without its scenario
     parts = []
     root = np.random.SeedSequence([int(seed), ALARM_SALT])
-    engine = FrameEngine(settings.stft, dt, compiled=True)
-    for rec in iter_chattering(scenario, runs, root):
-        _, P = engine(rec.values, 0)
-        parts.append(score(P))
+    engine = FrameEngine(settings.stft, dt, compiled=compiled)
+    with Progress(runs, label, enabled=progress) as bar:
+        for rec in iter_chattering(scenario, runs, root):
+            _, P = engine(rec.values, 0)
+            parts.append(score(P))
+            bar.update(1)
     return np.concatenate(parts)
 
 
@@ -239,38 +333,66 @@ def display_alpha(rule: AlarmRule, default: float) -> float:
     return default
 
 
-def _key(model: Any, settings: Any, rule: AlarmRule, X: float, hours: float, seed: int, sc: Any) -> str:
+#: Sub-folder of the user cache (:mod:`chatterspec._cache`) holding in-call alarm calibrations.
+CACHE_KIND = "alarm-calibrations"
+
+
+def _key(
+    model: Model,
+    settings: MonitorSettings,
+    rule: AlarmRule,
+    X: float,
+    hours: float,
+    seed: int,
+    sc: Scenario | None,
+    confidence: float,
+) -> dict[str, Any]:
+    """Everything that determines :func:`calibrate_alarm`'s result, JSON-ready (the cache key)."""
+    import scipy
+
+    from .. import __version__
+
     th = settings.threshold
-    parts = {
-        "model": model.fingerprint(),
-        "stft": [settings.stft.window_s, settings.stft.hop_s, settings.stft.window],
-        "band": settings.band,
-        "alpha": settings.alpha,
-        "correction": settings.correction,
+    return {
+        "model": model.fingerprint(),  # A, B, C, Q, R, dt (a nonlinear model: its functions' code too)
+        "stft": [float(settings.stft.window_s), float(settings.stft.hop_s), str(settings.stft.window)],
+        "band": None if settings.band is None else [float(b) for b in settings.band],
+        "alpha": float(settings.alpha),
+        "correction": str(settings.correction),
         "threshold": None
         if th is None
         else hashlib.sha256(np.ascontiguousarray(th.values).tobytes()).hexdigest(),
-        "rule": rule.to_dict(),
-        "X": X,
-        "hours": hours,
-        "seed": int(seed) if isinstance(seed, np.integer) else seed,  # np.int64(3) is the seed 3
+        "rule": {"rule": rule.name, **rule.parameters()},  # its threshold is what is computed
+        "false_alarms_per_hour": float(X),
+        "hours": float(hours),
+        "seed": int(seed),  # np.int64(3) is the seed 3
         "scenario": None if sc is None else sc.name,
+        "confidence": float(confidence),
+        # the code that drew and scored the streams: results may differ across versions
+        "versions": {"chatterspec": __version__, "numpy": np.__version__, "scipy": scipy.__version__},
+        "compiled": _jit.enabled(),
     }
-    return json.dumps(parts, sort_keys=True, default=str)
 
 
 def calibrate_alarm(
-    model: Any,
-    settings: Any,
+    model: Model,
+    settings: MonitorSettings,
     rule: AlarmRule | str,
     false_alarms_per_hour: float,
     *,
     hours: float | None = None,
     seed: int = 0,
-    scenario: Any = None,
+    scenario: Scenario | None = None,
     confidence: float = 0.95,
+    note: Callable[[str], None] | None = None,
+    progress: bool | None = None,
 ) -> RuleCalibration:
     """Threshold of ``rule`` for the monitor of ``model`` at ``false_alarms_per_hour`` (module docstring).
+
+    The result of a linear model is kept in the user cache (:mod:`chatterspec._cache`: keyed by
+    the model's matrices, the detector and alarm settings, ``hours``, ``seed``, ``confidence`` and
+    the versions of the code), so the next process reads it instead of simulating again; a
+    nonlinear model's only in this process (its healthy scenario is not part of the key).
 
     Parameters
     ----------
@@ -280,30 +402,81 @@ def calibrate_alarm(
     rule : rule or str
         An alarm rule (its other parameters are kept) or a rule name (table defaults).
     false_alarms_per_hour : float
-        The budget (> 0, finite): alarm starts per hour, all channels together.
+        The budget (> 0, finite): alarm starts per hour, all channels together; at most one start
+        per two frames per channel (:func:`~chatterspec.detection.alarm_calibration.check_budget`).
     hours, seed, scenario
         Healthy data simulated (see :func:`healthy_frame_scores`; ``hours`` default
-        :func:`in_call_hours`); not used by the frame rule with the exact law.
+        :func:`in_call_hours`, bounded by :func:`check_hours`); not used by the frame rule with
+        the exact law.
     confidence : float
         Level of the intervals.
+    note : callable, optional
+        Called with one line of text when the calibration is computed rather than read back
+        (what is simulated, and where the result is cached).
+    progress : bool, optional
+        A progress bar on stderr while the healthy data are simulated (None: when stderr is a
+        terminal).
     """
-    X = check_budget(false_alarms_per_hour)
-    rule = make_rule(rule) if isinstance(rule, str) else rule
+    from .. import _cache
+
     dt = model.dt
     F = frames_per_hour(settings, dt)
-    score, _ = _score_of(model, settings)
+    X = check_budget(false_alarms_per_hour, steps_per_hour=F, channels=model.n_outputs)
+    rule = make_rule(rule) if isinstance(rule, str) else rule
+    score, _ = monitor_score(model, settings)
     if rule.name == "frame" and score.law == "exact":
         return law_frame_rule(F, model.n_outputs, X, confidence)
-    hours = in_call_hours(model.n_outputs) if hours is None else float(hours)
-    key = _key(model, settings, rule, X, hours, seed, scenario)
-    cached = _CACHE.get(key)
+    hours = check_hours(model, settings, in_call_hours(model.n_outputs) if hours is None else hours, scenario)
+    key = _key(model, settings, rule, X, hours, seed, scenario, confidence)
+    text = _cache.canonical(key)
+    cached = _CACHE.get(text)
     if cached is not None:
         return cached
-    scores = healthy_frame_scores(model, settings, hours, seed, scenario=scenario)
-    cal = calibrate_rule(rule, scores, F, X, confidence=confidence, seed=seed)
+    on_disk = is_linear(model)  # a nonlinear model's streams depend on its scenario, not in the key
+    cal = _from_cache(key) if on_disk else None
+    if cal is None:
+        if note is not None:
+            where = _cache.cache_dir()
+            if not on_disk:
+                how = "not cached: a nonlinear model's"
+            elif where is None:
+                how = f"not cached: {_cache.NO_CACHE_ENV} is set"
+            else:
+                how = f"first run for this model and settings; cached in {where / CACHE_KIND}"
+            note(
+                f"calibrating the {rule.name} alarm threshold of {model.name!r} on {hours:g} h of simulated "
+                f"healthy data ({how})"
+            )
+        scores = healthy_frame_scores(model, settings, hours, seed, scenario=scenario, progress=progress)
+        cal = calibrate_rule(rule, scores, F, X, confidence=confidence, seed=int(seed))
+        if on_disk:
+            saved = _cache.store(CACHE_KIND, key, cal.to_dict())
+            if isinstance(saved, str) and note is not None and _cache.cache_dir() is not None:
+                note(f"the alarm calibration was not cached: {saved}")
     if len(_CACHE) > 64:
         _CACHE.clear()
-    _CACHE[key] = cal
+    _CACHE[text] = cal
+    return cal
+
+
+def _from_cache(key: dict[str, Any]) -> RuleCalibration | None:
+    """The cached calibration of ``key``, if there is a valid one (else None: computed again)."""
+    from .. import _cache
+
+    doc = _cache.load(CACHE_KIND, key)
+    if doc is None:
+        return None
+    try:
+        cal = RuleCalibration.from_dict(doc)
+    except (ParameterError, AttributeError, TypeError):
+        return None
+    # an entry for this key is this key's calibration: the same rule, budget and hours
+    if (
+        {"rule": cal.rule.name, **cal.rule.parameters()} != key["rule"]
+        or cal.false_alarms_per_hour != key["false_alarms_per_hour"]
+        or not math.isfinite(cal.threshold)
+    ):
+        return None
     return cal
 
 
@@ -359,16 +532,18 @@ def check_alarm_calibration(
 
 
 def alarm_settings(
-    model: Any,
-    settings: Any,
+    model: Model,
+    settings: MonitorSettings,
     rule: str | None = None,
     false_alarms_per_hour: float | None = None,
     *,
     hours: float | None = None,
     seed: int = 0,
-    scenario: Any = None,
+    scenario: Scenario | None = None,
     calibration: RuleCalibration | None = None,
-    **parameters: Any,
+    note: Callable[[str], None] | None = None,
+    progress: bool | None = None,
+    **parameters: float,
 ) -> Any:
     """``settings`` with an alarm rule whose threshold meets ``false_alarms_per_hour``.
 
@@ -381,7 +556,7 @@ def alarm_settings(
     false_alarms_per_hour : float, optional
         Default :data:`DEFAULT_BUDGET`, one per day (with ``calibration``: its budget, and another
         one is refused).
-    hours, seed, scenario
+    hours, seed, scenario, note, progress
         See :func:`calibrate_alarm`.
     calibration : RuleCalibration, optional
         A ready threshold (e.g. from a calibration file): used as is, after
@@ -405,7 +580,9 @@ def alarm_settings(
     if calibration is None:
         r = make_rule(rule or DEFAULT_RULE, **parameters)
         X = DEFAULT_BUDGET if false_alarms_per_hour is None else false_alarms_per_hour
-        calibration = calibrate_alarm(model, settings, r, X, hours=hours, seed=seed, scenario=scenario)
+        calibration = calibrate_alarm(
+            model, settings, r, X, hours=hours, seed=seed, scenario=scenario, note=note, progress=progress
+        )
     else:
         check_alarm_calibration(calibration, rule, false_alarms_per_hour, parameters)
     r = calibration.rule

@@ -23,20 +23,21 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from ..detection.alarms import AlarmRule, run_rule
+from ..detection.monitor_settings import MonitorSettings
 from ..detection.pipeline import iter_chattering
 from ..detection.spectral import STFTConfig, frame_columns
 from ..errors import ParameterError
 from ..jsonout import finite_or_none
+from ..plants.nonlinear import Model
 from ..plants.scenarios import Scenario, Segment, scenario
-from ..rng import SeedLike
-from .alarm_budget import _score_of
+from .alarm_budget import monitor_score
 
-__all__ = ["DelayResult", "Shifted", "alarm_delays", "onset_scenarios"]
+__all__ = ["DelayResult", "Shifted", "alarm_delays", "onset_scenarios", "score_delays"]
 
 
 @dataclass(frozen=True)
@@ -113,7 +114,9 @@ def onset_scenarios(
                 nominal=base.nominal,
                 input=Shifted(base.input, healthy_s - float(ph), base.duration),
                 duration=healthy_s + fault_s,
-                windows=(Segment(healthy_s, healthy_s + fault_s, base.plant, base.level),),
+                windows=(
+                    Segment(healthy_s, healthy_s + fault_s, cast(Model, base.plant), base.level),
+                ),  # (set)
                 fault=base.fault,
                 level=base.level,
                 fault_channel=base.fault_channel,
@@ -169,13 +172,68 @@ class DelayResult:
         }
 
 
+def score_delays(
+    S: np.ndarray,
+    t: np.ndarray,
+    interval: tuple[float, float],
+    rules: Mapping[str, AlarmRule],
+    cfg: STFTConfig,
+    dt: float,
+    fault_channel: int = -1,
+) -> dict[str, tuple[np.ndarray, np.ndarray, int, float]]:
+    """Delays of each rule on the frame scores of onset records (module docstring's definitions).
+
+    Parameters
+    ----------
+    S : (runs, F, m) array
+        Frame scores of records whose chattering samples are at times ``t``.
+    t : (N,) array
+        Times (s) of the chattering samples.
+    interval : (float, float)
+        Fault onset and end (s).
+    rules : mapping label -> rule
+        Rules with their thresholds set.
+    cfg : STFTConfig
+        The frames' window and hop.
+    dt : float
+        Sampling time (s).
+    fault_channel : int
+        Index of the fault's channel (-1: none).
+
+    Returns
+    -------
+    dict label -> (delays (runs,), on fault channel (runs,), false starts before the onset, healthy hours)
+    """
+    on, off = interval
+    W, H = cfg.n_window(dt), cfg.n_hop(dt)
+    F = S.shape[1]
+    t_end = t[np.arange(F) * H + W - 1]
+    t_start = t[np.arange(F) * H]
+    valid = (t_end >= on - 1e-9) & (t_start < off)
+    pre = t_end < on - 1e-9
+    healthy_h = S.shape[0] * float(np.count_nonzero(pre)) * H * dt / 3600.0
+    out = {}
+    for label, rule in rules.items():
+        st = run_rule(rule, S).starts  # (runs, F, m)
+        any_st = st.any(axis=-1)
+        hit = any_st & valid
+        first = np.where(hit.any(axis=1), np.argmax(hit, axis=1), -1)
+        d = np.where(first >= 0, t_end[np.maximum(first, 0)] - on, np.inf)
+        ch = np.array(
+            [fault_channel >= 0 and f >= 0 and bool(st[r, f, fault_channel]) for r, f in enumerate(first)],
+            dtype=bool,
+        )
+        out[label] = (d, ch, int(np.count_nonzero(st[:, pre])), healthy_h)
+    return out
+
+
 def alarm_delays(
     scenarios: Sequence[Scenario],
     rules: Mapping[str, AlarmRule],
     runs: int,
-    seed: SeedLike = 0,
+    seed: int = 0,
     *,
-    settings: Any = None,
+    settings: MonitorSettings | None = None,
 ) -> dict[str, DelayResult]:
     """Delays of each rule of ``rules`` on ``runs`` realizations of every onset scenario.
 
@@ -204,30 +262,16 @@ def alarm_delays(
             raise ParameterError(f"{sc.name}: an onset scenario has exactly one fault window")
         ((on, off),) = sc.fault_intervals
         model = sc.nominal
-        score, _ = _score_of(model, settings)
+        score, _ = monitor_score(model, settings)
         fault_c = list(model.output_names).index(sc.fault_channel) if sc.fault_channel else -1
         for rec in iter_chattering(sc, runs, np.random.SeedSequence([int(seed), i])):
             _, P = frame_columns(rec.values, model.dt, cfg)
-            S = score(P)  # (runs, F, m)
-            W, H = cfg.n_window(model.dt), cfg.n_hop(model.dt)
-            F = S.shape[1]
-            t_end = rec.t[np.arange(F) * H + W - 1]
-            t_start = rec.t[np.arange(F) * H]
-            valid = (t_end >= on - 1e-9) & (t_start < off)
-            pre = t_end < on - 1e-9
-            healthy_h += rec.values.shape[0] * float(np.count_nonzero(pre)) * H * model.dt / 3600.0
-            for label, rule in rules.items():
-                st = run_rule(rule, S).starts  # (runs, F, m)
-                any_st = st.any(axis=-1)
-                acc[label]["pre"][0] += int(np.count_nonzero(st[:, pre]))
-                hit = any_st & valid
-                first = np.where(hit.any(axis=1), np.argmax(hit, axis=1), -1)
-                d = np.where(first >= 0, t_end[np.maximum(first, 0)] - on, np.inf)
-                ch = np.array(
-                    [fault_c >= 0 and f >= 0 and bool(st[r, f, fault_c]) for r, f in enumerate(first)]
-                )
+            part = score_delays(score(P), rec.t, (on, off), rules, cfg, model.dt, fault_c)
+            for label, (d, ch, pre, _) in part.items():
                 acc[label]["d"].append(d)
                 acc[label]["ch"].append(ch)
+                acc[label]["pre"][0] += pre
+            healthy_h += next(iter(part.values()))[3] if part else 0.0
     return {
         k: DelayResult(np.concatenate(v["d"]), np.concatenate(v["ch"]), v["pre"][0], healthy_h)
         for k, v in acc.items()

@@ -3,14 +3,14 @@
 :func:`estimate_boundary_layer` proposes ``psi`` from healthy Monte Carlo chattering and
 :func:`boundary_layer_study` reproduces Fig 2; the analytic healthy variance they are checked
 against is :func:`chatterspec.filters.boundary_layer.healthy_chattering_variance` (the derivation
-and the corrected eq 34 are in that module's docstring). Old import path:
-:mod:`chatterspec.filters.boundary_layer`.
+and the corrected eq 34 are in that module's docstring).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import scipy.linalg
@@ -22,9 +22,10 @@ from ..errors import ParameterError
 from ..filters.boundary_layer import healthy_chattering_variance
 from ..filters.svsf import SVSF, boundary_layer_chattering
 from ..plants.models import LinearModel
+from ..plants.nonlinear import require_linear
 from ..plants.scenarios import Scenario, scenario
 from ..plants.signals import Signal, Step
-from ..plants.simulate import iter_simulations, simulate
+from ..plants.simulate import Simulation, iter_simulations, simulate
 from ..rng import SeedLike, root_seed_sequence
 
 __all__ = [
@@ -232,7 +233,7 @@ def estimate_boundary_layer(
     sim = simulate(sc, runs, seed)
     out = SVSF(model, gamma=gamma, switching="sgn").run(sim.z, sim.u, store={"e_lower"})
     e = out.e_prior[:, 1 + discard :]
-    var, var_l = healthy_chattering_variance(model)
+    var, var_l = healthy_chattering_variance(require_linear(model, "the healthy chattering variance (eq 13)"))
     z = float(scipy.stats.norm.isf(p / 2.0))
     sigma = np.sqrt(np.mean(e**2, axis=(0, 1)))
     psi = sigma * z
@@ -446,8 +447,9 @@ def boundary_layer_study(
         if need_cal
         else None
     )
-    psi_values = np.array([est.psi[0] if p is None else positive("psi", p) for p in psis], dtype=float)
-    psi_l = float(est.psi_lower[0]) if psi_lower is None else positive("psi_lower", psi_lower)
+    fit = cast(BoundaryLayerEstimate, est)  # (estimated whenever a value below is missing)
+    psi_values = np.array([fit.psi[0] if p is None else positive("psi", p) for p in psis], dtype=float)
+    psi_l = float(fit.psi_lower[0]) if psi_lower is None else positive("psi_lower", psi_lower)
     T = sc.n_samples
     chunks = iter_simulations(sc, runs, study_seed, chunk_runs=min(runs, _STUDY_CHUNK_RUNS))
     first = next(chunks)
@@ -477,7 +479,7 @@ def boundary_layer_study(
     sq_in = np.zeros((P, n))
     sq_out = np.zeros((P, n))
     chat0 = np.empty((P, T))
-    sim = first
+    sim: Simulation | None = first
     while sim is not None:
         rms_x = np.sqrt(np.mean(sim.x**2, axis=1, keepdims=True))  # (runs, 1, n)
         for i, filt in enumerate(filters):

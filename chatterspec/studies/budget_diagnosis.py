@@ -18,7 +18,7 @@ compared as they stand):
    calibrated one (:func:`~chatterspec.studies.route_sweep.sweep_chunk`). The realized false-alarm
    rate on their healthy time is an out-of-sample check of the calibration.
 
-Both studies run through :func:`~chatterspec.studies.montecarlo.run_study` (serial, worker
+Both studies run through :func:`~chatterspec.montecarlo.run_study` (serial, worker
 processes or Dask) and give the same numbers whatever the workers and the chunking: each
 realization's scores depend only on that realization, and the per-run integers are folded in chunk
 order.
@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Unpack
+from typing import TYPE_CHECKING, Any, Unpack
 
 import numpy as np
 
@@ -37,6 +37,13 @@ from ..errors import ParameterError
 from ..montecarlo import Execution, ExecutionOptions
 from .budget_results import RouteBudget, summarize_route
 from .route_sweep import DEFAULT_WARMUP_S, merge_sweeps, route_geometry, sweep_chunk
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.alarm_calibration import RuleCalibration
+    from ..detection.alarm_rules import AlarmRule
+    from ..plants.scenario_types import Scenario
+    from ..plants.simulate import Simulation
+    from .routes import Route
 
 __all__ = [
     "BUDGET_SALT",
@@ -98,7 +105,7 @@ class BudgetSettings:
                 f"the warm-up must be a finite number of seconds >= 0; got {self.warmup_s!r}"
             )
 
-    def make_rule(self, route: Any, threshold: float = float("inf")) -> Any:
+    def make_rule(self, route: Route, threshold: float = float("inf")) -> Any:
         """The rule for ``route`` at ``threshold`` (route defaults, then the common parameters)."""
         from ..detection.alarms import make_rule
 
@@ -106,14 +113,14 @@ class BudgetSettings:
         return make_rule(self.rule, threshold, **params)
 
 
-def _scores_after_warmup(route: Any, sim: Any, warmup: float) -> tuple[np.ndarray, float]:
+def _scores_after_warmup(route: Route, sim: Simulation, warmup: float) -> tuple[np.ndarray, float]:
     rs = route.scores(sim)
     first = int(np.searchsorted(rs.times, warmup - 1e-9 * route.step_s, side="left"))
     return rs.score[:, first:], rs.seconds
 
 
 class HealthyScoresStudy:
-    """Scores of every route on healthy realizations (a :class:`~.montecarlo.Study`).
+    """Scores of every route on healthy realizations (a :class:`~chatterspec.montecarlo.Study`).
 
     Parameters
     ----------
@@ -125,7 +132,7 @@ class HealthyScoresStudy:
         Steps known before this time (s) are dropped.
     """
 
-    def __init__(self, scenario: Any, routes: dict[str, Any], warmup: float) -> None:
+    def __init__(self, scenario: Scenario, routes: dict[str, Any], warmup: float) -> None:
         self.scenario = scenario
         self.routes = routes
         self.warmup = float(warmup)
@@ -145,7 +152,7 @@ class HealthyScoresStudy:
 
 
 class BudgetStudy:
-    """Every route and threshold on the diagnosed realizations (a :class:`~.montecarlo.Study`).
+    """Every route and threshold on the diagnosed realizations (a :class:`~chatterspec.montecarlo.Study`).
 
     Parameters
     ----------
@@ -160,7 +167,7 @@ class BudgetStudy:
         Method -> :class:`~chatterspec.studies.route_sweep.RouteGeometry`.
     """
 
-    def __init__(self, scenario: Any, routes: dict, rules: dict, grids: dict, geometries: dict) -> None:
+    def __init__(self, scenario: Scenario, routes: dict, rules: dict, grids: dict, geometries: dict) -> None:
         self.scenario = scenario
         self.routes = routes
         self.rules = rules
@@ -196,7 +203,7 @@ class BudgetStudy:
         return out
 
 
-def _count_starts(rule: Any, scores: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
+def _count_starts(rule: AlarmRule, scores: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
     """Alarm starts (all streams and channels together) of ``rule`` at each threshold on healthy scores."""
     from ..detection.alarm_calibration import starts_on_grid
 
@@ -204,7 +211,9 @@ def _count_starts(rule: Any, scores: np.ndarray, thresholds: np.ndarray) -> np.n
     return counts.reshape(len(thresholds), -1).sum(axis=1).astype(np.int64)
 
 
-def threshold_grid(rule: Any, scores: np.ndarray, h_star: float, points: int = GRID_POINTS) -> np.ndarray:
+def threshold_grid(
+    rule: AlarmRule, scores: np.ndarray, h_star: float, points: int = GRID_POINTS
+) -> np.ndarray:
     """Thresholds for the delay-against-false-alarms curve around the calibrated ``h_star``.
 
     ``frame`` and ``persistence``: upper quantiles of the healthy scores (from the median to the
@@ -223,7 +232,7 @@ def threshold_grid(rule: Any, scores: np.ndarray, h_star: float, points: int = G
     return np.asarray(grid, dtype=float)
 
 
-def _scaled(routes: dict[str, Any], healthy_sc: Any, seed: int) -> dict[str, Any]:
+def _scaled(routes: dict[str, Any], healthy_sc: Scenario, seed: int) -> dict[str, Any]:
     """Routes whose score needs a healthy scale first (an innovation route off the chi-square law)."""
     out = dict(routes)
     for m, route in routes.items():
@@ -238,7 +247,7 @@ def _scaled(routes: dict[str, Any], healthy_sc: Any, seed: int) -> dict[str, Any
 
 
 def _calibrate(
-    rule: Any, scores: np.ndarray, budget: float, steps_per_hour: float, confidence: float
+    rule: AlarmRule, scores: np.ndarray, budget: float, steps_per_hour: float, confidence: float
 ) -> tuple[float, dict[str, Any]]:
     """The alarm layer's calibration of ``rule``'s threshold to ``budget`` starts per hour.
 
@@ -255,7 +264,7 @@ def _calibrate(
     return float(cal.threshold), _provenance(cal)
 
 
-def _provenance(cal: Any) -> dict[str, Any]:
+def _provenance(cal: RuleCalibration) -> dict[str, Any]:
     """A :class:`~chatterspec.detection.alarm_calibration.RuleCalibration` as JSON (without its fit)."""
     d = cal.to_dict()
     d.pop("fit", None)
@@ -264,7 +273,7 @@ def _provenance(cal: Any) -> dict[str, Any]:
 
 
 def diagnose_at_budget(
-    scenario: Any,
+    scenario: Scenario,
     routes: dict[str, Any],
     runs: int,
     seed: int,

@@ -11,13 +11,18 @@ realizations). :func:`summarize_route` builds it from the merged sweep of
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..detection.alarm_calibration import poisson_interval
 from ..jsonout import finite_or_none
 from .intervals import clopper_pearson
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.alarm_rules import AlarmRule
+    from .route_sweep import RouteGeometry
+    from .routes import Route
 
 __all__ = ["OnsetFigures", "RouteBudget", "summarize_route"]
 
@@ -47,7 +52,8 @@ def _quantiles(delays: np.ndarray) -> tuple[float, float]:
     if not d.size:
         return float("nan"), float("nan")
     q = np.quantile(np.where(np.isfinite(d), d, _BIG), [0.5, 0.9])
-    return tuple(float(v) if v < _BIG / 2 else float("inf") for v in q)  # type: ignore[return-value]
+    median, p90 = (float(v) if v < _BIG / 2 else float("inf") for v in q)
+    return median, p90
 
 
 @dataclass(frozen=True, eq=False)
@@ -196,7 +202,7 @@ class RouteBudget:
         )
 
 
-def _delays(first: np.ndarray, geo: Any, i: int) -> np.ndarray:
+def _delays(first: np.ndarray, geo: RouteGeometry, i: int) -> np.ndarray:
     """Delays (s) of the first-in-alarm steps ``first`` (G, runs) of onset ``i`` (NaN: none)."""
     t = geo.times
     k = geo.lo[i] + np.maximum(first, 0)
@@ -211,11 +217,11 @@ def _quantiles_fresh(d: np.ndarray, before: np.ndarray) -> tuple[float, float]:
 
 
 def summarize_route(
-    route: Any,
-    geo: Any,
+    route: Route,
+    geo: RouteGeometry,
     sweep: dict[str, Any],
     *,
-    rule: Any,
+    rule: AlarmRule,
     budget: float,
     thresholds: np.ndarray,
     far_count: np.ndarray,

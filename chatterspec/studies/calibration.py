@@ -99,6 +99,7 @@ def calibrate(
     ffreqs, fthr = _frame_thresholds(model, config, alpha)
     E = thr["exact"].expected
     Ef = fthr["frame"].expected
+    assert E is not None and Ef is not None  # (exact thresholds carry E[S])
     frames = frame_counts(N, config, model.dt)
     study = HealthyStudy(
         scenario=sc,

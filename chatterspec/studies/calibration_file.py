@@ -66,6 +66,8 @@ def calibration_dict(cal: Calibration, arrays: bool = False) -> dict[str, Any]:
         "frame_family_wise": [q.to_dict() for q in cal.frame_family_wise],
     }
     tail = {"tails": cal.tails, "alarm": None if cal.alarm is None else cal.alarm.to_dict()}
+    if cal.source:  # recorded healthy data (a simulated calibration's document is unchanged)
+        tail["source"] = dict(cal.source)
     if cal.normalization == "empirical":
         norm = {"normalization": cal.normalization, "normalization_info": cal.normalization_info}
         d: dict[str, Any] = {**head, **norm, **what, "empirical": empirical, **tail}
@@ -110,7 +112,7 @@ def _arrays(cal: Calibration) -> dict[str, np.ndarray]:
 
 def _json_arrays(cal: Calibration) -> dict[str, list]:
     """:func:`_arrays` as JSON lists, non-finite values as ``null`` (read back by :func:`_json_array`)."""
-    return {k: np.where(np.isfinite(v), v, None).tolist() for k, v in _arrays(cal).items()}
+    return {k: np.where(np.isfinite(v), v, None).tolist() for k, v in _arrays(cal).items()}  # type: ignore[call-overload]  # numpy's stubs: no None in where (an object array)
 
 
 def save_calibration(cal: Calibration, path: str | Path) -> Path:
@@ -142,7 +144,11 @@ def save_calibration(cal: Calibration, path: str | Path) -> Path:
     meta["normalization_info"] = cal.normalization_info
     meta["tails"] = cal.tails
     if path.suffix == ".npz":
-        np.savez(path, _meta=np.array(json.dumps(meta)), **_arrays(cal))
+        arrays: dict[str, Any] = {
+            "_meta": np.array(json.dumps(meta)),
+            **_arrays(cal),
+        }  # (savez's keywords: any arrays)
+        np.savez(path, **arrays)
     else:
         meta["arrays"] = _json_arrays(cal)
         path.write_text(json.dumps(meta))
@@ -292,6 +298,7 @@ def _read_fields(path: Path) -> dict[str, Any]:
         normalization_info=dict(meta.get("normalization_info", {})),
         tails=dict(meta.get("tails", {})),
         alarm=None if meta.get("alarm") is None else RuleCalibration.from_dict(meta["alarm"]),
+        source=dict(meta.get("source", {})),
     )
 
 

@@ -20,9 +20,10 @@ import scipy.stats
 from .._repr import short_repr
 from ..detection.alarm_calibration import RuleCalibration
 from ..detection.spectral import STFTConfig
+from ..detection.threshold_type import Correction
 from ..detection.thresholds import Threshold
 from ..errors import CalibrationMismatchError, ParameterError
-from ..plants.models import LinearModel
+from ..plants.nonlinear import Model
 from .calibration_file import CALIBRATION_FORMAT, _ro, calibration_dict, read_calibration, save_calibration
 from .intervals import QuantileEstimate
 
@@ -90,6 +91,10 @@ class Calibration:
     alarm : RuleCalibration or None
         The monitor's alarm rule calibrated for a false-alarm budget (rule, threshold, budget,
         frames per hour; :mod:`chatterspec.studies.alarm_budget`), when made with ``--rule``.
+    source : dict
+        Where the healthy data came from when they were recorded, not simulated
+        (:mod:`~chatterspec.studies.recorded_calibration`: data file name and SHA-256, time span,
+        samples, frames, records); empty for a simulated calibration.
     """
 
     __repr__ = short_repr  # shapes and key figures, never whole arrays
@@ -126,6 +131,7 @@ class Calibration:
     normalization_info: dict[str, Any] = field(default_factory=dict)
     tails: dict[str, Any] = field(default_factory=dict)
     alarm: RuleCalibration | None = None
+    source: dict[str, Any] = field(default_factory=dict)
 
     # ---- derived
     @property
@@ -169,9 +175,7 @@ class Calibration:
         }
 
     # ---- use as a threshold
-    def check(
-        self, model: LinearModel, n_samples: int | None = None, config: STFTConfig | None = None
-    ) -> None:
+    def check(self, model: Model, n_samples: int | None = None, config: STFTConfig | None = None) -> None:
         """Raise :class:`CalibrationMismatchError` (with the reason) unless this calibration fits.
 
         Checks the model fingerprint (matrices, noise covariances, dt), the
@@ -208,6 +212,7 @@ class Calibration:
             ``frame-family-wise``: ``E_frame * q_frame_max`` per channel, the
             live monitor's per-frame detector (``alpha_meaning="per-frame"``).
         """
+        correction: Correction
         if meaning == "family-wise":
             factor = np.array([q.value for q in self.family_wise])
             values, freqs, tested, E = self.expected * factor, self.freqs_hz, self.tested, self.expected
@@ -274,7 +279,7 @@ def _stft_dict(config: STFTConfig) -> dict[str, Any]:
 
 def load_calibration(
     path: str | Path,
-    model: LinearModel | None = None,
+    model: Model | None = None,
     n_samples: int | None = None,
     config: STFTConfig | None = None,
 ) -> Calibration:

@@ -62,6 +62,7 @@ def calibration_fields(
     the normalization's own fields (frequencies, tested bins, expected spectra, analytic thresholds).
     """
     model, config = sc.nominal, study.config
+    assert config is not None  # (a calibration study has frame statistics)
     N = sc.n_samples - 1
     n_frames, frames_eff = frames
     q = 1 - alpha
@@ -116,13 +117,14 @@ def study_quantiles(
     """
     nf, nf_eff = runs * n_frames, runs * frames_eff
     bins, m = study.expected.shape
+    assert study.fexpected is not None  # (frame statistics: see above)
     fbins = study.fexpected.shape[0]
     k_top = _top_needed(runs, q, confidence)
     kf_top = _top_needed(nf, q, confidence, nf_eff)
     need = th.tail_bytes(k_top, kf_top, bins, fbins, m)
     if need <= budget:
         out = execution.run(dataclasses.replace(study, k_top=k_top, kf_top=kf_top), runs, seed, label)
-        res = {
+        res: dict[str, Triple] = {
             "bin": _quantile_from_top(_desc(out["top_bin"]), runs, q, confidence),
             "frame": _quantile_from_top(_desc(out["top_frame"]), nf, q, confidence, nf_eff),
             "max": _quantile_from_top(_desc(out["runs_max"]), runs, q, confidence),
@@ -162,7 +164,7 @@ def study_quantiles(
         frame_max_window=win["frame_max"],
     )
     out = execution.run(main, runs, seed, label)
-    res: dict[str, Triple] = {}
+    res = {}
     outside = 0
     for key, n, n_eff in (("bin", runs, runs), ("frame", nf, nf_eff), ("frame_max", nf, nf_eff)):
         v, lo, hi, o = th.quantile_from_counts(out[f"hist_{key}"], *win[key], n, q, confidence, n_eff)

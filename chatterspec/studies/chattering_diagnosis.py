@@ -38,7 +38,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass
-from typing import Unpack
+from typing import TYPE_CHECKING, Unpack, cast
 
 import numpy as np
 
@@ -54,6 +54,10 @@ from ..montecarlo import ExecutionOptions
 from ..plants.scenarios import Scenario
 from .diagnosis_figures import DiagnosisFigures
 from .intervals import clopper_pearson
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..plants.simulate import Simulation
+    from .calibration_result import Calibration
 
 __all__ = [
     "CALIBRATION_SALT",
@@ -101,7 +105,7 @@ def calibrate_for_diagnosis(
     alpha: float = 1e-3,
     config: STFTConfig | None = None,
     **execution: Unpack[ExecutionOptions],
-):
+) -> Calibration:
     """Calibrate the per-frame chattering threshold on healthy runs of ``sc`` (other seeds than ``sc``'s).
 
     Parameters
@@ -245,7 +249,7 @@ def _quantiles(arr: np.ndarray) -> tuple[float, float]:
 
 
 def diagnose_chattering(
-    sim: object,
+    sim: Simulation,
     threshold: Threshold,
     *,
     config: STFTConfig | None = None,
@@ -276,7 +280,7 @@ def diagnose_chattering(
     -----
     Same as one :meth:`ChatteringTally.add` of ``sim`` (use the tally to feed the runs in chunks).
     """
-    tally = ChatteringTally(sim.scenario, threshold, config=config, gamma=gamma)  # type: ignore[attr-defined]
+    tally = ChatteringTally(sim.scenario, threshold, config=config, gamma=gamma)
     tally.add(sim)
     return tally.result(calibration_info)
 
@@ -370,7 +374,7 @@ class ChatteringTally:
             "ends": ends,
         }
 
-    def add(self, sim: object) -> None:
+    def add(self, sim: Simulation) -> None:
         """Diagnose one chunk of realizations and keep its per-run figures.
 
         Parameters
@@ -379,9 +383,9 @@ class ChatteringTally:
             Realizations (k, T, m) of the tally's scenario (e.g. one chunk of
             :func:`~chatterspec.plants.simulate.iter_simulations`).
         """
-        self.absorb(sim.t, self.compute(sim))  # type: ignore[attr-defined]
+        self.absorb(sim.t, self.compute(sim))
 
-    def compute(self, sim: object) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    def compute(self, sim: Simulation) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """The heavy part of :meth:`add` (auxiliary SVSF, STFT, frame verdicts), without changing the tally.
 
         Returns ``(flags (k, F, m), peak_hz (k, F, m), frame_starts (F,), seconds)`` for :meth:`absorb`:
@@ -389,7 +393,7 @@ class ChatteringTally:
         """
         model = self.scenario.nominal
         t0 = time.perf_counter()
-        rec = chattering_record(model, sim.z, sim.u, gamma=self.gamma)  # type: ignore[attr-defined]
+        rec = chattering_record(model, sim.z, sim.u, gamma=self.gamma)
         spec = spectrogram(rec.values, model.dt, self.config)
         flags, peak_hz, _ = frame_verdicts(spec.power, self.threshold)  # (k, F, m)
         return flags, peak_hz, spec.frame_starts, time.perf_counter() - t0
@@ -408,7 +412,7 @@ class ChatteringTally:
                 f"{flags.shape[2]} channels, the first chunk had {g['F']} of {g['m']}"
             )
         self.runs += k
-        any_flag = flags.any(axis=-1)  # (k, F)
+        any_flag = cast(np.ndarray, flags.any(axis=-1))  # (k, F)
         healthy, last, T = g["healthy"], g["last"], g["T"]
         if healthy.any():
             self._fa_runs += int(np.count_nonzero(any_flag[:, healthy].any(axis=1)))
@@ -474,7 +478,8 @@ class ChatteringTally:
             det_med.append(med)
             det_p90.append(p90)
             missed.append(int(np.count_nonzero(np.isnan(delay))))
-        names, spans, frac, chan, peaks = [], [], [], [], []
+        names, spans, frac, peaks = [], [], [], []
+        chan: list[str | None] = []
         for s, segment in enumerate(self.scenario.segments):
             names.append("healthy" if g["healthy_seg"][s] else (segment.label or "fault"))
             spans.append((float(segment.start), float(segment.stop)))

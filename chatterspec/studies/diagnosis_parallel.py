@@ -13,7 +13,7 @@ sending back its mode probabilities (``runs x T x modes`` floats, ~14 MB for 64 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Unpack
+from typing import TYPE_CHECKING, Any, Unpack
 
 import numpy as np
 
@@ -22,35 +22,48 @@ from ..plants.simulate import iter_simulations
 from .chattering_diagnosis import ChatteringTally
 from .mode_diagnosis import ModeTally
 
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.identification import IdentificationSetup
+    from ..detection.thresholds import Threshold
+    from ..plants.scenario_types import Scenario
+    from .identification_diagnosis import IdentificationTally
+
 __all__ = ["diagnose_parallel"]
 
 
 def _tallies(
-    scenario: object, methods: tuple[str, ...], threshold: object, identification: Any = None
-) -> list[Any]:
-    out = [
-        ChatteringTally(scenario, threshold) if m == "chattering" else ModeTally(scenario, m) for m in methods
-    ]  # type: ignore[arg-type]
+    scenario: Scenario,
+    methods: tuple[str, ...],
+    threshold: Threshold | None,
+    identification: tuple[IdentificationSetup, float, float] | None = None,
+) -> list[ChatteringTally | ModeTally | IdentificationTally]:
+    def chattering() -> ChatteringTally:
+        assert threshold is not None  # (given with the chattering route)
+        return ChatteringTally(scenario, threshold)
+
+    out: list[ChatteringTally | ModeTally | IdentificationTally] = [
+        chattering() if m == "chattering" else ModeTally(scenario, m) for m in methods
+    ]
     if identification is not None:  # (setup, alpha, confidence): fault identification per segment, last
         from .identification_diagnosis import IdentificationTally
 
         setup, alpha, confidence = identification
-        out.append(IdentificationTally(scenario, setup, alpha=alpha, confidence=confidence))  # type: ignore[arg-type]
+        out.append(IdentificationTally(scenario, setup, alpha=alpha, confidence=confidence))
     return out
 
 
 @dataclass(frozen=True, eq=False)
 class _DiagnoseStudy:
-    """A :class:`~chatterspec.studies.montecarlo.Study` whose accumulator is the tallies themselves."""
+    """A :class:`~chatterspec.montecarlo.Study` whose accumulator is the tallies themselves."""
 
-    scenario: object
+    scenario: Scenario
     methods: tuple[str, ...]
-    threshold: object
+    threshold: Threshold | None
     keep: bool
-    identification: Any = None
+    identification: tuple[IdentificationSetup, float, float] | None = None
 
     def run_chunk(self, first_run: int, runs: int, seed: np.random.SeedSequence) -> Any:
-        (sim,) = iter_simulations(self.scenario, runs, seed, chunk_runs=runs, first_run=first_run)  # type: ignore[arg-type]
+        (sim,) = iter_simulations(self.scenario, runs, seed, chunk_runs=runs, first_run=first_run)
         tallies = _tallies(self.scenario, self.methods, self.threshold, self.identification)
         return sim.t, [tally.compute(sim) for tally in tallies]
 
@@ -70,16 +83,16 @@ class _DiagnoseStudy:
 
 
 def diagnose_parallel(
-    scenario: object,
+    scenario: Scenario,
     methods: tuple[str, ...],
-    threshold: object,
+    threshold: Threshold | None,
     runs: int,
     seed: int,
     *,
     keep: bool = False,
-    identification: Any = None,
+    identification: tuple[IdentificationSetup, float, float] | None = None,
     **execution: Unpack[ExecutionOptions],
-) -> tuple[list[Any], dict]:
+) -> tuple[list[ChatteringTally | ModeTally | IdentificationTally], dict[str, Any]]:
     """The tallies of ``methods`` over ``runs`` realizations, computed on workers (same figures as serial).
 
     Parameters

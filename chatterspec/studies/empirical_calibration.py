@@ -52,7 +52,7 @@ def calibrate_empirical(
     half_width: int = NORMALIZATION_SMOOTH_BINS,
     tail_budget: int = DEFAULT_TAIL_BUDGET,
     **execution: Unpack[ExecutionOptions],
-):
+) -> Calibration:
     """Empirical calibration of a healthy scenario (any nominal model the pipeline can filter).
 
     Parameters

@@ -3,7 +3,7 @@
 :func:`estimation_study` simulates a catalogue scenario's true plant, runs every requested filter
 (``kf``, ``ekf``, ``svsf``, ``svsf2``) with the tuning of ``scenario.filter_settings`` on the same
 measurements, and reduces the estimation errors chunk by chunk through
-:func:`chatterspec.studies.montecarlo.run_study` (constant memory, local workers or Dask, the same
+:func:`chatterspec.montecarlo.run_study` (constant memory, local workers or Dask, the same
 numbers for any chunking or worker count).
 
 Time convention (``chatterspec.filters.protocol``): the filters start from ``x(0|0) = x0`` and
@@ -29,7 +29,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Unpack
+from typing import TYPE_CHECKING, Any, Unpack, cast
 
 import numpy as np
 
@@ -39,6 +39,7 @@ from .._validate import positive_int
 from ..errors import ParameterError
 from ..jsonout import fields_dict, finite_or_none
 from ..montecarlo import Execution, ExecutionOptions
+from ..plants.filter_settings import FilterSettings
 from ..plants.scenarios import Scenario
 from ..plants.scenarios import scenario as _catalogue_scenario
 from ..plants.simulate import iter_simulations
@@ -52,6 +53,9 @@ from .metrics import (
     nis,
     state_error_metrics,
 )
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..filters.protocol import Filter
 
 __all__ = [
     "FILTERS",
@@ -92,6 +96,7 @@ def _resolve(source: str | Scenario) -> Scenario:
 def _filter_model(sc: Scenario) -> Any:
     """The nominal model with the filter's Q and R of the settings (when printed)."""
     fs = sc.filter_settings
+    assert fs is not None  # (an estimator scenario: _resolve checked)
     model = sc.nominal
     changes = {k: getattr(fs, k) for k in ("Q", "R") if getattr(fs, k) is not None}
     fs.check_dimensions(model.n_states, model.n_outputs)
@@ -204,8 +209,9 @@ def estimate_records(
     return EstimateRecords(t=sim.t, x=sim.x, z=sim.z, u=sim.u, outputs=outs, scenario=sc, first_run=first_run)
 
 
-def _run(filt: Any, sc: Scenario, z: np.ndarray, u: np.ndarray) -> Any:
+def _run(filt: Filter, sc: Scenario, z: np.ndarray, u: np.ndarray) -> Any:
     fs = sc.filter_settings
+    assert fs is not None and fs.P0 is not None  # (an estimator scenario: _resolve checked)
     x0 = np.zeros(sc.nominal.n_states) if fs.x0 is None else fs.x0
     return filt.run(np.ascontiguousarray(z[:, 1:]), u[..., :-1, :], x0=x0, P0=fs.P0, store=_STORE)
 
@@ -234,7 +240,7 @@ class FilterMetrics:
     std: MonteCarloMean
     nees: ConsistencyTest
     nis: ConsistencyTest
-    per_run: StateErrorMetrics = field(repr=False, default=None)  # type: ignore[assignment]
+    per_run: StateErrorMetrics | None = field(repr=False, default=None)
 
     def to_dict(self, state_names: Sequence[str]) -> dict[str, Any]:
         """JSON-ready dict.
@@ -245,7 +251,7 @@ class FilterMetrics:
             Keys of the per-state values.
         """
 
-        def per_state(mc: MonteCarloMean) -> dict[str, dict[str, float]]:
+        def per_state(mc: MonteCarloMean) -> dict[str, dict[str, float | None]]:
             return {
                 s: {"mean": float(mc.mean[i]), "stderr": finite_or_none(mc.stderr[i])}
                 for i, s in enumerate(state_names)
@@ -381,7 +387,7 @@ def _fmt(mean: float, se: float) -> str:
 
 @dataclass(frozen=True, eq=False)
 class EstimationStudy:
-    """Chunk function of :func:`estimation_study` (picklable; see :mod:`~.montecarlo`).
+    """Chunk function of :func:`estimation_study` (picklable; see :mod:`chatterspec.montecarlo`).
 
     Attributes
     ----------
@@ -408,6 +414,7 @@ class EstimationStudy:
         """
         sc = self.scenario
         fs = sc.filter_settings
+        assert fs is not None and fs.P0 is not None  # (an estimator scenario: _resolve checked)
         sim = next(iter(iter_simulations(sc, runs, seed, chunk_runs=runs, first_run=first_run)))
         z, u, truth = sim.z[:, 1:], sim.u[..., :-1, :], sim.x[:, 1:]  # u: (T, p) or per run (closed loop)
         x0 = np.zeros(sc.nominal.n_states) if fs.x0 is None else fs.x0
@@ -504,8 +511,8 @@ def estimation_study(
     names = parse_filters(filters)
     runs = positive_int("runs", runs)
     sc = _resolve(source)
-    for n in names:  # fail on a missing setting before simulating anything
-        build_filter(n, sc)
+    for name in names:  # fail on a missing setting before simulating anything
+        build_filter(name, sc)
     from .._validate import open_unit
 
     alpha = open_unit("alpha", alpha)
@@ -539,6 +546,6 @@ def estimation_study(
         steps=steps,
         state_names=tuple(sc.nominal.state_names),
         filters=tuple(blocks),
-        settings=sc.filter_settings.describe(),
+        settings=cast(FilterSettings, sc.filter_settings).describe(),  # (checked by _resolve)
         alpha=alpha,
     )

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Unpack
+from typing import Any, Unpack, cast
 
 import numpy as np
 
@@ -33,9 +33,9 @@ from ..detection.pipeline import chattering_record
 from ..detection.spectral import periodogram
 from ..errors import ParameterError
 from ..montecarlo import Execution, ExecutionOptions
-from ..plants.closed_loop import ClosedLoop
+from ..plants.closed_loop import ClosedLoop, DitherAt
 from ..plants.dither import PRBS, Multisine
-from ..plants.models import EHA_PARAMETERS
+from ..plants.models import EHA_PARAMETERS, EHAFault, LinearModel
 from ..plants.references import Hold, SCurve, StepSequence
 from ..plants.scenarios import Scenario
 from ..plants.scenarios_closed_loop import (
@@ -44,6 +44,7 @@ from ..plants.scenarios_closed_loop import (
     EHA_CL_REFERENCE,
     eha_closed_loop_scenario,
 )
+from ..plants.signals import Signal
 from ..plants.simulate import iter_simulations
 from ..rng import SeedLike, seed_label
 from .calibration_result import _ro
@@ -139,9 +140,9 @@ def excitation_scenario(
     family: str,
     size: float | None,
     reference: str,
-    dither: Any = None,
+    dither: Signal | None = None,
     *,
-    dither_at: str = "input",
+    dither_at: DitherAt = "input",
     position_noise: float = EHA_CL_POSITION_NOISE,
 ) -> Scenario:
     """One point of the study: the linear EHA under the catalogue PI loop, healthy or faulty.
@@ -180,7 +181,7 @@ def excitation_scenario(
         fault=family if params else "healthy",
         channel=spec["channel"],
         position_noise=position_noise,
-        **params,
+        **cast(EHAFault, params),  # (spec["param"]: one of its keys)
     )
 
 
@@ -210,8 +211,10 @@ class _ExcitationChunks(_SummedChunks):
                 flags = (S > thr).any(axis=1)  # (runs, m)
                 det[p, h] += flags.sum(axis=0)
                 det_any[p, h] += flags.any(axis=1).sum()
-                r = sc.input.reference.sample(sim.t)  # the task, without a reference dither
-                rms = np.sqrt(np.mean((sim.x[:, :, sc.input.output] - r) ** 2, axis=1))
+                loop = sc.closed_loop
+                assert loop is not None  # (an excitation scenario is a closed loop)
+                r = loop.reference.sample(sim.t)  # the task, without a reference dither
+                rms = np.sqrt(np.mean((sim.x[:, :, loop.output] - r) ** 2, axis=1))
                 track[p, h] += rms.sum()
                 track_sq[p, h] += (rms**2).sum()
                 u_rms[p, h] += np.sqrt(np.mean(sim.u[..., 0] ** 2, axis=1)).sum()
@@ -425,7 +428,7 @@ def excitation_study(
     *,
     dither_kind: str = "multisine",
     tones_hz: Sequence[float] = DITHER_TONES_HZ,
-    dither_at: str = "input",
+    dither_at: DitherAt = "input",
     position_noise: Sequence[float] = (EHA_CL_POSITION_NOISE,),
     alpha: float = 1e-3,
     runs: int = 200,
@@ -472,7 +475,8 @@ def excitation_study(
     ------
     ParameterError
         On an unknown family or reference, a dither level < 0 or whose peak reaches the
-        controller's saturation (300 rad/s), or a non-positive sensor noise.
+        controller's saturation (300 rad/s), a multisine tone at or above the Nyquist frequency,
+        or a non-positive sensor noise.
     """
     ex = Execution(**execution)
     if family not in CLOSED_LOOP_FAMILIES:
@@ -493,13 +497,22 @@ def excitation_study(
     for i, noise in enumerate(noises):
         for ref, level in pts:
             d = dither_signal(dither_kind, level * (1e-3 if dither_at == "reference" else 1.0), tones_hz)
-            kw = {"dither_at": dither_at, "position_noise": noise}
-            healthy = excitation_scenario(family, None, ref, d, **kw)
-            pairs.append((healthy, excitation_scenario(family, size, ref, d, **kw)))
+            healthy = excitation_scenario(family, None, ref, d, dither_at=dither_at, position_noise=noise)
+            faulty = excitation_scenario(family, size, ref, d, dither_at=dither_at, position_noise=noise)
+            pairs.append((healthy, faulty))
             noise_index.append(i)
-        _, thr = _analytic_thresholds(healthy.nominal, healthy.n_samples - 1, alpha)
+        _, thr = _analytic_thresholds(
+            cast(LinearModel, healthy.nominal), healthy.n_samples - 1, alpha
+        )  # linear EHA
         thresholds.append(thr["exact-bonferroni"].values)
         tested = thr["exact-bonferroni"].tested
+    nyquist = 0.5 / pairs[0][0].dt
+    if dither_kind == "multisine" and max(tones_hz) >= nyquist:
+        raise ParameterError(
+            f"multisine tones must lie below the Nyquist frequency {nyquist:g} Hz (dt = "
+            f"{pairs[0][0].dt:g} s): sampled, a {max(tones_hz):g} Hz tone is another frequency; got "
+            f"{list(tones_hz)}"
+        )
     study = _ExcitationChunks(tuple(pairs), tuple(thresholds), np.asarray(tested), tuple(noise_index))
     out = ex.run(study, runs, seed, f"closed-loop power {family}")
     shape = (len(noises), len(pts))

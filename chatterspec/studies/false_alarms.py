@@ -11,7 +11,7 @@ from typing import Any, Unpack
 import numpy as np
 
 from .._validate import open_unit, positive_int
-from ..detection.spectral import STFTConfig, expected_spectrum, periodogram_freqs
+from ..detection.spectral import STFTConfig, expected_spectrum, periodogram_freqs, spectrum_model
 from ..detection.thresholds import Threshold
 from ..errors import ParameterError
 from ..montecarlo import Execution, ExecutionOptions
@@ -230,7 +230,7 @@ def false_alarm_study(
     sc = resolve_scenario(source)
     if not sc.is_healthy:
         raise ParameterError(f"false-alarm study needs a healthy scenario; {sc.name!r} has faults")
-    model = sc.nominal
+    model = spectrum_model(sc.nominal)  # (the analytic thresholds need a linear model)
     N = sc.n_samples - 1
     config = STFTConfig() if config is None else config
     kinds: list[tuple[str, float, Threshold]] = []

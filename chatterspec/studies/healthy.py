@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -29,7 +30,6 @@ __all__ = [
 
 
 # --------------------------------------------------------------------------- scenarios
-_ZeroInput = ZeroInput  # its old private name
 
 
 def model_scenario(model: LinearModel, duration: float = 4.0, name: str | None = None) -> Scenario:
@@ -110,10 +110,12 @@ def _merge_top(a: np.ndarray, b: np.ndarray, k: int) -> np.ndarray:
     return np.partition(both, both.shape[0] - k, axis=0)[both.shape[0] - k :].copy()
 
 
-def _reduce_dict(acc: dict[str, np.ndarray] | None, part: dict[str, np.ndarray], k_top: dict[str, int]):
+def _reduce_dict(
+    acc: dict[str, np.ndarray] | None, part: dict[str, np.ndarray], k_top: dict[str, int]
+) -> dict[str, np.ndarray]:
     if acc is None:
         return dict(part)
-    out = {}
+    out: dict[str, np.ndarray] = {}
     for key, val in part.items():
         if key.startswith("top_"):
             out[key] = _merge_top(acc[key], val, k_top[key])
@@ -143,7 +145,7 @@ def _keep_top(x: np.ndarray, k: int) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class HealthyStudy:
-    """Chunk function of calibration and false-alarm studies (picklable; see :mod:`~.montecarlo`).
+    """Chunk function of calibration and false-alarm studies (picklable; see :mod:`chatterspec.montecarlo`).
 
     Thresholds are passed as stacked arrays so that workers do not rebuild them.
     Each chunk simulates healthy chattering, takes its periodogram (and STFT
@@ -207,6 +209,7 @@ class HealthyStudy:
         acc = None
         for rec in iter_chattering(self.scenario, runs, seed, chunk_runs=runs, first_run=first_run):
             acc = self.reduce(acc, self._summarize(rec.values, rec.dt))
+        assert acc is not None  # (runs >= 1 records)
         return acc
 
     def _summarize(self, x: np.ndarray, dt: float) -> dict[str, np.ndarray]:
@@ -237,16 +240,18 @@ class HealthyStudy:
         elif self.bin_window is not None:
             out["hist_bin"] = bucket_counts(Y, *self.bin_window)
         if self.config is not None and self.fthr_values is not None:
+            fthr_tested = self.fthr_tested
+            assert fthr_tested is not None  # (set with fthr_values)
             P = stft_spectrogram(x, dt, self.config).power  # (r, F, fb, m)
             out["frames"] = np.array(P.shape[0] * P.shape[1])
             if compiled:
-                out["frame_bin_exceed"], f_n = exceedance_counts(P, self.fthr_values, self.fthr_tested)
+                out["frame_bin_exceed"], f_n = exceedance_counts(P, self.fthr_values, fthr_tested)
                 flags = f_n > 0  # (Kf, r, F, m)
                 f_false = f_n.sum(axis=2)  # (Kf, r, m) false frame-bins per record
             else:
                 fexc = P[None] > self.fthr_values[:, None, None]  # (Kf, r, F, fb, m)
                 out["frame_bin_exceed"] = fexc.sum(axis=(1, 2))  # (Kf, fb, m)
-                fmasked = fexc & self.fthr_tested[:, None, None, :, None]
+                fmasked = fexc & fthr_tested[:, None, None, :, None]
                 flags = fmasked.any(axis=3)  # (Kf, r, F, m)
                 f_false = fmasked.sum(axis=(2, 3)).astype(np.int64)  # (Kf, r, m) false frame-bins per record
             out["frame_flag"] = flags.sum(axis=(1, 2))  # (Kf, m)
@@ -258,16 +263,17 @@ class HealthyStudy:
             out["frame_flag_sq"] = (f_flag**2).sum(axis=1)  # (Kf, m)
             out["frame_flag_any_sq"] = (flags.any(axis=-1).sum(axis=2).astype(np.int64) ** 2).sum(axis=1)
             if self.kf_top:
-                Yf = (P / self.fexpected).reshape(-1, *P.shape[-2:])
+                Yf = (P / cast(np.ndarray, self.fexpected)).reshape(-1, *P.shape[-2:])  # (set with kf_top)
                 out["top_frame"] = _keep_top(Yf, self.kf_top)
                 if self.keep_max:  # per frame: the largest normalized tested bin (frame family-wise)
-                    out["top_frame_max"] = _keep_top(Yf[:, self.fthr_tested[0]].max(axis=1), self.kf_top)
+                    out["top_frame_max"] = _keep_top(Yf[:, fthr_tested[0]].max(axis=1), self.kf_top)
             elif self.frame_window is not None:
-                Yf = (P / self.fexpected).reshape(-1, *P.shape[-2:])
+                fexp = cast(np.ndarray, self.fexpected)  # (set with the window)
+                Yf = (P / fexp).reshape(-1, *P.shape[-2:])
                 out["hist_frame"] = bucket_counts(Yf, *self.frame_window)
                 if self.keep_max and self.frame_max_window is not None:
                     out["hist_frame_max"] = bucket_counts(
-                        Yf[:, self.fthr_tested[0]].max(axis=1), *self.frame_max_window
+                        Yf[:, fthr_tested[0]].max(axis=1), *self.frame_max_window
                     )
         return out
 
@@ -301,7 +307,7 @@ def _frame_thresholds(
 
 
 def _check_alphas(alpha: float | Sequence[float]) -> tuple[float, ...]:
-    alphas = (alpha,) if np.isscalar(alpha) else tuple(alpha)
+    alphas = (cast(float, alpha),) if np.isscalar(alpha) else tuple(cast(Sequence[float], alpha))
     if not alphas:
         raise ParameterError("alpha: give at least one value")
     return tuple(open_unit("alpha", a) for a in alphas)

@@ -14,11 +14,18 @@ result does not depend on the chunking.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
-from ..detection.identification import NO_FAULT, identify, true_hypothesis, true_parameters
+from ..detection.identification import (
+    NO_FAULT,
+    IdentificationSetup,
+    identify,
+    true_hypothesis,
+    true_parameters,
+)
+from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario
 from ..plants.simulate import Simulation
 from .intervals import clopper_pearson
@@ -114,12 +121,14 @@ class IdentificationTally:
     alpha, confidence : float
     """
 
-    def __init__(self, sc: Scenario, setup: Any, *, alpha: float = 1e-3, confidence: float = 0.95) -> None:
+    def __init__(
+        self, sc: Scenario, setup: IdentificationSetup, *, alpha: float = 1e-3, confidence: float = 0.95
+    ) -> None:
         self.sc, self.setup, self.alpha, self.confidence = sc, setup, alpha, confidence
         self.windows = segment_windows(sc)
         self.truth = []
         for i, _ in self.windows:
-            model = sc.segments[i].model
+            model = cast(LinearModel, sc.segments[i].model)  # (the setup's linear plant, per segment)
             name = true_hypothesis(setup, model)
             values: dict[str, float] = {}
             if name not in (None, NO_FAULT):
@@ -152,6 +161,7 @@ class IdentificationTally:
             name, values = self.truth[w]
             est = cover = None
             if values:
+                assert name is not None  # (values: a named hypothesis)
                 est = np.stack([idn.estimate(name, p) for p in values], axis=1)
                 lo_hi = [idn.interval(name, p) for p in values]
                 tv = np.array(list(values.values()))
@@ -168,6 +178,7 @@ class IdentificationTally:
         for w, (selected, est, cover) in enumerate(computed):
             self._selected[w] += selected
             if est is not None:
+                assert cover is not None  # (computed with est)
                 self._est[w].append(est)
                 self._cover[w].append(cover)
 

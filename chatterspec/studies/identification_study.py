@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -23,6 +24,7 @@ from ..detection.identification import (
     true_parameters,
 )
 from ..detection.pipeline import iter_chattering
+from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario
 from .intervals import clopper_pearson
 from .power import POWER_FAMILIES, power_scenario
@@ -155,7 +157,7 @@ def identification_validation(
     for _ in st.tap(iter_chattering(sc, runs, seed, chunk_runs=min(chunk_runs, runs), measurements=True)):
         pass
     idn = st.result()
-    plant = sc.segments[0].model
+    plant = cast(LinearModel, sc.segments[0].model)  # (the setup's linear plant)
     name = true_hypothesis(setup, plant)
     param, value = None, float("nan")
     est = lo = hi = np.full(runs, np.nan)

@@ -273,7 +273,7 @@ def _none_to_inf(x: float | None, sign: float) -> float:
 
 def _quantile_from_top(
     top_desc: np.ndarray, n: int, q: float, confidence: float, n_eff: int | None = None
-) -> tuple[np.ndarray, ...]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Point and CI from the largest values sorted in descending order along axis 0."""
     point, lo, hi = _pooled_ranks(n, n if n_eff is None else n_eff, q, confidence)
     need = n - max(lo, 1) + 1

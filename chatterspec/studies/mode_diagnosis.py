@@ -20,6 +20,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -27,10 +28,16 @@ from .._repr import short_repr
 from .._validate import finite_array
 from ..errors import ParameterError
 from ..filters import ExtendedKalmanFilter
-from ..filters.multiple_model import IMM, SMMSVSF
+from ..filters.imm import IMM
+from ..filters.smm_svsf import SMMSVSF
 from ..jsonout import finite_or_none
 from .diagnosis_figures import DiagnosisFigures
 from .intervals import clopper_pearson
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..plants.filter_settings import FilterSettings
+    from ..plants.scenario_types import Scenario
+    from ..plants.simulate import Simulation
 
 __all__ = ["METHODS", "ModeDiagnosis", "ModeTally", "diagnose_modes"]
 
@@ -104,31 +111,31 @@ class ModeDiagnosis(DiagnosisFigures):
         }
 
 
-def _filter_for(method: str, settings: object) -> SMMSVSF | IMM:
+def _filter_for(method: str, settings: FilterSettings) -> SMMSVSF | IMM:
     fs = settings
-    if not fs.modes:  # type: ignore[attr-defined]
+    if not fs.modes:
         raise ParameterError("the scenario's filter_settings name no modes: mode-based diagnosis needs them")
-    models = fs.mode_models  # type: ignore[attr-defined]
+    models = fs.mode_models
     if method == "smm":
-        if fs.psi is None:  # type: ignore[attr-defined]
+        if fs.psi is None:
             raise ParameterError("SMM-SVSF needs filter_settings.psi (the boundary layer)")
         return SMMSVSF(
             models,
-            psi=np.array(fs.psi),  # type: ignore[attr-defined]
-            gamma=0.1 if fs.gamma is None else fs.gamma,  # type: ignore[attr-defined]
-            mapping=fs.mapping if fs.mapping in ("full", "pinv", "cov") else None,  # type: ignore[attr-defined]
-            weight_floor=1e-3 if fs.weight_floor is None else fs.weight_floor,  # type: ignore[attr-defined]
-            mu0=None if fs.mu0 is None else np.array(fs.mu0),  # type: ignore[attr-defined]
-            modes=fs.modes,  # type: ignore[attr-defined]
+            psi=np.array(fs.psi),
+            gamma=0.1 if fs.gamma is None else fs.gamma,
+            mapping=fs.mapping if fs.mapping in ("full", "pinv", "cov") else None,
+            weight_floor=1e-3 if fs.weight_floor is None else fs.weight_floor,
+            mu0=None if fs.mu0 is None else np.array(fs.mu0),
+            modes=fs.modes,
         )
     if method == "imm":
-        if fs.transition_matrix is None:  # type: ignore[attr-defined]
+        if fs.transition_matrix is None:
             raise ParameterError("IMM needs filter_settings.transition_matrix (the scenario prints none)")
         return IMM(
             [ExtendedKalmanFilter(mdl) for mdl in models],
-            fs.transition_matrix,  # type: ignore[attr-defined]
-            mu0=None if fs.mu0 is None else np.array(fs.mu0),  # type: ignore[attr-defined]
-            modes=fs.modes,  # type: ignore[attr-defined]
+            fs.transition_matrix,
+            mu0=None if fs.mu0 is None else np.array(fs.mu0),
+            modes=fs.modes,
         )
     raise ParameterError(f"method must be one of {', '.join(METHODS)}; got {method!r}")
 
@@ -138,7 +145,7 @@ def _delays(first: np.ndarray, t: np.ndarray, k0: int) -> np.ndarray:
 
 
 def diagnose_modes(
-    sim: object, methods: Sequence[str] = METHODS, *, keep: dict | None = None
+    sim: Simulation, methods: Sequence[str] = METHODS, *, keep: dict | None = None
 ) -> list[ModeDiagnosis]:
     """Run each mode-based method on the same realizations and measure its diagnosis figures.
 
@@ -162,7 +169,7 @@ def diagnose_modes(
     -----
     Same as one :meth:`ModeTally.add` of ``sim`` per method (use the tallies to feed runs in chunks).
     """
-    sc = sim.scenario  # type: ignore[attr-defined]
+    sc = sim.scenario
     results = []
     for method in methods:
         tally = ModeTally(sc, method)
@@ -190,21 +197,21 @@ class ModeTally:
         One of :data:`METHODS`.
     """
 
-    def __init__(self, scenario: object, method: str) -> None:
+    def __init__(self, scenario: Scenario, method: str) -> None:
         sc = scenario
-        fs = sc.filter_settings  # type: ignore[attr-defined]
+        fs = sc.filter_settings
         if fs is None:
-            raise ParameterError(f"scenario {sc.name!r} has no filter_settings (no modes to diagnose)")  # type: ignore[attr-defined]
+            raise ParameterError(f"scenario {sc.name!r} has no filter_settings (no modes to diagnose)")
         self.scenario = sc
         self.method = method
         self._filter = _filter_for(method, fs)
         self._fs = fs
-        t = sc.time[1:]  # type: ignore[attr-defined]
+        t = sc.time[1:]
         T = t.size
         true = np.asarray(fs.mode_index(sc))[1:]
         self._t, self._true = t, true
-        self._x0 = np.zeros(sc.nominal.n_states) if fs.x0 is None else fs.x0  # type: ignore[attr-defined]
-        self._P0 = fs.P0 if fs.P0 is not None else np.asarray(sc.nominal.Q) * 10.0  # type: ignore[attr-defined]
+        self._x0 = np.zeros(sc.nominal.n_states) if fs.x0 is None else fs.x0
+        self._P0 = fs.P0 if fs.P0 is not None else np.asarray(sc.nominal.Q) * 10.0
         change = np.flatnonzero((true[1:] != true[:-1]) & (true[1:] > 0)) + 1
         if true[0] > 0:  # faulty from the start: an onset at the first sample
             change = np.insert(change, 0, 0)
@@ -220,7 +227,7 @@ class ModeTally:
         self._dd: list[list[np.ndarray]] = [[] for _ in self._change]
         self._di: list[list[np.ndarray]] = [[] for _ in self._change]
 
-    def add(self, sim: object, *, keep: dict | None = None, keep_runs: int | None = 1) -> None:
+    def add(self, sim: Simulation, *, keep: dict | None = None, keep_runs: int | None = 1) -> None:
         """Run the filter on one chunk of realizations and keep its per-run figures.
 
         Parameters
@@ -236,13 +243,13 @@ class ModeTally:
         """
         self.absorb(self.compute(sim), keep=keep, keep_runs=keep_runs)
 
-    def compute(self, sim: object) -> tuple[np.ndarray, np.ndarray, float]:
+    def compute(self, sim: Simulation) -> tuple[np.ndarray, np.ndarray, float]:
         """The heavy part of :meth:`add` (the mode filter), without changing the tally.
 
         Returns ``(mu (k, T, r), argmax mode (k, T), seconds)`` for :meth:`absorb`: worker processes
         compute, the tally absorbs in chunk order (the same figures, bit for bit, as :meth:`add`).
         """
-        z, u = sim.z[:, 1:], sim.u[..., :-1, :]  # type: ignore[attr-defined]  # u per run in closed loop
+        z, u = sim.z[:, 1:], sim.u[..., :-1, :]  # u per run in closed loop
         if z.shape[1] != self._t.size:
             raise ParameterError(
                 f"every chunk must have the scenario's {self._t.size + 1} samples; got {z.shape[1] + 1}"
@@ -279,8 +286,8 @@ class ModeTally:
             hit_i = am[:, seg] == true[k0]
             first_d = np.where(hit_d.any(axis=1), np.argmax(hit_d, axis=1), -1)
             first_i = np.where(hit_i.any(axis=1), np.argmax(hit_i, axis=1), -1)
-            self._dd[i].append(_delays(first_d, self._t, k0))
-            self._di[i].append(_delays(first_i, self._t, k0))
+            self._dd[i].append(_delays(first_d, self._t, int(k0)))
+            self._di[i].append(_delays(first_i, self._t, int(k0)))
         # confusion sums per actual mode a: numpy sums the (run, sample) rows of mu[true == a] one after
         # the other (axis-0 reduction); prepending the running sum continues that same sequence, so the
         # result is the whole-array mean of confusion_matrix bit for bit, whatever the chunking
@@ -302,7 +309,11 @@ class ModeTally:
             raise ParameterError("no realization was added to the tally: call add(sim) first")
         runs, T = self.runs, self._t.size
         fs, true, healthy = self._fs, self._true, self._healthy
-        det_med, det_p90, iso_med, iso_p90, missed = [], [], [], [], []
+        det_med: list[float] = []
+        det_p90: list[float] = []
+        iso_med: list[float] = []
+        iso_p90: list[float] = []
+        missed = []
         for dparts, iparts in zip(self._dd, self._di, strict=True):
             dd, di = np.concatenate(dparts), np.concatenate(iparts)
             for arr, med, p90 in ((dd, det_med, det_p90), (di, iso_med, iso_p90)):

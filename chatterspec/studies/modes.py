@@ -19,6 +19,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError
@@ -34,7 +35,7 @@ __all__ = [
 ]
 
 
-def _inputs(mu: object, true_mode: object) -> tuple[np.ndarray, np.ndarray]:
+def _inputs(mu: npt.ArrayLike, true_mode: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     mu = finite_array("mu", mu, ndim=(2, 3))
     if mu.ndim == 2:
         mu = mu[None]
@@ -235,7 +236,7 @@ class ModeReport:
         """JSON-ready summary (NaN -> None)."""
 
         def clean(a: np.ndarray) -> object:
-            return np.where(np.isnan(a), None, np.round(a, 10)).tolist()
+            return np.where(np.isnan(a), None, np.round(a, 10)).tolist()  # type: ignore[call-overload]  # numpy's stubs: no None in where (an object array)
 
         return {
             "modes": list(self.modes),

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Unpack
+from typing import Any, Unpack, cast
 
 import numpy as np
 
@@ -14,7 +14,7 @@ from ..detection.pipeline import iter_chattering
 from ..detection.spectral import periodogram
 from ..errors import ParameterError
 from ..montecarlo import Execution, ExecutionOptions
-from ..plants.models import EHA_PARAMETERS, LinearModel, eha_linear, second_order
+from ..plants.models import EHA_PARAMETERS, EHAFault, LinearModel, eha_linear, second_order
 from ..plants.scenarios import Scenario
 from ..plants.signals import Chirp, Step
 from ..rng import SeedLike, seed_label
@@ -107,7 +107,7 @@ def _true_plant(family: str, size: float, noise: float = 1.0) -> LinearModel:
         return second_order(size, 0.1, Q=_SO_Q, R=noise * _SO_R)
     key = {"leakage": "leakage", "bulk-modulus": "bulk_modulus", "friction": "friction"}[family]
     value = size * EHA_PARAMETERS["bulk_modulus"] if family == "bulk-modulus" else size
-    return eha_linear(R=noise * np.diag([1e-6, 1e-6, 1e6]), **{key: value})
+    return eha_linear(R=noise * np.diag([1e-6, 1e-6, 1e6]), **cast(EHAFault, {key: value}))
 
 
 #: Largest spectral radius of the true plant's discrete A accepted as stable (the EHA position is an
@@ -145,7 +145,7 @@ def _stable(family: str, size: float) -> bool:
         return False
 
 
-def _check_stable(family: str, size: float, plant: Any) -> None:
+def _check_stable(family: str, size: float, plant: LinearModel) -> None:
     """A fault size whose true plant is unstable diverges in simulation: reject it up front."""
     rho = float(np.abs(np.linalg.eigvals(plant.A)).max())
     if rho <= _RHO_MAX:
@@ -346,10 +346,13 @@ def power_study(
         for sz in sizes_t:
             sc = power_scenario(family, sz, nz)
             model, N = sc.nominal, sc.n_samples - 1
-            per_alpha = [_analytic_thresholds(model, N, a)[1] for a in grid]
+            per_alpha = [
+                _analytic_thresholds(cast(LinearModel, model), N, a)[1] for a in grid
+            ]  # linear plants
             thr_values.append(np.stack([np.stack([t[k].values for t in per_alpha]) for k in kinds]))
             tested = np.stack([per_alpha[0][k].tested for k in kinds])
             scenarios.append(sc)
+    assert tested is not None  # (one scenario at least)
     study = PowerStudyChunks(tuple(scenarios), tuple(thr_values), tested)
     out = ex.run(study, runs, seed, f"power {family}")
     shape = (len(noise_t), len(sizes_t))

@@ -32,11 +32,16 @@ Conventions
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from ..errors import ParameterError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.alarm_rules import AlarmRule
+    from ..plants.scenario_types import Scenario
+    from .routes import RouteScores
 
 __all__ = ["DEFAULT_WARMUP_S", "RouteGeometry", "merge_sweeps", "onsets_of", "route_geometry", "sweep_chunk"]
 
@@ -44,7 +49,7 @@ __all__ = ["DEFAULT_WARMUP_S", "RouteGeometry", "merge_sweeps", "onsets_of", "ro
 DEFAULT_WARMUP_S = 0.1
 
 
-def onsets_of(sc: Any) -> tuple[tuple[float, float, int], ...]:
+def onsets_of(sc: Scenario) -> tuple[tuple[float, float, int], ...]:
     """Fault onsets of scenario ``sc``: ``(onset_s, end_s, segment)`` per change into a faulty segment.
 
     ``end_s`` is the next change of the true plant (or the record's end); a scenario faulty from
@@ -99,7 +104,7 @@ class RouteGeometry:
 
 
 def route_geometry(
-    sc: Any, times: np.ndarray, step_s: float, warmup: float, modes: tuple[str, ...] | None = None
+    sc: Scenario, times: np.ndarray, step_s: float, warmup: float, modes: tuple[str, ...] | None = None
 ) -> RouteGeometry:
     """Healthy steps and onset windows of a route whose step ``j`` is known at ``times[j]`` (s).
 
@@ -147,9 +152,9 @@ def route_geometry(
 
 
 def sweep_chunk(
-    route_scores: Any,
+    route_scores: RouteScores,
     geometry: RouteGeometry,
-    rule: Any,
+    rule: AlarmRule,
     thresholds: np.ndarray,
     labels: tuple[str, ...],
 ) -> dict[str, Any]:
@@ -200,7 +205,7 @@ def sweep_chunk(
     for g, h in enumerate(thresholds):
         blk = run_rule(rule.with_threshold(float(h)), s)
         act_c = blk.active  # (runs, steps, C)
-        active = act_c.any(axis=-1)
+        active = cast(np.ndarray, act_c.any(axis=-1))  # (runs, steps)
         if g0.healthy.any():
             out["healthy_starts"][g] = int(np.count_nonzero(blk.starts[:, g0.healthy]))
         for i in range(n_on):

@@ -11,6 +11,10 @@ method     score (per step)                             step                    
 chattering ``-log p`` of the STFT frame of the auxiliary  one frame (hop, 0.2 s),   the channel
            sgn-SVSF's chattering, per measured channel  known at the frame's end  in alarm
            (:mod:`chatterspec.detection.frame_score`)
+parameters ``-log p`` of "inside its tolerance" of each     one identification        the parameter
+           declared parameter's joint estimate          window (hop), known at    in alarm
+           (:mod:`chatterspec.detection.                its last sample
+           parameter_decision`; tolerances declared)
 smm, imm   log posterior odds of the fault modes         one sample                most probable
            (:func:`~chatterspec.detection.route_scores.  (``dt``)                  fault mode
            mode_log_odds`)
@@ -32,7 +36,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 
@@ -51,18 +55,27 @@ from ..detection.route_scores import (
 )
 from ..errors import ParameterError
 
+if TYPE_CHECKING:  # pragma: no cover
+    from ..detection.alarm_rules import AlarmRule
+    from ..detection.spectral import STFTConfig
+    from ..detection.thresholds import Threshold
+    from ..plants.scenario_types import Scenario
+    from ..plants.simulate import Simulation
+
 __all__ = [
     "ALL_METHODS",
     "ChatteringRoute",
     "InnovationRoute",
     "ModeRoute",
+    "ParameterRoute",
+    "Route",
     "RouteScores",
     "supported_methods",
     "unsupported_reason",
 ]
 
 #: Every diagnosis method, in table order.
-ALL_METHODS = ("chattering", "smm", "imm", "innovation")
+ALL_METHODS = ("chattering", "smm", "imm", "innovation", "parameters")
 
 #: Samples per filter call of the innovation route (bounds the memory of the EKF's per-run S).
 INNOVATION_BLOCK = 2048
@@ -93,7 +106,7 @@ class RouteScores:
     seconds: float
 
 
-def unsupported_reason(sc: Any, method: str) -> str | None:
+def unsupported_reason(sc: Scenario, method: str) -> str | None:
     """Why ``method`` cannot run on scenario ``sc`` (None when it can)."""
     fs = sc.filter_settings
     if method == "chattering":
@@ -101,6 +114,13 @@ def unsupported_reason(sc: Any, method: str) -> str | None:
             return "a nominal model that measures every state"
         return None
     if method == "innovation":
+        return None
+    if method == "parameters":
+        pm = getattr(sc.nominal, "parameter_map", None)
+        if not getattr(sc.nominal, "full_measurement", False) or pm is None or not sc.is_linear:
+            return "a linear nominal model that measures every state and declares its parameters"
+        if not pm.has_tolerances:
+            return "operating tolerances on its declared parameters (--tolerance NAME=SPEC)"
         return None
     if method in ("smm", "imm"):
         if fs is None or not fs.modes:
@@ -113,12 +133,12 @@ def unsupported_reason(sc: Any, method: str) -> str | None:
     raise ParameterError(f"method must be one of {', '.join(ALL_METHODS)}; got {method!r}")
 
 
-def supported_methods(sc: Any) -> tuple[str, ...]:
+def supported_methods(sc: Scenario) -> tuple[str, ...]:
     """The methods scenario ``sc`` supports, in :data:`ALL_METHODS` order."""
     return tuple(m for m in ALL_METHODS if unsupported_reason(sc, m) is None)
 
 
-def _initial(sc: Any) -> tuple[np.ndarray, np.ndarray]:
+def _initial(sc: Scenario) -> tuple[np.ndarray, np.ndarray]:
     """``x(0|0)`` and ``P(0|0)`` of the scenario's filters (settings, else zeros and 10 Q)."""
     fs = sc.filter_settings
     x0 = np.zeros(sc.nominal.n_states) if fs is None or fs.x0 is None else np.asarray(fs.x0, dtype=float)
@@ -139,13 +159,14 @@ class ModeRoute:
         :data:`~chatterspec.detection.route_scores.DEFAULT_MODE_FLOOR`).
     """
 
-    def __init__(self, scenario: Any, method: str, floor: float | None = None) -> None:
+    def __init__(self, scenario: Scenario, method: str, floor: float | None = None) -> None:
         from .mode_diagnosis import _filter_for
 
         why = unsupported_reason(scenario, method) if method in ("smm", "imm") else "smm or imm"
         if why is not None:
             raise ParameterError(f"scenario {scenario.name!r} does not support {method!r} (it needs {why})")
         fs = scenario.filter_settings
+        assert fs is not None  # (unsupported_reason: a mode route needs the settings)
         self.scenario = scenario
         self.method = method
         self.filter = _filter_for(method, fs)
@@ -171,7 +192,7 @@ class ModeRoute:
         """A short description for reports and recordings."""
         return {"score": "log posterior odds of the fault modes against normal", "floor": self.floor}
 
-    def scores(self, sim: Any) -> RouteScores:
+    def scores(self, sim: Simulation) -> RouteScores:
         """Score stream of one chunk: times ``t[1:]``, score ``(runs, T - 1, 1)``, label = fault mode."""
         z, u = sim.z[:, 1:], sim.u[..., :-1, :]  # u per run in closed loop
         t0 = time.perf_counter()
@@ -213,7 +234,7 @@ class InnovationRoute:
     method = "innovation"
 
     def __init__(
-        self, scenario: Any, inflation: float = DEFAULT_INFLATION, cap: bool = True, scale: float = 1.0
+        self, scenario: Scenario, inflation: float = DEFAULT_INFLATION, cap: bool = True, scale: float = 1.0
     ) -> None:
         from ..filters import ExtendedKalmanFilter, KalmanFilter
         from ..plants.models import LinearModel
@@ -241,7 +262,7 @@ class InnovationRoute:
             and np.allclose(plant.A, model.A, rtol=1e-12, atol=0.0)
         )
 
-    def with_healthy_scale(self, sim: Any) -> InnovationRoute:
+    def with_healthy_scale(self, sim: Simulation) -> InnovationRoute:
         """This route with NIS divided by its healthy scale, measured on the healthy runs ``sim``.
 
         The scale is ``median(NIS) / median(chi2_m)`` over the samples after the first 10 % of the
@@ -275,7 +296,7 @@ class InnovationRoute:
             "degrees_of_freedom": self.m,
         }
 
-    def nis(self, sim: Any) -> tuple[np.ndarray, np.ndarray]:
+    def nis(self, sim: Simulation) -> tuple[np.ndarray, np.ndarray]:
         """NIS ``(runs, T - 1)`` and the channel of the largest ``e_i^2 / S_ii`` (runs, T - 1)."""
         z, u = sim.z[:, 1:], sim.u[..., :-1, :]  # u per run in closed loop
         runs, K = z.shape[:2]
@@ -285,11 +306,13 @@ class InnovationRoute:
         for lo in range(0, K, INNOVATION_BLOCK):
             hi = min(lo + INNOVATION_BLOCK, K)
             state, out = self.filter.update(state, z[:, lo:hi], u[..., lo:hi, :], store=("innovation", "S"))
-            nis[:, lo:hi] = normalized_innovation_squared(out.innovation, out.S)
-            chan[:, lo:hi] = innovation_channel(out.innovation, out.S)
+            e, S = out.innovation, out.S
+            assert e is not None and S is not None  # (stored)
+            nis[:, lo:hi] = normalized_innovation_squared(e, S)
+            chan[:, lo:hi] = innovation_channel(e, S)
         return nis, chan
 
-    def scores(self, sim: Any) -> RouteScores:
+    def scores(self, sim: Simulation) -> RouteScores:
         """Score stream of one chunk: times ``t[1:]``, ``(1 - 1/L) min(NIS, cap) / 2`` (runs, T - 1, 1)."""
         t0 = time.perf_counter()
         nis, chan = self.nis(sim)
@@ -318,7 +341,9 @@ class ChatteringRoute:
 
     method = "chattering"
 
-    def __init__(self, scenario: Any, law: Any, config: Any = None, gamma: float = 0.1) -> None:
+    def __init__(
+        self, scenario: Scenario, law: Threshold, config: STFTConfig | None = None, gamma: float = 0.1
+    ) -> None:
         from ..detection.frame_score import FrameScore
         from ..detection.spectral import STFTConfig
 
@@ -358,7 +383,7 @@ class ChatteringRoute:
         # worker process; the law it is built from can
         return {**self.__dict__, "_score": None}
 
-    def own_calibration(self, rule: Any, budget: float, seed: int, confidence: float) -> Any:
+    def own_calibration(self, rule: AlarmRule, budget: float, seed: int, confidence: float) -> Any:
         """On a linear model, the monitor's threshold for ``rule`` at ``budget`` (else None).
 
         The healthy chattering of a linear model is an exact MA(1) process, so the alarm layer's monitor
@@ -387,7 +412,7 @@ class ChatteringRoute:
         """A short description for reports and recordings."""
         return {"score": "-log p of the STFT frame (Bonferroni over bins)", "law": self.frame_score.law}
 
-    def scores(self, sim: Any) -> RouteScores:
+    def scores(self, sim: Simulation) -> RouteScores:
         """Score stream of one chunk: frame end times, ``-log p`` ``(runs, frames, m)``, label None."""
         from ..detection.pipeline import chattering_record
         from ..detection.spectral import spectrogram
@@ -400,3 +425,85 @@ class ChatteringRoute:
         # frame j covers chattering samples [jH, jH + W) = simulation samples [jH + 1, jH + W]
         times = sim.t[np.asarray(spec.frame_starts) + self._W]
         return RouteScores(self.method, times, score, None, time.perf_counter() - t0)
+
+
+class ParameterRoute:
+    """The identified parameters against their tolerances: per hop and parameter ``-log p`` of "the
+    parameter lies inside its band" (:mod:`chatterspec.detection.parameter_decision`).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Its nominal model declares tolerances on its parameters (and measures every state).
+    config : STFTConfig, optional
+        Hop and window of the identification (default 1 s window, 0.2 s hop: the monitor's).
+    """
+
+    method = "parameters"
+
+    def __init__(self, scenario: Any, config: Any = None) -> None:
+        from ..detection.identification import identification_setup
+        from ..detection.parameter_scores import ParameterBands
+        from ..detection.spectral import STFTConfig
+
+        why = unsupported_reason(scenario, "parameters")
+        if why is not None:
+            raise ParameterError(f"scenario {scenario.name!r} does not support 'parameters' (it needs {why})")
+        self.scenario = scenario
+        self.config = STFTConfig() if config is None else config
+        model = scenario.nominal
+        self.setup = identification_setup(model, [list(model.parameter_map.parameter_names)])
+        self.bands = ParameterBands.from_map(model.parameter_map)
+        self.labels = self.channels = self.bands.names
+        self.H = self.config.n_hop(model.dt)
+        self.n = max(1, round(self.config.n_window(model.dt) / self.H))
+        self.step_s = float(self.H * model.dt)
+
+    def _known(self, t: np.ndarray) -> np.ndarray:
+        """When each window's score is known (s): its last chattering sample ``e(k+1)``, ``k = j H + n H``."""
+        W = (t.size - 2) // self.H - self.n + 1
+        return t[np.arange(max(W, 0)) * self.H + self.n * self.H + 1]
+
+    def step_times(self) -> np.ndarray:
+        """When each window's score is known (s)."""
+        return self._known(self.scenario.time)
+
+    def own_calibration(self, rule: Any, budget: float, seed: int, confidence: float) -> Any:
+        """The monitor's threshold: the rule on worst-case streams (parameters on their band edges), not
+        on healthy runs, whose parameters sit at the nominal values inside the bands (a threshold set on
+        them would alarm on a plant that moved within its tolerance)."""
+        from ..detection.parameter_scores import calibrate_parameter_rule
+
+        per_hour = 3600.0 / self.step_s
+        return calibrate_parameter_rule(rule, self.bands, self.n, per_hour, budget, seed=int(seed))
+
+    def rule_parameters(self, rule: str) -> dict[str, float]:
+        """The layer's defaults (its CUSUM drift is set for ``-log p``)."""
+        return {}
+
+    def describe(self) -> dict[str, Any]:
+        """A short description for reports and recordings."""
+        b = self.bands
+        return {
+            "score": "-log p of each parameter's joint estimate inside its tolerance band",
+            "tolerances": {p: (t or None) for p, t in zip(b.names, b.tolerances, strict=True)},
+            "window_s": self.n * self.step_s,
+        }
+
+    def scores(self, sim: Any) -> RouteScores:
+        """Score stream of one chunk: window end times, ``(runs, windows, P)``, label None (the parameter)."""
+        from ..detection.identification import identify_moments
+        from ..detection.identification_online import hop_windows
+        from ..detection.parameter_scores import band_scores, joint_estimates
+
+        t0 = time.perf_counter()
+        runs = sim.z.shape[0]
+        _, _, mom = hop_windows(self.setup, sim.z, sim.u, hop_samples=self.H, window_hops=self.n, t0=sim.t[0])
+        theta, se, fits = joint_estimates(identify_moments(self.setup, mom))
+        se = np.where(fits[:, None], se, np.nan)  # a window the parameters do not describe: no evidence
+        score = band_scores(theta, se, self.bands.low, self.bands.high).reshape(runs, -1, self.bands.size)
+        return RouteScores(self.method, self._known(sim.t), score, None, time.perf_counter() - t0)
+
+
+#: A diagnosis route: the per-frame score of one method.
+Route: TypeAlias = ModeRoute | InnovationRoute | ChatteringRoute | ParameterRoute

@@ -7,16 +7,13 @@ the spectrogram view, the interval lanes, the estimates / diagnosis / identifica
 drivers of a recorded run (:mod:`~chatterspec.viewer.drivers`) and the live stream monitor
 (:mod:`~chatterspec.viewer.live_stream`).
 
-The public names are importable from here: ``from chatterspec.viewer import RerunLogger``. Until this
-release these modules lived in :mod:`chatterspec.online` (``chatterspec.online.rerun_log`` ...): the
-numeric layer below cannot re-export them (it may not import the layer above it), so the old paths are
-gone; ``chatterspec.online.viewer`` is now :mod:`chatterspec.viewer.sinks`.
+The public names are importable from here: ``from chatterspec.viewer import RerunLogger``.
 
 ``rerun`` is imported lazily inside the functions: ``import chatterspec.online``
 does not load it, and the numeric core never imports this module.
 
 Entity layout (timeline ``time``: integer nanoseconds, every time rounded once by
-:func:`chatterspec.viewer.rerun_log.to_ns`; ``<c>`` is an output channel name, ``<k>`` its
+:func:`chatterspec.viewer.record_geometry.to_ns`; ``<c>`` is an output channel name, ``<k>`` its
 1-based index). Per-sample and per-frame series hold ONE row per sample / frame for all
 ``m`` channels (series ``j`` = channel ``j``, named and coloured in the static
 ``SeriesLines`` / ``SeriesPoints``): Rerun's cost is per row (a 16-byte row id and an
@@ -106,9 +103,9 @@ from typing import Any
 #: never imports ``rerun``).
 _EXPORTS = {
     "RerunLogger": "rerun_log",
-    "record_span": "rerun_log",
-    "to_ns": "rerun_log",
-    "DB_RANGE": "rerun_log",
+    "record_span": "record_geometry",
+    "to_ns": "record_geometry",
+    "DB_RANGE": "record_geometry",
     "Sinks": "sinks",
     "open_sinks": "sinks",
     "default_recording_path": "sinks",

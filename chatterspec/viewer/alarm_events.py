@@ -6,7 +6,7 @@ A file's lanes show the record's fault intervals instead (:mod:`chatterspec.view
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -14,6 +14,9 @@ from ..detection.bin_labels import db_over_threshold
 from ..online.monitor import DetectionEvent
 from .arrow_columns import _TimeIndex
 from .record_geometry import to_ns
+
+if TYPE_CHECKING:  # pragma: no cover
+    from rerun import RecordingStream
 
 __all__ = ["alarm_event_text", "send_alarm_events"]
 
@@ -43,7 +46,7 @@ def alarm_event_text(ev: DetectionEvent, half_win_s: float) -> str:
 
 
 def send_alarm_events(
-    stream: Any, events: list[DetectionEvent], half_win_s: float, lanes: list[str] | None = None
+    stream: RecordingStream, events: list[DetectionEvent], half_win_s: float, lanes: list[str] | None = None
 ) -> None:
     """Send ``events`` to ``stream`` at the end of their deciding frames; with ``lanes`` (a live viewer:
     each channel's lane entity) also the lanes' changes there.

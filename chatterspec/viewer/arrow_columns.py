@@ -7,11 +7,14 @@ nanoseconds, float64 scalar columns and batches of ``Tensor`` rows (which
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .sinks import TIMELINE
+
+if TYPE_CHECKING:  # pragma: no cover
+    from types import ModuleType
 
 __all__: list[str] = []
 
@@ -87,7 +90,7 @@ class _Columns:
     caller falls back to one ``rr.log`` per tensor.
     """
 
-    def __init__(self, rr: Any, value_range: tuple[float, float]) -> None:
+    def __init__(self, rr: ModuleType, value_range: tuple[float, float]) -> None:
         import pyarrow as pa  # a dependency of rerun-sdk
 
         self.rr, self.pa = rr, pa

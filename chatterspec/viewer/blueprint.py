@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 from .. import palette
@@ -9,7 +10,12 @@ from .sinks import TIMELINE
 from .spectrogram_view import KEY_PX, key_width, spectrogram_view
 
 if TYPE_CHECKING:
-    pass
+    from rerun.blueprint import VisibleTimeRange
+    from rerun.blueprint.api import View
+    from rerun.blueprint.archetypes import TimeAxis
+
+    #: Views for a row below the lanes, given the recording's time range and axis.
+    ExtraRow = Callable[[VisibleTimeRange, TimeAxis | None], list[View]]
 
 __all__ = [
     "ALARM",
@@ -137,8 +143,8 @@ _GREY, _RED, _WHITE, _DIM = list(palette.NEUTRAL), list(palette.FAULT), list(pal
 
 
 def series_styles(
-    channels: tuple[str, ...],
-    units: tuple[str, ...],
+    channels: Sequence[str],
+    units: Sequence[str],
     *,
     has_estimate: bool = False,
     alarm_statistic: str = "score -log p [nats]",
@@ -234,7 +240,9 @@ def series_styles(
     return out
 
 
-def time_axis(span_s: tuple[float, float] | None, history_s: float = 10.0) -> tuple[Any, Any]:
+def time_axis(
+    span_s: tuple[float, float] | None, history_s: float = 10.0
+) -> tuple[VisibleTimeRange, TimeAxis]:
     """The one time axis of a recording's views: the data range every time view queries and the x axis
     it shows, linked across views (zooming one zooms all).
 
@@ -283,12 +291,12 @@ def time_panel(span_s: tuple[float, float] | None) -> Any:
     rerun.blueprint.TimePanel
     """
     import rerun.blueprint as rrb
-    from rerun.encodings import AbsoluteTimeRange, TimeInt
+    from rerun.encodings import TimeInt
 
     if span_s is None:
         return rrb.TimePanel(state="collapsed", timeline=TIMELINE, play_state="following")
     ns = [TimeInt(nanos=round(float(t) * 1e9)) for t in span_s]
-    selection = AbsoluteTimeRange(min=ns[0], max=ns[1])
+    selection = rrb.components.AbsoluteTimeRange(min=ns[0], max=ns[1])
     return rrb.TimePanel(state="collapsed", timeline=TIMELINE, play_state="paused", time_selection=selection)
 
 
@@ -362,7 +370,7 @@ def layout_geometry(
     return [_ROW_PX] * rows_above + [cols, lanes] + [_ROW_PX] * rows_below, float(width)
 
 
-def _symmetric_axis(ranges: Any, i: int) -> Any:
+def _symmetric_axis(ranges: list[float | None] | None, i: int) -> Any:
     """``ScalarAxis`` ``[-r, r]`` for channel ``i`` of ``ranges`` (None: auto range)."""
     import rerun.blueprint as rrb
 
@@ -381,13 +389,13 @@ def blueprint(
     alarm: str | None = None,
     alarm_score: bool = False,
     alarm_range: tuple[float, float] | None = None,
-    extra_row: Any = None,
+    extra_row: ExtraRow | None = None,
     units: tuple[str, ...] | None = None,
     above: list[Any] | None = None,
     extra_lanes: int = 0,
     lanes_name: str | None = None,
     peak_view: bool = True,
-    chattering_range: Any = None,
+    chattering_range: list[float | None] | None = None,
 ) -> Any:
     """The default layout: per channel (columns) chattering, spectrogram, detection statistic and peak
     frequency; below, the state lanes (true fault first, then one verdict lane per channel in channel

@@ -85,7 +85,7 @@ class ChatteringExtent:
         np.fmax(self._max, q, out=self._max)
         self.n_samples += e.shape[0]
 
-    def ranges(self, psi: Sequence[float] | None = None) -> list[float] | None:
+    def ranges(self, psi: Sequence[float] | None = None) -> list[float | None] | None:
         """Per channel the half-height ``r`` of the symmetric range ``[-r, r]``: :func:`labelled_half_range`
         of :data:`MARGIN` times the larger of the extent and the boundary layer ``psi`` (so that the ±psi
         lines are in view); a channel without any finite non-zero value gets None (auto range). None before

@@ -11,7 +11,7 @@ every channel (Rerun's cost is per row). Times follow :func:`~chatterspec.viewer
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -36,6 +36,10 @@ from .interval_lanes import IntervalCollector
 from .record_geometry import DB_RANGE, to_ns
 from .sinks import TIMELINE, Sinks
 from .spectrogram_images import SpectrogramImages
+
+if TYPE_CHECKING:  # pragma: no cover
+    from types import ModuleType
+
 
 __all__ = ["ColumnBatches"]
 
@@ -110,7 +114,7 @@ class ColumnBatches:
 
     def __init__(
         self,
-        rr: Any,
+        rr: ModuleType,
         pa: Any,
         sinks: Sinks,
         monitor: ChatteringMonitor,

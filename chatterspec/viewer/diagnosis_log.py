@@ -11,7 +11,7 @@ Rerun is imported only when a recording is written.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -21,16 +21,27 @@ from ..online.monitor import ChatteringMonitor, MonitorSettings
 from ..palette import NEUTRAL, filter_color, mode_color, rgba32
 from .blueprint import _entity, time_axis
 from .drivers import scenario_truth
-from .rerun_log import RerunLogger, record_span, to_ns
+from .record_geometry import record_span, to_ns
+from .rerun_log import RerunLogger
 from .sinks import TIMELINE, open_sinks
 from .truth_lane import log_truth_lane, truth_colors
+
+if TYPE_CHECKING:  # pragma: no cover
+    from types import ModuleType
+
+    from rerun.blueprint import VisibleTimeRange
+    from rerun.blueprint.archetypes import TimeAxis
+
+    from ..plants.scenario_types import Scenario
+    from ..plants.simulate import Simulation
+    from .sinks import Sinks
 
 __all__ = ["mode_lane_entity", "record_budget_diagnosis", "record_diagnosis"]
 
 
 def record_diagnosis(
     path: str | Path,
-    sim: Any,
+    sim: Simulation,
     threshold: Threshold | None,
     mode_outputs: dict[str, tuple[np.ndarray, np.ndarray, tuple[str, ...]]],
     *,
@@ -153,8 +164,8 @@ def mode_lane_entity(method: str) -> str:
 
 
 def _log_modes(
-    sinks: Any,
-    rr: Any,
+    sinks: Sinks,
+    rr: ModuleType,
     method: str,
     t: np.ndarray,
     mu: np.ndarray,
@@ -191,7 +202,13 @@ def _log_modes(
 
 
 def _log_route(
-    sinks: Any, rr: Any, rrb: Any, method: str, series: tuple, time_range: Any, axis: Any = None
+    sinks: Sinks,
+    rr: ModuleType,
+    rrb: ModuleType,
+    method: str,
+    series: tuple,
+    time_range: VisibleTimeRange,
+    axis: TimeAxis | None = None,
 ) -> Any:
     """Log one route's statistic and threshold as two series; return its view (no legend over the data:
     the title names them; y range up to 1.5 h, so that the threshold shows even when a fault's statistic
@@ -222,7 +239,7 @@ def _log_route(
 
 def record_budget_diagnosis(
     path: str | Path,
-    scenario: Any,
+    scenario: Scenario,
     seed: int,
     routes: dict[str, Any],
     results: list[Any],

@@ -12,11 +12,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorSettings
-from .rerun_log import RerunLogger, record_span
+from .record_geometry import record_span
+from .rerun_log import RerunLogger
 from .sinks import Sinks, default_recording_path, file_error, open_sinks
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from ..detection.pipeline import ChatteringRecord
+    from ..online.identification_monitor import IdentificationMonitor, IdentificationUpdate
+    from ..plants.scenario_types import Scenario
     from ..plants.simulate import Simulation
 
 __all__ = [
@@ -62,7 +67,7 @@ class RecordingSummary:
     notes: tuple[str, ...] = ()
     write_error: str | None = None
 
-    def to_dict(self) -> dict[str, object]:
+    def to_dict(self) -> dict[str, Any]:
         """The fields as a JSON-ready dict (what the JSON outputs print)."""
         return {
             "recording": None if self.path is None else str(self.path),
@@ -100,10 +105,10 @@ def run_monitor(
     rate: float | None = None,
     truth: list[tuple[float, str, bool]] | None = None,
     scroll_frames: int = 50,
-    on_event: Any = None,
+    on_event: Callable[[DetectionEvent], None] | None = None,
     band_hz: tuple[float, float] | None = None,
-    identifier: Any = None,
-    on_identification: Any = None,
+    identifier: IdentificationMonitor | None = None,
+    on_identification: Callable[[IdentificationUpdate], None] | None = None,
 ) -> RecordingSummary:
     """Drive ``monitor`` over raw data (``z`` (T, m), ``u`` (T, p)) or precomputed ``chattering`` (N, m)
     and log everything to ``sinks``; closes the sinks at the end (also on Ctrl-C).
@@ -130,13 +135,13 @@ def run_monitor(
     on_event : callable, optional
         Called with each :class:`~chatterspec.online.monitor.DetectionEvent` (e.g. to print it).
     band_hz : (float, float), optional
-        Spectrogram band (Hz); default :func:`~chatterspec.viewer.rerun_log.default_band_hz`.
-    identifier : OnlineIdentifier, optional
-        Fault identification per hop on the same raw pushes
-        (:class:`~chatterspec.detection.identification_online.OnlineIdentifier`), logged to the
-        sinks (:mod:`chatterspec.viewer.identification_log`); raw data only.
+        Spectrogram band (Hz); default :func:`~chatterspec.viewer.record_geometry.default_band_hz`.
+    identifier : IdentificationMonitor, optional
+        Fault identification and the decisions on the identified parameters per hop on the same raw
+        pushes (:class:`~chatterspec.online.identification_monitor.IdentificationMonitor`), logged to
+        the sinks (:mod:`chatterspec.viewer.identification_log`); raw data only.
     on_identification : callable, optional
-        Called with each push's :class:`~chatterspec.detection.identification_online.OnlineIdentification`.
+        Called with each push's :class:`~chatterspec.online.identification_monitor.IdentificationUpdate`.
 
     Returns
     -------
@@ -151,17 +156,19 @@ def run_monitor(
     logger = None  # a RerunLogger that fails to build must not hide its error behind this name
     done = False
     try:
-        data = chattering if chattering is not None else z
-        if data is None:
+        if chattering is not None:
+            total = chattering.shape[0]
+        elif z is not None and u is not None:
+            total = z.shape[0]
+        else:
             raise ValueError("give z and u, or chattering")
-        total = data.shape[0]
         if chattering is not None:
             identifier = None  # identification regresses on the raw measurements
         views = None
         if identifier is not None and sinks.streams:
             from .identification_log import IdentificationLog, identification_views
 
-            views = identification_views(identifier.setup, identifier.confidence)
+            views = identification_views(identifier)
         logger = (
             RerunLogger(
                 sinks,
@@ -171,15 +178,21 @@ def run_monitor(
                 band_hz=band_hz,
                 span_s=record_span(monitor, total, raw=chattering is None),
                 extra_row=views,
+                extra_lanes=0 if identifier is None or views is None else len(identifier.parameters),
+                verdict="mismatch" if identifier is not None and identifier.tolerances else "FAULT",
             )
             if sinks.streams
             else None
         )
-        ident_log = IdentificationLog(sinks, identifier.setup) if views is not None else None
+        ident_log = None
+        if views is not None:
+            assert identifier is not None  # (views: made for it)
+            ident_log = IdentificationLog(sinks, identifier)
         for lo, hi in _chunks(total, size):
             if chattering is not None:
                 upd = monitor.push_chattering(chattering[lo:hi])
             else:
+                assert z is not None and u is not None  # (checked above)
                 upd = monitor.push(z[lo:hi], u[lo:hi])
             if logger is not None:
                 logger.log_update(upd)
@@ -188,6 +201,7 @@ def run_monitor(
                 if on_event is not None:
                     on_event(ev)
             if identifier is not None:
+                assert z is not None and u is not None  # (no identifier on precomputed chattering)
                 found = identifier.push(z[lo:hi], u[lo:hi])
                 if ident_log is not None:
                     ident_log.log(found)
@@ -210,7 +224,7 @@ def run_monitor(
     )
 
 
-def _close(logger: Any, sinks: Sinks, *, keep_going: bool) -> str | None:
+def _close(logger: RerunLogger | None, sinks: Sinks, *, keep_going: bool) -> str | None:
     """Close the logger and the sinks; after a finished run, a write failure is returned, not raised."""
     try:
         try:
@@ -226,7 +240,7 @@ def _close(logger: Any, sinks: Sinks, *, keep_going: bool) -> str | None:
     return None
 
 
-def scenario_truth(scenario: Any) -> list[tuple[float, str, bool]]:
+def scenario_truth(scenario: Scenario) -> list[tuple[float, str, bool]]:
     """The true fault timeline of a scenario, as the viewer's truth lane takes it.
 
     Parameters
@@ -260,7 +274,7 @@ def record_detection(
     rate: float | None = None,
     recording_name: str | None = None,
     application_id: str = "chatterspec",
-    on_event: Any = None,
+    on_event: Callable[[DetectionEvent], None] | None = None,
     band_hz: tuple[float, float] | None = None,
 ) -> RecordingSummary:
     """Run the online monitor over one realization of a simulation or chattering record and record it.

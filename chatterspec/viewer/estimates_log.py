@@ -16,12 +16,16 @@ per second); ``rerun`` is imported only when a recording is written.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..errors import ParameterError
 from ..palette import TRUTH, filter_color
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..plants.nonlinear import Model
+    from ..studies.estimation import EstimateRecords
 
 __all__ = ["estimate_blueprint", "record_estimates"]
 
@@ -31,7 +35,7 @@ def _ns(seconds: np.ndarray) -> np.ndarray:
     return np.round(np.asarray(seconds, dtype=float) * 1e9).astype(np.int64).astype("timedelta64[ns]")
 
 
-def record_estimates(records: Any, path: str | Path, *, run: int = 0) -> Path:
+def record_estimates(records: EstimateRecords, path: str | Path, *, run: int = 0) -> Path:
     """Write one realization of :class:`~chatterspec.studies.estimation.EstimateRecords` to an ``.rrd`` file.
 
     Parameters
@@ -137,7 +141,7 @@ def record_estimates(records: Any, path: str | Path, *, run: int = 0) -> Path:
     return path
 
 
-def _state_units(model: Any, states: tuple[str, ...]) -> tuple[str, ...]:
+def _state_units(model: Model, states: tuple[str, ...]) -> tuple[str, ...]:
     """A state's unit where it is measured under its own name (the model lists output units only)."""
     by_output = dict(zip(model.output_names, model.output_units, strict=True))
     return tuple(by_output.get(s, "") for s in states)

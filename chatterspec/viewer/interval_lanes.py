@@ -2,9 +2,9 @@
 
 A file recording (``detect --record``, ``demo``, ``diagnose --record``) is drawn after the fact, so its
 verdict lanes show the same interval estimates as ``detect --json`` and Fig 8: the window-extent
-estimator of :func:`chatterspec.detection.detect.frame_intervals` applied to the per-frame flags and
+estimator of :func:`chatterspec.detection.frames.frame_intervals` applied to the per-frame flags and
 statistic ``max S / threshold`` of each channel, with the healthy median
-:func:`chatterspec.detection.detect.healthy_frame_level` of the frame threshold. A live viewer instead
+:func:`chatterspec.detection.frames.healthy_frame_level` of the frame threshold. A live viewer instead
 sees each alarm when the detector knew it (the end of the deciding frame), see
 :class:`~chatterspec.viewer.rerun_log.RerunLogger`.
 """
@@ -12,12 +12,15 @@ sees each alarm when the detector knew it (the end of the deciding frame), see
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..detection.bin_labels import db_over_threshold, two_bins_text
-from ..detection.detect import frame_intervals, healthy_frame_level
+from ..detection.frames import frame_intervals, healthy_frame_level
+
+if TYPE_CHECKING:  # pragma: no cover
+    from rerun import RecordingStream
 
 __all__ = ["FaultInterval", "IntervalCollector", "lane_changes", "send_intervals"]
 
@@ -171,7 +174,11 @@ def lane_changes(
 
 
 def send_intervals(
-    file: Any, intervals: list[FaultInterval], lanes: list[str], channels: tuple[str, ...], start_s: float
+    file: RecordingStream,
+    intervals: list[FaultInterval],
+    lanes: list[str],
+    channels: tuple[str, ...],
+    start_s: float,
 ) -> None:
     """Send a file's verdict lanes (:func:`lane_changes`) and one interval event per interval at its
     onset (:meth:`FaultInterval.describe`: both bins named), in time order.

@@ -57,18 +57,18 @@ from typing import Any
 
 import numpy as np
 
+from ..detection.alarm_rules import alarm_label
 from ..errors import DataFileError
 from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorSettings, MonitorUpdate
-from ..online.monitor_types import alarm_label
 from ..online.stream import BadRow, CsvRows, Restart, RowBlock
 from ..online.stream_checks import (
     LatencyStats,
 )
-from ..plants.models import LinearModel
+from ..plants.nonlinear import Model
 from .stream_recordings import StreamRecordings, period_bounds
 from .stream_segments import Segment, StreamSegments
 
-__all__ = ["MAX_EVENTS", "LatencyStats", "StreamEvent", "StreamMonitor", "StreamSummary", "drive"]
+__all__ = ["MAX_EVENTS", "StreamEvent", "StreamMonitor", "StreamSummary", "drive"]
 
 #: Events (and recordings) kept for the summary (older ones are counted, not kept).
 MAX_EVENTS = 1000
@@ -272,7 +272,7 @@ class StreamMonitor:
 
     def __init__(
         self,
-        model: LinearModel,
+        model: Model,
         settings: MonitorSettings,
         *,
         record: str | Path | None = None,
@@ -421,8 +421,10 @@ class StreamMonitor:
         K = z.shape[0]
         parts: list[tuple[MonitorUpdate, int, int]] = []
         rec = self._rec
+        monitor = self.monitor
+        assert monitor is not None  # (made by the first push, before this)
         for lo, hi in period_bounds(K, self.record_every, rec.file_rows):
-            upd = self.monitor.push(z[lo:hi], u[lo:hi])
+            upd = monitor.push(z[lo:hi], u[lo:hi])
             self.n_rows += hi - lo
             for ev in upd.events:
                 self._emit(StreamEvent.from_detection(ev, time.time()))

@@ -7,7 +7,7 @@ layout_geometry`) and the blueprint with the band, the alarm view and the units.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -15,6 +15,9 @@ from ..online.monitor import ChatteringMonitor
 from .blueprint import blueprint, layout_geometry, view_px
 from .record_geometry import DB_RANGE
 from .spectrogram_view import key_width
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .blueprint import ExtraRow
 
 __all__ = ["MonitorLayout"]
 
@@ -48,7 +51,7 @@ class MonitorLayout:
         monitor: ChatteringMonitor,
         *,
         has_truth: bool,
-        extra_row: Any,
+        extra_row: ExtraRow | None,
         extra_lanes: int,
         rows_above: int,
         peak_view: bool,
@@ -77,10 +80,10 @@ class MonitorLayout:
         band_hz: tuple[float, float],
         span_s: tuple[float, float] | None,
         has_truth: bool | None = None,
-        extra_row: Any = None,
+        extra_row: ExtraRow | None = None,
         above: list[Any] | None = None,
         lanes_name: str | None = None,
-        chattering_range: Any = None,
+        chattering_range: list[float | None] | None = None,
     ) -> Any:
         """The default :func:`~chatterspec.viewer.blueprint.blueprint` of the recording (band, alarm view,
         units, and the geometry given to the constructor).
@@ -122,7 +125,7 @@ class MonitorLayout:
 
     def alarm_title(self) -> str:
         """The alarm view's title: the rule's statistic against its threshold, and the budget."""
-        from ..online.monitor_types import alarm_label
+        from ..detection.alarm_rules import alarm_label
 
         rule, budget = self.monitor.rule, self.monitor.settings.false_alarms_per_hour
         what = {"cusum": "CUSUM g", "persistence": f"score ({rule.name} {getattr(rule, 'k', '')} of "

@@ -11,9 +11,8 @@ after it.)
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import ParameterError
 from ..online.monitor import ChatteringMonitor
@@ -26,7 +25,7 @@ __all__ = ["DB_RANGE", "default_band_hz", "pad_columns", "record_span", "to_ns"]
 DB_RANGE = (-5.0, 30.0)
 
 
-def to_ns(seconds: Any) -> np.ndarray:
+def to_ns(seconds: npt.ArrayLike) -> np.ndarray:
     """Seconds -> integer nanoseconds, rounded to the nearest ns: the one time rule of a recording.
 
     Parameters

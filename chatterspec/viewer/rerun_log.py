@@ -1,13 +1,12 @@
 """Column-wise Rerun logging of monitor updates (:class:`RerunLogger`).
 
 Times follow the one rule of :func:`~chatterspec.viewer.record_geometry.to_ns` (integer ns); the
-recording's span, band and colour range are in :mod:`chatterspec.viewer.record_geometry` (and
-importable from here, as before).
+recording's span, band and colour range are in :mod:`chatterspec.viewer.record_geometry`.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -20,23 +19,22 @@ from .blueprint import (
 from .column_batches import ColumnBatches
 from .interval_lanes import IntervalCollector, send_intervals
 from .monitor_layout import MonitorLayout
-from .record_geometry import DB_RANGE, default_band_hz, pad_columns, record_span, to_ns
+from .record_geometry import to_ns
 from .sinks import Sinks
 from .spectrogram_images import SpectrogramImages
 from .static_entities import expected_spectrum, log_static
 from .truth_lane import log_truth_lane
 
-__all__ = [
-    "DB_RANGE",
-    "RerunLogger",
-    "default_band_hz",
-    "pad_columns",
-    "record_span",
-    "to_ns",
-]
+if TYPE_CHECKING:  # pragma: no cover
+    from rerun import RecordingStream
+    from rerun.blueprint import Blueprint
+
+    from .blueprint import ExtraRow
+
+__all__ = ["RerunLogger"]
 
 
-def _send_blueprint(stream: Any, bp: Any) -> None:
+def _send_blueprint(stream: RecordingStream, bp: Blueprint) -> None:
     """Send ``bp`` as the active and default blueprint of ``stream``."""
     stream.send_blueprint(bp, make_active=True, make_default=True)
 
@@ -90,6 +88,9 @@ class RerunLogger:
         :meth:`layout` ``above=``): they set the spectrogram image's aspect ratio.
     peak_view : bool
         The layout shows the peak-frequency views (see :func:`~chatterspec.viewer.blueprint.blueprint`).
+    verdict : str
+        Label of a channel lane's flagged state: ``"FAULT"``, or ``"mismatch"`` when the fault decision is
+        taken on the identified parameters (tolerances; their own lanes say fault).
     """
 
     def __init__(
@@ -106,10 +107,11 @@ class RerunLogger:
         truth: list[tuple[float, str, bool]] | None = None,
         send_blueprint: bool = True,
         spectrum_dtype: str = "float32",
-        extra_row: Any = None,
+        extra_row: ExtraRow | None = None,
         extra_lanes: int = 0,
         rows_above: int = 0,
         peak_view: bool = True,
+        verdict: str = "FAULT",
     ) -> None:
         import pyarrow as pa
         import rerun as rr
@@ -144,6 +146,7 @@ class RerunLogger:
         )
         self.band_hz, self.hop_s = self.images.band_hz, self.images.hop_s
         self.psi = monitor.settings.psi
+        self._verdict = verdict
         # a file's lanes: the record's interval estimates, drawn on close (interval_lanes)
         self._collector = IntervalCollector(monitor) if sinks.file_stream is not None else None
         # the per-stream batches of everything time-indexed (column_batches)
@@ -217,6 +220,7 @@ class RerunLogger:
             width=self._layout.width,
             key=self._layout.key,
             cusum=self._layout.cusum,
+            verdict=self._verdict,
         )
         if truth:
             self._batches.origin_ns = int(to_ns(truth[0][0]))

@@ -18,6 +18,8 @@ from typing import TYPE_CHECKING, Any
 from urllib.parse import urlparse
 
 if TYPE_CHECKING:
+    from rerun.blueprint import Blueprint
+
     pass
 
 __all__ = [
@@ -106,10 +108,10 @@ def viewer_url(live: str) -> str:
     if parsed.scheme not in ("rerun+http", "rerun+https", "rerun") or not parsed.hostname:
         raise ParameterError(f"--live {live!r} is not a Rerun viewer URL; {hint}")
     try:
-        port = parsed.port
+        number = parsed.port
     except ValueError:
-        port = -1
-    if port is not None and not 0 < port < 65536:
+        number = -1
+    if number is not None and not 0 < number < 65536:
         raise ParameterError(f"--live {live!r}: the port must lie in 1-65535; {hint}")
     return url
 
@@ -183,7 +185,7 @@ class Sinks:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def send_blueprint(self, bp: Any) -> None:
+    def send_blueprint(self, bp: Blueprint) -> None:
         """Send ``bp`` (a ``rerun.blueprint.Blueprint``) to every stream as the active and default one."""
         for s in self.streams:
             s.send_blueprint(bp, make_active=True, make_default=True)
@@ -258,6 +260,8 @@ def open_sinks(
         Possibly with no stream at all (nothing requested, or viewer unusable
         and no fallback file); ``notes`` holds what the user should be told.
     """
+    if record is None and live is None:
+        return Sinks()  # nothing to open: Rerun is not even imported
     import rerun as rr
 
     rid = recording_id or str(uuid.uuid4())
@@ -324,7 +328,7 @@ def open_sinks(
     return sinks
 
 
-def file_error(exc: BaseException, path: str | Path) -> OSError | None:
+def file_error(exc: BaseException, path: str | os.PathLike[str]) -> OSError | None:
     """The :class:`OSError` behind a Rerun file-sink ``RuntimeError`` (None if it is not about a file).
 
     Rerun reports I/O failures as ``RuntimeError("Failed to encode LogMsg: Failed to write: No space

@@ -9,7 +9,7 @@ so that it covers the record's span (:meth:`SpectrogramImages.covered_span`). Dr
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -18,6 +18,12 @@ from ..online.monitor import ChatteringMonitor
 from ..palette import FAULT
 from .record_geometry import DB_RANGE, default_band_hz, pad_columns, to_ns
 from .spectrogram_view import log_image
+
+if TYPE_CHECKING:  # pragma: no cover
+    from rerun import RecordingStream
+
+    from ..online.monitor_types import FrameBlock
+    from .interval_lanes import IntervalCollector
 
 __all__ = ["SpectrogramImages"]
 
@@ -76,7 +82,7 @@ class SpectrogramImages:
         self.n_blocks = 0  # blocks logged to the file
         self._file_n = 0
         self._file_block_start: int | None = None
-        self._file_t: tuple[float, float] | None = None
+        self._file_t: tuple[float, float] = (0.0, 0.0)  # (set when the file's first block opens)
         self._cols_span: tuple[float, float] | None = None  # centres (s) of the file's first / last column
 
     def covered_span(self) -> tuple[float, float] | None:
@@ -88,7 +94,7 @@ class SpectrogramImages:
         half = self.hop_s / 2.0
         return (self._cols_span[0] - half, self._cols_span[1] + half)
 
-    def close_file(self, file: Any) -> None:
+    def close_file(self, file: RecordingStream) -> None:
         """Log the file's last block to ``file``, padded by :func:`pad_columns` blank columns after the
         record's last frame (the last block ends with the record)."""
         if self._pad and self._file_n:
@@ -97,7 +103,7 @@ class SpectrogramImages:
                 np.full((last.shape[0], self._pad, last.shape[2]), DB_RANGE[0], last.dtype)
             )
             self._file_t = (self._file_t[0], self._file_t[1] + self._pad * self.hop_s)
-            self._cols_span = (self._cols_span[0], self._file_t[1])
+            self._cols_span = (cast(tuple[float, float], self._cols_span)[0], self._file_t[1])
         self._flush(file)
 
     def db(self, power: np.ndarray) -> np.ndarray:
@@ -109,7 +115,7 @@ class SpectrogramImages:
         np.clip(db, DB_RANGE[0], DB_RANGE[1], out=db)
         return db.astype(np.float16)
 
-    def live(self, live: Any, fr: Any) -> None:
+    def live(self, live: RecordingStream, fr: FrameBlock) -> None:
         """Log the live viewer's scrolling spectrogram to ``live`` after every frame of ``fr``."""
         db = self.db(fr.power)
         S = self.scroll_frames
@@ -125,7 +131,13 @@ class SpectrogramImages:
             for i, c in enumerate(self.keys):
                 log_image(live, f"/spectrogram/{c}", ns, img[:, :, i].T, self.width, DB_RANGE)
 
-    def add_file(self, file: Any, times: np.ndarray, spectra: np.ndarray, origin_ns: int | None) -> None:
+    def add_file(
+        self,
+        file: Any,
+        times: np.ndarray,
+        spectra: np.ndarray,
+        origin_ns: int | None,  # file: a RecordingStream
+    ) -> None:
         """Append a file batch's frames (``times`` (F,) s, channel-major ``spectra`` (m, F, bins)) to
         the file's spectrogram blocks as float16 dB columns (:meth:`db`'s values, per batch); a full
         block is logged to ``file`` once more frames come. ``origin_ns``: the record's start, where the
@@ -160,7 +172,7 @@ class SpectrogramImages:
             self._cols_span = (self._cols_span[0], self._file_t[1])
             lo += take
 
-    def _flush(self, file: Any) -> None:
+    def _flush(self, file: RecordingStream) -> None:
         if not self._file_n:
             return
         # (m, frames, band)
@@ -172,7 +184,7 @@ class SpectrogramImages:
         for i, c in enumerate(self.keys):  # (band, frames): freq rows, time columns
             log_image(file, f"/spectrogram/{c}", ns, block[i].T, self.width, DB_RANGE)
 
-    def mark_outside_band(self, file: Any, collector: Any) -> None:
+    def mark_outside_band(self, file: RecordingStream, collector: IntervalCollector) -> None:
         """Flagged frames whose peak frequency lies outside the spectrogram's band get a labelled mark at
         the image's top (above the band) or bottom edge, so that a fault verdict always has a visible
         cause; one mark per run of such frames (a record that fits one spectrogram block)."""

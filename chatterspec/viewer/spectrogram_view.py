@@ -2,7 +2,7 @@
 
 Rerun draws tensors without axis ticks (its tensor view names the dimensions only), so
 a recording's spectrogram is a ``DepthImage`` of ``10 log10(S / threshold)`` (dB, colour
-map ``magma`` over :data:`~chatterspec.viewer.rerun_log.DB_RANGE`) in a 2-D view, beside
+map ``magma`` over :data:`~chatterspec.viewer.record_geometry.DB_RANGE`) in a 2-D view, beside
 labelled points that carry the scale:
 
 - frequency labels ("50 Hz", ...) at the image's left edge, at their rows;
@@ -10,7 +10,7 @@ labelled points that carry the scale:
   wide, so that the image starts where the time series' plot areas start (after their y tick labels).
 
 Lining up with the time axes. The image spans the same time as the time views (a file's record span,
-:func:`~chatterspec.viewer.rerun_log.record_span`: one column per frame, padded), and its right edge is
+:func:`~chatterspec.viewer.record_geometry.record_span`: one column per frame, padded), and its right edge is
 the view's right edge, as theirs (seen in the viewer: within 1 px). Its left edge cannot follow every
 time view exactly: a time view's plot area starts after its y tick labels, whose width the viewer sets
 from the label text (``0`` ~15 px, ``20`` / ``-10`` / ``100`` ~30 px, ``-0.01`` ~40 px at 1600x1000),
@@ -28,9 +28,12 @@ Entities under ``/spectrogram/<channel>``: ``image`` (the dB image and its scale
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from rerun import RecordingStream
 
 __all__ = ["KEY_FRACTION", "KEY_PX", "image_width", "key_width", "log_axes", "log_image", "spectrogram_view"]
 
@@ -95,7 +98,7 @@ def _y(f: float, band_hz: tuple[float, float], df: float) -> float:
 
 
 def log_axes(
-    stream: Any,
+    stream: RecordingStream,
     path: str,
     band_hz: tuple[float, float],
     df: float,
@@ -138,7 +141,7 @@ def log_axes(
     )
     n = 64
     kw = _KEY * width if key is None else float(key)
-    key = np.linspace(db_range[1], db_range[0], n, dtype=np.float32)[:, None].repeat(2, axis=1)
+    key_image = np.linspace(db_range[1], db_range[0], n, dtype=np.float32)[:, None].repeat(2, axis=1)
     stream.log(
         f"{path}/key",
         rr.Transform3D(translation=[-kw, 0.0, 0.0], scale=[0.3 * kw / 2, 1.0 / n, 1.0]),
@@ -146,7 +149,7 @@ def log_axes(
     )
     stream.log(
         f"{path}/key",
-        rr.DepthImage(key, meter=1.0, colormap="magma", depth_range=list(db_range)),
+        rr.DepthImage(key_image, meter=1.0, colormap="magma", depth_range=list(db_range)),
         static=True,
     )
     mid = 0.5 * (db_range[0] + db_range[1])
@@ -164,7 +167,7 @@ def log_axes(
 
 
 def log_image(
-    stream: Any, path: str, ns: int, img: np.ndarray, width: float, db_range: tuple[float, float]
+    stream: RecordingStream, path: str, ns: int, img: np.ndarray, width: float, db_range: tuple[float, float]
 ) -> None:
     """Log one spectrogram image at time ``ns`` (integer nanoseconds).
 

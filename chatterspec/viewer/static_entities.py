@@ -6,6 +6,7 @@ Logged once per stream by :class:`~chatterspec.viewer.rerun_log.RerunLogger` whe
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -35,15 +36,16 @@ def log_static(
     streams: list[Any],
     monitor: ChatteringMonitor,
     *,
-    channels: list[str],
-    keys: list[str],
+    channels: Sequence[str],
+    keys: Sequence[str],
     lanes: list[str],
     expected: np.ndarray,
     band_hz: tuple[float, float],
     hop_s: float,
-    width: int,
-    key: int,
+    width: float,
+    key: float,
     cusum: bool,
+    verdict: str = "FAULT",
 ) -> None:
     """Log the static entities of a monitor recording to every stream of ``streams``.
 
@@ -65,6 +67,9 @@ def log_static(
         :func:`~chatterspec.viewer.spectrogram_view.log_axes`).
     cusum : bool
         The alarm rule is CUSUM (its view draws g; else the score).
+    verdict : str
+        The label of a lane's flagged state (``"FAULT"``; ``"mismatch"`` when the decision is taken on
+        the identified parameters, whose lanes say fault).
     """
     import rerun as rr
 
@@ -95,7 +100,7 @@ def log_static(
                 lanes[i],
                 rr.StateConfiguration(
                     values=["healthy", "fault"],
-                    labels=[f"{name}: healthy", f"{name}: FAULT"],
+                    labels=[f"{name}: healthy", f"{name}: {verdict}"],
                     colors=np.array([rgba32(HEALTHY), rgba32(FAULT)], dtype=np.uint32),
                 ),
                 static=True,

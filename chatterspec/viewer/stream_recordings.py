@@ -16,9 +16,16 @@ from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..online.monitor import ChatteringMonitor, MonitorUpdate
+
+if TYPE_CHECKING:  # pragma: no cover
+    from rerun import RecordingStream
+    from rerun.blueprint import Blueprint
+
+    from .live_stream import StreamEvent
+    from .sinks import Sinks
 
 __all__ = ["MAX_PENDING_CLOSES", "StreamRecordings", "period_bounds"]
 
@@ -92,7 +99,7 @@ class StreamRecordings:
         if self.on_note is not None:
             self.on_note(text)
 
-    def _logger(self, sinks: Any) -> Any:
+    def _logger(self, sinks: Sinks) -> Any:
         from .rerun_log import RerunLogger
 
         return RerunLogger(sinks, self._proto) if sinks.streams else None
@@ -146,7 +153,9 @@ class StreamRecordings:
     def open_file(self, t_start: float) -> None:
         """Take over the file opened ahead: rename it after this moment, and open the next one."""
         t_open = time.perf_counter()
-        sinks, logger = self._spare.result()  # ready unless the rotation thread is far behind
+        spare = self._spare
+        assert spare is not None  # (opened ahead: __init__, then each rotation)
+        sinks, logger = spare.result()  # ready unless the rotation thread is far behind
         self._spare = None
         base = self._base
         now = time.time()
@@ -209,14 +218,14 @@ class StreamRecordings:
         if rotating and self.file_logger is None:
             self.open_file(t_first)
         self.log(upd)
-        if rotating:
+        if self.record_every is not None:  # (rotating)
             self.file_rows += n
             if self.file_rows >= self.record_every:
                 t_rot = time.perf_counter()
                 self.close_file(t_after, wait=False)
                 self.rotation_max_s = max(self.rotation_max_s, time.perf_counter() - t_rot)
 
-    def log_text(self, ev: Any) -> None:
+    def log_text(self, ev: StreamEvent) -> None:
         """Log a gap or restart event to the open streams' event log at its sample time."""
         sinks = [x for x in (self._live_sinks, self._file_sinks) if x is not None]
         streams = [s for x in sinks for s in x.streams]
@@ -285,7 +294,7 @@ def period_bounds(n: int, every: int | None, in_file: int) -> list[tuple[int, in
     return bounds
 
 
-def _send_blueprint_released(stream: Any, bp: Any) -> None:
+def _send_blueprint_released(stream: RecordingStream, bp: Blueprint) -> None:
     """Send the blueprint ``bp`` to ``stream`` (active and default, as :class:`RerunLogger` does) without
     leaking.
 
@@ -303,7 +312,7 @@ def _send_blueprint_released(stream: Any, bp: Any) -> None:
     if native is None or from_native is None or not hasattr(full, "_log_to_stream"):  # pragma: no cover
         stream.send_blueprint(bp, make_active=True, make_default=True)
         return
-    app_id = stream.get_application_id()
+    app_id = stream.get_application_id()  # type: ignore[misc]  # rerun types it as a plain function attribute
     bp_stream = from_native(native(application_id=app_id, make_default=False, make_thread_default=False))
     try:
         bp_stream.set_time("blueprint", sequence=0)

@@ -1,0 +1,529 @@
+"""Decisions on the identified parameters: tolerance bands, alarms at a budget, detectability.
+
+The chattering detects *any* model mismatch, including a parameter's normal operating variation
+(the bulk modulus 10 % low on a warm day). When the model declares operating tolerances
+(:mod:`chatterspec.plants.tolerances`), the fault decision is taken on the identified parameters
+instead (goes beyond the papers):
+
+**Estimate.** Per STFT hop, the identification window ending there (the STFT window, 1 s by
+default; :class:`~chatterspec.detection.identification_online.OnlineIdentifier`) is fitted with
+every declared parameter free at once (the joint hypothesis of
+:meth:`~chatterspec.plants.parameters.ParameterMap.combinations`): its estimate and standard error
+``sigma`` are valid whichever parameters moved.
+
+**Windows the parameters do not describe.** A window that straddles a change of the plant mixes two
+regressions, which no constant parameter set reproduces: its joint fit is rejected by its own
+minimum-distance test (a bulk modulus dropping 25 % gives ``p < 1e-300`` in the windows across the
+change) and the other parameters' estimates absorb the misfit (the leakage reads 2.4 to 5.3 times its
+nominal value there). A window whose joint fit is rejected at :data:`MISFIT_LEVEL` gives no evidence
+(score 0, no information for the detectability); its estimates are reported with ``fits`` false. So
+a change is decided on the first windows entirely after it (about one window after the onset).
+
+**Score and alarm.** Each parameter's joint estimate scores ``-log p`` of "inside its band", 0 without
+an estimate (:mod:`chatterspec.detection.parameter_scores`); one score channel per parameter goes
+through the monitor's alarm rule (frame, persistence or CUSUM), whose threshold is set for the run's
+budget in false alarms per hour on worst-case streams (every parameter on a band edge;
+:func:`~chatterspec.detection.parameter_scores.calibrate_parameter_rule`).
+
+**Spectral and parameter alarms.** With tolerances the chattering's spectrum sees every in-tolerance
+mismatch (a bulk modulus 3 % low gives a frame ratio of 13 on the pressure channel), so a spectral
+alarm cannot tell normal variation from a fault: the decision comes from the parameters alone and
+the whole budget goes to them. The spectral detector still runs and is reported as *mismatch*
+(its frames, verdicts and events), not as a fault. What this gives up: a change the declared
+parameters cannot express (a sensor fault, an undeclared parameter) raises no alarm; declare the
+parameter, or monitor without tolerances on a commissioned model.
+
+**Detectability.** Per hop and parameter, the smallest change beyond the band that the data of
+the last :data:`DETECTABILITY_HORIZON_S` seconds detect at the run's budget::
+
+    delta = (z(1 - a) + z(power)) sigma_h,     a = X T_h / (3600 P),    power = 0.95
+
+``sigma_h`` is the standard error of an estimate from those ``T_h`` seconds: the identification
+sums are additive over hops, so its information is the windows' information ``1 / sigma_j^2``
+summed over the horizon and divided by the hops per window (each hop lies in that many windows;
+per parameter, which neglects the change of the parameters' correlation over the horizon), and
+``a`` spends the budget of ``X`` alarms per hour on the ``3600 / T_h`` horizons of an hour and the
+``P`` parameters. The horizon smooths the excitation of a repeated input (the catalogue chirp
+carries most of the leakage information in its low-frequency half) and is short enough to say
+within seconds that a held actuator has become blind. When ``delta`` exceeds the tolerance (the
+smaller of its two sides; for a parameter without one, :data:`NOT_EXCITED_MULTIPLE` times its
+nominal value) the parameter is **not excited**: the monitor could miss a change of the size the
+tolerance allows, and says so instead of "healthy" (a held actuator carries no information on
+its leakage), until the excitation returns.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import scipy.special
+
+from .._validate import open_unit, positive, positive_int
+from ..jsonout import finite_or_none
+from ._identification_fit import IdentificationSetup
+from .alarm_calibration import RuleCalibration, check_budget
+from .alarms import AlarmRule, AlarmStream
+from .parameter_scores import (
+    DEFAULT_POWER,
+    NOT_EXCITED_MULTIPLE,
+    ParameterBands,
+    band_position,
+    band_scores,
+    calibrate_parameter_rule,
+    detectable_change,
+    detection_level,
+    joint_estimates,
+    joint_hypothesis,
+    status_text,
+)
+
+__all__ = [
+    "DETECTABILITY_HORIZON_S",
+    "STATES",
+    "ParameterAlarmSettings",
+    "ParameterDecision",
+    "ParameterDecisions",
+    "ParameterEvent",
+    "decide",
+    "parameter_alarm_settings",
+]
+
+#: The three states of a parameter (and of a channel): index = the code in ``ParameterDecisions.state``.
+STATES = ("healthy", "fault", "not-excited")
+#: Seconds of data the detectable change is computed from (see the module docstring).
+DETECTABILITY_HORIZON_S = 5.0
+
+
+@dataclass(frozen=True, eq=False)
+class ParameterAlarmSettings:
+    """How the identified parameters are decided (see the module docstring).
+
+    Attributes
+    ----------
+    bands : ParameterBands
+    calibration : RuleCalibration or None
+        The alarm rule with its threshold for the budget; None: no parameter alarms (no tolerance
+        declared: only the estimates, detectability and excitation are reported).
+    window_hops : int
+        Hops per identification window.
+    hop_s : float
+        Hop (s).
+    false_alarms_per_hour : float
+        The run's budget (sets the detectability's level even without parameter alarms).
+    horizon_hops : int
+        Hops of data the detectable change is computed from.
+    power : float
+        Detection probability of the detectable change.
+    """
+
+    bands: ParameterBands
+    calibration: RuleCalibration | None
+    window_hops: int
+    hop_s: float
+    false_alarms_per_hour: float
+    horizon_hops: int
+    power: float = DEFAULT_POWER
+
+    @property
+    def alarms(self) -> bool:
+        """Whether the parameters raise alarms (tolerances declared)."""
+        return self.calibration is not None
+
+    @property
+    def windows_per_hour(self) -> float:
+        """Identification windows (hops) per hour."""
+        return 3600.0 / self.hop_s
+
+    @property
+    def level(self) -> float:
+        """Level of the detectable change: the budget's share of one horizon and parameter."""
+        return detection_level(self.false_alarms_per_hour, self.horizon_hops * self.hop_s, self.bands.size)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: the bands, the rule and its budget, the detectability's level and power."""
+        b = self.bands
+        return {
+            "decision": "parameters (tolerances)" if self.alarms else "spectral (no tolerance declared)",
+            "parameters": [
+                {
+                    "parameter": n,
+                    "unit": u,
+                    "nominal": float(b.nominal[i]),
+                    "tolerance": b.tolerances[i] or None,
+                    "band": [float(b.low[i]), float(b.high[i])],
+                    "not_excited_above": finite_or_none(float(b.limit[i])),
+                }
+                for i, (n, u) in enumerate(zip(b.names, b.units, strict=True))
+            ],
+            "alarm": None if self.calibration is None else self.calibration.to_dict(),
+            "window_s": self.window_hops * self.hop_s,
+            "detectable": {
+                "horizon_s": self.horizon_hops * self.hop_s,
+                "level": self.level,
+                "power": self.power,
+            },
+        }
+
+
+def parameter_alarm_settings(
+    setup: IdentificationSetup,
+    *,
+    hop_s: float,
+    window_hops: int,
+    rule: AlarmRule | str = "cusum",
+    false_alarms_per_hour: float = 1.0 / 24.0,
+    power: float = DEFAULT_POWER,
+    not_excited_multiple: float = NOT_EXCITED_MULTIPLE,
+    horizon_s: float = DETECTABILITY_HORIZON_S,
+    seed: int = 0,
+) -> ParameterAlarmSettings:
+    """Settings of the parameter decision of ``setup``'s model: alarms when tolerances are declared.
+
+    Parameters
+    ----------
+    setup : IdentificationSetup
+        Must test the joint hypothesis (:func:`joint_hypothesis`); the default setup does.
+    hop_s : float
+        The STFT hop (s): one decision per hop.
+    window_hops : int
+        Hops per identification window (the STFT window's: 5 at 1 s / 0.2 s).
+    rule : alarm rule or str
+        The monitor's rule (its threshold is set here for the budget).
+    false_alarms_per_hour : float
+        The run's budget (default one per day), every parameter together.
+    power : float
+        Detection probability of the reported detectable change.
+    not_excited_multiple : float
+        See :data:`NOT_EXCITED_MULTIPLE`.
+    horizon_s : float
+        Seconds of data the detectable change is computed from (at least one window).
+    seed : int
+        Seed of the calibration streams.
+
+    Raises
+    ------
+    IdentifiabilityError
+        The setup cannot fit every parameter at once.
+    """
+    joint_hypothesis(setup)
+    bands = ParameterBands.from_map(setup.parameter_map, not_excited_multiple)
+    hop_s = positive("hop_s", hop_s, unit="s")
+    window_hops = positive_int("window_hops", window_hops)
+    X = check_budget(false_alarms_per_hour)
+    cal = None
+    if setup.parameter_map.has_tolerances:
+        cal = calibrate_parameter_rule(rule, bands, window_hops, 3600.0 / hop_s, X, seed=seed)
+    horizon = max(window_hops, round(positive("horizon_s", horizon_s, unit="s") / hop_s))
+    return ParameterAlarmSettings(bands, cal, window_hops, hop_s, X, horizon, open_unit("power", power))
+
+
+@dataclass(frozen=True)
+class ParameterEvent:
+    """A parameter's alarm starting or ending (tolerances declared).
+
+    Attributes
+    ----------
+    kind : {"fault-start", "fault-end"}
+    parameter : str
+    index : int
+        The parameter's position in the table.
+    time_s : float
+        Centre time of the identification window where the alarm changed (s).
+    frame : int
+        Hop (window) number: the monitor's frame number.
+    estimate, std_error, ci_low, ci_high : float
+        That window's joint estimate (the plant's value), its standard error and interval.
+    nominal : float
+    unit, tolerance : str
+    band : (float, float)
+    score, statistic, threshold : float
+        The window's score ``-log p``, the rule's statistic and threshold.
+    rule : str
+    false_alarms_per_hour : float
+    detectable : float
+        The window's detectable change (the parameter's unit).
+    """
+
+    kind: str
+    parameter: str
+    index: int
+    time_s: float
+    frame: int
+    estimate: float
+    std_error: float
+    ci_low: float
+    ci_high: float
+    nominal: float
+    unit: str
+    tolerance: str
+    band: tuple[float, float]
+    score: float
+    statistic: float
+    threshold: float
+    rule: str
+    false_alarms_per_hour: float
+    detectable: float
+
+    def describe(self) -> str:
+        """``"fault start on bulk_modulus at t = 2.60 s: bulk_modulus 1.55e8 Pa, 25 % below nominal,
+        outside its +-15 % [cusum rule, 1 false alarm per 24 h]"``."""
+        from .alarm_rules import alarm_label
+
+        what = "fault start" if self.kind == "fault-start" else "fault end"
+        pos = band_position(self.ci_low, self.ci_high, *self.band)
+        st = status_text(self.parameter, self.estimate, self.std_error, (self.ci_low, self.ci_high),
+                         self.nominal, self.unit, self.tolerance, pos)  # fmt: skip
+        label = alarm_label(self.rule, self.false_alarms_per_hour)
+        return f"{what} on {self.parameter} at t = {self.time_s:.2f} s: {st} [{label}]"
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (``channel`` is the parameter: the decision's channel; non-finite numbers None)."""
+        return {
+            "kind": self.kind,
+            "channel": self.parameter,
+            "parameter": self.parameter,
+            "time_s": self.time_s,
+            "frame": self.frame,
+            "estimate": finite_or_none(self.estimate),
+            "std_error": finite_or_none(self.std_error),
+            "ci_low": finite_or_none(self.ci_low),
+            "ci_high": finite_or_none(self.ci_high),
+            "nominal": self.nominal,
+            "unit": self.unit,
+            "tolerance": self.tolerance or None,
+            "band": list(self.band),
+            "score": finite_or_none(self.score),
+            "statistic": finite_or_none(self.statistic),
+            "threshold": finite_or_none(self.threshold),
+            "rule": self.rule,
+            "false_alarms_per_hour": self.false_alarms_per_hour,
+            "detectable": finite_or_none(self.detectable),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class ParameterDecisions:
+    """Decisions on the identified parameters, one per window: arrays ``(..., W, P)`` (parameters in table
+    order; no leading axis for the windows of one push, ``(runs,)`` for whole records).
+
+    Attributes
+    ----------
+    times_s : (W,) array
+        Window centre times (s).
+    frames : (W,) int array
+        Window (hop) numbers: the monitor's frame numbers.
+    estimate, std_error, ci_low, ci_high : (..., W, P) arrays
+        The joint estimate (the plant's value) and its interval, NaN without one.
+    fits : (..., W) bool array
+        The joint fit is not rejected (False: the window gives no evidence, e.g. it straddles a change).
+    score : (..., W, P) array
+        ``-log p`` of "inside its band" (0: no evidence).
+    alarm : (..., W, P) bool array
+        The parameter's alarm after each window (all False without tolerances).
+    statistic : (..., W, P) array
+        The rule's statistic (NaN without tolerances).
+    detectable : (..., W, P) array
+        The detectable change (``inf`` without an estimate).
+    excited : (..., W, P) bool array
+        ``detectable <= bands.limit``.
+    state : (..., W, P) int array
+        Index into :data:`STATES`: fault (alarm), else not excited, else healthy.
+    events : tuple of ParameterEvent
+        The alarm starts and ends of one push (online decisions; empty for whole records).
+    settings : ParameterAlarmSettings or None
+        The settings of whole records.
+    """
+
+    times_s: np.ndarray
+    frames: np.ndarray
+    estimate: np.ndarray
+    std_error: np.ndarray
+    ci_low: np.ndarray
+    ci_high: np.ndarray
+    fits: np.ndarray
+    score: np.ndarray
+    alarm: np.ndarray
+    statistic: np.ndarray
+    detectable: np.ndarray
+    excited: np.ndarray
+    state: np.ndarray
+    events: tuple[ParameterEvent, ...] = field(default=())
+    settings: ParameterAlarmSettings | None = None
+
+    @classmethod
+    def from_block(
+        cls,
+        times_s: np.ndarray,
+        frames: np.ndarray,
+        block: Sequence[np.ndarray],
+        *,
+        events: tuple[ParameterEvent, ...] = (),
+        settings: ParameterAlarmSettings | None = None,
+    ) -> ParameterDecisions:
+        """The decisions from :func:`decide`'s arrays ``block`` (estimate ... state, in field order)."""
+        est, se, lo, hi, fits, score, alarm, stat, det, exc, state = block
+        return cls(
+            times_s, frames, est, se, lo, hi, fits, score, alarm, stat, det, exc, state, events, settings
+        )
+
+    @property
+    def n_windows(self) -> int:
+        """Number of windows."""
+        return int(self.frames.size)
+
+    @property
+    def starts(self) -> np.ndarray:
+        """``(..., W, P)`` bool: windows where a parameter's alarm starts (from no alarm before the first)."""
+        prev = np.concatenate([np.zeros_like(self.alarm[..., :1, :]), self.alarm[..., :-1, :]], axis=-2)
+        return self.alarm & ~prev
+
+    def first_start(self, after_s: float = -np.inf) -> np.ndarray:
+        """``(...)``: time (s) of the first alarm start (any parameter) from ``after_s`` on; NaN: none."""
+        s = self.starts.any(axis=-1) & (self.times_s >= after_s)
+        first = np.argmax(s, axis=-1)
+        return np.where(s.any(axis=-1), self.times_s[first], np.nan)
+
+
+class ParameterDecision:
+    """Per-hop decisions on the identified parameters, fed with the online identification's windows.
+
+    Parameters
+    ----------
+    setup : IdentificationSetup
+        The identification's setup (testing the joint hypothesis).
+    settings : ParameterAlarmSettings
+    """
+
+    def __init__(self, setup: IdentificationSetup, settings: ParameterAlarmSettings) -> None:
+        joint_hypothesis(setup)
+        self.setup, self.settings = setup, settings
+        self.bands = settings.bands
+        cal = settings.calibration
+        self._stream = None if cal is None else AlarmStream(cal.rule, (self.bands.size,))
+        self._horizon = _Horizon(settings.horizon_hops)
+        self._last = np.zeros((1, self.bands.size), dtype=bool)  # alarm state after the last window
+
+    def reset(self) -> None:
+        """A gap or restart: the alarm state starts over (no alarm)."""
+        if self._stream is not None:
+            self._stream.reset()
+        self._horizon.reset()
+        self._last[:] = False
+
+    @property
+    def active(self) -> np.ndarray:
+        """``(P,)``: whether each parameter's alarm is active."""
+        if self._stream is None:
+            return np.zeros(self.bands.size, dtype=bool)
+        return self._stream.active
+
+    def update(self, found: Any) -> ParameterDecisions:
+        """Decide on the windows of one push (:class:`~chatterspec.detection.identification_online.
+        OnlineIdentification`)."""
+        P = self.bands.size
+        W = found.n_windows
+        if W == 0 or found.result is None:
+            e = np.zeros((0, P))
+            return ParameterDecisions(np.zeros(0), np.zeros(0, int), e, e, e, e, np.zeros(0, bool), e,
+                                      e.astype(bool), e, e, e.astype(bool), e.astype(int))  # fmt: skip
+        theta, se, fits = joint_estimates(found.result)
+        block = decide(theta, se, fits, self.settings, found.result.confidence, self._stream, self._horizon)
+        events = self._events(block, found)
+        return ParameterDecisions.from_block(
+            np.asarray(found.times_s), np.asarray(found.frames), block, events=events
+        )
+
+    def _events(self, block: tuple[np.ndarray, ...], found: Any) -> tuple[ParameterEvent, ...]:
+        if self._stream is None:
+            return ()
+        theta, se, lo, hi, _, score, alarm, stat, det, _, _ = block
+        prev = np.concatenate([self._last, alarm[:-1]])
+        self._last = alarm[-1:].copy()
+        cal, b = self.settings.calibration, self.bands
+        assert cal is not None
+        out = []
+        for j, i in zip(*np.nonzero(alarm != prev), strict=True):
+            out.append(
+                ParameterEvent(
+                    kind="fault-start" if alarm[j, i] else "fault-end",
+                    parameter=b.names[i],
+                    index=int(i),
+                    time_s=float(found.times_s[j]),
+                    frame=int(found.frames[j]),
+                    estimate=float(theta[j, i]),
+                    std_error=float(se[j, i]),
+                    ci_low=float(lo[j, i]),
+                    ci_high=float(hi[j, i]),
+                    nominal=float(b.nominal[i]),
+                    unit=b.units[i],
+                    tolerance=b.tolerances[i],
+                    band=(float(b.low[i]), float(b.high[i])),
+                    score=float(score[j, i]),
+                    statistic=float(stat[j, i]),
+                    threshold=float(cal.threshold),
+                    rule=cal.rule.name,
+                    false_alarms_per_hour=cal.false_alarms_per_hour,
+                    detectable=float(det[j, i]),
+                )
+            )
+        return tuple(out)
+
+
+class _Horizon:
+    """The information ``1 / sigma^2`` of the last ``K`` windows, summed per stream and parameter
+    (continues across calls; arrays ``(..., W, P)``)."""
+
+    def __init__(self, K: int) -> None:
+        self.K = K
+        self._tail: np.ndarray | None = None
+
+    def reset(self) -> None:
+        self._tail = None
+
+    def sums(self, info: np.ndarray) -> np.ndarray:
+        x = info if self._tail is None else np.concatenate([self._tail, info], axis=-2)
+        lead = x.shape[:-2]
+        c = np.concatenate([np.zeros((*lead, 1, x.shape[-1])), np.cumsum(x, axis=-2)], axis=-2)
+        n = x.shape[-2]
+        idx = np.arange(n - info.shape[-2], n) + 1  # one past each new window
+        out = c[..., idx, :] - c[..., np.maximum(idx - self.K, 0), :]
+        self._tail = x[..., max(0, n - (self.K - 1)) :, :].copy() if self.K > 1 else x[..., :0, :]
+        return out
+
+
+def decide(
+    theta: np.ndarray,
+    se: np.ndarray,
+    fits: np.ndarray,
+    settings: ParameterAlarmSettings,
+    confidence: float,
+    stream: AlarmStream | None,
+    horizon: _Horizon,
+) -> tuple[np.ndarray, ...]:
+    """Scores, alarms, detectability and states of joint estimates ``theta``, ``se`` ``(..., W, P)``.
+
+    ``fits`` ``(..., W)``: windows whose joint fit is not rejected (the others give no evidence).
+    ``settings`` give the bands, the detectability's level and power; ``confidence`` the intervals'
+    level. ``stream`` (shape ``(..., P)``; None: no alarms) and ``horizon`` carry the alarm state and
+    the horizon's information across calls. Returns ``(theta, se, ci_low, ci_high, fits, score, alarm,
+    statistic, detectable, excited, state)``.
+    """
+    b = settings.bands
+    zq = float(scipy.special.ndtri(0.5 + confidence / 2))
+    used = np.where(fits[..., None], se, np.nan)  # a window the parameters do not describe: no evidence
+    score = band_scores(theta, used, b.low, b.high)
+    if stream is not None:
+        blk = stream.update(score)
+        alarm, stat = blk.active, blk.statistic
+    else:
+        alarm, stat = np.zeros(score.shape, bool), np.full(score.shape, np.nan)
+    ok = np.isfinite(used) & (used > 0)
+    info = horizon.sums(np.where(ok, 1.0 / np.where(ok, used, 1.0) ** 2, 0.0)) / settings.window_hops
+    se_h = np.where(info > 0, 1.0 / np.sqrt(np.where(info > 0, info, 1.0)), np.nan)
+    det = detectable_change(se_h, settings.level, settings.power)
+    excited = det <= b.limit
+    state = np.where(alarm, 1, np.where(excited, 0, 2))
+    return theta, se, theta - zq * se, theta + zq * se, fits, score, alarm, stat, det, excited, state

@@ -1,0 +1,264 @@
+"""Identification beside the online monitor, under its alarm budget: estimates every hop, fault names only
+at alarms, the parameters' alarms when tolerances are declared, and when the data are blind.
+
+:class:`IdentificationMonitor` takes the monitor's raw pushes (measurements and inputs) and, per STFT
+hop, identifies the window ending there
+(:class:`~chatterspec.detection.identification_online.OnlineIdentifier`) and decides on the identified
+parameters (:class:`~chatterspec.detection.parameter_decision.ParameterDecision`). Each window gives a
+:class:`WindowDecision`:
+
+* the joint estimate of every declared parameter with its interval, detectable change and state
+  (healthy, fault, not excited: :data:`~chatterspec.detection.parameter_decision.STATES`);
+* a **fault label only under an alarm**. With tolerances the alarm is the parameters' own (their
+  scores through the monitor's rule at the run's budget) and the label names the parameters in
+  alarm ("leakage+friction"). Without tolerances the alarm is the spectral monitor's (reported with
+  :meth:`IdentificationMonitor.note_alarm`) and the label is the hypothesis the identification
+  selects in that window (every combination of parameters is a hypothesis, so two faults at once
+  are named as both). Between alarms there is no label: the per-window hypothesis tests run at the
+  per-frame alpha and would otherwise name a fault every few minutes of healthy data;
+* per output channel a state: fault (an alarm on the channel; with tolerances, on a parameter the
+  channel's chattering carries), else not excited (a parameter the channel carries is not
+  excited), else healthy.
+
+Window ``j`` of the identification is the monitor's frame ``j`` shifted by one sample, so the
+spectral alarm state of a window is that of frame ``j`` (its centre time is the window's minus ``dt``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..detection.identification import IdentificationSetup
+from ..detection.identification_online import OnlineIdentification, OnlineIdentifier
+from ..detection.identification_results import IdentificationReport
+from ..detection.parameter_decision import (
+    STATES,
+    ParameterAlarmSettings,
+    ParameterDecision,
+    ParameterDecisions,
+    ParameterEvent,
+)
+from ..detection.parameter_scores import band_position, joint_hypothesis
+from ..plants.parameters import NO_FAULT
+
+__all__ = ["IdentificationMonitor", "IdentificationUpdate", "WindowDecision"]
+
+
+@dataclass(frozen=True, eq=False)
+class WindowDecision:
+    """One identification window's decision.
+
+    Attributes
+    ----------
+    index : int
+        Position among the push's windows.
+    time_s : float
+        Window centre (s).
+    window_s : (float, float)
+        First and one-past-last chattering time of the window (s).
+    alarm : bool
+        An alarm is active (the parameters' with tolerances, else the spectral monitor's).
+    label : str or None
+        The fault named: the parameters in alarm (tolerances) or the selected hypothesis (spectral
+        alarm; possibly "no fault" or "unexplained"); None between alarms.
+    states : tuple of str
+        Per parameter (table order), one of :data:`~chatterspec.detection.parameter_decision.STATES`.
+    channel_states : tuple of str
+        Per output channel.
+    """
+
+    index: int
+    time_s: float
+    window_s: tuple[float, float]
+    alarm: bool
+    label: str | None
+    states: tuple[str, ...]
+    channel_states: tuple[str, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class IdentificationUpdate:
+    """What one push gave: the identification windows, the parameter decisions and their windows' verdicts.
+
+    Attributes
+    ----------
+    found : OnlineIdentification
+    block : ParameterDecisions
+    windows : tuple of WindowDecision
+    events : tuple of ParameterEvent
+        The parameters' alarm starts and ends (tolerances declared).
+    """
+
+    found: OnlineIdentification
+    block: ParameterDecisions
+    windows: tuple[WindowDecision, ...]
+    events: tuple[ParameterEvent, ...] = field(default=())
+
+    def report(self, i: int) -> IdentificationReport:
+        """The full identification report of window ``i`` (every hypothesis and test)."""
+        return self.found.report(i)
+
+
+class IdentificationMonitor:
+    """Per-hop identification and parameter decisions beside a :class:`~chatterspec.online.monitor.
+    ChatteringMonitor` (module docstring).
+
+    Parameters
+    ----------
+    setup : IdentificationSetup
+        Testing the joint hypothesis (the default setup of a model with a parameter map does).
+    settings : ParameterAlarmSettings
+        From :func:`~chatterspec.detection.parameter_decision.parameter_alarm_settings` (hop, window,
+        budget; alarms when the model declares tolerances).
+    t0 : float
+        Time (s) of the first measurement pushed.
+    alpha : float
+        Level of the per-window hypothesis tests (the selection named under a spectral alarm).
+    confidence : float
+        Level of the intervals.
+    """
+
+    def __init__(
+        self,
+        setup: IdentificationSetup,
+        settings: ParameterAlarmSettings,
+        *,
+        t0: float = 0.0,
+        alpha: float = 1e-3,
+        confidence: float = 0.95,
+    ) -> None:
+        model = setup.model
+        self.setup, self.settings = setup, settings
+        self.dt = model.dt
+        hop = max(1, round(settings.hop_s / model.dt))
+        self.identifier = OnlineIdentifier(
+            setup,
+            hop_samples=hop,
+            window_hops=settings.window_hops,
+            t0=t0,
+            alpha=alpha,
+            confidence=confidence,
+        )
+        self.decision = ParameterDecision(setup, settings)
+        self.parameters = setup.parameter_map.parameter_names
+        self.channels = tuple(model.output_names)
+        self._carried = _carried(setup)  # (m, P): channel i's chattering carries parameter k
+        self._open: dict[str, float] = {}  # spectral alarms open: channel -> start (frame centre, s)
+        self._closed: list[tuple[str, float, float]] = []  # recent (channel, start, end)
+
+    @property
+    def tolerances(self) -> bool:
+        """Whether the parameters raise the alarms (tolerances declared)."""
+        return self.settings.alarms
+
+    def reset(self, t0: float) -> None:
+        """A gap or restart at ``t0`` (s): identification, parameter alarms and spectral state start over."""
+        self.identifier.reset(t0)
+        self.decision.reset()
+        self._open.clear()
+        self._closed.clear()
+
+    def note_alarm(self, kind: str, channel: str, time_s: float) -> None:
+        """A spectral alarm event (``fault-start`` / ``fault-end`` on ``channel`` at the frame centre
+        ``time_s``), given before the identification of the same push."""
+        if kind == "fault-start":
+            self._open[channel] = float(time_s)
+        elif kind == "fault-end" and channel in self._open:
+            self._closed.append((channel, self._open.pop(channel), float(time_s)))
+
+    def _spectral(self, t_frame: float) -> np.ndarray:
+        """``(m,)``: channels whose spectral alarm is active at frame centre ``t_frame``."""
+        on = np.zeros(len(self.channels), dtype=bool)
+        for ch, start in self._open.items():
+            on[self.channels.index(ch)] |= start <= t_frame
+        for ch, start, end in self._closed:
+            on[self.channels.index(ch)] |= start <= t_frame < end
+        return on
+
+    def push(self, z: np.ndarray, u: np.ndarray) -> IdentificationUpdate:
+        """Identify and decide on the windows one raw push ``z (K, m)``, ``u (K, p)`` completes."""
+        return self.handle(self.identifier.push(z, u))
+
+    def handle(self, found: OnlineIdentification) -> IdentificationUpdate:
+        """Decide on the windows of ``found`` (the identifier's output for one push)."""
+        block = self.decision.update(found)
+        out = []
+        # the selected hypothesis per window (none identified: "no fault")
+        sel = np.full(found.n_windows, -1) if found.result is None else found.result.fit["selected"]
+        names = [h.name for h in self.setup.hypotheses]
+        for j in range(found.n_windows):
+            t = float(found.times_s[j])
+            states = block.state[j].copy()
+            if self.tolerances:
+                alarm = bool(block.alarm[j].any())
+                label = "+".join(p for p, a in zip(self.parameters, block.alarm[j], strict=True) if a) or None
+                chan_fault = (self._carried & block.alarm[j][None, :]).any(axis=1)
+            else:
+                chan_fault = self._spectral(t - 0.5 * self.dt)
+                alarm = bool(chan_fault.any())
+                label = None
+                if alarm:
+                    s = int(sel[j])
+                    label = NO_FAULT if s == -1 else "unexplained" if s == -2 else names[s]
+                    if s >= 0:  # the parameters the selected hypothesis names are in fault
+                        named = np.array([p in self.setup.hypotheses[s].parameters for p in self.parameters])
+                        states = np.where(named, 1, states)
+            blind = (self._carried & (states == 2)[None, :]).any(axis=1)
+            chan = np.where(chan_fault, 1, np.where(blind, 2, 0))
+            out.append(
+                WindowDecision(
+                    index=j,
+                    time_s=t,
+                    window_s=(float(found.window_s[j, 0]), float(found.window_s[j, 1])),
+                    alarm=alarm,
+                    label=label,
+                    states=tuple(STATES[k] for k in states),
+                    channel_states=tuple(STATES[k] for k in chan),
+                )
+            )
+        if found.n_windows:
+            last = float(found.times_s[-1]) - self.dt
+            self._closed = [c for c in self._closed if c[2] > last]
+        return IdentificationUpdate(found, block, tuple(out), block.events)
+
+    def parameter_summary(self, block: ParameterDecisions, window: WindowDecision) -> list[dict[str, Any]]:
+        """One window of ``block`` per parameter: estimate, interval, band, state, detectable change."""
+        from ..jsonout import finite_or_none
+
+        b = self.settings.bands
+        j = window.index
+        rows = []
+        for i, p in enumerate(self.parameters):
+            th = float(block.estimate[j, i])
+            pos = band_position(float(block.ci_low[j, i]), float(block.ci_high[j, i]), b.low[i], b.high[i])
+            rows.append(
+                {
+                    "parameter": p,
+                    "estimate": finite_or_none(th),
+                    "ci_low": finite_or_none(float(block.ci_low[j, i])),
+                    "ci_high": finite_or_none(float(block.ci_high[j, i])),
+                    "std_error": finite_or_none(float(block.std_error[j, i])),
+                    "unit": b.units[i],
+                    "nominal": float(b.nominal[i]),
+                    "tolerance": b.tolerances[i] or None,
+                    "position": pos if self.tolerances else None,
+                    "score": finite_or_none(float(block.score[j, i])),
+                    "state": window.states[i],
+                    "detectable": finite_or_none(float(block.detectable[j, i])),
+                }
+            )
+        return rows
+
+
+def _carried(setup: IdentificationSetup) -> np.ndarray:
+    """``(m, P)`` bool: output channel ``i``'s chattering carries parameter ``k`` (an estimated entry of
+    row ``i`` that the parameter moves)."""
+    h, idx = joint_hypothesis(setup)
+    moves = np.asarray(setup.slopes[h])[:, idx] != 0  # (D, P), table order
+    out = np.zeros((setup.model.n_outputs, moves.shape[1]), dtype=bool)
+    for a, ch in enumerate(setup.channels):
+        out[int(ch)] |= moves[a]
+    return out

@@ -1,0 +1,937 @@
+"""The realistic bench: plants that differ from the nominal model as real ones do, monitored for a day.
+
+Every other study of the package monitors plants that match their model exactly. Here the nominal
+model is the linear EHA (``chatterspec scenarios eha-healthy --model-toml``: leakage, friction and
+bulk modulus declared in its ``[parameters]``) and each :class:`BenchCase` is a plant that differs
+from it:
+
+* **parametric**: a declared parameter off by 3, 10 and 30 % (leakage and friction high, bulk
+  modulus low: warm oil, entrained air), alone and all three together; the true plant's A and B come
+  from the model's parameter map (:meth:`chatterspec.plants.parameters.ParameterMap.model_with`);
+* **noise level**: the sensor noise ``x0.5`` and ``x2`` the model's ``R``;
+* **sensor**: AR(1) coloured noise (rho 0.5, 0.9), Student-t noise (nu 4), a 12-bit ADC over
+  position +-0.1 m, velocity +-1 m/s, pressure +-2e7 Pa (+-200 bar), 50 Hz mains hum of half the
+  noise standard deviation per channel, a bias drift (Gauss-Markov, twice the noise standard
+  deviation, correlation time 600 s), sampling jitter of 10 us (1 % of dt)
+  (:mod:`chatterspec.plants.imperfections`);
+* **nonlinear**: the 4-state EHA (:mod:`chatterspec.plants.eha4`), its position, velocity and
+  pressure measured with the model's noise, under the SMM paper's input (94.25 sin(pi t) rad/s: the
+  catalogue chirp drives its explicit Euler step beyond its stability limit, |v| < 0.056 m/s).
+
+The linear plants run under the catalogue chirp (10-100 Hz, 300 rad/s, repeated every 4 s). The
+plant is simulated without measurement noise and the case's sensor chain adds it (white ``N(0, R)``
+for the parametric cases and the nonlinear plant).
+
+Each case is monitored by every :class:`Route` (a model and the monitor's settings, prepared from the
+nominal model and the plant's own healthy data): :func:`nominal_route` (a), the nominal model with
+its simulated calibration; :func:`commissioned_route` (b), the model a commissioning function fits
+to ``commission_s`` seconds of the plant's healthy data (the seam: any ``(nominal, z, u) -> model``);
+(c), tolerances, is a route of the same shape when the model file carries them; and
+:func:`recorded_route`, the remedy the data support: the nominal model with thresholds from
+``recorded_hours`` of the plant's recorded healthy data (:mod:`chatterspec.online.recorded_calibration`,
+the recording's own normalization).
+
+Measured per case and route
+    **False alarms**: ``hours`` (default 24; ``nonlinear_hours`` for the nonlinear plant, whose
+    Python-stepped stream costs about 20 us per sample) of fresh healthy data of the plant, simulated
+    in blocks of ``block_s`` seconds (the state carried from block to block, bounded memory) and pushed
+    through the online monitor (:class:`~chatterspec.online.monitor.ChatteringMonitor`, one push per block);
+    the fault starts counted, against the two-sided 99 % Poisson interval of the count the budget
+    predicts (:func:`~chatterspec.detection.alarm_calibration.poisson_count_interval`), and the
+    fraction of frames in alarm: the budget *holds* when the count lies inside the interval (or below
+    it) and the monitor is in alarm for at most 1 % of the frames (a mismatched model often raises
+    one alarm that never ends: one start, a day in alarm).
+    **Detection**: the catalogue faults (leakage minor 3e-11 and major 9e-11 m^3/(s Pa), friction
+    major 7000 N s/m, bulk modulus -25 % of the plant's own) switched on after ``healthy_s`` seconds
+    of the healthy plant, at 8 phases of the chirp, ``runs_per_phase`` realizations each, through the
+    same sensor chain; scored by the route's model with the monitor's frame engine, score and rule
+    (:func:`chatterspec.studies.alarm_delays.score_delays`: the numbers of the online monitor on the
+    same grid); detection rate (99 % Clopper-Pearson interval) and median delay (s, to the end of the
+    frame that raised the first alarm after the onset). A route that alarms during the healthy
+    stretch before most onsets is reported as such: its delays measure nothing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, cast
+
+import numpy as np
+
+from .._validate import positive
+from ..detection.alarm_calibration import check_budget, poisson_count_interval, poisson_interval
+from ..detection.alarms import make_rule
+from ..detection.monitor_settings import MonitorSettings
+from ..detection.pipeline import chattering_record
+from ..detection.spectral import frame_columns
+from ..errors import ParameterError
+from ..jsonout import finite_or_none
+from ..plants.eha4 import EHA4_MODES, EHA4_PARAMETERS, eha4
+from ..plants.imperfections import (
+    AR1Noise,
+    BiasDrift,
+    MainsHum,
+    Quantization,
+    SampleJitter,
+    SensorChain,
+    StudentTNoise,
+    WhiteNoise,
+)
+from ..plants.models import LinearModel, eha_linear
+from ..plants.scenarios import Scenario, Segment, scenario
+from ..plants.simulate import simulate
+from ..progress import Progress
+from ..studies.alarm_budget import alarm_settings, monitor_score
+from ..studies.alarm_delays import Shifted, score_delays
+from ..studies.intervals import clopper_pearson
+from ..studies.recorded_calibration import HealthyRecording, array_chunks
+from .monitor import ChatteringMonitor
+from .recorded_calibration import calibrate_recorded
+from .simulated_stream import simulate_blocks
+
+__all__ = [
+    "FAULTS",
+    "BenchCase",
+    "BenchConfig",
+    "BenchResult",
+    "CaseOutcome",
+    "Fault",
+    "FaultOutcome",
+    "Route",
+    "RouteInputs",
+    "RouteOutcome",
+    "bench_cases",
+    "bench_table",
+    "commissioned_route",
+    "holds",
+    "nominal_route",
+    "recorded_route",
+    "run_bench",
+]
+
+#: The nonlinear plant's measured states (position, velocity, pressure), as the linear model's outputs.
+EHA4_CHANNELS = (0, 1, 3)
+#: Largest fraction of healthy frames in alarm for a budget to hold (1/day of a few frames each is ~1e-5).
+STANDING_ALARM = 0.01
+#: Seed of the simulated calibrations of the routes' models.
+CALIBRATION_SEED = 12345
+
+
+# --------------------------------------------------------------------------- configuration
+@dataclass(frozen=True)
+class BenchConfig:
+    """How much of everything (defaults: the published bench).
+
+    Attributes
+    ----------
+    hours : float
+        Fresh healthy data per case (h), streamed through every route's monitor.
+    nonlinear_hours : float
+        The same for the nonlinear plant (its stream steps ``f`` in Python).
+    block_s : float
+        Seconds per simulated block and per monitor push.
+    commission_s : float
+        Healthy data (s) given to a commissioning route.
+    recorded_hours : float
+        Healthy data (h) from which :func:`recorded_route` reads its thresholds (0: no such route).
+    calibration_hours : float
+        Simulated healthy hours of the routes' alarm calibrations.
+    runs_per_phase : int
+        Onset realizations per chirp phase and fault.
+    phases : tuple of float
+        Times into the input (s) at which the onsets fall.
+    healthy_s, fault_s : float
+        Healthy stretch before an onset, and the fault's duration (s).
+    budget : float
+        False alarms per hour (all channels together).
+    rule : str
+        Alarm rule.
+    seed : int
+        Root seed.
+    """
+
+    hours: float = 24.0
+    nonlinear_hours: float = 4.0
+    block_s: float = 60.0
+    commission_s: float = 600.0
+    recorded_hours: float = 4.0
+    calibration_hours: float = 48.0
+    runs_per_phase: int = 25
+    phases: tuple[float, ...] = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5)
+    healthy_s: float = 6.0
+    fault_s: float = 8.0
+    budget: float = 1.0 / 24.0
+    rule: str = "cusum"
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        names = (
+            "hours",
+            "nonlinear_hours",
+            "block_s",
+            "commission_s",
+            "calibration_hours",
+            "healthy_s",
+            "fault_s",
+        )
+        for name in names:
+            object.__setattr__(self, name, positive(name, getattr(self, name)))
+        if not (math.isfinite(self.recorded_hours) and self.recorded_hours >= 0):
+            raise ParameterError(f"recorded_hours must be >= 0 h; got {self.recorded_hours!r}")
+        if int(self.runs_per_phase) < 1 or not self.phases:
+            raise ParameterError("runs_per_phase must be >= 1 and phases non-empty")
+        object.__setattr__(self, "budget", check_budget(self.budget, "budget"))
+        object.__setattr__(self, "phases", tuple(float(p) for p in self.phases))
+        make_rule(self.rule)
+
+
+# --------------------------------------------------------------------------- cases and faults
+@dataclass(frozen=True)
+class Fault:
+    """A catalogue fault as parameter changes of the plant.
+
+    Attributes
+    ----------
+    name, label : str
+    channel : str
+        The output the fault shows on.
+    set_to : mapping
+        Linear plant: parameters set to these values (the catalogue's absolute levels).
+    scale : mapping
+        Linear plant: parameters multiplied by these factors (relative to the plant's own).
+    eha4 : mapping
+        The nonlinear plant's parameters (set; ``bulk_modulus`` scaled by the same factor).
+    """
+
+    name: str
+    label: str
+    channel: str
+    set_to: Mapping[str, float] = field(default_factory=dict)
+    scale: Mapping[str, float] = field(default_factory=dict)
+    eha4: Mapping[str, float] = field(default_factory=dict)
+
+
+FAULTS: tuple[Fault, ...] = (
+    Fault("leak-minor", "leak minor", "pressure", {"leakage": 3e-11}, eha4=EHA4_MODES["leak-minor"]),
+    Fault("leak-major", "leak major", "pressure", {"leakage": 9e-11}, eha4=EHA4_MODES["leak-major"]),
+    Fault("friction-major", "friction major", "velocity", {"friction": 7000.0}, eha4={"a2": 7000.0}),
+    Fault(
+        "bulk-25down",
+        "bulk -25 %",
+        "pressure",
+        scale={"bulk_modulus": 0.75},
+        eha4={"bulk_modulus": 0.75 * EHA4_PARAMETERS["bulk_modulus"]},
+    ),
+)
+
+
+@dataclass(frozen=True, eq=False)
+class BenchCase:
+    """A plant and its sensors.
+
+    Attributes
+    ----------
+    name : str
+        Short identifier.
+    group : {"exact", "parametric", "noise", "sensor", "nonlinear"}
+    description : str
+        What differs from the nominal model, with values and units.
+    scale : mapping
+        Parameter factors of the true plant against the nominal (e.g. ``{"bulk_modulus": 0.9}``).
+    sensor : callable
+        ``nominal -> SensorChain``: the measurement of the plant's noise-free output.
+    nonlinear : bool
+        The plant is the 4-state nonlinear EHA.
+    """
+
+    name: str
+    group: str
+    description: str
+    sensor: Callable[[LinearModel], SensorChain]
+    scale: Mapping[str, float] = field(default_factory=dict)
+    nonlinear: bool = False
+
+    def plant(self, nominal: LinearModel) -> Any:
+        """The true plant without measurement noise (the sensor chain adds it)."""
+        if self.nonlinear:
+            return eha4(Q=1e-9 * np.eye(4), R=np.zeros((4, 4)))
+        pm = nominal.parameter_map
+        if pm is None:
+            raise ParameterError(
+                "the nominal model declares no parameters: the bench needs its parameter map"
+            )
+        values = {k: pm.parameter(k).value * f for k, f in self.scale.items()}
+        return dataclasses.replace(pm.model_with(nominal, values), R=np.zeros_like(nominal.R))
+
+    def faulty(self, nominal: LinearModel, fault: Fault) -> Any:
+        """The true plant with ``fault`` (no measurement noise)."""
+        if self.nonlinear:
+            overrides = cast("dict[str, Any]", fault.eha4)  # physical parameters: keys of EHA4_PARAMETERS
+            return eha4(Q=1e-9 * np.eye(4), R=np.zeros((4, 4)), **overrides)
+        healthy = self.plant(nominal)
+        pm = healthy.parameter_map
+        values = {k: pm.parameter(k).value * f for k, f in fault.scale.items()} | dict(fault.set_to)
+        return pm.model_with(healthy, values)
+
+    def input(self) -> Any:
+        """The input signal: the catalogue chirp (linear plants) or the SMM paper's sine (nonlinear)."""
+        return scenario("eha4-healthy" if self.nonlinear else "eha-healthy").input
+
+
+def _white(s: float = 1.0) -> Callable[[LinearModel], SensorChain]:
+    return lambda m: SensorChain((WhiteNoise(s * m.R),))
+
+
+def bench_cases() -> tuple[BenchCase, ...]:
+    """The cases of the bench (module docstring), in table order."""
+    cases = [BenchCase("exact", "exact", "the nominal model itself", _white())]
+    signs = {"leakage": 1.0, "friction": 1.0, "bulk_modulus": -1.0}
+    short = {"leakage": "leakage", "friction": "friction", "bulk_modulus": "bulk modulus"}
+    for pct in (3, 10, 30):
+        for p, sgn in signs.items():
+            f = 1.0 + sgn * pct / 100.0
+            cases.append(
+                BenchCase(
+                    f"{p}{'+' if sgn > 0 else '-'}{pct}",
+                    "parametric",
+                    f"{short[p]} {sgn * pct:+g} %",
+                    _white(),
+                    {p: f},
+                )
+            )
+        cases.append(
+            BenchCase(
+                f"all{pct}",
+                "parametric",
+                f"all three off by {pct} %",
+                _white(),
+                {p: 1.0 + s * pct / 100.0 for p, s in signs.items()},
+            )
+        )
+    cases += [
+        BenchCase("R-x0.5", "noise", "sensor noise 0.5 R", _white(0.5)),
+        BenchCase("R-x2", "noise", "sensor noise 2 R", _white(2.0)),
+        BenchCase("ar1-0.5", "sensor", "AR(1) noise, rho 0.5", lambda m: SensorChain((AR1Noise(m.R, 0.5),))),
+        BenchCase("ar1-0.9", "sensor", "AR(1) noise, rho 0.9", lambda m: SensorChain((AR1Noise(m.R, 0.9),))),
+        BenchCase(
+            "adc12",
+            "sensor",
+            "12-bit ADC (+-0.1 m, +-1 m/s, +-2e7 Pa)",
+            lambda m: SensorChain(
+                (WhiteNoise(m.R), Quantization(12, np.array([-0.1, -1.0, -2e7]), np.array([0.1, 1.0, 2e7])))
+            ),
+        ),
+        BenchCase(
+            "hum50",
+            "sensor",
+            "50 Hz hum, 0.5 noise std",
+            lambda m: SensorChain((WhiteNoise(m.R), MainsHum(0.5 * np.sqrt(np.diag(m.R)), 50.0))),
+        ),
+        BenchCase(
+            "drift",
+            "sensor",
+            "bias drift, 2 noise std, 600 s",
+            lambda m: SensorChain((WhiteNoise(m.R), BiasDrift(2.0 * np.sqrt(np.diag(m.R)), 600.0, m.dt))),
+        ),
+        BenchCase(
+            "student-t", "sensor", "Student-t noise, nu 4", lambda m: SensorChain((StudentTNoise(m.R, 4.0),))
+        ),
+        BenchCase(
+            "jitter",
+            "sensor",
+            "sampling jitter 10 us",
+            lambda m: SensorChain((SampleJitter(1e-5, m.dt), WhiteNoise(m.R))),
+        ),
+        BenchCase("eha4", "nonlinear", "nonlinear 4-state EHA", _white(), nonlinear=True),
+    ]
+    return tuple(cases)
+
+
+# --------------------------------------------------------------------------- data
+def _outputs(case: BenchCase, y: np.ndarray) -> np.ndarray:
+    return y[..., list(EHA4_CHANNELS)] if case.nonlinear else y
+
+
+def healthy_blocks(
+    case: BenchCase, nominal: LinearModel, duration_s: float, block_s: float, seed: int
+) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """One continuous healthy stream of the case's plant through its sensors, block by block.
+
+    The plant is :func:`chatterspec.online.simulated_stream.simulate_blocks` (the state carried from
+    block to block, the input repeating with its 4 s period, bounded memory for any duration); the
+    sensor chain's state is carried too.
+
+    Yields
+    ------
+    (t, z, u)
+        Times (K,) s, measurements (K, m) in the nominal model's output order, inputs (K, p).
+    """
+    plant = case.plant(nominal)
+    sc = Scenario(name=f"{case.name} healthy", nominal=plant, input=case.input(), duration=4.0)
+    chain = case.sensor(nominal)
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 1]))
+    state = chain.init(1, rng)
+    for t, y, u in simulate_blocks(sc, int(seed), duration_s, block_s=block_s):
+        z, state = chain.apply(_outputs(case, y[None]), t, rng, state)
+        yield t, z[0], u
+
+
+def _stack(blocks: Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    parts = list(blocks)
+    return np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts])
+
+
+# --------------------------------------------------------------------------- routes
+@dataclass(frozen=True, eq=False)
+class RouteInputs:
+    """What a route may use to prepare its monitor.
+
+    Attributes
+    ----------
+    nominal : LinearModel
+        The nominal model (of the model file).
+    case : BenchCase
+    config : BenchConfig
+    healthy : callable
+        ``(duration_s, seed) -> iterator of (t, z, u) blocks`` of the case's healthy plant and sensors
+        (other data than the bench's fresh stream: seeds differ).
+    """
+
+    nominal: LinearModel
+    case: BenchCase
+    config: BenchConfig
+    healthy: Callable[[float, int], Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]]
+
+
+@dataclass(frozen=True)
+class Route:
+    """How a case is monitored: ``prepare(inputs) -> (model, settings)`` (settings with the rule set).
+
+    Attributes
+    ----------
+    name : str
+        Short identifier (``nominal``, ``commissioned``, ``tolerances``, ``recorded``).
+    label : str
+        Column heading.
+    prepare : callable
+        ``RouteInputs -> (model, MonitorSettings)``; may raise ``ParameterError`` (reported, the
+        route skipped for that case).
+    """
+
+    name: str
+    label: str
+    prepare: Callable[[RouteInputs], tuple[Any, MonitorSettings]]
+
+
+def _simulated_settings(model: Any, cfg: BenchConfig) -> MonitorSettings:
+    return alarm_settings(
+        model, MonitorSettings(), cfg.rule, cfg.budget, hours=cfg.calibration_hours, seed=CALIBRATION_SEED
+    )
+
+
+def nominal_route() -> Route:
+    """(a) the nominal model, its alarm threshold from ``calibration_hours`` of simulated healthy data."""
+    return Route(
+        "nominal", "(a) nominal model", lambda r: (r.nominal, _simulated_settings(r.nominal, r.config))
+    )
+
+
+def commissioned_route(commission: Callable[[LinearModel, np.ndarray, np.ndarray], LinearModel]) -> Route:
+    """(b) the model ``commission(nominal, z, u)`` fits to ``commission_s`` of the plant's healthy data,
+    with its own simulated alarm calibration.
+
+    Parameters
+    ----------
+    commission : callable
+        ``(nominal, z (K, m), u (K, p)) -> LinearModel`` (e.g. the ``.model`` of a commissioning result).
+    """
+
+    def prepare(r: RouteInputs) -> tuple[Any, MonitorSettings]:
+        z, u = _stack(r.healthy(r.config.commission_s, 2))
+        model = commission(r.nominal, z, u)
+        return model, _simulated_settings(model, r.config)
+
+    return Route("commissioned", "(b) commissioned", prepare)
+
+
+def recorded_route() -> Route:
+    """The nominal model with thresholds from ``recorded_hours`` of the plant's recorded healthy data
+    (the recording's own normalization, :mod:`chatterspec.online.recorded_calibration`)."""
+
+    def prepare(r: RouteInputs) -> tuple[Any, MonitorSettings]:
+        cfg = r.config
+        # held once (the "data" normalization reads it twice): hours x 1 kHz x 4 columns of float64
+        z, u = _stack(r.healthy(cfg.recorded_hours * 3600.0, 3))
+        n = z.shape[0]
+        chunks = array_chunks(z, u, max(1, round(60.0 / r.nominal.dt)))
+
+        cal = calibrate_recorded(
+            r.nominal,
+            chunks,
+            n,
+            normalization="data",
+            rule=cfg.rule,
+            false_alarms_per_hour=cfg.budget,
+            recording=HealthyRecording(f"{r.case.name} healthy {cfg.recorded_hours:g} h", ""),
+        )
+        assert cal.alarm is not None
+        settings = MonitorSettings(
+            threshold=cal.threshold("frame-family-wise"), rule=cal.alarm.rule, budget=cal.alarm
+        )
+        return r.nominal, settings
+
+    return Route("recorded", "nominal + thresholds from recorded data", prepare)
+
+
+# --------------------------------------------------------------------------- results
+@dataclass(frozen=True)
+class FaultOutcome:
+    """Detection of one fault by one route.
+
+    Attributes
+    ----------
+    fault : str
+    runs, detected : int
+        Onsets and onsets detected.
+    detected_interval : (float, float)
+        99 % Clopper-Pearson interval of the detection rate.
+    median_s, p90_s : float
+        Delay quantiles (s; ``inf`` when more than half / a tenth missed).
+    false_starts : int
+        Alarm starts in the healthy stretches before the onsets.
+    onsets_preceded : int
+        Onsets before which the route had already raised an alarm (its delay measures nothing).
+    """
+
+    fault: str
+    runs: int
+    detected: int
+    detected_interval: tuple[float, float]
+    median_s: float
+    p90_s: float
+    false_starts: int
+    onsets_preceded: int
+
+    @property
+    def rate(self) -> float:
+        """Fraction detected."""
+        return self.detected / self.runs
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        d = dataclasses.asdict(self)
+        d["median_s"], d["p90_s"] = finite_or_none(self.median_s), finite_or_none(self.p90_s)
+        d["detected_interval"] = list(self.detected_interval)
+        return d
+
+
+def holds(note: str, starts: int, most: int, alarm_fraction: float) -> bool:
+    """Whether a route that ran held the budget.
+
+    Parameters
+    ----------
+    note : str
+        Why the route did not run (empty when it ran: a route that did not run holds nothing).
+    starts : int
+        Alarm starts counted on the healthy hours.
+    most : int
+        The upper end of the budget's 99 % Poisson count interval.
+    alarm_fraction : float
+        Fraction of the healthy frames in alarm; above :data:`STANDING_ALARM` an alarm stands.
+    """
+    return not note and starts <= most and alarm_fraction <= STANDING_ALARM
+
+
+@dataclass(frozen=True)
+class RouteOutcome:
+    """One route on one case.
+
+    Attributes
+    ----------
+    route : str
+    hours : float
+        Healthy hours streamed.
+    starts : int
+        Fault starts on them (false alarms).
+    count_interval : (int, int)
+        Two-sided 99 % Poisson interval of the count the budget predicts.
+    rate_interval : (float, float)
+        99 % Garwood interval of the realized rate (per hour).
+    faults : tuple of FaultOutcome
+    threshold : float
+        The rule's threshold.
+    note : str
+        Why the route did not run, if it did not.
+    cpu_s : float
+        CPU time of the route on the case (preparation, monitor, onsets).
+    alarm_fraction : float
+        Fraction of the healthy frames with an alarm active on some channel.
+    """
+
+    route: str
+    hours: float
+    starts: int
+    count_interval: tuple[int, int]
+    rate_interval: tuple[float, float]
+    faults: tuple[FaultOutcome, ...]
+    threshold: float
+    note: str = ""
+    cpu_s: float = 0.0
+    alarm_fraction: float = 0.0
+
+    @property
+    def holds(self) -> bool:
+        """The false-alarm count lies in the budget's 99 % Poisson interval (or below it) and no alarm
+        stands: the monitor is in alarm for at most :data:`STANDING_ALARM` of the healthy frames (a
+        start that never ends counts once, yet the monitor says "fault" all day)."""
+        return holds(self.note, self.starts, self.count_interval[1], self.alarm_fraction)
+
+    @property
+    def rate(self) -> float:
+        """False alarms per hour."""
+        return self.starts / self.hours if self.hours else float("nan")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        return {
+            "route": self.route,
+            "hours": self.hours,
+            "starts": self.starts,
+            "rate_per_hour": finite_or_none(self.rate),
+            "count_interval_99": list(self.count_interval),
+            "rate_interval_99": list(self.rate_interval),
+            "holds": self.holds,
+            "alarm_fraction": self.alarm_fraction,
+            "threshold": finite_or_none(self.threshold),
+            "faults": [f.to_dict() for f in self.faults],
+            "note": self.note,
+            "cpu_s": self.cpu_s,
+        }
+
+
+@dataclass(frozen=True)
+class CaseOutcome:
+    """Every route on one case.
+
+    Attributes
+    ----------
+    case : str
+        The case's name.
+    group : str
+        Its group (exact, parametric, noise, sensor, nonlinear).
+    description : str
+        What differs from the nominal model.
+    routes : tuple of RouteOutcome
+        One per route, in the routes' order.
+    """
+
+    case: str
+    group: str
+    description: str
+    routes: tuple[RouteOutcome, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        return {
+            "case": self.case,
+            "group": self.group,
+            "description": self.description,
+            "routes": [r.to_dict() for r in self.routes],
+        }
+
+
+@dataclass(frozen=True)
+class BenchResult:
+    """The whole bench.
+
+    Attributes
+    ----------
+    config : BenchConfig
+    cases : tuple of CaseOutcome
+    cpu_s : float
+        CPU time of the whole bench (s; the worker processes' included).
+    """
+
+    config: BenchConfig
+    cases: tuple[CaseOutcome, ...]
+    cpu_s: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        return {
+            "config": dataclasses.asdict(self.config),
+            "cases": [c.to_dict() for c in self.cases],
+            "cpu_s": self.cpu_s,
+        }
+
+    def table(self) -> str:
+        """A Markdown table: per case and route, false alarms and detection (:func:`bench_table`)."""
+        return bench_table(self.to_dict())
+
+
+def bench_table(doc: Mapping[str, Any]) -> str:
+    """The Markdown table of a bench document (``BenchResult.to_dict()``, or its JSON read back).
+
+    Parameters
+    ----------
+    doc : mapping
+        The bench document.
+    """
+    cases = doc["cases"]
+    faults = [f.label for f in FAULTS]
+    head = "| plant | monitor | false alarms (99 % interval of the count at the budget) | "
+    head += " | ".join(f"{f}: detected, median delay s" for f in faults) + " |"
+    lines = [head, "|---|---|---:|" + "---:|" * len(faults)]
+    for c in cases:
+        for i, r in enumerate(c["routes"]):
+            name = c["description"] if i == 0 else ""
+            if r["note"]:  # its first clause (the whole text is in the JSON)
+                lines.append(f"| {name} | {r['route']} | {r['note'].split(' (')[0]} |" + " |" * len(faults))
+                continue
+            lo, hi = r["count_interval_99"]
+            fa = f"{r['starts']} in {r['hours']:.3g} h ([{lo}, {hi}])"
+            frac = r.get("alarm_fraction", 0.0)
+            fa += f", in alarm {100 * frac:.3g} % of the time" if frac > 1e-3 else ""
+            fa += "" if r["holds"] else " **not held**"
+            cells = []
+            for f in r["faults"]:
+                med = "-" if f["median_s"] is None else f"{f['median_s']:.2f}"
+                pre = f", {f['onsets_preceded']} pre-alarmed" if f["onsets_preceded"] else ""
+                cells.append(f"{f['detected']}/{f['runs']}, {med}{pre}")
+            lines.append(f"| {name} | {r['route']} | {fa} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- running
+def _false_alarms(
+    case: BenchCase, nominal: LinearModel, monitors: Sequence[ChatteringMonitor], cfg: BenchConfig
+) -> tuple[list[int], list[float]]:
+    """Per monitor: fault starts on the case's fresh healthy stream, and the fraction of its frames
+    with an alarm active on some channel."""
+    starts = [0] * len(monitors)
+    active = [0] * len(monitors)
+    frames = [0] * len(monitors)
+    hours = cfg.nonlinear_hours if case.nonlinear else cfg.hours
+    for _, z, u in healthy_blocks(case, nominal, hours * 3600.0, cfg.block_s, cfg.seed):
+        for i, mon in enumerate(monitors):
+            upd = mon.push(z, u)
+            starts[i] += sum(e.kind == "fault-start" for e in upd.events)
+            fr = upd.frames
+            frames[i] += fr.n_frames
+            if fr.alarm is not None and fr.n_frames:
+                active[i] += int(np.count_nonzero(fr.alarm.any(axis=1)))
+    return starts, [a / max(1, f) for a, f in zip(active, frames, strict=True)]
+
+
+def _onsets(case: BenchCase, nominal: LinearModel, fault: Fault, cfg: BenchConfig) -> list[Scenario]:
+    healthy, faulty = case.plant(nominal), case.faulty(nominal, fault)
+    signal, period = case.input(), 4.0
+    return [
+        Scenario(
+            name=f"{case.name} {fault.name} @ phase {ph:g} s",
+            nominal=healthy,
+            input=Shifted(signal, cfg.healthy_s - ph, period),
+            duration=cfg.healthy_s + cfg.fault_s,
+            windows=(Segment(cfg.healthy_s, cfg.healthy_s + cfg.fault_s, faulty, fault.label),),
+            fault=fault.name,
+            fault_channel=fault.channel,
+        )
+        for ph in cfg.phases
+    ]
+
+
+def _detection(
+    case: BenchCase,
+    nominal: LinearModel,
+    prepared: Sequence[tuple[Any, MonitorSettings]],
+    cfg: BenchConfig,
+) -> list[list[FaultOutcome]]:
+    """Per prepared route, per fault: detection over the onsets (one simulation shared by the routes)."""
+    chain = case.sensor(nominal)
+    out: list[list[FaultOutcome]] = [[] for _ in prepared]
+    scores = [monitor_score(model, s)[0] for model, s in prepared]
+    for j, fault in enumerate(FAULTS):
+        acc: list[dict[str, Any]] = [{"d": [], "pre_alarm": 0, "false": 0} for _ in prepared]
+        for i, sc in enumerate(_onsets(case, nominal, fault, cfg)):
+            seed = np.random.SeedSequence([cfg.seed, 7, j, i])
+            sim = simulate(sc, cfg.runs_per_phase, seed)
+            rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, 8, j, i]))
+            y = _outputs(case, sim.z)
+            z, _ = chain.apply(y, sim.t, rng, chain.init(y.shape[0], rng))
+            ((on, off),) = sc.fault_intervals
+            fault_c = list(nominal.output_names).index(fault.channel)
+            for r, (model, settings) in enumerate(prepared):
+                assert settings.rule is not None  # prepared routes carry their calibrated rule
+                rec = chattering_record(model, z, sim.u, gamma=settings.gamma)
+                _, P = frame_columns(rec.values, model.dt, settings.stft)
+                S = scores[r](P)
+                res = score_delays(
+                    S, rec.t, (on, off), {"rule": settings.rule}, settings.stft, model.dt, fault_c
+                )
+                d, _, pre, _ = res["rule"]
+                acc[r]["d"].append(d)
+                acc[r]["false"] += pre
+                # an alarm still active at the onset: the rule's state after the healthy stretch
+                from ..detection.alarms import run_rule
+
+                W, H = settings.stft.n_window(model.dt), settings.stft.n_hop(model.dt)
+                F = S.shape[1]
+                t_end = rec.t[np.arange(F) * H + W - 1]
+                before = np.flatnonzero(t_end < on - 1e-9)
+                if before.size:
+                    active = run_rule(settings.rule, S[:, : before[-1] + 1]).active[:, -1].any(axis=-1)
+                    acc[r]["pre_alarm"] += int(np.count_nonzero(active))
+        for r in range(len(prepared)):
+            d = np.concatenate(acc[r]["d"])
+            n, k = d.size, int(np.count_nonzero(np.isfinite(d)))
+            ds = np.sort(d)
+            med = float(ds[max(0, math.ceil(0.5 * n) - 1)])
+            p90 = float(ds[max(0, math.ceil(0.9 * n) - 1)])
+            out[r].append(
+                FaultOutcome(
+                    fault.name,
+                    n,
+                    k,
+                    clopper_pearson(k, n, 0.99),
+                    med,
+                    p90,
+                    acc[r]["false"],
+                    acc[r]["pre_alarm"],
+                )
+            )
+    return out
+
+
+def _run_case(
+    case: BenchCase, routes: Sequence[Route], cfg: BenchConfig, nominal: LinearModel
+) -> tuple[CaseOutcome, float]:
+    """Every route on one case; its outcome and CPU time (s)."""
+    t_case = time.process_time()
+
+    def healthy(duration_s: float, seed: int) -> Iterator[Any]:
+        return healthy_blocks(case, nominal, duration_s, cfg.block_s, 1000 * cfg.seed + seed)
+
+    inputs = RouteInputs(nominal, case, cfg, healthy)
+    prepared: list[tuple[Any, MonitorSettings] | None] = []
+    notes, cpu = [], []
+    for route in routes:
+        t0 = time.process_time()
+        try:
+            prepared.append(route.prepare(inputs))
+            notes.append("")
+        except ParameterError as exc:
+            prepared.append(None)
+            notes.append(f"not run: {exc}")
+        cpu.append(time.process_time() - t0)
+    ready = [i for i, p in enumerate(prepared) if p is not None]
+    runs = [p for p in prepared if p is not None]
+    t0 = time.process_time()
+    monitors = [ChatteringMonitor(model, settings) for model, settings in runs]
+    starts, in_alarm = _false_alarms(case, nominal, monitors, cfg)
+    detection = _detection(case, nominal, runs, cfg)
+    shared = (time.process_time() - t0) / max(1, len(ready))
+    hours = cfg.nonlinear_hours if case.nonlinear else cfg.hours
+    ci = poisson_count_interval(cfg.budget * hours, 0.99)
+    rows = []
+    for i, route in enumerate(routes):
+        if i not in ready:
+            rows.append(RouteOutcome(route.label, 0.0, 0, ci, (0.0, 0.0), (), float("nan"), notes[i], cpu[i]))
+            continue
+        j = ready.index(i)
+        lo, hi = poisson_interval(starts[j], 0.99)
+        rule = runs[j][1].rule
+        rows.append(
+            RouteOutcome(
+                route.label,
+                hours,
+                starts[j],
+                ci,
+                (lo / hours, hi / hours),
+                tuple(detection[j]),
+                float("nan") if rule is None else float(rule.threshold),
+                "",
+                cpu[i] + shared,
+                in_alarm[j],
+            )
+        )
+    return CaseOutcome(case.name, case.group, case.description, tuple(rows)), time.process_time() - t_case
+
+
+#: The job of the worker processes (set before they fork; only case indices travel to them).
+_JOB: tuple[Sequence[BenchCase], Sequence[Route], BenchConfig, LinearModel] | None = None
+
+
+def _worker(i: int) -> tuple[CaseOutcome, float]:
+    assert _JOB is not None
+    cases, routes, cfg, nominal = _JOB
+    return _run_case(cases[i], routes, cfg, nominal)
+
+
+def run_bench(
+    routes: Sequence[Route] | None = None,
+    cases: Sequence[BenchCase] | None = None,
+    config: BenchConfig | None = None,
+    *,
+    nominal: LinearModel | None = None,
+    progress: bool | None = None,
+    workers: int = 1,
+    on_case: Callable[[CaseOutcome], None] | None = None,
+) -> BenchResult:
+    """Run the bench (module docstring).
+
+    Parameters
+    ----------
+    routes : sequence of Route, optional
+        Default: :func:`nominal_route` and, with ``recorded_hours > 0``, :func:`recorded_route`.
+    cases : sequence of BenchCase, optional
+        Default :func:`bench_cases`.
+    config : BenchConfig, optional
+    nominal : LinearModel, optional
+        The nominal model (default the linear EHA of the catalogue, the model file's).
+    progress : bool, optional
+        Progress bar on stderr (default: when it is a terminal).
+    workers : int
+        Cases run in this many forked processes (the numbers do not depend on it: every case's
+        seeds are its own). ``BenchResult.cpu_s`` adds the workers' CPU time.
+    on_case : callable, optional
+        Called with each case's outcome as it finishes (e.g. to save partial results).
+    """
+    global _JOB
+    cfg = config or BenchConfig()
+    nominal = nominal or eha_linear()
+    if routes is None:
+        routes = [nominal_route()] + ([recorded_route()] if cfg.recorded_hours > 0 else [])
+    cases = tuple(bench_cases() if cases is None else cases)
+    cpu = time.process_time()
+    results: list[tuple[CaseOutcome, float] | None] = [None] * len(cases)
+    with Progress(len(cases), "realistic bench", enabled=progress) as bar:
+        if int(workers) <= 1:
+            for i, case in enumerate(cases):
+                outcome = results[i] = _run_case(case, routes, cfg, nominal)
+                if on_case is not None:
+                    on_case(outcome[0])
+                bar.update(1, case.name)
+            worker_cpu = 0.0
+        else:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor, as_completed
+
+            _JOB = (cases, routes, cfg, nominal)
+            try:
+                ctx = multiprocessing.get_context("fork")
+                with ProcessPoolExecutor(int(workers), mp_context=ctx) as pool:
+                    futures = {pool.submit(_worker, i): i for i in range(len(cases))}
+                    for fut in as_completed(futures):
+                        res = results[futures[fut]] = fut.result()
+                        if on_case is not None:
+                            on_case(res[0])
+                        bar.update(1, cases[futures[fut]].name)
+            finally:
+                _JOB = None
+            worker_cpu = sum(r[1] for r in results if r is not None)
+    done = [r for r in results if r is not None]
+    return BenchResult(cfg, tuple(r[0] for r in done), time.process_time() - cpu + worker_cpu)
