@@ -391,34 +391,61 @@ def _alarm_kernel(
     ``stat`` (g or the window count), ``starts``, ``ends``. The operations and their order
     are those of :func:`_alarm_numpy`.
     """
-    R, K, C = s.shape
+    R, C = s.shape[0], s.shape[2]
     step0 = pos[0]
     for r in range(R):
         for c in range(C):
-            a = act[r, c]
-            if code == 0:  # frame: active while the score is over the threshold
-                for j in range(K):
-                    x = s[r, j, c]
-                    on = x >= h
-                    a = _alarm_step(active, stat, starts, ends, r, j, c, a, on, not on, x)
-            elif code == 2:  # CUSUM, held at h from the start and while active
-                x = g[r, c]
-                for j in range(K):
-                    x = max((x + s[r, j, c]) - drift, 0.0)
-                    on = x >= h
-                    x = min(x, h)  # x < h stays x: only a start or an active alarm is held at h
-                    a = _alarm_step(active, stat, starts, ends, r, j, c, a, on, x <= 0.0, x)
-                g[r, c] = x
-            else:  # persistence: count of the last n steps over the threshold
-                cnt = count[r, c]
-                for j in range(K):
-                    p = (step0 + j) % n
-                    ex = s[r, j, c] >= h
-                    cnt = cnt - ring[r, c, p] + ex
-                    ring[r, c, p] = ex
-                    a = _alarm_step(active, stat, starts, ends, r, j, c, a, cnt >= k, cnt <= 0, cnt)
-                count[r, c] = cnt
-            act[r, c] = a
+            alarm_channel_step(
+                code, s, h, drift, k, n, act, g, count, ring, step0, active, stat, starts, ends, r, c
+            )
+
+
+@_jit.step
+def alarm_channel_step(
+    code: int,
+    s: np.ndarray,
+    h: float,
+    drift: float,
+    k: int,
+    n: int,
+    act: np.ndarray,
+    g: np.ndarray,
+    count: np.ndarray,
+    ring: np.ndarray,
+    step0: int,
+    active: np.ndarray,
+    stat: np.ndarray,
+    starts: np.ndarray,
+    ends: np.ndarray,
+    r: int,
+    c: int,
+) -> None:  # pragma: no cover - compiled (inlined into _alarm_kernel and the monitor's hop loop)
+    """Stream ``r``, channel ``c`` of :func:`_alarm_kernel` over its K steps (its arguments)."""
+    K = s.shape[1]
+    a = act[r, c]
+    if code == 0:  # frame: active while the score is over the threshold
+        for j in range(K):
+            x = s[r, j, c]
+            on = x >= h
+            a = _alarm_step(active, stat, starts, ends, r, j, c, a, on, not on, x)
+    elif code == 2:  # CUSUM, held at h from the start and while active
+        x = g[r, c]
+        for j in range(K):
+            x = max((x + s[r, j, c]) - drift, 0.0)
+            on = x >= h
+            x = min(x, h)  # x < h stays x: only a start or an active alarm is held at h
+            a = _alarm_step(active, stat, starts, ends, r, j, c, a, on, x <= 0.0, x)
+        g[r, c] = x
+    else:  # persistence: count of the last n steps over the threshold
+        cnt = count[r, c]
+        for j in range(K):
+            p = (step0 + j) % n
+            ex = s[r, j, c] >= h
+            cnt = cnt - ring[r, c, p] + ex
+            ring[r, c, p] = ex
+            a = _alarm_step(active, stat, starts, ends, r, j, c, a, cnt >= k, cnt <= 0, cnt)
+        count[r, c] = cnt
+    act[r, c] = a
 
 
 @_jit.step
