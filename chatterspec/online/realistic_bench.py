@@ -364,6 +364,18 @@ def healthy_blocks(
     block to block, the input repeating with its 4 s period, bounded memory for any duration); the
     sensor chain's state is carried too.
 
+    Parameters
+    ----------
+    case : BenchCase
+    nominal : LinearModel
+        The nominal model (the plant and the sensors are the case's departures from it).
+    duration_s : float
+        Length of the stream (s).
+    block_s : float
+        Length of a block (s; the stream does not depend on it).
+    seed : int
+        The stream's seed (plant and sensors).
+
     Yields
     ------
     (t, z, u)
