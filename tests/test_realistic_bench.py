@@ -14,8 +14,8 @@ from chatterspec.errors import CommissioningError, ParameterError
 from chatterspec.online.bench_routes import (
     BENCH_TOLERANCES,
     ROUTES,
+    BenchRoute,
     ParameterMonitoring,
-    Route,
     RouteInputs,
     commissioned_route,
     nominal_route,
@@ -85,7 +85,7 @@ def test_tiny_bench_every_route() -> None:
         commissioned_route(fit),
         tolerance_route(),
         tolerance_route(fit=fit),
-        Route("broken", "a broken route", broken),
+        BenchRoute("broken", "a broken route", broken),
     ]
     cfg = dataclasses.replace(TINY, hours=3 / 60, block_s=20.0)  # three pushes: a stream can stop early
     res = run_bench(routes, [CASES["exact"], CASES["bulk_modulus-30"]], cfg, progress=False)

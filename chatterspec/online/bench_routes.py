@@ -1,7 +1,7 @@
 """The realistic bench's routes: how a plant is monitored, prepared from the nominal model and the
 plant's own healthy data (:mod:`chatterspec.online.realistic_bench`).
 
-A :class:`Route` prepares, per bench case, a monitoring of one of two kinds:
+A :class:`BenchRoute` prepares, per bench case, a monitoring of one of two kinds:
 
 * :class:`SpectralMonitoring`: the chattering monitor of a model (spectral frames, their score, the
   alarm rule at the budget): the online :class:`~chatterspec.online.monitor.ChatteringMonitor` on the
@@ -59,10 +59,10 @@ __all__ = [
     "CALIBRATION_SEED",
     "ROUTES",
     "AlarmCounter",
+    "BenchRoute",
     "Monitoring",
     "OnsetScores",
     "ParameterMonitoring",
-    "Route",
     "RouteInputs",
     "SpectralMonitoring",
     "commissioned_route",
@@ -76,7 +76,7 @@ __all__ = [
 ROUTES = ("nominal", "commissioned", "tolerances", "commissioned-tolerances", "recorded")
 #: Seed of the simulated calibrations of the routes' models.
 CALIBRATION_SEED = 12345
-#: Route (c)'s operating tolerances, relative to the model's values: bulk modulus +-15 % (it moves
+#: BenchRoute (c)'s operating tolerances, relative to the model's values: bulk modulus +-15 % (it moves
 #: with oil temperature and entrained air by about that much over a working day), viscous friction
 #: +-30 % (oil viscosity over the same range of temperature), leakage +-100 % (a tight actuator's
 #: leakage is poorly known, and doubling it is still far below the catalogue's minor leak, 6.25 times
@@ -354,7 +354,7 @@ class RouteInputs:
 
 
 @dataclass(frozen=True)
-class Route:
+class BenchRoute:
     """How a case is monitored: ``prepare(inputs) -> Monitoring``.
 
     Attributes
@@ -381,13 +381,13 @@ def _simulated(model: Any, settings: MonitorSettings, cfg: BenchConfig) -> Monit
     )
 
 
-def nominal_route() -> Route:
+def nominal_route() -> BenchRoute:
     """(a) the nominal model, its alarm threshold from ``calibration_hours`` of simulated healthy data."""
 
     def prepare(r: RouteInputs) -> Monitoring:
         return SpectralMonitoring(r.nominal, _simulated(r.nominal, MonitorSettings(), r.config))
 
-    return Route("nominal", "(a) nominal model", prepare)
+    return BenchRoute("nominal", "(a) nominal model", prepare)
 
 
 def _commission(nominal: LinearModel, z: np.ndarray, u: np.ndarray) -> Any:
@@ -409,7 +409,7 @@ def commissioned_details(res: Any) -> dict[str, Any]:
     }
 
 
-def commissioned_route(fit: Callable[[LinearModel, np.ndarray, np.ndarray], Any] | None = None) -> Route:
+def commissioned_route(fit: Callable[[LinearModel, np.ndarray, np.ndarray], Any] | None = None) -> BenchRoute:
     """(b) the model commissioned from ``commission_s`` of the plant's healthy data, with its own
     simulated alarm calibration; a refusal is the route's note.
 
@@ -428,13 +428,13 @@ def commissioned_route(fit: Callable[[LinearModel, np.ndarray, np.ndarray], Any]
         settings = _simulated(res.model, settings, r.config)
         return SpectralMonitoring(res.model, settings, commissioned_details(res))
 
-    return Route("commissioned", "(b) commissioned", prepare)
+    return BenchRoute("commissioned", "(b) commissioned", prepare)
 
 
 def tolerance_route(
     tolerances: Mapping[str, str] = BENCH_TOLERANCES,
     fit: Callable[[LinearModel, np.ndarray, np.ndarray], Any] | None = None,
-) -> Route:
+) -> BenchRoute:
     """(c) the nominal model with operating ``tolerances``, decided on the identified parameters at the
     budget (what ``chatterspec monitor --tolerance`` decides); with ``fit``, the model commissioned by it
     (:func:`commissioned_route`'s, the same fit) with the tolerances around the commissioned values.
@@ -461,11 +461,11 @@ def tolerance_route(
         return ParameterMonitoring.of(banded, stft, r.config.rule, r.config.budget, details)
 
     if fit is None:
-        return Route("tolerances", "(c) nominal + tolerances", prepare)
-    return Route("commissioned-tolerances", "commissioned + tolerances", prepare)
+        return BenchRoute("tolerances", "(c) nominal + tolerances", prepare)
+    return BenchRoute("commissioned-tolerances", "commissioned + tolerances", prepare)
 
 
-def recorded_route() -> Route:
+def recorded_route() -> BenchRoute:
     """The nominal model with thresholds from ``recorded_hours`` of the plant's recorded healthy data
     (the recording's own normalization, :mod:`chatterspec.online.recorded_calibration`)."""
     from ..studies.recorded_calibration import HealthyRecording, array_chunks
@@ -492,12 +492,12 @@ def recorded_route() -> Route:
         )
         return SpectralMonitoring(r.nominal, settings)
 
-    return Route("recorded", "nominal + thresholds from recorded data", prepare)
+    return BenchRoute("recorded", "nominal + thresholds from recorded data", prepare)
 
 
-def route_named(name: str) -> Route:
+def route_named(name: str) -> BenchRoute:
     """The route ``name`` (:data:`ROUTES`), its defaults."""
-    makers: dict[str, Callable[[], Route]] = {
+    makers: dict[str, Callable[[], BenchRoute]] = {
         "nominal": nominal_route,
         "commissioned": commissioned_route,
         "tolerances": tolerance_route,

@@ -86,9 +86,9 @@ from ..studies.alarm_delays import Shifted
 from ..studies.intervals import clopper_pearson
 from .bench_routes import (
     AlarmCounter,
+    BenchRoute,
     Monitoring,
     OnsetScores,
-    Route,
     RouteInputs,
     commissioned_route,
     nominal_route,
@@ -745,7 +745,7 @@ def _detection(
 
 
 def _run_case(
-    case: BenchCase, routes: Sequence[Route], cfg: BenchConfig, nominal: LinearModel
+    case: BenchCase, routes: Sequence[BenchRoute], cfg: BenchConfig, nominal: LinearModel
 ) -> tuple[CaseOutcome, float]:
     """Every route on one case; its outcome and CPU time (s)."""
     t_case = time.process_time()
@@ -802,7 +802,7 @@ def _run_case(
 
 
 #: The job of the worker processes (set before they fork; only case indices travel to them).
-_JOB: tuple[Sequence[BenchCase], Sequence[Route], BenchConfig, LinearModel] | None = None
+_JOB: tuple[Sequence[BenchCase], Sequence[BenchRoute], BenchConfig, LinearModel] | None = None
 
 
 def _worker(i: int) -> tuple[CaseOutcome, float]:
@@ -812,7 +812,7 @@ def _worker(i: int) -> tuple[CaseOutcome, float]:
 
 
 def run_bench(
-    routes: Sequence[Route] | None = None,
+    routes: Sequence[BenchRoute] | None = None,
     cases: Sequence[BenchCase] | None = None,
     config: BenchConfig | None = None,
     *,
@@ -825,7 +825,7 @@ def run_bench(
 
     Parameters
     ----------
-    routes : sequence of Route, optional
+    routes : sequence of BenchRoute, optional
         Default: (a) :func:`~chatterspec.online.bench_routes.nominal_route`, (b)
         :func:`~chatterspec.online.bench_routes.commissioned_route`, (c)
         :func:`~chatterspec.online.bench_routes.tolerance_route` and, with ``recorded_hours > 0``,
