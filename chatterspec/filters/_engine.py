@@ -42,6 +42,7 @@ from .. import _jit
 from ..errors import SingularMatrixError
 from ..plants.sample_functions import MeasurementSteps
 from ..plants.steps import PlantSteps
+from ._finite import finite_sample
 from ._linalg import (
     chol_solve_step,
     chol_step,
@@ -563,12 +564,8 @@ def _cov_one(buf: np.ndarray, cst: np.ndarray, z: np.ndarray, u: np.ndarray) -> 
     n = NX if NX > 0 else int(cst[0])
     m = NZ if NZ > 0 else int(cst[1])
     p = u.shape[0]
-    for i in range(m):
-        if not np.isfinite(z[i]):
-            return BAD_INPUT
-    for i in range(p):
-        if not np.isfinite(u[i]):
-            return BAD_INPUT
+    if not finite_sample(z, m, u, p):
+        return BAD_INPUT
     o = 4
     L = int(cst[3])
     prm = cst[o : o + L]

@@ -48,6 +48,7 @@ from ._bank_steps import (
     run_bank_loop,
 )
 from ._engine import BAD_INPUT, DIVERGED, NOT_PD, SINGULAR_PHI12, _no_sample, sample_step, workspace
+from ._finite import finite_sample
 
 if TYPE_CHECKING:  # pragma: no cover
     from .bank_common import MultipleModelState
@@ -290,12 +291,8 @@ def _imm_one(buf, cst, slots, z, u):  # type: ignore[no-untyped-def]  # pragma: 
     n = NX if NX > 0 else int(cst[1])
     m = NZ if NZ > 0 else int(cst[2])
     p = u.shape[0]
-    for i in range(m):
-        if not np.isfinite(z[i]):
-            return BAD_INPUT
-    for i in range(p):
-        if not np.isfinite(u[i]):
-            return BAD_INPUT
+    if not finite_sample(z, m, u, p):
+        return BAD_INPUT
     L_prm, L_fp, floor = int(cst[3]), int(cst[4]), cst[5]
     o = 6
     prm = cst[o : o + nm * L_prm].reshape((nm, L_prm))

@@ -47,6 +47,7 @@ from ._engine import (
     sample_step,
     workspace,
 )
+from ._finite import finite_sample
 
 #: Bindings of :func:`_smm_sample`: the modes' plant step (:func:`._bank_steps.bank_plants`), the
 #: SVSF-cov sample step, sizes (0: from the arrays); of the loops: ``SMM_SAMPLE``.
@@ -179,12 +180,8 @@ def _smm_one(
     n = NX if NX > 0 else int(cst[1])
     m = NZ if NZ > 0 else int(cst[2])
     p = u.shape[0]
-    for i in range(m):
-        if not np.isfinite(z[i]):
-            return BAD_INPUT
-    for i in range(p):
-        if not np.isfinite(u[i]):
-            return BAD_INPUT
+    if not finite_sample(z, m, u, p):
+        return BAD_INPUT
     L_prm, L_fp, floor = int(cst[3]), int(cst[4]), cst[5]
     o = 6
     prm = cst[o : o + nm * L_prm].reshape((nm, L_prm))

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _jit
+from ._finite import finite_sample
 from .svsf_steps import closed_form_step, matvec_step, rows_times_step, svsf_step
 
 __all__ = ["svsf_one_kernel", "svsf_one_offsets"]
@@ -148,12 +149,8 @@ def _svsf_one(buf, cst, z, u):  # type: ignore[no-untyped-def]  # pragma: no cov
     buf, cst, z, u = b(buf), b(cst), b(z), b(u)
     n, m, p, nl = NX if NX > 0 else int(cst[0]), NZ if NZ > 0 else int(cst[1]), int(cst[2]), int(cst[3])
     sat, gamma, closed = cst[4] != 0.0, cst[5], cst[6] != 0.0
-    for i in range(m):
-        if not np.isfinite(z[i]):
-            return 3
-    for i in range(p):
-        if not np.isfinite(u[i]):
-            return 3
+    if not finite_sample(z, m, u, p):
+        return 3
     o_GT, o_PhiT, o_L, o_P, o_psi, o_Si, o_SiT, _ = svsf_one_offsets(n, m, p, nl)
     GT = cst[o_GT:o_PhiT].reshape((p, n))
     PhiT = cst[o_PhiT:o_L].reshape((n, n))
