@@ -479,6 +479,9 @@ class RouteOutcome:
         What the route's preparation found (e.g. the commissioned estimates).
     planned_hours : float
         Healthy hours the case's stream holds.
+    blind_fraction : float
+        Fraction of the healthy frames in which a declared parameter is not excited (a parameter
+        decision is blind there: no false alarm, and no detection either); 0 for the spectrum.
     """
 
     route: str
@@ -493,6 +496,7 @@ class RouteOutcome:
     alarm_fraction: float = 0.0
     details: Mapping[str, Any] = field(default_factory=dict)
     planned_hours: float = 0.0
+    blind_fraction: float = 0.0
 
     @property
     def holds(self) -> bool:
@@ -518,6 +522,7 @@ class RouteOutcome:
             "rate_interval_99": list(self.rate_interval),
             "holds": self.holds,
             "alarm_fraction": self.alarm_fraction,
+            "not_excited_fraction": self.blind_fraction,
             "threshold": finite_or_none(self.threshold),
             "faults": [f.to_dict() for f in self.faults],
             "note": self.note,
@@ -613,6 +618,8 @@ def bench_table(doc: Mapping[str, Any]) -> str:
             fa = f"{r['rate_per_hour']:.3g} [{lo:.2g}, {hi:.3g}] ({r['starts']} in {span})"
             frac = r.get("alarm_fraction", 0.0)
             fa += f", in alarm {100 * frac:.3g} % of the time" if frac > 1e-3 else ""
+            blind = r.get("not_excited_fraction", 0.0)
+            fa += f", not excited {100 * blind:.3g} % of the time" if blind >= 0.01 else ""
             fa += "" if r["holds"] else " **not held**"
             cells = []
             for f in r["faults"]:
@@ -796,6 +803,7 @@ def _run_case(
                 c.active / max(1, c.frames),
                 dict(runs[j].details),
                 hours,
+                c.blind / max(1, c.frames),
             )
         )
     return CaseOutcome(case.name, case.group, case.description, tuple(rows)), time.process_time() - t_case
