@@ -45,7 +45,7 @@ TINY = BenchConfig(hours=1 / 60, runs_per_phase=1, phases=(0.0,), recorded_hours
 
 def test_the_cases() -> None:
     names = list(CASES)
-    assert len(names) == len(set(names)) == 23
+    assert len(names) == len(set(names)) == 24
     params = [c for c in CASES.values() if c.group == "parametric"]
     assert len(params) == 12  # 3 parameters and all three, at 3, 10, 30 %
     m = eha_linear()
