@@ -267,7 +267,7 @@ def record_budget_diagnosis(
     -------
     Path
     """
-    from ..detection.alarms import rule_from_dict, run_rule
+    from ..detection.alarms import rule_from_dict, rule_spec, run_rule
     from ..detection.route_scores import mode_log_odds
     from ..plants.simulate import iter_simulations
 
@@ -289,7 +289,7 @@ def record_budget_diagnosis(
             score, times = rs.score, rs.times
         blk = run_rule(rule, score)
         stat = blk.statistic[0].max(axis=-1)  # the largest over the channels (the route's alarm is any)
-        label = {"frame": "score", "persistence": "exceedances in window", "cusum": "CUSUM g"}[rule.name]
+        label = rule_spec(rule).statistic
         series[method] = (times, stat, rule.threshold, label)
     return record_diagnosis(
         path, sim, threshold if "chattering" in routes else None, modes, route_series=series

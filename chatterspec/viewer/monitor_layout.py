@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..detection.alarm_rules import rule_spec
 from ..online.monitor import ChatteringMonitor
 from .blueprint import blueprint, layout_geometry, view_px
 from .record_geometry import DB_RANGE
@@ -71,7 +72,7 @@ class MonitorLayout:
         )[1]
         self.key = key_width(self.width, view_px(m))  # the colour key: as wide as a time view's labels
         rule = monitor.rule
-        self.cusum = rule.name == "cusum"
+        self.cusum = rule_spec(rule).accumulates  # the alarm view draws the rule's statistic
         self.h = float(rule.threshold) if np.isfinite(rule.threshold) else np.nan
 
     def blueprint(
@@ -128,8 +129,7 @@ class MonitorLayout:
         from ..detection.alarm_rules import alarm_label
 
         rule, budget = self.monitor.rule, self.monitor.settings.false_alarms_per_hour
-        what = {"cusum": "CUSUM g", "persistence": f"score ({rule.name} {getattr(rule, 'k', '')} of "
-                f"{getattr(rule, 'n', '')})"}.get(rule.name, "score")  # fmt: skip
+        what = rule.view_label()
         label = alarm_label(rule.name, budget).split(", ", 1)[1]
         grey = ", grey = score" if self.cusum else ""
         return f"{what} vs h = {rule.threshold:.3g} [nats] ({label}){grey}"
