@@ -7,7 +7,9 @@ machine hits both; rates in realization-steps per CPU second of this process
 (``time.process_time``) and per wall second. Also the numpy path of the closed loop
 (``CHATTERSPEC_JIT=0``: the same steps on rows of realizations) and the chattering of the
 closed loop (simulate + auxiliary SVSF, the per-run input path) against the open loop's fused
-kernel, and the nonlinear EHA's closed loop (numpy path).
+kernel, and the nonlinear EHA's closed loop (numpy path). Last, the stream that ``chatterspec simulate
+NAME --rate 0`` writes (one realization, state carried block to block, with its CSV text), closed
+against open loop, in times real time per CPU second (best of ``--repeat``, alternating).
 
 Run: ``python benchmarks/bench_closed_loop.py [--runs 512] [--repeat 5]``.
 Target: the closed-loop simulation within 2x the open-loop simulation's rate (compiled).
@@ -23,6 +25,7 @@ import numpy as np
 
 import chatterspec as cs
 from chatterspec.detection.pipeline import iter_chattering
+from chatterspec.online.simulated_stream import csv_lines, simulate_blocks
 from chatterspec.plants.simulate import simulate
 
 
@@ -50,6 +53,13 @@ def main() -> None:
     for _ in range(args.repeat):
         for name, fn in cases.items():
             out.setdefault(name, []).append(_rate(fn, steps))
+    stream: dict[str, float] = {}
+    for _ in range(args.repeat):
+        for sc in (closed, opened):
+            c0 = time.process_time()
+            for t, z, u in simulate_blocks(sc, 0, 120.0):
+                csv_lines(t, z, u)
+            stream[sc.name] = max(stream.get(sc.name, 0.0), 120.0 / (time.process_time() - c0))
     os.environ["CHATTERSPEC_JIT"] = "0"
     numpy_rate = [_rate(lambda: simulate(closed, 128, 1), 128 * closed.n_samples) for _ in range(2)]
     nonlinear = cs.scenario("eha4-cl-healthy")
@@ -66,6 +76,10 @@ def main() -> None:
     print(f"open-loop / closed-loop simulation rate (CPU time, medians): {ol / cl:.2f} (target <= 2)")
     print(f"closed loop, numpy path (128 runs): {max(r[0] for r in numpy_rate) / 1e6:.2f} M/CPU-s")
     print(f"nonlinear EHA closed loop, numpy path (128 runs): {max(r[0] for r in nl_rate) / 1e6:.2f} M/CPU-s")
+    print(
+        f"stream with its CSV text (simulate --rate 0), 120 s: {closed.name} {stream[closed.name]:.0f}x, "
+        f"{opened.name} {stream[opened.name]:.0f}x real time per CPU second (target >= 200x)"
+    )
 
 
 if __name__ == "__main__":

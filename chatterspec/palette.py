@@ -21,7 +21,7 @@ __all__ = [
     "HEALTHY",
     "MODE_COLORS",
     "NEUTRAL",
-    "NOT_EXCITED",
+    "NO_EVIDENCE",
     "TAB10",
     "TRUTH",
     "channel_color",
@@ -38,9 +38,10 @@ RGB = tuple[int, int, int]
 FAULT: RGB = (229, 57, 53)
 #: A healthy verdict (lanes).
 HEALTHY: RGB = (46, 125, 50)
-#: Not excited: the data cannot see a change of the size a parameter's tolerance allows (lanes), neither
-#: healthy nor fault.
-NOT_EXCITED: RGB = (96, 125, 139)
+#: No evidence either way: a lane before its first verdict, a channel or parameter not excited (the data
+#: cannot see a change of the size its tolerance allows); neither healthy nor fault, darker than the
+#: truth lane's healthy grey.
+NO_EVIDENCE: RGB = (84, 88, 110)
 #: Reference lines and healthy truth segments.
 NEUTRAL: RGB = (140, 140, 140)
 #: The true state (drawn under the estimates): light grey on Rerun's dark background; figures use black.

@@ -2,16 +2,21 @@
 
 Usage::
 
-    python scripts/realistic_bench.py [--hours 24] [--runs-per-phase 25] [--recorded-hours 4]
-        [--cases exact,ar1-0.9,...] [--commission] [--json figures/realistic_bench.json]
+    python scripts/realistic_bench.py [--hours 24] [--nonlinear-hours 4] [--runs-per-phase 25]
+        [--recorded-hours 4] [--routes nominal,commissioned,tolerances,commissioned-tolerances,recorded]
+        [--cases exact,ar1-0.9,...] [--workers 2] [--json figures/realistic_bench.json]
         [--figure figures/realistic_bench.png]
 
 Every case streams ``--hours`` of fresh healthy data through each route's online monitor and runs
-the catalogue faults' onsets (8 chirp phases x ``--runs-per-phase``). The whole bench with the
-defaults takes tens of minutes of CPU on a 2-core machine (the total CPU time is printed and
-written to the JSON). ``--commission`` adds route (b), the model commissioned from 10 minutes of
-each plant's healthy data, when the package has a commissioning function
-(``chatterspec.commissioning.commission``, whose result's ``.model`` is the fitted model).
+the catalogue faults' onsets (8 chirp phases x ``--runs-per-phase``). The routes
+(chatterspec.online.bench_routes): ``nominal`` (a), the nominal model; ``commissioned`` (b), the
+model ``chatterspec.commission`` fits to 10 minutes of the plant's own healthy data (a refusal is
+reported with its reason); ``tolerances`` (c), the nominal model with operating tolerances decided on
+the identified parameters; ``commissioned-tolerances``, the commissioned model with them;
+``recorded``, the nominal model with thresholds from ``--recorded-hours`` of the
+plant's recorded healthy data. Each case is written as it finishes to ``JSON.partial.jsonl``; runs made
+in pieces (``--cases``, a ``--json`` each) are assembled with ``--from-partial``. The total CPU time
+is printed and written to the JSON.
 """
 
 from __future__ import annotations
@@ -22,34 +27,18 @@ import sys
 import time
 from pathlib import Path
 
-from chatterspec.online.realistic_bench import (
-    BenchConfig,
-    bench_cases,
-    commissioned_route,
-    nominal_route,
-    recorded_route,
-    run_bench,
-)
+from chatterspec.online.bench_routes import ROUTES, route_named
+from chatterspec.online.realistic_bench import BenchConfig, bench_cases, run_bench
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _commission_route():  # type: ignore[no-untyped-def]
-    """Route (b) from the package's commissioning function, or None (with a note) when there is none."""
-    try:
-        from chatterspec.commissioning import commission  # type: ignore[import-not-found]
-    except ImportError:
-        print(
-            "note: no chatterspec.commissioning.commission in this version: route (b) not run",
-            file=sys.stderr,
-        )
-        return None
-    return commissioned_route(lambda nominal, z, u: commission(nominal, z, u).model)
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--hours", type=float, default=24.0, help="healthy hours per case (default 24)")
+    p.add_argument(
+        "--nonlinear-hours", type=float, default=4.0, help="healthy hours of the nonlinear plant (default 4)"
+    )
     p.add_argument(
         "--runs-per-phase", type=int, default=25, help="onsets per chirp phase and fault (default 25)"
     )
@@ -60,7 +49,9 @@ def main(argv: list[str] | None = None) -> int:
         "--calibration-hours", type=float, default=48.0, help="simulated hours of the alarm calibrations"
     )
     p.add_argument("--cases", default=None, help="comma-separated case names (default: all)")
-    p.add_argument("--commission", action="store_true", help="add route (b), the commissioned model")
+    p.add_argument(
+        "--routes", default=",".join(ROUTES), help=f"comma-separated routes (default {','.join(ROUTES)})"
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=1, help="cases in this many processes (same numbers)")
     p.add_argument(
@@ -77,6 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     cfg = BenchConfig(
         hours=args.hours,
+        nonlinear_hours=args.nonlinear_hours,
         runs_per_phase=args.runs_per_phase,
         recorded_hours=args.recorded_hours,
         calibration_hours=args.calibration_hours,
@@ -91,11 +83,12 @@ def main(argv: list[str] | None = None) -> int:
         cases = tuple(c for c in cases if c.name in names)
     if args.from_partial:
         return _assemble(args, cfg, cases)
-    routes = [nominal_route()]
-    if args.commission and (route := _commission_route()) is not None:
-        routes.append(route)
-    if cfg.recorded_hours > 0:
-        routes.append(recorded_route())
+    chosen = args.routes.split(",")
+    if set(chosen) - set(ROUTES):
+        p.error(f"unknown route(s) {sorted(set(chosen) - set(ROUTES))}; known: {', '.join(ROUTES)}")
+    if "recorded" in chosen and cfg.recorded_hours <= 0:
+        p.error("the recorded route needs --recorded-hours > 0")
+    routes = [route_named(r) for r in chosen]
     t0 = time.perf_counter()
     partial = args.json.with_suffix(".partial.jsonl")  # each case as it finishes (a run cut short keeps them)
     partial.parent.mkdir(parents=True, exist_ok=True)

@@ -83,7 +83,7 @@ def test_numpy_and_compiled_paths_give_the_same_bits(rule, monkeypatch):
     out = [np.empty((R, K, C), dtype=bool), np.empty((R, K, C)), np.empty((R, K, C), dtype=bool),
            np.empty((R, K, C), dtype=bool)]  # fmt: skip
     steps = rule_spec(rule).load_steps()
-    kern = getattr(steps.kernel, "py_func", steps.kernel)
+    kern = _jit.python_form(steps.kernel)
     kern(
         small, rule.threshold, alarms.rule_vector(rule), np.zeros((R, C), dtype=bool), np.zeros((R, C)),
         np.zeros((R, C), dtype=np.int64), np.zeros((R, C, alarms.ring_length(rule, steps)), dtype=bool),

@@ -155,16 +155,19 @@ def test_cli_record_writes_truth_estimates_and_innovations(tmp_path, capsys):
     assert rows["/states/velocity/svsf2"] == 1000
     assert rows["/innovations/position/kf"] == 1000
     assert rows["/errors/acceleration/kf"] == 1000
-    # a designed layout (not Rerun's automatic grid): per state, truth and estimates above the errors
+    # a designed layout (not Rerun's automatic grid): per state, truth and estimates beside the errors
     from chatterspec.viewer.estimates_log import estimate_blueprint
 
     bp = estimate_blueprint(("position", "velocity"), ("position",), ["kf", "svsf2"], (0.0, 1.0), ("m", ""))
-    columns = bp.root_container.contents[0].contents
-    assert [[v.origin for v in col.contents] for col in columns] == [
+    rows = bp.root_container.contents[:2]  # one row per state: estimates beside the errors
+    assert [[v.origin for v in row.contents] for row in rows] == [
         ["/states/position", "/errors/position"],
         ["/states/velocity", "/errors/velocity"],
     ]
-    assert columns[0].contents[0].name.startswith("position [m]: truth")
+    assert rows[0].contents[0].name.startswith("position [m]: truth")
+    # then the innovations with the colours' legend, and the true plant's lane (where the fault starts)
+    assert [v.origin for v in bp.root_container.contents[2].contents] == ["/innovations/position", "/info"]
+    assert bp.root_container.contents[3].origin == "/state"
 
 
 def test_estimation_error_figure(tmp_path):

@@ -189,8 +189,10 @@ def test_a_registered_rule_is_a_cli_choice_with_its_texts(twice):
     fake = SimpleNamespace(
         monitor=SimpleNamespace(rule=rule, settings=SimpleNamespace(false_alarms_per_hour=0.5))
     )
-    fake.cusum = rule_spec(rule).accumulates
-    assert MonitorLayout.alarm_title(fake) == "score vs h = 4 [nats] (1 false alarm per 2 h)"
+    fake.budget_per_hour = None
+    fake.budget_words = lambda *, rule=True: MonitorLayout.budget_words(fake, rule=rule)
+    assert MonitorLayout.alarm_title(fake)[0] == "score vs h = 4 nats, 1 false alarm/2 h"
+    assert MonitorLayout.budget_words(fake) == "twice, 1 false alarm/2 h"
 
 
 def test_a_registered_rule_drives_the_online_monitor(twice):
@@ -206,12 +208,27 @@ def test_a_registered_rule_drives_the_online_monitor(twice):
     rule = TwiceRule(8.0)
     settings = MonitorSettings(rule=rule)
     mon = ChatteringMonitor(model, settings)
+    # a rule without a channel step (RuleSteps.channel): the monitor runs the frame analysis and then the
+    # rule's own kernel per push instead of the one fused call the stock rules get
+    assert TWICE_STEPS.channel is None and not mon._frames._fused
+    assert (
+        ChatteringMonitor(model, MonitorSettings(rule=make_rule("cusum", 8.0)))._frames._fused
+        is _jit.enabled()
+    )
     _, P = frame_columns(chattering_record(model, sim.z, sim.u).values[0], model.dt, settings.stft)
     blk = run_rule(rule, FrameScore(mon.threshold)(P))
     events = mon.push(sim.z[0], sim.u).events
     assert events and [(e.kind, e.frame, e.rule) for e in events] == [
         ("fault-start" if e.kind == "alarm-start" else "fault-end", e.step, "twice") for e in blk.events()
     ]
+    # one sample at a time (ChatteringMonitor.step), with a push in between: the same events
+    stepped = ChatteringMonitor(model, settings)
+    z, u, by_step = sim.z[0], sim.u, []
+    for k in range(z.shape[0]):
+        by_step += (
+            stepped.push(z[k : k + 1], u[k : k + 1]).events if k % 1000 == 500 else stepped.step(z[k], u[k])
+        )
+    assert by_step == list(events)
 
 
 def test_the_stock_rules_are_back():

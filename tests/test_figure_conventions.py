@@ -13,11 +13,11 @@ matplotlib = pytest.importorskip("matplotlib")
 from matplotlib.colors import to_rgb  # noqa: E402
 
 from chatterspec.figures import paper_figures as pf  # noqa: E402
-from chatterspec.figures.estimators import _state_units  # noqa: E402
 from chatterspec.figures.overlay_figures import OVERLAYS, overlay_builder  # noqa: E402
 from chatterspec.figures.plot_closed_loop import closed_loop_spectra_figure  # noqa: E402
 from chatterspec.palette import FAULT, mpl  # noqa: E402
 from chatterspec.plants.eha4 import eha4  # noqa: E402
+from chatterspec.plants.model_base import state_units  # noqa: E402
 from chatterspec.plants.scenarios import scenario  # noqa: E402
 
 #: Reds a reader takes for "fault": the palette's fault colour and matplotlib's red.
@@ -67,6 +67,7 @@ def test_single_realization_builders_document_their_parameters():
 
 def test_state_units_of_linear_and_nonlinear_models():
     detc = scenario("detc-normal").nominal
-    # the DETC paper gives R = 0.1 cm^2: position in cm; the linear model declares output units only
-    assert _state_units(detc) == ("cm", "", "")
-    assert _state_units(eha4("normal")) == ("m", "m/s", "m/s^2", "Pa")
+    # the DETC paper gives R = 0.1 cm^2: position in cm; the linear model declares output units only, and
+    # velocity / acceleration follow from the measured position's
+    assert state_units(detc) == ("cm", "cm/s", "cm/s^2")
+    assert state_units(eha4("normal")) == ("m", "m/s", "m/s^2", "Pa")

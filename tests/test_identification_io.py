@@ -135,9 +135,13 @@ def test_monitor_identifies_the_example_per_hop_and_records_it(
     reader = RrdReader(str(rec))
     chunks = reader.stream().filter(content="/identification/leakage", is_static=False).to_chunks()
     rows = [v for c in chunks for v in c.to_record_batch().column("Scalars:scalars").to_pylist()]
-    assert len(rows) == 35 and all(len(r) == 5 for r in rows)  # estimate, interval, band
+    # estimate, interval ends and nominal (no tolerance: no band), drawn in 1e-12 m^3/(s Pa) (the nominal
+    # 4.8e-12's engineering exponent: the viewer's axis then reads 4.8 and 90, not 0.000 000 000 09)
+    assert len(rows) == 35 and all(len(r) == 4 for r in rows)
     est = np.array([r[0] for r in rows], dtype=float)
-    assert np.all(np.isfinite(est)) and np.median(est[-10:]) == pytest.approx(9e-11, rel=0.05)
+    # the joint estimate of every declared parameter in every window (9e-11 from 4 s on)
+    assert np.all(np.isfinite(est)) and np.median(est[-10:]) == pytest.approx(90.0, rel=0.05)
+    assert all(r[3] == pytest.approx(4.8) for r in rows)
     data = load_data(EXAMPLES / "eha_data.csv", load_model(EXAMPLES / "eha_model.toml").model)
     assert data.n_samples == 8001
     assert main([*argv, "--events", "jsonl", "--identification-events", "changes"]) == 0
@@ -164,13 +168,44 @@ def test_monitor_names_a_fault_only_under_an_alarm() -> None:
     settings = parameter_alarm_settings(setup, hop_s=0.2, window_hops=5)
     assert settings.calibration is None  # no tolerance: the spectral alarm decides
     mon = IdentificationMonitor(setup, settings)
-    mon.note_alarm("fault-start", "pressure", 2.0)  # an alarm from the frame centred at 2.0 s ...
-    mon.note_alarm("fault-end", "pressure", 3.0)  # ... to the one centred at 3.0 s
+    # an alarm decided at the end of the frame whose last sample is 2.6 s (frames end at 1.0 + 0.2 j s) ...
+    mon.note_alarm("fault-start", "pressure", 2.6)
+    mon.note_alarm("fault-end", "pressure", 3.6)  # ... cleared at the end of the one ending 3.6 s
     upd = mon.push(sim.z[0], sim.u)
-    frame_t = {w: w.time_s - sc.dt for w in upd.windows}  # a window is its frame shifted by one sample
-    assert all(w.label is None for w, t in frame_t.items() if t < 2.0 - 1e-9 or t >= 3.0 - 1e-9)
-    inside = [w for w, t in frame_t.items() if 2.0 - 1e-9 <= t < 3.0 - 1e-9]
+    # a window is decided at its last chattering sample, and is its frame shifted by one sample: the
+    # spectral alarm state of a window is the one decided at its frame's end, one sample earlier
+    frame_end = dict(zip(upd.windows, mon.frame_ends(upd.found).tolist(), strict=True))
+    assert all(w.alarm_time_s == pytest.approx(w.window_s[1] - sc.dt) for w in upd.windows)
+    assert all(t == pytest.approx(w.alarm_time_s - sc.dt) for w, t in frame_end.items())
+    assert all(w.label is None for w, t in frame_end.items() if t < 2.6 - 1e-9 or t >= 3.6 - 1e-9)
+    inside = [w for w, t in frame_end.items() if 2.6 - 1e-9 <= t < 3.6 - 1e-9]
     assert len(inside) == 5 and all(w.label == "leakage" for w in inside)
     assert all(w.channel_states[2] == "fault" and w.states[0] == "fault" for w in inside)
     outside = [w for w in upd.windows if w.label is None and w.time_s > 1.0]
     assert outside and all(w.channel_states == ("healthy",) * 3 for w in outside)
+
+
+def test_streamed_monitor_records_its_identification(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the example's rows through standard input (a streamed file): the same per-hop identification as
+    # from the file, drawn in the recording with the nominal value (1e-12 m^3/(s Pa): 4.8), and the
+    # parameters' lanes at the windows' alarm times
+    import sys
+
+    from rerun.chunk import RrdReader
+
+    rec = tmp_path / "s.rrd"
+    with (EXAMPLES / "eha_data.csv").open() as fh:
+        monkeypatch.setattr(sys, "stdin", fh)
+        argv = ["monitor", str(EXAMPLES / "eha_model.toml"), "--data", "-", "--record", str(rec)]
+        assert main(argv) == 0
+    capsys.readouterr()
+    reader = RrdReader(str(rec))
+    chunks = reader.stream().filter(content="/identification/leakage", is_static=False).to_chunks()
+    rows = [v for c in chunks for v in c.to_record_batch().column("Scalars:scalars").to_pylist()]
+    assert len(rows) == 35 and all(len(r) == 4 and r[3] == pytest.approx(4.8) for r in rows)
+    assert np.median([r[0] for r in rows[-10:]]) == pytest.approx(90.0, rel=0.05)  # the 9e-11 leak
+    lane = reader.stream().filter(content="/state/p1_leakage", is_static=False).to_chunks()
+    states = [v[0] for c in lane for v in c.to_record_batch().column("StateChange:state").to_pylist()]
+    assert states and states[-1] == "fault"  # named under the spectral alarm at the end

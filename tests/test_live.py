@@ -115,8 +115,10 @@ def _check_recording(path: Path, rec, spec, flags, summary) -> None:
     half_win = (spec.config.n_window(rec.dt) - 1) * rec.dt / 2.0  # logged when the detector knew
     for ev in summary.events:
         word = "ALARM" if ev.kind == "fault-start" else "cleared"
-        hit = [k for k in alarms if texts[k][0].startswith(f"{ev.channel} ") and word in texts[k][0]]
-        assert any(abs(t_ev[k] - (ev.time_s + half_win)) < 1e-9 for k in hit), ev
+        assert ev.alarm_time_s == pytest.approx(ev.time_s + half_win, abs=1e-12)
+        hit = [k for k in alarms if f" s {ev.channel} " in texts[k][0] and word in texts[k][0]]
+        assert any(abs(t_ev[k] - ev.alarm_time_s) < 1e-9 for k in hit), ev
+        assert any(texts[k][0].startswith(f"{ev.alarm_time_s:.2f} s ") for k in hit), ev  # the same time
         assert flags[ev.frame, ev.channel_index] == (ev.kind == "fault-start")
     _, truth = _column(reader, blueprint.TRUTH_LANE, "StateChange:state")
     assert [s[0] for s in truth] == ["healthy", "leakage 9e-11"]
@@ -160,7 +162,8 @@ def test_record_chattering_record(tmp_path: Path, batch) -> None:
     _, labels = _column_static(reader, "/spectrogram/pressure/freq_ticks", "Points2D:labels")
     assert labels[0][0] == "50 Hz" and labels[0][-1] == "150 Hz"
     _, key = _column_static(reader, "/spectrogram/pressure/key_ticks", "Points2D:labels")
-    assert key[0][0] == f"{record_geometry.DB_RANGE[1]:g} dB"
+    # short key labels (the view's title says dB): they fit the key, clear of the frequency labels
+    assert key[0] == [f"{record_geometry.DB_RANGE[1]:g}", "12", f"{record_geometry.DB_RANGE[0]:g}"]
 
 
 def _monitor(rec):

@@ -303,3 +303,82 @@ def test_fused_filter_kernel_gives_the_bits_of_the_svsf_update_path(sim, psi) ->
         for other in outs[1:]:
             for a, b in zip(outs[0], other, strict=True):
                 np.testing.assert_array_equal(a, b)
+
+
+FRAME_FIELDS = (
+    "index",
+    "times_s",
+    "power",
+    "flags",
+    "peak_hz",
+    "peak_ratio",
+    "score",
+    "alarm",
+    "alarm_statistic",
+)
+
+
+@pytest.mark.skipif(not _jit.enabled(), reason="the fused hop is the compiled path")
+@pytest.mark.parametrize(
+    "rule", [None, cs.CusumRule(threshold=6.0, drift=3.0), cs.PersistenceRule(threshold=5.0, k=2, n=4)]
+)
+def test_fused_hop_gives_the_bits_of_the_separate_calls(sim, rule) -> None:
+    """Power, verdicts, score and alarm rule of a block of frames in one compiled call: the same steps as
+    FrameEngine, FrameVerdicts, FrameScore and AlarmStream one after the other, so every field and event
+    is equal, whatever the pushes (one sample, a window, several blocks of frames)."""
+    model = sim.scenario.nominal
+    fused = ChatteringMonitor(model, MonitorSettings(rule=rule))
+    plain = ChatteringMonitor(model, MonitorSettings(rule=rule))
+    assert fused._frames._fused
+    plain._frames._fused = False
+    z, u = sim.z[0], sim.u
+    events = 0
+    for lo, hi in itertools.pairwise([0, 1, 250, 1251, 1252, 4600, z.shape[0]]):
+        a, b = fused.push(z[lo:hi], u[lo:hi]), plain.push(z[lo:hi], u[lo:hi])
+        for name in FRAME_FIELDS:
+            x, y = getattr(a.frames, name), getattr(b.frames, name)
+            assert (x is None) == (y is None), name
+            if x is not None:
+                np.testing.assert_array_equal(x, y, err_msg=name)
+        assert a.events == b.events
+        events += len(a.events)
+    assert events >= 1 and fused.n_frames == plain.n_frames > 20
+
+
+@pytest.mark.parametrize("psi", [None, (4.2e-3, 4.8e-3, 4.3e3)])
+def test_one_sample_steps_give_the_numbers_of_pushes(sim, psi) -> None:
+    """``step`` (one compiled call per sample with numba, a one-sample push without) mixed with pushes: the
+    chattering, estimates, frames' alarms and events of chunked pushes."""
+    model = sim.scenario.nominal
+    rule = cs.CusumRule(threshold=6.0, drift=3.0)
+    pushed = ChatteringMonitor(model, MonitorSettings(psi=psi, rule=rule))
+    stepped = ChatteringMonitor(model, MonitorSettings(psi=psi, rule=rule))
+    z, u = sim.z[0], sim.u
+    ev_push, chat, est = [], [], []
+    for lo in range(0, z.shape[0], 333):
+        upd = pushed.push(z[lo : lo + 333], u[lo : lo + 333])
+        ev_push += upd.events
+        chat.append(upd.chattering)
+        if psi is not None:
+            est.append(upd.estimate)
+    ev_step, chat_s, est_s = [], [], []
+    for k in range(z.shape[0]):
+        if k % 1000 == 500:  # a push in between: the same state
+            ev_step += stepped.push(z[k : k + 1], u[k : k + 1]).events
+        else:
+            ev_step += stepped.step(z[k], u[k])
+        if k:
+            chat_s.append(stepped.last_chattering)
+            est_s.append(stepped.last_estimate)
+    np.testing.assert_array_equal(np.concatenate(chat), np.array(chat_s))
+    if psi is not None:
+        np.testing.assert_array_equal(np.concatenate(est), np.array(est_s))
+    else:
+        assert all(e is None for e in est_s)
+    assert ev_step == ev_push and len(ev_push) >= 1
+    assert stepped.n_frames == pushed.n_frames and stepped.n_samples == pushed.n_samples
+    with pytest.raises(NonFiniteError):
+        stepped.step(np.array([np.nan, 0.0, 0.0]), u[0])
+    with pytest.raises(ShapeError):
+        stepped.step(z[0, :2], u[0])
+    assert stepped.n_samples == pushed.n_samples  # nothing consumed

@@ -244,6 +244,8 @@ def test_monitor_with_tolerances_decides_on_the_parameters(
     summary = lines[-1]
     assert summary["decision"] == "parameters (tolerances)"
     assert [e["parameter"] for e in summary["events"] if e["event"] == "fault-start"] == ["leakage"]
-    assert any(e["kind"] == "fault-start" for e in summary["spectral_events"])  # the chattering saw it too
+    spectral = summary["spectral_events"]  # the chattering saw it too: the detector's own events
+    assert any(e["kind"] == "fault-start" and e["channel"] == "pressure" and "peak_hz" in e for e in spectral)
+    assert all("parameter" not in e for e in spectral)
     named = [e["fault"] for e in lines if e["event"] == "identification" and e["fault"]]
     assert named and set(named) == {"leakage"}

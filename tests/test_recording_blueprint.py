@@ -241,7 +241,7 @@ def test_interval_events_name_both_bins(tmp_path: Path) -> None:
         ratio = np.where(tested[:, c] if tested.ndim == 2 else tested, power / thr, -np.inf)
         padded = np.concatenate(([False], flags[:, c], [False]))
         edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
-        mine = [s for _, s in intervals if s.startswith(f"{name} ")]
+        mine = [s for _, s in intervals if f" s {name} flagged" in s]
         assert len(mine) == len(edges) // 2
         for (a, b), text in zip(zip(edges[::2], edges[1::2], strict=True), mine, strict=True):
             k = a + int(np.argmax(ratio[a:b].max(axis=1)))
@@ -249,5 +249,19 @@ def test_interval_events_name_both_bins(tmp_path: Path) -> None:
             exc = int(np.argmax(np.where(ratio[k] > 1.0, power[k] - exp, -np.inf)))
             db = db_over_threshold
             want = two_bins_text(freqs[sig], db(ratio[k, sig]), freqs[exc], db(ratio[k, exc]))
-            assert text.startswith(f"{name} {want}: fault "), (text, want)
-            assert re.search(r"fault \d+\.\d\d-\d+\.\d\d s \(estimate\)$", text)
+            assert re.match(rf"[\d.-]+ s {name} flagged frames \(estimate\), ", text), text
+            assert text.endswith(f"(estimate), {want}"), (text, want)
+
+
+@pytest.mark.parametrize("rows_below", [0, 1])
+def test_event_log_holds_whole_rows(rows_below: int) -> None:
+    # The lanes row (the event log beside the lanes) in the viewer's pixels at 1600x1000: the log's top,
+    # whole table rows and its bottom margin, plus less than the ~6 px from a row's top to its text (a row
+    # cut there shows no half text), and at least the height the lanes ask for.
+    b = blueprint
+    for n_lanes in range(1, 13):
+        rows, _ = b.layout_geometry(3, n_lanes, rows_below=rows_below)
+        real = rows[1] * b._REAL_PX / b._WINDOW[1]  # [columns, lanes, (row below)]
+        table = real - b._LOG_TOP_PX - b._LOG_BOTTOM_PX
+        assert 0.0 <= table % b._LOG_ROW_PX < 6.0, (n_lanes, table)
+        assert rows[1] >= 45.0 + b._LANE_PX * n_lanes - 1e-9  # every lane visible

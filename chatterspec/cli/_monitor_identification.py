@@ -5,6 +5,7 @@
 JSON lines (``--events jsonl``):
 
 * with tolerances, the parameters' alarms are the monitor's fault events: ``{"event": "fault-start",
+  "sample_time_s": <alarm time: the deciding window's last sample>, "time_s": <its centre>,
   "channel": <parameter>, "parameter": ..., "estimate", "ci_low", "ci_high", "band", "tolerance",
   "score", "statistic", "threshold", "rule", "false_alarms_per_hour", "detectable", ...}``; the
   spectral detector's events are not emitted (they see the in-tolerance mismatch) and are counted in
@@ -21,7 +22,11 @@ JSON lines (``--events jsonl``):
 from __future__ import annotations
 
 import time
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..online.identification_monitor import IdentificationUpdate
 
 __all__ = ["MonitorIdentification"]
 
@@ -57,6 +62,8 @@ class MonitorIdentification:
         P = len(monitor.parameters)
         self._not_excited = np.zeros(P)
         self._hop_s = monitor.settings.hop_s
+        #: Called with each push's update before it is reported (e.g. the recordings of a stream).
+        self.on_update: Callable[[IdentificationUpdate], None] | None = None
 
     @property
     def identifier(self) -> Any:
@@ -74,19 +81,22 @@ class MonitorIdentification:
         self._key = self._label = self._states = None
         self._since_reset = 0
 
-    def note(self, kind: str, channel: str | None, time_s: float | None) -> None:
-        """A spectral event of the monitor: the alarm state of the label (no tolerances), or a mismatch
-        counted (tolerances)."""
-        if kind not in ("fault-start", "fault-end") or channel is None or time_s is None:
+    def note(self, kind: str, channel: str | None, alarm_time_s: float | None) -> None:
+        """A spectral event of the monitor decided at ``alarm_time_s`` (the end of its frame): the alarm
+        state of the label (no tolerances), or a mismatch counted (tolerances)."""
+        if kind not in ("fault-start", "fault-end") or channel is None or alarm_time_s is None:
             return
         if self.tolerances:
             self.spectral_mismatch += kind == "fault-start"
         else:
-            self.monitor.note_alarm(kind, channel, time_s)
+            self.monitor.note_alarm(kind, channel, alarm_time_s)
 
     def push(self, z: Any, u: Any) -> None:
         """Identify on one raw push and report it."""
-        self.handle(self.monitor.push(z, u))
+        upd = self.monitor.push(z, u)
+        if self.on_update is not None:
+            self.on_update(upd)
+        self.handle(upd)
 
     def handle(self, upd: Any) -> None:
         """Report one push's :class:`~chatterspec.online.identification_monitor.IdentificationUpdate`."""
@@ -103,7 +113,7 @@ class MonitorIdentification:
             self._since_reset += 1
             for ev in events.get(int(blk.frames[w.index]), ()):
                 doc = ev.to_dict()
-                kind, t = doc.pop("kind"), doc.pop("time_s")
+                kind, t = doc.pop("kind"), doc.pop("alarm_time_s")
                 line = {"event": kind, "sample_time_s": round(t, 9), "wall_time": time.time(), **doc}
                 self.events.append(line)
                 if self.emit is not None:

@@ -79,6 +79,7 @@ def _run_stream(
             on_note=on_note,
             on_push=None if ident is None else ident.push,
             on_reset=None if ident is None else ident.reset,
+            identification=None if ident is None else ident.monitor,
         )
     except OSError as exc:  # e.g. disk full when the recording opens: before any row is read
         from ._common import OutputPathError
@@ -86,6 +87,8 @@ def _run_stream(
         raise OutputPathError(
             f"--record {str(args.record)!r} cannot be written ({exc.strerror or exc}); nothing was monitored"
         ) from None
+    if ident is not None:  # the recordings draw the identification and their lanes follow it
+        ident.on_update = mon.log_identification
     rows = CsvRows(model, where)
     if stdin:
         chunks = read_fd(sys.stdin.fileno())

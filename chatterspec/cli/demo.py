@@ -117,6 +117,9 @@ def run(args: argparse.Namespace) -> int:
                     sim,
                     MonitorSettings(alpha=args.alpha, correction=args.correction, psi=boundary_layers[key]),
                     path=path,
+                    identification=setup,
+                    confidence=args.confidence,
+                    identification_intervals=doc.get("identification_intervals"),
                 )
                 if summary is not None:
                     recordings.append(summary.to_dict())

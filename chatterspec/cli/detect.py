@@ -162,8 +162,10 @@ def run(args: argparse.Namespace) -> int:
         outputs = Outputs()
         assert sim is not None  # (simulated above for --record / --live)
         summary = outputs.write(
-            "--record", args.record, record_detection, sim, settings, path=args.record, live=args.live
-        )
+            "--record", args.record, record_detection, sim, settings, path=args.record, live=args.live,
+            identification=setup, confidence=args.confidence,
+            identification_intervals=doc.get("identification_intervals"),
+        )  # fmt: skip
         if summary is not None:
             doc["recording"] = summary.to_dict()
             for note in summary.notes:

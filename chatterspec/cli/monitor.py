@@ -315,7 +315,14 @@ def run(args: argparse.Namespace) -> int:
             return None
         from ..online.identification_monitor import IdentificationMonitor
 
-        mon = IdentificationMonitor(setup, decision, t0=t0, alpha=settings.alpha, confidence=args.confidence)
+        mon = IdentificationMonitor(
+            setup,
+            decision,
+            t0=t0,
+            alpha=settings.alpha,
+            confidence=args.confidence,
+            frame_samples=stft.n_window(spec.model.dt),
+        )
         events = {"none": None, "changes": False, "every-hop": True}[args.identification_events]
         return MonitorIdentification(
             mon,
@@ -358,7 +365,7 @@ def run(args: argparse.Namespace) -> int:
 
     def show(ev: DetectionEvent) -> None:
         if ident is not None:  # the alarm of the fault named; with tolerances a mismatch only
-            ident.note(ev.kind, ev.channel, ev.time_s)
+            ident.note(ev.kind, ev.channel, ev.alarm_time_s)
             if ident.tolerances:
                 return
         sev = StreamEvent.from_detection(ev, time.time())

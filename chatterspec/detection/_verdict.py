@@ -25,7 +25,7 @@ import numpy as np
 
 from .. import _jit
 
-__all__ = ["peak_kernel", "verdict_kernel"]
+__all__ = ["peak_channel", "peak_kernel", "verdict_channel", "verdict_kernel"]
 
 
 @_jit.step
@@ -43,7 +43,7 @@ def argmax_update(j: int, v: float, k: int, best: float, nan: bool) -> tuple[int
     return k, best, nan
 
 
-#: Binding of :func:`_verdict_loop`: also the excess bin and the sum (False: only the ratio's argmax).
+#: Binding of :func:`_verdict_channel`: also the excess bin and the sum (False: only the ratio's argmax).
 FULL = True
 
 
@@ -88,42 +88,64 @@ def _verdict_loop(
     k_ratio, peak_ratio, k_excess, p_sum = b_(k_ratio), b_(peak_ratio), b_(k_excess), b_(p_sum)
     R = power.shape[0]
     m = power.shape[2]
-    nt = idx.shape[0]
     for r in range(R):
         for c in range(m):
-            b = idx[0]
-            p = power[r, b, c]
-            ratio = p / thr[b, c]
-            # argmax trackers: index, value, NaN seen (argmax returns the first NaN)
-            kr, vr, nr = 0, ratio, ratio != ratio
-            if FULL:
-                ex = p - expected[b, c]
-                over = ratio > 1.0
-                ke, ve, ne = 0, ex, ex != ex
-                wv = ex if over else -np.inf  # np.where(over, excess, -inf)
-                kw, vw, nw = 0, wv, wv != wv
-                any_over = over
-                ps = p
-            for j in range(1, nt):
-                b = idx[j]
-                p = power[r, b, c]
-                ratio = p / thr[b, c]
-                kr, vr, nr = argmax_update(j, ratio, kr, vr, nr)
-                if FULL:
-                    ex = p - expected[b, c]
-                    ps += p
-                    ke, ve, ne = argmax_update(j, ex, ke, ve, ne)
-                    if ratio > 1.0:
-                        any_over = True
-                        kw, vw, nw = argmax_update(j, ex, kw, vw, nw)
-            k_ratio[r, c] = kr
-            peak_ratio[r, c] = vr
-            if FULL:
-                k_excess[r, c] = kw if any_over else ke
-                p_sum[r, c] = ps
+            CHANNEL(power, thr, expected, idx, k_ratio, peak_ratio, k_excess, p_sum, r, c)
+
+
+def _verdict_channel(
+    power: np.ndarray,
+    thr: np.ndarray,
+    expected: np.ndarray,
+    idx: np.ndarray,
+    k_ratio: np.ndarray,
+    peak_ratio: np.ndarray,
+    k_excess: np.ndarray,
+    p_sum: np.ndarray,
+    r: int,
+    c: int,
+) -> None:  # pragma: no cover - compiled (a step template: verdict_channel, peak_channel)
+    """:func:`_verdict_loop` for spectrum ``r`` and channel ``c`` (its arguments; ``FULL`` as there)."""
+    nt = idx.shape[0]
+    b = idx[0]
+    p = power[r, b, c]
+    ratio = p / thr[b, c]
+    # argmax trackers: index, value, NaN seen (argmax returns the first NaN)
+    kr, vr, nr = 0, ratio, ratio != ratio
+    if FULL:
+        ex = p - expected[b, c]
+        over = ratio > 1.0
+        ke, ve, ne = 0, ex, ex != ex
+        wv = ex if over else -np.inf  # np.where(over, excess, -inf)
+        kw, vw, nw = 0, wv, wv != wv
+        any_over = over
+        ps = p
+    for j in range(1, nt):
+        b = idx[j]
+        p = power[r, b, c]
+        ratio = p / thr[b, c]
+        kr, vr, nr = argmax_update(j, ratio, kr, vr, nr)
+        if FULL:
+            ex = p - expected[b, c]
+            ps += p
+            ke, ve, ne = argmax_update(j, ex, ke, ve, ne)
+            if ratio > 1.0:
+                any_over = True
+                kw, vw, nw = argmax_update(j, ex, kw, vw, nw)
+    k_ratio[r, c] = kr
+    peak_ratio[r, c] = vr
+    if FULL:
+        k_excess[r, c] = kw if any_over else ke
+        p_sum[r, c] = ps
+
+
+#: One spectrum and channel of the full verdict / of the monitor's peak (inlined steps).
+verdict_channel = _jit.specialize(_verdict_channel, "full", inline=True, FULL=True)
+peak_channel = _jit.specialize(_verdict_channel, "peak", inline=True, FULL=False)
+CHANNEL = verdict_channel
 
 
 #: The one-pass verdict of :func:`~chatterspec.detection.spectrum_verdicts.detect_spectrum`.
-verdict_kernel = _jit.specialize(_verdict_loop, "full", FULL=True)
+verdict_kernel = _jit.specialize(_verdict_loop, "full", CHANNEL=verdict_channel)
 #: The same pass for the online monitor's frames: the bin of the largest ``S / threshold`` only.
-peak_kernel = _jit.specialize(_verdict_loop, "peak", FULL=False)
+peak_kernel = _jit.specialize(_verdict_loop, "peak", CHANNEL=peak_channel)

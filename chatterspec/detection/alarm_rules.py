@@ -153,7 +153,7 @@ class PersistenceRule:
 
     def view_label(self) -> str:
         """What an alarm view draws against the threshold (the score: the window count is not drawn)."""
-        return f"score ({self.name} {self.k} of {self.n})"
+        return f"score ({self.k} of {self.n})"
 
 
 @dataclass(frozen=True)

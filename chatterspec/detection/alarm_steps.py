@@ -27,6 +27,10 @@ Signatures (``p``: the rule's ``parameters()`` values in order, as a float array
     carry extra leading axes (one per threshold of a calibration grid, ``h`` of shape ``(..., 1, 1)``);
     ``out`` = ``(active, stat, starts, ends)`` (R, K, C) or None; ``n_starts`` (state shape, int)
     accumulates the starts when given; ``ring`` is updated in place, the other state is returned.
+    ``channel(s, h, p, act, g, count, ring, step0, active, stat, starts, ends, r, c)`` (optional): the
+    kernel's work on stream ``r``, channel ``c``, a step (:func:`chatterspec._jit.step`) that compiled
+    loops inline; a stock rule's kernel is its channel step over every stream and channel
+    (:func:`_rule_loop`), and the online monitor's block-of-frames loop inlines it too.
 """
 
 from __future__ import annotations
@@ -63,7 +67,8 @@ class RuleSteps:
     Attributes
     ----------
     kernel : callable
-        The compiled loop (:func:`chatterspec._jit.njit`); its Python form is ``kernel.py_func``.
+        The compiled loop (:func:`chatterspec._jit.njit`); its Python form is
+        :func:`chatterspec._jit.python_form` of it.
     numpy : callable
         The numpy form: a loop over steps vectorized over streams, channels and thresholds.
     statistic : {"g", "count"} or None
@@ -76,6 +81,14 @@ class RuleSteps:
     grid_starts : callable or None
         ``(s3, thresholds) -> (G, R, C)`` starts at each threshold without the state machine (a rule
         with no recursion: the frame rule), used on both paths; None: run the steps per threshold.
+    channel : callable or None
+        The compiled step (:func:`chatterspec._jit.step`) of one stream and channel over the K steps,
+        ``channel(s, h, p, act, g, count, ring, step0, active, stat, starts, ends, r, c)``: what
+        ``kernel`` does at ``[r, :, c]`` (``step0 = pos[0]``). The online monitor inlines it into its
+        block-of-frames loop, so a push is one compiled call
+        (:func:`chatterspec.online._push_kernels.hop_kernel`); None (a rule that gives only ``kernel``):
+        the monitor calls the frame analysis and then ``kernel`` per push instead, slower but the same
+        numbers. The stock rules build ``kernel`` from it (:func:`_rule_kernel`).
     """
 
     kernel: Callable[..., None]
@@ -84,6 +97,7 @@ class RuleSteps:
     ring: str | None = None
     statistic_range: Callable[[np.ndarray, np.ndarray], tuple[float, float]] = score_range
     grid_starts: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+    channel: Callable[..., None] | None = None
 
 
 def _transitions(
@@ -127,9 +141,8 @@ def _alarm_step(
     return a
 
 
-# --------------------------------------------------------------------------- frame
-@_jit.njit
-def _frame_kernel(
+# --------------------------------------------------------------------------- the loop over streams
+def _rule_loop(
     s: np.ndarray,
     h: float,
     p: np.ndarray,
@@ -142,17 +155,49 @@ def _frame_kernel(
     stat: np.ndarray,
     starts: np.ndarray,
     ends: np.ndarray,
-) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_alarms.py)
-    """Frame rule: active while the score is over the threshold."""
-    R, K, C = s.shape
+) -> None:  # pragma: no cover - compiled (a template: see _rule_kernel)
+    """A rule's ``kernel``: its channel step ``CHANNEL`` (bound by :func:`_rule_kernel`) per stream, channel."""
+    R, C = s.shape[0], s.shape[2]
+    step0 = pos[0]
     for r in range(R):
         for c in range(C):
-            a = act[r, c]
-            for j in range(K):
-                x = s[r, j, c]
-                on = x >= h
-                a = _alarm_step(active, stat, starts, ends, r, j, c, a, on, not on, x)
-            act[r, c] = a
+            CHANNEL(s, h, p, act, g, count, ring, step0, active, stat, starts, ends, r, c)
+
+
+def _rule_kernel(channel: Callable[..., None], tag: str) -> Callable[..., None]:
+    """The compiled ``kernel`` of a rule whose channel step is ``channel`` (:func:`_rule_loop`)."""
+    return _jit.specialize(_rule_loop, tag, CHANNEL=channel)
+
+
+# --------------------------------------------------------------------------- frame
+@_jit.step
+def _frame_channel(
+    s: np.ndarray,
+    h: float,
+    p: np.ndarray,
+    act: np.ndarray,
+    g: np.ndarray,
+    count: np.ndarray,
+    ring: np.ndarray,
+    step0: int,
+    active: np.ndarray,
+    stat: np.ndarray,
+    starts: np.ndarray,
+    ends: np.ndarray,
+    r: int,
+    c: int,
+) -> None:  # pragma: no cover - compiled (inlined into the rule's kernel and the monitor's hop loop)
+    """Frame rule, stream ``r``, channel ``c``: active while the score is over the threshold."""
+    a = act[r, c]
+    for j in range(s.shape[1]):
+        x = s[r, j, c]
+        on = x >= h
+        a = _alarm_step(active, stat, starts, ends, r, j, c, a, on, not on, x)
+    act[r, c] = a
+
+
+#: The channel step :func:`_rule_loop` calls (each rule's kernel binds its own; default: the frame rule's).
+CHANNEL = _frame_channel
 
 
 def _frame_numpy(
@@ -195,8 +240,8 @@ def _frame_grid_starts(s3: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- persistence
-@_jit.njit
-def _persistence_kernel(
+@_jit.step
+def _persistence_channel(
     s: np.ndarray,
     h: float,
     p: np.ndarray,
@@ -204,29 +249,28 @@ def _persistence_kernel(
     g: np.ndarray,
     count: np.ndarray,
     ring: np.ndarray,
-    pos: np.ndarray,
+    step0: int,
     active: np.ndarray,
     stat: np.ndarray,
     starts: np.ndarray,
     ends: np.ndarray,
-) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_alarms.py)
-    """Persistence rule (``p = (k, n)``): count of the last n steps over the threshold."""
-    R, K, C = s.shape
+    r: int,
+    c: int,
+) -> None:  # pragma: no cover - compiled (inlined into the rule's kernel and the monitor's hop loop)
+    """Persistence rule (``p = (k, n)``), stream ``r``, channel ``c``: count of the last n steps over
+    the threshold."""
     k = p[0]
     n = ring.shape[2]
-    step0 = pos[0]
-    for r in range(R):
-        for c in range(C):
-            a = act[r, c]
-            cnt = count[r, c]
-            for j in range(K):
-                q = (step0 + j) % n
-                ex = s[r, j, c] >= h
-                cnt = cnt - ring[r, c, q] + ex
-                ring[r, c, q] = ex
-                a = _alarm_step(active, stat, starts, ends, r, j, c, a, cnt >= k, cnt <= 0, cnt)
-            count[r, c] = cnt
-            act[r, c] = a
+    a = act[r, c]
+    cnt = count[r, c]
+    for j in range(s.shape[1]):
+        q = (step0 + j) % n
+        ex = s[r, j, c] >= h
+        cnt = cnt - ring[r, c, q] + ex
+        ring[r, c, q] = ex
+        a = _alarm_step(active, stat, starts, ends, r, j, c, a, cnt >= k, cnt <= 0, cnt)
+    count[r, c] = cnt
+    act[r, c] = a
 
 
 def _persistence_numpy(
@@ -241,7 +285,7 @@ def _persistence_numpy(
     out: _Out | None,
     n_starts: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Numpy form of :func:`_persistence_kernel`."""
+    """Numpy form of :func:`_persistence_channel` (over every stream and channel at once)."""
     k, n = p[0], ring.shape[-1]
     act = act.copy()
     for j in range(s.shape[1]):
@@ -254,8 +298,8 @@ def _persistence_numpy(
 
 
 # --------------------------------------------------------------------------- CUSUM
-@_jit.njit
-def _cusum_kernel(
+@_jit.step
+def _cusum_channel(
     s: np.ndarray,
     h: float,
     p: np.ndarray,
@@ -263,26 +307,25 @@ def _cusum_kernel(
     g: np.ndarray,
     count: np.ndarray,
     ring: np.ndarray,
-    pos: np.ndarray,
+    step0: int,
     active: np.ndarray,
     stat: np.ndarray,
     starts: np.ndarray,
     ends: np.ndarray,
-) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_alarms.py)
-    """CUSUM (``p = (drift,)``), held at h from the start and while active."""
-    R, K, C = s.shape
+    r: int,
+    c: int,
+) -> None:  # pragma: no cover - compiled (inlined into the rule's kernel and the monitor's hop loop)
+    """CUSUM (``p = (drift,)``), stream ``r``, channel ``c``: held at h from the start and while active."""
     drift = p[0]
-    for r in range(R):
-        for c in range(C):
-            a = act[r, c]
-            x = g[r, c]
-            for j in range(K):
-                x = max((x + s[r, j, c]) - drift, 0.0)
-                on = x >= h
-                x = min(x, h)  # x < h stays x: only a start or an active alarm is held at h
-                a = _alarm_step(active, stat, starts, ends, r, j, c, a, on, x <= 0.0, x)
-            g[r, c] = x
-            act[r, c] = a
+    a = act[r, c]
+    x = g[r, c]
+    for j in range(s.shape[1]):
+        x = max((x + s[r, j, c]) - drift, 0.0)
+        on = x >= h
+        x = min(x, h)  # x < h stays x: only a start or an active alarm is held at h
+        a = _alarm_step(active, stat, starts, ends, r, j, c, a, on, x <= 0.0, x)
+    g[r, c] = x
+    act[r, c] = a
 
 
 def _cusum_numpy(
@@ -297,7 +340,7 @@ def _cusum_numpy(
     out: _Out | None,
     n_starts: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Numpy form of :func:`_cusum_kernel`: ``(g + s) - drift``, ``max(., 0)`` and, at the start and
+    """Numpy form of :func:`_cusum_channel`: ``(g + s) - drift``, ``max(., 0)`` and, at the start and
     while active, ``min(., h)``."""
     drift = p[0]
     act = act.copy()
@@ -319,6 +362,17 @@ def _cusum_range(s3: np.ndarray, p: np.ndarray) -> tuple[float, float]:
 
 
 #: The stock rules' steps (named by their :class:`~chatterspec.detection.alarm_rules.RuleSpec`).
-FRAME = RuleSteps(_frame_kernel, _frame_numpy, grid_starts=_frame_grid_starts)
-PERSISTENCE = RuleSteps(_persistence_kernel, _persistence_numpy, statistic="count", ring="n")
-CUSUM = RuleSteps(_cusum_kernel, _cusum_numpy, statistic="g", statistic_range=_cusum_range)
+FRAME = RuleSteps(
+    _rule_kernel(_frame_channel, "frame"),
+    _frame_numpy,
+    grid_starts=_frame_grid_starts,
+    channel=_frame_channel,
+)
+PERSISTENCE = RuleSteps(
+    _rule_kernel(_persistence_channel, "persistence"), _persistence_numpy, statistic="count", ring="n",
+    channel=_persistence_channel,
+)  # fmt: skip
+CUSUM = RuleSteps(
+    _rule_kernel(_cusum_channel, "cusum"), _cusum_numpy, statistic="g", statistic_range=_cusum_range,
+    channel=_cusum_channel,
+)  # fmt: skip

@@ -9,6 +9,7 @@ operations as the numpy form, same bits: tests/test_spectral.py).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 
 import numpy as np
 import scipy.fft
@@ -16,7 +17,7 @@ import scipy.fft
 from .. import _jit
 from .._stft import STFTConfig
 
-__all__ = ["FrameEngine"]
+__all__ = ["FrameEngine", "power_step"]
 
 
 class FrameEngine:
@@ -73,28 +74,47 @@ class FrameEngine:
             self._work[shape] = bufs
         return bufs
 
+    def grid(self, n: int, first_sample: int) -> tuple[int, int, int]:
+        """``(j_first, n_frames, offset)``: the complete global frames of ``n`` samples from ``first_sample``.
+
+        Frame ``j_first + f`` starts at sample ``offset + f H`` of those samples.
+        """
+        H = self.H
+        j_first = -(-first_sample // H)  # first global frame starting at or after first_sample
+        j_last = (first_sample + n - self.W) // H  # last global frame ending inside x
+        return j_first, max(j_last - j_first + 1, 0), j_first * H - first_sample
+
+    def transforms(self, x: np.ndarray, offset: int, n_frames: int) -> Iterator[tuple[int, int, np.ndarray]]:
+        """The compiled path's windowed transforms: ``(lo, hi, Y)`` per block of frames ``lo .. hi - 1``.
+
+        ``x`` (n, m) or (runs, n, m); ``Y`` (runs, m, hi - lo, bins) complex, ``rfft`` of the
+        tapered frames (:func:`_taper_kernel`); frame f starts at sample ``offset + f H``.
+        """
+        W, H = self.W, self.H
+        # C-contiguous input: one compiled specialization (a copy only for strided input)
+        x3 = np.ascontiguousarray(x) if x.ndim == 3 else np.ascontiguousarray(x)[None]
+        m = x3.shape[2]
+        block = max(1, (1 << 15) // max(1, x3.shape[0] * m * W))
+        for lo in range(0, n_frames, block):
+            hi = min(lo + block, n_frames)
+            tapered = self._buffers((x3.shape[0], m, hi - lo, W))[0]
+            _taper_kernel(x3, offset + lo * H, H, self.win, tapered)
+            yield lo, hi, scipy.fft.rfft(tapered, n=W, axis=-1)
+
     def __call__(self, x: np.ndarray, first_sample: int) -> tuple[np.ndarray, np.ndarray]:
         W, H, n_bins = self.W, self.H, self.n_bins
-        n = x.shape[-2]
-        j_first = -(-first_sample // H)  # first global frame starting at or after first_sample
-        j_last = (first_sample + n - W) // H  # last global frame ending inside x
+        j_first, n_frames, offset = self.grid(x.shape[-2], first_sample)
         lead, m = x.shape[:-2], x.shape[-1]
-        if j_last < j_first:
+        if n_frames == 0:
             return np.arange(0), np.zeros((*lead, 0, n_bins, m))
-        n_frames = j_last - j_first + 1
-        offset = j_first * H - first_sample
+        j_last = j_first + n_frames - 1
         per_frame = max(1, math.prod(lead) * m * W)
         block = max(1, (1 << 15) // per_frame)
         power = np.empty((*lead, n_frames, n_bins, m))
         if self.compiled and x.ndim <= 3:
-            # C-contiguous input: one compiled specialization (a copy only for strided input)
-            x3 = np.ascontiguousarray(x) if x.ndim == 3 else np.ascontiguousarray(x)[None]
             p3 = power if x.ndim == 3 else power[None]
-            for lo in range(0, n_frames, block):
-                hi = min(lo + block, n_frames)
-                tapered = self._buffers((x3.shape[0], m, hi - lo, W))[0]
-                _taper_kernel(x3, offset + lo * H, H, self.win, tapered)
-                _power_kernel(scipy.fft.rfft(tapered, n=W, axis=-1), self.scale, p3[:, lo:hi])
+            for lo, hi, Y in self.transforms(x, offset, n_frames):
+                _power_kernel(Y, self.scale, p3[:, lo:hi])
             return np.arange(j_first, j_last + 1), power
         seg = x[..., offset : offset + (n_frames - 1) * H + W, :]
         s_t, s_c = seg.strides[-2], seg.strides[-1]
@@ -149,9 +169,17 @@ def _power_kernel(
     for r in range(runs):
         for c in range(m):
             for f in range(F):
-                y = Y[r, c, f]
-                for b in range(B):
-                    v = y[b]
-                    row[b] = (v.real * v.real + v.imag * v.imag) / scale
-                for b in range(B):
-                    out[r, f, b, c] = row[b]
+                power_step(Y[r, c, f], scale, row, out[r, f], c, B)
+
+
+@_jit.step
+def power_step(y: np.ndarray, scale: float, row: np.ndarray, out: np.ndarray, c: int, B: int) -> None:
+    """One frame and channel of :func:`_power_kernel`: ``out[b, c] = (Re y_b^2 + Im y_b^2) / scale``.
+
+    ``y`` (B,) complex, ``row`` (B,) scratch (the contiguous line, then scattered to ``out`` (B, m)).
+    """
+    for b in range(B):
+        v = y[b]
+        row[b] = (v.real * v.real + v.imag * v.imag) / scale
+    for b in range(B):
+        out[b, c] = row[b]

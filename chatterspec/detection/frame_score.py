@@ -186,42 +186,67 @@ def _score_kernel(
     """
     F = power.shape[0]
     m = power.shape[2]
+    for f in range(F):
+        for c in range(m):
+            e = score_step(
+                power, f, c, idx, inv1, invr, off, cnt, cvals, wvals, low, n_low, is_low, hi_invr, inv1T
+            )
+            out[f, c] = max(e - log_n, 0.0)
+
+
+@_jit.step
+def score_step(
+    power: np.ndarray,
+    f: int,
+    c: int,
+    idx: np.ndarray,
+    inv1: np.ndarray,
+    invr: np.ndarray,
+    off: np.ndarray,
+    cnt: np.ndarray,
+    cvals: np.ndarray,
+    wvals: np.ndarray,
+    low: np.ndarray,
+    n_low: np.ndarray,
+    is_low: np.ndarray,
+    hi_invr: np.ndarray,
+    inv1T: np.ndarray,
+) -> float:  # pragma: no cover - compiled (inlined into _score_kernel and the monitor's hop loop)
+    """``max_k -log p_k`` of frame ``f``, channel ``c`` (arguments of :func:`_score_kernel`)."""
     nt = idx.shape[0]
     lo = idx[0]
     contiguous = idx[nt - 1] - lo == nt - 1  # the usual case: a slice of bins, no index loads
-    for f in range(F):
-        for c in range(m):
-            A = -1.0
-            kA = 0
-            U2 = -1.0
-            w = inv1T[c]
-            for j in range(nt):
-                u = (power[f, lo + j, c] if contiguous else power[f, idx[j], c]) * w[j]
-                if u > U2:
-                    if u > A:
-                        U2 = A
-                        A = u
-                        kA = j
-                    else:
-                        U2 = u
-            e = _exact_log_sf(A, off[kA, c], cnt[kA, c], cvals, wvals)
-            for t in range(n_low[c]):
-                j = low[c, t]
-                if j != kA:
-                    u = power[f, idx[j], c] * inv1[j, c]
-                    if u * invr[j, c] > e:
-                        ej = _exact_log_sf(u, off[j, c], cnt[j, c], cvals, wvals)
-                        if ej > e:
-                            e = ej
-            if U2 * hi_invr[c] > e:
-                for j in range(nt):
-                    if j != kA and not is_low[j, c]:
-                        u = power[f, idx[j], c] * inv1[j, c]
-                        if u * invr[j, c] > e:
-                            ej = _exact_log_sf(u, off[j, c], cnt[j, c], cvals, wvals)
-                            if ej > e:
-                                e = ej
-            out[f, c] = max(e - log_n, 0.0)
+    A = -1.0
+    kA = 0
+    U2 = -1.0
+    w = inv1T[c]
+    for j in range(nt):
+        u = (power[f, lo + j, c] if contiguous else power[f, idx[j], c]) * w[j]
+        if u > U2:
+            if u > A:
+                U2 = A
+                A = u
+                kA = j
+            else:
+                U2 = u
+    e = _exact_log_sf(A, off[kA, c], cnt[kA, c], cvals, wvals)
+    for t in range(n_low[c]):
+        j = low[c, t]
+        if j != kA:
+            u = power[f, idx[j], c] * inv1[j, c]
+            if u * invr[j, c] > e:
+                ej = _exact_log_sf(u, off[j, c], cnt[j, c], cvals, wvals)
+                if ej > e:
+                    e = ej
+    if U2 * hi_invr[c] > e:
+        for j in range(nt):
+            if j != kA and not is_low[j, c]:
+                u = power[f, idx[j], c] * inv1[j, c]
+                if u * invr[j, c] > e:
+                    ej = _exact_log_sf(u, off[j, c], cnt[j, c], cvals, wvals)
+                    if ej > e:
+                        e = ej
+    return e
 
 
 class FrameScore:

@@ -17,7 +17,7 @@ import numpy as np
 from .._repr import short_repr
 from ..errors import ParameterError, ShapeError
 from ..plants.nonlinear import Model
-from ._verdict import peak_kernel
+from ._verdict import peak_channel, peak_kernel
 from .spectral import DEFAULT_STFT, Spectrogram, STFTConfig, spectrogram, spectrum_model
 from .spectrum_verdicts import _channel_names
 from .thresholds import (
@@ -35,6 +35,7 @@ __all__ = [
     "frame_statistic",
     "frame_verdicts",
     "healthy_frame_level",
+    "peak_channel",
     "stft_detect",
 ]
 

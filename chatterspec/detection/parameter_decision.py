@@ -232,6 +232,9 @@ class ParameterEvent:
         The parameter's position in the table.
     time_s : float
         Centre time of the identification window where the alarm changed (s).
+    alarm_time_s : float
+        When the alarm changed: the last sample of that window (s), where the fault state of the
+        channels carrying the parameter changes (:mod:`chatterspec.online.fault_state`).
     frame : int
         Hop (window) number: the monitor's frame number.
     estimate, std_error, ci_low, ci_high : float
@@ -251,6 +254,7 @@ class ParameterEvent:
     parameter: str
     index: int
     time_s: float
+    alarm_time_s: float
     frame: int
     estimate: float
     std_error: float
@@ -268,8 +272,9 @@ class ParameterEvent:
     detectable: float
 
     def describe(self) -> str:
-        """``"fault start on bulk_modulus at t = 2.60 s: bulk_modulus 1.55e8 Pa, 25 % below nominal,
-        outside its +-15 % [cusum rule, 1 false alarm per 24 h]"``."""
+        """``"fault start on bulk_modulus: alarm raised at t = 3.10 s (end of the deciding window):
+        bulk_modulus 1.55e8 Pa, 25 % below nominal, outside its +-15 % [cusum rule, 1 false alarm per
+        24 h]"``."""
         from .alarm_rules import alarm_label
 
         what = "fault start" if self.kind == "fault-start" else "fault end"
@@ -277,7 +282,11 @@ class ParameterEvent:
         st = status_text(self.parameter, self.estimate, self.std_error, (self.ci_low, self.ci_high),
                          self.nominal, self.unit, self.tolerance, pos)  # fmt: skip
         label = alarm_label(self.rule, self.false_alarms_per_hour)
-        return f"{what} on {self.parameter} at t = {self.time_s:.2f} s: {st} [{label}]"
+        raised = "raised" if self.kind == "fault-start" else "cleared"
+        return (
+            f"{what} on {self.parameter}: alarm {raised} at t = {self.alarm_time_s:.2f} s (end of the "
+            f"deciding window): {st} [{label}]"
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (``channel`` is the parameter: the decision's channel; non-finite numbers None)."""
@@ -286,6 +295,7 @@ class ParameterEvent:
             "channel": self.parameter,
             "parameter": self.parameter,
             "time_s": self.time_s,
+            "alarm_time_s": self.alarm_time_s,
             "frame": self.frame,
             "estimate": finite_or_none(self.estimate),
             "std_error": finite_or_none(self.std_error),
@@ -452,6 +462,7 @@ class ParameterDecision:
                     parameter=b.names[i],
                     index=int(i),
                     time_s=float(found.times_s[j]),
+                    alarm_time_s=float(found.window_s[j, 1]) - self.setup.model.dt,
                     frame=int(found.frames[j]),
                     estimate=float(theta[j, i]),
                     std_error=float(se[j, i]),

@@ -19,11 +19,11 @@ import numpy as np
 from ..errors import ParameterError
 from ..filter_registry import ENTRIES
 from ..palette import filter_color, mpl
+from ..plants.model_base import state_units
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from ..plants.nonlinear import Model
     from ..studies.estimation import EstimateRecords
 
 __all__ = ["estimation_error_figure"]
@@ -72,7 +72,7 @@ def estimation_error_figure(records: EstimateRecords, *, run: int = 0, title: st
     model = records.scenario.nominal
     names = list(records.outputs)
     states = tuple(model.state_names)
-    units = _state_units(model)
+    units = state_units(model)
     t = records.t[1:]
     fig, axes = plt.subplots(len(states), 2, figsize=(12, 2.6 * len(states)), sharex=True, squeeze=False)
     for k, name in enumerate(names):
@@ -103,13 +103,3 @@ def estimation_error_figure(records: EstimateRecords, *, run: int = 0, title: st
     fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=9, frameon=False)
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     return fig
-
-
-def _state_units(model: Model) -> tuple[str, ...]:
-    """Units of the states: the model's ``state_units`` where it declares them (nonlinear models), else
-    the unit of the output of the same name (a measured state); ``""`` where neither says."""
-    declared = tuple(getattr(model, "state_units", ()) or ())
-    if any(declared):
-        return declared
-    by_output = dict(zip(model.output_names, model.output_units, strict=True))
-    return tuple(by_output.get(s, "") for s in model.state_names)

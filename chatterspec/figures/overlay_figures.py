@@ -69,7 +69,7 @@ OVERLAYS: dict[str, OverlaySpec] = {
             (
                 ("so-f9-low", "f0 9 Hz", "tab:blue"),
                 ("so-f12-low", "f0 12 Hz", "tab:purple"),
-                ("so-f15-low", "f0 15 Hz", "tab:red"),
+                ("so-f15-low", "f0 15 Hz", "tab:brown"),  # not red: the paper's bound is red
             ),
             "velocity",
             healthy="so-healthy-low",
@@ -80,16 +80,16 @@ OVERLAYS: dict[str, OverlaySpec] = {
             "fig10",
             "Fig 10 — EHA leakage (L = 3e-11 / 6e-11 / 9e-11 m³/(s·Pa)), pressure chattering",
             (
-                ("eha-leak-minor", "minor", "gold"),
-                ("eha-leak-medium", "medium", "darkorange"),
-                ("eha-leak-major", "major", "tab:red"),
+                ("eha-leak-minor", "minor", "plum"),
+                ("eha-leak-medium", "medium", "mediumorchid"),
+                ("eha-leak-major", "major", "indigo"),
             ),
             "pressure",
         ),
         OverlaySpec(
             "fig11",
             "Fig 11 — EHA friction (a = 4000 / 7000 N·s/m), velocity chattering",
-            (("eha-friction-minor", "minor", "darkorange"), ("eha-friction-major", "major", "tab:red")),
+            (("eha-friction-minor", "minor", "tab:cyan"), ("eha-friction-major", "major", "teal")),
             "velocity",
         ),
         OverlaySpec(

@@ -71,16 +71,14 @@ def bench_figure(doc: Mapping[str, Any]) -> Figure:
     for k, route in enumerate(routes):  # legend entries even when the first case has no point
         ax.plot([], [], "o", color=mpl(MODE_COLORS[k % len(MODE_COLORS)]), label=route)
     ax.plot([], [], ">", color="k", label="in alarm > 1 % of the time")
-    ax.plot([], [], "x", color="k", label="not run (no threshold)")
+    ax.plot([], [], "x", color="k", label="not run (refused: no threshold, no model)")
     ax.set_xscale("log")
     ax.set_xlim(floor / 2, 2 * standing)
     ax.set_xlabel("false alarms per day, 99 % interval (0 drawn at 0.05)")
     ax.set_yticks(y, [c["description"] for c in cases], fontsize=8)
     handles, labels = ax.get_legend_handles_labels()
     keep = dict(zip(labels, handles, strict=True))
-    fig.legend(
-        keep.values(), keep.keys(), fontsize=7, loc="lower center", ncol=3, bbox_to_anchor=(0.5, -0.02)
-    )
+    fig.legend(keep.values(), keep.keys(), fontsize=7, loc="lower center", ncol=4, bbox_to_anchor=(0.5, 0.0))
     ax.grid(axis="x", alpha=0.3)
     faults = (
         [f["fault"] for f in cases[0]["routes"][0]["faults"]] if not cases[0]["routes"][0]["note"] else []
@@ -120,5 +118,5 @@ def bench_figure(doc: Mapping[str, Any]) -> Figure:
         "(faint markers: budget not held)",
         fontsize=10,
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.9 / fig.get_figheight(), 1.0, 1.0))  # room for the legend's rows below
     return fig

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import textwrap
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, TypedDict, Unpack
+from typing import TYPE_CHECKING, Any, NotRequired, TypedDict, Unpack
 
 import matplotlib
 
@@ -39,13 +39,15 @@ class _Style(TypedDict):
     ls: str
     color: tuple[float, float, float]
     label: str
+    marker: NotRequired[str]
 
 
 def _errorbar(ax: plt.Axes, x: np.ndarray, ests: list[RateEstimate], **kw: Unpack[_Style]) -> None:
     rate = np.array([e.rate for e in ests])
     lo = np.array([e.ci_low for e in ests])
     hi = np.array([e.ci_high for e in ests])
-    ax.errorbar(x, rate, yerr=[rate - lo, hi - rate], capsize=3, marker="o", ms=4, **kw)
+    kw.setdefault("marker", "o")
+    ax.errorbar(x, rate, yerr=[rate - lo, hi - rate], capsize=3, ms=4, **kw)
 
 
 def excitation_figure(res: ExcitationResult, target: float = 0.95) -> Figure:
@@ -70,31 +72,29 @@ def excitation_figure(res: ExcitationResult, target: float = 0.95) -> Figure:
     """
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.4))
     styles = ("-", "--", ":", "-.")
+    markers = ("o", "s", "^", "D")  # one marker per sensor noise too: a short legend swatch hides a dash
     swept = [r for r in res.references if len(res.levels(r)) > 1]
+    names: list[str] = []
     for i, noise in enumerate(res.position_noise):
         ls = styles[i % len(styles)]
+        mk = markers[i % len(markers)]
         tag = f"sensor {noise * 1e3:g} mm"
         still = [p for p, (_, d) in enumerate(res.points) if d == 0.0]
         if still:
             speed = np.array([max(res.response_speed[res.points[p][0]] * 1e3, 0.1) for p in still])
             order = np.argsort(speed)
             ests = [res.detection(i, still[k]) for k in order]
-            _errorbar(axes[0], speed[order], ests, ls=ls, color=_color(0), label=tag)
+            _errorbar(axes[0], speed[order], ests, ls=ls, marker=mk, color=_color(0), label=tag)
             if i == 0:
+                # numbers beside the points, the names in a key: names of references with close speeds
+                # ran into each other
                 for n_lab, k in enumerate(order):
-                    # inside the axes, on three staggered rows (below points near 1, above points near 0),
-                    # so that the names of references with close speeds do not run into each other
                     rate = ests[n_lab].rate
-                    dy = (10 + 10 * (n_lab % 3)) * (-1 if rate > 0.5 else 1)
+                    names.append(f"{n_lab + 1} {res.points[still[k]][0]}")
                     axes[0].annotate(
-                        res.points[still[k]][0],
-                        (speed[k], rate),
-                        fontsize=7,
-                        xytext=(0, dy),
-                        textcoords="offset points",
-                        ha="center",
-                        va="top" if dy < 0 else "bottom",
-                    )
+                        str(n_lab + 1), (speed[k], rate), fontsize=7, xytext=(0, -9 if rate > 0.5 else 5),
+                        textcoords="offset points", ha="center", va="top" if rate > 0.5 else "bottom",
+                    )  # fmt: skip
         for c, ref in enumerate(swept):
             ps = res.levels(ref)
             x = np.array([res.points[p][1] for p in ps])
@@ -103,19 +103,21 @@ def excitation_figure(res: ExcitationResult, target: float = 0.95) -> Figure:
                 x,
                 [res.detection(i, p) for p in ps],
                 ls=ls,
+                marker=mk,
                 color=_color(c + 1),
                 label=f"{ref}, {tag}",
             )
             axes[1].plot(
-                x, [res.false_alarm(i, p).rate for p in ps], ls=ls, color=_color(c + 1), alpha=0.35, lw=1
-            )
+                x, [res.false_alarm(i, p).rate for p in ps], ls="none", marker="x", ms=6,
+                color="k" if i == 0 else mpl(NEUTRAL), zorder=5, label=f"false alarms, healthy, {tag}",
+            )  # fmt: skip
             axes[2].errorbar(
                 x,
                 res.tracking_mm[i, ps, 0],
                 yerr=res.tracking_se_mm[i, ps, 0],
                 ls=ls,
                 color=_color(c + 1),
-                marker="o",
+                marker=mk,
                 ms=4,
                 capsize=3,
                 label=f"{ref}, {tag}",
@@ -129,15 +131,22 @@ def excitation_figure(res: ExcitationResult, target: float = 0.95) -> Figure:
     unit = "mm" if "reference" in res.dither_description else "rad/s"
     unit += " per tone" if "multisine" in res.dither_description else ""
     axes[1].set_xlabel(f"dither amplitude ({unit})")
-    axes[1].set_ylabel("detection rate (faint: false alarms)")
-    axes[1].set_title(textwrap.fill(f"(b) dither: {res.dither_description}", 60), fontsize=9)
+    axes[1].set_ylabel("detection rate (x: false-alarm rate)")
+    # the study's description names the swept amplitude LEVEL: here it is A, the x axis
+    dither = res.dither_description.replace(", LEVEL in", " in").replace("LEVEL", "A")
+    axes[1].set_title(textwrap.fill(f"(b) dither: {dither}; A on the x axis", 60), fontsize=9)
+    if names:
+        axes[0].text(
+            0.02, 0.62, "\n".join(names), transform=axes[0].transAxes, fontsize=7, va="top",
+            bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
+        )  # fmt: skip
     axes[2].set_xlabel(axes[1].get_xlabel())
     axes[2].set_ylabel("tracking RMS, healthy loop (mm)")
     axes[2].set_title("(c) the price in tracking", fontsize=9)
     for ax in axes:
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=7)
+            ax.legend(fontsize=7, handlelength=3.5)
     for ax in axes[:2]:
         ax.set_ylim(-0.03, 1.05)
     size = f"{res.size:g} {res.unit.replace('^3', '³')}"
@@ -176,11 +185,14 @@ def step_response_figure(scenarios: Sequence[Scenario], runs: int = 1, seed: int
         color = _color(s)
         if s == 0:
             axes[0].plot(t, r * 1e3, color="k", lw=1, ls="--", label="reference")
-        axes[0].plot(t, x[:, 0] * 1e3, color=color, lw=1.2, label=sc.name)
-        axes[0].plot(t, sim.x[0, :, 0] * 1e3, color=color, lw=0.5, alpha=0.6)
-        axes[1].plot(t, sim.u[0, :, 0], color=color, lw=0.5, alpha=0.6)
-        axes[1].plot(t, u, color=color, lw=1.2)
-        axes[2].plot(t, x[:, 2] * 1e-3, color=color, lw=1.2)
+        # the noise-free response a wide light band, the realization a thin line inside it (they nearly
+        # coincide: two lines of one width hid each other)
+        wide: dict[str, Any] = {"color": color, "lw": 4.0, "alpha": 0.3, "solid_capstyle": "butt"}
+        axes[0].plot(t, x[:, 0] * 1e3, label=sc.name, **wide)
+        axes[0].plot(t, sim.x[0, :, 0] * 1e3, color=color, lw=0.7)
+        axes[1].plot(t, u, **wide)
+        axes[1].plot(t, sim.u[0, :, 0], color=color, lw=0.7)
+        axes[2].plot(t, x[:, 2] * 1e-3, **wide)
     loop = scenarios[0].closed_loop
     assert loop is not None  # (closed-loop scenarios)
     sat = loop.controller.saturation
@@ -192,12 +204,19 @@ def step_response_figure(scenarios: Sequence[Scenario], runs: int = 1, seed: int
     axes[2].set_xlabel("time (s)")
     axes[0].set_title(
         f"closed-loop EHA (PI position loop), {len(scenarios)} plants on one reference: noise-free "
-        f"response (thick), realization 0 of seed {seed} (thin)",
+        f"response (wide, light), realization 0 of seed {seed} (thin)",
         fontsize=10,
     )
     for ax in axes:
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=7, loc="upper right")  # one legend: the colours are the same in every row
+    handles, labels = axes[0].get_legend_handles_labels()
+    handles += [
+        plt.Line2D([], [], color="k", lw=4.0, alpha=0.3),
+        plt.Line2D([], [], color="k", lw=0.7),
+    ]
+    labels += ["noise-free response", f"realization 0 (seed {seed})"]
+    # one legend: the colours are the same in every row
+    axes[0].legend(handles, labels, fontsize=7, loc="upper right", handlelength=3)
     axes[1].legend(fontsize=7, loc="upper right")
     fig.tight_layout()
     return fig
@@ -238,6 +257,7 @@ def closed_loop_spectra_figure(
     m = scenarios[0].nominal.n_outputs
     fig, axes = plt.subplots(m, 1, figsize=(9, 2.6 * m), sharex=True, squeeze=False)
     drawn: dict[str, str] = {}
+    models: list[np.ndarray] = []  # each distinct nominal model's threshold (bins, m)
     for k, sc in enumerate(scenarios):
         total, P = None, None
         for rec in iter_chattering(sc, runs, seed):
@@ -253,6 +273,7 @@ def closed_loop_spectra_figure(
             drawn[key] = sc.name
             E = expected_spectrum(nom, f, N)
             thr = exact_threshold(nom, f, N, alpha)
+            models.append(np.asarray(thr.values))
         for c in range(m):
             ax = axes[c, 0]
             # earlier scenarios wider underneath, later ones thinner on top: coinciding curves stay visible
@@ -280,6 +301,11 @@ def closed_loop_spectra_figure(
                 )
     nominal = scenarios[0].nominal
     for c in range(m):
+        if len(models) > 1 and all(np.allclose(th[1:, c], models[0][1:, c], rtol=0.01) for th in models[1:]):
+            axes[c, 0].text(
+                0.01, 0.95, "the models' E[S] and thresholds coincide on this channel (one curve each)",
+                transform=axes[c, 0].transAxes, fontsize=7, va="top",
+            )  # fmt: skip
         axes[c, 0].set_ylabel(f"{nominal.output_names[c]}\n[{power_unit(nominal.output_units[c])}]")
         axes[c, 0].set_xscale("log")
         axes[c, 0].grid(alpha=0.3)

@@ -74,6 +74,14 @@ def _isolation(result: ModeDiagnosis | ChatteringDiagnosis, i: int) -> str:
     )
 
 
+def _delay_cell(median_s: float, p90_s: float, onset_index: int) -> str:
+    """``"med/p90"`` in ms; a later onset whose delays are all 0 met runs already in alarm from the fault
+    before it (not an instant detection): ``"already in alarm"``."""
+    if onset_index > 0 and median_s == 0.0 and p90_s == 0.0:
+        return "already in alarm"
+    return f"{_ms(median_s)}/{_ms(p90_s)}"
+
+
 def diagnosis_rows(
     results: Sequence[ModeDiagnosis | ChatteringDiagnosis],
 ) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
@@ -103,7 +111,7 @@ def diagnosis_rows(
                     r.method if i == 0 else "",
                     fa if i == 0 else "",
                     f"{onset:.2f}",
-                    f"{_ms(r.detection_median[i])}/{_ms(r.detection_p90[i])}",
+                    _delay_cell(r.detection_median[i], r.detection_p90[i], i),
                     _isolation(r, i),
                     str(r.missed[i]),
                     f"{r.steps_per_second:.3g}" if i == 0 else "",
@@ -118,7 +126,9 @@ DIAGNOSIS_NOTES = (
     "of all runs, with its 99 % Clopper-Pearson interval (n/runs = every run; the routes are not at one "
     "budget: `chatterspec diagnose` without --per-record compares them at one)",
     "detect med/p90: delay from the onset to the first alarm, median / 90th percentile over the runs [ms]; "
-    "isolation: the true mode's share of the argmax after the onset and its delay [ms]; '-' = none",
+    "'already in alarm': every run was still in alarm from the fault before at this onset (a delay of 0, "
+    "not an instant detection); isolation: the true mode's share of the argmax after the onset and its "
+    "delay [ms]; '-' = none",
     "steps/s: filter steps per second of wall time (one realization, one core)",
 )
 
@@ -321,8 +331,18 @@ def delay_far_figure(results: Sequence[RouteBudget], title: str = "") -> Figure:
         if col == 0:
             ax.set_ylabel("detection delay [s] (median; shaded to p90)")
         ax.grid(True, which="both", alpha=0.3)
-    axes[0, 0].legend(fontsize=8, loc="best")
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles, _ = axes[0, 0].get_legend_handles_labels()
+    handles += [  # the marks every route shares, in black: their colour is the route's
+        Patch(fc="k", alpha=0.15, label="median to 90th percentile"),
+        Line2D([], [], ls="none", marker="*", ms=11, color="w", mec="k", label="threshold at the budget"),
+        Line2D([], [], color="k", lw=0.8, ls="--", label=f"budget {budget:g} false alarm(s)/h"),
+        Line2D([], [], color="k", lw=0.8, ls=":", label="one start in the calibration hours"),
+    ]
+    fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8, frameon=False)
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.03 + 0.05 * ((len(handles) + 3) // 4), 1, 1))
     return fig

@@ -5,6 +5,7 @@ Imported on demand only (the numeric core never imports matplotlib).
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
@@ -83,25 +84,30 @@ def identification_sweep_figure(
             label=f"mean {rows[0].confidence:.0%} CI half-width",
         )
         bot.plot(true, -100 * half / true, "--", color=CI_COLOR, lw=1)
-        for k, (x, r) in enumerate(zip(true, rows, strict=True)):
-            bot.annotate(  # alternately above and below the zero line: close sizes stay readable
-                f"{r.isolation()[0]:.0%}",
-                (x, 0),
-                textcoords="offset points",
-                xytext=(0, 4 if k % 2 == 0 else -11),
-                ha="center",
-                fontsize=7,
+        iso = [r.isolation()[0] for r in rows]
+        # one line at the top instead of a label per size (close sizes' labels ran into each other)
+        below = [f"{v:.1%} at {x:.4g}" for x, v in zip(true, iso, strict=True) if v < 0.9995]
+        note = "100 % select the true hypothesis at every size"
+        if below:
+            note = (
+                "true hypothesis: "
+                + "; ".join(below)
+                + ("; 100 % elsewhere" if len(below) < len(iso) else "")
             )
+        bot.text(
+            0.5, 0.97, textwrap.fill(note, 46), transform=bot.transAxes, ha="center", va="top", fontsize=7,
+            bbox={"facecolor": "white", "alpha": 0.85, "lw": 0, "pad": 1.5},
+        )  # fmt: skip
         bot.set_xlabel(f"true {name}{unit}")
         bot.set_ylabel("relative error [%]")
-        if j == 0:
-            top.legend(fontsize=7, loc="upper left")
-            bot.legend(fontsize=7, loc="lower left")
+        if j == 0:  # legends below the panels, out of the data and the band
+            handles = top.get_legend_handles_labels()[0] + bot.get_legend_handles_labels()[0]
+            fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=7, frameon=False)
     fig.suptitle(
         title
         or "fault identification from the chattering: estimate vs true parameter (percentages: records "
         "selecting the true hypothesis, 'no fault' at the nominal size)",
         fontsize=10,
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
     return fig

@@ -19,7 +19,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from ..palette import FAULT, NEUTRAL, NOT_EXCITED, TAB10, TRUTH, fault_level_color, mpl
+from ..palette import FAULT, NEUTRAL, NO_EVIDENCE, TAB10, TRUTH, fault_level_color, mpl
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
@@ -138,7 +138,7 @@ def excitation_figure(
         ax.plot(rec.times_s[blind], np.full(blind.sum(), b.limit[i] * 0.5 * 0.7**k), "s", color=c, ms=3)
     ax.axhline(
         b.limit[i],
-        color=mpl(NOT_EXCITED),
+        color=mpl(NO_EVIDENCE),
         ls="--",
         lw=1.2,
         label=f"tolerance {b.tolerances[i]}: not excited above",

@@ -403,24 +403,35 @@ def draw_spectrum(
         artists.append(ln)
         y_data.append(v[shown])
     # bins above each threshold, as ticks along the bottom (one row per marked curve, first curve lowest;
-    # each tick in the colour of the highest threshold it exceeds): nothing covers the curves
+    # each tick in its CURVE's colour, so that a row is matched to its curve; taller where the bin is above
+    # the higher thresholds too): nothing covers the curves
     order = np.argsort([np.nanmedian(v) if np.any(np.isfinite(v)) else np.inf for v in values])
     any_over = False
     row = 0
-    for c, p in zip(panel.curves, powers, strict=True):
+    for i, (c, p) in enumerate(zip(panel.curves, powers, strict=True)):
         if not c.mark:
             continue
         y = 0.02 + 0.035 * row
         row += 1
-        for j in order:
+        color = c.color or _CURVE_COLORS[i % len(_CURVE_COLORS)]
+        for rank, j in enumerate(order):
             over = shown & np.isfinite(values[j]) & (p > values[j])
             if np.any(over):
                 any_over = True
-                tick: dict[str, Any] = {"ls": "none", "marker": "|", "ms": 5, "mew": 1.0, "zorder": 4}
-                ax.plot(f[over], np.full(int(over.sum()), y), color=styles[j]["color"], **tick)
+                tick: dict[str, Any] = {
+                    "ls": "none",
+                    "marker": "|",
+                    "ms": 4 + 3 * rank,
+                    "mew": 1.0,
+                    "zorder": 4,
+                }
+                ax.plot(f[over], np.full(int(over.sum()), y), color=color, **tick)
                 ax.lines[-1].set_transform(ax.get_xaxis_transform())
     if any_over:
-        label = "bins above a threshold: ticks at the bottom in its colour, one row per curve"
+        label = (
+            "bins above a threshold: ticks in the curve's colour, one row per curve "
+            "(taller: above the higher threshold too)"
+        )
         artists.append(Line2D([], [], ls="none", marker="|", ms=6, color="0.3", label=label))
     artists.extend(frequency_lines(ax, panel.lines))
     ax.set_yscale("log")

@@ -200,14 +200,9 @@ def spectrogram_figure(
                 ax.axhline(fl.hz, color=fl.color, ls=fl.linestyle, lw=1.2, label=fl.label)
             else:
                 ax.hlines(fl.hz, *fl.span_s, color=fl.color, ls=fl.linestyle, lw=1.6, label=fl.label)
-        handles.setdefault(
-            "true fault window (bar)",
-            Patch(
-                fc=levels[0] if levels else mpl(fault_level_color(0)),
-                ec="none",
-                label="true fault window (bar)",
-            ),
-        )
+        for j, (a, b) in enumerate(p.fault_intervals):  # one swatch per amber (per true fault)
+            what = f"true fault {j + 1}: {a:g}-{b:g} s (bar)"
+            handles.setdefault(what, Patch(fc=levels[j], ec="none", label=what))
         det = f"{p.detector_label} (bar; ticks = flagged frames)"
         handles.setdefault(det, Patch(fc="white", ec="none", label=det))
         for fl in p.lines:

@@ -13,10 +13,11 @@ from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.measurement import has_measurement_function
 from ..plants.models import LinearModel
 from ..plants.nonlinear import Model
-from ..plants.steps import PlantSteps, plant_steps
+from ..plants.steps import PlantSteps, measurement_steps, plant_steps
 from . import _engine, _engine_numpy
 from ._engine_numpy import given_prediction, linear_prediction, model_call_loop, model_prediction
 from ._finite import require_finite
+from .one_sample import OnlineFilter
 from .protocol import FilterOutput, FilterState, check_chunk, initial_state, resolve_store
 from .svsf_steps import rows_times as _rows_times
 
@@ -91,6 +92,33 @@ class CovarianceFilterBase:
         FilterState
         """
         return initial_state(self.model, x0, P0, runs=runs, e0=e0, e_prev0=e_prev0, shared_ok=self._shared_ok)
+
+    def online(
+        self,
+        x0: np.ndarray,
+        P0: np.ndarray,
+        *,
+        e0: np.ndarray | None = None,
+        e_prev0: np.ndarray | None = None,
+    ) -> OnlineFilter:
+        """One realization advanced one sample per call: ``f = filter.online(x0, P0)``, ``x = f.step(z, u)``.
+
+        Parameters
+        ----------
+        x0 : (n,) array
+            ``x(0|0)``.
+        P0 : (n, n) array
+            ``P(0|0)``, symmetric positive definite.
+        e0, e_prev0 : (m,) array, optional
+            Initial a-posteriori residuals (default 0), as in :meth:`initialize`.
+
+        Returns
+        -------
+        OnlineFilter
+            Each :meth:`~chatterspec.filters.one_sample.OnlineFilter.step` gives the numbers of
+            :meth:`update` on that sample (``docs/filters.md``, "One sample at a time").
+        """
+        return OnlineFilter(self, self.initialize(x0, P0, runs=1, e0=e0, e_prev0=e_prev0))
 
     def update(
         self,
@@ -169,14 +197,16 @@ class CovarianceFilterBase:
         if P.ndim == 2:  # shared covariance given to a per-run filter (e.g. replaced by a bank)
             P = np.array(np.broadcast_to(P, (x.shape[0], *P.shape)))
         corr = self._correction_step()
-        if has_measurement_function(model):  # EKF with h(x): H = dh/dx in place of C
-            predict = model_prediction(model, u)
-            return P, _engine_numpy.cov_numpy(corr, predict, x, P, ep, epp, z, C, Q, R, keep, h_model=model)
         n, m = x.shape[1], z.shape[2]
         compiled = _jit.enabled() and corr.mapping != _engine.MAP_LUEN and _jit.fits(n, m)
         plant = self._plant()
-        if compiled and plant is not None:  # every sample in one compiled loop
-            return P, _engine.cov_loop(corr, plant, x, P, ep, epp, z, u, C, Q, R, keep)
+        hx = measurement_steps(model) if has_measurement_function(model) else None
+        if has_measurement_function(model) and not (compiled and plant is not None and hx is not None):
+            # EKF with a Python h(x): H = dh/dx in place of C, numpy
+            predict = model_prediction(model, u)
+            return P, _engine_numpy.cov_numpy(corr, predict, x, P, ep, epp, z, C, Q, R, keep, h_model=model)
+        if compiled and plant is not None:  # every sample in one compiled loop (h(x) compiled too)
+            return P, _engine.cov_loop(corr, plant, x, P, ep, epp, z, u, C, Q, R, keep, measurement=hx)
         if self._linear:
             lin = cast(LinearModel, model)  # (``_linear``: a LinearModel)
             Bu = _rows_times(u, np.ascontiguousarray(lin.B.T))

@@ -40,18 +40,24 @@ import numpy as np
 
 from .. import _jit
 from ..errors import SingularMatrixError
+from ..plants.sample_functions import MeasurementSteps
 from ..plants.steps import PlantSteps
+from ._finite import finite_sample
 from ._linalg import (
     chol_solve_step,
     chol_step,
     gain_update_step,
     innovation_step,
+    joseph_step,
+    loglik_step,
     predict_cov_step,
     product_step,
     residual_step,
 )
 
 __all__ = [
+    "BAD_INPUT",
+    "DIVERGED",
     "FIELDS",
     "MAP_CONST",
     "MAP_COV",
@@ -66,6 +72,9 @@ __all__ = [
     "innovation_step",
     "map_step",
     "map_update_step",
+    "one_offsets",
+    "one_sample_constants",
+    "one_sample_kernel",
     "predict_cov_step",
     "product_step",
     "residual_step",
@@ -79,6 +88,8 @@ KF, SVSF1, SVSF2, VBL = 0, 1, 2, 3
 MAP_CONST, MAP_COV, MAP_LUEN = 0, 1, 2
 #: Return codes of a correction step (0 = done).
 NOT_PD, SINGULAR_PHI12 = 1, 2
+#: Further return codes of the one-sample loop (:func:`_cov_one`): a non-finite input, a non-finite result.
+BAD_INPUT, DIVERGED = 3, 4
 LOG2PI = float(np.log(2.0 * np.pi))
 FIELDS = ("x_prior", "x_post", "innovation", "S", "loglik", "e_post", "P_prior", "P_post")
 
@@ -227,40 +238,34 @@ def _sample(
     """
     T1, Pp, PCt, PCtT, S, D, L, e, eb, wv, KgT, IKC, KR, ll = ws[0:14]
     predict_cov_step(F, P, Q, T1, Pp, n)
-    innovation_step(zk, xp, Pp, C, R, e, PCt, PCtT, D, S, n, m)
-    for i in range(m):
-        eb[i, 0] = e[i]
+    if HX:  # a measurement z = h(x): H = dh/dx at the prior in place of C, e = z - h(x(k+1|k))
+        Hm, zh = ws[26], ws[27]
+        HJAC(xp, Hm)
+        innovation_step(zk, xp, Pp, Hm, R, e, PCt, PCtT, D, S, n, m)
+        HFUN(xp, zh)
+        for i in range(m):
+            e[i] = zk[i] - zh[i]
+    else:
+        innovation_step(zk, xp, Pp, C, R, e, PCt, PCtT, D, S, n, m)
     if not chol_step(S, L, m):
         return NOT_PD
     if WANT_LL:
-        chol_solve_step(L, eb, wv, m, 1)
-        quad = 0.0
-        logdet = 0.0
+        ll[0] = loglik_step(L, e, eb, wv, m)
+    if HX:
+        status = CORRECT(fp, e, ep, epp, xp, PCtT, D, L, Hm, F, x, KgT, ws, n, m)
+        if status != 0:
+            return status
+        joseph_step(KgT, Hm, Pp, R, T1, IKC, KR, P, n, m)
         for i in range(m):
-            quad += e[i] * wv[i, 0]
-            logdet += np.log(L[i, i])
-        ll[0] = -0.5 * (m * 1.8378770664093453 + 2.0 * logdet + quad)
+            epp[i] = ep[i]
+        HFUN(x, zh)
+        for i in range(m):
+            ep[i] = zk[i] - zh[i]
+        return 0
     status = CORRECT(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m)
     if status != 0:
         return status
-    # Joseph form: P = (I - K C) Pp (I - K C)^T + K R K^T
-    for i in range(n):
-        for j in range(n):
-            s = 1.0 if i == j else 0.0
-            for q in range(m):
-                s -= KgT[q, i] * C[q, j]
-            IKC[i, j] = s
-    product_step(IKC, Pp, T1, n, n, n, False, False)
-    product_step(KgT, R, KR, n, m, m, True, False)
-    for i in range(n):  # symmetric: upper triangle, mirrored
-        for j in range(i, n):
-            s = 0.0
-            for q in range(n):
-                s += T1[i, q] * IKC[j, q]
-            for q in range(m):
-                s += KR[i, q] * KgT[q, j]
-            P[i, j] = s
-            P[j, i] = s
+    joseph_step(KgT, C, Pp, R, T1, IKC, KR, P, n, m)
     for i in range(m):
         epp[i] = ep[i]
     residual_step(zk, C, x, ep, n, m)
@@ -273,16 +278,41 @@ def _no_correction(*args: object) -> int:  # (bound by sample_step before any co
     return NOT_PD
 
 
-#: Bindings of :func:`_sample`.
+@_jit.step
+def _no_measurement(x, out):  # type: ignore[no-untyped-def]
+    """Placeholder binding of :func:`_sample`'s measurement function (never called)."""
+
+
+#: Bindings of :func:`_sample`: the correction, whether to compute the log-likelihood, and a
+#: measurement function ``h`` (``HX``; its steps ``HFUN(x, out)``, ``HJAC(x, out)``) in place of ``C``.
 CORRECT = _no_correction
 WANT_LL = True
+HX = False
+HFUN = HJAC = _no_measurement
 
 
-def sample_step(correct: CorrectionStep, want_ll: bool = True) -> Callable[..., int]:
-    """:func:`_sample` with ``correct``'s step bound: an inlined step for the loops."""
+def sample_step(
+    correct: CorrectionStep, want_ll: bool = True, measurement: MeasurementSteps | None = None
+) -> Callable[..., int]:
+    """:func:`_sample` with ``correct``'s step bound: an inlined step for the loops.
+
+    ``measurement``: the ``(h, h_jac)`` steps of a model measuring through ``h``
+    (:func:`chatterspec.plants.steps.measurement_steps`), None for ``C``.
+    """
+    if measurement is None:
+        return _jit.specialize_sizes(
+            _sample,
+            f"{correct.name}_ll{int(want_ll)}",
+            {},
+            inline=True,
+            CORRECT=correct.step,
+            WANT_LL=want_ll,
+        )
+    hfun, hjac = measurement
     return _jit.specialize_sizes(
-        _sample, f"{correct.name}_ll{int(want_ll)}", {}, inline=True, CORRECT=correct.step, WANT_LL=want_ll
-    )
+        _sample, f"{correct.name}_ll{int(want_ll)}_hx", {}, inline=True,
+        CORRECT=correct.step, WANT_LL=want_ll, HX=True, HFUN=hfun, HJAC=hjac,
+    )  # fmt: skip
 
 
 @_jit.step
@@ -298,12 +328,13 @@ def workspace(n: int, m: int) -> tuple[np.ndarray, ...]:  # pragma: no cover - c
     """Scratch of :func:`_sample` and the correction steps: views of one stack block of the loop.
 
     ``(T1, Pp, PCt, PCtT, S, D, L, e, eb, wv, KgT, IKC, KR, ll, MpT, g, dz, Phi, G12, P12i, Al,
-    Ae, rr, dy, Ky, W)``; the last nine are the reduced-order form's (n = 2m). One block of
+    Ae, rr, dy, Ky, W, Hm, zh)``; ``Phi`` .. ``W`` are the reduced-order form's (n = 2m), ``Hm``
+    (m, n) and ``zh`` (m) the measurement function's (``dh/dx`` and ``h``). One block of
     :data:`~chatterspec._jit.BLOCK_CAPACITY` floats (enough for n, m up to
     :data:`~chatterspec._jit.MAX_DIMENSION`).
     """
     h = max(n - m, 1)
-    size = 4 * n * n + 6 * n * m + 3 * m * m + 3 * m * h + 2 * h * h + 6 * m + n + h + 1
+    size = 4 * n * n + 7 * n * m + 3 * m * m + 3 * m * h + 2 * h * h + 7 * m + n + h + 1
     buf = _jit.scratch_block(size)
     o0 = 0
     o1 = o0 + n * n
@@ -331,6 +362,8 @@ def workspace(n: int, m: int) -> tuple[np.ndarray, ...]:  # pragma: no cover - c
     o23 = o22 + m
     o24 = o23 + n
     o25 = o24 + n * m
+    o26 = o25 + 2 * h * h
+    o27 = o26 + m * n
     return (
         buf[o0:o1].reshape((n, n)),
         buf[o1:o2].reshape((n, n)),
@@ -357,13 +390,15 @@ def workspace(n: int, m: int) -> tuple[np.ndarray, ...]:  # pragma: no cover - c
         buf[o22:o23],
         buf[o23:o24],
         buf[o24:o25].reshape((n, m)),
-        buf[o25 : o25 + 2 * h * h].reshape((h, 2 * h)),
+        buf[o25:o26].reshape((h, 2 * h)),
+        buf[o26:o27].reshape((m, n)),
+        buf[o27 : o27 + m],
     )
 
 
 @_jit.step
 def store_step(flags: np.ndarray, outs: tuple[np.ndarray, ...], r: int, k: int, xp: np.ndarray, x: np.ndarray,
-    e: np.ndarray, S: np.ndarray, ll: np.ndarray, ep: np.ndarray, Pp: np.ndarray, P: np.ndarray, n: int,
+    e: np.ndarray, S: np.ndarray, ll: float, ep: np.ndarray, Pp: np.ndarray, P: np.ndarray, n: int,
     m: int) -> None:  # fmt: skip
     """Write sample k of run r into the outputs of :data:`FIELDS` whose ``flags`` entry is set.
 
@@ -498,6 +533,131 @@ def _cov_loop(
     return 0
 
 
+@_jit.step
+def one_offsets(n: int, m: int) -> tuple[int, int, int, int, int, int, int, int, int]:
+    """Offsets in the buffer of :func:`_cov_one` (``x`` at 0): ``P``, ``e(k|k)``, ``e(k-1|k-1)``, then
+    the last sample's ``x(k|k-1)``, ``e(k|k-1)``, ``S``, ``loglik``, ``P(k|k-1)``, and the length."""
+    o_P = n
+    o_ep = o_P + n * n
+    o_epp = o_ep + m
+    o_xp = o_epp + m
+    o_e = o_xp + n
+    o_S = o_e + m
+    o_ll = o_S + m * m
+    o_Pp = o_ll + 1
+    return o_P, o_ep, o_epp, o_xp, o_e, o_S, o_ll, o_Pp, o_Pp + n * n
+
+
+def _cov_one(buf: np.ndarray, cst: np.ndarray, z: np.ndarray, u: np.ndarray) -> int:  # pragma: no cover
+    """One sample of one realization: :func:`_cov_loop`'s body (the same steps) on packed arrays.
+
+    ``buf`` (:func:`one_offsets`) holds the state ``x``, ``P``, ``e(k|k)``, ``e(k-1|k-1)`` and receives
+    the sample's prior, innovation, ``S``, log-likelihood and prior covariance; ``cst`` is
+    :func:`one_sample_constants` (sizes, the plant's parameters, ``C``, ``Q``, ``R``, the correction's
+    ``fp``); ``z`` (m,), ``u`` (p,). The state is read into stack copies and written back only when
+    the step succeeds and the new ``x``, ``P`` are finite, so a failed sample leaves it as it was.
+    Returns 0, the step's :data:`NOT_PD` / :data:`SINGULAR_PHI12`, :data:`BAD_INPUT` (NaN/inf in
+    ``z`` or ``u``) or :data:`DIVERGED`. A template like :func:`_cov_loop` (:func:`one_sample_kernel`).
+    """
+    b = _jit.borrow
+    buf, cst, z, u = b(buf), b(cst), b(z), b(u)
+    n = NX if NX > 0 else int(cst[0])
+    m = NZ if NZ > 0 else int(cst[1])
+    p = u.shape[0]
+    if not finite_sample(z, m, u, p):
+        return BAD_INPUT
+    o = 4
+    L = int(cst[3])
+    prm = cst[o : o + L]
+    o += L
+    C = cst[o : o + m * n].reshape((m, n))
+    o += m * n
+    Q = cst[o : o + n * n].reshape((n, n))
+    o += n * n
+    R = cst[o : o + m * m].reshape((m, m))
+    o += m * m
+    fp = cst[o:]
+    o_P, o_ep, o_epp, o_xp, o_e, o_S, o_ll, o_Pp, _ = one_offsets(n, m)
+    x = _jit.scratch(n)
+    P = _jit.scratch2(n, n)
+    ep = _jit.scratch(m)
+    epp = _jit.scratch(m)
+    for i in range(n):
+        x[i] = buf[i]
+        for j in range(n):
+            P[i, j] = buf[o_P + i * n + j]
+    for i in range(m):
+        ep[i] = buf[o_ep + i]
+        epp[i] = buf[o_epp + i]
+    xp = _jit.scratch(n)
+    F = _jit.scratch2(n, n)
+    ws = workspace(n, m)
+    PREDICT(prm, x, u, xp, n, p)
+    JACOBIAN(prm, x, u, F, n, p)
+    status = SAMPLE(fp, x, P, ep, epp, z, xp, F, C, Q, R, ws, n, m)
+    if status != 0:
+        for i in range(n):  # a prediction that left the finite numbers: divergence, not a bad model
+            if not np.isfinite(xp[i]):
+                return DIVERGED
+            for j in range(n):
+                if not np.isfinite(ws[1][i, j]):
+                    return DIVERGED
+        return status
+    for i in range(n):
+        if not np.isfinite(x[i]):
+            return DIVERGED
+        for j in range(n):
+            if not np.isfinite(P[i, j]):
+                return DIVERGED
+    Pp, S, e, ll = ws[1], ws[4], ws[7], ws[13]
+    for i in range(n):
+        buf[i] = x[i]
+        buf[o_xp + i] = xp[i]
+        for j in range(n):
+            buf[o_P + i * n + j] = P[i, j]
+            buf[o_Pp + i * n + j] = Pp[i, j]
+    for i in range(m):
+        buf[o_ep + i] = ep[i]
+        buf[o_epp + i] = epp[i]
+        buf[o_e + i] = e[i]
+        for j in range(m):
+            buf[o_S + i * m + j] = S[i, j]
+    buf[o_ll] = ll[0]
+    return 0
+
+
+def one_sample_constants(
+    parameters: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray, fp: np.ndarray, p: int
+) -> np.ndarray:
+    """``cst`` of :func:`_cov_one`: ``[n, m, p, L, prm (L), C, Q, R (row-major), fp]`` as one float array."""
+    m, n = np.shape(C)
+    prm = np.ravel(np.asarray(parameters, dtype=float))
+    head = np.array([n, m, p, prm.size], dtype=float)
+    parts = [head, prm, np.ravel(C), np.ravel(Q), np.ravel(R), np.ravel(fp)]
+    return np.ascontiguousarray(np.concatenate([np.asarray(a, dtype=float) for a in parts]))
+
+
+def one_sample_kernel(
+    correct: CorrectionStep,
+    plant: object,
+    n: int,
+    m: int,
+    measurement: MeasurementSteps | None = None,
+) -> Callable[..., int]:
+    """:func:`_cov_one` with the plant's steps and ``correct``'s sample step bound (sizes up to 4 literal).
+
+    The same bindings as :func:`cov_loop`'s kernel, so one sample gives the bits of the batch loop;
+    ``measurement`` as there.
+    """
+    bind = {
+        "PREDICT": plant.predict,  # type: ignore[attr-defined]
+        "JACOBIAN": plant.jacobian,  # type: ignore[attr-defined]
+        "SAMPLE": sample_step(correct, measurement=measurement),
+    }
+    tag = f"one_{plant.name}_{correct.name}" + ("_hx" if measurement is not None else "")  # type: ignore[attr-defined]
+    return _jit.specialize_sizes(_cov_one, tag, {"NX": n, "NZ": m}, **bind)
+
+
 # ----------------------------------------------------------------------------- drivers
 def _alloc(
     keep: frozenset[str], shapes: dict[str, tuple[int, ...]]
@@ -538,6 +698,7 @@ def cov_loop(
     *,
     xp_in: np.ndarray | None = None,
     F_in: np.ndarray | None = None,
+    measurement: MeasurementSteps | None = None,
 ) -> dict[str, np.ndarray | None]:
     """Advance ``x, P, ep, epp`` (in place) over ``z`` (runs, K, m) with the compiled loop.
 
@@ -558,6 +719,9 @@ def cov_loop(
         The filter model's matrices.
     keep : frozenset of str
         Outputs to return (others None).
+    measurement : (h, h_jac) steps, optional
+        A model measuring through ``h`` (:func:`chatterspec.plants.steps.measurement_steps`): ``C``
+        only gives the sizes.
 
     Returns
     -------
@@ -580,7 +744,10 @@ def cov_loop(
             "CONST_F": bool(plant.constant_jacobian),
         }
         tag = f"{plant.name}_{correct.name}"
-    kernel = _jit.specialize_sizes(_cov_loop, tag, {"NX": n, "NZ": m}, SAMPLE=sample_step(correct), **bind)
+    # the log-likelihood only when stored (its Cholesky solve and log are a third of a step)
+    sample = sample_step(correct, want_ll="loglik" in keep, measurement=measurement)
+    tag += ("_hx" if measurement is not None else "") + ("" if "loglik" in keep else "_noll")
+    kernel = _jit.specialize_sizes(_cov_loop, tag, {"NX": n, "NZ": m}, SAMPLE=sample, **bind)
     status = kernel(
         prm, c(u, dtype=float), c(z, dtype=float), x, P, ep, epp, c(C, dtype=float), c(Q, dtype=float),
         c(R, dtype=float), correct.parameters, flags, out["x_prior"], out["x_post"], out["innovation"],

@@ -198,8 +198,10 @@ def model_call_loop(
     steps = []
     for k in range(z.shape[1]):
         xp, F = predict(k, x)
-        zk, given = z[:, k : k + 1], {"xp_in": xp, "F_in": F}
-        steps.append(_engine.cov_loop(corr, None, x, P, ep, epp, zk, u[:, k : k + 1], C, Q, R, keep, **given))
+        zk = z[:, k : k + 1]
+        steps.append(
+            _engine.cov_loop(corr, None, x, P, ep, epp, zk, u[:, k : k + 1], C, Q, R, keep, xp_in=xp, F_in=F)
+        )
     res = {
         f: (None if steps[0][f] is None else np.concatenate([s[f] for s in steps], axis=1)) for f in steps[0]
     }

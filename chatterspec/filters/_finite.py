@@ -16,12 +16,26 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from .. import _jit
 from ..errors import DivergenceError
 
-__all__ = ["first_nonfinite", "require_finite"]
+__all__ = ["finite_sample", "first_nonfinite", "require_finite"]
 
 #: Per-sample outputs searched for the first non-finite sample, in order of preference.
 _PER_SAMPLE = ("x_post", "x_prior", "innovation", "e_post", "e_prior", "loglik", "P_post", "P_prior")
+
+
+@_jit.step
+def finite_sample(z: np.ndarray, m: int, u: np.ndarray, p: int) -> bool:
+    """Are ``z[:m]`` and ``u[:p]`` finite: the input check of every one-sample kernel, which refuses a
+    NaN/inf sample before it touches the state (compiled loops inline it)."""
+    for i in range(m):
+        if not np.isfinite(z[i]):
+            return False
+    for i in range(p):
+        if not np.isfinite(u[i]):
+            return False
+    return True
 
 
 def first_nonfinite(values: np.ndarray) -> tuple[int, int] | None:

@@ -29,6 +29,7 @@ or samples gives the same bits as one call.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -46,17 +47,145 @@ from ._bank_steps import (
     mode_probabilities_step,
     run_bank_loop,
 )
-from ._engine import NOT_PD, SINGULAR_PHI12, _no_sample, sample_step, workspace
+from ._engine import BAD_INPUT, DIVERGED, NOT_PD, SINGULAR_PHI12, _no_sample, sample_step, workspace
+from ._finite import finite_sample
 
 if TYPE_CHECKING:  # pragma: no cover
     from .bank_common import MultipleModelState
     from .protocol import Filter
 
-#: Bindings of :func:`_imm_loop`: the modes' plant step (:func:`._bank_steps.bank_plants`), four
-#: correction kinds (sample steps), sizes.
+#: Bindings of :func:`_imm_sample`: the modes' plant step (:func:`._bank_steps.bank_plants`), four
+#: correction kinds (sample steps), sizes; of the loops: ``IMM_SAMPLE`` (:func:`_imm_sample` bound).
 PLANT = _bank_plant
 SAMPLE_0 = SAMPLE_1 = SAMPLE_2 = SAMPLE_3 = _no_sample
 NX = NZ = 0
+#: Return code of :func:`_imm_sample` when every mode likelihood is zero or non-finite.
+NO_LIKELIHOOD = 5
+
+
+@_jit.step
+def imm_scratch(nm: int, n: int, m: int) -> tuple:  # pragma: no cover - compiled
+    """The scratch of :func:`_imm_sample`, made once by the loop that calls it (inlined into it):
+    ``(c, w, lw, xp, F, em, Sc, Lc, ec, col, tmp, ws)`` (``ws``: :func:`._engine.workspace`)."""
+    return (
+        _jit.scratch(nm), _jit.scratch2(nm, nm), _jit.scratch(nm), _jit.scratch(n), _jit.scratch2(n, n),
+        _jit.scratch(m), _jit.scratch2(m, m), _jit.scratch2(m, m), _jit.scratch(m), _jit.scratch(m),
+        _jit.scratch(2 * m), workspace(n, m),
+    )  # fmt: skip
+
+
+def _imm_sample(  # type: ignore[no-untyped-def]  # (a template: the bank loops' arguments)
+    prm,
+    plant_slot,
+    fp,
+    corr_slot,
+    Q,
+    C,
+    R,
+    pi,
+    floor,
+    zk,
+    uk,
+    first,
+    mu,
+    xs,
+    Ps,
+    eps,
+    epps,
+    zl,
+    x,
+    P,
+    x0,
+    P0,
+    ll,
+    scr,
+    n,
+    m,
+    p,
+):  # pragma: no cover - compiled (a template: see imm_sample_step)
+    """[IMM] eq (18)-(33) for one sample of one realization (the module docstring); state in place.
+
+    ``zk`` (m,) = z(k+1), ``uk`` (p,) = u(k); ``first``: no measurement before (the stored
+    residuals are e(k|k)). State rows: ``mu`` (nm,), ``xs`` (nm, n), ``Ps`` (nm, n, n), ``eps``,
+    ``epps`` (nm, m), ``zl`` (m,) = z(k), ``x`` (n,), ``P`` (n, n); ``x0``, ``P0`` scratch of the
+    mixed initial conditions; ``ll`` (nm,) receives eq (29); ``scr``: :func:`imm_scratch` (made once
+    by the calling loop: views made per sample cost a sixth of the bank's time). Returns 0,
+    :data:`NOT_PD`, :data:`SINGULAR_PHI12` or :data:`NO_LIKELIHOOD`.
+    """
+    nm = mu.shape[0]
+    c, w, lw, xp, F, em, Sc, Lc, ec, col, tmp, ws = scr
+    S, e = ws[4], ws[7]
+    # (19), (18): predicted mode probabilities and mixing weights
+    for j in range(nm):
+        s = 0.0
+        for i in range(nm):
+            s += mu[i] * pi[i, j]
+        c[j] = s if s > 1e-300 else 1e-300
+    for i in range(nm):
+        for j in range(nm):
+            w[i, j] = mu[i] * pi[i, j] / c[j]
+    # (20), (21): mixed initial conditions
+    for j in range(nm):
+        for a in range(n):
+            s = 0.0
+            for i in range(nm):
+                s += w[i, j] * xs[i, a]
+            x0[j, a] = s
+        for a in range(n):
+            for bb in range(n):
+                s = 0.0
+                for i in range(nm):
+                    da = xs[i, a] - x0[j, a]
+                    s += w[i, j] * (Ps[i, a, bb] + da * (xs[i, bb] - x0[j, bb]))
+                P0[j, a, bb] = s
+    # (22)-(29): mode-matched filters
+    for j in range(nm):
+        for i in range(m):  # e(k|k) of mode j: residual of its mixed estimate (design.md I4)
+            if first:
+                em[i] = eps[j, i]
+            else:
+                s = zl[i]
+                for q in range(n):
+                    s -= C[0, i, q] * x0[j, q]
+                em[i] = s
+        PLANT(plant_slot[j], prm[j], x0[j], uk, xp, F, n, p)
+        for a in range(n):
+            for bb in range(n):
+                Ps[j, a, bb] = P0[j, a, bb]
+        f_j, x_j, P_j, epp_j = fp[j], xs[j], Ps[j], epps[j]
+        slot = corr_slot[j]
+        if slot == 0:
+            status = SAMPLE_0(f_j, x_j, P_j, em, epp_j, zk, xp, F, C[j], Q[j], R[j], ws, n, m)
+        elif slot == 1:
+            status = SAMPLE_1(f_j, x_j, P_j, em, epp_j, zk, xp, F, C[j], Q[j], R[j], ws, n, m)
+        elif slot == 2:
+            status = SAMPLE_2(f_j, x_j, P_j, em, epp_j, zk, xp, F, C[j], Q[j], R[j], ws, n, m)
+        else:
+            status = SAMPLE_3(f_j, x_j, P_j, em, epp_j, zk, xp, F, C[j], Q[j], R[j], ws, n, m)
+        if status != 0:
+            return status
+        for i in range(m):
+            eps[j, i] = em[i]
+        ll[j] = log_gaussian_step(e, S, m, Sc, Lc, ec, col, tmp)  # (29)
+    # (30): log-domain mode probabilities, optional floor
+    for j in range(nm):
+        lw[j] = np.log(c[j]) + ll[j]
+    if not mode_probabilities_step(lw, mu, floor, nm):
+        return NO_LIKELIHOOD
+    # (31)-(33): combination
+    combine_step(mu, xs, Ps, x, P, nm, n)
+    for i in range(m):
+        zl[i] = zk[i]
+    return 0
+
+
+@_jit.step
+def _no_imm_sample(*args):  # type: ignore[no-untyped-def]
+    """Placeholder binding of the loops (never called)."""
+    return NOT_PD
+
+
+IMM_SAMPLE = _no_imm_sample
 
 
 def _imm_loop(
@@ -88,7 +217,7 @@ def _imm_loop(
     o_P: np.ndarray,
     o_mx: np.ndarray,
 ) -> int:  # pragma: no cover - compiled (a template: see run_fused)
-    """The IMM recursion of the module docstring; state arrays updated in place.
+    """The IMM recursion of the module docstring (:func:`_imm_sample` per run and sample); in place.
 
     Per mode j: ``prm[j]`` (its plant's parameters, plant kind ``plant_slot[j]`` of ``PLANT``),
     ``fp[j]`` (its correction's parameters, ``corr_slot[j]`` = 0 .. 3), ``Q[j]``, ``C[j]``, ``R[j]``.
@@ -127,88 +256,106 @@ def _imm_loop(
     m = NZ if NZ > 0 else z.shape[2]
     p = u.shape[2]
     shared_u = u.shape[0] == 1
-    c = _jit.scratch(nm)
-    w = _jit.scratch2(nm, nm)
     ll = _jit.scratch(nm)
-    lw = _jit.scratch(nm)
-    xp = _jit.scratch(n)
-    F = _jit.scratch2(n, n)
-    em = _jit.scratch(m)
-    Sc = _jit.scratch2(m, m)
-    Lc = _jit.scratch2(m, m)
-    ec = _jit.scratch(m)
-    col = _jit.scratch(m)
-    tmp = _jit.scratch(2 * m)
-    ws = workspace(n, m)
-    S, e = ws[4], ws[7]
+    scr = imm_scratch(nm, n, m)
     for r in range(runs):
         ur = 0 if shared_u else r
         for k in range(K):
-            # (19), (18): predicted mode probabilities and mixing weights
-            for j in range(nm):
-                s = 0.0
-                for i in range(nm):
-                    s += mu[r, i] * pi[i, j]
-                c[j] = s if s > 1e-300 else 1e-300
-            for i in range(nm):
-                for j in range(nm):
-                    w[i, j] = mu[r, i] * pi[i, j] / c[j]
-            # (20), (21): mixed initial conditions
-            for j in range(nm):
-                for a in range(n):
-                    s = 0.0
-                    for i in range(nm):
-                        s += w[i, j] * xs[r, i, a]
-                    x0[j, a] = s
-                for a in range(n):
-                    for bb in range(n):
-                        s = 0.0
-                        for i in range(nm):
-                            da = xs[r, i, a] - x0[j, a]
-                            s += w[i, j] * (Ps[r, i, a, bb] + da * (xs[r, i, bb] - x0[j, bb]))
-                        P0[j, a, bb] = s
-            # (22)-(29): mode-matched filters
-            for j in range(nm):
-                for i in range(m):  # e(k|k) of mode j: residual of its mixed estimate (design.md I4)
-                    if first and k == 0:
-                        em[i] = eps[r, j, i]
-                    else:
-                        s = zl[r, i]
-                        for q in range(n):
-                            s -= C[0, i, q] * x0[j, q]
-                        em[i] = s
-                PLANT(plant_slot[j], prm[j], x0[j], u[ur, k], xp, F, n, p)
-                for a in range(n):
-                    for bb in range(n):
-                        Ps[r, j, a, bb] = P0[j, a, bb]
-                f_j, x_j, P_j, epp_j, z_k = fp[j], xs[r, j], Ps[r, j], epps[r, j], z[r, k]
-                slot = corr_slot[j]
-                if slot == 0:
-                    status = SAMPLE_0(f_j, x_j, P_j, em, epp_j, z_k, xp, F, C[j], Q[j], R[j], ws, n, m)
-                elif slot == 1:
-                    status = SAMPLE_1(f_j, x_j, P_j, em, epp_j, z_k, xp, F, C[j], Q[j], R[j], ws, n, m)
-                elif slot == 2:
-                    status = SAMPLE_2(f_j, x_j, P_j, em, epp_j, z_k, xp, F, C[j], Q[j], R[j], ws, n, m)
-                else:
-                    status = SAMPLE_3(f_j, x_j, P_j, em, epp_j, z_k, xp, F, C[j], Q[j], R[j], ws, n, m)
-                if status == NOT_PD:
-                    return 1 + r
-                if status == SINGULAR_PHI12:
-                    return -(1 + runs + r)
-                for i in range(m):
-                    eps[r, j, i] = em[i]
-                ll[j] = log_gaussian_step(e, S, m, Sc, Lc, ec, col, tmp)  # (29)
-            # (30): log-domain mode probabilities, optional floor
-            for j in range(nm):
-                lw[j] = np.log(c[j]) + ll[j]
-            if not mode_probabilities_step(lw, mu[r], floor, nm):
+            status = IMM_SAMPLE(
+                prm, plant_slot, fp, corr_slot, Q, C, R, pi, floor, z[r, k], u[ur, k], first and k == 0,
+                mu[r], xs[r], Ps[r], eps[r], epps[r], zl[r], x[r], P[r], x0, P0, ll, scr, n, m, p,
+            )  # fmt: skip
+            if status == NOT_PD:
+                return 1 + r
+            if status == SINGULAR_PHI12:
+                return -(1 + runs + r)
+            if status == NO_LIKELIHOOD:
                 return -(1 + r)
-            # (31)-(33): combination
-            combine_step(mu[r], xs[r], Ps[r], x[r], P[r], nm, n)
-            for i in range(m):
-                zl[r, i] = z[r, k, i]
             bank_store_step(r, k, x[r], mu[r], ll, P[r], xs[r], o_x, o_mu, o_ll, o_P, o_mx, nm, n)
     return 0
+
+
+def _imm_one(buf, cst, slots, z, u):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """One sample of one realization: :func:`_imm_sample` on packed arrays (:func:`one_layout`).
+
+    ``buf`` holds the state (``first`` flag, ``mu``, ``xs``, ``Ps``, ``eps``, ``epps``, ``zl``, ``x``,
+    ``P``), the scratch ``x0``, ``P0`` and receives ``ll``; ``cst`` the header ``[nm, n, m, L_prm,
+    L_fp, floor]`` then ``prm``, ``fp``, ``Q``, ``C``, ``R``, ``pi``; ``slots`` (2 nm,) int the plant and
+    correction slots; ``z`` (m,), ``u`` (p,). The state is read into a copy and written back only
+    when the sample succeeds with a finite estimate. Returns 0, the step's code, ``BAD_INPUT`` or
+    ``DIVERGED`` (:mod:`chatterspec.filters._engine`).
+    """
+    b = _jit.borrow
+    buf, cst, slots, z, u = b(buf), b(cst), b(slots), b(z), b(u)
+    nm = int(cst[0])
+    n = NX if NX > 0 else int(cst[1])
+    m = NZ if NZ > 0 else int(cst[2])
+    p = u.shape[0]
+    if not finite_sample(z, m, u, p):
+        return BAD_INPUT
+    L_prm, L_fp, floor = int(cst[3]), int(cst[4]), cst[5]
+    o = 6
+    prm = cst[o : o + nm * L_prm].reshape((nm, L_prm))
+    o += nm * L_prm
+    fp = cst[o : o + nm * L_fp].reshape((nm, L_fp))
+    o += nm * L_fp
+    Q = cst[o : o + nm * n * n].reshape((nm, n, n))
+    o += nm * n * n
+    C = cst[o : o + nm * m * n].reshape((nm, m, n))
+    o += nm * m * n
+    R = cst[o : o + nm * m * m].reshape((nm, m, m))
+    o += nm * m * m
+    pi = cst[o : o + nm * nm].reshape((nm, nm))
+    offs = one_layout(nm, n, m)
+    size = offs[-1]
+    work = _jit.scratch_block(size)
+    for i in range(size):
+        work[i] = buf[i]
+    mu = work[offs[0] : offs[1]]
+    xs = work[offs[1] : offs[2]].reshape((nm, n))
+    Ps = work[offs[2] : offs[3]].reshape((nm, n, n))
+    eps = work[offs[3] : offs[4]].reshape((nm, m))
+    epps = work[offs[4] : offs[5]].reshape((nm, m))
+    zl = work[offs[5] : offs[6]]
+    x = work[offs[6] : offs[7]]
+    P = work[offs[7] : offs[8]].reshape((n, n))
+    x0 = work[offs[8] : offs[9]].reshape((nm, n))
+    P0 = work[offs[9] : offs[10]].reshape((nm, n, n))
+    ll = work[offs[10] : offs[11]]
+    status = IMM_SAMPLE(
+        prm, slots[:nm], fp, slots[nm:], Q, C, R, pi, floor, z, u, work[0] != 0.0,
+        mu, xs, Ps, eps, epps, zl, x, P, x0, P0, ll, imm_scratch(nm, n, m), n, m, p,
+    )  # fmt: skip
+    if status != 0:
+        return status
+    for i in range(n):
+        if not np.isfinite(x[i]):
+            return DIVERGED
+        for j in range(n):
+            if not np.isfinite(P[i, j]):
+                return DIVERGED
+    work[0] = 0.0
+    for i in range(size):
+        buf[i] = work[i]
+    return 0
+
+
+@_jit.step
+def one_layout(nm: int, n: int, m: int) -> tuple[int, int, int, int, int, int, int, int, int, int, int, int]:
+    """Offsets in :func:`_imm_one`'s buffer (``first`` flag at 0): ``mu``, ``xs``, ``Ps``, ``eps``, ``epps``,
+    ``zl``, ``x``, ``P``, ``x0``, ``P0``, ``ll`` and the length."""
+    o_mu = 1
+    o_xs = o_mu + nm
+    o_Ps = o_xs + nm * n
+    o_eps = o_Ps + nm * n * n
+    o_epps = o_eps + nm * m
+    o_zl = o_epps + nm * m
+    o_x = o_zl + m
+    o_P = o_x + n
+    o_x0 = o_P + n * n
+    o_P0 = o_x0 + nm * n
+    o_ll = o_P0 + nm * n * n
+    return o_mu, o_xs, o_Ps, o_eps, o_epps, o_zl, o_x, o_P, o_x0, o_P0, o_ll, o_ll + nm
 
 
 # ----------------------------------------------------------------------------- Python side
@@ -222,6 +369,7 @@ class IMMSpec(BankLoop):
     Q: np.ndarray  # (r, n, n)
     C: np.ndarray  # (r, m, n)
     R: np.ndarray  # (r, m, m)
+    one: Callable[..., int]  # one sample of one realization (:func:`_imm_one`)
 
 
 def fused_spec(filters: tuple[Filter, ...]) -> IMMSpec | None:
@@ -273,6 +421,8 @@ def fused_spec(filters: tuple[Filter, ...]) -> IMMSpec | None:
         bind[f"SAMPLE_{i}"] = sample_step(samples[name], want_ll=False)
     tag = "_".join(["imm", *dict.fromkeys(p.name for p in plants), *corr_kinds])
     n, m = int(models[0].n_states), int(models[0].n_outputs)
+    sizes = {"NX": n, "NZ": m}
+    step = _jit.specialize_sizes(_imm_sample, tag, {}, inline=True, **bind)
     return {
         "prm": prm,
         "plant_slot": plant_slot,
@@ -282,7 +432,8 @@ def fused_spec(filters: tuple[Filter, ...]) -> IMMSpec | None:
         "C": np.ascontiguousarray(np.stack([np.asarray(md.C, dtype=float) for md in models])),
         "R": np.ascontiguousarray(np.stack([np.asarray(md.R, dtype=float) for md in models])),
         "mapping": max(c.mapping for c in corrections),
-        "kernel": _jit.specialize_sizes(_imm_loop, tag, {"NX": n, "NZ": m}, **bind),
+        "kernel": _jit.specialize_sizes(_imm_loop, tag, sizes, IMM_SAMPLE=step),
+        "one": _jit.specialize_sizes(_imm_one, tag, sizes, IMM_SAMPLE=step),
     }
 
 

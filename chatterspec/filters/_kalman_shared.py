@@ -1,10 +1,15 @@
 """Linear Kalman filter with a shared, data-independent covariance (private).
 
 For a :class:`~chatterspec.plants.models.LinearModel` started from one shared ``P0`` the
-covariance and gain depend only on k: :func:`riccati` computes them once per sample for all
-realizations (numpy), and :func:`kf_shared_states` runs the state recursion per realization
-(compiled from the plant's and the per-run filter's steps, or numpy when
-:func:`chatterspec._jit.enabled` is false).
+covariance and gain depend only on k: they are computed once per sample for all realizations,
+and the state recursion runs per realization. :func:`shared_gain` does both:
+
+* compiled (:func:`chatterspec._jit.enabled`): :func:`_riccati_loop` (the covariance half of the
+  per-run filter's step, :func:`chatterspec.filters._engine._sample`: the same steps in the same
+  order) and :func:`_kf_shared_loop` (the state half, with the log-likelihood from the same
+  Cholesky factor), so any number of runs gives bit for bit the per-run compiled filter's numbers;
+* numpy: :func:`riccati` (BLAS products, ``S^-1``) and the state recursion vectorized over runs,
+  equal to the compiled path to rounding.
 """
 
 from __future__ import annotations
@@ -14,13 +19,88 @@ from collections.abc import Callable
 import numpy as np
 
 from .. import _jit
+from ..errors import SingularMatrixError
 from ..plants.linear_steps import parameters, predict_step
-from ._engine import FIELDS, LOG2PI, MAP_CONST, _alloc, gain_update_step, residual_step, store_step
+from ._engine import (
+    FIELDS,
+    LOG2PI,
+    MAP_CONST,
+    _alloc,
+    _not_pd_message,
+    gain_update_step,
+    residual_step,
+    store_step,
+)
 from ._engine_numpy import chol_np as _chol_np
+from ._linalg import (
+    chol_solve_step,
+    chol_step,
+    half_logdet_step,
+    innovation_step,
+    joseph_step,
+    loglik_given_step,
+    predict_cov_step,
+)
 from .svsf_steps import rows_times as _rows_times
 
 #: Sizes of :func:`_kf_shared_loop`, bound per model by :func:`_kf_shared_kernel` (0: read from the arrays).
 NX = NZ = 0
+
+
+def _riccati_loop(
+    A: np.ndarray,
+    C: np.ndarray,
+    Q: np.ndarray,
+    R: np.ndarray,
+    P: np.ndarray,
+    Pp_all: np.ndarray,
+    Pq_all: np.ndarray,
+    S_all: np.ndarray,
+    KgT_all: np.ndarray,
+    L_all: np.ndarray,
+    hld_all: np.ndarray,
+) -> int:  # pragma: no cover - compiled
+    """The shared covariance sequence: the covariance half of the per-run step, K times from ``P`` (in place).
+
+    Per sample: ``Pp = A P A^T + Q``, ``S = C Pp C^T + R`` and its Cholesky factor ``L``, the Kalman
+    gain ``K^T = S^-1 (Pp C^T)^T`` (:func:`~chatterspec.filters.kalman.kalman_correct`'s solve), the
+    Joseph form: the steps of :func:`chatterspec.filters._engine._sample` in its order, hence its bits.
+    Outputs (K, ...): ``Pp_all``, ``Pq_all`` (P(k+1|k+1)), ``S_all``, ``KgT_all`` (K, m, n), ``L_all``,
+    ``hld_all`` (K,) = ``sum log L_ii`` (:func:`~chatterspec.filters._linalg.half_logdet_step`). Returns
+    0, or ``1 + k`` when ``S`` of sample k is not positive definite.
+    """
+    b = _jit.borrow
+    A, C, Q, R, P = b(A), b(C), b(Q), b(R), b(P)
+    Pp_all, Pq_all, S_all, KgT_all, L_all = b(Pp_all), b(Pq_all), b(S_all), b(KgT_all), b(L_all)
+    hld_all = b(hld_all)
+    K = Pp_all.shape[0]
+    n = NX if NX > 0 else A.shape[0]
+    m = NZ if NZ > 0 else C.shape[0]
+    T1, Pp, IKC = _jit.scratch2(n, n), _jit.scratch2(n, n), _jit.scratch2(n, n)
+    PCt, PCtT, KgT, KR = _jit.scratch2(n, m), _jit.scratch2(m, n), _jit.scratch2(m, n), _jit.scratch2(n, m)
+    S, D, L, e = _jit.scratch2(m, m), _jit.scratch2(m, m), _jit.scratch2(m, m), _jit.scratch(m)
+    zero = _jit.scratch(n + m)  # z = 0 and x(k+1|k) = 0: the innovation itself is not needed
+    for i in range(n + m):
+        zero[i] = 0.0
+    for k in range(K):
+        predict_cov_step(A, P, Q, T1, Pp, n)
+        innovation_step(zero, zero, Pp, C, R, e, PCt, PCtT, D, S, n, m)
+        if not chol_step(S, L, m):
+            return 1 + k
+        hld_all[k] = half_logdet_step(L, m)
+        chol_solve_step(L, PCtT, KgT, m, n)
+        joseph_step(KgT, C, Pp, R, T1, IKC, KR, P, n, m)
+        for i in range(n):
+            for j in range(n):
+                Pp_all[k, i, j] = Pp[i, j]
+                Pq_all[k, i, j] = P[i, j]
+        for i in range(m):
+            for j in range(m):
+                S_all[k, i, j] = S[i, j]
+                L_all[k, i, j] = L[i, j]
+            for j in range(n):
+                KgT_all[k, i, j] = KgT[i, j]
+    return 0
 
 
 def _kf_shared_loop(
@@ -32,8 +112,8 @@ def _kf_shared_loop(
     epp: np.ndarray,
     C: np.ndarray,
     KgT: np.ndarray,
-    Sinv: np.ndarray,
-    logdet: np.ndarray,
+    L: np.ndarray,
+    half_logdet: np.ndarray,
     flags: np.ndarray,
     outs: tuple[np.ndarray, ...],
 ) -> int:  # pragma: no cover - compiled
@@ -41,23 +121,15 @@ def _kf_shared_loop(
 
     Per run and sample: the linear plant's prediction (:func:`~chatterspec.plants.linear_steps.predict_step`,
     ``prm`` of :func:`~chatterspec.plants.linear_steps.parameters`), the innovation, ``x = x(k+1|k)
-    + K e``, the log-likelihood from ``Sinv`` and ``logdet``, the residuals: the steps of the per-run
-    filter (:mod:`chatterspec.filters._engine`). ``outs``: the eight outputs of ``FIELDS`` (S and the
-    covariances, which the shared path returns itself, empty and not flagged).
+    + K e``, the log-likelihood (when stored) from the Cholesky factor ``L`` (K, m, m) of ``S`` and its
+    ``half_logdet`` (K,) = ``sum log L_ii``, the residuals: the steps of the per-run filter
+    (:mod:`chatterspec.filters._engine`), hence its bits. ``outs``: the
+    eight outputs of ``FIELDS`` (S and the covariances, which the shared path returns itself, empty
+    and not flagged).
     """
     b = _jit.borrow
-    prm, u, z, x, ep, epp, C, KgT, Sinv, logdet = (
-        b(prm),
-        b(u),
-        b(z),
-        b(x),
-        b(ep),
-        b(epp),
-        b(C),
-        b(KgT),
-        b(Sinv),
-        b(logdet),
-    )
+    prm, u, z, x, ep, epp, C, KgT, L = b(prm), b(u), b(z), b(x), b(ep), b(epp), b(C), b(KgT), b(L)
+    half_logdet = b(half_logdet)
     o0, o1, o2, o3, o4, o5, o6, o7 = outs
     # borrowed: no reference counts per sample
     outs = (b(o0), b(o1), b(o2), b(o3), b(o4), b(o5), b(o6), b(o7))
@@ -66,8 +138,11 @@ def _kf_shared_loop(
     m = NZ if NZ > 0 else z.shape[2]
     p = u.shape[2]
     shared_u = u.shape[0] == 1
+    want_ll = flags[4]
     xp = _jit.scratch(n)
     e = _jit.scratch(m)
+    eb = _jit.scratch2(m, 1)
+    wv = _jit.scratch2(m, 1)
     xr = _jit.scratch(n)  # run r's state and residual, on the stack for the run (written back after it)
     epr = _jit.scratch(m)
     none2 = _jit.scratch2(0, 0)
@@ -80,17 +155,11 @@ def _kf_shared_loop(
         for k in range(K):
             predict_step(prm, xr, u[ur, k], xp, n, p)
             residual_step(z[r, k], C, xp, e, n, m)
+            ll = loglik_given_step(L[k], e, eb, wv, half_logdet[k], m) if want_ll else 0.0
             gain_update_step(xp, KgT[k], e, xr, n, m)
-            quad = 0.0
-            for i in range(m):
-                s = 0.0
-                for j in range(m):
-                    s += Sinv[k, i, j] * e[j]
-                quad += e[i] * s
             for i in range(m):
                 epp[r, i] = epr[i]
             residual_step(z[r, k], C, xr, epr, n, m)
-            ll = -0.5 * (m * 1.8378770664093453 + logdet[k] + quad)
             store_step(flags, outs, r, k, xp, xr, e, none2, ll, epr, none2, none2, n, m)
         for i in range(n):
             x[r, i] = xr[i]
@@ -105,6 +174,86 @@ def _kf_shared_kernel(n: int, m: int) -> Callable[..., int]:
     return _jit.specialize_sizes(_kf_shared_loop, "kfshared", {"NX": n, "NZ": m})
 
 
+def _riccati_kernel(n: int, m: int) -> Callable[..., int]:
+    """:func:`_riccati_loop` compiled for n states and m outputs (literal sizes up to 4)."""
+    return _jit.specialize_sizes(_riccati_loop, "riccati", {"NX": n, "NZ": m})
+
+
+def riccati_compiled(
+    P: np.ndarray, A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray, K: int
+) -> tuple[np.ndarray, ...]:
+    """:func:`riccati` by :func:`_riccati_loop`: ``(P_end, P_prior, P_post, S, KgT (K, m, n), L, hld)``.
+
+    Raises
+    ------
+    SingularMatrixError
+        An innovation covariance that is not positive definite (or not finite).
+    """
+    n, m = A.shape[0], C.shape[0]
+    c = np.ascontiguousarray
+    P = np.array(P, dtype=float, order="C")
+    out = (
+        np.empty((K, n, n)),
+        np.empty((K, n, n)),
+        np.empty((K, m, m)),
+        np.empty((K, m, n)),
+        np.empty((K, m, m)),
+        np.empty(K),
+    )
+    status = _riccati_kernel(n, m)(
+        c(A, dtype=float), c(C, dtype=float), c(Q, dtype=float), c(R, dtype=float), P, *out
+    )
+    if status:
+        raise SingularMatrixError(_not_pd_message(MAP_CONST, 0))
+    return (P, *out)
+
+
+def shared_gain(
+    P: np.ndarray,
+    A: np.ndarray,
+    B: np.ndarray,
+    C: np.ndarray,
+    Q: np.ndarray,
+    R: np.ndarray,
+    x: np.ndarray,
+    ep: np.ndarray,
+    epp: np.ndarray,
+    z: np.ndarray,
+    u: np.ndarray,
+    keep: frozenset[str],
+) -> tuple[np.ndarray, dict[str, np.ndarray | None]]:
+    """The Kalman filter from a shared ``P`` (n, n) over ``z`` (runs, K, m): ``(P_end, outputs)``; in place.
+
+    Compiled when :func:`chatterspec._jit.enabled` and the sizes fit (the per-run filter's bits for
+    any number of runs), numpy otherwise. ``S``, ``P_prior``, ``P_post`` come back as read-only
+    ``(runs, K, ...)`` broadcast views of the one sequence.
+    """
+    runs, K, m = z.shape
+    n = x.shape[1]
+    if _jit.enabled() and _jit.fits(n, m):
+        P, Pp, Pq, S, KgT, L, hld = riccati_compiled(P, A, C, Q, R, K)
+        res = kf_shared_states(x, ep, epp, z, u, A, B, C, KgT, keep, L=L, half_logdet=hld)
+    else:
+        P, Pp, Pq, S, Kg, Sinv, logdet = riccati(P, A, C, Q, R, K)
+        res = kf_shared_states(
+            x, ep, epp, z, u, A, B, C, np.swapaxes(Kg, -1, -2), keep, Sinv=Sinv, logdet=logdet
+        )
+    for f, val in (("S", S), ("P_prior", Pp), ("P_post", Pq)):
+        res[f] = np.broadcast_to(val, (runs, *val.shape)) if f in keep else None
+    return P, res
+
+
+def gain_sequence(
+    P: np.ndarray, A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray, K: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(gains (K, n, m), P_post (K, n, n))`` from a shared ``P``, on the path :func:`shared_gain` takes."""
+    if _jit.enabled() and _jit.fits(A.shape[0], C.shape[0]):
+        _, _, Pq, _, KgT, _, _ = riccati_compiled(P, A, C, Q, R, K)
+        return np.swapaxes(KgT, -1, -2), Pq
+    _, _, Pq, _, Kg, _, _ = riccati(P, A, C, Q, R, K)
+    return Kg, Pq
+
+
 def kf_shared_states(
     x: np.ndarray,
     ep: np.ndarray,
@@ -114,14 +263,19 @@ def kf_shared_states(
     A: np.ndarray,
     B: np.ndarray,
     C: np.ndarray,
-    Kg: np.ndarray,
-    Sinv: np.ndarray,
-    logdet: np.ndarray,
+    KgT: np.ndarray,
     keep: frozenset[str],
+    *,
+    L: np.ndarray | None = None,
+    half_logdet: np.ndarray | None = None,
+    Sinv: np.ndarray | None = None,
+    logdet: np.ndarray | None = None,
 ) -> dict[str, np.ndarray | None]:
-    """State recursion of the linear KF with a shared gain sequence ``Kg`` (K, n, m); in place.
+    """State recursion of the linear KF with a shared gain sequence ``KgT`` (K, m, n); in place.
 
-    ``u`` is (1 | runs, K, p); the numpy path sums ``B u`` as ``_rows_times`` does.
+    ``u`` is (1 | runs, K, p). With ``L`` and ``half_logdet`` (the Cholesky factors of ``S`` and their
+    ``sum log L_ii``, from :func:`riccati_compiled`) the compiled loop; with ``Sinv`` and ``logdet``
+    (:func:`riccati`) numpy, which sums ``B u`` as ``_rows_times`` does.
     """
     runs, K, m = z.shape
     n = x.shape[1]
@@ -138,14 +292,15 @@ def kf_shared_states(
     flags, out = _alloc(keep, shapes)
     # S and the covariances are shared (K, ...) arrays that the caller returns itself
     flags[[FIELDS.index("S"), FIELDS.index("P_prior"), FIELDS.index("P_post")]] = False
-    KgT = np.ascontiguousarray(np.swapaxes(Kg, -1, -2))
-    if _jit.enabled() and _jit.fits(n, m, vectors_only=True):
+    KgT = np.ascontiguousarray(KgT)
+    if L is not None:
         c = np.ascontiguousarray
         _kf_shared_kernel(n, m)(
-            parameters(A, B), c(u, dtype=float), c(z), x, ep, epp, c(C), KgT, c(Sinv), c(logdet), flags,
+            parameters(A, B), c(u, dtype=float), c(z), x, ep, epp, c(C), KgT, c(L), c(half_logdet), flags,
             tuple(out[f] for f in FIELDS),
         )  # fmt: skip
     else:
+        assert Sinv is not None and logdet is not None  # (numpy: the caller passes riccati's)
         AT, CT = A.T, C.T
         Bu = _rows_times(u, np.ascontiguousarray(B.T))
         for k in range(K):

@@ -16,7 +16,11 @@ __all__ = [
     "chol_solve_step",
     "chol_step",
     "gain_update_step",
+    "half_logdet_step",
     "innovation_step",
+    "joseph_step",
+    "loglik_given_step",
+    "loglik_step",
     "predict_cov_step",
     "product_step",
     "residual_step",
@@ -131,3 +135,73 @@ def innovation_step(
     for i in range(m):
         for j in range(m):
             S[i, j] = D[i, j] + R[i, j]
+
+
+@_jit.step
+def loglik_step(
+    L: np.ndarray, e: np.ndarray, eb: np.ndarray, wv: np.ndarray, m: int
+) -> float:  # pragma: no cover
+    """``log N(e; 0, S)`` from the Cholesky factor ``L`` of ``S``: ``S^-1 e`` by :func:`chol_solve_step`
+    (``e`` copied into the column ``eb`` (m, 1), solution in ``wv``), ``log det S = 2 sum log L_ii``
+    (:func:`half_logdet_step`)."""
+    return loglik_given_step(L, e, eb, wv, half_logdet_step(L, m), m)
+
+
+@_jit.step
+def half_logdet_step(L: np.ndarray, m: int) -> float:  # pragma: no cover - compiled
+    """``sum_i log L_ii`` (half of ``log det S`` for the Cholesky factor ``L`` of ``S``), i = 0, 1, ..."""
+    logdet = 0.0
+    for i in range(m):
+        logdet += np.log(L[i, i])
+    return logdet
+
+
+@_jit.step
+def loglik_given_step(
+    L: np.ndarray, e: np.ndarray, eb: np.ndarray, wv: np.ndarray, half_logdet: float, m: int
+) -> float:  # pragma: no cover - compiled
+    """:func:`loglik_step` with ``sum log L_ii`` given (the shared Kalman filter has it once per sample)."""
+    for i in range(m):
+        eb[i, 0] = e[i]
+    chol_solve_step(L, eb, wv, m, 1)
+    quad = 0.0
+    for i in range(m):
+        quad += e[i] * wv[i, 0]
+    return -0.5 * (m * 1.8378770664093453 + 2.0 * half_logdet + quad)
+
+
+@_jit.step
+def joseph_step(
+    KgT: np.ndarray,
+    C: np.ndarray,
+    Pp: np.ndarray,
+    R: np.ndarray,
+    T1: np.ndarray,
+    IKC: np.ndarray,
+    KR: np.ndarray,
+    P: np.ndarray,
+    n: int,
+    m: int,
+) -> None:  # pragma: no cover - compiled
+    """Joseph form ``P = (I - K C) Pp (I - K C)^T + K R K^T`` with the gain given as ``K^T`` (m, n).
+
+    Scratch ``T1`` (n, n) = ``(I - K C) Pp``, ``IKC`` (n, n), ``KR`` (n, m); the upper triangle is
+    summed, then mirrored.
+    """
+    for i in range(n):
+        for j in range(n):
+            s = 1.0 if i == j else 0.0
+            for q in range(m):
+                s -= KgT[q, i] * C[q, j]
+            IKC[i, j] = s
+    product_step(IKC, Pp, T1, n, n, n, False, False)
+    product_step(KgT, R, KR, n, m, m, True, False)
+    for i in range(n):  # symmetric: upper triangle, mirrored
+        for j in range(i, n):
+            s = 0.0
+            for q in range(n):
+                s += T1[i, q] * IKC[j, q]
+            for q in range(m):
+                s += KR[i, q] * KgT[q, j]
+            P[i, j] = s
+            P[j, i] = s

@@ -19,6 +19,8 @@ and each is bit-for-bit invariant to the chunking of runs and samples.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from .. import _jit
@@ -35,13 +37,75 @@ from ._bank_steps import (
     mode_probabilities_step,
     run_bank_loop,
 )
-from ._engine import CorrectionStep, _no_sample, innovation_step, predict_cov_step, sample_step, workspace
+from ._engine import (
+    BAD_INPUT,
+    DIVERGED,
+    CorrectionStep,
+    _no_sample,
+    innovation_step,
+    predict_cov_step,
+    sample_step,
+    workspace,
+)
+from ._finite import finite_sample
 
-#: Bindings of :func:`_smm_loop`: the modes' plant step (:func:`._bank_steps.bank_plants`), the
-#: SVSF-cov sample step, sizes (0: from the arrays).
+#: Bindings of :func:`_smm_sample`: the modes' plant step (:func:`._bank_steps.bank_plants`), the
+#: SVSF-cov sample step, sizes (0: from the arrays); of the loops: ``SMM_SAMPLE``.
 PLANT = _bank_plant
 SAMPLE = _no_sample
 NX = NZ = 0
+#: Return code of :func:`_smm_sample` when every mode likelihood is zero or non-finite.
+NO_LIKELIHOOD = 5
+
+
+@_jit.step
+def smm_scratch(nm: int, n: int, m: int) -> tuple:  # pragma: no cover - compiled
+    """The scratch of :func:`_smm_sample`, made once by the loop that calls it (inlined into it):
+    ``(ws, F, eye, Q0, xp, lw, Sc, Lc, ec, col, tmp)`` with ``eye`` = I and ``Q0`` = 0 filled in."""
+    eye = _jit.scratch2(n, n)
+    Q0 = _jit.scratch2(n, n)
+    for i in range(n):
+        for j in range(n):
+            eye[i, j] = 1.0 if i == j else 0.0
+            Q0[i, j] = 0.0
+    return (
+        workspace(n, m), _jit.scratch2(n, n), eye, Q0, _jit.scratch(n), _jit.scratch(nm), _jit.scratch2(m, m),
+        _jit.scratch2(m, m), _jit.scratch(m), _jit.scratch(m), _jit.scratch(2 * m),
+    )  # fmt: skip
+
+
+def _smm_sample(prm, plant_slot, Qs, C, R, fp, floor, zk, uk, x, P, mu, ep, epp, xs, Ps, ll, scr, n, m, p):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (a template)
+    """The recursion of the module docstring for one sample of one realization; state rows in place.
+
+    ``zk`` (m,), ``uk`` (p,); ``x`` (n,), ``P`` (n, n), ``mu`` (nm,), ``ep``, ``epp`` (m,); ``xs``
+    (nm, n) and ``Ps`` (nm, n, n) receive the mode predictions, ``ll`` (nm,) their log-likelihoods;
+    ``scr``: :func:`smm_scratch` (made once by the calling loop). Returns 0, the sample step's code,
+    or :data:`NO_LIKELIHOOD`.
+    """
+    nm = mu.shape[0]
+    ws, F, eye, Q0, xp, lw, Sc, Lc, ec, col, tmp = scr
+    T1, PCt, PCtT, S, D, e = ws[0], ws[2], ws[3], ws[4], ws[5], ws[7]
+    for j in range(nm):  # Table 1 steps 1-2: every mode from the common posterior
+        PLANT(plant_slot[j], prm[j], x, uk, xs[j], F, n, p)
+        predict_cov_step(F, P, Qs[j], T1, Ps[j], n)
+        innovation_step(zk, xs[j], Ps[j], C, R, e, PCt, PCtT, D, S, n, m)
+        ll[j] = log_gaussian_inline(e, S, m, Sc, Lc, ec, col, tmp)  # eq 3.2-3.3
+    for j in range(nm):  # eq 3.1 in the log domain, with the floor
+        lw[j] = np.log(max(mu[j], 1e-300)) + ll[j]
+    if not mode_probabilities_step(lw, mu, floor, nm):
+        return NO_LIKELIHOOD
+    combine_step(mu, xs, Ps, xp, P, nm, n)  # steps 4a-5: P(k+1|k) into P
+    # steps 6-7b: the SVSF-cov update from the mixed prior (F = I, Q = 0: P(k+1|k) as given)
+    return SAMPLE(fp, x, P, ep, epp, zk, xp, eye, C, Q0, R, ws, n, m)
+
+
+@_jit.step
+def _no_smm_sample(*args):  # type: ignore[no-untyped-def]
+    """Placeholder binding of the loops (never called)."""
+    return 1
+
+
+SMM_SAMPLE = _no_smm_sample
 
 
 def _smm_loop(
@@ -67,7 +131,7 @@ def _smm_loop(
     o_P: np.ndarray,
     o_mx: np.ndarray,
 ) -> int:  # pragma: no cover - compiled (a template: see run_smm)
-    """The recursion of the module docstring; ``x``, ``P``, ``mu``, ``ep``, ``epp`` updated in place.
+    """The recursion of the module docstring (:func:`_smm_sample` per run and sample); in place.
 
     ``xs`` (nm, n) and ``Ps`` (nm, n, n) are scratch. Returns 0, ``1 + run`` (a matrix not
     positive definite) or ``-(1 + run)`` (every mode likelihood zero or non-finite).
@@ -82,42 +146,96 @@ def _smm_loop(
     m = NZ if NZ > 0 else z.shape[2]
     p = u.shape[2]
     shared_u = u.shape[0] == 1
-    ws = workspace(n, m)
-    T1, PCt, PCtT, S, D, e = ws[0], ws[2], ws[3], ws[4], ws[5], ws[7]
-    F = _jit.scratch2(n, n)
-    eye = _jit.scratch2(n, n)
-    Q0 = _jit.scratch2(n, n)
-    xp = _jit.scratch(n)
     ll = _jit.scratch(nm)
-    lw = _jit.scratch(nm)
-    Sc = _jit.scratch2(m, m)
-    Lc = _jit.scratch2(m, m)
-    ec = _jit.scratch(m)
-    col = _jit.scratch(m)
-    tmp = _jit.scratch(2 * m)
-    for i in range(n):
-        for j in range(n):
-            eye[i, j] = 1.0 if i == j else 0.0
-            Q0[i, j] = 0.0
+    scr = smm_scratch(nm, n, m)
     for r in range(runs):
         ur = 0 if shared_u else r
         for k in range(K):
-            for j in range(nm):  # Table 1 steps 1-2: every mode from the common posterior
-                PLANT(plant_slot[j], prm[j], x[r], u[ur, k], xs[j], F, n, p)
-                predict_cov_step(F, P[r], Qs[j], T1, Ps[j], n)
-                innovation_step(z[r, k], xs[j], Ps[j], C, R, e, PCt, PCtT, D, S, n, m)
-                ll[j] = log_gaussian_inline(e, S, m, Sc, Lc, ec, col, tmp)  # eq 3.2-3.3
-            for j in range(nm):  # eq 3.1 in the log domain, with the floor
-                lw[j] = np.log(max(mu[r, j], 1e-300)) + ll[j]
-            if not mode_probabilities_step(lw, mu[r], floor, nm):
+            status = SMM_SAMPLE(
+                prm, plant_slot, Qs, C, R, fp, floor, z[r, k], u[ur, k], x[r], P[r], mu[r], ep[r], epp[r],
+                xs, Ps, ll, scr, n, m, p,
+            )  # fmt: skip
+            if status == NO_LIKELIHOOD:
                 return -(1 + r)
-            combine_step(mu[r], xs, Ps, xp, P[r], nm, n)  # steps 4a-5: P(k+1|k) into P[r]
-            # steps 6-7b: the SVSF-cov update from the mixed prior (F = I, Q = 0: P(k+1|k) as given)
-            status = SAMPLE(fp, x[r], P[r], ep[r], epp[r], z[r, k], xp, eye, C, Q0, R, ws, n, m)
             if status != 0:
                 return 1 + r
             bank_store_step(r, k, x[r], mu[r], ll, P[r], xs, o_x, o_mu, o_ll, o_P, o_mx, nm, n)
     return 0
+
+
+def _smm_one(
+    buf: np.ndarray, cst: np.ndarray, slots: np.ndarray, z: np.ndarray, u: np.ndarray
+) -> int:  # pragma: no cover - compiled
+    """One sample of one realization: :func:`_smm_sample` on packed arrays (:func:`one_layout`).
+
+    ``buf`` holds ``x``, ``P``, ``mu``, ``e(k|k)``, ``e(k-1|k-1)``, the scratch ``xs``, ``Ps`` and
+    receives ``ll`` and ``z``; ``cst`` the header ``[nm, n, m, L_prm, L_fp, floor]`` then ``prm``,
+    ``Qs``, ``C``, ``R``, ``fp``; ``slots`` (nm,) int the plant slots. The state is written back only
+    when the sample succeeds with a finite estimate. Returns 0, the step's code, ``BAD_INPUT`` or
+    ``DIVERGED``.
+    """
+    b = _jit.borrow
+    buf, cst, slots, z, u = b(buf), b(cst), b(slots), b(z), b(u)
+    nm = int(cst[0])
+    n = NX if NX > 0 else int(cst[1])
+    m = NZ if NZ > 0 else int(cst[2])
+    p = u.shape[0]
+    if not finite_sample(z, m, u, p):
+        return BAD_INPUT
+    L_prm, L_fp, floor = int(cst[3]), int(cst[4]), cst[5]
+    o = 6
+    prm = cst[o : o + nm * L_prm].reshape((nm, L_prm))
+    o += nm * L_prm
+    Qs = cst[o : o + nm * n * n].reshape((nm, n, n))
+    o += nm * n * n
+    C = cst[o : o + m * n].reshape((m, n))
+    o += m * n
+    R = cst[o : o + m * m].reshape((m, m))
+    o += m * m
+    fp = cst[o : o + L_fp]
+    offs = one_layout(nm, n, m)
+    size = offs[-1]
+    work = _jit.scratch_block(size)
+    for i in range(size):
+        work[i] = buf[i]
+    x = work[0 : offs[0]]
+    P = work[offs[0] : offs[1]].reshape((n, n))
+    mu = work[offs[1] : offs[2]]
+    ep = work[offs[2] : offs[3]]
+    epp = work[offs[3] : offs[4]]
+    xs = work[offs[4] : offs[5]].reshape((nm, n))
+    Ps = work[offs[5] : offs[6]].reshape((nm, n, n))
+    ll = work[offs[6] : offs[7]]
+    scr = smm_scratch(nm, n, m)
+    status = SMM_SAMPLE(prm, slots, Qs, C, R, fp, floor, z, u, x, P, mu, ep, epp, xs, Ps, ll, scr, n, m, p)
+    if status != 0:
+        return status
+    for i in range(n):
+        if not np.isfinite(x[i]):
+            return DIVERGED
+        for j in range(n):
+            if not np.isfinite(P[i, j]):
+                return DIVERGED
+    for i in range(m):
+        work[offs[7] + i] = z[i]
+    for i in range(size):
+        buf[i] = work[i]
+    return 0
+
+
+@_jit.step
+def one_layout(nm: int, n: int, m: int) -> tuple[int, int, int, int, int, int, int, int, int]:
+    """Offsets in :func:`_smm_one`'s buffer (``x`` at 0): ``P``, ``mu``, ``e(k|k)``, ``e(k-1|k-1)``,
+    ``xs``, ``Ps``, ``ll``, the last ``z`` and the length."""
+    o_P = n
+    o_mu = o_P + n * n
+    o_ep = o_mu + nm
+    o_epp = o_ep + m
+    o_xs = o_epp + m
+    o_Ps = o_xs + nm * n
+    o_ll = o_Ps + nm * n * n
+    o_zl = o_ll + nm
+    return o_P, o_mu, o_ep, o_epp, o_xs, o_Ps, o_ll, o_zl, o_zl + m
 
 
 class SMMSpec(BankLoop):
@@ -129,6 +247,7 @@ class SMMSpec(BankLoop):
     C: np.ndarray  # (m, n), shared
     R: np.ndarray  # (m, m), shared
     fp: np.ndarray  # the shared correction's parameters
+    one: Callable[..., int]  # one sample of one realization (:func:`_smm_one`)
 
 
 def smm_spec(models: tuple[Model, ...], correct: CorrectionStep) -> SMMSpec | None:
@@ -156,13 +275,15 @@ def smm_spec(models: tuple[Model, ...], correct: CorrectionStep) -> SMMSpec | No
     if plant is None:
         return None
     tag = "_".join(["smm", *dict.fromkeys(pl.name for pl in plants)])
-    kernel = _jit.specialize_sizes(
-        _smm_loop,
+    step = _jit.specialize_sizes(
+        _smm_sample,
         tag,
-        {"NX": n, "NZ": m},
+        {},
+        inline=True,
         PLANT=plant,
         SAMPLE=sample_step(correct, want_ll=False),
     )
+    sizes = {"NX": n, "NZ": m}
     return {
         "prm": prm,
         "plant_slot": plant_slot,
@@ -171,7 +292,8 @@ def smm_spec(models: tuple[Model, ...], correct: CorrectionStep) -> SMMSpec | No
         "R": np.ascontiguousarray(models[0].R, dtype=float),
         "fp": correct.parameters,
         "mapping": correct.mapping,
-        "kernel": kernel,
+        "kernel": _jit.specialize_sizes(_smm_loop, tag, sizes, SMM_SAMPLE=step),
+        "one": _jit.specialize_sizes(_smm_one, tag, sizes, SMM_SAMPLE=step),
     }
 
 

@@ -13,9 +13,10 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _jit
-from .svsf_steps import closed_form_step, matvec_step, svsf_step
+from ._finite import finite_sample
+from .svsf_steps import closed_form_step, matvec_step, rows_times_step, svsf_step
 
-__all__: list[str] = []
+__all__ = ["svsf_one_kernel", "svsf_one_offsets"]
 
 
 @_jit.njit
@@ -117,3 +118,84 @@ def _closed_form_kernel(
                 zp = y0[r] if k == 0 else z[r, k - 1]
                 for i in range(m):
                     e_out[r, k, i] = closed_form_step(i, z[r, k, i], Gu[g, k, i], PhiT, zp, m)
+
+
+@_jit.step
+def svsf_one_offsets(n: int, m: int, p: int, nl: int) -> tuple[int, int, int, int, int, int, int, int]:
+    """Offsets in ``cst`` of :func:`_svsf_one` after its 8-value header: ``G^T`` (p, n), ``Phi^T`` (n, n),
+    ``L``, ``P`` (nl, m), ``1/psi`` (n), ``S^-1`` (n, n), ``S^-T`` (n, n), and the length."""
+    o_GT = 8
+    o_PhiT = o_GT + p * n
+    o_L = o_PhiT + n * n
+    o_P = o_L + nl * m
+    o_psi = o_P + nl * m
+    o_Si = o_psi + n
+    o_SiT = o_Si + n * n
+    return o_GT, o_PhiT, o_L, o_P, o_psi, o_Si, o_SiT, o_SiT + n * n
+
+
+def _svsf_one(buf, cst, z, u):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """One sample of one realization of :meth:`SVSF.update`: the steps of its batch paths, packed arrays.
+
+    ``cst``: header ``[n, m, p, nl, sat, gamma, closed, 0]`` (``closed``: the sgn filter with full
+    measurement started with ``e(k|k) = 0``, whose closed form then applies to every sample), then
+    :func:`svsf_one_offsets`. ``buf``: ``y`` (n), ``e(k|k)`` (m), then the sample's ``e(k+1|k)`` (m)
+    and ``x(k+1|k+1)`` (n). ``G u(k)`` by :func:`rows_times_step`; eq (23) by :func:`closed_form_step`
+    when ``closed`` (the choice :meth:`SVSF.update` makes for a record that starts so), else eq
+    (4)-(12) by :func:`svsf_step`.
+    Returns 0, 3 (NaN/inf input) or 4 (a non-finite estimate; the state is then left unchanged).
+    """
+    b = _jit.borrow
+    buf, cst, z, u = b(buf), b(cst), b(z), b(u)
+    n, m, p, nl = NX if NX > 0 else int(cst[0]), NZ if NZ > 0 else int(cst[1]), int(cst[2]), int(cst[3])
+    sat, gamma, closed = cst[4] != 0.0, cst[5], cst[6] != 0.0
+    if not finite_sample(z, m, u, p):
+        return 3
+    o_GT, o_PhiT, o_L, o_P, o_psi, o_Si, o_SiT, _ = svsf_one_offsets(n, m, p, nl)
+    GT = cst[o_GT:o_PhiT].reshape((p, n))
+    PhiT = cst[o_PhiT:o_L].reshape((n, n))
+    L = cst[o_L:o_P].reshape((nl, m))
+    P = cst[o_P:o_psi].reshape((nl, m))
+    inv_psi = cst[o_psi:o_Si]
+    S_inv = cst[o_Si:o_SiT].reshape((n, n))
+    S_invT = cst[o_SiT : o_SiT + n * n].reshape((n, n))
+    gu = _jit.scratch(n)
+    y = _jit.scratch(n)
+    ep = _jit.scratch(m)
+    e = _jit.scratch(m)
+    x = _jit.scratch(n)
+    for i in range(n):
+        y[i] = buf[i]
+    for i in range(m):
+        ep[i] = buf[n + i]
+    rows_times_step(u, GT, gu, p, n)
+    if closed:  # eq (23): y(k|k) = z(k) exactly, e(k+1|k+1) = 0
+        for i in range(m):
+            e[i] = closed_form_step(i, z[i], gu[i], PhiT, y, m)
+        for i in range(m):
+            y[i] = z[i]
+        rows_times_step(z, S_invT, x, n, n)
+    else:
+        yp = _jit.scratch(n)
+        le = _jit.scratch(nl)
+        svsf_step(z, gu, PhiT, L, P, inv_psi, gamma, y, ep, yp, e, le, n, m, nl, sat)
+        matvec_step(S_inv, y, x, n, n)
+    for i in range(n):
+        if not np.isfinite(y[i]):
+            return 4
+    for i in range(n):
+        buf[i] = y[i]
+        buf[n + 2 * m + i] = x[i]
+    for i in range(m):
+        buf[n + i] = ep[i]
+        buf[n + m + i] = e[i]
+    return 0
+
+
+#: Sizes of :func:`_svsf_one` (0: from ``cst``), bound by :func:`svsf_one_kernel`.
+NX = NZ = 0
+
+
+def svsf_one_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
+    """:func:`_svsf_one` for n states and m outputs (literal sizes up to 4: loops unrolled)."""
+    return _jit.specialize_sizes(_svsf_one, "svsf_one", {"NX": n, "NZ": m})

@@ -25,6 +25,7 @@ from ..errors import ParameterError, ShapeError
 from ..plants.nonlinear import Model
 from ._base import check_model
 from ._conventions import bank_store, default_input
+from .one_sample import OnlineBank
 from .protocol import FilterState, initial_estimate
 
 __all__ = [
@@ -386,6 +387,25 @@ class BankFilter:
         x, mu, ll = res["x"], res["mu"], res["ll"]
         assert x is not None and mu is not None and ll is not None  # always kept
         return MultipleModelOutput(x, mu, ll, tuple(cast(tuple[str, ...], self.modes)), res["P"], res["mx"])
+
+    def online(self, x0: np.ndarray, P0: np.ndarray, **initial: object) -> OnlineBank:
+        """One realization advanced one sample per call: ``f = bank.online(x0, P0)``, ``x = f.step(z, u)``.
+
+        Parameters
+        ----------
+        x0 : (n,) array
+            ``x(0|0)``.
+        P0 : (n, n) array
+            ``P(0|0)``.
+        **initial
+            IMM: ``mode_x0``, ``mode_P0`` (see :meth:`IMM.initialize`).
+
+        Returns
+        -------
+        OnlineBank
+            Each step gives the numbers of :meth:`update` on that sample (``docs/filters.md``).
+        """
+        return OnlineBank(self, self.initialize(x0, P0, runs=1, **initial))
 
     def update(
         self,

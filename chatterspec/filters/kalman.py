@@ -10,11 +10,12 @@ Equations ([DETC] and [IMM] baselines)::
 For a :class:`~chatterspec.plants.models.LinearModel` started from one shared ``P0``, the
 covariance and gain do not depend on the data: :class:`KalmanFilter` computes them once per
 sample for all realizations (``P`` stays ``(n, n)``, ``S`` is one ``(K, m, m)`` sequence) and runs only the
-state recursion per realization. A per-run ``P`` (e.g. after a bank's mixing) takes the
-per-run path, and so does a single stream when the compiled kernels are on (its gain sequence
-in numpy would cost ~50 us per sample; the compiled per-run step, ~0.05 us): the same equations,
-equal to rounding. Outputs have a leading runs axis on every path (``S`` is ``(runs, K, m, m)``;
-on the shared path a read-only broadcast view of the one ``(K, m, m)`` sequence).
+state recursion per realization (:mod:`chatterspec.filters._kalman_shared`; compiled, any number of
+runs, with the per-run filter's steps: the same bits as ``P0`` given per run). A per-run ``P`` (e.g.
+after a bank's mixing) takes the per-run path, and so does a single stream when the compiled kernels
+are on. The numpy path's shared sequence (BLAS products, ``S^-1``) equals the per-run path to
+rounding. Outputs have a leading runs axis on every path (``S`` is ``(runs, K, m, m)``; on the shared
+path a read-only broadcast view of the one ``(K, m, m)`` sequence).
 :class:`ExtendedKalmanFilter` uses the model's own ``transition`` and batched ``jacobian`` and works
 with any model that provides them; with a nonlinear measurement ``h`` it uses ``H = dh/dx`` at the
 prior in place of ``C`` (:func:`chatterspec.filters._engine_numpy.cov_numpy` with ``h_model``).
@@ -115,20 +116,11 @@ class KalmanFilter(CovarianceFilterBase):
         if P.ndim == 3:
             return super()._advance(x, P, ep, epp, z, u, keep)
         if x.shape[0] == 1 and _jit.enabled() and _jit.fits(x.shape[1], z.shape[2]):
-            # one stream: the per-run compiled loop, not the shared gain's Python loop over samples
+            # one stream: the per-run compiled loop (the shared path's bits, without its (K, ...) sequences)
             P1, res = super()._advance(x, P[None].copy(), ep, epp, z, u, keep)
             return P1[0], res
-        model = self.model
-        K = z.shape[1]
-        P, Pp, Pq, S, Kg, Sinv, logdet = _kalman_shared.riccati(P, model.A, model.C, model.Q, model.R, K)
-        res = _kalman_shared.kf_shared_states(
-            x, ep, epp, z, u, model.A, model.B, model.C, Kg, Sinv, logdet, keep
-        )
-        # one output shape rule: a leading runs axis on every path (read-only views of the shared arrays)
-        runs = x.shape[0]
-        for f, val in (("S", S), ("P_prior", Pp), ("P_post", Pq)):
-            res[f] = np.broadcast_to(val, (runs, *val.shape)) if f in keep else None
-        return P, res
+        m = self.model
+        return _kalman_shared.shared_gain(P, m.A, m.B, m.C, m.Q, m.R, x, ep, epp, z, u, keep)
 
     def gain_sequence(self, P0: np.ndarray, K: int) -> tuple[np.ndarray, np.ndarray]:
         """Data-independent gains and posterior covariances from a shared ``P0``.
@@ -145,10 +137,8 @@ class KalmanFilter(CovarianceFilterBase):
         (gains (K, n, m), P_post (K, n, n))
         """
         state = self.initialize(np.zeros(self.model.n_states), P0)
-        _, _, Pq, _, Kg, _, _ = _kalman_shared.riccati(
-            state.P, self.model.A, self.model.C, self.model.Q, self.model.R, K
-        )
-        return Kg, Pq
+        m = self.model
+        return _kalman_shared.gain_sequence(state.P, m.A, m.C, m.Q, m.R, K)
 
 
 @dataclass(frozen=True, eq=False)

@@ -297,6 +297,20 @@ def channel_rows(
     return arr
 
 
+def sample_rows(name: str, value: object, size: int) -> np.ndarray:
+    """``value`` as a C-contiguous float ``(size,)`` array (a number when ``size == 1``), else ShapeError.
+
+    The one check of a one-sample call (finiteness is tested inside the compiled call).
+    """
+    try:
+        arr = np.ascontiguousarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ShapeError(f"{name} must be numeric; got {type(value).__name__}") from exc
+    if arr.shape != (size,):
+        raise ShapeError(f"{name} must have shape ({size},) (one sample); got {arr.shape}")
+    return arr
+
+
 def resolve_store(store: Collection[str] | None) -> frozenset[str]:
     """The set of output fields to keep (``None`` = :data:`DEFAULT_STORE`)."""
     if store is None:

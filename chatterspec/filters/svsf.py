@@ -46,6 +46,7 @@ from ..errors import ParameterError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import Model, NonlinearModel, require_linear
 from ._conventions import check_chunk, check_initial_rows, check_record, svsf_store
+from .one_sample import OnlineSVSF
 from .protocol import channel_rows
 from .svsf_coordinates import boundary_layer_inverse, svsf_coordinates
 from .svsf_recursion import (
@@ -168,6 +169,24 @@ class SVSF:
             x0 = check_initial_rows(x0, n, runs)
             y = np.broadcast_to(x0 @ self._S.T, (runs, n)).copy()
         return SVSFState(y=y, e_post=z0 - y[:, :m], k=0)
+
+    def online(self, z0: np.ndarray, x0: np.ndarray | None = None) -> OnlineSVSF:
+        """One realization advanced one sample per call: ``f = svsf.online(z0)``, ``x = f.step(z, u)``.
+
+        Parameters
+        ----------
+        z0 : (m,) array
+            The first measurement ``z(0)`` (see :meth:`initialize`).
+        x0 : (n,) array, optional
+            Initial estimate (default ``C^-1 z(0)`` in the measured coordinates).
+
+        Returns
+        -------
+        OnlineSVSF
+            Each step gives the numbers of :meth:`update` on that sample; its ``e_prior`` is the
+            chattering (``docs/filters.md``).
+        """
+        return OnlineSVSF(self, self.initialize(np.reshape(z0, (1, -1)), x0))
 
     def update(
         self,

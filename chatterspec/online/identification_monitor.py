@@ -21,7 +21,13 @@ parameters (:class:`~chatterspec.detection.parameter_decision.ParameterDecision`
   excited), else healthy.
 
 Window ``j`` of the identification is the monitor's frame ``j`` shifted by one sample, so the
-spectral alarm state of a window is that of frame ``j`` (its centre time is the window's minus ``dt``).
+spectral alarm state of a window is that of frame ``j`` (decided at the frame's last sample, the
+``alarm_time_s`` of its events). Each window's states are decided at its last sample
+(:attr:`WindowDecision.alarm_time_s`; with tolerances the ``alarm_time_s`` of the parameters' events).
+The channels' one fault state (:mod:`chatterspec.online.fault_state`) follows from these: the
+parameters' alarms and the excitation at the windows' alarm times with tolerances; without, the
+spectral alarm at its frames' ends and the excitation (:attr:`IdentificationUpdate.not_excited`) at the
+windows'.
 """
 
 from __future__ import annotations
@@ -59,6 +65,8 @@ class WindowDecision:
         Window centre (s).
     window_s : (float, float)
         First and one-past-last chattering time of the window (s).
+    alarm_time_s : float
+        When the window's states are decided: its last sample (s).
     alarm : bool
         An alarm is active (the parameters' with tolerances, else the spectral monitor's).
     label : str or None
@@ -73,6 +81,7 @@ class WindowDecision:
     index: int
     time_s: float
     window_s: tuple[float, float]
+    alarm_time_s: float
     alarm: bool
     label: str | None
     states: tuple[str, ...]
@@ -88,6 +97,9 @@ class IdentificationUpdate:
     found : OnlineIdentification
     block : ParameterDecisions
     windows : tuple of WindowDecision
+    not_excited : (W, m) bool array
+        Per window and output channel: a parameter the channel's chattering carries is not excited (its
+        detectable change exceeds its limit), whatever the alarms.
     events : tuple of ParameterEvent
         The parameters' alarm starts and ends (tolerances declared).
     """
@@ -95,11 +107,20 @@ class IdentificationUpdate:
     found: OnlineIdentification
     block: ParameterDecisions
     windows: tuple[WindowDecision, ...]
+    not_excited: np.ndarray
     events: tuple[ParameterEvent, ...] = field(default=())
 
     def report(self, i: int) -> IdentificationReport:
         """The full identification report of window ``i`` (every hypothesis and test)."""
         return self.found.report(i)
+
+    def channel_codes(self) -> tuple[np.ndarray, np.ndarray]:
+        """The windows' alarm times ``(W,)`` (s) and channel state codes ``(W, m)`` (indices into
+        :data:`~chatterspec.detection.parameter_decision.STATES`, the codes of
+        :mod:`chatterspec.online.fault_state`)."""
+        times = np.array([w.alarm_time_s for w in self.windows], dtype=float)
+        codes = np.array([[STATES.index(s) for s in w.channel_states] for w in self.windows], dtype=np.int8)
+        return times, codes.reshape(len(self.windows), -1)
 
 
 class IdentificationMonitor:
@@ -119,6 +140,10 @@ class IdentificationMonitor:
         Level of the per-window hypothesis tests (the selection named under a spectral alarm).
     confidence : float
         Level of the intervals.
+    frame_samples : int, optional
+        The spectral monitor's STFT window (samples; ``ChatteringMonitor.n_window``): the spectral
+        alarm times are the ends of its frames. Default: the identification window (``window_hops``
+        hops), the same when the window is a whole number of hops.
     """
 
     def __init__(
@@ -129,11 +154,13 @@ class IdentificationMonitor:
         t0: float = 0.0,
         alpha: float = 1e-3,
         confidence: float = 0.95,
+        frame_samples: int | None = None,
     ) -> None:
         model = setup.model
         self.setup, self.settings = setup, settings
         self.dt = model.dt
         hop = max(1, round(settings.hop_s / model.dt))
+        self.frame_samples = int(frame_samples) if frame_samples is not None else hop * settings.window_hops
         self.identifier = OnlineIdentifier(
             setup,
             hop_samples=hop,
@@ -146,8 +173,14 @@ class IdentificationMonitor:
         self.parameters = setup.parameter_map.parameter_names
         self.channels = tuple(model.output_names)
         self._carried = _carried(setup)  # (m, P): channel i's chattering carries parameter k
-        self._open: dict[str, float] = {}  # spectral alarms open: channel -> start (frame centre, s)
+        self._open: dict[str, float] = {}  # spectral alarms open: channel -> start (alarm time, s)
         self._closed: list[tuple[str, float, float]] = []  # recent (channel, start, end)
+
+    @property
+    def carried(self) -> np.ndarray:
+        """``(m, P)`` bool: output channel ``i``'s chattering carries parameter ``k`` (table order): its
+        state follows that parameter's excitation, and with tolerances its alarm."""
+        return self._carried
 
     @property
     def tolerances(self) -> bool:
@@ -161,22 +194,31 @@ class IdentificationMonitor:
         self._open.clear()
         self._closed.clear()
 
-    def note_alarm(self, kind: str, channel: str, time_s: float) -> None:
-        """A spectral alarm event (``fault-start`` / ``fault-end`` on ``channel`` at the frame centre
-        ``time_s``), given before the identification of the same push."""
+    def note_alarm(self, kind: str, channel: str, alarm_time_s: float) -> None:
+        """A spectral alarm event (``fault-start`` / ``fault-end`` on ``channel`` decided at
+        ``alarm_time_s``, the end of its frame: ``DetectionEvent.alarm_time_s``, a stream event's
+        ``sample_time_s``), given before the identification of the same push."""
         if kind == "fault-start":
-            self._open[channel] = float(time_s)
+            self._open[channel] = float(alarm_time_s)
         elif kind == "fault-end" and channel in self._open:
-            self._closed.append((channel, self._open.pop(channel), float(time_s)))
+            self._closed.append((channel, self._open.pop(channel), float(alarm_time_s)))
 
-    def _spectral(self, t_frame: float) -> np.ndarray:
-        """``(m,)``: channels whose spectral alarm is active at frame centre ``t_frame``."""
+    def _spectral(self, t_alarm: float) -> np.ndarray:
+        """``(m,)``: channels whose spectral alarm is active after the frame decided at ``t_alarm`` (s;
+        half a sample of slack for the rounding of times that are a hop apart)."""
+        t = t_alarm + 0.5 * self.dt
         on = np.zeros(len(self.channels), dtype=bool)
         for ch, start in self._open.items():
-            on[self.channels.index(ch)] |= start <= t_frame
+            on[self.channels.index(ch)] |= start <= t
         for ch, start, end in self._closed:
-            on[self.channels.index(ch)] |= start <= t_frame < end
+            on[self.channels.index(ch)] |= start <= t < end
         return on
+
+    def frame_ends(self, found: OnlineIdentification) -> np.ndarray:
+        """``(W,)``: the alarm time (last sample, s) of the spectral frame of each window's number (its
+        first sample is the window's minus ``dt``)."""
+        w = np.asarray(found.window_s, dtype=float).reshape(-1, 2)
+        return w[:, 0] - self.dt + (self.frame_samples - 1) * self.dt
 
     def push(self, z: np.ndarray, u: np.ndarray) -> IdentificationUpdate:
         """Identify and decide on the windows one raw push ``z (K, m)``, ``u (K, p)`` completes."""
@@ -189,6 +231,8 @@ class IdentificationMonitor:
         # the selected hypothesis per window (none identified: "no fault")
         sel = np.full(found.n_windows, -1) if found.result is None else found.result.fit["selected"]
         names = [h.name for h in self.setup.hypotheses]
+        decided = np.asarray(found.window_s, dtype=float).reshape(-1, 2)[:, 1] - self.dt  # last samples
+        frame_end = self.frame_ends(found)
         for j in range(found.n_windows):
             t = float(found.times_s[j])
             states = block.state[j].copy()
@@ -197,7 +241,7 @@ class IdentificationMonitor:
                 label = "+".join(p for p, a in zip(self.parameters, block.alarm[j], strict=True) if a) or None
                 chan_fault = (self._carried & block.alarm[j][None, :]).any(axis=1)
             else:
-                chan_fault = self._spectral(t - 0.5 * self.dt)
+                chan_fault = self._spectral(float(frame_end[j]))
                 alarm = bool(chan_fault.any())
                 label = None
                 if alarm:
@@ -213,6 +257,7 @@ class IdentificationMonitor:
                     index=j,
                     time_s=t,
                     window_s=(float(found.window_s[j, 0]), float(found.window_s[j, 1])),
+                    alarm_time_s=float(decided[j]),
                     alarm=alarm,
                     label=label,
                     states=tuple(STATES[k] for k in states),
@@ -220,9 +265,10 @@ class IdentificationMonitor:
                 )
             )
         if found.n_windows:
-            last = float(found.times_s[-1]) - self.dt
+            last = float(frame_end[-1]) + 0.5 * self.dt
             self._closed = [c for c in self._closed if c[2] > last]
-        return IdentificationUpdate(found, block, tuple(out), block.events)
+        blind = (self._carried[None, :, :] & ~np.asarray(block.excited, dtype=bool)[:, None, :]).any(axis=-1)
+        return IdentificationUpdate(found, block, tuple(out), blind, block.events)
 
     def parameter_summary(self, block: ParameterDecisions, window: WindowDecision) -> list[dict[str, Any]]:
         """One window of ``block`` per parameter: estimate, interval, band, state, detectable change."""

@@ -49,11 +49,12 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from .. import _jit
 from .._validate import finite_array, positive_int
 from ..detection.spectral import spectrum_model
 from ..detection.thresholds import frame_threshold
-from ..errors import ParameterError, ShapeError
-from ..filters.protocol import channel_rows
+from ..errors import NonFiniteError, ParameterError, ShapeError
+from ..filters.protocol import channel_rows, sample_rows
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
 from .monitor_filters import MonitorFilters
@@ -137,6 +138,7 @@ class ChatteringMonitor:
         self._mode: str | None = None  # "raw" or "chattering"
         self._n_chat = 0  # chattering samples produced / pushed
         self._t_chat0: float | None = None  # time of chattering sample 0
+        self._last: MonitorUpdate | None = None  # the last push (None after a compiled step)
 
     # ------------------------------------------------------------- properties
     @property
@@ -207,6 +209,7 @@ class ChatteringMonitor:
         if K == 0:
             return self._empty_update(raw=True)
         z, e, estimate = self._filters.advance(z, u)
+        self._last = None
         K = z.shape[0]
         if K == 0:  # the first push's first measurement only initializes the filters
             return self._empty_update(raw=True)
@@ -215,7 +218,52 @@ class ChatteringMonitor:
         t = self.t0 + np.arange(n, n + K, dtype=float) * self.dt
         self._n_chat += K
         frames, events = self._frames.push(e)
-        return MonitorUpdate(t, e, z, estimate, frames, events)
+        self._last = MonitorUpdate(t, e, z, estimate, frames, events)
+        return self._last
+
+    def step(self, z: object, u: object) -> tuple[DetectionEvent, ...]:
+        """Feed one sample: ``z`` (m,) and the input ``u`` (p,) sampled with it; the events it raises.
+
+        The numbers of :meth:`push` (steps and pushes may be mixed on one monitor): with numba, after
+        the first sample, both filters and the chattering's place in the frame buffer are one compiled
+        call (:func:`chatterspec.online._push_kernels.filters_one_kernel`), and a completed frame is
+        analysed as a push's; otherwise a one-sample :meth:`push`. The sample's chattering and
+        estimate are then :attr:`last_chattering` and :attr:`last_estimate`.
+
+        Raises
+        ------
+        ShapeError, NonFiniteError
+            On a wrong shape or a NaN/inf entry (nothing is consumed then).
+        """
+        filters = self._filters
+        if self._mode != "raw" or filters._st is None or not (filters.fused and _jit.enabled()):
+            upd = self.push(z, u)  # type: ignore[arg-type]
+            self._last = upd
+            return upd.events
+        z = sample_rows("z", z, self.model.n_outputs)
+        u = sample_rows("u", u, self.model.n_inputs)
+        buf, row = self._frames.slot()
+        if filters.step(z, u, buf, row):
+            bad = "z" if not np.isfinite(z).all() else "u"
+            raise NonFiniteError(f"{bad} contains NaN/inf value(s); all entries must be finite")
+        self._last = None
+        self._n_chat += 1
+        return self._frames.commit_one()[1]
+
+    @property
+    def last_chattering(self) -> np.ndarray | None:
+        """The chattering ``e(k|k-1)`` (m,) of the last sample fed by :meth:`step` or :meth:`push`."""
+        if self._last is not None:
+            return self._last.chattering[-1].copy() if len(self._last.chattering) else None
+        return self._filters.last_chattering()
+
+    @property
+    def last_estimate(self) -> np.ndarray | None:
+        """The sat SVSF's output estimate (m,) of the last sample (None without ``psi``)."""
+        if self._last is not None:
+            est = self._last.estimate
+            return None if est is None or not len(est) else est[-1].copy()
+        return self._filters.last_estimate()
 
     def push_chattering(self, e: np.ndarray) -> MonitorUpdate:
         """Feed precomputed chattering samples ``e`` (K, m) (e.g. a :class:`ChatteringRecord`'s values).

@@ -25,7 +25,7 @@ from ..filters.svsf import SVSF, SVSFState, auxiliary_svsf
 from ..filters.svsf_steps import rows_times as _rows_times
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel
-from ._push_kernels import filters_kernel
+from ._push_kernels import filters_kernel, filters_one_kernel
 from .monitor_types import MonitorSettings
 
 __all__ = ["MonitorFilters"]
@@ -56,8 +56,8 @@ class MonitorFilters:
         nonlinear = isinstance(model, NonlinearModel)
         self._aux = NonlinearSgnSVSF(model, s.gamma) if nonlinear else auxiliary_svsf(model, s.gamma)
         self._sat = None if s.psi is None else SVSF(model, psi=np.asarray(s.psi), gamma=s.gamma)
-        self._aux_state: SVSFState | NonlinearSVSFState | None = None
-        self._sat_state: SVSFState | None = None
+        self._aux_state_obj: SVSFState | NonlinearSVSFState | None = None
+        self._sat_state_obj: SVSFState | None = None
         # one compiled call per push for both filters (full measurement: the closed form of eq 23;
         # at least one input; numba installed, and enabled at push time)
         self.fused = (
@@ -76,11 +76,92 @@ class MonitorFilters:
             self._no_sat = (e2, e2, e2, np.empty(0), 0.0, e2, e2, e2, self._none3, self._none3, self._none3)
             # the push loop, unrolled for small models (the EHA's 3 states): same steps, same bits
             self._kernel = filters_kernel(model.n_states, model.n_outputs)
+            self._one = filters_one_kernel(model.n_states, model.n_outputs)
+            self._one_cst = self._one_constants()
         # C = I (every state measured in its own units, the EHA): the estimate C x is x itself
         C = getattr(model, "C", None)
         self._C_identity = C is not None and C.shape[0] == C.shape[1] and np.array_equal(C, np.eye(len(C)))
-        self._pending_u: np.ndarray | None = None
+        self._pending_obj: np.ndarray | None = None
+        # the fused path's state between samples and pushes, in one array (the per-sample kernel's
+        # layout): pending u(k), the aux y(k|k) = z(k), the sat filter's y and e(k|k), its estimate
+        self._st: np.ndarray | None = None
         self.n_meas = 0
+
+    def _one_constants(self) -> np.ndarray:
+        """``cst`` of :func:`._push_kernels._filters_one` (zeros in the sat filter's place without one)."""
+        model, sat = self.model, self._sat
+        n, m, p = model.n_states, model.n_outputs, model.n_inputs
+        if sat is None:
+            head = [n, m, p, 0, 0.0, 0.0, 0.0, 0.0]
+            sat_parts: list[np.ndarray] = [np.zeros(n * n), np.zeros(n), np.zeros(n * n)]
+        else:
+            PhiT, L_, P_, inv_psi_, gamma, S_inv = sat._kernel_consts
+            # (the kernel's constants: empty arrays, never None)
+            L, P, inv_psi = cast(np.ndarray, L_), cast(np.ndarray, P_), cast(np.ndarray, inv_psi_)
+            psi_n = np.zeros(n)
+            psi_n[: inv_psi.size] = inv_psi
+            head = [n, m, p, L.shape[0], 1.0, gamma, 0.0, 0.0]
+            sat_parts = [PhiT, L, P, psi_n, S_inv]
+        parts = [np.asarray(head, dtype=float), self._GT, self._aux_PhiT, *sat_parts]
+        return np.ascontiguousarray(np.concatenate([np.ravel(np.asarray(a, dtype=float)) for a in parts]))
+
+    def _pack(self) -> None:
+        """Move the states into the fused path's array (after the first push, whichever path made them)."""
+        n, m, p = self.model.n_states, self.model.n_outputs, self.model.n_inputs
+        st = np.zeros(p + m + n + m + n + m)
+        st[:p] = cast(np.ndarray, self._pending_obj)  # (the first push set them all)
+        st[p : p + m] = cast(SVSFState, self._aux_state_obj).y[0]
+        if self._sat is not None:
+            sat = cast(SVSFState, self._sat_state_obj)
+            st[p + m : p + m + n] = sat.y[0]
+            st[p + m + n : p + 2 * m + n] = sat.e_post[0]
+            st[p + 2 * m + n : p + 2 * m + 2 * n] = (sat.y @ self._sat._S_inv.T)[0]
+        self._st = st
+
+    @property
+    def _pending_u(self) -> np.ndarray | None:
+        return self._pending_obj if self._st is None else self._st[: self.model.n_inputs]
+
+    @_pending_u.setter
+    def _pending_u(self, value: np.ndarray) -> None:
+        if self._st is None:
+            self._pending_obj = value
+        else:
+            self._st[: self.model.n_inputs] = value
+
+    # the states as SVSFState objects (views of the fused path's array when it holds them)
+    @property
+    def _aux_state(self) -> SVSFState | NonlinearSVSFState | None:
+        if self._st is None:
+            return self._aux_state_obj
+        p, m = self.model.n_inputs, self.model.n_outputs
+        return SVSFState(y=self._st[None, p : p + m], e_post=np.zeros((1, m)), k=self.n_meas - 1)
+
+    @_aux_state.setter
+    def _aux_state(self, value: SVSFState | NonlinearSVSFState | None) -> None:
+        self._aux_state_obj = value
+        if self._st is not None and value is not None:
+            p, m = self.model.n_inputs, self.model.n_outputs
+            self._st[p : p + m] = value.y[0]
+
+    @property
+    def _sat_state(self) -> SVSFState | None:
+        if self._st is None or self._sat is None:
+            return self._sat_state_obj
+        p, m, n = self.model.n_inputs, self.model.n_outputs, self.model.n_states
+        o = p + m
+        return SVSFState(
+            y=self._st[None, o : o + n], e_post=self._st[None, o + n : o + n + m], k=self.n_meas - 1
+        )
+
+    @_sat_state.setter
+    def _sat_state(self, value: SVSFState | None) -> None:
+        self._sat_state_obj = value
+        if self._st is not None and value is not None:
+            p, m, n = self.model.n_inputs, self.model.n_outputs, self.model.n_states
+            o = p + m
+            self._st[o : o + n] = value.y[0]
+            self._st[o + n : o + n + m] = value.e_post[0]
 
     @property
     def has_estimate(self) -> bool:
@@ -108,6 +189,8 @@ class MonitorFilters:
                 self._sat_state = self._sat.initialize(z[:1])
             self._pending_u = u[0].copy()  # not a view of the caller's array
             self.n_meas = 1
+            if self.fused:
+                self._pack()
             z, u = z[1:], u[1:]
         K = z.shape[0]
         if K == 0:
@@ -142,28 +225,55 @@ class MonitorFilters:
         the sat SVSF), without its per-call Python work; returns ``(e, estimate)``.
         """
         K, m = z.shape
+        n, p = self.model.n_states, self.model.n_inputs
         z3 = np.ascontiguousarray(z)[None]  # one compiled specialization (no copy when contiguous)
-        aux = cast(SVSFState, self._aux_state)  # (fused: the linear auxiliary SVSF, initialized)
+        st = cast(np.ndarray, self._st)  # views of the state array: the kernel updates y, e(k|k) in place
+        aux_y = st[None, p : p + m]
         e = np.empty((1, K, m))
         sat = self._sat
         none = self._none3
         if sat is None:
-            self._kernel(z3, u_used, self._GT, self._aux_PhiT, aux.y, e, none, False, *self._no_sat)
+            self._kernel(z3, u_used, self._GT, self._aux_PhiT, aux_y, e, none, False, *self._no_sat)
             estimate = None
         else:
             PhiT, L, P, inv_psi, gamma, S_inv = sat._kernel_consts
-            st = cast(SVSFState, self._sat_state)  # (initialized with the aux state)
-            y, ep = st.y.copy(), st.e_post.copy()
-            x_out = np.empty((1, K, self.model.n_states))
+            o = p + m
+            y, ep = st[None, o : o + n], st[None, o + n : o + n + m]
+            x_out = np.empty((1, K, n))
             self._kernel(
-                z3, u_used, self._GT, self._aux_PhiT, aux.y, e, none, True,
+                z3, u_used, self._GT, self._aux_PhiT, aux_y, e, none, True,
                 PhiT, L, P, inv_psi, gamma, S_inv, y, ep, none, x_out, none,
             )  # fmt: skip
-            self._sat_state = SVSFState(y=y, e_post=ep, k=st.k + K)
+            st[o + n + m : o + n + m + n] = x_out[0, -1]
             estimate = self._output(x_out[0])
         # the closed form's state: y(k|k) = z(k) exactly, e(k|k) = 0 (see SVSF.update, Notes)
-        self._aux_state = SVSFState(y=z[-1:].copy(), e_post=aux.e_post, k=aux.k + K)
+        aux_y[0] = z[-1]
+        st[-m:] = e[0, -1]
         return e[0], estimate
+
+    def step(self, z: np.ndarray, u: np.ndarray, ebuf: np.ndarray, row: int) -> int:
+        """One sample of both filters in one compiled call (:func:`._push_kernels.filters_one_kernel`).
+
+        Only on the fused path after the first measurement. ``z`` (m,), ``u`` (p,) (float,
+        contiguous); the chattering goes to ``ebuf[row]``. Returns 0, or 3 when ``z`` or ``u`` is
+        not finite (nothing consumed). The sample's estimate is then :meth:`last_estimate`.
+        """
+        status = int(self._one(self._one_cst, self._st, z, u, ebuf, row))
+        if status == 0:
+            self.n_meas += 1
+        return status
+
+    def last_estimate(self) -> np.ndarray | None:
+        """The sat SVSF's output estimate ``C x(k|k)`` (m,) of the last sample (None without ``psi``)."""
+        if self._sat is None or self._st is None:
+            return None
+        n, m = self.model.n_states, self.model.n_outputs
+        x = self._st[-n - m : -m]
+        return x.copy() if self._C_identity else self.model.C @ x
+
+    def last_chattering(self) -> np.ndarray | None:
+        """The chattering ``e(k|k-1)`` (m,) of the last sample (fused path)."""
+        return None if self._st is None else self._st[-self.model.n_outputs :].copy()
 
     def _output(self, x: np.ndarray) -> np.ndarray:
         """The sat-SVSF's output estimate ``C x(k|k)`` (K, m) of its states ``x`` (K, n): ``x`` itself

@@ -28,6 +28,8 @@ from ..detection.frame_engine import FrameEngine
 from ..detection.frame_score import FrameScore
 from ..detection.frames import FrameVerdicts
 from ..detection.thresholds import Threshold
+from ._push_kernels import hop_kernel
+from .fault_state import alarm_time
 from .monitor_types import DetectionEvent, EventKind, FrameBlock, MonitorSettings
 
 __all__ = ["FrameAnalysis"]
@@ -95,6 +97,15 @@ class FrameAnalysis:
         self._fault_peak_hz = [0.0] * m
         self.n_events = 0
         self.t_first = 0.0
+        # with numba: power, verdicts, score and alarm rule of a block of frames in one compiled call
+        # (online._push_kernels.hop_kernel: the same steps as the four calls above, the same bits) when
+        # the rule gives its channel step (RuleSteps.channel; a rule without one: the four calls)
+        channel = self._alarm._steps.channel
+        self._fused = bool(
+            _jit.enabled() and self._verdicts.compiled and self._columns.compiled and self._alarm._compiled
+            and channel is not None
+        )  # fmt: skip
+        self._hop = None if channel is None else hop_kernel(channel)
 
     @property
     def active(self) -> np.ndarray:
@@ -119,9 +130,8 @@ class FrameAnalysis:
 
     def push(self, e: np.ndarray) -> tuple[FrameBlock, tuple[DetectionEvent, ...]]:
         """Analyse the next chattering samples ``e`` (K, m); the frames they complete and their events."""
-        W, H = self.n_window, self.n_hop
+        W = self.n_window
         K, nb = e.shape[0], self.n_buffered
-        buf_start = self.n_frames * H  # global index of self._buf[0]
         n = nb + K
         if n < W:  # the next frame (samples buf_start .. buf_start + W) is not complete yet
             self._buf[nb:n] = e
@@ -134,18 +144,74 @@ class FrameAnalysis:
             data = self._buf[:n]
         else:
             data = np.concatenate([self._buf[:nb], e])
+        return self._analyse(data)
+
+    def slot(self) -> tuple[np.ndarray, int]:
+        """Where the next chattering sample goes: ``(buffer, row)`` (:meth:`commit_one` takes it)."""
+        return self._buf, self.n_buffered
+
+    def commit_one(self) -> tuple[FrameBlock, tuple[DetectionEvent, ...]]:
+        """:meth:`push` of the one sample written at :meth:`slot` (the same frames and events)."""
+        n = self.n_buffered + 1
+        if n < self.n_window:
+            self.n_buffered = n
+            return self.no_frames, ()
+        return self._analyse(self._buf[:n])
+
+    def _analyse(self, data: np.ndarray) -> tuple[FrameBlock, tuple[DetectionEvent, ...]]:
+        """The frames that ``data`` (the buffered samples, then the new ones; >= one window) completes."""
+        if self._fused:
+            return self._analyse_fused(data)
+        H = self.n_hop
+        buf_start = self.n_frames * H  # global index of data[0]
         idx, power = self._columns(data, buf_start)
-        self.n_frames = int(idx[-1]) + 1
-        keep = data[self.n_frames * H - buf_start :]  # < W samples: the next frame's start on
-        self._buf[: keep.shape[0]] = keep  # numpy copes with the overlap when data is self._buf
-        self.n_buffered = keep.shape[0]
         flags, peak_hz, peak_ratio = self._verdicts(power)
         score = self._score._unchecked(power)
         blk = self._alarm._advance(flags.astype(float) if self._legacy else score)
         stat = score if self._legacy else blk.statistic
+        self._advance_buffer(data, int(idx[-1]) + 1)
         times = self.frame_time(idx, self.t_first)
         frames = FrameBlock(idx, times, power, flags, peak_hz, peak_ratio, score, blk.active, stat)
         return frames, self._events(frames, blk.starts, blk.ends)
+
+    def _advance_buffer(self, data: np.ndarray, n_frames: int) -> None:
+        """``n_frames`` frames done: keep the samples of ``data`` from the next frame's start on (< W)."""
+        keep = data[n_frames * self.n_hop - self.n_frames * self.n_hop :]
+        self.n_frames = n_frames
+        self._buf[: keep.shape[0]] = keep  # numpy copes with the overlap when data is self._buf
+        self.n_buffered = keep.shape[0]
+
+    def _analyse_fused(self, data: np.ndarray) -> tuple[FrameBlock, tuple[DetectionEvent, ...]]:
+        """:meth:`_analyse` with one compiled call per block of frames (``_push_kernels.hop_kernel``)."""
+        eng, ver, sc, al = self._columns, self._verdicts, self._score, self._alarm
+        j_first, F, offset = eng.grid(data.shape[0], self.n_frames * self.n_hop)
+        m = len(self.channels)
+        power = np.empty((F, eng.n_bins, m))
+        k_ratio = np.empty((F, m), dtype=np.int64)
+        out = np.empty((4, F, m))  # peak_ratio, score, statistic, and the rule's input
+        flags3 = np.empty((3, 1, F, m), dtype=np.bool_)  # active, starts, ends
+        peak_ratio, score, stat, s3 = out[0], out[1], out[2][None], out[3][None]
+        al._pos[0] = al._step
+        lo = ver.sel.start  # type: ignore[union-attr]
+        hop = self._hop
+        assert hop is not None  # (fused: the rule gives its channel step)
+        for a, b, Y in eng.transforms(data, offset, F):
+            hop(
+                Y, eng.scale, power[a:b], lo, ver.values, ver._positions, k_ratio[a:b], peak_ratio[a:b],
+                *sc._kernel_args, score[a:b], self._legacy, al._h, al._p,
+                al._active, al._g, al._count, al._ring, al._pos, s3[:, a:b], flags3[0, :, a:b], stat[:, a:b],
+                flags3[1, :, a:b], flags3[2, :, a:b],
+            )  # fmt: skip
+            al._pos[0] += b - a
+        al._step += F
+        self._advance_buffer(data, j_first + F)
+        idx = np.arange(j_first, j_first + F)
+        stat2 = score if self._legacy else stat[0]
+        times = self.frame_time(idx, self.t_first)
+        frames = FrameBlock(
+            idx, times, power, peak_ratio > 1.0, ver.freqs[k_ratio], peak_ratio, score, flags3[0, 0], stat2
+        )
+        return frames, self._events(frames, flags3[1, 0], flags3[2, 0])
 
     def _events(self, fr: FrameBlock, starts: np.ndarray, ends: np.ndarray) -> tuple[DetectionEvent, ...]:
         """Events from the alarm layer's starts / ends (F, m); tracks each fault's largest peak.
@@ -196,4 +262,5 @@ class FrameAnalysis:
             kind, self.channels[c], c, t, j, float(peak_hz), float(peak_ratio), t - back * self.dt,
             rule=rule.name, score=float(score[f, c]), statistic=float(statistic[f, c]),
             threshold=float(rule.threshold), false_alarms_per_hour=self.settings.false_alarms_per_hour,
+            alarm_time_s=alarm_time(t, self.n_window, self.dt),
         )  # fmt: skip

@@ -35,6 +35,10 @@ class DetectionEvent:
     channel_index : int
     time_s : float
         Centre time of the frame where the verdict changed (s).
+    alarm_time_s : float
+        When the alarm layer decided: the time of the deciding frame's last sample (s), ``time_s`` plus
+        half a window (:func:`chatterspec.online.fault_state.alarm_time`). The channel's fault state
+        changes here in the recording's lanes, events and live view.
     frame : int
         Global frame number.
     peak_hz : float
@@ -72,13 +76,18 @@ class DetectionEvent:
     statistic: float = float("nan")
     threshold: float = float("nan")
     false_alarms_per_hour: float | None = None
+    alarm_time_s: float = float("nan")
 
     def describe(self) -> str:
-        """A short description for reports and recordings."""
+        """A short description for reports and recordings: the alarm time (end of the deciding frame) and
+        the onset / offset estimate, each named."""
         what = "fault start" if self.kind == "fault-start" else "fault end"
         peak = "peak" if self.kind == "fault-start" else "largest peak during the fault"
+        est = "onset" if self.kind == "fault-start" else "offset"
         return (
-            f"{what} on {self.channel} at t = {self.time_s:.2f} s (estimated {self.estimate_s:.2f} s) "
+            f"{what} on {self.channel}: alarm {'raised' if self.kind == 'fault-start' else 'cleared'} at "
+            f"t = {self.alarm_time_s:.2f} s (end of the deciding frame), {est} estimated "
+            f"{self.estimate_s:.2f} s "
             f"({peak} {self.peak_ratio:.2f} x threshold at {self.peak_hz:.1f} Hz) "
             f"[{alarm_label(self.rule, self.false_alarms_per_hour)}]"
         )
@@ -89,6 +98,7 @@ class DetectionEvent:
             "kind": self.kind,
             "channel": self.channel,
             "time_s": self.time_s,
+            "alarm_time_s": finite_or_none(self.alarm_time_s),
             "estimate_s": finite_or_none(self.estimate_s),
             "frame": self.frame,
             "peak_hz": self.peak_hz,

@@ -22,33 +22,33 @@ The linear plants run under the catalogue chirp (10-100 Hz, 300 rad/s, repeated 
 plant is simulated without measurement noise and the case's sensor chain adds it (white ``N(0, R)``
 for the parametric cases and the nonlinear plant).
 
-Each case is monitored by every :class:`Route` (a model and the monitor's settings, prepared from the
-nominal model and the plant's own healthy data): :func:`nominal_route` (a), the nominal model with
-its simulated calibration; :func:`commissioned_route` (b), the model a commissioning function fits
-to ``commission_s`` seconds of the plant's healthy data (the seam: any ``(nominal, z, u) -> model``);
-(c), tolerances, is a route of the same shape when the model file carries them; and
-:func:`recorded_route`, the remedy the data support: the nominal model with thresholds from
-``recorded_hours`` of the plant's recorded healthy data (:mod:`chatterspec.online.recorded_calibration`,
-the recording's own normalization).
+Each case is monitored by every route (:mod:`chatterspec.online.bench_routes`, prepared from the
+nominal model and the plant's own healthy data): (a) the nominal model with its simulated calibration;
+(b) the model :func:`chatterspec.commission` fits to ``commission_s`` seconds of the plant's healthy
+data (a refusal reported with its reason); (c) the nominal model with operating tolerances, decided on
+the identified parameters (or, route ``commissioned-tolerances``, the commissioned model with them);
+and the remedy for a noise the model does not describe: the nominal model with thresholds from
+``recorded_hours`` of the plant's recorded healthy data.
 
 Measured per case and route
     **False alarms**: ``hours`` (default 24; ``nonlinear_hours`` for the nonlinear plant, whose
     Python-stepped stream costs about 20 us per sample) of fresh healthy data of the plant, simulated
     in blocks of ``block_s`` seconds (the state carried from block to block, bounded memory) and pushed
-    through the online monitor (:class:`~chatterspec.online.monitor.ChatteringMonitor`, one push per block);
-    the fault starts counted, against the two-sided 99 % Poisson interval of the count the budget
-    predicts (:func:`~chatterspec.detection.alarm_calibration.poisson_count_interval`), and the
-    fraction of frames in alarm: the budget *holds* when the count lies inside the interval (or below
-    it) and the monitor is in alarm for at most 1 % of the frames (a mismatched model often raises
-    one alarm that never ends: one start, a day in alarm).
+    through the route's online monitor (:class:`~chatterspec.online.monitor.ChatteringMonitor`, or with
+    tolerances the parameters' :class:`~chatterspec.online.identification_monitor.IdentificationMonitor`:
+    one push per block); the fault starts counted, against the two-sided 99 % Poisson interval of the
+    count the budget predicts (:func:`~chatterspec.detection.alarm_calibration.poisson_count_interval`),
+    and the fraction of frames in alarm: the budget *holds* when the count lies inside the interval (or
+    below it) and the monitor is in alarm for at most 1 % of the frames (a mismatched model often
+    raises one alarm that never ends: one start, a day in alarm).
     **Detection**: the catalogue faults (leakage minor 3e-11 and major 9e-11 m^3/(s Pa), friction
     major 7000 N s/m, bulk modulus -25 % of the plant's own) switched on after ``healthy_s`` seconds
     of the healthy plant, at 8 phases of the chirp, ``runs_per_phase`` realizations each, through the
-    same sensor chain; scored by the route's model with the monitor's frame engine, score and rule
-    (:func:`chatterspec.studies.alarm_delays.score_delays`: the numbers of the online monitor on the
-    same grid); detection rate (99 % Clopper-Pearson interval) and median delay (s, to the end of the
-    frame that raised the first alarm after the onset). A route that alarms during the healthy
-    stretch before most onsets is reported as such: its delays measure nothing.
+    same sensor chain; scored by the route's model with the monitor's frame engine, score and rule (or
+    the parameters' decision over the whole records: the numbers of the online monitors on the same
+    grid); detection rate (99 % Clopper-Pearson interval) and median delay (s, to the end of the
+    frame, or identification window, that raised the first alarm after the onset). A route that alarms
+    during the healthy stretch before most onsets is reported as such: its delays measure nothing.
 """
 
 from __future__ import annotations
@@ -65,10 +65,7 @@ import numpy as np
 from .._validate import positive
 from ..detection.alarm_calibration import check_budget, poisson_count_interval, poisson_interval
 from ..detection.alarms import make_rule
-from ..detection.monitor_settings import MonitorSettings
-from ..detection.pipeline import chattering_record
-from ..detection.spectral import frame_columns
-from ..errors import ParameterError
+from ..errors import ChatterspecError, ParameterError
 from ..jsonout import finite_or_none
 from ..plants.eha4 import EHA4_MODES, EHA4_PARAMETERS, eha4
 from ..plants.imperfections import (
@@ -85,12 +82,19 @@ from ..plants.models import LinearModel, eha_linear
 from ..plants.scenarios import Scenario, Segment, scenario
 from ..plants.simulate import simulate
 from ..progress import Progress
-from ..studies.alarm_budget import alarm_settings, monitor_score
-from ..studies.alarm_delays import Shifted, score_delays
+from ..studies.alarm_delays import Shifted
 from ..studies.intervals import clopper_pearson
-from ..studies.recorded_calibration import HealthyRecording, array_chunks
-from .monitor import ChatteringMonitor
-from .recorded_calibration import calibrate_recorded
+from .bench_routes import (
+    AlarmCounter,
+    BenchRoute,
+    Monitoring,
+    OnsetScores,
+    RouteInputs,
+    commissioned_route,
+    nominal_route,
+    recorded_route,
+    tolerance_route,
+)
 from .simulated_stream import simulate_blocks
 
 __all__ = [
@@ -101,24 +105,19 @@ __all__ = [
     "CaseOutcome",
     "Fault",
     "FaultOutcome",
-    "Route",
-    "RouteInputs",
     "RouteOutcome",
     "bench_cases",
     "bench_table",
-    "commissioned_route",
+    "healthy_blocks",
     "holds",
-    "nominal_route",
-    "recorded_route",
     "run_bench",
+    "settled",
 ]
 
 #: The nonlinear plant's measured states (position, velocity, pressure), as the linear model's outputs.
 EHA4_CHANNELS = (0, 1, 3)
 #: Largest fraction of healthy frames in alarm for a budget to hold (1/day of a few frames each is ~1e-5).
 STANDING_ALARM = 0.01
-#: Seed of the simulated calibrations of the routes' models.
-CALIBRATION_SEED = 12345
 
 
 # --------------------------------------------------------------------------- configuration
@@ -365,6 +364,18 @@ def healthy_blocks(
     block to block, the input repeating with its 4 s period, bounded memory for any duration); the
     sensor chain's state is carried too.
 
+    Parameters
+    ----------
+    case : BenchCase
+    nominal : LinearModel
+        The nominal model (the plant and the sensors are the case's departures from it).
+    duration_s : float
+        Length of the stream (s).
+    block_s : float
+        Length of a block (s; the stream does not depend on it).
+    seed : int
+        The stream's seed (plant and sensors).
+
     Yields
     ------
     (t, z, u)
@@ -378,113 +389,6 @@ def healthy_blocks(
     for t, y, u in simulate_blocks(sc, int(seed), duration_s, block_s=block_s):
         z, state = chain.apply(_outputs(case, y[None]), t, rng, state)
         yield t, z[0], u
-
-
-def _stack(blocks: Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
-    parts = list(blocks)
-    return np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts])
-
-
-# --------------------------------------------------------------------------- routes
-@dataclass(frozen=True, eq=False)
-class RouteInputs:
-    """What a route may use to prepare its monitor.
-
-    Attributes
-    ----------
-    nominal : LinearModel
-        The nominal model (of the model file).
-    case : BenchCase
-    config : BenchConfig
-    healthy : callable
-        ``(duration_s, seed) -> iterator of (t, z, u) blocks`` of the case's healthy plant and sensors
-        (other data than the bench's fresh stream: seeds differ).
-    """
-
-    nominal: LinearModel
-    case: BenchCase
-    config: BenchConfig
-    healthy: Callable[[float, int], Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]]
-
-
-@dataclass(frozen=True)
-class Route:
-    """How a case is monitored: ``prepare(inputs) -> (model, settings)`` (settings with the rule set).
-
-    Attributes
-    ----------
-    name : str
-        Short identifier (``nominal``, ``commissioned``, ``tolerances``, ``recorded``).
-    label : str
-        Column heading.
-    prepare : callable
-        ``RouteInputs -> (model, MonitorSettings)``; may raise ``ParameterError`` (reported, the
-        route skipped for that case).
-    """
-
-    name: str
-    label: str
-    prepare: Callable[[RouteInputs], tuple[Any, MonitorSettings]]
-
-
-def _simulated_settings(model: Any, cfg: BenchConfig) -> MonitorSettings:
-    return alarm_settings(
-        model, MonitorSettings(), cfg.rule, cfg.budget, hours=cfg.calibration_hours, seed=CALIBRATION_SEED
-    )
-
-
-def nominal_route() -> Route:
-    """(a) the nominal model, its alarm threshold from ``calibration_hours`` of simulated healthy data."""
-    return Route(
-        "nominal", "(a) nominal model", lambda r: (r.nominal, _simulated_settings(r.nominal, r.config))
-    )
-
-
-def commissioned_route(commission: Callable[[LinearModel, np.ndarray, np.ndarray], LinearModel]) -> Route:
-    """(b) the model ``commission(nominal, z, u)`` fits to ``commission_s`` of the plant's healthy data,
-    with its own simulated alarm calibration.
-
-    Parameters
-    ----------
-    commission : callable
-        ``(nominal, z (K, m), u (K, p)) -> LinearModel`` (e.g. the ``.model`` of a commissioning result).
-    """
-
-    def prepare(r: RouteInputs) -> tuple[Any, MonitorSettings]:
-        z, u = _stack(r.healthy(r.config.commission_s, 2))
-        model = commission(r.nominal, z, u)
-        return model, _simulated_settings(model, r.config)
-
-    return Route("commissioned", "(b) commissioned", prepare)
-
-
-def recorded_route() -> Route:
-    """The nominal model with thresholds from ``recorded_hours`` of the plant's recorded healthy data
-    (the recording's own normalization, :mod:`chatterspec.online.recorded_calibration`)."""
-
-    def prepare(r: RouteInputs) -> tuple[Any, MonitorSettings]:
-        cfg = r.config
-        # held once (the "data" normalization reads it twice): hours x 1 kHz x 4 columns of float64
-        z, u = _stack(r.healthy(cfg.recorded_hours * 3600.0, 3))
-        n = z.shape[0]
-        chunks = array_chunks(z, u, max(1, round(60.0 / r.nominal.dt)))
-
-        cal = calibrate_recorded(
-            r.nominal,
-            chunks,
-            n,
-            normalization="data",
-            rule=cfg.rule,
-            false_alarms_per_hour=cfg.budget,
-            recording=HealthyRecording(f"{r.case.name} healthy {cfg.recorded_hours:g} h", ""),
-        )
-        assert cal.alarm is not None
-        settings = MonitorSettings(
-            threshold=cal.threshold("frame-family-wise"), rule=cal.alarm.rule, budget=cal.alarm
-        )
-        return r.nominal, settings
-
-    return Route("recorded", "nominal + thresholds from recorded data", prepare)
 
 
 # --------------------------------------------------------------------------- results
@@ -554,7 +458,8 @@ class RouteOutcome:
     ----------
     route : str
     hours : float
-        Healthy hours streamed.
+        Healthy hours streamed (fewer than planned when the verdict was settled before the end:
+        :func:`settled`).
     starts : int
         Fault starts on them (false alarms).
     count_interval : (int, int)
@@ -570,6 +475,10 @@ class RouteOutcome:
         CPU time of the route on the case (preparation, monitor, onsets).
     alarm_fraction : float
         Fraction of the healthy frames with an alarm active on some channel.
+    details : mapping
+        What the route's preparation found (e.g. the commissioned estimates).
+    planned_hours : float
+        Healthy hours the case's stream holds.
     """
 
     route: str
@@ -582,6 +491,8 @@ class RouteOutcome:
     note: str = ""
     cpu_s: float = 0.0
     alarm_fraction: float = 0.0
+    details: Mapping[str, Any] = field(default_factory=dict)
+    planned_hours: float = 0.0
 
     @property
     def holds(self) -> bool:
@@ -600,6 +511,7 @@ class RouteOutcome:
         return {
             "route": self.route,
             "hours": self.hours,
+            "planned_hours": self.planned_hours,
             "starts": self.starts,
             "rate_per_hour": finite_or_none(self.rate),
             "count_interval_99": list(self.count_interval),
@@ -610,6 +522,7 @@ class RouteOutcome:
             "faults": [f.to_dict() for f in self.faults],
             "note": self.note,
             "cpu_s": self.cpu_s,
+            "details": dict(self.details),
         }
 
 
@@ -683,8 +596,8 @@ def bench_table(doc: Mapping[str, Any]) -> str:
     """
     cases = doc["cases"]
     faults = [f.label for f in FAULTS]
-    head = "| plant | monitor | false alarms (99 % interval of the count at the budget) | "
-    head += " | ".join(f"{f}: detected, median delay s" for f in faults) + " |"
+    head = "| plant | monitor | false alarms per hour, 99 % Poisson interval (count in the hours streamed) | "
+    head += " | ".join(f"{f}: detected, 99 % Clopper-Pearson, median delay s" for f in faults) + " |"
     lines = [head, "|---|---|---:|" + "---:|" * len(faults)]
     for c in cases:
         for i, r in enumerate(c["routes"]):
@@ -692,39 +605,85 @@ def bench_table(doc: Mapping[str, Any]) -> str:
             if r["note"]:  # its first clause (the whole text is in the JSON)
                 lines.append(f"| {name} | {r['route']} | {r['note'].split(' (')[0]} |" + " |" * len(faults))
                 continue
-            lo, hi = r["count_interval_99"]
-            fa = f"{r['starts']} in {r['hours']:.3g} h ([{lo}, {hi}])"
+            planned = r.get("planned_hours") or r["hours"]
+            span = f"{r['hours']:.3g} h"
+            if r["hours"] < planned * (1 - 1e-9):  # stopped once settled
+                span = f"the first {r['hours']:.3g} of {planned:.3g} h"
+            lo, hi = r["rate_interval_99"]
+            fa = f"{r['rate_per_hour']:.3g} [{lo:.2g}, {hi:.3g}] ({r['starts']} in {span})"
             frac = r.get("alarm_fraction", 0.0)
             fa += f", in alarm {100 * frac:.3g} % of the time" if frac > 1e-3 else ""
             fa += "" if r["holds"] else " **not held**"
             cells = []
             for f in r["faults"]:
                 med = "-" if f["median_s"] is None else f"{f['median_s']:.2f}"
+                dlo, dhi = f["detected_interval"]
                 pre = f", {f['onsets_preceded']} pre-alarmed" if f["onsets_preceded"] else ""
-                cells.append(f"{f['detected']}/{f['runs']}, {med}{pre}")
+                cells.append(f"{f['detected']}/{f['runs']} [{dlo:.2f}, {dhi:.2f}], {med}{pre}")
             lines.append(f"| {name} | {r['route']} | {fa} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
 # --------------------------------------------------------------------------- running
+class _Clock:
+    """CPU seconds spent per route, and in the work the routes share (simulation, sensors)."""
+
+    def __init__(self, n: int) -> None:
+        self.own = [0.0] * n
+        self.shared = 0.0
+        self._t = time.process_time()
+
+    def lap(self, route: int | None = None) -> None:
+        """Charge the time since the last lap to ``route`` (None: shared)."""
+        t = time.process_time()
+        if route is None:
+            self.shared += t - self._t
+        else:
+            self.own[route] += t - self._t
+        self._t = t
+
+
+def settled(starts: int, active: int, frames: int, fraction_seen: float, most: int) -> bool:
+    """Whether a stream's verdict is "not held" whatever its rest holds: more alarm starts than the
+    budget's interval allows (``most``), or more frames in alarm than :data:`STANDING_ALARM` of the
+    whole stream's (``frames`` seen in the first ``fraction_seen`` of it).
+
+    Parameters
+    ----------
+    starts, active, frames : int
+        Alarm starts, frames in alarm and frames so far.
+    fraction_seen : float
+        Fraction of the stream seen (0 < f <= 1).
+    most : int
+        Upper end of the budget's 99 % Poisson count interval.
+    """
+    return starts > most or active > STANDING_ALARM * frames / fraction_seen
+
+
 def _false_alarms(
-    case: BenchCase, nominal: LinearModel, monitors: Sequence[ChatteringMonitor], cfg: BenchConfig
-) -> tuple[list[int], list[float]]:
-    """Per monitor: fault starts on the case's fresh healthy stream, and the fraction of its frames
-    with an alarm active on some channel."""
-    starts = [0] * len(monitors)
-    active = [0] * len(monitors)
-    frames = [0] * len(monitors)
+    case: BenchCase, nominal: LinearModel, counters: Sequence[AlarmCounter], cfg: BenchConfig, clock: _Clock
+) -> list[float]:
+    """Push the case's fresh healthy stream through every counter; the hours each one saw (a counter
+    whose verdict is :func:`settled` stops there)."""
     hours = cfg.nonlinear_hours if case.nonlinear else cfg.hours
+    most = poisson_count_interval(cfg.budget * hours, 0.99)[1]
+    seen = [0.0] * len(counters)
+    live = list(range(len(counters)))
+    clock.lap()
     for _, z, u in healthy_blocks(case, nominal, hours * 3600.0, cfg.block_s, cfg.seed):
-        for i, mon in enumerate(monitors):
-            upd = mon.push(z, u)
-            starts[i] += sum(e.kind == "fault-start" for e in upd.events)
-            fr = upd.frames
-            frames[i] += fr.n_frames
-            if fr.alarm is not None and fr.n_frames:
-                active[i] += int(np.count_nonzero(fr.alarm.any(axis=1)))
-    return starts, [a / max(1, f) for a, f in zip(active, frames, strict=True)]
+        clock.lap()
+        for i in live:
+            counters[i].push(z, u)
+            seen[i] += z.shape[0] * nominal.dt / 3600.0
+            clock.lap(i)
+        live = [
+            i
+            for i in live
+            if not settled(counters[i].starts, counters[i].active, counters[i].frames, seen[i] / hours, most)
+        ]
+        if not live:
+            break
+    return seen
 
 
 def _onsets(case: BenchCase, nominal: LinearModel, fault: Fault, cfg: BenchConfig) -> list[Scenario]:
@@ -745,48 +704,27 @@ def _onsets(case: BenchCase, nominal: LinearModel, fault: Fault, cfg: BenchConfi
 
 
 def _detection(
-    case: BenchCase,
-    nominal: LinearModel,
-    prepared: Sequence[tuple[Any, MonitorSettings]],
-    cfg: BenchConfig,
+    case: BenchCase, nominal: LinearModel, prepared: Sequence[Monitoring], cfg: BenchConfig, clock: _Clock
 ) -> list[list[FaultOutcome]]:
     """Per prepared route, per fault: detection over the onsets (one simulation shared by the routes)."""
     chain = case.sensor(nominal)
     out: list[list[FaultOutcome]] = [[] for _ in prepared]
-    scores = [monitor_score(model, s)[0] for model, s in prepared]
     for j, fault in enumerate(FAULTS):
-        acc: list[dict[str, Any]] = [{"d": [], "pre_alarm": 0, "false": 0} for _ in prepared]
+        scored: list[list[OnsetScores]] = [[] for _ in prepared]
         for i, sc in enumerate(_onsets(case, nominal, fault, cfg)):
+            clock.lap()
             seed = np.random.SeedSequence([cfg.seed, 7, j, i])
             sim = simulate(sc, cfg.runs_per_phase, seed)
             rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, 8, j, i]))
             y = _outputs(case, sim.z)
             z, _ = chain.apply(y, sim.t, rng, chain.init(y.shape[0], rng))
             ((on, off),) = sc.fault_intervals
-            fault_c = list(nominal.output_names).index(fault.channel)
-            for r, (model, settings) in enumerate(prepared):
-                assert settings.rule is not None  # prepared routes carry their calibrated rule
-                rec = chattering_record(model, z, sim.u, gamma=settings.gamma)
-                _, P = frame_columns(rec.values, model.dt, settings.stft)
-                S = scores[r](P)
-                res = score_delays(
-                    S, rec.t, (on, off), {"rule": settings.rule}, settings.stft, model.dt, fault_c
-                )
-                d, _, pre, _ = res["rule"]
-                acc[r]["d"].append(d)
-                acc[r]["false"] += pre
-                # an alarm still active at the onset: the rule's state after the healthy stretch
-                from ..detection.alarms import run_rule
-
-                W, H = settings.stft.n_window(model.dt), settings.stft.n_hop(model.dt)
-                F = S.shape[1]
-                t_end = rec.t[np.arange(F) * H + W - 1]
-                before = np.flatnonzero(t_end < on - 1e-9)
-                if before.size:
-                    active = run_rule(settings.rule, S[:, : before[-1] + 1]).active[:, -1].any(axis=-1)
-                    acc[r]["pre_alarm"] += int(np.count_nonzero(active))
+            clock.lap()
+            for r, mon in enumerate(prepared):
+                scored[r].append(mon.onsets(z, sim.u, sim.t, (on, off)))
+                clock.lap(r)
         for r in range(len(prepared)):
-            d = np.concatenate(acc[r]["d"])
+            d = np.concatenate([s.delays for s in scored[r]])
             n, k = d.size, int(np.count_nonzero(np.isfinite(d)))
             ds = np.sort(d)
             med = float(ds[max(0, math.ceil(0.5 * n) - 1)])
@@ -799,15 +737,15 @@ def _detection(
                     clopper_pearson(k, n, 0.99),
                     med,
                     p90,
-                    acc[r]["false"],
-                    acc[r]["pre_alarm"],
+                    sum(s.false_starts for s in scored[r]),
+                    sum(s.preceded for s in scored[r]),
                 )
             )
     return out
 
 
 def _run_case(
-    case: BenchCase, routes: Sequence[Route], cfg: BenchConfig, nominal: LinearModel
+    case: BenchCase, routes: Sequence[BenchRoute], cfg: BenchConfig, nominal: LinearModel
 ) -> tuple[CaseOutcome, float]:
     """Every route on one case; its outcome and CPU time (s)."""
     t_case = time.process_time()
@@ -816,53 +754,55 @@ def _run_case(
         return healthy_blocks(case, nominal, duration_s, cfg.block_s, 1000 * cfg.seed + seed)
 
     inputs = RouteInputs(nominal, case, cfg, healthy)
-    prepared: list[tuple[Any, MonitorSettings] | None] = []
+    prepared: list[Monitoring | None] = []
     notes, cpu = [], []
     for route in routes:
         t0 = time.process_time()
         try:
             prepared.append(route.prepare(inputs))
             notes.append("")
-        except ParameterError as exc:
+        except ChatterspecError as exc:  # the package's own refusal, with its reason
             prepared.append(None)
             notes.append(f"not run: {exc}")
         cpu.append(time.process_time() - t0)
     ready = [i for i, p in enumerate(prepared) if p is not None]
     runs = [p for p in prepared if p is not None]
-    t0 = time.process_time()
-    monitors = [ChatteringMonitor(model, settings) for model, settings in runs]
-    starts, in_alarm = _false_alarms(case, nominal, monitors, cfg)
-    detection = _detection(case, nominal, runs, cfg)
-    shared = (time.process_time() - t0) / max(1, len(ready))
+    clock = _Clock(len(runs))
+    counters = [mon.counter() for mon in runs]
+    seen = _false_alarms(case, nominal, counters, cfg, clock)
+    detection = _detection(case, nominal, runs, cfg, clock)
     hours = cfg.nonlinear_hours if case.nonlinear else cfg.hours
     ci = poisson_count_interval(cfg.budget * hours, 0.99)
     rows = []
     for i, route in enumerate(routes):
         if i not in ready:
-            rows.append(RouteOutcome(route.label, 0.0, 0, ci, (0.0, 0.0), (), float("nan"), notes[i], cpu[i]))
+            row = RouteOutcome(route.label, 0.0, 0, ci, (0.0, 0.0), (), float("nan"), notes[i], cpu[i])
+            rows.append(dataclasses.replace(row, planned_hours=hours))
             continue
         j = ready.index(i)
-        lo, hi = poisson_interval(starts[j], 0.99)
-        rule = runs[j][1].rule
+        c = counters[j]
+        lo, hi = poisson_interval(c.starts, 0.99)
         rows.append(
             RouteOutcome(
                 route.label,
-                hours,
-                starts[j],
+                seen[j],
+                c.starts,
                 ci,
-                (lo / hours, hi / hours),
+                (lo / seen[j], hi / seen[j]),
                 tuple(detection[j]),
-                float("nan") if rule is None else float(rule.threshold),
+                runs[j].threshold,
                 "",
-                cpu[i] + shared,
-                in_alarm[j],
+                cpu[i] + clock.own[j] + clock.shared / len(runs),
+                c.active / max(1, c.frames),
+                dict(runs[j].details),
+                hours,
             )
         )
     return CaseOutcome(case.name, case.group, case.description, tuple(rows)), time.process_time() - t_case
 
 
 #: The job of the worker processes (set before they fork; only case indices travel to them).
-_JOB: tuple[Sequence[BenchCase], Sequence[Route], BenchConfig, LinearModel] | None = None
+_JOB: tuple[Sequence[BenchCase], Sequence[BenchRoute], BenchConfig, LinearModel] | None = None
 
 
 def _worker(i: int) -> tuple[CaseOutcome, float]:
@@ -872,7 +812,7 @@ def _worker(i: int) -> tuple[CaseOutcome, float]:
 
 
 def run_bench(
-    routes: Sequence[Route] | None = None,
+    routes: Sequence[BenchRoute] | None = None,
     cases: Sequence[BenchCase] | None = None,
     config: BenchConfig | None = None,
     *,
@@ -885,8 +825,11 @@ def run_bench(
 
     Parameters
     ----------
-    routes : sequence of Route, optional
-        Default: :func:`nominal_route` and, with ``recorded_hours > 0``, :func:`recorded_route`.
+    routes : sequence of BenchRoute, optional
+        Default: (a) :func:`~chatterspec.online.bench_routes.nominal_route`, (b)
+        :func:`~chatterspec.online.bench_routes.commissioned_route`, (c)
+        :func:`~chatterspec.online.bench_routes.tolerance_route` and, with ``recorded_hours > 0``,
+        :func:`~chatterspec.online.bench_routes.recorded_route`.
     cases : sequence of BenchCase, optional
         Default :func:`bench_cases`.
     config : BenchConfig, optional
@@ -904,7 +847,8 @@ def run_bench(
     cfg = config or BenchConfig()
     nominal = nominal or eha_linear()
     if routes is None:
-        routes = [nominal_route()] + ([recorded_route()] if cfg.recorded_hours > 0 else [])
+        routes = [nominal_route(), commissioned_route(), tolerance_route()]
+        routes += [recorded_route()] if cfg.recorded_hours > 0 else []
     cases = tuple(bench_cases() if cases is None else cases)
     cpu = time.process_time()
     results: list[tuple[CaseOutcome, float] | None] = [None] * len(cases)

@@ -24,6 +24,7 @@ from ..errors import ParameterError, ShapeError, SingularMatrixError
 
 if TYPE_CHECKING:  # pragma: no cover
     from .linear_model import OscillatoryMode
+    from .nonlinear import Model
 
 __all__ = [
     "ModelBase",
@@ -34,7 +35,39 @@ __all__ = [
     "frozen",
     "hash_arrays",
     "set_channel_labels",
+    "state_units",
 ]
+
+#: Time derivatives named after a measured state: their units follow from its unit (``m`` -> ``m/s``).
+_DERIVATIVES = {"velocity": ("position", "/s"), "acceleration": ("position", "/s^2")}
+
+
+def state_units(model: Model) -> tuple[str, ...]:
+    """Units of a model's states: its ``state_units`` where it declares them (nonlinear models), else the
+    unit of the output of the same name (a measured state), else for ``velocity`` / ``acceleration`` the
+    unit of the ``position`` per second / per second squared; ``""`` where none of these says.
+
+    Parameters
+    ----------
+    model : LinearModel or NonlinearModel
+
+    Returns
+    -------
+    tuple of str
+        One unit per state.
+    """
+    declared = tuple(getattr(model, "state_units", ()) or ())
+    if any(declared):
+        return declared
+    by_name = dict(zip(model.output_names, model.output_units, strict=True))
+    out = []
+    for s in model.state_names:
+        unit = by_name.get(s, "")
+        if not unit and s in _DERIVATIVES:
+            base, per = _DERIVATIVES[s]
+            unit = f"{by_name[base]}{per}" if by_name.get(base) else ""
+        out.append(unit)
+    return tuple(out)
 
 
 def check_covariance(name: str, M: np.ndarray) -> None:

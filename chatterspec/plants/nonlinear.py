@@ -15,6 +15,8 @@ only need ``model.transition(x, u)``, ``model.jacobian(x, u)``, ``model.C``, ``m
 same names. :meth:`NonlinearModel.linearize` returns the small-signal ``LinearModel`` about an
 operating point. Callables must be picklable for local workers and Dask (module-level functions or
 :func:`functools.partial` of them, as :mod:`chatterspec.plants.eha4` does).
+:meth:`NonlinearModel.from_steps` takes the functions written for one sample instead, which the
+filters then run compiled (:mod:`chatterspec.plants.sample_functions`).
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from .model_base import (
     hash_arrays,
     set_channel_labels,
 )
+from .sample_functions import FromSteps
 
 __all__ = ["Model", "NonlinearModel", "is_linear", "require_linear", "same_dynamics"]
 
@@ -88,7 +91,7 @@ class NonlinearModelFields(NonlinearModelOptions, total=False):
 
 
 @dataclass(frozen=True, eq=False)
-class NonlinearModel(ModelBase, Linearization, ContinuousEuler):
+class NonlinearModel(ModelBase, Linearization, ContinuousEuler, FromSteps):
     """A validated nonlinear discrete-time model, with a linear (``C``) or nonlinear (``h``) measurement.
 
     ``x(k+1) = f(x(k), u(k)) + v(k)`` with ``v ~ N(0, Q)`` and ``z(k) = C x(k) + w(k)`` (or

@@ -22,7 +22,8 @@ of the input table; the numpy path (:func:`_loop_numpy`) calls the same steps' P
 rows of realizations (channel-major ``(n, runs)`` state), doing the same correctly rounded
 operations in the same order, so both paths give the same bits. A nonlinear plant (the 4-state
 EHA) runs on the numpy path with its vectorized ``f``. The streaming generator
-:func:`closed_loop_blocks` (one realization, state carried between blocks) uses the numpy path.
+:func:`closed_loop_blocks` (one realization, state carried between blocks) runs each block of a
+linear plant in one compiled call (:func:`_stream_kernel`, the same steps), else the numpy path.
 """
 
 from __future__ import annotations
@@ -240,6 +241,90 @@ def _loop_numpy(
     return xt, zt, ut, LoopState(np.ascontiguousarray(x.T), integ, deriv, y_prev)
 
 
+@_jit.njit
+def _stream_kernel(
+    v: np.ndarray,
+    w: np.ndarray,
+    seg_idx: np.ndarray,
+    A: np.ndarray,
+    C: np.ndarray,
+    Lq: np.ndarray,
+    Lr: np.ndarray,
+    diag: np.ndarray,
+    B: np.ndarray,
+    coef: np.ndarray,
+    out_idx: int,
+    ref: np.ndarray,
+    dith: np.ndarray,
+    st: np.ndarray,
+    zt: np.ndarray,
+    ut: np.ndarray,
+) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_closed_loop_sim.py)
+    """:func:`_loop_numpy` for one realization, compiled: the same steps, from and to a carried state.
+
+    ``v`` (K, n), ``w`` (K, m) standard normals; ``st`` = ``[x (n), I, D, y_prev]`` (``y_prev`` NaN before
+    the first sample), updated in place (the plant advanced past the last sample, as
+    :func:`_loop_numpy`); outputs ``zt`` (K, m), ``ut`` (K,). Per sample: :func:`measure_step`, the
+    controller's :func:`pid_step` on the position (its derivative without a kick at the first
+    sample), ``B_s u`` and :func:`advance_step`: the operations of the numpy path, hence its bits.
+    """
+    K, n = v.shape
+    m = w.shape[1]
+    x = np.empty(n)
+    xn = np.empty(n)
+    bu = np.empty(n)
+    z = np.empty(m)
+    for i in range(n):
+        x[i] = st[i]
+    integ, deriv, y_prev = float(st[n]), float(st[n + 1]), float(st[n + 2])
+    for k in range(K):
+        s = seg_idx[k]
+        measure_step(s, x, w[k], C, Lr, diag, z, n, m)
+        y = float(z[out_idx])
+        if y_prev != y_prev:  # no earlier sample: no derivative kick
+            y_prev = y
+        u, integ, deriv = pid_step(
+            coef[0], coef[1], coef[2], coef[3], coef[4], coef[5], coef[6], coef[7],
+            integ, deriv, y_prev, ref[k], y, dith[k],
+        )  # fmt: skip
+        y_prev = y
+        for i in range(m):
+            zt[k, i] = z[i]
+        ut[k] = u
+        for i in range(n):
+            bu[i] = B[s, i] * u
+        advance_step(s, x, bu, v[k], A, Lq, diag, xn, n)
+        for i in range(n):
+            x[i] = xn[i]
+    for i in range(n):
+        st[i] = x[i]
+    st[n], st[n + 1], st[n + 2] = integ, deriv, y_prev
+
+
+def _stream_linear(
+    scenario: Scenario, block: _Block, state: LoopState, tb: _LinearTables
+) -> tuple[np.ndarray, np.ndarray, LoopState]:
+    """K samples of one realization of the linear loop from ``state`` in one compiled call: ``(z, u)``.
+
+    ``z`` (K, m), ``u`` (K,) and the state after the block; the numbers of :func:`_step_linear`.
+    """
+    loop = _loop_of(scenario)
+    coef = np.asarray(pid_coefficients(loop.controller, scenario.dt), dtype=float)
+    v, w, seg_idx, ref, dith = block
+    K, n = v.shape[1], v.shape[2]
+    st = np.concatenate([state.x[0], [state.integ[0], state.deriv[0], state.y_prev[0]]])
+    zt, ut = np.empty((K, w.shape[2])), np.empty(K)
+    c = np.ascontiguousarray
+    _stream_kernel(
+        c(v[0]), c(w[0]), c(seg_idx, dtype=np.int64), tb.A, tb.C, tb.Lq, tb.Lr, tb.diag, tb.B, coef,
+        int(loop.output), c(ref, dtype=float), c(dith, dtype=float), st, zt, ut,
+    )  # fmt: skip
+    new = LoopState(
+        st[None, :n].copy(), st[n : n + 1].copy(), st[n + 1 : n + 2].copy(), st[n + 2 : n + 3].copy()
+    )
+    return zt, ut, new
+
+
 def _loop_of(scenario: Scenario) -> ClosedLoop:
     loop = getattr(scenario, "input", None)
     if not isinstance(loop, ClosedLoop):
@@ -436,6 +521,10 @@ def closed_loop_blocks(
         noise = rng.standard_normal((hi - lo, n + m))  # per sample: n process, m measurement normals
         v, w = noise[None, :, :n], noise[None, :, n:]
         seg = scenario.segment_index(tp)
+        if tables is not None and _jit.enabled():  # one compiled call per block (the same numbers)
+            z1, u1, state = _stream_linear(scenario, _Block(v, w, seg, ref, dith), state, tables)
+            yield k * dt, z1, u1[:, None]
+            continue
         _, z, u, state = _run(scenario, _Block(v, w, seg, ref, dith), state, tables)
         yield k * dt, z[:, 0], u[:, 0, None]
 

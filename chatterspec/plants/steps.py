@@ -4,9 +4,12 @@ A filter loop (:mod:`chatterspec.filters._engine`, the IMM and SMM banks) advanc
 two steps of :mod:`chatterspec._jit` with one signature, ``predict(prm, x, u, xp, n, p)`` for
 ``x(k+1|k) = f(x(k|k), u(k))`` and ``jacobian(prm, x, u, F, n, p)`` for ``F = df/dx``, and a
 parameter vector ``prm``. :func:`plant_steps` finds them for a model: the linear model
-(:mod:`chatterspec.plants.linear_steps`) and the nonlinear EHA4 (:mod:`chatterspec.plants.eha4`);
-any other model (a user's Python ``f``) has none, and the filters call its ``transition`` and
-``jacobian`` from Python. Adding a plant = its steps plus one recognizer in :data:`RECOGNIZERS`.
+(:mod:`chatterspec.plants.linear_steps`), the nonlinear EHA4 (:mod:`chatterspec.plants.eha4`) and a
+model built from one-sample functions (:meth:`NonlinearModel.from_steps
+<chatterspec.plants.nonlinear.NonlinearModel.from_steps>`, :mod:`chatterspec.plants.sample_functions`,
+whose measurement ``h`` the loops also compile: :func:`measurement_steps`); any other model (a user's
+Python ``f``) has none, and the filters call its ``transition`` and ``jacobian`` from Python. Adding a
+plant = its steps plus one recognizer in :data:`RECOGNIZERS`.
 """
 
 from __future__ import annotations
@@ -19,8 +22,9 @@ import numpy as np
 from . import eha4, linear_steps
 from .models import LinearModel
 from .nonlinear import Model
+from .sample_functions import measurement_steps, transition_steps
 
-__all__ = ["RECOGNIZERS", "PlantSteps", "plant_steps"]
+__all__ = ["RECOGNIZERS", "PlantSteps", "measurement_steps", "plant_steps"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,8 +67,16 @@ def _eha4(model: Model) -> PlantSteps | None:
     return PlantSteps("eha4", predict, jacobian, constant, prm)
 
 
+def _sample_functions(model: Model) -> PlantSteps | None:
+    found = transition_steps(model)
+    if found is None:
+        return None
+    name, predict, jacobian = found
+    return PlantSteps(name, predict, jacobian, False, np.zeros(1))
+
+
 #: Functions that return a model's :class:`PlantSteps`, or None when it is not theirs.
-RECOGNIZERS: tuple[Callable[[Model], PlantSteps | None], ...] = (_linear, _eha4)
+RECOGNIZERS: tuple[Callable[[Model], PlantSteps | None], ...] = (_linear, _eha4, _sample_functions)
 
 
 def plant_steps(model: Model) -> PlantSteps | None:

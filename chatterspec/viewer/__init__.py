@@ -51,13 +51,15 @@ layout. Each channel's view shows only its own series (blueprint overrides of
 ``/threshold/<c>``, ``/expected/<c>``     static frame threshold and expected healthy spectrum per bin
 ``/state/0_truth``                        true fault timeline (simulated data only), the top lane
 ``/state/0m_<method>``                     most probable mode of a multiple-model diagnosis (``diagnose``)
-``/state/<k>_<c>``                        verdict lane ``healthy`` / ``fault``, in channel order. In a
-                                          file: the window-extent fault intervals of the record's
-                                          flagged frames (the numbers of ``detect --json`` and Fig 8),
-                                          drawn on close; in a live viewer: the alarm rule's state,
-                                          changed at the end of the deciding frame (when it was known)
-``/events``                               text log: alarm raised / cleared (at the end of the deciding
-                                          frame) and, in a file, each fault interval at its onset
+``/state/<k>_<c>``                        fault-state lane of channel ``c``, in channel order: the alarm
+                                          layer's state (:mod:`chatterspec.online.fault_state`), ``FAULT``,
+                                          ``healthy`` or ``no evidence``, changed at the alarm times (end
+                                          of the deciding frame), file and live alike; episodes labelled
+                                          with their onset / offset estimates
+                                          (:mod:`chatterspec.viewer.fault_lanes`)
+``/events``                               text log: alarm raised / cleared (at its alarm time) and, in a
+                                          file, each fault interval estimate at its onset; identification
+                                          lines under ``/events/identification``
 ========================================  =============================================================
 
 The paths are constants of :mod:`chatterspec.viewer.blueprint` (``CHATTERING``, ``PSI``,

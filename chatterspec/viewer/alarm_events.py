@@ -1,82 +1,150 @@
-"""The alarm events of a recording: one text-log line per alarm raised or cleared, at the end of its
-deciding frame (when the detector knew), and in a live viewer the verdict lanes' changes there.
+"""The event log of a recording (``/events``): one row per alarm raised or cleared, at its alarm time (the
+end of the deciding frame or window, when the detector knew: where the channel's lane changes too), each
+naming that time and the onset / offset estimate. With tolerances the parameters' alarms are the faults
+(:func:`parameter_event_text`) and the spectral detector's alarms are rows of *mismatch* (information,
+not a fault).
 
-A file's lanes show the record's fault intervals instead (:mod:`chatterspec.viewer.interval_lanes`).
+Rows are logged one per call (:func:`log_text_rows`): Rerun 0.41 shows wrong levels (an ``ERROR`` row as
+``WARN`` or ``INFO``) for rows sent as one multi-row chunk after earlier single rows of the same entity.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..detection.bin_labels import db_over_threshold
 from ..online.monitor import DetectionEvent
-from .arrow_columns import _TimeIndex
 from .record_geometry import to_ns
 
 if TYPE_CHECKING:  # pragma: no cover
     from rerun import RecordingStream
 
-__all__ = ["alarm_event_text", "send_alarm_events"]
+    from ..detection.parameter_decision import ParameterEvent
+
+__all__ = [
+    "EVENTS",
+    "alarm_event_text",
+    "log_text_rows",
+    "parameter_event_text",
+    "send_alarm_events",
+    "send_parameter_events",
+]
+
+#: Entity of the event log.
+EVENTS = "/events"
+#: Levels of the log rows: an alarm raised is a fault (red), everything else information.
+ALARM_LEVEL, INFO_LEVEL = "ERROR", "INFO"
 
 
-def alarm_event_text(ev: DetectionEvent, half_win_s: float) -> str:
-    """Short: channel, frequency (the most significant bin) and level first (the log view cuts long
-    bodies), then what happened and when.
+def alarm_event_text(ev: DetectionEvent, *, decides: bool = True) -> str:
+    """Short, most important first (the log view cuts long bodies): when (the alarm time, end of the
+    deciding frame), channel and what happened, the onset / offset estimate, then the bin and the rule.
 
     Parameters
     ----------
     ev : DetectionEvent
-    half_win_s : float
-        Half the STFT window (s): from a frame's centre to its last sample.
+    decides : bool
+        The spectral alarm is the run's fault decision; False (tolerances): a mismatch.
 
     Returns
     -------
     str
     """
     db = db_over_threshold(ev.peak_ratio)
-    end = ev.time_s + half_win_s
-    if ev.kind == "fault-start":
-        return (
-            f"{ev.channel} {ev.peak_hz:.1f} Hz {db:+.0f} dB: ALARM ({ev.rule}) at {end:.2f} s "
-            "(end of the deciding frame: when the detector knew)"
-        )
-    return f"{ev.channel} {ev.peak_hz:.1f} Hz {db:+.0f} dB: alarm ({ev.rule}) cleared at {end:.2f} s"
+    start = ev.kind == "fault-start"
+    if decides:
+        what = "ALARM" if start else "alarm cleared"
+    else:
+        what = "mismatch (tolerances decide)" if start else "mismatch over"
+    est = "onset" if start else "offset"
+    return (
+        f"{ev.alarm_time_s:.2f} s {ev.channel} {what} ({est} est. {ev.estimate_s:.2f} s), "
+        f"{ev.peak_hz:.1f} Hz {db:+.0f} dB, {ev.rule}"
+    )
 
 
-def send_alarm_events(
-    stream: RecordingStream, events: list[DetectionEvent], half_win_s: float, lanes: list[str] | None = None
+def parameter_event_text(ev: ParameterEvent) -> str:
+    """A parameter's alarm raised or cleared (tolerances): its alarm time (the end of the deciding
+    identification window), the parameter and its estimate against its band, then the rule.
+
+    Parameters
+    ----------
+    ev : ParameterEvent
+
+    Returns
+    -------
+    str
+    """
+    from ..detection.parameter_scores import band_position, status_text
+
+    what = "ALARM" if ev.kind == "fault-start" else "alarm cleared"
+    pos = band_position(ev.ci_low, ev.ci_high, *ev.band)
+    st = status_text(ev.parameter, ev.estimate, ev.std_error, (ev.ci_low, ev.ci_high), ev.nominal, ev.unit,
+                     ev.tolerance, pos)  # fmt: skip
+    return f"{ev.alarm_time_s:.2f} s {ev.parameter} {what}: {st.removeprefix(ev.parameter + ' ')}, {ev.rule}"
+
+
+def log_text_rows(
+    stream: RecordingStream,
+    entity: str,
+    times_s: Sequence[float] | np.ndarray,
+    texts: list[str],
+    levels: list[str],
 ) -> None:
-    """Send ``events`` to ``stream`` at the end of their deciding frames; with ``lanes`` (a live viewer:
-    each channel's lane entity) also the lanes' changes there.
+    """Log text rows one per call (see the module docstring) at ``times_s`` (:func:`to_ns`).
+
+    Parameters
+    ----------
+    stream : rerun.RecordingStream
+    entity : str
+    times_s : sequence of float
+        Row times (s).
+    texts, levels : list of str
+    """
+    import rerun as rr
+
+    from .sinks import TIMELINE
+
+    for ns, text, level in zip(to_ns(np.asarray(times_s, dtype=float)).tolist(), texts, levels, strict=True):
+        stream.set_time(TIMELINE, duration=np.timedelta64(int(ns), "ns"))
+        stream.log(entity, rr.TextLog(text, level=level))
+
+
+def send_alarm_events(stream: RecordingStream, events: list[DetectionEvent], *, decides: bool = True) -> None:
+    """Log ``events`` to ``stream``'s event log at their alarm times.
 
     Parameters
     ----------
     stream : rerun.RecordingStream
     events : list of DetectionEvent
-    half_win_s : float
-        Half the STFT window (s).
-    lanes : list of str, optional
-        Lane entity per channel.
+    decides : bool
+        The spectral alarm is the run's fault decision (an alarm raised is an ``ERROR`` row); False
+        (tolerances): every row is information (:func:`alarm_event_text`).
     """
-    import pyarrow as pa
-    import rerun as rr
-
-    ns = to_ns([ev.time_s + half_win_s for ev in events])
-    text = [alarm_event_text(ev, half_win_s) for ev in events]
-    level = ["WARN" if ev.kind == "fault-start" else "INFO" for ev in events]
-    stream.send_columns(
-        "/events", indexes=[_TimeIndex(pa, ns)], columns=rr.TextLog.columns(text=text, level=level)
+    log_text_rows(
+        stream,
+        EVENTS,
+        [ev.alarm_time_s for ev in events],
+        [alarm_event_text(ev, decides=decides) for ev in events],
+        [ALARM_LEVEL if decides and ev.kind == "fault-start" else INFO_LEVEL for ev in events],
     )
-    if lanes is None:
-        return
-    for i, lane in enumerate(lanes):
-        mine = [k for k, ev in enumerate(events) if ev.channel_index == i]
-        if mine:
-            state = ["fault" if events[k].kind == "fault-start" else "healthy" for k in mine]
-            stream.send_columns(
-                lane,
-                indexes=[_TimeIndex(pa, np.asarray(ns)[mine])],
-                columns=rr.StateChange.columns(state=state),
-            )
+
+
+def send_parameter_events(stream: RecordingStream, events: Sequence[ParameterEvent]) -> None:
+    """Log the parameters' alarm ``events`` (tolerances) to ``stream``'s event log at their alarm times.
+
+    Parameters
+    ----------
+    stream : rerun.RecordingStream
+    events : sequence of ParameterEvent
+    """
+    log_text_rows(
+        stream,
+        EVENTS,
+        [ev.alarm_time_s for ev in events],
+        [parameter_event_text(ev) for ev in events],
+        [ALARM_LEVEL if ev.kind == "fault-start" else INFO_LEVEL for ev in events],
+    )

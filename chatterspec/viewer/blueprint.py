@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, Protocol, cast
+
+import numpy as np
 
 from .. import palette
 from .sinks import TIMELINE
@@ -14,8 +17,6 @@ if TYPE_CHECKING:
     from rerun.blueprint.api import View
     from rerun.blueprint.archetypes import TimeAxis
 
-    #: Views for a row below the lanes, given the recording's time range and axis.
-    ExtraRow = Callable[[VisibleTimeRange, TimeAxis | None], list[View]]
 
 __all__ = [
     "ALARM",
@@ -37,6 +38,16 @@ __all__ = [
     "time_panel",
     "view_px",
 ]
+
+
+class ExtraRow(Protocol):
+    """Views for a row below the lanes, given the recording's time range and axis, and whether the
+    blueprint is a live viewer's (:func:`blueprint`'s ``extra_row``)."""
+
+    def __call__(
+        self, time_range: VisibleTimeRange, axis: TimeAxis | None = None, *, live: bool = False
+    ) -> list[View]: ...
+
 
 #: Entity of the true-fault lane: sorts before every channel lane (the viewer orders lanes by path).
 TRUTH_LANE = "/state/0_truth"
@@ -64,16 +75,107 @@ THRESHOLD = "/detection/threshold_db"
 #: per channel (``2m .. 3m-1``; see chatterspec.detection.frame_score) and the rule's threshold ``h``
 #: (``3m``). The alarm series share the verdict's rows: Rerun's cost is per row.
 VERDICT = "/detection/verdict"
-#: Fixed y range of the statistic views (dB): healthy frames sit near -3 dB, the threshold at 0 dB; a
-#: fixed range keeps the viewer's tick labels (it labels powers of ten only when they are far enough
-#: apart: an auto range of -5..60 dB showed the "0" tick alone at 1600x1000). Larger values run off the top.
-STATISTIC_RANGE_DB = (-10.0, 30.0)
+#: Default y range of the statistic views (dB): healthy frames sit near -3 dB, the threshold at 0 dB. The
+#: viewer labels powers of ten only, and only when their grid lines are far enough apart (an auto range of
+#: -5..60 dB showed the "0" tick alone at 1600x1000), so ranges are set, not automatic: a file's final
+#: blueprint widens the top to hold the record's largest value (:func:`statistic_range`). The bottom is not
+#: a multiple of ten, so that no tick label sits on the time axis's labels.
+STATISTIC_RANGE_DB = (-15.0, 25.0)
 #: Tested bin with the largest excess power ``S - E`` per channel (Hz), one row per frame.
 PEAK_HZ = "/frequency/peak_hz"
 #: Tested bin with the largest ``S / threshold`` per channel (Hz), one row per frame.
 MOST_SIGNIFICANT_HZ = "/frequency/most_significant_hz"
 #: The alarm series live in the rows of :data:`VERDICT` (series ``m .. 3m``).
 ALARM = VERDICT
+
+
+def labelled_top(x: float) -> float:
+    """``1.1 p`` for the smallest power of ten ``p`` with ``1.1 p >= x > 0``: a range top whose ``p`` grid
+    line the viewer labels (see :mod:`chatterspec.viewer.chattering_extent`), with room above ``x``."""
+    return 1.1 * 10.0 ** math.ceil(math.log10(max(float(x), 1e-300) / 1.1) - 1e-12)
+
+
+#: When the viewer labels a power-of-ten grid (Rerun 0.41 at 1600x1000, seen on its views): at most about
+#: five lines of that step in the range (-15..25 dB in 10 dB steps is labelled on a 63 px plot, -54..34
+#: cm/s in 10 cm/s steps is not on a 170 px one) and at least LABEL_GAP_PX apart (10 dB steps 11 px apart
+#: are not labelled).
+LABEL_GAP_PX = 14.0
+MAX_LABELLED_LINES = 5.5
+
+
+def labelled_step(lo: float, hi: float, plot_px: float) -> float | None:
+    """The power-of-ten step whose ticks the viewer labels in ``[lo, hi]`` on a plot ``plot_px`` high, or
+    None when no step both fits (at least two ticks in range) and has its lines far enough apart."""
+    span = hi - lo
+    if not span > 0:
+        return None
+    p = 10.0 ** math.ceil(math.log10(span / MAX_LABELLED_LINES))
+    ticks = math.floor(hi / p + 1e-9) - math.ceil(lo / p - 1e-9) + 1
+    return p if ticks >= 2 and plot_px * p / span >= LABEL_GAP_PX else None
+
+
+def _labelled(lo: float, hi: float, plot_px: float) -> bool:
+    """Whether the viewer labels a power-of-ten grid inside ``[lo, hi]`` (:func:`labelled_step`)."""
+    return labelled_step(lo, hi, plot_px) is not None
+
+
+def statistic_range(largest_db: float, plot_px: float = 60.0) -> tuple[float, float]:
+    """The statistic view's y range (dB) for a record whose largest ``max S/threshold`` is ``largest_db``
+    (-inf: unknown, a live viewer) in a plot ``plot_px`` high: :data:`STATISTIC_RANGE_DB`, or -12..12 dB
+    where the plot is too low for its 10 dB ticks to be labelled; the top raised to :func:`labelled_top`
+    when the record goes higher (a 62 dB fault -> up to 110 dB, ticks 0 and 100)."""
+    lo, hi = STATISTIC_RANGE_DB
+    if not _labelled(lo, hi, plot_px):
+        lo, hi = -12.0, 12.0
+    if np.isfinite(largest_db) and largest_db > 0.9 * hi:
+        hi = labelled_top(1.05 * largest_db)
+    if not _labelled(lo, hi, plot_px):
+        hi = labelled_top(10.0 * hi)  # one decade more: its lines far enough apart
+    return (lo, hi)
+
+
+def alarm_range(h: float, largest: float, plot_px: float = 60.0) -> tuple[float, float] | None:
+    """The alarm view's y range in a plot ``plot_px`` high: ``[0, 1.5 h]``, its top raised to
+    :func:`labelled_top` when the drawn statistic goes higher (the frame score of a fault reaches hundreds
+    of nats) or when no power-of-ten tick would be labelled (h = 41 on a 40 px plot: up to 110, ticks 0 and
+    100); None without a finite positive ``h`` (auto range)."""
+    if not (np.isfinite(h) and h > 0):
+        return None
+    top = 1.5 * float(h)
+    if np.isfinite(largest) and largest > top / 1.05:
+        top = labelled_top(1.05 * float(largest))
+    p = 10.0 ** math.floor(math.log10(top))
+    top = max(top, 1.1 * p)  # a power of ten just below the top: room for its label (h = 6.91: 0..11)
+    if not _labelled(-0.1 * top, top, plot_px):
+        top = labelled_top(1.05 * top)
+    return (-0.1 * top, top)  # 0 above the bottom edge: its label clear of the time axis's
+
+
+def event_log_view(name: str = "events (alarm times; estimates; identification)") -> Any:
+    """The event log (``/events`` and below): level and text (each text starts with its time in s; the
+    timeline and entity-path columns cut the text short at 1600x1000)."""
+    import rerun.blueprint as rrb
+    from rerun.blueprint.encodings import TimelineColumn
+
+    hidden_time = [TimelineColumn(TIMELINE, visible=False)]  # an empty list means "the active timeline"
+    return rrb.TextLogView(
+        origin="/events",
+        name=name,
+        columns=rrb.TextLogColumns(timeline_columns=hidden_time, text_log_columns=["loglevel", "body"]),
+    )
+
+
+def title_chars(n_columns: int) -> int:
+    """Characters a view title can hold, uncut, in one of ``n_columns`` columns at 1600x1000: the view's
+    width less its icons (~140 px), at ~6.6 px per character (measured in Rerun 0.41: 65 characters fit
+    a third of the window, 42 a quarter)."""
+    return int((_WINDOW[0] / max(int(n_columns), 1) - 140.0) / 6.6)
+
+
+def fit(variants: Sequence[str], chars: int) -> str:
+    """The first (longest) of ``variants`` with at most ``chars`` characters, else the last: a title is
+    shortened by dropping words, never cut (the viewer's cut can hide a number)."""
+    return next((v for v in variants if len(v) <= chars), variants[-1])
 
 
 # --------------------------------------------------------------------------- blueprint
@@ -222,7 +324,8 @@ def series_styles(
             VERDICT,
             rr.SeriesLines(
                 colors=[_RED] * m + cols + [_GREY] * m + [_RED],
-                widths=[1.0] * m + [1.5] * m + [1.0] * (m + 1),
+                # the rule's statistic wider than the threshold line: a CUSUM g held at h stays visible
+                widths=[1.0] * m + [2.5] * m + [1.0] * (m + 1),
                 names=[f"{c}: verdict (1 = fault)" for c in channels]
                 + [f"{c}: {alarm_statistic}" for c in channels]
                 + [f"{c}: score -log p [nats]" for c in channels]
@@ -304,11 +407,29 @@ def time_panel(span_s: tuple[float, float] | None) -> Any:
 _WINDOW = (1600.0, 840.0)
 #: Pixels of one state lane, of a view's title bar, of an extra row above or below the columns.
 _LANE_PX, _TITLE_PX, _ROW_PX = 42.0, 26.0, 100.0
+#: The event log's table in Rerun 0.41 at 1600x1000 (logical px, measured on screenshots): from the view's
+#: top to its first row (title bar, header), one row, and from the end of the table's visible area to the
+#: next view's top (its scroll area's margin and the separator).
+_LOG_TOP_PX, _LOG_ROW_PX, _LOG_BOTTOM_PX = 70.0, 20.0, 14.0
+#: The height the viewer spreads the row shares over (the shares of _WINDOW[1] come out 11 % taller;
+#: measured from view top to view top, the same for the layout's last row down to the time panel).
+_REAL_PX = 935.0
+#: What the event log's visible area may hold beyond its whole rows: less than the ~6 px from a row's top
+#: to its text, so no row shows half of its text (an empty sliver at most).
+_LOG_SLACK_PX = 3.0
 
 
 def _column_shares(alarm: bool, peak: bool = True) -> list[float]:
     shares = [1, 1.5, 1] + ([0.9] if alarm else []) + ([0.8] if peak else [])
     return [float(x) for x in shares]
+
+
+def plot_heights(columns_px: float, peak: bool) -> tuple[float, float]:
+    """Plot heights (logical px at 1600x1000) of the statistic and alarm views in a columns row
+    ``columns_px`` high: the view's share less its title bar and the time axis's labels (~16 px)."""
+    shares = _column_shares(True, peak)
+    each = [columns_px * s / sum(shares) - _TITLE_PX - 16.0 for s in shares]
+    return each[2], each[3]
 
 
 def view_px(n_channels: int) -> float:
@@ -363,6 +484,11 @@ def layout_geometry(
         spectrogram_view.KEY_PX`), over the view's height.
     """
     lanes = 45.0 + _LANE_PX * n_lanes
+    # the event log beside the lanes: its title, header and whole rows (no half-hidden last row), in the
+    # viewer's pixels (the shares are spread over _REAL_PX) and back
+    fixed = _LOG_TOP_PX + _LOG_BOTTOM_PX + _LOG_SLACK_PX
+    rows = max(math.ceil((lanes * _REAL_PX / _WINDOW[1] - fixed) / _LOG_ROW_PX), 1)
+    lanes = (fixed + rows * _LOG_ROW_PX) * _WINDOW[1] / _REAL_PX
     cols = max(_WINDOW[1] - lanes - _ROW_PX * (rows_above + rows_below), 200.0)
     shares = _column_shares(alarm, peak)
     spec_h = max(cols * shares[1] / sum(shares) - _TITLE_PX, 20.0)
@@ -386,9 +512,10 @@ def blueprint(
     band_hz: tuple[float, float] | None = None,
     span_s: tuple[float, float] | None = None,
     db_range: tuple[float, float] = (-5.0, 30.0),
-    alarm: str | None = None,
+    alarm: str | Sequence[str] | None = None,
     alarm_score: bool = False,
-    alarm_range: tuple[float, float] | None = None,
+    alarm_range: tuple[float, float] | Sequence[tuple[float, float] | None] | None = None,
+    statistic_ranges: Sequence[tuple[float, float]] | None = None,
     extra_row: ExtraRow | None = None,
     units: tuple[str, ...] | None = None,
     above: list[Any] | None = None,
@@ -396,6 +523,8 @@ def blueprint(
     lanes_name: str | None = None,
     peak_view: bool = True,
     chattering_range: list[float | None] | None = None,
+    psi: bool = True,
+    alarm_rule: str | None = None,
 ) -> Any:
     """The default layout: per channel (columns) chattering, spectrogram, detection statistic and peak
     frequency; below, the state lanes (true fault first, then one verdict lane per channel in channel
@@ -419,17 +548,22 @@ def blueprint(
         opens paused on the whole record.
     db_range : (float, float)
         Colour range of the spectrogram (dB re the frame threshold), shown in its title.
-    alarm : str, optional
+    alarm : str or sequence of str, optional
         Title of the alarm view (the rule, its statistic and budget) below the detection statistic:
-        channel ``i``'s rule statistic against the threshold (:data:`VERDICT`); None: no alarm view.
+        channel ``i``'s rule statistic against the threshold (:data:`VERDICT`); several: from the longest
+        to the shortest, the longest that fits is used (:func:`fit`); None: no alarm view.
     alarm_score : bool
         Also draw the frame score in the alarm view (when the statistic is not the score itself).
-    alarm_range : (float, float), optional
-        Fixed y range of the alarm view (a fault's score, thousands of nats, would otherwise hide the
-        threshold and the CUSUM ``g``, which is capped at it).
+    alarm_range : (float, float) or sequence of them (one per channel), optional
+        Fixed y range of the alarm view (:func:`alarm_range`: from ``h`` and, in a file's final blueprint,
+        the record's largest value, so that neither the threshold nor the statistic leaves the chart).
+    statistic_ranges : sequence of (float, float), optional
+        Per channel the statistic view's y range (:func:`statistic_range`); default
+        :data:`STATISTIC_RANGE_DB`.
     extra_row : callable, optional
-        ``extra_row(time_range, axis)`` returns views added as a row below the lanes, with the time range
-        and the (linked) time axis of the other views (:func:`time_axis`) (e.g. the identified parameters,
+        ``extra_row(time_range, axis, live=...)`` returns views added as a row below the lanes, with the
+        time range and the (linked) time axis of the other views (:func:`time_axis`) and whether the
+        blueprint is a live viewer's (e.g. the identified parameters,
         :func:`chatterspec.viewer.identification_log.identification_views`).
 
     units : tuple of str, optional
@@ -449,6 +583,10 @@ def blueprint(
         labels its ticks (auto-ranged, a small amplitude can leave a single "0" tick); None (or a None
         entry): auto range. A file's final blueprint gives it
         (:class:`~chatterspec.viewer.chattering_extent.ChatteringExtent`).
+    psi : bool
+        The boundary layer ±psi is drawn (known): the chattering views' titles name it.
+    alarm_rule : str, optional
+        The alarm rule and budget in a few words (``"cusum, 1 false alarm/24 h"``), for the lanes' title.
 
     Returns
     -------
@@ -480,15 +618,40 @@ def blueprint(
     def unit(i: int) -> str:
         return f" [{units[i]}]" if units and units[i] else ""
 
+    budget = title_chars(m)
+    grey = ", grey ±psi" if psi else ""
+    alarms = [alarm] if isinstance(alarm, str) else list(alarm or [])
+    alarm_axes: list[tuple[float, float] | None]
+    if alarm_range is None or isinstance(alarm_range[0], (int, float)):  # one range for every channel
+        alarm_axes = [cast("tuple[float, float] | None", alarm_range)] * m
+    else:
+        alarm_axes = list(cast("Sequence[tuple[float, float] | None]", alarm_range))
     columns = []
     for i, name in enumerate(channels):
         c = _entity(name)
+        u = unit(i)
+        variants = {  # longest first: fit() keeps the longest that the column's width holds
+            "chattering": [f"chattering e(k|k-1){u}{grey}", f"chattering{u}{grey}", f"chattering{u}"],
+            "spectrogram": [f"spectrogram{band}, dB re threshold", f"spectrogram{band}, dB", "spectrogram"],
+            "statistic": [
+                "max S/threshold [dB], red = flagged",
+                "max S/thr [dB], red = flagged",
+                "max S/thr [dB]",
+            ],
+            "alarm": alarms or ["alarm"],
+            "frequency": [
+                "frequency of max S/thr [Hz], red = flagged",
+                "peak frequency [Hz], red = flagged",
+                "peak frequency [Hz]",
+            ],
+        }
+        title = {k: fit([f"{name}: {v}" for v in vs], budget) for k, vs in variants.items()}
         columns.append(
             rrb.Vertical(
                 rrb.TimeSeriesView(
                     origin="/chattering",
                     contents=[f"+ {CHATTERING}", f"+ {PSI}"],
-                    name=f"{name}: chattering e(k|k-1){unit(i)}, grey ±psi",
+                    name=title["chattering"],
                     time_ranges=time_range,
                     axis_x=axis,
                     plot_legend=no_legend,
@@ -504,17 +667,19 @@ def blueprint(
                 ),
                 spectrogram_view(
                     f"/spectrogram/{c}",
-                    f"{name}: spectrogram{band}, dB re threshold (colour key left)",
+                    title["spectrogram"],
                     width,
                     key_width(width, view_px(m)),
                 ),
                 rrb.TimeSeriesView(
                     origin="/detection",
                     contents=[f"+ {STATISTIC}", f"+ {THRESHOLD}", f"+ {fault_entity(name)}"],
-                    name=f"{name}: max S/threshold [dB], 0 dB = threshold, red = fault",
+                    name=title["statistic"],
                     time_ranges=time_range,
                     axis_x=axis,
-                    axis_y=rrb.ScalarAxis(range=STATISTIC_RANGE_DB),
+                    axis_y=rrb.ScalarAxis(
+                        range=STATISTIC_RANGE_DB if statistic_ranges is None else statistic_ranges[i]
+                    ),
                     plot_legend=no_legend,
                     overrides={STATISTIC: rr.SeriesLines.from_fields(visible_series=only(i))},
                 ),
@@ -525,11 +690,11 @@ def blueprint(
                         rrb.TimeSeriesView(
                             origin="/alarm",
                             contents=[f"+ {VERDICT}"],
-                            name=f"{name}: {alarm}",
+                            name=title["alarm"],
                             time_ranges=time_range,
                             axis_x=axis,
                             plot_legend=no_legend,
-                            axis_y=None if alarm_range is None else rrb.ScalarAxis(range=alarm_range),
+                            axis_y=None if alarm_axes[i] is None else rrb.ScalarAxis(range=alarm_axes[i]),
                             overrides={
                                 VERDICT: rr.SeriesLines.from_fields(
                                     visible_series=[
@@ -552,7 +717,7 @@ def blueprint(
                                 f"+ {MOST_SIGNIFICANT_HZ}",
                                 f"+ {fault_hz_entity(name)}",
                             ],
-                            name=f"{name}: frequency [Hz] of max S/thr, red = flagged (grey: largest S-E)",
+                            name=title["frequency"],
                             time_ranges=time_range,
                             axis_x=axis,
                             plot_legend=no_legend,
@@ -562,19 +727,16 @@ def blueprint(
                             },
                             axis_y=None
                             if band_hz is None
-                            else rrb.ScalarAxis(range=(0.0, float(band_hz[1]))),
+                            else rrb.ScalarAxis(range=(-0.1 * float(band_hz[1]), 1.05 * float(band_hz[1]))),
                         ),
                     ]
                 ),
                 row_shares=_column_shares(alarm is not None, peak_view),
             )
         )
-    extra = [] if extra_row is None else [rrb.Horizontal(*extra_row(time_range, axis))]
+    extra = [] if extra_row is None else [rrb.Horizontal(*extra_row(time_range, axis, live=span_s is None))]
     top = [rrb.Horizontal(*above)] if above else []
-    if span_s is None:  # live: the alarm state, changed when the detector knew
-        what = "alarm per channel, set at the end of the deciding frame (when the detector knew)"
-    else:  # a file: the record's interval estimates
-        what = "fault intervals per channel (onset/offset estimates, as detect --json)"
+    what = f"fault state per channel ({alarm_rule or 'alarm rule'}; grey = no evidence)"
     default_name = f"true fault (top); {what}" if has_truth else what
     return rrb.Blueprint(
         rrb.Vertical(
@@ -587,8 +749,8 @@ def blueprint(
                     time_ranges=time_range,
                     time_view=axis,
                 ),
-                rrb.TextLogView(origin="/events", name="detection events"),
-                column_shares=[2, 1],
+                event_log_view(),
+                column_shares=[1.4, 1],
             ),
             *extra,
             # pixels at 1600x1000 (layout_geometry): every lane visible

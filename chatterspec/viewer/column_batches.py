@@ -32,14 +32,17 @@ from .blueprint import (
     fault_hz_entity,
 )
 from .chattering_extent import ChatteringExtent
+from .fault_lanes import Changes, FaultLanes
 from .frame_peaks import FramePeaks
-from .interval_lanes import IntervalCollector
+from .interval_events import IntervalCollector
 from .record_geometry import DB_RANGE, to_ns
 from .sinks import TIMELINE, Sinks
 from .spectrogram_images import SpectrogramImages
 
 if TYPE_CHECKING:  # pragma: no cover
     from types import ModuleType
+
+    from ..online.identification_monitor import IdentificationUpdate
 
 
 __all__ = ["ColumnBatches"]
@@ -62,6 +65,8 @@ class _Outbox:
     updates: list[MonitorUpdate] = field(default_factory=list)  # with samples
     frames: list[Any] = field(default_factory=list)  # FrameBlocks with frames
     events: list[DetectionEvent] = field(default_factory=list)
+    lane_changes: list[tuple[np.ndarray, np.ndarray, list[str]]] = field(default_factory=list)
+    lane_versions: list[int] = field(default_factory=list)  # per channel: the labels last sent
     n_samples: int = 0
     n_frames: int = 0
 
@@ -143,7 +148,13 @@ class ColumnBatches:
         m = len(keys)
         self._peaks = FramePeaks(monitor, expected)
         self._cols = _Columns(rr, DB_RANGE)
-        self._boxes = [_Outbox(s, live=s is sinks.live_stream) for s in sinks.streams]
+        self._boxes = [_Outbox(s, live=s is sinks.live_stream, lane_versions=[0] * m) for s in sinks.streams]
+        # the channels' fault states (chatterspec.online.fault_state), the same in a file and live: the
+        # spectral alarm's frame by frame, with identification its windows' too (fault_lanes)
+        self.fault_lanes = FaultLanes(tuple(monitor.channels), monitor.n_window, monitor.n_hop, monitor.dt)
+        #: The spectral alarm is the run's fault decision (else, with tolerances, a mismatch: its events
+        #: are logged as such).
+        self.spectral_decides = True
         psi = monitor.settings.psi
         # two-row columns reused by every batch: the ±psi lines (+psi_0, -psi_0, +psi_1, ...) and 0 dB
         self._psi_rows = None
@@ -156,41 +167,36 @@ class ColumnBatches:
         self._cusum = rule_spec(rule).accumulates  # the alarm view draws g; else the score itself
         self._h = float(rule.threshold) if np.isfinite(rule.threshold) else np.nan
         self.extent = ChatteringExtent(m)  # the file's chattering amplitudes
+        # the file's largest statistic (dB) and alarm-view value per channel: its views' y ranges
+        self.largest_db = np.full(m, -np.inf)
+        self.largest_alarm = np.full(m, -np.inf)
         self.monitor = monitor
         self.origin_ns: int | None = None  # earliest time logged: the file's spectrogram starts there
 
     def start(self, upd: MonitorUpdate) -> float:
         """Start the record at ``upd`` (the first update with samples or frames) and return the start (s)
-        of its first STFT window; it also moves :attr:`origin_ns` back to it. A live viewer's lanes get
-        their state before ``upd``, logged 1 ns before the end of its first frame (when the detector
-        first knows anything; nothing is painted before). A file's lanes are drawn on close from the
-        record's interval estimates."""
-        live = self.sinks.live_stream
+        of its first STFT window; it also moves :attr:`origin_ns` back to it. Every lane starts there with
+        ``no-evidence`` (:mod:`chatterspec.online.fault_state`) until its first frame is decided (a rotated
+        file too: it holds no verdict of its own before that frame)."""
         mon, fr = self.monitor, upd.frames
-        m = len(self.keys)
-        state = mon.active  # after upd: undo its first event per channel
-        seen = np.zeros(m, dtype=bool)
-        for ev in upd.events:
-            if not seen[ev.channel_index]:
-                seen[ev.channel_index] = True
-                state[ev.channel_index] = ev.kind == "fault-end"
         n_before = mon.n_frames - fr.n_frames
         t_first = mon.frame_time(0) if n_before == 0 else (fr.times_s[0] if fr.n_frames else upd.t[0])
         # the start of this record's first STFT window (the first chattering sample of a fresh monitor)
         start_s = float(t_first - self._half_win) if n_before == 0 or fr.n_frames else float(upd.t[0])
         ns0 = int(to_ns(start_s))
         self.origin_ns = ns0 if self.origin_ns is None else min(ns0, self.origin_ns)
-        if live is not None:
-            ns = int(to_ns(t_first + self._half_win)) - 1
-            t = _TimeIndex(self.pa, np.array([ns], dtype=np.int64))
-            for i in range(m):
-                state_col = self.rr.StateChange.columns(state=["fault" if state[i] else "healthy"])
-                live.send_columns(self.lanes[i], indexes=[t], columns=state_col)
+        first = self.fault_lanes.start(start_s)
+        for box in self._boxes:
+            box.lane_changes.append(first)
         return start_s
 
     def queue(self, upd: MonitorUpdate) -> None:
         """Queue ``upd`` in every outbox; send a live viewer's at once, a file's once a batch is full."""
         fr = upd.frames
+        changes: Changes | None = None
+        if fr.n_frames:  # the lanes: the alarm layer's state (flags without an alarm rule)
+            alarm = fr.alarm if fr.alarm is not None else fr.flags
+            changes = self.fault_lanes.update(fr.times_s, alarm, list(upd.events))
         for box in self._boxes:
             if upd.t.shape[0]:
                 box.updates.append(upd)
@@ -198,22 +204,43 @@ class ColumnBatches:
                 if box.live or box.n_samples >= self.batch_samples:
                     self._send_samples(box)
             if fr.n_frames:
+                if changes is not None and changes[2]:
+                    box.lane_changes.append(changes)
                 box.frames.append(fr)
                 box.events.extend(upd.events)
                 box.n_frames += fr.n_frames
                 if box.live or box.n_frames >= self.batch_frames:
                     self._send_frames(box)
 
+    def follow_identification(self, upd: IdentificationUpdate) -> None:
+        """Queue the lane changes of one push's identification windows
+        (:meth:`~chatterspec.viewer.fault_lanes.FaultLanes.follow`); a live viewer's are sent at once, a
+        file's with its next frames."""
+        self._queue_lanes(self.fault_lanes.follow(upd))
+
+    def finish(self) -> None:
+        """The record ends: queue the lane changes still waiting for an identification window."""
+        self._queue_lanes(self.fault_lanes.finish())
+
+    def _queue_lanes(self, changes: Changes) -> None:
+        if not changes[2]:
+            return
+        for box in self._boxes:
+            box.lane_changes.append(changes)
+            if box.live:
+                self._send_lanes(box)
+
     def flush(self) -> None:
         """Send everything buffered (bulk ``send_columns``)."""
         for box in self._boxes:
             self._send_samples(box)
             self._send_frames(box)
+            self._send_lanes(box)
 
     def send_event(self, ev: DetectionEvent) -> None:
-        """Send one detection event at once (text log, and the lane of a live viewer) to every stream."""
+        """Send one detection event at once (the event log) to every stream."""
         for s in self.sinks.streams:
-            send_alarm_events(s, [ev], self._half_win, self.lanes if s is self.sinks.live_stream else None)
+            send_alarm_events(s, [ev], decides=self.spectral_decides)
 
     def _send_samples(self, box: _Outbox) -> None:
         """Send the per-sample part of the updates in ``box`` (one ``send_columns`` per entity)."""
@@ -286,6 +313,9 @@ class ColumnBatches:
             rows[a:b, 2 * m : 3 * m] = f.score
             a = b
         rows[:, 3 * m] = self._h
+        if not box.live:
+            np.maximum(self.largest_db, stat_db.max(axis=0), out=self.largest_db)
+            np.maximum(self.largest_alarm, rows[:, m : 2 * m].max(axis=0), out=self.largest_alarm)
         s.send_columns(VERDICT, indexes=[fcol], columns=[cols.scalars_column(rows, own=True)])
         for i, c in enumerate(self.keys):
             self._send_spectra(s, f"/spectrum/{c}", fcol, fns, spectra[i])
@@ -302,8 +332,32 @@ class ColumnBatches:
             self.images.add_file(self.sinks.file_stream, times, spectra, self.origin_ns)
             if self._collector is not None:  # the file's intervals, drawn on close
                 self._collector.add(times, flags, ratio, sig_hz, peak_hz, peak_ratio)
+        self._send_lanes(box)
         if events:
-            send_alarm_events(s, events, self._half_win, self.lanes if box.live else None)
+            send_alarm_events(s, events, decides=self.spectral_decides)
+
+    def _send_lanes(self, box: _Outbox) -> None:
+        """Send the queued lane changes of ``box`` (one ``send_columns`` per channel that changed) and the
+        lanes' labels where a new alarm episode was labelled (:mod:`~chatterspec.viewer.fault_lanes`)."""
+        if not box.lane_changes:
+            return
+        parts, box.lane_changes = box.lane_changes, []
+        s, lanes = box.stream, self.fault_lanes
+        for c, v in enumerate(lanes.version):
+            if v != box.lane_versions[c]:
+                s.log(self.lanes[c], lanes.configuration(c), static=True)
+                box.lane_versions[c] = v
+        times = np.concatenate([p[0] for p in parts])
+        chan = np.concatenate([p[1] for p in parts])
+        values = [v for p in parts for v in p[2]]
+        ns = to_ns(times)
+        for c in np.unique(chan).tolist():
+            mine = np.flatnonzero(chan == c)
+            s.send_columns(
+                self.lanes[c],
+                indexes=[_TimeIndex(self.pa, ns[mine])],
+                columns=self.rr.StateChange.columns(state=[values[k] for k in mine.tolist()]),
+            )
 
     def _send_spectra(self, s: Any, path: str, tcol: _TimeIndex, ns: np.ndarray, power: np.ndarray) -> None:
         """One ``Tensor`` row per frame: ``power`` is (frames, bins) in ``spectrum_dtype``."""

@@ -36,7 +36,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..plants.simulate import Simulation
     from .sinks import Sinks
 
-__all__ = ["mode_lane_entity", "record_budget_diagnosis", "record_diagnosis"]
+__all__ = ["MODE_HOLD_S", "held_changes", "mode_lane_entity", "record_budget_diagnosis", "record_diagnosis"]
 
 
 def record_diagnosis(
@@ -48,6 +48,7 @@ def record_diagnosis(
     config: STFTConfig | None = None,
     chunk_samples: int = 10_000,
     route_series: dict[str, tuple[np.ndarray, np.ndarray, float, str]] | None = None,
+    chattering_rule: tuple[Any, float] | None = None,
 ) -> Path:
     """Write realization 0 of ``sim`` to a Rerun file: chattering monitor and mode probabilities.
 
@@ -69,6 +70,9 @@ def record_diagnosis(
     route_series : dict, optional
         ``method -> (t (K,) s, statistic (K,), threshold, name)``: a route's alarm statistic and its
         threshold, drawn in one view per route.
+    chattering_rule : (AlarmRule, float), optional
+        The chattering route's calibrated alarm rule and its budget (alarm starts per hour): the channel
+        lanes and events then follow the run's rule (default: the per-frame rule).
 
     Returns
     -------
@@ -85,7 +89,8 @@ def record_diagnosis(
     logger: RerunLogger | None = None
     try:
         if threshold is not None:
-            settings = MonitorSettings(stft=config or STFTConfig(), threshold=threshold)
+            rule = None if chattering_rule is None else chattering_rule[0]
+            settings = MonitorSettings(stft=config or STFTConfig(), threshold=threshold, rule=rule)
             mon = ChatteringMonitor(sc.nominal, settings)
             span = record_span(mon, z0.shape[0], raw=True)
             truth = scenario_truth(sc)
@@ -98,6 +103,7 @@ def record_diagnosis(
                 extra_lanes=len(mode_outputs),
                 rows_above=1 if route_series else 0,
                 peak_view=False,  # every lane visible at 1600x1000: the events and spectrogram give it
+                budget_per_hour=None if chattering_rule is None else chattering_rule[1],
             )
             for lo in range(0, z0.shape[0], int(chunk_samples)):
                 logger.log_update(mon.push(z0[lo : lo + chunk_samples], u0[lo : lo + chunk_samples]))
@@ -121,7 +127,10 @@ def record_diagnosis(
             _log_route(sinks, rr, rrb, method, series, time_range, axis)
             for method, series in (route_series or {}).items()
         ]
-        lanes_name = "true fault (top), most probable mode per method, verdict per channel"
+        lanes_name = (
+            f"true fault (top); most probable mode per method (runs >= {MODE_HOLD_S:g} s); fault state per "
+            "channel (grey = no evidence)"
+        )
         if logger is not None:
             # sent again on close with the chattering views' y ranges (RerunLogger.close)
             logger.file_layout = {"has_truth": True, "above": route_views or None, "lanes_name": lanes_name}
@@ -146,6 +155,36 @@ def record_diagnosis(
         finally:
             sinks.close()
     return Path(path)
+
+
+#: Shortest run (s) of a most probable mode that its lane shows; shorter runs stay in the mode before
+#: them (the lanes of a switching SMM / IMM otherwise split into slivers whose labels cannot be read).
+MODE_HOLD_S = 0.2
+
+
+def held_changes(best: np.ndarray, t: np.ndarray, hold_s: float) -> np.ndarray:
+    """Indices where the lane of the most probable mode ``best`` (per sample at times ``t``, s) changes:
+    every change of ``best`` whose new mode then holds for at least ``hold_s`` seconds (or to the end);
+    the first sample always.
+
+    Parameters
+    ----------
+    best : (T,) int array
+    t : (T,) array
+        Times (s).
+    hold_s : float
+
+    Returns
+    -------
+    int array
+    """
+    raw = np.flatnonzero(np.concatenate(([True], best[1:] != best[:-1])))
+    ends = np.append(t[raw[1:]], np.inf)
+    keep = [int(raw[0])]
+    for k, end in zip(raw[1:].tolist(), ends[1:].tolist(), strict=True):
+        if end - t[k] >= hold_s and best[k] != best[keep[-1]]:
+            keep.append(k)
+    return np.asarray(keep, dtype=np.intp)
 
 
 def mode_lane_entity(method: str) -> str:
@@ -177,7 +216,7 @@ def _log_modes(
     ns = to_ns(t)
     tcol = rr.TimeColumn(TIMELINE, duration=ns.astype("timedelta64[ns]"))
     best = np.argmax(mu, axis=1)
-    change = np.flatnonzero(np.concatenate(([True], best[1:] != best[:-1])))
+    change = held_changes(best, t, MODE_HOLD_S)
     names = {"normal": "healthy"}  # the truth lane's name of the nominal mode
     lane_col = [colors.get(names.get(m, m), rgba32(mode_color(j))) for j, m in enumerate(modes)]
     for s in sinks.streams:
@@ -189,7 +228,7 @@ def _log_modes(
             mode_lane_entity(method),
             rr.StateConfiguration(
                 values=list(modes),
-                labels=[f"{method}: {m}" for m in modes],
+                labels=list(modes),  # the lane's path above it names the method
                 colors=np.array(lane_col, dtype=np.uint32),
             ),
             static=True,
@@ -229,7 +268,7 @@ def _log_route(
     top = 1.5 * float(h) if np.isfinite(h) and h > 0 else None
     return rrb.TimeSeriesView(
         origin=f"/routes/{method}",
-        name=f"{method}: {name} (colour) vs threshold h = {h:.3g} (grey)",
+        name=f"{method}: {name} vs h = {h:.3g}",
         time_ranges=time_range,
         axis_x=axis,
         axis_y=None if top is None else rrb.ScalarAxis(range=(0.0, top)),
@@ -291,6 +330,7 @@ def record_budget_diagnosis(
         stat = blk.statistic[0].max(axis=-1)  # the largest over the channels (the route's alarm is any)
         label = rule_spec(rule).statistic
         series[method] = (times, stat, rule.threshold, label)
-    return record_diagnosis(
-        path, sim, threshold if "chattering" in routes else None, modes, route_series=series
-    )
+    chat = by_method.get("chattering")
+    chat_rule = None if chat is None else (rule_from_dict(chat.rule), chat.budget_per_hour)
+    thr = threshold if "chattering" in routes else None
+    return record_diagnosis(path, sim, thr, modes, route_series=series, chattering_rule=chat_rule)

@@ -19,6 +19,8 @@ from .sinks import Sinks, default_recording_path, file_error, open_sinks
 if TYPE_CHECKING:
     from collections.abc import Callable
 
+    from ..detection.identification import IdentificationSetup
+    from ..detection.parameter_decision import ParameterEvent
     from ..detection.pipeline import ChatteringRecord
     from ..online.identification_monitor import IdentificationMonitor, IdentificationUpdate
     from ..plants.scenario_types import Scenario
@@ -55,6 +57,10 @@ class RecordingSummary:
     write_error : str or None
         Why the recording could not be completed (e.g. the disk filled during the run); the run
         itself finished and its events are here.
+    parameter_events : tuple of ParameterEvent
+        With tolerances, the identified parameters' alarms: the run's fault events (``events`` are then
+        the spectral detector's mismatches). Not in :meth:`to_dict`: ``monitor --json`` puts them into
+        its summary itself (``MonitorIdentification.into_summary``).
     """
 
     path: Path | None
@@ -66,9 +72,11 @@ class RecordingSummary:
     wall_s: float
     notes: tuple[str, ...] = ()
     write_error: str | None = None
+    parameter_events: tuple[ParameterEvent, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
-        """The fields as a JSON-ready dict (what the JSON outputs print)."""
+        """The fields as a JSON-ready dict (what the JSON outputs print): ``events`` are the spectral
+        detector's events, each with its ``alarm_time_s`` (where the lanes change without tolerances)."""
         return {
             "recording": None if self.path is None else str(self.path),
             "live_url": self.live_url,
@@ -109,6 +117,7 @@ def run_monitor(
     band_hz: tuple[float, float] | None = None,
     identifier: IdentificationMonitor | None = None,
     on_identification: Callable[[IdentificationUpdate], None] | None = None,
+    identification_intervals: list[dict[str, Any]] | None = None,
 ) -> RecordingSummary:
     """Drive ``monitor`` over raw data (``z`` (T, m), ``u`` (T, p)) or precomputed ``chattering`` (N, m)
     and log everything to ``sinks``; closes the sinks at the end (also on Ctrl-C).
@@ -139,9 +148,13 @@ def run_monitor(
     identifier : IdentificationMonitor, optional
         Fault identification and the decisions on the identified parameters per hop on the same raw
         pushes (:class:`~chatterspec.online.identification_monitor.IdentificationMonitor`), logged to
-        the sinks (:mod:`chatterspec.viewer.identification_log`); raw data only.
+        the sinks (:mod:`chatterspec.viewer.identification_log`); raw data only. The channels' lanes then
+        follow its windows' states (fault, healthy, not excited); without tolerances it must hear of the
+        monitor's alarms (``note_alarm``, e.g. from ``on_event``: :func:`record_detection` does).
     on_identification : callable, optional
         Called with each push's :class:`~chatterspec.online.identification_monitor.IdentificationUpdate`.
+    identification_intervals : list of dict, optional
+        ``detect --json``'s ``identification_intervals``: rows of the event log (with ``identifier``).
 
     Returns
     -------
@@ -149,6 +162,7 @@ def run_monitor(
     """
     t_start = time.perf_counter()
     events: list[DetectionEvent] = []
+    parameter_events: list[ParameterEvent] = []
     # paced replays push one hop at a time (smooth live view); unpaced runs push 50 hops (10 s
     # at the default hop: the per-push STFT and logging overhead is then small; memory stays
     # bounded). The output does not depend on the chunking, only the per-call overhead does.
@@ -164,11 +178,6 @@ def run_monitor(
             raise ValueError("give z and u, or chattering")
         if chattering is not None:
             identifier = None  # identification regresses on the raw measurements
-        views = None
-        if identifier is not None and sinks.streams:
-            from .identification_log import IdentificationLog, identification_views
-
-            views = identification_views(identifier)
         logger = (
             RerunLogger(
                 sinks,
@@ -177,17 +186,11 @@ def run_monitor(
                 truth=truth,
                 band_hz=band_hz,
                 span_s=record_span(monitor, total, raw=chattering is None),
-                extra_row=views,
-                extra_lanes=0 if identifier is None or views is None else len(identifier.parameters),
-                verdict="mismatch" if identifier is not None and identifier.tolerances else "FAULT",
+                identification=identifier,
             )
             if sinks.streams
             else None
         )
-        ident_log = None
-        if views is not None:
-            assert identifier is not None  # (views: made for it)
-            ident_log = IdentificationLog(sinks, identifier)
         for lo, hi in _chunks(total, size):
             if chattering is not None:
                 upd = monitor.push_chattering(chattering[lo:hi])
@@ -203,11 +206,14 @@ def run_monitor(
             if identifier is not None:
                 assert z is not None and u is not None  # (no identifier on precomputed chattering)
                 found = identifier.push(z[lo:hi], u[lo:hi])
-                if ident_log is not None:
-                    ident_log.log(found)
+                parameter_events.extend(found.events)
+                if logger is not None:
+                    logger.log_identification(found)
                 if on_identification is not None:
                     on_identification(found)
             _pace(t_start, hi * monitor.dt, rate)
+        if logger is not None and identification_intervals:
+            logger.log_identification_intervals(identification_intervals)
         done = True
     finally:
         write_error = _close(logger, sinks, keep_going=done)
@@ -221,6 +227,7 @@ def run_monitor(
         wall_s=time.perf_counter() - t_start,
         notes=tuple(sinks.notes),
         write_error=write_error,
+        parameter_events=tuple(parameter_events),
     )
 
 
@@ -276,6 +283,9 @@ def record_detection(
     application_id: str = "chatterspec",
     on_event: Callable[[DetectionEvent], None] | None = None,
     band_hz: tuple[float, float] | None = None,
+    identification: IdentificationSetup | None = None,
+    confidence: float = 0.95,
+    identification_intervals: list[dict[str, Any]] | None = None,
 ) -> RecordingSummary:
     """Run the online monitor over one realization of a simulation or chattering record and record it.
 
@@ -304,6 +314,17 @@ def record_detection(
         Called with each detection event.
     band_hz : (float, float), optional
         Spectrogram band (Hz); see :func:`run_monitor`.
+    identification : IdentificationSetup, optional
+        Identify the parameters of a simulation's nominal model per hop beside the monitor
+        (:class:`~chatterspec.online.identification_monitor.IdentificationMonitor`, at the monitor's
+        alpha, rule and budget; one false alarm per day without a budget): its estimates are drawn below
+        the lanes and the channels' lanes read "not excited" where the data cannot see a change of the
+        parameters' tolerance (without one, their nominal value). None: the spectral alarm alone.
+    confidence : float
+        Level of the identification's intervals.
+    identification_intervals : list of dict, optional
+        The record's identification per fault interval (``detect --json``'s
+        ``identification_intervals``), rows of the event log.
 
     Returns
     -------
@@ -320,10 +341,15 @@ def record_detection(
     if path is None and live is None:
         path = default_recording_path(name)
     truth = scenario_truth(scenario) if scenario is not None else None
+    ident = None
     if isinstance(source, Simulation):
         model = source.scenario.nominal
         mon = ChatteringMonitor(model, settings, t0=float(source.t[0]))
         kw: dict[str, Any] = {"z": source.z[run], "u": source.input_of(run)}
+        if identification is not None:
+            ident = _identification_beside(identification, mon, confidence)
+        if ident is not None:
+            on_event = _noting(ident, on_event)
     elif isinstance(source, ChatteringRecord):
         mon = ChatteringMonitor(source.model, settings, t0=float(source.t[0]))
         kw = {"chattering": source.values[run]}
@@ -344,5 +370,54 @@ def record_detection(
         truth=truth,
         on_event=on_event,
         band_hz=band_hz,
+        identifier=ident,
+        identification_intervals=identification_intervals,
         **kw,
     )
+
+
+def _identification_beside(
+    setup: IdentificationSetup, monitor: ChatteringMonitor, confidence: float
+) -> IdentificationMonitor | None:
+    """An identification monitor beside ``monitor``: its hop and window, its alpha, rule and budget (one
+    false alarm per day without a budget: the level of the detectable change); None when the model's
+    parameters cannot all be fitted at once and it declares no tolerance (as ``monitor`` does)."""
+    from ..detection.parameter_decision import parameter_alarm_settings
+    from ..errors import IdentifiabilityError
+    from ..online.identification_monitor import IdentificationMonitor
+
+    st = monitor.settings
+    try:
+        decision = parameter_alarm_settings(
+            setup,
+            hop_s=monitor.n_hop * monitor.dt,
+            window_hops=max(1, round(monitor.n_window / monitor.n_hop)),
+            rule=st.rule if st.rule is not None else "cusum",
+            false_alarms_per_hour=st.false_alarms_per_hour or 1.0 / 24.0,
+        )
+    except IdentifiabilityError:
+        if setup.parameter_map.has_tolerances:
+            raise
+        return None
+    return IdentificationMonitor(
+        setup,
+        decision,
+        t0=monitor.t0,
+        alpha=st.alpha,
+        confidence=confidence,
+        frame_samples=monitor.n_window,
+    )
+
+
+def _noting(
+    ident: IdentificationMonitor, on_event: Callable[[DetectionEvent], None] | None
+) -> Callable[[DetectionEvent], None]:
+    """``on_event`` that first tells ``ident`` of the monitor's alarm (the fault named under it, the
+    channels' fault state without tolerances)."""
+
+    def noted(ev: DetectionEvent) -> None:
+        ident.note_alarm(ev.kind, ev.channel, ev.alarm_time_s)
+        if on_event is not None:
+            on_event(ev)
+
+    return noted

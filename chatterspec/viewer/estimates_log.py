@@ -7,7 +7,8 @@ Entity layout (one ``time`` timeline, durations in integer nanoseconds, rounded 
     /errors/<state>/<filter>              estimation error x_i - x_i(k|k)
     /measurements/<output>                z_j(k)
     /innovations/<output>/<filter>        e_j(k|k-1) = z_j(k) - C x(k|k-1)
-    /info                                 a text log line naming the scenario, run and filters
+    /state/0_truth                        the true plant's segments (a lane: where the fault starts)
+    /info                                 what the colours are, the scenario, run and filters
 
 Everything time-indexed goes through ``RecordingStream.send_columns`` (bulk, millions of samples
 per second); ``rerun`` is imported only when a recording is written.
@@ -21,10 +22,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import ParameterError
-from ..palette import TRUTH, filter_color
+from ..palette import TAB10, TRUTH, filter_color
+from ..plants.model_base import state_units
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..plants.nonlinear import Model
     from ..studies.estimation import EstimateRecords
 
 __all__ = ["estimate_blueprint", "record_estimates"]
@@ -82,26 +83,23 @@ def record_estimates(records: EstimateRecords, path: str | Path, *, run: int = 0
             raise ParameterError(f"cannot write the recording {str(path)!r}: {exc}") from None
         raise err from None
     try:
-        from .sinks import TIMELINE
-
         rec.send_recording_name(f"estimate {sc.name} run {records.first_run + run}")
         t_all = rr.TimeColumn("time", duration=_ns(records.t))
         t_post = rr.TimeColumn("time", duration=_ns(records.t[1:]))
         names = list(records.outputs)
-        rec.set_time(TIMELINE, duration=np.timedelta64(int(_ns(records.t[:1])[0].astype(np.int64)), "ns"))
-        rec.log(
-            "/info",
-            rr.TextLog(
-                f"scenario {sc.name}, realization {records.first_run + run}, filters {', '.join(names)}",
-                level="INFO",
-            ),
-        )
+        rec.log("/info", rr.TextDocument(_legend(sc.name, records.first_run + run, names)), static=True)
+        from .drivers import scenario_truth
+        from .truth_lane import log_truth_lane
+
+        log_truth_lane([rec], scenario_truth(sc))
         x = records.x[run]
+        extents: dict[str, list[np.ndarray]] = {}  # per view, the values it draws: its y range
         _log_styles(rec, states, outputs, names)
         for i, s in enumerate(states):
             rec.send_columns(
                 f"/states/{s}/truth", indexes=[t_all], columns=rr.Scalars.columns(scalars=x[:, i])
             )
+            extents.setdefault(f"/states/{s}", []).append(x[:, i])
         for j, o in enumerate(outputs):
             rec.send_columns(
                 f"/measurements/{o}",
@@ -119,6 +117,8 @@ def record_estimates(records: EstimateRecords, path: str | Path, *, run: int = 0
                 rec.send_columns(
                     f"/errors/{s}/{name}", indexes=[t_post], columns=rr.Scalars.columns(scalars=err[:, i])
                 )
+                extents.setdefault(f"/states/{s}", []).append(est[:, i])
+                extents.setdefault(f"/errors/{s}", []).append(err[:, i])
             if out.innovation is not None:
                 for j, o in enumerate(outputs):
                     rec.send_columns(
@@ -126,11 +126,18 @@ def record_estimates(records: EstimateRecords, path: str | Path, *, run: int = 0
                         indexes=[t_post],
                         columns=rr.Scalars.columns(scalars=out.innovation[run, :, j]),
                     )
+                    extents.setdefault(f"/innovations/{o}", []).append(out.innovation[run, :, j])
         span = (float(records.t[0]), float(records.t[-1]))
-        units = _state_units(model, states)
+        units = state_units(model)
         rec.send_blueprint(
             estimate_blueprint(
-                states, outputs, names, span, units, title=f"{sc.name}, run {records.first_run + run}"
+                states,
+                outputs,
+                names,
+                span,
+                units,
+                title=f"{sc.name}, run {records.first_run + run}",
+                y_ranges={k: labelled_range(np.concatenate(v)) for k, v in extents.items()},
             ),
             make_active=True,
             make_default=True,
@@ -139,12 +146,6 @@ def record_estimates(records: EstimateRecords, path: str | Path, *, run: int = 0
     finally:
         rec.disconnect()
     return path
-
-
-def _state_units(model: Model, states: tuple[str, ...]) -> tuple[str, ...]:
-    """A state's unit where it is measured under its own name (the model lists output units only)."""
-    by_output = dict(zip(model.output_names, model.output_units, strict=True))
-    return tuple(by_output.get(s, "") for s in states)
 
 
 def _log_styles(rec: Any, states: tuple[str, ...], outputs: tuple[str, ...], names: list[str]) -> None:
@@ -159,16 +160,60 @@ def _log_styles(rec: Any, states: tuple[str, ...], outputs: tuple[str, ...], nam
             static=True,
         )
         for k, name in enumerate(names):
-            # drawn in name order: the first filter widest, so that a later one does not hide it
-            width = 1.0 + 0.8 * (len(names) - 1 - k)
-            style = rr.SeriesLines(colors=[list(filter_color(name, k))], widths=[width], names=[name])
+            style = _filter_style(rr, name, k, len(names))
             rec.log(f"/states/{s}/{name}", style, static=True)
             rec.log(f"/errors/{s}/{name}", style, static=True)
     for o in outputs:
         for k, name in enumerate(names):
-            width = 1.0 + 0.8 * (len(names) - 1 - k)
-            style = rr.SeriesLines(colors=[list(filter_color(name, k))], widths=[width], names=[name])
-            rec.log(f"/innovations/{o}/{name}", style, static=True)
+            rec.log(f"/innovations/{o}/{name}", _filter_style(rr, name, k, len(names)), static=True)
+
+
+def labelled_range(values: np.ndarray, plot_px: float = 140.0) -> tuple[float, float]:
+    """A y range holding ``values`` whose power-of-ten ticks the viewer labels on a plot ``plot_px`` high
+    (an automatic range of a velocity in cm/s labelled "0" alone): the values' own range (5 % margins)
+    when it holds two such ticks far enough apart, else symmetric ``+-1.1 p`` when the values change sign
+    (:func:`~chatterspec.viewer.chattering_extent.labelled_half_range`), else from 0 to a labelled top
+    (:func:`~chatterspec.viewer.blueprint.labelled_top`)."""
+    from .blueprint import labelled_step, labelled_top
+    from .chattering_extent import labelled_half_range
+
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    lo, hi = (float(v.min()), float(v.max())) if v.size else (-1.0, 1.0)
+    pad = 0.05 * max(hi - lo, 1e-300)
+    tight = (lo - pad, hi + pad)
+    if labelled_step(*tight, plot_px) is not None:
+        return tight  # the data's own range: the viewer labels its ticks
+    if lo >= 0.0 and hi > 0.0:
+        top = labelled_top(1.05 * hi)
+        return (-0.05 * top, top)
+    if hi <= 0.0 and lo < 0.0:
+        bottom = labelled_top(-1.05 * lo)
+        return (-bottom, 0.05 * bottom)
+    r = labelled_half_range(max(abs(lo), abs(hi), 1e-300))
+    return (-r, r)
+
+
+def _width(k: int, n: int) -> float:
+    """Line width of filter ``k`` of ``n``: the first widest (3.5 px down to 1 px), so that a later one
+    drawn over it (the estimates nearly coincide) leaves its edges visible."""
+    return 1.0 + 2.5 * (n - 1 - k) / max(n - 1, 1)
+
+
+def _filter_style(rr: Any, name: str, k: int, n: int) -> Any:
+    """Filter ``k`` of ``n``: its palette colour and :func:`_width`."""
+    return rr.SeriesLines(colors=[list(filter_color(name, k))], widths=[_width(k, n)], names=[name])
+
+
+def _legend(scenario: str, run: int, names: list[str]) -> str:
+    """The recording's legend (a text beside the views, not over the data): the colour of every filter."""
+    by_rgb = {rgb: word for word, rgb in TAB10.items()}
+    n = len(names)
+    parts = [
+        f"{name} {by_rgb.get(filter_color(name, k), f'colour {k}')} ({_width(k, n):.1f} px)"
+        for k, name in enumerate(names)
+    ]
+    return f"Scenario {scenario}, realization {run}. Truth: light grey, thin. Estimates: {', '.join(parts)}."
 
 
 def estimate_blueprint(
@@ -179,11 +224,13 @@ def estimate_blueprint(
     units: tuple[str, ...],
     *,
     title: str = "",
+    y_ranges: dict[str, tuple[float, float]] | None = None,
 ) -> Any:
-    """The layout of an estimate recording: one column per state with the truth and every filter's
-    estimate on shared axes above the estimation errors; below, the innovations per output and the
-    run's description. Every time view shows ``span_s`` (linked time axis); legends sit in a corner
-    out of the data; playback opens paused on the whole record.
+    """The layout of an estimate recording: one row per state with the truth and every filter's
+    estimate on shared axes beside the estimation errors; below, the innovations per output and the
+    run's description with the colours (no legend over the data); at the bottom the true plant's lane,
+    which marks where the fault starts. Every time view shows ``span_s`` (linked time axis); playback
+    opens paused on the whole record.
 
     Parameters
     ----------
@@ -197,6 +244,9 @@ def estimate_blueprint(
         Unit per state ("" where unknown).
     title : str
         Scenario and run, shown in the view titles.
+    y_ranges : dict, optional
+        Per view origin (``/states/<s>``, ``/errors/<s>``, ``/innovations/<o>``) its y range
+        (:func:`labelled_range`: the viewer then labels its ticks); default auto range.
 
     Returns
     -------
@@ -211,26 +261,32 @@ def estimate_blueprint(
 
     def view(origin: str, name: str, legend: Any = hidden) -> Any:
         """A time view of the whole record, on the linked time axis."""
+        rng = (y_ranges or {}).get(origin)
         return rrb.TimeSeriesView(
-            origin=origin, name=name, time_ranges=time_range, axis_x=axis, plot_legend=legend
+            origin=origin,
+            name=name,
+            time_ranges=time_range,
+            axis_x=axis,
+            plot_legend=legend,
+            axis_y=None if rng is None else rrb.ScalarAxis(range=rng),
         )
 
-    legend = rrb.PlotLegend(corner="LeftTop", visible=True)
-    who = ", ".join(filters)
-    columns = []
+    rows = []  # one row per state, each view half the window wide: the time axis labels its ms ticks
     for s, u in zip(states, units, strict=True):
         unit = f" [{u}]" if u else ""
-        columns.append(
-            rrb.Vertical(
-                view(f"/states/{s}", f"{s}{unit}: truth (thin, light) and {who}", legend),
+        rows.append(
+            rrb.Horizontal(
+                view(f"/states/{s}", f"{s}{unit}: truth and estimates"),
                 view(f"/errors/{s}", f"{s} error: truth - estimate{unit}"),
-                row_shares=[1.4, 1.0],
             )
         )
-    bottom = [view(f"/innovations/{o}", f"{o}: innovation z - C x(k|k-1) per filter") for o in outputs]
-    bottom.append(rrb.TextLogView(origin="/info", name=f"estimate {title}"))
+    bottom = [view(f"/innovations/{o}", f"{o}: innovation z - C x(k|k-1)") for o in outputs]
+    bottom.append(rrb.TextDocumentView(origin="/info", name=f"estimate {title}: colours"))
+    lane = rrb.StateTimelineView(
+        origin="/state", name="true plant (the fault's start)", time_ranges=time_range, time_view=axis
+    )
     return rrb.Blueprint(
-        rrb.Vertical(rrb.Horizontal(*columns), rrb.Horizontal(*bottom), row_shares=[4.0, 1.0]),
+        rrb.Vertical(*rows, rrb.Horizontal(*bottom), lane, row_shares=[1.0] * len(rows) + [0.9, 0.5]),
         time_panel(span_s),
         collapse_panels=True,
     )

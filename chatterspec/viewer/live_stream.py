@@ -53,7 +53,7 @@ from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -67,6 +67,9 @@ from ..online.stream_checks import (
 from ..plants.nonlinear import Model
 from .stream_recordings import StreamRecordings, period_bounds
 from .stream_segments import Segment, StreamSegments
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..online.identification_monitor import IdentificationMonitor, IdentificationUpdate
 
 __all__ = ["MAX_EVENTS", "StreamEvent", "StreamMonitor", "StreamSummary", "drive"]
 
@@ -82,8 +85,9 @@ class StreamEvent:
     ----------
     kind : {"fault-start", "fault-end", "gap", "restart"}
     sample_time_s : float or None
-        Data time (s): frame centre for fault events, the resuming sample for a
-        gap, the last sample before a restart (None if there was none).
+        Data time (s): for fault events the alarm time, the last sample of the deciding frame (when the
+        detector knew; the fault state changes here); the resuming sample for a gap, the last sample
+        before a restart (None if there was none).
     wall_time : float
         Unix time (s) when the event was emitted.
     channel : str or None
@@ -93,7 +97,8 @@ class StreamEvent:
     ratio : float or None
         That largest ``S / threshold`` (fault events; > 1 is above threshold).
     estimate_s : float or None
-        Onset / offset estimate (s) of a fault event.
+        Onset / offset estimate (s) of a fault event (window extent: half a hop before the deciding
+        frame's centre), earlier than ``sample_time_s``.
     line : int or None
         Input line where a gap or restart was seen.
     reason : str
@@ -132,7 +137,7 @@ class StreamEvent:
             Unix time (s) of emission.
         """
         return cls(
-            ev.kind, ev.time_s, wall_time, ev.channel, ev.peak_hz, ev.peak_ratio, ev.estimate_s,
+            ev.kind, ev.alarm_time_s, wall_time, ev.channel, ev.peak_hz, ev.peak_ratio, ev.estimate_s,
             rule=ev.rule, false_alarms_per_hour=ev.false_alarms_per_hour, score=ev.score,
         )  # fmt: skip
 
@@ -160,14 +165,16 @@ class StreamEvent:
         return dumps(d)
 
     def describe(self) -> str:
-        """One human line: a fault start/end with its channel, sample time and estimated time (s), peak
-        ratio and frequency (Hz) and the alarm rule; a gap, restart or bad row with its line number and
-        what was reset."""
+        """One human line: a fault start/end with its channel, alarm time (end of the deciding frame) and
+        onset / offset estimate (s), peak ratio and frequency (Hz) and the alarm rule; a gap, restart or
+        bad row with its line number and what was reset."""
         if self.kind in ("fault-start", "fault-end"):
-            what = "fault start" if self.kind == "fault-start" else "fault end"
+            start = self.kind == "fault-start"
             return (
-                f"{what} on {self.channel} at t = {self.sample_time_s:.2f} s (estimated "
-                f"{self.estimate_s:.2f} s) (peak {self.ratio:.2f} x threshold at {self.peak_hz:.1f} Hz) "
+                f"{'fault start' if start else 'fault end'} on {self.channel}: alarm "
+                f"{'raised' if start else 'cleared'} at t = {self.sample_time_s:.2f} s (end of the deciding "
+                f"frame), {'onset' if start else 'offset'} estimated {self.estimate_s:.2f} s "
+                f"(peak {self.ratio:.2f} x threshold at {self.peak_hz:.1f} Hz) "
                 f"[{alarm_label(self.rule or 'frame', self.false_alarms_per_hour)}]"
             )
         at = "" if self.sample_time_s is None else f" at t = {self.sample_time_s:.3f} s"
@@ -268,6 +275,9 @@ class StreamMonitor:
         (the CLI feeds online fault identification with it).
     on_reset : callable, optional
         Called with the new ``t0`` (s) when a gap or restart starts the filters over.
+    identification : IdentificationMonitor, optional
+        The run's identification beside the monitor (fed by ``on_push``), drawn in every recording, whose
+        lanes follow its windows: give each push's update to :meth:`log_identification`.
     """
 
     def __init__(
@@ -284,6 +294,7 @@ class StreamMonitor:
         on_note: Callable[[str], None] | None = None,
         on_push: Callable[[np.ndarray, np.ndarray], None] | None = None,
         on_reset: Callable[[float], None] | None = None,
+        identification: IdentificationMonitor | None = None,
     ) -> None:
         self.on_push = on_push  # e.g. online fault identification, fed the same raw rows
         self.on_reset = on_reset  # called with t0 when a gap or restart starts the filters over
@@ -324,7 +335,13 @@ class StreamMonitor:
             notes=self.notes,
             on_note=self.on_note,
             max_kept=MAX_EVENTS,
+            identification=identification,
         )
+
+    def log_identification(self, upd: IdentificationUpdate) -> None:
+        """Draw one push's fault identification (:class:`~chatterspec.online.identification_monitor.
+        IdentificationUpdate`) in the recordings, after the push's rows."""
+        self._rec.log_identification(upd)
 
     # ------------------------------------------------------------------ input
     def process(self, item: RowBlock | BadRow | Restart) -> None:

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..detection.alarm_rules import rule_spec
 from ..online.monitor import ChatteringMonitor
-from .blueprint import blueprint, layout_geometry, view_px
+from .blueprint import alarm_range, blueprint, layout_geometry, plot_heights, statistic_range, view_px
 from .record_geometry import DB_RANGE
 from .spectrogram_view import key_width
 
@@ -37,7 +37,10 @@ class MonitorLayout:
     extra_lanes, rows_above : int
         Lanes under ``/state`` and rows above the columns that the caller's layout adds.
     peak_view : bool
-        The layout shows the peak-frequency views.
+        The layout shows the peak-frequency views (unless there is an extra row).
+    budget_per_hour : float, optional
+        The budget the rule's threshold was set for when the settings do not carry it (a diagnosis
+        calibrates its routes itself), alarm starts per hour; None: the settings'.
 
     Attributes
     ----------
@@ -56,22 +59,27 @@ class MonitorLayout:
         extra_lanes: int,
         rows_above: int,
         peak_view: bool,
+        budget_per_hour: float | None = None,
     ) -> None:
         self.monitor = monitor
         self.has_truth, self.extra_lanes, self.rows_above = bool(has_truth), int(extra_lanes), int(rows_above)
-        self.extra_row, self.peak_view = extra_row, bool(peak_view)
+        # the peak-frequency views give way to an extra row (the viewer keeps a minimum height per view)
+        self.extra_row, self.peak_view = extra_row, bool(peak_view) and extra_row is None
         m = len(monitor.channels)
         n_lanes = m + self.has_truth + self.extra_lanes
-        self.width = layout_geometry(
+        rows, self.width = layout_geometry(
             m,
             n_lanes,
             alarm=True,
             rows_above=self.rows_above,
             rows_below=1 if extra_row else 0,
             peak=self.peak_view,
-        )[1]
+        )
+        # the plot heights (logical px) of the statistic and alarm views: their ranges keep labelled ticks
+        self.statistic_px, self.alarm_px = plot_heights(rows[self.rows_above], self.peak_view)
         self.key = key_width(self.width, view_px(m))  # the colour key: as wide as a time view's labels
         rule = monitor.rule
+        self.budget_per_hour = budget_per_hour
         self.cusum = rule_spec(rule).accumulates  # the alarm view draws the rule's statistic
         self.h = float(rule.threshold) if np.isfinite(rule.threshold) else np.nan
 
@@ -85,6 +93,7 @@ class MonitorLayout:
         above: list[Any] | None = None,
         lanes_name: str | None = None,
         chattering_range: list[float | None] | None = None,
+        largest: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> Any:
         """The default :func:`~chatterspec.viewer.blueprint.blueprint` of the recording (band, alarm view,
         units, and the geometry given to the constructor).
@@ -105,7 +114,17 @@ class MonitorLayout:
             Title of the lanes view.
         chattering_range : sequence of float, optional
             Per channel the half-height of the chattering view's symmetric y range (output units).
+        largest : (ndarray, ndarray), optional
+            Per channel the record's largest statistic (dB) and alarm-view value: the statistic and alarm
+            views' y ranges hold them (:func:`~chatterspec.viewer.blueprint.statistic_range`,
+            :func:`~chatterspec.viewer.blueprint.alarm_range`); None: the default ranges (a live viewer).
         """
+        m = len(self.monitor.channels)
+        if largest is None:
+            largest = (np.full(m, -np.inf), np.full(m, -np.inf))
+        stat_ranges = [statistic_range(float(x), self.statistic_px) for x in largest[0]]
+        alarm_ranges = [alarm_range(self.h, float(x), self.alarm_px) for x in largest[1]]
+        assert stat_ranges is None or len(stat_ranges) == m
         return blueprint(
             self.monitor.channels,
             has_truth=self.has_truth if has_truth is None else has_truth,
@@ -113,8 +132,9 @@ class MonitorLayout:
             span_s=span_s,
             db_range=DB_RANGE,
             alarm=self.alarm_title(),
-            alarm_score=self.cusum,
-            alarm_range=(0.0, 1.5 * self.h) if self.h > 0 else None,
+            alarm_score=False,  # CUSUM: g and h only (the frame score, up to thousands of nats, hid them)
+            alarm_range=alarm_ranges,
+            statistic_ranges=stat_ranges,
             extra_row=extra_row if extra_row is not None else self.extra_row,
             units=tuple(self.monitor.model.output_units),
             above=above,
@@ -122,14 +142,31 @@ class MonitorLayout:
             lanes_name=lanes_name,
             peak_view=self.peak_view,
             chattering_range=chattering_range,
+            psi=self.monitor.settings.psi is not None,
+            alarm_rule=self.budget_words(),
         )
 
-    def alarm_title(self) -> str:
-        """The alarm view's title: the rule's statistic against its threshold, and the budget."""
-        from ..detection.alarm_rules import alarm_label
-
-        rule, budget = self.monitor.rule, self.monitor.settings.false_alarms_per_hour
+    def alarm_title(self) -> list[str]:
+        """The alarm view's title, longest first (:func:`~chatterspec.viewer.blueprint.fit` picks the one
+        that fits): the rule's statistic against its threshold (nats) and the budget."""
+        rule = self.monitor.rule
         what = rule.view_label()
-        label = alarm_label(rule.name, budget).split(", ", 1)[1]
-        grey = ", grey = score" if self.cusum else ""
-        return f"{what} vs h = {rule.threshold:.3g} [nats] ({label}){grey}"
+        h = f"{rule.threshold:.3g}"
+        return [
+            f"{what} vs h = {h} nats, {self.budget_words(rule=False)}",
+            f"{what} vs h = {h} nats",
+            f"{what}, h = {h}",
+        ]
+
+    def budget_words(self, *, rule: bool = True) -> str:
+        """``"cusum, 1 false alarm/24 h"`` (``rule`` False: the budget only; ``per-frame alpha`` without
+        one)."""
+        budget = self.monitor.settings.false_alarms_per_hour
+        if budget is None:
+            budget = self.budget_per_hour
+        if budget is None:
+            per = "per-frame alpha"
+        else:
+            x = float(budget)
+            per = f"1 false alarm/{1 / x:.3g} h" if x < 1 else f"{x:.3g} false alarms/h"
+        return f"{self.monitor.rule.name}, {per}" if rule else per

@@ -17,7 +17,7 @@ from .blueprint import (
     lane_entity,
 )
 from .column_batches import ColumnBatches
-from .interval_lanes import IntervalCollector, send_intervals
+from .interval_events import IntervalCollector, send_interval_events
 from .monitor_layout import MonitorLayout
 from .record_geometry import to_ns
 from .sinks import Sinks
@@ -29,7 +29,9 @@ if TYPE_CHECKING:  # pragma: no cover
     from rerun import RecordingStream
     from rerun.blueprint import Blueprint
 
+    from ..online.identification_monitor import IdentificationMonitor, IdentificationUpdate
     from .blueprint import ExtraRow
+    from .identification_log import IdentificationLog
 
 __all__ = ["RerunLogger"]
 
@@ -47,9 +49,12 @@ class RerunLogger:
     sample and per frame); the static entities on opening (:mod:`~chatterspec.viewer.static_entities`);
     the spectrogram images (:class:`~chatterspec.viewer.spectrogram_images.SpectrogramImages`: one
     tensor per channel for a file's whole record, logged on :meth:`close`, a scrolling view live); the
-    layout (:class:`~chatterspec.viewer.monitor_layout.MonitorLayout`). The verdict lanes start with
-    ``healthy`` (or the monitor's current state) before the first frame and change exactly at the
-    events. Times follow :func:`to_ns`.
+    layout (:class:`~chatterspec.viewer.monitor_layout.MonitorLayout`). The channels' lanes show one
+    fault state each (:mod:`~chatterspec.viewer.fault_lanes`): ``no evidence`` until the first window is
+    decided, then the run's decision, changing at the alarm times of the events. With an identification
+    monitor the lanes follow its windows (fault, healthy, not excited), and its estimates, parameter
+    lanes and events are drawn below (:mod:`~chatterspec.viewer.identification_log`;
+    :meth:`log_identification`). Times follow :func:`to_ns`.
 
     Parameters
     ----------
@@ -88,9 +93,14 @@ class RerunLogger:
         :meth:`layout` ``above=``): they set the spectrogram image's aspect ratio.
     peak_view : bool
         The layout shows the peak-frequency views (see :func:`~chatterspec.viewer.blueprint.blueprint`).
-    verdict : str
-        Label of a channel lane's flagged state: ``"FAULT"``, or ``"mismatch"`` when the fault decision is
-        taken on the identified parameters (tolerances; their own lanes say fault).
+    budget_per_hour : float, optional
+        The false-alarm budget of the monitor's rule when its settings do not carry it (alarm starts per
+        hour; shown in the titles).
+    identification : IdentificationMonitor, optional
+        The run's identification beside the monitor: its views form the row below the lanes (unless
+        ``extra_row`` is given), its parameters' lanes are added, and the channels' lanes follow its
+        windows' channel states (give each push's update to :meth:`log_identification`). With
+        tolerances the spectral alarms are logged as mismatch, the parameters' alarms as the faults.
     """
 
     def __init__(
@@ -111,7 +121,8 @@ class RerunLogger:
         extra_lanes: int = 0,
         rows_above: int = 0,
         peak_view: bool = True,
-        verdict: str = "FAULT",
+        budget_per_hour: float | None = None,
+        identification: IdentificationMonitor | None = None,
     ) -> None:
         import pyarrow as pa
         import rerun as rr
@@ -127,6 +138,14 @@ class RerunLogger:
         self.lanes = [lane_entity(i, c) for i, c in enumerate(self.channels)]
         self._expected = expected_spectrum(monitor)
         self.span_s = span_s
+        self.identification = identification
+        self._ident_log: IdentificationLog | None = None
+        if identification is not None and sinks.streams:
+            from .identification_log import IdentificationLog, identification_views
+
+            self._ident_log = IdentificationLog(sinks, identification)
+            extra_row = extra_row if extra_row is not None else identification_views(self._ident_log)
+            extra_lanes += len(self._ident_log.parameters)
         # the layout's geometry (the spectrogram image fills its view at 1600x1000) and blueprint
         self._layout = MonitorLayout(
             monitor,
@@ -135,6 +154,7 @@ class RerunLogger:
             extra_lanes=extra_lanes,
             rows_above=rows_above,
             peak_view=peak_view,
+            budget_per_hour=budget_per_hour,
         )
         self.images = SpectrogramImages(
             monitor,
@@ -146,8 +166,7 @@ class RerunLogger:
         )
         self.band_hz, self.hop_s = self.images.band_hz, self.images.hop_s
         self.psi = monitor.settings.psi
-        self._verdict = verdict
-        # a file's lanes: the record's interval estimates, drawn on close (interval_lanes)
+        # a file's interval events: the record's window-extent estimates, sent on close (interval_events)
         self._collector = IntervalCollector(monitor) if sinks.file_stream is not None else None
         # the per-stream batches of everything time-indexed (column_batches)
         self._batches = ColumnBatches(
@@ -165,6 +184,13 @@ class RerunLogger:
             spectrum_dtype=self.spectrum_dtype,
         )
         self.batch_samples, self.batch_frames = self._batches.batch_samples, self._batches.batch_frames
+        if identification is not None:  # the lanes follow the identification windows too (fault_lanes)
+            self._batches.fault_lanes.follow_identification(
+                tolerances=identification.tolerances,
+                parameters=tuple(identification.parameters),
+                carried=identification.carried,
+            )
+            self._batches.spectral_decides = not identification.tolerances
         self._start_s: float | None = None  # start of the record's first STFT window (s)
         # the file's blueprint is sent again on close, with the record's span and amplitudes (the keyword
         # arguments of its layout; None: the caller sends the file's blueprint itself)
@@ -198,7 +224,7 @@ class RerunLogger:
         **options
             The other keyword arguments of :meth:`MonitorLayout.blueprint
             <chatterspec.viewer.monitor_layout.MonitorLayout.blueprint>` (``has_truth``, ``extra_row``,
-            ``above``, ``lanes_name``, ``chattering_range``), which documents them.
+            ``above``, ``lanes_name``, ``chattering_range``, ``largest``), which documents them.
 
         Returns
         -------
@@ -214,13 +240,13 @@ class RerunLogger:
             channels=self.channels,
             keys=self.keys,
             lanes=self.lanes,
+            lane_configs=[self._batches.fault_lanes.configuration(i) for i in range(len(self.lanes))],
             expected=self._expected,
             band_hz=self.band_hz,
             hop_s=self.hop_s,
             width=self._layout.width,
             key=self._layout.key,
             cusum=self._layout.cusum,
-            verdict=self._verdict,
         )
         if truth:
             self._batches.origin_ns = int(to_ns(truth[0][0]))
@@ -242,13 +268,37 @@ class RerunLogger:
         if fr.n_frames and self.sinks.live_stream is not None:
             self.images.live(self.sinks.live_stream, fr)
 
+    def log_identification(self, upd: IdentificationUpdate) -> None:
+        """Log one push's identification (its estimates, parameter lanes and events) and move the channels'
+        lanes to its windows' states (a live viewer at once, a file with its next batch).
+
+        Parameters
+        ----------
+        upd : IdentificationUpdate
+            What the ``identification`` monitor given to the constructor made of the same push.
+        """
+        if self.identification is None:
+            raise ParameterError("log_identification needs the logger's identification monitor")
+        if self._ident_log is not None:
+            self._ident_log.log(upd)
+        self._batches.follow_identification(upd)
+
+    def log_identification_intervals(self, docs: list[dict[str, Any]]) -> None:
+        """Rows of the event log for ``detect --json``'s ``identification_intervals`` (the record's
+        identification per fault interval; :meth:`~chatterspec.viewer.identification_log.IdentificationLog.
+        log_intervals`); nothing without an identification monitor."""
+        if self._ident_log is not None:
+            self._ident_log.log_intervals(docs)
+
     def flush(self) -> None:
         """Send everything buffered (bulk ``send_columns``)."""
         self._batches.flush()
 
     def close(self) -> None:
         """Send what is buffered, the file's spectrogram (the whole record, or its last block) and the
-        file's lanes: the record's fault intervals (:mod:`chatterspec.viewer.interval_lanes`)."""
+        file's interval events: the record's fault interval estimates
+        (:mod:`chatterspec.viewer.interval_events`)."""
+        self._batches.finish()
         self.flush()
         if self.sinks.file_stream is not None:  # its last block, padded: the record's span
             self.images.close_file(self.sinks.file_stream)
@@ -265,24 +315,26 @@ class RerunLogger:
         span = self.span_s if self.span_s is not None else self.images.covered_span()
         # no frame yet (a record shorter than one window): the layout without span and ranges
         ranges = None if span is None else self._batches.extent.ranges(self.psi)
-        bp = self.layout(span_s=span, chattering_range=ranges, **self.file_layout)
+        largest = None if span is None else (self._batches.largest_db, self._batches.largest_alarm)
+        bp = self.layout(span_s=span, chattering_range=ranges, largest=largest, **self.file_layout)
         self.send_file_blueprint(file, bp)
 
     def _send_intervals(self) -> None:
-        """The file's verdict lanes and interval events: the window-extent onset/offset estimates of the
-        record's flagged frames, as ``detect --json`` and Fig 8 report them."""
+        """The file's interval events: the window-extent onset/offset estimates of the record's flagged
+        frames, as ``detect --json`` and Fig 8 report them, and the spectrogram's annotations
+        (:meth:`~chatterspec.viewer.spectrogram_images.SpectrogramImages.annotate_file`)."""
         file = self.sinks.file_stream
         if file is None or self._collector is None or self._start_s is None:
             return
-        send_intervals(file, self._collector.intervals(), self.lanes, self.channels, self._start_s)
-        self.images.mark_outside_band(file, self._collector)
+        send_interval_events(file, self._collector.intervals(), self.channels)
+        self.images.annotate_file(file, self._collector)
 
     def log_event(self, ev: DetectionEvent) -> None:
-        """Log one detection event at once (text log, and the lane of a live viewer) to every stream.
+        """Log one detection event at once (the event log) to every stream.
 
         Parameters
         ----------
         ev : DetectionEvent
-            The event (logged at the end of its frame, converted by :func:`to_ns`).
+            The event (logged at its alarm time, converted by :func:`to_ns`).
         """
         self._batches.send_event(ev)

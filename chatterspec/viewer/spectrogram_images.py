@@ -17,13 +17,13 @@ from ..errors import ParameterError
 from ..online.monitor import ChatteringMonitor
 from ..palette import FAULT
 from .record_geometry import DB_RANGE, default_band_hz, pad_columns, to_ns
-from .spectrogram_view import log_image
+from .spectrogram_view import _nice_ticks, log_image
 
 if TYPE_CHECKING:  # pragma: no cover
     from rerun import RecordingStream
 
     from ..online.monitor_types import FrameBlock
-    from .interval_lanes import IntervalCollector
+    from .interval_events import IntervalCollector
 
 __all__ = ["SpectrogramImages"]
 
@@ -84,6 +84,7 @@ class SpectrogramImages:
         self._file_block_start: int | None = None
         self._file_t: tuple[float, float] = (0.0, 0.0)  # (set when the file's first block opens)
         self._cols_span: tuple[float, float] | None = None  # centres (s) of the file's first / last column
+        self._file_max_db = np.full(m, -np.inf)  # the file's brightest pixel per channel (dB)
 
     def covered_span(self) -> tuple[float, float] | None:
         """The time span (s) the file's spectrogram covers so far: from the left edge of its first column
@@ -147,6 +148,7 @@ class SpectrogramImages:
         db *= 10.0
         db -= self._band_thr_db.T[:, None, :]
         np.clip(db, DB_RANGE[0], DB_RANGE[1], out=db)
+        np.maximum(self._file_max_db, db.max(axis=(1, 2)), out=self._file_max_db)
         db = db.astype(np.float16)
         lo = 0
         while lo < db.shape[1]:
@@ -184,29 +186,62 @@ class SpectrogramImages:
         for i, c in enumerate(self.keys):  # (band, frames): freq rows, time columns
             log_image(file, f"/spectrogram/{c}", ns, block[i].T, self.width, DB_RANGE)
 
-    def mark_outside_band(self, file: RecordingStream, collector: IntervalCollector) -> None:
-        """Flagged frames whose peak frequency lies outside the spectrogram's band get a labelled mark at
-        the image's top (above the band) or bottom edge, so that a fault verdict always has a visible
-        cause; one mark per run of such frames (a record that fits one spectrogram block)."""
+    def annotate_file(self, file: RecordingStream, collector: IntervalCollector) -> None:
+        """Annotate a file's spectrogram (a record that fits one block) so that nothing is dark without a
+        word: flagged frames whose peak frequency lies outside the band, or in its lowest or highest 4 %
+        (a thin line at the image's edge), get a labelled mark at the top or bottom edge (one per run of
+        such frames); a channel with no flagged frame and no bin of the band at its threshold gets a
+        sentence saying so (its image is dark); and the image gets
+        time labels along its bottom (s, the time views' times)."""
         import rerun as rr
 
         times, flags, hz = collector.frames()
-        if not times.size or self.n_blocks > 1:
+        span = self.covered_span()
+        if not times.size or self.n_blocks > 1 or span is None:
             return
         lo, hi = self.band_hz
+        edge = 0.04 * (hi - lo)
         cols = times.size + 2 * self._pad
+        ticks = [t for t in _nice_ticks(*span) if 0.1 < (t - span[0]) / (span[1] - span[0]) < 0.97]
         for i, c in enumerate(self.keys):
-            out = flags[:, i] & ((hz[:, i] > hi) | (hz[:, i] < lo))
+            x_t = [(t - span[0]) / (span[1] - span[0]) * self.width for t in ticks]
+            file.log(
+                f"/spectrogram/{c}/time_ticks",
+                rr.Points2D(
+                    [[x, 0.85] for x in x_t], labels=[f"{t:g} s" for t in ticks], radii=0.004,
+                    colors=[[220, 220, 220]], show_labels=True,
+                ),
+                static=True,
+            )  # fmt: skip
+            if self._file_max_db[i] < 0.0 and not flags[:, i].any():  # nothing flagged: why it is dark
+                file.log(
+                    f"/spectrogram/{c}/note",
+                    rr.Points2D(
+                        [[0.5 * self.width, 0.45]],
+                        labels=["no bin over its threshold in this record (dark: below it)"],
+                        radii=0.001, colors=[[160, 160, 160]], show_labels=True,
+                    ),
+                    static=True,
+                )  # fmt: skip
+            out = flags[:, i] & ((hz[:, i] > hi - edge) | (hz[:, i] < lo + edge))
             if not out.any():
                 continue
             pts, labels = [], []
             padded = np.concatenate(([False], out, [False]))
             edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
+            last_x = {True: -np.inf, False: -np.inf}  # per edge, the last labelled mark
             for a, b in zip(edges[::2], edges[1::2], strict=True):
                 f = float(np.median(hz[a:b, i]))
                 x = (self._pad + (a + b) / 2.0) * self.width / cols
-                pts.append([x, 0.07 if f > hi else 0.93])  # y grows downwards: 0 = the band's top
-                labels.append(f"{'^' if f > hi else 'v'} {f:.0f} Hz (outside the band)")
+                top = f > 0.5 * (lo + hi)
+                pts.append([x, 0.07 if top else 0.72])  # y grows downwards: 0 = the band's top
+                where = "outside the band" if (f > hi or f < lo) else "band edge"
+                # a label only where it does not run into the one before it on the same edge (~a third
+                # of the image): the other runs get the mark alone
+                far = x - last_x[top] > 0.35 * self.width
+                labels.append(f"{'^' if top else 'v'} {f:.1f} Hz ({where})" if far else "")
+                if far:
+                    last_x[top] = x
             file.log(
                 f"/spectrogram/{c}/outside",
                 rr.Points2D(pts, labels=labels, colors=[list(FAULT)], radii=0.02, show_labels=True),

@@ -152,12 +152,14 @@ def log_axes(
         rr.DepthImage(key_image, meter=1.0, colormap="magma", depth_range=list(db_range)),
         static=True,
     )
-    mid = 0.5 * (db_range[0] + db_range[1])
+    mid = round(0.5 * (db_range[0] + db_range[1]))
+    # short labels (dB in the view's title): centred in the key, they stay inside the view and clear of
+    # the frequency labels right of the key
     stream.log(
         f"{path}/key_ticks",
         rr.Points2D(
             [[-0.55 * kw, y] for y in (0.06, 0.5, 0.94)],
-            labels=[f"{db_range[1]:g} dB", f"{mid:g}", f"{db_range[0]:g}"],
+            labels=[f"{db_range[1]:g}", f"{mid:g}", f"{db_range[0]:g}"],
             radii=0.001,
             colors=[[220, 220, 220]],
             show_labels=True,

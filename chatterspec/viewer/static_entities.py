@@ -7,17 +7,19 @@ Logged once per stream by :class:`~chatterspec.viewer.rerun_log.RerunLogger` whe
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..detection.spectral import expected_frame_spectrum
 from ..online.monitor import ChatteringMonitor
-from ..palette import FAULT, HEALTHY, rgba32
 from ..plants.nonlinear import is_linear
 from .blueprint import series_styles
 from .record_geometry import DB_RANGE
 from .spectrogram_view import log_axes
+
+if TYPE_CHECKING:  # pragma: no cover
+    from rerun import StateConfiguration
 
 __all__ = ["expected_spectrum", "log_static"]
 
@@ -39,13 +41,13 @@ def log_static(
     channels: Sequence[str],
     keys: Sequence[str],
     lanes: list[str],
+    lane_configs: list[StateConfiguration],
     expected: np.ndarray,
     band_hz: tuple[float, float],
     hop_s: float,
     width: float,
     key: float,
     cusum: bool,
-    verdict: str = "FAULT",
 ) -> None:
     """Log the static entities of a monitor recording to every stream of ``streams``.
 
@@ -55,7 +57,10 @@ def log_static(
     monitor : ChatteringMonitor
         Gives frequencies (Hz), threshold, units and the boundary layer.
     channels, keys, lanes : list of str
-        Per channel: name, entity key and verdict lane entity.
+        Per channel: name, entity key and fault-state lane entity.
+    lane_configs : list of rerun.StateConfiguration
+        Per channel: the lane's states and labels (:meth:`~chatterspec.viewer.fault_lanes.FaultLanes.
+        configuration`).
     expected : ndarray, shape (bins, m)
         Expected frame spectrum, logged as ``/expected/<c>``.
     band_hz : (float, float)
@@ -67,9 +72,6 @@ def log_static(
         :func:`~chatterspec.viewer.spectrogram_view.log_axes`).
     cusum : bool
         The alarm rule is CUSUM (its view draws g; else the score).
-    verdict : str
-        The label of a lane's flagged state (``"FAULT"``; ``"mismatch"`` when the decision is taken on
-        the identified parameters, whose lanes say fault).
     """
     import rerun as rr
 
@@ -92,17 +94,9 @@ def log_static(
     for s in streams:
         for path, style in styles:
             s.log(path, style, static=True)
-        for i, (name, c) in enumerate(zip(channels, keys, strict=True)):
+        for i, c in enumerate(keys):
             log_axes(s, f"/spectrogram/{c}", band_hz, df, DB_RANGE, width, key)
             s.log(f"/threshold/{c}", rr.Tensor(thr.values[:, i], dim_names=["freq"]), static=True)
             s.log(f"/expected/{c}", rr.Tensor(expected[:, i], dim_names=["freq"]), static=True)
-            s.log(
-                lanes[i],
-                rr.StateConfiguration(
-                    values=["healthy", "fault"],
-                    labels=[f"{name}: healthy", f"{name}: {verdict}"],
-                    colors=np.array([rgba32(HEALTHY), rgba32(FAULT)], dtype=np.uint32),
-                ),
-                static=True,
-            )
+            s.log(lanes[i], lane_configs[i], static=True)
         s.log("/frequencies", note, static=True)

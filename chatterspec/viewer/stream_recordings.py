@@ -24,6 +24,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from rerun import RecordingStream
     from rerun.blueprint import Blueprint
 
+    from ..online.identification_monitor import IdentificationMonitor, IdentificationUpdate
     from .live_stream import StreamEvent
     from .sinks import Sinks
 
@@ -55,6 +56,9 @@ class StreamRecordings:
         Called with human-readable notes (recordings closed).
     max_kept : int
         Recordings kept for the summary (older ones are counted).
+    identification : IdentificationMonitor, optional
+        The run's identification beside the monitor: every recording draws it and its lanes follow its
+        windows (:meth:`log_identification`, :mod:`~chatterspec.viewer.identification_log`).
     """
 
     def __init__(
@@ -68,8 +72,11 @@ class StreamRecordings:
         notes: list[str],
         on_note: Callable[[str], None] | None,
         max_kept: int,
+        identification: IdentificationMonitor | None = None,
     ) -> None:
         self._proto = proto
+        self.identification = identification
+        self._identified: list[IdentificationUpdate] = []  # windows of this push, logged after its rows
         self.record, self.record_every, self.live = record, record_every, live
         self.recording_name = recording_name
         self.notes, self.on_note = notes, on_note
@@ -102,7 +109,7 @@ class StreamRecordings:
     def _logger(self, sinks: Sinks) -> Any:
         from .rerun_log import RerunLogger
 
-        return RerunLogger(sinks, self._proto) if sinks.streams else None
+        return RerunLogger(sinks, self._proto, identification=self.identification) if sinks.streams else None
 
     def _open_live(self) -> None:
         from .sinks import default_recording_path, open_sinks
@@ -143,7 +150,7 @@ class StreamRecordings:
         sinks = open_sinks(record=tmp, recording_name=self.recording_name)
         from .rerun_log import RerunLogger
 
-        logger = RerunLogger(sinks, self._proto, send_blueprint=False)
+        logger = RerunLogger(sinks, self._proto, send_blueprint=False, identification=self.identification)
         for st in sinks.streams:
             _send_blueprint_released(st, logger.layout(span_s=None))
         # on close: paused on the file's whole record, sent without leaking either
@@ -218,6 +225,8 @@ class StreamRecordings:
         if rotating and self.file_logger is None:
             self.open_file(t_first)
         self.log(upd)
+        # the push's identification after its first rows (a window rotated past goes to the older file)
+        self.send_identification()
         if self.record_every is not None:  # (rotating)
             self.file_rows += n
             if self.file_rows >= self.record_every:
@@ -225,19 +234,33 @@ class StreamRecordings:
                 self.close_file(t_after, wait=False)
                 self.rotation_max_s = max(self.rotation_max_s, time.perf_counter() - t_rot)
 
+    def log_identification(self, upd: IdentificationUpdate) -> None:
+        """Keep one push's identification (:class:`~chatterspec.online.identification_monitor.
+        IdentificationUpdate`, made before its rows are logged: the verdicts go out first) until
+        :meth:`send_identification`."""
+        self._identified.append(upd)
+
+    def send_identification(self) -> None:
+        """Log the kept identification to every open recording, after rows of its push (:meth:`log_rows`;
+        a file's lanes start with its record: windows decided before a rotated file's start are not
+        drawn there)."""
+        kept, self._identified = self._identified, []
+        loggers = [*self._loggers, *([self.file_logger] if self.file_logger is not None else [])]
+        for upd in kept:
+            for logger in loggers:
+                logger.log_identification(upd)
+
     def log_text(self, ev: StreamEvent) -> None:
         """Log a gap or restart event to the open streams' event log at its sample time."""
         sinks = [x for x in (self._live_sinks, self._file_sinks) if x is not None]
         streams = [s for x in sinks for s in x.streams]
         if not streams or ev.sample_time_s is None:
             return
-        import rerun as rr
-
-        from .sinks import TIMELINE
+        from .alarm_events import EVENTS, log_text_rows
 
         for s in streams:
-            s.set_time(TIMELINE, duration=float(ev.sample_time_s))
-            s.log("/events", rr.TextLog(f"{ev.kind}: {ev.describe()}", level="WARN"))
+            text = f"{ev.sample_time_s:.2f} s {ev.kind}: {ev.describe()}"
+            log_text_rows(s, EVENTS, [ev.sample_time_s], [text], ["WARN"])
 
     # ------------------------------------------------------------------ end
     def discard_spare(self) -> None:

@@ -1,12 +1,11 @@
-"""The fault intervals of a recorded file: one onset/offset estimate for lanes, events, Fig 8 and JSON.
+"""The fault intervals of a recorded file: the window-extent onset/offset estimates of its flagged frames,
+the numbers of ``detect --json``'s ``intervals`` and Fig 8, logged as events at their onsets.
 
-A file recording (``detect --record``, ``demo``, ``diagnose --record``) is drawn after the fact, so its
-verdict lanes show the same interval estimates as ``detect --json`` and Fig 8: the window-extent
-estimator of :func:`chatterspec.detection.frames.frame_intervals` applied to the per-frame flags and
+The estimator is :func:`chatterspec.detection.frames.frame_intervals` applied to the per-frame flags and
 statistic ``max S / threshold`` of each channel, with the healthy median
-:func:`chatterspec.detection.frames.healthy_frame_level` of the frame threshold. A live viewer instead
-sees each alarm when the detector knew it (the end of the deciding frame), see
-:class:`~chatterspec.viewer.rerun_log.RerunLogger`.
+:func:`chatterspec.detection.frames.healthy_frame_level` of the frame threshold. They annotate the
+channel's fault state; the state itself (the lanes) is the alarm layer's
+(:mod:`chatterspec.viewer.fault_lanes`).
 """
 
 from __future__ import annotations
@@ -22,7 +21,19 @@ from ..detection.frames import frame_intervals, healthy_frame_level
 if TYPE_CHECKING:  # pragma: no cover
     from rerun import RecordingStream
 
-__all__ = ["FaultInterval", "IntervalCollector", "lane_changes", "send_intervals"]
+__all__ = ["FaultInterval", "IntervalCollector", "interval_text", "send_interval_events"]
+
+
+def interval_text(onset_s: float, offset_s: float) -> str:
+    """``"0.00-2.00 s"``, or ``"2.60 s"`` for an interval of zero length at two decimals.
+
+    Parameters
+    ----------
+    onset_s, offset_s : float
+        The interval (s).
+    """
+    on, off = f"{onset_s:.2f}", f"{offset_s:.2f}"
+    return f"{on} s" if on == off else f"{on}-{off} s"
 
 
 @dataclass(frozen=True)
@@ -55,11 +66,12 @@ class FaultInterval:
     excess_db: float = float("nan")
 
     def describe(self, channel: str) -> str:
-        """``"<channel> <two bins>: fault <onset>-<offset> s (estimate)"``: channel and bins first (the
-        viewer's log view cuts long lines), both bins labelled (:func:`~chatterspec.detection.bin_labels.
-        two_bins_text`)."""
+        """``"<onset>-<offset> s <channel> flagged frames (estimate), <two bins>"`` (``<onset> s`` for an
+        estimate of zero length): times and channel first
+        (the viewer's log view cuts long lines), both bins labelled (:func:`~chatterspec.detection.
+        bin_labels.two_bins_text`)."""
         bins = two_bins_text(self.peak_hz, self.peak_db, self.excess_hz, self.excess_db)
-        return f"{channel} {bins}: fault {self.onset_s:.2f}-{self.offset_s:.2f} s (estimate)"
+        return f"{interval_text(self.onset_s, self.offset_s)} {channel} flagged frames (estimate), {bins}"
 
 
 @dataclass
@@ -143,73 +155,23 @@ def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
-def lane_changes(
-    intervals: list[FaultInterval], channel: int, start_s: float
-) -> tuple[list[float], list[str]]:
-    """The state changes that draw ``channel``'s intervals on its lane: ``healthy`` at ``start_s`` (the
-    record's first window start) unless a fault starts there, ``fault`` at each onset and ``healthy`` at
-    each offset; zero-length intervals are not drawn (two changes at one time have no order in the viewer).
-
-    Parameters
-    ----------
-    intervals : list of FaultInterval
-    channel : int
-    start_s : float
-        Start of the record's first STFT window (s).
-
-    Returns
-    -------
-    (times_s, states)
-    """
-    times: list[float] = []
-    states: list[str] = []
-    mine = [iv for iv in intervals if iv.channel_index == channel and iv.offset_s > iv.onset_s]
-    if not mine or mine[0].onset_s > start_s + 5e-10:
-        times.append(start_s)
-        states.append("healthy")
-    for iv in mine:
-        times += [iv.onset_s, iv.offset_s]
-        states += ["fault", "healthy"]
-    return times, states
-
-
-def send_intervals(
-    file: RecordingStream,
-    intervals: list[FaultInterval],
-    lanes: list[str],
-    channels: tuple[str, ...],
-    start_s: float,
+def send_interval_events(
+    file: RecordingStream, intervals: list[FaultInterval], channels: tuple[str, ...]
 ) -> None:
-    """Send a file's verdict lanes (:func:`lane_changes`) and one interval event per interval at its
-    onset (:meth:`FaultInterval.describe`: both bins named), in time order.
+    """Log one event per fault interval of a file at its onset estimate (:meth:`FaultInterval.describe`:
+    both bins named), in time order: the window-extent estimates of ``detect --json``'s ``intervals``,
+    which annotate the lanes' alarm episodes (the lanes show the alarm state,
+    :mod:`~chatterspec.viewer.fault_lanes`).
 
     Parameters
     ----------
     file : rerun.RecordingStream
     intervals : list of FaultInterval
         :meth:`IntervalCollector.intervals`.
-    lanes : list of str
-        The channels' lane entities (:func:`~chatterspec.viewer.blueprint.lane_entity`).
     channels : tuple of str
-    start_s : float
-        Start of the record's first STFT window (s).
     """
-    import pyarrow as pa
-    import rerun as rr
+    from .alarm_events import EVENTS, INFO_LEVEL, log_text_rows
 
-    from .arrow_columns import _TimeIndex
-    from .record_geometry import to_ns
-
-    for i, lane in enumerate(lanes):
-        times, states = lane_changes(intervals, i, start_s)
-        file.send_columns(
-            lane, indexes=[_TimeIndex(pa, to_ns(times))], columns=rr.StateChange.columns(state=states)
-        )
-    if intervals:
-        order = sorted(intervals, key=lambda iv: iv.onset_s)
-        text = [iv.describe(channels[iv.channel_index]) for iv in order]
-        file.send_columns(
-            "/events",
-            indexes=[_TimeIndex(pa, to_ns([iv.onset_s for iv in order]))],
-            columns=rr.TextLog.columns(text=text, level=["ERROR"] * len(text)),
-        )
+    order = sorted(intervals, key=lambda iv: iv.onset_s)
+    text = [iv.describe(channels[iv.channel_index]) for iv in order]
+    log_text_rows(file, EVENTS, [iv.onset_s for iv in order], text, [INFO_LEVEL] * len(text))
