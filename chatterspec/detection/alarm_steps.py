@@ -156,7 +156,7 @@ def _rule_loop(
     starts: np.ndarray,
     ends: np.ndarray,
 ) -> None:  # pragma: no cover - compiled (a template: see _rule_kernel)
-    """A rule's ``kernel``: its channel step ``CHANNEL`` (bound by :func:`_rule_kernel`) per stream, channel."""
+    """A rule's ``kernel``: its channel step ``CHANNEL`` (bound by :func:`_rule_kernel`) on each stream."""
     R, C = s.shape[0], s.shape[2]
     step0 = pos[0]
     for r in range(R):
