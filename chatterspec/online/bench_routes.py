@@ -102,6 +102,7 @@ class AlarmCounter(Protocol):
     starts: int  #: alarm starts (every channel together)
     frames: int  #: frames (identification windows) decided
     active: int  #: of them, frames with an alarm active on some channel
+    blind: int  #: of them, frames where a declared parameter is not excited (parameter decisions only)
 
     def push(self, z: np.ndarray, u: np.ndarray) -> None:
         """Monitor one block ``z (K, m)``, ``u (K, p)``."""
@@ -214,7 +215,7 @@ class _SpectralCounter:
         from .monitor import ChatteringMonitor
 
         self.monitor = ChatteringMonitor(model, settings)
-        self.starts = self.frames = self.active = 0
+        self.starts = self.frames = self.active = self.blind = 0
 
     def push(self, z: np.ndarray, u: np.ndarray) -> None:
         upd = self.monitor.push(z, u)
@@ -296,13 +297,15 @@ class _ParameterCounter:
         from .identification_monitor import IdentificationMonitor
 
         self.monitor = IdentificationMonitor(setup, settings)
-        self.starts = self.frames = self.active = 0
+        self.starts = self.frames = self.active = self.blind = 0
 
     def push(self, z: np.ndarray, u: np.ndarray) -> None:
         upd = self.monitor.push(z, u)
         self.starts += sum(e.kind == "fault-start" for e in upd.events)
         self.frames += upd.block.n_windows
         self.active += int(np.count_nonzero(upd.block.alarm.any(axis=-1)))
+        # a window in which some channel's carried parameter is not excited: the decision is blind there
+        self.blind += int(np.count_nonzero(np.asarray(upd.not_excited).any(axis=-1)))
 
 
 # --------------------------------------------------------------------------- routes

@@ -10,9 +10,9 @@ from it:
   from the model's parameter map (:meth:`chatterspec.plants.parameters.ParameterMap.model_with`);
 * **noise level**: the sensor noise ``x0.5`` and ``x2`` the model's ``R``;
 * **sensor**: AR(1) coloured noise (rho 0.5, 0.9), Student-t noise (nu 4), a 12-bit ADC over
-  position +-0.1 m, velocity +-1 m/s, pressure +-2e7 Pa (+-200 bar), 50 Hz mains hum of half the
-  noise standard deviation per channel, a bias drift (Gauss-Markov, twice the noise standard
-  deviation, correlation time 600 s), sampling jitter of 10 us (1 % of dt)
+  position +-0.1 m, velocity +-1 m/s, pressure +-2e7 Pa (+-200 bar) and the same at 16 bits, 50 Hz
+  mains hum of half the noise standard deviation per channel, a bias drift (Gauss-Markov, twice the
+  noise standard deviation, correlation time 600 s), sampling jitter of 10 us (1 % of dt)
   (:mod:`chatterspec.plants.imperfections`);
 * **nonlinear**: the 4-state EHA (:mod:`chatterspec.plants.eha4`), its position, velocity and
   pressure measured with the model's noise, under the SMM paper's input (94.25 sin(pi t) rad/s: the
@@ -116,6 +116,9 @@ __all__ = [
 
 #: The nonlinear plant's measured states (position, velocity, pressure), as the linear model's outputs.
 EHA4_CHANNELS = (0, 1, 3)
+#: The ADC cases' sensor ranges ``(low, high)`` per channel: +-0.1 m, +-1 m/s, +-2e7 Pa (+-200 bar).
+ADC_RANGE = (np.array([-0.1, -1.0, -2e7]), np.array([0.1, 1.0, 2e7]))
+
 #: Largest fraction of healthy frames in alarm for a budget to hold (1/day of a few frames each is ~1e-5).
 STANDING_ALARM = 0.01
 
@@ -320,9 +323,15 @@ def bench_cases() -> tuple[BenchCase, ...]:
             "adc12",
             "sensor",
             "12-bit ADC (+-0.1 m, +-1 m/s, +-2e7 Pa)",
-            lambda m: SensorChain(
-                (WhiteNoise(m.R), Quantization(12, np.array([-0.1, -1.0, -2e7]), np.array([0.1, 1.0, 2e7])))
-            ),
+            lambda m: SensorChain((WhiteNoise(m.R), Quantization(12, *ADC_RANGE))),
+        ),
+        # the same ranges at 16 bits: the pressure step (610 Pa) below the noise's standard deviation
+        # (1 kPa), which then dithers it (at 12 bits the 9.8 kPa step is almost 10 of them)
+        BenchCase(
+            "adc16",
+            "sensor",
+            "16-bit ADC (same ranges)",
+            lambda m: SensorChain((WhiteNoise(m.R), Quantization(16, *ADC_RANGE))),
         ),
         BenchCase(
             "hum50",
@@ -479,6 +488,9 @@ class RouteOutcome:
         What the route's preparation found (e.g. the commissioned estimates).
     planned_hours : float
         Healthy hours the case's stream holds.
+    blind_fraction : float
+        Fraction of the healthy frames in which a declared parameter is not excited (a parameter
+        decision is blind there: no false alarm, and no detection either); 0 for the spectrum.
     """
 
     route: str
@@ -493,6 +505,7 @@ class RouteOutcome:
     alarm_fraction: float = 0.0
     details: Mapping[str, Any] = field(default_factory=dict)
     planned_hours: float = 0.0
+    blind_fraction: float = 0.0
 
     @property
     def holds(self) -> bool:
@@ -518,6 +531,7 @@ class RouteOutcome:
             "rate_interval_99": list(self.rate_interval),
             "holds": self.holds,
             "alarm_fraction": self.alarm_fraction,
+            "not_excited_fraction": self.blind_fraction,
             "threshold": finite_or_none(self.threshold),
             "faults": [f.to_dict() for f in self.faults],
             "note": self.note,
@@ -613,6 +627,8 @@ def bench_table(doc: Mapping[str, Any]) -> str:
             fa = f"{r['rate_per_hour']:.3g} [{lo:.2g}, {hi:.3g}] ({r['starts']} in {span})"
             frac = r.get("alarm_fraction", 0.0)
             fa += f", in alarm {100 * frac:.3g} % of the time" if frac > 1e-3 else ""
+            blind = r.get("not_excited_fraction", 0.0)
+            fa += f", not excited {100 * blind:.3g} % of the time" if blind >= 0.01 else ""
             fa += "" if r["holds"] else " **not held**"
             cells = []
             for f in r["faults"]:
@@ -796,6 +812,7 @@ def _run_case(
                 c.active / max(1, c.frames),
                 dict(runs[j].details),
                 hours,
+                c.blind / max(1, c.frames),
             )
         )
     return CaseOutcome(case.name, case.group, case.description, tuple(rows)), time.process_time() - t_case
