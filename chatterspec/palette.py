@@ -11,6 +11,8 @@ rerun.
 
 from __future__ import annotations
 
+from .filter_registry import ENTRIES
+
 __all__ = [
     "CHANNEL_COLORS",
     "FAULT",
@@ -62,14 +64,11 @@ CHANNEL_COLORS: tuple[RGB, ...] = tuple(
     TAB10[n] for n in ("blue", "orange", "green", "purple", "brown", "pink", "olive", "cyan")
 )
 
-#: Estimators and diagnosis methods by name (the KF and EKF share a colour: one runs per plant).
+#: Diagnosis methods by name; an estimator's colour is its registry entry's
+#: (:attr:`chatterspec.filter_registry.FilterEntry.color`; the KF and EKF share one: one runs per plant).
 FILTER_COLORS: dict[str, RGB] = {
     name: TAB10[tab]
     for name, tab in (
-        ("kf", "blue"),
-        ("ekf", "blue"),
-        ("svsf", "orange"),
-        ("svsf2", "green"),
         ("smm", "purple"),
         ("imm", "cyan"),
         ("chattering", "orange"),
@@ -99,6 +98,9 @@ def channel_color(index: int) -> RGB:
 
 def filter_color(name: str, index: int = 0) -> RGB:
     """Colour of estimator / method ``name``; an unknown name gets channel colour ``index``."""
+    entry = ENTRIES.get(name.lower())
+    if entry is not None and entry.color is not None:
+        return TAB10[entry.color]
     return FILTER_COLORS.get(name.lower(), channel_color(index))
 
 

@@ -237,7 +237,7 @@ def _run(capsys, *argv: str) -> tuple[int, str, str]:
         (["--false-alarms-per-hour", "lots"], "--false-alarms-per-hour must be a number"),
         (
             ["--rule", "persistence", "--persistence-k", "6", "--persistence-n", "5"],
-            "--persistence-k must be <=",
+            "--persistence-k, --persistence-n: persistence k must be <= n",
         ),
         (["--rule", "persistence", "--persistence-k", "0"], "--persistence-k must be an integer >= 1"),
         (["--persistence-k", "2"], "apply to --rule persistence"),

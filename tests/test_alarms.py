@@ -19,6 +19,7 @@ from chatterspec.detection.alarms import (
     make_rule,
     rule_from_dict,
     rule_names,
+    rule_spec,
     run_rule,
 )
 from chatterspec.errors import NonFiniteError, ParameterError, ShapeError
@@ -81,14 +82,11 @@ def test_numpy_and_compiled_paths_give_the_same_bits(rule, monkeypatch):
     R, K, C = small.shape
     out = [np.empty((R, K, C), dtype=bool), np.empty((R, K, C)), np.empty((R, K, C), dtype=bool),
            np.empty((R, K, C), dtype=bool)]  # fmt: skip
-    n = getattr(rule, "n", 1)
-    kern = getattr(alarms._alarm_kernel, "py_func", alarms._alarm_kernel)
+    steps = rule_spec(rule).load_steps()
+    kern = _jit.python_form(steps.kernel)
     kern(
-        {"frame": 0, "persistence": 1, "cusum": 2}[rule.name], small, rule.threshold,
-        getattr(rule, "drift", 0.0),
-        getattr(rule, "k", 1), n, np.zeros((R, C), dtype=bool), np.zeros((R, C)),
-        np.zeros((R, C), dtype=np.int64),
-        np.zeros((R, C, n if rule.name == "persistence" else 0), dtype=bool),
+        small, rule.threshold, alarms.rule_vector(rule), np.zeros((R, C), dtype=bool), np.zeros((R, C)),
+        np.zeros((R, C), dtype=np.int64), np.zeros((R, C, alarms.ring_length(rule, steps)), dtype=bool),
         np.zeros(1, dtype=np.int64), *out,
     )  # fmt: skip
     for f, o in zip(FIELDS, out, strict=True):

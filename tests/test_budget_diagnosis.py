@@ -142,7 +142,10 @@ def test_realized_false_alarms_agree_with_the_calibration() -> None:
         (["--false-alarms-per-hour", "nan"], "--false-alarms-per-hour must be positive and finite"),
         (["--false-alarms-per-hour", "often"], "--false-alarms-per-hour must be a number"),
         (["--methods", "smm"], "does not support --methods smm"),
-        (["--rule", "persistence", "--persistence-k", "3", "--persistence-n", "2"], "<= --persistence-n"),
+        (
+            ["--rule", "persistence", "--persistence-k", "3", "--persistence-n", "2"],
+            "persistence k must be <= n",
+        ),
         (["--persistence-k", "2"], "apply to --rule persistence"),
         (["--rule", "persistence", "--persistence-k", "0"], "--persistence-k must be an integer >= 1"),
         (["--per-record", "--methods", "innovation"], "at a false-alarm budget only"),

@@ -6,13 +6,13 @@ import subprocess
 import sys
 
 import chatterspec
-from chatterspec.cli.diagnose import METHOD_NAMES, WARMUP_S
+from chatterspec.cli.diagnose import METHOD_NAMES, ROUTE_SET, WARMUP_S
 from chatterspec.cli.estimate import FILTERS as CLI_FILTERS
 from chatterspec.cli.power import FAMILY_NAMES
 from chatterspec.studies.estimation import FILTERS
 from chatterspec.studies.power import POWER_FAMILIES
 from chatterspec.studies.route_sweep import DEFAULT_WARMUP_S
-from chatterspec.studies.routes import ALL_METHODS
+from chatterspec.studies.routes import ALL_METHODS, ROUTE_RULE_PARAMETERS
 
 
 def test_parser_and_package_import_do_not_load_scipy() -> None:
@@ -46,4 +46,5 @@ def test_estimate_filter_names_match_the_study() -> None:
 
 def test_diagnose_route_names_and_warmup_match_the_study() -> None:
     assert METHOD_NAMES == ALL_METHODS
+    assert ROUTE_SET == ROUTE_RULE_PARAMETERS
     assert WARMUP_S == DEFAULT_WARMUP_S

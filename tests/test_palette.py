@@ -8,7 +8,7 @@ import matplotlib.colors as mcolors
 import numpy as np
 import pytest
 
-from chatterspec import palette
+from chatterspec import filter_registry, palette
 
 
 def _reddish(rgb) -> bool:
@@ -32,8 +32,8 @@ def test_figures_use_the_palette() -> None:
     from chatterspec.figures import estimators, plot_diagnosis
     from chatterspec.figures.plot_modes import mode_weights_figure
 
-    for name, color in estimators.COLORS.items():
-        assert color == palette.mpl(palette.filter_color(name))
+    for name in filter_registry.FILTERS:
+        assert estimators._line(name, 0)["color"] == palette.mpl(palette.filter_color(name))
     for name, color in plot_diagnosis.METHOD_COLORS.items():
         assert color == palette.mpl(palette.filter_color(name))
     t = np.linspace(0.0, 1.0, 5)

@@ -1,10 +1,11 @@
 """The alarm-rule options shared by ``monitor``, ``detect --record`` and ``calibrate``, and how the rule in
 use is reported (:func:`alarm_doc`, one stderr line).
 
-``--rule {frame,persistence,cusum}``, ``--false-alarms-per-hour X``, ``--persistence-k K``,
-``--persistence-n N``, ``--cusum-drift D``, ``--alarm-hours H``. Their values are checked after
-parsing (:func:`alarm_choice`), so that a bad one is one line naming the option (exit 2), not an
-argparse usage block.
+``--rule {frame,persistence,cusum}``, ``--false-alarms-per-hour X``, per rule parameter its option
+``--{rule}-{parameter}`` (``--persistence-k K``, ``--persistence-n N``, ``--cusum-drift D``: read from
+the rules table, :func:`add_rule_parameter_args`), ``--alarm-hours H``. Their values are checked
+after parsing (:func:`alarm_choice`), so that a bad one is one line naming the option (exit 2), not
+an argparse usage block.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from ..detection.alarm_rules import RULES, rule_names  # no numpy: the parser is built for --help
+from ..detection.alarm_rules import RULES, rule_names, rule_spec  # no numpy: the parser is built for --help
 from ..errors import ParameterError
 from ._options import add
 
@@ -27,13 +28,15 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "AlarmChoice",
     "add_alarm_args",
+    "add_rule_parameter_args",
     "alarm_choice",
     "alarm_doc",
     "check_file_alarm",
     "positive_number",
 ]
 
-_DEFAULT_RULE = "cusum"
+#: The rule when ``--rule`` is not given (and no calibration file names one).
+DEFAULT_RULE = "cusum"
 _DEFAULT_BUDGET = 1.0 / 24.0
 
 
@@ -57,27 +60,36 @@ def add_alarm_args(
     """Add the alarm options to ``p`` (``what`` names the monitor in the help texts; ``hours_default``
     says the default of ``--alarm-hours``)."""
     rules = "; ".join(f"{name}: {spec.summary}" for name, spec in RULES.items())
-    k, n = RULES["persistence"].parameters["k"], RULES["persistence"].parameters["n"]
-    drift = RULES["cusum"].parameters["drift"]
-    add(p, "--rule", choices=rule_names(), help=f"alarm rule of {what} (default {_DEFAULT_RULE}): {rules}")
+    add(p, "--rule", choices=rule_names(), help=f"alarm rule of {what} (default {DEFAULT_RULE}): {rules}")
     add(
         p,
         "--false-alarms-per-hour",
         help=f"false-alarm budget of {what}: alarm starts per hour of healthy data, all channels together "
         f"(default {_DEFAULT_BUDGET:.4g} = one per day); the rule's threshold is set for it",
     )
-    add(
-        p,
-        "--persistence-k",
-        help=f"persistence rule: frames over the threshold among the last N (default {k})",
-    )
-    add(p, "--persistence-n", help=f"persistence rule: window in frames (default {n})")
-    add(
-        p,
-        "--cusum-drift",
-        help=f"CUSUM rule: drift subtracted from each frame score, nats (default {drift:g})",
-    )
+    add_rule_parameter_args(p)
     add(p, "--alarm-hours", help=ALARM_HOURS_HELP.format(default=hours_default))
+
+
+def add_rule_parameter_args(
+    p: argparse.ArgumentParser, *, step: str = "frame", steps: str = "frames", skip: tuple[str, ...] = ()
+) -> None:
+    """Add ``--{rule}-{parameter}`` for every parameter of every rule in the rules table that has a
+    :class:`~chatterspec.detection.alarm_rules.RuleOption` (``step`` / ``steps``: what a step is in the
+    help texts; ``skip``: parameters the command sets itself, whose options default to None unseen)."""
+    for spec in RULES.values():
+        for name, option in spec.options.items():
+            flag = spec.flag(name)
+            if name in skip:
+                p.set_defaults(**{_dest(flag): None})
+                continue
+            default = spec.parameters[name]
+            text = option.help.format(default=default, step=step, steps=steps)
+            p.add_argument(flag, default=None, metavar=option.metavar or name.upper(), help=text)
+
+
+def _dest(flag: str) -> str:
+    return flag.lstrip("-").replace("-", "_")
 
 
 @dataclass(frozen=True)
@@ -143,7 +155,7 @@ def alarm_choice(
     """
     from ..detection.alarm_calibration import check_budget  # scipy: not at parser build time
 
-    rule = args.rule or default_rule or _DEFAULT_RULE
+    rule = args.rule or default_rule or DEFAULT_RULE
     if alpha_given and args.rule not in (None, "frame"):
         raise ParameterError(
             f"--alpha sets the per-frame level of the frame rule; the {args.rule} rule takes "
@@ -158,26 +170,7 @@ def alarm_choice(
         if args.false_alarms_per_hour is None
         else check_budget(args.false_alarms_per_hour, "--false-alarms-per-hour")
     )
-    params: dict[str, Any] = {}
-    k = None if args.persistence_k is None else _int(args.persistence_k, "--persistence-k")
-    n = None if args.persistence_n is None else _int(args.persistence_n, "--persistence-n")
-    if (k is not None or n is not None) and rule != "persistence":
-        raise ParameterError(f"--persistence-k / --persistence-n apply to --rule persistence (rule: {rule})")
-    if rule == "persistence":
-        kk = RULES["persistence"].parameters["k"] if k is None else k
-        nn = RULES["persistence"].parameters["n"] if n is None else n
-        if kk > nn:
-            raise ParameterError(
-                f"--persistence-k must be <= --persistence-n (k of the last n frames); got k = {kk}, n = {nn}"
-            )
-        if k is not None:
-            params["k"] = k
-        if n is not None:
-            params["n"] = n
-    if args.cusum_drift is not None:
-        if rule != "cusum":
-            raise ParameterError(f"--cusum-drift applies to --rule cusum (rule: {rule})")
-        params["drift"] = positive_number(args.cusum_drift, "--cusum-drift", "a number (nats)", " (nats)")
+    params = _rule_parameters(args, rule)
     hours = getattr(args, "alarm_hours", None)
     if hours is not None:
         hours = positive_number(hours, "--alarm-hours", "a number of hours")
@@ -189,6 +182,39 @@ def alarm_choice(
         explicit_budget=args.false_alarms_per_hour is not None,
         hours=hours,
     )
+
+
+def _rule_parameters(args: argparse.Namespace, rule: str) -> dict[str, Any]:
+    """The parameters of ``rule`` given as ``--{rule}-{parameter}`` options, checked (one line naming the
+    option); an option of another rule is an error."""
+    from ..detection.alarm_rules import make_rule
+
+    params: dict[str, Any] = {}
+    for spec in RULES.values():
+        given = {
+            name: getattr(args, _dest(spec.flag(name)), None)
+            for name in spec.options
+            if getattr(args, _dest(spec.flag(name)), None) is not None
+        }
+        if given and spec.name != rule:
+            flags = " / ".join(spec.flag(name) for name in spec.options)
+            verb = "applies" if len(spec.options) == 1 else "apply"
+            raise ParameterError(f"{flags} {verb} to --rule {spec.name} (rule: {rule})")
+        for name, value in given.items():
+            flag, unit = spec.flag(name), spec.options[name].unit
+            if isinstance(spec.parameters[name], int):
+                params[name] = _int(value, flag)
+            else:
+                params[name] = positive_number(
+                    value, flag, f"a number ({unit})" if unit else "a number", f" ({unit})" if unit else ""
+                )
+    if params:
+        try:  # the rule's own checks between parameters (persistence: k <= n)
+            make_rule(rule, **params)
+        except ParameterError as exc:
+            flags = ", ".join(rule_spec(rule).flag(name) for name in params)
+            raise ParameterError(f"{flags}: {exc}") from None
+    return params
 
 
 def check_file_alarm(choice: AlarmChoice, cal_alarm: RuleCalibration, path: str | Path) -> RuleCalibration:

@@ -118,12 +118,10 @@ OPTIONS: dict[str, dict[str, Any]] = {
         "help": "data seconds per wall second (default {default}; 1.0 = real time, 0 = as fast as possible)",
     },
     "--dpi": {"type": positive_int_arg, "default": None, "help": "PNG resolution (default 110)"},
-    # the alarm options: checked after parsing (``_alarm_args.alarm_choice``), so strings here
+    # the alarm options: checked after parsing (``_alarm_args.alarm_choice``), so strings here; each rule
+    # parameter's option (--persistence-k, ...) comes from the rules table (``_alarm_args``)
     "--rule": {"default": None},
     "--false-alarms-per-hour": {"default": None, "metavar": "X"},
-    "--persistence-k": {"default": None, "metavar": "K"},
-    "--persistence-n": {"default": None, "metavar": "N"},
-    "--cusum-drift": {"default": None, "metavar": "D"},
     "--alarm-hours": {"default": None, "metavar": "H"},
 }
 

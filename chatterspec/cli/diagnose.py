@@ -47,11 +47,15 @@ DEFAULT_CALIBRATION_RUNS = 1000
 #: (``chatterspec --help``) does not import numpy; a test keeps them equal.
 METHOD_NAMES: tuple[str, ...] = ("chattering", "smm", "imm", "innovation", "parameters")
 WARMUP_S = 0.1
+#: Rule parameters every route sets itself (:data:`chatterspec.studies.routes.ROUTE_RULE_PARAMETERS`):
+#: their options are not offered.
+ROUTE_SET: tuple[str, ...] = ("drift",)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``chatterspec diagnose`` and its options to the subcommand parsers ``sub``."""
-    from ..detection.alarm_rules import RULES, rule_names
+    from ..detection.alarm_rules import rule_names
+    from ._alarm_args import add_rule_parameter_args
 
     p = command(
         sub,
@@ -77,13 +81,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="false-alarm budget of every route: alarm starts per hour of healthy time (default 1)",
     )
     add(p, "--rule", choices=rule_names(), help="alarm rule of every route (default cusum)")
-    k, n = RULES["persistence"].parameters["k"], RULES["persistence"].parameters["n"]
-    add(
-        p,
-        "--persistence-k",
-        help=f"persistence rule: steps (frames or samples) over the threshold among the last N (default {k})",
-    )
-    add(p, "--persistence-n", help=f"persistence rule: window in steps (default {n})")
+    # each route sets its own CUSUM drift (routes.Route.rule_parameters)
+    add_rule_parameter_args(p, step="step", steps="steps (frames or samples)", skip=ROUTE_SET)
     p.add_argument(
         "--warmup",
         type=float,
@@ -139,7 +138,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     _identify.add_tolerance_args(p)
     add_report_args(p, json_help="print one JSON document")
     add(p, "--record", default=None, help="write realization 0 to a Rerun file")
-    p.set_defaults(cusum_drift=None)  # each route sets its own CUSUM drift
 
 
 def _methods(text: str | None, sc: Scenario, per_record: bool) -> tuple[str, ...]:
@@ -208,7 +206,9 @@ def _routes(
     args: argparse.Namespace, sc: Scenario, methods: tuple[str, ...]
 ) -> tuple[dict[str, Route], Threshold | None, dict[str, Any]]:
     """The route objects, the per-frame threshold of the recording (chattering) and its provenance."""
+    from ..detection.alarm_rules import rule_spec
     from ..studies.routes import ChatteringRoute, InnovationRoute, ModeRoute, ParameterRoute
+    from ._alarm_args import DEFAULT_RULE
 
     routes: dict[str, Route] = {}
     threshold: Threshold | None = None
@@ -221,7 +221,7 @@ def _routes(
             routes[m] = ParameterRoute(sc)
         elif m == "innovation":
             kw = {} if args.nis_inflation is None else {"inflation": args.nis_inflation}
-            routes[m] = InnovationRoute(sc, cap=(args.rule or "cusum") == "cusum", **kw)
+            routes[m] = InnovationRoute(sc, cap=rule_spec(args.rule or DEFAULT_RULE).accumulates, **kw)
         else:
             routes[m] = ModeRoute(sc, m)
     return routes, threshold, info

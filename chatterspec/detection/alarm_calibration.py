@@ -68,16 +68,7 @@ from .. import _jit
 from .._validate import open_unit, positive
 from ..errors import ParameterError, ShapeError
 from ..jsonout import finite_or_none
-from .alarms import (
-    _CUSUM,
-    _FRAME,
-    _PERSISTENCE,
-    AlarmRule,
-    FrameRule,
-    _alarm_kernel,
-    _steps_numpy,
-    rule_from_dict,
-)
+from .alarms import AlarmRule, FrameRule, ring_length, rule_from_dict, rule_spec, rule_vector
 
 __all__ = [
     "BATCHES",
@@ -197,7 +188,7 @@ class RuleCalibration:
 
     Attributes
     ----------
-    rule : FrameRule, PersistenceRule or CusumRule
+    rule : AlarmRule
         The rule with its calibrated ``threshold``.
     false_alarms_per_hour : float
         The budget ``X``: alarm starts per hour of healthy data, all channels together.
@@ -346,16 +337,12 @@ def law_frame_rule(
 
 
 # --------------------------------------------------------------------------- counting on a grid
-def _code(rule: AlarmRule) -> int:
-    return {"frame": _FRAME, "persistence": _PERSISTENCE, "cusum": _CUSUM}[rule.name]
-
-
 def starts_on_grid(rule: AlarmRule, scores: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
     """Alarm starts of ``rule`` at each threshold of ``thresholds``, per stream and channel.
 
     Parameters
     ----------
-    rule : FrameRule, PersistenceRule or CusumRule
+    rule : AlarmRule
         Its other parameters are used; its threshold is replaced by each grid value.
     scores : (..., steps, channels) array
         Healthy score streams (each started from the rule's initial state).
@@ -374,60 +361,40 @@ def starts_on_grid(rule: AlarmRule, scores: np.ndarray, thresholds: np.ndarray) 
     R = int(np.prod(lead, dtype=np.int64))
     s3 = np.ascontiguousarray(s.reshape(R, K, C))
     G = hs.size
-    out = np.zeros((G, R, C), dtype=np.int64)
-    code = _code(rule)
-    drift = float(getattr(rule, "drift", 0.0))
-    k, n = int(getattr(rule, "k", 1)), int(getattr(rule, "n", 1))
-    if code == _FRAME:
-        for i, h in enumerate(hs):
-            ex = s3 >= h
-            out[i] = ex[:, 0, :] + np.count_nonzero(ex[:, 1:, :] & ~ex[:, :-1, :], axis=1)
+    steps = rule_spec(rule).load_steps()
+    p, W = rule_vector(rule), ring_length(rule, steps)
+    if steps.grid_starts is not None:
+        out = steps.grid_starts(s3, hs)
     elif _jit.enabled():
+        out = np.zeros((G, R, C), dtype=np.int64)
         act, sa, en = (np.empty((R, K, C), dtype=np.bool_) for _ in range(3))
         st = np.empty((R, K, C))
         for i, h in enumerate(hs):
-            ring = np.zeros((R, C, n if code == _PERSISTENCE else 0), dtype=np.bool_)
-            _alarm_kernel(
-                code, s3, float(h), drift, k, n, np.zeros((R, C), dtype=np.bool_), np.zeros((R, C)),
-                np.zeros((R, C), dtype=np.int64), ring, np.zeros(1, dtype=np.int64), act, st, sa, en,
+            steps.kernel(
+                s3, float(h), p, np.zeros((R, C), dtype=np.bool_), np.zeros((R, C)),
+                np.zeros((R, C), dtype=np.int64), np.zeros((R, C, W), dtype=np.bool_),
+                np.zeros(1, dtype=np.int64), act, st, sa, en,
             )  # fmt: skip
             out[i] = sa.sum(axis=1)
     else:  # one pass over the steps for every threshold at once
-        ring = np.zeros((G, R, C, n if code == _PERSISTENCE else 0), dtype=np.bool_)
-        counts = np.zeros((G, R, C), dtype=np.int64)
-        _steps_numpy(
-            code, s3, hs[:, None, None], drift, k, n, 0,
-            np.zeros((G, R, C), dtype=np.bool_), np.zeros((G, R, C)), np.zeros((G, R, C), dtype=np.int64),
-            ring, None, counts,
+        out = np.zeros((G, R, C), dtype=np.int64)
+        steps.numpy(
+            s3, hs[:, None, None], p, 0, np.zeros((G, R, C), dtype=np.bool_), np.zeros((G, R, C)),
+            np.zeros((G, R, C), dtype=np.int64), np.zeros((G, R, C, W), dtype=np.bool_), None, out,
         )  # fmt: skip
-        out = counts
     return out.reshape(G, *lead, C)
 
 
 def _grid(rule: AlarmRule, s3: np.ndarray, points: int) -> np.ndarray:
-    """Thresholds from where alarms are frequent to where none occurs in the streams."""
-    if rule.name == "cusum":
-        # the largest excursion of g = max(0, g + s - drift) without alarms bounds the useful range
-        d = float(getattr(rule, "drift", 0.0))
-        hi = _max_excursion(s3, d)
-        lo = 0.0
-    else:
-        hi = float(np.max(s3))
-        lo = float(np.quantile(s3, 0.5))
+    """Thresholds from where alarms are frequent to where none occurs in the streams (the range of the
+    rule's statistic, :attr:`~chatterspec.detection.alarm_steps.RuleSteps.statistic_range`)."""
+    lo, hi = rule_spec(rule).load_steps().statistic_range(s3, rule_vector(rule))
     if not (math.isfinite(hi) and hi > lo):
         raise ParameterError(
             f"the healthy scores give no alarm range for the {rule.name} rule (largest statistic "
             f"{hi:g}); check that the scores vary"
         )
     return np.linspace(lo, hi, points + 1)[1:]
-
-
-def _max_excursion(s3: np.ndarray, drift: float) -> float:
-    """max over streams and steps of the Lindley recursion ``g = max(0, g + s - drift)`` from 0."""
-    # g_t = S_t - min_{j <= t} S_j with S the partial sums of (s - drift) and S_0 = 0: vectorized in time
-    x = np.cumsum(s3 - drift, axis=1)
-    run_min = np.minimum.accumulate(np.minimum(x, 0.0), axis=1)
-    return float(np.max(x - run_min))
 
 
 # --------------------------------------------------------------------------- calibration
@@ -445,7 +412,7 @@ def calibrate_rule(
 
     Parameters
     ----------
-    rule : FrameRule, PersistenceRule or CusumRule
+    rule : AlarmRule
         The rule and its other parameters (its threshold is ignored).
     scores : (..., steps, channels) array
         Healthy score streams; each is run from the rule's initial state. The total time is

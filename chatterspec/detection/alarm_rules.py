@@ -1,18 +1,25 @@
 """The alarm rules (:class:`FrameRule`, :class:`PersistenceRule`, :class:`CusumRule`) and their table
-:data:`RULES`, which the CLI choices and the plot styles read.
+:data:`RULES`: the one place that knows a rule by its name.
 
-What each rule does with a score stream is in :mod:`chatterspec.detection.alarms` (the streaming
-state machine and its compiled kernel), which re-exports every name here. Adding a rule is its class
-here, its entry in :data:`RULES` and its step in the kernel.
+Everything that differs between rules is read from a rule's :class:`RuleSpec` or its class: the CLI
+options of its parameters (``--persistence-k``, ``--cusum-drift``: ``--{rule}-{parameter}``), what
+its statistic is called in plots and recordings, whether its threshold applies to each step's score
+or to an accumulated statistic, whether the per-step law gives its threshold, and its state machine
+(:class:`~chatterspec.detection.alarm_steps.RuleSteps`: a compiled loop and its numpy form,
+loaded lazily so that building the CLI parser imports no numpy). Adding a rule is its class (and its
+steps) plus one :func:`register_rule` call; ``docs/design.md`` shows a whole one.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
-from typing import Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .alarm_steps import RuleSteps
 
 from ..errors import ParameterError
 from ..jsonout import finite_or_none
@@ -23,18 +30,17 @@ __all__ = [
     "CusumRule",
     "FrameRule",
     "PersistenceRule",
-    "RuleName",
+    "RuleOption",
     "RuleSpec",
     "alarm_label",
+    "is_rule",
     "make_rule",
+    "register_rule",
     "rule_from_dict",
     "rule_names",
+    "rule_spec",
+    "unregister_rule",
 ]
-
-RuleName = Literal["frame", "persistence", "cusum"]
-
-# rule codes of the kernel
-_FRAME, _PERSISTENCE, _CUSUM = 0, 1, 2
 
 
 def _threshold(value: float, name: str = "threshold") -> float:
@@ -85,6 +91,10 @@ class FrameRule:
     def describe(self) -> str:
         """A short description for reports and recordings."""
         return f"frame rule: alarm while the score is >= {self.threshold:.4g}"
+
+    def view_label(self) -> str:
+        """What an alarm view draws against the threshold."""
+        return "score"
 
 
 @dataclass(frozen=True)
@@ -141,6 +151,10 @@ class PersistenceRule:
             f"{self.threshold:.4g}; ends after {self.n} clean steps"
         )
 
+    def view_label(self) -> str:
+        """What an alarm view draws against the threshold (the score: the window count is not drawn)."""
+        return f"score ({self.k} of {self.n})"
+
 
 @dataclass(frozen=True)
 class CusumRule:
@@ -196,28 +210,91 @@ class CusumRule:
             "(g capped there while active), ends when g is back at 0"
         )
 
+    def view_label(self) -> str:
+        """What an alarm view draws against the threshold."""
+        return "CUSUM g"
 
-AlarmRule = FrameRule | PersistenceRule | CusumRule
+
+class AlarmRule(Protocol):
+    """What every alarm rule is: a frozen object with a ``name`` (its key in :data:`RULES`), a
+    ``threshold`` and the methods below (:class:`FrameRule` is the smallest example)."""
+
+    name: ClassVar[str]
+
+    @property
+    def threshold(self) -> float:
+        """The threshold ``h`` (``inf``: never alarms)."""
+
+    def with_threshold(self, threshold: float) -> AlarmRule:
+        """The same rule at another threshold."""
+
+    def parameters(self) -> dict[str, Any]:
+        """The rule's parameters besides its threshold, in the order of its :class:`RuleSpec`."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"rule": name, "threshold": h or None, **parameters}``."""
+
+    def describe(self) -> str:
+        """A short description for reports and recordings."""
+
+    def view_label(self) -> str:
+        """What an alarm view draws against the threshold (``"score"``, ``"CUSUM g"``)."""
+
+
+@dataclass(frozen=True)
+class RuleOption:
+    """The command-line option ``--{rule}-{parameter}`` of one rule parameter.
+
+    Attributes
+    ----------
+    help : str
+        Help text; ``{default}`` is the parameter's default, ``{step}`` / ``{steps}`` what a step is
+        for the command (``frame`` / ``frames``; ``diagnose``: ``step`` / ``steps (frames or samples)``).
+    unit : str
+        Unit named in the error message of a bad value (``"nats"``), or ``""``.
+    metavar : str
+        The value's name in ``--help`` (default: the parameter's name in capitals).
+    """
+
+    help: str
+    unit: str = ""
+    metavar: str = ""
 
 
 @dataclass(frozen=True)
 class RuleSpec:
-    """One entry of the rules table :data:`RULES`.
+    """One entry of the rules table :data:`RULES`: everything that differs between rules.
 
     Attributes
     ----------
     name : str
         The rule's name (CLI ``--rule`` value).
     cls : type
-        Its class; ``cls(threshold=h, **parameters)`` builds it.
+        Its class (an :class:`AlarmRule`); ``cls(threshold=h, **parameters)`` builds it.
     summary : str
         One line for ``--help`` and the docs.
     parameters : dict
-        Parameter name -> default (besides the threshold).
+        Parameter name -> default (besides the threshold), in the order of ``rule.parameters()``.
+        An ``int`` default makes the CLI option an integer >= 1, a ``float`` one a positive number.
     statistic : str
-        What :attr:`AlarmBlock.statistic` holds for this rule (axis label of a plot).
+        What :attr:`AlarmBlock.statistic` holds for this rule (axis label of a plot or recording).
     style : dict
         Matplotlib / viewer style of the rule's curves: ``color`` (hex), ``marker``, ``linestyle``.
+    steps : callable
+        ``steps() -> RuleSteps``: the rule's state machine (compiled loop and numpy form,
+        :mod:`chatterspec.detection.alarm_steps`), imported only when alarms run.
+    options : dict
+        Parameter name -> :class:`RuleOption` (its CLI option ``--{name}-{parameter}``); a parameter
+        without one has no CLI option.
+    accumulates : bool
+        The threshold applies to a statistic accumulated over steps (CUSUM ``g``), not to each
+        step's score: the alarm view draws the statistic, a threshold above the largest score can
+        still alarm, threshold grids span the statistic's range, and scores may be capped
+        (robust form) without changing which thresholds are reachable.
+    per_step_law : bool
+        The rule alarms at each step whose score is over the threshold, so on a p-value score
+        (``-log p``) the healthy law alone gives the threshold for a budget
+        (:func:`~chatterspec.detection.alarm_calibration.law_frame_rule`), no simulation.
     """
 
     name: str
@@ -226,37 +303,121 @@ class RuleSpec:
     parameters: Mapping[str, Any] = field(default_factory=dict)
     statistic: str = "score"
     style: Mapping[str, str] = field(default_factory=dict)
+    steps: Callable[[], RuleSteps] | None = None
+    options: Mapping[str, RuleOption] = field(default_factory=dict)
+    accumulates: bool = False
+    per_step_law: bool = False
+
+    def flag(self, parameter: str) -> str:
+        """The CLI option of ``parameter``: ``--{rule}-{parameter}``."""
+        return f"--{self.name}-{parameter}".replace("_", "-")
+
+    def load_steps(self) -> RuleSteps:
+        """The rule's :class:`~chatterspec.detection.alarm_steps.RuleSteps`."""
+        if self.steps is None:
+            raise ParameterError(f"the {self.name} rule has no state machine (RuleSpec.steps)")
+        return self.steps()
 
 
-#: The rules table: adding a rule is one entry here (plus its class and its branch of the kernel).
-RULES: Mapping[str, RuleSpec] = MappingProxyType(
-    {
-        "frame": RuleSpec(
-            "frame",
-            FrameRule,
-            "alarm while the step's score is >= h (per-frame rule)",
-            {},
-            "score",
-            {"color": "#1f77b4", "marker": "o", "linestyle": "-"},
-        ),
-        "persistence": RuleSpec(
-            "persistence",
-            PersistenceRule,
-            "alarm when k of the last n steps have a score >= h; ends after n clean steps",
-            {"k": 3, "n": 5},
-            "exceedances in the last n steps",
-            {"color": "#ff7f0e", "marker": "s", "linestyle": "--"},
-        ),
-        "cusum": RuleSpec(
-            "cusum",
-            CusumRule,
-            "CUSUM g = max(0, g + score - drift), alarm when g >= h; ends when g is back at 0",
-            {"drift": 3.0},
-            "CUSUM g",
-            {"color": "#2ca02c", "marker": "^", "linestyle": "-."},
-        ),
-    }
+def _stock_steps(attribute: str) -> Callable[[], RuleSteps]:
+    """The steps of a stock rule, from :mod:`chatterspec.detection.alarm_steps` (numpy: imported late)."""
+
+    def load() -> RuleSteps:
+        from . import alarm_steps
+
+        steps: RuleSteps = getattr(alarm_steps, attribute)
+        return steps
+
+    return load
+
+
+_RULES: dict[str, RuleSpec] = {}
+
+#: The rules table (read-only view; :func:`register_rule` adds to it).
+RULES: Mapping[str, RuleSpec] = MappingProxyType(_RULES)
+
+
+def register_rule(spec: RuleSpec) -> RuleSpec:
+    """Add a rule to :data:`RULES` (its name becomes a ``--rule`` choice); returns ``spec``.
+
+    Raises
+    ------
+    ParameterError
+        A name already registered, or a class whose ``name`` is not the spec's.
+    """
+    if spec.name in _RULES:
+        raise ParameterError(f"an alarm rule named {spec.name!r} is already registered")
+    if getattr(spec.cls, "name", None) != spec.name:
+        raise ParameterError(f"rule class {spec.cls.__name__} must have name = {spec.name!r}")
+    _RULES[spec.name] = spec
+    return spec
+
+
+def unregister_rule(name: str) -> None:
+    """Remove the rule ``name`` from :data:`RULES` (what a test that registered one does after it)."""
+    _RULES.pop(name, None)
+
+
+register_rule(
+    RuleSpec(
+        "frame",
+        FrameRule,
+        "alarm while the step's score is >= h (per-frame rule)",
+        {},
+        "score",
+        {"color": "#1f77b4", "marker": "o", "linestyle": "-"},
+        _stock_steps("FRAME"),
+        per_step_law=True,
+    )
 )
+register_rule(
+    RuleSpec(
+        "persistence",
+        PersistenceRule,
+        "alarm when k of the last n steps have a score >= h; ends after n clean steps",
+        {"k": 3, "n": 5},
+        "exceedances in the last n steps",
+        {"color": "#ff7f0e", "marker": "s", "linestyle": "--"},
+        _stock_steps("PERSISTENCE"),
+        {
+            "k": RuleOption(
+                "persistence rule: {steps} over the threshold among the last N (default {default})"
+            ),
+            "n": RuleOption("persistence rule: window in {steps} (default {default})"),
+        },
+    )
+)
+register_rule(
+    RuleSpec(
+        "cusum",
+        CusumRule,
+        "CUSUM g = max(0, g + score - drift), alarm when g >= h; ends when g is back at 0",
+        {"drift": 3.0},
+        "CUSUM g",
+        {"color": "#2ca02c", "marker": "^", "linestyle": "-."},
+        _stock_steps("CUSUM"),
+        {
+            "drift": RuleOption(
+                "CUSUM rule: drift subtracted from each {step} score, nats (default {default:g})", "nats", "D"
+            )
+        },
+        accumulates=True,
+    )
+)
+
+
+def rule_spec(rule: AlarmRule | str) -> RuleSpec:
+    """The :class:`RuleSpec` of a rule or rule name (``ParameterError`` listing the names if unknown)."""
+    name = rule if isinstance(rule, str) else rule.name
+    spec = RULES.get(name)
+    if spec is None:
+        raise ParameterError(f"unknown alarm rule {name!r}; choose one of {', '.join(RULES)}")
+    return spec
+
+
+def is_rule(obj: object) -> bool:
+    """Whether ``obj`` is an instance of a registered rule class."""
+    return any(isinstance(obj, spec.cls) for spec in RULES.values())
 
 
 def alarm_label(rule: str, false_alarms_per_hour: float | None) -> str:
@@ -286,8 +447,8 @@ def make_rule(name: str, threshold: float = float("inf"), **parameters: float) -
 
     Parameters
     ----------
-    name : {"frame", "persistence", "cusum"}
-        A key of :data:`RULES`.
+    name : str
+        A key of :data:`RULES` (``"frame"``, ``"persistence"``, ``"cusum"`` or a registered one).
     threshold : float
         The rule's threshold ``h`` (default ``inf``: calibrate it, e.g. with
         :func:`chatterspec.detection.alarm_calibration.calibrate_rule`).
@@ -299,16 +460,15 @@ def make_rule(name: str, threshold: float = float("inf"), **parameters: float) -
     ParameterError
         Unknown rule name (the message lists the valid ones), unknown parameter or bad value.
     """
-    spec = RULES.get(name)
-    if spec is None:
-        raise ParameterError(f"unknown alarm rule {name!r}; choose one of {', '.join(RULES)}")
+    spec = rule_spec(name)
     unknown = set(parameters) - set(spec.parameters)
     if unknown:
         allowed = ", ".join(spec.parameters) or "none"
         raise ParameterError(
             f"rule {name!r} has no parameter(s) {', '.join(sorted(unknown))} (parameters: {allowed})"
         )
-    return spec.cls(threshold=threshold, **{**spec.parameters, **parameters})
+    rule: AlarmRule = spec.cls(threshold=threshold, **{**spec.parameters, **parameters})
+    return rule
 
 
 def rule_from_dict(d: Mapping[str, Any]) -> AlarmRule:

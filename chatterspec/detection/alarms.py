@@ -34,11 +34,13 @@ Renewal
 Streaming
     :class:`AlarmStream` keeps the state between calls, so feeding a stream in any chunking
     gives the same alarms as feeding it whole (``tests/test_alarms.py``). The per-step
-    recursion runs in one compiled loop (:func:`_alarm_kernel`, through
-    :func:`chatterspec._jit.njit`) when :func:`chatterspec._jit.enabled`, otherwise a numpy
-    loop over steps vectorized over every stream and channel; both compute the same
-    operations in the same order (``+``, ``-``, ``min``, ``max`` and comparisons), hence the
-    same bits. Nothing loops over streams in Python.
+    recursion is the rule's own (:class:`~chatterspec.detection.alarm_steps.RuleSteps`, named by
+    its :class:`RuleSpec`): one compiled loop (through :func:`chatterspec._jit.njit`) when
+    :func:`chatterspec._jit.enabled`, otherwise a numpy loop over steps vectorized over every
+    stream and channel; both compute the same operations in the same order (``+``, ``-``,
+    ``min``, ``max`` and comparisons), hence the same bits. Nothing loops over streams in
+    Python, and nothing here branches on a rule's name: a registered rule
+    (:func:`~chatterspec.detection.alarm_rules.register_rule`) runs as the stock ones do.
 
 Public interface (stable; additions only)
     :class:`FrameRule`, :class:`PersistenceRule`, :class:`CusumRule` (frozen; ``.name``,
@@ -60,19 +62,19 @@ import numpy as np
 from .. import _jit
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from .alarm_rules import (
-    _CUSUM,
-    _FRAME,
-    _PERSISTENCE,
     RULES,
     AlarmRule,
     CusumRule,
     FrameRule,
     PersistenceRule,
     RuleSpec,
+    is_rule,
     make_rule,
     rule_from_dict,
     rule_names,
+    rule_spec,
 )
+from .alarm_steps import RuleSteps
 
 __all__ = [
     "RULES",
@@ -85,9 +87,13 @@ __all__ = [
     "PersistenceRule",
     "RuleSpec",
     "count_starts",
+    "is_rule",
     "make_rule",
+    "ring_length",
     "rule_from_dict",
     "rule_names",
+    "rule_spec",
+    "rule_vector",
     "run_rule",
 ]
 
@@ -161,7 +167,7 @@ class AlarmStream:
 
     Parameters
     ----------
-    rule : FrameRule, PersistenceRule or CusumRule
+    rule : AlarmRule
         The rule (its threshold must be set, i.e. not NaN; ``inf`` never alarms).
     shape : tuple of int
         ``(..., channels)``: the leading (streams) axes and the number of channels of the
@@ -183,7 +189,7 @@ class AlarmStream:
     """
 
     def __init__(self, rule: AlarmRule, shape: tuple[int, ...], *, compiled: bool | None = None) -> None:
-        if not isinstance(rule, FrameRule | PersistenceRule | CusumRule):
+        if not is_rule(rule):
             raise ParameterError(f"rule must be one of the alarm rules; got {type(rule).__name__}")
         shape = tuple(int(s) for s in shape)
         if len(shape) < 1 or any(s < 0 for s in shape) or shape[-1] < 1:
@@ -193,11 +199,10 @@ class AlarmStream:
         R = int(np.prod(shape[:-1], dtype=np.int64))
         C = shape[-1]
         self._R, self._C = R, C
-        self._code = {"frame": _FRAME, "persistence": _PERSISTENCE, "cusum": _CUSUM}[rule.name]
+        self._steps = rule_spec(rule).load_steps()
         self._h = float(rule.threshold)
-        self._drift = float(getattr(rule, "drift", 0.0))
-        self._k = int(getattr(rule, "k", 1))
-        self._n = int(getattr(rule, "n", 1))
+        self._p = rule_vector(rule)
+        self._W = ring_length(rule, self._steps)
         self._compiled = None if compiled is None else bool(compiled and _jit.HAVE_NUMBA)
         self.reset()
 
@@ -207,7 +212,7 @@ class AlarmStream:
         self._active = np.zeros((R, C), dtype=np.bool_)
         self._g = np.zeros((R, C))
         self._count = np.zeros((R, C), dtype=np.int64)
-        self._ring = np.zeros((R, C, self._n if self._code == _PERSISTENCE else 0), dtype=np.bool_)
+        self._ring = np.zeros((R, C, self._W), dtype=np.bool_)
         self._step = 0
         self._pos = np.zeros(1, dtype=np.int64)  # the kernel's step number, one array for every call
 
@@ -224,11 +229,8 @@ class AlarmStream:
     @property
     def statistic(self) -> np.ndarray:
         """Current statistic ``(..., channels)``: ``g`` (cusum), window count (persistence), NaN (frame)."""
-        if self._code == _CUSUM:
-            return self._g.reshape(self.shape).copy()
-        if self._code == _PERSISTENCE:
-            return self._count.reshape(self.shape).astype(float)
-        return np.full(self.shape, np.nan)
+        kept = {"g": self._g, "count": self._count}.get(self._steps.statistic or "")
+        return np.full(self.shape, np.nan) if kept is None else kept.reshape(self.shape).astype(float)
 
     def update(self, scores: np.ndarray) -> AlarmBlock:
         """Advance by ``scores`` ``(..., K, channels)`` (leading axes as ``shape``; K >= 0).
@@ -260,18 +262,15 @@ class AlarmStream:
         first = self._step
         if K:
             compiled = _jit.enabled() if self._compiled is None else self._compiled
-            if self._code == _FRAME and not compiled:
-                _frame_numpy(s3, self._h, self._active, active, stat, starts, ends)
-            elif compiled:
+            state = (self._active, self._g, self._count, self._ring)
+            if compiled:
                 pos = self._pos
                 pos[0] = self._step
-                _alarm_kernel(
-                    self._code, s3, self._h, self._drift, self._k, self._n,
-                    self._active, self._g, self._count, self._ring, pos,
-                    active, stat, starts, ends,
-                )  # fmt: skip
+                self._steps.kernel(s3, self._h, self._p, *state, pos, active, stat, starts, ends)
             else:
-                _alarm_numpy(self, s3, active, stat, starts, ends)
+                self._active[...], self._g[...], self._count[...] = self._steps.numpy(
+                    s3, self._h, self._p, self._step, *state, (active, stat, starts, ends)
+                )
             self._step += K
         shape = (*self.shape[:-1], K, C)
         return AlarmBlock(
@@ -279,201 +278,21 @@ class AlarmStream:
         )
 
 
-def _frame_numpy(
-    s: np.ndarray,
-    h: float,
-    state: np.ndarray,
-    active: np.ndarray,
-    stat: np.ndarray,
-    starts: np.ndarray,
-    ends: np.ndarray,
-) -> None:
-    """The frame rule, vectorized over steps too (no recursion): ``active = s >= h``."""
-    np.greater_equal(s, h, out=active)
-    stat[...] = s
-    prev = np.concatenate([state[:, None, :], active[:, :-1, :]], axis=1)
-    np.logical_and(active, ~prev, out=starts)
-    np.logical_and(~active, prev, out=ends)
-    state[...] = active[:, -1, :]
+def rule_vector(rule: AlarmRule) -> np.ndarray:
+    """The rule's parameters (``rule.parameters()`` values, in order): the float array ``p`` of its steps."""
+    return np.array([float(v) for v in rule.parameters().values()], dtype=float)
 
 
-def _alarm_numpy(
-    st: AlarmStream,
-    s: np.ndarray,
-    active: np.ndarray,
-    stat: np.ndarray,
-    starts: np.ndarray,
-    ends: np.ndarray,
-) -> None:
-    """Persistence / CUSUM of one stream object: :func:`_steps_numpy` on its state."""
-    st._active[...], st._g[...], st._count[...] = _steps_numpy(
-        st._code, s, st._h, st._drift, st._k, st._n, st._step,
-        st._active, st._g, st._count, st._ring, (active, stat, starts, ends),
-    )  # fmt: skip
+def ring_length(rule: AlarmRule, steps: RuleSteps) -> int:
+    """Length of the rule's exceedance ring (the parameter :attr:`RuleSteps.ring` names; 0 if none).
 
-
-def _steps_numpy(
-    code: int,
-    s: np.ndarray,
-    h: float | np.ndarray,
-    drift: float,
-    k: int,
-    n: int,
-    step0: int,
-    act: np.ndarray,
-    g: np.ndarray,
-    count: np.ndarray,
-    ring: np.ndarray,
-    out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None,
-    n_starts: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Persistence / CUSUM: a loop over steps, vectorized over streams and channels.
-
-    ``s`` (R, K, C); the state ``act``, ``g``, ``count`` has shape ``(..., R, C)`` (extra
-    leading axes, e.g. one per threshold of a calibration grid, with ``h`` of shape
-    ``(..., 1, 1)``) and ``ring`` ``(..., R, C, n)`` (updated in place). ``out`` = ``(active,
-    stat, starts, ends)`` (R, K, C) or None; ``n_starts`` (state shape, int) accumulates the
-    starts when given. Returns the new ``(act, g, count)``. The same operations as
-    :func:`_alarm_kernel` (the CUSUM's ``(g + s) - drift``, then ``max(., 0)`` and, at
-    the start and while active, ``min(., h)``), hence the same bits.
+    Parameters
+    ----------
+    rule : AlarmRule
+    steps : RuleSteps
+        The rule's steps (its spec's).
     """
-    K = s.shape[1]
-    act = act.copy()
-    for j in range(K):
-        sj = s[:, j, :]
-        was = act
-        if code == _CUSUM:
-            x = np.maximum((g + sj) - drift, 0.0)
-            start = ~was & (x >= h)
-            x = np.where(was | start, np.minimum(x, h), x)
-            end = was & (x <= 0.0)
-            g = x
-            value = x
-        else:  # persistence
-            p = (step0 + j) % n
-            ex = sj >= h
-            count = count - ring[..., p] + ex
-            ring[..., p] = ex
-            start = ~was & (count >= k)
-            end = was & (count <= 0)
-            value = count
-        act = (was | start) & ~end
-        if out is not None:
-            out[0][:, j, :], out[1][:, j, :], out[2][:, j, :], out[3][:, j, :] = act, value, start, end
-        if n_starts is not None:
-            n_starts += start
-    return act, g, count
-
-
-@_jit.njit
-def _alarm_kernel(
-    code: int,
-    s: np.ndarray,
-    h: float,
-    drift: float,
-    k: int,
-    n: int,
-    act: np.ndarray,
-    g: np.ndarray,
-    count: np.ndarray,
-    ring: np.ndarray,
-    pos: np.ndarray,
-    active: np.ndarray,
-    stat: np.ndarray,
-    starts: np.ndarray,
-    ends: np.ndarray,
-) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_alarms.py)
-    """Frame (``code`` 0), persistence (1) or CUSUM (2) rule over scores ``s`` (R, K, C).
-
-    State (updated in place): ``act`` (R, C) bool, ``g`` (R, C), ``count`` (R, C) int,
-    ``ring`` (R, C, n) bool (persistence: exceedance of the last n steps, slot ``step % n``),
-    ``pos`` (1,) = global step number of ``s[:, 0]``. Outputs (R, K, C): ``active``,
-    ``stat`` (g or the window count), ``starts``, ``ends``. The operations and their order
-    are those of :func:`_alarm_numpy`.
-    """
-    R, C = s.shape[0], s.shape[2]
-    step0 = pos[0]
-    for r in range(R):
-        for c in range(C):
-            alarm_channel_step(
-                code, s, h, drift, k, n, act, g, count, ring, step0, active, stat, starts, ends, r, c
-            )
-
-
-@_jit.step
-def alarm_channel_step(
-    code: int,
-    s: np.ndarray,
-    h: float,
-    drift: float,
-    k: int,
-    n: int,
-    act: np.ndarray,
-    g: np.ndarray,
-    count: np.ndarray,
-    ring: np.ndarray,
-    step0: int,
-    active: np.ndarray,
-    stat: np.ndarray,
-    starts: np.ndarray,
-    ends: np.ndarray,
-    r: int,
-    c: int,
-) -> None:  # pragma: no cover - compiled (inlined into _alarm_kernel and the monitor's hop loop)
-    """Stream ``r``, channel ``c`` of :func:`_alarm_kernel` over its K steps (its arguments)."""
-    K = s.shape[1]
-    a = act[r, c]
-    if code == 0:  # frame: active while the score is over the threshold
-        for j in range(K):
-            x = s[r, j, c]
-            on = x >= h
-            a = _alarm_step(active, stat, starts, ends, r, j, c, a, on, not on, x)
-    elif code == 2:  # CUSUM, held at h from the start and while active
-        x = g[r, c]
-        for j in range(K):
-            x = max((x + s[r, j, c]) - drift, 0.0)
-            on = x >= h
-            x = min(x, h)  # x < h stays x: only a start or an active alarm is held at h
-            a = _alarm_step(active, stat, starts, ends, r, j, c, a, on, x <= 0.0, x)
-        g[r, c] = x
-    else:  # persistence: count of the last n steps over the threshold
-        cnt = count[r, c]
-        for j in range(K):
-            p = (step0 + j) % n
-            ex = s[r, j, c] >= h
-            cnt = cnt - ring[r, c, p] + ex
-            ring[r, c, p] = ex
-            a = _alarm_step(active, stat, starts, ends, r, j, c, a, cnt >= k, cnt <= 0, cnt)
-        count[r, c] = cnt
-    act[r, c] = a
-
-
-@_jit.step
-def _alarm_step(
-    active: np.ndarray,
-    stat: np.ndarray,
-    starts: np.ndarray,
-    ends: np.ndarray,
-    r: int,
-    j: int,
-    c: int,
-    a: bool,
-    on: bool,
-    off: bool,
-    value: float,
-) -> bool:  # pragma: no cover - compiled (inlined into _alarm_kernel)
-    """One step of every rule's alarm at ``[r, j, c]``: an inactive alarm starts when ``on``, an
-    active one ends when ``off`` (``start``/``end`` of :func:`_alarm_numpy`); writes the outputs and
-    returns the new state."""
-    if a:
-        st, en, a = False, off, not off
-    else:
-        st, en, a = on, False, on
-    active[r, j, c] = a
-    stat[r, j, c] = value
-    starts[r, j, c] = st
-    ends[r, j, c] = en
-    return a
+    return 0 if steps.ring is None else int(rule.parameters()[steps.ring])
 
 
 # --------------------------------------------------------------------------- one-shot helpers
@@ -484,7 +303,7 @@ def run_rule(rule: AlarmRule, scores: np.ndarray) -> AlarmBlock:
 
     Parameters
     ----------
-    rule : FrameRule, PersistenceRule or CusumRule
+    rule : AlarmRule
     scores : (..., steps, channels) array
         At least 2-D (one stream: ``(steps, channels)``).
     """
@@ -499,7 +318,7 @@ def count_starts(rule: AlarmRule, scores: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    rule : FrameRule, PersistenceRule or CusumRule
+    rule : AlarmRule
     scores : (..., steps, channels) array
     """
     return run_rule(rule, scores).starts.sum(axis=-2)

@@ -15,7 +15,7 @@ import numpy as np
 
 from .._validate import finite_array, open_unit
 from ..detection.alarm_calibration import RuleCalibration
-from ..detection.alarms import AlarmRule, CusumRule, FrameRule, PersistenceRule
+from ..detection.alarms import AlarmRule, is_rule
 from ..detection.spectral import STFTConfig
 from ..detection.thresholds import Threshold, check_band
 from ..errors import ParameterError
@@ -53,7 +53,7 @@ class MonitorSettings:
         them. With ``threshold`` given, that threshold is restricted to the band
         (:meth:`~chatterspec.detection.thresholds.Threshold.restricted`: its level is then
         conservative). ``None`` (default): every bin but DC and Nyquist.
-    rule : FrameRule, PersistenceRule or CusumRule, optional
+    rule : AlarmRule, optional
         The alarm rule (:mod:`chatterspec.detection.alarms`) that turns the frame score
         (``-log`` of the frame's p-value, :mod:`chatterspec.detection.frame_score`) into
         fault-start / fault-end events, with its threshold set (e.g. by
@@ -76,7 +76,7 @@ class MonitorSettings:
     budget: RuleCalibration | None = None
 
     def __post_init__(self) -> None:
-        if self.rule is not None and not isinstance(self.rule, FrameRule | PersistenceRule | CusumRule):
+        if self.rule is not None and not is_rule(self.rule):
             raise ParameterError(f"rule must be an alarm rule; got {type(self.rule).__name__}")
         if self.budget is not None:
             if not isinstance(self.budget, RuleCalibration):

@@ -45,7 +45,7 @@ from .._validate import open_unit, positive, positive_int
 from ..errors import IdentifiabilityError
 from ._identification_fit import IdentificationSetup
 from .alarm_calibration import RuleCalibration, calibrate_rule, check_budget, law_frame_rule
-from .alarms import AlarmRule, make_rule, rule_from_dict
+from .alarms import AlarmRule, make_rule, rule_from_dict, rule_spec
 
 __all__ = [
     "CALIBRATION_HOURS",
@@ -299,7 +299,7 @@ def calibrate_parameter_rule(
     X = check_budget(false_alarms_per_hour)
     F = positive("windows_per_hour", windows_per_hour)
     rule = make_rule(rule) if isinstance(rule, str) else rule
-    if rule.name == "frame":
+    if rule_spec(rule).per_step_law:
         return law_frame_rule(F, bands.size, X)
     key = json.dumps(rule.to_dict(), sort_keys=True)
     two = tuple(bool(x) for x in bands.two_sided)

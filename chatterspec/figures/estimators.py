@@ -17,6 +17,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from ..errors import ParameterError
+from ..filter_registry import ENTRIES
 from ..palette import filter_color, mpl
 from ..plants.model_base import state_units
 
@@ -27,14 +28,26 @@ if TYPE_CHECKING:
 
 __all__ = ["estimation_error_figure"]
 
-#: Line colours per filter name: the shared palette (chatterspec.palette, also used by the recordings).
-COLORS = {name: mpl(filter_color(name)) for name in ("kf", "ekf", "svsf", "svsf2")}
-STYLES = {"kf": "-", "ekf": "-", "svsf": "-", "svsf2": "--"}
-#: Drawing order and widths: the first filters wide and light underneath, the later ones thin on top, so
-#: that curves that coincide (the KF and the 2nd-order SVSF often do) both stay visible.
-WIDTHS = {"kf": 2.6, "ekf": 2.6, "svsf": 1.3, "svsf2": 1.0}
-ALPHAS = {"kf": 0.45, "ekf": 0.45, "svsf": 0.85, "svsf2": 1.0}
-LABELS = {"kf": "Kalman filter", "ekf": "EKF", "svsf": "1st-order SVSF", "svsf2": "dynamic 2nd-order SVSF"}
+
+def _line(name: str, k: int) -> dict[str, object]:
+    """Line keywords of filter ``name`` (the ``k``-th drawn) from its registry entry: colour (the shared
+    palette, also used by the recordings), label and style. The stock entries draw the first filters wide
+    and light underneath, the later ones thin on top, so that curves that coincide (the KF and the
+    2nd-order SVSF often do) both stay visible."""
+    entry = ENTRIES.get(name)
+    style = {} if entry is None else dict(entry.style)
+    return {
+        "color": mpl(filter_color(name, k)),
+        "ls": style.get("ls", "-"),
+        "label": _label(name),
+        "lw": style.get("lw", 1.0),
+        "alpha": style.get("alpha", 1.0),
+    }
+
+
+def _label(name: str) -> str:
+    entry = ENTRIES.get(name)
+    return name if entry is None or not entry.label else entry.label
 
 
 def estimation_error_figure(records: EstimateRecords, *, run: int = 0, title: str | None = None) -> Figure:
@@ -66,14 +79,7 @@ def estimation_error_figure(records: EstimateRecords, *, run: int = 0, title: st
         err = records.error(name)
         rms = np.sqrt(np.mean(err**2, axis=0))
         for i in range(len(states)):
-            kw = {
-                "color": COLORS.get(name, mpl(filter_color(name, k))),
-                "ls": STYLES.get(name, "-"),
-                "label": LABELS.get(name, name),
-                "lw": WIDTHS.get(name, 1.0),
-                "alpha": ALPHAS.get(name, 1.0),
-                "zorder": 2 + k,
-            }
+            kw = {**_line(name, k), "zorder": 2 + k}
             axes[i, 0].plot(t, err[run, :, i], **kw)
             axes[i, 1].semilogy(t, rms[:, i], **kw)
     for i, s in enumerate(states):
@@ -91,7 +97,7 @@ def estimation_error_figure(records: EstimateRecords, *, run: int = 0, title: st
     axes[-1, 0].set_xlabel("time [s]")
     axes[-1, 1].set_xlabel("time [s]")
     handles, labels = axes[0, 0].get_legend_handles_labels()
-    who = ", ".join(LABELS.get(n, n) for n in names)
+    who = ", ".join(_label(n) for n in names)
     default = f"{records.scenario.name}: {who}; {runs} realizations\n{records.scenario.description}"
     fig.suptitle(title or default, fontsize=10)
     fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=9, frameon=False)

@@ -11,11 +11,12 @@ bit for bit; the sat SVSF's numpy fallback is the one exception, equal to
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import cast
 
 import numpy as np
 
 from .. import _jit
-from ..detection.alarms import alarm_channel_step
+from ..detection.alarm_steps import FRAME
 from ..detection.frame_engine import power_step
 from ..detection.frame_score import score_step
 from ..detection.frames import peak_channel
@@ -211,7 +212,12 @@ def filters_one_kernel(n: int, m: int) -> Callable[..., int]:
     return _jit.specialize_sizes(_filters_one, "push_one", {"NX": n, "NZ": m, "NL": n - m})
 
 
-def _hop_loop(  # type: ignore[no-untyped-def]  # (39 arrays and scalars: see the docstring)
+#: The alarm rule's channel step :func:`_hop_loop` inlines (:attr:`RuleSteps.channel`, bound by
+#: :func:`hop_kernel`; this default: the frame rule's).
+RULE_CHANNEL = cast(Callable[..., None], FRAME.channel)
+
+
+def _hop_loop(  # type: ignore[no-untyped-def]  # (35 arrays and scalars: see the docstring)
     Y,
     scale,
     power,
@@ -235,11 +241,8 @@ def _hop_loop(  # type: ignore[no-untyped-def]  # (39 arrays and scalars: see th
     log_n,
     score,
     legacy,
-    code,
     h,
-    drift,
-    kk,
-    nn,
+    p,
     act,
     g,
     count,
@@ -258,9 +261,10 @@ def _hop_loop(  # type: ignore[no-untyped-def]  # (39 arrays and scalars: see th
     into ``power`` (F, bins, m); the largest ``S / threshold`` over the tested bins ``lo ..
     lo + len(positions) - 1`` (:data:`~chatterspec.detection.frames.peak_channel`) into ``k_ratio``,
     ``peak_ratio`` (F, m); the frame score (:func:`~chatterspec.detection.frame_score.score_step`,
-    its arguments) into ``score``; then, per channel over the frames, the alarm rule
-    (:func:`~chatterspec.detection.alarms.alarm_channel_step`, the :class:`AlarmStream`'s state
-    arrays, step ``pos[0]``) fed with ``s3`` (1, F, m) = the score, or (``legacy``: the per-frame
+    its arguments) into ``score``; then, per channel over the frames, the alarm rule's channel step
+    ``RULE_CHANNEL`` (:attr:`~chatterspec.detection.alarm_steps.RuleSteps.channel`: threshold ``h``,
+    parameters ``p``, the :class:`AlarmStream`'s state arrays, step ``pos[0]``) fed with ``s3``
+    (1, F, m) = the score, or (``legacy``: the per-frame
     verdict's events) 1.0 where ``peak_ratio > 1`` and 0.0 elsewhere. The same steps as the four
     separate calls (:class:`~chatterspec.detection.frame_engine.FrameEngine`, ``FrameVerdicts``,
     ``FrameScore``, ``AlarmStream``), hence their bits.
@@ -271,7 +275,7 @@ def _hop_loop(  # type: ignore[no-untyped-def]  # (39 arrays and scalars: see th
     )  # fmt: skip
     idx, inv1, invr, off, cnt, cvals, wvals = b(idx), b(inv1), b(invr), b(off), b(cnt), b(cvals), b(wvals)
     low, n_low, is_low, hi_invr, inv1T = b(low), b(n_low), b(is_low), b(hi_invr), b(inv1T)
-    act, g, count, ring, pos, s3 = b(act), b(g), b(count), b(ring), b(pos), b(s3)
+    p, act, g, count, ring, pos, s3 = b(p), b(act), b(g), b(count), b(ring), b(pos), b(s3)
     active, stat, starts, ends = b(active), b(stat), b(starts), b(ends)
     m, F, B = Y.shape[1], Y.shape[2], Y.shape[3]
     row = np.empty(B)
@@ -291,10 +295,20 @@ def _hop_loop(  # type: ignore[no-untyped-def]  # (39 arrays and scalars: see th
             else:
                 s3[0, f, c] = score[f, c]
     for c in range(m):
-        alarm_channel_step(
-            code, s3, h, drift, kk, nn, act, g, count, ring, pos[0], active, stat, starts, ends, 0, c
-        )
+        RULE_CHANNEL(s3, h, p, act, g, count, ring, pos[0], active, stat, starts, ends, 0, c)
 
 
-#: The monitor's block-of-frames loop (:func:`_hop_loop`).
-hop_kernel = _jit.njit(_hop_loop)
+_HOP: dict[int, Callable[..., None]] = {}
+
+
+def hop_kernel(channel: Callable[..., None]) -> Callable[..., None]:
+    """The monitor's block-of-frames loop (:func:`_hop_loop`) with the alarm rule's channel step ``channel``.
+
+    One kernel per channel step (a rule's :attr:`~chatterspec.detection.alarm_steps.RuleSteps.channel`),
+    kept for the process; numba inlines the step, so there is no call through a function value.
+    """
+    kernel = _HOP.get(id(channel))
+    if kernel is None:
+        kernel = _jit.specialize(_hop_loop, f"hop_{channel.__name__.strip('_')}", RULE_CHANNEL=channel)
+        _HOP[id(channel)] = kernel
+    return kernel

@@ -98,10 +98,14 @@ class FrameAnalysis:
         self.n_events = 0
         self.t_first = 0.0
         # with numba: power, verdicts, score and alarm rule of a block of frames in one compiled call
-        # (online._push_kernels.hop_kernel: the same steps as the four calls above, the same bits)
+        # (online._push_kernels.hop_kernel: the same steps as the four calls above, the same bits) when
+        # the rule gives its channel step (RuleSteps.channel; a rule without one: the four calls)
+        channel = self._alarm._steps.channel
         self._fused = bool(
             _jit.enabled() and self._verdicts.compiled and self._columns.compiled and self._alarm._compiled
-        )
+            and channel is not None
+        )  # fmt: skip
+        self._hop = None if channel is None else hop_kernel(channel)
 
     @property
     def active(self) -> np.ndarray:
@@ -189,10 +193,12 @@ class FrameAnalysis:
         peak_ratio, score, stat, s3 = out[0], out[1], out[2][None], out[3][None]
         al._pos[0] = al._step
         lo = ver.sel.start  # type: ignore[union-attr]
+        hop = self._hop
+        assert hop is not None  # (fused: the rule gives its channel step)
         for a, b, Y in eng.transforms(data, offset, F):
-            hop_kernel(
+            hop(
                 Y, eng.scale, power[a:b], lo, ver.values, ver._positions, k_ratio[a:b], peak_ratio[a:b],
-                *sc._kernel_args, score[a:b], self._legacy, al._code, al._h, al._drift, al._k, al._n,
+                *sc._kernel_args, score[a:b], self._legacy, al._h, al._p,
                 al._active, al._g, al._count, al._ring, al._pos, s3[:, a:b], flags3[0, :, a:b], stat[:, a:b],
                 flags3[1, :, a:b], flags3[2, :, a:b],
             )  # fmt: skip

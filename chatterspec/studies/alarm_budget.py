@@ -59,7 +59,7 @@ from ..detection.alarm_calibration import (
     check_budget,
     law_frame_rule,
 )
-from ..detection.alarms import AlarmRule, make_rule
+from ..detection.alarms import AlarmRule, make_rule, rule_spec
 from ..detection.frame_engine import FrameEngine
 from ..detection.frame_score import FrameScore
 from ..detection.spectral import spectrum_model
@@ -324,9 +324,10 @@ def healthy_frame_scores(
 
 
 def display_alpha(rule: AlarmRule, default: float) -> float:
-    """The per-frame level of the verdict drawn beside a rule: ``exp(-h)`` for the frame and
-    persistence rules (red frames = steps over the rule's threshold), ``default`` for CUSUM."""
-    if rule.name in ("frame", "persistence") and math.isfinite(rule.threshold):
+    """The per-frame level of the verdict drawn beside a rule: ``exp(-h)`` for a rule thresholding
+    each step's score (frame, persistence: red frames = steps over the rule's threshold), ``default`` for
+    one on an accumulated statistic (CUSUM)."""
+    if not rule_spec(rule).accumulates and math.isfinite(rule.threshold):
         a = math.exp(-rule.threshold)
         if 0.0 < a < 1.0:
             return a
@@ -424,7 +425,7 @@ def calibrate_alarm(
     X = check_budget(false_alarms_per_hour, steps_per_hour=F, channels=model.n_outputs)
     rule = make_rule(rule) if isinstance(rule, str) else rule
     score, _ = monitor_score(model, settings)
-    if rule.name == "frame" and score.law == "exact":
+    if rule_spec(rule).per_step_law and score.law == "exact":
         return law_frame_rule(F, model.n_outputs, X, confidence)
     hours = check_hours(model, settings, in_call_hours(model.n_outputs) if hours is None else hours, scenario)
     key = _key(model, settings, rule, X, hours, seed, scenario, confidence)

@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Any, Unpack
 
 import numpy as np
 
+from ..detection.alarm_rules import rule_spec
 from ..errors import ParameterError
 from ..montecarlo import Execution, ExecutionOptions
 from .budget_results import RouteBudget, summarize_route
@@ -216,14 +217,15 @@ def threshold_grid(
 ) -> np.ndarray:
     """Thresholds for the delay-against-false-alarms curve around the calibrated ``h_star``.
 
-    ``frame`` and ``persistence``: upper quantiles of the healthy scores (from the median to the
-    largest), so the curve spans every false-alarm rate the healthy streams can show. ``cusum``:
+    A rule thresholding each step's score (``frame``, ``persistence``): upper quantiles of the healthy
+    scores (from the median to the largest), so the curve spans every false-alarm rate the healthy
+    streams can show. A rule on an accumulated statistic (:attr:`RuleSpec.accumulates`, ``cusum``):
     geometric from ``h_star / 50`` to ``2 h_star`` (``h_star`` not finite: from the largest healthy
     score to 100 times it).
     """
     flat = np.asarray(scores, dtype=float).ravel()
     flat = flat[np.isfinite(flat)]
-    if rule.name == "cusum":
+    if rule_spec(rule).accumulates:
         top = h_star if math.isfinite(h_star) and h_star > 0 else max(float(flat.max(initial=1.0)), 1.0) * 50
         grid = np.geomspace(top / 50.0, 2.0 * top, points)
     else:
@@ -335,7 +337,7 @@ def diagnose_at_budget(
             )
         t1 = time.perf_counter()
         top = getattr(route, "score_max", float("inf"))
-        if base.name != "cusum" and math.isfinite(h_star) and h_star > top:
+        if not rule_spec(base).accumulates and math.isfinite(h_star) and h_star > top:
             info["never_alarms"] = (
                 f"the threshold {h_star:.4g} lies above the score's largest value {top:.4g}: at this budget "
                 f"the {base.name} rule never alarms on this route"

@@ -77,6 +77,18 @@ __all__ = [
 #: Every diagnosis method, in table order.
 ALL_METHODS = ("chattering", "smm", "imm", "innovation", "parameters")
 
+#: Rule parameters a route may set itself (its score's healthy offset); a rule takes those it has.
+ROUTE_RULE_PARAMETERS = ("drift",)
+
+
+def _taken(rule: str, **offered: float) -> dict[str, float]:
+    """The ``offered`` parameters (of :data:`ROUTE_RULE_PARAMETERS`) that ``rule`` has."""
+    from ..detection.alarm_rules import rule_spec
+
+    have = rule_spec(rule).parameters
+    return {k: v for k, v in offered.items() if k in have}
+
+
 #: Samples per filter call of the innovation route (bounds the memory of the EKF's per-run S).
 INNOVATION_BLOCK = 2048
 
@@ -186,7 +198,7 @@ class ModeRoute:
 
     def rule_parameters(self, rule: str) -> dict[str, float]:
         """CUSUM drift 0: the log odds sit near ``log floor`` when healthy."""
-        return {"drift": 0.0} if rule == "cusum" else {}
+        return _taken(rule, drift=0.0)
 
     def describe(self) -> dict[str, Any]:
         """A short description for reports and recordings."""
@@ -282,7 +294,7 @@ class InnovationRoute:
 
     def rule_parameters(self, rule: str) -> dict[str, float]:
         """CUSUM drift ``(m/2) log L``: the constant term of the likelihood ratio."""
-        return {"drift": self.drift} if rule == "cusum" else {}
+        return _taken(rule, drift=self.drift)
 
     def describe(self) -> dict[str, Any]:
         """A short description for reports and recordings."""

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..detection.alarm_rules import rule_spec
 from ..errors import ParameterError
 from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
 from .alarm_events import send_alarm_events
@@ -163,7 +164,7 @@ class ColumnBatches:
         self._zero_rows = self._cols.scalars_column(np.zeros(2), own=True)
         self._half_win = (monitor.n_window - 1) / 2.0 * monitor.dt  # frame centre -> its last sample
         rule = monitor.rule
-        self._cusum = rule.name == "cusum"  # the alarm view draws g; else the score itself
+        self._cusum = rule_spec(rule).accumulates  # the alarm view draws g; else the score itself
         self._h = float(rule.threshold) if np.isfinite(rule.threshold) else np.nan
         self.extent = ChatteringExtent(m)  # the file's chattering amplitudes
         # the file's largest statistic (dB) and alarm-view value per channel: its views' y ranges

@@ -306,7 +306,7 @@ def record_budget_diagnosis(
     -------
     Path
     """
-    from ..detection.alarms import rule_from_dict, run_rule
+    from ..detection.alarms import rule_from_dict, rule_spec, run_rule
     from ..detection.route_scores import mode_log_odds
     from ..plants.simulate import iter_simulations
 
@@ -328,7 +328,7 @@ def record_budget_diagnosis(
             score, times = rs.score, rs.times
         blk = run_rule(rule, score)
         stat = blk.statistic[0].max(axis=-1)  # the largest over the channels (the route's alarm is any)
-        label = {"frame": "score", "persistence": "exceedances in window", "cusum": "CUSUM g"}[rule.name]
+        label = rule_spec(rule).statistic
         series[method] = (times, stat, rule.threshold, label)
     chat = by_method.get("chattering")
     chat_rule = None if chat is None else (rule_from_dict(chat.rule), chat.budget_per_hour)

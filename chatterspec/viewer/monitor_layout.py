@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..detection.alarm_rules import rule_spec
 from ..online.monitor import ChatteringMonitor
 from .blueprint import alarm_range, blueprint, layout_geometry, plot_heights, statistic_range, view_px
 from .record_geometry import DB_RANGE
@@ -79,7 +80,7 @@ class MonitorLayout:
         self.key = key_width(self.width, view_px(m))  # the colour key: as wide as a time view's labels
         rule = monitor.rule
         self.budget_per_hour = budget_per_hour
-        self.cusum = rule.name == "cusum"
+        self.cusum = rule_spec(rule).accumulates  # the alarm view draws the rule's statistic
         self.h = float(rule.threshold) if np.isfinite(rule.threshold) else np.nan
 
     def blueprint(
@@ -149,8 +150,7 @@ class MonitorLayout:
         """The alarm view's title, longest first (:func:`~chatterspec.viewer.blueprint.fit` picks the one
         that fits): the rule's statistic against its threshold (nats) and the budget."""
         rule = self.monitor.rule
-        what = {"cusum": "CUSUM g", "persistence": f"score ({getattr(rule, 'k', '')} of "
-                f"{getattr(rule, 'n', '')})"}.get(rule.name, "score")  # fmt: skip
+        what = rule.view_label()
         h = f"{rule.threshold:.3g}"
         return [
             f"{what} vs h = {h} nats, {self.budget_words(rule=False)}",
