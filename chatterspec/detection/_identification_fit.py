@@ -177,8 +177,11 @@ class IdentificationSetup:
         for i in range(p):
             steps[i, ..., i] = step[..., i]
         dev = self.deviations(h, np.concatenate([theta + steps, theta - steps, theta[None]]))
-        cols = (dev[:p] - dev[p : 2 * p]) / np.moveaxis(2 * step, -1, 0)[..., None]  # (p, ..., D)
-        return np.ascontiguousarray(np.moveaxis(cols, 0, -1)), dev[2 * p]
+        nd = step.ndim  # (np.moveaxis as transposes: a few us less per call)
+        cols = (dev[:p] - dev[p : 2 * p]) / (2 * step).transpose(nd - 1, *range(nd - 1))[
+            ..., None
+        ]  # (p, ..., D)
+        return np.ascontiguousarray(cols.transpose(*range(1, nd + 1), 0)), dev[2 * p]
 
 
 @dataclass(frozen=True, eq=False)
