@@ -96,7 +96,7 @@ def evaluate_formulas(formulas: Sequence[Formula], values: Mapping[str, object])
         f = next(f for f in formulas if f.names & missing)
         raise ParameterError(f"formula {f.text!r}: no value for {sorted(f.names & missing)}")
     scope: dict[str, object] = {**BUILTIN_CONSTANTS, **FUNCTIONS}
-    scope.update({k: np.asarray(values[k], dtype=float) for k in names if k in values})
+    scope.update({k: _operand(values[k]) for k in names if k in values})
     out = []
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         for f in formulas:
@@ -110,6 +110,14 @@ def evaluate_formulas(formulas: Sequence[Formula], values: Mapping[str, object])
             except ArithmeticError as exc:  # e.g. 1/0 between two literal numbers
                 raise ParameterError(f"formula {f.text!r} cannot be evaluated: {exc}") from None
     return out
+
+
+def _operand(value: object) -> np.ndarray | np.float64:
+    """``value`` as a float array, or a numpy float scalar when it has no dimensions: the same float
+    operations (and the same overflow and division by zero under ``np.errstate``), without the cost of
+    a ufunc call per operation between constants."""
+    arr = np.asarray(value, dtype=float)
+    return arr[()] if arr.ndim == 0 else arr
 
 
 def compile_formula(text: str, where: str = "formula") -> Formula:
