@@ -15,7 +15,6 @@ import numpy as np
 import scipy.special
 
 from ..errors import IdentifiabilityError, ParameterError
-from ..plants._expressions import Formula, evaluate_formulas
 from ..plants.models import LinearModel
 from ..plants.nonlinear import Model, is_linear
 from ..plants.parameters import NO_FAULT, UNEXPLAINED, Hypothesis, ParameterMap
@@ -133,8 +132,8 @@ class IdentificationSetup:
             key = ("A", int(i), int(self.J[c])) if c < qj else ("B", int(i), int(self.L[c - qj]))
             if key in where and depends[where[key]]:  # the other entries do not move: deviation exactly 0
                 k = where[key]
-                terms.append((a, pm.entries[k].formula, float(self._nominal_entries[k])))
-        return _DeviationPlan(names, self._values, tuple(terms))
+                terms.append((a, k, float(self._nominal_entries[k])))
+        return _DeviationPlan(pm, names, self._values, tuple(terms))
 
     def deviations(self, h: int, theta: np.ndarray) -> np.ndarray:
         """``(..., D)``: the entries' deviations when hypothesis ``h``'s parameters are ``theta (..., p)``."""
@@ -189,21 +188,19 @@ class _DeviationPlan:
     """The formulas of the entries hypothesis ``names`` moves, for :meth:`IdentificationSetup.deviations`
     when C = I: each estimated entry is then one declared entry of A or B (or none)."""
 
+    parameter_map: ParameterMap
     names: tuple[str, ...]
     values: dict[str, object]  # every name of the formulas at its nominal value (ParameterMap.values)
-    terms: tuple[tuple[int, Formula, float], ...]  # (estimated entry, its formula, its nominal value)
+    terms: tuple[tuple[int, int, float], ...]  # (estimated entry, its declared entry, its nominal value)
 
     def deviations(self, theta: np.ndarray, n_entries: int) -> np.ndarray:
         vals = dict(self.values)
         vals.update({p: theta[..., i] for i, p in enumerate(self.names)})
         out = np.zeros((*theta.shape[:-1], n_entries))
-        for (a, _, nominal), value in zip(self.terms, evaluate_formulas(self.formulas, vals), strict=True):
+        values = self.parameter_map.entry_values([k for _, k, _ in self.terms], vals)
+        for (a, _, nominal), value in zip(self.terms, values, strict=True):
             out[..., a] = value - nominal
         return out
-
-    @property
-    def formulas(self) -> tuple[Formula, ...]:
-        return tuple(f for _, f, _ in self.terms)
 
 
 def _tiny_scale(theta: np.ndarray) -> np.ndarray:
