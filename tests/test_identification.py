@@ -358,3 +358,45 @@ def test_parameters_with_parallel_effects_are_refused_not_inverted() -> None:
     ok = np.array([True, True, False])  # a refused row stays as it was (identity in its place)
     assert _separable(N, ok).tolist() == [False, True, True]
     assert "cannot be told apart" in REASONS[4]
+
+
+def _deviations_by_entries(setup, h: int, theta: np.ndarray) -> np.ndarray:
+    """The deviations read from the map's evaluation of every entry (A and B filled, then gathered)."""
+    pm, model = setup.parameter_map, setup.model
+    names = setup.hypotheses[h].parameters
+    full = pm.evaluate(model.dt, {p: theta[..., i] for i, p in enumerate(names)}) - pm.evaluate(model.dt)
+    dA = np.zeros((*theta.shape[:-1], model.n_states, model.n_states))
+    dB = np.zeros((*theta.shape[:-1], model.n_states, model.n_inputs))
+    for k, e in enumerate(pm.entries):
+        (dA if e.matrix == "A" else dB)[..., e.row, e.col] = full[..., k]
+    qj = setup.J.size
+    return np.stack(
+        [
+            dA[..., i, setup.J[c]] if c < qj else dB[..., i, setup.L[c - qj]]
+            for i, c in zip(setup.R[setup.rows], setup.cols, strict=True)
+        ],
+        axis=-1,
+    )
+
+
+def test_deviations_and_jacobian_in_one_evaluation_are_the_separate_numbers() -> None:
+    # the fit evaluates only the formulas a hypothesis moves, and the Jacobian's shifted points in one
+    # call: bit for bit the deviations of the whole map and the central differences one parameter at a
+    # time (the joint EHA hypothesis is not affine: bulk_modulus * leakage)
+    setup = identification_setup(eha_linear())
+    rng = np.random.default_rng(3)
+    for h in range(len(setup.hypotheses)):
+        theta0 = setup.nominal(h)
+        theta = theta0 * (1.0 + 0.3 * rng.standard_normal((5, theta0.size)))
+        assert np.array_equal(setup.deviations(h, theta), _deviations_by_entries(setup, h, theta))
+        G, g = setup.jacobian_deviations(h, theta)
+        scale = np.maximum(np.abs(theta), np.abs(theta0))
+        for i in range(theta0.size):
+            step = np.zeros_like(theta)
+            step[:, i] = 1e-6 * scale[:, i]
+            col = (setup.deviations(h, theta + step) - setup.deviations(h, theta - step)) / (
+                2 * step[:, i : i + 1]
+            )
+            assert np.array_equal(G[..., i], col)
+        assert np.array_equal(g, setup.deviations(h, theta))
+        assert G.flags.c_contiguous

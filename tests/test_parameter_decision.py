@@ -7,6 +7,7 @@ says why); the long runs (24 h per plant, 500 onsets) are ``scripts/tolerance_st
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 
@@ -249,3 +250,23 @@ def test_monitor_with_tolerances_decides_on_the_parameters(
     assert all("parameter" not in e for e in spectral)
     named = [e["fault"] for e in lines if e["event"] == "identification" and e["fault"]]
     assert named and set(named) == {"leakage"}
+
+
+def test_horizon_sums_do_not_depend_on_how_the_stream_is_cut() -> None:
+    # each window's information is the sum of the last K windows' added oldest first: the same bits in one
+    # call, in calls of any size, and from a plain loop over the terms
+    from chatterspec.detection.parameter_decision import _Horizon
+
+    rng = np.random.default_rng(5)
+    info = rng.lognormal(0.0, 3.0, size=(2, 40, 3))  # (streams, windows, parameters)
+    K = 7
+    whole = _Horizon(K).sums(info)
+    h = _Horizon(K)
+    cuts = [0, 1, 2, 9, 10, 23, 40]
+    pieces = np.concatenate([h.sums(info[:, a:b]) for a, b in itertools.pairwise(cuts)], axis=1)
+    assert np.array_equal(whole, pieces)
+    ref = np.zeros_like(info)
+    for j in range(info.shape[1]):
+        for i in range(max(0, j - K + 1), j + 1):
+            ref[:, j] += info[:, i]
+    assert np.array_equal(whole, ref)

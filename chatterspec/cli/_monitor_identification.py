@@ -53,7 +53,8 @@ class MonitorIdentification:
         self.windows = 0
         self.changes: list[dict[str, Any]] = []
         self.events: list[dict[str, Any]] = []
-        self.last: dict[str, Any] | None = None
+        self._last: tuple[Any, Any] | None = None  # (update, window) of the last window
+        self._last_doc: dict[str, Any] | None = None
         self.spectral_mismatch = 0
         self._key: tuple[Any, ...] | None = None
         self._label: str | None = None
@@ -64,6 +65,36 @@ class MonitorIdentification:
         self._hop_s = monitor.settings.hop_s
         #: Called with each push's update before it is reported (e.g. the recordings of a stream).
         self.on_update: Callable[[IdentificationUpdate], None] | None = None
+
+    @property
+    def last(self) -> dict[str, Any] | None:
+        """The report of the last window (the ``identification`` event's fields), None before one."""
+        if self._last_doc is None and self._last is not None:
+            self._last_doc = self._doc(*self._last)
+        return self._last_doc
+
+    def _current(self) -> dict[str, Any]:
+        """:attr:`last` while its window is being reported."""
+        doc = self.last
+        assert doc is not None  # (set before the window's report is asked for)
+        return doc
+
+    def _doc(self, upd: Any, w: Any) -> dict[str, Any]:
+        """The fields of window ``w``'s ``identification`` event (``upd`` the push's update)."""
+        mon, blk = self.monitor, upd.block
+        doc = {
+            "sample_time_s": round(w.time_s, 9),
+            "window_s": [round(w.window_s[0], 9), round(w.window_s[1], 9)],
+            "alarm": w.alarm,
+            "fault": w.label,
+            "fits": bool(blk.fits[w.index]),
+            "parameters": mon.parameter_summary(blk, w),
+            "channels": dict(zip(mon.channels, w.channel_states, strict=True)),
+        }
+        if w.alarm and not self.tolerances:
+            rep = upd.report(w.index).to_dict()
+            doc.update({k: rep[k] for k in ("selected", "hypotheses", "alpha", "confidence")})
+        return doc
 
     @property
     def identifier(self) -> Any:
@@ -120,37 +151,26 @@ class MonitorIdentification:
                     self.emit(dumps(line))
                 self.say(ev.describe())
             self._not_excited += np.array([s == "not-excited" for s in w.states]) * self._hop_s
-            doc = {
-                "sample_time_s": round(w.time_s, 9),
-                "window_s": [round(w.window_s[0], 9), round(w.window_s[1], 9)],
-                "alarm": w.alarm,
-                "fault": w.label,
-                "fits": bool(blk.fits[w.index]),
-                "parameters": mon.parameter_summary(blk, w),
-                "channels": dict(zip(mon.channels, w.channel_states, strict=True)),
-            }
-            if w.alarm and not self.tolerances:
-                rep = upd.report(w.index).to_dict()
-                doc.update({k: rep[k] for k in ("selected", "hypotheses", "alpha", "confidence")})
+            # the window's report is built only where it is written (most windows of a replay are not)
+            self._last, self._last_doc = (upd, w), None
             key = (w.label, w.states, w.channel_states)
             changed = key != self._key
             if self.emit is not None and self.every_hop is not None and (self.every_hop or changed):
-                self.emit(dumps({"event": "identification", **doc}))
+                self.emit(dumps({"event": "identification", **self._current()}))
             if w.label != self._label:
-                self._say_label(w, doc)
+                self._say_label(w, self._current())
             warm = self._since_reset > mon.settings.horizon_hops  # the horizon holds data only after it
             if warm and self._states is not None and w.states != self._states:
-                self._say_states(w, doc)
+                self._say_states(w, self._current())
             if changed:
                 self.changes.append(
                     {
-                        "time_s": doc["sample_time_s"],
+                        "time_s": round(w.time_s, 9),
                         "fault": w.label,
                         "states": dict(zip(mon.parameters, w.states, strict=True)),
                     }
                 )
             self._key, self._label, self._states = key, w.label, w.states
-            self.last = doc
 
     def _say_label(self, w: Any, doc: dict[str, Any]) -> None:
         """A human line when the fault named changes (an alarm starts or ends, or names another fault)."""

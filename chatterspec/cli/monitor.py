@@ -147,7 +147,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--chunk",
         type=positive_int_arg,
         default=None,
-        help="samples per push (default: one STFT hop with --rate > 0, five otherwise)",
+        help="samples per push (default: one STFT hop with --rate > 0, 250 hops otherwise; the output does "
+        "not depend on it)",
     )
     _identify.add_identification_args(p)
     _identify.add_tolerance_args(p)

@@ -485,7 +485,12 @@ class ParameterDecision:
 
 class _Horizon:
     """The information ``1 / sigma^2`` of the last ``K`` windows, summed per stream and parameter
-    (continues across calls; arrays ``(..., W, P)``)."""
+    (continues across calls; arrays ``(..., W, P)``).
+
+    Each window's sum adds its ``K`` terms oldest first, so its bits do not depend on how the stream
+    was cut into calls (a running sum, with a subtraction, would carry the rounding of the call's
+    first windows).
+    """
 
     def __init__(self, K: int) -> None:
         self.K = K
@@ -496,11 +501,12 @@ class _Horizon:
 
     def sums(self, info: np.ndarray) -> np.ndarray:
         x = info if self._tail is None else np.concatenate([self._tail, info], axis=-2)
-        lead = x.shape[:-2]
-        c = np.concatenate([np.zeros((*lead, 1, x.shape[-1])), np.cumsum(x, axis=-2)], axis=-2)
-        n = x.shape[-2]
-        idx = np.arange(n - info.shape[-2], n) + 1  # one past each new window
-        out = c[..., idx, :] - c[..., np.maximum(idx - self.K, 0), :]
+        n, w = x.shape[-2], info.shape[-2]
+        out = np.zeros(info.shape)
+        for k in range(self.K - 1, -1, -1):  # the term k windows back, oldest first
+            j0 = max(0, k - (n - w))  # the first new window that has it (x starts at the stream's start)
+            if j0 < w:
+                out[..., j0:, :] += x[..., n - w + j0 - k : n - k, :]
         self._tail = x[..., max(0, n - (self.K - 1)) :, :].copy() if self.K > 1 else x[..., :0, :]
         return out
 

@@ -16,14 +16,14 @@ from __future__ import annotations
 
 import ast
 import types
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import ParameterError
 
-__all__ = ["FUNCTIONS", "Formula", "compile_formula"]
+__all__ = ["FUNCTIONS", "Formula", "compile_formula", "evaluate_formulas"]
 
 #: Functions a formula may call (one argument each).
 FUNCTIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
@@ -78,21 +78,46 @@ class Formula:
         ParameterError
             If a name is missing from ``values`` (and is not ``pi``).
         """
-        missing = self.names - values.keys() - BUILTIN_CONSTANTS.keys()
-        if missing:
-            raise ParameterError(f"formula {self.text!r}: no value for {sorted(missing)}")
-        scope: dict[str, object] = {**BUILTIN_CONSTANTS, **FUNCTIONS}
-        scope.update({k: np.asarray(values[k], dtype=float) for k in self.names if k in values})
-        try:
-            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        return evaluate_formulas((self,), values)[0]
+
+
+def evaluate_formulas(formulas: Sequence[Formula], values: Mapping[str, object]) -> list[np.ndarray]:
+    """Each of ``formulas`` evaluated with ``values`` (name -> number or array; arrays broadcast): the
+    scope is built once for all of them (the numbers are those of calling each).
+
+    Raises
+    ------
+    ParameterError
+        If a name is missing from ``values`` (and is not ``pi``), or a number overflows.
+    """
+    names = frozenset().union(*(f.names for f in formulas))
+    missing = names - values.keys() - BUILTIN_CONSTANTS.keys()
+    if missing:
+        f = next(f for f in formulas if f.names & missing)
+        raise ParameterError(f"formula {f.text!r}: no value for {sorted(f.names & missing)}")
+    scope: dict[str, object] = {**BUILTIN_CONSTANTS, **FUNCTIONS}
+    scope.update({k: _operand(values[k]) for k in names if k in values})
+    out = []
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for f in formulas:
+            try:
                 # the tree holds only the whitelisted nodes (compile_formula): no builtins are reachable
-                return np.asarray(eval(self._code, {"__builtins__": {}}, scope), dtype=float)
-        except OverflowError:  # e.g. 10**10**10 between literal numbers
-            raise ParameterError(
-                f"formula {self.text!r} cannot be evaluated: a number overflows (beyond 1.8e308)"
-            ) from None
-        except ArithmeticError as exc:  # e.g. 1/0 between two literal numbers
-            raise ParameterError(f"formula {self.text!r} cannot be evaluated: {exc}") from None
+                out.append(np.asarray(eval(f._code, {"__builtins__": {}}, scope), dtype=float))
+            except OverflowError:  # e.g. 10**10**10 between literal numbers
+                raise ParameterError(
+                    f"formula {f.text!r} cannot be evaluated: a number overflows (beyond 1.8e308)"
+                ) from None
+            except ArithmeticError as exc:  # e.g. 1/0 between two literal numbers
+                raise ParameterError(f"formula {f.text!r} cannot be evaluated: {exc}") from None
+    return out
+
+
+def _operand(value: object) -> np.ndarray | np.float64:
+    """``value`` as a float array, or a numpy float scalar when it has no dimensions: the same float
+    operations (and the same overflow and division by zero under ``np.errstate``), without the cost of
+    a ufunc call per operation between constants."""
+    arr = np.asarray(value, dtype=float)
+    return arr[()] if arr.ndim == 0 else arr
 
 
 def compile_formula(text: str, where: str = "formula") -> Formula:

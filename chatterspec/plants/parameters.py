@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any, Literal, TypeVar, cast
 import numpy as np
 
 from ..errors import ChatterspecError, ModelFileError, ParameterError
-from ._expressions import BUILTIN_CONSTANTS, FUNCTIONS, Formula, compile_formula
+from ._expressions import BUILTIN_CONSTANTS, FUNCTIONS, Formula, compile_formula, evaluate_formulas
 from .tolerances import Tolerance, parse_tolerance, tolerance_from_text
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -341,6 +341,12 @@ class ParameterMap:
         cols = [np.asarray(e.formula(vals), dtype=float) for e in self.entries]
         shape = np.broadcast_shapes(*(c.shape for c in cols)) if cols else ()
         return np.stack([np.broadcast_to(c, shape) for c in cols], axis=-1) if cols else np.empty((0,))
+
+    def entry_values(self, indices: Sequence[int], values: Mapping[str, object]) -> list[np.ndarray]:
+        """The formulas of the entries ``indices`` (into :attr:`entries`) evaluated with ``values`` (every
+        name they read, e.g. :meth:`values` with arrays for some parameters), in one scope: the numbers
+        of :meth:`evaluate`'s columns, with less overhead per call."""
+        return evaluate_formulas([self.entries[k].formula for k in indices], values)
 
     def depends(self, parameters: Sequence[str]) -> np.ndarray:
         """``(n_entries,)`` bool: the entries whose formula reads any of ``parameters``."""
