@@ -47,8 +47,18 @@ from ._bank_steps import (
     mode_probabilities_step,
     run_bank_loop,
 )
-from ._engine import BAD_INPUT, DIVERGED, NOT_PD, SINGULAR_PHI12, _no_sample, sample_step, workspace
-from ._finite import finite_sample
+from ._engine import (
+    BAD_INPUT,
+    DIVERGED,
+    NOT_PD,
+    SINGULAR_PHI12,
+    _no_sample,
+    sample_step,
+    take2,
+    take3,
+    workspace,
+)
+from ._finite import finite_sample, finite_state
 
 if TYPE_CHECKING:  # pragma: no cover
     from .bank_common import MultipleModelState
@@ -293,19 +303,13 @@ def _imm_one(buf, cst, slots, z, u):  # type: ignore[no-untyped-def]  # pragma: 
     p = u.shape[0]
     if not finite_sample(z, m, u, p):
         return BAD_INPUT
-    L_prm, L_fp, floor = int(cst[3]), int(cst[4]), cst[5]
-    o = 6
-    prm = cst[o : o + nm * L_prm].reshape((nm, L_prm))
-    o += nm * L_prm
-    fp = cst[o : o + nm * L_fp].reshape((nm, L_fp))
-    o += nm * L_fp
-    Q = cst[o : o + nm * n * n].reshape((nm, n, n))
-    o += nm * n * n
-    C = cst[o : o + nm * m * n].reshape((nm, m, n))
-    o += nm * m * n
-    R = cst[o : o + nm * m * m].reshape((nm, m, m))
-    o += nm * m * m
-    pi = cst[o : o + nm * nm].reshape((nm, nm))
+    floor = cst[5]
+    prm, o = take2(cst, 6, nm, int(cst[3]))
+    fp, o = take2(cst, o, nm, int(cst[4]))
+    Q, o = take3(cst, o, nm, n, n)
+    C, o = take3(cst, o, nm, m, n)
+    R, o = take3(cst, o, nm, m, m)
+    pi, o = take2(cst, o, nm, nm)
     offs = one_layout(nm, n, m)
     size = offs[-1]
     work = _jit.scratch_block(size)
@@ -328,12 +332,8 @@ def _imm_one(buf, cst, slots, z, u):  # type: ignore[no-untyped-def]  # pragma: 
     )  # fmt: skip
     if status != 0:
         return status
-    for i in range(n):
-        if not np.isfinite(x[i]):
-            return DIVERGED
-        for j in range(n):
-            if not np.isfinite(P[i, j]):
-                return DIVERGED
+    if not finite_state(x, P, n):
+        return DIVERGED
     work[0] = 0.0
     for i in range(size):
         buf[i] = work[i]

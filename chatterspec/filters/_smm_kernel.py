@@ -45,9 +45,12 @@ from ._engine import (
     innovation_step,
     predict_cov_step,
     sample_step,
+    take,
+    take2,
+    take3,
     workspace,
 )
-from ._finite import finite_sample
+from ._finite import finite_sample, finite_state
 
 #: Bindings of :func:`_smm_sample`: the modes' plant step (:func:`._bank_steps.bank_plants`), the
 #: SVSF-cov sample step, sizes (0: from the arrays); of the loops: ``SMM_SAMPLE``.
@@ -182,17 +185,12 @@ def _smm_one(
     p = u.shape[0]
     if not finite_sample(z, m, u, p):
         return BAD_INPUT
-    L_prm, L_fp, floor = int(cst[3]), int(cst[4]), cst[5]
-    o = 6
-    prm = cst[o : o + nm * L_prm].reshape((nm, L_prm))
-    o += nm * L_prm
-    Qs = cst[o : o + nm * n * n].reshape((nm, n, n))
-    o += nm * n * n
-    C = cst[o : o + m * n].reshape((m, n))
-    o += m * n
-    R = cst[o : o + m * m].reshape((m, m))
-    o += m * m
-    fp = cst[o : o + L_fp]
+    floor = cst[5]
+    prm, o = take2(cst, 6, nm, int(cst[3]))
+    Qs, o = take3(cst, o, nm, n, n)
+    C, o = take2(cst, o, m, n)
+    R, o = take2(cst, o, m, m)
+    fp, o = take(cst, o, int(cst[4]))
     offs = one_layout(nm, n, m)
     size = offs[-1]
     work = _jit.scratch_block(size)
@@ -210,12 +208,8 @@ def _smm_one(
     status = SMM_SAMPLE(prm, slots, Qs, C, R, fp, floor, z, u, x, P, mu, ep, epp, xs, Ps, ll, scr, n, m, p)
     if status != 0:
         return status
-    for i in range(n):
-        if not np.isfinite(x[i]):
-            return DIVERGED
-        for j in range(n):
-            if not np.isfinite(P[i, j]):
-                return DIVERGED
+    if not finite_state(x, P, n):
+        return DIVERGED
     for i in range(m):
         work[offs[7] + i] = z[i]
     for i in range(size):

@@ -63,7 +63,33 @@ def _diverged(who: str, k: int) -> DivergenceError:
     )
 
 
-class OnlineFilter:
+class _OneRealization:
+    """What every one-sample filter holds and checks: one realization's sizes, its sample index, the
+    shapes of a call's ``z`` and ``u``."""
+
+    __slots__ = ("_buf", "_call", "_cst", "_k", "_m", "_n", "_p", "_state", "_u0", "compiled")
+
+    def _start(self, model: Any, state: Any, ok: bool, expected: str, runs: int, what: str) -> None:
+        """Refuse a state of another kind (``ok`` false) or of several realizations; take the sizes."""
+        if not ok:
+            raise TypeError(f"state must be {expected}; got {type(state).__name__}")
+        if runs != 1:
+            raise ShapeError(f"an online {what} follows one realization; the state holds {runs}")
+        self._n, self._m, self._p = int(model.n_states), int(model.n_outputs), int(model.n_inputs)
+        self._u0 = np.zeros(self._p)
+        self._k = int(state.k)
+
+    def _rows(self, z: object, u: object | None) -> tuple[np.ndarray, np.ndarray]:
+        """``z`` (m,) and ``u`` (p,) of one call (``u`` None: zeros); ShapeError for another shape."""
+        return sample_rows("z", z, self._m), (self._u0 if u is None else sample_rows("u", u, self._p))
+
+    @property
+    def k(self) -> int:
+        """Index of the last sample processed (0 before the first step)."""
+        return self._k
+
+
+class OnlineFilter(_OneRealization):
     """A covariance filter and the state of one realization, advanced one sample per :meth:`step`.
 
     Made by ``filter.online(x0, P0)`` (or from a one-run :class:`~chatterspec.filters.protocol.FilterState`).
@@ -88,34 +114,14 @@ class OnlineFilter:
         ``state`` holds more than one realization.
     """
 
-    __slots__ = (
-        "_buf",
-        "_call",
-        "_cst",
-        "_k",
-        "_last",
-        "_m",
-        "_n",
-        "_off",
-        "_p",
-        "_state",
-        "_stepped",
-        "_u0",
-        "compiled",
-        "filter",
-    )
+    __slots__ = ("_last", "_off", "_stepped", "filter")
 
     def __init__(self, filter: Any, state: FilterState) -> None:
-        if not isinstance(state, FilterState):
-            raise TypeError(f"state must be a FilterState; got {type(state).__name__}")
-        if state.runs != 1:
-            raise ShapeError(f"an online filter follows one realization; the state holds {state.runs}")
         model = filter.model
+        ok = isinstance(state, FilterState)
+        self._start(model, state, ok, "a FilterState", state.runs if ok else 1, "filter")
         self.filter = filter
-        n, m, p = int(model.n_states), int(model.n_outputs), int(model.n_inputs)
-        self._n, self._m, self._p = n, m, p
-        self._u0 = np.zeros(p)
-        self._k = int(state.k)
+        n, m, p = self._n, self._m, self._p
         corr = filter._correction_step()
         plant = filter._plant()
         hx = measurement_steps(model) if has_measurement_function(model) else None
@@ -171,8 +177,7 @@ class OnlineFilter:
         SingularMatrixError
             An innovation covariance that is not positive definite.
         """
-        z = sample_rows("z", z, self._m)
-        u = self._u0 if u is None else sample_rows("u", u, self._p)
+        z, u = self._rows(z, u)
         if not self.compiled:
             return self._update(z, u)
         status = self._call(self._buf, self._cst, z, u)
@@ -217,11 +222,6 @@ class OnlineFilter:
     def _field(self, o: int, shape: tuple[int, ...]) -> np.ndarray:
         size = int(np.prod(shape, dtype=np.int64))
         return self._buf[o : o + size].reshape(shape).copy()
-
-    @property
-    def k(self) -> int:
-        """Index of the last sample processed (0 before the first step)."""
-        return self._k
 
     @property
     def x(self) -> np.ndarray:
@@ -292,7 +292,7 @@ class OnlineFilter:
         return f"OnlineFilter({type(self.filter).__name__}, k={self._k}, n={self._n}, m={self._m}, {path})"
 
 
-class OnlineBank:
+class OnlineBank(_OneRealization):
     """A multiple-model bank and the state of one realization, advanced one sample per :meth:`step`.
 
     The bank is an :class:`~chatterspec.filters.imm.IMM` or an
@@ -317,22 +317,17 @@ class OnlineBank:
         Whether a step is one compiled call.
     """
 
-    __slots__ = ("_buf", "_call", "_cst", "_k", "_kind", "_layout", "_ll", "_m", "_n", "_nm", "_p", "_slots",
-                 "_state", "_stepped", "_u0", "bank", "compiled")  # fmt: skip
+    __slots__ = ("_kind", "_layout", "_ll", "_nm", "_slots", "_stepped", "bank")
 
     def __init__(self, bank: Any, state: Any) -> None:
         from . import _imm_kernel, _smm_kernel
 
-        if not all(hasattr(state, a) for a in ("x", "P", "mu", "z_last", "mode_states", "k")):
-            raise TypeError(f"state must be a MultipleModelState; got {type(state).__name__}")
-        if state.x.shape[0] != 1:
-            raise ShapeError(f"an online bank follows one realization; the state holds {state.x.shape[0]}")
+        ok = all(hasattr(state, a) for a in ("x", "P", "mu", "z_last", "mode_states", "k"))
+        self._start(
+            bank._sensor_model(), state, ok, "a MultipleModelState", state.x.shape[0] if ok else 1, "bank"
+        )
         self.bank = bank
-        mdl = bank._sensor_model()
-        self._n, self._m, self._p = int(mdl.n_states), int(mdl.n_outputs), int(mdl.n_inputs)
         self._nm = len(bank.modes)
-        self._u0 = np.zeros(self._p)
-        self._k = int(state.k)
         self._stepped = False
         self._state = state
         self._ll: np.ndarray | None = None
@@ -409,8 +404,7 @@ class OnlineBank:
         ShapeError, NonFiniteError, DivergenceError, SingularMatrixError
             As :meth:`OnlineFilter.step`; SingularMatrixError also when every mode likelihood is zero.
         """
-        z = sample_rows("z", z, self._m)
-        u = self._u0 if u is None else sample_rows("u", u, self._p)
+        z, u = self._rows(z, u)
         if not self.compiled:
             _finite_input(type(self.bank).__name__, self._k + 1, z, u)
             state, out = self.bank.update(self._state, z[None, None], u[None])
@@ -449,11 +443,6 @@ class OnlineBank:
     def _slice(self, o: int, shape: tuple[int, ...]) -> np.ndarray:
         size = int(np.prod(shape, dtype=np.int64))
         return self._buf[o : o + size].reshape(shape).copy()
-
-    @property
-    def k(self) -> int:
-        """Index of the last sample processed."""
-        return self._k
 
     @property
     def x(self) -> np.ndarray:
@@ -521,7 +510,7 @@ class OnlineBank:
         return f"OnlineBank({type(self.bank).__name__}, k={self._k}, modes={self._nm}, {path})"
 
 
-class OnlineSVSF:
+class OnlineSVSF(_OneRealization):
     """The chattering SVSF (:class:`~chatterspec.filters.svsf.SVSF`, sat or sgn) advanced one sample per call.
 
     Made by ``svsf.online(z0)``. A step is one compiled call built from the steps of
@@ -546,36 +535,17 @@ class OnlineSVSF:
         Whether a step is one compiled call.
     """
 
-    __slots__ = (
-        "_buf",
-        "_call",
-        "_closed",
-        "_cst",
-        "_k",
-        "_last",
-        "_m",
-        "_n",
-        "_p",
-        "_state",
-        "_u0",
-        "compiled",
-        "svsf",
-    )
+    __slots__ = ("_closed", "_last", "svsf")
 
     def __init__(self, svsf: Any, state: Any) -> None:
         from . import _svsf_kernels
         from .svsf_recursion import SVSFState
 
-        if not isinstance(state, SVSFState):
-            raise TypeError(f"state must be an SVSFState; got {type(state).__name__}")
-        if state.runs != 1:
-            raise ShapeError(f"an online filter follows one realization; the state holds {state.runs}")
         model = svsf.model
-        n, m, p = int(model.n_states), int(model.n_outputs), int(model.n_inputs)
+        ok = isinstance(state, SVSFState)
+        self._start(model, state, ok, "an SVSFState", state.runs if ok else 1, "filter")
+        n, m, p = self._n, self._m, self._p
         self.svsf = svsf
-        self._n, self._m, self._p = n, m, p
-        self._u0 = np.zeros(p)
-        self._k = int(state.k)
         self._state = state
         self._last: np.ndarray | None = None
         # the closed form of eq (23) for a record that starts with e(k|k) = 0, as update() picks it
@@ -606,8 +576,7 @@ class OnlineSVSF:
         ShapeError, NonFiniteError, DivergenceError
             As :meth:`OnlineFilter.step`.
         """
-        z = sample_rows("z", z, self._m)
-        u = self._u0 if u is None else sample_rows("u", u, self._p)
+        z, u = self._rows(z, u)
         if not self.compiled:
             _finite_input("SVSF", self._k + 1, z, u)
             # the whole record's choice of path (a chunk of update() would take the closed form
@@ -626,11 +595,6 @@ class OnlineSVSF:
         self._k += 1
         n, m = self._n, self._m
         return self._buf[n + 2 * m :].copy()
-
-    @property
-    def k(self) -> int:
-        """Index of the last sample processed."""
-        return self._k
 
     @property
     def e_prior(self) -> np.ndarray | None:
