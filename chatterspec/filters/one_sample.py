@@ -28,7 +28,6 @@ chatterspec.filters.protocol.Filter : the batch interface (``initialize``, ``upd
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import numpy as np
@@ -317,11 +316,9 @@ class OnlineBank(_OneRealization):
         Whether a step is one compiled call.
     """
 
-    __slots__ = ("_kind", "_layout", "_ll", "_nm", "_slots", "_stepped", "bank")
+    __slots__ = ("_ll", "_nm", "_offsets", "_slots", "_stepped", "bank")
 
     def __init__(self, bank: Any, state: Any) -> None:
-        from . import _imm_kernel, _smm_kernel
-
         ok = all(hasattr(state, a) for a in ("x", "P", "mu", "z_last", "mode_states", "k"))
         self._start(
             bank._sensor_model(), state, ok, "a MultipleModelState", state.x.shape[0] if ok else 1, "bank"
@@ -331,59 +328,11 @@ class OnlineBank(_OneRealization):
         self._stepped = False
         self._state = state
         self._ll: np.ndarray | None = None
-        is_imm = hasattr(bank, "transition_matrix")
-        self._kind = "imm" if is_imm else "smm"
-        spec = bank._fused if is_imm else bank._compiled
-        module = _imm_kernel if is_imm else _smm_kernel
-        self._layout = _jit.python_form(module.one_layout)(self._nm, self._n, self._m)
-        self.compiled = bool(
-            spec is not None
-            and _jit.enabled()
-            and self._layout[-1] <= _jit.BLOCK_CAPACITY
-            and (not is_imm or len(state.mode_states) == self._nm)
-        )
-        if self.compiled:
-            self._call = spec["one"]
-            self._pack(spec, state)
-
-    def _pack(self, spec: dict[str, Any], state: Any) -> None:
-        nm, n, m = self._nm, self._n, self._m
-        bank = self.bank
-        prm, fp = np.atleast_2d(spec["prm"]), np.atleast_2d(spec["fp"])
-        head = [nm, n, m, prm.shape[1], fp.shape[1], float(bank.weight_floor)]
-        lay = self._layout
-        buf = np.zeros(lay[-1])
-        if self._kind == "imm":
-            parts = [prm, fp, spec["Q"], spec["C"], spec["R"], bank.transition_matrix]
-            self._slots = np.ascontiguousarray(
-                np.concatenate([spec["plant_slot"], spec["corr_slot"]]), dtype=np.int64
-            )
-            sts = state.mode_states
-            buf[0] = 1.0 if state.k == 0 else 0.0
-            rows = (
-                state.mu[0],
-                np.stack([s.x[0] for s in sts]),
-                np.stack([np.broadcast_to(s.P, (1, n, n))[0] for s in sts]),
-                np.stack([s.e_post[0] for s in sts]),
-                np.stack([s.e_prev[0] for s in sts]),
-                state.z_last[0],
-                state.x[0],
-                np.broadcast_to(state.P, (1, n, n))[0],
-            )
-            for i, v in enumerate(rows):
-                buf[lay[i] : lay[i + 1]] = np.ravel(v)
-        else:
-            parts = [prm, spec["Qs"], spec["C"], spec["R"], fp]
-            self._slots = np.ascontiguousarray(spec["plant_slot"], dtype=np.int64)
-            epp = np.zeros(m) if state.e_prev is None else state.e_prev[0]
-            smm_rows = (state.x[0], np.broadcast_to(state.P, (1, n, n))[0], state.mu[0], state.e_post[0], epp)
-            starts = (0, *lay[:4])
-            for o, v in zip(starts, smm_rows, strict=True):
-                buf[o : o + np.size(v)] = np.ravel(v)
-            buf[lay[7] : lay[7] + m] = state.z_last[0]
-        self._buf = buf
-        vals = [np.asarray(head, dtype=float)] + [np.ravel(np.asarray(a, dtype=float)) for a in parts]
-        self._cst = np.ascontiguousarray(np.concatenate(vals))
+        # the bank's one-sample kernel and its packed arrays (``_one_pack``), or None: update per sample
+        packed = bank._one_pack(state) if _jit.enabled() else None
+        self.compiled = packed is not None
+        if packed is not None:
+            self._call, self._buf, self._cst, self._slots, self._offsets = packed
 
     def step(self, z: object, u: object | None = None) -> np.ndarray:
         """Advance by one sample: ``z(k+1)`` and the input ``u(k)``; returns the combined ``x(k+1|k+1)``.
@@ -418,7 +367,7 @@ class OnlineBank(_OneRealization):
             self._fail(status, z, u)
         self._k += 1
         self._stepped = True
-        o = self._x_offset()
+        o = self._offsets[0]
         return self._buf[o : o + self._n].copy()
 
     def _fail(self, status: int, z: np.ndarray, u: np.ndarray) -> None:
@@ -437,9 +386,6 @@ class OnlineBank(_OneRealization):
             "mode models (the innovation covariance) and the measurement units"
         )
 
-    def _x_offset(self) -> int:
-        return self._layout[6] if self._kind == "imm" else 0
-
     def _slice(self, o: int, shape: tuple[int, ...]) -> np.ndarray:
         size = int(np.prod(shape, dtype=np.int64))
         return self._buf[o : o + size].reshape(shape).copy()
@@ -449,7 +395,7 @@ class OnlineBank(_OneRealization):
         """The combined ``x(k|k)`` (n,) (copy)."""
         if not self.compiled:
             return self._state.x[0].copy()
-        return self._slice(self._x_offset(), (self._n,))
+        return self._slice(self._offsets[0], (self._n,))
 
     @property
     def P(self) -> np.ndarray:
@@ -457,43 +403,21 @@ class OnlineBank(_OneRealization):
         n = self._n
         if not self.compiled:
             return np.broadcast_to(self._state.P, (1, n, n))[0].copy()
-        o = self._layout[7] if self._kind == "imm" else self._layout[0]
-        return self._slice(o, (n, n))
+        return self._slice(self._offsets[1], (n, n))
 
     @property
     def mu(self) -> np.ndarray:
         """Mode probabilities / weights after sample ``k`` (r,) (copy)."""
         if not self.compiled:
             return self._state.mu[0].copy()
-        o = self._layout[0] if self._kind == "imm" else self._layout[1]
-        return self._slice(o, (self._nm,))
+        return self._slice(self._offsets[2], (self._nm,))
 
     @property
     def state(self) -> Any:
-        """The state as a one-run :class:`~chatterspec.filters.bank_common.MultipleModelState`."""
+        """The state as a one-run :class:`~chatterspec.filters.bank.MultipleModelState`."""
         if not self.compiled:
             return self._state
-        nm, n, m, k = self._nm, self._n, self._m, self._k
-        lay, sl = self._layout, self._slice
-        C = np.asarray(self.bank._sensor_model().C, dtype=float)
-        if self._kind == "imm":
-            xs, Ps = sl(lay[1], (nm, n)), sl(lay[2], (nm, n, n))
-            eps, epps = sl(lay[3], (nm, m)), sl(lay[4], (nm, m))
-            zl, x = sl(lay[5], (1, m)), sl(lay[6], (1, n))
-            modes = tuple(
-                FilterState(
-                    x=xs[j : j + 1], P=Ps[j : j + 1], e_post=eps[j : j + 1], e_prev=epps[j : j + 1], k=k
-                )
-                for j in range(nm)
-            )
-            return dataclasses.replace(  # the bank's MultipleModelState, without importing the banks
-                self._state, x=x, P=sl(lay[7], (1, n, n)), mu=sl(lay[0], (1, nm)), e_post=zl - x @ C.T,
-                z_last=zl, mode_states=modes, k=k,
-            )  # fmt: skip
-        return dataclasses.replace(
-            self._state, x=sl(0, (1, n)), P=sl(lay[0], (1, n, n)), mu=sl(lay[1], (1, nm)),
-            e_post=sl(lay[2], (1, m)), z_last=sl(lay[7], (1, m)), k=k, e_prev=sl(lay[3], (1, m)),
-        )  # fmt: skip
+        return self.bank._one_state(self._slice, self._state, self._k)
 
     @property
     def loglik(self) -> np.ndarray | None:
@@ -502,8 +426,7 @@ class OnlineBank(_OneRealization):
             return None
         if not self.compiled:
             return None if self._ll is None else self._ll.copy()
-        o = self._layout[10] if self._kind == "imm" else self._layout[6]
-        return self._slice(o, (self._nm,))
+        return self._slice(self._offsets[3], (self._nm,))
 
     def __repr__(self) -> str:
         path = "compiled" if self.compiled else "update"
