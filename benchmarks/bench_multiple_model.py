@@ -7,7 +7,7 @@ after each onset. ``imm``: one IMM bank type over the whole analogue record: the
 (percent, rows predicted, columns actual), argmax accuracy, RMSE per state and the wall time.
 
 ``rate``: realization-steps per second of the SMM-SVSF (Table 1) on ``eha4-leak-timeline``, compiled
-(:mod:`chatterspec.filters._smm_kernel`) and its numpy path in the same run (outputs compared first),
+(:mod:`chatterspec.filters.smm_svsf`) and its numpy path in the same run (outputs compared first),
 and the SVSF-cov alone on the same data for scale.
 
 Usage::

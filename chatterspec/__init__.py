@@ -57,7 +57,7 @@ _GROUPS: dict[str, dict[str, str]] = {
         "SecondOrderSVSF": ".filters.svsf2",
         "IMM": ".filters.imm",
         "SMMSVSF": ".filters.smm_svsf",
-        "MultipleModelOutput": ".filters.bank_common",
+        "MultipleModelOutput": ".filters.bank",
         **dict.fromkeys(("FilterOutput", "FilterState"), ".filters.protocol"),
         **dict.fromkeys(("SVSF", "SVSFOutput", "auxiliary_svsf"), ".filters.svsf"),
     },
@@ -144,7 +144,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .detection.pipeline import ChatteringRecord, chattering_record
     from .detection.spectral import STFTConfig, periodogram, spectrogram
     from .detection.thresholds import Threshold, threshold
-    from .filters.bank_common import MultipleModelOutput
+    from .filters.bank import MultipleModelOutput
     from .filters.imm import IMM
     from .filters.kalman import ExtendedKalmanFilter, KalmanFilter
     from .filters.protocol import FilterOutput, FilterState

@@ -1,4 +1,4 @@
-"""The compiled fused IMM step (chatterspec.filters._imm_kernel) against the protocol path.
+"""The compiled fused IMM step (chatterspec.filters.imm) against the protocol path.
 
 The fused kernel sums the mixing, the combination and the likelihood in loop order, where the
 protocol path uses BLAS (``mu @ pi``), ``einsum`` and LAPACK ``eigh``: the two differ by a few
@@ -15,10 +15,9 @@ import pytest
 
 import chatterspec as cs
 from chatterspec import _jit
-from chatterspec.filters import ExtendedKalmanFilter, KalmanFilter, SecondOrderSVSF, SVSFCov, _bank_steps
-from chatterspec.filters import _imm_kernel as ik
-from chatterspec.filters.bank_math import log_gaussian
-from chatterspec.filters.imm import IMM
+from chatterspec.filters import ExtendedKalmanFilter, KalmanFilter, SecondOrderSVSF, SVSFCov, bank
+from chatterspec.filters.bank import log_gaussian
+from chatterspec.filters.imm import IMM, run_fused
 from chatterspec.plants.models import LinearModel
 
 needs_numba = pytest.mark.skipif(not _jit.enabled(), reason="numba not installed or CHATTERSPEC_JIT=0")
@@ -149,7 +148,7 @@ def test_kernel_python_function_matches_the_protocol_path(monkeypatch) -> None: 
     f = IMM(make_bank("mixed", fs), fs.transition_matrix, mu0=np.array(fs.mu0), modes=fs.modes)
     state = f.initialize(fs.x0, fs.P0, runs=2)
     zz, uu = z, u[None]
-    _st, o = ik.run_fused(f._fused, f.transition_matrix, 0.0, state, zz, uu, True, True, python=True)
+    _st, o = run_fused(f._fused, f.transition_matrix, 0.0, state, zz, uu, True, True, python=True)
     ref = protocol(f).run(z, u, x0=fs.x0, P0=fs.P0, store={"P_post", "mode_x_post"})
     np.testing.assert_allclose(o["mu"], ref.mu, rtol=0, atol=1e-9)
     np.testing.assert_allclose(o["x"], ref.x_post, rtol=1e-9, atol=0)
@@ -160,7 +159,7 @@ def test_kernel_python_function_matches_the_protocol_path(monkeypatch) -> None: 
 def test_kernel_likelihood_equals_log_gaussian_including_the_eigenvalue_floor(compiled: bool) -> None:
     if compiled and not _jit.enabled():
         pytest.skip("numba not installed")
-    step = _bank_steps.log_gaussian_step
+    step = bank.log_gaussian_step
     fn = step if compiled else getattr(step, "py_func", step)
     rng = np.random.default_rng(2)
     cases = []

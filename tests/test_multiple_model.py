@@ -11,9 +11,8 @@ from scipy import stats
 import chatterspec as cs
 from chatterspec.errors import ParameterError, ShapeError
 from chatterspec.filters import ExtendedKalmanFilter, KalmanFilter, SecondOrderSVSF, SVSFCov
-from chatterspec.filters.bank_math import log_gaussian, normalize_log_weights, pairwise_spread
-from chatterspec.filters.imm import IMM
-from chatterspec.filters.mixture import combine
+from chatterspec.filters.bank import combine, log_gaussian, normalize_log_weights
+from chatterspec.filters.imm import IMM, pairwise_spread
 from chatterspec.filters.smm_svsf import SMMSVSF
 from chatterspec.plants.models import LinearModel
 from chatterspec.studies.modes import confusion_matrix, rmse_table, switch_delays

@@ -1,4 +1,4 @@
-"""The compiled SMM-SVSF loop (chatterspec.filters._smm_kernel) against its numpy path.
+"""The compiled SMM-SVSF loop (chatterspec.filters.smm_svsf) against its numpy path.
 
 Both evaluate [SMM] Table 1 (eq 3.1-3.5 with eq 2.1-2.10); numpy sums the products with BLAS and
 ``einsum`` and takes the likelihood from LAPACK's ``eigh``, the loop sums in loop order and takes
@@ -14,7 +14,7 @@ import pytest
 
 import chatterspec as cs
 from chatterspec import _jit
-from chatterspec.filters import _smm_kernel
+from chatterspec.filters import smm_svsf
 from chatterspec.filters.smm_svsf import SMMSVSF
 
 needs_numba = pytest.mark.skipif(not _jit.enabled(), reason="numba not installed or CHATTERSPEC_JIT=0")
@@ -81,7 +81,7 @@ def test_loop_python_form_matches() -> None:
     state = f.initialize(fs.x0, fs.P0, runs=2)
     c = lambda a: np.array(a, dtype=float, order="C")  # noqa: E731
     args = (c(state.x), c(state.P), c(state.mu), c(state.e_post), np.zeros((2, 4)))
-    o = _smm_kernel.run_smm(f._compiled, f.weight_floor, *args, z, u[None], False, False, python=True)
+    o = smm_svsf.run_smm(f._compiled, f.weight_floor, *args, z, u[None], False, False, python=True)
     ref = numpy_path(f).run(z, u, x0=fs.x0, P0=fs.P0)
     np.testing.assert_allclose(o["mu"], ref.mu, rtol=0, atol=1e-12)
     np.testing.assert_allclose(o["x"], ref.x_post, rtol=1e-10)
@@ -90,7 +90,7 @@ def test_loop_python_form_matches() -> None:
 def test_models_without_compiled_steps_take_the_numpy_path() -> None:
     fs, _, _ = timeline(5, 1)
     lin = [m.linearize(fs.x0, np.zeros(1)) for m in fs.mode_models]
-    assert _smm_kernel.smm_spec(tuple(lin), smm(fs)._svsf._correction_step()) is not None  # linear: compiled
+    assert smm_svsf.smm_spec(tuple(lin), smm(fs)._svsf._correction_step()) is not None  # linear: compiled
     from dataclasses import replace
 
     user = [replace(m, f=lambda x, u, c=m.f: c(x, u)) for m in fs.mode_models]  # a Python f: no steps

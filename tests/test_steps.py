@@ -13,10 +13,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from chatterspec.filters import _bank_steps, _engine
-from chatterspec.filters.bank_math import log_gaussian, normalize_log_weights
+from chatterspec.filters import _engine, bank
+from chatterspec.filters.bank import combine, log_gaussian, normalize_log_weights
 from chatterspec.filters.kalman import _KF_STEP
-from chatterspec.filters.mixture import combine
 from chatterspec.filters.svsf_steps import closed_form_step, matvec_step, rows_times_step, svsf_step
 from chatterspec.plants import eha4 as eha4_mod
 from chatterspec.plants import linear_steps
@@ -290,7 +289,7 @@ def test_bank_steps_combine_probabilities_and_likelihood() -> None:
     G = rng.standard_normal((r, n, n))
     Ps = G @ np.swapaxes(G, -1, -2) + np.eye(n)
     x, P = np.empty(n), np.empty((n, n))
-    _bank_steps.combine_step(mu, xs, Ps, x, P, r, n)
+    bank.combine_step(mu, xs, Ps, x, P, r, n)
     x_ref = mu @ xs
     P_ref = sum(mu[j] * (Ps[j] + np.outer(xs[j] - x_ref, xs[j] - x_ref)) for j in range(r))  # with the spread
     np.testing.assert_allclose(x, x_ref, rtol=1e-13)
@@ -301,17 +300,17 @@ def test_bank_steps_combine_probabilities_and_likelihood() -> None:
     # probabilities: softmax of the log weights, then the floor and renormalization
     lw = np.array([0.0, -800.0, -1.0])
     out = np.empty(r)
-    assert _bank_steps.mode_probabilities_step(lw.copy(), out, 1e-3, r)
+    assert bank.mode_probabilities_step(lw.copy(), out, 1e-3, r)
     raw = np.exp(lw - lw.max()) / np.exp(lw - lw.max()).sum()
     floored = np.maximum(raw, 1e-3)
     np.testing.assert_allclose(out, floored / floored.sum(), rtol=1e-14)
     assert out[1] > 1e-3 / 2  # the floored weight survives (it would be 0 without the floor)
     np.testing.assert_allclose(out, normalize_log_weights(lw, 1e-3), rtol=1e-14)
-    assert not _bank_steps.mode_probabilities_step(np.full(r, -np.inf), out, 0.0, r)
+    assert not bank.mode_probabilities_step(np.full(r, -np.inf), out, 0.0, r)
     # likelihood: the Gaussian log density
     S = np.array([[2.0, 0.3], [0.3, 0.5]])
     e = np.array([0.4, -0.7])
-    got = _bank_steps.log_gaussian_step(
+    got = bank.log_gaussian_step(
         e, S, m, np.empty((m, m)), np.empty((m, m)), np.empty(m), np.empty(m), np.empty(2 * m)
     )
     ref = -0.5 * (e @ np.linalg.solve(S, e) + np.log(np.linalg.det(2 * np.pi * S)))

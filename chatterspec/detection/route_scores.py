@@ -78,7 +78,7 @@ def mode_log_odds(mu: np.ndarray, floor: float = DEFAULT_MODE_FLOOR) -> np.ndarr
     ----------
     mu : (..., r) array
         Mode probabilities (``r >= 2``; mode 0 is the normal mode), e.g.
-        :attr:`~chatterspec.filters.bank_common.MultipleModelOutput.mu` ``(runs, T, r)``.
+        :attr:`~chatterspec.filters.bank.MultipleModelOutput.mu` ``(runs, T, r)``.
     floor : float
         Probability floor in (0, 1): ``sum_{j>=1} mu_j`` and ``mu_0`` are raised to it before the
         ratio, so the score lies in ``[log floor, -log floor]``.

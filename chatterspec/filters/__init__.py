@@ -6,7 +6,7 @@
 (state, per-sample output, ``initialize / update / run``); ``kalman`` (KF, EKF), ``svsf_cov`` (SVSF
 with covariance, [SMM] eq 2.1-2.10) and ``svsf2`` (dynamic second-order SVSF, [DETC] eq 5-24)
 implement it; ``smm_svsf`` (SMM-SVSF, [SMM] eq 3.1-3.5) and ``imm`` (IMM, [IMM] eq 15-33) build
-banks from them (``bank_common`` and ``bank_math`` hold what they share).
+banks from them (``bank`` holds what they share).
 """
 
 import importlib

@@ -4,13 +4,13 @@ Documented for users in ``docs/filters.md`` ("Conventions"). In short:
 
 * **One storage option.** Every filter and bank takes ``store``: a collection of output field names
   (``FilterOutput`` fields for a filter; ``"P_post"`` and ``"mode_x_post"`` of
-  :class:`~chatterspec.filters.bank_common.MultipleModelOutput` for SMM-SVSF and IMM, beside the
+  :class:`~chatterspec.filters.bank.MultipleModelOutput` for SMM-SVSF and IMM, beside the
   fields they always return).
 * **Optional input.** ``u=None`` means no input (zeros of the model's ``n_inputs`` channels), so an
   autonomous model needs no ``u`` (and a ``LinearModel`` no ``B``: ``B=None``).
 * **Per-mode start of the IMM.** ``IMM.initialize(..., mode_x0=, mode_P0=)`` starts each mode-matched
   filter from its own estimate and covariance; the combined ``x(0|0)``, ``P(0|0)`` are their
-  ``mu0``-weighted combination ([IMM] eq 31-33).
+  ``mu0``-weighted combination ([IMM] eq 31-33; :func:`chatterspec.filters.imm.mode_initial`).
 """
 
 from __future__ import annotations
@@ -22,8 +22,6 @@ import numpy.typing as npt
 
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError
-from .mixture import combine
-from .protocol import check_spd
 
 __all__ = [
     "BANK_STORABLE",
@@ -33,7 +31,6 @@ __all__ = [
     "check_initial_rows",
     "check_record",
     "default_input",
-    "mode_initial",
     "store_flags",
     "svsf_store",
 ]
@@ -124,58 +121,6 @@ def bank_store(store: Collection[str] | None, who: str) -> tuple[bool, bool]:
 def default_input(u: npt.ArrayLike | None, K: int, p: int) -> npt.ArrayLike:
     """``u``, or zeros ``(K, p)`` when it is None (a model without input)."""
     return np.zeros((K, p)) if u is None else u
-
-
-def mode_initial(
-    x: np.ndarray,
-    P: np.ndarray,
-    mu: np.ndarray,
-    mode_x0: npt.ArrayLike | None,
-    mode_P0: npt.ArrayLike | None,
-    r: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per-mode starts ``xs`` (runs, r, n), ``Ps`` (runs, r, n, n) and the combined ``x``, ``P``.
-
-    Parameters
-    ----------
-    x, P : (runs, n), (runs, n, n) arrays
-        The common ``x0``/``P0`` (used for the modes not given per mode).
-    mu : (runs, r) array
-        Initial mode probabilities.
-    mode_x0 : (r, n) or (runs, r, n) array or None
-        Per-mode initial estimates.
-    mode_P0 : (r, n, n) or (runs, r, n, n) array or None
-        Per-mode initial covariances (each symmetric positive definite).
-    r : int
-        Number of modes.
-
-    Returns
-    -------
-    (xs, Ps, x, P)
-        With both None: the common values for every mode and ``x``, ``P`` unchanged.
-    """
-    runs, n = x.shape
-    if mode_x0 is None:
-        xs = np.broadcast_to(x[:, None], (runs, r, n))
-    else:
-        xs = finite_array("mode_x0", mode_x0, ndim=(2, 3))
-        if xs.shape[-2:] != (r, n) or (xs.ndim == 3 and xs.shape[0] not in (1, runs)):
-            raise ShapeError(f"mode_x0 must have shape ({r}, {n}) or ({runs}, {r}, {n}); got {xs.shape}")
-        xs = np.broadcast_to(xs, (runs, r, n))
-    if mode_P0 is None:
-        Ps = np.broadcast_to(P[:, None], (runs, r, n, n))
-    else:
-        Ps = finite_array("mode_P0", mode_P0, ndim=(3, 4))
-        if Ps.shape[-3:] != (r, n, n) or (Ps.ndim == 4 and Ps.shape[0] not in (1, runs)):
-            raise ShapeError(
-                f"mode_P0 must have shape ({r}, {n}, {n}) or ({runs}, {r}, {n}, {n}); got {Ps.shape}"
-            )
-        check_spd("mode_P0", Ps)
-        Ps = np.broadcast_to(Ps, (runs, r, n, n))
-    if mode_x0 is None and mode_P0 is None:
-        return np.array(xs), np.array(Ps), x, P
-    xc, Pc = combine(mu, xs, Ps)
-    return np.array(xs), np.array(Ps), xc, Pc
 
 
 def check_chunk(

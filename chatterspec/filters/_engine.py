@@ -34,7 +34,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -42,7 +42,7 @@ from .. import _jit
 from ..errors import SingularMatrixError
 from ..plants.sample_functions import MeasurementSteps
 from ..plants.steps import PlantSteps
-from ._finite import finite_sample
+from ._finite import finite_sample, finite_state
 from ._linalg import (
     chol_solve_step,
     chol_step,
@@ -65,6 +65,7 @@ __all__ = [
     "NOT_PD",
     "SINGULAR_PHI12",
     "CorrectionStep",
+    "NumpyPrior",
     "chol_solve_step",
     "chol_step",
     "cov_loop",
@@ -81,6 +82,9 @@ __all__ = [
     "sample_step",
     "svsf_offsets",
     "svsf_parameters",
+    "take",
+    "take2",
+    "take3",
     "workspace",
 ]
 
@@ -92,6 +96,26 @@ NOT_PD, SINGULAR_PHI12 = 1, 2
 BAD_INPUT, DIVERGED = 3, 4
 LOG2PI = float(np.log(2.0 * np.pi))
 FIELDS = ("x_prior", "x_post", "innovation", "S", "loglik", "e_post", "P_prior", "P_post")
+
+
+class NumpyPrior(NamedTuple):
+    """What a numpy correction (``CorrectionStep.numpy``) reads of one sample, arrays over realizations.
+
+    ``e`` = z(k+1) - C x(k+1|k), ``ep`` = e(k|k), ``epp`` = e(k-1|k-1) (runs, m); ``xp`` =
+    x(k+1|k) (runs, n); ``PCt`` = P(k+1|k) C^T (runs, n, m); ``D`` = C P(k+1|k) C^T and ``S`` = D + R
+    (runs, m, m); ``C`` the measurement matrix (or ``dh/dx`` at the prior); ``F`` the transition's
+    Jacobian at x(k|k).
+    """
+
+    e: np.ndarray
+    ep: np.ndarray
+    epp: np.ndarray
+    xp: np.ndarray
+    PCt: np.ndarray
+    D: np.ndarray
+    S: np.ndarray
+    C: np.ndarray
+    F: np.ndarray
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,8 +131,8 @@ class CorrectionStep:
     parameters : (L,) array
         ``fp`` of the step (its layout is the step's own).
     numpy : callable
-        ``numpy(e, ep, epp, xp, PCt, D, S, C, F) -> (K (runs, n, m), x (runs, n))``: the same
-        correction vectorized over realizations.
+        ``numpy(prior: NumpyPrior) -> (K (runs, n, m), x (runs, n))``: the same correction
+        vectorized over realizations.
     mapping : int
         :data:`MAP_CONST`, :data:`MAP_COV` or :data:`MAP_LUEN` (error messages; ``luen`` single
         filters take the numpy path).
@@ -534,6 +558,24 @@ def _cov_loop(
 
 
 @_jit.step
+def take(cst: np.ndarray, o: int, a: int) -> tuple[np.ndarray, int]:
+    """``cst[o : o + a]`` and the offset after it: the one-sample kernels read their packed constants so."""
+    return cst[o : o + a], o + a
+
+
+@_jit.step
+def take2(cst: np.ndarray, o: int, a: int, b: int) -> tuple[np.ndarray, int]:
+    """:func:`take` of an (a, b) C-order block."""
+    return cst[o : o + a * b].reshape((a, b)), o + a * b
+
+
+@_jit.step
+def take3(cst: np.ndarray, o: int, a: int, b: int, c: int) -> tuple[np.ndarray, int]:
+    """:func:`take` of an (a, b, c) C-order block."""
+    return cst[o : o + a * b * c].reshape((a, b, c)), o + a * b * c
+
+
+@_jit.step
 def one_offsets(n: int, m: int) -> tuple[int, int, int, int, int, int, int, int, int]:
     """Offsets in the buffer of :func:`_cov_one` (``x`` at 0): ``P``, ``e(k|k)``, ``e(k-1|k-1)``, then
     the last sample's ``x(k|k-1)``, ``e(k|k-1)``, ``S``, ``loglik``, ``P(k|k-1)``, and the length."""
@@ -566,16 +608,10 @@ def _cov_one(buf: np.ndarray, cst: np.ndarray, z: np.ndarray, u: np.ndarray) -> 
     p = u.shape[0]
     if not finite_sample(z, m, u, p):
         return BAD_INPUT
-    o = 4
-    L = int(cst[3])
-    prm = cst[o : o + L]
-    o += L
-    C = cst[o : o + m * n].reshape((m, n))
-    o += m * n
-    Q = cst[o : o + n * n].reshape((n, n))
-    o += n * n
-    R = cst[o : o + m * m].reshape((m, m))
-    o += m * m
+    prm, o = take(cst, 4, int(cst[3]))
+    C, o = take2(cst, o, m, n)
+    Q, o = take2(cst, o, n, n)
+    R, o = take2(cst, o, m, m)
     fp = cst[o:]
     o_P, o_ep, o_epp, o_xp, o_e, o_S, o_ll, o_Pp, _ = one_offsets(n, m)
     x = _jit.scratch(n)
@@ -595,20 +631,10 @@ def _cov_one(buf: np.ndarray, cst: np.ndarray, z: np.ndarray, u: np.ndarray) -> 
     PREDICT(prm, x, u, xp, n, p)
     JACOBIAN(prm, x, u, F, n, p)
     status = SAMPLE(fp, x, P, ep, epp, z, xp, F, C, Q, R, ws, n, m)
-    if status != 0:
-        for i in range(n):  # a prediction that left the finite numbers: divergence, not a bad model
-            if not np.isfinite(xp[i]):
-                return DIVERGED
-            for j in range(n):
-                if not np.isfinite(ws[1][i, j]):
-                    return DIVERGED
-        return status
-    for i in range(n):
-        if not np.isfinite(x[i]):
-            return DIVERGED
-        for j in range(n):
-            if not np.isfinite(P[i, j]):
-                return DIVERGED
+    if status != 0:  # a prediction that left the finite numbers: divergence, not a bad model
+        return status if finite_state(xp, ws[1], n) else DIVERGED
+    if not finite_state(x, P, n):
+        return DIVERGED
     Pp, S, e, ll = ws[1], ws[4], ws[7], ws[13]
     for i in range(n):
         buf[i] = x[i]

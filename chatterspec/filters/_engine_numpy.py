@@ -35,6 +35,7 @@ __all__ = [
     "chol_np",
     "cov_numpy",
     "given_prediction",
+    "joseph_numpy",
     "kalman_gain_numpy",
     "linear_prediction",
     "map_numpy",
@@ -54,6 +55,13 @@ def chol_np(M: np.ndarray, mapping: int) -> np.ndarray:
     except np.linalg.LinAlgError:
         bad = np.flatnonzero(~np.all(np.linalg.eigvalsh(M) > 0, axis=-1))
         raise SingularMatrixError(_not_pd_message(mapping, int(bad[0]) if bad.size else 0)) from None
+
+
+def joseph_numpy(Kg: np.ndarray, C: np.ndarray, Pp: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Joseph form ``(I - K C) Pp (I - K C)^T + K R K^T`` over leading axes: the numpy twin of
+    :func:`~chatterspec.filters._linalg.joseph_step` (``Kg`` (..., n, m), ``C`` (..., m, n))."""
+    IKC = np.eye(Pp.shape[-1]) - Kg @ C
+    return IKC @ Pp @ np.swapaxes(IKC, -1, -2) + Kg @ R @ np.swapaxes(Kg, -1, -2)
 
 
 def map_numpy(mapping: int, D: np.ndarray, PCt: np.ndarray, M: np.ndarray | None, runs: int) -> np.ndarray:
@@ -135,7 +143,6 @@ def cov_numpy(
     n = x.shape[1]
     flags, out = _alloc(keep, _shapes(runs, K, n, m))
     CT = C.T
-    eye = np.eye(n)
     for k in range(K):
         xp, F = predict(k, x)
         Pp = F @ P @ np.swapaxes(F, -1, -2) + Q
@@ -153,10 +160,9 @@ def cov_numpy(
         w = np.linalg.solve(S, e[..., None])[..., 0]
         ll = -0.5 * (m * LOG2PI + 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1))
         ll = ll - 0.5 * np.einsum("ri,ri->r", e, w)
-        Kg, x_new = correct.numpy(e, ep, epp, xp, PCt, D, S, Ck, F)
+        Kg, x_new = correct.numpy(_engine.NumpyPrior(e, ep, epp, xp, PCt, D, S, Ck, F))
         x[...] = x_new
-        IKC = eye - Kg @ Ck
-        P[...] = IKC @ Pp @ np.swapaxes(IKC, -1, -2) + Kg @ R @ np.swapaxes(Kg, -1, -2)
+        P[...] = joseph_numpy(Kg, Ck, Pp, R)
         epp[...] = ep
         ep[...] = z[:, k] - (x @ CT if h_model is None else measure(h_model, x))
         for f, flag, val in zip(FIELDS, flags, (xp, x, e, S, ll, ep, Pp, P), strict=True):

@@ -19,7 +19,7 @@ import numpy as np
 from .. import _jit
 from ..errors import DivergenceError
 
-__all__ = ["finite_sample", "first_nonfinite", "require_finite"]
+__all__ = ["finite_sample", "finite_state", "first_nonfinite", "require_finite"]
 
 #: Per-sample outputs searched for the first non-finite sample, in order of preference.
 _PER_SAMPLE = ("x_post", "x_prior", "innovation", "e_post", "e_prior", "loglik", "P_post", "P_prior")
@@ -35,6 +35,19 @@ def finite_sample(z: np.ndarray, m: int, u: np.ndarray, p: int) -> bool:
     for i in range(p):
         if not np.isfinite(u[i]):
             return False
+    return True
+
+
+@_jit.step
+def finite_state(x: np.ndarray, P: np.ndarray, n: int) -> bool:
+    """Are ``x[:n]`` and ``P[:n, :n]`` finite: the output check of every one-sample kernel, which writes
+    its state back only when it holds (compiled loops inline it)."""
+    for i in range(n):
+        if not np.isfinite(x[i]):
+            return False
+        for j in range(n):
+            if not np.isfinite(P[i, j]):
+                return False
     return True
 
 

@@ -32,6 +32,7 @@ from ._engine import (
     store_step,
 )
 from ._engine_numpy import chol_np as _chol_np
+from ._engine_numpy import joseph_numpy
 from ._linalg import (
     chol_solve_step,
     chol_step,
@@ -343,7 +344,6 @@ def riccati(
     Kg_all = np.empty((K, n, m))
     Sinv_all = np.empty((K, m, m))
     logdet = np.empty(K)
-    eye = np.eye(n)
     for k in range(K):
         Pp = A @ P @ A.T + Q
         PCt = Pp @ C.T
@@ -351,8 +351,7 @@ def riccati(
         L = _chol_np(S, MAP_CONST)
         Sinv = np.linalg.inv(S)
         Kg = PCt @ Sinv
-        IKC = eye - Kg @ C
-        P = IKC @ Pp @ IKC.T + Kg @ R @ Kg.T
+        P = joseph_numpy(Kg, C, Pp, R)
         Pp_all[k], Pq_all[k], S_all[k], Kg_all[k], Sinv_all[k] = Pp, P, S, Kg, Sinv
         logdet[k] = 2.0 * np.sum(np.log(np.diag(L)))
     return P, Pp_all, Pq_all, S_all, Kg_all, Sinv_all, logdet

@@ -1,7 +1,7 @@
 """Linear-algebra steps of the covariance filters (private): Cholesky, solves, products, prediction.
 
 Small steps of :mod:`chatterspec._jit`, inlined by the loops of :mod:`chatterspec.filters._engine`,
-the banks (:mod:`chatterspec.filters._imm_kernel`, :mod:`chatterspec.filters._smm_kernel`) and the
+the banks (:mod:`chatterspec.filters.imm`, :mod:`chatterspec.filters.smm_svsf`) and the
 reduced-order form (:mod:`chatterspec.filters._luen`). Every sum runs from its first term (or 0.0)
 over q = 0, 1, ...: the same order as the loops these steps replaced, hence the same bits.
 """

@@ -10,17 +10,30 @@ Notation and corrections of ``docs/design.md`` §7.5-§7.6. Per sample, with the
     (31) x = sum_j mu_j x_j                   (32)-(33) P = sum_j mu_j [P_j + (x_j - x)(x_j - x)^T]
 
 The printed (32)-(33) sum ``mu_i mu_j (x_i - x_j)(x_i - x_j)^T`` over all ``i, j``; that is exactly twice
-the spread of (33) here (:func:`~chatterspec.filters.bank_math.pairwise_spread`, tested), so it is read
-with a factor 1/2. For the SVSF-type mode filters, ``e(k|k)`` of mode j is the residual of its mixed
-estimate ``z(k) - C x_0j`` (``docs/design.md`` I4); ``e(k-1|k-1)`` stays the value that mode stored.
-Likelihoods are :func:`~chatterspec.filters.bank_math.log_gaussian`.
+the spread of (33) here (:func:`pairwise_spread`, tested), so it is read with a factor 1/2. For the
+SVSF-type mode filters, ``e(k|k)`` of mode j is the residual of its mixed estimate ``z(k) - C x_0j``
+(``docs/design.md`` I4; the stored residual before the first sample); ``e(k-1|k-1)`` stays the value
+that mode stored. Likelihoods, probabilities and the combination are the banks' shared arithmetic
+(:mod:`chatterspec.filters.bank`). ``IMM.initialize(..., mode_x0=, mode_P0=)`` starts each mode from
+its own estimate (:func:`mode_initial`).
 
-**Compiled step.** When :func:`chatterspec._jit.enabled` and every mode is supported (EKF/KF,
-SVSF-cov without ``vbl``, second-order SVSF, on nonlinear-EHA or linear models; see
-:mod:`chatterspec.filters._imm_kernel`), :meth:`IMM.update` runs the whole recursion in one compiled
-loop over runs and samples; otherwise it drives the mode filters through the protocol, one sample at
-a time. The two agree to rounding (summation order; tolerances in ``tests/test_imm_kernel.py``), and
-each is chunk-invariant bit for bit.
+**Two paths, one recursion.** :meth:`IMM.update` drives the mode filters through the protocol, one
+sample at a time (numpy), or, when :func:`chatterspec._jit.enabled` and every mode is supported, runs
+the whole recursion in one compiled loop over runs (outer) and samples (inner): :func:`_imm_sample`
+is one sample of one realization (the mode's step is :func:`chatterspec.filters._engine._sample`
+with its correction, inlined, from its model's compiled ``predict``/``jacobian`` steps),
+:func:`_imm_loop` the batch loop and :func:`_imm_one` the one-sample kernel of
+:class:`~chatterspec.filters.one_sample.OnlineBank` (packed by :meth:`IMM._one_pack`).
+Supported (:func:`fused_spec`): KF/EKF, SVSF-cov without ``vbl``, the second-order SVSF, on models
+with compiled plant steps (:func:`chatterspec.plants.steps.plant_steps`, two kinds per bank at most,
+:func:`chatterspec.filters.bank.bank_plants`) and at most four correction kinds (``SAMPLE_0`` ..
+``SAMPLE_3``); anything else takes the protocol path.
+
+**Equality.** The compiled loop is not bit-identical to the protocol path: numpy evaluates ``mu @ pi``,
+the mixing and combination ``einsum`` and the likelihood (eigh) in other summation orders than the
+loop. The differences are a few ulps per sample; ``tests/test_imm_kernel.py`` bounds them (tolerances
+stated there). Runs are independent and every sample starts from the stored state, so any chunking of
+runs or samples gives the same bits as one call, on either path.
 
 See Also
 --------
@@ -29,28 +42,56 @@ chatterspec.filters.smm_svsf.SMMSVSF : the static multiple-model SVSF.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import dataclasses
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from .. import _jit
 from .._repr import short_repr
+from .._validate import finite_array
+from ..errors import ShapeError
 from ..plants.nonlinear import Model
-from . import _imm_kernel
-from ._bank_steps import bank_outputs, bank_results, bank_store_numpy
-from ._conventions import mode_initial
-from .bank_common import (
+from ._engine import (
+    BAD_INPUT,
+    DIVERGED,
+    NOT_PD,
+    SINGULAR_PHI12,
+    _no_sample,
+    sample_step,
+    take2,
+    take3,
+    workspace,
+)
+from ._finite import finite_sample, finite_state
+from .bank import (
     BankFilter,
+    BankLoop,
     MultipleModelOutput,
     MultipleModelState,
+    OnePacked,
+    _bank_plant,
+    bank_outputs,
+    bank_plants,
+    bank_results,
+    bank_store_numpy,
+    bank_store_step,
     check_transition_matrix,
+    combine,
+    combine_step,
+    log_gaussian,
+    log_gaussian_step,
+    mode_probabilities_step,
+    normalize_log_weights,
+    one_constants,
+    run_bank_loop,
 )
-from .bank_math import log_gaussian, normalize_log_weights
-from .mixture import combine
-from .protocol import Filter, FilterState
+from .protocol import Filter, FilterState, check_spd
 
-__all__ = ["IMM"]
+__all__ = ["IMM", "mode_initial", "pairwise_spread"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,7 +132,7 @@ class IMM(BankFilter):
     mu0: np.ndarray | None = None
     weight_floor: float = 0.0
     modes: Sequence[str] | None = None
-    _fused: _imm_kernel.IMMSpec | None = field(init=False, repr=False, default=None)
+    _fused: IMMSpec | None = field(init=False, repr=False, default=None)
 
     def __post_init__(self) -> None:
         filters = tuple(self.filters)
@@ -107,7 +148,7 @@ class IMM(BankFilter):
             self, "transition_matrix", check_transition_matrix(self.transition_matrix, len(filters))
         )
         # arrays of the compiled fused step when every mode is supported (else the protocol path)
-        object.__setattr__(self, "_fused", _imm_kernel.fused_spec(filters))
+        object.__setattr__(self, "_fused", fused_spec(filters))
 
     @property
     def n_modes(self) -> int:
@@ -226,12 +267,61 @@ class IMM(BankFilter):
         )
         return new, self._output(bank_results(rec, store_covariance, store_modes))
 
+    def _one_pack(self, state: MultipleModelState) -> OnePacked | None:
+        """:class:`~chatterspec.filters.one_sample.OnlineBank`'s compiled call (:func:`_imm_one`) and its
+        packed arrays, or None (a step is then :meth:`update` on one sample)."""
+        nm, mdl = self.n_modes, self._sensor_model()
+        n, m = int(mdl.n_states), int(mdl.n_outputs)
+        lay = _jit.python_form(one_layout)(nm, n, m)
+        spec = self._fused
+        if spec is None or len(state.mode_states) != nm or lay[-1] > _jit.BLOCK_CAPACITY:
+            return None
+        parts = (spec["prm"], spec["fp"], spec["Q"], spec["C"], spec["R"], self.transition_matrix)
+        slots = np.ascontiguousarray(np.concatenate([spec["plant_slot"], spec["corr_slot"]]), dtype=np.int64)
+        sts = state.mode_states
+        buf = np.zeros(lay[-1])
+        buf[0] = 1.0 if state.k == 0 else 0.0
+        rows = (
+            state.mu[0],
+            np.stack([s.x[0] for s in sts]),
+            np.stack([np.broadcast_to(s.P, (1, n, n))[0] for s in sts]),
+            np.stack([s.e_post[0] for s in sts]),
+            np.stack([s.e_prev[0] for s in sts]),
+            state.z_last[0],
+            state.x[0],
+            np.broadcast_to(state.P, (1, n, n))[0],
+        )
+        for i, v in enumerate(rows):
+            buf[lay[i] : lay[i + 1]] = np.ravel(v)
+        cst = one_constants(nm, n, m, self.weight_floor, parts)
+        return spec["one"], buf, cst, slots, (lay[6], lay[7], lay[0], lay[10])
+
+    def _one_state(
+        self, read: Callable[[int, tuple[int, ...]], np.ndarray], state: MultipleModelState, k: int
+    ) -> MultipleModelState:
+        """The one-run state from :func:`_imm_one`'s buffer (``read(offset, shape)``: a copy)."""
+        nm, mdl = self.n_modes, self._sensor_model()
+        n, m = int(mdl.n_states), int(mdl.n_outputs)
+        lay = _jit.python_form(one_layout)(nm, n, m)
+        C = np.asarray(mdl.C, dtype=float)
+        xs, Ps = read(lay[1], (nm, n)), read(lay[2], (nm, n, n))
+        eps, epps = read(lay[3], (nm, m)), read(lay[4], (nm, m))
+        zl, x = read(lay[5], (1, m)), read(lay[6], (1, n))
+        modes = tuple(
+            FilterState(x=xs[j : j + 1], P=Ps[j : j + 1], e_post=eps[j : j + 1], e_prev=epps[j : j + 1], k=k)
+            for j in range(nm)
+        )
+        return dataclasses.replace(
+            state, x=x, P=read(lay[7], (1, n, n)), mu=read(lay[0], (1, nm)), e_post=zl - x @ C.T,
+            z_last=zl, mode_states=modes, k=k,
+        )  # fmt: skip
+
     def _update_fused(
         self, state: MultipleModelState, z: np.ndarray, u: np.ndarray, store_cov: bool, store_modes: bool
     ) -> tuple[MultipleModelState, MultipleModelOutput]:
-        # the same recursion as update()'s loop, compiled (chatterspec.filters._imm_kernel)
+        # the same recursion as update()'s loop, compiled (the module docstring)
         assert self._fused is not None  # (the caller checked)
-        st, o = _imm_kernel.run_fused(
+        st, o = run_fused(
             self._fused, self.transition_matrix, self.weight_floor, state, z, u, store_cov, store_modes
         )
         K = z.shape[1]
@@ -256,3 +346,523 @@ class IMM(BankFilter):
             k=state.k + K,
         )
         return new, self._output(o)
+
+
+def mode_initial(
+    x: np.ndarray,
+    P: np.ndarray,
+    mu: np.ndarray,
+    mode_x0: npt.ArrayLike | None,
+    mode_P0: npt.ArrayLike | None,
+    r: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-mode starts ``xs`` (runs, r, n), ``Ps`` (runs, r, n, n) and the combined ``x``, ``P``.
+
+    Parameters
+    ----------
+    x, P : (runs, n), (runs, n, n) arrays
+        The common ``x0``/``P0`` (used for the modes not given per mode).
+    mu : (runs, r) array
+        Initial mode probabilities.
+    mode_x0 : (r, n) or (runs, r, n) array or None
+        Per-mode initial estimates.
+    mode_P0 : (r, n, n) or (runs, r, n, n) array or None
+        Per-mode initial covariances (each symmetric positive definite).
+    r : int
+        Number of modes.
+
+    Returns
+    -------
+    (xs, Ps, x, P)
+        With both None: the common values for every mode and ``x``, ``P`` unchanged.
+    """
+    runs, n = x.shape
+    if mode_x0 is None:
+        xs = np.broadcast_to(x[:, None], (runs, r, n))
+    else:
+        xs = finite_array("mode_x0", mode_x0, ndim=(2, 3))
+        if xs.shape[-2:] != (r, n) or (xs.ndim == 3 and xs.shape[0] not in (1, runs)):
+            raise ShapeError(f"mode_x0 must have shape ({r}, {n}) or ({runs}, {r}, {n}); got {xs.shape}")
+        xs = np.broadcast_to(xs, (runs, r, n))
+    if mode_P0 is None:
+        Ps = np.broadcast_to(P[:, None], (runs, r, n, n))
+    else:
+        Ps = finite_array("mode_P0", mode_P0, ndim=(3, 4))
+        if Ps.shape[-3:] != (r, n, n) or (Ps.ndim == 4 and Ps.shape[0] not in (1, runs)):
+            raise ShapeError(
+                f"mode_P0 must have shape ({r}, {n}, {n}) or ({runs}, {r}, {n}, {n}); got {Ps.shape}"
+            )
+        check_spd("mode_P0", Ps)
+        Ps = np.broadcast_to(Ps, (runs, r, n, n))
+    if mode_x0 is None and mode_P0 is None:
+        return np.array(xs), np.array(Ps), x, P
+    xc, Pc = combine(mu, xs, Ps)
+    return np.array(xs), np.array(Ps), xc, Pc
+
+
+def pairwise_spread(mu: np.ndarray, xs: np.ndarray) -> np.ndarray:
+    """The spread term as printed in [IMM] eq (32)-(33): ``sum_i sum_j mu_i mu_j (x_i - x_j)(x_i - x_j)^T``.
+
+    Exactly twice the standard spread ``sum_j mu_j (x_j - x)(x_j - x)^T`` (tested); kept only to
+    document the correction. :func:`~chatterspec.filters.bank.combine` uses the standard form.
+
+    Parameters
+    ----------
+    mu : (..., r) array
+        Mode probabilities (sum 1).
+    xs : (..., r, n) array
+        Mode-conditioned estimates.
+
+    Returns
+    -------
+    (..., n, n) ndarray
+    """
+    d = xs[..., :, None, :] - xs[..., None, :, :]
+    w = mu[..., :, None] * mu[..., None, :]
+    return np.einsum("...ij,...ija,...ijb->...ab", w, d, d)
+
+
+# ----------------------------------------------------------------------------- the compiled recursion
+#: Bindings of :func:`_imm_sample`: the modes' plant step (:func:`.bank.bank_plants`), four
+#: correction kinds (sample steps), sizes; of the loops: ``IMM_SAMPLE`` (:func:`_imm_sample` bound).
+PLANT = _bank_plant
+SAMPLE_0 = SAMPLE_1 = SAMPLE_2 = SAMPLE_3 = _no_sample
+NX = NZ = 0
+#: Return code of :func:`_imm_sample` when every mode likelihood is zero or non-finite.
+NO_LIKELIHOOD = 5
+
+
+@_jit.step
+def imm_scratch(nm: int, n: int, m: int) -> tuple:  # pragma: no cover - compiled
+    """The scratch of :func:`_imm_sample`, made once by the loop that calls it (inlined into it):
+    ``(c, w, lw, xp, F, em, Sc, Lc, ec, col, tmp, ws)`` (``ws``: :func:`._engine.workspace`)."""
+    return (
+        _jit.scratch(nm), _jit.scratch2(nm, nm), _jit.scratch(nm), _jit.scratch(n), _jit.scratch2(n, n),
+        _jit.scratch(m), _jit.scratch2(m, m), _jit.scratch2(m, m), _jit.scratch(m), _jit.scratch(m),
+        _jit.scratch(2 * m), workspace(n, m),
+    )  # fmt: skip
+
+
+def _imm_sample(  # type: ignore[no-untyped-def]  # (a template: the bank loops' arguments)
+    prm,
+    plant_slot,
+    fp,
+    corr_slot,
+    Q,
+    C,
+    R,
+    pi,
+    floor,
+    zk,
+    uk,
+    first,
+    mu,
+    xs,
+    Ps,
+    eps,
+    epps,
+    zl,
+    x,
+    P,
+    x0,
+    P0,
+    ll,
+    scr,
+    n,
+    m,
+    p,
+):  # pragma: no cover - compiled (a template: see imm_sample_step)
+    """[IMM] eq (18)-(33) for one sample of one realization (the module docstring); state in place.
+
+    ``zk`` (m,) = z(k+1), ``uk`` (p,) = u(k); ``first``: no measurement before (the stored
+    residuals are e(k|k)). State rows: ``mu`` (nm,), ``xs`` (nm, n), ``Ps`` (nm, n, n), ``eps``,
+    ``epps`` (nm, m), ``zl`` (m,) = z(k), ``x`` (n,), ``P`` (n, n); ``x0``, ``P0`` scratch of the
+    mixed initial conditions; ``ll`` (nm,) receives eq (29); ``scr``: :func:`imm_scratch` (made once
+    by the calling loop: views made per sample cost a sixth of the bank's time). Returns 0,
+    :data:`NOT_PD`, :data:`SINGULAR_PHI12` or :data:`NO_LIKELIHOOD`.
+    """
+    nm = mu.shape[0]
+    c, w, lw, xp, F, em, Sc, Lc, ec, col, tmp, ws = scr
+    S, e = ws[4], ws[7]
+    # (19), (18): predicted mode probabilities and mixing weights
+    for j in range(nm):
+        s = 0.0
+        for i in range(nm):
+            s += mu[i] * pi[i, j]
+        c[j] = s if s > 1e-300 else 1e-300
+    for i in range(nm):
+        for j in range(nm):
+            w[i, j] = mu[i] * pi[i, j] / c[j]
+    # (20), (21): mixed initial conditions
+    for j in range(nm):
+        for a in range(n):
+            s = 0.0
+            for i in range(nm):
+                s += w[i, j] * xs[i, a]
+            x0[j, a] = s
+        for a in range(n):
+            for bb in range(n):
+                s = 0.0
+                for i in range(nm):
+                    da = xs[i, a] - x0[j, a]
+                    s += w[i, j] * (Ps[i, a, bb] + da * (xs[i, bb] - x0[j, bb]))
+                P0[j, a, bb] = s
+    # (22)-(29): mode-matched filters
+    for j in range(nm):
+        for i in range(m):  # e(k|k) of mode j: residual of its mixed estimate (design.md I4)
+            if first:
+                em[i] = eps[j, i]
+            else:
+                s = zl[i]
+                for q in range(n):
+                    s -= C[0, i, q] * x0[j, q]
+                em[i] = s
+        PLANT(plant_slot[j], prm[j], x0[j], uk, xp, F, n, p)
+        for a in range(n):
+            for bb in range(n):
+                Ps[j, a, bb] = P0[j, a, bb]
+        f_j, x_j, P_j, epp_j = fp[j], xs[j], Ps[j], epps[j]
+        slot = corr_slot[j]
+        if slot == 0:
+            status = SAMPLE_0(f_j, x_j, P_j, em, epp_j, zk, xp, F, C[j], Q[j], R[j], ws, n, m)
+        elif slot == 1:
+            status = SAMPLE_1(f_j, x_j, P_j, em, epp_j, zk, xp, F, C[j], Q[j], R[j], ws, n, m)
+        elif slot == 2:
+            status = SAMPLE_2(f_j, x_j, P_j, em, epp_j, zk, xp, F, C[j], Q[j], R[j], ws, n, m)
+        else:
+            status = SAMPLE_3(f_j, x_j, P_j, em, epp_j, zk, xp, F, C[j], Q[j], R[j], ws, n, m)
+        if status != 0:
+            return status
+        for i in range(m):
+            eps[j, i] = em[i]
+        ll[j] = log_gaussian_step(e, S, m, Sc, Lc, ec, col, tmp)  # (29)
+    # (30): log-domain mode probabilities, optional floor
+    for j in range(nm):
+        lw[j] = np.log(c[j]) + ll[j]
+    if not mode_probabilities_step(lw, mu, floor, nm):
+        return NO_LIKELIHOOD
+    # (31)-(33): combination
+    combine_step(mu, xs, Ps, x, P, nm, n)
+    for i in range(m):
+        zl[i] = zk[i]
+    return 0
+
+
+@_jit.step
+def _no_imm_sample(*args):  # type: ignore[no-untyped-def]
+    """Placeholder binding of the loops (never called)."""
+    return NOT_PD
+
+
+IMM_SAMPLE = _no_imm_sample
+
+
+def _imm_loop(
+    prm: np.ndarray,
+    plant_slot: np.ndarray,
+    fp: np.ndarray,
+    corr_slot: np.ndarray,
+    Q: np.ndarray,
+    C: np.ndarray,
+    R: np.ndarray,
+    pi: np.ndarray,
+    floor: float,
+    z: np.ndarray,
+    u: np.ndarray,
+    first: bool,
+    mu: np.ndarray,
+    xs: np.ndarray,
+    Ps: np.ndarray,
+    eps: np.ndarray,
+    epps: np.ndarray,
+    zl: np.ndarray,
+    x: np.ndarray,
+    P: np.ndarray,
+    x0: np.ndarray,
+    P0: np.ndarray,
+    o_x: np.ndarray,
+    o_mu: np.ndarray,
+    o_ll: np.ndarray,
+    o_P: np.ndarray,
+    o_mx: np.ndarray,
+) -> int:  # pragma: no cover - compiled (a template: see run_fused)
+    """The IMM recursion of the module docstring (:func:`_imm_sample` per run and sample); in place.
+
+    Per mode j: ``prm[j]`` (its plant's parameters, plant kind ``plant_slot[j]`` of ``PLANT``),
+    ``fp[j]`` (its correction's parameters, ``corr_slot[j]`` = 0 .. 3), ``Q[j]``, ``C[j]``, ``R[j]``.
+    ``x0``, ``P0`` (nm, n), (nm, n, n): scratch of the mixed initial conditions. Returns 0,
+    ``1 + run`` when an innovation covariance (or the ``cov`` mapping's ``C P C^T``) is not positive
+    definite, ``-(1 + run)`` when every mode likelihood is zero or
+    non-finite, or ``-(1 + runs + run)`` when the ``luen`` form meets a singular ``Phi12``.
+    """
+    b = _jit.borrow
+    prm, plant_slot, fp, corr_slot, Q, C, R, pi = (
+        b(prm),
+        b(plant_slot),
+        b(fp),
+        b(corr_slot),
+        b(Q),
+        b(C),
+        b(R),
+        b(pi),
+    )
+    z, u, mu, xs, Ps, eps, epps, zl, x, P = (
+        b(z),
+        b(u),
+        b(mu),
+        b(xs),
+        b(Ps),
+        b(eps),
+        b(epps),
+        b(zl),
+        b(x),
+        b(P),
+    )
+    x0, P0, o_x, o_mu, o_ll, o_P, o_mx = b(x0), b(P0), b(o_x), b(o_mu), b(o_ll), b(o_P), b(o_mx)
+    runs, K, _ = z.shape
+    nm = mu.shape[1]
+    n = NX if NX > 0 else x.shape[1]
+    m = NZ if NZ > 0 else z.shape[2]
+    p = u.shape[2]
+    shared_u = u.shape[0] == 1
+    ll = _jit.scratch(nm)
+    scr = imm_scratch(nm, n, m)
+    for r in range(runs):
+        ur = 0 if shared_u else r
+        for k in range(K):
+            status = IMM_SAMPLE(
+                prm, plant_slot, fp, corr_slot, Q, C, R, pi, floor, z[r, k], u[ur, k], first and k == 0,
+                mu[r], xs[r], Ps[r], eps[r], epps[r], zl[r], x[r], P[r], x0, P0, ll, scr, n, m, p,
+            )  # fmt: skip
+            if status == NOT_PD:
+                return 1 + r
+            if status == SINGULAR_PHI12:
+                return -(1 + runs + r)
+            if status == NO_LIKELIHOOD:
+                return -(1 + r)
+            bank_store_step(r, k, x[r], mu[r], ll, P[r], xs[r], o_x, o_mu, o_ll, o_P, o_mx, nm, n)
+    return 0
+
+
+def _imm_one(buf, cst, slots, z, u):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """One sample of one realization: :func:`_imm_sample` on packed arrays (:func:`one_layout`).
+
+    ``buf`` holds the state (``first`` flag, ``mu``, ``xs``, ``Ps``, ``eps``, ``epps``, ``zl``, ``x``,
+    ``P``), the scratch ``x0``, ``P0`` and receives ``ll``; ``cst``
+    (:func:`~chatterspec.filters.bank.one_constants`) the header ``[nm, n, m, L_prm, L_fp, floor]``
+    then ``prm``, ``fp``, ``Q``, ``C``, ``R``, ``pi``; ``slots`` (2 nm,) int the plant and
+    correction slots; ``z`` (m,), ``u`` (p,). The state is read into a copy and written back only
+    when the sample succeeds with a finite estimate. Returns 0, the step's code, ``BAD_INPUT`` or
+    ``DIVERGED`` (:mod:`chatterspec.filters._engine`).
+    """
+    b = _jit.borrow
+    buf, cst, slots, z, u = b(buf), b(cst), b(slots), b(z), b(u)
+    nm = int(cst[0])
+    n = NX if NX > 0 else int(cst[1])
+    m = NZ if NZ > 0 else int(cst[2])
+    p = u.shape[0]
+    if not finite_sample(z, m, u, p):
+        return BAD_INPUT
+    floor = cst[5]
+    prm, o = take2(cst, 6, nm, int(cst[3]))
+    fp, o = take2(cst, o, nm, int(cst[4]))
+    Q, o = take3(cst, o, nm, n, n)
+    C, o = take3(cst, o, nm, m, n)
+    R, o = take3(cst, o, nm, m, m)
+    pi, o = take2(cst, o, nm, nm)
+    offs = one_layout(nm, n, m)
+    size = offs[-1]
+    work = _jit.scratch_block(size)
+    for i in range(size):
+        work[i] = buf[i]
+    mu = work[offs[0] : offs[1]]
+    xs = work[offs[1] : offs[2]].reshape((nm, n))
+    Ps = work[offs[2] : offs[3]].reshape((nm, n, n))
+    eps = work[offs[3] : offs[4]].reshape((nm, m))
+    epps = work[offs[4] : offs[5]].reshape((nm, m))
+    zl = work[offs[5] : offs[6]]
+    x = work[offs[6] : offs[7]]
+    P = work[offs[7] : offs[8]].reshape((n, n))
+    x0 = work[offs[8] : offs[9]].reshape((nm, n))
+    P0 = work[offs[9] : offs[10]].reshape((nm, n, n))
+    ll = work[offs[10] : offs[11]]
+    status = IMM_SAMPLE(
+        prm, slots[:nm], fp, slots[nm:], Q, C, R, pi, floor, z, u, work[0] != 0.0,
+        mu, xs, Ps, eps, epps, zl, x, P, x0, P0, ll, imm_scratch(nm, n, m), n, m, p,
+    )  # fmt: skip
+    if status != 0:
+        return status
+    if not finite_state(x, P, n):
+        return DIVERGED
+    work[0] = 0.0
+    for i in range(size):
+        buf[i] = work[i]
+    return 0
+
+
+@_jit.step
+def one_layout(nm: int, n: int, m: int) -> tuple[int, int, int, int, int, int, int, int, int, int, int, int]:
+    """Offsets in :func:`_imm_one`'s buffer (``first`` flag at 0): ``mu``, ``xs``, ``Ps``, ``eps``, ``epps``,
+    ``zl``, ``x``, ``P``, ``x0``, ``P0``, ``ll`` and the length."""
+    o_mu = 1
+    o_xs = o_mu + nm
+    o_Ps = o_xs + nm * n
+    o_eps = o_Ps + nm * n * n
+    o_epps = o_eps + nm * m
+    o_zl = o_epps + nm * m
+    o_x = o_zl + m
+    o_P = o_x + n
+    o_x0 = o_P + n * n
+    o_P0 = o_x0 + nm * n
+    o_ll = o_P0 + nm * n * n
+    return o_mu, o_xs, o_Ps, o_eps, o_epps, o_zl, o_x, o_P, o_x0, o_P0, o_ll, o_ll + nm
+
+
+class IMMSpec(BankLoop):
+    """The arrays and the loop of a compiled IMM (:func:`fused_spec`): per-mode rows, stacked."""
+
+    prm: np.ndarray  # plant parameters, one row per plant kind
+    plant_slot: np.ndarray  # (r,) plant row of each mode
+    fp: np.ndarray  # correction parameters, one row per mode
+    corr_slot: np.ndarray  # (r,) correction kind of each mode
+    Q: np.ndarray  # (r, n, n)
+    C: np.ndarray  # (r, m, n)
+    R: np.ndarray  # (r, m, m)
+    one: Callable[..., int]  # one sample of one realization (:func:`_imm_one`)
+
+
+def fused_spec(filters: tuple[Filter, ...]) -> IMMSpec | None:
+    """Per-mode arrays and steps of the compiled IMM loop, or None when a mode is not supported.
+
+    Supported: a filter with a compiled correction (``_correction_step()``; not the variable
+    boundary layer) on a model with compiled plant steps (:func:`chatterspec.plants.steps.plant_steps`),
+    at most two plant kinds and four correction kinds per bank.
+
+    Parameters
+    ----------
+    filters : tuple of Filter
+        The IMM's mode-matched filters.
+
+    Returns
+    -------
+    dict or None
+    """
+    from ..plants.steps import plant_steps
+
+    plants, corrections = [], []
+    for f in filters:
+        get = getattr(f, "_correction_step", None)
+        steps = plant_steps(f.model)
+        if get is None or steps is None or getattr(f.model, "h", None) is not None:  # h(x): protocol path
+            return None
+        corr = get()
+        if corr.name == "vbl":
+            return None
+        plants.append(steps)
+        corrections.append(corr)
+    plant, plant_slot, prm = bank_plants(plants)
+    corr_kinds = list(dict.fromkeys(c.name for c in corrections))
+    mdl = filters[0].model
+    sizes_fit = _jit.fits(int(mdl.n_states), int(mdl.n_outputs)) and _jit.fits(len(filters))
+    if plant is None or len(corr_kinds) > 4 or not sizes_fit:
+        return None
+
+    def rows(vectors: list[np.ndarray]) -> np.ndarray:
+        out = np.zeros((len(vectors), max(len(v) for v in vectors)))
+        for j, v in enumerate(vectors):
+            out[j, : len(v)] = v
+        return out
+
+    models = [f.model for f in filters]
+    samples = {c.name: c for c in corrections}
+    bind: dict[str, Any] = {"PLANT": plant}  # steps and flags bound into the loop
+    for i, name in enumerate(corr_kinds):
+        bind[f"SAMPLE_{i}"] = sample_step(samples[name], want_ll=False)
+    tag = "_".join(["imm", *dict.fromkeys(p.name for p in plants), *corr_kinds])
+    n, m = int(models[0].n_states), int(models[0].n_outputs)
+    sizes = {"NX": n, "NZ": m}
+    step = _jit.specialize_sizes(_imm_sample, tag, {}, inline=True, **bind)
+    return {
+        "prm": prm,
+        "plant_slot": plant_slot,
+        "fp": rows([c.parameters for c in corrections]),
+        "corr_slot": np.array([corr_kinds.index(c.name) for c in corrections], dtype=np.int64),
+        "Q": np.ascontiguousarray(np.stack([np.asarray(md.Q, dtype=float) for md in models])),
+        "C": np.ascontiguousarray(np.stack([np.asarray(md.C, dtype=float) for md in models])),
+        "R": np.ascontiguousarray(np.stack([np.asarray(md.R, dtype=float) for md in models])),
+        "mapping": max(c.mapping for c in corrections),
+        "kernel": _jit.specialize_sizes(_imm_loop, tag, sizes, IMM_SAMPLE=step),
+        "one": _jit.specialize_sizes(_imm_one, tag, sizes, IMM_SAMPLE=step),
+    }
+
+
+def run_fused(
+    spec: IMMSpec,
+    pi: np.ndarray,
+    floor: float,
+    state: MultipleModelState,
+    z: np.ndarray,
+    u: np.ndarray,
+    store_covariance: bool,
+    store_modes: bool,
+    *,
+    python: bool = False,
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray | None]]:
+    """Advance an IMM state over ``z`` (runs, K, m) with the compiled loop.
+
+    Parameters
+    ----------
+    spec : dict
+        From :func:`fused_spec`.
+    pi : (r, r) array
+        Transition matrix.
+    floor : float
+        Mode-probability floor.
+    state : MultipleModelState
+        The IMM state after sample k.
+    z : (runs, K, m) array
+        Measurements (validated).
+    u : (1 | runs, K, p) array
+        Inputs (validated).
+    store_covariance, store_modes : bool
+        Outputs wanted (see :meth:`IMM.update`).
+    python : bool
+        Run the loop's Python form (tests: the meaning does not depend on the compiler).
+
+    Returns
+    -------
+    (state arrays, outputs)
+        ``mu, xs, Ps, eps, epps, zl, x, P`` after the last sample, and ``x, mu, ll, P, mx``.
+
+    Raises
+    ------
+    SingularMatrixError
+        An innovation covariance that is not positive definite, or every mode likelihood zero.
+    """
+    runs, K, _m = z.shape
+    n = state.x.shape[1]
+    sts = state.mode_states
+    r = len(sts)
+    st = {
+        "mu": np.array(state.mu, dtype=float, order="C"),
+        "xs": np.ascontiguousarray(np.stack([s.x for s in sts], axis=1), dtype=float),
+        "Ps": np.ascontiguousarray(
+            np.stack([np.broadcast_to(s.P, (runs, n, n)) for s in sts], axis=1), dtype=float
+        ),
+        "eps": np.ascontiguousarray(np.stack([s.e_post for s in sts], axis=1), dtype=float),
+        "epps": np.ascontiguousarray(np.stack([s.e_prev for s in sts], axis=1), dtype=float),
+        "zl": np.array(state.z_last, dtype=float, order="C"),
+        "x": np.array(state.x, dtype=float, order="C"),
+        "P": np.array(np.broadcast_to(state.P, (runs, n, n)), dtype=float, order="C"),
+    }
+    c = np.ascontiguousarray
+    args = (
+        spec["prm"], spec["plant_slot"], spec["fp"], spec["corr_slot"], spec["Q"], spec["C"], spec["R"],
+        c(pi, dtype=float), float(floor), c(z, dtype=float), c(u, dtype=float),
+        bool(state.k == 0),
+        st["mu"], st["xs"], st["Ps"], st["eps"], st["epps"], st["zl"], st["x"], st["P"],
+        np.empty((r, n)), np.empty((r, n, n)),
+    )  # fmt: skip
+    out = bank_outputs(runs, K, n, r, store_covariance, store_modes)
+    run_bank_loop(spec, args, out, python=python)
+    return st, bank_results(out, store_covariance, store_modes)

@@ -48,20 +48,10 @@ def kalman_correct(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarra
     return 0
 
 
-def kalman_correct_numpy(
-    e: np.ndarray,
-    ep: np.ndarray,
-    epp: np.ndarray,
-    xp: np.ndarray,
-    PCt: np.ndarray,
-    D: np.ndarray,
-    S: np.ndarray,
-    C: np.ndarray,
-    F: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
+def kalman_correct_numpy(pr: _engine.NumpyPrior) -> tuple[np.ndarray, np.ndarray]:
     """:func:`kalman_correct` vectorized over realizations: ``(K, x(k+1|k+1))``."""
-    Kg = _engine_numpy.kalman_gain_numpy(S, PCt)
-    return Kg, xp + np.einsum("rij,rj->ri", Kg, e)
+    Kg = _engine_numpy.kalman_gain_numpy(pr.S, pr.PCt)
+    return Kg, pr.xp + np.einsum("rij,rj->ri", Kg, pr.e)
 
 
 _KF_STEP = _engine.CorrectionStep("kf", kalman_correct, np.zeros(1), kalman_correct_numpy)

@@ -28,7 +28,6 @@ chatterspec.filters.protocol.Filter : the batch interface (``initialize``, ``upd
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import numpy as np
@@ -63,7 +62,28 @@ def _diverged(who: str, k: int) -> DivergenceError:
     )
 
 
-class OnlineFilter:
+class _OneRealization:
+    """What every one-sample filter holds and checks: one realization's sizes and its sample index."""
+
+    __slots__ = ("_buf", "_call", "_cst", "_k", "_m", "_n", "_p", "_state", "_u0", "compiled")
+
+    def _start(self, model: Any, state: Any, ok: bool, expected: str, runs: int, what: str) -> None:
+        """Refuse a state of another kind (``ok`` false) or of several realizations; take the sizes."""
+        if not ok:
+            raise TypeError(f"state must be {expected}; got {type(state).__name__}")
+        if runs != 1:
+            raise ShapeError(f"an online {what} follows one realization; the state holds {runs}")
+        self._n, self._m, self._p = int(model.n_states), int(model.n_outputs), int(model.n_inputs)
+        self._u0 = np.zeros(self._p)
+        self._k = int(state.k)
+
+    @property
+    def k(self) -> int:
+        """Index of the last sample processed (0 before the first step)."""
+        return self._k
+
+
+class OnlineFilter(_OneRealization):
     """A covariance filter and the state of one realization, advanced one sample per :meth:`step`.
 
     Made by ``filter.online(x0, P0)`` (or from a one-run :class:`~chatterspec.filters.protocol.FilterState`).
@@ -88,34 +108,14 @@ class OnlineFilter:
         ``state`` holds more than one realization.
     """
 
-    __slots__ = (
-        "_buf",
-        "_call",
-        "_cst",
-        "_k",
-        "_last",
-        "_m",
-        "_n",
-        "_off",
-        "_p",
-        "_state",
-        "_stepped",
-        "_u0",
-        "compiled",
-        "filter",
-    )
+    __slots__ = ("_last", "_off", "_stepped", "filter")
 
     def __init__(self, filter: Any, state: FilterState) -> None:
-        if not isinstance(state, FilterState):
-            raise TypeError(f"state must be a FilterState; got {type(state).__name__}")
-        if state.runs != 1:
-            raise ShapeError(f"an online filter follows one realization; the state holds {state.runs}")
         model = filter.model
+        ok = isinstance(state, FilterState)
+        self._start(model, state, ok, "a FilterState", state.runs if ok else 1, "filter")
         self.filter = filter
-        n, m, p = int(model.n_states), int(model.n_outputs), int(model.n_inputs)
-        self._n, self._m, self._p = n, m, p
-        self._u0 = np.zeros(p)
-        self._k = int(state.k)
+        n, m, p = self._n, self._m, self._p
         corr = filter._correction_step()
         plant = filter._plant()
         hx = measurement_steps(model) if has_measurement_function(model) else None
@@ -171,7 +171,7 @@ class OnlineFilter:
         SingularMatrixError
             An innovation covariance that is not positive definite.
         """
-        z = sample_rows("z", z, self._m)
+        z = sample_rows("z", z, self._m)  # inline: a helper call shows against a 2-3 us step
         u = self._u0 if u is None else sample_rows("u", u, self._p)
         if not self.compiled:
             return self._update(z, u)
@@ -217,11 +217,6 @@ class OnlineFilter:
     def _field(self, o: int, shape: tuple[int, ...]) -> np.ndarray:
         size = int(np.prod(shape, dtype=np.int64))
         return self._buf[o : o + size].reshape(shape).copy()
-
-    @property
-    def k(self) -> int:
-        """Index of the last sample processed (0 before the first step)."""
-        return self._k
 
     @property
     def x(self) -> np.ndarray:
@@ -292,7 +287,7 @@ class OnlineFilter:
         return f"OnlineFilter({type(self.filter).__name__}, k={self._k}, n={self._n}, m={self._m}, {path})"
 
 
-class OnlineBank:
+class OnlineBank(_OneRealization):
     """A multiple-model bank and the state of one realization, advanced one sample per :meth:`step`.
 
     The bank is an :class:`~chatterspec.filters.imm.IMM` or an
@@ -317,78 +312,23 @@ class OnlineBank:
         Whether a step is one compiled call.
     """
 
-    __slots__ = ("_buf", "_call", "_cst", "_k", "_kind", "_layout", "_ll", "_m", "_n", "_nm", "_p", "_slots",
-                 "_state", "_stepped", "_u0", "bank", "compiled")  # fmt: skip
+    __slots__ = ("_ll", "_nm", "_offsets", "_slots", "_stepped", "bank")
 
     def __init__(self, bank: Any, state: Any) -> None:
-        from . import _imm_kernel, _smm_kernel
-
-        if not all(hasattr(state, a) for a in ("x", "P", "mu", "z_last", "mode_states", "k")):
-            raise TypeError(f"state must be a MultipleModelState; got {type(state).__name__}")
-        if state.x.shape[0] != 1:
-            raise ShapeError(f"an online bank follows one realization; the state holds {state.x.shape[0]}")
+        ok = all(hasattr(state, a) for a in ("x", "P", "mu", "z_last", "mode_states", "k"))
+        self._start(
+            bank._sensor_model(), state, ok, "a MultipleModelState", state.x.shape[0] if ok else 1, "bank"
+        )
         self.bank = bank
-        mdl = bank._sensor_model()
-        self._n, self._m, self._p = int(mdl.n_states), int(mdl.n_outputs), int(mdl.n_inputs)
         self._nm = len(bank.modes)
-        self._u0 = np.zeros(self._p)
-        self._k = int(state.k)
         self._stepped = False
         self._state = state
         self._ll: np.ndarray | None = None
-        is_imm = hasattr(bank, "transition_matrix")
-        self._kind = "imm" if is_imm else "smm"
-        spec = bank._fused if is_imm else bank._compiled
-        module = _imm_kernel if is_imm else _smm_kernel
-        self._layout = _jit.python_form(module.one_layout)(self._nm, self._n, self._m)
-        self.compiled = bool(
-            spec is not None
-            and _jit.enabled()
-            and self._layout[-1] <= _jit.BLOCK_CAPACITY
-            and (not is_imm or len(state.mode_states) == self._nm)
-        )
-        if self.compiled:
-            self._call = spec["one"]
-            self._pack(spec, state)
-
-    def _pack(self, spec: dict[str, Any], state: Any) -> None:
-        nm, n, m = self._nm, self._n, self._m
-        bank = self.bank
-        prm, fp = np.atleast_2d(spec["prm"]), np.atleast_2d(spec["fp"])
-        head = [nm, n, m, prm.shape[1], fp.shape[1], float(bank.weight_floor)]
-        lay = self._layout
-        buf = np.zeros(lay[-1])
-        if self._kind == "imm":
-            parts = [prm, fp, spec["Q"], spec["C"], spec["R"], bank.transition_matrix]
-            self._slots = np.ascontiguousarray(
-                np.concatenate([spec["plant_slot"], spec["corr_slot"]]), dtype=np.int64
-            )
-            sts = state.mode_states
-            buf[0] = 1.0 if state.k == 0 else 0.0
-            rows = (
-                state.mu[0],
-                np.stack([s.x[0] for s in sts]),
-                np.stack([np.broadcast_to(s.P, (1, n, n))[0] for s in sts]),
-                np.stack([s.e_post[0] for s in sts]),
-                np.stack([s.e_prev[0] for s in sts]),
-                state.z_last[0],
-                state.x[0],
-                np.broadcast_to(state.P, (1, n, n))[0],
-            )
-            for i, v in enumerate(rows):
-                buf[lay[i] : lay[i + 1]] = np.ravel(v)
-        else:
-            parts = [prm, spec["Qs"], spec["C"], spec["R"], fp]
-            self._slots = np.ascontiguousarray(spec["plant_slot"], dtype=np.int64)
-            epp = np.zeros(m) if state.e_prev is None else state.e_prev[0]
-            smm_rows = (state.x[0], np.broadcast_to(state.P, (1, n, n))[0], state.mu[0], state.e_post[0], epp)
-            starts = (0, *lay[:4])
-            for o, v in zip(starts, smm_rows, strict=True):
-                buf[o : o + np.size(v)] = np.ravel(v)
-            buf[lay[7] : lay[7] + m] = state.z_last[0]
-        self._buf = buf
-        vals = [np.asarray(head, dtype=float)] + [np.ravel(np.asarray(a, dtype=float)) for a in parts]
-        self._cst = np.ascontiguousarray(np.concatenate(vals))
+        # the bank's one-sample kernel and its packed arrays (``_one_pack``), or None: update per sample
+        packed = bank._one_pack(state) if _jit.enabled() else None
+        self.compiled = packed is not None
+        if packed is not None:
+            self._call, self._buf, self._cst, self._slots, self._offsets = packed
 
     def step(self, z: object, u: object | None = None) -> np.ndarray:
         """Advance by one sample: ``z(k+1)`` and the input ``u(k)``; returns the combined ``x(k+1|k+1)``.
@@ -409,7 +349,7 @@ class OnlineBank:
         ShapeError, NonFiniteError, DivergenceError, SingularMatrixError
             As :meth:`OnlineFilter.step`; SingularMatrixError also when every mode likelihood is zero.
         """
-        z = sample_rows("z", z, self._m)
+        z = sample_rows("z", z, self._m)  # inline: a helper call shows against a 2-3 us step
         u = self._u0 if u is None else sample_rows("u", u, self._p)
         if not self.compiled:
             _finite_input(type(self.bank).__name__, self._k + 1, z, u)
@@ -424,7 +364,7 @@ class OnlineBank:
             self._fail(status, z, u)
         self._k += 1
         self._stepped = True
-        o = self._x_offset()
+        o = self._offsets[0]
         return self._buf[o : o + self._n].copy()
 
     def _fail(self, status: int, z: np.ndarray, u: np.ndarray) -> None:
@@ -443,24 +383,16 @@ class OnlineBank:
             "mode models (the innovation covariance) and the measurement units"
         )
 
-    def _x_offset(self) -> int:
-        return self._layout[6] if self._kind == "imm" else 0
-
     def _slice(self, o: int, shape: tuple[int, ...]) -> np.ndarray:
         size = int(np.prod(shape, dtype=np.int64))
         return self._buf[o : o + size].reshape(shape).copy()
-
-    @property
-    def k(self) -> int:
-        """Index of the last sample processed."""
-        return self._k
 
     @property
     def x(self) -> np.ndarray:
         """The combined ``x(k|k)`` (n,) (copy)."""
         if not self.compiled:
             return self._state.x[0].copy()
-        return self._slice(self._x_offset(), (self._n,))
+        return self._slice(self._offsets[0], (self._n,))
 
     @property
     def P(self) -> np.ndarray:
@@ -468,43 +400,21 @@ class OnlineBank:
         n = self._n
         if not self.compiled:
             return np.broadcast_to(self._state.P, (1, n, n))[0].copy()
-        o = self._layout[7] if self._kind == "imm" else self._layout[0]
-        return self._slice(o, (n, n))
+        return self._slice(self._offsets[1], (n, n))
 
     @property
     def mu(self) -> np.ndarray:
         """Mode probabilities / weights after sample ``k`` (r,) (copy)."""
         if not self.compiled:
             return self._state.mu[0].copy()
-        o = self._layout[0] if self._kind == "imm" else self._layout[1]
-        return self._slice(o, (self._nm,))
+        return self._slice(self._offsets[2], (self._nm,))
 
     @property
     def state(self) -> Any:
-        """The state as a one-run :class:`~chatterspec.filters.bank_common.MultipleModelState`."""
+        """The state as a one-run :class:`~chatterspec.filters.bank.MultipleModelState`."""
         if not self.compiled:
             return self._state
-        nm, n, m, k = self._nm, self._n, self._m, self._k
-        lay, sl = self._layout, self._slice
-        C = np.asarray(self.bank._sensor_model().C, dtype=float)
-        if self._kind == "imm":
-            xs, Ps = sl(lay[1], (nm, n)), sl(lay[2], (nm, n, n))
-            eps, epps = sl(lay[3], (nm, m)), sl(lay[4], (nm, m))
-            zl, x = sl(lay[5], (1, m)), sl(lay[6], (1, n))
-            modes = tuple(
-                FilterState(
-                    x=xs[j : j + 1], P=Ps[j : j + 1], e_post=eps[j : j + 1], e_prev=epps[j : j + 1], k=k
-                )
-                for j in range(nm)
-            )
-            return dataclasses.replace(  # the bank's MultipleModelState, without importing the banks
-                self._state, x=x, P=sl(lay[7], (1, n, n)), mu=sl(lay[0], (1, nm)), e_post=zl - x @ C.T,
-                z_last=zl, mode_states=modes, k=k,
-            )  # fmt: skip
-        return dataclasses.replace(
-            self._state, x=sl(0, (1, n)), P=sl(lay[0], (1, n, n)), mu=sl(lay[1], (1, nm)),
-            e_post=sl(lay[2], (1, m)), z_last=sl(lay[7], (1, m)), k=k, e_prev=sl(lay[3], (1, m)),
-        )  # fmt: skip
+        return self.bank._one_state(self._slice, self._state, self._k)
 
     @property
     def loglik(self) -> np.ndarray | None:
@@ -513,15 +423,14 @@ class OnlineBank:
             return None
         if not self.compiled:
             return None if self._ll is None else self._ll.copy()
-        o = self._layout[10] if self._kind == "imm" else self._layout[6]
-        return self._slice(o, (self._nm,))
+        return self._slice(self._offsets[3], (self._nm,))
 
     def __repr__(self) -> str:
         path = "compiled" if self.compiled else "update"
         return f"OnlineBank({type(self.bank).__name__}, k={self._k}, modes={self._nm}, {path})"
 
 
-class OnlineSVSF:
+class OnlineSVSF(_OneRealization):
     """The chattering SVSF (:class:`~chatterspec.filters.svsf.SVSF`, sat or sgn) advanced one sample per call.
 
     Made by ``svsf.online(z0)``. A step is one compiled call built from the steps of
@@ -546,36 +455,17 @@ class OnlineSVSF:
         Whether a step is one compiled call.
     """
 
-    __slots__ = (
-        "_buf",
-        "_call",
-        "_closed",
-        "_cst",
-        "_k",
-        "_last",
-        "_m",
-        "_n",
-        "_p",
-        "_state",
-        "_u0",
-        "compiled",
-        "svsf",
-    )
+    __slots__ = ("_closed", "_last", "svsf")
 
     def __init__(self, svsf: Any, state: Any) -> None:
         from . import _svsf_kernels
         from .svsf_recursion import SVSFState
 
-        if not isinstance(state, SVSFState):
-            raise TypeError(f"state must be an SVSFState; got {type(state).__name__}")
-        if state.runs != 1:
-            raise ShapeError(f"an online filter follows one realization; the state holds {state.runs}")
         model = svsf.model
-        n, m, p = int(model.n_states), int(model.n_outputs), int(model.n_inputs)
+        ok = isinstance(state, SVSFState)
+        self._start(model, state, ok, "an SVSFState", state.runs if ok else 1, "filter")
+        n, m, p = self._n, self._m, self._p
         self.svsf = svsf
-        self._n, self._m, self._p = n, m, p
-        self._u0 = np.zeros(p)
-        self._k = int(state.k)
         self._state = state
         self._last: np.ndarray | None = None
         # the closed form of eq (23) for a record that starts with e(k|k) = 0, as update() picks it
@@ -606,7 +496,7 @@ class OnlineSVSF:
         ShapeError, NonFiniteError, DivergenceError
             As :meth:`OnlineFilter.step`.
         """
-        z = sample_rows("z", z, self._m)
+        z = sample_rows("z", z, self._m)  # inline: a helper call shows against a 2-3 us step
         u = self._u0 if u is None else sample_rows("u", u, self._p)
         if not self.compiled:
             _finite_input("SVSF", self._k + 1, z, u)
@@ -626,11 +516,6 @@ class OnlineSVSF:
         self._k += 1
         n, m = self._n, self._m
         return self._buf[n + 2 * m :].copy()
-
-    @property
-    def k(self) -> int:
-        """Index of the last sample processed."""
-        return self._k
 
     @property
     def e_prior(self) -> np.ndarray | None:

@@ -131,25 +131,17 @@ class SecondOrderSVSF(SVSFCovarianceBase):
         )
         (lo, hi), M, luen = self.ratio_clip, self._M, self._luen
 
-        def numpy(
-            e: np.ndarray,
-            ep: np.ndarray,
-            epp: np.ndarray,
-            xp: np.ndarray,
-            PCt: np.ndarray,
-            D: np.ndarray,
-            S: np.ndarray,
-            C: np.ndarray,
-            F: np.ndarray,
-        ) -> tuple[np.ndarray, np.ndarray]:
+        def numpy(pr: _engine.NumpyPrior) -> tuple[np.ndarray, np.ndarray]:
             if luen is not None:
-                Kg, dx = luen_correction(_engine.SVSF2, F, e, ep, epp, *luen, gamma, lam, np.ones(n), lo, hi)
-                return Kg, xp + dx
-            Mp = _engine_numpy.map_numpy(mapping, D, PCt, M, e.shape[0])
-            dz = e - (gamma + lam) * ep + gamma * lam * epp
+                Kg, dx = luen_correction(
+                    _engine.SVSF2, pr.F, pr.e, pr.ep, pr.epp, *luen, gamma, lam, np.ones(n), lo, hi
+                )
+                return Kg, pr.xp + dx
+            Mp = _engine_numpy.map_numpy(mapping, pr.D, pr.PCt, M, pr.e.shape[0])
+            dz = pr.e - (gamma + lam) * pr.ep + gamma * lam * pr.epp
             with np.errstate(divide="ignore", invalid="ignore"):
-                g = np.where(e != 0.0, np.clip(dz / np.where(e != 0.0, e, 1.0), lo, hi), 1.0)
-            return Mp * g[:, None, :], xp + np.einsum("rij,rj->ri", Mp, dz)
+                g = np.where(pr.e != 0.0, np.clip(dz / np.where(pr.e != 0.0, pr.e, 1.0), lo, hi), 1.0)
+            return Mp * g[:, None, :], pr.xp + np.einsum("rij,rj->ri", Mp, dz)
 
         if luen is not None:
             return _engine.CorrectionStep("svsf2_luen", luen_second_order, fp, numpy, mapping)

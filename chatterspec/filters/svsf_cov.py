@@ -217,31 +217,23 @@ class SVSFCov(SVSFCovarianceBase):
         fp = _engine.svsf_parameters(mapping, n, m, gamma_, psi=psi_, M=self._M, luen=self._luen)
         gamma, psi, M, luen = cast(np.ndarray, self.gamma), cast(np.ndarray, self.psi), self._M, self._luen
 
-        def numpy(
-            e: np.ndarray,
-            ep: np.ndarray,
-            epp: np.ndarray,
-            xp: np.ndarray,
-            PCt: np.ndarray,
-            D: np.ndarray,
-            S: np.ndarray,
-            C: np.ndarray,
-            F: np.ndarray,
-        ) -> tuple[np.ndarray, np.ndarray]:
+        def numpy(pr: _engine.NumpyPrior) -> tuple[np.ndarray, np.ndarray]:
             if luen is not None:
-                Kg, dx = luen_correction(_engine.SVSF1, F, e, ep, epp, *luen, gamma, 0 * gamma, psi, 0.0, 2.0)
-                return Kg, xp + dx
-            Kkf = _engine_numpy.kalman_gain_numpy(S, PCt) if self.vbl else None
-            Mp = _engine_numpy.map_numpy(mapping, D, PCt, M, e.shape[0])
-            a = np.abs(e)
-            g = (a + gamma * np.abs(ep)) / np.maximum(a, psi)
+                Kg, dx = luen_correction(
+                    _engine.SVSF1, pr.F, pr.e, pr.ep, pr.epp, *luen, gamma, 0 * gamma, psi, 0.0, 2.0
+                )
+                return Kg, pr.xp + dx
+            Kkf = _engine_numpy.kalman_gain_numpy(pr.S, pr.PCt) if self.vbl else None
+            Mp = _engine_numpy.map_numpy(mapping, pr.D, pr.PCt, M, pr.e.shape[0])
+            a = np.abs(pr.e)
+            g = (a + gamma * np.abs(pr.ep)) / np.maximum(a, psi)
             Kg = Mp * g[:, None, :]
-            x = xp + np.einsum("rij,rj->ri", Mp, g * e)
+            x = pr.xp + np.einsum("rij,rj->ri", Mp, g * pr.e)
             if Kkf is not None:  # (self.vbl)
-                ck = np.einsum("iq,rqi->ri", C, Kkf)
-                use_kf = np.all((ck > 0.0) & (np.abs(e) + gamma * np.abs(ep) <= psi * ck), axis=1)
+                ck = np.einsum("iq,rqi->ri", pr.C, Kkf)
+                use_kf = np.all((ck > 0.0) & (np.abs(pr.e) + gamma * np.abs(pr.ep) <= psi * ck), axis=1)
                 Kg = np.where(use_kf[:, None, None], Kkf, Kg)
-                x = np.where(use_kf[:, None], xp + np.einsum("rij,rj->ri", Kkf, e), x)
+                x = np.where(use_kf[:, None], pr.xp + np.einsum("rij,rj->ri", Kkf, pr.e), x)
             return Kg, x
 
         if luen is not None:

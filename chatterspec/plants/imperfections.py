@@ -151,24 +151,39 @@ def _ar1(e: np.ndarray, g: float, prev: np.ndarray) -> np.ndarray:
 
 # --------------------------------------------------------------------------- noise
 @dataclass(frozen=True, eq=False)
-class WhiteNoise:
-    """White Gaussian measurement noise ``N(0, R)`` (``R``: (m, m) or its diagonal, channel units^2)."""
+class _ScaledNoise:
+    """Measurement noise ``L w`` of covariance ``R = L L^T`` (``R``: (m, m) or its diagonal, channel
+    units^2), with ``w`` the unit-covariance noise of the subclass (:meth:`_unit`) carried over chunks
+    by its state."""
 
     R: np.ndarray
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "R", _covariance(self.R))
 
-    def init(self, runs: int, rng: np.random.Generator) -> None:
+    def init(self, runs: int, rng: np.random.Generator) -> Any:
         """No state."""
         return None
 
     def apply(
-        self, y: np.ndarray, t: np.ndarray, rng: np.random.Generator, state: None
-    ) -> tuple[np.ndarray, None]:
-        """``y + L e`` with ``e`` standard normal (runs, K, m)."""
+        self, y: np.ndarray, t: np.ndarray, rng: np.random.Generator, state: Any
+    ) -> tuple[np.ndarray, Any]:
+        """``y + L w`` with ``w`` (runs, K, m) the unit noise of this kind (its state carried on)."""
         y, t = _check_y(y, t, self.R.shape[0])
-        return y + rng.standard_normal(y.shape) @ _sqrt(self.R).T, None
+        w, state = self._unit(y.shape, rng, state)
+        return y + w @ _sqrt(self.R).T, state
+
+    def _unit(self, shape: tuple[int, ...], rng: np.random.Generator, state: Any) -> tuple[np.ndarray, Any]:
+        raise NotImplementedError
+
+
+@dataclass(frozen=True, eq=False)
+class WhiteNoise(_ScaledNoise):
+    """White Gaussian measurement noise ``N(0, R)`` (``R``: (m, m) or its diagonal, channel units^2)."""
+
+    def _unit(self, shape: tuple[int, ...], rng: np.random.Generator, state: None) -> tuple[np.ndarray, None]:
+        """``e`` standard normal."""
+        return rng.standard_normal(shape), None
 
     def describe(self) -> str:
         """A short description."""
@@ -176,14 +191,13 @@ class WhiteNoise:
 
 
 @dataclass(frozen=True, eq=False)
-class AR1Noise:
+class AR1Noise(_ScaledNoise):
     """AR(1) (coloured) measurement noise of covariance ``R``, lag-1 correlation ``rho`` in [0, 1)."""
 
-    R: np.ndarray
     rho: float
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "R", _covariance(self.R))
+        super().__post_init__()
         rho = float(self.rho)
         if not (0.0 <= rho < 1.0):
             raise ParameterError(f"rho must lie in [0, 1) (lag-1 correlation of the noise); got {self.rho!r}")
@@ -193,13 +207,12 @@ class AR1Noise:
         """``w(-1)`` drawn from the stationary law ``N(0, I)`` (before ``L``)."""
         return rng.standard_normal((int(runs), self.R.shape[0]))
 
-    def apply(
-        self, y: np.ndarray, t: np.ndarray, rng: np.random.Generator, state: np.ndarray
+    def _unit(
+        self, shape: tuple[int, ...], rng: np.random.Generator, state: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """``y + L w`` with ``w`` the unit AR(1) recursion along time."""
-        y, t = _check_y(y, t, self.R.shape[0])
-        w = _ar1(rng.standard_normal(y.shape), self.rho, state)
-        return y + w @ _sqrt(self.R).T, w[:, -1].copy() if w.shape[1] else state
+        """``w`` the unit AR(1) recursion along time from ``w(-1) = state``; the last ``w`` carried on."""
+        w = _ar1(rng.standard_normal(shape), self.rho, state)
+        return w, w[:, -1].copy() if w.shape[1] else state
 
     def describe(self) -> str:
         """A short description."""
@@ -207,30 +220,21 @@ class AR1Noise:
 
 
 @dataclass(frozen=True, eq=False)
-class StudentTNoise:
+class StudentTNoise(_ScaledNoise):
     """Student-t measurement noise with ``nu > 2`` degrees of freedom, scaled to covariance ``R``."""
 
-    R: np.ndarray
     nu: float
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "R", _covariance(self.R))
+        super().__post_init__()
         nu = float(self.nu)
         if not (math.isfinite(nu) and nu > 2.0):
             raise ParameterError(f"nu must be > 2 (a finite variance); got {self.nu!r}")
         object.__setattr__(self, "nu", nu)
 
-    def init(self, runs: int, rng: np.random.Generator) -> None:
-        """No state."""
-        return None
-
-    def apply(
-        self, y: np.ndarray, t: np.ndarray, rng: np.random.Generator, state: None
-    ) -> tuple[np.ndarray, None]:
-        """``y + L t sqrt((nu - 2) / nu)``."""
-        y, t = _check_y(y, t, self.R.shape[0])
-        e = rng.standard_t(self.nu, size=y.shape) * math.sqrt((self.nu - 2.0) / self.nu)
-        return y + e @ _sqrt(self.R).T, None
+    def _unit(self, shape: tuple[int, ...], rng: np.random.Generator, state: None) -> tuple[np.ndarray, None]:
+        """``t sqrt((nu - 2) / nu)``, ``t`` Student-t."""
+        return rng.standard_t(self.nu, size=shape) * math.sqrt((self.nu - 2.0) / self.nu), None
 
     def describe(self) -> str:
         """A short description."""
