@@ -210,16 +210,30 @@ class SpectralMonitoring:
         return _scores(run.starts, run.active, rec.t[k], rec.t[k + W - 1], *interval)
 
 
-class _SpectralCounter:
-    def __init__(self, model: Any, settings: MonitorSettings) -> None:
-        from .monitor import ChatteringMonitor
+class _Counter:
+    """An :class:`AlarmCounter` over an online monitor whose ``push`` returns an update with ``events``:
+    counts the fault starts; :meth:`_tally` counts the update's frames."""
 
-        self.monitor = ChatteringMonitor(model, settings)
+    def __init__(self, monitor: Any) -> None:
+        self.monitor = monitor
         self.starts = self.frames = self.active = self.blind = 0
 
     def push(self, z: np.ndarray, u: np.ndarray) -> None:
         upd = self.monitor.push(z, u)
         self.starts += sum(e.kind == "fault-start" for e in upd.events)
+        self._tally(upd)
+
+    def _tally(self, upd: Any) -> None:
+        raise NotImplementedError
+
+
+class _SpectralCounter(_Counter):
+    def __init__(self, model: Any, settings: MonitorSettings) -> None:
+        from .monitor import ChatteringMonitor
+
+        super().__init__(ChatteringMonitor(model, settings))
+
+    def _tally(self, upd: Any) -> None:
         fr = upd.frames
         self.frames += fr.n_frames
         if fr.alarm is not None and fr.n_frames:
@@ -292,16 +306,13 @@ class ParameterMonitoring:
         return _scores(rec.starts, rec.alarm, rec.times_s - half, rec.times_s + half, *interval)
 
 
-class _ParameterCounter:
+class _ParameterCounter(_Counter):
     def __init__(self, setup: Any, settings: ParameterAlarmSettings) -> None:
         from .identification_monitor import IdentificationMonitor
 
-        self.monitor = IdentificationMonitor(setup, settings)
-        self.starts = self.frames = self.active = self.blind = 0
+        super().__init__(IdentificationMonitor(setup, settings))
 
-    def push(self, z: np.ndarray, u: np.ndarray) -> None:
-        upd = self.monitor.push(z, u)
-        self.starts += sum(e.kind == "fault-start" for e in upd.events)
+    def _tally(self, upd: Any) -> None:
         self.frames += upd.block.n_windows
         self.active += int(np.count_nonzero(upd.block.alarm.any(axis=-1)))
         # a window in which some channel's carried parameter is not excited: the decision is blind there
