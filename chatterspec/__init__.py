@@ -39,7 +39,7 @@ _GROUPS: dict[str, dict[str, str]] = {
         "NonlinearModel": ".plants.nonlinear",
         "eha4": ".plants.eha4",
         "load_model": ".plants.modelfile",
-        "write_model_toml": ".plants.modelfile_writer",
+        "write_model_toml": ".plants.modelfile",
         "load_data": ".plants.datafile",
     },
     "scenarios": {
@@ -88,7 +88,7 @@ _GROUPS: dict[str, dict[str, str]] = {
             ("Identification", "IdentificationReport", "identification_setup", "identify", "identify_record"),
             ".detection.identification",
         ),
-        **dict.fromkeys(("Tolerance", "with_tolerances"), ".plants.tolerances"),
+        **dict.fromkeys(("Tolerance", "with_tolerances"), ".plants.parameters"),
         **dict.fromkeys(("ParameterDecisions", "parameter_alarm_settings"), ".detection.parameter_decision"),
         "monitor_parameters": ".detection.parameter_records",
     },
@@ -156,14 +156,13 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .online.recorded_calibration import calibrate_recorded
     from .plants.datafile import load_data
     from .plants.eha4 import eha4
-    from .plants.modelfile import load_model
-    from .plants.modelfile_writer import write_model_toml
+    from .plants.modelfile import load_model, write_model_toml
     from .plants.models import LinearModel, discretize, eha_linear, second_order
     from .plants.nonlinear import NonlinearModel
+    from .plants.parameters import Tolerance, with_tolerances
     from .plants.scenarios import Scenario, Segment, catalogue, scenario, scenario_names
     from .plants.signals import Chirp, Constant, SquareWave, Step
     from .plants.simulate import Simulation, iter_simulations, simulate
-    from .plants.tolerances import Tolerance, with_tolerances
     from .studies.alarm_budget import calibrate_alarm
     from .studies.budget_diagnosis import diagnose_at_budget
     from .studies.calibration import Calibration, calibrate, load_calibration

@@ -187,9 +187,9 @@ def events(hours: int, seed: int) -> dict:
 
 def excitation(seed: int) -> tuple[dict, dict]:
     from chatterspec.detection.parameter_records import monitor_parameters
+    from chatterspec.plants.parameters import with_tolerances
     from chatterspec.plants.scenarios import scenario
     from chatterspec.plants.simulate import simulate
-    from chatterspec.plants.tolerances import with_tolerances
     from chatterspec.studies.tolerance_study import EHA_TOLERANCES
 
     out: dict = {}

@@ -250,7 +250,7 @@ def test_window_too_short_and_formula_mismatch() -> None:
 
 
 def _formula(text: str) -> object:
-    from chatterspec.plants._expressions import compile_formula
+    from chatterspec.plants.parameters import compile_formula
 
     return compile_formula(text)
 
@@ -336,7 +336,7 @@ def test_every_combination_is_a_hypothesis_and_declared_names_are_kept() -> None
     assert [h.name for h in identification_setup(model, ["leakage"]).hypotheses] == ["leakage"]
     # two parameters entering only as a product cannot be told apart: their combination is left out of
     # the default hypotheses, and refused when declared
-    from chatterspec.plants._expressions import compile_formula
+    from chatterspec.plants.parameters import compile_formula
 
     so = second_order(10.0, 0.1)
     entry = MatrixEntry("A", 1, 1, compile_formula("1 - 2*dt*zeta*w", "test"))

@@ -31,9 +31,9 @@ from chatterspec.online.realistic_bench import (
     settled,
 )
 from chatterspec.plants.models import eha_linear
+from chatterspec.plants.parameters import with_tolerances
 from chatterspec.plants.signals import ZeroInput
 from chatterspec.plants.simulate import simulate
-from chatterspec.plants.tolerances import with_tolerances
 from chatterspec.studies.commissioning import commission
 from chatterspec.studies.tolerance_study import chirp_scenario
 

@@ -51,7 +51,7 @@ def with_tolerance_args(model: Model, args: argparse.Namespace) -> Model:
     if not given:
         return model
     from ..errors import ParameterError
-    from ..plants.tolerances import with_tolerances
+    from ..plants.parameters import with_tolerances
 
     spec = {}
     for item in given:

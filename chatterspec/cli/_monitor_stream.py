@@ -17,7 +17,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from typing import TextIO
 
     from ..detection.monitor_settings import MonitorSettings
-    from ..plants.modelfile_fields import ModelSpec
+    from ..plants.modelfile import ModelSpec
     from ..viewer.live_stream import StreamEvent, StreamSummary
 
 __all__: list[str] = []

@@ -33,7 +33,7 @@ from ._options import add, add_execution_args, add_name, add_report_args, add_ru
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..detection.thresholds import Threshold
-    from ..plants.scenario_types import Scenario
+    from ..plants.scenarios import Scenario
     from ..studies.budget_diagnosis import BudgetSettings
     from ..studies.routes import Route
 

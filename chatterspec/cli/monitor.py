@@ -37,7 +37,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..detection.spectral import STFTConfig
     from ..online.monitor import ChatteringMonitor, DetectionEvent
     from ..plants.datafile import DataSet
-    from ..plants.modelfile_fields import ModelSpec
+    from ..plants.modelfile import ModelSpec
     from ..plants.nonlinear import Model
     from ..studies.calibration_result import Calibration
     from ..viewer.drivers import RecordingSummary
@@ -217,7 +217,7 @@ def run(args: argparse.Namespace) -> int:
     pmap = getattr(spec.model, "parameter_map", None)
     tolerances = pmap is not None and pmap.has_tolerances
     from ..online.monitor import ChatteringMonitor, MonitorSettings  # after the model file: its errors first
-    from ..plants.measurement import require_linear_measurement
+    from ..plants.nonlinear import require_linear_measurement
 
     require_linear_measurement(spec.model, "the chattering monitor")
     if not spec.is_linear and args.calibration is None:

@@ -2,7 +2,7 @@
 
 The chattering detects *any* model mismatch, including a parameter's normal operating variation
 (the bulk modulus 10 % low on a warm day). When the model declares operating tolerances
-(:mod:`chatterspec.plants.tolerances`), the fault decision is taken on the identified parameters
+(:mod:`chatterspec.plants.parameters`), the fault decision is taken on the identified parameters
 instead (goes beyond the papers):
 
 **Estimate.** Per STFT hop, the identification window ending there (the STFT window, 1 s by

@@ -40,9 +40,8 @@ import numpy as np
 from .._repr import short_repr
 from .._validate import open_unit
 from ..errors import ParameterError, SingularMatrixError
-from ..plants.measurement import require_linear_measurement
 from ..plants.models import LinearModel
-from ..plants.nonlinear import NonlinearModel
+from ..plants.nonlinear import NonlinearModel, require_linear_measurement
 from ._conventions import check_chunk, check_initial_rows, check_record, store_flags
 from ._finite import require_finite
 from .protocol import channel_rows

@@ -461,7 +461,7 @@ def tolerance_route(
         As :func:`commissioned_route`'s; None: no commissioning, the nominal model's values are the
         bands' centres and its R and Q the scores' law.
     """
-    from ..plants.tolerances import with_tolerances
+    from ..plants.parameters import with_tolerances
 
     def prepare(r: RouteInputs) -> Monitoring:
         details: dict[str, Any] = {"tolerances": dict(tolerances)}

@@ -71,7 +71,7 @@ from ..plants.simulate import covariance_sqrt
 if TYPE_CHECKING:  # pragma: no cover
     from ..detection.monitor_settings import MonitorSettings
     from ..plants.nonlinear import Model
-    from ..plants.scenario_types import Scenario
+    from ..plants.scenarios import Scenario
 
 __all__ = [
     "DEFAULT_BUDGET",

@@ -42,7 +42,7 @@ from .route_sweep import DEFAULT_WARMUP_S, merge_sweeps, route_geometry, sweep_c
 if TYPE_CHECKING:  # pragma: no cover
     from ..detection.alarm_calibration import RuleCalibration
     from ..detection.alarm_rules import AlarmRule
-    from ..plants.scenario_types import Scenario
+    from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
     from .routes import Route
 

@@ -40,7 +40,7 @@ from ..errors import ParameterError
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..detection.alarm_rules import AlarmRule
-    from ..plants.scenario_types import Scenario
+    from ..plants.scenarios import Scenario
     from .routes import RouteScores
 
 __all__ = ["DEFAULT_WARMUP_S", "RouteGeometry", "merge_sweeps", "onsets_of", "route_geometry", "sweep_chunk"]

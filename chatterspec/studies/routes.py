@@ -59,7 +59,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..detection.alarm_rules import AlarmRule
     from ..detection.spectral import STFTConfig
     from ..detection.thresholds import Threshold
-    from ..plants.scenario_types import Scenario
+    from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
 
 __all__ = [

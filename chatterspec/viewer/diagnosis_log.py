@@ -32,7 +32,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from rerun.blueprint import VisibleTimeRange
     from rerun.blueprint.archetypes import TimeAxis
 
-    from ..plants.scenario_types import Scenario
+    from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
     from .sinks import Sinks
 

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from ..detection.parameter_decision import ParameterEvent
     from ..detection.pipeline import ChatteringRecord
     from ..online.identification_monitor import IdentificationMonitor, IdentificationUpdate
-    from ..plants.scenario_types import Scenario
+    from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
 
 __all__ = [

@@ -23,7 +23,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..palette import TAB10, TRUTH, filter_color
-from ..plants.model_base import state_units
+from ..plants.models import state_units
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..studies.estimation import EstimateRecords
