@@ -97,18 +97,10 @@ _GROUPS: dict[str, dict[str, str]] = {
     },
     "alarms": {
         **dict.fromkeys(
-            (
-                "AlarmEvent",
-                "AlarmStream",
-                "CusumRule",
-                "FrameRule",
-                "PersistenceRule",
-                "make_rule",
-                "run_rule",
-            ),
-            ".detection.alarms",
+            ("CusumRule", "FrameRule", "PersistenceRule", "make_rule"), ".detection.alarms.rules"
         ),
-        **dict.fromkeys(("RuleCalibration", "calibrate_rule"), ".detection.alarm_calibration"),
+        **dict.fromkeys(("AlarmEvent", "AlarmStream", "run_rule"), ".detection.alarms.streams"),
+        **dict.fromkeys(("RuleCalibration", "calibrate_rule"), ".detection.alarms.calibration"),
         **dict.fromkeys(("FrameScore", "frame_scores"), ".detection.frame_score"),
         "calibrate_alarm": ".studies.alarm_budget",
         "diagnose_at_budget": ".studies.budget_diagnosis",
@@ -120,16 +112,9 @@ _GROUPS: dict[str, dict[str, str]] = {
 _LAZY: dict[str, str] = {name: mod for group in _GROUPS.values() for name, mod in group.items()}
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
-    from .detection.alarm_calibration import RuleCalibration, calibrate_rule
-    from .detection.alarms import (
-        AlarmEvent,
-        AlarmStream,
-        CusumRule,
-        FrameRule,
-        PersistenceRule,
-        make_rule,
-        run_rule,
-    )
+    from .detection.alarms.calibration import RuleCalibration, calibrate_rule
+    from .detection.alarms.rules import CusumRule, FrameRule, PersistenceRule, make_rule
+    from .detection.alarms.streams import AlarmEvent, AlarmStream, run_rule
     from .detection.detect import DetectionReport, detect_chunks, detect_record, detect_scenario
     from .detection.frame_score import FrameScore, frame_scores
     from .detection.identification import (

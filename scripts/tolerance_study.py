@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from chatterspec.detection.alarm_calibration import poisson_count_interval
+from chatterspec.detection.alarms.calibration import poisson_count_interval
 from chatterspec.studies.intervals import clopper_pearson
 from chatterspec.studies.tolerance_study import (
     CYCLE_MOVES,

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from chatterspec.cli import main as cli_main
-from chatterspec.detection.alarm_calibration import RuleCalibration, poisson_count_interval
-from chatterspec.detection.alarms import CusumRule, FrameRule, PersistenceRule, run_rule
+from chatterspec.detection.alarms.calibration import RuleCalibration, poisson_count_interval
+from chatterspec.detection.alarms.rules import CusumRule, FrameRule, PersistenceRule
+from chatterspec.detection.alarms.streams import run_rule
 from chatterspec.detection.frame_score import FrameScore
 from chatterspec.detection.pipeline import chattering_record
 from chatterspec.detection.spectral import chattering_autocovariance, frame_columns

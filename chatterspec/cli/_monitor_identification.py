@@ -246,7 +246,7 @@ class MonitorIdentification:
 
     def rule_short(self) -> str:
         """``"cusum rule, 1 false alarm per 24 h, on the parameters"``."""
-        from ..detection.alarm_rules import alarm_label
+        from ..detection.alarms.rules import alarm_label
 
         cal = self.monitor.settings.calibration
         if cal is None:

@@ -8,8 +8,8 @@ from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from ..detection.alarms.calibration import MonitorSettings
     from ..detection.identification import IdentificationSetup, IdentificationStream
-    from ..detection.monitor_settings import MonitorSettings
     from ..detection.pipeline import ChatteringRecord
     from ..detection.report import DetectionReport
     from ..plants.scenarios import Scenario

@@ -10,7 +10,7 @@ and the per-frame rule at level ``alpha`` (:func:`chatterspec.detection.threshol
 Bonferroni) flags exactly the frames with ``score >= -log(alpha)`` (up to the 1e-10 relative
 tolerance of the threshold's quantile). Under the healthy law ``P(p <= x) <= x``, so a healthy
 score exceeds ``h`` with probability at most ``exp(-h)``. The score feeds the alarm rules of
-:mod:`chatterspec.detection.alarms` (e.g. a CUSUM ``g = max(0, g + score - drift)``).
+:mod:`chatterspec.detection.alarms.streams` (e.g. a CUSUM ``g = max(0, g + score - drift)``).
 
 Laws
     ``exact`` (a threshold with ``eigenvalues``, i.e. a linear model): a healthy frame bin is

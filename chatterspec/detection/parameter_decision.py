@@ -64,8 +64,9 @@ import scipy.special
 from .._validate import open_unit, positive, positive_int
 from ..jsonout import finite_or_none
 from ._identification_fit import IdentificationSetup
-from .alarm_calibration import RuleCalibration, check_budget
-from .alarms import AlarmRule, AlarmStream
+from .alarms.calibration import RuleCalibration, check_budget
+from .alarms.rules import AlarmRule
+from .alarms.streams import AlarmStream
 from .parameter_scores import (
     DEFAULT_POWER,
     NOT_EXCITED_MULTIPLE,
@@ -275,7 +276,7 @@ class ParameterEvent:
         """``"fault start on bulk_modulus: alarm raised at t = 3.10 s (end of the deciding window):
         bulk_modulus 1.55e8 Pa, 25 % below nominal, outside its +-15 % [cusum rule, 1 false alarm per
         24 h]"``."""
-        from .alarm_rules import alarm_label
+        from .alarms.rules import alarm_label
 
         what = "fault start" if self.kind == "fault-start" else "fault end"
         pos = band_position(self.ci_low, self.ci_high, *self.band)

@@ -14,7 +14,8 @@ from typing import Any
 import numpy as np
 
 from .._validate import open_unit, positive, positive_int
-from .alarms import AlarmRule, AlarmStream
+from .alarms.rules import AlarmRule
+from .alarms.streams import AlarmStream
 from .parameter_decision import (
     ParameterAlarmSettings,
     ParameterDecisions,

@@ -16,7 +16,7 @@ taken at the worst case (the parameter on a band edge): uniform there, larger in
 excitation, collinear regressors) scores 0: no evidence.
 
 **Alarm.** The scores (one channel per parameter) go through the monitor's alarm rule
-(:mod:`chatterspec.detection.alarms`: frame, persistence or CUSUM, with renewal), whose threshold
+(:mod:`chatterspec.detection.alarms.streams`: frame, persistence or CUSUM, with renewal), whose threshold
 is set for the run's budget in false alarms per hour like the spectral scores'
 (:func:`calibrate_parameter_rule`): the frame rule from the law (``h = log(F P / X)``), the others
 on simulated worst-case streams. Under stationary excitation the estimates of two windows sharing
@@ -44,8 +44,8 @@ import scipy.special
 from .._validate import open_unit, positive, positive_int
 from ..errors import IdentifiabilityError
 from ._identification_fit import IdentificationSetup
-from .alarm_calibration import RuleCalibration, calibrate_rule, check_budget, law_frame_rule
-from .alarms import AlarmRule, make_rule, rule_from_dict, rule_spec
+from .alarms.calibration import RuleCalibration, calibrate_rule, check_budget, law_frame_rule
+from .alarms.rules import AlarmRule, make_rule, rule_from_dict, rule_spec
 
 __all__ = [
     "CALIBRATION_HOURS",
@@ -280,7 +280,7 @@ def calibrate_parameter_rule(
 
     The frame rule from the law (``h = log(F P / X)``, an upper bound on the rate); persistence and
     CUSUM on ``hours`` of worst-case streams (:func:`parameter_null_scores`), counted or extrapolated
-    by :func:`~chatterspec.detection.alarm_calibration.calibrate_rule`. Cached in the process.
+    by :func:`~chatterspec.detection.alarms.calibration.calibrate_rule`. Cached in the process.
 
     Parameters
     ----------

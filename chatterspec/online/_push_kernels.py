@@ -16,7 +16,7 @@ from typing import cast
 import numpy as np
 
 from .. import _jit
-from ..detection.alarm_steps import FRAME
+from ..detection.alarms.steps import FRAME
 from ..detection.frame_engine import power_step
 from ..detection.frame_score import score_step
 from ..detection.frames import peak_channel
@@ -262,7 +262,7 @@ def _hop_loop(  # type: ignore[no-untyped-def]  # (35 arrays and scalars: see th
     lo + len(positions) - 1`` (:data:`~chatterspec.detection.frames.peak_channel`) into ``k_ratio``,
     ``peak_ratio`` (F, m); the frame score (:func:`~chatterspec.detection.frame_score.score_step`,
     its arguments) into ``score``; then, per channel over the frames, the alarm rule's channel step
-    ``RULE_CHANNEL`` (:attr:`~chatterspec.detection.alarm_steps.RuleSteps.channel`: threshold ``h``,
+    ``RULE_CHANNEL`` (:attr:`~chatterspec.detection.alarms.steps.RuleSteps.channel`: threshold ``h``,
     parameters ``p``, the :class:`AlarmStream`'s state arrays, step ``pos[0]``) fed with ``s3``
     (1, F, m) = the score, or (``legacy``: the per-frame
     verdict's events) 1.0 where ``peak_ratio > 1`` and 0.0 elsewhere. The same steps as the four
@@ -304,7 +304,7 @@ _HOP: dict[int, Callable[..., None]] = {}
 def hop_kernel(channel: Callable[..., None]) -> Callable[..., None]:
     """The monitor's block-of-frames loop (:func:`_hop_loop`) with the alarm rule's channel step ``channel``.
 
-    One kernel per channel step (a rule's :attr:`~chatterspec.detection.alarm_steps.RuleSteps.channel`),
+    One kernel per channel step (a rule's :attr:`~chatterspec.detection.alarms.steps.RuleSteps.channel`),
     kept for the process; numba inlines the step, so there is no call through a function value.
     """
     kernel = _HOP.get(id(channel))

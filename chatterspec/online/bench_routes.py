@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from ..detection.monitor_settings import MonitorSettings
+from ..detection.alarms.calibration import MonitorSettings
 from ..detection.parameter_decision import ParameterAlarmSettings
 from ..errors import ChatterspecError, CommissioningError, ParameterError
 from ..plants.models import LinearModel
@@ -194,7 +194,7 @@ class SpectralMonitoring:
         self, z: np.ndarray, u: np.ndarray, t: np.ndarray, interval: tuple[float, float]
     ) -> OnsetScores:
         """The monitor's frame engine, score and rule on the onset records (module docstring)."""
-        from ..detection.alarms import run_rule
+        from ..detection.alarms.streams import run_rule
         from ..detection.pipeline import chattering_record
         from ..detection.spectral import frame_columns
         from ..studies.alarm_budget import monitor_score
@@ -267,7 +267,7 @@ class ParameterMonitoring:
     ) -> ParameterMonitoring:
         """The monitor's decision for ``model``: one window per STFT hop over the STFT window, ``rule`` at
         ``budget`` false alarms per hour (what ``chatterspec monitor`` decides with tolerances)."""
-        from ..detection.alarms import make_rule
+        from ..detection.alarms.rules import make_rule
         from ..detection.identification import identification_setup
         from ..detection.parameter_decision import parameter_alarm_settings
 

@@ -6,7 +6,7 @@ samples plus the chunk being analysed), turns every complete frame into one colu
 covers chattering samples ``[j H, j H + W)``), gives each frame its verdicts
 (:class:`chatterspec.detection.frames.FrameVerdicts`) and score ``-log p``
 (:class:`chatterspec.detection.frame_score.FrameScore`), runs the alarm rule across pushes
-(:class:`chatterspec.detection.alarms.AlarmStream`) and turns the alarm's starts and ends into
+(:class:`chatterspec.detection.alarms.streams.AlarmStream`) and turns the alarm's starts and ends into
 :class:`~chatterspec.online.monitor_types.DetectionEvent` s. Any chunking of the chattering gives
 the same columns, alarms and events as the whole record at once.
 
@@ -23,7 +23,8 @@ import math
 import numpy as np
 
 from .. import _jit
-from ..detection.alarms import AlarmStream, FrameRule
+from ..detection.alarms.rules import FrameRule
+from ..detection.alarms.streams import AlarmStream
 from ..detection.frame_engine import FrameEngine
 from ..detection.frame_score import FrameScore
 from ..detection.frames import FrameVerdicts

@@ -1,6 +1,6 @@
 """The online monitor's settings and outputs (frozen dataclasses), re-exported by :mod:`.monitor`.
 
-:class:`MonitorSettings` is defined in :mod:`chatterspec.detection.monitor_settings` (the batch alarm
+:class:`MonitorSettings` is defined in :mod:`chatterspec.detection.alarms.calibration` (the batch alarm
 studies use it too) and re-exported here.
 
 :class:`MonitorSettings` (what the monitor tests and how it raises alarms), :class:`DetectionEvent`
@@ -15,8 +15,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from ..detection.alarm_rules import alarm_label
-from ..detection.monitor_settings import MonitorSettings
+from ..detection.alarms.calibration import MonitorSettings
+from ..detection.alarms.rules import alarm_label
 from ..jsonout import finite_or_none
 
 __all__ = ["DetectionEvent", "EventKind", "FrameBlock", "MonitorSettings", "MonitorUpdate"]

@@ -18,7 +18,7 @@ import numpy as np
 import scipy.stats
 
 from .._repr import short_repr
-from ..detection.alarm_calibration import RuleCalibration
+from ..detection.alarms.calibration import RuleCalibration
 from ..detection.spectral import STFTConfig
 from ..detection.threshold_type import Correction
 from ..detection.thresholds import Threshold

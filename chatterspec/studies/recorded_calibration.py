@@ -49,9 +49,9 @@ Per-frame threshold
 
 Alarm threshold at a budget
     The recording's frame scores, as one stream, are given to
-    :func:`chatterspec.detection.alarm_calibration.calibrate_rule`: alarm starts counted on a grid of
+    :func:`chatterspec.detection.alarms.calibration.calibrate_rule`: alarm starts counted on a grid of
     thresholds, ``log(starts per hour)`` fitted linearly in ``h`` where alarms are rare and solved
-    for the budget, with a jackknife over :data:`~chatterspec.detection.alarm_calibration.BATCHES`
+    for the budget, with a jackknife over :data:`~chatterspec.detection.alarms.calibration.BATCHES`
     batches of consecutive time (Student ``t``) for the intervals of the threshold and of the
     realized rate. Why this method: a budget of one per day is far rarer than a recording of hours
     can count (an order-statistic or Poisson interval of a *counted* rate needs about 20 alarms, 20
@@ -94,17 +94,17 @@ import numpy as np
 import scipy.stats
 
 from .._validate import open_unit, positive
-from ..detection.alarm_calibration import (
+from ..detection.alarms.calibration import (
     BATCHES,
     MAX_RATE_PER_STEP,
     MIN_COUNT,
+    MonitorSettings,
     RuleCalibration,
     calibrate_rule,
     check_budget,
 )
-from ..detection.alarms import AlarmRule, make_rule
+from ..detection.alarms.rules import AlarmRule, make_rule
 from ..detection.empirical import NORMALIZATION_SMOOTH_BINS, empirical_family_wise_threshold, smooth_spectrum
-from ..detection.monitor_settings import MonitorSettings
 from ..detection.spectral import periodogram, periodogram_freqs
 from ..detection.threshold_type import Threshold
 from ..errors import ParameterError

@@ -2,7 +2,7 @@
 
 A *route* turns one chunk of realizations (a :class:`~chatterspec.plants.simulate.Simulation`) into
 a score stream ``(runs, steps, channels)`` for the alarm rules of
-:mod:`chatterspec.detection.alarms`, with the time at which each step's score is known and, per
+:mod:`chatterspec.detection.alarms.streams`, with the time at which each step's score is known and, per
 step, the label a route would isolate if it were in alarm then:
 
 ========== ============================================ ========================= ================
@@ -56,7 +56,7 @@ from ..detection.route_scores import (
 from ..errors import ParameterError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..detection.alarm_rules import AlarmRule
+    from ..detection.alarms.rules import AlarmRule
     from ..detection.spectral import STFTConfig
     from ..detection.thresholds import Threshold
     from ..plants.scenario_types import Scenario
@@ -83,7 +83,7 @@ ROUTE_RULE_PARAMETERS = ("drift",)
 
 def _taken(rule: str, **offered: float) -> dict[str, float]:
     """The ``offered`` parameters (of :data:`ROUTE_RULE_PARAMETERS`) that ``rule`` has."""
-    from ..detection.alarm_rules import rule_spec
+    from ..detection.alarms.rules import rule_spec
 
     have = rule_spec(rule).parameters
     return {k: v for k, v in offered.items() if k in have}
@@ -410,7 +410,7 @@ class ChatteringRoute:
         model = self.scenario.nominal
         if not isinstance(model, LinearModel) or self.frame_score.law != "exact":
             return None
-        from ..detection.monitor_settings import MonitorSettings
+        from ..detection.alarms.calibration import MonitorSettings
         from .alarm_budget import calibrate_alarm
 
         settings = MonitorSettings(stft=self.config, threshold=self.law)
