@@ -19,8 +19,7 @@ from chatterspec.cli import main
 from chatterspec.detection.alarms.calibration import calibrate_rule, poisson_count_interval
 from chatterspec.detection.alarms.rules import make_rule
 from chatterspec.detection.alarms.streams import count_starts
-from chatterspec.detection.identification import identification_setup, identify
-from chatterspec.detection.identification_online import OnlineIdentifier
+from chatterspec.detection.identification import OnlineIdentifier, identification_setup, identify
 from chatterspec.detection.parameter_decision import ParameterDecision
 from chatterspec.detection.parameter_records import monitor_parameters
 from chatterspec.detection.parameter_scores import (

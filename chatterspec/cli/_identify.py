@@ -255,7 +255,7 @@ def _num(x: float | None, se: float | None = None) -> str:
         return "-"
     if se is None:
         return f"{x:.6g}"
-    from ..detection.identification_results import format_with_error
+    from ..detection.identification import format_with_error
 
     return format_with_error(x, se)
 

@@ -6,7 +6,7 @@ The chattering detects *any* model mismatch, including a parameter's normal oper
 instead (goes beyond the papers):
 
 **Estimate.** Per STFT hop, the identification window ending there (the STFT window, 1 s by
-default; :class:`~chatterspec.detection.identification_online.OnlineIdentifier`) is fitted with
+default; :class:`~chatterspec.detection.identification.OnlineIdentifier`) is fitted with
 every declared parameter free at once (the joint hypothesis of
 :meth:`~chatterspec.plants.parameters.ParameterMap.combinations`): its estimate and standard error
 ``sigma`` are valid whichever parameters moved.
@@ -63,10 +63,10 @@ import scipy.special
 
 from .._validate import open_unit, positive, positive_int
 from ..jsonout import finite_or_none
-from ._identification_fit import IdentificationSetup
 from .alarms.calibration import RuleCalibration, check_budget
 from .alarms.rules import AlarmRule
 from .alarms.streams import AlarmStream
+from .identification import IdentificationSetup
 from .parameter_scores import (
     DEFAULT_POWER,
     NOT_EXCITED_MULTIPLE,
@@ -432,7 +432,7 @@ class ParameterDecision:
         return self._stream.active
 
     def update(self, found: Any) -> ParameterDecisions:
-        """Decide on the windows of one push (:class:`~chatterspec.detection.identification_online.
+        """Decide on the windows of one push (:class:`~chatterspec.detection.identification.
         OnlineIdentification`)."""
         P = self.bands.size
         W = found.n_windows

@@ -77,8 +77,7 @@ def monitor_parameters(
     ParameterDecisions
     """
     from .._validate import finite_array
-    from .identification import identification_setup, identify_moments
-    from .identification_online import hop_windows
+    from .identification import hop_windows, identification_setup, identify_moments
 
     full = identification_setup(model, [list(model.parameter_map.parameter_names)])  # the joint fit only
     if settings is None:

@@ -43,9 +43,9 @@ import scipy.special
 
 from .._validate import open_unit, positive, positive_int
 from ..errors import IdentifiabilityError
-from ._identification_fit import IdentificationSetup
 from .alarms.calibration import RuleCalibration, calibrate_rule, check_budget, law_frame_rule
 from .alarms.rules import AlarmRule, make_rule, rule_from_dict, rule_spec
+from .identification import IdentificationSetup
 
 __all__ = [
     "CALIBRATION_HOURS",
@@ -165,7 +165,7 @@ def joint_estimates(identification: Any) -> tuple[np.ndarray, np.ndarray, np.nda
     Parameters
     ----------
     identification : Identification
-        Of ``R`` realizations or windows (:mod:`chatterspec.detection.identification_results`), whose
+        Of ``R`` realizations or windows (:mod:`chatterspec.detection.identification`), whose
         setup tests the joint hypothesis.
     """
     h, idx = joint_hypothesis(identification.setup)
@@ -353,7 +353,7 @@ def status_text(
     position : str
         :func:`band_position` of the interval (with a tolerance).
     """
-    from .identification_results import format_with_error
+    from .identification import format_with_error
 
     if not np.isfinite(estimate):
         return f"{name}: no estimate"

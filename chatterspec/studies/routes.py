@@ -504,8 +504,7 @@ class ParameterRoute:
 
     def scores(self, sim: Any) -> RouteScores:
         """Score stream of one chunk: window end times, ``(runs, windows, P)``, label None (the parameter)."""
-        from ..detection.identification import identify_moments
-        from ..detection.identification_online import hop_windows
+        from ..detection.identification import hop_windows, identify_moments
         from ..detection.parameter_scores import band_scores, joint_estimates
 
         t0 = time.perf_counter()
