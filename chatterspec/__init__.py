@@ -90,7 +90,7 @@ _GROUPS: dict[str, dict[str, str]] = {
         ),
         **dict.fromkeys(("Tolerance", "with_tolerances"), ".plants.tolerances"),
         **dict.fromkeys(("ParameterDecisions", "parameter_alarm_settings"), ".detection.parameter_decision"),
-        "monitor_parameters": ".detection.parameter_records",
+        "monitor_parameters": ".detection.parameter_decision",
     },
     "commissioning": {
         **dict.fromkeys(("Commissioning", "commission"), ".studies.commissioning"),
@@ -124,8 +124,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
         identify,
         identify_record,
     )
-    from .detection.parameter_decision import ParameterDecisions, parameter_alarm_settings
-    from .detection.parameter_records import monitor_parameters
+    from .detection.parameter_decision import ParameterDecisions, monitor_parameters, parameter_alarm_settings
     from .detection.pipeline import ChatteringRecord, chattering_record
     from .detection.spectral import STFTConfig, periodogram, spectrogram
     from .detection.thresholds import Threshold, threshold

@@ -186,7 +186,7 @@ def events(hours: int, seed: int) -> dict:
 
 
 def excitation(seed: int) -> tuple[dict, dict]:
-    from chatterspec.detection.parameter_records import monitor_parameters
+    from chatterspec.detection.parameter_decision import monitor_parameters
     from chatterspec.plants.scenarios import scenario
     from chatterspec.plants.simulate import simulate
     from chatterspec.plants.tolerances import with_tolerances

@@ -12,7 +12,7 @@ A :class:`BenchRoute` prepares, per bench case, a monitoring of one of two kinds
   tolerances (:mod:`chatterspec.detection.parameter_decision`; the spectral detector then reports
   mismatch only and the whole budget goes to the parameters): the online
   :class:`~chatterspec.online.identification_monitor.IdentificationMonitor` on the healthy stream,
-  :func:`~chatterspec.detection.parameter_records.monitor_parameters` on the onset records.
+  :func:`~chatterspec.detection.parameter_decision.monitor_parameters` on the onset records.
 
 Both count the false alarms of a continuous healthy stream (:meth:`counter`) and score onset records
 the same way (:meth:`onsets`): the delay of a record is from the onset to the end of the frame (the
@@ -296,9 +296,9 @@ class ParameterMonitoring:
     def onsets(
         self, z: np.ndarray, u: np.ndarray, t: np.ndarray, interval: tuple[float, float]
     ) -> OnsetScores:
-        """The decisions over the whole records (:func:`~chatterspec.detection.parameter_records.
+        """The decisions over the whole records (:func:`~chatterspec.detection.parameter_decision.
         monitor_parameters`); the frames are the identification windows."""
-        from ..detection.parameter_records import monitor_parameters
+        from ..detection.parameter_decision import monitor_parameters
 
         rec = monitor_parameters(self.model, z, u, self.settings, t0=float(t[0]))
         # from a window's centre to its first and last chattering sample

@@ -49,8 +49,9 @@ from ..detection.parameter_decision import (
     ParameterDecision,
     ParameterDecisions,
     ParameterEvent,
+    band_position,
+    joint_hypothesis,
 )
-from ..detection.parameter_scores import band_position, joint_hypothesis
 from ..plants.parameters import NO_FAULT
 
 __all__ = ["IdentificationMonitor", "IdentificationUpdate", "WindowDecision"]

@@ -455,7 +455,7 @@ class ParameterRoute:
 
     def __init__(self, scenario: Any, config: Any = None) -> None:
         from ..detection.identification import identification_setup
-        from ..detection.parameter_scores import ParameterBands
+        from ..detection.parameter_decision import ParameterBands
         from ..detection.spectral import STFTConfig
 
         why = unsupported_reason(scenario, "parameters")
@@ -484,7 +484,7 @@ class ParameterRoute:
         """The monitor's threshold: the rule on worst-case streams (parameters on their band edges), not
         on healthy runs, whose parameters sit at the nominal values inside the bands (a threshold set on
         them would alarm on a plant that moved within its tolerance)."""
-        from ..detection.parameter_scores import calibrate_parameter_rule
+        from ..detection.parameter_decision import calibrate_parameter_rule
 
         per_hour = 3600.0 / self.step_s
         return calibrate_parameter_rule(rule, self.bands, self.n, per_hour, budget, seed=int(seed))
@@ -505,7 +505,7 @@ class ParameterRoute:
     def scores(self, sim: Any) -> RouteScores:
         """Score stream of one chunk: window end times, ``(runs, windows, P)``, label None (the parameter)."""
         from ..detection.identification import hop_windows, identify_moments
-        from ..detection.parameter_scores import band_scores, joint_estimates
+        from ..detection.parameter_decision import band_scores, joint_estimates
 
         t0 = time.perf_counter()
         runs = sim.z.shape[0]
