@@ -101,7 +101,7 @@ _GROUPS: dict[str, dict[str, str]] = {
         ),
         **dict.fromkeys(("AlarmEvent", "AlarmStream", "run_rule"), ".detection.alarms.streams"),
         **dict.fromkeys(("RuleCalibration", "calibrate_rule"), ".detection.alarms.calibration"),
-        **dict.fromkeys(("FrameScore", "frame_scores"), ".detection.frame_score"),
+        **dict.fromkeys(("FrameScore", "frame_scores"), ".detection.verdicts"),
         "calibrate_alarm": ".studies.alarm_budget",
         "diagnose_at_budget": ".studies.budget_diagnosis",
     },
@@ -116,7 +116,6 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .detection.alarms.rules import CusumRule, FrameRule, PersistenceRule, make_rule
     from .detection.alarms.streams import AlarmEvent, AlarmStream, run_rule
     from .detection.detect import DetectionReport, detect_chunks, detect_record, detect_scenario
-    from .detection.frame_score import FrameScore, frame_scores
     from .detection.identification import (
         Identification,
         IdentificationReport,
@@ -128,6 +127,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .detection.pipeline import ChatteringRecord, chattering_record
     from .detection.spectral import STFTConfig, periodogram, spectrogram
     from .detection.thresholds import Threshold, threshold
+    from .detection.verdicts import FrameScore, frame_scores
     from .filters.bank import MultipleModelOutput
     from .filters.imm import IMM
     from .filters.kalman import ExtendedKalmanFilter, KalmanFilter

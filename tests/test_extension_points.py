@@ -198,9 +198,9 @@ def test_a_registered_rule_is_a_cli_choice_with_its_texts(twice):
 
 
 def test_a_registered_rule_drives_the_online_monitor(twice):
-    from chatterspec.detection.frame_score import FrameScore
     from chatterspec.detection.pipeline import chattering_record
     from chatterspec.detection.spectral import frame_columns
+    from chatterspec.detection.verdicts import FrameScore
     from chatterspec.plants.simulate import simulate
     from chatterspec.studies.alarm_delays import onset_scenarios
 

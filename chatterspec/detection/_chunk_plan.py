@@ -23,12 +23,18 @@ from ..plants.models import LinearModel
 from ..plants.nonlinear import Model, is_linear
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike
-from .frames import FrameDetection, stft_detect
 from .pipeline import ChatteringRecord, iter_chattering
 from .report import DetectionReport
 from .spectral import DEFAULT_STFT, STFTConfig, expected_spectrum, periodogram
-from .spectrum_verdicts import _VERDICT_FIELDS, SpectrumDetection, _require_empirical, detect_spectrum
 from .thresholds import Band, Correction, Threshold, check_band, exact_threshold, paper_threshold
+from .verdicts import (
+    _VERDICT_FIELDS,
+    FrameDetection,
+    SpectrumDetection,
+    _require_empirical,
+    detect_spectrum,
+    stft_detect,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     from .identification import IdentificationStream
@@ -81,7 +87,7 @@ class DetectorOptions:
         excluded. A ready threshold is narrowed with :meth:`Threshold.restricted`.
     frame_threshold : Threshold, optional
         Per-frame threshold of the STFT intervals instead of the analytic one (see
-        :func:`~chatterspec.detection.frames.stft_detect`); with a nonlinear model the STFT runs
+        :func:`~chatterspec.detection.verdicts.stft_detect`); with a nonlinear model the STFT runs
         only when it is given.
 
     See Also

@@ -1,13 +1,13 @@
 """Detection verdicts, severity scores and onset/offset localization (``docs/design.md`` §6).
 
 This module runs a record or a study (:func:`detect_record`, :func:`detect_chunks`,
-:func:`detect_scenario`); the verdicts live in :mod:`~chatterspec.detection.spectrum_verdicts`
-(whole records), :mod:`~chatterspec.detection.frames` (STFT frames) and the report in
+:func:`detect_scenario`); the verdicts live in :mod:`~chatterspec.detection.verdicts`
+(whole records), :mod:`~chatterspec.detection.verdicts` (STFT frames) and the report in
 :mod:`~chatterspec.detection.report`.
 
 A channel is flagged when its spectrum exceeds the threshold at any **tested** bin; where the fault
 is (``peak_hz``, ``most_significant_hz``) and how large (``peak_ratio``, ``excess_power``) are defined
-in :mod:`~chatterspec.detection.spectrum_verdicts`. The default detector is the ``exact`` threshold
+in :mod:`~chatterspec.detection.verdicts`. The default detector is the ``exact`` threshold
 with Bonferroni correction at family-wise alpha = 0.1 %.
 """
 

@@ -7,11 +7,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .._repr import short_repr
-from .frames import FrameDetection
-from .spectrum_verdicts import ChannelVerdict, SpectrumDetection
 from .thresholds import (
     Threshold,
 )
+from .verdicts import ChannelVerdict, FrameDetection, SpectrumDetection
 
 __all__ = ["DetectionReport"]
 

@@ -22,7 +22,7 @@ first measurement ``z(0)`` initializes the filters; chattering sample ``j`` is
 ``[j H, j H + W)`` and is time-stamped at its centre.
 
 Alarms: every frame gets a score per channel, ``-log p`` of its Bonferroni p-value
-(:class:`chatterspec.detection.frame_score.FrameScore`, the per-frame threshold's law), and an
+(:class:`chatterspec.detection.verdicts.FrameScore`, the per-frame threshold's law), and an
 alarm rule of :mod:`chatterspec.detection.alarms.streams` (``MonitorSettings.rule``: frame, k-of-n
 persistence or CUSUM, its threshold set for a budget in false alarms per hour by
 :mod:`chatterspec.studies.alarm_budget`) turns the scores into an alarm state per channel, in

@@ -55,10 +55,9 @@ from .. import _jit
 from .._validate import positive
 from ..detection.alarms.calibration import RuleCalibration, calibrate_rule, check_budget, law_frame_rule
 from ..detection.alarms.rules import AlarmRule, make_rule, rule_spec
-from ..detection.frame_engine import FrameEngine
-from ..detection.frame_score import FrameScore
-from ..detection.spectral import spectrum_model
+from ..detection.spectral import FrameEngine, spectrum_model
 from ..detection.thresholds import frame_threshold
+from ..detection.verdicts import FrameScore
 from ..errors import CalibrationMismatchError, ParameterError
 from ..plants.nonlinear import is_linear
 from ..plants.simulate import covariance_sqrt

@@ -9,7 +9,7 @@ second-order timelines one scenario per fault window, with the window's input (t
 ``so-timeline-step`` lands at the onset).
 
 :func:`alarm_delays` runs every rule on the same realizations through the monitor's frames and
-score (batch STFT, :class:`~chatterspec.detection.frame_score.FrameScore` and
+score (batch STFT, :class:`~chatterspec.detection.verdicts.FrameScore` and
 :func:`~chatterspec.detection.alarms.streams.run_rule`: the same numbers as the online monitor, whose
 frames, score and alarm layer are these functions on the same grid). The **delay** of a run is the
 time of the last sample of the frame at which the first alarm starts, on any channel, among the

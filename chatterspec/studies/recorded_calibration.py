@@ -17,7 +17,7 @@ How the recording is read
     The measurements are pushed, in chunks of :data:`CHUNK_S` seconds, through the monitor itself
     (:class:`~chatterspec.online.monitor.ChatteringMonitor` with the monitor's STFT, band and
     ``gamma``): its auxiliary SVSF gives the chattering, its frame engine cuts the frames on its
-    global grid and its :class:`~chatterspec.detection.frame_score.FrameScore` scores them, so the
+    global grid and its :class:`~chatterspec.detection.verdicts.FrameScore` scores them, so the
     scores are the ones the monitor computes with the file (the score under a calibration file uses
     the exponential law of the file's normalization, which does not depend on the per-frame factor;
     ``tests/test_recorded_calibration.py`` checks the identity). Memory is bounded by the chunk, the

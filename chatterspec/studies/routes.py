@@ -10,7 +10,7 @@ method     score (per step)                             step                    
 ========== ============================================ ========================= ================
 chattering ``-log p`` of the STFT frame of the auxiliary  one frame (hop, 0.2 s),   the channel
            sgn-SVSF's chattering, per measured channel  known at the frame's end  in alarm
-           (:mod:`chatterspec.detection.frame_score`)
+           (:mod:`chatterspec.detection.verdicts`)
 parameters ``-log p`` of "inside its tolerance" of each     one identification        the parameter
            declared parameter's joint estimate          window (hop), known at    in alarm
            (:mod:`chatterspec.detection.                its last sample
@@ -342,7 +342,7 @@ class ChatteringRoute:
     scenario : Scenario
         A scenario whose nominal model measures every state.
     law : Threshold
-        The healthy law of the frame bins (:class:`~chatterspec.detection.frame_score.FrameScore`):
+        The healthy law of the frame bins (:class:`~chatterspec.detection.verdicts.FrameScore`):
         the exact law of a linear model (:func:`~chatterspec.detection.thresholds.frame_threshold`) or a
         calibration's per-frame threshold (its expected spectrum) for a nonlinear one.
     config : STFTConfig, optional
@@ -356,8 +356,8 @@ class ChatteringRoute:
     def __init__(
         self, scenario: Scenario, law: Threshold, config: STFTConfig | None = None, gamma: float = 0.1
     ) -> None:
-        from ..detection.frame_score import FrameScore
         from ..detection.spectral import STFTConfig
+        from ..detection.verdicts import FrameScore
 
         why = unsupported_reason(scenario, "chattering")
         if why is not None:
@@ -383,9 +383,9 @@ class ChatteringRoute:
 
     @property
     def frame_score(self) -> Any:
-        """The :class:`~chatterspec.detection.frame_score.FrameScore` of the law (rebuilt after pickling)."""
+        """The :class:`~chatterspec.detection.verdicts.FrameScore` of the law (rebuilt after pickling)."""
         if self._score is None:
-            from ..detection.frame_score import FrameScore
+            from ..detection.verdicts import FrameScore
 
             self._score = FrameScore(self.law)
         return self._score

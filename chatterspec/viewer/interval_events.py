@@ -1,9 +1,9 @@
 """The fault intervals of a recorded file: the window-extent onset/offset estimates of its flagged frames,
 the numbers of ``detect --json``'s ``intervals`` and Fig 8, logged as events at their onsets.
 
-The estimator is :func:`chatterspec.detection.frames.frame_intervals` applied to the per-frame flags and
+The estimator is :func:`chatterspec.detection.verdicts.frame_intervals` applied to the per-frame flags and
 statistic ``max S / threshold`` of each channel, with the healthy median
-:func:`chatterspec.detection.frames.healthy_frame_level` of the frame threshold. They annotate the
+:func:`chatterspec.detection.verdicts.healthy_frame_level` of the frame threshold. They annotate the
 channel's fault state; the state itself (the lanes) is the alarm layer's
 (:mod:`chatterspec.viewer.fault_lanes`).
 """
@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..detection.bin_labels import db_over_threshold, two_bins_text
-from ..detection.frames import frame_intervals, healthy_frame_level
+from ..detection.verdicts import frame_intervals, healthy_frame_level
 
 if TYPE_CHECKING:  # pragma: no cover
     from rerun import RecordingStream

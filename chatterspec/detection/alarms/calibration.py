@@ -8,7 +8,7 @@ stream are close to a Poisson process of rate ``X`` (Garwood intervals below).
 Three ways to a threshold (:attr:`RuleCalibration.method`)
     ``law``
         The frame rule on a p-value score (``score = -log p`` with ``P(p <= x) <= x`` under
-        the healthy law, e.g. :mod:`chatterspec.detection.frame_score` with the exact law):
+        the healthy law, e.g. :mod:`chatterspec.detection.verdicts` with the exact law):
         a step exceeds ``h`` with probability at most ``exp(-h)`` and starts are at most
         exceedances, so ``h = log(steps_per_hour * channels / X)`` keeps the rate at or below
         ``X`` with no simulation. It is an upper bound: overlapping frames make exceedances
@@ -592,7 +592,7 @@ class MonitorSettings:
         conservative). ``None`` (default): every bin but DC and Nyquist.
     rule : AlarmRule, optional
         The alarm rule (:mod:`chatterspec.detection.alarms.streams`) that turns the frame score
-        (``-log`` of the frame's p-value, :mod:`chatterspec.detection.frame_score`) into
+        (``-log`` of the frame's p-value, :mod:`chatterspec.detection.verdicts`) into
         fault-start / fault-end events, with its threshold set (e.g. by
         :func:`chatterspec.studies.alarm_budget.alarm_settings` for a false-alarm budget).
         ``None`` (default): the per-frame rule at ``alpha``, events where the per-frame

@@ -3,7 +3,7 @@
 A *score stream* is an array ``(..., steps, channels)``: the leading axes are independent
 streams (Monte Carlo realizations), a step is a frame or a sample, and a larger score means
 more anomalous (for the chattering: ``-log p`` of the frame's p-value,
-:mod:`chatterspec.detection.frame_score`). A *rule* turns each channel's stream into an
+:mod:`chatterspec.detection.verdicts`). A *rule* turns each channel's stream into an
 alarm state (active or not) per step; an alarm **start** is a step where the state turns
 active, an **end** one where it turns inactive. False-alarm budgets count starts
 (:mod:`chatterspec.detection.alarms.calibration`).

@@ -262,9 +262,9 @@ def _alarms(model: LinearModel, e: np.ndarray, settings: Any, t_first: float) ->
     times, settings)``."""
     from ... import _jit
     from ...detection.alarms.streams import run_rule
-    from ...detection.frame_engine import FrameEngine
-    from ...detection.frame_score import FrameScore
+    from ...detection.spectral import FrameEngine
     from ...detection.thresholds import frame_threshold
+    from ...detection.verdicts import FrameScore
 
     dt = model.dt
     th = frame_threshold(model, settings.stft.freqs_hz(dt), settings.stft, dt, settings.alpha,
