@@ -7,9 +7,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .._repr import short_repr
-from .thresholds import (
-    Threshold,
-)
+from .thresholds import Threshold
 from .verdicts import ChannelVerdict, FrameDetection, SpectrumDetection
 
 __all__ = ["DetectionReport"]

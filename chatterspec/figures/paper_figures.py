@@ -31,8 +31,7 @@ import numpy as np
 
 from ..detection.pipeline import scenario_chattering
 from ..detection.spectral import STFTConfig, spectrogram, spectrum_model
-from ..detection.threshold_type import Correction
-from ..detection.thresholds import Threshold, exact_threshold, frame_threshold, paper_threshold
+from ..detection.thresholds import Correction, Threshold, exact_threshold, frame_threshold, paper_threshold
 from ..errors import ParameterError
 from ..plants.scenarios import scenario
 from ..rng import SeedLike

@@ -35,7 +35,7 @@ Normalization (``normalization``)
     error per bin at most ``1 / sqrt(non-overlapping frames)``, 4 % from 10 minutes of 1 s windows),
     and a moving average over 1 Hz bins would flatten a resonance of a few Hz (by a factor 2.9 at
     the 2 Hz resonance of the tests' second-order plant). The record periodogram, one value per
-    record, is smoothed over ``2 h + 1`` bins (:func:`chatterspec.detection.empirical.smooth_spectrum`,
+    record, is smoothed over ``2 h + 1`` bins (:func:`chatterspec.detection.thresholds.smooth_spectrum`,
     as the simulated empirical calibration). Both are estimated from the same data as the quantiles
     (an in-sample effect of one frame in thousands).
 
@@ -104,9 +104,13 @@ from ..detection.alarms.calibration import (
     check_budget,
 )
 from ..detection.alarms.rules import AlarmRule, make_rule
-from ..detection.empirical import NORMALIZATION_SMOOTH_BINS, empirical_family_wise_threshold, smooth_spectrum
 from ..detection.spectral import periodogram, periodogram_freqs
-from ..detection.threshold_type import Threshold
+from ..detection.thresholds import (
+    NORMALIZATION_SMOOTH_BINS,
+    Threshold,
+    empirical_family_wise_threshold,
+    smooth_spectrum,
+)
 from ..errors import ParameterError
 from ..plants.nonlinear import is_linear
 from .calibration_result import Calibration, _ro, _stft_dict

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..detection.bin_labels import db_over_threshold
+from ..detection.thresholds import db_over_threshold
 from ..online.monitor import DetectionEvent
 from .record_geometry import to_ns
 
