@@ -983,15 +983,8 @@ def _exact_fit(setup: IdentificationSetup, h: int, true_model: LinearModel) -> t
 
 def true_hypothesis(setup: IdentificationSetup, true_model: LinearModel) -> str | None:
     """Name of the hypothesis that reproduces ``true_model`` (fewest parameters), ``"no fault"``
-    when the estimated entries do not deviate, None when no declared hypothesis explains it.
-
-    Parameters
-    ----------
-    setup : IdentificationSetup
-        The nominal model's entries and hypotheses (:func:`identification_setup`).
-    true_model : LinearModel
-        The true plant, with the nominal model's shapes.
-    """
+    when the estimated entries do not deviate, None when no declared hypothesis explains it
+    (``setup`` and ``true_model`` as in :func:`true_parameters`)."""
     target = _true_deviation(setup, true_model)
     if np.all(np.abs(target) <= 1e-12 * _entry_scale(setup)):
         return NO_FAULT
