@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from chatterspec.detection.monitor_settings import MonitorSettings
+from chatterspec.detection.alarms.calibration import MonitorSettings
 from chatterspec.errors import CommissioningError, ParameterError
 from chatterspec.online.bench_routes import (
     BENCH_TOLERANCES,

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from chatterspec.cli import main
-from chatterspec.detection.alarm_calibration import BATCHES, MAX_RATE_PER_STEP, MIN_COUNT, starts_on_grid
+from chatterspec.detection.alarms.calibration import BATCHES, MAX_RATE_PER_STEP, MIN_COUNT, starts_on_grid
 from chatterspec.errors import ParameterError
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
 from chatterspec.online.recorded_calibration import calibrate_recorded

@@ -16,7 +16,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from types import FrameType
     from typing import TextIO
 
-    from ..detection.monitor_settings import MonitorSettings
+    from ..detection.alarms.calibration import MonitorSettings
     from ..plants.modelfile import ModelSpec
     from ..viewer.live_stream import StreamEvent, StreamSummary
 

@@ -33,7 +33,7 @@ from ._monitor_stream import _emit_line, _run_stream
 from ._options import add, add_report_args, command
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..detection.monitor_settings import MonitorSettings
+    from ..detection.alarms.calibration import MonitorSettings
     from ..detection.spectral import STFTConfig
     from ..online.monitor import ChatteringMonitor, DetectionEvent
     from ..plants.datafile import DataSet
@@ -281,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
         settings = _alarm_settings(args, choice, spec.model, settings, cal)
     decision = None
     if setup is not None:
-        from ..detection.alarms import make_rule
+        from ..detection.alarms.rules import make_rule
         from ..detection.parameter_decision import parameter_alarm_settings
         from ..errors import IdentifiabilityError
 

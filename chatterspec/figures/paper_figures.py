@@ -31,8 +31,7 @@ import numpy as np
 
 from ..detection.pipeline import scenario_chattering
 from ..detection.spectral import STFTConfig, spectrogram, spectrum_model
-from ..detection.threshold_type import Correction
-from ..detection.thresholds import Threshold, exact_threshold, frame_threshold, paper_threshold
+from ..detection.thresholds import Correction, Threshold, exact_threshold, frame_threshold, paper_threshold
 from ..errors import ParameterError
 from ..plants.scenarios import scenario
 from ..rng import SeedLike
@@ -326,7 +325,7 @@ def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     intervals detected by the per-frame exact threshold (alpha 0.1 % per frame,
     Bonferroni over the frame's bins) are marked above each spectrogram.
     """
-    from ..detection.frames import detect_frames, frame_intervals, frame_statistic, healthy_frame_level
+    from ..detection.verdicts import detect_frames, frame_intervals, frame_statistic, healthy_frame_level
 
     config = STFTConfig(1.0, 0.2, "hamming")
     panels, notes = [], []

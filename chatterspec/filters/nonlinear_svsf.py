@@ -24,7 +24,7 @@ is used otherwise (``x0`` given, so ``e(0|0) != 0``); both agree to rounding.
 
 Beyond the paper: the paper has the chattering only for a linear model and derives its expected
 spectrum (eq 56) from linearity; for a nonlinear model there is no closed-form spectrum, so its
-thresholds are estimated from healthy runs (:mod:`chatterspec.detection.empirical`).
+thresholds are estimated from healthy runs (:mod:`chatterspec.detection.thresholds`).
 
 Only full measurement (``C`` square and invertible) is supported: the reduced-order form
 (eq 9-11) needs the constant ``Phi = T^-1 A T`` of a linear model.

@@ -16,8 +16,11 @@ from typing import Any, cast
 
 import numpy as np
 
-from ..detection.parameter_decision import ParameterAlarmSettings, parameter_alarm_settings
-from ..detection.parameter_records import monitor_parameters
+from ..detection.parameter_decision import (
+    ParameterAlarmSettings,
+    monitor_parameters,
+    parameter_alarm_settings,
+)
 from ..plants.models import EHAFault, eha_linear
 from ..plants.parameters import with_tolerances
 from ..plants.scenarios import Scenario, Segment

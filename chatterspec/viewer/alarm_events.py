@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..detection.bin_labels import db_over_threshold
+from ..detection.thresholds import db_over_threshold
 from ..online.monitor import DetectionEvent
 from .record_geometry import to_ns
 
@@ -78,7 +78,7 @@ def parameter_event_text(ev: ParameterEvent) -> str:
     -------
     str
     """
-    from ..detection.parameter_scores import band_position, status_text
+    from ..detection.parameter_decision import band_position, status_text
 
     what = "ALARM" if ev.kind == "fault-start" else "alarm cleared"
     pos = band_position(ev.ci_low, ev.ci_high, *ev.band)

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..detection.alarm_rules import rule_spec
+from ..detection.alarms.rules import rule_spec
 from ..errors import ParameterError
 from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate
 from .alarm_events import send_alarm_events

@@ -306,7 +306,8 @@ def record_budget_diagnosis(
     -------
     Path
     """
-    from ..detection.alarms import rule_from_dict, rule_spec, run_rule
+    from ..detection.alarms.rules import rule_from_dict, rule_spec
+    from ..detection.alarms.streams import run_rule
     from ..detection.route_scores import mode_log_odds
     from ..plants.simulate import iter_simulations
 

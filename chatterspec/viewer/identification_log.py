@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..detection.identification_results import format_with_error
+from ..detection.identification import format_with_error
 from ..detection.parameter_decision import STATES
 from ..palette import FAULT, HEALTHY, NEUTRAL, NO_EVIDENCE, rgba32
 from .alarm_events import INFO_LEVEL, log_text_rows, send_parameter_events

@@ -1,9 +1,9 @@
 """The fault intervals of a recorded file: the window-extent onset/offset estimates of its flagged frames,
 the numbers of ``detect --json``'s ``intervals`` and Fig 8, logged as events at their onsets.
 
-The estimator is :func:`chatterspec.detection.frames.frame_intervals` applied to the per-frame flags and
+The estimator is :func:`chatterspec.detection.verdicts.frame_intervals` applied to the per-frame flags and
 statistic ``max S / threshold`` of each channel, with the healthy median
-:func:`chatterspec.detection.frames.healthy_frame_level` of the frame threshold. They annotate the
+:func:`chatterspec.detection.verdicts.healthy_frame_level` of the frame threshold. They annotate the
 channel's fault state; the state itself (the lanes) is the alarm layer's
 (:mod:`chatterspec.viewer.fault_lanes`).
 """
@@ -15,8 +15,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..detection.bin_labels import db_over_threshold, two_bins_text
-from ..detection.frames import frame_intervals, healthy_frame_level
+from ..detection.thresholds import db_over_threshold, two_bins_text
+from ..detection.verdicts import frame_intervals, healthy_frame_level
 
 if TYPE_CHECKING:  # pragma: no cover
     from rerun import RecordingStream
@@ -52,7 +52,7 @@ class FaultInterval:
         That largest ``10 log10(S / threshold)`` (dB).
     excess_hz : float
         In that frame, the bin of largest excess power ``S - E`` among the bins over the threshold (Hz;
-        :mod:`chatterspec.detection.bin_labels`).
+        :mod:`chatterspec.detection.thresholds`).
     excess_db : float
         Its ``10 log10(S / threshold)`` (dB).
     """
@@ -69,7 +69,7 @@ class FaultInterval:
         """``"<onset>-<offset> s <channel> flagged frames (estimate), <two bins>"`` (``<onset> s`` for an
         estimate of zero length): times and channel first
         (the viewer's log view cuts long lines), both bins labelled (:func:`~chatterspec.detection.
-        bin_labels.two_bins_text`)."""
+        thresholds.two_bins_text`)."""
         bins = two_bins_text(self.peak_hz, self.peak_db, self.excess_hz, self.excess_db)
         return f"{interval_text(self.onset_s, self.offset_s)} {channel} flagged frames (estimate), {bins}"
 

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..detection.alarm_rules import rule_spec
+from ..detection.alarms.rules import rule_spec
 from ..online.monitor import ChatteringMonitor
 from .blueprint import alarm_range, blueprint, layout_geometry, plot_heights, statistic_range, view_px
 from .record_geometry import DB_RANGE
