@@ -73,7 +73,8 @@ _GROUPS: dict[str, dict[str, str]] = {
         **dict.fromkeys(("Threshold", "threshold"), ".detection.thresholds"),
     },
     "calibration": {
-        **dict.fromkeys(("Calibration", "calibrate", "load_calibration"), ".studies.calibration"),
+        **dict.fromkeys(("Calibration", "load_calibration"), ".studies.calibration.result"),
+        "calibrate": ".studies.calibration.thresholds",
         "calibrate_recorded": ".online.recorded_calibration",
     },
     "estimation": {
@@ -166,7 +167,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .plants.tolerances import Tolerance, with_tolerances
     from .studies.alarm_budget import calibrate_alarm
     from .studies.budget_diagnosis import diagnose_at_budget
-    from .studies.calibration import Calibration, calibrate, load_calibration
+    from .studies.calibration.result import Calibration, load_calibration
+    from .studies.calibration.thresholds import calibrate
     from .studies.chattering_diagnosis import ChatteringDiagnosis, diagnose_chattering
     from .studies.commissioning import Commissioning, commission
     from .studies.estimation import EstimationResult, build_filter, estimation_study

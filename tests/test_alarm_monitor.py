@@ -279,7 +279,7 @@ def test_calibration_file_records_the_rule_and_is_refused_for_another(tmp_path: 
     )  # fmt: skip
     assert rc == 0, err
     assert "alarm rule for the monitor: persistence rule" in out
-    from chatterspec.studies.calibration import load_calibration
+    from chatterspec.studies.calibration.result import load_calibration
 
     c = load_calibration(cal)
     assert c.alarm.rule == PersistenceRule(c.alarm.threshold, k=2, n=4)

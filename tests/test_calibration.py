@@ -25,7 +25,8 @@ import scipy.stats
 from chatterspec.detection.spectral import STFTConfig
 from chatterspec.errors import CalibrationMismatchError, ParameterError, ShapeError
 from chatterspec.plants.models import eha_linear
-from chatterspec.studies.calibration import calibrate, load_calibration
+from chatterspec.studies.calibration.result import load_calibration
+from chatterspec.studies.calibration.thresholds import calibrate
 from chatterspec.studies.false_alarms import false_alarm_study
 from chatterspec.studies.intervals import (
     RateEstimate,
@@ -337,7 +338,7 @@ def test_healthy_far_verdict_not_above_too_often():
     probability <= 5 %; allowed: the 99.9 % binomial quantile of 40 trials (7).
     """
     from chatterspec.plants.scenarios import scenario
-    from chatterspec.studies.healthy import model_scenario
+    from chatterspec.studies.calibration.healthy import model_scenario
 
     sc = model_scenario(scenario("so-healthy-low").nominal, duration=0.5)
     verdicts = [

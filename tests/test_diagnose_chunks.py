@@ -68,7 +68,7 @@ def test_chunked_json_and_table_equal_one_chunk(cal_path, capsys) -> None:  # ty
 
 
 def test_tallies_equal_the_whole_simulation_functions(cal_path) -> None:  # type: ignore[no-untyped-def]
-    from chatterspec.studies.calibration import load_calibration
+    from chatterspec.studies.calibration.result import load_calibration
 
     sc = cs.scenario("eha4-leak-timeline")
     thr = load_calibration(cal_path, sc.nominal).threshold("frame-family-wise")

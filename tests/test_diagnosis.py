@@ -116,7 +116,7 @@ def test_diagnose_command_with_the_chattering_route(tmp_path, capsys, onset_cali
     out = capsys.readouterr().out
     assert "chattering" in out and "acceleration" in out
     # a calibration of another model is refused with the reason
-    from chatterspec.studies.calibration import calibrate
+    from chatterspec.studies.calibration.thresholds import calibrate
 
     other = calibrate("eha-healthy", alpha=0.01, runs=20, seed=0)
     bad = other.save(tmp_path / "other.npz")

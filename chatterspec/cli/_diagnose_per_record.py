@@ -45,8 +45,8 @@ def chattering_threshold(args: argparse.Namespace, sc: Scenario) -> tuple[Thresh
 
     config = STFTConfig()
     if args.calibration is not None:
-        from ..studies.calibration import load_calibration
-        from ..studies.calibration_support import require_support
+        from ..studies.calibration.result import load_calibration
+        from ..studies.calibration.support import require_support
 
         cal = load_calibration(args.calibration, sc.nominal, config=config)
         require_support(cal, "monitor", args.calibration)  # the per-frame threshold needs enough runs

@@ -33,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec far`` with the parsed ``args``; returns the exit status."""
     check_figure_path(args.plot)
-    from ..studies.calibration import load_calibration
+    from ..studies.calibration.result import load_calibration
     from ..studies.false_alarms import false_alarm_study
 
     cal = load_calibration(args.calibration) if args.calibration else None

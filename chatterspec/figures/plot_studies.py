@@ -18,7 +18,7 @@ from matplotlib.ticker import LogLocator, NullFormatter
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
-    from ..studies.calibration import Calibration
+    from ..studies.calibration.result import Calibration
     from ..studies.false_alarms import FalseAlarmResult
     from ..studies.power import PowerResult
 
@@ -59,8 +59,8 @@ def calibration_figure(cal: Calibration) -> Figure:
     Parameters
     ----------
     cal : Calibration
-        Result of :func:`chatterspec.studies.calibration.calibrate` (or
-        :func:`~chatterspec.studies.calibration.load_calibration`).
+        Result of :func:`chatterspec.studies.calibration.thresholds.calibrate` (or
+        :func:`~chatterspec.studies.calibration.result.load_calibration`).
 
     Returns
     -------

@@ -482,7 +482,7 @@ def tolerance_route(
 def recorded_route() -> BenchRoute:
     """The nominal model with thresholds from ``recorded_hours`` of the plant's recorded healthy data
     (the recording's own normalization, :mod:`chatterspec.online.recorded_calibration`)."""
-    from ..studies.recorded_calibration import HealthyRecording, array_chunks
+    from ..studies.calibration.recorded import HealthyRecording, array_chunks
     from .recorded_calibration import calibrate_recorded
 
     def prepare(r: RouteInputs) -> Monitoring:

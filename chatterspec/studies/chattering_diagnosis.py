@@ -28,7 +28,7 @@ The figures, per run and then over runs (beyond the papers, which show single ru
 * **cost**: realization-steps per second of chattering + STFT + verdicts (the calibration is reported
   separately: it runs once per call, or is loaded from a file).
 
-Calibration (:func:`calibrate_for_diagnosis`): :func:`~chatterspec.studies.calibration.calibrate` on
+Calibration (:func:`calibrate_for_diagnosis`): :func:`~chatterspec.studies.calibration.thresholds.calibrate` on
 :func:`healthy_version` of the scenario (same nominal model, input, record length and STFT settings,
 no fault windows), from a root seed derived from, but disjoint from, the diagnosed runs' seed.
 """
@@ -57,7 +57,7 @@ from .intervals import clopper_pearson
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..plants.simulate import Simulation
-    from .calibration_result import Calibration
+    from .calibration.result import Calibration
 
 __all__ = [
     "CALIBRATION_SALT",
@@ -116,7 +116,7 @@ def calibrate_for_diagnosis(
         The diagnosed runs' seed; the calibration uses ``SeedSequence([seed, CALIBRATION_SALT])``.
     runs : int
         Healthy calibration runs (a nonlinear model also uses 200 more pilot runs for the
-        normalization spectrum, :mod:`~chatterspec.studies.empirical_calibration`).
+        normalization spectrum, :mod:`~chatterspec.studies.calibration.thresholds`).
     alpha : float
         Per-frame false-alarm probability of the threshold.
     config : STFTConfig, optional

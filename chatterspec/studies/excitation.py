@@ -47,8 +47,8 @@ from ..plants.scenarios_closed_loop import (
 from ..plants.signals import Signal
 from ..plants.simulate import iter_simulations
 from ..rng import SeedLike, seed_label
-from .calibration_result import _ro
-from .healthy import _analytic_thresholds, _SummedChunks
+from .calibration.healthy import _analytic_thresholds, _SummedChunks
+from .calibration.result import _ro
 from .intervals import RateEstimate
 
 __all__ = [

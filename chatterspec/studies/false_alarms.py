@@ -18,8 +18,7 @@ from ..montecarlo import Execution, ExecutionOptions
 from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario
 from ..rng import SeedLike, seed_label
-from .calibration_result import Calibration, _ro
-from .healthy import (
+from .calibration.healthy import (
     HealthyStudy,
     _analytic_thresholds,
     _check_alphas,
@@ -27,6 +26,7 @@ from .healthy import (
     _n_frames,
     resolve_scenario,
 )
+from .calibration.result import Calibration, _ro
 from .intervals import RateEstimate
 
 __all__ = [

@@ -33,8 +33,8 @@ from ..errors import ParameterError
 from ..plants.nonlinear import is_linear
 from ..plants.scenarios import Scenario, scenario
 from ..plants.simulate import simulate
+from .calibration.healthy import _analytic_thresholds
 from .chattering_diagnosis import healthy_version
-from .healthy import _analytic_thresholds
 
 __all__ = ["FOOTPRINT_BANDS", "Footprint", "Replay", "footprint", "footprint_table", "replayed_open_loop"]
 

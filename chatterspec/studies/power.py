@@ -18,8 +18,8 @@ from ..plants.models import EHA_PARAMETERS, EHAFault, LinearModel, eha_linear, s
 from ..plants.scenarios import Scenario
 from ..plants.signals import Chirp, Step
 from ..rng import SeedLike, seed_label
-from .calibration_result import _ro
-from .healthy import _analytic_thresholds, _SummedChunks
+from .calibration.healthy import _analytic_thresholds, _SummedChunks
+from .calibration.result import _ro
 from .intervals import RateEstimate
 
 __all__ = [
