@@ -28,7 +28,7 @@ The figures, per run and then over runs (beyond the papers, which show single ru
 * **cost**: realization-steps per second of chattering + STFT + verdicts (the calibration is reported
   separately: it runs once per call, or is loaded from a file).
 
-Calibration (:func:`calibrate_for_diagnosis`): :func:`~chatterspec.studies.calibration.thresholds.calibrate` on
+Calibration (:func:`calibrate_for_diagnosis`): :func:`~.calibration.thresholds.calibrate` on
 :func:`healthy_version` of the scenario (same nominal model, input, record length and STFT settings,
 no fault windows), from a root seed derived from, but disjoint from, the diagnosed runs' seed.
 """

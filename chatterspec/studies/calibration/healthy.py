@@ -12,8 +12,9 @@ sums (exact, so the numbers are those of the numpy path whatever the order).
 
 Bounded-memory order-statistic quantiles: per-cell tail histograms with pilot-placed fine windows.
 
-The exact calibration path (:func:`~chatterspec.studies.calibration.thresholds.calibrate`) keeps, per bin and channel,
-the ``k`` largest normalized powers ``S / E[S]`` over all runs and reads the order statistics of
+The exact calibration path (:func:`~chatterspec.studies.calibration.thresholds.calibrate`) keeps,
+per bin and channel, the ``k`` largest normalized powers ``S / E[S]`` over all runs and reads
+the order statistics of
 the ``(1 - alpha)``-quantile and its interval from them; ``k`` grows like ``runs x alpha`` (and
 ``runs x frames x alpha`` for STFT frames), so memory grows with the run count. The tail histogram is
 the path used instead when those tails would exceed a memory budget

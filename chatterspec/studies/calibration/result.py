@@ -1,9 +1,9 @@
 """The result of a threshold calibration, :class:`Calibration`: its file and the runs it needs.
 
-:func:`chatterspec.studies.calibration.thresholds.calibrate` computes it (analytic thresholds; empirical ones of
-a nonlinear model by :func:`~chatterspec.studies.calibration.thresholds.calibrate_empirical`).
-:class:`Calibration`, :func:`load_calibration` and :data:`CALIBRATION_FORMAT` are re-exported by
-:mod:`chatterspec.studies.calibration`, their documented home.
+:func:`~chatterspec.studies.calibration.thresholds.calibrate` computes it (analytic thresholds;
+empirical ones of a nonlinear model by
+:func:`~chatterspec.studies.calibration.thresholds.calibrate_empirical`);
+:mod:`~chatterspec.studies.calibration.recorded` reads it from a healthy recording.
 
 File format
     A ``Calibration`` as JSON or as ``.npz`` arrays with a JSON header.
