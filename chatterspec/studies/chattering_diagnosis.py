@@ -129,7 +129,7 @@ def calibrate_for_diagnosis(
     -------
     Calibration
     """
-    from .calibration import calibrate
+    from .calibration.thresholds import calibrate
 
     root = np.random.SeedSequence([int(seed), CALIBRATION_SALT])
     execution = {"progress": False, **execution}
