@@ -36,14 +36,14 @@ from chatterspec.plants.scenarios_closed_loop import (
     EHA_CL_CONTROLLER,
     eha_closed_loop_scenario,
 )
-from chatterspec.studies.excitation import (
+from chatterspec.studies.closed_loop import (
     EXCITATION_REFERENCES,
     dither_signal,
     excitation_points,
     excitation_scenario,
     excitation_study,
+    footprint_table,
 )
-from chatterspec.studies.footprint import footprint_table
 
 OUT = Path(__file__).resolve().parents[1] / "figures"
 

@@ -52,8 +52,8 @@ def no_compute(monkeypatch):
     import chatterspec.figures.paper_figures as pf
     import chatterspec.plants.simulate as sim
     import chatterspec.studies.calibration.thresholds as cal_cli
-    import chatterspec.studies.false_alarms as far_cli
-    import chatterspec.studies.power as power_cli
+    import chatterspec.studies.detection_rates as far_cli
+    import chatterspec.studies.detection_rates as power_cli
 
     monkeypatch.setattr(sim, "simulate", _forbid)
     monkeypatch.setattr(power_cli, "power_study", _forbid)

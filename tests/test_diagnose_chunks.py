@@ -11,13 +11,14 @@ import pytest
 import chatterspec as cs
 from chatterspec.cli import main
 from chatterspec.plants.simulate import iter_simulations
-from chatterspec.studies.chattering_diagnosis import (
+from chatterspec.studies.diagnosis import (
     ChatteringTally,
+    ModeTally,
     calibrate_for_diagnosis,
     diagnose_chattering,
+    diagnose_modes,
     healthy_version,
 )
-from chatterspec.studies.mode_diagnosis import ModeTally, diagnose_modes
 
 ALPHA = 0.01  # per-frame level of the test calibration (40 runs x 46 frames: ~18 exceedances expected)
 

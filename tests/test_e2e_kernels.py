@@ -236,7 +236,7 @@ def _captured_study(module, call, monkeypatch: pytest.MonkeyPatch):
 def test_healthy_study_counts_equal_numpy_path(which: str, monkeypatch: pytest.MonkeyPatch) -> None:
     """The compiled exceedance counts (integers) give the numpy path's summary exactly, with its dtypes."""
     from chatterspec import montecarlo
-    from chatterspec.studies import false_alarms
+    from chatterspec.studies import detection_rates
     from chatterspec.studies.calibration import healthy, thresholds
 
     sc = scenario("eha-healthy")
@@ -249,7 +249,7 @@ def test_healthy_study_counts_equal_numpy_path(which: str, monkeypatch: pytest.M
         frames = which == "far"
         study = _captured_study(
             montecarlo,
-            lambda: false_alarms.false_alarm_study(sc, [1e-2, 0.2], runs=64, seed=1, frames=frames),
+            lambda: detection_rates.false_alarm_study(sc, [1e-2, 0.2], runs=64, seed=1, frames=frames),
             monkeypatch,
         )
     x = next(iter_chattering(sc, 70, seed=8, chunk_runs=70)).values

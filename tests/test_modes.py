@@ -84,7 +84,7 @@ def test_mode_figures_render(tmp_path) -> None:  # type: ignore[no-untyped-def]
 
 def test_mode_diagnosis_of_smm_on_the_leak_timeline() -> None:
     import chatterspec as cs
-    from chatterspec.studies.mode_diagnosis import diagnose_modes
+    from chatterspec.studies.diagnosis import diagnose_modes
 
     sim = cs.simulate(cs.scenario("eha4-leak-timeline"), runs=2, seed=3)
     (res,) = diagnose_modes(sim, ("smm",))

@@ -1,7 +1,7 @@
 """The detector settings of the online monitor, :class:`MonitorSettings`.
 
 In the detection layer because the alarm studies (:mod:`chatterspec.studies.alarm_budget`,
-:mod:`chatterspec.studies.alarm_delays`, the diagnosis routes) compute with the same settings
+:mod:`chatterspec.studies.alarm_budget`, the diagnosis routes) compute with the same settings
 without the online monitor; :mod:`chatterspec.online.monitor` re-exports it (its documented home).
 """
 
