@@ -1,4 +1,4 @@
-"""Mode outputs (studies/modes.py) on constructed probabilities with known answers, and the figures."""
+"""Mode outputs (studies/estimation.py) on constructed probabilities with known answers, and the figures."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from chatterspec.errors import ParameterError, ShapeError
-from chatterspec.studies.modes import (
+from chatterspec.studies.estimation import (
     argmax_accuracy,
     confusion_matrix,
     mode_report,

@@ -72,7 +72,7 @@ Per method, on one :class:`~chatterspec.plants.simulate.Simulation`:
 * **detection delay** per fault onset: first sample at or after the onset whose argmax is a fault mode,
   minus the onset (s); **isolation delay**: first sample whose argmax is the *true* new mode; median and
   90th percentile over runs (NaN-aware: runs that never detect are counted separately);
-* **isolation**: the confusion matrix (:func:`~chatterspec.studies.modes.confusion_matrix`);
+* **isolation**: the confusion matrix (:func:`~chatterspec.studies.estimation.confusion_matrix`);
 * **cost**: realization-steps per second of the filter alone.
 
 Fault identification over many realizations, per segment of a scenario (``chatterspec diagnose``).
