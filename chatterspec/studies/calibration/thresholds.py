@@ -167,8 +167,6 @@ def calibrate(
     )
 
 
-__all__: list[str] = []
-
 Triple = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
