@@ -21,7 +21,7 @@ from chatterspec.plants.scenarios import EHA_CL_CONTROLLER, EHA_CL_REFERENCE, Sc
 from chatterspec.plants.signals import Sine
 from chatterspec.plants.simulate import simulate
 from chatterspec.rng import root_seed_sequence
-from chatterspec.studies.false_alarms import false_alarm_study
+from chatterspec.studies.detection_rates import false_alarm_study
 
 needs_numba = pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed")
 

@@ -11,11 +11,13 @@ from chatterspec.cli import main
 from chatterspec.errors import NonFiniteError, ParameterError
 from chatterspec.studies.estimation import (
     build_filter,
+    consistency,
+    consistency_from_sums,
     estimate_records,
     estimation_study,
     parse_filters,
+    state_error_metrics,
 )
-from chatterspec.studies.metrics import consistency, consistency_from_sums, state_error_metrics
 
 
 def test_chunking_and_workers_do_not_change_the_numbers():

@@ -202,7 +202,7 @@ def test_a_registered_rule_drives_the_online_monitor(twice):
     from chatterspec.detection.spectral import frame_columns
     from chatterspec.detection.verdicts import FrameScore
     from chatterspec.plants.simulate import simulate
-    from chatterspec.studies.alarm_delays import onset_scenarios
+    from chatterspec.studies.alarm_budget import onset_scenarios
 
     sc = onset_scenarios("eha-leak-medium", healthy_s=3.0, fault_s=3.0, phases=(1.0,))[0]
     sim = simulate(sc, runs=1, seed=3)

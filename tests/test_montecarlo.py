@@ -8,7 +8,7 @@ import pytest
 from chatterspec.errors import ChatterspecError, ParameterError
 from chatterspec.montecarlo import plan_chunks, run_study
 from chatterspec.rng import BLOCK, block_generator, seed_label
-from chatterspec.studies.false_alarms import false_alarm_study
+from chatterspec.studies.detection_rates import false_alarm_study
 
 
 class _Draws:

@@ -51,8 +51,8 @@ def run_recorded(args: argparse.Namespace) -> int:
     data, recording = read_healthy_data(args.data, model)
     from ..detection.alarms.rules import make_rule
     from ..online.recorded_calibration import calibrate_recorded
-    from ..studies.calibration_support import calibration_support
-    from ..studies.recorded_calibration import array_chunks
+    from ..studies.calibration.recorded import array_chunks
+    from ..studies.calibration.support import calibration_support
 
     rule = make_rule(choice.rule, **choice.parameters) if wants_alarm else None
     cal = calibrate_recorded(
@@ -114,7 +114,7 @@ def read_healthy_data(arg: Path | str, model: Any) -> tuple[Any, Any]:
     (columns, finite values, sampling at the model's ``dt``); its SHA-256 is of the bytes read.
     """
     from ..plants.datafile import load_data
-    from ..studies.recorded_calibration import HealthyRecording, recording_of_file
+    from ..studies.calibration.recorded import HealthyRecording, recording_of_file
 
     if str(arg) != "-":
         data = load_data(arg, model)

@@ -11,7 +11,7 @@ not alarm equally often, so the delays of this table cannot rank the routes; ``d
 The runs are simulated and diagnosed in chunks of ``--chunk-runs`` (default 64): only per-run figures
 are kept, so the memory does not grow with ``--runs``, and the output does not depend on the chunking;
 with ``--workers`` / ``--scheduler`` the chunks run on worker processes
-(:func:`~chatterspec.studies.diagnosis_parallel.diagnose_parallel`), with the same figures.
+(:func:`~chatterspec.studies.diagnosis.diagnose_parallel`), with the same figures.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ def chattering_threshold(args: argparse.Namespace, sc: Scenario) -> tuple[Thresh
 
     From ``--calibration FILE`` (refused without enough runs for the per-frame threshold), or
     calibrated now on ``--calibration-runs`` healthy runs of the scenario's healthy version
-    (:func:`~chatterspec.studies.chattering_diagnosis.calibrate_for_diagnosis`, on ``--workers`` /
+    (:func:`~chatterspec.studies.diagnosis.calibrate_for_diagnosis`, on ``--workers`` /
     ``--scheduler``). Its expected spectrum is also the healthy law of the frame score of a nonlinear
     model at a budget.
     """
@@ -45,14 +45,14 @@ def chattering_threshold(args: argparse.Namespace, sc: Scenario) -> tuple[Thresh
 
     config = STFTConfig()
     if args.calibration is not None:
-        from ..studies.calibration import load_calibration
-        from ..studies.calibration_support import require_support
+        from ..studies.calibration.result import load_calibration
+        from ..studies.calibration.support import require_support
 
         cal = load_calibration(args.calibration, sc.nominal, config=config)
         require_support(cal, "monitor", args.calibration)  # the per-frame threshold needs enough runs
         info = {"source": str(args.calibration), "runs": cal.runs, "alpha": cal.alpha, "seconds": 0.0}
     else:
-        from ..studies.chattering_diagnosis import CALIBRATION_SALT, calibrate_for_diagnosis
+        from ..studies.diagnosis import CALIBRATION_SALT, calibrate_for_diagnosis
 
         t0 = time.perf_counter()
         cal = calibrate_for_diagnosis(
@@ -90,8 +90,7 @@ def run_per_record(args: argparse.Namespace, sc: Scenario, methods: tuple[str, .
     from ..plants.simulate import iter_simulations
 
     threshold, info = chattering_threshold(args, sc) if "chattering" in methods else (None, {})
-    from ..studies.chattering_diagnosis import ChatteringTally
-    from ..studies.mode_diagnosis import ModeTally
+    from ..studies.diagnosis import ChatteringTally, ModeTally
 
     # the runs go through in chunks (realization r's numbers do not depend on the chunking); only per-run
     # figures are kept, and realization 0 for --record
@@ -104,12 +103,12 @@ def run_per_record(args: argparse.Namespace, sc: Scenario, methods: tuple[str, .
     ident = None
     parallel = args.workers > 1 or args.scheduler is not None
     if setup is not None and not parallel:
-        from ..studies.identification_diagnosis import IdentificationTally
+        from ..studies.diagnosis import IdentificationTally
 
         ident = IdentificationTally(sc, setup, alpha=args.alpha, confidence=args.confidence)
     if parallel:  # simulation and filters on workers: same figures
         from ..plants.simulate import simulate
-        from ..studies.diagnosis_parallel import diagnose_parallel
+        from ..studies.diagnosis import diagnose_parallel
 
         tallies, outputs = diagnose_parallel(
             sc,
@@ -125,7 +124,7 @@ def run_per_record(args: argparse.Namespace, sc: Scenario, methods: tuple[str, .
             identification=None if setup is None else (setup, args.alpha, args.confidence),
         )
         if setup is not None:
-            from ..studies.identification_diagnosis import IdentificationTally
+            from ..studies.diagnosis import IdentificationTally
 
             last = tallies.pop()  # the identification tally comes last
             assert isinstance(last, IdentificationTally)
@@ -186,7 +185,7 @@ def _serial(
 ) -> tuple[Simulation | None, float]:
     """The in-process loop over chunks: realization 0 (for --record, else None) and the simulation time."""
     from ..progress import Progress
-    from ..studies.mode_diagnosis import ModeTally
+    from ..studies.diagnosis import ModeTally
 
     first, sim_s = None, 0.0
     with Progress(args.runs, "diagnose", enabled=False if args.no_progress else None) as bar:

@@ -10,7 +10,7 @@ from ._common import report_study
 from ._options import study_keywords
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..studies.excitation import ExcitationResult
+    from ..studies.closed_loop import ExcitationResult
 
 
 def add_closed_loop_args(p: argparse.ArgumentParser) -> None:
@@ -76,7 +76,7 @@ def add_closed_loop_args(p: argparse.ArgumentParser) -> None:
 
 def run_closed_loop(args: argparse.Namespace) -> int:
     """Run the excitation study and print its table (or JSON), the answer and the figure path."""
-    from ..studies.excitation import DITHER_TONES_HZ, excitation_points, excitation_study
+    from ..studies.closed_loop import DITHER_TONES_HZ, excitation_points, excitation_study
 
     if args.sizes is not None and len(args.sizes) != 1:
         raise ParameterError(f"--closed-loop takes one fault size (--sizes S); got {len(args.sizes)}")

@@ -25,7 +25,7 @@ from ._common import (
 from ._options import add, add_name, add_study_args, command, study_keywords
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..studies.calibration_result import Calibration
+    from ..studies.calibration.result import Calibration
     from ._alarm_args import AlarmChoice
 
 
@@ -120,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
     hours = ALARM_HOURS if choice.hours is None else choice.hours
     if wants_alarm:  # the budget and the hours can be computed: checked before the healthy runs
         _check_alarm_plan(args.name, choice, hours)
-    from ..studies.calibration import calibrate
+    from ..studies.calibration.thresholds import calibrate
 
     tails = {} if args.tail_budget is None else {"tail_budget": args.tail_budget}
     cal = calibrate(args.name, **study_keywords(args), **tails)
@@ -175,7 +175,7 @@ def _check_alarm_plan(name: str, choice: Any, hours: float) -> None:
     from ..detection.alarms.calibration import check_budget
     from ..online.monitor_types import MonitorSettings
     from ..studies.alarm_budget import check_hours, frames_per_hour
-    from ..studies.healthy import resolve_scenario
+    from ..studies.calibration.healthy import resolve_scenario
 
     sc = resolve_scenario(name)
     settings = MonitorSettings()  # the STFT of `calibrate` (chatterspec.studies.calibration)
@@ -195,7 +195,7 @@ def _with_alarm(
     from ..detection.spectral import STFTConfig
     from ..online.monitor_types import MonitorSettings
     from ..studies.alarm_budget import calibrate_alarm
-    from ..studies.healthy import resolve_scenario
+    from ..studies.calibration.healthy import resolve_scenario
 
     sc = resolve_scenario(name)
     stft = STFTConfig(**cal.stft)
@@ -220,9 +220,9 @@ def _check_support(args: argparse.Namespace) -> dict[str, Any]:
 
     The record family-wise threshold (``detect --calibration``) needs ``ceil(1/alpha) - 1`` runs; the
     per-frame one (``monitor`` / ``diagnose --calibration``) pools the non-overlapping frames of every
-    run (:mod:`chatterspec.studies.calibration_support`).
+    run (:mod:`chatterspec.studies.calibration.result`).
     """
-    from ..studies.calibration_support import frames_per_run, support_for
+    from ..studies.calibration.support import frames_per_run, support_for
     from ._common import load_scenario
 
     sc = load_scenario(args.name)

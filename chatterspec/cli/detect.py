@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     from ..detection.pipeline import ChatteringRecord
     from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
-    from ..studies.calibration_result import Calibration
+    from ..studies.calibration.result import Calibration
     from ._alarm_args import AlarmChoice
 
 from ..errors import ParameterError
@@ -91,8 +91,8 @@ def run(args: argparse.Namespace) -> int:
     threshold = args.threshold
     extra: dict = {}
     if args.calibration:
-        from ..studies.calibration import load_calibration
-        from ..studies.calibration_support import require_support
+        from ..studies.calibration.result import load_calibration
+        from ..studies.calibration.support import require_support
 
         n_samples = round(sc.duration / sc.nominal.dt)  # chattering samples of one record
         cal = load_calibration(args.calibration, sc.nominal, n_samples)
@@ -185,7 +185,7 @@ def _file_rule(args: argparse.Namespace) -> str | None:
     """The rule of ``--calibration``'s alarm calibration (the default of ``--rule``), if any."""
     if not args.calibration:
         return None
-    from ..studies.calibration import load_calibration
+    from ..studies.calibration.result import load_calibration
 
     alarm = load_calibration(args.calibration).alarm
     return None if alarm is None else alarm.rule.name

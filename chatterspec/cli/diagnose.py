@@ -1,7 +1,7 @@
 """``chatterspec diagnose NAME [--false-alarms-per-hour X] [--rule R] [--methods ...] [--runs N] ...``:
 the diagnosis routes compared at one false-alarm budget, on the same realizations.
 
-Routes (:mod:`chatterspec.studies.routes`): ``chattering`` (``-log p`` of the STFT frames of the
+Routes (:mod:`chatterspec.studies.budget_diagnosis`): ``chattering`` (``-log p`` of the STFT frames of the
 auxiliary SVSF's chattering), ``smm`` and ``imm`` (log posterior odds of the fault modes), ``innovation``
 (the Kalman filter's / EKF's normalized innovation squared, Mehra and Peschon 1971). Every route's
 score goes through the same alarm rule (``--rule``, default ``cusum``), whose threshold is calibrated
@@ -34,21 +34,20 @@ from ._options import add, add_execution_args, add_name, add_report_args, add_ru
 if TYPE_CHECKING:  # pragma: no cover
     from ..detection.thresholds import Threshold
     from ..plants.scenarios import Scenario
-    from ..studies.budget_diagnosis import BudgetSettings
-    from ..studies.routes import Route
+    from ..studies.budget_diagnosis import BudgetSettings, Route
 
 #: Healthy runs of the budget's calibration streams by default: on eha4-leak-timeline (9 s records) 500 runs
 #: (1.2 h) are too few for the alarm layer to extrapolate the chattering and innovation routes' CUSUM to one
 #: false alarm per hour (the fitted counts span less than a factor e); 1000 (2.3-2.5 h) are enough.
 DEFAULT_CALIBRATION_RUNS = 1000
 
-#: The routes of :data:`chatterspec.studies.routes.ALL_METHODS` and the start-up default
-#: :data:`chatterspec.studies.route_sweep.DEFAULT_WARMUP_S` (s), listed here so that building the parser
+#: The routes of :data:`chatterspec.studies.budget_diagnosis.ALL_METHODS` and the start-up default
+#: :data:`chatterspec.studies.budget_diagnosis.DEFAULT_WARMUP_S` (s), listed here so that building the parser
 #: (``chatterspec --help``) does not import numpy; a test keeps them equal.
 METHOD_NAMES: tuple[str, ...] = ("chattering", "smm", "imm", "innovation", "parameters")
 WARMUP_S = 0.1
-#: Rule parameters every route sets itself (:data:`chatterspec.studies.routes.ROUTE_RULE_PARAMETERS`):
-#: their options are not offered.
+#: Rule parameters every route sets itself
+#: (:data:`chatterspec.studies.budget_diagnosis.ROUTE_RULE_PARAMETERS`): their options are not offered.
 ROUTE_SET: tuple[str, ...] = ("drift",)
 
 
@@ -141,7 +140,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _methods(text: str | None, sc: Scenario, per_record: bool) -> tuple[str, ...]:
-    from ..studies.routes import ALL_METHODS, supported_methods, unsupported_reason
+    from ..studies.budget_diagnosis import ALL_METHODS, supported_methods, unsupported_reason
 
     allowed = tuple(m for m in ALL_METHODS if not (per_record and m == "innovation"))
     supported = tuple(m for m in supported_methods(sc) if m in allowed)
@@ -172,7 +171,7 @@ def _methods(text: str | None, sc: Scenario, per_record: bool) -> tuple[str, ...
 
 def _scenario(args: argparse.Namespace) -> Scenario:
     from ..plants.scenarios import scenario
-    from ..studies.route_sweep import onsets_of
+    from ..studies.budget_diagnosis import onsets_of
 
     sc = scenario(args.name)
     if args.tolerance:
@@ -180,7 +179,7 @@ def _scenario(args: argparse.Namespace) -> Scenario:
 
         sc = dataclasses.replace(sc, nominal=_identify.with_tolerance_args(sc.nominal, args))
     if args.onset is not None:
-        from ..studies.scenario_variants import with_onset
+        from ..studies.diagnosis import with_onset
 
         sc = with_onset(sc, args.onset)
     if not onsets_of(sc):
@@ -207,7 +206,7 @@ def _routes(
 ) -> tuple[dict[str, Route], Threshold | None, dict[str, Any]]:
     """The route objects, the per-frame threshold of the recording (chattering) and its provenance."""
     from ..detection.alarms.rules import rule_spec
-    from ..studies.routes import ChatteringRoute, InnovationRoute, ModeRoute, ParameterRoute
+    from ..studies.budget_diagnosis import ChatteringRoute, InnovationRoute, ModeRoute, ParameterRoute
     from ._alarm_args import DEFAULT_RULE
 
     routes: dict[str, Route] = {}
@@ -362,7 +361,7 @@ def identification_doc(args: argparse.Namespace, sc: Scenario) -> dict:
     if setup is None:
         return {"reason": why_not}
     from ..plants.simulate import iter_simulations
-    from ..studies.identification_diagnosis import IdentificationTally
+    from ..studies.diagnosis import IdentificationTally
 
     tally = IdentificationTally(sc, setup, alpha=args.alpha, confidence=args.confidence)
     chunk = min(args.chunk_runs or 64, args.runs)

@@ -39,7 +39,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..plants.datafile import DataSet
     from ..plants.modelfile import ModelSpec
     from ..plants.nonlinear import Model
-    from ..studies.calibration_result import Calibration
+    from ..studies.calibration.result import Calibration
     from ..viewer.drivers import RecordingSummary
     from ._alarm_args import AlarmChoice
 
@@ -247,8 +247,8 @@ def run(args: argparse.Namespace) -> int:
                 "--alpha cannot be used with --calibration: the calibration file fixes the per-frame "
                 "threshold and its alpha (drop one of them)"
             )
-        from ..studies.calibration import load_calibration
-        from ..studies.calibration_support import require_support
+        from ..studies.calibration.result import load_calibration
+        from ..studies.calibration.support import require_support
 
         cal = load_calibration(args.calibration, spec.model, config=stft)
         require_support(cal, "monitor", args.calibration)  # enough runs for its per-frame alpha

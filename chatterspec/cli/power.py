@@ -11,10 +11,10 @@ from ._options import add, add_study_args, command, study_keywords
 from ._power_closed_loop import add_closed_loop_args, run_closed_loop
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..studies.power import PowerResult
+    from ..studies.detection_rates import PowerResult
 
-#: The fault families of :data:`chatterspec.studies.power.POWER_FAMILIES` (listed here so that parsing the
-#: command line does not import the studies; a test keeps the two equal).
+#: The fault families of :data:`chatterspec.studies.detection_rates.POWER_FAMILIES` (listed here so that
+#: parsing the command line does not import the studies; a test keeps the two equal).
 FAMILY_NAMES: tuple[str, ...] = ("leakage", "bulk-modulus", "friction", "f0")
 
 
@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     for opt in ("dither", "references", "dither_hz", "position_noise_mm"):
         if getattr(args, opt) is not None:
             raise ParameterError(f"--{opt.replace('_', '-')} needs --closed-loop")
-    from ..studies.power import power_study
+    from ..studies.detection_rates import power_study
 
     res = power_study(
         args.family,
@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _print_power(res: PowerResult) -> None:
     """The text table of a power study ``res``: detection rate per noise level, size and threshold kind."""
-    from ..studies.power import POWER_FAMILIES
+    from ..studies.detection_rates import POWER_FAMILIES
 
     print(
         f"detection power, {res.family} ({POWER_FAMILIES[res.family]['unit']}), channel {res.channel}, "

@@ -20,9 +20,8 @@ from ..palette import filter_color, mpl
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
-    from ..studies.budget_results import OnsetFigures, RouteBudget
-    from ..studies.chattering_diagnosis import ChatteringDiagnosis
-    from ..studies.mode_diagnosis import ModeDiagnosis
+    from ..studies.budget_diagnosis import OnsetFigures, RouteBudget
+    from ..studies.diagnosis import ChatteringDiagnosis, ModeDiagnosis
 
 __all__ = [
     "BUDGET_HEADER",
@@ -90,8 +89,8 @@ def diagnosis_rows(
     Parameters
     ----------
     results : sequence of ModeDiagnosis or ChatteringDiagnosis
-        Results of :func:`~chatterspec.studies.mode_diagnosis.diagnose_modes` and
-        :func:`~chatterspec.studies.chattering_diagnosis.diagnose_chattering` on the same simulation.
+        Results of :func:`~chatterspec.studies.diagnosis.diagnose_modes` and
+        :func:`~chatterspec.studies.diagnosis.diagnose_chattering` on the same simulation.
 
     Returns
     -------

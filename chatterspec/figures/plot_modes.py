@@ -84,7 +84,7 @@ def confusion_figure(confusion: np.ndarray, modes: Sequence[str], title: str = "
     Parameters
     ----------
     confusion : (r, r) array
-        From :func:`chatterspec.studies.modes.confusion_matrix`.
+        From :func:`chatterspec.studies.estimation.confusion_matrix`.
     modes : sequence of str
         Mode names (r).
     title : str

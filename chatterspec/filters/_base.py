@@ -50,7 +50,7 @@ class CovarianceFilterBase:
     A subclass gives its correction as a :class:`~chatterspec.filters._engine.CorrectionStep`
     (compiled step, parameters, numpy form); the prediction, the covariance and the loops are
     shared (:mod:`chatterspec.filters._engine`): adding a covariance filter is one module with
-    its class and its correction step, plus its entry in :mod:`chatterspec.filters.registry`.
+    its class and its correction step, plus its entry in :mod:`chatterspec.filter_registry`.
     """
 
     model: Model

@@ -6,7 +6,7 @@ A :class:`BenchRoute` prepares, per bench case, a monitoring of one of two kinds
 * :class:`SpectralMonitoring`: the chattering monitor of a model (spectral frames, their score, the
   alarm rule at the budget): the online :class:`~chatterspec.online.monitor.ChatteringMonitor` on the
   healthy stream, the same frame engine, score and rule on the onset records (the definitions of
-  :func:`chatterspec.studies.alarm_delays.score_delays`, which route (a) was scored with before:
+  :func:`chatterspec.studies.alarm_budget.score_delays`, which route (a) was scored with before:
   its detections, delays and verdicts on the 23 plants of the README's run are unchanged);
 * :class:`ParameterMonitoring`: the decision on the identified parameters of a model with operating
   tolerances (:mod:`chatterspec.detection.parameter_decision`; the spectral detector then reports
@@ -482,7 +482,7 @@ def tolerance_route(
 def recorded_route() -> BenchRoute:
     """The nominal model with thresholds from ``recorded_hours`` of the plant's recorded healthy data
     (the recording's own normalization, :mod:`chatterspec.online.recorded_calibration`)."""
-    from ..studies.recorded_calibration import HealthyRecording, array_chunks
+    from ..studies.calibration.recorded import HealthyRecording, array_chunks
     from .recorded_calibration import calibrate_recorded
 
     def prepare(r: RouteInputs) -> Monitoring:

@@ -82,7 +82,7 @@ from ..plants.models import LinearModel, eha_linear
 from ..plants.scenarios import Scenario, Segment, scenario
 from ..plants.simulate import simulate
 from ..progress import Progress
-from ..studies.alarm_delays import Shifted
+from ..studies.alarm_budget import Shifted
 from ..studies.intervals import clopper_pearson
 from .bench_routes import (
     AlarmCounter,
