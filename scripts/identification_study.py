@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from chatterspec.detection.identification import identification_setup, identify
-from chatterspec.figures.plot_identification import identification_sweep_figure
+from chatterspec.figures.plot_diagnosis import identification_sweep_figure
 from chatterspec.figures.plot_studies import save
 from chatterspec.plants.scenarios import scenario
 from chatterspec.plants.simulate import simulate

@@ -19,8 +19,12 @@ import time
 from pathlib import Path
 
 import chatterspec as cs
-from chatterspec.figures.plot_diagnosis import diagnosis_rows, diagnosis_table_figure
-from chatterspec.figures.plot_modes import confusion_figure, mode_weights_figure
+from chatterspec.figures.plot_diagnosis import (
+    confusion_figure,
+    diagnosis_rows,
+    diagnosis_table_figure,
+    mode_weights_figure,
+)
 from chatterspec.figures.plot_studies import save
 from chatterspec.studies.diagnosis import calibrate_for_diagnosis, diagnose_chattering, diagnose_modes
 

@@ -106,7 +106,8 @@ def main(argv: list[str] | None = None) -> int:
     args.json.write_text(json.dumps(doc, indent=1, allow_nan=False))
     print(res.table())
     print(f"\nCPU {res.cpu_s:.0f} s, wall {wall:.0f} s; JSON {args.json}")
-    from chatterspec.figures.plot_bench import bench_figure, save
+    from chatterspec.figures.plot_studies import bench_figure
+    from chatterspec.figures.style import save_figure as save
 
     save(bench_figure(doc), args.figure)
     print(f"figure {args.figure}")
@@ -137,7 +138,8 @@ def _assemble(args: argparse.Namespace, cfg: BenchConfig, cases: tuple) -> int: 
     args.json.write_text(json.dumps(doc, indent=1, allow_nan=False))
     print(bench_table(doc))
     print(f"\nCPU {cpu:.0f} s (the routes' own); JSON {args.json}")
-    from chatterspec.figures.plot_bench import bench_figure, save
+    from chatterspec.figures.plot_studies import bench_figure
+    from chatterspec.figures.style import save_figure as save
 
     save(bench_figure(doc), args.figure)
     print(f"figure {args.figure}")

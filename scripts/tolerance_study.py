@@ -231,8 +231,8 @@ def excitation(seed: int) -> tuple[dict, dict]:
 
 
 def figures(out: Path, seed: int, cycle: dict) -> None:
+    from chatterspec.figures.plot_diagnosis import excitation_figure, tolerance_band_figure
     from chatterspec.figures.plot_studies import save
-    from chatterspec.figures.plot_tolerance import excitation_figure, tolerance_band_figure
 
     rec, truth = drift_record(seed=seed)
     fig = tolerance_band_figure(

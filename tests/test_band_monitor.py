@@ -97,16 +97,16 @@ def test_cli_monitor_band_and_model_file_band(tmp_path: Path, capsys) -> None:
 
 
 def test_detect_record_passes_band_to_the_monitor(tmp_path: Path, capsys, monkeypatch) -> None:
-    import chatterspec.viewer.drivers as drivers
+    from chatterspec.viewer import recordings
 
     seen = []
-    real = drivers.record_detection
+    real = recordings.record_detection
 
     def spy(sim, settings, **kw):
         seen.append(settings)
         return real(sim, settings, **kw)
 
-    monkeypatch.setattr(drivers, "record_detection", spy)
+    monkeypatch.setattr(recordings, "record_detection", spy)
     rrd = tmp_path / "d.rrd"
     rc = cli_main(["detect", "so-timeline-step", "--record", str(rrd), "--band", "2", "20", "--json"])
     assert rc == 0 and rrd.is_file()

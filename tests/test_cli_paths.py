@@ -132,12 +132,12 @@ def test_calibrate_prints_result_when_the_final_write_fails(tmp_path: Path, monk
 
 
 def test_detect_json_printed_when_the_recording_fails(tmp_path: Path, monkeypatch, capsys) -> None:
-    import chatterspec.viewer.drivers as drivers
+    from chatterspec.viewer import recordings
 
     def sink_fails(*_a, **_k):  # what rerun raises when its file sink cannot be created
         raise RuntimeError("Failed to create file: No space left on device (os error 28), path: x.rrd")
 
-    monkeypatch.setattr(drivers, "record_detection", sink_fails)
+    monkeypatch.setattr(recordings, "record_detection", sink_fails)
     rc = main(["detect", "eha-healthy", "--json", "--record", str(tmp_path / "x.rrd")])
     cap = capsys.readouterr()
     assert rc == 2
@@ -246,9 +246,9 @@ def test_monitor_on_data_shorter_than_one_window(tmp_path: Path, monkeypatch, ca
 
 
 def test_monitor_ctrl_c_names_the_partial_recording(tmp_path: Path, monkeypatch, capsys) -> None:
-    import chatterspec.viewer.drivers as drivers
+    from chatterspec.viewer import recordings
 
-    real = drivers.run_monitor
+    real = recordings.run_monitor
 
     def interrupted(monitor, sinks, **kw):
         kw["on_event"] = None
@@ -256,7 +256,7 @@ def test_monitor_ctrl_c_names_the_partial_recording(tmp_path: Path, monkeypatch,
         real(monitor, sinks, **kw)  # closes the sinks (footer written), then the user hits Ctrl-C
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(drivers, "run_monitor", interrupted)
+    monkeypatch.setattr(recordings, "run_monitor", interrupted)
     model = Path(__file__).resolve().parents[1] / "examples" / "eha_model.toml"
     data = _short_data(tmp_path, 2000)
     rrd = tmp_path / "part.rrd"

@@ -138,7 +138,7 @@ def test_diagnose_record_puts_modes_and_chattering_on_one_timeline(tmp_path, ons
     from rerun.chunk import RrdReader
 
     from chatterspec.studies.diagnosis import diagnose_modes
-    from chatterspec.viewer.diagnosis_log import record_diagnosis
+    from chatterspec.viewer.recordings import record_diagnosis
 
     rr.set_strict_mode(True)
     try:

@@ -158,7 +158,7 @@ def test_cli_record_writes_truth_estimates_and_innovations(tmp_path, capsys):
     assert rows["/innovations/position/kf"] == 1000
     assert rows["/errors/acceleration/kf"] == 1000
     # a designed layout (not Rerun's automatic grid): per state, truth and estimates beside the errors
-    from chatterspec.viewer.estimates_log import estimate_blueprint
+    from chatterspec.viewer.recordings import estimate_blueprint
 
     bp = estimate_blueprint(("position", "velocity"), ("position",), ["kf", "svsf2"], (0.0, 1.0), ("m", ""))
     rows = bp.root_container.contents[:2]  # one row per state: estimates beside the errors

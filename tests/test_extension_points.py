@@ -185,8 +185,8 @@ def test_a_registered_rule_is_a_cli_choice_with_its_texts(twice):
         "rule": "twice",
         "threshold": 4.0,
     }
-    # the monitor's alarm view title (viewer.monitor_layout) reads the rule's own label
-    from chatterspec.viewer.monitor_layout import MonitorLayout
+    # the monitor's alarm view title (viewer.blueprint) reads the rule's own label
+    from chatterspec.viewer.blueprint import MonitorLayout
 
     fake = SimpleNamespace(
         monitor=SimpleNamespace(rule=rule, settings=SimpleNamespace(false_alarms_per_hour=0.5))

@@ -65,7 +65,7 @@ def test_monitor_events_carry_the_alarm_time() -> None:
 def test_lane_episodes_are_labelled_with_their_estimates() -> None:
     pytest.importorskip("rerun")
     from chatterspec.online.monitor import DetectionEvent
-    from chatterspec.viewer.fault_lanes import SLOTS, FaultLanes, state_of
+    from chatterspec.viewer.events import SLOTS, FaultLanes, state_of
 
     lanes = FaultLanes(("p",), 1000, 200, 1e-3)
     _, _, first = lanes.start(0.0)
@@ -110,7 +110,7 @@ def test_not_excited_is_no_evidence_on_the_lanes() -> None:
     # the lanes' "no evidence", never "healthy": with tolerances (the parameters' windows decide) and
     # without (the spectral alarm decides, the windows give the excitation; an alarm still wins).
     pytest.importorskip("rerun")
-    from chatterspec.viewer.fault_lanes import NOT_EXCITED, FaultLanes, state_of
+    from chatterspec.viewer.events import NOT_EXCITED, FaultLanes, state_of
 
     t = [1.001, 1.201, 1.401, 1.601]
     seq = [
@@ -153,7 +153,7 @@ def test_not_excited_is_no_evidence_on_the_lanes() -> None:
 
 
 def test_mode_lane_keeps_runs_of_at_least_the_hold() -> None:
-    from chatterspec.viewer.diagnosis_log import held_changes
+    from chatterspec.viewer.recordings import held_changes
 
     t = np.arange(20) * 0.05
     best = np.array([0] * 5 + [1] * 2 + [0] * 3 + [1] * 10)  # a 0.1 s run of mode 1 at 0.25 s
@@ -174,7 +174,7 @@ def test_titles_are_shortened_never_cut() -> None:
 
 
 def test_identification_units_are_scaled() -> None:
-    from chatterspec.viewer.identification_log import display_scale
+    from chatterspec.viewer.rerun_log import display_scale
 
     # engineering exponents: a leakage of 4.8e-12 is drawn in 1e-12 units, a bulk modulus in 1e6
     assert display_scale(4.8e-12) == -12 and display_scale(2.07e8) == 6 and display_scale(2144.0) == 3

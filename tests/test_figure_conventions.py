@@ -13,7 +13,7 @@ matplotlib = pytest.importorskip("matplotlib")
 from matplotlib.colors import to_rgb  # noqa: E402
 
 from chatterspec.figures import paper_figures as pf  # noqa: E402
-from chatterspec.figures.overlay_figures import OVERLAYS, overlay_builder  # noqa: E402
+from chatterspec.figures.paper_figures import OVERLAYS, overlay_builder  # noqa: E402
 from chatterspec.figures.plot_closed_loop import closed_loop_spectra_figure  # noqa: E402
 from chatterspec.palette import FAULT, mpl  # noqa: E402
 from chatterspec.plants.eha4 import eha4  # noqa: E402

@@ -22,7 +22,7 @@ from chatterspec.plants.scenarios import Scenario, Segment
 rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
-from chatterspec.viewer import arrow_columns, blueprint, drivers, frame_peaks, record_geometry, rerun_log  # noqa: E402
+from chatterspec.viewer import blueprint, recordings, rerun_log, spectrograms  # noqa: E402
 from chatterspec.viewer import sinks as viewer  # noqa: E402
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -127,14 +127,14 @@ def _check_recording(path: Path, rec, spec, flags, summary) -> None:
 def test_record_simulation_reads_back(tmp_path: Path, sim, batch) -> None:
     rec, spec, flags = batch
     path = tmp_path / "sub" / "run.rrd"
-    summary = drivers.record_detection(sim, path=path, chunk_samples=137)
+    summary = recordings.record_detection(sim, path=path, chunk_samples=137)
     assert summary.path == path and summary.n_frames == spec.n_frames
     _check_recording(path, rec, spec, flags, summary)
 
 
 def test_record_chattering_record(tmp_path: Path, batch) -> None:
     rec, spec, flags = batch
-    summary = drivers.record_detection(rec, path=tmp_path / "c.rrd", chunk_samples=1000)
+    summary = recordings.record_detection(rec, path=tmp_path / "c.rrd", chunk_samples=1000)
     _check_recording(tmp_path / "c.rrd", rec, spec, flags, summary)
     # the file gets ONE spectrogram tensor per channel for the whole record: band rows x one column
     # per frame, padded by pad_columns blank (DB_RANGE[0]) columns on each side so that the image covers
@@ -143,27 +143,25 @@ def test_record_chattering_record(tmp_path: Path, batch) -> None:
     reader = RrdReader(tmp_path / "c.rrd")
     t, blocks, rng = _images(reader, "pressure")
     assert len(blocks) == 1 and t[0] <= rec.t[0] + 1e-12
-    lo, hi = record_geometry.default_band_hz(_monitor(rec))
+    lo, hi = spectrograms.default_band_hz(_monitor(rec))
     assert (lo, hi) == (1.0, 150.0)  # EHA: tested band from 1 Hz, capped at 3 x 41.8 Hz -> 150 Hz
     band = (spec.freqs_hz >= lo) & (spec.freqs_hz <= hi)
-    p = record_geometry.pad_columns(_monitor(rec))
+    p = spectrograms.pad_columns(_monitor(rec))
     assert p == 2  # 1 s window, 0.2 s hop: the first window starts 0.4 s before the first column's edge
     img = blocks[0]
     assert img.shape == (int(band.sum()), spec.n_frames + 2 * p)
-    assert np.all(img[:, :p] == record_geometry.DB_RANGE[0]) and np.all(
-        img[:, -p:] == record_geometry.DB_RANGE[0]
-    )
+    assert np.all(img[:, :p] == spectrograms.DB_RANGE[0]) and np.all(img[:, -p:] == spectrograms.DB_RANGE[0])
     img = img[:, p:-p]
     thr = frame_threshold(rec.model, spec.freqs_hz, spec.config, rec.dt)
-    db = np.clip(10 * np.log10(spec.power[:, band, 2] / thr.values[band, 2]), *record_geometry.DB_RANGE)
+    db = np.clip(10 * np.log10(spec.power[:, band, 2] / thr.values[band, 2]), *spectrograms.DB_RANGE)
     np.testing.assert_allclose(img, db.T, atol=0.02)  # float16 dB (resolution 0.016 dB at 30 dB)
-    np.testing.assert_array_equal(np.asarray(rng[0]).ravel(), record_geometry.DB_RANGE)  # fixed colour range
+    np.testing.assert_array_equal(np.asarray(rng[0]).ravel(), spectrograms.DB_RANGE)  # fixed colour range
     # the scale: frequency labels inside the band and a colour key with the dB range
     _, labels = _column_static(reader, "/spectrogram/pressure/freq_ticks", "Points2D:labels")
     assert labels[0][0] == "50 Hz" and labels[0][-1] == "150 Hz"
     _, key = _column_static(reader, "/spectrogram/pressure/key_ticks", "Points2D:labels")
     # short key labels (the view's title says dB): they fit the key, clear of the frequency labels
-    assert key[0] == [f"{record_geometry.DB_RANGE[1]:g}", "12", f"{record_geometry.DB_RANGE[0]:g}"]
+    assert key[0] == [f"{spectrograms.DB_RANGE[1]:g}", "12", f"{spectrograms.DB_RANGE[0]:g}"]
 
 
 def _monitor(rec):
@@ -173,7 +171,7 @@ def _monitor(rec):
 
 
 def test_bulk_tensor_columns_match_rerun_encoding() -> None:
-    cols = arrow_columns._Columns(rr, record_geometry.DB_RANGE)
+    cols = rerun_log._Columns(rr, spectrograms.DB_RANGE)
     assert cols.tensors_ok  # else every tensor falls back to one rr.log call (slow)
     x = np.random.default_rng(0).random((7, 11))
     ref = rr.Tensor(x[3], dim_names=["freq"]).data.as_arrow_array()
@@ -181,15 +179,15 @@ def test_bulk_tensor_columns_match_rerun_encoding() -> None:
     # the layout parts are cached per process: a second batch (other values) and another logger's
     # columns reuse them and still encode exactly like rr.Tensor
     y = x[::-1].copy()
-    again = arrow_columns._Columns(rr, record_geometry.DB_RANGE)._tensor_array(y, ("freq",))
+    again = rerun_log._Columns(rr, spectrograms.DB_RANGE)._tensor_array(y, ("freq",))
     assert again[3:4].equals(rr.Tensor(y[3], dim_names=["freq"]).data.as_arrow_array())
     assert again.equals(cols._tensor_array(y, ("freq",), cache=False))
 
 
 def test_fallback_without_bulk_tensors(tmp_path: Path, sim, batch, monkeypatch) -> None:
-    monkeypatch.setattr(arrow_columns, "_TENSOR_DTYPES", {})  # the layout probe fails -> rr.log per tensor
+    monkeypatch.setattr(rerun_log, "_TENSOR_DTYPES", {})  # the layout probe fails -> rr.log per tensor
     rec, spec, flags = batch
-    summary = drivers.record_detection(sim, path=tmp_path / "f.rrd", chunk_samples=450)
+    summary = recordings.record_detection(sim, path=tmp_path / "f.rrd", chunk_samples=450)
     _check_recording(tmp_path / "f.rrd", rec, spec, flags, summary)
 
 
@@ -211,7 +209,7 @@ def test_unreachable_viewer_keeps_complete_file(tmp_path: Path, sim, batch, monk
     monkeypatch.setattr(viewer, "_reachable", probe)
     monkeypatch.setattr(rr, "GrpcSink", no_grpc)
     with pytest.warns(viewer.LiveViewerWarning, match="unreachable"):
-        summary = drivers.record_detection(sim, path=tmp_path / "u.rrd", live=f"127.0.0.1:{port}")
+        summary = recordings.record_detection(sim, path=tmp_path / "u.rrd", live=f"127.0.0.1:{port}")
     assert probes == [viewer.CONNECT_TIMEOUT_S] and viewer.CONNECT_TIMEOUT_S <= 5.0
     assert summary.live_url is None and summary.notes
     _check_recording(tmp_path / "u.rrd", rec, spec, flags, summary)
@@ -221,7 +219,7 @@ def test_spawn_without_display_still_writes_file(tmp_path: Path, sim, monkeypatc
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     monkeypatch.chdir(tmp_path)
-    summary = drivers.record_detection(sim, live="spawn")
+    summary = recordings.record_detection(sim, live="spawn")
     assert summary.path is not None and summary.path.parent == Path("recordings")
     assert any("no display" in n for n in summary.notes)
     RrdReader(summary.path).store()
@@ -232,7 +230,7 @@ def test_ctrl_c_closes_recording(tmp_path: Path, sim) -> None:
         raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        drivers.record_detection(sim, path=tmp_path / "k.rrd", on_event=interrupt)
+        recordings.record_detection(sim, path=tmp_path / "k.rrd", on_event=interrupt)
     summary = RrdReader(tmp_path / "k.rrd").store().summary()  # footer written
     assert "/spectrum/pressure" in summary
 
@@ -257,7 +255,7 @@ def test_live_viewer_receives_data(tmp_path: Path, sim, batch) -> None:
             if time.monotonic() > deadline or proc.poll() is not None:
                 pytest.skip("the headless rerun receiver did not start")
             time.sleep(0.1)
-        summary = drivers.record_detection(sim, live=url, chunk_samples=500)
+        summary = recordings.record_detection(sim, live=url, chunk_samples=500)
         assert summary.live_url == url and summary.path is None
         time.sleep(0.5)
     finally:
@@ -280,8 +278,8 @@ def test_live_viewer_receives_data(tmp_path: Path, sim, batch) -> None:
     _, views, rng = _images(reader, "pressure")
     # always 50 columns (a fixed scale in the view), blank before the 50th frame, newest on the right
     assert all(v.shape[1] == 50 for v in views)
-    assert np.all(views[0][:, :49] == record_geometry.DB_RANGE[0])
-    assert len(rng) == spec.n_frames and np.array_equal(np.asarray(rng[-1]).ravel(), record_geometry.DB_RANGE)
+    assert np.all(views[0][:, :49] == spectrograms.DB_RANGE[0])
+    assert len(rng) == spec.n_frames and np.array_equal(np.asarray(rng[-1]).ravel(), spectrograms.DB_RANGE)
 
 
 def _visible(view, entity: str) -> list[bool]:
@@ -324,7 +322,7 @@ def test_default_band_second_order() -> None:
     from chatterspec.plants.scenarios import scenario
 
     mon = ChatteringMonitor(scenario("so-timeline-constant").nominal)
-    assert record_geometry.default_band_hz(mon) == (1.0, 15.0)  # 3 x 5 Hz natural frequency
+    assert spectrograms.default_band_hz(mon) == (1.0, 15.0)  # 3 x 5 Hz natural frequency
 
 
 def _cli(*argv: str) -> int:
@@ -387,7 +385,7 @@ def test_file_spectrogram_blocks_tile_long_records(tmp_path: Path, batch) -> Non
         logger.close()
     t, blocks, _ = _images(RrdReader(tmp_path / "b.rrd"), "velocity")
     widths = [b.shape[1] for b in blocks]
-    p = record_geometry.pad_columns(mon)  # blank columns before the first frame and after the last one
+    p = spectrograms.pad_columns(mon)  # blank columns before the first frame and after the last one
     want = [7] * (spec.n_frames // 7) + ([spec.n_frames % 7] if spec.n_frames % 7 else [])
     want[0] += p
     want[-1] += p
@@ -404,9 +402,9 @@ def test_logger_construction_error_is_not_hidden(tmp_path: Path, sim, monkeypatc
     def broken(*args, **kwargs):
         raise ParameterError("band_hz holds no STFT bin")
 
-    monkeypatch.setattr(drivers, "RerunLogger", broken)
+    monkeypatch.setattr(recordings, "RerunLogger", broken)
     with pytest.raises(ParameterError, match="no STFT bin"):
-        drivers.record_detection(sim, path=tmp_path / "b.rrd")
+        recordings.record_detection(sim, path=tmp_path / "b.rrd")
 
 
 def test_sample_rows_and_float64_spectra(tmp_path: Path, sim) -> None:
@@ -515,7 +513,7 @@ def test_peak_hz_series_is_the_largest_excess_among_flagged_bins(tmp_path: Path)
     flags = detect_frames(spec, thr)
     expected = expected_frame_spectrum(rec.model, spec.freqs_hz, spec.config, rec.dt)
     path = tmp_path / "p.rrd"
-    drivers.record_detection(sim, path=path, chunk_samples=1000)
+    recordings.record_detection(sim, path=path, chunk_samples=1000)
     t = thr.tested
     f_t = spec.freqs_hz[t]
     reader = RrdReader(path)
@@ -557,17 +555,17 @@ def test_peak_bins_paths_agree(tested: str, monkeypatch) -> None:
     assert (p_t > thr).any(axis=1)[:, 0].any() and not (p_t > thr).any(axis=1)[:, 1].any()
     assert want[5, 0] == 2  # the tie: the first of the two bins
     monkeypatch.setenv("CHATTERSPEC_JIT", "0")
-    np.testing.assert_array_equal(frame_peaks.peak_bins(power, idx, expected, thr), want)
+    np.testing.assert_array_equal(spectrograms.peak_bins(power, idx, expected, thr), want)
     out = np.empty((F, m), dtype=np.int64)
-    kernel = frame_peaks._peak_bins_kernel
+    kernel = spectrograms._peak_bins_kernel
     getattr(kernel, "py_func", kernel)(power, idx, expected, thr, out)  # the kernel's Python source
     np.testing.assert_array_equal(out, want)
     # out=: rows of a batch array filled block by block (the logger's use), on both paths
     for jit in ("0", "1"):
         monkeypatch.setenv("CHATTERSPEC_JIT", jit)
         batch = np.full((F + 5, m), -1, dtype=np.int64)
-        got = frame_peaks.peak_bins(power, idx, expected, thr, out=batch[5:])
+        got = spectrograms.peak_bins(power, idx, expected, thr, out=batch[5:])
         assert np.shares_memory(got, batch) and (batch[:5] == -1).all()
         np.testing.assert_array_equal(batch[5:], want)
     monkeypatch.delenv("CHATTERSPEC_JIT")
-    np.testing.assert_array_equal(frame_peaks.peak_bins(power, idx, expected, thr), want)
+    np.testing.assert_array_equal(spectrograms.peak_bins(power, idx, expected, thr), want)

@@ -71,7 +71,7 @@ def test_rmse_table_and_bad_input() -> None:
 
 
 def test_mode_figures_render(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    from chatterspec.figures.plot_modes import confusion_figure, mode_weights_figure
+    from chatterspec.figures.plot_diagnosis import confusion_figure, mode_weights_figure
     from chatterspec.figures.plot_studies import save
 
     mu = ramp_mu()

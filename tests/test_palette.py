@@ -30,7 +30,7 @@ def test_no_red_outside_faults() -> None:
 
 def test_figures_use_the_palette() -> None:
     from chatterspec.figures import estimators, plot_diagnosis
-    from chatterspec.figures.plot_modes import mode_weights_figure
+    from chatterspec.figures.plot_diagnosis import mode_weights_figure
 
     for name in filter_registry.FILTERS:
         assert estimators._line(name, 0)["color"] == palette.mpl(palette.filter_color(name))
@@ -50,7 +50,7 @@ def test_recordings_use_the_palette(tmp_path: Path) -> None:
 
     from chatterspec.studies.estimation import estimate_records
     from chatterspec.viewer import blueprint
-    from chatterspec.viewer.estimates_log import record_estimates
+    from chatterspec.viewer.recordings import record_estimates
 
     styles = dict(blueprint.series_styles(("a", "b", "c", "d"), ("", "", "", "")))
     assert styles[blueprint.STATISTIC] is not None

@@ -453,12 +453,12 @@ def _demo_docs():
 
 
 def test_demo_summary_figure(tmp_path):
-    from chatterspec.figures import summary
+    from chatterspec.figures import plot_studies
 
     docs = _demo_docs()
-    rows = summary.rows_from_reports(docs)
+    rows = plot_studies.rows_from_reports(docs)
     assert [r.ratios for r in rows][1] == (0.5, 0.6, 19.5) and rows[0].healthy
-    fig = summary.summary_figure(rows, title="t", threshold_label="thr")
+    fig = plot_studies.summary_figure(rows, title="t", threshold_label="thr")
     (ax,) = fig.axes
     assert ax.get_xscale() == "log"
     lo, hi = ax.get_xlim()
@@ -472,11 +472,11 @@ def test_demo_summary_figure(tmp_path):
         if ln.get_marker() != "None" and matplotlib.colors.to_rgba(ln.get_markerfacecolor()) != (1, 1, 1, 1)
     ]
     assert sorted(float(ln.get_xdata()[0]) for ln in filled) == [19.5, 3e5]  # fault channels only
-    path = summary.demo_summary(docs, tmp_path / "summary.png")
+    path = plot_studies.demo_summary(docs, tmp_path / "summary.png")
     assert path.read_bytes()[:8] == PNG_SIGNATURE
     with pytest.raises(ParameterError, match="peak_ratio"):
-        summary.rows_from_reports([{"scenario": "x", "channels": [{"channel": "a"}], "healthy": True}])
+        plot_studies.rows_from_reports([{"scenario": "x", "channels": [{"channel": "a"}], "healthy": True}])
     with pytest.raises(ShapeError):
-        summary.summary_figure([summary.RatioRow("x", ("a", "b"), (1.0,))])
+        plot_studies.summary_figure([plot_studies.RatioRow("x", ("a", "b"), (1.0,))])
     with pytest.raises(ParameterError):
-        summary.summary_figure([])
+        plot_studies.summary_figure([])

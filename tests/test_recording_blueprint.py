@@ -23,8 +23,8 @@ from rerun.chunk import RrdReader  # noqa: E402
 
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings  # noqa: E402
 from chatterspec.online.stream import RowBlock  # noqa: E402
-from chatterspec.viewer import blueprint, drivers, record_geometry  # noqa: E402
-from chatterspec.viewer.chattering_extent import (  # noqa: E402
+from chatterspec.viewer import blueprint, recordings, spectrograms  # noqa: E402
+from chatterspec.viewer.blueprint import (  # noqa: E402
     MARGIN,
     QUANTILE,
     STRIDE,
@@ -73,7 +73,7 @@ def test_streamed_file_opens_paused_on_the_whole_record(tmp_path: Path) -> None:
         sm.process(RowBlock(ds.t[lo:hi], ds.z[lo:hi], ds.u[lo:hi], np.arange(lo, hi) + 2, 0.0))
     sm.close()
     fresh = ChatteringMonitor(spec.model, settings, t0=float(ds.t[0]))
-    span = record_geometry.record_span(fresh, ds.n_samples, raw=True)
+    span = spectrograms.record_span(fresh, ds.n_samples, raw=True)
     panels = _time_panels(path)
     assert len(panels) == 2
     assert panels[0][1] == FOLLOWING  # sent when the file opened
@@ -83,8 +83,8 @@ def test_streamed_file_opens_paused_on_the_whole_record(tmp_path: Path) -> None:
     # the float sums of frame centres)
     assert sel is not None
     assert (
-        abs(sel[0] - int(record_geometry.to_ns(span[0]))) <= 1
-        and abs(sel[1] - int(record_geometry.to_ns(span[1]))) <= 1
+        abs(sel[0] - int(spectrograms.to_ns(span[0]))) <= 1
+        and abs(sel[1] - int(spectrograms.to_ns(span[1]))) <= 1
     )
 
 
@@ -144,7 +144,7 @@ def test_file_blueprint_has_the_record_chattering_range(tmp_path: Path) -> None:
     sc = scenario("eha-leak-major")
     sim = cs.simulate(sc, runs=1, seed=3)
     path = tmp_path / "d.rrd"
-    drivers.record_detection(sim, path=path)
+    recordings.record_detection(sim, path=path)
     reader = RrdReader(path)
     # the recorded chattering, and the y ranges of the last blueprint's views
     e = []
@@ -208,7 +208,7 @@ def test_interval_events_name_both_bins(tmp_path: Path) -> None:
     sc = scenario("so-timeline-constant")
     sim = cs.simulate(sc, runs=1, seed=3)
     path = tmp_path / "t.rrd"
-    drivers.record_detection(sim, path=path)
+    recordings.record_detection(sim, path=path)
     reader = RrdReader(path)
 
     def temporal(entity: str, column: str) -> tuple[np.ndarray, list]:

@@ -10,7 +10,7 @@ same holds for a 30 s streamed leak through ``chatterspec monitor --record`` (CU
 and without identification, against its ``--events jsonl`` lines, and with tolerances for the
 parameters' events. Exact comparisons: the online frames equal the batch frames by construction (same
 kernel, same frame grid), and every time in the file is the rounded integer ns of
-:func:`record_geometry.to_ns` of the same float.
+:func:`spectrograms.to_ns` of the same float.
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ rr = pytest.importorskip("rerun")
 from rerun.chunk import RrdReader  # noqa: E402
 
 from chatterspec.online.fault_state import alarm_time  # noqa: E402
-from chatterspec.viewer import blueprint, drivers, record_geometry  # noqa: E402
-from chatterspec.viewer.fault_lanes import NOT_EXCITED, state_of  # noqa: E402
+from chatterspec.viewer import blueprint, recordings, spectrograms  # noqa: E402
+from chatterspec.viewer.events import NOT_EXCITED, state_of  # noqa: E402
 
 
 @pytest.fixture(autouse=True)
@@ -54,8 +54,8 @@ def _read(reader: RrdReader, entity: str, column: str) -> tuple[np.ndarray, list
 
 def test_to_ns_rounds() -> None:
     # the truncating float path gives 500499999 for 0.5005 s; the recording's rule rounds
-    assert int(record_geometry.to_ns(0.5005)) == 500_500_000
-    np.testing.assert_array_equal(record_geometry.to_ns([0.0, 2.5005, 1e-9 * 0.6]), [0, 2_500_500_000, 1])
+    assert int(spectrograms.to_ns(0.5005)) == 500_500_000
+    np.testing.assert_array_equal(spectrograms.to_ns([0.0, 2.5005, 1e-9 * 0.6]), [0, 2_500_500_000, 1])
 
 
 def _check_lanes_and_events(reader: RrdReader, channels: tuple[str, ...], events: list[dict]) -> None:
@@ -73,13 +73,13 @@ def _check_lanes_and_events(reader: RrdReader, channels: tuple[str, ...], events
         mine = [e for e in events if e["channel"] == channel]
         starts = [e["alarm_time_s"] for e in mine if e["kind"] == "fault-start"]
         ends = [e["alarm_time_s"] for e in mine if e["kind"] == "fault-end"]
-        np.testing.assert_array_equal(into, record_geometry.to_ns(starts), err_msg=channel)
-        np.testing.assert_array_equal(out_of, record_geometry.to_ns(ends), err_msg=channel)
+        np.testing.assert_array_equal(into, spectrograms.to_ns(starts), err_msg=channel)
+        np.testing.assert_array_equal(out_of, spectrograms.to_ns(ends), err_msg=channel)
         for e in mine:  # the event log: one row at the alarm time, naming it and the estimate
             word, est = ("ALARM", "onset") if e["kind"] == "fault-start" else ("alarm cleared", "offset")
             k = [
                 i
-                for i in np.flatnonzero(t_ev == record_geometry.to_ns(e["alarm_time_s"]))
+                for i in np.flatnonzero(t_ev == spectrograms.to_ns(e["alarm_time_s"]))
                 if word in texts[i][0]
             ]
             assert len(k) == 1, (channel, e)
@@ -110,7 +110,7 @@ def _expected_lane(
         if state != states[-1]:
             times.append(t)
             states.append(state)
-    return record_geometry.to_ns(times), states
+    return spectrograms.to_ns(times), states
 
 
 @pytest.mark.parametrize("name", DEMO_SCENARIOS)
@@ -123,7 +123,7 @@ def test_lanes_match_events_and_batch_verdicts(tmp_path: Path, name: str) -> Non
     sim = cs.simulate(sc, runs=1, seed=3)
     path = tmp_path / f"{name}.rrd"
     setup = identification_setup(sc.nominal)  # every demo scenario declares its parameters
-    summary = drivers.record_detection(sim, path=path, identification=setup)
+    summary = recordings.record_detection(sim, path=path, identification=setup)
     doc = summary.to_dict()  # what `demo --json` prints of the recording
 
     # independent batch path on the same realization (default detector: alpha 1e-3, Bonferroni): the
@@ -131,10 +131,10 @@ def test_lanes_match_events_and_batch_verdicts(tmp_path: Path, name: str) -> Non
     rec = chattering_record(sc.nominal, sim.z, sim.u, scenario=sc)
     found = stft_detect(rec.values[:1], rec.model, t0=float(rec.t[0]))
     spec, flags = found.spectrogram, found.flags[0]
-    frame_ns = record_geometry.to_ns(spec.times_s)
+    frame_ns = spectrograms.to_ns(spec.times_s)
     n_window = spec.config.n_window(rec.dt)
     half_win = (n_window - 1) * rec.dt / 2.0
-    start_ns = int(record_geometry.to_ns(spec.times_s[0] - half_win))  # the first window's first sample
+    start_ns = int(spectrograms.to_ns(spec.times_s[0] - half_win))  # the first window's first sample
 
     reader = RrdReader(path)
     assert "/spectrum/" in reader.store().summary()  # footer written: the file is complete
@@ -181,14 +181,14 @@ def test_lanes_match_events_and_batch_verdicts(tmp_path: Path, name: str) -> Non
     t_ev, texts = _read(reader, "/events", "TextLog:text")
     for channel, ivs in found.intervals.items():
         for a, b in ivs if channel != "any" else ():
-            k = np.flatnonzero(t_ev == record_geometry.to_ns(a))
+            k = np.flatnonzero(t_ev == spectrograms.to_ns(a))
             when = f"{a:.2f}" if f"{a:.2f}" == f"{b:.2f}" else f"{a:.2f}-{b:.2f}"
             assert any(texts[i][0].startswith(f"{when} s {channel} flagged frames (estimate)") for i in k)
     # the truth lane: one change per segment of the scenario, at its start
     t_truth, truth = _read(reader, blueprint.TRUTH_LANE, "StateChange:state")
-    expected = drivers.scenario_truth(sc)
+    expected = recordings.scenario_truth(sc)
     assert [s[0] for s in truth] == [lab for _, lab, _ in expected]
-    np.testing.assert_array_equal(t_truth, record_geometry.to_ns([start for start, _, _ in expected]))
+    np.testing.assert_array_equal(t_truth, spectrograms.to_ns([start for start, _, _ in expected]))
 
 
 def test_cli_lanes_equal_json_events(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -219,7 +219,7 @@ def test_cli_lanes_equal_json_events(tmp_path: Path, capsys: pytest.CaptureFixtu
     t_ev, texts = _read(reader, "/events", "TextLog:text")
     ivs = [(iv["onset_s"], iv["offset_s"]) for iv in doc["intervals"] if iv["channel"] == "velocity"]
     for a, b in ivs:  # one interval event at each onset, with the same numbers
-        k = int(np.flatnonzero(t_ev == record_geometry.to_ns(a))[0])
+        k = int(np.flatnonzero(t_ev == spectrograms.to_ns(a))[0])
         assert texts[k][0].startswith(f"{a:.2f}-{b:.2f} s velocity flagged frames (estimate)")
 
 
@@ -308,7 +308,7 @@ def test_lanes_follow_the_parameters_with_tolerances(
     reader = RrdReader(path)
     t_lane, raw = _read(reader, blueprint.lane_entity(2, "pressure"), "StateChange:state")
     into = [t for t, v in zip(t_lane, raw, strict=True) if state_of(v[0]) == "fault"]
-    assert into == [record_geometry.to_ns(t_alarm)]
+    assert into == [spectrograms.to_ns(t_alarm)]
     rb = reader.stream().filter(content=blueprint.lane_entity(2, "pressure"), is_static=True).to_chunks()
     cfg = rb[-1].to_record_batch()
     labels = dict(
@@ -327,7 +327,7 @@ def test_lanes_follow_the_parameters_with_tolerances(
     _, levels = _read(reader, "/events", "TextLog:level")
     rows = [(t, x[0], lv[0]) for t, x, lv in zip(t_ev, texts, levels, strict=True)]
     alarm = [r for r in rows if " leakage ALARM" in r[1]]
-    assert len(alarm) == 1 and alarm[0][0] == record_geometry.to_ns(t_alarm) and alarm[0][2] == "ERROR"
+    assert len(alarm) == 1 and alarm[0][0] == spectrograms.to_ns(t_alarm) and alarm[0][2] == "ERROR"
     mismatch = [r for r in rows if "pressure mismatch" in r[1]]
     assert mismatch and all(r[2] == "INFO" for r in mismatch)  # the chattering saw it: information
     assert not [r for r in rows if "pressure ALARM" in r[1]]

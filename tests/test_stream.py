@@ -30,8 +30,8 @@ from chatterspec.online.stream import (
 from chatterspec.online.stream_checks import LatencyStats
 from chatterspec.plants.datafile import load_data
 from chatterspec.plants.modelfile import load_model
+from chatterspec.viewer import live_stream  # the live stream monitor's rotation
 from chatterspec.viewer import sinks as viewer
-from chatterspec.viewer import stream_recordings as live_stream  # the live stream monitor's rotation
 from chatterspec.viewer.live_stream import StreamMonitor
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -152,7 +152,7 @@ def run_per_record(args: argparse.Namespace, sc: Scenario, methods: tuple[str, .
     )
     recording, written = None, Outputs()  # a recording that fails: the result first, then exit 2
     if args.record is not None:
-        from ..viewer.diagnosis_log import record_diagnosis
+        from ..viewer.recordings import record_diagnosis
 
         assert first is not None  # (realization 0, kept for --record)
         recording = written.write(

@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
             if not args.no_record:
                 from ..online.monitor import MonitorSettings
                 from ..studies.boundary_layer import estimate_boundary_layer
-                from ..viewer.drivers import record_detection
+                from ..viewer.recordings import record_detection
 
                 key = sc.nominal.fingerprint()
                 if key not in boundary_layers:  # smoothing boundary layer shown beside the chattering
@@ -126,8 +126,8 @@ def run(args: argparse.Namespace) -> int:
                 bar.update(1, f"{name} recorded")
         if not args.no_figures:
             from ..figures.paper_figures import render
+            from ..figures.plot_studies import demo_summary
             from ..figures.plotting import save_figure
-            from ..figures.summary import demo_summary
 
             for fig_name in DEMO_FIGURES:
                 rendered = render(fig_name, seed=args.seed)

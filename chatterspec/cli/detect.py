@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
     add_identification(doc, report, setup, why_not, ident, sim, sc, args)
     if args.record or args.live:
         from ..online.monitor import MonitorSettings
-        from ..viewer.drivers import record_detection
+        from ..viewer.recordings import record_detection
 
         settings = MonitorSettings(alpha=args.alpha, correction=args.correction, band=band)
         if args.calibration and not sc.is_linear:  # nonlinear: the calibrated per-frame threshold

@@ -292,7 +292,7 @@ def run(args: argparse.Namespace) -> int:
         title = f"{sc.name}: {args.runs} runs, {at}"
         figure = outputs.write("--plot", args.plot, save, delay_far_figure(results, title), args.plot)
     if args.record is not None:
-        from ..viewer.diagnosis_log import record_budget_diagnosis
+        from ..viewer.recordings import record_budget_diagnosis
 
         recording = outputs.write(
             "--record",

@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     outputs = Outputs()  # a recording that cannot be written: the table first, then one line, exit 2
     if args.record:
         from ..studies.estimation import estimate_records
-        from ..viewer.estimates_log import record_estimates
+        from ..viewer.recordings import record_estimates
 
         recs = estimate_records(args.name, names, runs=1, seed=args.seed)
         saved = outputs.write("--record", args.record, record_estimates, recs, args.record)

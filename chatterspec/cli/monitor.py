@@ -40,7 +40,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..plants.modelfile import ModelSpec
     from ..plants.nonlinear import Model
     from ..studies.calibration.result import Calibration
-    from ..viewer.drivers import RecordingSummary
+    from ..viewer.recordings import RecordingSummary
     from ._alarm_args import AlarmChoice
 
 
@@ -336,8 +336,8 @@ def run(args: argparse.Namespace) -> int:
         return _run_stream(args, spec, settings, jsonl, human, identification(0.0))
     assert data is not None  # a file replay read its data above
 
-    from ..viewer.drivers import run_monitor
     from ..viewer.live_stream import StreamEvent
+    from ..viewer.recordings import run_monitor
     from ..viewer.sinks import default_recording_path, open_sinks
 
     preload = _preload_rerun() if (args.record is not None or args.live is not None) else None

@@ -2,7 +2,7 @@
 detection of changes beyond them, and the excitation a held actuator lacks.
 
 Used by ``scripts/tolerance_study.py`` (the long runs, numbers in ``docs/paper-notes.md``), the
-figures of :mod:`chatterspec.figures.plot_tolerance` and the tests (short versions). The linear EHA
+figures of :mod:`chatterspec.figures.plot_diagnosis` and the tests (short versions). The linear EHA
 of the catalogue with the tolerances :data:`EHA_TOLERANCES` (bulk modulus +-15 %, friction +-30 %,
 leakage +-100 %), the catalogue chirp repeated every 4 s (:class:`~chatterspec.plants.signals.Repeat`)
 so that records may be long, and the monitor's decision (:func:`~chatterspec.detection.

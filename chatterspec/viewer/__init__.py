@@ -2,9 +2,10 @@
 
 Rerun output of the online monitor (:mod:`chatterspec.online`, the numeric side: monitor, push
 kernels, stream reading): sinks (file / live viewer, :mod:`~chatterspec.viewer.sinks`), the logger
-(:mod:`~chatterspec.viewer.rerun_log`), the default blueprint (:mod:`~chatterspec.viewer.blueprint`),
-the spectrogram view, the interval lanes, the estimates / diagnosis / identification recordings, the
-drivers of a recorded run (:mod:`~chatterspec.viewer.drivers`) and the live stream monitor
+and its identification entities (:mod:`~chatterspec.viewer.rerun_log`), the layout and default blueprint
+(:mod:`~chatterspec.viewer.blueprint`), the spectrogram (:mod:`~chatterspec.viewer.spectrograms`), the
+event log and lanes (:mod:`~chatterspec.viewer.events`), the recordings the commands write (monitor runs,
+detections, estimates, diagnoses: :mod:`~chatterspec.viewer.recordings`) and the live stream monitor
 (:mod:`~chatterspec.viewer.live_stream`).
 
 The public names are importable from here: ``from chatterspec.viewer import RerunLogger``.
@@ -13,7 +14,7 @@ The public names are importable from here: ``from chatterspec.viewer import Reru
 does not load it, and the numeric core never imports this module.
 
 Entity layout (timeline ``time``: integer nanoseconds, every time rounded once by
-:func:`chatterspec.viewer.record_geometry.to_ns`; ``<c>`` is an output channel name, ``<k>`` its
+:func:`chatterspec.viewer.spectrograms.to_ns`; ``<c>`` is an output channel name, ``<k>`` its
 1-based index). Per-sample and per-frame series hold ONE row per sample / frame for all
 ``m`` channels (series ``j`` = channel ``j``, named and coloured in the static
 ``SeriesLines`` / ``SeriesPoints``): Rerun's cost is per row (a 16-byte row id and an
@@ -36,7 +37,7 @@ layout. Each channel's view shows only its own series (blueprint overrides of
                                           frequency, with its scale ``Transform3D``), in a 2-D view
 ``/spectrogram/<c>/freq_ticks``, ``key``, frequency labels, the dB colour key (a gradient image) and its
 ``key_ticks``, ``outside``                labels; marks of flagged frames whose peak lies outside the
-                                          band (static; :mod:`chatterspec.viewer.spectrogram_view`)
+                                          band (static; :mod:`chatterspec.viewer.spectrograms`)
 ``/detection/statistic_db``               ``10 log10`` of the largest ``S / threshold`` over the tested
                                           bins: m per row, one row per frame
 ``/detection/threshold_db``               the decision level, 0 dB (one series)
@@ -56,7 +57,7 @@ layout. Each channel's view shows only its own series (blueprint overrides of
                                           ``healthy`` or ``no evidence``, changed at the alarm times (end
                                           of the deciding frame), file and live alike; episodes labelled
                                           with their onset / offset estimates
-                                          (:mod:`chatterspec.viewer.fault_lanes`)
+                                          (:mod:`chatterspec.viewer.events`)
 ``/events``                               text log: alarm raised / cleared (at its alarm time) and, in a
                                           file, each fault interval estimate at its onset; identification
                                           lines under ``/events/identification``
@@ -93,7 +94,7 @@ A FILE opens paused on the whole record: the logger sends the file's final bluep
 (:meth:`~chatterspec.viewer.rerun_log.RerunLogger.close`): the record's span, known in advance
 (``detect``, ``demo``, ``diagnose``) or measured (a streamed or rotated file, whose first blueprint
 still follows the data), and each chattering view's y range from the record's robust amplitude
-(:mod:`~chatterspec.viewer.chattering_extent`). The viewer opens a file on the last blueprint it holds.
+(:mod:`~chatterspec.viewer.blueprint`). The viewer opens a file on the last blueprint it holds.
 """
 
 from __future__ import annotations
@@ -105,26 +106,26 @@ from typing import Any
 #: never imports ``rerun``).
 _EXPORTS = {
     "RerunLogger": "rerun_log",
-    "record_span": "record_geometry",
-    "to_ns": "record_geometry",
-    "DB_RANGE": "record_geometry",
+    "record_span": "spectrograms",
+    "to_ns": "spectrograms",
+    "DB_RANGE": "spectrograms",
     "Sinks": "sinks",
     "open_sinks": "sinks",
     "default_recording_path": "sinks",
     "viewer_url": "sinks",
     "LiveViewerWarning": "sinks",
-    "RecordingSummary": "drivers",
-    "record_detection": "drivers",
-    "run_monitor": "drivers",
-    "scenario_truth": "drivers",
+    "RecordingSummary": "recordings",
+    "record_detection": "recordings",
+    "run_monitor": "recordings",
+    "scenario_truth": "recordings",
     "StreamMonitor": "live_stream",
     "StreamEvent": "live_stream",
     "StreamSummary": "live_stream",
     "drive": "live_stream",
-    "record_estimates": "estimates_log",
-    "record_diagnosis": "diagnosis_log",
-    "record_budget_diagnosis": "diagnosis_log",
-    "IdentificationLog": "identification_log",
+    "record_estimates": "recordings",
+    "record_diagnosis": "recordings",
+    "record_budget_diagnosis": "recordings",
+    "IdentificationLog": "rerun_log",
 }
 
 __all__ = sorted(_EXPORTS)

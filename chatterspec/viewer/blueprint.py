@@ -1,4 +1,33 @@
-"""Default Rerun blueprint of a chatterspec recording."""
+"""The layout of a chatterspec recording: its default Rerun blueprint, the views' ranges and the static
+entities logged once per stream.
+
+The blueprint (:func:`blueprint`, :func:`layout_geometry`, :func:`time_axis`, ...): the entity paths of
+a recording, the rows of views and their heights at 1600x1000, the labelled y ranges of the statistic
+and alarm views (:func:`statistic_range`, :func:`alarm_range`).
+
+The layout of a monitor recording (:class:`MonitorLayout`): what
+:class:`~chatterspec.viewer.rerun_log.RerunLogger` delegates for the look of a recording: the
+spectrogram image's width (it fills its view at 1600x1000, :func:`layout_geometry`) and the blueprint
+with the band, the alarm view and the units.
+
+The y range of a recording's chattering views (:class:`ChatteringExtent`): a robust, symmetric extent
+of the record's chattering. Rerun auto-ranges a time-series view from the data it shows; at 1600x1000 a
+small amplitude (the chattering of a position in metres is ~1e-4) can leave a single "0" tick on the
+axis, with no amplitude to read. A file's final blueprint therefore gives each chattering view a fixed
+symmetric range ``[-r, r]`` with ``r`` from :class:`ChatteringExtent`.
+
+Which ticks the viewer labels: its plots (egui_plot, Rerun 0.41) put grid lines at powers of ten only
+(``10^k``, no 2 or 5 steps) and label a step only when its lines are far enough apart on screen. Seen at
+1600x1000 on the ~70 px high chattering views: ``±0.005`` in ``±0.00615`` is NOT labelled (its
+``0.001`` lines are ~6 px apart and ``0.01`` is out of range), nor ``±1`` in ``±2.2``; ``±0.01`` in
+``±0.011`` is. So ``r`` is not the extent itself but ``1.1 p`` for the smallest power of ten ``p``
+with ``1.1 p`` at or above it (:func:`labelled_half_range`): the ``±p`` lines sit at 91 % of the
+half-height and are labelled; the data then fill 10 % to 100 % of the half-height.
+
+The static entities of a monitor recording (:func:`log_static`): series styles, spectrogram axes,
+threshold and expected spectra, the lanes' state configuration and the frequency note; logged once per
+stream by :class:`~chatterspec.viewer.rerun_log.RerunLogger` when it opens.
+"""
 
 from __future__ import annotations
 
@@ -9,14 +38,18 @@ from typing import TYPE_CHECKING, Any, Protocol, cast
 import numpy as np
 
 from .. import palette
+from ..detection.alarms.rules import rule_spec
+from ..detection.spectral import expected_frame_spectrum
+from ..online.monitor import ChatteringMonitor
+from ..plants.nonlinear import is_linear
 from .sinks import TIMELINE
-from .spectrogram_view import KEY_PX, key_width, spectrogram_view
+from .spectrograms import DB_RANGE, KEY_PX, key_width, log_axes, spectrogram_view
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # pragma: no cover
+    from rerun import StateConfiguration
     from rerun.blueprint import VisibleTimeRange
     from rerun.blueprint.api import View
     from rerun.blueprint.archetypes import TimeAxis
-
 
 __all__ = [
     "ALARM",
@@ -24,15 +57,22 @@ __all__ = [
     "MOST_SIGNIFICANT_HZ",
     "PEAK_HZ",
     "PSI",
+    "QUANTILE",
     "SAMPLE_SERIES_PER_CHANNEL",
     "STATISTIC",
+    "STRIDE",
     "THRESHOLD",
     "VERDICT",
+    "ChatteringExtent",
+    "MonitorLayout",
     "blueprint",
+    "expected_spectrum",
     "fault_entity",
     "fault_hz_entity",
+    "labelled_half_range",
     "lane_entity",
     "layout_geometry",
+    "log_static",
     "series_styles",
     "time_axis",
     "time_panel",
@@ -91,7 +131,7 @@ ALARM = VERDICT
 
 def labelled_top(x: float) -> float:
     """``1.1 p`` for the smallest power of ten ``p`` with ``1.1 p >= x > 0``: a range top whose ``p`` grid
-    line the viewer labels (see :mod:`chatterspec.viewer.chattering_extent`), with room above ``x``."""
+    line the viewer labels (see :mod:`chatterspec.viewer.blueprint`), with room above ``x``."""
     return 1.1 * 10.0 ** math.ceil(math.log10(max(float(x), 1e-300) / 1.1) - 1e-12)
 
 
@@ -460,7 +500,7 @@ def layout_geometry(
 
     The lanes row gets ``45 + 42`` px per lane (a lane and its name; every lane visible), each extra
     row 100 px, the channel
-    columns the rest; the spectrogram image's width (:func:`~chatterspec.viewer.spectrogram_view`) is
+    columns the rest; the spectrogram image's width (:func:`~chatterspec.viewer.spectrograms`) is
     its view's aspect ratio there, so that it fills the view.
 
     Parameters
@@ -564,7 +604,7 @@ def blueprint(
         ``extra_row(time_range, axis, live=...)`` returns views added as a row below the lanes, with the
         time range and the (linked) time axis of the other views (:func:`time_axis`) and whether the
         blueprint is a live viewer's (e.g. the identified parameters,
-        :func:`chatterspec.viewer.identification_log.identification_views`).
+        :func:`chatterspec.viewer.rerun_log.identification_views`).
 
     units : tuple of str, optional
         The channels' units, shown in the chattering views' titles.
@@ -582,7 +622,7 @@ def blueprint(
         Per channel ``r``: the chattering view shows ``[-r, r]`` (output units), so that the viewer
         labels its ticks (auto-ranged, a small amplitude can leave a single "0" tick); None (or a None
         entry): auto range. A file's final blueprint gives it
-        (:class:`~chatterspec.viewer.chattering_extent.ChatteringExtent`).
+        (:class:`~chatterspec.viewer.blueprint.ChatteringExtent`).
     psi : bool
         The boundary layer ±psi is drawn (known): the chattering views' titles name it.
     alarm_rule : str, optional
@@ -759,3 +799,323 @@ def blueprint(
         time_panel(span_s),
         collapse_panels=True,
     )
+
+
+# -------------------------------------------------------------------- the chattering views' y range
+
+#: Quantile of ``|e(k|k-1)|`` taken per batch: a handful of samples (the filters' start, a glitch)
+#: cannot set the range, a fault that lasts a fraction of a batch (20 s of 1 kHz data) still does.
+QUANTILE = 0.999
+#: Every STRIDE-th sample of a batch enters its quantile (5 000 of a 20 000-sample file batch): the
+#: quantile of a 60 000-value batch cost ~0.6 ms, 13 % of a file's logging time
+#: (``benchmarks/bench_monitor.py --cases d``); a quarter of it stays robust (the 5 largest of 5 000 are
+#: ignored) and a fault lasting a second still holds ~250 of them.
+STRIDE = 4
+#: Headroom above the extent, so that the largest values and the ±psi lines are not drawn on the frame.
+MARGIN = 1.15
+
+
+def labelled_half_range(a: float) -> float:
+    """``1.1 p`` for the smallest power of ten ``p`` with ``1.1 p >= a > 0``: a symmetric range whose
+    ``±p`` grid lines the viewer labels (see the module docstring).
+
+    Parameters
+    ----------
+    a : float
+        Half-height the range must hold (> 0, output units).
+
+    Returns
+    -------
+    float
+    """
+    p = 10.0 ** math.ceil(math.log10(a / 1.1) - 1e-12)
+    return 1.1 * p
+
+
+class ChatteringExtent:
+    """Running robust extent of the chattering per channel, in bounded memory.
+
+    Each batch of samples contributes its :data:`QUANTILE` of ``|e|`` per channel (over every
+    :data:`STRIDE`-th sample of a batch of at least ``100 STRIDE`` samples); the extent is the largest
+    of these over the record (so a fault late in a long record widens it).
+
+    Parameters
+    ----------
+    n_channels : int
+    """
+
+    def __init__(self, n_channels: int) -> None:
+        self._max = np.zeros(int(n_channels))
+        self.n_samples = 0
+
+    def add(self, chattering: np.ndarray) -> None:
+        """Take one batch ``(samples, channels)`` of chattering ``e(k|k-1)`` (output units)."""
+        e = np.asarray(chattering, dtype=float)
+        n = e.shape[0]
+        if n == 0:
+            return
+        a = np.abs(e[:: STRIDE if n >= 100 * STRIDE else 1])
+        # np.quantile (one partition of every column) gives nanquantile's numbers where a column has no
+        # NaN, in a third of its time (nanquantile goes column by column); a NaN makes its column's
+        # quantile NaN, and only such batches take nanquantile
+        q = np.quantile(a, QUANTILE, axis=0) if a.shape[0] > 1 else a[0]
+        if np.isnan(q).any():
+            with np.errstate(invalid="ignore"):
+                q = np.nanquantile(a, QUANTILE, axis=0)
+        np.fmax(self._max, q, out=self._max)
+        self.n_samples += e.shape[0]
+
+    def ranges(self, psi: Sequence[float] | None = None) -> list[float | None] | None:
+        """Per channel the half-height ``r`` of the symmetric range ``[-r, r]``: :func:`labelled_half_range`
+        of :data:`MARGIN` times the larger of the extent and the boundary layer ``psi`` (so that the ±psi
+        lines are in view); a channel without any finite non-zero value gets None (auto range). None before
+        any sample.
+
+        Parameters
+        ----------
+        psi : sequence of float, optional
+            The SVSF boundary layer per channel (output units).
+
+        Returns
+        -------
+        list of (float or None), or None
+        """
+        if self.n_samples == 0:
+            return None
+        r = self._max.copy()
+        if psi is not None:
+            r = np.fmax(r, np.abs(np.asarray(psi, dtype=float)))
+        return [labelled_half_range(MARGIN * float(x)) if np.isfinite(x) and x > 0 else None for x in r]
+
+
+# ---------------------------------------------------------------- the layout of a monitor recording
+
+
+class MonitorLayout:
+    """Geometry and default blueprint of one monitor's recording.
+
+    Parameters
+    ----------
+    monitor : ChatteringMonitor
+        Gives channels, units and the alarm rule.
+    has_truth : bool
+        The recording has a true fault lane.
+    extra_row : callable or None
+        Views below the default layout.
+    extra_lanes, rows_above : int
+        Lanes under ``/state`` and rows above the columns that the caller's layout adds.
+    peak_view : bool
+        The layout shows the peak-frequency views (unless there is an extra row).
+    budget_per_hour : float, optional
+        The budget the rule's threshold was set for when the settings do not carry it (a diagnosis
+        calibrates its routes itself), alarm starts per hour; None: the settings'.
+
+    Attributes
+    ----------
+    width, key : int
+        The spectrogram image's width and its colour key's width (pixels).
+    cusum : bool
+        The alarm rule is CUSUM (its view draws g; else the score itself).
+    """
+
+    def __init__(
+        self,
+        monitor: ChatteringMonitor,
+        *,
+        has_truth: bool,
+        extra_row: ExtraRow | None,
+        extra_lanes: int,
+        rows_above: int,
+        peak_view: bool,
+        budget_per_hour: float | None = None,
+    ) -> None:
+        self.monitor = monitor
+        self.has_truth, self.extra_lanes, self.rows_above = bool(has_truth), int(extra_lanes), int(rows_above)
+        # the peak-frequency views give way to an extra row (the viewer keeps a minimum height per view)
+        self.extra_row, self.peak_view = extra_row, bool(peak_view) and extra_row is None
+        m = len(monitor.channels)
+        n_lanes = m + self.has_truth + self.extra_lanes
+        rows, self.width = layout_geometry(
+            m,
+            n_lanes,
+            alarm=True,
+            rows_above=self.rows_above,
+            rows_below=1 if extra_row else 0,
+            peak=self.peak_view,
+        )
+        # the plot heights (logical px) of the statistic and alarm views: their ranges keep labelled ticks
+        self.statistic_px, self.alarm_px = plot_heights(rows[self.rows_above], self.peak_view)
+        self.key = key_width(self.width, view_px(m))  # the colour key: as wide as a time view's labels
+        rule = monitor.rule
+        self.budget_per_hour = budget_per_hour
+        self.cusum = rule_spec(rule).accumulates  # the alarm view draws the rule's statistic
+        self.h = float(rule.threshold) if np.isfinite(rule.threshold) else np.nan
+
+    def blueprint(
+        self,
+        *,
+        band_hz: tuple[float, float],
+        span_s: tuple[float, float] | None,
+        has_truth: bool | None = None,
+        extra_row: ExtraRow | None = None,
+        above: list[Any] | None = None,
+        lanes_name: str | None = None,
+        chattering_range: list[float | None] | None = None,
+        largest: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> Any:
+        """The default :func:`~chatterspec.viewer.blueprint.blueprint` of the recording (band, alarm view,
+        units, and the geometry given to the constructor).
+
+        Parameters
+        ----------
+        band_hz : (float, float)
+            The spectrogram's band (Hz).
+        span_s : (float, float) or None
+            A file's whole record (s); None for a live viewer (follows the data).
+        has_truth : bool, optional
+            Draw the true fault lane (default: the constructor's ``has_truth``).
+        extra_row : callable, optional
+            See :func:`~chatterspec.viewer.blueprint.blueprint` (default: the constructor's).
+        above : list of views, optional
+            A row above the channel columns (the constructor's ``rows_above`` must be 1).
+        lanes_name : str, optional
+            Title of the lanes view.
+        chattering_range : sequence of float, optional
+            Per channel the half-height of the chattering view's symmetric y range (output units).
+        largest : (ndarray, ndarray), optional
+            Per channel the record's largest statistic (dB) and alarm-view value: the statistic and alarm
+            views' y ranges hold them (:func:`~chatterspec.viewer.blueprint.statistic_range`,
+            :func:`~chatterspec.viewer.blueprint.alarm_range`); None: the default ranges (a live viewer).
+        """
+        m = len(self.monitor.channels)
+        if largest is None:
+            largest = (np.full(m, -np.inf), np.full(m, -np.inf))
+        stat_ranges = [statistic_range(float(x), self.statistic_px) for x in largest[0]]
+        alarm_ranges = [alarm_range(self.h, float(x), self.alarm_px) for x in largest[1]]
+        assert stat_ranges is None or len(stat_ranges) == m
+        return blueprint(
+            self.monitor.channels,
+            has_truth=self.has_truth if has_truth is None else has_truth,
+            band_hz=band_hz,
+            span_s=span_s,
+            db_range=DB_RANGE,
+            alarm=self.alarm_title(),
+            alarm_score=False,  # CUSUM: g and h only (the frame score, up to thousands of nats, hid them)
+            alarm_range=alarm_ranges,
+            statistic_ranges=stat_ranges,
+            extra_row=extra_row if extra_row is not None else self.extra_row,
+            units=tuple(self.monitor.model.output_units),
+            above=above,
+            extra_lanes=self.extra_lanes,
+            lanes_name=lanes_name,
+            peak_view=self.peak_view,
+            chattering_range=chattering_range,
+            psi=self.monitor.settings.psi is not None,
+            alarm_rule=self.budget_words(),
+        )
+
+    def alarm_title(self) -> list[str]:
+        """The alarm view's title, longest first (:func:`~chatterspec.viewer.blueprint.fit` picks the one
+        that fits): the rule's statistic against its threshold (nats) and the budget."""
+        rule = self.monitor.rule
+        what = rule.view_label()
+        h = f"{rule.threshold:.3g}"
+        return [
+            f"{what} vs h = {h} nats, {self.budget_words(rule=False)}",
+            f"{what} vs h = {h} nats",
+            f"{what}, h = {h}",
+        ]
+
+    def budget_words(self, *, rule: bool = True) -> str:
+        """``"cusum, 1 false alarm/24 h"`` (``rule`` False: the budget only; ``per-frame alpha`` without
+        one)."""
+        budget = self.monitor.settings.false_alarms_per_hour
+        if budget is None:
+            budget = self.budget_per_hour
+        if budget is None:
+            per = "per-frame alpha"
+        else:
+            x = float(budget)
+            per = f"1 false alarm/{1 / x:.3g} h" if x < 1 else f"{x:.3g} false alarms/h"
+        return f"{self.monitor.rule.name}, {per}" if rule else per
+
+
+# ------------------------------------------------------- the static entities of a monitor recording
+
+
+def expected_spectrum(monitor: ChatteringMonitor) -> np.ndarray:
+    """(bins, m) expected frame spectrum of ``monitor``'s healthy chattering: the model's
+    (:func:`~chatterspec.detection.spectral.expected_frame_spectrum`), or for a nonlinear model the
+    calibrated threshold's empirical normalization."""
+    thr = monitor.threshold
+    if not is_linear(monitor.model):
+        return np.asarray(thr.expected)
+    return expected_frame_spectrum(monitor.model, monitor.freqs_hz, monitor.settings.stft, monitor.dt)
+
+
+def log_static(
+    streams: list[Any],
+    monitor: ChatteringMonitor,
+    *,
+    channels: Sequence[str],
+    keys: Sequence[str],
+    lanes: list[str],
+    lane_configs: list[StateConfiguration],
+    expected: np.ndarray,
+    band_hz: tuple[float, float],
+    hop_s: float,
+    width: float,
+    key: float,
+    cusum: bool,
+) -> None:
+    """Log the static entities of a monitor recording to every stream of ``streams``.
+
+    Parameters
+    ----------
+    streams : list of RecordingStream
+    monitor : ChatteringMonitor
+        Gives frequencies (Hz), threshold, units and the boundary layer.
+    channels, keys, lanes : list of str
+        Per channel: name, entity key and fault-state lane entity.
+    lane_configs : list of rerun.StateConfiguration
+        Per channel: the lane's states and labels (:meth:`~chatterspec.viewer.events.FaultLanes.
+        configuration`).
+    expected : ndarray, shape (bins, m)
+        Expected frame spectrum, logged as ``/expected/<c>``.
+    band_hz : (float, float)
+        The spectrogram's band (Hz).
+    hop_s : float
+        Hop between frames (s).
+    width, key : int
+        The spectrogram image's width and its colour key's width (pixels,
+        :func:`~chatterspec.viewer.spectrograms.log_axes`).
+    cusum : bool
+        The alarm rule is CUSUM (its view draws g; else the score).
+    """
+    import rerun as rr
+
+    thr = monitor.threshold
+    freqs = monitor.freqs_hz
+    lo, hi = band_hz
+    styles = series_styles(
+        channels,
+        monitor.model.output_units,
+        has_estimate=monitor.settings.psi is not None,
+        alarm_statistic="CUSUM g [nats]" if cusum else "score -log p [nats]",
+    )
+    df = float(freqs[1] - freqs[0])
+    note = rr.TextDocument(
+        f"Spectra: {len(freqs)} bins, 0 .. {freqs[-1]:g} Hz "
+        f"(step {freqs[1]:g} Hz); spectrogram {lo:g}-{hi:g} Hz, hop "
+        f"{hop_s:g} s, dB re threshold in [{DB_RANGE[0]:g}, {DB_RANGE[1]:g}]. "
+        f"{thr.describe()}"
+    )
+    for s in streams:
+        for path, style in styles:
+            s.log(path, style, static=True)
+        for i, c in enumerate(keys):
+            log_axes(s, f"/spectrogram/{c}", band_hz, df, DB_RANGE, width, key)
+            s.log(f"/threshold/{c}", rr.Tensor(thr.values[:, i], dim_names=["freq"]), static=True)
+            s.log(f"/expected/{c}", rr.Tensor(expected[:, i], dim_names=["freq"]), static=True)
+            s.log(lanes[i], lane_configs[i], static=True)
+        s.log("/frequencies", note, static=True)
