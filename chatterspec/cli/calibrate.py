@@ -14,21 +14,21 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..errors import DataFileError, ParameterError
-from ._alarm_args import add_alarm_args, alarm_choice
-from ._common import (
-    Outputs,
-    check_figure_path,
-    check_output_path,
+from ._options import (
+    add,
+    add_alarm_args,
+    add_name,
+    add_study_args,
+    alarm_choice,
+    command,
     parsed_arg,
-    report,
-    stderr_note,
-    write_plot,
+    study_keywords,
 )
-from ._options import add, add_name, add_study_args, command, study_keywords
+from ._report import Outputs, check_figure_path, check_output_path, report, stderr_note, write_plot
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..studies.calibration_result import Calibration
-    from ._alarm_args import AlarmChoice
+    from ._options import AlarmChoice
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -223,7 +223,7 @@ def _check_support(args: argparse.Namespace) -> dict[str, Any]:
     run (:mod:`chatterspec.studies.calibration_support`).
     """
     from ..studies.calibration_support import frames_per_run, support_for
-    from ._common import load_scenario
+    from ._options import load_scenario
 
     sc = load_scenario(args.name)
     per_frame = frames_per_run(sc.n_samples - 1, 1.0, sc.dt)  # the calibration's STFT: 1 s windows
@@ -305,7 +305,7 @@ def run_recorded(args: argparse.Namespace) -> int:
     check_output_path(args.out, "--out")
     choice = alarm_choice(args)
     wants_alarm = choice.explicit_rule or choice.explicit_budget
-    from ._common import load_scenario
+    from ._options import load_scenario
 
     sc = load_scenario(args.name)  # the record length of `detect NAME` (a model file's [simulation])
     model = sc.nominal

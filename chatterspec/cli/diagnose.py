@@ -28,9 +28,21 @@ import time
 from typing import TYPE_CHECKING, Any, cast
 
 from ..errors import ParameterError
-from . import _identify
-from ._common import Outputs, check_figure_path, check_record_path, positive_int_arg, print_json, report
-from ._options import add, add_execution_args, add_name, add_report_args, add_runs_args, command, execution
+from ._options import (
+    add,
+    add_execution_args,
+    add_identification_args,
+    add_name,
+    add_report_args,
+    add_runs_args,
+    add_tolerance_args,
+    command,
+    execution,
+    positive_int_arg,
+    setup_or_reason,
+    with_tolerance_args,
+)
+from ._report import Outputs, check_figure_path, check_record_path, print_diagnosis, print_json, report
 
 if TYPE_CHECKING:  # pragma: no cover
     from collections.abc import Iterator
@@ -60,7 +72,7 @@ ROUTE_SET: tuple[str, ...] = ("drift",)
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``chatterspec diagnose`` and its options to the subcommand parsers ``sub``."""
     from ..detection.alarm_rules import rule_names
-    from ._alarm_args import add_rule_parameter_args
+    from ._options import add_rule_parameter_args
 
     p = command(
         sub,
@@ -139,8 +151,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--per-record", action="store_true", help="each route with its own rule (the former table)"
     )
-    _identify.add_identification_args(p)
-    _identify.add_tolerance_args(p)
+    add_identification_args(p)
+    add_tolerance_args(p)
     add_report_args(p, json_help="print one JSON document")
     add(p, "--record", default=None, help="write realization 0 to a Rerun file")
 
@@ -183,7 +195,7 @@ def _scenario(args: argparse.Namespace) -> Scenario:
     if args.tolerance:
         import dataclasses
 
-        sc = dataclasses.replace(sc, nominal=_identify.with_tolerance_args(sc.nominal, args))
+        sc = dataclasses.replace(sc, nominal=with_tolerance_args(sc.nominal, args))
     if args.onset is not None:
         from ..studies.scenario_variants import with_onset
 
@@ -198,7 +210,7 @@ def _scenario(args: argparse.Namespace) -> Scenario:
 
 def _settings(args: argparse.Namespace) -> BudgetSettings:
     from ..studies.budget_diagnosis import BudgetSettings
-    from ._alarm_args import alarm_choice
+    from ._options import alarm_choice
 
     choice = alarm_choice(args)  # the monitor's checks: one line naming the option
     if not (args.warmup >= 0 and args.warmup < float("inf")):
@@ -213,7 +225,7 @@ def _routes(
     """The route objects, the per-frame threshold of the recording (chattering) and its provenance."""
     from ..detection.alarm_rules import rule_spec
     from ..studies.routes import ChatteringRoute, InnovationRoute, ModeRoute, ParameterRoute
-    from ._alarm_args import DEFAULT_RULE
+    from ._options import DEFAULT_RULE
 
     routes: dict[str, Route] = {}
     threshold: Threshold | None = None
@@ -325,7 +337,7 @@ def run(args: argparse.Namespace) -> int:
 
     def text() -> None:
         _print_budget_table(sc, args, settings, results, wall)
-        _identify.print_diagnosis(ident_doc)
+        print_diagnosis(ident_doc)
         if figure is not None:
             print(f"figure: {figure}")
         if recording is not None:
@@ -360,7 +372,7 @@ def _print_budget_table(
 def identification_doc(args: argparse.Namespace, sc: Scenario) -> dict:
     """Fault identification per fault segment on the diagnosed realizations (seed ``--seed``, the
     routes' runs), at test level ``--alpha``; ``{"reason": ...}`` where the model gives none."""
-    setup, why_not = _identify.setup_or_reason(sc.nominal, args)
+    setup, why_not = setup_or_reason(sc.nominal, args)
     if setup is None:
         return {"reason": why_not}
     from ..plants.simulate import iter_simulations
@@ -462,7 +474,7 @@ def run_per_record(args: argparse.Namespace, sc: Scenario, methods: tuple[str, .
     sim_s: float | None = None  # seconds spent simulating (None: on workers, inside their chunks)
     chunk = args.chunk_runs or DEFAULT_CHUNK_RUNS
     # fault identification beside the routes: per segment, on the same realizations (test level --alpha)
-    setup, why_not = _identify.setup_or_reason(sc.nominal, args)
+    setup, why_not = setup_or_reason(sc.nominal, args)
     ident = None
     parallel = args.workers > 1 or args.scheduler is not None
     if setup is not None and not parallel:
@@ -536,7 +548,7 @@ def run_per_record(args: argparse.Namespace, sc: Scenario, methods: tuple[str, .
         written.finish()
         return 0
     _print_table(sc, args, results)
-    _identify.print_diagnosis(ident_doc)
+    print_diagnosis(ident_doc)
     if recording is not None:
         print(f"recording: {recording} (open with `chatterspec replay {recording}` or `rerun {recording}`)")
     written.finish()

@@ -46,10 +46,20 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 from ..errors import ParameterError
 from ..jsonout import dumps
-from . import _identify
-from ._alarm_args import _alarm_line, _alarm_short, add_alarm_args, alarm_choice, alarm_doc
-from ._common import Outputs, band_from_args, check_record_path, positive_int_arg, stderr_note
-from ._options import add, add_report_args, command
+from ._options import (
+    add,
+    add_alarm_args,
+    add_identification_args,
+    add_report_args,
+    add_tolerance_args,
+    alarm_choice,
+    band_from_args,
+    command,
+    positive_int_arg,
+    setup_or_reason,
+    with_tolerance_args,
+)
+from ._report import Outputs, alarm_doc, alarm_line, alarm_short, check_record_path, quiet_stdout, stderr_note
 
 if TYPE_CHECKING:  # pragma: no cover
     from types import FrameType
@@ -64,7 +74,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..studies.calibration_result import Calibration
     from ..viewer.drivers import RecordingSummary
     from ..viewer.live_stream import StreamEvent, StreamSummary
-    from ._alarm_args import AlarmChoice
+    from ._options import AlarmChoice
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -173,8 +183,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="samples per push (default: one STFT hop with --rate > 0, 250 hops otherwise; the output does "
         "not depend on it)",
     )
-    _identify.add_identification_args(p)
-    _identify.add_tolerance_args(p)
+    add_identification_args(p)
+    add_tolerance_args(p)
     p.add_argument(
         "--identification-events",
         choices=("none", "changes", "every-hop"),
@@ -236,7 +246,7 @@ def run(args: argparse.Namespace) -> int:
     for w in caught:
         print(f"chatterspec monitor: warning: {w.message}", file=sys.stderr)
     if args.tolerance:
-        spec = dataclasses.replace(spec, model=_identify.with_tolerance_args(spec.model, args))
+        spec = dataclasses.replace(spec, model=with_tolerance_args(spec.model, args))
     pmap = getattr(spec.model, "parameter_map", None)
     tolerances = pmap is not None and pmap.has_tolerances
     from ..online.monitor import ChatteringMonitor, MonitorSettings  # after the model file: its errors first
@@ -288,7 +298,7 @@ def run(args: argparse.Namespace) -> int:
             f"(alpha {cal.alpha:g} per frame, {made})",
             file=sys.stderr,
         )
-    setup, why_not = _identify.setup_or_reason(spec.model, args)
+    setup, why_not = setup_or_reason(spec.model, args)
     if tolerances:
         if setup is None:
             raise ParameterError(
@@ -329,7 +339,7 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     else:
-        print(f"chatterspec monitor: {_alarm_line(settings)}", file=sys.stderr)
+        print(f"chatterspec monitor: {alarm_line(settings)}", file=sys.stderr)
     if why_not is not None and not args.no_identify:
         print(f"chatterspec monitor: no fault identification: {why_not}", file=sys.stderr)
 
@@ -502,7 +512,7 @@ def _report_replay(
             print(dumps(doc, indent=2, allow_nan=True))
         return
     n = sum(e.kind == "fault-start" for e in summary.events)
-    rule = _alarm_short(settings)
+    rule = alarm_short(settings)
     if ident is not None and ident.tolerances:
         n, rule = ident.starts, ident.rule_short()
     print(
@@ -564,7 +574,7 @@ def _alarm_settings(
         return dataclasses.replace(settings, alpha=float(args.alpha))
     file_alarm = getattr(cal, "alarm", None)
     if file_alarm is not None:
-        from ._alarm_args import check_file_alarm
+        from ._options import check_file_alarm
 
         rc = check_file_alarm(c, file_alarm, args.calibration)
         return alarm_settings(model, settings, calibration=rc)
@@ -656,7 +666,7 @@ def _run_stream(
             identification=None if ident is None else ident.monitor,
         )
     except OSError as exc:  # e.g. disk full when the recording opens: before any row is read
-        from ._common import OutputPathError
+        from ._report import OutputPathError
 
         raise OutputPathError(
             f"--record {str(args.record)!r} cannot be written ({exc.strerror or exc}); nothing was monitored"
@@ -683,7 +693,7 @@ def _run_stream(
         stopped = "SIGTERM"
     except BrokenPipeError:
         stopped = "output closed"
-        _quiet_stdout()
+        quiet_stdout()
     except ChatterspecError as exc:
         stopped, error = "error", exc
     finally:
@@ -697,18 +707,10 @@ def _run_stream(
     try:
         _report(args, summary, jsonl, human, settings, ident)
     except BrokenPipeError:
-        _quiet_stdout()
+        quiet_stdout()
     if error is not None:
         raise error
     return EXIT_STATUS.get(stopped, 0)
-
-
-def _quiet_stdout() -> None:
-    """The reader of stdout went away: send further output (and the exit flush) to /dev/null."""
-    import os
-
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, sys.stdout.fileno())
 
 
 def _report(
@@ -737,7 +739,7 @@ def _report(
         if lat["frames"]
         else "no frame completed"
     )
-    starts, rule = c["fault-start"], _alarm_short(settings)
+    starts, rule = c["fault-start"], alarm_short(settings)
     if ident is not None and ident.tolerances:
         starts, rule = ident.starts, ident.rule_short()
     print(
@@ -905,7 +907,7 @@ class MonitorIdentification:
         if self.tolerances:
             return  # the parameters' fault events said it
         rows = [r for r in doc.get("hypotheses", []) if r["hypothesis"] == w.label and r["parameter"]]
-        from ._identify import summary_line
+        from ._report import summary_line
 
         what = summary_line({"selected": w.label, "hypotheses": rows}) if rows else w.label
         self.say(f"identified at {at}: {what}")

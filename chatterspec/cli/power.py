@@ -6,8 +6,8 @@ import argparse
 from typing import TYPE_CHECKING, Any
 
 from ..errors import ParameterError
-from ._common import check_figure_path, report_study
 from ._options import add, add_study_args, command, study_keywords
+from ._report import check_figure_path, report_study
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..studies.excitation import ExcitationResult

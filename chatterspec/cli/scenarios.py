@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     if args.model_toml is not None:
         if args.name is None:
             raise ParameterError("--model-toml needs a scenario NAME (see `chatterspec scenarios`)")
-        from ._common import check_output_path
+        from ._report import check_output_path
 
         check_output_path(args.model_toml, "--model-toml", suffixes=(".toml",))
         path = export_model_toml(args.name, args.model_toml)
