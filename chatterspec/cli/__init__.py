@@ -56,15 +56,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line on ``argv`` (default ``sys.argv[1:]``); returns the exit status (2: bad input)."""
-    from .._memory import fix_mmap_threshold
-
-    fix_mmap_threshold()  # peak memory independent of --runs (see chatterspec._memory)
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
     except SystemExit:  # --help / usage errors: `chatterspec --help | head` must not end in a traceback
         _flush_stdout()
         raise
+    from ..montecarlo import fix_mmap_threshold  # numpy: after parsing, so that --help stays light
+
+    fix_mmap_threshold()  # peak memory independent of --runs (see chatterspec.montecarlo)
     try:
         with warnings.catch_warnings():
             _one_line_warnings(args.command)
