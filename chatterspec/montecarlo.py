@@ -1,7 +1,14 @@
-"""Chunked Monte Carlo execution: serial, local processes or Dask, with identical results.
+"""Monte Carlo realizations: reproducible random streams that do not depend on how the work is
+chunked, and chunked execution (serial, local processes or Dask) with identical results.
 
-In the package base so that detection (:func:`chatterspec.detection.detect.detect_scenario` with
-``workers``) and the studies both run on it.
+In the package base so that the simulations, detection
+(:func:`chatterspec.detection.detect.detect_scenario` with ``workers``) and the studies all use it.
+
+Realizations are grouped in fixed blocks of :data:`BLOCK` realizations; block ``b`` draws from its
+own generator (:func:`block_generator`), built from the root :class:`numpy.random.SeedSequence`
+(:func:`root_seed_sequence`) with ``spawn_key = root.spawn_key + (b,)``. Any chunking of the
+realization axis (in-process chunks, local worker processes, a Dask cluster) therefore produces the
+same numbers for the same seed, and no global random state is ever touched.
 
 A *study* is a picklable object with two methods:
 
@@ -14,9 +21,9 @@ A *study* is a picklable object with two methods:
     the first chunk).
 
 The realization axis is cut into chunks whose boundaries are multiples of
-:data:`chatterspec.rng.BLOCK` and do not depend on the executor or on the
+:data:`BLOCK` and do not depend on the executor or on the
 number of workers; realization ``r`` always draws from random block
-``r // BLOCK`` (see :mod:`chatterspec.rng`), and chunk summaries are folded in
+``r // BLOCK``, and chunk summaries are folded in
 chunk order whatever order they complete in. The same seed therefore gives
 bit-identical results with 1 worker, N local processes or a Dask cluster.
 Memory stays constant: at most ``2 * workers`` chunks are in flight and
@@ -51,21 +58,94 @@ import numpy as np
 from ._validate import positive_int
 from .errors import ChatterspecError, ParameterError
 from .progress import Progress
-from .rng import BLOCK, SeedLike, root_seed_sequence
 
 __all__ = [
+    "BLOCK",
     "DEFAULT_CHUNK_RUNS",
     "Chunk",
     "Execution",
     "ExecutionOptions",
+    "SeedLike",
     "Study",
+    "block_generator",
     "plan_chunks",
+    "root_seed_sequence",
     "run_chunk",
     "run_study",
+    "seed_label",
 ]
 
 
-#: Default realizations per chunk (a multiple of :data:`chatterspec.rng.BLOCK`).
+# --- random streams per block of realizations ----------------------------------------------------------
+#: Realizations per random block (the unit of chunk-invariant seeding).
+BLOCK = 64
+
+SeedLike = int | np.random.SeedSequence | np.random.Generator | None
+
+
+def root_seed_sequence(seed: SeedLike) -> np.random.SeedSequence:
+    """Turn an int, SeedSequence, Generator or None into a root SeedSequence.
+
+    A :class:`numpy.random.Generator` is consumed once (four 64-bit draws) to
+    derive the root entropy, so passing the same generator state twice gives
+    the same results.
+
+    Parameters
+    ----------
+    seed : int, SeedSequence, Generator or None
+        A non-negative integer (used as the SeedSequence entropy); a
+        SeedSequence (returned unchanged); a Generator (advanced by one draw); or
+        None (fresh OS entropy, not reproducible). Booleans, negative integers
+        and other types raise :class:`~chatterspec.errors.ParameterError`.
+
+    Returns
+    -------
+    numpy.random.SeedSequence
+        Root from which :func:`block_generator` derives one stream per block
+        of :data:`BLOCK` realizations.
+    """
+    if isinstance(seed, np.random.SeedSequence):
+        return seed
+    if isinstance(seed, np.random.Generator):
+        return np.random.SeedSequence(seed.integers(0, 2**63, size=4, dtype=np.uint64).tolist())
+    if seed is None:
+        return np.random.SeedSequence()
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise ParameterError(f"seed must be a non-negative integer, SeedSequence or Generator; got {seed!r}")
+    return np.random.SeedSequence(int(seed))
+
+
+def seed_label(seed: SeedLike) -> int | None:
+    """The JSON-ready label of a study's root seed: the integer for an int or numpy integer seed.
+
+    Results record it in their ``seed`` field; a SeedSequence, Generator or None has no short
+    reproducible label and gives None.
+
+    Parameters
+    ----------
+    seed : int, SeedSequence, Generator or None
+        The seed the study was given (validated by :func:`root_seed_sequence`).
+
+    Returns
+    -------
+    int or None
+        ``int(seed)`` for a Python or numpy integer, otherwise None.
+
+    See Also
+    --------
+    root_seed_sequence : the root of the random streams built from the same seed.
+    """
+    return int(seed) if isinstance(seed, int | np.integer) else None
+
+
+def block_generator(root: np.random.SeedSequence, block: int, stream: int = 0) -> np.random.Generator:
+    """Generator of realization block ``block`` (and sub-stream ``stream``) under ``root``."""
+    ss = np.random.SeedSequence(root.entropy, spawn_key=(*root.spawn_key, int(block), int(stream)))
+    return np.random.Generator(np.random.PCG64(ss))
+
+
+# --- chunked execution ---------------------------------------------------------------------------------
+#: Default realizations per chunk (a multiple of :data:`BLOCK`).
 DEFAULT_CHUNK_RUNS = 2 * BLOCK
 
 #: Seconds allowed to connect to a Dask scheduler before giving up.
@@ -95,7 +175,7 @@ class Chunk:
 
 
 def plan_chunks(runs: int, chunk_runs: int | None = None) -> tuple[Chunk, ...]:
-    """Cut ``runs`` realizations into chunks aligned to :data:`~chatterspec.rng.BLOCK`.
+    """Cut ``runs`` realizations into chunks aligned to :data:`BLOCK`.
 
     Parameters
     ----------
@@ -228,7 +308,7 @@ class Execution:
         and closed per run) or the address of a running Dask scheduler (``tcp://host:8786``).
         Needs the ``chatterspec[distributed]`` extra.
     chunk_runs : int, optional
-        Realizations per chunk, rounded up to a multiple of :data:`~chatterspec.rng.BLOCK`
+        Realizations per chunk, rounded up to a multiple of :data:`BLOCK`
         (default :data:`DEFAULT_CHUNK_RUNS`; see :func:`plan_chunks`).
     progress : bool, optional
         Show a progress bar on stderr (default: only when stderr is a terminal).
@@ -421,8 +501,7 @@ def _dask_results(
             cluster.close()
 
 
-# ----------------------------------------------------------------------------------------------------
-# --- process memory: a fixed glibc mmap threshold, so that freed large arrays go back to the OS.
+# --- process memory: a fixed glibc mmap threshold, so that freed large arrays go back to the OS ---------
 #
 # glibc's ``malloc`` raises its mmap threshold each time a large ``mmap``-ed block is freed (up to
 # 32 MiB on 64-bit), after which arrays of a few MiB come from the heap instead; a chunked Monte

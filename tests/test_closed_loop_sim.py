@@ -7,6 +7,7 @@ import pytest
 
 from chatterspec import _jit
 from chatterspec.detection.pipeline import scenario_chattering
+from chatterspec.montecarlo import root_seed_sequence
 from chatterspec.plants import simulate_closed_loop as scl
 from chatterspec.plants.closed_loop import ClosedLoop
 from chatterspec.plants.controllers import PIDController, pid_coefficients
@@ -17,7 +18,6 @@ from chatterspec.plants.scenarios import Scenario, Segment, scenario
 from chatterspec.plants.scenarios_closed_loop import EHA_CL_CONTROLLER, EHA_CL_REFERENCE
 from chatterspec.plants.signals import Sine
 from chatterspec.plants.simulate import simulate
-from chatterspec.rng import root_seed_sequence
 from chatterspec.studies.false_alarms import false_alarm_study
 
 needs_numba = pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed")

@@ -382,7 +382,7 @@ def study_execution(args: argparse.Namespace) -> dict[str, Any]:
 def round_chunk_runs(args: argparse.Namespace) -> None:
     """``--chunk-runs`` rounded up to whole blocks of realizations (with a note on stderr), so that the
     results do not depend on the chunking."""
-    from ..rng import BLOCK
+    from ..montecarlo import BLOCK
 
     if args.chunk_runs is not None and args.chunk_runs % BLOCK:
         rounded = -(-args.chunk_runs // BLOCK) * BLOCK

@@ -18,9 +18,8 @@ from typing import TYPE_CHECKING, Unpack
 
 from .._validate import positive_int
 from ..errors import ParameterError
-from ..montecarlo import Execution
+from ..montecarlo import Execution, SeedLike
 from ..plants.scenarios import Scenario
-from ..rng import SeedLike
 from ._chunk_plan import ChunkPlan, DetectorKeywords, DetectorOptions, detect_on_workers
 from .pipeline import ChatteringRecord, iter_chattering
 from .report import DetectionReport

@@ -19,9 +19,9 @@ from ..detection.pipeline import ChatteringRecord, iter_chattering
 from ..detection.spectral import periodogram, spectrum_model
 from ..detection.thresholds import Threshold, exact_threshold, paper_threshold
 from ..errors import ParameterError
+from ..montecarlo import SeedLike
 from ..plants.nonlinear import Model
 from ..plants.scenarios import Scenario, scenario
-from ..rng import SeedLike
 from . import plotting as pl
 
 __all__ = ["PaperFigure", "averaged_paper_threshold", "peak_summary"]

@@ -17,7 +17,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from ..rng import SeedLike
+from ..montecarlo import SeedLike
 from .figure_data import OVERLAY_FMAX_HZ, SO_INSET_HZ, PaperFigure, _overlay
 
 __all__ = ["OVERLAYS", "OverlaySpec", "overlay_builder", "overlay_figure"]

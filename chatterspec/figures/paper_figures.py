@@ -34,8 +34,8 @@ from ..detection.spectral import STFTConfig, spectrogram, spectrum_model
 from ..detection.threshold_type import Correction
 from ..detection.thresholds import Threshold, exact_threshold, frame_threshold, paper_threshold
 from ..errors import ParameterError
+from ..montecarlo import SeedLike
 from ..plants.scenarios import scenario
-from ..rng import SeedLike
 from . import plotting as pl
 from .figure_data import (
     _THRESHOLD_NOTE,

@@ -2,7 +2,7 @@
 
 All realizations advance together: the only Python loop is over time steps
 (and over fixed blocks of realizations when drawing random numbers, see
-:mod:`chatterspec.rng`). Arrays follow the package convention
+:mod:`chatterspec.montecarlo`). Arrays follow the package convention
 ``(runs, T, channels)``.
 """
 
@@ -20,7 +20,7 @@ from .. import _jit
 from .._repr import short_repr
 from .._validate import positive_int
 from ..errors import ParameterError
-from ..rng import SeedLike, root_seed_sequence
+from ..montecarlo import SeedLike, root_seed_sequence
 from .linear_model import LinearModel
 from .scenarios import Scenario
 from .simulate_kernel import (
@@ -205,7 +205,7 @@ def iter_simulations(
     runs : int
         Number of realizations to yield in total (>= 1).
     seed : int, SeedSequence, Generator or None
-        Root of the random streams (see :func:`chatterspec.rng.root_seed_sequence`).
+        Root of the random streams (see :func:`chatterspec.montecarlo.root_seed_sequence`).
     chunk_runs : int, optional
         Realizations per yielded chunk; the default is a multiple of 64 (at
         least 64) sized so that one chunk's state and measurement arrays stay
@@ -302,7 +302,7 @@ def _simulate_block(
     ranges = segment_ranges(scenario, t)
     # Noise is stored time-major (T, runs, channels) for the recursion; each
     # random block is drawn realization-major so the numbers do not depend on
-    # the chunking (see chatterspec.rng).
+    # the chunking (see chatterspec.montecarlo).
     vt, zt = scaled_noise(scenario, root, lo, hi, t, _linear_scale)
     xt = np.empty((T, hi - lo, n))
     xt[0] = scenario.x0

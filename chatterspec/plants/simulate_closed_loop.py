@@ -9,7 +9,7 @@ At each sample ``k``, for every realization::
 with the segment ``s`` active at ``t_k``. The controller reads the same noisy measurement the filters
 see, and ``u(k)`` is returned per realization (``Simulation.u`` of shape ``(runs, T, 1)``): the
 filters run the open-loop nominal model with it. Seeding is that of the open-loop simulation
-(:mod:`chatterspec.rng`: realization ``r`` draws block ``r // 64``, stream 0 = v, stream 1 = w), so
+(:mod:`chatterspec.montecarlo`: realization ``r`` draws block ``r // 64``, stream 0 = v, stream 1 = w), so
 any chunking gives the same numbers, and a loop with zero gains whose input dither equals an
 open-loop scenario's input reproduces that scenario's simulation bit for bit (tested).
 

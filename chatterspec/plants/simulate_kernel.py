@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from .. import _jit
-from ..rng import BLOCK, block_generator
+from ..montecarlo import BLOCK, block_generator
 from .linear_steps import advance_step, measure_step
 from .scenario_types import Scenario
 
@@ -136,7 +136,7 @@ def _noise_blocks(
 ) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
     """``(offset, v, w)`` per random block overlapping ``[lo, hi)``: raw normals ``(b, T, n|m)``.
 
-    Exactly the numbers of :func:`chatterspec.rng.block_generator` streams 0 (process) and
+    Exactly the numbers of :func:`chatterspec.montecarlo.block_generator` streams 0 (process) and
     1 (measurement) of each block, realization-major; ``offset`` is the first run's index
     relative to ``lo``.
     """

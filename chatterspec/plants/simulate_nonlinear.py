@@ -4,7 +4,7 @@
 of the scenario (nominal, plant or a fault window) is a
 :class:`~chatterspec.plants.nonlinear.NonlinearModel`; callers never call this module directly.
 
-Seeding is *exactly* that of the linear simulation (:mod:`chatterspec.rng`): realization ``r``
+Seeding is *exactly* that of the linear simulation (:mod:`chatterspec.montecarlo`): realization ``r``
 draws its process noise from ``block_generator(root, r // 64, 0).standard_normal((64, T, n))`` and
 its measurement noise from stream 1 with shape ``(64, T, m)``, each scaled by the Cholesky-like
 square root of the active segment's ``Q`` and ``R``. A nonlinear model that happens to be linear
@@ -50,7 +50,7 @@ def simulate_block_nonlinear(
     scenario : Scenario
         The scenario (its ``segments`` give the true model per time window, ``x0`` the start).
     root : numpy.random.SeedSequence
-        Root of the random streams (see :mod:`chatterspec.rng`).
+        Root of the random streams (see :mod:`chatterspec.montecarlo`).
     lo, hi : int
         Global indices of the first and one-past-the-last realization.
     t : (T,) array

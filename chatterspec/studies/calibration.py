@@ -11,11 +11,10 @@ import scipy.stats
 from .._validate import open_unit, positive_int
 from ..detection.spectral import STFTConfig
 from ..errors import ParameterError
-from ..montecarlo import Execution, ExecutionOptions
+from ..montecarlo import Execution, ExecutionOptions, SeedLike
 from ..plants.models import LinearModel
 from ..plants.nonlinear import is_linear
 from ..plants.scenarios import Scenario
-from ..rng import SeedLike
 from .calibration_result import CALIBRATION_FORMAT, Calibration, _ro, load_calibration
 from .calibration_tails import calibration_fields, frame_counts
 from .healthy import HealthyStudy, _analytic_thresholds, _frame_thresholds, resolve_scenario

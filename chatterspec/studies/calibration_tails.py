@@ -18,9 +18,8 @@ import numpy as np
 
 from ..detection.spectral import STFTConfig
 from ..errors import ParameterError
-from ..montecarlo import Execution
+from ..montecarlo import BLOCK, Execution, SeedLike, seed_label
 from ..plants.scenarios import Scenario
-from ..rng import BLOCK, SeedLike, seed_label
 from . import tail_histogram as th
 from .calibration_result import _ro, _stft_dict
 from .healthy import HealthyStudy, _n_frames

@@ -27,9 +27,8 @@ from ..detection.empirical import NORMALIZATION_SMOOTH_BINS, frame_normalization
 from ..detection.pipeline import iter_chattering
 from ..detection.spectral import STFTConfig, periodogram_freqs
 from ..errors import ParameterError
-from ..montecarlo import Execution, ExecutionOptions
+from ..montecarlo import Execution, ExecutionOptions, SeedLike
 from ..plants.scenarios import Scenario
-from ..rng import SeedLike
 from .calibration_result import Calibration, _ro
 from .calibration_tails import calibration_fields, frame_counts
 from .healthy import HealthyStudy

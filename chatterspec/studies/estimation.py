@@ -38,12 +38,11 @@ from .._repr import short_repr
 from .._validate import positive_int
 from ..errors import ParameterError
 from ..jsonout import fields_dict, finite_or_none
-from ..montecarlo import Execution, ExecutionOptions
+from ..montecarlo import Execution, ExecutionOptions, SeedLike, seed_label
 from ..plants.filter_settings import FilterSettings
 from ..plants.scenarios import Scenario
 from ..plants.scenarios import scenario as _catalogue_scenario
 from ..plants.simulate import iter_simulations
-from ..rng import SeedLike, seed_label
 from .metrics import (
     ConsistencyTest,
     MonteCarloMean,

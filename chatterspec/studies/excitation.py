@@ -32,7 +32,7 @@ from .._validate import open_unit, positive, positive_int
 from ..detection.pipeline import chattering_record
 from ..detection.spectral import periodogram
 from ..errors import ParameterError
-from ..montecarlo import Execution, ExecutionOptions
+from ..montecarlo import Execution, ExecutionOptions, SeedLike, seed_label
 from ..plants.closed_loop import ClosedLoop, DitherAt
 from ..plants.dither import PRBS, Multisine
 from ..plants.models import EHA_PARAMETERS, EHAFault, LinearModel
@@ -46,7 +46,6 @@ from ..plants.scenarios_closed_loop import (
 )
 from ..plants.signals import Signal
 from ..plants.simulate import iter_simulations
-from ..rng import SeedLike, seed_label
 from .calibration_result import _ro
 from .healthy import _analytic_thresholds, _SummedChunks
 from .intervals import RateEstimate

@@ -14,10 +14,9 @@ from .._validate import open_unit, positive_int
 from ..detection.spectral import STFTConfig, expected_spectrum, periodogram_freqs, spectrum_model
 from ..detection.thresholds import Threshold
 from ..errors import ParameterError
-from ..montecarlo import Execution, ExecutionOptions
+from ..montecarlo import Execution, ExecutionOptions, SeedLike, seed_label
 from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario
-from ..rng import SeedLike, seed_label
 from .calibration_result import Calibration, _ro
 from .healthy import (
     HealthyStudy,

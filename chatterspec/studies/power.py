@@ -13,11 +13,10 @@ from .._validate import open_unit, positive_int
 from ..detection.pipeline import iter_chattering
 from ..detection.spectral import periodogram
 from ..errors import ParameterError
-from ..montecarlo import Execution, ExecutionOptions
+from ..montecarlo import Execution, ExecutionOptions, SeedLike, seed_label
 from ..plants.models import EHA_PARAMETERS, EHAFault, LinearModel, eha_linear, second_order
 from ..plants.scenarios import Scenario
 from ..plants.signals import Chirp, Step
-from ..rng import SeedLike, seed_label
 from .calibration_result import _ro
 from .healthy import _analytic_thresholds, _SummedChunks
 from .intervals import RateEstimate
