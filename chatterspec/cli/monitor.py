@@ -496,35 +496,57 @@ def _report_replay(
 ) -> None:
     """Print the summary of a file replay (the data held at least one STFT frame: :func:`_replay_data`)."""
     if args.json:
-        doc = {
-            "model": str(args.model),
-            "data": str(args.data),
-            "alarm": alarm_doc(settings),
-            **summary.to_dict(),
-        }
+        doc = _summary_doc(args, settings, summary.to_dict(), ident)
         if ident is None:
             doc["identification"] = {"reason": why_not}
-        else:
-            ident.into_summary(doc)
-        if jsonl:
-            _emit_line(dumps({"event": "summary", **doc}, allow_nan=True))
-        else:
-            print(dumps(doc, indent=2, allow_nan=True))
+        _print_summary_doc(doc, jsonl, allow_nan=True)
         return
-    n = sum(e.kind == "fault-start" for e in summary.events)
-    rule = alarm_short(settings)
-    if ident is not None and ident.tolerances:
-        n, rule = ident.starts, ident.rule_short()
+    n, rule = _starts_and_rule(sum(e.kind == "fault-start" for e in summary.events), settings, ident)
     print(
         f"{summary.duration_s:.2f} s of data, {summary.n_frames} frames, {n} fault start(s) "
         f"[{rule}]; {summary.wall_s:.2f} s wall",
         file=human,
     )
+    _print_status(ident, human)
+    if summary.path is not None and not summary.write_error:
+        print(f"recording: {summary.path} (open with `chatterspec replay {summary.path}`)", file=human)
+
+
+def _summary_doc(
+    args: argparse.Namespace,
+    settings: MonitorSettings,
+    summary: dict[str, Any],
+    ident: MonitorIdentification | None,
+) -> dict[str, Any]:
+    """The JSON summary of a replay or a stream: model, data, alarm, the ``summary`` dict, identification."""
+    doc = {"model": str(args.model), "data": str(args.data), "alarm": alarm_doc(settings), **summary}
+    if ident is not None:
+        ident.into_summary(doc)
+    return doc
+
+
+def _print_summary_doc(doc: dict[str, Any], jsonl: bool, *, allow_nan: bool = False) -> None:
+    """The JSON summary: a ``summary`` event line with ``--events jsonl``, else an indented document."""
+    if jsonl:
+        _emit_line(dumps({"event": "summary", **doc}, allow_nan=allow_nan))
+    else:
+        print(dumps(doc, indent=2, allow_nan=allow_nan))
+
+
+def _starts_and_rule(
+    starts: int, settings: MonitorSettings, ident: MonitorIdentification | None
+) -> tuple[int, str]:
+    """The fault starts and the rule of the text summary (with tolerances: the parameters' alarms)."""
+    if ident is not None and ident.tolerances:
+        return ident.starts, ident.rule_short()
+    return starts, alarm_short(settings)
+
+
+def _print_status(ident: MonitorIdentification | None, human: TextIO) -> None:
+    """The identification's status lines of the text summary (none without identification)."""
     if ident is not None:
         for line in ident.status_lines():
             print(f"  {line}", file=human)
-    if summary.path is not None and not summary.write_error:
-        print(f"recording: {summary.path} (open with `chatterspec replay {summary.path}`)", file=human)
 
 
 def _preload_rerun() -> threading.Thread:
@@ -723,14 +745,7 @@ def _report(
 ) -> None:
     s = summary  # StreamSummary
     if args.json:
-        doc = {"model": str(args.model), "data": str(args.data), "alarm": alarm_doc(settings)}
-        doc.update(s.to_dict())
-        if ident is not None:
-            ident.into_summary(doc)
-        if jsonl:
-            _emit_line(dumps({"event": "summary", **doc}))
-        else:
-            print(dumps(doc, indent=2))
+        _print_summary_doc(_summary_doc(args, settings, s.to_dict(), ident), jsonl)
         return
     lat = s.latency
     c = s.counts
@@ -739,9 +754,7 @@ def _report(
         if lat["frames"]
         else "no frame completed"
     )
-    starts, rule = c["fault-start"], alarm_short(settings)
-    if ident is not None and ident.tolerances:
-        starts, rule = ident.starts, ident.rule_short()
+    starts, rule = _starts_and_rule(c["fault-start"], settings, ident)
     print(
         f"{s.duration_s:.2f} s of data ({s.n_rows} rows), {s.n_frames} frames, "
         f"{starts} fault start(s) [{rule}], {c['gap']} gap(s), "
@@ -750,9 +763,7 @@ def _report(
         f"stopped by {s.stopped_by}",
         file=human,
     )
-    if ident is not None:
-        for line in ident.status_lines():
-            print(f"  {line}", file=human)
+    _print_status(ident, human)
     for rec in s.recordings:
         print(f"recording: {rec['path']} (open with `chatterspec replay {rec['path']}`)", file=human)
 
