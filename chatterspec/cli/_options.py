@@ -51,7 +51,7 @@ if TYPE_CHECKING:  # pragma: no cover
 T = TypeVar("T")
 
 
-# --- argparse types: a bad value is one usage line naming the option ----------------------------------------
+# --- argparse types --------------------------------------------------------------------------------------
 def parsed_arg(
     text: str, convert: Callable[[str], T], ok: Callable[[T], bool], not_a_number: str, out_of_range: str
 ) -> T:
@@ -238,8 +238,8 @@ OPTIONS: dict[str, dict[str, Any]] = {
         "help": "data seconds per wall second (default {default}; 1.0 = real time, 0 = as fast as possible)",
     },
     "--dpi": {"type": positive_int_arg, "default": None, "help": "PNG resolution (default 110)"},
-    # the alarm options: checked after parsing (``_alarm_args.alarm_choice``), so strings here; each rule
-    # parameter's option (--persistence-k, ...) comes from the rules table (``_alarm_args``)
+    # the alarm options: checked after parsing (:func:`alarm_choice`), so strings here; each rule
+    # parameter's option (--persistence-k, ...) comes from the rules table (:func:`add_rule_parameter_args`)
     "--rule": {"default": None},
     "--false-alarms-per-hour": {"default": None, "metavar": "X"},
     "--alarm-hours": {"default": None, "metavar": "H"},
