@@ -45,19 +45,20 @@ Examples
 from __future__ import annotations
 
 import ctypes
-import multiprocessing
 import os
 import sys
 from collections.abc import Callable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
-from typing import Any, Protocol, TypedDict, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, TypedDict, runtime_checkable
 
 import numpy as np
 
 from ._validate import positive_int
 from .errors import ChatterspecError, ParameterError
 from .progress import Progress
+
+if TYPE_CHECKING:  # pragma: no cover
+    from concurrent.futures import Future
 
 __all__ = [
     "BLOCK",
@@ -398,6 +399,10 @@ def _bounded_submit(
 def _process_results(
     study: Study, chunks: tuple[Chunk, ...], root: np.random.SeedSequence, workers: int
 ) -> Iterator[tuple[int, int, Any]]:
+    # imported here: the seeding above is imported by every simulation, the process pool only here
+    import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
     ctx = multiprocessing.get_context("spawn")
     n = min(workers, len(chunks))
     # one BLAS thread per worker: the cores are shared out by processes
