@@ -31,9 +31,9 @@ from chatterspec.detection.thresholds import exact_threshold
 from chatterspec.detection.verdicts import _VERDICT_FIELDS, detect_spectrum
 from chatterspec.filters import svsf as svsf_mod
 from chatterspec.filters.svsf import auxiliary_svsf
+from chatterspec.montecarlo import BLOCK, block_generator, root_seed_sequence
 from chatterspec.plants.scenarios import scenario
 from chatterspec.plants.simulate import _noise_blocks, kernel_tables
-from chatterspec.rng import BLOCK, block_generator, root_seed_sequence
 
 needs_numba = pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed (pip install '.[fast]')")
 

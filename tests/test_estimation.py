@@ -48,7 +48,8 @@ def test_consistency_from_sums_equals_consistency():
 
 
 def test_a_numpy_integer_seed_is_reported_like_the_python_int():
-    # a numpy integer is a valid seed everywhere (chatterspec.rng); the result must label it, not say None
+    # a numpy integer is a valid seed everywhere (chatterspec.montecarlo); the result must label it,
+    # not say None
     a = estimation_study("detc-normal", "kf", runs=2, seed=np.int64(3), progress=False)
     b = estimation_study("detc-normal", "kf", runs=2, seed=3, progress=False)
     assert a.seed == 3 and type(a.to_dict()["seed"]) is int

@@ -21,7 +21,8 @@ import pytest
 from chatterspec import _jit, filter_registry
 from chatterspec.cli import build_parser
 from chatterspec.cli import main as cli_main
-from chatterspec.cli._alarm_args import alarm_choice, alarm_doc
+from chatterspec.cli._options import alarm_choice
+from chatterspec.cli._report import alarm_doc
 from chatterspec.detection.alarms.calibration import calibrate_rule, poisson_count_interval, starts_on_grid
 from chatterspec.detection.alarms.rules import (
     RULES,

@@ -131,7 +131,7 @@ def test_enabled_follows_the_environment(monkeypatch: pytest.MonkeyPatch) -> Non
 @needs_numba
 @pytest.mark.parametrize("name", ["eha-healthy", "eha-leak-major", "so-boundary-layer"])
 def test_compiled_simulation_equals_numpy_path(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Same random numbers (chatterspec.rng blocks); only the order of the 3-term sums differs.
+    """Same random numbers (chatterspec.montecarlo blocks); only the order of the 3-term sums differs.
 
     BLAS may evaluate x_aug @ W with fused multiply-adds and in another order: about one ulp per
     step, not amplified by the stable plant, so 1e-12 of each channel's scale is a wide bound.

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from chatterspec.errors import ChatterspecError, ParameterError
-from chatterspec.montecarlo import plan_chunks, run_study
-from chatterspec.rng import BLOCK, block_generator, seed_label
+from chatterspec.montecarlo import BLOCK, block_generator, plan_chunks, run_study, seed_label
 from chatterspec.studies.detection_rates import false_alarm_study
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING
 
-from ._common import check_figure_path, report_study
 from ._options import add, add_name, add_study_args, command, study_keywords
+from ._report import check_figure_path, report_study
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..studies.detection_rates import FalseAlarmResult

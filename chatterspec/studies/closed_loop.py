@@ -53,7 +53,7 @@ from .._validate import open_unit, positive, positive_int
 from ..detection.pipeline import chattering_record
 from ..detection.spectral import expected_spectrum, periodogram
 from ..errors import ParameterError
-from ..montecarlo import Execution, ExecutionOptions
+from ..montecarlo import Execution, ExecutionOptions, SeedLike, seed_label
 from ..plants.closed_loop import PRBS, ClosedLoop, DitherAt, Hold, Multisine, SCurve, StepSequence
 from ..plants.models import EHA_PARAMETERS, EHAFault, LinearModel
 from ..plants.nonlinear import is_linear
@@ -67,7 +67,6 @@ from ..plants.scenarios import (
 )
 from ..plants.signals import Signal
 from ..plants.simulate import iter_simulations, simulate
-from ..rng import SeedLike, seed_label
 from .calibration.healthy import _analytic_thresholds, _SummedChunks
 from .calibration.result import _ro
 from .diagnosis import healthy_version

@@ -21,11 +21,10 @@ from ..detection.pipeline import iter_chattering
 from ..detection.spectral import STFTConfig, expected_spectrum, periodogram, periodogram_freqs, spectrum_model
 from ..detection.thresholds import Threshold
 from ..errors import ParameterError
-from ..montecarlo import Execution, ExecutionOptions
+from ..montecarlo import Execution, ExecutionOptions, SeedLike, seed_label
 from ..plants.models import EHA_PARAMETERS, EHAFault, LinearModel, eha_linear, second_order
 from ..plants.scenarios import Scenario
 from ..plants.signals import Chirp, Step
-from ..rng import SeedLike, seed_label
 from .calibration.healthy import (
     HealthyStudy,
     _analytic_thresholds,

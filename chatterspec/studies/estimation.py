@@ -83,11 +83,10 @@ from .._repr import short_repr
 from .._validate import finite_array, open_unit, positive_int
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..jsonout import fields_dict, finite_or_none
-from ..montecarlo import Execution, ExecutionOptions
+from ..montecarlo import Execution, ExecutionOptions, SeedLike, seed_label
 from ..plants.scenarios import FilterSettings, Scenario
 from ..plants.scenarios import scenario as _catalogue_scenario
 from ..plants.simulate import iter_simulations
-from ..rng import SeedLike, seed_label
 
 __all__ = [
     "FILTERS",

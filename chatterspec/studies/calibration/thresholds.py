@@ -41,11 +41,10 @@ from ...detection.pipeline import iter_chattering
 from ...detection.spectral import STFTConfig, periodogram_freqs
 from ...detection.thresholds import NORMALIZATION_SMOOTH_BINS, frame_normalization, normalization_spectrum
 from ...errors import ParameterError
-from ...montecarlo import Execution, ExecutionOptions
+from ...montecarlo import BLOCK, Execution, ExecutionOptions, SeedLike, seed_label
 from ...plants.models import LinearModel
 from ...plants.nonlinear import is_linear
 from ...plants.scenarios import Scenario
-from ...rng import BLOCK, SeedLike, seed_label
 from ..intervals import QuantileEstimate, _quantile_from_top, _top_needed
 from . import healthy as th
 from .healthy import (
