@@ -349,74 +349,46 @@ def _no_sample(fp: np.ndarray, x: np.ndarray, P: np.ndarray, ep: np.ndarray, epp
 
 @_jit.step
 def workspace(n: int, m: int) -> tuple[np.ndarray, ...]:  # pragma: no cover - compiled (inlined in loops)
-    """Scratch of :func:`_sample` and the correction steps: views of one stack block of the loop.
+    """Scratch of :func:`_sample` and the correction steps: stack arrays of the loop.
 
     ``(T1, Pp, PCt, PCtT, S, D, L, e, eb, wv, KgT, IKC, KR, ll, MpT, g, dz, Phi, G12, P12i, Al,
-    Ae, rr, dy, Ky, W, Hm, zh)``; ``Phi`` .. ``W`` are the reduced-order form's (n = 2m), ``Hm``
-    (m, n) and ``zh`` (m) the measurement function's (``dh/dx`` and ``h``). One block of
-    :data:`~chatterspec._jit.BLOCK_CAPACITY` floats (enough for n, m up to
-    :data:`~chatterspec._jit.MAX_DIMENSION`).
+    Ae, rr, dy, Ky, W, Hm, zh)``; ``Phi`` .. ``W`` are the reduced-order form's (n = 2m; ``W`` is
+    (1, 2) otherwise), ``Hm`` (m, n) and ``zh`` (m) the measurement function's (``dh/dx`` and ``h``).
+    Each is its own :func:`~chatterspec._jit.scratch` array, exactly sized when n and m are literal:
+    no views of a shared block (their reshapes kept reference counting in the loops).
     """
     h = max(n - m, 1)
-    size = 4 * n * n + 7 * n * m + 3 * m * m + 3 * m * h + 2 * h * h + 7 * m + n + h + 1
-    buf = _jit.scratch_block(size)
-    o0 = 0
-    o1 = o0 + n * n
-    o2 = o1 + n * n
-    o3 = o2 + n * m
-    o4 = o3 + m * n
-    o5 = o4 + m * m
-    o6 = o5 + m * m
-    o7 = o6 + m * m
-    o8 = o7 + m
-    o9 = o8 + m
-    o10 = o9 + m
-    o11 = o10 + m * n
-    o12 = o11 + n * n
-    o13 = o12 + n * m
-    o14 = o13 + 1
-    o15 = o14 + m * n
-    o16 = o15 + m
-    o17 = o16 + m
-    o18 = o17 + n * n
-    o19 = o18 + m * h
-    o20 = o19 + h * m
-    o21 = o20 + h * m
-    o22 = o21 + h
-    o23 = o22 + m
-    o24 = o23 + n
-    o25 = o24 + n * m
-    o26 = o25 + 2 * h * h
-    o27 = o26 + m * n
+    hw = h if n == 2 * m else 1
+    s1, s2 = _jit.scratch, _jit.scratch2
     return (
-        buf[o0:o1].reshape((n, n)),
-        buf[o1:o2].reshape((n, n)),
-        buf[o2:o3].reshape((n, m)),
-        buf[o3:o4].reshape((m, n)),
-        buf[o4:o5].reshape((m, m)),
-        buf[o5:o6].reshape((m, m)),
-        buf[o6:o7].reshape((m, m)),
-        buf[o7:o8],
-        buf[o8:o9].reshape((m, 1)),
-        buf[o9:o10].reshape((m, 1)),
-        buf[o10:o11].reshape((m, n)),
-        buf[o11:o12].reshape((n, n)),
-        buf[o12:o13].reshape((n, m)),
-        buf[o13:o14],
-        buf[o14:o15].reshape((m, n)),
-        buf[o15:o16],
-        buf[o16:o17],
-        buf[o17:o18].reshape((n, n)),
-        buf[o18:o19].reshape((m, h)),
-        buf[o19:o20].reshape((h, m)),
-        buf[o20:o21].reshape((h, m)),
-        buf[o21:o22],
-        buf[o22:o23],
-        buf[o23:o24],
-        buf[o24:o25].reshape((n, m)),
-        buf[o25:o26].reshape((h, 2 * h)),
-        buf[o26:o27].reshape((m, n)),
-        buf[o27 : o27 + m],
+        s2(n, n),
+        s2(n, n),
+        s2(n, m),
+        s2(m, n),
+        s2(m, m),
+        s2(m, m),
+        s2(m, m),
+        s1(m),
+        s2(m, 1),
+        s2(m, 1),
+        s2(m, n),
+        s2(n, n),
+        s2(n, m),
+        s1(1),
+        s2(m, n),
+        s1(m),
+        s1(m),
+        s2(n, n),
+        s2(m, h),
+        s2(h, m),
+        s2(h, m),
+        s1(h),
+        s1(m),
+        s1(n),
+        s2(n, m),
+        s2(hw, 2 * hw),
+        s2(m, n),
+        s1(m),
     )
 
 
@@ -513,6 +485,7 @@ def _cov_loop(
     ``1 + runs + r`` (a singular ``Phi12`` in run r).
     """
     b = _jit.borrow
+    flags = b(flags)
     prm, u, z, x, P, ep, epp, C, Q, R, fp = (
         b(prm),
         b(u),
@@ -538,23 +511,44 @@ def _cov_loop(
     F = _jit.scratch2(n, n)
     ws = workspace(n, m)
     Pp, S, e, ll = ws[1], ws[4], ws[7], ws[13]
+    # the run's state in stack copies (no aliasing with the outputs: it stays in registers), written
+    # back after the run or at a failed sample
+    xr, Pr, epr, eppr = _jit.scratch(n), _jit.scratch2(n, n), _jit.scratch(m), _jit.scratch(m)
     if CONST_F:
         JACOBIAN(prm[0], x[0], u[0, 0], F, n, p)
     for r in range(runs):
         pr = 0 if shared_prm else r
         ur = 0 if shared_u else r
+        state_copy(x[r], P[r], ep[r], epp[r], xr, Pr, epr, eppr, n, m)
+        status = 0
         for k in range(K):
-            PREDICT(prm[pr], x[r], u[ur, k], xp, n, p)
+            PREDICT(prm[pr], xr, u[ur, k], xp, n, p)
             if not CONST_F:
-                JACOBIAN(prm[pr], x[r], u[ur, k], F, n, p)
-            status = SAMPLE(fp, x[r], P[r], ep[r], epp[r], z[r, k], xp, F, C, Q, R, ws, n, m)
-            if status == NOT_PD:
-                return 1 + r
-            if status == SINGULAR_PHI12:
-                return 1 + runs + r
+                JACOBIAN(prm[pr], xr, u[ur, k], F, n, p)
+            status = SAMPLE(fp, xr, Pr, epr, eppr, z[r, k], xp, F, C, Q, R, ws, n, m)
+            if status != 0:
+                break
             outs = (o_xprior, o_xpost, o_e, o_S, o_ll, o_ep, o_Pprior, o_Ppost)
-            store_step(flags, outs, r, k, xp, x[r], e, S, ll[0], ep[r], Pp, P[r], n, m)
+            store_step(flags, outs, r, k, xp, xr, e, S, ll[0], epr, Pp, Pr, n, m)
+        state_copy(xr, Pr, epr, eppr, x[r], P[r], ep[r], epp[r], n, m)
+        if status == NOT_PD:
+            return 1 + r
+        if status == SINGULAR_PHI12:
+            return 1 + runs + r
     return 0
+
+
+@_jit.step
+def state_copy(x: np.ndarray, P: np.ndarray, ep: np.ndarray, epp: np.ndarray, x2: np.ndarray, P2: np.ndarray,
+    ep2: np.ndarray, epp2: np.ndarray, n: int, m: int) -> None:  # fmt: skip
+    """Copy one run's state ``x``, ``P``, ``e(k|k)``, ``e(k-1|k-1)`` into ``x2``, ``P2``, ``ep2``, ``epp2``."""
+    for i in range(n):
+        x2[i] = x[i]
+        for j in range(n):
+            P2[i, j] = P[i, j]
+    for i in range(m):
+        ep2[i] = ep[i]
+        epp2[i] = epp[i]
 
 
 @_jit.step
