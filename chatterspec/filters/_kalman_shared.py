@@ -27,21 +27,19 @@ from ._engine import (
     MAP_CONST,
     _alloc,
     _not_pd_message,
-    gain_update_step,
-    residual_step,
-    store_step,
-)
-from ._engine_numpy import chol_np as _chol_np
-from ._engine_numpy import joseph_numpy
-from ._linalg import (
     chol_solve_step,
     chol_step,
+    gain_update_step,
     half_logdet_step,
     innovation_step,
+    joseph_numpy,
     joseph_step,
     loglik_given_step,
     predict_cov_step,
+    residual_step,
+    store_step,
 )
+from ._engine import chol_np as _chol_np
 from .svsf_steps import rows_times as _rows_times
 
 #: Sizes of :func:`_kf_shared_loop`, bound per model by :func:`_kf_shared_kernel` (0: read from the arrays).
@@ -67,7 +65,7 @@ def _riccati_loop(
     gain ``K^T = S^-1 (Pp C^T)^T`` (:func:`~chatterspec.filters.kalman.kalman_correct`'s solve), the
     Joseph form: the steps of :func:`chatterspec.filters._engine._sample` in its order, hence its bits.
     Outputs (K, ...): ``Pp_all``, ``Pq_all`` (P(k+1|k+1)), ``S_all``, ``KgT_all`` (K, m, n), ``L_all``,
-    ``hld_all`` (K,) = ``sum log L_ii`` (:func:`~chatterspec.filters._linalg.half_logdet_step`). Returns
+    ``hld_all`` (K,) = ``sum log L_ii`` (:func:`~chatterspec.filters._engine.half_logdet_step`). Returns
     0, or ``1 + k`` when ``S`` of sample k is not positive definite.
     """
     b = _jit.borrow

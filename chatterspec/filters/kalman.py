@@ -18,7 +18,7 @@ rounding. Outputs have a leading runs axis on every path (``S`` is ``(runs, K, m
 path a read-only broadcast view of the one ``(K, m, m)`` sequence).
 :class:`ExtendedKalmanFilter` uses the model's own ``transition`` and batched ``jacobian`` and works
 with any model that provides them; with a nonlinear measurement ``h`` it uses ``H = dh/dx`` at the
-prior in place of ``C`` (:func:`chatterspec.filters._engine_numpy.cov_numpy` with ``h_model``).
+prior in place of ``C`` (:func:`chatterspec.filters._engine.cov_numpy` with ``h_model``).
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from .._repr import short_repr
 from ..plants.filter_settings import FilterSettings
 from ..plants.models import LinearModel
 from ..plants.nonlinear import Model
-from . import _engine, _engine_numpy, _kalman_shared
+from . import _engine, _kalman_shared
 from ._base import CovarianceFilterBase, check_model
 from ._engine import chol_solve_step, gain_update_step
 
@@ -50,7 +50,7 @@ def kalman_correct(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarra
 
 def kalman_correct_numpy(pr: _engine.NumpyPrior) -> tuple[np.ndarray, np.ndarray]:
     """:func:`kalman_correct` vectorized over realizations: ``(K, x(k+1|k+1))``."""
-    Kg = _engine_numpy.kalman_gain_numpy(pr.S, pr.PCt)
+    Kg = _engine.kalman_gain_numpy(pr.S, pr.PCt)
     return Kg, pr.xp + np.einsum("rij,rj->ri", Kg, pr.e)
 
 

@@ -44,7 +44,7 @@ from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.filter_settings import FilterSettings, StateMapping
 from ..plants.measurement import require_linear_measurement
 from ..plants.nonlinear import Model
-from . import _engine, _engine_numpy
+from . import _engine
 from ._base import CovarianceFilterBase, check_model, is_linear
 from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets
 from ._luen import luen_correction, luen_first_order
@@ -223,8 +223,8 @@ class SVSFCov(SVSFCovarianceBase):
                     _engine.SVSF1, pr.F, pr.e, pr.ep, pr.epp, *luen, gamma, 0 * gamma, psi, 0.0, 2.0
                 )
                 return Kg, pr.xp + dx
-            Kkf = _engine_numpy.kalman_gain_numpy(pr.S, pr.PCt) if self.vbl else None
-            Mp = _engine_numpy.map_numpy(mapping, pr.D, pr.PCt, M, pr.e.shape[0])
+            Kkf = _engine.kalman_gain_numpy(pr.S, pr.PCt) if self.vbl else None
+            Mp = _engine.map_numpy(mapping, pr.D, pr.PCt, M, pr.e.shape[0])
             a = np.abs(pr.e)
             g = (a + gamma * np.abs(pr.ep)) / np.maximum(a, psi)
             Kg = Mp * g[:, None, :]
