@@ -21,7 +21,7 @@ factors is not positive definite) or :data:`SINGULAR_PHI12` (the reduced-order f
 ``jacobian`` steps (:mod:`chatterspec.plants.steps`) bound the same way; the IMM and SMM banks call
 :func:`sample_step` per mode. ``mapping`` of the SVSF-type corrections: :data:`MAP_CONST` (``C^-1``
 or ``C^+``), :data:`MAP_COV` (``P C^T (C P C^T)^-1``), :data:`MAP_LUEN` (the reduced-order
-Luenberger form, :mod:`chatterspec.filters._luen`).
+Luenberger form, in :mod:`chatterspec.filters.svsf_cov`).
 
 **numpy.** :func:`cov_numpy` is the same step vectorized over realizations with a Python loop over
 samples and the filter's numpy correction (``CorrectionStep.numpy``); it runs when

@@ -42,8 +42,14 @@ from ..plants.filter_settings import FilterSettings
 from ..plants.nonlinear import Model
 from . import _engine
 from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets
-from ._luen import luen_correction, luen_second_order
-from .svsf_cov import Mapping, SVSFCovarianceBase, check_gamma, per_channel
+from .svsf_cov import (
+    Mapping,
+    SVSFCovarianceBase,
+    check_gamma,
+    luen_correction,
+    luen_second_order,
+    per_channel,
+)
 
 __all__ = ["SecondOrderSVSF"]
 
