@@ -16,9 +16,8 @@ from ..plants.nonlinear import Model
 from ..plants.steps import PlantSteps, measurement_steps, plant_steps
 from . import _engine
 from ._engine import given_prediction, linear_prediction, model_call_loop, model_prediction
-from ._finite import require_finite
 from .one_sample import OnlineFilter
-from .protocol import FilterOutput, FilterState, check_chunk, initial_state, resolve_store
+from .protocol import FilterOutput, FilterState, check_chunk, initial_state, require_finite, resolve_store
 from .svsf_steps import rows_times as _rows_times
 
 #: What ``_advance`` returns: the covariance after the chunk and the stored outputs.

@@ -59,7 +59,7 @@ from ..plants.measurement import measure, measurement_jacobian
 from ..plants.nonlinear import Model
 from ..plants.sample_functions import MeasurementSteps
 from ..plants.steps import PlantSteps
-from ._finite import finite_sample, finite_state
+from .protocol import finite_sample, finite_state
 
 __all__ = [
     "BAD_INPUT",

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _jit
-from ._finite import finite_sample
+from .protocol import finite_sample
 from .svsf_steps import closed_form_step, matvec_step, rows_times_step, svsf_step
 
 __all__ = ["svsf_one_kernel", "svsf_one_offsets"]

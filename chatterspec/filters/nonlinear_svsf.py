@@ -43,9 +43,14 @@ from ..errors import ParameterError, SingularMatrixError
 from ..plants.measurement import require_linear_measurement
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel
-from ._conventions import check_chunk, check_initial_rows, check_record, store_flags
-from ._finite import require_finite
-from .protocol import channel_rows
+from .protocol import (
+    channel_rows,
+    check_initial_rows,
+    check_record,
+    check_svsf_chunk,
+    require_finite,
+    store_flags,
+)
 from .svsf_steps import rows_times as _rows_times
 
 __all__ = ["NonlinearSVSFOutput", "NonlinearSVSFState", "NonlinearSgnSVSF", "nonlinear_chattering"]
@@ -196,7 +201,7 @@ class NonlinearSgnSVSF:
         )
         m = self.model.n_outputs
         runs = state.runs
-        z, u = check_chunk(z, u, runs, m, self.model.n_inputs, check)
+        z, u = check_svsf_chunk(z, u, runs, m, self.model.n_inputs, check)
         K = z.shape[1]
         if closed_form and not np.any(state.e_post):
             y_prev = np.concatenate([state.y[:, None, :], z[:, :-1, :]], axis=1)  # y(j|j) = z(j)

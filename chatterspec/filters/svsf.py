@@ -45,9 +45,8 @@ from .._validate import open_unit
 from ..errors import ParameterError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import Model, NonlinearModel, require_linear
-from ._conventions import check_chunk, check_initial_rows, check_record, svsf_store
 from .one_sample import OnlineSVSF
-from .protocol import channel_rows
+from .protocol import channel_rows, check_initial_rows, check_record, check_svsf_chunk, svsf_store
 from .svsf_coordinates import boundary_layer_inverse, svsf_coordinates
 from .svsf_recursion import (
     SVSFConstants,
@@ -247,7 +246,7 @@ class SVSF:
         if u is None:  # no input (docs/filters.md)
             u = np.zeros((np.shape(z)[-2], self.model.n_inputs))
         keep = svsf_store(store, "SVSF")
-        z, u = check_chunk(z, u, state.runs, self.model.n_outputs, self.model.n_inputs, check)
+        z, u = check_svsf_chunk(z, u, state.runs, self.model.n_outputs, self.model.n_inputs, check)
         Gu = _rows_times(u, self._GT)  # (K, n) or (runs, K, n): G u(k), element-wise
         return self._advance(state, z, Gu, *keep, closed_form)
 
