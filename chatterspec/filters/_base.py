@@ -18,7 +18,7 @@ from . import _engine
 from ._engine import given_prediction, linear_prediction, model_call_loop, model_prediction
 from .one_sample import OnlineFilter
 from .protocol import FilterOutput, FilterState, check_chunk, initial_state, require_finite, resolve_store
-from .svsf_steps import rows_times as _rows_times
+from .svsf_recursion import rows_times as _rows_times
 
 #: What ``_advance`` returns: the covariance after the chunk and the stored outputs.
 Advanced = tuple[np.ndarray, dict[str, np.ndarray | None]]

@@ -57,7 +57,7 @@ from ._engine import (
     store_step,
 )
 from ._engine import chol_np as _chol_np
-from .svsf_steps import rows_times as _rows_times
+from .svsf_recursion import rows_times as _rows_times
 
 __all__ = [
     "ExtendedKalmanFilter",

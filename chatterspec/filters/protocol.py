@@ -63,27 +63,7 @@ from .._validate import finite_array
 from ..errors import DivergenceError, ParameterError, ShapeError
 from ..plants.nonlinear import Model
 
-__all__ = [
-    "BANK_STORABLE",
-    "DEFAULT_STORE",
-    "STORABLE",
-    "SVSF_STORABLE",
-    "Filter",
-    "FilterOutput",
-    "FilterState",
-    "bank_store",
-    "check_chunk",
-    "check_initial_rows",
-    "check_record",
-    "check_svsf_chunk",
-    "default_input",
-    "finite_sample",
-    "finite_state",
-    "first_nonfinite",
-    "require_finite",
-    "store_flags",
-    "svsf_store",
-]
+__all__ = ["DEFAULT_STORE", "STORABLE", "Filter", "FilterOutput", "FilterState"]
 
 
 # ----------------------------------------------------------------------------- (from protocol)

@@ -64,7 +64,7 @@ from . import _engine
 from ._base import CovarianceFilterBase, check_model, is_linear
 from ._engine import NOT_PD, SINGULAR_PHI12, SVSF2, map_step, map_update_step, product_step, svsf_offsets
 from .kalman import kalman_correct
-from .svsf_coordinates import reduced_order_transform
+from .svsf import reduced_order_transform
 
 __all__ = [
     "Mapping",
