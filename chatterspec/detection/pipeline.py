@@ -15,10 +15,9 @@ import numpy as np
 from .. import _jit
 from .._repr import short_repr
 from .._validate import positive_int
-from ..filters.nonlinear_svsf import nonlinear_chattering
-from ..filters.svsf import auxiliary_svsf
-from ..filters.svsf_steps import closed_form_step
-from ..filters.svsf_steps import rows_times as _rows_times
+from ..filters.svsf import auxiliary_svsf, nonlinear_chattering
+from ..filters.svsf_recursion import closed_form_step
+from ..filters.svsf_recursion import rows_times as _rows_times
 from ..montecarlo import BLOCK, SeedLike, block_generator, root_seed_sequence
 from ..plants.nonlinear import Model, is_linear, require_linear
 from ..plants.scenarios import Scenario
@@ -134,7 +133,7 @@ def chattering_record(
     """
     if u is None:  # no input (docs/filters.md)
         u = np.zeros((np.shape(z)[-2], model.n_inputs))
-    if not is_linear(model):  # nonlinear nominal model: filters/nonlinear_svsf (full measurement)
+    if not is_linear(model):  # nonlinear nominal model: filters/svsf (full measurement)
         e = nonlinear_chattering(model, z, u, gamma=gamma, x0=x0)
     else:
         require_linear(model, "the chattering pipeline (auxiliary sgn-SVSF of eq 8-11)")
@@ -176,7 +175,7 @@ def chattering_sink(
 ) -> None:  # pragma: no cover - compiled
     """The auxiliary SVSF's chattering of each simulated sample: the sink of the fused loop.
 
-    ``e_out[row, i, k - 1] = e_i(k|k-1)`` by :func:`~chatterspec.filters.svsf_steps.closed_form_step`
+    ``e_out[row, i, k - 1] = e_i(k|k-1)`` by :func:`~chatterspec.filters.svsf_recursion.closed_form_step`
     (eq 23) from ``z(k)``, ``zp = z(k-1)`` and ``Gu[k - 1]`` = G u(k-1), for k >= 1; then ``zp = z(k)``.
     Channel-major output, so that each channel's record is contiguous for the periodogram's FFT.
     With a non-empty ``z_out`` (``(runs * m, T)``: the ``(runs, m, T)`` channel-major measurements)

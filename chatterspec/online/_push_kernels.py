@@ -19,7 +19,7 @@ from .. import _jit
 from ..detection.alarms.steps import FRAME
 from ..detection.spectral import power_step
 from ..detection.verdicts import peak_channel, score_step
-from ..filters.svsf_steps import closed_form_step, matvec_step, rows_times_step, svsf_step
+from ..filters.svsf_recursion import closed_form_step, matvec_step, rows_times_step, svsf_step
 
 __all__: list[str] = []
 
@@ -52,11 +52,11 @@ def _filters_loop(
     """One push of the monitor's two filters in one call: G u(k), the aux chattering, the sat SVSF.
 
     ``z`` (1, K, m) = z(k+1); ``u`` (K, p), p >= 1, = u(k); ``GT`` = G^T (p, n). Per sample:
-    ``G u(k)`` by :func:`~chatterspec.filters.svsf_steps.rows_times_step` (the sums of
+    ``G u(k)`` by :func:`~chatterspec.filters.svsf_recursion.rows_times_step` (the sums of
     ``_rows_times``; written to ``Gu`` (1, K, n) unless it is empty), the chattering (eq 23) by
-    :func:`~chatterspec.filters.svsf_steps.closed_form_step` into ``e_out`` (1, K, m) from
+    :func:`~chatterspec.filters.svsf_recursion.closed_form_step` into ``e_out`` (1, K, m) from
     ``aux_y`` = y(k|k) = z(k) before the push, and, when ``run_sat``, the sat SVSF by
-    :func:`~chatterspec.filters.svsf_steps.svsf_step` (``y``, ``ep`` (1, n), (1, m) in place;
+    :func:`~chatterspec.filters.svsf_recursion.svsf_step` (``y``, ``ep`` (1, n), (1, m) in place;
     ``sat_e`` (1, K, m) unless empty, ``x_out`` (1, K, n) = S^-1 y). ``none`` is unused (kept for
     the call signature). The steps of ``SVSF.update``, so the same bits (tests/test_monitor.py).
     A template: :func:`filters_kernel` binds ``NX``, ``NZ`` (0: sizes read from the arrays).

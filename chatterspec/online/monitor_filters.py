@@ -20,9 +20,8 @@ from typing import cast
 import numpy as np
 
 from .. import _jit
-from ..filters.nonlinear_svsf import NonlinearSgnSVSF, NonlinearSVSFState
-from ..filters.svsf import SVSF, SVSFState, auxiliary_svsf
-from ..filters.svsf_steps import rows_times as _rows_times
+from ..filters.svsf import SVSF, NonlinearSgnSVSF, NonlinearSVSFState, SVSFState, auxiliary_svsf
+from ..filters.svsf_recursion import rows_times as _rows_times
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel
 from ._push_kernels import filters_kernel, filters_one_kernel

@@ -2,7 +2,7 @@
 
 :func:`estimate_boundary_layer` proposes ``psi`` from healthy Monte Carlo chattering and
 :func:`boundary_layer_study` reproduces Fig 2; the analytic healthy variance they are checked
-against is :func:`chatterspec.filters.boundary_layer.healthy_chattering_variance` (the derivation
+against is :func:`chatterspec.filters.svsf.healthy_chattering_variance` (the derivation
 and the corrected eq 34 are in that module's docstring).
 """
 
@@ -19,8 +19,7 @@ import scipy.stats
 from .._repr import short_repr
 from .._validate import open_unit, positive, positive_int
 from ..errors import ParameterError
-from ..filters.boundary_layer import healthy_chattering_variance
-from ..filters.svsf import SVSF, boundary_layer_chattering
+from ..filters.svsf import SVSF, boundary_layer_chattering, healthy_chattering_variance
 from ..montecarlo import SeedLike, root_seed_sequence
 from ..plants.models import LinearModel
 from ..plants.nonlinear import require_linear

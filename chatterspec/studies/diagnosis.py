@@ -32,7 +32,7 @@ On one :class:`~chatterspec.plants.simulate.Simulation` (the same z and u the SM
 
 1. the auxiliary sgn-SVSF on the scenario's nominal model gives the chattering ``e(k|k-1)`` (eq 17;
    :func:`~chatterspec.detection.pipeline.chattering_record`, nonlinear models via
-   :mod:`~chatterspec.filters.nonlinear_svsf`);
+   :mod:`~chatterspec.filters.svsf`);
 2. its STFT frames (:func:`~chatterspec.detection.spectral.spectrogram`, eq 49 per frame) are tested
    against a calibrated per-frame, family-wise-over-bins threshold
    (``Calibration.threshold("frame-family-wise")``, the live monitor's detector) with
