@@ -270,14 +270,20 @@ class ChatteringMonitor:
 
         The first sample is at ``t0``; do not mix with :meth:`push` on one monitor.
         """
-        self._set_mode("chattering")
+        if self._mode != "chattering":
+            self._set_mode("chattering")
         m = self.model.n_outputs
-        e = channel_rows("e", e, m, label="chattering")
-        if e.shape[0] == 0:
+        if type(e) is np.ndarray and e.dtype == np.float64 and e.ndim == 2 and e.shape[1] == m:
+            if not e.flags.c_contiguous:
+                e = np.ascontiguousarray(e)
+        else:  # anything else: converted and checked here (the frame analysis checks NaN/inf)
+            e = channel_rows("e", e, m, label="chattering")
+        K = e.shape[0]
+        if K == 0:
             return self._empty_update(raw=False)
-        t = self._chatter_time0() + np.arange(self._n_chat, self._n_chat + e.shape[0], dtype=float) * self.dt
-        self._n_chat += e.shape[0]
-        frames, events = self._frames.push(e)
+        frames, events = self._frames.push(e, check=True)  # NaN/inf: NonFiniteError, nothing consumed
+        t = self._chatter_time0() + np.arange(self._n_chat, self._n_chat + K, dtype=float) * self.dt
+        self._n_chat += K
         return MonitorUpdate(t, e, None, None, frames, events)
 
     def stream(

@@ -21,18 +21,24 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import scipy.fft
 
 from .. import _jit
+from .._validate import finite_array
 from ..detection.alarms import AlarmStream, FrameRule
 from ..detection.frame_engine import FrameEngine
 from ..detection.frame_score import FrameScore
 from ..detection.frames import FrameVerdicts
 from ..detection.thresholds import Threshold
-from ._push_kernels import hop_kernel
+from ..errors import NonFiniteError
+from ._push_kernels import frames_in, hop_constants, hop_kernel
 from .fault_state import alarm_time
 from .monitor_types import DetectionEvent, EventKind, FrameBlock, MonitorSettings
 
 __all__ = ["FrameAnalysis"]
+
+#: Rows the frame buffer keeps between pushes at most (a larger push gets a buffer of its own).
+MAX_BUFFER_ROWS = 1 << 16
 
 
 class FrameAnalysis:
@@ -106,6 +112,16 @@ class FrameAnalysis:
             and channel is not None
         )  # fmt: skip
         self._hop = None if channel is None else hop_kernel(channel)
+        # the fused push's constants, packed once (a numba call unboxes every array it is given), and
+        # its taper buffer: frames in blocks of 2^15 values, as FrameEngine.transforms
+        eng, ver, al = self._columns, self._verdicts, self._alarm
+        self._block = max(1, (1 << 15) // max(1, m * self.n_window))
+        self._tapered = np.empty((1, m, self._block, self.n_window))
+        self._cf, self._ci = hop_constants(
+            eng.scale, ver.sel.start if isinstance(ver.sel, slice) else 0, ver.values, ver._positions,
+            ver.freqs, self._score._kernel_args, al._h, al._p, self._legacy, self.n_window, self.n_hop,
+        )  # fmt: skip
+        self._no_rows = np.empty((0, m))
 
     @property
     def active(self) -> np.ndarray:
@@ -128,8 +144,20 @@ class FrameAnalysis:
             peak_ratio=np.zeros((0, m)),
         )
 
-    def push(self, e: np.ndarray) -> tuple[FrameBlock, tuple[DetectionEvent, ...]]:
-        """Analyse the next chattering samples ``e`` (K, m); the frames they complete and their events."""
+    def push(self, e: np.ndarray, check: bool = False) -> tuple[FrameBlock, tuple[DetectionEvent, ...]]:
+        """Analyse the next chattering samples ``e`` (K, m); the frames they complete and their events.
+
+        ``check``: first look for NaN/inf in ``e`` (the compiled path does it while it copies ``e``).
+
+        Raises
+        ------
+        NonFiniteError
+            ``check`` and ``e`` has NaN/inf values (nothing is consumed then).
+        """
+        if self._fused:
+            return self._push_fused(e, check)
+        if check:
+            finite_array("e", e)
         W = self.n_window
         K, nb = e.shape[0], self.n_buffered
         n = nb + K
@@ -156,12 +184,13 @@ class FrameAnalysis:
         if n < self.n_window:
             self.n_buffered = n
             return self.no_frames, ()
+        if self._fused:
+            self.n_buffered = n
+            return self._push_fused(self._no_rows, False)
         return self._analyse(self._buf[:n])
 
     def _analyse(self, data: np.ndarray) -> tuple[FrameBlock, tuple[DetectionEvent, ...]]:
         """The frames that ``data`` (the buffered samples, then the new ones; >= one window) completes."""
-        if self._fused:
-            return self._analyse_fused(data)
         H = self.n_hop
         buf_start = self.n_frames * H  # global index of data[0]
         idx, power = self._columns(data, buf_start)
@@ -181,37 +210,68 @@ class FrameAnalysis:
         self._buf[: keep.shape[0]] = keep  # numpy copes with the overlap when data is self._buf
         self.n_buffered = keep.shape[0]
 
-    def _analyse_fused(self, data: np.ndarray) -> tuple[FrameBlock, tuple[DetectionEvent, ...]]:
-        """:meth:`_analyse` with one compiled call per block of frames (``_push_kernels.hop_kernel``)."""
-        eng, ver, sc, al = self._columns, self._verdicts, self._score, self._alarm
-        j_first, F, offset = eng.grid(data.shape[0], self.n_frames * self.n_hop)
+    def _push_fused(self, e: np.ndarray, check: bool) -> tuple[FrameBlock, tuple[DetectionEvent, ...]]:
+        """:meth:`push` in two compiled calls and one FFT per block of frames.
+
+        :func:`~._push_kernels.frames_in` (append, check, taper, keep the rest) and
+        :func:`~._push_kernels._hop_loop` (power, verdicts, score, alarm rule, frame times): the steps
+        of :meth:`_analyse`, the same bits, with the constants packed once.
+        """
+        nb, K = self.n_buffered, e.shape[0]
+        n = nb + K
+        W, H = self.n_window, self.n_hop
+        if n > self._buf.shape[0]:  # room for the push (a push of millions: only while it is analysed)
+            buf = np.empty((n, e.shape[1]))
+            buf[:nb] = self._buf[:nb]
+            if n <= MAX_BUFFER_ROWS:
+                self._buf = buf
+        else:
+            buf = self._buf
+        F = 0 if n < W else (n - W) // H + 1
+        hi = min(F, self._block)
+        tapered, win = self._tapered, self._columns.win
+        kept = frames_in(buf, nb, e, check, win, H, 0, hi, F, tapered)
+        if kept < 0:  # NaN/inf in e (nothing written)
+            bad = int(e.size - np.count_nonzero(np.isfinite(e)))
+            raise NonFiniteError(f"e contains {bad} NaN/inf value(s); all entries must be finite")
+        if F == 0:
+            self.n_buffered = kept
+            return self.no_frames, ()
         m = len(self.channels)
-        power = np.empty((F, eng.n_bins, m))
-        k_ratio = np.empty((F, m), dtype=np.int64)
-        out = np.empty((4, F, m))  # peak_ratio, score, statistic, and the rule's input
-        flags3 = np.empty((3, 1, F, m), dtype=np.bool_)  # active, starts, ends
-        peak_ratio, score, stat, s3 = out[0], out[1], out[2][None], out[3][None]
-        al._pos[0] = al._step
-        lo = ver.sel.start  # type: ignore[union-attr]
+        j_first = self.n_frames
+        power = np.empty((F, self.n_bins, m))
+        outf = np.empty((5, F, m))  # peak ratio, score, statistic, the rule's input, peak Hz
+        outb = np.empty((4, F, m), dtype=np.bool_)  # active, starts, ends, flags
+        times = np.empty(F)
+        al = self._alarm
+        pos = al._pos
+        pos[0] = al._step
         hop = self._hop
         assert hop is not None  # (fused: the rule gives its channel step)
-        for a, b, Y in eng.transforms(data, offset, F):
-            hop(
-                Y, eng.scale, power[a:b], lo, ver.values, ver._positions, k_ratio[a:b], peak_ratio[a:b],
-                *sc._kernel_args, score[a:b], self._legacy, al._h, al._p,
-                al._active, al._g, al._count, al._ring, al._pos, s3[:, a:b], flags3[0, :, a:b], stat[:, a:b],
-                flags3[1, :, a:b], flags3[2, :, a:b],
+        any_alarm = 0
+        lo = 0
+        while True:
+            Y = scipy.fft.rfft(tapered if hi - lo == self._block else tapered[:, :, : hi - lo], n=W, axis=-1)
+            any_alarm |= hop(
+                Y, lo, j_first, self.t_first, self.dt, self._cf, self._ci,
+                al._active, al._g, al._count, al._ring, pos, power, outf, outb, times,
             )  # fmt: skip
-            al._pos[0] += b - a
+            pos[0] += hi - lo
+            if hi == F:
+                break
+            lo, hi = hi, min(hi + self._block, F)
+            kept = frames_in(buf, n, self._no_rows, False, win, H, lo, hi, F, tapered)
         al._step += F
-        self._advance_buffer(data, j_first + F)
+        if buf is not self._buf:
+            self._buf[:kept] = buf[:kept]
+        self.n_buffered = kept
+        self.n_frames = j_first + F
         idx = np.arange(j_first, j_first + F)
-        stat2 = score if self._legacy else stat[0]
-        times = self.frame_time(idx, self.t_first)
-        frames = FrameBlock(
-            idx, times, power, peak_ratio > 1.0, ver.freqs[k_ratio], peak_ratio, score, flags3[0, 0], stat2
-        )
-        return frames, self._events(frames, flags3[1, 0], flags3[2, 0])
+        stat = outf[1] if self._legacy else outf[2]
+        frames = FrameBlock(idx, times, power, outb[3], outf[4], outf[0], outf[1], outb[0], stat)
+        if not any_alarm:  # no alarm start, end or active frame: no event
+            return frames, ()
+        return frames, self._events(frames, outb[1], outb[2])
 
     def _events(self, fr: FrameBlock, starts: np.ndarray, ends: np.ndarray) -> tuple[DetectionEvent, ...]:
         """Events from the alarm layer's starts / ends (F, m); tracks each fault's largest peak.
