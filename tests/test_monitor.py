@@ -351,7 +351,7 @@ def test_fused_push_of_chattering_gives_the_bits_of_the_separate_calls(batch) ->
     compiled call per block of frames): the fields and events of the separate calls, for pushes of a
     few samples, of several blocks and longer than the buffer keeps between pushes; a NaN is refused
     before anything is consumed, on both paths."""
-    from chatterspec.online.monitor_frames import MAX_BUFFER_ROWS
+    from chatterspec.online.monitor import MAX_BUFFER_ROWS
 
     rec = batch[0]
     e = rec.values[0]

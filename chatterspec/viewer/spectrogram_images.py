@@ -22,7 +22,7 @@ from .spectrogram_view import _nice_ticks, log_image
 if TYPE_CHECKING:  # pragma: no cover
     from rerun import RecordingStream
 
-    from ..online.monitor_types import FrameBlock
+    from ..online.monitor import FrameBlock
     from .interval_events import IntervalCollector
 
 __all__ = ["SpectrogramImages"]
