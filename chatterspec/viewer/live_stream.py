@@ -60,9 +60,12 @@ import numpy as np
 from ..detection.alarm_rules import alarm_label
 from ..errors import DataFileError
 from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorSettings, MonitorUpdate
-from ..online.stream import BadRow, CsvRows, Restart, RowBlock
-from ..online.stream_checks import (
+from ..online.stream import (
+    BadRow,
+    CsvRows,
     LatencyStats,
+    Restart,
+    RowBlock,
 )
 from ..plants.nonlinear import Model
 from .stream_recordings import StreamRecordings, period_bounds

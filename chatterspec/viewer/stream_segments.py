@@ -2,9 +2,9 @@
 
 What :class:`~chatterspec.viewer.live_stream.StreamMonitor` delegates between the parser and the
 monitor: the rows of :class:`~chatterspec.online.stream.CsvRows` go through the sampling-rate check
-(:class:`~chatterspec.online.stream_checks.RateGate`), get their times (the time column, or ``dt``
+(:class:`~chatterspec.online.stream.RateGate`), get their times (the time column, or ``dt``
 apart from the last one without it) and are cut into :class:`Segment` objects at every gap (a time
-step outside ``(0.5 dt, 1.5 dt]``, :func:`~chatterspec.online.stream_checks.time_gaps`, or a skipped
+step outside ``(0.5 dt, 1.5 dt]``, :func:`~chatterspec.online.stream.time_gaps`, or a skipped
 bad row) and after a restart. Each segment that starts a fresh monitor says so, and why when it is a
 gap. Pure bookkeeping: no monitor, no events, no Rerun.
 """
@@ -17,8 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..online.stream import RowBlock
-from ..online.stream_checks import RateGate, time_gaps
+from ..online.stream import RateGate, RowBlock, time_gaps
 
 __all__ = ["Segment", "StreamSegments"]
 
