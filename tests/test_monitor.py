@@ -413,6 +413,18 @@ def test_frame_buffer_kernel_python_form() -> None:
         np.testing.assert_array_equal(buf[:kept], x[F * H :])  # nothing written
 
 
+def test_frame_rfft_is_scipy_rfft() -> None:
+    """The monitor's frame transform (pocketfft's r2c called directly) gives the bits of scipy.fft.rfft,
+    on a contiguous block of frames and on the first frames of a larger one (a strided view)."""
+    import scipy.fft
+
+    from chatterspec.online._push_kernels import frame_rfft
+
+    x = np.random.default_rng(5).normal(size=(1, 3, 10, 1000))
+    for block in (x, x[:, :, :7]):
+        np.testing.assert_array_equal(frame_rfft(block), scipy.fft.rfft(block, n=1000, axis=-1))
+
+
 @pytest.mark.parametrize("psi", [None, (4.2e-3, 4.8e-3, 4.3e3)])
 def test_one_sample_steps_give_the_numbers_of_pushes(sim, psi) -> None:
     """``step`` (one compiled call per sample with numba, a one-sample push without) mixed with pushes: the

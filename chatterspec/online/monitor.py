@@ -54,7 +54,6 @@ from dataclasses import dataclass
 from typing import Any, Literal, cast
 
 import numpy as np
-import scipy.fft
 
 from .. import _jit
 from .._validate import finite_array, positive_int
@@ -74,7 +73,14 @@ from ..filters.svsf_steps import rows_times as _rows_times
 from ..jsonout import finite_or_none
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
-from ._push_kernels import filters_kernel, filters_one_kernel, frames_in, hop_constants, hop_kernel
+from ._push_kernels import (
+    filters_kernel,
+    filters_one_kernel,
+    frame_rfft,
+    frames_in,
+    hop_constants,
+    hop_kernel,
+)
 from .fault_state import alarm_time
 
 __all__ = [
@@ -709,7 +715,7 @@ class FrameAnalysis:
         any_alarm = 0
         lo = 0
         while True:
-            Y = scipy.fft.rfft(tapered if hi - lo == self._block else tapered[:, :, : hi - lo], n=W, axis=-1)
+            Y = frame_rfft(tapered if hi - lo == self._block else tapered[:, :, : hi - lo])
             any_alarm |= hop(
                 Y, lo, j_first, self.t_first, self.dt, self._cf, self._ci,
                 al._active, al._g, al._count, al._ring, pos, power, outf, outb, times,
