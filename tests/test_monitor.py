@@ -387,30 +387,32 @@ def test_fused_push_of_chattering_gives_the_bits_of_the_separate_calls(batch) ->
 @pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed")
 def test_frame_buffer_kernel_python_form() -> None:
     """``frames_in`` compiled and as Python: the same buffer, tapered frames and kept samples as the
-    direct formula (append, frame f of rows ``f H .. f H + W``, times the window, keep from frame F)."""
+    direct formula (append, frame f of samples ``f H .. f H + W``, times the window, keep from frame F);
+    a NaN or inf is refused whatever its place."""
     from chatterspec.online._push_kernels import frames_in
 
     rng = np.random.default_rng(3)
     W, H, m, nb, K = 8, 3, 2, 5, 12
     win = rng.random(W)
     e = rng.normal(size=(K, m))
-    start = rng.normal(size=(nb, m))
+    start = rng.normal(size=(m, nb))
     n = nb + K
     F = (n - W) // H + 1
-    x = np.concatenate([start, e])
-    want = np.stack([np.stack([x[f * H : f * H + W, c] * win for f in range(F)]) for c in range(m)])[None]
+    x = np.concatenate([start, e.T], axis=1)  # (m, n)
+    want = np.stack([np.stack([x[c, f * H : f * H + W] * win for f in range(F)]) for c in range(m)])[None]
     for kernel in (frames_in, frames_in.py_func):
-        buf = np.full((n, m), np.nan)
-        buf[:nb] = start
+        buf = np.full((m, n), np.nan)
+        buf[:, :nb] = start
         tapered = np.full((1, m, F, W), np.nan)
         kept = kernel(buf, nb, e, True, win, H, 0, F, F, tapered)
         assert kept == n - F * H
         np.testing.assert_array_equal(tapered, want)
-        np.testing.assert_array_equal(buf[:kept], x[F * H :])
-        bad = e.copy()
-        bad[1, 1] = np.nan
-        assert kernel(buf, kept, bad, True, win, H, 0, 0, 0, tapered) == -1
-        np.testing.assert_array_equal(buf[:kept], x[F * H :])  # nothing written
+        np.testing.assert_array_equal(buf[:, :kept], x[:, F * H :])
+        for bad_value, place in ((np.nan, (1, 1)), (np.inf, (0, 0)), (-np.inf, (K - 1, m - 1))):
+            bad = e.copy()
+            bad[place] = bad_value
+            assert kernel(buf, kept, bad, True, win, H, 0, 0, 0, tapered) == -1
+        np.testing.assert_array_equal(buf[:, :kept], x[:, F * H :])  # the kept samples untouched
 
 
 def test_frame_rfft_is_scipy_rfft() -> None:

@@ -170,8 +170,8 @@ def _filters_one(cst, st, z, u, ebuf, row):  # type: ignore[no-untyped-def]  # p
     filters' state between samples and pushes): the pending input ``u(k)`` (p), the aux filter's
     ``y(k|k) = z(k)`` (m), the sat filter's ``y`` (n) and ``e(k|k)`` (m), its last estimate
     ``S^-1 y`` (n), the last chattering (m). ``z`` (m,) = z(k+1); ``u`` (p,) becomes the pending
-    input. The chattering ``e(k+1|k)`` goes to ``ebuf[row]`` (the frame buffer) and ``st``. Returns
-    0, or 3 (NaN/inf in ``z`` or ``u``: nothing changed).
+    input. The chattering ``e(k+1|k)`` goes to ``ebuf[:, row]`` (the channel-major frame buffer)
+    and ``st``. Returns 0, or 3 (NaN/inf in ``z`` or ``u``: nothing changed).
     """
     b = _jit.borrow
     cst, st, z, u, ebuf = b(cst), b(st), b(z), b(u), b(ebuf)
@@ -196,8 +196,8 @@ def _filters_one(cst, st, z, u, ebuf, row):  # type: ignore[no-untyped-def]  # p
     rows_times_step(st[0:p], GT, gu, p, n)
     o_e = p + 2 * m + 2 * n
     for i in range(m):
-        ebuf[row, i] = closed_form_step(i, z[i], gu[i], aux_PhiT, zp, m)
-        st[o_e + i] = ebuf[row, i]
+        ebuf[i, row] = closed_form_step(i, z[i], gu[i], aux_PhiT, zp, m)
+        st[o_e + i] = ebuf[i, row]
     if run_sat:
         PhiT = cst[o_PhiT:o_L].reshape((n, n))
         L = cst[o_L:o_P].reshape((nl, m))
@@ -412,37 +412,41 @@ def frames_in(
 ) -> int:  # pragma: no cover - compiled (Python form tested in tests/test_monitor.py)
     """The frame buffer's side of a push: append ``e``, taper frames ``lo .. hi - 1``, keep the rest.
 
-    ``buf`` (rows, m) holds ``nb`` chattering samples from the next frame's start on; ``e`` (K, m)
-    (``nb + K <= rows``) is appended, first checked for NaN/inf when ``check`` (then nothing is
-    written and -1 returned). Frames ``lo .. hi - 1`` of the ``nb + K`` samples (frame ``f`` starts
-    at row ``f hop``) are tapered into ``tapered[0, :, :hi - lo]`` (1, m, >= hi - lo, W):
-    ``x[f hop + k, c] * win[k]``, the product of
-    :class:`~chatterspec.detection.frame_engine.FrameEngine`'s taper (the same bits). When ``hi ==
-    n_frames`` (the push's last block) the samples from frame ``n_frames`` 's start on move to the
-    buffer's top. Returns the samples the buffer then holds.
+    ``buf`` (m, columns), channel-major, holds ``nb`` chattering samples from the next frame's start
+    on; ``e`` (K, m) (``nb + K <= columns``) is appended and, when ``check``, checked for NaN/inf
+    (then -1 is returned and nothing is consumed: the columns from ``nb`` on are not the buffer's
+    yet). Frames ``lo .. hi - 1`` of the ``nb + K`` samples (frame ``f`` starts at sample ``f hop``)
+    are tapered into ``tapered[0, :, :hi - lo]`` (1, m, >= hi - lo, W): ``x_c[f hop + k] * win[k]``,
+    the product of :class:`~chatterspec.detection.frame_engine.FrameEngine`'s taper (the same bits).
+    When ``hi == n_frames`` (the push's last block) the samples from frame ``n_frames`` 's start on
+    move to the buffer's front. Returns the samples the buffer then holds.
     """
     K, m = e.shape
     W = win.shape[0]
-    if check:
+    bad = False
+    for c in range(m):
+        x = buf[c]
         for k in range(K):
-            for c in range(m):
-                if not np.isfinite(e[k, c]):
-                    return -1
-    for k in range(K):
-        for c in range(m):
-            buf[nb + k, c] = e[k, c]
+            v = e[k, c]
+            x[nb + k] = v
+            bad |= (v - v) != 0.0  # NaN for NaN and +-inf, 0 for every finite value
+    if check and bad:
+        return -1
     n = nb + K
     for c in range(m):
+        x = buf[c]
         for f in range(hi - lo):
             s = (lo + f) * hop
+            out = tapered[0, c, f]
             for k in range(W):
-                tapered[0, c, f, k] = buf[s + k, c] * win[k]
+                out[k] = x[s + k] * win[k]
     if hi < n_frames:
         return n
     first = n_frames * hop
     if first == 0:
         return n
-    for k in range(n - first):
-        for c in range(m):
-            buf[k, c] = buf[first + k, c]
+    for c in range(m):
+        x = buf[c]
+        for k in range(n - first):
+            x[k] = x[first + k]
     return n - first

@@ -548,7 +548,8 @@ class FrameAnalysis:
         m = len(channels)
         # chattering samples from the next frame's start on (< W rows); room for one more hop so
         # that small pushes append in place instead of re-concatenating the window every time
-        self._buf = np.empty((self.n_window + self.n_hop, m))
+        # (channel-major: each channel's samples contiguous, so the compiled taper reads them in order)
+        self._buf = np.empty((m, self.n_window + self.n_hop))
         self.n_buffered = 0
         self._verdicts = FrameVerdicts(threshold, compiled=_jit.enabled())
         # frame_columns with this monitor's scratch buffers (and compiled loops when enabled: same bits)
@@ -626,20 +627,20 @@ class FrameAnalysis:
         K, nb = e.shape[0], self.n_buffered
         n = nb + K
         if n < W:  # the next frame (samples buf_start .. buf_start + W) is not complete yet
-            self._buf[nb:n] = e
+            self._buf[:, nb:n] = e.T
             self.n_buffered = n
             return self.no_frames, ()
         if nb == 0:
             data = e
-        elif n <= self._buf.shape[0]:
-            self._buf[nb:n] = e
-            data = self._buf[:n]
+        elif n <= self._buf.shape[1]:
+            self._buf[:, nb:n] = e.T
+            data = self._buf[:, :n].T
         else:
-            data = np.concatenate([self._buf[:nb], e])
+            data = np.concatenate([self._buf[:, :nb].T, e])
         return self._analyse(data)
 
     def slot(self) -> tuple[np.ndarray, int]:
-        """Where the next chattering sample goes: ``(buffer, row)`` (:meth:`commit_one` takes it)."""
+        """Where the next chattering sample goes: ``buffer[:, column]`` (:meth:`commit_one` takes it)."""
         return self._buf, self.n_buffered
 
     def commit_one(self) -> tuple[FrameBlock, tuple[DetectionEvent, ...]]:
@@ -651,7 +652,7 @@ class FrameAnalysis:
         if self._fused:
             self.n_buffered = n
             return self._push_fused(self._no_rows, False)
-        return self._analyse(self._buf[:n])
+        return self._analyse(self._buf[:, :n].T)
 
     def _analyse(self, data: np.ndarray) -> tuple[FrameBlock, tuple[DetectionEvent, ...]]:
         """The frames that ``data`` (the buffered samples, then the new ones; >= one window) completes."""
@@ -671,7 +672,7 @@ class FrameAnalysis:
         """``n_frames`` frames done: keep the samples of ``data`` from the next frame's start on (< W)."""
         keep = data[n_frames * self.n_hop - self.n_frames * self.n_hop :]
         self.n_frames = n_frames
-        self._buf[: keep.shape[0]] = keep  # numpy copes with the overlap when data is self._buf
+        self._buf[:, : keep.shape[0]] = keep.T  # numpy copes with the overlap when data is self._buf
         self.n_buffered = keep.shape[0]
 
     def _push_fused(self, e: np.ndarray, check: bool) -> tuple[FrameBlock, tuple[DetectionEvent, ...]]:
@@ -684,9 +685,9 @@ class FrameAnalysis:
         nb, K = self.n_buffered, e.shape[0]
         n = nb + K
         W, H = self.n_window, self.n_hop
-        if n > self._buf.shape[0]:  # room for the push (a push of millions: only while it is analysed)
-            buf = np.empty((n, e.shape[1]))
-            buf[:nb] = self._buf[:nb]
+        if n > self._buf.shape[1]:  # room for the push (a push of millions: only while it is analysed)
+            buf = np.empty((e.shape[1], n))
+            buf[:, :nb] = self._buf[:, :nb]
             if n <= MAX_BUFFER_ROWS:
                 self._buf = buf
         else:
@@ -727,7 +728,7 @@ class FrameAnalysis:
             kept = frames_in(buf, n, self._no_rows, False, win, H, lo, hi, F, tapered)
         al._step += F
         if buf is not self._buf:
-            self._buf[:kept] = buf[:kept]
+            self._buf[:, :kept] = buf[:, :kept]
         self.n_buffered = kept
         self.n_frames = j_first + F
         idx = np.arange(j_first, j_first + F)
