@@ -14,10 +14,9 @@ Bounded-memory order-statistic quantiles: per-cell tail histograms with pilot-pl
 
 The exact calibration path (:func:`~chatterspec.studies.calibration.thresholds.calibrate`) keeps,
 per bin and channel, the ``k`` largest normalized powers ``S / E[S]`` over all runs and reads
-the order statistics of
-the ``(1 - alpha)``-quantile and its interval from them; ``k`` grows like ``runs x alpha`` (and
-``runs x frames x alpha`` for STFT frames), so memory grows with the run count. The tail histogram is
-the path used instead when those tails would exceed a memory budget
+the order statistics of the ``(1 - alpha)``-quantile and its interval from them; ``k`` grows like
+``runs x alpha`` (and ``runs x frames x alpha`` for STFT frames), so memory grows with the run count.
+The tail histogram is the path used instead when those tails would exceed a memory budget
 (:data:`DEFAULT_TAIL_BUDGET`, bytes):
 
 1. **Pilot.** The first ``P = max(runs / 16, 64 / alpha)`` realizations (at most a quarter of
