@@ -43,8 +43,9 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from chatterspec.detection.alarm_calibration import poisson_count_interval
-from chatterspec.detection.alarms import FrameRule, make_rule, run_rule
+from chatterspec.detection.alarms.calibration import poisson_count_interval
+from chatterspec.detection.alarms.rules import FrameRule, make_rule
+from chatterspec.detection.alarms.streams import run_rule
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
 from chatterspec.online.simulated_stream import simulate_blocks
 from chatterspec.plants.scenarios import Scenario, scenario

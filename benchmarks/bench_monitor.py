@@ -238,7 +238,7 @@ def main() -> None:
     chat = {"chattering": rec.values[0]}
     rule = None
     if args.rule:
-        from chatterspec.detection.alarms import make_rule
+        from chatterspec.detection.alarms.rules import make_rule
 
         rule = make_rule(args.rule, {"frame": 14.07, "persistence": 6.8, "cusum": 20.0}[args.rule])
     cases = [

@@ -34,8 +34,8 @@ import chatterspec as cs
 from chatterspec import _jit
 from chatterspec.detection.pipeline import iter_chattering
 from chatterspec.detection.spectral import expected_spectrum, periodogram, periodogram_freqs, spectrogram
-from chatterspec.detection.spectrum_verdicts import detect_spectrum
 from chatterspec.detection.thresholds import exact_threshold
+from chatterspec.detection.verdicts import detect_spectrum
 from chatterspec.rng import BLOCK, block_generator, root_seed_sequence
 
 

@@ -39,7 +39,7 @@ _GROUPS: dict[str, dict[str, str]] = {
         "NonlinearModel": ".plants.nonlinear",
         "eha4": ".plants.eha4",
         "load_model": ".plants.modelfile",
-        "write_model_toml": ".plants.modelfile_writer",
+        "write_model_toml": ".plants.modelfile",
         "load_data": ".plants.datafile",
     },
     "scenarios": {
@@ -88,28 +88,20 @@ _GROUPS: dict[str, dict[str, str]] = {
             ("Identification", "IdentificationReport", "identification_setup", "identify", "identify_record"),
             ".detection.identification",
         ),
-        **dict.fromkeys(("Tolerance", "with_tolerances"), ".plants.tolerances"),
+        **dict.fromkeys(("Tolerance", "with_tolerances"), ".plants.parameters"),
         **dict.fromkeys(("ParameterDecisions", "parameter_alarm_settings"), ".detection.parameter_decision"),
-        "monitor_parameters": ".detection.parameter_records",
+        "monitor_parameters": ".detection.parameter_decision",
     },
     "commissioning": {
         **dict.fromkeys(("Commissioning", "commission"), ".studies.commissioning"),
     },
     "alarms": {
         **dict.fromkeys(
-            (
-                "AlarmEvent",
-                "AlarmStream",
-                "CusumRule",
-                "FrameRule",
-                "PersistenceRule",
-                "make_rule",
-                "run_rule",
-            ),
-            ".detection.alarms",
+            ("CusumRule", "FrameRule", "PersistenceRule", "make_rule"), ".detection.alarms.rules"
         ),
-        **dict.fromkeys(("RuleCalibration", "calibrate_rule"), ".detection.alarm_calibration"),
-        **dict.fromkeys(("FrameScore", "frame_scores"), ".detection.frame_score"),
+        **dict.fromkeys(("AlarmEvent", "AlarmStream", "run_rule"), ".detection.alarms.streams"),
+        **dict.fromkeys(("RuleCalibration", "calibrate_rule"), ".detection.alarms.calibration"),
+        **dict.fromkeys(("FrameScore", "frame_scores"), ".detection.verdicts"),
         "calibrate_alarm": ".studies.alarm_budget",
         "diagnose_at_budget": ".studies.budget_diagnosis",
     },
@@ -120,18 +112,10 @@ _GROUPS: dict[str, dict[str, str]] = {
 _LAZY: dict[str, str] = {name: mod for group in _GROUPS.values() for name, mod in group.items()}
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
-    from .detection.alarm_calibration import RuleCalibration, calibrate_rule
-    from .detection.alarms import (
-        AlarmEvent,
-        AlarmStream,
-        CusumRule,
-        FrameRule,
-        PersistenceRule,
-        make_rule,
-        run_rule,
-    )
+    from .detection.alarms.calibration import RuleCalibration, calibrate_rule
+    from .detection.alarms.rules import CusumRule, FrameRule, PersistenceRule, make_rule
+    from .detection.alarms.streams import AlarmEvent, AlarmStream, run_rule
     from .detection.detect import DetectionReport, detect_chunks, detect_record, detect_scenario
-    from .detection.frame_score import FrameScore, frame_scores
     from .detection.identification import (
         Identification,
         IdentificationReport,
@@ -139,11 +123,11 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
         identify,
         identify_record,
     )
-    from .detection.parameter_decision import ParameterDecisions, parameter_alarm_settings
-    from .detection.parameter_records import monitor_parameters
+    from .detection.parameter_decision import ParameterDecisions, monitor_parameters, parameter_alarm_settings
     from .detection.pipeline import ChatteringRecord, chattering_record
     from .detection.spectral import STFTConfig, periodogram, spectrogram
     from .detection.thresholds import Threshold, threshold
+    from .detection.verdicts import FrameScore, frame_scores
     from .filters.bank import MultipleModelOutput
     from .filters.imm import IMM
     from .filters.kalman import ExtendedKalmanFilter, KalmanFilter
@@ -156,14 +140,13 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .online.recorded_calibration import calibrate_recorded
     from .plants.datafile import load_data
     from .plants.eha4 import eha4
-    from .plants.modelfile import load_model
-    from .plants.modelfile_writer import write_model_toml
+    from .plants.modelfile import load_model, write_model_toml
     from .plants.models import LinearModel, discretize, eha_linear, second_order
     from .plants.nonlinear import NonlinearModel
+    from .plants.parameters import Tolerance, with_tolerances
     from .plants.scenarios import Scenario, Segment, catalogue, scenario, scenario_names
     from .plants.signals import Chirp, Constant, SquareWave, Step
     from .plants.simulate import Simulation, iter_simulations, simulate
-    from .plants.tolerances import Tolerance, with_tolerances
     from .studies.alarm_budget import calibrate_alarm
     from .studies.budget_diagnosis import diagnose_at_budget
     from .studies.calibration import Calibration, calibrate, load_calibration

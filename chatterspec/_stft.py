@@ -3,7 +3,7 @@
 
 It lives in the package's base so that a model file's ``[detector]`` table
 (:mod:`chatterspec.plants.modelfile`) and the frame engine
-(:mod:`chatterspec.detection.frame_engine`) can check and use the settings without importing the
+(:mod:`chatterspec.detection.spectral`) can check and use the settings without importing the
 spectra module (private module).
 """
 

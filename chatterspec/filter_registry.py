@@ -3,7 +3,7 @@
 One table, read by :mod:`chatterspec.studies.estimation` (:func:`build`) and by the command line
 (``chatterspec estimate --filters``, which lists :data:`FILTERS` without importing the filters).
 Each entry names a builder in the filter's own module, ``builder(model, settings, source)``,
-that returns the filter tuned from a :class:`~chatterspec.plants.filter_settings.FilterSettings`
+that returns the filter tuned from a :class:`~chatterspec.plants.scenarios.FilterSettings`
 (``source`` names the scenario in error messages), and how the estimator figures draw it. Adding
 an estimator is its module (a class of the :class:`~chatterspec.filters.protocol.Filter` protocol and
 its builder) plus one :func:`register_filter` call: ``chatterspec estimate --filters``, the estimation

@@ -26,16 +26,15 @@ from chatterspec.figures.plot_closed_loop import (
     step_response_figure,
 )
 from chatterspec.figures.plot_studies import save
-from chatterspec.plants.closed_loop import ClosedLoop
-from chatterspec.plants.loop_design import loop_mode
-from chatterspec.plants.loop_metrics import move_metrics
+from chatterspec.plants.closed_loop import ClosedLoop, loop_mode
 from chatterspec.plants.models import eha_linear
-from chatterspec.plants.scenarios import scenario
-from chatterspec.plants.scenarios_closed_loop import (
+from chatterspec.plants.scenarios import (
     EHA4_CL_CONTROLLER,
     EHA_CL_CONTROLLER,
     eha_closed_loop_scenario,
+    scenario,
 )
+from chatterspec.plants.simulate import move_metrics
 from chatterspec.studies.excitation import (
     EXCITATION_REFERENCES,
     dither_signal,

@@ -105,7 +105,7 @@ def write_rig(path: Path) -> None:
     """The stand-in actuator: Table 1 with bulk modulus 10 % low and friction 10 % high."""
     import dataclasses
 
-    from chatterspec.plants.modelfile_writer import signal_table, write_model_toml
+    from chatterspec.plants.modelfile import signal_table, write_model_toml
 
     nominal = eha_linear()
     pm = nominal.parameter_map

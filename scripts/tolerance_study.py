@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from chatterspec.detection.alarm_calibration import poisson_count_interval
+from chatterspec.detection.alarms.calibration import poisson_count_interval
 from chatterspec.studies.intervals import clopper_pearson
 from chatterspec.studies.tolerance_study import (
     CYCLE_MOVES,
@@ -186,10 +186,10 @@ def events(hours: int, seed: int) -> dict:
 
 
 def excitation(seed: int) -> tuple[dict, dict]:
-    from chatterspec.detection.parameter_records import monitor_parameters
+    from chatterspec.detection.parameter_decision import monitor_parameters
+    from chatterspec.plants.parameters import with_tolerances
     from chatterspec.plants.scenarios import scenario
     from chatterspec.plants.simulate import simulate
-    from chatterspec.plants.tolerances import with_tolerances
     from chatterspec.studies.tolerance_study import EHA_TOLERANCES
 
     out: dict = {}

@@ -1,4 +1,4 @@
-"""Thresholds for a false-alarm budget (chatterspec.detection.alarm_calibration)."""
+"""Thresholds for a false-alarm budget (chatterspec.detection.alarms.calibration)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 import scipy.stats
 
 from chatterspec import _jit
-from chatterspec.detection.alarm_calibration import (
+from chatterspec.detection.alarms.calibration import (
     RuleCalibration,
     calibrate_rule,
     check_budget,
@@ -18,7 +18,8 @@ from chatterspec.detection.alarm_calibration import (
     poisson_interval,
     starts_on_grid,
 )
-from chatterspec.detection.alarms import CusumRule, FrameRule, PersistenceRule, count_starts, make_rule
+from chatterspec.detection.alarms.rules import CusumRule, FrameRule, PersistenceRule, make_rule
+from chatterspec.detection.alarms.streams import count_starts
 from chatterspec.errors import ParameterError
 
 

@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 
 from chatterspec.cli import main as cli_main
-from chatterspec.detection.alarm_calibration import RuleCalibration, poisson_count_interval
-from chatterspec.detection.alarms import CusumRule, FrameRule, PersistenceRule, run_rule
-from chatterspec.detection.frame_score import FrameScore
+from chatterspec.detection.alarms.calibration import RuleCalibration, poisson_count_interval
+from chatterspec.detection.alarms.rules import CusumRule, FrameRule, PersistenceRule
+from chatterspec.detection.alarms.streams import run_rule
 from chatterspec.detection.pipeline import chattering_record
 from chatterspec.detection.spectral import chattering_autocovariance, frame_columns
+from chatterspec.detection.verdicts import FrameScore
 from chatterspec.errors import CalibrationMismatchError, ParameterError
 from chatterspec.jsonout import rounded
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
@@ -199,8 +200,8 @@ def test_alarm_settings_cache_and_methods():
 def test_healthy_scores_take_the_numpy_frames_without_the_compiled_path(monkeypatch):
     """Without numba (or with CHATTERSPEC_JIT=0) the frames are cut by the numpy form, never by the
     compiled loops run as Python (20x the CPU of the whole in-call calibration); same bits."""
-    import chatterspec.detection.frame_engine as fe
     from chatterspec import _jit
+    from chatterspec.detection import spectral
     from chatterspec.studies.alarm_budget import healthy_frame_scores
 
     model = scenario("eha-healthy").nominal
@@ -210,8 +211,8 @@ def test_healthy_scores_take_the_numpy_frames_without_the_compiled_path(monkeypa
         raise AssertionError("a compiled frame loop ran on the numpy path")
 
     monkeypatch.setenv("CHATTERSPEC_JIT", "0")
-    monkeypatch.setattr(fe, "_taper_kernel", forbid)
-    monkeypatch.setattr(fe, "_power_kernel", forbid)
+    monkeypatch.setattr(spectral, "_taper_kernel", forbid)
+    monkeypatch.setattr(spectral, "_power_kernel", forbid)
     numpy_scores = healthy_frame_scores(model, MonitorSettings(), 0.02)
     assert numpy_scores.shape == (1, 356, 3)  # 72 s at a 0.2 s hop, 1 s window: (72 - 1) / 0.2 + 1
     if compiled is not None:

@@ -1,4 +1,4 @@
-"""The alarm layer (chatterspec.detection.alarms): rule semantics, streaming, both paths."""
+"""The alarm layer (chatterspec.detection.alarms.streams): rule semantics, streaming, both paths."""
 
 from __future__ import annotations
 
@@ -8,20 +8,18 @@ import numpy as np
 import pytest
 
 from chatterspec import _jit
-from chatterspec.detection import alarms
-from chatterspec.detection.alarms import (
+from chatterspec.detection.alarms import streams
+from chatterspec.detection.alarms.rules import (
     RULES,
-    AlarmStream,
     CusumRule,
     FrameRule,
     PersistenceRule,
-    count_starts,
     make_rule,
     rule_from_dict,
     rule_names,
     rule_spec,
-    run_rule,
 )
+from chatterspec.detection.alarms.streams import AlarmStream, count_starts, run_rule
 from chatterspec.errors import NonFiniteError, ParameterError, ShapeError
 
 FIELDS = ("active", "statistic", "starts", "ends")
@@ -46,7 +44,7 @@ def _scores(seed: int = 1, shape: tuple[int, ...] = (3, 2000, 2)) -> np.ndarray:
     return s
 
 
-def _same(a: alarms.AlarmBlock, b: alarms.AlarmBlock) -> None:
+def _same(a: streams.AlarmBlock, b: streams.AlarmBlock) -> None:
     for f in FIELDS:
         x, y = getattr(a, f), getattr(b, f)
         assert x.shape == y.shape, f
@@ -85,8 +83,8 @@ def test_numpy_and_compiled_paths_give_the_same_bits(rule, monkeypatch):
     steps = rule_spec(rule).load_steps()
     kern = _jit.python_form(steps.kernel)
     kern(
-        small, rule.threshold, alarms.rule_vector(rule), np.zeros((R, C), dtype=bool), np.zeros((R, C)),
-        np.zeros((R, C), dtype=np.int64), np.zeros((R, C, alarms.ring_length(rule, steps)), dtype=bool),
+        small, rule.threshold, streams.rule_vector(rule), np.zeros((R, C), dtype=bool), np.zeros((R, C)),
+        np.zeros((R, C), dtype=np.int64), np.zeros((R, C, streams.ring_length(rule, steps)), dtype=bool),
         np.zeros(1, dtype=np.int64), *out,
     )  # fmt: skip
     for f, o in zip(FIELDS, out, strict=True):

@@ -16,8 +16,7 @@ from chatterspec.detection.thresholds import frame_threshold
 from chatterspec.errors import ModelFileError, ParameterError
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
 from chatterspec.plants.datafile import load_data
-from chatterspec.plants.modelfile import load_model
-from chatterspec.plants.modelfile_writer import write_model_toml
+from chatterspec.plants.modelfile import load_model, write_model_toml
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 MODEL = EXAMPLES / "eha_model.toml"

@@ -11,8 +11,9 @@ import pytest
 
 import chatterspec as cs
 from chatterspec.cli import main
-from chatterspec.detection.alarm_calibration import poisson_count_interval
-from chatterspec.detection.alarms import CusumRule, run_rule
+from chatterspec.detection.alarms.calibration import poisson_count_interval
+from chatterspec.detection.alarms.rules import CusumRule
+from chatterspec.detection.alarms.streams import run_rule
 from chatterspec.errors import ParameterError
 from chatterspec.studies.budget_diagnosis import BudgetSettings, diagnose_at_budget
 from chatterspec.studies.route_sweep import onsets_of, route_geometry, sweep_chunk

@@ -6,24 +6,29 @@ import numpy as np
 import pytest
 
 from chatterspec.errors import ParameterError, UnstableLoopError
-from chatterspec.plants.closed_loop import ClosedLoop
-from chatterspec.plants.controllers import PIDController, pid_coefficients, pid_step
-from chatterspec.plants.dither import PRBS, PRBS_TAPS, Multisine
-from chatterspec.plants.eha4 import eha4
-from chatterspec.plants.loop_design import (
+from chatterspec.plants.closed_loop import (
+    PRBS,
+    PRBS_TAPS,
+    ClosedLoop,
+    Hold,
+    Multisine,
+    PIDController,
+    SCurve,
+    StepSequence,
     check_closed_loop,
     closed_loop_matrix,
     design_pi,
     is_stable,
     loop_mode,
+    pid_coefficients,
+    pid_step,
     rigid_body_gain,
     spectral_radius,
     stable_gain_ranges,
 )
+from chatterspec.plants.eha4 import eha4
 from chatterspec.plants.models import EHA_PARAMETERS, eha_linear
-from chatterspec.plants.references import Hold, SCurve, StepSequence
-from chatterspec.plants.scenarios import Scenario, scenario
-from chatterspec.plants.scenarios_closed_loop import CLOSED_LOOP_NAMES, EHA_CL_CONTROLLER
+from chatterspec.plants.scenarios import CLOSED_LOOP_NAMES, EHA_CL_CONTROLLER, Scenario, scenario
 
 STEP = getattr(pid_step, "py_func", pid_step)
 

@@ -7,14 +7,17 @@ import pytest
 
 from chatterspec import _jit
 from chatterspec.detection.pipeline import scenario_chattering
-from chatterspec.plants import simulate_closed_loop as scl
-from chatterspec.plants.closed_loop import ClosedLoop
-from chatterspec.plants.controllers import PIDController, pid_coefficients
-from chatterspec.plants.dither import Multisine
+from chatterspec.plants import simulate as scl
+from chatterspec.plants.closed_loop import (
+    ClosedLoop,
+    Hold,
+    Multisine,
+    PIDController,
+    StepSequence,
+    pid_coefficients,
+)
 from chatterspec.plants.models import eha_linear, second_order
-from chatterspec.plants.references import Hold, StepSequence
-from chatterspec.plants.scenarios import Scenario, Segment, scenario
-from chatterspec.plants.scenarios_closed_loop import EHA_CL_CONTROLLER, EHA_CL_REFERENCE
+from chatterspec.plants.scenarios import EHA_CL_CONTROLLER, EHA_CL_REFERENCE, Scenario, Segment, scenario
 from chatterspec.plants.signals import Sine
 from chatterspec.plants.simulate import simulate
 from chatterspec.rng import root_seed_sequence
@@ -79,7 +82,7 @@ def test_loop_kernel_python_form_equals_numpy_path() -> None:
     seg = np.ascontiguousarray(sc.segment_index(t), dtype=np.int64)
     coef = np.asarray(pid_coefficients(sc.input.controller, sc.dt))
     x_np, z_np, u_np, _ = scl._loop_numpy(v, w, seg, tb, ref, dith, coef, 0, scl._initial_state(sc.x0, 3))
-    loop = dict(scl._plant_loop.__globals__)
+    loop = dict(scl.plant_loop.__globals__)
     loop.update(
         INPUT=scl._py(scl.controller_input),
         SINK=scl._py(loop["store_sink"]),
@@ -88,7 +91,7 @@ def test_loop_kernel_python_form_equals_numpy_path() -> None:
     )
     import types
 
-    py_loop = types.FunctionType(scl._plant_loop.__code__, loop)
+    py_loop = types.FunctionType(scl.plant_loop.__code__, loop)
     step_globals = scl._py(scl.controller_input).__globals__
     saved = step_globals["pid_step"]
     step_globals["pid_step"] = scl._py(saved)

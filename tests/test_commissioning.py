@@ -356,7 +356,7 @@ def test_cli_rate_mismatch(nominal_file: Path, nominal, tmp_path: Path, capsys) 
 
 
 def test_toml_tables_round_trip(tmp_path: Path) -> None:
-    from chatterspec.plants.modelfile_writer import toml_table
+    from chatterspec.plants.modelfile import toml_table
 
     table = {"a": 1, "b": 0.1 + 0.2, "c": "x y", "d": [True, False], "e": {"f": [1.5, 2]}, "odd key": -3e-300}
     path = tmp_path / "t.toml"

@@ -10,17 +10,18 @@ import scipy.stats
 
 from chatterspec.cli import main as cli_main
 from chatterspec.detection.detect import detect_chunks, detect_record, detect_scenario
-from chatterspec.detection.frames import (
+from chatterspec.detection.pipeline import ChatteringRecord, iter_chattering, scenario_chattering
+from chatterspec.detection.spectral import STFTConfig, expected_spectrum, periodogram, spectrogram
+from chatterspec.detection.thresholds import exact_threshold, frame_threshold, paper_threshold
+from chatterspec.detection.verdicts import (
+    ChannelVerdict,
     detect_frames,
+    detect_spectrum,
     frame_intervals,
     frame_statistic,
     healthy_frame_level,
     stft_detect,
 )
-from chatterspec.detection.pipeline import ChatteringRecord, iter_chattering, scenario_chattering
-from chatterspec.detection.spectral import STFTConfig, expected_spectrum, periodogram, spectrogram
-from chatterspec.detection.spectrum_verdicts import ChannelVerdict, detect_spectrum
-from chatterspec.detection.thresholds import exact_threshold, frame_threshold, paper_threshold
 from chatterspec.errors import ParameterError, ShapeError
 from chatterspec.plants.scenarios import scenario
 

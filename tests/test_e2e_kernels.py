@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from chatterspec import _jit
-from chatterspec.detection import _verdict
+from chatterspec.detection import verdicts
 from chatterspec.detection.pipeline import (
     _chattering_kernel,
     _chattering_rng_kernel,
@@ -27,12 +27,12 @@ from chatterspec.detection.pipeline import (
     iter_chattering,
 )
 from chatterspec.detection.spectral import periodogram_freqs
-from chatterspec.detection.spectrum_verdicts import _VERDICT_FIELDS, detect_spectrum
 from chatterspec.detection.thresholds import exact_threshold
+from chatterspec.detection.verdicts import _VERDICT_FIELDS, detect_spectrum
 from chatterspec.filters import svsf as svsf_mod
 from chatterspec.filters.svsf import auxiliary_svsf
 from chatterspec.plants.scenarios import scenario
-from chatterspec.plants.simulate_kernel import _noise_blocks, kernel_tables
+from chatterspec.plants.simulate import _noise_blocks, kernel_tables
 from chatterspec.rng import BLOCK, block_generator, root_seed_sequence
 
 needs_numba = pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed (pip install '.[fast]')")
@@ -164,7 +164,7 @@ def test_verdict_kernel_equals_its_python_form_and_handles_scattered_bins(
     power = _spectra(rng, (40, *th.values.shape), th)
     idx = np.array([1, 2, 5, 6, 7, 20, 31])
     outs = []
-    for kernel in (_verdict.verdict_kernel, _verdict.verdict_kernel.py_func):
+    for kernel in (verdicts.verdict_kernel, verdicts.verdict_kernel.py_func):
         k, ke = np.full((40, 3), -1, np.intp), np.full((40, 3), -1, np.intp)  # -1 / NaN: unwritten
         pr, ps = np.full((40, 3), np.nan), np.full((40, 3), np.nan)
         kernel(power, th.values, th.expected, idx, k, pr, ke, ps)

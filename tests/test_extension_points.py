@@ -22,18 +22,20 @@ from chatterspec import _jit, filter_registry
 from chatterspec.cli import build_parser
 from chatterspec.cli import main as cli_main
 from chatterspec.cli._alarm_args import alarm_choice, alarm_doc
-from chatterspec.detection.alarm_calibration import calibrate_rule, poisson_count_interval, starts_on_grid
-from chatterspec.detection.alarm_rules import RuleSpec, alarm_label, register_rule, rule_spec, unregister_rule
-from chatterspec.detection.alarm_steps import RuleSteps
-from chatterspec.detection.alarms import (
+from chatterspec.detection.alarms.calibration import calibrate_rule, poisson_count_interval, starts_on_grid
+from chatterspec.detection.alarms.rules import (
     RULES,
-    AlarmStream,
-    count_starts,
+    RuleSpec,
+    alarm_label,
     make_rule,
+    register_rule,
     rule_from_dict,
     rule_names,
-    run_rule,
+    rule_spec,
+    unregister_rule,
 )
+from chatterspec.detection.alarms.steps import RuleSteps
+from chatterspec.detection.alarms.streams import AlarmStream, count_starts, run_rule
 from chatterspec.errors import ParameterError
 from chatterspec.filters.protocol import FilterOutput, FilterState, check_chunk, initial_state
 from chatterspec.jsonout import finite_or_none
@@ -196,9 +198,9 @@ def test_a_registered_rule_is_a_cli_choice_with_its_texts(twice):
 
 
 def test_a_registered_rule_drives_the_online_monitor(twice):
-    from chatterspec.detection.frame_score import FrameScore
     from chatterspec.detection.pipeline import chattering_record
     from chatterspec.detection.spectral import frame_columns
+    from chatterspec.detection.verdicts import FrameScore
     from chatterspec.plants.simulate import simulate
     from chatterspec.studies.alarm_delays import onset_scenarios
 

@@ -17,7 +17,7 @@ from chatterspec.figures.paper_figures import OVERLAYS, overlay_builder  # noqa:
 from chatterspec.figures.plot_closed_loop import closed_loop_spectra_figure  # noqa: E402
 from chatterspec.palette import FAULT, mpl  # noqa: E402
 from chatterspec.plants.eha4 import eha4  # noqa: E402
-from chatterspec.plants.model_base import state_units  # noqa: E402
+from chatterspec.plants.models import state_units  # noqa: E402
 from chatterspec.plants.scenarios import scenario  # noqa: E402
 
 #: Reds a reader takes for "fault": the palette's fault colour and matplotlib's red.

@@ -1,4 +1,4 @@
-"""The chattering frame score -log p (chatterspec.detection.frame_score)."""
+"""The chattering frame score -log p (chatterspec.detection.verdicts)."""
 
 from __future__ import annotations
 
@@ -11,11 +11,10 @@ import scipy.integrate
 import scipy.stats
 
 from chatterspec import _jit
-from chatterspec.detection import frame_score
-from chatterspec.detection.frame_score import FrameScore, frame_scores
-from chatterspec.detection.frames import frame_verdicts
+from chatterspec.detection import verdicts
 from chatterspec.detection.spectral import STFTConfig, frame_columns
 from chatterspec.detection.thresholds import frame_threshold, weighted_chi2_sf
+from chatterspec.detection.verdicts import FrameScore, frame_scores, frame_verdicts
 from chatterspec.errors import ParameterError
 from chatterspec.plants.models import eha_linear
 from chatterspec.plants.simulate import covariance_sqrt
@@ -53,8 +52,8 @@ def _polar_log_sf(t: float, l1: float, l2: float) -> float:
 @pytest.mark.parametrize("r", [1.0, 0.99998, 0.999, 0.9, 0.44, 0.1])
 @pytest.mark.parametrize("u", [0.3, 3.0, 12.0, 40.0, 150.0])
 def test_bin_law_matches_quadrature(r, u):
-    off, cnt, cv, wv = frame_score._node_tables(np.array([r]))
-    ex = getattr(frame_score._exact_log_sf, "py_func", frame_score._exact_log_sf)
+    off, cnt, cv, wv = verdicts._node_tables(np.array([r]))
+    ex = getattr(verdicts._exact_log_sf, "py_func", verdicts._exact_log_sf)
     got = ex(u, int(off[0]), int(cnt[0]), cv, wv)
     assert got == pytest.approx(_polar_log_sf(2 * u, 1.0, r), rel=1e-11)
     if u <= 40:  # the Gauss-Legendre form of the thresholds module agrees there
@@ -94,7 +93,7 @@ def test_paths_agree(eha, monkeypatch):
     monkeypatch.setenv("CHATTERSPEC_JIT", "0")
     numpy = FrameScore(th)(P)
     np.testing.assert_allclose(numpy, compiled, rtol=1e-13, atol=0)
-    kern = getattr(frame_score._score_kernel, "py_func", frame_score._score_kernel)
+    kern = getattr(verdicts._score_kernel, "py_func", verdicts._score_kernel)
     s = FrameScore(th)
     out = np.empty((4, 3))
     kern(P[98:102], *s._kernel_args, out)

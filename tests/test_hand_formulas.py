@@ -250,8 +250,8 @@ def test_detect_spectrum_verdict_and_severity_by_hand(jit: str, monkeypatch: pyt
     (over all tested bins when none is over), all over the tested bins only."""
     monkeypatch.setenv("CHATTERSPEC_JIT", jit)
     from chatterspec.detection.spectral import periodogram_freqs
-    from chatterspec.detection.spectrum_verdicts import detect_spectrum
     from chatterspec.detection.thresholds import exact_threshold
+    from chatterspec.detection.verdicts import detect_spectrum
     from chatterspec.plants.models import second_order
 
     model = second_order(10.0, 0.1, R=np.diag([1e-6, 1e-4]))

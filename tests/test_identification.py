@@ -14,12 +14,12 @@ from scipy import stats
 from chatterspec.detection.identification import (
     NO_FAULT,
     IdentificationStream,
+    OnlineIdentifier,
     identification_setup,
     identify,
     true_hypothesis,
     true_parameters,
 )
-from chatterspec.detection.identification_online import OnlineIdentifier
 from chatterspec.detection.pipeline import iter_chattering
 from chatterspec.errors import IdentifiabilityError, ParameterError
 from chatterspec.plants.models import eha_linear, second_order
@@ -250,7 +250,7 @@ def test_window_too_short_and_formula_mismatch() -> None:
 
 
 def _formula(text: str) -> object:
-    from chatterspec.plants._expressions import compile_formula
+    from chatterspec.plants.parameters import compile_formula
 
     return compile_formula(text)
 
@@ -336,7 +336,7 @@ def test_every_combination_is_a_hypothesis_and_declared_names_are_kept() -> None
     assert [h.name for h in identification_setup(model, ["leakage"]).hypotheses] == ["leakage"]
     # two parameters entering only as a product cannot be told apart: their combination is left out of
     # the default hypotheses, and refused when declared
-    from chatterspec.plants._expressions import compile_formula
+    from chatterspec.plants.parameters import compile_formula
 
     so = second_order(10.0, 0.1)
     entry = MatrixEntry("A", 1, 1, compile_formula("1 - 2*dt*zeta*w", "test"))
@@ -350,7 +350,7 @@ def test_every_combination_is_a_hypothesis_and_declared_names_are_kept() -> None
 def test_parameters_with_parallel_effects_are_refused_not_inverted() -> None:
     """Two parameters that move the active entries alike leave the normal matrix singular: the fit
     refuses that realization (reason 4) instead of raising LinAlgError or returning an arbitrary split."""
-    from chatterspec.detection._identification_fit import REASONS, _separable
+    from chatterspec.detection.identification import REASONS, _separable
 
     parallel = np.array([[1.0, 1.0], [1.0, 1.0]])  # unit-normalized columns, identical
     apart = np.array([[1.0, 0.3], [0.3, 1.0]])

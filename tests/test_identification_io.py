@@ -11,8 +11,7 @@ import pytest
 from chatterspec.cli import main
 from chatterspec.errors import ModelFileError
 from chatterspec.plants.datafile import load_data
-from chatterspec.plants.modelfile import load_model
-from chatterspec.plants.modelfile_writer import write_model_toml
+from chatterspec.plants.modelfile import load_model, write_model_toml
 from chatterspec.plants.models import eha_linear, second_order
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from chatterspec.jsonout import fields_dict, finite_or_none
-from chatterspec.plants.controllers import PIDController
+from chatterspec.plants.closed_loop import PIDController
 from chatterspec.studies.intervals import RateEstimate
 
 

@@ -25,8 +25,7 @@ from chatterspec.filters import _svsf_kernels
 from chatterspec.filters import svsf as svsf_mod
 from chatterspec.filters.svsf import SVSF, auxiliary_svsf
 from chatterspec.plants.scenarios import scenario
-from chatterspec.plants.simulate import simulate
-from chatterspec.plants.simulate_kernel import _simulate_kernel, kernel_tables
+from chatterspec.plants.simulate import _simulate_kernel, kernel_tables, simulate
 
 needs_numba = pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed (pip install '.[fast]')")
 

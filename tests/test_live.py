@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 import chatterspec as cs
-from chatterspec.detection.frames import detect_frames
 from chatterspec.detection.pipeline import chattering_record
 from chatterspec.detection.spectral import spectrogram
 from chatterspec.detection.thresholds import frame_threshold
+from chatterspec.detection.verdicts import detect_frames
 from chatterspec.errors import ParameterError
 from chatterspec.plants.scenarios import Scenario, Segment
 

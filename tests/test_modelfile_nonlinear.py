@@ -15,8 +15,7 @@ import pytest
 import chatterspec as cs
 from chatterspec.cli import main
 from chatterspec.errors import ModelFileError
-from chatterspec.plants.modelfile import load_model
-from chatterspec.plants.modelfile_nonlinear import file_scenario
+from chatterspec.plants.modelfile import file_scenario, load_model
 
 ROOT = Path(__file__).resolve().parents[1]
 DUFFING = ROOT / "examples" / "duffing_model.toml"

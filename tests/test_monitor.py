@@ -11,10 +11,10 @@ import pytest
 
 import chatterspec as cs
 from chatterspec import _jit
-from chatterspec.detection.frames import detect_frames, frame_intervals
 from chatterspec.detection.pipeline import chattering_record
 from chatterspec.detection.spectral import spectrogram
 from chatterspec.detection.thresholds import frame_threshold
+from chatterspec.detection.verdicts import detect_frames, frame_intervals
 from chatterspec.errors import NonFiniteError, ParameterError, ShapeError
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
 from chatterspec.plants.scenarios import Scenario, Segment
@@ -167,7 +167,7 @@ def test_frame_verdict_flags_equal_direct_comparison_at_ties() -> None:
     """The one-pass flags (from max S / threshold) equal detect_frames' any(S > threshold) also at
     exact ties: S == threshold (ratio 1, not flagged) and S one ulp above it (ratio may round to 1,
     flagged), placed on random tested bins of random frames and channels."""
-    from chatterspec.detection.frames import frame_verdicts
+    from chatterspec.detection.verdicts import frame_verdicts
 
     model = cs.eha_linear()
     cfg = MonitorSettings().stft
@@ -203,8 +203,7 @@ def test_compiled_frame_verdicts_equal_the_numpy_ones(ties: bool) -> None:
     np.argmax) and, with ``ties``, bins exactly at the threshold and one ulp above it.
     """
     from chatterspec import _jit
-    from chatterspec.detection._verdict import peak_kernel
-    from chatterspec.detection.frames import FrameVerdicts
+    from chatterspec.detection.verdicts import FrameVerdicts, peak_kernel
 
     model = cs.eha_linear()
     cfg = MonitorSettings().stft

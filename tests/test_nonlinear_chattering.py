@@ -1,7 +1,7 @@
 """Chattering spectra on the nonlinear EHA (beyond the chattering paper; docs/paper-notes.md).
 
 The auxiliary sgn-SVSF of a NonlinearModel (chatterspec/filters/nonlinear_svsf.py), its empirical
-normalization and family-wise calibration (detection/empirical.py, studies/empirical_calibration.py)
+normalization and family-wise calibration (detection/thresholds.py, studies/empirical_calibration.py)
 and the eha4-healthy / eha4-leak-minor / eha4-leak-major scenarios.
 
 Statistical tolerances
@@ -28,8 +28,8 @@ import pytest
 import scipy.stats
 
 from chatterspec.detection.detect import detect_chunks
-from chatterspec.detection.empirical import empirical_family_wise_threshold, smooth_spectrum
 from chatterspec.detection.pipeline import chattering_record, iter_chattering, scenario_chattering
+from chatterspec.detection.thresholds import empirical_family_wise_threshold, smooth_spectrum
 from chatterspec.errors import ModelKindError, ParameterError, ShapeError, SingularMatrixError
 from chatterspec.filters.nonlinear_svsf import NonlinearSgnSVSF, nonlinear_chattering
 from chatterspec.filters.svsf import chattering

@@ -16,18 +16,18 @@ import pytest
 from scipy import stats
 
 from chatterspec.cli import main
-from chatterspec.detection.alarm_calibration import calibrate_rule, poisson_count_interval
-from chatterspec.detection.alarms import count_starts, make_rule
-from chatterspec.detection.identification import identification_setup, identify
-from chatterspec.detection.identification_online import OnlineIdentifier
-from chatterspec.detection.parameter_decision import ParameterDecision
-from chatterspec.detection.parameter_records import monitor_parameters
-from chatterspec.detection.parameter_scores import (
+from chatterspec.detection.alarms.calibration import calibrate_rule, poisson_count_interval
+from chatterspec.detection.alarms.rules import make_rule
+from chatterspec.detection.alarms.streams import count_starts
+from chatterspec.detection.identification import OnlineIdentifier, identification_setup, identify
+from chatterspec.detection.parameter_decision import (
     ParameterBands,
+    ParameterDecision,
     band_scores,
     calibrate_parameter_rule,
     detectable_change,
     joint_hypothesis,
+    monitor_parameters,
     parameter_null_scores,
 )
 from chatterspec.errors import IdentifiabilityError

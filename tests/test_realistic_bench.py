@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from chatterspec.detection.monitor_settings import MonitorSettings
+from chatterspec.detection.alarms.calibration import MonitorSettings
 from chatterspec.errors import CommissioningError, ParameterError
 from chatterspec.online.bench_routes import (
     BENCH_TOLERANCES,
@@ -31,9 +31,9 @@ from chatterspec.online.realistic_bench import (
     settled,
 )
 from chatterspec.plants.models import eha_linear
+from chatterspec.plants.parameters import with_tolerances
 from chatterspec.plants.signals import ZeroInput
 from chatterspec.plants.simulate import simulate
-from chatterspec.plants.tolerances import with_tolerances
 from chatterspec.studies.commissioning import commission
 from chatterspec.studies.tolerance_study import chirp_scenario
 

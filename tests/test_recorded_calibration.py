@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 
 from chatterspec.cli import main
-from chatterspec.detection.alarm_calibration import BATCHES, MAX_RATE_PER_STEP, MIN_COUNT, starts_on_grid
+from chatterspec.detection.alarms.calibration import BATCHES, MAX_RATE_PER_STEP, MIN_COUNT, starts_on_grid
 from chatterspec.errors import ParameterError
 from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
 from chatterspec.online.recorded_calibration import calibrate_recorded
 from chatterspec.online.simulated_stream import csv_header, csv_lines, simulate_blocks
-from chatterspec.plants.modelfile_writer import write_model_toml
+from chatterspec.plants.modelfile import write_model_toml
 from chatterspec.plants.models import second_order
 from chatterspec.studies.alarm_budget import calibrate_alarm, frames_per_hour
 from chatterspec.studies.calibration import calibrate, load_calibration

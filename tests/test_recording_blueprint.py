@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import chatterspec as cs
-from chatterspec.detection.bin_labels import db_over_threshold, two_bins_text
+from chatterspec.detection.thresholds import db_over_threshold, two_bins_text
 from chatterspec.plants.datafile import load_data
 from chatterspec.plants.modelfile import load_model
 from chatterspec.plants.scenarios import scenario

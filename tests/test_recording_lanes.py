@@ -22,8 +22,8 @@ import pytest
 
 import chatterspec as cs
 from chatterspec.cli.demo import DEMO_SCENARIOS
-from chatterspec.detection.frames import stft_detect
 from chatterspec.detection.pipeline import chattering_record
+from chatterspec.detection.verdicts import stft_detect
 from chatterspec.plants.scenarios import scenario
 
 rr = pytest.importorskip("rerun")

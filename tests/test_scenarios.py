@@ -298,7 +298,7 @@ def test_imm_analogue_moves_the_piston_where_the_printed_input_cannot() -> None:
 def test_filter_settings_validation() -> None:
     from chatterspec.errors import ParameterError, ShapeError
     from chatterspec.plants.eha4 import eha4
-    from chatterspec.plants.filter_settings import FilterSettings
+    from chatterspec.plants.scenarios import FilterSettings
 
     two = {"modes": ("a", "b"), "mode_models": (eha4(), eha4("leak-minor"))}
     with pytest.raises(ParameterError, match="rows summing to 1"):

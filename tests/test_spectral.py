@@ -376,13 +376,13 @@ def test_frame_engine_compiled_loops_give_the_numpy_bits(window, window_s, hop_s
     the last bit of some bins; the Python form of each kernel is checked too.)
     """
     from chatterspec import _jit
-    from chatterspec.detection import frame_engine as fe
+    from chatterspec.detection import spectral
 
     cfg = STFTConfig(window_s=window_s, hop_s=hop_s, window=window)
     x = np.random.default_rng(12).standard_normal(shape) * 3e-3
-    j_ref, ref = fe.FrameEngine(cfg, DT)(x, first)
+    j_ref, ref = spectral.FrameEngine(cfg, DT)(x, first)
     np.testing.assert_array_equal(ref, frame_columns(x, DT, cfg, first_sample=first)[1])
-    engine = fe.FrameEngine(cfg, DT, compiled=True)
+    engine = spectral.FrameEngine(cfg, DT, compiled=True)
     for _ in range(2):  # the second call reuses the scratch buffers
         j, power = engine(x, first)
         np.testing.assert_array_equal(j, j_ref)
@@ -392,14 +392,14 @@ def test_frame_engine_compiled_loops_give_the_numpy_bits(window, window_s, hop_s
         F = 3
         x3 = x.reshape(-1, *x.shape[-2:])[:1, : W + 2 * H]
         taps = [np.full((1, x.shape[-1], F, W), np.nan) for _ in range(2)]  # NaN: unwritten
-        fe._taper_kernel(x3, 0, H, engine.win, taps[0])
-        fe._taper_kernel.py_func(x3, 0, H, engine.win, taps[1])
+        spectral._taper_kernel(x3, 0, H, engine.win, taps[0])
+        spectral._taper_kernel.py_func(x3, 0, H, engine.win, taps[1])
         assert np.isfinite(taps[0]).all() and np.isfinite(taps[1]).all()
         np.testing.assert_array_equal(taps[0], taps[1])
         Y = np.fft.rfft(taps[0], axis=-1)
         pows = [np.full((1, F, W // 2 + 1, x.shape[-1]), np.nan) for _ in range(2)]
-        fe._power_kernel(Y, engine.scale, pows[0])
-        fe._power_kernel.py_func(Y, engine.scale, pows[1])
+        spectral._power_kernel(Y, engine.scale, pows[0])
+        spectral._power_kernel.py_func(Y, engine.scale, pows[1])
         np.testing.assert_array_equal(pows[0], pows[1])
         np.testing.assert_array_equal(
             pows[0][0], np.moveaxis((Y.real**2 + Y.imag**2) / engine.scale, -3, -1)[0]

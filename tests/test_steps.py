@@ -18,7 +18,7 @@ from chatterspec.filters.bank import combine, log_gaussian, normalize_log_weight
 from chatterspec.filters.kalman import _KF_STEP
 from chatterspec.filters.svsf_steps import closed_form_step, matvec_step, rows_times_step, svsf_step
 from chatterspec.plants import eha4 as eha4_mod
-from chatterspec.plants import linear_steps
+from chatterspec.plants import steps
 
 RTOL = 1e-12
 
@@ -141,16 +141,16 @@ def test_linear_plant_steps_are_eq_1_and_2() -> None:
             Lq, Lr = Lq * np.eye(3), Lr * np.eye(2)
         flags = np.array([[diag, diag]])
         z, xn = np.empty(2), np.empty(3)
-        linear_steps.measure_step(0, x, w, C, Lr, flags, z, 3, 2)
+        steps.measure_step(0, x, w, C, Lr, flags, z, 3, 2)
         close(z, C[0] @ x + Lr[0] @ w, np.abs(C[0]) @ np.abs(x) + np.abs(Lr[0]) @ np.abs(w))
-        linear_steps.advance_step(0, x, B @ u, v, A, Lq, flags, xn, 3)
+        steps.advance_step(0, x, B @ u, v, A, Lq, flags, xn, 3)
         scale = np.abs(A[0]) @ np.abs(x) + np.abs(B) @ np.abs(u) + np.abs(Lq[0]) @ np.abs(v)
         close(xn, A[0] @ x + B @ u + Lq[0] @ v, scale)
-    prm = linear_steps.parameters(A[0], B)
+    prm = steps.parameters(A[0], B)
     xp, F = np.empty(3), np.empty((3, 3))
-    linear_steps.predict_step(prm, x, u, xp, 3, 2)
+    steps.predict_step(prm, x, u, xp, 3, 2)
     close(xp, A[0] @ x + B @ u, np.abs(A[0]) @ np.abs(x) + np.abs(B) @ np.abs(u))
-    linear_steps.jacobian_step(prm, x, u, F, 3, 2)
+    steps.jacobian_step(prm, x, u, F, 3, 2)
     np.testing.assert_array_equal(F, A[0])
 
 
@@ -195,10 +195,10 @@ def _one_sample(correct, x, P, ep, epp, z, A, B, u, C, Q, R):  # type: ignore[no
     plant = type("Plant", (), {})()
     plant.name, plant.predict, plant.jacobian = (
         "linear",
-        linear_steps.predict_step,
-        linear_steps.jacobian_step,
+        steps.predict_step,
+        steps.jacobian_step,
     )
-    plant.constant_jacobian, plant.parameters = True, linear_steps.parameters(A, B)
+    plant.constant_jacobian, plant.parameters = True, steps.parameters(A, B)
     xs, Ps, eps, epps = x[None].copy(), P[None].copy(), ep[None].copy(), epp[None].copy()
     out = _engine.cov_loop(
         correct, plant, xs, Ps, eps, epps, z[None, None], u[None, None], C, Q, R, frozenset(_engine.FIELDS)

@@ -14,7 +14,6 @@ import scipy.stats
 
 from chatterspec.detection.pipeline import scenario_chattering
 from chatterspec.detection.spectral import STFTConfig, expected_spectrum, periodogram, spectrogram
-from chatterspec.detection.spectrum_verdicts import detect_spectrum
 from chatterspec.detection.thresholds import (
     exact_threshold,
     frame_threshold,
@@ -23,6 +22,7 @@ from chatterspec.detection.thresholds import (
     per_test_alpha,
     threshold,
 )
+from chatterspec.detection.verdicts import detect_spectrum
 from chatterspec.errors import ParameterError, ShapeError
 from chatterspec.plants.scenarios import scenario
 

@@ -10,7 +10,7 @@ from chatterspec.cli import main
 from chatterspec.errors import ModelFileError, ParameterError
 from chatterspec.plants.modelfile import load_model
 from chatterspec.plants.models import eha_linear
-from chatterspec.plants.tolerances import Tolerance, parse_tolerance, tolerance_from_text, with_tolerances
+from chatterspec.plants.parameters import Tolerance, parse_tolerance, tolerance_from_text, with_tolerances
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 BE = 2.07e8
@@ -86,7 +86,7 @@ def test_model_file_tolerances_round_trip(tmp_path: Path) -> None:
     pm = load_model(path).model.parameter_map
     assert pm.parameter("bulk_modulus").band == pytest.approx((0.85 * BE, 1.15 * BE))
     assert pm.parameter("friction").band == pytest.approx((0.9 * 2144.0, 1.3 * 2144.0))
-    from chatterspec.plants.modelfile_writer import write_model_toml
+    from chatterspec.plants.modelfile import write_model_toml
 
     spec = load_model(path)
     out = write_model_toml(tmp_path / "again.toml", spec.model, spec.psi)

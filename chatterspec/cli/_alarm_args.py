@@ -15,15 +15,14 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from ..detection.alarm_rules import RULES, rule_names, rule_spec  # no numpy: the parser is built for --help
+from ..detection.alarms.rules import RULES, rule_names, rule_spec  # no numpy: the parser is built for --help
 from ..errors import ParameterError
 from ._options import add
 
 if TYPE_CHECKING:  # pragma: no cover
     from pathlib import Path
 
-    from ..detection.alarm_calibration import RuleCalibration
-    from ..detection.monitor_settings import MonitorSettings
+    from ..detection.alarms.calibration import MonitorSettings, RuleCalibration
 
 __all__ = [
     "AlarmChoice",
@@ -75,7 +74,7 @@ def add_rule_parameter_args(
     p: argparse.ArgumentParser, *, step: str = "frame", steps: str = "frames", skip: tuple[str, ...] = ()
 ) -> None:
     """Add ``--{rule}-{parameter}`` for every parameter of every rule in the rules table that has a
-    :class:`~chatterspec.detection.alarm_rules.RuleOption` (``step`` / ``steps``: what a step is in the
+    :class:`~chatterspec.detection.alarms.rules.RuleOption` (``step`` / ``steps``: what a step is in the
     help texts; ``skip``: parameters the command sets itself, whose options default to None unseen)."""
     for spec in RULES.values():
         for name, option in spec.options.items():
@@ -153,7 +152,7 @@ def alarm_choice(
     only the frame rule takes and which excludes ``--false-alarms-per-hour``. ``default_rule``:
     the rule when ``--rule`` is not given (a calibration file's; else cusum).
     """
-    from ..detection.alarm_calibration import check_budget  # scipy: not at parser build time
+    from ..detection.alarms.calibration import check_budget  # scipy: not at parser build time
 
     rule = args.rule or default_rule or DEFAULT_RULE
     if alpha_given and args.rule not in (None, "frame"):
@@ -187,7 +186,7 @@ def alarm_choice(
 def _rule_parameters(args: argparse.Namespace, rule: str) -> dict[str, Any]:
     """The parameters of ``rule`` given as ``--{rule}-{parameter}`` options, checked (one line naming the
     option); an option of another rule is an error."""
-    from ..detection.alarm_rules import make_rule
+    from ..detection.alarms.rules import make_rule
 
     params: dict[str, Any] = {}
     for spec in RULES.values():
@@ -255,7 +254,7 @@ def alarm_doc(settings: MonitorSettings) -> dict:
 
 
 def _alarm_short(settings: MonitorSettings) -> str:
-    from ..detection.alarm_rules import alarm_label
+    from ..detection.alarms.rules import alarm_label
 
     rule = getattr(settings, "rule", None)
     if rule is None:

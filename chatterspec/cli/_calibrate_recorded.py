@@ -49,7 +49,7 @@ def run_recorded(args: argparse.Namespace) -> int:
         spec = load_model(args.name)
     settings = monitor_settings(spec)
     data, recording = read_healthy_data(args.data, model)
-    from ..detection.alarms import make_rule
+    from ..detection.alarms.rules import make_rule
     from ..online.recorded_calibration import calibrate_recorded
     from ..studies.calibration_support import calibration_support
     from ..studies.recorded_calibration import array_chunks

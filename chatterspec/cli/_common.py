@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any, ParamSpec, Protocol, TypeVar, overload
 from ..errors import ParameterError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..plants.scenario_types import Scenario
+    from ..plants.scenarios import Scenario
 
 T = TypeVar("T")
 R = TypeVar("R")

@@ -51,7 +51,7 @@ def with_tolerance_args(model: Model, args: argparse.Namespace) -> Model:
     if not given:
         return model
     from ..errors import ParameterError
-    from ..plants.tolerances import with_tolerances
+    from ..plants.parameters import with_tolerances
 
     spec = {}
     for item in given:
@@ -124,8 +124,7 @@ def tolerance_doc(ident: IdentificationStream, runs: int, args: argparse.Namespa
     import numpy as np
     import scipy.special
 
-    from ..detection.parameter_records import record_decisions
-    from ..detection.parameter_scores import ParameterBands, band_position
+    from ..detection.parameter_decision import ParameterBands, band_position, record_decisions
     from ..studies.intervals import clopper_pearson
 
     res = ident.result()
@@ -176,7 +175,7 @@ def print_tolerance(doc: dict[str, Any]) -> None:
     t = doc.get("tolerance")
     if not t:
         return
-    from ..detection.parameter_scores import status_text
+    from ..detection.parameter_decision import status_text
 
     n = len(t["parameters"])
     print(
@@ -255,7 +254,7 @@ def _num(x: float | None, se: float | None = None) -> str:
         return "-"
     if se is None:
         return f"{x:.6g}"
-    from ..detection.identification_results import format_with_error
+    from ..detection.identification import format_with_error
 
     return format_with_error(x, se)
 

@@ -216,7 +216,7 @@ class MonitorIdentification:
         """``"bulk_modulus 1.86e8 Pa, 10 % below nominal, inside its +-15 %"`` per parameter (last window)."""
         import numpy as np  # lazily: building the parser does not import numpy
 
-        from ..detection.parameter_scores import status_text
+        from ..detection.parameter_decision import status_text
 
         doc = self.last if doc is None else doc
         if doc is None:
@@ -246,7 +246,7 @@ class MonitorIdentification:
 
     def rule_short(self) -> str:
         """``"cusum rule, 1 false alarm per 24 h, on the parameters"``."""
-        from ..detection.alarm_rules import alarm_label
+        from ..detection.alarms.rules import alarm_label
 
         cal = self.monitor.settings.calibration
         if cal is None:

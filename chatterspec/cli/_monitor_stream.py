@@ -16,8 +16,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from types import FrameType
     from typing import TextIO
 
-    from ..detection.monitor_settings import MonitorSettings
-    from ..plants.modelfile_fields import ModelSpec
+    from ..detection.alarms.calibration import MonitorSettings
+    from ..plants.modelfile import ModelSpec
     from ..viewer.live_stream import StreamEvent, StreamSummary
 
 __all__: list[str] = []

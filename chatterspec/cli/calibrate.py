@@ -172,7 +172,7 @@ def _print_calibration(cal: Calibration, doc: dict) -> None:
 def _check_alarm_plan(name: str, choice: Any, hours: float) -> None:
     """The budget has a threshold and ``hours`` can be simulated, for the STFT of the calibration
     (:func:`chatterspec.studies.alarm_budget.check_hours`): one line before any healthy run."""
-    from ..detection.alarm_calibration import check_budget
+    from ..detection.alarms.calibration import check_budget
     from ..online.monitor_types import MonitorSettings
     from ..studies.alarm_budget import check_hours, frames_per_hour
     from ..studies.healthy import resolve_scenario
@@ -191,7 +191,7 @@ def _with_alarm(
     this file (its empirical per-frame threshold's normalization)."""
     import dataclasses
 
-    from ..detection.alarms import make_rule
+    from ..detection.alarms.rules import make_rule
     from ..detection.spectral import STFTConfig
     from ..online.monitor_types import MonitorSettings
     from ..studies.alarm_budget import calibrate_alarm

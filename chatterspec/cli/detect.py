@@ -8,10 +8,10 @@ from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from ..detection.alarms.calibration import MonitorSettings
+    from ..detection.detect import DetectionReport
     from ..detection.identification import IdentificationSetup, IdentificationStream
-    from ..detection.monitor_settings import MonitorSettings
     from ..detection.pipeline import ChatteringRecord
-    from ..detection.report import DetectionReport
     from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
     from ..studies.calibration_result import Calibration
@@ -305,7 +305,7 @@ def stream_chunks(
 
 def print_report(doc: dict) -> None:
     """Print the detection report ``doc`` (the JSON document) as a table."""
-    from ..detection.report_text import detection_table
+    from ..detection.detect import detection_table
 
     print(detection_table(doc))
     if "recording" in doc and doc["recording"]["recording"]:

@@ -33,7 +33,7 @@ from ._options import add, add_execution_args, add_name, add_report_args, add_ru
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..detection.thresholds import Threshold
-    from ..plants.scenario_types import Scenario
+    from ..plants.scenarios import Scenario
     from ..studies.budget_diagnosis import BudgetSettings
     from ..studies.routes import Route
 
@@ -54,7 +54,7 @@ ROUTE_SET: tuple[str, ...] = ("drift",)
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``chatterspec diagnose`` and its options to the subcommand parsers ``sub``."""
-    from ..detection.alarm_rules import rule_names
+    from ..detection.alarms.rules import rule_names
     from ._alarm_args import add_rule_parameter_args
 
     p = command(
@@ -206,7 +206,7 @@ def _routes(
     args: argparse.Namespace, sc: Scenario, methods: tuple[str, ...]
 ) -> tuple[dict[str, Route], Threshold | None, dict[str, Any]]:
     """The route objects, the per-frame threshold of the recording (chattering) and its provenance."""
-    from ..detection.alarm_rules import rule_spec
+    from ..detection.alarms.rules import rule_spec
     from ..studies.routes import ChatteringRoute, InnovationRoute, ModeRoute, ParameterRoute
     from ._alarm_args import DEFAULT_RULE
 

@@ -33,11 +33,11 @@ from ._monitor_stream import _emit_line, _run_stream
 from ._options import add, add_report_args, command
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..detection.monitor_settings import MonitorSettings
+    from ..detection.alarms.calibration import MonitorSettings
     from ..detection.spectral import STFTConfig
     from ..online.monitor import ChatteringMonitor, DetectionEvent
     from ..plants.datafile import DataSet
-    from ..plants.modelfile_fields import ModelSpec
+    from ..plants.modelfile import ModelSpec
     from ..plants.nonlinear import Model
     from ..studies.calibration_result import Calibration
     from ..viewer.recordings import RecordingSummary
@@ -217,7 +217,7 @@ def run(args: argparse.Namespace) -> int:
     pmap = getattr(spec.model, "parameter_map", None)
     tolerances = pmap is not None and pmap.has_tolerances
     from ..online.monitor import ChatteringMonitor, MonitorSettings  # after the model file: its errors first
-    from ..plants.measurement import require_linear_measurement
+    from ..plants.nonlinear import require_linear_measurement
 
     require_linear_measurement(spec.model, "the chattering monitor")
     if not spec.is_linear and args.calibration is None:
@@ -281,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
         settings = _alarm_settings(args, choice, spec.model, settings, cal)
     decision = None
     if setup is not None:
-        from ..detection.alarms import make_rule
+        from ..detection.alarms.rules import make_rule
         from ..detection.parameter_decision import parameter_alarm_settings
         from ..errors import IdentifiabilityError
 

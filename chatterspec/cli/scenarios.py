@@ -12,7 +12,7 @@ from ._options import add_report_args, command
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..plants.nonlinear import NonlinearModel
-    from ..plants.scenario_types import Scenario
+    from ..plants.scenarios import Scenario
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -50,7 +50,7 @@ def export_model_toml(name: str, path: Path) -> Path:
     import numpy as np
 
     from ..detection.spectral import chattering_autocovariance, spectrum_model
-    from ..plants.modelfile_writer import write_model_toml
+    from ..plants.modelfile import write_model_toml
     from ..plants.scenarios import scenario
 
     sc = scenario(name)
@@ -76,7 +76,7 @@ def export_model_toml(name: str, path: Path) -> Path:
 
 def _export_nonlinear(sc: Scenario, name: str, path: Path) -> Path:
     """A nonlinear nominal model as a model file naming its functions, with the scenario's input."""
-    from ..plants.modelfile_writer import signal_table, write_nonlinear_model_toml
+    from ..plants.modelfile import signal_table, write_nonlinear_model_toml
 
     simulation: dict = {"duration_s": sc.duration}
     if sc.x0 is not None and sc.x0.any():

@@ -21,8 +21,16 @@ from ..filters.svsf_steps import closed_form_step
 from ..filters.svsf_steps import rows_times as _rows_times
 from ..plants.nonlinear import Model, is_linear, require_linear
 from ..plants.scenarios import Scenario
-from ..plants.simulate import Simulation, default_chunk_runs, iter_simulations, scenario_input
-from ..plants.simulate_kernel import NO_CTRL, kernel_tables, plant_loop, same_shapes
+from ..plants.simulate import (
+    NO_CTRL,
+    Simulation,
+    default_chunk_runs,
+    iter_simulations,
+    kernel_tables,
+    plant_loop,
+    same_shapes,
+    scenario_input,
+)
 from ..rng import BLOCK, SeedLike, block_generator, root_seed_sequence
 
 __all__ = ["ChatteringRecord", "chattering_record", "iter_chattering", "scenario_chattering"]

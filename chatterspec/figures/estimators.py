@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..filter_registry import ENTRIES
 from ..palette import filter_color, mpl
-from ..plants.model_base import state_units
+from ..plants.models import state_units
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

@@ -44,8 +44,7 @@ from matplotlib.figure import Figure
 
 from ..detection.pipeline import ChatteringRecord, iter_chattering, scenario_chattering
 from ..detection.spectral import STFTConfig, periodogram, spectrogram, spectrum_model
-from ..detection.threshold_type import Correction
-from ..detection.thresholds import Threshold, exact_threshold, frame_threshold, paper_threshold
+from ..detection.thresholds import Correction, Threshold, exact_threshold, frame_threshold, paper_threshold
 from ..errors import ParameterError
 from ..plants.nonlinear import Model
 from ..plants.scenarios import Scenario, scenario
@@ -876,7 +875,7 @@ def fig8(runs: int | None = None, seed: SeedLike = 0) -> PaperFigure:
     intervals detected by the per-frame exact threshold (alpha 0.1 % per frame,
     Bonferroni over the frame's bins) are marked above each spectrogram.
     """
-    from ..detection.frames import detect_frames, frame_intervals, frame_statistic, healthy_frame_level
+    from ..detection.verdicts import detect_frames, frame_intervals, frame_statistic, healthy_frame_level
 
     config = STFTConfig(1.0, 0.2, "hamming")
     panels, notes = [], []

@@ -175,8 +175,7 @@ def step_response_figure(scenarios: Sequence[Scenario], runs: int = 1, seed: int
     -------
     matplotlib.figure.Figure
     """
-    from ..plants.simulate import simulate
-    from ..plants.simulate_closed_loop import loop_response
+    from ..plants.simulate import loop_response, simulate
 
     fig, axes = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
     for s, sc in enumerate(scenarios):

@@ -10,9 +10,8 @@ import numpy as np
 from .. import _jit
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError, SingularMatrixError
-from ..plants.measurement import has_measurement_function
 from ..plants.models import LinearModel
-from ..plants.nonlinear import Model
+from ..plants.nonlinear import Model, has_measurement_function
 from ..plants.steps import PlantSteps, measurement_steps, plant_steps
 from . import _engine, _engine_numpy
 from ._engine_numpy import given_prediction, linear_prediction, model_call_loop, model_prediction

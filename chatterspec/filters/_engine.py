@@ -40,7 +40,7 @@ import numpy as np
 
 from .. import _jit
 from ..errors import SingularMatrixError
-from ..plants.sample_functions import MeasurementSteps
+from ..plants.nonlinear import MeasurementSteps
 from ..plants.steps import PlantSteps
 from ._finite import finite_sample, finite_state
 from ._linalg import (

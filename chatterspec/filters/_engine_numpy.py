@@ -26,8 +26,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ..errors import ShapeError, SingularMatrixError
-from ..plants.measurement import measure, measurement_jacobian
-from ..plants.nonlinear import Model
+from ..plants.nonlinear import Model, measure, measurement_jacobian
 from . import _engine
 from ._engine import FIELDS, LOG2PI, MAP_COV, CorrectionStep, _alloc, _not_pd_message, _shapes
 

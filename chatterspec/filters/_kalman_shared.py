@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import _jit
 from ..errors import SingularMatrixError
-from ..plants.linear_steps import parameters, predict_step
+from ..plants.steps import parameters, predict_step
 from ._engine import (
     FIELDS,
     LOG2PI,
@@ -120,8 +120,8 @@ def _kf_shared_loop(
 ) -> int:  # pragma: no cover - compiled
     """State recursion of the Kalman filter with a precomputed, shared gain sequence ``KgT`` (K, m, n).
 
-    Per run and sample: the linear plant's prediction (:func:`~chatterspec.plants.linear_steps.predict_step`,
-    ``prm`` of :func:`~chatterspec.plants.linear_steps.parameters`), the innovation, ``x = x(k+1|k)
+    Per run and sample: the linear plant's prediction (:func:`~chatterspec.plants.steps.predict_step`,
+    ``prm`` of :func:`~chatterspec.plants.steps.parameters`), the innovation, ``x = x(k+1|k)
     + K e``, the log-likelihood (when stored) from the Cholesky factor ``L`` (K, m, m) of ``S`` and its
     ``half_logdet`` (K,) = ``sum log L_ii``, the residuals: the steps of the per-run filter
     (:mod:`chatterspec.filters._engine`), hence its bits. ``outs``: the

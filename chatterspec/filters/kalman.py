@@ -29,9 +29,9 @@ import numpy as np
 
 from .. import _jit
 from .._repr import short_repr
-from ..plants.filter_settings import FilterSettings
 from ..plants.models import LinearModel
 from ..plants.nonlinear import Model
+from ..plants.scenarios import FilterSettings
 from . import _engine, _engine_numpy, _kalman_shared
 from ._base import CovarianceFilterBase, check_model
 from ._engine import chol_solve_step, gain_update_step

@@ -24,7 +24,7 @@ is used otherwise (``x0`` given, so ``e(0|0) != 0``); both agree to rounding.
 
 Beyond the paper: the paper has the chattering only for a linear model and derives its expected
 spectrum (eq 56) from linearity; for a nonlinear model there is no closed-form spectrum, so its
-thresholds are estimated from healthy runs (:mod:`chatterspec.detection.empirical`).
+thresholds are estimated from healthy runs (:mod:`chatterspec.detection.thresholds`).
 
 Only full measurement (``C`` square and invertible) is supported: the reduced-order form
 (eq 9-11) needs the constant ``Phi = T^-1 A T`` of a linear model.
@@ -40,9 +40,8 @@ import numpy as np
 from .._repr import short_repr
 from .._validate import open_unit
 from ..errors import ParameterError, SingularMatrixError
-from ..plants.measurement import require_linear_measurement
 from ..plants.models import LinearModel
-from ..plants.nonlinear import NonlinearModel
+from ..plants.nonlinear import NonlinearModel, require_linear_measurement
 from ._conventions import check_chunk, check_initial_rows, check_record, store_flags
 from ._finite import require_finite
 from .protocol import channel_rows

@@ -34,7 +34,7 @@ import numpy as np
 
 from .. import _jit
 from ..errors import DivergenceError, NonFiniteError, ShapeError, SingularMatrixError
-from ..plants.measurement import has_measurement_function
+from ..plants.nonlinear import has_measurement_function
 from ..plants.steps import measurement_steps
 from . import _engine
 from .protocol import FilterState, sample_rows

@@ -47,8 +47,7 @@ import numpy as np
 from .. import _jit
 from .._repr import short_repr
 from ..errors import ParameterError
-from ..plants.measurement import require_linear_measurement
-from ..plants.nonlinear import Model
+from ..plants.nonlinear import Model, require_linear_measurement
 from ._engine import (
     BAD_INPUT,
     DIVERGED,

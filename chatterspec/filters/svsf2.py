@@ -38,8 +38,8 @@ from .. import _jit
 from .._repr import short_repr
 from .._validate import finite_array
 from ..errors import ParameterError
-from ..plants.filter_settings import FilterSettings
 from ..plants.nonlinear import Model
+from ..plants.scenarios import FilterSettings
 from . import _engine, _engine_numpy
 from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets
 from ._luen import luen_correction, luen_second_order

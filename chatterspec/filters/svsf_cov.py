@@ -41,9 +41,8 @@ from .. import _jit
 from .._repr import short_repr
 from .._validate import finite_array
 from ..errors import ParameterError, ShapeError, SingularMatrixError
-from ..plants.filter_settings import FilterSettings, StateMapping
-from ..plants.measurement import require_linear_measurement
-from ..plants.nonlinear import Model
+from ..plants.nonlinear import Model, require_linear_measurement
+from ..plants.scenarios import FilterSettings, StateMapping
 from . import _engine, _engine_numpy
 from ._base import CovarianceFilterBase, check_model, is_linear
 from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets

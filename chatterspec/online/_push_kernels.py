@@ -16,10 +16,9 @@ from typing import cast
 import numpy as np
 
 from .. import _jit
-from ..detection.alarm_steps import FRAME
-from ..detection.frame_engine import power_step
-from ..detection.frame_score import score_step
-from ..detection.frames import peak_channel
+from ..detection.alarms.steps import FRAME
+from ..detection.spectral import power_step
+from ..detection.verdicts import peak_channel, score_step
 from ..filters.svsf_steps import closed_form_step, matvec_step, rows_times_step, svsf_step
 
 __all__: list[str] = []
@@ -257,16 +256,16 @@ def _hop_loop(  # type: ignore[no-untyped-def]  # (35 arrays and scalars: see th
     """A block of the monitor's frames in one call: power, verdicts, scores and the alarm rule.
 
     ``Y`` (1, m, F, bins) is the ``rfft`` of the tapered frames; the loops' steps, in their order
-    within each frame and channel: the power (:func:`~chatterspec.detection.frame_engine.power_step`)
+    within each frame and channel: the power (:func:`~chatterspec.detection.spectral.power_step`)
     into ``power`` (F, bins, m); the largest ``S / threshold`` over the tested bins ``lo ..
-    lo + len(positions) - 1`` (:data:`~chatterspec.detection.frames.peak_channel`) into ``k_ratio``,
-    ``peak_ratio`` (F, m); the frame score (:func:`~chatterspec.detection.frame_score.score_step`,
+    lo + len(positions) - 1`` (:data:`~chatterspec.detection.verdicts.peak_channel`) into ``k_ratio``,
+    ``peak_ratio`` (F, m); the frame score (:func:`~chatterspec.detection.verdicts.score_step`,
     its arguments) into ``score``; then, per channel over the frames, the alarm rule's channel step
-    ``RULE_CHANNEL`` (:attr:`~chatterspec.detection.alarm_steps.RuleSteps.channel`: threshold ``h``,
+    ``RULE_CHANNEL`` (:attr:`~chatterspec.detection.alarms.steps.RuleSteps.channel`: threshold ``h``,
     parameters ``p``, the :class:`AlarmStream`'s state arrays, step ``pos[0]``) fed with ``s3``
     (1, F, m) = the score, or (``legacy``: the per-frame
     verdict's events) 1.0 where ``peak_ratio > 1`` and 0.0 elsewhere. The same steps as the four
-    separate calls (:class:`~chatterspec.detection.frame_engine.FrameEngine`, ``FrameVerdicts``,
+    separate calls (:class:`~chatterspec.detection.spectral.FrameEngine`, ``FrameVerdicts``,
     ``FrameScore``, ``AlarmStream``), hence their bits.
     """
     b = _jit.borrow
@@ -304,7 +303,7 @@ _HOP: dict[int, Callable[..., None]] = {}
 def hop_kernel(channel: Callable[..., None]) -> Callable[..., None]:
     """The monitor's block-of-frames loop (:func:`_hop_loop`) with the alarm rule's channel step ``channel``.
 
-    One kernel per channel step (a rule's :attr:`~chatterspec.detection.alarm_steps.RuleSteps.channel`),
+    One kernel per channel step (a rule's :attr:`~chatterspec.detection.alarms.steps.RuleSteps.channel`),
     kept for the process; numba inlines the step, so there is no call through a function value.
     """
     kernel = _HOP.get(id(channel))

@@ -12,7 +12,7 @@ A :class:`BenchRoute` prepares, per bench case, a monitoring of one of two kinds
   tolerances (:mod:`chatterspec.detection.parameter_decision`; the spectral detector then reports
   mismatch only and the whole budget goes to the parameters): the online
   :class:`~chatterspec.online.identification_monitor.IdentificationMonitor` on the healthy stream,
-  :func:`~chatterspec.detection.parameter_records.monitor_parameters` on the onset records.
+  :func:`~chatterspec.detection.parameter_decision.monitor_parameters` on the onset records.
 
 Both count the false alarms of a continuous healthy stream (:meth:`counter`) and score onset records
 the same way (:meth:`onsets`): the delay of a record is from the onset to the end of the frame (the
@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from ..detection.monitor_settings import MonitorSettings
+from ..detection.alarms.calibration import MonitorSettings
 from ..detection.parameter_decision import ParameterAlarmSettings
 from ..errors import ChatterspecError, CommissioningError, ParameterError
 from ..plants.models import LinearModel
@@ -194,7 +194,7 @@ class SpectralMonitoring:
         self, z: np.ndarray, u: np.ndarray, t: np.ndarray, interval: tuple[float, float]
     ) -> OnsetScores:
         """The monitor's frame engine, score and rule on the onset records (module docstring)."""
-        from ..detection.alarms import run_rule
+        from ..detection.alarms.streams import run_rule
         from ..detection.pipeline import chattering_record
         from ..detection.spectral import frame_columns
         from ..studies.alarm_budget import monitor_score
@@ -267,7 +267,7 @@ class ParameterMonitoring:
     ) -> ParameterMonitoring:
         """The monitor's decision for ``model``: one window per STFT hop over the STFT window, ``rule`` at
         ``budget`` false alarms per hour (what ``chatterspec monitor`` decides with tolerances)."""
-        from ..detection.alarms import make_rule
+        from ..detection.alarms.rules import make_rule
         from ..detection.identification import identification_setup
         from ..detection.parameter_decision import parameter_alarm_settings
 
@@ -296,9 +296,9 @@ class ParameterMonitoring:
     def onsets(
         self, z: np.ndarray, u: np.ndarray, t: np.ndarray, interval: tuple[float, float]
     ) -> OnsetScores:
-        """The decisions over the whole records (:func:`~chatterspec.detection.parameter_records.
+        """The decisions over the whole records (:func:`~chatterspec.detection.parameter_decision.
         monitor_parameters`); the frames are the identification windows."""
-        from ..detection.parameter_records import monitor_parameters
+        from ..detection.parameter_decision import monitor_parameters
 
         rec = monitor_parameters(self.model, z, u, self.settings, t0=float(t[0]))
         # from a window's centre to its first and last chattering sample
@@ -461,7 +461,7 @@ def tolerance_route(
         As :func:`commissioned_route`'s; None: no commissioning, the nominal model's values are the
         bands' centres and its R and Q the scores' law.
     """
-    from ..plants.tolerances import with_tolerances
+    from ..plants.parameters import with_tolerances
 
     def prepare(r: RouteInputs) -> Monitoring:
         details: dict[str, Any] = {"tolerances": dict(tolerances)}

@@ -17,7 +17,7 @@ Which decision, and which excitation, depends on what runs beside the spectral m
   when a parameter its chattering carries is not excited, i.e. the change the data of the last few
   seconds would detect exceeds the parameter's tolerance (without one, its nominal value:
   :mod:`chatterspec.detection.parameter_decision`). The fault is the spectral alarm layer's (the run's
-  rule and false-alarm budget, :mod:`chatterspec.detection.alarms`) without tolerances, and the
+  rule and false-alarm budget, :mod:`chatterspec.detection.alarms.streams`) without tolerances, and the
   parameters' alarm on a parameter the channel carries with tolerances (the spectral detector then
   only reports mismatch). Per window:
   :attr:`~chatterspec.online.identification_monitor.WindowDecision.channel_states`, followed with

@@ -3,7 +3,7 @@ at alarms, the parameters' alarms when tolerances are declared, and when the dat
 
 :class:`IdentificationMonitor` takes the monitor's raw pushes (measurements and inputs) and, per STFT
 hop, identifies the window ending there
-(:class:`~chatterspec.detection.identification_online.OnlineIdentifier`) and decides on the identified
+(:class:`~chatterspec.detection.identification.OnlineIdentifier`) and decides on the identified
 parameters (:class:`~chatterspec.detection.parameter_decision.ParameterDecision`). Each window gives a
 :class:`WindowDecision`:
 
@@ -37,17 +37,21 @@ from typing import Any
 
 import numpy as np
 
-from ..detection.identification import IdentificationSetup
-from ..detection.identification_online import OnlineIdentification, OnlineIdentifier
-from ..detection.identification_results import IdentificationReport
+from ..detection.identification import (
+    IdentificationReport,
+    IdentificationSetup,
+    OnlineIdentification,
+    OnlineIdentifier,
+)
 from ..detection.parameter_decision import (
     STATES,
     ParameterAlarmSettings,
     ParameterDecision,
     ParameterDecisions,
     ParameterEvent,
+    band_position,
+    joint_hypothesis,
 )
-from ..detection.parameter_scores import band_position, joint_hypothesis
 from ..plants.parameters import NO_FAULT
 
 __all__ = ["IdentificationMonitor", "IdentificationUpdate", "WindowDecision"]

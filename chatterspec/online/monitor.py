@@ -22,11 +22,11 @@ first measurement ``z(0)`` initializes the filters; chattering sample ``j`` is
 ``[j H, j H + W)`` and is time-stamped at its centre.
 
 Alarms: every frame gets a score per channel, ``-log p`` of its Bonferroni p-value
-(:class:`chatterspec.detection.frame_score.FrameScore`, the per-frame threshold's law), and an
-alarm rule of :mod:`chatterspec.detection.alarms` (``MonitorSettings.rule``: frame, k-of-n
+(:class:`chatterspec.detection.verdicts.FrameScore`, the per-frame threshold's law), and an
+alarm rule of :mod:`chatterspec.detection.alarms.streams` (``MonitorSettings.rule``: frame, k-of-n
 persistence or CUSUM, its threshold set for a budget in false alarms per hour by
 :mod:`chatterspec.studies.alarm_budget`) turns the scores into an alarm state per channel, in
-an :class:`~chatterspec.detection.alarms.AlarmStream` that continues across pushes (any chunking
+an :class:`~chatterspec.detection.alarms.streams.AlarmStream` that continues across pushes (any chunking
 gives the same alarms). A ``fault-start`` is raised at the centre time of the frame where a
 channel's alarm starts, a ``fault-end`` at the centre of the frame where it ends; both carry the
 rule, the frame's score, the rule's statistic and threshold and the budget. Without a rule

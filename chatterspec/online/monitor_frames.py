@@ -2,11 +2,11 @@
 
 :class:`FrameAnalysis` holds the bounded chattering buffer (at most one STFT window of ``W``
 samples plus the chunk being analysed), turns every complete frame into one column with
-:class:`chatterspec.detection.frame_engine.FrameEngine` on the global frame grid (frame ``j``
+:class:`chatterspec.detection.spectral.FrameEngine` on the global frame grid (frame ``j``
 covers chattering samples ``[j H, j H + W)``), gives each frame its verdicts
-(:class:`chatterspec.detection.frames.FrameVerdicts`) and score ``-log p``
-(:class:`chatterspec.detection.frame_score.FrameScore`), runs the alarm rule across pushes
-(:class:`chatterspec.detection.alarms.AlarmStream`) and turns the alarm's starts and ends into
+(:class:`chatterspec.detection.verdicts.FrameVerdicts`) and score ``-log p``
+(:class:`chatterspec.detection.verdicts.FrameScore`), runs the alarm rule across pushes
+(:class:`chatterspec.detection.alarms.streams.AlarmStream`) and turns the alarm's starts and ends into
 :class:`~chatterspec.online.monitor_types.DetectionEvent` s. Any chunking of the chattering gives
 the same columns, alarms and events as the whole record at once.
 
@@ -23,11 +23,11 @@ import math
 import numpy as np
 
 from .. import _jit
-from ..detection.alarms import AlarmStream, FrameRule
-from ..detection.frame_engine import FrameEngine
-from ..detection.frame_score import FrameScore
-from ..detection.frames import FrameVerdicts
+from ..detection.alarms.rules import FrameRule
+from ..detection.alarms.streams import AlarmStream
+from ..detection.spectral import FrameEngine
 from ..detection.thresholds import Threshold
+from ..detection.verdicts import FrameScore, FrameVerdicts
 from ._push_kernels import hop_kernel
 from .fault_state import alarm_time
 from .monitor_types import DetectionEvent, EventKind, FrameBlock, MonitorSettings

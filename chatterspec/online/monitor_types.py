@@ -1,6 +1,6 @@
 """The online monitor's settings and outputs (frozen dataclasses), re-exported by :mod:`.monitor`.
 
-:class:`MonitorSettings` is defined in :mod:`chatterspec.detection.monitor_settings` (the batch alarm
+:class:`MonitorSettings` is defined in :mod:`chatterspec.detection.alarms.calibration` (the batch alarm
 studies use it too) and re-exported here.
 
 :class:`MonitorSettings` (what the monitor tests and how it raises alarms), :class:`DetectionEvent`
@@ -15,8 +15,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from ..detection.alarm_rules import alarm_label
-from ..detection.monitor_settings import MonitorSettings
+from ..detection.alarms.calibration import MonitorSettings
+from ..detection.alarms.rules import alarm_label
 from ..jsonout import finite_or_none
 
 __all__ = ["DetectionEvent", "EventKind", "FrameBlock", "MonitorSettings", "MonitorUpdate"]
@@ -47,7 +47,7 @@ class DetectionEvent:
     peak_ratio : float
         The corresponding ``S / threshold`` (> 1 means above threshold).
     estimate_s : float
-        Onset / offset estimate of :func:`chatterspec.detection.frames.frame_intervals`:
+        Onset / offset estimate of :func:`chatterspec.detection.verdicts.frame_intervals`:
         half a hop before ``time_s`` (the start of frame 0's window when the
         very first frame is flagged).
     rule : str
@@ -128,7 +128,7 @@ class FrameBlock:
     peak_hz, peak_ratio : (F, m) arrays
         Frequency and value of the largest ``S / threshold`` over the tested bins.
     score : (F, m) array or None
-        The frame score ``-log p`` (nats, :mod:`chatterspec.detection.frame_score`).
+        The frame score ``-log p`` (nats, :mod:`chatterspec.detection.verdicts`).
     alarm : (F, m) bool array or None
         The alarm state after each frame (the rule's decision; events are its changes).
     alarm_statistic : (F, m) array or None

@@ -37,7 +37,7 @@ Measured per case and route
     through the route's online monitor (:class:`~chatterspec.online.monitor.ChatteringMonitor`, or with
     tolerances the parameters' :class:`~chatterspec.online.identification_monitor.IdentificationMonitor`:
     one push per block); the fault starts counted, against the two-sided 99 % Poisson interval of the
-    count the budget predicts (:func:`~chatterspec.detection.alarm_calibration.poisson_count_interval`),
+    count the budget predicts (:func:`~chatterspec.detection.alarms.calibration.poisson_count_interval`),
     and the fraction of frames in alarm: the budget *holds* when the count lies inside the interval (or
     below it) and the monitor is in alarm for at most 1 % of the frames (a mismatched model often
     raises one alarm that never ends: one start, a day in alarm).
@@ -63,8 +63,8 @@ from typing import Any, cast
 import numpy as np
 
 from .._validate import positive
-from ..detection.alarm_calibration import check_budget, poisson_count_interval, poisson_interval
-from ..detection.alarms import make_rule
+from ..detection.alarms.calibration import check_budget, poisson_count_interval, poisson_interval
+from ..detection.alarms.rules import make_rule
 from ..errors import ChatterspecError, ParameterError
 from ..jsonout import finite_or_none
 from ..plants.eha4 import EHA4_MODES, EHA4_PARAMETERS, eha4

@@ -18,8 +18,7 @@ from ..errors import NonFiniteError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import Model
 from ..plants.scenarios import Scenario
-from ..plants.simulate import covariance_sqrt
-from ..plants.simulate_closed_loop import stream_geometry
+from ..plants.simulate import covariance_sqrt, stream_geometry
 
 __all__ = ["csv_header", "csv_lines", "simulate_blocks"]
 
@@ -88,7 +87,7 @@ def simulate_blocks(
         limit); the message gives the time.
     """
     if getattr(scenario, "closed_loop", None) is not None:  # the controller computes u from z
-        from ..plants.simulate_closed_loop import closed_loop_blocks
+        from ..plants.simulate import closed_loop_blocks
 
         yield from closed_loop_blocks(scenario, seed, duration_s, block_s=block_s)
         return

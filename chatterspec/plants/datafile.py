@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import DataFileError, ParameterError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .modelfile_fields import ModelSpec
+    from .modelfile import ModelSpec
     from .nonlinear import Model
 
 __all__ = ["TIME_COLUMNS", "DataSet", "load_data", "load_data_text"]
@@ -60,8 +60,8 @@ class DataSet:
 
 # --------------------------------------------------------------------------- data files
 def _the_model(model: Model | ModelSpec) -> Model:
-    """``model``, or the model of a :class:`~chatterspec.plants.modelfile_fields.ModelSpec`."""
-    from .modelfile_fields import ModelSpec
+    """``model``, or the model of a :class:`~chatterspec.plants.modelfile.ModelSpec`."""
+    from .modelfile import ModelSpec
 
     if isinstance(model, ModelSpec):
         return model.model

@@ -1,4 +1,7 @@
-"""Physical parameters of a linear model: which matrix entries they enter, and how.
+"""Physical parameters of a model: how they enter its matrices (formulas) and the band each may
+take in normal operation (tolerances).
+
+Physical parameters of a linear model: which matrix entries they enter, and how.
 
 Fault identification (:mod:`chatterspec.detection.identification`) estimates a physical
 parameter (a leakage coefficient in m^3/(s Pa), a natural frequency in Hz) from the
@@ -10,7 +13,7 @@ of eq (1). A :class:`ParameterMap` declares it:
 * **constants**: other named values the formulas use (``dt``, the sampling time in s, is
   always available);
 * **entries**: for each entry of A or B that depends on a parameter, a formula (text,
-  see :mod:`chatterspec.plants._expressions`), e.g. ``A[3,3] = 1 - dt*bulk_modulus*leakage/volume``;
+  see :func:`compile_formula`), e.g. ``A[3,3] = 1 - dt*bulk_modulus*leakage/volume``;
 * **hypotheses**: named sets of parameters that may have changed together (default: one
   hypothesis per parameter).
 
@@ -20,35 +23,479 @@ for explicit Euler); a model file declares one in ``[parameters]``, ``[constants
 ``[entries]`` and ``[hypotheses]`` (``examples/README.md``), so a user's own model gets
 identification without code. :meth:`ParameterMap.check` makes sure the formulas give the
 model's own A and B at the nominal values.
+
+Formulas: safe arithmetic over named values, evaluated with numpy.
+
+A model file writes how a physical parameter enters a matrix entry as text, e.g.
+``"1 - dt*bulk_modulus*leakage/volume"``. :func:`compile_formula` parses it with
+:mod:`ast` and accepts only numbers, names, ``+ - * / **``, unary ``+ -``, parentheses and
+the functions of :data:`FUNCTIONS`; anything else (attribute access, calls of other
+names, subscripts, comparisons, ...) is refused. The result evaluates on numpy arrays, so
+one call covers every Monte Carlo realization.
+
+Every number is evaluated as a float (``2**3`` is ``8.0``): Python's integers have no size limit,
+so ``10**10**10`` between literals would run (and fill memory) for ever, where the float
+overflows at once and is reported. Formulas are at most :data:`MAX_FORMULA_CHARS` characters.
+
+Operating tolerances of physical parameters: the band a parameter may take in normal operation.
+
+A real actuator's parameters move in normal operation (the bulk modulus with temperature and
+entrained air, viscous friction with oil temperature) while its model stays fixed. A
+:class:`Tolerance` declares how far a parameter may move from its nominal value before the
+change is a fault; fault decisions on the identified parameters
+(:mod:`chatterspec.detection.tolerance_decision`) compare each estimate with its band.
+
+Forms (the ``tolerance`` key of a model file's ``[parameters]`` entry, ``examples/README.md``;
+the same text after ``--tolerance NAME=`` on the command line, with a comma for the pairs):
+
+================================ ====================================== =====================
+model file                       band                                   kind
+================================ ====================================== =====================
+``tolerance = "15%"``            nominal * (1 -+ 0.15)                  ``relative``
+``tolerance = ["-10%", "+20%"]`` nominal - 10 % .. nominal + 20 %       ``relative``
+``tolerance = 3.0e7``            nominal -+ 3e7 (the parameter's unit)  ``absolute``
+``tolerance = [1.8e8, 2.3e8]``   1.8e8 .. 2.3e8 (the parameter's unit)  ``limits``
+================================ ====================================== =====================
+
+Relative offsets are fractions of ``|nominal|``, so a relative band moves with the nominal value
+(e.g. one refitted from healthy data); absolute offsets move with it too; limits stay put. A
+negative tolerance, a lower offset above the nominal or an upper one below it, or limits that
+exclude the nominal are refused (:class:`~chatterspec.errors.ParameterError`; the model file
+reader turns it into :class:`~chatterspec.errors.ModelFileError` naming the file and parameter).
 """
 
 from __future__ import annotations
 
+import ast
 import itertools
+import math
 import re
-from collections.abc import Mapping, Sequence
+import types
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Literal, TypeVar, cast
 
 import numpy as np
 
 from ..errors import ChatterspecError, ModelFileError, ParameterError
-from ._expressions import BUILTIN_CONSTANTS, FUNCTIONS, Formula, compile_formula, evaluate_formulas
-from .tolerances import Tolerance, parse_tolerance, tolerance_from_text
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .linear_model import LinearModel
+if TYPE_CHECKING:
+    from .models import LinearModel
 
 __all__ = [
+    "FUNCTIONS",
     "NO_FAULT",
     "UNEXPLAINED",
+    "Formula",
     "Hypothesis",
     "MatrixEntry",
     "ParameterMap",
     "PhysicalParameter",
+    "Tolerance",
+    "compile_formula",
     "eha_parameter_map",
+    "evaluate_formulas",
+    "parse_tolerance",
     "second_order_parameter_map",
+    "tolerance_from_text",
+    "with_tolerances",
 ]
+
+
+# Safe arithmetic formulas.
+
+#: Functions a formula may call (one argument each).
+FUNCTIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+    "sqrt": np.sqrt,
+    "exp": np.exp,
+    "log": np.log,
+    "sin": np.sin,
+    "cos": np.cos,
+}
+#: Constants every formula knows (a name declared by the model takes precedence).
+BUILTIN_CONSTANTS: dict[str, float] = {"pi": float(np.pi)}
+
+_BINARY = (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow)
+#: Longest formula text accepted (a matrix entry's formula is a line, not a program).
+MAX_FORMULA_CHARS = 1000
+
+
+class _FloatConstants(ast.NodeTransformer):
+    """Integer literals as floats: float arithmetic is bounded in time and memory, big-integer is not."""
+
+    def visit_Constant(self, node: ast.Constant) -> ast.Constant:
+        if isinstance(node.value, int) and not isinstance(node.value, bool):
+            return ast.copy_location(ast.Constant(value=float(node.value)), node)
+        return node
+
+
+@dataclass(frozen=True)
+class Formula:
+    """A parsed formula: its text, the names it reads, and an evaluator.
+
+    Attributes
+    ----------
+    text : str
+        The formula as written.
+    names : frozenset of str
+        Names it reads (parameters and constants; not the function names).
+    """
+
+    text: str
+    names: frozenset[str]
+    _code: types.CodeType = field(repr=False, compare=False)
+
+    def __reduce__(self) -> tuple[object, tuple[str]]:
+        # code objects do not pickle (models travel to worker processes): rebuild from the text
+        return (compile_formula, (self.text,))
+
+    def __call__(self, values: Mapping[str, object]) -> np.ndarray:
+        """Evaluate with ``values`` (name -> number or array; arrays broadcast).
+
+        Raises
+        ------
+        ParameterError
+            If a name is missing from ``values`` (and is not ``pi``).
+        """
+        return evaluate_formulas((self,), values)[0]
+
+
+def evaluate_formulas(formulas: Sequence[Formula], values: Mapping[str, object]) -> list[np.ndarray]:
+    """Each of ``formulas`` evaluated with ``values`` (name -> number or array; arrays broadcast): the
+    scope is built once for all of them (the numbers are those of calling each).
+
+    Raises
+    ------
+    ParameterError
+        If a name is missing from ``values`` (and is not ``pi``), or a number overflows.
+    """
+    names = frozenset().union(*(f.names for f in formulas))
+    missing = names - values.keys() - BUILTIN_CONSTANTS.keys()
+    if missing:
+        f = next(f for f in formulas if f.names & missing)
+        raise ParameterError(f"formula {f.text!r}: no value for {sorted(f.names & missing)}")
+    scope: dict[str, object] = {**BUILTIN_CONSTANTS, **FUNCTIONS}
+    scope.update({k: _operand(values[k]) for k in names if k in values})
+    out = []
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for f in formulas:
+            try:
+                # the tree holds only the whitelisted nodes (compile_formula): no builtins are reachable
+                out.append(np.asarray(eval(f._code, {"__builtins__": {}}, scope), dtype=float))
+            except OverflowError:  # e.g. 10**10**10 between literal numbers
+                raise ParameterError(
+                    f"formula {f.text!r} cannot be evaluated: a number overflows (beyond 1.8e308)"
+                ) from None
+            except ArithmeticError as exc:  # e.g. 1/0 between two literal numbers
+                raise ParameterError(f"formula {f.text!r} cannot be evaluated: {exc}") from None
+    return out
+
+
+def _operand(value: object) -> np.ndarray | np.float64:
+    """``value`` as a float array, or a numpy float scalar when it has no dimensions: the same float
+    operations (and the same overflow and division by zero under ``np.errstate``), without the cost of
+    a ufunc call per operation between constants."""
+    arr = np.asarray(value, dtype=float)
+    return arr[()] if arr.ndim == 0 else arr
+
+
+def compile_formula(text: str, where: str = "formula") -> Formula:
+    """Parse ``text`` into a :class:`Formula`.
+
+    Parameters
+    ----------
+    text : str
+        Arithmetic over names and numbers, e.g. ``"-dt*(2*pi*f0)**2"``.
+    where : str
+        Prefix of error messages (e.g. the model file and key).
+
+    Raises
+    ------
+    ParameterError
+        On a syntax error or a construct other than numbers, names, ``+ - * / **``,
+        unary ``+ -`` and calls of :data:`FUNCTIONS`.
+    """
+    if not isinstance(text, str) or not text.strip():
+        raise ParameterError(f"{where}: a formula must be a non-empty string; got {text!r}")
+    if len(text) > MAX_FORMULA_CHARS:
+        raise ParameterError(
+            f"{where}: a formula has at most {MAX_FORMULA_CHARS} characters; got {len(text)} "
+            f"({text[:40]!r}...)"
+        )
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+    except (SyntaxError, MemoryError, RecursionError) as exc:  # e.g. too deeply nested
+        why = exc.msg if isinstance(exc, SyntaxError) else "too deeply nested"
+        raise ParameterError(f"{where}: {text!r} is not a valid formula ({why})") from None
+    names: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call):
+            if not (isinstance(node.func, ast.Name) and node.func.id in FUNCTIONS) or len(node.args) != 1:
+                raise ParameterError(
+                    f"{where}: {text!r}: only one-argument calls of {', '.join(FUNCTIONS)} are allowed"
+                )
+            if node.keywords:
+                raise ParameterError(f"{where}: {text!r}: keyword arguments are not allowed")
+        elif isinstance(node, ast.Name):
+            if node.id not in FUNCTIONS:
+                names.add(node.id)
+        elif isinstance(node, ast.Constant):
+            if isinstance(node.value, bool) or not isinstance(node.value, int | float):
+                raise ParameterError(f"{where}: {text!r}: only numbers are allowed as constants")
+        elif isinstance(node, ast.BinOp):
+            if not isinstance(node.op, _BINARY):
+                raise ParameterError(f"{where}: {text!r}: only + - * / ** are allowed")
+        elif isinstance(node, ast.UnaryOp):
+            if not isinstance(node.op, ast.UAdd | ast.USub):
+                raise ParameterError(f"{where}: {text!r}: only unary + and - are allowed")
+        elif not isinstance(node, ast.Expression | ast.Load | ast.operator | ast.unaryop):
+            raise ParameterError(f"{where}: {text!r}: {type(node).__name__} is not allowed in a formula")
+    tree = ast.fix_missing_locations(_FloatConstants().visit(tree))
+    code = compile(tree, "<formula>", "eval")
+    return Formula(text=text.strip(), names=frozenset(names), _code=code)
+
+
+# Operating tolerances.
+
+ToleranceKind = Literal["relative", "absolute", "limits"]
+
+_PERCENT = re.compile(r"^\s*(\+-|±|\+/-)?\s*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*%\s*$")
+
+
+@dataclass(frozen=True)
+class Tolerance:
+    """The band a parameter may take in normal operation.
+
+    Attributes
+    ----------
+    kind : {"relative", "absolute", "limits"}
+        ``relative``: ``lower`` and ``upper`` are fractions of ``|nominal|`` below and above it;
+        ``absolute``: offsets in the parameter's unit; ``limits``: the band's ends themselves.
+    lower, upper : float
+        Offsets below and above the nominal (>= 0; ``relative``, ``absolute``), or the band's
+        lower and upper end (``limits``, in the parameter's unit).
+    """
+
+    kind: ToleranceKind
+    lower: float
+    upper: float
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("relative", "absolute", "limits"):
+            raise ParameterError(f"tolerance kind must be relative, absolute or limits; got {self.kind!r}")
+        lo, hi = float(self.lower), float(self.upper)
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            raise ParameterError(f"a tolerance must be finite; got {self.text()}")
+        if self.kind == "limits":
+            if lo > hi:
+                raise ParameterError(
+                    f"tolerance limits must be [low, high] with low <= high; got [{lo}, {hi}]"
+                )
+        elif lo < 0 or hi < 0:
+            raise ParameterError(f"a tolerance must be >= 0 on both sides; got {self.text()}")
+        object.__setattr__(self, "lower", lo)
+        object.__setattr__(self, "upper", hi)
+
+    def band(self, nominal: float) -> tuple[float, float]:
+        """``(low, high)``: the band around ``nominal`` in the parameter's unit.
+
+        Raises
+        ------
+        ParameterError
+            Limits that exclude ``nominal``; a relative tolerance of a zero nominal (no band).
+        """
+        x = float(nominal)
+        if self.kind == "limits":
+            if not self.lower <= x <= self.upper:
+                raise ParameterError(
+                    f"tolerance limits [{self.lower:.6g}, {self.upper:.6g}] exclude the nominal value {x:.6g}"
+                )
+            return self.lower, self.upper
+        if self.kind == "relative":
+            if x == 0.0 and (self.lower or self.upper):
+                raise ParameterError(
+                    "a relative tolerance of a parameter whose nominal value is 0 is no band: give an "
+                    "absolute one (a number in the parameter's unit)"
+                )
+            return x - self.lower * abs(x), x + self.upper * abs(x)
+        return x - self.lower, x + self.upper
+
+    def text(self) -> str:
+        """The model-file value: ``"15%"``, ``["-10%", "+20%"]``, ``3e7`` or ``[1.8e8, 2.3e8]`` (TOML)."""
+        if self.kind == "limits":
+            return f"[{self.lower!r}, {self.upper!r}]"
+        if self.kind == "relative":
+            lo, hi = _pct(self.lower), _pct(self.upper)
+            return f'"{lo}%"' if lo == hi else f'["-{lo}%", "+{hi}%"]'
+        return repr(self.lower) if self.lower == self.upper else f'["-{self.lower!r}", "+{self.upper!r}"]'
+
+    def describe(self, unit: str = "") -> str:
+        """``"+-15 %"``, ``"-10 %/+20 %"``, ``"+-3e+07 Pa"`` or ``"[1.8e+08, 2.3e+08] Pa"``."""
+        u = f" {unit}" if unit else ""
+        if self.kind == "limits":
+            return f"[{self.lower:.4g}, {self.upper:.4g}]{u}"
+        if self.kind == "relative":
+            lo, hi = _pct(self.lower), _pct(self.upper)
+            return f"+-{lo} %" if lo == hi else f"-{lo} %/+{hi} %"
+        if self.lower == self.upper:
+            return f"+-{self.lower:.4g}{u}"
+        return f"-{self.lower:.4g}/+{self.upper:.4g}{u}"
+
+
+def _pct(fraction: float) -> str:
+    """``0.15`` -> ``"15"`` (percent, shortest text that reads back to the same fraction)."""
+    return f"{100 * fraction:.10g}"
+
+
+def _percent(text: str) -> tuple[float, bool] | None:
+    """``"15%"`` -> ``(0.15, False)``; ``"+-15%"`` -> ``(0.15, True)``; None when not a percentage."""
+    m = _PERCENT.match(text)
+    if m is None:
+        return None
+    return float(m.group(2)) / 100.0, m.group(1) is not None
+
+
+def _number(value: object) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    return float(value)
+
+
+_FORMS = (
+    'a percentage "15%", an absolute offset 3e7 (the parameter\'s unit), relative offsets '
+    '["-10%", "+20%"], or limits [low, high] (the parameter\'s unit)'
+)
+
+
+def parse_tolerance(value: object, nominal: float, where: str) -> Tolerance:
+    """The :class:`Tolerance` of a model file's ``tolerance`` value (see the module docstring).
+
+    Parameters
+    ----------
+    value : str, float or list of two
+        The TOML value.
+    nominal : float
+        The parameter's nominal value (its band must contain it).
+    where : str
+        Prefix of error messages (file and parameter).
+
+    Raises
+    ------
+    ParameterError
+        An unreadable form, a negative tolerance, or one that excludes the nominal.
+    """
+    tol = _parse(value, where)
+    try:
+        tol.band(nominal)
+    except ParameterError as exc:
+        raise ParameterError(f"{where}: {exc}") from None
+    return tol
+
+
+def _parse(value: object, where: str) -> Tolerance:
+    try:
+        if isinstance(value, str):
+            pct = _percent(value)
+            if pct is None:
+                raise ParameterError(f"cannot read {value!r}")
+            x, _ = pct
+            if x < 0:
+                raise ParameterError(f"a tolerance must be >= 0; got {value!r}")
+            return Tolerance("relative", x, x)
+        offset = _number(value)
+        if offset is not None:
+            if offset < 0:
+                raise ParameterError(f"a tolerance must be >= 0; got {offset!r}")
+            return Tolerance("absolute", offset, offset)
+        if isinstance(value, list | tuple) and len(value) == 2:
+            a, b = value
+            na, nb = _number(a), _number(b)
+            if na is not None and nb is not None:
+                return Tolerance("limits", na, nb)
+            if isinstance(a, str) and isinstance(b, str):
+                pa, pb = _percent(a), _percent(b)
+                if pa is not None and pb is not None:
+                    return _offsets("relative", pa[0], pb[0], value)
+                fa, fb = _float(a), _float(b)
+                if fa is not None and fb is not None:
+                    return _offsets("absolute", fa, fb, value)
+            raise ParameterError(f"cannot read {value!r}")
+        raise ParameterError(f"cannot read {value!r}")
+    except ParameterError as exc:
+        raise ParameterError(f"{where}: tolerance: {exc}; use {_FORMS}") from None
+
+
+def _float(text: str) -> float | None:
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
+def _offsets(kind: ToleranceKind, below: float, above: float, value: object) -> Tolerance:
+    """Signed offsets ``[-a, +b]`` -> ``Tolerance(kind, a, b)``; a lower offset above the nominal or an
+    upper one below it excludes the nominal."""
+    if below > 0 or above < 0:
+        raise ParameterError(
+            f"{value!r} excludes the nominal value: the first offset must be <= 0 and the second >= 0"
+        )
+    return Tolerance(kind, -below, above)
+
+
+def tolerance_from_text(text: str, nominal: float, where: str) -> Tolerance:
+    """A command-line tolerance (``--tolerance NAME=SPEC``): ``15%``, ``3e7``, ``-10%,+20%``, ``1.8e8,2.3e8``.
+
+    Parameters
+    ----------
+    text : str
+        The SPEC part (a comma separates the two ends of a pair).
+    nominal : float
+        The parameter's nominal value.
+    where : str
+        Prefix of error messages.
+    """
+    parts = [p.strip() for p in str(text).split(",")]
+    if len(parts) == 1:
+        value: object = parts[0] if _percent(parts[0]) is not None else _float(parts[0])
+        if value is None:
+            value = parts[0]
+    elif len(parts) == 2 and all(_percent(p) is not None for p in parts):
+        value = parts
+    elif len(parts) == 2 and all(_float(p) is not None for p in parts):
+        lo, hi = (float(p) for p in parts)
+        # signed offsets read as limits only when they are not offsets around the nominal
+        value = [str(lo), str(hi)] if parts[0].startswith("-") and parts[1].startswith("+") else [lo, hi]
+    else:
+        value = text
+    return parse_tolerance(value, nominal, where)
+
+
+def with_tolerances(model: Any, tolerances: Mapping[str, Tolerance | str]) -> Any:
+    """A copy of ``model`` whose parameter map gives the parameters in ``tolerances`` those tolerances.
+
+    Parameters
+    ----------
+    model : LinearModel
+        A model with a parameter map (:mod:`chatterspec.plants.parameters`).
+    tolerances : mapping of str to Tolerance or str
+        Parameter name -> :class:`Tolerance` or its command-line text (``"15%"``, ``"3e7"``,
+        ``"-10%,+20%"``, ``"1.8e8,2.3e8"``).
+
+    Raises
+    ------
+    ParameterError
+        The model declares no parameters, an unknown name, or a bad tolerance.
+    """
+    pm = getattr(model, "parameter_map", None)
+    if pm is None:
+        raise ParameterError(
+            f"{getattr(model, 'name', 'the model')!r} declares no physical parameters, so it has no "
+            "parameter to give a tolerance (a model file's [parameters] table, examples/README.md)"
+        )
+    return model.replace(parameter_map=pm.with_tolerances(tolerances))
+
+
+# The parameter map.
 
 #: Name of the hypothesis "nothing changed" (reserved).
 NO_FAULT = "no fault"
@@ -78,7 +525,7 @@ class PhysicalParameter:
         Human-readable meaning.
     tolerance : Tolerance or None
         The band the parameter may take in normal operation
-        (:mod:`chatterspec.plants.tolerances`); None: none declared.
+        (:mod:`chatterspec.plants.parameters`); None: none declared.
     """
 
     name: str
@@ -258,7 +705,7 @@ class ParameterMap:
         Parameters
         ----------
         tolerances : mapping of str to Tolerance or str
-            Parameter name -> a :class:`~chatterspec.plants.tolerances.Tolerance` or its command-line
+            Parameter name -> a :class:`~chatterspec.plants.parameters.Tolerance` or its command-line
             text (``"15%"``, ``"3e7"``, ``"-10%,+20%"``, ``"1.8e8,2.3e8"``).
 
         Raises

@@ -6,11 +6,11 @@ A person watching a monitor all day sets a budget in false alarms per hour for t
 :func:`calibrate_alarm`:
 
 * the frame rule with the exact per-bin law (a linear model): from the law, ``h = log(F m / X)``
-  (:func:`chatterspec.detection.alarm_calibration.law_frame_rule`; an upper bound on the rate,
+  (:func:`chatterspec.detection.alarms.calibration.law_frame_rule`; an upper bound on the rate,
   no simulation);
 * every other case: on healthy frame-score streams simulated here
   (:func:`healthy_frame_scores`), counted or extrapolated by
-  :func:`chatterspec.detection.alarm_calibration.calibrate_rule`.
+  :func:`chatterspec.detection.alarms.calibration.calibrate_rule`.
 
 Healthy streams
     For a linear model with full measurement the healthy chattering of the auxiliary filter is
@@ -53,25 +53,19 @@ import numpy as np
 
 from .. import _jit
 from .._validate import positive
-from ..detection.alarm_calibration import (
-    RuleCalibration,
-    calibrate_rule,
-    check_budget,
-    law_frame_rule,
-)
-from ..detection.alarms import AlarmRule, make_rule, rule_spec
-from ..detection.frame_engine import FrameEngine
-from ..detection.frame_score import FrameScore
-from ..detection.spectral import spectrum_model
+from ..detection.alarms.calibration import RuleCalibration, calibrate_rule, check_budget, law_frame_rule
+from ..detection.alarms.rules import AlarmRule, make_rule, rule_spec
+from ..detection.spectral import FrameEngine, spectrum_model
 from ..detection.thresholds import frame_threshold
+from ..detection.verdicts import FrameScore
 from ..errors import CalibrationMismatchError, ParameterError
 from ..plants.nonlinear import is_linear
 from ..plants.simulate import covariance_sqrt
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..detection.monitor_settings import MonitorSettings
+    from ..detection.alarms.calibration import MonitorSettings
     from ..plants.nonlinear import Model
-    from ..plants.scenario_types import Scenario
+    from ..plants.scenarios import Scenario
 
 __all__ = [
     "DEFAULT_BUDGET",
@@ -404,7 +398,7 @@ def calibrate_alarm(
         An alarm rule (its other parameters are kept) or a rule name (table defaults).
     false_alarms_per_hour : float
         The budget (> 0, finite): alarm starts per hour, all channels together; at most one start
-        per two frames per channel (:func:`~chatterspec.detection.alarm_calibration.check_budget`).
+        per two frames per channel (:func:`~chatterspec.detection.alarms.calibration.check_budget`).
     hours, seed, scenario
         Healthy data simulated (see :func:`healthy_frame_scores`; ``hours`` default
         :func:`in_call_hours`, bounded by :func:`check_hours`); not used by the frame rule with

@@ -9,8 +9,8 @@ second-order timelines one scenario per fault window, with the window's input (t
 ``so-timeline-step`` lands at the onset).
 
 :func:`alarm_delays` runs every rule on the same realizations through the monitor's frames and
-score (batch STFT, :class:`~chatterspec.detection.frame_score.FrameScore` and
-:func:`~chatterspec.detection.alarms.run_rule`: the same numbers as the online monitor, whose
+score (batch STFT, :class:`~chatterspec.detection.verdicts.FrameScore` and
+:func:`~chatterspec.detection.alarms.streams.run_rule`: the same numbers as the online monitor, whose
 frames, score and alarm layer are these functions on the same grid). The **delay** of a run is the
 time of the last sample of the frame at which the first alarm starts, on any channel, among the
 frames that end at or after the onset and begin before the fault ends, minus the onset time (s):
@@ -27,8 +27,9 @@ from typing import Any, cast
 
 import numpy as np
 
-from ..detection.alarms import AlarmRule, run_rule
-from ..detection.monitor_settings import MonitorSettings
+from ..detection.alarms.calibration import MonitorSettings
+from ..detection.alarms.rules import AlarmRule
+from ..detection.alarms.streams import run_rule
 from ..detection.pipeline import iter_chattering
 from ..detection.spectral import STFTConfig, frame_columns
 from ..errors import ParameterError
@@ -251,7 +252,7 @@ def alarm_delays(
     settings : MonitorSettings, optional
         The monitor's STFT, band and threshold (the score's law); default ``MonitorSettings()``.
     """
-    from ..detection.monitor_settings import MonitorSettings
+    from ..detection.alarms.calibration import MonitorSettings
 
     settings = settings or MonitorSettings()
     cfg: STFTConfig = settings.stft

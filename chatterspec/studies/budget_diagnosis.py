@@ -10,7 +10,7 @@ compared as they stand):
    from ``SeedSequence([seed, BUDGET_SALT])``, disjoint from the diagnosed runs; every route scores
    the *same* healthy realizations.
 2. **Calibration**: per route, the rule's threshold for ``X`` alarm starts per hour from those
-   streams, by the alarm layer's calibration (:mod:`chatterspec.detection.alarm_calibration`); then
+   streams, by the alarm layer's calibration (:mod:`chatterspec.detection.alarms.calibration`); then
    a grid of thresholds around it, with the starts per hour of the healthy streams at each (the
    x-axis of the delay-against-false-alarms curve).
 3. **Diagnosis** (:class:`BudgetStudy`): the diagnosed realizations (``SeedSequence(seed)``, the
@@ -33,16 +33,16 @@ from typing import TYPE_CHECKING, Any, Unpack
 
 import numpy as np
 
-from ..detection.alarm_rules import rule_spec
+from ..detection.alarms.rules import rule_spec
 from ..errors import ParameterError
 from ..montecarlo import Execution, ExecutionOptions
 from .budget_results import RouteBudget, summarize_route
 from .route_sweep import DEFAULT_WARMUP_S, merge_sweeps, route_geometry, sweep_chunk
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..detection.alarm_calibration import RuleCalibration
-    from ..detection.alarm_rules import AlarmRule
-    from ..plants.scenario_types import Scenario
+    from ..detection.alarms.calibration import RuleCalibration
+    from ..detection.alarms.rules import AlarmRule
+    from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
     from .routes import Route
 
@@ -98,7 +98,7 @@ class BudgetSettings:
     calibration_confidence: float = 0.95
 
     def __post_init__(self) -> None:
-        from ..detection.alarm_calibration import check_budget
+        from ..detection.alarms.calibration import check_budget
 
         object.__setattr__(self, "budget_per_hour", check_budget(self.budget_per_hour, "budget_per_hour"))
         if not (math.isfinite(self.warmup_s) and self.warmup_s >= 0):
@@ -108,7 +108,7 @@ class BudgetSettings:
 
     def make_rule(self, route: Route, threshold: float = float("inf")) -> Any:
         """The rule for ``route`` at ``threshold`` (route defaults, then the common parameters)."""
-        from ..detection.alarms import make_rule
+        from ..detection.alarms.rules import make_rule
 
         params = {**route.rule_parameters(self.rule), **dict(self.rule_parameters)}
         return make_rule(self.rule, threshold, **params)
@@ -206,7 +206,7 @@ class BudgetStudy:
 
 def _count_starts(rule: AlarmRule, scores: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
     """Alarm starts (all streams and channels together) of ``rule`` at each threshold on healthy scores."""
-    from ..detection.alarm_calibration import starts_on_grid
+    from ..detection.alarms.calibration import starts_on_grid
 
     counts = starts_on_grid(rule, scores, thresholds)
     return counts.reshape(len(thresholds), -1).sum(axis=1).astype(np.int64)
@@ -257,7 +257,7 @@ def _calibrate(
     frame rule on a bounded score whose healthy excursions reach its maximum more often than the
     budget allows) gets ``inf`` (it never alarms) and the layer's reason.
     """
-    from ..detection.alarm_calibration import calibrate_rule
+    from ..detection.alarms.calibration import calibrate_rule
 
     try:
         cal = calibrate_rule(rule, scores, steps_per_hour, budget, confidence=confidence)
@@ -267,7 +267,7 @@ def _calibrate(
 
 
 def _provenance(cal: RuleCalibration) -> dict[str, Any]:
-    """A :class:`~chatterspec.detection.alarm_calibration.RuleCalibration` as JSON (without its fit)."""
+    """A :class:`~chatterspec.detection.alarms.calibration.RuleCalibration` as JSON (without its fit)."""
     d = cal.to_dict()
     d.pop("fit", None)
     d["describe"] = cal.describe()

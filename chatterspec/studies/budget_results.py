@@ -15,12 +15,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..detection.alarm_calibration import poisson_interval
+from ..detection.alarms.calibration import poisson_interval
 from ..jsonout import finite_or_none
 from .intervals import clopper_pearson
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..detection.alarm_rules import AlarmRule
+    from ..detection.alarms.rules import AlarmRule
     from .route_sweep import RouteGeometry
     from .routes import Route
 

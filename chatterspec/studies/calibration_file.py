@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .._validate import readonly
-from ..detection.alarm_calibration import RuleCalibration
+from ..detection.alarms.calibration import RuleCalibration
 from ..errors import DataFileError
 from .intervals import QuantileEstimate, _none_to_inf
 

@@ -18,10 +18,9 @@ import numpy as np
 import scipy.stats
 
 from .._repr import short_repr
-from ..detection.alarm_calibration import RuleCalibration
+from ..detection.alarms.calibration import RuleCalibration
 from ..detection.spectral import STFTConfig
-from ..detection.threshold_type import Correction
-from ..detection.thresholds import Threshold
+from ..detection.thresholds import Correction, Threshold
 from ..errors import CalibrationMismatchError, ParameterError
 from ..plants.nonlinear import Model
 from .calibration_file import CALIBRATION_FORMAT, _ro, calibration_dict, read_calibration, save_calibration

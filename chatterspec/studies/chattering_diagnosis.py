@@ -9,7 +9,7 @@ On one :class:`~chatterspec.plants.simulate.Simulation` (the same z and u the SM
 2. its STFT frames (:func:`~chatterspec.detection.spectral.spectrogram`, eq 49 per frame) are tested
    against a calibrated per-frame, family-wise-over-bins threshold
    (``Calibration.threshold("frame-family-wise")``, the live monitor's detector) with
-   :func:`~chatterspec.detection.frames.frame_verdicts`: per frame and channel a flag, the peak
+   :func:`~chatterspec.detection.verdicts.frame_verdicts`: per frame and channel a flag, the peak
    frequency (Hz) and the peak ratio ``S / threshold``. This is exactly what
    :class:`~chatterspec.online.monitor.ChatteringMonitor` computes frame by frame, batched over runs.
 
@@ -44,10 +44,10 @@ import numpy as np
 
 from .._repr import short_repr
 from .._validate import open_unit
-from ..detection.frames import frame_verdicts
 from ..detection.pipeline import chattering_record
 from ..detection.spectral import STFTConfig, spectrogram
 from ..detection.thresholds import Threshold
+from ..detection.verdicts import frame_verdicts
 from ..errors import ParameterError
 from ..jsonout import finite_or_none
 from ..montecarlo import ExecutionOptions

@@ -25,7 +25,7 @@ from .mode_diagnosis import ModeTally
 if TYPE_CHECKING:  # pragma: no cover
     from ..detection.identification import IdentificationSetup
     from ..detection.thresholds import Threshold
-    from ..plants.scenario_types import Scenario
+    from ..plants.scenarios import Scenario
     from .identification_diagnosis import IdentificationTally
 
 __all__ = ["diagnose_parallel"]

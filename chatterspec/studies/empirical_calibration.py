@@ -5,7 +5,7 @@ is nonlinear (no closed-form expected spectrum, eq 56 needs linearity). Two disj
 healthy realizations of the same root seed are used:
 
 1. **pilot** realizations ``[runs, runs + pilot_runs)``: the normalization spectrum ``E_hat``
-   (record periodogram and STFT frames; :mod:`chatterspec.detection.empirical`);
+   (record periodogram and STFT frames; :mod:`chatterspec.detection.thresholds`);
 2. **calibration** realizations ``[0, runs)``: the ``(1 - alpha)``-quantiles of ``S / E_hat`` --
    per bin, per frame, and the family-wise ones (maximum over the tested bins of a record, or of
    a frame) -- with their order-statistic intervals (:mod:`~chatterspec.studies.intervals`),
@@ -23,9 +23,9 @@ from typing import Unpack
 
 import numpy as np
 
-from ..detection.empirical import NORMALIZATION_SMOOTH_BINS, frame_normalization, normalization_spectrum
 from ..detection.pipeline import iter_chattering
 from ..detection.spectral import STFTConfig, periodogram_freqs
+from ..detection.thresholds import NORMALIZATION_SMOOTH_BINS, frame_normalization, normalization_spectrum
 from ..errors import ParameterError
 from ..montecarlo import Execution, ExecutionOptions
 from ..plants.scenarios import Scenario
@@ -37,7 +37,7 @@ from .tail_histogram import DEFAULT_TAIL_BUDGET
 
 __all__ = ["DEFAULT_PILOT_RUNS", "calibrate_empirical"]
 
-DEFAULT_PILOT_RUNS = 200  # E_hat relative SE ~ 1/sqrt(200 * 11) ~ 2 % per bin (see detection.empirical)
+DEFAULT_PILOT_RUNS = 200  # E_hat relative SE ~ 1/sqrt(200 * 11) ~ 2 % per bin (see detection.thresholds)
 
 
 def calibrate_empirical(

@@ -39,8 +39,7 @@ from .._validate import positive_int
 from ..errors import ParameterError
 from ..jsonout import fields_dict, finite_or_none
 from ..montecarlo import Execution, ExecutionOptions
-from ..plants.filter_settings import FilterSettings
-from ..plants.scenarios import Scenario
+from ..plants.scenarios import FilterSettings, Scenario
 from ..plants.scenarios import scenario as _catalogue_scenario
 from ..plants.simulate import iter_simulations
 from ..rng import SeedLike, seed_label

@@ -4,7 +4,7 @@ Under a position controller the actuator moves only as the reference asks. A fau
 through the motion -- a leak needs pressure (eq 68 of the core paper: the pressure chattering
 carries ``dt be dL / V0 x3``), friction needs velocity (eq 69) -- leaves the chattering at its
 noise floor while the actuator holds still. :func:`excitation_study` measures, on the linear EHA
-under its catalogue PI controller (:mod:`chatterspec.plants.scenarios_closed_loop`):
+under its catalogue PI controller (:mod:`chatterspec.plants.scenarios`):
 
 * the detection power of one fault (default: the medium leak) on its channel, at the default
   detector's fixed family-wise false-alarm rate (exact threshold, Bonferroni, ``alpha``), and the
@@ -33,15 +33,13 @@ from ..detection.pipeline import chattering_record
 from ..detection.spectral import periodogram
 from ..errors import ParameterError
 from ..montecarlo import Execution, ExecutionOptions
-from ..plants.closed_loop import ClosedLoop, DitherAt
-from ..plants.dither import PRBS, Multisine
+from ..plants.closed_loop import PRBS, ClosedLoop, DitherAt, Hold, Multisine, SCurve, StepSequence
 from ..plants.models import EHA_PARAMETERS, EHAFault, LinearModel
-from ..plants.references import Hold, SCurve, StepSequence
-from ..plants.scenarios import Scenario
-from ..plants.scenarios_closed_loop import (
+from ..plants.scenarios import (
     EHA_CL_CONTROLLER,
     EHA_CL_POSITION_NOISE,
     EHA_CL_REFERENCE,
+    Scenario,
     eha_closed_loop_scenario,
 )
 from ..plants.signals import Signal
@@ -94,7 +92,7 @@ def response_speed_rms(reference: str, position_noise: float = EHA_CL_POSITION_N
     position_noise : float
         Position sensor standard deviation (m) of the loop's nominal model (no effect without noise).
     """
-    from ..plants.simulate_closed_loop import loop_response
+    from ..plants.simulate import loop_response
 
     _, _, x, _ = loop_response(excitation_scenario("leakage", None, reference, position_noise=position_noise))
     return float(np.sqrt(np.mean(x[:, 1] ** 2)))
@@ -118,8 +116,9 @@ def dither_signal(kind: str, level: float, tones_hz: Sequence[float] = DITHER_TO
     Parameters
     ----------
     kind : {"multisine", "prbs"}
-        ``multisine``: :class:`~chatterspec.plants.dither.Multisine` of ``level`` rad/s per tone at
-        ``tones_hz``; ``prbs``: :class:`~chatterspec.plants.dither.PRBS` of +-``level`` rad/s, 5 ms clock.
+        ``multisine``: :class:`~chatterspec.plants.closed_loop.Multisine` of ``level`` rad/s per tone at
+        ``tones_hz``; ``prbs``: :class:`~chatterspec.plants.closed_loop.PRBS` of +-``level`` rad/s,
+        5 ms clock.
     level : float
         Amplitude in rad/s (>= 0).
     tones_hz : sequence of float

@@ -83,7 +83,7 @@ def replayed_open_loop(sc: Scenario) -> Scenario:
     """
     import dataclasses
 
-    from ..plants.simulate_closed_loop import loop_response
+    from ..plants.simulate import loop_response
 
     if sc.closed_loop is None:
         raise ParameterError(f"{sc.name!r} runs open loop already")

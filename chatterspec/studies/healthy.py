@@ -72,7 +72,7 @@ def resolve_scenario(source: str | Scenario | LinearModel | Path, duration: floa
         zero-input scenario (:func:`model_scenario`); a path ending in ``.toml`` (read with
         :func:`~chatterspec.plants.modelfile.load_model`, linear or nonlinear) becomes the healthy
         scenario of its ``[simulation]`` table (zero input by default;
-        :func:`~chatterspec.plants.modelfile_nonlinear.file_scenario`), named after the file stem;
+        :func:`~chatterspec.plants.modelfile.file_scenario`), named after the file stem;
         any other string is looked up in the scenario catalogue.
     duration : float
         Record length in seconds for model and model-file sources (a model file's
@@ -94,8 +94,7 @@ def resolve_scenario(source: str | Scenario | LinearModel | Path, duration: floa
         return model_scenario(source, duration)
     text = str(source)
     if text.endswith(".toml"):
-        from ..plants.modelfile import load_model
-        from ..plants.modelfile_nonlinear import file_scenario
+        from ..plants.modelfile import file_scenario, load_model
 
         return file_scenario(load_model(text), default_duration=duration, name=Path(text).stem)
     return catalogue_scenario(text)

@@ -35,8 +35,7 @@ from .diagnosis_figures import DiagnosisFigures
 from .intervals import clopper_pearson
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..plants.filter_settings import FilterSettings
-    from ..plants.scenario_types import Scenario
+    from ..plants.scenarios import FilterSettings, Scenario
     from ..plants.simulate import Simulation
 
 __all__ = ["METHODS", "ModeDiagnosis", "ModeTally", "diagnose_modes"]

@@ -17,7 +17,7 @@ How the recording is read
     The measurements are pushed, in chunks of :data:`CHUNK_S` seconds, through the monitor itself
     (:class:`~chatterspec.online.monitor.ChatteringMonitor` with the monitor's STFT, band and
     ``gamma``): its auxiliary SVSF gives the chattering, its frame engine cuts the frames on its
-    global grid and its :class:`~chatterspec.detection.frame_score.FrameScore` scores them, so the
+    global grid and its :class:`~chatterspec.detection.verdicts.FrameScore` scores them, so the
     scores are the ones the monitor computes with the file (the score under a calibration file uses
     the exponential law of the file's normalization, which does not depend on the per-frame factor;
     ``tests/test_recorded_calibration.py`` checks the identity). Memory is bounded by the chunk, the
@@ -35,7 +35,7 @@ Normalization (``normalization``)
     error per bin at most ``1 / sqrt(non-overlapping frames)``, 4 % from 10 minutes of 1 s windows),
     and a moving average over 1 Hz bins would flatten a resonance of a few Hz (by a factor 2.9 at
     the 2 Hz resonance of the tests' second-order plant). The record periodogram, one value per
-    record, is smoothed over ``2 h + 1`` bins (:func:`chatterspec.detection.empirical.smooth_spectrum`,
+    record, is smoothed over ``2 h + 1`` bins (:func:`chatterspec.detection.thresholds.smooth_spectrum`,
     as the simulated empirical calibration). Both are estimated from the same data as the quantiles
     (an in-sample effect of one frame in thousands).
 
@@ -49,9 +49,9 @@ Per-frame threshold
 
 Alarm threshold at a budget
     The recording's frame scores, as one stream, are given to
-    :func:`chatterspec.detection.alarm_calibration.calibrate_rule`: alarm starts counted on a grid of
+    :func:`chatterspec.detection.alarms.calibration.calibrate_rule`: alarm starts counted on a grid of
     thresholds, ``log(starts per hour)`` fitted linearly in ``h`` where alarms are rare and solved
-    for the budget, with a jackknife over :data:`~chatterspec.detection.alarm_calibration.BATCHES`
+    for the budget, with a jackknife over :data:`~chatterspec.detection.alarms.calibration.BATCHES`
     batches of consecutive time (Student ``t``) for the intervals of the threshold and of the
     realized rate. Why this method: a budget of one per day is far rarer than a recording of hours
     can count (an order-statistic or Poisson interval of a *counted* rate needs about 20 alarms, 20
@@ -94,19 +94,23 @@ import numpy as np
 import scipy.stats
 
 from .._validate import open_unit, positive
-from ..detection.alarm_calibration import (
+from ..detection.alarms.calibration import (
     BATCHES,
     MAX_RATE_PER_STEP,
     MIN_COUNT,
+    MonitorSettings,
     RuleCalibration,
     calibrate_rule,
     check_budget,
 )
-from ..detection.alarms import AlarmRule, make_rule
-from ..detection.empirical import NORMALIZATION_SMOOTH_BINS, empirical_family_wise_threshold, smooth_spectrum
-from ..detection.monitor_settings import MonitorSettings
+from ..detection.alarms.rules import AlarmRule, make_rule
 from ..detection.spectral import periodogram, periodogram_freqs
-from ..detection.threshold_type import Threshold
+from ..detection.thresholds import (
+    NORMALIZATION_SMOOTH_BINS,
+    Threshold,
+    empirical_family_wise_threshold,
+    smooth_spectrum,
+)
 from ..errors import ParameterError
 from ..plants.nonlinear import is_linear
 from .calibration_result import Calibration, _ro, _stft_dict

@@ -9,7 +9,7 @@ threshold ``h`` of a grid, on the *same* realizations:
   on the last step before the onset, and the label the route isolates at the detection.
 
 :func:`route_geometry` places the onsets and the healthy steps on a route's step times, and
-:func:`sweep_chunk` runs the rule (:func:`chatterspec.detection.alarms.run_rule`) for each threshold
+:func:`sweep_chunk` runs the rule (:func:`chatterspec.detection.alarms.streams.run_rule`) for each threshold
 and keeps only per-run integers, so that the chunks of a study fold into the same numbers whatever
 the chunking (:func:`merge_sweeps`).
 
@@ -39,8 +39,8 @@ import numpy as np
 from ..errors import ParameterError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..detection.alarm_rules import AlarmRule
-    from ..plants.scenario_types import Scenario
+    from ..detection.alarms.rules import AlarmRule
+    from ..plants.scenarios import Scenario
     from .routes import RouteScores
 
 __all__ = ["DEFAULT_WARMUP_S", "RouteGeometry", "merge_sweeps", "onsets_of", "route_geometry", "sweep_chunk"]
@@ -180,7 +180,7 @@ def sweep_chunk(
         with the correct label (-1; mode routes), ``before`` (G, runs) bool: in alarm on the last step
         before the onset.
     """
-    from ..detection.alarms import run_rule
+    from ..detection.alarms.streams import run_rule
 
     g0 = geometry
     s = np.ascontiguousarray(route_scores.score[:, g0.first :])

@@ -2,7 +2,7 @@
 
 A *route* turns one chunk of realizations (a :class:`~chatterspec.plants.simulate.Simulation`) into
 a score stream ``(runs, steps, channels)`` for the alarm rules of
-:mod:`chatterspec.detection.alarms`, with the time at which each step's score is known and, per
+:mod:`chatterspec.detection.alarms.streams`, with the time at which each step's score is known and, per
 step, the label a route would isolate if it were in alarm then:
 
 ========== ============================================ ========================= ================
@@ -10,7 +10,7 @@ method     score (per step)                             step                    
 ========== ============================================ ========================= ================
 chattering ``-log p`` of the STFT frame of the auxiliary  one frame (hop, 0.2 s),   the channel
            sgn-SVSF's chattering, per measured channel  known at the frame's end  in alarm
-           (:mod:`chatterspec.detection.frame_score`)
+           (:mod:`chatterspec.detection.verdicts`)
 parameters ``-log p`` of "inside its tolerance" of each     one identification        the parameter
            declared parameter's joint estimate          window (hop), known at    in alarm
            (:mod:`chatterspec.detection.                its last sample
@@ -56,10 +56,10 @@ from ..detection.route_scores import (
 from ..errors import ParameterError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..detection.alarm_rules import AlarmRule
+    from ..detection.alarms.rules import AlarmRule
     from ..detection.spectral import STFTConfig
     from ..detection.thresholds import Threshold
-    from ..plants.scenario_types import Scenario
+    from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
 
 __all__ = [
@@ -83,7 +83,7 @@ ROUTE_RULE_PARAMETERS = ("drift",)
 
 def _taken(rule: str, **offered: float) -> dict[str, float]:
     """The ``offered`` parameters (of :data:`ROUTE_RULE_PARAMETERS`) that ``rule`` has."""
-    from ..detection.alarm_rules import rule_spec
+    from ..detection.alarms.rules import rule_spec
 
     have = rule_spec(rule).parameters
     return {k: v for k, v in offered.items() if k in have}
@@ -342,7 +342,7 @@ class ChatteringRoute:
     scenario : Scenario
         A scenario whose nominal model measures every state.
     law : Threshold
-        The healthy law of the frame bins (:class:`~chatterspec.detection.frame_score.FrameScore`):
+        The healthy law of the frame bins (:class:`~chatterspec.detection.verdicts.FrameScore`):
         the exact law of a linear model (:func:`~chatterspec.detection.thresholds.frame_threshold`) or a
         calibration's per-frame threshold (its expected spectrum) for a nonlinear one.
     config : STFTConfig, optional
@@ -356,8 +356,8 @@ class ChatteringRoute:
     def __init__(
         self, scenario: Scenario, law: Threshold, config: STFTConfig | None = None, gamma: float = 0.1
     ) -> None:
-        from ..detection.frame_score import FrameScore
         from ..detection.spectral import STFTConfig
+        from ..detection.verdicts import FrameScore
 
         why = unsupported_reason(scenario, "chattering")
         if why is not None:
@@ -383,9 +383,9 @@ class ChatteringRoute:
 
     @property
     def frame_score(self) -> Any:
-        """The :class:`~chatterspec.detection.frame_score.FrameScore` of the law (rebuilt after pickling)."""
+        """The :class:`~chatterspec.detection.verdicts.FrameScore` of the law (rebuilt after pickling)."""
         if self._score is None:
-            from ..detection.frame_score import FrameScore
+            from ..detection.verdicts import FrameScore
 
             self._score = FrameScore(self.law)
         return self._score
@@ -410,7 +410,7 @@ class ChatteringRoute:
         model = self.scenario.nominal
         if not isinstance(model, LinearModel) or self.frame_score.law != "exact":
             return None
-        from ..detection.monitor_settings import MonitorSettings
+        from ..detection.alarms.calibration import MonitorSettings
         from .alarm_budget import calibrate_alarm
 
         settings = MonitorSettings(stft=self.config, threshold=self.law)
@@ -455,7 +455,7 @@ class ParameterRoute:
 
     def __init__(self, scenario: Any, config: Any = None) -> None:
         from ..detection.identification import identification_setup
-        from ..detection.parameter_scores import ParameterBands
+        from ..detection.parameter_decision import ParameterBands
         from ..detection.spectral import STFTConfig
 
         why = unsupported_reason(scenario, "parameters")
@@ -484,7 +484,7 @@ class ParameterRoute:
         """The monitor's threshold: the rule on worst-case streams (parameters on their band edges), not
         on healthy runs, whose parameters sit at the nominal values inside the bands (a threshold set on
         them would alarm on a plant that moved within its tolerance)."""
-        from ..detection.parameter_scores import calibrate_parameter_rule
+        from ..detection.parameter_decision import calibrate_parameter_rule
 
         per_hour = 3600.0 / self.step_s
         return calibrate_parameter_rule(rule, self.bands, self.n, per_hour, budget, seed=int(seed))
@@ -504,9 +504,8 @@ class ParameterRoute:
 
     def scores(self, sim: Any) -> RouteScores:
         """Score stream of one chunk: window end times, ``(runs, windows, P)``, label None (the parameter)."""
-        from ..detection.identification import identify_moments
-        from ..detection.identification_online import hop_windows
-        from ..detection.parameter_scores import band_scores, joint_estimates
+        from ..detection.identification import hop_windows, identify_moments
+        from ..detection.parameter_decision import band_scores, joint_estimates
 
         t0 = time.perf_counter()
         runs = sim.z.shape[0]

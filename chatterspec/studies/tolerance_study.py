@@ -16,13 +16,16 @@ from typing import Any, cast
 
 import numpy as np
 
-from ..detection.parameter_decision import ParameterAlarmSettings, parameter_alarm_settings
-from ..detection.parameter_records import monitor_parameters
+from ..detection.parameter_decision import (
+    ParameterAlarmSettings,
+    monitor_parameters,
+    parameter_alarm_settings,
+)
 from ..plants.models import EHAFault, eha_linear
-from ..plants.scenario_types import Scenario, Segment
+from ..plants.parameters import with_tolerances
+from ..plants.scenarios import Scenario, Segment
 from ..plants.signals import Chirp, Repeat
 from ..plants.simulate import iter_simulations
-from ..plants.tolerances import with_tolerances
 from .intervals import clopper_pearson
 
 __all__ = [
@@ -279,10 +282,8 @@ def excitation_cycle(
     ParameterDecisions
         Of the ``runs`` records (35 s each).
     """
-    from ..plants.closed_loop import ClosedLoop
-    from ..plants.dither import Multisine
-    from ..plants.references import SCurve
-    from ..plants.scenarios_closed_loop import EHA_CL_CONTROLLER, eha_closed_loop_scenario
+    from ..plants.closed_loop import ClosedLoop, Multisine, SCurve
+    from ..plants.scenarios import EHA_CL_CONTROLLER, eha_closed_loop_scenario
 
     ref = SCurve(CYCLE_MOVES, (0.01, -0.01, 0.01, 0.0), 0.5)
     dither = None if dither_amplitude is None else Multisine(float(dither_amplitude))

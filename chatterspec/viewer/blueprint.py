@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any, Protocol, cast
 import numpy as np
 
 from .. import palette
-from ..detection.alarm_rules import rule_spec
+from ..detection.alarms.rules import rule_spec
 from ..detection.spectral import expected_frame_spectrum
 from ..online.monitor import ChatteringMonitor
 from ..plants.nonlinear import is_linear
@@ -112,7 +112,7 @@ THRESHOLD = "/detection/threshold_db"
 #: Per frame ONE row of ``3 m + 1`` series: the per-frame verdict per channel (series ``0 .. m-1``,
 #: 1 = fault; not drawn), then the alarm rule's statistic per channel (``m .. 2m-1``: the frame
 #: score ``-log p`` in nats for the frame and persistence rules, the CUSUM ``g``), the frame score
-#: per channel (``2m .. 3m-1``; see chatterspec.detection.frame_score) and the rule's threshold ``h``
+#: per channel (``2m .. 3m-1``; see chatterspec.detection.verdicts) and the rule's threshold ``h``
 #: (``3m``). The alarm series share the verdict's rows: Rerun's cost is per row.
 VERDICT = "/detection/verdict"
 #: Default y range of the statistic views (dB): healthy frames sit near -3 dB, the threshold at 0 dB. The

@@ -11,9 +11,9 @@ the same entity.
 
 The fault intervals of a recorded file (:class:`IntervalCollector`): the window-extent onset/offset
 estimates of its flagged frames, the numbers of ``detect --json``'s ``intervals`` and Fig 8, logged as
-events at their onsets. The estimator is :func:`chatterspec.detection.frames.frame_intervals` applied to
+events at their onsets. The estimator is :func:`chatterspec.detection.verdicts.frame_intervals` applied to
 the per-frame flags and statistic ``max S / threshold`` of each channel, with the healthy median
-:func:`chatterspec.detection.frames.healthy_frame_level` of the frame threshold. They annotate the
+:func:`chatterspec.detection.verdicts.healthy_frame_level` of the frame threshold. They annotate the
 channel's fault state; the state itself (the lanes) is the alarm layer's (:class:`FaultLanes`).
 
 The channels' lanes (:class:`FaultLanes`): one fault state per channel
@@ -58,8 +58,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..detection.bin_labels import db_over_threshold, two_bins_text
-from ..detection.frames import frame_intervals, healthy_frame_level
+from ..detection.thresholds import db_over_threshold, two_bins_text
+from ..detection.verdicts import frame_intervals, healthy_frame_level
 from ..online.fault_state import FAULT, HEALTHY, NO_EVIDENCE, STATES, FaultStates, StateChanges
 from ..online.monitor import DetectionEvent
 from ..palette import FAULT as FAULT_RGB
@@ -142,7 +142,7 @@ def parameter_event_text(ev: ParameterEvent) -> str:
     -------
     str
     """
-    from ..detection.parameter_scores import band_position, status_text
+    from ..detection.parameter_decision import band_position, status_text
 
     what = "ALARM" if ev.kind == "fault-start" else "alarm cleared"
     pos = band_position(ev.ci_low, ev.ci_high, *ev.band)
@@ -243,7 +243,7 @@ class FaultInterval:
         That largest ``10 log10(S / threshold)`` (dB).
     excess_hz : float
         In that frame, the bin of largest excess power ``S - E`` among the bins over the threshold (Hz;
-        :mod:`chatterspec.detection.bin_labels`).
+        :mod:`chatterspec.detection.thresholds`).
     excess_db : float
         Its ``10 log10(S / threshold)`` (dB).
     """
@@ -260,7 +260,7 @@ class FaultInterval:
         """``"<onset>-<offset> s <channel> flagged frames (estimate), <two bins>"`` (``<onset> s`` for an
         estimate of zero length): times and channel first
         (the viewer's log view cuts long lines), both bins labelled (:func:`~chatterspec.detection.
-        bin_labels.two_bins_text`)."""
+        thresholds.two_bins_text`)."""
         bins = two_bins_text(self.peak_hz, self.peak_db, self.excess_hz, self.excess_db)
         return f"{interval_text(self.onset_s, self.offset_s)} {channel} flagged frames (estimate), {bins}"
 

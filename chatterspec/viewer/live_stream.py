@@ -76,7 +76,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..detection.alarm_rules import alarm_label
+from ..detection.alarms.rules import alarm_label
 from ..errors import DataFileError
 from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorSettings, MonitorUpdate
 from ..online.stream import BadRow, CsvRows, Restart, RowBlock

@@ -43,7 +43,7 @@ from ..detection.thresholds import Threshold
 from ..errors import ParameterError
 from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorSettings
 from ..palette import NEUTRAL, TAB10, TRUTH, filter_color, mode_color, rgba32
-from ..plants.model_base import state_units
+from ..plants.models import state_units
 from .blueprint import _entity, labelled_half_range, labelled_step, labelled_top, time_axis, time_panel
 from .events import log_truth_lane, truth_colors
 from .rerun_log import RerunLogger
@@ -61,7 +61,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..detection.parameter_decision import ParameterEvent
     from ..detection.pipeline import ChatteringRecord
     from ..online.identification_monitor import IdentificationMonitor, IdentificationUpdate
-    from ..plants.scenario_types import Scenario
+    from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
     from ..studies.estimation import EstimateRecords
 
@@ -999,7 +999,8 @@ def record_budget_diagnosis(
     -------
     Path
     """
-    from ..detection.alarms import rule_from_dict, rule_spec, run_rule
+    from ..detection.alarms.rules import rule_from_dict, rule_spec
+    from ..detection.alarms.streams import run_rule
     from ..detection.route_scores import mode_log_odds
     from ..plants.simulate import iter_simulations
 

@@ -51,8 +51,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..detection.alarm_rules import rule_spec
-from ..detection.identification_results import format_with_error
+from ..detection.alarms.rules import rule_spec
+from ..detection.identification import format_with_error
 from ..detection.parameter_decision import STATES
 from ..errors import ParameterError
 from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorUpdate

@@ -261,10 +261,10 @@ def _alarms(model: LinearModel, e: np.ndarray, settings: Any, t_first: float) ->
     """The monitor's alarm starts on ``e`` (chattering sample 0 at ``t_first`` s): ``(starts (F, m), frame
     times, settings)``."""
     from ... import _jit
-    from ...detection.alarms import run_rule
-    from ...detection.frame_engine import FrameEngine
-    from ...detection.frame_score import FrameScore
+    from ...detection.alarms.streams import run_rule
+    from ...detection.spectral import FrameEngine
     from ...detection.thresholds import frame_threshold
+    from ...detection.verdicts import FrameScore
 
     dt = model.dt
     th = frame_threshold(model, settings.stft.freqs_hz(dt), settings.stft, dt, settings.alpha,
@@ -304,7 +304,7 @@ def check_model(
     lags : int
         Ljung-Box lags.
     """
-    from ...detection.alarm_calibration import poisson_interval
+    from ...detection.alarms.calibration import poisson_interval
 
     m, dt = model.n_outputs, model.dt
     a_test = alpha / N_TESTS

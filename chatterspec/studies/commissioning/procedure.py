@@ -237,7 +237,7 @@ def commission(
     ParameterError, ShapeError, NonFiniteError
         Bad options, a recording too short for the check, data of the wrong shape or with NaN/inf.
     """
-    from ...detection.monitor_settings import MonitorSettings
+    from ...detection.alarms.calibration import MonitorSettings
 
     spec = nominal_spec(model)
     nominal = spec.model

@@ -3,7 +3,7 @@
 :func:`read_recording` reads a data file or standard input (CSV read to its end) with
 :func:`~chatterspec.plants.datafile.load_data`'s checks and the SHA-256 of the bytes read;
 :func:`write_model_file` writes the fitted model as a model file (the writer of
-:mod:`chatterspec.plants.modelfile_writer`) with a ``[commissioning]`` table of provenance, atomically:
+:mod:`chatterspec.plants.modelfile`) with a ``[commissioning]`` table of provenance, atomically:
 the file is written beside its target under a temporary name, read back with
 :func:`~chatterspec.plants.modelfile.load_model`, and only then renamed over the target, so a failure
 at any point leaves the target as it was and no partial file behind.
@@ -193,8 +193,7 @@ def write_model_file(result: Any, path: str | Path, *, force: bool = False) -> P
     CommissioningError
         The held-out check failed and ``force`` is False: nothing is written.
     """
-    from ...plants.modelfile import load_model
-    from ...plants.modelfile_writer import write_model_toml
+    from ...plants.modelfile import load_model, write_model_toml
 
     check = result.check
     if check is not None and not check.adequate and not force:

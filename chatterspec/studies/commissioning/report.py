@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from ...detection.identification_results import format_with_error
+from ...detection.identification import format_with_error
 
 __all__ = ["report_text"]
 

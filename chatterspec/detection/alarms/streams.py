@@ -3,10 +3,10 @@
 A *score stream* is an array ``(..., steps, channels)``: the leading axes are independent
 streams (Monte Carlo realizations), a step is a frame or a sample, and a larger score means
 more anomalous (for the chattering: ``-log p`` of the frame's p-value,
-:mod:`chatterspec.detection.frame_score`). A *rule* turns each channel's stream into an
+:mod:`chatterspec.detection.verdicts`). A *rule* turns each channel's stream into an
 alarm state (active or not) per step; an alarm **start** is a step where the state turns
 active, an **end** one where it turns inactive. False-alarm budgets count starts
-(:mod:`chatterspec.detection.alarm_calibration`).
+(:mod:`chatterspec.detection.alarms.calibration`).
 
 Rules (the table :data:`RULES`, which the CLI ``choices`` and the plot styles read)
     ``frame`` (:class:`FrameRule`)
@@ -34,19 +34,20 @@ Renewal
 Streaming
     :class:`AlarmStream` keeps the state between calls, so feeding a stream in any chunking
     gives the same alarms as feeding it whole (``tests/test_alarms.py``). The per-step
-    recursion is the rule's own (:class:`~chatterspec.detection.alarm_steps.RuleSteps`, named by
+    recursion is the rule's own (:class:`~chatterspec.detection.alarms.steps.RuleSteps`, named by
     its :class:`RuleSpec`): one compiled loop (through :func:`chatterspec._jit.njit`) when
     :func:`chatterspec._jit.enabled`, otherwise a numpy loop over steps vectorized over every
     stream and channel; both compute the same operations in the same order (``+``, ``-``,
     ``min``, ``max`` and comparisons), hence the same bits. Nothing loops over streams in
     Python, and nothing here branches on a rule's name: a registered rule
-    (:func:`~chatterspec.detection.alarm_rules.register_rule`) runs as the stock ones do.
+    (:func:`~chatterspec.detection.alarms.rules.register_rule`) runs as the stock ones do.
 
 Public interface (stable; additions only)
-    :class:`FrameRule`, :class:`PersistenceRule`, :class:`CusumRule` (frozen; ``.name``,
-    ``.threshold``, ``.with_threshold(h)``, ``.parameters()``, ``.to_dict()``, ``.describe()``),
-    :data:`RULES` (name -> :class:`RuleSpec`), :func:`rule_names`, :func:`make_rule`,
-    :func:`rule_from_dict`, :class:`AlarmStream` (``.update(scores) -> AlarmBlock``),
+    In :mod:`chatterspec.detection.alarms.rules`: :class:`FrameRule`, :class:`PersistenceRule`,
+    :class:`CusumRule` (frozen; ``.name``, ``.threshold``, ``.with_threshold(h)``,
+    ``.parameters()``, ``.to_dict()``, ``.describe()``), :data:`RULES` (name -> :class:`RuleSpec`),
+    :func:`rule_names`, :func:`make_rule`, :func:`rule_from_dict`. Here: :class:`AlarmStream`
+    (``.update(scores) -> AlarmBlock``),
     :class:`AlarmBlock` (``active``, ``statistic``, ``starts``, ``ends``, ``first_step``,
     ``.events()``), :class:`AlarmEvent`, :func:`run_rule` (one call on whole streams) and
     :func:`count_starts`.
@@ -59,40 +60,21 @@ from typing import Literal
 
 import numpy as np
 
-from .. import _jit
-from ..errors import NonFiniteError, ParameterError, ShapeError
-from .alarm_rules import (
-    RULES,
+from ... import _jit
+from ...errors import NonFiniteError, ParameterError, ShapeError
+from .rules import (
     AlarmRule,
-    CusumRule,
-    FrameRule,
-    PersistenceRule,
-    RuleSpec,
     is_rule,
-    make_rule,
-    rule_from_dict,
-    rule_names,
     rule_spec,
 )
-from .alarm_steps import RuleSteps
+from .steps import RuleSteps
 
 __all__ = [
-    "RULES",
     "AlarmBlock",
     "AlarmEvent",
-    "AlarmRule",
     "AlarmStream",
-    "CusumRule",
-    "FrameRule",
-    "PersistenceRule",
-    "RuleSpec",
     "count_starts",
-    "is_rule",
-    "make_rule",
     "ring_length",
-    "rule_from_dict",
-    "rule_names",
-    "rule_spec",
     "rule_vector",
     "run_rule",
 ]
@@ -179,7 +161,7 @@ class AlarmStream:
     Examples
     --------
     >>> import numpy as np
-    >>> from chatterspec.detection.alarms import AlarmStream, CusumRule
+    >>> from chatterspec.detection.alarms.streams import AlarmStream, CusumRule
     >>> s = AlarmStream(CusumRule(threshold=5.0, drift=1.0), shape=(1,))
     >>> blk = s.update(np.array([[0.0], [4.0], [4.0], [0.0], [0.0], [0.0], [0.0]]))
     >>> blk.active[:, 0].tolist()

@@ -5,7 +5,7 @@ Everything that differs between rules is read from a rule's :class:`RuleSpec` or
 options of its parameters (``--persistence-k``, ``--cusum-drift``: ``--{rule}-{parameter}``), what
 its statistic is called in plots and recordings, whether its threshold applies to each step's score
 or to an accumulated statistic, whether the per-step law gives its threshold, and its state machine
-(:class:`~chatterspec.detection.alarm_steps.RuleSteps`: a compiled loop and its numpy form,
+(:class:`~chatterspec.detection.alarms.steps.RuleSteps`: a compiled loop and its numpy form,
 loaded lazily so that building the CLI parser imports no numpy). Adding a rule is its class (and its
 steps) plus one :func:`register_rule` call; ``docs/design.md`` shows a whole one.
 """
@@ -18,11 +18,11 @@ from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .alarm_steps import RuleSteps
+from ...errors import ParameterError
+from ...jsonout import finite_or_none
 
-from ..errors import ParameterError
-from ..jsonout import finite_or_none
+if TYPE_CHECKING:  # pragma: no cover
+    from .steps import RuleSteps
 
 __all__ = [
     "RULES",
@@ -122,7 +122,7 @@ class PersistenceRule:
     name: ClassVar[str] = "persistence"
 
     def __post_init__(self) -> None:
-        from .._validate import positive_int  # numpy: not when the CLI only builds its parser
+        from ..._validate import positive_int  # numpy: not when the CLI only builds its parser
 
         object.__setattr__(self, "threshold", _threshold(self.threshold))
         k = positive_int("persistence k", self.k)
@@ -282,7 +282,7 @@ class RuleSpec:
         Matplotlib / viewer style of the rule's curves: ``color`` (hex), ``marker``, ``linestyle``.
     steps : callable
         ``steps() -> RuleSteps``: the rule's state machine (compiled loop and numpy form,
-        :mod:`chatterspec.detection.alarm_steps`), imported only when alarms run.
+        :mod:`chatterspec.detection.alarms.steps`), imported only when alarms run.
     options : dict
         Parameter name -> :class:`RuleOption` (its CLI option ``--{name}-{parameter}``); a parameter
         without one has no CLI option.
@@ -294,7 +294,7 @@ class RuleSpec:
     per_step_law : bool
         The rule alarms at each step whose score is over the threshold, so on a p-value score
         (``-log p``) the healthy law alone gives the threshold for a budget
-        (:func:`~chatterspec.detection.alarm_calibration.law_frame_rule`), no simulation.
+        (:func:`~chatterspec.detection.alarms.calibration.law_frame_rule`), no simulation.
     """
 
     name: str
@@ -313,17 +313,17 @@ class RuleSpec:
         return f"--{self.name}-{parameter}".replace("_", "-")
 
     def load_steps(self) -> RuleSteps:
-        """The rule's :class:`~chatterspec.detection.alarm_steps.RuleSteps`."""
+        """The rule's :class:`~chatterspec.detection.alarms.steps.RuleSteps`."""
         if self.steps is None:
             raise ParameterError(f"the {self.name} rule has no state machine (RuleSpec.steps)")
         return self.steps()
 
 
 def _stock_steps(attribute: str) -> Callable[[], RuleSteps]:
-    """The steps of a stock rule, from :mod:`chatterspec.detection.alarm_steps` (numpy: imported late)."""
+    """The steps of a stock rule, from :mod:`chatterspec.detection.alarms.steps` (numpy: imported late)."""
 
     def load() -> RuleSteps:
-        from . import alarm_steps
+        from . import steps as alarm_steps
 
         steps: RuleSteps = getattr(alarm_steps, attribute)
         return steps
@@ -451,7 +451,7 @@ def make_rule(name: str, threshold: float = float("inf"), **parameters: float) -
         A key of :data:`RULES` (``"frame"``, ``"persistence"``, ``"cusum"`` or a registered one).
     threshold : float
         The rule's threshold ``h`` (default ``inf``: calibrate it, e.g. with
-        :func:`chatterspec.detection.alarm_calibration.calibrate_rule`).
+        :func:`chatterspec.detection.alarms.calibration.calibrate_rule`).
     **parameters
         The rule's other parameters (``k``, ``n``; ``drift``); missing ones take the table's defaults.
 

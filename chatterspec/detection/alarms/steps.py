@@ -1,8 +1,8 @@
 """The alarm rules' state machines: per rule a compiled loop and its numpy form (:class:`RuleSteps`).
 
-A rule's :class:`~chatterspec.detection.alarm_rules.RuleSpec` names its :class:`RuleSteps`
-(``RuleSpec.steps``); :class:`~chatterspec.detection.alarms.AlarmStream` and
-:func:`~chatterspec.detection.alarm_calibration.starts_on_grid` call them and never branch on a rule's
+A rule's :class:`~chatterspec.detection.alarms.rules.RuleSpec` names its :class:`RuleSteps`
+(``RuleSpec.steps``); :class:`~chatterspec.detection.alarms.streams.AlarmStream` and
+:func:`~chatterspec.detection.alarms.calibration.starts_on_grid` call them and never branch on a rule's
 name. Every rule keeps its state in the same arrays, so one stream object serves all of them:
 
 ``act`` (R, C) bool
@@ -40,9 +40,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import _jit
+from ... import _jit
 
-__all__ = ["CUSUM", "FRAME", "PERSISTENCE", "RuleSteps", "score_range"]
+__all__ = [
+    "CUSUM",
+    "FRAME",
+    "PERSISTENCE",
+    "RuleSteps",
+    "score_range",
+]
+
 
 _Out = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
@@ -361,7 +368,7 @@ def _cusum_range(s3: np.ndarray, p: np.ndarray) -> tuple[float, float]:
     return 0.0, float(np.max(x - run_min))
 
 
-#: The stock rules' steps (named by their :class:`~chatterspec.detection.alarm_rules.RuleSpec`).
+#: The stock rules' steps (named by their :class:`~chatterspec.detection.alarms.rules.RuleSpec`).
 FRAME = RuleSteps(
     _rule_kernel(_frame_channel, "frame"),
     _frame_numpy,
