@@ -20,7 +20,7 @@ Not a test (the default suite runs a one-hour version, tests/test_alarm_monitor.
 
 ``delays``
     Every fault of the EHA catalogue and the two second-order timelines as onset scenarios
-    (:func:`chatterspec.studies.alarm_delays.onset_scenarios`: 6 s healthy, then the fault; the
+    (:func:`chatterspec.studies.alarm_budget.onset_scenarios`: 6 s healthy, then the fault; the
     EHA at 8 phases of its 4 s chirp), ``--runs`` realizations each, per rule at the budget and
     for today's per-frame rule at alpha 0.1 %: detection rate, median and p90 delay (s, to the end
     of the frame that raised the alarm), alarms on the fault's channel, false starts in the
@@ -176,7 +176,7 @@ def verify(args: argparse.Namespace) -> dict:
 
 
 def delays(args: argparse.Namespace) -> dict:
-    from chatterspec.studies.alarm_delays import alarm_delays, onset_scenarios
+    from chatterspec.studies.alarm_budget import alarm_delays, onset_scenarios
 
     faults = args.faults.split(",") + [f for f in args.extra.split(",") if f]
     out: dict = {"budget_per_hour": args.budget, "runs_per_scenario": args.runs, "faults": {}}

@@ -26,8 +26,13 @@ import chatterspec as cs
 def _routes(sc: object, alpha: float, calibration_runs: int) -> dict:
     from chatterspec.detection.spectral import STFTConfig
     from chatterspec.detection.thresholds import frame_threshold
-    from chatterspec.studies.chattering_diagnosis import calibrate_for_diagnosis
-    from chatterspec.studies.routes import ChatteringRoute, InnovationRoute, ModeRoute, supported_methods
+    from chatterspec.studies.budget_diagnosis import (
+        ChatteringRoute,
+        InnovationRoute,
+        ModeRoute,
+        supported_methods,
+    )
+    from chatterspec.studies.diagnosis import calibrate_for_diagnosis
 
     routes = {}
     for m in supported_methods(sc):
@@ -62,7 +67,7 @@ def main() -> None:
     args = p.parse_args()
     sc = cs.scenario(args.name)
     if args.onset is not None:
-        from chatterspec.studies.scenario_variants import with_onset
+        from chatterspec.studies.diagnosis import with_onset
 
         sc = with_onset(sc, args.onset)
     t0 = time.perf_counter()

@@ -29,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-frames", action="store_true")
     args = p.parse_args(argv)
 
-    from chatterspec.studies.false_alarms import false_alarm_study
+    from chatterspec.studies.detection_rates import false_alarm_study
 
     t0 = time.perf_counter()
     res = false_alarm_study(

@@ -34,7 +34,7 @@ from chatterspec import _jit
 from chatterspec.filters import ExtendedKalmanFilter, SecondOrderSVSF, SVSFCov
 from chatterspec.filters.imm import IMM
 from chatterspec.filters.smm_svsf import SMMSVSF
-from chatterspec.studies.modes import argmax_accuracy, confusion_matrix, rmse_table, switch_delays
+from chatterspec.studies.estimation import argmax_accuracy, confusion_matrix, rmse_table, switch_delays
 
 
 def smm(runs: int, seed: int, scales: list[float]) -> list[dict[str, object]]:

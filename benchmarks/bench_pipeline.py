@@ -9,7 +9,7 @@ With numba installed, ``iter_chattering`` runs the fused simulation + auxiliary-
 numba's ``Generator.standard_normal`` (the same numbers as numpy's), and ``detect_spectrum``
 its compiled one-pass verdict; the numpy path (``CHATTERSPEC_JIT=0``, selected in this same
 process) is the baseline. The random-number bound is the rate at which the block generators
-of :mod:`chatterspec.rng` draw the 6 standard normals a step needs (3 process, 3
+of :mod:`chatterspec.montecarlo` draw the 6 standard normals a step needs (3 process, 3
 measurement), measured on one thread in two ways: numpy's ``standard_normal`` filling
 ``(BLOCK, T, 3)`` arrays (how the numpy path draws; the bound the targets refer to) and
 numba's, one number at a time (how the fused kernel draws). Rates are given per wall second
@@ -36,7 +36,7 @@ from chatterspec.detection.pipeline import iter_chattering
 from chatterspec.detection.spectral import expected_spectrum, periodogram, periodogram_freqs, spectrogram
 from chatterspec.detection.thresholds import exact_threshold
 from chatterspec.detection.verdicts import detect_spectrum
-from chatterspec.rng import BLOCK, block_generator, root_seed_sequence
+from chatterspec.montecarlo import BLOCK, block_generator, root_seed_sequence
 
 
 def end_to_end(runs: int, threads: int, chunk: int, seed: int = 0) -> tuple[float, float, int]:

@@ -73,15 +73,16 @@ _GROUPS: dict[str, dict[str, str]] = {
         **dict.fromkeys(("Threshold", "threshold"), ".detection.thresholds"),
     },
     "calibration": {
-        **dict.fromkeys(("Calibration", "calibrate", "load_calibration"), ".studies.calibration"),
+        **dict.fromkeys(("Calibration", "load_calibration"), ".studies.calibration.result"),
+        "calibrate": ".studies.calibration.thresholds",
         "calibrate_recorded": ".online.recorded_calibration",
     },
     "estimation": {
         **dict.fromkeys(("EstimationResult", "build_filter", "estimation_study"), ".studies.estimation"),
     },
     "diagnosis": {
-        **dict.fromkeys(("ChatteringDiagnosis", "diagnose_chattering"), ".studies.chattering_diagnosis"),
-        **dict.fromkeys(("ModeDiagnosis", "diagnose_modes"), ".studies.mode_diagnosis"),
+        **dict.fromkeys(("ChatteringDiagnosis", "diagnose_chattering"), ".studies.diagnosis"),
+        **dict.fromkeys(("ModeDiagnosis", "diagnose_modes"), ".studies.diagnosis"),
     },
     "identification": {
         **dict.fromkeys(
@@ -149,11 +150,11 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .plants.simulate import Simulation, iter_simulations, simulate
     from .studies.alarm_budget import calibrate_alarm
     from .studies.budget_diagnosis import diagnose_at_budget
-    from .studies.calibration import Calibration, calibrate, load_calibration
-    from .studies.chattering_diagnosis import ChatteringDiagnosis, diagnose_chattering
+    from .studies.calibration.result import Calibration, load_calibration
+    from .studies.calibration.thresholds import calibrate
     from .studies.commissioning import Commissioning, commission
+    from .studies.diagnosis import ChatteringDiagnosis, ModeDiagnosis, diagnose_chattering, diagnose_modes
     from .studies.estimation import EstimationResult, build_filter, estimation_study
-    from .studies.mode_diagnosis import ModeDiagnosis, diagnose_modes
 
 
 def __getattr__(name: str) -> Any:

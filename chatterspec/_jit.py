@@ -74,10 +74,10 @@ from typing import Any, TypeVar, cast
 
 import numpy as np
 
-from ._jit_limits import BLOCK_CAPACITY, MAX_DIMENSION, STACK_CAPACITY  # noqa: F401  (re-exported)
-
 __all__ = [
+    "BLOCK_CAPACITY",
     "HAVE_NUMBA",
+    "MAX_DIMENSION",
     "STACK_CAPACITY",
     "borrow",
     "enabled",
@@ -94,6 +94,13 @@ __all__ = [
 
 
 F = TypeVar("F", bound=Callable[..., Any])
+
+#: Room (floats) of a compiled :func:`scratch` / :func:`scratch2` whose size is known only at run time.
+STACK_CAPACITY = 256
+#: Largest number of states or outputs of a loop with matrix scratch (16 x 16 = STACK_CAPACITY).
+MAX_DIMENSION = 16
+#: Room (floats) of a compiled :func:`scratch_block` (a covariance filter's workspace up to MAX_DIMENSION).
+BLOCK_CAPACITY = 8192
 
 #: Whether numba is installed (checked without importing it).
 HAVE_NUMBA = importlib.util.find_spec("numba") is not None
@@ -201,6 +208,130 @@ def borrow(a: Any) -> Any:
     return a
 
 
+_FORMS: list[types.ModuleType] = []  # memo of the compiled forms (built once, when numba first compiles)
+
+
+def _compiled_forms() -> types.ModuleType:
+    """The compiled forms of :func:`scratch`, :func:`scratch2`, :func:`scratch_block` and :func:`borrow`.
+
+    numba intrinsics, built (and numba imported) only when a kernel is first compiled: a kernel's
+    compiled copy gets them in place of the Python functions it imported by name, and this
+    namespace in place of the module when it calls them as ``_jit.scratch(n)``, so ``scratch(n)`` in
+    a loop is a stack array. A literal size gives an array of exactly that size (LLVM promotes it to
+    registers once the loops over it are unrolled); a run-time size gives the room of
+    :data:`STACK_CAPACITY` floats (``scratch_block``: :data:`BLOCK_CAPACITY`), of which the array
+    uses the first ``n`` (``n m``): callers keep the sizes within it (:func:`fits`). The memory
+    belongs to the frame of the compiled function that calls the intrinsic (the loop, or the step
+    inlined into it) and is valid until that function returns: never return it.
+
+    The typing and code-generation callbacks receive numba's own (untyped) context, builder and
+    type objects, hence their ``Any`` annotations.
+    """
+    if _FORMS:
+        return _FORMS[0]
+    from numba import types as nb
+    from numba.core import cgutils
+    from numba.extending import intrinsic
+
+    f8 = nb.float64
+
+    def array(context: Any, builder: Any, ptr: Any, shape: list[Any], ndim: int) -> Any:
+        """A C-order float64 array of ``shape`` (intp values) at ``ptr``, without a meminfo."""
+        arrty = nb.Array(f8, ndim, "C")
+        ary = context.make_array(arrty)(context, builder)
+        itemsize = context.get_constant(nb.intp, 8)
+        strides = [itemsize]
+        for s in reversed(shape[1:]):
+            strides.insert(0, builder.mul(strides[0], s))
+        context.populate_array(
+            ary,
+            data=ptr,
+            shape=cgutils.pack_array(builder, list(shape)),
+            strides=cgutils.pack_array(builder, strides),
+            itemsize=itemsize,
+            meminfo=None,
+        )
+        return ary._getvalue()
+
+    def stack(capacity: int, ndim: int) -> Callable[..., Any]:
+        """Codegen of a stack array: ``capacity`` floats when a size is not literal, else their product."""
+
+        def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+            sizes = signature.args
+            if all(isinstance(t, nb.IntegerLiteral) for t in sizes):
+                room = 1
+                for t in sizes:
+                    room *= max(int(t.literal_value), 1)
+            else:
+                room = capacity
+            ptr = cgutils.alloca_once(builder, context.get_value_type(f8), size=room)
+            shape = [context.cast(builder, v, t, nb.intp) for v, t in zip(args, sizes, strict=True)]
+            return array(context, builder, ptr, shape, ndim)
+
+        return codegen
+
+    @intrinsic
+    def scratch(typingctx: Any, n: Any) -> Any:
+        """Stack vector of ``n`` floats (see :func:`_compiled_forms`)."""
+        if not isinstance(n, nb.Integer):
+            return None
+        return nb.Array(f8, 1, "C")(n), stack(STACK_CAPACITY, 1)
+
+    @intrinsic
+    def scratch2(typingctx: Any, n: Any, m: Any) -> Any:
+        """Stack ``(n, m)`` C-order matrix (see :func:`_compiled_forms`)."""
+        if not (isinstance(n, nb.Integer) and isinstance(m, nb.Integer)):
+            return None
+        return nb.Array(f8, 2, "C")(n, m), stack(STACK_CAPACITY, 2)
+
+    @intrinsic
+    def scratch_block(typingctx: Any, n: Any) -> Any:
+        """Stack vector with the room of ``BLOCK_CAPACITY`` floats (a workspace carved into pieces)."""
+        if not isinstance(n, nb.Integer):
+            return None
+
+        def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+            ptr = cgutils.alloca_once(builder, context.get_value_type(f8), size=BLOCK_CAPACITY)
+            shape = [context.cast(builder, args[0], signature.args[0], nb.intp)]
+            return array(context, builder, ptr, shape, 1)
+
+        return nb.Array(f8, 1, "C")(n), codegen
+
+    @intrinsic
+    def borrow(typingctx: Any, a: Any) -> Any:
+        """The same array without its meminfo (no reference counting); anything else unchanged."""
+        if not isinstance(a, nb.Array):
+
+            def identity(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+                return args[0]
+
+            return a(a), identity
+
+        def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+            src = context.make_array(a)(context, builder, value=args[0])
+            dst = context.make_array(a)(context, builder)
+            context.populate_array(
+                dst, data=src.data, shape=src.shape, strides=src.strides, itemsize=src.itemsize, meminfo=None
+            )
+            return dst._getvalue()
+
+        return a(a), codegen
+
+    forms = types.ModuleType(f"{__name__}.compiled_forms", _compiled_forms.__doc__)
+    for name, value in {
+        "scratch": scratch,
+        "scratch2": scratch2,
+        "scratch_block": scratch_block,
+        "borrow": borrow,
+        "STACK_CAPACITY": STACK_CAPACITY,
+        "MAX_DIMENSION": MAX_DIMENSION,
+        "BLOCK_CAPACITY": BLOCK_CAPACITY,
+    }.items():
+        setattr(forms, name, value)
+    _FORMS.append(forms)
+    return forms
+
+
 def _code_digest(code: types.CodeType, h: Any) -> None:
     h.update(code.co_code)
     h.update(repr(code.co_names).encode())
@@ -284,20 +415,17 @@ class _LazyKernel:
         if self._compiled is None:
             import numba
 
-            from . import _jit_numba
-
+            forms = _compiled_forms()
             func = self.py_func
             env = dict(func.__globals__)
-            compiled_forms = {id(scratch): _jit_numba.scratch, id(scratch2): _jit_numba.scratch2}
-            compiled_forms.update(
-                {id(scratch_block): _jit_numba.scratch_block, id(borrow): _jit_numba.borrow}
-            )
+            compiled_forms = {id(scratch): forms.scratch, id(scratch2): forms.scratch2}
+            compiled_forms.update({id(scratch_block): forms.scratch_block, id(borrow): forms.borrow})
             for name in set(self._names()):
                 dep = env.get(name)
                 if isinstance(dep, _LazyKernel):
                     env[name] = dep.dispatcher()
                 elif dep is _THIS_MODULE:
-                    env[name] = _jit_numba
+                    env[name] = forms
                 elif id(dep) in compiled_forms:
                     env[name] = compiled_forms[id(dep)]
             copy = types.FunctionType(func.__code__, env, func.__name__, func.__defaults__, func.__closure__)

@@ -1,10 +1,16 @@
-"""Short-time Fourier transform settings, :class:`STFTConfig` (public home:
-:mod:`chatterspec.detection.spectral`, which re-exports it).
+"""Short-time Fourier transform settings, :class:`STFTConfig`, and the STFT tapers (private module;
+the public home of :class:`STFTConfig` is :mod:`chatterspec.detection.spectral`, which re-exports it).
 
 It lives in the package's base so that a model file's ``[detector]`` table
-(:mod:`chatterspec.plants.modelfile`) and the frame engine
-(:mod:`chatterspec.detection.spectral`) can check and use the settings without importing the
-spectra module (private module).
+(:mod:`chatterspec.plants.modelfile`) can check the settings without importing the spectra
+module (:mod:`chatterspec.detection.spectral`), a layer above it.
+
+Tapers without :mod:`scipy.signal`: importing it costs 0.3-0.6 s (it parses the docstrings of its
+array-API wrappers), which the online monitor would pay at every start for one window. The cosine-sum
+windows are computed here (:func:`get_window`) with the operations of
+``scipy.signal.windows.general_cosine`` (periodic form: ``M + 1`` points of ``linspace(-pi, pi)``,
+``w += a_k cos(k x)``, last point dropped), so they equal ``scipy.signal.get_window(name, M)`` bit for
+bit (``tests/test_startup.py`` checks it); any other window name is handed to scipy.
 """
 
 from __future__ import annotations
@@ -16,10 +22,37 @@ import numpy as np
 import scipy.fft
 
 from ._validate import positive, readonly
-from ._windows import NATIVE_WINDOWS, get_window
 from .errors import ParameterError
 
-__all__ = ["DEFAULT_STFT", "STFTConfig", "cached_taper"]
+__all__ = ["DEFAULT_STFT", "NATIVE_WINDOWS", "STFTConfig", "cached_taper", "get_window"]
+
+#: Windows computed here: name -> Hamming coefficient ``alpha`` of ``alpha - (1 - alpha) cos``.
+NATIVE_WINDOWS: dict[str, float] = {"hamming": 0.54, "hann": 0.5}
+
+
+def get_window(name: str, n: int) -> np.ndarray:
+    """The periodic (DFT-even) window ``name`` of ``n`` samples, as ``scipy.signal.get_window(name, n)``.
+
+    Parameters
+    ----------
+    name : str
+        Window name; ``hamming`` and ``hann`` are computed here, anything else by scipy.
+    n : int
+        Window length in samples (>= 1).
+    """
+    alpha = NATIVE_WINDOWS.get(name) if isinstance(name, str) else None
+    if alpha is None or int(n) != n or n < 1:
+        import scipy.signal
+
+        return np.asarray(scipy.signal.get_window(name, n), dtype=float)
+    if n == 1:
+        return np.ones(1)
+    M = int(n) + 1
+    fac = np.linspace(-np.pi, np.pi, M, dtype=np.float64)
+    w = np.zeros(M, dtype=np.float64)
+    for k, a in enumerate(np.asarray([alpha, 1.0 - alpha], dtype=np.float64)):
+        w += a * np.cos(k * fac)
+    return w[:-1]
 
 
 @dataclass(frozen=True)

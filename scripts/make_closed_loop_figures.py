@@ -35,14 +35,14 @@ from chatterspec.plants.scenarios import (
     scenario,
 )
 from chatterspec.plants.simulate import move_metrics
-from chatterspec.studies.excitation import (
+from chatterspec.studies.closed_loop import (
     EXCITATION_REFERENCES,
     dither_signal,
     excitation_points,
     excitation_scenario,
     excitation_study,
+    footprint_table,
 )
-from chatterspec.studies.footprint import footprint_table
 
 OUT = Path(__file__).resolve().parents[1] / "figures"
 

@@ -26,8 +26,7 @@ from chatterspec.figures.plot_diagnosis import (
     mode_weights_figure,
 )
 from chatterspec.figures.plot_studies import save
-from chatterspec.studies.chattering_diagnosis import calibrate_for_diagnosis, diagnose_chattering
-from chatterspec.studies.mode_diagnosis import diagnose_modes
+from chatterspec.studies.diagnosis import calibrate_for_diagnosis, diagnose_chattering, diagnose_modes
 
 
 def main() -> None:

@@ -9,7 +9,7 @@ Usage::
 
 Every case streams ``--hours`` of fresh healthy data through each route's online monitor and runs
 the catalogue faults' onsets (8 chirp phases x ``--runs-per-phase``). The routes
-(chatterspec.online.bench_routes): ``nominal`` (a), the nominal model; ``commissioned`` (b), the
+(chatterspec.online.realistic_bench): ``nominal`` (a), the nominal model; ``commissioned`` (b), the
 model ``chatterspec.commission`` fits to 10 minutes of the plant's own healthy data (a refusal is
 reported with its reason); ``tolerances`` (c), the nominal model with operating tolerances decided on
 the identified parameters; ``commissioned-tolerances``, the commissioned model with them;
@@ -27,8 +27,7 @@ import sys
 import time
 from pathlib import Path
 
-from chatterspec.online.bench_routes import ROUTES, route_named
-from chatterspec.online.realistic_bench import BenchConfig, bench_cases, run_bench
+from chatterspec.online.realistic_bench import ROUTES, BenchConfig, bench_cases, route_named, run_bench
 
 ROOT = Path(__file__).resolve().parents[1]
 

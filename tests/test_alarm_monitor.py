@@ -32,7 +32,7 @@ DATA = EXAMPLES / "eha_data.csv"
 @pytest.fixture(scope="module")
 def onset():
     """eha4-like onset on the linear EHA: 3 s healthy, then the major leakage (one realization)."""
-    from chatterspec.studies.alarm_delays import onset_scenarios
+    from chatterspec.studies.alarm_budget import onset_scenarios
 
     sc = onset_scenarios("eha-leak-medium", healthy_s=3.0, fault_s=3.0, phases=(1.0,))[0]
     return simulate(sc, runs=1, seed=3)
@@ -280,7 +280,7 @@ def test_calibration_file_records_the_rule_and_is_refused_for_another(tmp_path: 
     )  # fmt: skip
     assert rc == 0, err
     assert "alarm rule for the monitor: persistence rule" in out
-    from chatterspec.studies.calibration import load_calibration
+    from chatterspec.studies.calibration.result import load_calibration
 
     c = load_calibration(cal)
     assert c.alarm.rule == PersistenceRule(c.alarm.threshold, k=2, n=4)
@@ -322,7 +322,7 @@ def test_onset_scenarios_and_delays():
     """Onset scenarios start healthy; the CUSUM at its one-per-day EHA threshold (about 21 nats)
     raises the major leakage within 0.5 s of the onset (the target; benchmarks/bench_alarms.py
     measures it on 200 runs), the per-frame rule at 0.1 % alarms in the healthy stretch."""
-    from chatterspec.studies.alarm_delays import alarm_delays, onset_scenarios
+    from chatterspec.studies.alarm_budget import alarm_delays, onset_scenarios
 
     scs = onset_scenarios("eha-leak-major", healthy_s=4.0, fault_s=2.0, phases=(0.0, 3.0))
     assert [sc.fault_intervals for sc in scs] == [((4.0, 6.0),)] * 2

@@ -8,7 +8,7 @@ import scipy.stats
 
 from chatterspec import scenario
 from chatterspec.errors import ParameterError
-from chatterspec.filters.boundary_layer import healthy_chattering_variance
+from chatterspec.filters.svsf import healthy_chattering_variance
 from chatterspec.studies.boundary_layer import boundary_layer_study, estimate_boundary_layer
 
 

@@ -15,10 +15,17 @@ from chatterspec.detection.alarms.calibration import poisson_count_interval
 from chatterspec.detection.alarms.rules import CusumRule
 from chatterspec.detection.alarms.streams import run_rule
 from chatterspec.errors import ParameterError
-from chatterspec.studies.budget_diagnosis import BudgetSettings, diagnose_at_budget
-from chatterspec.studies.route_sweep import onsets_of, route_geometry, sweep_chunk
-from chatterspec.studies.routes import InnovationRoute, ModeRoute, RouteScores
-from chatterspec.studies.scenario_variants import with_onset
+from chatterspec.studies.budget_diagnosis import (
+    BudgetSettings,
+    InnovationRoute,
+    ModeRoute,
+    RouteScores,
+    diagnose_at_budget,
+    onsets_of,
+    route_geometry,
+    sweep_chunk,
+)
+from chatterspec.studies.diagnosis import with_onset
 
 
 def test_onset_variant_of_a_scenario_faulty_from_the_start() -> None:
@@ -56,7 +63,7 @@ def test_geometry_of_sample_and_frame_routes() -> None:
 
     lin = with_onset(cs.scenario("eha-leak-minor"), 2.0)
     m, cfg = lin.nominal, STFTConfig()
-    from chatterspec.studies.routes import ChatteringRoute
+    from chatterspec.studies.budget_diagnosis import ChatteringRoute
 
     ch = ChatteringRoute(lin, frame_threshold(m, cfg.freqs_hz(m.dt), cfg, m.dt, 1e-3))
     gc = route_geometry(lin, ch.step_times(), ch.step_s, 0.1)
@@ -103,7 +110,7 @@ def test_same_numbers_whatever_the_workers_and_the_chunks() -> None:
     # (the chattering route goes to the worker processes too: its frame score must pickle)
     from chatterspec.detection.spectral import STFTConfig
     from chatterspec.detection.thresholds import frame_threshold
-    from chatterspec.studies.routes import ChatteringRoute
+    from chatterspec.studies.budget_diagnosis import ChatteringRoute
 
     sc = with_onset(cs.scenario("eha-leak-minor"), 2.0)
     m, cfg = sc.nominal, STFTConfig()
@@ -234,7 +241,7 @@ def test_command_json_figure_and_recording(tmp_path, capsys) -> None:  # type: i
 def test_innovation_route_off_the_chi_square_law_is_scaled_on_healthy_runs() -> None:
     import scipy.stats
 
-    from chatterspec.studies.chattering_diagnosis import healthy_version
+    from chatterspec.studies.diagnosis import healthy_version
 
     assert InnovationRoute(with_onset(cs.scenario("eha-leak-minor"), 2.0)).matched  # KF, plant Q and R
     assert not InnovationRoute(cs.scenario("eha4-leak-timeline")).matched  # EKF on the nonlinear plant

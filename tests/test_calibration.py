@@ -25,15 +25,15 @@ import scipy.stats
 from chatterspec.detection.spectral import STFTConfig
 from chatterspec.errors import CalibrationMismatchError, ParameterError, ShapeError
 from chatterspec.plants.models import eha_linear
-from chatterspec.studies.calibration import calibrate, load_calibration
-from chatterspec.studies.false_alarms import false_alarm_study
+from chatterspec.studies.calibration.result import load_calibration
+from chatterspec.studies.calibration.thresholds import calibrate
+from chatterspec.studies.detection_rates import false_alarm_study, power_study
 from chatterspec.studies.intervals import (
     RateEstimate,
     clopper_pearson,
     cluster_clopper_pearson,
     quantile_ci_ranks,
 )
-from chatterspec.studies.power import power_study
 
 RUNS_PER_BIN = 128
 CONF = 0.99
@@ -257,7 +257,7 @@ def test_power_counts_match_the_detector_run_directly():
     """
     from chatterspec.detection.detect import detect_record
     from chatterspec.detection.pipeline import scenario_chattering
-    from chatterspec.studies.power import power_scenario
+    from chatterspec.studies.detection_rates import power_scenario
 
     alphas = (1e-3, 0.05)
     res = power_study("leakage", sizes=[9e-11], noise=[10.0], runs=32, seed=3, alphas=alphas, progress=False)
@@ -337,7 +337,7 @@ def test_healthy_far_verdict_not_above_too_often():
     probability <= 5 %; allowed: the 99.9 % binomial quantile of 40 trials (7).
     """
     from chatterspec.plants.scenarios import scenario
-    from chatterspec.studies.healthy import model_scenario
+    from chatterspec.studies.calibration.healthy import model_scenario
 
     sc = model_scenario(scenario("so-healthy-low").nominal, duration=0.5)
     verdicts = [
@@ -386,7 +386,7 @@ def test_roc_tick_labels_do_not_overlap():
     """A narrow false-alarm range (0.125-0.25, as 8 runs give) used to label the log axis's minor
     ticks, which overlapped; the drawn labels' boxes must be disjoint."""
     from chatterspec.figures.plot_studies import power_figure
-    from chatterspec.studies.power import PowerResult
+    from chatterspec.studies.detection_rates import PowerResult
 
     alphas = np.array([1e-3, 1e-2, 0.1])
     counts = np.zeros((1, 3, 3, 3, 3), dtype=int)

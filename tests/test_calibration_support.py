@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from chatterspec.cli import main
-from chatterspec.studies.calibration import calibrate
+from chatterspec.studies.calibration.thresholds import calibrate
 from chatterspec.studies.intervals import quantile_ci_ranks
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,7 +24,7 @@ def _expected_exceedance(n: int, alpha: float) -> float:
 
 @pytest.mark.parametrize("alpha", [0.1, 0.02, 0.01, 1e-3])
 def test_minimum_runs_is_where_the_threshold_stops_being_the_sample_maximum(alpha: float) -> None:
-    from chatterspec.studies.calibration_support import min_runs, min_runs_bounded
+    from chatterspec.studies.calibration.support import min_runs, min_runs_bounded
 
     n = min_runs(alpha)
     assert _expected_exceedance(n, alpha) <= alpha * (1 + 1e-12)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from chatterspec.studies import tail_histogram as th
-from chatterspec.studies.calibration import calibrate
+from chatterspec.studies.calibration import healthy as th
+from chatterspec.studies.calibration.thresholds import calibrate
 from chatterspec.studies.intervals import _pooled_ranks
 
 QUANTITIES = ("per_bin", "per_frame")
@@ -71,7 +71,7 @@ def test_histogram_identical_for_any_chunking_and_workers(pair):
 
 
 def test_tails_survive_save_and_load(pair, tmp_path):
-    from chatterspec.studies.calibration import load_calibration
+    from chatterspec.studies.calibration.result import load_calibration
 
     _, hist, _ = pair
     back = load_calibration(hist.save(tmp_path / "cal.npz"))

@@ -51,9 +51,9 @@ def not_a_folder(tmp_path: Path) -> Path:
 def no_compute(monkeypatch):
     import chatterspec.figures.paper_figures as pf
     import chatterspec.plants.simulate as sim
-    import chatterspec.studies.calibration as cal_cli
-    import chatterspec.studies.false_alarms as far_cli
-    import chatterspec.studies.power as power_cli
+    import chatterspec.studies.calibration.thresholds as cal_cli
+    import chatterspec.studies.detection_rates as far_cli
+    import chatterspec.studies.detection_rates as power_cli
 
     monkeypatch.setattr(sim, "simulate", _forbid)
     monkeypatch.setattr(power_cli, "power_study", _forbid)
@@ -114,7 +114,7 @@ def test_unknown_figure_suffix_rejected_before_computing(tmp_path: Path, no_comp
 
 def test_calibrate_prints_result_when_the_final_write_fails(tmp_path: Path, monkeypatch, capsys) -> None:
     """The check passes, then the disk fills up: the table is printed, then one error line, exit 2."""
-    from chatterspec.studies.calibration import Calibration
+    from chatterspec.studies.calibration.result import Calibration
 
     def full(self, path):
         raise OSError(errno.ENOSPC, "No space left on device", str(path))
@@ -267,7 +267,7 @@ def test_monitor_ctrl_c_names_the_partial_recording(tmp_path: Path, monkeypatch,
 
 
 def test_chunk_runs_not_a_multiple_of_64_is_rounded_with_a_note(monkeypatch, capsys) -> None:
-    import chatterspec.studies.calibration as cal_cli
+    import chatterspec.studies.calibration.thresholds as cal_cli
 
     seen = {}
 

@@ -122,14 +122,15 @@ def test_record_every_below_the_minimum_is_refused(capsys) -> None:
     ],
 )
 def test_the_boundary_closes(argv: list[str], message: str, capsys, monkeypatch) -> None:
-    from chatterspec.studies import alarm_budget, calibration, excitation
+    from chatterspec.studies import alarm_budget, closed_loop
+    from chatterspec.studies.calibration import thresholds
 
     def forbid(*_a, **_k):
         raise AssertionError("simulated before refusing")
 
     monkeypatch.setattr(alarm_budget, "healthy_chattering", forbid)
-    monkeypatch.setattr(calibration, "calibrate", forbid)
-    monkeypatch.setattr(excitation, "_ExcitationChunks", forbid)
+    monkeypatch.setattr(thresholds, "calibrate", forbid)
+    monkeypatch.setattr(closed_loop, "_ExcitationChunks", forbid)
     assert message in _error(capsys, argv)
 
 

@@ -13,7 +13,7 @@ import pytest
 
 from chatterspec.cli import main as cli_main
 from chatterspec.errors import ParameterError
-from chatterspec.studies.power import POWER_FAMILIES, power_scenario
+from chatterspec.studies.detection_rates import POWER_FAMILIES, power_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -72,7 +72,7 @@ def test_cli_power_unstable_size_fails_before_any_simulation(capsys, monkeypatch
     """An unstable size is rejected while the grid is built: no realization is simulated or filtered
     (it used to run the whole Monte Carlo study, ~20 s, before an internal NaN message)."""
     import chatterspec.montecarlo as montecarlo
-    import chatterspec.studies.power as power
+    import chatterspec.studies.detection_rates as power
 
     def never(*args, **kwargs):
         pytest.fail("the Monte Carlo study or a simulation ran for an unstable fault size")

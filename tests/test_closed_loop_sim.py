@@ -7,6 +7,7 @@ import pytest
 
 from chatterspec import _jit
 from chatterspec.detection.pipeline import scenario_chattering
+from chatterspec.montecarlo import root_seed_sequence
 from chatterspec.plants import simulate as scl
 from chatterspec.plants.closed_loop import (
     ClosedLoop,
@@ -20,8 +21,7 @@ from chatterspec.plants.models import eha_linear, second_order
 from chatterspec.plants.scenarios import EHA_CL_CONTROLLER, EHA_CL_REFERENCE, Scenario, Segment, scenario
 from chatterspec.plants.signals import Sine
 from chatterspec.plants.simulate import simulate
-from chatterspec.rng import root_seed_sequence
-from chatterspec.studies.false_alarms import false_alarm_study
+from chatterspec.studies.detection_rates import false_alarm_study
 
 needs_numba = pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed")
 

@@ -33,7 +33,7 @@ from chatterspec.studies.commissioning import (
     fit_noise,
     nominal_spec,
 )
-from chatterspec.studies.commissioning.noise_fit import moment_design
+from chatterspec.studies.commissioning.fits import moment_design
 from chatterspec.studies.intervals import clopper_pearson
 
 BULK, FRICTION = 207e6, 2144.0

@@ -11,13 +11,14 @@ import pytest
 import chatterspec as cs
 from chatterspec.cli import main
 from chatterspec.plants.simulate import iter_simulations
-from chatterspec.studies.chattering_diagnosis import (
+from chatterspec.studies.diagnosis import (
     ChatteringTally,
+    ModeTally,
     calibrate_for_diagnosis,
     diagnose_chattering,
+    diagnose_modes,
     healthy_version,
 )
-from chatterspec.studies.mode_diagnosis import ModeTally, diagnose_modes
 
 ALPHA = 0.01  # per-frame level of the test calibration (40 runs x 46 frames: ~18 exceedances expected)
 
@@ -68,7 +69,7 @@ def test_chunked_json_and_table_equal_one_chunk(cal_path, capsys) -> None:  # ty
 
 
 def test_tallies_equal_the_whole_simulation_functions(cal_path) -> None:  # type: ignore[no-untyped-def]
-    from chatterspec.studies.calibration import load_calibration
+    from chatterspec.studies.calibration.result import load_calibration
 
     sc = cs.scenario("eha4-leak-timeline")
     thr = load_calibration(cal_path, sc.nominal).threshold("frame-family-wise")

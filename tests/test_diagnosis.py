@@ -12,7 +12,7 @@ import scipy.stats
 import chatterspec as cs
 from chatterspec.detection.spectral import STFTConfig
 from chatterspec.errors import ParameterError
-from chatterspec.studies.chattering_diagnosis import (
+from chatterspec.studies.diagnosis import (
     calibrate_for_diagnosis,
     diagnose_chattering,
     healthy_version,
@@ -69,7 +69,7 @@ def test_chattering_diagnosis_on_the_leak_onset(onset_calibration) -> None:  # t
 
 def test_chattering_and_smm_on_the_same_realizations(onset_calibration) -> None:  # type: ignore[no-untyped-def]
     from chatterspec.figures.plot_diagnosis import DIAGNOSIS_HEADER, diagnosis_rows, diagnosis_table_figure
-    from chatterspec.studies.mode_diagnosis import diagnose_modes
+    from chatterspec.studies.diagnosis import diagnose_modes
 
     # eha4-leak-timeline shares eha4-leak-onset's nominal model: the per-frame threshold applies
     sim = cs.simulate(cs.scenario("eha4-leak-timeline"), runs=3, seed=4)
@@ -116,7 +116,7 @@ def test_diagnose_command_with_the_chattering_route(tmp_path, capsys, onset_cali
     out = capsys.readouterr().out
     assert "chattering" in out and "acceleration" in out
     # a calibration of another model is refused with the reason
-    from chatterspec.studies.calibration import calibrate
+    from chatterspec.studies.calibration.thresholds import calibrate
 
     other = calibrate("eha-healthy", alpha=0.01, runs=20, seed=0)
     bad = other.save(tmp_path / "other.npz")
@@ -137,7 +137,7 @@ def test_diagnose_record_puts_modes_and_chattering_on_one_timeline(tmp_path, ons
     rr = pytest.importorskip("rerun")
     from rerun.chunk import RrdReader
 
-    from chatterspec.studies.mode_diagnosis import diagnose_modes
+    from chatterspec.studies.diagnosis import diagnose_modes
     from chatterspec.viewer.recordings import record_diagnosis
 
     rr.set_strict_mode(True)

@@ -31,9 +31,9 @@ from chatterspec.detection.thresholds import exact_threshold
 from chatterspec.detection.verdicts import _VERDICT_FIELDS, detect_spectrum
 from chatterspec.filters import svsf as svsf_mod
 from chatterspec.filters.svsf import auxiliary_svsf
+from chatterspec.montecarlo import BLOCK, block_generator, root_seed_sequence
 from chatterspec.plants.scenarios import scenario
 from chatterspec.plants.simulate import _noise_blocks, kernel_tables
-from chatterspec.rng import BLOCK, block_generator, root_seed_sequence
 
 needs_numba = pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed (pip install '.[fast]')")
 
@@ -236,19 +236,20 @@ def _captured_study(module, call, monkeypatch: pytest.MonkeyPatch):
 def test_healthy_study_counts_equal_numpy_path(which: str, monkeypatch: pytest.MonkeyPatch) -> None:
     """The compiled exceedance counts (integers) give the numpy path's summary exactly, with its dtypes."""
     from chatterspec import montecarlo
-    from chatterspec.studies import _exceedance, calibration, false_alarms
+    from chatterspec.studies import detection_rates
+    from chatterspec.studies.calibration import healthy, thresholds
 
     sc = scenario("eha-healthy")
     if which == "calibrate":
-        # calibrate runs its study through calibration_tails (exact tails at 64 runs: one study)
+        # calibrate runs its study through its exact tails at 64 runs: one study)
         study = _captured_study(
-            montecarlo, lambda: calibration.calibrate(sc, 1e-2, runs=64, seed=1), monkeypatch
+            montecarlo, lambda: thresholds.calibrate(sc, 1e-2, runs=64, seed=1), monkeypatch
         )
     else:
         frames = which == "far"
         study = _captured_study(
             montecarlo,
-            lambda: false_alarms.false_alarm_study(sc, [1e-2, 0.2], runs=64, seed=1, frames=frames),
+            lambda: detection_rates.false_alarm_study(sc, [1e-2, 0.2], runs=64, seed=1, frames=frames),
             monkeypatch,
         )
     x = next(iter_chattering(sc, 70, seed=8, chunk_runs=70)).values
@@ -264,9 +265,9 @@ def test_healthy_study_counts_equal_numpy_path(which: str, monkeypatch: pytest.M
     # the kernel's Python form on a small input
     power, thr = x[:3, None, :40] ** 2, study.thr_values[:, :40]
     tested = study.thr_tested[:, :40]
-    a = _exceedance.exceedance_counts(power, thr, tested)
-    monkeypatch.setattr(_exceedance, "_exceedance_kernel", _exceedance._exceedance_kernel.py_func)
-    b = _exceedance.exceedance_counts(power, thr, tested)
+    a = healthy.exceedance_counts(power, thr, tested)
+    monkeypatch.setattr(healthy, "_exceedance_kernel", healthy._exceedance_kernel.py_func)
+    b = healthy.exceedance_counts(power, thr, tested)
     for u, v in zip(a, b, strict=True):
         np.testing.assert_array_equal(u, v)
 

@@ -11,11 +11,13 @@ from chatterspec.cli import main
 from chatterspec.errors import NonFiniteError, ParameterError
 from chatterspec.studies.estimation import (
     build_filter,
+    consistency,
+    consistency_from_sums,
     estimate_records,
     estimation_study,
     parse_filters,
+    state_error_metrics,
 )
-from chatterspec.studies.metrics import consistency, consistency_from_sums, state_error_metrics
 
 
 def test_chunking_and_workers_do_not_change_the_numbers():
@@ -46,7 +48,8 @@ def test_consistency_from_sums_equals_consistency():
 
 
 def test_a_numpy_integer_seed_is_reported_like_the_python_int():
-    # a numpy integer is a valid seed everywhere (chatterspec.rng); the result must label it, not say None
+    # a numpy integer is a valid seed everywhere (chatterspec.montecarlo); the result must label it,
+    # not say None
     a = estimation_study("detc-normal", "kf", runs=2, seed=np.int64(3), progress=False)
     b = estimation_study("detc-normal", "kf", runs=2, seed=3, progress=False)
     assert a.seed == 3 and type(a.to_dict()["seed"]) is int

@@ -9,14 +9,15 @@ import pytest
 
 from chatterspec.errors import ParameterError
 from chatterspec.plants.scenarios import scenario
-from chatterspec.studies.excitation import (
+from chatterspec.studies.closed_loop import (
     EXCITATION_REFERENCES,
     dither_signal,
     excitation_points,
     excitation_scenario,
     excitation_study,
+    footprint,
+    replayed_open_loop,
 )
-from chatterspec.studies.footprint import footprint, replayed_open_loop
 
 
 def test_hold_needs_the_dither_and_six_rad_s_per_tone_detects_the_medium_leak() -> None:

@@ -21,7 +21,8 @@ import pytest
 from chatterspec import _jit, filter_registry
 from chatterspec.cli import build_parser
 from chatterspec.cli import main as cli_main
-from chatterspec.cli._alarm_args import alarm_choice, alarm_doc
+from chatterspec.cli._options import alarm_choice
+from chatterspec.cli._report import alarm_doc
 from chatterspec.detection.alarms.calibration import calibrate_rule, poisson_count_interval, starts_on_grid
 from chatterspec.detection.alarms.rules import (
     RULES,
@@ -202,7 +203,7 @@ def test_a_registered_rule_drives_the_online_monitor(twice):
     from chatterspec.detection.spectral import frame_columns
     from chatterspec.detection.verdicts import FrameScore
     from chatterspec.plants.simulate import simulate
-    from chatterspec.studies.alarm_delays import onset_scenarios
+    from chatterspec.studies.alarm_budget import onset_scenarios
 
     sc = onset_scenarios("eha-leak-medium", healthy_s=3.0, fault_s=3.0, phases=(1.0,))[0]
     sim = simulate(sc, runs=1, seed=3)

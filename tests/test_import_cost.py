@@ -9,10 +9,9 @@ import chatterspec
 from chatterspec.cli.diagnose import METHOD_NAMES, ROUTE_SET, WARMUP_S
 from chatterspec.cli.estimate import FILTERS as CLI_FILTERS
 from chatterspec.cli.power import FAMILY_NAMES
+from chatterspec.studies.budget_diagnosis import ALL_METHODS, DEFAULT_WARMUP_S, ROUTE_RULE_PARAMETERS
+from chatterspec.studies.detection_rates import POWER_FAMILIES
 from chatterspec.studies.estimation import FILTERS
-from chatterspec.studies.power import POWER_FAMILIES
-from chatterspec.studies.route_sweep import DEFAULT_WARMUP_S
-from chatterspec.studies.routes import ALL_METHODS, ROUTE_RULE_PARAMETERS
 
 
 def test_parser_and_package_import_do_not_load_scipy() -> None:

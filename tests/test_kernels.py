@@ -21,8 +21,8 @@ from chatterspec.detection.pipeline import (
     scenario_chattering,
 )
 from chatterspec.detection.spectral import periodogram
-from chatterspec.filters import _svsf_kernels
 from chatterspec.filters import svsf as svsf_mod
+from chatterspec.filters import svsf_recursion
 from chatterspec.filters.svsf import SVSF, auxiliary_svsf
 from chatterspec.plants.scenarios import scenario
 from chatterspec.plants.simulate import _simulate_kernel, kernel_tables, simulate
@@ -96,7 +96,9 @@ def test_compiled_kernel_equals_its_python_form_bitwise() -> None:
         assert all(np.isfinite(o).all() for o in outs)
         return [y, ep, *outs]
 
-    for a, b in zip(call(_svsf_kernels._svsf_kernel), call(_svsf_kernels._svsf_kernel.py_func), strict=True):
+    for a, b in zip(
+        call(svsf_recursion._svsf_kernel), call(svsf_recursion._svsf_kernel.py_func), strict=True
+    ):
         np.testing.assert_array_equal(a, b)
 
 
@@ -131,7 +133,7 @@ def test_enabled_follows_the_environment(monkeypatch: pytest.MonkeyPatch) -> Non
 @needs_numba
 @pytest.mark.parametrize("name", ["eha-healthy", "eha-leak-major", "so-boundary-layer"])
 def test_compiled_simulation_equals_numpy_path(name: str, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Same random numbers (chatterspec.rng blocks); only the order of the 3-term sums differs.
+    """Same random numbers (chatterspec.montecarlo blocks); only the order of the 3-term sums differs.
 
     BLAS may evaluate x_aug @ W with fused multiply-adds and in another order: about one ulp per
     step, not amplified by the stable plant, so 1e-12 of each channel's scale is a wide bound.
@@ -276,7 +278,7 @@ def test_closed_form_kernel_equals_its_python_form() -> None:
     Gu = svsf_mod._rows_times(u[:-1], f._GT)[None]
     y0 = z[:, 0].copy()
     outs = []
-    for kernel in (_svsf_kernels._closed_form_kernel, _svsf_kernels._closed_form_kernel.py_func):
+    for kernel in (svsf_recursion._closed_form_kernel, svsf_recursion._closed_form_kernel.py_func):
         for time_major in (True, False):
             e = np.full((2, 30, 3), np.nan)
             kernel(z[:, 1:], Gu, f._PhiT, y0, e, time_major)

@@ -12,7 +12,7 @@ closed by a deferred import is still a circle. Three rules:
    ``if TYPE_CHECKING:`` are never run and do not count here, but they do count for rules 1 and 3).
 3. **No private names across folders**: an import from another folder names neither a private
    module (a path component starting with ``_``) nor a private name. The private top-level
-   modules (``_validate``, ``_jit``, ``_memory``, ...) are the package's shared base and may be
+   modules (``_validate``, ``_jit``, ``_stft``, ...) are the package's shared base and may be
    imported by module, but not their private names.
 
 ``ALLOWED`` lists the edges that still break a rule, each with its reason; it must only shrink.

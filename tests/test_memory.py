@@ -1,4 +1,4 @@
-"""The CLI's fixed glibc mmap threshold (chatterspec._memory)."""
+"""The CLI's fixed glibc mmap threshold (chatterspec.montecarlo)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from chatterspec._memory import fix_mmap_threshold
+from chatterspec.montecarlo import fix_mmap_threshold
 
 
 @pytest.mark.skipif(

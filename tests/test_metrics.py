@@ -7,7 +7,7 @@ import pytest
 import scipy.stats
 
 from chatterspec.errors import NonFiniteError, ShapeError
-from chatterspec.studies.metrics import MonteCarloMean, consistency, nees, nis, state_error_metrics
+from chatterspec.studies.estimation import MonteCarloMean, consistency, nees, nis, state_error_metrics
 
 
 def test_rmse_bias_std_by_hand() -> None:

@@ -1,4 +1,4 @@
-"""Mode outputs (studies/modes.py) on constructed probabilities with known answers, and the figures."""
+"""Mode outputs (studies/estimation.py) on constructed probabilities with known answers, and the figures."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from chatterspec.errors import ParameterError, ShapeError
-from chatterspec.studies.modes import (
+from chatterspec.studies.estimation import (
     argmax_accuracy,
     confusion_matrix,
     mode_report,
@@ -84,7 +84,7 @@ def test_mode_figures_render(tmp_path) -> None:  # type: ignore[no-untyped-def]
 
 def test_mode_diagnosis_of_smm_on_the_leak_timeline() -> None:
     import chatterspec as cs
-    from chatterspec.studies.mode_diagnosis import diagnose_modes
+    from chatterspec.studies.diagnosis import diagnose_modes
 
     sim = cs.simulate(cs.scenario("eha4-leak-timeline"), runs=2, seed=3)
     (res,) = diagnose_modes(sim, ("smm",))

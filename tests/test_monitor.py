@@ -344,6 +344,88 @@ def test_fused_hop_gives_the_bits_of_the_separate_calls(sim, rule) -> None:
     assert events >= 1 and fused.n_frames == plain.n_frames > 20
 
 
+@pytest.mark.skipif(not _jit.enabled(), reason="the fused hop is the compiled path")
+def test_fused_push_of_chattering_gives_the_bits_of_the_separate_calls(batch) -> None:
+    """Chattering pushes on the fused path (the frame buffer's compiled copy, check and taper, then one
+    compiled call per block of frames): the fields and events of the separate calls, for pushes of a
+    few samples, of several blocks and longer than the buffer keeps between pushes; a NaN is refused
+    before anything is consumed, on both paths."""
+    from chatterspec.online.monitor import MAX_BUFFER_ROWS
+
+    rec = batch[0]
+    e = rec.values[0]
+    reps = -(-(MAX_BUFFER_ROWS + 5000) // e.shape[0])
+    e = np.concatenate([e] * reps)  # longer than the largest buffer kept between pushes
+    rule = cs.CusumRule(threshold=6.0, drift=3.0)
+    fused = ChatteringMonitor(rec.model, MonitorSettings(rule=rule))
+    plain = ChatteringMonitor(rec.model, MonitorSettings(rule=rule))
+    assert fused._frames._fused
+    plain._frames._fused = False
+    bad = e[:10].copy()
+    bad[3, 2] = np.inf
+    for mon in (fused, plain):
+        with pytest.raises(NonFiniteError, match="1 NaN/inf"):
+            mon.push_chattering(bad)
+        assert mon.n_samples == 0 and mon.buffered_samples == 0
+    bounds = [0, 3, 999, 1000, 1001, 4700, 4700 + MAX_BUFFER_ROWS + 1, e.shape[0]]
+    events = 0
+    for lo, hi in itertools.pairwise(bounds):
+        a, b = fused.push_chattering(e[lo:hi]), plain.push_chattering(e[lo:hi])
+        for name in FRAME_FIELDS:
+            x, y = getattr(a.frames, name), getattr(b.frames, name)
+            assert (x is None) == (y is None), name
+            if x is not None:
+                np.testing.assert_array_equal(x, y, err_msg=name)
+        np.testing.assert_array_equal(a.t, b.t)
+        assert a.events == b.events
+        events += len(a.events)
+        assert fused.buffered_samples == plain.buffered_samples < fused.n_window
+    assert events >= 1 and fused.n_frames == plain.n_frames > 300
+
+
+@pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed")
+def test_frame_buffer_kernel_python_form() -> None:
+    """``frames_in`` compiled and as Python: the same buffer, tapered frames and kept samples as the
+    direct formula (append, frame f of samples ``f H .. f H + W``, times the window, keep from frame F);
+    a NaN or inf is refused whatever its place."""
+    from chatterspec.online._push_kernels import frames_in
+
+    rng = np.random.default_rng(3)
+    W, H, m, nb, K = 8, 3, 2, 5, 12
+    win = rng.random(W)
+    e = rng.normal(size=(K, m))
+    start = rng.normal(size=(m, nb))
+    n = nb + K
+    F = (n - W) // H + 1
+    x = np.concatenate([start, e.T], axis=1)  # (m, n)
+    want = np.stack([np.stack([x[c, f * H : f * H + W] * win for f in range(F)]) for c in range(m)])[None]
+    for kernel in (frames_in, frames_in.py_func):
+        buf = np.full((m, n), np.nan)
+        buf[:, :nb] = start
+        tapered = np.full((1, m, F, W), np.nan)
+        kept = kernel(buf, nb, e, True, win, H, 0, F, F, tapered)
+        assert kept == n - F * H
+        np.testing.assert_array_equal(tapered, want)
+        np.testing.assert_array_equal(buf[:, :kept], x[:, F * H :])
+        for bad_value, place in ((np.nan, (1, 1)), (np.inf, (0, 0)), (-np.inf, (K - 1, m - 1))):
+            bad = e.copy()
+            bad[place] = bad_value
+            assert kernel(buf, kept, bad, True, win, H, 0, 0, 0, tapered) == -1
+        np.testing.assert_array_equal(buf[:, :kept], x[:, F * H :])  # the kept samples untouched
+
+
+def test_frame_rfft_is_scipy_rfft() -> None:
+    """The monitor's frame transform (pocketfft's r2c called directly) gives the bits of scipy.fft.rfft,
+    on a contiguous block of frames and on the first frames of a larger one (a strided view)."""
+    import scipy.fft
+
+    from chatterspec.online._push_kernels import frame_rfft
+
+    x = np.random.default_rng(5).normal(size=(1, 3, 10, 1000))
+    for block in (x, x[:, :, :7]):
+        np.testing.assert_array_equal(frame_rfft(block), scipy.fft.rfft(block, n=1000, axis=-1))
+
+
 @pytest.mark.parametrize("psi", [None, (4.2e-3, 4.8e-3, 4.3e3)])
 def test_one_sample_steps_give_the_numbers_of_pushes(sim, psi) -> None:
     """``step`` (one compiled call per sample with numba, a one-sample push without) mixed with pushes: the

@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 
 from chatterspec.errors import ChatterspecError, ParameterError
-from chatterspec.montecarlo import plan_chunks, run_study
-from chatterspec.rng import BLOCK, block_generator, seed_label
-from chatterspec.studies.false_alarms import false_alarm_study
+from chatterspec.montecarlo import BLOCK, block_generator, plan_chunks, run_study, seed_label
+from chatterspec.studies.detection_rates import false_alarm_study
 
 
 class _Draws:

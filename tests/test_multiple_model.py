@@ -15,7 +15,7 @@ from chatterspec.filters.bank import combine, log_gaussian, normalize_log_weight
 from chatterspec.filters.imm import IMM, pairwise_spread
 from chatterspec.filters.smm_svsf import SMMSVSF
 from chatterspec.plants.models import LinearModel
-from chatterspec.studies.modes import confusion_matrix, rmse_table, switch_delays
+from chatterspec.studies.estimation import confusion_matrix, rmse_table, switch_delays
 
 
 def model(b3: float = 0.05, C: np.ndarray | None = None) -> LinearModel:

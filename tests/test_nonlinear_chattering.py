@@ -1,7 +1,7 @@
 """Chattering spectra on the nonlinear EHA (beyond the chattering paper; docs/paper-notes.md).
 
-The auxiliary sgn-SVSF of a NonlinearModel (chatterspec/filters/nonlinear_svsf.py), its empirical
-normalization and family-wise calibration (detection/thresholds.py, studies/empirical_calibration.py)
+The auxiliary sgn-SVSF of a NonlinearModel (chatterspec/filters/svsf.py), its empirical
+normalization and family-wise calibration (detection/thresholds.py, studies/calibration/thresholds.py)
 and the eha4-healthy / eha4-leak-minor / eha4-leak-major scenarios.
 
 Statistical tolerances
@@ -31,13 +31,13 @@ from chatterspec.detection.detect import detect_chunks
 from chatterspec.detection.pipeline import chattering_record, iter_chattering, scenario_chattering
 from chatterspec.detection.thresholds import empirical_family_wise_threshold, smooth_spectrum
 from chatterspec.errors import ModelKindError, ParameterError, ShapeError, SingularMatrixError
-from chatterspec.filters.nonlinear_svsf import NonlinearSgnSVSF, nonlinear_chattering
-from chatterspec.filters.svsf import chattering
+from chatterspec.filters.svsf import NonlinearSgnSVSF, chattering, nonlinear_chattering
 from chatterspec.plants.eha4 import eha4
 from chatterspec.plants.nonlinear import NonlinearModel
 from chatterspec.plants.scenarios import scenario
 from chatterspec.plants.simulate import simulate
-from chatterspec.studies.calibration import calibrate, load_calibration
+from chatterspec.studies.calibration.result import load_calibration
+from chatterspec.studies.calibration.thresholds import calibrate
 
 
 def _lin_f(x: np.ndarray, u: np.ndarray, A: np.ndarray, B: np.ndarray) -> np.ndarray:

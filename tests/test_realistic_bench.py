@@ -11,24 +11,22 @@ import pytest
 
 from chatterspec.detection.alarms.calibration import MonitorSettings
 from chatterspec.errors import CommissioningError, ParameterError
-from chatterspec.online.bench_routes import (
+from chatterspec.online.realistic_bench import (
     BENCH_TOLERANCES,
+    FAULTS,
     ROUTES,
+    BenchConfig,
     BenchRoute,
     ParameterMonitoring,
     RouteInputs,
+    bench_cases,
     commissioned_route,
+    healthy_blocks,
     nominal_route,
     route_named,
-    tolerance_route,
-)
-from chatterspec.online.realistic_bench import (
-    FAULTS,
-    BenchConfig,
-    bench_cases,
-    healthy_blocks,
     run_bench,
     settled,
+    tolerance_route,
 )
 from chatterspec.plants.models import eha_linear
 from chatterspec.plants.parameters import with_tolerances

@@ -24,9 +24,10 @@ from chatterspec.online.simulated_stream import csv_header, csv_lines, simulate_
 from chatterspec.plants.modelfile import write_model_toml
 from chatterspec.plants.models import second_order
 from chatterspec.studies.alarm_budget import calibrate_alarm, frames_per_hour
-from chatterspec.studies.calibration import calibrate, load_calibration
-from chatterspec.studies.healthy import model_scenario
-from chatterspec.studies.recorded_calibration import HealthyRecording, array_chunks, min_hours
+from chatterspec.studies.calibration.healthy import model_scenario
+from chatterspec.studies.calibration.recorded import HealthyRecording, array_chunks, min_hours
+from chatterspec.studies.calibration.result import load_calibration
+from chatterspec.studies.calibration.thresholds import calibrate
 
 DT = 0.01
 #: Hours of healthy data: above min_hours for two channels (3.45 h at one per day).

@@ -50,7 +50,7 @@ def test_mode_routes_floor_the_weights_at_1e_3(name: str, method: str) -> None:
     """``diagnose``'s mode routes as documented (README, ``docs/design.md`` S4/S6): the SMM-SVSF floors
     its weights at 1e-3 (the scenario's setting, or the default where the scenario sets none) and both
     mode routes raise every probability to 1e-3 first, so their scores lie in [-6.9, 6.9]."""
-    from chatterspec.studies.routes import ModeRoute
+    from chatterspec.studies.budget_diagnosis import ModeRoute
 
     route = ModeRoute(cs.scenario(name), method)
     assert route.floor == 1e-3
@@ -104,7 +104,7 @@ def test_nis_of_the_matched_kalman_filter_is_chi_square() -> None:
     # chi-square with m = 3 degrees of freedom and independent from sample to sample (Mehra and Peschon).
     # 16 runs x 3900 samples after 0.1 s: the fraction above the chi2 median and above its 99 % point are
     # binomial; each must contain its nominal value in its 99.9 % Clopper-Pearson interval.
-    from chatterspec.studies.routes import InnovationRoute
+    from chatterspec.studies.budget_diagnosis import InnovationRoute
 
     sc = cs.scenario("eha-healthy")
     sim = cs.simulate(sc, runs=16, seed=11)

@@ -106,7 +106,7 @@ def test_the_monitor_replay_needs_neither_scipy_signal_nor_scipy_stats_nor_rerun
 
 @pytest.mark.parametrize("name", ["hamming", "hann"])
 def test_native_tapers_equal_scipy_bit_for_bit(name: str) -> None:
-    from chatterspec._windows import get_window
+    from chatterspec._stft import get_window
 
     for n in [*range(1, 130), 250, 999, 1000, 1001, 2000, 4096, 10_000]:
         np.testing.assert_array_equal(get_window(name, n), scipy.signal.get_window(name, n), err_msg=str(n))

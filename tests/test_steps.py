@@ -16,7 +16,7 @@ import pytest
 from chatterspec.filters import _engine, bank
 from chatterspec.filters.bank import combine, log_gaussian, normalize_log_weights
 from chatterspec.filters.kalman import _KF_STEP
-from chatterspec.filters.svsf_steps import closed_form_step, matvec_step, rows_times_step, svsf_step
+from chatterspec.filters.svsf_recursion import closed_form_step, matvec_step, rows_times_step, svsf_step
 from chatterspec.plants import eha4 as eha4_mod
 from chatterspec.plants import steps
 

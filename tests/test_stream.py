@@ -23,11 +23,11 @@ from chatterspec.online.stream import (
     RESTART,
     BadRow,
     CsvRows,
+    LatencyStats,
     Restart,
     RowBlock,
     follow_file,
 )
-from chatterspec.online.stream_checks import LatencyStats
 from chatterspec.plants.datafile import load_data
 from chatterspec.plants.modelfile import load_model
 from chatterspec.viewer import live_stream  # the live stream monitor's rotation

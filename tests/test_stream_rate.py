@@ -11,8 +11,7 @@ import pytest
 from chatterspec.cli import main
 from chatterspec.errors import DataFileError
 from chatterspec.online.monitor import MonitorSettings
-from chatterspec.online.stream import CsvRows
-from chatterspec.online.stream_checks import LatencyStats
+from chatterspec.online.stream import CsvRows, LatencyStats
 from chatterspec.plants.modelfile import load_model
 from chatterspec.viewer.live_stream import StreamMonitor, drive
 

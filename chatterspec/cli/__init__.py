@@ -17,6 +17,7 @@ from collections.abc import Sequence
 from typing import TextIO
 
 from ..errors import ChatterspecError
+from ._report import quiet_stdout
 
 #: Subcommand modules, in help order.
 COMMANDS: tuple[str, ...] = (
@@ -55,15 +56,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line on ``argv`` (default ``sys.argv[1:]``); returns the exit status (2: bad input)."""
-    from .._memory import fix_mmap_threshold
-
-    fix_mmap_threshold()  # peak memory independent of --runs (see chatterspec._memory)
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
     except SystemExit:  # --help / usage errors: `chatterspec --help | head` must not end in a traceback
         _flush_stdout()
         raise
+    from ..montecarlo import fix_mmap_threshold  # numpy: after parsing, so that --help stays light
+
+    fix_mmap_threshold()  # peak memory independent of --runs (see chatterspec.montecarlo)
     try:
         with warnings.catch_warnings():
             _one_line_warnings(args.command)
@@ -71,7 +72,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         sys.stdout.flush()  # a reader that went away shows here, not as a traceback at exit
         return code
     except BrokenPipeError:  # stdout's reader closed it (`chatterspec scenarios | head -1`): not an error
-        _quiet_stdout()
+        quiet_stdout()
         return 0
     except ChatterspecError as exc:
         print(f"chatterspec {args.command}: error: {exc}", file=sys.stderr)
@@ -85,24 +86,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
 
 
-def _quiet_stdout() -> None:
-    """Send further output to stdout, and the flush at exit, to /dev/null (its reader went away)."""
-    import os
-
-    try:
-        fd = sys.stdout.fileno()
-    except (AttributeError, OSError, ValueError):  # not a real file (e.g. captured in tests)
-        return
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, fd)
-    os.close(devnull)
-
-
 def _flush_stdout() -> None:
     try:
         sys.stdout.flush()
     except BrokenPipeError:
-        _quiet_stdout()
+        quiet_stdout()
 
 
 def _one_line_warnings(command: str) -> None:

@@ -16,8 +16,8 @@ import sys
 import warnings
 from pathlib import Path
 
-from ._common import Outputs, alpha_arg, check_output_path, parsed_arg, positive_int_arg, print_json
-from ._options import add, add_report_args, command
+from ._options import add, add_report_args, alpha_arg, command, parsed_arg, positive_int_arg
+from ._report import Outputs, check_output_path, print_json
 
 
 def _fraction_arg(text: str) -> float:

@@ -13,9 +13,16 @@ import sys
 import time
 from pathlib import Path
 
-from . import _identify
-from ._common import Outputs, band_from_args, check_output_path, print_json
-from ._options import add, add_detector_args, add_report_args, command
+from ._options import (
+    add,
+    add_detector_args,
+    add_identification_args,
+    add_report_args,
+    band_from_args,
+    command,
+    setup_or_reason,
+)
+from ._report import Outputs, check_output_path, identification_stream, print_demo_table, print_json
 
 #: Scenarios of the demo, in table order.
 DEMO_SCENARIOS: tuple[str, ...] = (
@@ -55,7 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     p.add_argument("--no-record", action="store_true", help="skip the Rerun recordings")
-    _identify.add_identification_args(p)
+    add_identification_args(p)
     add_report_args(p, progress=False)
 
 
@@ -81,11 +88,11 @@ def run(args: argparse.Namespace) -> int:
         for name in DEMO_SCENARIOS:
             sc = scenario(name)
             first: list = []  # run 0's simulation: detection, identification and recording share it
-            setup, why_not = _identify.setup_or_reason(sc.nominal, args)
+            setup, why_not = setup_or_reason(sc.nominal, args)
             chunks = stream_chunks(sc, args.runs, args.seed, first, measurements=setup is not None)
             ident = None
             if setup is not None:
-                ident = _identify.stream(setup, args)
+                ident = identification_stream(setup, args)
                 chunks = ident.tap(chunks, background=True)
             report = detect_chunks(chunks, args.alpha, args.threshold, args.correction, band=band)
             sim = first[0]
@@ -166,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     _print_table(results, args)
     print()
-    _identify.print_demo_table(results)
+    print_demo_table(results)
     print()
     elsewhere = summary_doc["faults_flagged_elsewhere_only"]
     print(

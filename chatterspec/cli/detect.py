@@ -14,14 +14,38 @@ if TYPE_CHECKING:
     from ..detection.pipeline import ChatteringRecord
     from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
-    from ..studies.calibration_result import Calibration
-    from ._alarm_args import AlarmChoice
+    from ..studies.calibration.result import Calibration
+    from ._options import AlarmChoice
 
 from ..errors import ParameterError
-from . import _identify
-from ._alarm_args import add_alarm_args, alarm_choice
-from ._common import Outputs, band_from_args, check_record_path, load_scenario, print_json, stderr_note
-from ._options import add, add_detector_args, add_execution_args, add_live_args, add_report_args, command
+from ._options import (
+    add,
+    add_alarm_args,
+    add_detector_args,
+    add_execution_args,
+    add_identification_args,
+    add_live_args,
+    add_report_args,
+    add_tolerance_args,
+    alarm_choice,
+    band_from_args,
+    command,
+    load_scenario,
+    setup_or_reason,
+    with_tolerance_args,
+)
+from ._report import (
+    Outputs,
+    check_record_path,
+    identification_stream,
+    interval_docs,
+    print_identification,
+    print_json,
+    print_tolerance,
+    record_doc,
+    stderr_note,
+    tolerance_doc,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -50,8 +74,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_alarm_args(p, what="the --record / --live monitor")
     add_execution_args(p)
-    _identify.add_identification_args(p)
-    _identify.add_tolerance_args(p)
+    add_identification_args(p)
+    add_tolerance_args(p)
     add_report_args(p)
     # None = not given (the defaults of add_detector_args are filled in by run): a calibration fixes
     # the threshold, so an explicit --alpha / --threshold / --correction next to it is refused
@@ -83,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     if args.tolerance:
         import dataclasses
 
-        sc = dataclasses.replace(sc, nominal=_identify.with_tolerance_args(sc.nominal, args))
+        sc = dataclasses.replace(sc, nominal=with_tolerance_args(sc.nominal, args))
     band = band_from_args(args)
     choice = alarm_choice(args, default_rule=_file_rule(args))  # bad options stop here, before simulating
     from ..detection.detect import detect_chunks
@@ -91,8 +115,8 @@ def run(args: argparse.Namespace) -> int:
     threshold = args.threshold
     extra: dict = {}
     if args.calibration:
-        from ..studies.calibration import load_calibration
-        from ..studies.calibration_support import require_support
+        from ..studies.calibration.result import load_calibration
+        from ..studies.calibration.support import require_support
 
         n_samples = round(sc.duration / sc.nominal.dt)  # chattering samples of one record
         cal = load_calibration(args.calibration, sc.nominal, n_samples)
@@ -102,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
             extra["frame_threshold"] = cal.threshold("frame-family-wise")
     first: list = []
     progress = False if args.no_progress or args.runs < PROGRESS_MIN_RUNS else None
-    setup, why_not = _identify.setup_or_reason(sc.nominal, args)
+    setup, why_not = setup_or_reason(sc.nominal, args)
     pmap = getattr(sc.nominal, "parameter_map", None)
     if setup is None and pmap is not None and pmap.has_tolerances:
         raise ParameterError(
@@ -113,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
     if parallel:  # the same numbers from worker processes / Dask
         from ..detection.detect import detect_scenario
 
-        ident = None if setup is None else _identify.stream(setup, args)
+        ident = None if setup is None else identification_stream(setup, args)
         report = detect_scenario(
             sc,
             args.runs,
@@ -135,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         chunks = stream_chunks(sc, args.runs, args.seed, first, measurements=setup is not None)
         if setup is not None:  # identification taps the same chunks as they stream past the detector
-            ident = _identify.stream(setup, args)
+            ident = identification_stream(setup, args)
             chunks = ident.tap(chunks, background=True)
         report = detect_chunks(
             with_progress(chunks, args.runs, f"detect {sc.name}", progress),
@@ -174,8 +198,8 @@ def run(args: argparse.Namespace) -> int:
         print_json(doc)
     else:
         print_report(doc)
-        _identify.print_identification(doc)
-        _identify.print_tolerance(doc)
+        print_identification(doc)
+        print_tolerance(doc)
     if args.record or args.live:
         outputs.finish()  # a failed recording: the result above is printed first
     return 0
@@ -185,7 +209,7 @@ def _file_rule(args: argparse.Namespace) -> str | None:
     """The rule of ``--calibration``'s alarm calibration (the default of ``--rule``), if any."""
     if not args.calibration:
         return None
-    from ..studies.calibration import load_calibration
+    from ..studies.calibration.result import load_calibration
 
     alarm = load_calibration(args.calibration).alarm
     return None if alarm is None else alarm.rule.name
@@ -201,7 +225,7 @@ def _alarm_settings(
     """The recording monitor's alarm rule: the calibration file's, or set here for the budget (linear);
     a nonlinear scenario whose file holds no alarm calibration keeps the per-frame rule."""
     from ..studies.alarm_budget import alarm_settings
-    from ._alarm_args import check_file_alarm
+    from ._options import check_file_alarm
 
     file_alarm = getattr(cal, "alarm", None)
     if file_alarm is not None:
@@ -258,14 +282,14 @@ def add_identification(
         doc["identification"] = {"reason": why_not}
         return
     assert ident is not None  # (made with the setup)
-    doc["identification"] = _identify.record_doc(ident, args.runs, setup, sc)
-    tol = _identify.tolerance_doc(ident, args.runs, args)
+    doc["identification"] = record_doc(ident, args.runs, setup, sc)
+    tol = tolerance_doc(ident, args.runs, args)
     if tol is not None:
         doc["tolerance"] = tol
     frames = getattr(report, "frames", None)
     if sim is not None and frames is not None and frames.intervals.get("any"):
         hop = frames.spectrogram.config.hop_s
-        doc["identification_intervals"] = _identify.interval_docs(
+        doc["identification_intervals"] = interval_docs(
             setup, sim.z[:1], sim.u, frames.intervals["any"], sc.duration, hop, args, sc
         )
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 
 from ..filter_registry import FILTERS
-from ._common import Outputs, alpha_arg, check_record_path, report
 from ._options import (
     OPTIONS,
     add,
@@ -13,10 +12,12 @@ from ._options import (
     add_name,
     add_report_args,
     add_runs_args,
+    alpha_arg,
     command,
     execution,
     round_chunk_runs,
 )
+from ._report import Outputs, check_record_path, report
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -5,11 +5,11 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING
 
-from ._common import check_figure_path, report_study
 from ._options import add, add_name, add_study_args, command, study_keywords
+from ._report import check_figure_path, report_study
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..studies.false_alarms import FalseAlarmResult
+    from ..studies.detection_rates import FalseAlarmResult
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,8 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec far`` with the parsed ``args``; returns the exit status."""
     check_figure_path(args.plot)
-    from ..studies.calibration import load_calibration
-    from ..studies.false_alarms import false_alarm_study
+    from ..studies.calibration.result import load_calibration
+    from ..studies.detection_rates import false_alarm_study
 
     cal = load_calibration(args.calibration) if args.calibration else None
     res = false_alarm_study(

@@ -19,8 +19,8 @@ import time
 from pathlib import Path
 
 from ..errors import ParameterError
-from ._common import Outputs, check_output_path, print_json
 from ._options import add, add_report_args, add_runs_args, command
+from ._report import Outputs, check_output_path, print_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -10,38 +10,71 @@ one JSON object per line on stdout, human lines on stderr), and the run is
 recorded (``--record``, rotated with ``--record-every``) and/or streamed to a
 viewer (``--live``). End of input, Ctrl-C and SIGTERM all finish cleanly:
 recordings get their footer and the summary is printed.
+
+Identification output (:class:`MonitorIdentification`, from
+:class:`~chatterspec.online.identification_monitor.IdentificationMonitor`): the parameters' alarm
+events (tolerances), the ``identification`` events, the human lines and the summary. JSON lines
+(``--events jsonl``):
+
+* with tolerances, the parameters' alarms are the monitor's fault events: ``{"event": "fault-start",
+  "sample_time_s": <alarm time: the deciding window's last sample>, "time_s": <its centre>,
+  "channel": <parameter>, "parameter": ..., "estimate", "ci_low", "ci_high", "band", "tolerance",
+  "score", "statistic", "threshold", "rule", "false_alarms_per_hour", "detectable", ...}``; the
+  spectral detector's events are not emitted (they see the in-tolerance mismatch) and are counted in
+  the summary's ``spectral_mismatch``;
+* ``--identification-events changes``: an ``identification`` event whenever the fault named (only
+  under an alarm) or a parameter's or channel's state changes; ``every-hop``: every window. Fields:
+  ``sample_time_s``, ``window_s``, ``alarm``, ``fault`` (the name, null between alarms), ``fits`` (false:
+  the window is not described by constant parameters, e.g. it straddles a change; no evidence),
+  ``parameters`` (joint estimate, interval, band, ``inside``, ``score``, ``state``, ``detectable``),
+  ``channels`` (state per output channel), and under a spectral alarm the full report of the window
+  (``selected``, ``hypotheses``, ``alpha``).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import signal
 import sys
 import threading
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from ..errors import ParameterError
 from ..jsonout import dumps
-from . import _identify
-from ._alarm_args import _alarm_line, _alarm_short, add_alarm_args, alarm_choice, alarm_doc
-from ._common import Outputs, band_from_args, check_record_path, positive_int_arg, stderr_note
-from ._monitor_identification import MonitorIdentification
-from ._monitor_stream import _emit_line, _run_stream
-from ._options import add, add_report_args, command
+from ._options import (
+    add,
+    add_alarm_args,
+    add_identification_args,
+    add_report_args,
+    add_tolerance_args,
+    alarm_choice,
+    band_from_args,
+    command,
+    positive_int_arg,
+    setup_or_reason,
+    with_tolerance_args,
+)
+from ._report import Outputs, alarm_doc, alarm_line, alarm_short, check_record_path, quiet_stdout, stderr_note
 
 if TYPE_CHECKING:  # pragma: no cover
+    from types import FrameType
+
     from ..detection.alarms.calibration import MonitorSettings
     from ..detection.spectral import STFTConfig
+    from ..online.identification_monitor import IdentificationUpdate
     from ..online.monitor import ChatteringMonitor, DetectionEvent
     from ..plants.datafile import DataSet
     from ..plants.modelfile import ModelSpec
     from ..plants.nonlinear import Model
-    from ..studies.calibration_result import Calibration
+    from ..studies.calibration.result import Calibration
+    from ..viewer.live_stream import StreamEvent, StreamSummary
     from ..viewer.recordings import RecordingSummary
-    from ._alarm_args import AlarmChoice
+    from ._options import AlarmChoice
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -150,8 +183,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="samples per push (default: one STFT hop with --rate > 0, 250 hops otherwise; the output does "
         "not depend on it)",
     )
-    _identify.add_identification_args(p)
-    _identify.add_tolerance_args(p)
+    add_identification_args(p)
+    add_tolerance_args(p)
     p.add_argument(
         "--identification-events",
         choices=("none", "changes", "every-hop"),
@@ -213,7 +246,7 @@ def run(args: argparse.Namespace) -> int:
     for w in caught:
         print(f"chatterspec monitor: warning: {w.message}", file=sys.stderr)
     if args.tolerance:
-        spec = dataclasses.replace(spec, model=_identify.with_tolerance_args(spec.model, args))
+        spec = dataclasses.replace(spec, model=with_tolerance_args(spec.model, args))
     pmap = getattr(spec.model, "parameter_map", None)
     tolerances = pmap is not None and pmap.has_tolerances
     from ..online.monitor import ChatteringMonitor, MonitorSettings  # after the model file: its errors first
@@ -247,8 +280,8 @@ def run(args: argparse.Namespace) -> int:
                 "--alpha cannot be used with --calibration: the calibration file fixes the per-frame "
                 "threshold and its alpha (drop one of them)"
             )
-        from ..studies.calibration import load_calibration
-        from ..studies.calibration_support import require_support
+        from ..studies.calibration.result import load_calibration
+        from ..studies.calibration.support import require_support
 
         cal = load_calibration(args.calibration, spec.model, config=stft)
         require_support(cal, "monitor", args.calibration)  # enough runs for its per-frame alpha
@@ -265,7 +298,7 @@ def run(args: argparse.Namespace) -> int:
             f"(alpha {cal.alpha:g} per frame, {made})",
             file=sys.stderr,
         )
-    setup, why_not = _identify.setup_or_reason(spec.model, args)
+    setup, why_not = setup_or_reason(spec.model, args)
     if tolerances:
         if setup is None:
             raise ParameterError(
@@ -306,7 +339,7 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     else:
-        print(f"chatterspec monitor: {_alarm_line(settings)}", file=sys.stderr)
+        print(f"chatterspec monitor: {alarm_line(settings)}", file=sys.stderr)
     if why_not is not None and not args.no_identify:
         print(f"chatterspec monitor: no fault identification: {why_not}", file=sys.stderr)
 
@@ -416,8 +449,6 @@ def _follow_header(args: argparse.Namespace, model: Model) -> None:
     DataFileError
         Its header lacks a column of the model (or repeats one).
     """
-    import time
-
     from ..online.stream import CsvRows
 
     where = f"data file {str(args.data)!r}"
@@ -465,35 +496,57 @@ def _report_replay(
 ) -> None:
     """Print the summary of a file replay (the data held at least one STFT frame: :func:`_replay_data`)."""
     if args.json:
-        doc = {
-            "model": str(args.model),
-            "data": str(args.data),
-            "alarm": alarm_doc(settings),
-            **summary.to_dict(),
-        }
+        doc = _summary_doc(args, settings, summary.to_dict(), ident)
         if ident is None:
             doc["identification"] = {"reason": why_not}
-        else:
-            ident.into_summary(doc)
-        if jsonl:
-            _emit_line(dumps({"event": "summary", **doc}, allow_nan=True))
-        else:
-            print(dumps(doc, indent=2, allow_nan=True))
+        _print_summary_doc(doc, jsonl, allow_nan=True)
         return
-    n = sum(e.kind == "fault-start" for e in summary.events)
-    rule = _alarm_short(settings)
-    if ident is not None and ident.tolerances:
-        n, rule = ident.starts, ident.rule_short()
+    n, rule = _starts_and_rule(sum(e.kind == "fault-start" for e in summary.events), settings, ident)
     print(
         f"{summary.duration_s:.2f} s of data, {summary.n_frames} frames, {n} fault start(s) "
         f"[{rule}]; {summary.wall_s:.2f} s wall",
         file=human,
     )
+    _print_status(ident, human)
+    if summary.path is not None and not summary.write_error:
+        print(f"recording: {summary.path} (open with `chatterspec replay {summary.path}`)", file=human)
+
+
+def _summary_doc(
+    args: argparse.Namespace,
+    settings: MonitorSettings,
+    summary: dict[str, Any],
+    ident: MonitorIdentification | None,
+) -> dict[str, Any]:
+    """The JSON summary of a replay or a stream: model, data, alarm, the ``summary`` dict, identification."""
+    doc = {"model": str(args.model), "data": str(args.data), "alarm": alarm_doc(settings), **summary}
+    if ident is not None:
+        ident.into_summary(doc)
+    return doc
+
+
+def _print_summary_doc(doc: dict[str, Any], jsonl: bool, *, allow_nan: bool = False) -> None:
+    """The JSON summary: a ``summary`` event line with ``--events jsonl``, else an indented document."""
+    if jsonl:
+        _emit_line(dumps({"event": "summary", **doc}, allow_nan=allow_nan))
+    else:
+        print(dumps(doc, indent=2, allow_nan=allow_nan))
+
+
+def _starts_and_rule(
+    starts: int, settings: MonitorSettings, ident: MonitorIdentification | None
+) -> tuple[int, str]:
+    """The fault starts and the rule of the text summary (with tolerances: the parameters' alarms)."""
+    if ident is not None and ident.tolerances:
+        return ident.starts, ident.rule_short()
+    return starts, alarm_short(settings)
+
+
+def _print_status(ident: MonitorIdentification | None, human: TextIO) -> None:
+    """The identification's status lines of the text summary (none without identification)."""
     if ident is not None:
         for line in ident.status_lines():
             print(f"  {line}", file=human)
-    if summary.path is not None and not summary.write_error:
-        print(f"recording: {summary.path} (open with `chatterspec replay {summary.path}`)", file=human)
 
 
 def _preload_rerun() -> threading.Thread:
@@ -543,7 +596,7 @@ def _alarm_settings(
         return dataclasses.replace(settings, alpha=float(args.alpha))
     file_alarm = getattr(cal, "alarm", None)
     if file_alarm is not None:
-        from ._alarm_args import check_file_alarm
+        from ._options import check_file_alarm
 
         rc = check_file_alarm(c, file_alarm, args.calibration)
         return alarm_settings(model, settings, calibration=rc)
@@ -572,3 +625,402 @@ def _alarm_settings(
         note=stderr_note("monitor"),
         **c.parameters,
     )
+
+
+# --- a live stream (standard input or a growing file): the read loop, its line-by-line output and the
+# end-of-stream summary ------------------------------------------------------------------------------
+#: The exit status of a stream by what stopped it (the summary is printed and the recordings closed in
+#: every case): Ctrl-C 130 and SIGTERM 143 (128 + the signal number, as a shell reports a process the
+#: signal ended), as for a file replay; end of input, --idle-timeout and a reader that went away 0.
+EXIT_STATUS = {"SIGINT": 128 + signal.SIGINT, "SIGTERM": 128 + signal.SIGTERM}
+
+
+class _Terminated(Exception):
+    """SIGTERM arrived (raised from the signal handler to unwind the read loop)."""
+
+
+def _emit_line(text: str) -> None:
+    sys.stdout.write(text + "\n")
+    sys.stdout.flush()
+
+
+def _run_stream(
+    args: argparse.Namespace,
+    spec: ModelSpec,
+    settings: MonitorSettings,
+    jsonl: bool,
+    human: TextIO,
+    ident: MonitorIdentification | None = None,
+) -> int:
+    from ..errors import ChatterspecError
+    from ..online.stream import CsvRows, follow_file, read_fd
+    from ..viewer.live_stream import StreamMonitor, drive
+
+    stdin = str(args.data) == "-"
+    where = "standard input" if stdin else f"data file {str(args.data)!r}"
+    model = spec.model
+
+    def on_event(ev: StreamEvent) -> None:
+        if ident is not None:  # the alarm of the fault named; with tolerances a mismatch only
+            ident.note(ev.kind, ev.channel, ev.sample_time_s)
+            if ident.tolerances and ev.kind in ("fault-start", "fault-end"):
+                return
+        if jsonl:
+            _emit_line(ev.to_json())
+        print(ev.describe(), file=human, flush=True)
+
+    def on_note(text: str) -> None:
+        print(f"chatterspec monitor: {text}", file=sys.stderr, flush=True)
+
+    try:
+        mon = StreamMonitor(
+            model,
+            settings,
+            record=args.record,
+            record_every_s=None if args.record_every is None else 60.0 * args.record_every,
+            live=args.live,
+            recording_name="monitor stdin" if stdin else f"monitor {args.data.name}",
+            skip_bad_rows=args.skip_bad_rows,
+            on_event=on_event,
+            on_note=on_note,
+            on_push=None if ident is None else ident.push,
+            on_reset=None if ident is None else ident.reset,
+            identification=None if ident is None else ident.monitor,
+        )
+    except OSError as exc:  # e.g. disk full when the recording opens: before any row is read
+        from ._report import OutputPathError
+
+        raise OutputPathError(
+            f"--record {str(args.record)!r} cannot be written ({exc.strerror or exc}); nothing was monitored"
+        ) from None
+    if ident is not None:  # the recordings draw the identification and their lanes follow it
+        ident.on_update = mon.log_identification
+    rows = CsvRows(model, where)
+    if stdin:
+        chunks = read_fd(sys.stdin.fileno())
+    else:
+        chunks = follow_file(args.data, from_end=args.from_end, idle_timeout_s=args.idle_timeout)
+
+    def on_term(signum: int, frame: FrameType | None) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # finishing must not be interrupted again
+        raise _Terminated
+
+    previous = signal.signal(signal.SIGTERM, on_term)
+    stopped, error = "idle timeout" if args.follow else "end of input", None
+    try:
+        drive(chunks, rows, mon)
+    except KeyboardInterrupt:
+        stopped = "SIGINT"
+    except _Terminated:
+        stopped = "SIGTERM"
+    except BrokenPipeError:
+        stopped = "output closed"
+        quiet_stdout()
+    except ChatterspecError as exc:
+        stopped, error = "error", exc
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        try:
+            summary = mon.close(stopped)
+        finally:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+            signal.signal(signal.SIGTERM, previous)
+    try:
+        _report(args, summary, jsonl, human, settings, ident)
+    except BrokenPipeError:
+        quiet_stdout()
+    if error is not None:
+        raise error
+    return EXIT_STATUS.get(stopped, 0)
+
+
+def _report(
+    args: argparse.Namespace,
+    summary: StreamSummary,
+    jsonl: bool,
+    human: TextIO,
+    settings: MonitorSettings,
+    ident: MonitorIdentification | None = None,
+) -> None:
+    s = summary  # StreamSummary
+    if args.json:
+        _print_summary_doc(_summary_doc(args, settings, s.to_dict(), ident), jsonl)
+        return
+    lat = s.latency
+    c = s.counts
+    latency = (
+        f"latency median {lat['median_ms']:.2f} ms, max {lat['max_ms']:.2f} ms"
+        if lat["frames"]
+        else "no frame completed"
+    )
+    starts, rule = _starts_and_rule(c["fault-start"], settings, ident)
+    print(
+        f"{s.duration_s:.2f} s of data ({s.n_rows} rows), {s.n_frames} frames, "
+        f"{starts} fault start(s) [{rule}], {c['gap']} gap(s), "
+        f"{c['restart']} restart(s), "
+        f"{c['bad-row']} bad row(s) skipped; {latency}; {s.wall_s:.2f} s wall; "
+        f"stopped by {s.stopped_by}",
+        file=human,
+    )
+    _print_status(ident, human)
+    for rec in s.recordings:
+        print(f"recording: {rec['path']} (open with `chatterspec replay {rec['path']}`)", file=human)
+
+
+# --- the identification output (module docstring) -----------------------------------------------------
+class MonitorIdentification:
+    """The monitor's identification output (module docstring).
+
+    Parameters
+    ----------
+    monitor : IdentificationMonitor
+    emit : callable or None
+        Writes one JSON line (``--events jsonl``); None: no JSON lines.
+    say : callable
+        Writes one human line.
+    every_hop : bool or None
+        ``identification`` events at every window (True), at changes (False), none (None).
+    """
+
+    def __init__(self, monitor: Any, emit: Any, say: Any, every_hop: bool | None = None) -> None:
+        import numpy as np  # lazily: building the parser does not import numpy
+
+        self.monitor = monitor
+        self.emit, self.say, self.every_hop = emit, say, every_hop
+        self.windows = 0
+        self.changes: list[dict[str, Any]] = []
+        self.events: list[dict[str, Any]] = []
+        self._last: tuple[Any, Any] | None = None  # (update, window) of the last window
+        self._last_doc: dict[str, Any] | None = None
+        self.spectral_mismatch = 0
+        self._key: tuple[Any, ...] | None = None
+        self._label: str | None = None
+        self._states: tuple[str, ...] | None = None
+        self._since_reset = 0  # windows since the start or a reset: the detectability's horizon fills
+        P = len(monitor.parameters)
+        self._not_excited = np.zeros(P)
+        self._hop_s = monitor.settings.hop_s
+        #: Called with each push's update before it is reported (e.g. the recordings of a stream).
+        self.on_update: Callable[[IdentificationUpdate], None] | None = None
+
+    @property
+    def last(self) -> dict[str, Any] | None:
+        """The report of the last window (the ``identification`` event's fields), None before one."""
+        if self._last_doc is None and self._last is not None:
+            self._last_doc = self._doc(*self._last)
+        return self._last_doc
+
+    def _current(self) -> dict[str, Any]:
+        """:attr:`last` while its window is being reported."""
+        doc = self.last
+        assert doc is not None  # (set before the window's report is asked for)
+        return doc
+
+    def _doc(self, upd: Any, w: Any) -> dict[str, Any]:
+        """The fields of window ``w``'s ``identification`` event (``upd`` the push's update)."""
+        mon, blk = self.monitor, upd.block
+        doc = {
+            "sample_time_s": round(w.time_s, 9),
+            "window_s": [round(w.window_s[0], 9), round(w.window_s[1], 9)],
+            "alarm": w.alarm,
+            "fault": w.label,
+            "fits": bool(blk.fits[w.index]),
+            "parameters": mon.parameter_summary(blk, w),
+            "channels": dict(zip(mon.channels, w.channel_states, strict=True)),
+        }
+        if w.alarm and not self.tolerances:
+            rep = upd.report(w.index).to_dict()
+            doc.update({k: rep[k] for k in ("selected", "hypotheses", "alpha", "confidence")})
+        return doc
+
+    @property
+    def identifier(self) -> Any:
+        """The online identifier (its setup and confidence name the recording's views)."""
+        return self.monitor.identifier
+
+    @property
+    def tolerances(self) -> bool:
+        """Whether the parameters raise the alarms."""
+        return bool(self.monitor.tolerances)
+
+    def reset(self, t0: float) -> None:
+        """A gap or restart at ``t0``: start over (the label and states too)."""
+        self.monitor.reset(t0)
+        self._key = self._label = self._states = None
+        self._since_reset = 0
+
+    def note(self, kind: str, channel: str | None, alarm_time_s: float | None) -> None:
+        """A spectral event of the monitor decided at ``alarm_time_s`` (the end of its frame): the alarm
+        state of the label (no tolerances), or a mismatch counted (tolerances)."""
+        if kind not in ("fault-start", "fault-end") or channel is None or alarm_time_s is None:
+            return
+        if self.tolerances:
+            self.spectral_mismatch += kind == "fault-start"
+        else:
+            self.monitor.note_alarm(kind, channel, alarm_time_s)
+
+    def push(self, z: Any, u: Any) -> None:
+        """Identify on one raw push and report it."""
+        upd = self.monitor.push(z, u)
+        if self.on_update is not None:
+            self.on_update(upd)
+        self.handle(upd)
+
+    def handle(self, upd: Any) -> None:
+        """Report one push's :class:`~chatterspec.online.identification_monitor.IdentificationUpdate`."""
+        import numpy as np  # lazily: building the parser does not import numpy
+
+        mon, blk = self.monitor, upd.block
+        events: dict[int, list[Any]] = {int(ev.frame): [] for ev in upd.events}
+        for ev in upd.events:
+            events[int(ev.frame)].append(ev)
+        for w in upd.windows:
+            self.windows += 1
+            self._since_reset += 1
+            for ev in events.get(int(blk.frames[w.index]), ()):
+                doc = ev.to_dict()
+                kind, t = doc.pop("kind"), doc.pop("alarm_time_s")
+                line = {"event": kind, "sample_time_s": round(t, 9), "wall_time": time.time(), **doc}
+                self.events.append(line)
+                if self.emit is not None:
+                    self.emit(dumps(line))
+                self.say(ev.describe())
+            self._not_excited += np.array([s == "not-excited" for s in w.states]) * self._hop_s
+            # the window's report is built only where it is written (most windows of a replay are not)
+            self._last, self._last_doc = (upd, w), None
+            key = (w.label, w.states, w.channel_states)
+            changed = key != self._key
+            if self.emit is not None and self.every_hop is not None and (self.every_hop or changed):
+                self.emit(dumps({"event": "identification", **self._current()}))
+            if w.label != self._label:
+                self._say_label(w, self._current())
+            warm = self._since_reset > mon.settings.horizon_hops  # the horizon holds data only after it
+            if warm and self._states is not None and w.states != self._states:
+                self._say_states(w, self._current())
+            if changed:
+                self.changes.append(
+                    {
+                        "time_s": round(w.time_s, 9),
+                        "fault": w.label,
+                        "states": dict(zip(mon.parameters, w.states, strict=True)),
+                    }
+                )
+            self._key, self._label, self._states = key, w.label, w.states
+
+    def _say_label(self, w: Any, doc: dict[str, Any]) -> None:
+        """A human line when the fault named changes (an alarm starts or ends, or names another fault)."""
+        at = f"t = {w.time_s:.2f} s (window {w.window_s[0]:.2f}-{w.window_s[1]:.2f} s)"
+        if w.label is None:
+            if self._label is not None:
+                self.say(f"alarm over at {at}: {self._status(doc)}")
+            return
+        if self.tolerances:
+            return  # the parameters' fault events said it
+        rows = [r for r in doc.get("hypotheses", []) if r["hypothesis"] == w.label and r["parameter"]]
+        from ._report import summary_line
+
+        what = summary_line({"selected": w.label, "hypotheses": rows}) if rows else w.label
+        self.say(f"identified at {at}: {what}")
+
+    def _say_states(self, w: Any, doc: dict[str, Any]) -> None:
+        """A human line when a parameter becomes not excited, or excited again."""
+        rows = {r["parameter"]: r for r in doc["parameters"]}
+        for p, old, new in zip(self.monitor.parameters, self._states or (), w.states, strict=True):
+            if (old == "not-excited") == (new == "not-excited"):
+                continue
+            r = rows[p]
+            det = "none" if r["detectable"] is None else f"{r['detectable']:.2g}"
+            unit = f" {r['unit']}" if r["unit"] else ""
+            horizon = self.monitor.settings.horizon_hops * self._hop_s
+            what = "not excited" if new == "not-excited" else "excited"
+            self.say(
+                f"{p} {what} at t = {w.time_s:.2f} s: changes >= {det}{unit} detectable over the last "
+                f"{horizon:g} s (not excited above {self._limit(p)})"
+            )
+
+    def _limit(self, p: str) -> str:
+        b = self.monitor.settings.bands
+        i = b.names.index(p)
+        unit = f" {b.units[i]}" if b.units[i] else ""
+        return f"{b.limit[i]:.2g}{unit}" + (f", its tolerance {b.tolerances[i]}" if b.tolerances[i] else "")
+
+    def _status(self, doc: dict[str, Any]) -> str:
+        return "; ".join(self.status_lines(doc))
+
+    def status_lines(self, doc: dict[str, Any] | None = None) -> list[str]:
+        """``"bulk_modulus 1.86e8 Pa, 10 % below nominal, inside its +-15 %"`` per parameter (last window)."""
+        import numpy as np  # lazily: building the parser does not import numpy
+
+        from ..detection.parameter_decision import status_text
+
+        doc = self.last if doc is None else doc
+        if doc is None:
+            return []
+        out = []
+        for r in doc["parameters"]:
+            est, se, lo, hi = (
+                np.nan if r[k] is None else r[k] for k in ("estimate", "std_error", "ci_low", "ci_high")
+            )
+            text = status_text(
+                r["parameter"],
+                est,
+                se,
+                (lo, hi),
+                r["nominal"],
+                r["unit"],
+                r["tolerance"] or "",
+                r["position"] or "",
+            )
+            out.append(text + ("" if r["state"] == "healthy" else f" ({r['state']})"))
+        return out
+
+    @property
+    def starts(self) -> int:
+        """The parameters' alarm starts so far (tolerances)."""
+        return sum(e["event"] == "fault-start" for e in self.events)
+
+    def rule_short(self) -> str:
+        """``"cusum rule, 1 false alarm per 24 h, on the parameters"``."""
+        from ..detection.alarms.rules import alarm_label
+
+        cal = self.monitor.settings.calibration
+        if cal is None:
+            return "no parameter alarm"
+        return f"{alarm_label(cal.rule.name, cal.false_alarms_per_hour)}, on the parameters"
+
+    def into_summary(self, doc: dict[str, Any]) -> None:
+        """Put the identification into a ``monitor --json`` summary ``doc``; with tolerances the
+        parameters' alarms become its ``events`` (and ``counts``), the spectral ones ``spectral_events``."""
+        doc["identification"] = self.to_dict()
+        if not self.tolerances:
+            return
+        cal = self.monitor.settings.calibration
+        doc["decision"] = "parameters (tolerances)"
+        doc["alarm"] = None if cal is None else cal.to_dict()
+        doc["spectral_events"] = doc.get("events", [])
+        doc["events"] = list(self.events)
+        if "counts" in doc:
+            counts = dict(doc["counts"])
+            doc["spectral_counts"] = {k: counts.get(k, 0) for k in ("fault-start", "fault-end")}
+            for k in ("fault-start", "fault-end"):
+                counts[k] = sum(e["event"] == k for e in self.events)
+            doc["counts"] = counts
+
+    def to_dict(self) -> dict[str, Any]:
+        """The summary's ``identification``: windows, the decision's settings, the fault-name and state
+        ``changes``, the parameters' alarm events (tolerances), time not excited per parameter, the last
+        window."""
+        ident = self.monitor.identifier
+        return {
+            "window_s": ident.window_s,
+            "windows": self.windows,
+            "decision": self.monitor.settings.to_dict(),
+            "changes": self.changes,
+            "events": self.events,
+            "not_excited_s": {
+                p: round(float(s), 9) for p, s in zip(self.monitor.parameters, self._not_excited, strict=True)
+            },
+            "spectral_mismatch": self.spectral_mismatch if self.tolerances else None,
+            "last": self.last,
+        }

@@ -62,16 +62,18 @@ def export_model_toml(name: str, path: Path) -> Path:
     else:
         psi, why = 3.0 * np.sqrt(chattering_autocovariance(model)[0]), "3 x healthy chattering std"
     comment = (
-        f"Nominal (healthy) model of the chatterspec catalogue scenario {name!r}: {_nominal_text(sc)}.\n"
-        + (
-            f"The scenario's true plant differs from it (the fault to find): {sc.description}.\n"
-            if not sc.is_healthy
-            else ""
-        )
-        + f"Written by `chatterspec scenarios {name} --model-toml`; psi = {why}.\n"
+        _comment_head(sc, name) + f"Written by `chatterspec scenarios {name} --model-toml`; psi = {why}.\n"
         f"Stream it: chatterspec simulate {name} | chatterspec monitor {path.name} --data -"
     )
     return write_model_toml(path, model, psi, gamma=0.1, comment=comment)
+
+
+def _comment_head(sc: Scenario, name: str) -> str:
+    """The first lines of an exported model file's comment: whose nominal model it is, and its fault."""
+    head = f"Nominal (healthy) model of the chatterspec catalogue scenario {name!r}: {_nominal_text(sc)}.\n"
+    if not sc.is_healthy:
+        head += f"The scenario's true plant differs from it (the fault to find): {sc.description}.\n"
+    return head
 
 
 def _export_nonlinear(sc: Scenario, name: str, path: Path) -> Path:
@@ -85,12 +87,7 @@ def _export_nonlinear(sc: Scenario, name: str, path: Path) -> Path:
     if table is not None:
         simulation["input"] = table
     comment = (
-        f"Nominal (healthy) model of the chatterspec catalogue scenario {name!r}: {_nominal_text(sc)}.\n"
-        + (
-            f"The scenario's true plant differs from it (the fault to find): {sc.description}.\n"
-            if not sc.is_healthy
-            else ""
-        )
+        _comment_head(sc, name)
         + f"Written by `chatterspec scenarios {name} --model-toml`. A nonlinear model: calibrate it\n"
         f"first (chatterspec calibrate {path.name} --out cal.npz), then\n"
         f"chatterspec monitor {path.name} --calibration cal.npz"
@@ -116,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     if args.model_toml is not None:
         if args.name is None:
             raise ParameterError("--model-toml needs a scenario NAME (see `chatterspec scenarios`)")
-        from ._common import check_output_path
+        from ._report import check_output_path
 
         check_output_path(args.model_toml, "--model-toml", suffixes=(".toml",))
         path = export_model_toml(args.name, args.model_toml)

@@ -23,8 +23,7 @@ import sys
 import time
 
 from ..errors import ParameterError
-from ._common import load_scenario
-from ._options import add, add_name, command
+from ._options import add, add_name, command, load_scenario
 
 #: Most seconds of wall time between two writes when paced (rows are written when due).
 PACE_S = 0.005

@@ -21,8 +21,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import Outputs, check_output_path, report
 from ._options import add, add_name, add_report_args, add_runs_args, command
+from ._report import Outputs, check_output_path, report
 
 #: Folder of ``spectrum``'s PNG when ``--plot`` is not given (like ``demo``'s ``figures/demo``; created).
 DEFAULT_FOLDER = Path("figures")

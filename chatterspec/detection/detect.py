@@ -39,11 +39,10 @@ import numpy as np
 from .._repr import short_repr
 from .._validate import open_unit, positive_int
 from ..errors import ParameterError, ShapeError
-from ..montecarlo import Execution
+from ..montecarlo import Execution, SeedLike
 from ..plants.models import LinearModel
 from ..plants.nonlinear import Model, is_linear
 from ..plants.scenarios import Scenario
-from ..rng import SeedLike
 from .pipeline import ChatteringRecord, iter_chattering
 from .spectral import DEFAULT_STFT, STFTConfig, expected_spectrum, periodogram
 from .thresholds import Band, Correction, Threshold, check_band, exact_threshold, paper_threshold
@@ -517,7 +516,7 @@ def detect_on_workers(
     DetectionReport
         Equal to ``detect_chunks(iter_chattering(scenario, runs, seed, chunk_runs=...), ...)``.
     """
-    from ..rng import root_seed_sequence
+    from ..montecarlo import root_seed_sequence
 
     root = root_seed_sequence(seed)
     first = next(iter_chattering(scenario, 1, root, chunk_runs=1, gamma=gamma))  # realization 0

@@ -15,10 +15,10 @@ import numpy as np
 from .. import _jit
 from .._repr import short_repr
 from .._validate import positive_int
-from ..filters.nonlinear_svsf import nonlinear_chattering
-from ..filters.svsf import auxiliary_svsf
-from ..filters.svsf_steps import closed_form_step
-from ..filters.svsf_steps import rows_times as _rows_times
+from ..filters.svsf import auxiliary_svsf, nonlinear_chattering
+from ..filters.svsf_recursion import closed_form_step
+from ..filters.svsf_recursion import rows_times as _rows_times
+from ..montecarlo import BLOCK, SeedLike, block_generator, root_seed_sequence
 from ..plants.nonlinear import Model, is_linear, require_linear
 from ..plants.scenarios import Scenario
 from ..plants.simulate import (
@@ -31,7 +31,6 @@ from ..plants.simulate import (
     same_shapes,
     scenario_input,
 )
-from ..rng import BLOCK, SeedLike, block_generator, root_seed_sequence
 
 __all__ = ["ChatteringRecord", "chattering_record", "iter_chattering", "scenario_chattering"]
 
@@ -134,7 +133,7 @@ def chattering_record(
     """
     if u is None:  # no input (docs/filters.md)
         u = np.zeros((np.shape(z)[-2], model.n_inputs))
-    if not is_linear(model):  # nonlinear nominal model: filters/nonlinear_svsf (full measurement)
+    if not is_linear(model):  # nonlinear nominal model: filters/svsf (full measurement)
         e = nonlinear_chattering(model, z, u, gamma=gamma, x0=x0)
     else:
         require_linear(model, "the chattering pipeline (auxiliary sgn-SVSF of eq 8-11)")
@@ -176,7 +175,7 @@ def chattering_sink(
 ) -> None:  # pragma: no cover - compiled
     """The auxiliary SVSF's chattering of each simulated sample: the sink of the fused loop.
 
-    ``e_out[row, i, k - 1] = e_i(k|k-1)`` by :func:`~chatterspec.filters.svsf_steps.closed_form_step`
+    ``e_out[row, i, k - 1] = e_i(k|k-1)`` by :func:`~chatterspec.filters.svsf_recursion.closed_form_step`
     (eq 23) from ``z(k)``, ``zp = z(k-1)`` and ``Gu[k - 1]`` = G u(k-1), for k >= 1; then ``zp = z(k)``.
     Channel-major output, so that each channel's record is contiguous for the periodogram's FFT.
     With a non-empty ``z_out`` (``(runs * m, T)``: the ``(runs, m, T)`` channel-major measurements)
@@ -226,7 +225,7 @@ def _rng_loop(
     """``RUN`` (the fused loop) on runs ``skip .. skip + runs - 1`` of one random block, drawing as it goes.
 
     ``g0`` and ``g1`` are the block's generators (streams 0 and 1 of
-    :func:`chatterspec.rng.block_generator`). ``standard_normal((BLOCK, T, n))`` fills its
+    :func:`chatterspec.montecarlo.block_generator`). ``standard_normal((BLOCK, T, n))`` fills its
     array in C order, one number after the other from the same stream, so drawing run r's
     ``(T, n)`` numbers when run r starts (after discarding the ``skip`` runs before it) gives
     the same numbers; numba's ``Generator.standard_normal`` is numpy's ziggurat on the same
@@ -366,7 +365,7 @@ def iter_chattering(
 ) -> Iterator[ChatteringRecord]:
     """Simulate and filter ``runs`` realizations chunk by chunk (constant memory).
 
-    Realization ``r`` gets the same noise whatever the chunking (see :mod:`chatterspec.rng`).
+    Realization ``r`` gets the same noise whatever the chunking (see :mod:`chatterspec.montecarlo`).
     Each chunk of :func:`~chatterspec.plants.simulate.iter_simulations` is filtered by the
     auxiliary SVSF built on ``scenario.nominal``.
 
@@ -377,7 +376,7 @@ def iter_chattering(
     runs : int
         Total number of realizations (>= 1).
     seed : int, SeedSequence, Generator or None
-        Root of the random streams (see :func:`chatterspec.rng.root_seed_sequence`).
+        Root of the random streams (see :func:`chatterspec.montecarlo.root_seed_sequence`).
     chunk_runs : int, optional
         Realizations per yielded record (default: memory-sized, see
         :func:`~chatterspec.plants.simulate.iter_simulations`).
@@ -425,7 +424,7 @@ def scenario_chattering(
     runs : int
         Number of realizations (>= 1).
     seed : int, SeedSequence, Generator or None
-        Root of the random streams (see :func:`chatterspec.rng.root_seed_sequence`).
+        Root of the random streams (see :func:`chatterspec.montecarlo.root_seed_sequence`).
     gamma : float
         SVSF convergence rate in (0, 1) (eq 8-10).
 

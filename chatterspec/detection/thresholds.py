@@ -79,7 +79,7 @@ healthy runs (beyond the paper):
 
 The detector then tests ``S / E_hat`` against the empirical ``(1 - alpha)``-quantile of the
 per-record maximum over tested bins, estimated on *other* healthy runs
-(:func:`chatterspec.studies.empirical_calibration.calibrate_empirical`). The false-alarm rate
+(:func:`chatterspec.studies.calibration.thresholds.calibrate_empirical`). The false-alarm rate
 of that family-wise threshold does not depend on how good ``E_hat`` is (it only shapes which
 frequencies the detector is sensitive to); it is exact up to the order-statistic uncertainty
 of the quantile, which the calibration reports as an interval.

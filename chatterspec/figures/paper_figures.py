@@ -46,9 +46,9 @@ from ..detection.pipeline import ChatteringRecord, iter_chattering, scenario_cha
 from ..detection.spectral import STFTConfig, periodogram, spectrogram, spectrum_model
 from ..detection.thresholds import Correction, Threshold, exact_threshold, frame_threshold, paper_threshold
 from ..errors import ParameterError
+from ..montecarlo import SeedLike
 from ..plants.nonlinear import Model
 from ..plants.scenarios import Scenario, scenario
-from ..rng import SeedLike
 from . import plotting as pl
 
 __all__ = [

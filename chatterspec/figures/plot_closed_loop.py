@@ -22,7 +22,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
     from ..plants.scenarios import Scenario
-    from ..studies.excitation import ExcitationResult
+    from ..studies.closed_loop import ExcitationResult
     from ..studies.intervals import RateEstimate
 
 __all__ = ["closed_loop_spectra_figure", "excitation_figure", "footprint_figure", "step_response_figure"]
@@ -62,7 +62,7 @@ def excitation_figure(res: ExcitationResult, target: float = 0.95) -> Figure:
     Parameters
     ----------
     res : ExcitationResult
-        From :func:`chatterspec.studies.excitation.excitation_study`.
+        From :func:`chatterspec.studies.closed_loop.excitation_study`.
     target : float
         Detection rate drawn as the target line.
 
@@ -324,7 +324,7 @@ def footprint_figure(scenario: Scenario, seed: int = 0) -> Figure:
     """Fault minus healthy, realization 0, same noise: the loop hides the fault in the position, not in u.
 
     Three rows against time: the position change (closed loop, and the healthy loop's command
-    replayed open loop, :func:`chatterspec.studies.footprint.replayed_open_loop`), the pump speed
+    replayed open loop, :func:`chatterspec.studies.closed_loop.replayed_open_loop`), the pump speed
     change (closed loop), and the pressure chattering of the faulty closed loop (with its 100 ms
     moving average, where the leak's slow term shows) against the healthy chattering's +-3 standard
     deviations.
@@ -343,8 +343,8 @@ def footprint_figure(scenario: Scenario, seed: int = 0) -> Figure:
     from ..detection.pipeline import chattering_record
     from ..detection.spectral import chattering_autocovariance, spectrum_model
     from ..plants.simulate import simulate
-    from ..studies.chattering_diagnosis import healthy_version
-    from ..studies.footprint import replayed_open_loop
+    from ..studies.closed_loop import replayed_open_loop
+    from ..studies.diagnosis import healthy_version
 
     replay = replayed_open_loop(scenario)
     sims = {

@@ -49,10 +49,9 @@ from ..palette import (
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
-    from ..studies.budget_results import OnsetFigures, RouteBudget
-    from ..studies.chattering_diagnosis import ChatteringDiagnosis
+    from ..studies.budget_diagnosis import OnsetFigures, RouteBudget
+    from ..studies.diagnosis import ChatteringDiagnosis, ModeDiagnosis
     from ..studies.identification_study import IdentificationValidation
-    from ..studies.mode_diagnosis import ModeDiagnosis
 
 __all__ = [
     "BUDGET_HEADER",
@@ -126,8 +125,8 @@ def diagnosis_rows(
     Parameters
     ----------
     results : sequence of ModeDiagnosis or ChatteringDiagnosis
-        Results of :func:`~chatterspec.studies.mode_diagnosis.diagnose_modes` and
-        :func:`~chatterspec.studies.chattering_diagnosis.diagnose_chattering` on the same simulation.
+        Results of :func:`~chatterspec.studies.diagnosis.diagnose_modes` and
+        :func:`~chatterspec.studies.diagnosis.diagnose_chattering` on the same simulation.
 
     Returns
     -------
@@ -446,7 +445,7 @@ def confusion_figure(confusion: np.ndarray, modes: Sequence[str], title: str = "
     Parameters
     ----------
     confusion : (r, r) array
-        From :func:`chatterspec.studies.modes.confusion_matrix`.
+        From :func:`chatterspec.studies.estimation.confusion_matrix`.
     modes : sequence of str
         Mode names (r).
     title : str

@@ -36,9 +36,8 @@ from ..palette import MODE_COLORS, NEUTRAL, mpl
 from .style import _CURVE_COLORS, format_alpha, save_figure
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..studies.calibration import Calibration
-    from ..studies.false_alarms import FalseAlarmResult
-    from ..studies.power import PowerResult
+    from ..studies.calibration.result import Calibration
+    from ..studies.detection_rates import FalseAlarmResult, PowerResult
 
 __all__ = [
     "RatioRow",
@@ -87,8 +86,8 @@ def calibration_figure(cal: Calibration) -> Figure:
     Parameters
     ----------
     cal : Calibration
-        Result of :func:`chatterspec.studies.calibration.calibrate` (or
-        :func:`~chatterspec.studies.calibration.load_calibration`).
+        Result of :func:`chatterspec.studies.calibration.thresholds.calibrate` (or
+        :func:`~chatterspec.studies.calibration.result.load_calibration`).
 
     Returns
     -------
@@ -135,7 +134,7 @@ def far_figure(res: FalseAlarmResult, kinds: tuple[str, ...] = ("paper", "exact"
     Parameters
     ----------
     res : FalseAlarmResult
-        Result of :func:`chatterspec.studies.false_alarms.false_alarm_study`.
+        Result of :func:`chatterspec.studies.detection_rates.false_alarm_study`.
     kinds : tuple of str
         Threshold kinds to draw (default ``("paper", "exact")``); kinds absent
         from ``res`` at an alpha are skipped.
@@ -182,7 +181,7 @@ def power_figure(res: PowerResult) -> Figure:
     Parameters
     ----------
     res : PowerResult
-        Result of :func:`chatterspec.studies.power.power_study`. The left panel
+        Result of :func:`chatterspec.studies.detection_rates.power_study`. The left panel
         shows Clopper-Pearson error bars at ``res.alpha`` on the fault channel;
         the right panel sweeps ``res.alphas`` for every non-healthy size
         (false-alarm rates of 0 are drawn at ``0.5 / runs`` on the log axis).

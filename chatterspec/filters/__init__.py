@@ -1,9 +1,10 @@
 """State estimators.
 
-``svsf`` holds the SVSF of eq 4-12 and its auxiliary sgn variant (its per-sample steps in
-``svsf_steps``, its coordinates and boundary layer in ``svsf_coordinates``, its update paths in
-``svsf_recursion``). ``protocol`` defines the one interface of the covariance-carrying filters
-(state, per-sample output, ``initialize / update / run``); ``kalman`` (KF, EKF), ``svsf_cov`` (SVSF
+``svsf`` holds the SVSF of eq 4-12 and its auxiliary sgn variant (with its coordinates, the
+nonlinear nominal model's auxiliary filter and the healthy chattering variance); ``svsf_recursion``
+its per-sample steps, compiled loops, state and update paths. ``protocol`` defines the one interface
+of the covariance-carrying filters (state, per-sample output, ``initialize / update / run``) and the
+conventions every filter shares; ``kalman`` (KF, EKF), ``svsf_cov`` (SVSF
 with covariance, [SMM] eq 2.1-2.10) and ``svsf2`` (dynamic second-order SVSF, [DETC] eq 5-24)
 implement it; ``smm_svsf`` (SMM-SVSF, [SMM] eq 3.1-3.5) and ``imm`` (IMM, [IMM] eq 15-33) build
 banks from them (``bank`` holds what they share).

@@ -13,12 +13,11 @@ from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import Model, has_measurement_function
 from ..plants.steps import PlantSteps, measurement_steps, plant_steps
-from . import _engine, _engine_numpy
-from ._engine_numpy import given_prediction, linear_prediction, model_call_loop, model_prediction
-from ._finite import require_finite
+from . import _engine
+from ._engine import given_prediction, linear_prediction, model_call_loop, model_prediction
 from .one_sample import OnlineFilter
-from .protocol import FilterOutput, FilterState, check_chunk, initial_state, resolve_store
-from .svsf_steps import rows_times as _rows_times
+from .protocol import FilterOutput, FilterState, check_chunk, initial_state, require_finite, resolve_store
+from .svsf_recursion import rows_times as _rows_times
 
 #: What ``_advance`` returns: the covariance after the chunk and the stored outputs.
 Advanced = tuple[np.ndarray, dict[str, np.ndarray | None]]
@@ -50,7 +49,7 @@ class CovarianceFilterBase:
     A subclass gives its correction as a :class:`~chatterspec.filters._engine.CorrectionStep`
     (compiled step, parameters, numpy form); the prediction, the covariance and the loops are
     shared (:mod:`chatterspec.filters._engine`): adding a covariance filter is one module with
-    its class and its correction step, plus its entry in :mod:`chatterspec.filters.registry`.
+    its class and its correction step, plus its entry in :mod:`chatterspec.filter_registry`.
     """
 
     model: Model
@@ -203,14 +202,14 @@ class CovarianceFilterBase:
         if has_measurement_function(model) and not (compiled and plant is not None and hx is not None):
             # EKF with a Python h(x): H = dh/dx in place of C, numpy
             predict = model_prediction(model, u)
-            return P, _engine_numpy.cov_numpy(corr, predict, x, P, ep, epp, z, C, Q, R, keep, h_model=model)
+            return P, _engine.cov_numpy(corr, predict, x, P, ep, epp, z, C, Q, R, keep, h_model=model)
         if compiled and plant is not None:  # every sample in one compiled loop (h(x) compiled too)
             return P, _engine.cov_loop(corr, plant, x, P, ep, epp, z, u, C, Q, R, keep, measurement=hx)
         if self._linear:
             lin = cast(LinearModel, model)  # (``_linear``: a LinearModel)
             Bu = _rows_times(u, np.ascontiguousarray(lin.B.T))
             predict = linear_prediction(lin.A, Bu)
-            return P, _engine_numpy.cov_numpy(corr, predict, x, P, ep, epp, z, C, Q, R, keep)
+            return P, _engine.cov_numpy(corr, predict, x, P, ep, epp, z, C, Q, R, keep)
         return P, model_call_loop(model, corr, compiled, x, P, ep, epp, z, u, C, Q, R, keep)
 
     def correct(
@@ -281,7 +280,7 @@ class CovarianceFilterBase:
                 res = _engine.cov_loop(corr, None, x, P, ep, epp, zz, u0, C, Q0, R, keep, xp_in=xp, F_in=eye)
             else:
                 prior = given_prediction(xp, eye)
-                res = _engine_numpy.cov_numpy(corr, prior, x, P, ep, epp, zz, C, Q0, R, keep, h_model=h_model)
+                res = _engine.cov_numpy(corr, prior, x, P, ep, epp, zz, C, Q0, R, keep, h_model=h_model)
         require_finite(type(self).__name__, (x, P), res, state.k, 1)
         new = FilterState(x=x, P=P, e_post=ep, e_prev=epp, k=state.k + 1)
         return new, FilterOutput(**res)

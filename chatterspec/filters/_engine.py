@@ -21,13 +21,28 @@ factors is not positive definite) or :data:`SINGULAR_PHI12` (the reduced-order f
 ``jacobian`` steps (:mod:`chatterspec.plants.steps`) bound the same way; the IMM and SMM banks call
 :func:`sample_step` per mode. ``mapping`` of the SVSF-type corrections: :data:`MAP_CONST` (``C^-1``
 or ``C^+``), :data:`MAP_COV` (``P C^T (C P C^T)^-1``), :data:`MAP_LUEN` (the reduced-order
-Luenberger form, :mod:`chatterspec.filters._luen`).
+Luenberger form, in :mod:`chatterspec.filters.svsf_cov`).
 
-**numpy.** :func:`chatterspec.filters._engine_numpy.cov_numpy` is the same step vectorized over
-realizations with a Python loop over samples and the filter's numpy correction; it runs when
+**numpy.** :func:`cov_numpy` is the same step vectorized over realizations with a Python loop over
+samples and the filter's numpy correction (``CorrectionStep.numpy``); it runs when
 :func:`chatterspec._jit.enabled` is false, and for the ``luen`` mapping of a single filter. The
-two agree to rounding (summation order, LAPACK vs the hand-written Cholesky). The linear-algebra
-steps are in :mod:`chatterspec.filters._linalg`.
+two agree to rounding (summation order, LAPACK vs the hand-written Cholesky). The prediction is
+given as a function of the sample (:data:`Prediction`): a linear model's ``A x + B u``, a model's
+Python ``transition``/``jacobian``, or one sample's prior computed by the caller.
+
+For a model that measures through ``h`` (``NonlinearModel(..., h=..., h_jac=...)``; only the EKF
+accepts one), the same step runs with ``C`` replaced by ``H = dh/dx`` at the prior::
+
+    e = z(k+1) - h(x(k+1|k)),     H = dh/dx at x(k+1|k),         S = H P(k+1|k) H^T + R
+    K = P(k+1|k) H^T S^-1,        x(k+1|k+1) = x(k+1|k) + K e
+    P(k+1|k+1) = (I - K H) P(k+1|k) (I - K H)^T + K R K^T                    (Joseph form)
+    e(k+1|k+1) = z(k+1) - h(x(k+1|k+1))
+
+**Linear algebra.** The Cholesky factor, solves, products, prediction covariance and Joseph form
+are small steps (``*_step``) inlined by the loops here, by the banks (:mod:`chatterspec.filters.imm`,
+:mod:`chatterspec.filters.smm_svsf`) and by the reduced-order form. Every sum runs from its first
+term (or 0.0) over q = 0, 1, ...: the same order as the loops these steps replaced, hence the same
+bits.
 """
 
 from __future__ import annotations
@@ -39,21 +54,10 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .. import _jit
-from ..errors import SingularMatrixError
-from ..plants.nonlinear import MeasurementSteps
+from ..errors import ShapeError, SingularMatrixError
+from ..plants.nonlinear import MeasurementSteps, Model, measure, measurement_jacobian
 from ..plants.steps import PlantSteps
-from ._finite import finite_sample, finite_state
-from ._linalg import (
-    chol_solve_step,
-    chol_step,
-    gain_update_step,
-    innovation_step,
-    joseph_step,
-    loglik_step,
-    predict_cov_step,
-    product_step,
-    residual_step,
-)
+from .protocol import finite_sample, finite_state
 
 __all__ = [
     "BAD_INPUT",
@@ -66,13 +70,26 @@ __all__ = [
     "SINGULAR_PHI12",
     "CorrectionStep",
     "NumpyPrior",
+    "chol_np",
     "chol_solve_step",
     "chol_step",
     "cov_loop",
+    "cov_numpy",
     "gain_update_step",
+    "given_prediction",
+    "half_logdet_step",
     "innovation_step",
+    "joseph_numpy",
+    "joseph_step",
+    "kalman_gain_numpy",
+    "linear_prediction",
+    "loglik_given_step",
+    "loglik_step",
+    "map_numpy",
     "map_step",
     "map_update_step",
+    "model_call_loop",
+    "model_prediction",
     "one_offsets",
     "one_sample_constants",
     "one_sample_kernel",
@@ -87,6 +104,7 @@ __all__ = [
     "take3",
     "workspace",
 ]
+
 
 KF, SVSF1, SVSF2, VBL = 0, 1, 2, 3
 MAP_CONST, MAP_COV, MAP_LUEN = 0, 1, 2
@@ -349,74 +367,46 @@ def _no_sample(fp: np.ndarray, x: np.ndarray, P: np.ndarray, ep: np.ndarray, epp
 
 @_jit.step
 def workspace(n: int, m: int) -> tuple[np.ndarray, ...]:  # pragma: no cover - compiled (inlined in loops)
-    """Scratch of :func:`_sample` and the correction steps: views of one stack block of the loop.
+    """Scratch of :func:`_sample` and the correction steps: stack arrays of the loop.
 
     ``(T1, Pp, PCt, PCtT, S, D, L, e, eb, wv, KgT, IKC, KR, ll, MpT, g, dz, Phi, G12, P12i, Al,
-    Ae, rr, dy, Ky, W, Hm, zh)``; ``Phi`` .. ``W`` are the reduced-order form's (n = 2m), ``Hm``
-    (m, n) and ``zh`` (m) the measurement function's (``dh/dx`` and ``h``). One block of
-    :data:`~chatterspec._jit.BLOCK_CAPACITY` floats (enough for n, m up to
-    :data:`~chatterspec._jit.MAX_DIMENSION`).
+    Ae, rr, dy, Ky, W, Hm, zh)``; ``Phi`` .. ``W`` are the reduced-order form's (n = 2m; ``W`` is
+    (1, 2) otherwise), ``Hm`` (m, n) and ``zh`` (m) the measurement function's (``dh/dx`` and ``h``).
+    Each is its own :func:`~chatterspec._jit.scratch` array, exactly sized when n and m are literal:
+    no views of a shared block (their reshapes kept reference counting in the loops).
     """
     h = max(n - m, 1)
-    size = 4 * n * n + 7 * n * m + 3 * m * m + 3 * m * h + 2 * h * h + 7 * m + n + h + 1
-    buf = _jit.scratch_block(size)
-    o0 = 0
-    o1 = o0 + n * n
-    o2 = o1 + n * n
-    o3 = o2 + n * m
-    o4 = o3 + m * n
-    o5 = o4 + m * m
-    o6 = o5 + m * m
-    o7 = o6 + m * m
-    o8 = o7 + m
-    o9 = o8 + m
-    o10 = o9 + m
-    o11 = o10 + m * n
-    o12 = o11 + n * n
-    o13 = o12 + n * m
-    o14 = o13 + 1
-    o15 = o14 + m * n
-    o16 = o15 + m
-    o17 = o16 + m
-    o18 = o17 + n * n
-    o19 = o18 + m * h
-    o20 = o19 + h * m
-    o21 = o20 + h * m
-    o22 = o21 + h
-    o23 = o22 + m
-    o24 = o23 + n
-    o25 = o24 + n * m
-    o26 = o25 + 2 * h * h
-    o27 = o26 + m * n
+    hw = h if n == 2 * m else 1
+    s1, s2 = _jit.scratch, _jit.scratch2
     return (
-        buf[o0:o1].reshape((n, n)),
-        buf[o1:o2].reshape((n, n)),
-        buf[o2:o3].reshape((n, m)),
-        buf[o3:o4].reshape((m, n)),
-        buf[o4:o5].reshape((m, m)),
-        buf[o5:o6].reshape((m, m)),
-        buf[o6:o7].reshape((m, m)),
-        buf[o7:o8],
-        buf[o8:o9].reshape((m, 1)),
-        buf[o9:o10].reshape((m, 1)),
-        buf[o10:o11].reshape((m, n)),
-        buf[o11:o12].reshape((n, n)),
-        buf[o12:o13].reshape((n, m)),
-        buf[o13:o14],
-        buf[o14:o15].reshape((m, n)),
-        buf[o15:o16],
-        buf[o16:o17],
-        buf[o17:o18].reshape((n, n)),
-        buf[o18:o19].reshape((m, h)),
-        buf[o19:o20].reshape((h, m)),
-        buf[o20:o21].reshape((h, m)),
-        buf[o21:o22],
-        buf[o22:o23],
-        buf[o23:o24],
-        buf[o24:o25].reshape((n, m)),
-        buf[o25:o26].reshape((h, 2 * h)),
-        buf[o26:o27].reshape((m, n)),
-        buf[o27 : o27 + m],
+        s2(n, n),
+        s2(n, n),
+        s2(n, m),
+        s2(m, n),
+        s2(m, m),
+        s2(m, m),
+        s2(m, m),
+        s1(m),
+        s2(m, 1),
+        s2(m, 1),
+        s2(m, n),
+        s2(n, n),
+        s2(n, m),
+        s1(1),
+        s2(m, n),
+        s1(m),
+        s1(m),
+        s2(n, n),
+        s2(m, h),
+        s2(h, m),
+        s2(h, m),
+        s1(h),
+        s1(m),
+        s1(n),
+        s2(n, m),
+        s2(hw, 2 * hw),
+        s2(m, n),
+        s1(m),
     )
 
 
@@ -513,6 +503,7 @@ def _cov_loop(
     ``1 + runs + r`` (a singular ``Phi12`` in run r).
     """
     b = _jit.borrow
+    flags = b(flags)
     prm, u, z, x, P, ep, epp, C, Q, R, fp = (
         b(prm),
         b(u),
@@ -538,23 +529,44 @@ def _cov_loop(
     F = _jit.scratch2(n, n)
     ws = workspace(n, m)
     Pp, S, e, ll = ws[1], ws[4], ws[7], ws[13]
+    # the run's state in stack copies (no aliasing with the outputs: it stays in registers), written
+    # back after the run or at a failed sample
+    xr, Pr, epr, eppr = _jit.scratch(n), _jit.scratch2(n, n), _jit.scratch(m), _jit.scratch(m)
     if CONST_F:
         JACOBIAN(prm[0], x[0], u[0, 0], F, n, p)
     for r in range(runs):
         pr = 0 if shared_prm else r
         ur = 0 if shared_u else r
+        state_copy(x[r], P[r], ep[r], epp[r], xr, Pr, epr, eppr, n, m)
+        status = 0
         for k in range(K):
-            PREDICT(prm[pr], x[r], u[ur, k], xp, n, p)
+            PREDICT(prm[pr], xr, u[ur, k], xp, n, p)
             if not CONST_F:
-                JACOBIAN(prm[pr], x[r], u[ur, k], F, n, p)
-            status = SAMPLE(fp, x[r], P[r], ep[r], epp[r], z[r, k], xp, F, C, Q, R, ws, n, m)
-            if status == NOT_PD:
-                return 1 + r
-            if status == SINGULAR_PHI12:
-                return 1 + runs + r
+                JACOBIAN(prm[pr], xr, u[ur, k], F, n, p)
+            status = SAMPLE(fp, xr, Pr, epr, eppr, z[r, k], xp, F, C, Q, R, ws, n, m)
+            if status != 0:
+                break
             outs = (o_xprior, o_xpost, o_e, o_S, o_ll, o_ep, o_Pprior, o_Ppost)
-            store_step(flags, outs, r, k, xp, x[r], e, S, ll[0], ep[r], Pp, P[r], n, m)
+            store_step(flags, outs, r, k, xp, xr, e, S, ll[0], epr, Pp, Pr, n, m)
+        state_copy(xr, Pr, epr, eppr, x[r], P[r], ep[r], epp[r], n, m)
+        if status == NOT_PD:
+            return 1 + r
+        if status == SINGULAR_PHI12:
+            return 1 + runs + r
     return 0
+
+
+@_jit.step
+def state_copy(x: np.ndarray, P: np.ndarray, ep: np.ndarray, epp: np.ndarray, x2: np.ndarray, P2: np.ndarray,
+    ep2: np.ndarray, epp2: np.ndarray, n: int, m: int) -> None:  # fmt: skip
+    """Copy a run's state ``x``, ``P``, ``e(k|k)``, ``e(k-1|k-1)`` into ``x2``, ``P2``, ``ep2``, ``epp2``."""
+    for i in range(n):
+        x2[i] = x[i]
+        for j in range(n):
+            P2[i, j] = P[i, j]
+    for i in range(m):
+        ep2[i] = ep[i]
+        epp2[i] = epp[i]
 
 
 @_jit.step
@@ -796,3 +808,356 @@ def _not_pd_message(mapping: int, run: int) -> str:
         f"{what} is not positive definite in run {run}: check that R (and P0) are positive definite "
         "and that the model does not diverge"
     )
+
+
+# ----------------------------------------------------------------------------- linear algebra
+@_jit.step
+def chol_step(A: np.ndarray, L: np.ndarray, m: int) -> bool:  # pragma: no cover - compiled
+    """Lower Cholesky factor of the (m, m) matrix A into L; False if A is not positive definite."""
+    for i in range(m):
+        for j in range(i + 1):
+            s = A[i, j]
+            for q in range(j):
+                s -= L[i, q] * L[j, q]
+            if i == j:
+                if not s > 0.0:
+                    return False
+                L[i, i] = np.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    return True
+
+
+@_jit.step
+def chol_solve_step(
+    L: np.ndarray, B: np.ndarray, X: np.ndarray, m: int, ncol: int
+) -> None:  # pragma: no cover
+    """X = (L L^T)^-1 B for B of shape (m, ncol): forward then back substitution, column by column."""
+    for c in range(ncol):
+        for i in range(m):
+            s = B[i, c]
+            for q in range(i):
+                s -= L[i, q] * X[q, c]
+            X[i, c] = s / L[i, i]
+        for i in range(m - 1, -1, -1):
+            s = X[i, c]
+            for q in range(i + 1, m):
+                s -= L[q, i] * X[q, c]
+            X[i, c] = s / L[i, i]
+
+
+@_jit.step
+def product_step(
+    A: np.ndarray, B: np.ndarray, out: np.ndarray, ni: int, nj: int, nq: int, a_t: bool, b_t: bool
+) -> None:  # pragma: no cover - compiled
+    """``out[i, j] = sum_q A[i, q] B[q, j]`` from 0.0, q = 0, 1, ...; ``a_t``/``b_t``: read A^T / B^T."""
+    for i in range(ni):
+        for j in range(nj):
+            s = 0.0
+            for q in range(nq):
+                s += (A[q, i] if a_t else A[i, q]) * (B[j, q] if b_t else B[q, j])
+            out[i, j] = s
+
+
+@_jit.step
+def residual_step(zk: np.ndarray, C: np.ndarray, x: np.ndarray, out: np.ndarray, n: int, m: int) -> None:
+    """``out = z - C x`` (the innovation of a prediction, or the a-posteriori residual)."""
+    for i in range(m):
+        s = zk[i]
+        for j in range(n):
+            s -= C[i, j] * x[j]
+        out[i] = s
+
+
+@_jit.step
+def gain_update_step(xp: np.ndarray, KgT: np.ndarray, e: np.ndarray, x: np.ndarray, n: int, m: int) -> None:
+    """``x = x(k+1|k) + K e`` with the gain given as ``K^T`` (m, n)."""
+    for i in range(n):
+        s = xp[i]
+        for j in range(m):
+            s += KgT[j, i] * e[j]
+        x[i] = s
+
+
+@_jit.step
+def predict_cov_step(
+    F: np.ndarray, P: np.ndarray, Q: np.ndarray, T1: np.ndarray, Pp: np.ndarray, n: int
+) -> None:
+    """``Pp = F P F^T + Q`` (``T1 = F P`` first; the upper triangle summed, then mirrored)."""
+    product_step(F, P, T1, n, n, n, False, False)
+    for i in range(n):  # symmetric: upper triangle, mirrored
+        for j in range(i, n):
+            s = Q[i, j]
+            for q in range(n):
+                s += T1[i, q] * F[j, q]
+            Pp[i, j] = s
+            Pp[j, i] = s
+
+
+@_jit.step
+def innovation_step(
+    zk: np.ndarray,
+    xp: np.ndarray,
+    Pp: np.ndarray,
+    C: np.ndarray,
+    R: np.ndarray,
+    e: np.ndarray,
+    PCt: np.ndarray,
+    PCtT: np.ndarray,
+    D: np.ndarray,
+    S: np.ndarray,
+    n: int,
+    m: int,
+) -> None:  # pragma: no cover - compiled
+    """``e = z - C xp``, ``PCt = Pp C^T`` (and its transpose), ``D = C Pp C^T``, ``S = D + R``."""
+    residual_step(zk, C, xp, e, n, m)
+    product_step(Pp, C, PCt, n, m, n, False, True)
+    for i in range(n):
+        for j in range(m):
+            PCtT[j, i] = PCt[i, j]
+    product_step(C, PCt, D, m, m, n, False, False)
+    for i in range(m):
+        for j in range(m):
+            S[i, j] = D[i, j] + R[i, j]
+
+
+@_jit.step
+def loglik_step(
+    L: np.ndarray, e: np.ndarray, eb: np.ndarray, wv: np.ndarray, m: int
+) -> float:  # pragma: no cover
+    """``log N(e; 0, S)`` from the Cholesky factor ``L`` of ``S``: ``S^-1 e`` by :func:`chol_solve_step`
+    (``e`` copied into the column ``eb`` (m, 1), solution in ``wv``), ``log det S = 2 sum log L_ii``
+    (:func:`half_logdet_step`)."""
+    return loglik_given_step(L, e, eb, wv, half_logdet_step(L, m), m)
+
+
+@_jit.step
+def half_logdet_step(L: np.ndarray, m: int) -> float:  # pragma: no cover - compiled
+    """``sum_i log L_ii`` (half of ``log det S`` for the Cholesky factor ``L`` of ``S``), i = 0, 1, ..."""
+    logdet = 0.0
+    for i in range(m):
+        logdet += np.log(L[i, i])
+    return logdet
+
+
+@_jit.step
+def loglik_given_step(
+    L: np.ndarray, e: np.ndarray, eb: np.ndarray, wv: np.ndarray, half_logdet: float, m: int
+) -> float:  # pragma: no cover - compiled
+    """:func:`loglik_step` with ``sum log L_ii`` given (the shared Kalman filter has it once per sample)."""
+    for i in range(m):
+        eb[i, 0] = e[i]
+    chol_solve_step(L, eb, wv, m, 1)
+    quad = 0.0
+    for i in range(m):
+        quad += e[i] * wv[i, 0]
+    return -0.5 * (m * 1.8378770664093453 + 2.0 * half_logdet + quad)
+
+
+@_jit.step
+def joseph_step(
+    KgT: np.ndarray,
+    C: np.ndarray,
+    Pp: np.ndarray,
+    R: np.ndarray,
+    T1: np.ndarray,
+    IKC: np.ndarray,
+    KR: np.ndarray,
+    P: np.ndarray,
+    n: int,
+    m: int,
+) -> None:  # pragma: no cover - compiled
+    """Joseph form ``P = (I - K C) Pp (I - K C)^T + K R K^T`` with the gain given as ``K^T`` (m, n).
+
+    Scratch ``T1`` (n, n) = ``(I - K C) Pp``, ``IKC`` (n, n), ``KR`` (n, m); the upper triangle is
+    summed, then mirrored.
+    """
+    for i in range(n):
+        for j in range(n):
+            s = 1.0 if i == j else 0.0
+            for q in range(m):
+                s -= KgT[q, i] * C[q, j]
+            IKC[i, j] = s
+    product_step(IKC, Pp, T1, n, n, n, False, False)
+    product_step(KgT, R, KR, n, m, m, True, False)
+    for i in range(n):  # symmetric: upper triangle, mirrored
+        for j in range(i, n):
+            s = 0.0
+            for q in range(n):
+                s += T1[i, q] * IKC[j, q]
+            for q in range(m):
+                s += KR[i, q] * KgT[q, j]
+            P[i, j] = s
+            P[j, i] = s
+
+
+# ----------------------------------------------------------------------------- numpy path
+#: ``predict(k, x) -> (x(k+1|k), F)``: the prediction of sample k from ``x(k|k)`` (runs, n), with
+#: ``F`` (n, n) or (runs, n, n) the Jacobian of the transition.
+Prediction = Callable[[int, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+def chol_np(M: np.ndarray, mapping: int) -> np.ndarray:
+    """numpy Cholesky of every block of ``M``; SingularMatrixError (naming the run) if one is not PD."""
+    try:
+        return np.linalg.cholesky(M)
+    except np.linalg.LinAlgError:
+        bad = np.flatnonzero(~np.all(np.linalg.eigvalsh(M) > 0, axis=-1))
+        raise SingularMatrixError(_not_pd_message(mapping, int(bad[0]) if bad.size else 0)) from None
+
+
+def joseph_numpy(Kg: np.ndarray, C: np.ndarray, Pp: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Joseph form ``(I - K C) Pp (I - K C)^T + K R K^T`` over leading axes: the numpy twin of
+    :func:`joseph_step` (``Kg`` (..., n, m), ``C`` (..., m, n))."""
+    IKC = np.eye(Pp.shape[-1]) - Kg @ C
+    return IKC @ Pp @ np.swapaxes(IKC, -1, -2) + Kg @ R @ np.swapaxes(Kg, -1, -2)
+
+
+def map_numpy(mapping: int, D: np.ndarray, PCt: np.ndarray, M: np.ndarray | None, runs: int) -> np.ndarray:
+    """numpy twin of :func:`map_step`: ``M`` (runs, n, m)."""
+    if mapping == MAP_COV:
+        chol_np(D, mapping)
+        return np.swapaxes(np.linalg.solve(D, np.swapaxes(PCt, -1, -2)), -1, -2)
+    assert M is not None  # a fixed mapping matrix for every mapping but ``cov``
+    return np.broadcast_to(M, (runs, *M.shape))
+
+
+def kalman_gain_numpy(S: np.ndarray, PCt: np.ndarray) -> np.ndarray:
+    """``K = P C^T S^-1`` for every run (numpy)."""
+    return np.swapaxes(np.linalg.solve(S, np.swapaxes(PCt, -1, -2)), -1, -2)
+
+
+def linear_prediction(A: np.ndarray, Bu: np.ndarray) -> Prediction:
+    """The prediction of a linear model: ``x(k+1|k) = A x(k|k) + B u(k)``, ``F = A``.
+
+    ``Bu`` (1|runs, K, n) holds ``B u(k)`` for every sample of the chunk.
+    """
+    return lambda k, x: (x @ A.T + Bu[:, k], A)
+
+
+def given_prediction(xp_in: np.ndarray, F_in: np.ndarray) -> Prediction:
+    """A prediction the caller computed for one sample: ``x(k+1|k) = xp_in`` (runs, n), ``F = F_in``."""
+    return lambda k, x: (np.array(xp_in, dtype=float), F_in)
+
+
+def model_prediction(model: Model, u: np.ndarray) -> Prediction:
+    """The prediction from a model's Python ``transition`` and ``jacobian`` at ``x(k|k)``, ``u(k)``.
+
+    ``u`` is (1|runs, K, p); one input for every run is passed as (p,), so a model's compiled
+    batched kernel applies (eha4). The Jacobian may be (n, n) (shared) or (runs, n, n).
+
+    Raises
+    ------
+    ShapeError
+        ``transition`` or ``jacobian`` returned the wrong shape (when the prediction is called).
+    """
+    shared_u = u.shape[0] == 1
+
+    def predict(k: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        uk = u[0, k] if shared_u else u[:, k]
+        xp = np.asarray(model.transition(x, uk), dtype=float)
+        F = np.asarray(model.jacobian(x, uk), dtype=float)
+        want_F = (*x.shape, x.shape[1])
+        if xp.shape != x.shape or F.shape not in (want_F, want_F[1:]):
+            raise ShapeError(
+                f"model.transition/jacobian must return {x.shape} and {want_F}; got {xp.shape} and {F.shape}"
+            )
+        return xp, np.broadcast_to(F, want_F)
+
+    return predict
+
+
+def cov_numpy(
+    correct: CorrectionStep,
+    predict: Prediction,
+    x: np.ndarray,
+    P: np.ndarray,
+    ep: np.ndarray,
+    epp: np.ndarray,
+    z: np.ndarray,
+    C: np.ndarray,
+    Q: np.ndarray,
+    R: np.ndarray,
+    keep: frozenset[str],
+    *,
+    h_model: Model | None = None,
+) -> dict[str, np.ndarray | None]:
+    """numpy twin of :func:`cov_loop`: vectorized over runs, a loop over samples; in place.
+
+    ``predict(k, x)`` gives ``(x(k+1|k), F)`` (:func:`linear_prediction`, :func:`given_prediction`,
+    :func:`model_prediction`). With ``h_model`` (a model measuring through ``h``, the EKF only),
+    ``C`` is replaced by ``H = dh/dx`` at ``x(k+1|k)`` and ``C x`` by ``h(x)``, sample by sample.
+    """
+    runs, K, m = z.shape
+    n = x.shape[1]
+    flags, out = _alloc(keep, _shapes(runs, K, n, m))
+    CT = C.T
+    for k in range(K):
+        xp, F = predict(k, x)
+        Pp = F @ P @ np.swapaxes(F, -1, -2) + Q
+        if h_model is None:
+            Ck = C
+            e = z[:, k] - xp @ CT
+            PCt = Pp @ CT
+        else:
+            Ck = measurement_jacobian(h_model, xp)
+            e = z[:, k] - measure(h_model, xp)
+            PCt = Pp @ np.swapaxes(Ck, -1, -2)
+        D = Ck @ PCt
+        S = D + R
+        L = chol_np(S, correct.mapping)
+        w = np.linalg.solve(S, e[..., None])[..., 0]
+        ll = -0.5 * (m * LOG2PI + 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1))
+        ll = ll - 0.5 * np.einsum("ri,ri->r", e, w)
+        Kg, x_new = correct.numpy(NumpyPrior(e, ep, epp, xp, PCt, D, S, Ck, F))
+        x[...] = x_new
+        P[...] = joseph_numpy(Kg, Ck, Pp, R)
+        epp[...] = ep
+        ep[...] = z[:, k] - (x @ CT if h_model is None else measure(h_model, x))
+        for f, flag, val in zip(FIELDS, flags, (xp, x, e, S, ll, ep, Pp, P), strict=True):
+            if flag:
+                out[f][:, k] = val
+    return {f: (out[f] if f in keep else None) for f in FIELDS}
+
+
+def model_call_loop(
+    model: Model,
+    corr: CorrectionStep,
+    compiled: bool,
+    x: np.ndarray,
+    P: np.ndarray,
+    ep: np.ndarray,
+    epp: np.ndarray,
+    z: np.ndarray,
+    u: np.ndarray,
+    C: np.ndarray,
+    Q: np.ndarray,
+    R: np.ndarray,
+    keep: frozenset[str],
+) -> dict[str, np.ndarray | None]:
+    """The step for a model without compiled plant steps: its ``transition``/``jacobian`` per sample.
+
+    Each sample's prediction comes from the model's Python methods (:func:`model_prediction`); the
+    rest of the step is the compiled loop (``compiled``, one sample at a time, the outputs of every
+    sample concatenated along axis 1) or :func:`cov_numpy`. ``x``, ``P``, ``ep``, ``epp`` are
+    updated in place.
+
+    Raises
+    ------
+    ShapeError
+        ``transition`` or ``jacobian`` returned the wrong shape.
+    """
+    predict = model_prediction(model, u)
+    if not compiled:
+        return cov_numpy(corr, predict, x, P, ep, epp, z, C, Q, R, keep)
+    steps = []
+    for k in range(z.shape[1]):
+        xp, F = predict(k, x)
+        zk = z[:, k : k + 1]
+        steps.append(
+            cov_loop(corr, None, x, P, ep, epp, zk, u[:, k : k + 1], C, Q, R, keep, xp_in=xp, F_in=F)
+        )
+    res = {
+        f: (None if steps[0][f] is None else np.concatenate([s[f] for s in steps], axis=1)) for f in steps[0]
+    }
+    return res

@@ -44,7 +44,6 @@ from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.nonlinear import Model
 from ..plants.steps import PlantSteps
 from ._base import check_model
-from ._conventions import bank_store, default_input
 from ._engine import (
     LOG2PI,
     _luen_message,
@@ -55,7 +54,7 @@ from ._engine import (
     given_predict,
 )
 from .one_sample import OnlineBank
-from .protocol import FilterState, initial_estimate
+from .protocol import FilterState, bank_store, default_input, initial_estimate
 
 __all__ = [
     "EIG_FLOOR",

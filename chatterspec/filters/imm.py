@@ -66,7 +66,6 @@ from ._engine import (
     take3,
     workspace,
 )
-from ._finite import finite_sample, finite_state
 from .bank import (
     BankFilter,
     BankLoop,
@@ -89,7 +88,7 @@ from .bank import (
     one_constants,
     run_bank_loop,
 )
-from .protocol import Filter, FilterState, check_spd
+from .protocol import Filter, FilterState, check_spd, finite_sample, finite_state
 
 __all__ = ["IMM", "mode_initial", "pairwise_spread"]
 

@@ -458,7 +458,7 @@ class OnlineSVSF(_OneRealization):
     __slots__ = ("_closed", "_last", "svsf")
 
     def __init__(self, svsf: Any, state: Any) -> None:
-        from . import _svsf_kernels
+        from . import svsf_recursion
         from .svsf_recursion import SVSFState
 
         model = svsf.model
@@ -484,7 +484,7 @@ class OnlineSVSF(_OneRealization):
             self._buf = np.zeros(2 * n + 2 * m)
             self._buf[:n] = state.y[0]
             self._buf[n : n + m] = state.e_post[0]
-            self._call = _svsf_kernels.svsf_one_kernel(n, m)
+            self._call = svsf_recursion.svsf_one_kernel(n, m)
 
     def step(self, z: object, u: object | None = None) -> np.ndarray:
         """Advance by one sample: ``z(k+1)`` and ``u(k)``; returns ``x(k+1|k+1)`` (n,) (a new array).

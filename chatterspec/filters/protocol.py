@@ -22,25 +22,51 @@ multiple-model bank (SMM, IMM) can drive any of them through this interface alon
 
 Notation of ``docs/design.md`` §7: e(k+1|k) = z(k+1) - C x(k+1|k) (innovation),
 e(k|k) = z(k) - C x(k|k) (a-posteriori residual), S = C P(k+1|k) C^T + R.
+
+**Conventions every filter and bank shares** (documented for users in ``docs/filters.md``,
+"Conventions"):
+
+* **One storage option.** Every filter and bank takes ``store``: a collection of output field names
+  (``FilterOutput`` fields for a filter; ``"P_post"`` and ``"mode_x_post"`` of
+  :class:`~chatterspec.filters.bank.MultipleModelOutput` for SMM-SVSF and IMM, beside the
+  fields they always return).
+* **Optional input.** ``u=None`` means no input (zeros of the model's ``n_inputs`` channels), so an
+  autonomous model needs no ``u`` (and a ``LinearModel`` no ``B``: ``B=None``).
+* **Per-mode start of the IMM.** ``IMM.initialize(..., mode_x0=, mode_P0=)`` starts each mode-matched
+  filter from its own estimate and covariance; the combined ``x(0|0)``, ``P(0|0)`` are their
+  ``mu0``-weighted combination ([IMM] eq 31-33; :func:`chatterspec.filters.imm.mode_initial`).
+* **Finite outputs.** The outputs of a filter chunk are finite, or :func:`require_finite` raises a
+  :class:`~chatterspec.errors.DivergenceError` naming where they stopped being finite. A model that
+  diverges (an unstable or badly mismatched ``A``, a nonlinear ``f`` that overflows or returns NaN
+  mid-run) makes the estimate overflow; numpy's Cholesky of a NaN matrix returns NaN instead of
+  raising, so without this check the filters would hand back NaN arrays with only numpy warnings. The
+  check runs at the API boundary (after a chunk, on both the compiled and the numpy path), not inside
+  the per-sample kernels: the final estimate and covariance are tested (cheap); only when they are not
+  finite are the stored per-sample outputs searched for the first bad sample. The one-sample kernels
+  test their input and state with the compiled steps :func:`finite_sample` and :func:`finite_state`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Collection
+import math
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from typing import Protocol, TypedDict, Unpack, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
 
+from .. import _jit
 from .._repr import short_repr
 from .._validate import finite_array
-from ..errors import ParameterError, ShapeError
+from ..errors import DivergenceError, ParameterError, ShapeError
 from ..plants.nonlinear import Model
 
 __all__ = ["DEFAULT_STORE", "STORABLE", "Filter", "FilterOutput", "FilterState"]
 
+
+# ----------------------------------------------------------------------------- (from protocol)
 #: Output fields stored per sample when ``store`` is not given.
 DEFAULT_STORE: frozenset[str] = frozenset({"x_prior", "x_post", "innovation", "S", "loglik", "e_post"})
 #: Every field that ``store`` may name (covariances are stored only on request).
@@ -431,3 +457,279 @@ def check_chunk(
     if state.e_post.shape != (runs, m) or state.e_prev.shape != (runs, m):
         raise ShapeError(f"state residuals must have shape ({runs}, {m})")
     return z, u
+
+
+# ----------------------------------------------------------------------------- conventions
+#: What ``store`` may name for SMM-SVSF and IMM (x_post, mu and loglik are always returned).
+BANK_STORABLE = frozenset({"P_post", "mode_x_post"})
+#: What ``store`` may name for the chattering SVSF (``e_prior``, the chattering, is always returned).
+SVSF_STORABLE = frozenset({"x_post", "e_post", "e_lower"})
+
+
+def store_flags(
+    store: Collection[str] | None,
+    fields: tuple[str, ...],
+    allowed: frozenset[str],
+    who: str,
+    always: str,
+) -> tuple[bool, ...]:
+    """One flag per entry of ``fields``: is that output field named in ``store``.
+
+    Parameters
+    ----------
+    store : collection of str or None
+        Field names among ``allowed`` (None: none).
+    fields : tuple of str
+        The output fields, in the order of the returned flags.
+    allowed : frozenset of str
+        What ``store`` may name.
+    who : str
+        The filter's name, for messages.
+    always : str
+        What is always returned, for the error message.
+
+    Returns
+    -------
+    tuple of bool
+    """
+    if store is None:
+        return tuple(False for _ in fields)
+    if isinstance(store, str):
+        raise ParameterError(
+            f"{who}: store is a collection of names, e.g. {{{store!r}}}; got the string {store!r}"
+        )
+    keep = frozenset(store)
+    bad = keep - allowed
+    if bad:
+        raise ParameterError(f"{who}: store may name {sorted(allowed)} ({always}); got unknown {sorted(bad)}")
+    return tuple(f in keep for f in fields)
+
+
+def svsf_store(store: Collection[str] | None, who: str) -> tuple[bool, bool, bool]:
+    """``(x_post, e_post, e_lower)`` flags of the chattering SVSF from ``store``.
+
+    Parameters
+    ----------
+    store : collection of str or None
+        Names among :data:`SVSF_STORABLE`.
+    who : str
+        The filter's name, for messages.
+
+    Returns
+    -------
+    (bool, bool, bool)
+    """
+    fields = ("x_post", "e_post", "e_lower")
+    states, post_error, lower = store_flags(store, fields, SVSF_STORABLE, who, "e_prior is always returned")
+    return states, post_error, lower
+
+
+def bank_store(store: Collection[str] | None, who: str) -> tuple[bool, bool]:
+    """``(keep P_post, keep mode_x_post)`` from ``store``.
+
+    Parameters
+    ----------
+    store : collection of str or None
+        Names among :data:`BANK_STORABLE` (None: neither).
+    who : str
+        The bank's name, for messages.
+
+    Returns
+    -------
+    (bool, bool)
+    """
+    always = "x_post, mu and loglik are always kept"
+    covariance, modes = store_flags(store, ("P_post", "mode_x_post"), BANK_STORABLE, who, always)
+    return covariance, modes
+
+
+def default_input(u: npt.ArrayLike | None, K: int, p: int) -> npt.ArrayLike:
+    """``u``, or zeros ``(K, p)`` when it is None (a model without input)."""
+    return np.zeros((K, p)) if u is None else u
+
+
+def check_svsf_chunk(
+    z: np.ndarray, u: np.ndarray, runs: int, m: int, p: int, check: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Measurements ``z`` as (runs, K, m) and inputs ``u`` as (K, p) or (runs, K, p) of an SVSF update.
+
+    Shared by the linear and the nonlinear chattering SVSF (their ``update`` takes the same chunk).
+
+    Validates finiteness when ``check``; a 2-D ``z`` is one run, a 1-D ``u`` one input channel.
+
+    Raises
+    ------
+    ShapeError
+        Shapes that do not match the filter.
+    NonFiniteError
+        NaN or inf (with ``check``).
+    """
+    if check:
+        z = finite_array("z", z, ndim=(2, 3))
+        u = finite_array("u", u, ndim=(1, 2, 3))
+    if z.ndim == 2:
+        z = z[None]
+    if z.shape[0] != runs or z.shape[2] != m:
+        raise ShapeError(f"z must have shape ({runs}, K, {m}); got {z.shape}")
+    K = z.shape[1]
+    if u.ndim == 1:
+        u = u[:, None]
+    if u.shape[-2] != K or u.shape[-1] != p or (u.ndim == 3 and u.shape[0] not in (1, runs)):
+        raise ShapeError(f"u must have shape ({K}, {p}) or ({runs}, {K}, {p}); got {u.shape}")
+    return z, u
+
+
+def check_initial_rows(x0: npt.ArrayLike, width: int, runs: int) -> np.ndarray:
+    """An SVSF's ``x0``: (width,) or (runs | 1, width) float, finite (not yet broadcast).
+
+    Raises
+    ------
+    ShapeError
+        Another shape.
+    NonFiniteError
+        NaN or inf.
+    """
+    x0 = finite_array("x0", x0, ndim=(1, 2))
+    if x0.shape[-1] != width or (x0.ndim == 2 and x0.shape[0] not in (1, runs)):
+        raise ShapeError(f"x0 must have shape ({width},) or ({runs}, {width}); got {x0.shape}")
+    return x0
+
+
+def check_record(z: npt.ArrayLike, u: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, bool]:
+    """A whole record of an SVSF's ``run``: ``(z (runs, T, m), u (T | runs, T, p), single)``.
+
+    ``single``: ``z`` was 2-D (one run, whose outputs are returned 2-D); a 1-D ``u`` is one input
+    channel. Only the samples are checked here (``T`` >= 2, ``u`` like ``z``); the channels are
+    checked by the filter's ``initialize``/``update``.
+
+    Raises
+    ------
+    ShapeError
+        ``u`` with another number of samples than ``z``, or fewer than 2 samples.
+    NonFiniteError
+        NaN or inf.
+    """
+    z = finite_array("z", z, ndim=(2, 3))
+    single = z.ndim == 2
+    if single:
+        z = z[None]
+    u = finite_array("u", u, ndim=(1, 2, 3))
+    if u.ndim == 1:
+        u = u[:, None]
+    T = z.shape[1]
+    if u.shape[-2] != T:
+        raise ShapeError(f"u must have {T} samples (like z) along its time axis; got {u.shape}")
+    if T < 2:
+        raise ShapeError(f"z needs at least 2 samples; got {T}")
+    return z, u, single
+
+
+# ----------------------------------------------------------------------------- finite outputs
+#: Per-sample outputs searched for the first non-finite sample, in order of preference.
+_PER_SAMPLE = ("x_post", "x_prior", "innovation", "e_post", "e_prior", "loglik", "P_post", "P_prior")
+
+
+@_jit.step
+def finite_sample(z: np.ndarray, m: int, u: np.ndarray, p: int) -> bool:
+    """Are ``z[:m]`` and ``u[:p]`` finite: the input check of every one-sample kernel, which refuses a
+    NaN/inf sample before it touches the state (compiled loops inline it)."""
+    for i in range(m):
+        if not np.isfinite(z[i]):
+            return False
+    for i in range(p):
+        if not np.isfinite(u[i]):
+            return False
+    return True
+
+
+@_jit.step
+def finite_state(x: np.ndarray, P: np.ndarray, n: int) -> bool:
+    """Are ``x[:n]`` and ``P[:n, :n]`` finite: the output check of every one-sample kernel, which writes
+    its state back only when it holds (compiled loops inline it)."""
+    for i in range(n):
+        if not np.isfinite(x[i]):
+            return False
+        for j in range(n):
+            if not np.isfinite(P[i, j]):
+                return False
+    return True
+
+
+def first_nonfinite(values: np.ndarray) -> tuple[int, int] | None:
+    """``(sample, realization)`` of the first non-finite entry of a ``(runs, K, ...)`` array, or None.
+
+    Parameters
+    ----------
+    values : (runs, K, ...) array
+        Per-sample outputs (a ``(K, ...)`` array without a runs axis is not accepted here).
+    """
+    if values.ndim < 2:
+        return None
+    bad = ~np.isfinite(values.reshape(values.shape[0], values.shape[1], -1)).all(axis=2)  # (runs, K)
+    if not bad.any():
+        return None
+    per_sample = bad.any(axis=0)
+    k = int(np.argmax(per_sample))
+    return k, int(np.argmax(bad[:, k]))
+
+
+def require_finite(
+    who: str,
+    final: tuple[np.ndarray | None, ...],
+    outputs: Mapping[str, np.ndarray | None],
+    k0: int,
+    K: int,
+) -> None:
+    """Raise :class:`~chatterspec.errors.DivergenceError` unless the chunk's results are finite.
+
+    Parameters
+    ----------
+    who : str
+        The filter, for the message (e.g. ``"KalmanFilter"``).
+    final : tuple of arrays
+        The state after the chunk (estimate, covariance); None entries are skipped. Only these are
+        tested: a non-finite value inside the chunk propagates into them.
+    outputs : mapping of str to array or None
+        The chunk's stored per-sample outputs, ``(runs, K, ...)`` (covariances may be ``(K, n, n)``
+        when shared by every realization).
+    k0 : int
+        Index of the last sample processed before the chunk (the chunk holds samples ``k0 + 1 ..
+        k0 + K``).
+    K : int
+        Samples in the chunk.
+
+    Raises
+    ------
+    DivergenceError
+        With the first non-finite sample ``k`` (and realization) when the stored outputs locate it,
+        otherwise the sample range of the chunk.
+    """
+    arrays = [a for a in final if a is not None]
+    # a NaN or inf anywhere in the chunk propagates into the final estimate or covariance: testing
+    # them is enough, and one sum per array is the cheapest test (called once per sample by the banks)
+    with np.errstate(over="ignore", invalid="ignore"):
+        if all(math.isfinite(float(a.sum())) for a in arrays):
+            return
+    if all(np.isfinite(a).all() for a in arrays):  # a finite sum overflowed: finite after all
+        return
+    where = None
+    for name in _PER_SAMPLE:
+        v = outputs.get(name)
+        if v is None:
+            continue
+        v = np.asarray(v)
+        if name.startswith("P_") and v.ndim == 3:  # shared covariance (K, n, n): one realization axis
+            v = v[None]
+        hit = first_nonfinite(v)
+        if hit is not None and (where is None or hit[0] < where[0]):
+            where = hit
+    if where is not None:
+        k, r = where
+        at = f"from sample k = {k0 + k + 1} (output index {k}, realization {r})"
+    else:
+        at = f"within samples k = {k0 + 1} .. {k0 + K}"
+    raise DivergenceError(
+        f"{who}: the estimate is not finite {at}: the filter diverged. Check the model: an unstable "
+        "or mismatched A (or f) makes the estimate overflow, and a transition f(x, u) or Jacobian that "
+        "returns NaN/inf does the same; the outputs would be NaN from there on"
+    )

@@ -61,7 +61,6 @@ from ._engine import (
     take3,
     workspace,
 )
-from ._finite import finite_sample, finite_state
 from .bank import (
     BankFilter,
     BankLoop,
@@ -83,7 +82,7 @@ from .bank import (
     one_constants,
     run_bank_loop,
 )
-from .protocol import FilterState
+from .protocol import FilterState, finite_sample, finite_state
 from .svsf_cov import SVSFCov, check_gamma, check_psi, default_mapping, mapping_matrix
 
 __all__ = ["DEFAULT_WEIGHT_FLOOR", "SMMSVSF"]

@@ -40,10 +40,16 @@ from .._validate import finite_array
 from ..errors import ParameterError
 from ..plants.nonlinear import Model
 from ..plants.scenarios import FilterSettings
-from . import _engine, _engine_numpy
+from . import _engine
 from ._engine import NOT_PD, map_step, map_update_step, svsf_offsets
-from ._luen import luen_correction, luen_second_order
-from .svsf_cov import Mapping, SVSFCovarianceBase, check_gamma, per_channel
+from .svsf_cov import (
+    Mapping,
+    SVSFCovarianceBase,
+    check_gamma,
+    luen_correction,
+    luen_second_order,
+    per_channel,
+)
 
 __all__ = ["SecondOrderSVSF"]
 
@@ -137,7 +143,7 @@ class SecondOrderSVSF(SVSFCovarianceBase):
                     _engine.SVSF2, pr.F, pr.e, pr.ep, pr.epp, *luen, gamma, lam, np.ones(n), lo, hi
                 )
                 return Kg, pr.xp + dx
-            Mp = _engine_numpy.map_numpy(mapping, pr.D, pr.PCt, M, pr.e.shape[0])
+            Mp = _engine.map_numpy(mapping, pr.D, pr.PCt, M, pr.e.shape[0])
             dz = pr.e - (gamma + lam) * pr.ep + gamma * lam * pr.epp
             with np.errstate(divide="ignore", invalid="ignore"):
                 g = np.where(pr.e != 0.0, np.clip(dz / np.where(pr.e != 0.0, pr.e, 1.0), lo, hi), 1.0)

@@ -1,4 +1,5 @@
-"""The SVSF's state, its per-chunk outputs and the three ways to advance it (eq 4-12, eq 23).
+"""The SVSF's recursion: its per-sample steps, the compiled loops built from them, its state and outputs,
+and the three ways to advance it (eq 4-12 and eq 23 of the core paper).
 
 :meth:`chatterspec.filters.svsf.SVSF.update` checks its input and picks one of these paths; each
 gives the same bits for any chunking:
@@ -11,11 +12,23 @@ gives the same bits for any chunking:
   agrees with the compiled kernel to rounding, 1e-12 of the measurement scale).
 
 The filter's constants (:class:`SVSFConstants`) are in measurement-aligned coordinates ``y = S x``
-(see :mod:`chatterspec.filters.svsf_coordinates`).
+(see :func:`chatterspec.filters.svsf.svsf_coordinates`).
 
-See Also
---------
-chatterspec.filters.svsf_steps : the per-sample steps the compiled paths are built from.
+**Steps.** Public because every loop that runs the SVSF is built from them: the batch kernels here
+(:func:`_svsf_kernel`, :func:`_closed_form_kernel`, the one-sample :func:`_svsf_one`), the online
+monitor's push (:mod:`chatterspec.online.monitor`) and the fused simulate-and-chatter loop
+(:mod:`chatterspec.detection.pipeline`). The steps (:func:`chatterspec._jit.step`) are inlined by
+numba into every loop that calls them and run as plain Python without numba:
+
+* :func:`svsf_step`: one sample of the recursion of eq (4)-(12) (sat or sgn, full or reduced order);
+* :func:`closed_form_step`: one channel of the auxiliary filter's closed form, eq (23);
+* :func:`rows_times_step`, :func:`matvec_step`: the products ``G u(k)`` and ``S^-1 y`` summed in a
+  fixed order.
+
+The numpy helpers :func:`rows_times` (``a @ M^T`` in the order of :func:`rows_times_step`, so that
+chunked and whole-record processing agree bit for bit) and :func:`switch` (``sat`` or ``sgn``, eq 8)
+serve the numpy path. Every step is checked against eq (8)-(12) written out by hand
+(``tests/test_steps.py``); the compiled loops against the numpy formulation (``tests/test_kernels.py``).
 """
 
 from __future__ import annotations
@@ -27,17 +40,24 @@ import numpy as np
 
 from .. import _jit
 from .._repr import short_repr
-from ._svsf_kernels import _closed_form_kernel, _svsf_kernel
-from .svsf_steps import rows_times, switch
+from .protocol import finite_sample
 
 __all__ = [
     "SVSFConstants",
     "SVSFOutput",
     "SVSFState",
     "closed_form_errors",
+    "closed_form_step",
     "compiled_recursion",
     "kernel_constants",
+    "matvec_step",
     "numpy_recursion",
+    "rows_times",
+    "rows_times_step",
+    "svsf_one_kernel",
+    "svsf_one_offsets",
+    "svsf_step",
+    "switch",
     "with_initial",
 ]
 
@@ -142,7 +162,7 @@ def numpy_recursion(
     z : (runs, K, m) float array
         Measurements ``z(k+1) .. z(k+K)``.
     Gu : (K, n) or (1 | runs, K, n) array
-        ``G u(k)`` per sample (:func:`~chatterspec.filters.svsf_steps.rows_times`).
+        ``G u(k)`` per sample (:func:`rows_times`).
     store_states, store_post_error, store_lower : bool
         Also return ``x(k|k)``, ``e(k|k)`` and (reduced order) ``Phi22 Phi12^-1 e(k|k-1)``.
 
@@ -240,7 +260,7 @@ def compiled_recursion(
     store_post_error: bool,
     store_lower: bool,
 ) -> tuple[SVSFState, SVSFOutput]:
-    """Eq (4)-(12) over a chunk in the compiled kernel (one :func:`~.svsf_steps.svsf_step` per sample).
+    """Eq (4)-(12) over a chunk in the compiled kernel (one :func:`svsf_step` per sample).
 
     Parameters
     ----------
@@ -436,3 +456,343 @@ def with_initial(out: SVSFOutput, state: SVSFState, S_inv: np.ndarray, single: b
         e_post=with_first(out.e_post, state.e_post),
         e_lower=with_first(out.e_lower, np.zeros((runs, n - m))),
     )
+
+
+# ----------------------------------------------------------------------------- steps
+@_jit.step
+def svsf_step(
+    zk: np.ndarray,
+    guk: np.ndarray,
+    PhiT: np.ndarray,
+    L: np.ndarray,
+    P: np.ndarray,
+    inv_psi: np.ndarray,
+    gamma: float,
+    y: np.ndarray,
+    ep: np.ndarray,
+    yp: np.ndarray,
+    e: np.ndarray,
+    le: np.ndarray,
+    n: int,
+    m: int,
+    nl: int,
+    sat: bool,
+) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_kernels.py)
+    """One sample of eq (4)-(12) for one realization, in measurement-aligned coordinates (THE SVSF step).
+
+    Inputs: ``zk`` (m,) = z(k+1); ``guk`` (n,) = G u(k); ``PhiT`` = Phi^T (n, n); ``L`` =
+    Phi22 Phi12^-1 and ``P`` = Phi12^-1 ((nl, m), nl = n - m, empty for full measurement);
+    ``inv_psi`` = 1/psi (m or n entries, used when ``sat``; ``sgn`` otherwise).
+    State, updated in place: ``y`` (n,) = y(k|k) -> y(k+1|k+1), ``ep`` (m,) = e(k|k) -> e(k+1|k+1).
+    Outputs: ``yp`` (n,) = y(k+1|k), ``e`` (m,) = e(k+1|k), ``le`` (nl,) = Phi22 Phi12^-1 e(k+1|k).
+
+    Eq (4) ``y(k+1|k) = Phi y(k|k) + G u(k)`` (sum over j = 0 .. n-1, then ``+ G u``), eq (6)
+    ``e = z - y_u(k+1|k)``; eq (10)-(12) for the unmeasured coordinates (before ``ep`` changes):
+    ``y_l = y_l(k+1|k) + sw(L e) (|L e| + gamma |P e(k|k)|)``; eq (8)/(9) and (12) for the measured
+    ones, ``e(k+1|k+1) = e - sw(e) (|e| + gamma |e(k|k)|)``, ``y_u = z - e(k+1|k+1)``, with
+    ``sw(a) = sat(a / psi) = clip(a / psi, -1, 1)`` or ``sgn(a)``.
+    """
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += y[j] * PhiT[j, i]
+        yp[i] = acc + guk[i]
+    for i in range(m):
+        e[i] = zk[i] - yp[i]
+    for i in range(nl):
+        lv = 0.0
+        pv = 0.0
+        for j in range(m):
+            lv += L[i, j] * e[j]
+            pv += P[i, j] * ep[j]
+        if sat:
+            sw = min(max(lv * inv_psi[m + i], -1.0), 1.0)
+        else:
+            sw = np.sign(lv)
+        y[m + i] = yp[m + i] + sw * (abs(lv) + gamma * abs(pv))
+        le[i] = lv
+    for i in range(m):
+        if sat:
+            sw = min(max(e[i] * inv_psi[i], -1.0), 1.0)
+        else:
+            sw = np.sign(e[i])
+        ep[i] = e[i] - sw * (abs(e[i]) + gamma * abs(ep[i]))
+        y[i] = zk[i] - ep[i]
+
+
+@_jit.step
+def closed_form_step(i: int, zi: float, gi: float, PhiT: np.ndarray, zp: np.ndarray, m: int) -> float:
+    """Eq (23), channel ``i``: ``e_i(k+1|k) = ((z_i(k+1) - G_i u(k)) - Phi_i0 z_0(k)) - Phi_i1 z_1(k) ...``.
+
+    The auxiliary sgn filter with ``e(k|k) = 0`` keeps ``y(k|k) = z(k)`` exactly (see
+    :meth:`chatterspec.filters.svsf.SVSF.update`), so its a-priori error needs only ``z(k)``
+    (``zp``, (m,)) and ``z(k+1)``; the terms are subtracted in this order, j = 0 .. m-1.
+    """
+    acc = zi - gi
+    for j in range(m):
+        acc -= PhiT[j, i] * zp[j]
+    return acc
+
+
+@_jit.step
+def rows_times_step(a: np.ndarray, MT: np.ndarray, out: np.ndarray, p: int, n: int) -> None:
+    """``out = a @ MT`` for one row ``a`` (p,), summed as :func:`rows_times` (``a_0 M_0``, ``+ a_j M_j``)."""
+    for i in range(n):
+        acc = a[0] * MT[0, i]
+        for j in range(1, p):
+            acc += a[j] * MT[j, i]
+        out[i] = acc
+
+
+@_jit.step
+def matvec_step(M: np.ndarray, v: np.ndarray, out: np.ndarray, n: int, q: int) -> None:
+    """``out = M v`` summed from 0.0 over j = 0 .. q-1 (``x(k|k) = S^-1 y(k|k)``)."""
+    for i in range(n):
+        acc = 0.0
+        for j in range(q):
+            acc += M[i, j] * v[j]
+        out[i] = acc
+
+
+def rows_times(a: np.ndarray, MT: np.ndarray, channel_major: bool = False) -> np.ndarray:
+    """``a @ MT`` over the last axis, element-wise in a fixed order.
+
+    Unlike BLAS, the rounding of each output element does not depend on the
+    number of rows, so chunked and whole-record processing agree bit for bit.
+    ``channel_major=True`` returns the same numbers as a ``(..., n)`` view of
+    ``(n, ...)`` storage, which numpy fills ~3x faster when n is small (the
+    online monitor's per-push ``G u(k)``; the kernels take any strides).
+
+    Parameters
+    ----------
+    a : (..., p) array
+        Rows, e.g. inputs ``u(k)`` (input units).
+    MT : (p, n) array
+        Transposed matrix, e.g. ``G^T`` of eq (4).
+    channel_major : bool
+        Compute in ``(n, ...)`` storage and return a transposed view (same numbers).
+
+    Returns
+    -------
+    (..., n) array
+        ``sum_j a[..., j] MT[j]``, summed j = 0 .. p-1 (zeros when p = 0).
+
+    See Also
+    --------
+    rows_times_step : the same sum for one row, in compiled loops.
+    """
+    if channel_major and a.shape[-1]:
+        out = np.multiply.outer(MT[0], a[..., 0])
+        for j in range(1, a.shape[-1]):
+            out += np.multiply.outer(MT[j], a[..., j])
+        return out.transpose((*range(1, out.ndim), 0))
+    out = np.multiply.outer(a[..., 0], MT[0]) if a.shape[-1] else np.zeros((*a.shape[:-1], MT.shape[1]))
+    for j in range(1, a.shape[-1]):
+        out += np.multiply.outer(a[..., j], MT[j])
+    return out
+
+
+def switch(e: np.ndarray, inv_psi: np.ndarray | None, out: np.ndarray | None = None) -> np.ndarray:
+    """The switching term of eq (8)-(10): ``sgn(e)``, or ``sat(e / psi) = clip(e / psi, -1, 1)``.
+
+    Parameters
+    ----------
+    e : array
+        Output errors (output units).
+    inv_psi : array or None
+        ``1 / psi`` per channel (broadcast along the last axis); None gives ``sgn`` (eq 17).
+    out : array, optional
+        Where to write the result.
+
+    Returns
+    -------
+    array like ``e``
+        Values in [-1, 1].
+    """
+    if inv_psi is None:
+        return np.sign(e, out=out)
+    out = np.multiply(e, inv_psi, out=out)
+    return np.clip(out, -1.0, 1.0, out=out)
+
+
+# ----------------------------------------------------------------------------- compiled loops
+@_jit.njit
+def _svsf_kernel(
+    z: np.ndarray,
+    Gu: np.ndarray,
+    PhiT: np.ndarray,
+    L: np.ndarray,
+    P: np.ndarray,
+    inv_psi: np.ndarray,
+    gamma: float,
+    S_inv: np.ndarray,
+    y: np.ndarray,
+    ep: np.ndarray,
+    e_out: np.ndarray,
+    x_out: np.ndarray,
+    ep_out: np.ndarray,
+    lower_out: np.ndarray,
+) -> None:  # pragma: no cover - compiled (Python form tested in tests/test_kernels.py)
+    """:func:`svsf_step` for ``runs`` realizations and K samples (the batch loop of :meth:`SVSF.update`).
+
+    Inputs: ``z`` (runs, K, m); ``Gu`` (1 or runs, K, n) = G u(k); constants as :func:`svsf_step`;
+    ``S_inv`` (n, n). State, updated in place: ``y`` (runs, n) = y(k|k), ``ep`` (runs, m) = e(k|k).
+    Outputs: ``e_out`` (runs, K, m) = e(k+1|k); ``x_out`` (runs, K, n) = S^-1 y, ``ep_out``
+    (runs, K, m), ``lower_out`` (runs, K, n-m), each skipped when its first axis is empty.
+    The arithmetic per element is that of :meth:`SVSF.update`'s numpy loop except the order
+    of the sums in the matrix-vector products (BLAS there, j = 0..n-1 here).
+    """
+    b = _jit.borrow
+    z, Gu, PhiT, L, P, inv_psi, S_inv = b(z), b(Gu), b(PhiT), b(L), b(P), b(inv_psi), b(S_inv)
+    y, ep, e_out, x_out, ep_out, lower_out = b(y), b(ep), b(e_out), b(x_out), b(ep_out), b(lower_out)
+    runs, K, m = z.shape
+    n = PhiT.shape[0]
+    nl = L.shape[0]
+    sat = inv_psi.shape[0] > 0
+    shared = Gu.shape[0] == 1
+    want_x = x_out.shape[0] > 0
+    want_ep = ep_out.shape[0] > 0
+    want_lower = lower_out.shape[0] > 0
+    yc = _jit.scratch(n)  # y(k|k) of the current run
+    epc = _jit.scratch(m)  # e(k|k) of the current run
+    yp = _jit.scratch(n)
+    e = _jit.scratch(m)
+    le = _jit.scratch(nl)
+    xc = _jit.scratch(n)
+    for r in range(runs):
+        g = 0 if shared else r
+        for j in range(n):
+            yc[j] = y[r, j]
+        for j in range(m):
+            epc[j] = ep[r, j]
+        for k in range(K):
+            svsf_step(z[r, k], Gu[g, k], PhiT, L, P, inv_psi, gamma, yc, epc, yp, e, le, n, m, nl, sat)
+            for i in range(m):
+                e_out[r, k, i] = e[i]
+            if want_lower:
+                for i in range(nl):
+                    lower_out[r, k, i] = le[i]
+            if want_ep:
+                for i in range(m):
+                    ep_out[r, k, i] = epc[i]
+            if want_x:
+                matvec_step(S_inv, yc, xc, n, n)
+                for i in range(n):
+                    x_out[r, k, i] = xc[i]
+        for j in range(n):
+            y[r, j] = yc[j]
+        for j in range(m):
+            ep[r, j] = epc[j]
+
+
+@_jit.njit
+def _closed_form_kernel(
+    z: np.ndarray, Gu: np.ndarray, PhiT: np.ndarray, y0: np.ndarray, e_out: np.ndarray, time_major: bool
+) -> None:  # pragma: no cover - compiled (its Python form is tested in tests/test_kernels.py)
+    """:func:`closed_form_step` over runs and samples (:meth:`SVSF._update_closed_form`, compiled).
+
+    ``z`` (runs, K, m) = z(k+1); ``Gu`` (1 or runs, K, m) = G u(k); ``PhiT`` = Phi^T (m, m);
+    ``y0`` (runs, m) = y(k|k) before the chunk; ``e_out`` (runs, K, m) receives e(k+1|k), any strides.
+    The operations and order of the numpy closed form, so the same bits. ``time_major`` only
+    picks the loop nest that walks memory in order (samples outer for time-major storage, runs
+    outer otherwise).
+    """
+    b = _jit.borrow
+    z, Gu, PhiT, y0, e_out = b(z), b(Gu), b(PhiT), b(y0), b(e_out)
+    runs, K, m = z.shape
+    shared = Gu.shape[0] == 1
+    if time_major:
+        for k in range(K):
+            for r in range(runs):
+                g = 0 if shared else r
+                zp = y0[r] if k == 0 else z[r, k - 1]
+                for i in range(m):
+                    e_out[r, k, i] = closed_form_step(i, z[r, k, i], Gu[g, k, i], PhiT, zp, m)
+    else:  # the same element loop body, runs outer
+        for r in range(runs):
+            g = 0 if shared else r
+            for k in range(K):
+                zp = y0[r] if k == 0 else z[r, k - 1]
+                for i in range(m):
+                    e_out[r, k, i] = closed_form_step(i, z[r, k, i], Gu[g, k, i], PhiT, zp, m)
+
+
+@_jit.step
+def svsf_one_offsets(n: int, m: int, p: int, nl: int) -> tuple[int, int, int, int, int, int, int, int]:
+    """Offsets in ``cst`` of :func:`_svsf_one` after its 8-value header: ``G^T`` (p, n), ``Phi^T`` (n, n),
+    ``L``, ``P`` (nl, m), ``1/psi`` (n), ``S^-1`` (n, n), ``S^-T`` (n, n), and the length."""
+    o_GT = 8
+    o_PhiT = o_GT + p * n
+    o_L = o_PhiT + n * n
+    o_P = o_L + nl * m
+    o_psi = o_P + nl * m
+    o_Si = o_psi + n
+    o_SiT = o_Si + n * n
+    return o_GT, o_PhiT, o_L, o_P, o_psi, o_Si, o_SiT, o_SiT + n * n
+
+
+def _svsf_one(buf, cst, z, u):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
+    """One sample of one realization of :meth:`SVSF.update`: the steps of its batch paths, packed arrays.
+
+    ``cst``: header ``[n, m, p, nl, sat, gamma, closed, 0]`` (``closed``: the sgn filter with full
+    measurement started with ``e(k|k) = 0``, whose closed form then applies to every sample), then
+    :func:`svsf_one_offsets`. ``buf``: ``y`` (n), ``e(k|k)`` (m), then the sample's ``e(k+1|k)`` (m)
+    and ``x(k+1|k+1)`` (n). ``G u(k)`` by :func:`rows_times_step`; eq (23) by :func:`closed_form_step`
+    when ``closed`` (the choice :meth:`SVSF.update` makes for a record that starts so), else eq
+    (4)-(12) by :func:`svsf_step`.
+    Returns 0, 3 (NaN/inf input) or 4 (a non-finite estimate; the state is then left unchanged).
+    """
+    b = _jit.borrow
+    buf, cst, z, u = b(buf), b(cst), b(z), b(u)
+    n, m, p, nl = NX if NX > 0 else int(cst[0]), NZ if NZ > 0 else int(cst[1]), int(cst[2]), int(cst[3])
+    sat, gamma, closed = cst[4] != 0.0, cst[5], cst[6] != 0.0
+    if not finite_sample(z, m, u, p):
+        return 3
+    o_GT, o_PhiT, o_L, o_P, o_psi, o_Si, o_SiT, _ = svsf_one_offsets(n, m, p, nl)
+    GT = cst[o_GT:o_PhiT].reshape((p, n))
+    PhiT = cst[o_PhiT:o_L].reshape((n, n))
+    L = cst[o_L:o_P].reshape((nl, m))
+    P = cst[o_P:o_psi].reshape((nl, m))
+    inv_psi = cst[o_psi:o_Si]
+    S_inv = cst[o_Si:o_SiT].reshape((n, n))
+    S_invT = cst[o_SiT : o_SiT + n * n].reshape((n, n))
+    gu = _jit.scratch(n)
+    y = _jit.scratch(n)
+    ep = _jit.scratch(m)
+    e = _jit.scratch(m)
+    x = _jit.scratch(n)
+    for i in range(n):
+        y[i] = buf[i]
+    for i in range(m):
+        ep[i] = buf[n + i]
+    rows_times_step(u, GT, gu, p, n)
+    if closed:  # eq (23): y(k|k) = z(k) exactly, e(k+1|k+1) = 0
+        for i in range(m):
+            e[i] = closed_form_step(i, z[i], gu[i], PhiT, y, m)
+        for i in range(m):
+            y[i] = z[i]
+        rows_times_step(z, S_invT, x, n, n)
+    else:
+        yp = _jit.scratch(n)
+        le = _jit.scratch(nl)
+        svsf_step(z, gu, PhiT, L, P, inv_psi, gamma, y, ep, yp, e, le, n, m, nl, sat)
+        matvec_step(S_inv, y, x, n, n)
+    for i in range(n):
+        if not np.isfinite(y[i]):
+            return 4
+    for i in range(n):
+        buf[i] = y[i]
+        buf[n + 2 * m + i] = x[i]
+    for i in range(m):
+        buf[n + i] = ep[i]
+        buf[n + m + i] = e[i]
+    return 0
+
+
+#: Sizes of :func:`_svsf_one` (0: from ``cst``), bound by :func:`svsf_one_kernel`.
+NX = NZ = 0
+
+
+def svsf_one_kernel(n: int, m: int):  # type: ignore[no-untyped-def]
+    """:func:`_svsf_one` for n states and m outputs (literal sizes up to 4: loops unrolled)."""
+    return _jit.specialize_sizes(_svsf_one, "svsf_one", {"NX": n, "NZ": m})

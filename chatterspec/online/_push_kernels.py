@@ -11,7 +11,7 @@ bit for bit; the sat SVSF's numpy fallback is the one exception, equal to
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 
@@ -19,9 +19,31 @@ from .. import _jit
 from ..detection.alarms.steps import FRAME
 from ..detection.spectral import power_step
 from ..detection.verdicts import peak_channel, score_step
-from ..filters.svsf_steps import closed_form_step, matvec_step, rows_times_step, svsf_step
+from ..filters.svsf_recursion import closed_form_step, matvec_step, rows_times_step, svsf_step
 
 __all__: list[str] = []
+
+
+def _frame_rfft() -> Callable[[np.ndarray], np.ndarray]:
+    """``scipy.fft.rfft(x, axis=-1)`` at full length, without its per-call Python work.
+
+    ``scipy.fft.rfft`` dispatches through its backend layer, converts and checks its argument and then
+    calls pocketfft's ``r2c`` on the last axis, unnormalized, one worker: about 10 us of Python per
+    call, a tenth of a 1000-sample push. The monitor's tapered frames are already a C-contiguous float
+    array of the right length, so the same ``r2c`` call gives the same transform (the same bits:
+    tests/test_monitor.py); a SciPy without that module takes the public function.
+    """
+    try:
+        from scipy.fft._pocketfft.pypocketfft import r2c
+    except ImportError:  # pragma: no cover - depends on the SciPy version
+        import scipy.fft
+
+        return lambda x: cast(np.ndarray, scipy.fft.rfft(x, axis=-1))
+    return lambda x: cast(np.ndarray, r2c(x, (-1,), True, 0, None, 1))
+
+
+#: The monitor's frame transform (:func:`_frame_rfft`).
+frame_rfft = _frame_rfft()
 
 #: Sizes of :func:`_filters_loop` (states, outputs, unmeasured states), bound by :func:`filters_kernel`;
 #: 0 reads them from the arrays.
@@ -52,11 +74,11 @@ def _filters_loop(
     """One push of the monitor's two filters in one call: G u(k), the aux chattering, the sat SVSF.
 
     ``z`` (1, K, m) = z(k+1); ``u`` (K, p), p >= 1, = u(k); ``GT`` = G^T (p, n). Per sample:
-    ``G u(k)`` by :func:`~chatterspec.filters.svsf_steps.rows_times_step` (the sums of
+    ``G u(k)`` by :func:`~chatterspec.filters.svsf_recursion.rows_times_step` (the sums of
     ``_rows_times``; written to ``Gu`` (1, K, n) unless it is empty), the chattering (eq 23) by
-    :func:`~chatterspec.filters.svsf_steps.closed_form_step` into ``e_out`` (1, K, m) from
+    :func:`~chatterspec.filters.svsf_recursion.closed_form_step` into ``e_out`` (1, K, m) from
     ``aux_y`` = y(k|k) = z(k) before the push, and, when ``run_sat``, the sat SVSF by
-    :func:`~chatterspec.filters.svsf_steps.svsf_step` (``y``, ``ep`` (1, n), (1, m) in place;
+    :func:`~chatterspec.filters.svsf_recursion.svsf_step` (``y``, ``ep`` (1, n), (1, m) in place;
     ``sat_e`` (1, K, m) unless empty, ``x_out`` (1, K, n) = S^-1 y). ``none`` is unused (kept for
     the call signature). The steps of ``SVSF.update``, so the same bits (tests/test_monitor.py).
     A template: :func:`filters_kernel` binds ``NX``, ``NZ`` (0: sizes read from the arrays).
@@ -147,8 +169,8 @@ def _filters_one(cst, st, z, u, ebuf, row):  # type: ignore[no-untyped-def]  # p
     filters' state between samples and pushes): the pending input ``u(k)`` (p), the aux filter's
     ``y(k|k) = z(k)`` (m), the sat filter's ``y`` (n) and ``e(k|k)`` (m), its last estimate
     ``S^-1 y`` (n), the last chattering (m). ``z`` (m,) = z(k+1); ``u`` (p,) becomes the pending
-    input. The chattering ``e(k+1|k)`` goes to ``ebuf[row]`` (the frame buffer) and ``st``. Returns
-    0, or 3 (NaN/inf in ``z`` or ``u``: nothing changed).
+    input. The chattering ``e(k+1|k)`` goes to ``ebuf[:, row]`` (the channel-major frame buffer)
+    and ``st``. Returns 0, or 3 (NaN/inf in ``z`` or ``u``: nothing changed).
     """
     b = _jit.borrow
     cst, st, z, u, ebuf = b(cst), b(st), b(z), b(u), b(ebuf)
@@ -173,8 +195,8 @@ def _filters_one(cst, st, z, u, ebuf, row):  # type: ignore[no-untyped-def]  # p
     rows_times_step(st[0:p], GT, gu, p, n)
     o_e = p + 2 * m + 2 * n
     for i in range(m):
-        ebuf[row, i] = closed_form_step(i, z[i], gu[i], aux_PhiT, zp, m)
-        st[o_e + i] = ebuf[row, i]
+        ebuf[i, row] = closed_form_step(i, z[i], gu[i], aux_PhiT, zp, m)
+        st[o_e + i] = ebuf[i, row]
     if run_sat:
         PhiT = cst[o_PhiT:o_L].reshape((n, n))
         L = cst[o_L:o_P].reshape((nl, m))
@@ -215,92 +237,153 @@ def filters_one_kernel(n: int, m: int) -> Callable[..., int]:
 #: :func:`hop_kernel`; this default: the frame rule's).
 RULE_CHANNEL = cast(Callable[..., None], FRAME.channel)
 
+#: Layout of the integer constants ``ci`` of :func:`_hop_loop` (:func:`hop_constants`): its header's
+#: slots (sizes), then the arrays in this order.
+I_M, I_LO, I_NV, I_NT, I_NCV, I_NLOW, I_NP, I_LEGACY, I_W, I_H, I_HEAD = range(11)
+#: The float constants ``cf``: ``scale``, ``log n``, the rule's ``h``, then the arrays.
+F_SCALE, F_LOGN, F_H, F_HEAD = range(4)
 
-def _hop_loop(  # type: ignore[no-untyped-def]  # (35 arrays and scalars: see the docstring)
-    Y,
-    scale,
-    power,
-    lo,
-    thr,
-    positions,
-    k_ratio,
-    peak_ratio,
-    idx,
-    inv1,
-    invr,
-    off,
-    cnt,
-    cvals,
-    wvals,
-    low,
-    n_low,
-    is_low,
-    hi_invr,
-    inv1T,
-    log_n,
-    score,
-    legacy,
-    h,
-    p,
-    act,
-    g,
-    count,
-    ring,
-    pos,
-    s3,
-    active,
-    stat,
-    starts,
-    ends,
-):  # pragma: no cover - compiled (Python form tested in tests/test_monitor.py)
+
+def hop_constants(
+    scale: float,
+    lo: int,
+    thr: np.ndarray,
+    positions: np.ndarray,
+    freqs: np.ndarray,
+    score_args: tuple[Any, ...],
+    h: float,
+    p: np.ndarray,
+    legacy: bool,
+    n_window: int,
+    n_hop: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The constants of :func:`_hop_loop` packed once into two arrays ``(cf, ci)`` (floats, integers).
+
+    ``thr`` (nv, m), ``positions`` (nv,), ``freqs`` (nv,): the verdict's tested bins from ``lo``,
+    their thresholds and frequencies (Hz); ``score_args``: the frame score's kernel arguments
+    (:attr:`FrameScore._kernel_args`); ``h``, ``p``: the alarm rule's threshold and parameters;
+    ``legacy``: the rule is fed the per-frame verdict (1.0 / 0.0) instead of the score. A numba call
+    unboxes every array argument, so two packed arrays instead of eighteen save their dispatch.
+    """
+    idx, inv1, invr, off, cnt, cvals, wvals, low, n_low, is_low, hi_invr, inv1T, log_n = score_args
+    nv, m = thr.shape
+    head = np.zeros(I_HEAD, dtype=np.int64)
+    head[[I_M, I_LO, I_NV, I_NT, I_NCV, I_NLOW, I_NP, I_LEGACY, I_W, I_H]] = (
+        m, lo, nv, idx.shape[0], cvals.shape[0], low.shape[1], p.shape[0], int(legacy),
+        n_window, n_hop,
+    )  # fmt: skip
+    ints = (head, positions, idx, off, cnt, low, n_low, is_low)
+    ci = np.concatenate([np.ravel(a).astype(np.int64) for a in ints])
+    fhead = np.zeros(F_HEAD)
+    fhead[[F_SCALE, F_LOGN, F_H]] = scale, float(log_n), h
+    floats = (fhead, thr, freqs, inv1, invr, cvals, wvals, hi_invr, inv1T, p)
+    cf = np.concatenate([np.ravel(np.asarray(a, dtype=float)) for a in floats])
+    return np.ascontiguousarray(cf), np.ascontiguousarray(ci)
+
+
+def _hop_loop(  # type: ignore[no-untyped-def]
+    Y, a, j_first, t_first, dt, cf, ci, act, g, count, ring, pos, power, outf, outb, times
+):  # pragma: no cover - compiled (compared with the separate calls in tests/test_monitor.py)
     """A block of the monitor's frames in one call: power, verdicts, scores and the alarm rule.
 
-    ``Y`` (1, m, F, bins) is the ``rfft`` of the tapered frames; the loops' steps, in their order
-    within each frame and channel: the power (:func:`~chatterspec.detection.spectral.power_step`)
-    into ``power`` (F, bins, m); the largest ``S / threshold`` over the tested bins ``lo ..
-    lo + len(positions) - 1`` (:data:`~chatterspec.detection.verdicts.peak_channel`) into ``k_ratio``,
-    ``peak_ratio`` (F, m); the frame score (:func:`~chatterspec.detection.verdicts.score_step`,
-    its arguments) into ``score``; then, per channel over the frames, the alarm rule's channel step
-    ``RULE_CHANNEL`` (:attr:`~chatterspec.detection.alarms.steps.RuleSteps.channel`: threshold ``h``,
-    parameters ``p``, the :class:`AlarmStream`'s state arrays, step ``pos[0]``) fed with ``s3``
-    (1, F, m) = the score, or (``legacy``: the per-frame
-    verdict's events) 1.0 where ``peak_ratio > 1`` and 0.0 elsewhere. The same steps as the four
-    separate calls (:class:`~chatterspec.detection.spectral.FrameEngine`, ``FrameVerdicts``,
-    ``FrameScore``, ``AlarmStream``), hence their bits.
+    ``Y`` (1, m, Fb, bins) is the ``rfft`` of the tapered frames ``a .. a + Fb - 1`` of the push
+    (global frames from ``j_first``); ``cf``, ``ci``: the constants (:func:`hop_constants`);
+    ``act``, ``g``, ``count``, ``ring``, ``pos``: the :class:`AlarmStream`'s state (step ``pos[0]``).
+    The loops' steps, in their order within each frame and channel: the power
+    (:func:`~chatterspec.detection.spectral.power_step`) into ``power`` (F, bins, m); the
+    largest ``S / threshold`` over the tested bins ``lo .. lo + nv - 1``
+    (:data:`~chatterspec.detection.verdicts.peak_channel`) into ``outf[0]`` (its bin's frequency into
+    ``outf[4]``, ``> 1`` into ``outb[3]``); the frame score
+    (:func:`~chatterspec.detection.verdicts.score_step`) into ``outf[1]``; then, per channel over
+    the frames, the alarm rule's channel step ``RULE_CHANNEL``
+    (:attr:`~chatterspec.detection.alarms.steps.RuleSteps.channel`) fed with ``outf[3]`` = the score,
+    or (``legacy``: the per-frame verdict's events) 1.0 where the peak ratio is > 1 and 0.0
+    elsewhere: the rule's statistic into ``outf[2]``, its state, starts and ends into ``outb[0:3]``.
+    ``times`` (F,) gets the frames' centre times (s) from chattering sample 0 at ``t_first``. The same
+    steps as the four separate calls (:class:`~chatterspec.detection.spectral.FrameEngine`,
+    ``FrameVerdicts``, ``FrameScore``, ``AlarmStream``), hence their bits. Returns 1 when the block
+    has an alarm start, end or active frame (events to look for), else 0.
     """
     b = _jit.borrow
-    Y, power, thr, positions, k_ratio, peak_ratio, score = (
-        b(Y), b(power), b(thr), b(positions), b(k_ratio), b(peak_ratio), b(score),
-    )  # fmt: skip
-    idx, inv1, invr, off, cnt, cvals, wvals = b(idx), b(inv1), b(invr), b(off), b(cnt), b(cvals), b(wvals)
-    low, n_low, is_low, hi_invr, inv1T = b(low), b(n_low), b(is_low), b(hi_invr), b(inv1T)
-    p, act, g, count, ring, pos, s3 = b(p), b(act), b(g), b(count), b(ring), b(pos), b(s3)
-    active, stat, starts, ends = b(active), b(stat), b(starts), b(ends)
-    m, F, B = Y.shape[1], Y.shape[2], Y.shape[3]
+    Y, cf, ci, act, g, count, ring, pos = b(Y), b(cf), b(ci), b(act), b(g), b(count), b(ring), b(pos)
+    power, outf, outb, times = b(power), b(outf), b(outb), b(times)
+    m, Fb, B = Y.shape[1], Y.shape[2], Y.shape[3]
+    lo, nv, nt, ncv = ci[I_LO], ci[I_NV], ci[I_NT], ci[I_NCV]
+    nlow, npar, legacy, W, H = ci[I_NLOW], ci[I_NP], ci[I_LEGACY] != 0, ci[I_W], ci[I_H]
+    o = I_HEAD
+    positions = ci[o : o + nv]
+    o += nv
+    idx = ci[o : o + nt]
+    o += nt
+    off = ci[o : o + nt * m].reshape((nt, m))
+    o += nt * m
+    cnt = ci[o : o + nt * m].reshape((nt, m))
+    o += nt * m
+    low = ci[o : o + m * nlow].reshape((m, nlow))
+    o += m * nlow
+    n_low = ci[o : o + m]
+    o += m
+    is_low = ci[o : o + nt * m].reshape((nt, m))
+    scale, log_n, h = cf[F_SCALE], cf[F_LOGN], cf[F_H]
+    o = F_HEAD
+    thr = cf[o : o + nv * m].reshape((nv, m))
+    o += nv * m
+    freqs = cf[o : o + nv]
+    o += nv
+    inv1 = cf[o : o + nt * m].reshape((nt, m))
+    o += nt * m
+    invr = cf[o : o + nt * m].reshape((nt, m))
+    o += nt * m
+    cvals = cf[o : o + ncv]
+    o += ncv
+    wvals = cf[o : o + ncv]
+    o += ncv
+    hi_invr = cf[o : o + m]
+    o += m
+    inv1T = cf[o : o + m * nt].reshape((m, nt))
+    o += m * nt
+    p = cf[o : o + npar]
+    pw = power[a : a + Fb]
+    peak_ratio = outf[0, a : a + Fb]
+    score = outf[1, a : a + Fb]
+    stat = outf[2:3, a : a + Fb]
+    s3 = outf[3:4, a : a + Fb]
+    active, starts, ends = outb[0:1, a : a + Fb], outb[1:2, a : a + Fb], outb[2:3, a : a + Fb]
+    k_ratio = np.empty((Fb, m), dtype=np.int64)
     row = np.empty(B)
     for c in range(m):
-        for f in range(F):
-            power_step(Y[0, c, f], scale, row, power[f], c, B)
-    psel = power[:, lo : lo + positions.shape[0], :]
-    for f in range(F):
+        for f in range(Fb):
+            power_step(Y[0, c, f], scale, row, pw[f], c, B)
+    psel = pw[:, lo : lo + nv, :]
+    for f in range(Fb):
         for c in range(m):
             peak_channel(psel, thr, thr, positions, k_ratio, peak_ratio, k_ratio, peak_ratio, f, c)
             e = score_step(
-                power, f, c, idx, inv1, invr, off, cnt, cvals, wvals, low, n_low, is_low, hi_invr, inv1T
+                pw, f, c, idx, inv1, invr, off, cnt, cvals, wvals, low, n_low, is_low, hi_invr, inv1T
             )
             score[f, c] = max(e - log_n, 0.0)
             if legacy:
                 s3[0, f, c] = 1.0 if peak_ratio[f, c] > 1.0 else 0.0
             else:
                 s3[0, f, c] = score[f, c]
+            outf[4, a + f, c] = freqs[k_ratio[f, c]]
+            outb[3, a + f, c] = peak_ratio[f, c] > 1.0
     for c in range(m):
         RULE_CHANNEL(s3, h, p, act, g, count, ring, pos[0], active, stat, starts, ends, 0, c)
+    half = (W - 1) / 2.0
+    for f in range(Fb):
+        times[a + f] = t_first + ((j_first + a + f) * H + half) * dt
+    for f in range(Fb):
+        for c in range(m):
+            if active[0, f, c] or starts[0, f, c] or ends[0, f, c]:
+                return 1
+    return 0
 
 
-_HOP: dict[int, Callable[..., None]] = {}
+_HOP: dict[int, Callable[..., int]] = {}
 
 
-def hop_kernel(channel: Callable[..., None]) -> Callable[..., None]:
+def hop_kernel(channel: Callable[..., None]) -> Callable[..., int]:
     """The monitor's block-of-frames loop (:func:`_hop_loop`) with the alarm rule's channel step ``channel``.
 
     One kernel per channel step (a rule's :attr:`~chatterspec.detection.alarms.steps.RuleSteps.channel`),
@@ -311,3 +394,58 @@ def hop_kernel(channel: Callable[..., None]) -> Callable[..., None]:
         kernel = _jit.specialize(_hop_loop, f"hop_{channel.__name__.strip('_')}", RULE_CHANNEL=channel)
         _HOP[id(channel)] = kernel
     return kernel
+
+
+@_jit.njit
+def frames_in(
+    buf: np.ndarray,
+    nb: int,
+    e: np.ndarray,
+    check: bool,
+    win: np.ndarray,
+    hop: int,
+    lo: int,
+    hi: int,
+    n_frames: int,
+    tapered: np.ndarray,
+) -> int:  # pragma: no cover - compiled (Python form tested in tests/test_monitor.py)
+    """The frame buffer's side of a push: append ``e``, taper frames ``lo .. hi - 1``, keep the rest.
+
+    ``buf`` (m, columns), channel-major, holds ``nb`` chattering samples from the next frame's start
+    on; ``e`` (K, m) (``nb + K <= columns``) is appended and, when ``check``, checked for NaN/inf
+    (then -1 is returned and nothing is consumed: the columns from ``nb`` on are not the buffer's
+    yet). Frames ``lo .. hi - 1`` of the ``nb + K`` samples (frame ``f`` starts at sample ``f hop``)
+    are tapered into ``tapered[0, :, :hi - lo]`` (1, m, >= hi - lo, W): ``x_c[f hop + k] * win[k]``,
+    the product of :class:`~chatterspec.detection.spectral.FrameEngine`'s taper (the same bits).
+    When ``hi == n_frames`` (the push's last block) the samples from frame ``n_frames`` 's start on
+    move to the buffer's front. Returns the samples the buffer then holds.
+    """
+    K, m = e.shape
+    W = win.shape[0]
+    bad = False
+    for c in range(m):
+        x = buf[c]
+        for k in range(K):
+            v = e[k, c]
+            x[nb + k] = v
+            bad |= (v - v) != 0.0  # NaN for NaN and +-inf, 0 for every finite value
+    if check and bad:
+        return -1
+    n = nb + K
+    for c in range(m):
+        x = buf[c]
+        for f in range(hi - lo):
+            s = (lo + f) * hop
+            out = tapered[0, c, f]
+            for k in range(W):
+                out[k] = x[s + k] * win[k]
+    if hi < n_frames:
+        return n
+    first = n_frames * hop
+    if first == 0:
+        return n
+    for c in range(m):
+        x = buf[c]
+        for k in range(n - first):
+            x[k] = x[first + k]
+    return n - first

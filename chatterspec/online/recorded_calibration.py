@@ -1,9 +1,9 @@
 """Thresholds from a recorded healthy run, read through the monitor itself (``calibrate --data``).
 
 :func:`calibrate_recorded` pushes the recording, in chunks of
-:data:`~chatterspec.studies.recorded_calibration.CHUNK_S` seconds, through a
+:data:`~chatterspec.studies.calibration.recorded.CHUNK_S` seconds, through a
 :class:`~chatterspec.online.monitor.ChatteringMonitor` with the monitor's settings and tallies what
-its chattering, frames and scores give (:mod:`chatterspec.studies.recorded_calibration`, where the
+its chattering, frames and scores give (:mod:`chatterspec.studies.calibration.recorded`, where the
 method, its intervals and the refusals are documented): the thresholds are read from exactly the
 numbers the monitor computes with the resulting file.
 """
@@ -16,8 +16,7 @@ from typing import Any, Unpack
 import numpy as np
 
 from ..plants.nonlinear import is_linear
-from ..studies.calibration_result import Calibration
-from ..studies.recorded_calibration import (
+from ..studies.calibration.recorded import (
     Chunks,
     HealthyRecording,
     RecordedTally,
@@ -26,6 +25,7 @@ from ..studies.recorded_calibration import (
     plan_recording,
     recorded_calibration,
 )
+from ..studies.calibration.result import Calibration
 from .monitor import ChatteringMonitor
 
 __all__ = ["calibrate_recorded"]
@@ -68,13 +68,13 @@ def calibrate_recorded(
     chunks : callable
         Returns a fresh iterable of consecutive ``(z (K, m), u (K, p))`` chunks of the recording
         (called once per pass: twice with ``normalization="data"``), e.g.
-        :func:`~chatterspec.studies.recorded_calibration.array_chunks`.
+        :func:`~chatterspec.studies.calibration.recorded.array_chunks`.
     n_samples : int
         Samples in the recording (the sum of the chunks' ``K``).
     recording : HealthyRecording, optional
         Where the data came from, recorded in ``Calibration.source``.
     **options
-        The keywords of :func:`~chatterspec.studies.recorded_calibration.plan_recording`: the
+        The keywords of :func:`~chatterspec.studies.calibration.recorded.plan_recording`: the
         monitor's ``settings`` (STFT, band, gamma), ``alpha``, ``confidence``, ``normalization``
         (``"model"`` or ``"data"``), ``record_s``, ``rule`` and ``false_alarms_per_hour`` (either
         asks for the alarm threshold), ``alarm_confidence``, ``smooth_half_width``.
@@ -87,7 +87,7 @@ def calibrate_recorded(
     Raises
     ------
     ParameterError
-        See :func:`~chatterspec.studies.recorded_calibration.plan_recording` (too short a recording
+        See :func:`~chatterspec.studies.calibration.recorded.plan_recording` (too short a recording
         for a record, the alpha or the budget, with the length that would do).
     """
     plan = plan_recording(model, n_samples, **options)

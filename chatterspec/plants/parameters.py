@@ -43,7 +43,7 @@ A real actuator's parameters move in normal operation (the bulk modulus with tem
 entrained air, viscous friction with oil temperature) while its model stays fixed. A
 :class:`Tolerance` declares how far a parameter may move from its nominal value before the
 change is a fault; fault decisions on the identified parameters
-(:mod:`chatterspec.detection.tolerance_decision`) compare each estimate with its band.
+(:mod:`chatterspec.detection.parameter_decision`) compare each estimate with its band.
 
 Forms (the ``tolerance`` key of a model file's ``[parameters]`` entry, ``examples/README.md``;
 the same text after ``--tolerance NAME=`` on the command line, with a comma for the pairs):

@@ -368,7 +368,7 @@ class Scenario:
         Initial true state (default zeros).
     psi : tuple of float, optional
         Smoothing boundary layer for the SVSF on this scenario (per sat channel);
-        ``None`` lets :mod:`chatterspec.filters.boundary_layer` derive it from statistics.
+        ``None`` lets :mod:`chatterspec.filters.svsf` derive it from statistics.
     filter_settings : FilterSettings, optional
         The estimator tuning the source paper prints for this scenario (filter Q, R, P0,
         gamma, psi, Lambda, modes, ...); ``None`` for the chattering-paper scenarios.

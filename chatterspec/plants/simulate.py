@@ -2,7 +2,7 @@
 
 All realizations advance together: the only Python loop is over time steps
 (and over fixed blocks of realizations when drawing random numbers, see
-:mod:`chatterspec.rng`). Arrays follow the package convention
+:mod:`chatterspec.montecarlo`). Arrays follow the package convention
 ``(runs, T, channels)``.
 
 Batched simulation of scenarios whose true plant is nonlinear (``x(k+1) = f(x(k), u(k)) + v(k)``).
@@ -11,7 +11,7 @@ Batched simulation of scenarios whose true plant is nonlinear (``x(k+1) = f(x(k)
 of the scenario (nominal, plant or a fault window) is a
 :class:`~chatterspec.plants.nonlinear.NonlinearModel`; callers never call it directly.
 
-Seeding is *exactly* that of the linear simulation (:mod:`chatterspec.rng`): realization ``r``
+Seeding is *exactly* that of the linear simulation (:mod:`chatterspec.montecarlo`): realization ``r``
 draws its process noise from ``block_generator(root, r // 64, 0).standard_normal((64, T, n))`` and
 its measurement noise from stream 1 with shape ``(64, T, m)``, each scaled by the Cholesky-like
 square root of the active segment's ``Q`` and ``R``. A nonlinear model that happens to be linear
@@ -34,7 +34,7 @@ At each sample ``k``, for every realization::
 with the segment ``s`` active at ``t_k``. The controller reads the same noisy measurement the filters
 see, and ``u(k)`` is returned per realization (``Simulation.u`` of shape ``(runs, T, 1)``): the
 filters run the open-loop nominal model with it. Seeding is that of the open-loop simulation
-(:mod:`chatterspec.rng`: realization ``r`` draws block ``r // 64``, stream 0 = v, stream 1 = w), so
+(:mod:`chatterspec.montecarlo`: realization ``r`` draws block ``r // 64``, stream 0 = v, stream 1 = w), so
 any chunking gives the same numbers, and a loop with zero gains whose input dither equals an
 open-loop scenario's input reproduces that scenario's simulation bit for bit (tested).
 
@@ -84,7 +84,7 @@ from .. import _jit
 from .._repr import short_repr
 from .._validate import positive_int
 from ..errors import NonFiniteError, ParameterError
-from ..rng import BLOCK, SeedLike, block_generator, root_seed_sequence
+from ..montecarlo import BLOCK, SeedLike, block_generator, root_seed_sequence
 from .closed_loop import ClosedLoop, SCurve, StepSequence, pid_coefficients, pid_step
 from .models import LinearModel
 from .nonlinear import measure
@@ -222,7 +222,7 @@ def _noise_blocks(
 ) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
     """``(offset, v, w)`` per random block overlapping ``[lo, hi)``: raw normals ``(b, T, n|m)``.
 
-    Exactly the numbers of :func:`chatterspec.rng.block_generator` streams 0 (process) and
+    Exactly the numbers of :func:`chatterspec.montecarlo.block_generator` streams 0 (process) and
     1 (measurement) of each block, realization-major; ``offset`` is the first run's index
     relative to ``lo``.
     """
@@ -363,7 +363,7 @@ def simulate_block_nonlinear(
     scenario : Scenario
         The scenario (its ``segments`` give the true model per time window, ``x0`` the start).
     root : numpy.random.SeedSequence
-        Root of the random streams (see :mod:`chatterspec.rng`).
+        Root of the random streams (see :mod:`chatterspec.montecarlo`).
     lo, hi : int
         Global indices of the first and one-past-the-last realization.
     t : (T,) array
@@ -1109,7 +1109,7 @@ def iter_simulations(
     runs : int
         Number of realizations to yield in total (>= 1).
     seed : int, SeedSequence, Generator or None
-        Root of the random streams (see :func:`chatterspec.rng.root_seed_sequence`).
+        Root of the random streams (see :func:`chatterspec.montecarlo.root_seed_sequence`).
     chunk_runs : int, optional
         Realizations per yielded chunk; the default is a multiple of 64 (at
         least 64) sized so that one chunk's state and measurement arrays stay
@@ -1202,7 +1202,7 @@ def _simulate_block(
     ranges = segment_ranges(scenario, t)
     # Noise is stored time-major (T, runs, channels) for the recursion; each
     # random block is drawn realization-major so the numbers do not depend on
-    # the chunking (see chatterspec.rng).
+    # the chunking (see chatterspec.montecarlo).
     vt, zt = scaled_noise(scenario, root, lo, hi, t, _linear_scale)
     xt = np.empty((T, hi - lo, n))
     xt[0] = scenario.x0

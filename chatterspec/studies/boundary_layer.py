@@ -2,7 +2,7 @@
 
 :func:`estimate_boundary_layer` proposes ``psi`` from healthy Monte Carlo chattering and
 :func:`boundary_layer_study` reproduces Fig 2; the analytic healthy variance they are checked
-against is :func:`chatterspec.filters.boundary_layer.healthy_chattering_variance` (the derivation
+against is :func:`chatterspec.filters.svsf.healthy_chattering_variance` (the derivation
 and the corrected eq 34 are in that module's docstring).
 """
 
@@ -19,14 +19,13 @@ import scipy.stats
 from .._repr import short_repr
 from .._validate import open_unit, positive, positive_int
 from ..errors import ParameterError
-from ..filters.boundary_layer import healthy_chattering_variance
-from ..filters.svsf import SVSF, boundary_layer_chattering
+from ..filters.svsf import SVSF, boundary_layer_chattering, healthy_chattering_variance
+from ..montecarlo import SeedLike, root_seed_sequence
 from ..plants.models import LinearModel
 from ..plants.nonlinear import require_linear
 from ..plants.scenarios import Scenario, scenario
 from ..plants.signals import Signal, Step
 from ..plants.simulate import Simulation, iter_simulations, simulate
-from ..rng import SeedLike, root_seed_sequence
 
 __all__ = [
     "BoundaryLayerEstimate",
@@ -185,7 +184,7 @@ def estimate_boundary_layer(
     runs : int
         Monte Carlo realizations (>= 1).
     seed : int, SeedSequence, Generator or None
-        Random seed (see :mod:`chatterspec.rng`).
+        Random seed (see :mod:`chatterspec.montecarlo`).
     gamma : float
         SVSF convergence rate in (0, 1) (no effect on the healthy chattering
         after the first step with the default initialization).

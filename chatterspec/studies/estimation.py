@@ -1,4 +1,33 @@
-"""Estimator comparison study: the DETC2015 table (RMSE / bias / STD, eq 28-30) with NEES/NIS consistency.
+"""Estimator comparison: error metrics, the study (DETC2015 table, eq 28-30) and mode outputs.
+
+In order: the error metrics (RMSE, bias, STD, NEES/NIS), the comparison study
+(:func:`estimation_study`) and the mode-identification outputs of the multiple-model filters
+(:func:`confusion_matrix`, :func:`switch_delays`, :func:`rmse_table`, :func:`mode_report`).
+
+Estimation-error metrics: RMSE, bias and STD per state (DETC2015 eq 28-30), NEES and NIS consistency.
+
+All functions take realizations on a leading axis, ``(runs, T, n)``, and
+reduce over time first (one value per run and state, as the paper's eq 28-30
+do for one run), then over runs, where the Monte Carlo standard error of the
+mean over runs is reported beside every mean.
+
+Consistency
+-----------
+For a filter whose model matches the plant and whose covariances are right,
+the normalized estimation error squared ``NEES_k = e_k^T P_k^-1 e_k`` is
+chi-squared with ``n`` degrees of freedom at every step, and the normalized
+innovation squared ``NIS_k = nu_k^T S_k^-1 nu_k`` chi-squared with ``m``
+(Bar-Shalom, Li and Kirubarajan, *Estimation with Applications to Tracking and
+Navigation*, 2001, section 5.4). Averaged over ``R`` independent runs at one
+step, ``R * mean NEES_k`` is chi-squared with ``R n`` degrees of freedom, so the
+two-sided ``1 - alpha`` acceptance interval of the run-averaged statistic is
+``[chi2.ppf(alpha/2, R n), chi2.ppf(1 - alpha/2, R n)] / R``. The time average of
+one run's NIS has the same form with ``T m`` degrees of freedom because a
+consistent filter's innovations are white; the time-averaged NEES of one run is
+only approximately so (estimation errors are correlated in time), which the
+per-run NEES bounds say in their ``note``.
+
+Estimator comparison study: the DETC2015 table (RMSE / bias / STD, eq 28-30) with NEES/NIS consistency.
 
 :func:`estimation_study` simulates a catalogue scenario's true plant, runs every requested filter
 (``kf``, ``ekf``, ``svsf``, ``svsf2``) with the tuning of ``scenario.filter_settings`` on the same
@@ -22,51 +51,400 @@ Filters (names of ``--filters``):
 
 The first-order SVSF's covariance is bookkeeping (its gain does not use it), so its NEES/NIS say how
 well that bookkeeping matches the errors, not whether the filter is optimal.
+
+Mode-identification outputs of the multiple-model filters (the SMM-SVSF and IMM papers' tables).
+
+* :func:`confusion_matrix`: the IMM paper's Tables 5-7 -- cell ``[i, a]`` is the mean probability of
+  mode ``i`` over the samples whose actual mode is ``a``, in percent; every column sums to 100.
+* :func:`argmax_accuracy`: fraction of the samples of each actual mode whose most probable mode is the
+  actual one.
+* :func:`switch_delays`: time for the true mode's probability to pass given levels (0.5, 0.8) after
+  each mode switch, per run and for the run-mean probability (the SMM paper's Fig 5 reads the mean).
+* :func:`rmse_table`: RMSE per state for several estimators (the SMM paper's SVSF vs SMM-SVSF table).
+
+All functions take the probabilities as ``(runs, T, r)`` (``MultipleModelOutput.mu``) and the true
+mode per sample as ``(T,)`` or ``(runs, T)`` integer indices (-1 = no mode, ignored), e.g.
+``scenario.filter_settings.mode_index(scenario)``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Unpack, cast
 
 import numpy as np
+import numpy.typing as npt
+import scipy.stats
 
 from .. import filter_registry
 from .._repr import short_repr
-from .._validate import positive_int
-from ..errors import ParameterError
+from .._validate import finite_array, open_unit, positive_int
+from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..jsonout import fields_dict, finite_or_none
-from ..montecarlo import Execution, ExecutionOptions
+from ..montecarlo import Execution, ExecutionOptions, SeedLike, seed_label
 from ..plants.scenarios import FilterSettings, Scenario
 from ..plants.scenarios import scenario as _catalogue_scenario
 from ..plants.simulate import iter_simulations
-from ..rng import SeedLike, seed_label
-from .metrics import (
-    ConsistencyTest,
-    MonteCarloMean,
-    StateErrorMetrics,
-    consistency_from_sums,
-    nees,
-    nis,
-    state_error_metrics,
-)
-
-if TYPE_CHECKING:  # pragma: no cover
-    from ..filters.protocol import Filter
 
 __all__ = [
     "FILTERS",
+    "ConsistencyTest",
     "EstimateRecords",
     "EstimationResult",
     "EstimationStudy",
     "FilterMetrics",
+    "ModeReport",
+    "MonteCarloMean",
+    "StateErrorMetrics",
+    "SwitchDelays",
+    "argmax_accuracy",
     "build_filter",
+    "confusion_matrix",
+    "consistency",
+    "consistency_from_sums",
     "estimate_records",
     "estimation_study",
+    "mode_report",
+    "nees",
+    "nis",
     "parse_filters",
+    "rmse_table",
+    "state_error_metrics",
+    "switch_delays",
 ]
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..filters.protocol import Filter
+
+
+@dataclass(frozen=True)
+class MonteCarloMean:
+    """Mean of a per-run quantity over runs, with its Monte Carlo standard error.
+
+    Attributes
+    ----------
+    mean : (n,) array
+        Mean over runs.
+    stderr : (n,) array
+        Standard error of that mean, ``std(ddof=1) / sqrt(runs)`` (NaN for one run).
+    runs : int
+        Number of runs averaged.
+    """
+
+    mean: np.ndarray
+    stderr: np.ndarray
+    runs: int
+
+    @classmethod
+    def of(cls, per_run: np.ndarray) -> MonteCarloMean:
+        """Mean and standard error over the leading axis of ``per_run`` ``(runs, n)``.
+
+        Parameters
+        ----------
+        per_run : (runs, n) array
+            One value per run and state.
+        """
+        per_run = np.asarray(per_run, dtype=float)
+        runs = per_run.shape[0]
+        mean = per_run.mean(axis=0)
+        if runs > 1:
+            stderr = per_run.std(axis=0, ddof=1) / np.sqrt(runs)
+        else:
+            stderr = np.full_like(mean, np.nan)
+        return cls(mean=mean, stderr=stderr, runs=runs)
+
+
+@dataclass(frozen=True)
+class StateErrorMetrics:
+    """Per-state RMSE, bias and STD of the estimation error (DETC2015 eq 28-30).
+
+    Attributes
+    ----------
+    rmse, bias, std : (runs, n) arrays
+        Per run, over the time steps used: ``RMSE = sqrt(mean(e^2))`` (eq 28),
+        ``bias = mean(e)`` with ``e = x - x_hat`` (eq 29) and
+        ``STD = sqrt(mean((e - bias)^2))`` (eq 30), so ``RMSE^2 = bias^2 + STD^2``.
+    state_names : tuple of str
+        Names of the states (columns).
+    """
+
+    rmse: np.ndarray
+    bias: np.ndarray
+    std: np.ndarray
+    state_names: tuple[str, ...] = ()
+
+    @property
+    def runs(self) -> int:
+        """Number of realizations (the leading axis)."""
+        return self.rmse.shape[0]
+
+    def summary(self) -> dict[str, MonteCarloMean]:
+        """Monte Carlo means with standard errors: ``{"rmse": ..., "bias": ..., "std": ...}``."""
+        return {k: MonteCarloMean.of(getattr(self, k)) for k in ("rmse", "bias", "std")}
+
+    @staticmethod
+    def concatenate(parts: list[StateErrorMetrics]) -> StateErrorMetrics:
+        """Join metrics of consecutive chunks of runs (constant memory per run).
+
+        Parameters
+        ----------
+        parts : list of StateErrorMetrics
+            Chunks in run order, with the same states.
+        """
+        if not parts:
+            raise ShapeError("no metrics to concatenate")
+        return StateErrorMetrics(
+            rmse=np.concatenate([p.rmse for p in parts]),
+            bias=np.concatenate([p.bias for p in parts]),
+            std=np.concatenate([p.std for p in parts]),
+            state_names=parts[0].state_names,
+        )
+
+
+def _finite(name: str, a: np.ndarray) -> np.ndarray:
+    a = np.asarray(a, dtype=float)
+    if not np.all(np.isfinite(a)):
+        raise NonFiniteError(f"{name} contains NaN or inf; a diverged filter has no error metrics")
+    return a
+
+
+def state_error_metrics(
+    x_true: np.ndarray,
+    x_est: np.ndarray,
+    *,
+    skip: int = 0,
+    state_names: tuple[str, ...] = (),
+) -> StateErrorMetrics:
+    """RMSE, bias and STD of the estimation error per run and state (DETC2015 eq 28-30).
+
+    Parameters
+    ----------
+    x_true, x_est : (runs, T, n) arrays
+        True and estimated states (a single record ``(T, n)`` is taken as one run).
+    skip : int
+        Leading samples excluded (e.g. the initial transient); 0 as in the paper.
+    state_names : tuple of str
+        Names for reports.
+
+    Returns
+    -------
+    StateErrorMetrics
+
+    Raises
+    ------
+    ShapeError
+        If the shapes differ or ``skip`` leaves no sample.
+    NonFiniteError
+        If either array has NaN or inf.
+    """
+    x_true = _finite("x_true", x_true)
+    x_est = _finite("x_est", x_est)
+    if x_true.shape != x_est.shape:
+        raise ShapeError(f"x_true has shape {x_true.shape} but x_est has {x_est.shape}; they must match")
+    if x_true.ndim == 2:
+        x_true, x_est = x_true[None], x_est[None]
+    if x_true.ndim != 3:
+        raise ShapeError(f"states must be (runs, T, n) or (T, n); got shape {x_true.shape}")
+    if not 0 <= skip < x_true.shape[1]:
+        raise ShapeError(f"skip={skip} must be in [0, T) with T = {x_true.shape[1]}")
+    e = (x_true - x_est)[:, skip:]
+    bias = e.mean(axis=1)
+    std = np.sqrt(np.mean((e - bias[:, None]) ** 2, axis=1))
+    rmse = np.sqrt(np.mean(e**2, axis=1))
+    return StateErrorMetrics(rmse=rmse, bias=bias, std=std, state_names=tuple(state_names))
+
+
+def _quadratic_form(v: np.ndarray, M: np.ndarray, what: str) -> np.ndarray:
+    """``v^T M^-1 v`` over leading axes; ``M`` broadcasts (shared ``(d, d)``, ``(T, d, d)`` or full)."""
+    v = _finite(what, v)
+    M = _finite(f"covariance of the {what}", M)
+    d = v.shape[-1]
+    if M.shape[-2:] != (d, d):
+        raise ShapeError(f"covariance of the {what} must end in ({d}, {d}); got {M.shape}")
+    try:
+        if M.ndim == 2:
+            return np.einsum("...i,ij,...j->...", v, np.linalg.inv(M), v)
+        M = np.broadcast_to(M, (*v.shape[:-1], d, d))
+        sol = np.linalg.solve(M, v[..., None])[..., 0]
+    except np.linalg.LinAlgError as exc:
+        raise ShapeError(f"covariance of the {what} is singular: {exc}") from None
+    return np.einsum("...i,...i->...", v, sol)
+
+
+def nees(error: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Normalized estimation error squared ``e^T P^-1 e`` per run and step.
+
+    Parameters
+    ----------
+    error : (runs, T, n) array
+        Estimation error ``x - x_hat``.
+    P : (n, n), (T, n, n) or (runs, T, n, n) array
+        The filter's posterior covariance (broadcast against ``error``).
+
+    Returns
+    -------
+    (runs, T) array
+    """
+    return _quadratic_form(error, np.asarray(P, dtype=float), "estimation error")
+
+
+def nis(innovation: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Normalized innovation squared ``nu^T S^-1 nu`` per run and step.
+
+    Parameters
+    ----------
+    innovation : (runs, T, m) array
+        Innovations ``z - C x(k|k-1)``.
+    S : (m, m), (T, m, m) or (runs, T, m, m) array
+        Their covariances.
+
+    Returns
+    -------
+    (runs, T) array
+    """
+    return _quadratic_form(innovation, np.asarray(S, dtype=float), "innovation")
+
+
+@dataclass(frozen=True)
+class ConsistencyTest:
+    """Two-sided chi-squared consistency test of an averaged NEES or NIS.
+
+    Attributes
+    ----------
+    statistic : float
+        The averaged normalized statistic (its expectation is ``dim`` when consistent).
+    lower, upper : float
+        Acceptance interval at confidence ``1 - alpha``.
+    dof : int
+        Degrees of freedom of ``statistic * n_averaged``.
+    alpha : float
+        Two-sided significance level.
+    consistent : bool
+        ``lower <= statistic <= upper``.
+    fraction_inside : float
+        Share of steps whose run-averaged value lies in the per-step interval
+        (its expectation is ``1 - alpha`` when consistent).
+    note : str
+        What was averaged, and any approximation.
+    """
+
+    statistic: float
+    lower: float
+    upper: float
+    dof: int
+    alpha: float
+    consistent: bool
+    fraction_inside: float
+    note: str
+
+
+def consistency(values: np.ndarray, dim: int, *, alpha: float = 0.05, kind: str = "NIS") -> ConsistencyTest:
+    """Two-sided chi-squared consistency test of NEES or NIS values over runs and steps.
+
+    The statistic is the mean of ``values`` over runs and steps; ``R T`` times it is
+    chi-squared with ``R T dim`` degrees of freedom when the values are independent
+    (exact for the NIS of a consistent filter, whose innovations are white;
+    approximate for NEES, whose errors correlate in time: the note says so).
+    ``fraction_inside`` is the share of steps whose run-averaged value lies in the
+    per-step interval ``chi2.ppf([alpha/2, 1-alpha/2], R dim) / R`` (expected ``1 - alpha``).
+
+    Parameters
+    ----------
+    values : (runs, T) or (T,) array
+        NEES (``dim = n``) or NIS (``dim = m``) per run and step.
+    dim : int
+        State or measurement dimension (> 0).
+    alpha : float
+        Two-sided significance level in (0, 1).
+    kind : {"NIS", "NEES"}
+        Which statistic the values are (sets the note on exactness).
+
+    Returns
+    -------
+    ConsistencyTest
+    """
+    alpha = open_unit("alpha", alpha)
+    values = _finite("values", values)
+    if values.ndim == 1:
+        values = values[None]
+    if values.ndim != 2:
+        raise ShapeError(f"values must be (runs, T) or (T,); got shape {values.shape}")
+    if kind not in ("NIS", "NEES"):
+        raise ShapeError(f'kind must be "NIS" or "NEES"; got {kind!r}')
+    if dim < 1:
+        raise ShapeError(f"dim must be a positive dimension; got {dim}")
+    runs = values.shape[0]
+    return consistency_from_sums(float(values.sum()), values.sum(axis=0), runs, dim, alpha=alpha, kind=kind)
+
+
+def consistency_from_sums(
+    total: float,
+    per_step_sum: np.ndarray,
+    runs: int,
+    dim: int,
+    *,
+    alpha: float = 0.05,
+    kind: str = "NIS",
+) -> ConsistencyTest:
+    """:func:`consistency` from running sums (chunked Monte Carlo studies, constant memory).
+
+    Parameters
+    ----------
+    total : float
+        Sum of the NEES or NIS values over all runs and steps.
+    per_step_sum : (T,) array
+        Sum over runs at each step.
+    runs : int
+        Number of runs summed (>= 1).
+    dim : int
+        State or measurement dimension (> 0).
+    alpha : float
+        Two-sided significance level in (0, 1).
+    kind : {"NIS", "NEES"}
+        Which statistic the values are.
+
+    Returns
+    -------
+    ConsistencyTest
+    """
+    alpha = open_unit("alpha", alpha)
+    per_step_sum = _finite("per_step_sum", np.atleast_1d(per_step_sum))
+    if kind not in ("NIS", "NEES"):
+        raise ShapeError(f'kind must be "NIS" or "NEES"; got {kind!r}')
+    if dim < 1:
+        raise ShapeError(f"dim must be a positive dimension; got {dim}")
+    if runs < 1 or per_step_sum.ndim != 1:
+        raise ShapeError(
+            f"need runs >= 1 and a (T,) per-step sum; got runs={runs}, shape {per_step_sum.shape}"
+        )
+    if not np.isfinite(total):
+        raise NonFiniteError(f"the {kind} total is not finite")
+    steps = per_step_sum.shape[0]
+    dof = runs * steps * dim
+    lo, hi = scipy.stats.chi2.ppf([alpha / 2, 1 - alpha / 2], dof) / (runs * steps)
+    stat = float(total) / (runs * steps)
+    step_lo, step_hi = scipy.stats.chi2.ppf([alpha / 2, 1 - alpha / 2], runs * dim) / runs
+    per_step = per_step_sum / runs
+    inside = float(np.mean((per_step >= step_lo) & (per_step <= step_hi)))
+    exact = (
+        "exact for a consistent filter (white innovations)"
+        if kind == "NIS"
+        else ("approximate: estimation errors correlate in time, so the interval is too narrow")
+    )
+    note = f"{kind} averaged over {runs} runs x {steps} steps; chi2({dof}) interval, {exact}"
+    return ConsistencyTest(
+        statistic=stat,
+        lower=float(lo),
+        upper=float(hi),
+        dof=int(dof),
+        alpha=alpha,
+        consistent=bool(lo <= stat <= hi),
+        fraction_inside=inside,
+        note=note,
+    )
+
 
 #: Filter names accepted by ``--filters`` and :func:`build_filter`, with a description (the registry's).
 FILTERS = filter_registry.FILTERS
@@ -512,8 +890,6 @@ def estimation_study(
     sc = _resolve(source)
     for name in names:  # fail on a missing setting before simulating anything
         build_filter(name, sc)
-    from .._validate import open_unit
-
     alpha = open_unit("alpha", alpha)
     if ex.chunk_runs is None and sc.n_samples * sc.nominal.n_states**2 > 50_000:
         # long records (e.g. eha4: 9001 x 4x4 covariances per run): keep chunks ~100 MB
@@ -547,4 +923,258 @@ def estimation_study(
         filters=tuple(blocks),
         settings=cast(FilterSettings, sc.filter_settings).describe(),  # (checked by _resolve)
         alpha=alpha,
+    )
+
+
+def _inputs(mu: npt.ArrayLike, true_mode: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    mu = finite_array("mu", mu, ndim=(2, 3))
+    if mu.ndim == 2:
+        mu = mu[None]
+    runs, T, r = mu.shape
+    tm = np.asarray(true_mode)
+    if not np.issubdtype(tm.dtype, np.integer):
+        raise ParameterError(f"true_mode must hold integer mode indices; got dtype {tm.dtype}")
+    if tm.shape == (T,):
+        tm = np.broadcast_to(tm, (runs, T))
+    if tm.shape != (runs, T):
+        raise ShapeError(f"true_mode must have shape ({T},) or ({runs}, {T}) like mu; got {tm.shape}")
+    if np.any(tm >= r) or np.any(tm < -1):
+        raise ParameterError(f"true_mode entries must lie in -1 .. {r - 1} (-1 = no mode)")
+    return mu, tm
+
+
+def confusion_matrix(mu: np.ndarray, true_mode: np.ndarray) -> np.ndarray:
+    """Mean mode probability per actual mode, in percent (IMM paper Tables 5-7).
+
+    Parameters
+    ----------
+    mu : (runs, T, r) array
+        Mode probabilities per sample.
+    true_mode : (T,) or (runs, T) int array
+        Actual mode index per sample (-1: ignored).
+
+    Returns
+    -------
+    (r, r) ndarray
+        ``C[i, a]`` = mean of ``mu[..., i]`` over the samples of actual mode ``a``, x 100; rows =
+        predicted, columns = actual; every column sums to 100 (NaN for a mode that never occurs).
+    """
+    mu, tm = _inputs(mu, true_mode)
+    r = mu.shape[-1]
+    out = np.full((r, r), np.nan)
+    for a in range(r):
+        sel = tm == a
+        if sel.any():
+            out[:, a] = 100.0 * mu[sel].mean(axis=0)
+    return out
+
+
+def argmax_accuracy(mu: np.ndarray, true_mode: np.ndarray) -> np.ndarray:
+    """Fraction of the samples of each actual mode whose most probable mode is that mode.
+
+    Parameters
+    ----------
+    mu : (runs, T, r) array
+        Mode probabilities per sample.
+    true_mode : (T,) or (runs, T) int array
+        Actual mode index per sample (-1: ignored).
+
+    Returns
+    -------
+    (r,) ndarray
+        In [0, 1]; NaN for a mode that never occurs.
+    """
+    mu, tm = _inputs(mu, true_mode)
+    r = mu.shape[-1]
+    hit = np.argmax(mu, axis=-1) == tm
+    return np.array([hit[tm == a].mean() if np.any(tm == a) else np.nan for a in range(r)])
+
+
+@dataclass(frozen=True, eq=False)
+class SwitchDelays:
+    """Time for the new mode's probability to pass given levels after each switch.
+
+    Attributes
+    ----------
+    onsets : (s,) array
+        Switch times in seconds (first sample of the new mode).
+    new_modes : (s,) int array
+        Index of the mode switched to.
+    levels : (L,) array
+        Probability levels (e.g. 0.5, 0.8).
+    per_run : (runs, s, L) array
+        Delay in seconds per run (NaN: never passed before the next switch or the end).
+    of_mean : (s, L) array
+        Delay of the run-mean probability (NaN: never passed).
+    """
+
+    onsets: np.ndarray
+    new_modes: np.ndarray
+    levels: np.ndarray
+    per_run: np.ndarray
+    of_mean: np.ndarray
+
+
+def _first_crossing(p: np.ndarray, level: float) -> np.ndarray:
+    """Index of the first sample with ``p >= level`` along the last axis (-1 if none)."""
+    hit = p >= level
+    idx = np.argmax(hit, axis=-1)
+    return np.where(hit.any(axis=-1), idx, -1)
+
+
+def switch_delays(
+    mu: np.ndarray, true_mode: np.ndarray, t: np.ndarray, levels: Sequence[float] = (0.5, 0.8)
+) -> SwitchDelays:
+    """Delays from each mode switch until the new mode's probability passes each level.
+
+    A switch is a sample where the (shared) true mode changes to another valid mode. The search
+    runs until the next switch or the end of the record.
+
+    Parameters
+    ----------
+    mu : (runs, T, r) array
+        Mode probabilities per sample.
+    true_mode : (T,) int array
+        Actual mode per sample, shared by all runs.
+    t : (T,) array
+        Sample times in seconds (same samples as ``mu``).
+    levels : sequence of float
+        Probability levels in (0, 1].
+
+    Returns
+    -------
+    SwitchDelays
+    """
+    mu, tm = _inputs(mu, true_mode)
+    tm1 = tm[0]
+    if np.any(tm != tm1):
+        raise ParameterError("switch_delays needs one true-mode sequence shared by all runs")
+    t = finite_array("t", t, shape=(mu.shape[1],))
+    lev = finite_array("levels", levels, ndim=1)
+    if np.any((lev <= 0) | (lev > 1)):
+        raise ParameterError(f"levels must lie in (0, 1]; got {lev.tolist()}")
+    change = np.flatnonzero((tm1[1:] != tm1[:-1]) & (tm1[1:] >= 0)) + 1
+    ends = np.append(change[1:], len(tm1))
+    runs = mu.shape[0]
+    per_run = np.full((runs, len(change), len(lev)), np.nan)
+    of_mean = np.full((len(change), len(lev)), np.nan)
+    for s, (k0, k1) in enumerate(zip(change, ends, strict=True)):
+        p = mu[:, k0:k1, tm1[k0]]
+        pm = p.mean(axis=0)
+        for li, level in enumerate(lev):
+            idx = _first_crossing(p, level)
+            per_run[:, s, li] = np.where(idx >= 0, t[k0 + np.maximum(idx, 0)] - t[k0], np.nan)
+            im = int(_first_crossing(pm, level))
+            if im >= 0:
+                of_mean[s, li] = t[k0 + im] - t[k0]
+    return SwitchDelays(t[change], tm1[change], lev, per_run, of_mean)
+
+
+def rmse_table(
+    estimates: Mapping[str, np.ndarray], truth: np.ndarray, state_names: Sequence[str] | None = None
+) -> dict[str, dict[str, float]]:
+    """RMSE per state over all runs and samples, for each estimator (the SMM paper's RMSE table).
+
+    Parameters
+    ----------
+    estimates : mapping of str to (runs, T, n) array
+        Estimator name -> estimates aligned with ``truth``.
+    truth : (runs, T, n) array
+        True states.
+    state_names : sequence of str, optional
+        Names of the n states (default ``x1 .. xn``).
+
+    Returns
+    -------
+    dict
+        ``{estimator: {state: rmse}}`` in the states' units.
+    """
+    truth = finite_array("truth", truth, ndim=3)
+    n = truth.shape[-1]
+    names = tuple(state_names) if state_names is not None else tuple(f"x{i + 1}" for i in range(n))
+    if len(names) != n:
+        raise ShapeError(f"state_names must name the {n} states; got {len(names)}")
+    table: dict[str, dict[str, float]] = {}
+    for key, est in estimates.items():
+        est = finite_array(f"estimates[{key!r}]", est, shape=truth.shape)
+        rm = np.sqrt(np.mean((est - truth) ** 2, axis=(0, 1)))
+        table[str(key)] = {nm: float(v) for nm, v in zip(names, rm, strict=True)}
+    return table
+
+
+@dataclass(frozen=True, eq=False)
+class ModeReport:
+    """Confusion matrix, argmax accuracy and switch delays of one multiple-model run.
+
+    Attributes
+    ----------
+    modes : tuple of str
+        Mode names.
+    confusion : (r, r) array
+        :func:`confusion_matrix` (percent; rows predicted, columns actual).
+    accuracy : (r,) array
+        :func:`argmax_accuracy`.
+    delays : SwitchDelays
+        :func:`switch_delays` at levels 0.5 and 0.8.
+    """
+
+    modes: tuple[str, ...]
+    confusion: np.ndarray
+    accuracy: np.ndarray
+    delays: SwitchDelays
+
+    def describe(self) -> dict[str, object]:
+        """JSON-ready summary (NaN -> None)."""
+
+        def clean(a: np.ndarray) -> object:
+            return np.where(np.isnan(a), None, np.round(a, 10)).tolist()  # type: ignore[call-overload]  # numpy's stubs: no None in where (an object array)
+
+        return {
+            "modes": list(self.modes),
+            "confusion_percent": clean(self.confusion),
+            "argmax_accuracy": clean(self.accuracy),
+            "switch_onsets_s": self.delays.onsets.tolist(),
+            "switch_to": [self.modes[i] for i in self.delays.new_modes],
+            "levels": self.delays.levels.tolist(),
+            "delay_of_mean_s": clean(self.delays.of_mean),
+            "delay_median_s": clean(np.nanmedian(self.delays.per_run, axis=0))
+            if self.delays.per_run.size and not np.all(np.isnan(self.delays.per_run))
+            else None,
+        }
+
+
+def mode_report(
+    mu: np.ndarray,
+    true_mode: np.ndarray,
+    t: np.ndarray,
+    modes: Sequence[str],
+    levels: Sequence[float] = (0.5, 0.8),
+) -> ModeReport:
+    """All mode outputs at once.
+
+    Parameters
+    ----------
+    mu : (runs, T, r) array
+        Mode probabilities per sample.
+    true_mode : (T,) int array
+        Actual mode per sample.
+    t : (T,) array
+        Sample times in seconds.
+    modes : sequence of str
+        Mode names (r of them).
+    levels : sequence of float
+        Levels of :func:`switch_delays`.
+
+    Returns
+    -------
+    ModeReport
+    """
+    names = tuple(str(s) for s in modes)
+    if len(names) != np.shape(mu)[-1]:
+        raise ShapeError(f"modes must name the {np.shape(mu)[-1]} modes; got {len(names)}")
+    return ModeReport(
+        names,
+        confusion_matrix(mu, true_mode),
+        argmax_accuracy(mu, true_mode),
+        switch_delays(mu, true_mode, t, levels),
     )

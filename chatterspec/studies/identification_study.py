@@ -4,7 +4,7 @@
 identification (the chunks of :func:`chatterspec.detection.pipeline.iter_chattering`, the
 same numbers whatever the chunking) and compares each estimate with the true parameter of the
 scenario's plant; :func:`identification_sweep` does it for every size of a power-study family
-(:data:`chatterspec.studies.power.POWER_FAMILIES`). ``scripts/identification_study.py`` runs the
+(:data:`chatterspec.studies.detection_rates.POWER_FAMILIES`). ``scripts/identification_study.py`` runs the
 whole catalogue and draws ``figures/identification_sweep.png``.
 """
 
@@ -26,8 +26,8 @@ from ..detection.identification import (
 from ..detection.pipeline import iter_chattering
 from ..plants.models import LinearModel
 from ..plants.scenarios import Scenario
+from .detection_rates import POWER_FAMILIES, power_scenario
 from .intervals import clopper_pearson
-from .power import POWER_FAMILIES, power_scenario
 
 __all__ = [
     "FAMILY_HYPOTHESIS",
@@ -199,11 +199,11 @@ def identification_sweep(
     Parameters
     ----------
     family : {"leakage", "bulk-modulus", "friction", "f0"}
-        See :data:`chatterspec.studies.power.POWER_FAMILIES`.
+        See :data:`chatterspec.studies.detection_rates.POWER_FAMILIES`.
     sizes : sequence of float, optional
         Default: the family's sizes.
     noise : float
-        Measurement-noise multiplier (see :func:`chatterspec.studies.power.power_scenario`).
+        Measurement-noise multiplier (see :func:`chatterspec.studies.detection_rates.power_scenario`).
     runs, seed, alpha, confidence
         As in :func:`identification_validation`.
     """

@@ -46,9 +46,9 @@ threads stay flat over any number of rotations.
 Segmenting (:class:`StreamSegments`): gap and restart segmenting of a live stream's rows, what
 :class:`StreamMonitor` delegates between the parser and the monitor: the rows of
 :class:`~chatterspec.online.stream.CsvRows` go through the sampling-rate check
-(:class:`~chatterspec.online.stream_checks.RateGate`), get their times (the time column, or ``dt``
+(:class:`~chatterspec.online.stream.RateGate`), get their times (the time column, or ``dt``
 apart from the last one without it) and are cut into :class:`Segment` objects at every gap (a time
-step outside ``(0.5 dt, 1.5 dt]``, :func:`~chatterspec.online.stream_checks.time_gaps`, or a skipped
+step outside ``(0.5 dt, 1.5 dt]``, :func:`~chatterspec.online.stream.time_gaps`, or a skipped
 bad row) and after a restart. Each segment that starts a fresh monitor says so, and why when it is a
 gap. Pure bookkeeping: no monitor, no events, no Rerun.
 
@@ -79,10 +79,13 @@ import numpy as np
 from ..detection.alarms.rules import alarm_label
 from ..errors import DataFileError
 from ..online.monitor import ChatteringMonitor, DetectionEvent, MonitorSettings, MonitorUpdate
-from ..online.stream import BadRow, CsvRows, Restart, RowBlock
-from ..online.stream_checks import (
+from ..online.stream import (
+    BadRow,
+    CsvRows,
     LatencyStats,
     RateGate,
+    Restart,
+    RowBlock,
     time_gaps,
 )
 from ..plants.nonlinear import Model

@@ -988,7 +988,7 @@ def record_budget_diagnosis(
     seed : int
         Seed of the diagnosed runs (realization 0 is simulated again, identical).
     routes : dict
-        Method -> route (:mod:`chatterspec.studies.routes`); the results' own routes (as diagnosed,
+        Method -> route (:mod:`chatterspec.studies.budget_diagnosis`); the results' own routes (as diagnosed,
         e.g. with a healthy NIS scale) are used where they carry one.
     results : list of RouteBudget
         Their results (the calibrated rules).

@@ -58,7 +58,7 @@ from ..palette import FAULT
 if TYPE_CHECKING:  # pragma: no cover
     from rerun import RecordingStream
 
-    from ..online.monitor_types import FrameBlock
+    from ..online.monitor import FrameBlock
     from .events import IntervalCollector
 
 __all__ = [

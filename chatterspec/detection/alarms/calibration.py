@@ -55,7 +55,7 @@ Public interface (stable; additions only)
 Monitor settings
     :class:`MonitorSettings`, the detector settings of the online monitor (STFT, per-frame alpha,
     alarm rule and its calibration). In the detection layer because the alarm studies
-    (:mod:`chatterspec.studies.alarm_budget`, :mod:`chatterspec.studies.alarm_delays`, the
+    (:mod:`chatterspec.studies.alarm_budget`, :mod:`chatterspec.studies.alarm_budget`, the
     diagnosis routes) compute with the same settings without the online monitor;
     :mod:`chatterspec.online.monitor` re-exports it (its documented home).
 """

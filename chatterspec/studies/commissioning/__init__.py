@@ -7,12 +7,12 @@ temperature, the sensor noise is what the sensors give), and the chattering dete
 and says whether that model is good enough:
 
 1. **Split** (``holdout``, default the last third): fit on the first part, check on the rest.
-2. **Parameters** (:mod:`.parameter_fit`): every physical parameter the model declares, fitted at once
+2. **Parameters** (:mod:`.fits`): every physical parameter the model declares, fitted at once
    by fault identification's instrumental-variables regression of the chattering (eq 23) with one
    hypothesis holding them all; the plant's value with a delta-method interval. Identifiability is
    checked first on the fit's information matrix: a combination the data see only to more than 10 %
    is refused, naming the parameters and the excitation (or the length) that would identify them.
-3. **Noise** (:mod:`.noise_fit`): diag(Q) and diag(R) from the chattering's lag-0 and lag-1
+3. **Noise** (:mod:`.fits`): diag(Q) and diag(R) from the chattering's lag-0 and lag-1
    autocovariances under its MA(1) law (eq 23, 56), by weighted non-negative least squares with
    intervals from the autocovariances' own variance; entries the data cannot see are bounded, not
    fitted; the parameters are identified once more when the fitted noise moved their weights.
@@ -20,7 +20,7 @@ and says whether that model is good enough:
 5. **Check** (:mod:`.adequacy`): on the held-out part, whiteness of each channel's chattering
    (Ljung-Box on its MA(1) innovations), its averaged spectrum against the exact threshold, and the
    monitor's alarm starts at its default budget; "adequate" or, where not, which channel and band.
-6. **File** (:mod:`.provenance`): :meth:`Commissioning.write` writes the fitted model file with a
+6. **File** (:mod:`.result`): :meth:`Commissioning.write` writes the fitted model file with a
    ``[commissioning]`` table (data file and SHA-256, spans, every estimate with its interval and the
    nominal it replaced, Q and R with intervals, the check, the chatterspec version), atomically.
 
@@ -34,11 +34,9 @@ Examples
 """
 
 from .adequacy import AdequacyCheck, ChannelCheck, check_model
-from .noise_fit import NoiseFit, fit_noise
-from .parameter_fit import FittedParameter, ParameterFit, fit_parameters
+from .fits import FittedParameter, NoiseFit, ParameterFit, fit_noise, fit_parameters
 from .procedure import chattering, commission, nominal_spec
-from .provenance import DataSource, read_recording
-from .result import Commissioning
+from .result import Commissioning, DataSource, read_recording
 
 __all__ = [
     "AdequacyCheck",

@@ -13,10 +13,8 @@ import numpy as np
 from ..._validate import finite_array, open_unit, positive_int
 from ...errors import IdentifiabilityError, ParameterError, ShapeError
 from ...plants.models import LinearModel
-from .noise_fit import NoiseFit, fit_noise
-from .parameter_fit import ParameterFit, fit_parameters
-from .provenance import DataSource
-from .result import PSI_SIGMAS, Commissioning
+from .fits import NoiseFit, ParameterFit, fit_noise, fit_parameters
+from .result import PSI_SIGMAS, Commissioning, DataSource
 
 __all__ = ["MIN_CHECK_WINDOWS", "REIDENTIFY_TOLERANCE", "chattering", "commission", "nominal_spec"]
 
@@ -187,9 +185,9 @@ def commission(
 
     The first ``1 - holdout`` of the recording is the fit span: every physical parameter the model
     declares is fitted at once (eq 23, identifiability checked first:
-    :func:`~chatterspec.studies.commissioning.parameter_fit.fit_parameters`), then diag(Q) and diag(R)
+    :func:`~chatterspec.studies.commissioning.fits.fit_parameters`), then diag(Q) and diag(R)
     from the chattering's lag-0 and lag-1 autocovariances at the fitted model (the MA(1) law of eq 23 /
-    56: :func:`~chatterspec.studies.commissioning.noise_fit.fit_noise`), then the parameters once more
+    56: :func:`~chatterspec.studies.commissioning.fits.fit_noise`), then the parameters once more
     with the fitted noise when it moved the identification's weights; psi is 3 standard deviations of
     the fitted model's chattering per output (eq 58). The last ``holdout`` is the check span
     (:func:`~chatterspec.studies.commissioning.adequacy.check_model`): whiteness, spectrum and the

@@ -27,11 +27,11 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
-from ..errors import CalibrationMismatchError
-from ..jsonout import fields_dict
+from ...errors import CalibrationMismatchError
+from ...jsonout import fields_dict
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .calibration import Calibration
+    from .result import Calibration
 
 __all__ = ["Support", "calibration_support", "min_runs", "require_support", "support_for"]
 
@@ -138,7 +138,7 @@ def support_for(use: Use, runs: int, alpha: float, confidence: float, per_run: i
 
 def frames_per_run(n_samples: int, window_s: float, dt: float) -> int:
     """Non-overlapping STFT windows in a record of ``n_samples`` samples (at least 1)."""
-    from ..detection.spectral import STFTConfig
+    from ...detection.spectral import STFTConfig
 
     W = STFTConfig(window_s=window_s).n_window(dt)
     return max(1, (int(n_samples) - W) // W + 1)

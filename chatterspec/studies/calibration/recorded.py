@@ -1,10 +1,10 @@
 """Thresholds from a recorded healthy run of the user's own plant (``chatterspec calibrate --data``).
 
-:func:`chatterspec.studies.calibration.calibrate` simulates healthy runs of the nominal model. On a
+:func:`chatterspec.studies.calibration.thresholds.calibrate` simulates healthy runs of the nominal model. On a
 real actuator the healthy chattering is what the plant and its sensors give, which the model never
 matches exactly; :func:`chatterspec.online.recorded_calibration.calibrate_recorded` reads the
 thresholds from a healthy recording instead and returns the same
-:class:`~chatterspec.studies.calibration_result.Calibration` (the same file, accepted by
+:class:`~chatterspec.studies.calibration.result.Calibration` (the same file, accepted by
 ``monitor --calibration`` and ``detect --calibration`` exactly like a simulated one), with
 ``Calibration.source`` saying where the data came from (file name, SHA-256, time span, samples,
 frames, records).
@@ -93,8 +93,8 @@ from typing import Any, Literal, TypedDict
 import numpy as np
 import scipy.stats
 
-from .._validate import open_unit, positive
-from ..detection.alarms.calibration import (
+from ..._validate import open_unit, positive
+from ...detection.alarms.calibration import (
     BATCHES,
     MAX_RATE_PER_STEP,
     MIN_COUNT,
@@ -103,21 +103,21 @@ from ..detection.alarms.calibration import (
     calibrate_rule,
     check_budget,
 )
-from ..detection.alarms.rules import AlarmRule, make_rule
-from ..detection.spectral import periodogram, periodogram_freqs
-from ..detection.thresholds import (
+from ...detection.alarms.rules import AlarmRule, make_rule
+from ...detection.spectral import periodogram, periodogram_freqs
+from ...detection.thresholds import (
     NORMALIZATION_SMOOTH_BINS,
     Threshold,
     empirical_family_wise_threshold,
     smooth_spectrum,
 )
-from ..errors import ParameterError
-from ..plants.nonlinear import is_linear
-from .calibration_result import Calibration, _ro, _stft_dict
-from .calibration_support import min_runs
-from .empirical_calibration import _tested
+from ...errors import ParameterError
+from ...plants.nonlinear import is_linear
+from ..intervals import QuantileEstimate, _quantile_from_top, _top_needed
 from .healthy import _analytic_thresholds, _frame_thresholds, _keep_top, _merge_top
-from .intervals import QuantileEstimate, _quantile_from_top, _top_needed
+from .result import Calibration, _ro, _stft_dict
+from .support import min_runs
+from .thresholds import _desc, _tested
 
 __all__ = [
     "CHUNK_S",
@@ -550,12 +550,8 @@ class RecordedTally:
             )
 
 
-def _desc(a: np.ndarray) -> np.ndarray:
-    return -np.sort(-a, axis=0)
-
-
 def recorded_calibration(tally: RecordedTally, recording: HealthyRecording | None = None) -> Calibration:
-    """The :class:`~chatterspec.studies.calibration_result.Calibration` of a finished tally.
+    """The :class:`~chatterspec.studies.calibration.result.Calibration` of a finished tally.
 
     Parameters
     ----------

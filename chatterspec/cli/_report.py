@@ -1,81 +1,355 @@
-"""Fault identification in the command line: options, JSON documents and table lines.
+"""What the subcommands write: output paths checked before the computation, writes whose failures
+are kept until the result is shown, the end of a command (JSON document or table, figure), and the
+shared report blocks (the alarm rule in use, the fault identification).
 
-Shared by ``detect``, ``demo``, ``monitor`` and ``diagnose``. A scenario's whole record is
-identified for every realization as the chunks stream past the detector (pooled estimate
-and per-record selection rates with ``--runs R > 1``); when the STFT found fault intervals,
-each interval of run 0 is identified on its own, one hop inside its edges.
+Identification in the command line is shared by ``detect``, ``demo``, ``monitor`` and ``diagnose``. A
+scenario's whole record is identified for every realization as the chunks stream past the detector
+(pooled estimate and per-record selection rates with ``--runs R > 1``); when the STFT found fault
+intervals, each interval of run 0 is identified on its own, one hop inside its edges.
 """
 
 from __future__ import annotations
 
 import argparse
-from typing import TYPE_CHECKING, Any
+import os
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ParamSpec, Protocol, TypeVar, overload
+
+from ..errors import ParameterError
 
 if TYPE_CHECKING:  # pragma: no cover
     import numpy as np
 
+    from ..detection.alarms.calibration import MonitorSettings
     from ..detection.identification import IdentificationSetup, IdentificationStream
-    from ..plants.nonlinear import Model
     from ..plants.scenarios import Scenario
 
-
-def add_identification_args(p: argparse.ArgumentParser) -> None:
-    """``--no-identify`` and ``--confidence``."""
-    p.add_argument(
-        "--no-identify",
-        action="store_true",
-        help="skip fault identification (which parameter changed, in physical units)",
-    )
-    from ._options import add
-
-    add(p, "--confidence")
+R = TypeVar("R")
+P = ParamSpec("P")
 
 
-def add_tolerance_args(p: argparse.ArgumentParser) -> None:
-    """``--tolerance NAME=SPEC`` (repeatable): a parameter's operating tolerance."""
-    p.add_argument(
-        "--tolerance",
-        action="append",
-        default=[],
-        metavar="NAME=SPEC",
-        help="operating tolerance of the declared parameter NAME (repeat per parameter; beside or instead "
-        "of the model file's): 15%% (relative), 3e7 (absolute, the parameter's unit), -10%%,+20%% or "
-        "1.8e8,2.3e8 (a band). With tolerances the fault decision is taken on the identified parameters: "
-        "inside its band a parameter raises no alarm",
-    )
+class StudyResult(Protocol):
+    """A Monte Carlo study's result as :func:`report_study` takes it: its JSON document."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """The result as a JSON-ready dict."""
+        ...
 
 
-def with_tolerance_args(model: Model, args: argparse.Namespace) -> Model:
-    """``model`` with the ``--tolerance NAME=SPEC`` of ``args`` (unchanged without any)."""
-    given = getattr(args, "tolerance", None) or []
-    if not given:
-        return model
-    from ..errors import ParameterError
-    from ..plants.parameters import with_tolerances
+def stderr_note(command: str) -> Any:
+    """A function that prints one ``chatterspec COMMAND: note: TEXT`` line on stderr (library notes)."""
 
-    spec = {}
-    for item in given:
-        name, sep, value = str(item).partition("=")
-        if not sep or not name.strip() or not value.strip():
-            raise ParameterError(f"--tolerance expects NAME=SPEC (e.g. bulk_modulus=15%); got {item!r}")
-        spec[name.strip()] = value.strip()
-    return with_tolerances(model, spec)
+    def note(text: str) -> None:
+        print(f"chatterspec {command}: note: {text}", file=sys.stderr, flush=True)
+
+    return note
 
 
-def setup_or_reason(model: Model, args: argparse.Namespace) -> tuple[IdentificationSetup | None, str | None]:
-    """The identification setup of ``model``, or why there is none (``--no-identify``, reduced order, ...)."""
-    if getattr(args, "no_identify", False):
-        return None, "skipped (--no-identify)"
-    from ..detection.identification import identification_setup
-    from ..errors import IdentifiabilityError
-
+def quiet_stdout() -> None:
+    """Send further output to stdout, and the flush at exit, to /dev/null (its reader went away)."""
     try:
-        return identification_setup(model), None
-    except IdentifiabilityError as exc:
-        return None, str(exc)
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # not a real file (e.g. captured in tests)
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    os.close(devnull)
 
 
-def stream(setup: IdentificationSetup, args: argparse.Namespace) -> IdentificationStream:
+def print_json(doc: Any, *, allow_nan: bool = False) -> None:
+    """Print ``doc`` as indented JSON on standard output (NaN refused unless ``allow_nan``: the JSON stays
+    standard; the Monte Carlo studies write NaN where a rate has no trials)."""
+    from ..jsonout import dumps
+
+    sys.stdout.write(dumps(doc, indent=2, allow_nan=allow_nan) + "\n")
+
+
+def check_record_path(path: str | os.PathLike | None) -> None:
+    """``--record FILE.rrd``: a ``.rrd`` name whose file can be created (see :func:`check_output_path`)."""
+    if path is not None and not str(path).endswith(".rrd"):
+        raise ParameterError(f"--record expects a path ending in .rrd; got {str(path)!r}")
+    check_output_path(path, "--record")
+
+
+# --- output paths --------------------------------------------------------------------------------------
+class OutputPathError(ParameterError):
+    """An output path cannot be written (checked before the computation, or failed at the end)."""
+
+
+def _nearest_existing(path: Path) -> Path:
+    p = path
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return p
+
+
+def _probe_writable(folder: Path) -> str | None:
+    """Create and remove one empty file in ``folder``; None when that works, else the reason."""
+    import tempfile
+
+    if not folder.is_dir():
+        return f"{str(folder)!r} is not a folder"
+    try:
+        fd, name = tempfile.mkstemp(prefix=".chatterspec-probe-", dir=folder)
+    except OSError as exc:
+        return f"cannot create files in {str(folder)!r} ({exc.strerror or exc})"
+    os.close(fd)
+    try:
+        os.unlink(name)
+    except OSError:  # pragma: no cover - the probe file is empty; leaving it is harmless
+        pass
+    return None
+
+
+@overload
+def check_output_path(
+    path: str | os.PathLike, option: str, *, folder: bool = False, suffixes: tuple[str, ...] | None = None
+) -> Path: ...
+
+
+@overload
+def check_output_path(
+    path: None, option: str, *, folder: bool = False, suffixes: tuple[str, ...] | None = None
+) -> None: ...
+
+
+@overload
+def check_output_path(
+    path: str | os.PathLike | None,
+    option: str,
+    *,
+    folder: bool = False,
+    suffixes: tuple[str, ...] | None = None,
+) -> Path | None: ...
+
+
+def check_output_path(
+    path: str | os.PathLike | None,
+    option: str,
+    *,
+    folder: bool = False,
+    suffixes: tuple[str, ...] | None = None,
+) -> Path | None:
+    """Check, before any computation, that ``path`` can be written as a file (or used as a folder).
+
+    Parameters
+    ----------
+    path : str or path-like or None
+        The file the command will write, or with ``folder`` the folder it will write into (None:
+        nothing to check).
+    option : str
+        The option that named it (e.g. ``"--plot"``), for the message.
+    folder : bool
+        ``path`` is a folder, existing or created at write time with any missing parents (default:
+        a file, whose folder must exist: a mistyped folder is refused rather than created).
+    suffixes : tuple of str, optional
+        Accepted lower-case suffixes of a file (e.g. ``(".png",)``); None accepts any.
+
+    Returns
+    -------
+    Path or None
+        ``path`` as a :class:`~pathlib.Path`.
+
+    Raises
+    ------
+    OutputPathError
+        A file ``path`` is an existing folder, an existing read-only file, has a refused suffix or a
+        folder that does not exist; a folder ``path`` is an existing file; or the folder written
+        into (``path`` itself or its nearest existing parent for a folder, the file's folder for a
+        file) is not writable.
+    """
+    if path is None:
+        return None
+    p = Path(path)
+    if folder:
+        if p.exists() and not p.is_dir():
+            raise OutputPathError(f"{option} {str(p)!r} is an existing file; give a folder")
+        base = _nearest_existing(p)
+    else:
+        if suffixes is not None and p.suffix.lower() not in suffixes:
+            raise OutputPathError(f"{option} {str(p)!r}: the file name must end in {' or '.join(suffixes)}")
+        if p.is_dir():
+            raise OutputPathError(f"{option} {str(p)!r} is an existing folder; give a file name")
+        if p.exists() and not os.access(p, os.W_OK):
+            raise OutputPathError(f"{option} {str(p)!r}: the file exists and is not writable")
+        base = p.parent if str(p.parent) else Path(".")
+        if not base.exists():
+            raise OutputPathError(
+                f"{option} {str(p)!r} cannot be written: the folder {str(base)!r} does not exist (create it "
+                "first)"
+            )
+    why = _probe_writable(base)
+    if why is not None:
+        raise OutputPathError(f"{option} {str(p)!r} cannot be written: {why}")
+    return p
+
+
+def figure_suffixes() -> tuple[str, ...]:
+    """File suffixes matplotlib can write (``.png``, ``.pdf``, ``.svg``, ...)."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    return tuple(sorted(f".{k}" for k in FigureCanvasBase.get_supported_filetypes()))
+
+
+class Outputs:
+    """Write the outputs of a finished computation; failures are kept, not raised, until :meth:`finish`.
+
+    A command computes, writes through :meth:`write`, prints its result (table
+    or JSON) and then calls :meth:`finish`, so a study whose output cannot be
+    written (disk full, folder removed meanwhile) is still shown before the
+    one-line error (exit 2).
+    """
+
+    def __init__(self) -> None:
+        self.failures: list[str] = []
+
+    def write(
+        self,
+        option: str,
+        target: str | os.PathLike[str],
+        fn: Callable[P, R],
+        /,
+        *args: P.args,
+        **kwargs: P.kwargs,
+    ) -> R | None:
+        """Call ``fn(*args, **kwargs)``; on ``OSError`` (or Rerun's file-sink ``RuntimeError``) note it.
+
+        Returns ``fn``'s result, or None when the write failed.
+        """
+        try:
+            result = fn(*args, **kwargs)
+        except (OSError, RuntimeError) as exc:
+            from ..viewer.sinks import file_error  # Rerun reports a full disk as a RuntimeError
+
+            err = file_error(exc, target) if isinstance(exc, RuntimeError) else exc
+            if err is None:
+                raise
+            reason = getattr(err, "strerror", None) or str(err).splitlines()[0]
+            self.failures.append(f"{option} {str(target)!r} could not be written ({reason})")
+            return None
+        late = getattr(result, "write_error", None)  # a recording that failed after the run finished
+        if late:
+            self.failures.append(f"{option} {str(target)!r} could not be completed ({late})")
+        return result
+
+    def finish(self) -> None:
+        """Raise :class:`OutputPathError` naming every failed write (after the result was printed)."""
+        if self.failures:
+            done = " -- the result above was computed but not saved"
+            raise OutputPathError("; ".join(self.failures) + done)
+
+
+# --- the end of a command: figure, document or table, failed writes ------------------------------------
+def check_figure_path(path: str | os.PathLike | None, option: str = "--plot") -> None:
+    """Check, before any computation, that the figure file ``path`` can be written (a matplotlib suffix)."""
+    if path:
+        check_output_path(path, option, suffixes=figure_suffixes())
+
+
+def write_plot(
+    outputs: Outputs, args: argparse.Namespace, doc: dict[str, Any], figure: str, *figure_args: object
+) -> None:  # (figure_args: whatever the named drawing function takes)
+    """With ``--plot FILE``: save the figure there, noted as ``doc["figure"]`` (None: not saved).
+
+    ``figure`` names the drawing function in :mod:`chatterspec.figures` as ``"module.function"``
+    (e.g. ``"plot_studies.far_figure"``), called with ``figure_args``; it is imported only here, so
+    a command without ``--plot`` never loads matplotlib.
+    """
+    if not args.plot:
+        return
+    import importlib
+
+    from ..figures.plot_studies import save
+
+    module, name = figure.rsplit(".", 1)
+    draw = getattr(importlib.import_module(f"..figures.{module}", __package__), name)
+    saved = outputs.write("--plot", args.plot, save, draw(*figure_args), args.plot)
+    doc["figure"] = None if saved is None else str(saved)
+
+
+def report(
+    args: argparse.Namespace,
+    doc: dict[str, Any],
+    outputs: Outputs,
+    print_text: Callable[[], None],
+    *,
+    allow_nan: bool = False,
+) -> int:
+    """Print the result and end the command: ``doc`` as JSON with ``--json`` (NaN written only with
+    ``allow_nan``), else ``print_text()``; then :meth:`Outputs.finish`. Returns 0."""
+    if args.json:
+        print_json(doc, allow_nan=allow_nan)
+    else:
+        print_text()
+    outputs.finish()
+    return 0
+
+
+def report_study(
+    args: argparse.Namespace, res: StudyResult, figure: str, print_text: Callable[[dict[str, Any]], None]
+) -> int:
+    """The end of a Monte Carlo study command (``far``, ``power``, ``power --closed-loop``): the result
+    ``res``'s document, its ``--plot`` figure (:func:`write_plot`, ``figure`` called with ``res``),
+    then :func:`report` with ``print_text(doc)`` and the figure's path as the text (NaN kept in the JSON:
+    a rate without trials)."""
+    outputs = Outputs()
+    doc = res.to_dict()
+    write_plot(outputs, args, doc, figure, res)
+
+    def text() -> None:
+        print_text(doc)
+        if doc.get("figure"):
+            print(f"figure: {doc['figure']}")
+
+    return report(args, doc, outputs, text, allow_nan=True)
+
+
+# --- the alarm rule in use ----------------------------------------------------------------------------------
+def alarm_doc(settings: MonitorSettings) -> dict:
+    """The ``alarm`` entry of the JSON summary: rule, threshold, budget and how it was set."""
+    import math
+
+    b = getattr(settings, "budget", None)
+    rule = getattr(settings, "rule", None)
+    if rule is None:
+        a = float(settings.alpha)
+        return {
+            "rule": {"rule": "frame", "threshold": -math.log(a)},
+            "alpha": a,
+            "false_alarms_per_hour": None,
+            "calibration": None,
+        }
+    return {
+        "rule": rule.to_dict(),
+        "alpha": None,
+        "false_alarms_per_hour": None if b is None else b.false_alarms_per_hour,
+        "calibration": None if b is None else b.to_dict(),
+    }
+
+
+def alarm_short(settings: MonitorSettings) -> str:
+    """The rule in use in a few words (its alarm label, or the frame rule's per-frame alpha)."""
+    from ..detection.alarms.rules import alarm_label
+
+    rule = getattr(settings, "rule", None)
+    if rule is None:
+        return f"frame rule, per-frame alpha {settings.alpha:g}"
+    return alarm_label(rule.name, settings.false_alarms_per_hour)
+
+
+def alarm_line(settings: MonitorSettings) -> str:
+    """One stderr line on the rule in use and where its threshold comes from."""
+    rule = getattr(settings, "rule", None)
+    if rule is None:
+        return f"alarms: {alarm_short(settings)} (every frame a test)"
+    b = settings.budget
+    return f"alarms: {b.describe()}" if b is not None else f"alarms: {rule.describe()}"
+
+
+# --- fault identification: JSON documents and text blocks ---------------------------------------------------
+def identification_stream(setup: IdentificationSetup, args: argparse.Namespace) -> IdentificationStream:
     """The identification stream of ``setup`` at the ``--alpha`` / ``--confidence`` of ``args``."""
     from ..detection.identification import IdentificationStream
 
