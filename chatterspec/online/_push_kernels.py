@@ -48,6 +48,16 @@ def frame_rfft(x: np.ndarray) -> np.ndarray:
     return cast(np.ndarray, _r2c(x, (-1,), True, 0, None, 1))
 
 
+def direct(kernel: Callable[..., Any]) -> Callable[..., Any]:
+    """The numba dispatcher behind a lazily compiled kernel (loaded or compiled now), else ``kernel``.
+
+    Calling it skips the lazy wrapper's Python call: the monitor's push calls two kernels per block
+    of frames.
+    """
+    get = getattr(kernel, "dispatcher", None)
+    return cast(Callable[..., Any], get()) if get is not None else kernel
+
+
 #: Sizes of :func:`_filters_loop` (states, outputs, unmeasured states), bound by :func:`filters_kernel`;
 #: 0 reads them from the arrays.
 NX = NZ = NL = 0
