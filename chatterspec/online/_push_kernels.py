@@ -24,26 +24,38 @@ from ..filters.svsf_recursion import closed_form_step, matvec_step, rows_times_s
 __all__: list[str] = []
 
 
-def _frame_rfft() -> Callable[[np.ndarray], np.ndarray]:
-    """``scipy.fft.rfft(x, axis=-1)`` at full length, without its per-call Python work.
+try:  # pocketfft's transform as scipy.fft calls it (see frame_rfft)
+    from scipy.fft._pocketfft.pypocketfft import r2c as _r2c
+except ImportError:  # pragma: no cover - depends on the SciPy version
+    _r2c = None
+
+
+def frame_rfft(x: np.ndarray) -> np.ndarray:
+    """``scipy.fft.rfft(x, axis=-1)`` of the tapered frames ``x`` (float, any strides), without its per-call
+    Python work.
 
     ``scipy.fft.rfft`` dispatches through its backend layer, converts and checks its argument and then
-    calls pocketfft's ``r2c`` on the last axis, unnormalized, one worker: about 10 us of Python per
-    call, a tenth of a 1000-sample push. The monitor's tapered frames are already a C-contiguous float
-    array of the right length, so the same ``r2c`` call gives the same transform (the same bits:
+    calls pocketfft's ``r2c`` on the last axis, unnormalized, one worker: 5-10 us of Python per
+    call, a tenth of a 1000-sample push. The monitor's tapered frames are already a float array of the
+    right length, so the same ``r2c`` call gives the same transform (the same bits:
     tests/test_monitor.py); a SciPy without that module takes the public function.
     """
-    try:
-        from scipy.fft._pocketfft.pypocketfft import r2c
-    except ImportError:  # pragma: no cover - depends on the SciPy version
+    if _r2c is None:  # pragma: no cover - depends on the SciPy version
         import scipy.fft
 
-        return lambda x: cast(np.ndarray, scipy.fft.rfft(x, axis=-1))
-    return lambda x: cast(np.ndarray, r2c(x, (-1,), True, 0, None, 1))
+        return cast(np.ndarray, scipy.fft.rfft(x, axis=-1))
+    return cast(np.ndarray, _r2c(x, (-1,), True, 0, None, 1))
 
 
-#: The monitor's frame transform (:func:`_frame_rfft`).
-frame_rfft = _frame_rfft()
+def direct(kernel: Callable[..., Any]) -> Callable[..., Any]:
+    """The numba dispatcher behind a lazily compiled kernel (loaded or compiled now), else ``kernel``.
+
+    Calling it skips the lazy wrapper's Python call: the monitor's push calls two kernels per block
+    of frames.
+    """
+    get = getattr(kernel, "dispatcher", None)
+    return cast(Callable[..., Any], get()) if get is not None else kernel
+
 
 #: Sizes of :func:`_filters_loop` (states, outputs, unmeasured states), bound by :func:`filters_kernel`;
 #: 0 reads them from the arrays.

@@ -71,6 +71,7 @@ from ..jsonout import finite_or_none
 from ..plants.models import LinearModel
 from ..plants.nonlinear import NonlinearModel, require_linear
 from ._push_kernels import (
+    direct,
     filters_kernel,
     filters_one_kernel,
     frame_rfft,
@@ -574,6 +575,10 @@ class FrameAnalysis:
             and channel is not None
         )  # fmt: skip
         self._hop = None if channel is None else hop_kernel(channel)
+        # the fused path calls numba's dispatchers themselves (one Python call fewer per kernel call)
+        self._frames_in = direct(frames_in) if self._fused else frames_in
+        if self._fused and self._hop is not None:
+            self._hop = direct(self._hop)
         # the fused push's constants, packed once (a numba call unboxes every array it is given), and
         # its taper buffer: frames in blocks of 2^15 values, as FrameEngine.transforms
         eng, ver, al = self._columns, self._verdicts, self._alarm
@@ -692,7 +697,7 @@ class FrameAnalysis:
         F = 0 if n < W else (n - W) // H + 1
         hi = min(F, self._block)
         tapered, win = self._tapered, self._columns.win
-        kept = frames_in(buf, nb, e, check, win, H, 0, hi, F, tapered)
+        kept = self._frames_in(buf, nb, e, check, win, H, 0, hi, F, tapered)
         if kept < 0:  # NaN/inf in e (nothing written)
             bad = int(e.size - np.count_nonzero(np.isfinite(e)))
             raise NonFiniteError(f"e contains {bad} NaN/inf value(s); all entries must be finite")
@@ -722,7 +727,7 @@ class FrameAnalysis:
             if hi == F:
                 break
             lo, hi = hi, min(hi + self._block, F)
-            kept = frames_in(buf, n, self._no_rows, False, win, H, lo, hi, F, tapered)
+            kept = self._frames_in(buf, n, self._no_rows, False, win, H, lo, hi, F, tapered)
         al._step += F
         if buf is not self._buf:
             self._buf[:, :kept] = buf[:, :kept]
