@@ -669,6 +669,11 @@ def bank_store_numpy(
         out["mx"][:, k] = xs
 
 
+@_jit.step
+def _no_plant(prm, x, u, out, n, p):  # type: ignore[no-untyped-def]  # pragma: no cover
+    """Placeholder of :func:`_bank_plant`'s second plant kind in a one-kind bank (never called)."""
+
+
 #: Bindings of :func:`_bank_plant`: the two plant kinds a bank may mix.
 PREDICT_A = PREDICT_B = given_predict
 JACOBIAN_A = JACOBIAN_B = given_jacobian
@@ -696,9 +701,11 @@ def bank_plants(plants: list[PlantSteps]) -> tuple[Callable[..., None] | None, n
         return None, np.empty(0, dtype=np.int64), np.empty((0, 0))
     by_name = {pl.name: pl for pl in plants}
     a, b = by_name[kinds[0]], by_name[kinds[-1]]
+    # one kind: every slot is 0, so the second kind is the placeholder (the plant is compiled once)
+    pb, jb = (b.predict, b.jacobian) if b is not a else (_no_plant, _no_plant)
     step = _jit.specialize_sizes(
-        _bank_plant, f"{a.name}_{b.name}", {}, inline=True,
-        PREDICT_A=a.predict, JACOBIAN_A=a.jacobian, PREDICT_B=b.predict, JACOBIAN_B=b.jacobian,
+        _bank_plant, "_".join(kinds), {}, inline=True,
+        PREDICT_A=a.predict, JACOBIAN_A=a.jacobian, PREDICT_B=pb, JACOBIAN_B=jb,
     )  # fmt: skip
     prm = np.zeros((len(plants), max(len(pl.parameters) for pl in plants)))
     for j, pl in enumerate(plants):
@@ -755,7 +762,8 @@ def run_bank_loop(
 
     ``spec`` holds the loop (``kernel``) and the mapping of its corrections (``mapping``, for the
     message); ``args`` are the loop's arguments before its outputs ``o_x, o_mu, o_ll, o_P, o_mx``;
-    ``python`` runs the loop's Python form (tests: the meaning does not depend on the compiler).
+    ``python`` runs the loop's Python form, every step it calls in Python too (tests: the meaning does
+    not depend on the compiler; nothing is compiled).
 
     Raises
     ------
@@ -767,7 +775,7 @@ def run_bank_loop(
     runs = out["x"].shape[0]
     kernel = spec["kernel"]
     if python:
-        kernel = getattr(kernel, "py_func", kernel)
+        kernel = _jit.python_form(kernel)
     status = kernel(*args, out["x"], out["mu"], out["ll"], out["P"], out["mx"])
     if status > 0:
         raise SingularMatrixError(_not_pd_message(int(spec["mapping"]), status - 1))

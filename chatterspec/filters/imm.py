@@ -23,11 +23,14 @@ the whole recursion in one compiled loop over runs (outer) and samples (inner): 
 is one sample of one realization (the mode's step is :func:`chatterspec.filters._engine._sample`
 with its correction, inlined, from its model's compiled ``predict``/``jacobian`` steps),
 :func:`_imm_loop` the batch loop and :func:`_imm_one` the one-sample kernel of
-:class:`~chatterspec.filters.one_sample.OnlineBank` (packed by :meth:`IMM._one_pack`).
+:class:`~chatterspec.filters.one_sample.OnlineBank` (packed by :meth:`IMM._one_pack`), which calls
+the batch loop on one run and one sample (one compiled recursion for both).
 Supported (:func:`fused_spec`): KF/EKF, SVSF-cov without ``vbl``, the second-order SVSF, on models
 with compiled plant steps (:func:`chatterspec.plants.steps.plant_steps`, two kinds per bank at most,
-:func:`chatterspec.filters.bank.bank_plants`) and at most four correction kinds (``SAMPLE_0`` ..
-``SAMPLE_3``); anything else takes the protocol path.
+:func:`chatterspec.filters.bank.bank_plants`); anything else takes the protocol path. A mode's
+correction is chosen at run time by the code its parameter row starts with (:func:`mode_sample`,
+:func:`_mode_correct`): the modes' filter step is compiled once for all of them, the corrections once
+per kind (compiling is most of a cold start's cost: tens of seconds per correction kind).
 
 **Equality.** The compiled loop is not bit-identical to the protocol path: numpy evaluates ``mu @ pi``,
 the mixing and combination ``einsum`` and the likelihood (eigh) in other summation orders than the
@@ -45,7 +48,6 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -60,6 +62,8 @@ from ._engine import (
     DIVERGED,
     NOT_PD,
     SINGULAR_PHI12,
+    CorrectionStep,
+    NumpyPrior,
     _no_sample,
     sample_step,
     take2,
@@ -276,7 +280,7 @@ class IMM(BankFilter):
         if spec is None or len(state.mode_states) != nm or lay[-1] > _jit.BLOCK_CAPACITY:
             return None
         parts = (spec["prm"], spec["fp"], spec["Q"], spec["C"], spec["R"], self.transition_matrix)
-        slots = np.ascontiguousarray(np.concatenate([spec["plant_slot"], spec["corr_slot"]]), dtype=np.int64)
+        slots = np.ascontiguousarray(spec["plant_slot"], dtype=np.int64)
         sts = state.mode_states
         buf = np.zeros(lay[-1])
         buf[0] = 1.0 if state.k == 0 else 0.0
@@ -422,10 +426,67 @@ def pairwise_spread(mu: np.ndarray, xs: np.ndarray) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- the compiled recursion
-#: Bindings of :func:`_imm_sample`: the modes' plant step (:func:`.bank.bank_plants`), four
-#: correction kinds (sample steps), sizes; of the loops: ``IMM_SAMPLE`` (:func:`_imm_sample` bound).
+#: The mode corrections the compiled IMM supports, in the order a bank's kinds are numbered.
+CORRECTIONS = ("kf", "svsf", "svsf2", "svsf_luen", "svsf2_luen")
+
+
+@_jit.step
+def _no_correction(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarray, xp: np.ndarray,
+    PCtT: np.ndarray, D: np.ndarray, L: np.ndarray, C: np.ndarray, F: np.ndarray, x: np.ndarray,
+    KgT: np.ndarray, ws: tuple[np.ndarray, ...], n: int, m: int) -> int:  # fmt: skip
+    """Placeholder binding of :func:`_mode_correct` beyond a bank's kinds (never called)."""
+    return NOT_PD
+
+
+#: Bindings of :func:`_mode_correct`: the correction steps of a bank's kinds (placeholders beyond).
+CORRECT_0 = CORRECT_1 = CORRECT_2 = CORRECT_3 = CORRECT_4 = _no_correction
+
+
+def _mode_correct(fp, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled (a template)
+    """A mode's correction, ``CORRECT_<fp[0]>``, on its parameters ``fp[1:]``.
+
+    Signature of :mod:`chatterspec.filters._engine`'s correction steps. The modes' filter step
+    (:func:`chatterspec.filters._engine._sample`) is compiled once for every kind of the bank, only
+    the corrections are per kind: a step per kind would compile the predictions and the Joseph
+    update once per kind.
+    """
+    kind = fp[0]
+    f = fp[1:]
+    if kind == 0.0:
+        return CORRECT_0(f, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m)
+    if kind == 1.0:
+        return CORRECT_1(f, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m)
+    if kind == 2.0:
+        return CORRECT_2(f, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m)
+    if kind == 3.0:
+        return CORRECT_3(f, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m)
+    return CORRECT_4(f, e, ep, epp, xp, PCtT, D, L, C, F, x, KgT, ws, n, m)
+
+
+def _no_numpy(prior: NumpyPrior) -> tuple[np.ndarray, np.ndarray]:
+    """The numpy form of the modes' correction (none: the IMM's numpy path runs the mode filters)."""
+    raise NotImplementedError("the IMM's numpy path runs each mode filter's own correction")
+
+
+def mode_sample(corrections: Sequence[CorrectionStep]) -> tuple[Callable[..., int], list[str]]:
+    """The modes' filter step for a bank's corrections and its kinds (a mode's code: its kind's index).
+
+    The kinds are numbered in the order of :data:`CORRECTIONS`, so banks with the same kinds in any
+    order share one compiled loop.
+    """
+    names = {c.name: c.step for c in corrections}
+    kinds = [k for k in CORRECTIONS if k in names]
+    bind = {f"CORRECT_{i}": names[k] for i, k in enumerate(kinds)}
+    tag = "_".join(kinds)
+    correct = _jit.specialize_sizes(_mode_correct, tag, {}, inline=True, **bind)
+    step = CorrectionStep(f"imm_{tag}", correct, np.zeros(0), _no_numpy)
+    return sample_step(step, want_ll=False), kinds
+
+
+#: Bindings of :func:`_imm_sample`: the modes' plant step (:func:`.bank.bank_plants`), their filter
+#: step (:func:`mode_sample`), sizes; of the loops: ``IMM_SAMPLE`` (:func:`_imm_sample` bound).
 PLANT = _bank_plant
-SAMPLE_0 = SAMPLE_1 = SAMPLE_2 = SAMPLE_3 = _no_sample
+MODE_SAMPLE = _no_sample
 NX = NZ = 0
 #: Return code of :func:`_imm_sample` when every mode likelihood is zero or non-finite.
 NO_LIKELIHOOD = 5
@@ -446,7 +507,6 @@ def _imm_sample(  # type: ignore[no-untyped-def]  # (a template: the bank loops'
     prm,
     plant_slot,
     fp,
-    corr_slot,
     Q,
     C,
     R,
@@ -520,16 +580,7 @@ def _imm_sample(  # type: ignore[no-untyped-def]  # (a template: the bank loops'
         for a in range(n):
             for bb in range(n):
                 Ps[j, a, bb] = P0[j, a, bb]
-        f_j, x_j, P_j, epp_j = fp[j], xs[j], Ps[j], epps[j]
-        slot = corr_slot[j]
-        if slot == 0:
-            status = SAMPLE_0(f_j, x_j, P_j, em, epp_j, zk, xp, F, C[j], Q[j], R[j], ws, n, m)
-        elif slot == 1:
-            status = SAMPLE_1(f_j, x_j, P_j, em, epp_j, zk, xp, F, C[j], Q[j], R[j], ws, n, m)
-        elif slot == 2:
-            status = SAMPLE_2(f_j, x_j, P_j, em, epp_j, zk, xp, F, C[j], Q[j], R[j], ws, n, m)
-        else:
-            status = SAMPLE_3(f_j, x_j, P_j, em, epp_j, zk, xp, F, C[j], Q[j], R[j], ws, n, m)
+        status = MODE_SAMPLE(fp[j], xs[j], Ps[j], em, epps[j], zk, xp, F, C[j], Q[j], R[j], ws, n, m)
         if status != 0:
             return status
         for i in range(m):
@@ -553,14 +604,13 @@ def _no_imm_sample(*args):  # type: ignore[no-untyped-def]
     return NOT_PD
 
 
-IMM_SAMPLE = _no_imm_sample
+IMM_SAMPLE = IMM_LOOP = _no_imm_sample
 
 
 def _imm_loop(
     prm: np.ndarray,
     plant_slot: np.ndarray,
     fp: np.ndarray,
-    corr_slot: np.ndarray,
     Q: np.ndarray,
     C: np.ndarray,
     R: np.ndarray,
@@ -595,11 +645,10 @@ def _imm_loop(
     non-finite, or ``-(1 + runs + run)`` when the ``luen`` form meets a singular ``Phi12``.
     """
     b = _jit.borrow
-    prm, plant_slot, fp, corr_slot, Q, C, R, pi = (
+    prm, plant_slot, fp, Q, C, R, pi = (
         b(prm),
         b(plant_slot),
         b(fp),
-        b(corr_slot),
         b(Q),
         b(C),
         b(R),
@@ -630,7 +679,7 @@ def _imm_loop(
         ur = 0 if shared_u else r
         for k in range(K):
             status = IMM_SAMPLE(
-                prm, plant_slot, fp, corr_slot, Q, C, R, pi, floor, z[r, k], u[ur, k], first and k == 0,
+                prm, plant_slot, fp, Q, C, R, pi, floor, z[r, k], u[ur, k], first and k == 0,
                 mu[r], xs[r], Ps[r], eps[r], epps[r], zl[r], x[r], P[r], x0, P0, ll, scr, n, m, p,
             )  # fmt: skip
             if status == NOT_PD:
@@ -644,15 +693,16 @@ def _imm_loop(
 
 
 def _imm_one(buf, cst, slots, z, u):  # type: ignore[no-untyped-def]  # pragma: no cover - compiled
-    """One sample of one realization: :func:`_imm_sample` on packed arrays (:func:`one_layout`).
+    """One sample of one realization: the batch loop ``IMM_LOOP`` (:func:`_imm_loop`, the same
+    compiled code) on one run and one sample of packed arrays (:func:`one_layout`).
 
     ``buf`` holds the state (``first`` flag, ``mu``, ``xs``, ``Ps``, ``eps``, ``epps``, ``zl``, ``x``,
     ``P``), the scratch ``x0``, ``P0`` and receives ``ll``; ``cst``
     (:func:`~chatterspec.filters.bank.one_constants`) the header ``[nm, n, m, L_prm, L_fp, floor]``
-    then ``prm``, ``fp``, ``Q``, ``C``, ``R``, ``pi``; ``slots`` (2 nm,) int the plant and
-    correction slots; ``z`` (m,), ``u`` (p,). The state is read into a copy and written back only
-    when the sample succeeds with a finite estimate. Returns 0, the step's code, ``BAD_INPUT`` or
-    ``DIVERGED`` (:mod:`chatterspec.filters._engine`).
+    then ``prm``, ``fp``, ``Q``, ``C``, ``R``, ``pi``; ``slots`` (nm,) int the plant slots; ``z``
+    (m,), ``u`` (p,). The state is read into a copy and written back only when the sample succeeds
+    with a finite estimate. Returns 0, the step's code, ``BAD_INPUT`` or ``DIVERGED``
+    (:mod:`chatterspec.filters._engine`).
     """
     b = _jit.borrow
     buf, cst, slots, z, u = b(buf), b(cst), b(slots), b(z), b(u)
@@ -662,7 +712,6 @@ def _imm_one(buf, cst, slots, z, u):  # type: ignore[no-untyped-def]  # pragma: 
     p = u.shape[0]
     if not finite_sample(z, m, u, p):
         return BAD_INPUT
-    floor = cst[5]
     prm, o = take2(cst, 6, nm, int(cst[3]))
     fp, o = take2(cst, o, nm, int(cst[4]))
     Q, o = take3(cst, o, nm, n, n)
@@ -674,24 +723,25 @@ def _imm_one(buf, cst, slots, z, u):  # type: ignore[no-untyped-def]  # pragma: 
     work = _jit.scratch_block(size)
     for i in range(size):
         work[i] = buf[i]
-    mu = work[offs[0] : offs[1]]
-    xs = work[offs[1] : offs[2]].reshape((nm, n))
-    Ps = work[offs[2] : offs[3]].reshape((nm, n, n))
-    eps = work[offs[3] : offs[4]].reshape((nm, m))
-    epps = work[offs[4] : offs[5]].reshape((nm, m))
-    zl = work[offs[5] : offs[6]]
-    x = work[offs[6] : offs[7]]
-    P = work[offs[7] : offs[8]].reshape((n, n))
-    x0 = work[offs[8] : offs[9]].reshape((nm, n))
-    P0 = work[offs[9] : offs[10]].reshape((nm, n, n))
-    ll = work[offs[10] : offs[11]]
-    status = IMM_SAMPLE(
-        prm, slots[:nm], fp, slots[nm:], Q, C, R, pi, floor, z, u, work[0] != 0.0,
-        mu, xs, Ps, eps, epps, zl, x, P, x0, P0, ll, imm_scratch(nm, n, m), n, m, p,
+    zu = _jit.scratch(m + p)  # z and u as one run's one sample, (1, 1, m) and (1, 1, p)
+    for i in range(m):
+        zu[i] = z[i]
+    for i in range(p):
+        zu[m + i] = u[i]
+    o_x, o_mu, none = _jit.scratch(n), _jit.scratch(nm), _jit.scratch(0).reshape((0, 0, 0, 0))
+    status = IMM_LOOP(
+        prm, slots, fp, Q, C, R, pi, cst[5], zu[:m].reshape((1, 1, m)), zu[m:].reshape((1, 1, p)),
+        work[0] != 0.0, work[offs[0] : offs[1]].reshape((1, nm)), work[offs[1] : offs[2]].reshape((1, nm, n)),
+        work[offs[2] : offs[3]].reshape((1, nm, n, n)), work[offs[3] : offs[4]].reshape((1, nm, m)),
+        work[offs[4] : offs[5]].reshape((1, nm, m)), work[offs[5] : offs[6]].reshape((1, m)),
+        work[offs[6] : offs[7]].reshape((1, n)), work[offs[7] : offs[8]].reshape((1, n, n)),
+        work[offs[8] : offs[9]].reshape((nm, n)), work[offs[9] : offs[10]].reshape((nm, n, n)),
+        o_x.reshape((1, 1, n)), o_mu.reshape((1, 1, nm)), work[offs[10] : offs[11]].reshape((1, 1, nm)),
+        none, none,
     )  # fmt: skip
-    if status != 0:
-        return status
-    if not finite_state(x, P, n):
+    if status != 0:  # the loop's codes for run 0 of 1 back to the step's
+        return NOT_PD if status == 1 else (NO_LIKELIHOOD if status == -1 else SINGULAR_PHI12)
+    if not finite_state(work[offs[6] : offs[7]], work[offs[7] : offs[8]].reshape((n, n)), n):
         return DIVERGED
     work[0] = 0.0
     for i in range(size):
@@ -722,8 +772,7 @@ class IMMSpec(BankLoop):
 
     prm: np.ndarray  # plant parameters, one row per plant kind
     plant_slot: np.ndarray  # (r,) plant row of each mode
-    fp: np.ndarray  # correction parameters, one row per mode
-    corr_slot: np.ndarray  # (r,) correction kind of each mode
+    fp: np.ndarray  # correction code (:func:`mode_sample`) and parameters, one row per mode
     Q: np.ndarray  # (r, n, n)
     C: np.ndarray  # (r, m, n)
     R: np.ndarray  # (r, m, m)
@@ -735,7 +784,7 @@ def fused_spec(filters: tuple[Filter, ...]) -> IMMSpec | None:
 
     Supported: a filter with a compiled correction (``_correction_step()``; not the variable
     boundary layer) on a model with compiled plant steps (:func:`chatterspec.plants.steps.plant_steps`),
-    at most two plant kinds and four correction kinds per bank.
+    at most two plant kinds per bank.
 
     Parameters
     ----------
@@ -755,15 +804,14 @@ def fused_spec(filters: tuple[Filter, ...]) -> IMMSpec | None:
         if get is None or steps is None or getattr(f.model, "h", None) is not None:  # h(x): protocol path
             return None
         corr = get()
-        if corr.name == "vbl":
+        if corr.name not in CORRECTIONS:  # the variable boundary layer
             return None
         plants.append(steps)
         corrections.append(corr)
     plant, plant_slot, prm = bank_plants(plants)
-    corr_kinds = list(dict.fromkeys(c.name for c in corrections))
     mdl = filters[0].model
     sizes_fit = _jit.fits(int(mdl.n_states), int(mdl.n_outputs)) and _jit.fits(len(filters))
-    if plant is None or len(corr_kinds) > 4 or not sizes_fit:
+    if plant is None or not sizes_fit:
         return None
 
     def rows(vectors: list[np.ndarray]) -> np.ndarray:
@@ -773,25 +821,22 @@ def fused_spec(filters: tuple[Filter, ...]) -> IMMSpec | None:
         return out
 
     models = [f.model for f in filters]
-    samples = {c.name: c for c in corrections}
-    bind: dict[str, Any] = {"PLANT": plant}  # steps and flags bound into the loop
-    for i, name in enumerate(corr_kinds):
-        bind[f"SAMPLE_{i}"] = sample_step(samples[name], want_ll=False)
-    tag = "_".join(["imm", *dict.fromkeys(p.name for p in plants), *corr_kinds])
+    sample, kinds = mode_sample(corrections)
+    tag = "_".join(["imm", *dict.fromkeys(p.name for p in plants), *kinds])
     n, m = int(models[0].n_states), int(models[0].n_outputs)
     sizes = {"NX": n, "NZ": m}
-    step = _jit.specialize_sizes(_imm_sample, tag, {}, inline=True, **bind)
+    step = _jit.specialize_sizes(_imm_sample, tag, {}, inline=True, PLANT=plant, MODE_SAMPLE=sample)
+    loop = _jit.specialize_sizes(_imm_loop, tag, sizes, IMM_SAMPLE=step)
     return {
         "prm": prm,
         "plant_slot": plant_slot,
-        "fp": rows([c.parameters for c in corrections]),
-        "corr_slot": np.array([corr_kinds.index(c.name) for c in corrections], dtype=np.int64),
+        "fp": rows([np.concatenate([[kinds.index(c.name)], c.parameters]) for c in corrections]),
         "Q": np.ascontiguousarray(np.stack([np.asarray(md.Q, dtype=float) for md in models])),
         "C": np.ascontiguousarray(np.stack([np.asarray(md.C, dtype=float) for md in models])),
         "R": np.ascontiguousarray(np.stack([np.asarray(md.R, dtype=float) for md in models])),
         "mapping": max(c.mapping for c in corrections),
-        "kernel": _jit.specialize_sizes(_imm_loop, tag, sizes, IMM_SAMPLE=step),
-        "one": _jit.specialize_sizes(_imm_one, tag, sizes, IMM_SAMPLE=step),
+        "kernel": loop,
+        "one": _jit.specialize_sizes(_imm_one, tag, sizes, IMM_LOOP=loop),
     }
 
 
@@ -856,7 +901,7 @@ def run_fused(
     }
     c = np.ascontiguousarray
     args = (
-        spec["prm"], spec["plant_slot"], spec["fp"], spec["corr_slot"], spec["Q"], spec["C"], spec["R"],
+        spec["prm"], spec["plant_slot"], spec["fp"], spec["Q"], spec["C"], spec["R"],
         c(pi, dtype=float), float(floor), c(z, dtype=float), c(u, dtype=float),
         bool(state.k == 0),
         st["mu"], st["xs"], st["Ps"], st["eps"], st["epps"], st["zl"], st["x"], st["P"],

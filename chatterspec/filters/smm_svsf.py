@@ -25,7 +25,8 @@ realization, built from the same steps as the other loops: the modes' plant step
 likelihood, probabilities and combination (:mod:`chatterspec.filters.bank`), and the covariance
 filters' sample step with the SVSF-cov correction (``F = I``, ``Q = 0``: ``P(k+1|k)`` as given).
 :func:`_smm_loop` runs it over runs (outer) and samples (inner); :func:`_smm_one` is the one-sample
-kernel of :class:`~chatterspec.filters.one_sample.OnlineBank` (packed by :meth:`SMMSVSF._one_pack`).
+kernel of :class:`~chatterspec.filters.one_sample.OnlineBank` (packed by :meth:`SMMSVSF._one_pack`),
+the batch loop called on one run and one sample (one compiled recursion for both).
 The numpy path (:meth:`SMMSVSF._update_table1`) evaluates the same formulas with BLAS products,
 ``einsum`` and LAPACK ``eigh``: the two agree to a few ulps per sample (tests/test_smm_kernel.py),
 and each is bit-for-bit invariant to the chunking of runs and samples.
@@ -51,6 +52,7 @@ from ..plants.nonlinear import Model, require_linear_measurement
 from ._engine import (
     BAD_INPUT,
     DIVERGED,
+    NOT_PD,
     CorrectionStep,
     _no_sample,
     innovation_step,
@@ -409,7 +411,7 @@ def _no_smm_sample(*args):  # type: ignore[no-untyped-def]
     return 1
 
 
-SMM_SAMPLE = _no_smm_sample
+SMM_SAMPLE = SMM_LOOP = _no_smm_sample
 
 
 def _smm_loop(
@@ -470,7 +472,8 @@ def _smm_loop(
 def _smm_one(
     buf: np.ndarray, cst: np.ndarray, slots: np.ndarray, z: np.ndarray, u: np.ndarray
 ) -> int:  # pragma: no cover - compiled
-    """One sample of one realization: :func:`_smm_sample` on packed arrays (:func:`one_layout`).
+    """One sample of one realization: the batch loop ``SMM_LOOP`` (:func:`_smm_loop`, the same
+    compiled code) on one run and one sample of packed arrays (:func:`one_layout`).
 
     ``buf`` holds ``x``, ``P``, ``mu``, ``e(k|k)``, ``e(k-1|k-1)``, the scratch ``xs``, ``Ps`` and
     receives ``ll`` and ``z``; ``cst`` (:func:`~chatterspec.filters.bank.one_constants`) the header
@@ -486,7 +489,6 @@ def _smm_one(
     p = u.shape[0]
     if not finite_sample(z, m, u, p):
         return BAD_INPUT
-    floor = cst[5]
     prm, o = take2(cst, 6, nm, int(cst[3]))
     fp, o = take(cst, o, int(cst[4]))
     Qs, o = take3(cst, o, nm, n, n)
@@ -497,19 +499,23 @@ def _smm_one(
     work = _jit.scratch_block(size)
     for i in range(size):
         work[i] = buf[i]
-    x = work[0 : offs[0]]
-    P = work[offs[0] : offs[1]].reshape((n, n))
-    mu = work[offs[1] : offs[2]]
-    ep = work[offs[2] : offs[3]]
-    epp = work[offs[3] : offs[4]]
-    xs = work[offs[4] : offs[5]].reshape((nm, n))
-    Ps = work[offs[5] : offs[6]].reshape((nm, n, n))
-    ll = work[offs[6] : offs[7]]
-    scr = smm_scratch(nm, n, m)
-    status = SMM_SAMPLE(prm, slots, Qs, C, R, fp, floor, z, u, x, P, mu, ep, epp, xs, Ps, ll, scr, n, m, p)
-    if status != 0:
-        return status
-    if not finite_state(x, P, n):
+    zu = _jit.scratch(m + p)  # z and u as one run's one sample, (1, 1, m) and (1, 1, p)
+    for i in range(m):
+        zu[i] = z[i]
+    for i in range(p):
+        zu[m + i] = u[i]
+    o_x, o_mu, none = _jit.scratch(n), _jit.scratch(nm), _jit.scratch(0).reshape((0, 0, 0, 0))
+    status = SMM_LOOP(
+        prm, slots, Qs, C, R, fp, cst[5], zu[:m].reshape((1, 1, m)), zu[m:].reshape((1, 1, p)),
+        work[0 : offs[0]].reshape((1, n)), work[offs[0] : offs[1]].reshape((1, n, n)),
+        work[offs[1] : offs[2]].reshape((1, nm)), work[offs[2] : offs[3]].reshape((1, m)),
+        work[offs[3] : offs[4]].reshape((1, m)), work[offs[4] : offs[5]].reshape((nm, n)),
+        work[offs[5] : offs[6]].reshape((nm, n, n)), o_x.reshape((1, 1, n)), o_mu.reshape((1, 1, nm)),
+        work[offs[6] : offs[7]].reshape((1, 1, nm)), none, none,
+    )  # fmt: skip
+    if status != 0:  # the loop's codes for run 0 of 1 back to the step's
+        return NO_LIKELIHOOD if status == -1 else NOT_PD
+    if not finite_state(work[0 : offs[0]], work[offs[0] : offs[1]].reshape((n, n)), n):
         return DIVERGED
     for i in range(m):
         work[offs[7] + i] = z[i]
@@ -579,6 +585,7 @@ def smm_spec(models: tuple[Model, ...], correct: CorrectionStep) -> SMMSpec | No
         SAMPLE=sample_step(correct, want_ll=False),
     )
     sizes = {"NX": n, "NZ": m}
+    loop = _jit.specialize_sizes(_smm_loop, tag, sizes, SMM_SAMPLE=step)
     return {
         "prm": prm,
         "plant_slot": plant_slot,
@@ -587,8 +594,8 @@ def smm_spec(models: tuple[Model, ...], correct: CorrectionStep) -> SMMSpec | No
         "R": np.ascontiguousarray(models[0].R, dtype=float),
         "fp": correct.parameters,
         "mapping": correct.mapping,
-        "kernel": _jit.specialize_sizes(_smm_loop, tag, sizes, SMM_SAMPLE=step),
-        "one": _jit.specialize_sizes(_smm_one, tag, sizes, SMM_SAMPLE=step),
+        "kernel": loop,
+        "one": _jit.specialize_sizes(_smm_one, tag, sizes, SMM_LOOP=loop),
     }
 
 
