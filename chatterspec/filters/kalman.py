@@ -32,11 +32,10 @@ import numpy as np
 from .. import _jit
 from .._repr import short_repr
 from ..errors import SingularMatrixError
-from ..plants.eha4 import predict_step
 from ..plants.models import LinearModel
 from ..plants.nonlinear import Model
 from ..plants.scenarios import FilterSettings
-from ..plants.steps import parameters
+from ..plants.steps import parameters, predict_step
 from . import _engine
 from ._base import CovarianceFilterBase, check_model
 from ._engine import (
