@@ -31,7 +31,7 @@ def analogue(T: int, runs: int):  # type: ignore[no-untyped-def]
 
 
 def make_bank(kind: str, fs) -> list[object]:  # type: ignore[no-untyped-def]
-    def one(m, kind):  # type: ignore[no-untyped-def]
+    def one(m):  # type: ignore[no-untyped-def]
         if kind == "ekf":
             return ExtendedKalmanFilter(m)
         if kind == "svsf-cov":
@@ -42,14 +42,18 @@ def make_bank(kind: str, fs) -> list[object]:  # type: ignore[no-untyped-def]
             return SVSFCov(m, psi=np.array(fs.psi + fs.psi_lower), gamma=fs.gamma, mapping="luen")
         if kind == "svsf2-luen":
             return SecondOrderSVSF(m, gamma=fs.gamma, lam=np.array(fs.cutoff_lambda), mapping="luen")
+        if kind == "mixed":  # a heterogeneous bank
+            return None
         raise AssertionError(kind)
 
-    ms = fs.mode_models
-    if kind == "mixed":  # three correction kinds in one bank
-        return [one(ms[0], "ekf"), one(ms[1], "svsf-cov"), one(ms[2], "svsf2-cov")]
-    if kind == "mixed-luen":  # the other two kinds, the Kalman mode last (codes not in mode order)
-        return [one(ms[0], "svsf-luen"), one(ms[1], "svsf2-luen"), one(ms[2], "ekf")]
-    return [one(m, kind) for m in ms]
+    if kind == "mixed":
+        ms = fs.mode_models
+        return [
+            ExtendedKalmanFilter(ms[0]),
+            SVSFCov(ms[1], psi=np.array(fs.psi), gamma=fs.gamma, mapping="cov"),
+            SecondOrderSVSF(ms[2], gamma=fs.gamma, lam=np.array(fs.cutoff_lambda), mapping="cov"),
+        ]
+    return [one(m) for m in fs.mode_models]
 
 
 def protocol(f: IMM) -> IMM:
@@ -77,10 +81,7 @@ def assert_close(a, b) -> None:  # type: ignore[no-untyped-def]
 
 
 @needs_numba
-# Two heterogeneous banks hold the five correction kinds (the fused loop dispatches on a mode's kind
-# code, so a wrong code, binding or parameter offset of any kind shows in its mode here); one bank
-# per kind would compile a loop per kind for the same claim. Single-kind banks: tests/test_multiple_model.py.
-@pytest.mark.parametrize("kind", ["mixed", "mixed-luen"])
+@pytest.mark.parametrize("kind", ["ekf", "svsf-cov", "svsf2-cov", "svsf-luen", "svsf2-luen", "mixed"])
 def test_fused_imm_matches_the_protocol_path_on_the_analogue(kind: str) -> None:
     fs, z, u = analogue(600, 3)
     f = IMM(make_bank(kind, fs), fs.transition_matrix, mu0=np.array(fs.mu0), modes=fs.modes)
