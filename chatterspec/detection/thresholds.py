@@ -113,7 +113,6 @@ from typing import Literal, cast
 
 import numpy as np
 import numpy.typing as npt
-import scipy.ndimage
 import scipy.special
 
 from .._repr import short_repr
@@ -919,6 +918,8 @@ def smooth_spectrum(mean_power: np.ndarray, half_width: int = NORMALIZATION_SMOO
         raise ParameterError(f"half_width must be >= 0 bins; got {half_width}")
     out = P.copy()
     if h and P.shape[0] > 3:
+        import scipy.ndimage  # here, not at the top: the monitor imports this module at start-up (30 ms)
+
         out[1:-1] = scipy.ndimage.uniform_filter1d(P[1:-1], 2 * h + 1, axis=0, mode="reflect")
     if np.any(out[1:-1] <= 0):
         raise ParameterError("the healthy chattering has zero power in some bin: cannot normalize by it")
