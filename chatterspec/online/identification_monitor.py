@@ -237,35 +237,44 @@ class IdentificationMonitor:
         names = [h.name for h in self.setup.hypotheses]
         decided = np.asarray(found.window_s, dtype=float).reshape(-1, 2)[:, 1] - self.dt  # last samples
         frame_end = self.frame_ends(found)
-        for j in range(found.n_windows):
-            t = float(found.times_s[j])
-            states = block.state[j].copy()
-            if self.tolerances:
-                alarm = bool(block.alarm[j].any())
-                label = "+".join(p for p, a in zip(self.parameters, block.alarm[j], strict=True) if a) or None
-                chan_fault = (self._carried & block.alarm[j][None, :]).any(axis=1)
-            else:
-                chan_fault = self._spectral(float(frame_end[j]))
-                alarm = bool(chan_fault.any())
-                label = None
-                if alarm:
-                    s = int(sel[j])
-                    label = NO_FAULT if s == -1 else "unexplained" if s == -2 else names[s]
-                    if s >= 0:  # the parameters the selected hypothesis names are in fault
-                        named = np.array([p in self.setup.hypotheses[s].parameters for p in self.parameters])
-                        states = np.where(named, 1, states)
-            blind = (self._carried & (states == 2)[None, :]).any(axis=1)
-            chan = np.where(chan_fault, 1, np.where(blind, 2, 0))
+        nw = found.n_windows
+        states = np.array(block.state[:nw], copy=True)  # (windows, P), codes of STATES
+        if self.tolerances:
+            fault = np.asarray(block.alarm[:nw], dtype=bool)  # (windows, P)
+            chan_fault = (self._carried[None, :, :] & fault[:, None, :]).any(axis=2)  # (windows, m)
+            alarms = fault.any(axis=1).tolist()
+            labels = [
+                "+".join(p for p, a in zip(self.parameters, row, strict=True) if a) or None
+                for row in fault.tolist()
+            ]
+        else:
+            m = len(self.channels)
+            chan_fault = np.array([self._spectral(t) for t in frame_end.tolist()], dtype=bool).reshape(nw, m)
+            alarms = chan_fault.any(axis=1).tolist()
+            labels = [None] * nw
+            for j in np.flatnonzero(alarms):
+                s = int(sel[j])
+                labels[j] = NO_FAULT if s == -1 else "unexplained" if s == -2 else names[s]
+                if s >= 0:  # the parameters the selected hypothesis names are in fault
+                    named = np.array([p in self.setup.hypotheses[s].parameters for p in self.parameters])
+                    states[j] = np.where(named, 1, states[j])
+        blind = (self._carried[None, :, :] & (states == 2)[:, None, :]).any(axis=2)  # (windows, m)
+        chan = np.where(chan_fault, 1, np.where(blind, 2, 0))
+        times, spans = found.times_s.tolist(), np.asarray(found.window_s, dtype=float).reshape(-1, 2).tolist()
+        decided_s = decided.tolist()
+        names_of = [tuple(STATES[k] for k in row) for row in states.tolist()]
+        chan_of = [tuple(STATES[k] for k in row) for row in chan.tolist()]
+        for j in range(nw):
             out.append(
                 WindowDecision(
                     index=j,
-                    time_s=t,
-                    window_s=(float(found.window_s[j, 0]), float(found.window_s[j, 1])),
-                    alarm_time_s=float(decided[j]),
-                    alarm=alarm,
-                    label=label,
-                    states=tuple(STATES[k] for k in states),
-                    channel_states=tuple(STATES[k] for k in chan),
+                    time_s=times[j],
+                    window_s=(spans[j][0], spans[j][1]),
+                    alarm_time_s=decided_s[j],
+                    alarm=alarms[j],
+                    label=labels[j],
+                    states=names_of[j],
+                    channel_states=chan_of[j],
                 )
             )
         if found.n_windows:
