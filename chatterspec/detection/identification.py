@@ -869,9 +869,10 @@ def _fit_hypothesis(
         th = theta[live]
         G, g = setup.jacobian_deviations(h, th)  # (live, D, p), (live, D)
         r = np.einsum("rab,rb->ra", Wl, dnl - np.where(al, g / Tl, 0.0))
-        Gt = np.einsum("rab,rbk->rak", Wl, np.where(al[:, :, None], G / Tl[:, :, None], 0.0))
+        GT = G / Tl[:, :, None]
+        Gt = np.einsum("rab,rbk->rak", Wl, np.where(al[:, :, None], GT, 0.0))
         cn = np.linalg.norm(Gt, axis=1)  # (live, p)
-        lost = ~(cn > 1e-12 * np.maximum(np.linalg.norm(G / Tl[:, :, None], axis=1), 1e-300))
+        lost = ~(cn > 1e-12 * np.maximum(np.linalg.norm(GT, axis=1), 1e-300))
         lost_any = lost.any(axis=1)
         why[live] = np.where(lost_any & ok[live], 1, why[live])
         ok[live] &= ~lost_any
@@ -885,9 +886,10 @@ def _fit_hypothesis(
         N = N + np.where(okl, 0.0, 1.0)[:, None, None] * eye
         st = np.linalg.solve(N, np.einsum("rak,ra->rk", Gs, r)[..., None])[..., 0] / cn
         st = np.where(okl[:, None], st, 0.0)
-        theta[live] = th + st
+        th = th + st
+        theta[live] = th
         step[live] = st
-        done = np.all(np.abs(st) <= 1e-10 * (np.abs(theta[live]) + 1e-6 * scale), axis=1)
+        done = np.all(np.abs(st) <= 1e-10 * (np.abs(th) + 1e-6 * scale), axis=1)
         live = live[~done]
         if live.size == 0:
             break
