@@ -451,22 +451,24 @@ def frames_in(
     K, m = e.shape
     W = win.shape[0]
     bad = False
+    # (each loop indexes a slice from 0: an index numba cannot prove non-negative, such as nb + k, is
+    # checked for wraparound on every access, which keeps LLVM from vectorizing the loop: 4x slower)
     for c in range(m):
-        x = buf[c]
+        x = buf[c, nb : nb + K]
         for k in range(K):
             v = e[k, c]
-            x[nb + k] = v
+            x[k] = v
             bad |= (v - v) != 0.0  # NaN for NaN and +-inf, 0 for every finite value
     if check and bad:
         return -1
     n = nb + K
     for c in range(m):
-        x = buf[c]
         for f in range(hi - lo):
             s = (lo + f) * hop
+            x = buf[c, s : s + W]
             out = tapered[0, c, f]
             for k in range(W):
-                out[k] = x[s + k] * win[k]
+                out[k] = x[k] * win[k]
     if hi < n_frames:
         return n
     first = n_frames * hop
@@ -474,6 +476,7 @@ def frames_in(
         return n
     for c in range(m):
         x = buf[c]
+        src = buf[c, first:n]
         for k in range(n - first):
-            x[k] = x[first + k]
+            x[k] = src[k]
     return n - first
