@@ -33,7 +33,7 @@ windows'.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -242,22 +242,22 @@ class IdentificationMonitor:
         if self.tolerances:
             fault = np.asarray(block.alarm[:nw], dtype=bool)  # (windows, P)
             chan_fault = (self._carried[None, :, :] & fault[:, None, :]).any(axis=2)  # (windows, m)
-            alarms = fault.any(axis=1).tolist()
-            labels = [
+            alarms = cast(list[bool], fault.any(axis=1).tolist())
+            labels: list[str | None] = [
                 "+".join(p for p, a in zip(self.parameters, row, strict=True) if a) or None
                 for row in fault.tolist()
             ]
         else:
             m = len(self.channels)
             chan_fault = np.array([self._spectral(t) for t in frame_end.tolist()], dtype=bool).reshape(nw, m)
-            alarms = chan_fault.any(axis=1).tolist()
+            alarms = cast(list[bool], chan_fault.any(axis=1).tolist())
             labels = [None] * nw
-            for j in np.flatnonzero(alarms):
-                s = int(sel[j])
-                labels[j] = NO_FAULT if s == -1 else "unexplained" if s == -2 else names[s]
+            for w in np.flatnonzero(alarms).tolist():
+                s = int(sel[w])
+                labels[w] = NO_FAULT if s == -1 else "unexplained" if s == -2 else names[s]
                 if s >= 0:  # the parameters the selected hypothesis names are in fault
                     named = np.array([p in self.setup.hypotheses[s].parameters for p in self.parameters])
-                    states[j] = np.where(named, 1, states[j])
+                    states[w] = np.where(named, 1, states[w])
         blind = (self._carried[None, :, :] & (states == 2)[:, None, :]).any(axis=2)  # (windows, m)
         chan = np.where(chan_fault, 1, np.where(blind, 2, 0))
         times, spans = found.times_s.tolist(), np.asarray(found.window_s, dtype=float).reshape(-1, 2).tolist()

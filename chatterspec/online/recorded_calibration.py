@@ -63,14 +63,13 @@ def calibrate_recorded(
 
     Parameters
     ----------
-    model : LinearModel or NonlinearModel
-        The monitor's nominal model (full measurement).
+    model, n_samples
+        As :func:`~chatterspec.studies.calibration.recorded.plan_recording` (``n_samples``: the sum of
+        the chunks' ``K``).
     chunks : callable
         Returns a fresh iterable of consecutive ``(z (K, m), u (K, p))`` chunks of the recording
         (called once per pass: twice with ``normalization="data"``), e.g.
         :func:`~chatterspec.studies.calibration.recorded.array_chunks`.
-    n_samples : int
-        Samples in the recording (the sum of the chunks' ``K``).
     recording : HealthyRecording, optional
         Where the data came from, recorded in ``Calibration.source``.
     **options
