@@ -235,6 +235,10 @@ def _verdict_channel(
     """:func:`_verdict_loop` for spectrum ``r`` and channel ``c`` (its arguments; ``FULL`` as there)."""
     nt = idx.shape[0]
     b = idx[0]
+    # a run of bins (the usual case): read through slices indexed from 0, which numba does not test
+    # for wraparound per access as it does an index it loads (idx[j]): ~20 % of the pass
+    run = idx[nt - 1] - b == nt - 1
+    p_run, t_run, e_run = power[r, b : b + nt, c], thr[b : b + nt, c], expected[b : b + nt, c]
     p = power[r, b, c]
     ratio = p / thr[b, c]
     # argmax trackers: index, value, NaN seen (argmax returns the first NaN)
@@ -248,12 +252,15 @@ def _verdict_channel(
         any_over = over
         ps = p
     for j in range(1, nt):
-        b = idx[j]
-        p = power[r, b, c]
-        ratio = p / thr[b, c]
+        if run:
+            p, t, e = p_run[j], t_run[j], e_run[j]
+        else:
+            b = idx[j]
+            p, t, e = power[r, b, c], thr[b, c], expected[b, c]
+        ratio = p / t
         kr, vr, nr = argmax_update(j, ratio, kr, vr, nr)
         if FULL:
-            ex = p - expected[b, c]
+            ex = p - e
             ps += p
             ke, ve, ne = argmax_update(j, ex, ke, ve, ne)
             if ratio > 1.0:
