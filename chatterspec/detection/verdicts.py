@@ -1021,8 +1021,9 @@ def score_step(
     kA = 0
     U2 = -1.0
     w = inv1T[c]
+    run = power[f, lo : lo + nt, c]  # (indexed from 0: no wraparound test per bin, as in _verdict_channel)
     for j in range(nt):
-        u = (power[f, lo + j, c] if contiguous else power[f, idx[j], c]) * w[j]
+        u = (run[j] if contiguous else power[f, idx[j], c]) * w[j]
         if u > U2:
             if u > A:
                 U2 = A
