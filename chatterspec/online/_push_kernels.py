@@ -309,6 +309,18 @@ def hop_constants(
     return np.ascontiguousarray(cf), np.ascontiguousarray(ci)
 
 
+@_jit.step
+def cut(a: np.ndarray, o: int, n: int) -> tuple[np.ndarray, int]:
+    """``a[o : o + n]`` and the offset after it: one array of :func:`hop_constants`'s packing."""
+    return a[o : o + n], o + n
+
+
+@_jit.step
+def cut_rows(a: np.ndarray, o: int, rows: int, cols: int) -> tuple[np.ndarray, int]:
+    """:func:`cut` of ``rows cols`` values, as a (rows, cols) array."""
+    return a[o : o + rows * cols].reshape((rows, cols)), o + rows * cols
+
+
 def _hop_loop(  # type: ignore[no-untyped-def]
     Y, a, j_first, t_first, dt, cf, ci, act, g, count, ring, pos, power, outf, outb, times
 ):  # pragma: no cover - compiled (compared with the separate calls in tests/test_monitor.py)
@@ -338,39 +350,23 @@ def _hop_loop(  # type: ignore[no-untyped-def]
     m, Fb, B = Y.shape[1], Y.shape[2], Y.shape[3]
     lo, nv, nt, ncv = ci[I_LO], ci[I_NV], ci[I_NT], ci[I_NCV]
     nlow, npar, legacy, W, H = ci[I_NLOW], ci[I_NP], ci[I_LEGACY] != 0, ci[I_W], ci[I_H]
-    o = I_HEAD
-    positions = ci[o : o + nv]
-    o += nv
-    idx = ci[o : o + nt]
-    o += nt
-    off = ci[o : o + nt * m].reshape((nt, m))
-    o += nt * m
-    cnt = ci[o : o + nt * m].reshape((nt, m))
-    o += nt * m
-    low = ci[o : o + m * nlow].reshape((m, nlow))
-    o += m * nlow
-    n_low = ci[o : o + m]
-    o += m
-    is_low = ci[o : o + nt * m].reshape((nt, m))
+    positions, o = cut(ci, I_HEAD, nv)
+    idx, o = cut(ci, o, nt)
+    off, o = cut_rows(ci, o, nt, m)
+    cnt, o = cut_rows(ci, o, nt, m)
+    low, o = cut_rows(ci, o, m, nlow)
+    n_low, o = cut(ci, o, m)
+    is_low, o = cut_rows(ci, o, nt, m)
     scale, log_n, h = cf[F_SCALE], cf[F_LOGN], cf[F_H]
-    o = F_HEAD
-    thr = cf[o : o + nv * m].reshape((nv, m))
-    o += nv * m
-    freqs = cf[o : o + nv]
-    o += nv
-    inv1 = cf[o : o + nt * m].reshape((nt, m))
-    o += nt * m
-    invr = cf[o : o + nt * m].reshape((nt, m))
-    o += nt * m
-    cvals = cf[o : o + ncv]
-    o += ncv
-    wvals = cf[o : o + ncv]
-    o += ncv
-    hi_invr = cf[o : o + m]
-    o += m
-    inv1T = cf[o : o + m * nt].reshape((m, nt))
-    o += m * nt
-    p = cf[o : o + npar]
+    thr, o = cut_rows(cf, F_HEAD, nv, m)
+    freqs, o = cut(cf, o, nv)
+    inv1, o = cut_rows(cf, o, nt, m)
+    invr, o = cut_rows(cf, o, nt, m)
+    cvals, o = cut(cf, o, ncv)
+    wvals, o = cut(cf, o, ncv)
+    hi_invr, o = cut(cf, o, m)
+    inv1T, o = cut_rows(cf, o, m, nt)
+    p, o = cut(cf, o, npar)
     pw = power[a : a + Fb]
     peak_ratio = outf[0, a : a + Fb]
     score = outf[1, a : a + Fb]
