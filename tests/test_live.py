@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import signal
 import subprocess
 import time
@@ -247,6 +249,7 @@ def test_live_viewer_receives_data(tmp_path: Path, sim, batch) -> None:
         [exe, "--bind", "127.0.0.1", "--port", str(port), "--save", str(out)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        start_new_session=True,  # its own process group: the receiver's children are stopped with it
     )
     try:
         url = f"rerun+http://127.0.0.1:{port}/proxy"
@@ -259,12 +262,15 @@ def test_live_viewer_receives_data(tmp_path: Path, sim, batch) -> None:
         assert summary.live_url == url and summary.path is None
         time.sleep(0.5)
     finally:
-        proc.send_signal(signal.SIGINT)
+        with contextlib.suppress(ProcessLookupError):  # it may have exited already
+            os.killpg(proc.pid, signal.SIGINT)
         try:
             proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+            pass
+        with contextlib.suppress(ProcessLookupError):  # a child that ignored SIGINT
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
     reader = RrdReader(out)
     n = sum(
         c.num_rows for c in reader.stream().filter(content="/spectrum/pressure", is_static=False).to_chunks()
