@@ -143,19 +143,13 @@ def live_arg(text: str) -> str:
 
 
 def band_from_args(args: argparse.Namespace) -> tuple[float, float] | None:
-    """The validated ``--band LO HI`` of ``args`` (None when not given).
+    """The tested band ``--band LO HI`` (Hz) of ``args`` (None when not given).
 
-    Raises
-    ------
-    ParameterError
-        If ``LO >= HI``.
+    Each edge is a finite frequency >= 0 (:func:`band_edge_arg`); ``LO < HI`` is checked by the
+    detector settings the command builds from it (``DetectorOptions``, ``MonitorSettings``).
     """
     band = getattr(args, "band", None)
-    if band is None:
-        return None
-    from ..detection.thresholds import check_band
-
-    return check_band(band)
+    return None if band is None else (band[0], band[1])
 
 
 # --- the option table and the groups of options -------------------------------------------------------------

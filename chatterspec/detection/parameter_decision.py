@@ -159,7 +159,8 @@ PARAMETER_SALT = 0x7A1E
 
 @dataclass(frozen=True, eq=False)
 class ParameterBands:
-    """The bands of a model's declared parameters, in table order.
+    """The tolerance bands of a model's declared parameters, in table order (parameter units; not the
+    tested frequency band of the spectral detector, :data:`~chatterspec.detection.thresholds.Band`).
 
     Attributes
     ----------

@@ -365,16 +365,11 @@ def consistency(values: np.ndarray, dim: int, *, alpha: float = 0.05, kind: str 
     -------
     ConsistencyTest
     """
-    alpha = open_unit("alpha", alpha)
-    values = _finite("values", values)
+    values = _finite("values", values)  # alpha, kind and dim: checked by consistency_from_sums
     if values.ndim == 1:
         values = values[None]
     if values.ndim != 2:
         raise ShapeError(f"values must be (runs, T) or (T,); got shape {values.shape}")
-    if kind not in ("NIS", "NEES"):
-        raise ShapeError(f'kind must be "NIS" or "NEES"; got {kind!r}')
-    if dim < 1:
-        raise ShapeError(f"dim must be a positive dimension; got {dim}")
     runs = values.shape[0]
     return consistency_from_sums(float(values.sum()), values.sum(axis=0), runs, dim, alpha=alpha, kind=kind)
 
