@@ -214,8 +214,8 @@ def test_the_cli_reports_the_option_objects_message_in_one_line(argv, expected, 
 #: ``alpha`` is not a detector option, and the model file and CLI boundaries. ``(module, function)``
 #: -> number of checks.
 BOUNDARY = {
-    ("detection/detect.py", "DetectorOptions.__post_init__"): 2,
-    ("detection/alarms/calibration.py", "MonitorSettings.__post_init__"): 2,
+    ("detection/detect.py", "DetectorOptions.__post_init__"): 1,
+    ("detection/alarms/calibration.py", "MonitorSettings.__post_init__"): 1,
     ("detection/alarms/calibration.py", "law_frame_rule"): 2,
     ("detection/alarms/calibration.py", "calibrate_rule"): 2,
     ("montecarlo.py", "Execution.__post_init__"): 2,
@@ -226,8 +226,11 @@ BOUNDARY = {
     ("detection/parameter_decision.py", "monitor_parameters"): 1,
     ("detection/thresholds.py", "Threshold.restricted"): 1,
     ("detection/thresholds.py", "band_mask"): 1,
+    ("detection/thresholds.py", "check_detector"): 2,  # alpha and the tested band, for all of these:
     ("detection/thresholds.py", "per_test_alpha"): 1,
-    ("detection/thresholds.py", "_level_and_band"): 2,
+    ("detection/thresholds.py", "exact_threshold"): 1,
+    ("detection/thresholds.py", "frame_threshold"): 1,
+    ("detection/thresholds.py", "paper_threshold"): 1,
     ("detection/thresholds.py", "empirical_family_wise_threshold"): 1,
     ("studies/estimation.py", "consistency_from_sums"): 1,  # the NIS / NEES test level
     ("studies/estimation.py", "estimation_study"): 1,  # (the same, before the runs)
@@ -249,7 +252,7 @@ BOUNDARY = {
 }
 
 #: The checks counted: ``open_unit("alpha", ...)``, ``positive``/``positive_int`` of a budget or
-#: execution setting, and every call of the band and budget validators.
+#: execution setting, and every call of the band, detector-level and budget validators.
 _NAMED = {"alpha", "workers", "chunk_runs", "false_alarms_per_hour", "steps_per_hour"}
 
 
@@ -267,7 +270,7 @@ def validation_sites(package: Path = PACKAGE) -> collections.Counter[tuple[str, 
                 name = f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else ""
                 first = child.args[0] if child.args else None
                 named = isinstance(first, ast.Constant) and first.value in _NAMED
-                if name in ("check_band", "check_budget") or (
+                if name in ("check_band", "check_budget", "check_detector") or (
                     name in ("open_unit", "positive", "positive_int") and named
                 ):
                     sites[(module, ".".join(scope))] += 1
@@ -293,6 +296,7 @@ def test_the_structural_check_sees_a_re_check(tmp_path: Path) -> None:
         "def helper(alpha, band, x):\n"
         "    alpha = open_unit('alpha', alpha)\n"
         "    band = check_band(band)\n"
+        "    check_detector(alpha, 'none', band)\n"
         "    return _validate.positive_int('workers', x), check_budget(x)\n"
     )
-    assert dict(validation_sites(tmp_path)) == {("inner.py", "helper"): 4}
+    assert dict(validation_sites(tmp_path)) == {("inner.py", "helper"): 5}

@@ -142,16 +142,6 @@ def live_arg(text: str) -> str:
     return text
 
 
-def band_from_args(args: argparse.Namespace) -> tuple[float, float] | None:
-    """The tested band ``--band LO HI`` (Hz) of ``args`` (None when not given).
-
-    Each edge is a finite frequency >= 0 (:func:`band_edge_arg`); ``LO < HI`` is checked by the
-    detector settings the command builds from it (``DetectorOptions``, ``MonitorSettings``).
-    """
-    band = getattr(args, "band", None)
-    return None if band is None else (band[0], band[1])
-
-
 # --- the option table and the groups of options -------------------------------------------------------------
 #: The positional NAME of the commands that study a healthy scenario (calibrate, far).
 HEALTHY_NAME_HELP = "healthy scenario name or model file (.toml)"

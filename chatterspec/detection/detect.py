@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any, TypedDict, Unpack, cast
 import numpy as np
 
 from .._repr import short_repr
-from .._validate import open_unit, positive_int
+from .._validate import positive_int
 from ..errors import ParameterError, ShapeError
 from ..montecarlo import Execution, SeedLike
 from ..plants.models import LinearModel
@@ -45,15 +45,7 @@ from ..plants.nonlinear import Model, is_linear
 from ..plants.scenarios import Scenario
 from .pipeline import ChatteringRecord, iter_chattering
 from .spectral import DEFAULT_STFT, STFTConfig, expected_spectrum, periodogram
-from .thresholds import (
-    Band,
-    Correction,
-    Threshold,
-    check_band,
-    check_correction,
-    exact_threshold,
-    paper_threshold,
-)
+from .thresholds import Band, Correction, Threshold, check_detector, exact_threshold, paper_threshold
 from .verdicts import (
     _VERDICT_FIELDS,
     ChannelVerdict,
@@ -323,10 +315,9 @@ class DetectorOptions:
     frame_threshold: Threshold | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "alpha", open_unit("alpha", self.alpha))
-        object.__setattr__(self, "correction", check_correction(self.correction))
-        if self.band is not None:
-            object.__setattr__(self, "band", check_band(self.band))
+        checked = check_detector(self.alpha, self.correction, self.band)
+        for name, value in zip(("alpha", "correction", "band"), checked, strict=True):
+            object.__setattr__(self, name, value)
         if not isinstance(self.threshold, Threshold) and self.threshold not in ("exact", "paper"):
             raise ParameterError(f"unknown threshold kind {self.threshold!r}; choose 'exact' or 'paper'")
 

@@ -562,9 +562,18 @@ def _in_band(freqs_hz: np.ndarray, band: Band) -> np.ndarray:
     return (freqs_hz >= lo - tol) & (freqs_hz <= hi + tol)
 
 
-def _level_and_band(alpha: float, band: Band | None) -> tuple[float, Band | None]:
-    """The threshold constructors' checks: ``alpha`` in (0, 1) and the tested band (Hz) if given."""
-    return open_unit("alpha", alpha), None if band is None else check_band(band)
+def check_detector(
+    alpha: float, correction: str = "none", band: Band | None = None
+) -> tuple[float, Correction, Band | None]:
+    """The detector's level settings, checked: ``alpha`` in (0, 1), a known family-wise ``correction``
+    and the tested band ``(lo, hi)`` in Hz if given (:func:`check_band`). The threshold constructors,
+    :class:`~chatterspec.detection.detect.DetectorOptions` and
+    :class:`~chatterspec.detection.alarms.calibration.MonitorSettings` check them here, with one message
+    per bad value; internal callers of :func:`per_test_alpha` and :func:`band_mask` pass checked values.
+    """
+    if correction not in _CORRECTIONS:
+        raise ParameterError(f"correction must be 'none', 'bonferroni' or 'sidak'; got {correction!r}")
+    return open_unit("alpha", alpha), cast(Correction, correction), None if band is None else check_band(band)
 
 
 def per_test_alpha(alpha: float, n_tests: int, correction: Correction = "bonferroni") -> float:
@@ -579,9 +588,8 @@ def per_test_alpha(alpha: float, n_tests: int, correction: Correction = "bonferr
     correction : {"bonferroni", "sidak", "none"}
         ``none``: ``a = alpha``; ``bonferroni``: ``alpha / n``; ``sidak``: ``1 - (1 - alpha)^(1/n)``.
     """
-    return _per_test_alpha(
-        open_unit("alpha", alpha), positive_int("n_tests", n_tests), check_correction(correction)
-    )
+    alpha, correction, _ = check_detector(alpha, correction)
+    return _per_test_alpha(alpha, positive_int("n_tests", n_tests), correction)
 
 
 def _per_test_alpha(alpha: float, n: int, correction: Correction) -> float:
@@ -591,13 +599,6 @@ def _per_test_alpha(alpha: float, n: int, correction: Correction) -> float:
     if correction == "bonferroni":
         return alpha / n
     return float(-np.expm1(np.log1p(-alpha) / n))  # sidak
-
-
-def check_correction(correction: str) -> Correction:
-    """``correction`` if it is a known family-wise correction; a ParameterError naming the choices."""
-    if correction not in _CORRECTIONS:
-        raise ParameterError(f"correction must be 'none', 'bonferroni' or 'sidak'; got {correction!r}")
-    return cast(Correction, correction)
 
 
 def _check_law(law: str) -> ThresholdLaw:
@@ -723,7 +724,7 @@ def exact_threshold(
     paper_threshold : the paper's flat bound (eq 58-62).
     frame_threshold : the per-frame threshold of the STFT.
     """
-    (alpha, band), correction = _level_and_band(alpha, band), check_correction(correction)
+    alpha, correction, band = check_detector(alpha, correction, band)
     averaged = positive_int("averaged", averaged)
     law = _check_law(law)
     freqs = finite_array("freqs_hz", freqs_hz, ndim=1)
@@ -776,7 +777,7 @@ def frame_threshold(
     --------
     exact_threshold : the whole-record threshold.
     """
-    (alpha, band), correction = _level_and_band(alpha, band), check_correction(correction)
+    alpha, correction, band = check_detector(alpha, correction, band)
     law = _check_law(law)
     dt = model.dt if dt is None else positive("dt", dt, unit="s")
     freqs = finite_array("freqs_hz", freqs_hz, ndim=1)
@@ -830,7 +831,7 @@ def paper_threshold(
     exact_threshold : each bin's own law (the default).
     frame_threshold : the per-frame threshold of the STFT.
     """
-    alpha, band = _level_and_band(alpha, band)
+    alpha, _, band = check_detector(alpha, band=band)
     freqs = finite_array("freqs_hz", freqs_hz, ndim=1)
     L = paper_gamma_matrix(model)
     sigma = np.diag(model.C @ model.Q @ model.C.T + L @ model.R @ L.T)

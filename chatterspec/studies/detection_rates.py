@@ -228,8 +228,7 @@ def false_alarm_study(
     confidence : float
         Level of the Clopper-Pearson intervals.
     **execution
-        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
-        (:class:`~chatterspec.montecarlo.Execution`).
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress`` (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------
@@ -673,8 +672,7 @@ def power_study(
     confidence : float
         Level of the Clopper-Pearson intervals.
     **execution
-        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
-        (:class:`~chatterspec.montecarlo.Execution`).
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress`` (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------

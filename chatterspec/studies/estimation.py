@@ -865,8 +865,7 @@ def estimation_study(
     alpha : float
         Two-sided level of the NEES/NIS chi-squared intervals, in (0, 1).
     **execution
-        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
-        (:class:`~chatterspec.montecarlo.Execution`).
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress`` (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------
