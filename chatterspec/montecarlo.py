@@ -308,8 +308,7 @@ class Execution:
     Raises
     ------
     ParameterError
-        ``workers`` or ``chunk_runs`` not an integer >= 1, a ``scheduler`` that is not a non-empty
-        string. Every study function builds this object at its entry (``Execution(**execution)``).
+        ``workers`` or ``chunk_runs`` not an integer >= 1, or an empty ``scheduler``.
 
     See Also
     --------

@@ -297,9 +297,8 @@ class DetectorOptions:
     Raises
     ------
     ParameterError
-        ``alpha`` outside (0, 1), an unknown ``correction`` or threshold kind, a band that is not
-        ``0 <= lo < hi`` Hz. The detectors build this object at their entry; what runs below them
-        (:class:`ChunkPlan`, the workers) takes it as checked.
+        A bad ``alpha``, ``correction``, band or threshold kind (the entry points build this object
+        first; :class:`ChunkPlan` and the workers take it as checked).
 
     See Also
     --------

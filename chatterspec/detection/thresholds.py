@@ -377,9 +377,8 @@ ThresholdKind = Literal["paper", "exact", "empirical"]
 AlphaMeaning = Literal["per-bin", "family-wise", "per-frame"]
 Correction = Literal["none", "bonferroni", "sidak"]
 ThresholdLaw = Literal["exact", "chi2"]
-#: The tested band ``(lo, hi)`` in Hz: the periodogram or frame bins a threshold tests (not a
-#: parameter's tolerance band, :class:`~chatterspec.detection.parameter_decision.ParameterBands`, nor
-#: the band a spectrogram displays, ``band_hz`` in :mod:`chatterspec.viewer`).
+#: The tested band ``(lo, hi)`` in Hz: the bins a threshold tests (not a parameter's tolerance band,
+#: ``ParameterBands``, nor the band a spectrogram displays, ``band_hz`` in :mod:`chatterspec.viewer`).
 Band = tuple[float, float]
 _CORRECTIONS = ("none", "bonferroni", "sidak")
 _LAWS = ("exact", "chi2")
@@ -565,12 +564,9 @@ def _in_band(freqs_hz: np.ndarray, band: Band) -> np.ndarray:
 def check_detector(
     alpha: float, correction: str = "none", band: Band | None = None
 ) -> tuple[float, Correction, Band | None]:
-    """The detector's level settings, checked: ``alpha`` in (0, 1), a known family-wise ``correction``
-    and the tested band ``(lo, hi)`` in Hz if given (:func:`check_band`). The threshold constructors,
-    :class:`~chatterspec.detection.detect.DetectorOptions` and
-    :class:`~chatterspec.detection.alarms.calibration.MonitorSettings` check them here, with one message
-    per bad value; internal callers of :func:`per_test_alpha` and :func:`band_mask` pass checked values.
-    """
+    """``alpha`` in (0, 1), a known ``correction``, the tested band in Hz (:func:`check_band`): the checks
+    of the threshold constructors, ``DetectorOptions`` and ``MonitorSettings`` (one message per bad value;
+    the internal callers of :func:`per_test_alpha` and :func:`band_mask` pass checked values)."""
     if correction not in _CORRECTIONS:
         raise ParameterError(f"correction must be 'none', 'bonferroni' or 'sidak'; got {correction!r}")
     return open_unit("alpha", alpha), cast(Correction, correction), None if band is None else check_band(band)

@@ -968,10 +968,8 @@ def argmax_accuracy(mu: np.ndarray, true_mode: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    mu : (runs, T, r) array
-        Mode probabilities per sample.
-    true_mode : (T,) or (runs, T) int array
-        Actual mode index per sample (-1: ignored).
+    mu, true_mode
+        Mode probabilities ``(runs, T, r)`` and actual modes, as in :func:`confusion_matrix`.
 
     Returns
     -------
