@@ -119,6 +119,8 @@ def test_every_band_entry_point_refuses_a_bad_band_with_one_message(bad: tuple[f
 def _budget_entry_points() -> dict[str, Callable[[float], object]]:
     from chatterspec.detection.alarms.calibration import MonitorSettings, calibrate_rule, law_frame_rule
     from chatterspec.detection.alarms.rules import make_rule
+    from chatterspec.detection.identification import identification_setup
+    from chatterspec.detection.parameter_decision import parameter_alarm_settings
     from chatterspec.studies.alarm_budget import alarm_settings, calibrate_alarm
     from chatterspec.studies.calibration.recorded import min_hours, plan_recording
 
@@ -131,6 +133,9 @@ def _budget_entry_points() -> dict[str, Callable[[float], object]]:
         "alarm_settings": lambda x: alarm_settings(model, MonitorSettings(), "cusum", x),
         "plan_recording": lambda x: plan_recording(model, 100_000, false_alarms_per_hour=x),
         "min_hours": lambda x: min_hours(3, 18000.0, x),
+        "parameter_alarm_settings": lambda x: parameter_alarm_settings(
+            identification_setup(model), hop_s=0.2, window_hops=5, false_alarms_per_hour=x
+        ),
     }
 
 
@@ -221,7 +226,7 @@ BOUNDARY = {
     ("montecarlo.py", "Execution.__post_init__"): 2,
     ("studies/budget_diagnosis.py", "BudgetSettings.__post_init__"): 1,
     ("detection/parameter_decision.py", "calibrate_parameter_rule"): 1,
-    ("detection/parameter_decision.py", "parameter_alarm_settings"): 1,
+    ("detection/parameter_decision.py", "ParameterAlarmSettings.__post_init__"): 1,
     ("detection/parameter_decision.py", "record_decisions"): 1,
     ("detection/parameter_decision.py", "monitor_parameters"): 1,
     ("detection/thresholds.py", "Threshold.restricted"): 1,
