@@ -190,8 +190,12 @@ def plan_chunks(runs: int, chunk_runs: int | None = None) -> tuple[Chunk, ...]:
     -------
     tuple of Chunk
     """
-    runs = positive_int("runs", runs)
-    size = DEFAULT_CHUNK_RUNS if chunk_runs is None else positive_int("chunk_runs", chunk_runs)
+    return _chunks(positive_int("runs", runs), Execution(chunk_runs=chunk_runs).chunk_runs)
+
+
+def _chunks(runs: int, chunk_runs: int | None) -> tuple[Chunk, ...]:
+    """:func:`plan_chunks` of checked values."""
+    size = DEFAULT_CHUNK_RUNS if chunk_runs is None else chunk_runs
     size = -(-size // BLOCK) * BLOCK
     return tuple(Chunk(i, lo, min(size, runs - lo)) for i, lo in enumerate(range(0, runs, size)))
 
@@ -262,20 +266,7 @@ def run_study(
         The Dask scheduler does not answer within a few seconds, or
         ``dask.distributed`` is not installed.
     """
-    runs = positive_int("runs", runs)
-    workers = positive_int("workers", workers)
-    if not (callable(getattr(study, "run_chunk", None)) and callable(getattr(study, "reduce", None))):
-        raise ParameterError(f"study must define run_chunk() and reduce(); got {type(study).__name__}")
-    root = root_seed_sequence(seed)
-    chunks = plan_chunks(runs, chunk_runs)
-    with Progress(runs, label, enabled=progress) as bar:
-        if scheduler is not None:
-            results = _dask_results(study, chunks, root, scheduler, workers)
-        elif workers == 1 or len(chunks) == 1:
-            results = (run_chunk(study, c, root) for c in chunks)
-        else:
-            results = _process_results(study, chunks, root, workers)
-        return _fold_in_order(study, results, len(chunks), bar)
+    return Execution(workers, scheduler, chunk_runs, progress).run(study, runs, seed, label)
 
 
 class ExecutionOptions(TypedDict, total=False):
@@ -314,6 +305,11 @@ class Execution:
     progress : bool, optional
         Show a progress bar on stderr (default: only when stderr is a terminal).
 
+    Raises
+    ------
+    ParameterError
+        ``workers`` or ``chunk_runs`` not an integer >= 1, or an empty ``scheduler``.
+
     See Also
     --------
     run_study : the runner these settings are passed to.
@@ -331,8 +327,15 @@ class Execution:
     chunk_runs: int | None = None
     progress: bool | None = None
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "workers", positive_int("workers", self.workers))
+        if self.chunk_runs is not None:
+            object.__setattr__(self, "chunk_runs", positive_int("chunk_runs", self.chunk_runs))
+        if self.scheduler is not None and not (isinstance(self.scheduler, str) and self.scheduler.strip()):
+            raise ParameterError(f"scheduler must be 'local-dask' or an address; got {self.scheduler!r}")
+
     def run(self, study: Study, runs: int, seed: SeedLike, label: str = "monte carlo") -> Any:
-        """:func:`run_study` of ``study`` with these settings.
+        """Run ``study`` over ``runs`` realizations with these settings (:func:`run_study`).
 
         Parameters
         ----------
@@ -344,16 +347,19 @@ class Execution:
         object
             ``study.reduce`` folded over the chunk summaries in chunk order.
         """
-        return run_study(
-            study,
-            runs,
-            seed,
-            workers=self.workers,
-            scheduler=self.scheduler,
-            chunk_runs=self.chunk_runs,
-            progress=self.progress,
-            label=label,
-        )
+        runs = positive_int("runs", runs)
+        if not (callable(getattr(study, "run_chunk", None)) and callable(getattr(study, "reduce", None))):
+            raise ParameterError(f"study must define run_chunk() and reduce(); got {type(study).__name__}")
+        root = root_seed_sequence(seed)
+        chunks = _chunks(runs, self.chunk_runs)
+        with Progress(runs, label, enabled=self.progress) as bar:
+            if self.scheduler is not None:
+                results = _dask_results(study, chunks, root, self.scheduler, self.workers)
+            elif self.workers == 1 or len(chunks) == 1:
+                results = (run_chunk(study, c, root) for c in chunks)
+            else:
+                results = _process_results(study, chunks, root, self.workers)
+            return _fold_in_order(study, results, len(chunks), bar)
 
 
 def _fold_in_order(
@@ -445,6 +451,8 @@ def _import_dask() -> Any:
 def dask_client(scheduler: str, workers: int = 2) -> tuple[Any, Any]:
     """Connect to ``scheduler`` (or start ``local-dask``); return ``(client, cluster_or_None)``.
 
+    ``scheduler`` is checked by :class:`Execution`.
+
     An address that does not answer raises :class:`ChatterspecError` after
     :data:`DASK_CONNECT_TIMEOUT_S` seconds.
     """
@@ -462,8 +470,6 @@ def dask_client(scheduler: str, workers: int = 2) -> tuple[Any, Any]:
         except Exception:
             cluster.close()
             raise
-    if not isinstance(scheduler, str) or not scheduler.strip():
-        raise ParameterError(f"scheduler must be 'local-dask' or an address; got {scheduler!r}")
     address = scheduler if "://" in scheduler else f"tcp://{scheduler}"
     try:
         client = dd.Client(address, timeout=f"{DASK_CONNECT_TIMEOUT_S}s")

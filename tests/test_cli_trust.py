@@ -77,7 +77,7 @@ def test_cli_power_unstable_size_fails_before_any_simulation(capsys, monkeypatch
     def never(*args, **kwargs):
         pytest.fail("the Monte Carlo study or a simulation ran for an unstable fault size")
 
-    monkeypatch.setattr(montecarlo, "run_study", never)
+    monkeypatch.setattr(montecarlo.Execution, "run", never)
     monkeypatch.setattr(power, "iter_chattering", never)
     assert cli_main(["power", "leakage", "--sizes", "0.5", "--runs", "8"]) == 2
     err = capsys.readouterr().err

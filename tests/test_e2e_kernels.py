@@ -218,15 +218,15 @@ def test_detect_cli_streams_the_fused_records(monkeypatch: pytest.MonkeyPatch) -
 
 
 def _captured_study(module, call, monkeypatch: pytest.MonkeyPatch):
-    """The HealthyStudy a study function builds (its run_study is intercepted)."""
+    """The HealthyStudy a study function builds (its ``Execution.run`` is intercepted)."""
     seen = []
 
-    def capture(study, *args, **kwargs):
+    def capture(self, study, *args, **kwargs):
         seen.append(study)
-        return real(study, *args, **kwargs)
+        return real(self, study, *args, **kwargs)
 
-    real = module.run_study
-    monkeypatch.setattr(module, "run_study", capture)
+    real = module.Execution.run
+    monkeypatch.setattr(module.Execution, "run", capture)
     call()
     return seen[0]
 

@@ -142,22 +142,6 @@ def live_arg(text: str) -> str:
     return text
 
 
-def band_from_args(args: argparse.Namespace) -> tuple[float, float] | None:
-    """The validated ``--band LO HI`` of ``args`` (None when not given).
-
-    Raises
-    ------
-    ParameterError
-        If ``LO >= HI``.
-    """
-    band = getattr(args, "band", None)
-    if band is None:
-        return None
-    from ..detection.thresholds import check_band
-
-    return check_band(band)
-
-
 # --- the option table and the groups of options -------------------------------------------------------------
 #: The positional NAME of the commands that study a healthy scenario (calibrate, far).
 HEALTHY_NAME_HELP = "healthy scenario name or model file (.toml)"

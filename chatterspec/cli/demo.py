@@ -18,7 +18,6 @@ from ._options import (
     add_detector_args,
     add_identification_args,
     add_report_args,
-    band_from_args,
     command,
     setup_or_reason,
 )
@@ -76,7 +75,6 @@ def run(args: argparse.Namespace) -> int:
     from ..progress import Progress
     from .detect import add_identification, stream_chunks
 
-    band = band_from_args(args)
     outputs = Outputs()
     t_start = time.perf_counter()
     steps = len(DEMO_SCENARIOS) * (1 if args.no_record else 2) + (0 if args.no_figures else len(DEMO_FIGURES))
@@ -94,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
             if setup is not None:
                 ident = identification_stream(setup, args)
                 chunks = ident.tap(chunks, background=True)
-            report = detect_chunks(chunks, args.alpha, args.threshold, args.correction, band=band)
+            report = detect_chunks(chunks, args.alpha, args.threshold, args.correction, band=args.band)
             sim = first[0]
             doc = report.to_dict()
             add_identification(doc, report, setup, why_not, ident, sim, sc, args)

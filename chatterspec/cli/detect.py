@@ -28,7 +28,6 @@ from ._options import (
     add_report_args,
     add_tolerance_args,
     alarm_choice,
-    band_from_args,
     command,
     load_scenario,
     setup_or_reason,
@@ -108,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         import dataclasses
 
         sc = dataclasses.replace(sc, nominal=with_tolerance_args(sc.nominal, args))
-    band = band_from_args(args)
+    band = args.band
     choice = alarm_choice(args, default_rule=_file_rule(args))  # bad options stop here, before simulating
     from ..detection.detect import detect_chunks
 

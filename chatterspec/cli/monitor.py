@@ -53,7 +53,6 @@ from ._options import (
     add_report_args,
     add_tolerance_args,
     alarm_choice,
-    band_from_args,
     command,
     positive_int_arg,
     setup_or_reason,
@@ -264,7 +263,7 @@ def run(args: argparse.Namespace) -> int:
         gamma=spec.gamma,
         psi=None if spec.psi is None else spec.psi.tolist(),  # nonlinear: the sgn-SVSF only
         alpha=args.alpha,
-        band=band_from_args(args),
+        band=args.band,
     )
     stft = settings.stft
     # a bad file fails before any simulation (a followed file: its header, when it has one)

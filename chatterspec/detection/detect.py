@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any, TypedDict, Unpack, cast
 import numpy as np
 
 from .._repr import short_repr
-from .._validate import open_unit, positive_int
+from .._validate import positive_int
 from ..errors import ParameterError, ShapeError
 from ..montecarlo import Execution, SeedLike
 from ..plants.models import LinearModel
@@ -45,7 +45,7 @@ from ..plants.nonlinear import Model, is_linear
 from ..plants.scenarios import Scenario
 from .pipeline import ChatteringRecord, iter_chattering
 from .spectral import DEFAULT_STFT, STFTConfig, expected_spectrum, periodogram
-from .thresholds import Band, Correction, Threshold, check_band, exact_threshold, paper_threshold
+from .thresholds import Band, Correction, Threshold, check_detector, exact_threshold, paper_threshold
 from .verdicts import (
     _VERDICT_FIELDS,
     ChannelVerdict,
@@ -286,13 +286,19 @@ class DetectorOptions:
     config : STFTConfig
         STFT settings of those intervals (default 1 s Hamming window, 0.2 s hop).
     band : (float, float), optional
-        ``(lo, hi)`` in Hz: only these bins are tested, by every threshold (single,
+        The tested band ``(lo, hi)`` in Hz: only these bins are tested, by every threshold (single,
         averaged, STFT frames); the correction counts only them; DC and Nyquist stay
         excluded. A ready threshold is narrowed with :meth:`Threshold.restricted`.
     frame_threshold : Threshold, optional
         Per-frame threshold of the STFT intervals instead of the analytic one (see
         :func:`~chatterspec.detection.verdicts.stft_detect`); with a nonlinear model the STFT runs
         only when it is given.
+
+    Raises
+    ------
+    ParameterError
+        A bad ``alpha``, ``correction``, band or threshold kind (the entry points build this object
+        first; :class:`ChunkPlan` and the workers take it as checked).
 
     See Also
     --------
@@ -306,6 +312,13 @@ class DetectorOptions:
     config: STFTConfig = DEFAULT_STFT
     band: Band | None = None
     frame_threshold: Threshold | None = None
+
+    def __post_init__(self) -> None:
+        checked = check_detector(self.alpha, self.correction, self.band)
+        for name, value in zip(("alpha", "correction", "band"), checked, strict=True):
+            object.__setattr__(self, name, value)
+        if not isinstance(self.threshold, Threshold) and self.threshold not in ("exact", "paper"):
+            raise ParameterError(f"unknown threshold kind {self.threshold!r}; choose 'exact' or 'paper'")
 
 
 @dataclass(frozen=True, eq=False)
@@ -336,9 +349,7 @@ class ChunkPlan:
         """The thresholds (and run 0's STFT intervals) from the first record of a study."""
         threshold, correction, stft = options.threshold, options.correction, options.stft
         config, band, frame_threshold = options.config, options.band, options.frame_threshold
-        alpha = open_unit("alpha", options.alpha)
-        if band is not None:
-            band = check_band(band)
+        alpha = options.alpha  # (validated by DetectorOptions)
         model, channels, dt = first.model, first.channels, first.dt
         pg = periodogram(first.values[:1], dt)
         freqs, n_samples = pg.freqs_hz, pg.n_samples
@@ -364,10 +375,8 @@ class ChunkPlan:
             alpha = th.alpha
         elif threshold == "exact":  # (a nonlinear model needed a Threshold: _require_empirical above)
             th = exact_threshold(cast(LinearModel, model), freqs, n_samples, alpha, correction, band=band)
-        elif threshold == "paper":
+        else:  # "paper" (DetectorOptions refuses any other kind)
             th = paper_threshold(cast(LinearModel, model), freqs, alpha, band=band)
-        else:
-            raise ParameterError(f"unknown threshold kind {threshold!r}; choose 'exact' or 'paper'")
         sc = first.scenario
         if stft is None:
             stft = sc is not None and len(sc.segments) > 1 and n_samples >= config.n_window(dt)
@@ -571,9 +580,10 @@ def detect_record(
     healthy averages. Runs are assumed independent realizations. Identical to
     :func:`detect_chunks` on the record split in chunks.
     """
+    options = DetectorOptions(alpha, threshold, correction, **detector)
     if not isinstance(record, ChatteringRecord):
         raise ParameterError(f"record must be a ChatteringRecord; got {type(record).__name__}")
-    return _detect([record], DetectorOptions(alpha, threshold, correction, **detector))
+    return _detect([record], options)
 
 
 def detect_chunks(
@@ -679,8 +689,8 @@ def detect_scenario(
     """
     runs = positive_int("runs", runs)
     options = DetectorOptions(alpha, threshold, correction, **detector)
-    if workers == 1 and scheduler is None and identification is None:
-        chunks = iter_chattering(scenario, runs, seed, chunk_runs=chunk_runs, gamma=gamma)
-        return _detect(chunks, options)
     ex = Execution(workers=workers, scheduler=scheduler, chunk_runs=chunk_runs, progress=progress)
+    if ex.workers == 1 and ex.scheduler is None and identification is None:
+        chunks = iter_chattering(scenario, runs, seed, chunk_runs=ex.chunk_runs, gamma=gamma)
+        return _detect(chunks, options)
     return detect_on_workers(scenario, runs, seed, options, ex, gamma=gamma, identification=identification)

@@ -159,7 +159,8 @@ PARAMETER_SALT = 0x7A1E
 
 @dataclass(frozen=True, eq=False)
 class ParameterBands:
-    """The bands of a model's declared parameters, in table order.
+    """The tolerance bands of a model's declared parameters, in table order (parameter units; not the
+    tested frequency band of the spectral detector, :data:`~chatterspec.detection.thresholds.Band`).
 
     Attributes
     ----------
@@ -488,6 +489,9 @@ class ParameterAlarmSettings:
     horizon_hops: int
     power: float = DEFAULT_POWER
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "false_alarms_per_hour", check_budget(self.false_alarms_per_hour))
+
     @property
     def alarms(self) -> bool:
         """Whether the parameters raise alarms (tolerances declared)."""
@@ -573,12 +577,14 @@ def parameter_alarm_settings(
     bands = ParameterBands.from_map(setup.parameter_map, not_excited_multiple)
     hop_s = positive("hop_s", hop_s, unit="s")
     window_hops = positive_int("window_hops", window_hops)
-    X = check_budget(false_alarms_per_hour)
-    cal = None
+    cal = None  # (the budget: checked by calibrate_parameter_rule and by ParameterAlarmSettings)
     if setup.parameter_map.has_tolerances:
-        cal = calibrate_parameter_rule(rule, bands, window_hops, 3600.0 / hop_s, X, seed=seed)
+        cal = calibrate_parameter_rule(
+            rule, bands, window_hops, 3600.0 / hop_s, false_alarms_per_hour, seed=seed
+        )
     horizon = max(window_hops, round(positive("horizon_s", horizon_s, unit="s") / hop_s))
-    return ParameterAlarmSettings(bands, cal, window_hops, hop_s, X, horizon, open_unit("power", power))
+    power = open_unit("power", power)
+    return ParameterAlarmSettings(bands, cal, window_hops, hop_s, false_alarms_per_hour, horizon, power)
 
 
 @dataclass(frozen=True)

@@ -377,6 +377,8 @@ ThresholdKind = Literal["paper", "exact", "empirical"]
 AlphaMeaning = Literal["per-bin", "family-wise", "per-frame"]
 Correction = Literal["none", "bonferroni", "sidak"]
 ThresholdLaw = Literal["exact", "chi2"]
+#: The tested band ``(lo, hi)`` in Hz: the bins a threshold tests (not a parameter's tolerance band,
+#: ``ParameterBands``, nor the band a spectrogram displays, ``band_hz`` in :mod:`chatterspec.viewer`).
 Band = tuple[float, float]
 _CORRECTIONS = ("none", "bonferroni", "sidak")
 _LAWS = ("exact", "chi2")
@@ -491,7 +493,7 @@ class Threshold:
         if band is None:
             return self
         lo, hi = check_band(band)
-        tested = self.tested & band_mask(self.freqs_hz, (lo, hi))
+        tested = self.tested & _in_band(self.freqs_hz, (lo, hi))
         if not tested.any():
             raise ParameterError(
                 f"band [{lo:g}, {hi:g}] Hz holds none of this threshold's tested bins "
@@ -549,11 +551,25 @@ def band_mask(freqs_hz: np.ndarray, band: Band | None) -> np.ndarray:
         ``(lo, hi)`` in Hz (validated by :func:`check_band`).
     """
     f = np.asarray(freqs_hz, dtype=float)
-    if band is None:
-        return np.ones(f.shape, dtype=bool)
-    lo, hi = check_band(band)
+    return np.ones(f.shape, dtype=bool) if band is None else _in_band(f, check_band(band))
+
+
+def _in_band(freqs_hz: np.ndarray, band: Band) -> np.ndarray:
+    """:func:`band_mask` of a checked band."""
+    lo, hi = band
     tol = 1e-9 * max(1.0, hi)
-    return (f >= lo - tol) & (f <= hi + tol)
+    return (freqs_hz >= lo - tol) & (freqs_hz <= hi + tol)
+
+
+def check_detector(
+    alpha: float, correction: str = "none", band: Band | None = None
+) -> tuple[float, Correction, Band | None]:
+    """``alpha`` in (0, 1), a known ``correction``, the tested band in Hz (:func:`check_band`): the checks
+    of the threshold constructors, ``DetectorOptions`` and ``MonitorSettings`` (one message per bad value;
+    the internal callers of :func:`per_test_alpha` and :func:`band_mask` pass checked values)."""
+    if correction not in _CORRECTIONS:
+        raise ParameterError(f"correction must be 'none', 'bonferroni' or 'sidak'; got {correction!r}")
+    return open_unit("alpha", alpha), cast(Correction, correction), None if band is None else check_band(band)
 
 
 def per_test_alpha(alpha: float, n_tests: int, correction: Correction = "bonferroni") -> float:
@@ -568,15 +584,17 @@ def per_test_alpha(alpha: float, n_tests: int, correction: Correction = "bonferr
     correction : {"bonferroni", "sidak", "none"}
         ``none``: ``a = alpha``; ``bonferroni``: ``alpha / n``; ``sidak``: ``1 - (1 - alpha)^(1/n)``.
     """
-    alpha = open_unit("alpha", alpha)
-    n = positive_int("n_tests", n_tests)
+    alpha, correction, _ = check_detector(alpha, correction)
+    return _per_test_alpha(alpha, positive_int("n_tests", n_tests), correction)
+
+
+def _per_test_alpha(alpha: float, n: int, correction: Correction) -> float:
+    """:func:`per_test_alpha` of checked values (the threshold constructors have checked them)."""
     if correction == "none":
         return alpha
     if correction == "bonferroni":
         return alpha / n
-    if correction == "sidak":
-        return float(-np.expm1(np.log1p(-alpha) / n))
-    raise ParameterError(f"correction must be one of {_CORRECTIONS}; got {correction!r}")
+    return float(-np.expm1(np.log1p(-alpha) / n))  # sidak
 
 
 def _check_law(law: str) -> ThresholdLaw:
@@ -601,10 +619,9 @@ def _chi2_threshold(
     tested = ~(is_dc | is_nyq)
     if not tested.any():
         raise ShapeError("no frequency bin left to test (need bins other than DC and Nyquist)")
-    band = None if band is None else check_band(band)
     tested = _band_tested(tested, freqs, band)
     n_tested = int(np.count_nonzero(tested))
-    a = per_test_alpha(alpha, n_tested, correction)
+    a = _per_test_alpha(alpha, n_tested, correction)
     dof = np.where(is_dc | is_nyq, averaged, 2 * averaged)
     eigenvalues = None
     if eigen is None:
@@ -646,7 +663,7 @@ def _band_tested(tested: np.ndarray, freqs: np.ndarray, band: Band | None) -> np
     """``tested`` restricted to ``band``; a band holding no tested bin is a ParameterError."""
     if band is None:
         return tested
-    out = tested & band_mask(freqs, band)
+    out = tested & _in_band(freqs, band)
     if not out.any():
         f = freqs[tested]
         raise ParameterError(
@@ -703,7 +720,7 @@ def exact_threshold(
     paper_threshold : the paper's flat bound (eq 58-62).
     frame_threshold : the per-frame threshold of the STFT.
     """
-    alpha = open_unit("alpha", alpha)
+    alpha, correction, band = check_detector(alpha, correction, band)
     averaged = positive_int("averaged", averaged)
     law = _check_law(law)
     freqs = finite_array("freqs_hz", freqs_hz, ndim=1)
@@ -756,7 +773,7 @@ def frame_threshold(
     --------
     exact_threshold : the whole-record threshold.
     """
-    alpha = open_unit("alpha", alpha)
+    alpha, correction, band = check_detector(alpha, correction, band)
     law = _check_law(law)
     dt = model.dt if dt is None else positive("dt", dt, unit="s")
     freqs = finite_array("freqs_hz", freqs_hz, ndim=1)
@@ -810,9 +827,8 @@ def paper_threshold(
     exact_threshold : each bin's own law (the default).
     frame_threshold : the per-frame threshold of the STFT.
     """
-    alpha = open_unit("alpha", alpha)
+    alpha, _, band = check_detector(alpha, band=band)
     freqs = finite_array("freqs_hz", freqs_hz, ndim=1)
-    band = None if band is None else check_band(band)
     L = paper_gamma_matrix(model)
     sigma = np.diag(model.C @ model.Q @ model.C.T + L @ model.R @ L.T)
     is_dc, is_nyq = bin_layout(freqs, model.dt)
@@ -880,8 +896,7 @@ def threshold(
     ParameterError
         Unknown ``kind`` (the message lists the valid ones), missing argument, alpha outside (0, 1).
     """
-    alpha = open_unit("alpha", alpha)
-    if kind == "exact":
+    if kind == "exact":  # (each constructor checks alpha, correction and band)
         if n_samples is None:
             raise ParameterError('threshold("exact", ...) needs n_samples (the record length N)')
         return exact_threshold(model, freqs_hz, n_samples, alpha, correction, averaged, law, band)

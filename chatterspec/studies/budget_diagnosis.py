@@ -1363,8 +1363,7 @@ def diagnose_at_budget(
         Root seed of the diagnosed runs; the calibration streams use ``[seed, BUDGET_SALT]``.
     settings : BudgetSettings
     **execution
-        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
-        (:class:`~chatterspec.montecarlo.Execution`).
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress`` (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------

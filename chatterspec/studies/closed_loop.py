@@ -492,8 +492,7 @@ def excitation_study(
     confidence : float
         Level of the Clopper-Pearson intervals.
     **execution
-        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
-        (:class:`~chatterspec.montecarlo.Execution`).
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress`` (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------

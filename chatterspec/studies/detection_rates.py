@@ -228,8 +228,7 @@ def false_alarm_study(
     confidence : float
         Level of the Clopper-Pearson intervals.
     **execution
-        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
-        (:class:`~chatterspec.montecarlo.Execution`).
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress`` (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------
@@ -673,8 +672,7 @@ def power_study(
     confidence : float
         Level of the Clopper-Pearson intervals.
     **execution
-        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
-        (:class:`~chatterspec.montecarlo.Execution`).
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress`` (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------
@@ -683,7 +681,8 @@ def power_study(
     ex = Execution(**execution)
     if family not in POWER_FAMILIES:
         raise ParameterError(f"unknown fault family {family!r}; valid: {', '.join(POWER_FAMILIES)}")
-    alpha = open_unit("alpha", alpha)
+    grid = np.geomspace(1e-5, 0.5, 15) if alphas is None else np.asarray(alphas, dtype=float)
+    alpha, *levels = (open_unit("alpha", a) for a in (alpha, *grid))
     runs = positive_int("runs", runs)
     confidence = open_unit("confidence", confidence)
     spec = POWER_FAMILIES[family]
@@ -692,8 +691,7 @@ def power_study(
     if not sizes_t or not math.isclose(sizes_t[0], healthy):
         sizes_t = (healthy, *(s for s in sizes_t if not math.isclose(s, healthy)))
     noise_t = tuple(float(s) for s in (spec["noise"] if noise is None else noise))
-    grid = np.geomspace(1e-5, 0.5, 15) if alphas is None else np.asarray(alphas, dtype=float)
-    grid = np.unique(np.append([open_unit("alpha", a) for a in grid], alpha))
+    grid = np.unique(np.append(levels, alpha))
     kinds = ("paper", "exact", "exact-bonferroni")
     scenarios, thr_values = [], []
     tested = None

@@ -1309,8 +1309,7 @@ def diagnose_parallel(
         ``(setup, alpha, confidence)``: fault identification per segment too
         (:class:`~chatterspec.studies.diagnosis.IdentificationTally`), returned last.
     **execution
-        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
-        (:class:`~chatterspec.montecarlo.Execution`).
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress`` (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------

@@ -365,16 +365,11 @@ def consistency(values: np.ndarray, dim: int, *, alpha: float = 0.05, kind: str 
     -------
     ConsistencyTest
     """
-    alpha = open_unit("alpha", alpha)
-    values = _finite("values", values)
+    values = _finite("values", values)  # alpha, kind and dim: checked by consistency_from_sums
     if values.ndim == 1:
         values = values[None]
     if values.ndim != 2:
         raise ShapeError(f"values must be (runs, T) or (T,); got shape {values.shape}")
-    if kind not in ("NIS", "NEES"):
-        raise ShapeError(f'kind must be "NIS" or "NEES"; got {kind!r}')
-    if dim < 1:
-        raise ShapeError(f"dim must be a positive dimension; got {dim}")
     runs = values.shape[0]
     return consistency_from_sums(float(values.sum()), values.sum(axis=0), runs, dim, alpha=alpha, kind=kind)
 
@@ -870,8 +865,7 @@ def estimation_study(
     alpha : float
         Two-sided level of the NEES/NIS chi-squared intervals, in (0, 1).
     **execution
-        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
-        (:class:`~chatterspec.montecarlo.Execution`).
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress`` (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------
@@ -974,10 +968,8 @@ def argmax_accuracy(mu: np.ndarray, true_mode: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    mu : (runs, T, r) array
-        Mode probabilities per sample.
-    true_mode : (T,) or (runs, T) int array
-        Actual mode index per sample (-1: ignored).
+    mu, true_mode
+        Mode probabilities ``(runs, T, r)`` and actual modes, as in :func:`confusion_matrix`.
 
     Returns
     -------

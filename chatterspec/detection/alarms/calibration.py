@@ -76,7 +76,7 @@ from ..._validate import finite_array, open_unit, positive
 from ...errors import ParameterError, ShapeError
 from ...jsonout import finite_or_none
 from ..spectral import STFTConfig
-from ..thresholds import Threshold, check_band
+from ..thresholds import Threshold, check_detector
 from .rules import AlarmRule, FrameRule, is_rule, rule_from_dict, rule_spec
 from .streams import ring_length, rule_vector
 
@@ -585,7 +585,7 @@ class MonitorSettings:
         (then ``alpha`` and ``correction`` are ignored). It must cover the STFT
         frequencies of ``stft``.
     band : (float, float), optional
-        ``(lo, hi)`` in Hz: test only the frame bins with ``lo <= f <= hi`` (beyond the
+        The tested band ``(lo, hi)`` in Hz: test only the frame bins with ``lo <= f <= hi`` (beyond the
         paper, see :mod:`chatterspec.detection.thresholds`); the correction counts only
         them. With ``threshold`` given, that threshold is restricted to the band
         (:meth:`~chatterspec.detection.thresholds.Threshold.restricted`: its level is then
@@ -623,16 +623,12 @@ class MonitorSettings:
                     f"budget was calibrated for {self.budget.rule.to_dict()}; the rule is "
                     f"{None if self.rule is None else self.rule.to_dict()}"
                 )
-        if self.band is not None:
-            object.__setattr__(self, "band", check_band(self.band))
+        checked = check_detector(self.alpha, self.correction, self.band)
+        for name, value in zip(("alpha", "correction", "band"), checked, strict=True):
+            object.__setattr__(self, name, value)
         if not isinstance(self.stft, STFTConfig):
             raise ParameterError(f"stft must be an STFTConfig; got {type(self.stft).__name__}")
-        object.__setattr__(self, "alpha", open_unit("alpha", self.alpha))
         object.__setattr__(self, "gamma", open_unit("gamma", self.gamma))
-        if self.correction not in ("none", "bonferroni", "sidak"):
-            raise ParameterError(
-                f"correction must be 'none', 'bonferroni' or 'sidak'; got {self.correction!r}"
-            )
         if self.threshold is not None and not isinstance(self.threshold, Threshold):
             raise ParameterError(f"threshold must be a Threshold; got {type(self.threshold).__name__}")
         if self.psi is not None:

@@ -100,8 +100,7 @@ def calibrate(
         the exact value, intervals widened outward to bucket edges); ``0`` forces the histograms.
         ``Calibration.tails`` records which path ran.
     **execution
-        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
-        (:class:`~chatterspec.montecarlo.Execution`).
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress`` (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------
@@ -365,8 +364,7 @@ def calibrate_empirical(
         Memory budget in bytes of the exact quantile tails; above it the bounded tail
         histograms are used (see :func:`~.calibration.calibrate`).
     **execution
-        ``workers``, ``scheduler``, ``chunk_runs``, ``progress``: how the runs execute
-        (:class:`~chatterspec.montecarlo.Execution`).
+        ``workers``, ``scheduler``, ``chunk_runs``, ``progress`` (:class:`~chatterspec.montecarlo.Execution`).
 
     Returns
     -------
