@@ -16,7 +16,13 @@ import pytest
 from chatterspec.filters import _engine, bank
 from chatterspec.filters.bank import combine, log_gaussian, normalize_log_weights
 from chatterspec.filters.kalman import _KF_STEP
-from chatterspec.filters.svsf_recursion import closed_form_step, matvec_step, rows_times_step, svsf_step
+from chatterspec.filters.svsf_recursion import (
+    closed_form_step,
+    copy_pair_step,
+    matvec_step,
+    rows_times_step,
+    svsf_step,
+)
 from chatterspec.plants import eha4 as eha4_mod
 from chatterspec.plants import steps
 
@@ -124,6 +130,11 @@ def test_rows_times_and_matvec_steps() -> None:
     S, v = rng.standard_normal((3, 3)), rng.standard_normal(3)
     matvec_step(S, v, out, 3, 3)
     close(out, S @ v, np.abs(S) @ np.abs(v))
+    a2, b2 = np.full(3, np.nan), np.full(3, np.nan)
+    copy_pair_step(v, a, a2, b2, 3, 2)  # all of a, the first two entries of b2
+    np.testing.assert_array_equal(a2, v)
+    np.testing.assert_array_equal(b2[:2], a)
+    assert np.isnan(b2[2])
 
 
 def test_linear_plant_steps_are_eq_1_and_2() -> None:

@@ -52,6 +52,7 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from .. import _jit
 from ..errors import ShapeError, SingularMatrixError
@@ -82,6 +83,7 @@ __all__ = [
     "joseph_numpy",
     "joseph_step",
     "kalman_gain_numpy",
+    "kernel_input",
     "linear_prediction",
     "loglik_given_step",
     "loglik_step",
@@ -697,6 +699,19 @@ def one_sample_kernel(
 
 
 # ----------------------------------------------------------------------------- drivers
+def kernel_input(a: npt.ArrayLike) -> np.ndarray:
+    """``a`` as a read-only C-contiguous float array (a view when it is one already, else a copy).
+
+    The compiled loops take every array they only read in this one form: numba compiles a kernel
+    once per argument type, and a writable and a read-only array are two types (the model's
+    matrices are read-only, a caller's own arrays usually not), so without it the same loop
+    compiled twice.
+    """
+    v = np.ascontiguousarray(a, dtype=float).view()
+    v.flags.writeable = False
+    return v
+
+
 def _alloc(
     keep: frozenset[str], shapes: dict[str, tuple[int, ...]]
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -768,14 +783,14 @@ def cov_loop(
     runs, K, m = z.shape
     n = x.shape[1]
     flags, out = _alloc(keep, _shapes(runs, K, n, m))
-    c = np.ascontiguousarray
+    c = kernel_input
     if plant is None:
         assert xp_in is not None and F_in is not None  # (no plant steps: the caller's prediction)
-        prm = c(np.concatenate([xp_in, np.reshape(F_in, (runs, n * n))], axis=1), dtype=float)
+        prm = c(np.concatenate([xp_in, np.reshape(F_in, (runs, n * n))], axis=1))
         bind: dict[str, Any] = {"PREDICT": given_predict, "JACOBIAN": given_jacobian, "CONST_F": False}
         tag = f"given_{correct.name}"
     else:
-        prm = c(plant.parameters, dtype=float)[None]
+        prm = c(plant.parameters)[None]
         bind = {
             "PREDICT": plant.predict,
             "JACOBIAN": plant.jacobian,
@@ -787,8 +802,8 @@ def cov_loop(
     tag += ("_hx" if measurement is not None else "") + ("" if "loglik" in keep else "_noll")
     kernel = _jit.specialize_sizes(_cov_loop, tag, {"NX": n, "NZ": m}, SAMPLE=sample, **bind)
     status = kernel(
-        prm, c(u, dtype=float), c(z, dtype=float), x, P, ep, epp, c(C, dtype=float), c(Q, dtype=float),
-        c(R, dtype=float), correct.parameters, flags, out["x_prior"], out["x_post"], out["innovation"],
+        prm, c(u), c(z), x, P, ep, epp, c(C), c(Q), c(R), c(correct.parameters), flags, out["x_prior"],
+        out["x_post"], out["innovation"],
         out["S"], out["loglik"], out["e_post"], out["P_prior"], out["P_post"],
     )  # fmt: skip
     if status > runs:

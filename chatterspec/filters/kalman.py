@@ -51,12 +51,14 @@ from ._engine import (
     innovation_step,
     joseph_numpy,
     joseph_step,
+    kernel_input,
     loglik_given_step,
     predict_cov_step,
     residual_step,
     store_step,
 )
 from ._engine import chol_np as _chol_np
+from .svsf_recursion import copy_pair_step
 from .svsf_recursion import rows_times as _rows_times
 
 __all__ = [
@@ -321,10 +323,7 @@ def _kf_shared_loop(
     none2 = _jit.scratch2(0, 0)
     for r in range(runs):
         ur = 0 if shared_u else r
-        for i in range(n):
-            xr[i] = x[r, i]
-        for i in range(m):
-            epr[i] = ep[r, i]
+        copy_pair_step(x[r], ep[r], xr, epr, n, m)
         for k in range(K):
             predict_step(prm, xr, u[ur, k], xp, n, p)
             residual_step(z[r, k], C, xp, e, n, m)
@@ -334,10 +333,7 @@ def _kf_shared_loop(
                 epp[r, i] = epr[i]
             residual_step(z[r, k], C, xr, epr, n, m)
             store_step(flags, outs, r, k, xp, xr, e, none2, ll, epr, none2, none2, n, m)
-        for i in range(n):
-            x[r, i] = xr[i]
-        for i in range(m):
-            ep[r, i] = epr[i]
+        copy_pair_step(xr, epr, x[r], ep[r], n, m)
     return 0
 
 
@@ -363,7 +359,7 @@ def riccati_compiled(
         An innovation covariance that is not positive definite (or not finite).
     """
     n, m = A.shape[0], C.shape[0]
-    c = np.ascontiguousarray
+    c = kernel_input
     P = np.array(P, dtype=float, order="C")
     out = (
         np.empty((K, n, n)),
@@ -373,9 +369,7 @@ def riccati_compiled(
         np.empty((K, m, m)),
         np.empty(K),
     )
-    status = _riccati_kernel(n, m)(
-        c(A, dtype=float), c(C, dtype=float), c(Q, dtype=float), c(R, dtype=float), P, *out
-    )
+    status = _riccati_kernel(n, m)(c(A), c(C), c(Q), c(R), P, *out)
     if status:
         raise SingularMatrixError(_not_pd_message(MAP_CONST, 0))
     return (P, *out)
@@ -467,9 +461,10 @@ def kf_shared_states(
     flags[[FIELDS.index("S"), FIELDS.index("P_prior"), FIELDS.index("P_post")]] = False
     KgT = np.ascontiguousarray(KgT)
     if L is not None:
-        c = np.ascontiguousarray
+        assert half_logdet is not None  # (compiled: the caller passes riccati_compiled's)
+        c = kernel_input
         _kf_shared_kernel(n, m)(
-            parameters(A, B), c(u, dtype=float), c(z), x, ep, epp, c(C), KgT, c(L), c(half_logdet), flags,
+            c(parameters(A, B)), c(u), c(z), x, ep, epp, c(C), c(KgT), c(L), c(half_logdet), flags,
             tuple(out[f] for f in FIELDS),
         )  # fmt: skip
     else:

@@ -487,63 +487,61 @@ def _luen_update(
         x[i] = xp[i] + s
 
 
-@_jit.step
-def luen_first_order(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarray, xp: np.ndarray,
+def _luen_correct(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarray, xp: np.ndarray,
     PCtT: np.ndarray, D: np.ndarray, L: np.ndarray, C: np.ndarray, F: np.ndarray, x: np.ndarray,
     KgT: np.ndarray, ws: tuple[np.ndarray, ...], n: int, m: int) -> int:  # fmt: skip
-    """The first-order correction of the module docstring (the correction-step signature of
-    :mod:`chatterspec.filters._engine`); returns 0 or ``SINGULAR_PHI12``."""
-    if not _phi_blocks(fp, F, e, ws, n, m):
-        return SINGULAR_PHI12
-    P12i, Al, Ae, g, dy, Ky = ws[19], ws[20], ws[21], ws[15], ws[23], ws[24]
-    o_g, _, o_psi, _, _, _, _ = svsf_offsets(n, m)
-    for i in range(m):
-        a = abs(e[i])
-        den = a if a > fp[o_psi + i] else fp[o_psi + i]
-        g[i] = (a + fp[o_g + i] * abs(ep[i])) / den
-        s = 0.0
-        for q in range(m):
-            s += P12i[i, q] * ep[q]
-        al = abs(Ae[i])
-        den = al if al > fp[o_psi + m + i] else fp[o_psi + m + i]
-        kl = (al + fp[o_g + i] * abs(s)) / den
-        dy[i] = g[i] * e[i]
-        dy[m + i] = kl * Ae[i]
-        for q in range(m):  # Ky = [diag(ku); diag(kl) Al]
-            Ky[i, q] = g[i] if i == q else 0.0
-            Ky[m + i, q] = kl * Al[i, q]
-    _luen_update(fp, xp, x, KgT, ws, n, m)
-    return 0
+    """The reduced-order correction of the module docstring, first or (``SECOND``) second order (the
+    correction-step signature of :mod:`chatterspec.filters._engine`); returns 0 or ``SINGULAR_PHI12``.
 
-
-@_jit.step
-def luen_second_order(fp: np.ndarray, e: np.ndarray, ep: np.ndarray, epp: np.ndarray, xp: np.ndarray,
-    PCtT: np.ndarray, D: np.ndarray, L: np.ndarray, C: np.ndarray, F: np.ndarray, x: np.ndarray,
-    KgT: np.ndarray, ws: tuple[np.ndarray, ...], n: int, m: int) -> int:  # fmt: skip
-    """The second-order correction of the module docstring (the correction-step signature of
-    :mod:`chatterspec.filters._engine`); returns 0 or ``SINGULAR_PHI12``."""
+    A template: :data:`luen_first_order` and :data:`luen_second_order` bind ``SECOND``.
+    """
     if not _phi_blocks(fp, F, e, ws, n, m):
         return SINGULAR_PHI12
     P12i, Al, Ae, g, rr, dy, Ky = ws[19], ws[20], ws[21], ws[15], ws[22], ws[23], ws[24]
-    o_g, o_l, _, o_lo, _, _, _ = svsf_offsets(n, m)
-    lo, hi = fp[o_lo], fp[o_lo + 1]
-    for i in range(m):
-        gi, li = fp[o_g + i], fp[o_l + i]
-        rr[i] = (gi + li) * ep[i] - gi * li * epp[i]
-    for i in range(m):
-        dy[i] = e[i] - rr[i]
-        s = Ae[i]
-        for q in range(m):
-            s -= P12i[i, q] * rr[q]
-        dy[m + i] = s
-        if e[i] != 0.0:
-            q_i = dy[i] / e[i]
-            g[i] = lo if q_i < lo else (hi if q_i > hi else q_i)
-        else:
-            g[i] = 1.0
-    for i in range(m):  # Ky = [diag(q); Al diag(q)]
-        for q in range(m):
-            Ky[i, q] = g[q] if i == q else 0.0
-            Ky[m + i, q] = Al[i, q] * g[q]
+    o_g, o_l, o_psi, o_lo, _, _, _ = svsf_offsets(n, m)
+    if SECOND:
+        lo, hi = fp[o_lo], fp[o_lo + 1]
+        for i in range(m):
+            gi, li = fp[o_g + i], fp[o_l + i]
+            rr[i] = (gi + li) * ep[i] - gi * li * epp[i]
+        for i in range(m):
+            dy[i] = e[i] - rr[i]
+            s = Ae[i]
+            for q in range(m):
+                s -= P12i[i, q] * rr[q]
+            dy[m + i] = s
+            if e[i] != 0.0:
+                q_i = dy[i] / e[i]
+                g[i] = lo if q_i < lo else (hi if q_i > hi else q_i)
+            else:
+                g[i] = 1.0
+        for i in range(m):  # Ky = [diag(q); Al diag(q)]
+            for q in range(m):
+                Ky[i, q] = g[q] if i == q else 0.0
+                Ky[m + i, q] = Al[i, q] * g[q]
+    else:
+        for i in range(m):
+            a = abs(e[i])
+            den = a if a > fp[o_psi + i] else fp[o_psi + i]
+            g[i] = (a + fp[o_g + i] * abs(ep[i])) / den
+            s = 0.0
+            for q in range(m):
+                s += P12i[i, q] * ep[q]
+            al = abs(Ae[i])
+            den = al if al > fp[o_psi + m + i] else fp[o_psi + m + i]
+            kl = (al + fp[o_g + i] * abs(s)) / den
+            dy[i] = g[i] * e[i]
+            dy[m + i] = kl * Ae[i]
+            for q in range(m):  # Ky = [diag(ku); diag(kl) Al]
+                Ky[i, q] = g[i] if i == q else 0.0
+                Ky[m + i, q] = kl * Al[i, q]
     _luen_update(fp, xp, x, KgT, ws, n, m)
     return 0
+
+
+#: Binding of :func:`_luen_correct`: the second-order correction.
+SECOND = False
+#: The first-order reduced-order correction (a compiled step with the correction-step signature).
+luen_first_order = _jit.specialize(_luen_correct, "first", inline=True, SECOND=False)
+#: The second-order reduced-order correction (a compiled step with the correction-step signature).
+luen_second_order = _jit.specialize(_luen_correct, "second", inline=True, SECOND=True)

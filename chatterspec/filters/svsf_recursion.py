@@ -49,6 +49,7 @@ __all__ = [
     "closed_form_errors",
     "closed_form_step",
     "compiled_recursion",
+    "copy_pair_step",
     "kernel_constants",
     "matvec_step",
     "numpy_recursion",
@@ -545,6 +546,15 @@ def rows_times_step(a: np.ndarray, MT: np.ndarray, out: np.ndarray, p: int, n: i
 
 
 @_jit.step
+def copy_pair_step(a: np.ndarray, b: np.ndarray, a2: np.ndarray, b2: np.ndarray, na: int, nb: int) -> None:
+    """``a2 = a`` (``na`` entries), ``b2 = b`` (``nb``): a run's state into a loop's stack copy, and back."""
+    for i in range(na):
+        a2[i] = a[i]
+    for i in range(nb):
+        b2[i] = b[i]
+
+
+@_jit.step
 def matvec_step(M: np.ndarray, v: np.ndarray, out: np.ndarray, n: int, q: int) -> None:
     """``out = M v`` summed from 0.0 over j = 0 .. q-1 (``x(k|k) = S^-1 y(k|k)``)."""
     for i in range(n):
@@ -661,10 +671,7 @@ def _svsf_kernel(
     xc = _jit.scratch(n)
     for r in range(runs):
         g = 0 if shared else r
-        for j in range(n):
-            yc[j] = y[r, j]
-        for j in range(m):
-            epc[j] = ep[r, j]
+        copy_pair_step(y[r], ep[r], yc, epc, n, m)
         for k in range(K):
             svsf_step(z[r, k], Gu[g, k], PhiT, L, P, inv_psi, gamma, yc, epc, yp, e, le, n, m, nl, sat)
             for i in range(m):
@@ -679,10 +686,7 @@ def _svsf_kernel(
                 matvec_step(S_inv, yc, xc, n, n)
                 for i in range(n):
                     x_out[r, k, i] = xc[i]
-        for j in range(n):
-            y[r, j] = yc[j]
-        for j in range(m):
-            ep[r, j] = epc[j]
+        copy_pair_step(yc, epc, y[r], ep[r], n, m)
 
 
 @_jit.njit
