@@ -14,7 +14,9 @@ measurement), measured on one thread in two ways: numpy's ``standard_normal`` fi
 ``(BLOCK, T, 3)`` arrays (how the numpy path draws; the bound the targets refer to) and
 numba's, one number at a time (how the fused kernel draws). Rates are given per wall second
 and per CPU second of this process (``time.process_time``, all threads, user + system): on
-a shared machine the second is the one to compare with the bounds.
+a shared machine the second is the one to compare with the bounds. The CPU shares of the compiled
+path's stages (records: simulation, auxiliary SVSF and their noise draws; periodogram; verdict) are
+printed too: they bound what a faster fused kernel can gain.
 
 Run: ``python benchmarks/bench_pipeline.py [--runs 10000] [--threads 2]``.
 Targets: >= 5 M realization-steps/s at 10^4 realizations on 2 cores (numpy path); >= 10 M with
@@ -39,13 +41,17 @@ from chatterspec.detection.verdicts import detect_spectrum
 from chatterspec.montecarlo import BLOCK, block_generator, root_seed_sequence
 
 
-def end_to_end(runs: int, threads: int, chunk: int, seed: int = 0) -> tuple[float, float, int]:
-    """(realization-steps per wall second, per CPU second of this process, records flagged)."""
+def healthy_case() -> tuple[cs.Scenario, int, np.ndarray, np.ndarray]:
+    """EHA healthy: the scenario, its N chattering samples, exact thresholds (1e-3) and expected spectrum."""
     sc = cs.scenario("eha-healthy")
     N = sc.n_samples - 1
     f = periodogram_freqs(N, sc.dt)
-    th = exact_threshold(sc.nominal, f, N, 1e-3)
-    E = expected_spectrum(sc.nominal, f, N)
+    return sc, N, exact_threshold(sc.nominal, f, N, 1e-3), expected_spectrum(sc.nominal, f, N)
+
+
+def end_to_end(runs: int, threads: int, chunk: int, seed: int = 0) -> tuple[float, float, int]:
+    """(realization-steps per wall second, per CPU second of this process, records flagged)."""
+    sc, N, th, E = healthy_case()
 
     def work(first: int) -> int:
         n = min(chunk, runs - first)
@@ -65,6 +71,28 @@ def end_to_end(runs: int, threads: int, chunk: int, seed: int = 0) -> tuple[floa
         flagged = sum(map(work, starts))
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     return runs * N / wall, runs * N / cpu, flagged
+
+
+def stage_times(runs: int, chunk: int, seed: int = 0) -> dict[str, float]:
+    """CPU seconds of each stage of :func:`end_to_end` on one thread: the chunks' records (simulation and
+    auxiliary SVSF, the fused kernel when compiled, its noise draws included), periodograms, verdicts."""
+    sc, _, th, E = healthy_case()
+    times = dict.fromkeys(("records", "periodogram", "verdict"), 0.0)
+    records = iter_chattering(sc, runs, seed, chunk_runs=chunk)
+    while True:
+        c0 = time.process_time()
+        rec = next(records, None)
+        c1 = time.process_time()
+        if rec is None:
+            break
+        pg = periodogram(rec.values, rec.dt)
+        c2 = time.process_time()
+        detect_spectrum(pg.power, th, E, rec.channels)
+        c3 = time.process_time()
+        times["records"] += c1 - c0
+        times["periodogram"] += c2 - c1
+        times["verdict"] += c3 - c2
+    return times
 
 
 def normals_rate(seconds: float = 2.0, T: int = 4001) -> float:
@@ -142,6 +170,13 @@ def main() -> None:
                 f"3 channels: {flagged}; nominal 0.1 % per channel)"
             )
     os.environ.pop("CHATTERSPEC_JIT", None)
+    if _jit.HAVE_NUMBA:
+        shares = stage_times(min(args.runs, 4 * args.chunk), args.chunk)
+        total = sum(shares.values())
+        print(
+            "  compiled, one thread, CPU shares: "
+            + ", ".join(f"{name} {t / total:.0%}" for name, t in shares.items())
+        )
     bounds = {"numpy standard_normal": normals_rate() / 6}
     if _jit.HAVE_NUMBA:
         bounds["numba standard_normal"] = numba_normals_rate() / 6

@@ -320,15 +320,17 @@ def plant_loop(
     z = _jit.scratch(m)
     zp = _jit.scratch(m)
     for r in range(runs):
+        vr = v[r]  # (T, n) and (T, m) views indexed from 0: no negative-index test per sample
+        wr = w[r]
         for i in range(n):
             x[i] = x0[i]
         for k in range(T):
             s = seg_idx[k]
-            measure_step(s, x, w[r, k], C, Lr, diag, z, n, m)
+            measure_step(s, x, wr[k], C, Lr, diag, z, n, m)
             SINK(offset + r, k, x, z, zp, out_a, out_b, PhiT, Gu, n, m)
             INPUT(offset + r, s, k, z, Bu, ctrl, bu, n)
             if k + 1 < T:
-                advance_step(s, x, bu, v[r, k], A, Lq, diag, xn, n)
+                advance_step(s, x, bu, vr[k], A, Lq, diag, xn, n)
                 for i in range(n):
                     x[i] = xn[i]
 
