@@ -220,9 +220,7 @@ def test_imm_equals_an_independent_imm_with_distinct_modes(
 def test_smm_weight_floor_is_applied_and_active(reading: str) -> None:
     """With a mode that the data rule out, its weight sits at the default floor (1e-3, renormalized)
     instead of underflowing towards 0, and every weight vector sums to 1."""
-    full = _full_model()
-    # two of its three outputs: the sizes (3 states, 2 outputs) of the other compiled SMM loops of the tests
-    mdl = LinearModel(full.A, full.B, full.C[:2], full.Q, full.R[:2, :2], full.dt)
+    mdl = _full_model()
     wrong = LinearModel(mdl.A, 20.0 * mdl.B, mdl.C, mdl.Q, mdl.R, mdl.dt)  # a 20x input gain
     rng = np.random.default_rng(6)
     runs, T = 2, 150
@@ -231,7 +229,7 @@ def test_smm_weight_floor_is_applied_and_active(reading: str) -> None:
     zs = []
     for k in range(T):
         x = mdl.transition(x, u[k]) + rng.normal(scale=1e-2, size=(runs, 3))
-        zs.append(x @ mdl.C.T + rng.normal(scale=0.1, size=(runs, 2)))
+        zs.append(x @ mdl.C.T + rng.normal(scale=0.1, size=(runs, 3)))
     z = np.stack(zs, axis=1)
     smm = SMMSVSF([mdl, wrong], psi=0.5, reading=reading)
     floor = smm.weight_floor
