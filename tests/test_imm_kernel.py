@@ -30,30 +30,34 @@ def analogue(T: int, runs: int):  # type: ignore[no-untyped-def]
     return fs, sim.z[:, 1 : T + 1], sim.u[:T]
 
 
-def make_bank(kind: str, fs) -> list[object]:  # type: ignore[no-untyped-def]
-    def one(m):  # type: ignore[no-untyped-def]
-        if kind == "ekf":
-            return ExtendedKalmanFilter(m)
-        if kind == "svsf-cov":
-            return SVSFCov(m, psi=np.array(fs.psi), gamma=fs.gamma, mapping="cov")
-        if kind == "svsf2-cov":
-            return SecondOrderSVSF(m, gamma=fs.gamma, lam=np.array(fs.cutoff_lambda), mapping="cov")
-        if kind == "svsf-luen":
-            return SVSFCov(m, psi=np.array(fs.psi + fs.psi_lower), gamma=fs.gamma, mapping="luen")
-        if kind == "svsf2-luen":
-            return SecondOrderSVSF(m, gamma=fs.gamma, lam=np.array(fs.cutoff_lambda), mapping="luen")
-        if kind == "mixed":  # a heterogeneous bank
-            return None
-        raise AssertionError(kind)
+def make_bank(kind: str, fs) -> tuple[list[object], np.ndarray]:  # type: ignore[no-untyped-def]
+    """The bank of ``kind`` on the analogue's mode models and its transition matrix.
 
-    if kind == "mixed":
-        ms = fs.mode_models
-        return [
-            ExtendedKalmanFilter(ms[0]),
-            SVSFCov(ms[1], psi=np.array(fs.psi), gamma=fs.gamma, mapping="cov"),
-            SecondOrderSVSF(ms[2], gamma=fs.gamma, lam=np.array(fs.cutoff_lambda), mapping="cov"),
-        ]
-    return [one(m) for m in fs.mode_models]
+    ``"ekf"``: the EKF bank of ``diagnose`` (one correction kind); ``"every-kind"``: one mode of each
+    correction the compiled IMM supports (KF, SVSF with a constant and with the ``cov`` map, the
+    second-order SVSF, both with the ``luen`` map), so that one compiled loop covers them all.
+    """
+    ms = fs.mode_models
+    if kind == "ekf":
+        return [ExtendedKalmanFilter(m) for m in ms], fs.transition_matrix
+    assert kind == "every-kind", kind
+    psi, lam, gamma = np.array(fs.psi), np.array(fs.cutoff_lambda), fs.gamma
+    bank = [
+        ExtendedKalmanFilter(ms[0]),
+        SVSFCov(ms[1], psi=psi, gamma=gamma, mapping="cov"),
+        SecondOrderSVSF(ms[2], gamma=gamma, lam=lam, mapping="cov"),
+        SVSFCov(ms[0], psi=np.array(fs.psi + fs.psi_lower), gamma=gamma, mapping="luen"),
+        SecondOrderSVSF(ms[1], gamma=gamma, lam=lam, mapping="luen"),
+        SVSFCov(ms[2], psi=psi, gamma=gamma, mapping="pinv"),
+    ]
+    r = len(bank)
+    return bank, np.full((r, r), 0.01) + (1.0 - 0.01 * r) * np.eye(r)
+
+
+def imm(kind: str, fs) -> IMM:  # type: ignore[no-untyped-def]
+    bank, pi = make_bank(kind, fs)
+    mu0 = np.array(fs.mu0) if kind == "ekf" else None
+    return IMM(bank, pi, mu0=mu0, modes=fs.modes if kind == "ekf" else None)
 
 
 def protocol(f: IMM) -> IMM:
@@ -68,11 +72,16 @@ def assert_close(a, b) -> None:  # type: ignore[no-untyped-def]
     # range, mu 1.5e-8 absolute, loglik 2.5e-11 relative, diag P 1e-6 relative (svsf2-cov, whose
     # covariance gain dz/e is ill-conditioned where e ~ 0; the protocol path's own compiled vs
     # numpy branches differ by the same order, 2.4e-9 / 1.3e-7). Tolerances about 100x that.
+    # loglik: 1e-9 relative plus 1e-7 absolute. It is a sum of terms of order 10-30 (the log-variances
+    # of the scaled innovation covariance: position ~1e-14 m^2, pressure ~4e4 Pa^2, log 2 pi, the
+    # quadratic form) that cancel to |loglik| ~ 1 where a mode fits well, so its rounding is a few
+    # ulps of those terms, an absolute difference, not one relative to the result: the every-kind
+    # bank measured 2.0e-9 absolute at loglik = -0.85 (svsf2-cov and pinv modes), 50x below 1e-7.
     scale = np.max(np.abs(b.x_post), axis=(0, 1))
     gap = np.max(np.abs(a.x_post - b.x_post), axis=(0, 1))
     assert np.all(gap <= 1e-9 * scale), (gap, scale)
     np.testing.assert_allclose(a.mu, b.mu, rtol=0, atol=1e-6)
-    np.testing.assert_allclose(a.loglik, b.loglik, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(a.loglik, b.loglik, rtol=1e-9, atol=1e-7)
     da = np.diagonal(a.P_post, axis1=-2, axis2=-1)
     db = np.diagonal(b.P_post, axis1=-2, axis2=-1)
     np.testing.assert_allclose(da, db, rtol=1e-4, atol=0)
@@ -81,10 +90,14 @@ def assert_close(a, b) -> None:  # type: ignore[no-untyped-def]
 
 
 @needs_numba
-@pytest.mark.parametrize("kind", ["ekf", "svsf-cov", "svsf2-cov", "svsf-luen", "svsf2-luen", "mixed"])
+@pytest.mark.parametrize("kind", ["ekf", "every-kind"])
 def test_fused_imm_matches_the_protocol_path_on_the_analogue(kind: str) -> None:
+    # one bank with every correction kind instead of one bank per kind: a bank compiles one loop for
+    # its set of kinds (tens of seconds each), and each mode's correction is chosen at run time
+    # (measured on the every-kind bank: x_post 6e-12 of the range, mode_x_post 6e-11, mu 6e-11,
+    # diag P 5e-9 relative: within the tolerances of the single-kind banks)
     fs, z, u = analogue(600, 3)
-    f = IMM(make_bank(kind, fs), fs.transition_matrix, mu0=np.array(fs.mu0), modes=fs.modes)
+    f = imm(kind, fs)
     assert f._fused is not None
     kw = dict(x0=fs.x0, P0=fs.P0, store={"P_post", "mode_x_post"})
     a = f.run(z, u, **kw)
@@ -107,7 +120,9 @@ def test_fused_imm_matches_on_a_linear_bank_with_per_run_inputs() -> None:
     runs, T = 4, 200
     z = rng.normal(scale=0.3, size=(runs, T, 2))
     u = rng.uniform(-1, 1, size=(runs, T, 1))
-    filters = [KalmanFilter(ms[0]), SVSFCov(ms[1], psi=0.3, gamma=0.3, mapping="pinv")]
+    # Kalman-type modes: the loop of the other 3-state, 2-output Kalman banks of the tests (the
+    # corrections are compared on the analogue; here the per-run inputs and the floor are the point)
+    filters = [KalmanFilter(ms[0]), ExtendedKalmanFilter(ms[1])]
     f = IMM(filters, np.array([[0.95, 0.05], [0.1, 0.9]]), weight_floor=1e-4)
     assert f._fused is not None
     kw = dict(x0=np.zeros(3), P0=0.1 * np.eye(3), store={"P_post", "mode_x_post"})
@@ -117,7 +132,7 @@ def test_fused_imm_matches_on_a_linear_bank_with_per_run_inputs() -> None:
 @needs_numba
 def test_fused_imm_is_chunk_invariant_bit_for_bit() -> None:
     fs, z, u = analogue(400, 3)
-    f = IMM(make_bank("mixed", fs), fs.transition_matrix, mu0=np.array(fs.mu0), modes=fs.modes)
+    f = imm("every-kind", fs)
     whole = f.run(z, u, x0=fs.x0, P0=fs.P0, store={"P_post", "mode_x_post"})
     state = f.initialize(fs.x0, fs.P0, runs=3)
     parts = []
@@ -145,7 +160,7 @@ def test_unsupported_banks_take_the_protocol_path() -> None:
 def test_kernel_python_function_matches_the_protocol_path(monkeypatch) -> None:  # type: ignore[no-untyped-def]
     # the kernel's own Python function, so the test does not depend on the compiler for its meaning
     fs, z, u = analogue(6, 2)
-    f = IMM(make_bank("mixed", fs), fs.transition_matrix, mu0=np.array(fs.mu0), modes=fs.modes)
+    f = imm("every-kind", fs)
     state = f.initialize(fs.x0, fs.P0, runs=2)
     zz, uu = z, u[None]
     _st, o = run_fused(f._fused, f.transition_matrix, 0.0, state, zz, uu, True, True, python=True)

@@ -25,13 +25,22 @@ def model(b3: float = 0.05, C: np.ndarray | None = None) -> LinearModel:
     return LinearModel(A, B, C, np.diag([1e-3, 2e-3, 1e-3]), 0.01 * np.eye(C.shape[0]), 0.01)
 
 
+def oscillator() -> LinearModel:
+    """A 2-state, 1-output model: the sizes of the hand-formula IMM of ``tests/test_hand_formulas.py``,
+    whose compiled loops (one per correction kind and size) the one-mode banks here share."""
+    A = np.array([[1.0, 0.01], [-0.4, 0.98]])
+    B, C = np.array([[0.0], [0.01]]), np.array([[1.0, 0.0]])
+    return LinearModel(A, B, C, np.diag([1e-3, 2e-3]), [[0.01]], 0.01)
+
+
 def data(m: LinearModel, runs: int = 3, T: int = 80, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
-    x = np.zeros((runs, 3))
+    n = m.n_states
+    x = np.zeros((runs, n))
     u = rng.uniform(-1, 1, size=(T, 1))
     zs = []
     for k in range(T):
-        x = m.transition(x, u[k]) + rng.normal(size=(runs, 3)) * np.sqrt(np.diag(m.Q))
+        x = m.transition(x, u[k]) + rng.normal(size=(runs, n)) * np.sqrt(np.diag(m.Q))
         zs.append(x @ m.C.T + rng.normal(size=(runs, m.n_outputs)) * 0.1)
     return np.stack(zs, axis=1), u
 
@@ -52,11 +61,12 @@ PI2 = np.array([[0.95, 0.05], [0.1, 0.9]])
     ids=["kf", "ekf", "svsf-cov", "svsf2"],
 )
 def test_one_mode_imm_equals_its_filter(make) -> None:  # type: ignore[no-untyped-def]
-    m = model()
+    m = oscillator()
     z, u = data(m)
     f = make(m)
-    ref = f.run(z, u, x0=np.zeros(3), P0=P0, store=["x_post", "P_post"])
-    out = IMM([f], np.ones((1, 1))).run(z, u, x0=np.zeros(3), P0=P0, store={"P_post"})
+    x0, P0_ = np.zeros(2), np.diag([0.1, 0.2])
+    ref = f.run(z, u, x0=x0, P0=P0_, store=["x_post", "P_post"])
+    out = IMM([f], np.ones((1, 1))).run(z, u, x0=x0, P0=P0_, store={"P_post"})
     # mixing with one mode is the identity and e(k|k) of the mixed estimate is the filter's own residual
     np.testing.assert_allclose(out.x_post, ref.x_post, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(
@@ -95,8 +105,7 @@ def test_printed_imm_spread_is_exactly_twice_the_standard_one() -> None:
 
 
 def test_smm_of_identical_modes_equals_the_svsf() -> None:
-    C = np.eye(3)
-    m = model(C=C)
+    m = model()  # 3 states, 2 outputs: the compiled SMM loop of the other SMM tests (test_one_sample.py)
     z, u = data(m, seed=2)
     ref = SVSFCov(m, psi=0.3, gamma=0.3).run(z, u, x0=np.zeros(3), P0=P0, store=["x_post", "P_post"])
     for reading in ("table1", "bank"):
@@ -110,7 +119,9 @@ def test_smm_of_identical_modes_equals_the_svsf() -> None:
 def test_chunked_updates_equal_one_run() -> None:
     m0, m1 = model(0.05), model(0.5)
     z, u = data(m1, seed=5)
-    for filt in (IMM([KalmanFilter(m0), SVSFCov(m1, psi=0.3, gamma=0.3)], PI2), SMMSVSF([m0, m1], psi=0.3)):
+    # the IMM of Kalman-type modes shares its compiled loop with the other 3-state, 2-output Kalman banks
+    # of the tests (chunking of a bank mixing every correction kind: tests/test_imm_kernel.py)
+    for filt in (IMM([KalmanFilter(m0), ExtendedKalmanFilter(m1)], PI2), SMMSVSF([m0, m1], psi=0.3)):
         whole = filt.run(z, u, x0=np.zeros(3), P0=P0)
         state = filt.initialize(np.zeros(3), P0, runs=3)
         parts = []

@@ -83,6 +83,7 @@ __all__ = [
     "mode_probabilities_step",
     "normalize_log_weights",
     "one_constants",
+    "one_sample_io",
     "run_bank_loop",
 ]
 
@@ -646,6 +647,29 @@ def bank_store_step(
         for j in range(nm):
             for a in range(n):
                 o_mx[r, k, j, a] = xs[j, a]
+
+
+@_jit.step
+def one_sample_io(buf: np.ndarray, size: int, z: np.ndarray, u: np.ndarray, n: int, m: int, p: int,
+    nm: int) -> tuple:  # fmt: skip  # pragma: no cover - compiled
+    """The arrays a bank's one-sample kernel hands its batch loop (a step: the scratch is the kernel's).
+
+    ``work``: a copy of the state buffer's first ``size`` floats (written back by the kernel only when
+    the sample succeeds); ``z`` (m,) and ``u`` (p,) as one run's one sample, (1, 1, m) and (1, 1, p);
+    the loop's outputs ``x`` (1, 1, n) and ``mu`` (1, 1, nm), and an empty (0, 0, 0, 0) array for the
+    outputs not kept.
+    """
+    work = _jit.scratch_block(size)
+    for i in range(size):
+        work[i] = buf[i]
+    zu = _jit.scratch(m + p)
+    for i in range(m):
+        zu[i] = z[i]
+    for i in range(p):
+        zu[m + i] = u[i]
+    o_x, o_mu, none = _jit.scratch(n), _jit.scratch(nm), _jit.scratch(0).reshape((0, 0, 0, 0))
+    z1, u1 = zu[:m].reshape((1, 1, m)), zu[m:].reshape((1, 1, p))
+    return work, z1, u1, o_x.reshape((1, 1, n)), o_mu.reshape((1, 1, nm)), none
 
 
 def bank_store_numpy(

@@ -90,6 +90,7 @@ from .bank import (
     mode_probabilities_step,
     normalize_log_weights,
     one_constants,
+    one_sample_io,
     run_bank_loop,
 )
 from .protocol import Filter, FilterState, check_spd, finite_sample, finite_state
@@ -720,24 +721,15 @@ def _imm_one(buf, cst, slots, z, u):  # type: ignore[no-untyped-def]  # pragma: 
     pi, o = take2(cst, o, nm, nm)
     offs = one_layout(nm, n, m)
     size = offs[-1]
-    work = _jit.scratch_block(size)
-    for i in range(size):
-        work[i] = buf[i]
-    zu = _jit.scratch(m + p)  # z and u as one run's one sample, (1, 1, m) and (1, 1, p)
-    for i in range(m):
-        zu[i] = z[i]
-    for i in range(p):
-        zu[m + i] = u[i]
-    o_x, o_mu, none = _jit.scratch(n), _jit.scratch(nm), _jit.scratch(0).reshape((0, 0, 0, 0))
+    work, z1, u1, o_x, o_mu, none = one_sample_io(buf, size, z, u, n, m, p, nm)
     status = IMM_LOOP(
-        prm, slots, fp, Q, C, R, pi, cst[5], zu[:m].reshape((1, 1, m)), zu[m:].reshape((1, 1, p)),
-        work[0] != 0.0, work[offs[0] : offs[1]].reshape((1, nm)), work[offs[1] : offs[2]].reshape((1, nm, n)),
+        prm, slots, fp, Q, C, R, pi, cst[5], z1, u1, work[0] != 0.0,
+        work[offs[0] : offs[1]].reshape((1, nm)), work[offs[1] : offs[2]].reshape((1, nm, n)),
         work[offs[2] : offs[3]].reshape((1, nm, n, n)), work[offs[3] : offs[4]].reshape((1, nm, m)),
         work[offs[4] : offs[5]].reshape((1, nm, m)), work[offs[5] : offs[6]].reshape((1, m)),
         work[offs[6] : offs[7]].reshape((1, n)), work[offs[7] : offs[8]].reshape((1, n, n)),
         work[offs[8] : offs[9]].reshape((nm, n)), work[offs[9] : offs[10]].reshape((nm, n, n)),
-        o_x.reshape((1, 1, n)), o_mu.reshape((1, 1, nm)), work[offs[10] : offs[11]].reshape((1, 1, nm)),
-        none, none,
+        o_x, o_mu, work[offs[10] : offs[11]].reshape((1, 1, nm)), none, none,
     )  # fmt: skip
     if status != 0:  # the loop's codes for run 0 of 1 back to the step's
         return NOT_PD if status == 1 else (NO_LIKELIHOOD if status == -1 else SINGULAR_PHI12)

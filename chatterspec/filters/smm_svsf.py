@@ -82,6 +82,7 @@ from .bank import (
     mode_probabilities_step,
     normalize_log_weights,
     one_constants,
+    one_sample_io,
     run_bank_loop,
 )
 from .protocol import FilterState, finite_sample, finite_state
@@ -496,22 +497,14 @@ def _smm_one(
     R, o = take2(cst, o, m, m)
     offs = one_layout(nm, n, m)
     size = offs[-1]
-    work = _jit.scratch_block(size)
-    for i in range(size):
-        work[i] = buf[i]
-    zu = _jit.scratch(m + p)  # z and u as one run's one sample, (1, 1, m) and (1, 1, p)
-    for i in range(m):
-        zu[i] = z[i]
-    for i in range(p):
-        zu[m + i] = u[i]
-    o_x, o_mu, none = _jit.scratch(n), _jit.scratch(nm), _jit.scratch(0).reshape((0, 0, 0, 0))
+    work, z1, u1, o_x, o_mu, none = one_sample_io(buf, size, z, u, n, m, p, nm)
     status = SMM_LOOP(
-        prm, slots, Qs, C, R, fp, cst[5], zu[:m].reshape((1, 1, m)), zu[m:].reshape((1, 1, p)),
+        prm, slots, Qs, C, R, fp, cst[5], z1, u1,
         work[0 : offs[0]].reshape((1, n)), work[offs[0] : offs[1]].reshape((1, n, n)),
         work[offs[1] : offs[2]].reshape((1, nm)), work[offs[2] : offs[3]].reshape((1, m)),
         work[offs[3] : offs[4]].reshape((1, m)), work[offs[4] : offs[5]].reshape((nm, n)),
-        work[offs[5] : offs[6]].reshape((nm, n, n)), o_x.reshape((1, 1, n)), o_mu.reshape((1, 1, nm)),
-        work[offs[6] : offs[7]].reshape((1, 1, nm)), none, none,
+        work[offs[5] : offs[6]].reshape((nm, n, n)), o_x, o_mu, work[offs[6] : offs[7]].reshape((1, 1, nm)),
+        none, none,
     )  # fmt: skip
     if status != 0:  # the loop's codes for run 0 of 1 back to the step's
         return NO_LIKELIHOOD if status == -1 else NOT_PD
@@ -590,8 +583,10 @@ def smm_spec(models: tuple[Model, ...], correct: CorrectionStep) -> SMMSpec | No
         "prm": prm,
         "plant_slot": plant_slot,
         "Qs": np.ascontiguousarray(np.stack([np.asarray(mdl.Q, dtype=float) for mdl in models])),
-        "C": np.ascontiguousarray(models[0].C, dtype=float),
-        "R": np.ascontiguousarray(models[0].R, dtype=float),
+        # writable copies: a model's read-only arrays are another numba type than the one-sample
+        # kernel's views of its packed constants, and would compile the loop a second time
+        "C": np.array(models[0].C, dtype=float, order="C"),
+        "R": np.array(models[0].R, dtype=float, order="C"),
         "fp": correct.parameters,
         "mapping": correct.mapping,
         "kernel": loop,
