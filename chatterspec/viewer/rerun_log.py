@@ -983,6 +983,7 @@ class IdentificationLog:
         import rerun as rr
 
         self.rr, self.pa, self.sinks, self.monitor = rr, pa, sinks, monitor
+        self._cols = _Columns(rr, DB_RANGE)  # the series' columns straight from numpy
         self.bands = b = monitor.settings.bands
         self.confidence = float(monitor.identifier.confidence)
         self.parameters = list(b.names)
@@ -1118,12 +1119,11 @@ class IdentificationLog:
                 ext[0], ext[1] = min(ext[0], float(np.nanmin(rows))), max(ext[1], float(np.nanmax(rows)))
             r = np.where(np.isfinite(ratio[:, i]), ratio[:, i], np.nan)
             k, states = changes[i]
+            series = self._cols.scalars_column(rows, own=True)
+            detectable = self._cols.scalars_column(r, own=True)
             for s in self.sinks.streams:
-                col = rr.Scalars.columns(scalars=rows.ravel()).partition([self.n_series[i]] * W)
-                s.send_columns(_path(p), indexes=idx, columns=col)
-                s.send_columns(
-                    f"{IDENTIFICATION}/detectable/{p}", indexes=idx, columns=rr.Scalars.columns(scalars=r)
-                )
+                s.send_columns(_path(p), indexes=idx, columns=[series])
+                s.send_columns(f"{IDENTIFICATION}/detectable/{p}", indexes=idx, columns=[detectable])
                 if k:
                     s.send_columns(
                         self.lanes[i],
