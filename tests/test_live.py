@@ -184,6 +184,18 @@ def test_bulk_tensor_columns_match_rerun_encoding() -> None:
     again = rerun_log._Columns(rr, spectrograms.DB_RANGE)._tensor_array(y, ("freq",))
     assert again[3:4].equals(rr.Tensor(y[3], dim_names=["freq"]).data.as_arrow_array())
     assert again.equals(cols._tensor_array(y, ("freq",), cache=False))
+    # the live spectrogram's layout (float16, dims freq and time) and the static spectra, which the
+    # logger builds without rr.Tensor (its encoder imports pyarrow.compute)
+    z = np.arange(6, dtype=np.float16).reshape(1, 3, 2)
+    ref = rr.Tensor(z[0], dim_names=["freq", "time"]).data.as_arrow_array()
+    assert cols._tensor_array(z, ("freq", "time")).equals(ref)
+    (static,) = cols.static_tensor(x[3], ("freq",))
+    expected = rr.Tensor(x[3], dim_names=["freq"]).as_component_batches()[0]
+    assert static.component_descriptor() == expected.component_descriptor()
+    assert static.as_arrow_array().equals(expected.as_arrow_array())
+    assert cols.value_range_row.equals(
+        rr.Tensor(np.zeros((1, 1)), value_range=list(spectrograms.DB_RANGE)).value_range.as_arrow_array()
+    )
 
 
 def test_fallback_without_bulk_tensors(tmp_path: Path, sim, batch, monkeypatch) -> None:

@@ -331,3 +331,44 @@ def test_lanes_follow_the_parameters_with_tolerances(
     mismatch = [r for r in rows if "pressure mismatch" in r[1]]
     assert mismatch and all(r[2] == "INFO" for r in mismatch)  # the chattering saw it: information
     assert not [r for r in rows if "pressure ALARM" in r[1]]
+
+
+def test_excitation_lanes_do_not_depend_on_how_the_pushes_split() -> None:
+    # Without tolerances the lanes are drawn from the frames' alarms and the identification windows'
+    # excitation in time order, each frame once the window before it is known: the same changes whether
+    # frames and windows come in one push or several (the alarm and the blindness carried across pushes).
+    from types import SimpleNamespace
+
+    from chatterspec.online.fault_state import FAULT, HEALTHY, NO_EVIDENCE
+    from chatterspec.viewer.events import FaultLanes
+
+    frames = 0.5005 + 0.2 * np.arange(8)  # frame ends, one sample before each window's alarm time
+    alarm = np.zeros((8, 2), dtype=bool)
+    alarm[2:5, 1] = alarm[6, 0] = True
+    windows = 1.001 + 0.2 * np.arange(8)
+    blind = np.zeros((8, 2), dtype=bool)
+    blind[1:3, 1] = blind[5:, 0] = True
+
+    def run(splits: list[tuple[tuple[int, int], tuple[int, int]]]) -> list[tuple[float, int, str]]:
+        lanes = FaultLanes(("position", "pressure"), 1000, 200, 1e-3)
+        lanes.start(0.001)
+        carried = np.array([[False], [True]])
+        lanes.follow_identification(tolerances=False, parameters=("leakage",), carried=carried)
+        got = []
+        for (a, b), (c, d) in splits:  # frames [a, b), then windows [c, d)
+            got.append(lanes.update(frames[a:b], alarm[a:b], []))
+            wins = [SimpleNamespace(alarm_time_s=float(t)) for t in windows[c:d]]
+            got.append(lanes.follow(SimpleNamespace(windows=wins, not_excited=blind[c:d])))
+        got.append(lanes.finish())
+        return [
+            (round(t, 9), c, state_of(v))
+            for g in got
+            for t, c, v in zip(g[0].tolist(), g[1].tolist(), g[2], strict=True)
+        ]
+
+    whole = run([((0, 8), (0, 8))])
+    assert {s for _, _, s in whole} == {HEALTHY, FAULT, NO_EVIDENCE}
+    assert run([((0, 3), (0, 3)), ((3, 5), (3, 5)), ((5, 8), (5, 8))]) == whole
+    assert run([((k, k + 1), (k, k + 1)) for k in range(8)]) == whole
+    # windows arriving ahead of the frames: a push's first window holds the alarm of the last push's frame
+    assert run([((0, 5), (0, 3)), ((5, 5), (3, 5)), ((5, 8), (5, 8))]) == whole

@@ -549,12 +549,11 @@ def _print_status(ident: MonitorIdentification | None, human: TextIO) -> None:
 
 
 def _preload_rerun() -> threading.Thread:
-    """Import Rerun, its blueprint classes and pyarrow.compute on a thread (~0.25 s of CPU at every start)
+    """Import Rerun and its blueprint classes on a thread (~0.25 s of CPU at every start)
     while the main thread reads the data and loads the compiled kernels: on two cores the two overlap."""
 
     def load() -> None:
         try:
-            import pyarrow.compute  # noqa: F401  (Rerun's first send_columns imports it)
             import rerun
             import rerun.blueprint  # noqa: F401
         except Exception:  # pragma: no cover - the main thread imports them again and reports any error

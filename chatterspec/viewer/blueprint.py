@@ -32,7 +32,7 @@ stream by :class:`~chatterspec.viewer.rerun_log.RerunLogger` when it opens.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, Protocol, cast
 
 import numpy as np
@@ -1067,6 +1067,7 @@ def log_static(
     width: float,
     key: float,
     cusum: bool,
+    spectrum: Callable[[np.ndarray], Any],
 ) -> None:
     """Log the static entities of a monitor recording to every stream of ``streams``.
 
@@ -1091,6 +1092,9 @@ def log_static(
         :func:`~chatterspec.viewer.spectrograms.log_axes`).
     cusum : bool
         The alarm rule is CUSUM (its view draws g; else the score).
+    spectrum : callable
+        The static components of one spectrum, shape (bins,): a ``Tensor`` with dim ``freq`` (the
+        logger's column builder, :class:`~chatterspec.viewer.rerun_log.RerunLogger`).
     """
     import rerun as rr
 
@@ -1115,7 +1119,7 @@ def log_static(
             s.log(path, style, static=True)
         for i, c in enumerate(keys):
             log_axes(s, f"/spectrogram/{c}", band_hz, df, DB_RANGE, width, key)
-            s.log(f"/threshold/{c}", rr.Tensor(thr.values[:, i], dim_names=["freq"]), static=True)
-            s.log(f"/expected/{c}", rr.Tensor(expected[:, i], dim_names=["freq"]), static=True)
+            s.log(f"/threshold/{c}", spectrum(thr.values[:, i]), static=True)
+            s.log(f"/expected/{c}", spectrum(expected[:, i]), static=True)
             s.log(lanes[i], lane_configs[i], static=True)
         s.log("/frequencies", note, static=True)

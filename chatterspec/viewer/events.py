@@ -536,41 +536,47 @@ class FaultLanes:
         if not self._frames and not self._windows:
             return _NO_CHANGE
         m = len(self.channels)
-        items: list[tuple[float, int, np.ndarray]] = []  # (time, 0 frame / 1 window, row)
-        for kind, queue in ((0, self._frames), (1, self._windows)):
-            for at, rows in queue:
-                items += [(float(x), kind, r) for x, r in zip(at.tolist(), rows, strict=True)]
-        items.sort(key=lambda it: (it[0], it[1]))
+        queued = [
+            (kind, at, rows) for kind, queue in ((0, self._frames), (1, self._windows)) for at, rows in queue
+        ]
+        t_all = np.concatenate([np.asarray(at, dtype=float) for _, at, _ in queued])
+        kinds = np.concatenate([np.full(len(at), kind, dtype=np.int8) for kind, at, _ in queued])
+        rows = np.concatenate([np.asarray(r, dtype=bool).reshape(-1, m) for _, _, r in queued])
+        order = np.lexsort((kinds, t_all))  # time order, a frame before a window at the same time (stable)
+        t_all, kinds, rows = t_all[order], kinds[order], rows[order]
         # the window one hop before a frame ends (n_hop - 1) samples before the frame's alarm time
         known = self._last_window_s + (self.n_hop - 0.5) * self.dt
-        done = 0
-        times: list[float] = []
-        codes: list[np.ndarray] = []
-        for t, kind, row in items:
-            if kind == 0 and not final and t > known:
-                break
-            if kind == 0:
-                self._alarm = row
-            else:
-                self._blind = row
-            done += 1
-            times.append(t)
-            codes.append(np.where(self._alarm, 1, np.where(self._blind, 2, 0)))
-        rest = items[done:]
-        self._frames = [(np.array([it[0]]), it[2][None, :]) for it in rest if it[1] == 0]
-        self._windows = [(np.array([it[0]]), it[2][None, :]) for it in rest if it[1] == 1]
-        if not times:
+        late = np.flatnonzero((kinds == 0) & (t_all > known)) if not final else np.empty(0, dtype=np.intp)
+        done = int(late[0]) if late.size else t_all.size
+        rest = np.arange(done, t_all.size)
+        self._frames = [(t_all[rest[kinds[rest] == 0]], rows[rest[kinds[rest] == 0]])] if rest.size else []
+        self._windows = [(t_all[rest[kinds[rest] == 1]], rows[rest[kinds[rest] == 1]])] if rest.size else []
+        if not done:
             return _NO_CHANGE
-        t_arr = np.asarray(times, dtype=float)
+        # each drawn item's state: the last frame's alarm and the last window's blindness at or before it
+        alarm, blind = (
+            self._held(kinds[:done] == 0, rows, self._alarm),
+            self._held(kinds[:done] == 1, rows, self._blind),
+        )
+        self._alarm, self._blind = alarm[-1], blind[-1]
+        codes = np.where(alarm, 1, np.where(blind, 2, 0)).astype(np.int8)
+        t_arr = t_all[:done]
         keep = self._after_start(t_arr)
         if not keep.any():
             return _NO_CHANGE
-        ch = self.states.follow(t_arr[keep], np.asarray(codes, dtype=np.int8).reshape(-1, m)[keep])
+        ch = self.states.follow(t_arr[keep], codes[keep])
         self.decided = True
         out = self._changes(ch, None)
         last = int(to_ns(t_arr[-1]))
         self._events = {k: v for k, v in self._events.items() if k[2] > last}
         return out
+
+    @staticmethod
+    def _held(mine: np.ndarray, rows: np.ndarray, before: np.ndarray) -> np.ndarray:
+        """Per item, the row of the last item at or before it for which ``mine`` holds (``before`` until
+        the first): a forward fill over the (items, m) ``rows``."""
+        last = np.maximum.accumulate(np.where(mine, np.arange(mine.size), -1))
+        return np.where((last >= 0)[:, None], rows[np.maximum(last, 0)], before[None, :])
 
     def _note_events(self, events: list[DetectionEvent]) -> None:
         for ev in events:

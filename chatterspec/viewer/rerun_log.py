@@ -322,6 +322,7 @@ class RerunLogger:
             width=self._layout.width,
             key=self._layout.key,
             cusum=self._layout.cusum,
+            spectrum=lambda values: self._batches.columns.static_tensor(values, ("freq",)),
         )
         if truth:
             self._batches.origin_ns = int(to_ns(truth[0][0]))
@@ -517,7 +518,7 @@ class ColumnBatches:
         self.spectrum_dtype = spectrum_dtype
         m = len(keys)
         self._peaks = FramePeaks(monitor, expected)
-        self._cols = _Columns(rr, DB_RANGE)
+        self._cols = self.columns = _Columns(rr, DB_RANGE)
         self._boxes = [_Outbox(s, live=s is sinks.live_stream, lane_versions=[0] * m) for s in sinks.streams]
         # the channels' fault states (chatterspec.online.fault_state), the same in a file and live: the
         # spectral alarm's frame by frame, with identification its windows' too (fault_lanes)
@@ -811,9 +812,10 @@ class _Columns:
     batches"), so a batch of tensors is assembled here as the arrow array Rerun
     itself produces for one ``rr.log(path, rr.Tensor(...))`` per row (same
     component descriptor, same arrow type): a reader sees one ``Tensor:data`` row
-    per frame either way. The layout is checked once against Rerun's own
-    encoding; on any mismatch (a future Rerun) ``tensors_ok`` is False and the
-    caller falls back to one ``rr.log`` per tensor.
+    per frame either way. The arrays are built with the arrow type Rerun declares
+    for the component and validated once on two probes; on any mismatch (a future
+    Rerun) ``tensors_ok`` is False and the caller falls back to one ``rr.log`` per
+    tensor (the tests compare the arrays with ``rr.Tensor``'s, value for value).
     """
 
     def __init__(self, rr: ModuleType, value_range: tuple[float, float]) -> None:
@@ -824,17 +826,16 @@ class _Columns:
         self.tensor = rr.Tensor.descriptor_data()
         self.value_range = rr.Tensor.descriptor_value_range()
         self._parts = _PARTS  # shared by every logger of the process (immutable arrow arrays)
-        self.value_range_row = rr.Tensor(
-            np.zeros((1, 1)), value_range=list(value_range)
-        ).value_range.as_arrow_array()
+        # built from Rerun's declared arrow types, not by encoding a probe with rr.Tensor: its one-tensor
+        # encoder casts int64 list offsets with pyarrow.compute, whose import costs ~0.06 s of CPU
+        # (tests compare these arrays with rr.Tensor's value for value)
+        self.value_range_row = rr.components.ValueRangeBatch(list(value_range)).as_arrow_array()
+        self.tensor_type = rr.components.TensorDataBatch._ARROW_DATATYPE
         self.tensors_ok = False
         try:
             for probe in (np.array([[1.0, 2.0, 3.0]]), np.arange(6, dtype=np.float16).reshape(1, 3, 2)):
                 names = ("freq",) if probe.ndim == 2 else ("freq", "time")
-                ref = rr.Tensor(probe[0], dim_names=list(names)).data.as_arrow_array()
-                self.tensor_type = ref.type
-                if not self._tensor_array(probe, names, cache=False).equals(ref):
-                    return
+                self._tensor_array(probe, names, cache=False).validate(full=True)
             self.tensors_ok = True
         except Exception:  # any layout change of a future Rerun: fall back to rr.log per tensor
             self.tensors_ok = False
@@ -869,6 +870,14 @@ class _Columns:
             vr = self.pa.concat_arrays([self.value_range_row] * data.shape[0])
             cols.append(self.rr.ComponentColumn(self.value_range, _ArrowBatch(vr)))
         return cols
+
+    def static_tensor(self, values: np.ndarray, names: tuple[str, ...]) -> Any:
+        """What ``rr.log(path, rr.Tensor(values, dim_names=names), static=True)`` logs: the one
+        ``Tensor:data`` component of ``values`` (``rr.Tensor`` itself on the fallback)."""
+        if not self.tensors_ok:
+            return self.rr.Tensor(values, dim_names=list(names))
+        arr = self._tensor_array(np.asarray(values)[None], names, cache=False)
+        return [self.rr.DescribedComponentBatch(_ArrowBatch(arr), self.tensor)]
 
     def _tensor_array(self, data: np.ndarray, names: tuple[str, ...], cache: bool = True) -> Any:
         pa, t = self.pa, self.tensor_type
@@ -975,6 +984,7 @@ class IdentificationLog:
         import rerun as rr
 
         self.rr, self.pa, self.sinks, self.monitor = rr, pa, sinks, monitor
+        self._cols = _Columns(rr, DB_RANGE)  # the series' columns straight from numpy
         self.bands = b = monitor.settings.bands
         self.confidence = float(monitor.identifier.confidence)
         self.parameters = list(b.names)
@@ -1110,12 +1120,11 @@ class IdentificationLog:
                 ext[0], ext[1] = min(ext[0], float(np.nanmin(rows))), max(ext[1], float(np.nanmax(rows)))
             r = np.where(np.isfinite(ratio[:, i]), ratio[:, i], np.nan)
             k, states = changes[i]
+            series = self._cols.scalars_column(rows, own=True)
+            detectable = self._cols.scalars_column(r, own=True)
             for s in self.sinks.streams:
-                col = rr.Scalars.columns(scalars=rows.ravel()).partition([self.n_series[i]] * W)
-                s.send_columns(_path(p), indexes=idx, columns=col)
-                s.send_columns(
-                    f"{IDENTIFICATION}/detectable/{p}", indexes=idx, columns=rr.Scalars.columns(scalars=r)
-                )
+                s.send_columns(_path(p), indexes=idx, columns=[series])
+                s.send_columns(f"{IDENTIFICATION}/detectable/{p}", indexes=idx, columns=[detectable])
                 if k:
                     s.send_columns(
                         self.lanes[i],
