@@ -549,8 +549,8 @@ class FaultLanes:
         late = np.flatnonzero((kinds == 0) & (t_all > known)) if not final else np.empty(0, dtype=np.intp)
         done = int(late[0]) if late.size else t_all.size
         rest = np.arange(done, t_all.size)
-        self._frames = [(t_all[rest[kinds[rest] == 0]], rows[rest[kinds[rest] == 0]])] if rest.size else []
-        self._windows = [(t_all[rest[kinds[rest] == 1]], rows[rest[kinds[rest] == 1]])] if rest.size else []
+        later = [rest[kinds[rest] == kind] for kind in (0, 1)]  # the items kept for the next drain
+        self._frames, self._windows = ([(t_all[i], rows[i])] if rest.size else [] for i in later)
         if not done:
             return _NO_CHANGE
         # each drawn item's state: the last frame's alarm and the last window's blindness at or before it

@@ -216,9 +216,11 @@ class RerunLogger:
         self._expected = expected_spectrum(monitor)
         self.span_s = span_s
         self.identification = identification
+        # the arrow columns built straight from numpy (one builder, validated once, for every batch)
+        self._columns = _Columns(rr, DB_RANGE)
         self._ident_log: IdentificationLog | None = None
         if identification is not None and sinks.streams:
-            self._ident_log = IdentificationLog(sinks, identification)
+            self._ident_log = IdentificationLog(sinks, identification, self._columns)
             extra_row = extra_row if extra_row is not None else identification_views(self._ident_log)
             extra_lanes += len(self._ident_log.parameters)
         # the layout's geometry (the spectrogram image fills its view at 1600x1000) and blueprint
@@ -254,6 +256,7 @@ class RerunLogger:
             expected=self._expected,
             images=self.images,
             collector=self._collector,
+            columns=self._columns,
             batch_samples=batch_samples,
             batch_frames=batch_frames,
             spectrum_dtype=self.spectrum_dtype,
@@ -322,7 +325,7 @@ class RerunLogger:
             width=self._layout.width,
             key=self._layout.key,
             cusum=self._layout.cusum,
-            spectrum=lambda values: self._batches.columns.static_tensor(values, ("freq",)),
+            spectrum=lambda values: self._columns.static_tensor(values, ("freq",)),
         )
         if truth:
             self._batches.origin_ns = int(to_ns(truth[0][0]))
@@ -472,6 +475,8 @@ class ColumnBatches:
         The file's spectrogram blocks.
     collector : IntervalCollector or None
         The file's interval estimates (None without a file).
+    columns : _Columns
+        The logger's arrow column builder (shared with its identification log).
     batch_samples, batch_frames : int
         A file's batches (>= 1): the per-sample series are sent once this many samples are buffered,
         the frames once this many frames are. The logger's defaults (measured on the 3-channel EHA
@@ -501,6 +506,7 @@ class ColumnBatches:
         expected: np.ndarray,
         images: SpectrogramImages,
         collector: IntervalCollector | None,
+        columns: _Columns,
         batch_samples: int,
         batch_frames: int,
         spectrum_dtype: np.dtype,
@@ -518,7 +524,7 @@ class ColumnBatches:
         self.spectrum_dtype = spectrum_dtype
         m = len(keys)
         self._peaks = FramePeaks(monitor, expected)
-        self._cols = self.columns = _Columns(rr, DB_RANGE)
+        self._cols = columns
         self._boxes = [_Outbox(s, live=s is sinks.live_stream, lane_versions=[0] * m) for s in sinks.streams]
         # the channels' fault states (chatterspec.online.fault_state), the same in a file and live: the
         # spectral alarm's frame by frame, with identification its windows' too (fault_lanes)
@@ -977,14 +983,16 @@ class IdentificationLog:
         The monitor's open sinks (file and / or live viewer).
     monitor : IdentificationMonitor
         Gives the parameters, their units, nominal values and bands, and the intervals' level.
+    columns : _Columns
+        The logger's arrow column builder (its series are built straight from numpy).
     """
 
-    def __init__(self, sinks: Sinks, monitor: IdentificationMonitor) -> None:
+    def __init__(self, sinks: Sinks, monitor: IdentificationMonitor, columns: _Columns) -> None:
         import pyarrow as pa
         import rerun as rr
 
         self.rr, self.pa, self.sinks, self.monitor = rr, pa, sinks, monitor
-        self._cols = _Columns(rr, DB_RANGE)  # the series' columns straight from numpy
+        self._cols = columns  # the series' columns straight from numpy
         self.bands = b = monitor.settings.bands
         self.confidence = float(monitor.identifier.confidence)
         self.parameters = list(b.names)
