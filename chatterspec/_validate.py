@@ -99,6 +99,22 @@ def finite_scalar(name: str, value: float) -> float:
     return v
 
 
+def names_of(
+    param: str, names: Iterable[object] | None, n: int, prefix: str, *, first: int = 1, what: str = ""
+) -> tuple[str, ...]:
+    """``names`` (the argument ``param``) as ``n`` strings naming the ``n`` ``what`` (default: ``param``);
+    None: ``prefix`` numbered from ``first``.
+
+    Raises :class:`~chatterspec.errors.ShapeError` when ``names`` holds another number of names.
+    """
+    if names is None:
+        return tuple(f"{prefix}{i + first}" for i in range(n))
+    given = tuple(str(s) for s in names)
+    if len(given) != n:
+        raise ShapeError(f"{param} must name the {n} {what or param}; got {len(given)} names")
+    return given
+
+
 def check_no_unknown_kwargs(func_name: str, kwargs: dict[str, object]) -> None:
     """Raise TypeError naming ``func_name`` if ``kwargs`` holds any keyword (Python's own wording)."""
     if kwargs:

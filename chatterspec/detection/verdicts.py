@@ -131,6 +131,7 @@ import numpy as np
 
 from .. import _jit
 from .._repr import short_repr
+from .._validate import names_of
 from ..errors import ModelKindError, ParameterError, ShapeError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import Model
@@ -387,15 +388,6 @@ class SpectrumDetection:
         )
 
 
-def _channel_names(channels: Sequence[str] | None, m: int) -> tuple[str, ...]:
-    if channels is None:
-        return tuple(f"z{i + 1}" for i in range(m))
-    names = tuple(str(c) for c in channels)
-    if len(names) != m:
-        raise ShapeError(f"channels must name {m} channels; got {len(names)}")
-    return names
-
-
 def _compiled_verdict(
     power: np.ndarray, values: np.ndarray, expected: np.ndarray, idx: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -489,7 +481,7 @@ def detect_spectrum(
         peak_ratio=peak_ratio,
         excess_power=excess,
         dc_ratio=dc_ratio,
-        channels=_channel_names(channels, power.shape[-1]),
+        channels=names_of("channels", channels, power.shape[-1], "z"),
         threshold=threshold,
     )
 
@@ -856,7 +848,7 @@ def stft_detect(
         )
     flags, _, stat = frame_verdicts(spec.power, th)
     level = healthy_frame_level(th)
-    names = _channel_names(channels or model.output_names, flags.shape[-1])
+    names = names_of("channels", channels or model.output_names, flags.shape[-1], "z")
     first = flags.reshape(-1, *flags.shape[-2:])[0]
     first_stat = stat.reshape(-1, *stat.shape[-2:])[0]
     times, dt = spec.times_s, model.dt

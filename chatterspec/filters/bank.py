@@ -39,7 +39,7 @@ import numpy.typing as npt
 
 from .. import _jit
 from .._repr import short_repr
-from .._validate import finite_array, nonnegative
+from .._validate import finite_array, names_of, nonnegative
 from ..errors import ParameterError, ShapeError, SingularMatrixError
 from ..plants.nonlinear import Model
 from ..plants.steps import PlantSteps
@@ -79,7 +79,6 @@ __all__ = [
     "log_gaussian",
     "log_gaussian_inline",
     "log_gaussian_step",
-    "mode_names",
     "mode_probabilities_step",
     "normalize_log_weights",
     "one_constants",
@@ -306,16 +305,6 @@ class MultipleModelOutput:
     def argmax_mode(self) -> np.ndarray:
         """Index of the most probable mode per run and sample, ``(runs, K)``."""
         return np.argmax(self.mu, axis=-1)
-
-
-def mode_names(modes: Sequence[str] | None, r: int) -> tuple[str, ...]:
-    """The bank's mode names: ``modes`` checked to name each of the ``r`` modes, or ``mode0, mode1, ...``."""
-    if modes is None:
-        return tuple(f"mode{j}" for j in range(r))
-    names = tuple(str(s) for s in modes)
-    if len(names) != r:
-        raise ShapeError(f"modes must name each of the {r} modes; got {len(names)} names")
-    return names
 
 
 def initial_bank_state(
@@ -874,7 +863,7 @@ class BankFilter:
         r = len(models)
         object.__setattr__(self, "mu0", initial_mode_probabilities(self.mu0, r))
         object.__setattr__(self, "weight_floor", check_weight_floor(self.weight_floor, r))
-        object.__setattr__(self, "modes", mode_names(self.modes, r))
+        object.__setattr__(self, "modes", names_of("modes", self.modes, r, "mode", first=0))  # mode0, ...
         return n, m
 
     def _initial_estimate(

@@ -80,7 +80,7 @@ import scipy.stats
 
 from .. import filter_registry
 from .._repr import short_repr
-from .._validate import finite_array, open_unit, positive_int
+from .._validate import finite_array, names_of, open_unit, positive_int
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..jsonout import fields_dict, finite_or_none
 from ..montecarlo import Execution, ExecutionOptions, SeedLike, seed_label
@@ -1083,9 +1083,7 @@ def rmse_table(
     """
     truth = finite_array("truth", truth, ndim=3)
     n = truth.shape[-1]
-    names = tuple(state_names) if state_names is not None else tuple(f"x{i + 1}" for i in range(n))
-    if len(names) != n:
-        raise ShapeError(f"state_names must name the {n} states; got {len(names)}")
+    names = names_of("state_names", state_names, n, "x", what="states")
     table: dict[str, dict[str, float]] = {}
     for key, est in estimates.items():
         est = finite_array(f"estimates[{key!r}]", est, shape=truth.shape)
@@ -1161,9 +1159,7 @@ def mode_report(
     -------
     ModeReport
     """
-    names = tuple(str(s) for s in modes)
-    if len(names) != np.shape(mu)[-1]:
-        raise ShapeError(f"modes must name the {np.shape(mu)[-1]} modes; got {len(names)}")
+    names = names_of("modes", modes, np.shape(mu)[-1], "mode", first=0)
     return ModeReport(
         names,
         confusion_matrix(mu, true_mode),
