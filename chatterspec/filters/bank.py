@@ -54,7 +54,7 @@ from ._engine import (
     given_predict,
 )
 from .one_sample import OnlineBank
-from .protocol import FilterState, bank_store, default_input, initial_estimate
+from .protocol import FilterState, bank_store, check_update_data, initial_estimate
 
 __all__ = [
     "EIG_FLOOR",
@@ -67,7 +67,6 @@ __all__ = [
     "bank_results",
     "bank_store_numpy",
     "bank_store_step",
-    "check_bank_data",
     "check_bank_models",
     "check_mode_probabilities",
     "check_transition_matrix",
@@ -329,36 +328,6 @@ def initial_bank_state(
     P = np.array(np.broadcast_to(P0a, (runs, n, n)), dtype=float)
     mu = np.array(np.broadcast_to(mu0, (runs, r)), dtype=float)
     return runs, x, P, mu
-
-
-def check_bank_data(
-    z: npt.ArrayLike, u: npt.ArrayLike | None, runs: int, m: int, p: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """``z`` as (runs, K, m) and ``u`` as (1 | runs, K, p) float arrays of a bank's update (None: no input).
-
-    Raises
-    ------
-    ShapeError
-        Shapes that do not match the bank.
-    NonFiniteError
-        NaN or inf.
-    """
-    z = finite_array("z", z, ndim=(2, 3))
-    if z.ndim == 2:
-        z = z[None]
-    if z.shape[0] != runs or z.shape[2] != m:
-        raise ShapeError(f"z must have shape ({runs}, K, {m}) (runs, samples, outputs); got {z.shape}")
-    K = z.shape[1]
-    u = finite_array("u", default_input(u, K, p), ndim=(1, 2, 3))
-    if u.ndim == 1:
-        u = u[:, None] if p == 1 else u[None, :]
-    if u.ndim == 2:
-        u = u[None]
-    if u.shape[1] != K or u.shape[2] != p or u.shape[0] not in (1, runs):
-        raise ShapeError(
-            f"u must have shape ({K}, {p}) or ({runs}, {K}, {p}) (samples like z); got {u.shape}"
-        )
-    return z, u
 
 
 # ----------------------------------------------------------------------------- the mixture (numpy)
@@ -940,7 +909,7 @@ class BankFilter:
         mdl0 = self._sensor_model()
         m, p = int(mdl0.n_outputs), int(mdl0.n_inputs)
         store_covariance, store_modes = bank_store(store, type(self).__name__)
-        z, u = check_bank_data(z, u, state.x.shape[0], m, p)
+        z, u = check_update_data(z, u, state.x.shape[0], m, p)
         return self._advance(state, z, u, store_covariance, store_modes)
 
     def run(

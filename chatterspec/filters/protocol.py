@@ -430,22 +430,36 @@ def check_chunk(
 
     ``u`` comes back 3-D, ``(1, K, p)`` when shared by all runs.
     """
-    m, p = model.n_outputs, model.n_inputs
-    runs = state.runs
-    if u is None:  # no input: zeros (an autonomous model needs no u)
-        u = np.zeros((np.shape(z)[-2] if np.ndim(z) >= 2 else 0, p))
-    if check:
-        z = finite_array("z", z, ndim=(2, 3))
-        u = finite_array("u", u, ndim=(1, 2, 3))
-    else:
-        z, u = np.asarray(z, dtype=float), np.asarray(u, dtype=float)
+    m, runs = model.n_outputs, state.runs
+    z, u = check_update_data(z, u, runs, m, model.n_inputs, check)
+    if state.e_post.shape != (runs, m) or state.e_prev.shape != (runs, m):
+        raise ShapeError(f"state residuals must have shape ({runs}, {m})")
+    return z, u
+
+
+def check_update_data(
+    z: npt.ArrayLike, u: npt.ArrayLike | None, runs: int, m: int, p: int, check: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """``z`` as (runs, K, m) and ``u`` as (1 | runs, K, p) float arrays of an update (None: no input).
+
+    A 2-D ``z`` is one run; a 1-D ``u`` is one input channel when ``p == 1``, else one sample.
+
+    Raises
+    ------
+    ShapeError
+        Shapes that do not match the filter or bank.
+    NonFiniteError
+        NaN or inf (with ``check``).
+    """
+    z = finite_array("z", z, ndim=(2, 3)) if check else np.asarray(z, dtype=float)
+    given = z.shape
     if z.ndim == 2:
-        if runs != 1:
-            raise ShapeError(f"z must have shape ({runs}, K, {m}); got {z.shape}")
         z = z[None]
     if z.shape[0] != runs or z.shape[2] != m:
-        raise ShapeError(f"z must have shape ({runs}, K, {m}) (runs, samples, outputs); got {z.shape}")
+        raise ShapeError(f"z must have shape ({runs}, K, {m}) (runs, samples, outputs); got {given}")
     K = z.shape[1]
+    u = default_input(u, K, p)
+    u = finite_array("u", u, ndim=(1, 2, 3)) if check else np.asarray(u, dtype=float)
     if u.ndim == 1:
         u = u[:, None] if p == 1 else u[None, :]
     if u.ndim == 2:
@@ -454,8 +468,6 @@ def check_chunk(
         raise ShapeError(
             f"u must have shape ({K}, {p}) or ({runs}, {K}, {p}) (samples like z); got {u.shape}"
         )
-    if state.e_post.shape != (runs, m) or state.e_prev.shape != (runs, m):
-        raise ShapeError(f"state residuals must have shape ({runs}, {m})")
     return z, u
 
 
