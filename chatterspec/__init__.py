@@ -6,9 +6,9 @@ thresholds, detection) imports only numpy and scipy. Plotting
 are imported on demand.
 """
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from . import _lazy
 from .errors import (
     CalibrationMismatchError,
     ChatterspecError,
@@ -157,17 +157,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .studies.estimation import EstimationResult, build_filter, estimation_study
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'chatterspec' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module, __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = _lazy.lazy_names(__name__, _LAZY)
 
 
 __version__ = "0.1.0"

@@ -10,8 +10,9 @@ implement it; ``smm_svsf`` (SMM-SVSF, [SMM] eq 3.1-3.5) and ``imm`` (IMM, [IMM] 
 banks from them (``bank`` holds what they share).
 """
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from .. import _lazy
 
 # The names load on first use (PEP 562): importing one filter module (e.g. the online monitor's
 # ``filters.svsf``) does not import the Kalman family and the multiple-model banks.
@@ -38,17 +39,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .svsf_cov import SVSFCov
 
 
-def __getattr__(name: str) -> Any:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'chatterspec.filters' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module, __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = _lazy.lazy_names(__name__, _LAZY)
 
 
 __all__ = [
