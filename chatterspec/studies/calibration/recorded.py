@@ -115,7 +115,7 @@ from ...errors import ParameterError
 from ...plants.nonlinear import is_linear
 from ..intervals import QuantileEstimate, _quantile_from_top, _top_needed
 from .healthy import _analytic_thresholds, _frame_thresholds, _keep_top, _merge_top
-from .result import Calibration, _ro, _stft_dict
+from .result import Calibration, _interval_fields, _ro, _stft_dict
 from .support import min_runs
 from .thresholds import _desc, _tested
 
@@ -637,16 +637,12 @@ def recorded_calibration(tally: RecordedTally, recording: HealthyRecording | Non
         freqs_hz=_ro(p.freqs_hz),
         tested=_ro(p.tested),
         expected=_ro(E_rec),
-        per_bin=_ro(bin_q[0]),
-        per_bin_low=_ro(bin_q[1]),
-        per_bin_high=_ro(bin_q[2]),
+        **_interval_fields("per_bin", bin_q),
         family_wise=per_channel(np.concatenate(tally.rec_max), p.runs, None),
         frame_freqs_hz=_ro(p.frame_freqs_hz),
         frame_tested=_ro(p.frame_tested),
         frame_expected=_ro(E_frame),
-        per_frame=_ro(frame_q[0]),
-        per_frame_low=_ro(frame_q[1]),
-        per_frame_high=_ro(frame_q[2]),
+        **_interval_fields("per_frame", frame_q),
         frame_family_wise=per_channel(np.concatenate(tally.frame_max), p.frames, p.frames_eff),
         normalization="analytic" if p.normalization == "model" else "empirical",
         normalization_info=info,

@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import math
 import zipfile
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -598,3 +599,8 @@ def _read_fields(path: Path) -> dict[str, Any]:
 
 def _ro(a: np.ndarray) -> np.ndarray:
     return readonly(np.array(a))  # a copy: the caller's arrays stay writable
+
+
+def _interval_fields(name: str, q: Sequence[np.ndarray]) -> dict[str, Any]:
+    """``name``, ``name_low``, ``name_high`` of a :class:`Calibration` from the triple ``q`` (copies)."""
+    return {name: _ro(q[0]), f"{name}_low": _ro(q[1]), f"{name}_high": _ro(q[2])}

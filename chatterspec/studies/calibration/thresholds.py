@@ -55,7 +55,7 @@ from .healthy import (
     _n_frames,
     resolve_scenario,
 )
-from .result import Calibration, _ro, _stft_dict
+from .result import Calibration, _interval_fields, _ro, _stft_dict
 
 __all__ = [
     "DEFAULT_PILOT_RUNS",
@@ -127,8 +127,8 @@ def calibrate(
         )
     model = sc.nominal
     N = sc.n_samples - 1
-    freqs, thr = _analytic_thresholds(model, N, alpha)
-    ffreqs, fthr = _frame_thresholds(model, config, alpha)
+    _, thr = _analytic_thresholds(model, N, alpha)
+    _, fthr = _frame_thresholds(model, config, alpha)
     E = thr["exact"].expected
     Ef = fthr["frame"].expected
     assert E is not None and Ef is not None  # (exact thresholds carry E[S])
@@ -149,18 +149,12 @@ def calibrate(
     shared = calibration_fields(study, sc, alpha, runs, seed, confidence, frames, tail_budget, ex, label)
     return Calibration(
         **shared,
-        freqs_hz=_ro(freqs),
-        tested=_ro(thr["exact"].tested),
-        expected=_ro(E),
         analytic={k: _ro(t.values) for k, t in thr.items()},
         family_wise_analytic={
             "bonferroni": float(scipy.stats.chi2.isf(thr["exact-bonferroni"].per_test_alpha, 2) / 2),
             "sidak": float(scipy.stats.chi2.isf(thr["exact-sidak"].per_test_alpha, 2) / 2),
             "n_tested": thr["exact"].n_tested,
         },
-        frame_freqs_hz=_ro(ffreqs),
-        frame_tested=_ro(fthr["frame"].tested),
-        frame_expected=_ro(Ef),
         frame_analytic={k: _ro(t.values) for k, t in fthr.items()},
     )
 
@@ -193,13 +187,14 @@ def calibration_fields(
     label: str,
 ) -> dict[str, Any]:
     """Run ``study`` (:func:`study_quantiles`) and return the fields of its ``Calibration`` that do
-    not depend on the normalization: what was calibrated, the empirical quantiles and their tails.
+    not depend on the normalization: what was calibrated, the frequencies, tested bins and expected
+    spectra of the study, the empirical quantiles and their tails.
 
     ``study.config`` is the per-frame STFT and ``frames`` its :func:`frame_counts`; the caller adds
-    the normalization's own fields (frequencies, tested bins, expected spectra, analytic thresholds).
+    the normalization's own fields (analytic thresholds, normalization).
     """
-    model, config = sc.nominal, study.config
-    assert config is not None  # (a calibration study has frame statistics)
+    model, config, ftested, fexpected = sc.nominal, study.config, study.fthr_tested, study.fexpected
+    assert config is not None and ftested is not None and fexpected is not None  # (it has frame statistics)
     N = sc.n_samples - 1
     n_frames, frames_eff = frames
     q = 1 - alpha
@@ -226,10 +221,16 @@ def calibration_fields(
         "seed": seed_label(seed),
         "confidence": confidence,
         "channels": tuple(model.output_names),
-        **dict(zip(("per_bin", "per_bin_low", "per_bin_high"), map(_ro, res["bin"]), strict=True)),
+        "freqs_hz": _ro(periodogram_freqs(N, model.dt)),
+        "tested": _ro(study.tested),
+        "expected": _ro(study.expected),
+        **_interval_fields("per_bin", res["bin"]),
         "family_wise": per_channel("max", runs),
-        **dict(zip(("per_frame", "per_frame_low", "per_frame_high"), map(_ro, res["frame"]), strict=True)),
+        **_interval_fields("per_frame", res["frame"]),
         "frame_family_wise": per_channel("frame_max", runs * n_frames),
+        "frame_freqs_hz": _ro(config.freqs_hz(model.dt)),
+        "frame_tested": _ro(ftested[0]),  # the uncorrected frame threshold's (or only) row
+        "frame_expected": _ro(fexpected),
         "tails": tails,
     }
 
@@ -402,14 +403,8 @@ def calibrate_empirical(
     shared = calibration_fields(study, sc, alpha, runs, seed, confidence, frames, tail_budget, ex, label)
     return Calibration(
         **shared,
-        freqs_hz=_ro(freqs),
-        tested=_ro(tested),
-        expected=_ro(E),
         analytic={},
         family_wise_analytic={},
-        frame_freqs_hz=_ro(ffreqs),
-        frame_tested=_ro(ftested),
-        frame_expected=_ro(Ef),
         frame_analytic={},
         normalization="empirical",
         normalization_info={
