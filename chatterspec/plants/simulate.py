@@ -1002,7 +1002,7 @@ def default_chunk_runs(scenario: Scenario) -> int:
     return max(64, int(CHUNK_BYTES // per_run) // 64 * 64)
 
 
-def as_scenario(scenario: Scenario | str | os.PathLike[str]) -> Scenario:
+def as_scenario(scenario: Scenario | str | os.PathLike[str], default_duration: float = 4.0) -> Scenario:
     """``scenario`` itself, the catalogue scenario of that name, or the scenario of a model file.
 
     Parameters
@@ -1010,8 +1010,10 @@ def as_scenario(scenario: Scenario | str | os.PathLike[str]) -> Scenario:
     scenario : Scenario, str or path
         A scenario; a name of :func:`~chatterspec.plants.scenarios.scenario_names`; or a model file
         ``NAME.toml`` (linear or nonlinear), whose scenario is its ``[simulation]`` table (input,
-        initial state, duration; zero input and 4 s by default) with the file's model as nominal
-        model and true plant, named after the file stem.
+        initial state, duration; zero input and ``default_duration`` by default) with the file's
+        model as nominal model and true plant, named after the file stem.
+    default_duration : float
+        Record length in seconds of a model file without ``[simulation] duration_s`` (default 4).
 
     Returns
     -------
@@ -1027,7 +1029,7 @@ def as_scenario(scenario: Scenario | str | os.PathLike[str]) -> Scenario:
     if isinstance(scenario, str | os.PathLike) and str(scenario).endswith(".toml"):
         from .modelfile import file_scenario, load_model
 
-        return file_scenario(load_model(scenario), name=Path(scenario).stem)
+        return file_scenario(load_model(scenario), default_duration, name=Path(scenario).stem)
     if isinstance(scenario, str):
         from .scenarios import scenario as by_name
 

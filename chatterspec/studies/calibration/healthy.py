@@ -77,8 +77,8 @@ from ...detection.thresholds import Threshold, exact_threshold, frame_threshold,
 from ...errors import ParameterError
 from ...plants.models import LinearModel
 from ...plants.scenarios import Scenario
-from ...plants.scenarios import scenario as catalogue_scenario
 from ...plants.signals import ZeroInput
+from ...plants.simulate import as_scenario
 from ..intervals import _pooled_ranks
 
 __all__ = [
@@ -135,7 +135,8 @@ def resolve_scenario(source: str | Scenario | LinearModel | Path, duration: floa
         :func:`~chatterspec.plants.modelfile.load_model`, linear or nonlinear) becomes the healthy
         scenario of its ``[simulation]`` table (zero input by default;
         :func:`~chatterspec.plants.modelfile.file_scenario`), named after the file stem;
-        any other string is looked up in the scenario catalogue.
+        any other string is looked up in the scenario catalogue (all but the LinearModel as
+        :func:`~chatterspec.plants.simulate.as_scenario`).
     duration : float
         Record length in seconds for model and model-file sources (a model file's
         ``[simulation] duration_s`` wins); ignored for catalogue names and Scenario objects,
@@ -150,16 +151,9 @@ def resolve_scenario(source: str | Scenario | LinearModel | Path, duration: floa
     UnknownScenarioError
         A string that is neither a ``.toml`` path nor a catalogue name.
     """
-    if isinstance(source, Scenario):
-        return source
     if isinstance(source, LinearModel):
         return model_scenario(source, duration)
-    text = str(source)
-    if text.endswith(".toml"):
-        from ...plants.modelfile import file_scenario, load_model
-
-        return file_scenario(load_model(text), default_duration=duration, name=Path(text).stem)
-    return catalogue_scenario(text)
+    return as_scenario(source, duration)
 
 
 # --------------------------------------------------------------------------- summaries
