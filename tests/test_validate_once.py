@@ -249,8 +249,7 @@ BOUNDARY = {
     ("studies/detection_rates.py", "power_study"): 1,
     ("studies/alarm_budget.py", "calibrate_alarm"): 1,
     ("plants/modelfile.py", "_detector_band"): 1,  # the model file's [detector] band
-    ("plants/simulate.py", "iter_simulations"): 1,
-    ("detection/pipeline.py", "_fused_chattering"): 1,
+    ("plants/simulate.py", "chunk_runs_of"): 1,  # the chunk size of iter_simulations and iter_chattering
     ("online/realistic_bench.py", "BenchConfig.__post_init__"): 1,
     ("cli/_options.py", "alarm_choice"): 1,  # names the CLI option
     ("cli/calibrate.py", "_check_alarm_plan"): 1,  # (the same, with the calibration's frame rate)

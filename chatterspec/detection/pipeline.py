@@ -24,7 +24,7 @@ from ..plants.scenarios import Scenario
 from ..plants.simulate import (
     NO_CTRL,
     Simulation,
-    default_chunk_runs,
+    chunk_runs_of,
     iter_simulations,
     kernel_tables,
     plant_loop,
@@ -288,7 +288,7 @@ def _fused_chattering(
     Gu = np.ascontiguousarray(_rows_times(u[:-1], f._GT), dtype=float)  # as SVSF.update computes it
     PhiT = np.ascontiguousarray(f._PhiT, dtype=float)
     times = np.arange(1, T) * model.dt
-    chunk = default_chunk_runs(scenario) if chunk_runs is None else positive_int("chunk_runs", chunk_runs)
+    chunk = chunk_runs_of(scenario, chunk_runs)
     kernel = _rng_kernel(model.n_states, m)
     z_buf = None
     for lo in range(first_run, first_run + runs, chunk):

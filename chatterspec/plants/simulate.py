@@ -995,8 +995,11 @@ class Simulation:
         return self.u[run] if self.u.ndim == 3 else self.u
 
 
-def default_chunk_runs(scenario: Scenario) -> int:
-    """Realizations per chunk for ``scenario``: a multiple of 64 whose arrays fit :data:`CHUNK_BYTES`."""
+def chunk_runs_of(scenario: Scenario, chunk_runs: int | None) -> int:
+    """Realizations per chunk for ``scenario``: ``chunk_runs`` checked (an integer >= 1), or for None a
+    multiple of 64 whose arrays fit :data:`CHUNK_BYTES`."""
+    if chunk_runs is not None:
+        return positive_int("chunk_runs", chunk_runs)
     T = scenario.n_samples
     per_run = 8 * T * 2 * (scenario.nominal.n_states + scenario.nominal.n_outputs)
     return max(64, int(CHUNK_BYTES // per_run) // 64 * 64)
@@ -1136,7 +1139,7 @@ def iter_simulations(
     """
     runs = positive_int("runs", runs)
     scenario = as_scenario(scenario)
-    chunk = default_chunk_runs(scenario) if chunk_runs is None else positive_int("chunk_runs", chunk_runs)
+    chunk = chunk_runs_of(scenario, chunk_runs)
     root = root_seed_sequence(seed)
     if getattr(scenario, "closed_loop", None) is not None:
         t = scenario.time
