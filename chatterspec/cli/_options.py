@@ -216,6 +216,8 @@ OPTIONS: dict[str, dict[str, Any]] = {
     "--plot": {"metavar": "FILE"},
     # a data file the command computes (a calibration, a fitted model file); figures are --plot
     "--out": {"type": Path, "metavar": "FILE"},
+    # a data file the command reads (a healthy recording), or '-' for CSV rows on standard input
+    "--data": {"type": Path},
     "--figures-dir": {"metavar": "DIR", "help": "where to write the PNGs (default {default})"},
     "--rate": {
         "type": rate_arg,

@@ -56,10 +56,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "all-day use; its interval shrinks like 1/sqrt(H)",
     )
     add(p, "--out", help="write the calibration file (.json or .npz)")
-    p.add_argument(
+    add(
+        p,
         "--data",
-        type=Path,
-        default=None,
         help="read the thresholds from a recorded healthy run (.csv or .npz with the model's columns, or "
         "'-' for CSV rows on standard input) instead of simulating: per-frame and record thresholds with "
         "order-statistic intervals, and with --rule / --false-alarms-per-hour the alarm threshold with "

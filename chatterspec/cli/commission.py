@@ -44,10 +44,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "count at one false alarm per day) and write it with its provenance when it is adequate.",
     )
     p.add_argument("model", metavar="MODEL", type=Path, help="nominal model file (.toml, linear)")
-    p.add_argument(
+    add(
+        p,
         "--data",
         required=True,
-        type=Path,
         help="healthy recording: .csv or .npz with columns named after the model's outputs and inputs (and "
         "optionally time), or '-' for CSV rows on standard input, read to their end",
     )
