@@ -66,6 +66,7 @@ class _OneRealization:
     """What every one-sample filter holds and checks: one realization's sizes and its sample index."""
 
     __slots__ = ("_buf", "_call", "_cst", "_k", "_m", "_n", "_p", "_state", "_u0", "compiled")
+    _buf: np.ndarray  # the compiled step's state buffer
 
     def _start(self, model: Any, state: Any, ok: bool, expected: str, runs: int, what: str) -> None:
         """Refuse a state of another kind (``ok`` false) or of several realizations; take the sizes."""
@@ -76,6 +77,11 @@ class _OneRealization:
         self._n, self._m, self._p = int(model.n_states), int(model.n_outputs), int(model.n_inputs)
         self._u0 = np.zeros(self._p)
         self._k = int(state.k)
+
+    def _field(self, o: int, shape: tuple[int, ...]) -> np.ndarray:
+        """A copy of the state buffer's field of ``shape`` at offset ``o``."""
+        size = int(np.prod(shape, dtype=np.int64))
+        return self._buf[o : o + size].reshape(shape).copy()
 
     @property
     def k(self) -> int:
@@ -213,10 +219,6 @@ class OnlineFilter(_OneRealization):
         buf[o_P : o_P + n * n] = np.broadcast_to(state.P, (1, n, n))[0].ravel()
         buf[o_ep : o_ep + m] = state.e_post[0]
         buf[o_epp : o_epp + m] = state.e_prev[0]
-
-    def _field(self, o: int, shape: tuple[int, ...]) -> np.ndarray:
-        size = int(np.prod(shape, dtype=np.int64))
-        return self._buf[o : o + size].reshape(shape).copy()
 
     @property
     def x(self) -> np.ndarray:
@@ -383,16 +385,12 @@ class OnlineBank(_OneRealization):
             "mode models (the innovation covariance) and the measurement units"
         )
 
-    def _slice(self, o: int, shape: tuple[int, ...]) -> np.ndarray:
-        size = int(np.prod(shape, dtype=np.int64))
-        return self._buf[o : o + size].reshape(shape).copy()
-
     @property
     def x(self) -> np.ndarray:
         """The combined ``x(k|k)`` (n,) (copy)."""
         if not self.compiled:
             return self._state.x[0].copy()
-        return self._slice(self._offsets[0], (self._n,))
+        return self._field(self._offsets[0], (self._n,))
 
     @property
     def P(self) -> np.ndarray:
@@ -400,21 +398,21 @@ class OnlineBank(_OneRealization):
         n = self._n
         if not self.compiled:
             return np.broadcast_to(self._state.P, (1, n, n))[0].copy()
-        return self._slice(self._offsets[1], (n, n))
+        return self._field(self._offsets[1], (n, n))
 
     @property
     def mu(self) -> np.ndarray:
         """Mode probabilities / weights after sample ``k`` (r,) (copy)."""
         if not self.compiled:
             return self._state.mu[0].copy()
-        return self._slice(self._offsets[2], (self._nm,))
+        return self._field(self._offsets[2], (self._nm,))
 
     @property
     def state(self) -> Any:
         """The state as a one-run :class:`~chatterspec.filters.bank.MultipleModelState`."""
         if not self.compiled:
             return self._state
-        return self.bank._one_state(self._slice, self._state, self._k)
+        return self.bank._one_state(self._field, self._state, self._k)
 
     @property
     def loglik(self) -> np.ndarray | None:
@@ -423,7 +421,7 @@ class OnlineBank(_OneRealization):
             return None
         if not self.compiled:
             return None if self._ll is None else self._ll.copy()
-        return self._slice(self._offsets[3], (self._nm,))
+        return self._field(self._offsets[3], (self._nm,))
 
     def __repr__(self) -> str:
         path = "compiled" if self.compiled else "update"
