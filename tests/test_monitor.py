@@ -383,6 +383,34 @@ def test_fused_push_of_chattering_gives_the_bits_of_the_separate_calls(batch) ->
     assert events >= 1 and fused.n_frames == plain.n_frames > 300
 
 
+@pytest.mark.skipif(not _jit.enabled(), reason="the fused hop is the compiled path")
+@pytest.mark.parametrize("rule", [None, cs.CusumRule(threshold=6.0, drift=3.0)])
+def test_fused_push_keeps_the_fault_peaks_of_the_separate_calls(batch, rule) -> None:
+    """The fused push's kernel keeps each active fault's largest peak over blocks where no alarm starts
+    or ends; the fault-end events (which report that peak) equal those of the separate calls, through
+    faults that last many pushes of one block each and pushes of several blocks."""
+    e = batch[0].values[0]
+    healthy, faulty = e[:3000], e[3000:] * np.linspace(1.0, 4.0, 3000)[:, None]  # a growing fault
+    x = np.concatenate([healthy, faulty, healthy, faulty, healthy])  # two faults, each ending
+    fused = ChatteringMonitor(batch[0].model, MonitorSettings(rule=rule))
+    plain = ChatteringMonitor(batch[0].model, MonitorSettings(rule=rule))
+    assert fused._frames._fused
+    plain._frames._fused = False
+    events = []
+    for lo, hi in itertools.pairwise([*range(0, 8000, 1000), 11000, 11001, 12000, x.shape[0]]):
+        a, b = fused.push_chattering(x[lo:hi]), plain.push_chattering(x[lo:hi])
+        assert a.events == b.events
+        events += a.events
+    starts = {}
+    grown = 0
+    for ev in events:
+        if ev.kind == "fault-start":
+            starts[ev.channel] = ev.peak_ratio
+        else:  # the peak of frames after the start, kept by the kernel between the pushes
+            grown += ev.peak_ratio > starts[ev.channel]
+    assert grown >= 2
+
+
 @pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed")
 def test_frame_buffer_kernel_python_form() -> None:
     """``frames_in`` compiled and as Python: the same buffer, tapered frames and kept samples as the
