@@ -443,6 +443,42 @@ def test_frame_buffer_kernel_python_form() -> None:
         np.testing.assert_array_equal(buf[:, :kept], x[:, F * H :])  # the kept samples untouched
 
 
+@pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed")
+def test_sample_times_give_the_bits_of_the_numpy_formula() -> None:
+    """The pushed samples' times, compiled and numpy (in place): the bits of ``t0 + arange * dt`` over
+    random clocks (a product and sum fused into one rounding would differ in many of them)."""
+    from chatterspec.online._push_kernels import sample_times, sample_times_numpy
+
+    rng = np.random.default_rng(8)
+    for _ in range(200):
+        t0 = rng.normal() * 10.0 ** rng.integers(-3, 6)
+        dt = rng.random() * 10.0 ** rng.integers(-6, 0)
+        first, count = int(rng.integers(0, 2**40)), int(rng.integers(0, 600))
+        want = t0 + np.arange(first, first + count, dtype=float) * dt
+        for times in (sample_times, sample_times_numpy):
+            np.testing.assert_array_equal(times(t0, first, count, dt), want)
+
+
+def test_fast_result_builders_give_the_dataclasses() -> None:
+    """The push's FrameBlock and MonitorUpdate built with their instance dict set at once: the fields
+    (every one, by name) and values of the dataclasses' constructors."""
+    import dataclasses
+
+    from chatterspec.online.monitor import FrameBlock, MonitorUpdate, _frame_block, _monitor_update
+
+    vals = [np.arange(i, i + 2) for i in range(9)]
+    for cls, build, args in (
+        (FrameBlock, _frame_block, vals),
+        (MonitorUpdate, _monitor_update, [*vals[:4], FrameBlock(*vals), ()]),
+    ):
+        fast, slow = build(*args), cls(*args)
+        assert type(fast) is cls
+        assert list(vars(fast)) == [f.name for f in dataclasses.fields(cls)] == list(vars(slow))
+        assert all(vars(fast)[k] is vars(slow)[k] for k in vars(slow))
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            fast.t = None  # type: ignore[misc]
+
+
 def test_frame_rfft_is_scipy_rfft() -> None:
     """The monitor's frame transform (pocketfft's r2c called directly) gives the bits of scipy.fft.rfft,
     on a contiguous block of frames and on the first frames of a larger one (a strided view)."""

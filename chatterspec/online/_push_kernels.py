@@ -501,3 +501,27 @@ def frames_in(
         for k in range(n - first):
             x[k] = src[k]
     return n - first
+
+
+@_jit.njit
+def sample_times(t0: float, first: int, count: int, dt: float) -> np.ndarray:  # pragma: no cover - compiled
+    """Times (s) ``t0 + j dt`` of samples ``j = first .. first + count - 1`` (a new array).
+
+    Per sample the two correctly rounded operations of the numpy form
+    ``t0 + arange(first, first + count, dtype=float) * dt`` (the float ``arange`` of integers is exact
+    below 2^53; numba contracts no product and sum into a fused multiply-add), so the same bits
+    (tests/test_monitor.py); one call instead of numpy's three passes (:func:`sample_times_numpy`).
+    """
+    t = np.empty(count)
+    for k in range(count):
+        t[k] = t0 + float(first + k) * dt
+    return t
+
+
+def sample_times_numpy(t0: float, first: int, count: int, dt: float) -> np.ndarray:
+    """:func:`sample_times` in numpy: ``t0 + arange(first, first + count, dtype=float) * dt``, scaled and
+    shifted in place (the same bits, without the two temporary arrays)."""
+    t = np.arange(first, first + count, dtype=float)
+    t *= dt
+    t += t0
+    return t

@@ -78,6 +78,8 @@ from ._push_kernels import (
     frames_in,
     hop_constants,
     hop_kernel,
+    sample_times,
+    sample_times_numpy,
 )
 from .fault_state import alarm_time
 
@@ -246,6 +248,39 @@ class MonitorUpdate:
     estimate: np.ndarray | None
     frames: FrameBlock
     events: tuple[DetectionEvent, ...]
+
+
+_NEW, _SET = object.__new__, object.__setattr__
+
+
+def _frame_block(
+    index: np.ndarray, times_s: np.ndarray, power: np.ndarray, flags: np.ndarray, peak_hz: np.ndarray,
+    peak_ratio: np.ndarray, score: np.ndarray, alarm: np.ndarray, alarm_statistic: np.ndarray,
+) -> FrameBlock:  # fmt: skip
+    """``FrameBlock(...)`` with every field, its instance dict set in one call.
+
+    A frozen dataclass's ``__init__`` sets each field through ``object.__setattr__``: nine calls,
+    ~1 us per push, twice this (tests/test_monitor.py checks that both give the same fields).
+    """
+    block = _NEW(FrameBlock)
+    _SET(block, "__dict__", {
+        "index": index, "times_s": times_s, "power": power, "flags": flags, "peak_hz": peak_hz,
+        "peak_ratio": peak_ratio, "score": score, "alarm": alarm, "alarm_statistic": alarm_statistic,
+    })  # fmt: skip
+    return block
+
+
+def _monitor_update(
+    t: np.ndarray, chattering: np.ndarray, measured: np.ndarray | None, estimate: np.ndarray | None,
+    frames: FrameBlock, events: tuple[DetectionEvent, ...],
+) -> MonitorUpdate:  # fmt: skip
+    """``MonitorUpdate(...)`` as :func:`_frame_block` builds a :class:`FrameBlock` (the same fields)."""
+    update = _NEW(MonitorUpdate)
+    _SET(update, "__dict__", {
+        "t": t, "chattering": chattering, "measured": measured, "estimate": estimate, "frames": frames,
+        "events": events,
+    })  # fmt: skip
+    return update
 
 
 class MonitorFilters:
@@ -499,18 +534,8 @@ class MonitorFilters:
         return x if self._C_identity else x @ self.model.C.T
 
 
-def sample_times(t0: float, first: int, count: int, dt: float) -> np.ndarray:
-    """Times (s) ``t0 + j dt`` of samples ``j = first .. first + count - 1``, in one new array.
-
-    A float ``arange`` of integers (exact below 2^53), scaled and shifted in place: the bits of
-    ``t0 + (first + arange(count)) * dt`` (the same two correctly rounded operations per sample) without
-    its two temporary arrays.
-    """
-    t = np.arange(first, first + count, dtype=float)
-    t *= dt
-    t += t0
-    return t
-
+#: The native float64 dtype (an array of another float64 dtype object, e.g. byte-swapped, is converted).
+_FLOAT = np.dtype(np.float64)
 
 #: Rows the frame buffer keeps between pushes at most (a larger push gets a buffer of its own).
 MAX_BUFFER_ROWS = 1 << 16
@@ -758,7 +783,7 @@ class FrameAnalysis:
         self.n_frames = j_first + F
         idx = np.arange(j_first, j_first + F)
         stat = outf[1] if self._legacy else outf[2]
-        frames = FrameBlock(idx, times, power, outb[3], outf[4], outf[0], outf[1], outb[0], stat)
+        frames = _frame_block(idx, times, power, outb[3], outf[4], outf[0], outf[1], outb[0], stat)
         if not any_alarm & (2 if tracked else 3):  # no alarm start or end (peaks kept): no event
             return frames, ()
         return frames, self._events(frames, outb[1], outb[2])
@@ -896,6 +921,9 @@ class ChatteringMonitor:
         self._n_chat = 0  # chattering samples produced / pushed
         self._t_chat0: float | None = None  # time of chattering sample 0
         self._last: MonitorUpdate | None = None  # the last push (None after a compiled step)
+        # the pushed samples' times: one compiled call with numba (the bits of the numpy form)
+        self._sample_times = direct(sample_times) if _jit.enabled() else sample_times_numpy
+        self._m = model.n_outputs
 
     # ------------------------------------------------------------- properties
     @property
@@ -970,10 +998,10 @@ class ChatteringMonitor:
         K = z.shape[0]
         if K == 0:  # the first push's first measurement only initializes the filters
             return self._empty_update(raw=True)
-        t = sample_times(self.t0, self._filters.n_meas - K, K, self.dt)
+        t = self._sample_times(self.t0, self._filters.n_meas - K, K, self.dt)
         self._n_chat += K
         frames, events = self._frames.push(e)
-        self._last = MonitorUpdate(t, e, z, estimate, frames, events)
+        self._last = _monitor_update(t, e, z, estimate, frames, events)
         return self._last
 
     def step(self, z: object, u: object) -> tuple[DetectionEvent, ...]:
@@ -1027,8 +1055,8 @@ class ChatteringMonitor:
         """
         if self._mode != "chattering":
             self._set_mode("chattering")
-        m = self.model.n_outputs
-        if type(e) is np.ndarray and e.dtype == np.float64 and e.ndim == 2 and e.shape[1] == m:
+        m = self._m
+        if type(e) is np.ndarray and e.dtype is _FLOAT and e.ndim == 2 and e.shape[1] == m:
             if not e.flags.c_contiguous:
                 e = np.ascontiguousarray(e)
         else:  # anything else: converted and checked here (the frame analysis checks NaN/inf)
@@ -1037,9 +1065,9 @@ class ChatteringMonitor:
         if K == 0:
             return self._empty_update(raw=False)
         frames, events = self._frames.push(e, check=True)  # NaN/inf: NonFiniteError, nothing consumed
-        t = sample_times(self._chatter_time0(), self._n_chat, K, self.dt)
+        t = self._sample_times(self._chatter_time0(), self._n_chat, K, self.dt)
         self._n_chat += K
-        return MonitorUpdate(t, e, None, None, frames, events)
+        return _monitor_update(t, e, None, None, frames, events)
 
     def stream(
         self, z: np.ndarray, u: np.ndarray, chunk_samples: int | np.ndarray = 1000
