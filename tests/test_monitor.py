@@ -383,6 +383,34 @@ def test_fused_push_of_chattering_gives_the_bits_of_the_separate_calls(batch) ->
     assert events >= 1 and fused.n_frames == plain.n_frames > 300
 
 
+@pytest.mark.skipif(not _jit.enabled(), reason="the fused hop is the compiled path")
+@pytest.mark.parametrize("rule", [None, cs.CusumRule(threshold=6.0, drift=3.0)])
+def test_fused_push_keeps_the_fault_peaks_of_the_separate_calls(batch, rule) -> None:
+    """The fused push's kernel keeps each active fault's largest peak over blocks where no alarm starts
+    or ends; the fault-end events (which report that peak) equal those of the separate calls, through
+    faults that last many pushes of one block each and pushes of several blocks."""
+    e = batch[0].values[0]
+    healthy, faulty = e[:3000], e[3000:] * np.linspace(1.0, 4.0, 3000)[:, None]  # a growing fault
+    x = np.concatenate([healthy, faulty, healthy, faulty, healthy])  # two faults, each ending
+    fused = ChatteringMonitor(batch[0].model, MonitorSettings(rule=rule))
+    plain = ChatteringMonitor(batch[0].model, MonitorSettings(rule=rule))
+    assert fused._frames._fused
+    plain._frames._fused = False
+    events = []
+    for lo, hi in itertools.pairwise([*range(0, 8000, 1000), 11000, 11001, 12000, x.shape[0]]):
+        a, b = fused.push_chattering(x[lo:hi]), plain.push_chattering(x[lo:hi])
+        assert a.events == b.events
+        events += a.events
+    starts = {}
+    grown = 0
+    for ev in events:
+        if ev.kind == "fault-start":
+            starts[ev.channel] = ev.peak_ratio
+        else:  # the peak of frames after the start, kept by the kernel between the pushes
+            grown += ev.peak_ratio > starts[ev.channel]
+    assert grown >= 2
+
+
 @pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed")
 def test_frame_buffer_kernel_python_form() -> None:
     """``frames_in`` compiled and as Python: the same buffer, tapered frames and kept samples as the
@@ -413,6 +441,42 @@ def test_frame_buffer_kernel_python_form() -> None:
             with np.errstate(invalid="ignore"):  # the Python form's inf - inf (the check's NaN)
                 assert kernel(buf, kept, bad, True, win, H, 0, 0, 0, tapered) == -1
         np.testing.assert_array_equal(buf[:, :kept], x[:, F * H :])  # the kept samples untouched
+
+
+@pytest.mark.skipif(not _jit.HAVE_NUMBA, reason="numba not installed")
+def test_sample_times_give_the_bits_of_the_numpy_formula() -> None:
+    """The pushed samples' times, compiled and numpy (in place): the bits of ``t0 + arange * dt`` over
+    random clocks (a product and sum fused into one rounding would differ in many of them)."""
+    from chatterspec.online._push_kernels import sample_times, sample_times_numpy
+
+    rng = np.random.default_rng(8)
+    for _ in range(200):
+        t0 = rng.normal() * 10.0 ** rng.integers(-3, 6)
+        dt = rng.random() * 10.0 ** rng.integers(-6, 0)
+        first, count = int(rng.integers(0, 2**40)), int(rng.integers(0, 600))
+        want = t0 + np.arange(first, first + count, dtype=float) * dt
+        for times in (sample_times, sample_times_numpy):
+            np.testing.assert_array_equal(times(t0, first, count, dt), want)
+
+
+def test_fast_result_builders_give_the_dataclasses() -> None:
+    """The push's FrameBlock and MonitorUpdate built with their instance dict set at once: the fields
+    (every one, by name) and values of the dataclasses' constructors."""
+    import dataclasses
+
+    from chatterspec.online.monitor import FrameBlock, MonitorUpdate, _frame_block, _monitor_update
+
+    vals = [np.arange(i, i + 2) for i in range(9)]
+    for cls, build, args in (
+        (FrameBlock, _frame_block, vals),
+        (MonitorUpdate, _monitor_update, [*vals[:4], FrameBlock(*vals), ()]),
+    ):
+        fast, slow = build(*args), cls(*args)
+        assert type(fast) is cls
+        assert list(vars(fast)) == [f.name for f in dataclasses.fields(cls)] == list(vars(slow))
+        assert all(vars(fast)[k] is vars(slow)[k] for k in vars(slow))
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            fast.t = None  # type: ignore[misc]
 
 
 def test_frame_rfft_is_scipy_rfft() -> None:

@@ -45,22 +45,27 @@ def _private_r2c() -> Callable[..., Any] | None:
 _r2c = _private_r2c()
 
 
-def frame_rfft(x: np.ndarray) -> np.ndarray:
+def frame_rfft(x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """``scipy.fft.rfft(x, axis=-1)`` of the tapered frames ``x`` (float, any strides), without its per-call
-    Python work.
+    Python work; written to ``out`` (complex, ``x.shape[:-1] + (bins,)``) when given.
 
     ``scipy.fft.rfft`` dispatches through its backend layer, converts and checks its argument and then
     calls pocketfft's ``r2c`` on the last axis, unnormalized, one worker: 5-10 us of Python per
     call, a tenth of a 1000-sample push. The monitor's tapered frames are already a float array of the
     right length, so the same ``r2c`` call gives the same transform (the same bits:
     tests/test_monitor.py); a SciPy where that private call is missing, refuses the arguments or
-    gives other bits (checked once at import) takes the public function.
+    gives other bits (checked once at import) takes the public function. ``out``: the monitor's
+    buffer, reused push after push (a new 120 kB array per push costs it ~1 us).
     """
     if _r2c is None:  # pragma: no cover - depends on the SciPy version
         import scipy.fft
 
-        return cast(np.ndarray, scipy.fft.rfft(x, axis=-1))
-    return cast(np.ndarray, _r2c(x, (-1,), True, 0, None, 1))
+        y = scipy.fft.rfft(x, axis=-1)
+        if out is None:
+            return cast(np.ndarray, y)
+        out[...] = y
+        return out
+    return cast(np.ndarray, _r2c(x, (-1,), True, 0, out, 1))
 
 
 def direct(kernel: Callable[..., Any]) -> Callable[..., Any]:
@@ -322,7 +327,7 @@ def cut_rows(a: np.ndarray, o: int, rows: int, cols: int) -> tuple[np.ndarray, i
 
 
 def _hop_loop(  # type: ignore[no-untyped-def]
-    Y, a, j_first, t_first, dt, cf, ci, act, g, count, ring, pos, power, outf, outb, times
+    Y, a, j_first, t_first, dt, cf, ci, act, g, count, ring, pos, power, outf, outb, times, peak
 ):  # pragma: no cover - compiled (compared with the separate calls in tests/test_monitor.py)
     """A block of the monitor's frames in one call: power, verdicts, scores and the alarm rule.
 
@@ -341,12 +346,19 @@ def _hop_loop(  # type: ignore[no-untyped-def]
     elsewhere: the rule's statistic into ``outf[2]``, its state, starts and ends into ``outb[0:3]``.
     ``times`` (F,) gets the frames' centre times (s) from chattering sample 0 at ``t_first``. The same
     steps as the four separate calls (:class:`~chatterspec.detection.spectral.FrameEngine`,
-    ``FrameVerdicts``, ``FrameScore``, ``AlarmStream``), hence their bits. Returns 1 when the block
-    has an alarm start, end or active frame (events to look for), else 0.
+    ``FrameVerdicts``, ``FrameScore``, ``AlarmStream``), hence their bits.
+
+    Returns 2 when the block has an alarm start or end (events to build), else 1 when an alarm is
+    active, else 0. ``peak`` (2, m): per channel, the active fault's largest peak ratio and its
+    frequency (Hz), the monitor's event state; for a block that returns 1 (each channel's alarm is
+    then constant over the block), each active channel's largest ratio of the block replaces the
+    kept one when larger, the first largest as Python's ``max`` picks it (what
+    :meth:`~chatterspec.online.monitor.FrameAnalysis._events` does with such a block). A ``peak`` of
+    no columns (2, 0) is left to the caller.
     """
     b = _jit.borrow
     Y, cf, ci, act, g, count, ring, pos = b(Y), b(cf), b(ci), b(act), b(g), b(count), b(ring), b(pos)
-    power, outf, outb, times = b(power), b(outf), b(outb), b(times)
+    power, outf, outb, times, peak = b(power), b(outf), b(outb), b(times), b(peak)
     m, Fb, B = Y.shape[1], Y.shape[2], Y.shape[3]
     lo, nv, nt, ncv = ci[I_LO], ci[I_NV], ci[I_NT], ci[I_NCV]
     nlow, npar, legacy, W, H = ci[I_NLOW], ci[I_NP], ci[I_LEGACY] != 0, ci[I_W], ci[I_H]
@@ -397,11 +409,24 @@ def _hop_loop(  # type: ignore[no-untyped-def]
     half = (W - 1) / 2.0
     for f in range(Fb):
         times[a + f] = t_first + ((j_first + a + f) * H + half) * dt
+    code = 0
     for f in range(Fb):
         for c in range(m):
-            if active[0, f, c] or starts[0, f, c] or ends[0, f, c]:
-                return 1
-    return 0
+            if starts[0, f, c] or ends[0, f, c]:
+                return 2
+            if active[0, f, c]:
+                code = 1
+    if code and peak.shape[1] > 0:
+        for c in range(m):
+            if active[0, 0, c]:
+                best, k = peak_ratio[0, c], 0
+                for f in range(1, Fb):
+                    if peak_ratio[f, c] > best:
+                        best, k = peak_ratio[f, c], f
+                if best > peak[0, c]:
+                    peak[0, c] = best
+                    peak[1, c] = outf[4, a + k, c]
+    return code
 
 
 _HOP: dict[int, Callable[..., int]] = {}
@@ -476,3 +501,27 @@ def frames_in(
         for k in range(n - first):
             x[k] = src[k]
     return n - first
+
+
+@_jit.njit
+def sample_times(t0: float, first: int, count: int, dt: float) -> np.ndarray:  # pragma: no cover - compiled
+    """Times (s) ``t0 + j dt`` of samples ``j = first .. first + count - 1`` (a new array).
+
+    Per sample the two correctly rounded operations of the numpy form
+    ``t0 + arange(first, first + count, dtype=float) * dt`` (the float ``arange`` of integers is exact
+    below 2^53; numba contracts no product and sum into a fused multiply-add), so the same bits
+    (tests/test_monitor.py); one call instead of numpy's three passes (:func:`sample_times_numpy`).
+    """
+    t = np.empty(count)
+    for k in range(count):
+        t[k] = t0 + float(first + k) * dt
+    return t
+
+
+def sample_times_numpy(t0: float, first: int, count: int, dt: float) -> np.ndarray:
+    """:func:`sample_times` in numpy: ``t0 + arange(first, first + count, dtype=float) * dt``, scaled and
+    shifted in place (the same bits, without the two temporary arrays)."""
+    t = np.arange(first, first + count, dtype=float)
+    t *= dt
+    t += t0
+    return t

@@ -78,6 +78,8 @@ from ._push_kernels import (
     frames_in,
     hop_constants,
     hop_kernel,
+    sample_times,
+    sample_times_numpy,
 )
 from .fault_state import alarm_time
 
@@ -246,6 +248,39 @@ class MonitorUpdate:
     estimate: np.ndarray | None
     frames: FrameBlock
     events: tuple[DetectionEvent, ...]
+
+
+_NEW, _SET = object.__new__, object.__setattr__
+
+
+def _frame_block(
+    index: np.ndarray, times_s: np.ndarray, power: np.ndarray, flags: np.ndarray, peak_hz: np.ndarray,
+    peak_ratio: np.ndarray, score: np.ndarray, alarm: np.ndarray, alarm_statistic: np.ndarray,
+) -> FrameBlock:  # fmt: skip
+    """``FrameBlock(...)`` with every field, its instance dict set in one call.
+
+    A frozen dataclass's ``__init__`` sets each field through ``object.__setattr__``: nine calls,
+    ~1 us per push, twice this (tests/test_monitor.py checks that both give the same fields).
+    """
+    block = _NEW(FrameBlock)
+    _SET(block, "__dict__", {
+        "index": index, "times_s": times_s, "power": power, "flags": flags, "peak_hz": peak_hz,
+        "peak_ratio": peak_ratio, "score": score, "alarm": alarm, "alarm_statistic": alarm_statistic,
+    })  # fmt: skip
+    return block
+
+
+def _monitor_update(
+    t: np.ndarray, chattering: np.ndarray, measured: np.ndarray | None, estimate: np.ndarray | None,
+    frames: FrameBlock, events: tuple[DetectionEvent, ...],
+) -> MonitorUpdate:  # fmt: skip
+    """``MonitorUpdate(...)`` as :func:`_frame_block` builds a :class:`FrameBlock` (the same fields)."""
+    update = _NEW(MonitorUpdate)
+    _SET(update, "__dict__", {
+        "t": t, "chattering": chattering, "measured": measured, "estimate": estimate, "frames": frames,
+        "events": events,
+    })  # fmt: skip
+    return update
 
 
 class MonitorFilters:
@@ -499,6 +534,9 @@ class MonitorFilters:
         return x if self._C_identity else x @ self.model.C.T
 
 
+#: The native float64 dtype (an array of another float64 dtype object, e.g. byte-swapped, is converted).
+_FLOAT = np.dtype(np.float64)
+
 #: Rows the frame buffer keeps between pushes at most (a larger push gets a buffer of its own).
 MAX_BUFFER_ROWS = 1 << 16
 
@@ -562,8 +600,10 @@ class FrameAnalysis:
         self._alarm = AlarmStream(
             FrameRule(0.5) if self._legacy else self.rule, (m,), compiled=_jit.enabled()
         )
-        self._fault_peak = [0.0] * m  # per channel, the active fault's largest peak ratio and its Hz
-        self._fault_peak_hz = [0.0] * m
+        # per channel, the active fault's largest peak ratio and its Hz (the fused push's kernel
+        # keeps them over blocks without an alarm start or end; _events over the others)
+        self._peak = np.zeros((2, m))
+        self._no_peak = np.zeros((2, 0))
         self.n_events = 0
         self.t_first = 0.0
         # with numba: power, verdicts, score and alarm rule of a block of frames in one compiled call
@@ -583,7 +623,9 @@ class FrameAnalysis:
         # its taper buffer: frames in blocks of 2^15 values, as FrameEngine.transforms
         eng, ver, al = self._columns, self._verdicts, self._alarm
         self._block = max(1, (1 << 15) // max(1, m * self.n_window))
-        self._tapered = np.empty((1, m, self._block, self.n_window))
+        self._tapered = np.empty(m * self._block * self.n_window)
+        self._spectra = np.empty(m * self._block * self.n_bins, dtype=complex)
+        self._views: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._cf, self._ci = hop_constants(
             eng.scale, ver.sel.start if isinstance(ver.sel, slice) else 0, ver.values, ver._positions,
             ver.freqs, self._score._kernel_args, al._h, al._p, self._legacy, self.n_window, self.n_hop,
@@ -696,8 +738,9 @@ class FrameAnalysis:
             buf = self._buf
         F = 0 if n < W else (n - W) // H + 1
         hi = min(F, self._block)
-        tapered, win = self._tapered, self._columns.win
-        kept = self._frames_in(buf, nb, e, check, win, H, 0, hi, F, tapered)
+        win = self._columns.win
+        views = self._views.get(hi) or self._frame_views(hi)
+        kept = self._frames_in(buf, nb, e, check, win, H, 0, hi, F, views[0])
         if kept < 0:  # NaN/inf in e (nothing written)
             bad = int(e.size - np.count_nonzero(np.isfinite(e)))
             raise NonFiniteError(f"e contains {bad} NaN/inf value(s); all entries must be finite")
@@ -717,17 +760,22 @@ class FrameAnalysis:
         assert hop is not None  # (fused: the rule gives its channel step)
         any_alarm = 0
         lo = 0
+        # one block: the kernel keeps the faults' peaks where no alarm starts or ends; several: _events
+        # goes over all of the push's frames from the peaks before it
+        tracked = hi == F
+        peak = self._peak if tracked else self._no_peak
         while True:
-            Y = frame_rfft(tapered if hi - lo == self._block else tapered[:, :, : hi - lo])
+            Y = frame_rfft(*views)
             any_alarm |= hop(
                 Y, lo, j_first, self.t_first, self.dt, self._cf, self._ci,
-                al._active, al._g, al._count, al._ring, pos, power, outf, outb, times,
+                al._active, al._g, al._count, al._ring, pos, power, outf, outb, times, peak,
             )  # fmt: skip
             pos[0] += hi - lo
             if hi == F:
                 break
             lo, hi = hi, min(hi + self._block, F)
-            kept = self._frames_in(buf, n, self._no_rows, False, win, H, lo, hi, F, tapered)
+            views = self._views.get(hi - lo) or self._frame_views(hi - lo)
+            kept = self._frames_in(buf, n, self._no_rows, False, win, H, lo, hi, F, views[0])
         al._step += F
         if buf is not self._buf:
             self._buf[:, :kept] = buf[:, :kept]
@@ -735,10 +783,20 @@ class FrameAnalysis:
         self.n_frames = j_first + F
         idx = np.arange(j_first, j_first + F)
         stat = outf[1] if self._legacy else outf[2]
-        frames = FrameBlock(idx, times, power, outb[3], outf[4], outf[0], outf[1], outb[0], stat)
-        if not any_alarm:  # no alarm start, end or active frame: no event
+        frames = _frame_block(idx, times, power, outb[3], outf[4], outf[0], outf[1], outb[0], stat)
+        if not any_alarm & (2 if tracked else 3):  # no alarm start or end (peaks kept): no event
             return frames, ()
         return frames, self._events(frames, outb[1], outb[2])
+
+    def _frame_views(self, frames: int) -> tuple[np.ndarray, np.ndarray]:
+        """The fused push's buffers for a block of ``frames`` frames (the first values of each, C-ordered):
+        the tapered frames (1, m, frames, W) and their transforms (1, m, frames, bins); made once per
+        block size and kept."""
+        m = len(self.channels)
+        tapered = self._tapered[: m * frames * self.n_window].reshape(1, m, frames, self.n_window)
+        spectra = self._spectra[: m * frames * self.n_bins].reshape(1, m, frames, self.n_bins)
+        self._views[frames] = tapered, spectra
+        return tapered, spectra
 
     def _events(self, fr: FrameBlock, starts: np.ndarray, ends: np.ndarray) -> tuple[DetectionEvent, ...]:
         """Events from the alarm layer's starts / ends (F, m); tracks each fault's largest peak.
@@ -753,7 +811,7 @@ class FrameAnalysis:
         if not (any(changed) or any(on)):  # no change and nothing active: no event
             return ()
         ratios, hzs = fr.peak_ratio.T.tolist(), fr.peak_hz.T.tolist()  # per channel, per frame
-        peak, peak_hz = self._fault_peak, self._fault_peak_hz
+        peak, peak_hz = self._peak.tolist()
         events: list[DetectionEvent] = []
         for c, (ch, is_on) in enumerate(zip(changed, on, strict=True)):
             r_c = ratios[c]
@@ -772,6 +830,7 @@ class FrameAnalysis:
                     events.append(self._event("fault-end", c, fr, f, peak_hz[c], peak[c]))
                 elif a_c[f] and ratio > peak[c]:
                     peak[c], peak_hz[c] = ratio, hzs[c][f]
+        self._peak[0], self._peak[1] = peak, peak_hz
         events.sort(key=lambda ev: (ev.frame, ev.channel_index))
         self.n_events += len(events)
         return tuple(events)
@@ -862,6 +921,9 @@ class ChatteringMonitor:
         self._n_chat = 0  # chattering samples produced / pushed
         self._t_chat0: float | None = None  # time of chattering sample 0
         self._last: MonitorUpdate | None = None  # the last push (None after a compiled step)
+        # the pushed samples' times: one compiled call with numba (the bits of the numpy form)
+        self._sample_times = direct(sample_times) if _jit.enabled() else sample_times_numpy
+        self._m = model.n_outputs
 
     # ------------------------------------------------------------- properties
     @property
@@ -936,12 +998,10 @@ class ChatteringMonitor:
         K = z.shape[0]
         if K == 0:  # the first push's first measurement only initializes the filters
             return self._empty_update(raw=True)
-        # float arange of integers (exact below 2^53): the bits of t0 + (n + arange(K)) * dt, one pass fewer
-        n = self._filters.n_meas - K
-        t = self.t0 + np.arange(n, n + K, dtype=float) * self.dt
+        t = self._sample_times(self.t0, self._filters.n_meas - K, K, self.dt)
         self._n_chat += K
         frames, events = self._frames.push(e)
-        self._last = MonitorUpdate(t, e, z, estimate, frames, events)
+        self._last = _monitor_update(t, e, z, estimate, frames, events)
         return self._last
 
     def step(self, z: object, u: object) -> tuple[DetectionEvent, ...]:
@@ -995,8 +1055,8 @@ class ChatteringMonitor:
         """
         if self._mode != "chattering":
             self._set_mode("chattering")
-        m = self.model.n_outputs
-        if type(e) is np.ndarray and e.dtype == np.float64 and e.ndim == 2 and e.shape[1] == m:
+        m = self._m
+        if type(e) is np.ndarray and e.dtype is _FLOAT and e.ndim == 2 and e.shape[1] == m:
             if not e.flags.c_contiguous:
                 e = np.ascontiguousarray(e)
         else:  # anything else: converted and checked here (the frame analysis checks NaN/inf)
@@ -1005,9 +1065,9 @@ class ChatteringMonitor:
         if K == 0:
             return self._empty_update(raw=False)
         frames, events = self._frames.push(e, check=True)  # NaN/inf: NonFiniteError, nothing consumed
-        t = self._chatter_time0() + np.arange(self._n_chat, self._n_chat + K, dtype=float) * self.dt
+        t = self._sample_times(self._chatter_time0(), self._n_chat, K, self.dt)
         self._n_chat += K
-        return MonitorUpdate(t, e, None, None, frames, events)
+        return _monitor_update(t, e, None, None, frames, events)
 
     def stream(
         self, z: np.ndarray, u: np.ndarray, chunk_samples: int | np.ndarray = 1000
