@@ -111,6 +111,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.special
@@ -120,7 +121,9 @@ from ..errors import IdentifiabilityError, ParameterError, ShapeError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import Model, is_linear
 from ..plants.parameters import NO_FAULT, UNEXPLAINED, Hypothesis, ParameterMap
-from .pipeline import ChatteringRecord
+
+if TYPE_CHECKING:  # pragma: no cover - the pipeline (simulation, scenarios) is not needed to identify
+    from .pipeline import ChatteringRecord
 
 __all__ = [
     "METHOD",
