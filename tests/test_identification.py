@@ -7,6 +7,8 @@ of 1e-3 (each says why); the long validation over >= 500 runs per catalogue faul
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -22,6 +24,7 @@ from chatterspec.detection.identification import (
 )
 from chatterspec.detection.pipeline import iter_chattering
 from chatterspec.errors import IdentifiabilityError, ParameterError
+from chatterspec.online.identification_monitor import IdentificationUpdate
 from chatterspec.plants.models import eha_linear, second_order
 from chatterspec.plants.parameters import MatrixEntry, ParameterMap, PhysicalParameter
 from chatterspec.plants.scenarios import Scenario, Segment, scenario
@@ -163,6 +166,67 @@ def test_online_identifier_matches_batch_and_ignores_push_sizes() -> None:
     batch = identify(nominal, sim.z, sim.u, window_s=last.window_s).report(0)
     assert batch.to_dict()["hypotheses"] == last.to_dict()["hypotheses"]
     assert last.selected == "leakage" and out[1][0].selected == NO_FAULT
+
+
+@pytest.mark.parametrize("hops", [None, 1, 2, 7])
+def test_file_replay_identifies_ahead_with_each_pushs_windows(hops: int | None, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """An unpaced file replay identifies several pushes' windows in one batch and hands each push the
+    windows it completes: the same windows per push and the same numbers, to the bit, as identifying push
+    by push (a paced replay of the same pushes). Pushes of one hop complete one window each (fitted alone
+    again: a single window's fit takes other array layouts); batches of 8 hops or more end inside the
+    record. ``None``: the default pushes (5 hops here)."""
+    from chatterspec.detection.parameter_decision import parameter_alarm_settings
+    from chatterspec.online.identification_monitor import IdentificationMonitor
+    from chatterspec.online.monitor import ChatteringMonitor, MonitorSettings
+    from chatterspec.plants.datafile import load_data
+    from chatterspec.plants.modelfile import load_model
+    from chatterspec.viewer import recordings
+    from chatterspec.viewer.sinks import open_sinks
+
+    examples = Path(__file__).resolve().parents[1] / "examples"
+    spec = load_model(examples / "eha_model.toml")
+    data = load_data(examples / "eha_data.csv", spec.model)
+    setup = identification_setup(spec.model)
+    monkeypatch.setattr(recordings, "UNPACED_HOPS", 5)
+    monkeypatch.setattr(recordings, "IDENTIFY_AHEAD_HOPS", 8)
+    monkeypatch.setattr(recordings, "_pace", lambda *a: None)  # (a paced replay without the waiting)
+
+    def replay(rate: float | None) -> list[IdentificationUpdate]:
+        mon = ChatteringMonitor(spec.model, MonitorSettings(), t0=float(data.t[0]))
+        ident = IdentificationMonitor(
+            setup,
+            parameter_alarm_settings(setup, hop_s=mon.n_hop * mon.dt, window_hops=5),
+            t0=float(data.t[0]),
+            frame_samples=mon.n_window,
+        )
+        got: list[IdentificationUpdate] = []
+        # a paced replay pushes what an unpaced one does (its default: one hop)
+        chunk = (5 if hops is None else hops) * mon.n_hop if rate is not None or hops is not None else None
+        recordings.run_monitor(
+            mon,
+            open_sinks(),
+            z=data.z,
+            u=data.u,
+            chunk_samples=chunk,
+            rate=rate,
+            identifier=ident,
+            on_identification=got.append,
+        )
+        return got
+
+    ahead, pushes = replay(None), replay(1.0)
+    assert len(ahead) == len(pushes) > 4
+    assert sum(u.found.n_windows for u in ahead) > 20  # more than one batch
+    for a, b in zip(ahead, pushes, strict=True):
+        np.testing.assert_array_equal(a.found.frames, b.found.frames)
+        assert [(w.label, w.states, w.channel_states) for w in a.windows] == [
+            (w.label, w.states, w.channel_states) for w in b.windows
+        ]
+        for k in ("estimate", "std_error", "ci_low", "ci_high", "score", "detectable"):
+            np.testing.assert_array_equal(getattr(a.block, k), getattr(b.block, k), err_msg=k)
+        if a.found.result is not None and b.found.result is not None:
+            for k, v in a.found.result.fit.items():
+                np.testing.assert_array_equal(v, b.found.result.fit[k], err_msg=k)
 
 
 def test_report_table_and_json() -> None:

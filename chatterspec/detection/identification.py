@@ -111,6 +111,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.special
@@ -120,7 +121,9 @@ from ..errors import IdentifiabilityError, ParameterError, ShapeError
 from ..plants.models import LinearModel
 from ..plants.nonlinear import Model, is_linear
 from ..plants.parameters import NO_FAULT, UNEXPLAINED, Hypothesis, ParameterMap
-from .pipeline import ChatteringRecord
+
+if TYPE_CHECKING:  # pragma: no cover - the pipeline (simulation, scenarios) is not needed to identify
+    from .pipeline import ChatteringRecord
 
 __all__ = [
     "METHOD",
@@ -1288,6 +1291,12 @@ class Identification:
         """Number of realizations (the leading axis)."""
         return self.moments.runs
 
+    def take(self, rows: slice) -> Identification:
+        """The realizations ``rows`` (each realization's fit is its own: see
+        :meth:`OnlineIdentifier.share`)."""
+        fit = {k: v[rows] for k, v in self.fit.items()}
+        return Identification(self.setup, _take(self.moments, rows), self.alpha, self.confidence, fit)
+
     @property
     def hypothesis_names(self) -> tuple[str, ...]:
         """Names of the tested hypotheses, in the setup's order."""
@@ -1755,6 +1764,12 @@ class OnlineIdentification:
         """Number of identification windows."""
         return int(self.frames.size)
 
+    def take(self, windows: slice) -> OnlineIdentification:
+        """The windows ``windows`` (none: no result)."""
+        frames = self.frames[windows]
+        result = None if self.result is None or frames.size == 0 else self.result.take(windows)
+        return OnlineIdentification(frames, self.times_s[windows], self.window_s[windows], result)
+
     def report(self, i: int) -> IdentificationReport:
         """The :class:`~chatterspec.detection.identification.IdentificationReport` of window ``i``."""
         if self.result is None:
@@ -1817,6 +1832,33 @@ class OnlineIdentifier:
     def window_s(self) -> float:
         """Window length (s)."""
         return self.n * self.H * self.dt
+
+    def windows_by(self, samples: int) -> int:
+        """Windows complete (hop numbers below this) once ``samples`` raw samples have been pushed since
+        the start or the last reset."""
+        return max(0, (samples - 2) // self.H - self.n + 1)
+
+    def share(
+        self, found: OnlineIdentification, samples: int
+    ) -> tuple[OnlineIdentification, OnlineIdentification]:
+        """Split the windows ``found`` of a push that ran ahead: those complete once ``samples`` raw samples
+        are in (since the start or the last reset; none of ``found`` complete before its first window), and
+        the rest.
+
+        The first part is what pushing up to ``samples`` would have given, to the bit: a window's fit does
+        not depend on the other windows fitted with it, as long as there is at least one. A single window
+        alone takes other array layouts (the last bits of some sums differ), so a share of one window is
+        fitted again alone, as a push that completes only it fits it.
+        """
+        k = 0 if found.n_windows == 0 else max(0, self.windows_by(samples) - int(found.frames[0]))
+        mine, rest = found.take(slice(0, k)), found.take(slice(k, None))
+        if k == 1:
+            assert mine.result is not None  # (one window)
+            alone = identify_moments(
+                self.setup, mine.result.moments, alpha=self.alpha, confidence=self.confidence
+            )
+            mine = dataclasses.replace(mine, result=alone)
+        return mine, rest
 
     def push(self, z: np.ndarray, u: np.ndarray) -> OnlineIdentification:
         """Feed ``z (K, m)`` and ``u (K, p)`` (the monitor's raw push); identify every completed window.
@@ -1913,6 +1955,7 @@ def _take(mom: IdentificationMoments, sl: slice) -> IdentificationMoments:
         n_samples=mom.n_samples,
         t_start=mom.t_start,
         t_stop=mom.t_stop,
+        records=mom.records,
     )
 
 

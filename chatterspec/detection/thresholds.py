@@ -106,6 +106,7 @@ against 230 at 1 Hz). Reports name both bins, each with its level in dB over the
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
@@ -343,6 +344,16 @@ def weighted_chi2_isf(
     if not np.any(ok):
         return out
     pv, r = p[ok], b[ok] / a[ok]
+    out[ok] = _unit_isf(pv.tobytes(), r.tobytes(), float(rtol)) * a[ok]
+    return out
+
+
+@functools.lru_cache(maxsize=8)
+def _unit_isf(p_bytes: bytes, r_bytes: bytes, rtol: float) -> np.ndarray:
+    """The quantiles ``x`` of ``Z1^2 + r Z2^2`` of :func:`weighted_chi2_isf` (read-only), for the float64
+    bytes of ``p`` and ``r``: the threshold of a monitor is asked for again with the same bins (the alarm
+    calibration's monitor, then the run's), and gets the same bits without the iteration."""
+    pv, r = np.frombuffer(p_bytes), np.frombuffer(r_bytes)
     lo = _chi2_isf(pv, 1)
     hi = _chi2_isf(pv, 2)
     # start from the Welch-Satterthwaite approximation, clipped into the bracket
@@ -369,8 +380,8 @@ def weighted_chi2_isf(
         lo[act], hi[act], x[act] = lo_a, hi_a, xn
         idx = np.flatnonzero(act)
         act[idx[done]] = False
-    out[ok] = x * a[ok]
-    return out
+    x.flags.writeable = False
+    return x
 
 
 ThresholdKind = Literal["paper", "exact", "empirical"]

@@ -86,15 +86,12 @@ from ..detection.alarms.calibration import (
 )
 from ..detection.alarms.rules import AlarmRule, make_rule, rule_spec
 from ..detection.alarms.streams import run_rule
-from ..detection.pipeline import iter_chattering
 from ..detection.spectral import FrameEngine, STFTConfig, frame_columns, spectrum_model
 from ..detection.thresholds import frame_threshold
 from ..detection.verdicts import FrameScore
 from ..errors import CalibrationMismatchError, ParameterError
 from ..jsonout import finite_or_none
 from ..plants.nonlinear import Model, is_linear
-from ..plants.scenarios import Scenario, Segment, scenario
-from ..plants.simulate import covariance_sqrt
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..detection.alarms.calibration import MonitorSettings
@@ -168,6 +165,7 @@ def healthy_chattering(model: Model, n_samples: int, seed: int) -> Iterator[np.n
     continues from the previous block, so the stream is one continuous healthy record.
     """
     from ..detection.spectral import chattering_autocovariance
+    from ..plants.simulate import covariance_sqrt
 
     model = spectrum_model(model)
     chattering_autocovariance(model)  # full measurement (clear errors otherwise)
@@ -671,6 +669,8 @@ def onset_scenarios(
         Whole-record faults: times into the scenario's input (s) at which the onset falls
         (the input repeats with the scenario's duration).
     """
+    from ..plants.scenarios import Scenario, Segment, scenario
+
     base = name if isinstance(name, Scenario) else scenario(name)
     name = base.name
     if base.is_healthy:
@@ -837,6 +837,7 @@ def alarm_delays(
         The monitor's STFT, band and threshold (the score's law); default ``MonitorSettings()``.
     """
     from ..detection.alarms.calibration import MonitorSettings
+    from ..detection.pipeline import iter_chattering
 
     settings = settings or MonitorSettings()
     cfg: STFTConfig = settings.stft

@@ -57,7 +57,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from rerun.blueprint import VisibleTimeRange
     from rerun.blueprint.archetypes import TimeAxis
 
-    from ..detection.identification import IdentificationSetup
+    from ..detection.identification import IdentificationSetup, OnlineIdentification, OnlineIdentifier
     from ..detection.parameter_decision import ParameterEvent
     from ..detection.pipeline import ChatteringRecord
     from ..online.identification_monitor import IdentificationMonitor, IdentificationUpdate
@@ -155,6 +155,34 @@ def _chunks(total: int, size: int) -> Iterator[tuple[int, int]]:
         yield lo, min(lo + size, total)
 
 
+#: An unpaced replay identifies the windows of at least this many hops (whole pushes) at once.
+IDENTIFY_AHEAD_HOPS = 2500
+
+
+class _IdentifyAhead:
+    """The identification windows of an unpaced file replay, identified several pushes ahead at once
+    and handed to each push as it comes: the same windows and numbers as identifying push by push
+    (:meth:`~chatterspec.detection.identification.OnlineIdentifier.share`), with the per-push cost (and
+    the Gauss-Newton iterations of a batch's slowest window) paid once per batch. ``batch`` (samples)
+    is a whole number of pushes: a push's windows lie in one batch."""
+
+    def __init__(self, identifier: OnlineIdentifier, z: np.ndarray, u: np.ndarray, batch: int) -> None:
+        self.identifier, self.z, self.u, self.batch = identifier, z, u, batch
+        self.fed = 0  # raw samples pushed into the identifier
+        self.pending: OnlineIdentification | None = None
+
+    def upto(self, hi: int) -> OnlineIdentification:
+        """The windows complete once the first ``hi`` samples are in (``hi``: the end of a push)."""
+        if hi > self.fed:
+            assert self.pending is None or self.pending.n_windows == 0  # (handed out up to the last push)
+            stop = min(self.z.shape[0], self.fed + self.batch)
+            self.pending = self.identifier.push(self.z[self.fed : stop], self.u[self.fed : stop])
+            self.fed = stop
+        assert self.pending is not None  # (the first call pushed)
+        mine, self.pending = self.identifier.share(self.pending, hi)
+        return mine
+
+
 def run_monitor(
     monitor: ChatteringMonitor,
     sinks: Sinks,
@@ -243,6 +271,11 @@ def run_monitor(
             if sinks.streams
             else None
         )
+        ahead = None  # an unpaced replay of raw data identifies ahead
+        if identifier is not None and chattering is None and z is not None and u is not None:
+            if rate is None:
+                batch = size * max(1, -(-IDENTIFY_AHEAD_HOPS * monitor.n_hop // size))  # whole pushes
+                ahead = _IdentifyAhead(identifier.identifier, z, u, batch)
         for lo, hi in _chunks(total, size):
             if chattering is not None:
                 upd = monitor.push_chattering(chattering[lo:hi])
@@ -257,7 +290,10 @@ def run_monitor(
                     on_event(ev)
             if identifier is not None:
                 assert z is not None and u is not None  # (no identifier on precomputed chattering)
-                found = identifier.push(z[lo:hi], u[lo:hi])
+                if ahead is not None:
+                    found = identifier.handle(ahead.upto(hi))
+                else:
+                    found = identifier.push(z[lo:hi], u[lo:hi])
                 parameter_events.extend(found.events)
                 if logger is not None:
                     logger.log_identification(found)
