@@ -180,7 +180,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=positive_int_arg,
         default=None,
         help="samples per push (default: one STFT hop with --rate > 0, 250 hops otherwise; the output does "
-        "not depend on it)",
+        "not depend on it, except the last digits of the parameter identification's fits)",
     )
     add_identification_args(p)
     add_tolerance_args(p)
