@@ -1144,7 +1144,8 @@ def lane_workspace(n: int, m: int, nl: int) -> tuple[np.ndarray, ...]:  # pragma
     """The state and stored outputs of ``nl`` runs of :func:`_lane_block`, the lane (run) axis innermost.
 
     ``(X, P, EP, EPP, XP, Pp, S, E, LL, bad)``: a matrix ``A`` (a, c) of one run is ``A[i * c + j, l]``
-    in lane ``l``; ``bad[l]`` is nonzero when the sample's step failed in lane ``l``.
+    in lane ``l``; ``bad[l]`` is nonzero when the sample's step failed in lane ``l``; ``LL`` receives
+    the step's log-likelihood slot (not computed: the lane loop runs without it).
     """
     s2 = _jit.scratch2
     return (
@@ -1166,33 +1167,39 @@ def lane_store_step(flags: np.ndarray, outs: tuple[np.ndarray, ...], b: int, k: 
     lw: tuple[np.ndarray, ...], n: int, m: int, nl: int) -> None:  # fmt: skip  # pragma: no cover - compiled
     """:func:`store_step` of a lane block: sample k of runs ``b .. b + nl - 1`` from ``lw``
     (:func:`lane_workspace`)."""
-    o_xprior, o_xpost, o_e, o_S, o_ll, o_ep, o_Pprior, o_Ppost = outs
-    X, Pl, EP, _, XP, Pp, S, E, LL, _ = lw
+    o_xprior, o_xpost, o_e, o_S, _, o_ep, o_Pprior, o_Ppost = outs  # (no log-likelihood in lanes)
+    X, Pl, EP, _, XP, Pp, S, E, _, _ = lw
+    if flags[0]:
+        lane_rows_step(o_xprior, XP, b, k, n, nl)
+    if flags[1]:
+        lane_rows_step(o_xpost, X, b, k, n, nl)
+    if flags[2]:
+        lane_rows_step(o_e, E, b, k, m, nl)
+    if flags[5]:
+        lane_rows_step(o_ep, EP, b, k, m, nl)
+    if flags[3]:
+        lane_matrices_step(o_S, S, b, k, m, nl)
+    if flags[6]:
+        lane_matrices_step(o_Pprior, Pp, b, k, n, nl)
+    if flags[7]:
+        lane_matrices_step(o_Ppost, Pl, b, k, n, nl)
+
+
+@_jit.step
+def lane_rows_step(out: np.ndarray, A: np.ndarray, b: int, k: int, c: int, nl: int) -> None:
+    """``out[b + l, k, i] = A[i, l]`` for the ``nl`` lanes (``out`` (runs, K, c))."""
     for l in range(nl):
-        r = b + l
-        if flags[0]:
-            for i in range(n):
-                o_xprior[r, k, i] = XP[i, l]
-        if flags[1]:
-            for i in range(n):
-                o_xpost[r, k, i] = X[i, l]
-        if flags[2]:
-            for i in range(m):
-                o_e[r, k, i] = E[i, l]
-        if flags[5]:
-            for i in range(m):
-                o_ep[r, k, i] = EP[i, l]
-        if flags[3]:
-            for i in range(m * m):
-                o_S[r, k, i // m, i % m] = S[i, l]
-        if flags[4]:
-            o_ll[r, k] = LL[0, l]
-        if flags[6]:
-            for i in range(n * n):
-                o_Pprior[r, k, i // n, i % n] = Pp[i, l]
-        if flags[7]:
-            for i in range(n * n):
-                o_Ppost[r, k, i // n, i % n] = Pl[i, l]
+        for i in range(c):
+            out[b + l, k, i] = A[i, l]
+
+
+@_jit.step
+def lane_matrices_step(out: np.ndarray, A: np.ndarray, b: int, k: int, c: int, nl: int) -> None:
+    """``out[b + l, k, i, j] = A[i c + j, l]`` for the ``nl`` lanes (``out`` (runs, K, c, c))."""
+    for l in range(nl):
+        for i in range(c):
+            for j in range(c):
+                out[b + l, k, i, j] = A[i * c + j, l]
 
 
 # ----------------------------------------------------------------------------- numpy path
