@@ -1178,28 +1178,20 @@ def lane_store_step(flags: np.ndarray, outs: tuple[np.ndarray, ...], b: int, k: 
     if flags[5]:
         lane_rows_step(o_ep, EP, b, k, m, nl)
     if flags[3]:
-        lane_matrices_step(o_S, S, b, k, m, nl)
+        lane_rows_step(o_S.reshape((o_S.shape[0], o_S.shape[1], m * m)), S, b, k, m * m, nl)
     if flags[6]:
-        lane_matrices_step(o_Pprior, Pp, b, k, n, nl)
+        lane_rows_step(o_Pprior.reshape((o_Pprior.shape[0], o_Pprior.shape[1], n * n)), Pp, b, k, n * n, nl)
     if flags[7]:
-        lane_matrices_step(o_Ppost, Pl, b, k, n, nl)
+        lane_rows_step(o_Ppost.reshape((o_Ppost.shape[0], o_Ppost.shape[1], n * n)), Pl, b, k, n * n, nl)
 
 
 @_jit.step
 def lane_rows_step(out: np.ndarray, A: np.ndarray, b: int, k: int, c: int, nl: int) -> None:
-    """``out[b + l, k, i] = A[i, l]`` for the ``nl`` lanes (``out`` (runs, K, c))."""
+    """``out[b + l, k, i] = A[i, l]`` for the ``nl`` lanes (``out`` (runs, K, c); a matrix field as
+    (runs, K, a b), its row-major entries)."""
     for l in range(nl):
         for i in range(c):
             out[b + l, k, i] = A[i, l]
-
-
-@_jit.step
-def lane_matrices_step(out: np.ndarray, A: np.ndarray, b: int, k: int, c: int, nl: int) -> None:
-    """``out[b + l, k, i, j] = A[i c + j, l]`` for the ``nl`` lanes (``out`` (runs, K, c, c))."""
-    for l in range(nl):
-        for i in range(c):
-            for j in range(c):
-                out[b + l, k, i, j] = A[i * c + j, l]
 
 
 # ----------------------------------------------------------------------------- numpy path
