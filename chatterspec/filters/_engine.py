@@ -18,10 +18,12 @@ boundary layer (:mod:`chatterspec.filters.svsf_cov`), the second-order SVSF
 ``_correction_step()`` (:class:`CorrectionStep`); the step returns 0, :data:`NOT_PD` (a matrix it
 factors is not positive definite) or :data:`SINGULAR_PHI12` (the reduced-order form's ``Phi12``).
 :func:`_cov_loop` runs runs (outer) and samples (inner) with the plant's ``predict`` and
-``jacobian`` steps (:mod:`chatterspec.plants.steps`) bound the same way; the IMM and SMM banks call
-:func:`sample_step` per mode. ``mapping`` of the SVSF-type corrections: :data:`MAP_CONST` (``C^-1``
-or ``C^+``), :data:`MAP_COV` (``P C^T (C P C^T)^-1``), :data:`MAP_LUEN` (the reduced-order
-Luenberger form, in :mod:`chatterspec.filters.svsf_cov`).
+``jacobian`` steps (:mod:`chatterspec.plants.steps`) bound the same way; for a correction that allows
+it (``CorrectionStep.lanes``) on a constant Jacobian without the log-likelihood, blocks of
+:data:`LANES` runs advance together, the same step in vector lanes (:func:`_lane_block`, same bits);
+the IMM and SMM banks call :func:`sample_step` per mode. ``mapping`` of the SVSF-type corrections:
+:data:`MAP_CONST` (``C^-1`` or ``C^+``), :data:`MAP_COV` (``P C^T (C P C^T)^-1``), :data:`MAP_LUEN`
+(the reduced-order Luenberger form, in :mod:`chatterspec.filters.svsf_cov`).
 
 **numpy.** :func:`cov_numpy` is the same step vectorized over realizations with a Python loop over
 samples and the filter's numpy correction (``CorrectionStep.numpy``); it runs when
