@@ -70,7 +70,7 @@ import types
 import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any, TypeVar, cast
+from typing import Any, Literal, TypeVar, cast
 
 import numpy as np
 
@@ -94,6 +94,8 @@ __all__ = [
 
 
 F = TypeVar("F", bound=Callable[..., Any])
+#: numba's ``error_model`` of a kernel (:func:`specialize`).
+ErrorModel = Literal["python", "numpy"]
 
 #: Room (floats) of a compiled :func:`scratch` / :func:`scratch2` whose size is known only at run time.
 STACK_CAPACITY = 256
@@ -353,12 +355,15 @@ class _LazyKernel:
     a step from another file as it was when the loop was first cached.
     """
 
-    __slots__ = ("__name__", "_compiled", "_digest", "_inline", "_python", "py_func")
+    __slots__ = ("__name__", "_compiled", "_digest", "_error_model", "_inline", "_python", "py_func")
 
-    def __init__(self, func: Callable[..., Any], inline: bool = False) -> None:
+    def __init__(
+        self, func: Callable[..., Any], inline: bool = False, error_model: ErrorModel = "python"
+    ) -> None:
         self.py_func = func
         self.__name__ = func.__name__
         self._inline = inline
+        self._error_model = error_model
         self._compiled: Callable[..., Any] | None = None
         self._digest: str | None = None
         self._python: Callable[..., Any] | None = None
@@ -380,6 +385,8 @@ class _LazyKernel:
         if self._digest is None:
             h = hashlib.sha256()
             _code_digest(self.py_func.__code__, h)
+            if self._error_model != "python":  # (the default leaves every other kernel's digest as it was)
+                h.update(self._error_model.encode())
             env = self.py_func.__globals__
             for name in sorted(set(self._names())):
                 dep = env.get(name)
@@ -434,7 +441,7 @@ class _LazyKernel:
             if self._inline and os.environ.get("CHATTERSPEC_INLINE", "1") == "1":
                 self._compiled = numba.njit(inline="always", nogil=True)(copy)
             else:
-                self._compiled = numba.njit(cache=True, nogil=True)(copy)
+                self._compiled = numba.njit(cache=True, nogil=True, error_model=self._error_model)(copy)
         return self._compiled
 
     def __call__(self, *args: Any) -> Any:
@@ -517,7 +524,12 @@ def step(func: F) -> F:
 
 
 def specialize(
-    template: Callable[..., Any], tag: str, *, inline: bool = False, **bindings: Any
+    template: Callable[..., Any],
+    tag: str,
+    *,
+    inline: bool = False,
+    error_model: ErrorModel = "python",
+    **bindings: Any,
 ) -> Callable[..., Any]:
     """A kernel made of the loop ``template`` with some of its global names bound (compile-time dispatch).
 
@@ -536,6 +548,12 @@ def specialize(
         A short name of this specialization (letters, digits, ``_``), part of the cache file name.
     inline : bool
         Make a step (inlined by the loops that call it, like :func:`step`) instead of a kernel.
+    error_model : {"python", "numpy"}
+        numba's ``error_model`` of this kernel (steps take their loop's). ``"python"`` (the default of
+        every kernel) checks each division for a zero divisor and raises ZeroDivisionError;
+        ``"numpy"`` divides as IEEE 754 does (inf or NaN), without the branch, which lets LLVM
+        vectorize a loop over lanes. The quotients are the same bits either way; only a loop whose
+        divisors are guarded (or whose results are checked) may take ``"numpy"``.
     **bindings
         Global names of ``template`` and their values for this specialization.
 
@@ -556,7 +574,7 @@ def specialize(
     func.__doc__ = template.__doc__
     if not HAVE_NUMBA:
         return func
-    return _LazyKernel(func, inline=inline)
+    return _LazyKernel(func, inline=inline, error_model=error_model)
 
 
 #: Largest size :func:`specialize_sizes` binds as a compile-time constant.
@@ -566,7 +584,13 @@ _SIZED: dict[tuple[Any, ...], Callable[..., Any]] = {}
 
 
 def specialize_sizes(
-    template: Callable[..., Any], tag: str, sizes: dict[str, int], *, inline: bool = False, **bindings: Any
+    template: Callable[..., Any],
+    tag: str,
+    sizes: dict[str, int],
+    *,
+    inline: bool = False,
+    error_model: Any = "python",
+    **bindings: Any,
 ) -> Any:
     """:func:`specialize` with the template's size names bound to literals when all are small.
 
@@ -584,6 +608,8 @@ def specialize_sizes(
         Name of the specialization (the sizes are appended).
     sizes : dict of str to int
         Size names of ``template`` and their values.
+    error_model : {"python", "numpy"}
+        As :func:`specialize` (typed ``Any``: callers pass their bindings as ``**dict``).
     **bindings
         Other names bound as by :func:`specialize`.
 
@@ -597,12 +623,15 @@ def specialize_sizes(
         template,
         tag,
         inline,
+        error_model,
         tuple(sorted(values.items())),
         tuple(sorted((k, id(v)) for k, v in bindings.items())),
     )
     kernel = _SIZED.get(key)
     if kernel is None:
         suffix = "_".join(f"{k.lower()}{v}" for k, v in sorted(values.items()))
-        kernel = specialize(template, f"{tag}_{suffix}", inline=inline, **values, **bindings)
+        kernel = specialize(
+            template, f"{tag}_{suffix}", inline=inline, error_model=error_model, **values, **bindings
+        )
         _SIZED[key] = kernel
     return kernel

@@ -18,10 +18,12 @@ boundary layer (:mod:`chatterspec.filters.svsf_cov`), the second-order SVSF
 ``_correction_step()`` (:class:`CorrectionStep`); the step returns 0, :data:`NOT_PD` (a matrix it
 factors is not positive definite) or :data:`SINGULAR_PHI12` (the reduced-order form's ``Phi12``).
 :func:`_cov_loop` runs runs (outer) and samples (inner) with the plant's ``predict`` and
-``jacobian`` steps (:mod:`chatterspec.plants.steps`) bound the same way; the IMM and SMM banks call
-:func:`sample_step` per mode. ``mapping`` of the SVSF-type corrections: :data:`MAP_CONST` (``C^-1``
-or ``C^+``), :data:`MAP_COV` (``P C^T (C P C^T)^-1``), :data:`MAP_LUEN` (the reduced-order
-Luenberger form, in :mod:`chatterspec.filters.svsf_cov`).
+``jacobian`` steps (:mod:`chatterspec.plants.steps`) bound the same way; for a correction that allows
+it (``CorrectionStep.lanes``) on a constant Jacobian without the log-likelihood, blocks of
+:data:`LANES` runs advance together, the same step in vector lanes (:func:`_lane_block`, same bits);
+the IMM and SMM banks call :func:`sample_step` per mode. ``mapping`` of the SVSF-type corrections:
+:data:`MAP_CONST` (``C^-1`` or ``C^+``), :data:`MAP_COV` (``P C^T (C P C^T)^-1``), :data:`MAP_LUEN`
+(the reduced-order Luenberger form, in :mod:`chatterspec.filters.svsf_cov`).
 
 **numpy.** :func:`cov_numpy` is the same step vectorized over realizations with a Python loop over
 samples and the filter's numpy correction (``CorrectionStep.numpy``); it runs when
@@ -156,6 +158,10 @@ class CorrectionStep:
     mapping : int
         :data:`MAP_CONST`, :data:`MAP_COV` or :data:`MAP_LUEN` (error messages; ``luen`` single
         filters take the numpy path).
+    lanes : bool
+        Whether the compiled loop may advance :data:`LANES` runs at once (:func:`_lane_block`), compiled
+        without numba's division-by-zero checks: every divisor of the step is guarded or checked
+        (positive pivots, ``max(|e|, psi)`` with ``psi > 0``, ``e != 0``).
     """
 
     name: str
@@ -163,6 +169,7 @@ class CorrectionStep:
     parameters: np.ndarray
     numpy: Callable[..., tuple[np.ndarray, np.ndarray]]
     mapping: int = MAP_CONST
+    lanes: bool = False
 
 
 def svsf_parameters(
@@ -465,13 +472,22 @@ def given_jacobian(prm: np.ndarray, x: np.ndarray, u: np.ndarray, F: np.ndarray,
             F[i, j] = prm[n + i * n + j]
 
 
+@_jit.step
+def _no_lane_block(*args: object) -> bool:
+    """Placeholder binding of :func:`_cov_loop` (never called)."""
+    return False
+
+
 #: Bindings of :func:`_cov_loop`: the plant's steps, whether its Jacobian is constant, the sample
-#: step (with the filter's correction), sizes (0: from the arrays).
+#: step (with the filter's correction), sizes (0: from the arrays), and the number of runs a block
+#: advances together (:func:`_lane_block`, bound with the same steps as ``LANE_BLOCK``; 0: one at a time).
 PREDICT = given_predict
 JACOBIAN = given_jacobian
 CONST_F = False
 SAMPLE = _no_sample
 NX = NZ = 0
+LANE_BLOCK = _no_lane_block
+LANE_WIDTH = 0
 
 
 def _cov_loop(
@@ -536,26 +552,123 @@ def _cov_loop(
     xr, Pr, epr, eppr = _jit.scratch(n), _jit.scratch2(n, n), _jit.scratch(m), _jit.scratch(m)
     if CONST_F:
         JACOBIAN(prm[0], x[0], u[0, 0], F, n, p)
-    for r in range(runs):
-        pr = 0 if shared_prm else r
-        ur = 0 if shared_u else r
-        state_copy(x[r], P[r], ep[r], epp[r], xr, Pr, epr, eppr, n, m)
-        status = 0
-        for k in range(K):
-            PREDICT(prm[pr], xr, u[ur, k], xp, n, p)
-            if not CONST_F:
-                JACOBIAN(prm[pr], xr, u[ur, k], F, n, p)
-            status = SAMPLE(fp, xr, Pr, epr, eppr, z[r, k], xp, F, C, Q, R, ws, n, m)
-            if status != 0:
-                break
-            outs = (o_xprior, o_xpost, o_e, o_S, o_ll, o_ep, o_Pprior, o_Ppost)
-            store_step(flags, outs, r, k, xp, xr, e, S, ll[0], epr, Pp, Pr, n, m)
-        state_copy(xr, Pr, epr, eppr, x[r], P[r], ep[r], epp[r], n, m)
-        if status == NOT_PD:
-            return 1 + r
-        if status == SINGULAR_PHI12:
-            return 1 + runs + r
+    outs = (o_xprior, o_xpost, o_e, o_S, o_ll, o_ep, o_Pprior, o_Ppost)
+    width = LANE_WIDTH if LANE_WIDTH > 0 else 1
+    lw = lane_workspace(n, m, width)
+    for r0 in range(0, runs, width):
+        # LANE_WIDTH runs at once; a block where a matrix is not positive definite, and the last
+        # runs, one at a time (the same bits; the error names the run the one-run loop names)
+        if LANE_WIDTH > 0 and r0 + width <= runs and LANE_BLOCK(r0, prm, u, z, x, P, ep, epp, C, Q, R, fp, F,
+                                                                  flags, outs, lw, ws, n, m, p):  # fmt: skip
+            continue
+        for r in range(r0, min(r0 + width, runs)):
+            pr = 0 if shared_prm else r
+            ur = 0 if shared_u else r
+            state_copy(x[r], P[r], ep[r], epp[r], xr, Pr, epr, eppr, n, m)
+            status = 0
+            for k in range(K):
+                PREDICT(prm[pr], xr, u[ur, k], xp, n, p)
+                if not CONST_F:
+                    JACOBIAN(prm[pr], xr, u[ur, k], F, n, p)
+                status = SAMPLE(fp, xr, Pr, epr, eppr, z[r, k], xp, F, C, Q, R, ws, n, m)
+                if status != 0:
+                    break
+                store_step(flags, outs, r, k, xp, xr, e, S, ll[0], epr, Pp, Pr, n, m)
+            state_copy(xr, Pr, epr, eppr, x[r], P[r], ep[r], epp[r], n, m)
+            if status == NOT_PD:
+                return 1 + r
+            if status == SINGULAR_PHI12:
+                return 1 + runs + r
     return 0
+
+
+def _lane_block(b: int, prm: np.ndarray, u: np.ndarray, z: np.ndarray, x: np.ndarray, P: np.ndarray,
+    ep: np.ndarray, epp: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray, fp: np.ndarray,
+    F: np.ndarray, flags: np.ndarray, outs: tuple[np.ndarray, ...], lw: tuple[np.ndarray, ...],
+    ws: tuple[np.ndarray, ...], n: int, m: int, p: int) -> bool:  # fmt: skip  # pragma: no cover - compiled
+    """Runs ``b .. b + nl - 1`` over every sample together, lane ``l`` = run ``b + l`` (``F`` constant).
+
+    Each sample is one loop over the lanes whose body is the one-run loop's (``PREDICT``, ``SAMPLE``)
+    on that lane's state, read from and written back to ``lw`` (:func:`lane_workspace`, ``nl`` lanes
+    innermost): LLVM vectorizes that loop, the lanes in vector registers, each lane with the
+    operations of the one-run loop in their order (the same bits). The outputs are written after each
+    sample; the state after the last. False, with the state untouched, when the step failed in some
+    lane (the caller then runs the block one run at a time).
+    """
+    nl = LANE_WIDTH
+    K = z.shape[1]
+    shared_prm = prm.shape[0] == 1
+    shared_u = u.shape[0] == 1
+    X, Pl, EP, EPP, XP, Ppl, Sl, El, LLl, bad = lw
+    Pp, S, e, ll = ws[1], ws[4], ws[7], ws[13]
+    xr, Pr, epr, eppr, xp = (
+        _jit.scratch(n),
+        _jit.scratch2(n, n),
+        _jit.scratch(m),
+        _jit.scratch(m),
+        _jit.scratch(n),
+    )
+    for l in range(nl):
+        state_copy(x[b + l], P[b + l], ep[b + l], epp[b + l], xr, Pr, epr, eppr, n, m)
+        lane_put_step(l, xr, Pr, epr, eppr, X, Pl, EP, EPP, n, m)
+    for k in range(K):
+        for l in range(nl):  # the prediction first (its sum over the inputs is a loop of run-time length)
+            r = b + l
+            for i in range(n):
+                xr[i] = X[i, l]
+            PREDICT(prm[0 if shared_prm else r], xr, u[0 if shared_u else r, k], xp, n, p)
+            for i in range(n):
+                XP[i, l] = xp[i]
+        for l in range(nl):  # (vectorized: one lane per vector element)
+            lane_get_step(l, X, Pl, EP, EPP, xr, Pr, epr, eppr, n, m)
+            for i in range(n):
+                xp[i] = XP[i, l]
+            status = SAMPLE(fp, xr, Pr, epr, eppr, z[b + l, k], xp, F, C, Q, R, ws, n, m)
+            bad[l] = 0.0 if status == 0 else 1.0
+            lane_put_step(l, xr, Pr, epr, eppr, X, Pl, EP, EPP, n, m)
+            lane_put_step(l, xp, Pp, e, ll, XP, Ppl, El, LLl, n, m)
+            for i in range(m):
+                for j in range(m):
+                    Sl[i * m + j, l] = S[i, j]
+        nbad = 0.0
+        for l in range(nl):
+            nbad += bad[l]
+        if nbad != 0.0:
+            return False
+        lane_store_step(flags, outs, b, k, lw, n, m, nl)
+    for l in range(nl):
+        lane_get_step(l, X, Pl, EP, EPP, xr, Pr, epr, eppr, n, m)
+        state_copy(xr, Pr, epr, eppr, x[b + l], P[b + l], ep[b + l], epp[b + l], n, m)
+    return True
+
+
+@_jit.step
+def lane_put_step(l: int, x: np.ndarray, P: np.ndarray, ep: np.ndarray, epp: np.ndarray, X: np.ndarray,
+    Pl: np.ndarray, EP: np.ndarray, EPP: np.ndarray, n: int, m: int) -> None:  # fmt: skip
+    """Lane ``l`` of ``X`` (n, nl), ``Pl`` (n n, nl), ``EP``, ``EPP`` (m, nl) <- ``x``, ``P``, ``ep``, ``epp``
+    (``ep``, ``epp`` as long as ``EP``, ``EPP`` have rows)."""
+    for i in range(n):
+        X[i, l] = x[i]
+        for j in range(n):
+            Pl[i * n + j, l] = P[i, j]
+    for i in range(EP.shape[0]):
+        EP[i, l] = ep[i]
+    for i in range(EPP.shape[0]):
+        EPP[i, l] = epp[i]
+
+
+@_jit.step
+def lane_get_step(l: int, X: np.ndarray, Pl: np.ndarray, EP: np.ndarray, EPP: np.ndarray, x: np.ndarray,
+    P: np.ndarray, ep: np.ndarray, epp: np.ndarray, n: int, m: int) -> None:  # fmt: skip
+    """``x``, ``P``, ``ep``, ``epp`` <- lane ``l`` of ``X``, ``Pl``, ``EP``, ``EPP`` (the inverse of
+    :func:`lane_put_step`)."""
+    for i in range(n):
+        x[i] = X[i, l]
+        for j in range(n):
+            P[i, j] = Pl[i * n + j, l]
+    for i in range(m):
+        ep[i] = EP[i, l]
+        epp[i] = EPP[i, l]
 
 
 @_jit.step
@@ -800,7 +913,24 @@ def cov_loop(
     # the log-likelihood only when stored (its Cholesky solve and log are a third of a step)
     sample = sample_step(correct, want_ll="loglik" in keep, measurement=measurement)
     tag += ("_hx" if measurement is not None else "") + ("" if "loglik" in keep else "_noll")
-    kernel = _jit.specialize_sizes(_cov_loop, tag, {"NX": n, "NZ": m}, SAMPLE=sample, **bind)
+    sizes = {"NX": n, "NZ": m}
+    lanes_ok = correct.lanes and bind["CONST_F"] and measurement is None and "loglik" not in keep
+    if lanes_ok and max(n, m) <= _jit.MAX_UNROLL:
+        # LANES runs at a time in vector registers (not with the log-likelihood: LLVM does not vectorize
+        # a loop that calls log, and the loop over lanes without vectors was 0.8x the one-run loop).
+        # numba's division-by-zero branch would stop LLVM from vectorizing, and every divisor of these
+        # steps is guarded (positive pivots, max(|e|, psi) with psi > 0, e != 0) or its lane checked (a
+        # pivot that is not positive sends the block to the one-run loop), so the kernel divides as
+        # IEEE 754 does: the same quotients, the same bits
+        block = _jit.specialize_sizes(
+            _lane_block, tag, {}, inline=True, SAMPLE=sample, LANE_WIDTH=LANES, **bind
+        )
+        bind |= {"LANE_BLOCK": block, "LANE_WIDTH": LANES}
+        kernel = _jit.specialize_sizes(
+            _cov_loop, f"{tag}_lanes{LANES}", sizes, error_model="numpy", SAMPLE=sample, **bind
+        )
+    else:
+        kernel = _jit.specialize_sizes(_cov_loop, tag, sizes, SAMPLE=sample, **bind)
     status = kernel(
         prm, c(u), c(z), x, P, ep, epp, c(C), c(Q), c(R), c(correct.parameters), flags, out["x_prior"],
         out["x_post"], out["innovation"],
@@ -1004,6 +1134,66 @@ def joseph_step(
                 s += KR[i, q] * KgT[q, j]
             P[i, j] = s
             P[j, i] = s
+
+
+# ----------------------------------------------------------------------------- lanes
+#: Runs a lane block of :func:`_cov_loop` advances together (:func:`_lane_block`).
+LANES = 8
+
+
+@_jit.step
+def lane_workspace(n: int, m: int, nl: int) -> tuple[np.ndarray, ...]:  # pragma: no cover - compiled
+    """The state and stored outputs of ``nl`` runs of :func:`_lane_block`, the lane (run) axis innermost.
+
+    ``(X, P, EP, EPP, XP, Pp, S, E, LL, bad)``: a matrix ``A`` (a, c) of one run is ``A[i * c + j, l]``
+    in lane ``l``; ``bad[l]`` is nonzero when the sample's step failed in lane ``l``; ``LL`` receives
+    the step's log-likelihood slot (not computed: the lane loop runs without it).
+    """
+    s2 = _jit.scratch2
+    return (
+        s2(n, nl),
+        s2(n * n, nl),
+        s2(m, nl),
+        s2(m, nl),
+        s2(n, nl),
+        s2(n * n, nl),
+        s2(m * m, nl),
+        s2(m, nl),
+        s2(1, nl),
+        _jit.scratch(nl),
+    )
+
+
+@_jit.step
+def lane_store_step(flags: np.ndarray, outs: tuple[np.ndarray, ...], b: int, k: int,
+    lw: tuple[np.ndarray, ...], n: int, m: int, nl: int) -> None:  # fmt: skip  # pragma: no cover - compiled
+    """:func:`store_step` of a lane block: sample k of runs ``b .. b + nl - 1`` from ``lw``
+    (:func:`lane_workspace`)."""
+    o_xprior, o_xpost, o_e, o_S, _, o_ep, o_Pprior, o_Ppost = outs  # (no log-likelihood in lanes)
+    X, Pl, EP, _, XP, Pp, S, E, _, _ = lw
+    if flags[0]:
+        lane_rows_step(o_xprior, XP, b, k, n, nl)
+    if flags[1]:
+        lane_rows_step(o_xpost, X, b, k, n, nl)
+    if flags[2]:
+        lane_rows_step(o_e, E, b, k, m, nl)
+    if flags[5]:
+        lane_rows_step(o_ep, EP, b, k, m, nl)
+    if flags[3]:
+        lane_rows_step(o_S.reshape((o_S.shape[0], o_S.shape[1], m * m)), S, b, k, m * m, nl)
+    if flags[6]:
+        lane_rows_step(o_Pprior.reshape((o_Pprior.shape[0], o_Pprior.shape[1], n * n)), Pp, b, k, n * n, nl)
+    if flags[7]:
+        lane_rows_step(o_Ppost.reshape((o_Ppost.shape[0], o_Ppost.shape[1], n * n)), Pl, b, k, n * n, nl)
+
+
+@_jit.step
+def lane_rows_step(out: np.ndarray, A: np.ndarray, b: int, k: int, c: int, nl: int) -> None:
+    """``out[b + l, k, i] = A[i, l]`` for the ``nl`` lanes (``out`` (runs, K, c); a matrix field as
+    (runs, K, a b), its row-major entries)."""
+    for l in range(nl):
+        for i in range(c):
+            out[b + l, k, i] = A[i, l]
 
 
 # ----------------------------------------------------------------------------- numpy path

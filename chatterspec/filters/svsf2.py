@@ -151,7 +151,7 @@ class SecondOrderSVSF(SVSFCovarianceBase):
 
         if luen is not None:
             return _engine.CorrectionStep("svsf2_luen", luen_second_order, fp, numpy, mapping)
-        return _engine.CorrectionStep("svsf2", svsf2_correct, fp, numpy, mapping)
+        return _engine.CorrectionStep("svsf2", svsf2_correct, fp, numpy, mapping, lanes=True)
 
 
 def from_settings(model: Model, settings: FilterSettings, source: str) -> SecondOrderSVSF:

@@ -258,8 +258,9 @@ class SVSFCov(SVSFCovarianceBase):
 
         if luen is not None:
             return _engine.CorrectionStep("svsf_luen", luen_first_order, fp, numpy, mapping)
-        step = vbl_correct if self.vbl else svsf_cov_correct
-        return _engine.CorrectionStep("vbl" if self.vbl else "svsf", step, fp, numpy, mapping)
+        if self.vbl:
+            return _engine.CorrectionStep("vbl", vbl_correct, fp, numpy, mapping)
+        return _engine.CorrectionStep("svsf", svsf_cov_correct, fp, numpy, mapping, lanes=True)
 
 
 @_jit.step
