@@ -589,7 +589,7 @@ def specialize_sizes(
     sizes: dict[str, int],
     *,
     inline: bool = False,
-    error_model: Any = "python",
+    error_model: ErrorModel = "python",
     **bindings: Any,
 ) -> Any:
     """:func:`specialize` with the template's size names bound to literals when all are small.
@@ -609,7 +609,7 @@ def specialize_sizes(
     sizes : dict of str to int
         Size names of ``template`` and their values.
     error_model : {"python", "numpy"}
-        As :func:`specialize` (typed ``Any``: callers pass their bindings as ``**dict``).
+        As :func:`specialize`.
     **bindings
         Other names bound as by :func:`specialize`.
 

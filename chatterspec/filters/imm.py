@@ -48,6 +48,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -477,7 +478,7 @@ def mode_sample(corrections: Sequence[CorrectionStep]) -> tuple[Callable[..., in
     """
     names = {c.name: c.step for c in corrections}
     kinds = [k for k in CORRECTIONS if k in names]
-    bind = {f"CORRECT_{i}": names[k] for i, k in enumerate(kinds)}
+    bind: dict[str, Any] = {f"CORRECT_{i}": names[k] for i, k in enumerate(kinds)}
     tag = "_".join(kinds)
     correct = _jit.specialize_sizes(_mode_correct, tag, {}, inline=True, **bind)
     step = CorrectionStep(f"imm_{tag}", correct, np.zeros(0), _no_numpy)
