@@ -10,7 +10,7 @@ Equations ([DETC] and [IMM] baselines)::
 For a :class:`~chatterspec.plants.models.LinearModel` started from one shared ``P0``, the
 covariance and gain do not depend on the data: :class:`KalmanFilter` computes them once per
 sample for all realizations (``P`` stays ``(n, n)``, ``S`` is one ``(K, m, m)`` sequence) and runs only the
-state recursion per realization (:func:`shared_gain`; compiled: :func:`_riccati_loop`, the covariance
+state recursion per realization (compiled: :func:`_riccati_loop`, the covariance
 half of the per-run step, and :func:`_kf_shared_loop`, its state half; any number of runs, with the
 per-run filter's steps: the same bits as ``P0`` given per run). A per-run ``P`` (e.g.
 after a bank's mixing) takes the per-run path, and so does a single stream when the compiled kernels
@@ -134,12 +134,27 @@ class KalmanFilter(CovarianceFilterBase):
     ) -> tuple[np.ndarray, dict[str, np.ndarray | None]]:
         if P.ndim == 3:
             return super()._advance(x, P, ep, epp, z, u, keep)
-        if x.shape[0] == 1 and _jit.enabled() and _jit.fits(x.shape[1], z.shape[2]):
+        runs, K, m = z.shape
+        compiled = _jit.enabled() and _jit.fits(x.shape[1], m)
+        if x.shape[0] == 1 and compiled:
             # one stream: the per-run compiled loop (the shared path's bits, without its (K, ...) sequences)
             P1, res = super()._advance(x, P[None].copy(), ep, epp, z, u, keep)
             return P1[0], res
-        m = self.model
-        return shared_gain(P, m.A, m.B, m.C, m.Q, m.R, x, ep, epp, z, u, keep)
+        # a shared P (n, n): the gains once for all runs, the state recursion per run (the per-run
+        # filter's bits when compiled); S, P_prior, P_post come back as read-only (runs, K, ...)
+        # broadcast views of the one sequence
+        A, B, C, Q, R = self.model.A, self.model.B, self.model.C, self.model.Q, self.model.R
+        if compiled:
+            P, Pp, Pq, S, KgT, L, hld = riccati_compiled(P, A, C, Q, R, K)
+            res = kf_shared_states(x, ep, epp, z, u, A, B, C, KgT, keep, L=L, half_logdet=hld)
+        else:
+            P, Pp, Pq, S, Kg, Sinv, logdet = riccati(P, A, C, Q, R, K)
+            res = kf_shared_states(
+                x, ep, epp, z, u, A, B, C, np.swapaxes(Kg, -1, -2), keep, Sinv=Sinv, logdet=logdet
+            )
+        for f, val in (("S", S), ("P_prior", Pp), ("P_post", Pq)):
+            res[f] = np.broadcast_to(val, (runs, *val.shape)) if f in keep else None
+        return P, res
 
     def gain_sequence(self, P0: np.ndarray, K: int) -> tuple[np.ndarray, np.ndarray]:
         """Data-independent gains and posterior covariances from a shared ``P0``.
@@ -375,45 +390,10 @@ def riccati_compiled(
     return (P, *out)
 
 
-def shared_gain(
-    P: np.ndarray,
-    A: np.ndarray,
-    B: np.ndarray,
-    C: np.ndarray,
-    Q: np.ndarray,
-    R: np.ndarray,
-    x: np.ndarray,
-    ep: np.ndarray,
-    epp: np.ndarray,
-    z: np.ndarray,
-    u: np.ndarray,
-    keep: frozenset[str],
-) -> tuple[np.ndarray, dict[str, np.ndarray | None]]:
-    """The Kalman filter from a shared ``P`` (n, n) over ``z`` (runs, K, m): ``(P_end, outputs)``; in place.
-
-    Compiled when :func:`chatterspec._jit.enabled` and the sizes fit (the per-run filter's bits for
-    any number of runs), numpy otherwise. ``S``, ``P_prior``, ``P_post`` come back as read-only
-    ``(runs, K, ...)`` broadcast views of the one sequence.
-    """
-    runs, K, m = z.shape
-    n = x.shape[1]
-    if _jit.enabled() and _jit.fits(n, m):
-        P, Pp, Pq, S, KgT, L, hld = riccati_compiled(P, A, C, Q, R, K)
-        res = kf_shared_states(x, ep, epp, z, u, A, B, C, KgT, keep, L=L, half_logdet=hld)
-    else:
-        P, Pp, Pq, S, Kg, Sinv, logdet = riccati(P, A, C, Q, R, K)
-        res = kf_shared_states(
-            x, ep, epp, z, u, A, B, C, np.swapaxes(Kg, -1, -2), keep, Sinv=Sinv, logdet=logdet
-        )
-    for f, val in (("S", S), ("P_prior", Pp), ("P_post", Pq)):
-        res[f] = np.broadcast_to(val, (runs, *val.shape)) if f in keep else None
-    return P, res
-
-
 def gain_sequence(
     P: np.ndarray, A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray, K: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``(gains (K, n, m), P_post (K, n, n))`` from a shared ``P``, on the path :func:`shared_gain` takes."""
+    """``(gains (K, n, m), P_post (K, n, n))`` from a shared ``P``, as :class:`KalmanFilter` computes them."""
     if _jit.enabled() and _jit.fits(A.shape[0], C.shape[0]):
         _, _, Pq, _, KgT, _, _ = riccati_compiled(P, A, C, Q, R, K)
         return np.swapaxes(KgT, -1, -2), Pq

@@ -333,18 +333,7 @@ class OnlineBank(_OneRealization):
             self._call, self._buf, self._cst, self._slots, self._offsets = packed
 
     def step(self, z: object, u: object | None = None) -> np.ndarray:
-        """Advance by one sample: ``z(k+1)`` and the input ``u(k)``; returns the combined ``x(k+1|k+1)``.
-
-        Parameters
-        ----------
-        z : (m,) array_like or float
-            The measurement.
-        u : (p,) array_like or float, optional
-            The input that drove ``x(k) -> x(k+1)``; None: zeros.
-
-        Returns
-        -------
-        (n,) ndarray
+        """Advance by one sample (``z``, ``u`` as :meth:`OnlineFilter.step`); the combined ``x(k+1|k+1)``.
 
         Raises
         ------

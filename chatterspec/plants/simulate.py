@@ -1021,6 +1021,7 @@ def as_scenario(scenario: Scenario | str | os.PathLike[str], default_duration: f
     Returns
     -------
     Scenario
+        A Scenario argument itself (not a copy); otherwise a new one.
 
     Raises
     ------

@@ -125,31 +125,24 @@ def model_scenario(model: LinearModel, duration: float = 4.0, name: str | None =
 
 
 def resolve_scenario(source: str | Scenario | LinearModel | Path, duration: float = 4.0) -> Scenario:
-    """A catalogue name, a TOML model file (``.toml``), a Scenario or a LinearModel -> Scenario.
+    """:func:`~chatterspec.plants.simulate.as_scenario` that also takes a :class:`LinearModel`.
+
+    A LinearModel becomes its healthy zero-input scenario (:func:`model_scenario`); every other source
+    goes to ``as_scenario``, which returns the scenario or raises as documented there
+    (:class:`~chatterspec.errors.UnknownScenarioError` for a string that is neither a ``.toml`` path
+    nor a catalogue name).
 
     Parameters
     ----------
     source : str, Scenario, LinearModel or Path
-        A :class:`Scenario` is returned unchanged; a :class:`LinearModel` becomes a healthy
-        zero-input scenario (:func:`model_scenario`); a path ending in ``.toml`` (read with
-        :func:`~chatterspec.plants.modelfile.load_model`, linear or nonlinear) becomes the healthy
-        scenario of its ``[simulation]`` table (zero input by default;
-        :func:`~chatterspec.plants.modelfile.file_scenario`), named after the file stem;
-        any other string is looked up in the scenario catalogue (all but the LinearModel as
-        :func:`~chatterspec.plants.simulate.as_scenario`).
+        A LinearModel; a Scenario (returned unchanged); a path ending in ``.toml`` (a linear or
+        nonlinear model file, read with :func:`~chatterspec.plants.modelfile.load_model`: the
+        healthy scenario of its ``[simulation]`` table, zero input by default, named after the file
+        stem; :func:`~chatterspec.plants.modelfile.file_scenario`); or a catalogue name.
     duration : float
         Record length in seconds for model and model-file sources (a model file's
         ``[simulation] duration_s`` wins); ignored for catalogue names and Scenario objects,
         which carry their own duration.
-
-    Returns
-    -------
-    Scenario
-
-    Raises
-    ------
-    UnknownScenarioError
-        A string that is neither a ``.toml`` path nor a catalogue name.
     """
     if isinstance(source, LinearModel):
         return model_scenario(source, duration)
