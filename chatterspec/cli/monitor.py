@@ -782,8 +782,6 @@ class MonitorIdentification:
     """
 
     def __init__(self, monitor: Any, emit: Any, say: Any, every_hop: bool | None = None) -> None:
-        import numpy as np  # lazily: building the parser does not import numpy
-
         self.monitor = monitor
         self.emit, self.say, self.every_hop = emit, say, every_hop
         self.windows = 0
@@ -796,8 +794,7 @@ class MonitorIdentification:
         self._label: str | None = None
         self._states: tuple[str, ...] | None = None
         self._since_reset = 0  # windows since the start or a reset: the detectability's horizon fills
-        P = len(monitor.parameters)
-        self._not_excited = np.zeros(P)
+        self._not_excited = [0.0] * len(monitor.parameters)  # seconds per parameter
         self._hop_s = monitor.settings.hop_s
         #: Called with each push's update before it is reported (e.g. the recordings of a stream).
         self.on_update: Callable[[IdentificationUpdate], None] | None = None
@@ -867,8 +864,6 @@ class MonitorIdentification:
 
     def handle(self, upd: Any) -> None:
         """Report one push's :class:`~chatterspec.online.identification_monitor.IdentificationUpdate`."""
-        import numpy as np  # lazily: building the parser does not import numpy
-
         mon, blk = self.monitor, upd.block
         events: dict[int, list[Any]] = {int(ev.frame): [] for ev in upd.events}
         for ev in upd.events:
@@ -884,7 +879,9 @@ class MonitorIdentification:
                 if self.emit is not None:
                     self.emit(dumps(line))
                 self.say(ev.describe())
-            self._not_excited += np.array([s == "not-excited" for s in w.states]) * self._hop_s
+            for i, s in enumerate(w.states):
+                if s == "not-excited":
+                    self._not_excited[i] += self._hop_s
             # the window's report is built only where it is written (most windows of a replay are not)
             self._last, self._last_doc = (upd, w), None
             key = (w.label, w.states, w.channel_states)

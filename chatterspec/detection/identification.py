@@ -1916,13 +1916,25 @@ class OnlineIdentifier:
         start = (
             self._next_block * H - self._first
         )  # raw index (in the buffer) of z(b H) = z(k-1), k = 1 + b H
-        idx = start + np.arange(count)[:, None] * H + np.arange(H + 2)[None, :]  # (count, H + 2)
-        zb, ub = self._z[idx], self._u[idx]
+        # (count, H + 2, .) views of the buffers, block b from start + b H (overlapping by two samples):
+        # the samples and strides of a gathered copy, without copying
+        zb, ub = _hop_blocks(self._z, start, count, H), _hop_blocks(self._u, start, count, H)
         e = zb[:, 1:] - zb[:, :-1] @ self._Phi_T - ub[:, :-1] @ self._G_T  # closed form, eq (23)
         t_first = self.t0 + (self._first + start + 2) * self.dt  # e(k+1) of the block's first k
         st = self.setup
         times = (t_first, t_first + H * self.dt)
         return compute_moments(zb, ub, e, st.J, st.L, st.R, 1, H + 1, times, st.swe_pairs)
+
+
+def _hop_blocks(x: np.ndarray, start: int, count: int, H: int) -> np.ndarray:
+    """Read-only ``(count, H + 2, k)`` view of the rows of ``x`` (C-contiguous ``(T, k)``): block ``b`` is
+    rows ``start + b H .. start + (b + 1) H + 1``."""
+    x = np.ascontiguousarray(x)
+    assert start >= 0 and start + count * H + 2 <= x.shape[0]  # (the caller counts whole blocks)
+    row, col = x.strides
+    return np.lib.stride_tricks.as_strided(
+        x[start:], shape=(count, H + 2, x.shape[1]), strides=(H * row, row, col), writeable=False
+    )
 
 
 def _stack(parts: list[IdentificationMoments]) -> IdentificationMoments:
