@@ -525,3 +525,11 @@ def test_window_decisions_built_at_once_are_the_dataclass() -> None:
     got = mon._spectral(ends)
     np.testing.assert_array_equal(got, np.array(want))
     assert got[:, 0].any() and got[:, 2].any() and got[8, 1] and not got[9, 1]
+
+
+def test_column_norms_are_numpys_norms_to_the_bit() -> None:
+    """The Gauss-Newton loop's column norms: ``np.linalg.norm(x, axis=1)``'s operations, the same bits."""
+    from chatterspec.detection.identification import _column_norms
+
+    x = np.random.default_rng(4).normal(size=(9, 7, 3)) * np.logspace(-12, 12, 3)
+    assert _column_norms(x).tobytes() == np.linalg.norm(x, axis=1).tobytes()

@@ -828,6 +828,12 @@ def _separable(N: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return lam[:, 0] > 1e-10 * lam[:, -1]
 
 
+def _column_norms(x: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(x, axis=1)`` of a real array, the same operations without its checks (the
+    Gauss-Newton loop takes it twice per iteration, on a handful of realizations at the end)."""
+    return np.sqrt(np.add.reduce(x * x, axis=1))
+
+
 def _fit_hypothesis(
     setup: IdentificationSetup, h: int, dn: np.ndarray, W: np.ndarray, T: np.ndarray, active: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -860,43 +866,42 @@ def _fit_hypothesis(
     ok = np.ones(runs, dtype=bool)
     why = np.zeros(runs, dtype=int)
     # each realization iterates until its own step is below the tolerance (then it is left alone), so
-    # its result does not depend on the others in the batch (a stream cut into other pushes)
-    live = np.arange(runs)
+    # its result does not depend on the others in the batch (a stream cut into other pushes); the live
+    # realizations' rows are kept apart and written back as each one is done
     step = np.zeros_like(theta)
     eye = np.eye(theta.shape[1])
-    n_live = -1
+    live = np.arange(runs)
+    th, st, okl, whyl = theta[live], step[live], ok[live], why[live]
+    Wl, Tl, al, dnl = W[live], T[live], active[live], dn[live]
     for _ in range(60):
-        if live.size != n_live:  # (live only shrinks: the same size is the same realizations)
-            n_live = live.size
-            Wl, Tl, al, dnl = W[live], T[live], active[live], dn[live]
-        th = theta[live]
         G, g = setup.jacobian_deviations(h, th)  # (live, D, p), (live, D)
         r = np.einsum("rab,rb->ra", Wl, dnl - np.where(al, g / Tl, 0.0))
         GT = G / Tl[:, :, None]
         Gt = np.einsum("rab,rbk->rak", Wl, np.where(al[:, :, None], GT, 0.0))
-        cn = np.linalg.norm(Gt, axis=1)  # (live, p)
-        lost = ~(cn > 1e-12 * np.maximum(np.linalg.norm(GT, axis=1), 1e-300))
-        lost_any = lost.any(axis=1)
-        why[live] = np.where(lost_any & ok[live], 1, why[live])
-        ok[live] &= ~lost_any
+        cn = _column_norms(Gt)  # (live, p)
+        lost_any = (~(cn > 1e-12 * np.maximum(_column_norms(GT), 1e-300))).any(axis=1)
+        whyl = np.where(lost_any & okl, 1, whyl)
+        okl = okl & ~lost_any
         cn = np.where(cn > 0, cn, 1.0)
         Gs = Gt / cn[:, None, :]
         N = Gs.transpose(0, 2, 1) @ Gs
-        apart = _separable(N, ok[live])
-        why[live] = np.where(~apart & ok[live], 4, why[live])
-        ok[live] &= apart
-        okl = ok[live]
+        apart = _separable(N, okl)
+        whyl = np.where(~apart & okl, 4, whyl)
+        okl = okl & apart
         N = N + np.where(okl, 0.0, 1.0)[:, None, None] * eye
         st = np.linalg.solve(N, np.einsum("rak,ra->rk", Gs, r)[..., None])[..., 0] / cn
         st = np.where(okl[:, None], st, 0.0)
         th = th + st
-        theta[live] = th
-        step[live] = st
         done = np.all(np.abs(st) <= 1e-10 * (np.abs(th) + 1e-6 * scale), axis=1)
-        live = live[~done]
-        if live.size == 0:
-            break
+        if done.any():
+            fin, keep = live[done], ~done
+            theta[fin], step[fin], ok[fin], why[fin] = th[done], st[done], okl[done], whyl[done]
+            live, th, st, okl, whyl = live[keep], th[keep], st[keep], okl[keep], whyl[keep]
+            if live.size == 0:
+                break
+            Wl, Tl, al, dnl = Wl[keep], Tl[keep], al[keep], dnl[keep]
     else:
+        theta[live], step[live], ok[live], why[live] = th, st, okl, whyl
         bad = np.zeros(runs, dtype=bool)
         bad[live] = np.any(np.abs(step[live]) > 1e-6 * (np.abs(theta[live]) + 1e-6 * scale), axis=1)
         why = np.where(bad & ok, 2, why)
