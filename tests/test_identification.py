@@ -481,28 +481,13 @@ def test_hop_blocks_are_the_gathered_blocks_without_a_copy() -> None:
         assert np.shares_memory(view, x) and not view.flags.writeable
 
 
-def test_window_decisions_built_at_once_are_the_dataclass() -> None:
-    """The identification monitor's per-window builders: a WindowDecision with its instance dict set in
-    one call has the fields and values of the dataclass's constructor; the state names of code rows are
-    the rows' names; the spectral alarm state of many frame ends at once is each end's (open alarms from
-    their start, closed ones from start to end, half a sample of slack)."""
-    import dataclasses
-
+def test_window_states_of_a_push_at_once() -> None:
+    """The identification monitor's per-push decisions: the state names of code rows are the rows' names;
+    the spectral alarm state of many frame ends at once is each end's (open alarms from their start, closed
+    ones from start to end, half a sample of slack). (Its WindowDecision builder: test_monitor.py.)"""
     from chatterspec.detection.parameter_decision import STATES
-    from chatterspec.online.identification_monitor import (
-        IdentificationMonitor,
-        WindowDecision,
-        _state_names,
-        _window_decision,
-    )
+    from chatterspec.online.identification_monitor import IdentificationMonitor, _state_names
 
-    args = (3, 1.5, (1.0, 2.0), 2.0, True, "leakage", ("healthy", "fault"), ("fault", "healthy", "healthy"))
-    fast, slow = _window_decision(*args), WindowDecision(*args)
-    assert type(fast) is WindowDecision
-    assert list(vars(fast)) == [f.name for f in dataclasses.fields(WindowDecision)] == list(vars(slow))
-    assert all(vars(fast)[k] is vars(slow)[k] for k in vars(slow))
-    with pytest.raises(dataclasses.FrozenInstanceError):
-        fast.alarm = False  # type: ignore[misc]
     codes = np.random.default_rng(1).integers(0, len(STATES), size=(40, 3))
     assert _state_names(codes) == [tuple(STATES[k] for k in row) for row in codes.tolist()]
     assert _state_names(codes[:0]) == []

@@ -460,23 +460,26 @@ def test_sample_times_give_the_bits_of_the_numpy_formula() -> None:
 
 
 def test_fast_result_builders_give_the_dataclasses() -> None:
-    """The push's FrameBlock and MonitorUpdate built with their instance dict set at once: the fields
-    (every one, by name) and values of the dataclasses' constructors."""
+    """The push's FrameBlock and MonitorUpdate, and the identification's WindowDecision, built with their
+    instance dict set at once: the fields (every one, by name) and values of the dataclasses' constructors."""
     import dataclasses
 
+    from chatterspec.online.identification_monitor import WindowDecision, _window_decision
     from chatterspec.online.monitor import FrameBlock, MonitorUpdate, _frame_block, _monitor_update
 
     vals = [np.arange(i, i + 2) for i in range(9)]
+    window = (3, 1.5, (1.0, 2.0), 2.0, True, "leakage", ("healthy", "fault"), ("fault", "healthy", "healthy"))
     for cls, build, args in (
         (FrameBlock, _frame_block, vals),
         (MonitorUpdate, _monitor_update, [*vals[:4], FrameBlock(*vals), ()]),
+        (WindowDecision, _window_decision, window),
     ):
         fast, slow = build(*args), cls(*args)
         assert type(fast) is cls
         assert list(vars(fast)) == [f.name for f in dataclasses.fields(cls)] == list(vars(slow))
         assert all(vars(fast)[k] is vars(slow)[k] for k in vars(slow))
         with pytest.raises(dataclasses.FrozenInstanceError):
-            fast.t = None  # type: ignore[misc]
+            setattr(fast, dataclasses.fields(cls)[0].name, None)
 
 
 def test_frame_rfft_is_scipy_rfft() -> None:
