@@ -614,7 +614,7 @@ def _alarm_settings(
         from ._options import check_file_alarm
 
         rc = check_file_alarm(c, file_alarm, args.calibration)
-        return alarm_settings(model, settings, calibration=rc, threshold=threshold)
+        return alarm_settings(model, settings, calibration=rc)
     from ..plants.nonlinear import is_linear
 
     if not is_linear(model) and (c.explicit_rule or c.explicit_budget):
