@@ -899,7 +899,7 @@ class MonitorIdentification:
                 if self.emit is not None:
                     self.emit(dumps(line))
                 self.say(ev.describe())
-            for i, s in enumerate(w.states):
+            for i, s in enumerate(w.states if "not-excited" in w.states else ()):
                 if s == "not-excited":
                     self._not_excited[i] += self._hop_s
             # the window's report is built only where it is written (most windows of a replay are not)

@@ -1118,7 +1118,7 @@ class IdentificationLog:
                 if w.label is not None or self._label is not None:
                     texts.append(self._label_text(w, upd))
                     t_text.append(t)
-            for i, st in enumerate(w.states):
+            for i, st in enumerate(w.states if w.states != self._states else ()):  # (most windows: none)
                 if self._states is None or st != self._states[i]:
                     changes[i][0].append(w.index)
                     changes[i][1].append(st)
