@@ -464,3 +464,57 @@ def test_deviations_and_jacobian_in_one_evaluation_are_the_separate_numbers() ->
             assert np.array_equal(G[..., i], col)
         assert np.array_equal(g, setup.deviations(h, theta))
         assert G.flags.c_contiguous
+
+
+def test_hop_blocks_are_the_gathered_blocks_without_a_copy() -> None:
+    """The online identifier's blocks (rows ``start + b H .. start + (b + 1) H + 1``, two rows shared with
+    the next block) are a view with the values and strides of the gathered copy they replace (the sums
+    then see the same layouts, hence the same bits)."""
+    from chatterspec.detection.identification import _hop_blocks
+
+    x = np.random.default_rng(2).normal(size=(57, 3))
+    for start, count, H in ((0, 5, 10), (3, 4, 12), (7, 1, 48)):
+        view = _hop_blocks(x, start, count, H)
+        gathered = x[start + np.arange(count)[:, None] * H + np.arange(H + 2)[None, :]]
+        assert view.strides[1:] == gathered.strides[1:]
+        np.testing.assert_array_equal(view, gathered)
+        assert np.shares_memory(view, x) and not view.flags.writeable
+
+
+def test_window_states_of_a_push_at_once() -> None:
+    """The identification monitor's per-push decisions: the state names of code rows are the rows' names;
+    the spectral alarm state of many frame ends at once is each end's (open alarms from their start, closed
+    ones from start to end, half a sample of slack). (Its WindowDecision builder: test_monitor.py.)"""
+    from chatterspec.detection.parameter_decision import STATES
+    from chatterspec.online.identification_monitor import IdentificationMonitor, _state_names
+
+    codes = np.random.default_rng(1).integers(0, len(STATES), size=(40, 3))
+    assert _state_names(codes) == [tuple(STATES[k] for k in row) for row in codes.tolist()]
+    assert _state_names(codes[:0]) == []
+
+    mon = IdentificationMonitor.__new__(IdentificationMonitor)  # only the spectral alarm state is used
+    mon.dt, mon.channels = 0.001, ("a", "b", "c")
+    ends = np.round(np.arange(0.0, 3.0, 0.05), 9) - np.array([0.0, 0.0004, 0.0006] * 20)
+    slack = 0.5 * mon.dt
+    # an alarm closed exactly at a frame end plus the slack: that frame is after it
+    mon._open = {"c": 2.0}
+    mon._closed = [("a", 0.5, 1.0), ("a", 1.5, 1.75), ("b", 0.2, float(ends[9]) + slack)]
+    want = [
+        [
+            any(s <= t + slack < e for ch, s, e in mon._closed if ch == c)
+            or (c in mon._open and mon._open[c] <= t + slack)
+            for c in mon.channels
+        ]
+        for t in ends.tolist()
+    ]
+    got = mon._spectral(ends)
+    np.testing.assert_array_equal(got, np.array(want))
+    assert got[:, 0].any() and got[:, 2].any() and got[8, 1] and not got[9, 1]
+
+
+def test_column_norms_are_numpys_norms_to_the_bit() -> None:
+    """The Gauss-Newton loop's column norms: ``np.linalg.norm(x, axis=1)``'s operations, the same bits."""
+    from chatterspec.detection.identification import _column_norms
+
+    x = np.random.default_rng(4).normal(size=(9, 7, 3)) * np.logspace(-12, 12, 3)
+    assert _column_norms(x).tobytes() == np.linalg.norm(x, axis=1).tobytes()

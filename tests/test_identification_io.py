@@ -208,3 +208,54 @@ def test_streamed_monitor_records_its_identification(
     lane = reader.stream().filter(content="/state/p1_leakage", is_static=False).to_chunks()
     states = [v[0] for c in lane for v in c.to_record_batch().column("StateChange:state").to_pylist()]
     assert states and states[-1] == "fault"  # named under the spectral alarm at the end
+
+
+def test_a_files_identification_rows_go_out_in_batches(tmp_path: Path, monkeypatch, capsys) -> None:  # type: ignore[no-untyped-def]
+    """A file's identification series, detectability and parameter lanes wait for a batch of windows (one
+    chunk per entity and batch): the rows of sending every push's windows at once, in fewer chunks."""
+    from rerun.chunk import RrdReader
+
+    from chatterspec.viewer import rerun_log
+
+    def rows(path: Path, prefix: str) -> tuple[dict[str, list[str]], int]:
+        """Per entity under ``prefix``: its time-indexed rows (every column but the row ids) and chunks."""
+        out: dict[str, list[str]] = {}
+        n = 0
+        for chunk in RrdReader(str(path)).stream().to_chunks():
+            rb = chunk.to_record_batch()
+            ent = (rb.schema.metadata or {}).get(b"rerun:entity_path", b"").decode()
+            if not ent.startswith(prefix) or "time" not in rb.schema.names:
+                continue
+            n += 1
+            names = [k for k in rb.schema.names if "row" not in k.lower()]
+            values = [rb.column(k).cast("int64") if k == "time" else rb.column(k) for k in names]
+            out.setdefault(ent, []).extend(
+                repr(r) for r in zip(*(v.to_pylist() for v in values), strict=True)
+            )
+        return {k: sorted(v) for k, v in out.items()}, n
+
+    init = rerun_log.IdentificationLog.__init__
+    argv = ["monitor", str(EXAMPLES / "eha_model.toml"), "--data", str(EXAMPLES / "eha_data.csv")]
+    argv += [
+        "--chunk",
+        "1000",
+        "--alpha",
+        "0.001",
+    ]  # 8 pushes; the per-frame rule: no calibration to simulate
+    got = {}
+    for batch in (1, 300):  # every push's windows at once, then the default batches
+        monkeypatch.setattr(
+            rerun_log.IdentificationLog,
+            "__init__",
+            lambda self, sinks, monitor, columns, batch_windows=300, b=batch: init(
+                self, sinks, monitor, columns, b
+            ),
+        )
+        rec = tmp_path / f"b{batch}.rrd"
+        assert main([*argv, "--json", "--record", str(rec)]) == 0
+        capsys.readouterr()
+        got[batch] = {p: rows(rec, p) for p in ("/identification", "/state/p")}
+    for prefix in ("/identification", "/state/p"):
+        (one, n_one), (batched, n_batched) = got[1][prefix], got[300][prefix]
+        assert one == batched and len(one) >= 3
+        assert n_batched < n_one

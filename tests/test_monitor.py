@@ -460,23 +460,26 @@ def test_sample_times_give_the_bits_of_the_numpy_formula() -> None:
 
 
 def test_fast_result_builders_give_the_dataclasses() -> None:
-    """The push's FrameBlock and MonitorUpdate built with their instance dict set at once: the fields
-    (every one, by name) and values of the dataclasses' constructors."""
+    """The push's FrameBlock and MonitorUpdate, and the identification's WindowDecision, built with their
+    instance dict set at once: the fields (every one, by name) and values of the dataclasses' constructors."""
     import dataclasses
 
+    from chatterspec.online.identification_monitor import WindowDecision, _window_decision
     from chatterspec.online.monitor import FrameBlock, MonitorUpdate, _frame_block, _monitor_update
 
     vals = [np.arange(i, i + 2) for i in range(9)]
+    window = (3, 1.5, (1.0, 2.0), 2.0, True, "leakage", ("healthy", "fault"), ("fault", "healthy", "healthy"))
     for cls, build, args in (
         (FrameBlock, _frame_block, vals),
         (MonitorUpdate, _monitor_update, [*vals[:4], FrameBlock(*vals), ()]),
+        (WindowDecision, _window_decision, window),
     ):
         fast, slow = build(*args), cls(*args)
         assert type(fast) is cls
         assert list(vars(fast)) == [f.name for f in dataclasses.fields(cls)] == list(vars(slow))
         assert all(vars(fast)[k] is vars(slow)[k] for k in vars(slow))
         with pytest.raises(dataclasses.FrozenInstanceError):
-            fast.t = None  # type: ignore[misc]
+            setattr(fast, dataclasses.fields(cls)[0].name, None)
 
 
 def test_frame_rfft_is_scipy_rfft() -> None:
@@ -528,3 +531,54 @@ def test_one_sample_steps_give_the_numbers_of_pushes(sim, psi) -> None:
     with pytest.raises(ShapeError):
         stepped.step(z[0, :2], u[0])
     assert stepped.n_samples == pushed.n_samples  # nothing consumed
+
+
+def test_monitor_threshold_is_computed_once_where_it_is_given(monkeypatch) -> None:
+    """The per-frame threshold of a monitor (monitor_threshold: the exact one of its settings, or a given
+    one restricted to the band; another STFT's is refused) is what ChatteringMonitor computes by default;
+    a monitor and the alarm calibration given it use it and compute none (the CLI computes it once for
+    both)."""
+    import chatterspec.detection.thresholds as thresholds
+    from chatterspec.detection.thresholds import monitor_threshold
+    from chatterspec.studies.alarm_budget import calibrate_alarm
+
+    model = cs.scenario("eha-healthy").nominal
+    settings = MonitorSettings(band=(20.0, 200.0))
+    th = monitor_threshold(model, settings)
+    mon = ChatteringMonitor(model, settings)
+    want = frame_threshold(model, mon.freqs_hz, settings.stft, model.dt, settings.alpha, band=settings.band)
+    np.testing.assert_array_equal(th.values, want.values)
+    np.testing.assert_array_equal(mon.threshold.values, want.values)
+    given = MonitorSettings(
+        threshold=frame_threshold(model, mon.freqs_hz, settings.stft, model.dt), band=(20.0, 200.0)
+    )
+    np.testing.assert_array_equal(
+        monitor_threshold(model, given).values, given.threshold.restricted((20.0, 200.0)).values
+    )
+    other = MonitorSettings(stft=cs.STFTConfig(window_s=0.5, hop_s=0.1), threshold=given.threshold)
+    with pytest.raises(ShapeError, match="another STFT window"):
+        monitor_threshold(model, other)
+
+    def refuse(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the per-frame threshold was computed again")
+
+    monkeypatch.setattr(thresholds, "frame_threshold", refuse)
+    assert ChatteringMonitor(model, settings, threshold=th).threshold is th
+    cal = calibrate_alarm(model, settings, "frame", 1.0, threshold=th)  # the exact law: no simulation
+    assert cal.rule.name == "frame"
+    with pytest.raises(AssertionError, match="computed again"):
+        ChatteringMonitor(model, settings)
+
+
+def test_cli_monitor_reuses_the_threshold_only_for_the_same_frame_settings() -> None:
+    """The CLI gives the monitor the threshold its alarm calibration used only when the alarm settings kept
+    what it depends on: a rule changes nothing; the frame and persistence rules' drawn level (another
+    alpha) or another band does."""
+    import dataclasses
+
+    from chatterspec.cli.monitor import _same_frame_threshold
+
+    s = MonitorSettings()
+    assert _same_frame_threshold(s, dataclasses.replace(s, rule=cs.CusumRule(threshold=6.0, drift=3.0)))
+    assert not _same_frame_threshold(s, dataclasses.replace(s, alpha=0.5 * s.alpha))
+    assert not _same_frame_threshold(s, dataclasses.replace(s, band=(10.0, 100.0)))

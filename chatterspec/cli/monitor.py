@@ -65,6 +65,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from ..detection.alarms.calibration import MonitorSettings
     from ..detection.spectral import STFTConfig
+    from ..detection.thresholds import Threshold
     from ..online.identification_monitor import IdentificationUpdate
     from ..online.monitor import ChatteringMonitor, DetectionEvent
     from ..plants.datafile import DataSet
@@ -309,8 +310,14 @@ def run(args: argparse.Namespace) -> int:
                 "--alpha sets the spectral frame rule's per-frame level; with tolerances the decision is "
                 "taken on the identified parameters at a false-alarm budget: give --false-alarms-per-hour"
             )
-    else:  # with tolerances the spectral detector only reports mismatch: no alarm rule to calibrate
-        settings = _alarm_settings(args, choice, spec.model, settings, cal)
+    threshold = None  # the per-frame threshold: computed once, for the alarm calibration and the monitor
+    if not tolerances:  # with tolerances the spectral detector only reports mismatch: no rule to calibrate
+        from ..detection.thresholds import monitor_threshold
+
+        threshold = monitor_threshold(spec.model, settings)
+        before, settings = settings, _alarm_settings(args, choice, spec.model, settings, cal, threshold)
+        if not _same_frame_threshold(before, settings):  # the verdict drawn at the rule's own level
+            threshold = None
     decision = None
     if setup is not None:
         from ..detection.alarms.rules import make_rule
@@ -365,7 +372,7 @@ def run(args: argparse.Namespace) -> int:
         )
 
     if stream:
-        return _run_stream(args, spec, settings, jsonl, human, identification(0.0))
+        return _run_stream(args, spec, settings, jsonl, human, identification(0.0), threshold)
     assert data is not None  # a file replay read its data above
 
     from ..viewer.live_stream import StreamEvent
@@ -373,7 +380,7 @@ def run(args: argparse.Namespace) -> int:
     from ..viewer.sinks import default_recording_path, open_sinks
 
     preload = _preload_rerun() if (args.record is not None or args.live is not None) else None
-    monitor = ChatteringMonitor(spec.model, settings, t0=float(data.t[0]))
+    monitor = ChatteringMonitor(spec.model, settings, t0=float(data.t[0]), threshold=threshold)
     _warm_up(monitor)  # kernels and FFT plans load here (while Rerun loads on its thread), not in the loop
     if preload is not None:
         preload.join()
@@ -579,14 +586,24 @@ def _warm_up(monitor: ChatteringMonitor) -> None:
     warm.push(np.zeros((n, m.n_outputs)), np.zeros((n, m.n_inputs)))
 
 
+def _same_frame_threshold(before: MonitorSettings, after: MonitorSettings) -> bool:
+    """Whether ``after`` (the alarm settings) keeps what the per-frame threshold of ``before`` depends on:
+    not for the frame and persistence rules, whose verdict is drawn at their own per-step level."""
+    return after.threshold is before.threshold and all(
+        getattr(after, k) == getattr(before, k) for k in ("stft", "alpha", "correction", "band")
+    )
+
+
 def _alarm_settings(
     args: argparse.Namespace,
     choice: AlarmChoice,
     model: Model,
     settings: MonitorSettings,
     cal: Calibration | None,
+    threshold: Threshold,
 ) -> MonitorSettings:
-    """The monitor's alarm rule: ``--alpha`` (the per-frame rule), a calibration file's, or set here."""
+    """The monitor's alarm rule: ``--alpha`` (the per-frame rule), a calibration file's, or set here
+    (calibrated on the monitor's per-frame ``threshold`` for ``settings``)."""
     from ..studies.alarm_budget import alarm_settings
 
     c = choice  # AlarmChoice
@@ -621,6 +638,7 @@ def _alarm_settings(
         c.budget,
         hours=hours,
         note=stderr_note("monitor"),
+        threshold=threshold,
         **c.parameters,
     )
 
@@ -649,6 +667,7 @@ def _run_stream(
     jsonl: bool,
     human: TextIO,
     ident: MonitorIdentification | None = None,
+    threshold: Threshold | None = None,
 ) -> int:
     from ..errors import ChatterspecError
     from ..online.stream import CsvRows, follow_file, read_fd
@@ -684,6 +703,7 @@ def _run_stream(
             on_push=None if ident is None else ident.push,
             on_reset=None if ident is None else ident.reset,
             identification=None if ident is None else ident.monitor,
+            threshold=threshold,
         )
     except OSError as exc:  # e.g. disk full when the recording opens: before any row is read
         from ._report import OutputPathError
@@ -782,8 +802,6 @@ class MonitorIdentification:
     """
 
     def __init__(self, monitor: Any, emit: Any, say: Any, every_hop: bool | None = None) -> None:
-        import numpy as np  # lazily: building the parser does not import numpy
-
         self.monitor = monitor
         self.emit, self.say, self.every_hop = emit, say, every_hop
         self.windows = 0
@@ -796,8 +814,7 @@ class MonitorIdentification:
         self._label: str | None = None
         self._states: tuple[str, ...] | None = None
         self._since_reset = 0  # windows since the start or a reset: the detectability's horizon fills
-        P = len(monitor.parameters)
-        self._not_excited = np.zeros(P)
+        self._not_excited = [0.0] * len(monitor.parameters)  # seconds per parameter
         self._hop_s = monitor.settings.hop_s
         #: Called with each push's update before it is reported (e.g. the recordings of a stream).
         self.on_update: Callable[[IdentificationUpdate], None] | None = None
@@ -867,8 +884,6 @@ class MonitorIdentification:
 
     def handle(self, upd: Any) -> None:
         """Report one push's :class:`~chatterspec.online.identification_monitor.IdentificationUpdate`."""
-        import numpy as np  # lazily: building the parser does not import numpy
-
         mon, blk = self.monitor, upd.block
         events: dict[int, list[Any]] = {int(ev.frame): [] for ev in upd.events}
         for ev in upd.events:
@@ -884,7 +899,9 @@ class MonitorIdentification:
                 if self.emit is not None:
                     self.emit(dumps(line))
                 self.say(ev.describe())
-            self._not_excited += np.array([s == "not-excited" for s in w.states]) * self._hop_s
+            for i, s in enumerate(w.states if "not-excited" in w.states else ()):
+                if s == "not-excited":
+                    self._not_excited[i] += self._hop_s
             # the window's report is built only where it is written (most windows of a replay are not)
             self._last, self._last_doc = (upd, w), None
             key = (w.label, w.states, w.channel_states)

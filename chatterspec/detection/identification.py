@@ -828,6 +828,12 @@ def _separable(N: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return lam[:, 0] > 1e-10 * lam[:, -1]
 
 
+def _column_norms(x: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(x, axis=1)`` of a real array, the same operations without its checks (the
+    Gauss-Newton loop takes it twice per iteration, on a handful of realizations at the end)."""
+    return np.sqrt(np.add.reduce(x * x, axis=1))
+
+
 def _fit_hypothesis(
     setup: IdentificationSetup, h: int, dn: np.ndarray, W: np.ndarray, T: np.ndarray, active: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -860,43 +866,42 @@ def _fit_hypothesis(
     ok = np.ones(runs, dtype=bool)
     why = np.zeros(runs, dtype=int)
     # each realization iterates until its own step is below the tolerance (then it is left alone), so
-    # its result does not depend on the others in the batch (a stream cut into other pushes)
-    live = np.arange(runs)
+    # its result does not depend on the others in the batch (a stream cut into other pushes); the live
+    # realizations' rows are kept apart and written back as each one is done
     step = np.zeros_like(theta)
     eye = np.eye(theta.shape[1])
-    n_live = -1
+    live = np.arange(runs)
+    th, st, okl, whyl = theta[live], step[live], ok[live], why[live]
+    Wl, Tl, al, dnl = W[live], T[live], active[live], dn[live]
     for _ in range(60):
-        if live.size != n_live:  # (live only shrinks: the same size is the same realizations)
-            n_live = live.size
-            Wl, Tl, al, dnl = W[live], T[live], active[live], dn[live]
-        th = theta[live]
         G, g = setup.jacobian_deviations(h, th)  # (live, D, p), (live, D)
         r = np.einsum("rab,rb->ra", Wl, dnl - np.where(al, g / Tl, 0.0))
         GT = G / Tl[:, :, None]
         Gt = np.einsum("rab,rbk->rak", Wl, np.where(al[:, :, None], GT, 0.0))
-        cn = np.linalg.norm(Gt, axis=1)  # (live, p)
-        lost = ~(cn > 1e-12 * np.maximum(np.linalg.norm(GT, axis=1), 1e-300))
-        lost_any = lost.any(axis=1)
-        why[live] = np.where(lost_any & ok[live], 1, why[live])
-        ok[live] &= ~lost_any
+        cn = _column_norms(Gt)  # (live, p)
+        lost_any = (~(cn > 1e-12 * np.maximum(_column_norms(GT), 1e-300))).any(axis=1)
+        whyl = np.where(lost_any & okl, 1, whyl)
+        okl = okl & ~lost_any
         cn = np.where(cn > 0, cn, 1.0)
         Gs = Gt / cn[:, None, :]
         N = Gs.transpose(0, 2, 1) @ Gs
-        apart = _separable(N, ok[live])
-        why[live] = np.where(~apart & ok[live], 4, why[live])
-        ok[live] &= apart
-        okl = ok[live]
+        apart = _separable(N, okl)
+        whyl = np.where(~apart & okl, 4, whyl)
+        okl = okl & apart
         N = N + np.where(okl, 0.0, 1.0)[:, None, None] * eye
         st = np.linalg.solve(N, np.einsum("rak,ra->rk", Gs, r)[..., None])[..., 0] / cn
         st = np.where(okl[:, None], st, 0.0)
         th = th + st
-        theta[live] = th
-        step[live] = st
         done = np.all(np.abs(st) <= 1e-10 * (np.abs(th) + 1e-6 * scale), axis=1)
-        live = live[~done]
-        if live.size == 0:
-            break
+        if done.any():
+            fin, keep = live[done], ~done
+            theta[fin], step[fin], ok[fin], why[fin] = th[done], st[done], okl[done], whyl[done]
+            live, th, st, okl, whyl = live[keep], th[keep], st[keep], okl[keep], whyl[keep]
+            if live.size == 0:
+                break
+            Wl, Tl, al, dnl = Wl[keep], Tl[keep], al[keep], dnl[keep]
     else:
+        theta[live], step[live], ok[live], why[live] = th, st, okl, whyl
         bad = np.zeros(runs, dtype=bool)
         bad[live] = np.any(np.abs(step[live]) > 1e-6 * (np.abs(theta[live]) + 1e-6 * scale), axis=1)
         why = np.where(bad & ok, 2, why)
@@ -1916,13 +1921,25 @@ class OnlineIdentifier:
         start = (
             self._next_block * H - self._first
         )  # raw index (in the buffer) of z(b H) = z(k-1), k = 1 + b H
-        idx = start + np.arange(count)[:, None] * H + np.arange(H + 2)[None, :]  # (count, H + 2)
-        zb, ub = self._z[idx], self._u[idx]
+        # (count, H + 2, .) views of the buffers, block b from start + b H (overlapping by two samples):
+        # the samples and strides of a gathered copy, without copying
+        zb, ub = _hop_blocks(self._z, start, count, H), _hop_blocks(self._u, start, count, H)
         e = zb[:, 1:] - zb[:, :-1] @ self._Phi_T - ub[:, :-1] @ self._G_T  # closed form, eq (23)
         t_first = self.t0 + (self._first + start + 2) * self.dt  # e(k+1) of the block's first k
         st = self.setup
         times = (t_first, t_first + H * self.dt)
         return compute_moments(zb, ub, e, st.J, st.L, st.R, 1, H + 1, times, st.swe_pairs)
+
+
+def _hop_blocks(x: np.ndarray, start: int, count: int, H: int) -> np.ndarray:
+    """Read-only ``(count, H + 2, k)`` view of the rows of ``x`` (C-contiguous ``(T, k)``): block ``b`` is
+    rows ``start + b H .. start + (b + 1) H + 1``."""
+    x = np.ascontiguousarray(x)
+    assert start >= 0 and start + count * H + 2 <= x.shape[0]  # (the caller counts whole blocks)
+    row, col = x.strides
+    return np.lib.stride_tricks.as_strided(
+        x[start:], shape=(count, H + 2, x.shape[1]), strides=(H * row, row, col), writeable=False
+    )
 
 
 def _stack(parts: list[IdentificationMoments]) -> IdentificationMoments:

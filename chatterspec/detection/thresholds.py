@@ -110,7 +110,7 @@ import functools
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
-from typing import Literal, cast
+from typing import TYPE_CHECKING, Literal, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -131,6 +131,10 @@ from .spectral import (
 )
 from .spectral import spectrogram as stft_spectrogram
 
+if TYPE_CHECKING:  # pragma: no cover
+    from ..plants.nonlinear import Model
+    from .alarms.calibration import MonitorSettings
+
 __all__ = [
     "NORMALIZATION_SMOOTH_BINS",
     "AlphaMeaning",
@@ -147,6 +151,7 @@ __all__ = [
     "exact_threshold",
     "frame_normalization",
     "frame_threshold",
+    "monitor_threshold",
     "normalization_spectrum",
     "paper_gamma_matrix",
     "paper_threshold",
@@ -351,8 +356,9 @@ def weighted_chi2_isf(
 @functools.lru_cache(maxsize=8)
 def _unit_isf(p_bytes: bytes, r_bytes: bytes, rtol: float) -> np.ndarray:
     """The quantiles ``x`` of ``Z1^2 + r Z2^2`` of :func:`weighted_chi2_isf` (read-only), for the float64
-    bytes of ``p`` and ``r``: the threshold of a monitor is asked for again with the same bins (the alarm
-    calibration's monitor, then the run's), and gets the same bits without the iteration."""
+    bytes of ``p`` and ``r``: a caller that asks for a monitor's threshold twice with the same bins gets
+    the same bits without the iteration the second time (``chatterspec detect --record``: its alarm
+    calibration, then the recorded monitor; ``monitor`` computes it once, :func:`monitor_threshold`)."""
     pv, r = np.frombuffer(p_bytes), np.frombuffer(r_bytes)
     lo = _chi2_isf(pv, 1)
     hi = _chi2_isf(pv, 2)
@@ -791,6 +797,51 @@ def frame_threshold(
     E = expected_frame_spectrum(model, freqs, config, dt)
     eigen = frame_eigenvalues(model, freqs, config, dt) if law == "exact" else None
     return _chi2_threshold(E, freqs, dt, alpha, correction, 1, "exact", "per-frame", eigen, band)
+
+
+def monitor_threshold(model: Model, settings: MonitorSettings) -> Threshold:
+    """The per-frame threshold of the chattering monitor of ``model`` with ``settings``.
+
+    The one place it is computed: the monitor and the calibration of its alarm rule both take it from
+    here (a caller that needs it for both computes it once and passes it on).
+
+    Parameters
+    ----------
+    model : LinearModel or NonlinearModel
+        The monitored model (a nonlinear one needs ``settings.threshold``).
+    settings : MonitorSettings
+        Without a threshold: the exact per-frame threshold of the model's chattering spectrum
+        (:func:`frame_threshold` at the settings' STFT, ``alpha``, ``correction`` and ``band``); with one
+        (e.g. a calibration's): that threshold restricted to the band.
+
+    Returns
+    -------
+    Threshold
+
+    Raises
+    ------
+    ShapeError
+        The given threshold was made for another STFT window or model (other bins or channels).
+    ModelKindError
+        A nonlinear model without a given threshold.
+    """
+    from .spectral import spectrum_model
+
+    dt = model.dt
+    freqs_hz = settings.stft.freqs_hz(dt)
+    th = settings.threshold
+    if th is None:
+        return frame_threshold(
+            spectrum_model(model), freqs_hz, settings.stft, dt, settings.alpha, settings.correction,
+            band=settings.band,
+        )  # fmt: skip
+    if th.values.shape != (freqs_hz.size, model.n_outputs) or not np.allclose(th.freqs_hz, freqs_hz):
+        raise ShapeError(
+            f"the given per-frame threshold has shape {th.values.shape} at other frequencies than "
+            f"this monitor's frames ({freqs_hz.size} bins x {model.n_outputs} channels): it "
+            "was made for another STFT window or model"
+        )
+    return th.restricted(settings.band)
 
 
 def paper_gamma_matrix(model: LinearModel) -> np.ndarray:

@@ -207,15 +207,15 @@ class IdentificationMonitor:
         elif kind == "fault-end" and channel in self._open:
             self._closed.append((channel, self._open.pop(channel), float(alarm_time_s)))
 
-    def _spectral(self, t_alarm: float) -> np.ndarray:
-        """``(m,)``: channels whose spectral alarm is active after the frame decided at ``t_alarm`` (s;
-        half a sample of slack for the rounding of times that are a hop apart)."""
+    def _spectral(self, t_alarm: np.ndarray) -> np.ndarray:
+        """``(W, m)``: channels whose spectral alarm is active after each frame decided at ``t_alarm``
+        ``(W,)`` (s; half a sample of slack for the rounding of times that are a hop apart)."""
         t = t_alarm + 0.5 * self.dt
-        on = np.zeros(len(self.channels), dtype=bool)
+        on = np.zeros((t.size, len(self.channels)), dtype=bool)
         for ch, start in self._open.items():
-            on[self.channels.index(ch)] |= start <= t
+            on[:, self.channels.index(ch)] |= start <= t
         for ch, start, end in self._closed:
-            on[self.channels.index(ch)] |= start <= t < end
+            on[:, self.channels.index(ch)] |= (start <= t) & (t < end)
         return on
 
     def frame_ends(self, found: OnlineIdentification) -> np.ndarray:
@@ -248,8 +248,7 @@ class IdentificationMonitor:
                 for row in fault.tolist()
             ]
         else:
-            m = len(self.channels)
-            chan_fault = np.array([self._spectral(t) for t in frame_end.tolist()], dtype=bool).reshape(nw, m)
+            chan_fault = self._spectral(frame_end)
             alarms = cast(list[bool], chan_fault.any(axis=1).tolist())
             labels = [None] * nw
             for w in np.flatnonzero(alarms).tolist():
@@ -262,21 +261,14 @@ class IdentificationMonitor:
         chan = np.where(chan_fault, 1, np.where(blind, 2, 0))
         times, spans = found.times_s.tolist(), np.asarray(found.window_s, dtype=float).reshape(-1, 2).tolist()
         decided_s = decided.tolist()
-        names_of = [tuple(STATES[k] for k in row) for row in states.tolist()]
-        chan_of = [tuple(STATES[k] for k in row) for row in chan.tolist()]
+        names_of, chan_of = _state_names(states), _state_names(chan)
         for j in range(nw):
             out.append(
-                WindowDecision(
-                    index=j,
-                    time_s=times[j],
-                    window_s=(spans[j][0], spans[j][1]),
-                    alarm_time_s=decided_s[j],
-                    alarm=alarms[j],
-                    label=labels[j],
-                    states=names_of[j],
-                    channel_states=chan_of[j],
+                _window_decision(
+                    j, times[j], (spans[j][0], spans[j][1]), decided_s[j], alarms[j], labels[j], names_of[j],
+                    chan_of[j],
                 )
-            )
+            )  # fmt: skip
         if found.n_windows:
             last = float(frame_end[-1]) + 0.5 * self.dt
             self._closed = [c for c in self._closed if c[2] > last]
@@ -310,6 +302,34 @@ class IdentificationMonitor:
                 }
             )
         return rows
+
+
+def _state_names(codes: np.ndarray) -> list[tuple[str, ...]]:
+    """Rows of state codes ``(W, k)`` as tuples of :data:`STATES` names, one tuple per distinct row (a
+    push's windows repeat a handful of rows)."""
+    if codes.shape[0] == 0:
+        return []
+    rows, inverse = np.unique(codes, axis=0, return_inverse=True)
+    names = [tuple(STATES[k] for k in row) for row in rows.tolist()]
+    return [names[i] for i in inverse.reshape(-1).tolist()]
+
+
+_NEW, _SET = object.__new__, object.__setattr__
+
+
+def _window_decision(
+    index: int, time_s: float, window_s: tuple[float, float], alarm_time_s: float, alarm: bool,
+    label: str | None, states: tuple[str, ...], channel_states: tuple[str, ...],
+) -> WindowDecision:  # fmt: skip
+    """``WindowDecision(...)`` with every field, its instance dict set in one call (a frozen dataclass's
+    ``__init__`` sets each field through ``object.__setattr__``: ~1.5 us per window, a replay decides one
+    per hop; tests/test_identification_monitor.py checks that both give the same fields)."""
+    decision = _NEW(WindowDecision)
+    _SET(decision, "__dict__", {
+        "index": index, "time_s": time_s, "window_s": window_s, "alarm_time_s": alarm_time_s, "alarm": alarm,
+        "label": label, "states": states, "channel_states": channel_states,
+    })  # fmt: skip
+    return decision
 
 
 def _carried(setup: IdentificationSetup) -> np.ndarray:

@@ -60,8 +60,8 @@ from .._validate import finite_array, positive_int
 from ..detection.alarms.calibration import MonitorSettings
 from ..detection.alarms.rules import FrameRule, alarm_label
 from ..detection.alarms.streams import AlarmStream
-from ..detection.spectral import FrameEngine, spectrum_model
-from ..detection.thresholds import Threshold, frame_threshold
+from ..detection.spectral import FrameEngine
+from ..detection.thresholds import Threshold, monitor_threshold
 from ..detection.verdicts import FrameScore, FrameVerdicts
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..filters.protocol import channel_rows, sample_rows
@@ -863,6 +863,10 @@ class ChatteringMonitor:
     t0 : float
         Time (s) of the first measurement pushed with :meth:`push`, or of the
         first chattering sample pushed with :meth:`push_chattering`.
+    threshold : Threshold, optional
+        The per-frame threshold of ``model`` and ``settings``
+        (:func:`~chatterspec.detection.thresholds.monitor_threshold`) when the caller has it already
+        (e.g. for the calibration of the alarm rule); computed here by default.
 
     Examples
     --------
@@ -877,7 +881,12 @@ class ChatteringMonitor:
     """
 
     def __init__(
-        self, model: LinearModel | NonlinearModel, settings: MonitorSettings | None = None, *, t0: float = 0.0
+        self,
+        model: LinearModel | NonlinearModel,
+        settings: MonitorSettings | None = None,
+        *,
+        t0: float = 0.0,
+        threshold: Threshold | None = None,
     ) -> None:
         nonlinear = isinstance(model, NonlinearModel)
         if nonlinear and (settings is None or settings.threshold is None or settings.psi is not None):
@@ -897,21 +906,7 @@ class ChatteringMonitor:
         self.n_window = s.stft.n_window(self.dt)
         self.n_hop = s.stft.n_hop(self.dt)
         self.freqs_hz = s.stft.freqs_hz(self.dt)
-        if s.threshold is None:
-            self.threshold = frame_threshold(
-                spectrum_model(model), self.freqs_hz, s.stft, self.dt, s.alpha, s.correction, band=s.band
-            )
-        else:
-            th = s.threshold
-            if th.values.shape != (self.freqs_hz.size, model.n_outputs) or not np.allclose(
-                th.freqs_hz, self.freqs_hz
-            ):
-                raise ShapeError(
-                    f"the given per-frame threshold has shape {th.values.shape} at other frequencies than "
-                    f"this monitor's frames ({self.freqs_hz.size} bins x {model.n_outputs} channels): it "
-                    "was made for another STFT window or model"
-                )
-            self.threshold = th.restricted(s.band)
+        self.threshold = monitor_threshold(model, s) if threshold is None else threshold
         # the two collaborators: the SVSFs (measurements -> chattering, estimate) and the frame
         # analysis (chattering -> STFT columns, verdicts, alarm states, events)
         self._filters = MonitorFilters(model, s)

@@ -87,7 +87,7 @@ from ..detection.alarms.calibration import (
 from ..detection.alarms.rules import AlarmRule, make_rule, rule_spec
 from ..detection.alarms.streams import run_rule
 from ..detection.spectral import FrameEngine, STFTConfig, frame_columns, spectrum_model
-from ..detection.thresholds import frame_threshold
+from ..detection.thresholds import Threshold, monitor_threshold
 from ..detection.verdicts import FrameScore
 from ..errors import CalibrationMismatchError, ParameterError
 from ..jsonout import finite_or_none
@@ -193,7 +193,9 @@ def healthy_chattering(model: Model, n_samples: int, seed: int) -> Iterator[np.n
         yield np.ascontiguousarray(e.T)
 
 
-def monitor_score(model: Model, settings: MonitorSettings) -> tuple[FrameScore, Any]:
+def monitor_score(
+    model: Model, settings: MonitorSettings, threshold: Threshold | None = None
+) -> tuple[FrameScore, Threshold]:
     """The monitor's frame score for ``settings`` and the per-frame threshold it carries the law of.
 
     Parameters
@@ -203,15 +205,11 @@ def monitor_score(model: Model, settings: MonitorSettings) -> tuple[FrameScore, 
     settings : MonitorSettings
         Without a threshold: the model's analytic per-frame threshold (exact law); with one: that
         threshold restricted to the band (a calibration's normalization, exponential law).
+    threshold : Threshold, optional
+        That per-frame threshold (:func:`~chatterspec.detection.thresholds.monitor_threshold` of
+        ``model`` and ``settings``) when the caller has it already; computed here by default.
     """
-    dt = model.dt
-    th = settings.threshold
-    if th is None:
-        linear = spectrum_model(model)
-        th = frame_threshold(linear, settings.stft.freqs_hz(dt), settings.stft, dt, settings.alpha,
-                             settings.correction, band=settings.band)  # fmt: skip
-    else:
-        th = th.restricted(settings.band)
+    th = monitor_threshold(model, settings) if threshold is None else threshold
     return FrameScore(th), th
 
 
@@ -419,6 +417,7 @@ def calibrate_alarm(
     confidence: float = 0.95,
     note: Callable[[str], None] | None = None,
     progress: bool | None = None,
+    threshold: Threshold | None = None,
 ) -> RuleCalibration:
     """Threshold of ``rule`` for the monitor of ``model`` at ``false_alarms_per_hour`` (module docstring).
 
@@ -449,6 +448,10 @@ def calibrate_alarm(
     progress : bool, optional
         A progress bar on stderr while the healthy data are simulated (None: when stderr is a
         terminal).
+    threshold : Threshold, optional
+        The monitor's per-frame threshold for ``settings``
+        (:func:`~chatterspec.detection.thresholds.monitor_threshold`) when the caller has it already
+        (e.g. to build the monitor with it too); computed here by default.
     """
     from .. import _cache
 
@@ -456,7 +459,7 @@ def calibrate_alarm(
     F = frames_per_hour(settings, dt)
     X = check_budget(false_alarms_per_hour, steps_per_hour=F, channels=model.n_outputs)
     rule = make_rule(rule) if isinstance(rule, str) else rule
-    score, _ = monitor_score(model, settings)
+    score, _ = monitor_score(model, settings, threshold)
     if rule_spec(rule).per_step_law and score.law == "exact":
         return law_frame_rule(F, model.n_outputs, X, confidence)
     hours = check_hours(model, settings, in_call_hours(model.n_outputs) if hours is None else hours, scenario)
@@ -576,6 +579,7 @@ def alarm_settings(
     calibration: RuleCalibration | None = None,
     note: Callable[[str], None] | None = None,
     progress: bool | None = None,
+    threshold: Threshold | None = None,
     **parameters: float,
 ) -> Any:
     """``settings`` with an alarm rule whose threshold meets ``false_alarms_per_hour``.
@@ -594,6 +598,8 @@ def alarm_settings(
     calibration : RuleCalibration, optional
         A ready threshold (e.g. from a calibration file): used as is, after
         :func:`check_alarm_calibration` against ``rule``, the budget and ``parameters``.
+    threshold : Threshold, optional
+        The monitor's per-frame threshold for ``settings``, passed to :func:`calibrate_alarm`.
     **parameters
         The rule's parameters (``k``, ``n``; ``drift``).
 
@@ -614,8 +620,9 @@ def alarm_settings(
         r = make_rule(rule or DEFAULT_RULE, **parameters)
         X = DEFAULT_BUDGET if false_alarms_per_hour is None else false_alarms_per_hour
         calibration = calibrate_alarm(
-            model, settings, r, X, hours=hours, seed=seed, scenario=scenario, note=note, progress=progress
-        )
+            model, settings, r, X, hours=hours, seed=seed, scenario=scenario, note=note, progress=progress,
+            threshold=threshold,
+        )  # fmt: skip
     else:
         check_alarm_calibration(calibration, rule, false_alarms_per_hour, parameters)
     r = calibration.rule

@@ -94,6 +94,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from rerun import RecordingStream
     from rerun.blueprint import Blueprint
 
+    from ..detection.thresholds import Threshold
     from ..online.identification_monitor import IdentificationMonitor, IdentificationUpdate
     from .sinks import Sinks
 
@@ -316,6 +317,10 @@ class StreamMonitor:
     identification : IdentificationMonitor, optional
         The run's identification beside the monitor (fed by ``on_push``), drawn in every recording, whose
         lanes follow its windows: give each push's update to :meth:`log_identification`.
+    threshold : Threshold, optional
+        The per-frame threshold of ``model`` and ``settings``
+        (:func:`~chatterspec.detection.thresholds.monitor_threshold`) when the caller has it already;
+        computed here by default (once: every monitor of the stream shares it).
     """
 
     def __init__(
@@ -333,6 +338,7 @@ class StreamMonitor:
         on_push: Callable[[np.ndarray, np.ndarray], None] | None = None,
         on_reset: Callable[[float], None] | None = None,
         identification: IdentificationMonitor | None = None,
+        threshold: Threshold | None = None,
     ) -> None:
         self.on_push = on_push  # e.g. online fault identification, fed the same raw rows
         self.on_reset = on_reset  # called with t0 when a gap or restart starts the filters over
@@ -349,7 +355,7 @@ class StreamMonitor:
         self.monitor: ChatteringMonitor | None = None
         # the Rerun loggers are bound to this one (channels, threshold, layout); the sinks are opened
         # before any data arrives so that opening them does not count as latency
-        self._proto = ChatteringMonitor(model, settings, t0=0.0)
+        self._proto = ChatteringMonitor(model, settings, t0=0.0, threshold=threshold)
         self._threshold_settings = dataclasses.replace(settings, threshold=self._proto.threshold)
         self._warm_up()
         if self.record is not None or self.live is not None:
@@ -737,6 +743,7 @@ class StreamRecordings:
         on_note: Callable[[str], None] | None,
         max_kept: int,
         identification: IdentificationMonitor | None = None,
+        threshold: Threshold | None = None,
     ) -> None:
         self._proto = proto
         self.identification = identification

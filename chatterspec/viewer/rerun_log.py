@@ -153,7 +153,7 @@ class RerunLogger:
         longer records get consecutive blocks that tile the record.
     batch_samples, batch_frames : int
         File batches (>= 1): the per-sample series are sent once this many samples are buffered,
-        the frames once this many frames are (defaults measured: see
+        the frames (and the identification's windows) once this many frames are (defaults measured: see
         :class:`ColumnBatches`).
     truth : list of (start_s, label, is_fault), optional
         True fault timeline, drawn as the top lane.
@@ -220,7 +220,7 @@ class RerunLogger:
         self._columns = _Columns(rr, DB_RANGE)
         self._ident_log: IdentificationLog | None = None
         if identification is not None and sinks.streams:
-            self._ident_log = IdentificationLog(sinks, identification, self._columns)
+            self._ident_log = IdentificationLog(sinks, identification, self._columns, batch_frames)
             extra_row = extra_row if extra_row is not None else identification_views(self._ident_log)
             extra_lanes += len(self._ident_log.parameters)
         # the layout's geometry (the spectrogram image fills its view at 1600x1000) and blueprint
@@ -372,6 +372,8 @@ class RerunLogger:
     def flush(self) -> None:
         """Send everything buffered (bulk ``send_columns``)."""
         self._batches.flush()
+        if self._ident_log is not None:
+            self._ident_log.flush()
 
     def close(self) -> None:
         """Send what is buffered, the file's spectrogram (the whole record, or its last block) and the
@@ -930,6 +932,9 @@ class _Columns:
 
 #: Root entity of the identification series.
 IDENTIFICATION = "/identification"
+#: A parameter's rows of one push: series ``(W, 4 or 6)`` and detectability ``(W,)`` (display units), the
+#: times (ns) of its lane's changes and their states.
+_ParameterRows = tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]
 #: Entity of the identification rows in the recording's event log.
 IDENTIFICATION_EVENTS = "/events/identification"
 #: The series of a parameter: estimate (amber), interval ends (grey), nominal (light, thin), and with a
@@ -985,9 +990,14 @@ class IdentificationLog:
         Gives the parameters, their units, nominal values and bands, and the intervals' level.
     columns : _Columns
         The logger's arrow column builder (its series are built straight from numpy).
+    batch_windows : int
+        A file's series and parameter lanes are sent once this many windows are queued (one
+        ``send_columns`` per entity and batch; the rest on :meth:`flush`), a live viewer's at every push.
     """
 
-    def __init__(self, sinks: Sinks, monitor: IdentificationMonitor, columns: _Columns) -> None:
+    def __init__(
+        self, sinks: Sinks, monitor: IdentificationMonitor, columns: _Columns, batch_windows: int = 300
+    ) -> None:
         import pyarrow as pa
         import rerun as rr
 
@@ -1011,6 +1021,11 @@ class IdentificationLog:
         self._label: str | None = None
         self._states: tuple[str, ...] | None = None
         self._windows = 0  # since the start or a reset: the detectability's horizon fills
+        # a file's queued pushes: (times ns, per parameter (series rows, detectability, lane changes' times
+        # ns, their states)), sent once batch_windows windows wait
+        self._batch = max(1, int(batch_windows))
+        self._queued: list[tuple[np.ndarray, list[_ParameterRows]]] = []
+        self._n_queued = 0
         colors = np.array([rgba32(HEALTHY), rgba32(FAULT), rgba32(NO_EVIDENCE)], dtype=np.uint32)
         for s in sinks.streams:
             for i, (p, lane) in enumerate(zip(self.parameters, self.lanes, strict=True)):
@@ -1087,7 +1102,6 @@ class IdentificationLog:
         W = blk.n_windows
         if W == 0 or not self.sinks.streams:
             return
-        rr, pa = self.rr, self.pa
         if int(blk.frames[0]) == 0:  # a fresh identifier (the start, or a reset after a gap)
             self._windows, self._label, self._states = 0, None, None
         ns = to_ns(blk.times_s)
@@ -1104,7 +1118,7 @@ class IdentificationLog:
                 if w.label is not None or self._label is not None:
                     texts.append(self._label_text(w, upd))
                     t_text.append(t)
-            for i, st in enumerate(w.states):
+            for i, st in enumerate(w.states if w.states != self._states else ()):  # (most windows: none)
                 if self._states is None or st != self._states[i]:
                     changes[i][0].append(w.index)
                     changes[i][1].append(st)
@@ -1117,8 +1131,8 @@ class IdentificationLog:
                         t_text.append(t)
             self._label, self._states = w.label, w.states
         ratio = blk.detectable / b.limit[None, :]
-        idx = [_TimeIndex(pa, ns)]
-        for i, p in enumerate(self.parameters):
+        per: list[_ParameterRows] = []
+        for i in range(b.size):
             cols = [blk.estimate[:, i], blk.ci_low[:, i], blk.ci_high[:, i], np.full(W, b.nominal[i])]
             if self.banded[i]:
                 cols += [np.full(W, b.low[i]), np.full(W, b.high[i])]
@@ -1128,22 +1142,57 @@ class IdentificationLog:
                 ext[0], ext[1] = min(ext[0], float(np.nanmin(rows))), max(ext[1], float(np.nanmax(rows)))
             r = np.where(np.isfinite(ratio[:, i]), ratio[:, i], np.nan)
             k, states = changes[i]
-            series = self._cols.scalars_column(rows, own=True)
-            detectable = self._cols.scalars_column(r, own=True)
-            for s in self.sinks.streams:
-                s.send_columns(_path(p), indexes=idx, columns=[series])
-                s.send_columns(f"{IDENTIFICATION}/detectable/{p}", indexes=idx, columns=[detectable])
-                if k:
-                    s.send_columns(
-                        self.lanes[i],
-                        indexes=[_TimeIndex(pa, to_ns(decided[k]))],
-                        columns=rr.StateChange.columns(state=states),
-                    )
+            per.append((rows, r, to_ns(decided[k]), states))
+        for s in self.sinks.streams:
+            if s is not self.sinks.file_stream:  # a live viewer: at once
+                self._send(s, ns, per)
+        if self.sinks.file_stream is not None:
+            self._queued.append((ns, per))
+            self._n_queued += W
+            if self._n_queued >= self._batch:
+                self.flush()
         if texts:
             self._texts(t_text, texts)
         if upd.events:
             for s in self.sinks.streams:
                 send_parameter_events(s, upd.events)
+
+    def flush(self) -> None:
+        """Send the file's queued series and parameter lanes (one ``send_columns`` per entity)."""
+        file = self.sinks.file_stream
+        if not self._queued or file is None:
+            return
+        queued, self._queued, self._n_queued = self._queued, [], 0
+        if len(queued) == 1:
+            self._send(file, *queued[0])
+            return
+        per: list[_ParameterRows] = []
+        for i in range(len(self.parameters)):
+            parts = [q[1][i] for q in queued]
+            per.append(
+                (
+                    np.concatenate([p[0] for p in parts]),
+                    np.concatenate([p[1] for p in parts]),
+                    np.concatenate([p[2] for p in parts]),
+                    [st for p in parts for st in p[3]],
+                )
+            )
+        self._send(file, np.concatenate([q[0] for q in queued]), per)
+
+    def _send(self, s: Any, ns: np.ndarray, per: list[_ParameterRows]) -> None:
+        """Send windows at ``ns`` to ``s``: per parameter its series, detectability and lane changes."""
+        idx, cols = [_TimeIndex(self.pa, ns)], self._cols
+        for i, p in enumerate(self.parameters):
+            rows, r, lane_ns, states = per[i]
+            s.send_columns(_path(p), indexes=idx, columns=[cols.scalars_column(rows, own=True)])
+            detectable = cols.scalars_column(r, own=True)
+            s.send_columns(f"{IDENTIFICATION}/detectable/{p}", indexes=idx, columns=[detectable])
+            if states:
+                s.send_columns(
+                    self.lanes[i],
+                    indexes=[_TimeIndex(self.pa, lane_ns)],
+                    columns=self.rr.StateChange.columns(state=states),
+                )
 
     def _label_text(self, w: Any, upd: IdentificationUpdate) -> str:
         """``"2.60 s fault named: leakage = 3.1(2)e-11 [..] m^3/(s Pa)"``, or the alarm over."""
