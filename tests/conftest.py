@@ -11,6 +11,9 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+from pathlib import Path
+
+import pytest
 
 _CACHE_DIR: str | None = None
 
@@ -48,5 +51,9 @@ SLOW_FIRST = (
 
 
 def pytest_collection_modifyitems(session, config, items) -> None:
+    here = Path(__file__).parent
+    gone = [name for name in SLOW_FIRST if not (here / name).is_file()]
+    if gone:  # a renamed or removed file: the schedule would silently lose it
+        raise pytest.UsageError(f"tests/conftest.py: SLOW_FIRST names no such test file: {', '.join(gone)}")
     rank = {name: i for i, name in enumerate(SLOW_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(SLOW_FIRST)))  # stable: files stay whole
