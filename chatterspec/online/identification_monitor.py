@@ -323,7 +323,7 @@ def _window_decision(
 ) -> WindowDecision:  # fmt: skip
     """``WindowDecision(...)`` with every field, its instance dict set in one call (a frozen dataclass's
     ``__init__`` sets each field through ``object.__setattr__``: ~1.5 us per window, a replay decides one
-    per hop; tests/test_identification_monitor.py checks that both give the same fields)."""
+    per hop; tests/test_monitor.py checks that both give the same fields)."""
     decision = _NEW(WindowDecision)
     _SET(decision, "__dict__", {
         "index": index, "time_s": time_s, "window_s": window_s, "alarm_time_s": alarm_time_s, "alarm": alarm,

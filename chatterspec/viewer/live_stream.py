@@ -743,7 +743,6 @@ class StreamRecordings:
         on_note: Callable[[str], None] | None,
         max_kept: int,
         identification: IdentificationMonitor | None = None,
-        threshold: Threshold | None = None,
     ) -> None:
         self._proto = proto
         self.identification = identification
