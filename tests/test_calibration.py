@@ -337,7 +337,7 @@ def test_healthy_far_verdict_not_above_too_often():
     probability <= 5 %; allowed: the 99.9 % binomial quantile of 40 trials (7).
     """
     from chatterspec.plants.scenarios import scenario
-    from chatterspec.studies.calibration.healthy import model_scenario
+    from chatterspec.plants.simulate import model_scenario
 
     sc = model_scenario(scenario("so-healthy-low").nominal, duration=0.5)
     verdicts = [

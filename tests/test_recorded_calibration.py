@@ -23,8 +23,8 @@ from chatterspec.online.recorded_calibration import calibrate_recorded
 from chatterspec.online.simulated_stream import csv_header, csv_lines, simulate_blocks
 from chatterspec.plants.modelfile import write_model_toml
 from chatterspec.plants.models import second_order
+from chatterspec.plants.simulate import model_scenario
 from chatterspec.studies.alarm_budget import calibrate_alarm, frames_per_hour
-from chatterspec.studies.calibration.healthy import model_scenario
 from chatterspec.studies.calibration.recorded import HealthyRecording, array_chunks, min_hours
 from chatterspec.studies.calibration.result import load_calibration
 from chatterspec.studies.calibration.thresholds import calibrate

@@ -342,3 +342,28 @@ def test_cli_lists_plant_kinds(capsys: pytest.CaptureFixture[str]) -> None:
     kinds = {e["name"]: e["plant_kind"] for e in doc["scenarios"]}
     assert kinds["eha4-imm-analogue"] == "nonlinear" and kinds["eha-healthy"] == "linear"
     assert len(kinds) == 41
+
+
+def test_as_scenario_takes_every_source_the_studies_accept(tmp_path) -> None:
+    """One resolver for a scenario source: a Scenario (itself), a catalogue name, a LinearModel (its
+    healthy zero-input scenario of the given duration) and a model file; anything else is refused."""
+    import dataclasses
+
+    from chatterspec.errors import ParameterError
+    from chatterspec.plants.modelfile import write_model_toml
+    from chatterspec.plants.simulate import as_scenario, model_scenario
+
+    sc = scenario("so-healthy-low")
+    assert as_scenario(sc) is sc
+    assert as_scenario("so-healthy-low").describe() == sc.describe()
+    model = dataclasses.replace(second_order(10.0, 0.1), name="mine")
+    own = as_scenario(model, 2.5)
+    assert own.describe() == model_scenario(model, 2.5).describe()
+    assert (own.name, own.nominal, own.duration, own.family) == ("mine", model, 2.5, "user")
+    assert not np.any(own.input.sample(np.linspace(0.0, 2.5, 7)))  # healthy: zero input
+    path = write_model_toml(tmp_path / "plant.toml", model, psi=(0.1, 0.1))
+    from_file = as_scenario(str(path), 3.0)
+    assert (from_file.name, from_file.duration) == ("plant", 3.0)
+    np.testing.assert_array_equal(from_file.nominal.A, model.A)
+    with pytest.raises(ParameterError, match="LinearModel"):
+        as_scenario(3.0)  # type: ignore[arg-type]

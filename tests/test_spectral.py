@@ -260,7 +260,7 @@ def test_expected_spectrum_of_custom_model_with_correlated_noise():
     # filter, not the formula) and measure the chattering's lag-0/lag-1 autocovariances. Runs are
     # independent: the per-run estimates give the SE; 5 SE (Bonferroni over 4 checks, ~2e-6 each).
     from chatterspec.detection.pipeline import scenario_chattering
-    from chatterspec.studies.calibration.healthy import model_scenario
+    from chatterspec.plants.simulate import model_scenario
 
     x = scenario_chattering(model_scenario(model, duration=2.0), 64, seed=17).values  # (64, N, 2)
     c0 = np.mean(x**2, axis=1)  # (runs, m)

@@ -172,10 +172,10 @@ def _check_alarm_plan(name: str, choice: Any, hours: float) -> None:
     """The budget has a threshold and ``hours`` can be simulated, for the STFT of the calibration
     (:func:`chatterspec.studies.alarm_budget.check_hours`): one line before any healthy run."""
     from ..detection.alarms.calibration import MonitorSettings, check_budget
+    from ..plants.simulate import as_scenario
     from ..studies.alarm_budget import check_hours, frames_per_hour
-    from ..studies.calibration.healthy import resolve_scenario
 
-    sc = resolve_scenario(name)
+    sc = as_scenario(name)
     settings = MonitorSettings()  # the STFT of `calibrate` (chatterspec.studies.calibration)
     F = frames_per_hour(settings, sc.dt)
     check_budget(choice.budget, "--false-alarms-per-hour", steps_per_hour=F, channels=sc.nominal.n_outputs)
@@ -192,10 +192,10 @@ def _with_alarm(
     from ..detection.alarms.calibration import MonitorSettings
     from ..detection.alarms.rules import make_rule
     from ..detection.spectral import STFTConfig
+    from ..plants.simulate import as_scenario
     from ..studies.alarm_budget import calibrate_alarm
-    from ..studies.calibration.healthy import resolve_scenario
 
-    sc = resolve_scenario(name)
+    sc = as_scenario(name)
     stft = STFTConfig(**cal.stft)
     settings = MonitorSettings(stft=stft, threshold=cal.threshold("frame-family-wise"))
     rule = make_rule(choice.rule, **choice.parameters)

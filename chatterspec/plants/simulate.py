@@ -107,6 +107,7 @@ __all__ = [
     "iter_simulations",
     "kernel_tables",
     "loop_response",
+    "model_scenario",
     "move_metrics",
     "same_shapes",
     "scaled_noise",
@@ -1005,18 +1006,54 @@ def chunk_runs_of(scenario: Scenario, chunk_runs: int | None) -> int:
     return max(64, int(CHUNK_BYTES // per_run) // 64 * 64)
 
 
-def as_scenario(scenario: Scenario | str | os.PathLike[str], default_duration: float = 4.0) -> Scenario:
-    """``scenario`` itself, the catalogue scenario of that name, or the scenario of a model file.
+def model_scenario(model: LinearModel, duration: float = 4.0, name: str | None = None) -> Scenario:
+    """A healthy scenario for a user model: zero input, the model as nominal and true plant.
+
+    The input is zero on every channel: the healthy chattering of a matched linear model does not
+    depend on u.
 
     Parameters
     ----------
-    scenario : Scenario, str or path
-        A scenario; a name of :func:`~chatterspec.plants.scenarios.scenario_names`; or a model file
-        ``NAME.toml`` (linear or nonlinear), whose scenario is its ``[simulation]`` table (input,
-        initial state, duration; zero input and ``default_duration`` by default) with the file's
-        model as nominal model and true plant, named after the file stem.
+    model : LinearModel
+        Nominal model, also used as the true plant (no fault windows).
+    duration : float
+        Record length in seconds (default 4 s, the paper's record).
+    name : str, optional
+        Scenario name; default ``model.name``, or ``"user-model"`` if that is empty.
+
+    Returns
+    -------
+    Scenario
+        Family ``"user"``, healthy.
+    """
+    from .signals import ZeroInput
+
+    return Scenario(
+        name=name or model.name or "user-model",
+        nominal=model,
+        input=ZeroInput(model.n_inputs),
+        duration=duration,
+        description="user model, healthy, zero input",
+        family="user",
+    )
+
+
+def as_scenario(
+    scenario: Scenario | LinearModel | str | os.PathLike[str], default_duration: float = 4.0
+) -> Scenario:
+    """``scenario`` itself, the catalogue scenario of that name, or the healthy scenario of a model.
+
+    Parameters
+    ----------
+    scenario : Scenario, LinearModel, str or path
+        A scenario; a :class:`~chatterspec.plants.models.LinearModel` (its healthy zero-input
+        scenario, :func:`model_scenario`); a name of :func:`~chatterspec.plants.scenarios.scenario_names`;
+        or a model file ``NAME.toml`` (linear or nonlinear), whose scenario is its ``[simulation]``
+        table (input, initial state, duration; zero input and ``default_duration`` by default) with
+        the file's model as nominal model and true plant, named after the file stem.
     default_duration : float
-        Record length in seconds of a model file without ``[simulation] duration_s`` (default 4).
+        Record length in seconds of a model, or of a model file without ``[simulation] duration_s``
+        (default 4); catalogue scenarios and Scenario objects carry their own.
 
     Returns
     -------
@@ -1030,6 +1067,8 @@ def as_scenario(scenario: Scenario | str | os.PathLike[str], default_duration: f
     ParameterError
         For anything else.
     """
+    if isinstance(scenario, LinearModel):
+        return model_scenario(scenario, default_duration)
     if isinstance(scenario, str | os.PathLike) and str(scenario).endswith(".toml"):
         from .modelfile import file_scenario, load_model
 
@@ -1040,7 +1079,8 @@ def as_scenario(scenario: Scenario | str | os.PathLike[str], default_duration: f
         return by_name(scenario)
     if not hasattr(scenario, "nominal"):  # a Scenario (duck-typed, as the studies pass them)
         raise ParameterError(
-            f"scenario must be a Scenario or a catalogue name (str); got {type(scenario).__name__}"
+            "scenario must be a Scenario, a LinearModel, a model file (.toml) or a catalogue name (str); "
+            f"got {type(scenario).__name__}"
         )
     return cast(Scenario, scenario)  # a Scenario (or a duck-typed one), by the check above
 

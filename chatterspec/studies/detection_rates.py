@@ -25,6 +25,7 @@ from ..montecarlo import Execution, ExecutionOptions, SeedLike, seed_label
 from ..plants.models import EHA_PARAMETERS, EHAFault, LinearModel, eha_linear, second_order
 from ..plants.scenarios import Scenario
 from ..plants.signals import Chirp, Step
+from ..plants.simulate import as_scenario
 from .calibration.healthy import (
     HealthyStudy,
     _analytic_thresholds,
@@ -32,7 +33,6 @@ from .calibration.healthy import (
     _frame_thresholds,
     _n_frames,
     _SummedChunks,
-    resolve_scenario,
 )
 from .calibration.result import Calibration, _ro
 from .intervals import RateEstimate
@@ -238,7 +238,7 @@ def false_alarm_study(
     alphas = _check_alphas(alpha)
     runs = positive_int("runs", runs)
     confidence = open_unit("confidence", confidence)
-    sc = resolve_scenario(source)
+    sc = as_scenario(source)
     if not sc.is_healthy:
         raise ParameterError(f"false-alarm study needs a healthy scenario; {sc.name!r} has faults")
     model = spectrum_model(sc.nominal)  # (the analytic thresholds need a linear model)

@@ -4,7 +4,7 @@ The calibration of the chi-squared thresholds (as opposed to the alarm rules' ca
 :mod:`chatterspec.detection.alarms.calibration`) lives in this package, in five modules:
 
 * :mod:`.healthy` -- the healthy Monte Carlo runs everything is read from: scenarios of a model
-  or a model file (:func:`~.healthy.resolve_scenario`), :class:`~.healthy.HealthyStudy` (the
+  or a model file (:func:`~chatterspec.plants.simulate.as_scenario`), :class:`~.healthy.HealthyStudy` (the
   streaming summary of a chunk of healthy runs: top-k tails, compiled exceedance counts) and the
   bounded-memory tail histograms used above a memory budget.
 * :mod:`.thresholds` -- :func:`~.thresholds.calibrate` (analytic ``paper`` / ``exact`` thresholds

@@ -63,7 +63,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import cast
 
 import numpy as np
@@ -77,8 +76,6 @@ from ...detection.thresholds import Threshold, exact_threshold, frame_threshold,
 from ...errors import ParameterError
 from ...plants.models import LinearModel
 from ...plants.scenarios import Scenario
-from ...plants.signals import ZeroInput
-from ...plants.simulate import as_scenario
 from ..intervals import _pooled_ranks
 
 __all__ = [
@@ -86,67 +83,8 @@ __all__ = [
     "DEFAULT_TAIL_BUDGET",
     "FINE_BUCKETS",
     "exceedance_counts",
-    "model_scenario",
-    "resolve_scenario",
     "tail_bytes",
 ]
-
-# --------------------------------------------------------------------------- scenarios
-
-
-def model_scenario(model: LinearModel, duration: float = 4.0, name: str | None = None) -> Scenario:
-    """A healthy scenario for a user model: zero input, the model as nominal and true plant.
-
-    The input is zero on every channel: the healthy chattering of a matched
-    linear model does not depend on u.
-
-    Parameters
-    ----------
-    model : LinearModel
-        Nominal model, also used as the true plant (no fault windows).
-    duration : float
-        Record length in seconds (default 4 s, the paper's record).
-    name : str, optional
-        Scenario name; default ``model.name``, or ``"user-model"`` if that is empty.
-
-    Returns
-    -------
-    Scenario
-        Family ``"user"``, healthy.
-    """
-    return Scenario(
-        name=name or model.name or "user-model",
-        nominal=model,
-        input=ZeroInput(model.n_inputs),
-        duration=duration,
-        description="user model, healthy, zero input",
-        family="user",
-    )
-
-
-def resolve_scenario(source: str | Scenario | LinearModel | Path, duration: float = 4.0) -> Scenario:
-    """:func:`~chatterspec.plants.simulate.as_scenario` that also takes a :class:`LinearModel`.
-
-    A LinearModel becomes its healthy zero-input scenario (:func:`model_scenario`); every other source
-    goes to ``as_scenario``, which returns the scenario or raises as documented there
-    (:class:`~chatterspec.errors.UnknownScenarioError` for a string that is neither a ``.toml`` path
-    nor a catalogue name).
-
-    Parameters
-    ----------
-    source : str, Scenario, LinearModel or Path
-        A LinearModel; a Scenario (returned unchanged); a path ending in ``.toml`` (a linear or
-        nonlinear model file, read with :func:`~chatterspec.plants.modelfile.load_model`: the
-        healthy scenario of its ``[simulation]`` table, zero input by default, named after the file
-        stem; :func:`~chatterspec.plants.modelfile.file_scenario`); or a catalogue name.
-    duration : float
-        Record length in seconds for model and model-file sources (a model file's
-        ``[simulation] duration_s`` wins); ignored for catalogue names and Scenario objects,
-        which carry their own duration.
-    """
-    if isinstance(source, LinearModel):
-        return model_scenario(source, duration)
-    return as_scenario(source, duration)
 
 
 # --------------------------------------------------------------------------- summaries

@@ -45,6 +45,7 @@ from ...montecarlo import BLOCK, Execution, ExecutionOptions, SeedLike, seed_lab
 from ...plants.models import LinearModel
 from ...plants.nonlinear import is_linear
 from ...plants.scenarios import Scenario
+from ...plants.simulate import as_scenario
 from ..intervals import QuantileEstimate, _quantile_from_top, _top_needed
 from . import healthy as th
 from .healthy import (
@@ -53,7 +54,6 @@ from .healthy import (
     _analytic_thresholds,
     _frame_thresholds,
     _n_frames,
-    resolve_scenario,
 )
 from .result import Calibration, _interval_fields, _ro, _stft_dict
 
@@ -115,7 +115,7 @@ def calibrate(
     alpha = open_unit("alpha", alpha)
     runs = positive_int("runs", runs)
     confidence = open_unit("confidence", confidence)
-    sc = resolve_scenario(source)
+    sc = as_scenario(source)
     if not sc.is_healthy:
         raise ParameterError(
             f"calibrate needs a healthy scenario; {sc.name!r} has faults at {sc.fault_intervals}"
