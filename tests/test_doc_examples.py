@@ -211,3 +211,20 @@ def test_readme_python_block_runs_as_a_script(tmp_path: Path) -> None:
     )
     assert out.returncode == 0, out.stderr[-2000:]
     assert "DetectionReport(detected=True, scenario='eha-leak-medium'" in out.stdout
+
+
+def _github_anchor(heading: str) -> str:
+    """The fragment GitHub gives a heading: lower case, punctuation other than ``-`` and ``_`` dropped,
+    spaces as ``-``."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def test_readme_contents_links_every_section() -> None:
+    """The contents line names each second-level section once, in order, by a fragment that exists (a
+    renamed or added section would otherwise leave a dead link or a gap)."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    prose = re.sub(r"```.*?```", "", text, flags=re.S)  # headings inside code blocks are not sections
+    sections = [h for h in re.findall(r"^## (.+)$", prose, re.M) if h != "Quick start"]
+    contents = next(line for line in text.splitlines() if line.startswith("**Contents:**"))
+    linked = re.findall(r"\]\(#([^)]+)\)", contents)
+    assert linked == [_github_anchor(h) for h in sections]
