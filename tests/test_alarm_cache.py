@@ -42,7 +42,7 @@ def cache(tmp_path: Path, monkeypatch, scores):
     monkeypatch.setattr(alarm_budget, "_CACHE", {})
     calls: list[float] = []
 
-    def simulated(model, settings, hours, seed=0, *, scenario=None, progress=None):
+    def simulated(model, settings, hours, seed=0, *, scenario=None, progress=None, threshold=None):
         calls.append(hours)
         return scores
 

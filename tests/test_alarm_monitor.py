@@ -302,6 +302,34 @@ def test_calibration_file_records_the_rule_and_is_refused_for_another(tmp_path: 
     assert doc["alarm"]["calibration"]["hours"] == pytest.approx(1.0, rel=1e-3)
 
 
+def test_detect_record_computes_the_frame_threshold_once(tmp_path: Path, capsys, monkeypatch):
+    """``detect --record`` with a CUSUM budget computes the monitor's per-frame threshold once: the alarm
+    calibration (its healthy frame scores) and the recorded monitor share it (an empty calibration cache,
+    so the healthy scores are simulated; the batch verdict's per-bin threshold is another function)."""
+    import chatterspec.detection.thresholds as thresholds
+    import chatterspec.studies.alarm_budget as alarm_budget
+
+    monkeypatch.setenv("CHATTERSPEC_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(alarm_budget, "_CACHE", {})
+    calls = []
+    frame_threshold = thresholds.frame_threshold
+
+    def counted(*args, **kwargs):
+        calls.append(args[4:6])  # (alpha, correction)
+        return frame_threshold(*args, **kwargs)
+
+    monkeypatch.setattr(thresholds, "frame_threshold", counted)
+    rrd = str(tmp_path / "d.rrd")
+    rc, out, err = _run(
+        capsys, "detect", "eha-healthy", "--record", rrd, "--json", "--rule", "cusum",
+        "--false-alarms-per-hour", "200", "--alarm-hours", "0.25",
+    )  # fmt: skip
+    assert rc == 0, err
+    assert "calibrating the cusum alarm threshold" in err  # not read back from a cache
+    assert json.loads(out)["alarm"]["rule"]["rule"] == "cusum"
+    assert calls == [(1e-3, "bonferroni")]
+
+
 def test_detect_record_takes_the_alarm_options(tmp_path: Path, capsys):
     rrd = tmp_path / "d.rrd"
     rc, out, err = _run(

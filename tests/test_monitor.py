@@ -570,15 +570,17 @@ def test_monitor_threshold_is_computed_once_where_it_is_given(monkeypatch) -> No
         ChatteringMonitor(model, settings)
 
 
-def test_cli_monitor_reuses_the_threshold_only_for_the_same_frame_settings() -> None:
-    """The CLI gives the monitor the threshold its alarm calibration used only when the alarm settings kept
-    what it depends on: a rule changes nothing; the frame and persistence rules' drawn level (another
-    alpha) or another band does."""
+def test_settings_share_the_frame_threshold_only_with_the_same_frame_settings() -> None:
+    """The threshold computed for the alarm calibration is passed on to the monitor (``monitor``, ``detect
+    --record``) only when the alarm settings kept what it depends on: a rule changes nothing; the frame
+    and persistence rules' drawn level (another alpha), another band or another given threshold does."""
     import dataclasses
 
-    from chatterspec.cli.monitor import _same_frame_threshold
-
     s = MonitorSettings()
-    assert _same_frame_threshold(s, dataclasses.replace(s, rule=cs.CusumRule(threshold=6.0, drift=3.0)))
-    assert not _same_frame_threshold(s, dataclasses.replace(s, alpha=0.5 * s.alpha))
-    assert not _same_frame_threshold(s, dataclasses.replace(s, band=(10.0, 100.0)))
+    assert dataclasses.replace(s, rule=cs.CusumRule(threshold=6.0, drift=3.0)).same_frame_threshold(s)
+    assert not dataclasses.replace(s, alpha=0.5 * s.alpha).same_frame_threshold(s)
+    assert not dataclasses.replace(s, band=(10.0, 100.0)).same_frame_threshold(s)
+    from chatterspec.detection.thresholds import monitor_threshold
+
+    th = monitor_threshold(cs.scenario("eha-healthy").nominal, s)
+    assert not dataclasses.replace(s, threshold=th).same_frame_threshold(s)

@@ -12,6 +12,7 @@ if TYPE_CHECKING:
     from ..detection.detect import DetectionReport
     from ..detection.identification import IdentificationSetup, IdentificationStream
     from ..detection.pipeline import ChatteringRecord
+    from ..detection.thresholds import Threshold
     from ..plants.scenarios import Scenario
     from ..plants.simulate import Simulation
     from ..studies.calibration.result import Calibration
@@ -180,13 +181,21 @@ def run(args: argparse.Namespace) -> int:
         settings = MonitorSettings(alpha=args.alpha, correction=args.correction, band=band)
         if args.calibration and not sc.is_linear:  # nonlinear: the calibrated per-frame threshold
             settings = MonitorSettings(threshold=cal.threshold("frame-family-wise"), band=band)
-        settings = _alarm_settings(args, choice, sc, settings, cal if args.calibration else None)
+        threshold = None  # the per-frame threshold: computed once, for the alarm calibration and the monitor
+        if sc.is_linear or settings.threshold is not None:
+            from ..detection.thresholds import monitor_threshold
+
+            threshold = monitor_threshold(sc.nominal, settings)
+        before = settings
+        settings = _alarm_settings(args, choice, sc, settings, cal if args.calibration else None, threshold)
+        if not settings.same_frame_threshold(before):  # the verdict drawn at the rule's own level
+            threshold = None
         doc["alarm"] = None if settings.budget is None else settings.budget.to_dict()
         outputs = Outputs()
         assert sim is not None  # (simulated above for --record / --live)
         summary = outputs.write(
             "--record", args.record, record_detection, sim, settings, path=args.record, live=args.live,
-            identification=setup, confidence=args.confidence,
+            threshold=threshold, identification=setup, confidence=args.confidence,
             identification_intervals=doc.get("identification_intervals"),
         )  # fmt: skip
         if summary is not None:
@@ -220,9 +229,11 @@ def _alarm_settings(
     sc: Scenario,
     settings: MonitorSettings,
     cal: Calibration | None,
+    threshold: Threshold | None,
 ) -> MonitorSettings:
-    """The recording monitor's alarm rule: the calibration file's, or set here for the budget (linear);
-    a nonlinear scenario whose file holds no alarm calibration keeps the per-frame rule."""
+    """The recording monitor's alarm rule: the calibration file's, or set here for the budget (linear,
+    calibrated on the monitor's per-frame ``threshold`` for ``settings``); a nonlinear scenario whose
+    file holds no alarm calibration keeps the per-frame rule."""
     from ..studies.alarm_budget import alarm_settings
     from ._options import check_file_alarm
 
@@ -245,6 +256,7 @@ def _alarm_settings(
         c.budget,
         hours=c.hours,
         note=stderr_note("detect"),
+        threshold=threshold,
         **c.parameters,
     )
 

@@ -316,7 +316,7 @@ def run(args: argparse.Namespace) -> int:
 
         threshold = monitor_threshold(spec.model, settings)
         before, settings = settings, _alarm_settings(args, choice, spec.model, settings, cal, threshold)
-        if not _same_frame_threshold(before, settings):  # the verdict drawn at the rule's own level
+        if not settings.same_frame_threshold(before):  # the verdict drawn at the rule's own level
             threshold = None
     decision = None
     if setup is not None:
@@ -584,14 +584,6 @@ def _warm_up(monitor: ChatteringMonitor) -> None:
     warm = ChatteringMonitor(m, settings)
     n = warm.n_window + 2
     warm.push(np.zeros((n, m.n_outputs)), np.zeros((n, m.n_inputs)))
-
-
-def _same_frame_threshold(before: MonitorSettings, after: MonitorSettings) -> bool:
-    """Whether ``after`` (the alarm settings) keeps what the per-frame threshold of ``before`` depends on:
-    not for the frame and persistence rules, whose verdict is drawn at their own per-step level."""
-    return after.threshold is before.threshold and all(
-        getattr(after, k) == getattr(before, k) for k in ("stft", "alpha", "correction", "band")
-    )
 
 
 def _alarm_settings(

@@ -106,7 +106,6 @@ against 230 at 1 Hz). Reports name both bins, each with its level in dB over the
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
@@ -349,17 +348,13 @@ def weighted_chi2_isf(
     if not np.any(ok):
         return out
     pv, r = p[ok], b[ok] / a[ok]
-    out[ok] = _unit_isf(pv.tobytes(), r.tobytes(), float(rtol)) * a[ok]
+    out[ok] = _unit_isf(pv, r, float(rtol)) * a[ok]
     return out
 
 
-@functools.lru_cache(maxsize=8)
-def _unit_isf(p_bytes: bytes, r_bytes: bytes, rtol: float) -> np.ndarray:
-    """The quantiles ``x`` of ``Z1^2 + r Z2^2`` of :func:`weighted_chi2_isf` (read-only), for the float64
-    bytes of ``p`` and ``r``: a caller that asks for a monitor's threshold twice with the same bins gets
-    the same bits without the iteration the second time (``chatterspec detect --record``: its alarm
-    calibration, then the recorded monitor; ``monitor`` computes it once, :func:`monitor_threshold`)."""
-    pv, r = np.frombuffer(p_bytes), np.frombuffer(r_bytes)
+def _unit_isf(pv: np.ndarray, r: np.ndarray, rtol: float) -> np.ndarray:
+    """The quantiles ``x`` of ``Z1^2 + r Z2^2`` with ``P(. > x) = pv`` (:func:`weighted_chi2_isf`), for
+    float64 arrays of one shape (``r = l2 / l1``)."""
     lo = _chi2_isf(pv, 1)
     hi = _chi2_isf(pv, 2)
     # start from the Welch-Satterthwaite approximation, clipped into the bracket
@@ -386,7 +381,6 @@ def _unit_isf(p_bytes: bytes, r_bytes: bytes, rtol: float) -> np.ndarray:
         lo[act], hi[act], x[act] = lo_a, hi_a, xn
         idx = np.flatnonzero(act)
         act[idx[done]] = False
-    x.flags.writeable = False
     return x
 
 

@@ -282,6 +282,7 @@ def healthy_frame_scores(
     *,
     scenario: Scenario | None = None,
     progress: bool | None = None,
+    threshold: Threshold | None = None,
 ) -> np.ndarray:
     """Frame scores of healthy data as the monitor computes them: ``(streams, frames, m)``.
 
@@ -300,11 +301,14 @@ def healthy_frame_scores(
         simulated, one stream each; ignored for a linear one).
     progress : bool, optional
         A progress bar on stderr (None: when stderr is a terminal).
+    threshold : Threshold, optional
+        The monitor's per-frame threshold for ``settings``, when the caller has it (see
+        :func:`monitor_score`).
     """
     from ..progress import Progress
 
     hours = check_hours(model, settings, hours, scenario)
-    score, _ = monitor_score(model, settings)
+    score, _ = monitor_score(model, settings, threshold)
     dt = model.dt
     W, H = settings.stft.n_window(dt), settings.stft.n_hop(dt)
     compiled = _jit.enabled()  # the compiled taper/power loops, or their numpy form (same bits)
@@ -483,7 +487,9 @@ def calibrate_alarm(
                 f"calibrating the {rule.name} alarm threshold of {model.name!r} on {hours:g} h of simulated "
                 f"healthy data ({how})"
             )
-        scores = healthy_frame_scores(model, settings, hours, seed, scenario=scenario, progress=progress)
+        scores = healthy_frame_scores(
+            model, settings, hours, seed, scenario=scenario, progress=progress, threshold=threshold
+        )
         cal = calibrate_rule(rule, scores, F, X, confidence=confidence, seed=int(seed))
         if on_disk:
             saved = _cache.store(CACHE_KIND, key, cal.to_dict())

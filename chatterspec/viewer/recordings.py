@@ -374,6 +374,7 @@ def record_detection(
     identification: IdentificationSetup | None = None,
     confidence: float = 0.95,
     identification_intervals: list[dict[str, Any]] | None = None,
+    threshold: Threshold | None = None,
 ) -> RecordingSummary:
     """Run the online monitor over one realization of a simulation or chattering record and record it.
 
@@ -413,6 +414,9 @@ def record_detection(
     identification_intervals : list of dict, optional
         The record's identification per fault interval (``detect --json``'s
         ``identification_intervals``), rows of the event log.
+    threshold : Threshold, optional
+        The monitor's per-frame threshold for ``settings``
+        (:func:`~chatterspec.detection.thresholds.monitor_threshold`), when the caller has it already.
 
     Returns
     -------
@@ -432,14 +436,14 @@ def record_detection(
     ident = None
     if isinstance(source, Simulation):
         model = source.scenario.nominal
-        mon = ChatteringMonitor(model, settings, t0=float(source.t[0]))
+        mon = ChatteringMonitor(model, settings, t0=float(source.t[0]), threshold=threshold)
         kw: dict[str, Any] = {"z": source.z[run], "u": source.input_of(run)}
         if identification is not None:
             ident = _identification_beside(identification, mon, confidence)
         if ident is not None:
             on_event = _noting(ident, on_event)
     elif isinstance(source, ChatteringRecord):
-        mon = ChatteringMonitor(source.model, settings, t0=float(source.t[0]))
+        mon = ChatteringMonitor(source.model, settings, t0=float(source.t[0]), threshold=threshold)
         kw = {"chattering": source.values[run]}
     else:
         raise TypeError(f"source must be a Simulation or a ChatteringRecord; got {type(source).__name__}")

@@ -683,3 +683,13 @@ class MonitorSettings:
     def false_alarms_per_hour(self) -> float | None:
         """The budget of :attr:`budget` (alarm starts per hour, all channels), or None."""
         return None if self.budget is None else self.budget.false_alarms_per_hour
+
+    def same_frame_threshold(self, other: MonitorSettings) -> bool:
+        """Whether ``other`` has this per-frame threshold: the same given threshold (the same object),
+        STFT, ``alpha``, correction and band (what :func:`~chatterspec.detection.thresholds.monitor_threshold`
+        reads). A caller that computed it for ``other`` may pass it on for these settings; adding an alarm
+        rule keeps it, except the frame and persistence rules, which draw the verdict at their own
+        per-step level (another ``alpha``)."""
+        return self.threshold is other.threshold and all(
+            getattr(self, k) == getattr(other, k) for k in ("stft", "alpha", "correction", "band")
+        )
