@@ -533,6 +533,40 @@ def test_one_sample_steps_give_the_numbers_of_pushes(sim, psi) -> None:
     assert stepped.n_samples == pushed.n_samples  # nothing consumed
 
 
+def test_cli_monitor_set_up_without_the_collector_and_loop_with_it_frozen(monkeypatch, capsys) -> None:
+    """``chatterspec monitor`` reads the model (its set-up) with the cyclic garbage collector off, runs the
+    loop with it on and the set-up's objects frozen out of its collections, and leaves it as it found it:
+    on, nothing frozen (an in-process caller keeps collecting its own garbage)."""
+    import gc
+    from pathlib import Path
+
+    import chatterspec.plants.modelfile as modelfile
+    import chatterspec.viewer.recordings as recordings
+    from chatterspec.cli import main
+
+    seen: dict[str, tuple[bool, int]] = {}
+    load_model, run_monitor = modelfile.load_model, recordings.run_monitor
+
+    def loading(*args: object, **kwargs: object) -> object:
+        seen["set-up"] = (gc.isenabled(), gc.get_freeze_count())
+        return load_model(*args, **kwargs)
+
+    def looping(*args: object, **kwargs: object) -> object:
+        seen["loop"] = (gc.isenabled(), gc.get_freeze_count())
+        return run_monitor(*args, **kwargs)
+
+    monkeypatch.setattr(modelfile, "load_model", loading)
+    monkeypatch.setattr(recordings, "run_monitor", looping)
+    examples = Path(__file__).resolve().parents[1] / "examples"
+    assert gc.isenabled() and gc.get_freeze_count() == 0
+    argv = ["monitor", str(examples / "eha_model.toml"), "--data", str(examples / "eha_data.csv"), "--json"]
+    assert main([*argv, "--no-identify"]) == 0
+    capsys.readouterr()
+    assert seen["set-up"] == (False, 0)
+    assert seen["loop"][0] and seen["loop"][1] > 0
+    assert gc.isenabled() and gc.get_freeze_count() == 0
+
+
 def test_monitor_threshold_is_computed_once_where_it_is_given(monkeypatch) -> None:
     """The per-frame threshold of a monitor (monitor_threshold: the exact one of its settings, or a given
     one restricted to the band; another STFT's is refused) is what ChatteringMonitor computes by default;

@@ -34,13 +34,17 @@ events (tolerances), the ``identification`` events, the human lines and the summ
 from __future__ import annotations
 
 import argparse
+import atexit
+import contextlib
 import dataclasses
+import functools
+import gc
 import signal
 import sys
 import threading
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
@@ -233,6 +237,12 @@ def _stream_mode(args: argparse.Namespace) -> bool:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``chatterspec monitor`` with the parsed ``args``; returns the exit status."""
+    with _collector_off_in_set_up() as loop_starts:
+        return _run(args, loop_starts)
+
+
+def _run(args: argparse.Namespace, loop_starts: Callable[[], None]) -> int:
+    """:func:`run`; ``loop_starts`` is called once the set-up is done, just before the data are read."""
     from ..plants.modelfile import load_model
 
     check_record_path(args.record)
@@ -372,7 +382,7 @@ def run(args: argparse.Namespace) -> int:
         )
 
     if stream:
-        return _run_stream(args, spec, settings, jsonl, human, identification(0.0), threshold)
+        return _run_stream(args, spec, settings, jsonl, human, identification(0.0), threshold, loop_starts)
     assert data is not None  # a file replay read its data above
 
     from ..viewer.live_stream import StreamEvent
@@ -381,7 +391,8 @@ def run(args: argparse.Namespace) -> int:
 
     preload = _preload_rerun() if (args.record is not None or args.live is not None) else None
     monitor = ChatteringMonitor(spec.model, settings, t0=float(data.t[0]), threshold=threshold)
-    _warm_up(monitor)  # kernels and FFT plans load here (while Rerun loads on its thread), not in the loop
+    # kernels and FFT plans load here (while Rerun loads on its thread), not in the loop
+    _warm_up(monitor, peaks=preload is not None)
     if preload is not None:
         preload.join()
     outputs = Outputs()  # a recording that cannot be written: the run is reported first, then exit 2
@@ -414,6 +425,7 @@ def run(args: argparse.Namespace) -> int:
         if not args.json or jsonl:
             print(sev.describe(), file=human, flush=True)
 
+    loop_starts()
     try:
         summary = run_monitor(
             monitor,
@@ -571,10 +583,12 @@ def _preload_rerun() -> threading.Thread:
     return thread
 
 
-def _warm_up(monitor: ChatteringMonitor) -> None:
+def _warm_up(monitor: ChatteringMonitor, *, peaks: bool = False) -> None:
     """One window of zeros through a throw-away copy of ``monitor`` (same model, settings, threshold):
     the compiled kernels (numba cache) and FFT plans load before the replay's clock starts, as in the
-    stream monitor and the in-process benchmark."""
+    stream monitor and the in-process benchmark; with ``peaks`` (a recording) also the kernel of the
+    frames' peak frequencies that the logger runs on the same frames
+    (:class:`~chatterspec.viewer.spectrograms.FramePeaks`)."""
     import numpy as np
 
     from ..online.monitor import ChatteringMonitor
@@ -583,7 +597,45 @@ def _warm_up(monitor: ChatteringMonitor) -> None:
     settings = dataclasses.replace(monitor.settings, threshold=monitor.threshold)
     warm = ChatteringMonitor(m, settings)
     n = warm.n_window + 2
-    warm.push(np.zeros((n, m.n_outputs)), np.zeros((n, m.n_inputs)))
+    upd = warm.push(np.zeros((n, m.n_outputs)), np.zeros((n, m.n_inputs)))
+    if peaks:
+        from ..viewer.spectrograms import FramePeaks
+
+        FramePeaks(warm, np.zeros_like(warm.threshold.values))([upd.frames])
+
+
+@contextlib.contextmanager
+def _collector_off_in_set_up() -> Iterator[Callable[[], None]]:
+    """Python's cyclic garbage collector off during the set-up (the imports of numpy, scipy, numba and
+    Rerun make ~150 000 long-lived objects, which its full collections walk again and again: ~0.1 s of
+    CPU) and, from the call of the function yielded (the loop starts) to the end, the set-up's objects
+    kept out of its collections (``gc.freeze``); the collector is back as it was afterwards. At the
+    interpreter's exit they are frozen again: its last collections would walk every object once more
+    (~0.35 s of CPU) to free memory the process returns anyway."""
+    enabled = gc.isenabled()
+    frozen = False
+
+    def loop_starts() -> None:
+        nonlocal frozen
+        gc.freeze()
+        frozen = True
+        if enabled:
+            gc.enable()
+
+    gc.disable()
+    try:
+        yield loop_starts
+    finally:
+        if frozen:
+            gc.unfreeze()
+        if enabled:
+            gc.enable()
+        _freeze_at_exit()
+
+
+@functools.cache
+def _freeze_at_exit() -> None:
+    atexit.register(gc.freeze)
 
 
 def _alarm_settings(
@@ -660,6 +712,7 @@ def _run_stream(
     human: TextIO,
     ident: MonitorIdentification | None = None,
     threshold: Threshold | None = None,
+    loop_starts: Callable[[], None] | None = None,
 ) -> int:
     from ..errors import ChatterspecError
     from ..online.stream import CsvRows, follow_file, read_fd
@@ -717,6 +770,8 @@ def _run_stream(
 
     previous = signal.signal(signal.SIGTERM, on_term)
     stopped, error = "idle timeout" if args.follow else "end of input", None
+    if loop_starts is not None:
+        loop_starts()
     try:
         drive(chunks, rows, mon)
     except KeyboardInterrupt:

@@ -1883,19 +1883,23 @@ class OnlineIdentifier:
         u = u.reshape(-1, p) if u.ndim == 1 else u
         if z.shape[1] != m or u.shape != (z.shape[0], p):
             raise ShapeError(f"z must have shape (K, {m}) and u (K, {p}); got {z.shape} and {u.shape}")
-        self._z = np.concatenate([self._z, z])
-        self._u = np.concatenate([self._u, u])
+        # the samples held back from the last push, then these (the caller's own arrays when none were
+        # held back: a replay's whole record is not copied; only the tail kept for the next push is)
+        held = self._z.shape[0] > 0
+        z = np.concatenate([self._z, z]) if held else z
+        u = np.concatenate([self._u, u]) if held else u
         # block b needs raw samples b H .. (b + 1) H + 1 (z(k-1) .. z(k+1) for k = 1 + b H .. (b + 1) H)
-        have = self._first + self._z.shape[0]  # raw samples received
+        have = self._first + z.shape[0]  # raw samples received
         n_new = max(0, (have - 2) // self.H - self._next_block)
         empty = OnlineIdentification(np.empty(0, dtype=int), np.empty(0), np.empty((0, 2)), None)
         if n_new == 0:
+            self._z, self._u = z.copy(), u.copy()
             return empty
-        blocks = self._blocks(n_new)
+        blocks = self._blocks(z, u, n_new)
         b0 = self._next_block
         self._next_block += n_new
         keep_from = self._next_block * self.H - self._first  # raw index of the next block's start
-        self._z, self._u = self._z[keep_from:], self._u[keep_from:]
+        self._z, self._u = z[keep_from:].copy(), u[keep_from:].copy()
         self._first += keep_from
         everything = [*self._history, blocks]
         allb = _stack(everything)
@@ -1915,15 +1919,16 @@ class OnlineIdentifier:
         win = np.stack([first_e, first_e + span], axis=1)
         return OnlineIdentification(frames=frames, times_s=times, window_s=win, result=result)
 
-    def _blocks(self, count: int) -> IdentificationMoments:
-        """Sums of the next ``count`` blocks, stacked as realizations."""
+    def _blocks(self, z: np.ndarray, u: np.ndarray, count: int) -> IdentificationMoments:
+        """Sums of the next ``count`` blocks, stacked as realizations (``z``, ``u``: the raw samples from
+        global index ``self._first`` on)."""
         H = self.H
         start = (
             self._next_block * H - self._first
         )  # raw index (in the buffer) of z(b H) = z(k-1), k = 1 + b H
         # (count, H + 2, .) views of the buffers, block b from start + b H (overlapping by two samples):
         # the samples and strides of a gathered copy, without copying
-        zb, ub = _hop_blocks(self._z, start, count, H), _hop_blocks(self._u, start, count, H)
+        zb, ub = _hop_blocks(z, start, count, H), _hop_blocks(u, start, count, H)
         e = zb[:, 1:] - zb[:, :-1] @ self._Phi_T - ub[:, :-1] @ self._G_T  # closed form, eq (23)
         t_first = self.t0 + (self._first + start + 2) * self.dt  # e(k+1) of the block's first k
         st = self.setup
