@@ -109,7 +109,9 @@ def test_no_input_needed() -> None:
 def test_one_output_shape_rule() -> None:
     lin = cs.LinearModel(A, None, np.array([[1.0, 0.0]]), Q, R, DT)
     z = np.stack([measurements(40, s) for s in range(3)])
-    store = {"S", "P_post", "P_prior", "x_post"}
+    # (with the log-likelihood: the compiled loops of the other 2-state, 1-output Kalman tests; without
+    # it each filter compiled a loop of its own for this test)
+    store = {"S", "P_post", "P_prior", "x_post", "loglik"}
     shared = cs.KalmanFilter(lin).run(z, x0=np.zeros(2), P0=np.eye(2), store=store)  # shared P path
     per_run = cs.ExtendedKalmanFilter(lin).run(z, x0=np.zeros(2), P0=np.eye(2), store=store)
     for name in ("S", "P_post", "P_prior"):

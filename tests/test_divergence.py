@@ -65,23 +65,24 @@ def _identity_jacobian(x: np.ndarray, u: np.ndarray) -> np.ndarray:
     return np.broadcast_to(np.eye(2), (*np.shape(x)[:-1], 2, 2)).copy()
 
 
-def _ramp_model() -> NonlinearModel:
-    return NonlinearModel(
-        f=_nan_beyond, jac=_identity_jacobian, C=np.eye(2), Q=np.eye(2) * 1e-6, R=np.eye(2) * 1e-6, dt=1.0
-    )
+def _ramp_model(outputs: int = 2) -> NonlinearModel:
+    """Both states measured, or (``outputs=1``) the first only."""
+    C, R = np.eye(2)[:outputs], np.eye(outputs) * 1e-6
+    return NonlinearModel(f=_nan_beyond, jac=_identity_jacobian, C=C, Q=np.eye(2) * 1e-6, R=R, dt=1.0)
 
 
 @pytest.mark.parametrize("which", PATHS)
 def test_user_f_returning_nan_mid_run_stops_the_ekf_at_that_sample(
     which: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    # noise-free ramp z(k) = k (u = 1): the EKF's x(k|k) = k exactly (zero innovation), so f first
-    # returns NaN when it is evaluated at x(6|6) = 6 > 5.5, i.e. for the prediction of sample 7
+    # noise-free ramp z(k) = k of the first state (u = 1): the EKF's x(k|k) = (k, k) exactly (zero
+    # innovation), so f first returns NaN when it is evaluated at x(6|6) = 6 > 5.5, i.e. for the
+    # prediction of sample 7 (one output: the compiled EKF loop of the other 2-state, 1-output tests)
     _path(which, monkeypatch)
     T = 20
-    z = np.repeat(np.arange(1.0, T + 1)[:, None], 2, axis=1)
+    z = np.arange(1.0, T + 1)[:, None]
     with pytest.raises(NonFiniteError, match=r"from sample k = 7 \(output index 6, realization 0\)"):
-        ExtendedKalmanFilter(_ramp_model()).run(z, np.ones((T, 1)), x0=np.zeros(2), P0=np.eye(2))
+        ExtendedKalmanFilter(_ramp_model(1)).run(z, np.ones((T, 1)), x0=np.zeros(2), P0=np.eye(2))
 
 
 def test_user_f_returning_nan_mid_run_stops_the_chattering_at_that_sample() -> None:

@@ -204,6 +204,7 @@ class CovarianceFilterBase:
             predict = model_prediction(model, u)
             return P, _engine.cov_numpy(corr, predict, x, P, ep, epp, z, C, Q, R, keep, h_model=model)
         if compiled and plant is not None:  # every sample in one compiled loop (h(x) compiled too)
+            P = np.ascontiguousarray(P)  # (np.array of a broadcast P keeps its strides: another layout)
             return P, _engine.cov_loop(corr, plant, x, P, ep, epp, z, u, C, Q, R, keep, measurement=hx)
         if self._linear:
             lin = cast(LinearModel, model)  # (``_linear``: a LinearModel)
@@ -277,6 +278,8 @@ class CovarianceFilterBase:
             h_model = model if has_measurement_function(model) else None
             if h_model is None and _jit.enabled() and _jit.fits(n, m):
                 u0 = np.zeros((1, 1, 0))
+                # C order: np.array of a broadcast P keeps its strides, and numba compiles a loop per layout
+                P = np.ascontiguousarray(P)
                 res = _engine.cov_loop(corr, None, x, P, ep, epp, zz, u0, C, Q0, R, keep, xp_in=xp, F_in=eye)
             else:
                 prior = given_prediction(xp, eye)
