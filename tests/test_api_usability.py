@@ -30,7 +30,7 @@ def test_simulate_takes_a_catalogue_name() -> None:
 def test_simulate_refuses_what_is_not_a_scenario() -> None:
     import pytest
 
-    with pytest.raises(cs.ParameterError, match="Scenario or a catalogue name"):
+    with pytest.raises(cs.ParameterError, match="a Scenario, a LinearModel, a model file"):
         cs.simulate(3)
     with pytest.raises(cs.UnknownScenarioError, match="valid names"):
         cs.simulate("no-such-scenario")

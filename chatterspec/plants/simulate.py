@@ -1086,7 +1086,7 @@ def as_scenario(
 
 
 def simulate(
-    scenario: Scenario | str,
+    scenario: Scenario | LinearModel | str,
     runs: int = 1,
     seed: SeedLike = None,
     *,
@@ -1096,9 +1096,10 @@ def simulate(
 
     Parameters
     ----------
-    scenario : Scenario or str
+    scenario : Scenario, LinearModel or str
         Nominal model, time-segmented true plant, input and duration; or a catalogue name
-        (``"eha-healthy"``) or a model file (``"my_model.toml"``, see :func:`as_scenario`).
+        (``"eha-healthy"``), a model file (``"my_model.toml"``) or a model (its healthy 4 s
+        scenario, zero input; see :func:`as_scenario`).
     runs : int
         Number of Monte Carlo realizations (>= 1).
     seed : int, SeedSequence, Generator or None
@@ -1136,7 +1137,7 @@ def simulate(
 
 
 def iter_simulations(
-    scenario: Scenario | str,
+    scenario: Scenario | LinearModel | str,
     runs: int,
     seed: SeedLike = None,
     *,
@@ -1151,9 +1152,9 @@ def iter_simulations(
 
     Parameters
     ----------
-    scenario : Scenario or str
-        Nominal model, time-segmented true plant, input and duration (seconds); or a catalogue name
-        or model file (:func:`as_scenario`).
+    scenario : Scenario, LinearModel or str
+        Nominal model, time-segmented true plant, input and duration (seconds); or a catalogue name,
+        model file or model (:func:`as_scenario`).
     runs : int
         Number of realizations to yield in total (>= 1).
     seed : int, SeedSequence, Generator or None
