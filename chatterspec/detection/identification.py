@@ -1892,8 +1892,8 @@ class OnlineIdentifier:
         have = self._first + z.shape[0]  # raw samples received
         n_new = max(0, (have - 2) // self.H - self._next_block)
         empty = OnlineIdentification(np.empty(0, dtype=int), np.empty(0), np.empty((0, 2)), None)
-        if n_new == 0:
-            self._z, self._u = z.copy(), u.copy()
+        if n_new == 0:  # keep them all (a copy of the caller's arrays; the concatenation is one already)
+            self._z, self._u = (z, u) if held else (z.copy(), u.copy())
             return empty
         blocks = self._blocks(z, u, n_new)
         b0 = self._next_block
