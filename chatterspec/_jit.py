@@ -210,6 +210,76 @@ def borrow(a: Any) -> Any:
     return a
 
 
+#: The lines of numba's ``InlineWorker.inline_ir`` that copy a callee's IR a block at a time, each
+#: block with a memo of its own, and the lines :func:`inline_copy` puts in their place (one memo).
+_PER_BLOCK_COPY = (
+    "        for block_label, block in the_ir.blocks.items():\n"
+    "            new_block = copy.deepcopy(the_ir.blocks[block_label])\n"
+)
+_ONE_MEMO_COPY = (
+    "        memo = {}\n"
+    "        for block_label, block in the_ir.blocks.items():\n"
+    "            new_block = copy.deepcopy(the_ir.blocks[block_label], memo)\n"
+)
+_INLINE_COPY: list[str] = []  # memo of the one attempt
+
+
+def inline_copy() -> Literal["one memo", "numba"]:
+    """Make numba copy an inlined step's IR in linear time, once per process; which copy is in use.
+
+    Every step reaches its loops through numba's ``inline="always"``, whose ``InlineWorker.inline_ir``
+    deep-copies the callee's IR at each call site, one block at a time with a fresh memo. Every
+    variable of a function refers to the function's one scope, which lists all its variables, so each
+    block's copy copies the whole scope again: a copy costs blocks x variables, and a loop whose
+    inlined steps inline steps of their own spent about two thirds of its compilation there (a cold
+    SVSF-cov lane loop: 41 of 65 s of CPU, 16 million ``deepcopy`` calls). One memo for all the
+    blocks of a copy gives the blocks one copied scope, as they share one scope in the IR copied;
+    the compiled code is the same (``tests/test_jit.py`` compares the LLVM IR and the assembly of
+    both), the copies take linear time (that loop: 25 s of CPU in all).
+
+    The fix is applied by compiling numba's own source of the method with those two lines changed;
+    where the source is not available or the lines differ (another numba release), numba's method
+    stays, and so does ``CHATTERSPEC_INLINE_COPY=numba`` in the environment.
+
+    Returns
+    -------
+    {"one memo", "numba"}
+        The copy the inliner uses.
+    """
+    if not _INLINE_COPY:
+        _INLINE_COPY.append(_one_memo_inline_copy())
+    return cast(Literal["one memo", "numba"], _INLINE_COPY[0])
+
+
+def _one_memo_inline_copy() -> str:
+    """Install the one-memo copy in numba's inliner (:func:`inline_copy`); the copy then in use."""
+    if os.environ.get("CHATTERSPEC_INLINE_COPY", "") == "numba":
+        return "numba"
+    import inspect
+    import textwrap
+
+    from numba.core import inline_closurecall
+
+    worker = inline_closurecall.InlineWorker
+    method = worker.inline_ir
+    try:
+        lines, first = inspect.getsourcelines(method)
+        filename = inspect.getsourcefile(method) or "<numba>"
+    except (OSError, TypeError):  # pragma: no cover - numba installed without its sources
+        return "numba"
+    source = textwrap.dedent("".join(lines))
+    if source.count(_PER_BLOCK_COPY) != 1 or method.__code__.co_freevars:
+        return "numba"
+    # blank lines first, so that a traceback names numba's own line numbers
+    code = compile("\n" * (first - 1) + source.replace(_PER_BLOCK_COPY, _ONE_MEMO_COPY), filename, "exec")
+    body = next(c for c in code.co_consts if isinstance(c, types.CodeType) and c.co_name == method.__name__)
+    patched = types.FunctionType(body, vars(inline_closurecall), method.__name__, method.__defaults__)
+    patched.__qualname__, patched.__doc__ = method.__qualname__, method.__doc__
+    patched.__module__ = method.__module__
+    setattr(worker, method.__name__, patched)  # numba's method, its copies with one memo
+    return "one memo"
+
+
 _FORMS: list[types.ModuleType] = []  # memo of the compiled forms (built once, when numba first compiles)
 
 
@@ -423,6 +493,7 @@ class _LazyKernel:
             import numba
 
             forms = _compiled_forms()
+            inline_copy()
             func = self.py_func
             env = dict(func.__globals__)
             compiled_forms = {id(scratch): forms.scratch, id(scratch2): forms.scratch2}
