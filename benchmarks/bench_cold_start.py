@@ -11,6 +11,8 @@ Times are the child's CPU time (user + system, all threads, ``getrusage``) and i
   state loop);
 * ``kf-online``: ``KalmanFilter.online(...).step`` on 1000 samples;
 * ``svsf``: ``SVSF.update`` (sat) on one 1000-sample stream;
+* ``svsf-cov``: ``SVSFCov.run`` on 16 runs x 1000 samples storing no log-likelihood (so the covariance
+  loop that advances 8 runs at once, as the estimation studies run it: the most inlined steps here);
 * ``monitor``: ``ChatteringMonitor.push`` of 2 s of the EHA's 1 kHz data, then 1000 ``step`` calls;
 * ``import``: ``import chatterspec`` only (the floor every case pays).
 
@@ -49,6 +51,12 @@ CASES = {
         "m = cs.eha_linear(); f = cs.SVSF(m, psi=np.array([4.2e-3, 4.8e-3, 4.3e3]))\n"
         "z = np.random.default_rng(0).normal(size=(1, 1001, 3))\n"
         "f.run(z, np.zeros((1001, 1)))\n"
+    ),
+    "svsf-cov": (
+        "import numpy as np, chatterspec as cs\n"
+        "m = cs.eha_linear(); f = cs.SVSFCov(m, psi=np.array([4.2e-3, 4.8e-3, 4.3e3]))\n"
+        "z = np.random.default_rng(0).normal(size=(16, 1000, 3))\n"
+        "f.run(z, np.zeros((1000, 1)), x0=np.zeros(3), P0=np.eye(3), store=('x_post', 'innovation'))\n"
     ),
     "monitor": (
         "import chatterspec as cs\n"
