@@ -256,18 +256,19 @@ def _one_memo_inline_copy() -> str:
     if os.environ.get("CHATTERSPEC_INLINE_COPY", "") == "numba":
         return "numba"
     import inspect
+    import linecache
     import textwrap
 
     from numba.core import inline_closurecall
 
     worker = inline_closurecall.InlineWorker
     method = worker.inline_ir
-    try:
-        lines, first = inspect.getsourcelines(method)
-        filename = inspect.getsourcefile(method) or "<numba>"
-    except (OSError, TypeError):  # pragma: no cover - numba installed without its sources
+    # the method's lines straight from its file (inspect.getsource would first search sys.modules)
+    filename, first = method.__code__.co_filename, method.__code__.co_firstlineno
+    lines = linecache.getlines(filename)[first - 1 :]
+    if not lines:  # pragma: no cover - numba installed without its sources
         return "numba"
-    source = textwrap.dedent("".join(lines))
+    source = textwrap.dedent("".join(inspect.getblock(lines)))
     if source.count(_PER_BLOCK_COPY) != 1 or method.__code__.co_freevars:
         return "numba"
     # blank lines first, so that a traceback names numba's own line numbers
