@@ -211,13 +211,15 @@ def borrow(a: Any) -> Any:
 
 
 #: The lines of numba's ``InlineWorker.inline_ir`` that copy a callee's IR a block at a time, each
-#: block with a memo of its own, and the lines :func:`inline_copy` puts in their place (one memo).
+#: block with a memo of its own, and the lines :func:`inline_copy` puts in their place (one memo; as
+#: many lines, so that numba's line numbers hold).
 _PER_BLOCK_COPY = (
+    "        kernel_copy.blocks = {}\n"
     "        for block_label, block in the_ir.blocks.items():\n"
     "            new_block = copy.deepcopy(the_ir.blocks[block_label])\n"
 )
 _ONE_MEMO_COPY = (
-    "        memo = {}\n"
+    "        kernel_copy.blocks, memo = {}, {}\n"
     "        for block_label, block in the_ir.blocks.items():\n"
     "            new_block = copy.deepcopy(the_ir.blocks[block_label], memo)\n"
 )
@@ -271,7 +273,7 @@ def _one_memo_inline_copy() -> str:
     source = textwrap.dedent("".join(inspect.getblock(lines)))
     if source.count(_PER_BLOCK_COPY) != 1 or method.__code__.co_freevars:
         return "numba"
-    # blank lines first, so that a traceback names numba's own line numbers
+    # blank lines first: a traceback names the lines of numba's file
     code = compile("\n" * (first - 1) + source.replace(_PER_BLOCK_COPY, _ONE_MEMO_COPY), filename, "exec")
     body = next(c for c in code.co_consts if isinstance(c, types.CodeType) and c.co_name == method.__name__)
     patched = types.FunctionType(body, vars(inline_closurecall), method.__name__, method.__defaults__)
