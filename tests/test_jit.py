@@ -40,7 +40,7 @@ def test_nested_kernels_compile_and_match_python() -> None:
 # A loop of steps that inline steps (branches and loops: several blocks and variables in each), the
 # shape of the package's loops; the child compiles it cold and prints the inliner's copy, how many
 # numba variables the copies made, and digests of the loop's LLVM IR and assembly.
-_INLINING_CHILD = '''
+_INLINING_CHILD = """
 import hashlib, json, sys
 import numpy as np
 from numba.core import ir
@@ -83,7 +83,7 @@ value = loop(x, y)
 digest = lambda s: hashlib.sha256(s.encode()).hexdigest()
 print(json.dumps({"copy": _jit.inline_copy(), "var_copies": copies[0], "value": value,
                   "ir": digest(cres.library.get_llvm_str()), "asm": digest(cres.library.get_asm_str())}))
-'''
+"""
 
 
 def _compile_cold(tmp_path: Path, copy: str) -> dict[str, Any]:
@@ -91,7 +91,8 @@ def _compile_cold(tmp_path: Path, copy: str) -> dict[str, Any]:
     (empty: the default)."""
     script = tmp_path / "inlining.py"
     script.write_text(_INLINING_CHILD)
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / f"numba-{copy or 'default'}"), CHATTERSPEC_INLINE_COPY=copy)
+    cache = tmp_path / f"numba-{copy or 'default'}"
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache), CHATTERSPEC_INLINE_COPY=copy)
     env.pop("CHATTERSPEC_JIT", None)
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, env=env, check=True)
     report: dict[str, Any] = json.loads(out.stdout.splitlines()[-1])
